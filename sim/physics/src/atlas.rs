@@ -1,0 +1,174 @@
+//! The puncture atlas in memory: CT image + partial segmentation + property tree, with the derived
+//! data the haptic algorithms need (thesis §6.1, ALGORITHMS.md §0–1, §3).
+//!
+//! Everything here lives in reference space X. Construction validates the pieces against each
+//! other and derives the per-label materials and the skin and bone distance maps once.
+
+use glam::DVec3;
+
+use crate::distance::signed_distance_map;
+use crate::masks::{body_mask, bone_mask};
+use crate::{
+    LabelId, LabelTable, Materials, Param, PhysicsError, PropertyTree, Thresholds, Volume,
+};
+
+/// CT value returned outside the volume: air.
+pub const AIR_HU: f32 = -1000.0;
+
+/// A validated puncture atlas.
+#[derive(Debug, Clone)]
+pub struct PunctureAtlas {
+    ct: Volume<f32>,
+    partial: Volume<LabelId>,
+    labels: LabelTable,
+    tree: PropertyTree,
+    materials: Materials,
+    thresholds: Thresholds,
+    skin_distance: Volume<f32>,
+    bone_distance: Volume<f32>,
+}
+
+impl PunctureAtlas {
+    /// Checks that CT and partial labels share one grid, that the CT is finite, that every label
+    /// value is in the table, that thresholds are ordered and that every label's parameters resolve.
+    pub fn new(
+        ct: Volume<f32>,
+        partial: Volume<LabelId>,
+        labels: LabelTable,
+        tree: PropertyTree,
+        thresholds: Thresholds,
+    ) -> Result<Self, PhysicsError> {
+        let (gc, gl) = (ct.grid(), partial.grid());
+        if gc.dims() != gl.dims() {
+            return Err(PhysicsError::Mismatch(format!(
+                "CT has dimensions {:?} but the label map has {:?}",
+                gc.dims(),
+                gl.dims()
+            )));
+        }
+        let diff = gc.affine().max_abs_diff(gl.affine());
+        if diff > 1e-3 {
+            return Err(PhysicsError::Mismatch(format!(
+                "CT and label map affines differ by up to {diff:.4} mm (CT {:?}, labels {:?})",
+                gc.affine().rows(),
+                gl.affine().rows()
+            )));
+        }
+        if let Some(pos) = ct.data().iter().position(|v| !v.is_finite()) {
+            let [i, j, k] = gc.unlinear(pos);
+            return Err(PhysicsError::NotFinite(format!(
+                "CT value at voxel ({i}, {j}, {k}) is {}",
+                ct.data()[pos]
+            )));
+        }
+        let mut seen = vec![0u64; u16::MAX as usize + 1];
+        for &l in partial.data() {
+            seen[l as usize] += 1;
+        }
+        for (id, &n) in seen.iter().enumerate().skip(1) {
+            if n > 0 && labels.get(id as LabelId).is_none() {
+                return Err(PhysicsError::InvalidLabels(format!(
+                    "label map uses label {id} ({n} voxels) which is not in the label table"
+                )));
+            }
+        }
+        thresholds.validate()?;
+        let materials = Materials::resolve(&labels, &tree)?;
+        let grid = *gc;
+        let body = body_mask(&ct, thresholds.air_skin_hu);
+        let bone = bone_mask(&ct, thresholds.fat_bone_hu);
+        let (skin_distance, bone_distance) = rayon::join(
+            || signed_distance_map(&grid, &body),
+            || signed_distance_map(&grid, &bone),
+        );
+        Ok(PunctureAtlas {
+            ct,
+            partial,
+            labels,
+            tree,
+            materials,
+            thresholds,
+            skin_distance,
+            bone_distance,
+        })
+    }
+
+    pub fn ct(&self) -> &Volume<f32> {
+        &self.ct
+    }
+    pub fn partial_labels(&self) -> &Volume<LabelId> {
+        &self.partial
+    }
+    pub fn label_table(&self) -> &LabelTable {
+        &self.labels
+    }
+    pub fn property_tree(&self) -> &PropertyTree {
+        &self.tree
+    }
+    pub fn materials(&self) -> &Materials {
+        &self.materials
+    }
+    pub fn thresholds(&self) -> &Thresholds {
+        &self.thresholds
+    }
+    /// D_skin: signed distance to the skin surface, mm, positive inside the body (§3.6).
+    pub fn skin_distance(&self) -> &Volume<f32> {
+        &self.skin_distance
+    }
+    /// D_bone: signed distance to the bone surface, mm, positive inside bone (§3.6).
+    pub fn bone_distance(&self) -> &Volume<f32> {
+        &self.bone_distance
+    }
+
+    /// I(x): trilinear CT value at a reference-space position (mm), air outside.
+    #[inline]
+    pub fn hu_at(&self, x: DVec3) -> f64 {
+        self.ct.sample(x, AIR_HU) as f64
+    }
+
+    /// p(x): the partial label by nearest-neighbour lookup, 0 outside.
+    #[inline]
+    pub fn partial_label_at(&self, x: DVec3) -> LabelId {
+        self.partial.nearest(x, 0)
+    }
+
+    /// l(x, d) of eq. 6.1.2 at insertion depth `depth_mm` (use 0 for rendering).
+    #[inline]
+    pub fn label_at(&self, x: DVec3, depth_mm: f64) -> LabelId {
+        self.labels.label(
+            self.partial_label_at(x),
+            self.hu_at(x),
+            depth_mm,
+            &self.thresholds,
+        )
+    }
+
+    /// A material parameter at x for insertion depth d (§6.1.4): label, tree node, value at I(x).
+    #[inline]
+    pub fn param_at(&self, x: DVec3, depth_mm: f64, param: Param) -> f64 {
+        let hu = self.hu_at(x);
+        let label = self
+            .labels
+            .label(self.partial_label_at(x), hu, depth_mm, &self.thresholds);
+        let pos = self
+            .labels
+            .position(label)
+            .expect("labels validated at construction");
+        self.materials.eval(pos, param, hu)
+    }
+
+    /// Voxel counts of the labelling at depth 0, per label id in table order (heuristic included).
+    pub fn label_voxel_counts(&self) -> Vec<(LabelId, u64)> {
+        let mut counts = vec![0u64; self.labels.labels().len()];
+        for (&p, &hu) in self.partial.data().iter().zip(self.ct.data()) {
+            let l = self.labels.label(p, hu as f64, 0.0, &self.thresholds);
+            counts[self.labels.position(l).expect("validated")] += 1;
+        }
+        self.labels
+            .labels()
+            .iter()
+            .map(|l| l.id)
+            .zip(counts)
+            .collect()
+    }
+}
