@@ -1,0 +1,325 @@
+//! `atlas.toml`: the description of an atlas directory (format in `docs/atlas.md`).
+//!
+//! Parsing is strict (unknown keys are errors) so a typo cannot silently drop a parameter. The
+//! scenario part (heuristic labels, label table, property tree, difficulty presets) can also live in
+//! a file of its own, shared by several atlases: see [`ScenarioFile`].
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+use stylet_physics::{
+    HeuristicLabels, Label, LabelId, LabelTable, Param, ParamValue, PropertyTree, Role, Thresholds,
+    TissueSpec,
+};
+
+/// The atlas format version this code reads and writes.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// The whole `atlas.toml`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Manifest {
+    pub format_version: u32,
+    pub name: String,
+    #[serde(default)]
+    pub description: String,
+    pub provenance: Provenance,
+    pub volumes: Volumes,
+    /// Heuristic thresholds; estimated from the CT histogram when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub thresholds: Option<ThresholdsToml>,
+    pub heuristic: HeuristicToml,
+    pub labels: Vec<LabelToml>,
+    pub tissues: BTreeMap<String, TissueToml>,
+    pub difficulty: DifficultyPresets,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub paths: Vec<InsertionPath>,
+}
+
+/// Where the data came from and under which terms.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct Provenance {
+    /// What the CT is: "procedural phantom", "TotalSegmentator example CT", …
+    pub source: String,
+    /// The program (and version) that wrote the atlas.
+    pub generator: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub license: String,
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub citation: String,
+    /// Free-form notes on how the atlas was derived (recipe steps, synthetic structures).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub notes: Vec<String>,
+}
+
+/// File names of the volumes, relative to the atlas directory.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Volumes {
+    /// CT in Hounsfield units.
+    pub ct: String,
+    /// Partial label map (0 = not segmented).
+    pub labels: String,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ThresholdsToml {
+    pub air_skin: f64,
+    pub skin_fat: f64,
+    pub fat_bone: f64,
+}
+
+/// Which labels the heuristic h(x, d) produces, and its risk depth δ.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeuristicToml {
+    pub air: LabelId,
+    pub skin: LabelId,
+    pub fat: LabelId,
+    pub bone: LabelId,
+    pub risk: LabelId,
+    /// δ of eq. 6.1.1 in mm.
+    pub risk_depth_mm: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LabelToml {
+    pub id: LabelId,
+    pub name: String,
+    /// target / risk / bone / organ / neutral
+    pub role: String,
+    /// Property-tree node holding the material parameters.
+    pub tissue: String,
+}
+
+/// A parameter value in TOML: a number, or `{ hu = [...], value = [...] }`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum ParamToml {
+    Scalar(f64),
+    Piecewise(PiecewiseToml),
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PiecewiseToml {
+    pub hu: Vec<f64>,
+    pub value: Vec<f64>,
+}
+
+/// One property-tree node. Every parameter is optional (inherited when absent).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct TissueToml {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub parent: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stiffness_n_per_mm: Option<ParamToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cut_spring_n_per_mm: Option<ParamToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cut_spring_n_per_mm2: Option<ParamToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cut_threshold_n: Option<ParamToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub friction_max_n_per_mm: Option<ParamToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub color_rgba: Option<[u8; 4]>,
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub note: String,
+}
+
+/// Visual aids and rules per difficulty (thesis §6.3: the level changes the available aids).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DifficultyPresets {
+    pub beginner: DifficultyPreset,
+    pub advanced: DifficultyPreset,
+    pub expert: DifficultyPreset,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DifficultyPreset {
+    /// Target structure highlighted on clipping planes and in ultrasound (eq. 3.2.4).
+    pub target_overlay: bool,
+    /// Risk structures highlighted (eq. 3.2.4).
+    pub risk_overlay: bool,
+    /// Needle-guide line drawn in the ultrasound image.
+    pub needle_guide: bool,
+    /// Name of a predefined insertion path to follow (the thesis' guided mode), if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub guided_path: Option<String>,
+}
+
+/// A predefined insertion path: skin entry point and target point in world mm (RAS).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InsertionPath {
+    pub name: String,
+    pub entry_mm: [f64; 3],
+    pub target_mm: [f64; 3],
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub description: String,
+}
+
+/// The scenario part of a manifest, in a file of its own (e.g. `atlases/ptcd.toml`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScenarioFile {
+    pub heuristic: HeuristicToml,
+    pub labels: Vec<LabelToml>,
+    pub tissues: BTreeMap<String, TissueToml>,
+    pub difficulty: DifficultyPresets,
+}
+
+/// The PTCD scenario shipped with Stylet: labels, property tree and presets (`atlases/ptcd.toml`).
+pub const PTCD_SCENARIO_TOML: &str = include_str!("../../../atlases/ptcd.toml");
+
+impl ScenarioFile {
+    pub fn parse(text: &str) -> Result<Self, String> {
+        toml::from_str(text).map_err(|e| e.to_string())
+    }
+
+    /// The built-in PTCD scenario.
+    pub fn ptcd() -> Self {
+        Self::parse(PTCD_SCENARIO_TOML).expect("atlases/ptcd.toml is valid (checked by tests)")
+    }
+}
+
+impl ParamToml {
+    fn to_value(&self) -> ParamValue {
+        match self {
+            ParamToml::Scalar(v) => ParamValue::Scalar(*v),
+            ParamToml::Piecewise(p) => ParamValue::PiecewiseLinear {
+                hu: p.hu.clone(),
+                value: p.value.clone(),
+            },
+        }
+    }
+}
+
+impl TissueToml {
+    fn param(&self, p: Param) -> Option<&ParamToml> {
+        match p {
+            Param::StiffnessNPerMm => self.stiffness_n_per_mm.as_ref(),
+            Param::CutSpringNPerMm => self.cut_spring_n_per_mm.as_ref(),
+            Param::CutSpringNPerMm2 => self.cut_spring_n_per_mm2.as_ref(),
+            Param::CutThresholdN => self.cut_threshold_n.as_ref(),
+            Param::FrictionMaxNPerMm => self.friction_max_n_per_mm.as_ref(),
+        }
+    }
+}
+
+/// The validated property tree of a `[tissues]` table.
+pub fn property_tree(tissues: &BTreeMap<String, TissueToml>) -> Result<PropertyTree, String> {
+    let specs = tissues
+        .iter()
+        .map(|(name, t)| TissueSpec {
+            name: name.clone(),
+            parent: t.parent.clone(),
+            params: Param::ALL
+                .into_iter()
+                .filter_map(|p| t.param(p).map(|v| (p, v.to_value())))
+                .collect(),
+            color_rgba: t.color_rgba,
+        })
+        .collect();
+    PropertyTree::new(specs).map_err(|e| e.to_string())
+}
+
+/// The validated label table of `[[labels]]` and `[heuristic]`.
+pub fn label_table(labels: &[LabelToml], heuristic: &HeuristicToml) -> Result<LabelTable, String> {
+    let mut out = Vec::with_capacity(labels.len());
+    for l in labels {
+        let role = Role::parse(&l.role).ok_or_else(|| {
+            format!(
+                "label '{}' has role '{}'; expected one of target, risk, bone, organ, neutral",
+                l.name, l.role
+            )
+        })?;
+        out.push(Label {
+            id: l.id,
+            name: l.name.clone(),
+            role,
+            tissue: l.tissue.clone(),
+        });
+    }
+    let h = HeuristicLabels {
+        air: heuristic.air,
+        skin: heuristic.skin,
+        fat: heuristic.fat,
+        bone: heuristic.bone,
+        risk: heuristic.risk,
+    };
+    LabelTable::new(out, h).map_err(|e| e.to_string())
+}
+
+impl ThresholdsToml {
+    pub fn with_depth(&self, risk_depth_mm: f64) -> Thresholds {
+        Thresholds {
+            air_skin_hu: self.air_skin,
+            skin_fat_hu: self.skin_fat,
+            fat_bone_hu: self.fat_bone,
+            risk_depth_mm,
+        }
+    }
+
+    pub fn from_thresholds(t: &Thresholds) -> Self {
+        ThresholdsToml {
+            air_skin: t.air_skin_hu,
+            skin_fat: t.skin_fat_hu,
+            fat_bone: t.fat_bone_hu,
+        }
+    }
+}
+
+impl Manifest {
+    /// A manifest for new volumes with the given scenario.
+    pub fn new(
+        name: &str,
+        description: &str,
+        provenance: Provenance,
+        scenario: ScenarioFile,
+    ) -> Self {
+        Manifest {
+            format_version: FORMAT_VERSION,
+            name: name.into(),
+            description: description.into(),
+            provenance,
+            volumes: Volumes {
+                ct: "ct.nii.gz".into(),
+                labels: "labels.nii.gz".into(),
+            },
+            thresholds: None,
+            heuristic: scenario.heuristic,
+            labels: scenario.labels,
+            tissues: scenario.tissues,
+            difficulty: scenario.difficulty,
+            paths: Vec::new(),
+        }
+    }
+
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).expect("manifest serialises")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_shipped_ptcd_scenario_is_valid() {
+        let s = ScenarioFile::parse(PTCD_SCENARIO_TOML).unwrap();
+        let labels = label_table(&s.labels, &s.heuristic).unwrap();
+        let tree = property_tree(&s.tissues).unwrap();
+        stylet_physics::Materials::resolve(&labels, &tree).unwrap();
+        assert_eq!(labels.with_role(Role::Target).count(), 1);
+    }
+}

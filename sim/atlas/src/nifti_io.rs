@@ -1,0 +1,402 @@
+//! Reading and writing 3-D NIfTI-1 volumes (`.nii` or `.nii.gz`) with hard limits.
+//!
+//! The `nifti` crate parses and writes the header; the voxel data is read here, after the header
+//! has been checked (supported type, 3-D, at most [`MAX_VOXELS`], sane offset), so a hostile or
+//! truncated file gives an error naming the problem instead of a panic or a huge allocation.
+//! Geometry comes from the sform when present, else the qform, else the voxel sizes (NIfTI-1 §
+//! "Orientation"), in the file's world space (RAS+ for NIfTI).
+
+use std::fs::File;
+use std::io::{BufReader, Read};
+use std::path::Path;
+
+use flate2::read::MultiGzDecoder;
+use nifti::{Endianness, NiftiHeader, writer::WriterOptions};
+use stylet_physics::glam::DVec3;
+use stylet_physics::grid::MAX_VOXELS;
+use stylet_physics::{Affine, Grid, LabelId, Volume};
+
+use crate::AtlasError;
+
+/// Largest extension block we skip between the header and the data (1 MiB).
+const MAX_EXTENSION_BYTES: f64 = (1 << 20) as f64;
+
+/// The voxel types we read (NIfTI datatype codes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum DType {
+    U8,
+    I8,
+    I16,
+    U16,
+    I32,
+    U32,
+    F32,
+    F64,
+}
+
+impl DType {
+    fn from_code(code: i16) -> Option<DType> {
+        Some(match code {
+            2 => DType::U8,
+            256 => DType::I8,
+            4 => DType::I16,
+            512 => DType::U16,
+            8 => DType::I32,
+            768 => DType::U32,
+            16 => DType::F32,
+            64 => DType::F64,
+            _ => return None,
+        })
+    }
+
+    fn size_of(self) -> usize {
+        match self {
+            DType::U8 | DType::I8 => 1,
+            DType::I16 | DType::U16 => 2,
+            DType::I32 | DType::U32 | DType::F32 => 4,
+            DType::F64 => 8,
+        }
+    }
+}
+
+/// A volume as stored: grid plus values converted to f64 with the file's scaling applied.
+struct RawVolume {
+    grid: Grid,
+    values: Vec<f64>,
+}
+
+fn err(path: &Path, message: impl Into<String>) -> AtlasError {
+    AtlasError::file(path, message)
+}
+
+fn open(path: &Path) -> Result<Box<dyn Read>, AtlasError> {
+    let mut file = File::open(path).map_err(|e| err(path, format!("cannot open: {e}")))?;
+    let mut magic = [0u8; 2];
+    let n = file
+        .read(&mut magic)
+        .map_err(|e| err(path, format!("cannot read: {e}")))?;
+    let file = BufReader::with_capacity(
+        1 << 20,
+        File::open(path).map_err(|e| err(path, format!("cannot open: {e}")))?,
+    );
+    if n == 2 && magic == [0x1f, 0x8b] {
+        Ok(Box::new(BufReader::with_capacity(
+            1 << 20,
+            MultiGzDecoder::new(file),
+        )))
+    } else {
+        Ok(Box::new(file))
+    }
+}
+
+/// Reads just the header and the grid it describes (cheap: used to compare files).
+pub fn read_grid(path: &Path) -> Result<Grid, AtlasError> {
+    let mut r = open(path)?;
+    let header = NiftiHeader::from_reader(&mut r)
+        .map_err(|e| err(path, format!("not a NIfTI-1 file: {e}")))?;
+    Ok(check_header(path, &header)?.0)
+}
+
+/// Validates the header; returns the grid and the data type.
+fn check_header(path: &Path, h: &NiftiHeader) -> Result<(Grid, DType), AtlasError> {
+    if &h.magic != b"n+1\0" {
+        return Err(err(
+            path,
+            "only single-file NIfTI-1 (.nii / .nii.gz) is supported (magic is not \"n+1\")",
+        ));
+    }
+    let rank = h.dim[0];
+    if !(1..=7).contains(&rank) {
+        return Err(err(
+            path,
+            format!("dim[0] = {rank} is not a valid number of dimensions"),
+        ));
+    }
+    let dims: Vec<usize> = (1..=rank as usize).map(|a| h.dim[a] as usize).collect();
+    if dims.iter().any(|&d| d == 0) {
+        return Err(err(
+            path,
+            format!("dimension list {dims:?} contains a zero"),
+        ));
+    }
+    if dims.len() > 3 && dims[3..].iter().any(|&d| d != 1) {
+        return Err(err(
+            path,
+            format!("expected a 3-D volume, got dimensions {dims:?}"),
+        ));
+    }
+    let d3 = [
+        dims[0],
+        *dims.get(1).unwrap_or(&1),
+        *dims.get(2).unwrap_or(&1),
+    ];
+    let n = d3[0] as u128 * d3[1] as u128 * d3[2] as u128;
+    if n > MAX_VOXELS as u128 {
+        return Err(err(
+            path,
+            format!("dimensions {d3:?} exceed the limit of {MAX_VOXELS} voxels"),
+        ));
+    }
+    let dtype = DType::from_code(h.datatype).ok_or_else(|| {
+        err(
+            path,
+            format!("unsupported NIfTI datatype code {}", h.datatype),
+        )
+    })?;
+    if !h.vox_offset.is_finite()
+        || (h.vox_offset as f64) < 348.0
+        || h.vox_offset as f64 > 348.0 + MAX_EXTENSION_BYTES
+    {
+        return Err(err(
+            path,
+            format!("vox_offset {} is outside 348 … 348 + 1 MiB", h.vox_offset),
+        ));
+    }
+    let affine = header_affine(h).map_err(|m| err(path, m))?;
+    let grid = Grid::new(d3, affine).map_err(|e| err(path, e.to_string()))?;
+    Ok((grid, dtype))
+}
+
+/// sform if its code is set, else qform, else the voxel sizes (NIfTI-1 methods 3, 2, 1).
+fn header_affine(h: &NiftiHeader) -> Result<Affine, String> {
+    let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
+    if h.sform_code > 0 {
+        if !finite(&h.srow_x) || !finite(&h.srow_y) || !finite(&h.srow_z) {
+            return Err("sform contains non-finite numbers".into());
+        }
+        let r = |s: [f32; 4]| [s[0] as f64, s[1] as f64, s[2] as f64, s[3] as f64];
+        return Ok(Affine::from_rows([r(h.srow_x), r(h.srow_y), r(h.srow_z)]));
+    }
+    let pix: Vec<f64> = h.pixdim[1..4].iter().map(|&p| p as f64).collect();
+    if pix.iter().any(|p| !p.is_finite() || *p <= 0.0) {
+        return Err(format!(
+            "voxel sizes (pixdim) {pix:?} must be finite and positive"
+        ));
+    }
+    if h.qform_code > 0 {
+        let (b, c, d) = (h.quatern_b as f64, h.quatern_c as f64, h.quatern_d as f64);
+        let off = [h.quatern_x as f64, h.quatern_y as f64, h.quatern_z as f64];
+        if ![b, c, d].iter().chain(off.iter()).all(|v| v.is_finite()) {
+            return Err("qform contains non-finite numbers".into());
+        }
+        let a = (1.0 - (b * b + c * c + d * d)).max(0.0).sqrt();
+        let qfac = if h.pixdim[0] < 0.0 { -1.0 } else { 1.0 };
+        let r = [
+            [
+                a * a + b * b - c * c - d * d,
+                2.0 * (b * c - a * d),
+                2.0 * (b * d + a * c),
+            ],
+            [
+                2.0 * (b * c + a * d),
+                a * a + c * c - b * b - d * d,
+                2.0 * (c * d - a * b),
+            ],
+            [
+                2.0 * (b * d - a * c),
+                2.0 * (c * d + a * b),
+                a * a + d * d - c * c - b * b,
+            ],
+        ];
+        let col = |j: usize, s: f64| DVec3::new(r[0][j] * s, r[1][j] * s, r[2][j] * s);
+        return Ok(Affine {
+            axes: [col(0, pix[0]), col(1, pix[1]), col(2, pix[2] * qfac)],
+            origin: DVec3::new(off[0], off[1], off[2]),
+        });
+    }
+    Ok(Affine::from_spacing([pix[0], pix[1], pix[2]], DVec3::ZERO))
+}
+
+fn read_raw(path: &Path) -> Result<RawVolume, AtlasError> {
+    let mut r = open(path)?;
+    let h = NiftiHeader::from_reader(&mut r)
+        .map_err(|e| err(path, format!("not a NIfTI-1 file: {e}")))?;
+    let (grid, dtype) = check_header(path, &h)?;
+    // Skip the extension block between the 348-byte header and the data.
+    let skip = (h.vox_offset as u64).saturating_sub(348);
+    let skipped = std::io::copy(&mut (&mut r).take(skip), &mut std::io::sink())
+        .map_err(|e| err(path, format!("cannot read: {e}")))?;
+    if skipped != skip {
+        return Err(err(
+            path,
+            format!("file ends inside the header extensions ({skipped} of {skip} bytes)"),
+        ));
+    }
+    let size = dtype.size_of();
+    let nbytes = grid.len() * size;
+    let mut raw = Vec::new();
+    raw.try_reserve_exact(nbytes)
+        .map_err(|_| err(path, format!("cannot allocate {nbytes} bytes")))?;
+    let got = (&mut r)
+        .take(nbytes as u64)
+        .read_to_end(&mut raw)
+        .map_err(|e| err(path, format!("cannot read voxel data: {e}")))?;
+    if got != nbytes {
+        return Err(err(
+            path,
+            format!("file is truncated: {got} of {nbytes} bytes of voxel data"),
+        ));
+    }
+    let little = h.endianness == Endianness::Little;
+    let values = decode(&raw, dtype, little);
+    let (slope, inter) = (h.scl_slope as f64, h.scl_inter as f64);
+    let values =
+        if slope != 0.0 && slope.is_finite() && inter.is_finite() && (slope != 1.0 || inter != 0.0)
+        {
+            values.into_iter().map(|v| v * slope + inter).collect()
+        } else {
+            values
+        };
+    Ok(RawVolume { grid, values })
+}
+
+fn decode(raw: &[u8], dtype: DType, little: bool) -> Vec<f64> {
+    macro_rules! conv {
+        ($t:ty) => {{
+            const N: usize = std::mem::size_of::<$t>();
+            raw.chunks_exact(N)
+                .map(|c| {
+                    let b: [u8; N] = c.try_into().expect("chunk size");
+                    (if little {
+                        <$t>::from_le_bytes(b)
+                    } else {
+                        <$t>::from_be_bytes(b)
+                    }) as f64
+                })
+                .collect()
+        }};
+    }
+    match dtype {
+        DType::U8 => raw.iter().map(|&b| b as f64).collect(),
+        DType::I8 => raw.iter().map(|&b| b as i8 as f64).collect(),
+        DType::I16 => conv!(i16),
+        DType::U16 => conv!(u16),
+        DType::I32 => conv!(i32),
+        DType::U32 => conv!(u32),
+        DType::F32 => conv!(f32),
+        DType::F64 => conv!(f64),
+    }
+}
+
+/// Reads a CT volume in HU. Non-finite values are an error naming the first voxel.
+pub fn read_ct(path: &Path) -> Result<Volume<f32>, AtlasError> {
+    let raw = read_raw(path)?;
+    if let Some(pos) = raw
+        .values
+        .iter()
+        .position(|v| !v.is_finite() || v.abs() > 1e6)
+    {
+        let [i, j, k] = raw.grid.unlinear(pos);
+        return Err(err(
+            path,
+            format!(
+                "voxel ({i}, {j}, {k}) holds {} which is not a CT value",
+                raw.values[pos]
+            ),
+        ));
+    }
+    let data = raw.values.into_iter().map(|v| v as f32).collect();
+    Volume::new(raw.grid, data).map_err(|e| err(path, e.to_string()))
+}
+
+/// Reads a label map: whole numbers from 0 to 65535.
+pub fn read_labels(path: &Path) -> Result<Volume<LabelId>, AtlasError> {
+    let raw = read_raw(path)?;
+    let mut data = Vec::with_capacity(raw.values.len());
+    for (pos, &v) in raw.values.iter().enumerate() {
+        if !(v.is_finite() && v >= 0.0 && v <= LabelId::MAX as f64 && v.fract() == 0.0) {
+            let [i, j, k] = raw.grid.unlinear(pos);
+            return Err(err(
+                path,
+                format!("voxel ({i}, {j}, {k}) holds {v}, not a label number 0 … 65535"),
+            ));
+        }
+        data.push(v as LabelId);
+    }
+    Volume::new(raw.grid, data).map_err(|e| err(path, e.to_string()))
+}
+
+fn header_for(grid: &Grid, description: &str) -> NiftiHeader {
+    let rows = grid.affine().rows();
+    let f = |r: [f64; 4]| [r[0] as f32, r[1] as f32, r[2] as f32, r[3] as f32];
+    let s = grid.spacing_mm();
+    let mut h = NiftiHeader {
+        sform_code: 1,
+        qform_code: 0,
+        srow_x: f(rows[0]),
+        srow_y: f(rows[1]),
+        srow_z: f(rows[2]),
+        xyzt_units: 2, // millimetres
+        ..NiftiHeader::default()
+    };
+    h.pixdim[0] = 1.0;
+    h.pixdim[1] = s[0] as f32;
+    h.pixdim[2] = s[1] as f32;
+    h.pixdim[3] = s[2] as f32;
+    // An axis-aligned grid also gets the equivalent qform (identity rotation) for older viewers.
+    let axes = grid.affine().axes;
+    if axes[0].y == 0.0
+        && axes[0].z == 0.0
+        && axes[1].x == 0.0
+        && axes[1].z == 0.0
+        && axes[2].x == 0.0
+        && axes[2].y == 0.0
+        && axes[0].x > 0.0
+        && axes[1].y > 0.0
+        && axes[2].z > 0.0
+    {
+        h.qform_code = 1;
+        h.quatern_b = 0.0;
+        h.quatern_c = 0.0;
+        h.quatern_d = 0.0;
+        h.quatern_x = rows[0][3] as f32;
+        h.quatern_y = rows[1][3] as f32;
+        h.quatern_z = rows[2][3] as f32;
+    }
+    let mut d = description.as_bytes().to_vec();
+    d.truncate(79);
+    d.resize(80, 0);
+    h.descrip = d;
+    h
+}
+
+fn write_array<T: nifti::DataElement + bytemuck::Pod>(
+    path: &Path,
+    grid: &Grid,
+    data: Vec<T>,
+    description: &str,
+) -> Result<(), AtlasError> {
+    let [nx, ny, nz] = grid.dims();
+    use ndarray::ShapeBuilder;
+    let array = ndarray::Array3::from_shape_vec((nx, ny, nz).f(), data)
+        .map_err(|e| err(path, e.to_string()))?;
+    let header = header_for(grid, description);
+    WriterOptions::new(path)
+        .reference_header(&header)
+        .write_nifti(&array)
+        .map_err(|e| err(path, format!("cannot write: {e}")))
+}
+
+/// Writes a CT as int16 HU (values rounded and clamped to −32768 … 32767).
+pub fn write_ct(path: &Path, ct: &Volume<f32>, description: &str) -> Result<(), AtlasError> {
+    let data: Vec<i16> = ct
+        .data()
+        .iter()
+        .map(|&v| v.round().clamp(i16::MIN as f32, i16::MAX as f32) as i16)
+        .collect();
+    write_array(path, ct.grid(), data, description)
+}
+
+/// Writes a label map as uint8 when every label fits, else uint16.
+pub fn write_labels(
+    path: &Path,
+    labels: &Volume<LabelId>,
+    description: &str,
+) -> Result<(), AtlasError> {
+    if labels.data().iter().all(|&l| l <= u8::MAX as LabelId) {
+        let data: Vec<u8> = labels.data().iter().map(|&l| l as u8).collect();
+        write_array(path, labels.grid(), data, description)
+    } else {
+        write_array(path, labels.grid(), labels.data().to_vec(), description)
+    }
+}

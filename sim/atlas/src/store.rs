@@ -1,0 +1,330 @@
+//! Loading and writing atlas directories (`atlas.toml` + NIfTI volumes), with validation that names
+//! the file and the problem for every kind of bad input (docs/atlas.md "Validation").
+
+use std::fs;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use sha2::{Digest, Sha256};
+use stylet_physics::glam::DVec3;
+use stylet_physics::thresholds::estimate_thresholds;
+use stylet_physics::{LabelId, PhysicsError, PunctureAtlas, Volume};
+
+use crate::manifest::{self, FORMAT_VERSION, Manifest, ThresholdsToml};
+use crate::{AtlasError, nifti_io};
+
+/// The manifest's file name inside an atlas directory.
+pub const MANIFEST_FILE: &str = "atlas.toml";
+/// Largest `atlas.toml` we read.
+const MAX_MANIFEST_BYTES: u64 = 4 << 20;
+
+/// Where the heuristic thresholds came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ThresholdSource {
+    /// Given in `atlas.toml`.
+    Atlas,
+    /// Estimated from the CT histogram at load time.
+    Estimated,
+}
+
+impl ThresholdSource {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ThresholdSource::Atlas => "atlas",
+            ThresholdSource::Estimated => "estimated",
+        }
+    }
+}
+
+/// A loaded, validated atlas.
+#[derive(Debug, Clone)]
+pub struct Atlas {
+    pub dir: PathBuf,
+    pub manifest: Manifest,
+    pub model: PunctureAtlas,
+    pub threshold_source: ThresholdSource,
+    /// SHA-256 over the manifest and both volume files (docs/atlas.md "Content hash"), hex.
+    pub content_hash: String,
+}
+
+fn manifest_error(dir: &Path, message: impl Into<String>) -> AtlasError {
+    AtlasError::file(dir.join(MANIFEST_FILE), message)
+}
+
+/// Parses and checks an `atlas.toml` on its own (no volumes): syntax, version, labels, tree,
+/// thresholds, presets and paths. Used by the loader and by the fuzz tests.
+pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
+    let m: Manifest = toml::from_str(text).map_err(|e| e.to_string().trim_end().to_string())?;
+    if m.format_version != FORMAT_VERSION {
+        return Err(format!(
+            "format_version {} is not supported (this Stylet reads version {FORMAT_VERSION})",
+            m.format_version
+        ));
+    }
+    if m.name.trim().is_empty() {
+        return Err("name must not be empty".into());
+    }
+    for (key, file) in [
+        ("volumes.ct", &m.volumes.ct),
+        ("volumes.labels", &m.volumes.labels),
+    ] {
+        check_file_name(file).map_err(|e| format!("{key} = {file:?}: {e}"))?;
+    }
+    if m.volumes.ct == m.volumes.labels {
+        return Err("volumes.ct and volumes.labels name the same file".into());
+    }
+    let labels = manifest::label_table(&m.labels, &m.heuristic)?;
+    let tree = manifest::property_tree(&m.tissues)?;
+    stylet_physics::Materials::resolve(&labels, &tree).map_err(|e| e.to_string())?;
+    if !m.heuristic.risk_depth_mm.is_finite() || m.heuristic.risk_depth_mm < 0.0 {
+        return Err(format!(
+            "heuristic.risk_depth_mm must be a finite number ≥ 0, got {}",
+            m.heuristic.risk_depth_mm
+        ));
+    }
+    if let Some(t) = &m.thresholds {
+        t.with_depth(m.heuristic.risk_depth_mm)
+            .validate()
+            .map_err(|e| e.to_string())?;
+    }
+    let mut names = std::collections::BTreeSet::new();
+    for p in &m.paths {
+        if p.name.trim().is_empty() {
+            return Err("an insertion path has an empty name".into());
+        }
+        if !names.insert(p.name.as_str()) {
+            return Err(format!("insertion path '{}' is defined twice", p.name));
+        }
+        if p.entry_mm
+            .iter()
+            .chain(&p.target_mm)
+            .any(|v| !v.is_finite())
+        {
+            return Err(format!(
+                "insertion path '{}' has non-finite coordinates",
+                p.name
+            ));
+        }
+        if DVec3::from_array(p.entry_mm).distance(DVec3::from_array(p.target_mm)) < 1.0 {
+            return Err(format!(
+                "insertion path '{}': entry and target are less than 1 mm apart",
+                p.name
+            ));
+        }
+    }
+    for (level, preset) in [
+        ("beginner", &m.difficulty.beginner),
+        ("advanced", &m.difficulty.advanced),
+        ("expert", &m.difficulty.expert),
+    ] {
+        if let Some(g) = &preset.guided_path {
+            if !names.contains(g.as_str()) {
+                return Err(format!(
+                    "difficulty.{level}.guided_path = {g:?} names no insertion path"
+                ));
+            }
+        }
+    }
+    Ok(m)
+}
+
+/// Volume files must be plain names inside the atlas directory (no paths, no "..").
+fn check_file_name(name: &str) -> Result<(), String> {
+    let ok = !name.is_empty()
+        && name != "."
+        && name != ".."
+        && !name.contains('/')
+        && !name.contains('\\')
+        && !name.contains('\0');
+    if !ok {
+        return Err("must be a plain file name inside the atlas directory".into());
+    }
+    if !(name.ends_with(".nii") || name.ends_with(".nii.gz")) {
+        return Err("must be a NIfTI file (.nii or .nii.gz)".into());
+    }
+    Ok(())
+}
+
+fn read_manifest_text(dir: &Path) -> Result<String, AtlasError> {
+    if !dir.is_dir() {
+        return Err(AtlasError::file(dir, "atlas directory does not exist"));
+    }
+    let path = dir.join(MANIFEST_FILE);
+    let file = fs::File::open(&path)
+        .map_err(|e| AtlasError::file(&path, format!("missing or unreadable: {e}")))?;
+    let mut bytes = Vec::new();
+    file.take(MAX_MANIFEST_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| AtlasError::file(&path, format!("cannot read: {e}")))?;
+    if bytes.len() as u64 > MAX_MANIFEST_BYTES {
+        return Err(AtlasError::file(
+            &path,
+            format!("larger than {MAX_MANIFEST_BYTES} bytes"),
+        ));
+    }
+    String::from_utf8(bytes).map_err(|_| AtlasError::file(&path, "not UTF-8 text"))
+}
+
+fn sha256_file(path: &Path) -> Result<String, AtlasError> {
+    let mut f =
+        fs::File::open(path).map_err(|e| AtlasError::file(path, format!("cannot open: {e}")))?;
+    let mut h = Sha256::new();
+    std::io::copy(&mut f, &mut h)
+        .map_err(|e| AtlasError::file(path, format!("cannot read: {e}")))?;
+    Ok(hex(&h.finalize()))
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The atlas content hash: SHA-256 of "stylet-atlas-v1\n" followed by one line
+/// "<file name> <sha256 of the file>\n" for atlas.toml, the CT and the label map, in that order.
+pub fn content_hash(dir: &Path, manifest: &Manifest) -> Result<String, AtlasError> {
+    let mut h = Sha256::new();
+    h.update(b"stylet-atlas-v1\n");
+    for name in [
+        MANIFEST_FILE,
+        manifest.volumes.ct.as_str(),
+        manifest.volumes.labels.as_str(),
+    ] {
+        let digest = sha256_file(&dir.join(name))?;
+        h.update(format!("{name} {digest}\n").as_bytes());
+    }
+    Ok(hex(&h.finalize()))
+}
+
+/// Loads and validates an atlas directory.
+pub fn load(dir: &Path) -> Result<Atlas, AtlasError> {
+    let text = read_manifest_text(dir)?;
+    let manifest = parse_manifest(&text).map_err(|e| manifest_error(dir, e))?;
+    let labels = manifest::label_table(&manifest.labels, &manifest.heuristic)
+        .map_err(|e| manifest_error(dir, e))?;
+    let tree = manifest::property_tree(&manifest.tissues).map_err(|e| manifest_error(dir, e))?;
+
+    let ct_path = dir.join(&manifest.volumes.ct);
+    let labels_path = dir.join(&manifest.volumes.labels);
+    let (ct, partial) = rayon::join(
+        || nifti_io::read_ct(&ct_path),
+        || nifti_io::read_labels(&labels_path),
+    );
+    let (ct, partial) = (ct?, partial?);
+    check_same_grid(&ct_path, &ct, &labels_path, &partial)?;
+
+    let depth = manifest.heuristic.risk_depth_mm;
+    let (thresholds, threshold_source) = match &manifest.thresholds {
+        Some(t) => (t.with_depth(depth), ThresholdSource::Atlas),
+        None => (
+            estimate_thresholds(&ct, depth)
+                .map_err(|e| AtlasError::file(&ct_path, e.to_string()))?,
+            ThresholdSource::Estimated,
+        ),
+    };
+    let model = PunctureAtlas::new(ct, partial, labels, tree, thresholds).map_err(|e| match e {
+        PhysicsError::InvalidLabels(_) => AtlasError::file(&labels_path, e.to_string()),
+        PhysicsError::NotFinite(_) => AtlasError::file(&ct_path, e.to_string()),
+        PhysicsError::Mismatch(_) | PhysicsError::InvalidGrid(_) => {
+            AtlasError::file(&labels_path, format!("{e} (CT: {})", ct_path.display()))
+        }
+        _ => manifest_error(dir, e.to_string()),
+    })?;
+    let (lo, hi) = model.ct().grid().world_bounds();
+    for p in &manifest.paths {
+        for (what, v) in [("entry", p.entry_mm), ("target", p.target_mm)] {
+            let v = DVec3::from_array(v);
+            if v.cmplt(lo - 1e-6).any() || v.cmpgt(hi + 1e-6).any() {
+                return Err(manifest_error(
+                    dir,
+                    format!(
+                        "insertion path '{}': {what} {v} mm lies outside the CT ({lo} … {hi} mm)",
+                        p.name
+                    ),
+                ));
+            }
+        }
+    }
+    let content_hash = content_hash(dir, &manifest)?;
+    Ok(Atlas {
+        dir: dir.to_path_buf(),
+        manifest,
+        model,
+        threshold_source,
+        content_hash,
+    })
+}
+
+fn check_same_grid(
+    ct_path: &Path,
+    ct: &Volume<f32>,
+    labels_path: &Path,
+    labels: &Volume<LabelId>,
+) -> Result<(), AtlasError> {
+    let (a, b) = (ct.grid(), labels.grid());
+    if a.dims() != b.dims() {
+        return Err(AtlasError::file(
+            labels_path,
+            format!(
+                "dimensions {:?} differ from the CT's {:?} ({})",
+                b.dims(),
+                a.dims(),
+                ct_path.display()
+            ),
+        ));
+    }
+    let diff = a.affine().max_abs_diff(b.affine());
+    if diff > 1e-3 {
+        return Err(AtlasError::file(
+            labels_path,
+            format!(
+                "affine differs from the CT's ({}) by up to {diff:.4} mm: labels {:?}, CT {:?}",
+                ct_path.display(),
+                b.affine().rows(),
+                a.affine().rows()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Writes an atlas directory: volumes first, `atlas.toml` last, each through a temporary file
+/// renamed into place, so a crash never leaves a manifest that points at half-written volumes.
+/// Thresholds are written only if the manifest carries them.
+pub fn write(
+    dir: &Path,
+    manifest: &Manifest,
+    ct: &Volume<f32>,
+    labels: &Volume<LabelId>,
+) -> Result<(), AtlasError> {
+    fs::create_dir_all(dir)
+        .map_err(|e| AtlasError::file(dir, format!("cannot create directory: {e}")))?;
+    let text = manifest.to_toml();
+    parse_manifest(&text)
+        .map_err(|e| manifest_error(dir, format!("refusing to write an invalid manifest: {e}")))?;
+    let tmp = |name: &str| dir.join(format!(".{name}.partial.nii.gz"));
+    let ct_tmp = tmp("ct");
+    let labels_tmp = tmp("labels");
+    let description = format!("stylet atlas {}", manifest.name);
+    let (a, b) = rayon::join(
+        || nifti_io::write_ct(&ct_tmp, ct, &description),
+        || nifti_io::write_labels(&labels_tmp, labels, &description),
+    );
+    a?;
+    b?;
+    let rename = |from: &Path, to: &Path| {
+        fs::rename(from, to)
+            .map_err(|e| AtlasError::file(to, format!("cannot move into place: {e}")))
+    };
+    rename(&ct_tmp, &dir.join(&manifest.volumes.ct))?;
+    rename(&labels_tmp, &dir.join(&manifest.volumes.labels))?;
+    let manifest_tmp = dir.join(".atlas.toml.partial");
+    fs::write(&manifest_tmp, text)
+        .map_err(|e| AtlasError::file(&manifest_tmp, format!("cannot write: {e}")))?;
+    rename(&manifest_tmp, &dir.join(MANIFEST_FILE))
+}
+
+impl Atlas {
+    /// The thresholds in `atlas.toml` form (for summaries).
+    pub fn thresholds_toml(&self) -> ThresholdsToml {
+        ThresholdsToml::from_thresholds(self.model.thresholds())
+    }
+}

@@ -1,0 +1,118 @@
+//! `stylet atlas …`: build the phantom, import real CT, inspect atlases.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use clap::{Args, Subcommand};
+use stylet_atlas::phantom::{self, PhantomConfig};
+use stylet_atlas::summary::Summary;
+
+#[derive(Debug, Subcommand)]
+pub enum AtlasCommand {
+    /// Generate the procedural phantom atlas (the embedded default).
+    Phantom(PhantomArgs),
+    /// Print an atlas' summary; optionally write JSON or a PNG of three orthogonal slices.
+    Inspect(InspectArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct PhantomArgs {
+    /// Output atlas directory.
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Grid size in voxels, e.g. 256,256,200.
+    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [256usize, 256, 200])]
+    pub dims: Vec<usize>,
+    /// Voxel spacing in mm, one value or three (x,y,z).
+    #[arg(long, value_delimiter = ',', default_values_t = [1.5f64])]
+    pub spacing: Vec<f64>,
+    /// Image noise (standard deviation, HU).
+    #[arg(long, default_value_t = 10.0)]
+    pub noise: f64,
+    /// Standard deviation of the scanner's point-spread function (mm).
+    #[arg(long, default_value_t = 0.7)]
+    pub psf: f64,
+}
+
+#[derive(Debug, Args)]
+pub struct InspectArgs {
+    /// Atlas directory.
+    pub dir: PathBuf,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Write three orthogonal slices with the label overlay to this PNG.
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+}
+
+pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
+    match cmd {
+        AtlasCommand::Phantom(a) => {
+            let spacing = match a.spacing.as_slice() {
+                [s] => [*s; 3],
+                [x, y, z] => [*x, *y, *z],
+                other => anyhow::bail!("--spacing takes one or three values, got {}", other.len()),
+            };
+            let config = PhantomConfig {
+                dims: [a.dims[0], a.dims[1], a.dims[2]],
+                spacing_mm: spacing,
+                seed: a.seed,
+                noise_hu: a.noise,
+                psf_mm: a.psf,
+            };
+            build_phantom(&a.out, &config)?;
+            println!("phantom atlas written to {}", a.out.display());
+            Ok(())
+        }
+        AtlasCommand::Inspect(a) => {
+            let atlas = stylet_atlas::load(&a.dir)?;
+            let summary = Summary::of(&atlas);
+            if a.json {
+                println!("{}", serde_json::to_string_pretty(&summary)?);
+            } else {
+                print!("{}", summary.to_text());
+            }
+            if let Some(png) = a.png {
+                stylet_render::figure::atlas_figure(
+                    &atlas.model,
+                    &atlas.manifest.name,
+                    &insertion_paths(&atlas),
+                    &png,
+                )
+                .with_context(|| format!("writing {}", png.display()))?;
+                if !a.json {
+                    println!("slices written to {}", png.display());
+                }
+            }
+            Ok(())
+        }
+    }
+}
+
+/// Generates the phantom and writes it as an atlas directory.
+pub fn build_phantom(out: &Path, config: &PhantomConfig) -> anyhow::Result<()> {
+    let p = phantom::generate(config)?;
+    stylet_atlas::write(out, &p.manifest, &p.ct, &p.partial)?;
+    Ok(())
+}
+
+/// The atlas' predefined insertion paths as (entry, target) pairs for drawing.
+pub fn insertion_paths(
+    atlas: &stylet_atlas::Atlas,
+) -> Vec<(stylet_physics::glam::DVec3, stylet_physics::glam::DVec3)> {
+    use stylet_physics::glam::DVec3;
+    atlas
+        .manifest
+        .paths
+        .iter()
+        .map(|p| {
+            (
+                DVec3::from_array(p.entry_mm),
+                DVec3::from_array(p.target_mm),
+            )
+        })
+        .collect()
+}
