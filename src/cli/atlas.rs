@@ -4,6 +4,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
+
+use super::say;
 use stylet_atlas::phantom::{self, PhantomConfig};
 use stylet_atlas::summary::Summary;
 
@@ -11,8 +13,38 @@ use stylet_atlas::summary::Summary;
 pub enum AtlasCommand {
     /// Generate the procedural phantom atlas (the embedded default).
     Phantom(PhantomArgs),
+    /// Import a CT and label maps (e.g. a TotalSegmentator output folder) following a recipe.
+    Import(ImportArgs),
+    /// Import a DICOM CT series as a heuristic-only atlas.
+    ImportDicom(ImportDicomArgs),
     /// Print an atlas' summary; optionally write JSON or a PNG of three orthogonal slices.
     Inspect(InspectArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ImportArgs {
+    /// Import recipe (e.g. atlases/ts-abdomen/recipe.toml).
+    #[arg(long)]
+    pub recipe: PathBuf,
+    /// Directory holding the recipe's source files.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Output atlas directory.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct ImportDicomArgs {
+    /// Directory with the series' DICOM files (one slice per file).
+    #[arg(long)]
+    pub series: PathBuf,
+    /// Output atlas directory.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Atlas name.
+    #[arg(long, default_value = "dicom")]
+    pub name: String,
 }
 
 #[derive(Debug, Args)]
@@ -64,27 +96,52 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
                 psf_mm: a.psf,
             };
             build_phantom(&a.out, &config)?;
-            println!("phantom atlas written to {}", a.out.display());
+            sayf!("phantom atlas written to {}", a.out.display());
+            Ok(())
+        }
+        AtlasCommand::Import(a) => {
+            let report = stylet_atlas::import::import(&a.recipe, &a.data, &a.out)?;
+            sayf!("atlas '{}' written to {}", report.manifest.name, a.out.display());
+            say(report.to_text().trim_end());
+            Ok(())
+        }
+        AtlasCommand::ImportDicom(a) => {
+            let series = stylet_atlas::import::dicom::import_series(&a.series, &a.out, &a.name)?;
+            let g = series.ct.grid();
+            let s = g.spacing_mm();
+            let d = g.dims();
+            say(&format!(
+                "atlas '{}' written to {}: {}×{}×{} voxels of {:.3}×{:.3}×{:.3} mm (slice thickness {}), {} HU … {} HU",
+                a.name,
+                a.out.display(),
+                d[0],
+                d[1],
+                d[2],
+                s[0],
+                s[1],
+                s[2],
+                series
+                    .slice_thickness_mm
+                    .map(|t| format!("{t:.1} mm"))
+                    .unwrap_or_else(|| "not given".into()),
+                series.ct.data().iter().copied().fold(f32::INFINITY, f32::min),
+                series.ct.data().iter().copied().fold(f32::NEG_INFINITY, f32::max),
+            ));
             Ok(())
         }
         AtlasCommand::Inspect(a) => {
             let atlas = stylet_atlas::load(&a.dir)?;
             let summary = Summary::of(&atlas);
             if a.json {
-                println!("{}", serde_json::to_string_pretty(&summary)?);
+                sayf!("{}", serde_json::to_string_pretty(&summary)?);
             } else {
-                print!("{}", summary.to_text());
+                say(summary.to_text().trim_end());
             }
             if let Some(png) = a.png {
-                stylet_render::figure::atlas_figure(
-                    &atlas.model,
-                    &atlas.manifest.name,
-                    &insertion_paths(&atlas),
-                    &png,
-                )
-                .with_context(|| format!("writing {}", png.display()))?;
+                stylet_render::figure::atlas_figure(&atlas.model, &atlas.manifest.name, &insertion_paths(&atlas), &png)
+                    .with_context(|| format!("writing {}", png.display()))?;
                 if !a.json {
-                    println!("slices written to {}", png.display());
+                    sayf!("slices written to {}", png.display());
                 }
             }
             Ok(())
@@ -100,19 +157,12 @@ pub fn build_phantom(out: &Path, config: &PhantomConfig) -> anyhow::Result<()> {
 }
 
 /// The atlas' predefined insertion paths as (entry, target) pairs for drawing.
-pub fn insertion_paths(
-    atlas: &stylet_atlas::Atlas,
-) -> Vec<(stylet_physics::glam::DVec3, stylet_physics::glam::DVec3)> {
+pub fn insertion_paths(atlas: &stylet_atlas::Atlas) -> Vec<(stylet_physics::glam::DVec3, stylet_physics::glam::DVec3)> {
     use stylet_physics::glam::DVec3;
     atlas
         .manifest
         .paths
         .iter()
-        .map(|p| {
-            (
-                DVec3::from_array(p.entry_mm),
-                DVec3::from_array(p.target_mm),
-            )
-        })
+        .map(|p| (DVec3::from_array(p.entry_mm), DVec3::from_array(p.target_mm)))
         .collect()
 }

@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use clap::Args;
 
+
 #[derive(Debug, Args)]
 pub struct DemoArgs {
     /// Where to write the demo's files.
@@ -31,8 +32,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let t1 = Instant::now();
     let atlas = stylet_atlas::load(&atlas_dir)?;
     let loaded = t1.elapsed();
-    println!("{}", stylet_atlas::summary::Summary::of(&atlas).to_text());
-    println!(
+    sayf!("{}", stylet_atlas::summary::Summary::of(&atlas).to_text());
+    sayf!(
         "phantom generated and written in {:.2} s, loaded and validated in {:.2} s",
         built.as_secs_f64(),
         loaded.as_secs_f64()
@@ -44,9 +45,6 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         &super::atlas::insertion_paths(&atlas),
         &png,
     )?;
-    println!(
-        "three orthogonal slices with the label overlay: {}",
-        png.display()
-    );
+    sayf!("three orthogonal slices with the label overlay: {}", png.display());
     Ok(())
 }

@@ -1,5 +1,10 @@
 //! Command-line interface: argument parsing and dispatch.
 
+/// `println!` that ends the program quietly when stdout is closed (`stylet … | head`).
+macro_rules! sayf {
+    ($($arg:tt)*) => { $crate::cli::say(&format!($($arg)*)) };
+}
+
 mod atlas;
 mod demo;
 
@@ -29,5 +34,18 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Atlas(cmd) => atlas::run(cmd),
         Command::Demo(args) => demo::run(args),
+    }
+}
+
+/// Prints a line; exits quietly if the reader went away (broken pipe) instead of panicking.
+pub fn say(line: &str) {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    if let Err(e) = writeln!(out, "{line}") {
+        if e.kind() == std::io::ErrorKind::BrokenPipe {
+            std::process::exit(0);
+        }
+        eprintln!("error: cannot write to stdout: {e}");
+        std::process::exit(1);
     }
 }

@@ -8,8 +8,7 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 use stylet_physics::{
-    HeuristicLabels, Label, LabelId, LabelTable, Param, ParamValue, PropertyTree, Role, Thresholds,
-    TissueSpec,
+    HeuristicLabels, Label, LabelId, LabelTable, Param, ParamValue, PropertyTree, Role, Thresholds, TissueSpec,
 };
 
 /// The atlas format version this code reads and writes.
@@ -281,12 +280,7 @@ impl ThresholdsToml {
 
 impl Manifest {
     /// A manifest for new volumes with the given scenario.
-    pub fn new(
-        name: &str,
-        description: &str,
-        provenance: Provenance,
-        scenario: ScenarioFile,
-    ) -> Self {
+    pub fn new(name: &str, description: &str, provenance: Provenance, scenario: ScenarioFile) -> Self {
         Manifest {
             format_version: FORMAT_VERSION,
             name: name.into(),

@@ -80,10 +80,7 @@ fn open(path: &Path) -> Result<Box<dyn Read>, AtlasError> {
         File::open(path).map_err(|e| err(path, format!("cannot open: {e}")))?,
     );
     if n == 2 && magic == [0x1f, 0x8b] {
-        Ok(Box::new(BufReader::with_capacity(
-            1 << 20,
-            MultiGzDecoder::new(file),
-        )))
+        Ok(Box::new(BufReader::with_capacity(1 << 20, MultiGzDecoder::new(file))))
     } else {
         Ok(Box::new(file))
     }
@@ -92,8 +89,7 @@ fn open(path: &Path) -> Result<Box<dyn Read>, AtlasError> {
 /// Reads just the header and the grid it describes (cheap: used to compare files).
 pub fn read_grid(path: &Path) -> Result<Grid, AtlasError> {
     let mut r = open(path)?;
-    let header = NiftiHeader::from_reader(&mut r)
-        .map_err(|e| err(path, format!("not a NIfTI-1 file: {e}")))?;
+    let header = NiftiHeader::from_reader(&mut r).map_err(|e| err(path, format!("not a NIfTI-1 file: {e}")))?;
     Ok(check_header(path, &header)?.0)
 }
 
@@ -114,22 +110,12 @@ fn check_header(path: &Path, h: &NiftiHeader) -> Result<(Grid, DType), AtlasErro
     }
     let dims: Vec<usize> = (1..=rank as usize).map(|a| h.dim[a] as usize).collect();
     if dims.iter().any(|&d| d == 0) {
-        return Err(err(
-            path,
-            format!("dimension list {dims:?} contains a zero"),
-        ));
+        return Err(err(path, format!("dimension list {dims:?} contains a zero")));
     }
     if dims.len() > 3 && dims[3..].iter().any(|&d| d != 1) {
-        return Err(err(
-            path,
-            format!("expected a 3-D volume, got dimensions {dims:?}"),
-        ));
+        return Err(err(path, format!("expected a 3-D volume, got dimensions {dims:?}")));
     }
-    let d3 = [
-        dims[0],
-        *dims.get(1).unwrap_or(&1),
-        *dims.get(2).unwrap_or(&1),
-    ];
+    let d3 = [dims[0], *dims.get(1).unwrap_or(&1), *dims.get(2).unwrap_or(&1)];
     let n = d3[0] as u128 * d3[1] as u128 * d3[2] as u128;
     if n > MAX_VOXELS as u128 {
         return Err(err(
@@ -137,16 +123,9 @@ fn check_header(path: &Path, h: &NiftiHeader) -> Result<(Grid, DType), AtlasErro
             format!("dimensions {d3:?} exceed the limit of {MAX_VOXELS} voxels"),
         ));
     }
-    let dtype = DType::from_code(h.datatype).ok_or_else(|| {
-        err(
-            path,
-            format!("unsupported NIfTI datatype code {}", h.datatype),
-        )
-    })?;
-    if !h.vox_offset.is_finite()
-        || (h.vox_offset as f64) < 348.0
-        || h.vox_offset as f64 > 348.0 + MAX_EXTENSION_BYTES
-    {
+    let dtype = DType::from_code(h.datatype)
+        .ok_or_else(|| err(path, format!("unsupported NIfTI datatype code {}", h.datatype)))?;
+    if !h.vox_offset.is_finite() || (h.vox_offset as f64) < 348.0 || h.vox_offset as f64 > 348.0 + MAX_EXTENSION_BYTES {
         return Err(err(
             path,
             format!("vox_offset {} is outside 348 … 348 + 1 MiB", h.vox_offset),
@@ -169,9 +148,7 @@ fn header_affine(h: &NiftiHeader) -> Result<Affine, String> {
     }
     let pix: Vec<f64> = h.pixdim[1..4].iter().map(|&p| p as f64).collect();
     if pix.iter().any(|p| !p.is_finite() || *p <= 0.0) {
-        return Err(format!(
-            "voxel sizes (pixdim) {pix:?} must be finite and positive"
-        ));
+        return Err(format!("voxel sizes (pixdim) {pix:?} must be finite and positive"));
     }
     if h.qform_code > 0 {
         let (b, c, d) = (h.quatern_b as f64, h.quatern_c as f64, h.quatern_d as f64);
@@ -209,8 +186,7 @@ fn header_affine(h: &NiftiHeader) -> Result<Affine, String> {
 
 fn read_raw(path: &Path) -> Result<RawVolume, AtlasError> {
     let mut r = open(path)?;
-    let h = NiftiHeader::from_reader(&mut r)
-        .map_err(|e| err(path, format!("not a NIfTI-1 file: {e}")))?;
+    let h = NiftiHeader::from_reader(&mut r).map_err(|e| err(path, format!("not a NIfTI-1 file: {e}")))?;
     let (grid, dtype) = check_header(path, &h)?;
     // Skip the extension block between the 348-byte header and the data.
     let skip = (h.vox_offset as u64).saturating_sub(348);
@@ -240,13 +216,11 @@ fn read_raw(path: &Path) -> Result<RawVolume, AtlasError> {
     let little = h.endianness == Endianness::Little;
     let values = decode(&raw, dtype, little);
     let (slope, inter) = (h.scl_slope as f64, h.scl_inter as f64);
-    let values =
-        if slope != 0.0 && slope.is_finite() && inter.is_finite() && (slope != 1.0 || inter != 0.0)
-        {
-            values.into_iter().map(|v| v * slope + inter).collect()
-        } else {
-            values
-        };
+    let values = if slope != 0.0 && slope.is_finite() && inter.is_finite() && (slope != 1.0 || inter != 0.0) {
+        values.into_iter().map(|v| v * slope + inter).collect()
+    } else {
+        values
+    };
     Ok(RawVolume { grid, values })
 }
 
@@ -281,11 +255,7 @@ fn decode(raw: &[u8], dtype: DType, little: bool) -> Vec<f64> {
 /// Reads a CT volume in HU. Non-finite values are an error naming the first voxel.
 pub fn read_ct(path: &Path) -> Result<Volume<f32>, AtlasError> {
     let raw = read_raw(path)?;
-    if let Some(pos) = raw
-        .values
-        .iter()
-        .position(|v| !v.is_finite() || v.abs() > 1e6)
-    {
+    if let Some(pos) = raw.values.iter().position(|v| !v.is_finite() || v.abs() > 1e6) {
         let [i, j, k] = raw.grid.unlinear(pos);
         return Err(err(
             path,
@@ -368,8 +338,7 @@ fn write_array<T: nifti::DataElement + bytemuck::Pod>(
 ) -> Result<(), AtlasError> {
     let [nx, ny, nz] = grid.dims();
     use ndarray::ShapeBuilder;
-    let array = ndarray::Array3::from_shape_vec((nx, ny, nz).f(), data)
-        .map_err(|e| err(path, e.to_string()))?;
+    let array = ndarray::Array3::from_shape_vec((nx, ny, nz).f(), data).map_err(|e| err(path, e.to_string()))?;
     let header = header_for(grid, description);
     WriterOptions::new(path)
         .reference_header(&header)
@@ -388,11 +357,7 @@ pub fn write_ct(path: &Path, ct: &Volume<f32>, description: &str) -> Result<(), 
 }
 
 /// Writes a label map as uint8 when every label fits, else uint16.
-pub fn write_labels(
-    path: &Path,
-    labels: &Volume<LabelId>,
-    description: &str,
-) -> Result<(), AtlasError> {
+pub fn write_labels(path: &Path, labels: &Volume<LabelId>, description: &str) -> Result<(), AtlasError> {
     if labels.data().iter().all(|&l| l <= u8::MAX as LabelId) {
         let data: Vec<u8> = labels.data().iter().map(|&l| l as u8).collect();
         write_array(path, labels.grid(), data, description)

@@ -64,10 +64,7 @@ pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
     if m.name.trim().is_empty() {
         return Err("name must not be empty".into());
     }
-    for (key, file) in [
-        ("volumes.ct", &m.volumes.ct),
-        ("volumes.labels", &m.volumes.labels),
-    ] {
+    for (key, file) in [("volumes.ct", &m.volumes.ct), ("volumes.labels", &m.volumes.labels)] {
         check_file_name(file).map_err(|e| format!("{key} = {file:?}: {e}"))?;
     }
     if m.volumes.ct == m.volumes.labels {
@@ -95,15 +92,8 @@ pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
         if !names.insert(p.name.as_str()) {
             return Err(format!("insertion path '{}' is defined twice", p.name));
         }
-        if p.entry_mm
-            .iter()
-            .chain(&p.target_mm)
-            .any(|v| !v.is_finite())
-        {
-            return Err(format!(
-                "insertion path '{}' has non-finite coordinates",
-                p.name
-            ));
+        if p.entry_mm.iter().chain(&p.target_mm).any(|v| !v.is_finite()) {
+            return Err(format!("insertion path '{}' has non-finite coordinates", p.name));
         }
         if DVec3::from_array(p.entry_mm).distance(DVec3::from_array(p.target_mm)) < 1.0 {
             return Err(format!(
@@ -150,8 +140,7 @@ fn read_manifest_text(dir: &Path) -> Result<String, AtlasError> {
         return Err(AtlasError::file(dir, "atlas directory does not exist"));
     }
     let path = dir.join(MANIFEST_FILE);
-    let file = fs::File::open(&path)
-        .map_err(|e| AtlasError::file(&path, format!("missing or unreadable: {e}")))?;
+    let file = fs::File::open(&path).map_err(|e| AtlasError::file(&path, format!("missing or unreadable: {e}")))?;
     let mut bytes = Vec::new();
     file.take(MAX_MANIFEST_BYTES + 1)
         .read_to_end(&mut bytes)
@@ -166,11 +155,9 @@ fn read_manifest_text(dir: &Path) -> Result<String, AtlasError> {
 }
 
 fn sha256_file(path: &Path) -> Result<String, AtlasError> {
-    let mut f =
-        fs::File::open(path).map_err(|e| AtlasError::file(path, format!("cannot open: {e}")))?;
+    let mut f = fs::File::open(path).map_err(|e| AtlasError::file(path, format!("cannot open: {e}")))?;
     let mut h = Sha256::new();
-    std::io::copy(&mut f, &mut h)
-        .map_err(|e| AtlasError::file(path, format!("cannot read: {e}")))?;
+    std::io::copy(&mut f, &mut h).map_err(|e| AtlasError::file(path, format!("cannot read: {e}")))?;
     Ok(hex(&h.finalize()))
 }
 
@@ -198,16 +185,12 @@ pub fn content_hash(dir: &Path, manifest: &Manifest) -> Result<String, AtlasErro
 pub fn load(dir: &Path) -> Result<Atlas, AtlasError> {
     let text = read_manifest_text(dir)?;
     let manifest = parse_manifest(&text).map_err(|e| manifest_error(dir, e))?;
-    let labels = manifest::label_table(&manifest.labels, &manifest.heuristic)
-        .map_err(|e| manifest_error(dir, e))?;
+    let labels = manifest::label_table(&manifest.labels, &manifest.heuristic).map_err(|e| manifest_error(dir, e))?;
     let tree = manifest::property_tree(&manifest.tissues).map_err(|e| manifest_error(dir, e))?;
 
     let ct_path = dir.join(&manifest.volumes.ct);
     let labels_path = dir.join(&manifest.volumes.labels);
-    let (ct, partial) = rayon::join(
-        || nifti_io::read_ct(&ct_path),
-        || nifti_io::read_labels(&labels_path),
-    );
+    let (ct, partial) = rayon::join(|| nifti_io::read_ct(&ct_path), || nifti_io::read_labels(&labels_path));
     let (ct, partial) = (ct?, partial?);
     check_same_grid(&ct_path, &ct, &labels_path, &partial)?;
 
@@ -215,8 +198,7 @@ pub fn load(dir: &Path) -> Result<Atlas, AtlasError> {
     let (thresholds, threshold_source) = match &manifest.thresholds {
         Some(t) => (t.with_depth(depth), ThresholdSource::Atlas),
         None => (
-            estimate_thresholds(&ct, depth)
-                .map_err(|e| AtlasError::file(&ct_path, e.to_string()))?,
+            estimate_thresholds(&ct, depth).map_err(|e| AtlasError::file(&ct_path, e.to_string()))?,
             ThresholdSource::Estimated,
         ),
     };
@@ -289,17 +271,10 @@ fn check_same_grid(
 /// Writes an atlas directory: volumes first, `atlas.toml` last, each through a temporary file
 /// renamed into place, so a crash never leaves a manifest that points at half-written volumes.
 /// Thresholds are written only if the manifest carries them.
-pub fn write(
-    dir: &Path,
-    manifest: &Manifest,
-    ct: &Volume<f32>,
-    labels: &Volume<LabelId>,
-) -> Result<(), AtlasError> {
-    fs::create_dir_all(dir)
-        .map_err(|e| AtlasError::file(dir, format!("cannot create directory: {e}")))?;
+pub fn write(dir: &Path, manifest: &Manifest, ct: &Volume<f32>, labels: &Volume<LabelId>) -> Result<(), AtlasError> {
+    fs::create_dir_all(dir).map_err(|e| AtlasError::file(dir, format!("cannot create directory: {e}")))?;
     let text = manifest.to_toml();
-    parse_manifest(&text)
-        .map_err(|e| manifest_error(dir, format!("refusing to write an invalid manifest: {e}")))?;
+    parse_manifest(&text).map_err(|e| manifest_error(dir, format!("refusing to write an invalid manifest: {e}")))?;
     let tmp = |name: &str| dir.join(format!(".{name}.partial.nii.gz"));
     let ct_tmp = tmp("ct");
     let labels_tmp = tmp("labels");
@@ -311,14 +286,12 @@ pub fn write(
     a?;
     b?;
     let rename = |from: &Path, to: &Path| {
-        fs::rename(from, to)
-            .map_err(|e| AtlasError::file(to, format!("cannot move into place: {e}")))
+        fs::rename(from, to).map_err(|e| AtlasError::file(to, format!("cannot move into place: {e}")))
     };
     rename(&ct_tmp, &dir.join(&manifest.volumes.ct))?;
     rename(&labels_tmp, &dir.join(&manifest.volumes.labels))?;
     let manifest_tmp = dir.join(".atlas.toml.partial");
-    fs::write(&manifest_tmp, text)
-        .map_err(|e| AtlasError::file(&manifest_tmp, format!("cannot write: {e}")))?;
+    fs::write(&manifest_tmp, text).map_err(|e| AtlasError::file(&manifest_tmp, format!("cannot write: {e}")))?;
     rename(&manifest_tmp, &dir.join(MANIFEST_FILE))
 }
 

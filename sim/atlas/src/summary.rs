@@ -70,9 +70,7 @@ impl Summary {
             .ct()
             .data()
             .iter()
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
-                (a.min(v), b.max(v))
-            });
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
         let o = grid.affine().origin;
         Summary {
             name: atlas.manifest.name.clone(),
@@ -111,10 +109,7 @@ impl Summary {
             self.origin_mm[1],
             self.origin_mm[2]
         );
-        out += &format!(
-            "CT range     {:.0} … {:.0} HU\n",
-            self.hu_range[0], self.hu_range[1]
-        );
+        out += &format!("CT range     {:.0} … {:.0} HU\n", self.hu_range[0], self.hu_range[1]);
         out += &format!(
             "thresholds   air|skin {:.0} HU, skin|fat {:.0} HU, fat|bone {:.0} HU ({}), risk depth δ = {} mm\n",
             t.air_skin, t.skin_fat, t.fat_bone, self.thresholds_source, self.risk_depth_mm

@@ -66,9 +66,7 @@ fn heuristic_agrees_with_ground_truth() {
             body_ok += u64::from(got == truth);
         }
     }
-    let (ok, all) = per_class
-        .values()
-        .fold((0, 0), |(a, b), (c, d)| (a + c, b + d));
+    let (ok, all) = per_class.values().fold((0, 0), |(a, b), (c, d)| (a + c, b + d));
     let overall = ok as f64 / all as f64;
     let body = body_ok as f64 / body_all as f64;
     println!("thresholds {t:?}");
@@ -87,17 +85,9 @@ fn heuristic_agrees_with_ground_truth() {
     );
     assert!(overall >= 0.95, "overall agreement {overall}");
     assert!(body >= 0.95, "agreement inside the body {body}");
-    for c in [
-        HeuristicClass::Air,
-        HeuristicClass::Fat,
-        HeuristicClass::Bone,
-    ] {
+    for c in [HeuristicClass::Air, HeuristicClass::Fat, HeuristicClass::Bone] {
         let (o, n) = per_class[&c];
-        assert!(
-            o as f64 >= 0.95 * n as f64,
-            "{} agreement {o}/{n}",
-            c.as_str()
-        );
+        assert!(o as f64 >= 0.95 * n as f64, "{} agreement {o}/{n}", c.as_str());
     }
     let (o, n) = per_class[&HeuristicClass::Skin];
     assert!(o as f64 >= 0.15 * n as f64, "skin agreement {o}/{n}");

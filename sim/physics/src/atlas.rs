@@ -8,9 +8,7 @@ use glam::DVec3;
 
 use crate::distance::signed_distance_map;
 use crate::masks::{body_mask, bone_mask};
-use crate::{
-    LabelId, LabelTable, Materials, Param, PhysicsError, PropertyTree, Thresholds, Volume,
-};
+use crate::{LabelId, LabelTable, Materials, Param, PhysicsError, PropertyTree, Thresholds, Volume};
 
 /// CT value returned outside the volume: air.
 pub const AIR_HU: f32 = -1000.0;
@@ -76,7 +74,7 @@ impl PunctureAtlas {
         let materials = Materials::resolve(&labels, &tree)?;
         let grid = *gc;
         let body = body_mask(&ct, thresholds.air_skin_hu);
-        let bone = bone_mask(&ct, thresholds.fat_bone_hu);
+        let bone = bone_mask(&ct, thresholds.fat_bone_hu, &body);
         let (skin_distance, bone_distance) = rayon::join(
             || signed_distance_map(&grid, &body),
             || signed_distance_map(&grid, &bone),
@@ -135,12 +133,8 @@ impl PunctureAtlas {
     /// l(x, d) of eq. 6.1.2 at insertion depth `depth_mm` (use 0 for rendering).
     #[inline]
     pub fn label_at(&self, x: DVec3, depth_mm: f64) -> LabelId {
-        self.labels.label(
-            self.partial_label_at(x),
-            self.hu_at(x),
-            depth_mm,
-            &self.thresholds,
-        )
+        self.labels
+            .label(self.partial_label_at(x), self.hu_at(x), depth_mm, &self.thresholds)
     }
 
     /// A material parameter at x for insertion depth d (§6.1.4): label, tree node, value at I(x).
@@ -150,10 +144,7 @@ impl PunctureAtlas {
         let label = self
             .labels
             .label(self.partial_label_at(x), hu, depth_mm, &self.thresholds);
-        let pos = self
-            .labels
-            .position(label)
-            .expect("labels validated at construction");
+        let pos = self.labels.position(label).expect("labels validated at construction");
         self.materials.eval(pos, param, hu)
     }
 
@@ -164,11 +155,6 @@ impl PunctureAtlas {
             let l = self.labels.label(p, hu as f64, 0.0, &self.thresholds);
             counts[self.labels.position(l).expect("validated")] += 1;
         }
-        self.labels
-            .labels()
-            .iter()
-            .map(|l| l.id)
-            .zip(counts)
-            .collect()
+        self.labels.labels().iter().map(|l| l.id).zip(counts).collect()
     }
 }

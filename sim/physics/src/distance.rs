@@ -81,14 +81,7 @@ pub fn squared_edt(grid: &Grid, feature: &[bool]) -> Vec<f64> {
     );
     // Pass along j: one k-slab per task, columns gathered into scratch.
     d.par_chunks_mut(nx * ny).for_each_init(
-        || {
-            (
-                vec![0.0; ny],
-                vec![0.0; ny],
-                vec![0usize; ny],
-                vec![0.0; ny + 1],
-            )
-        },
+        || (vec![0.0; ny], vec![0.0; ny], vec![0usize; ny], vec![0.0; ny + 1]),
         |(f, o, v, z), slab| {
             for i in 0..nx {
                 for j in 0..ny {
@@ -139,18 +132,15 @@ pub fn squared_edt(grid: &Grid, feature: &[bool]) -> Vec<f64> {
 /// (or full) mask gives −∞ (or +∞) everywhere.
 pub fn signed_distance_map(grid: &Grid, inside: &[bool]) -> Volume<f32> {
     let outside: Vec<bool> = inside.iter().map(|&b| !b).collect();
-    let (to_outside, to_inside) =
-        rayon::join(|| squared_edt(grid, &outside), || squared_edt(grid, inside));
+    let (to_outside, to_inside) = rayon::join(|| squared_edt(grid, &outside), || squared_edt(grid, inside));
     let data = inside
         .par_iter()
         .zip(to_outside.par_iter().zip(to_inside.par_iter()))
-        .map(|(&ins, (&a, &b))| {
-            if ins {
-                a.sqrt() as f32
-            } else {
-                -(b.sqrt() as f32)
-            }
-        })
+        .map(
+            |(&ins, (&a, &b))| {
+                if ins { a.sqrt() as f32 } else { -(b.sqrt() as f32) }
+            },
+        )
         .collect();
     Volume::new(*grid, data).expect("same grid")
 }
@@ -217,11 +207,7 @@ mod tests {
 
     #[test]
     fn signed_map_of_a_ball() {
-        let grid = Grid::new(
-            [21, 21, 21],
-            Affine::from_spacing([1.0; 3], DVec3::splat(-10.0)),
-        )
-        .unwrap();
+        let grid = Grid::new([21, 21, 21], Affine::from_spacing([1.0; 3], DVec3::splat(-10.0))).unwrap();
         let inside: Vec<bool> = (0..grid.len())
             .map(|i| {
                 let [a, b, c] = grid.unlinear(i);

@@ -54,11 +54,7 @@ impl Affine {
 
     /// Voxel spacing in mm: the length of each index axis.
     pub fn spacing_mm(&self) -> [f64; 3] {
-        [
-            self.axes[0].length(),
-            self.axes[1].length(),
-            self.axes[2].length(),
-        ]
+        [self.axes[0].length(), self.axes[1].length(), self.axes[2].length()]
     }
 
     /// Continuous index → world position (mm).
@@ -112,11 +108,7 @@ impl InverseAffine {
     #[inline]
     pub fn apply(&self, world: DVec3) -> DVec3 {
         let p = world - self.origin;
-        DVec3::new(
-            self.rows[0].dot(p),
-            self.rows[1].dot(p),
-            self.rows[2].dot(p),
-        )
+        DVec3::new(self.rows[0].dot(p), self.rows[1].dot(p), self.rows[2].dot(p))
     }
 }
 
@@ -134,9 +126,7 @@ pub const MAX_VOXELS: usize = 1 << 28;
 impl Grid {
     pub fn new(dims: [usize; 3], affine: Affine) -> Result<Self, PhysicsError> {
         if dims.contains(&0) {
-            return Err(PhysicsError::InvalidGrid(format!(
-                "dimensions {dims:?} contain a zero"
-            )));
+            return Err(PhysicsError::InvalidGrid(format!("dimensions {dims:?} contain a zero")));
         }
         let n = dims.iter().try_fold(1usize, |acc, &d| acc.checked_mul(d));
         match n {
@@ -148,16 +138,9 @@ impl Grid {
             }
         }
         let inverse = affine.inverse().ok_or_else(|| {
-            PhysicsError::InvalidGrid(format!(
-                "affine {:?} is singular or not finite",
-                affine.rows()
-            ))
+            PhysicsError::InvalidGrid(format!("affine {:?} is singular or not finite", affine.rows()))
         })?;
-        Ok(Grid {
-            dims,
-            affine,
-            inverse,
-        })
+        Ok(Grid { dims, affine, inverse })
     }
 
     pub fn dims(&self) -> [usize; 3] {
@@ -238,12 +221,7 @@ impl Grid {
     /// The index axis (0, 1 or 2) most aligned with the world's superior (z) direction: the axis
     /// along which a CT is usually cropped, so the body touches the volume's faces there.
     pub fn cranio_caudal_axis(&self) -> usize {
-        let z: Vec<f64> = self
-            .affine
-            .axes
-            .iter()
-            .map(|a| (a.z / a.length()).abs())
-            .collect();
+        let z: Vec<f64> = self.affine.axes.iter().map(|a| (a.z / a.length()).abs()).collect();
         let mut best = 0;
         for a in 1..3 {
             if z[a] > z[best] {
@@ -289,10 +267,7 @@ mod tests {
     #[test]
     fn nearest_voxel_covers_half_voxel_margin() {
         let g = Grid::new([4, 4, 4], Affine::from_spacing([2.0; 3], DVec3::ZERO)).unwrap();
-        assert_eq!(
-            g.nearest_voxel(DVec3::new(-0.99, 0.0, 0.0)),
-            Some([0, 0, 0])
-        );
+        assert_eq!(g.nearest_voxel(DVec3::new(-0.99, 0.0, 0.0)), Some([0, 0, 0]));
         assert_eq!(g.nearest_voxel(DVec3::new(-1.01, 0.0, 0.0)), None);
         assert_eq!(g.nearest_voxel(DVec3::new(6.99, 3.1, 0.0)), Some([3, 2, 0]));
         assert_eq!(g.nearest_voxel(DVec3::new(7.01, 0.0, 0.0)), None);

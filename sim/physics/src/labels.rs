@@ -28,13 +28,7 @@ pub enum Role {
 }
 
 impl Role {
-    pub const ALL: [Role; 5] = [
-        Role::Target,
-        Role::Risk,
-        Role::Bone,
-        Role::Organ,
-        Role::Neutral,
-    ];
+    pub const ALL: [Role; 5] = [Role::Target, Role::Risk, Role::Bone, Role::Organ, Role::Neutral];
 
     pub fn as_str(self) -> &'static str {
         match self {
@@ -109,12 +103,7 @@ pub struct Thresholds {
 impl Thresholds {
     /// Checks t_air→skin < t_skin→fat < t_fat→bone, all finite, and δ ≥ 0.
     pub fn validate(&self) -> Result<(), PhysicsError> {
-        let all = [
-            self.air_skin_hu,
-            self.skin_fat_hu,
-            self.fat_bone_hu,
-            self.risk_depth_mm,
-        ];
+        let all = [self.air_skin_hu, self.skin_fat_hu, self.fat_bone_hu, self.risk_depth_mm];
         if all.iter().any(|v| !v.is_finite()) {
             return Err(PhysicsError::InvalidThresholds(format!(
                 "thresholds must be finite numbers: {self:?}"
@@ -200,10 +189,7 @@ impl LabelTable {
                 )));
             }
             if l.name.trim().is_empty() {
-                return Err(PhysicsError::InvalidLabels(format!(
-                    "label {} has an empty name",
-                    l.id
-                )));
+                return Err(PhysicsError::InvalidLabels(format!("label {} has an empty name", l.id)));
             }
             if slot[l.id as usize] != u16::MAX {
                 return Err(PhysicsError::InvalidLabels(format!(
@@ -272,13 +258,7 @@ impl LabelTable {
 
     /// The labelling function l(x, d) of eq. 6.1.2 given p(x) and I(x).
     #[inline]
-    pub fn label(
-        &self,
-        partial: LabelId,
-        hu: f64,
-        depth_mm: f64,
-        thresholds: &Thresholds,
-    ) -> LabelId {
+    pub fn label(&self, partial: LabelId, hu: f64, depth_mm: f64, thresholds: &Thresholds) -> LabelId {
         if partial != 0 {
             partial
         } else {
@@ -376,11 +356,7 @@ mod tests {
             bone: 4,
             risk: 5,
         };
-        let e = LabelTable::new(
-            vec![lab(1, "a", Role::Neutral), lab(1, "b", Role::Neutral)],
-            h,
-        )
-        .unwrap_err();
+        let e = LabelTable::new(vec![lab(1, "a", Role::Neutral), lab(1, "b", Role::Neutral)], h).unwrap_err();
         assert!(e.to_string().contains("defined twice"));
         let e = LabelTable::new(vec![lab(1, "a", Role::Neutral)], h).unwrap_err();
         assert!(e.to_string().contains("heuristic class 'skin'"), "{e}");

@@ -6,20 +6,18 @@
 
 use crate::Volume;
 
-/// The body (inside the skin): everything not connected to the outside air.
+/// The body (inside the skin): everything not connected to the outside air, largest piece only.
 ///
 /// The outside air is grown (6-connectivity) from the voxels of the four volume faces that are
 /// parallel to the cranio-caudal axis and below t_air→skin. The two remaining faces are skipped:
-/// CTs are cropped there, so lungs or bowel gas may touch them without being outside air.
+/// CTs are cropped there, so lungs or bowel gas may touch them without being outside air. Of what
+/// remains only the largest 6-connected piece is kept: the patient's trunk, without the CT table
+/// or arms lying apart from it.
 pub fn body_mask(ct: &Volume<f32>, air_skin_hu: f64) -> Vec<bool> {
     let grid = ct.grid();
     let [nx, ny, nz] = grid.dims();
     let cc = grid.cranio_caudal_axis();
-    let air: Vec<bool> = ct
-        .data()
-        .iter()
-        .map(|&v| (v as f64) < air_skin_hu)
-        .collect();
+    let air: Vec<bool> = ct.data().iter().map(|&v| (v as f64) < air_skin_hu).collect();
     let mut outside = vec![false; grid.len()];
     let mut stack: Vec<usize> = Vec::new();
     let seed = |i: usize, j: usize, k: usize, outside: &mut Vec<bool>, stack: &mut Vec<usize>| {
@@ -32,11 +30,7 @@ pub fn body_mask(ct: &Volume<f32>, air_skin_hu: f64) -> Vec<bool> {
     for k in 0..nz {
         for j in 0..ny {
             for i in 0..nx {
-                let on_face = [
-                    i == 0 || i == nx - 1,
-                    j == 0 || j == ny - 1,
-                    k == 0 || k == nz - 1,
-                ];
+                let on_face = [i == 0 || i == nx - 1, j == 0 || j == ny - 1, k == 0 || k == nz - 1];
                 let seeded = (0..3).any(|a| a != cc && on_face[a]);
                 if seeded {
                     seed(i, j, k, &mut outside, &mut stack);
@@ -71,15 +65,53 @@ pub fn body_mask(ct: &Volume<f32>, air_skin_hu: f64) -> Vec<bool> {
             visit(idx + nx * ny);
         }
     }
-    outside.into_iter().map(|o| !o).collect()
+    let inside: Vec<bool> = outside.into_iter().map(|o| !o).collect();
+    largest_component(grid, &inside)
 }
 
-/// Bone: CT at or above t_fat→bone.
-pub fn bone_mask(ct: &Volume<f32>, fat_bone_hu: f64) -> Vec<bool> {
-    ct.data()
-        .iter()
-        .map(|&v| (v as f64) >= fat_bone_hu)
-        .collect()
+/// The largest 6-connected component of a mask (the first one found on ties).
+pub fn largest_component(grid: &crate::Grid, mask: &[bool]) -> Vec<bool> {
+    let [nx, ny, nz] = grid.dims();
+    let mut component = vec![0u32; mask.len()];
+    let mut sizes: Vec<usize> = vec![0];
+    let mut stack = Vec::new();
+    for start in 0..mask.len() {
+        if !mask[start] || component[start] != 0 {
+            continue;
+        }
+        let id = sizes.len() as u32;
+        sizes.push(0);
+        component[start] = id;
+        stack.push(start);
+        while let Some(idx) = stack.pop() {
+            sizes[id as usize] += 1;
+            let [i, j, k] = grid.unlinear(idx);
+            let neighbours = [
+                (i > 0).then(|| idx - 1),
+                (i + 1 < nx).then(|| idx + 1),
+                (j > 0).then(|| idx - nx),
+                (j + 1 < ny).then(|| idx + nx),
+                (k > 0).then(|| idx - nx * ny),
+                (k + 1 < nz).then(|| idx + nx * ny),
+            ];
+            for n in neighbours.into_iter().flatten() {
+                if mask[n] && component[n] == 0 {
+                    component[n] = id;
+                    stack.push(n);
+                }
+            }
+        }
+    }
+    let best = (1..sizes.len()).max_by(|&a, &b| sizes[a].cmp(&sizes[b]).then(b.cmp(&a)));
+    match best {
+        Some(b) => component.iter().map(|&c| c == b as u32).collect(),
+        None => vec![false; mask.len()],
+    }
+}
+
+/// Bone: CT at or above t_fat→bone, inside the body (the CT table is not bone).
+pub fn bone_mask(ct: &Volume<f32>, fat_bone_hu: f64, body: &[bool]) -> Vec<bool> {
+    ct.data().iter().zip(body).map(|(&v, &b)| b && (v as f64) >= fat_bone_hu).collect()
 }
 
 /// Number of true voxels.
@@ -108,14 +140,34 @@ mod tests {
             }
         }
         let body = body_mask(&ct, -500.0);
-        assert!(
-            body[grid.linear(5, 5, 0)],
-            "cavity touching the cropped face is inside"
-        );
+        assert!(body[grid.linear(5, 5, 0)], "cavity touching the cropped face is inside");
         assert!(body[grid.linear(5, 5, 3)]);
         assert!(body[grid.linear(2, 5, 3)]);
         assert!(!body[grid.linear(0, 0, 3)]);
         assert!(!body[grid.linear(1, 5, 3)]);
         assert_eq!(count(&body), 8 * 8 * 6);
+    }
+
+    /// A table (a separate slab of dense material) is neither body nor bone.
+    #[test]
+    fn the_table_is_not_part_of_the_body() {
+        let grid = Grid::new([12, 12, 3], Affine::from_spacing([1.0; 3], DVec3::ZERO)).unwrap();
+        let mut ct = Volume::filled(grid, -1000.0f32);
+        for k in 0..3 {
+            for j in 2..8 {
+                for i in 2..10 {
+                    ct.set(i, j, k, 40.0);
+                }
+            }
+            for i in 0..12 {
+                ct.set(i, 10, k, 400.0); // table
+            }
+            ct.set(5, 4, k, 700.0); // a bone inside the body
+        }
+        let body = body_mask(&ct, -500.0);
+        assert!(!body[grid.linear(5, 10, 1)]);
+        assert!(body[grid.linear(5, 5, 1)]);
+        let bone = bone_mask(&ct, 200.0, &body);
+        assert_eq!(count(&bone), 3);
     }
 }

@@ -93,9 +93,7 @@ impl ParamValue {
                     return Err(format!("value {v} must be a finite number ≥ 0"));
                 }
                 if hu.windows(2).any(|w| w[0] >= w[1]) {
-                    return Err(format!(
-                        "breakpoints must have strictly increasing HU, got {hu:?}"
-                    ));
+                    return Err(format!("breakpoints must have strictly increasing HU, got {hu:?}"));
                 }
             }
         }
@@ -157,9 +155,7 @@ impl PropertyTree {
         let mut by_name = BTreeMap::new();
         for (i, s) in specs.iter().enumerate() {
             if s.name.trim().is_empty() {
-                return Err(PhysicsError::InvalidPropertyTree(
-                    "a tissue has an empty name".into(),
-                ));
+                return Err(PhysicsError::InvalidPropertyTree("a tissue has an empty name".into()));
             }
             if by_name.insert(s.name.clone(), i).is_some() {
                 return Err(PhysicsError::InvalidPropertyTree(format!(
@@ -173,20 +169,13 @@ impl PropertyTree {
             let parent = match &s.parent {
                 None => None,
                 Some(p) => Some(*by_name.get(p).ok_or_else(|| {
-                    PhysicsError::InvalidPropertyTree(format!(
-                        "tissue '{}' has unknown parent '{}'",
-                        s.name, p
-                    ))
+                    PhysicsError::InvalidPropertyTree(format!("tissue '{}' has unknown parent '{}'", s.name, p))
                 })?),
             };
             let mut params: [Option<ParamValue>; Param::COUNT] = Default::default();
             for (p, v) in &s.params {
                 v.validate().map_err(|e| {
-                    PhysicsError::InvalidPropertyTree(format!(
-                        "tissue '{}', parameter '{}': {e}",
-                        s.name,
-                        p.key()
-                    ))
+                    PhysicsError::InvalidPropertyTree(format!("tissue '{}', parameter '{}': {e}", s.name, p.key()))
                 })?;
                 params[p.slot()] = Some(v.clone());
             }
@@ -307,10 +296,7 @@ impl Materials {
                 }
             }
             per_label.push(row.try_into().expect("one value per parameter"));
-            colors.push(
-                tree.resolve_color(&l.tissue)
-                    .unwrap_or([128, 128, 128, 128]),
-            );
+            colors.push(tree.resolve_color(&l.tissue).unwrap_or([128, 128, 128, 128]));
         }
         Ok(Materials { per_label, colors })
     }
@@ -372,11 +358,7 @@ mod tests {
                     (Param::StiffnessNPerMm, ParamValue::Scalar(0.1)),
                 ],
             ),
-            spec(
-                "soft",
-                Some("body"),
-                &[(Param::CutThresholdN, ParamValue::Scalar(0.5))],
-            ),
+            spec("soft", Some("body"), &[(Param::CutThresholdN, ParamValue::Scalar(0.5))]),
             spec("liver", Some("soft"), &[]),
         ])
         .unwrap();
@@ -385,10 +367,7 @@ mod tests {
         let (v, at) = tree.resolve("liver", Param::StiffnessNPerMm).unwrap();
         assert_eq!((v.eval(0.0), at), (0.1, "body"));
         assert!(tree.resolve("liver", Param::FrictionMaxNPerMm).is_none());
-        assert_eq!(
-            tree.lineage("liver").unwrap(),
-            vec!["liver", "soft", "body"]
-        );
+        assert_eq!(tree.lineage("liver").unwrap(), vec!["liver", "soft", "body"]);
     }
 
     #[test]

@@ -88,20 +88,14 @@ impl Histogram {
 }
 
 /// Estimates the thresholds of eq. 6.1.1 from the CT values.
-pub fn estimate_thresholds(
-    ct: &Volume<f32>,
-    risk_depth_mm: f64,
-) -> Result<Thresholds, PhysicsError> {
+pub fn estimate_thresholds(ct: &Volume<f32>, risk_depth_mm: f64) -> Result<Thresholds, PhysicsError> {
     let h = Histogram::of(ct);
     let air_skin = h.otsu(-1100, 300).ok_or_else(|| {
-        PhysicsError::InvalidThresholds(
-            "cannot estimate thresholds: no CT values between −1100 and 300 HU".into(),
-        )
+        PhysicsError::InvalidThresholds("cannot estimate thresholds: no CT values between −1100 and 300 HU".into())
     })?;
     if h.count(-1100, air_skin as i32) == 0 || h.count(air_skin as i32, 3001) == 0 {
         return Err(PhysicsError::InvalidThresholds(
-            "cannot estimate thresholds: the CT has no air/tissue contrast (is it a CT in HU?)"
-                .into(),
+            "cannot estimate thresholds: the CT has no air/tissue contrast (is it a CT in HU?)".into(),
         ));
     }
     let fat_peak = h.mode(-250, -30).unwrap_or(-100.0);
@@ -143,10 +137,7 @@ mod tests {
         let ct = Volume::new(grid, data).unwrap();
         let t = estimate_thresholds(&ct, 15.0).unwrap();
         assert!(t.air_skin_hu > -980.0 && t.air_skin_hu < -120.0, "{t:?}");
-        assert!(
-            t.skin_fat_hu > t.air_skin_hu && t.skin_fat_hu < -120.0,
-            "{t:?}"
-        );
+        assert!(t.skin_fat_hu > t.air_skin_hu && t.skin_fat_hu < -120.0, "{t:?}");
         assert!((180.0..=215.0).contains(&t.fat_bone_hu), "{t:?}");
     }
 

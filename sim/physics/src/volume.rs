@@ -163,10 +163,7 @@ mod tests {
         assert!((x - (1.5 + 2.5 + 50.0)).abs() < 1e-5, "{x}");
         // Gradient: 1/2 per mm along x, 10 per mm along y, 100/3 per mm along z.
         let g = v.gradient(DVec3::new(13.0, 1.0, 1.5), -1.0);
-        assert!(
-            (g - DVec3::new(0.5, 10.0, 100.0 / 3.0)).length() < 1e-4,
-            "{g}"
-        );
+        assert!((g - DVec3::new(0.5, 10.0, 100.0 / 3.0)).length() < 1e-4, "{g}");
     }
 
     #[test]

@@ -21,11 +21,7 @@ const MAX_PANEL_PX: usize = 480;
 /// Centre of the target labels (voxel centroid), or the volume centre if there is no target.
 pub fn default_center(atlas: &PunctureAtlas) -> DVec3 {
     let grid = atlas.ct().grid();
-    let targets: Vec<u16> = atlas
-        .label_table()
-        .with_role(Role::Target)
-        .map(|l| l.id)
-        .collect();
+    let targets: Vec<u16> = atlas.label_table().with_role(Role::Target).map(|l| l.id).collect();
     let (mut sum, mut n) = (DVec3::ZERO, 0u64);
     for (idx, l) in atlas.partial_labels().data().iter().enumerate() {
         if targets.contains(l) {
@@ -100,11 +96,8 @@ pub fn atlas_figure_at(
         x0 += s.width + MARGIN;
     }
     {
-        let root =
-            BitMapBackend::with_buffer(&mut buf, (width as u32, height as u32)).into_drawing_area();
-        let draw = |r: Result<(), DrawingAreaErrorKind<_>>| {
-            r.map_err(|e| RenderError::Draw(e.to_string()))
-        };
+        let root = BitMapBackend::with_buffer(&mut buf, (width as u32, height as u32)).into_drawing_area();
+        let draw = |r: Result<(), DrawingAreaErrorKind<_>>| r.map_err(|e| RenderError::Draw(e.to_string()));
         let white = TextStyle::from((SANS, 24).into_font()).color(&WHITE);
         let small = TextStyle::from((SANS, 16).into_font()).color(&WHITE);
         let letters = TextStyle::from((SANS, 20).into_font()).color(&RGBColor(255, 220, 80));
@@ -134,46 +127,26 @@ pub fn atlas_figure_at(
                 Plane::Coronal => format!("y = {:.1} mm", center.y),
                 Plane::Sagittal => format!("x = {:.1} mm", center.x),
             };
-            draw(root.draw_text(
-                &format!("{} ({along})", s.plane.name()),
-                &small,
-                (ox, oy - 22),
-            ))?;
+            draw(root.draw_text(&format!("{} ({along})", s.plane.name()), &small, (ox, oy - 22)))?;
             let [l, r, t, b] = s.plane.edge_letters();
             let (w, h) = (s.width as i32, s.height as i32);
             let mid = |st: &TextStyle<'static>, hp, vp| st.pos(Pos::new(hp, vp));
-            draw(root.draw_text(
-                l,
-                &mid(&letters, HPos::Left, VPos::Center),
-                (ox + 4, oy + h / 2),
-            ))?;
-            draw(root.draw_text(
-                r,
-                &mid(&letters, HPos::Right, VPos::Center),
-                (ox + w - 4, oy + h / 2),
-            ))?;
-            draw(root.draw_text(
-                t,
-                &mid(&letters, HPos::Center, VPos::Top),
-                (ox + w / 2, oy + 4),
-            ))?;
-            draw(root.draw_text(
-                b,
-                &mid(&letters, HPos::Center, VPos::Bottom),
-                (ox + w / 2, oy + h - 4),
-            ))?;
-            // 50 mm scale bar.
-            let bar = (50.0 / s.pixel_mm).round() as i32;
-            let (bx, by) = (ox + w - bar - 10, oy + h - 30);
-            draw(root.draw(&Rectangle::new(
-                [(bx, by), (bx + bar, by + 4)],
-                WHITE.filled(),
-            )))?;
-            draw(root.draw_text(
-                "50 mm",
-                &small.pos(Pos::new(HPos::Center, VPos::Bottom)),
-                (bx + bar / 2, by - 2),
-            ))?;
+            draw(root.draw_text(l, &mid(&letters, HPos::Left, VPos::Center), (ox + 4, oy + h / 2)))?;
+            draw(root.draw_text(r, &mid(&letters, HPos::Right, VPos::Center), (ox + w - 4, oy + h / 2)))?;
+            // Thin panels (a short series seen from the side) keep only the side letters.
+            if h >= 120 {
+                draw(root.draw_text(t, &mid(&letters, HPos::Center, VPos::Top), (ox + w / 2, oy + 4)))?;
+                draw(root.draw_text(b, &mid(&letters, HPos::Center, VPos::Bottom), (ox + w / 2, oy + h - 4)))?;
+                // 50 mm scale bar.
+                let bar = (50.0 / s.pixel_mm).round() as i32;
+                let (bx, by) = (ox + w - bar - 10, oy + h - 30);
+                draw(root.draw(&Rectangle::new([(bx, by), (bx + bar, by + 4)], WHITE.filled())))?;
+                draw(root.draw_text(
+                    "50 mm",
+                    &small.pos(Pos::new(HPos::Center, VPos::Bottom)),
+                    (bx + bar / 2, by - 2),
+                ))?;
+            }
             // Crosshair at the centre point.
             let (cc, cr) = s.pixel(center);
             let (cx, cy) = (ox + cc.round() as i32, oy + cr.round() as i32);
@@ -187,10 +160,7 @@ pub fn atlas_figure_at(
                     .iter()
                     .map(|p| {
                         let (c, r) = s.pixel(*p);
-                        (
-                            (ox as f64 + c).round() as i32,
-                            (oy as f64 + r).round() as i32,
-                        )
+                        ((ox as f64 + c).round() as i32, (oy as f64 + r).round() as i32)
                     })
                     .collect();
                 draw(root.draw(&PathElement::new(
@@ -219,8 +189,7 @@ pub fn atlas_figure_at(
                 (x + 22, y + 2),
             ))?;
         }
-        root.present()
-            .map_err(|e| RenderError::Draw(e.to_string()))?;
+        root.present().map_err(|e| RenderError::Draw(e.to_string()))?;
     }
     write_png(png, width, height, &buf)
 }

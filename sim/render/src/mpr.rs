@@ -99,20 +99,11 @@ impl Slice {
 /// Renders one plane through `center`, covering the atlas' extent, with the partial labels
 /// blended in their property-tree colours (boundaries drawn opaque so thin structures stay
 /// visible).
-pub fn render_slice(
-    atlas: &PunctureAtlas,
-    plane: Plane,
-    center: DVec3,
-    window: Window,
-    max_px: usize,
-) -> Slice {
+pub fn render_slice(atlas: &PunctureAtlas, plane: Plane, center: DVec3, window: Window, max_px: usize) -> Slice {
     let grid = atlas.ct().grid();
     let (lo, hi) = grid.world_bounds();
     let s = grid.spacing_mm();
-    let (lo, hi) = (
-        lo - DVec3::from_array(s) * 0.5,
-        hi + DVec3::from_array(s) * 0.5,
-    );
+    let (lo, hi) = (lo - DVec3::from_array(s) * 0.5, hi + DVec3::from_array(s) * 0.5);
     let (u, v) = plane.axes();
     let extent = |axis: DVec3| (hi - lo).dot(axis.abs());
     let (eu, ev) = (extent(u), extent(v));
@@ -122,11 +113,7 @@ pub fn render_slice(
     let height = (ev / pixel_mm).round().max(1.0) as usize;
     // Pixel (0, 0) sits at the volume's corner where u and v are smallest along their directions.
     let start = |axis: DVec3, lo_c: f64, hi_c: f64| {
-        if axis.dot(DVec3::ONE) < 0.0 {
-            hi_c
-        } else {
-            lo_c
-        }
+        if axis.dot(DVec3::ONE) < 0.0 { hi_c } else { lo_c }
     };
     let mut corner = center;
     for a in 0..3 {
@@ -175,16 +162,10 @@ fn overlay_labels(atlas: &PunctureAtlas, slice: &mut Slice) {
                 continue;
             };
             let c = atlas.materials().color(pos);
-            let edge = [(0i64, 1i64), (1, 0), (0, -1), (-1, 0)]
-                .iter()
-                .any(|&(dc, dr)| {
-                    let (cc, rr) = (col as i64 + dc, row as i64 + dr);
-                    cc < 0
-                        || rr < 0
-                        || cc >= w as i64
-                        || rr >= h as i64
-                        || labels[rr as usize * w + cc as usize] != l
-                });
+            let edge = [(0i64, 1i64), (1, 0), (0, -1), (-1, 0)].iter().any(|&(dc, dr)| {
+                let (cc, rr) = (col as i64 + dc, row as i64 + dr);
+                cc < 0 || rr < 0 || cc >= w as i64 || rr >= h as i64 || labels[rr as usize * w + cc as usize] != l
+            });
             let alpha = if edge { 1.0 } else { c[3] as f64 / 255.0 * 0.6 };
             let px = &mut slice.rgb[row * w + col];
             for ch in 0..3 {

@@ -1,1 +1,287 @@
-//! Importers for real CT (filled below).
+//! Importers for real CT: a generic recipe-driven importer for a CT plus label maps (a
+//! TotalSegmentator output folder imports as is) and, behind the `dicom` feature, a DICOM series
+//! importer. Recipes are documented in docs/atlas.md "Import recipes".
+
+pub mod biliary;
+#[cfg(feature = "dicom")]
+pub mod dicom;
+pub mod recipe;
+pub mod resample;
+pub mod window;
+
+use std::path::Path;
+
+use stylet_physics::thresholds::estimate_thresholds;
+use stylet_physics::{LabelId, PunctureAtlas, Volume};
+
+use crate::manifest::{self, Manifest};
+use crate::{AtlasError, nifti_io};
+use biliary::BiliaryReport;
+use recipe::{LoadedRecipe, load_recipe};
+use window::WindowReport;
+
+/// What an import did, for the command's output and the tests.
+#[derive(Debug, Clone)]
+pub struct ImportReport {
+    pub manifest: Manifest,
+    pub biliary: Option<BiliaryReport>,
+    pub window: Option<WindowReport>,
+    pub notes: Vec<String>,
+}
+
+impl ImportReport {
+    pub fn to_text(&self) -> String {
+        let mut out = String::new();
+        for n in &self.notes {
+            out += &format!("- {n}\n");
+        }
+        if let Some(b) = &self.biliary {
+            out += &format!(
+                "- biliary tree: hilum at ({:.1}, {:.1}, {:.1}) mm from the {}, target centre ({:.1}, {:.1}, {:.1}) mm, \
+                 {} target and {} duct voxels, {} connected component(s), bile with {:.1} HU liver noise\n",
+                b.hilum_mm.x,
+                b.hilum_mm.y,
+                b.hilum_mm.z,
+                b.hilum_source,
+                b.target_center_mm.x,
+                b.target_center_mm.y,
+                b.target_center_mm.z,
+                b.target_voxels,
+                b.duct_voxels,
+                b.components,
+                b.liver_noise_hu
+            );
+        }
+        if let Some(w) = &self.window {
+            match (&w.found, w.requested_found) {
+                (Some(f), true) => {
+                    out += &format!(
+                        "- intercostal window between source ribs {} and {}: entry ({:.1}, {:.1}, {:.1}) mm → target \
+                         ({:.1}, {:.1}, {:.1}) mm, {:.0} mm long, {:.1} mm clear of bone, no risk structure crossed\n",
+                        f.upper_rib,
+                        f.lower_rib,
+                        f.entry_mm.x,
+                        f.entry_mm.y,
+                        f.entry_mm.z,
+                        f.target_mm.x,
+                        f.target_mm.y,
+                        f.target_mm.z,
+                        f.length_mm,
+                        f.bone_clearance_mm
+                    )
+                }
+                (Some(f), false) => {
+                    out += &format!(
+                        "- NO straight path between source ribs {} and {} reaches the target without bone or risk; \
+                         best window found: between ribs {} and {}, entry ({:.1}, {:.1}, {:.1}) mm, {:.0} mm long, {:.1} mm clear of bone\n",
+                        w.requested.0,
+                        w.requested.1,
+                        f.upper_rib,
+                        f.lower_rib,
+                        f.entry_mm.x,
+                        f.entry_mm.y,
+                        f.entry_mm.z,
+                        f.length_mm,
+                        f.bone_clearance_mm
+                    )
+                }
+                (None, _) => {
+                    out += &format!(
+                        "- NO intercostal window found: no straight path from the skin between any listed rib pair \
+                         (requested {} / {}) reaches the target without crossing bone or a risk structure\n",
+                        w.requested.0, w.requested.1
+                    )
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Places a label map into the CT's grid: by index with the recipe's offset, or by identical
+/// geometry when no offset is given.
+fn place_labels(
+    ct_grid: &stylet_physics::Grid,
+    labels: &Volume<LabelId>,
+    offset: [i64; 3],
+    path: &Path,
+    into: &mut Volume<LabelId>,
+    notes: &mut Vec<String>,
+) -> Result<(), AtlasError> {
+    let (cd, ld) = (ct_grid.dims(), labels.grid().dims());
+    if offset == [0, 0, 0] {
+        if cd != ld {
+            return Err(AtlasError::file(
+                path,
+                format!(
+                    "label map has dimensions {ld:?} but the CT has {cd:?}; if it covers part of the CT, set offset_voxels in the recipe"
+                ),
+            ));
+        }
+        let diff = ct_grid.affine().max_abs_diff(labels.grid().affine());
+        if diff > 1e-3 {
+            return Err(AtlasError::file(
+                path,
+                format!("label map affine differs from the CT's by up to {diff:.4} mm"),
+            ));
+        }
+    } else {
+        for a in 0..3 {
+            if offset[a] < 0 || offset[a] as usize + ld[a] > cd[a] {
+                return Err(AtlasError::file(
+                    path,
+                    format!("with offset_voxels {offset:?} the label map ({ld:?}) does not fit inside the CT ({cd:?})"),
+                ));
+            }
+        }
+        let spacing_diff = (0..3)
+            .map(|a| (ct_grid.spacing_mm()[a] - labels.grid().spacing_mm()[a]).abs())
+            .fold(0.0, f64::max);
+        if spacing_diff > 1e-3 {
+            return Err(AtlasError::file(
+                path,
+                "label map voxel size differs from the CT's; index alignment needs equal voxels",
+            ));
+        }
+        notes.push(format!(
+            "{} aligned to the CT by index with offset {offset:?} (its header origin is ignored)",
+            path.display()
+        ));
+    }
+    for k in 0..ld[2] {
+        for j in 0..ld[1] {
+            for i in 0..ld[0] {
+                let v = labels.get(i, j, k);
+                if v != 0 {
+                    into.set(
+                        i + offset[0] as usize,
+                        j + offset[1] as usize,
+                        k + offset[2] as usize,
+                        v,
+                    );
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Imports a CT and label maps from `data_dir` following the recipe, writes the atlas to `out`.
+pub fn import(recipe_path: &Path, data_dir: &Path, out: &Path) -> Result<ImportReport, AtlasError> {
+    let r: LoadedRecipe = load_recipe(recipe_path)?;
+    let rec = &r.recipe;
+    let mut notes = Vec::new();
+    let ct_path = data_dir.join(&rec.source.ct);
+    let mut ct = nifti_io::read_ct(&ct_path)?;
+    let mut source = Volume::filled(*ct.grid(), 0 as LabelId);
+    for ls in &rec.source.labels {
+        let p = data_dir.join(&ls.file);
+        let l = nifti_io::read_labels(&p)?;
+        place_labels(ct.grid(), &l, ls.offset_voxels, &p, &mut source, &mut notes)?;
+    }
+    if let Some(mm) = rec.resample_mm {
+        let g = resample::isotropic_grid(ct.grid(), mm);
+        notes.push(format!(
+            "resampled from {:?} voxels of {:?} mm to {:?} voxels of {mm} mm",
+            ct.grid().dims(),
+            ct.grid().spacing_mm(),
+            g.dims()
+        ));
+        ct = resample::resample_ct(&ct, &g);
+        source = resample::resample_labels(&source, &g);
+    }
+    let mut lut = vec![0 as LabelId; LabelId::MAX as usize + 1];
+    for m in &rec.map {
+        for &f in &m.from {
+            lut[f as usize] = m.to;
+        }
+    }
+    let mut labels = source.map(|s| lut[s as usize]);
+    let mut unmapped: Vec<LabelId> = source
+        .data()
+        .iter()
+        .copied()
+        .filter(|&s| s != 0 && lut[s as usize] == 0)
+        .collect();
+    unmapped.sort_unstable();
+    unmapped.dedup();
+    if !unmapped.is_empty() {
+        notes.push(format!(
+            "source labels left to the heuristic (not mapped): {unmapped:?}"
+        ));
+    }
+
+    let biliary = match &rec.biliary {
+        Some(b) => Some(
+            biliary::synthesize(b, &mut ct, &mut labels, &source)
+                .map_err(|e| AtlasError::file(recipe_path, format!("[biliary]: {e}")))?,
+        ),
+        None => None,
+    };
+    if let Some(b) = &biliary {
+        if b.components != 1 {
+            return Err(AtlasError::file(
+                recipe_path,
+                format!(
+                    "[biliary]: the synthetic tree falls into {} pieces; adjust radii or branches",
+                    b.components
+                ),
+            ));
+        }
+    }
+
+    let mut scenario = r.scenario.clone();
+    let mut present = vec![false; LabelId::MAX as usize + 1];
+    labels.data().iter().for_each(|&l| present[l as usize] = true);
+    let h = scenario.heuristic;
+    let heuristic_ids = [h.air, h.skin, h.fat, h.bone, h.risk];
+    scenario
+        .labels
+        .retain(|l| present[l.id as usize] || heuristic_ids.contains(&l.id));
+    let mut provenance = r.provenance(&format!(
+        "stylet {} (atlas import, recipe {})",
+        env!("CARGO_PKG_VERSION"),
+        recipe_path.display()
+    ));
+    provenance.notes = notes.clone();
+    if let Some(b) = &rec.biliary {
+        provenance.notes.push(format!(
+            "synthetic dilated biliary tree (seed {}): target label {}, ducts label {}, bile {} HU",
+            b.seed, b.target_label, b.duct_label, b.bile_hu
+        ));
+    }
+    let mut manifest = Manifest::new(&rec.name, &rec.description, provenance, scenario);
+
+    let window = match &rec.window {
+        Some(w) => {
+            let table = manifest::label_table(&manifest.labels, &manifest.heuristic)
+                .map_err(|e| AtlasError::file(recipe_path, e))?;
+            let tree = manifest::property_tree(&manifest.tissues).map_err(|e| AtlasError::file(recipe_path, e))?;
+            let t = estimate_thresholds(&ct, manifest.heuristic.risk_depth_mm)
+                .map_err(|e| AtlasError::file(&ct_path, e.to_string()))?;
+            let atlas = PunctureAtlas::new(ct.clone(), labels.clone(), table, tree, t)
+                .map_err(|e| AtlasError::file(recipe_path, e.to_string()))?;
+            let report = window::find_window(
+                &atlas,
+                &source,
+                w.upper_rib,
+                w.lower_rib,
+                &w.rib_sequence,
+                &w.bone_labels,
+            );
+            if let Some(p) = report.path() {
+                manifest.difficulty.beginner.guided_path = Some(p.name.clone());
+                manifest.paths.push(p);
+            }
+            Some(report)
+        }
+        None => None,
+    };
+    crate::write(out, &manifest, &ct, &labels)?;
+    Ok(ImportReport {
+        manifest,
+        biliary,
+        window,
+        notes,
+    })
+}

@@ -109,17 +109,10 @@ impl Anatomy {
     /// Radius of the skin surface in direction θ of the axial plane at height z (superellipse).
     fn surface_radius(&self, theta: f64, z: f64) -> f64 {
         let a = 152.0 + 0.04 * z;
-        let b = if sin(theta) >= 0.0 {
-            112.0 - 0.02 * z
-        } else {
-            98.0
-        };
+        let b = if sin(theta) >= 0.0 { 112.0 - 0.02 * z } else { 98.0 };
         let c = cos(theta).abs() / a;
         let s = sin(theta).abs() / b;
-        1.0 / pow(
-            pow(c, BODY_EXPONENT) + pow(s, BODY_EXPONENT),
-            1.0 / BODY_EXPONENT,
-        )
+        1.0 / pow(pow(c, BODY_EXPONENT) + pow(s, BODY_EXPONENT), 1.0 / BODY_EXPONENT)
     }
 
     /// Muscle outside the ribs: about 8 mm over the flanks and the front, the erector spinae
@@ -190,24 +183,12 @@ impl Anatomy {
     }
 
     /// Signed distance to a rib segment in the wall frame (ellipse cross-section, flat ends).
-    fn rib_sdf(
-        &self,
-        f: &BodyFrame,
-        z: f64,
-        rib: u32,
-        range: (f64, f64),
-        half_r: f64,
-        half_h: f64,
-    ) -> f64 {
+    fn rib_sdf(&self, f: &BodyFrame, z: f64, rib: u32, range: (f64, f64), half_r: f64, half_h: f64) -> f64 {
         let dr = f.depth - (f.b_ribs + 0.5 * RIB_LAYER_MM);
         let dz = z - self.rib_z(rib, f.phi);
         let q0 = sqrt(sq(dr / half_r) + sq(dz / half_h));
         let q1 = sqrt(sq(dr / (half_r * half_r)) + sq(dz / (half_h * half_h)));
-        let ellipse = if q1 > 0.0 {
-            q0 * (q0 - 1.0) / q1
-        } else {
-            -half_r
-        };
+        let ellipse = if q1 > 0.0 { q0 * (q0 - 1.0) / q1 } else { -half_r };
         let arc = (range.0 - f.phi).max(f.phi - range.1) * f.rho;
         ellipse.max(arc)
     }
@@ -217,8 +198,7 @@ impl Anatomy {
         let mut low = f64::INFINITY;
         for rib in RIBS {
             let (bone, cart) = self.rib_extent(rib);
-            let within =
-                (phi >= bone.0 && phi <= bone.1) || cart.is_some_and(|c| phi >= c.0 && phi <= c.1);
+            let within = (phi >= bone.0 && phi <= bone.1) || cart.is_some_and(|c| phi >= c.0 && phi <= c.1);
             if within {
                 low = low.min(self.rib_z(rib, phi) - RIB_HALF_HEIGHT - 4.0);
             }
@@ -248,10 +228,7 @@ impl Anatomy {
         let above_border = z_inf - z;
         // Posterior limit: the bare area reaches back beside the spine on the right; medially the
         // liver stays in front of the vena cava, the aorta and the vertebrae.
-        let y_post = piecewise(
-            x,
-            &[(-75.0, 20.0), (-30.0, 14.0), (38.0, 14.0), (58.0, -60.0)],
-        );
+        let y_post = piecewise(x, &[(-75.0, 20.0), (-30.0, 14.0), (38.0, 14.0), (58.0, -60.0)]);
         let anterior = y_post - y;
         let left_tip = -75.0 - x;
         let envelope = Ellipsoid::new([35.0, 15.0, 15.0], [125.0, 95.0, 105.0]).sdf(p);
@@ -300,11 +277,7 @@ impl Anatomy {
         } else if f.depth < f.b_fascia {
             Structure::Muscle
         } else if f.depth < f.b_cavity {
-            if thorax {
-                Structure::Fascia
-            } else {
-                Structure::Muscle
-            }
+            if thorax { Structure::Fascia } else { Structure::Muscle }
         } else {
             cavity_s
         };
@@ -317,28 +290,14 @@ impl Anatomy {
                     continue;
                 }
                 let outer = self.rib_sdf(&f, p.z, rib, bone, RIB_HALF_RADIAL, RIB_HALF_HEIGHT);
-                let inner = self.rib_sdf(
-                    &f,
-                    p.z,
-                    rib,
-                    bone,
-                    RIB_HALF_RADIAL - 1.5,
-                    RIB_HALF_HEIGHT - 1.5,
-                );
+                let inner = self.rib_sdf(&f, p.z, rib, bone, RIB_HALF_RADIAL - 1.5, RIB_HALF_HEIGHT - 1.5);
                 v += (hu::RIB_CORTEX - v) * ramp(-outer);
                 v += (hu::MARROW - v) * ramp(-inner);
                 if outer < 0.0 {
                     s = Structure::Rib;
                 }
                 if let Some(c) = cart {
-                    let cs = self.rib_sdf(
-                        &f,
-                        p.z,
-                        rib,
-                        c,
-                        RIB_HALF_RADIAL - 0.5,
-                        RIB_HALF_HEIGHT - 1.0,
-                    );
+                    let cs = self.rib_sdf(&f, p.z, rib, c, RIB_HALF_RADIAL - 0.5, RIB_HALF_HEIGHT - 1.0);
                     v += (hu::CARTILAGE - v) * ramp(-cs);
                     if cs < 0.0 {
                         s = Structure::Cartilage;
@@ -427,10 +386,7 @@ impl Anatomy {
         parts.push(Part {
             structure: Structure::Liver,
             hu: hu::LIVER,
-            aabb: Aabb::new(
-                DVec3::new(-80.0, -65.0, -75.0),
-                DVec3::new(160.0, 120.0, 100.0),
-            ),
+            aabb: Aabb::new(DVec3::new(-80.0, -65.0, -75.0), DVec3::new(160.0, 120.0, 100.0)),
             sdf: Box::new(move |p| a.liver_sdf(p)),
         });
         // Gallbladder (wall, then bile) on the liver's inferior surface.
@@ -448,12 +404,7 @@ impl Anatomy {
         ));
         // Kidneys with renal sinus fat.
         for (x, z) in [(75.0, -45.0), (-75.0, -32.0)] {
-            parts.push(ell(
-                Structure::Kidney,
-                hu::KIDNEY,
-                [x, -42.0, z],
-                [28.0, 24.0, 52.0],
-            ));
+            parts.push(ell(Structure::Kidney, hu::KIDNEY, [x, -42.0, z], [28.0, 24.0, 52.0]));
             parts.push(ell(
                 Structure::Fat,
                 hu::RENAL_SINUS,
@@ -493,11 +444,7 @@ impl Anatomy {
         parts.push(tube(
             Structure::Pancreas,
             hu::PANCREAS,
-            &[
-                [22.0, 34.0, -62.0],
-                [-20.0, 30.0, -45.0],
-                [-85.0, -5.0, -25.0],
-            ],
+            &[[22.0, 34.0, -62.0], [-20.0, 30.0, -45.0], [-85.0, -5.0, -25.0]],
             &[17.0, 12.0, 10.0],
         ));
         parts.push(tube(
@@ -547,11 +494,7 @@ impl Anatomy {
         // Small bowel loops in the lower abdomen.
         let mut rng = Rng::new(self.seed, 0xB0E1);
         for _ in 0..7 {
-            let c = [
-                rng.range(-70.0, 60.0),
-                rng.range(0.0, 60.0),
-                rng.range(-150.0, -105.0),
-            ];
+            let c = [rng.range(-70.0, 60.0), rng.range(0.0, 60.0), rng.range(-150.0, -105.0)];
             let pts = [
                 [
                     c[0] - 30.0,
@@ -682,24 +625,14 @@ impl Anatomy {
             });
             zc += pitch;
         }
-        let canal = Capsule::new(
-            DVec3::new(0.0, -55.0, -200.0),
-            DVec3::new(0.0, -55.0, 200.0),
-            9.0,
-            9.0,
-        );
+        let canal = Capsule::new(DVec3::new(0.0, -55.0, -200.0), DVec3::new(0.0, -55.0, 200.0), 9.0, 9.0);
         parts.push(Part {
             structure: Structure::SpinalCord,
             hu: hu::CSF,
             aabb: canal.aabb(),
             sdf: Box::new(move |p| canal.sdf(p)),
         });
-        let cord = Capsule::new(
-            DVec3::new(0.0, -55.0, -200.0),
-            DVec3::new(0.0, -55.0, 200.0),
-            5.5,
-            5.5,
-        );
+        let cord = Capsule::new(DVec3::new(0.0, -55.0, -200.0), DVec3::new(0.0, -55.0, 200.0), 5.5, 5.5);
         parts.push(Part {
             structure: Structure::SpinalCord,
             hu: hu::CORD,
@@ -765,9 +698,7 @@ impl Anatomy {
             let rd = (c.ra * 0.6).max(1.2);
             let off = anterior * (c.ra + rd + 1.5);
             let d = Capsule::new(c.a + off, c.b + off, rd, (c.rb * 0.6).max(1.0));
-            let ok = inside(d.a) < -(d.ra + 1.0)
-                && inside(d.b) < -(d.rb + 1.0)
-                && segment_distance(&d, &path) > 6.0;
+            let ok = inside(d.a) < -(d.ra + 1.0) && inside(d.b) < -(d.rb + 1.0) && segment_distance(&d, &path) > 6.0;
             if ok {
                 duct_branches.push(d);
             }
@@ -805,10 +736,7 @@ impl Anatomy {
                 &mut hv_branches,
             );
             let mid = (t[0].a + t[0].b) * 0.5;
-            let side = (t[0].b - t[0].a)
-                .normalize()
-                .cross(DVec3::Z)
-                .normalize_or_zero();
+            let side = (t[0].b - t[0].a).normalize().cross(DVec3::Z).normalize_or_zero();
             grow(
                 &mut rng,
                 mid,
@@ -845,12 +773,7 @@ impl Anatomy {
         for c in hv {
             parts.push(seg(Structure::HepaticVein, hu::HEPATIC_VEIN, c));
         }
-        for c in cbd
-            .into_iter()
-            .chain(lhd)
-            .chain(seg_ducts)
-            .chain(duct_branches)
-        {
+        for c in cbd.into_iter().chain(lhd).chain(seg_ducts).chain(duct_branches) {
             parts.push(seg(Structure::BileDuct, hu::BILE, c));
         }
         parts.push(seg(Structure::TargetDuct, hu::BILE, target));
@@ -900,17 +823,7 @@ fn grow(
                     let angle = rng.range(0.4, 0.75) * if k == 0 { 1.0 } else { -1.0 };
                     let child = rotate_about_random_axis(rng, dir, angle);
                     let child_len = len * rng.range(0.6, 0.8);
-                    grow(
-                        rng,
-                        end,
-                        child,
-                        child_len,
-                        radius * 0.72,
-                        depth - 1,
-                        inside,
-                        path,
-                        out,
-                    );
+                    grow(rng, end, child, child_len, radius * 0.72, depth - 1, inside, path, out);
                 }
             }
             return;
@@ -921,11 +834,7 @@ fn grow(
 
 /// Rotates `dir` by `angle` about an axis perpendicular to it, the axis chosen at random.
 fn rotate_about_random_axis(rng: &mut Rng, dir: DVec3, angle: f64) -> DVec3 {
-    let helper = if dir.x.abs() < 0.9 {
-        DVec3::X
-    } else {
-        DVec3::Y
-    };
+    let helper = if dir.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
     let u = dir.cross(helper).normalize();
     let w = dir.cross(u);
     let spin = rng.range(0.0, 2.0 * PI);

@@ -77,10 +77,7 @@ impl PhantomConfig {
             )));
         }
         if !(self.noise_hu.is_finite() && (0.0..=200.0).contains(&self.noise_hu)) {
-            return Err(AtlasError::Other(format!(
-                "noise {} HU must be 0 … 200",
-                self.noise_hu
-            )));
+            return Err(AtlasError::Other(format!("noise {} HU must be 0 … 200", self.noise_hu)));
         }
         if !(self.psf_mm.is_finite() && (0.0..=5.0).contains(&self.psf_mm)) {
             return Err(AtlasError::Other(format!(
@@ -148,11 +145,7 @@ pub fn generate(config: &PhantomConfig) -> Result<Phantom, AtlasError> {
 
     let partial_data: Vec<LabelId> = truth
         .par_iter()
-        .map(|&t| {
-            Structure::from_u8(t)
-                .map(Structure::partial_label)
-                .unwrap_or(0)
-        })
+        .map(|&t| Structure::from_u8(t).map(Structure::partial_label).unwrap_or(0))
         .collect();
     let ct = Volume::new(grid, hu).expect("grid sized");
     let partial = Volume::new(grid, partial_data).expect("grid sized");
@@ -214,15 +207,9 @@ fn paint(grid: &Grid, h: f64, part: &Part, hu: &mut [f32], truth: &mut [u8]) {
         let (l, u) = (lo[a].min(hi[a]), lo[a].max(hi[a]));
         let l = l.floor().max(0.0);
         let u = u.ceil().min(n as f64 - 1.0);
-        if u < l {
-            None
-        } else {
-            Some((l as usize, u as usize))
-        }
+        if u < l { None } else { Some((l as usize, u as usize)) }
     };
-    let (Some((i0, i1)), Some((j0, j1)), Some((k0, k1))) =
-        (range(0, nx), range(1, ny), range(2, nz))
-    else {
+    let (Some((i0, i1)), Some((j0, j1)), Some((k0, k1))) = (range(0, nx), range(1, ny), range(2, nz)) else {
         return;
     };
     let slab = nx * ny;
@@ -269,16 +256,11 @@ pub fn intercostal_path(anatomy: &Anatomy) -> InsertionPath {
         name: "intercostal-10-11".into(),
         entry_mm: round(p),
         target_mm: round(lm.target),
-        description:
-            "right 10th/11th intercostal space, mid-axillary line, to the right hepatic duct".into(),
+        description: "right 10th/11th intercostal space, mid-axillary line, to the right hepatic duct".into(),
     }
 }
 
-fn phantom_manifest(
-    config: &PhantomConfig,
-    anatomy: &Anatomy,
-    partial: &Volume<LabelId>,
-) -> Manifest {
+fn phantom_manifest(config: &PhantomConfig, anatomy: &Anatomy, partial: &Volume<LabelId>) -> Manifest {
     let mut scenario = ScenarioFile::ptcd();
     // Ship the heuristic labels and the partial labels present in this phantom only.
     let mut present = vec![false; LabelId::MAX as usize + 1];
@@ -307,10 +289,8 @@ fn phantom_manifest(
                 config.spacing_mm[2],
                 config.noise_hu
             ),
-            "portal-venous phase: liver ~100 HU, portal vein ~150 HU, dilated bile ducts ~8 HU"
-                .into(),
-            "partial labels per thesis Table A.2; skin, fat, bone and air come from the heuristic"
-                .into(),
+            "portal-venous phase: liver ~100 HU, portal vein ~150 HU, dilated bile ducts ~8 HU".into(),
+            "partial labels per thesis Table A.2; skin, fat, bone and air come from the heuristic".into(),
             "gallbladder, lesion and other organs are in the image but not labelled".into(),
         ],
     };

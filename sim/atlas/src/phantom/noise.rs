@@ -25,8 +25,7 @@ pub fn uniform(seed: u64, stream: u64, index: u64) -> f64 {
 pub fn gaussian(seed: u64, stream: u64, index: u64) -> f64 {
     let h = mix64(seed ^ mix64(stream.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ mix64(index)));
     let g = mix64(h);
-    let s =
-        (h & 0xFFFF_FFFF) as f64 + (h >> 32) as f64 + (g & 0xFFFF_FFFF) as f64 + (g >> 32) as f64;
+    let s = (h & 0xFFFF_FFFF) as f64 + (h >> 32) as f64 + (g & 0xFFFF_FFFF) as f64 + (g >> 32) as f64;
     // Mean 2·2^32, variance 4·(2^64/12) for four uniforms on [0, 2^32).
     let mean = 2.0 * 4_294_967_296.0;
     let sd = (4.0 / 12.0f64).sqrt() * 4_294_967_296.0;

@@ -18,10 +18,7 @@ impl Aabb {
         Aabb { min, max }
     }
     pub fn around(c: DVec3, r: DVec3) -> Self {
-        Aabb {
-            min: c - r,
-            max: c + r,
-        }
+        Aabb { min: c - r, max: c + r }
     }
     pub fn union(&self, o: &Aabb) -> Aabb {
         Aabb {
@@ -122,18 +119,13 @@ impl Tube {
         let segments = points
             .windows(2)
             .zip(radii.windows(2))
-            .map(|(p, r)| {
-                Capsule::new(DVec3::from_array(p[0]), DVec3::from_array(p[1]), r[0], r[1])
-            })
+            .map(|(p, r)| Capsule::new(DVec3::from_array(p[0]), DVec3::from_array(p[1]), r[0], r[1]))
             .collect();
         Tube { segments }
     }
 
     pub fn sdf(&self, p: DVec3) -> f64 {
-        self.segments
-            .iter()
-            .map(|c| c.sdf(p))
-            .fold(f64::INFINITY, f64::min)
+        self.segments.iter().map(|c| c.sdf(p)).fold(f64::INFINITY, f64::min)
     }
 
     pub fn aabb(&self) -> Aabb {
