@@ -38,31 +38,35 @@ pub fn body_mask(ct: &Volume<f32>, air_skin_hu: f64) -> Vec<bool> {
             }
         }
     }
-    while let Some(idx) = stack.pop() {
-        let [i, j, k] = grid.unlinear(idx);
-        let mut visit = |n: usize| {
+    // The stack holds (i, j, k) to avoid divisions when visiting neighbours.
+    let mut stack: Vec<[u32; 3]> = stack.into_iter().map(|idx| grid.unlinear(idx).map(|v| v as u32)).collect();
+    while let Some([i, j, k]) = stack.pop() {
+        let (i, j, k) = (i as usize, j as usize, k as usize);
+        let idx = i + nx * (j + ny * k);
+        let mut visit = |n: usize, c: [usize; 3]| {
             if air[n] && !outside[n] {
                 outside[n] = true;
-                stack.push(n);
+                stack.push(c.map(|v| v as u32));
             }
         };
-        if i > 0 {
-            visit(idx - 1);
-        }
-        if i + 1 < nx {
-            visit(idx + 1);
-        }
-        if j > 0 {
-            visit(idx - nx);
-        }
-        if j + 1 < ny {
-            visit(idx + nx);
-        }
+        // Far neighbours first so the next pop walks along the row (cache-friendly).
         if k > 0 {
-            visit(idx - nx * ny);
+            visit(idx - nx * ny, [i, j, k - 1]);
         }
         if k + 1 < nz {
-            visit(idx + nx * ny);
+            visit(idx + nx * ny, [i, j, k + 1]);
+        }
+        if j > 0 {
+            visit(idx - nx, [i, j - 1, k]);
+        }
+        if j + 1 < ny {
+            visit(idx + nx, [i, j + 1, k]);
+        }
+        if i > 0 {
+            visit(idx - 1, [i - 1, j, k]);
+        }
+        if i + 1 < nx {
+            visit(idx + 1, [i + 1, j, k]);
         }
     }
     let inside: Vec<bool> = outside.into_iter().map(|o| !o).collect();
@@ -82,22 +86,24 @@ pub fn largest_component(grid: &crate::Grid, mask: &[bool]) -> Vec<bool> {
         let id = sizes.len() as u32;
         sizes.push(0);
         component[start] = id;
-        stack.push(start);
-        while let Some(idx) = stack.pop() {
+        stack.push(grid.unlinear(start).map(|v| v as u32));
+        while let Some([i, j, k]) = stack.pop() {
             sizes[id as usize] += 1;
-            let [i, j, k] = grid.unlinear(idx);
+            let (i, j, k) = (i as usize, j as usize, k as usize);
+            let idx = i + nx * (j + ny * k);
+            // Far neighbours first so the next pop walks along the row (cache-friendly).
             let neighbours = [
-                (i > 0).then(|| idx - 1),
-                (i + 1 < nx).then(|| idx + 1),
-                (j > 0).then(|| idx - nx),
-                (j + 1 < ny).then(|| idx + nx),
-                (k > 0).then(|| idx - nx * ny),
-                (k + 1 < nz).then(|| idx + nx * ny),
+                (k > 0).then(|| (idx - nx * ny, [i, j, k - 1])),
+                (k + 1 < nz).then(|| (idx + nx * ny, [i, j, k + 1])),
+                (j > 0).then(|| (idx - nx, [i, j - 1, k])),
+                (j + 1 < ny).then(|| (idx + nx, [i, j + 1, k])),
+                (i > 0).then(|| (idx - 1, [i - 1, j, k])),
+                (i + 1 < nx).then(|| (idx + 1, [i + 1, j, k])),
             ];
-            for n in neighbours.into_iter().flatten() {
+            for (n, c) in neighbours.into_iter().flatten() {
                 if mask[n] && component[n] == 0 {
                     component[n] = id;
-                    stack.push(n);
+                    stack.push(c.map(|v| v as u32));
                 }
             }
         }

@@ -60,7 +60,7 @@ pub fn synthesize(
         ));
     }
     let not_liver: Vec<bool> = liver.iter().map(|&b| !b).collect();
-    let depth: Vec<f64> = squared_edt(&grid, &not_liver).into_iter().map(f64::sqrt).collect();
+    let depth: Vec<f64> = squared_edt(&grid, &not_liver).into_iter().map(|d| (d as f64).sqrt()).collect();
     let world = |idx: usize| {
         let [i, j, k] = grid.unlinear(idx);
         grid.voxel_to_world(i, j, k)
@@ -68,7 +68,7 @@ pub fn synthesize(
     let margin = params.target_radius_mm + 3.0;
 
     // Hilum: portal-vein voxels in or next to the liver, snapped to a deep liver voxel.
-    let near_liver: Vec<f64> = squared_edt(&grid, &liver).into_iter().map(f64::sqrt).collect();
+    let near_liver: Vec<f64> = squared_edt(&grid, &liver).into_iter().map(|d| (d as f64).sqrt()).collect();
     let (mut sum, mut n) = (DVec3::ZERO, 0usize);
     for (idx, &s) in source.data().iter().enumerate() {
         if s != 0 && params.hilum_from.contains(&s) && near_liver[idx] <= 6.0 {

@@ -163,9 +163,9 @@ impl<'a> Search<'a> {
         }
         let du = squared_edt(grid, &mu);
         let dl = squared_edt(grid, &ml);
-        let dist = |d: &[f64], p: DVec3| {
+        let dist = |d: &[f32], p: DVec3| {
             grid.nearest_voxel(p)
-                .map(|[i, j, k]| d[grid.linear(i, j, k)].sqrt())
+                .map(|[i, j, k]| (d[grid.linear(i, j, k)] as f64).sqrt())
                 .unwrap_or(f64::INFINITY)
         };
         let rib_points = |m: &[bool]| -> Vec<DVec3> {
