@@ -55,7 +55,7 @@ pub struct PhantomArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Grid size in voxels, e.g. 256,256,200.
-    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [256usize, 256, 200])]
+    #[arg(long, value_delimiter = ',', default_values_t = [256usize, 256, 200])]
     pub dims: Vec<usize>,
     /// Voxel spacing in mm, one value or three (x,y,z).
     #[arg(long, value_delimiter = ',', default_values_t = [1.5f64])]
@@ -88,8 +88,11 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
                 [x, y, z] => [*x, *y, *z],
                 other => anyhow::bail!("--spacing takes one or three values, got {}", other.len()),
             };
+            let [x, y, z] = a.dims[..] else {
+                anyhow::bail!("--dims takes three values (x,y,z), got {}", a.dims.len());
+            };
             let config = PhantomConfig {
-                dims: [a.dims[0], a.dims[1], a.dims[2]],
+                dims: [x, y, z],
                 spacing_mm: spacing,
                 seed: a.seed,
                 noise_hu: a.noise,

@@ -7,7 +7,6 @@ use std::time::Instant;
 
 use clap::Args;
 
-
 #[derive(Debug, Args)]
 pub struct DemoArgs {
     /// Where to write the demo's files.

@@ -18,6 +18,8 @@ use stylet_physics::{Affine, Grid, LabelId, Volume};
 
 use crate::AtlasError;
 
+/// Most bytes of voxel data we read from one file (1 GiB).
+const MAX_DATA_BYTES: usize = 1 << 30;
 /// Largest extension block we skip between the header and the data (1 MiB).
 const MAX_EXTENSION_BYTES: f64 = (1 << 20) as f64;
 
@@ -109,7 +111,7 @@ fn check_header(path: &Path, h: &NiftiHeader) -> Result<(Grid, DType), AtlasErro
         ));
     }
     let dims: Vec<usize> = (1..=rank as usize).map(|a| h.dim[a] as usize).collect();
-    if dims.iter().any(|&d| d == 0) {
+    if dims.contains(&0) {
         return Err(err(path, format!("dimension list {dims:?} contains a zero")));
     }
     if dims.len() > 3 && dims[3..].iter().any(|&d| d != 1) {
@@ -200,9 +202,15 @@ fn read_raw(path: &Path) -> Result<RawVolume, AtlasError> {
     }
     let size = dtype.size_of();
     let nbytes = grid.len() * size;
+    if nbytes > MAX_DATA_BYTES {
+        return Err(err(
+            path,
+            format!("{nbytes} bytes of voxel data exceed the limit of {MAX_DATA_BYTES}"),
+        ));
+    }
+    // No reservation up front: the buffer grows with the bytes that really arrive, so a header
+    // that promises more than the file holds cannot make us allocate it.
     let mut raw = Vec::new();
-    raw.try_reserve_exact(nbytes)
-        .map_err(|_| err(path, format!("cannot allocate {nbytes} bytes")))?;
     let got = (&mut r)
         .take(nbytes as u64)
         .read_to_end(&mut raw)

@@ -107,12 +107,12 @@ pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
         ("advanced", &m.difficulty.advanced),
         ("expert", &m.difficulty.expert),
     ] {
-        if let Some(g) = &preset.guided_path {
-            if !names.contains(g.as_str()) {
-                return Err(format!(
-                    "difficulty.{level}.guided_path = {g:?} names no insertion path"
-                ));
-            }
+        if let Some(g) = &preset.guided_path
+            && !names.contains(g.as_str())
+        {
+            return Err(format!(
+                "difficulty.{level}.guided_path = {g:?} names no insertion path"
+            ));
         }
     }
     Ok(m)

@@ -143,11 +143,7 @@ pub fn signed_distance_map(grid: &Grid, inside: &[bool]) -> Volume<f32> {
     let data = inside
         .par_iter()
         .zip(to_outside.par_iter().zip(to_inside.par_iter()))
-        .map(
-            |(&ins, (&a, &b))| {
-                if ins { a.sqrt() as f32 } else { -(b.sqrt() as f32) }
-            },
-        )
+        .map(|(&ins, (&a, &b))| if ins { a.sqrt() } else { -b.sqrt() })
         .collect();
     Volume::new(*grid, data).expect("same grid")
 }

@@ -39,7 +39,10 @@ pub fn body_mask(ct: &Volume<f32>, air_skin_hu: f64) -> Vec<bool> {
         }
     }
     // The stack holds (i, j, k) to avoid divisions when visiting neighbours.
-    let mut stack: Vec<[u32; 3]> = stack.into_iter().map(|idx| grid.unlinear(idx).map(|v| v as u32)).collect();
+    let mut stack: Vec<[u32; 3]> = stack
+        .into_iter()
+        .map(|idx| grid.unlinear(idx).map(|v| v as u32))
+        .collect();
     while let Some([i, j, k]) = stack.pop() {
         let (i, j, k) = (i as usize, j as usize, k as usize);
         let idx = i + nx * (j + ny * k);
@@ -117,7 +120,11 @@ pub fn largest_component(grid: &crate::Grid, mask: &[bool]) -> Vec<bool> {
 
 /// Bone: CT at or above t_fat→bone, inside the body (the CT table is not bone).
 pub fn bone_mask(ct: &Volume<f32>, fat_bone_hu: f64, body: &[bool]) -> Vec<bool> {
-    ct.data().iter().zip(body).map(|(&v, &b)| b && (v as f64) >= fat_bone_hu).collect()
+    ct.data()
+        .iter()
+        .zip(body)
+        .map(|(&v, &b)| b && (v as f64) >= fat_bone_hu)
+        .collect()
 }
 
 /// Number of true voxels.

@@ -60,7 +60,10 @@ pub fn synthesize(
         ));
     }
     let not_liver: Vec<bool> = liver.iter().map(|&b| !b).collect();
-    let depth: Vec<f64> = squared_edt(&grid, &not_liver).into_iter().map(|d| (d as f64).sqrt()).collect();
+    let depth: Vec<f64> = squared_edt(&grid, &not_liver)
+        .into_iter()
+        .map(|d| (d as f64).sqrt())
+        .collect();
     let world = |idx: usize| {
         let [i, j, k] = grid.unlinear(idx);
         grid.voxel_to_world(i, j, k)
@@ -68,7 +71,10 @@ pub fn synthesize(
     let margin = params.target_radius_mm + 3.0;
 
     // Hilum: portal-vein voxels in or next to the liver, snapped to a deep liver voxel.
-    let near_liver: Vec<f64> = squared_edt(&grid, &liver).into_iter().map(|d| (d as f64).sqrt()).collect();
+    let near_liver: Vec<f64> = squared_edt(&grid, &liver)
+        .into_iter()
+        .map(|d| (d as f64).sqrt())
+        .collect();
     let (mut sum, mut n) = (DVec3::ZERO, 0usize);
     for (idx, &s) in source.data().iter().enumerate() {
         if s != 0 && params.hilum_from.contains(&s) && near_liver[idx] <= 6.0 {
@@ -153,17 +159,17 @@ pub fn synthesize(
         let goal = a + dir * rng.range(25.0, 45.0);
         let start = nearest_allowed(&grid, &branch_allowed, a);
         let end = nearest_allowed(&grid, &branch_allowed, goal);
-        if let (Some(s), Some(e)) = (start, end) {
-            if let Some(p) = geodesic(&grid, &branch_allowed, &depth, s, e) {
-                let pts = smooth(&p.iter().map(|&i| world(i)).collect::<Vec<_>>());
-                if polyline_length(&pts) > 8.0 {
-                    ducts.push(Duct {
-                        points: pts,
-                        radius_start: params.branch_radius_mm,
-                        radius_end: params.branch_radius_mm * 0.8,
-                        label: params.duct_label,
-                    });
-                }
+        if let (Some(s), Some(e)) = (start, end)
+            && let Some(p) = geodesic(&grid, &branch_allowed, &depth, s, e)
+        {
+            let pts = smooth(&p.iter().map(|&i| world(i)).collect::<Vec<_>>());
+            if polyline_length(&pts) > 8.0 {
+                ducts.push(Duct {
+                    points: pts,
+                    radius_start: params.branch_radius_mm,
+                    radius_end: params.branch_radius_mm * 0.8,
+                    label: params.duct_label,
+                });
             }
         }
     }

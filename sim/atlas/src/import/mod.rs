@@ -166,9 +166,17 @@ fn place_labels(
     Ok(())
 }
 
-/// Imports a CT and label maps from `data_dir` following the recipe, writes the atlas to `out`.
-pub fn import(recipe_path: &Path, data_dir: &Path, out: &Path) -> Result<ImportReport, AtlasError> {
-    let r: LoadedRecipe = load_recipe(recipe_path)?;
+/// The recipe's CT and source label map (label maps placed into the CT grid, resampled as the
+/// recipe asks), before mapping: what the importer starts from.
+pub struct Sources {
+    pub ct: Volume<f32>,
+    /// Source label numbers (e.g. TotalSegmentator classes) on the CT's grid.
+    pub labels: Volume<LabelId>,
+    pub notes: Vec<String>,
+}
+
+/// Reads the recipe's CT and label maps from `data_dir`.
+pub fn read_sources(r: &LoadedRecipe, data_dir: &Path) -> Result<Sources, AtlasError> {
     let rec = &r.recipe;
     let mut notes = Vec::new();
     let ct_path = data_dir.join(&rec.source.ct);
@@ -190,6 +198,23 @@ pub fn import(recipe_path: &Path, data_dir: &Path, out: &Path) -> Result<ImportR
         ct = resample::resample_ct(&ct, &g);
         source = resample::resample_labels(&source, &g);
     }
+    Ok(Sources {
+        ct,
+        labels: source,
+        notes,
+    })
+}
+
+/// Imports a CT and label maps from `data_dir` following the recipe, writes the atlas to `out`.
+pub fn import(recipe_path: &Path, data_dir: &Path, out: &Path) -> Result<ImportReport, AtlasError> {
+    let r: LoadedRecipe = load_recipe(recipe_path)?;
+    let rec = &r.recipe;
+    let ct_path = data_dir.join(&rec.source.ct);
+    let Sources {
+        mut ct,
+        labels: source,
+        mut notes,
+    } = read_sources(&r, data_dir)?;
     let mut lut = vec![0 as LabelId; LabelId::MAX as usize + 1];
     for m in &rec.map {
         for &f in &m.from {
@@ -218,16 +243,16 @@ pub fn import(recipe_path: &Path, data_dir: &Path, out: &Path) -> Result<ImportR
         ),
         None => None,
     };
-    if let Some(b) = &biliary {
-        if b.components != 1 {
-            return Err(AtlasError::file(
-                recipe_path,
-                format!(
-                    "[biliary]: the synthetic tree falls into {} pieces; adjust radii or branches",
-                    b.components
-                ),
-            ));
-        }
+    if let Some(b) = &biliary
+        && b.components != 1
+    {
+        return Err(AtlasError::file(
+            recipe_path,
+            format!(
+                "[biliary]: the synthetic tree falls into {} pieces; adjust radii or branches",
+                b.components
+            ),
+        ));
     }
 
     let mut scenario = r.scenario.clone();

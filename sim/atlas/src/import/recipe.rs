@@ -139,10 +139,10 @@ pub fn load_recipe(path: &Path) -> Result<LoadedRecipe, AtlasError> {
     if recipe.name.trim().is_empty() {
         return Err(bad("name must not be empty".into()));
     }
-    if let Some(r) = recipe.resample_mm {
-        if !(r.is_finite() && (0.2..=10.0).contains(&r)) {
-            return Err(bad(format!("resample_mm = {r} must be 0.2 … 10")));
-        }
+    if let Some(r) = recipe.resample_mm
+        && !(r.is_finite() && (0.2..=10.0).contains(&r))
+    {
+        return Err(bad(format!("resample_mm = {r} must be 0.2 … 10")));
     }
     let scenario_path = path.parent().unwrap_or(Path::new(".")).join(&recipe.scenario);
     let scenario_text = std::fs::read_to_string(&scenario_path)

@@ -673,35 +673,61 @@ impl Anatomy {
         let mut pv: Vec<Capsule> = pv_main.iter().chain(&lpv).copied().collect();
         pv.extend([rpv, rpv_ant, rpv_post]);
 
-        // Peripheral portal branches with companion bile ducts (portal triads).
+        // Bile duct trunks: common bile duct from the lesion up to the hilum, left hepatic duct and
+        // the right hepatic duct's anterior and posterior segmental ducts (the target comes last).
+        let cbd = [
+            cap([20.0, 35.0, -47.0], [26.0, 36.0, -25.0], 6.0, 6.0),
+            cap([26.0, 36.0, -25.0], [30.0, 35.0, -2.0], 6.0, 5.5),
+        ];
+        let lhd = [
+            cap([29.0, 35.0, 1.0], [-2.0, 42.0, 9.0], 4.2, 4.0),
+            cap([-2.0, 42.0, 9.0], [-28.0, 48.0, 15.0], 4.0, 3.2),
+        ];
+        let seg_ducts = [
+            cap(RHD.1.to_array(), [93.0, 46.0, 8.0], 3.4, 3.0),
+            cap(RHD.1.to_array(), [99.0, -4.0, 18.0], 3.4, 3.0),
+        ];
+
+        // Peripheral portal branches, each with a companion bile duct (portal triads) that starts
+        // where its parent's companion ends, so the biliary tree stays one connected piece.
         let mut rng = Rng::new(self.seed, 0x7EE5);
         let inside = |p: DVec3| self.liver_sdf(p);
+        let mut duct_branches = Vec::new();
         let mut pv_branches = Vec::new();
-        for (root, depth) in [(rpv_ant, 2), (rpv_post, 2), (lpv[1], 2)] {
+        for (root, duct_root) in [(rpv_ant, seg_ducts[0]), (rpv_post, seg_ducts[1]), (lpv[1], lhd[1])] {
             let dir = (root.b - root.a).normalize();
+            let mut tree = Vec::new();
             grow(
                 &mut rng,
                 root.b,
                 dir,
                 28.0,
                 root.rb * 0.8,
-                depth,
+                2,
                 &inside,
                 &path,
-                &mut pv_branches,
+                None,
+                &mut tree,
             );
-        }
-        let mut duct_branches = Vec::new();
-        for c in &pv_branches {
-            let axis = (c.b - c.a).normalize();
-            let anterior = (DVec3::Y - axis * axis.y).normalize_or_zero();
-            let rd = (c.ra * 0.6).max(1.2);
-            let off = anterior * (c.ra + rd + 1.5);
-            let d = Capsule::new(c.a + off, c.b + off, rd, (c.rb * 0.6).max(1.0));
-            let ok = inside(d.a) < -(d.ra + 1.0) && inside(d.b) < -(d.rb + 1.0) && segment_distance(&d, &path) > 6.0;
-            if ok {
-                duct_branches.push(d);
+            let mut duct_end: Vec<Option<(DVec3, f64)>> = Vec::with_capacity(tree.len());
+            for b in &tree {
+                let c = b.capsule;
+                let start = match b.parent {
+                    None => Some((duct_root.b, duct_root.rb)),
+                    Some(p) => duct_end[p],
+                };
+                let companion = start.and_then(|(a, ra)| {
+                    let axis = (c.b - c.a).normalize();
+                    let anterior = (DVec3::Y - axis * axis.y).normalize_or_zero();
+                    let rb = (c.rb * 0.6).max(1.0);
+                    let d = Capsule::new(a, c.b + anterior * (c.rb + rb + 1.5), ra.min((c.ra * 0.6).max(1.2)), rb);
+                    let ok = inside(d.b) < -(d.rb + 1.0) && segment_distance(&d, &path) > 6.0;
+                    ok.then_some(d)
+                });
+                duct_end.push(companion.map(|d| (d.b, d.rb)));
+                duct_branches.extend(companion);
             }
+            pv_branches.extend(tree.iter().map(|b| b.capsule));
         }
         pv.extend(pv_branches);
 
@@ -733,6 +759,7 @@ impl Anatomy {
                 2,
                 &inside,
                 &path,
+                None,
                 &mut hv_branches,
             );
             let mid = (t[0].a + t[0].b) * 0.5;
@@ -746,25 +773,12 @@ impl Anatomy {
                 1,
                 &inside,
                 &path,
+                None,
                 &mut hv_branches,
             );
         }
-        hv.extend(hv_branches);
+        hv.extend(hv_branches.iter().map(|b| b.capsule));
 
-        // Bile ducts: common bile duct from the lesion up to the hilum, left hepatic duct and the
-        // right hepatic duct (the target) with its anterior and posterior segmental ducts.
-        let cbd = [
-            cap([20.0, 35.0, -47.0], [26.0, 36.0, -25.0], 6.0, 6.0),
-            cap([26.0, 36.0, -25.0], [30.0, 35.0, -2.0], 6.0, 5.5),
-        ];
-        let lhd = [
-            cap([29.0, 35.0, 1.0], [-2.0, 42.0, 9.0], 4.2, 4.0),
-            cap([-2.0, 42.0, 9.0], [-28.0, 48.0, 15.0], 4.0, 3.2),
-        ];
-        let seg_ducts = [
-            cap(RHD.1.to_array(), [93.0, 46.0, 8.0], 3.4, 3.0),
-            cap(RHD.1.to_array(), [99.0, -4.0, 18.0], 3.4, 3.0),
-        ];
         let target = Capsule::new(RHD.0, RHD.1, 4.5, 4.5);
 
         for c in pv {
@@ -795,6 +809,13 @@ fn segment_distance(c: &Capsule, path: &Capsule) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
+/// One grown vessel segment and the segment it branches from (`None` for a root).
+#[derive(Debug, Clone, Copy)]
+struct Branch {
+    capsule: Capsule,
+    parent: Option<usize>,
+}
+
 /// Grows a binary branching tree from `start` along `dir` inside the region where `inside` < 0,
 /// keeping every branch at least 6 mm from the planned insertion path.
 #[allow(clippy::too_many_arguments)]
@@ -807,7 +828,8 @@ fn grow(
     depth: u32,
     inside: &dyn Fn(DVec3) -> f64,
     path: &Capsule,
-    out: &mut Vec<Capsule>,
+    parent: Option<usize>,
+    out: &mut Vec<Branch>,
 ) {
     if radius < 1.2 {
         return;
@@ -817,13 +839,25 @@ fn grow(
         let end = start + dir * l;
         let c = Capsule::new(start, end, radius, radius * 0.85);
         if inside(end) < -(radius + 2.0) && segment_distance(&c, path) > 6.0 {
-            out.push(c);
+            out.push(Branch { capsule: c, parent });
+            let me = Some(out.len() - 1);
             if depth > 0 {
                 for k in 0..2 {
                     let angle = rng.range(0.4, 0.75) * if k == 0 { 1.0 } else { -1.0 };
                     let child = rotate_about_random_axis(rng, dir, angle);
                     let child_len = len * rng.range(0.6, 0.8);
-                    grow(rng, end, child, child_len, radius * 0.72, depth - 1, inside, path, out);
+                    grow(
+                        rng,
+                        end,
+                        child,
+                        child_len,
+                        radius * 0.72,
+                        depth - 1,
+                        inside,
+                        path,
+                        me,
+                        out,
+                    );
                 }
             }
             return;

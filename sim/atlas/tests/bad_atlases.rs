@@ -1,0 +1,272 @@
+//! Every kind of bad atlas gets an error that names the file and the problem (issue: missing file,
+//! dimension or affine mismatch, unknown label, NaN, property-tree cycle or unknown parent,
+//! thresholds out of order), and nothing panics.
+
+mod common;
+
+use std::fs;
+use std::path::Path;
+
+use common::{tiny_grid, tiny_manifest, tiny_volumes, write_tiny};
+use stylet_physics::glam::DVec3;
+use stylet_physics::{Affine, Grid, Volume};
+
+fn load_err(dir: &Path) -> String {
+    match stylet_atlas::load(dir) {
+        Ok(_) => panic!("{} loaded although it is broken", dir.display()),
+        Err(e) => e.to_string(),
+    }
+}
+
+fn assert_mentions(msg: &str, parts: &[&str]) {
+    for p in parts {
+        assert!(msg.contains(p), "error {msg:?} does not mention {p:?}");
+    }
+}
+
+fn edit_manifest(dir: &Path, f: impl FnOnce(String) -> String) {
+    let p = dir.join("atlas.toml");
+    let text = fs::read_to_string(&p).unwrap();
+    let new = f(text.clone());
+    assert_ne!(text, new, "the edit changed nothing");
+    fs::write(p, new).unwrap();
+}
+
+#[test]
+fn the_tiny_atlas_is_valid() {
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    let a = stylet_atlas::load(d.path()).unwrap();
+    assert_eq!(a.model.ct().grid().dims(), [24, 20, 16]);
+    assert_eq!(a.threshold_source, stylet_atlas::ThresholdSource::Estimated);
+}
+
+#[test]
+fn missing_files() {
+    let d = tempfile::tempdir().unwrap();
+    let e = load_err(&d.path().join("nope"));
+    assert_mentions(&e, &["nope", "does not exist"]);
+    let e = load_err(d.path());
+    assert_mentions(&e, &["atlas.toml", "missing"]);
+    write_tiny(d.path());
+    fs::remove_file(d.path().join("ct.nii.gz")).unwrap();
+    assert_mentions(&load_err(d.path()), &["ct.nii.gz", "cannot open"]);
+    write_tiny(d.path());
+    fs::remove_file(d.path().join("labels.nii.gz")).unwrap();
+    assert_mentions(&load_err(d.path()), &["labels.nii.gz", "cannot open"]);
+}
+
+#[test]
+fn dimension_mismatch() {
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    let g = Grid::new([24, 20, 15], *tiny_grid().affine()).unwrap();
+    stylet_atlas::nifti_io::write_labels(&d.path().join("labels.nii.gz"), &Volume::filled(g, 0), "").unwrap();
+    assert_mentions(
+        &load_err(d.path()),
+        &["labels.nii.gz", "dimensions [24, 20, 15]", "[24, 20, 16]"],
+    );
+}
+
+#[test]
+fn affine_mismatch() {
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    let shifted = Affine::from_spacing([4.0; 3], DVec3::new(-46.0, -38.0, -27.0));
+    let g = Grid::new([24, 20, 16], shifted).unwrap();
+    stylet_atlas::nifti_io::write_labels(&d.path().join("labels.nii.gz"), &Volume::filled(g, 0), "").unwrap();
+    assert_mentions(&load_err(d.path()), &["labels.nii.gz", "affine differs", "3.0000 mm"]);
+}
+
+#[test]
+fn unknown_label() {
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    let (_, mut labels) = tiny_volumes();
+    labels.set(3, 3, 3, 99);
+    stylet_atlas::nifti_io::write_labels(&d.path().join("labels.nii.gz"), &labels, "").unwrap();
+    assert_mentions(
+        &load_err(d.path()),
+        &["labels.nii.gz", "label 99", "not in the label table"],
+    );
+}
+
+#[test]
+fn fractional_or_negative_labels() {
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    let mut data = vec![0.0f32; 24 * 20 * 16];
+    data[100] = 1.5;
+    write_f32(&d.path().join("labels.nii.gz"), data);
+    assert_mentions(
+        &load_err(d.path()),
+        &["labels.nii.gz", "holds 1.5", "not a label number"],
+    );
+}
+
+/// Writes a float32 NIfTI on the tiny grid (the atlas writer only writes int16 CTs).
+fn write_f32(path: &Path, data: Vec<f32>) {
+    use ndarray::ShapeBuilder;
+    let arr = ndarray::Array3::from_shape_vec((24, 20, 16).f(), data).unwrap();
+    let rows = tiny_grid().affine().rows();
+    let f = |r: [f64; 4]| [r[0] as f32, r[1] as f32, r[2] as f32, r[3] as f32];
+    let header = nifti::NiftiHeader {
+        sform_code: 1,
+        srow_x: f(rows[0]),
+        srow_y: f(rows[1]),
+        srow_z: f(rows[2]),
+        ..Default::default()
+    };
+    nifti::writer::WriterOptions::new(path)
+        .reference_header(&header)
+        .write_nifti(&arr)
+        .unwrap();
+}
+
+#[test]
+fn nan_in_the_ct() {
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    let (ct, _) = tiny_volumes();
+    let mut data = ct.data().to_vec();
+    let idx = tiny_grid().linear(5, 6, 7);
+    data[idx] = f32::NAN;
+    write_f32(&d.path().join("ct.nii.gz"), data);
+    assert_mentions(&load_err(d.path()), &["ct.nii.gz", "voxel (5, 6, 7)", "NaN"]);
+}
+
+#[test]
+fn property_tree_cycle() {
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    let mut m = tiny_manifest();
+    m.tissues.get_mut("body").unwrap().parent = Some("liver".into());
+    fs::write(d.path().join("atlas.toml"), m.to_toml()).unwrap();
+    assert_mentions(&load_err(d.path()), &["atlas.toml", "cycle", "liver", "body"]);
+}
+
+#[test]
+fn property_tree_unknown_parent() {
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    edit_manifest(d.path(), |t| {
+        t.replacen("parent = \"soft_tissue\"", "parent = \"soft_tisue\"", 1)
+    });
+    assert_mentions(&load_err(d.path()), &["atlas.toml", "unknown parent 'soft_tisue'"]);
+}
+
+#[test]
+fn parameter_without_definition() {
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    let mut m = tiny_manifest();
+    for t in m.tissues.values_mut() {
+        t.cut_threshold_n = None;
+    }
+    fs::write(d.path().join("atlas.toml"), m.to_toml()).unwrap();
+    assert_mentions(&load_err(d.path()), &["atlas.toml", "no value for 'cut_threshold_n'"]);
+}
+
+#[test]
+fn thresholds_out_of_order() {
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    edit_manifest(d.path(), |t| {
+        t.replace(
+            "[heuristic]",
+            "[thresholds]\nair_skin = -500.0\nskin_fat = -600.0\nfat_bone = 200.0\n\n[heuristic]",
+        )
+    });
+    assert_mentions(
+        &load_err(d.path()),
+        &["atlas.toml", "out of order", "air_skin (-500)", "skin_fat (-600)"],
+    );
+}
+
+#[test]
+fn given_thresholds_are_used() {
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    edit_manifest(d.path(), |t| {
+        t.replace(
+            "[heuristic]",
+            "[thresholds]\nair_skin = -450.0\nskin_fat = -250.0\nfat_bone = 220.0\n\n[heuristic]",
+        )
+    });
+    let a = stylet_atlas::load(d.path()).unwrap();
+    assert_eq!(a.threshold_source, stylet_atlas::ThresholdSource::Atlas);
+    assert_eq!(a.model.thresholds().fat_bone_hu, 220.0);
+}
+
+#[test]
+fn syntax_and_schema_errors() {
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    edit_manifest(d.path(), |t| {
+        t.replacen("name = \"tiny\"", "name = \"tiny\"\ncolour = 3", 1)
+    });
+    assert_mentions(&load_err(d.path()), &["atlas.toml", "unknown field `colour`"]);
+    write_tiny(d.path());
+    edit_manifest(d.path(), |t| t.replacen("role = \"organ\"", "role = \"organic\"", 1));
+    assert_mentions(&load_err(d.path()), &["atlas.toml", "role 'organic'"]);
+    write_tiny(d.path());
+    edit_manifest(d.path(), |t| t.replacen("format_version = 1", "format_version = 7", 1));
+    assert_mentions(&load_err(d.path()), &["atlas.toml", "format_version 7"]);
+    write_tiny(d.path());
+    edit_manifest(d.path(), |t| {
+        t.replacen("ct = \"ct.nii.gz\"", "ct = \"../../etc/passwd.nii\"", 1)
+    });
+    assert_mentions(&load_err(d.path()), &["atlas.toml", "plain file name"]);
+    write_tiny(d.path());
+    edit_manifest(d.path(), |t| t.replacen("[heuristic]", "[heuristic", 1));
+    assert_mentions(&load_err(d.path()), &["atlas.toml", "line"]);
+}
+
+#[test]
+fn guided_path_must_exist_and_lie_in_the_ct() {
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    let mut m = tiny_manifest();
+    m.difficulty.beginner.guided_path = Some("nowhere".into());
+    fs::write(d.path().join("atlas.toml"), m.to_toml()).unwrap();
+    assert_mentions(&load_err(d.path()), &["atlas.toml", "guided_path = \"nowhere\""]);
+    let mut m = tiny_manifest();
+    m.paths.push(stylet_atlas::manifest::InsertionPath {
+        name: "far".into(),
+        entry_mm: [0.0, 0.0, 900.0],
+        target_mm: [0.0, 0.0, 0.0],
+        description: String::new(),
+    });
+    fs::write(d.path().join("atlas.toml"), m.to_toml()).unwrap();
+    assert_mentions(&load_err(d.path()), &["atlas.toml", "'far'", "outside the CT"]);
+}
+
+#[test]
+fn truncated_and_garbage_volumes() {
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    let ct = d.path().join("ct.nii.gz");
+    let bytes = fs::read(&ct).unwrap();
+    fs::write(&ct, &bytes[..bytes.len() / 2]).unwrap();
+    let e = load_err(d.path());
+    assert!(e.contains("ct.nii.gz"), "{e}");
+    fs::write(
+        &ct,
+        b"this is not a NIfTI file at all, just some text that is long enough to fill a header",
+    )
+    .unwrap();
+    assert_mentions(&load_err(d.path()), &["ct.nii.gz", "NIfTI"]);
+}
+
+#[test]
+fn writing_is_atomic_and_leaves_no_partial_files() {
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    let names: Vec<String> = fs::read_dir(d.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    let mut names = names;
+    names.sort();
+    assert_eq!(names, ["atlas.toml", "ct.nii.gz", "labels.nii.gz"]);
+}

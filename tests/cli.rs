@@ -1,0 +1,218 @@
+//! End-to-end tests of the `stylet` command line: the contract later issues and tools rely on.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn stylet(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_stylet"))
+        .args(args)
+        .output()
+        .expect("the stylet binary runs")
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = stylet(args);
+    assert!(
+        out.status.success(),
+        "stylet {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+fn fails(args: &[&str]) -> String {
+    let out = stylet(args);
+    assert!(!out.status.success(), "stylet {args:?} should fail");
+    String::from_utf8(out.stderr).unwrap()
+}
+
+fn shared_data() -> PathBuf {
+    let d = std::env::var("STYLET_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|_| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    assert!(
+        d.join("ts-example-abdomen").is_dir(),
+        "the real CT data is missing at {}",
+        d.display()
+    );
+    d
+}
+
+/// Checks a PNG signature and returns (width, height).
+fn png_size(path: &Path) -> (u32, u32) {
+    let b = std::fs::read(path).unwrap();
+    assert_eq!(&b[..8], b"\x89PNG\r\n\x1a\n", "{} is not a PNG", path.display());
+    (
+        u32::from_be_bytes(b[16..20].try_into().unwrap()),
+        u32::from_be_bytes(b[20..24].try_into().unwrap()),
+    )
+}
+
+fn check_inspect_json(json: &serde_json::Value) {
+    assert!(json["name"].is_string());
+    assert_eq!(json["dims"].as_array().unwrap().len(), 3);
+    assert!(json["dims"].as_array().unwrap().iter().all(|v| v.as_u64().is_some()));
+    assert_eq!(json["spacing_mm"].as_array().unwrap().len(), 3);
+    assert!(
+        json["spacing_mm"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|v| v.as_f64().is_some())
+    );
+    for l in json["labels"].as_array().unwrap() {
+        assert!(
+            l["id"].as_u64().is_some()
+                && l["name"].is_string()
+                && l["role"].is_string()
+                && l["voxels"].as_u64().is_some()
+        );
+    }
+    let t = &json["thresholds_hu"];
+    let (a, s, f) = (
+        t["air_skin"].as_f64().unwrap(),
+        t["skin_fat"].as_f64().unwrap(),
+        t["fat_bone"].as_f64().unwrap(),
+    );
+    assert!(a < s && s < f);
+}
+
+#[test]
+fn phantom_then_inspect_json_and_png() {
+    let d = tempfile::tempdir().unwrap();
+    let atlas = d.path().join("phantom");
+    let a = atlas.to_str().unwrap();
+    ok(&[
+        "atlas",
+        "phantom",
+        "--out",
+        a,
+        "--seed",
+        "3",
+        "--dims",
+        "96,96,80",
+        "--spacing",
+        "4",
+    ]);
+    let json: serde_json::Value = serde_json::from_str(&ok(&["atlas", "inspect", a, "--json"])).unwrap();
+    check_inspect_json(&json);
+    assert_eq!(json["name"], "phantom");
+    assert_eq!(json["dims"], serde_json::json!([96, 96, 80]));
+    assert_eq!(json["spacing_mm"], serde_json::json!([4.0, 4.0, 4.0]));
+    assert_eq!(json["provenance"]["seed"], 3);
+    let roles: Vec<(&str, &str)> = json["labels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|l| (l["name"].as_str().unwrap(), l["role"].as_str().unwrap()))
+        .collect();
+    assert!(roles.contains(&("right hepatic duct", "target")));
+    assert!(roles.contains(&("right lung", "risk")));
+    assert!(roles.contains(&("bone", "bone")));
+    let png = d.path().join("slices.png");
+    let text = ok(&["atlas", "inspect", a, "--png", png.to_str().unwrap()]);
+    assert!(
+        text.contains("thresholds") && text.contains("right hepatic duct"),
+        "{text}"
+    );
+    let (w, h) = png_size(&png);
+    assert!(w > 1000 && h > 400, "{w}×{h}");
+}
+
+#[test]
+fn bad_input_gives_a_clear_error() {
+    let d = tempfile::tempdir().unwrap();
+    let missing = d.path().join("missing");
+    let e = fails(&["atlas", "inspect", missing.to_str().unwrap()]);
+    assert!(e.contains("missing") && e.contains("does not exist"), "{e}");
+    let e = fails(&[
+        "atlas",
+        "phantom",
+        "--out",
+        d.path().join("x").to_str().unwrap(),
+        "--dims",
+        "4,4,4",
+    ]);
+    assert!(e.contains("dimensions"), "{e}");
+    let e = fails(&[
+        "atlas",
+        "phantom",
+        "--out",
+        d.path().join("x").to_str().unwrap(),
+        "--spacing",
+        "1,2",
+    ]);
+    assert!(e.contains("--spacing"), "{e}");
+    let e = fails(&[
+        "atlas",
+        "import",
+        "--recipe",
+        "nope.toml",
+        "--data",
+        ".",
+        "--out",
+        d.path().to_str().unwrap(),
+    ]);
+    assert!(e.contains("nope.toml"), "{e}");
+    assert!(!d.path().join("x").exists(), "nothing written on bad input");
+}
+
+#[test]
+fn import_real_ct_and_dicom() {
+    let data = shared_data();
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("ts");
+    let recipe = Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/ts-abdomen/recipe.toml");
+    let text = ok(&[
+        "atlas",
+        "import",
+        "--recipe",
+        recipe.to_str().unwrap(),
+        "--data",
+        data.join("ts-example-abdomen").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        text.contains("intercostal window between source ribs 113 and 114"),
+        "{text}"
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&ok(&["atlas", "inspect", out.to_str().unwrap(), "--json"])).unwrap();
+    check_inspect_json(&json);
+    assert_eq!(json["name"], "ts-abdomen");
+
+    let dcm = d.path().join("dcm");
+    let text = ok(&[
+        "atlas",
+        "import-dicom",
+        "--series",
+        data.join("ts-example-dicom").to_str().unwrap(),
+        "--out",
+        dcm.to_str().unwrap(),
+    ]);
+    assert!(
+        text.contains("512×512×20") && text.contains("0.977×0.977×2.000 mm") && text.contains("3.0 mm"),
+        "{text}"
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&ok(&["atlas", "inspect", dcm.to_str().unwrap(), "--json"])).unwrap();
+    check_inspect_json(&json);
+}
+
+/// The README's first command: the demo builds the phantom and prints its summary.
+#[test]
+fn demo_builds_the_phantom_and_prints_its_summary() {
+    let d = tempfile::tempdir().unwrap();
+    let text = ok(&["demo", "--out", d.path().to_str().unwrap()]);
+    for s in [
+        "atlas        phantom",
+        "right hepatic duct",
+        "intercostal-10-11",
+        "loaded and validated",
+    ] {
+        assert!(text.contains(s), "demo output lacks {s:?}:\n{text}");
+    }
+    assert!(d.path().join("atlases/phantom/atlas.toml").is_file());
+    png_size(&d.path().join("phantom.png"));
+}
