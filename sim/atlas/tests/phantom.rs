@@ -257,3 +257,29 @@ fn intercostal_path_avoids_bone_and_risk_structures() {
     };
     assert!(rib_at(1.0) && rib_at(-1.0), "ribs above and below {rib_layer}");
 }
+
+/// Golden digest of a small phantom's voxels. Sessions record the atlas content hash, and the
+/// embedded phantom is regenerated on every machine, so its bytes must not drift between builds,
+/// compilers or CPUs (libm for transcendentals, counter-based noise, fixed summation orders). Change
+/// the constant only on purpose, when the anatomy changes, and say so in the commit.
+#[test]
+fn small_phantom_matches_its_golden_digest() {
+    use sha2::{Digest, Sha256};
+    let p = generate(&PhantomConfig {
+        dims: [64, 64, 50],
+        spacing_mm: [6.0; 3],
+        ..PhantomConfig::default()
+    })
+    .unwrap();
+    let mut h = Sha256::new();
+    for v in p.ct.data() {
+        h.update(v.to_le_bytes());
+    }
+    for l in p.partial.data() {
+        h.update(l.to_le_bytes());
+    }
+    let digest: String = h.finalize().iter().map(|b| format!("{b:02x}")).collect();
+    assert_eq!(digest, GOLDEN_SMALL_PHANTOM, "the phantom's voxels changed");
+}
+
+const GOLDEN_SMALL_PHANTOM: &str = "52ece14e519d01c387d0979f2d18b5e94814de48b4f9be27061771bf2a671d90";

@@ -6,7 +6,9 @@
 //! lung); skin, fat, bone and air are left to the heuristic h(x, d).
 
 pub mod anatomy;
+pub mod liver_trees;
 pub mod noise;
+pub mod organs;
 pub mod shapes;
 pub mod structures;
 
