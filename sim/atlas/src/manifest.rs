@@ -180,7 +180,20 @@ pub struct ScenarioFile {
 /// The PTCD scenario shipped with Stylet: labels, property tree and presets (`atlases/ptcd.toml`).
 pub const PTCD_SCENARIO_TOML: &str = include_str!("../../../atlases/ptcd.toml");
 
+impl HeuristicToml {
+    /// The labels the heuristic produces.
+    pub fn ids(&self) -> [LabelId; 5] {
+        [self.air, self.skin, self.fat, self.bone, self.risk]
+    }
+}
+
 impl ScenarioFile {
+    /// Keeps the heuristic labels and those `present` says a label map uses.
+    pub fn keep_labels(&mut self, present: impl Fn(LabelId) -> bool) {
+        let heuristic = self.heuristic.ids();
+        self.labels.retain(|l| heuristic.contains(&l.id) || present(l.id));
+    }
+
     pub fn parse(text: &str) -> Result<Self, String> {
         toml::from_str(text).map_err(|e| e.to_string())
     }

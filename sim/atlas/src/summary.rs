@@ -43,8 +43,7 @@ impl Summary {
         let grid = m.ct().grid();
         let s = grid.spacing_mm();
         let voxel_ml = s[0] * s[1] * s[2] / 1000.0;
-        let h = m.label_table().heuristic();
-        let heuristic_ids = [h.air, h.skin, h.fat, h.bone, h.risk];
+        let heuristic_ids = atlas.manifest.heuristic.ids();
         let counts = m.label_voxel_counts();
         let labels = m
             .label_table()

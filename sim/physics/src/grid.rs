@@ -174,6 +174,13 @@ impl Grid {
         [i, r % self.dims[1], r / self.dims[1]]
     }
 
+    /// World position (mm) of the centre of the voxel with linear index `idx`.
+    #[inline]
+    pub fn linear_to_world(&self, idx: usize) -> DVec3 {
+        let [i, j, k] = self.unlinear(idx);
+        self.voxel_to_world(i, j, k)
+    }
+
     /// World position (mm) of a voxel centre.
     #[inline]
     pub fn voxel_to_world(&self, i: usize, j: usize, k: usize) -> DVec3 {

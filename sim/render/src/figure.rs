@@ -25,8 +25,7 @@ pub fn default_center(atlas: &PunctureAtlas) -> DVec3 {
     let (mut sum, mut n) = (DVec3::ZERO, 0u64);
     for (idx, l) in atlas.partial_labels().data().iter().enumerate() {
         if targets.contains(l) {
-            let [i, j, k] = grid.unlinear(idx);
-            sum += grid.voxel_to_world(i, j, k);
+            sum += grid.linear_to_world(idx);
             n += 1;
         }
     }

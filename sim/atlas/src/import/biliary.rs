@@ -64,10 +64,7 @@ pub fn synthesize(
         .into_iter()
         .map(|d| (d as f64).sqrt())
         .collect();
-    let world = |idx: usize| {
-        let [i, j, k] = grid.unlinear(idx);
-        grid.voxel_to_world(i, j, k)
-    };
+    let world = |idx: usize| grid.linear_to_world(idx);
     let margin = params.target_radius_mm + 3.0;
 
     // Hilum: portal-vein voxels in or next to the liver, snapped to a deep liver voxel.

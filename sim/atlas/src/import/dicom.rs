@@ -245,9 +245,7 @@ pub fn import_series(dir: &Path, out: &Path, name: &str) -> Result<Series, Atlas
     let series = read_series(dir)?;
     let labels: Volume<LabelId> = Volume::filled(*series.ct.grid(), 0);
     let mut scenario = ScenarioFile::ptcd();
-    let h = scenario.heuristic;
-    let heuristic_ids = [h.air, h.skin, h.fat, h.bone, h.risk];
-    scenario.labels.retain(|l| heuristic_ids.contains(&l.id));
+    scenario.keep_labels(|_| false);
     let provenance = Provenance {
         source: format!(
             "DICOM series {} ({})",

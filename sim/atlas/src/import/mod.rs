@@ -258,11 +258,7 @@ pub fn import(recipe_path: &Path, data_dir: &Path, out: &Path) -> Result<ImportR
     let mut scenario = r.scenario.clone();
     let mut present = vec![false; LabelId::MAX as usize + 1];
     labels.data().iter().for_each(|&l| present[l as usize] = true);
-    let h = scenario.heuristic;
-    let heuristic_ids = [h.air, h.skin, h.fat, h.bone, h.risk];
-    scenario
-        .labels
-        .retain(|l| present[l.id as usize] || heuristic_ids.contains(&l.id));
+    scenario.keep_labels(|id| present[id as usize]);
     let mut provenance = r.provenance(&format!(
         "stylet {} (atlas import, recipe {})",
         env!("CARGO_PKG_VERSION"),

@@ -24,10 +24,7 @@ pub fn isotropic_grid(grid: &Grid, spacing_mm: f64) -> Grid {
 }
 
 fn centres(grid: &Grid) -> impl IndexedParallelIterator<Item = DVec3> + '_ {
-    (0..grid.len()).into_par_iter().map(|idx| {
-        let [i, j, k] = grid.unlinear(idx);
-        grid.voxel_to_world(i, j, k)
-    })
+    (0..grid.len()).into_par_iter().map(|idx| grid.linear_to_world(idx))
 }
 
 pub fn resample_ct(ct: &Volume<f32>, grid: &Grid) -> Volume<f32> {

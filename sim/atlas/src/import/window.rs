@@ -125,10 +125,7 @@ impl<'a> Search<'a> {
             .iter()
             .enumerate()
             .filter(|(_, l)| target_labels.contains(l))
-            .map(|(idx, _)| {
-                let [i, j, k] = grid.unlinear(idx);
-                grid.voxel_to_world(i, j, k)
-            })
+            .map(|(idx, _)| grid.linear_to_world(idx))
             .collect();
         // A dozen points spread over the target (sorted along x, then sampled evenly), plus its centre.
         pts.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)).then(a.z.total_cmp(&b.z)));
@@ -172,10 +169,7 @@ impl<'a> Search<'a> {
             m.iter()
                 .enumerate()
                 .filter(|(_, b)| **b)
-                .map(|(idx, _)| {
-                    let [i, j, k] = grid.unlinear(idx);
-                    grid.voxel_to_world(i, j, k)
-                })
+                .map(|(idx, _)| grid.linear_to_world(idx))
                 .collect()
         };
         let (pu, pl) = (rib_points(&mu), rib_points(&ml));

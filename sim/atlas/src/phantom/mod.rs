@@ -269,11 +269,7 @@ fn phantom_manifest(config: &PhantomConfig, anatomy: &Anatomy, partial: &Volume<
     for &l in partial.data() {
         present[l as usize] = true;
     }
-    let h = scenario.heuristic;
-    let heuristic_ids = [h.air, h.skin, h.fat, h.bone, h.risk];
-    scenario
-        .labels
-        .retain(|l| present[l.id as usize] || heuristic_ids.contains(&l.id));
+    scenario.keep_labels(|id| present[id as usize]);
     let provenance = Provenance {
         source: "procedural phantom (stylet atlas phantom)".into(),
         generator: format!("stylet {}", env!("CARGO_PKG_VERSION")),
