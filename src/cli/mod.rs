@@ -7,6 +7,7 @@ macro_rules! sayf {
 
 mod atlas;
 mod demo;
+mod script;
 
 use clap::{Parser, Subcommand};
 
@@ -26,6 +27,9 @@ enum Command {
     /// Build, import and inspect puncture atlases.
     #[command(subcommand)]
     Atlas(atlas::AtlasCommand),
+    /// Run device scripts on an atlas, headless (docs/scripts.md).
+    #[command(subcommand)]
+    Script(script::ScriptCommand),
     /// Run the demo on the embedded default: build the phantom atlas and print its summary.
     Demo(demo::DemoArgs),
 }
@@ -33,6 +37,7 @@ enum Command {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Atlas(cmd) => atlas::run(cmd),
+        Command::Script(cmd) => script::run(cmd),
         Command::Demo(args) => demo::run(args),
     }
 }

@@ -83,6 +83,13 @@ pub struct HeuristicToml {
     pub risk: LabelId,
     /// δ of eq. 6.1.1 in mm.
     pub risk_depth_mm: f64,
+    /// Skin thickness the needle feels under the surface (mm), see `needle_label_at`.
+    #[serde(default = "default_skin_layer")]
+    pub skin_layer_mm: f64,
+}
+
+fn default_skin_layer() -> f64 {
+    stylet_physics::atlas::DEFAULT_SKIN_LAYER_MM
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -202,14 +202,16 @@ pub fn load(dir: &Path) -> Result<Atlas, AtlasError> {
             ThresholdSource::Estimated,
         ),
     };
-    let model = PunctureAtlas::new(ct, partial, labels, tree, thresholds).map_err(|e| match e {
-        PhysicsError::InvalidLabels(_) => AtlasError::file(&labels_path, e.to_string()),
-        PhysicsError::NotFinite(_) => AtlasError::file(&ct_path, e.to_string()),
-        PhysicsError::Mismatch(_) | PhysicsError::InvalidGrid(_) => {
-            AtlasError::file(&labels_path, format!("{e} (CT: {})", ct_path.display()))
-        }
-        _ => manifest_error(dir, e.to_string()),
-    })?;
+    let model = PunctureAtlas::new(ct, partial, labels, tree, thresholds)
+        .and_then(|m| m.with_skin_layer_mm(manifest.heuristic.skin_layer_mm))
+        .map_err(|e| match e {
+            PhysicsError::InvalidLabels(_) => AtlasError::file(&labels_path, e.to_string()),
+            PhysicsError::NotFinite(_) => AtlasError::file(&ct_path, e.to_string()),
+            PhysicsError::Mismatch(_) | PhysicsError::InvalidGrid(_) => {
+                AtlasError::file(&labels_path, format!("{e} (CT: {})", ct_path.display()))
+            }
+            _ => manifest_error(dir, e.to_string()),
+        })?;
     let (lo, hi) = model.ct().grid().world_bounds();
     for p in &manifest.paths {
         for (what, v) in [("entry", p.entry_mm), ("target", p.target_mm)] {

@@ -282,4 +282,4 @@ fn small_phantom_matches_its_golden_digest() {
     assert_eq!(digest, GOLDEN_SMALL_PHANTOM, "the phantom's voxels changed");
 }
 
-const GOLDEN_SMALL_PHANTOM: &str = "52ece14e519d01c387d0979f2d18b5e94814de48b4f9be27061771bf2a671d90";
+const GOLDEN_SMALL_PHANTOM: &str = "f04b7521497825f79816a6f47e96edbea79d88aea48531303c9507bdd14e4c2a";

@@ -81,10 +81,10 @@ fn parameters_at_positions_of_an_atlas() {
     let liver = DVec3::new(22.0, 10.0, 0.0);
     assert_eq!(m.label_at(liver, 0.0), 10);
     assert_eq!(m.param_at(liver, 0.0, Param::CutThresholdN), 0.2);
-    // Target (label 21): inherited from bile_duct.
+    // Target (label 21, bile at 10 HU): inherited from bile_duct, its function at the CT value.
     let target = DVec3::new(14.0, 2.0, 0.0);
     assert_eq!(m.label_at(target, 0.0), 21);
-    assert_eq!(m.param_at(target, 0.0, Param::CutThresholdN), 0.4);
+    assert_eq!(m.param_at(target, 0.0, Param::CutThresholdN), 0.05);
     // Unlabelled soft tissue at 45 HU: heuristic "fat" class → soft_tissue's function of HU.
     let soft = DVec3::new(-30.0, 14.0, 0.0);
     assert_eq!(m.label_at(soft, 0.0), 3);

@@ -1,4 +1,31 @@
-//! Input devices for the simulator (DESIGN.md "Layout"): the `Device` trait and its backends —
-//! scripted, replay, keyboard/mouse and HID (hidapi).
-//!
-//! Empty on purpose: the haptic-core issue fills it. Nothing here pretends to work yet.
+//! Input devices for the simulator (DESIGN.md "Layout"): the [`Device`] trait and its backends.
+//! Now: the scripted device and its script language ([`script`]), which drives reproducible,
+//! faster-than-real-time runs. Keyboard/mouse, HID (hidapi) and replay backends join later.
+
+pub mod script;
+
+use stylet_physics::{Simulation, TickInput, TickOutput};
+
+/// A source of tick inputs. `last` is the previous tick's output (force feedback for devices
+/// that react to it); `None` ends the run.
+pub trait Device {
+    fn next(&mut self, tick: u64, last: Option<&TickOutput>) -> Option<TickInput>;
+}
+
+/// Runs a simulation against a device until the device ends, as fast as the CPU allows, calling
+/// `on_tick` with each input, output and the simulation (for the full tool state).
+pub fn run_headless(
+    sim: &mut Simulation,
+    device: &mut dyn Device,
+    mut on_tick: impl FnMut(&TickInput, &TickOutput, &Simulation),
+) -> u64 {
+    let mut last: Option<TickOutput> = None;
+    let mut ticks = 0;
+    while let Some(input) = device.next(sim.tick(), last.as_ref()) {
+        let out = sim.step(&input);
+        on_tick(&input, &out, sim);
+        last = Some(out);
+        ticks += 1;
+    }
+    ticks
+}

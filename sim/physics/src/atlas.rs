@@ -6,12 +6,15 @@
 
 use glam::DVec3;
 
-use crate::distance::signed_distance_map;
+use crate::distance::subvoxel_signed_distance;
 use crate::masks::{body_mask, bone_mask};
 use crate::{LabelId, LabelTable, Materials, Param, PhysicsError, PropertyTree, Thresholds, Volume};
 
 /// CT value returned outside the volume: air.
 pub const AIR_HU: f32 = -1000.0;
+
+/// Default thickness of the skin layer the needle feels (mm): epidermis and dermis are 1.5–3 mm.
+pub const DEFAULT_SKIN_LAYER_MM: f64 = 2.0;
 
 /// A validated puncture atlas.
 #[derive(Debug, Clone)]
@@ -24,6 +27,7 @@ pub struct PunctureAtlas {
     thresholds: Thresholds,
     skin_distance: Volume<f32>,
     bone_distance: Volume<f32>,
+    skin_layer_mm: f64,
 }
 
 impl PunctureAtlas {
@@ -72,12 +76,13 @@ impl PunctureAtlas {
         }
         thresholds.validate()?;
         let materials = Materials::resolve(&labels, &tree)?;
-        let grid = *gc;
         let body = body_mask(&ct, thresholds.air_skin_hu);
         let bone = bone_mask(&ct, thresholds.fat_bone_hu, &body);
+        // Sub-voxel maps: the binary masks' exact maps, corrected near the surface by the CT's
+        // iso-surfaces at the thresholds (a slanted surface is otherwise a staircase of ledges).
         let (skin_distance, bone_distance) = rayon::join(
-            || signed_distance_map(&grid, &body),
-            || signed_distance_map(&grid, &bone),
+            || subvoxel_signed_distance(&ct, &body, thresholds.air_skin_hu),
+            || subvoxel_signed_distance(&ct, &bone, thresholds.fat_bone_hu),
         );
         Ok(PunctureAtlas {
             ct,
@@ -88,6 +93,7 @@ impl PunctureAtlas {
             thresholds,
             skin_distance,
             bone_distance,
+            skin_layer_mm: DEFAULT_SKIN_LAYER_MM,
         })
     }
 
@@ -135,6 +141,51 @@ impl PunctureAtlas {
     pub fn label_at(&self, x: DVec3, depth_mm: f64) -> LabelId {
         self.labels
             .label(self.partial_label_at(x), self.hu_at(x), depth_mm, &self.thresholds)
+    }
+
+    /// Sets the skin layer the needle feels (mm, ≥ 0; see [`PunctureAtlas::needle_label_at`]).
+    pub fn with_skin_layer_mm(mut self, mm: f64) -> Result<Self, PhysicsError> {
+        if !(mm.is_finite() && (0.0..=20.0).contains(&mm)) {
+            return Err(PhysicsError::InvalidThresholds(format!(
+                "skin_layer_mm {mm} must be 0 … 20"
+            )));
+        }
+        self.skin_layer_mm = mm;
+        Ok(self)
+    }
+
+    pub fn skin_layer_mm(&self) -> f64 {
+        self.skin_layer_mm
+    }
+
+    /// The label the needle tip feels: l(x, d) of eq. 6.1.2, except that unlabelled tissue within
+    /// `skin_layer_mm` under the skin surface (0 ≤ D_skin < layer) at depth d ≤ δ counts as skin.
+    /// On CT the dermis is as dense as muscle, so eq. 6.1.1 alone calls only partial-volume surface
+    /// voxels skin and misses the skin where the surface voxel is nearly full; the distance map
+    /// gives every entry point the same skin thickness, so every puncture meets the skin's
+    /// cutting threshold.
+    #[inline]
+    pub fn needle_label_at(&self, x: DVec3, depth_mm: f64) -> (LabelId, f64) {
+        let hu = self.hu_at(x);
+        let partial = self.partial_label_at(x);
+        if partial != 0 {
+            return (partial, hu);
+        }
+        let t = &self.thresholds;
+        if depth_mm <= t.risk_depth_mm && hu < t.fat_bone_hu {
+            let d = self.skin_distance.sample(x, -1.0) as f64;
+            if d >= 0.0 && d < self.skin_layer_mm {
+                return (self.labels.heuristic().skin, hu);
+            }
+        }
+        (self.labels.heuristic().label(t.classify(hu, depth_mm)), hu)
+    }
+
+    /// A parameter of `label` at CT value `hu` (§6.1.4 step 3 after the label is known).
+    #[inline]
+    pub fn param_of(&self, label: LabelId, param: Param, hu: f64) -> f64 {
+        let pos = self.labels.position(label).expect("labels validated at construction");
+        self.materials.eval(pos, param, hu)
     }
 
     /// A material parameter at x for insertion depth d (§6.1.4): label, tree node, value at I(x).

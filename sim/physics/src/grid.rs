@@ -193,6 +193,13 @@ impl Grid {
         self.inverse.apply(world)
     }
 
+    /// A gradient taken in index units (per voxel step along i, j, k) expressed per mm along the
+    /// world axes: ∇_x f = Σ_a (∂f/∂index_a) ∇_x index_a, the rows of the inverse affine.
+    pub fn index_gradient_to_world(&self, g: DVec3) -> DVec3 {
+        let r = &self.inverse.rows;
+        r[0] * g.x + r[1] * g.y + r[2] * g.z
+    }
+
     /// Nearest voxel of a world position, or `None` when it lies outside the grid's extent
     /// (the voxels' boxes, i.e. −0.5 … n − 0.5 in index units).
     #[inline]

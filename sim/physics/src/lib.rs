@@ -6,22 +6,36 @@
 //!
 //! One concept per module: [`grid`] (voxel geometry), [`volume`] (sampling), [`labels`] (label
 //! table and l(x, d)), [`properties`] (property tree), [`thresholds`] (HU threshold estimation),
-//! [`masks`] and [`distance`] (skin/bone distance maps), [`atlas`] (the validated whole).
+//! [`masks`] and [`distance`] (skin/bone distance maps), [`atlas`] (the validated whole);
+//! the haptic core: [`sim`] (the fixed-step loop), [`needle`] (bendable needle, §3.5),
+//! [`contact`] (finger and ultrasound probe, §3.6), [`motion`] (breathing hook, §5.4),
+//! [`device`] (device profiles), [`events`].
 
 pub mod atlas;
+pub mod contact;
+pub mod device;
 pub mod distance;
+pub mod events;
+pub mod filter;
 pub mod grid;
 pub mod labels;
 pub mod masks;
+pub mod motion;
+pub mod needle;
 pub mod properties;
+pub mod sim;
 pub mod thresholds;
 pub mod volume;
 
 pub use atlas::{AIR_HU, PunctureAtlas};
+pub use device::DeviceProfile;
+pub use events::{Event, ProbeKind, ToolSpec};
 pub use glam;
 pub use grid::{Affine, Grid};
 pub use labels::{HeuristicClass, HeuristicLabels, Label, LabelId, LabelTable, Role, Thresholds};
+pub use needle::spec::{Gauge, NeedleSpec};
 pub use properties::{Materials, Param, ParamValue, PropertyTree, TissueSpec};
+pub use sim::{DEFAULT_TICK_RATE_HZ, ForceComponents, PHYSICS_VERSION, SimConfig, Simulation, TickInput, TickOutput};
 pub use volume::Volume;
 
 /// What can be wrong with atlas data handed to the physics crate. The messages name the problem;

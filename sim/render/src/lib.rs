@@ -5,6 +5,7 @@
 //! `stylet atlas inspect --png` and by the server for thumbnails. The wgpu ray casting, X-ray and
 //! ultrasound renderers join in later issues, with this CPU path as their test oracle.
 
+pub mod charts;
 pub mod figure;
 pub mod fonts;
 pub mod mpr;

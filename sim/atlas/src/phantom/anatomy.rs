@@ -114,16 +114,18 @@ impl Anatomy {
         1.0 / pow(pow(c, BODY_EXPONENT) + pow(s, BODY_EXPONENT), 1.0 / BODY_EXPONENT)
     }
 
-    /// Muscle outside the ribs: about 8 mm over the flanks and the front, the erector spinae
+    /// Muscle outside the ribs: about 6 mm over the flanks and the front, the erector spinae
     /// (up to 40 mm) beside the spine, so the ribs dive towards the transverse processes.
     fn outer_muscle_mm(&self, phi: f64) -> f64 {
-        8.0 + 32.0 * (1.0 - smoothstep(15.0_f64.to_radians(), 50.0_f64.to_radians(), phi))
+        6.0 + 34.0 * (1.0 - smoothstep(15.0_f64.to_radians(), 50.0_f64.to_radians(), phi))
     }
 
     /// Subcutaneous fat thickness: thicker in front than at the back, thinner over the chest.
+    /// Over the lower chest the fat thins to about 8 mm at the flank, so the ribs lie some 15 mm
+    /// under the skin there and can be palpated, as in a slim adult.
     fn fat_mm(&self, phi: f64, z: f64) -> f64 {
         let base = 11.0 + 9.0 * (1.0 - cos(phi)) / 2.0;
-        base * (1.0 - 0.25 * smoothstep(20.0, 90.0, z))
+        base * (1.0 - 0.45 * smoothstep(-30.0, 30.0, z))
     }
 
     pub fn frame(&self, p: DVec3) -> BodyFrame {

@@ -131,7 +131,7 @@ pub fn generate(config: &PhantomConfig) -> Result<Phantom, AtlasError> {
         paint(&grid, h, &part, &mut hu, &mut truth);
     }
     // 3. The scanner's point-spread function.
-    blur(&grid, config.psf_mm, &mut hu);
+    stylet_physics::filter::gaussian_blur(&grid, &mut hu, config.psf_mm);
     // 4. Noise, a pure function of (seed, voxel index).
     let seed = config.seed;
     hu.par_iter_mut()
@@ -160,43 +160,6 @@ pub fn generate(config: &PhantomConfig) -> Result<Phantom, AtlasError> {
         truth,
         manifest,
     })
-}
-
-/// Separable Gaussian blur with standard deviation `sigma_mm` (kernel to ±3σ, normalised, summed
-/// in a fixed order: deterministic).
-fn blur(grid: &Grid, sigma_mm: f64, data: &mut [f32]) {
-    if sigma_mm <= 0.0 {
-        return;
-    }
-    let dims = grid.dims();
-    let spacing = grid.spacing_mm();
-    let strides = [1, dims[0], dims[0] * dims[1]];
-    for axis in 0..3 {
-        let s = sigma_mm / spacing[axis];
-        let r = (3.0 * s).ceil() as usize;
-        if r == 0 {
-            continue;
-        }
-        let mut w: Vec<f64> = (0..=2 * r)
-            .map(|i| libm::exp(-0.5 * ((i as f64 - r as f64) / s).powi(2)))
-            .collect();
-        let total: f64 = w.iter().sum();
-        w.iter_mut().for_each(|x| *x /= total);
-        let n = dims[axis];
-        let stride = strides[axis];
-        let src = data.to_vec();
-        // Each output voxel depends only on `src`, so any partition gives the same bits.
-        data.par_iter_mut().enumerate().for_each(|(idx, out)| {
-            let pos = (idx / stride) % n;
-            let mut acc = 0.0f64;
-            for (t, wt) in w.iter().enumerate() {
-                let q = (pos + t).saturating_sub(r).min(n - 1);
-                let q = if pos + t < r { 0 } else { q };
-                acc += wt * src[idx - pos * stride + q * stride] as f64;
-            }
-            *out = acc as f32;
-        });
-    }
 }
 
 /// Blends one part into the volumes over its bounding box (k-slabs in parallel).

@@ -1,0 +1,520 @@
+//! The script language's parser (grammar in docs/scripts.md). Line based; every error names the
+//! line, the column and what was expected.
+
+use stylet_physics::glam::DVec3;
+use stylet_physics::{DeviceProfile, Event, Gauge, ProbeKind, ToolSpec};
+
+/// A parse error: where and what was expected.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("line {line}, column {column}: expected {expected}, found {found}")]
+pub struct ParseError {
+    pub line: usize,
+    pub column: usize,
+    pub expected: String,
+    pub found: String,
+}
+
+/// A pose keyframe as written.
+#[derive(Debug, Clone, PartialEq)]
+pub enum PoseSpec {
+    /// `pos X Y Z dir DX DY DZ [xaxis AX AY AZ]`
+    Explicit {
+        pos: DVec3,
+        dir: DVec3,
+        xaxis: Option<DVec3>,
+    },
+    /// `along PATH DEPTH [xaxis …]`: on the atlas' insertion path, DEPTH mm past the entry point.
+    Along {
+        path: String,
+        depth_mm: f64,
+        xaxis: Option<DVec3>,
+    },
+    /// `aim EX EY EZ TX TY TZ DEPTH [xaxis …]`: on the line entry → target, DEPTH mm past the entry.
+    Aim {
+        entry: DVec3,
+        target: DVec3,
+        depth_mm: f64,
+        xaxis: Option<DVec3>,
+    },
+}
+
+/// What happens at a time stamp.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Action {
+    Pose(PoseSpec),
+    /// Force control: press along the unit direction with the given force from now on.
+    Press {
+        dir: DVec3,
+        force_n: f64,
+    },
+    Release,
+    Event(Event),
+}
+
+/// One `at` line.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Timed {
+    pub t_s: f64,
+    /// Line in the script (1-based), for later errors (unknown path names).
+    pub line: usize,
+    pub action: Action,
+}
+
+/// A parsed script.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Script {
+    pub version: u32,
+    pub device: DeviceProfile,
+    pub rate_hz: u32,
+    pub initial_tool: ToolSpec,
+    /// Script length (s); the last time stamp when absent.
+    pub end_s: Option<f64>,
+    pub items: Vec<Timed>,
+}
+
+/// The script language version this parser reads.
+pub const SCRIPT_VERSION: u32 = 1;
+/// Longest script accepted (s of simulated time).
+pub const MAX_DURATION_S: f64 = 3600.0;
+
+struct Tokens<'a> {
+    line: usize,
+    body: &'a str,
+    toks: Vec<(usize, &'a str)>,
+    pos: usize,
+    line_len: usize,
+}
+
+impl<'a> Tokens<'a> {
+    fn new(line: usize, text: &'a str) -> Self {
+        let body = text.split('#').next().unwrap_or("");
+        let mut toks = Vec::new();
+        let mut start = None;
+        for (i, ch) in body.char_indices() {
+            if ch.is_whitespace() {
+                if let Some(s) = start.take() {
+                    toks.push((s, &body[s..i]));
+                }
+            } else if start.is_none() {
+                start = Some(i);
+            }
+        }
+        if let Some(s) = start {
+            toks.push((s, &body[s..]));
+        }
+        Tokens {
+            line,
+            body,
+            toks,
+            pos: 0,
+            line_len: body.trim_end().chars().count(),
+        }
+    }
+
+    /// 1-based character column of a byte offset.
+    fn column_of(&self, byte: usize) -> usize {
+        self.body[..byte].chars().count() + 1
+    }
+
+    fn err(&self, expected: impl Into<String>) -> ParseError {
+        let (column, found) = match self.toks.get(self.pos) {
+            Some((b, t)) => (self.column_of(*b), format!("'{t}'")),
+            None => (self.line_len + 1, "end of line".to_string()),
+        };
+        ParseError {
+            line: self.line,
+            column,
+            expected: expected.into(),
+            found,
+        }
+    }
+
+    fn peek(&self) -> Option<&'a str> {
+        self.toks.get(self.pos).map(|t| t.1)
+    }
+
+    fn word(&mut self, expected: &str) -> Result<&'a str, ParseError> {
+        match self.toks.get(self.pos) {
+            Some((_, t)) => {
+                self.pos += 1;
+                Ok(t)
+            }
+            None => Err(self.err(expected)),
+        }
+    }
+
+    fn keyword(&mut self, options: &[&str]) -> Result<&'a str, ParseError> {
+        let expected = format!("one of {}", options.join(", "));
+        match self.peek() {
+            Some(t) if options.contains(&t) => {
+                self.pos += 1;
+                Ok(t)
+            }
+            _ => Err(self.err(expected)),
+        }
+    }
+
+    fn number(&mut self, what: &str) -> Result<f64, ParseError> {
+        match self
+            .peek()
+            .and_then(|t| t.parse::<f64>().ok())
+            .filter(|v| v.is_finite())
+        {
+            Some(v) => {
+                self.pos += 1;
+                Ok(v)
+            }
+            None => Err(self.err(format!("a number ({what})"))),
+        }
+    }
+
+    fn vector(&mut self, what: &str) -> Result<DVec3, ParseError> {
+        Ok(DVec3::new(
+            self.number(&format!("{what} x"))?,
+            self.number(&format!("{what} y"))?,
+            self.number(&format!("{what} z"))?,
+        ))
+    }
+
+    fn direction(&mut self, what: &str) -> Result<DVec3, ParseError> {
+        let at = self.pos;
+        let v = self.vector(what)?;
+        if v.length() < 1e-9 {
+            self.pos = at;
+            return Err(self.err(format!("a non-zero {what} vector")));
+        }
+        Ok(v.normalize())
+    }
+
+    fn end(&self) -> Result<(), ParseError> {
+        if self.pos < self.toks.len() {
+            Err(self.err("end of line"))
+        } else {
+            Ok(())
+        }
+    }
+
+    fn optional_xaxis(&mut self) -> Result<Option<DVec3>, ParseError> {
+        if self.peek() == Some("xaxis") {
+            self.pos += 1;
+            Ok(Some(self.direction("xaxis")?))
+        } else {
+            Ok(None)
+        }
+    }
+}
+
+fn parse_tool(t: &mut Tokens) -> Result<ToolSpec, ParseError> {
+    match t.keyword(&["needle", "finger", "probe"])? {
+        "finger" => Ok(ToolSpec::Finger),
+        "probe" => match t.keyword(&["linear", "convex"])? {
+            "linear" => Ok(ToolSpec::Probe(ProbeKind::Linear)),
+            _ => Ok(ToolSpec::Probe(ProbeKind::Convex)),
+        },
+        _ => {
+            let (mut gauge, mut length_mm, mut stylet_in) = (Gauge::G18, 150.0, true);
+            while let Some(k) = t.peek() {
+                match k {
+                    "gauge" => {
+                        t.pos += 1;
+                        let at = t.pos;
+                        let g = t.number("gauge 16, 18, 20 or 22")?;
+                        gauge = match Gauge::from_number(g as u32).filter(|_| g.fract() == 0.0) {
+                            Some(g) => g,
+                            None => {
+                                t.pos = at;
+                                return Err(t.err("gauge 16, 18, 20 or 22"));
+                            }
+                        };
+                    }
+                    "length" => {
+                        t.pos += 1;
+                        let at = t.pos;
+                        length_mm = t.number("needle length in mm")?;
+                        if !(20.0..=400.0).contains(&length_mm) {
+                            t.pos = at;
+                            return Err(t.err("a needle length of 20 … 400 mm"));
+                        }
+                    }
+                    "stylet" => {
+                        t.pos += 1;
+                        stylet_in = t.keyword(&["in", "out"])? == "in";
+                    }
+                    _ => return Err(t.err("gauge, length, stylet or end of line")),
+                }
+            }
+            Ok(ToolSpec::Needle {
+                gauge,
+                length_mm,
+                stylet_in,
+            })
+        }
+    }
+}
+
+fn parse_event(t: &mut Tokens) -> Result<Event, ParseError> {
+    let names = [
+        "stylet-remove",
+        "stylet-insert",
+        "xray-on",
+        "xray-off",
+        "contrast-inject",
+        "breath-hold",
+        "breath-release",
+    ];
+    Ok(match t.keyword(&names)? {
+        "stylet-remove" => Event::StyletRemove,
+        "stylet-insert" => Event::StyletInsert,
+        "xray-on" => Event::XrayOn,
+        "xray-off" => Event::XrayOff,
+        "breath-hold" => Event::BreathHold,
+        "breath-release" => Event::BreathRelease,
+        _ => {
+            let ml = if t.peek().is_some() {
+                let at = t.pos;
+                let v = t.number("contrast volume in ml")?;
+                if !(v > 0.0 && v <= 100.0) {
+                    t.pos = at;
+                    return Err(t.err("a contrast volume of 0 … 100 ml"));
+                }
+                v
+            } else {
+                1.0
+            };
+            Event::ContrastInject { ml }
+        }
+    })
+}
+
+fn parse_action(t: &mut Tokens) -> Result<Action, ParseError> {
+    let a = match t.keyword(&["pos", "along", "aim", "press", "release", "event", "tool"])? {
+        "pos" => {
+            let pos = t.vector("position")?;
+            t.keyword(&["dir"])?;
+            let dir = t.direction("dir")?;
+            let xaxis = t.optional_xaxis()?;
+            Action::Pose(PoseSpec::Explicit { pos, dir, xaxis })
+        }
+        "along" => {
+            let path = t.word("an insertion path name")?.to_string();
+            let depth_mm = t.number("depth in mm past the entry point")?;
+            let xaxis = t.optional_xaxis()?;
+            Action::Pose(PoseSpec::Along { path, depth_mm, xaxis })
+        }
+        "aim" => {
+            let entry = t.vector("entry point")?;
+            let at = t.pos;
+            let target = t.vector("target point")?;
+            if (target - entry).length() < 1e-6 {
+                t.pos = at;
+                return Err(t.err("a target different from the entry point"));
+            }
+            let depth_mm = t.number("depth in mm past the entry point")?;
+            let xaxis = t.optional_xaxis()?;
+            Action::Pose(PoseSpec::Aim {
+                entry,
+                target,
+                depth_mm,
+                xaxis,
+            })
+        }
+        "press" => {
+            let dir = t.direction("press direction")?;
+            let at = t.pos;
+            let force_n = t.number("force in N")?;
+            if !(force_n > 0.0 && force_n <= 50.0) {
+                t.pos = at;
+                return Err(t.err("a force of 0 … 50 N"));
+            }
+            Action::Press { dir, force_n }
+        }
+        "release" => Action::Release,
+        "event" => Action::Event(parse_event(t)?),
+        _ => Action::Event(Event::SelectTool(parse_tool(t)?)),
+    };
+    t.end()?;
+    Ok(a)
+}
+
+/// Parses a script.
+pub fn parse(text: &str) -> Result<Script, ParseError> {
+    let mut script = Script {
+        version: 0,
+        device: DeviceProfile::PREMIUM,
+        rate_hz: stylet_physics::DEFAULT_TICK_RATE_HZ,
+        initial_tool: ToolSpec::Needle {
+            gauge: Gauge::G18,
+            length_mm: 150.0,
+            stylet_in: true,
+        },
+        end_s: None,
+        items: Vec::new(),
+    };
+    let mut last_t = f64::NEG_INFINITY;
+    for (n, raw) in text.lines().enumerate() {
+        let mut t = Tokens::new(n + 1, raw);
+        let Some(first) = t.peek() else { continue };
+        if script.version == 0 {
+            t.keyword(&["stylet-script"])?;
+            let at = t.pos;
+            let v = t.number("the script language version")?;
+            if v != SCRIPT_VERSION as f64 {
+                t.pos = at;
+                return Err(t.err(format!("version {SCRIPT_VERSION}")));
+            }
+            t.end()?;
+            script.version = SCRIPT_VERSION;
+            continue;
+        }
+        match first {
+            "device" => {
+                t.pos += 1;
+                let names: Vec<&str> = DeviceProfile::ALL.iter().map(|d| d.name).collect();
+                let name = t.keyword(&names)?;
+                script.device = DeviceProfile::by_name(name).expect("listed");
+                t.end()?;
+            }
+            "rate" => {
+                t.pos += 1;
+                let at = t.pos;
+                let r = t.number("tick rate in Hz")?;
+                if !(r >= 100.0 && r <= 10_000.0 && r.fract() == 0.0) {
+                    t.pos = at;
+                    return Err(t.err("a whole tick rate of 100 … 10000 Hz"));
+                }
+                script.rate_hz = r as u32;
+                t.end()?;
+            }
+            "tool" => {
+                t.pos += 1;
+                script.initial_tool = parse_tool(&mut t)?;
+                t.end()?;
+            }
+            "end" => {
+                t.pos += 1;
+                let at = t.pos;
+                let e = t.number("script end time in s")?;
+                if !(e > 0.0 && e <= MAX_DURATION_S) {
+                    t.pos = at;
+                    return Err(t.err(format!("an end time of 0 … {MAX_DURATION_S} s")));
+                }
+                script.end_s = Some(e);
+                t.end()?;
+            }
+            "at" => {
+                t.pos += 1;
+                let at = t.pos;
+                let ts = t.number("time in s")?;
+                if !(0.0..=MAX_DURATION_S).contains(&ts) {
+                    t.pos = at;
+                    return Err(t.err(format!("a time of 0 … {MAX_DURATION_S} s")));
+                }
+                if ts < last_t {
+                    t.pos = at;
+                    return Err(t.err(format!("a time ≥ {last_t} s (time stamps must not decrease)")));
+                }
+                last_t = ts;
+                let action = parse_action(&mut t)?;
+                script.items.push(Timed {
+                    t_s: ts,
+                    line: n + 1,
+                    action,
+                });
+            }
+            _ => return Err(t.err("device, rate, tool, end or at")),
+        }
+    }
+    if script.version == 0 {
+        return Err(ParseError {
+            line: text.lines().count().max(1),
+            column: 1,
+            expected: format!("the header 'stylet-script {SCRIPT_VERSION}'"),
+            found: "end of script".into(),
+        });
+    }
+    if !script.items.iter().any(|i| matches!(i.action, Action::Pose(_))) {
+        return Err(ParseError {
+            line: text.lines().count().max(1),
+            column: 1,
+            expected: "at least one pose ('at T pos …', 'at T along …' or 'at T aim …')".into(),
+            found: "end of script".into(),
+        });
+    }
+    Ok(script)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_full_script_parses() {
+        let s = parse(
+            "stylet-script 1\n# a comment\ndevice touch\nrate 1000\ntool needle gauge 22 length 200 stylet out\nend 20\n\
+             at 0 pos 1 2 3 dir 0 0 2\nat 1 along intercostal-10-11 -5 # trailing comment\n\
+             at 2 aim 0 0 0 0 0 10 3 xaxis 1 0 0\nat 3 press 0 -1 0 1.5\nat 4 release\nat 5 event contrast-inject 2\n\
+             at 5 event stylet-remove\nat 6 tool probe convex\n",
+        )
+        .unwrap();
+        assert_eq!(s.device.name, "touch");
+        assert_eq!(
+            s.initial_tool,
+            ToolSpec::Needle {
+                gauge: Gauge::G22,
+                length_mm: 200.0,
+                stylet_in: false
+            }
+        );
+        assert_eq!(s.end_s, Some(20.0));
+        assert_eq!(s.items.len(), 8);
+        assert_eq!(
+            s.items[0].action,
+            Action::Pose(PoseSpec::Explicit {
+                pos: DVec3::new(1.0, 2.0, 3.0),
+                dir: DVec3::Z,
+                xaxis: None
+            })
+        );
+        assert_eq!(s.items[4].action, Action::Release);
+        assert_eq!(s.items[5].action, Action::Event(Event::ContrastInject { ml: 2.0 }));
+        assert_eq!(
+            s.items[7].action,
+            Action::Event(Event::SelectTool(ToolSpec::Probe(ProbeKind::Convex)))
+        );
+    }
+
+    fn err(text: &str) -> ParseError {
+        parse(text).unwrap_err()
+    }
+
+    #[test]
+    fn errors_name_line_column_and_expectation() {
+        let e = err("stylet-script 1\nat 0 pos 1 2 x dir 0 0 1\n");
+        assert_eq!((e.line, e.column), (2, 14));
+        assert!(e.expected.contains("position z") && e.found == "'x'", "{e}");
+        let e = err("stylet-script 1\nat 0 pos 1 2 3\n");
+        assert_eq!((e.line, e.column, e.found.as_str()), (2, 15, "end of line"));
+        assert!(e.expected.contains("dir"), "{e}");
+        let e = err("stylet-script 1\nat 2 release\nat 1 release\n");
+        assert_eq!(e.line, 3);
+        assert!(e.expected.contains("must not decrease"), "{e}");
+        let e = err("stylet-script 1\ntool needle gauge 17\n");
+        assert!(e.expected.contains("gauge 16, 18, 20 or 22"), "{e}");
+        let e = err("stylet-script 1\nat 0 event fireworks\n");
+        assert!(e.expected.contains("stylet-remove") && e.found == "'fireworks'", "{e}");
+        let e = err("stylet-script 2\n");
+        assert!(e.expected.contains("version 1"), "{e}");
+        let e = err("at 0 release\n");
+        assert!(e.expected.contains("stylet-script"), "{e}");
+        let e = err("stylet-script 1\nat 0 press 0 0 0 1\n");
+        assert!(e.expected.contains("non-zero press direction"), "{e}");
+        let e = err("stylet-script 1\nat 0 release extra\n");
+        assert!(e.expected.contains("end of line"), "{e}");
+        let e = err("stylet-script 1\n");
+        assert!(e.expected.contains("at least one pose"), "{e}");
+        assert_eq!(
+            e.to_string(),
+            format!("line 1, column 1: expected {}, found end of script", e.expected)
+        );
+    }
+}

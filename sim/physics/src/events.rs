@@ -1,0 +1,69 @@
+//! Events: named commands that enter the tick queue and pass through every component (thesis
+//! §6.2 / ALGORITHMS.md §7): tool changes, stylet, X-ray, contrast, breathing.
+
+use crate::needle::spec::Gauge;
+
+/// Which ultrasound probe.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ProbeKind {
+    Linear,
+    Convex,
+}
+
+/// A tool the trainee can hold.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ToolSpec {
+    Needle {
+        gauge: Gauge,
+        length_mm: f64,
+        stylet_in: bool,
+    },
+    Finger,
+    Probe(ProbeKind),
+}
+
+impl ToolSpec {
+    pub fn name(&self) -> &'static str {
+        match self {
+            ToolSpec::Needle { .. } => "needle",
+            ToolSpec::Finger => "finger",
+            ToolSpec::Probe(ProbeKind::Linear) => "linear probe",
+            ToolSpec::Probe(ProbeKind::Convex) => "convex probe",
+        }
+    }
+}
+
+/// An event of one tick.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Event {
+    /// Take another tool (a needle in the body is withdrawn).
+    SelectTool(ToolSpec),
+    /// Remove the stylet from the needle (to check for bile outflow).
+    StyletRemove,
+    StyletInsert,
+    XrayOn,
+    XrayOff,
+    /// Inject contrast agent through the needle (ml).
+    ContrastInject {
+        ml: f64,
+    },
+    /// Breath hold: breathing time stops.
+    BreathHold,
+    BreathRelease,
+}
+
+impl Event {
+    /// The event's name in scripts and session files.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Event::SelectTool(_) => "tool",
+            Event::StyletRemove => "stylet-remove",
+            Event::StyletInsert => "stylet-insert",
+            Event::XrayOn => "xray-on",
+            Event::XrayOff => "xray-off",
+            Event::ContrastInject { .. } => "contrast-inject",
+            Event::BreathHold => "breath-hold",
+            Event::BreathRelease => "breath-release",
+        }
+    }
+}

@@ -1,0 +1,226 @@
+//! The needle's deterministic rod model (ALGORITHMS.md §2, "Our choice" instead of Bullet): an
+//! Euler–Bernoulli beam of m equidistant nodes in a co-rotational frame, lateral deflections w_j
+//! (two components) about a reference axis, solved exactly each tick.
+//!
+//! Energy: E = (EI / h³) Σ_j |w_{j−1} − 2 w_j + w_{j+1}|² / 2 + Σ_j k_j |w_j − t_j|² / 2 − Σ_j f_j·w_j,
+//! the second difference being the discrete curvature times h². Its minimum solves the symmetric
+//! positive-definite pentadiagonal system
+//!
+//!   ((EI / h³) DᵀD + diag(k)) w = diag(k) t + f,
+//!
+//! with D the second-difference operator (free ends: no moment, no shear). The springs k_j are the
+//! virtual springs of §3.5.2 (tissue at the path, the hand at the hub); f_j are external loads. The
+//! LDLᵀ factorisation of a band of width 2 is O(m), has no iteration count to tune and gives the
+//! same bits on every run. Small-slope theory: valid while slopes stay below about 0.3 rad.
+
+/// Lateral deflection of one node: two components in the plane perpendicular to the axis.
+pub type Lateral = [f64; 2];
+
+/// Reusable buffers for [`solve`] (no allocation in the 1 kHz loop).
+#[derive(Debug, Clone, Default)]
+pub struct BeamScratch {
+    a0: Vec<f64>,
+    a1: Vec<f64>,
+    a2: Vec<f64>,
+    d: Vec<f64>,
+    l1: Vec<f64>,
+    l2: Vec<f64>,
+    rhs: Vec<Lateral>,
+}
+
+/// Solves for the deflections `out` (len m) given per-node spring stiffness `k` (N/mm), spring
+/// targets `target` (mm) and loads `load` (N), for a beam of rigidity `ei` (N·mm²) and node
+/// spacing `h` (mm). Needs enough springs to hold the beam (at least two nodes, or one node with a
+/// rotational hold through its neighbour); returns false for a singular system.
+pub fn solve(
+    ei: f64,
+    h: f64,
+    k: &[f64],
+    target: &[Lateral],
+    load: &[Lateral],
+    out: &mut [Lateral],
+    s: &mut BeamScratch,
+) -> bool {
+    let m = k.len();
+    debug_assert!(target.len() == m && load.len() == m && out.len() == m);
+    if m == 0 {
+        return true;
+    }
+    let c = ei / (h * h * h);
+    // The three bands of A = c·DᵀD + diag(k): a0[j] = A(j, j), a1[j] = A(j, j+1), a2[j] = A(j, j+2).
+    for v in [&mut s.a0, &mut s.a1, &mut s.a2, &mut s.d, &mut s.l1, &mut s.l2] {
+        v.clear();
+        v.resize(m, 0.0);
+    }
+    s.a0.copy_from_slice(k);
+    for r in 1..m.saturating_sub(1) {
+        // Row r of D: (1, −2, 1) at columns r−1, r, r+1.
+        s.a0[r - 1] += c;
+        s.a0[r] += 4.0 * c;
+        s.a0[r + 1] += c;
+        s.a1[r - 1] -= 2.0 * c;
+        s.a1[r] -= 2.0 * c;
+        s.a2[r - 1] += c;
+    }
+    // LDLᵀ: l1[j] = L(j, j−1), l2[j] = L(j, j−2), d[j] = D_j.
+    for j in 0..m {
+        if j >= 2 {
+            s.l2[j] = s.a2[j - 2] / s.d[j - 2];
+        }
+        if j >= 1 {
+            let mut v = s.a1[j - 1];
+            if j >= 2 {
+                v -= s.l2[j] * s.l1[j - 1] * s.d[j - 2];
+            }
+            s.l1[j] = v / s.d[j - 1];
+        }
+        let mut dj = s.a0[j];
+        if j >= 1 {
+            dj -= s.l1[j] * s.l1[j] * s.d[j - 1];
+        }
+        if j >= 2 {
+            dj -= s.l2[j] * s.l2[j] * s.d[j - 2];
+        }
+        if !(dj.is_finite() && dj > 1e-9 * s.a0[j].abs().max(1e-300)) {
+            return false;
+        }
+        s.d[j] = dj;
+    }
+    let (d, l1, l2) = (&s.d, &s.l1, &s.l2);
+    // Forward substitution L y = b.
+    s.rhs.clear();
+    for j in 0..m {
+        let mut y = [k[j] * target[j][0] + load[j][0], k[j] * target[j][1] + load[j][1]];
+        for (comp, yc) in y.iter_mut().enumerate() {
+            if j >= 1 {
+                *yc -= l1[j] * s.rhs[j - 1][comp];
+            }
+            if j >= 2 {
+                *yc -= l2[j] * s.rhs[j - 2][comp];
+            }
+        }
+        s.rhs.push(y);
+    }
+    // D z = y, then Lᵀ w = z.
+    for j in (0..m).rev() {
+        for comp in 0..2 {
+            let mut w = s.rhs[j][comp] / d[j];
+            if j + 1 < m {
+                w -= l1[j + 1] * out[j + 1][comp];
+            }
+            if j + 2 < m {
+                w -= l2[j + 2] * out[j + 2][comp];
+            }
+            out[j][comp] = w;
+        }
+    }
+    true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Dense reference: assemble A and solve by Gaussian elimination.
+    fn dense(ei: f64, h: f64, k: &[f64], rhs: &[f64]) -> Vec<f64> {
+        let m = k.len();
+        let c = ei / (h * h * h);
+        let mut a = vec![vec![0.0; m]; m];
+        for (j, kj) in k.iter().enumerate() {
+            a[j][j] += kj;
+        }
+        for r in 1..m - 1 {
+            let coef = [(r - 1, 1.0), (r, -2.0), (r + 1, 1.0)];
+            for &(i, ci) in &coef {
+                for &(jj, cj) in &coef {
+                    a[i][jj] += c * ci * cj;
+                }
+            }
+        }
+        let mut b = rhs.to_vec();
+        for col in 0..m {
+            for row in col + 1..m {
+                let f = a[row][col] / a[col][col];
+                for cc in col..m {
+                    a[row][cc] -= f * a[col][cc];
+                }
+                b[row] -= f * b[col];
+            }
+        }
+        let mut x = vec![0.0; m];
+        for row in (0..m).rev() {
+            let mut v = b[row];
+            for cc in row + 1..m {
+                v -= a[row][cc] * x[cc];
+            }
+            x[row] = v / a[row][row];
+        }
+        x
+    }
+
+    #[test]
+    fn band_solver_matches_dense_elimination() {
+        let m = 9;
+        let k: Vec<f64> = (0..m)
+            .map(|j| if j == 0 || j == m - 1 { 50.0 } else { 0.3 * j as f64 })
+            .collect();
+        let target: Vec<Lateral> = (0..m).map(|j| [(j as f64 * 0.7).sin(), (j as f64).cos()]).collect();
+        let load: Vec<Lateral> = (0..m).map(|j| [0.01 * j as f64, -0.02]).collect();
+        let mut out = vec![[0.0; 2]; m];
+        assert!(solve(
+            3000.0,
+            5.0,
+            &k,
+            &target,
+            &load,
+            &mut out,
+            &mut BeamScratch::default()
+        ));
+        for comp in 0..2 {
+            let rhs: Vec<f64> = (0..m).map(|j| k[j] * target[j][comp] + load[j][comp]).collect();
+            let x = dense(3000.0, 5.0, &k, &rhs);
+            for j in 0..m {
+                assert!(
+                    (x[j] - out[j][comp]).abs() < 1e-9 * (1.0 + x[j].abs()),
+                    "{j}: {} vs {}",
+                    x[j],
+                    out[j][comp]
+                );
+            }
+        }
+    }
+
+    /// A cantilever (two nodes clamped) with a tip load follows δ = F L³ / (3 EI). Holding nodes 0
+    /// and 1 clamps the beam halfway between them, so the free length is (m − 1.5) h.
+    #[test]
+    fn cantilever_matches_beam_theory() {
+        let (ei, len, f, m) = (57_000.0, 165.0, 0.5, 34);
+        let h = len / (m as f64 - 1.5);
+        let mut k = vec![0.0; m];
+        k[0] = 1e9;
+        k[1] = 1e9;
+        let target = vec![[0.0; 2]; m];
+        let mut load = vec![[0.0; 2]; m];
+        load[m - 1] = [f, 0.0];
+        let mut out = vec![[0.0; 2]; m];
+        assert!(solve(ei, h, &k, &target, &load, &mut out, &mut BeamScratch::default()));
+        let expect = f * len.powi(3) / (3.0 * ei);
+        let got = out[m - 1][0];
+        assert!((got - expect).abs() / expect < 0.001, "{got} vs {expect}");
+    }
+
+    #[test]
+    fn an_unheld_beam_is_singular() {
+        let m = 5;
+        let mut out = vec![[0.0; 2]; m];
+        assert!(!solve(
+            1000.0,
+            5.0,
+            &[0.0; 5],
+            &[[0.0; 2]; 5],
+            &[[0.0; 2]; 5],
+            &mut out,
+            &mut BeamScratch::default()
+        ));
+    }
+}

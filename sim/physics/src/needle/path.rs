@@ -1,0 +1,348 @@
+//! The insertion channel: path nodes P = {p_1 … p_l} with tangents d_i in reference space, and the
+//! per-segment friction state (thesis §3.5.1, §3.5.3; ALGORITHMS.md §2).
+//!
+//! Only the tip node p_l moves; the others stay where they were laid down, so materials are looked
+//! up at the tip (and once when a node is created).
+
+use glam::DVec3;
+
+/// One node of the channel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PathNode {
+    pub pos: DVec3,
+    /// d_i: the needle's direction when the node was laid down (unit).
+    pub tangent: DVec3,
+    /// Δx_i of eq. 3.5.3: friction offset of the segment ending at this node (mm).
+    pub offset_mm: f64,
+    /// f_k(p_i): tissue stiffness at the node (N/mm).
+    pub stiffness_n_per_mm: f64,
+    /// f_R(p_i): maximum friction of a Δp-long segment at the node (N).
+    pub friction_max_n: f64,
+}
+
+/// Material parameters at the tip, evaluated through the property tree (§6.1.4).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct TipMaterial {
+    pub cut_spring_n_per_mm: f64,
+    pub cut_spring_n_per_mm2: f64,
+    pub cut_threshold_n: f64,
+    pub stiffness_n_per_mm: f64,
+    /// Maximum friction per Δp segment (N).
+    pub friction_max_n: f64,
+}
+
+/// The channel and its fixed node spacing Δp.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InsertionPath {
+    nodes: Vec<PathNode>,
+    spacing_mm: f64,
+}
+
+/// How many nodes one tick may add or remove (a device jump of 32 Δp in 1 ms is not a hand).
+const MAX_NODE_CHANGES_PER_TICK: usize = 32;
+
+impl InsertionPath {
+    pub fn new(spacing_mm: f64) -> Self {
+        InsertionPath {
+            nodes: Vec::with_capacity(256),
+            spacing_mm,
+        }
+    }
+
+    pub fn nodes(&self) -> &[PathNode] {
+        &self.nodes
+    }
+    pub fn len(&self) -> usize {
+        self.nodes.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.nodes.is_empty()
+    }
+    pub fn spacing_mm(&self) -> f64 {
+        self.spacing_mm
+    }
+    pub fn clear(&mut self) {
+        self.nodes.clear();
+    }
+    pub fn tip(&self) -> Option<&PathNode> {
+        self.nodes.last()
+    }
+    pub fn tip_mut(&mut self) -> Option<&mut PathNode> {
+        self.nodes.last_mut()
+    }
+
+    /// Inserted length Σ ‖p_i − p_{i−1}‖ (mm).
+    pub fn inserted_length_mm(&self) -> f64 {
+        self.nodes.windows(2).map(|w| w[1].pos.distance(w[0].pos)).sum()
+    }
+
+    /// Alg. 3.5, compPTipMov: the tip's movement for device position `x`. Forward (Δd ≥ 0) only
+    /// when the cutting force f_k2·Δd² + f_k1·Δd exceeds f_cutthresh and the needle is not fully
+    /// inserted, by exactly as much as leaves the spring at the threshold; backward freely, towards
+    /// the node behind the tip. Needs at least two nodes.
+    pub fn tip_movement(&self, x: DVec3, m: &TipMaterial, needle_length_mm: f64) -> DVec3 {
+        let l = self.nodes.len();
+        debug_assert!(l >= 2);
+        let tip = self.nodes[l - 1];
+        let d = tip.tangent;
+        let dd = (x - tip.pos).dot(d);
+        if dd >= 0.0 {
+            let (k1, k2, t) = (m.cut_spring_n_per_mm, m.cut_spring_n_per_mm2, m.cut_threshold_n);
+            let f = k2 * dd * dd + k1 * dd;
+            if f > t && self.inserted_length_mm() < needle_length_mm {
+                let advance = if k2 == 0.0 {
+                    // Linear spring: leave the extension t / k1 (the OCR writes f_cut for f_cutthresh).
+                    if k1 > 0.0 { dd - t / k1 } else { dd }
+                } else {
+                    let a = 0.5 * k1 / k2;
+                    let b = t / k2;
+                    dd + a - (a * a + b).sqrt()
+                };
+                d * advance.max(0.0)
+            } else {
+                DVec3::ZERO
+            }
+        } else {
+            let back = tip.pos - self.nodes[l - 2].pos;
+            let len = back.length();
+            if len > 0.0 { back * (dd / len) } else { d * dd }
+        }
+    }
+
+    /// Alg. 3.4, updatePathNodes, for device position `x`. `material_at` gives the friction
+    /// parameters of a new node from its position; `first_contact` says whether the device tip
+    /// touches tissue (l(x) ≠ air). Returns whether the path changed its number of nodes.
+    pub fn update(
+        &mut self,
+        x: DVec3,
+        direction: DVec3,
+        tip: &TipMaterial,
+        needle_length_mm: f64,
+        first_contact: bool,
+        material_at: &mut dyn FnMut(DVec3) -> (f64, f64),
+    ) {
+        let dp = self.spacing_mm;
+        match self.nodes.len() {
+            0 => {
+                if first_contact {
+                    self.nodes.push(PathNode {
+                        pos: x,
+                        tangent: direction,
+                        offset_mm: 0.0,
+                        stiffness_n_per_mm: tip.stiffness_n_per_mm,
+                        friction_max_n: tip.friction_max_n,
+                    });
+                }
+            }
+            1 => {
+                let p1 = self.nodes[0];
+                let dd = (x - p1.pos).dot(p1.tangent);
+                if dd > 0.0 {
+                    let pos = p1.pos + p1.tangent * dd;
+                    let (k, r) = material_at(pos);
+                    self.nodes.push(PathNode {
+                        pos,
+                        tangent: p1.tangent,
+                        offset_mm: 0.0,
+                        stiffness_n_per_mm: k,
+                        friction_max_n: r,
+                    });
+                } else if dd < 0.0 {
+                    self.nodes.clear();
+                }
+            }
+            _ => {
+                let mv = self.tip_movement(x, tip, needle_length_mm);
+                let l = self.nodes.len();
+                self.nodes[l - 1].pos += mv;
+                self.nodes[l - 1].stiffness_n_per_mm = tip.stiffness_n_per_mm;
+                self.nodes[l - 1].friction_max_n = tip.friction_max_n;
+                for _ in 0..MAX_NODE_CHANGES_PER_TICK {
+                    let l = self.nodes.len();
+                    if l < 2 {
+                        break;
+                    }
+                    let (prev, tip_node) = (self.nodes[l - 2], self.nodes[l - 1]);
+                    let dl = (tip_node.pos - prev.pos).dot(prev.tangent);
+                    if dl > 1.5 * dp {
+                        // Insert a node Δp ahead of p_{l−1}, i.e. just behind the tip.
+                        let pos = prev.pos + prev.tangent * dp;
+                        let (k, r) = material_at(pos);
+                        let node = PathNode {
+                            pos,
+                            tangent: tip_node.tangent,
+                            offset_mm: 0.0,
+                            stiffness_n_per_mm: k,
+                            friction_max_n: r,
+                        };
+                        self.nodes.insert(l - 1, node);
+                    } else if dl < 0.5 * dp && l > 2 {
+                        // The tip came back to the node behind it: remove that node.
+                        let removed = self.nodes.remove(l - 2);
+                        // The tip inherits the removed segment's friction state (the offset of
+                        // the tissue the tip now sits in).
+                        self.nodes[l - 2].offset_mm = removed.offset_mm;
+                    } else if dl < 0.0 {
+                        // Only two nodes and the tip is behind the first: withdrawn.
+                        self.nodes.clear();
+                        break;
+                    } else {
+                        break;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Eqs. 3.5.3–3.5.4: moves every segment's friction offset by the device's axial motion `dx`
+    /// (clamped to ±f_R/f_k) and returns the total friction f⁺ (N, positive when the offsets point
+    /// along the insertion direction).
+    pub fn update_friction(&mut self, dx: f64) -> f64 {
+        let dp = self.spacing_mm;
+        let mut total = 0.0;
+        for i in 1..self.nodes.len() {
+            let seg = self.nodes[i].pos.distance(self.nodes[i - 1].pos);
+            let n = &mut self.nodes[i];
+            let limit = if n.stiffness_n_per_mm > 0.0 {
+                n.friction_max_n / n.stiffness_n_per_mm
+            } else {
+                0.0
+            };
+            n.offset_mm = (n.offset_mm + dx).clamp(-limit, limit);
+            total += n.stiffness_n_per_mm * (seg / dp) * n.offset_mm;
+        }
+        total
+    }
+
+    /// The channel point `a` mm back from the tip along the path, with the tissue stiffness
+    /// there; `None` beyond the first node (outside the body).
+    pub fn point_from_tip(&self, a: f64) -> Option<(DVec3, f64)> {
+        let mut left = a;
+        for i in (1..self.nodes.len()).rev() {
+            let (p, q) = (self.nodes[i].pos, self.nodes[i - 1].pos);
+            let seg = p.distance(q);
+            if left <= seg {
+                let t = if seg > 0.0 { left / seg } else { 0.0 };
+                return Some((p + (q - p) * t, self.nodes[i].stiffness_n_per_mm));
+            }
+            left -= seg;
+        }
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mat(k1: f64, t: f64) -> TipMaterial {
+        TipMaterial {
+            cut_spring_n_per_mm: k1,
+            cut_spring_n_per_mm2: 0.0,
+            cut_threshold_n: t,
+            stiffness_n_per_mm: 0.5,
+            friction_max_n: 0.015,
+        }
+    }
+
+    fn path_along_z(n: usize) -> InsertionPath {
+        let mut p = InsertionPath::new(1.5);
+        for i in 0..n {
+            p.nodes.push(PathNode {
+                pos: DVec3::new(0.0, 0.0, 1.5 * i as f64),
+                tangent: DVec3::Z,
+                offset_mm: 0.0,
+                stiffness_n_per_mm: 0.5,
+                friction_max_n: 0.015,
+            });
+        }
+        p
+    }
+
+    #[test]
+    fn the_tip_advances_only_beyond_the_cutting_threshold() {
+        let p = path_along_z(3);
+        let tip = 3.0;
+        // 0.5 N/mm spring, 2.5 N threshold: below 5 mm of extension nothing moves.
+        assert_eq!(
+            p.tip_movement(DVec3::new(0.0, 0.0, tip + 4.9), &mat(0.5, 2.5), 150.0),
+            DVec3::ZERO
+        );
+        // At 6 mm the tip moves 1 mm, leaving exactly the threshold on the spring.
+        let mv = p.tip_movement(DVec3::new(0.0, 0.0, tip + 6.0), &mat(0.5, 2.5), 150.0);
+        assert!((mv.z - 1.0).abs() < 1e-12, "{mv}");
+        // Fully inserted: no advance.
+        assert_eq!(
+            p.tip_movement(DVec3::new(0.0, 0.0, tip + 6.0), &mat(0.5, 2.5), 3.0),
+            DVec3::ZERO
+        );
+        // Backward is free, along the channel.
+        let mv = p.tip_movement(DVec3::new(0.0, 0.0, tip - 1.0), &mat(0.5, 2.5), 150.0);
+        assert!((mv.z + 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn quadratic_spring_leaves_the_threshold() {
+        let p = path_along_z(3);
+        let m = TipMaterial {
+            cut_spring_n_per_mm2: 0.1,
+            ..mat(0.5, 2.5)
+        };
+        let x = DVec3::new(0.0, 0.0, 3.0 + 8.0);
+        let mv = p.tip_movement(x, &m, 150.0);
+        let left = 8.0 - mv.z;
+        let f = 0.1 * left * left + 0.5 * left;
+        assert!((f - 2.5).abs() < 1e-9, "{f}");
+    }
+
+    #[test]
+    fn nodes_are_laid_down_and_picked_up() {
+        let mut p = InsertionPath::new(1.5);
+        let m = mat(0.2, 0.0);
+        let mut mat_at = |_: DVec3| (0.5, 0.015);
+        p.update(DVec3::ZERO, DVec3::Z, &m, 150.0, true, &mut mat_at);
+        assert_eq!(p.len(), 1);
+        for i in 1..=40 {
+            p.update(
+                DVec3::new(0.0, 0.0, 0.5 * i as f64),
+                DVec3::Z,
+                &m,
+                150.0,
+                true,
+                &mut mat_at,
+            );
+        }
+        let n = p.len();
+        assert!((p.inserted_length_mm() - 20.0).abs() < 1e-9);
+        assert!((13..=15).contains(&n), "{n} nodes for 20 mm at 1.5 mm spacing");
+        for i in (0..40).rev() {
+            p.update(
+                DVec3::new(0.0, 0.0, 0.5 * i as f64 - 0.25),
+                DVec3::Z,
+                &m,
+                150.0,
+                true,
+                &mut mat_at,
+            );
+        }
+        assert!(p.is_empty(), "withdrawn: {} nodes left", p.len());
+    }
+
+    #[test]
+    fn friction_saturates_per_segment_and_flips_with_motion() {
+        let mut p = path_along_z(11);
+        let f = p.update_friction(1.0);
+        // 10 segments × f_R = 0.015 N each once saturated.
+        assert!((f - 0.15).abs() < 1e-12, "{f}");
+        let f = p.update_friction(-2.0);
+        assert!((f + 0.15).abs() < 1e-12, "{f}");
+    }
+
+    #[test]
+    fn points_back_from_the_tip() {
+        let p = path_along_z(5);
+        let (q, _) = p.point_from_tip(2.0).unwrap();
+        assert!((q.z - 4.0).abs() < 1e-12);
+        assert!(p.point_from_tip(6.5).is_none());
+    }
+}

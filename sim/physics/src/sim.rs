@@ -1,0 +1,393 @@
+//! The fixed-step simulation: `step(tick input) → tick output`, 1 kHz by default (DESIGN.md
+//! "Simulation tick", ALGORITHMS.md §2–3).
+//!
+//! Deterministic by construction: time is the tick count divided by the rate (no wall clock), no
+//! threads, no hash maps, f64 throughout, transcendental functions through `libm` (glam's `libm`
+//! feature), no fused multiply-add. The same inputs give the same bits; [`Simulation::state_digest`]
+//! hashes the whole state so a replay can find the first tick where it diverges.
+
+use std::sync::Arc;
+
+use glam::{DQuat, DVec3};
+
+use crate::contact::{ContactFriction, ContactPattern, ContactTool};
+use crate::device::DeviceProfile;
+use crate::events::{Event, ProbeKind, ToolSpec};
+use crate::motion::{self, MotionModel, Static};
+use crate::needle::spec::NeedleSpec;
+use crate::needle::tool::NeedleTool;
+use crate::{LabelId, PunctureAtlas};
+
+/// Version of the physics: bump it with every change that alters any output bit, so a replay
+/// knows which physics graded a session.
+pub const PHYSICS_VERSION: u32 = 1;
+
+/// Default haptic rate.
+pub const DEFAULT_TICK_RATE_HZ: u32 = 1000;
+
+/// What the device reports for one tick.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TickInput {
+    /// Device position (mm, world space): the tool tip (for a needle, the tip of the rigid needle).
+    pub position_mm: DVec3,
+    /// Device orientation; the tool axis q_z = orientation · (0, 0, 1) points into the patient.
+    pub orientation: DQuat,
+    /// Button bits (device specific; recorded, not used by the physics).
+    pub buttons: u32,
+    pub events: Vec<Event>,
+}
+
+impl TickInput {
+    pub fn pose(position_mm: DVec3, orientation: DQuat) -> Self {
+        TickInput {
+            position_mm,
+            orientation,
+            buttons: 0,
+            events: Vec::new(),
+        }
+    }
+}
+
+/// Force components before clamping, all at the handle (N).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ForceComponents {
+    pub cut: DVec3,
+    pub friction: DVec3,
+    pub base: DVec3,
+    pub skin: DVec3,
+    pub slide: DVec3,
+    pub bone: DVec3,
+}
+
+/// What one tick produces: the device's force and torque plus a summary of the tool state (the
+/// full state — needle and path nodes, proxies — through [`Simulation::needle`] and
+/// [`Simulation::contact`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TickOutput {
+    pub tick: u64,
+    pub time_s: f64,
+    /// Force for the device (N), clamped to the device's maximum.
+    pub force_n: DVec3,
+    /// Torque for the device (N·mm), clamped; zero on 3-DOF devices.
+    pub torque_nmm: DVec3,
+    pub components: ForceComponents,
+    /// Direction of insertion at the tip (d_l) while a needle is in the body, else the tool axis.
+    pub insertion_dir: DVec3,
+    /// Needle: label at the tip (l(x, d) as the needle feels it); contact tools: 0.
+    pub tip_label: LabelId,
+    /// Needle: inserted length along the channel (mm).
+    pub inserted_mm: f64,
+    /// Needle tip position (world, mm); contact tools: the device position.
+    pub tip_mm: DVec3,
+    /// Needle: tip depth under the skin surface D_skin (mm, negative outside).
+    pub tip_depth_mm: f64,
+    /// Contact tools: nodes touching the skin.
+    pub contacts: u32,
+    /// Contact tools: deepest indentation of a node (mm).
+    pub indentation_mm: f64,
+    pub stylet_in: bool,
+    pub xray_on: bool,
+    pub breath_hold: bool,
+    /// Contrast injected so far (ml).
+    pub contrast_ml: f64,
+}
+
+/// The tool in hand.
+#[derive(Debug, Clone)]
+pub enum Tool {
+    Needle(Box<NeedleTool>),
+    Contact(ContactTool),
+}
+
+/// Simulation settings.
+#[derive(Clone)]
+pub struct SimConfig {
+    pub tick_rate_hz: u32,
+    pub device: DeviceProfile,
+    pub tool: ToolSpec,
+    pub motion: Arc<dyn MotionModel>,
+}
+
+impl SimConfig {
+    pub fn new(device: DeviceProfile, tool: ToolSpec) -> Self {
+        SimConfig {
+            tick_rate_hz: DEFAULT_TICK_RATE_HZ,
+            device,
+            tool,
+            motion: Arc::new(Static),
+        }
+    }
+}
+
+/// The simulation of one session on one atlas.
+pub struct Simulation {
+    atlas: Arc<PunctureAtlas>,
+    config: SimConfig,
+    tool_spec: ToolSpec,
+    tool: Tool,
+    tick: u64,
+    breath_time_s: f64,
+    breath_hold: bool,
+    xray_on: bool,
+    contrast_ml: f64,
+    /// Device position mapped to reference space on the previous tick (fixed point of §5.4.3).
+    device_ref: Option<DVec3>,
+    last_position: DVec3,
+    last_orientation: DQuat,
+}
+
+fn make_tool(spec: &ToolSpec) -> Tool {
+    match *spec {
+        ToolSpec::Needle {
+            gauge,
+            length_mm,
+            stylet_in,
+        } => Tool::Needle(Box::new(NeedleTool::new(NeedleSpec { gauge, length_mm }, stylet_in))),
+        ToolSpec::Finger => Tool::Contact(ContactTool::new(ContactPattern::fingertip(), ContactFriction::FINGER)),
+        ToolSpec::Probe(ProbeKind::Linear) => Tool::Contact(ContactTool::new(
+            ContactPattern::linear_probe(),
+            ContactFriction::PROBE_WITH_GEL,
+        )),
+        ToolSpec::Probe(ProbeKind::Convex) => Tool::Contact(ContactTool::new(
+            ContactPattern::convex_probe(),
+            ContactFriction::PROBE_WITH_GEL,
+        )),
+    }
+}
+
+impl Simulation {
+    pub fn new(atlas: Arc<PunctureAtlas>, config: SimConfig) -> Result<Self, String> {
+        if config.tick_rate_hz == 0 || config.tick_rate_hz > 100_000 {
+            return Err(format!("tick rate {} Hz must be 1 … 100000", config.tick_rate_hz));
+        }
+        if let ToolSpec::Needle { gauge, length_mm, .. } = config.tool {
+            NeedleSpec { gauge, length_mm }.validate()?;
+        }
+        let tool_spec = config.tool;
+        Ok(Simulation {
+            tool: make_tool(&tool_spec),
+            tool_spec,
+            atlas,
+            config,
+            tick: 0,
+            breath_time_s: 0.0,
+            breath_hold: false,
+            xray_on: false,
+            contrast_ml: 0.0,
+            device_ref: None,
+            last_position: DVec3::ZERO,
+            last_orientation: DQuat::IDENTITY,
+        })
+    }
+
+    pub fn atlas(&self) -> &PunctureAtlas {
+        &self.atlas
+    }
+    pub fn tick(&self) -> u64 {
+        self.tick
+    }
+    pub fn tool_spec(&self) -> &ToolSpec {
+        &self.tool_spec
+    }
+    pub fn device(&self) -> &DeviceProfile {
+        &self.config.device
+    }
+    pub fn tick_rate_hz(&self) -> u32 {
+        self.config.tick_rate_hz
+    }
+    pub fn needle(&self) -> Option<&NeedleTool> {
+        match &self.tool {
+            Tool::Needle(n) => Some(n),
+            Tool::Contact(_) => None,
+        }
+    }
+    pub fn contact(&self) -> Option<&ContactTool> {
+        match &self.tool {
+            Tool::Contact(c) => Some(c),
+            Tool::Needle(_) => None,
+        }
+    }
+
+    fn apply(&mut self, e: &Event) {
+        match e {
+            Event::SelectTool(spec) => {
+                self.tool_spec = *spec;
+                self.tool = make_tool(spec);
+            }
+            Event::StyletRemove => {
+                if let Tool::Needle(n) = &mut self.tool {
+                    n.set_stylet(false);
+                }
+            }
+            Event::StyletInsert => {
+                if let Tool::Needle(n) = &mut self.tool {
+                    n.set_stylet(true);
+                }
+            }
+            Event::XrayOn => self.xray_on = true,
+            Event::XrayOff => self.xray_on = false,
+            Event::ContrastInject { ml } => {
+                if ml.is_finite() && *ml > 0.0 {
+                    self.contrast_ml += ml;
+                }
+            }
+            Event::BreathHold => self.breath_hold = true,
+            Event::BreathRelease => self.breath_hold = false,
+        }
+    }
+
+    /// One tick. Non-finite positions or orientations (a glitching device) are replaced by the
+    /// last valid pose, and orientations are normalised, so no input can put NaN into the state.
+    pub fn step(&mut self, input: &TickInput) -> TickOutput {
+        for e in &input.events {
+            self.apply(e);
+        }
+        let x_world = if input.position_mm.is_finite() {
+            input.position_mm
+        } else {
+            self.last_position
+        };
+        let q = input.orientation;
+        let q = if q.is_finite() && q.length_squared() > 1e-12 {
+            q.normalize()
+        } else {
+            self.last_orientation
+        };
+        self.last_position = x_world;
+        self.last_orientation = q;
+
+        let t_breath = self.breath_time_s;
+        let model = self.config.motion.clone();
+        let x_ref = motion::to_reference(model.as_ref(), x_world, self.device_ref.unwrap_or(x_world), t_breath);
+        self.device_ref = Some(x_ref);
+        let device = self.config.device;
+        let atlas = self.atlas.clone();
+
+        let mut out = TickOutput {
+            tick: self.tick,
+            time_s: self.tick as f64 / self.config.tick_rate_hz as f64,
+            force_n: DVec3::ZERO,
+            torque_nmm: DVec3::ZERO,
+            components: ForceComponents::default(),
+            insertion_dir: q * DVec3::Z,
+            tip_label: 0,
+            inserted_mm: 0.0,
+            tip_mm: x_world,
+            tip_depth_mm: 0.0,
+            contacts: 0,
+            indentation_mm: 0.0,
+            stylet_in: false,
+            xray_on: self.xray_on,
+            breath_hold: self.breath_hold,
+            contrast_ml: self.contrast_ml,
+        };
+        let (force, torque) = match &mut self.tool {
+            Tool::Needle(n) => {
+                let tip_ref = n.path().tip().map_or(x_ref, |t| t.pos);
+                let r = motion::deformation_gradient(model.as_ref(), tip_ref, t_breath);
+                let correct = |d: DVec3| motion::correct_direction(&r, d);
+                let f = n.step(&atlas, x_ref, q, &correct, &device);
+                out.components.cut = f.cut;
+                out.components.friction = f.friction;
+                out.components.base = f.base;
+                if let Some(t) = n.path().tip() {
+                    out.insertion_dir = t.tangent;
+                }
+                let tip = *n.nodes().last().expect("needle has nodes");
+                out.tip_mm = tip + model.displacement(tip, t_breath);
+                out.tip_label = n.tip_label();
+                out.inserted_mm = n.inserted_mm();
+                out.tip_depth_mm = atlas.skin_distance().sample(tip, -1000.0) as f64;
+                out.stylet_in = n.stylet_in();
+                (f.cut + f.friction + f.base, f.torque)
+            }
+            Tool::Contact(c) => {
+                let f = c.step(&atlas, x_ref, q);
+                out.components.skin = f.skin;
+                out.components.slide = f.slide;
+                out.components.bone = f.bone;
+                out.contacts = f.contacts as u32;
+                out.indentation_mm = c.nodes().iter().map(|n| n.depth_mm).fold(0.0, f64::max);
+                (f.skin + f.slide + f.bone, f.torque)
+            }
+        };
+        out.force_n = clamp_length(force, device.max_force_n);
+        out.torque_nmm = clamp_length(torque, device.max_torque_nmm);
+        self.tick += 1;
+        if !self.breath_hold {
+            self.breath_time_s = self.tick as f64 / self.config.tick_rate_hz as f64;
+        }
+        out
+    }
+
+    /// FNV-1a 64 over the bits of the whole physics state (tool, channel, friction, proxies,
+    /// flags, clocks): equal digests ⇔ (with overwhelming probability) equal states.
+    pub fn state_digest(&self) -> u64 {
+        let mut h = Fnv::new();
+        h.u64(self.tick);
+        h.f64(self.breath_time_s);
+        h.u64(u64::from(self.breath_hold) | u64::from(self.xray_on) << 1);
+        h.f64(self.contrast_ml);
+        h.vec(self.last_position);
+        for v in self.last_orientation.to_array() {
+            h.f64(v);
+        }
+        if let Some(x) = self.device_ref {
+            h.vec(x);
+        }
+        match &self.tool {
+            Tool::Needle(n) => {
+                h.u64(1 + u64::from(n.stylet_in()));
+                for (p, t) in n.nodes().iter().zip(n.tangents()) {
+                    h.vec(*p);
+                    h.vec(*t);
+                }
+                for node in n.path().nodes() {
+                    h.vec(node.pos);
+                    h.vec(node.tangent);
+                    h.f64(node.offset_mm);
+                    h.f64(node.stiffness_n_per_mm);
+                    h.f64(node.friction_max_n);
+                }
+                h.f64(n.friction_n());
+            }
+            Tool::Contact(c) => {
+                h.u64(3);
+                for node in c.nodes() {
+                    h.vec(node.pos);
+                    h.vec(node.proxy);
+                    h.vec(node.surface);
+                    h.u64(u64::from(node.in_contact));
+                }
+            }
+        }
+        h.0
+    }
+}
+
+fn clamp_length(v: DVec3, max: f64) -> DVec3 {
+    let l = v.length();
+    if l > max && l > 0.0 { v * (max / l) } else { v }
+}
+
+struct Fnv(u64);
+
+impl Fnv {
+    fn new() -> Self {
+        Fnv(0xcbf2_9ce4_8422_2325)
+    }
+    fn u64(&mut self, v: u64) {
+        for b in v.to_le_bytes() {
+            self.0 ^= b as u64;
+            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+    fn f64(&mut self, v: f64) {
+        self.u64(v.to_bits());
+    }
+    fn vec(&mut self, v: DVec3) {
+        self.f64(v.x);
+        self.f64(v.y);
+        self.f64(v.z);
+    }
+}

@@ -1,0 +1,137 @@
+//! Line charts (plotters) for force curves and traces, as SVG or PNG: a title, axis labels with
+//! units, a legend, and one colour per force component everywhere ([`palette`]).
+
+use std::path::Path;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use crate::RenderError;
+use crate::fonts::{SANS, ensure_fonts};
+
+/// The colours of the force components, used by every chart.
+pub mod palette {
+    use plotters::style::RGBColor;
+    pub const TOTAL: RGBColor = RGBColor(30, 30, 30);
+    pub const CUTTING: RGBColor = RGBColor(214, 39, 40);
+    pub const FRICTION: RGBColor = RGBColor(31, 119, 180);
+    pub const BASE: RGBColor = RGBColor(44, 160, 44);
+    pub const SKIN: RGBColor = RGBColor(255, 127, 14);
+    pub const BONE: RGBColor = RGBColor(148, 103, 189);
+    pub const OTHER: RGBColor = RGBColor(127, 127, 127);
+}
+
+/// One curve.
+#[derive(Debug, Clone)]
+pub struct Series {
+    pub name: String,
+    pub color: RGBColor,
+    pub points: Vec<(f64, f64)>,
+    /// Drawn thicker (the total).
+    pub bold: bool,
+}
+
+/// A chart: curves plus vertical event markers.
+#[derive(Debug, Clone)]
+pub struct LineChart {
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    pub series: Vec<Series>,
+    /// Vertical markers (x, label), e.g. events.
+    pub markers: Vec<(f64, String)>,
+}
+
+fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    if !lo.is_finite() {
+        return (0.0, 1.0);
+    }
+    let pad = ((hi - lo) * 0.05).max(1e-3);
+    (lo - pad, hi + pad)
+}
+
+fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    let (x0, x1) = range(chart.series.iter().flat_map(|s| s.points.iter().map(|p| p.0)));
+    let (y0, y1) = range(chart.series.iter().flat_map(|s| s.points.iter().map(|p| p.1)));
+    let mut c = ChartBuilder::on(root)
+        .caption(&chart.title, (SANS, 26))
+        .margin(16)
+        .x_label_area_size(56)
+        .y_label_area_size(72)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(|e| e.to_string())?;
+    c.configure_mesh()
+        .x_desc(&chart.x_label)
+        .y_desc(&chart.y_label)
+        .axis_desc_style((SANS, 20))
+        .label_style((SANS, 16))
+        .light_line_style(RGBColor(235, 235, 235))
+        .draw()
+        .map_err(|e| e.to_string())?;
+    for (n, (x, label)) in chart.markers.iter().enumerate() {
+        let style = ShapeStyle::from(&RGBColor(150, 150, 150)).stroke_width(1);
+        c.draw_series(std::iter::once(PathElement::new(vec![(*x, y0), (*x, y1)], style)))
+            .map_err(|e| e.to_string())?;
+        // Staggered so labels of close events do not overlap.
+        let y = y1 - (y1 - y0) * (0.03 + 0.05 * (n % 4) as f64);
+        c.draw_series(std::iter::once(Text::new(
+            format!(" {label}"),
+            (*x, y),
+            (SANS, 14).into_font(),
+        )))
+        .map_err(|e| e.to_string())?;
+    }
+    for s in &chart.series {
+        let style = ShapeStyle::from(&s.color).stroke_width(if s.bold { 3 } else { 2 });
+        let color = s.color;
+        c.draw_series(LineSeries::new(s.points.iter().copied(), style))
+            .map_err(|e| e.to_string())?
+            .label(&s.name)
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 24, y)], ShapeStyle::from(&color).stroke_width(3))
+            });
+    }
+    c.configure_series_labels()
+        .background_style(WHITE.mix(0.9))
+        .border_style(BLACK)
+        .label_font((SANS, 16))
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()
+        .map_err(|e| e.to_string())?;
+    root.present().map_err(|e| e.to_string())
+}
+
+/// Writes the chart to `path`: SVG if it ends in `.svg`, else PNG.
+pub fn write_chart(chart: &LineChart, path: &Path, size: (u32, u32)) -> Result<(), RenderError> {
+    ensure_fonts();
+    let err = |m: String| RenderError::Write {
+        path: path.display().to_string(),
+        message: m,
+    };
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| err(e.to_string()))?;
+    }
+    let svg = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("svg"));
+    if svg {
+        let root = SVGBackend::new(path, size).into_drawing_area();
+        draw(chart, &root).map_err(err)
+    } else {
+        let root = BitMapBackend::new(path, size).into_drawing_area();
+        draw(chart, &root).map_err(err)
+    }
+}
+
+/// The chart as an SVG string (for pages and tests).
+pub fn chart_svg(chart: &LineChart, size: (u32, u32)) -> Result<String, RenderError> {
+    ensure_fonts();
+    let mut out = String::new();
+    {
+        let root = SVGBackend::with_string(&mut out, size).into_drawing_area();
+        draw(chart, &root).map_err(RenderError::Draw)?;
+    }
+    Ok(out)
+}

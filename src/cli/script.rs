@@ -1,0 +1,253 @@
+//! `stylet script run`: a script on an atlas, headless and faster than real time, with a CSV of
+//! every tick and the force plot (thesis Fig. 3.12).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::Context;
+use clap::{Args, Subcommand};
+use stylet_devices::script::{NamedPath, ScriptedDevice, parse};
+use stylet_physics::glam::DVec3;
+use stylet_physics::{Event, SimConfig, Simulation, TickInput, TickOutput};
+use stylet_render::charts::{LineChart, Series, palette, write_chart};
+
+#[derive(Debug, Subcommand)]
+pub enum ScriptCommand {
+    /// Run a script on an atlas, headless.
+    Run(RunArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// Atlas directory.
+    #[arg(long)]
+    pub atlas: PathBuf,
+    /// Script file (docs/scripts.md).
+    #[arg(long)]
+    pub script: PathBuf,
+    /// Write one CSV row per tick here.
+    #[arg(long)]
+    pub csv: Option<PathBuf>,
+    /// Write the force plot here (.svg or .png).
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+}
+
+pub fn run(cmd: ScriptCommand) -> anyhow::Result<()> {
+    match cmd {
+        ScriptCommand::Run(a) => run_script(&a),
+    }
+}
+
+/// The CSV header; one row per tick. Forces "along insertion" are the resistance the hand feels
+/// along the insertion direction d (−F·d): positive against pushing in.
+pub const CSV_HEADER: &str = "tick,t_s,x_mm,y_mm,z_mm,qw,qx,qy,qz,fx_n,fy_n,fz_n,tx_nmm,ty_nmm,tz_nmm,\
+f_insert_n,cut_n,friction_n,base_n,skin_n,slide_n,bone_n,tip_label,tip_name,inserted_mm,tip_depth_mm,\
+indentation_mm,contacts,stylet_in,xray_on,contrast_ml,events";
+
+/// Reads and binds a script to an atlas.
+pub fn load_script(atlas: &stylet_atlas::Atlas, path: &Path) -> anyhow::Result<ScriptedDevice> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let script = parse(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let paths: Vec<NamedPath> = atlas
+        .manifest
+        .paths
+        .iter()
+        .map(|p| NamedPath {
+            name: p.name.clone(),
+            entry_mm: DVec3::from_array(p.entry_mm),
+            target_mm: DVec3::from_array(p.target_mm),
+        })
+        .collect();
+    let device = ScriptedDevice::new(&script, &paths).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    Ok(device)
+}
+
+/// The simulation a script starts with.
+pub fn script_simulation(atlas: &stylet_atlas::Atlas, path: &Path) -> anyhow::Result<(Simulation, ScriptedDevice)> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let script = parse(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let device = load_script(atlas, path)?;
+    let mut config = SimConfig::new(script.device, script.initial_tool);
+    config.tick_rate_hz = script.rate_hz;
+    let sim = Simulation::new(Arc::new(atlas.model.clone()), config).map_err(|e| anyhow::anyhow!(e))?;
+    Ok((sim, device))
+}
+
+fn csv_row(i: &TickInput, o: &TickOutput, name: &str) -> String {
+    let along = |v: DVec3| -v.dot(o.insertion_dir);
+    let q = i.orientation.normalize();
+    let c = &o.components;
+    let events: Vec<String> = i
+        .events
+        .iter()
+        .map(|e| match e {
+            Event::SelectTool(t) => format!("tool:{}", t.name().replace(' ', "-")),
+            Event::ContrastInject { ml } => format!("contrast-inject:{ml}"),
+            e => e.name().to_string(),
+        })
+        .collect();
+    format!(
+        "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+        o.tick,
+        o.time_s,
+        i.position_mm.x,
+        i.position_mm.y,
+        i.position_mm.z,
+        q.w,
+        q.x,
+        q.y,
+        q.z,
+        o.force_n.x,
+        o.force_n.y,
+        o.force_n.z,
+        o.torque_nmm.x,
+        o.torque_nmm.y,
+        o.torque_nmm.z,
+        along(o.force_n),
+        along(c.cut),
+        along(c.friction),
+        along(c.base),
+        along(c.skin),
+        along(c.slide),
+        along(c.bone),
+        o.tip_label,
+        name,
+        o.inserted_mm,
+        o.tip_depth_mm,
+        o.indentation_mm,
+        o.contacts,
+        u8::from(o.stylet_in),
+        u8::from(o.xray_on),
+        o.contrast_ml,
+        events.join(";"),
+    )
+}
+
+fn run_script(a: &RunArgs) -> anyhow::Result<()> {
+    let atlas = stylet_atlas::load(&a.atlas)?;
+    let (mut sim, mut device) = script_simulation(&atlas, &a.script)?;
+    let table = atlas.model.label_table().clone();
+    let name_of = |id: u16| {
+        table
+            .get(id)
+            .map_or_else(|| "-".to_string(), |l| l.name.replace(',', ";"))
+    };
+    let mut csv = match &a.csv {
+        Some(p) => {
+            let f = std::fs::File::create(p).with_context(|| format!("cannot create {}", p.display()))?;
+            let mut w = std::io::BufWriter::new(f);
+            writeln!(w, "{CSV_HEADER}")?;
+            Some(w)
+        }
+        None => None,
+    };
+    let mut trace: Vec<(f64, f64, f64, f64, f64)> = Vec::new();
+    // Contact tools: (cranio-caudal position z, indentation) while touching (Fig. 3.14).
+    let mut palpation: Vec<(f64, f64)> = Vec::new();
+    let mut markers: Vec<(f64, String)> = Vec::new();
+    let mut visited: Vec<u16> = Vec::new();
+    let (mut max_f, mut max_depth) = (0.0f64, 0.0f64);
+    let mut io_error = None;
+    let started = Instant::now();
+    let ticks = stylet_devices::run_headless(&mut sim, &mut device, |i, o, _| {
+        if let Some(w) = csv.as_mut() {
+            if io_error.is_none() {
+                if let Err(e) = writeln!(w, "{}", csv_row(i, o, &name_of(o.tip_label))) {
+                    io_error = Some(e);
+                }
+            }
+        }
+        let along = |v: DVec3| -v.dot(o.insertion_dir);
+        let c = &o.components;
+        trace.push((
+            o.time_s,
+            along(o.force_n),
+            along(c.cut),
+            along(c.friction),
+            along(c.base),
+        ));
+        for e in &i.events {
+            markers.push((o.time_s, e.name().to_string()));
+        }
+        if o.tip_label != 0 && visited.last() != Some(&o.tip_label) && o.inserted_mm > 0.0 {
+            visited.push(o.tip_label);
+        }
+        if o.contacts > 0 {
+            palpation.push((i.position_mm.z, o.indentation_mm));
+        }
+        max_f = max_f.max(o.force_n.length());
+        max_depth = max_depth.max(o.inserted_mm);
+    });
+    let wall = started.elapsed().as_secs_f64();
+    if let Some(e) = io_error {
+        return Err(e).context("writing the CSV");
+    }
+    if let Some(mut w) = csv {
+        w.flush().context("writing the CSV")?;
+    }
+    let sim_s = ticks as f64 / sim.tick_rate_hz() as f64;
+    super::say(&format!(
+        "{} ticks = {:.3} s simulated in {:.3} s ({:.0}× real time), device {}, tool {}",
+        ticks,
+        sim_s,
+        wall,
+        sim_s / wall.max(1e-9),
+        sim.device().name,
+        sim.tool_spec().name()
+    ));
+    super::say(&format!(
+        "largest force {max_f:.2} N, deepest insertion {max_depth:.1} mm"
+    ));
+    if !visited.is_empty() {
+        let names: Vec<String> = visited.iter().map(|&l| name_of(l)).collect();
+        super::say(&format!("needle tip passed: {}", names.join(" → ")));
+    }
+    let script_name = a
+        .script
+        .file_name()
+        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+    if let (Some(p), false) = (&a.plot, palpation.is_empty()) {
+        let chart = LineChart {
+            title: format!("Indentation along the sweep — {script_name} on {}", atlas.manifest.name),
+            x_label: "cranio-caudal position z (mm)".into(),
+            y_label: "indentation under the skin (mm)".into(),
+            series: vec![Series {
+                name: sim.tool_spec().name().into(),
+                color: palette::SKIN,
+                bold: true,
+                points: palpation,
+            }],
+            markers: Vec::new(),
+        };
+        write_chart(&chart, p, (1200, 600))?;
+        super::say(&format!("indentation plot written to {}", p.display()));
+    } else if let Some(p) = &a.plot {
+        let series = |name: &str, color, k: usize, bold| Series {
+            name: name.into(),
+            color,
+            bold,
+            points: trace.iter().map(|r| (r.0, [r.1, r.2, r.3, r.4][k])).collect(),
+        };
+        let chart = LineChart {
+            title: format!(
+                "Force in insertion direction — {script_name} on {}",
+                atlas.manifest.name
+            ),
+            x_label: "time (s)".into(),
+            y_label: "force against insertion (N)".into(),
+            series: vec![
+                series("total", palette::TOTAL, 0, true),
+                series("cutting", palette::CUTTING, 1, false),
+                series("friction", palette::FRICTION, 2, false),
+                series("base", palette::BASE, 3, false),
+            ],
+            markers,
+        };
+        write_chart(&chart, p, (1200, 600))?;
+        super::say(&format!("force plot written to {}", p.display()));
+    }
+    Ok(())
+}
