@@ -153,12 +153,11 @@ fn run_script(a: &RunArgs) -> anyhow::Result<()> {
     let mut io_error = None;
     let started = Instant::now();
     let ticks = stylet_devices::run_headless(&mut sim, &mut device, |i, o, _| {
-        if let Some(w) = csv.as_mut() {
-            if io_error.is_none() {
-                if let Err(e) = writeln!(w, "{}", csv_row(i, o, &name_of(o.tip_label))) {
-                    io_error = Some(e);
-                }
-            }
+        if let Some(w) = csv.as_mut()
+            && io_error.is_none()
+            && let Err(e) = writeln!(w, "{}", csv_row(i, o, &name_of(o.tip_label)))
+        {
+            io_error = Some(e);
         }
         let along = |v: DVec3| -v.dot(o.insertion_dir);
         let c = &o.components;

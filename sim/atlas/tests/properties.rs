@@ -20,8 +20,14 @@ fn values_come_from_the_nearest_definition() {
     // The target duct defines nothing but its colour: cutting threshold (a function of HU: the
     // wall resists, the bile does not) and friction come from bile_duct, stiffness and the
     // pre-puncture spring from liver, the quadratic spring from body.
-    let duct = ParamValue::PiecewiseLinear { hu: vec![15.0, 40.0], value: vec![0.05, 0.6] };
-    assert_eq!(resolved("target_duct", Param::CutThresholdN), (duct, "bile_duct".into()));
+    let duct = ParamValue::PiecewiseLinear {
+        hu: vec![15.0, 40.0],
+        value: vec![0.05, 0.6],
+    };
+    assert_eq!(
+        resolved("target_duct", Param::CutThresholdN),
+        (duct, "bile_duct".into())
+    );
     assert_eq!(
         resolved("target_duct", Param::FrictionMaxNPerMm),
         (ParamValue::Scalar(0.005), "bile_duct".into())

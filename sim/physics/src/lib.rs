@@ -11,6 +11,9 @@
 //! [`contact`] (finger and ultrasound probe, §3.6), [`motion`] (breathing hook, §5.4),
 //! [`device`] (device profiles), [`events`].
 
+// Numerical code over grids and bands reads best with explicit indices.
+#![allow(clippy::needless_range_loop)]
+
 pub mod atlas;
 pub mod contact;
 pub mod device;

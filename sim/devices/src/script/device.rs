@@ -113,10 +113,10 @@ impl ScriptedDevice {
         if let Some((start, d, f)) = open_press {
             presses.push((start, end_tick, d, f));
         }
-        if let Some(e) = script.end_s {
-            if e < last {
-                return Err(format!("the script ends at {e} s before its last time stamp {last} s"));
-            }
+        if let Some(e) = script.end_s
+            && e < last
+        {
+            return Err(format!("the script ends at {e} s before its last time stamp {last} s"));
         }
         Ok(ScriptedDevice {
             rate_hz: rate,

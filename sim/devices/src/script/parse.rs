@@ -378,7 +378,7 @@ pub fn parse(text: &str) -> Result<Script, ParseError> {
                 t.pos += 1;
                 let at = t.pos;
                 let r = t.number("tick rate in Hz")?;
-                if !(r >= 100.0 && r <= 10_000.0 && r.fract() == 0.0) {
+                if !((100.0..=10_000.0).contains(&r) && r.fract() == 0.0) {
                     t.pos = at;
                     return Err(t.err("a whole tick rate of 100 … 10000 Hz"));
                 }

@@ -32,11 +32,23 @@ pub struct TipMaterial {
 }
 
 /// The channel and its fixed node spacing Δp.
+///
+/// Beyond the thesis: nodes given up when the tip retracts are kept (`ahead`, deepest last) as
+/// the part of the channel already cut. Re-advancing along it (tip direction within
+/// [`CHANNEL_ALIGNMENT_COS`] of the channel's) meets no cutting threshold and lays the old nodes
+/// back; turning away from it (a redirection) forgets it. Without this, a hand's tremor would
+/// ratchet the needle out of the body: Alg. 3.5 lets the tip retract freely but cut forward
+/// only above the threshold.
 #[derive(Debug, Clone, PartialEq)]
 pub struct InsertionPath {
     nodes: Vec<PathNode>,
+    ahead: Vec<PathNode>,
     spacing_mm: f64,
 }
+
+/// Cosine of the largest angle between the tip direction and an existing channel at which the
+/// needle still follows the channel (8°).
+pub const CHANNEL_ALIGNMENT_COS: f64 = 0.990;
 
 /// How many nodes one tick may add or remove (a device jump of 32 Δp in 1 ms is not a hand).
 const MAX_NODE_CHANGES_PER_TICK: usize = 32;
@@ -45,6 +57,7 @@ impl InsertionPath {
     pub fn new(spacing_mm: f64) -> Self {
         InsertionPath {
             nodes: Vec::with_capacity(256),
+            ahead: Vec::with_capacity(256),
             spacing_mm,
         }
     }
@@ -63,6 +76,20 @@ impl InsertionPath {
     }
     pub fn clear(&mut self) {
         self.nodes.clear();
+        self.ahead.clear();
+    }
+
+    /// The part of the channel cut earlier and retracted from (deepest node last).
+    pub fn ahead(&self) -> &[PathNode] {
+        &self.ahead
+    }
+
+    /// Whether the tip, moving along its direction, follows the channel cut earlier.
+    fn in_existing_channel(&self) -> bool {
+        match (self.ahead.last(), self.nodes.last()) {
+            (Some(next), Some(tip)) => next.tangent.dot(tip.tangent) >= CHANNEL_ALIGNMENT_COS,
+            _ => false,
+        }
     }
     pub fn tip(&self) -> Option<&PathNode> {
         self.nodes.last()
@@ -87,7 +114,13 @@ impl InsertionPath {
         let d = tip.tangent;
         let dd = (x - tip.pos).dot(d);
         if dd >= 0.0 {
-            let (k1, k2, t) = (m.cut_spring_n_per_mm, m.cut_spring_n_per_mm2, m.cut_threshold_n);
+            let (k1, k2) = (m.cut_spring_n_per_mm, m.cut_spring_n_per_mm2);
+            // In the channel cut earlier there is nothing left to cut.
+            let t = if self.in_existing_channel() {
+                0.0
+            } else {
+                m.cut_threshold_n
+            };
             let f = k2 * dd * dd + k1 * dd;
             if f > t && self.inserted_length_mm() < needle_length_mm {
                 let advance = if k2 == 0.0 {
@@ -148,10 +181,14 @@ impl InsertionPath {
                         friction_max_n: r,
                     });
                 } else if dd < 0.0 {
-                    self.nodes.clear();
+                    self.clear();
                 }
             }
             _ => {
+                if !self.ahead.is_empty() && !self.in_existing_channel() {
+                    // Turned away from the old channel: cutting new tissue from here on.
+                    self.ahead.clear();
+                }
                 let mv = self.tip_movement(x, tip, needle_length_mm);
                 let l = self.nodes.len();
                 self.nodes[l - 1].pos += mv;
@@ -166,25 +203,32 @@ impl InsertionPath {
                     let dl = (tip_node.pos - prev.pos).dot(prev.tangent);
                     if dl > 1.5 * dp {
                         // Insert a node Δp ahead of p_{l−1}, i.e. just behind the tip.
-                        let pos = prev.pos + prev.tangent * dp;
-                        let (k, r) = material_at(pos);
-                        let node = PathNode {
-                            pos,
-                            tangent: tip_node.tangent,
-                            offset_mm: 0.0,
-                            stiffness_n_per_mm: k,
-                            friction_max_n: r,
+                        let node = match self.ahead.pop() {
+                            // Back in the old channel: its node again.
+                            Some(old) => PathNode { offset_mm: 0.0, ..old },
+                            None => {
+                                let pos = prev.pos + prev.tangent * dp;
+                                let (k, r) = material_at(pos);
+                                PathNode {
+                                    pos,
+                                    tangent: tip_node.tangent,
+                                    offset_mm: 0.0,
+                                    stiffness_n_per_mm: k,
+                                    friction_max_n: r,
+                                }
+                            }
                         };
                         self.nodes.insert(l - 1, node);
                     } else if dl < 0.5 * dp && l > 2 {
                         // The tip came back to the node behind it: remove that node.
                         let removed = self.nodes.remove(l - 2);
                         // The tip inherits the removed segment's friction state (the offset of
-                        // the tissue the tip now sits in).
+                        // the tissue the tip now sits in); the node stays as channel ahead.
                         self.nodes[l - 2].offset_mm = removed.offset_mm;
+                        self.ahead.push(removed);
                     } else if dl < 0.0 {
                         // Only two nodes and the tip is behind the first: withdrawn.
-                        self.nodes.clear();
+                        self.clear();
                         break;
                     } else {
                         break;
@@ -326,6 +370,39 @@ mod tests {
             );
         }
         assert!(p.is_empty(), "withdrawn: {} nodes left", p.len());
+    }
+
+    /// Retracting and re-advancing along the same direction needs no cutting force: the channel
+    /// is already cut; turning away from it cuts anew.
+    #[test]
+    fn the_cut_channel_is_remembered() {
+        let mut p = InsertionPath::new(1.5);
+        let m = mat(0.5, 1.0); // 2 mm of extension before the tip cuts
+        let mut mat_at = |_: DVec3| (0.5, 0.015);
+        let z = |v: f64| DVec3::new(0.0, 0.0, v);
+        p.update(z(0.0), DVec3::Z, &m, 150.0, true, &mut mat_at);
+        for i in 1..=60 {
+            p.update(z(0.5 * i as f64), DVec3::Z, &m, 150.0, true, &mut mat_at);
+        }
+        let deep = p.inserted_length_mm();
+        assert!((deep - 28.0).abs() < 1e-9, "{deep}"); // 30 mm minus the 2 mm spring
+        for i in 1..=20 {
+            p.update(z(30.0 - 0.5 * i as f64), DVec3::Z, &m, 150.0, true, &mut mat_at);
+        }
+        assert!((p.inserted_length_mm() - 20.0).abs() < 1e-6 && !p.ahead().is_empty());
+        // Forward again: the tip follows the device without lagging by the spring extension.
+        for i in 1..=14 {
+            p.update(z(20.0 + 0.5 * i as f64), DVec3::Z, &m, 150.0, true, &mut mat_at);
+        }
+        assert!(
+            (p.inserted_length_mm() - 27.0).abs() < 1e-6,
+            "{}",
+            p.inserted_length_mm()
+        );
+        // A new direction: the old channel is forgotten.
+        p.tip_mut().unwrap().tangent = DVec3::new(0.3, 0.0, 1.0).normalize();
+        p.update(z(27.5), DVec3::Z, &m, 150.0, true, &mut mat_at);
+        assert!(p.ahead().is_empty());
     }
 
     #[test]

@@ -16,10 +16,10 @@ use crate::{LabelId, Param, PunctureAtlas};
 pub const NEEDLE_NODES: usize = 31;
 /// Path node spacing Δp (mm).
 pub const PATH_SPACING_MM: f64 = 1.5;
-/// The hand holding the hub: stiffness of the two hub springs (N/mm per node).
-const HUB_HOLD_N_PER_MM: f64 = 50.0;
-/// The tip node's spring to the tip path node (N/mm): the tip is where the channel ends.
-const TIP_HOLD_N_PER_MM: f64 = 20.0;
+/// The stylus holding the hub: stiffness of the two hub springs (N/mm per node). The virtual needle
+/// is fixed to the device's stylus, so the hub is clamped in position and direction: stiff enough
+/// that the clamp adds under 1 % to a cantilever's deflection (see [`cantilever_tip_deflection_mm`]).
+const HUB_HOLD_N_PER_MM: f64 = 1.0e6;
 
 /// Forces of one tick (N, N·mm), all acting at the needle's base (the handle).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -154,6 +154,8 @@ impl NeedleTool {
             let t = Self::tip_material(atlas, l, h);
             (t.stiffness_n_per_mm, t.friction_max_n)
         };
+        // Retracting: the device is behind the tip (Alg. 3.5's backward branch).
+        let retracting = self.path.len() >= 2 && self.path.tip().is_some_and(|t| (x - t.pos).dot(t.tangent) < 0.0);
         // Line 9: Alg. 3.4.
         self.path.update(
             x,
@@ -185,9 +187,9 @@ impl NeedleTool {
         let tip_mat = Self::tip_material(atlas, tip_label, tip_hu);
         let d_l = tip.tangent;
 
-        // Eq. 3.5.2: cutting force, zero when retracting.
+        // Eq. 3.5.2: cutting force, zero when retracting (the device behind the tip this tick).
         let dd = (x - tip.pos).dot(d_l);
-        let cut = if dd > 0.0 && self.path.len() >= 2 {
+        let cut = if dd > 0.0 && !retracting && self.path.len() >= 2 {
             -(tip_mat.cut_spring_n_per_mm2 * dd * dd + tip_mat.cut_spring_n_per_mm * dd) * d_l
         } else {
             DVec3::ZERO
@@ -275,14 +277,18 @@ impl NeedleTool {
         // tip with the tissue's spring f_k, scaled from Δp to the node spacing h.
         for j in 2..m - 1 {
             let a = (m - 1 - j) as f64 * h;
-            if a < inserted {
-                if let Some((p, k)) = self.path.point_from_tip(a) {
-                    s.k[j] = k * h / PATH_SPACING_MM;
-                    s.target[j] = lateral(p);
-                }
+            if a < inserted
+                && let Some((p, k)) = self.path.point_from_tip(a)
+            {
+                s.k[j] = k * h / PATH_SPACING_MM;
+                s.target[j] = lateral(p);
             }
         }
-        s.k[m - 1] = TIP_HOLD_N_PER_MM;
+        // The tip node, like the thesis' tip rigid body, hangs on a full (unprojected) spring of
+        // the tissue's stiffness at the channel's end: the uncut tissue ahead resists the tip's
+        // sideways motion only elastically, so a bent needle turns its tip (steering).
+        let tip_k = self.path.tip().expect("non-empty").stiffness_n_per_mm;
+        s.k[m - 1] = tip_k * h / PATH_SPACING_MM;
         let ei = self.spec.gauge.flexural_rigidity_nmm2(self.stylet_in);
         if !beam::solve(ei, h, &s.k, &s.target, &s.load, &mut s.w, &mut s.beam) {
             self.place_on_ray(x, qz);
@@ -303,4 +309,37 @@ impl NeedleTool {
             self.tangents[j] = (self.nodes[b] - self.nodes[a]).normalize_or(e);
         }
     }
+}
+
+/// The simulator's needle as a cantilever, the thesis' bench test (Table A.1): hub clamped as the
+/// stylus holds it (nodes 0 and 1, which clamps the beam half a node spacing from the hub), a
+/// lateral force `force_n` at the tip, `free_length_mm` between clamp and tip; returns the tip's
+/// lateral deflection (mm) from the same beam model and node count the simulation uses.
+pub fn cantilever_tip_deflection_mm(
+    gauge: super::spec::Gauge,
+    stylet_in: bool,
+    free_length_mm: f64,
+    force_n: f64,
+) -> f64 {
+    let m = NEEDLE_NODES;
+    // The clamp sits at 0.5 h: a needle of length L + h/2 has a free length L.
+    let h = free_length_mm / (m as f64 - 1.5);
+    let mut k = vec![0.0; m];
+    k[0] = HUB_HOLD_N_PER_MM;
+    k[1] = HUB_HOLD_N_PER_MM;
+    let target = vec![[0.0; 2]; m];
+    let mut load = vec![[0.0; 2]; m];
+    load[m - 1] = [force_n, 0.0];
+    let mut w = vec![[0.0; 2]; m];
+    let ok = beam::solve(
+        gauge.flexural_rigidity_nmm2(stylet_in),
+        h,
+        &k,
+        &target,
+        &load,
+        &mut w,
+        &mut BeamScratch::default(),
+    );
+    assert!(ok, "a clamped beam is never singular");
+    w[m - 1][0]
 }
