@@ -34,10 +34,18 @@ fn prepared(atlas: &stylet_atlas::Atlas, text: &str) -> (Simulation, TickInput) 
         .manifest
         .paths
         .iter()
-        .map(|p| NamedPath { name: p.name.clone(), entry_mm: DVec3::from_array(p.entry_mm), target_mm: DVec3::from_array(p.target_mm) })
+        .map(|p| NamedPath {
+            name: p.name.clone(),
+            entry_mm: DVec3::from_array(p.entry_mm),
+            target_mm: DVec3::from_array(p.target_mm),
+        })
         .collect();
     let mut device = ScriptedDevice::new(&script, &paths).unwrap();
-    let mut sim = Simulation::new(Arc::new(atlas.model.clone()), SimConfig::new(script.device, script.initial_tool)).unwrap();
+    let mut sim = Simulation::new(
+        Arc::new(atlas.model.clone()),
+        SimConfig::new(script.device, script.initial_tool),
+    )
+    .unwrap();
     let mut last = None;
     run_headless(&mut sim, &mut device, |i, _, _| last = Some(i.clone()));
     (sim, last.unwrap())
@@ -78,7 +86,9 @@ fn haptics(c: &mut Criterion) {
     let mut g = c.benchmark_group("haptic_tick");
     let ct = s.atlas.model.clone();
     let pts: Vec<DVec3> = probe.contact().unwrap().nodes().iter().map(|n| n.pos).collect();
-    g.bench_function("baseline_32_trilinear_ct_lookups", |b| b.iter(|| pts.iter().map(|&p| ct.hu_at(p)).sum::<f64>()));
+    g.bench_function("baseline_32_trilinear_ct_lookups", |b| {
+        b.iter(|| pts.iter().map(|&p| ct.hu_at(p)).sum::<f64>())
+    });
     let mut k = 0u64;
     g.bench_function("needle_150mm_deep", |b| {
         b.iter(|| {

@@ -216,3 +216,89 @@ fn demo_builds_the_phantom_and_prints_its_summary() {
     assert!(d.path().join("atlases/phantom/atlas.toml").is_file());
     png_size(&d.path().join("phantom.png"));
 }
+
+/// `stylet script run`: the same script twice writes byte-identical CSVs; plots come out; a bad
+/// script names line and column.
+#[test]
+fn script_run_is_deterministic_and_reports_bad_scripts() {
+    let d = tempfile::tempdir().unwrap();
+    let atlas = d.path().join("phantom");
+    let a = atlas.to_str().unwrap();
+    ok(&[
+        "atlas",
+        "phantom",
+        "--out",
+        a,
+        "--dims",
+        "160,160,130",
+        "--spacing",
+        "2.4",
+    ]);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts/success-intercostal.txt");
+    let s = script.to_str().unwrap();
+    let (c1, c2) = (d.path().join("1.csv"), d.path().join("2.csv"));
+    let plot = d.path().join("forces.svg");
+    let text = ok(&[
+        "script",
+        "run",
+        "--atlas",
+        a,
+        "--script",
+        s,
+        "--csv",
+        c1.to_str().unwrap(),
+        "--plot",
+        plot.to_str().unwrap(),
+    ]);
+    assert!(
+        text.contains("20000 ticks") && text.contains("needle tip passed"),
+        "{text}"
+    );
+    ok(&[
+        "script",
+        "run",
+        "--atlas",
+        a,
+        "--script",
+        s,
+        "--csv",
+        c2.to_str().unwrap(),
+    ]);
+    let (b1, b2) = (std::fs::read(&c1).unwrap(), std::fs::read(&c2).unwrap());
+    assert_eq!(b1, b2, "two runs differ");
+    let csv = String::from_utf8(b1).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    for col in [
+        "t_s",
+        "fx_n",
+        "tx_nmm",
+        "f_insert_n",
+        "cut_n",
+        "friction_n",
+        "base_n",
+        "tip_name",
+        "inserted_mm",
+    ] {
+        assert!(header.contains(&col), "CSV lacks {col}");
+    }
+    assert_eq!(lines.count(), 20_000);
+    let svg = std::fs::read_to_string(&plot).unwrap();
+    for s in [
+        "time (s)",
+        "force against insertion (N)",
+        "cutting",
+        "friction",
+        "base",
+        "total",
+    ] {
+        assert!(svg.contains(s), "plot lacks {s}");
+    }
+    let bad = d.path().join("bad.txt");
+    std::fs::write(&bad, "stylet-script 1\nat 0 pos 1 2 x dir 0 0 1\n").unwrap();
+    let e = fails(&["script", "run", "--atlas", a, "--script", bad.to_str().unwrap()]);
+    assert!(
+        e.contains("line 2, column 14") && e.contains("expected a number"),
+        "{e}"
+    );
+}

@@ -464,6 +464,47 @@ proptest! {
     }
 }
 
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+
+    /// Random scripts — keyframes anywhere around the patient, presses, tool changes, events —
+    /// run without NaN and within the device's limits.
+    #[test]
+    fn random_scripts_never_give_nan(
+        keys in prop::collection::vec((
+            (-220.0f64..220.0, -220.0f64..220.0, -180.0f64..180.0),
+            (-1.0f64..1.0, -1.0f64..1.0, -1.0f64..1.0),
+            0u8..12,
+        ), 2..8),
+    ) {
+        let atlas = phantom();
+        let mut text = String::from("stylet-script 1\ndevice touch\n");
+        let mut t = 0.0;
+        for ((x, y, z), (a, b, c), kind) in keys {
+            let dir = if (a * a + b * b + c * c) < 1e-6 { (0.0, 0.0, 1.0) } else { (a, b, c) };
+            text += &format!("at {t} pos {x} {y} {z} dir {} {} {}\n", dir.0, dir.1, dir.2);
+            text += match kind {
+                0..=5 => "",
+                6 => "at T press 0 0 1 2\n",
+                7 => "at T release\n",
+                8 => "at T tool finger\n",
+                9 => "at T tool probe convex\n",
+                10 => "at T event stylet-remove\n",
+                _ => "at T tool needle gauge 16 length 100\n",
+            }
+            .replace('T', &t.to_string())
+            .as_str();
+            t += 0.05;
+        }
+        let r = run_text(atlas, &text);
+        let max = r.sim.device().max_force_n;
+        for (_, o) in &r.ticks {
+            prop_assert!(o.force_n.is_finite() && o.torque_nmm.is_finite() && o.tip_mm.is_finite());
+            prop_assert!(o.force_n.length() <= max + 1e-9);
+        }
+    }
+}
+
 /// The same script twice gives the same bits; so do two simulations in parallel threads.
 #[test]
 fn runs_are_bit_identical_alone_and_in_parallel() {
