@@ -94,7 +94,7 @@ fn haptics(c: &mut Criterion) {
         b.iter(|| {
             k += 1;
             let mut inp = needle_in.clone();
-            inp.position_mm += axis * if k % 2 == 0 { 0.005 } else { -0.005 };
+            inp.position_mm += axis * if k.is_multiple_of(2) { 0.005 } else { -0.005 };
             black_box(needle.step(&inp))
         })
     });
@@ -102,7 +102,7 @@ fn haptics(c: &mut Criterion) {
         b.iter(|| {
             k += 1;
             let mut inp = probe_in.clone();
-            inp.position_mm.z += if k % 2 == 0 { 0.005 } else { -0.005 };
+            inp.position_mm.z += if k.is_multiple_of(2) { 0.005 } else { -0.005 };
             black_box(probe.step(&inp))
         })
     });
