@@ -34,7 +34,7 @@ fn values_come_from_the_nearest_definition() {
     );
     assert_eq!(
         resolved("target_duct", Param::StiffnessNPerMm),
-        (ParamValue::Scalar(0.2), "liver".into())
+        (ParamValue::Scalar(0.05), "liver".into())
     );
     assert_eq!(
         resolved("target_duct", Param::CutSpringNPerMm),
