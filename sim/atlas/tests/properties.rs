@@ -47,7 +47,7 @@ fn values_come_from_the_nearest_definition() {
     // Bone: threshold on the node, friction from hard_tissue.
     assert_eq!(
         resolved("bone", Param::CutThresholdN),
-        (ParamValue::Scalar(60.0), "bone".into())
+        (ParamValue::Scalar(500.0), "bone".into())
     );
     assert_eq!(
         resolved("bone", Param::FrictionMaxNPerMm),
