@@ -7,7 +7,9 @@ macro_rules! sayf {
 
 mod atlas;
 mod demo;
+mod record;
 mod script;
+mod session;
 
 use clap::{Parser, Subcommand};
 
@@ -30,6 +32,9 @@ enum Command {
     /// Run device scripts on an atlas, headless (docs/scripts.md).
     #[command(subcommand)]
     Script(script::ScriptCommand),
+    /// Inspect, verify, export and recover session files (docs/session-format.md).
+    #[command(subcommand)]
+    Session(session::SessionCommand),
     /// Run the demo on the embedded default: build the phantom atlas and print its summary.
     Demo(demo::DemoArgs),
 }
@@ -38,6 +43,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Atlas(cmd) => atlas::run(cmd),
         Command::Script(cmd) => script::run(cmd),
+        Command::Session(cmd) => session::run(cmd),
         Command::Demo(args) => demo::run(args),
     }
 }

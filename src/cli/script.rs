@@ -4,7 +4,7 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
@@ -12,6 +12,8 @@ use stylet_devices::script::{NamedPath, ScriptedDevice, parse};
 use stylet_physics::glam::DVec3;
 use stylet_physics::{Event, SimConfig, Simulation, TickInput, TickOutput};
 use stylet_render::charts::{LineChart, Series, palette, write_chart};
+
+use super::record::{self, Recording, SessionInfo};
 
 #[derive(Debug, Subcommand)]
 pub enum ScriptCommand {
@@ -33,6 +35,46 @@ pub struct RunArgs {
     /// Write the force plot here (.svg or .png).
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// Record the session to this file (docs/session-format.md), as the desktop app does.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Trainee for the session header: their account username on the scoring service.
+    #[arg(long, default_value = "demo-trainee")]
+    pub trainee: String,
+    /// Difficulty level the session is graded at.
+    #[arg(long, value_enum, default_value_t = Difficulty::Beginner)]
+    pub difficulty: Difficulty,
+    /// Scenario name for the session header (default: the script's file name without extension).
+    #[arg(long)]
+    pub scenario: Option<String>,
+    /// Seed of the session's random generators (breathing variation, speckle), recorded in the header.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Pace the ticks to the wall clock (1 kHz real time) and record without ever blocking, as the
+    /// haptic loop does.
+    #[arg(long)]
+    pub realtime: bool,
+    /// Print `tick N` on stdout every N ticks (for supervising processes and tests).
+    #[arg(long, value_name = "N")]
+    pub progress: Option<u64>,
+}
+
+/// Difficulty levels (rubrics per level come with the scoring engine).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Difficulty {
+    Beginner,
+    Advanced,
+    Expert,
+}
+
+impl Difficulty {
+    pub fn name(self) -> &'static str {
+        match self {
+            Difficulty::Beginner => "beginner",
+            Difficulty::Advanced => "advanced",
+            Difficulty::Expert => "expert",
+        }
+    }
 }
 
 pub fn run(cmd: ScriptCommand) -> anyhow::Result<()> {
@@ -151,8 +193,46 @@ fn run_script(a: &RunArgs) -> anyhow::Result<()> {
     let mut visited: Vec<u16> = Vec::new();
     let (mut max_f, mut max_depth) = (0.0f64, 0.0f64);
     let mut io_error = None;
+    let script_name = a
+        .script
+        .file_name()
+        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+    let mut recording = match &a.out {
+        Some(path) => {
+            let stem = a
+                .script
+                .file_stem()
+                .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+            let info = SessionInfo {
+                trainee: &a.trainee,
+                scenario: a.scenario.as_deref().unwrap_or(&stem),
+                difficulty: a.difficulty.name(),
+                seed: a.seed,
+            };
+            Some(Recording::start(
+                path,
+                &record::header(&atlas, &sim, &info),
+                a.realtime,
+            )?)
+        }
+        None => None,
+    };
+    let rate_hz = sim.tick_rate_hz() as f64;
     let started = Instant::now();
-    let ticks = stylet_devices::run_headless(&mut sim, &mut device, |i, o, _| {
+    let ticks = stylet_devices::run_headless(&mut sim, &mut device, |i, o, s| {
+        if let Some(r) = recording.as_mut() {
+            r.tick(i, o, s);
+        }
+        if a.realtime {
+            // Tick k ends at start + (k+1)/rate; behind schedule, catch up without sleeping.
+            let due = started + Duration::from_secs_f64((o.tick + 1) as f64 / rate_hz);
+            if let Some(wait) = due.checked_duration_since(Instant::now()) {
+                std::thread::sleep(wait);
+            }
+        }
+        if a.progress.is_some_and(|n| n > 0 && o.tick % n == 0) {
+            super::say(&format!("tick {}", o.tick));
+        }
         if let Some(w) = csv.as_mut()
             && io_error.is_none()
             && let Err(e) = writeln!(w, "{}", csv_row(i, o, &name_of(o.tip_label)))
@@ -181,6 +261,20 @@ fn run_script(a: &RunArgs) -> anyhow::Result<()> {
         max_depth = max_depth.max(o.inserted_mm);
     });
     let wall = started.elapsed().as_secs_f64();
+    if let (Some(r), Some(path)) = (recording, &a.out) {
+        let summary = r.finish()?;
+        let complete = if summary.complete {
+            "complete".to_string()
+        } else {
+            format!("INCOMPLETE: {} items dropped (queue full)", summary.dropped)
+        };
+        super::say(&format!(
+            "session recorded to {}: {} ticks, {:.1} KiB, {complete}",
+            path.display(),
+            summary.ticks,
+            summary.bytes as f64 / 1024.0
+        ));
+    }
     if let Some(e) = io_error {
         return Err(e).context("writing the CSV");
     }
@@ -204,10 +298,6 @@ fn run_script(a: &RunArgs) -> anyhow::Result<()> {
         let names: Vec<String> = visited.iter().map(|&l| name_of(l)).collect();
         super::say(&format!("needle tip passed: {}", names.join(" → ")));
     }
-    let script_name = a
-        .script
-        .file_name()
-        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
     if let (Some(p), false) = (&a.plot, palpation.is_empty()) {
         let chart = LineChart {
             title: format!("Indentation along the sweep — {script_name} on {}", atlas.manifest.name),

@@ -1,0 +1,379 @@
+//! What a session file holds (docs/session-format.md): the header and end metadata, the channels
+//! and their messages. Messages are CBOR (binary IEEE-754 floats: exact bits, never decimal text)
+//! described by JSON Schemas, so MCAP tools such as Foxglove can open and plot them.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+use serde_bytes::ByteBuf;
+use stylet_physics::{Event, Gauge, ProbeKind, ToolSpec};
+
+/// The session schema version this code writes; it reads this version and the one before.
+pub const SCHEMA_VERSION: u32 = 1;
+/// MCAP profile string of Stylet sessions.
+pub const PROFILE: &str = "stylet-session";
+
+/// Metadata record names.
+pub const META_HEADER: &str = "stylet.session";
+pub const META_END: &str = "stylet.session.end";
+
+/// Channel topics.
+pub const TOPIC_TICKS: &str = "/stylet/ticks";
+pub const TOPIC_EVENTS: &str = "/stylet/events";
+pub const TOPIC_DIGESTS: &str = "/stylet/digests";
+pub const TOPIC_ANNOTATIONS: &str = "/stylet/annotations";
+pub const TOPIC_PREVIEW: &str = "/stylet/preview";
+
+/// Message and schema encodings (MCAP registry names).
+pub const MESSAGE_ENCODING: &str = "cbor";
+pub const SCHEMA_ENCODING: &str = "jsonschema";
+
+/// Codec name of tick-block columns (see [`crate::codec`]).
+pub const COLUMN_CODEC: &str = crate::codec::CODEC;
+
+/// One tick as recorded: the device input (what replay needs) and the device output (what replay
+/// checks).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TickRecord {
+    pub tick: u64,
+    pub position_mm: [f64; 3],
+    /// (w, x, y, z) as the device reported it.
+    pub orientation: [f64; 4],
+    pub buttons: u32,
+    pub force_n: [f64; 3],
+    pub torque_nmm: [f64; 3],
+    pub tip_label: u16,
+    pub inserted_mm: f64,
+}
+
+impl TickRecord {
+    /// Bit-exact equality (NaN-safe, −0 ≠ +0).
+    pub fn same_bits(&self, o: &TickRecord) -> bool {
+        let f = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
+        self.tick == o.tick
+            && self.buttons == o.buttons
+            && self.tip_label == o.tip_label
+            && f(&self.position_mm, &o.position_mm)
+            && f(&self.orientation, &o.orientation)
+            && f(&self.force_n, &o.force_n)
+            && f(&self.torque_nmm, &o.torque_nmm)
+            && self.inserted_mm.to_bits() == o.inserted_mm.to_bits()
+    }
+}
+
+/// A block of consecutive ticks, column by column ([`crate::codec`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TickBlock {
+    pub first_tick: u64,
+    pub count: u32,
+    pub codec: String,
+    pub columns: BTreeMap<String, ByteBuf>,
+}
+
+/// An event message.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EventRecord {
+    pub tick: u64,
+    pub name: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tool: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gauge: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub length_mm: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stylet_in: Option<bool>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ml: Option<f64>,
+}
+
+/// A state digest message (Simulation::state_digest).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct DigestRecord {
+    pub tick: u64,
+    pub digest: u64,
+}
+
+/// A free-text note (writer notes, instructor remarks).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AnnotationRecord {
+    pub tick: u64,
+    pub text: String,
+}
+
+/// A decimated preview sample for plotting in MCAP tools (f32: a picture, not the record; the
+/// exact values are in /stylet/ticks).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PreviewRecord {
+    pub tick: u64,
+    pub t_s: f32,
+    pub position_mm: [f32; 3],
+    pub force_n: [f32; 3],
+    pub force_magnitude_n: f32,
+    pub tip_label: u16,
+    pub inserted_mm: f32,
+}
+
+impl EventRecord {
+    pub fn from_event(tick: u64, e: &Event) -> Self {
+        let mut r = EventRecord {
+            tick,
+            name: e.name().into(),
+            tool: None,
+            gauge: None,
+            length_mm: None,
+            stylet_in: None,
+            ml: None,
+        };
+        match e {
+            Event::SelectTool(spec) => {
+                r.tool = Some(tool_kind(spec).into());
+                if let ToolSpec::Needle {
+                    gauge,
+                    length_mm,
+                    stylet_in,
+                } = spec
+                {
+                    r.gauge = Some(gauge.number());
+                    r.length_mm = Some(*length_mm);
+                    r.stylet_in = Some(*stylet_in);
+                }
+            }
+            Event::ContrastInject { ml } => r.ml = Some(*ml),
+            _ => {}
+        }
+        r
+    }
+
+    /// The physics event, or a message saying why this record is not one.
+    pub fn to_event(&self) -> Result<Event, String> {
+        Ok(match self.name.as_str() {
+            "tool" => Event::SelectTool(tool_from(
+                self.tool.as_deref().ok_or("tool event without a tool")?,
+                self.gauge,
+                self.length_mm,
+                self.stylet_in,
+            )?),
+            "stylet-remove" => Event::StyletRemove,
+            "stylet-insert" => Event::StyletInsert,
+            "xray-on" => Event::XrayOn,
+            "xray-off" => Event::XrayOff,
+            "contrast-inject" => Event::ContrastInject {
+                ml: self.ml.ok_or("contrast event without ml")?,
+            },
+            "breath-hold" => Event::BreathHold,
+            "breath-release" => Event::BreathRelease,
+            other => return Err(format!("unknown event '{other}'")),
+        })
+    }
+}
+
+fn tool_kind(spec: &ToolSpec) -> &'static str {
+    match spec {
+        ToolSpec::Needle { .. } => "needle",
+        ToolSpec::Finger => "finger",
+        ToolSpec::Probe(ProbeKind::Linear) => "probe-linear",
+        ToolSpec::Probe(ProbeKind::Convex) => "probe-convex",
+    }
+}
+
+fn tool_from(
+    kind: &str,
+    gauge: Option<u32>,
+    length_mm: Option<f64>,
+    stylet_in: Option<bool>,
+) -> Result<ToolSpec, String> {
+    Ok(match kind {
+        "needle" => {
+            let g = gauge.ok_or("needle without gauge")?;
+            ToolSpec::Needle {
+                gauge: Gauge::from_number(g).ok_or_else(|| format!("gauge {g} is not 16, 18, 20 or 22"))?,
+                length_mm: length_mm
+                    .filter(|l| l.is_finite() && *l > 0.0)
+                    .ok_or("needle without a valid length")?,
+                stylet_in: stylet_in.ok_or("needle without stylet state")?,
+            }
+        }
+        "finger" => ToolSpec::Finger,
+        "probe-linear" => ToolSpec::Probe(ProbeKind::Linear),
+        "probe-convex" => ToolSpec::Probe(ProbeKind::Convex),
+        other => return Err(format!("unknown tool '{other}'")),
+    })
+}
+
+/// Session header: who, what, on which patient, with which software (written first, so it
+/// survives any crash).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SessionHeader {
+    pub schema_version: u32,
+    pub session_id: String,
+    /// The trainee's account username on the scoring service.
+    pub trainee: String,
+    pub scenario: String,
+    /// beginner, advanced or expert.
+    pub difficulty: String,
+    pub atlas_id: String,
+    pub atlas_hash: String,
+    pub software_version: String,
+    pub physics_version: u32,
+    pub tick_rate_hz: u32,
+    pub seed: u64,
+    /// Device profile name (stylet_physics::DeviceProfile).
+    pub device: String,
+    /// The tool at tick 0.
+    pub initial_tool: ToolSpec,
+    /// Wall-clock start, RFC 3339 UTC (metadata only: physics never reads it).
+    pub wall_clock_start: String,
+}
+
+impl SessionHeader {
+    /// As MCAP metadata (strings; the needle length as exact f64 bits in hex).
+    pub fn to_metadata(&self) -> BTreeMap<String, String> {
+        let mut m = BTreeMap::new();
+        let mut put = |k: &str, v: String| {
+            m.insert(k.to_string(), v);
+        };
+        put("schema_version", self.schema_version.to_string());
+        put("session_id", self.session_id.clone());
+        put("trainee", self.trainee.clone());
+        put("scenario", self.scenario.clone());
+        put("difficulty", self.difficulty.clone());
+        put("atlas_id", self.atlas_id.clone());
+        put("atlas_hash", self.atlas_hash.clone());
+        put("software_version", self.software_version.clone());
+        put("physics_version", self.physics_version.to_string());
+        put("tick_rate_hz", self.tick_rate_hz.to_string());
+        put("seed", self.seed.to_string());
+        put("device", self.device.clone());
+        put("tool", tool_kind(&self.initial_tool).into());
+        if let ToolSpec::Needle {
+            gauge,
+            length_mm,
+            stylet_in,
+        } = self.initial_tool
+        {
+            put("tool_gauge", gauge.number().to_string());
+            put("tool_length_mm_bits", format!("{:016x}", length_mm.to_bits()));
+            put("tool_stylet_in", stylet_in.to_string());
+        }
+        put("wall_clock_start", self.wall_clock_start.clone());
+        m
+    }
+
+    /// From MCAP metadata; names the first missing or malformed field.
+    pub fn from_metadata(m: &BTreeMap<String, String>) -> Result<Self, String> {
+        let get = |k: &str| m.get(k).cloned().ok_or_else(|| format!("session header lacks '{k}'"));
+        let num = |k: &str| -> Result<u64, String> {
+            get(k)?
+                .parse::<u64>()
+                .map_err(|_| format!("session header '{k}' is not a number"))
+        };
+        let schema_version = num("schema_version")? as u32;
+        let tool = get("tool")?;
+        let initial_tool = if tool == "needle" {
+            let bits = u64::from_str_radix(&get("tool_length_mm_bits")?, 16)
+                .map_err(|_| "session header 'tool_length_mm_bits' is not hex".to_string())?;
+            let stylet = get("tool_stylet_in")?
+                .parse::<bool>()
+                .map_err(|_| "session header 'tool_stylet_in' is not true/false".to_string())?;
+            tool_from(
+                "needle",
+                Some(num("tool_gauge")? as u32),
+                Some(f64::from_bits(bits)),
+                Some(stylet),
+            )?
+        } else {
+            tool_from(&tool, None, None, None)?
+        };
+        let tick_rate_hz = num("tick_rate_hz")?;
+        if !(1..=100_000).contains(&tick_rate_hz) {
+            return Err(format!("session header tick_rate_hz {tick_rate_hz} is out of range"));
+        }
+        Ok(SessionHeader {
+            schema_version,
+            session_id: get("session_id")?,
+            trainee: get("trainee")?,
+            scenario: get("scenario")?,
+            difficulty: get("difficulty")?,
+            atlas_id: get("atlas_id")?,
+            atlas_hash: get("atlas_hash")?,
+            software_version: get("software_version")?,
+            physics_version: num("physics_version")? as u32,
+            tick_rate_hz: tick_rate_hz as u32,
+            seed: num("seed")?,
+            device: get("device")?,
+            initial_tool,
+            wall_clock_start: get("wall_clock_start")?,
+        })
+    }
+}
+
+/// What the writer says at the end (absent in a file cut by a crash).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SessionEnd {
+    pub ticks: u64,
+    /// Ticks the 1 kHz loop produced but the full queue could not take.
+    pub dropped_ticks: u64,
+    pub complete: bool,
+    pub reason: String,
+}
+
+impl SessionEnd {
+    pub fn to_metadata(&self) -> BTreeMap<String, String> {
+        BTreeMap::from([
+            ("ticks".to_string(), self.ticks.to_string()),
+            ("dropped_ticks".to_string(), self.dropped_ticks.to_string()),
+            ("complete".to_string(), self.complete.to_string()),
+            ("reason".to_string(), self.reason.clone()),
+        ])
+    }
+
+    pub fn from_metadata(m: &BTreeMap<String, String>) -> Result<Self, String> {
+        let get = |k: &str| m.get(k).cloned().ok_or_else(|| format!("session end lacks '{k}'"));
+        Ok(SessionEnd {
+            ticks: get("ticks")?
+                .parse()
+                .map_err(|_| "session end 'ticks' is not a number")?,
+            dropped_ticks: get("dropped_ticks")?
+                .parse()
+                .map_err(|_| "session end 'dropped_ticks' is not a number")?,
+            complete: get("complete")?
+                .parse()
+                .map_err(|_| "session end 'complete' is not true/false")?,
+            reason: get("reason")?,
+        })
+    }
+}
+
+/// JSON Schemas of the channels (MCAP schema records).
+pub fn json_schema(topic: &str) -> &'static str {
+    match topic {
+        TOPIC_TICKS => {
+            r#"{"title":"stylet.TickBlock","type":"object","description":"Consecutive ticks column by column. Each column (codec stylet-columns-v1, docs/session-format.md): f64 columns hold zigzag residuals of the bit patterns after the linear prediction 2*b[i-1]-b[i-2]; integer columns each value XOR the previous; little-endian bytes transposed into planes. f64 columns: pos_x_mm pos_y_mm pos_z_mm q_w q_x q_y q_z force_x_n force_y_n force_z_n torque_x_nmm torque_y_nmm torque_z_nmm inserted_mm; u32: buttons; u16: tip_label.","properties":{"first_tick":{"type":"integer"},"count":{"type":"integer"},"codec":{"type":"string"},"columns":{"type":"object","additionalProperties":{"type":"string","contentEncoding":"binary"}}},"required":["first_tick","count","codec","columns"]}"#
+        }
+        TOPIC_EVENTS => {
+            r#"{"title":"stylet.Event","type":"object","properties":{"tick":{"type":"integer"},"name":{"type":"string"},"tool":{"type":"string"},"gauge":{"type":"integer"},"length_mm":{"type":"number"},"stylet_in":{"type":"boolean"},"ml":{"type":"number"}},"required":["tick","name"]}"#
+        }
+        TOPIC_DIGESTS => {
+            r#"{"title":"stylet.Digest","type":"object","description":"FNV-1a 64 over the bits of the whole physics state after the tick","properties":{"tick":{"type":"integer"},"digest":{"type":"integer"}},"required":["tick","digest"]}"#
+        }
+        TOPIC_ANNOTATIONS => {
+            r#"{"title":"stylet.Annotation","type":"object","properties":{"tick":{"type":"integer"},"text":{"type":"string"}},"required":["tick","text"]}"#
+        }
+        _ => {
+            r#"{"title":"stylet.Preview","type":"object","description":"50 Hz preview for plotting; the exact record is /stylet/ticks","properties":{"tick":{"type":"integer"},"t_s":{"type":"number"},"position_mm":{"type":"array","items":{"type":"number"}},"force_n":{"type":"array","items":{"type":"number"}},"force_magnitude_n":{"type":"number"},"tip_label":{"type":"integer"},"inserted_mm":{"type":"number"}},"required":["tick","t_s","position_mm","force_n","force_magnitude_n","tip_label","inserted_mm"]}"#
+        }
+    }
+}
+
+/// CBOR encoding of a message.
+pub fn to_cbor<T: Serialize>(v: &T) -> Vec<u8> {
+    let mut out = Vec::new();
+    ciborium::into_writer(v, &mut out).expect("serialising to memory cannot fail");
+    out
+}
+
+/// CBOR decoding with a recursion limit (hostile nesting) and a clear error.
+pub fn from_cbor<T: for<'de> Deserialize<'de>>(bytes: &[u8]) -> Result<T, String> {
+    ciborium::de::from_reader_with_recursion_limit(bytes, 16).map_err(|e| format!("bad CBOR message: {e}"))
+}

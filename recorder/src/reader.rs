@@ -1,0 +1,601 @@
+//! Reading session files: strictly (any damage is an error), in recovery (everything intact before
+//! the first damage, and what was lost), streaming (chunk by chunk in file order) and indexed (the
+//! chunks of a tick range, through the summary's chunk index).
+//!
+//! The record walker is our own and bounded by [`Limits`] — a hostile file gets an error, never a
+//! huge allocation or a panic; the `mcap` crate parses record bodies once their size is known.
+
+use std::collections::BTreeMap;
+use std::io::Read;
+use std::path::Path;
+
+use mcap::records::Record;
+
+use crate::format::*;
+use crate::writer::decode_block;
+
+/// Hard limits against hostile files.
+#[derive(Debug, Clone, Copy)]
+pub struct Limits {
+    pub max_file_bytes: u64,
+    pub max_record_bytes: u64,
+    pub max_chunk_uncompressed_bytes: u64,
+    pub max_ticks: u64,
+    pub max_messages: u64,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_file_bytes: 2 << 30,
+            max_record_bytes: 64 << 20,
+            max_chunk_uncompressed_bytes: 64 << 20,
+            max_ticks: 200_000_000,
+            max_messages: 50_000_000,
+        }
+    }
+}
+
+/// Why a file cannot be read at all.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ReadError {
+    #[error("{0}")]
+    Io(String),
+    #[error("not a Stylet session file: {0}")]
+    NotASession(String),
+    #[error("damaged session file: {0}")]
+    Damaged(Damage),
+}
+
+/// The first damage found, where it is and what it costs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Damage {
+    /// Byte offset of the damaged or cut record.
+    pub offset: u64,
+    pub what: String,
+    /// Bytes from the damage to the end of the file that could not be used.
+    pub lost_bytes: u64,
+}
+
+impl std::fmt::Display for Damage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "at byte {}: {} ({} bytes after it unusable)",
+            self.offset, self.what, self.lost_bytes
+        )
+    }
+}
+
+/// A chunk's place in the file and the ticks it holds.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChunkInfo {
+    pub offset: u64,
+    pub end: u64,
+    pub first_tick: Option<u64>,
+    pub last_tick: Option<u64>,
+}
+
+/// A session as read.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Session {
+    pub header: SessionHeader,
+    pub end: Option<SessionEnd>,
+    pub ticks: Vec<TickRecord>,
+    pub events: Vec<EventRecord>,
+    pub digests: Vec<DigestRecord>,
+    pub annotations: Vec<AnnotationRecord>,
+    pub chunks: Vec<ChunkInfo>,
+    /// The first damage (recovery mode only; `None` for an intact file).
+    pub damage: Option<Damage>,
+    /// Whether the file ended with its summary and footer.
+    pub finished: bool,
+}
+
+impl Session {
+    pub fn duration_s(&self) -> f64 {
+        self.ticks
+            .last()
+            .map_or(0.0, |t| (t.tick + 1) as f64 / self.header.tick_rate_hz as f64)
+    }
+
+    /// Complete: finished, intact, nothing dropped.
+    pub fn complete(&self) -> bool {
+        self.damage.is_none() && self.finished && self.end.as_ref().is_some_and(|e| e.complete)
+    }
+}
+
+const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
+const OP_HEADER: u8 = 0x01;
+const OP_FOOTER: u8 = 0x02;
+const OP_CHUNK: u8 = 0x06;
+const OP_DATA_END: u8 = 0x0F;
+
+/// Reading mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    /// Any damage is an error.
+    Strict,
+    /// Stop at the first damage and return what came before.
+    Recover,
+}
+
+struct Walk<'l> {
+    limits: &'l Limits,
+    /// Streaming: ticks go here block by block instead of being kept.
+    sink: Option<&'l mut dyn FnMut(&[TickRecord])>,
+    last_tick: Option<u64>,
+    channels: BTreeMap<u16, String>,
+    header: Option<SessionHeader>,
+    end: Option<SessionEnd>,
+    ticks: Vec<TickRecord>,
+    events: Vec<EventRecord>,
+    digests: Vec<DigestRecord>,
+    annotations: Vec<AnnotationRecord>,
+    chunks: Vec<ChunkInfo>,
+    messages: u64,
+    finished: bool,
+    header_error: Option<String>,
+}
+
+fn read_u64(b: &[u8], at: usize) -> Option<u64> {
+    b.get(at..at + 8)
+        .map(|s| u64::from_le_bytes(s.try_into().expect("8 bytes")))
+}
+
+impl Walk<'_> {
+    /// Handles one message; an error is damage.
+    fn message(&mut self, channel: u16, data: &[u8]) -> Result<(), String> {
+        self.messages += 1;
+        if self.messages > self.limits.max_messages {
+            return Err(format!("more than {} messages", self.limits.max_messages));
+        }
+        let topic = self
+            .channels
+            .get(&channel)
+            .ok_or_else(|| format!("message on unknown channel {channel}"))?;
+        match topic.as_str() {
+            TOPIC_TICKS => {
+                let block: TickBlock = from_cbor(data)?;
+                let ticks = decode_block(&block)?;
+                if let (Some(last), Some(first)) = (self.last_tick, ticks.first()) {
+                    if first.tick <= last {
+                        return Err(format!("tick {} after tick {last}", first.tick));
+                    }
+                }
+                if self.ticks.len() as u64 + ticks.len() as u64 > self.limits.max_ticks {
+                    return Err(format!("more than {} ticks", self.limits.max_ticks));
+                }
+                self.last_tick = ticks.last().map(|t| t.tick);
+                match self.sink.as_mut() {
+                    Some(sink) => sink(&ticks),
+                    None => self.ticks.extend(ticks),
+                }
+            }
+            TOPIC_EVENTS => {
+                let e: EventRecord = from_cbor(data)?;
+                e.to_event().map_err(|m| format!("event at tick {}: {m}", e.tick))?;
+                self.events.push(e);
+            }
+            TOPIC_DIGESTS => self.digests.push(from_cbor(data)?),
+            TOPIC_ANNOTATIONS => self.annotations.push(from_cbor(data)?),
+            TOPIC_PREVIEW => {}
+            other => return Err(format!("message on unexpected topic '{other}'")),
+        }
+        Ok(())
+    }
+
+    /// Handles the records inside `buf` (a chunk's content); the first error is damage.
+    fn records(&mut self, buf: &[u8]) -> Result<(), String> {
+        let mut pos = 0usize;
+        while pos < buf.len() {
+            let op = buf[pos];
+            let len = read_u64(buf, pos + 1).ok_or("record header cut off")?;
+            if len > self.limits.max_record_bytes {
+                return Err(format!("record of {len} bytes exceeds the limit"));
+            }
+            let start = pos + 9;
+            let body = buf
+                .get(start..start + len as usize)
+                .ok_or("record runs past its chunk")?;
+            self.record(op, body)?;
+            pos = start + len as usize;
+        }
+        Ok(())
+    }
+
+    fn record(&mut self, op: u8, body: &[u8]) -> Result<(), String> {
+        let rec = mcap::read::parse_record(op, body).map_err(|e| format!("bad record (opcode {op:#04x}): {e}"))?;
+        match rec {
+            Record::Channel(c) => {
+                self.channels.insert(c.id, c.topic.clone());
+            }
+            Record::Message { header, data } => self.message(header.channel_id, &data)?,
+            Record::Metadata(m) if m.name == META_HEADER => match SessionHeader::from_metadata(&m.metadata) {
+                Ok(h) => self.header = Some(h),
+                Err(e) => self.header_error = Some(e),
+            },
+            Record::Metadata(m) if m.name == META_END => {
+                self.end = Some(SessionEnd::from_metadata(&m.metadata)?);
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn chunk(&mut self, offset: u64, body: &[u8]) -> Result<(), String> {
+        let rec = mcap::read::parse_record(OP_CHUNK, body).map_err(|e| format!("bad chunk: {e}"))?;
+        let Record::Chunk { header, data } = rec else {
+            return Err("bad chunk".into());
+        };
+        if header.uncompressed_size > self.limits.max_chunk_uncompressed_bytes {
+            return Err(format!(
+                "chunk claims {} bytes uncompressed, over the limit",
+                header.uncompressed_size
+            ));
+        }
+        let plain = match header.compression.as_str() {
+            "" => data.into_owned(),
+            "zstd" => {
+                let cap = header.uncompressed_size as usize;
+                let mut out = Vec::new();
+                zstd::stream::read::Decoder::new(&data[..])
+                    .map_err(|e| format!("chunk: {e}"))?
+                    .take(cap as u64 + 1)
+                    .read_to_end(&mut out)
+                    .map_err(|e| format!("chunk does not decompress: {e}"))?;
+                out
+            }
+            other => return Err(format!("chunk compression '{other}' is not supported")),
+        };
+        if plain.len() as u64 != header.uncompressed_size {
+            return Err(format!(
+                "chunk decompresses to {} bytes, not the {} it declares",
+                plain.len(),
+                header.uncompressed_size
+            ));
+        }
+        if header.uncompressed_crc != 0 && crc32fast::hash(&plain) != header.uncompressed_crc {
+            return Err("chunk CRC mismatch".into());
+        }
+        // All or nothing: a chunk's messages count only if the whole chunk is good.
+        let saved = (
+            self.ticks.len(),
+            self.events.len(),
+            self.digests.len(),
+            self.annotations.len(),
+        );
+        let first = self.ticks.len();
+        if let Err(e) = self.records(&plain) {
+            self.ticks.truncate(saved.0);
+            self.events.truncate(saved.1);
+            self.digests.truncate(saved.2);
+            self.annotations.truncate(saved.3);
+            return Err(e);
+        }
+        let added = &self.ticks[first..];
+        let first_tick = added.first().map(|t| t.tick);
+        self.chunks.push(ChunkInfo {
+            offset,
+            end: offset + 9 + body.len() as u64,
+            first_tick: first_tick.or(if self.sink.is_some() { self.last_tick } else { None }),
+            last_tick: if self.sink.is_some() {
+                self.last_tick
+            } else {
+                added.last().map(|t| t.tick)
+            },
+        });
+        Ok(())
+    }
+}
+
+/// Reads a session from bytes.
+pub fn read_bytes(bytes: &[u8], mode: Mode, limits: &Limits) -> Result<Session, ReadError> {
+    read_bytes_with(bytes, mode, limits, None)
+}
+
+/// Reads a session from bytes; with a `sink`, ticks are handed to it block by block in file order
+/// instead of being collected (streaming).
+pub fn read_bytes_with<'a>(
+    bytes: &[u8],
+    mode: Mode,
+    limits: &'a Limits,
+    sink: Option<&'a mut dyn FnMut(&[TickRecord])>,
+) -> Result<Session, ReadError> {
+    if bytes.len() as u64 > limits.max_file_bytes {
+        return Err(ReadError::NotASession(format!(
+            "{} bytes exceed the limit of {}",
+            bytes.len(),
+            limits.max_file_bytes
+        )));
+    }
+    if bytes.len() < 8 || &bytes[..8] != MAGIC {
+        return Err(ReadError::NotASession("it does not start with the MCAP magic".into()));
+    }
+    let mut w = Walk {
+        limits,
+        sink,
+        last_tick: None,
+        channels: BTreeMap::new(),
+        header: None,
+        end: None,
+        ticks: Vec::new(),
+        events: Vec::new(),
+        digests: Vec::new(),
+        annotations: Vec::new(),
+        chunks: Vec::new(),
+        messages: 0,
+        finished: false,
+        header_error: None,
+    };
+    let mut pos = 8usize;
+    let mut damage: Option<Damage> = None;
+    let mut in_summary = false;
+    let mut profile_ok = false;
+    let damaged = |offset: usize, what: String| Damage {
+        offset: offset as u64,
+        what,
+        lost_bytes: (bytes.len() - offset) as u64,
+    };
+    loop {
+        if pos == bytes.len() {
+            damage = Some(damaged(
+                pos,
+                "the file ends without its summary and footer (cut short?)".into(),
+            ));
+            break;
+        }
+        let Some(len) = read_u64(bytes, pos + 1) else {
+            damage = Some(damaged(pos, "the file ends inside a record header".into()));
+            break;
+        };
+        let op = bytes[pos];
+        if len > limits.max_record_bytes {
+            damage = Some(damaged(
+                pos,
+                format!("record of {len} bytes exceeds the limit of {}", limits.max_record_bytes),
+            ));
+            break;
+        }
+        let start = pos + 9;
+        let Some(body) = bytes.get(start..start + len as usize) else {
+            damage = Some(damaged(
+                pos,
+                format!("the file ends inside a record of {len} bytes (cut short?)"),
+            ));
+            break;
+        };
+        let result = match op {
+            OP_HEADER => match mcap::read::parse_record(op, body) {
+                Ok(Record::Header(h)) if h.profile == PROFILE => {
+                    profile_ok = true;
+                    Ok(())
+                }
+                Ok(Record::Header(h)) => Err(format!("MCAP profile '{}' is not '{PROFILE}'", h.profile)),
+                _ => Err("bad MCAP header".into()),
+            },
+            OP_CHUNK => w.chunk(pos as u64, body),
+            OP_DATA_END => match mcap::read::parse_record(op, body) {
+                Ok(Record::DataEnd(d)) => {
+                    in_summary = true;
+                    if d.data_section_crc != 0 && d.data_section_crc != crc32fast::hash(&bytes[..pos]) {
+                        Err("data section CRC mismatch (the file was altered)".into())
+                    } else {
+                        Ok(())
+                    }
+                }
+                _ => Err("bad data-end record".into()),
+            },
+            OP_FOOTER => match mcap::read::parse_record(op, body) {
+                Ok(Record::Footer(f)) => {
+                    let summary_ok = f.summary_crc == 0
+                        || usize::try_from(f.summary_start)
+                            .ok()
+                            .filter(|&s| s > 0 && s <= pos)
+                            .is_some_and(|s| {
+                                // The CRC covers the summary section through the footer's fields before the CRC.
+                                let end = start + 8 + 8;
+                                end <= bytes.len() && crc32fast::hash(&bytes[s..end]) == f.summary_crc
+                            });
+                    if !summary_ok {
+                        Err("summary CRC mismatch (the file was altered)".into())
+                    } else if start + len as usize + 8 != bytes.len() || &bytes[bytes.len() - 8..] != MAGIC {
+                        Err("bytes after the footer, or the closing magic is missing".into())
+                    } else {
+                        w.finished = true;
+                        Ok(())
+                    }
+                }
+                _ => Err("bad footer".into()),
+            },
+            _ if in_summary => Ok(()),
+            _ => w.record(op, body),
+        };
+        if let Err(what) = result {
+            damage = Some(damaged(pos, what));
+            break;
+        }
+        if !profile_ok {
+            return Err(ReadError::NotASession(
+                "the first record is not a Stylet session header".into(),
+            ));
+        }
+        if w.finished {
+            break;
+        }
+        pos = start + len as usize;
+    }
+    let header = match (w.header.take(), w.header_error.take()) {
+        (Some(h), _) => h,
+        (None, Some(e)) => return Err(ReadError::NotASession(e)),
+        (None, None) => {
+            return Err(match damage {
+                Some(d) => ReadError::Damaged(d),
+                None => ReadError::NotASession("no session header".into()),
+            });
+        }
+    };
+    if header.schema_version + 1 < SCHEMA_VERSION || header.schema_version > SCHEMA_VERSION {
+        return Err(ReadError::NotASession(format!(
+            "schema version {} (this Stylet reads {} and {})",
+            header.schema_version,
+            SCHEMA_VERSION.saturating_sub(1),
+            SCHEMA_VERSION
+        )));
+    }
+    if mode == Mode::Strict {
+        if let Some(d) = damage {
+            return Err(ReadError::Damaged(d));
+        }
+    }
+    Ok(Session {
+        header,
+        end: w.end,
+        ticks: w.ticks,
+        events: w.events,
+        digests: w.digests,
+        annotations: w.annotations,
+        chunks: w.chunks,
+        damage,
+        finished: w.finished,
+    })
+}
+
+fn load(path: &Path, limits: &Limits) -> Result<Vec<u8>, ReadError> {
+    let io = |e: std::io::Error| ReadError::Io(format!("{}: {e}", path.display()));
+    let meta = std::fs::metadata(path).map_err(io)?;
+    if meta.len() > limits.max_file_bytes {
+        return Err(ReadError::NotASession(format!(
+            "{}: {} bytes exceed the limit",
+            path.display(),
+            meta.len()
+        )));
+    }
+    std::fs::read(path).map_err(io)
+}
+
+/// Reads an intact session file.
+pub fn read(path: &Path) -> Result<Session, ReadError> {
+    read_bytes(&load(path, &Limits::default())?, Mode::Strict, &Limits::default())
+}
+
+/// Reads what is intact of a damaged or cut file (`damage` says what was lost).
+pub fn recover(path: &Path) -> Result<Session, ReadError> {
+    read_bytes(&load(path, &Limits::default())?, Mode::Recover, &Limits::default())
+}
+
+/// The checks of `stylet session verify`: intact, finished, nothing dropped, ticks contiguous,
+/// digests and events inside the recorded ticks. `Ok` carries the session.
+pub fn verify_bytes(bytes: &[u8]) -> Result<Session, String> {
+    let s = read_bytes(bytes, Mode::Strict, &Limits::default()).map_err(|e| e.to_string())?;
+    if !s.finished {
+        return Err("the file has no summary and footer".into());
+    }
+    let end = s.end.as_ref().ok_or("the session has no end record")?;
+    if !end.complete {
+        return Err(format!("the session is incomplete: {}", end.reason));
+    }
+    if end.ticks != s.ticks.len() as u64 {
+        return Err(format!(
+            "the end record counts {} ticks, the file holds {}",
+            end.ticks,
+            s.ticks.len()
+        ));
+    }
+    if let Some(w) = s.ticks.windows(2).find(|w| w[1].tick != w[0].tick + 1) {
+        return Err(format!("ticks jump from {} to {}", w[0].tick, w[1].tick));
+    }
+    let last = s.ticks.last().map_or(0, |t| t.tick);
+    if let Some(d) = s.digests.iter().find(|d| d.tick > last) {
+        return Err(format!("a digest at tick {} after the last tick {last}", d.tick));
+    }
+    if let Some(e) = s.events.iter().find(|e| e.tick > last) {
+        return Err(format!("an event at tick {} after the last tick {last}", e.tick));
+    }
+    Ok(s)
+}
+
+pub fn verify(path: &Path) -> Result<Session, String> {
+    verify_bytes(&load(path, &Limits::default()).map_err(|e| e.to_string())?)
+}
+
+/// Streaming access: hands the ticks to `on_block` block by block in file order without keeping
+/// them; stops at the first damage (returned). The returned session has no ticks.
+pub fn stream_ticks(path: &Path, on_block: &mut dyn FnMut(&[TickRecord])) -> Result<Session, ReadError> {
+    let limits = Limits::default();
+    let bytes = load(path, &limits)?;
+    read_bytes_with(&bytes, Mode::Recover, &limits, Some(on_block))
+}
+
+/// Indexed access: the ticks from `first` to `last` (inclusive), reading only the chunks the
+/// summary's chunk index says cover them. Needs a finished file.
+pub fn read_tick_range(path: &Path, first: u64, last: u64) -> Result<Vec<TickRecord>, ReadError> {
+    let limits = Limits::default();
+    let bytes = load(path, &limits)?;
+    let summary = mcap::Summary::read(&bytes)
+        .map_err(|e| ReadError::NotASession(format!("no readable summary: {e}")))?
+        .ok_or_else(|| ReadError::NotASession("the file has no summary (not finished)".into()))?;
+    let header = read_header_only(&bytes)?;
+    let rate = header.tick_rate_hz as u64;
+    let ns = |tick: u64| tick.saturating_mul(1_000_000_000) / rate;
+    let (lo, hi) = (ns(first), ns(last));
+    let mut w = Walk {
+        limits: &limits,
+        sink: None,
+        last_tick: None,
+        channels: summary.channels.iter().map(|(id, c)| (*id, c.topic.clone())).collect(),
+        header: None,
+        end: None,
+        ticks: Vec::new(),
+        events: Vec::new(),
+        digests: Vec::new(),
+        annotations: Vec::new(),
+        chunks: Vec::new(),
+        messages: 0,
+        finished: false,
+        header_error: None,
+    };
+    for ci in &summary.chunk_indexes {
+        // A block starting before `first` may still hold it: widen by one block.
+        let block_ns = ns(crate::writer::BLOCK_TICKS as u64);
+        if ci.message_end_time.saturating_add(block_ns) < lo || ci.message_start_time > hi {
+            continue;
+        }
+        let (start, len) = (ci.chunk_start_offset as usize, ci.chunk_length as usize);
+        let rec = bytes
+            .get(start..start + len)
+            .ok_or_else(|| ReadError::NotASession("chunk index points outside the file".into()))?;
+        if rec.len() < 9 || rec[0] != OP_CHUNK {
+            return Err(ReadError::NotASession("chunk index does not point at a chunk".into()));
+        }
+        w.chunk(start as u64, &rec[9..]).map_err(|what| {
+            ReadError::Damaged(Damage {
+                offset: start as u64,
+                what,
+                lost_bytes: 0,
+            })
+        })?;
+    }
+    w.ticks.retain(|t| t.tick >= first && t.tick <= last);
+    Ok(w.ticks)
+}
+
+/// The session header, from the metadata record near the start of the file.
+fn read_header_only(bytes: &[u8]) -> Result<SessionHeader, ReadError> {
+    let mut pos = 8usize;
+    for _ in 0..8 {
+        let (Some(&op), Some(len)) = (bytes.get(pos), read_u64(bytes, pos + 1)) else {
+            break;
+        };
+        let body = bytes
+            .get(pos + 9..pos + 9 + len.min(1 << 20) as usize)
+            .ok_or_else(|| ReadError::NotASession("cut short".into()))?;
+        if let Ok(Record::Metadata(m)) = mcap::read::parse_record(op, body) {
+            if m.name == META_HEADER {
+                return SessionHeader::from_metadata(&m.metadata).map_err(ReadError::NotASession);
+            }
+        }
+        pos += 9 + len as usize;
+    }
+    Err(ReadError::NotASession("no session header".into()))
+}

@@ -1,0 +1,528 @@
+//! The session writer: its own thread behind a bounded queue, so the 1 kHz loop never waits for
+//! the disk (DESIGN.md "Session file").
+//!
+//! - `record`, `event`, `digest`, `annotate` never block: if the queue is full the item is counted
+//!   as dropped and the session is marked incomplete (with counts) — never dropped silently.
+//! - The writer thread packs ticks into blocks of [`BLOCK_TICKS`] and closes an MCAP chunk (zstd,
+//!   CRC) at least every second of wall time and every [`CHUNK_TICKS`] ticks, flushing it to the OS
+//!   and to the disk, so a crash loses at most the last second.
+//! - `finish` writes the end metadata and the summary (statistics, chunk and message indexes).
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufWriter, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError, sync_channel};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use mcap::records::{MessageHeader, Metadata};
+use serde_bytes::ByteBuf;
+use stylet_physics::{Event, TickInput, TickOutput};
+
+use crate::codec;
+use crate::format::*;
+
+/// Ticks per block message.
+pub const BLOCK_TICKS: usize = 500;
+/// Ticks per chunk at most (one second at 1 kHz).
+pub const CHUNK_TICKS: u64 = 1000;
+/// Longest wall time between chunk flushes.
+pub const FLUSH_INTERVAL: Duration = Duration::from_secs(1);
+/// Queue length (items): eight seconds of ticks at 1 kHz.
+pub const QUEUE_LEN: usize = 8192;
+/// Preview decimation: one preview sample every this many ticks (50 Hz at 1 kHz).
+pub const PREVIEW_EVERY: u64 = 20;
+
+/// Writer settings.
+#[derive(Debug, Clone)]
+pub struct WriterOptions {
+    pub queue_len: usize,
+    pub zstd_level: u32,
+    /// Sync the file to disk at every flush (survives power loss, not only a killed process).
+    pub fsync: bool,
+}
+
+impl Default for WriterOptions {
+    fn default() -> Self {
+        WriterOptions {
+            queue_len: QUEUE_LEN,
+            zstd_level: 9,
+            fsync: true,
+        }
+    }
+}
+
+enum Item {
+    Tick(TickRecord),
+    Event(EventRecord),
+    Digest(DigestRecord),
+    Annotation(AnnotationRecord),
+    /// The session is known to be incomplete for this reason (e.g. recovered from a cut file).
+    Incomplete(String),
+}
+
+/// What `finish` reports.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WriteSummary {
+    pub path: PathBuf,
+    pub ticks: u64,
+    pub dropped: u64,
+    pub bytes: u64,
+    pub complete: bool,
+}
+
+/// Errors while writing.
+#[derive(Debug, thiserror::Error)]
+pub enum WriteError {
+    #[error("{path}: {message}")]
+    Io { path: String, message: String },
+    #[error("the writer thread stopped: {0}")]
+    Thread(String),
+}
+
+/// A file handle whose `flush` also syncs to disk when asked.
+struct SyncingFile {
+    inner: BufWriter<File>,
+    fsync: bool,
+}
+
+impl Write for SyncingFile {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.inner.write(buf)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()?;
+        if self.fsync {
+            self.inner.get_ref().sync_data()?;
+        }
+        Ok(())
+    }
+}
+
+impl Seek for SyncingFile {
+    fn seek(&mut self, pos: SeekFrom) -> std::io::Result<u64> {
+        self.inner.seek(pos)
+    }
+}
+
+/// Records one session.
+pub struct SessionWriter {
+    tx: Option<SyncSender<Item>>,
+    handle: Option<JoinHandle<Result<(u64, u64, bool), WriteError>>>,
+    dropped: Arc<AtomicU64>,
+    path: PathBuf,
+}
+
+impl SessionWriter {
+    /// Creates the file, writes the header and starts the writer thread.
+    pub fn create(path: &Path, header: &SessionHeader, options: WriterOptions) -> Result<Self, WriteError> {
+        let io = |e: &dyn std::fmt::Display| WriteError::Io {
+            path: path.display().to_string(),
+            message: e.to_string(),
+        };
+        let file = File::create(path).map_err(|e| io(&e))?;
+        let sink = SyncingFile {
+            inner: BufWriter::with_capacity(1 << 20, file),
+            fsync: options.fsync,
+        };
+        let mut w = mcap::WriteOptions::new()
+            .profile(PROFILE)
+            .library(format!("stylet-recorder {}", env!("CARGO_PKG_VERSION")))
+            .compression(Some(mcap::Compression::Zstd))
+            .compression_level(options.zstd_level)
+            .chunk_size(None)
+            .create(sink)
+            .map_err(|e| io(&e))?;
+        w.write_metadata(&Metadata {
+            name: META_HEADER.into(),
+            metadata: header.to_metadata(),
+        })
+        .map_err(|e| io(&e))?;
+        w.flush().map_err(|e| io(&e))?;
+        let mut channels = BTreeMap::new();
+        for topic in [
+            TOPIC_TICKS,
+            TOPIC_EVENTS,
+            TOPIC_DIGESTS,
+            TOPIC_ANNOTATIONS,
+            TOPIC_PREVIEW,
+        ] {
+            let schema = w
+                .add_schema(&topic.replace('/', "."), SCHEMA_ENCODING, json_schema(topic).as_bytes())
+                .map_err(|e| io(&e))?;
+            let id = w
+                .add_channel(schema, topic, MESSAGE_ENCODING, &BTreeMap::new())
+                .map_err(|e| io(&e))?;
+            channels.insert(topic, id);
+        }
+        let (tx, rx) = sync_channel(options.queue_len.max(1));
+        let dropped = Arc::new(AtomicU64::new(0));
+        let thread_dropped = dropped.clone();
+        let rate = header.tick_rate_hz.max(1) as u64;
+        let thread_path = path.display().to_string();
+        let handle = std::thread::Builder::new()
+            .name("stylet-recorder".into())
+            .spawn(move || run(w, rx, channels, rate, thread_dropped, thread_path))
+            .map_err(|e| io(&e))?;
+        Ok(SessionWriter {
+            tx: Some(tx),
+            handle: Some(handle),
+            dropped,
+            path: path.to_path_buf(),
+        })
+    }
+
+    fn send(&self, item: Item) -> bool {
+        match self.tx.as_ref().map(|tx| tx.try_send(item)) {
+            Some(Ok(())) => true,
+            Some(Err(TrySendError::Full(_))) | Some(Err(TrySendError::Disconnected(_))) | None => {
+                self.dropped.fetch_add(1, Ordering::Relaxed);
+                false
+            }
+        }
+    }
+
+    /// Records one tick (input and output) and its events. Never blocks; false if dropped.
+    pub fn record(&self, input: &TickInput, output: &TickOutput) -> bool {
+        for e in &input.events {
+            self.event(output.tick, e);
+        }
+        self.send(Item::Tick(tick_record(input, output)))
+    }
+
+    /// As [`SessionWriter::record`], but waits while the queue is full: for recording offline,
+    /// faster than real time (headless scripts, conversions). Never call it from the haptic loop.
+    pub fn record_blocking(&self, input: &TickInput, output: &TickOutput) -> Result<(), WriteError> {
+        let tx = self.tx.as_ref().ok_or_else(|| WriteError::Thread("finished".into()))?;
+        let stopped = |_| WriteError::Thread("the writer thread stopped (see finish)".into());
+        for e in &input.events {
+            tx.send(Item::Event(EventRecord::from_event(output.tick, e)))
+                .map_err(stopped)?;
+        }
+        tx.send(Item::Tick(tick_record(input, output))).map_err(stopped)
+    }
+
+    /// As [`SessionWriter::digest`], waiting while the queue is full (offline recording).
+    pub fn digest_blocking(&self, tick: u64, digest: u64) -> Result<(), WriteError> {
+        let tx = self.tx.as_ref().ok_or_else(|| WriteError::Thread("finished".into()))?;
+        tx.send(Item::Digest(DigestRecord { tick, digest }))
+            .map_err(|_| WriteError::Thread("the writer thread stopped".into()))
+    }
+
+    /// Records a tick given as a [`TickRecord`] (tests, conversions); never blocks.
+    pub fn record_raw(&self, t: TickRecord) -> bool {
+        self.send(Item::Tick(t))
+    }
+
+    /// As [`SessionWriter::record_raw`], waiting while the queue is full.
+    pub fn record_raw_blocking(&self, t: TickRecord) -> Result<(), WriteError> {
+        let tx = self.tx.as_ref().ok_or_else(|| WriteError::Thread("finished".into()))?;
+        tx.send(Item::Tick(t))
+            .map_err(|_| WriteError::Thread("the writer thread stopped".into()))
+    }
+
+    /// Records an event record, waiting while the queue is full (offline recording).
+    pub fn event_record_blocking(&self, e: EventRecord) -> Result<(), WriteError> {
+        let tx = self.tx.as_ref().ok_or_else(|| WriteError::Thread("finished".into()))?;
+        tx.send(Item::Event(e))
+            .map_err(|_| WriteError::Thread("the writer thread stopped".into()))
+    }
+
+    /// Records a note, waiting while the queue is full (offline recording).
+    pub fn annotate_blocking(&self, tick: u64, text: &str) -> Result<(), WriteError> {
+        let tx = self.tx.as_ref().ok_or_else(|| WriteError::Thread("finished".into()))?;
+        tx.send(Item::Annotation(AnnotationRecord {
+            tick,
+            text: text.into(),
+        }))
+        .map_err(|_| WriteError::Thread("the writer thread stopped".into()))
+    }
+
+    /// Records an event. Never blocks; false if dropped.
+    pub fn event(&self, tick: u64, e: &Event) -> bool {
+        self.send(Item::Event(EventRecord::from_event(tick, e)))
+    }
+
+    /// Records the state digest after `tick`.
+    pub fn digest(&self, tick: u64, digest: u64) -> bool {
+        self.send(Item::Digest(DigestRecord { tick, digest }))
+    }
+
+    pub fn annotate(&self, tick: u64, text: &str) -> bool {
+        self.send(Item::Annotation(AnnotationRecord {
+            tick,
+            text: text.into(),
+        }))
+    }
+
+    /// Marks the session incomplete (the end record says why); waits while the queue is full.
+    pub fn mark_incomplete(&self, reason: &str) -> Result<(), WriteError> {
+        let tx = self.tx.as_ref().ok_or_else(|| WriteError::Thread("finished".into()))?;
+        tx.send(Item::Incomplete(reason.into()))
+            .map_err(|_| WriteError::Thread("the writer thread stopped".into()))
+    }
+
+    /// Items the queue could not take so far.
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
+    }
+
+    /// Ends the session: drains the queue, writes the end metadata and the summary.
+    pub fn finish(mut self) -> Result<WriteSummary, WriteError> {
+        drop(self.tx.take());
+        let handle = self.handle.take().expect("finish runs once");
+        let (ticks, bytes, complete) = handle.join().map_err(|_| WriteError::Thread("panicked".into()))??;
+        let dropped = self.dropped();
+        Ok(WriteSummary {
+            path: self.path.clone(),
+            ticks,
+            dropped,
+            bytes,
+            complete,
+        })
+    }
+}
+
+impl Drop for SessionWriter {
+    fn drop(&mut self) {
+        // Dropped without finish (e.g. the caller panicked): still close the file properly.
+        drop(self.tx.take());
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+fn tick_record(input: &TickInput, output: &TickOutput) -> TickRecord {
+    let q = input.orientation;
+    TickRecord {
+        tick: output.tick,
+        position_mm: input.position_mm.to_array(),
+        orientation: [q.w, q.x, q.y, q.z],
+        buttons: input.buttons,
+        force_n: output.force_n.to_array(),
+        torque_nmm: output.torque_nmm.to_array(),
+        tip_label: output.tip_label,
+        inserted_mm: output.inserted_mm,
+    }
+}
+
+/// The writer thread.
+fn run(
+    mut w: mcap::Writer<SyncingFile>,
+    rx: Receiver<Item>,
+    channels: BTreeMap<&'static str, u16>,
+    rate: u64,
+    dropped: Arc<AtomicU64>,
+    path: String,
+) -> Result<(u64, u64, bool), WriteError> {
+    let io = |e: &dyn std::fmt::Display| WriteError::Io {
+        path: path.clone(),
+        message: e.to_string(),
+    };
+    let mut seq: BTreeMap<u16, u32> = BTreeMap::new();
+    let ns = |tick: u64| tick.saturating_mul(1_000_000_000) / rate;
+    let mut write =
+        |w: &mut mcap::Writer<SyncingFile>, topic: &str, tick: u64, data: &[u8]| -> Result<(), WriteError> {
+            let channel_id = channels[topic];
+            let s = seq.entry(channel_id).or_insert(0);
+            *s += 1;
+            let header = MessageHeader {
+                channel_id,
+                sequence: *s,
+                log_time: ns(tick),
+                publish_time: ns(tick),
+            };
+            w.write_to_known_channel(&header, data).map_err(|e| io(&e))
+        };
+    let mut block: Vec<TickRecord> = Vec::with_capacity(BLOCK_TICKS);
+    let mut ticks = 0u64;
+    let mut since_flush = 0u64;
+    let mut last_flush = Instant::now();
+    let mut reported_drops = 0u64;
+    let mut incomplete: Option<String> = None;
+    loop {
+        let timeout = FLUSH_INTERVAL.saturating_sub(last_flush.elapsed());
+        let item = rx.recv_timeout(timeout);
+        let ended = matches!(item, Err(RecvTimeoutError::Disconnected));
+        match item {
+            Ok(Item::Tick(t)) => {
+                if block.last().is_some_and(|b| b.tick + 1 != t.tick) {
+                    write_block(&mut write, &mut w, &block)?;
+                    block.clear();
+                }
+                if t.tick % PREVIEW_EVERY == 0 {
+                    let f = t.force_n;
+                    let p = PreviewRecord {
+                        tick: t.tick,
+                        t_s: (t.tick as f64 / rate as f64) as f32,
+                        position_mm: t.position_mm.map(|v| v as f32),
+                        force_n: f.map(|v| v as f32),
+                        force_magnitude_n: (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt() as f32,
+                        tip_label: t.tip_label,
+                        inserted_mm: t.inserted_mm as f32,
+                    };
+                    write(&mut w, TOPIC_PREVIEW, t.tick, &to_cbor(&p))?;
+                }
+                block.push(t);
+                ticks += 1;
+                since_flush += 1;
+                if block.len() == BLOCK_TICKS {
+                    write_block(&mut write, &mut w, &block)?;
+                    block.clear();
+                }
+            }
+            Ok(Item::Event(e)) => write(&mut w, TOPIC_EVENTS, e.tick, &to_cbor(&e))?,
+            Ok(Item::Digest(d)) => write(&mut w, TOPIC_DIGESTS, d.tick, &to_cbor(&d))?,
+            Ok(Item::Annotation(a)) => write(&mut w, TOPIC_ANNOTATIONS, a.tick, &to_cbor(&a))?,
+            Ok(Item::Incomplete(reason)) => incomplete = Some(reason),
+            Err(_) => {}
+        }
+        let now_dropped = dropped.load(Ordering::Relaxed);
+        if now_dropped > reported_drops {
+            let tick = block.last().map_or(0, |b| b.tick);
+            let text = format!(
+                "queue full: {} items dropped so far; the session is incomplete",
+                now_dropped
+            );
+            write(
+                &mut w,
+                TOPIC_ANNOTATIONS,
+                tick,
+                &to_cbor(&AnnotationRecord { tick, text }),
+            )?;
+            reported_drops = now_dropped;
+        }
+        if ended || since_flush >= CHUNK_TICKS || last_flush.elapsed() >= FLUSH_INTERVAL {
+            write_block(&mut write, &mut w, &block)?;
+            block.clear();
+            w.flush().map_err(|e| io(&e))?;
+            since_flush = 0;
+            last_flush = Instant::now();
+        }
+        if ended {
+            break;
+        }
+    }
+    let dropped_now = dropped.load(Ordering::Relaxed);
+    let mut reasons: Vec<String> = incomplete.into_iter().collect();
+    if dropped_now > 0 {
+        reasons.push(format!("{dropped_now} items dropped: queue full"));
+    }
+    let end = SessionEnd {
+        ticks,
+        dropped_ticks: dropped_now,
+        complete: reasons.is_empty(),
+        reason: if reasons.is_empty() {
+            "finished".into()
+        } else {
+            reasons.join("; ")
+        },
+    };
+    w.write_metadata(&Metadata {
+        name: META_END.into(),
+        metadata: end.to_metadata(),
+    })
+    .map_err(|e| io(&e))?;
+    w.finish().map_err(|e| io(&e))?;
+    let mut sink = w.into_inner();
+    sink.flush().map_err(|e| io(&e))?;
+    let bytes = sink.inner.get_ref().metadata().map_err(|e| io(&e))?.len();
+    Ok((ticks, bytes, end.complete))
+}
+
+fn write_block(
+    write: &mut dyn FnMut(&mut mcap::Writer<SyncingFile>, &str, u64, &[u8]) -> Result<(), WriteError>,
+    w: &mut mcap::Writer<SyncingFile>,
+    block: &[TickRecord],
+) -> Result<(), WriteError> {
+    if block.is_empty() {
+        return Ok(());
+    }
+    let b = encode_block(block);
+    write(w, TOPIC_TICKS, block[0].tick, &to_cbor(&b))
+}
+
+/// Columns of a block of consecutive ticks.
+pub fn encode_block(block: &[TickRecord]) -> TickBlock {
+    let mut columns = BTreeMap::new();
+    let mut f = |name: &str, get: &dyn Fn(&TickRecord) -> f64| {
+        let v: Vec<f64> = block.iter().map(get).collect();
+        columns.insert(name.to_string(), ByteBuf::from(codec::encode_f64(&v)));
+    };
+    f("pos_x_mm", &|t| t.position_mm[0]);
+    f("pos_y_mm", &|t| t.position_mm[1]);
+    f("pos_z_mm", &|t| t.position_mm[2]);
+    f("q_w", &|t| t.orientation[0]);
+    f("q_x", &|t| t.orientation[1]);
+    f("q_y", &|t| t.orientation[2]);
+    f("q_z", &|t| t.orientation[3]);
+    f("force_x_n", &|t| t.force_n[0]);
+    f("force_y_n", &|t| t.force_n[1]);
+    f("force_z_n", &|t| t.force_n[2]);
+    f("torque_x_nmm", &|t| t.torque_nmm[0]);
+    f("torque_y_nmm", &|t| t.torque_nmm[1]);
+    f("torque_z_nmm", &|t| t.torque_nmm[2]);
+    f("inserted_mm", &|t| t.inserted_mm);
+    let buttons: Vec<u64> = block.iter().map(|t| t.buttons as u64).collect();
+    columns.insert("buttons".into(), ByteBuf::from(codec::encode(&buttons, 4)));
+    let labels: Vec<u64> = block.iter().map(|t| t.tip_label as u64).collect();
+    columns.insert("tip_label".into(), ByteBuf::from(codec::encode(&labels, 2)));
+    TickBlock {
+        first_tick: block[0].tick,
+        count: block.len() as u32,
+        codec: COLUMN_CODEC.into(),
+        columns,
+    }
+}
+
+/// The ticks of a block; names the first problem.
+pub fn decode_block(b: &TickBlock) -> Result<Vec<TickRecord>, String> {
+    if b.codec != COLUMN_CODEC {
+        return Err(format!("unknown column codec '{}'", b.codec));
+    }
+    let n = b.count as usize;
+    if n == 0 || n > 100_000 {
+        return Err(format!("block of {n} ticks"));
+    }
+    if b.first_tick.checked_add(n as u64).is_none() {
+        return Err("block tick numbers overflow".into());
+    }
+    let col = |name: &str, width: usize| -> Result<Vec<u64>, String> {
+        let bytes = b
+            .columns
+            .get(name)
+            .ok_or_else(|| format!("block lacks column '{name}'"))?;
+        codec::decode(bytes, width, n)
+            .ok_or_else(|| format!("column '{name}' has {} bytes, not {}", bytes.len(), n * width))
+    };
+    let fc = |name: &str| -> Result<Vec<f64>, String> {
+        let bytes = b
+            .columns
+            .get(name)
+            .ok_or_else(|| format!("block lacks column '{name}'"))?;
+        codec::decode_f64(bytes, n).ok_or_else(|| format!("column '{name}' has {} bytes, not {}", bytes.len(), n * 8))
+    };
+    let (px, py, pz) = (fc("pos_x_mm")?, fc("pos_y_mm")?, fc("pos_z_mm")?);
+    let (qw, qx, qy, qz) = (fc("q_w")?, fc("q_x")?, fc("q_y")?, fc("q_z")?);
+    let (fx, fy, fz) = (fc("force_x_n")?, fc("force_y_n")?, fc("force_z_n")?);
+    let (tx, ty, tz) = (fc("torque_x_nmm")?, fc("torque_y_nmm")?, fc("torque_z_nmm")?);
+    let ins = fc("inserted_mm")?;
+    let buttons = col("buttons", 4)?;
+    let labels = col("tip_label", 2)?;
+    Ok((0..n)
+        .map(|i| TickRecord {
+            tick: b.first_tick + i as u64,
+            position_mm: [px[i], py[i], pz[i]],
+            orientation: [qw[i], qx[i], qy[i], qz[i]],
+            buttons: buttons[i] as u32,
+            force_n: [fx[i], fy[i], fz[i]],
+            torque_nmm: [tx[i], ty[i], tz[i]],
+            tip_label: labels[i] as u16,
+            inserted_mm: ins[i],
+        })
+        .collect())
+}

@@ -1,0 +1,294 @@
+//! Session files: round trip, damage (cuts and bit flips at every 4 KiB boundary), hostile
+//! input, queue overflow, streaming and indexed access, and the committed schema fixture.
+
+use std::path::{Path, PathBuf};
+
+use stylet_physics::{Event, Gauge, ToolSpec};
+use stylet_recorder::format::{DigestRecord, TickRecord};
+use stylet_recorder::reader::{self, Limits, Mode};
+use stylet_recorder::{EventRecord, SessionHeader, SessionWriter, WriterOptions};
+
+fn header() -> SessionHeader {
+    SessionHeader {
+        schema_version: stylet_recorder::SCHEMA_VERSION,
+        session_id: "00000000-0000-4000-8000-000000000001".into(),
+        trainee: "alice".into(),
+        scenario: "ptcd-intercostal".into(),
+        difficulty: "beginner".into(),
+        atlas_id: "phantom".into(),
+        atlas_hash: "ab".repeat(32),
+        software_version: "stylet test".into(),
+        physics_version: stylet_physics::PHYSICS_VERSION,
+        tick_rate_hz: 1000,
+        seed: 7,
+        device: "premium".into(),
+        initial_tool: ToolSpec::Needle {
+            gauge: Gauge::G18,
+            length_mm: 150.0,
+            stylet_in: true,
+        },
+        wall_clock_start: "2026-11-22T12:00:00Z".into(),
+    }
+}
+
+/// A hand-like needle session: slow insertion with tremor, force growing with depth.
+pub fn synthetic_ticks(n: u64, seed: u64) -> Vec<TickRecord> {
+    let mut state = seed | 1;
+    let mut noise = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    };
+    (0..n)
+        .map(|tick| {
+            let t = tick as f64 / 1000.0;
+            let depth = 60.0 * (1.0 - (-(t % 60.0) / 20.0).exp());
+            let tremor = 0.05 * (t * 2.0 * std::f64::consts::PI * 8.0).sin() + 0.01 * noise();
+            TickRecord {
+                tick,
+                position_mm: [
+                    150.0 - depth + tremor,
+                    1.5 + 0.3 * depth + 0.5 * tremor,
+                    15.9 - 0.1 * depth,
+                ],
+                orientation: [0.70710678, 0.0, -0.70710678 + 1e-4 * (t * 0.3).sin(), 0.0],
+                buttons: (tick / 5000 % 2) as u32,
+                force_n: [0.02 * depth + 0.05 * noise(), 0.01 * noise(), -0.005 * depth],
+                torque_nmm: [0.0, 0.0, 0.0],
+                tip_label: if depth < 3.0 {
+                    2
+                } else if depth < 20.0 {
+                    3
+                } else {
+                    10
+                },
+                inserted_mm: depth,
+            }
+        })
+        .collect()
+}
+
+fn write_session(path: &Path, ticks: &[TickRecord], options: WriterOptions) -> stylet_recorder::WriteSummary {
+    let w = SessionWriter::create(path, &header(), options).unwrap();
+    for t in ticks {
+        if t.tick % 10_000 == 5 {
+            assert!(w.event(t.tick, &Event::ContrastInject { ml: 1.5 }));
+        }
+        w.record_raw_blocking(*t).unwrap();
+        if t.tick % 100 == 99 {
+            w.digest_blocking(t.tick, t.tick.wrapping_mul(0x9E37_79B9_7F4A_7C15))
+                .unwrap();
+        }
+    }
+    w.finish().unwrap()
+}
+
+fn same(a: &[TickRecord], b: &[TickRecord]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.same_bits(y))
+}
+
+/// 10 minutes of 1 kHz ticks come back bit for bit; prints the size per minute.
+#[test]
+fn ten_minutes_round_trip() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("s.mcap");
+    let ticks = synthetic_ticks(600_000, 1);
+    let summary = write_session(&p, &ticks, WriterOptions::default());
+    assert_eq!(summary.ticks, 600_000);
+    assert!(summary.complete);
+    let s = reader::verify(&p).unwrap();
+    assert!(same(&s.ticks, &ticks));
+    assert_eq!(s.header, header());
+    assert_eq!(s.events.len(), 60);
+    assert_eq!(
+        s.events[0],
+        EventRecord::from_event(5, &Event::ContrastInject { ml: 1.5 })
+    );
+    assert_eq!(s.digests.len(), 6000);
+    assert_eq!(
+        s.digests[0],
+        DigestRecord {
+            tick: 99,
+            digest: 99u64.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        }
+    );
+    assert!(s.complete());
+    let raw = (std::mem::size_of::<f64>() * 14 + 4 + 2) as f64 * 600_000.0;
+    println!(
+        "10 min at 1 kHz: {:.3} MB ({:.3} MB/min), raw tick data {:.1} MB: ratio {:.1}:1",
+        summary.bytes as f64 / 1e6,
+        summary.bytes as f64 / 1e6 / 10.0,
+        raw / 1e6,
+        raw / summary.bytes as f64
+    );
+}
+
+/// The expected intact prefix: the ticks of the chunks that end at or before `cut`.
+fn expected_prefix(chunks: &[reader::ChunkInfo], ticks: &[TickRecord], cut: u64) -> usize {
+    let last = chunks.iter().filter(|c| c.end <= cut).filter_map(|c| c.last_tick).max();
+    last.map_or(0, |l| ticks.iter().position(|t| t.tick == l).unwrap() + 1)
+}
+
+/// Cuts and bit flips at every 4 KiB boundary: verify names the damage, nothing panics, recover
+/// returns the intact prefix.
+#[test]
+fn damage_at_every_4k_boundary() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("s.mcap");
+    let ticks = synthetic_ticks(30_000, 2);
+    write_session(&p, &ticks, WriterOptions::default());
+    let bytes = std::fs::read(&p).unwrap();
+    let full = reader::read_bytes(&bytes, Mode::Strict, &Limits::default()).unwrap();
+    assert!(full.chunks.len() >= 30, "{} chunks", full.chunks.len());
+    let mut cuts = 0;
+    for off in (4096..bytes.len()).step_by(4096) {
+        // Cut.
+        let cut = &bytes[..off];
+        let e = stylet_recorder::reader::verify_bytes(cut).unwrap_err();
+        assert!(e.contains("byte") || e.contains("cut"), "cut at {off}: {e}");
+        let r = reader::read_bytes(cut, Mode::Recover, &Limits::default()).unwrap();
+        let want = expected_prefix(&full.chunks, &ticks, off as u64);
+        assert!(
+            r.ticks.len() >= want,
+            "cut at {off}: recovered {} ticks, {want} were intact",
+            r.ticks.len()
+        );
+        assert!(
+            same(&r.ticks, &ticks[..r.ticks.len()]),
+            "cut at {off}: recovered ticks differ"
+        );
+        assert!(r.damage.is_some());
+        cuts += 1;
+        // Bit flip.
+        let mut flipped = bytes.clone();
+        flipped[off] ^= 0x10;
+        let e = stylet_recorder::reader::verify_bytes(&flipped).unwrap_err();
+        assert!(!e.is_empty());
+        if let Ok(r) = reader::read_bytes(&flipped, Mode::Recover, &Limits::default()) {
+            let want = expected_prefix(&full.chunks, &ticks, off as u64);
+            assert!(
+                r.ticks.len() >= want,
+                "flip at {off}: recovered {} ticks, {want} were intact",
+                r.ticks.len()
+            );
+            assert!(
+                same(&r.ticks, &ticks[..r.ticks.len()]),
+                "flip at {off}: recovered ticks differ"
+            );
+        }
+    }
+    assert!(cuts > 10);
+}
+
+#[test]
+fn hostile_and_garbage_files_are_refused_with_reasons() {
+    let lim = Limits::default();
+    assert!(
+        reader::read_bytes(b"", Mode::Recover, &lim)
+            .unwrap_err()
+            .to_string()
+            .contains("magic")
+    );
+    assert!(
+        reader::read_bytes(b"hello world, not mcap", Mode::Recover, &lim)
+            .unwrap_err()
+            .to_string()
+            .contains("magic")
+    );
+    // A record claiming 2^60 bytes right after the magic.
+    let mut evil = b"\x89MCAP0\r\n".to_vec();
+    evil.push(0x01);
+    evil.extend_from_slice(&(1u64 << 60).to_le_bytes());
+    let e = reader::read_bytes(&evil, Mode::Recover, &lim).unwrap_err().to_string();
+    assert!(e.contains("limit"), "{e}");
+    // A chunk claiming 1 TiB uncompressed.
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("s.mcap");
+    write_session(&p, &synthetic_ticks(3000, 3), WriterOptions::default());
+    let mut bytes = std::fs::read(&p).unwrap();
+    let s = reader::read_bytes(&bytes, Mode::Strict, &lim).unwrap();
+    let c = s.chunks[0].offset as usize;
+    bytes[c + 9 + 16..c + 9 + 24].copy_from_slice(&(1u64 << 40).to_le_bytes());
+    let r = reader::read_bytes(&bytes, Mode::Recover, &lim).unwrap();
+    assert!(r.damage.unwrap().what.contains("over the limit"));
+    // Tight limits are honoured.
+    let tight = Limits {
+        max_ticks: 1000,
+        ..Limits::default()
+    };
+    let r = reader::read_bytes(&std::fs::read(&p).unwrap(), Mode::Recover, &tight).unwrap();
+    assert!(r.damage.unwrap().what.contains("more than 1000 ticks"));
+}
+
+/// A queue that overflows marks the session incomplete with counts.
+#[test]
+fn a_full_queue_marks_the_session_incomplete() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("s.mcap");
+    let w = SessionWriter::create(
+        &p,
+        &header(),
+        WriterOptions {
+            queue_len: 4,
+            ..WriterOptions::default()
+        },
+    )
+    .unwrap();
+    let mut refused = 0;
+    for t in synthetic_ticks(20_000, 4) {
+        if !w.record_raw(t) {
+            refused += 1;
+        }
+    }
+    let summary = w.finish().unwrap();
+    assert!(refused > 0 && summary.dropped == refused && !summary.complete);
+    let s = reader::read(&p).unwrap();
+    let end = s.end.clone().unwrap();
+    assert!(!end.complete && end.dropped_ticks == refused, "{end:?}");
+    assert!(s.annotations.iter().any(|a| a.text.contains("queue full")));
+    let e = reader::verify(&p).unwrap_err();
+    assert!(e.contains("incomplete"), "{e}");
+}
+
+#[test]
+fn streaming_and_indexed_access() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("s.mcap");
+    let ticks = synthetic_ticks(12_345, 5);
+    write_session(&p, &ticks, WriterOptions::default());
+    let mut streamed = Vec::new();
+    let mut blocks = 0;
+    let s = reader::stream_ticks(&p, &mut |b: &[TickRecord]| {
+        blocks += 1;
+        streamed.extend_from_slice(b);
+    })
+    .unwrap();
+    assert!(s.ticks.is_empty() && blocks >= 12_345 / 500);
+    assert!(same(&streamed, &ticks));
+    let range = reader::read_tick_range(&p, 1234, 5678).unwrap();
+    assert!(same(&range, &ticks[1234..=5678]));
+    let tail = reader::read_tick_range(&p, 12_000, 20_000).unwrap();
+    assert!(same(&tail, &ticks[12_000..]));
+}
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures").join(name)
+}
+
+/// The committed schema-version-1 file still reads, with its exact content. (Regenerate it only
+/// when adding a new schema version: `STYLET_WRITE_FIXTURE=1 cargo test -p stylet-recorder fixture`.)
+#[test]
+fn schema_v1_fixture_reads() {
+    let path = fixture("session-v1.mcap");
+    let ticks = synthetic_ticks(1500, 6);
+    if std::env::var("STYLET_WRITE_FIXTURE").is_ok() {
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        write_session(&path, &ticks, WriterOptions::default());
+    }
+    let s = reader::verify(&path).unwrap();
+    assert_eq!(s.header.schema_version, 1);
+    assert_eq!(s.header.trainee, "alice");
+    assert!(same(&s.ticks, &ticks));
+    assert_eq!(s.digests.len(), 15);
+}
