@@ -9,6 +9,7 @@
 pub mod codec;
 pub mod format;
 pub mod reader;
+pub mod records;
 pub mod repair;
 pub mod writer;
 

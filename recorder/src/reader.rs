@@ -2,16 +2,15 @@
 //! the first damage, and what was lost), streaming (chunk by chunk in file order) and indexed (the
 //! chunks of a tick range, through the summary's chunk index).
 //!
-//! The record walker is our own and bounded by [`Limits`] — a hostile file gets an error, never a
-//! huge allocation or a panic; the `mcap` crate parses record bodies once their size is known.
+//! The record walker and the record parser ([`crate::records`]) are our own and bounded by
+//! [`Limits`] — a hostile file gets an error, never a huge allocation or a panic.
 
 use std::collections::BTreeMap;
 use std::io::Read;
 use std::path::Path;
 
-use mcap::records::Record;
-
 use crate::format::*;
+use crate::records::{self, OP_CHUNK, OP_DATA_END, OP_FOOTER, OP_HEADER, Record};
 use crate::writer::decode_block;
 
 /// Hard limits against hostile files.
@@ -106,10 +105,6 @@ impl Session {
 }
 
 const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
-const OP_HEADER: u8 = 0x01;
-const OP_FOOTER: u8 = 0x02;
-const OP_CHUNK: u8 = 0x06;
-const OP_DATA_END: u8 = 0x0F;
 
 /// Reading mode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -205,18 +200,17 @@ impl Walk<'_> {
     }
 
     fn record(&mut self, op: u8, body: &[u8]) -> Result<(), String> {
-        let rec = mcap::read::parse_record(op, body).map_err(|e| format!("bad record (opcode {op:#04x}): {e}"))?;
-        match rec {
-            Record::Channel(c) => {
-                self.channels.insert(c.id, c.topic.clone());
+        match records::parse(op, body).map_err(|e| format!("bad record (opcode {op:#04x}): {e}"))? {
+            Record::Channel { id, topic } => {
+                self.channels.insert(id, topic.to_string());
             }
-            Record::Message { header, data } => self.message(header.channel_id, &data)?,
-            Record::Metadata(m) if m.name == META_HEADER => match SessionHeader::from_metadata(&m.metadata) {
+            Record::Message { channel_id, data } => self.message(channel_id, data)?,
+            Record::Metadata { name, map } if name == META_HEADER => match SessionHeader::from_metadata(&map) {
                 Ok(h) => self.header = Some(h),
                 Err(e) => self.header_error = Some(e),
             },
-            Record::Metadata(m) if m.name == META_END => {
-                self.end = Some(SessionEnd::from_metadata(&m.metadata)?);
+            Record::Metadata { name, map } if name == META_END => {
+                self.end = Some(SessionEnd::from_metadata(&map)?);
             }
             _ => {}
         }
@@ -224,38 +218,36 @@ impl Walk<'_> {
     }
 
     fn chunk(&mut self, offset: u64, body: &[u8]) -> Result<(), String> {
-        let rec = mcap::read::parse_record(OP_CHUNK, body).map_err(|e| format!("bad chunk: {e}"))?;
-        let Record::Chunk { header, data } = rec else {
+        let Record::Chunk(c) = records::parse(OP_CHUNK, body).map_err(|e| format!("bad chunk: {e}"))? else {
             return Err("bad chunk".into());
         };
-        if header.uncompressed_size > self.limits.max_chunk_uncompressed_bytes {
+        if c.uncompressed_size > self.limits.max_chunk_uncompressed_bytes {
             return Err(format!(
                 "chunk claims {} bytes uncompressed, over the limit",
-                header.uncompressed_size
+                c.uncompressed_size
             ));
         }
-        let plain = match header.compression.as_str() {
-            "" => data.into_owned(),
+        let plain = match c.compression {
+            "" => c.records.to_vec(),
             "zstd" => {
-                let cap = header.uncompressed_size as usize;
                 let mut out = Vec::new();
-                zstd::stream::read::Decoder::new(&data[..])
+                zstd::stream::read::Decoder::new(c.records)
                     .map_err(|e| format!("chunk: {e}"))?
-                    .take(cap as u64 + 1)
+                    .take(c.uncompressed_size + 1)
                     .read_to_end(&mut out)
                     .map_err(|e| format!("chunk does not decompress: {e}"))?;
                 out
             }
             other => return Err(format!("chunk compression '{other}' is not supported")),
         };
-        if plain.len() as u64 != header.uncompressed_size {
+        if plain.len() as u64 != c.uncompressed_size {
             return Err(format!(
                 "chunk decompresses to {} bytes, not the {} it declares",
                 plain.len(),
-                header.uncompressed_size
+                c.uncompressed_size
             ));
         }
-        if header.uncompressed_crc != 0 && crc32fast::hash(&plain) != header.uncompressed_crc {
+        if c.uncompressed_crc != 0 && crc32fast::hash(&plain) != c.uncompressed_crc {
             return Err("chunk CRC mismatch".into());
         }
         // All or nothing: a chunk's messages count only if the whole chunk is good.
@@ -366,19 +358,19 @@ pub fn read_bytes_with<'a>(
             break;
         };
         let result = match op {
-            OP_HEADER => match mcap::read::parse_record(op, body) {
-                Ok(Record::Header(h)) if h.profile == PROFILE => {
+            OP_HEADER => match records::parse(op, body) {
+                Ok(Record::Header { profile }) if profile == PROFILE => {
                     profile_ok = true;
                     Ok(())
                 }
-                Ok(Record::Header(h)) => Err(format!("MCAP profile '{}' is not '{PROFILE}'", h.profile)),
+                Ok(Record::Header { profile }) => Err(format!("MCAP profile '{profile}' is not '{PROFILE}'")),
                 _ => Err("bad MCAP header".into()),
             },
             OP_CHUNK => w.chunk(pos as u64, body),
-            OP_DATA_END => match mcap::read::parse_record(op, body) {
-                Ok(Record::DataEnd(d)) => {
+            OP_DATA_END => match records::parse(op, body) {
+                Ok(Record::DataEnd { data_section_crc }) => {
                     in_summary = true;
-                    if d.data_section_crc != 0 && d.data_section_crc != crc32fast::hash(&bytes[..pos]) {
+                    if data_section_crc != 0 && data_section_crc != crc32fast::hash(&bytes[..pos]) {
                         Err("data section CRC mismatch (the file was altered)".into())
                     } else {
                         Ok(())
@@ -386,16 +378,19 @@ pub fn read_bytes_with<'a>(
                 }
                 _ => Err("bad data-end record".into()),
             },
-            OP_FOOTER => match mcap::read::parse_record(op, body) {
-                Ok(Record::Footer(f)) => {
-                    let summary_ok = f.summary_crc == 0
-                        || usize::try_from(f.summary_start)
+            OP_FOOTER => match records::parse(op, body) {
+                Ok(Record::Footer {
+                    summary_start,
+                    summary_crc,
+                }) => {
+                    let summary_ok = summary_crc == 0
+                        || usize::try_from(summary_start)
                             .ok()
                             .filter(|&s| s > 0 && s <= pos)
                             .is_some_and(|s| {
                                 // The CRC covers the summary section through the footer's fields before the CRC.
                                 let end = start + 8 + 8;
-                                end <= bytes.len() && crc32fast::hash(&bytes[s..end]) == f.summary_crc
+                                end <= bytes.len() && crc32fast::hash(&bytes[s..end]) == summary_crc
                             });
                     if !summary_ok {
                         Err("summary CRC mismatch (the file was altered)".into())
@@ -532,10 +527,8 @@ pub fn stream_ticks(path: &Path, on_block: &mut dyn FnMut(&[TickRecord])) -> Res
 pub fn read_tick_range(path: &Path, first: u64, last: u64) -> Result<Vec<TickRecord>, ReadError> {
     let limits = Limits::default();
     let bytes = load(path, &limits)?;
-    let summary = mcap::Summary::read(&bytes)
-        .map_err(|e| ReadError::NotASession(format!("no readable summary: {e}")))?
-        .ok_or_else(|| ReadError::NotASession("the file has no summary (not finished)".into()))?;
-    let header = read_header_only(&bytes)?;
+    let header = header_only(&bytes)?;
+    let (channels, chunk_indexes) = summary(&bytes)?;
     let rate = header.tick_rate_hz as u64;
     let ns = |tick: u64| tick.saturating_mul(1_000_000_000) / rate;
     let (lo, hi) = (ns(first), ns(last));
@@ -543,7 +536,7 @@ pub fn read_tick_range(path: &Path, first: u64, last: u64) -> Result<Vec<TickRec
         limits: &limits,
         sink: None,
         last_tick: None,
-        channels: summary.channels.iter().map(|(id, c)| (*id, c.topic.clone())).collect(),
+        channels,
         header: None,
         end: None,
         ticks: Vec::new(),
@@ -555,15 +548,16 @@ pub fn read_tick_range(path: &Path, first: u64, last: u64) -> Result<Vec<TickRec
         finished: false,
         header_error: None,
     };
-    for ci in &summary.chunk_indexes {
+    for ci in &chunk_indexes {
         // A block starting before `first` may still hold it: widen by one block.
         let block_ns = ns(crate::writer::BLOCK_TICKS as u64);
         if ci.message_end_time.saturating_add(block_ns) < lo || ci.message_start_time > hi {
             continue;
         }
-        let (start, len) = (ci.chunk_start_offset as usize, ci.chunk_length as usize);
-        let rec = bytes
-            .get(start..start + len)
+        let start = usize::try_from(ci.chunk_start_offset).unwrap_or(usize::MAX);
+        let rec = usize::try_from(ci.chunk_length)
+            .ok()
+            .and_then(|len| bytes.get(start..start.checked_add(len)?))
             .ok_or_else(|| ReadError::NotASession("chunk index points outside the file".into()))?;
         if rec.len() < 9 || rec[0] != OP_CHUNK {
             return Err(ReadError::NotASession("chunk index does not point at a chunk".into()));
@@ -580,22 +574,75 @@ pub fn read_tick_range(path: &Path, first: u64, last: u64) -> Result<Vec<TickRec
     Ok(w.ticks)
 }
 
-/// The session header, from the metadata record near the start of the file.
-fn read_header_only(bytes: &[u8]) -> Result<SessionHeader, ReadError> {
+/// The channels and chunk indexes of a finished file's summary section.
+fn summary(bytes: &[u8]) -> Result<(BTreeMap<u16, String>, Vec<records::ChunkIndex>), ReadError> {
+    let bad = |what: &str| ReadError::NotASession(format!("summary: {what}"));
+    // Footer: opcode, length 20, summary start, summary offset start, CRC; then the magic.
+    let footer_at = bytes
+        .len()
+        .checked_sub(8 + 9 + 20)
+        .ok_or_else(|| bad("file too short"))?;
+    if bytes[footer_at] != OP_FOOTER || &bytes[bytes.len() - 8..] != MAGIC {
+        return Err(bad("no footer (the file is not finished)"));
+    }
+    let Ok(Record::Footer {
+        summary_start,
+        summary_crc,
+    }) = records::parse(OP_FOOTER, &bytes[footer_at + 9..bytes.len() - 8])
+    else {
+        return Err(bad("bad footer"));
+    };
+    let mut pos = usize::try_from(summary_start)
+        .ok()
+        .filter(|&s| s >= 8 && s <= footer_at)
+        .ok_or_else(|| bad("no summary section"))?;
+    // The index is trusted only if the summary is intact (its CRC runs through the footer's fields).
+    if summary_crc == 0 || crc32fast::hash(&bytes[pos..footer_at + 9 + 16]) != summary_crc {
+        return Err(bad("CRC mismatch (the file was altered)"));
+    }
+    let (mut channels, mut indexes) = (BTreeMap::new(), Vec::new());
+    while pos < footer_at {
+        let op = bytes[pos];
+        let len = read_u64(bytes, pos + 1).ok_or_else(|| bad("record header cut off"))?;
+        let body = usize::try_from(len)
+            .ok()
+            .and_then(|l| bytes.get(pos + 9..(pos + 9).checked_add(l)?))
+            .filter(|b| pos + 9 + b.len() <= footer_at)
+            .ok_or_else(|| bad("record runs past the footer"))?;
+        match records::parse(op, body).map_err(|e| bad(&e))? {
+            Record::Channel { id, topic } => {
+                channels.insert(id, topic.to_string());
+            }
+            Record::ChunkIndex(ci) => indexes.push(ci),
+            _ => {}
+        }
+        pos += 9 + body.len();
+    }
+    Ok((channels, indexes))
+}
+
+/// The session header: the metadata record right after the MCAP header (bounded: the first few
+/// records only).
+fn header_only(bytes: &[u8]) -> Result<SessionHeader, ReadError> {
     let mut pos = 8usize;
-    for _ in 0..8 {
+    for _ in 0..4 {
         let (Some(&op), Some(len)) = (bytes.get(pos), read_u64(bytes, pos + 1)) else {
             break;
         };
-        let body = bytes
-            .get(pos + 9..pos + 9 + len.min(1 << 20) as usize)
-            .ok_or_else(|| ReadError::NotASession("cut short".into()))?;
-        if let Ok(Record::Metadata(m)) = mcap::read::parse_record(op, body) {
-            if m.name == META_HEADER {
-                return SessionHeader::from_metadata(&m.metadata).map_err(ReadError::NotASession);
+        let Some(body) = usize::try_from(len)
+            .ok()
+            .and_then(|l| bytes.get(pos + 9..(pos + 9).checked_add(l)?))
+        else {
+            break;
+        };
+        if let Ok(Record::Metadata { name, map }) = records::parse(op, body) {
+            if name == META_HEADER {
+                return SessionHeader::from_metadata(&map).map_err(ReadError::NotASession);
             }
         }
-        pos += 9 + len as usize;
+        pos += 9 + body.len();
     }
-    Err(ReadError::NotASession("no session header".into()))
+    Err(ReadError::NotASession(
+        "no session header at the start of the file".into(),
+    ))
 }

@@ -27,10 +27,10 @@ use crate::format::*;
 
 /// Ticks per block message.
 pub const BLOCK_TICKS: usize = 500;
-/// Ticks per chunk at most (one second at 1 kHz).
-pub const CHUNK_TICKS: u64 = 1000;
+/// Ticks per chunk at most (half a second at 1 kHz): a crash loses at most the unflushed chunk.
+pub const CHUNK_TICKS: u64 = 500;
 /// Longest wall time between chunk flushes.
-pub const FLUSH_INTERVAL: Duration = Duration::from_secs(1);
+pub const FLUSH_INTERVAL: Duration = Duration::from_millis(500);
 /// Queue length (items): eight seconds of ticks at 1 kHz.
 pub const QUEUE_LEN: usize = 8192;
 /// Preview decimation: one preview sample every this many ticks (50 Hz at 1 kHz).
