@@ -26,10 +26,9 @@ fn needle_ticks() -> Ticks {
     let p = stylet_atlas::phantom::generate(&Default::default()).unwrap();
     stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
     let atlas = stylet_atlas::load(dir.path()).unwrap();
-    let text = std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts/two-attempts.txt"),
-    )
-    .unwrap();
+    let text =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts/two-attempts.txt"))
+            .unwrap();
     let script = parse(&text).unwrap();
     let paths: Vec<NamedPath> = atlas
         .manifest
@@ -79,16 +78,29 @@ fn header() -> SessionHeader {
         tick_rate_hz: 1000,
         seed: 0,
         device: "premium".into(),
-        initial_tool: ToolSpec::Needle { gauge: Gauge::G18, length_mm: 150.0, stylet_in: true },
+        initial_tool: ToolSpec::Needle {
+            gauge: Gauge::G18,
+            length_mm: 150.0,
+            stylet_in: true,
+        },
         wall_clock_start: stylet_recorder::wall_clock_now(),
     }
 }
 
 fn write_session(path: &Path, ticks: &Ticks, fsync: bool) -> u64 {
-    let w = SessionWriter::create(path, &header(), WriterOptions { fsync, ..WriterOptions::default() }).unwrap();
+    let w = SessionWriter::create(
+        path,
+        &header(),
+        WriterOptions {
+            fsync,
+            ..WriterOptions::default()
+        },
+    )
+    .unwrap();
     for (t, events, digest) in ticks {
         for e in events {
-            w.event_record_blocking(stylet_recorder::EventRecord::from_event(t.tick, e)).unwrap();
+            w.event_record_blocking(stylet_recorder::EventRecord::from_event(t.tick, e))
+                .unwrap();
         }
         w.record_raw_blocking(*t).unwrap();
         if t.tick % 100 == 99 || !events.is_empty() {
@@ -99,7 +111,13 @@ fn write_session(path: &Path, ticks: &Ticks, fsync: bool) -> u64 {
 }
 
 fn raw_bytes(t: &TickRecord, out: &mut Vec<u8>) {
-    for v in t.position_mm.iter().chain(&t.orientation).chain(&t.force_n).chain(&t.torque_nmm) {
+    for v in t
+        .position_mm
+        .iter()
+        .chain(&t.orientation)
+        .chain(&t.force_n)
+        .chain(&t.torque_nmm)
+    {
         out.extend_from_slice(&v.to_le_bytes());
     }
     out.extend_from_slice(&t.inserted_mm.to_le_bytes());
@@ -163,7 +181,12 @@ fn recorder(c: &mut Criterion) {
         ("session writer, fsync every chunk", synced),
         ("strict read + decode", read),
     ] {
-        println!("{what}: {:.1} ms = {:.0}× real time, {:.1}× the baseline's time", s * 1e3, seconds / s, s / base);
+        println!(
+            "{what}: {:.1} ms = {:.0}× real time, {:.1}× the baseline's time",
+            s * 1e3,
+            seconds / s,
+            s / base
+        );
     }
 
     let mut g = c.benchmark_group("session_file");

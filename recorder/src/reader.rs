@@ -115,10 +115,13 @@ pub enum Mode {
     Recover,
 }
 
+/// Receives ticks block by block when streaming.
+pub type TickSink<'a> = &'a mut dyn FnMut(&[TickRecord]);
+
 struct Walk<'l> {
     limits: &'l Limits,
     /// Streaming: ticks go here block by block instead of being kept.
-    sink: Option<&'l mut dyn FnMut(&[TickRecord])>,
+    sink: Option<TickSink<'l>>,
     last_tick: Option<u64>,
     channels: BTreeMap<u16, String>,
     header: Option<SessionHeader>,
@@ -153,10 +156,10 @@ impl Walk<'_> {
             TOPIC_TICKS => {
                 let block: TickBlock = from_cbor(data)?;
                 let ticks = decode_block(&block)?;
-                if let (Some(last), Some(first)) = (self.last_tick, ticks.first()) {
-                    if first.tick <= last {
-                        return Err(format!("tick {} after tick {last}", first.tick));
-                    }
+                if let (Some(last), Some(first)) = (self.last_tick, ticks.first())
+                    && first.tick <= last
+                {
+                    return Err(format!("tick {} after tick {last}", first.tick));
                 }
                 if self.ticks.len() as u64 + ticks.len() as u64 > self.limits.max_ticks {
                     return Err(format!("more than {} ticks", self.limits.max_ticks));
@@ -292,7 +295,7 @@ pub fn read_bytes_with<'a>(
     bytes: &[u8],
     mode: Mode,
     limits: &'a Limits,
-    sink: Option<&'a mut dyn FnMut(&[TickRecord])>,
+    sink: Option<TickSink<'a>>,
 ) -> Result<Session, ReadError> {
     if bytes.len() as u64 > limits.max_file_bytes {
         return Err(ReadError::NotASession(format!(
@@ -438,10 +441,8 @@ pub fn read_bytes_with<'a>(
             SCHEMA_VERSION
         )));
     }
-    if mode == Mode::Strict {
-        if let Some(d) = damage {
-            return Err(ReadError::Damaged(d));
-        }
+    if let (Mode::Strict, Some(d)) = (mode, &damage) {
+        return Err(ReadError::Damaged(d.clone()));
     }
     Ok(Session {
         header,
@@ -635,10 +636,10 @@ fn header_only(bytes: &[u8]) -> Result<SessionHeader, ReadError> {
         else {
             break;
         };
-        if let Ok(Record::Metadata { name, map }) = records::parse(op, body) {
-            if name == META_HEADER {
-                return SessionHeader::from_metadata(&map).map_err(ReadError::NotASession);
-            }
+        if let Ok(Record::Metadata { name, map }) = records::parse(op, body)
+            && name == META_HEADER
+        {
+            return SessionHeader::from_metadata(&map).map_err(ReadError::NotASession);
         }
         pos += 9 + body.len();
     }

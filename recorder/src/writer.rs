@@ -14,7 +14,7 @@ use std::io::{BufWriter, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError, sync_channel};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, sync_channel};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -108,10 +108,16 @@ impl Seek for SyncingFile {
     }
 }
 
+/// What the writer thread reports: ticks written, file bytes, complete.
+type Written = (u64, u64, bool);
+
+/// Writes one message on a topic at a tick.
+type WriteFn<'a> = dyn FnMut(&mut mcap::Writer<SyncingFile>, &str, u64, &[u8]) -> Result<(), WriteError> + 'a;
+
 /// Records one session.
 pub struct SessionWriter {
     tx: Option<SyncSender<Item>>,
-    handle: Option<JoinHandle<Result<(u64, u64, bool), WriteError>>>,
+    handle: Option<JoinHandle<Result<Written, WriteError>>>,
     dropped: Arc<AtomicU64>,
     path: PathBuf,
 }
@@ -176,9 +182,9 @@ impl SessionWriter {
     }
 
     fn send(&self, item: Item) -> bool {
-        match self.tx.as_ref().map(|tx| tx.try_send(item)) {
+        match self.tx.as_ref().map(|tx| tx.try_send(item).map_err(|_| ())) {
             Some(Ok(())) => true,
-            Some(Err(TrySendError::Full(_))) | Some(Err(TrySendError::Disconnected(_))) | None => {
+            Some(Err(())) | None => {
                 self.dropped.fetch_add(1, Ordering::Relaxed);
                 false
             }
@@ -318,7 +324,7 @@ fn run(
     rate: u64,
     dropped: Arc<AtomicU64>,
     path: String,
-) -> Result<(u64, u64, bool), WriteError> {
+) -> Result<Written, WriteError> {
     let io = |e: &dyn std::fmt::Display| WriteError::Io {
         path: path.clone(),
         message: e.to_string(),
@@ -434,11 +440,7 @@ fn run(
     Ok((ticks, bytes, end.complete))
 }
 
-fn write_block(
-    write: &mut dyn FnMut(&mut mcap::Writer<SyncingFile>, &str, u64, &[u8]) -> Result<(), WriteError>,
-    w: &mut mcap::Writer<SyncingFile>,
-    block: &[TickRecord],
-) -> Result<(), WriteError> {
+fn write_block(write: &mut WriteFn, w: &mut mcap::Writer<SyncingFile>, block: &[TickRecord]) -> Result<(), WriteError> {
     if block.is_empty() {
         return Ok(());
     }

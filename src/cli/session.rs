@@ -279,7 +279,7 @@ fn export(a: &ExportArgs) -> anyhow::Result<()> {
             .as_object()
             .expect("an object")
             .iter()
-            .map(|(k, v)| format!("{k},{}", csv_text(&v.to_string().trim_matches('"').to_string()))),
+            .map(|(k, v)| format!("{k},{}", csv_text(v.to_string().trim_matches('"')))),
     )?;
     sayf!(
         "{} ticks, {} events, {} digests, {} notes → {}/{{ticks,events,digests,annotations,header}}.csv",
