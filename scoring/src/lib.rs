@@ -1,3 +1,16 @@
-//! Replay engine, metrics and rubrics; the axum scoring service and its sqlx store.
-//!
-//! Empty on purpose: the replay/scoring and service issues fill it. Nothing here pretends to work yet.
+//! Stylet scoring (DESIGN.md "Scoring"): the grade comes from physics, not from what a client
+//! claims. [`replay`] re-runs a session file's recorded inputs through `stylet_physics` and checks
+//! every recorded output and state digest bit for bit; [`metrics`] measures the replayed session
+//! (docs/metrics.md); [`rubric`] turns metrics into a grade per difficulty; [`score`] ties them
+//! together for one file or a batch. The axum service and its store join with their issue.
+
+pub mod metrics;
+pub mod replay;
+pub mod rubric;
+pub mod score;
+pub mod target;
+
+pub use metrics::{MetricParams, Metrics, RiskHit};
+pub use replay::{Divergence, ReplayError, ReplayReport, replay};
+pub use rubric::{Grade, Rubric};
+pub use score::{ScoreError, ScoreReport, Scorer};

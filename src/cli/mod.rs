@@ -8,6 +8,7 @@ macro_rules! sayf {
 mod atlas;
 mod demo;
 mod record;
+mod score;
 mod script;
 mod session;
 
@@ -32,6 +33,8 @@ enum Command {
     /// Run device scripts on an atlas, headless (docs/scripts.md).
     #[command(subcommand)]
     Script(script::ScriptCommand),
+    /// Replay session files through the physics and grade them (docs/metrics.md).
+    Score(score::ScoreArgs),
     /// Inspect, verify, export and recover session files (docs/session-format.md).
     #[command(subcommand)]
     Session(session::SessionCommand),
@@ -44,6 +47,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Atlas(cmd) => atlas::run(cmd),
         Command::Script(cmd) => script::run(cmd),
         Command::Session(cmd) => session::run(cmd),
+        Command::Score(args) => score::run(args),
         Command::Demo(args) => demo::run(args),
     }
 }

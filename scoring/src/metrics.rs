@@ -1,0 +1,537 @@
+//! Metrics of a replayed session (docs/metrics.md gives each one's unit, formula and a worked
+//! example). [`MetricsCollector`] watches every replayed tick; [`MetricsCollector::finish`]
+//! returns [`Metrics`]. Everything is computed from the replayed physics, in tick order, in f64:
+//! the same session always gives the same numbers.
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+use stylet_physics::glam::DVec3;
+use stylet_physics::{Event, LabelId, Role, Simulation, TickInput, TickOutput, ToolSpec};
+
+use crate::target::TargetDistance;
+
+/// One planned insertion path of the atlas (the thesis' guided mode).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlannedPath {
+    pub name: String,
+    pub entry_mm: DVec3,
+    pub target_mm: DVec3,
+}
+
+/// Settings of the metrics that come from the rubric.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MetricParams {
+    /// R: a retraction of at least this much (mm) followed by a re-advance is a redirection.
+    pub redirection_mm: f64,
+    /// A re-advance is an advance of at least this much (mm) from the deepest point of retraction.
+    pub readvance_mm: f64,
+    /// The insertion direction of an attempt is measured from its entry to this depth (mm).
+    pub direction_depth_mm: f64,
+}
+
+impl Default for MetricParams {
+    fn default() -> Self {
+        MetricParams {
+            redirection_mm: 5.0,
+            readvance_mm: 2.0,
+            direction_depth_mm: 10.0,
+        }
+    }
+}
+
+/// A risk structure the needle tip entered.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RiskHit {
+    pub structure: String,
+    pub label: LabelId,
+    /// First contact (s from the session start).
+    pub t_s: f64,
+    /// Deepest advance of the tip inside the structure (mm along the channel) over all entries.
+    pub depth_mm: f64,
+    /// Total time the tip spent inside (s).
+    pub duration_s: f64,
+    /// Separate entries into the structure.
+    pub entries: u32,
+    /// Ticks inside (duration_s = ticks / rate, computed at the end: no summed rounding).
+    #[serde(skip)]
+    ticks: u64,
+}
+
+/// Workflow order (thesis: palpate → ultrasound → puncture → confirm).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Workflow {
+    pub palpation_before_puncture: bool,
+    pub ultrasound_before_puncture: bool,
+    /// The target was confirmed before the needle last left the body (or the session ended).
+    pub confirmed_before_withdrawal: bool,
+}
+
+/// Guided-mode metrics against a planned path.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Guided {
+    pub path: String,
+    /// Distance from the scored attempt's skin entry to the planned entry point (mm).
+    pub entry_distance_mm: f64,
+    /// Angle between the attempt's insertion direction and the planned direction (degrees).
+    pub angle_error_deg: f64,
+    /// Mean and largest distance of the tip from the planned segment while in the body (mm).
+    pub mean_deviation_mm: f64,
+    pub max_deviation_mm: f64,
+}
+
+/// All metrics of one session.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Metrics {
+    pub attempts: u32,
+    pub redirections: u32,
+    pub risk_hits: Vec<RiskHit>,
+    pub bone_contacts: u32,
+    pub target_reached: bool,
+    pub target_confirmed: bool,
+    pub stylet_removed_in_target: bool,
+    pub contrast_in_target: bool,
+    pub time_to_target_s: Option<f64>,
+    pub time_total_s: f64,
+    pub fluoro_time_s: f64,
+    pub xray_shots: u32,
+    pub ultrasound_time_s: f64,
+    pub palpation_time_s: f64,
+    pub path_length_mm: f64,
+    /// The scored attempt's tip path length from its skin entry until it reached the target (else
+    /// its deepest point) / the straight distance between the two points. 1 = one straight push.
+    pub path_inefficiency: Option<f64>,
+    pub max_force_n: f64,
+    /// Root mean square of |F| over the ticks with the tool in the body or touching the skin.
+    pub rms_force_n: f64,
+    /// Largest distance of a needle node from the hub–tip chord (mm).
+    pub max_bending_mm: f64,
+    /// Area swept sideways by the shaft inside tissue (mm²).
+    pub tissue_damage_mm2: f64,
+    pub workflow: Workflow,
+    /// Tip to the nearest target voxel at the end (mm; 0 inside the target).
+    pub target_distance_mm: Option<f64>,
+    /// … and at its closest while the needle was in the body.
+    pub target_distance_min_mm: Option<f64>,
+    pub guided: Option<Guided>,
+}
+
+/// One attempt: from a skin puncture until the needle leaves the body.
+#[derive(Debug, Clone)]
+struct Attempt {
+    entry_mm: DVec3,
+    /// Tip position when the attempt first reached `direction_depth_mm` (or its last tip).
+    direction_point_mm: Option<DVec3>,
+    last_tip_mm: DVec3,
+    reached_target_at_mm: Option<DVec3>,
+    /// Tip path length in the body until the target was reached.
+    path_to_target_mm: f64,
+    /// The deepest point of the attempt: inserted length, tip, path length up to it.
+    deepest: (f64, DVec3, f64),
+    /// Per planned path: sum and max of the tip's distance from it, and the sample count.
+    deviation: Vec<(f64, f64, u64)>,
+}
+
+/// Collects metrics tick by tick.
+pub struct MetricsCollector<'a> {
+    params: MetricParams,
+    rate_hz: f64,
+    /// Role of every label id (a flat table: one lookup per tick).
+    roles: Vec<Role>,
+    names: BTreeMap<LabelId, String>,
+    target: &'a TargetDistance,
+    paths: &'a [PlannedPath],
+    chosen_path: Option<String>,
+    ticks: u64,
+    was_in_body: bool,
+    attempts: Vec<Attempt>,
+    // Redirections: deepest insertion since the last turn, deepest point of the retraction.
+    peak_mm: f64,
+    valley_mm: Option<f64>,
+    redirections: u32,
+    risk: BTreeMap<LabelId, RiskHit>,
+    risk_entry_mm: Option<(LabelId, f64)>,
+    prev_tip_label: LabelId,
+    bone_contacts: u32,
+    was_on_bone: bool,
+    first_target_tick: Option<u64>,
+    stylet_in_target: bool,
+    contrast_in_target: bool,
+    confirmed_tick: Option<u64>,
+    last_exit_tick: Option<u64>,
+    xray_ticks: u64,
+    xray_shots: u32,
+    was_xray: bool,
+    ultrasound_ticks: u64,
+    palpation_ticks: u64,
+    palpation_before: bool,
+    ultrasound_before: bool,
+    path_length_mm: f64,
+    prev_tip_mm: Option<DVec3>,
+    max_force_n: f64,
+    force_sq_sum: f64,
+    force_ticks: u64,
+    max_bending_mm: f64,
+    prev_nodes: Vec<DVec3>,
+    tissue_damage_mm2: f64,
+    end_distance_mm: Option<f64>,
+    min_distance_mm: Option<f64>,
+}
+
+fn segment_distance(p: DVec3, a: DVec3, b: DVec3) -> f64 {
+    let ab = b - a;
+    let t = if ab.length_squared() > 0.0 {
+        ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (p - (a + ab * t)).length()
+}
+
+impl<'a> MetricsCollector<'a> {
+    /// `labels`: the atlas' label table; `paths`: its planned paths; `path`: score guided mode
+    /// against this one (else the one whose entry is nearest the scored attempt's entry).
+    pub fn new(
+        atlas: &stylet_physics::PunctureAtlas,
+        target: &'a TargetDistance,
+        paths: &'a [PlannedPath],
+        path: Option<String>,
+        rate_hz: u32,
+        params: MetricParams,
+    ) -> Self {
+        let table = atlas.label_table();
+        let roles = (0..=LabelId::MAX)
+            .map(|id| table.get(id).map_or(Role::Neutral, |l| l.role))
+            .collect();
+        let names = (0..=LabelId::MAX)
+            .filter_map(|id| table.get(id).map(|l| (id, l.name.clone())))
+            .collect();
+        MetricsCollector {
+            params,
+            rate_hz: rate_hz as f64,
+            roles,
+            names,
+            target,
+            paths,
+            chosen_path: path,
+            ticks: 0,
+            was_in_body: false,
+            attempts: Vec::new(),
+            peak_mm: 0.0,
+            valley_mm: None,
+            redirections: 0,
+            risk: BTreeMap::new(),
+            risk_entry_mm: None,
+            prev_tip_label: 0,
+            bone_contacts: 0,
+            was_on_bone: false,
+            first_target_tick: None,
+            stylet_in_target: false,
+            contrast_in_target: false,
+            confirmed_tick: None,
+            last_exit_tick: None,
+            xray_ticks: 0,
+            xray_shots: 0,
+            was_xray: false,
+            ultrasound_ticks: 0,
+            palpation_ticks: 0,
+            palpation_before: false,
+            ultrasound_before: false,
+            path_length_mm: 0.0,
+            prev_tip_mm: None,
+            max_force_n: 0.0,
+            force_sq_sum: 0.0,
+            force_ticks: 0,
+            max_bending_mm: 0.0,
+            prev_nodes: Vec::new(),
+            tissue_damage_mm2: 0.0,
+            end_distance_mm: None,
+            min_distance_mm: None,
+        }
+    }
+
+    fn role(&self, label: LabelId) -> Role {
+        self.roles[label as usize]
+    }
+
+    /// Observes one replayed tick.
+    pub fn tick(&mut self, input: &TickInput, out: &TickOutput, sim: &Simulation) {
+        self.ticks += 1;
+        let tick = out.tick;
+        let needle = sim.needle();
+        let in_body = needle.is_some() && out.inserted_mm > 0.0;
+        let tip_role = if needle.is_some() {
+            self.role(out.tip_label)
+        } else {
+            Role::Neutral
+        };
+
+        // Attempts: one per skin puncture.
+        if in_body && !self.was_in_body {
+            self.attempts.push(Attempt {
+                entry_mm: out.tip_mm,
+                direction_point_mm: None,
+                last_tip_mm: out.tip_mm,
+                reached_target_at_mm: None,
+                path_to_target_mm: 0.0,
+                deepest: (out.inserted_mm, out.tip_mm, 0.0),
+                deviation: vec![(0.0, 0.0, 0); self.paths.len()],
+            });
+            if self.attempts.len() == 1 {
+                self.palpation_before = self.palpation_ticks > 0;
+                self.ultrasound_before = self.ultrasound_ticks > 0;
+            }
+            self.peak_mm = out.inserted_mm;
+            self.valley_mm = None;
+        }
+        if !in_body && self.was_in_body {
+            self.last_exit_tick = Some(tick);
+        }
+
+        if in_body {
+            // Redirections: retract by ≥ R from the deepest point, then re-advance.
+            match self.valley_mm {
+                None if self.peak_mm - out.inserted_mm >= self.params.redirection_mm => {
+                    self.valley_mm = Some(out.inserted_mm)
+                }
+                None => self.peak_mm = self.peak_mm.max(out.inserted_mm),
+                Some(v) if out.inserted_mm - v >= self.params.readvance_mm => {
+                    self.redirections += 1;
+                    self.valley_mm = None;
+                    self.peak_mm = out.inserted_mm;
+                }
+                Some(v) => self.valley_mm = Some(v.min(out.inserted_mm)),
+            }
+            let attempt = self.attempts.last_mut().expect("an attempt is open while in the body");
+            if attempt.direction_point_mm.is_none()
+                && out.tip_mm.distance(attempt.entry_mm) >= self.params.direction_depth_mm
+            {
+                attempt.direction_point_mm = Some(out.tip_mm);
+            }
+            attempt.last_tip_mm = out.tip_mm;
+            if tip_role == Role::Target && attempt.reached_target_at_mm.is_none() {
+                attempt.reached_target_at_mm = Some(out.tip_mm);
+            }
+            for (dev, p) in attempt.deviation.iter_mut().zip(self.paths) {
+                let d = segment_distance(out.tip_mm, p.entry_mm, p.target_mm);
+                *dev = (dev.0 + d, dev.1.max(d), dev.2 + 1);
+            }
+            if let Some(prev) = self.prev_tip_mm {
+                let step = out.tip_mm.distance(prev);
+                self.path_length_mm += step;
+                let attempt = self.attempts.last_mut().expect("an attempt is open while in the body");
+                if attempt.reached_target_at_mm.is_none() {
+                    attempt.path_to_target_mm += step;
+                }
+                if out.inserted_mm > attempt.deepest.0 {
+                    attempt.deepest = (out.inserted_mm, out.tip_mm, attempt.path_to_target_mm);
+                }
+            }
+            self.prev_tip_mm = Some(out.tip_mm);
+        } else {
+            self.prev_tip_mm = None;
+        }
+
+        // Risk structures: per label, entries, first contact, depth and time inside.
+        if in_body && tip_role == Role::Risk {
+            let label = out.tip_label;
+            let entered = self.prev_tip_label != label || self.risk_entry_mm.is_none_or(|(l, _)| l != label);
+            if entered {
+                self.risk_entry_mm = Some((label, out.inserted_mm));
+            }
+            let entry_mm = self.risk_entry_mm.map_or(out.inserted_mm, |(_, e)| e);
+            let name = self
+                .names
+                .get(&label)
+                .cloned()
+                .unwrap_or_else(|| format!("label {label}"));
+            let t_s = tick as f64 / self.rate_hz;
+            let hit = self.risk.entry(label).or_insert(RiskHit {
+                structure: name,
+                label,
+                t_s,
+                depth_mm: 0.0,
+                duration_s: 0.0,
+                entries: 0,
+                ticks: 0,
+            });
+            if entered {
+                hit.entries += 1;
+            }
+            hit.depth_mm = hit.depth_mm.max(out.inserted_mm - entry_mm);
+            hit.ticks += 1;
+        } else {
+            self.risk_entry_mm = None;
+        }
+        self.prev_tip_label = if needle.is_some() { out.tip_label } else { 0 };
+
+        // Bone: needle tip against bone (palpating ribs with the finger is intended, not counted).
+        let on_bone = tip_role == Role::Bone;
+        if on_bone && !self.was_on_bone {
+            self.bone_contacts += 1;
+        }
+        self.was_on_bone = on_bone;
+
+        // Target and confirmation.
+        if needle.is_some() && tip_role == Role::Target {
+            self.first_target_tick.get_or_insert(tick);
+            for e in &input.events {
+                match e {
+                    Event::StyletRemove => self.stylet_in_target = true,
+                    Event::ContrastInject { ml } if *ml > 0.0 => self.contrast_in_target = true,
+                    _ => {}
+                }
+            }
+            if self.stylet_in_target && self.contrast_in_target {
+                self.confirmed_tick.get_or_insert(tick);
+            }
+        }
+
+        // Imaging and contact tools.
+        if out.xray_on {
+            self.xray_ticks += 1;
+            if !self.was_xray {
+                self.xray_shots += 1;
+            }
+        }
+        self.was_xray = out.xray_on;
+        if out.contacts > 0 {
+            match sim.tool_spec() {
+                ToolSpec::Probe(_) => self.ultrasound_ticks += 1,
+                ToolSpec::Finger => self.palpation_ticks += 1,
+                ToolSpec::Needle { .. } => {}
+            }
+        }
+
+        // Forces.
+        let f = out.force_n.length();
+        self.max_force_n = self.max_force_n.max(f);
+        if in_body || out.contacts > 0 {
+            self.force_sq_sum += f * f;
+            self.force_ticks += 1;
+        }
+
+        // Needle shape: bending and the area the shaft sweeps sideways inside tissue.
+        match needle {
+            Some(n) => {
+                let nodes = n.nodes();
+                let (hub, tip) = (nodes[0], nodes[nodes.len() - 1]);
+                let bend = nodes.iter().map(|&p| segment_distance(p, hub, tip)).fold(0.0, f64::max);
+                self.max_bending_mm = self.max_bending_mm.max(bend);
+                if in_body && self.prev_nodes.len() == nodes.len() {
+                    let seg = n.spec().length_mm / (nodes.len() - 1) as f64;
+                    let inside = ((out.inserted_mm / seg).floor() as usize).min(nodes.len() - 1);
+                    let tangents = n.tangents();
+                    // Nodes within the inserted length from the tip: their sideways motion
+                    // (perpendicular to the shaft) cuts tissue over one segment length each.
+                    for j in (nodes.len() - 1 - inside)..nodes.len() - 1 {
+                        let dp = nodes[j] - self.prev_nodes[j];
+                        let side = dp - tangents[j] * dp.dot(tangents[j]);
+                        self.tissue_damage_mm2 += side.length() * seg;
+                    }
+                }
+                self.prev_nodes.clear();
+                self.prev_nodes.extend_from_slice(nodes);
+                if let Some(d) = self.target.distance_mm(out.tip_mm) {
+                    self.end_distance_mm = Some(d);
+                    if in_body {
+                        self.min_distance_mm = Some(self.min_distance_mm.map_or(d, |m| m.min(d)));
+                    }
+                }
+            }
+            None => self.prev_nodes.clear(),
+        }
+        self.was_in_body = in_body;
+    }
+
+    /// The metrics of everything observed.
+    pub fn finish(self) -> Metrics {
+        let rate = self.rate_hz;
+        // The scored attempt: the first that reached the target, else the last.
+        let scored = self
+            .attempts
+            .iter()
+            .position(|a| a.reached_target_at_mm.is_some())
+            .or(self.attempts.len().checked_sub(1));
+        let path_inefficiency = scored.and_then(|i| {
+            let a = &self.attempts[i];
+            let (end, path) = match a.reached_target_at_mm {
+                Some(p) => (p, a.path_to_target_mm),
+                None => (a.deepest.1, a.deepest.2),
+            };
+            let straight = end.distance(a.entry_mm);
+            (straight > 1.0).then(|| path / straight)
+        });
+        let guided = scored.and_then(|i| {
+            let a = &self.attempts[i];
+            let k = match &self.chosen_path {
+                Some(name) => self.paths.iter().position(|p| &p.name == name)?,
+                None => (0..self.paths.len()).min_by(|&x, &y| {
+                    a.entry_mm
+                        .distance(self.paths[x].entry_mm)
+                        .total_cmp(&a.entry_mm.distance(self.paths[y].entry_mm))
+                })?,
+            };
+            let p = &self.paths[k];
+            let dir_point = a.direction_point_mm.unwrap_or(a.last_tip_mm);
+            let (planned, actual) = (
+                (p.target_mm - p.entry_mm).normalize_or_zero(),
+                (dir_point - a.entry_mm).normalize_or_zero(),
+            );
+            let (sum, max, n) = a.deviation[k];
+            Some(Guided {
+                path: p.name.clone(),
+                entry_distance_mm: a.entry_mm.distance(p.entry_mm),
+                angle_error_deg: planned.dot(actual).clamp(-1.0, 1.0).acos().to_degrees(),
+                mean_deviation_mm: if n > 0 { sum / n as f64 } else { 0.0 },
+                max_deviation_mm: max,
+            })
+        });
+        let target_confirmed = self.stylet_in_target && self.contrast_in_target;
+        Metrics {
+            attempts: self.attempts.len() as u32,
+            redirections: self.redirections,
+            risk_hits: self
+                .risk
+                .into_values()
+                .map(|h| RiskHit {
+                    duration_s: h.ticks as f64 / rate,
+                    ..h
+                })
+                .collect(),
+            bone_contacts: self.bone_contacts,
+            target_reached: self.first_target_tick.is_some(),
+            target_confirmed,
+            stylet_removed_in_target: self.stylet_in_target,
+            contrast_in_target: self.contrast_in_target,
+            time_to_target_s: self.first_target_tick.map(|t| t as f64 / rate),
+            time_total_s: self.ticks as f64 / rate,
+            fluoro_time_s: self.xray_ticks as f64 / rate,
+            xray_shots: self.xray_shots,
+            ultrasound_time_s: self.ultrasound_ticks as f64 / rate,
+            palpation_time_s: self.palpation_ticks as f64 / rate,
+            path_length_mm: self.path_length_mm,
+            path_inefficiency,
+            max_force_n: self.max_force_n,
+            rms_force_n: if self.force_ticks > 0 {
+                (self.force_sq_sum / self.force_ticks as f64).sqrt()
+            } else {
+                0.0
+            },
+            max_bending_mm: self.max_bending_mm,
+            tissue_damage_mm2: self.tissue_damage_mm2,
+            workflow: Workflow {
+                palpation_before_puncture: self.palpation_before,
+                ultrasound_before_puncture: self.ultrasound_before,
+                confirmed_before_withdrawal: match (self.confirmed_tick, self.last_exit_tick) {
+                    (Some(c), Some(e)) => c < e,
+                    (Some(_), None) => true,
+                    (None, _) => false,
+                },
+            },
+            target_distance_mm: self.end_distance_mm,
+            target_distance_min_mm: self.min_distance_mm,
+            guided,
+        }
+    }
+}

@@ -1,0 +1,162 @@
+//! Deterministic replay (DESIGN.md "Scoring"): re-run a session's recorded device inputs and
+//! events through `stylet_physics::Simulation` — the same code the simulator ran — and check
+//! every recomputed output and state digest against the recorded ones, bit for bit.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use stylet_physics::glam::{DQuat, DVec3};
+use stylet_physics::{DeviceProfile, Event, PunctureAtlas, SimConfig, Simulation, TickInput, TickOutput};
+use stylet_recorder::format::TickRecord;
+use stylet_recorder::reader::Session;
+
+/// Where a replay first differs from the recording.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Divergence {
+    pub tick: u64,
+    /// `ticks.force_n`, `ticks.torque_nmm`, `ticks.tip_label`, `ticks.inserted_mm`, `digests` or
+    /// `ticks` (a gap in the recorded ticks).
+    pub stream: String,
+    pub recorded: String,
+    pub replayed: String,
+}
+
+/// The outcome of a replay.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ReplayReport {
+    /// Every recorded output and digest was reproduced bit for bit.
+    pub replay_verified: bool,
+    pub divergence: Option<Divergence>,
+    /// Ticks replayed.
+    pub ticks: u64,
+    /// Digests compared.
+    pub digests_checked: u64,
+}
+
+/// Why a session cannot be replayed at all.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ReplayError {
+    #[error(
+        "the session was recorded with physics version {recorded}; this build is version {this} and does not re-grade it"
+    )]
+    PhysicsVersion { recorded: u32, this: u32 },
+    #[error("the session's device profile '{0}' is unknown")]
+    UnknownDevice(String),
+    #[error("the session has an unreadable event at tick {tick}: {message}")]
+    BadEvent { tick: u64, message: String },
+    #[error("the simulation cannot start: {0}")]
+    Simulation(String),
+}
+
+/// The device input of a recorded tick (pose and buttons exactly as recorded, plus its events).
+pub fn tick_input(t: &TickRecord, events: Vec<Event>) -> TickInput {
+    let [w, x, y, z] = t.orientation;
+    TickInput {
+        position_mm: DVec3::from_array(t.position_mm),
+        orientation: DQuat::from_xyzw(x, y, z, w),
+        buttons: t.buttons,
+        events,
+    }
+}
+
+fn bits3(v: &[f64; 3]) -> [u64; 3] {
+    v.map(f64::to_bits)
+}
+
+/// The first recorded output of `t` that `o` does not reproduce.
+fn compare(t: &TickRecord, o: &TickOutput) -> Option<Divergence> {
+    let d = |stream: &str, recorded: String, replayed: String| {
+        Some(Divergence {
+            tick: t.tick,
+            stream: stream.into(),
+            recorded,
+            replayed,
+        })
+    };
+    let (f, m) = (o.force_n.to_array(), o.torque_nmm.to_array());
+    if bits3(&t.force_n) != bits3(&f) {
+        return d("ticks.force_n", format!("{:?}", t.force_n), format!("{f:?}"));
+    }
+    if bits3(&t.torque_nmm) != bits3(&m) {
+        return d("ticks.torque_nmm", format!("{:?}", t.torque_nmm), format!("{m:?}"));
+    }
+    if t.tip_label != o.tip_label {
+        return d("ticks.tip_label", t.tip_label.to_string(), o.tip_label.to_string());
+    }
+    if t.inserted_mm.to_bits() != o.inserted_mm.to_bits() {
+        return d(
+            "ticks.inserted_mm",
+            format!("{:?}", t.inserted_mm),
+            format!("{:?}", o.inserted_mm),
+        );
+    }
+    None
+}
+
+/// Replays `session` on `atlas`, calling `observe` after every tick with the input, the replayed
+/// output and the simulation (for metrics). Outputs are the replayed ones, so metrics always
+/// come from physics, never from what the file claims.
+pub fn replay(
+    session: &Session,
+    atlas: Arc<PunctureAtlas>,
+    observe: &mut dyn FnMut(&TickInput, &TickOutput, &Simulation),
+) -> Result<ReplayReport, ReplayError> {
+    let h = &session.header;
+    if h.physics_version != stylet_physics::PHYSICS_VERSION {
+        return Err(ReplayError::PhysicsVersion {
+            recorded: h.physics_version,
+            this: stylet_physics::PHYSICS_VERSION,
+        });
+    }
+    let device = DeviceProfile::by_name(&h.device).ok_or_else(|| ReplayError::UnknownDevice(h.device.clone()))?;
+    let mut config = SimConfig::new(device, h.initial_tool);
+    config.tick_rate_hz = h.tick_rate_hz;
+    let mut sim = Simulation::new(atlas, config).map_err(ReplayError::Simulation)?;
+    let mut events: BTreeMap<u64, Vec<Event>> = BTreeMap::new();
+    for e in &session.events {
+        let ev = e
+            .to_event()
+            .map_err(|message| ReplayError::BadEvent { tick: e.tick, message })?;
+        events.entry(e.tick).or_default().push(ev);
+    }
+    let digests: BTreeMap<u64, u64> = session.digests.iter().map(|d| (d.tick, d.digest)).collect();
+    let mut divergence: Option<Divergence> = None;
+    let (mut ticks, mut digests_checked) = (0u64, 0u64);
+    for t in &session.ticks {
+        if t.tick != sim.tick() {
+            // A gap (ticks dropped while recording): the state after it cannot be reproduced.
+            divergence.get_or_insert(Divergence {
+                tick: sim.tick(),
+                stream: "ticks".into(),
+                recorded: format!("next recorded tick {}", t.tick),
+                replayed: format!("tick {}", sim.tick()),
+            });
+            break;
+        }
+        let input = tick_input(t, events.remove(&t.tick).unwrap_or_default());
+        let out = sim.step(&input);
+        ticks += 1;
+        if divergence.is_none() {
+            divergence = compare(t, &out);
+        }
+        if let Some(&recorded) = digests.get(&t.tick) {
+            digests_checked += 1;
+            let replayed = sim.state_digest();
+            if recorded != replayed && divergence.is_none() {
+                divergence = Some(Divergence {
+                    tick: t.tick,
+                    stream: "digests".into(),
+                    recorded: format!("{recorded:016x}"),
+                    replayed: format!("{replayed:016x}"),
+                });
+            }
+        }
+        observe(&input, &out, &sim);
+    }
+    Ok(ReplayReport {
+        replay_verified: divergence.is_none(),
+        divergence,
+        ticks,
+        digests_checked,
+    })
+}

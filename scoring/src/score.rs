@@ -1,0 +1,186 @@
+//! Scoring one session file: read it, check the atlas, replay it through the physics while
+//! collecting metrics, grade them with the rubric at the session's difficulty.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use serde::Serialize;
+use stylet_physics::PunctureAtlas;
+use stylet_physics::glam::DVec3;
+use stylet_recorder::reader::{self, Session};
+
+use crate::metrics::{Metrics, MetricsCollector, PlannedPath};
+use crate::replay::{Divergence, ReplayError, replay};
+use crate::rubric::{Grade, Rubric};
+use crate::target::TargetDistance;
+
+/// Why a session was not scored.
+#[derive(Debug, thiserror::Error)]
+pub enum ScoreError {
+    #[error("{0}")]
+    Unreadable(String),
+    #[error(
+        "the session was recorded on atlas '{session_atlas}' with content hash {session_hash}, but the atlas given is '{atlas}' with hash {atlas_hash}"
+    )]
+    AtlasMismatch {
+        session_atlas: String,
+        session_hash: String,
+        atlas: String,
+        atlas_hash: String,
+    },
+    #[error(transparent)]
+    Replay(#[from] ReplayError),
+    #[error("{0}")]
+    Grade(String),
+}
+
+/// The scored session: who and what, the replay check, the metrics and the grade.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ScoreReport {
+    pub session_id: String,
+    pub trainee: String,
+    pub scenario: String,
+    pub atlas_id: String,
+    pub replay_verified: bool,
+    pub divergence: Option<Divergence>,
+    pub physics_version: u32,
+    /// The file was cut, damaged, or its recording dropped ticks: scored on what is there.
+    pub incomplete: bool,
+    pub incomplete_reason: Option<String>,
+    pub ticks: u64,
+    pub digests_checked: u64,
+    pub metrics: Metrics,
+    pub grade: Grade,
+}
+
+/// Scores sessions recorded on one atlas with one rubric. Building it derives what every replay
+/// needs once (the target distance map), so batches pay for it once.
+pub struct Scorer {
+    atlas: Arc<PunctureAtlas>,
+    atlas_id: String,
+    atlas_hash: String,
+    target: TargetDistance,
+    paths: Vec<PlannedPath>,
+    path: Option<String>,
+    rubric: Rubric,
+}
+
+impl Scorer {
+    /// `path`: score guided-mode metrics against this planned path of the atlas (by name).
+    pub fn new(atlas: &stylet_atlas::Atlas, rubric: Rubric, path: Option<String>) -> Result<Scorer, String> {
+        let paths: Vec<PlannedPath> = atlas
+            .manifest
+            .paths
+            .iter()
+            .map(|p| PlannedPath {
+                name: p.name.clone(),
+                entry_mm: DVec3::from_array(p.entry_mm),
+                target_mm: DVec3::from_array(p.target_mm),
+            })
+            .collect();
+        if let Some(name) = &path
+            && !paths.iter().any(|p| &p.name == name)
+        {
+            let known: Vec<&str> = paths.iter().map(|p| p.name.as_str()).collect();
+            return Err(format!(
+                "the atlas has no insertion path '{name}' (paths: {})",
+                known.join(", ")
+            ));
+        }
+        Ok(Scorer {
+            atlas: Arc::new(atlas.model.clone()),
+            atlas_id: atlas.manifest.name.clone(),
+            atlas_hash: atlas.content_hash.clone(),
+            target: TargetDistance::new(&atlas.model),
+            paths,
+            path,
+            rubric,
+        })
+    }
+
+    pub fn rubric(&self) -> &Rubric {
+        &self.rubric
+    }
+
+    /// Reads and scores a session file. A cut or damaged file is scored on its intact part and
+    /// flagged incomplete; a file that is not a session is an error.
+    pub fn score_file(&self, file: &Path) -> Result<ScoreReport, ScoreError> {
+        let session = reader::recover(file).map_err(|e| ScoreError::Unreadable(format!("{}: {e}", file.display())))?;
+        self.score_session(&session)
+    }
+
+    pub fn score_session(&self, session: &Session) -> Result<ScoreReport, ScoreError> {
+        let h = &session.header;
+        if h.atlas_hash != self.atlas_hash {
+            return Err(ScoreError::AtlasMismatch {
+                session_atlas: h.atlas_id.clone(),
+                session_hash: h.atlas_hash.clone(),
+                atlas: self.atlas_id.clone(),
+                atlas_hash: self.atlas_hash.clone(),
+            });
+        }
+        self.rubric.grade_check(&h.difficulty).map_err(ScoreError::Grade)?;
+        let mut collector = MetricsCollector::new(
+            &self.atlas,
+            &self.target,
+            &self.paths,
+            self.path.clone(),
+            h.tick_rate_hz,
+            self.rubric.metric_params(),
+        );
+        let report = replay(session, self.atlas.clone(), &mut |i, o, s| collector.tick(i, o, s))?;
+        let metrics = collector.finish();
+        let grade = self.rubric.grade(&metrics, &h.difficulty).map_err(ScoreError::Grade)?;
+        let mut reasons = Vec::new();
+        if let Some(d) = &session.damage {
+            reasons.push(format!("the file is damaged {d}"));
+        }
+        match &session.end {
+            Some(e) if !e.complete => reasons.push(e.reason.clone()),
+            Some(_) => {}
+            None => reasons.push("the recording has no end (interrupted)".into()),
+        }
+        Ok(ScoreReport {
+            session_id: h.session_id.clone(),
+            trainee: h.trainee.clone(),
+            scenario: h.scenario.clone(),
+            atlas_id: h.atlas_id.clone(),
+            replay_verified: report.replay_verified,
+            divergence: report.divergence,
+            physics_version: stylet_physics::PHYSICS_VERSION,
+            incomplete: !reasons.is_empty(),
+            incomplete_reason: (!reasons.is_empty()).then(|| reasons.join("; ")),
+            ticks: report.ticks,
+            digests_checked: report.digests_checked,
+            metrics,
+            grade,
+        })
+    }
+
+    /// Scores many files on `jobs` threads; `progress` is called once per finished file. The
+    /// results come back sorted by file path: independent of `jobs` and of the order of `files`.
+    pub fn score_files(
+        &self,
+        files: &[PathBuf],
+        jobs: usize,
+        progress: &(dyn Fn() + Sync),
+    ) -> Result<Vec<(PathBuf, Result<ScoreReport, ScoreError>)>, String> {
+        use rayon::prelude::*;
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(jobs.max(1))
+            .build()
+            .map_err(|e| e.to_string())?;
+        let mut results: Vec<(PathBuf, Result<ScoreReport, ScoreError>)> = pool.install(|| {
+            files
+                .par_iter()
+                .map(|f| {
+                    let r = self.score_file(f);
+                    progress();
+                    (f.clone(), r)
+                })
+                .collect()
+        });
+        results.sort_by(|a, b| a.0.cmp(&b.0));
+        Ok(results)
+    }
+}

@@ -1,0 +1,39 @@
+//! Distance from a point to the nearest target voxel: an exact Euclidean distance transform of
+//! the atlas' target labels (docs/atlas.md "Distance maps"), computed once per atlas and sampled
+//! trilinearly per tick.
+
+use stylet_physics::{PunctureAtlas, Role, Volume};
+
+/// Distance (mm) to the nearest voxel centre labelled with a target role.
+pub struct TargetDistance {
+    map: Option<Volume<f32>>,
+}
+
+impl TargetDistance {
+    pub fn new(atlas: &PunctureAtlas) -> Self {
+        let labels = atlas.partial_labels();
+        let table = atlas.label_table();
+        let target: Vec<bool> = labels
+            .data()
+            .iter()
+            .map(|&l| l != 0 && table.get(l).is_some_and(|x| x.role == Role::Target))
+            .collect();
+        if !target.iter().any(|&t| t) {
+            return TargetDistance { map: None };
+        }
+        let grid = labels.grid().clone();
+        let d: Vec<f32> = stylet_physics::distance::squared_edt(&grid, &target)
+            .into_iter()
+            .map(f32::sqrt)
+            .collect();
+        TargetDistance {
+            map: Some(Volume::new(grid, d).expect("same grid")),
+        }
+    }
+
+    /// `None` when the atlas has no target voxels or `p` lies outside the CT grid.
+    pub fn distance_mm(&self, p: stylet_physics::glam::DVec3) -> Option<f64> {
+        let v = self.map.as_ref()?.sample(p, f32::NAN);
+        (!v.is_nan()).then_some(v as f64)
+    }
+}

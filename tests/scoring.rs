@@ -1,0 +1,367 @@
+//! Scoring end to end through the `stylet` binary on the default phantom: every example script,
+//! recorded then scored, gives what its name says with `replay_verified`; a one-ulp change of a
+//! recorded force is caught at its tick; recovered sessions are scored and flagged incomplete;
+//! sessions from another physics version or atlas are refused; batches do not depend on --jobs
+//! or file order.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+use serde_json::Value;
+use stylet_recorder::reader;
+use stylet_recorder::{SessionWriter, WriterOptions};
+
+fn stylet(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_stylet"))
+        .args(args)
+        .output()
+        .expect("the stylet binary runs")
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = stylet(args);
+    assert!(
+        out.status.success(),
+        "stylet {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+fn fails(args: &[&str]) -> String {
+    let out = stylet(args);
+    assert!(!out.status.success(), "stylet {args:?} should fail");
+    String::from_utf8(out.stderr).unwrap()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// The default phantom and every example script recorded on it, once per test binary.
+struct Setup {
+    dir: tempfile::TempDir,
+}
+
+impl Setup {
+    fn atlas(&self) -> PathBuf {
+        self.dir.path().join("phantom")
+    }
+    fn session(&self, name: &str) -> PathBuf {
+        self.dir.path().join(format!("{name}.mcap"))
+    }
+}
+
+const SCRIPTS: [&str; 7] = [
+    "success-intercostal",
+    "two-attempts",
+    "lung-hit",
+    "vessel-hit",
+    "palpation-sweep",
+    "probe-across",
+    "probe-parallel",
+];
+
+fn setup() -> &'static Setup {
+    static S: OnceLock<Setup> = OnceLock::new();
+    S.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let setup = Setup { dir };
+        ok(&["atlas", "phantom", "--out", s(&setup.atlas())]);
+        for name in SCRIPTS {
+            let script = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("atlases/phantom/scripts/{name}.txt"));
+            ok(&[
+                "script",
+                "run",
+                "--atlas",
+                s(&setup.atlas()),
+                "--script",
+                s(&script),
+                "--out",
+                s(&setup.session(name)),
+                "--trainee",
+                "carol",
+            ]);
+        }
+        setup
+    })
+}
+
+fn score_json(file: &Path) -> Value {
+    serde_json::from_str(&ok(&["score", s(file), "--atlas", s(&setup().atlas()), "--json"])).unwrap()
+}
+
+#[test]
+fn every_example_script_scores_as_its_name_says() {
+    let st = setup();
+    let mut scores = Vec::new();
+    for name in SCRIPTS {
+        let r = score_json(&st.session(name));
+        assert_eq!(r["replay_verified"], true, "{name}: {}", r["divergence"]);
+        assert_eq!(r["physics_version"], stylet_physics::PHYSICS_VERSION);
+        assert_eq!(r["incomplete"], false, "{name}");
+        for key in [
+            "attempts",
+            "redirections",
+            "risk_hits",
+            "bone_contacts",
+            "target_reached",
+            "target_confirmed",
+            "time_to_target_s",
+            "time_total_s",
+            "fluoro_time_s",
+            "xray_shots",
+            "path_length_mm",
+            "max_force_n",
+            "tissue_damage_mm2",
+            "target_distance_mm",
+        ] {
+            assert!(r["metrics"].get(key).is_some(), "{name}: metrics lack {key}");
+        }
+        for key in ["score", "passed", "difficulty", "rubric_version"] {
+            assert!(r["grade"].get(key).is_some(), "{name}: grade lacks {key}");
+        }
+        scores.push((name, r));
+    }
+    let get = |n: &str| &scores.iter().find(|(name, _)| *name == n).unwrap().1;
+    let hits = |n: &str| -> Vec<String> {
+        get(n)["metrics"]["risk_hits"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|h| h["structure"].as_str().unwrap().to_string())
+            .collect()
+    };
+
+    let ok_run = get("success-intercostal");
+    let m = &ok_run["metrics"];
+    assert_eq!(m["attempts"], 1);
+    assert_eq!(m["target_reached"], true);
+    assert_eq!(m["target_confirmed"], true);
+    assert!(hits("success-intercostal").is_empty());
+    assert_eq!(m["bone_contacts"], 0);
+    assert_eq!(m["xray_shots"], 1);
+    assert!(
+        (m["fluoro_time_s"].as_f64().unwrap() - 1.5).abs() < 1e-9,
+        "{}",
+        m["fluoro_time_s"]
+    );
+    assert_eq!(m["target_distance_min_mm"], 0.0);
+    let g = &ok_run["grade"];
+    assert_eq!(g["difficulty"], "beginner");
+    assert_eq!(g["passed"], true, "{g}");
+    // The script follows the planned path: guided metrics see it.
+    let guided = &m["guided"];
+    assert_eq!(guided["path"], "intercostal-10-11");
+    assert!(guided["entry_distance_mm"].as_f64().unwrap() < 2.0, "{guided}");
+    assert!(guided["angle_error_deg"].as_f64().unwrap() < 2.0, "{guided}");
+
+    assert_eq!(get("two-attempts")["metrics"]["attempts"], 2);
+    assert_eq!(get("two-attempts")["metrics"]["target_confirmed"], true);
+
+    let lung = hits("lung-hit");
+    assert!(lung.iter().any(|h| h.contains("lung")), "lung-hit: {lung:?}");
+    assert_eq!(get("lung-hit")["grade"]["passed"], false);
+    let lung_hit = &get("lung-hit")["metrics"]["risk_hits"][0];
+    assert!(
+        lung_hit["depth_mm"].as_f64().unwrap() > 1.0 && lung_hit["duration_s"].as_f64().unwrap() > 0.1,
+        "{lung_hit}"
+    );
+
+    let vessel = hits("vessel-hit");
+    assert!(
+        vessel
+            .iter()
+            .any(|h| h.contains("vein") || h.contains("aorta") || h.contains("cava")),
+        "vessel-hit: {vessel:?}"
+    );
+    assert_eq!(get("vessel-hit")["grade"]["passed"], false);
+
+    let palp = &get("palpation-sweep")["metrics"];
+    assert_eq!(palp["attempts"], 0);
+    assert!(palp["palpation_time_s"].as_f64().unwrap() > 5.0, "{palp}");
+    for probe in ["probe-across", "probe-parallel"] {
+        let m = &get(probe)["metrics"];
+        assert!(m["ultrasound_time_s"].as_f64().unwrap() > 5.0, "{probe}: {m}");
+        assert_eq!(m["attempts"], 0);
+    }
+    // Text output names the verdict.
+    let text = ok(&["score", s(&setup().session("lung-hit")), "--atlas", s(&setup().atlas())]);
+    assert!(
+        text.contains("risk hit     right lung") && text.contains("FAILED"),
+        "{text}"
+    );
+}
+
+/// Rewrites a session with `edit` applied to its contents (header, ticks, events, digests).
+fn rewrite(src: &Path, dst: &Path, edit: impl FnOnce(&mut reader::Session)) {
+    let mut session = reader::read(src).unwrap();
+    edit(&mut session);
+    let w = SessionWriter::create(
+        dst,
+        &session.header,
+        WriterOptions {
+            fsync: false,
+            ..WriterOptions::default()
+        },
+    )
+    .unwrap();
+    for e in &session.events {
+        w.event_record_blocking(e.clone()).unwrap();
+    }
+    for d in &session.digests {
+        w.digest_blocking(d.tick, d.digest).unwrap();
+    }
+    for t in &session.ticks {
+        w.record_raw_blocking(*t).unwrap();
+    }
+    w.finish().unwrap();
+}
+
+#[test]
+fn a_one_ulp_change_of_a_recorded_force_is_caught_at_its_tick() {
+    let st = setup();
+    let d = tempfile::tempdir().unwrap();
+    let tampered = d.path().join("tampered.mcap");
+    rewrite(&st.session("success-intercostal"), &tampered, |s| {
+        let t = &mut s.ticks[12_345];
+        t.force_n[1] = f64::from_bits(t.force_n[1].to_bits() + 1);
+    });
+    let r = score_json(&tampered);
+    assert_eq!(r["replay_verified"], false);
+    assert_eq!(r["divergence"]["tick"], 12_345);
+    assert_eq!(r["divergence"]["stream"], "ticks.force_n");
+    // Still graded on the replayed physics, which did not change.
+    let honest = score_json(&st.session("success-intercostal"));
+    assert_eq!(r["metrics"], honest["metrics"]);
+    let text = ok(&["score", s(&tampered), "--atlas", s(&st.atlas())]);
+    assert!(
+        text.contains("NOT verified: first difference at tick 12345 in ticks.force_n"),
+        "{text}"
+    );
+
+    // A changed state digest is caught too.
+    let digest = d.path().join("digest.mcap");
+    rewrite(&st.session("success-intercostal"), &digest, |s| {
+        s.digests[7].digest ^= 1
+    });
+    let r = score_json(&digest);
+    assert_eq!(r["replay_verified"], false);
+    assert_eq!(r["divergence"]["stream"], "digests");
+    assert_eq!(r["divergence"]["tick"], 799);
+}
+
+#[test]
+fn recovered_sessions_are_scored_and_flagged_incomplete() {
+    let st = setup();
+    let d = tempfile::tempdir().unwrap();
+    let bytes = std::fs::read(st.session("two-attempts")).unwrap();
+    let cut = d.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 3 / 4]).unwrap();
+    let fixed = d.path().join("fixed.mcap");
+    ok(&["session", "recover", s(&cut), "--out", s(&fixed)]);
+    for file in [&fixed, &cut] {
+        let r = score_json(file);
+        assert_eq!(r["incomplete"], true, "{}", file.display());
+        assert!(
+            r["incomplete_reason"].as_str().unwrap().contains("damaged"),
+            "{}",
+            r["incomplete_reason"]
+        );
+        // What is there still replays bit for bit.
+        assert_eq!(r["replay_verified"], true);
+        let ticks = r["ticks"].as_u64().unwrap();
+        assert!(ticks > 10_000 && ticks < 34_000, "{ticks}");
+    }
+}
+
+#[test]
+fn other_physics_versions_atlases_and_garbage_are_refused_with_reasons() {
+    let st = setup();
+    let d = tempfile::tempdir().unwrap();
+    let old = d.path().join("old.mcap");
+    rewrite(&st.session("success-intercostal"), &old, |s| {
+        s.header.physics_version = 999
+    });
+    let e = fails(&["score", s(&old), "--atlas", s(&st.atlas())]);
+    assert!(
+        e.contains("physics version 999") && e.contains("does not re-grade"),
+        "{e}"
+    );
+
+    let other = d.path().join("other");
+    ok(&[
+        "atlas",
+        "phantom",
+        "--out",
+        s(&other),
+        "--dims",
+        "96,96,80",
+        "--spacing",
+        "4",
+    ]);
+    let e = fails(&["score", s(&st.session("success-intercostal")), "--atlas", s(&other)]);
+    assert!(e.contains("content hash") && e.contains("the atlas given"), "{e}");
+
+    let junk = d.path().join("junk.mcap");
+    std::fs::write(&junk, b"not a session").unwrap();
+    let e = fails(&["score", s(&junk), "--atlas", s(&st.atlas())]);
+    assert!(
+        e.contains("junk.mcap") && e.contains("not a Stylet session file"),
+        "{e}"
+    );
+
+    let hard = d.path().join("hard.mcap");
+    rewrite(&st.session("success-intercostal"), &hard, |s| {
+        s.header.difficulty = "impossible".into()
+    });
+    let e = fails(&["score", s(&hard), "--atlas", s(&st.atlas())]);
+    assert!(e.contains("difficulty 'impossible'"), "{e}");
+
+    let rubric = d.path().join("bad.toml");
+    std::fs::write(&rubric, "name = \"x\"\nversion = 1\n").unwrap();
+    let e = fails(&[
+        "score",
+        s(&st.session("lung-hit")),
+        "--atlas",
+        s(&st.atlas()),
+        "--rubric",
+        s(&rubric),
+    ]);
+    assert!(e.contains("bad.toml") && e.contains("metrics"), "{e}");
+}
+
+#[test]
+fn batch_results_do_not_depend_on_jobs_or_file_order() {
+    let st = setup();
+    let d = tempfile::tempdir().unwrap();
+    let mut files: Vec<String> = SCRIPTS
+        .iter()
+        .map(|n| st.session(n).to_str().unwrap().to_string())
+        .collect();
+    let (a, b) = (d.path().join("a.csv"), d.path().join("b.csv"));
+    let atlas = st.atlas();
+    let mut args = vec!["score", "--atlas", s(&atlas), "--jobs", "1", "--csv", s(&a)];
+    args.extend(files.iter().map(String::as_str));
+    let table = ok(&args);
+    assert!(
+        table.contains("success-intercostal") && table.contains("passed"),
+        "{table}"
+    );
+    files.reverse();
+    let mut args = vec!["score", "--atlas", s(&atlas), "--jobs", "2", "--csv", s(&b)];
+    args.extend(files.iter().map(String::as_str));
+    ok(&args);
+    let (ca, cb) = (
+        std::fs::read_to_string(&a).unwrap(),
+        std::fs::read_to_string(&b).unwrap(),
+    );
+    assert_eq!(ca, cb);
+    let mut lines = ca.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert!(header.contains(&"replay_verified") && header.contains(&"score") && header.contains(&"attempts"));
+    let rows: Vec<&str> = lines.collect();
+    assert_eq!(rows.len(), SCRIPTS.len());
+    assert!(rows.iter().all(|r| r.contains(",scored,true,")), "{rows:?}");
+}
