@@ -9,12 +9,14 @@
 pub mod codec;
 pub mod format;
 pub mod reader;
+pub mod recording;
 pub mod records;
 pub mod repair;
 pub mod writer;
 
 pub use format::{EventRecord, SCHEMA_VERSION, SessionEnd, SessionHeader, TickRecord};
 pub use reader::{Damage, Limits, Mode, ReadError, Session, read, read_bytes, recover, verify};
+pub use recording::{Recording, SessionInfo};
 pub use repair::rewrite_recovered;
 pub use writer::{SessionWriter, WriteError, WriteSummary, WriterOptions};
 

@@ -1,1 +1,127 @@
-fn main() {}
+//! Replay speed for needle sessions (goal: ≥ 1000× real time, i.e. a 10-minute session in under
+//! 0.6 s): the example scripts `two-attempts` (34 s) and `success-intercostal` (20 s) recorded on
+//! the default phantom, replayed through the physics with every output and digest checked, with
+//! and without the metrics. Baseline in the same run: reading and decoding the session file.
+
+use std::hint::black_box;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use stylet_devices::run_headless;
+use stylet_devices::script::{NamedPath, ScriptedDevice, parse};
+use stylet_physics::glam::DVec3;
+use stylet_physics::{SimConfig, Simulation};
+use stylet_recorder::{Recording, SessionInfo, WriterOptions, reader};
+use stylet_scoring::{Rubric, Scorer, replay};
+
+fn record(atlas: &stylet_atlas::Atlas, name: &str, dir: &Path) -> PathBuf {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../atlases/phantom/scripts/{name}.txt"));
+    let script = parse(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let paths: Vec<NamedPath> = atlas
+        .manifest
+        .paths
+        .iter()
+        .map(|p| NamedPath {
+            name: p.name.clone(),
+            entry_mm: DVec3::from_array(p.entry_mm),
+            target_mm: DVec3::from_array(p.target_mm),
+        })
+        .collect();
+    let mut device = ScriptedDevice::new(&script, &paths).unwrap();
+    let mut sim = Simulation::new(
+        Arc::new(atlas.model.clone()),
+        SimConfig::new(script.device, script.initial_tool),
+    )
+    .unwrap();
+    let info = SessionInfo {
+        trainee: "bench",
+        scenario: name,
+        difficulty: "beginner",
+        seed: 0,
+        atlas_id: &atlas.manifest.name,
+        atlas_hash: &atlas.content_hash,
+    };
+    let out = dir.join(format!("{name}.mcap"));
+    let header = stylet_recorder::recording::header(&sim, &info);
+    let mut rec = Recording::start(
+        &out,
+        &header,
+        false,
+        WriterOptions {
+            fsync: false,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    run_headless(&mut sim, &mut device, |i, o, s| rec.tick(i, o, s));
+    rec.finish().unwrap();
+    out
+}
+
+fn median_s(runs: usize, mut f: impl FnMut()) -> f64 {
+    let mut t: Vec<f64> = (0..runs)
+        .map(|_| {
+            let s = Instant::now();
+            f();
+            s.elapsed().as_secs_f64()
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[runs / 2]
+}
+
+fn replay_bench(c: &mut Criterion) {
+    let dir = tempfile::tempdir().unwrap();
+    let p = stylet_atlas::phantom::generate(&Default::default()).unwrap();
+    stylet_atlas::write(&dir.path().join("atlas"), &p.manifest, &p.ct, &p.partial).unwrap();
+    let atlas = stylet_atlas::load(&dir.path().join("atlas")).unwrap();
+    let scorer = Scorer::new(&atlas, Rubric::default_rubric(), None).unwrap();
+    let model = Arc::new(atlas.model.clone());
+    let mut g = c.benchmark_group("replay");
+    g.sample_size(10);
+    for name in ["two-attempts", "success-intercostal"] {
+        let file = record(&atlas, name, dir.path());
+        let session = reader::read(&file).unwrap();
+        let seconds = session.ticks.len() as f64 / 1000.0;
+        let base = median_s(7, || {
+            black_box(reader::read(&file).unwrap());
+        });
+        let bare = median_s(7, || {
+            let r = replay(&session, model.clone(), &mut |_, _, _| {}).unwrap();
+            assert!(r.replay_verified);
+        });
+        let scored = median_s(7, || {
+            let r = scorer.score_session(&session).unwrap();
+            assert!(r.replay_verified);
+        });
+        for (what, s) in [
+            ("read + decode (baseline)", base),
+            ("replay, checked", bare),
+            ("replay + metrics + grade", scored),
+        ] {
+            println!(
+                "{name} ({seconds:.0} s): {what}: {:.1} ms = {:.0}× real time, {:.1}× the baseline's time; a 10-minute session: {:.2} s",
+                s * 1e3,
+                seconds / s,
+                s / base,
+                s * 600.0 / seconds
+            );
+        }
+        g.throughput(Throughput::Elements(session.ticks.len() as u64));
+        g.bench_function(format!("{name}/baseline_read"), |b| {
+            b.iter(|| black_box(reader::read(&file).unwrap()))
+        });
+        g.bench_function(format!("{name}/replay"), |b| {
+            b.iter(|| black_box(replay(&session, model.clone(), &mut |_, _, _| {}).unwrap()))
+        });
+        g.bench_function(format!("{name}/score"), |b| {
+            b.iter(|| black_box(scorer.score_session(&session).unwrap()))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, replay_bench);
+criterion_main!(benches);

@@ -7,7 +7,6 @@ macro_rules! sayf {
 
 mod atlas;
 mod demo;
-mod record;
 mod score;
 mod script;
 mod session;

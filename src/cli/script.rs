@@ -13,7 +13,7 @@ use stylet_physics::glam::DVec3;
 use stylet_physics::{Event, SimConfig, Simulation, TickInput, TickOutput};
 use stylet_render::charts::{LineChart, Series, palette, write_chart};
 
-use super::record::{self, Recording, SessionInfo};
+use stylet_recorder::{Recording, SessionInfo, WriterOptions};
 
 #[derive(Debug, Subcommand)]
 pub enum ScriptCommand {
@@ -208,12 +208,14 @@ fn run_script(a: &RunArgs) -> anyhow::Result<()> {
                 scenario: a.scenario.as_deref().unwrap_or(&stem),
                 difficulty: a.difficulty.name(),
                 seed: a.seed,
+                atlas_id: &atlas.manifest.name,
+                atlas_hash: &atlas.content_hash,
             };
-            Some(Recording::start(
-                path,
-                &record::header(&atlas, &sim, &info),
-                a.realtime,
-            )?)
+            let header = stylet_recorder::recording::header(&sim, &info);
+            Some(
+                Recording::start(path, &header, a.realtime, WriterOptions::default())
+                    .with_context(|| format!("cannot record to {}", path.display()))?,
+            )
         }
         None => None,
     };
@@ -262,7 +264,7 @@ fn run_script(a: &RunArgs) -> anyhow::Result<()> {
     });
     let wall = started.elapsed().as_secs_f64();
     if let (Some(r), Some(path)) = (recording, &a.out) {
-        let summary = r.finish()?;
+        let summary = r.finish().context("recording the session")?;
         let complete = if summary.complete {
             "complete".to_string()
         } else {

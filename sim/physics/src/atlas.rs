@@ -40,7 +40,7 @@ impl PunctureAtlas {
         tree: PropertyTree,
         thresholds: Thresholds,
     ) -> Result<Self, PhysicsError> {
-        let (gc, gl) = (ct.grid(), partial.grid());
+        let (gc, gl) = (ct.grid().clone(), partial.grid().clone());
         if gc.dims() != gl.dims() {
             return Err(PhysicsError::Mismatch(format!(
                 "CT has dimensions {:?} but the label map has {:?}",
@@ -56,6 +56,13 @@ impl PunctureAtlas {
                 gl.affine().rows()
             )));
         }
+        // Within that tolerance the label map is taken to lie on the CT's grid exactly, so every
+        // lookup uses one continuous index (see `needle_label_at`).
+        let partial = if gl == gc {
+            partial
+        } else {
+            Volume::new(gc.clone(), partial.into_data())?
+        };
         if let Some(pos) = ct.data().iter().position(|v| !v.is_finite()) {
             let [i, j, k] = gc.unlinear(pos);
             return Err(PhysicsError::NotFinite(format!(
@@ -166,14 +173,19 @@ impl PunctureAtlas {
     /// cutting threshold.
     #[inline]
     pub fn needle_label_at(&self, x: DVec3, depth_mm: f64) -> (LabelId, f64) {
-        let hu = self.hu_at(x);
-        let partial = self.partial_label_at(x);
+        // CT, labels and distance maps share one grid (checked in `new`): one index for all.
+        let c = self.ct.grid().world_to_index(x);
+        let hu = self.ct.sample_index(c, AIR_HU) as f64;
+        let partial = match self.ct.grid().nearest_voxel_of_index(c) {
+            Some([i, j, k]) => self.partial.get(i, j, k),
+            None => 0,
+        };
         if partial != 0 {
             return (partial, hu);
         }
         let t = &self.thresholds;
         if depth_mm <= t.risk_depth_mm && hu < t.fat_bone_hu {
-            let d = self.skin_distance.sample(x, -1.0) as f64;
+            let d = self.skin_distance.sample_index(c, -1.0) as f64;
             if d >= 0.0 && d < self.skin_layer_mm {
                 return (self.labels.heuristic().skin, hu);
             }

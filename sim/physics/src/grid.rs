@@ -204,10 +204,16 @@ impl Grid {
     /// (the voxels' boxes, i.e. −0.5 … n − 0.5 in index units).
     #[inline]
     pub fn nearest_voxel(&self, world: DVec3) -> Option<[usize; 3]> {
-        let c = self.world_to_index(world);
+        self.nearest_voxel_of_index(self.world_to_index(world))
+    }
+
+    /// [`Grid::nearest_voxel`] of a continuous index.
+    #[inline]
+    pub fn nearest_voxel_of_index(&self, c: DVec3) -> Option<[usize; 3]> {
         let mut out = [0usize; 3];
         for (a, o) in out.iter_mut().enumerate() {
-            let r = (c[a] + 0.5).floor();
+            // floor(r) ∈ [0, n) ⇔ r ∈ [0, n) for integer n, and truncation is floor for r ≥ 0.
+            let r = c[a] + 0.5;
             if !(r >= 0.0 && r < self.dims[a] as f64) {
                 return None;
             }

@@ -20,7 +20,7 @@ use crate::{LabelId, PunctureAtlas};
 
 /// Version of the physics: bump it with every change that alters any output bit, so a replay
 /// knows which physics graded a session.
-pub const PHYSICS_VERSION: u32 = 1;
+pub const PHYSICS_VERSION: u32 = 2;
 
 /// Default haptic rate.
 pub const DEFAULT_TICK_RATE_HZ: u32 = 1000;
@@ -342,14 +342,22 @@ impl Simulation {
                     h.vec(*p);
                     h.vec(*t);
                 }
-                for node in n.path().nodes() {
-                    h.vec(node.pos);
-                    h.vec(node.tangent);
-                    h.f64(node.offset_mm);
-                    h.f64(node.stiffness_n_per_mm);
-                    h.f64(node.friction_max_n);
+                // The channel, then the part cut earlier and retracted from (it decides whether
+                // a re-advance meets the cutting threshold).
+                for nodes in [n.path().nodes(), n.path().ahead()] {
+                    h.u64(nodes.len() as u64);
+                    for node in nodes {
+                        h.vec(node.pos);
+                        h.vec(node.tangent);
+                        h.f64(node.offset_mm);
+                        h.f64(node.stiffness_n_per_mm);
+                        h.f64(node.friction_max_n);
+                    }
                 }
                 h.f64(n.friction_n());
+                if let Some(x) = n.last_device_mm() {
+                    h.vec(x);
+                }
             }
             Tool::Contact(c) => {
                 h.u64(3);

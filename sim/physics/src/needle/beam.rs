@@ -46,73 +46,82 @@ pub fn solve(
     if m == 0 {
         return true;
     }
+    let (target, load, out) = (&target[..m], &load[..m], &mut out[..m]);
     let c = ei / (h * h * h);
     // The three bands of A = c·DᵀD + diag(k): a0[j] = A(j, j), a1[j] = A(j, j+1), a2[j] = A(j, j+2).
+    // (Loops are peeled so the hot path has no branches or bounds checks; the arithmetic and its
+    // order are those of the plain textbook loops, so the bits are too.)
     for v in [&mut s.a0, &mut s.a1, &mut s.a2, &mut s.d, &mut s.l1, &mut s.l2] {
-        v.clear();
         v.resize(m, 0.0);
     }
-    s.a0.copy_from_slice(k);
+    s.rhs.resize(m, [0.0; 2]);
+    let (a0, a1, a2) = (&mut s.a0[..m], &mut s.a1[..m], &mut s.a2[..m]);
+    a0.copy_from_slice(k);
+    a1.fill(0.0);
+    a2.fill(0.0);
     for r in 1..m.saturating_sub(1) {
         // Row r of D: (1, −2, 1) at columns r−1, r, r+1.
-        s.a0[r - 1] += c;
-        s.a0[r] += 4.0 * c;
-        s.a0[r + 1] += c;
-        s.a1[r - 1] -= 2.0 * c;
-        s.a1[r] -= 2.0 * c;
-        s.a2[r - 1] += c;
+        a0[r - 1] += c;
+        a0[r] += 4.0 * c;
+        a0[r + 1] += c;
+        a1[r - 1] -= 2.0 * c;
+        a1[r] -= 2.0 * c;
+        a2[r - 1] += c;
     }
     // LDLᵀ: l1[j] = L(j, j−1), l2[j] = L(j, j−2), d[j] = D_j.
-    for j in 0..m {
-        if j >= 2 {
-            s.l2[j] = s.a2[j - 2] / s.d[j - 2];
-        }
-        if j >= 1 {
-            let mut v = s.a1[j - 1];
-            if j >= 2 {
-                v -= s.l2[j] * s.l1[j - 1] * s.d[j - 2];
-            }
-            s.l1[j] = v / s.d[j - 1];
-        }
-        let mut dj = s.a0[j];
-        if j >= 1 {
-            dj -= s.l1[j] * s.l1[j] * s.d[j - 1];
-        }
-        if j >= 2 {
-            dj -= s.l2[j] * s.l2[j] * s.d[j - 2];
-        }
-        if !(dj.is_finite() && dj > 1e-9 * s.a0[j].abs().max(1e-300)) {
+    let (d, l1, l2) = (&mut s.d[..m], &mut s.l1[..m], &mut s.l2[..m]);
+    let positive = |dj: f64, a: f64| dj.is_finite() && dj > 1e-9 * a.abs().max(1e-300);
+    if !positive(a0[0], a0[0]) {
+        return false;
+    }
+    d[0] = a0[0];
+    if m >= 2 {
+        l1[1] = a1[0] / d[0];
+        let d1 = a0[1] - l1[1] * l1[1] * d[0];
+        if !positive(d1, a0[1]) {
             return false;
         }
-        s.d[j] = dj;
+        d[1] = d1;
     }
-    let (d, l1, l2) = (&s.d, &s.l1, &s.l2);
-    // Forward substitution L y = b.
-    s.rhs.clear();
-    for j in 0..m {
-        let mut y = [k[j] * target[j][0] + load[j][0], k[j] * target[j][1] + load[j][1]];
-        for (comp, yc) in y.iter_mut().enumerate() {
-            if j >= 1 {
-                *yc -= l1[j] * s.rhs[j - 1][comp];
-            }
-            if j >= 2 {
-                *yc -= l2[j] * s.rhs[j - 2][comp];
-            }
+    for j in 2..m {
+        let l2j = a2[j - 2] / d[j - 2];
+        let l1j = (a1[j - 1] - l2j * l1[j - 1] * d[j - 2]) / d[j - 1];
+        let dj = a0[j] - l1j * l1j * d[j - 1] - l2j * l2j * d[j - 2];
+        if !positive(dj, a0[j]) {
+            return false;
         }
-        s.rhs.push(y);
+        (l1[j], l2[j], d[j]) = (l1j, l2j, dj);
+    }
+    // Forward substitution L y = b.
+    let y = &mut s.rhs[..m];
+    let b = |j: usize| [k[j] * target[j][0] + load[j][0], k[j] * target[j][1] + load[j][1]];
+    y[0] = b(0);
+    if m >= 2 {
+        let b1 = b(1);
+        y[1] = [b1[0] - l1[1] * y[0][0], b1[1] - l1[1] * y[0][1]];
+    }
+    for j in 2..m {
+        let bj = b(j);
+        y[j] = [
+            bj[0] - l1[j] * y[j - 1][0] - l2[j] * y[j - 2][0],
+            bj[1] - l1[j] * y[j - 1][1] - l2[j] * y[j - 2][1],
+        ];
     }
     // D z = y, then Lᵀ w = z.
-    for j in (0..m).rev() {
-        for comp in 0..2 {
-            let mut w = s.rhs[j][comp] / d[j];
-            if j + 1 < m {
-                w -= l1[j + 1] * out[j + 1][comp];
-            }
-            if j + 2 < m {
-                w -= l2[j + 2] * out[j + 2][comp];
-            }
-            out[j][comp] = w;
-        }
+    let last = m - 1;
+    out[last] = [y[last][0] / d[last], y[last][1] / d[last]];
+    if m >= 2 {
+        let j = m - 2;
+        out[j] = [
+            y[j][0] / d[j] - l1[j + 1] * out[j + 1][0],
+            y[j][1] / d[j] - l1[j + 1] * out[j + 1][1],
+        ];
+    }
+    for j in (0..m.saturating_sub(2)).rev() {
+        out[j] = [
+            y[j][0] / d[j] - l1[j + 1] * out[j + 1][0] - l2[j + 2] * out[j + 2][0],
+            y[j][1] / d[j] - l1[j + 1] * out[j + 1][1] - l2[j + 2] * out[j + 2][1],
+        ];
     }
     true
 }

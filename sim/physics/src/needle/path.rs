@@ -44,6 +44,15 @@ pub struct InsertionPath {
     nodes: Vec<PathNode>,
     ahead: Vec<PathNode>,
     spacing_mm: f64,
+    /// ‖p_i − p_{i−1}‖ for every node (0 for the first): only the last nodes move, so the lengths
+    /// are kept instead of recomputed (the same values, bit for bit, as computing them afresh).
+    seg_mm: Vec<f64>,
+    /// Σ seg_mm, summed in node order whenever a segment changes.
+    inserted_mm: f64,
+    /// Per node: seg_mm / Δp and the friction offset limit f_R / f_k (eq. 3.5.4), kept with the
+    /// segment lengths (only the last nodes change).
+    seg_ratio: Vec<f64>,
+    offset_limit_mm: Vec<f64>,
 }
 
 /// Cosine of the largest angle between the tip direction and an existing channel at which the
@@ -59,6 +68,10 @@ impl InsertionPath {
             nodes: Vec::with_capacity(256),
             ahead: Vec::with_capacity(256),
             spacing_mm,
+            seg_mm: Vec::with_capacity(256),
+            inserted_mm: 0.0,
+            seg_ratio: Vec::with_capacity(256),
+            offset_limit_mm: Vec::with_capacity(256),
         }
     }
 
@@ -77,6 +90,34 @@ impl InsertionPath {
     pub fn clear(&mut self) {
         self.nodes.clear();
         self.ahead.clear();
+        self.seg_mm.clear();
+        self.seg_ratio.clear();
+        self.offset_limit_mm.clear();
+        self.inserted_mm = 0.0;
+    }
+
+    /// Recomputes the segment lengths from node `from` on (after nodes there changed).
+    fn refresh_segments(&mut self, from: usize) {
+        let from = from.min(self.nodes.len());
+        self.seg_mm.truncate(from);
+        self.seg_ratio.truncate(from);
+        self.offset_limit_mm.truncate(from);
+        for i in from..self.nodes.len() {
+            let len = if i == 0 {
+                0.0
+            } else {
+                self.nodes[i].pos.distance(self.nodes[i - 1].pos)
+            };
+            self.seg_mm.push(len);
+            self.seg_ratio.push(len / self.spacing_mm);
+            let n = &self.nodes[i];
+            self.offset_limit_mm.push(if n.stiffness_n_per_mm > 0.0 {
+                n.friction_max_n / n.stiffness_n_per_mm
+            } else {
+                0.0
+            });
+        }
+        self.inserted_mm = self.seg_mm.iter().skip(1).sum();
     }
 
     /// The part of the channel cut earlier and retracted from (deepest node last).
@@ -94,13 +135,16 @@ impl InsertionPath {
     pub fn tip(&self) -> Option<&PathNode> {
         self.nodes.last()
     }
-    pub fn tip_mut(&mut self) -> Option<&mut PathNode> {
-        self.nodes.last_mut()
+    /// Steering (Alg. 3.3 lines 6–7): the tip node takes the needle tip's direction.
+    pub fn set_tip_tangent(&mut self, d: DVec3) {
+        if let Some(tip) = self.nodes.last_mut() {
+            tip.tangent = d;
+        }
     }
 
     /// Inserted length Σ ‖p_i − p_{i−1}‖ (mm).
     pub fn inserted_length_mm(&self) -> f64 {
-        self.nodes.windows(2).map(|w| w[1].pos.distance(w[0].pos)).sum()
+        self.inserted_mm
     }
 
     /// Alg. 3.5, compPTipMov: the tip's movement for device position `x`. Forward (Δd ≥ 0) only
@@ -155,6 +199,32 @@ impl InsertionPath {
         material_at: &mut dyn FnMut(DVec3) -> (f64, f64),
     ) {
         let dp = self.spacing_mm;
+        let mut min_len = self.nodes.len();
+        self.update_nodes(
+            x,
+            direction,
+            tip,
+            needle_length_mm,
+            first_contact,
+            material_at,
+            &mut min_len,
+            dp,
+        );
+        self.refresh_segments(min_len.saturating_sub(2));
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn update_nodes(
+        &mut self,
+        x: DVec3,
+        direction: DVec3,
+        tip: &TipMaterial,
+        needle_length_mm: f64,
+        first_contact: bool,
+        material_at: &mut dyn FnMut(DVec3) -> (f64, f64),
+        min_len: &mut usize,
+        dp: f64,
+    ) {
         match self.nodes.len() {
             0 => {
                 if first_contact {
@@ -182,6 +252,7 @@ impl InsertionPath {
                     });
                 } else if dd < 0.0 {
                     self.clear();
+                    *min_len = 0;
                 }
             }
             _ => {
@@ -222,6 +293,7 @@ impl InsertionPath {
                     } else if dl < 0.5 * dp && l > 2 {
                         // The tip came back to the node behind it: remove that node.
                         let removed = self.nodes.remove(l - 2);
+                        *min_len = (*min_len).min(self.nodes.len());
                         // The tip inherits the removed segment's friction state (the offset of
                         // the tissue the tip now sits in); the node stays as channel ahead.
                         self.nodes[l - 2].offset_mm = removed.offset_mm;
@@ -229,6 +301,7 @@ impl InsertionPath {
                     } else if dl < 0.0 {
                         // Only two nodes and the tip is behind the first: withdrawn.
                         self.clear();
+                        *min_len = 0;
                         break;
                     } else {
                         break;
@@ -242,36 +315,51 @@ impl InsertionPath {
     /// (clamped to ±f_R/f_k) and returns the total friction f⁺ (N, positive when the offsets point
     /// along the insertion direction).
     pub fn update_friction(&mut self, dx: f64) -> f64 {
-        let dp = self.spacing_mm;
         let mut total = 0.0;
-        for i in 1..self.nodes.len() {
-            let seg = self.nodes[i].pos.distance(self.nodes[i - 1].pos);
-            let n = &mut self.nodes[i];
-            let limit = if n.stiffness_n_per_mm > 0.0 {
-                n.friction_max_n / n.stiffness_n_per_mm
-            } else {
-                0.0
-            };
+        let (ratio, limit) = (&self.seg_ratio, &self.offset_limit_mm);
+        for ((n, &ratio), &limit) in self.nodes.iter_mut().zip(ratio).zip(limit).skip(1) {
             n.offset_mm = (n.offset_mm + dx).clamp(-limit, limit);
-            total += n.stiffness_n_per_mm * (seg / dp) * n.offset_mm;
+            total += n.stiffness_n_per_mm * ratio * n.offset_mm;
         }
         total
     }
 
-    /// The channel point `a` mm back from the tip along the path, with the tissue stiffness
-    /// there; `None` beyond the first node (outside the body).
-    pub fn point_from_tip(&self, a: f64) -> Option<(DVec3, f64)> {
-        let mut left = a;
-        for i in (1..self.nodes.len()).rev() {
-            let (p, q) = (self.nodes[i].pos, self.nodes[i - 1].pos);
-            let seg = p.distance(q);
-            if left <= seg {
-                let t = if seg > 0.0 { left / seg } else { 0.0 };
-                return Some((p + (q - p) * t, self.nodes[i].stiffness_n_per_mm));
-            }
-            left -= seg;
+    /// The channel points at distances `a` back from the tip along the path, with the tissue
+    /// stiffness there, for increasing `a`, in one pass over the channel (O(l + queries)): calls
+    /// `found(id, point, stiffness)` for each `(id, a)` that lies within the channel; the rest
+    /// are beyond the first node (outside the body).
+    pub fn points_from_tip(
+        &self,
+        queries: impl IntoIterator<Item = (usize, f64)>,
+        mut found: impl FnMut(usize, DVec3, f64),
+    ) {
+        let l = self.nodes.len();
+        if l < 2 {
+            return;
         }
-        None
+        // Segment i runs from node i (nearer the tip) back to node i − 1; `behind` is the arc
+        // length from the tip to node i.
+        let (mut i, mut behind) = (l - 1, 0.0);
+        for (id, a) in queries {
+            debug_assert!(a >= behind, "queries must come in increasing order");
+            while a - behind > self.seg_mm[i] {
+                behind += self.seg_mm[i];
+                i -= 1;
+                if i == 0 {
+                    return;
+                }
+            }
+            let (p, q, seg) = (self.nodes[i].pos, self.nodes[i - 1].pos, self.seg_mm[i]);
+            let t = if seg > 0.0 { (a - behind) / seg } else { 0.0 };
+            found(id, p + (q - p) * t, self.nodes[i].stiffness_n_per_mm);
+        }
+    }
+
+    /// The channel point `a` mm back from the tip (see [`InsertionPath::points_from_tip`]).
+    pub fn point_from_tip(&self, a: f64) -> Option<(DVec3, f64)> {
+        let mut r = None;
+        self.points_from_tip([(0, a)], |_, p, k| r = Some((p, k)));
+        r
     }
 }
 
@@ -300,6 +388,7 @@ mod tests {
                 friction_max_n: 0.015,
             });
         }
+        p.refresh_segments(0);
         p
     }
 
@@ -400,7 +489,7 @@ mod tests {
             p.inserted_length_mm()
         );
         // A new direction: the old channel is forgotten.
-        p.tip_mut().unwrap().tangent = DVec3::new(0.3, 0.0, 1.0).normalize();
+        p.set_tip_tangent(DVec3::new(0.3, 0.0, 1.0).normalize());
         p.update(z(27.5), DVec3::Z, &m, 150.0, true, &mut mat_at);
         assert!(p.ahead().is_empty());
     }
@@ -421,5 +510,17 @@ mod tests {
         let (q, _) = p.point_from_tip(2.0).unwrap();
         assert!((q.z - 4.0).abs() < 1e-12);
         assert!(p.point_from_tip(6.5).is_none());
+        assert_eq!(p.point_from_tip(6.0).unwrap().0, DVec3::ZERO);
+        // One pass answers many queries in order; the ones beyond the channel are left out.
+        let mut got = Vec::new();
+        p.points_from_tip(
+            [(7, 0.0), (8, 1.5), (9, 2.25), (10, 5.9), (11, 6.1), (12, 9.0)],
+            |id, q, _| got.push((id, q.z)),
+        );
+        let want = [(7, 6.0), (8, 4.5), (9, 3.75), (10, 0.1)];
+        assert_eq!(got.len(), want.len());
+        for ((id, z), (wid, wz)) in got.iter().zip(want) {
+            assert!(*id == wid && (z - wz).abs() < 1e-12, "{got:?}");
+        }
     }
 }

@@ -39,6 +39,8 @@ pub struct NeedleForces {
 pub struct NeedleTool {
     spec: NeedleSpec,
     stylet_in: bool,
+    /// EI of the gauge with or without the stylet (Table A.1), kept while the stylet stays.
+    ei_nmm2: f64,
     /// Needle nodes n_j (hub first) and tangents r_j, reference space.
     nodes: Vec<DVec3>,
     tangents: Vec<DVec3>,
@@ -66,6 +68,7 @@ impl NeedleTool {
         NeedleTool {
             spec,
             stylet_in,
+            ei_nmm2: spec.gauge.flexural_rigidity_nmm2(stylet_in),
             nodes: vec![DVec3::ZERO; NEEDLE_NODES],
             tangents: vec![DVec3::Z; NEEDLE_NODES],
             path: InsertionPath::new(PATH_SPACING_MM),
@@ -77,6 +80,11 @@ impl NeedleTool {
         }
     }
 
+    /// The device position of the previous tick (friction follows its axial motion).
+    pub fn last_device_mm(&self) -> Option<DVec3> {
+        self.last_x
+    }
+
     pub fn spec(&self) -> &NeedleSpec {
         &self.spec
     }
@@ -86,6 +94,7 @@ impl NeedleTool {
     /// Removing the stylet halves the rigidity (Table A.1); the channel is kept.
     pub fn set_stylet(&mut self, inserted: bool) {
         self.stylet_in = inserted;
+        self.ei_nmm2 = self.spec.gauge.flexural_rigidity_nmm2(inserted);
     }
     pub fn nodes(&self) -> &[DVec3] {
         &self.nodes
@@ -136,10 +145,10 @@ impl NeedleTool {
         let length = self.spec.length_mm;
         // Line 6–7: the path tip follows the needle tip's direction (steering).
         let r_m = self.tangents[m - 1];
-        if let Some(tip) = self.path.tip_mut() {
+        if !self.path.is_empty() {
             let d = correct_direction(r_m).normalize_or_zero();
             if d != DVec3::ZERO {
-                tip.tangent = d;
+                self.path.set_tip_tangent(d);
             }
         }
         // Material at the tip before it moves (Alg. 3.5 evaluates f(p_l)); at x on first contact.
@@ -275,21 +284,20 @@ impl NeedleTool {
         s.target[1] = lateral(v + qz * h);
         // The tissue: needle node j, a_j from the tip, sits on the channel point a_j back from the
         // tip with the tissue's spring f_k, scaled from Δp to the node spacing h.
-        for j in 2..m - 1 {
-            let a = (m - 1 - j) as f64 * h;
-            if a < inserted
-                && let Some((p, k)) = self.path.point_from_tip(a)
-            {
-                s.k[j] = k * h / PATH_SPACING_MM;
-                s.target[j] = lateral(p);
-            }
-        }
+        let queries = (2..m - 1)
+            .rev()
+            .map(|j| (j, (m - 1 - j) as f64 * h))
+            .take_while(|&(_, a)| a < inserted);
+        self.path.points_from_tip(queries, |j, p, k| {
+            s.k[j] = k * h / PATH_SPACING_MM;
+            s.target[j] = lateral(p);
+        });
         // The tip node, like the thesis' tip rigid body, hangs on a full (unprojected) spring of
         // the tissue's stiffness at the channel's end: the uncut tissue ahead resists the tip's
         // sideways motion only elastically, so a bent needle turns its tip (steering).
         let tip_k = self.path.tip().expect("non-empty").stiffness_n_per_mm;
         s.k[m - 1] = tip_k * h / PATH_SPACING_MM;
-        let ei = self.spec.gauge.flexural_rigidity_nmm2(self.stylet_in);
+        let ei = self.ei_nmm2;
         if !beam::solve(ei, h, &s.k, &s.target, &s.load, &mut s.w, &mut s.beam) {
             self.place_on_ray(x, qz);
             return;

@@ -1,10 +1,13 @@
-//! Recording a running simulation into a session file: the path the desktop app will use too.
+//! Recording a running simulation: the one path the desktop app, `stylet script run --out` and
+//! the benchmarks use. Ticks, their events and a state digest every [`DIGEST_EVERY`] ticks and
+//! at every tick with events.
 
 use std::path::Path;
 
-use anyhow::Context;
 use stylet_physics::{Simulation, TickInput, TickOutput};
-use stylet_recorder::{SessionHeader, SessionWriter, WriteSummary, WriterOptions};
+
+use crate::format::SessionHeader;
+use crate::writer::{SessionWriter, WriteError, WriteSummary, WriterOptions};
 
 /// A state digest every this many ticks (and at every tick with events), so a replay can find the
 /// first tick where it diverges.
@@ -12,29 +15,32 @@ pub const DIGEST_EVERY: u64 = 100;
 
 /// Who and what a recorded session is about.
 pub struct SessionInfo<'a> {
+    /// The trainee's account username on the scoring service.
     pub trainee: &'a str,
     pub scenario: &'a str,
     pub difficulty: &'a str,
     pub seed: u64,
+    pub atlas_id: &'a str,
+    pub atlas_hash: &'a str,
 }
 
-/// The header for a session about to start on `sim`.
-pub fn header(atlas: &stylet_atlas::Atlas, sim: &Simulation, info: &SessionInfo) -> SessionHeader {
+/// The header of a session about to start on `sim` (new session id, wall clock now).
+pub fn header(sim: &Simulation, info: &SessionInfo) -> SessionHeader {
     SessionHeader {
-        schema_version: stylet_recorder::SCHEMA_VERSION,
-        session_id: stylet_recorder::new_session_id(),
+        schema_version: crate::SCHEMA_VERSION,
+        session_id: crate::new_session_id(),
         trainee: info.trainee.to_string(),
         scenario: info.scenario.to_string(),
         difficulty: info.difficulty.to_string(),
-        atlas_id: atlas.manifest.name.clone(),
-        atlas_hash: atlas.content_hash.clone(),
+        atlas_id: info.atlas_id.to_string(),
+        atlas_hash: info.atlas_hash.to_string(),
         software_version: format!("stylet {}", env!("CARGO_PKG_VERSION")),
         physics_version: stylet_physics::PHYSICS_VERSION,
         tick_rate_hz: sim.tick_rate_hz(),
         seed: info.seed,
         device: sim.device().name.to_string(),
         initial_tool: *sim.tool_spec(),
-        wall_clock_start: stylet_recorder::wall_clock_now(),
+        wall_clock_start: crate::wall_clock_now(),
     }
 }
 
@@ -43,15 +49,18 @@ pub struct Recording {
     writer: SessionWriter,
     /// Real-time loop: never block (a full queue marks the session incomplete). Offline: wait.
     realtime: bool,
-    error: Option<anyhow::Error>,
+    error: Option<WriteError>,
 }
 
 impl Recording {
-    pub fn start(path: &Path, header: &SessionHeader, realtime: bool) -> anyhow::Result<Self> {
-        let writer = SessionWriter::create(path, header, WriterOptions::default())
-            .with_context(|| format!("cannot record to {}", path.display()))?;
+    pub fn start(
+        path: &Path,
+        header: &SessionHeader,
+        realtime: bool,
+        options: WriterOptions,
+    ) -> Result<Self, WriteError> {
         Ok(Recording {
-            writer,
+            writer: SessionWriter::create(path, header, options)?,
             realtime,
             error: None,
         })
@@ -74,16 +83,16 @@ impl Recording {
                 }
             });
             if let Err(e) = r {
-                self.error = Some(e.into());
+                self.error = Some(e);
             }
         }
     }
 
     /// Ends the session (summary, indexes); an error if anything could not be written.
-    pub fn finish(self) -> anyhow::Result<WriteSummary> {
+    pub fn finish(self) -> Result<WriteSummary, WriteError> {
         let summary = self.writer.finish()?;
         match self.error {
-            Some(e) => Err(e.context("recording the session")),
+            Some(e) => Err(e),
             None => Ok(summary),
         }
     }
