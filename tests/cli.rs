@@ -200,9 +200,10 @@ fn import_real_ct_and_dicom() {
     check_inspect_json(&json);
 }
 
-/// The README's first command: the demo builds the phantom and prints its summary.
+/// The README's first command: the demo builds the phantom, prints its summary, records the
+/// example scripts as sessions and prints their scores.
 #[test]
-fn demo_builds_the_phantom_and_prints_its_summary() {
+fn demo_builds_the_phantom_records_sessions_and_scores_them() {
     let d = tempfile::tempdir().unwrap();
     let text = ok(&["demo", "--out", d.path().to_str().unwrap()]);
     for s in [
@@ -210,11 +211,34 @@ fn demo_builds_the_phantom_and_prints_its_summary() {
         "right hepatic duct",
         "intercostal-10-11",
         "loaded and validated",
+        "7 sessions",
+        "why not passed",
+        "replayed and scored",
     ] {
         assert!(text.contains(s), "demo output lacks {s:?}:\n{text}");
     }
     assert!(d.path().join("atlases/phantom/atlas.toml").is_file());
     png_size(&d.path().join("phantom.png"));
+    // One row per session: replay verified everywhere; the successful puncture passes, the lung
+    // hit fails because of the lung.
+    let row = |name: &str| {
+        text.lines()
+            .find(|l| l.starts_with(&format!("{name}.mcap")))
+            .unwrap()
+            .to_string()
+    };
+    for name in [
+        "success-intercostal",
+        "two-attempts",
+        "lung-hit",
+        "vessel-hit",
+        "palpation-sweep",
+    ] {
+        assert!(row(name).split_whitespace().nth(4) == Some("yes"), "{}", row(name));
+    }
+    assert!(row("success-intercostal").contains("passed"));
+    assert!(row("lung-hit").contains("failed") && row("lung-hit").contains("hit right lung"));
+    assert_eq!(std::fs::read_dir(d.path().join("sessions")).unwrap().count(), 7);
 }
 
 /// `stylet script run`: the same script twice writes byte-identical CSVs; plots come out; a bad

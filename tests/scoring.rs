@@ -365,3 +365,49 @@ fn batch_results_do_not_depend_on_jobs_or_file_order() {
     assert_eq!(rows.len(), SCRIPTS.len());
     assert!(rows.iter().all(|r| r.contains(",scored,true,")), "{rows:?}");
 }
+
+/// Records a script text on the default phantom and scores it.
+fn score_text(name: &str, text: &str) -> Value {
+    let st = setup();
+    let d = tempfile::tempdir().unwrap();
+    let script = d.path().join(format!("{name}.txt"));
+    std::fs::write(&script, text).unwrap();
+    let session = d.path().join(format!("{name}.mcap"));
+    ok(&[
+        "script",
+        "run",
+        "--atlas",
+        s(&st.atlas()),
+        "--script",
+        s(&script),
+        "--out",
+        s(&session),
+    ]);
+    score_json(&session)
+}
+
+#[test]
+fn redirections_and_bone_contacts_are_counted() {
+    // In along the planned path to 60 mm, back 15 mm without leaving the body, in again: one
+    // redirection in one attempt. Then a 3 mm wobble: below R = 5 mm, not a redirection.
+    let r = score_text(
+        "redirect",
+        "stylet-script 1\nend 12\nat 0 along intercostal-10-11 -10\nat 4 along intercostal-10-11 60\n\
+         at 5 along intercostal-10-11 45\nat 7 along intercostal-10-11 70\nat 8 along intercostal-10-11 67\n\
+         at 9 along intercostal-10-11 72\nat 12 along intercostal-10-11 -10\n",
+    );
+    assert_eq!(r["replay_verified"], true);
+    let m = &r["metrics"];
+    assert_eq!(m["attempts"], 1, "{m}");
+    assert_eq!(m["redirections"], 1, "{m}");
+    // Aimed at a rib: the tip stops on bone.
+    let r = score_text(
+        "rib",
+        "stylet-script 1\nend 8\nat 0 aim 160 0 30 50.5 45 30 -15\nat 1 aim 160 0 30 50.5 45 30 -15\n\
+         at 6 aim 160 0 30 50.5 45 30 40\nat 7 aim 160 0 30 50.5 45 30 -15\n",
+    );
+    let m = &r["metrics"];
+    assert_eq!(m["bone_contacts"], 1, "{m}");
+    assert!(m["risk_hits"].as_array().unwrap().is_empty(), "{m}");
+    assert!(m["max_force_n"].as_f64().unwrap() > 5.0, "{m}");
+}

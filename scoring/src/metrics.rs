@@ -104,7 +104,7 @@ pub struct Metrics {
     pub max_force_n: f64,
     /// Root mean square of |F| over the ticks with the tool in the body or touching the skin.
     pub rms_force_n: f64,
-    /// Largest distance of a needle node from the hub–tip chord (mm).
+    /// Largest distance of a needle node from the line through hub and tip (mm).
     pub max_bending_mm: f64,
     /// Area swept sideways by the shaft inside tissue (mm²).
     pub tissue_damage_mm2: f64,
@@ -174,7 +174,7 @@ pub struct MetricsCollector<'a> {
     max_bending_mm: f64,
     prev_nodes: Vec<DVec3>,
     tissue_damage_mm2: f64,
-    end_distance_mm: Option<f64>,
+    last_needle_tip_mm: Option<DVec3>,
     min_distance_mm: Option<f64>,
 }
 
@@ -245,7 +245,7 @@ impl<'a> MetricsCollector<'a> {
             max_bending_mm: 0.0,
             prev_nodes: Vec::new(),
             tissue_damage_mm2: 0.0,
-            end_distance_mm: None,
+            last_needle_tip_mm: None,
             min_distance_mm: None,
         }
     }
@@ -415,9 +415,16 @@ impl<'a> MetricsCollector<'a> {
         match needle {
             Some(n) => {
                 let nodes = n.nodes();
-                let (hub, tip) = (nodes[0], nodes[nodes.len() - 1]);
-                let bend = nodes.iter().map(|&p| segment_distance(p, hub, tip)).fold(0.0, f64::max);
-                self.max_bending_mm = self.max_bending_mm.max(bend);
+                // Distance from the hub–tip line: |(p − hub) × chord| / |chord|, squared until the end.
+                let (hub, chord) = (nodes[0], nodes[nodes.len() - 1] - nodes[0]);
+                let len2 = chord.length_squared();
+                if len2 > 0.0 {
+                    let worst = nodes
+                        .iter()
+                        .map(|&p| (p - hub).cross(chord).length_squared())
+                        .fold(0.0, f64::max);
+                    self.max_bending_mm = self.max_bending_mm.max((worst / len2).sqrt());
+                }
                 if in_body && self.prev_nodes.len() == nodes.len() {
                     let seg = n.spec().length_mm / (nodes.len() - 1) as f64;
                     let inside = ((out.inserted_mm / seg).floor() as usize).min(nodes.len() - 1);
@@ -432,11 +439,9 @@ impl<'a> MetricsCollector<'a> {
                 }
                 self.prev_nodes.clear();
                 self.prev_nodes.extend_from_slice(nodes);
-                if let Some(d) = self.target.distance_mm(out.tip_mm) {
-                    self.end_distance_mm = Some(d);
-                    if in_body {
-                        self.min_distance_mm = Some(self.min_distance_mm.map_or(d, |m| m.min(d)));
-                    }
+                self.last_needle_tip_mm = Some(out.tip_mm);
+                if in_body && let Some(d) = self.target.distance_mm(out.tip_mm) {
+                    self.min_distance_mm = Some(self.min_distance_mm.map_or(d, |m| m.min(d)));
                 }
             }
             None => self.prev_nodes.clear(),
@@ -529,7 +534,7 @@ impl<'a> MetricsCollector<'a> {
                     (None, _) => false,
                 },
             },
-            target_distance_mm: self.end_distance_mm,
+            target_distance_mm: self.last_needle_tip_mm.and_then(|p| self.target.distance_mm(p)),
             target_distance_min_mm: self.min_distance_mm,
             guided,
         }

@@ -119,7 +119,10 @@ pub fn replay(
             .map_err(|message| ReplayError::BadEvent { tick: e.tick, message })?;
         events.entry(e.tick).or_default().push(ev);
     }
-    let digests: BTreeMap<u64, u64> = session.digests.iter().map(|d| (d.tick, d.digest)).collect();
+    // Both in tick order, consumed as the ticks pass (no lookup per tick).
+    let mut events = events.into_iter().peekable();
+    let digest_map: BTreeMap<u64, u64> = session.digests.iter().map(|d| (d.tick, d.digest)).collect();
+    let mut digests = digest_map.into_iter().peekable();
     let mut divergence: Option<Divergence> = None;
     let (mut ticks, mut digests_checked) = (0u64, 0u64);
     for t in &session.ticks {
@@ -133,13 +136,21 @@ pub fn replay(
             });
             break;
         }
-        let input = tick_input(t, events.remove(&t.tick).unwrap_or_default());
+        while events.next_if(|(tick, _)| *tick < t.tick).is_some() {}
+        let input = tick_input(
+            t,
+            events
+                .next_if(|(tick, _)| *tick == t.tick)
+                .map(|(_, e)| e)
+                .unwrap_or_default(),
+        );
         let out = sim.step(&input);
         ticks += 1;
         if divergence.is_none() {
             divergence = compare(t, &out);
         }
-        if let Some(&recorded) = digests.get(&t.tick) {
+        while digests.next_if(|(tick, _)| *tick < t.tick).is_some() {}
+        if let Some((_, recorded)) = digests.next_if(|(tick, _)| *tick == t.tick) {
             digests_checked += 1;
             let replayed = sim.state_digest();
             if recorded != replayed && divergence.is_none() {

@@ -269,3 +269,102 @@ impl Rubric {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::metrics::{Metrics, Workflow};
+
+    fn metrics() -> Metrics {
+        Metrics {
+            attempts: 2,
+            redirections: 3,
+            risk_hits: Vec::new(),
+            bone_contacts: 0,
+            target_reached: true,
+            target_confirmed: true,
+            stylet_removed_in_target: true,
+            contrast_in_target: true,
+            time_to_target_s: Some(20.0),
+            time_total_s: 60.0,
+            fluoro_time_s: 40.0,
+            xray_shots: 2,
+            ultrasound_time_s: 10.0,
+            palpation_time_s: 0.0,
+            path_length_mm: 100.0,
+            path_inefficiency: Some(1.1),
+            max_force_n: 3.0,
+            rms_force_n: 1.0,
+            max_bending_mm: 1.0,
+            tissue_damage_mm2: 0.0,
+            workflow: Workflow {
+                palpation_before_puncture: false,
+                ultrasound_before_puncture: true,
+                confirmed_before_withdrawal: true,
+            },
+            target_distance_mm: Some(0.0),
+            target_distance_min_mm: Some(0.0),
+            guided: None,
+        }
+    }
+
+    /// The worked example of docs/metrics.md "Rubrics".
+    #[test]
+    fn the_shipped_rubric_grades_the_worked_example() {
+        let r = Rubric::default_rubric();
+        assert_eq!((r.name.as_str(), r.version), ("ptcd", 1));
+        let g = r.grade(&metrics(), "beginner").unwrap();
+        // attempts 2 (1 free) −10, redirections 3 (2 free) −3, fluoro 40 s (30 free) −5,
+        // no palpation first −5: 100 − 23.
+        assert_eq!(g.score, 77.0, "{:?}", g.deductions);
+        assert!(g.passed && g.failed.is_empty());
+        let g = r.grade(&metrics(), "expert").unwrap();
+        assert!(!g.passed);
+        assert!(
+            g.failed.iter().any(|f| f.starts_with("attempts = 2 is above 1")),
+            "{:?}",
+            g.failed
+        );
+        assert!(
+            g.failed.iter().any(|f| f.starts_with("fluoro_time_s = 40 is above 30")),
+            "{:?}",
+            g.failed
+        );
+        assert!(r.grade(&metrics(), "wizard").unwrap_err().contains("'wizard'"));
+    }
+
+    #[test]
+    fn bad_rubrics_are_named() {
+        let base = DEFAULT_RUBRIC;
+        let cases = [
+            (base.replace("version = 1", "version = 0"), "version"),
+            (
+                base.replace("[levels.expert]", "[levels.master]"),
+                "lacks level 'expert'",
+            ),
+            (
+                base.replacen("metric = \"attempts\"", "metric = \"atempts\"", 1),
+                "unknown metric 'atempts'",
+            ),
+            (
+                base.replacen("pass_score = 60.0", "pass_score = 160.0", 1),
+                "pass_score",
+            ),
+            (
+                base.replacen("redirection_mm = 5.0", "redirection_mm = -5.0", 1),
+                "positive",
+            ),
+            (
+                base.replacen("{ metric = \"risk_hits\", max = 0 }", "{ metric = \"risk_hits\" }", 1),
+                "neither min nor max",
+            ),
+            (base.replacen("points = 10 }", "points = -10 }", 1), "negative points"),
+            (format!("{base}\nsurprise = 1\n"), "surprise"),
+            ("name = ".to_string(), "line 1"),
+        ];
+        for (text, want) in cases {
+            let e = Rubric::parse(&text).unwrap_err();
+            assert!(e.contains(want), "expected '{want}' in: {e}");
+        }
+    }
+}

@@ -1,10 +1,11 @@
-//! `stylet demo`: the main job on the embedded default. For now: build the phantom atlas, load it
-//! back through the validating loader and print its summary (later issues add sessions, scores and
-//! the dashboard).
+//! `stylet demo`: the main job on the embedded default. Build the phantom atlas, load it back
+//! through the validating loader and print its summary; record the example scripts as sessions
+//! of demo trainees; replay and score them and print the scores (the dashboard joins later).
 
 use std::path::PathBuf;
 use std::time::Instant;
 
+use anyhow::Context;
 use clap::Args;
 
 #[derive(Debug, Args)]
@@ -45,5 +46,95 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         &png,
     )?;
     sayf!("three orthogonal slices with the label overlay: {}", png.display());
+
+    // Sessions: the example scripts, embedded, as demo trainees would have done them.
+    let sessions_dir = args.out.join("sessions");
+    std::fs::create_dir_all(&sessions_dir)?;
+    let t2 = Instant::now();
+    let mut files = Vec::new();
+    let mut simulated_s = 0.0;
+    for (name, trainee, text) in DEMO_SCRIPTS {
+        let out = sessions_dir.join(format!("{name}.mcap"));
+        let info = stylet_recorder::SessionInfo {
+            trainee,
+            scenario: name,
+            difficulty: "beginner",
+            seed: args.seed,
+            atlas_id: &atlas.manifest.name,
+            atlas_hash: &atlas.content_hash,
+        };
+        let summary = super::script::record_script_text(&atlas, text, &out, &info)
+            .with_context(|| format!("recording the demo script {name}"))?;
+        simulated_s += summary.ticks as f64 / 1000.0;
+        files.push(out);
+    }
+    sayf!(
+        "{} sessions ({simulated_s:.0} s at 1 kHz) recorded in {:.2} s to {}",
+        files.len(),
+        t2.elapsed().as_secs_f64(),
+        sessions_dir.display()
+    );
+
+    // Scores: every session replayed through the physics and graded at its difficulty.
+    let t3 = Instant::now();
+    let scorer = stylet_scoring::Scorer::new(&atlas, stylet_scoring::Rubric::default_rubric(), None)
+        .map_err(|e| anyhow::anyhow!(e))?;
+    let jobs = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let results = scorer
+        .score_files(&files, jobs, &|| {})
+        .map_err(|e| anyhow::anyhow!(e))?;
+    sayf!("");
+    super::score::print_table(&results);
+    sayf!("");
+    sayf!(
+        "replayed and scored in {:.2} s ({} rubric v{}); details: stylet score {} --atlas {}",
+        t3.elapsed().as_secs_f64(),
+        scorer.rubric().name,
+        scorer.rubric().version,
+        files[2].display(),
+        atlas_dir.display()
+    );
+    if let Some((f, Err(e))) = results.iter().find(|r| r.1.is_err()) {
+        anyhow::bail!("{}: {e}", f.display());
+    }
     Ok(())
 }
+
+/// The example scripts of the phantom (atlases/phantom/scripts), with the demo trainee who did each.
+const DEMO_SCRIPTS: [(&str, &str, &str); 7] = [
+    (
+        "palpation-sweep",
+        "demo-alice",
+        include_str!("../../atlases/phantom/scripts/palpation-sweep.txt"),
+    ),
+    (
+        "probe-parallel",
+        "demo-alice",
+        include_str!("../../atlases/phantom/scripts/probe-parallel.txt"),
+    ),
+    (
+        "success-intercostal",
+        "demo-alice",
+        include_str!("../../atlases/phantom/scripts/success-intercostal.txt"),
+    ),
+    (
+        "two-attempts",
+        "demo-bob",
+        include_str!("../../atlases/phantom/scripts/two-attempts.txt"),
+    ),
+    (
+        "lung-hit",
+        "demo-bob",
+        include_str!("../../atlases/phantom/scripts/lung-hit.txt"),
+    ),
+    (
+        "vessel-hit",
+        "demo-carol",
+        include_str!("../../atlases/phantom/scripts/vessel-hit.txt"),
+    ),
+    (
+        "probe-across",
+        "demo-carol",
+        include_str!("../../atlases/phantom/scripts/probe-across.txt"),
+    ),
+];

@@ -202,9 +202,9 @@ fn print_report(file: &Path, r: &ScoreReport) {
     );
 }
 
-fn print_table(results: &[(PathBuf, Result<ScoreReport, ScoreError>)]) {
+pub fn print_table(results: &[(PathBuf, Result<ScoreReport, ScoreError>)]) {
     sayf!(
-        "{:<28} {:<12} {:<22} {:<9} {:>8} {:>5} {:>6} {:>4} {:>5} {:<8}",
+        "{:<28} {:<12} {:<22} {:<9} {:>8} {:>5} {:>6} {:>4} {:>5} {:<7} {}",
         "session",
         "trainee",
         "scenario",
@@ -214,7 +214,8 @@ fn print_table(results: &[(PathBuf, Result<ScoreReport, ScoreError>)]) {
         "risk",
         "bone",
         "score",
-        "result"
+        "result",
+        "why not passed"
     );
     for (f, r) in results {
         let name = f
@@ -222,7 +223,7 @@ fn print_table(results: &[(PathBuf, Result<ScoreReport, ScoreError>)]) {
             .map_or_else(|| f.display().to_string(), |n| n.to_string_lossy().into_owned());
         match r {
             Ok(s) => sayf!(
-                "{:<28} {:<12} {:<22} {:<9} {:>8} {:>5} {:>6} {:>4} {:>5.1} {:<8}",
+                "{:<28} {:<12} {:<22} {:<9} {:>8} {:>5} {:>6} {:>4} {:>5.1} {:<7} {}",
                 name,
                 s.trainee,
                 s.scenario,
@@ -232,11 +233,40 @@ fn print_table(results: &[(PathBuf, Result<ScoreReport, ScoreError>)]) {
                 s.metrics.risk_hits.len(),
                 s.metrics.bone_contacts,
                 s.grade.score,
-                if s.grade.passed { "passed" } else { "failed" }
+                if s.grade.passed { "passed" } else { "failed" },
+                why_not(s)
             ),
             Err(e) => sayf!("{name:<28} not scored: {e}"),
         }
     }
+}
+
+/// The unmet requirements in a few words (empty when passed).
+fn why_not(s: &ScoreReport) -> String {
+    if s.grade.passed {
+        return String::new();
+    }
+    let mut why: Vec<String> = s
+        .grade
+        .failed
+        .iter()
+        .map(|f| {
+            let metric = f.split(' ').next().unwrap_or(f);
+            match metric {
+                "target_not_reached" => "target not reached".to_string(),
+                "target_not_confirmed" => "not confirmed".to_string(),
+                "risk_hits" => {
+                    let names: Vec<&str> = s.metrics.risk_hits.iter().map(|h| h.structure.as_str()).collect();
+                    format!("hit {}", names.join(", "))
+                }
+                other => other.replace('_', " "),
+            }
+        })
+        .collect();
+    if why.is_empty() {
+        why.push("score below the pass mark".into());
+    }
+    why.join("; ")
 }
 
 /// Columns of `stylet score --csv` (docs/metrics.md "Batch CSV").

@@ -89,10 +89,15 @@ pub const CSV_HEADER: &str = "tick,t_s,x_mm,y_mm,z_mm,qw,qx,qy,qz,fx_n,fy_n,fz_n
 f_insert_n,cut_n,friction_n,base_n,skin_n,slide_n,bone_n,tip_label,tip_name,inserted_mm,tip_depth_mm,\
 indentation_mm,contacts,stylet_in,xray_on,contrast_ml,events";
 
-/// Reads and binds a script to an atlas.
-pub fn load_script(atlas: &stylet_atlas::Atlas, path: &Path) -> anyhow::Result<ScriptedDevice> {
+/// The simulation a script file starts with, and its device.
+pub fn script_simulation(atlas: &stylet_atlas::Atlas, path: &Path) -> anyhow::Result<(Simulation, ScriptedDevice)> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let script = parse(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    script_text_simulation(atlas, &text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+/// The simulation a script text starts with, and its device (bound to the atlas' named paths).
+pub fn script_text_simulation(atlas: &stylet_atlas::Atlas, text: &str) -> Result<(Simulation, ScriptedDevice), String> {
+    let script = parse(text).map_err(|e| e.to_string())?;
     let paths: Vec<NamedPath> = atlas
         .manifest
         .paths
@@ -103,19 +108,26 @@ pub fn load_script(atlas: &stylet_atlas::Atlas, path: &Path) -> anyhow::Result<S
             target_mm: DVec3::from_array(p.target_mm),
         })
         .collect();
-    let device = ScriptedDevice::new(&script, &paths).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    Ok(device)
-}
-
-/// The simulation a script starts with.
-pub fn script_simulation(atlas: &stylet_atlas::Atlas, path: &Path) -> anyhow::Result<(Simulation, ScriptedDevice)> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let script = parse(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    let device = load_script(atlas, path)?;
+    let device = ScriptedDevice::new(&script, &paths).map_err(|e| e.to_string())?;
     let mut config = SimConfig::new(script.device, script.initial_tool);
     config.tick_rate_hz = script.rate_hz;
-    let sim = Simulation::new(Arc::new(atlas.model.clone()), config).map_err(|e| anyhow::anyhow!(e))?;
+    let sim = Simulation::new(Arc::new(atlas.model.clone()), config)?;
     Ok((sim, device))
+}
+
+/// Runs a script text headless and records it to `out` (offline: the recorder may wait).
+pub fn record_script_text(
+    atlas: &stylet_atlas::Atlas,
+    text: &str,
+    out: &Path,
+    info: &SessionInfo,
+) -> anyhow::Result<stylet_recorder::WriteSummary> {
+    let (mut sim, mut device) = script_text_simulation(atlas, text).map_err(|e| anyhow::anyhow!(e))?;
+    let header = stylet_recorder::recording::header(&sim, info);
+    let mut rec = Recording::start(out, &header, false, WriterOptions::default())
+        .with_context(|| format!("cannot record to {}", out.display()))?;
+    stylet_devices::run_headless(&mut sim, &mut device, |i, o, s| rec.tick(i, o, s));
+    rec.finish().with_context(|| format!("recording {}", out.display()))
 }
 
 fn csv_row(i: &TickInput, o: &TickOutput, name: &str) -> String {
