@@ -109,7 +109,8 @@ pub struct Metrics {
     /// Area swept sideways by the shaft inside tissue (mm²).
     pub tissue_damage_mm2: f64,
     pub workflow: Workflow,
-    /// Tip to the nearest target voxel at the end (mm; 0 inside the target).
+    /// Tip to the nearest target voxel where the last puncture ended: its deepest point before
+    /// withdrawal (mm, 0 inside the target).
     pub target_distance_mm: Option<f64>,
     /// … and at its closest while the needle was in the body.
     pub target_distance_min_mm: Option<f64>,
@@ -174,7 +175,6 @@ pub struct MetricsCollector<'a> {
     max_bending_mm: f64,
     prev_nodes: Vec<DVec3>,
     tissue_damage_mm2: f64,
-    last_needle_tip_mm: Option<DVec3>,
     min_distance_mm: Option<f64>,
 }
 
@@ -245,7 +245,6 @@ impl<'a> MetricsCollector<'a> {
             max_bending_mm: 0.0,
             prev_nodes: Vec::new(),
             tissue_damage_mm2: 0.0,
-            last_needle_tip_mm: None,
             min_distance_mm: None,
         }
     }
@@ -439,7 +438,6 @@ impl<'a> MetricsCollector<'a> {
                 }
                 self.prev_nodes.clear();
                 self.prev_nodes.extend_from_slice(nodes);
-                self.last_needle_tip_mm = Some(out.tip_mm);
                 if in_body && let Some(d) = self.target.distance_mm(out.tip_mm) {
                     self.min_distance_mm = Some(self.min_distance_mm.map_or(d, |m| m.min(d)));
                 }
@@ -534,7 +532,7 @@ impl<'a> MetricsCollector<'a> {
                     (None, _) => false,
                 },
             },
-            target_distance_mm: self.last_needle_tip_mm.and_then(|p| self.target.distance_mm(p)),
+            target_distance_mm: self.attempts.last().and_then(|a| self.target.distance_mm(a.deepest.1)),
             target_distance_min_mm: self.min_distance_mm,
             guided,
         }

@@ -34,6 +34,9 @@ pub enum ScoreError {
     Grade(String),
 }
 
+/// A file and what scoring it gave.
+pub type FileScore = (PathBuf, Result<ScoreReport, ScoreError>);
+
 /// The scored session: who and what, the replay check, the metrics and the grade.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ScoreReport {
@@ -164,13 +167,13 @@ impl Scorer {
         files: &[PathBuf],
         jobs: usize,
         progress: &(dyn Fn() + Sync),
-    ) -> Result<Vec<(PathBuf, Result<ScoreReport, ScoreError>)>, String> {
+    ) -> Result<Vec<FileScore>, String> {
         use rayon::prelude::*;
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(jobs.max(1))
             .build()
             .map_err(|e| e.to_string())?;
-        let mut results: Vec<(PathBuf, Result<ScoreReport, ScoreError>)> = pool.install(|| {
+        let mut results: Vec<FileScore> = pool.install(|| {
             files
                 .par_iter()
                 .map(|f| {

@@ -21,7 +21,7 @@ impl TargetDistance {
         if !target.iter().any(|&t| t) {
             return TargetDistance { map: None };
         }
-        let grid = labels.grid().clone();
+        let grid = *labels.grid();
         let d: Vec<f32> = stylet_physics::distance::squared_edt(&grid, &target)
             .into_iter()
             .map(f32::sqrt)

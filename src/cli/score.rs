@@ -150,7 +150,7 @@ fn print_report(file: &Path, r: &ScoreReport) {
         yes(m.contrast_in_target)
     );
     sayf!(
-        "distance     to the target at the end {}, closest {}",
+        "distance     to the target where the last puncture ended {}, closest {}",
         opt(m.target_distance_mm, "mm"),
         opt(m.target_distance_min_mm, "mm")
     );

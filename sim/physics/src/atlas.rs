@@ -40,7 +40,7 @@ impl PunctureAtlas {
         tree: PropertyTree,
         thresholds: Thresholds,
     ) -> Result<Self, PhysicsError> {
-        let (gc, gl) = (ct.grid().clone(), partial.grid().clone());
+        let (gc, gl) = (*ct.grid(), *partial.grid());
         if gc.dims() != gl.dims() {
             return Err(PhysicsError::Mismatch(format!(
                 "CT has dimensions {:?} but the label map has {:?}",
@@ -61,7 +61,7 @@ impl PunctureAtlas {
         let partial = if gl == gc {
             partial
         } else {
-            Volume::new(gc.clone(), partial.into_data())?
+            Volume::new(gc, partial.into_data())?
         };
         if let Some(pos) = ct.data().iter().position(|v| !v.is_finite()) {
             let [i, j, k] = gc.unlinear(pos);
