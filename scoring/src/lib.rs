@@ -2,12 +2,14 @@
 //! claims. [`replay`] re-runs a session file's recorded inputs through `stylet_physics` and checks
 //! every recorded output and state digest bit for bit; [`metrics`] measures the replayed session
 //! (docs/metrics.md); [`rubric`] turns metrics into a grade per difficulty; [`score`] ties them
-//! together for one file or a batch. The axum service and its store join with their issue.
+//! together for one file or a batch; [`service`] (feature `service`) is the HTTP scoring service.
 
 pub mod metrics;
 pub mod replay;
 pub mod rubric;
 pub mod score;
+#[cfg(feature = "service")]
+pub mod service;
 pub mod target;
 
 pub use metrics::{MetricParams, Metrics, RiskHit};

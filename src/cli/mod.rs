@@ -9,6 +9,7 @@ mod atlas;
 mod demo;
 mod score;
 mod script;
+mod serve;
 mod session;
 
 use clap::{Parser, Subcommand};
@@ -34,6 +35,11 @@ enum Command {
     Script(script::ScriptCommand),
     /// Replay session files through the physics and grade them (docs/metrics.md).
     Score(score::ScoreArgs),
+    /// Run the scoring service: JSON API, uploads, scoring by replay (docs/api.md).
+    Serve(serve::ServeArgs),
+    /// Manage service accounts.
+    #[command(subcommand)]
+    User(serve::UserCommand),
     /// Inspect, verify, export and recover session files (docs/session-format.md).
     #[command(subcommand)]
     Session(session::SessionCommand),
@@ -47,6 +53,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Script(cmd) => script::run(cmd),
         Command::Session(cmd) => session::run(cmd),
         Command::Score(args) => score::run(args),
+        Command::Serve(args) => serve::serve(args),
+        Command::User(cmd) => serve::user(cmd),
         Command::Demo(args) => demo::run(args),
     }
 }

@@ -1,0 +1,131 @@
+//! The scoring service (`stylet serve`; DESIGN.md "Service and security"): a JSON API over axum
+//! that takes session files, validates them with the recorder's reader before anything is
+//! stored, keeps them by content hash, and scores them by replay on a worker pool whose jobs live
+//! in the database (a restart resumes them; a session is never scored twice).
+
+pub mod api;
+pub mod auth;
+pub mod store;
+pub mod worker;
+
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+pub use store::{Store, StoreError};
+
+/// Settings of a running service.
+#[derive(Debug, Clone)]
+pub struct Config {
+    pub bind: String,
+    pub data_dir: PathBuf,
+    /// Default: SQLite `stylet.db` in the data directory.
+    pub database_url: Option<String>,
+    /// Directory of atlas directories sessions may use.
+    pub atlases_dir: Option<PathBuf>,
+    pub workers: usize,
+    pub max_upload_bytes: usize,
+    /// Mark cookies Secure (behind TLS).
+    pub secure_cookies: bool,
+}
+
+impl Config {
+    pub fn database_url(&self) -> String {
+        self.database_url
+            .clone()
+            .unwrap_or_else(|| format!("sqlite://{}?mode=rwc", self.data_dir.join("stylet.db").display()))
+    }
+}
+
+/// Shared state of the handlers and workers.
+pub struct AppState {
+    pub store: Store,
+    pub config: Config,
+    /// One scorer per known atlas, by content hash.
+    pub scorers: BTreeMap<String, Arc<crate::Scorer>>,
+    pub wake: tokio::sync::Notify,
+}
+
+impl AppState {
+    pub fn session_file(&self, sha: &str) -> PathBuf {
+        self.config
+            .data_dir
+            .join("sessions")
+            .join(&sha[..2])
+            .join(format!("{sha}.mcap"))
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ServiceError {
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    #[error("{0}")]
+    Setup(String),
+}
+
+/// Opens the store (migrations), loads the atlases, resumes unfinished jobs and serves until
+/// the process ends. `ready` gets the bound address (port 0 picks a free one).
+pub async fn serve(config: Config, ready: impl FnOnce(SocketAddr)) -> Result<(), ServiceError> {
+    let setup = |e: &dyn std::fmt::Display| ServiceError::Setup(e.to_string());
+    std::fs::create_dir_all(config.data_dir.join("sessions"))
+        .map_err(|e| setup(&format!("{}: {e}", config.data_dir.display())))?;
+    let store = Store::open(&config.database_url()).await?;
+    let mut scorers = BTreeMap::new();
+    if let Some(dir) = &config.atlases_dir {
+        let dir = dir.clone();
+        let loaded = tokio::task::spawn_blocking(move || load_atlases(&dir))
+            .await
+            .map_err(|e| setup(&e))??;
+        for (atlas, scorer) in loaded {
+            store
+                .register_atlas(
+                    &atlas.content_hash,
+                    &atlas.manifest.name,
+                    &atlas.dir.display().to_string(),
+                )
+                .await?;
+            tracing::info!(atlas = %atlas.manifest.name, hash = %atlas.content_hash, "atlas ready");
+            scorers.insert(atlas.content_hash.clone(), Arc::new(scorer));
+        }
+    }
+    let requeued = store.requeue_running().await?;
+    if requeued > 0 {
+        tracing::info!(requeued, "resuming scoring jobs a previous run left unfinished");
+    }
+    let listener = tokio::net::TcpListener::bind(&config.bind)
+        .await
+        .map_err(|e| setup(&format!("cannot bind {}: {e}", config.bind)))?;
+    let addr = listener.local_addr().map_err(|e| setup(&e))?;
+    let state = Arc::new(AppState {
+        store,
+        config,
+        scorers,
+        wake: tokio::sync::Notify::new(),
+    });
+    worker::start(state.clone());
+    ready(addr);
+    axum::serve(listener, api::router(state)).await.map_err(|e| setup(&e))
+}
+
+fn load_atlases(dir: &std::path::Path) -> Result<Vec<(stylet_atlas::Atlas, crate::Scorer)>, ServiceError> {
+    let err = |e: &dyn std::fmt::Display| ServiceError::Setup(format!("{}: {e}", dir.display()));
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| err(&e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.join("atlas.toml").is_file())
+        .collect();
+    dirs.sort();
+    if dirs.is_empty() {
+        return Err(err(&"no atlas directories (with atlas.toml) in it"));
+    }
+    dirs.iter()
+        .map(|d| {
+            let atlas = stylet_atlas::load(d).map_err(|e| ServiceError::Setup(e.to_string()))?;
+            let scorer =
+                crate::Scorer::new(&atlas, crate::Rubric::default_rubric(), None).map_err(ServiceError::Setup)?;
+            Ok((atlas, scorer))
+        })
+        .collect()
+}

@@ -1,0 +1,484 @@
+//! The scoring service against a real server on loopback (`stylet serve`, SQLite): accounts from
+//! `stylet user add`, login, upload, scoring by replay, who may see what, hostile uploads, and a
+//! server killed with SIGKILL while jobs are queued.
+
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_stylet")).args(args).output().unwrap();
+    assert!(
+        out.status.success(),
+        "stylet {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+fn add_user(data: &Path, name: &str, role: &str, cohort: Option<&str>) {
+    let mut args = vec![
+        "user",
+        "add",
+        "--data-dir",
+        s(data),
+        "--username",
+        name,
+        "--role",
+        role,
+        "--password-stdin",
+    ];
+    if let Some(c) = cohort {
+        args.extend(["--cohort", c]);
+    }
+    let mut child = Command::new(env!("CARGO_BIN_EXE_stylet"))
+        .args(&args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(format!("{name}-password\n").as_bytes())
+        .unwrap();
+    assert!(child.wait().unwrap().success(), "user add {name}");
+}
+
+struct Server {
+    child: Child,
+    base: String,
+}
+
+impl Server {
+    fn start(data: &Path, atlases: &Path, extra: &[&str]) -> Server {
+        std::fs::create_dir_all(data).unwrap();
+        let log = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(data.join("server.log"))
+            .unwrap();
+        let mut child = Command::new(env!("CARGO_BIN_EXE_stylet"))
+            .args([
+                "serve",
+                "--bind",
+                "127.0.0.1:0",
+                "--data-dir",
+                s(data),
+                "--atlases",
+                s(atlases),
+            ])
+            .args(extra)
+            .stdout(Stdio::piped())
+            // The server's log (tracing, with request ids) stays beside its data for a look after a failure.
+            .stderr(log)
+            .spawn()
+            .unwrap();
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let base = line
+            .trim()
+            .strip_prefix("listening on ")
+            .unwrap_or_else(|| panic!("unexpected: {line}"))
+            .to_string();
+        Server { child, base }
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// (status, JSON body, Set-Cookie token) of a request.
+fn call(
+    method: &str,
+    url: &str,
+    cookie: Option<&str>,
+    body: Option<&[u8]>,
+    json: bool,
+) -> (u16, Value, Option<String>) {
+    let mut req = ureq::request(method, url);
+    if let Some(c) = cookie {
+        req = req.set("Cookie", &format!("stylet_session={c}"));
+    }
+    let res = match body {
+        Some(b) => req
+            .set(
+                "Content-Type",
+                if json {
+                    "application/json"
+                } else {
+                    "application/octet-stream"
+                },
+            )
+            .send_bytes(b),
+        None => req.call(),
+    };
+    let resp = match res {
+        Ok(r) => r,
+        Err(ureq::Error::Status(_, r)) => r,
+        Err(e) => panic!("{method} {url}: {e}"),
+    };
+    let status = resp.status();
+    let token = resp
+        .header("Set-Cookie")
+        .and_then(|c| c.strip_prefix("stylet_session="))
+        .and_then(|c| c.split(';').next())
+        .map(str::to_string);
+    let text = resp.into_string().unwrap();
+    (
+        status,
+        serde_json::from_str(&text).unwrap_or(Value::String(text)),
+        token,
+    )
+}
+
+fn login(base: &str, user: &str) -> String {
+    let body = format!(r#"{{"username":"{user}","password":"{user}-password"}}"#);
+    let (status, json, token) = call("POST", &format!("{base}/api/login"), None, Some(body.as_bytes()), true);
+    assert_eq!(status, 200, "{json}");
+    token.unwrap()
+}
+
+fn files_under(dir: &Path) -> usize {
+    walk(dir).len()
+}
+
+fn walk(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    if let Ok(rd) = std::fs::read_dir(dir) {
+        for e in rd.flatten() {
+            let p = e.path();
+            if p.is_dir() { out.extend(walk(&p)) } else { out.push(p) }
+        }
+    }
+    out
+}
+
+/// A small phantom and two sessions of trainee `tina`, one of `tom`, and one recorded on another
+/// atlas.
+struct Fixture {
+    dir: tempfile::TempDir,
+}
+
+impl Fixture {
+    fn new() -> Fixture {
+        let dir = tempfile::tempdir().unwrap();
+        let f = Fixture { dir };
+        let atlas = f.atlases().join("phantom");
+        ok(&[
+            "atlas",
+            "phantom",
+            "--out",
+            s(&atlas),
+            "--dims",
+            "160,160,130",
+            "--spacing",
+            "2.4",
+        ]);
+        let other = f.dir.path().join("other-atlas");
+        ok(&[
+            "atlas",
+            "phantom",
+            "--out",
+            s(&other),
+            "--dims",
+            "96,96,80",
+            "--spacing",
+            "4",
+        ]);
+        let scripts = Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts");
+        for (name, script, trainee, on) in [
+            ("tina-ok", "success-intercostal", "tina", &atlas),
+            ("tina-lung", "lung-hit", "tina", &atlas),
+            ("tina-two", "two-attempts", "tina", &atlas),
+            ("tom-ok", "success-intercostal", "tom", &atlas),
+            ("tina-other-atlas", "success-intercostal", "tina", &other),
+        ] {
+            let sc = scripts.join(format!("{script}.txt"));
+            let out = f.session(name);
+            ok(&[
+                "script",
+                "run",
+                "--atlas",
+                s(on),
+                "--script",
+                s(&sc),
+                "--out",
+                s(&out),
+                "--trainee",
+                trainee,
+            ]);
+        }
+        f
+    }
+    fn atlases(&self) -> PathBuf {
+        self.dir.path().join("atlases")
+    }
+    fn session(&self, name: &str) -> PathBuf {
+        self.dir.path().join(format!("{name}.mcap"))
+    }
+    fn data(&self) -> PathBuf {
+        self.dir.path().join("data")
+    }
+    fn users(&self) {
+        let d = self.data();
+        add_user(&d, "root", "admin", None);
+        add_user(&d, "ivan", "instructor", Some("c1"));
+        add_user(&d, "tina", "trainee", Some("c1"));
+        add_user(&d, "tom", "trainee", Some("c2"));
+        add_user(&d, "cora", "curriculum", None);
+    }
+}
+
+fn wait_scored(base: &str, cookie: &str, id: &str) -> Value {
+    let t0 = Instant::now();
+    loop {
+        let (status, json, _) = call("GET", &format!("{base}/api/sessions/{id}"), Some(cookie), None, false);
+        assert_eq!(status, 200, "{json}");
+        match json["status"].as_str().unwrap() {
+            "scored" | "failed" => return json,
+            _ if t0.elapsed() > Duration::from_secs(120) => panic!("not scored in time: {json}"),
+            _ => std::thread::sleep(Duration::from_millis(100)),
+        }
+    }
+}
+
+#[test]
+fn upload_score_and_see_only_what_you_may() {
+    let f = Fixture::new();
+    f.users();
+    let srv = Server::start(
+        &f.data(),
+        &f.atlases(),
+        &["--max-upload-bytes", "2000000", "--workers", "2"],
+    );
+    let b = &srv.base;
+    assert_eq!(call("GET", &format!("{b}/healthz"), None, None, false).0, 200);
+    let (status, json, _) = call(
+        "POST",
+        &format!("{b}/api/login"),
+        None,
+        Some(br#"{"username":"tina","password":"nope-nope"}"#),
+        true,
+    );
+    assert_eq!(status, 401, "{json}");
+    assert!(json["error"].as_str().unwrap().contains("wrong username or password"));
+
+    let tina = login(b, "tina");
+    let file = std::fs::read(f.session("tina-ok")).unwrap();
+    let (status, first, _) = call("POST", &format!("{b}/api/sessions"), Some(&tina), Some(&file), false);
+    assert_eq!(status, 201, "{first}");
+    assert_eq!(first["status"], "queued");
+    let id = first["id"].as_str().unwrap().to_string();
+    // The same bytes again: 200 and the same id.
+    let (status, again, _) = call("POST", &format!("{b}/api/sessions"), Some(&tina), Some(&file), false);
+    assert_eq!((status, again["id"].as_str()), (200, Some(id.as_str())));
+    let scored = wait_scored(b, &tina, &id);
+    assert_eq!(scored["status"], "scored", "{scored}");
+    assert_eq!(scored["score"]["replay_verified"], true);
+    assert_eq!(scored["score"]["grade"]["passed"], true);
+    assert_eq!(scored["score"]["metrics"]["target_reached"], true);
+
+    // Who sees it: tina, her instructor, curriculum staff, the admin; not tom, not anonymous.
+    let url = format!("{b}/api/sessions/{id}");
+    for (user, want) in [("ivan", 200), ("cora", 200), ("root", 200), ("tom", 404)] {
+        let c = login(b, user);
+        assert_eq!(call("GET", &url, Some(&c), None, false).0, want, "{user}");
+        let (_, list, _) = call("GET", &format!("{b}/api/sessions"), Some(&c), None, false);
+        let n = list["sessions"].as_array().unwrap().len();
+        assert_eq!(n, usize::from(want == 200), "{user} lists {n}");
+    }
+    assert_eq!(call("GET", &url, None, None, false).0, 401);
+    assert_eq!(call("GET", &url, Some("forged-token"), None, false).0, 401);
+
+    // Uploads that must be refused, each with a reason, leaving no file and no row behind.
+    let files_before = files_under(&f.data().join("sessions"));
+    let tom = login(b, "tom");
+    let ivan = login(b, "ivan");
+    let cora = login(b, "cora");
+    let lung = std::fs::read(f.session("tina-lung")).unwrap();
+    let mut flipped = lung.clone();
+    let mid = flipped.len() / 2;
+    flipped[mid] ^= 0x20;
+    let mut bomb = b"\x89MCAP0\r\n".to_vec();
+    bomb.extend(std::iter::repeat_n(0u8, 64));
+    let cases: Vec<(&str, &str, Vec<u8>, u16, &str)> = vec![
+        ("tom uploads tina's session", &tom, lung.clone(), 403, "may not upload"),
+        ("curriculum uploads", &cora, lung.clone(), 403, "may not upload"),
+        (
+            "truncated",
+            &tina,
+            lung[..lung.len() / 2].to_vec(),
+            422,
+            "not a valid session file",
+        ),
+        ("bit flip", &tina, flipped, 422, "not a valid session file"),
+        (
+            "random bytes",
+            &tina,
+            (0..5000u32).map(|i| (i.wrapping_mul(2654435761) >> 13) as u8).collect(),
+            422,
+            "not a valid session file",
+        ),
+        ("header only", &tina, bomb, 422, "not a valid session file"),
+        ("empty", &tina, Vec::new(), 400, "empty"),
+        ("oversized", &tina, vec![0u8; 2_500_000], 413, "limit"),
+        (
+            "another atlas",
+            &tina,
+            std::fs::read(f.session("tina-other-atlas")).unwrap(),
+            422,
+            "does not know",
+        ),
+    ];
+    for (what, cookie, body, want, reason) in cases {
+        let (status, json, _) = call("POST", &format!("{b}/api/sessions"), Some(cookie), Some(&body), false);
+        assert_eq!(status, want, "{what}: {json}");
+        assert!(
+            json["error"].as_str().unwrap_or_default().contains(reason),
+            "{what}: {json}"
+        );
+        assert_eq!(
+            call("GET", &format!("{b}/healthz"), None, None, false).0,
+            200,
+            "{what}: server down"
+        );
+    }
+    assert_eq!(
+        files_under(&f.data().join("sessions")),
+        files_before,
+        "a refused upload left a file"
+    );
+    let (_, list, _) = call("GET", &format!("{b}/api/sessions"), Some(&cora), None, false);
+    assert_eq!(
+        list["sessions"].as_array().unwrap().len(),
+        1,
+        "a refused upload left a row"
+    );
+
+    // An instructor may upload for a trainee of their cohort.
+    let (status, json, _) = call("POST", &format!("{b}/api/sessions"), Some(&ivan), Some(&lung), false);
+    assert_eq!(status, 201, "{json}");
+    let scored = wait_scored(b, &ivan, json["id"].as_str().unwrap());
+    assert_eq!(scored["score"]["grade"]["passed"], false);
+    assert!(
+        scored["score"]["metrics"]["risk_hits"][0]["structure"]
+            .as_str()
+            .unwrap()
+            .contains("lung"),
+        "{scored}"
+    );
+
+    // Logging out ends the login.
+    let (status, _, _) = call("POST", &format!("{b}/api/logout"), Some(&tina), Some(b""), false);
+    assert_eq!(status, 200);
+    assert_eq!(call("GET", &url, Some(&tina), None, false).0, 401);
+}
+
+#[test]
+fn a_killed_server_resumes_its_jobs_and_scores_each_session_once() {
+    let f = Fixture::new();
+    f.users();
+    // A long session (5 minutes of needle work) keeps the single worker busy long enough to be
+    // killed mid-replay; the others wait in the queue behind it.
+    let mut long = String::from("stylet-script 1\nend 300\nat 0 along intercostal-10-11 -10\n");
+    for k in 0..29 {
+        long += &format!(
+            "at {} along intercostal-10-11 60\nat {} along intercostal-10-11 40\n",
+            10 * k + 5,
+            10 * k + 10
+        );
+    }
+    long += "at 300 along intercostal-10-11 -10\n";
+    let script = f.dir.path().join("long.txt");
+    std::fs::write(&script, long).unwrap();
+    let atlas = f.atlases().join("phantom");
+    ok(&[
+        "script",
+        "run",
+        "--atlas",
+        s(&atlas),
+        "--script",
+        s(&script),
+        "--out",
+        s(&f.session("tina-long")),
+        "--trainee",
+        "tina",
+    ]);
+    let names = ["tina-long", "tina-ok", "tina-lung", "tina-two"];
+    let ids: Vec<String> = {
+        let mut srv = Server::start(&f.data(), &f.atlases(), &["--workers", "1"]);
+        let tina = login(&srv.base, "tina");
+        let ids: Vec<String> = names
+            .iter()
+            .map(|n| {
+                let body = std::fs::read(f.session(n)).unwrap();
+                let (status, json, _) = call(
+                    "POST",
+                    &format!("{}/api/sessions", srv.base),
+                    Some(&tina),
+                    Some(&body),
+                    false,
+                );
+                assert_eq!(status, 201, "{json}");
+                json["id"].as_str().unwrap().to_string()
+            })
+            .collect();
+        // Kill it while the long session is being scored and the rest are queued.
+        let t0 = Instant::now();
+        loop {
+            let (_, json, _) = call(
+                "GET",
+                &format!("{}/api/sessions/{}", srv.base, ids[0]),
+                Some(&tina),
+                None,
+                false,
+            );
+            if json["status"] == "scoring" {
+                break;
+            }
+            assert!(
+                json["status"] == "queued" && t0.elapsed() < Duration::from_secs(60),
+                "{json}"
+            );
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        srv.child.kill().unwrap(); // SIGKILL
+        srv.child.wait().unwrap();
+        ids
+    };
+    let srv = Server::start(&f.data(), &f.atlases(), &["--workers", "2"]);
+    let tina = login(&srv.base, "tina");
+    for id in &ids {
+        let r = wait_scored(&srv.base, &tina, id);
+        assert_eq!(r["status"], "scored", "{r}");
+        assert_eq!(r["score"]["replay_verified"], true);
+    }
+    drop(srv);
+    // Exactly one score per session and every job done once, straight from the database.
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let url = format!("sqlite://{}?mode=rwc", f.data().join("stylet.db").display());
+        let store = stylet_scoring::service::Store::open(&url).await.unwrap();
+        for id in &ids {
+            assert_eq!(store.score_count(id).await.unwrap(), 1, "{id}");
+        }
+    });
+}
