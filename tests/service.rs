@@ -1,6 +1,7 @@
-//! The scoring service against a real server on loopback (`stylet serve`, SQLite): accounts from
+//! The scoring service against a real server on loopback (`stylet serve`), on SQLite and on a
+//! real PostgreSQL server (`$STYLET_POSTGRES_URL`, started by scripts/test): accounts from
 //! `stylet user add`, login, upload, scoring by replay, who may see what, hostile uploads, and a
-//! server killed with SIGKILL while jobs are queued.
+//! server killed with SIGKILL while jobs are queued and running.
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
@@ -23,7 +24,7 @@ fn ok(args: &[&str]) -> String {
     String::from_utf8(out.stdout).unwrap()
 }
 
-fn add_user(data: &Path, name: &str, role: &str, cohort: Option<&str>) {
+fn add_user(data: &Path, db: &Db, name: &str, role: &str, cohort: Option<&str>) {
     let mut args = vec![
         "user",
         "add",
@@ -35,6 +36,7 @@ fn add_user(data: &Path, name: &str, role: &str, cohort: Option<&str>) {
         role,
         "--password-stdin",
     ];
+    args.extend(db.args());
     if let Some(c) = cohort {
         args.extend(["--cohort", c]);
     }
@@ -53,13 +55,51 @@ fn add_user(data: &Path, name: &str, role: &str, cohort: Option<&str>) {
     assert!(child.wait().unwrap().success(), "user add {name}");
 }
 
+/// Which database the server uses.
+enum Db {
+    Sqlite,
+    /// A fresh PostgreSQL database of its own.
+    Postgres(String),
+}
+
+impl Db {
+    fn postgres(test: &str) -> Db {
+        let admin = std::env::var("STYLET_POSTGRES_URL")
+            .expect("STYLET_POSTGRES_URL is not set: scripts/test starts PostgreSQL (scripts/postgres-up) and sets it");
+        let name = format!("stylet_{test}_{}", std::process::id());
+        let run = |sql: &str| {
+            let out = Command::new("psql")
+                .args([admin.as_str(), "-q", "-c", sql])
+                .output()
+                .expect("psql runs");
+            assert!(out.status.success(), "{sql}: {}", String::from_utf8_lossy(&out.stderr));
+        };
+        run(&format!("DROP DATABASE IF EXISTS {name}"));
+        run(&format!("CREATE DATABASE {name}"));
+        let base = admin.rsplit_once('/').expect("a URL with a database").0;
+        Db::Postgres(format!("{base}/{name}"))
+    }
+    fn args(&self) -> Vec<&str> {
+        match self {
+            Db::Sqlite => Vec::new(),
+            Db::Postgres(url) => vec!["--database", url.as_str()],
+        }
+    }
+    fn url(&self, data: &Path) -> String {
+        match self {
+            Db::Sqlite => format!("sqlite://{}?mode=rwc", data.join("stylet.db").display()),
+            Db::Postgres(url) => url.clone(),
+        }
+    }
+}
+
 struct Server {
     child: Child,
     base: String,
 }
 
 impl Server {
-    fn start(data: &Path, atlases: &Path, extra: &[&str]) -> Server {
+    fn start(data: &Path, db: &Db, atlases: &Path, extra: &[&str]) -> Server {
         std::fs::create_dir_all(data).unwrap();
         let log = std::fs::OpenOptions::new()
             .create(true)
@@ -77,6 +117,7 @@ impl Server {
                 s(atlases),
             ])
             .args(extra)
+            .args(db.args())
             .stdout(Stdio::piped())
             // The server's log (tracing, with request ids) stays beside its data for a look after a failure.
             .stderr(log)
@@ -234,13 +275,13 @@ impl Fixture {
     fn data(&self) -> PathBuf {
         self.dir.path().join("data")
     }
-    fn users(&self) {
+    fn users(&self, db: &Db) {
         let d = self.data();
-        add_user(&d, "root", "admin", None);
-        add_user(&d, "ivan", "instructor", Some("c1"));
-        add_user(&d, "tina", "trainee", Some("c1"));
-        add_user(&d, "tom", "trainee", Some("c2"));
-        add_user(&d, "cora", "curriculum", None);
+        add_user(&d, db, "root", "admin", None);
+        add_user(&d, db, "ivan", "instructor", Some("c1"));
+        add_user(&d, db, "tina", "trainee", Some("c1"));
+        add_user(&d, db, "tom", "trainee", Some("c2"));
+        add_user(&d, db, "cora", "curriculum", None);
     }
 }
 
@@ -258,11 +299,31 @@ fn wait_scored(base: &str, cookie: &str, id: &str) -> Value {
 }
 
 #[test]
-fn upload_score_and_see_only_what_you_may() {
+fn upload_score_and_see_only_what_you_may_sqlite() {
+    upload_score_and_see_only_what_you_may(Db::Sqlite);
+}
+
+#[test]
+fn upload_score_and_see_only_what_you_may_postgres() {
+    upload_score_and_see_only_what_you_may(Db::postgres("upload"));
+}
+
+#[test]
+fn a_killed_server_resumes_its_jobs_and_scores_each_session_once_sqlite() {
+    a_killed_server_resumes_its_jobs_and_scores_each_session_once(Db::Sqlite);
+}
+
+#[test]
+fn a_killed_server_resumes_its_jobs_and_scores_each_session_once_postgres() {
+    a_killed_server_resumes_its_jobs_and_scores_each_session_once(Db::postgres("crash"));
+}
+
+fn upload_score_and_see_only_what_you_may(db: Db) {
     let f = Fixture::new();
-    f.users();
+    f.users(&db);
     let srv = Server::start(
         &f.data(),
+        &db,
         &f.atlases(),
         &["--max-upload-bytes", "2000000", "--workers", "2"],
     );
@@ -389,10 +450,9 @@ fn upload_score_and_see_only_what_you_may() {
     assert_eq!(call("GET", &url, Some(&tina), None, false).0, 401);
 }
 
-#[test]
-fn a_killed_server_resumes_its_jobs_and_scores_each_session_once() {
+fn a_killed_server_resumes_its_jobs_and_scores_each_session_once(db: Db) {
     let f = Fixture::new();
-    f.users();
+    f.users(&db);
     // A long session (5 minutes of needle work) keeps the single worker busy long enough to be
     // killed mid-replay; the others wait in the queue behind it.
     let mut long = String::from("stylet-script 1\nend 300\nat 0 along intercostal-10-11 -10\n");
@@ -421,7 +481,7 @@ fn a_killed_server_resumes_its_jobs_and_scores_each_session_once() {
     ]);
     let names = ["tina-long", "tina-ok", "tina-lung", "tina-two"];
     let ids: Vec<String> = {
-        let mut srv = Server::start(&f.data(), &f.atlases(), &["--workers", "1"]);
+        let mut srv = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "1"]);
         let tina = login(&srv.base, "tina");
         let ids: Vec<String> = names
             .iter()
@@ -461,7 +521,7 @@ fn a_killed_server_resumes_its_jobs_and_scores_each_session_once() {
         srv.child.wait().unwrap();
         ids
     };
-    let srv = Server::start(&f.data(), &f.atlases(), &["--workers", "2"]);
+    let srv = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "2"]);
     let tina = login(&srv.base, "tina");
     for id in &ids {
         let r = wait_scored(&srv.base, &tina, id);
@@ -475,8 +535,7 @@ fn a_killed_server_resumes_its_jobs_and_scores_each_session_once() {
         .build()
         .unwrap();
     rt.block_on(async {
-        let url = format!("sqlite://{}?mode=rwc", f.data().join("stylet.db").display());
-        let store = stylet_scoring::service::Store::open(&url).await.unwrap();
+        let store = stylet_scoring::service::Store::open(&db.url(&f.data())).await.unwrap();
         for id in &ids {
             assert_eq!(store.score_count(id).await.unwrap(), 1, "{id}");
         }
