@@ -143,17 +143,28 @@ impl Drop for Server {
     }
 }
 
+/// How a test client authenticates.
+enum Auth {
+    /// The login cookie and the login's CSRF token (sent with POSTs).
+    Cookie {
+        token: String,
+        csrf: String,
+    },
+    Bearer(String),
+}
+
 /// (status, JSON body, Set-Cookie token) of a request.
-fn call(
-    method: &str,
-    url: &str,
-    cookie: Option<&str>,
-    body: Option<&[u8]>,
-    json: bool,
-) -> (u16, Value, Option<String>) {
+fn call(method: &str, url: &str, auth: Option<&Auth>, body: Option<&[u8]>, json: bool) -> (u16, Value, Option<String>) {
     let mut req = ureq::request(method, url);
-    if let Some(c) = cookie {
-        req = req.set("Cookie", &format!("stylet_session={c}"));
+    match auth {
+        Some(Auth::Cookie { token, csrf }) => {
+            req = req.set("Cookie", &format!("stylet_session={token}"));
+            if method == "POST" {
+                req = req.set("X-CSRF-Token", csrf);
+            }
+        }
+        Some(Auth::Bearer(t)) => req = req.set("Authorization", &format!("Bearer {t}")),
+        None => {}
     }
     let res = match body {
         Some(b) => req
@@ -187,11 +198,42 @@ fn call(
     )
 }
 
-fn login(base: &str, user: &str) -> String {
+fn login(base: &str, user: &str) -> Auth {
     let body = format!(r#"{{"username":"{user}","password":"{user}-password"}}"#);
     let (status, json, token) = call("POST", &format!("{base}/api/login"), None, Some(body.as_bytes()), true);
     assert_eq!(status, 200, "{json}");
-    token.unwrap()
+    Auth::Cookie {
+        token: token.unwrap(),
+        csrf: json["csrf_token"].as_str().unwrap().to_string(),
+    }
+}
+
+/// A POST over a raw socket that ignores write errors (the server may answer and close before
+/// the whole body is sent); returns status and JSON body.
+fn raw_post(base: &str, path: &str, auth: &Auth, body: &[u8]) -> (u16, Value) {
+    use std::io::Read;
+    let addr = base.strip_prefix("http://").unwrap();
+    let mut sock = std::net::TcpStream::connect(addr).unwrap();
+    let Auth::Cookie { token, csrf } = auth else {
+        panic!("cookie auth expected")
+    };
+    let head = format!(
+        "POST {path} HTTP/1.1\r\nHost: {addr}\r\nCookie: stylet_session={token}\r\nX-CSRF-Token: {csrf}\r\n\
+         Content-Type: application/octet-stream\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+        body.len()
+    );
+    sock.write_all(head.as_bytes()).unwrap();
+    let _ = sock.write_all(body);
+    let mut resp = Vec::new();
+    let _ = sock.read_to_end(&mut resp);
+    let text = String::from_utf8_lossy(&resp).to_string();
+    let status = text.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
+    let json = text
+        .split("\r\n\r\n")
+        .nth(1)
+        .and_then(|b| serde_json::from_str(b).ok())
+        .unwrap_or(Value::String(text.clone()));
+    (status, json)
 }
 
 fn files_under(dir: &Path) -> usize {
@@ -285,7 +327,7 @@ impl Fixture {
     }
 }
 
-fn wait_scored(base: &str, cookie: &str, id: &str) -> Value {
+fn wait_scored(base: &str, cookie: &Auth, id: &str) -> Value {
     let t0 = Instant::now();
     loop {
         let (status, json, _) = call("GET", &format!("{base}/api/sessions/{id}"), Some(cookie), None, false);
@@ -364,7 +406,15 @@ fn upload_score_and_see_only_what_you_may(db: Db) {
         assert_eq!(n, usize::from(want == 200), "{user} lists {n}");
     }
     assert_eq!(call("GET", &url, None, None, false).0, 401);
-    assert_eq!(call("GET", &url, Some("forged-token"), None, false).0, 401);
+    let forged = Auth::Cookie {
+        token: "forged-token".into(),
+        csrf: String::new(),
+    };
+    assert_eq!(call("GET", &url, Some(&forged), None, false).0, 401);
+    assert_eq!(
+        call("GET", &url, Some(&Auth::Bearer("forged".into())), None, false).0,
+        401
+    );
 
     // Uploads that must be refused, each with a reason, leaving no file and no row behind.
     let files_before = files_under(&f.data().join("sessions"));
@@ -377,7 +427,21 @@ fn upload_score_and_see_only_what_you_may(db: Db) {
     flipped[mid] ^= 0x20;
     let mut bomb = b"\x89MCAP0\r\n".to_vec();
     bomb.extend(std::iter::repeat_n(0u8, 64));
-    let cases: Vec<(&str, &str, Vec<u8>, u16, &str)> = vec![
+    let no_csrf = match &tina {
+        Auth::Cookie { token, .. } => Auth::Cookie {
+            token: token.clone(),
+            csrf: "wrong".into(),
+        },
+        Auth::Bearer(_) => unreachable!(),
+    };
+    let cases: Vec<(&str, &Auth, Vec<u8>, u16, &str)> = vec![
+        (
+            "cookie without the CSRF token",
+            &no_csrf,
+            lung.clone(),
+            403,
+            "X-CSRF-Token",
+        ),
         ("tom uploads tina's session", &tom, lung.clone(), 403, "may not upload"),
         ("curriculum uploads", &cora, lung.clone(), 403, "may not upload"),
         (
@@ -397,7 +461,6 @@ fn upload_score_and_see_only_what_you_may(db: Db) {
         ),
         ("header only", &tina, bomb, 422, "not a valid session file"),
         ("empty", &tina, Vec::new(), 400, "empty"),
-        ("oversized", &tina, vec![0u8; 2_500_000], 413, "limit"),
         (
             "another atlas",
             &tina,
@@ -407,7 +470,8 @@ fn upload_score_and_see_only_what_you_may(db: Db) {
         ),
     ];
     for (what, cookie, body, want, reason) in cases {
-        let (status, json, _) = call("POST", &format!("{b}/api/sessions"), Some(cookie), Some(&body), false);
+        // Raw socket: a refusal may come before the server has read the whole body.
+        let (status, json) = raw_post(b, "/api/sessions", cookie, &body);
         assert_eq!(status, want, "{what}: {json}");
         assert!(
             json["error"].as_str().unwrap_or_default().contains(reason),
@@ -419,6 +483,12 @@ fn upload_score_and_see_only_what_you_may(db: Db) {
             "{what}: server down"
         );
     }
+    // Over the size limit: answered 413 from the declared length, before the body is read (a
+    // raw socket, because the server does not wait for the rest of the body).
+    let (status, json) = raw_post(b, "/api/sessions", &tina, &vec![0u8; 2_500_000]);
+    assert_eq!(status, 413, "{json}");
+    assert!(json["error"].as_str().unwrap().contains("limit"), "{json}");
+    assert_eq!(call("GET", &format!("{b}/healthz"), None, None, false).0, 200);
     assert_eq!(
         files_under(&f.data().join("sessions")),
         files_before,
@@ -443,6 +513,71 @@ fn upload_score_and_see_only_what_you_may(db: Db) {
             .contains("lung"),
         "{scored}"
     );
+
+    // The desktop app: an API token, then uploads with it (no cookie, no CSRF token).
+    let (status, json, _) = call(
+        "POST",
+        &format!("{b}/api/tokens"),
+        Some(&tina),
+        Some(br#"{"label":"sim-1"}"#),
+        true,
+    );
+    assert_eq!(status, 201, "{json}");
+    let bearer = Auth::Bearer(json["token"].as_str().unwrap().to_string());
+    let two = std::fs::read(f.session("tina-two")).unwrap();
+    let (status, json, _) = call("POST", &format!("{b}/api/sessions"), Some(&bearer), Some(&two), false);
+    assert_eq!(status, 201, "{json}");
+    assert_eq!(
+        wait_scored(b, &bearer, json["id"].as_str().unwrap())["status"],
+        "scored"
+    );
+
+    // The OpenAPI document names every route; every response carries a request id.
+    let (status, doc, _) = call("GET", &format!("{b}/api/openapi.json"), None, None, false);
+    assert_eq!(status, 200);
+    for path in [
+        "/healthz",
+        "/api/login",
+        "/api/logout",
+        "/api/tokens",
+        "/api/sessions",
+        "/api/sessions/{id}",
+    ] {
+        assert!(doc["paths"].get(path).is_some(), "openapi lacks {path}");
+    }
+    let resp = ureq::get(&format!("{b}/healthz"))
+        .set("X-Request-Id", "abc-123")
+        .call()
+        .unwrap();
+    assert_eq!(resp.header("X-Request-Id"), Some("abc-123"));
+    assert!(
+        ureq::get(&format!("{b}/healthz"))
+            .call()
+            .unwrap()
+            .header("X-Request-Id")
+            .is_some_and(|v| v.len() == 36)
+    );
+
+    // Guessing passwords: five failures, then 429 even for the right password, for a while.
+    for _ in 0..5 {
+        let (status, _, _) = call(
+            "POST",
+            &format!("{b}/api/login"),
+            None,
+            Some(br#"{"username":"cora","password":"guess-guess"}"#),
+            true,
+        );
+        assert_eq!(status, 401);
+    }
+    let (status, json, _) = call(
+        "POST",
+        &format!("{b}/api/login"),
+        None,
+        Some(br#"{"username":"cora","password":"cora-password"}"#),
+        true,
+    );
+    assert_eq!(status, 429, "{json}");
+    assert!(json["error"].as_str().unwrap().contains("too many failed logins"));
 
     // Logging out ends the login.
     let (status, _, _) = call("POST", &format!("{b}/api/logout"), Some(&tina), Some(b""), false);

@@ -42,11 +42,65 @@ impl From<super::StoreError> for ApiError {
 pub fn router(state: AppRef) -> Router {
     Router::new()
         .route("/healthz", get(healthz))
+        .route("/api/openapi.json", get(openapi))
         .route("/api/login", post(login))
         .route("/api/logout", post(logout))
+        .route("/api/tokens", post(create_token))
         .route("/api/sessions", post(upload).get(list_sessions))
         .route("/api/sessions/{id}", get(get_session))
+        .layer(axum::middleware::from_fn(request_log))
         .with_state(state)
+}
+
+/// Gives every request an id (the client's `X-Request-Id` if sensible, else a new UUID), logs it
+/// with method, path, status and duration, and returns it in `X-Request-Id`.
+async fn request_log(req: axum::extract::Request, next: axum::middleware::Next) -> Response {
+    use tracing::Instrument;
+    let id = req
+        .headers()
+        .get("x-request-id")
+        .and_then(|v| v.to_str().ok())
+        .filter(|v| !v.is_empty() && v.len() <= 64 && v.chars().all(|c| c.is_ascii_alphanumeric() || c == '-'))
+        .map_or_else(super::store::new_id, str::to_string);
+    let span = tracing::info_span!("request", id = %id, method = %req.method(), path = %req.uri().path());
+    let started = std::time::Instant::now();
+    let mut resp = next.run(req).instrument(span.clone()).await;
+    span.in_scope(|| {
+        tracing::info!(
+            status = resp.status().as_u16(),
+            ms = started.elapsed().as_secs_f64() * 1e3,
+            "served"
+        )
+    });
+    if let Ok(v) = id.parse() {
+        resp.headers_mut().insert("x-request-id", v);
+    }
+    resp
+}
+
+#[derive(serde::Deserialize)]
+struct TokenRequest {
+    label: String,
+}
+
+/// POST /api/tokens: an API token for the logged-in user (the desktop app uploads with it).
+async fn create_token(State(s): State<AppRef>, headers: HeaderMap, body: Bytes) -> Result<Response, ApiError> {
+    let user = acting_user(&s, &headers).await?;
+    let req: TokenRequest = serde_json::from_slice(&body)
+        .map_err(|e| err(StatusCode::BAD_REQUEST, format!("expected {{\"label\"}}: {e}")))?;
+    if req.label.trim().is_empty() || req.label.len() > 100 {
+        return Err(err(StatusCode::BAD_REQUEST, "a token label is 1–100 characters"));
+    }
+    let token = s.store.create_api_token(&user, req.label.trim()).await?;
+    Ok((
+        StatusCode::CREATED,
+        Json(json!({ "token": token, "label": req.label.trim(), "username": user.username })),
+    )
+        .into_response())
+}
+
+async fn openapi() -> Json<serde_json::Value> {
+    Json(super::openapi::document())
 }
 
 async fn healthz(State(s): State<AppRef>) -> Result<Json<serde_json::Value>, ApiError> {
@@ -57,17 +111,64 @@ async fn healthz(State(s): State<AppRef>) -> Result<Json<serde_json::Value>, Api
     Ok(Json(json!({ "status": "ok" })))
 }
 
-/// The logged-in user (login cookie), or 401.
-async fn current_user(s: &AppState, headers: &HeaderMap) -> Result<User, ApiError> {
+/// How a request authenticated.
+enum Via {
+    /// The login cookie: state-changing requests must echo the login's CSRF token.
+    Cookie { csrf: String },
+    /// `Authorization: Bearer <API token>` (the desktop app): not sent by browsers on their own.
+    Token,
+}
+
+/// The authenticated user (API token or login cookie), or 401.
+async fn authenticate(s: &AppState, headers: &HeaderMap) -> Result<(User, Via), ApiError> {
+    if let Some(value) = headers.get(header::AUTHORIZATION) {
+        let token = value
+            .to_str()
+            .ok()
+            .and_then(|v| v.strip_prefix("Bearer "))
+            .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "Authorization must be 'Bearer <API token>'"))?;
+        let user = s
+            .store
+            .user_for_api_token(token.trim())
+            .await?
+            .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "unknown API token"))?;
+        return Ok((user, Via::Token));
+    }
     let token = headers
         .get(header::COOKIE)
         .and_then(|v| v.to_str().ok())
         .and_then(auth::token_from_cookie_header)
         .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "log in first (POST /api/login)"))?;
-    s.store
+    let (user, csrf) = s
+        .store
         .user_for_login(token)
         .await?
-        .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "the login has expired; log in again"))
+        .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "the login has expired; log in again"))?;
+    Ok((user, Via::Cookie { csrf }))
+}
+
+/// The user of a read request.
+async fn current_user(s: &AppState, headers: &HeaderMap) -> Result<User, ApiError> {
+    Ok(authenticate(s, headers).await?.0)
+}
+
+/// The user of a state-changing request: with the login cookie, the `X-CSRF-Token` header must
+/// carry the token the login returned (a page of another site cannot read it).
+async fn acting_user(s: &AppState, headers: &HeaderMap) -> Result<User, ApiError> {
+    let (user, via) = authenticate(s, headers).await?;
+    if let Via::Cookie { csrf } = via {
+        let sent = headers
+            .get("x-csrf-token")
+            .and_then(|v| v.to_str().ok())
+            .unwrap_or_default();
+        if sent != csrf {
+            return Err(err(
+                StatusCode::FORBIDDEN,
+                "missing or wrong X-CSRF-Token header (the csrf_token of your login)",
+            ));
+        }
+    }
+    Ok(user)
 }
 
 #[derive(serde::Deserialize)]
@@ -78,6 +179,10 @@ struct LoginRequest {
 
 const LOGIN_TTL_S: u64 = 12 * 3600;
 
+/// Failed logins allowed per account within [`LOGIN_WINDOW`] before 429.
+pub const LOGIN_FAILURES_ALLOWED: usize = 5;
+pub const LOGIN_WINDOW: std::time::Duration = std::time::Duration::from_secs(300);
+
 async fn login(State(s): State<AppRef>, body: Bytes) -> Result<Response, ApiError> {
     let req: LoginRequest = serde_json::from_slice(&body).map_err(|e| {
         err(
@@ -85,11 +190,30 @@ async fn login(State(s): State<AppRef>, body: Bytes) -> Result<Response, ApiErro
             format!("expected {{\"username\", \"password\"}}: {e}"),
         )
     })?;
-    let user = s
-        .store
-        .check_login(&req.username, &req.password)
-        .await?
-        .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "wrong username or password"))?;
+    let key = req.username.to_lowercase();
+    let now = std::time::Instant::now();
+    {
+        let mut failures = s.login_failures.lock().expect("not poisoned");
+        let recent = failures.entry(key.clone()).or_default();
+        recent.retain(|t| now.duration_since(*t) < LOGIN_WINDOW);
+        if recent.len() >= LOGIN_FAILURES_ALLOWED {
+            let wait = LOGIN_WINDOW.saturating_sub(now.duration_since(recent[0])).as_secs() + 1;
+            return Err(err(
+                StatusCode::TOO_MANY_REQUESTS,
+                format!("too many failed logins for this account; try again in {wait} s"),
+            ));
+        }
+    }
+    let Some(user) = s.store.check_login(&req.username, &req.password).await? else {
+        s.login_failures
+            .lock()
+            .expect("not poisoned")
+            .entry(key)
+            .or_default()
+            .push(now);
+        return Err(err(StatusCode::UNAUTHORIZED, "wrong username or password"));
+    };
+    s.login_failures.lock().expect("not poisoned").remove(&key);
     let (token, csrf) = s.store.create_login(&user, LOGIN_TTL_S).await?;
     let mut r = Json(json!({ "username": user.username, "role": user.role, "csrf_token": csrf })).into_response();
     r.headers_mut().insert(
@@ -123,8 +247,18 @@ async fn logout(State(s): State<AppRef>, headers: HeaderMap) -> Result<Response,
 /// is stored: size, the recorder's strict reader (limits on records and decompression), a known
 /// atlas, and that the trainee in the file is the uploader or a trainee the instructor teaches.
 async fn upload(State(s): State<AppRef>, headers: HeaderMap, body: Body) -> Result<Response, ApiError> {
-    let user = current_user(&s, &headers).await?;
+    let user = acting_user(&s, &headers).await?;
     let limit = s.config.max_upload_bytes;
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    if declared.is_some_and(|n| n > limit as u64) {
+        return Err(err(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!("the upload exceeds the limit of {limit} bytes"),
+        ));
+    }
     let bytes = axum::body::to_bytes(body, limit).await.map_err(|_| {
         err(
             StatusCode::PAYLOAD_TOO_LARGE,

@@ -5,6 +5,7 @@
 
 pub mod api;
 pub mod auth;
+pub mod openapi;
 pub mod store;
 pub mod worker;
 
@@ -45,6 +46,8 @@ pub struct AppState {
     /// One scorer per known atlas, by content hash.
     pub scorers: BTreeMap<String, Arc<crate::Scorer>>,
     pub wake: tokio::sync::Notify,
+    /// Recent failed logins per account (rate limiting).
+    pub login_failures: std::sync::Mutex<BTreeMap<String, Vec<std::time::Instant>>>,
 }
 
 impl AppState {
@@ -103,6 +106,7 @@ pub async fn serve(config: Config, ready: impl FnOnce(SocketAddr)) -> Result<(),
         config,
         scorers,
         wake: tokio::sync::Notify::new(),
+        login_failures: Default::default(),
     });
     worker::start(state.clone());
     ready(addr);

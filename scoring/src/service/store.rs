@@ -226,16 +226,41 @@ impl Store {
         Ok((token, csrf))
     }
 
-    /// The user of a login token that has not expired.
-    pub async fn user_for_login(&self, token: &str) -> Result<Option<User>, StoreError> {
+    /// The user of a login token that has not expired, and the login's CSRF token.
+    pub async fn user_for_login(&self, token: &str) -> Result<Option<(User, String)>, StoreError> {
         let row = sqlx::query(
-            "SELECT u.id, u.username, u.role FROM auth_sessions s JOIN users u ON u.id = s.user_id \
+            "SELECT u.id, u.username, u.role, s.csrf_token FROM auth_sessions s JOIN users u ON u.id = s.user_id \
              WHERE s.token_sha256 = $1 AND s.expires_at > $2",
         )
         .bind(auth::sha256_hex(token))
         .bind(now())
         .fetch_optional(&self.pool)
         .await?;
+        Ok(match row {
+            Some(r) => Some((Self::user_of(&r)?, r.try_get("csrf_token")?)),
+            None => None,
+        })
+    }
+
+    /// A new API token for `user` (for the desktop app's uploads); returned once, stored hashed.
+    pub async fn create_api_token(&self, user: &User, label: &str) -> Result<String, StoreError> {
+        let token = auth::random_token();
+        sqlx::query("INSERT INTO api_tokens (token_sha256, user_id, label, created_at) VALUES ($1, $2, $3, $4)")
+            .bind(auth::sha256_hex(&token))
+            .bind(user.id.clone())
+            .bind(label.to_string())
+            .bind(now())
+            .execute(&self.pool)
+            .await?;
+        self.audit(Some(&user.id), "token.create", None, label).await?;
+        Ok(token)
+    }
+
+    pub async fn user_for_api_token(&self, token: &str) -> Result<Option<User>, StoreError> {
+        let row = sqlx::query("SELECT u.id, u.username, u.role FROM api_tokens t JOIN users u ON u.id = t.user_id WHERE t.token_sha256 = $1")
+            .bind(auth::sha256_hex(token))
+            .fetch_optional(&self.pool)
+            .await?;
         Ok(row.as_ref().map(Self::user_of).transpose()?)
     }
 

@@ -1,0 +1,94 @@
+//! The OpenAPI 3.1 document of the JSON API (`GET /api/openapi.json`), written by hand next to the
+//! routes it describes (tests check that every route is in it).
+
+use serde_json::{Value, json};
+
+fn error_response(description: &str) -> Value {
+    json!({ "description": description, "content": { "application/json": { "schema": { "$ref": "#/components/schemas/Error" } } } })
+}
+
+pub fn document() -> Value {
+    json!({
+        "openapi": "3.1.0",
+        "info": {
+            "title": "Stylet scoring service",
+            "version": env!("CARGO_PKG_VERSION"),
+            "description": "Uploads of session files, scoring by deterministic replay, scores by role. See docs/api.md."
+        },
+        "components": {
+            "securitySchemes": {
+                "cookie": { "type": "apiKey", "in": "cookie", "name": "stylet_session",
+                            "description": "From POST /api/login. State-changing requests also send X-CSRF-Token." },
+                "token": { "type": "http", "scheme": "bearer", "description": "From POST /api/tokens (desktop uploads)." }
+            },
+            "schemas": {
+                "Error": { "type": "object", "required": ["error"], "properties": { "error": { "type": "string" } } },
+                "Session": {
+                    "type": "object",
+                    "required": ["id", "trainee", "scenario", "difficulty", "status", "uploaded_at", "duration_s"],
+                    "properties": {
+                        "id": { "type": "string" }, "trainee": { "type": "string" }, "scenario": { "type": "string" },
+                        "difficulty": { "type": "string", "enum": ["beginner", "advanced", "expert"] },
+                        "status": { "type": "string", "enum": ["queued", "scoring", "scored", "failed"] },
+                        "uploaded_at": { "type": "string" }, "duration_s": { "type": "number" },
+                        "error": { "type": ["string", "null"] },
+                        "score": { "description": "The score report of docs/metrics.md once scored, else null" }
+                    }
+                }
+            }
+        },
+        "paths": {
+            "/healthz": { "get": { "summary": "Liveness and database check", "responses": { "200": { "description": "{\"status\":\"ok\"}" } } } },
+            "/api/openapi.json": { "get": { "summary": "This document", "responses": { "200": { "description": "OpenAPI 3.1" } } } },
+            "/api/login": { "post": {
+                "summary": "Log in; sets the stylet_session cookie",
+                "requestBody": { "required": true, "content": { "application/json": { "schema": {
+                    "type": "object", "required": ["username", "password"],
+                    "properties": { "username": { "type": "string" }, "password": { "type": "string" } } } } } },
+                "responses": {
+                    "200": { "description": "{username, role, csrf_token}" },
+                    "400": error_response("malformed body"),
+                    "401": error_response("wrong username or password"),
+                    "429": error_response("too many failed logins for this account")
+                }
+            } },
+            "/api/logout": { "post": { "summary": "Log out", "responses": { "200": { "description": "logged out" } } } },
+            "/api/tokens": { "post": {
+                "summary": "Create an API token for the logged-in user (shown once)",
+                "security": [{ "cookie": [] }],
+                "responses": { "201": { "description": "{token, label, username}" }, "401": error_response("not logged in"), "403": error_response("CSRF token missing") }
+            } },
+            "/api/sessions": {
+                "post": {
+                    "summary": "Upload a session file",
+                    "security": [{ "cookie": [] }, { "token": [] }],
+                    "requestBody": { "required": true, "content": { "application/octet-stream": { "schema": { "type": "string", "format": "binary" } } } },
+                    "responses": {
+                        "201": { "description": "{id, status: queued} for new bytes" },
+                        "200": { "description": "{id, status} of the same bytes uploaded before" },
+                        "400": error_response("empty body"),
+                        "401": error_response("not logged in"),
+                        "403": error_response("may not upload for this trainee, or CSRF token missing"),
+                        "413": error_response("over the size limit"),
+                        "422": error_response("not a valid session file, unknown atlas, or unknown trainee")
+                    }
+                },
+                "get": {
+                    "summary": "Sessions the caller may see, newest first",
+                    "security": [{ "cookie": [] }, { "token": [] }],
+                    "responses": { "200": { "description": "{sessions: [Session]}" }, "401": error_response("not logged in") }
+                }
+            },
+            "/api/sessions/{id}": { "get": {
+                "summary": "One session and its score",
+                "security": [{ "cookie": [] }, { "token": [] }],
+                "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
+                "responses": {
+                    "200": { "description": "Session", "content": { "application/json": { "schema": { "$ref": "#/components/schemas/Session" } } } },
+                    "401": error_response("not logged in"),
+                    "404": error_response("no such session, or not yours to see")
+                }
+            } }
+        }
+    })
+}
