@@ -351,6 +351,206 @@ fn upload_score_and_see_only_what_you_may_postgres() {
 }
 
 #[test]
+fn review_progress_and_reports_by_role_sqlite() {
+    review_progress_and_reports_by_role(Db::Sqlite);
+}
+
+#[test]
+fn review_progress_and_reports_by_role_postgres() {
+    review_progress_and_reports_by_role(Db::postgres("review"));
+}
+
+/// Comments, overrides, progress, cohort summaries and the CSV export, and the role × route
+/// matrix of every route that reads or changes a scored session.
+fn review_progress_and_reports_by_role(db: Db) {
+    let f = Fixture::new();
+    f.users(&db);
+    let srv = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "2"]);
+    let b = &srv.base;
+    let tina = login(b, "tina");
+    let tom = login(b, "tom");
+    let upload = |who: &Auth, name: &str| {
+        let body = std::fs::read(f.session(name)).unwrap();
+        let (status, json, _) = call("POST", &format!("{b}/api/sessions"), Some(who), Some(&body), false);
+        assert_eq!(status, 201, "{json}");
+        let id = json["id"].as_str().unwrap().to_string();
+        wait_scored(b, who, &id);
+        id
+    };
+    let t1 = upload(&tina, "tina-ok");
+    let t2 = upload(&tina, "tina-lung");
+    let m1 = upload(&tom, "tom-ok");
+    let users = ["root", "ivan", "tina", "tom", "cora"];
+    let auths: Vec<(&str, Auth)> = users.iter().map(|u| (*u, login(b, u))).collect();
+    let auth = |u: &str| &auths.iter().find(|(n, _)| *n == u).unwrap().1;
+
+    // The matrix: (route, method, body) × role → status.
+    let get = |u: &str, path: &str| call("GET", &format!("{b}{path}"), Some(auth(u)), None, false).0;
+    let post = |u: &str, path: &str, body: &str| {
+        call(
+            "POST",
+            &format!("{b}{path}"),
+            Some(auth(u)),
+            Some(body.as_bytes()),
+            true,
+        )
+        .0
+    };
+    let over = r#"{"score": 75, "passed": true, "reason": "lung contact was a recess artefact"}"#;
+    let comment = r#"{"body": "aim one rib lower"}"#;
+    type Row<'a> = (&'a str, Box<dyn Fn(&str) -> u16 + 'a>, [u16; 5]);
+    //                                                        root ivan tina  tom cora
+    let matrix: Vec<Row> = vec![
+        (
+            "GET tina's session",
+            Box::new(|u: &str| get(u, &format!("/api/sessions/{t1}"))),
+            [200, 200, 200, 404, 200],
+        ),
+        (
+            "GET tom's session",
+            Box::new(|u: &str| get(u, &format!("/api/sessions/{m1}"))),
+            [200, 404, 404, 200, 200],
+        ),
+        (
+            "GET tina's progress",
+            Box::new(|u: &str| get(u, "/api/trainees/tina/progress")),
+            [200, 200, 200, 404, 200],
+        ),
+        (
+            "GET cohort c1",
+            Box::new(|u: &str| get(u, "/api/cohorts/c1/summary")),
+            [200, 200, 403, 403, 200],
+        ),
+        (
+            "GET cohort c2",
+            Box::new(|u: &str| get(u, "/api/cohorts/c2/summary")),
+            [200, 403, 403, 403, 200],
+        ),
+        (
+            "GET export",
+            Box::new(|u: &str| get(u, "/api/export/sessions.csv")),
+            [200, 200, 403, 403, 200],
+        ),
+        (
+            "GET sessions",
+            Box::new(|u: &str| get(u, "/api/sessions")),
+            [200, 200, 200, 200, 200],
+        ),
+        (
+            "comment on tina's",
+            Box::new(|u: &str| post(u, &format!("/api/sessions/{t2}/comments"), comment)),
+            [201, 201, 403, 404, 403],
+        ),
+        (
+            "comment on tom's",
+            Box::new(|u: &str| post(u, &format!("/api/sessions/{m1}/comments"), comment)),
+            [201, 404, 404, 403, 403],
+        ),
+        (
+            "override tina's",
+            Box::new(|u: &str| post(u, &format!("/api/sessions/{t2}/override"), over)),
+            [201, 201, 403, 404, 403],
+        ),
+    ];
+    for (what, f, want) in &matrix {
+        for (k, u) in users.iter().enumerate() {
+            assert_eq!(f(u), want[k], "{what} as {u}");
+        }
+    }
+    for (what, path) in [("no login", "/api/sessions"), ("no login", "/api/export/sessions.csv")] {
+        assert_eq!(
+            call("GET", &format!("{b}{path}"), None, None, false).0,
+            401,
+            "{what} {path}"
+        );
+    }
+
+    // What the review holds: the comments and the override with its reason and author.
+    let (_, s2, _) = call("GET", &format!("{b}/api/sessions/{t2}"), Some(&tina), None, false);
+    let review = &s2["review"];
+    assert_eq!(review["comments"].as_array().unwrap().len(), 2, "{review}");
+    assert_eq!(review["overrides"][0]["author"], "root");
+    assert_eq!(review["overrides"][1]["reason"], "lung contact was a recess artefact");
+    // Bad overrides are refused with a reason.
+    for body in [
+        r#"{"score": 120, "passed": true, "reason": "x"}"#,
+        r#"{"score": 50, "passed": true, "reason": "  "}"#,
+        "nonsense",
+    ] {
+        assert_eq!(
+            post("ivan", &format!("/api/sessions/{t2}/override"), body),
+            400,
+            "{body}"
+        );
+    }
+
+    // Progress: tina's two beginner sessions in order; the override shows.
+    let (_, p, _) = call(
+        "GET",
+        &format!("{b}/api/trainees/tina/progress"),
+        Some(&tina),
+        None,
+        false,
+    );
+    let series = p["progress"]["beginner"].as_array().unwrap();
+    assert_eq!(series.len(), 2, "{p}");
+    assert_eq!(
+        (series[0]["session_id"].as_str(), series[0]["passed"].as_bool()),
+        (Some(t1.as_str()), Some(true))
+    );
+    assert_eq!(
+        (series[1]["score"].as_f64(), series[1]["overridden"].as_bool()),
+        (Some(75.0), Some(true))
+    );
+    assert!(p["progress"]["expert"].as_array().unwrap().is_empty());
+
+    // Cohort summary: tina in c1 with 2 sessions, both passed after the override.
+    let (_, c, _) = call(
+        "GET",
+        &format!("{b}/api/cohorts/c1/summary"),
+        Some(auth("ivan")),
+        None,
+        false,
+    );
+    let t = &c["trainees"][0];
+    assert_eq!(
+        (t["username"].as_str(), t["sessions"].as_i64(), t["scored"].as_i64()),
+        (Some("tina"), Some(2), Some(2)),
+        "{c}"
+    );
+
+    // The export: curriculum sees all three sessions, the instructor only tina's two.
+    let csv = |u: &str| {
+        let resp = ureq::get(&format!("{b}/api/export/sessions.csv"))
+            .set(
+                "Cookie",
+                &match auth(u) {
+                    Auth::Cookie { token, .. } => format!("stylet_session={token}"),
+                    Auth::Bearer(_) => unreachable!(),
+                },
+            )
+            .call()
+            .unwrap();
+        assert!(resp.content_type().starts_with("text/csv"));
+        resp.into_string().unwrap()
+    };
+    let all = csv("cora");
+    let mut lines = all.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(header[..3], ["session_id", "trainee", "cohorts"]);
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 3);
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let t2_row = rows.iter().find(|r| r[0] == t2).unwrap();
+    assert_eq!(
+        (t2_row[col("score")], t2_row[col("passed")], t2_row[col("overridden")]),
+        ("75", "true", "true")
+    );
+    assert_eq!(t2_row[col("cohorts")], "c1");
+    assert_eq!(csv("ivan").lines().count(), 1 + 2);
+}
+
+#[test]
 fn a_killed_server_resumes_its_jobs_and_scores_each_session_once_sqlite() {
     a_killed_server_resumes_its_jobs_and_scores_each_session_once(Db::Sqlite);
 }

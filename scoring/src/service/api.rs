@@ -48,6 +48,11 @@ pub fn router(state: AppRef) -> Router {
         .route("/api/tokens", post(create_token))
         .route("/api/sessions", post(upload).get(list_sessions))
         .route("/api/sessions/{id}", get(get_session))
+        .route("/api/sessions/{id}/override", post(override_grade))
+        .route("/api/sessions/{id}/comments", post(add_comment))
+        .route("/api/trainees/{username}/progress", get(progress))
+        .route("/api/cohorts/{name}/summary", get(cohort_summary))
+        .route("/api/export/sessions.csv", get(export_csv))
         .layer(axum::middleware::from_fn(request_log))
         .with_state(state)
 }
@@ -377,7 +382,214 @@ async fn get_session(
         // Not 403: whether a session exists is itself private.
         return Err(not_found());
     }
-    Ok(Json(row).into_response())
+    let mut v = serde_json::to_value(&row).map_err(|_| err(StatusCode::INTERNAL_SERVER_ERROR, "internal error"))?;
+    v["review"] = s.store.annotations(&id).await?;
+    Ok(Json(v).into_response())
+}
+
+/// Whether `user` may see the sessions of `trainee_id`.
+async fn may_see(s: &AppState, user: &User, trainee_id: &str) -> Result<bool, ApiError> {
+    Ok(match user.role.as_str() {
+        "trainee" => trainee_id == user.id,
+        "instructor" => s.store.teaches(&user.id, trainee_id).await?,
+        _ => true,
+    })
+}
+
+/// Whether `user` may comment on and override grades of `trainee_id`'s sessions: their
+/// instructors and admins (curriculum staff read everything and change nothing).
+async fn may_review(s: &AppState, user: &User, trainee_id: &str) -> Result<bool, ApiError> {
+    Ok(match user.role.as_str() {
+        "instructor" => s.store.teaches(&user.id, trainee_id).await?,
+        "admin" => true,
+        _ => false,
+    })
+}
+
+/// The session `id` for a reviewer, or 404/403.
+async fn reviewable(s: &AppState, user: &User, id: &str) -> Result<(), ApiError> {
+    let (_, trainee_id) = s
+        .store
+        .session(id)
+        .await?
+        .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no session {id}")))?;
+    if !may_see(s, user, &trainee_id).await? {
+        return Err(err(StatusCode::NOT_FOUND, format!("no session {id}")));
+    }
+    if !may_review(s, user, &trainee_id).await? {
+        return Err(err(
+            StatusCode::FORBIDDEN,
+            format!("{} ({}) may not change this session's review", user.username, user.role),
+        ));
+    }
+    Ok(())
+}
+
+#[derive(serde::Deserialize)]
+struct OverrideRequest {
+    score: f64,
+    passed: bool,
+    reason: String,
+}
+
+/// POST /api/sessions/{id}/override: a new grade with a reason (audited); the computed score stays.
+async fn override_grade(
+    State(s): State<AppRef>,
+    headers: HeaderMap,
+    Path(id): Path<String>,
+    body: Bytes,
+) -> Result<Response, ApiError> {
+    let user = acting_user(&s, &headers).await?;
+    let req: OverrideRequest = serde_json::from_slice(&body).map_err(|e| {
+        err(
+            StatusCode::BAD_REQUEST,
+            format!("expected {{\"score\", \"passed\", \"reason\"}}: {e}"),
+        )
+    })?;
+    if !(req.score.is_finite() && (0.0..=100.0).contains(&req.score)) {
+        return Err(err(StatusCode::BAD_REQUEST, "score must lie in 0…100"));
+    }
+    let reason = req.reason.trim();
+    if reason.is_empty() || reason.len() > 2000 {
+        return Err(err(
+            StatusCode::BAD_REQUEST,
+            "an override needs a reason (1–2000 characters)",
+        ));
+    }
+    reviewable(&s, &user, &id).await?;
+    s.store
+        .override_grade(&id, &user, req.score, req.passed, reason)
+        .await?;
+    Ok((
+        StatusCode::CREATED,
+        Json(json!({ "session": id, "score": req.score, "passed": req.passed, "reason": reason })),
+    )
+        .into_response())
+}
+
+#[derive(serde::Deserialize)]
+struct CommentRequest {
+    body: String,
+}
+
+async fn add_comment(
+    State(s): State<AppRef>,
+    headers: HeaderMap,
+    Path(id): Path<String>,
+    body: Bytes,
+) -> Result<Response, ApiError> {
+    let user = acting_user(&s, &headers).await?;
+    let req: CommentRequest = serde_json::from_slice(&body)
+        .map_err(|e| err(StatusCode::BAD_REQUEST, format!("expected {{\"body\"}}: {e}")))?;
+    let text = req.body.trim();
+    if text.is_empty() || text.len() > 10_000 {
+        return Err(err(StatusCode::BAD_REQUEST, "a comment is 1–10000 characters"));
+    }
+    reviewable(&s, &user, &id).await?;
+    let cid = s.store.add_comment(&id, &user, text).await?;
+    Ok((StatusCode::CREATED, Json(json!({ "id": cid, "session": id }))).into_response())
+}
+
+/// GET /api/trainees/{username}/progress: scored sessions in upload order, grouped by difficulty.
+async fn progress(
+    State(s): State<AppRef>,
+    headers: HeaderMap,
+    Path(username): Path<String>,
+) -> Result<Response, ApiError> {
+    let user = current_user(&s, &headers).await?;
+    let not_found = || err(StatusCode::NOT_FOUND, format!("no trainee {username}"));
+    let trainee = s
+        .store
+        .user_by_name(&username)
+        .await?
+        .filter(|t| t.role == "trainee")
+        .ok_or_else(not_found)?;
+    if !may_see(&s, &user, &trainee.id).await? {
+        return Err(not_found());
+    }
+    let points = s.store.progress(&trainee.id).await?;
+    let mut by_level = serde_json::Map::new();
+    for level in crate::rubric::LEVELS {
+        let series: Vec<&super::store::ProgressPoint> = points.iter().filter(|p| p.difficulty == level).collect();
+        by_level.insert(level.to_string(), json!(series));
+    }
+    Ok(Json(json!({ "trainee": trainee.username, "progress": by_level })).into_response())
+}
+
+/// GET /api/cohorts/{name}/summary: per trainee counts, pass rate and mean score.
+async fn cohort_summary(
+    State(s): State<AppRef>,
+    headers: HeaderMap,
+    Path(name): Path<String>,
+) -> Result<Response, ApiError> {
+    let user = current_user(&s, &headers).await?;
+    let cohort = s
+        .store
+        .cohort_id(&name)
+        .await?
+        .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no cohort {name}")))?;
+    let allowed = match user.role.as_str() {
+        "instructor" => s.store.in_cohort(&user.id, &cohort).await?,
+        "curriculum" | "admin" => true,
+        _ => false,
+    };
+    if !allowed {
+        return Err(err(
+            StatusCode::FORBIDDEN,
+            format!("{} may not see cohort {name}", user.username),
+        ));
+    }
+    let trainees = s.store.cohort_summary(&cohort).await?;
+    Ok(Json(json!({ "cohort": name, "trainees": trainees })).into_response())
+}
+
+/// Columns of `GET /api/export/sessions.csv` (docs/api.md).
+pub const EXPORT_CSV_HEADER: &str = "session_id,trainee,cohorts,scenario,difficulty,status,recorded_at,uploaded_at,duration_s,\
+score,passed,overridden,replay_verified,rubric_version,physics_version";
+
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+/// GET /api/export/sessions.csv: one row per session the caller may see (curriculum staff and
+/// admins: all; instructors: their cohorts'). Trainees use their progress instead.
+async fn export_csv(State(s): State<AppRef>, headers: HeaderMap) -> Result<Response, ApiError> {
+    let user = current_user(&s, &headers).await?;
+    if user.role == "trainee" {
+        return Err(err(
+            StatusCode::FORBIDDEN,
+            "the export is for instructors and curriculum staff",
+        ));
+    }
+    let rows = s.store.export_rows(&user).await?;
+    let o = |v: Option<String>| v.unwrap_or_default();
+    let mut out = String::from(EXPORT_CSV_HEADER);
+    out.push('\n');
+    for r in rows {
+        out += &format!(
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            csv_field(&r.session_id),
+            csv_field(&r.trainee),
+            csv_field(&r.cohorts),
+            csv_field(&r.scenario),
+            csv_field(&r.difficulty),
+            r.status,
+            csv_field(&r.recorded_at),
+            csv_field(&r.uploaded_at),
+            r.duration_s,
+            o(r.score.map(|v| v.to_string())),
+            o(r.passed.map(|v| v.to_string())),
+            r.overridden,
+            o(r.replay_verified.map(|v| v.to_string())),
+            o(r.rubric_version.map(|v| v.to_string())),
+            r.physics_version
+        );
+    }
+    Ok(([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], out).into_response())
 }
 
 async fn list_sessions(State(s): State<AppRef>, headers: HeaderMap) -> Result<Response, ApiError> {

@@ -79,6 +79,40 @@ pub fn document() -> Value {
                     "responses": { "200": { "description": "{sessions: [Session]}" }, "401": error_response("not logged in") }
                 }
             },
+            "/api/sessions/{id}/override": { "post": {
+                "summary": "Override the grade with a reason (the trainee's instructors, admins; audited)",
+                "security": [{ "cookie": [] }, { "token": [] }],
+                "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
+                "requestBody": { "required": true, "content": { "application/json": { "schema": {
+                    "type": "object", "required": ["score", "passed", "reason"],
+                    "properties": { "score": { "type": "number", "minimum": 0, "maximum": 100 }, "passed": { "type": "boolean" }, "reason": { "type": "string" } } } } } },
+                "responses": { "201": { "description": "stored" }, "400": error_response("bad body"), "403": error_response("not a reviewer of this trainee"), "404": error_response("no such session") }
+            } },
+            "/api/sessions/{id}/comments": { "post": {
+                "summary": "Comment on a session (the trainee's instructors, admins)",
+                "security": [{ "cookie": [] }, { "token": [] }],
+                "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
+                "requestBody": { "required": true, "content": { "application/json": { "schema": {
+                    "type": "object", "required": ["body"], "properties": { "body": { "type": "string" } } } } } },
+                "responses": { "201": { "description": "stored" }, "400": error_response("bad body"), "403": error_response("not a reviewer of this trainee"), "404": error_response("no such session") }
+            } },
+            "/api/trainees/{username}/progress": { "get": {
+                "summary": "A trainee's scored sessions per difficulty, in upload order (overrides applied)",
+                "security": [{ "cookie": [] }, { "token": [] }],
+                "parameters": [{ "name": "username", "in": "path", "required": true, "schema": { "type": "string" } }],
+                "responses": { "200": { "description": "{trainee, progress: {beginner: [...], advanced: [...], expert: [...]}}" }, "404": error_response("no such trainee, or not yours to see") }
+            } },
+            "/api/cohorts/{name}/summary": { "get": {
+                "summary": "Per trainee of a cohort: sessions, scored, passed, mean score, last upload",
+                "security": [{ "cookie": [] }, { "token": [] }],
+                "parameters": [{ "name": "name", "in": "path", "required": true, "schema": { "type": "string" } }],
+                "responses": { "200": { "description": "{cohort, trainees: [...]}" }, "403": error_response("not an instructor of this cohort"), "404": error_response("no such cohort") }
+            } },
+            "/api/export/sessions.csv": { "get": {
+                "summary": "One CSV row per visible session (columns in docs/api.md)",
+                "security": [{ "cookie": [] }, { "token": [] }],
+                "responses": { "200": { "description": "text/csv" }, "403": error_response("trainees have no export") }
+            } },
             "/api/sessions/{id}": { "get": {
                 "summary": "One session and its score",
                 "security": [{ "cookie": [] }, { "token": [] }],

@@ -1,6 +1,8 @@
 //! The service's database (sqlx, `Any` driver): SQLite in WAL mode by default, PostgreSQL for
 //! multi-site use. One set of migrations (`migrations/`) and one SQL dialect for both: `$n`
-//! placeholders (SQLite reads them as numbered parameters), text ids and times.
+//! placeholders (SQLite reads them as numbered parameters), text ids and times. Booleans are read
+//! back as `CAST(CASE WHEN b THEN 1 ELSE 0 END AS BIGINT)`: the `Any` driver cannot decode
+//! SQLite's BOOLEAN.
 
 use sqlx::any::{AnyPoolOptions, install_default_drivers};
 use sqlx::{AnyPool, Row};
@@ -41,12 +43,9 @@ pub enum StoreError {
     Invalid(String),
 }
 
+/// Now, RFC 3339 UTC with microseconds: equal-length strings that sort in time order.
 pub fn now() -> String {
-    humantime_now()
-}
-
-fn humantime_now() -> String {
-    stylet_recorder::wall_clock_now()
+    humantime::format_rfc3339_micros(std::time::SystemTime::now()).to_string()
 }
 
 pub fn new_id() -> String {
@@ -212,7 +211,7 @@ impl Store {
     pub async fn create_login(&self, user: &User, ttl_s: u64) -> Result<(String, String), StoreError> {
         let (token, csrf) = (auth::random_token(), auth::random_token());
         let expires =
-            humantime::format_rfc3339_seconds(std::time::SystemTime::now() + std::time::Duration::from_secs(ttl_s))
+            humantime::format_rfc3339_micros(std::time::SystemTime::now() + std::time::Duration::from_secs(ttl_s))
                 .to_string();
         sqlx::query("INSERT INTO auth_sessions (token_sha256, user_id, csrf_token, created_at, expires_at) VALUES ($1, $2, $3, $4, $5)")
             .bind(auth::sha256_hex(&token))
@@ -512,6 +511,217 @@ impl Store {
         Ok(())
     }
 
+    /// The ids of the cohorts `user` belongs to or teaches, and whether a cohort by that name exists.
+    pub async fn cohort_id(&self, name: &str) -> Result<Option<String>, StoreError> {
+        let row = sqlx::query("SELECT id FROM cohorts WHERE name = $1")
+            .bind(name.to_string())
+            .fetch_optional(&self.pool)
+            .await?;
+        Ok(row.map(|r| r.try_get("id")).transpose()?)
+    }
+
+    pub async fn in_cohort(&self, user_id: &str, cohort_id: &str) -> Result<bool, StoreError> {
+        let row = sqlx::query("SELECT 1 AS one FROM cohort_members WHERE user_id = $1 AND cohort_id = $2")
+            .bind(user_id.to_string())
+            .bind(cohort_id.to_string())
+            .fetch_optional(&self.pool)
+            .await?;
+        Ok(row.is_some())
+    }
+
+    /// The latest override of a session, if any: (score, passed).
+    async fn override_of(&self, session_id: &str) -> Result<Option<(f64, bool)>, StoreError> {
+        let row = sqlx::query(
+            "SELECT score, CAST(CASE WHEN passed THEN 1 ELSE 0 END AS BIGINT) AS passed FROM grade_overrides \
+             WHERE session_id = $1 ORDER BY created_at DESC, id DESC LIMIT 1",
+        )
+        .bind(session_id.to_string())
+        .fetch_optional(&self.pool)
+        .await?;
+        Ok(match row {
+            Some(r) => Some((r.try_get("score")?, r.try_get::<i64, _>("passed")? != 0)),
+            None => None,
+        })
+    }
+
+    /// A trainee's scored sessions in upload order, per difficulty as recorded.
+    pub async fn progress(&self, trainee_id: &str) -> Result<Vec<ProgressPoint>, StoreError> {
+        let rows = sqlx::query(
+            "SELECT s.id, s.uploaded_at, s.scenario, s.difficulty, sc.score, \
+             CAST(CASE WHEN sc.passed THEN 1 ELSE 0 END AS BIGINT) AS passed FROM sessions s \
+             JOIN scores sc ON sc.session_id = s.id WHERE s.trainee_id = $1 ORDER BY s.uploaded_at, s.id",
+        )
+        .bind(trainee_id.to_string())
+        .fetch_all(&self.pool)
+        .await?;
+        let mut out = Vec::with_capacity(rows.len());
+        for r in rows {
+            let id: String = r.try_get("id")?;
+            let over = self.override_of(&id).await?;
+            out.push(ProgressPoint {
+                session_id: id,
+                uploaded_at: r.try_get("uploaded_at")?,
+                scenario: r.try_get("scenario")?,
+                difficulty: r.try_get("difficulty")?,
+                score: over.map_or(r.try_get("score")?, |o| o.0),
+                passed: over.map_or(r.try_get::<i64, _>("passed")? != 0, |o| o.1),
+                overridden: over.is_some(),
+            });
+        }
+        Ok(out)
+    }
+
+    /// Per trainee of a cohort: sessions, scored, passed, mean score, last upload.
+    pub async fn cohort_summary(&self, cohort_id: &str) -> Result<Vec<TraineeSummary>, StoreError> {
+        let rows = sqlx::query(
+            "SELECT u.username, COUNT(s.id) AS sessions, COUNT(sc.session_id) AS scored, \
+             CAST(SUM(CASE WHEN sc.passed THEN 1 ELSE 0 END) AS BIGINT) AS passed, AVG(sc.score) AS mean_score, MAX(s.uploaded_at) AS last_upload \
+             FROM cohort_members m JOIN users u ON u.id = m.user_id \
+             LEFT JOIN sessions s ON s.trainee_id = u.id LEFT JOIN scores sc ON sc.session_id = s.id \
+             WHERE m.cohort_id = $1 AND u.role = 'trainee' GROUP BY u.username ORDER BY u.username",
+        )
+        .bind(cohort_id.to_string())
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter()
+            .map(|r| {
+                Ok(TraineeSummary {
+                    username: r.try_get("username")?,
+                    sessions: r.try_get("sessions")?,
+                    scored: r.try_get("scored")?,
+                    passed: r.try_get::<Option<i64>, _>("passed")?.unwrap_or(0),
+                    mean_score: r.try_get("mean_score")?,
+                    last_upload: r.try_get("last_upload")?,
+                })
+            })
+            .collect::<Result<_, sqlx::Error>>()
+            .map_err(StoreError::from)
+    }
+
+    /// Overrides a grade (the reason is required and audited).
+    pub async fn override_grade(
+        &self,
+        session_id: &str,
+        author: &User,
+        score: f64,
+        passed: bool,
+        reason: &str,
+    ) -> Result<(), StoreError> {
+        let mut tx = self.pool.begin().await?;
+        sqlx::query("INSERT INTO grade_overrides (id, session_id, author_id, score, passed, reason, created_at) VALUES ($1, $2, $3, $4, $5, $6, $7)")
+            .bind(new_id())
+            .bind(session_id.to_string())
+            .bind(author.id.clone())
+            .bind(score)
+            .bind(passed)
+            .bind(reason.to_string())
+            .bind(now())
+            .execute(&mut *tx)
+            .await?;
+        sqlx::query("INSERT INTO audit_log (id, at, actor_id, action, target, detail) VALUES ($1, $2, $3, 'grade.override', $4, $5)")
+            .bind(new_id())
+            .bind(now())
+            .bind(author.id.clone())
+            .bind(session_id.to_string())
+            .bind(format!("score {score}, passed {passed}: {reason}"))
+            .execute(&mut *tx)
+            .await?;
+        tx.commit().await?;
+        Ok(())
+    }
+
+    pub async fn add_comment(&self, session_id: &str, author: &User, body: &str) -> Result<String, StoreError> {
+        let id = new_id();
+        sqlx::query("INSERT INTO comments (id, session_id, author_id, body, created_at) VALUES ($1, $2, $3, $4, $5)")
+            .bind(id.clone())
+            .bind(session_id.to_string())
+            .bind(author.id.clone())
+            .bind(body.to_string())
+            .bind(now())
+            .execute(&self.pool)
+            .await?;
+        Ok(id)
+    }
+
+    /// Comments and overrides of a session, oldest first: (kind, author, text, created_at).
+    pub async fn annotations(&self, session_id: &str) -> Result<serde_json::Value, StoreError> {
+        let comments = sqlx::query(
+            "SELECT u.username, c.body, c.created_at FROM comments c JOIN users u ON u.id = c.author_id \
+             WHERE c.session_id = $1 ORDER BY c.created_at, c.id",
+        )
+        .bind(session_id.to_string())
+        .fetch_all(&self.pool)
+        .await?;
+        let overrides = sqlx::query(
+            "SELECT u.username, o.score, CAST(CASE WHEN o.passed THEN 1 ELSE 0 END AS BIGINT) AS passed, o.reason, o.created_at \
+             FROM grade_overrides o JOIN users u ON u.id = o.author_id \
+             WHERE o.session_id = $1 ORDER BY o.created_at, o.id",
+        )
+        .bind(session_id.to_string())
+        .fetch_all(&self.pool)
+        .await?;
+        let c: Vec<serde_json::Value> = comments
+            .iter()
+            .map(|r| -> Result<_, sqlx::Error> {
+                Ok(serde_json::json!({"author": r.try_get::<String, _>("username")?, "body": r.try_get::<String, _>("body")?, "at": r.try_get::<String, _>("created_at")?}))
+            })
+            .collect::<Result<_, _>>()?;
+        let o: Vec<serde_json::Value> = overrides
+            .iter()
+            .map(|r| -> Result<_, sqlx::Error> {
+                Ok(serde_json::json!({"author": r.try_get::<String, _>("username")?, "score": r.try_get::<f64, _>("score")?,
+                    "passed": r.try_get::<i64, _>("passed")? != 0, "reason": r.try_get::<String, _>("reason")?, "at": r.try_get::<String, _>("created_at")?}))
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(serde_json::json!({ "comments": c, "overrides": o }))
+    }
+
+    /// Every session `user` may see, for the CSV export, oldest first.
+    pub async fn export_rows(&self, user: &User) -> Result<Vec<ExportRow>, StoreError> {
+        let rows = self.sessions_for(user, i64::MAX / 2).await?;
+        let mut out = Vec::with_capacity(rows.len());
+        for r in rows.into_iter().rev() {
+            let meta = sqlx::query(
+                "SELECT s.recorded_at, s.physics_version, (SELECT COUNT(*) FROM grade_overrides o WHERE o.session_id = s.id) AS n_over \
+                 FROM sessions s WHERE s.id = $1",
+            )
+            .bind(r.id.clone())
+            .fetch_one(&self.pool)
+            .await?;
+            let cohorts = sqlx::query(
+                "SELECT c.name FROM cohorts c JOIN cohort_members m ON m.cohort_id = c.id JOIN users u ON u.id = m.user_id \
+                 WHERE u.username = $1 ORDER BY c.name",
+            )
+            .bind(r.trainee.clone())
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(|c| c.try_get::<String, _>("name"))
+            .collect::<Result<Vec<_>, _>>()?
+            .join(";");
+            let over = self.override_of(&r.id).await?;
+            let grade = r.score.as_ref().map(|s| &s["grade"]);
+            out.push(ExportRow {
+                session_id: r.id.clone(),
+                trainee: r.trainee.clone(),
+                cohorts,
+                scenario: r.scenario.clone(),
+                difficulty: r.difficulty.clone(),
+                status: r.status.clone(),
+                recorded_at: meta.try_get("recorded_at")?,
+                uploaded_at: r.uploaded_at.clone(),
+                duration_s: r.duration_s,
+                score: over.map(|o| o.0).or_else(|| grade.and_then(|g| g["score"].as_f64())),
+                passed: over.map(|o| o.1).or_else(|| grade.and_then(|g| g["passed"].as_bool())),
+                overridden: meta.try_get::<i64, _>("n_over")? > 0,
+                replay_verified: r.score.as_ref().and_then(|s| s["replay_verified"].as_bool()),
+                rubric_version: grade.and_then(|g| g["rubric_version"].as_i64()),
+                physics_version: meta.try_get("physics_version")?,
+            });
+        }
+        Ok(out)
+    }
+
     /// Count of scores per session (tests: exactly once).
     pub async fn score_count(&self, session_id: &str) -> Result<i64, StoreError> {
         let row = sqlx::query("SELECT COUNT(*) AS n FROM scores WHERE session_id = $1")
@@ -520,6 +730,49 @@ impl Store {
             .await?;
         Ok(row.try_get("n")?)
     }
+}
+
+/// One point of a trainee's progress: a scored session (the override's values when overridden).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ProgressPoint {
+    pub session_id: String,
+    pub uploaded_at: String,
+    pub scenario: String,
+    pub difficulty: String,
+    pub score: f64,
+    pub passed: bool,
+    pub overridden: bool,
+}
+
+/// One trainee's line of a cohort summary.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct TraineeSummary {
+    pub username: String,
+    pub sessions: i64,
+    pub scored: i64,
+    pub passed: i64,
+    pub mean_score: Option<f64>,
+    pub last_upload: Option<String>,
+}
+
+/// A row of the sessions CSV export.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExportRow {
+    pub session_id: String,
+    pub trainee: String,
+    pub cohorts: String,
+    pub scenario: String,
+    pub difficulty: String,
+    pub status: String,
+    pub recorded_at: String,
+    pub uploaded_at: String,
+    pub duration_s: f64,
+    pub score: Option<f64>,
+    pub passed: Option<bool>,
+    pub overridden: bool,
+    pub replay_verified: Option<bool>,
+    pub rubric_version: Option<i64>,
+    pub physics_version: i64,
 }
 
 /// A validated upload about to be stored.
