@@ -876,3 +876,169 @@ fn a_killed_server_resumes_its_jobs_and_scores_each_session_once(db: Db) {
         }
     });
 }
+
+/// Bounded load on loopback ($STYLET_LOAD_SECONDS, default 60 s): 50 readers of the API and 5
+/// uploaders of distinct session files against one server (SQLite). Zero 5xx, zero lost uploads;
+/// prints throughput and p50/p99 latencies (reported in the issue note, never asserted).
+#[test]
+fn bounded_load_on_loopback() {
+    let seconds: u64 = std::env::var("STYLET_LOAD_SECONDS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(60);
+    let f = Fixture::new();
+    let db = Db::Sqlite;
+    f.users(&db);
+    // Distinct bytes for every upload: the same recorded ticks under new session ids.
+    let source = stylet_recorder::reader::read(&f.session("tina-ok")).unwrap();
+    // Each uploader sends one session per second (a busy simulator), so there are enough files.
+    let files: Vec<Vec<u8>> = (0..5 * seconds as usize + 10)
+        .map(|k| {
+            let path = f.dir.path().join(format!("load-{k}.mcap"));
+            let mut header = source.header.clone();
+            header.session_id = stylet_recorder::new_session_id();
+            let w = stylet_recorder::SessionWriter::create(
+                &path,
+                &header,
+                stylet_recorder::WriterOptions {
+                    fsync: false,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            for e in &source.events {
+                w.event_record_blocking(e.clone()).unwrap();
+            }
+            for d in &source.digests {
+                w.digest_blocking(d.tick, d.digest).unwrap();
+            }
+            for t in &source.ticks {
+                w.record_raw_blocking(*t).unwrap();
+            }
+            w.finish().unwrap();
+            std::fs::read(&path).unwrap()
+        })
+        .collect();
+    let srv = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "2"]);
+    let b = srv.base.clone();
+    let seed_id = {
+        let tina = login(&b, "tina");
+        let (status, json, _) = call(
+            "POST",
+            &format!("{b}/api/sessions"),
+            Some(&tina),
+            Some(&files[0]),
+            false,
+        );
+        assert_eq!(status, 201, "{json}");
+        json["id"].as_str().unwrap().to_string()
+    };
+    let deadline = Instant::now() + Duration::from_secs(seconds);
+    let started = Instant::now();
+    let files = std::sync::Arc::new(files);
+    let next_file = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(1));
+    let (reads, uploads): (Vec<_>, Vec<_>) = std::thread::scope(|scope| {
+        let readers: Vec<_> = (0..50)
+            .map(|k| {
+                let (b, seed_id) = (b.clone(), seed_id.clone());
+                scope.spawn(move || {
+                    let who = ["tina", "ivan", "cora"][k % 3];
+                    let auth = login(&b, who);
+                    let paths = [
+                        "/api/sessions".to_string(),
+                        format!("/api/sessions/{seed_id}"),
+                        "/healthz".into(),
+                        "/api/trainees/tina/progress".into(),
+                    ];
+                    let mut out = Vec::new();
+                    let mut i = k;
+                    while Instant::now() < deadline {
+                        let t = Instant::now();
+                        let (status, _, _) = call(
+                            "GET",
+                            &format!("{b}{}", paths[i % paths.len()]),
+                            Some(&auth),
+                            None,
+                            false,
+                        );
+                        out.push((status, t.elapsed()));
+                        i += 1;
+                    }
+                    out
+                })
+            })
+            .collect();
+        let uploaders: Vec<_> = (0..5)
+            .map(|_| {
+                let (b, files, next_file) = (b.clone(), files.clone(), next_file.clone());
+                scope.spawn(move || {
+                    let auth = login(&b, "tina");
+                    let mut out = Vec::new();
+                    while Instant::now() < deadline {
+                        let k = next_file.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        if k >= files.len() {
+                            break;
+                        }
+                        let t = Instant::now();
+                        let (status, json, _) = call(
+                            "POST",
+                            &format!("{b}/api/sessions"),
+                            Some(&auth),
+                            Some(&files[k]),
+                            false,
+                        );
+                        out.push((status, t.elapsed(), json["id"].as_str().map(str::to_string)));
+                        std::thread::sleep(Duration::from_secs(1).saturating_sub(t.elapsed()));
+                    }
+                    out
+                })
+            })
+            .collect();
+        (
+            readers.into_iter().flat_map(|h| h.join().unwrap()).collect(),
+            uploaders.into_iter().flat_map(|h| h.join().unwrap()).collect(),
+        )
+    });
+    let wall = started.elapsed().as_secs_f64();
+    let pct = |mut v: Vec<Duration>, q: f64| {
+        v.sort();
+        v.get(((v.len() as f64 - 1.0) * q).round() as usize)
+            .map_or(0.0, |d| d.as_secs_f64() * 1e3)
+    };
+    let read_lat: Vec<Duration> = reads.iter().map(|r| r.1).collect();
+    let up_lat: Vec<Duration> = uploads.iter().map(|r| r.1).collect();
+    println!(
+        "load {wall:.0} s: {} reads ({:.0}/s), p50 {:.1} ms, p99 {:.1} ms; {} uploads ({:.1}/s), p50 {:.1} ms, p99 {:.1} ms",
+        reads.len(),
+        reads.len() as f64 / wall,
+        pct(read_lat.clone(), 0.5),
+        pct(read_lat, 0.99),
+        uploads.len(),
+        uploads.len() as f64 / wall,
+        pct(up_lat.clone(), 0.5),
+        pct(up_lat, 0.99)
+    );
+    let server_errors = reads.iter().filter(|r| r.0 >= 500).count() + uploads.iter().filter(|r| r.0 >= 500).count();
+    assert_eq!(server_errors, 0, "5xx under load");
+    assert!(reads.iter().all(|r| r.0 == 200), "a read failed");
+    assert!(
+        uploads.iter().all(|r| r.0 == 201),
+        "an upload was refused: {:?}",
+        uploads.iter().find(|r| r.0 != 201)
+    );
+    // Zero lost uploads: every accepted id is there (and gets scored).
+    let cora = login(&b, "cora");
+    let (_, list, _) = call("GET", &format!("{b}/api/sessions"), Some(&cora), None, false);
+    let stored: std::collections::BTreeSet<&str> = list["sessions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["id"].as_str().unwrap())
+        .collect();
+    for (_, _, id) in &uploads {
+        assert!(stored.contains(id.as_deref().unwrap()), "upload {id:?} lost");
+    }
+    assert_eq!(stored.len(), uploads.len() + 1);
+    let last = uploads.last().and_then(|u| u.2.clone()).unwrap_or(seed_id);
+    assert_eq!(wait_scored(&b, &cora, &last)["status"], "scored");
+}

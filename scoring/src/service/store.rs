@@ -63,7 +63,7 @@ impl Store {
         install_default_drivers();
         let sqlite = url.starts_with("sqlite:");
         let pool = AnyPoolOptions::new()
-            .max_connections(if sqlite { 4 } else { 8 })
+            .max_connections(8)
             .after_connect(move |conn, _| {
                 Box::pin(async move {
                     if sqlite {
@@ -390,12 +390,41 @@ impl Store {
         })
     }
 
-    /// The sessions `user` may see: a trainee their own, an instructor their cohorts' trainees',
-    /// curriculum staff and admins all. Newest first.
+    /// Columns of a listed session: the score as a summary, not the whole report.
+    const LIST_COLUMNS: &str = "s.id, u.username AS trainee, s.scenario, s.difficulty, s.status, s.uploaded_at, \
+        s.duration_s, s.error, sc.score AS grade_score, CAST(CASE WHEN sc.passed THEN 1 ELSE 0 END AS BIGINT) AS grade_passed, \
+        CAST(CASE WHEN sc.replay_verified THEN 1 ELSE 0 END AS BIGINT) AS verified, sc.rubric_version";
+
+    fn listed_session_of(row: &sqlx::any::AnyRow) -> Result<SessionRow, sqlx::Error> {
+        let score: Option<f64> = row.try_get("grade_score")?;
+        let summary = match score {
+            Some(v) => Some(serde_json::json!({
+                "grade": { "score": v, "passed": row.try_get::<i64, _>("grade_passed")? != 0,
+                           "rubric_version": row.try_get::<Option<i64>, _>("rubric_version")? },
+                "replay_verified": row.try_get::<i64, _>("verified")? != 0,
+            })),
+            None => None,
+        };
+        Ok(SessionRow {
+            id: row.try_get("id")?,
+            trainee: row.try_get("trainee")?,
+            scenario: row.try_get("scenario")?,
+            difficulty: row.try_get("difficulty")?,
+            status: row.try_get("status")?,
+            uploaded_at: row.try_get("uploaded_at")?,
+            duration_s: row.try_get("duration_s")?,
+            error: row.try_get("error")?,
+            score: summary,
+        })
+    }
+
+    /// The sessions `user` may see (a trainee their own, an instructor their cohorts' trainees',
+    /// curriculum staff and admins all), newest first, each with a score summary
+    /// `{grade: {score, passed, rubric_version}, replay_verified}`.
     pub async fn sessions_for(&self, user: &User, limit: i64) -> Result<Vec<SessionRow>, StoreError> {
         let base = format!(
             "SELECT {} FROM sessions s JOIN users u ON u.id = s.trainee_id LEFT JOIN scores sc ON sc.session_id = s.id",
-            Self::SESSION_COLUMNS
+            Self::LIST_COLUMNS
         );
         let (q, bind_user) = match user.role.as_str() {
             "trainee" => (
@@ -417,7 +446,7 @@ impl Store {
             query = query.bind(user.id.clone());
         }
         let rows = query.bind(limit).fetch_all(&self.pool).await?;
-        Ok(rows.iter().map(Self::session_of).collect::<Result<_, _>>()?)
+        Ok(rows.iter().map(Self::listed_session_of).collect::<Result<_, _>>()?)
     }
 
     /// At start: jobs a killed server left running go back to the queue.
