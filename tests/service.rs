@@ -210,15 +210,17 @@ fn login(base: &str, user: &str) -> Auth {
 
 /// A POST over a raw socket that ignores write errors (the server may answer and close before
 /// the whole body is sent); returns status and JSON body.
-fn raw_post(base: &str, path: &str, auth: &Auth, body: &[u8]) -> (u16, Value) {
+fn raw_post(base: &str, path: &str, auth: Option<&Auth>, body: &[u8]) -> (u16, Value) {
     use std::io::Read;
     let addr = base.strip_prefix("http://").unwrap();
     let mut sock = std::net::TcpStream::connect(addr).unwrap();
-    let Auth::Cookie { token, csrf } = auth else {
-        panic!("cookie auth expected")
+    let credentials = match auth {
+        Some(Auth::Cookie { token, csrf }) => format!("Cookie: stylet_session={token}\r\nX-CSRF-Token: {csrf}\r\n"),
+        Some(Auth::Bearer(t)) => format!("Authorization: Bearer {t}\r\n"),
+        None => String::new(),
     };
     let head = format!(
-        "POST {path} HTTP/1.1\r\nHost: {addr}\r\nCookie: stylet_session={token}\r\nX-CSRF-Token: {csrf}\r\n\
+        "POST {path} HTTP/1.1\r\nHost: {addr}\r\n{credentials}\
          Content-Type: application/octet-stream\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
         body.len()
     );
@@ -234,6 +236,40 @@ fn raw_post(base: &str, path: &str, auth: &Auth, body: &[u8]) -> (u16, Value) {
         .and_then(|b| serde_json::from_str(b).ok())
         .unwrap_or(Value::String(text.clone()));
     (status, json)
+}
+
+/// `file` with its first MCAP chunk replaced by 256 MiB of zeros compressed with zstd (about
+/// 10 KB), declaring `claim` bytes uncompressed (default: the true size).
+fn zstd_bomb(file: &[u8], claim: Option<u64>) -> Vec<u8> {
+    let plain: u64 = 256 << 20;
+    let mut enc = zstd::stream::Encoder::new(Vec::new(), 3).unwrap();
+    std::io::copy(&mut std::io::Read::take(std::io::repeat(0), plain), &mut enc).unwrap();
+    let packed = enc.finish().unwrap();
+    assert!(packed.len() < 100_000, "{} bytes", packed.len());
+    let mut body = Vec::new();
+    body.extend(0u64.to_le_bytes()); // message start time
+    body.extend(0u64.to_le_bytes()); // message end time
+    body.extend(claim.unwrap_or(plain).to_le_bytes());
+    body.extend(0u32.to_le_bytes()); // no CRC
+    body.extend(4u32.to_le_bytes());
+    body.extend(b"zstd");
+    body.extend((packed.len() as u64).to_le_bytes());
+    body.extend(&packed);
+    // Walk the records (magic, then op u8 + length u64 + body) to the first chunk (op 0x06).
+    let mut at = 8;
+    loop {
+        let op = file[at];
+        let len = u64::from_le_bytes(file[at + 1..at + 9].try_into().unwrap()) as usize;
+        if op == 0x06 {
+            let mut out = file[..at].to_vec();
+            out.push(0x06);
+            out.extend((body.len() as u64).to_le_bytes());
+            out.extend(&body);
+            out.extend(&file[at + 9 + len..]);
+            return out;
+        }
+        at += 9 + len;
+    }
 }
 
 fn files_under(dir: &Path) -> usize {
@@ -380,76 +416,112 @@ fn review_progress_and_reports_by_role(db: Db) {
     let t1 = upload(&tina, "tina-ok");
     let t2 = upload(&tina, "tina-lung");
     let m1 = upload(&tom, "tom-ok");
-    let users = ["root", "ivan", "tina", "tom", "cora"];
-    let auths: Vec<(&str, Auth)> = users.iter().map(|u| (*u, login(b, u))).collect();
-    let auth = |u: &str| &auths.iter().find(|(n, _)| *n == u).unwrap().1;
-
-    // The matrix: (route, method, body) × role → status.
-    let get = |u: &str, path: &str| call("GET", &format!("{b}{path}"), Some(auth(u)), None, false).0;
-    let post = |u: &str, path: &str, body: &str| {
-        call(
-            "POST",
-            &format!("{b}{path}"),
-            Some(auth(u)),
-            Some(body.as_bytes()),
-            true,
-        )
-        .0
-    };
+    // The matrix: every route × every role (and no login at all) → status.
+    let users = ["root", "ivan", "tina", "tom", "cora", "anonymous"];
+    let auths: Vec<(&str, Auth)> = users[..5].iter().map(|u| (*u, login(b, u))).collect();
+    let auth = |u: &str| auths.iter().find(|(n, _)| *n == u).map(|a| &a.1);
+    let get = |u: &str, path: &str| call("GET", &format!("{b}{path}"), auth(u), None, false).0;
+    let post =
+        |u: &str, path: &str, body: &str| call("POST", &format!("{b}{path}"), auth(u), Some(body.as_bytes()), true).0;
+    let tina_two = std::fs::read(f.session("tina-two")).unwrap();
+    // A raw socket: a refusal may come before the server has read the body.
+    let upload_as = |u: &str| raw_post(b, "/api/sessions", auth(u), &tina_two).0;
     let over = r#"{"score": 75, "passed": true, "reason": "lung contact was a recess artefact"}"#;
     let comment = r#"{"body": "aim one rib lower"}"#;
-    type Row<'a> = (&'a str, Box<dyn Fn(&str) -> u16 + 'a>, [u16; 5]);
-    //                                                        root ivan tina  tom cora
+    let new_user = r#"{"username": "nina", "role": "trainee", "password": "nina-password", "cohort": "c1"}"#;
+    type Row<'a> = (&'a str, Box<dyn Fn(&str) -> u16 + 'a>, [u16; 6]);
+    //                                                        root ivan tina  tom cora anon
     let matrix: Vec<Row> = vec![
+        (
+            "GET /healthz",
+            Box::new(|u: &str| get(u, "/healthz")),
+            [200, 200, 200, 200, 200, 200],
+        ),
+        (
+            "GET /api/openapi.json",
+            Box::new(|u: &str| get(u, "/api/openapi.json")),
+            [200, 200, 200, 200, 200, 200],
+        ),
         (
             "GET tina's session",
             Box::new(|u: &str| get(u, &format!("/api/sessions/{t1}"))),
-            [200, 200, 200, 404, 200],
+            [200, 200, 200, 404, 200, 401],
         ),
         (
             "GET tom's session",
             Box::new(|u: &str| get(u, &format!("/api/sessions/{m1}"))),
-            [200, 404, 404, 200, 200],
+            [200, 404, 404, 200, 200, 401],
+        ),
+        (
+            "GET a session that does not exist",
+            Box::new(|u: &str| get(u, "/api/sessions/no-such-id")),
+            [404, 404, 404, 404, 404, 401],
         ),
         (
             "GET tina's progress",
             Box::new(|u: &str| get(u, "/api/trainees/tina/progress")),
-            [200, 200, 200, 404, 200],
+            [200, 200, 200, 404, 200, 401],
         ),
         (
             "GET cohort c1",
             Box::new(|u: &str| get(u, "/api/cohorts/c1/summary")),
-            [200, 200, 403, 403, 200],
+            [200, 200, 403, 403, 200, 401],
         ),
         (
             "GET cohort c2",
             Box::new(|u: &str| get(u, "/api/cohorts/c2/summary")),
-            [200, 403, 403, 403, 200],
+            [200, 403, 403, 403, 200, 401],
         ),
         (
             "GET export",
             Box::new(|u: &str| get(u, "/api/export/sessions.csv")),
-            [200, 200, 403, 403, 200],
+            [200, 200, 403, 403, 200, 401],
         ),
         (
             "GET sessions",
             Box::new(|u: &str| get(u, "/api/sessions")),
-            [200, 200, 200, 200, 200],
+            [200, 200, 200, 200, 200, 401],
+        ),
+        (
+            "GET users",
+            Box::new(|u: &str| get(u, "/api/users")),
+            [200, 403, 403, 403, 403, 401],
+        ),
+        // The first allowed upload stores the file (201); later allowed ones get its id (200).
+        (
+            "upload tina's session",
+            Box::new(|u: &str| upload_as(u)),
+            [201, 200, 200, 403, 403, 401],
+        ),
+        (
+            "POST token",
+            Box::new(|u: &str| post(u, "/api/tokens", r#"{"label":"matrix"}"#)),
+            [201, 201, 201, 201, 201, 401],
+        ),
+        (
+            "POST user",
+            Box::new(|u: &str| post(u, "/api/users", new_user)),
+            [201, 403, 403, 403, 403, 401],
         ),
         (
             "comment on tina's",
             Box::new(|u: &str| post(u, &format!("/api/sessions/{t2}/comments"), comment)),
-            [201, 201, 403, 404, 403],
+            [201, 201, 403, 404, 403, 401],
         ),
         (
             "comment on tom's",
             Box::new(|u: &str| post(u, &format!("/api/sessions/{m1}/comments"), comment)),
-            [201, 404, 404, 403, 403],
+            [201, 404, 404, 403, 403, 401],
         ),
         (
             "override tina's",
             Box::new(|u: &str| post(u, &format!("/api/sessions/{t2}/override"), over)),
-            [201, 201, 403, 404, 403],
+            [201, 201, 403, 404, 403, 401],
+        ),
+        (
+            "override tom's",
+            Box::new(|u: &str| post(u, &format!("/api/sessions/{m1}/override"), over)),
+            [201, 404, 404, 403, 403, 401],
         ),
     ];
     for (what, f, want) in &matrix {
@@ -457,12 +529,46 @@ fn review_progress_and_reports_by_role(db: Db) {
             assert_eq!(f(u), want[k], "{what} as {u}");
         }
     }
-    for (what, path) in [("no login", "/api/sessions"), ("no login", "/api/export/sessions.csv")] {
-        assert_eq!(
-            call("GET", &format!("{b}{path}"), None, None, false).0,
-            401,
-            "{what} {path}"
-        );
+    // The account the admin added can log in, and is listed with its cohort.
+    login(b, "nina");
+    let (_, listed, _) = call("GET", &format!("{b}/api/users"), auth("root"), None, false);
+    let nina = listed["users"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|u| u["username"] == "nina")
+        .unwrap();
+    assert_eq!(
+        (nina["role"].as_str(), nina["cohorts"][0].as_str()),
+        (Some("trainee"), Some("c1"))
+    );
+    assert!(nina.get("password_hash").is_none());
+    for (body, want) in [
+        (new_user, 409),
+        (
+            r#"{"username": "x y", "role": "trainee", "password": "long-enough"}"#,
+            400,
+        ),
+        (
+            r#"{"username": "xavier", "role": "janitor", "password": "long-enough"}"#,
+            400,
+        ),
+        (r#"{"username": "xavier", "role": "trainee", "password": "short"}"#, 400),
+        ("{}", 400),
+    ] {
+        assert_eq!(post("root", "/api/users", body), want, "{body}");
+    }
+    // The session the matrix uploaded is scored like any other; tina now has three.
+    let (_, listed, _) = call("GET", &format!("{b}/api/sessions"), auth("tina"), None, false);
+    let ids: Vec<&str> = listed["sessions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["id"].as_str().unwrap())
+        .collect();
+    assert_eq!(ids.len(), 3, "{listed}");
+    for id in ids {
+        assert_eq!(wait_scored(b, auth("tina").unwrap(), id)["status"], "scored");
     }
 
     // What the review holds: the comments and the override with its reason and author.
@@ -493,7 +599,7 @@ fn review_progress_and_reports_by_role(db: Db) {
         false,
     );
     let series = p["progress"]["beginner"].as_array().unwrap();
-    assert_eq!(series.len(), 2, "{p}");
+    assert_eq!(series.len(), 3, "{p}");
     assert_eq!(
         (series[0]["session_id"].as_str(), series[0]["passed"].as_bool()),
         (Some(t1.as_str()), Some(true))
@@ -504,29 +610,39 @@ fn review_progress_and_reports_by_role(db: Db) {
     );
     assert!(p["progress"]["expert"].as_array().unwrap().is_empty());
 
-    // Cohort summary: tina in c1 with 2 sessions, both passed after the override.
-    let (_, c, _) = call(
-        "GET",
-        &format!("{b}/api/cohorts/c1/summary"),
-        Some(auth("ivan")),
-        None,
-        false,
-    );
-    let t = &c["trainees"][0];
+    // Cohort summary: tina in c1 with 3 sessions, all passed after the override (nina: none yet).
+    let (_, c, _) = call("GET", &format!("{b}/api/cohorts/c1/summary"), auth("ivan"), None, false);
+    let t = c["trainees"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|t| t["username"] == "tina")
+        .unwrap();
     assert_eq!(
-        (t["username"].as_str(), t["sessions"].as_i64(), t["scored"].as_i64()),
-        (Some("tina"), Some(2), Some(2)),
+        (t["sessions"].as_i64(), t["scored"].as_i64(), t["passed"].as_i64()),
+        (Some(3), Some(3), Some(3)),
+        "{c}"
+    );
+    let nina = c["trainees"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|t| t["username"] == "nina")
+        .unwrap();
+    assert_eq!(
+        (nina["sessions"].as_i64(), nina["passed"].as_i64()),
+        (Some(0), Some(0)),
         "{c}"
     );
 
-    // The export: curriculum sees all three sessions, the instructor only tina's two.
+    // The export: curriculum sees all four sessions, the instructor only tina's three.
     let csv = |u: &str| {
         let resp = ureq::get(&format!("{b}/api/export/sessions.csv"))
             .set(
                 "Cookie",
                 &match auth(u) {
-                    Auth::Cookie { token, .. } => format!("stylet_session={token}"),
-                    Auth::Bearer(_) => unreachable!(),
+                    Some(Auth::Cookie { token, .. }) => format!("stylet_session={token}"),
+                    _ => unreachable!(),
                 },
             )
             .call()
@@ -539,7 +655,7 @@ fn review_progress_and_reports_by_role(db: Db) {
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();
     assert_eq!(header[..3], ["session_id", "trainee", "cohorts"]);
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
-    assert_eq!(rows.len(), 3);
+    assert_eq!(rows.len(), 4);
     let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
     let t2_row = rows.iter().find(|r| r[0] == t2).unwrap();
     assert_eq!(
@@ -547,7 +663,7 @@ fn review_progress_and_reports_by_role(db: Db) {
         ("75", "true", "true")
     );
     assert_eq!(t2_row[col("cohorts")], "c1");
-    assert_eq!(csv("ivan").lines().count(), 1 + 2);
+    assert_eq!(csv("ivan").lines().count(), 1 + 3);
 }
 
 #[test]
@@ -660,6 +776,20 @@ fn upload_score_and_see_only_what_you_may(db: Db) {
             "not a valid session file",
         ),
         ("header only", &tina, bomb, 422, "not a valid session file"),
+        (
+            "decompression bomb that declares its size",
+            &tina,
+            zstd_bomb(&lung, None),
+            422,
+            "over the limit",
+        ),
+        (
+            "decompression bomb that lies about its size",
+            &tina,
+            zstd_bomb(&lung, Some(1000)),
+            422,
+            "not the 1000 it declares",
+        ),
         ("empty", &tina, Vec::new(), 400, "empty"),
         (
             "another atlas",
@@ -671,7 +801,7 @@ fn upload_score_and_see_only_what_you_may(db: Db) {
     ];
     for (what, cookie, body, want, reason) in cases {
         // Raw socket: a refusal may come before the server has read the whole body.
-        let (status, json) = raw_post(b, "/api/sessions", cookie, &body);
+        let (status, json) = raw_post(b, "/api/sessions", Some(cookie), &body);
         assert_eq!(status, want, "{what}: {json}");
         assert!(
             json["error"].as_str().unwrap_or_default().contains(reason),
@@ -685,7 +815,7 @@ fn upload_score_and_see_only_what_you_may(db: Db) {
     }
     // Over the size limit: answered 413 from the declared length, before the body is read (a
     // raw socket, because the server does not wait for the rest of the body).
-    let (status, json) = raw_post(b, "/api/sessions", &tina, &vec![0u8; 2_500_000]);
+    let (status, json) = raw_post(b, "/api/sessions", Some(&tina), &vec![0u8; 2_500_000]);
     assert_eq!(status, 413, "{json}");
     assert!(json["error"].as_str().unwrap().contains("limit"), "{json}");
     assert_eq!(call("GET", &format!("{b}/healthz"), None, None, false).0, 200);
@@ -874,6 +1004,36 @@ fn a_killed_server_resumes_its_jobs_and_scores_each_session_once(db: Db) {
         for id in &ids {
             assert_eq!(store.score_count(id).await.unwrap(), 1, "{id}");
         }
+        // Rows scored before migration 0002 get their summary columns filled at the next start.
+        let lung_id = ids[2].clone();
+        let summary = |store: stylet_scoring::service::Store| {
+            let id = lung_id.clone();
+            async move {
+            let row = sqlx::query("SELECT final_score, final_passed, attempts, risk_hits, replay_verified FROM sessions WHERE id = $1")
+                .bind(id)
+                .fetch_one(&store.pool)
+                .await
+                .unwrap();
+            use sqlx::Row;
+            (
+                row.try_get::<Option<f64>, _>(0).unwrap(),
+                row.try_get::<Option<i64>, _>(1).unwrap(),
+                row.try_get::<Option<i64>, _>(2).unwrap(),
+                row.try_get::<Option<i64>, _>(3).unwrap(),
+                row.try_get::<Option<i64>, _>(4).unwrap(),
+            )
+            }
+        };
+        let before = summary(store.clone()).await;
+        assert_eq!((before.1, before.2, before.4), (Some(0), Some(1), Some(1)), "tina-lung: failed, 1 attempt, verified");
+        assert!(before.3.is_some_and(|n| n >= 1), "tina-lung hits the lung: {before:?}");
+        sqlx::query("UPDATE sessions SET final_score = NULL, final_passed = NULL, attempts = NULL, risk_hits = NULL, replay_verified = NULL")
+            .execute(&store.pool)
+            .await
+            .unwrap();
+        store.pool.close().await;
+        let store = stylet_scoring::service::Store::open(&db.url(&f.data())).await.unwrap();
+        assert_eq!(summary(store).await, before);
     });
 }
 
@@ -1028,13 +1188,22 @@ fn bounded_load_on_loopback() {
     );
     // Zero lost uploads: every accepted id is there (and gets scored).
     let cora = login(&b, "cora");
-    let (_, list, _) = call("GET", &format!("{b}/api/sessions"), Some(&cora), None, false);
-    let stored: std::collections::BTreeSet<&str> = list["sessions"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|s| s["id"].as_str().unwrap())
-        .collect();
+    let mut stored = std::collections::BTreeSet::new();
+    for page in 1.. {
+        let (_, list, _) = call(
+            "GET",
+            &format!("{b}/api/sessions?page={page}"),
+            Some(&cora),
+            None,
+            false,
+        );
+        let lines = list["sessions"].as_array().unwrap();
+        if lines.is_empty() {
+            assert_eq!(list["total"].as_u64(), Some(stored.len() as u64));
+            break;
+        }
+        stored.extend(lines.iter().map(|s| s["id"].as_str().unwrap().to_string()));
+    }
     for (_, _, id) in &uploads {
         assert!(stored.contains(id.as_deref().unwrap()), "upload {id:?} lost");
     }

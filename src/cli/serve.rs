@@ -106,7 +106,7 @@ pub fn user(cmd: UserCommand) -> anyhow::Result<()> {
             runtime()?.block_on(async {
                 let store = Store::open(&config.database_url()).await?;
                 store
-                    .add_user(&a.username, &a.role, password, a.cohort.as_deref())
+                    .add_user(&a.username, &a.role, password, a.cohort.as_deref(), None)
                     .await?;
                 anyhow::Ok(())
             })?;

@@ -46,6 +46,7 @@ pub fn router(state: AppRef) -> Router {
         .route("/api/login", post(login))
         .route("/api/logout", post(logout))
         .route("/api/tokens", post(create_token))
+        .route("/api/users", post(add_user).get(list_users))
         .route("/api/sessions", post(upload).get(list_sessions))
         .route("/api/sessions/{id}", get(get_session))
         .route("/api/sessions/{id}/override", post(override_grade))
@@ -102,6 +103,67 @@ async fn create_token(State(s): State<AppRef>, headers: HeaderMap, body: Bytes) 
         Json(json!({ "token": token, "label": req.label.trim(), "username": user.username })),
     )
         .into_response())
+}
+
+#[derive(serde::Deserialize)]
+struct NewUserRequest {
+    username: String,
+    role: String,
+    password: String,
+    #[serde(default)]
+    cohort: Option<String>,
+}
+
+/// Only admins manage accounts.
+fn require_admin(user: &User) -> Result<(), ApiError> {
+    if user.role == "admin" {
+        Ok(())
+    } else {
+        Err(err(
+            StatusCode::FORBIDDEN,
+            format!("{} ({}) may not manage accounts", user.username, user.role),
+        ))
+    }
+}
+
+/// POST /api/users (admin): `{"username","role","password","cohort"?}` → 201; audited.
+async fn add_user(State(s): State<AppRef>, headers: HeaderMap, body: Bytes) -> Result<Response, ApiError> {
+    let admin = acting_user(&s, &headers).await?;
+    require_admin(&admin)?;
+    let req: NewUserRequest = serde_json::from_slice(&body).map_err(|e| {
+        err(
+            StatusCode::BAD_REQUEST,
+            format!("expected {{\"username\", \"role\", \"password\", \"cohort\"?}}: {e}"),
+        )
+    })?;
+    let cohort = req.cohort.as_deref().map(str::trim).filter(|c| !c.is_empty());
+    match s
+        .store
+        .add_user(&req.username, &req.role, &req.password, cohort, Some(&admin.id))
+        .await
+    {
+        Ok(_) => Ok((
+            StatusCode::CREATED,
+            Json(json!({ "username": req.username, "role": req.role, "cohort": cohort })),
+        )
+            .into_response()),
+        Err(super::StoreError::Invalid(m)) => {
+            let status = if m.contains("already exists") {
+                StatusCode::CONFLICT
+            } else {
+                StatusCode::BAD_REQUEST
+            };
+            Err(err(status, m))
+        }
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// GET /api/users (admin): every account with role and cohorts.
+async fn list_users(State(s): State<AppRef>, headers: HeaderMap) -> Result<Response, ApiError> {
+    let user = current_user(&s, &headers).await?;
+    require_admin(&user)?;
+    Ok(Json(json!({ "users": s.store.users().await? })).into_response())
 }
 
 async fn openapi() -> Json<serde_json::Value> {
@@ -521,6 +583,7 @@ async fn cohort_summary(
     State(s): State<AppRef>,
     headers: HeaderMap,
     Path(name): Path<String>,
+    axum::extract::Query(q): axum::extract::Query<ListQuery>,
 ) -> Result<Response, ApiError> {
     let user = current_user(&s, &headers).await?;
     let cohort = s
@@ -539,25 +602,92 @@ async fn cohort_summary(
             format!("{} may not see cohort {name}", user.username),
         ));
     }
-    let trainees = s.store.cohort_summary(&cohort).await?;
+    let filter = q.filter(&s).await?;
+    let trainees = s.store.cohort_summary(&cohort, &filter).await?;
     Ok(Json(json!({ "cohort": name, "trainees": trainees })).into_response())
 }
 
-/// Columns of `GET /api/export/sessions.csv` (docs/api.md).
-pub const EXPORT_CSV_HEADER: &str = "session_id,trainee,cohorts,scenario,difficulty,status,recorded_at,uploaded_at,duration_s,\
-score,passed,overridden,replay_verified,rubric_version,physics_version";
+/// The query of list, summary and export routes: `?from=YYYY-MM-DD&to=YYYY-MM-DD&scenario=…&
+/// difficulty=…&cohort=…&trainee=…&page=N` (all optional; `to` inclusive).
+#[derive(Debug, Default, serde::Deserialize)]
+pub struct ListQuery {
+    pub from: Option<String>,
+    pub to: Option<String>,
+    pub scenario: Option<String>,
+    pub difficulty: Option<String>,
+    pub cohort: Option<String>,
+    pub trainee: Option<String>,
+    pub page: Option<i64>,
+}
 
-fn csv_field(s: &str) -> String {
-    if s.contains([',', '"', '\n', '\r']) {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s.to_string()
+impl ListQuery {
+    /// The store filter, or 400 with what is wrong. Unknown cohorts and trainees are 404.
+    pub async fn filter(&self, s: &AppState) -> Result<super::store::SessionFilter, ApiError> {
+        let blank = |v: &Option<String>| {
+            v.as_deref()
+                .map(str::trim)
+                .filter(|v| !v.is_empty())
+                .map(str::to_string)
+        };
+        let mut f = super::store::SessionFilter {
+            scenario: blank(&self.scenario),
+            difficulty: blank(&self.difficulty),
+            uploaded_from: blank(&self.from).map(|d| day_start(&d, 0)).transpose()?,
+            uploaded_before: blank(&self.to).map(|d| day_start(&d, 1)).transpose()?,
+            offset: (self.page.unwrap_or(1).max(1) - 1).saturating_mul(PAGE_SIZE),
+            limit: PAGE_SIZE,
+            ..Default::default()
+        };
+        if let Some(d) = &f.difficulty
+            && !crate::rubric::LEVELS.contains(&d.as_str())
+        {
+            return Err(err(
+                StatusCode::BAD_REQUEST,
+                format!("unknown difficulty '{d}' (beginner, advanced, expert)"),
+            ));
+        }
+        if let Some(c) = blank(&self.cohort) {
+            f.cohort_id = Some(
+                s.store
+                    .cohort_id(&c)
+                    .await?
+                    .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no cohort {c}")))?,
+            );
+        }
+        if let Some(t) = blank(&self.trainee) {
+            f.trainee_id = Some(
+                s.store
+                    .user_by_name(&t)
+                    .await?
+                    .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no trainee {t}")))?
+                    .id,
+            );
+        }
+        Ok(f)
     }
 }
 
+/// Sessions per page of a list.
+pub const PAGE_SIZE: i64 = 100;
+
+/// `YYYY-MM-DD` (+ `days`) as the RFC 3339 start of that UTC day, or 400.
+fn day_start(date: &str, days: u64) -> Result<String, ApiError> {
+    let bad = || err(StatusCode::BAD_REQUEST, format!("'{date}' is not a date (YYYY-MM-DD)"));
+    if date.len() != 10 {
+        return Err(bad());
+    }
+    let t = humantime::parse_rfc3339(&format!("{date}T00:00:00Z")).map_err(|_| bad())?;
+    Ok(humantime::format_rfc3339_micros(t + std::time::Duration::from_secs(86_400 * days)).to_string())
+}
+
 /// GET /api/export/sessions.csv: one row per session the caller may see (curriculum staff and
-/// admins: all; instructors: their cohorts'). Trainees use their progress instead.
-async fn export_csv(State(s): State<AppRef>, headers: HeaderMap) -> Result<Response, ApiError> {
+/// admins: all; instructors: their cohorts'), oldest first, filtered like the lists. Trainees use
+/// their progress instead.
+async fn export_csv(
+    State(s): State<AppRef>,
+    headers: HeaderMap,
+    axum::extract::Query(q): axum::extract::Query<ListQuery>,
+) -> Result<Response, ApiError> {
     let user = current_user(&s, &headers).await?;
     if user.role == "trainee" {
         return Err(err(
@@ -565,35 +695,34 @@ async fn export_csv(State(s): State<AppRef>, headers: HeaderMap) -> Result<Respo
             "the export is for instructors and curriculum staff",
         ));
     }
-    let rows = s.store.export_rows(&user).await?;
-    let o = |v: Option<String>| v.unwrap_or_default();
-    let mut out = String::from(EXPORT_CSV_HEADER);
-    out.push('\n');
-    for r in rows {
-        out += &format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
-            csv_field(&r.session_id),
-            csv_field(&r.trainee),
-            csv_field(&r.cohorts),
-            csv_field(&r.scenario),
-            csv_field(&r.difficulty),
-            r.status,
-            csv_field(&r.recorded_at),
-            csv_field(&r.uploaded_at),
-            r.duration_s,
-            o(r.score.map(|v| v.to_string())),
-            o(r.passed.map(|v| v.to_string())),
-            r.overridden,
-            o(r.replay_verified.map(|v| v.to_string())),
-            o(r.rubric_version.map(|v| v.to_string())),
-            r.physics_version
-        );
-    }
-    Ok(([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], out).into_response())
+    let filter = q.filter(&s).await?;
+    let rows = s.store.export_rows(&user, &filter).await?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "text/csv; charset=utf-8"),
+            (
+                header::CONTENT_DISPOSITION,
+                "attachment; filename=\"stylet-sessions.csv\"",
+            ),
+        ],
+        super::export::sessions_csv(&rows),
+    )
+        .into_response())
 }
 
-async fn list_sessions(State(s): State<AppRef>, headers: HeaderMap) -> Result<Response, ApiError> {
+/// GET /api/sessions: the sessions the caller may see, newest first, filtered, a page of
+/// [`PAGE_SIZE`] at a time (`total` says how many match).
+async fn list_sessions(
+    State(s): State<AppRef>,
+    headers: HeaderMap,
+    axum::extract::Query(q): axum::extract::Query<ListQuery>,
+) -> Result<Response, ApiError> {
     let user = current_user(&s, &headers).await?;
-    let rows = s.store.sessions_for(&user, 1000).await?;
-    Ok(Json(json!({ "sessions": rows })).into_response())
+    let filter = q.filter(&s).await?;
+    let rows = s.store.sessions(&user, &filter).await?;
+    let total = s.store.count_sessions(&user, &filter).await?;
+    Ok(
+        Json(json!({ "sessions": rows, "total": total, "page": q.page.unwrap_or(1).max(1), "page_size": PAGE_SIZE }))
+            .into_response(),
+    )
 }

@@ -5,6 +5,7 @@
 
 pub mod api;
 pub mod auth;
+pub mod export;
 pub mod openapi;
 pub mod store;
 pub mod worker;

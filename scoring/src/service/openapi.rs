@@ -53,6 +53,28 @@ pub fn document() -> Value {
                 }
             } },
             "/api/logout": { "post": { "summary": "Log out", "responses": { "200": { "description": "logged out" } } } },
+            "/api/users": {
+                "get": {
+                    "summary": "Every account with role and cohorts (admin)",
+                    "security": [{ "cookie": [] }, { "token": [] }],
+                    "responses": { "200": { "description": "{users: [{username, role, cohorts, created_at}]}" },
+                                   "401": error_response("not logged in"), "403": error_response("not an admin") }
+                },
+                "post": {
+                    "summary": "Add an account (admin; audited)",
+                    "security": [{ "cookie": [] }, { "token": [] }],
+                    "requestBody": { "required": true, "content": { "application/json": { "schema": {
+                        "type": "object", "required": ["username", "role", "password"],
+                        "properties": { "username": { "type": "string" },
+                                        "role": { "type": "string", "enum": ["trainee", "instructor", "curriculum", "admin"] },
+                                        "password": { "type": "string", "minLength": 8 },
+                                        "cohort": { "type": "string" } } } } } },
+                    "responses": { "201": { "description": "{username, role, cohort}" },
+                                   "400": error_response("invalid username, role, password or cohort"),
+                                   "401": error_response("not logged in"), "403": error_response("not an admin, or CSRF token missing"),
+                                   "409": error_response("the username exists") }
+                }
+            },
             "/api/tokens": { "post": {
                 "summary": "Create an API token for the logged-in user (shown once)",
                 "security": [{ "cookie": [] }],

@@ -1,0 +1,74 @@
+//! The sessions CSV (docs/api.md "Sessions CSV"): one row per session, for curriculum staff's
+//! spreadsheets. The API and the dashboard serve the same text.
+
+use super::store::ExportRow;
+
+/// The header line; the columns are documented in docs/api.md.
+pub const SESSIONS_CSV_HEADER: &str = "session_id,trainee,cohorts,scenario,difficulty,status,recorded_at,uploaded_at,\
+duration_s,score,passed,overridden,attempts,risk_hits,replay_verified,rubric_version,physics_version";
+
+/// A field quoted when it holds a comma, quote or line break (RFC 4180). Text that a spreadsheet
+/// would run as a formula (`=`, `+`, `-`, `@` first) gets a leading apostrophe.
+fn field(s: &str) -> String {
+    let s = if s.starts_with(['=', '+', '-', '@']) {
+        format!("'{s}")
+    } else {
+        s.to_string()
+    };
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s
+    }
+}
+
+fn opt<T: ToString>(v: Option<T>) -> String {
+    v.map(|v| v.to_string()).unwrap_or_default()
+}
+
+/// The CSV text of `rows` (header first, `\n` line ends).
+pub fn sessions_csv(rows: &[ExportRow]) -> String {
+    let mut out = String::with_capacity(200 * (rows.len() + 1));
+    out += SESSIONS_CSV_HEADER;
+    out.push('\n');
+    for r in rows {
+        let l = &r.line;
+        let cells = [
+            field(&l.id),
+            field(&l.trainee),
+            field(&r.cohorts),
+            field(&l.scenario),
+            field(&l.difficulty),
+            field(&l.status),
+            field(&l.recorded_at),
+            field(&l.uploaded_at),
+            l.duration_s.to_string(),
+            opt(l.score),
+            opt(l.passed),
+            l.overridden.to_string(),
+            opt(l.attempts),
+            opt(l.risk_hits),
+            opt(l.replay_verified),
+            opt(l.rubric_version),
+            l.physics_version.to_string(),
+        ];
+        out += &cells.join(",");
+        out.push('\n');
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fields_are_quoted_and_formulas_defused() {
+        assert_eq!(field("plain"), "plain");
+        assert_eq!(field("a,b"), "\"a,b\"");
+        assert_eq!(field("say \"hi\""), "\"say \"\"hi\"\"\"");
+        assert_eq!(field("=HYPERLINK(1)"), "'=HYPERLINK(1)");
+        assert_eq!(field("-1,2"), "\"'-1,2\"");
+        assert_eq!(SESSIONS_CSV_HEADER.split(',').count(), 17);
+    }
+}

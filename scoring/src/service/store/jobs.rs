@@ -1,0 +1,170 @@
+//! Scoring jobs: queued in the database, claimed by the worker pool, finished exactly once.
+
+use sqlx::Row;
+
+use super::{Store, StoreError, now};
+
+impl Store {
+    /// At start: jobs a killed server left running go back to the queue.
+    pub async fn requeue_running(&self) -> Result<u64, StoreError> {
+        let r = sqlx::query("UPDATE scoring_jobs SET state = 'queued', started_at = NULL WHERE state = 'running'")
+            .execute(&self.pool)
+            .await?;
+        sqlx::query("UPDATE sessions SET status = 'queued' WHERE status = 'scoring'")
+            .execute(&self.pool)
+            .await?;
+        Ok(r.rows_affected())
+    }
+
+    /// Takes the oldest queued job. One dispatcher per server claims jobs; the conditional update
+    /// also keeps two servers on one database from taking the same job.
+    pub async fn claim_job(&self) -> Result<Option<Job>, StoreError> {
+        let row = sqlx::query(
+            "SELECT j.id, j.session_id, s.file_sha256, s.atlas_hash FROM scoring_jobs j JOIN sessions s ON s.id = j.session_id \
+             WHERE j.state = 'queued' ORDER BY j.created_at, j.id LIMIT 1",
+        )
+        .fetch_optional(&self.pool)
+        .await?;
+        let Some(row) = row else { return Ok(None) };
+        let job = Job {
+            id: row.try_get("id")?,
+            session_id: row.try_get("session_id")?,
+            file_sha256: row.try_get("file_sha256")?,
+            atlas_hash: row.try_get("atlas_hash")?,
+        };
+        let mut tx = self.pool.begin().await?;
+        let claimed = sqlx::query("UPDATE scoring_jobs SET state = 'running', started_at = $1, attempts = attempts + 1 WHERE id = $2 AND state = 'queued'")
+            .bind(now())
+            .bind(job.id.clone())
+            .execute(&mut *tx)
+            .await?;
+        if claimed.rows_affected() != 1 {
+            // Another server on the same database took it first.
+            tx.rollback().await?;
+            return Ok(None);
+        }
+        sqlx::query("UPDATE sessions SET status = 'scoring' WHERE id = $1")
+            .bind(job.session_id.clone())
+            .execute(&mut *tx)
+            .await?;
+        tx.commit().await?;
+        Ok(Some(job))
+    }
+
+    /// Stores a score and closes its job in one transaction; a second score for the same session
+    /// is refused by the key (never scored twice).
+    pub async fn finish_job(&self, job: &Job, report: &crate::ScoreReport) -> Result<(), StoreError> {
+        let json = serde_json::to_string(report).map_err(|e| StoreError::Invalid(e.to_string()))?;
+        let mut tx = self.pool.begin().await?;
+        sqlx::query(
+            "INSERT INTO scores (session_id, score, passed, difficulty, rubric, rubric_version, physics_version, replay_verified, \
+             incomplete, report_json, scored_at) VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11)",
+        )
+        .bind(job.session_id.clone())
+        .bind(report.grade.score)
+        .bind(report.grade.passed)
+        .bind(report.grade.difficulty.clone())
+        .bind(report.grade.rubric.clone())
+        .bind(report.grade.rubric_version as i64)
+        .bind(report.physics_version as i64)
+        .bind(report.replay_verified)
+        .bind(report.incomplete)
+        .bind(json)
+        .bind(now())
+        .execute(&mut *tx)
+        .await?;
+        sqlx::query("UPDATE scoring_jobs SET state = 'done', finished_at = $1 WHERE id = $2")
+            .bind(now())
+            .bind(job.id.clone())
+            .execute(&mut *tx)
+            .await?;
+        write_summary(&mut tx, &job.session_id, &Summary::from_report(report)).await?;
+        tx.commit().await?;
+        Ok(())
+    }
+
+    pub async fn fail_job(&self, job: &Job, error: &str) -> Result<(), StoreError> {
+        let mut tx = self.pool.begin().await?;
+        sqlx::query("UPDATE scoring_jobs SET state = 'failed', finished_at = $1 WHERE id = $2")
+            .bind(now())
+            .bind(job.id.clone())
+            .execute(&mut *tx)
+            .await?;
+        sqlx::query("UPDATE sessions SET status = 'failed', error = $1 WHERE id = $2")
+            .bind(error.to_string())
+            .bind(job.session_id.clone())
+            .execute(&mut *tx)
+            .await?;
+        tx.commit().await?;
+        Ok(())
+    }
+}
+
+/// A claimed scoring job.
+#[derive(Debug, Clone)]
+pub struct Job {
+    pub id: String,
+    pub session_id: String,
+    pub file_sha256: String,
+    pub atlas_hash: String,
+}
+
+/// What a session's row keeps of its score (migration 0002).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Summary {
+    pub score: f64,
+    pub passed: bool,
+    pub attempts: i64,
+    pub risk_hits: i64,
+    pub replay_verified: bool,
+    pub rubric_version: i64,
+}
+
+impl Summary {
+    pub fn from_report(r: &crate::ScoreReport) -> Summary {
+        Summary {
+            score: r.grade.score,
+            passed: r.grade.passed,
+            attempts: i64::from(r.metrics.attempts),
+            risk_hits: r.metrics.risk_hits.len() as i64,
+            replay_verified: r.replay_verified,
+            rubric_version: i64::from(r.grade.rubric_version),
+        }
+    }
+
+    /// From a stored report (JSON of [`crate::ScoreReport`]).
+    pub fn from_json(v: &serde_json::Value) -> Option<Summary> {
+        Some(Summary {
+            score: v["grade"]["score"].as_f64()?,
+            passed: v["grade"]["passed"].as_bool()?,
+            attempts: v["metrics"]["attempts"].as_i64()?,
+            risk_hits: v["metrics"]["risk_hits"].as_array()?.len() as i64,
+            replay_verified: v["replay_verified"].as_bool()?,
+            rubric_version: v["grade"]["rubric_version"].as_i64()?,
+        })
+    }
+}
+
+/// Marks a session scored and writes its summary; the final grade is the computed one unless an
+/// instructor has overridden it already.
+pub(super) async fn write_summary(
+    tx: &mut sqlx::Transaction<'_, sqlx::Any>,
+    session_id: &str,
+    s: &Summary,
+) -> Result<(), StoreError> {
+    sqlx::query(
+        "UPDATE sessions SET status = 'scored', attempts = $1, risk_hits = $2, replay_verified = $3, rubric_version = $4, \
+         final_score = CASE WHEN overridden = 1 THEN final_score ELSE $5 END, \
+         final_passed = CASE WHEN overridden = 1 THEN final_passed ELSE $6 END WHERE id = $7",
+    )
+    .bind(s.attempts)
+    .bind(s.risk_hits)
+    .bind(i64::from(s.replay_verified))
+    .bind(s.rubric_version)
+    .bind(s.score)
+    .bind(i64::from(s.passed))
+    .bind(session_id.to_string())
+    .execute(&mut **tx)
+    .await?;
+    Ok(())
+}

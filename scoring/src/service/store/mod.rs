@@ -1,0 +1,169 @@
+//! The service's database (sqlx, `Any` driver): SQLite in WAL mode by default, PostgreSQL for
+//! multi-site use. One set of migrations (`migrations/`) and one SQL dialect for both: `$n`
+//! placeholders (SQLite reads them as numbered parameters), text ids and times. Booleans are read
+//! back as `CAST(CASE WHEN b THEN 1 ELSE 0 END AS BIGINT)`: the `Any` driver cannot decode
+//! SQLite's BOOLEAN.
+
+use sqlx::any::{AnyPoolOptions, install_default_drivers};
+use sqlx::{AnyPool, Row};
+
+mod accounts;
+mod jobs;
+mod review;
+mod sessions;
+
+pub use accounts::UserRow;
+pub use jobs::Job;
+pub use review::{ExportRow, ProgressPoint, TraineeSummary};
+pub use sessions::{NewSession, SessionFilter, SessionLine};
+
+/// Roles, from least to most administrative.
+pub const ROLES: [&str; 4] = ["trainee", "instructor", "curriculum", "admin"];
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct User {
+    pub id: String,
+    pub username: String,
+    pub role: String,
+}
+
+/// A stored session row.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SessionRow {
+    pub id: String,
+    pub trainee: String,
+    pub scenario: String,
+    pub difficulty: String,
+    pub status: String,
+    pub uploaded_at: String,
+    /// The simulator's clock when recording started (from the file's header).
+    pub recorded_at: String,
+    pub duration_s: f64,
+    pub error: Option<String>,
+    /// The stored file's SHA-256 (its name under `DATA/sessions/`).
+    pub file_sha256: String,
+    pub atlas_hash: String,
+    pub size_bytes: i64,
+    /// The full score report (docs/metrics.md) once scored.
+    pub score: Option<serde_json::Value>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("database: {0}")]
+    Db(#[from] sqlx::Error),
+    #[error("migrations: {0}")]
+    Migrate(#[from] sqlx::migrate::MigrateError),
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// Now, RFC 3339 UTC with microseconds: equal-length strings that sort in time order.
+pub fn now() -> String {
+    humantime::format_rfc3339_micros(std::time::SystemTime::now()).to_string()
+}
+
+pub fn new_id() -> String {
+    stylet_recorder::new_session_id()
+}
+
+#[derive(Clone)]
+pub struct Store {
+    pub pool: AnyPool,
+}
+
+impl Store {
+    /// Connects, sets SQLite to WAL, applies the migrations.
+    pub async fn open(url: &str) -> Result<Store, StoreError> {
+        install_default_drivers();
+        let sqlite = url.starts_with("sqlite:");
+        let pool = AnyPoolOptions::new()
+            .max_connections(8)
+            .after_connect(move |conn, _| {
+                Box::pin(async move {
+                    if sqlite {
+                        sqlx::query("PRAGMA busy_timeout = 10000").execute(&mut *conn).await?;
+                        sqlx::query("PRAGMA foreign_keys = ON").execute(&mut *conn).await?;
+                    }
+                    Ok(())
+                })
+            })
+            .connect(url)
+            .await?;
+        if sqlite {
+            sqlx::query("PRAGMA journal_mode = WAL").execute(&pool).await?;
+        }
+        sqlx::migrate!("../migrations").run(&pool).await?;
+        let store = Store { pool };
+        store.fill_session_summaries().await?;
+        Ok(store)
+    }
+
+    /// Fills the summary columns of migration 0002 for sessions scored before it (once; later
+    /// scores and overrides write them as they happen).
+    async fn fill_session_summaries(&self) -> Result<(), StoreError> {
+        let rows = sqlx::query(
+            "SELECT s.id, sc.report_json FROM sessions s JOIN scores sc ON sc.session_id = s.id WHERE s.attempts IS NULL",
+        )
+        .fetch_all(&self.pool)
+        .await?;
+        for r in rows {
+            let id: String = r.try_get("id")?;
+            let report: serde_json::Value = serde_json::from_str(&r.try_get::<String, _>("report_json")?)
+                .map_err(|e| StoreError::Invalid(format!("stored report of session {id}: {e}")))?;
+            let summary = jobs::Summary::from_json(&report)
+                .ok_or_else(|| StoreError::Invalid(format!("stored report of session {id} lacks grade or metrics")))?;
+            let mut tx = self.pool.begin().await?;
+            jobs::write_summary(&mut tx, &id, &summary).await?;
+            if let Some((score, passed)) = review::latest_override(&mut tx, &id).await? {
+                review::write_final_grade(&mut tx, &id, score, passed).await?;
+            }
+            tx.commit().await?;
+        }
+        Ok(())
+    }
+
+    async fn audit(
+        &self,
+        actor: Option<&str>,
+        action: &str,
+        target: Option<&str>,
+        detail: &str,
+    ) -> Result<(), StoreError> {
+        sqlx::query("INSERT INTO audit_log (id, at, actor_id, action, target, detail) VALUES ($1, $2, $3, $4, $5, $6)")
+            .bind(new_id())
+            .bind(now())
+            .bind(actor.map(str::to_string))
+            .bind(action.to_string())
+            .bind(target.map(str::to_string))
+            .bind(detail.to_string())
+            .execute(&self.pool)
+            .await?;
+        Ok(())
+    }
+    pub async fn register_atlas(&self, hash: &str, name: &str, dir: &str) -> Result<(), StoreError> {
+        let known = sqlx::query("SELECT content_hash FROM atlases WHERE content_hash = $1")
+            .bind(hash.to_string())
+            .fetch_optional(&self.pool)
+            .await?;
+        if known.is_none() {
+            sqlx::query("INSERT INTO atlases (content_hash, name, dir, registered_at) VALUES ($1, $2, $3, $4)")
+                .bind(hash.to_string())
+                .bind(name.to_string())
+                .bind(dir.to_string())
+                .bind(now())
+                .execute(&self.pool)
+                .await?;
+        }
+        Ok(())
+    }
+
+    /// Count of scores per session (tests: exactly once).
+    pub async fn score_count(&self, session_id: &str) -> Result<i64, StoreError> {
+        let row = sqlx::query("SELECT COUNT(*) AS n FROM scores WHERE session_id = $1")
+            .bind(session_id.to_string())
+            .fetch_one(&self.pool)
+            .await?;
+        Ok(row.try_get("n")?)
+    }
+}

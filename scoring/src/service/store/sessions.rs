@@ -1,0 +1,298 @@
+//! Uploaded sessions: storing a validated upload and reading sessions back.
+
+use sqlx::Row;
+
+use super::{SessionRow, User};
+use super::{Store, StoreError, new_id, now};
+
+impl Store {
+    /// The session id of a file already uploaded (same bytes).
+    pub async fn session_by_file(&self, sha: &str) -> Result<Option<String>, StoreError> {
+        let row = sqlx::query("SELECT id FROM sessions WHERE file_sha256 = $1")
+            .bind(sha.to_string())
+            .fetch_optional(&self.pool)
+            .await?;
+        Ok(row.map(|r| r.try_get("id")).transpose()?)
+    }
+
+    /// Records a validated upload and its scoring job in one transaction.
+    pub async fn insert_session(&self, s: &NewSession) -> Result<String, StoreError> {
+        let id = new_id();
+        let mut tx = self.pool.begin().await?;
+        sqlx::query(
+            "INSERT INTO sessions (id, file_sha256, size_bytes, session_uuid, trainee_id, uploaded_by, scenario, difficulty, \
+             atlas_hash, physics_version, duration_s, recorded_at, uploaded_at, status, error) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, 'queued', NULL)",
+        )
+        .bind(id.clone())
+        .bind(s.file_sha256.clone())
+        .bind(s.size_bytes)
+        .bind(s.session_uuid.clone())
+        .bind(s.trainee_id.clone())
+        .bind(s.uploaded_by.clone())
+        .bind(s.scenario.clone())
+        .bind(s.difficulty.clone())
+        .bind(s.atlas_hash.clone())
+        .bind(s.physics_version)
+        .bind(s.duration_s)
+        .bind(s.recorded_at.clone())
+        .bind(now())
+        .execute(&mut *tx)
+        .await?;
+        sqlx::query(
+            "INSERT INTO scoring_jobs (id, session_id, state, attempts, created_at) VALUES ($1, $2, 'queued', 0, $3)",
+        )
+        .bind(new_id())
+        .bind(id.clone())
+        .bind(now())
+        .execute(&mut *tx)
+        .await?;
+        sqlx::query("INSERT INTO audit_log (id, at, actor_id, action, target, detail) VALUES ($1, $2, $3, 'session.upload', $4, $5)")
+            .bind(new_id())
+            .bind(now())
+            .bind(s.uploaded_by.clone())
+            .bind(id.clone())
+            .bind(s.file_sha256.clone())
+            .execute(&mut *tx)
+            .await?;
+        tx.commit().await?;
+        Ok(id)
+    }
+
+    const SESSION_COLUMNS: &str = "s.id, u.username AS trainee, s.scenario, s.difficulty, s.status, s.uploaded_at, \
+        s.recorded_at, s.duration_s, s.error, s.file_sha256, s.atlas_hash, s.size_bytes, sc.report_json";
+
+    fn session_of(row: &sqlx::any::AnyRow) -> Result<SessionRow, sqlx::Error> {
+        let report: Option<String> = row.try_get("report_json")?;
+        Ok(SessionRow {
+            id: row.try_get("id")?,
+            trainee: row.try_get("trainee")?,
+            scenario: row.try_get("scenario")?,
+            difficulty: row.try_get("difficulty")?,
+            status: row.try_get("status")?,
+            uploaded_at: row.try_get("uploaded_at")?,
+            recorded_at: row.try_get("recorded_at")?,
+            duration_s: row.try_get("duration_s")?,
+            error: row.try_get("error")?,
+            file_sha256: row.try_get("file_sha256")?,
+            atlas_hash: row.try_get("atlas_hash")?,
+            size_bytes: row.try_get("size_bytes")?,
+            score: report.and_then(|r| serde_json::from_str(&r).ok()),
+        })
+    }
+
+    /// A session with its trainee's id (for authorization).
+    pub async fn session(&self, id: &str) -> Result<Option<(SessionRow, String)>, StoreError> {
+        let q = format!(
+            "SELECT {}, s.trainee_id FROM sessions s JOIN users u ON u.id = s.trainee_id \
+             LEFT JOIN scores sc ON sc.session_id = s.id WHERE s.id = $1",
+            Self::SESSION_COLUMNS
+        );
+        // Built from constants only; values are bound.
+        let row = sqlx::query(sqlx::AssertSqlSafe(q))
+            .bind(id.to_string())
+            .fetch_optional(&self.pool)
+            .await?;
+        Ok(match row {
+            Some(r) => Some((Self::session_of(&r)?, r.try_get("trainee_id")?)),
+            None => None,
+        })
+    }
+
+    /// Columns of a listed session: its row only (migration 0002), never the report.
+    const LINE_COLUMNS: &str = "s.id, u.username AS trainee, s.scenario, s.difficulty, s.status, s.uploaded_at, \
+        s.recorded_at, s.duration_s, s.error, s.final_score, s.final_passed, s.overridden, s.attempts, s.risk_hits, \
+        s.replay_verified, s.rubric_version, s.physics_version";
+
+    fn line_of(row: &sqlx::any::AnyRow) -> Result<SessionLine, sqlx::Error> {
+        let flag = |name: &str| -> Result<Option<bool>, sqlx::Error> {
+            Ok(row.try_get::<Option<i64>, _>(name)?.map(|v| v != 0))
+        };
+        Ok(SessionLine {
+            id: row.try_get("id")?,
+            trainee: row.try_get("trainee")?,
+            scenario: row.try_get("scenario")?,
+            difficulty: row.try_get("difficulty")?,
+            status: row.try_get("status")?,
+            uploaded_at: row.try_get("uploaded_at")?,
+            recorded_at: row.try_get("recorded_at")?,
+            duration_s: row.try_get("duration_s")?,
+            error: row.try_get("error")?,
+            score: row.try_get("final_score")?,
+            passed: flag("final_passed")?,
+            overridden: row.try_get::<i64, _>("overridden")? != 0,
+            attempts: row.try_get("attempts")?,
+            risk_hits: row.try_get("risk_hits")?,
+            replay_verified: flag("replay_verified")?,
+            rubric_version: row.try_get("rubric_version")?,
+            physics_version: row.try_get("physics_version")?,
+        })
+    }
+
+    /// The WHERE clause of `filter` as seen by `viewer` (a trainee sees their own sessions, an
+    /// instructor those of their cohorts' trainees, curriculum staff and admins all), with its
+    /// bound values in order.
+    fn where_clause(viewer: &User, filter: &SessionFilter) -> (String, Vec<String>) {
+        let mut conds: Vec<String> = Vec::new();
+        let mut binds: Vec<String> = Vec::new();
+        let bind = |v: &str, binds: &mut Vec<String>| {
+            binds.push(v.to_string());
+            format!("${}", binds.len())
+        };
+        match viewer.role.as_str() {
+            "trainee" => conds.push(format!("s.trainee_id = {}", bind(&viewer.id, &mut binds))),
+            "instructor" => conds.push(format!(
+                "s.trainee_id IN (SELECT b.user_id FROM cohort_members a JOIN cohort_members b \
+                 ON a.cohort_id = b.cohort_id WHERE a.user_id = {})",
+                bind(&viewer.id, &mut binds)
+            )),
+            _ => {}
+        }
+        if let Some(v) = &filter.trainee_id {
+            conds.push(format!("s.trainee_id = {}", bind(v, &mut binds)));
+        }
+        if let Some(v) = &filter.cohort_id {
+            conds.push(format!(
+                "s.trainee_id IN (SELECT user_id FROM cohort_members WHERE cohort_id = {})",
+                bind(v, &mut binds)
+            ));
+        }
+        if let Some(v) = &filter.scenario {
+            conds.push(format!("s.scenario = {}", bind(v, &mut binds)));
+        }
+        if let Some(v) = &filter.difficulty {
+            conds.push(format!("s.difficulty = {}", bind(v, &mut binds)));
+        }
+        if let Some(v) = &filter.status {
+            conds.push(format!("s.status = {}", bind(v, &mut binds)));
+        }
+        if let Some(v) = &filter.uploaded_from {
+            conds.push(format!("s.uploaded_at >= {}", bind(v, &mut binds)));
+        }
+        if let Some(v) = &filter.uploaded_before {
+            conds.push(format!("s.uploaded_at < {}", bind(v, &mut binds)));
+        }
+        let clause = if conds.is_empty() {
+            String::new()
+        } else {
+            format!(" WHERE {}", conds.join(" AND "))
+        };
+        (clause, binds)
+    }
+
+    /// The sessions `viewer` may see that match `filter`, newest first unless
+    /// `filter.oldest_first`, one page (`limit`, `offset`).
+    pub async fn sessions(&self, viewer: &User, filter: &SessionFilter) -> Result<Vec<SessionLine>, StoreError> {
+        let (clause, binds) = Self::where_clause(viewer, filter);
+        let order = if filter.oldest_first { "ASC" } else { "DESC" };
+        let q = format!(
+            "SELECT {} FROM sessions s JOIN users u ON u.id = s.trainee_id{clause} \
+             ORDER BY s.uploaded_at {order}, s.id {order} LIMIT ${} OFFSET ${}",
+            Self::LINE_COLUMNS,
+            binds.len() + 1,
+            binds.len() + 2
+        );
+        // Built from constants and placeholders only; every value is bound.
+        let mut query = sqlx::query(sqlx::AssertSqlSafe(q));
+        for b in binds {
+            query = query.bind(b);
+        }
+        let rows = query
+            .bind(filter.limit.max(0))
+            .bind(filter.offset.max(0))
+            .fetch_all(&self.pool)
+            .await?;
+        Ok(rows.iter().map(Self::line_of).collect::<Result<_, _>>()?)
+    }
+
+    /// How many sessions `viewer` may see match `filter` (for paging).
+    pub async fn count_sessions(&self, viewer: &User, filter: &SessionFilter) -> Result<i64, StoreError> {
+        let (clause, binds) = Self::where_clause(viewer, filter);
+        let q = format!("SELECT COUNT(*) AS n FROM sessions s{clause}");
+        let mut query = sqlx::query(sqlx::AssertSqlSafe(q));
+        for b in binds {
+            query = query.bind(b);
+        }
+        Ok(query.fetch_one(&self.pool).await?.try_get("n")?)
+    }
+
+    /// The scenarios of stored sessions (for filter menus).
+    pub async fn scenarios(&self) -> Result<Vec<String>, StoreError> {
+        let rows = sqlx::query("SELECT DISTINCT scenario FROM sessions ORDER BY scenario")
+            .fetch_all(&self.pool)
+            .await?;
+        Ok(rows.iter().map(|r| r.try_get("scenario")).collect::<Result<_, _>>()?)
+    }
+}
+
+/// Which sessions to list. Dates compare with `uploaded_at` (the server's clock, RFC 3339 UTC).
+#[derive(Debug, Clone)]
+pub struct SessionFilter {
+    pub trainee_id: Option<String>,
+    pub cohort_id: Option<String>,
+    pub scenario: Option<String>,
+    pub difficulty: Option<String>,
+    pub status: Option<String>,
+    /// Inclusive.
+    pub uploaded_from: Option<String>,
+    /// Exclusive.
+    pub uploaded_before: Option<String>,
+    pub oldest_first: bool,
+    pub limit: i64,
+    pub offset: i64,
+}
+
+impl Default for SessionFilter {
+    fn default() -> Self {
+        SessionFilter {
+            trainee_id: None,
+            cohort_id: None,
+            scenario: None,
+            difficulty: None,
+            status: None,
+            uploaded_from: None,
+            uploaded_before: None,
+            oldest_first: false,
+            limit: 100,
+            offset: 0,
+        }
+    }
+}
+
+/// A session as lists, pages and exports show it: the final grade (the latest override's when
+/// overridden), attempts, risk hits and the replay check; `None` until scored.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SessionLine {
+    pub id: String,
+    pub trainee: String,
+    pub scenario: String,
+    pub difficulty: String,
+    pub status: String,
+    pub uploaded_at: String,
+    pub recorded_at: String,
+    pub duration_s: f64,
+    pub error: Option<String>,
+    pub score: Option<f64>,
+    pub passed: Option<bool>,
+    pub overridden: bool,
+    pub attempts: Option<i64>,
+    pub risk_hits: Option<i64>,
+    pub replay_verified: Option<bool>,
+    pub rubric_version: Option<i64>,
+    pub physics_version: i64,
+}
+
+/// A validated upload about to be stored.
+pub struct NewSession {
+    pub file_sha256: String,
+    pub size_bytes: i64,
+    pub session_uuid: String,
+    pub trainee_id: String,
+    pub uploaded_by: String,
+    pub scenario: String,
+    pub difficulty: String,
+    pub atlas_hash: String,
+    pub physics_version: i64,
+    pub duration_s: f64,
+    pub recorded_at: String,
+}
