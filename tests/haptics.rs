@@ -347,18 +347,24 @@ fn fig_3_14_palpation_and_probe_over_the_ribs() {
                 name: "finger".into(),
                 color: palette::SKIN,
                 bold: true,
+                dashed: false,
+                dots: false,
                 points: trace(&finger),
             },
             Series {
                 name: "linear probe parallel to the ribs".into(),
                 color: palette::FRICTION,
                 bold: false,
+                dashed: false,
+                dots: false,
                 points: trace(&parallel_run),
             },
             Series {
                 name: "linear probe across the ribs".into(),
                 color: palette::BONE,
                 bold: false,
+                dashed: false,
+                dots: false,
                 points: trace(&across_run),
             },
         ],
@@ -366,6 +372,7 @@ fn fig_3_14_palpation_and_probe_over_the_ribs() {
             .iter()
             .map(|(z, n)| (*z, n.to_string()))
             .collect(),
+        ..Default::default()
     };
     let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("fig-3-14-palpation.png");
     write_chart(&chart, &out, (1200, 600)).unwrap();

@@ -1,3 +1,47 @@
-//! Web pages, plotters charts and report exports, mounted by the scoring service.
-//!
-//! Empty on purpose: the dashboard issue fills it. Nothing here pretends to work yet.
+//! The Stylet dashboard (DESIGN.md "Service and security"; docs/dashboard.md): server-rendered
+//! pages for trainees, instructors, curriculum staff and admins, mounted by `stylet serve` beside
+//! the JSON API and sharing its logins, store and authorization rules. Charts are drawn on the
+//! server with plotters as inline SVG ([`charts`]); the tip path over CT slices is a PNG drawn by
+//! the CPU renderer ([`figures`]). Pages work without JavaScript; every form carries the login's
+//! CSRF token.
+
+pub mod auth;
+pub mod charts;
+pub mod figures;
+pub mod layout;
+pub mod pages;
+pub mod progress;
+
+use std::sync::Arc;
+
+use axum::Router;
+use axum::extract::DefaultBodyLimit;
+use axum::routing::{get, post};
+use stylet_scoring::service::AppState;
+
+/// The dashboard's routes (`stylet serve` merges them with the API's).
+pub fn router(state: Arc<AppState>) -> Router {
+    // A multipart upload carries the file plus a little form overhead.
+    let upload_limit = state.config.max_upload_bytes.saturating_add(64 << 10);
+    Router::new()
+        .route("/", get(pages::home::home))
+        .route("/login", get(pages::login::form).post(pages::login::submit))
+        .route("/logout", post(pages::login::logout))
+        .route("/sessions", get(pages::sessions::list))
+        .route("/sessions/{id}", get(pages::review::review))
+        .route("/sessions/{id}/file", get(pages::review::file))
+        .route("/sessions/{id}/slices.png", get(pages::review::slices))
+        .route("/sessions/{id}/comment", post(pages::review::comment))
+        .route("/sessions/{id}/override", post(pages::review::override_grade))
+        .route(
+            "/upload",
+            post(pages::upload::upload).layer(DefaultBodyLimit::max(upload_limit)),
+        )
+        .route("/cohorts", get(pages::home::cohorts))
+        .route("/cohorts/{name}", get(pages::cohort::cohort))
+        .route("/compare", get(pages::cohort::compare))
+        .route("/reports", get(pages::reports::index))
+        .route("/reports/cohort", get(pages::reports::cohort_report))
+        .route("/admin/users", get(pages::admin::users).post(pages::admin::add_user))
+        .with_state(state)
+}

@@ -2,7 +2,7 @@
 //! claims. [`replay`] re-runs a session file's recorded inputs through `stylet_physics` and checks
 //! every recorded output and state digest bit for bit; [`metrics`] measures the replayed session
 //! (docs/metrics.md); [`rubric`] turns metrics into a grade per difficulty; [`score`] ties them
-//! together for one file or a batch; [`service`] (feature `service`) is the HTTP scoring service.
+//! together for one file or a batch; [`trace`] keeps what the dashboard draws of a replay; [`service`] (feature `service`) is the HTTP scoring service.
 
 pub mod metrics;
 pub mod replay;
@@ -11,8 +11,10 @@ pub mod score;
 #[cfg(feature = "service")]
 pub mod service;
 pub mod target;
+pub mod trace;
 
 pub use metrics::{MetricParams, Metrics, RiskHit};
 pub use replay::{Divergence, ReplayError, ReplayReport, replay};
 pub use rubric::{Grade, Rubric};
 pub use score::{ScoreError, ScoreReport, Scorer};
+pub use trace::{ReviewTrace, TraceEvent};

@@ -41,7 +41,7 @@ impl Default for MetricParams {
 }
 
 /// A risk structure the needle tip entered.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct RiskHit {
     pub structure: String,
     pub label: LabelId,
@@ -59,7 +59,7 @@ pub struct RiskHit {
 }
 
 /// Workflow order (thesis: palpate → ultrasound → puncture → confirm).
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct Workflow {
     pub palpation_before_puncture: bool,
     pub ultrasound_before_puncture: bool,
@@ -68,7 +68,7 @@ pub struct Workflow {
 }
 
 /// Guided-mode metrics against a planned path.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct Guided {
     pub path: String,
     /// Distance from the scored attempt's skin entry to the planned entry point (mm).
@@ -81,7 +81,7 @@ pub struct Guided {
 }
 
 /// All metrics of one session.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct Metrics {
     pub attempts: u32,
     pub redirections: u32,

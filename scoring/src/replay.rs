@@ -11,7 +11,7 @@ use stylet_recorder::format::TickRecord;
 use stylet_recorder::reader::Session;
 
 /// Where a replay first differs from the recording.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Divergence {
     pub tick: u64,
     /// `ticks.force_n`, `ticks.torque_nmm`, `ticks.tip_label`, `ticks.inserted_mm`, `digests` or

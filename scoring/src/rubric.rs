@@ -109,7 +109,7 @@ pub fn metric_value(m: &Metrics, name: &str) -> Option<f64> {
 }
 
 /// One deduction applied to a grade.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Applied {
     pub metric: String,
     pub value: f64,
@@ -117,7 +117,7 @@ pub struct Applied {
 }
 
 /// A grade: what the rubric makes of the metrics at one difficulty.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Grade {
     pub score: f64,
     pub passed: bool,

@@ -13,6 +13,7 @@ use crate::metrics::{Metrics, MetricsCollector, PlannedPath};
 use crate::replay::{Divergence, ReplayError, replay};
 use crate::rubric::{Grade, Rubric};
 use crate::target::TargetDistance;
+use crate::trace::{ReviewTrace, TraceCollector};
 
 /// Why a session was not scored.
 #[derive(Debug, thiserror::Error)]
@@ -38,7 +39,7 @@ pub enum ScoreError {
 pub type FileScore = (PathBuf, Result<ScoreReport, ScoreError>);
 
 /// The scored session: who and what, the replay check, the metrics and the grade.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct ScoreReport {
     pub session_id: String,
     pub trainee: String,
@@ -113,6 +114,23 @@ impl Scorer {
     }
 
     pub fn score_session(&self, session: &Session) -> Result<ScoreReport, ScoreError> {
+        self.run(session, None)
+    }
+
+    /// Scores a session and takes its review trace (what the dashboard draws) in the same replay.
+    pub fn score_session_traced(&self, session: &Session) -> Result<(ScoreReport, ReviewTrace), ScoreError> {
+        let mut trace = TraceCollector::new(session.header.tick_rate_hz);
+        let report = self.run(session, Some(&mut trace))?;
+        let trace = trace.finish(&report.metrics);
+        Ok((report, trace))
+    }
+
+    /// The atlas sessions of this scorer are replayed on.
+    pub fn atlas(&self) -> &Arc<PunctureAtlas> {
+        &self.atlas
+    }
+
+    fn run(&self, session: &Session, mut trace: Option<&mut TraceCollector>) -> Result<ScoreReport, ScoreError> {
         let h = &session.header;
         if h.atlas_hash != self.atlas_hash {
             return Err(ScoreError::AtlasMismatch {
@@ -131,7 +149,12 @@ impl Scorer {
             h.tick_rate_hz,
             self.rubric.metric_params(),
         );
-        let report = replay(session, self.atlas.clone(), &mut |i, o, s| collector.tick(i, o, s))?;
+        let report = replay(session, self.atlas.clone(), &mut |i, o, s| {
+            collector.tick(i, o, s);
+            if let Some(t) = trace.as_deref_mut() {
+                t.tick(i, o);
+            }
+        })?;
         let metrics = collector.finish();
         let grade = self.rubric.grade(&metrics, &h.difficulty).map_err(ScoreError::Grade)?;
         let mut reasons = Vec::new();

@@ -1,8 +1,10 @@
 //! `stylet demo`: the main job on the embedded default. Build the phantom atlas, load it back
 //! through the validating loader and print its summary; record the example scripts as sessions
-//! of demo trainees; replay and score them and print the scores (the dashboard joins later).
+//! of demo trainees; replay and score them and print the scores; then serve the dashboard on
+//! them with demo accounts (SQLite in the demo folder), the sessions uploaded and scored by the
+//! service like any others.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
@@ -16,7 +18,25 @@ pub struct DemoArgs {
     /// Phantom seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Where the dashboard listens (port 0 picks a free port).
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    pub bind: String,
+    /// Stop after the scores instead of serving the dashboard.
+    #[arg(long)]
+    pub no_serve: bool,
 }
+
+/// The demo's accounts: (username, role); every password is [`DEMO_PASSWORD`].
+const DEMO_ACCOUNTS: [(&str, &str); 6] = [
+    ("demo-admin", "admin"),
+    ("demo-ivan", "instructor"),
+    ("demo-cora", "curriculum"),
+    ("demo-alice", "trainee"),
+    ("demo-bob", "trainee"),
+    ("demo-carol", "trainee"),
+];
+const DEMO_PASSWORD: &str = "stylet-demo";
+const DEMO_COHORT: &str = "demo-cohort";
 
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let atlas_dir = args.out.join("atlases/phantom");
@@ -97,7 +117,76 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     if let Some((f, Err(e))) = results.iter().find(|r| r.1.is_err()) {
         anyhow::bail!("{}: {e}", f.display());
     }
-    Ok(())
+    if args.no_serve {
+        return Ok(());
+    }
+    serve_dashboard(&args, &files)
+}
+
+/// Serves the dashboard on a fresh demo database: the demo accounts, and the recorded sessions
+/// uploaded by their trainees and scored by the service's workers.
+fn serve_dashboard(args: &DemoArgs, files: &[PathBuf]) -> anyhow::Result<()> {
+    use stylet_scoring::service::{self, Config, Store};
+    let data = args.out.join("data");
+    if data.exists() {
+        std::fs::remove_dir_all(&data).with_context(|| format!("cannot clear {}", data.display()))?;
+    }
+    std::fs::create_dir_all(&data)?;
+    let config = Config {
+        bind: args.bind.clone(),
+        data_dir: data.clone(),
+        database_url: None,
+        atlases_dir: Some(args.out.join("atlases")),
+        workers: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        max_upload_bytes: 64 << 20,
+        secure_cookies: false,
+    };
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    rt.block_on(async {
+        let store = Store::open(&config.database_url()).await?;
+        for (name, role) in DEMO_ACCOUNTS {
+            let cohort = matches!(role, "trainee" | "instructor").then_some(DEMO_COHORT);
+            store.add_user(name, role, DEMO_PASSWORD, cohort, None).await?;
+        }
+        store.pool.close().await;
+        let sessions: Vec<(String, Vec<u8>)> = files
+            .iter()
+            .map(|f| Ok((trainee_of(f)?, std::fs::read(f)?)))
+            .collect::<anyhow::Result<_>>()?;
+        service::serve(config, Some(stylet_dashboard::router), move |addr, state| {
+            sayf!("");
+            sayf!(
+                "dashboard running at http://{addr}/ (demo data in {}; Ctrl-C stops it)",
+                data.display()
+            );
+            sayf!("demo accounts, password '{DEMO_PASSWORD}' for all:");
+            for (name, role) in DEMO_ACCOUNTS {
+                sayf!("  {name:<12} {role}");
+            }
+            // Each trainee uploads their sessions through the service's own checks.
+            tokio::spawn(async move {
+                for (trainee, bytes) in sessions {
+                    let user = match state.store.user_by_name(&trainee).await {
+                        Ok(Some(u)) => u,
+                        _ => continue,
+                    };
+                    if let Err(e) = service::api::accept_upload(&state, &user, bytes.into()).await {
+                        eprintln!("demo upload of a session of {trainee} refused: {}", e.1);
+                    }
+                }
+            });
+        })
+        .await?;
+        anyhow::Ok(())
+    })
+}
+
+/// The trainee named in a session file's header.
+fn trainee_of(file: &Path) -> anyhow::Result<String> {
+    Ok(stylet_recorder::reader::read(file)?.header.trainee)
 }
 
 /// The example scripts of the phantom (atlases/phantom/scripts), with the demo trainee who did each.

@@ -321,9 +321,12 @@ fn run_script(a: &RunArgs) -> anyhow::Result<()> {
                 name: sim.tool_spec().name().into(),
                 color: palette::SKIN,
                 bold: true,
+                dashed: false,
+                dots: false,
                 points: palpation,
             }],
             markers: Vec::new(),
+            ..Default::default()
         };
         write_chart(&chart, p, (1200, 600))?;
         super::say(&format!("indentation plot written to {}", p.display()));
@@ -332,6 +335,8 @@ fn run_script(a: &RunArgs) -> anyhow::Result<()> {
             name: name.into(),
             color,
             bold,
+            dashed: false,
+            dots: false,
             points: trace.iter().map(|r| (r.0, [r.1, r.2, r.3, r.4][k])).collect(),
         };
         let chart = LineChart {
@@ -348,6 +353,7 @@ fn run_script(a: &RunArgs) -> anyhow::Result<()> {
                 series("base", palette::BASE, 3, false),
             ],
             markers,
+            ..Default::default()
         };
         write_chart(&chart, p, (1200, 600))?;
         super::say(&format!("force plot written to {}", p.display()));

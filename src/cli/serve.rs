@@ -81,7 +81,9 @@ pub fn serve(a: ServeArgs) -> anyhow::Result<()> {
         max_upload_bytes: a.max_upload_bytes,
         secure_cookies: a.secure_cookies,
     };
-    runtime()?.block_on(service::serve(config, |addr| sayf!("listening on http://{addr}")))?;
+    runtime()?.block_on(service::serve(config, Some(stylet_dashboard::router), |addr, _| {
+        sayf!("listening on http://{addr}")
+    }))?;
     Ok(())
 }
 

@@ -19,8 +19,9 @@ use super::store::{NewSession, User};
 
 type AppRef = Arc<AppState>;
 
-/// A JSON error response.
-pub struct ApiError(StatusCode, String);
+/// A JSON error response: a status and a message that says what was wrong.
+#[derive(Debug)]
+pub struct ApiError(pub StatusCode, pub String);
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
@@ -28,7 +29,7 @@ impl IntoResponse for ApiError {
     }
 }
 
-fn err(status: StatusCode, msg: impl Into<String>) -> ApiError {
+pub fn err(status: StatusCode, msg: impl Into<String>) -> ApiError {
     ApiError(status, msg.into())
 }
 
@@ -54,13 +55,12 @@ pub fn router(state: AppRef) -> Router {
         .route("/api/trainees/{username}/progress", get(progress))
         .route("/api/cohorts/{name}/summary", get(cohort_summary))
         .route("/api/export/sessions.csv", get(export_csv))
-        .layer(axum::middleware::from_fn(request_log))
         .with_state(state)
 }
 
 /// Gives every request an id (the client's `X-Request-Id` if sensible, else a new UUID), logs it
 /// with method, path, status and duration, and returns it in `X-Request-Id`.
-async fn request_log(req: axum::extract::Request, next: axum::middleware::Next) -> Response {
+pub async fn request_log(req: axum::extract::Request, next: axum::middleware::Next) -> Response {
     use tracing::Instrument;
     let id = req
         .headers()
@@ -179,7 +179,7 @@ async fn healthz(State(s): State<AppRef>) -> Result<Json<serde_json::Value>, Api
 }
 
 /// How a request authenticated.
-enum Via {
+pub enum Via {
     /// The login cookie: state-changing requests must echo the login's CSRF token.
     Cookie { csrf: String },
     /// `Authorization: Bearer <API token>` (the desktop app): not sent by browsers on their own.
@@ -187,7 +187,7 @@ enum Via {
 }
 
 /// The authenticated user (API token or login cookie), or 401.
-async fn authenticate(s: &AppState, headers: &HeaderMap) -> Result<(User, Via), ApiError> {
+pub async fn authenticate(s: &AppState, headers: &HeaderMap) -> Result<(User, Via), ApiError> {
     if let Some(value) = headers.get(header::AUTHORIZATION) {
         let token = value
             .to_str()
@@ -244,7 +244,8 @@ struct LoginRequest {
     password: String,
 }
 
-const LOGIN_TTL_S: u64 = 12 * 3600;
+/// How long a login lasts (s).
+pub const LOGIN_TTL_S: u64 = 12 * 3600;
 
 /// Failed logins allowed per account within [`LOGIN_WINDOW`] before 429.
 pub const LOGIN_FAILURES_ALLOWED: usize = 5;
@@ -257,7 +258,21 @@ async fn login(State(s): State<AppRef>, body: Bytes) -> Result<Response, ApiErro
             format!("expected {{\"username\", \"password\"}}: {e}"),
         )
     })?;
-    let key = req.username.to_lowercase();
+    let (user, token, csrf) = log_in(&s, &req.username, &req.password).await?;
+    let mut r = Json(json!({ "username": user.username, "role": user.role, "csrf_token": csrf })).into_response();
+    r.headers_mut().insert(
+        header::SET_COOKIE,
+        auth::login_cookie(&token, s.config.secure_cookies, LOGIN_TTL_S)
+            .parse()
+            .expect("a valid header value"),
+    );
+    Ok(r)
+}
+
+/// Checks a password (with per-account rate limiting) and starts a login: the user, the cookie
+/// token and the login's CSRF token. Used by the JSON API and the dashboard's login form.
+pub async fn log_in(s: &AppState, username: &str, password: &str) -> Result<(User, String, String), ApiError> {
+    let key = username.to_lowercase();
     let now = std::time::Instant::now();
     {
         let mut failures = s.login_failures.lock().expect("not poisoned");
@@ -271,7 +286,7 @@ async fn login(State(s): State<AppRef>, body: Bytes) -> Result<Response, ApiErro
             ));
         }
     }
-    let Some(user) = s.store.check_login(&req.username, &req.password).await? else {
+    let Some(user) = s.store.check_login(username, password).await? else {
         s.login_failures
             .lock()
             .expect("not poisoned")
@@ -282,14 +297,7 @@ async fn login(State(s): State<AppRef>, body: Bytes) -> Result<Response, ApiErro
     };
     s.login_failures.lock().expect("not poisoned").remove(&key);
     let (token, csrf) = s.store.create_login(&user, LOGIN_TTL_S).await?;
-    let mut r = Json(json!({ "username": user.username, "role": user.role, "csrf_token": csrf })).into_response();
-    r.headers_mut().insert(
-        header::SET_COOKIE,
-        auth::login_cookie(&token, s.config.secure_cookies, LOGIN_TTL_S)
-            .parse()
-            .expect("a valid header value"),
-    );
-    Ok(r)
+    Ok((user, token, csrf))
 }
 
 async fn logout(State(s): State<AppRef>, headers: HeaderMap) -> Result<Response, ApiError> {
@@ -332,6 +340,14 @@ async fn upload(State(s): State<AppRef>, headers: HeaderMap, body: Body) -> Resu
             format!("the upload exceeds the limit of {limit} bytes"),
         )
     })?;
+    let (id, status, created) = accept_upload(&s, &user, bytes).await?;
+    let code = if created { StatusCode::CREATED } else { StatusCode::OK };
+    Ok((code, Json(json!({ "id": id, "status": status }))).into_response())
+}
+
+/// Validates an upload and stores it (file by content hash, then the session and job rows):
+/// returns the session id, its status and whether it is new. Nothing is left behind on refusal.
+pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(String, String, bool), ApiError> {
     if bytes.is_empty() {
         return Err(err(
             StatusCode::BAD_REQUEST,
@@ -388,7 +404,7 @@ async fn upload(State(s): State<AppRef>, headers: HeaderMap, body: Body) -> Resu
             .session(&id)
             .await?
             .map_or_else(|| "queued".to_string(), |(r, _)| r.status);
-        return Ok((StatusCode::OK, Json(json!({ "id": id, "status": status }))).into_response());
+        return Ok((id, status, false));
     }
     // The file first (atomically, by content hash), then the rows; on failure neither stays.
     let path = s.session_file(&sha);
@@ -424,7 +440,7 @@ async fn upload(State(s): State<AppRef>, headers: HeaderMap, body: Body) -> Resu
         }
     };
     s.wake.notify_one();
-    Ok((StatusCode::CREATED, Json(json!({ "id": id, "status": "queued" }))).into_response())
+    Ok((id, "queued".to_string(), true))
 }
 
 async fn get_session(
@@ -450,7 +466,7 @@ async fn get_session(
 }
 
 /// Whether `user` may see the sessions of `trainee_id`.
-async fn may_see(s: &AppState, user: &User, trainee_id: &str) -> Result<bool, ApiError> {
+pub async fn may_see(s: &AppState, user: &User, trainee_id: &str) -> Result<bool, ApiError> {
     Ok(match user.role.as_str() {
         "trainee" => trainee_id == user.id,
         "instructor" => s.store.teaches(&user.id, trainee_id).await?,
@@ -460,7 +476,7 @@ async fn may_see(s: &AppState, user: &User, trainee_id: &str) -> Result<bool, Ap
 
 /// Whether `user` may comment on and override grades of `trainee_id`'s sessions: their
 /// instructors and admins (curriculum staff read everything and change nothing).
-async fn may_review(s: &AppState, user: &User, trainee_id: &str) -> Result<bool, ApiError> {
+pub async fn may_review(s: &AppState, user: &User, trainee_id: &str) -> Result<bool, ApiError> {
     Ok(match user.role.as_str() {
         "instructor" => s.store.teaches(&user.id, trainee_id).await?,
         "admin" => true,
@@ -469,7 +485,7 @@ async fn may_review(s: &AppState, user: &User, trainee_id: &str) -> Result<bool,
 }
 
 /// The session `id` for a reviewer, or 404/403.
-async fn reviewable(s: &AppState, user: &User, id: &str) -> Result<(), ApiError> {
+pub async fn reviewable(s: &AppState, user: &User, id: &str) -> Result<(), ApiError> {
     let (_, trainee_id) = s
         .store
         .session(id)
@@ -485,6 +501,30 @@ async fn reviewable(s: &AppState, user: &User, id: &str) -> Result<(), ApiError>
         ));
     }
     Ok(())
+}
+
+/// An override's score must lie in 0…100 and it needs a reason; returns the trimmed reason.
+pub fn check_override(score: f64, reason: &str) -> Result<&str, ApiError> {
+    if !(score.is_finite() && (0.0..=100.0).contains(&score)) {
+        return Err(err(StatusCode::BAD_REQUEST, "score must lie in 0…100"));
+    }
+    let reason = reason.trim();
+    if reason.is_empty() || reason.len() > 2000 {
+        return Err(err(
+            StatusCode::BAD_REQUEST,
+            "an override needs a reason (1–2000 characters)",
+        ));
+    }
+    Ok(reason)
+}
+
+/// A comment is 1–10000 characters; returns it trimmed.
+pub fn check_comment(text: &str) -> Result<&str, ApiError> {
+    let text = text.trim();
+    if text.is_empty() || text.len() > 10_000 {
+        return Err(err(StatusCode::BAD_REQUEST, "a comment is 1–10000 characters"));
+    }
+    Ok(text)
 }
 
 #[derive(serde::Deserialize)]
@@ -508,16 +548,7 @@ async fn override_grade(
             format!("expected {{\"score\", \"passed\", \"reason\"}}: {e}"),
         )
     })?;
-    if !(req.score.is_finite() && (0.0..=100.0).contains(&req.score)) {
-        return Err(err(StatusCode::BAD_REQUEST, "score must lie in 0…100"));
-    }
-    let reason = req.reason.trim();
-    if reason.is_empty() || reason.len() > 2000 {
-        return Err(err(
-            StatusCode::BAD_REQUEST,
-            "an override needs a reason (1–2000 characters)",
-        ));
-    }
+    let reason = check_override(req.score, &req.reason)?;
     reviewable(&s, &user, &id).await?;
     s.store
         .override_grade(&id, &user, req.score, req.passed, reason)
@@ -543,10 +574,7 @@ async fn add_comment(
     let user = acting_user(&s, &headers).await?;
     let req: CommentRequest = serde_json::from_slice(&body)
         .map_err(|e| err(StatusCode::BAD_REQUEST, format!("expected {{\"body\"}}: {e}")))?;
-    let text = req.body.trim();
-    if text.is_empty() || text.len() > 10_000 {
-        return Err(err(StatusCode::BAD_REQUEST, "a comment is 1–10000 characters"));
-    }
+    let text = check_comment(&req.body)?;
     reviewable(&s, &user, &id).await?;
     let cid = s.store.add_comment(&id, &user, text).await?;
     Ok((StatusCode::CREATED, Json(json!({ "id": cid, "session": id }))).into_response())

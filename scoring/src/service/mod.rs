@@ -8,6 +8,7 @@ pub mod auth;
 pub mod export;
 pub mod openapi;
 pub mod store;
+pub mod traces;
 pub mod worker;
 
 use std::collections::BTreeMap;
@@ -69,9 +70,17 @@ pub enum ServiceError {
     Setup(String),
 }
 
-/// Opens the store (migrations), loads the atlases, resumes unfinished jobs and serves until
-/// the process ends. `ready` gets the bound address (port 0 picks a free one).
-pub async fn serve(config: Config, ready: impl FnOnce(SocketAddr)) -> Result<(), ServiceError> {
+/// Routes mounted beside the API (the dashboard's pages), built from the shared state.
+pub type Mount = fn(Arc<AppState>) -> axum::Router;
+
+/// Opens the store (migrations), loads the atlases, resumes unfinished jobs and serves the API
+/// and whatever `mount` adds until the process ends. `ready` gets the bound address (port 0
+/// picks a free one) and the shared state, once the server accepts connections.
+pub async fn serve(
+    config: Config,
+    mount: Option<Mount>,
+    ready: impl FnOnce(SocketAddr, Arc<AppState>),
+) -> Result<(), ServiceError> {
     let setup = |e: &dyn std::fmt::Display| ServiceError::Setup(e.to_string());
     std::fs::create_dir_all(config.data_dir.join("sessions"))
         .map_err(|e| setup(&format!("{}: {e}", config.data_dir.display())))?;
@@ -110,8 +119,14 @@ pub async fn serve(config: Config, ready: impl FnOnce(SocketAddr)) -> Result<(),
         login_failures: Default::default(),
     });
     worker::start(state.clone());
-    ready(addr);
-    axum::serve(listener, api::router(state)).await.map_err(|e| setup(&e))
+    let mut app = api::router(state.clone());
+    if let Some(mount) = mount {
+        app = app.merge(mount(state.clone()));
+    }
+    ready(addr, state);
+    axum::serve(listener, app.layer(axum::middleware::from_fn(api::request_log)))
+        .await
+        .map_err(|e| setup(&e))
 }
 
 fn load_atlases(dir: &std::path::Path) -> Result<Vec<(stylet_atlas::Atlas, crate::Scorer)>, ServiceError> {

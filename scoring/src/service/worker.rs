@@ -34,10 +34,19 @@ pub fn start(state: Arc<AppState>) {
             tokio::spawn(async move {
                 let _permit = permit;
                 let file = state.session_file(&job.file_sha256);
+                let trace_file = super::traces::trace_path(&state.config.data_dir, &job.file_sha256);
                 let scorer = state.scorers.get(&job.atlas_hash).cloned();
-                let result = tokio::task::spawn_blocking(move || match scorer {
-                    Some(s) => s.score_file(&file).map_err(|e| e.to_string()),
-                    None => Err("the session's atlas is not loaded on this server".to_string()),
+                let result = tokio::task::spawn_blocking(move || {
+                    let scorer = scorer.ok_or("the session's atlas is not loaded on this server")?;
+                    let session =
+                        stylet_recorder::reader::recover(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+                    // One replay gives the score and what the dashboard draws (a cache: a
+                    // failure to store it only costs a replay later).
+                    let (report, trace) = scorer.score_session_traced(&session).map_err(|e| e.to_string())?;
+                    if let Err(e) = super::traces::write_trace(&trace_file, &trace) {
+                        tracing::warn!(error = %e, "cannot store a review trace");
+                    }
+                    Ok::<_, String>(report)
                 })
                 .await
                 .unwrap_or_else(|e| Err(format!("scoring panicked: {e}")));

@@ -7,7 +7,10 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use crate::RenderError;
+
 use crate::fonts::{SANS, ensure_fonts};
+/// A chart colour (plotters' RGB).
+pub use plotters::style::RGBColor as ChartColor;
 
 /// The colours of the force components, used by every chart.
 pub mod palette {
@@ -19,6 +22,12 @@ pub mod palette {
     pub const SKIN: RGBColor = RGBColor(255, 127, 14);
     pub const BONE: RGBColor = RGBColor(148, 103, 189);
     pub const OTHER: RGBColor = RGBColor(127, 127, 127);
+    /// Not forces: insertion depth and difficulty levels.
+    pub const INSERTED: RGBColor = RGBColor(23, 150, 170);
+    pub const TIP_DEPTH: RGBColor = RGBColor(140, 86, 75);
+    pub const BEGINNER: RGBColor = RGBColor(0, 128, 128);
+    pub const ADVANCED: RGBColor = RGBColor(191, 144, 0);
+    pub const EXPERT: RGBColor = RGBColor(199, 21, 133);
 }
 
 /// One curve.
@@ -29,10 +38,27 @@ pub struct Series {
     pub points: Vec<(f64, f64)>,
     /// Drawn thicker (the total).
     pub bold: bool,
+    /// Drawn dashed (the second session of a comparison).
+    pub dashed: bool,
+    /// A dot on every point (few points, each one a session).
+    pub dots: bool,
+}
+
+impl Default for Series {
+    fn default() -> Self {
+        Series {
+            name: String::new(),
+            color: palette::OTHER,
+            points: Vec::new(),
+            bold: false,
+            dashed: false,
+            dots: false,
+        }
+    }
 }
 
 /// A chart: curves plus vertical event markers.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct LineChart {
     pub title: String,
     pub x_label: String,
@@ -40,6 +66,10 @@ pub struct LineChart {
     pub series: Vec<Series>,
     /// Vertical markers (x, label), e.g. events.
     pub markers: Vec<(f64, String)>,
+    /// A fixed y range (e.g. scores 0–100) instead of the data's.
+    pub y_range: Option<(f64, f64)>,
+    /// x is a count (session number): whole-number tick labels.
+    pub x_whole: bool,
 }
 
 fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
@@ -56,7 +86,9 @@ fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
 fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let (x0, x1) = range(chart.series.iter().flat_map(|s| s.points.iter().map(|p| p.0)));
-    let (y0, y1) = range(chart.series.iter().flat_map(|s| s.points.iter().map(|p| p.1)));
+    let (y0, y1) = chart
+        .y_range
+        .unwrap_or_else(|| range(chart.series.iter().flat_map(|s| s.points.iter().map(|p| p.1))));
     let mut c = ChartBuilder::on(root)
         .caption(&chart.title, (SANS, 26))
         .margin(16)
@@ -64,8 +96,13 @@ fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) ->
         .y_label_area_size(72)
         .build_cartesian_2d(x0..x1, y0..y1)
         .map_err(|e| e.to_string())?;
-    c.configure_mesh()
-        .x_desc(&chart.x_label)
+    let whole = |x: &f64| format!("{x:.0}");
+    let mut mesh = c.configure_mesh();
+    if chart.x_whole {
+        mesh.x_label_formatter(&whole)
+            .x_labels(((x1 - x0).round() as usize + 1).clamp(2, 12));
+    }
+    mesh.x_desc(&chart.x_label)
         .y_desc(&chart.y_label)
         .axis_desc_style((SANS, 20))
         .label_style((SANS, 16))
@@ -88,12 +125,28 @@ fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) ->
     for s in &chart.series {
         let style = ShapeStyle::from(&s.color).stroke_width(if s.bold { 3 } else { 2 });
         let color = s.color;
-        c.draw_series(LineSeries::new(s.points.iter().copied(), style))
-            .map_err(|e| e.to_string())?
-            .label(&s.name)
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 24, y)], ShapeStyle::from(&color).stroke_width(3))
-            });
+        if s.dots {
+            c.draw_series(
+                s.points
+                    .iter()
+                    .map(|p| Circle::new(*p, 4, ShapeStyle::from(&color).filled())),
+            )
+            .map_err(|e| e.to_string())?;
+        }
+        let drawn = if s.dashed {
+            c.draw_series(DashedLineSeries::new(s.points.iter().copied(), 10, 6, style))
+        } else {
+            c.draw_series(LineSeries::new(s.points.iter().copied(), style))
+        };
+        let dashed = s.dashed;
+        drawn.map_err(|e| e.to_string())?.label(&s.name).legend(move |(x, y)| {
+            let style = ShapeStyle::from(&color).stroke_width(3);
+            if dashed {
+                PathElement::new(vec![(x, y), (x + 9, y)], style)
+            } else {
+                PathElement::new(vec![(x, y), (x + 24, y)], style)
+            }
+        });
     }
     c.configure_series_labels()
         .background_style(WHITE.mix(0.9))

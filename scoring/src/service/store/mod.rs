@@ -8,11 +8,13 @@ use sqlx::any::{AnyPoolOptions, install_default_drivers};
 use sqlx::{AnyPool, Row};
 
 mod accounts;
+mod cohorts;
 mod jobs;
 mod review;
 mod sessions;
 
 pub use accounts::UserRow;
+pub use cohorts::{CohortLine, ReportLine, ScorePoint};
 pub use jobs::Job;
 pub use review::{ExportRow, ProgressPoint, TraineeSummary};
 pub use sessions::{NewSession, SessionFilter, SessionLine};

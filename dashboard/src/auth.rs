@@ -1,0 +1,129 @@
+//! Who is looking at a page: the login cookie (the same logins as the JSON API), the CSRF token
+//! every form posts, and page errors (a login redirect or an error page that says why).
+
+use axum::http::{HeaderMap, StatusCode, Uri, header};
+use axum::response::{IntoResponse, Redirect, Response};
+use maud::html;
+use stylet_scoring::service::AppState;
+use stylet_scoring::service::api::ApiError;
+use stylet_scoring::service::auth::token_from_cookie_header;
+use stylet_scoring::service::store::{StoreError, User};
+
+use crate::layout;
+
+/// The logged-in user of a page and the CSRF token of their login (forms echo it).
+pub struct Viewer {
+    pub user: User,
+    pub csrf: String,
+}
+
+impl Viewer {
+    pub fn role(&self) -> &str {
+        &self.user.role
+    }
+}
+
+/// Why a page is not shown.
+#[derive(Debug)]
+pub enum PageError {
+    /// Not logged in: to the login page, then back to `next`.
+    Login { next: String },
+    /// An error page with this status and message.
+    Status(StatusCode, String),
+}
+
+pub fn fail(status: StatusCode, msg: impl Into<String>) -> PageError {
+    PageError::Status(status, msg.into())
+}
+
+impl From<ApiError> for PageError {
+    fn from(e: ApiError) -> Self {
+        PageError::Status(e.0, e.1)
+    }
+}
+
+impl From<StoreError> for PageError {
+    fn from(e: StoreError) -> Self {
+        tracing::error!(error = %e, "store");
+        PageError::Status(StatusCode::INTERNAL_SERVER_ERROR, "internal error".into())
+    }
+}
+
+impl IntoResponse for PageError {
+    fn into_response(self) -> Response {
+        match self {
+            PageError::Login { next } => Redirect::to(&format!("/login?next={}", encode_query(&next))).into_response(),
+            PageError::Status(status, msg) => {
+                let body = html! {
+                    h1 { (status.as_u16()) " " (status.canonical_reason().unwrap_or("")) }
+                    p.error { (msg) }
+                    p { a href="/" { "Home" } }
+                };
+                (
+                    status,
+                    layout::page(status.canonical_reason().unwrap_or("Error"), None, body),
+                )
+                    .into_response()
+            }
+        }
+    }
+}
+
+/// Percent-encodes a path for a query value (`/sessions/x?y` → `%2Fsessions%2Fx%3Fy`).
+pub fn encode_query(s: &str) -> String {
+    s.bytes()
+        .map(|b| match b {
+            b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'-' | b'_' | b'.' | b'~' => (b as char).to_string(),
+            _ => format!("%{b:02X}"),
+        })
+        .collect()
+}
+
+/// The viewer of a page, or a redirect to the login page that comes back to `uri`.
+pub async fn viewer(s: &AppState, headers: &HeaderMap, uri: &Uri) -> Result<Viewer, PageError> {
+    let login = || PageError::Login {
+        next: uri.path_and_query().map_or("/", |p| p.as_str()).to_string(),
+    };
+    let token = headers
+        .get(header::COOKIE)
+        .and_then(|v| v.to_str().ok())
+        .and_then(token_from_cookie_header)
+        .ok_or_else(login)?;
+    let (user, csrf) = s.store.user_for_login(token).await?.ok_or_else(login)?;
+    Ok(Viewer { user, csrf })
+}
+
+/// A form's CSRF field must carry the login's token (another site's page cannot read it).
+pub fn check_csrf(v: &Viewer, sent: &str) -> Result<(), PageError> {
+    if sent == v.csrf {
+        Ok(())
+    } else {
+        Err(fail(
+            StatusCode::FORBIDDEN,
+            "the form's security token does not match your login; reload the page and try again",
+        ))
+    }
+}
+
+/// Where a login may send the browser back to: a local path only (no other sites).
+pub fn safe_next(next: Option<&str>) -> String {
+    match next {
+        Some(n) if n.starts_with('/') && !n.starts_with("//") && !n.contains('\\') => n.to_string(),
+        _ => "/".to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn login_only_returns_to_local_paths() {
+        assert_eq!(safe_next(Some("/sessions/abc")), "/sessions/abc");
+        assert_eq!(safe_next(Some("//evil.example/")), "/");
+        assert_eq!(safe_next(Some("https://evil.example/")), "/");
+        assert_eq!(safe_next(Some("/\\evil.example")), "/");
+        assert_eq!(safe_next(None), "/");
+        assert_eq!(encode_query("/a b?c=1&d"), "%2Fa%20b%3Fc%3D1%26d");
+    }
+}

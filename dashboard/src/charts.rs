@@ -1,0 +1,313 @@
+//! The dashboard's charts as inline SVG (plotters, through `stylet_render::charts`): every chart
+//! has a title, axis labels with units and a legend, and each force component keeps its colour
+//! everywhere (`palette`). Sparklines are tiny hand-written SVG polylines.
+
+use stylet_render::charts::{ChartColor, LineChart, Series, chart_svg, palette};
+use stylet_scoring::ReviewTrace;
+use stylet_scoring::service::store::ProgressPoint;
+
+/// Chart size in SVG user units (scaled to the page width by CSS).
+pub const CHART_SIZE: (u32, u32) = (1100, 440);
+
+fn series(name: &str, color: ChartColor, bold: bool, dashed: bool, points: Vec<(f64, f64)>) -> Series {
+    Series {
+        name: name.into(),
+        color,
+        points,
+        bold,
+        dashed,
+        dots: false,
+    }
+}
+
+fn zip(t: &[f64], v: &[f64]) -> Vec<(f64, f64)> {
+    t.iter().copied().zip(v.iter().copied()).collect()
+}
+
+/// Event markers worth a line on a force chart.
+fn markers(trace: &ReviewTrace) -> Vec<(f64, String)> {
+    trace
+        .events
+        .iter()
+        .filter(|e| e.kind != "tool")
+        .map(|e| (e.t_s, e.label.clone()))
+        .collect()
+}
+
+/// Force along the needle over time: the total and its cutting, friction and base components
+/// (eqs. 3.5.1–3.5.6), with the session's events as vertical markers.
+pub fn force_chart(trace: &ReviewTrace, title: &str) -> LineChart {
+    let t = &trace.t_s;
+    LineChart {
+        title: title.into(),
+        x_label: "time (s)".into(),
+        y_label: "force along the needle (N)".into(),
+        series: vec![
+            series("total", palette::TOTAL, true, false, zip(t, &trace.force_n)),
+            series("cutting", palette::CUTTING, false, false, zip(t, &trace.cutting_n)),
+            series("friction", palette::FRICTION, false, false, zip(t, &trace.friction_n)),
+            series("base", palette::BASE, false, false, zip(t, &trace.base_n)),
+        ],
+        markers: markers(trace),
+        ..Default::default()
+    }
+}
+
+/// Insertion depth over time: the needle length inside the body and the tip's depth under the
+/// skin surface.
+pub fn depth_chart(trace: &ReviewTrace, title: &str) -> LineChart {
+    let t = &trace.t_s;
+    LineChart {
+        title: title.into(),
+        x_label: "time (s)".into(),
+        y_label: "depth (mm)".into(),
+        series: vec![
+            series(
+                "inserted length",
+                palette::INSERTED,
+                true,
+                false,
+                zip(t, &trace.inserted_mm),
+            ),
+            series(
+                "tip depth under the skin",
+                palette::TIP_DEPTH,
+                false,
+                false,
+                zip(t, &trace.tip_depth_mm),
+            ),
+        ],
+        markers: markers(trace),
+        ..Default::default()
+    }
+}
+
+/// Two sessions' force curves on one chart: total and cutting force of each, the first solid,
+/// the second dashed (colours stay those of the components).
+pub fn compare_chart(a: (&ReviewTrace, &str), b: (&ReviewTrace, &str)) -> LineChart {
+    let mut s = Vec::new();
+    for ((trace, name), dashed) in [(a, false), (b, true)] {
+        s.push(series(
+            &format!("total — {name}"),
+            palette::TOTAL,
+            true,
+            dashed,
+            zip(&trace.t_s, &trace.force_n),
+        ));
+        s.push(series(
+            &format!("cutting — {name}"),
+            palette::CUTTING,
+            false,
+            dashed,
+            zip(&trace.t_s, &trace.cutting_n),
+        ));
+    }
+    LineChart {
+        title: "Force along the needle, two sessions".into(),
+        x_label: "time from the session start (s)".into(),
+        y_label: "force along the needle (N)".into(),
+        series: s,
+        ..Default::default()
+    }
+}
+
+/// Scores over the trainee's sessions in upload order, one line per difficulty.
+pub fn progress_chart(points: &[ProgressPoint], title: &str) -> LineChart {
+    let colors = [palette::BEGINNER, palette::ADVANCED, palette::EXPERT];
+    let series_list = stylet_scoring::rubric::LEVELS
+        .iter()
+        .zip(colors)
+        .filter_map(|(level, color)| {
+            let pts: Vec<(f64, f64)> = points
+                .iter()
+                .enumerate()
+                .filter(|(_, p)| p.difficulty == *level)
+                .map(|(k, p)| ((k + 1) as f64, p.score))
+                .collect();
+            (!pts.is_empty()).then(|| Series {
+                dots: true,
+                ..series(level, color, true, false, pts)
+            })
+        })
+        .collect();
+    LineChart {
+        title: title.into(),
+        x_label: "session number (upload order)".into(),
+        y_label: "score (0–100)".into(),
+        series: series_list,
+        y_range: Some((0.0, 100.0)),
+        x_whole: true,
+        ..Default::default()
+    }
+}
+
+/// The chart as inline SVG that scales with the page, with `aria-label` for screen readers.
+pub fn inline_svg(chart: &LineChart) -> Result<String, String> {
+    let svg = chart_svg(chart, CHART_SIZE).map_err(|e| e.to_string())?;
+    let label = chart.title.replace(['"', '<', '>', '&'], " ");
+    Ok(svg.replacen(
+        "<svg ",
+        &format!("<svg class=\"chart\" role=\"img\" aria-label=\"{label}\" "),
+        1,
+    ))
+}
+
+/// A sparkline of scores 0–100 (oldest first): a polyline, the last point as a dot coloured by
+/// its result, and a title with the numbers for hover and screen readers.
+pub fn sparkline(points: &[(f64, bool)]) -> String {
+    const W: f64 = 140.0;
+    const H: f64 = 30.0;
+    if points.is_empty() {
+        return String::from("<span class=\"muted\">no scores</span>");
+    }
+    let n = points.len();
+    let x = |k: usize| {
+        if n == 1 {
+            W / 2.0
+        } else {
+            3.0 + (W - 6.0) * k as f64 / (n - 1) as f64
+        }
+    };
+    let y = |s: f64| 3.0 + (H - 6.0) * (1.0 - s.clamp(0.0, 100.0) / 100.0);
+    let path: Vec<String> = points
+        .iter()
+        .enumerate()
+        .map(|(k, (s, _))| format!("{:.1},{:.1}", x(k), y(*s)))
+        .collect();
+    let (last, passed) = points[n - 1];
+    let scores: Vec<String> = points.iter().map(|(s, _)| format!("{s:.0}")).collect();
+    format!(
+        "<svg class=\"spark\" width=\"{W}\" height=\"{H}\" viewBox=\"0 0 {W} {H}\" role=\"img\" \
+         aria-label=\"scores {list}\"><title>scores, oldest first: {list}</title>\
+         <line x1=\"0\" y1=\"{mid:.1}\" x2=\"{W}\" y2=\"{mid:.1}\" stroke=\"#ddd\"/>\
+         <polyline fill=\"none\" stroke=\"#444\" stroke-width=\"1.5\" points=\"{pts}\"/>\
+         <circle cx=\"{cx:.1}\" cy=\"{cy:.1}\" r=\"3.5\" fill=\"{fill}\"/></svg>",
+        list = scores.join(", "),
+        mid = y(50.0),
+        pts = path.join(" "),
+        cx = x(n - 1),
+        cy = y(last),
+        fill = if passed { "#1b7a33" } else { "#b3261e" },
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stylet_scoring::TraceEvent;
+
+    fn trace() -> ReviewTrace {
+        let t: Vec<f64> = (0..100).map(|k| k as f64 * 0.02).collect();
+        ReviewTrace {
+            version: stylet_scoring::trace::TRACE_VERSION,
+            physics_version: 2,
+            bucket_s: 0.02,
+            force_n: t.iter().map(|t| 1.0 + t).collect(),
+            cutting_n: t
+                .iter()
+                .map(|t| if (1.0..1.1).contains(t) { 2.5 } else { 0.0 })
+                .collect(),
+            friction_n: t.iter().map(|t| 0.3 * t).collect(),
+            base_n: t.iter().map(|_| 0.2).collect(),
+            inserted_mm: t.iter().map(|t| 40.0 * t).collect(),
+            tip_depth_mm: t.iter().map(|t| 30.0 * t - 5.0).collect(),
+            tip_mm: t.iter().map(|_| None).collect(),
+            t_s: t,
+            events: vec![TraceEvent {
+                t_s: 1.5,
+                kind: "stylet-remove".into(),
+                label: "stylet removed".into(),
+            }],
+        }
+    }
+
+    /// The texts of an SVG (plotters writes labels as `<text …>label</text>`).
+    fn texts(svg: &str) -> Vec<String> {
+        svg.split("<text")
+            .skip(1)
+            .filter_map(|s| Some(s.split_once('>')?.1.split_once("</text>")?.0.trim().to_string()))
+            .collect()
+    }
+
+    #[test]
+    fn the_force_chart_has_title_axes_with_units_legend_and_events() {
+        let svg = inline_svg(&force_chart(&trace(), "Force on the hand — demo")).unwrap();
+        let t = texts(&svg);
+        for want in [
+            "Force on the hand — demo",
+            "time (s)",
+            "force along the needle (N)",
+            "total",
+            "cutting",
+            "friction",
+            "base",
+            "stylet removed",
+        ] {
+            assert!(t.iter().any(|x| x == want), "no text {want:?} in {t:?}");
+        }
+        // One polyline per series, each in its component's colour.
+        for color in ["#1E1E1E", "#D62728", "#1F77B4", "#2CA02C"] {
+            assert!(svg.to_uppercase().contains(&format!("STROKE=\"{color}\"")), "{color}");
+        }
+        assert!(svg.starts_with("<svg class=\"chart\" role=\"img\" aria-label=\"Force on the hand — demo\""));
+    }
+
+    #[test]
+    fn the_force_chart_keeps_the_cutting_peak() {
+        let chart = force_chart(&trace(), "x");
+        let cutting = chart.series.iter().find(|s| s.name == "cutting").unwrap();
+        let peak = cutting.points.iter().map(|p| p.1).fold(0.0, f64::max);
+        assert_eq!(peak, 2.5);
+    }
+
+    #[test]
+    fn depth_progress_and_compare_charts_say_what_they_show() {
+        let d = texts(&inline_svg(&depth_chart(&trace(), "Depth")).unwrap());
+        for want in ["depth (mm)", "inserted length", "tip depth under the skin"] {
+            assert!(d.iter().any(|x| x == want), "{want}");
+        }
+        let c = texts(&inline_svg(&compare_chart((&trace(), "A"), (&trace(), "B"))).unwrap());
+        for want in [
+            "total — A",
+            "total — B",
+            "cutting — A",
+            "cutting — B",
+            "force along the needle (N)",
+        ] {
+            assert!(c.iter().any(|x| x == want), "{want}");
+        }
+        let point = |d: &str, s: f64| ProgressPoint {
+            session_id: "x".into(),
+            uploaded_at: "t".into(),
+            scenario: "s".into(),
+            difficulty: d.into(),
+            score: s,
+            passed: s >= 60.0,
+            overridden: false,
+        };
+        let chart = progress_chart(
+            &[
+                point("beginner", 50.0),
+                point("beginner", 80.0),
+                point("advanced", 72.0),
+            ],
+            "P",
+        );
+        assert_eq!(chart.series.len(), 2);
+        assert_eq!(chart.series[0].points, vec![(1.0, 50.0), (2.0, 80.0)]);
+        assert_eq!(chart.series[1].points, vec![(3.0, 72.0)]);
+        let p = texts(&inline_svg(&chart).unwrap());
+        for want in ["score (0–100)", "session number (upload order)", "beginner", "advanced"] {
+            assert!(p.iter().any(|x| x == want), "{want}");
+        }
+    }
+
+    #[test]
+    fn sparklines_show_the_scores() {
+        let s = sparkline(&[(40.0, false), (90.0, true)]);
+        assert!(s.contains("scores, oldest first: 40, 90"));
+        assert!(s.contains("points=\"3.0,17.4 137.0,5.4\""), "{s}");
+        assert!(s.contains("#1b7a33"));
+        assert!(sparkline(&[]).contains("no scores"));
+    }
+}

@@ -1,0 +1,208 @@
+//! The page shell (head, style sheet, role-aware navigation) and small pieces every page uses:
+//! dates, scores, pass/fail badges, the sessions table, forms' CSRF field.
+
+use axum::response::Html;
+use maud::{DOCTYPE, Markup, PreEscaped, html};
+use stylet_scoring::service::store::SessionLine;
+
+use crate::auth::Viewer;
+
+/// Readable on a projector and on paper: large type, high contrast, no colour-only meaning
+/// (badges carry words), print hides navigation and forms.
+const STYLE: &str = r#"
+:root { --ink:#1b1b1b; --muted:#555; --line:#d0d0d0; --bg:#fafafa; --ok:#1b7a33; --bad:#b3261e; --warn:#8a5a00; --accent:#1f5fa8; }
+* { box-sizing: border-box; }
+body { margin:0; font: 17px/1.45 system-ui, -apple-system, "Segoe UI", Roboto, Ubuntu, sans-serif; color:var(--ink); background:var(--bg); }
+header.top { display:flex; align-items:center; gap:1.5rem; padding:.6rem 1.5rem; background:#16324f; color:white; }
+header.top a { color:white; text-decoration:none; font-weight:600; }
+header.top .brand { font-size:1.25rem; letter-spacing:.02em; }
+header.top nav { display:flex; gap:1.1rem; flex:1; }
+header.top .who { opacity:.9; }
+header.top form { margin:0; }
+header.top button { background:transparent; color:white; border:1px solid #ffffff88; border-radius:4px; padding:.2rem .7rem; cursor:pointer; font-size:.95rem; }
+main { max-width:1280px; margin:0 auto; padding:1rem 1.5rem 3rem; }
+h1 { font-size:1.7rem; margin:.6rem 0 1rem; }
+h2 { font-size:1.3rem; margin:1.8rem 0 .6rem; border-bottom:2px solid var(--line); padding-bottom:.2rem; }
+table { border-collapse:collapse; width:100%; background:white; }
+th, td { text-align:left; padding:.35rem .6rem; border-bottom:1px solid var(--line); vertical-align:top; }
+th { background:#eef2f6; font-weight:600; }
+td.num, th.num { text-align:right; font-variant-numeric: tabular-nums; }
+a { color:var(--accent); }
+.badge { display:inline-block; padding:.05rem .5rem; border-radius:999px; font-size:.85rem; font-weight:600; border:1px solid; }
+.badge.ok { color:var(--ok); border-color:var(--ok); background:#e8f5ec; }
+.badge.bad { color:var(--bad); border-color:var(--bad); background:#fbeaea; }
+.badge.warn { color:var(--warn); border-color:var(--warn); background:#fff4dc; }
+.badge.muted { color:var(--muted); border-color:var(--line); background:#f2f2f2; }
+.cards { display:flex; flex-wrap:wrap; gap:1rem; }
+.card { background:white; border:1px solid var(--line); border-radius:6px; padding:.8rem 1rem; min-width:14rem; }
+.card .big { font-size:2rem; font-weight:700; }
+.chart { width:100%; height:auto; max-width:1100px; background:white; border:1px solid var(--line); }
+img.figure { width:100%; max-width:1100px; border:1px solid var(--line); background:black; }
+form.inline { display:flex; flex-wrap:wrap; gap:.6rem; align-items:end; }
+label { display:flex; flex-direction:column; font-size:.9rem; color:var(--muted); gap:.15rem; }
+input, select, textarea, button { font: inherit; padding:.3rem .5rem; }
+button.primary { background:var(--accent); color:white; border:none; border-radius:4px; padding:.4rem 1rem; cursor:pointer; }
+.error { color:var(--bad); font-weight:600; }
+.notice { background:#fff4dc; border:1px solid #e0c080; padding:.5rem .8rem; border-radius:4px; }
+.muted { color:var(--muted); }
+.grid2 { display:grid; grid-template-columns: 1fr 1fr; gap:1.5rem; }
+@media (max-width: 900px) { .grid2 { grid-template-columns: 1fr; } }
+@media print {
+  header.top, form, .noprint { display:none !important; }
+  body { background:white; font-size:12pt; }
+  main { max-width:none; padding:0; }
+  .chart { border:none; }
+}
+"#;
+
+/// A whole page.
+pub fn page(title: &str, viewer: Option<&Viewer>, body: Markup) -> Html<String> {
+    let markup = html! {
+        (DOCTYPE)
+        html lang="en" {
+            head {
+                meta charset="utf-8";
+                meta name="viewport" content="width=device-width, initial-scale=1";
+                title { (title) " — Stylet" }
+                style { (PreEscaped(STYLE)) }
+            }
+            body {
+                @if let Some(v) = viewer { (navigation(v)) }
+                main { (body) }
+            }
+        }
+    };
+    Html(markup.into_string())
+}
+
+/// A page that refreshes itself every `seconds` (a session being scored).
+pub fn refreshing_page(title: &str, viewer: &Viewer, seconds: u32, body: Markup) -> Html<String> {
+    let Html(text) = page(title, Some(viewer), body);
+    Html(text.replacen(
+        "<meta charset=\"utf-8\">",
+        &format!("<meta charset=\"utf-8\"><meta http-equiv=\"refresh\" content=\"{seconds}\">"),
+        1,
+    ))
+}
+
+fn navigation(v: &Viewer) -> Markup {
+    let role = v.user.role.as_str();
+    html! {
+        header.top {
+            a.brand href="/" { "Stylet" }
+            nav {
+                a href="/" { "Home" }
+                a href="/sessions" { "Sessions" }
+                @if role != "trainee" { a href="/cohorts" { "Cohorts" } }
+                @if role == "curriculum" || role == "admin" { a href="/reports" { "Reports" } }
+                @if role == "admin" { a href="/admin/users" { "Accounts" } }
+            }
+            span.who { (v.user.username) " (" (role) ")" }
+            form method="post" action="/logout" {
+                (csrf_field(v))
+                button type="submit" { "Log out" }
+            }
+        }
+    }
+}
+
+/// The hidden CSRF field every form posts (checked against the login's token).
+pub fn csrf_field(v: &Viewer) -> Markup {
+    html! { input type="hidden" name="csrf" value=(v.csrf); }
+}
+
+/// `2026-11-23T14:05:09.123456Z` → `2026-11-23 14:05` (UTC).
+pub fn short_time(rfc3339: &str) -> String {
+    if rfc3339.len() >= 16 && rfc3339.as_bytes()[10] == b'T' {
+        format!("{} {}", &rfc3339[..10], &rfc3339[11..16])
+    } else {
+        rfc3339.to_string()
+    }
+}
+
+pub fn score_text(score: Option<f64>) -> String {
+    score.map_or_else(|| "–".into(), |s| format!("{s:.1}"))
+}
+
+/// Pass/fail in words and colour; "overridden" marked.
+pub fn result_badge(passed: Option<bool>, overridden: bool) -> Markup {
+    html! {
+        @match passed {
+            Some(true) => span.badge.ok { "passed" },
+            Some(false) => span.badge.bad { "failed" },
+            None => span.badge.muted { "not scored" },
+        }
+        @if overridden { " " span.badge.warn title="grade overridden by an instructor" { "overridden" } }
+    }
+}
+
+pub fn status_badge(status: &str) -> Markup {
+    html! {
+        @match status {
+            "scored" => span.badge.ok { "scored" },
+            "failed" => span.badge.bad { "scoring failed" },
+            other => span.badge.muted { (other) },
+        }
+    }
+}
+
+pub fn verified_badge(verified: Option<bool>) -> Markup {
+    html! {
+        @match verified {
+            Some(true) => span.badge.ok title="the replay reproduced every recorded output bit for bit" { "replay verified" },
+            Some(false) => span.badge.bad title="the replay diverged from the recording" { "replay diverged" },
+            None => span.badge.muted { "–" },
+        }
+    }
+}
+
+/// The sessions table (newest first as given); `show_trainee` for instructors and staff.
+pub fn sessions_table(lines: &[SessionLine], show_trainee: bool) -> Markup {
+    html! {
+        @if lines.is_empty() {
+            p.muted { "No sessions yet." }
+        } @else {
+            table.sessions {
+                thead { tr {
+                    th { "Uploaded (UTC)" }
+                    @if show_trainee { th { "Trainee" } }
+                    th { "Scenario" } th { "Difficulty" } th { "Status" }
+                    th.num { "Score" } th { "Result" } th.num { "Attempts" } th.num { "Risk hits" } th { "Replay" }
+                } }
+                tbody {
+                    @for l in lines {
+                        tr {
+                            td { a href={ "/sessions/" (l.id) } { (short_time(&l.uploaded_at)) } }
+                            @if show_trainee { td { (l.trainee) } }
+                            td { (l.scenario) } td { (l.difficulty) } td { (status_badge(&l.status)) }
+                            td.num { (score_text(l.score)) }
+                            td { (result_badge(l.passed, l.overridden)) }
+                            td.num { (l.attempts.map_or("–".into(), |v| v.to_string())) }
+                            td.num { (l.risk_hits.map_or("–".into(), |v| v.to_string())) }
+                            td { (verified_badge(l.replay_verified)) }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// "Page 2 of 7" with previous/next links keeping the other query parameters.
+pub fn pager(base_query: &str, page: i64, total: i64, page_size: i64) -> Markup {
+    let pages = ((total + page_size - 1) / page_size).max(1);
+    let link = |p: i64| {
+        if base_query.is_empty() {
+            format!("?page={p}")
+        } else {
+            format!("?{base_query}&page={p}")
+        }
+    };
+    html! {
+        p.pager.noprint {
+            @if page > 1 { a href=(link(page - 1)) { "← newer" } " " }
+            "Page " (page) " of " (pages) " (" (total) " sessions)"
+            @if page < pages { " " a href=(link(page + 1)) { "older →" } }
+        }
+    }
+}

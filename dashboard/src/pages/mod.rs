@@ -1,0 +1,10 @@
+//! One module per page (or group of pages and the forms they post).
+
+pub mod admin;
+pub mod cohort;
+pub mod home;
+pub mod login;
+pub mod reports;
+pub mod review;
+pub mod sessions;
+pub mod upload;

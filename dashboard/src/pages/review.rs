@@ -1,0 +1,418 @@
+//! `GET /sessions/{id}`: the review of one session. Force along the needle over time with its
+//! components and the events, insertion depth, the tip path over CT slices, risk hits, metrics
+//! beside the rubric's thresholds, the replay check, the file, comments and grade overrides.
+//! While the session waits for its replay the page refreshes itself.
+
+use std::sync::Arc;
+
+use axum::Form;
+use axum::extract::{Path, State};
+use axum::http::{HeaderMap, StatusCode, Uri, header};
+use axum::response::{IntoResponse, Redirect, Response};
+use maud::{Markup, PreEscaped, html};
+use stylet_scoring::rubric::{Rubric, metric_value};
+use stylet_scoring::service::AppState;
+use stylet_scoring::service::api::{check_comment, check_override, may_review, may_see, reviewable};
+use stylet_scoring::service::store::SessionRow;
+use stylet_scoring::service::traces::review_trace;
+use stylet_scoring::{ReviewTrace, ScoreReport};
+
+use crate::auth::{PageError, Viewer, check_csrf, fail, viewer};
+use crate::charts::{depth_chart, force_chart, inline_svg};
+use crate::layout::{csrf_field, page, refreshing_page, result_badge, short_time, status_badge, verified_badge};
+
+/// The session `id` if the viewer may see it (404 otherwise: whether it exists is private).
+pub async fn visible_session(s: &AppState, v: &Viewer, id: &str) -> Result<SessionRow, PageError> {
+    let not_found = || fail(StatusCode::NOT_FOUND, format!("no session {id}"));
+    let (row, trainee_id) = s.store.session(id).await?.ok_or_else(not_found)?;
+    if !may_see(s, &v.user, &trainee_id).await? {
+        return Err(not_found());
+    }
+    Ok(row)
+}
+
+pub async fn review(
+    State(s): State<Arc<AppState>>,
+    headers: HeaderMap,
+    uri: Uri,
+    Path(id): Path<String>,
+) -> Result<Response, PageError> {
+    let v = viewer(&s, &headers, &uri).await?;
+    let row = visible_session(&s, &v, &id).await?;
+    let title = format!("{} — {} ({})", row.trainee, row.scenario, row.difficulty);
+    let head = header_block(&row);
+    if row.status != "scored" {
+        let body = html! {
+            (head)
+            @if row.status == "failed" {
+                p.error #scoring-error { "Scoring failed: " (row.error.clone().unwrap_or_default()) }
+            } @else {
+                p.notice #scoring-wait { "The session is " (row.status) ": the replay runs on the server. This page refreshes itself." }
+            }
+        };
+        return Ok(if row.status == "failed" {
+            page(&title, Some(&v), body).into_response()
+        } else {
+            refreshing_page(&title, &v, 2, body).into_response()
+        });
+    }
+    let report: ScoreReport = row
+        .score
+        .clone()
+        .and_then(|r| serde_json::from_value(r).ok())
+        .ok_or_else(|| {
+            fail(
+                StatusCode::INTERNAL_SERVER_ERROR,
+                "the stored score report cannot be read",
+            )
+        })?;
+    let review = s.store.annotations(&id).await?;
+    let (_, trainee_id) = s
+        .store
+        .session(&id)
+        .await?
+        .ok_or_else(|| fail(StatusCode::NOT_FOUND, "gone"))?;
+    let reviewer = may_review(&s, &v.user, &trainee_id).await?;
+    let charts = match review_trace(&s, &row.file_sha256, &row.atlas_hash).await {
+        Ok(trace) => charts_block(&trace, &row)?,
+        Err(e) => html! { p.error { "The force curves cannot be shown: " (e) } },
+    };
+    let rubric = s.scorers.get(&row.atlas_hash).map(|sc| sc.rubric().clone());
+    let body = html! {
+        (head)
+        (grade_block(&report, &review))
+        h2 { "Forces and depth" }
+        (charts)
+        h2 { "Tip path over the CT" }
+        p.muted { "Axial, coronal and sagittal slices through the deepest tip position; the path of each puncture drawn in; partial labels in colour." }
+        img.figure #tip-path src={ "/sessions/" (row.id) "/slices.png" } alt="Needle tip path over CT slices with the label overlay";
+        div.grid2 {
+            div { h2 { "Risk-structure hits" } (risk_table(&report)) }
+            div { h2 { "Other metrics" } (other_metrics(&report)) }
+        }
+        h2 { "Metrics against the rubric (" (report.grade.rubric) " v" (report.grade.rubric_version) ", " (report.grade.difficulty) ")" }
+        (rubric_table(&report, rubric.as_ref()))
+        h2 { "Review" }
+        (review_block(&review))
+        @if reviewer { (review_forms(&v, &row.id)) }
+    };
+    Ok(page(&title, Some(&v), body).into_response())
+}
+
+fn header_block(row: &SessionRow) -> Markup {
+    html! {
+        h1 { "Session of " (row.trainee) " — " (row.scenario) }
+        p {
+            "Difficulty " strong { (row.difficulty) } " · recorded " (short_time(&row.recorded_at))
+            " · uploaded " (short_time(&row.uploaded_at)) " UTC · " (format!("{:.1}", row.duration_s)) " s · "
+            (status_badge(&row.status)) " · "
+            a #download href={ "/sessions/" (row.id) "/file" } { "download the session file (" (format!("{:.0}", row.size_bytes as f64 / 1024.0)) " KiB)" }
+        }
+    }
+}
+
+fn grade_block(r: &ScoreReport, review: &serde_json::Value) -> Markup {
+    let last_override = review["overrides"].as_array().and_then(|o| o.last()).cloned();
+    let (score, passed) = match &last_override {
+        Some(o) => (
+            o["score"].as_f64().unwrap_or(r.grade.score),
+            o["passed"].as_bool().unwrap_or(r.grade.passed),
+        ),
+        None => (r.grade.score, r.grade.passed),
+    };
+    html! {
+        div.cards #grade {
+            div.card { div.muted { "Score" } div.big { (format!("{score:.1}")) }
+                @if last_override.is_some() { div.muted { "computed: " (format!("{:.1}", r.grade.score)) } } }
+            div.card { div.muted { "Result" } div.big { (result_badge(Some(passed), last_override.is_some())) }
+                @for f in &r.grade.failed { div.muted { "not met: " (f) } } }
+            div.card { div.muted { "Attempts · redirections" } div.big { (r.metrics.attempts) " · " (r.metrics.redirections) } }
+            div.card #replay { div.muted { "Replay" } div.big { (verified_badge(Some(r.replay_verified))) }
+                @if let Some(d) = &r.divergence { div.muted { "first divergence: tick " (d.tick) " in " (d.stream) } }
+                div.muted { (r.digests_checked) " state digests checked, physics v" (r.physics_version) } }
+        }
+        @if r.incomplete { p.notice { "Incomplete recording: " (r.incomplete_reason.clone().unwrap_or_default()) } }
+    }
+}
+
+fn charts_block(trace: &ReviewTrace, row: &SessionRow) -> Result<Markup, PageError> {
+    let svg = |c| inline_svg(&c).map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e));
+    let force = svg(force_chart(
+        trace,
+        &format!("Force on the hand — {} ({})", row.scenario, row.trainee),
+    ))?;
+    let depth = svg(depth_chart(
+        trace,
+        &format!("Insertion depth — {} ({})", row.scenario, row.trainee),
+    ))?;
+    Ok(html! {
+        div #force-chart { (PreEscaped(force)) }
+        div #depth-chart { (PreEscaped(depth)) }
+        p.muted { "Forces: the sample of largest magnitude in every 20 ms, so puncture peaks are kept. Positive = against the insertion." }
+    })
+}
+
+fn risk_table(r: &ScoreReport) -> Markup {
+    html! {
+        @if r.metrics.risk_hits.is_empty() {
+            p #risk-hits { span.badge.ok { "none" } " No risk structure was touched." }
+        } @else {
+            table #risk-hits {
+                thead { tr { th { "Structure" } th.num { "First contact (s)" } th.num { "Deepest (mm)" } th.num { "Time inside (s)" } th.num { "Entries" } } }
+                tbody { @for h in &r.metrics.risk_hits { tr {
+                    td { span.badge.bad { (h.structure) } }
+                    td.num { (format!("{:.2}", h.t_s)) } td.num { (format!("{:.1}", h.depth_mm)) }
+                    td.num { (format!("{:.2}", h.duration_s)) } td.num { (h.entries) }
+                } } }
+            }
+        }
+    }
+}
+
+fn other_metrics(r: &ScoreReport) -> Markup {
+    let m = &r.metrics;
+    let opt = |v: Option<f64>, unit: &str| v.map_or("–".to_string(), |v| format!("{v:.1} {unit}"));
+    let yes = |b: bool| if b { "yes" } else { "no" };
+    let rows: Vec<(&str, String)> = vec![
+        (
+            "Target reached",
+            format!("{} (at {})", yes(m.target_reached), opt(m.time_to_target_s, "s")),
+        ),
+        ("Target confirmed", yes(m.target_confirmed).to_string()),
+        ("Total time", format!("{:.1} s", m.time_total_s)),
+        (
+            "Fluoroscopy",
+            format!("{:.1} s, {} shots", m.fluoro_time_s, m.xray_shots),
+        ),
+        (
+            "Palpation · ultrasound",
+            format!("{:.1} s · {:.1} s", m.palpation_time_s, m.ultrasound_time_s),
+        ),
+        ("Path length in the body", format!("{:.1} mm", m.path_length_mm)),
+        (
+            "Largest force · RMS",
+            format!("{:.2} N · {:.2} N", m.max_force_n, m.rms_force_n),
+        ),
+        ("Needle bending (max)", format!("{:.2} mm", m.max_bending_mm)),
+        ("Tissue damage", format!("{:.0} mm²", m.tissue_damage_mm2)),
+        ("Bone contacts", m.bone_contacts.to_string()),
+        ("Distance to the target", opt(m.target_distance_mm, "mm")),
+    ];
+    html! {
+        table #metrics { tbody { @for (k, v) in rows { tr { th { (k) } td { (v) } } } } }
+    }
+}
+
+/// Every metric the level's rubric uses: its value, the requirement and whether it holds, the
+/// deduction rule and the points it cost.
+fn rubric_table(r: &ScoreReport, rubric: Option<&Rubric>) -> Markup {
+    let level = rubric
+        .filter(|ru| ru.name == r.grade.rubric && ru.version == r.grade.rubric_version)
+        .and_then(|ru| ru.levels.get(&r.grade.difficulty));
+    let Some(level) = level else {
+        return html! { p.muted { "This server no longer has rubric " (r.grade.rubric) " v" (r.grade.rubric_version) "; the deductions applied:" }
+        ul { @for d in &r.grade.deductions { li { (d.metric) ": −" (format!("{:.1}", d.points)) } } } };
+    };
+    let mut names: Vec<&str> = level.require.iter().map(|q| q.metric.as_str()).collect();
+    for d in &level.deduct {
+        if !names.contains(&d.metric.as_str()) {
+            names.push(&d.metric);
+        }
+    }
+    let fmt = |v: f64| {
+        if v.fract() == 0.0 {
+            format!("{v:.0}")
+        } else {
+            format!("{v:.2}")
+        }
+    };
+    html! {
+        table #rubric {
+            thead { tr { th { "Metric" } th.num { "Value" } th { "Requirement" } th { "Deduction rule" } th.num { "Deducted" } } }
+            tbody {
+                @for name in names {
+                    @let value = metric_value(&r.metrics, name);
+                    @let req = level.require.iter().find(|q| q.metric == name);
+                    @let rule = level.deduct.iter().find(|d| d.metric == name);
+                    @let applied = r.grade.deductions.iter().find(|d| d.metric == name).map_or(0.0, |d| d.points);
+                    tr {
+                        td { (name) }
+                        td.num { (value.map_or("–".into(), fmt)) }
+                        td {
+                            @if let Some(q) = req {
+                                @let holds = value.is_some_and(|v| q.min.is_none_or(|m| v >= m) && q.max.is_none_or(|m| v <= m));
+                                @if let Some(m) = q.min { "≥ " (fmt(m)) " " }
+                                @if let Some(m) = q.max { "≤ " (fmt(m)) " " }
+                                @if holds { span.badge.ok { "met" } } @else { span.badge.bad { "not met" } }
+                            } @else { span.muted { "–" } }
+                        }
+                        td { @if let Some(d) = rule {
+                            (fmt(d.points)) " per unit above " (fmt(d.free))
+                            @if let Some(m) = d.max_points { " (at most " (fmt(m)) ")" }
+                        } }
+                        td.num { @if applied > 0.0 { "−" (format!("{applied:.1}")) } @else { "0" } }
+                    }
+                }
+                tr { th { "Score" } td.num { strong { (format!("{:.1}", r.grade.score)) } } td colspan="3" { "pass at ≥ " (fmt(level.pass_score)) " with every requirement met" } }
+            }
+        }
+    }
+}
+
+fn review_block(review: &serde_json::Value) -> Markup {
+    let empty = Vec::new();
+    let comments = review["comments"].as_array().unwrap_or(&empty);
+    let overrides = review["overrides"].as_array().unwrap_or(&empty);
+    let s = |v: &serde_json::Value| v.as_str().unwrap_or_default().to_string();
+    html! {
+        @if comments.is_empty() && overrides.is_empty() { p.muted #review { "No comments or overrides." } }
+        @else {
+            ul #review {
+                @for c in comments { li.comment { strong { (s(&c["author"])) } " (" (short_time(&s(&c["at"]))) "): " (s(&c["body"])) } }
+                @for o in overrides { li.override {
+                    strong { (s(&o["author"])) } " (" (short_time(&s(&o["at"]))) ") overrode the grade: "
+                    (o["score"].as_f64().map_or("?".into(), |v| format!("{v:.1}"))) ", "
+                    (if o["passed"].as_bool() == Some(true) { "passed" } else { "failed" })
+                    " — reason: " em { (s(&o["reason"])) }
+                } }
+            }
+        }
+    }
+}
+
+fn review_forms(v: &Viewer, id: &str) -> Markup {
+    html! {
+        div.grid2.noprint {
+            form #comment-form method="post" action={ "/sessions/" (id) "/comment" } {
+                (csrf_field(v))
+                label { "Comment for the trainee" textarea name="body" rows="3" cols="50" required {} }
+                p { button.primary type="submit" { "Add comment" } }
+            }
+            form #override-form method="post" action={ "/sessions/" (id) "/override" } {
+                (csrf_field(v))
+                div.inline {
+                    label { "New score (0–100)" input type="number" name="score" min="0" max="100" step="0.1" required; }
+                    label { "Result" select name="passed" { option value="true" { "passed" } option value="false" { "failed" } } }
+                }
+                label { "Reason (required, kept in the audit log)" textarea name="reason" rows="2" cols="50" required {} }
+                p { button.primary type="submit" { "Override the grade" } }
+            }
+        }
+    }
+}
+
+#[derive(serde::Deserialize)]
+pub struct CommentForm {
+    csrf: String,
+    body: String,
+}
+
+pub async fn comment(
+    State(s): State<Arc<AppState>>,
+    headers: HeaderMap,
+    uri: Uri,
+    Path(id): Path<String>,
+    Form(f): Form<CommentForm>,
+) -> Result<Redirect, PageError> {
+    let v = viewer(&s, &headers, &uri).await?;
+    check_csrf(&v, &f.csrf)?;
+    let text = check_comment(&f.body)?;
+    reviewable(&s, &v.user, &id).await?;
+    s.store.add_comment(&id, &v.user, text).await?;
+    Ok(Redirect::to(&format!("/sessions/{id}#review")))
+}
+
+#[derive(serde::Deserialize)]
+pub struct OverrideForm {
+    csrf: String,
+    score: String,
+    passed: String,
+    reason: String,
+}
+
+pub async fn override_grade(
+    State(s): State<Arc<AppState>>,
+    headers: HeaderMap,
+    uri: Uri,
+    Path(id): Path<String>,
+    Form(f): Form<OverrideForm>,
+) -> Result<Redirect, PageError> {
+    let v = viewer(&s, &headers, &uri).await?;
+    check_csrf(&v, &f.csrf)?;
+    let score: f64 = f
+        .score
+        .trim()
+        .parse()
+        .map_err(|_| fail(StatusCode::BAD_REQUEST, format!("'{}' is not a score", f.score)))?;
+    let passed = match f.passed.as_str() {
+        "true" => true,
+        "false" => false,
+        other => {
+            return Err(fail(
+                StatusCode::BAD_REQUEST,
+                format!("result '{other}' is neither passed nor failed"),
+            ));
+        }
+    };
+    let reason = check_override(score, &f.reason)?;
+    reviewable(&s, &v.user, &id).await?;
+    s.store.override_grade(&id, &v.user, score, passed, reason).await?;
+    Ok(Redirect::to(&format!("/sessions/{id}#grade")))
+}
+
+/// `GET /sessions/{id}/file`: the session file as uploaded.
+pub async fn file(
+    State(s): State<Arc<AppState>>,
+    headers: HeaderMap,
+    uri: Uri,
+    Path(id): Path<String>,
+) -> Result<Response, PageError> {
+    let v = viewer(&s, &headers, &uri).await?;
+    let row = visible_session(&s, &v, &id).await?;
+    let bytes = tokio::fs::read(s.session_file(&row.file_sha256)).await.map_err(|e| {
+        tracing::error!(error = %e, session = %id, "stored session file missing");
+        fail(StatusCode::INTERNAL_SERVER_ERROR, "the stored file cannot be read")
+    })?;
+    let safe = |t: &str| -> String {
+        t.chars()
+            .map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' })
+            .collect()
+    };
+    let name = format!(
+        "{}-{}-{}.mcap",
+        safe(&row.trainee),
+        safe(&row.scenario),
+        safe(row.uploaded_at.get(..10).unwrap_or("session"))
+    );
+    Ok((
+        [
+            (header::CONTENT_TYPE, "application/octet-stream".to_string()),
+            (header::CONTENT_DISPOSITION, format!("attachment; filename=\"{name}\"")),
+        ],
+        bytes,
+    )
+        .into_response())
+}
+
+/// `GET /sessions/{id}/slices.png`: the tip path over CT slices.
+pub async fn slices(
+    State(s): State<Arc<AppState>>,
+    headers: HeaderMap,
+    uri: Uri,
+    Path(id): Path<String>,
+) -> Result<Response, PageError> {
+    let v = viewer(&s, &headers, &uri).await?;
+    let row = visible_session(&s, &v, &id).await?;
+    let title = format!("{} — {} ({}), tip path", row.trainee, row.scenario, row.difficulty);
+    let png = crate::figures::session_figure(&s, &row.file_sha256, &row.atlas_hash, &title)
+        .await
+        .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e))?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "image/png"),
+            (header::CACHE_CONTROL, "private, max-age=3600"),
+        ],
+        png,
+    )
+        .into_response())
+}

@@ -1,0 +1,97 @@
+//! The suggested next difficulty for a trainee (docs/dashboard.md "Suggested difficulty"):
+//! move up after [`STREAK`] passes in a row at the current level, step back after [`STREAK`]
+//! failures in a row, else stay. The current level is the highest level with a scored session.
+
+use stylet_scoring::rubric::LEVELS;
+use stylet_scoring::service::store::ProgressPoint;
+
+/// Sessions in a row that move a trainee up (all passed) or back (all failed).
+pub const STREAK: usize = 3;
+
+/// A suggestion and the reason, in words.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Suggestion {
+    pub level: &'static str,
+    pub reason: String,
+}
+
+/// `points`: the trainee's scored sessions in upload order (final grades).
+pub fn suggest_next(points: &[ProgressPoint]) -> Suggestion {
+    let Some(current) = LEVELS
+        .iter()
+        .rposition(|level| points.iter().any(|p| p.difficulty == *level))
+    else {
+        return Suggestion {
+            level: LEVELS[0],
+            reason: "no scored sessions yet: start at beginner".into(),
+        };
+    };
+    let at_level: Vec<bool> = points
+        .iter()
+        .filter(|p| p.difficulty == LEVELS[current])
+        .map(|p| p.passed)
+        .collect();
+    let last = &at_level[at_level.len().saturating_sub(STREAK)..];
+    let level = LEVELS[current];
+    if last.len() == STREAK && last.iter().all(|p| *p) {
+        match LEVELS.get(current + 1) {
+            Some(next) => Suggestion {
+                level: next,
+                reason: format!("the last {STREAK} {level} sessions all passed"),
+            },
+            None => Suggestion {
+                level,
+                reason: format!("the last {STREAK} expert sessions all passed: keep practising at expert"),
+            },
+        }
+    } else if last.len() == STREAK && last.iter().all(|p| !*p) && current > 0 {
+        Suggestion {
+            level: LEVELS[current - 1],
+            reason: format!("the last {STREAK} {level} sessions all failed: consolidate one level lower"),
+        }
+    } else {
+        let passed = last.iter().filter(|p| **p).count();
+        Suggestion {
+            level,
+            reason: format!(
+                "{passed} of the last {} {level} sessions passed; {STREAK} passes in a row move you up",
+                last.len()
+            ),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn p(level: &str, passed: bool) -> ProgressPoint {
+        ProgressPoint {
+            session_id: String::new(),
+            uploaded_at: String::new(),
+            scenario: String::new(),
+            difficulty: level.into(),
+            score: if passed { 80.0 } else { 20.0 },
+            passed,
+            overridden: false,
+        }
+    }
+
+    #[test]
+    fn moves_up_after_three_passes_back_after_three_failures() {
+        assert_eq!(suggest_next(&[]).level, "beginner");
+        let b = |v: &[bool]| v.iter().map(|x| p("beginner", *x)).collect::<Vec<_>>();
+        assert_eq!(suggest_next(&b(&[true, true])).level, "beginner");
+        assert_eq!(suggest_next(&b(&[false, true, true, true])).level, "advanced");
+        assert_eq!(suggest_next(&b(&[true, true, false])).level, "beginner");
+        assert_eq!(suggest_next(&b(&[false, false, false])).level, "beginner");
+        let mut v = b(&[true, true, true]);
+        v.extend([p("advanced", false), p("advanced", false), p("advanced", false)]);
+        let s = suggest_next(&v);
+        assert_eq!(s.level, "beginner", "{s:?}");
+        v.push(p("expert", true));
+        assert_eq!(suggest_next(&v).level, "expert");
+        v.extend([p("expert", true), p("expert", true)]);
+        assert!(suggest_next(&v).reason.contains("keep practising at expert"));
+    }
+}

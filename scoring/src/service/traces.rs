@@ -1,0 +1,69 @@
+//! Review traces on disk (`DATA/traces/xx/<sha>.json.zst`): derived data, written by the worker
+//! when it scores a session and rebuilt by a replay whenever one is missing, unreadable, or of
+//! another trace format or physics version. Deleting the folder loses nothing.
+
+use std::path::{Path, PathBuf};
+
+use crate::trace::{ReviewTrace, TRACE_VERSION};
+
+use super::AppState;
+
+/// Where the trace of the session file `sha` lives.
+pub fn trace_path(data_dir: &Path, sha: &str) -> PathBuf {
+    data_dir
+        .join("traces")
+        .join(&sha[..2.min(sha.len())])
+        .join(format!("{sha}.json.zst"))
+}
+
+/// Writes atomically (a temporary file renamed into place).
+pub fn write_trace(path: &Path, trace: &ReviewTrace) -> std::io::Result<()> {
+    let json = serde_json::to_vec(trace).map_err(std::io::Error::other)?;
+    let packed = zstd::encode_all(&json[..], 3)?;
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    // A name of its own: the worker and a page may write the same trace at once.
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let tmp = path.with_extension(format!("{}-{n}.partial", std::process::id()));
+    std::fs::write(&tmp, packed)?;
+    std::fs::rename(&tmp, path)
+}
+
+/// The stored trace, if it is there, readable and current.
+pub fn read_trace(path: &Path) -> Option<ReviewTrace> {
+    let packed = std::fs::read(path).ok()?;
+    // Traces are small (~50 Hz of a session); a bigger one is not ours.
+    let json = zstd::bulk::decompress(&packed, 256 << 20).ok()?;
+    let trace: ReviewTrace = serde_json::from_slice(&json).ok()?;
+    (trace.version == TRACE_VERSION && trace.physics_version == stylet_physics::PHYSICS_VERSION).then_some(trace)
+}
+
+/// The review trace of a stored session: from disk, else by replaying the file (then stored).
+pub async fn review_trace(state: &AppState, file_sha256: &str, atlas_hash: &str) -> Result<ReviewTrace, String> {
+    let path = trace_path(&state.config.data_dir, file_sha256);
+    let cached = path.clone();
+    if let Some(t) = tokio::task::spawn_blocking(move || read_trace(&cached))
+        .await
+        .map_err(|e| e.to_string())?
+    {
+        return Ok(t);
+    }
+    let scorer = state
+        .scorers
+        .get(atlas_hash)
+        .cloned()
+        .ok_or("the session's atlas is not loaded on this server")?;
+    let file = state.session_file(file_sha256);
+    tokio::task::spawn_blocking(move || {
+        let session = stylet_recorder::reader::recover(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+        let (_, trace) = scorer.score_session_traced(&session).map_err(|e| e.to_string())?;
+        if let Err(e) = write_trace(&path, &trace) {
+            tracing::warn!(error = %e, path = %path.display(), "cannot store a review trace");
+        }
+        Ok(trace)
+    })
+    .await
+    .map_err(|e| e.to_string())?
+}
