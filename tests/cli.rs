@@ -201,11 +201,46 @@ fn import_real_ct_and_dicom() {
 }
 
 /// The README's first command: the demo builds the phantom, prints its summary, records the
-/// example scripts as sessions and prints their scores.
+/// example scripts as sessions, prints their scores, and ends with the dashboard running on
+/// them with the demo accounts printed; the service scores the uploaded sessions again.
 #[test]
-fn demo_builds_the_phantom_records_sessions_and_scores_them() {
+fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard() {
+    use std::io::{BufRead, BufReader};
     let d = tempfile::tempdir().unwrap();
-    let text = ok(&["demo", "--out", d.path().to_str().unwrap()]);
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_stylet"))
+        .args(["demo", "--out", d.path().to_str().unwrap(), "--bind", "127.0.0.1:0"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    struct Kill(std::process::Child);
+    impl Drop for Kill {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+    let stdout = child.stdout.take().unwrap();
+    let _guard = Kill(child);
+    let mut lines = BufReader::new(stdout).lines();
+    let mut text = String::new();
+    let base = loop {
+        let line = lines.next().expect("the demo ended before serving").unwrap();
+        text += &line;
+        text.push('\n');
+        if let Some(rest) = line.strip_prefix("dashboard running at ") {
+            break rest
+                .split_whitespace()
+                .next()
+                .unwrap()
+                .trim_end_matches('/')
+                .to_string();
+        }
+    };
+    for _ in 0..7 {
+        text += &lines.next().unwrap().unwrap();
+        text.push('\n');
+    }
     for s in [
         "atlas        phantom",
         "right hepatic duct",
@@ -214,9 +249,56 @@ fn demo_builds_the_phantom_records_sessions_and_scores_them() {
         "7 sessions",
         "why not passed",
         "replayed and scored",
+        "password 'stylet-demo'",
+        "demo-ivan    instructor",
+        "demo-cora    curriculum",
+        "demo-admin   admin",
     ] {
         assert!(text.contains(s), "demo output lacks {s:?}:\n{text}");
     }
+    // The dashboard answers; the demo instructor sees all 7 sessions scored by the service.
+    let agent = ureq::AgentBuilder::new().redirects(0).build();
+    let login = agent.post(&format!("{base}/login")).send_form(&[
+        ("username", "demo-ivan"),
+        ("password", "stylet-demo"),
+        ("next", "/"),
+    ]);
+    let cookie = match login {
+        Ok(r) | Err(ureq::Error::Status(_, r)) => {
+            r.header("Set-Cookie").unwrap().split(';').next().unwrap().to_string()
+        }
+        Err(e) => panic!("{e}"),
+    };
+    let t0 = std::time::Instant::now();
+    loop {
+        let list: serde_json::Value = serde_json::from_str(
+            &ureq::get(&format!("{base}/api/sessions"))
+                .set("Cookie", &cookie)
+                .call()
+                .unwrap()
+                .into_string()
+                .unwrap(),
+        )
+        .unwrap();
+        let scored = list["sessions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|s| s["status"] == "scored")
+            .count();
+        if scored == 7 {
+            break;
+        }
+        assert!(t0.elapsed() < std::time::Duration::from_secs(120), "{list}");
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    }
+    let home = ureq::get(&format!("{base}/"))
+        .set("Cookie", &cookie)
+        .call()
+        .unwrap()
+        .into_string()
+        .unwrap();
+    assert!(home.contains("demo-cohort"), "{home}");
     assert!(d.path().join("atlases/phantom/atlas.toml").is_file());
     png_size(&d.path().join("phantom.png"));
     // One row per session: replay verified everywhere; the successful puncture passes, the lung

@@ -85,7 +85,15 @@ fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
 
 fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
     root.fill(&WHITE).map_err(|e| e.to_string())?;
-    let (x0, x1) = range(chart.series.iter().flat_map(|s| s.points.iter().map(|p| p.0)));
+    let (mut x0, mut x1) = range(chart.series.iter().flat_map(|s| s.points.iter().map(|p| p.0)));
+    if chart.x_whole {
+        // Counts: half a step of room on each side of the first and last.
+        let xs = chart.series.iter().flat_map(|s| s.points.iter().map(|p| p.0));
+        let (lo, hi) = xs.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+        if lo.is_finite() {
+            (x0, x1) = (lo - 0.5, hi + 0.5);
+        }
+    }
     let (y0, y1) = chart
         .y_range
         .unwrap_or_else(|| range(chart.series.iter().flat_map(|s| s.points.iter().map(|p| p.1))));
@@ -96,7 +104,14 @@ fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) ->
         .y_label_area_size(72)
         .build_cartesian_2d(x0..x1, y0..y1)
         .map_err(|e| e.to_string())?;
-    let whole = |x: &f64| format!("{x:.0}");
+    // Whole numbers only (a tick between two sessions gets no label).
+    let whole = |x: &f64| {
+        if (x - x.round()).abs() < 1e-9 {
+            format!("{x:.0}")
+        } else {
+            String::new()
+        }
+    };
     let mut mesh = c.configure_mesh();
     if chart.x_whole {
         mesh.x_label_formatter(&whole)
