@@ -99,7 +99,7 @@ fn shots() -> PathBuf {
 }
 
 /// A screenshot of the whole page (the window grows to the page's height first).
-async fn shot(c: &Client, name: &str) {
+async fn shot(c: &Client, tag: &str, name: &str) {
     c.execute("window.scrollTo(0, 0)", vec![]).await.unwrap();
     let h = c
         .execute("return document.documentElement.scrollHeight", vec![])
@@ -109,7 +109,7 @@ async fn shot(c: &Client, name: &str) {
         .unwrap_or(1000);
     c.set_window_size(1400, (h as u32 + 40).clamp(600, 8000)).await.unwrap();
     let png = c.screenshot().await.unwrap();
-    std::fs::write(shots().join(format!("{name}.png")), png).unwrap();
+    std::fs::write(shots().join(format!("{tag}-{name}.png")), png).unwrap();
     c.set_window_size(1400, 1000).await.unwrap();
 }
 
@@ -210,9 +210,17 @@ fn csv_fields(line: &str) -> Vec<String> {
 }
 
 #[test]
-fn every_role_uses_the_dashboard_in_headless_chromium() {
+fn every_role_uses_the_dashboard_in_headless_chromium_sqlite() {
+    every_role_uses_the_dashboard(Db::Sqlite, "sqlite");
+}
+
+#[test]
+fn every_role_uses_the_dashboard_in_headless_chromium_postgres() {
+    every_role_uses_the_dashboard(Db::postgres("dashboard"), "postgres");
+}
+
+fn every_role_uses_the_dashboard(db: Db, tag: &'static str) {
     let f = Fixture::new();
-    let db = Db::Sqlite;
     f.users(&db);
     let srv = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "2"]);
     let base = srv.base.clone();
@@ -241,7 +249,7 @@ fn every_role_uses_the_dashboard_in_headless_chromium() {
         c.goto(&format!("{base}/sessions/{lung}")).await.unwrap();
         c.find(Locator::Css("form.login")).await.expect("the login form");
         assert!(c.current_url().await.unwrap().as_str().contains("/login?next="));
-        shot(&c, "01-login").await;
+        shot(&c, tag, "01-login").await;
         // A wrong password says so.
         c.find(Locator::Id("username")).await.unwrap().send_keys("tina").await.unwrap();
         c.find(Locator::Id("password")).await.unwrap().send_keys("not-her-password").await.unwrap();
@@ -291,7 +299,7 @@ fn every_role_uses_the_dashboard_in_headless_chromium() {
         assert!(img.as_u64().unwrap_or(0) > 500, "tip-path image: {img}");
         assert!(text_of(&c, "#risk-hits").await.contains("No risk structure"));
         assert!(text_of(&c, "#rubric").await.contains("target_not_reached"));
-        shot(&c, "02-trainee-session-review").await;
+        shot(&c, tag, "02-trainee-session-review").await;
         // The download is the uploaded file, byte for byte.
         let size = c
             .execute(
@@ -310,15 +318,15 @@ fn every_role_uses_the_dashboard_in_headless_chromium() {
         c.find(Locator::Css("#upload button")).await.unwrap().click().await.unwrap();
         let refused = wait_text(&c, "#upload-error").await;
         assert!(refused.contains("not a valid session file"), "{refused}");
-        shot(&c, "03-trainee-upload-refused").await;
+        shot(&c, tag, "03-trainee-upload-refused").await;
         // Home: progress chart and both sessions.
         open(&c, &base, "/").await;
         let home = c.source().await.unwrap();
         assert!(home.contains("Scores of tina by difficulty") && home.contains("score (0–100)"));
         assert_eq!(c.find_all(Locator::Css("table.sessions tbody tr")).await.unwrap().len(), 2);
-        shot(&c, "04-trainee-home").await;
+        shot(&c, tag, "04-trainee-home").await;
         open(&c, &base, "/sessions").await;
-        shot(&c, "05-trainee-sessions").await;
+        shot(&c, tag, "05-trainee-sessions").await;
         // What a trainee may not see.
         c.goto(&format!("{base}/sessions/{tom_ok}")).await.unwrap();
         assert!(text_of(&c, "h1").await.starts_with("404"));
@@ -330,7 +338,7 @@ fn every_role_uses_the_dashboard_in_headless_chromium() {
         log_in(&c, &base, "ivan").await;
         assert!(open(&c, &base, "/").await.starts_with("Instructor"));
         assert!(text_of(&c, "table.cohorts").await.contains("c1"));
-        shot(&c, "06-instructor-home").await;
+        shot(&c, tag, "06-instructor-home").await;
         open(&c, &base, "/cohorts/c1").await;
         let trainees = text_of(&c, "#trainees").await;
         assert!(trainees.contains("tina") && !trainees.contains("tom"), "{trainees}");
@@ -347,7 +355,7 @@ fn every_role_uses_the_dashboard_in_headless_chromium() {
         let url = c.current_url().await.unwrap();
         assert!(url.as_str().contains("difficulty=beginner") && url.as_str().contains(&today), "{url}");
         assert_eq!(c.find_all(Locator::Css("table.sessions tbody tr")).await.unwrap().len(), 2);
-        shot(&c, "07-instructor-cohort").await;
+        shot(&c, tag, "07-instructor-cohort").await;
         // Two sessions' force curves on one chart.
         c.find(Locator::Css("#compare button")).await.unwrap().click().await.unwrap();
         let chart = c
@@ -362,7 +370,7 @@ fn every_role_uses_the_dashboard_in_headless_chromium() {
         for want in ["total — A tina", "total — B tina", "cutting — A tina", "force along the needle (N)"] {
             assert!(chart.contains(want), "comparison lacks {want}");
         }
-        shot(&c, "08-instructor-compare").await;
+        shot(&c, tag, "08-instructor-compare").await;
         // Comment on and override tina's lung hit.
         open(&c, &base, &format!("/sessions/{lung}")).await;
         assert!(text_of(&c, "#risk-hits").await.contains("lung"));
@@ -383,21 +391,26 @@ fn every_role_uses_the_dashboard_in_headless_chromium() {
         let g = text_of(&c, "#grade").await;
         assert!(g.contains("75.0") && g.contains("overridden") && g.contains("computed"), "{g}");
         assert!(text_of(&c, "#review").await.contains("recess artefact"));
-        shot(&c, "09-instructor-review-override").await;
+        shot(&c, tag, "09-instructor-review-override").await;
+        for path in ["/sessions", "/cohorts", "/reports", "/reports/cohort?cohort=c1"] {
+            open(&c, &base, path).await;
+        }
+        c.goto(&format!("{base}/cohorts/c2")).await.unwrap();
+        assert!(text_of(&c, "h1").await.starts_with("403"), "another instructor's cohort");
         log_out(&c, &base).await;
 
         // ---- curriculum
         log_in(&c, &base, "cora").await;
         open(&c, &base, "/").await;
-        shot(&c, "10-curriculum-home").await;
+        shot(&c, tag, "10-curriculum-home").await;
         open(&c, &base, "/reports").await;
-        shot(&c, "11-curriculum-reports").await;
+        shot(&c, tag, "11-curriculum-reports").await;
         c.form(Locator::Id("report-form")).await.unwrap().submit().await.unwrap();
         c.wait().at_most(Duration::from_secs(20)).for_element(Locator::Id("report-lines")).await.unwrap();
         assert!(text_of(&c, "#report-title").await.starts_with("Cohort c1"));
         let lines = text_of(&c, "#report-lines").await;
         assert!(lines.contains("tina") && lines.contains("beginner"), "{lines}");
-        shot(&c, "12-curriculum-report-c1").await;
+        shot(&c, tag, "12-curriculum-report-c1").await;
         open(&c, &base, "/sessions").await;
         // The export, fetched by the browser through the page's link, parsed here.
         let csv = c
@@ -430,7 +443,12 @@ fn every_role_uses_the_dashboard_in_headless_chromium() {
         let own_row = rows.iter().find(|r| r[col("session_id")] == own_id).unwrap();
         assert_eq!(own_row[col("trainee")], "tina");
         assert_eq!(own_row[col("cohorts")], "c1");
-        // Curriculum staff read but do not change: no review forms.
+        for path in ["/cohorts", "/cohorts/c1", "/cohorts/c2", &format!("/compare?a={lung}&b={own_id}")] {
+            open(&c, &base, path).await;
+        }
+        // Curriculum staff read but do not change: no review forms, no accounts.
+        c.goto(&format!("{base}/admin/users")).await.unwrap();
+        assert!(text_of(&c, "h1").await.starts_with("403"));
         open(&c, &base, &format!("/sessions/{lung}")).await;
         assert!(c.find(Locator::Id("override-form")).await.is_err());
         log_out(&c, &base).await;
@@ -438,7 +456,7 @@ fn every_role_uses_the_dashboard_in_headless_chromium() {
         // ---- admin
         log_in(&c, &base, "root").await;
         open(&c, &base, "/").await;
-        shot(&c, "13-admin-home").await;
+        shot(&c, tag, "13-admin-home").await;
         open(&c, &base, "/admin/users").await;
         let form = c.form(Locator::Id("add-user")).await.unwrap();
         form.set_by_name("username", "nora").await.unwrap();
@@ -453,7 +471,7 @@ fn every_role_uses_the_dashboard_in_headless_chromium() {
         form.set_by_name("password", "nora-password").await.unwrap();
         form.submit().await.unwrap();
         assert!(wait_text(&c, "#add-user-error").await.contains("already exists"));
-        shot(&c, "14-admin-accounts").await;
+        shot(&c, tag, "14-admin-accounts").await;
         for path in ["/sessions", "/cohorts", "/cohorts/c2", "/reports", &format!("/sessions/{tom_ok}")] {
             open(&c, &base, path).await;
         }
