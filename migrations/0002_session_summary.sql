@@ -11,5 +11,4 @@ ALTER TABLE sessions ADD COLUMN risk_hits BIGINT;
 ALTER TABLE sessions ADD COLUMN replay_verified BIGINT;
 ALTER TABLE sessions ADD COLUMN rubric_version BIGINT;
 CREATE INDEX sessions_uploaded ON sessions (uploaded_at);
-CREATE INDEX sessions_scenario ON sessions (scenario);
 CREATE INDEX cohort_members_user ON cohort_members (user_id);

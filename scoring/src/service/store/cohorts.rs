@@ -49,18 +49,7 @@ impl Store {
     /// difficulty and dates (final grades), by trainee then difficulty.
     pub async fn cohort_report(&self, cohort_id: &str, filter: &SessionFilter) -> Result<Vec<ReportLine>, StoreError> {
         let mut binds = vec![cohort_id.to_string()];
-        let mut conds = String::new();
-        for (col, op, v) in [
-            ("s.scenario", "=", &filter.scenario),
-            ("s.difficulty", "=", &filter.difficulty),
-            ("s.uploaded_at", ">=", &filter.uploaded_from),
-            ("s.uploaded_at", "<", &filter.uploaded_before),
-        ] {
-            if let Some(v) = v {
-                binds.push(v.clone());
-                conds += &format!(" AND {col} {op} ${}", binds.len());
-            }
-        }
+        let conds = super::sessions::narrowing(filter, &mut binds);
         let q = format!(
             "SELECT u.username AS trainee, s.difficulty, COUNT(*) AS sessions, \
              CAST(COALESCE(SUM(CASE WHEN s.status = 'scored' THEN 1 ELSE 0 END), 0) AS BIGINT) AS scored, \
@@ -156,18 +145,7 @@ impl Store {
         per_trainee: i64,
     ) -> Result<Vec<ScorePoint>, StoreError> {
         let mut binds = vec![cohort_id.to_string()];
-        let mut conds = String::new();
-        for (col, op, v) in [
-            ("s.scenario", "=", &filter.scenario),
-            ("s.difficulty", "=", &filter.difficulty),
-            ("s.uploaded_at", ">=", &filter.uploaded_from),
-            ("s.uploaded_at", "<", &filter.uploaded_before),
-        ] {
-            if let Some(v) = v {
-                binds.push(v.clone());
-                conds += &format!(" AND {col} {op} ${}", binds.len());
-            }
-        }
+        let conds = super::sessions::narrowing(filter, &mut binds);
         let q = format!(
             "SELECT trainee, id, uploaded_at, difficulty, final_score, final_passed FROM ( \
                SELECT u.username AS trainee, s.id, s.uploaded_at, s.difficulty, s.final_score, s.final_passed, \

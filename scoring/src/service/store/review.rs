@@ -41,18 +41,7 @@ impl Store {
         filter: &SessionFilter,
     ) -> Result<Vec<TraineeSummary>, StoreError> {
         let mut binds = vec![cohort_id.to_string()];
-        let mut on = String::from("s.trainee_id = u.id");
-        for (col, op, v) in [
-            ("s.scenario", "=", &filter.scenario),
-            ("s.difficulty", "=", &filter.difficulty),
-            ("s.uploaded_at", ">=", &filter.uploaded_from),
-            ("s.uploaded_at", "<", &filter.uploaded_before),
-        ] {
-            if let Some(v) = v {
-                binds.push(v.clone());
-                on += &format!(" AND {col} {op} ${}", binds.len());
-            }
-        }
+        let on = format!("s.trainee_id = u.id{}", super::sessions::narrowing(filter, &mut binds));
         let q = format!(
             "SELECT u.username, COUNT(s.id) AS sessions, \
              CAST(COALESCE(SUM(CASE WHEN s.status = 'scored' THEN 1 ELSE 0 END), 0) AS BIGINT) AS scored, \

@@ -157,26 +157,15 @@ impl Store {
                 bind(v, &mut binds)
             ));
         }
-        if let Some(v) = &filter.scenario {
-            conds.push(format!("s.scenario = {}", bind(v, &mut binds)));
-        }
-        if let Some(v) = &filter.difficulty {
-            conds.push(format!("s.difficulty = {}", bind(v, &mut binds)));
-        }
         if let Some(v) = &filter.status {
             conds.push(format!("s.status = {}", bind(v, &mut binds)));
         }
-        if let Some(v) = &filter.uploaded_from {
-            conds.push(format!("s.uploaded_at >= {}", bind(v, &mut binds)));
+        let mut clause = String::from(" WHERE 1 = 1");
+        for c in conds {
+            clause += " AND ";
+            clause += &c;
         }
-        if let Some(v) = &filter.uploaded_before {
-            conds.push(format!("s.uploaded_at < {}", bind(v, &mut binds)));
-        }
-        let clause = if conds.is_empty() {
-            String::new()
-        } else {
-            format!(" WHERE {}", conds.join(" AND "))
-        };
+        clause += &narrowing(filter, &mut binds);
         (clause, binds)
     }
 
@@ -223,6 +212,24 @@ impl Store {
             .await?;
         Ok(rows.iter().map(|r| r.try_get("scenario")).collect::<Result<_, _>>()?)
     }
+}
+
+/// ` AND …` conditions on `s` (a sessions row) for `filter`'s scenario, difficulty and dates, their
+/// values appended to `binds` (placeholders numbered after what is there).
+pub(super) fn narrowing(filter: &SessionFilter, binds: &mut Vec<String>) -> String {
+    let mut out = String::new();
+    for (col, op, v) in [
+        ("s.scenario", "=", &filter.scenario),
+        ("s.difficulty", "=", &filter.difficulty),
+        ("s.uploaded_at", ">=", &filter.uploaded_from),
+        ("s.uploaded_at", "<", &filter.uploaded_before),
+    ] {
+        if let Some(v) = v {
+            binds.push(v.clone());
+            out += &format!(" AND {col} {op} ${}", binds.len());
+        }
+    }
+    out
 }
 
 /// Which sessions to list. Dates compare with `uploaded_at` (the server's clock, RFC 3339 UTC).
