@@ -487,12 +487,34 @@ fn upload_score_and_see_only_what_you_may(db: Db) {
     );
     assert_eq!(status, 201, "{json}");
     let bearer = Auth::Bearer(json["token"].as_str().unwrap().to_string());
+    // Eight uploads of the same new bytes at once (a simulator retrying): one 201, the others
+    // 200 with the same id; one row, one stored file, scored.
     let two = std::fs::read(f.session("tina-two")).unwrap();
-    let (status, json, _) = call("POST", &format!("{b}/api/sessions"), Some(&bearer), Some(&two), false);
-    assert_eq!(status, 201, "{json}");
-    assert_eq!(
-        wait_scored(b, &bearer, json["id"].as_str().unwrap())["status"],
-        "scored"
+    let start = std::sync::Barrier::new(8);
+    let answers: Vec<(u16, serde_json::Value)> = std::thread::scope(|scope| {
+        let tasks: Vec<_> = (0..8)
+            .map(|_| {
+                scope.spawn(|| {
+                    start.wait();
+                    let (status, json, _) =
+                        call("POST", &format!("{b}/api/sessions"), Some(&bearer), Some(&two), false);
+                    (status, json)
+                })
+            })
+            .collect();
+        tasks.into_iter().map(|t| t.join().unwrap()).collect()
+    });
+    let mut statuses: Vec<u16> = answers.iter().map(|(st, _)| *st).collect();
+    statuses.sort();
+    assert_eq!(statuses, [200, 200, 200, 200, 200, 200, 200, 201], "{answers:?}");
+    let two_id = answers[0].1["id"].as_str().unwrap().to_string();
+    assert!(answers.iter().all(|(_, j)| j["id"] == two_id.as_str()), "{answers:?}");
+    assert_eq!(wait_scored(b, &bearer, &two_id)["status"], "scored");
+    let stored = walk(&f.data().join("sessions"));
+    assert_eq!(stored.len(), files_before + 2, "{stored:?}");
+    assert!(
+        stored.iter().all(|p| p.extension().is_some_and(|e| e == "mcap")),
+        "{stored:?}"
     );
 
     // The OpenAPI document names every route; every response carries a request id.

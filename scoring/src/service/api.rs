@@ -407,8 +407,9 @@ pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(S
         return Ok((id, status, false));
     }
     // The file first (atomically, by content hash), then the rows; on failure neither stays.
+    // The temporary name is this request's own: two uploads of the same bytes may race here.
     let path = s.session_file(&sha);
-    let tmp = path.with_extension("partial");
+    let tmp = path.with_extension(format!("{}.partial", super::store::new_id()));
     let write = async {
         tokio::fs::create_dir_all(path.parent().expect("has a parent")).await?;
         tokio::fs::write(&tmp, &bytes).await?;
@@ -435,6 +436,15 @@ pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(S
     let id = match s.store.insert_session(&new).await {
         Ok(id) => id,
         Err(e) => {
+            // Lost a race with an upload of the same bytes: that row owns the file now.
+            if let Some(id) = s.store.session_by_file(&new.file_sha256).await? {
+                let status = s
+                    .store
+                    .session(&id)
+                    .await?
+                    .map_or_else(|| "queued".to_string(), |(r, _)| r.status);
+                return Ok((id, status, false));
+            }
             let _ = tokio::fs::remove_file(&path).await;
             return Err(e.into());
         }
