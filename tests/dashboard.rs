@@ -255,6 +255,18 @@ fn every_role_uses_the_dashboard(db: Db, tag: &'static str) {
         c.find(Locator::Id("password")).await.unwrap().send_keys("not-her-password").await.unwrap();
         c.find(Locator::Css("form.login button")).await.unwrap().click().await.unwrap();
         assert!(wait_text(&c, "p.error").await.contains("wrong username or password"));
+        // Login CSRF: a page on another site posts the right password; the browser is not logged in.
+        c.goto(&format!(
+            "data:text/html,<form id=f method=post action='{base}/login'><input name=username value=tina>\
+             <input name=password value=tina-password></form><script>document.getElementById('f').submit()</script>"
+        ))
+        .await
+        .unwrap();
+        let refused = wait_text(&c, "p.error").await;
+        assert!(refused.contains("sent from another site"), "{refused}");
+        assert!(text_of(&c, "h1").await.starts_with("403"));
+        c.goto(&format!("{base}/")).await.unwrap();
+        c.find(Locator::Css("form.login")).await.expect("still logged out");
 
         // ---- trainee
         log_in(&c, &base, "tina").await;

@@ -105,6 +105,20 @@ pub fn check_csrf(v: &Viewer, sent: &str) -> Result<(), PageError> {
     }
 }
 
+/// Refuses a form posted from another site. The login form has no token to check (there is no
+/// login yet to tie one to), so a browser's `Sec-Fetch-Site` header stands in: without this another
+/// site could log a trainee's browser into an account of its choosing (login CSRF). Clients that do
+/// not send the header (scripts, old browsers) are let through; they gain nothing from forging it.
+pub fn check_same_site(headers: &HeaderMap) -> Result<(), PageError> {
+    match headers.get("sec-fetch-site").and_then(|h| h.to_str().ok()) {
+        Some("cross-site") | Some("same-site") => Err(fail(
+            StatusCode::FORBIDDEN,
+            "this form was sent from another site; log in from Stylet's own login page",
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// Where a login may send the browser back to: a local path only (no other sites).
 pub fn safe_next(next: Option<&str>) -> String {
     match next {
@@ -125,5 +139,26 @@ mod tests {
         assert_eq!(safe_next(Some("/\\evil.example")), "/");
         assert_eq!(safe_next(None), "/");
         assert_eq!(encode_query("/a b?c=1&d"), "%2Fa%20b%3Fc%3D1%26d");
+    }
+
+    #[test]
+    fn forms_from_other_sites_are_refused() {
+        let with = |v: &str| {
+            let mut h = HeaderMap::new();
+            h.insert("sec-fetch-site", v.parse().unwrap());
+            h
+        };
+        assert!(check_same_site(&with("same-origin")).is_ok());
+        assert!(check_same_site(&with("none")).is_ok());
+        assert!(check_same_site(&HeaderMap::new()).is_ok());
+        for v in ["cross-site", "same-site"] {
+            match check_same_site(&with(v)) {
+                Err(PageError::Status(status, msg)) => {
+                    assert_eq!(status, StatusCode::FORBIDDEN);
+                    assert!(msg.contains("another site"), "{msg}");
+                }
+                _ => panic!("{v} was let through"),
+            }
+        }
     }
 }

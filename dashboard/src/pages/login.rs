@@ -11,7 +11,7 @@ use maud::html;
 use stylet_scoring::service::api::{LOGIN_TTL_S, log_in};
 use stylet_scoring::service::{AppState, auth};
 
-use crate::auth::{PageError, check_csrf, safe_next, viewer};
+use crate::auth::{PageError, check_csrf, check_same_site, safe_next, viewer};
 use crate::layout::page;
 
 #[derive(serde::Deserialize)]
@@ -45,7 +45,10 @@ pub struct LoginForm {
     next: Option<String>,
 }
 
-pub async fn submit(State(s): State<Arc<AppState>>, Form(f): Form<LoginForm>) -> Response {
+pub async fn submit(State(s): State<Arc<AppState>>, headers: HeaderMap, Form(f): Form<LoginForm>) -> Response {
+    if let Err(e) = check_same_site(&headers) {
+        return e.into_response();
+    }
     let next = safe_next(f.next.as_deref());
     match log_in(&s, &f.username, &f.password).await {
         Ok((_, token, _)) => {
