@@ -72,6 +72,7 @@ impl Browser {
         let agent = ureq::AgentBuilder::new().redirects(0).build();
         let resp = agent
             .post(&format!("{base}/api/login"))
+            .set("Content-Type", "application/json")
             .send_string(&format!(r#"{{"username":"{user}","password":"{user}-password"}}"#))
             .unwrap();
         let cookie = resp

@@ -563,6 +563,41 @@ fn upload_score_and_see_only_what_you_may(db: Db) {
     );
     assert_eq!(status, 429, "{json}");
     assert!(json["error"].as_str().unwrap().contains("too many failed logins"));
+    // Guesses sent in parallel get no more tries: five 401 at most, the rest 429.
+    let start = std::sync::Barrier::new(12);
+    let statuses: Vec<u16> = std::thread::scope(|scope| {
+        let tasks: Vec<_> = (0..12)
+            .map(|i| {
+                let start = &start;
+                scope.spawn(move || {
+                    start.wait();
+                    let body = format!(r#"{{"username":"tom","password":"guess-{i:04}"}}"#);
+                    call("POST", &format!("{b}/api/login"), None, Some(body.as_bytes()), true).0
+                })
+            })
+            .collect();
+        tasks.into_iter().map(|t| t.join().unwrap()).collect()
+    });
+    let tried = statuses.iter().filter(|&&st| st == 401).count();
+    assert_eq!(tried, 5, "{statuses:?}");
+    assert_eq!(statuses.iter().filter(|&&st| st == 429).count(), 7, "{statuses:?}");
+    // Login CSRF: a login a browser marks as sent from another site, or one that is not JSON
+    // (an HTML form can post text/plain that parses as JSON), starts no login.
+    let right = br#"{"username":"tina","password":"tina-password"}"#;
+    let cross = ureq::post(&format!("{b}/api/login"))
+        .set("Content-Type", "application/json")
+        .set("Sec-Fetch-Site", "cross-site")
+        .send_bytes(right);
+    match cross {
+        Err(ureq::Error::Status(403, resp)) => {
+            assert!(resp.header("Set-Cookie").is_none());
+            assert!(resp.into_string().unwrap().contains("other sites"));
+        }
+        other => panic!("cross-site login: {other:?}"),
+    }
+    let (status, json, cookie) = call("POST", &format!("{b}/api/login"), None, Some(right), false);
+    assert_eq!((status, cookie), (415, None), "{json}");
+    assert!(json["error"].as_str().unwrap().contains("application/json"));
 
     // Logging out ends the login.
     let (status, _, _) = call("POST", &format!("{b}/api/logout"), Some(&tina), Some(b""), false);

@@ -6,7 +6,7 @@ use axum::response::{IntoResponse, Redirect, Response};
 use maud::html;
 use stylet_scoring::service::AppState;
 use stylet_scoring::service::api::ApiError;
-use stylet_scoring::service::auth::token_from_cookie_header;
+use stylet_scoring::service::auth::{from_other_site, token_from_cookie_header};
 use stylet_scoring::service::store::{StoreError, User};
 
 use crate::layout;
@@ -105,24 +105,31 @@ pub fn check_csrf(v: &Viewer, sent: &str) -> Result<(), PageError> {
     }
 }
 
-/// Refuses a form posted from another site. The login form has no token to check (there is no
-/// login yet to tie one to), so a browser's `Sec-Fetch-Site` header stands in: without this another
-/// site could log a trainee's browser into an account of its choosing (login CSRF). Clients that do
-/// not send the header (scripts, old browsers) are let through; they gain nothing from forging it.
+/// Refuses a form posted from another site (see [`from_other_site`]: login CSRF).
 pub fn check_same_site(headers: &HeaderMap) -> Result<(), PageError> {
-    match headers.get("sec-fetch-site").and_then(|h| h.to_str().ok()) {
-        Some("cross-site") | Some("same-site") => Err(fail(
+    if from_other_site(headers) {
+        Err(fail(
             StatusCode::FORBIDDEN,
             "this form was sent from another site; log in from Stylet's own login page",
-        )),
-        _ => Ok(()),
+        ))
+    } else {
+        Ok(())
     }
 }
 
 /// Where a login may send the browser back to: a local path only (no other sites).
 pub fn safe_next(next: Option<&str>) -> String {
     match next {
-        Some(n) if n.starts_with('/') && !n.starts_with("//") && !n.contains('\\') => n.to_string(),
+        // Browsers drop tabs and newlines from URLs (`/\t/x` becomes `//x`, another site), so
+        // only visible ASCII is allowed.
+        Some(n)
+            if n.starts_with('/')
+                && !n.starts_with("//")
+                && !n.contains('\\')
+                && n.bytes().all(|b| b.is_ascii_graphic()) =>
+        {
+            n.to_string()
+        }
         _ => "/".to_string(),
     }
 }
@@ -138,6 +145,13 @@ mod tests {
         assert_eq!(safe_next(Some("https://evil.example/")), "/");
         assert_eq!(safe_next(Some("/\\evil.example")), "/");
         assert_eq!(safe_next(None), "/");
+        assert_eq!(safe_next(Some("/\t/evil.example")), "/");
+        assert_eq!(safe_next(Some("/\n/evil.example")), "/");
+        assert_eq!(safe_next(Some("/ /evil.example")), "/");
+        assert_eq!(
+            safe_next(Some("/sessions?page=2&to=2026-01-01")),
+            "/sessions?page=2&to=2026-01-01"
+        );
         assert_eq!(encode_query("/a b?c=1&d"), "%2Fa%20b%3Fc%3D1%26d");
     }
 

@@ -113,10 +113,10 @@ pub fn csrf_field(v: &Viewer) -> Markup {
 
 /// `2026-11-23T14:05:09.123456Z` → `2026-11-23 14:05` (UTC).
 pub fn short_time(rfc3339: &str) -> String {
-    if rfc3339.len() >= 16 && rfc3339.as_bytes()[10] == b'T' {
-        format!("{} {}", &rfc3339[..10], &rfc3339[11..16])
-    } else {
-        rfc3339.to_string()
+    // The simulator's `recorded_at` comes from the uploaded file: any text, not only ASCII.
+    match (rfc3339.get(..10), rfc3339.get(10..11), rfc3339.get(11..16)) {
+        (Some(date), Some("T"), Some(time)) => format!("{date} {time}"),
+        _ => rfc3339.to_string(),
     }
 }
 
@@ -204,5 +204,19 @@ pub fn pager(base_query: &str, page: i64, total: i64, page_size: i64) -> Markup 
             "Page " (page) " of " (pages) " (" (total) " sessions)"
             @if page < pages { " " a href=(link(page + 1)) { "older →" } }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn short_times_never_split_a_character() {
+        assert_eq!(short_time("2026-11-23T14:05:09.123456Z"), "2026-11-23 14:05");
+        // A file may carry any text as its recording time.
+        assert_eq!(short_time("2025-01-01T00:0é"), "2025-01-01T00:0é");
+        assert_eq!(short_time("2025-01-0éT00:00:00Z"), "2025-01-0éT00:00:00Z");
+        assert_eq!(short_time("soon"), "soon");
     }
 }

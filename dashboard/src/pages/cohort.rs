@@ -16,7 +16,7 @@ use stylet_scoring::service::traces::review_trace;
 use crate::auth::{PageError, Viewer, fail, viewer};
 use crate::charts::{compare_chart, inline_svg, sparkline};
 use crate::layout::{page, pager, result_badge, score_text, sessions_table, short_time};
-use crate::pages::review::visible_session;
+use crate::pages::review::{require_scored, visible_session};
 use crate::pages::sessions::{filter_form, filter_query};
 
 /// Scores per trainee in a sparkline.
@@ -102,7 +102,7 @@ pub async fn cohort(
     let recent = s.store.recent_scores(&cohort_id, &filter, SPARK_POINTS).await?;
     let lines = s.store.sessions(&v.user, &filter).await?;
     let total = s.store.count_sessions(&v.user, &filter).await?;
-    let scenarios = s.store.scenarios().await?;
+    let scenarios = s.store.scenarios(&v.user, Some(&cohort_id)).await?;
     let mut without_cohort = ListQuery { cohort: None, ..q };
     without_cohort.page = None;
     let query = filter_query(&without_cohort);
@@ -157,14 +157,8 @@ pub async fn compare(
     let v = viewer(&s, &headers, &uri).await?;
     let a = visible_session(&s, &v, &q.a).await?;
     let b = visible_session(&s, &v, &q.b).await?;
-    for r in [&a, &b] {
-        if r.status != "scored" {
-            return Err(fail(
-                StatusCode::CONFLICT,
-                format!("session {} is not scored yet", r.id),
-            ));
-        }
-    }
+    require_scored(&a)?;
+    require_scored(&b)?;
     let trace = |r: &stylet_scoring::service::store::SessionRow| {
         let (sha, atlas) = (r.file_sha256.clone(), r.atlas_hash.clone());
         let s = s.clone();

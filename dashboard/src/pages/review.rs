@@ -31,6 +31,19 @@ pub async fn visible_session(s: &AppState, v: &Viewer, id: &str) -> Result<Sessi
     Ok(row)
 }
 
+/// Figures come from the scoring replay; until it is done (or when it failed) there are none,
+/// and a page must not start another replay of its own.
+pub fn require_scored(row: &SessionRow) -> Result<(), PageError> {
+    if row.status == "scored" {
+        Ok(())
+    } else {
+        Err(fail(
+            StatusCode::CONFLICT,
+            format!("session {} is {}: its figures come with its score", row.id, row.status),
+        ))
+    }
+}
+
 pub async fn review(
     State(s): State<Arc<AppState>>,
     headers: HeaderMap,
@@ -403,6 +416,7 @@ pub async fn slices(
 ) -> Result<Response, PageError> {
     let v = viewer(&s, &headers, &uri).await?;
     let row = visible_session(&s, &v, &id).await?;
+    require_scored(&row)?;
     let title = format!("{} — {} ({}), tip path", row.trainee, row.scenario, row.difficulty);
     let png = crate::figures::session_figure(&s, &row.file_sha256, &row.atlas_hash, &title)
         .await

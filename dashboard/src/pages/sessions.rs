@@ -66,7 +66,7 @@ pub async fn list(
     let filter = q.filter(&s).await?;
     let lines = s.store.sessions(&v.user, &filter).await?;
     let total = s.store.count_sessions(&v.user, &filter).await?;
-    let scenarios = s.store.scenarios().await?;
+    let scenarios = s.store.scenarios(&v.user, None).await?;
     let staff = v.role() != "trainee";
     Ok(page(
         "Sessions",

@@ -251,7 +251,22 @@ pub const LOGIN_TTL_S: u64 = 12 * 3600;
 pub const LOGIN_FAILURES_ALLOWED: usize = 5;
 pub const LOGIN_WINDOW: std::time::Duration = std::time::Duration::from_secs(300);
 
-async fn login(State(s): State<AppRef>, body: Bytes) -> Result<Response, ApiError> {
+async fn login(State(s): State<AppRef>, headers: HeaderMap, body: Bytes) -> Result<Response, ApiError> {
+    if auth::from_other_site(&headers) {
+        return Err(err(StatusCode::FORBIDDEN, "logins sent from other sites are refused"));
+    }
+    // Only JSON: an HTML form on another site can send text/plain that happens to parse as JSON.
+    let json_body = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.split(';').next())
+        .is_some_and(|v| v.trim().eq_ignore_ascii_case("application/json"));
+    if !json_body {
+        return Err(err(
+            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            "send the login as Content-Type: application/json",
+        ));
+    }
     let req: LoginRequest = serde_json::from_slice(&body).map_err(|e| {
         err(
             StatusCode::BAD_REQUEST,
@@ -273,29 +288,29 @@ async fn login(State(s): State<AppRef>, body: Bytes) -> Result<Response, ApiErro
 /// token and the login's CSRF token. Used by the JSON API and the dashboard's login form.
 pub async fn log_in(s: &AppState, username: &str, password: &str) -> Result<(User, String, String), ApiError> {
     let key = username.to_lowercase();
+    let account = s
+        .login_failures
+        .lock()
+        .expect("not poisoned")
+        .entry(key)
+        .or_default()
+        .clone();
+    let mut recent = account.lock().await;
     let now = std::time::Instant::now();
-    {
-        let mut failures = s.login_failures.lock().expect("not poisoned");
-        let recent = failures.entry(key.clone()).or_default();
-        recent.retain(|t| now.duration_since(*t) < LOGIN_WINDOW);
-        if recent.len() >= LOGIN_FAILURES_ALLOWED {
-            let wait = LOGIN_WINDOW.saturating_sub(now.duration_since(recent[0])).as_secs() + 1;
-            return Err(err(
-                StatusCode::TOO_MANY_REQUESTS,
-                format!("too many failed logins for this account; try again in {wait} s"),
-            ));
-        }
+    recent.retain(|t| now.duration_since(*t) < LOGIN_WINDOW);
+    if recent.len() >= LOGIN_FAILURES_ALLOWED {
+        let wait = LOGIN_WINDOW.saturating_sub(now.duration_since(recent[0])).as_secs() + 1;
+        return Err(err(
+            StatusCode::TOO_MANY_REQUESTS,
+            format!("too many failed logins for this account; try again in {wait} s"),
+        ));
     }
     let Some(user) = s.store.check_login(username, password).await? else {
-        s.login_failures
-            .lock()
-            .expect("not poisoned")
-            .entry(key)
-            .or_default()
-            .push(now);
+        recent.push(now);
         return Err(err(StatusCode::UNAUTHORIZED, "wrong username or password"));
     };
-    s.login_failures.lock().expect("not poisoned").remove(&key);
+    recent.clear();
+    drop(recent);
     let (token, csrf) = s.store.create_login(&user, LOGIN_TTL_S).await?;
     Ok((user, token, csrf))
 }
@@ -354,6 +369,14 @@ pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(S
             "the request body is empty: send the session file",
         ));
     }
+    // The API stops reading at the limit; the dashboard's form allows some multipart overhead.
+    let limit = s.config.max_upload_bytes;
+    if bytes.len() > limit {
+        return Err(err(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!("the upload exceeds the limit of {limit} bytes"),
+        ));
+    }
     let data = bytes.clone();
     let session = tokio::task::spawn_blocking(move || stylet_recorder::reader::verify_bytes(&data))
         .await
@@ -406,8 +429,8 @@ pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(S
             .map_or_else(|| "queued".to_string(), |(r, _)| r.status);
         return Ok((id, status, false));
     }
-    // The file first (atomically, by content hash), then the rows; on failure neither stays.
-    // The temporary name is this request's own: two uploads of the same bytes may race here.
+    // The file first (atomically, by content hash), then the rows in one transaction. The
+    // temporary name is this request's own: two uploads of the same bytes may race here.
     let path = s.session_file(&sha);
     let tmp = path.with_extension(format!("{}.partial", super::store::new_id()));
     let write = async {
@@ -445,7 +468,9 @@ pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(S
                     .map_or_else(|| "queued".to_string(), |(r, _)| r.status);
                 return Ok((id, status, false));
             }
-            let _ = tokio::fs::remove_file(&path).await;
+            // The file stays: a concurrent upload of the same bytes whose row is not committed
+            // yet may own it. Unreferenced, it is only reused by the next upload of these bytes.
+            tracing::error!(sha256 = %new.file_sha256, "upload stored but its row was not written");
             return Err(e.into());
         }
     };
@@ -715,7 +740,12 @@ fn day_start(date: &str, days: u64) -> Result<String, ApiError> {
         return Err(bad());
     }
     let t = humantime::parse_rfc3339(&format!("{date}T00:00:00Z")).map_err(|_| bad())?;
-    Ok(humantime::format_rfc3339_micros(t + std::time::Duration::from_secs(86_400 * days)).to_string())
+    let day = t + std::time::Duration::from_secs(86_400 * days);
+    // humantime cannot write years past 9999 (the day after 9999-12-31).
+    let mut out = String::new();
+    std::fmt::write(&mut out, format_args!("{}", humantime::format_rfc3339_micros(day)))
+        .map_err(|_| err(StatusCode::BAD_REQUEST, format!("'{date}' is out of range")))?;
+    Ok(out)
 }
 
 /// GET /api/export/sessions.csv: one row per session the caller may see (curriculum staff and
@@ -763,4 +793,22 @@ async fn list_sessions(
         Json(json!({ "sessions": rows, "total": total, "page": q.page.unwrap_or(1).max(1), "page_size": PAGE_SIZE }))
             .into_response(),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dates_in_filters_are_days_or_400() {
+        assert_eq!(day_start("2026-11-23", 0).unwrap(), "2026-11-23T00:00:00.000000Z");
+        assert_eq!(day_start("2026-12-31", 1).unwrap(), "2027-01-01T00:00:00.000000Z");
+        for bad in ["2026-13-01", "23.11.2026", "2026-11-23T00", ""] {
+            assert_eq!(day_start(bad, 0).unwrap_err().0, StatusCode::BAD_REQUEST, "{bad}");
+        }
+        // The day after the last day humantime can write: a 400, not a panic.
+        let e = day_start("9999-12-31", 1).unwrap_err();
+        assert_eq!(e.0, StatusCode::BAD_REQUEST);
+        assert!(e.1.contains("out of range"), "{}", e.1);
+    }
 }

@@ -51,6 +51,18 @@ pub fn logout_cookie(secure: bool) -> String {
     login_cookie("", secure, 0)
 }
 
+/// Whether the browser says this request was sent by a page of another site (`Sec-Fetch-Site:
+/// cross-site` or `same-site`). Logins check it: they have no CSRF token to check yet, and a
+/// cross-site login would put the browser into an account of the other site's choosing (login
+/// CSRF). Clients that send no such header (scripts, the desktop app) are not browsers being
+/// abused and are let through.
+pub fn from_other_site(headers: &axum::http::HeaderMap) -> bool {
+    matches!(
+        headers.get("sec-fetch-site").and_then(|h| h.to_str().ok()),
+        Some("cross-site") | Some("same-site")
+    )
+}
+
 /// The login token in a `Cookie` header.
 pub fn token_from_cookie_header(header: &str) -> Option<&str> {
     header

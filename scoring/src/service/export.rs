@@ -8,9 +8,10 @@ pub const SESSIONS_CSV_HEADER: &str = "session_id,trainee,cohorts,scenario,diffi
 duration_s,score,passed,overridden,attempts,risk_hits,replay_verified,rubric_version,physics_version";
 
 /// A field quoted when it holds a comma, quote or line break (RFC 4180). Text that a spreadsheet
-/// would run as a formula (`=`, `+`, `-`, `@` first) gets a leading apostrophe.
+/// would run as a formula (`=`, `+`, `-`, `@`, tab or carriage return first) gets a leading
+/// apostrophe (OWASP, CSV injection).
 fn field(s: &str) -> String {
-    let s = if s.starts_with(['=', '+', '-', '@']) {
+    let s = if s.starts_with(['=', '+', '-', '@', '\t', '\r']) {
         format!("'{s}")
     } else {
         s.to_string()
@@ -68,6 +69,8 @@ mod tests {
         assert_eq!(field("a,b"), "\"a,b\"");
         assert_eq!(field("say \"hi\""), "\"say \"\"hi\"\"\"");
         assert_eq!(field("=HYPERLINK(1)"), "'=HYPERLINK(1)");
+        assert_eq!(field("\t=1+2"), "'\t=1+2");
+        assert_eq!(field("\r=1+2"), "\"'\r=1+2\"");
         assert_eq!(field("-1,2"), "\"'-1,2\"");
         assert_eq!(SESSIONS_CSV_HEADER.split(',').count(), 17);
     }

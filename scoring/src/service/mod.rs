@@ -49,7 +49,7 @@ pub struct AppState {
     pub scorers: BTreeMap<String, Arc<crate::Scorer>>,
     pub wake: tokio::sync::Notify,
     /// Recent failed logins per account (rate limiting).
-    pub login_failures: std::sync::Mutex<BTreeMap<String, Vec<std::time::Instant>>>,
+    pub login_failures: std::sync::Mutex<BTreeMap<String, LoginFailures>>,
 }
 
 impl AppState {
@@ -149,3 +149,7 @@ fn load_atlases(dir: &std::path::Path) -> Result<Vec<(stylet_atlas::Atlas, crate
         })
         .collect()
 }
+
+/// One account's recent failed logins. Its lock is held while a password is checked, so that
+/// guesses sent in parallel are checked one after another, each seeing the failures before it.
+pub type LoginFailures = std::sync::Arc<tokio::sync::Mutex<Vec<std::time::Instant>>>;

@@ -40,14 +40,27 @@ pub fn read_trace(path: &Path) -> Option<ReviewTrace> {
     (trace.version == TRACE_VERSION && trace.physics_version == stylet_physics::PHYSICS_VERSION).then_some(trace)
 }
 
+/// Replays for pages (a trace missing from disk) run one at a time, beside the scoring workers:
+/// viewers asking for many figures at once must not starve scoring.
+static PAGE_REPLAYS: tokio::sync::Semaphore = tokio::sync::Semaphore::const_new(1);
+
 /// The review trace of a stored session: from disk, else by replaying the file (then stored).
 pub async fn review_trace(state: &AppState, file_sha256: &str, atlas_hash: &str) -> Result<ReviewTrace, String> {
     let path = trace_path(&state.config.data_dir, file_sha256);
-    let cached = path.clone();
-    if let Some(t) = tokio::task::spawn_blocking(move || read_trace(&cached))
-        .await
-        .map_err(|e| e.to_string())?
-    {
+    let cached = || {
+        let cached = path.clone();
+        async move {
+            tokio::task::spawn_blocking(move || read_trace(&cached))
+                .await
+                .map_err(|e| e.to_string())
+        }
+    };
+    if let Some(t) = cached().await? {
+        return Ok(t);
+    }
+    let _turn = PAGE_REPLAYS.acquire().await.map_err(|e| e.to_string())?;
+    // Whoever held the turn before may have replayed this very session.
+    if let Some(t) = cached().await? {
         return Ok(t);
     }
     let scorer = state

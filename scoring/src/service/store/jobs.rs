@@ -5,7 +5,10 @@ use sqlx::Row;
 use super::{Store, StoreError, now};
 
 impl Store {
-    /// At start: jobs a killed server left running go back to the queue.
+    /// At start: jobs a killed server left running go back to the queue. This assumes one server
+    /// per database (docs/api.md): a second server starting would re-queue the first one's running
+    /// jobs; they would be replayed again, yet still stored once ([`Store::finish_job`]) and never
+    /// marked failed after a success ([`Store::fail_job`]).
     pub async fn requeue_running(&self) -> Result<u64, StoreError> {
         let r = sqlx::query("UPDATE scoring_jobs SET state = 'queued', started_at = NULL WHERE state = 'running'")
             .execute(&self.pool)
@@ -83,13 +86,21 @@ impl Store {
         Ok(())
     }
 
+    /// Marks a job and its session failed, unless the job is no longer this worker's to close
+    /// (finished or re-queued meanwhile): a late failure never overwrites a score.
     pub async fn fail_job(&self, job: &Job, error: &str) -> Result<(), StoreError> {
         let mut tx = self.pool.begin().await?;
-        sqlx::query("UPDATE scoring_jobs SET state = 'failed', finished_at = $1 WHERE id = $2")
-            .bind(now())
-            .bind(job.id.clone())
-            .execute(&mut *tx)
-            .await?;
+        let closed = sqlx::query(
+            "UPDATE scoring_jobs SET state = 'failed', finished_at = $1 WHERE id = $2 AND state = 'running'",
+        )
+        .bind(now())
+        .bind(job.id.clone())
+        .execute(&mut *tx)
+        .await?;
+        if closed.rows_affected() != 1 {
+            tx.rollback().await?;
+            return Ok(());
+        }
         sqlx::query("UPDATE sessions SET status = 'failed', error = $1 WHERE id = $2")
             .bind(error.to_string())
             .bind(job.session_id.clone())
@@ -167,4 +178,67 @@ pub(super) async fn write_summary(
     .execute(&mut **tx)
     .await?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{NewSession, new_id};
+    use super::*;
+
+    #[tokio::test]
+    async fn a_late_failure_never_overwrites_a_score() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::open(&format!("sqlite://{}?mode=rwc", dir.path().join("t.db").display()))
+            .await
+            .unwrap();
+        store.register_atlas("atlas-hash", "phantom", "/nowhere").await.unwrap();
+        let trainee = store
+            .add_user("tina", "trainee", "tina-password", None, None)
+            .await
+            .unwrap();
+        let session_id = store
+            .insert_session(&NewSession {
+                file_sha256: "f".repeat(64),
+                size_bytes: 10,
+                session_uuid: new_id(),
+                trainee_id: trainee.clone(),
+                uploaded_by: trainee,
+                scenario: "success".into(),
+                difficulty: "beginner".into(),
+                atlas_hash: "atlas-hash".into(),
+                physics_version: 2,
+                duration_s: 1.0,
+                recorded_at: now(),
+            })
+            .await
+            .unwrap();
+        let job = store.claim_job().await.unwrap().expect("the queued job");
+        assert_eq!(job.session_id, session_id);
+        // Meanwhile the job was finished elsewhere (another server after a re-queue).
+        sqlx::query("UPDATE scoring_jobs SET state = 'done' WHERE id = $1")
+            .bind(job.id.clone())
+            .execute(&store.pool)
+            .await
+            .unwrap();
+        sqlx::query("UPDATE sessions SET status = 'scored' WHERE id = $1")
+            .bind(session_id.clone())
+            .execute(&store.pool)
+            .await
+            .unwrap();
+        store.fail_job(&job, "replay diverged").await.unwrap();
+        let (row, _) = store.session(&session_id).await.unwrap().unwrap();
+        assert_eq!((row.status.as_str(), row.error), ("scored", None));
+        // A job still running is closed as failed, with its reason.
+        sqlx::query("UPDATE scoring_jobs SET state = 'running' WHERE id = $1")
+            .bind(job.id.clone())
+            .execute(&store.pool)
+            .await
+            .unwrap();
+        store.fail_job(&job, "replay diverged").await.unwrap();
+        let (row, _) = store.session(&session_id).await.unwrap().unwrap();
+        assert_eq!(
+            (row.status.as_str(), row.error.as_deref()),
+            ("failed", Some("replay diverged"))
+        );
+    }
 }

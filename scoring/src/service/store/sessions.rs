@@ -205,11 +205,21 @@ impl Store {
         Ok(query.fetch_one(&self.pool).await?.try_get("n")?)
     }
 
-    /// The scenarios of stored sessions (for filter menus).
-    pub async fn scenarios(&self) -> Result<Vec<String>, StoreError> {
-        let rows = sqlx::query("SELECT DISTINCT scenario FROM sessions ORDER BY scenario")
-            .fetch_all(&self.pool)
-            .await?;
+    /// The scenarios of the sessions `viewer` may see, narrowed to a cohort when given (filter
+    /// menus; a scenario name is text from an uploaded file, so others' stay private).
+    pub async fn scenarios(&self, viewer: &User, cohort_id: Option<&str>) -> Result<Vec<String>, StoreError> {
+        let filter = SessionFilter {
+            cohort_id: cohort_id.map(str::to_string),
+            ..SessionFilter::default()
+        };
+        let (clause, binds) = Self::where_clause(viewer, &filter);
+        let q = format!("SELECT DISTINCT s.scenario FROM sessions s{clause} ORDER BY s.scenario");
+        // Built from constants and placeholders only; every value is bound.
+        let mut query = sqlx::query(sqlx::AssertSqlSafe(q));
+        for b in binds {
+            query = query.bind(b);
+        }
+        let rows = query.fetch_all(&self.pool).await?;
         Ok(rows.iter().map(|r| r.try_get("scenario")).collect::<Result<_, _>>()?)
     }
 }
