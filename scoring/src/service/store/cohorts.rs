@@ -63,11 +63,7 @@ impl Store {
              WHERE s.trainee_id IN (SELECT user_id FROM cohort_members WHERE cohort_id = $1){conds} \
              GROUP BY u.username, s.difficulty ORDER BY u.username, s.difficulty"
         );
-        // Built from constants and placeholders only; every value is bound.
-        let mut query = sqlx::query(sqlx::AssertSqlSafe(q));
-        for b in binds {
-            query = query.bind(b);
-        }
+        let query = super::bound_query(q, binds);
         let rows = query.fetch_all(&self.pool).await?;
         rows.iter()
             .map(|r| {
@@ -155,11 +151,7 @@ impl Store {
              ) recent WHERE rn <= ${} ORDER BY trainee, uploaded_at, id",
             binds.len() + 1
         );
-        // Built from constants and placeholders only; every value is bound.
-        let mut query = sqlx::query(sqlx::AssertSqlSafe(q));
-        for b in binds {
-            query = query.bind(b);
-        }
+        let query = super::bound_query(q, binds);
         let rows = query.bind(per_trainee).fetch_all(&self.pool).await?;
         rows.iter()
             .map(|r| {

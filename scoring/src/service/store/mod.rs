@@ -65,6 +65,17 @@ pub fn now() -> String {
     humantime::format_rfc3339_micros(std::time::SystemTime::now()).to_string()
 }
 
+/// A query whose text was built from constants and `$n` placeholders only (filters assembled at
+/// run time), with `binds` bound to `$1…` in order. Values never enter the text.
+pub(crate) fn bound_query(
+    sql: String,
+    binds: Vec<String>,
+) -> sqlx::query::Query<'static, sqlx::Any, sqlx::any::AnyArguments> {
+    binds
+        .into_iter()
+        .fold(sqlx::query(sqlx::AssertSqlSafe(sql)), |query, b| query.bind(b))
+}
+
 pub fn new_id() -> String {
     stylet_recorder::new_session_id()
 }

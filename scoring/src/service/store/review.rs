@@ -50,11 +50,7 @@ impl Store {
              FROM cohort_members m JOIN users u ON u.id = m.user_id LEFT JOIN sessions s ON {on} \
              WHERE m.cohort_id = $1 AND u.role = 'trainee' GROUP BY u.username ORDER BY u.username"
         );
-        // Built from constants and placeholders only; every value is bound.
-        let mut query = sqlx::query(sqlx::AssertSqlSafe(q));
-        for b in binds {
-            query = query.bind(b);
-        }
+        let query = super::bound_query(q, binds);
         let rows = query.fetch_all(&self.pool).await?;
         rows.iter()
             .map(|r| {

@@ -181,11 +181,7 @@ impl Store {
             binds.len() + 1,
             binds.len() + 2
         );
-        // Built from constants and placeholders only; every value is bound.
-        let mut query = sqlx::query(sqlx::AssertSqlSafe(q));
-        for b in binds {
-            query = query.bind(b);
-        }
+        let query = super::bound_query(q, binds);
         let rows = query
             .bind(filter.limit.max(0))
             .bind(filter.offset.max(0))
@@ -198,10 +194,7 @@ impl Store {
     pub async fn count_sessions(&self, viewer: &User, filter: &SessionFilter) -> Result<i64, StoreError> {
         let (clause, binds) = Self::where_clause(viewer, filter);
         let q = format!("SELECT COUNT(*) AS n FROM sessions s{clause}");
-        let mut query = sqlx::query(sqlx::AssertSqlSafe(q));
-        for b in binds {
-            query = query.bind(b);
-        }
+        let query = super::bound_query(q, binds);
         Ok(query.fetch_one(&self.pool).await?.try_get("n")?)
     }
 
@@ -214,11 +207,7 @@ impl Store {
         };
         let (clause, binds) = Self::where_clause(viewer, &filter);
         let q = format!("SELECT DISTINCT s.scenario FROM sessions s{clause} ORDER BY s.scenario");
-        // Built from constants and placeholders only; every value is bound.
-        let mut query = sqlx::query(sqlx::AssertSqlSafe(q));
-        for b in binds {
-            query = query.bind(b);
-        }
+        let query = super::bound_query(q, binds);
         let rows = query.fetch_all(&self.pool).await?;
         Ok(rows.iter().map(|r| r.try_get("scenario")).collect::<Result<_, _>>()?)
     }
