@@ -411,3 +411,19 @@ fn redirections_and_bone_contacts_are_counted() {
     assert!(m["risk_hits"].as_array().unwrap().is_empty(), "{m}");
     assert!(m["max_force_n"].as_f64().unwrap() > 5.0, "{m}");
 }
+
+/// The service scores with `score_session_traced` (the dashboard's review trace is taken in the
+/// same replay); the trace must not change the score: the same report as `stylet score`'s path.
+#[test]
+fn taking_the_review_trace_does_not_change_the_score() {
+    let atlas = stylet_atlas::load(&setup().atlas()).unwrap();
+    let scorer = stylet_scoring::Scorer::new(&atlas, stylet_scoring::Rubric::default_rubric(), None).unwrap();
+    for name in SCRIPTS {
+        let session = reader::verify(&setup().session(name)).unwrap();
+        let plain = scorer.score_session(&session).unwrap();
+        let (traced, trace) = scorer.score_session_traced(&session).unwrap();
+        assert_eq!(plain, traced, "{name}");
+        assert!(plain.replay_verified, "{name}");
+        assert!(!trace.t_s.is_empty(), "{name}: empty trace");
+    }
+}
