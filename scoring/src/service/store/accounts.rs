@@ -42,7 +42,7 @@ impl Store {
         }
         let hash = auth::hash_password(password).map_err(StoreError::Invalid)?;
         let id = new_id();
-        let mut tx = self.pool.begin().await?;
+        let mut tx = self.begin_write().await?;
         let exists = sqlx::query("SELECT id FROM users WHERE username = $1")
             .bind(username.to_string())
             .fetch_optional(&mut *tx)

@@ -35,7 +35,7 @@ impl Store {
             file_sha256: row.try_get("file_sha256")?,
             atlas_hash: row.try_get("atlas_hash")?,
         };
-        let mut tx = self.pool.begin().await?;
+        let mut tx = self.begin_write().await?;
         let claimed = sqlx::query("UPDATE scoring_jobs SET state = 'running', started_at = $1, attempts = attempts + 1 WHERE id = $2 AND state = 'queued'")
             .bind(now())
             .bind(job.id.clone())
@@ -58,7 +58,7 @@ impl Store {
     /// is refused by the key (never scored twice).
     pub async fn finish_job(&self, job: &Job, report: &crate::ScoreReport) -> Result<(), StoreError> {
         let json = serde_json::to_string(report).map_err(|e| StoreError::Invalid(e.to_string()))?;
-        let mut tx = self.pool.begin().await?;
+        let mut tx = self.begin_write().await?;
         sqlx::query(
             "INSERT INTO scores (session_id, score, passed, difficulty, rubric, rubric_version, physics_version, replay_verified, \
              incomplete, report_json, scored_at) VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11)",
@@ -89,7 +89,7 @@ impl Store {
     /// Marks a job and its session failed, unless the job is no longer this worker's to close
     /// (finished or re-queued meanwhile): a late failure never overwrites a score.
     pub async fn fail_job(&self, job: &Job, error: &str) -> Result<(), StoreError> {
-        let mut tx = self.pool.begin().await?;
+        let mut tx = self.begin_write().await?;
         let closed = sqlx::query(
             "UPDATE scoring_jobs SET state = 'failed', finished_at = $1 WHERE id = $2 AND state = 'running'",
         )

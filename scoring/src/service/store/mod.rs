@@ -83,9 +83,21 @@ pub fn new_id() -> String {
 #[derive(Clone)]
 pub struct Store {
     pub pool: AnyPool,
+    sqlite: bool,
 }
 
 impl Store {
+    /// A transaction that writes. On SQLite it starts `BEGIN IMMEDIATE`, taking the write lock
+    /// (waiting up to the busy timeout): a deferred transaction that reads first fails at once
+    /// with "database is locked" when it comes to write after another connection has written.
+    pub(crate) async fn begin_write(&self) -> Result<sqlx::Transaction<'static, sqlx::Any>, sqlx::Error> {
+        if self.sqlite {
+            self.pool.begin_with("BEGIN IMMEDIATE").await
+        } else {
+            self.pool.begin().await
+        }
+    }
+
     /// Connects, sets SQLite to WAL, applies the migrations.
     pub async fn open(url: &str) -> Result<Store, StoreError> {
         install_default_drivers();
@@ -107,7 +119,7 @@ impl Store {
             sqlx::query("PRAGMA journal_mode = WAL").execute(&pool).await?;
         }
         sqlx::migrate!("../migrations").run(&pool).await?;
-        let store = Store { pool };
+        let store = Store { pool, sqlite };
         store.fill_session_summaries().await?;
         Ok(store)
     }
@@ -126,7 +138,7 @@ impl Store {
                 .map_err(|e| StoreError::Invalid(format!("stored report of session {id}: {e}")))?;
             let summary = jobs::Summary::from_json(&report)
                 .ok_or_else(|| StoreError::Invalid(format!("stored report of session {id} lacks grade or metrics")))?;
-            let mut tx = self.pool.begin().await?;
+            let mut tx = self.begin_write().await?;
             jobs::write_summary(&mut tx, &id, &summary).await?;
             if let Some((score, passed)) = review::latest_override(&mut tx, &id).await? {
                 review::write_final_grade(&mut tx, &id, score, passed).await?;
@@ -178,5 +190,37 @@ impl Store {
             .fetch_one(&self.pool)
             .await?;
         Ok(row.try_get("n")?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Writers that read before they write (adding an account checks the name, then the cohort)
+    /// must wait for each other on SQLite, not fail with "database is locked".
+    #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+    async fn concurrent_writers_all_succeed_on_sqlite() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::open(&format!("sqlite://{}?mode=rwc", dir.path().join("t.db").display()))
+            .await
+            .unwrap();
+        let tasks: Vec<_> = (0..24)
+            .map(|i| {
+                let store = store.clone();
+                tokio::spawn(async move {
+                    let cohort = format!("c{}", i % 3);
+                    store
+                        .add_user(&format!("user{i}"), "trainee", "a long password", Some(&cohort), None)
+                        .await
+                })
+            })
+            .collect();
+        for (i, t) in tasks.into_iter().enumerate() {
+            if let Err(e) = t.await.unwrap() {
+                panic!("user{i}: {e}");
+            }
+        }
+        assert_eq!(store.users().await.unwrap().len(), 24);
     }
 }

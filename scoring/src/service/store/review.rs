@@ -76,7 +76,7 @@ impl Store {
         passed: bool,
         reason: &str,
     ) -> Result<(), StoreError> {
-        let mut tx = self.pool.begin().await?;
+        let mut tx = self.begin_write().await?;
         sqlx::query("INSERT INTO grade_overrides (id, session_id, author_id, score, passed, reason, created_at) VALUES ($1, $2, $3, $4, $5, $6, $7)")
             .bind(new_id())
             .bind(session_id.to_string())

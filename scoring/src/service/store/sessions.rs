@@ -18,7 +18,7 @@ impl Store {
     /// Records a validated upload and its scoring job in one transaction.
     pub async fn insert_session(&self, s: &NewSession) -> Result<String, StoreError> {
         let id = new_id();
-        let mut tx = self.pool.begin().await?;
+        let mut tx = self.begin_write().await?;
         sqlx::query(
             "INSERT INTO sessions (id, file_sha256, size_bytes, session_uuid, trainee_id, uploaded_by, scenario, difficulty, \
              atlas_hash, physics_version, duration_s, recorded_at, uploaded_at, status, error) \
