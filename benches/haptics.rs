@@ -3,6 +3,10 @@
 //! pass times 100 000 single ticks to report the median and the 99th percentile (the haptic
 //! loop's budget is 1 ms; the goal is p99 ≤ 20 µs on one core). Baseline in the same run: one
 //! trilinear CT lookup per contact node (32 lookups), the least any contact tick must do.
+//!
+//! `script_playback`: the scripted device alone playing 20 s (20 000 ticks) of a script with 2,
+//! 40 000 and 1 000 000 key frames; the 2-key-frame script is the baseline (issue 13: the lookup
+//! was linear, 40 000 key frames took 0.6 s and a million minutes).
 
 use std::hint::black_box;
 use std::sync::Arc;
@@ -109,5 +113,45 @@ fn haptics(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, haptics);
+/// A 20 s script of `n` needle pose key frames, evenly spaced.
+fn keyframe_script(n: u64) -> ScriptedDevice {
+    let mut text = String::from("stylet-script 1\nend 20\n");
+    for i in 0..n {
+        let t = 20.0 * i as f64 / (n - 1) as f64;
+        let x = 100.0 + 10.0 * (i as f64 * 0.01).sin();
+        text.push_str(&format!("at {t} pos {x} 0 0 dir -1 0 {}\n", 0.1 * (i % 7) as f64));
+    }
+    ScriptedDevice::new(&parse(&text).unwrap(), &[]).unwrap()
+}
+
+fn script_playback(c: &mut Criterion) {
+    use stylet_devices::Device;
+    let mut g = c.benchmark_group("script_playback");
+    g.sample_size(10);
+    let mut baseline_s = None;
+    for n in [2u64, 40_000, 1_000_000] {
+        let mut device = keyframe_script(n);
+        let ticks = device.ticks();
+        assert_eq!(ticks, 20_000);
+        // No events or presses: the device plays the same ticks again and again.
+        let mut play = move || {
+            for tick in 0..ticks {
+                black_box(device.next(tick, None));
+            }
+        };
+        let start = Instant::now();
+        play();
+        let s = start.elapsed().as_secs_f64();
+        let base = *baseline_s.get_or_insert(s);
+        println!(
+            "script playback, {n} key frames, {ticks} ticks: {:.2} ms ({:.2}× the 2-key-frame script)",
+            s * 1e3,
+            s / base
+        );
+        g.bench_function(format!("{n}_keyframes_20000_ticks"), |b| b.iter(&mut play));
+    }
+    g.finish();
+}
+
+criterion_group!(benches, haptics, script_playback);
 criterion_main!(benches);

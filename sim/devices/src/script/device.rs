@@ -10,7 +10,7 @@
 use stylet_physics::glam::{DMat3, DQuat, DVec3};
 use stylet_physics::{Event, TickInput, TickOutput};
 
-use super::parse::{Action, PoseSpec, Script};
+use super::parse::{Action, PoseSpec, Script, unit};
 use crate::Device;
 
 /// Admittance of the force control (mm per N per tick).
@@ -31,9 +31,12 @@ pub struct NamedPath {
 pub struct ScriptedDevice {
     rate_hz: u32,
     end_tick: u64,
+    /// Pose keyframes (time in s, position, orientation), times never decreasing: looked up by
+    /// binary search, about log2(n) comparisons per tick instead of n (issue 13).
     keys: Vec<(f64, DVec3, DQuat)>,
     events: Vec<(u64, Event)>,
-    /// Press intervals: start tick, end tick (exclusive), direction, force.
+    /// Press intervals: start tick, end tick (exclusive), direction, force; in order and
+    /// disjoint, so the ends never decrease either.
     presses: Vec<(u64, u64, DVec3, f64)>,
     next_event: usize,
     /// Depth along the press direction while a press is active.
@@ -79,7 +82,12 @@ impl ScriptedDevice {
                                     }
                                 )
                             })?;
-                            let d = (np.target_mm - np.entry_mm).normalize();
+                            let d = unit(np.target_mm - np.entry_mm).ok_or_else(|| {
+                                format!(
+                                    "line {}: insertion path '{path}' has no direction (its target is its entry)",
+                                    item.line
+                                )
+                            })?;
                             (np.entry_mm + d * *depth_mm, d, *xaxis)
                         }
                         PoseSpec::Aim {
@@ -88,11 +96,20 @@ impl ScriptedDevice {
                             depth_mm,
                             xaxis,
                         } => {
-                            let d = (*target - *entry).normalize();
+                            let d = unit(*target - *entry)
+                                .ok_or_else(|| format!("line {}: the target is the entry point", item.line))?;
                             (*entry + d * *depth_mm, d, *xaxis)
                         }
                     };
-                    keys.push((item.t_s, pos, orientation(dir, xaxis)));
+                    let q = orientation(dir, xaxis);
+                    // The parser bounds every number; this guards the atlas' paths and the maths.
+                    if !(pos.is_finite() && q.is_finite()) {
+                        return Err(format!(
+                            "line {}: the pose is not finite (position {pos} mm, orientation {q})",
+                            item.line
+                        ));
+                    }
+                    keys.push((item.t_s, pos, q));
                 }
                 Action::Press { dir, force_n } => {
                     if let Some((start, d, f)) = open_press.take() {
@@ -144,18 +161,28 @@ impl ScriptedDevice {
         if t <= k[0].0 {
             return (k[0].1, k[0].2);
         }
-        for w in k.windows(2) {
-            let (a, b) = (w[0], w[1]);
-            if t <= b.0 {
-                if b.0 <= a.0 {
-                    return (b.1, b.2);
-                }
-                let s = (t - a.0) / (b.0 - a.0);
-                return (a.1 + (b.1 - a.1) * s, a.2.slerp(b.2, s).normalize());
-            }
+        // The first keyframe at or after t (t is past the first, so j ≥ 1).
+        let j = k.partition_point(|key| {
+            #[cfg(test)]
+            KEY_PROBES.with(|c| c.set(c.get() + 1));
+            key.0 < t
+        });
+        let Some(&b) = k.get(j) else {
+            let l = k[k.len() - 1];
+            return (l.1, l.2);
+        };
+        let a = k[j - 1];
+        if b.0 <= a.0 {
+            return (b.1, b.2);
         }
-        let l = k[k.len() - 1];
-        (l.1, l.2)
+        let s = (t - a.0) / (b.0 - a.0);
+        (a.1 + (b.1 - a.1) * s, a.2.slerp(b.2, s).normalize())
+    }
+
+    /// The press active at `tick`, if any.
+    fn press_at(&self, tick: u64) -> Option<(u64, u64, DVec3, f64)> {
+        let i = self.presses.partition_point(|p| p.1 <= tick);
+        self.presses.get(i).filter(|p| p.0 <= tick).copied()
     }
 }
 
@@ -166,7 +193,7 @@ impl Device for ScriptedDevice {
         }
         let t = tick as f64 / self.rate_hz as f64;
         let (mut pos, q) = self.pose_at(t);
-        let press = self.presses.iter().find(|p| tick >= p.0 && tick < p.1).copied();
+        let press = self.press_at(tick);
         match press {
             Some((_, _, n, force)) => {
                 let scripted = pos.dot(n);
@@ -193,6 +220,12 @@ impl Device for ScriptedDevice {
             events,
         })
     }
+}
+
+#[cfg(test)]
+thread_local! {
+    /// Keyframes [`ScriptedDevice::pose_at`] compared with on this thread (tests count the work).
+    static KEY_PROBES: std::cell::Cell<u64> = const { std::cell::Cell::new(0) };
 }
 
 #[cfg(test)]
@@ -243,6 +276,88 @@ mod tests {
         let mut d = ScriptedDevice::new(&s, &paths).unwrap();
         let i = d.next(0, None).unwrap();
         assert_eq!(i.position_mm, DVec3::new(0.0, 0.0, 30.0));
+    }
+
+    /// A script of `n` pose keyframes 2 ms apart: keyframe i at x = i mod 1000, y = i, pointing
+    /// along z for even i and along x for odd i.
+    fn many_keyframes(n: u64) -> ScriptedDevice {
+        let mut text = String::with_capacity(n as usize * 40);
+        text.push_str("stylet-script 1\n");
+        for i in 0..n {
+            let dir = if i % 2 == 0 { "0 0 1" } else { "1 0 0" };
+            let ms = 2 * i;
+            text.push_str(&format!(
+                "at {}.{:03} pos {} {i} 0 dir {dir}\n",
+                ms / 1000,
+                ms % 1000,
+                i % 1000
+            ));
+        }
+        ScriptedDevice::new(&parse(&text).unwrap(), &[]).unwrap()
+    }
+
+    /// Issue 13: the pose lookup scanned the keyframes linearly every tick (40 000 keyframes took
+    /// 0.6 s, a million ran for minutes); it is a binary search now: at most ⌈log2 n⌉ + 1
+    /// keyframes are looked at per lookup, wherever t falls.
+    #[test]
+    fn pose_lookup_looks_at_logarithmically_many_keyframes() {
+        let d = many_keyframes(1_000_000);
+        for t in [0.0005, 1.0, 999.9991, 1999.997, 1999.998, 5000.0] {
+            KEY_PROBES.with(|c| c.set(0));
+            d.pose_at(t);
+            let probes = KEY_PROBES.with(|c| c.get());
+            assert!(probes <= 21, "{probes} keyframes looked at for t = {t} s");
+        }
+    }
+
+    /// A million keyframes play through: every tick comes, poses interpolate between the right
+    /// keyframes (ran for minutes with the linear lookup).
+    #[test]
+    fn a_million_keyframes_play() {
+        let mut d = many_keyframes(1_000_000);
+        assert_eq!(d.ticks(), 1_999_998);
+        let diagonal = DVec3::new(1.0, 0.0, 1.0).normalize();
+        let mut produced = 0u64;
+        for tick in 0..d.ticks() {
+            let i = d.next(tick, None).unwrap();
+            produced += 1;
+            let k = tick / 2;
+            let (x, y) = if tick % 2 == 0 {
+                ((k % 1000) as f64, k as f64)
+            } else {
+                ((((k % 1000) + ((k + 1) % 1000)) as f64) / 2.0, k as f64 + 0.5)
+            };
+            if tick % 99_991 == 1 || (tick % 2 == 1 && tick > 1_999_990) {
+                let p = i.position_mm;
+                assert!((p - DVec3::new(x, y, 0.0)).length() < 1e-6, "tick {tick}: {p}");
+                let z = i.orientation * DVec3::Z;
+                let want = if tick % 2 == 1 {
+                    diagonal
+                } else if k % 2 == 0 {
+                    DVec3::Z
+                } else {
+                    DVec3::X
+                };
+                assert!((z - want).length() < 1e-9, "tick {tick}: axis {z}");
+            }
+        }
+        assert_eq!(produced, 1_999_998);
+        assert!(d.next(1_999_998, None).is_none());
+    }
+
+    #[test]
+    fn presses_are_found_by_tick() {
+        let s = parse(
+            "stylet-script 1\nat 0 pos 0 0 0 dir 0 0 1\nat 1 press 0 0 1 1\nat 1 press 0 1 0 2\nat 2 release\n\
+             at 3 press 1 0 0 3\nend 4\n",
+        )
+        .unwrap();
+        let d = ScriptedDevice::new(&s, &[]).unwrap();
+        let force = |tick| d.press_at(tick).map(|p| p.3);
+        assert_eq!(
+            [0, 999, 1000, 1999, 2000, 2999, 3000, 3999].map(force),
+            [None, None, Some(2.0), Some(2.0), None, None, Some(3.0), Some(3.0)]
+        );
     }
 
     #[test]

@@ -76,6 +76,9 @@ pub struct Script {
 pub const SCRIPT_VERSION: u32 = 1;
 /// Longest script accepted (s of simulated time).
 pub const MAX_DURATION_S: f64 = 3600.0;
+/// Largest coordinate, depth or direction component accepted (mm): far beyond any patient, small
+/// enough that lengths, interpolation and slerp never overflow into inf or NaN poses.
+pub const MAX_COORD_MM: f64 = 1e6;
 
 struct Tokens<'a> {
     line: usize,
@@ -168,22 +171,35 @@ impl<'a> Tokens<'a> {
         }
     }
 
+    /// A coordinate, depth or direction component: finite and within ±[`MAX_COORD_MM`].
+    fn bounded(&mut self, what: &str) -> Result<f64, ParseError> {
+        let at = self.pos;
+        let v = self.number(what)?;
+        if v.abs() > MAX_COORD_MM {
+            self.pos = at;
+            return Err(self.err(format!("a number within ±{MAX_COORD_MM} ({what})")));
+        }
+        Ok(v)
+    }
+
     fn vector(&mut self, what: &str) -> Result<DVec3, ParseError> {
         Ok(DVec3::new(
-            self.number(&format!("{what} x"))?,
-            self.number(&format!("{what} y"))?,
-            self.number(&format!("{what} z"))?,
+            self.bounded(&format!("{what} x"))?,
+            self.bounded(&format!("{what} y"))?,
+            self.bounded(&format!("{what} z"))?,
         ))
     }
 
     fn direction(&mut self, what: &str) -> Result<DVec3, ParseError> {
         let at = self.pos;
         let v = self.vector(what)?;
-        if v.length() < 1e-9 {
-            self.pos = at;
-            return Err(self.err(format!("a non-zero {what} vector")));
+        match unit(v) {
+            Some(u) => Ok(u),
+            None => {
+                self.pos = at;
+                Err(self.err(format!("a non-zero {what} vector")))
+            }
         }
-        Ok(v.normalize())
     }
 
     fn end(&self) -> Result<(), ParseError> {
@@ -202,6 +218,18 @@ impl<'a> Tokens<'a> {
             Ok(None)
         }
     }
+}
+
+/// `v` scaled to unit length, or `None` when it is (nearly) zero or not finite. Scaled by its
+/// largest component first, so the squares can neither overflow nor underflow.
+pub fn unit(v: DVec3) -> Option<DVec3> {
+    let m = v.abs().max_element();
+    if !(m.is_finite() && m > 0.0) {
+        return None;
+    }
+    let s = v / m;
+    let u = s / s.length();
+    (m * s.length() >= 1e-9 && u.is_finite()).then_some(u)
 }
 
 fn parse_tool(t: &mut Tokens) -> Result<ToolSpec, ParseError> {
@@ -297,7 +325,7 @@ fn parse_action(t: &mut Tokens) -> Result<Action, ParseError> {
         }
         "along" => {
             let path = t.word("an insertion path name")?.to_string();
-            let depth_mm = t.number("depth in mm past the entry point")?;
+            let depth_mm = t.bounded("depth in mm past the entry point")?;
             let xaxis = t.optional_xaxis()?;
             Action::Pose(PoseSpec::Along { path, depth_mm, xaxis })
         }
@@ -309,7 +337,7 @@ fn parse_action(t: &mut Tokens) -> Result<Action, ParseError> {
                 t.pos = at;
                 return Err(t.err("a target different from the entry point"));
             }
-            let depth_mm = t.number("depth in mm past the entry point")?;
+            let depth_mm = t.bounded("depth in mm past the entry point")?;
             let xaxis = t.optional_xaxis()?;
             Action::Pose(PoseSpec::Aim {
                 entry,
@@ -516,5 +544,47 @@ mod tests {
             e.to_string(),
             format!("line 1, column 1: expected {}, found end of script", e.expected)
         );
+    }
+
+    /// Issue 13: `dir 1e300 …` normalised to NaN and `aim` with ±1e308 gave NaN poses that were
+    /// recorded; every number that becomes a pose is now bounded, and the error says which.
+    #[test]
+    fn huge_numbers_that_would_make_nan_poses_are_refused() {
+        let e = err("stylet-script 1\nat 0 pos 0 0 0 dir 1e300 1e300 1e300\n");
+        assert_eq!((e.line, e.column, e.found.as_str()), (2, 20, "'1e300'"), "{e}");
+        assert!(e.expected.contains("within ±1000000 (dir x)"), "{e}");
+        let e = err("stylet-script 1\nat 0 aim 1e308 0 0 -1e308 0 0 10\n");
+        assert_eq!((e.line, e.column, e.found.as_str()), (2, 10, "'1e308'"), "{e}");
+        assert!(e.expected.contains("entry point x"), "{e}");
+        let e = err("stylet-script 1\nat 0 aim 0 0 0 0 -1e308 0 10\n");
+        assert!(e.expected.contains("target point y") && e.found == "'-1e308'", "{e}");
+        let e = err("stylet-script 1\nat 0 pos 0 0 2e6 dir 0 0 1\n");
+        assert!(e.expected.contains("position z"), "{e}");
+        let e = err("stylet-script 1\nat 0 along p 1e300\n");
+        assert!(e.expected.contains("within ±1000000 (depth"), "{e}");
+        let e = err("stylet-script 1\nat 0 pos 0 0 0 dir 0 0 1 xaxis 1e300 0 0\n");
+        assert!(e.expected.contains("xaxis x"), "{e}");
+        let e = err("stylet-script 1\nat 0 press 0 0 -1e300 1\n");
+        assert!(e.expected.contains("press direction z"), "{e}");
+        let e = err("stylet-script 1\nat 0 pos 0 0 0 dir 0 0 inf\n");
+        assert!(e.expected.contains("a number (dir z)"), "{e}");
+    }
+
+    #[test]
+    fn directions_normalise_without_overflow_or_underflow() {
+        let big = unit(DVec3::splat(1e300)).unwrap();
+        assert!((big - DVec3::ONE.normalize()).length() < 1e-15, "{big}");
+        let tiny = unit(DVec3::new(3e-9, 4e-9, 0.0)).unwrap();
+        assert!((tiny - DVec3::new(0.6, 0.8, 0.0)).length() < 1e-15, "{tiny}");
+        assert_eq!(unit(DVec3::splat(1e-300)), None);
+        assert_eq!(unit(DVec3::ZERO), None);
+        assert_eq!(unit(DVec3::new(f64::NAN, 1.0, 0.0)), None);
+        assert_eq!(unit(DVec3::new(f64::INFINITY, 1.0, 0.0)), None);
+        // The extremes the parser lets through give unit directions.
+        let s = parse("stylet-script 1\nat 0 pos 1e6 -1e6 1e6 dir 1e6 1e-6 -1e6 xaxis -1e6 1e6 1e6\n").unwrap();
+        let Action::Pose(PoseSpec::Explicit { dir, xaxis, .. }) = &s.items[0].action else {
+            panic!("not a pose")
+        };
+        assert!((dir.length() - 1.0).abs() < 1e-15 && (xaxis.unwrap().length() - 1.0).abs() < 1e-15);
     }
 }
