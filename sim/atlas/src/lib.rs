@@ -35,3 +35,35 @@ impl AtlasError {
         }
     }
 }
+
+/// Refuses an operator file that exists but is not a regular file, before it is opened: opening a
+/// FIFO blocks until a writer comes (`stylet atlas inspect` hung forever), and a device, socket or
+/// directory is no atlas file either. Symlinks are followed, so a link to a regular file (a CT
+/// shared between atlases) is fine. A missing or unreadable file passes: the open that follows
+/// says what is wrong with it.
+pub(crate) fn check_regular_file(path: &Path) -> Result<(), AtlasError> {
+    match std::fs::metadata(path) {
+        Ok(m) if !m.is_file() => Err(AtlasError::file(
+            path,
+            format!("is a {}, not a regular file", file_kind(&m.file_type())),
+        )),
+        _ => Ok(()),
+    }
+}
+
+fn file_kind(t: &std::fs::FileType) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if t.is_fifo() {
+            return "named pipe (FIFO)";
+        }
+        if t.is_socket() {
+            return "socket";
+        }
+        if t.is_block_device() || t.is_char_device() {
+            return "device";
+        }
+    }
+    if t.is_dir() { "directory" } else { "special file" }
+}

@@ -72,6 +72,7 @@ fn err(path: &Path, message: impl Into<String>) -> AtlasError {
 }
 
 fn open(path: &Path) -> Result<Box<dyn Read>, AtlasError> {
+    crate::check_regular_file(path)?;
     let mut file = File::open(path).map_err(|e| err(path, format!("cannot open: {e}")))?;
     let mut magic = [0u8; 2];
     let n = file

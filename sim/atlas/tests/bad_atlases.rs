@@ -6,6 +6,7 @@ mod common;
 
 use std::fs;
 use std::path::Path;
+use std::time::Duration;
 
 use common::{tiny_grid, tiny_manifest, tiny_volumes, write_tiny};
 use stylet_physics::glam::DVec3;
@@ -269,4 +270,98 @@ fn writing_is_atomic_and_leaves_no_partial_files() {
     let mut names = names;
     names.sort();
     assert_eq!(names, ["atlas.toml", "ct.nii.gz", "labels.nii.gz"]);
+}
+
+/// Runs `f` on its own thread and waits at most 30 s, so a regression that blocks in open(2)
+/// fails the test instead of hanging the suite.
+#[cfg(unix)]
+fn within_30_s<T: Send + 'static>(what: &str, f: impl FnOnce() -> T + Send + 'static) -> T {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let _ = tx.send(f());
+    });
+    rx.recv_timeout(Duration::from_secs(30))
+        .unwrap_or_else(|_| panic!("{what} did not return within 30 s (blocked opening a FIFO?)"))
+}
+
+#[cfg(unix)]
+fn mkfifo(path: &Path) {
+    let _ = fs::remove_file(path);
+    let status = std::process::Command::new("mkfifo").arg(path).status().unwrap();
+    assert!(status.success(), "mkfifo {}", path.display());
+}
+
+/// Issue 13: a FIFO named like an atlas file made `stylet atlas inspect` hang forever; every
+/// atlas file is checked to be a regular file before it is opened.
+#[cfg(unix)]
+#[test]
+fn a_fifo_in_place_of_an_atlas_file_is_refused_without_hanging() {
+    for name in ["ct.nii.gz", "labels.nii.gz", "atlas.toml"] {
+        let d = tempfile::tempdir().unwrap();
+        write_tiny(d.path());
+        mkfifo(&d.path().join(name));
+        let dir = d.path().to_path_buf();
+        let r = within_30_s(&format!("loading with a FIFO {name}"), move || {
+            stylet_atlas::load(&dir).map(|_| ()).map_err(|e| e.to_string())
+        });
+        let e = r.expect_err("an atlas with a FIFO loaded");
+        assert_mentions(&e, &[name, "named pipe (FIFO)", "not a regular file"]);
+    }
+    let d = tempfile::tempdir().unwrap();
+    write_tiny(d.path());
+    fs::remove_file(d.path().join("ct.nii.gz")).unwrap();
+    fs::create_dir(d.path().join("ct.nii.gz")).unwrap();
+    assert_mentions(
+        &load_err(d.path()),
+        &["ct.nii.gz", "is a directory, not a regular file"],
+    );
+}
+
+/// Symlinks are followed: a volume shared between atlases through a link loads, with the same
+/// content hash as a copy.
+#[cfg(unix)]
+#[test]
+fn symlinks_to_regular_files_load() {
+    let d = tempfile::tempdir().unwrap();
+    let atlas = d.path().join("atlas");
+    write_tiny(&atlas);
+    let hash = stylet_atlas::load(&atlas).unwrap().content_hash;
+    fs::rename(atlas.join("ct.nii.gz"), d.path().join("shared-ct.nii.gz")).unwrap();
+    std::os::unix::fs::symlink(d.path().join("shared-ct.nii.gz"), atlas.join("ct.nii.gz")).unwrap();
+    assert_eq!(stylet_atlas::load(&atlas).unwrap().content_hash, hash);
+    // A link to a FIFO is no better than the FIFO.
+    mkfifo(&d.path().join("pipe"));
+    fs::remove_file(atlas.join("ct.nii.gz")).unwrap();
+    std::os::unix::fs::symlink(d.path().join("pipe"), atlas.join("ct.nii.gz")).unwrap();
+    let r = within_30_s("loading with a link to a FIFO", move || {
+        stylet_atlas::load(&atlas).map(|_| ()).map_err(|e| e.to_string())
+    });
+    assert_mentions(&r.unwrap_err(), &["ct.nii.gz", "named pipe (FIFO)"]);
+}
+
+/// The importers' operator files: a recipe or a DICOM slice that is a FIFO is refused, not waited on.
+#[cfg(unix)]
+#[test]
+fn import_inputs_that_are_not_regular_files_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let recipe = d.path().join("recipe.toml");
+    mkfifo(&recipe);
+    let r = within_30_s("loading a FIFO recipe", move || {
+        stylet_atlas::import::recipe::load_recipe(&recipe)
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    });
+    assert_mentions(&r.unwrap_err(), &["recipe.toml", "named pipe (FIFO)"]);
+    #[cfg(feature = "dicom")]
+    {
+        let series = d.path().join("series");
+        fs::create_dir(&series).unwrap();
+        mkfifo(&series.join("slice-001.dcm"));
+        let r = within_30_s("reading a series with a FIFO", move || {
+            stylet_atlas::import::dicom::read_series(&series)
+                .map(|_| ())
+                .map_err(|e| e.to_string())
+        });
+        assert_mentions(&r.unwrap_err(), &["slice-001.dcm", "named pipe (FIFO)"]);
+    }
 }

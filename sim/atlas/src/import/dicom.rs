@@ -70,12 +70,17 @@ pub fn read_series(dir: &Path) -> Result<Series, AtlasError> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(|e| AtlasError::file(dir, format!("cannot list directory: {e}")))?
         .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_file() && !p.file_name().is_some_and(|n| n.to_string_lossy().starts_with('.')))
+        .filter(|p| !p.is_dir() && !p.file_name().is_some_and(|n| n.to_string_lossy().starts_with('.')))
         .filter(|p| {
             !p.file_name()
                 .is_some_and(|n| n.to_string_lossy().to_ascii_lowercase().ends_with(".md"))
         })
         .collect();
+    // Subdirectories are skipped; a FIFO or device among the slices is an error, not a hang.
+    for p in &files {
+        crate::check_regular_file(p)?;
+    }
+    files.retain(|p| p.is_file());
     files.sort();
     if files.is_empty() {
         return Err(AtlasError::file(dir, "no files in the series directory"));

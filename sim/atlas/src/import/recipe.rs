@@ -132,6 +132,7 @@ impl LoadedRecipe {
 
 /// Reads a recipe and its scenario; every error names the recipe (or scenario) file.
 pub fn load_recipe(path: &Path) -> Result<LoadedRecipe, AtlasError> {
+    crate::check_regular_file(path)?;
     let text = std::fs::read_to_string(path).map_err(|e| AtlasError::file(path, format!("cannot read: {e}")))?;
     let recipe: Recipe =
         toml::from_str(&text).map_err(|e| AtlasError::file(path, e.to_string().trim_end().to_string()))?;
@@ -145,6 +146,7 @@ pub fn load_recipe(path: &Path) -> Result<LoadedRecipe, AtlasError> {
         return Err(bad(format!("resample_mm = {r} must be 0.2 … 10")));
     }
     let scenario_path = path.parent().unwrap_or(Path::new(".")).join(&recipe.scenario);
+    crate::check_regular_file(&scenario_path)?;
     let scenario_text = std::fs::read_to_string(&scenario_path)
         .map_err(|e| AtlasError::file(&scenario_path, format!("cannot read scenario: {e}")))?;
     let mut scenario = ScenarioFile::parse(&scenario_text).map_err(|e| AtlasError::file(&scenario_path, e))?;
