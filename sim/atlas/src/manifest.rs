@@ -33,6 +33,20 @@ pub struct Manifest {
     pub difficulty: DifficultyPresets,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub paths: Vec<InsertionPath>,
+    /// The exercises sessions on this atlas may be recorded for; the scoring service refuses
+    /// uploads naming another. An atlas that declares none (written before scenarios were
+    /// declared) accepts any well-formed name.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub scenarios: Vec<ScenarioToml>,
+}
+
+/// A scenario (exercise) of an atlas: its name, as sessions record it, and what it asks for.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScenarioToml {
+    pub name: String,
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub description: String,
 }
 
 /// Where the data came from and under which terms.
@@ -182,6 +196,27 @@ pub struct ScenarioFile {
     pub labels: Vec<LabelToml>,
     pub tissues: BTreeMap<String, TissueToml>,
     pub difficulty: DifficultyPresets,
+    #[serde(default)]
+    pub scenarios: Vec<ScenarioToml>,
+}
+
+/// Checks scenario names: 1–64 letters, digits or `. _ - @` (what a session header may name),
+/// each once.
+pub fn check_scenarios(scenarios: &[ScenarioToml]) -> Result<(), String> {
+    let mut seen = std::collections::BTreeSet::new();
+    for sc in scenarios {
+        let ok = |c: char| c.is_ascii_alphanumeric() || "._-@".contains(c);
+        if sc.name.is_empty() || sc.name.len() > 64 || !sc.name.chars().all(ok) {
+            return Err(format!(
+                "scenario '{}': a scenario name is 1–64 letters, digits or . _ - @",
+                sc.name
+            ));
+        }
+        if !seen.insert(sc.name.as_str()) {
+            return Err(format!("scenario '{}' is declared twice", sc.name));
+        }
+    }
+    Ok(())
 }
 
 /// The PTCD scenario shipped with Stylet: labels, property tree and presets (`atlases/ptcd.toml`).
@@ -316,6 +351,7 @@ impl Manifest {
             tissues: scenario.tissues,
             difficulty: scenario.difficulty,
             paths: Vec::new(),
+            scenarios: scenario.scenarios,
         }
     }
 
@@ -335,5 +371,7 @@ mod tests {
         let tree = property_tree(&s.tissues).unwrap();
         stylet_physics::Materials::resolve(&labels, &tree).unwrap();
         assert_eq!(labels.with_role(Role::Target).count(), 1);
+        check_scenarios(&s.scenarios).unwrap();
+        assert!(s.scenarios.iter().any(|sc| sc.name == "success-intercostal"));
     }
 }

@@ -140,6 +140,7 @@ fn read_manifest_text(dir: &Path) -> Result<String, AtlasError> {
         return Err(AtlasError::file(dir, "atlas directory does not exist"));
     }
     let path = dir.join(MANIFEST_FILE);
+    crate::check_regular_file(&path)?;
     let file = fs::File::open(&path).map_err(|e| AtlasError::file(&path, format!("missing or unreadable: {e}")))?;
     let mut bytes = Vec::new();
     file.take(MAX_MANIFEST_BYTES + 1)
@@ -155,6 +156,7 @@ fn read_manifest_text(dir: &Path) -> Result<String, AtlasError> {
 }
 
 fn sha256_file(path: &Path) -> Result<String, AtlasError> {
+    crate::check_regular_file(path)?;
     let mut f = fs::File::open(path).map_err(|e| AtlasError::file(path, format!("cannot open: {e}")))?;
     let mut h = Sha256::new();
     std::io::copy(&mut f, &mut h).map_err(|e| AtlasError::file(path, format!("cannot read: {e}")))?;
@@ -186,6 +188,7 @@ pub fn load(dir: &Path) -> Result<Atlas, AtlasError> {
     let text = read_manifest_text(dir)?;
     let manifest = parse_manifest(&text).map_err(|e| manifest_error(dir, e))?;
     let labels = manifest::label_table(&manifest.labels, &manifest.heuristic).map_err(|e| manifest_error(dir, e))?;
+    manifest::check_scenarios(&manifest.scenarios).map_err(|e| manifest_error(dir, e))?;
     let tree = manifest::property_tree(&manifest.tissues).map_err(|e| manifest_error(dir, e))?;
 
     let ct_path = dir.join(&manifest.volumes.ct);
