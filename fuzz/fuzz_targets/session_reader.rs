@@ -14,6 +14,7 @@ fuzz_target!(|data: &[u8]| {
         max_chunk_uncompressed_bytes: 1 << 20,
         max_ticks: 100_000,
         max_messages: 10_000,
+        max_notes: 1_000,
     };
     let strict = reader::read_bytes(data, Mode::Strict, &limits);
     let recovered = reader::read_bytes(data, Mode::Recover, &limits);
@@ -22,6 +23,13 @@ fuzz_target!(|data: &[u8]| {
         assert_eq!(Ok(s), recovered.as_ref());
     }
     let _ = reader::verify_bytes(data);
+    let _ = reader::read_header(data);
+    if let (Ok(full), Ok(streamed)) = (reader::verify_bytes(data), reader::verify_streaming(data, &Limits::default())) {
+        // Streaming verification agrees with the full one on what both accept.
+        assert_eq!(streamed.tick_count, full.ticks.len() as u64);
+        assert_eq!(streamed.session.header, full.header);
+    }
+    let _ = reader::verify_streaming(data, &limits);
     let mut count = 0usize;
     let _ = reader::read_bytes_with(data, Mode::Recover, &limits, Some(&mut |b| count += b.len()));
     if let Ok(block) = stylet_recorder::format::from_cbor::<stylet_recorder::format::TickBlock>(data) {

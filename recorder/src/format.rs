@@ -61,6 +61,30 @@ impl TickRecord {
     }
 }
 
+/// Refuses ticks whose device pose replay could not use: a non-finite position or orientation, or
+/// an all-zero orientation (no rotation at all), would feed NaN into the physics. Names the first
+/// bad tick.
+pub fn check_poses_finite(ticks: &[TickRecord]) -> Result<(), String> {
+    for t in ticks {
+        if !t.position_mm.iter().all(|v| v.is_finite()) {
+            return Err(format!(
+                "tick {}: position {:?} mm is not finite",
+                t.tick, t.position_mm
+            ));
+        }
+        if !t.orientation.iter().all(|v| v.is_finite()) {
+            return Err(format!(
+                "tick {}: orientation {:?} is not finite",
+                t.tick, t.orientation
+            ));
+        }
+        if t.orientation.iter().all(|&v| v == 0.0) {
+            return Err(format!("tick {}: orientation is all zero", t.tick));
+        }
+    }
+    Ok(())
+}
+
 /// A block of consecutive ticks, column by column ([`crate::codec`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TickBlock {
@@ -201,6 +225,24 @@ fn tool_from(
     })
 }
 
+/// Longest identifier in a header (trainee, scenario, difficulty, device, session id, atlas hash,
+/// software version, start time), in characters. Identifiers are ASCII names: what the service
+/// stores and lists stays small whatever a file says.
+pub const MAX_NAME_CHARS: usize = 64;
+/// Longest free text in a header or end record (atlas name, end reason), in characters.
+pub const MAX_TEXT_CHARS: usize = 256;
+/// Longest annotation, in characters.
+pub const MAX_NOTE_CHARS: usize = 2_000;
+
+/// Refuses a text field longer than `max_chars` characters (checked on the byte length first, so
+/// a huge field costs no more than its length check).
+pub fn check_text(what: &str, v: &str, max_chars: usize) -> Result<(), String> {
+    if v.len() > 4 * max_chars || v.chars().count() > max_chars {
+        return Err(format!("'{what}' is longer than {max_chars} characters"));
+    }
+    Ok(())
+}
+
 /// Session header: who, what, on which patient, with which software (written first, so it
 /// survives any crash).
 #[derive(Debug, Clone, PartialEq)]
@@ -268,7 +310,10 @@ impl SessionHeader {
                 .parse::<u64>()
                 .map_err(|_| format!("session header '{k}' is not a number"))
         };
-        let schema_version = num("schema_version")? as u32;
+        let small = |k: &str| -> Result<u32, String> {
+            u32::try_from(num(k)?).map_err(|_| format!("session header '{k}' is out of range"))
+        };
+        let schema_version = small("schema_version")?;
         let tool = get("tool")?;
         let initial_tool = if tool == "needle" {
             let bits = u64::from_str_radix(&get("tool_length_mm_bits")?, 16)
@@ -278,7 +323,7 @@ impl SessionHeader {
                 .map_err(|_| "session header 'tool_stylet_in' is not true/false".to_string())?;
             tool_from(
                 "needle",
-                Some(num("tool_gauge")? as u32),
+                Some(small("tool_gauge")?),
                 Some(f64::from_bits(bits)),
                 Some(stylet),
             )?
@@ -289,21 +334,38 @@ impl SessionHeader {
         if !(1..=100_000).contains(&tick_rate_hz) {
             return Err(format!("session header tick_rate_hz {tick_rate_hz} is out of range"));
         }
+        let field = |k: &str, max_chars: usize| -> Result<String, String> {
+            let v = get(k)?;
+            check_text(k, &v, max_chars)?;
+            Ok(v)
+        };
+        let name = |k: &str| -> Result<String, String> {
+            let v = field(k, MAX_NAME_CHARS)?;
+            if v.is_empty() || !v.chars().all(|c| c.is_ascii_alphanumeric() || "._-@".contains(c)) {
+                return Err(format!(
+                    "session header '{k}' must be 1–{MAX_NAME_CHARS} letters, digits or . _ - @"
+                ));
+            }
+            Ok(v)
+        };
+        let wall_clock_start = field("wall_clock_start", MAX_NAME_CHARS)?;
+        humantime::parse_rfc3339_weak(&wall_clock_start)
+            .map_err(|_| "session header 'wall_clock_start' is not an RFC 3339 time".to_string())?;
         Ok(SessionHeader {
             schema_version,
-            session_id: get("session_id")?,
-            trainee: get("trainee")?,
-            scenario: get("scenario")?,
-            difficulty: get("difficulty")?,
-            atlas_id: get("atlas_id")?,
-            atlas_hash: get("atlas_hash")?,
-            software_version: get("software_version")?,
-            physics_version: num("physics_version")? as u32,
+            session_id: name("session_id")?,
+            trainee: name("trainee")?,
+            scenario: name("scenario")?,
+            difficulty: name("difficulty")?,
+            atlas_id: field("atlas_id", MAX_TEXT_CHARS)?,
+            atlas_hash: name("atlas_hash")?,
+            software_version: field("software_version", MAX_NAME_CHARS)?,
+            physics_version: small("physics_version")?,
             tick_rate_hz: tick_rate_hz as u32,
             seed: num("seed")?,
-            device: get("device")?,
+            device: name("device")?,
             initial_tool,
-            wall_clock_start: get("wall_clock_start")?,
+            wall_clock_start,
         })
     }
 }
@@ -340,7 +402,11 @@ impl SessionEnd {
             complete: get("complete")?
                 .parse()
                 .map_err(|_| "session end 'complete' is not true/false")?,
-            reason: get("reason")?,
+            reason: {
+                let r = get("reason")?;
+                check_text("session end reason", &r, MAX_TEXT_CHARS)?;
+                r
+            },
         })
     }
 }

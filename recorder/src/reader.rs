@@ -21,6 +21,8 @@ pub struct Limits {
     pub max_chunk_uncompressed_bytes: u64,
     pub max_ticks: u64,
     pub max_messages: u64,
+    /// Events and annotations kept in memory (ticks can be streamed; these cannot).
+    pub max_notes: u64,
 }
 
 impl Default for Limits {
@@ -31,6 +33,27 @@ impl Default for Limits {
             max_chunk_uncompressed_bytes: 64 << 20,
             max_ticks: 200_000_000,
             max_messages: 50_000_000,
+            max_notes: 1_000_000,
+        }
+    }
+}
+
+impl Limits {
+    /// Limits for a file from outside (an upload) of `file_bytes` whose header says it ticks at
+    /// `tick_rate_hz`: at most `max_duration_s` of ticks, chunks and records far smaller than the
+    /// defaults (the writer's chunks hold half a second, tens of KB), messages and notes in
+    /// proportion to the ticks. With [`verify_streaming`], the memory a file can make a reader
+    /// use is bounded by these, whatever the file declares.
+    pub fn for_upload(file_bytes: u64, tick_rate_hz: u32, max_duration_s: u64) -> Limits {
+        let max_ticks = max_duration_s.saturating_mul(u64::from(tick_rate_hz));
+        Limits {
+            max_file_bytes: file_bytes,
+            max_record_bytes: 8 << 20,
+            max_chunk_uncompressed_bytes: 8 << 20,
+            max_ticks,
+            // Blocks, digests (every 100 ticks) and previews (every 20) come to ticks / 16.
+            max_messages: max_ticks / 10 + 10_000,
+            max_notes: max_ticks / 100 + 10_000,
         }
     }
 }
@@ -131,6 +154,8 @@ struct Walk<'l> {
     digests: Vec<DigestRecord>,
     annotations: Vec<AnnotationRecord>,
     chunks: Vec<ChunkInfo>,
+    /// Ticks read so far (kept or streamed): bounded by `limits.max_ticks` before decoding.
+    tick_count: u64,
     messages: u64,
     finished: bool,
     header_error: Option<String>,
@@ -142,6 +167,14 @@ fn read_u64(b: &[u8], at: usize) -> Option<u64> {
 }
 
 impl Walk<'_> {
+    /// Counts an event or annotation against [`Limits::max_notes`].
+    fn note(&self) -> Result<(), String> {
+        if (self.events.len() + self.annotations.len()) as u64 >= self.limits.max_notes {
+            return Err(format!("more than {} events and annotations", self.limits.max_notes));
+        }
+        Ok(())
+    }
+
     /// Handles one message; an error is damage.
     fn message(&mut self, channel: u16, data: &[u8]) -> Result<(), String> {
         self.messages += 1;
@@ -155,15 +188,17 @@ impl Walk<'_> {
         match topic.as_str() {
             TOPIC_TICKS => {
                 let block: TickBlock = from_cbor(data)?;
+                if self.tick_count.saturating_add(u64::from(block.count)) > self.limits.max_ticks {
+                    return Err(format!("more than {} ticks", self.limits.max_ticks));
+                }
                 let ticks = decode_block(&block)?;
+                check_poses_finite(&ticks)?;
                 if let (Some(last), Some(first)) = (self.last_tick, ticks.first())
                     && first.tick <= last
                 {
                     return Err(format!("tick {} after tick {last}", first.tick));
                 }
-                if self.ticks.len() as u64 + ticks.len() as u64 > self.limits.max_ticks {
-                    return Err(format!("more than {} ticks", self.limits.max_ticks));
-                }
+                self.tick_count += ticks.len() as u64;
                 self.last_tick = ticks.last().map(|t| t.tick);
                 match self.sink.as_mut() {
                     Some(sink) => sink(&ticks),
@@ -171,12 +206,18 @@ impl Walk<'_> {
                 }
             }
             TOPIC_EVENTS => {
+                self.note()?;
                 let e: EventRecord = from_cbor(data)?;
                 e.to_event().map_err(|m| format!("event at tick {}: {m}", e.tick))?;
                 self.events.push(e);
             }
             TOPIC_DIGESTS => self.digests.push(from_cbor(data)?),
-            TOPIC_ANNOTATIONS => self.annotations.push(from_cbor(data)?),
+            TOPIC_ANNOTATIONS => {
+                self.note()?;
+                let a: AnnotationRecord = from_cbor(data)?;
+                check_text("annotation", &a.text, MAX_NOTE_CHARS)?;
+                self.annotations.push(a);
+            }
             TOPIC_PREVIEW => {}
             other => return Err(format!("message on unexpected topic '{other}'")),
         }
@@ -259,6 +300,7 @@ impl Walk<'_> {
             self.events.len(),
             self.digests.len(),
             self.annotations.len(),
+            self.tick_count,
         );
         let first = self.ticks.len();
         if let Err(e) = self.records(&plain) {
@@ -266,6 +308,7 @@ impl Walk<'_> {
             self.events.truncate(saved.1);
             self.digests.truncate(saved.2);
             self.annotations.truncate(saved.3);
+            self.tick_count = saved.4;
             return Err(e);
         }
         let added = &self.ticks[first..];
@@ -319,6 +362,7 @@ pub fn read_bytes_with<'a>(
         digests: Vec::new(),
         annotations: Vec::new(),
         chunks: Vec::new(),
+        tick_count: 0,
         messages: 0,
         finished: false,
         header_error: None,
@@ -480,10 +524,64 @@ pub fn recover(path: &Path) -> Result<Session, ReadError> {
     read_bytes(&load(path, &Limits::default())?, Mode::Recover, &Limits::default())
 }
 
-/// The checks of `stylet session verify`: intact, finished, nothing dropped, ticks contiguous,
-/// digests and events inside the recorded ticks. `Ok` carries the session.
+/// The checks of `stylet session verify`: intact, finished, nothing dropped, ticks from 0 and
+/// contiguous, digests and events inside the recorded ticks. `Ok` carries the session.
 pub fn verify_bytes(bytes: &[u8]) -> Result<Session, String> {
     let s = read_bytes(bytes, Mode::Strict, &Limits::default()).map_err(|e| e.to_string())?;
+    let jump = s
+        .ticks
+        .windows(2)
+        .find(|w| w[1].tick != w[0].tick + 1)
+        .map(|w| (w[0].tick, w[1].tick));
+    let span = s.ticks.first().zip(s.ticks.last()).map(|(a, b)| (a.tick, b.tick));
+    check_verified(&s, s.ticks.len() as u64, span, jump)?;
+    Ok(s)
+}
+
+/// A session checked by [`verify_streaming`]: everything but its ticks, which were checked one
+/// block at a time and not kept.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Verified {
+    /// The session, with `ticks` empty.
+    pub session: Session,
+    pub tick_count: u64,
+}
+
+impl Verified {
+    /// Recorded length (ticks from 0 are contiguous, so the count gives it).
+    pub fn duration_s(&self) -> f64 {
+        self.tick_count as f64 / f64::from(self.session.header.tick_rate_hz)
+    }
+}
+
+/// The checks of [`verify_bytes`] with memory bounded independently of the tick count: ticks are
+/// decoded one block at a time, checked and dropped; `limits` (e.g. `max_ticks` from the longest
+/// session accepted) are checked before each block is decoded. For files from outside (uploads).
+pub fn verify_streaming(bytes: &[u8], limits: &Limits) -> Result<Verified, String> {
+    let mut count = 0u64;
+    let mut span: Option<(u64, u64)> = None;
+    let mut jump: Option<(u64, u64)> = None;
+    let mut on_block = |block: &[TickRecord]| {
+        for t in block {
+            match span {
+                Some((_, last)) if jump.is_none() && t.tick != last + 1 => jump = Some((last, t.tick)),
+                _ => {}
+            }
+            span = Some((span.map_or(t.tick, |s| s.0), t.tick));
+        }
+        count += block.len() as u64;
+    };
+    let s = read_bytes_with(bytes, Mode::Strict, limits, Some(&mut on_block)).map_err(|e| e.to_string())?;
+    check_verified(&s, count, span, jump)?;
+    Ok(Verified {
+        session: s,
+        tick_count: count,
+    })
+}
+
+/// The checks shared by both verifications, on the session, its ticks' count and span, and the
+/// first jump between ticks (if any).
+fn check_verified(s: &Session, count: u64, span: Option<(u64, u64)>, jump: Option<(u64, u64)>) -> Result<(), String> {
     if !s.finished {
         return Err("the file has no summary and footer".into());
     }
@@ -491,24 +589,25 @@ pub fn verify_bytes(bytes: &[u8]) -> Result<Session, String> {
     if !end.complete {
         return Err(format!("the session is incomplete: {}", end.reason));
     }
-    if end.ticks != s.ticks.len() as u64 {
-        return Err(format!(
-            "the end record counts {} ticks, the file holds {}",
-            end.ticks,
-            s.ticks.len()
-        ));
+    let Some((first, last)) = span else {
+        return Err("the session has no ticks".into());
+    };
+    if first != 0 {
+        return Err(format!("the first tick is {first}, not 0"));
     }
-    if let Some(w) = s.ticks.windows(2).find(|w| w[1].tick != w[0].tick + 1) {
-        return Err(format!("ticks jump from {} to {}", w[0].tick, w[1].tick));
+    if end.ticks != count {
+        return Err(format!("the end record counts {} ticks, the file holds {count}", end.ticks));
     }
-    let last = s.ticks.last().map_or(0, |t| t.tick);
+    if let Some((a, b)) = jump {
+        return Err(format!("ticks jump from {a} to {b}"));
+    }
     if let Some(d) = s.digests.iter().find(|d| d.tick > last) {
         return Err(format!("a digest at tick {} after the last tick {last}", d.tick));
     }
     if let Some(e) = s.events.iter().find(|e| e.tick > last) {
         return Err(format!("an event at tick {} after the last tick {last}", e.tick));
     }
-    Ok(s)
+    Ok(())
 }
 
 pub fn verify(path: &Path) -> Result<Session, String> {
@@ -528,7 +627,7 @@ pub fn stream_ticks(path: &Path, on_block: &mut dyn FnMut(&[TickRecord])) -> Res
 pub fn read_tick_range(path: &Path, first: u64, last: u64) -> Result<Vec<TickRecord>, ReadError> {
     let limits = Limits::default();
     let bytes = load(path, &limits)?;
-    let header = header_only(&bytes)?;
+    let header = read_header(&bytes)?;
     let (channels, chunk_indexes) = summary(&bytes)?;
     let rate = header.tick_rate_hz as u64;
     let ns = |tick: u64| tick.saturating_mul(1_000_000_000) / rate;
@@ -545,6 +644,7 @@ pub fn read_tick_range(path: &Path, first: u64, last: u64) -> Result<Vec<TickRec
         digests: Vec::new(),
         annotations: Vec::new(),
         chunks: Vec::new(),
+        tick_count: 0,
         messages: 0,
         finished: false,
         header_error: None,
@@ -622,9 +722,13 @@ fn summary(bytes: &[u8]) -> Result<(BTreeMap<u16, String>, Vec<records::ChunkInd
     Ok((channels, indexes))
 }
 
-/// The session header: the metadata record right after the MCAP header (bounded: the first few
-/// records only).
-fn header_only(bytes: &[u8]) -> Result<SessionHeader, ReadError> {
+/// The session header alone: the metadata record right after the MCAP header (bounded: the first
+/// few records only, nothing decompressed). Lets a service decide who may send a file, and with
+/// which limits to read it, before reading it.
+pub fn read_header(bytes: &[u8]) -> Result<SessionHeader, ReadError> {
+    if bytes.len() < 8 || &bytes[..8] != MAGIC {
+        return Err(ReadError::NotASession("it does not start with the MCAP magic".into()));
+    }
     let mut pos = 8usize;
     for _ in 0..4 {
         let (Some(&op), Some(len)) = (bytes.get(pos), read_u64(bytes, pos + 1)) else {

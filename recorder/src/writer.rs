@@ -36,6 +36,11 @@ pub const QUEUE_LEN: usize = 8192;
 /// Preview decimation: one preview sample every this many ticks (50 Hz at 1 kHz).
 pub const PREVIEW_EVERY: u64 = 20;
 
+/// A note as recorded: at most [`MAX_NOTE_CHARS`] characters.
+fn note_text(text: &str) -> String {
+    text.chars().take(MAX_NOTE_CHARS).collect()
+}
+
 /// Writer settings.
 #[derive(Debug, Clone)]
 pub struct WriterOptions {
@@ -242,7 +247,7 @@ impl SessionWriter {
         let tx = self.tx.as_ref().ok_or_else(|| WriteError::Thread("finished".into()))?;
         tx.send(Item::Annotation(AnnotationRecord {
             tick,
-            text: text.into(),
+            text: note_text(text),
         }))
         .map_err(|_| WriteError::Thread("the writer thread stopped".into()))
     }
@@ -257,10 +262,12 @@ impl SessionWriter {
         self.send(Item::Digest(DigestRecord { tick, digest }))
     }
 
+    /// Records a note (cut to [`MAX_NOTE_CHARS`] characters, the most a reader accepts). Never
+    /// blocks; false if dropped.
     pub fn annotate(&self, tick: u64, text: &str) -> bool {
         self.send(Item::Annotation(AnnotationRecord {
             tick,
-            text: text.into(),
+            text: note_text(text),
         }))
     }
 

@@ -315,3 +315,98 @@ fn fuzzer_findings_stay_fixed() {
     }
     assert!(n >= 1);
 }
+
+/// Issue 13: a script could record NaN poses, and the reader took them (replay then fed NaN into
+/// the physics). A tick with a non-finite pose is damage now: verify and strict reading refuse
+/// the file, recovery stops before the chunk that holds it.
+#[test]
+fn non_finite_poses_are_damage() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("s.mcap");
+    let mut ticks = synthetic_ticks(3000, 8);
+    ticks[1700].position_mm[2] = f64::NAN;
+    let summary = write_session(&p, &ticks, WriterOptions::default());
+    assert!(summary.complete && summary.ticks == 3000);
+    let bytes = std::fs::read(&p).unwrap();
+    let e = reader::verify_bytes(&bytes).unwrap_err();
+    assert!(e.contains("tick 1700: position") && e.contains("not finite"), "{e}");
+    let e = reader::read_bytes(&bytes, Mode::Strict, &Limits::default()).unwrap_err();
+    assert!(matches!(e, reader::ReadError::Damaged(_)), "{e}");
+    let r = reader::read_bytes(&bytes, Mode::Recover, &Limits::default()).unwrap();
+    assert!(r.damage.as_ref().unwrap().what.contains("tick 1700"));
+    assert!(!r.ticks.is_empty() && r.ticks.len() <= 1700, "{} ticks", r.ticks.len());
+    assert!(same(&r.ticks, &ticks[..r.ticks.len()]));
+    assert!(!r.complete());
+}
+
+#[test]
+fn pose_checks_name_the_tick() {
+    use stylet_recorder::format::check_poses_finite;
+    let mut ticks = synthetic_ticks(4, 9);
+    assert_eq!(check_poses_finite(&ticks), Ok(()));
+    ticks[2].position_mm[1] = f64::INFINITY;
+    let e = check_poses_finite(&ticks).unwrap_err();
+    assert!(e.starts_with("tick 2: position") && e.contains("not finite"), "{e}");
+    ticks[2] = synthetic_ticks(4, 9)[2];
+    ticks[1].orientation[3] = f64::NAN;
+    let e = check_poses_finite(&ticks).unwrap_err();
+    assert!(e.starts_with("tick 1: orientation") && e.contains("not finite"), "{e}");
+    ticks[1].orientation = [0.0, -0.0, 0.0, 0.0];
+    assert_eq!(
+        check_poses_finite(&ticks).unwrap_err(),
+        "tick 1: orientation is all zero"
+    );
+}
+
+/// Header fields are bounded at the format level (a 60 MB scenario was once accepted and
+/// listed), numbers are not truncated (schema version 2^32 + 1 once read as 1), times are times.
+#[test]
+fn header_fields_are_bounded_and_exact() {
+    let good = header().to_metadata();
+    assert_eq!(SessionHeader::from_metadata(&good).unwrap(), header());
+    let with = |k: &str, v: String| {
+        let mut m = good.clone();
+        m.insert(k.into(), v);
+        SessionHeader::from_metadata(&m).unwrap_err()
+    };
+    assert!(with("scenario", "s".repeat(65)).contains("'scenario' is longer than 64 characters"));
+    assert!(with("trainee", "a b".into()).contains("'trainee' must be"));
+    assert!(with("schema_version", "4294967297".into()).contains("'schema_version' is out of range"));
+    assert!(with("physics_version", "4294967298".into()).contains("'physics_version' is out of range"));
+    assert!(with("wall_clock_start", "yesterday".into()).contains("RFC 3339"));
+    assert!(with("atlas_id", "é".repeat(257)).contains("longer than 256 characters"));
+    // Characters, not bytes: 64 two-byte characters are too many for a name only because they
+    // are not ASCII; 256 of them are a valid atlas name.
+    let mut m = good.clone();
+    m.insert("atlas_id".into(), "é".repeat(256));
+    assert!(SessionHeader::from_metadata(&m).is_ok());
+}
+
+/// Streaming verification gives what the full one gives without keeping the ticks, and checks
+/// the tick limit before decoding a block.
+#[test]
+fn streaming_verification_bounds_the_ticks() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("s.mcap");
+    let ticks = synthetic_ticks(3000, 3);
+    write_session(&p, &ticks, WriterOptions::default());
+    let bytes = std::fs::read(&p).unwrap();
+    let full = reader::verify_bytes(&bytes).unwrap();
+    let streamed = reader::verify_streaming(&bytes, &Limits::default()).unwrap();
+    assert_eq!(streamed.tick_count, 3000);
+    assert!(streamed.session.ticks.is_empty());
+    assert_eq!(streamed.session.header, full.header);
+    assert_eq!(streamed.session.digests, full.digests);
+    assert_eq!(streamed.duration_s(), full.duration_s());
+    assert_eq!(reader::read_header(&bytes).unwrap(), full.header);
+    let short = Limits {
+        max_ticks: 1000,
+        ..Limits::default()
+    };
+    let e = reader::verify_streaming(&bytes, &short).unwrap_err();
+    assert!(e.contains("more than 1000 ticks"), "{e}");
+    // Upload limits follow the longest session accepted: 2 s at 1 kHz.
+    let e = reader::verify_streaming(&bytes, &Limits::for_upload(bytes.len() as u64, 1000, 2)).unwrap_err();
+    assert!(e.contains("more than 2000 ticks"), "{e}");
+    assert!(reader::verify_streaming(&bytes, &Limits::for_upload(bytes.len() as u64, 1000, 3)).is_ok());
+}
