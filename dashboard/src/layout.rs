@@ -96,6 +96,7 @@ fn navigation(v: &Viewer) -> Markup {
                 @if role != "trainee" { a href="/cohorts" { "Cohorts" } }
                 @if role == "curriculum" || role == "admin" { a href="/reports" { "Reports" } }
                 @if role == "admin" { a href="/admin/users" { "Accounts" } }
+                a href="/tokens" { "API tokens" }
             }
             span.who { (v.user.username) " (" (role) ")" }
             form method="post" action="/logout" {

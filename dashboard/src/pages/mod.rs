@@ -7,4 +7,5 @@ pub mod login;
 pub mod reports;
 pub mod review;
 pub mod sessions;
+pub mod tokens;
 pub mod upload;

@@ -51,16 +51,65 @@ pub fn logout_cookie(secure: bool) -> String {
     login_cookie("", secure, 0)
 }
 
-/// Whether the browser says this request was sent by a page of another site (`Sec-Fetch-Site:
-/// cross-site` or `same-site`). Logins check it: they have no CSRF token to check yet, and a
-/// cross-site login would put the browser into an account of the other site's choosing (login
-/// CSRF). Clients that send no such header (scripts, the desktop app) are not browsers being
-/// abused and are let through.
+/// Whether a login was sent by a page of another site. Logins check it: they have no CSRF token
+/// to check yet, and a cross-site login would put the browser into an account of the other
+/// site's choosing (login CSRF). Refused:
+/// - `Sec-Fetch-Site: cross-site` or `same-site` (the browser says so);
+/// - an `Origin` that is not this server: its host and port must be the `Host` header's (the
+///   scheme is left out: behind a TLS proxy the browser's scheme is not this server's);
+///   `Origin: null` (sandboxed frames, `file:` pages) is refused too. Browsers without
+///   `Sec-Fetch-Site` still send `Origin` with a cross-site POST;
+/// - no `Origin` but a `Referer` whose host and port are not the `Host` header's.
+///
+/// Clients that send none of these (scripts, the desktop app) are not browsers being abused and
+/// are let through. A reverse proxy must pass the browser's `Host` on.
 pub fn from_other_site(headers: &axum::http::HeaderMap) -> bool {
-    matches!(
+    use axum::http::header;
+    if matches!(
         headers.get("sec-fetch-site").and_then(|h| h.to_str().ok()),
         Some("cross-site") | Some("same-site")
-    )
+    ) {
+        return true;
+    }
+    let host = headers.get(header::HOST).and_then(|h| h.to_str().ok());
+    let this_server = |url: &axum::http::HeaderValue| {
+        let url = url.to_str().ok().and_then(scheme_and_authority);
+        matches!((url, host), (Some((scheme, authority)), Some(host)) if same_authority(scheme, authority, host))
+    };
+    match (headers.get(header::ORIGIN), headers.get(header::REFERER)) {
+        (Some(origin), _) => !this_server(origin),
+        (None, Some(referer)) => !this_server(referer),
+        (None, None) => false,
+    }
+}
+
+/// `scheme://[user@]host[:port][/…]` → (scheme, `host[:port]`); None for anything else (`null`,
+/// a relative reference).
+fn scheme_and_authority(url: &str) -> Option<(&str, &str)> {
+    let (scheme, rest) = url.trim().split_once("://")?;
+    let scheme_ok = scheme.starts_with(|c: char| c.is_ascii_alphabetic())
+        && scheme.chars().all(|c| c.is_ascii_alphanumeric() || "+-.".contains(c));
+    let authority = &rest[..rest.find(['/', '?', '#']).unwrap_or(rest.len())];
+    let authority = authority.rsplit_once('@').map_or(authority, |(_, a)| a);
+    (scheme_ok && !authority.is_empty()).then_some((scheme, authority))
+}
+
+/// Whether `authority` (of a URL with `scheme`) is `host` (a `Host` header): names compared
+/// without case, the scheme's default port (http 80, https 443) written or not.
+fn same_authority(scheme: &str, authority: &str, host: &str) -> bool {
+    let default_port = match scheme.to_ascii_lowercase().as_str() {
+        "http" => Some(":80"),
+        "https" => Some(":443"),
+        _ => None,
+    };
+    let normal = |a: &str| {
+        let a = a.trim().to_ascii_lowercase();
+        match default_port {
+            Some(p) if a.ends_with(p) => a[..a.len() - p.len()].to_string(),
+            _ => a,
+        }
+    };
+    normal(authority) == normal(host)
 }
 
 /// The login token in a `Cookie` header.
@@ -88,5 +137,92 @@ mod tests {
         assert_eq!(token_from_cookie_header("stylet_session="), None);
         assert!(login_cookie("t", true, 60).contains("HttpOnly; SameSite=Strict; Max-Age=60; Secure"));
         assert_ne!(random_token(), random_token());
+    }
+
+    fn headers(pairs: &[(&'static str, &str)]) -> axum::http::HeaderMap {
+        let mut h = axum::http::HeaderMap::new();
+        for (k, v) in pairs {
+            h.insert(*k, v.parse().unwrap());
+        }
+        h
+    }
+
+    #[test]
+    fn logins_from_other_origins_are_refused() {
+        let host = ("host", "127.0.0.1:8080");
+        // Scripts and the desktop app send none of the browser's headers.
+        assert!(!from_other_site(&headers(&[host])));
+        assert!(!from_other_site(&headers(&[])));
+        // This server's own pages.
+        for same in [
+            "http://127.0.0.1:8080",
+            "https://127.0.0.1:8080",
+            "HTTP://127.0.0.1:8080",
+        ] {
+            assert!(!from_other_site(&headers(&[host, ("origin", same)])), "{same}");
+        }
+        assert!(!from_other_site(&headers(&[
+            host,
+            ("referer", "http://127.0.0.1:8080/login?next=%2F")
+        ])));
+        assert!(!from_other_site(&headers(&[
+            ("host", "Stylet.Example"),
+            ("origin", "https://stylet.example")
+        ])));
+        assert!(!from_other_site(&headers(&[
+            ("host", "stylet.example:443"),
+            ("origin", "https://stylet.example")
+        ])));
+        assert!(!from_other_site(&headers(&[
+            ("host", "stylet.example"),
+            ("origin", "http://stylet.example:80")
+        ])));
+        // Other sites, with no Sec-Fetch-Site (older browsers, or one that leaves it out).
+        for other in [
+            "http://evil.example",
+            "null",
+            "http://127.0.0.1:8081",
+            "http://127.0.0.1",
+            "http://127.0.0.1:8080.evil.example",
+            "http://evil.example/http://127.0.0.1:8080",
+            "127.0.0.1:8080",
+            "",
+        ] {
+            assert!(from_other_site(&headers(&[host, ("origin", other)])), "origin {other}");
+        }
+        for other in [
+            "http://evil.example/login",
+            "https://evil.example/?u=http://127.0.0.1:8080/",
+            "http://127.0.0.1:8080@evil.example/",
+            "/login",
+        ] {
+            assert!(
+                from_other_site(&headers(&[host, ("referer", other)])),
+                "referer {other}"
+            );
+        }
+        // Origin wins over Referer, both ways; without a Host nothing can match.
+        assert!(from_other_site(&headers(&[
+            host,
+            ("origin", "http://evil.example"),
+            ("referer", "http://127.0.0.1:8080/")
+        ])));
+        assert!(!from_other_site(&headers(&[
+            host,
+            ("origin", "http://127.0.0.1:8080"),
+            ("referer", "http://evil.example/")
+        ])));
+        assert!(from_other_site(&headers(&[("origin", "http://127.0.0.1:8080")])));
+        // What the browser says about itself still counts, also beside a matching Origin.
+        assert!(from_other_site(&headers(&[
+            host,
+            ("origin", "http://127.0.0.1:8080"),
+            ("sec-fetch-site", "cross-site")
+        ])));
+        assert!(from_other_site(&headers(&[
+            host,
+            ("origin", "http://evil.example"),
+            ("sec-fetch-site", "same-origin")
+        ])));
     }
 }

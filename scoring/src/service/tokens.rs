@@ -1,0 +1,165 @@
+//! API tokens (`/api/tokens`; the dashboard's tokens page uses the same functions): made from a
+//! login only, never by another token; `upload` scope unless `full` is asked for; expiring
+//! (90 days at most); listed without their secret; revocable by their owner or an admin.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::Json;
+use axum::body::Bytes;
+use axum::extract::{Path, State};
+use axum::http::{HeaderMap, StatusCode};
+use axum::response::{IntoResponse, Response};
+use serde_json::json;
+
+use super::AppState;
+use super::api::{ApiError, TokenUse, acting_user, current_user, err, user_for};
+use super::store::{TokenRow, TokenScope, TokenStatus, User};
+
+/// How long a token lasts unless asked for less, and the most it may last: a token forgotten
+/// on a training PC stops working on its own.
+pub const MAX_TOKEN_DAYS: u32 = 90;
+
+/// Longest label, in characters.
+pub const MAX_LABEL_CHARS: usize = 100;
+/// Active tokens one account may hold (each desktop installation needs one): a bound on the
+/// rows an account can make.
+pub const MAX_ACTIVE_TOKENS: usize = 20;
+
+/// A token label is 1–100 characters; returns it trimmed.
+pub fn check_label(label: &str) -> Result<&str, ApiError> {
+    let label = label.trim();
+    if label.is_empty() || label.chars().count() > MAX_LABEL_CHARS {
+        return Err(err(
+            StatusCode::BAD_REQUEST,
+            format!("a token label is 1–{MAX_LABEL_CHARS} characters"),
+        ));
+    }
+    Ok(label)
+}
+
+/// Days a token lasts: as asked, 1–90; 90 when not asked.
+pub fn check_days(days: Option<u32>) -> Result<u32, ApiError> {
+    match days.unwrap_or(MAX_TOKEN_DAYS) {
+        d @ 1..=MAX_TOKEN_DAYS => Ok(d),
+        d => Err(err(
+            StatusCode::BAD_REQUEST,
+            format!("a token lasts 1–{MAX_TOKEN_DAYS} days, not {d}"),
+        )),
+    }
+}
+
+/// A new token of `user`: the token (shown once) and its row. Audited.
+pub async fn create(
+    s: &AppState,
+    user: &User,
+    label: &str,
+    scope: TokenScope,
+    days: Option<u32>,
+) -> Result<(String, TokenRow), ApiError> {
+    let label = check_label(label)?;
+    let days = check_days(days)?;
+    let active = s
+        .store
+        .api_tokens(Some(&user.id))
+        .await?
+        .iter()
+        .filter(|t| t.status == TokenStatus::Active)
+        .count();
+    if active >= MAX_ACTIVE_TOKENS {
+        return Err(err(
+            StatusCode::CONFLICT,
+            format!(
+                "{} has {active} active API tokens, the most allowed; revoke one first",
+                user.username
+            ),
+        ));
+    }
+    let ttl = Duration::from_secs(u64::from(days) * 86_400);
+    Ok(s.store.create_api_token(user, label, scope, ttl).await?)
+}
+
+/// The tokens `user` may see and revoke: their own; an admin's, everyone's.
+pub async fn list(s: &AppState, user: &User) -> Result<Vec<TokenRow>, ApiError> {
+    let owner = (user.role != "admin").then_some(user.id.as_str());
+    Ok(s.store.api_tokens(owner).await?)
+}
+
+/// Revokes token `id` for `user` (their own; an admin, anyone's), or 404: whether another
+/// account's token exists is not theirs to know. Revoking a revoked token changes nothing.
+pub async fn revoke(s: &AppState, user: &User, id: &str) -> Result<TokenRow, ApiError> {
+    let not_found = || err(StatusCode::NOT_FOUND, format!("no API token {id}"));
+    let token = s.store.api_token_by_id(id).await?.ok_or_else(not_found)?;
+    if token.user_id != user.id && user.role != "admin" {
+        return Err(not_found());
+    }
+    s.store.revoke_api_token(id, user).await?.ok_or_else(not_found)
+}
+
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct NewTokenRequest {
+    label: String,
+    #[serde(default)]
+    scope: TokenScope,
+    #[serde(default)]
+    expires_in_days: Option<u32>,
+}
+
+/// POST /api/tokens: `{"label", "scope"?, "expires_in_days"?}` → 201 with the token, shown once.
+/// Login cookie and CSRF token only: a Bearer token gets 403.
+pub async fn create_token(
+    State(s): State<Arc<AppState>>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> Result<Response, ApiError> {
+    let user = user_for(&s, &headers, TokenUse::None, true).await?;
+    let req: NewTokenRequest = serde_json::from_slice(&body).map_err(|e| {
+        err(
+            StatusCode::BAD_REQUEST,
+            format!(
+                "expected {{\"label\", \"scope\"?: \"upload\"|\"full\", \"expires_in_days\"?: 1–{MAX_TOKEN_DAYS}}}: {e}"
+            ),
+        )
+    })?;
+    let (token, row) = create(&s, &user, &req.label, req.scope, req.expires_in_days).await?;
+    let mut body = serde_json::to_value(&row).map_err(|_| err(StatusCode::INTERNAL_SERVER_ERROR, "internal error"))?;
+    body["token"] = json!(token);
+    Ok((StatusCode::CREATED, Json(body)).into_response())
+}
+
+/// GET /api/tokens: `{"tokens": [...]}`, newest first, without the tokens themselves.
+pub async fn list_tokens(State(s): State<Arc<AppState>>, headers: HeaderMap) -> Result<Response, ApiError> {
+    let user = current_user(&s, &headers).await?;
+    Ok(Json(json!({ "tokens": list(&s, &user).await? })).into_response())
+}
+
+/// POST /api/tokens/{id}/revoke: the token's row, now revoked. Audited.
+pub async fn revoke_token(
+    State(s): State<Arc<AppState>>,
+    headers: HeaderMap,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let user = acting_user(&s, &headers).await?;
+    Ok(Json(revoke(&s, &user, &id).await?).into_response())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn labels_count_characters_and_days_are_capped() {
+        let e = |n: usize| "é".repeat(n);
+        assert_eq!(check_label(&format!("  {}  ", e(100))).unwrap(), e(100));
+        assert_eq!(check_label(&e(101)).unwrap_err().0, StatusCode::BAD_REQUEST);
+        assert_eq!(check_label("   ").unwrap_err().0, StatusCode::BAD_REQUEST);
+        assert_eq!(check_days(None).unwrap(), MAX_TOKEN_DAYS);
+        assert_eq!(check_days(Some(7)).unwrap(), 7);
+        for bad in [0, MAX_TOKEN_DAYS + 1, u32::MAX] {
+            let e = check_days(Some(bad)).unwrap_err();
+            assert_eq!(e.0, StatusCode::BAD_REQUEST);
+            assert!(e.1.contains("1–90 days"), "{}", e.1);
+        }
+    }
+}
