@@ -596,7 +596,10 @@ fn check_verified(s: &Session, count: u64, span: Option<(u64, u64)>, jump: Optio
         return Err(format!("the first tick is {first}, not 0"));
     }
     if end.ticks != count {
-        return Err(format!("the end record counts {} ticks, the file holds {count}", end.ticks));
+        return Err(format!(
+            "the end record counts {} ticks, the file holds {count}",
+            end.ticks
+        ));
     }
     if let Some((a, b)) = jump {
         return Err(format!("ticks jump from {a} to {b}"));
