@@ -33,6 +33,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/sessions/{id}/slices.png", get(pages::review::slices))
         .route("/sessions/{id}/comment", post(pages::review::comment))
         .route("/sessions/{id}/override", post(pages::review::override_grade))
+        .route("/sessions/{id}/delete", post(pages::review::delete))
         .route(
             "/upload",
             post(pages::upload::upload).layer(DefaultBodyLimit::max(upload_limit)),
@@ -43,5 +44,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/reports", get(pages::reports::index))
         .route("/reports/cohort", get(pages::reports::cohort_report))
         .route("/admin/users", get(pages::admin::users).post(pages::admin::add_user))
+        .route("/tokens", get(pages::tokens::index).post(pages::tokens::create))
+        .route("/tokens/{id}/revoke", post(pages::tokens::revoke))
         .with_state(state)
 }

@@ -67,6 +67,8 @@ pub struct Scorer {
     paths: Vec<PlannedPath>,
     path: Option<String>,
     rubric: Rubric,
+    /// The atlas' declared scenarios (empty: it declares none and any name is accepted).
+    scenarios: Vec<String>,
 }
 
 impl Scorer {
@@ -99,11 +101,22 @@ impl Scorer {
             paths,
             path,
             rubric,
+            scenarios: atlas.manifest.scenarios.iter().map(|s| s.name.clone()).collect(),
         })
     }
 
     pub fn rubric(&self) -> &Rubric {
         &self.rubric
+    }
+
+    /// Whether sessions on this atlas may name `scenario` (any name if it declares none).
+    pub fn knows_scenario(&self, scenario: &str) -> bool {
+        self.scenarios.is_empty() || self.scenarios.iter().any(|s| s == scenario)
+    }
+
+    /// The atlas' declared scenario names.
+    pub fn scenario_names(&self) -> &[String] {
+        &self.scenarios
     }
 
     /// Reads and scores a session file. A cut or damaged file is scored on its intact part and

@@ -140,6 +140,7 @@ fn serve_dashboard(args: &DemoArgs, files: &[PathBuf]) -> anyhow::Result<()> {
         workers: std::thread::available_parallelism().map_or(1, |n| n.get()),
         max_upload_bytes: 64 << 20,
         secure_cookies: false,
+        limits: Default::default(),
     };
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()

@@ -31,6 +31,62 @@ pub struct ServeArgs {
     /// Mark cookies Secure (when served behind TLS).
     #[arg(long)]
     pub secure_cookies: bool,
+    #[command(flatten)]
+    pub limits: LimitArgs,
+}
+
+/// Limits and timeouts (docs/security.md); defaults in `stylet_scoring::service::Limits`.
+#[derive(Debug, Args)]
+pub struct LimitArgs {
+    /// Longest session accepted for upload (minutes).
+    #[arg(long)]
+    pub max_session_minutes: Option<u64>,
+    /// Largest request body other than a session upload (bytes).
+    #[arg(long)]
+    pub max_body_bytes: Option<usize>,
+    /// Seconds a client has to send a request's headers.
+    #[arg(long)]
+    pub header_timeout_s: Option<u64>,
+    /// Seconds after which a connection on which nothing moves is closed.
+    #[arg(long)]
+    pub idle_timeout_s: Option<u64>,
+    /// Seconds a request other than an upload may take, body included.
+    #[arg(long)]
+    pub request_timeout_s: Option<u64>,
+    /// Slowest upload rate accepted (bytes per second; an upload may take the request timeout
+    /// plus its size at this rate).
+    #[arg(long)]
+    pub min_upload_rate: Option<u64>,
+    /// Connections served at once.
+    #[arg(long)]
+    pub max_connections: Option<usize>,
+    /// Password checks run at once.
+    #[arg(long)]
+    pub password_threads: Option<usize>,
+    /// Password checks that may wait; more get 503.
+    #[arg(long)]
+    pub password_queue: Option<usize>,
+}
+
+impl LimitArgs {
+    pub fn limits(&self) -> service::Limits {
+        let d = service::Limits::default();
+        let secs = std::time::Duration::from_secs;
+        service::Limits {
+            max_session_s: self
+                .max_session_minutes
+                .map_or(d.max_session_s, |m| m.saturating_mul(60)),
+            max_json_body_bytes: self.max_body_bytes.unwrap_or(d.max_json_body_bytes),
+            header_timeout: self.header_timeout_s.map_or(d.header_timeout, secs),
+            idle_timeout: self.idle_timeout_s.map_or(d.idle_timeout, secs),
+            request_timeout: self.request_timeout_s.map_or(d.request_timeout, secs),
+            min_upload_bytes_per_s: self.min_upload_rate.unwrap_or(d.min_upload_bytes_per_s),
+            max_connections: self.max_connections.unwrap_or(d.max_connections).max(1),
+            password_threads: self.password_threads.unwrap_or(d.password_threads).max(1),
+            password_queue: self.password_queue.unwrap_or(d.password_queue),
+            login_failure_accounts: d.login_failure_accounts,
+        }
+    }
 }
 
 #[derive(Debug, Subcommand)]
@@ -80,6 +136,7 @@ pub fn serve(a: ServeArgs) -> anyhow::Result<()> {
             .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
         max_upload_bytes: a.max_upload_bytes,
         secure_cookies: a.secure_cookies,
+        limits: a.limits.limits(),
     };
     runtime()?.block_on(service::serve(config, Some(stylet_dashboard::router), |addr, _| {
         sayf!("listening on http://{addr}")
@@ -103,6 +160,7 @@ pub fn user(cmd: UserCommand) -> anyhow::Result<()> {
                 workers: 1,
                 max_upload_bytes: 0,
                 secure_cookies: false,
+                limits: Default::default(),
             };
             std::fs::create_dir_all(&a.data_dir).with_context(|| format!("cannot create {}", a.data_dir.display()))?;
             runtime()?.block_on(async {

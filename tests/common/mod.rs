@@ -164,7 +164,7 @@ pub fn call(
     match auth {
         Some(Auth::Cookie { token, csrf }) => {
             req = req.set("Cookie", &format!("stylet_session={token}"));
-            if method == "POST" {
+            if method != "GET" {
                 req = req.set("X-CSRF-Token", csrf);
             }
         }

@@ -35,10 +35,8 @@ pub async fn visible_cohort(s: &AppState, v: &Viewer, name: &str) -> Result<Stri
         _ => false,
     };
     if !allowed {
-        return Err(fail(
-            StatusCode::FORBIDDEN,
-            format!("{} may not see cohort {name}", v.user.username),
-        ));
+        // The same answer as for a cohort that does not exist.
+        return Err(fail(StatusCode::NOT_FOUND, format!("no cohort {name}")));
     }
     Ok(id)
 }

@@ -62,12 +62,16 @@ pub async fn submit(State(s): State<Arc<AppState>>, headers: HeaderMap, Form(f):
             r
         }
         Err(e) => {
-            let status = if e.0 == StatusCode::TOO_MANY_REQUESTS {
-                e.0
-            } else {
-                StatusCode::UNAUTHORIZED
+            let status = match e.0 {
+                StatusCode::TOO_MANY_REQUESTS | StatusCode::SERVICE_UNAVAILABLE => e.0,
+                _ => StatusCode::UNAUTHORIZED,
             };
-            (status, page("Log in", None, login_page(&next, Some(&e.1), &f.username))).into_response()
+            let mut r = (status, page("Log in", None, login_page(&next, Some(&e.1), &f.username))).into_response();
+            if status == StatusCode::SERVICE_UNAVAILABLE {
+                r.headers_mut()
+                    .insert(header::RETRY_AFTER, axum::http::HeaderValue::from_static("1"));
+            }
+            r
         }
     }
 }

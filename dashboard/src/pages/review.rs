@@ -311,7 +311,41 @@ fn review_forms(v: &Viewer, id: &str) -> Markup {
                 p { button.primary type="submit" { "Override the grade" } }
             }
         }
+        @if v.role() == "admin" {
+            form #delete-form.noprint method="post" action={ "/sessions/" (id) "/delete" } {
+                (csrf_field(v))
+                label {
+                    input type="checkbox" name="confirm" value="yes" required;
+                    " Delete this session for good: its file, score, comments and overrides (audited)"
+                }
+                p { button type="submit" { "Delete the session" } }
+            }
+        }
     }
+}
+
+#[derive(serde::Deserialize)]
+pub struct DeleteForm {
+    csrf: String,
+    #[serde(default)]
+    confirm: String,
+}
+
+/// POST /sessions/{id}/delete (admins, with the confirmation box ticked).
+pub async fn delete(
+    State(s): State<Arc<AppState>>,
+    headers: HeaderMap,
+    uri: Uri,
+    Path(id): Path<String>,
+    Form(f): Form<DeleteForm>,
+) -> Result<Redirect, PageError> {
+    let v = viewer(&s, &headers, &uri).await?;
+    check_csrf(&v, &f.csrf)?;
+    if f.confirm != "yes" {
+        return Err(fail(StatusCode::BAD_REQUEST, "tick the box to confirm the deletion"));
+    }
+    stylet_scoring::service::api::remove_session(&s, &v.user, &id).await?;
+    Ok(Redirect::to("/sessions"))
 }
 
 #[derive(serde::Deserialize)]

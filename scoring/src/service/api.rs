@@ -15,7 +15,7 @@ use serde_json::json;
 
 use super::AppState;
 use super::auth;
-use super::store::{NewSession, User};
+use super::store::{NewSession, TokenScope, TokenStatus, User};
 
 type AppRef = Arc<AppState>;
 
@@ -25,7 +25,13 @@ pub struct ApiError(pub StatusCode, pub String);
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        (self.0, Json(json!({ "error": self.1 }))).into_response()
+        let mut r = (self.0, Json(json!({ "error": self.1 }))).into_response();
+        if self.0 == StatusCode::SERVICE_UNAVAILABLE {
+            // Overload and an unwritable store pass: clients may try again shortly.
+            r.headers_mut()
+                .insert(header::RETRY_AFTER, axum::http::HeaderValue::from_static("1"));
+        }
+        r
     }
 }
 
@@ -36,6 +42,12 @@ pub fn err(status: StatusCode, msg: impl Into<String>) -> ApiError {
 impl From<super::StoreError> for ApiError {
     fn from(e: super::StoreError) -> Self {
         tracing::error!(error = %e, "store");
+        if e.is_storage_failure() {
+            return err(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "the server cannot write its data right now; try again shortly",
+            );
+        }
         err(StatusCode::INTERNAL_SERVER_ERROR, "internal error")
     }
 }
@@ -46,10 +58,14 @@ pub fn router(state: AppRef) -> Router {
         .route("/api/openapi.json", get(openapi))
         .route("/api/login", post(login))
         .route("/api/logout", post(logout))
-        .route("/api/tokens", post(create_token))
+        .route(
+            "/api/tokens",
+            post(super::tokens::create_token).get(super::tokens::list_tokens),
+        )
+        .route("/api/tokens/{id}/revoke", post(super::tokens::revoke_token))
         .route("/api/users", post(add_user).get(list_users))
         .route("/api/sessions", post(upload).get(list_sessions))
-        .route("/api/sessions/{id}", get(get_session))
+        .route("/api/sessions/{id}", get(get_session).delete(delete_session))
         .route("/api/sessions/{id}/override", post(override_grade))
         .route("/api/sessions/{id}/comments", post(add_comment))
         .route("/api/trainees/{username}/progress", get(progress))
@@ -82,27 +98,6 @@ pub async fn request_log(req: axum::extract::Request, next: axum::middleware::Ne
         resp.headers_mut().insert("x-request-id", v);
     }
     resp
-}
-
-#[derive(serde::Deserialize)]
-struct TokenRequest {
-    label: String,
-}
-
-/// POST /api/tokens: an API token for the logged-in user (the desktop app uploads with it).
-async fn create_token(State(s): State<AppRef>, headers: HeaderMap, body: Bytes) -> Result<Response, ApiError> {
-    let user = acting_user(&s, &headers).await?;
-    let req: TokenRequest = serde_json::from_slice(&body)
-        .map_err(|e| err(StatusCode::BAD_REQUEST, format!("expected {{\"label\"}}: {e}")))?;
-    if req.label.trim().is_empty() || req.label.len() > 100 {
-        return Err(err(StatusCode::BAD_REQUEST, "a token label is 1–100 characters"));
-    }
-    let token = s.store.create_api_token(&user, req.label.trim()).await?;
-    Ok((
-        StatusCode::CREATED,
-        Json(json!({ "token": token, "label": req.label.trim(), "username": user.username })),
-    )
-        .into_response())
 }
 
 #[derive(serde::Deserialize)]
@@ -170,12 +165,32 @@ async fn openapi() -> Json<serde_json::Value> {
     Json(super::openapi::document())
 }
 
-async fn healthz(State(s): State<AppRef>) -> Result<Json<serde_json::Value>, ApiError> {
-    sqlx::query("SELECT 1")
-        .execute(&s.store.pool)
-        .await
-        .map_err(super::StoreError::Db)?;
-    Ok(Json(json!({ "status": "ok" })))
+/// GET /healthz: 200 while the service can read and write its database and data directory,
+/// 503 otherwise (checked by writing, at most once a second).
+async fn healthz(State(s): State<AppRef>) -> Response {
+    let probe = async {
+        if let Err(e) = s.store.probe_write().await {
+            tracing::warn!(error = %e, "health check: the database cannot write");
+            return false;
+        }
+        let file = s.config.data_dir.join("sessions").join(".health-check");
+        let written = tokio::fs::write(&file, b"ok").await;
+        let _ = tokio::fs::remove_file(&file).await;
+        if let Err(e) = written {
+            tracing::warn!(error = %e, "health check: the data directory cannot write");
+            return false;
+        }
+        true
+    };
+    if s.health.check(probe).await {
+        Json(json!({ "status": "ok" })).into_response()
+    } else {
+        err(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "unhealthy: the database or the data directory cannot be written",
+        )
+        .into_response()
+    }
 }
 
 /// How a request authenticated.
@@ -183,10 +198,24 @@ pub enum Via {
     /// The login cookie: state-changing requests must echo the login's CSRF token.
     Cookie { csrf: String },
     /// `Authorization: Bearer <API token>` (the desktop app): not sent by browsers on their own.
-    Token,
+    Token { scope: TokenScope },
 }
 
-/// The authenticated user (API token or login cookie), or 401.
+/// What a route takes from API tokens. Decided here, for every route, so that a route cannot
+/// forget to refuse a token that may not use it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TokenUse {
+    /// Any token, `upload` scope too: what the desktop simulator does (upload a session, read
+    /// its status).
+    Upload,
+    /// `full` tokens only: every other route.
+    Full,
+    /// No token: the login cookie only (making tokens: a stolen token must not mint more).
+    None,
+}
+
+/// The authenticated user (API token or login cookie), or 401 (also for an expired or revoked
+/// token).
 pub async fn authenticate(s: &AppState, headers: &HeaderMap) -> Result<(User, Via), ApiError> {
     if let Some(value) = headers.get(header::AUTHORIZATION) {
         let token = value
@@ -194,12 +223,19 @@ pub async fn authenticate(s: &AppState, headers: &HeaderMap) -> Result<(User, Vi
             .ok()
             .and_then(|v| v.strip_prefix("Bearer "))
             .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "Authorization must be 'Bearer <API token>'"))?;
-        let user = s
+        let found = s
             .store
-            .user_for_api_token(token.trim())
+            .api_token(token.trim())
             .await?
             .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "unknown API token"))?;
-        return Ok((user, Via::Token));
+        return match found.status {
+            TokenStatus::Active => Ok((found.user, Via::Token { scope: found.scope })),
+            TokenStatus::Expired => Err(err(
+                StatusCode::UNAUTHORIZED,
+                "the API token has expired; create a new one",
+            )),
+            TokenStatus::Revoked => Err(err(StatusCode::UNAUTHORIZED, "the API token has been revoked")),
+        };
     }
     let token = headers
         .get(header::COOKIE)
@@ -214,28 +250,59 @@ pub async fn authenticate(s: &AppState, headers: &HeaderMap) -> Result<(User, Vi
     Ok((user, Via::Cookie { csrf }))
 }
 
-/// The user of a read request.
-async fn current_user(s: &AppState, headers: &HeaderMap) -> Result<User, ApiError> {
-    Ok(authenticate(s, headers).await?.0)
-}
-
-/// The user of a state-changing request: with the login cookie, the `X-CSRF-Token` header must
-/// carry the token the login returned (a page of another site cannot read it).
-async fn acting_user(s: &AppState, headers: &HeaderMap) -> Result<User, ApiError> {
+/// The user of a request to a route that takes `tokens`; `writes`: a state-changing request,
+/// for which the login cookie must come with the `X-CSRF-Token` header carrying the token the
+/// login returned (a page of another site cannot read it). 403 with the reason otherwise.
+pub async fn user_for(s: &AppState, headers: &HeaderMap, tokens: TokenUse, writes: bool) -> Result<User, ApiError> {
     let (user, via) = authenticate(s, headers).await?;
-    if let Via::Cookie { csrf } = via {
-        let sent = headers
-            .get("x-csrf-token")
-            .and_then(|v| v.to_str().ok())
-            .unwrap_or_default();
-        if sent != csrf {
-            return Err(err(
-                StatusCode::FORBIDDEN,
-                "missing or wrong X-CSRF-Token header (the csrf_token of your login)",
-            ));
+    match via {
+        Via::Cookie { csrf } if writes => {
+            let sent = headers
+                .get("x-csrf-token")
+                .and_then(|v| v.to_str().ok())
+                .unwrap_or_default();
+            if sent != csrf {
+                return Err(err(
+                    StatusCode::FORBIDDEN,
+                    "missing or wrong X-CSRF-Token header (the csrf_token of your login)",
+                ));
+            }
         }
+        Via::Cookie { .. } => {}
+        Via::Token { scope } => match (tokens, scope) {
+            (TokenUse::None, _) => {
+                return Err(err(
+                    StatusCode::FORBIDDEN,
+                    "API tokens cannot create API tokens: log in (cookie and X-CSRF-Token) to create one",
+                ));
+            }
+            (TokenUse::Full, TokenScope::Upload) => {
+                return Err(err(
+                    StatusCode::FORBIDDEN,
+                    "this API token has scope 'upload': it may only upload sessions (POST /api/sessions) \
+                     and read their status (GET /api/sessions/{id}); use a 'full' token for this",
+                ));
+            }
+            (TokenUse::Upload, _) | (TokenUse::Full, TokenScope::Full) => {}
+        },
     }
     Ok(user)
+}
+
+/// The user of a read request (cookie or a `full` token).
+pub(crate) async fn current_user(s: &AppState, headers: &HeaderMap) -> Result<User, ApiError> {
+    user_for(s, headers, TokenUse::Full, false).await
+}
+
+/// The user of a state-changing request (cookie with its CSRF token, or a `full` token).
+pub(crate) async fn acting_user(s: &AppState, headers: &HeaderMap) -> Result<User, ApiError> {
+    user_for(s, headers, TokenUse::Full, true).await
+}
+
+/// The user of what the desktop simulator does, which `upload` tokens may: upload a session
+/// (`writes`) and read a session's status.
+pub(crate) async fn simulator_user(s: &AppState, headers: &HeaderMap, writes: bool) -> Result<User, ApiError> {
+    user_for(s, headers, TokenUse::Upload, writes).await
 }
 
 #[derive(serde::Deserialize)]
@@ -284,17 +351,20 @@ async fn login(State(s): State<AppRef>, headers: HeaderMap, body: Bytes) -> Resu
     Ok(r)
 }
 
-/// Checks a password (with per-account rate limiting) and starts a login: the user, the cookie
-/// token and the login's CSRF token. Used by the JSON API and the dashboard's login form.
+/// Longest username a login may name: no account has a longer one (checked before anything else,
+/// so that no memory or work is spent on longer ones).
+pub const MAX_USERNAME_BYTES: usize = 64;
+/// Longest password a login may send (characters, as for accounts; 4 bytes each at most).
+pub const MAX_PASSWORD_BYTES: usize = 4 * 1024;
+
+/// Checks a password (with per-account rate limiting, on the password threads) and starts a
+/// login: the user, the cookie token and the login's CSRF token. Used by the JSON API and the
+/// dashboard's login form.
 pub async fn log_in(s: &AppState, username: &str, password: &str) -> Result<(User, String, String), ApiError> {
-    let key = username.to_lowercase();
-    let account = s
-        .login_failures
-        .lock()
-        .expect("not poisoned")
-        .entry(key)
-        .or_default()
-        .clone();
+    if username.len() > MAX_USERNAME_BYTES || password.len() > MAX_PASSWORD_BYTES {
+        return Err(err(StatusCode::UNAUTHORIZED, "wrong username or password"));
+    }
+    let account = s.login_failures.of(&username.to_lowercase());
     let mut recent = account.lock().await;
     let now = std::time::Instant::now();
     recent.retain(|t| now.duration_since(*t) < LOGIN_WINDOW);
@@ -305,9 +375,20 @@ pub async fn log_in(s: &AppState, username: &str, password: &str) -> Result<(Use
             format!("too many failed logins for this account; try again in {wait} s"),
         ));
     }
-    let Some(user) = s.store.check_login(username, password).await? else {
-        recent.push(now);
-        return Err(err(StatusCode::UNAUTHORIZED, "wrong username or password"));
+    let candidate = s.store.login_candidate(username).await?;
+    // Same work whether or not the account exists, so timing does not reveal which do.
+    let hash = candidate.as_ref().map_or(auth::DUMMY_HASH, |(_, h)| h.as_str());
+    let matched = s
+        .passwords
+        .verify(password, hash)
+        .await
+        .map_err(|e| err(StatusCode::SERVICE_UNAVAILABLE, e.to_string()))?;
+    let user = match candidate {
+        Some((user, _)) if matched => user,
+        _ => {
+            recent.push(now);
+            return Err(err(StatusCode::UNAUTHORIZED, "wrong username or password"));
+        }
     };
     recent.clear();
     drop(recent);
@@ -334,10 +415,10 @@ async fn logout(State(s): State<AppRef>, headers: HeaderMap) -> Result<Response,
 }
 
 /// POST /api/sessions: the session file as `application/octet-stream`. Checked before anything
-/// is stored: size, the recorder's strict reader (limits on records and decompression), a known
-/// atlas, and that the trainee in the file is the uploader or a trainee the instructor teaches.
+/// is stored ([`super::upload`]): size, who may upload the header's trainee, the header's fields,
+/// then the recorder's strict reader streaming the ticks within the upload limits.
 async fn upload(State(s): State<AppRef>, headers: HeaderMap, body: Body) -> Result<Response, ApiError> {
-    let user = acting_user(&s, &headers).await?;
+    let user = simulator_user(&s, &headers, true).await?;
     let limit = s.config.max_upload_bytes;
     let declared = headers
         .get(header::CONTENT_LENGTH)
@@ -377,49 +458,8 @@ pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(S
             format!("the upload exceeds the limit of {limit} bytes"),
         ));
     }
-    let data = bytes.clone();
-    let session = tokio::task::spawn_blocking(move || stylet_recorder::reader::verify_bytes(&data))
-        .await
-        .map_err(|_| err(StatusCode::INTERNAL_SERVER_ERROR, "validation failed"))?
-        .map_err(|e| {
-            err(
-                StatusCode::UNPROCESSABLE_ENTITY,
-                format!("not a valid session file: {e}"),
-            )
-        })?;
-    let h = &session.header;
-    if !s.scorers.contains_key(&h.atlas_hash) {
-        return Err(err(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            format!(
-                "the session was recorded on atlas '{}' ({}), which this server does not know",
-                h.atlas_id, h.atlas_hash
-            ),
-        ));
-    }
-    let trainee = s
-        .store
-        .user_by_name(&h.trainee)
-        .await?
-        .filter(|t| t.role == "trainee")
-        .ok_or_else(|| {
-            err(
-                StatusCode::UNPROCESSABLE_ENTITY,
-                format!("the session's trainee '{}' has no trainee account", h.trainee),
-            )
-        })?;
-    let allowed = match user.role.as_str() {
-        "trainee" => trainee.id == user.id,
-        "instructor" => s.store.teaches(&user.id, &trainee.id).await?,
-        "admin" => true,
-        _ => false,
-    };
-    if !allowed {
-        return Err(err(
-            StatusCode::FORBIDDEN,
-            format!("{} may not upload sessions of trainee '{}'", user.username, h.trainee),
-        ));
-    }
+    let checked = super::upload::check(s, user, &bytes).await?;
+    let (h, trainee) = (&checked.header, &checked.trainee);
     let sha = auth::sha256_hex(&bytes);
     if let Some(id) = s.store.session_by_file(&sha).await? {
         let status = s
@@ -453,7 +493,7 @@ pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(S
         difficulty: h.difficulty.clone(),
         atlas_hash: h.atlas_hash.clone(),
         physics_version: h.physics_version as i64,
-        duration_s: session.duration_s(),
+        duration_s: checked.verified.duration_s(),
         recorded_at: h.wall_clock_start.clone(),
     };
     let id = match s.store.insert_session(&new).await {
@@ -483,7 +523,7 @@ async fn get_session(
     headers: HeaderMap,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let user = current_user(&s, &headers).await?;
+    let user = simulator_user(&s, &headers, false).await?;
     let not_found = || err(StatusCode::NOT_FOUND, format!("no session {id}"));
     let (row, trainee_id) = s.store.session(&id).await?.ok_or_else(not_found)?;
     let allowed = match user.role.as_str() {
@@ -498,6 +538,50 @@ async fn get_session(
     let mut v = serde_json::to_value(&row).map_err(|_| err(StatusCode::INTERNAL_SERVER_ERROR, "internal error"))?;
     v["review"] = s.store.annotations(&id).await?;
     Ok(Json(v).into_response())
+}
+
+/// DELETE /api/sessions/{id} (admins): the session, its file, score, job, comments, overrides and
+/// derived data go; audited.
+async fn delete_session(
+    State(s): State<AppRef>,
+    headers: HeaderMap,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let user = acting_user(&s, &headers).await?;
+    remove_session(&s, &user, &id).await?;
+    Ok(Json(json!({ "deleted": id })).into_response())
+}
+
+/// Deletes a session for an admin (API and dashboard): the rows in one transaction, then the
+/// stored file and what was derived from it (review trace, figures).
+pub async fn remove_session(s: &AppState, user: &User, id: &str) -> Result<(), ApiError> {
+    if user.role != "admin" {
+        return Err(err(
+            StatusCode::FORBIDDEN,
+            format!("{} ({}) may not delete sessions", user.username, user.role),
+        ));
+    }
+    let sha = s
+        .store
+        .delete_session(id, user)
+        .await?
+        .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no session {id}")))?;
+    // Each kind of file lives under DATA/<kind>/<first two hex digits>/<sha>…
+    for kind in ["sessions", "traces", "figures"] {
+        let dir = s.config.data_dir.join(kind).join(&sha[..2.min(sha.len())]);
+        let Ok(mut entries) = tokio::fs::read_dir(&dir).await else {
+            continue;
+        };
+        while let Ok(Some(e)) = entries.next_entry().await {
+            if e.file_name().to_string_lossy().starts_with(&sha)
+                && let Err(err) = tokio::fs::remove_file(e.path()).await
+            {
+                tracing::warn!(error = %err, file = %e.path().display(), "cannot remove a deleted session's file");
+            }
+        }
+    }
+    tracing::info!(session = %id, by = %user.username, "session deleted");
+    Ok(())
 }
 
 /// Whether `user` may see the sessions of `trainee_id`.
@@ -544,7 +628,7 @@ pub fn check_override(score: f64, reason: &str) -> Result<&str, ApiError> {
         return Err(err(StatusCode::BAD_REQUEST, "score must lie in 0…100"));
     }
     let reason = reason.trim();
-    if reason.is_empty() || reason.len() > 2000 {
+    if reason.is_empty() || reason.chars().count() > 2000 {
         return Err(err(
             StatusCode::BAD_REQUEST,
             "an override needs a reason (1–2000 characters)",
@@ -556,7 +640,7 @@ pub fn check_override(score: f64, reason: &str) -> Result<&str, ApiError> {
 /// A comment is 1–10000 characters; returns it trimmed.
 pub fn check_comment(text: &str) -> Result<&str, ApiError> {
     let text = text.trim();
-    if text.is_empty() || text.len() > 10_000 {
+    if text.is_empty() || text.chars().count() > 10_000 {
         return Err(err(StatusCode::BAD_REQUEST, "a comment is 1–10000 characters"));
     }
     Ok(text)
@@ -649,21 +733,16 @@ async fn cohort_summary(
     axum::extract::Query(q): axum::extract::Query<ListQuery>,
 ) -> Result<Response, ApiError> {
     let user = current_user(&s, &headers).await?;
-    let cohort = s
-        .store
-        .cohort_id(&name)
-        .await?
-        .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no cohort {name}")))?;
+    // "No such cohort" and "not yours" get the same 404: which cohorts exist is not for everyone.
+    let not_found = || err(StatusCode::NOT_FOUND, format!("no cohort {name}"));
+    let cohort = s.store.cohort_id(&name).await?.ok_or_else(not_found)?;
     let allowed = match user.role.as_str() {
         "instructor" => s.store.in_cohort(&user.id, &cohort).await?,
         "curriculum" | "admin" => true,
         _ => false,
     };
     if !allowed {
-        return Err(err(
-            StatusCode::FORBIDDEN,
-            format!("{} may not see cohort {name}", user.username),
-        ));
+        return Err(not_found());
     }
     let filter = q.filter(&s).await?;
     let trainees = s.store.cohort_summary(&cohort, &filter).await?;
@@ -684,7 +763,7 @@ pub struct ListQuery {
 }
 
 impl ListQuery {
-    /// The store filter, or 400 with what is wrong. Unknown cohorts and trainees are 404.
+    /// The store filter, or 400 with what is wrong. Unknown cohorts and trainees match nothing.
     pub async fn filter(&self, s: &AppState) -> Result<super::store::SessionFilter, ApiError> {
         let blank = |v: &Option<String>| {
             v.as_deref()
@@ -709,22 +788,14 @@ impl ListQuery {
                 format!("unknown difficulty '{d}' (beginner, advanced, expert)"),
             ));
         }
+        // A cohort or trainee that does not exist filters out everything, exactly like one the
+        // caller may not see (the lists are narrowed to what the caller may see): the answer
+        // does not tell which names exist.
         if let Some(c) = blank(&self.cohort) {
-            f.cohort_id = Some(
-                s.store
-                    .cohort_id(&c)
-                    .await?
-                    .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no cohort {c}")))?,
-            );
+            f.cohort_id = Some(s.store.cohort_id(&c).await?.unwrap_or_default());
         }
         if let Some(t) = blank(&self.trainee) {
-            f.trainee_id = Some(
-                s.store
-                    .user_by_name(&t)
-                    .await?
-                    .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no trainee {t}")))?
-                    .id,
-            );
+            f.trainee_id = Some(s.store.user_by_name(&t).await?.map(|u| u.id).unwrap_or_default());
         }
         Ok(f)
     }
@@ -810,5 +881,16 @@ mod tests {
         let e = day_start("9999-12-31", 1).unwrap_err();
         assert_eq!(e.0, StatusCode::BAD_REQUEST);
         assert!(e.1.contains("out of range"), "{}", e.1);
+    }
+
+    /// Lengths are documented in characters: 1 500 'é' (3 000 bytes) are a valid reason.
+    #[test]
+    fn text_lengths_count_characters() {
+        let e = |n: usize| "é".repeat(n);
+        assert_eq!(check_override(50.0, &e(1500)).unwrap(), e(1500));
+        assert_eq!(check_override(50.0, &e(2000)).unwrap(), e(2000));
+        assert_eq!(check_override(50.0, &e(2001)).unwrap_err().0, StatusCode::BAD_REQUEST);
+        assert_eq!(check_comment(&e(10_000)).unwrap(), e(10_000));
+        assert_eq!(check_comment(&e(10_001)).unwrap_err().0, StatusCode::BAD_REQUEST);
     }
 }

@@ -6,9 +6,14 @@
 pub mod api;
 pub mod auth;
 pub mod export;
+pub mod limits;
+pub mod logins;
 pub mod openapi;
+pub mod server;
 pub mod store;
+pub mod tokens;
 pub mod traces;
+pub mod upload;
 pub mod worker;
 
 use std::collections::BTreeMap;
@@ -16,6 +21,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::Arc;
 
+pub use limits::Limits;
 pub use store::{Store, StoreError};
 
 /// Settings of a running service.
@@ -31,6 +37,8 @@ pub struct Config {
     pub max_upload_bytes: usize,
     /// Mark cookies Secure (behind TLS).
     pub secure_cookies: bool,
+    /// Limits and timeouts (docs/security.md).
+    pub limits: Limits,
 }
 
 impl Config {
@@ -48,8 +56,14 @@ pub struct AppState {
     /// One scorer per known atlas, by content hash.
     pub scorers: BTreeMap<String, Arc<crate::Scorer>>,
     pub wake: tokio::sync::Notify,
-    /// Recent failed logins per account (rate limiting).
-    pub login_failures: std::sync::Mutex<BTreeMap<String, LoginFailures>>,
+    /// Recent failed logins per account (rate limiting), bounded.
+    pub login_failures: logins::FailedLogins,
+    /// Password checks, off the async threads, with a bounded queue.
+    pub passwords: logins::PasswordPool,
+    /// The last health check (it writes; at most once a second).
+    pub health: store::health::Health,
+    /// Upload verifications running at once (each holds a chunk and a tick block in memory).
+    pub verify_permits: tokio::sync::Semaphore,
 }
 
 impl AppState {
@@ -111,22 +125,36 @@ pub async fn serve(
         .await
         .map_err(|e| setup(&format!("cannot bind {}: {e}", config.bind)))?;
     let addr = listener.local_addr().map_err(|e| setup(&e))?;
+    let login_failures = logins::FailedLogins::new(config.limits.login_failure_accounts, api::LOGIN_WINDOW);
+    let passwords = logins::PasswordPool::new(config.limits.password_threads, config.limits.password_queue);
     let state = Arc::new(AppState {
         store,
         config,
         scorers,
         wake: tokio::sync::Notify::new(),
-        login_failures: Default::default(),
+        login_failures,
+        passwords,
+        health: Default::default(),
+        verify_permits: tokio::sync::Semaphore::new(std::thread::available_parallelism().map_or(1, |n| n.get())),
     });
     worker::start(state.clone());
     let mut app = api::router(state.clone());
     if let Some(mount) = mount {
         app = app.merge(mount(state.clone()));
     }
+    let limits = Arc::new(state.config.limits.clone());
+    let max_upload = state.config.max_upload_bytes as u64;
     ready(addr, state);
-    axum::serve(listener, app.layer(axum::middleware::from_fn(api::request_log)))
-        .await
-        .map_err(|e| setup(&e))
+    let app = app
+        .layer(axum::extract::DefaultBodyLimit::max(limits.max_json_body_bytes))
+        .layer(axum::middleware::from_fn(server::json_errors))
+        .layer(axum::middleware::from_fn_with_state(
+            (limits.clone(), max_upload),
+            server::deadline,
+        ))
+        .layer(axum::middleware::from_fn(server::security_headers))
+        .layer(axum::middleware::from_fn(api::request_log));
+    server::run(listener, app, &limits).await.map_err(|e| setup(&e))
 }
 
 fn load_atlases(dir: &std::path::Path) -> Result<Vec<(stylet_atlas::Atlas, crate::Scorer)>, ServiceError> {
@@ -149,7 +177,3 @@ fn load_atlases(dir: &std::path::Path) -> Result<Vec<(stylet_atlas::Atlas, crate
         })
         .collect()
 }
-
-/// One account's recent failed logins. Its lock is held while a password is checked, so that
-/// guesses sent in parallel are checked one after another, each seeing the failures before it.
-pub type LoginFailures = std::sync::Arc<tokio::sync::Mutex<Vec<std::time::Instant>>>;

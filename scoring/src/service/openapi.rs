@@ -19,10 +19,22 @@ pub fn document() -> Value {
             "securitySchemes": {
                 "cookie": { "type": "apiKey", "in": "cookie", "name": "stylet_session",
                             "description": "From POST /api/login. State-changing requests also send X-CSRF-Token." },
-                "token": { "type": "http", "scheme": "bearer", "description": "From POST /api/tokens (desktop uploads)." }
+                "token": { "type": "http", "scheme": "bearer", "description": "From POST /api/tokens. Scope `upload` (the desktop simulator): POST /api/sessions and GET /api/sessions/{id} only, 403 elsewhere; scope `full`: the account's rights. Expired or revoked: 401." }
             },
             "schemas": {
                 "Error": { "type": "object", "required": ["error"], "properties": { "error": { "type": "string" } } },
+                "ApiToken": {
+                    "type": "object",
+                    "required": ["id", "username", "label", "scope", "created_at", "status"],
+                    "properties": {
+                        "id": { "type": "string" }, "username": { "type": "string" }, "label": { "type": "string" },
+                        "scope": { "type": "string", "enum": ["upload", "full"] },
+                        "created_at": { "type": "string" }, "expires_at": { "type": ["string", "null"] },
+                        "revoked_at": { "type": ["string", "null"] },
+                        "last4": { "type": ["string", "null"], "description": "The token's last four hex digits" },
+                        "status": { "type": "string", "enum": ["active", "expired", "revoked"] }
+                    }
+                },
                 "Session": {
                     "type": "object",
                     "required": ["id", "trainee", "scenario", "difficulty", "status", "uploaded_at", "duration_s"],
@@ -38,7 +50,7 @@ pub fn document() -> Value {
             }
         },
         "paths": {
-            "/healthz": { "get": { "summary": "Liveness and database check", "responses": { "200": { "description": "{\"status\":\"ok\"}" } } } },
+            "/healthz": { "get": { "summary": "Health: the database and the data directory can be written", "responses": { "200": { "description": "{\"status\":\"ok\"}" }, "503": error_response("the database or the data directory cannot be written") } } },
             "/api/openapi.json": { "get": { "summary": "This document", "responses": { "200": { "description": "OpenAPI 3.1" } } } },
             "/api/login": { "post": {
                 "summary": "Log in; sets the stylet_session cookie",
@@ -48,6 +60,7 @@ pub fn document() -> Value {
                 "responses": {
                     "200": { "description": "{username, role, csrf_token}" },
                     "400": error_response("malformed body"),
+                    "403": error_response("sent from another site (Sec-Fetch-Site, or an Origin or Referer that is not this server)"),
                     "401": error_response("wrong username or password"),
                     "429": error_response("too many failed logins for this account")
                 }
@@ -75,14 +88,43 @@ pub fn document() -> Value {
                                    "409": error_response("the username exists") }
                 }
             },
-            "/api/tokens": { "post": {
-                "summary": "Create an API token for the logged-in user (shown once)",
-                "security": [{ "cookie": [] }],
-                "responses": { "201": { "description": "{token, label, username}" }, "401": error_response("not logged in"), "403": error_response("CSRF token missing") }
+            "/api/tokens": {
+                "post": {
+                    "summary": "Create an API token for the logged-in user (shown once; audited)",
+                    "description": "Login cookie and X-CSRF-Token only: a request authenticated by an API token gets 403. Scope `upload` (default) may only upload sessions and read their status; `full` has the account's rights.",
+                    "security": [{ "cookie": [] }],
+                    "requestBody": { "required": true, "content": { "application/json": { "schema": {
+                        "type": "object", "required": ["label"], "additionalProperties": false,
+                        "properties": { "label": { "type": "string", "minLength": 1, "maxLength": 100 },
+                                        "scope": { "type": "string", "enum": ["upload", "full"], "default": "upload" },
+                                        "expires_in_days": { "type": "integer", "minimum": 1, "maximum": 90, "default": 90 } } } } } },
+                    "responses": { "201": { "description": "ApiToken and `token`, the secret, shown only here" },
+                                   "400": error_response("bad label, scope or expiry"),
+                                   "401": error_response("not logged in"),
+                                   "403": error_response("CSRF token missing, or authenticated by an API token") }
+                },
+                "get": {
+                    "summary": "The caller's API tokens (an admin's: everyone's), newest first, never the secret",
+                    "security": [{ "cookie": [] }, { "token": [] }],
+                    "responses": { "200": { "description": "{tokens: [ApiToken]}", "content": { "application/json": { "schema": {
+                                       "type": "object", "properties": { "tokens": { "type": "array", "items": { "$ref": "#/components/schemas/ApiToken" } } } } } } },
+                                   "401": error_response("not logged in, or the token expired or was revoked"),
+                                   "403": error_response("an upload-scoped token") }
+                }
+            },
+            "/api/tokens/{id}/revoke": { "post": {
+                "summary": "Revoke an API token (own; admins: anyone's); audited; revoking twice changes nothing",
+                "security": [{ "cookie": [] }, { "token": [] }],
+                "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
+                "responses": { "200": { "description": "ApiToken, now revoked", "content": { "application/json": { "schema": { "$ref": "#/components/schemas/ApiToken" } } } },
+                               "401": error_response("not logged in"),
+                               "403": error_response("CSRF token missing, or an upload-scoped token"),
+                               "404": error_response("no such token, or not yours") }
             } },
             "/api/sessions": {
                 "post": {
                     "summary": "Upload a session file",
+                    "description": "API tokens of either scope may upload (the desktop simulator).",
                     "security": [{ "cookie": [] }, { "token": [] }],
                     "requestBody": { "required": true, "content": { "application/octet-stream": { "schema": { "type": "string", "format": "binary" } } } },
                     "responses": {
@@ -137,12 +179,23 @@ pub fn document() -> Value {
             } },
             "/api/sessions/{id}": { "get": {
                 "summary": "One session and its score",
+                "description": "API tokens of either scope may read it (the simulator polls the status of its upload); every other route refuses upload-scoped tokens with 403.",
                 "security": [{ "cookie": [] }, { "token": [] }],
                 "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
                 "responses": {
                     "200": { "description": "Session", "content": { "application/json": { "schema": { "$ref": "#/components/schemas/Session" } } } },
                     "401": error_response("not logged in"),
                     "404": error_response("no such session, or not yours to see")
+                }
+            }, "delete": {
+                "summary": "Delete a session (admins): rows, file, trace and figures; audited",
+                "security": [{ "cookie": [] }, { "token": [] }],
+                "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
+                "responses": {
+                    "200": { "description": "Deleted: {\"deleted\": id}" },
+                    "401": error_response("not logged in"),
+                    "403": error_response("not an admin, or no CSRF token"),
+                    "404": error_response("no such session")
                 }
             } }
         }

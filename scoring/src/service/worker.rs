@@ -33,35 +33,88 @@ pub fn start(state: Arc<AppState>) {
             let state = state.clone();
             tokio::spawn(async move {
                 let _permit = permit;
-                let file = state.session_file(&job.file_sha256);
-                let trace_file = super::traces::trace_path(&state.config.data_dir, &job.file_sha256);
-                let scorer = state.scorers.get(&job.atlas_hash).cloned();
-                let result = tokio::task::spawn_blocking(move || {
-                    let scorer = scorer.ok_or("the session's atlas is not loaded on this server")?;
-                    let session =
-                        stylet_recorder::reader::recover(&file).map_err(|e| format!("{}: {e}", file.display()))?;
-                    // One replay gives the score and what the dashboard draws (a cache: a
-                    // failure to store it only costs a replay later).
-                    let (report, trace) = scorer.score_session_traced(&session).map_err(|e| e.to_string())?;
-                    if let Err(e) = super::traces::write_trace(&trace_file, &trace) {
-                        tracing::warn!(error = %e, "cannot store a review trace");
-                    }
-                    Ok::<_, String>(report)
-                })
-                .await
-                .unwrap_or_else(|e| Err(format!("scoring panicked: {e}")));
-                let stored = match &result {
-                    Ok(report) => state.store.finish_job(&job, report).await,
-                    Err(e) => state.store.fail_job(&job, e).await,
-                };
-                match (stored, result) {
-                    (Ok(()), Ok(r)) => {
-                        tracing::info!(session = %job.session_id, score = r.grade.score, verified = r.replay_verified, "scored")
-                    }
-                    (Ok(()), Err(e)) => tracing::warn!(session = %job.session_id, error = %e, "scoring failed"),
-                    (Err(e), _) => tracing::error!(session = %job.session_id, error = %e, "cannot store the result"),
-                }
+                let outcome = replay(&state, &job).await;
+                store_outcome(&state, &job, outcome).await;
             });
         }
     });
+}
+
+/// How a replay ended.
+enum Outcome {
+    Scored(Box<crate::ScoreReport>),
+    /// The session cannot be scored (damaged beyond use, diverging, no atlas): final.
+    Failed(String),
+    /// The file could not be read for a reason that may pass (I/O): try again later.
+    Retry(String),
+}
+
+/// Replays the job's session on a blocking thread; the same replay writes the review trace.
+async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
+    let file = state.session_file(&job.file_sha256);
+    let trace_file = super::traces::trace_path(&state.config.data_dir, &job.file_sha256);
+    let scorer = state.scorers.get(&job.atlas_hash).cloned();
+    tokio::task::spawn_blocking(move || {
+        let Some(scorer) = scorer else {
+            return Outcome::Failed("the session's atlas is not loaded on this server".into());
+        };
+        let session = match stylet_recorder::reader::recover(&file) {
+            Ok(s) => s,
+            Err(e @ stylet_recorder::ReadError::Io(_)) => return Outcome::Retry(e.to_string()),
+            Err(e) => return Outcome::Failed(format!("{}: {e}", file.display())),
+        };
+        match scorer.score_session_traced(&session) {
+            Ok((report, trace)) => {
+                // A cache: a failure to store it only costs a replay later.
+                if let Err(e) = super::traces::write_trace(&trace_file, &trace) {
+                    tracing::warn!(error = %e, "cannot store a review trace");
+                }
+                Outcome::Scored(Box::new(report))
+            }
+            Err(e) => Outcome::Failed(e.to_string()),
+        }
+    })
+    .await
+    .unwrap_or_else(|e| Outcome::Failed(format!("scoring panicked: {e}")))
+}
+
+/// Longest wait between two tries to store a result, or before a job is retried.
+const MAX_BACKOFF: Duration = Duration::from_secs(60);
+
+/// Stores what a replay gave. If the store cannot write (a read-only or failing disk), the
+/// result is kept and stored again with back-off until it can: a finished replay is never lost
+/// and its session never left `scoring`. (If the process dies meanwhile, the next start
+/// re-queues the job.)
+async fn store_outcome(state: &Arc<AppState>, job: &super::store::Job, outcome: Outcome) {
+    let mut wait = Duration::from_millis(500);
+    loop {
+        let stored = match &outcome {
+            Outcome::Scored(report) => state.store.finish_job(job, report).await,
+            Outcome::Failed(e) => state.store.fail_job(job, e).await,
+            Outcome::Retry(_) => {
+                // 2, 4, 8 … s after each failed try, at most a minute.
+                let after = Duration::from_secs(1 << job.attempts.clamp(1, 6)).min(MAX_BACKOFF);
+                state.store.requeue_job(job, after).await
+            }
+        };
+        match (stored, &outcome) {
+            (Ok(()), Outcome::Scored(r)) => {
+                tracing::info!(session = %job.session_id, score = r.grade.score, verified = r.replay_verified, "scored");
+                return;
+            }
+            (Ok(()), Outcome::Failed(e)) => {
+                tracing::warn!(session = %job.session_id, error = %e, "scoring failed");
+                return;
+            }
+            (Ok(()), Outcome::Retry(e)) => {
+                tracing::warn!(session = %job.session_id, error = %e, attempts = job.attempts, "cannot read the session now; queued again");
+                return;
+            }
+            (Err(e), _) => {
+                tracing::error!(session = %job.session_id, error = %e, retry_s = wait.as_secs_f64(), "cannot store the result; will try again");
+                tokio::time::sleep(wait).await;
+                wait = (wait * 2).min(MAX_BACKOFF);
+            }
+        }
+    }
 }

@@ -1,4 +1,4 @@
-//! Accounts, logins, API tokens and cohorts.
+//! Accounts, logins and cohorts (API tokens: `tokens.rs`).
 
 use sqlx::Row;
 
@@ -24,13 +24,17 @@ impl Store {
                 ROLES.join(", ")
             )));
         }
+        // Usernames and cohort names are ASCII only, so their lengths in bytes are their lengths
+        // in characters.
         let valid = |c: char| c.is_ascii_alphanumeric() || "._-@".contains(c);
         if username.is_empty() || username.len() > 64 || !username.chars().all(valid) {
             return Err(StoreError::Invalid(
                 "a username is 1–64 letters, digits or . _ - @".into(),
             ));
         }
-        if password.chars().count() < 8 || password.len() > 1024 {
+        // Characters, as documented, at both ends (a password of 1024 'é' is 2048 bytes).
+        let chars = password.chars().count();
+        if !(8..=1024).contains(&chars) {
             return Err(StoreError::Invalid("a password has 8–1024 characters".into()));
         }
         if let Some(c) = cohort
@@ -40,7 +44,12 @@ impl Store {
                 "a cohort name is 1–64 letters, digits or . _ - @".into(),
             ));
         }
-        let hash = auth::hash_password(password).map_err(StoreError::Invalid)?;
+        // argon2id takes tens of milliseconds: off the async threads.
+        let owned = password.to_string();
+        let hash = tokio::task::spawn_blocking(move || auth::hash_password(&owned))
+            .await
+            .map_err(|e| StoreError::Invalid(format!("hashing the password: {e}")))?
+            .map_err(StoreError::Invalid)?;
         let id = new_id();
         let mut tx = self.begin_write().await?;
         let exists = sqlx::query("SELECT id FROM users WHERE username = $1")
@@ -96,21 +105,18 @@ impl Store {
         })
     }
 
-    /// The user with this username and password (argon2id check), if any.
-    pub async fn check_login(&self, username: &str, password: &str) -> Result<Option<User>, StoreError> {
+    /// The account a login names and its password hash, if any. The caller checks the password
+    /// (argon2id, on the service's password threads), against a dummy hash when there is no
+    /// such account, so that timing does not reveal which usernames exist.
+    pub async fn login_candidate(&self, username: &str) -> Result<Option<(User, String)>, StoreError> {
         let row = sqlx::query("SELECT id, username, role, password_hash FROM users WHERE username = $1")
             .bind(username.to_string())
             .fetch_optional(&self.pool)
             .await?;
-        let Some(row) = row else {
-            // Same work as a real check, so timing does not reveal which usernames exist.
-            let _ = auth::verify_password(password, auth::DUMMY_HASH);
-            return Ok(None);
-        };
-        let hash: String = row.try_get("password_hash")?;
-        Ok(auth::verify_password(password, &hash)
-            .then(|| Self::user_of(&row))
-            .transpose()?)
+        Ok(match row {
+            Some(r) => Some((Self::user_of(&r)?, r.try_get("password_hash")?)),
+            None => None,
+        })
     }
 
     pub async fn user_by_name(&self, username: &str) -> Result<Option<User>, StoreError> {
@@ -154,28 +160,6 @@ impl Store {
             Some(r) => Some((Self::user_of(&r)?, r.try_get("csrf_token")?)),
             None => None,
         })
-    }
-
-    /// A new API token for `user` (for the desktop app's uploads); returned once, stored hashed.
-    pub async fn create_api_token(&self, user: &User, label: &str) -> Result<String, StoreError> {
-        let token = auth::random_token();
-        sqlx::query("INSERT INTO api_tokens (token_sha256, user_id, label, created_at) VALUES ($1, $2, $3, $4)")
-            .bind(auth::sha256_hex(&token))
-            .bind(user.id.clone())
-            .bind(label.to_string())
-            .bind(now())
-            .execute(&self.pool)
-            .await?;
-        self.audit(Some(&user.id), "token.create", None, label).await?;
-        Ok(token)
-    }
-
-    pub async fn user_for_api_token(&self, token: &str) -> Result<Option<User>, StoreError> {
-        let row = sqlx::query("SELECT u.id, u.username, u.role FROM api_tokens t JOIN users u ON u.id = t.user_id WHERE t.token_sha256 = $1")
-            .bind(auth::sha256_hex(token))
-            .fetch_optional(&self.pool)
-            .await?;
-        Ok(row.as_ref().map(Self::user_of).transpose()?)
     }
 
     pub async fn end_login(&self, token: &str) -> Result<(), StoreError> {
@@ -255,4 +239,28 @@ pub struct UserRow {
     pub role: String,
     pub cohorts: Vec<String>,
     pub created_at: String,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Password lengths are documented in characters: 1024 'é' (2048 bytes) are allowed.
+    #[tokio::test]
+    async fn password_lengths_count_characters() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::open(&format!("sqlite://{}?mode=rwc", dir.path().join("t.db").display()))
+            .await
+            .unwrap();
+        store
+            .add_user("long", "trainee", &"é".repeat(1024), None, None)
+            .await
+            .unwrap();
+        for (name, password) in [("longer", "é".repeat(1025)), ("short", "é".repeat(7))] {
+            match store.add_user(name, "trainee", &password, None, None).await {
+                Err(StoreError::Invalid(m)) => assert!(m.contains("8–1024 characters"), "{m}"),
+                other => panic!("{name}: {other:?}"),
+            }
+        }
+    }
 }

@@ -23,15 +23,17 @@ impl Store {
     /// also keeps two servers on one database from taking the same job.
     pub async fn claim_job(&self) -> Result<Option<Job>, StoreError> {
         let row = sqlx::query(
-            "SELECT j.id, j.session_id, s.file_sha256, s.atlas_hash FROM scoring_jobs j JOIN sessions s ON s.id = j.session_id \
-             WHERE j.state = 'queued' ORDER BY j.created_at, j.id LIMIT 1",
+            "SELECT j.id, j.session_id, j.attempts, s.file_sha256, s.atlas_hash FROM scoring_jobs j JOIN sessions s ON s.id = j.session_id \
+             WHERE j.state = 'queued' AND (j.not_before IS NULL OR j.not_before <= $1) ORDER BY j.created_at, j.id LIMIT 1",
         )
+        .bind(now())
         .fetch_optional(&self.pool)
         .await?;
         let Some(row) = row else { return Ok(None) };
         let job = Job {
             id: row.try_get("id")?,
             session_id: row.try_get("session_id")?,
+            attempts: row.try_get::<i64, _>("attempts")? + 1,
             file_sha256: row.try_get("file_sha256")?,
             atlas_hash: row.try_get("atlas_hash")?,
         };
@@ -54,11 +56,22 @@ impl Store {
         Ok(Some(job))
     }
 
-    /// Stores a score and closes its job in one transaction; a second score for the same session
-    /// is refused by the key (never scored twice).
+    /// Stores a score and closes its job in one transaction, unless the job is no longer this
+    /// worker's (finished elsewhere, or its session deleted meanwhile); a second score for the
+    /// same session is refused by the key (never scored twice).
     pub async fn finish_job(&self, job: &Job, report: &crate::ScoreReport) -> Result<(), StoreError> {
         let json = serde_json::to_string(report).map_err(|e| StoreError::Invalid(e.to_string()))?;
         let mut tx = self.begin_write().await?;
+        let closed =
+            sqlx::query("UPDATE scoring_jobs SET state = 'done', finished_at = $1 WHERE id = $2 AND state = 'running'")
+                .bind(now())
+                .bind(job.id.clone())
+                .execute(&mut *tx)
+                .await?;
+        if closed.rows_affected() != 1 {
+            tx.rollback().await?;
+            return Ok(());
+        }
         sqlx::query(
             "INSERT INTO scores (session_id, score, passed, difficulty, rubric, rubric_version, physics_version, replay_verified, \
              incomplete, report_json, scored_at) VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11)",
@@ -76,12 +89,31 @@ impl Store {
         .bind(now())
         .execute(&mut *tx)
         .await?;
-        sqlx::query("UPDATE scoring_jobs SET state = 'done', finished_at = $1 WHERE id = $2")
-            .bind(now())
-            .bind(job.id.clone())
+        write_summary(&mut tx, &job.session_id, &Summary::from_report(report)).await?;
+        tx.commit().await?;
+        Ok(())
+    }
+
+    /// Puts a running job back in the queue, not to be claimed again for `after` (its file could
+    /// not be read for a passing reason). Unless it is no longer this worker's.
+    pub async fn requeue_job(&self, job: &Job, after: std::time::Duration) -> Result<(), StoreError> {
+        let not_before = humantime::format_rfc3339_micros(std::time::SystemTime::now() + after).to_string();
+        let mut tx = self.begin_write().await?;
+        let back = sqlx::query(
+            "UPDATE scoring_jobs SET state = 'queued', started_at = NULL, not_before = $1 WHERE id = $2 AND state = 'running'",
+        )
+        .bind(not_before)
+        .bind(job.id.clone())
+        .execute(&mut *tx)
+        .await?;
+        if back.rows_affected() != 1 {
+            tx.rollback().await?;
+            return Ok(());
+        }
+        sqlx::query("UPDATE sessions SET status = 'queued' WHERE id = $1")
+            .bind(job.session_id.clone())
             .execute(&mut *tx)
             .await?;
-        write_summary(&mut tx, &job.session_id, &Summary::from_report(report)).await?;
         tx.commit().await?;
         Ok(())
     }
@@ -116,6 +148,8 @@ impl Store {
 pub struct Job {
     pub id: String,
     pub session_id: String,
+    /// How many times it has been claimed, this time included.
+    pub attempts: i64,
     pub file_sha256: String,
     pub atlas_hash: String,
 }

@@ -9,15 +9,18 @@ use sqlx::{AnyPool, Row};
 
 mod accounts;
 mod cohorts;
+pub mod health;
 mod jobs;
 mod review;
 mod sessions;
+mod tokens;
 
 pub use accounts::UserRow;
 pub use cohorts::{CohortLine, ReportLine, ScorePoint};
 pub use jobs::Job;
 pub use review::{ExportRow, ProgressPoint, TraineeSummary};
 pub use sessions::{NewSession, SessionFilter, SessionLine};
+pub use tokens::{TokenAuth, TokenRow, TokenScope, TokenStatus};
 
 /// Roles, from least to most administrative.
 pub const ROLES: [&str; 4] = ["trainee", "instructor", "curriculum", "admin"];
@@ -53,11 +56,26 @@ pub struct SessionRow {
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
     #[error("database: {0}")]
-    Db(#[from] sqlx::Error),
+    Db(sqlx::Error),
     #[error("migrations: {0}")]
     Migrate(#[from] sqlx::migrate::MigrateError),
     #[error("{0}")]
     Invalid(String),
+}
+
+impl From<sqlx::Error> for StoreError {
+    /// Every database error passes here: storage failures are noted ([`health`]).
+    fn from(e: sqlx::Error) -> Self {
+        health::note(&e);
+        StoreError::Db(e)
+    }
+}
+
+impl StoreError {
+    /// Whether the storage failed (read-only, I/O, full): the request may succeed later (503).
+    pub fn is_storage_failure(&self) -> bool {
+        matches!(self, StoreError::Db(e) if health::is_storage_failure(e))
+    }
 }
 
 /// Now, RFC 3339 UTC with microseconds: equal-length strings that sort in time order.
@@ -109,10 +127,25 @@ impl Store {
                     if sqlite {
                         sqlx::query("PRAGMA busy_timeout = 10000").execute(&mut *conn).await?;
                         sqlx::query("PRAGMA foreign_keys = ON").execute(&mut *conn).await?;
+                        // SQLite opens a file it cannot write read-only, silently, and the
+                        // connection stays so: refuse it, so that a data directory that was
+                        // read-only for a while leaves no such connection in the pool.
+                        let writable = async {
+                            sqlx::query("BEGIN IMMEDIATE").execute(&mut *conn).await?;
+                            sqlx::query("ROLLBACK").execute(&mut *conn).await
+                        };
+                        if let Err(e) = writable.await {
+                            health::note(&e);
+                            return Err(e);
+                        }
                     }
                     Ok(())
                 })
             })
+            // A connection in use when the storage failed is closed, not reused.
+            .after_release(|_, meta| Box::pin(async move { Ok(!health::outlived_failure(meta.age)) }))
+            // And none lives forever.
+            .max_lifetime(std::time::Duration::from_secs(30 * 60))
             .connect(url)
             .await?;
         if sqlite {

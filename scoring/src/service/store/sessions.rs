@@ -302,3 +302,51 @@ pub struct NewSession {
     pub duration_s: f64,
     pub recorded_at: String,
 }
+
+impl Store {
+    /// Deletes a session and everything about it (score, job, comments, grade overrides) in one
+    /// transaction, audited; returns its file's SHA-256 (the caller removes the file and derived
+    /// data), or `None` if there is no such session.
+    pub async fn delete_session(&self, id: &str, actor: &User) -> Result<Option<String>, StoreError> {
+        let mut tx = self.begin_write().await?;
+        let row = sqlx::query(
+            "SELECT s.file_sha256, s.scenario, u.username FROM sessions s JOIN users u ON u.id = s.trainee_id WHERE s.id = $1",
+        )
+        .bind(id.to_string())
+        .fetch_optional(&mut *tx)
+        .await?;
+        let Some(row) = row else {
+            tx.rollback().await?;
+            return Ok(None);
+        };
+        let sha: String = row.try_get("file_sha256")?;
+        let detail = format!(
+            "session of {} ({}), file {sha}",
+            row.try_get::<String, _>("username")?,
+            row.try_get::<String, _>("scenario")?
+        );
+        for table in ["scores", "comments", "grade_overrides", "scoring_jobs"] {
+            sqlx::query(sqlx::AssertSqlSafe(format!(
+                "DELETE FROM {table} WHERE session_id = $1"
+            )))
+            .bind(id.to_string())
+            .execute(&mut *tx)
+            .await?;
+        }
+        sqlx::query("DELETE FROM sessions WHERE id = $1")
+            .bind(id.to_string())
+            .execute(&mut *tx)
+            .await?;
+        sqlx::query("INSERT INTO audit_log (id, at, actor_id, action, target, detail) VALUES ($1, $2, $3, $4, $5, $6)")
+            .bind(new_id())
+            .bind(now())
+            .bind(actor.id.clone())
+            .bind("session.delete".to_string())
+            .bind(id.to_string())
+            .bind(detail)
+            .execute(&mut *tx)
+            .await?;
+        tx.commit().await?;
+        Ok(Some(sha))
+    }
+}

@@ -1,0 +1,57 @@
+//! The service's limits and timeouts, each with its default (docs/security.md lists them with the
+//! `stylet serve` flag that changes each). Every request, upload and connection is bounded by
+//! these before any expensive work is done for it.
+
+use std::time::Duration;
+
+/// Limits and timeouts of a running service.
+#[derive(Debug, Clone)]
+pub struct Limits {
+    /// Longest session accepted for upload (s): bounds the ticks a file may hold, so the memory
+    /// and time of its verification and replay.
+    pub max_session_s: u64,
+    /// Largest request body other than a session upload (bytes): logins, comments, forms.
+    pub max_json_body_bytes: usize,
+    /// Time a client has to send a request's headers.
+    pub header_timeout: Duration,
+    /// A connection on which nothing moves for this long is closed (idle keep-alive, stalled
+    /// bodies, unread answers).
+    pub idle_timeout: Duration,
+    /// Longest time for a request other than an upload, body included.
+    pub request_timeout: Duration,
+    /// Uploads get `request_timeout` plus their size at this rate (bytes per second).
+    pub min_upload_bytes_per_s: u64,
+    /// Connections served at once; more wait in the kernel's backlog.
+    pub max_connections: usize,
+    /// Password checks (argon2id) run at once, on threads of their own.
+    pub password_threads: usize,
+    /// Password checks waiting for a thread; more get 503 with Retry-After.
+    pub password_queue: usize,
+    /// Accounts whose recent failed logins are remembered (the oldest are forgotten first).
+    pub login_failure_accounts: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        Limits {
+            max_session_s: 30 * 60,
+            max_json_body_bytes: 64 << 10,
+            header_timeout: Duration::from_secs(10),
+            idle_timeout: Duration::from_secs(60),
+            request_timeout: Duration::from_secs(30),
+            min_upload_bytes_per_s: 32 << 10,
+            max_connections: 512,
+            password_threads: (cores / 2).max(1),
+            password_queue: 32,
+            login_failure_accounts: 10_000,
+        }
+    }
+}
+
+impl Limits {
+    /// How long an upload of `bytes` may take, body included.
+    pub fn upload_timeout(&self, bytes: u64) -> Duration {
+        self.request_timeout + Duration::from_secs(bytes / self.min_upload_bytes_per_s.max(1))
+    }
+}

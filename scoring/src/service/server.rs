@@ -1,0 +1,138 @@
+//! The HTTP server around the routes: connections capped and timed out, every request given a
+//! deadline, every answer the security headers, and every API error JSON (docs/security.md).
+//!
+//! Connections are served by hyper directly (not `axum::serve`) for its header-read timer: a
+//! client gets [`Limits::header_timeout`] to send each request's headers, and the same timer
+//! closes keep-alive connections that stay idle that long. At most
+//! [`Limits::max_connections`] are served at once; further ones wait in the kernel's backlog.
+
+use std::sync::Arc;
+
+use axum::Router;
+use axum::extract::Request;
+use axum::http::{HeaderValue, Method, StatusCode, header};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+use hyper_util::rt::{TokioIo, TokioTimer};
+use tokio::net::TcpListener;
+use tokio::sync::Semaphore;
+
+use super::Limits;
+use super::api::err;
+
+/// Serves `app` on `listener` until the process ends.
+pub async fn run(listener: TcpListener, app: Router, limits: &Limits) -> std::io::Result<()> {
+    let permits = Arc::new(Semaphore::new(limits.max_connections.max(1)));
+    let mut http = hyper::server::conn::http1::Builder::new();
+    http.timer(TokioTimer::new())
+        .header_read_timeout(limits.header_timeout)
+        .keep_alive(true);
+    loop {
+        let permit = permits
+            .clone()
+            .acquire_owned()
+            .await
+            .expect("the semaphore is never closed");
+        let socket = match listener.accept().await {
+            Ok((socket, _)) => socket,
+            Err(e) => {
+                // Out of file descriptors and the like: wait instead of spinning.
+                tracing::warn!(error = %e, "cannot accept a connection");
+                tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+                continue;
+            }
+        };
+        let _ = socket.set_nodelay(true);
+        let service = hyper_util::service::TowerToHyperService::new(app.clone());
+        let connection = http.serve_connection(TokioIo::new(socket), service);
+        tokio::spawn(async move {
+            let _permit = permit;
+            if let Err(e) = connection.await {
+                tracing::debug!(error = %e, "connection closed");
+            }
+        });
+    }
+}
+
+/// The deadline of a request, body included: [`Limits::request_timeout`], plus, for a request
+/// that sends a body, its declared size (or the largest upload) at the slowest accepted rate.
+/// A request past it gets 408 and its connection is closed.
+pub async fn deadline(
+    axum::extract::State((limits, max_upload)): axum::extract::State<(Arc<Limits>, u64)>,
+    req: Request,
+    next: Next,
+) -> Response {
+    let declared = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    let bytes = match (declared, req.method()) {
+        (Some(n), _) => n.min(max_upload),
+        (None, &Method::GET | &Method::HEAD | &Method::OPTIONS) => 0,
+        (None, _) => max_upload,
+    };
+    match tokio::time::timeout(limits.upload_timeout(bytes), next.run(req)).await {
+        Ok(r) => r,
+        Err(_) => {
+            let mut r = err(
+                StatusCode::REQUEST_TIMEOUT,
+                "the request took too long (body sent too slowly?)",
+            )
+            .into_response();
+            r.headers_mut()
+                .insert(header::CONNECTION, HeaderValue::from_static("close"));
+            r
+        }
+    }
+}
+
+/// The security headers of every answer: no framing, no content sniffing, scripts and other
+/// resources from this site only, no referrer to other sites.
+pub const CONTENT_SECURITY_POLICY: &str = "default-src 'self'; img-src 'self' data:; style-src 'self' 'unsafe-inline'; \
+     script-src 'self'; object-src 'none'; base-uri 'none'; form-action 'self'; frame-ancestors 'none'";
+
+pub async fn security_headers(req: Request, next: Next) -> Response {
+    let mut r = next.run(req).await;
+    let h = r.headers_mut();
+    h.insert(
+        header::CONTENT_SECURITY_POLICY,
+        HeaderValue::from_static(CONTENT_SECURITY_POLICY),
+    );
+    h.insert(header::X_FRAME_OPTIONS, HeaderValue::from_static("DENY"));
+    h.insert(header::X_CONTENT_TYPE_OPTIONS, HeaderValue::from_static("nosniff"));
+    h.insert(header::REFERRER_POLICY, HeaderValue::from_static("same-origin"));
+    r
+}
+
+/// Longest error text taken over from a framework rejection.
+const MAX_ERROR_TEXT: usize = 4096;
+
+/// API errors are JSON `{"error": ...}` (docs/api.md), including the ones the framework writes
+/// itself as plain text: bad query strings, bodies over the limit, unknown routes and methods.
+pub async fn json_errors(req: Request, next: Next) -> Response {
+    let path = req.uri().path();
+    let api = path.starts_with("/api/") || path == "/healthz";
+    let r = next.run(req).await;
+    let status = r.status();
+    let is_json = r
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with("application/json"));
+    if !api || is_json || !(status.is_client_error() || status.is_server_error()) {
+        return r;
+    }
+    let (parts, body) = r.into_parts();
+    let text = match axum::body::to_bytes(body, MAX_ERROR_TEXT).await {
+        Ok(b) if !b.is_empty() => String::from_utf8_lossy(&b).trim().to_string(),
+        _ => status.canonical_reason().unwrap_or("error").to_lowercase(),
+    };
+    let mut out = err(status, text).into_response();
+    for (name, value) in &parts.headers {
+        if name != header::CONTENT_TYPE && name != header::CONTENT_LENGTH {
+            out.headers_mut().insert(name, value.clone());
+        }
+    }
+    out
+}

@@ -1,0 +1,770 @@
+//! Regression tests of the adversarial review of `stylet serve` (issue 13): each would fail on the
+//! service before its fix. Memory is measured as the server process's peak RSS (VmHWM).
+
+mod common;
+
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use common::*;
+use stylet_recorder::format::{self, TickRecord};
+use stylet_recorder::{SessionEnd, SessionHeader, SessionWriter, WriterOptions};
+
+/// Peak and current resident memory of a process (MiB), from /proc.
+fn memory_mib(pid: u32) -> (f64, f64) {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let field = |name: &str| -> f64 {
+        let line = status.lines().find(|l| l.starts_with(name)).unwrap();
+        line.split_whitespace().nth(1).unwrap().parse::<f64>().unwrap() / 1024.0
+    };
+    (field("VmHWM:"), field("VmRSS:"))
+}
+
+/// Resets a process's peak RSS to its current RSS (Linux: `5` to /proc/PID/clear_refs), so that
+/// the next peak measures what happens from now on, not the atlas loading at start.
+fn reset_peak(pid: u32) {
+    std::fs::write(format!("/proc/{pid}/clear_refs"), "5").unwrap();
+}
+
+fn header_of(file: &Path) -> SessionHeader {
+    stylet_recorder::reader::read_header(&std::fs::read(file).unwrap()).unwrap()
+}
+
+fn still_tick(tick: u64) -> TickRecord {
+    TickRecord {
+        tick,
+        position_mm: [150.0, 0.0, 0.0],
+        orientation: [1.0, 0.0, 0.0, 0.0],
+        buttons: 0,
+        force_n: [0.0; 3],
+        torque_nmm: [0.0; 3],
+        tip_label: 1,
+        inserted_mm: 0.0,
+    }
+}
+
+/// A session file written by the recorder's own writer: `header` and ticks `first..first+n`.
+fn written(dir: &Path, name: &str, header: &SessionHeader, first: u64, n: u64) -> Vec<u8> {
+    let path = dir.join(format!("{name}.mcap"));
+    let w = SessionWriter::create(&path, header, WriterOptions::default()).unwrap();
+    for t in first..first + n {
+        w.record_raw_blocking(still_tick(t)).unwrap();
+    }
+    w.finish().unwrap();
+    std::fs::read(&path).unwrap()
+}
+
+/// A hand-made session file of a few hundred KB that declares `ticks` ticks in highly
+/// compressible chunks of 50 000-tick blocks (each chunk about 6 MB uncompressed), written with
+/// the same MCAP library and message encoding as the recorder's writer.
+fn tick_bomb_file(header: &SessionHeader, ticks: u64) -> Vec<u8> {
+    const BLOCK: u64 = 50_000;
+    let block: Vec<TickRecord> = (0..BLOCK).map(still_tick).collect();
+    let mut encoded = stylet_recorder::writer::encode_block(&block);
+    let mut w = mcap::WriteOptions::new()
+        .profile(format::PROFILE)
+        .compression(Some(mcap::Compression::Zstd))
+        .chunk_size(Some(1))
+        .create(std::io::Cursor::new(Vec::new()))
+        .unwrap();
+    w.write_metadata(&mcap::records::Metadata {
+        name: format::META_HEADER.into(),
+        metadata: header.to_metadata(),
+    })
+    .unwrap();
+    let schema = w
+        .add_schema(
+            "stylet.ticks",
+            format::SCHEMA_ENCODING,
+            format::json_schema(format::TOPIC_TICKS).as_bytes(),
+        )
+        .unwrap();
+    let channel = w
+        .add_channel(
+            schema,
+            format::TOPIC_TICKS,
+            format::MESSAGE_ENCODING,
+            &Default::default(),
+        )
+        .unwrap();
+    for i in 0..ticks / BLOCK {
+        encoded.first_tick = i * BLOCK;
+        let data = format::to_cbor(&encoded);
+        let time = i * BLOCK * 1_000_000;
+        w.write_to_known_channel(
+            &mcap::records::MessageHeader {
+                channel_id: channel,
+                sequence: i as u32,
+                log_time: time,
+                publish_time: time,
+            },
+            &data,
+        )
+        .unwrap();
+    }
+    let end = SessionEnd {
+        ticks,
+        dropped_ticks: 0,
+        complete: true,
+        reason: String::new(),
+    };
+    w.write_metadata(&mcap::records::Metadata {
+        name: format::META_END.into(),
+        metadata: end.to_metadata(),
+    })
+    .unwrap();
+    w.finish().unwrap();
+    w.into_inner().into_inner()
+}
+
+/// Defect 1: a small file declaring 20 M ticks (2.5 GB decoded) is refused — by an account that
+/// may not upload it before anything is decoded, by its trainee because it exceeds the longest
+/// session accepted — and the server's peak memory grows by less than 100 MB either way.
+#[test]
+fn a_tick_bomb_is_refused_with_bounded_memory() {
+    let f = Fixture::new();
+    let db = Db::Sqlite;
+    f.users(&db);
+    let server = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let b = &server.base;
+    let bomb = tick_bomb_file(&header_of(&f.session("tina-ok")), 20_000_000);
+    assert!(bomb.len() < 2 << 20, "the bomb is {} bytes", bomb.len());
+    let pid = server.child.id();
+    let (cora, tina) = (login(b, "cora"), login(b, "tina"));
+    reset_peak(pid);
+    let (_, rss0) = memory_mib(pid);
+    let (status, body) = raw_post(b, "/api/sessions", Some(&cora), &bomb);
+    assert_eq!(status, 403, "{body}");
+    let (peak1, rss1) = memory_mib(pid);
+    reset_peak(pid);
+    let (status, body) = raw_post(b, "/api/sessions", Some(&tina), &bomb);
+    assert_eq!(status, 422, "{body}");
+    let e = body["error"].as_str().unwrap();
+    assert!(e.contains("more than 1800000 ticks") && e.contains("30 minutes"), "{e}");
+    let (peak2, _) = memory_mib(pid);
+    println!(
+        "server RSS {rss0:.0} MiB; peak during the refused upload (curriculum) {peak1:.0} MiB, during the rejected one (trainee) {peak2:.0} MiB"
+    );
+    assert!(peak1 - rss0 < 100.0, "{rss0} -> {peak1} MiB");
+    assert!(peak2 - rss1 < 100.0, "{rss1} -> {peak2} MiB");
+    assert_eq!(files_under(&f.data().join("sessions")), 0);
+    let (status, _, _) = call("GET", &format!("{b}/healthz"), None, None, false);
+    assert_eq!(status, 200);
+}
+
+/// Defects 4 and 7: header fields are bounded at the format level and checked against what the
+/// server knows; sessions with no ticks or not starting at tick 0 are refused; each with a 422
+/// and the reason, nothing stored.
+#[test]
+fn uploads_with_bad_headers_or_ticks_are_refused_with_the_reason() {
+    let f = Fixture::new();
+    let db = Db::Sqlite;
+    f.users(&db);
+    let server = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let b = &server.base;
+    let tina = login(b, "tina");
+    let good = header_of(&f.session("tina-ok"));
+    let dir = f.dir.path();
+    let with = |change: &dyn Fn(&mut SessionHeader)| {
+        let mut h = good.clone();
+        change(&mut h);
+        h
+    };
+    let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+        (
+            "a 1000-character scenario",
+            written(dir, "long", &with(&|h| h.scenario = "s".repeat(1000)), 0, 100),
+            "'scenario' is longer than 64 characters",
+        ),
+        (
+            "a scenario the atlas does not declare",
+            written(
+                dir,
+                "unknown-scenario",
+                &with(&|h| h.scenario = "free-style".into()),
+                0,
+                100,
+            ),
+            "unknown scenario 'free-style'",
+        ),
+        (
+            "an unknown difficulty",
+            written(
+                dir,
+                "difficulty",
+                &with(&|h| h.difficulty = "impossible".into()),
+                0,
+                100,
+            ),
+            "unknown difficulty 'impossible'",
+        ),
+        (
+            "an unknown device",
+            written(dir, "device", &with(&|h| h.device = "joystick".into()), 0, 100),
+            "unknown device 'joystick'",
+        ),
+        (
+            "physics version 99",
+            written(dir, "physics", &with(&|h| h.physics_version = 99), 0, 100),
+            "physics version 99",
+        ),
+        ("no ticks", written(dir, "empty", &good, 0, 0), "no ticks"),
+        (
+            "a first tick of 2^64 - 2",
+            written(dir, "late", &good, u64::MAX - 1, 1),
+            "the first tick is 18446744073709551614, not 0",
+        ),
+    ];
+    for (what, bytes, reason) in cases {
+        let (status, body) = raw_post(b, "/api/sessions", Some(&tina), &bytes);
+        assert_eq!(status, 422, "{what}: {body}");
+        let e = body["error"].as_str().unwrap();
+        assert!(e.contains(reason), "{what}: {e}");
+    }
+    assert_eq!(files_under(&f.data().join("sessions")), 0);
+    let (_, list, _) = call("GET", &format!("{b}/api/sessions"), Some(&tina), None, false);
+    assert_eq!(list["total"], 0, "{list}");
+}
+
+/// Defect 4: an admin deletes a session: rows, file and derived data go, the deletion is
+/// audited; nobody else may.
+#[test]
+fn an_admin_deletes_a_session_and_everything_about_it() {
+    let f = Fixture::new();
+    let db = Db::Sqlite;
+    f.users(&db);
+    let server = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let b = &server.base;
+    let (root, tina, ivan) = (login(b, "root"), login(b, "tina"), login(b, "ivan"));
+    let bytes = std::fs::read(f.session("tina-lung")).unwrap();
+    let (status, up) = raw_post(b, "/api/sessions", Some(&tina), &bytes);
+    assert_eq!(status, 201, "{up}");
+    let id = up["id"].as_str().unwrap().to_string();
+    assert_eq!(wait_scored(b, &tina, &id)["status"], "scored");
+    let comment = br#"{"body": "too high: the lung"}"#;
+    let (status, _, _) = call(
+        "POST",
+        &format!("{b}/api/sessions/{id}/comments"),
+        Some(&ivan),
+        Some(comment),
+        true,
+    );
+    assert_eq!(status, 201);
+    assert!(files_under(&f.data().join("traces")) >= 1);
+    for (who, auth) in [("tina", &tina), ("ivan", &ivan)] {
+        let (status, body, _) = call("DELETE", &format!("{b}/api/sessions/{id}"), Some(auth), None, false);
+        assert_eq!(status, 403, "{who}: {body}");
+    }
+    // Without the login's CSRF token: refused too.
+    let Auth::Cookie { token, .. } = &root else {
+        unreachable!()
+    };
+    let no_csrf = Auth::Cookie {
+        token: token.clone(),
+        csrf: "wrong".into(),
+    };
+    let (status, _, _) = call("DELETE", &format!("{b}/api/sessions/{id}"), Some(&no_csrf), None, false);
+    assert_eq!(status, 403);
+    let (status, body, _) = call("DELETE", &format!("{b}/api/sessions/{id}"), Some(&root), None, false);
+    assert_eq!(status, 200, "{body}");
+    let (status, _, _) = call("GET", &format!("{b}/api/sessions/{id}"), Some(&root), None, false);
+    assert_eq!(status, 404);
+    for kind in ["sessions", "traces", "figures"] {
+        assert_eq!(files_under(&f.data().join(kind)), 0, "{kind}");
+    }
+    let (status, _, _) = call("DELETE", &format!("{b}/api/sessions/{id}"), Some(&root), None, false);
+    assert_eq!(status, 404);
+    // Audited, and the same file can be uploaded again afterwards.
+    let audit = tokio::runtime::Runtime::new().unwrap().block_on(async {
+        sqlx::any::install_default_drivers();
+        let pool = sqlx::AnyPool::connect(&db.url(&f.data())).await.unwrap();
+        let row: (String, String) =
+            sqlx::query_as("SELECT action, detail FROM audit_log WHERE target = $1 AND action = 'session.delete'")
+                .bind(id.clone())
+                .fetch_one(&pool)
+                .await
+                .unwrap();
+        row
+    });
+    assert_eq!(audit.0, "session.delete");
+    assert!(audit.1.contains("tina") && audit.1.contains("lung-hit"), "{}", audit.1);
+    let (status, again) = raw_post(b, "/api/sessions", Some(&tina), &bytes);
+    assert_eq!(status, 201, "{again}");
+    // The dashboard's form does the same, only with its box ticked and the login's CSRF token.
+    let again = again["id"].as_str().unwrap().to_string();
+    let Auth::Cookie { token, csrf } = &root else {
+        unreachable!()
+    };
+    let agent = ureq::AgentBuilder::new().redirects(0).build();
+    let form = |fields: &[(&str, &str)]| match agent
+        .post(&format!("{b}/sessions/{again}/delete"))
+        .set("Cookie", &format!("stylet_session={token}"))
+        .send_form(fields)
+    {
+        Ok(r) => (r.status(), r.header("Location").unwrap_or_default().to_string()),
+        Err(ureq::Error::Status(s, r)) => (s, r.header("Location").unwrap_or_default().to_string()),
+        Err(e) => panic!("{e}"),
+    };
+    assert_eq!(form(&[("csrf", csrf), ("confirm", "")]).0, 400, "unticked");
+    assert_eq!(form(&[("csrf", "wrong"), ("confirm", "yes")]).0, 403, "no CSRF token");
+    assert_eq!(
+        form(&[("csrf", csrf), ("confirm", "yes")]),
+        (303, "/sessions".to_string())
+    );
+    let (status, _, _) = call("GET", &format!("{b}/api/sessions/{again}"), Some(&root), None, false);
+    assert_eq!(status, 404);
+}
+
+/// Defect 11: names that do not exist get the same answer as names the caller may not see.
+#[test]
+fn names_that_do_not_exist_answer_like_names_one_may_not_see() {
+    let f = Fixture::new();
+    let db = Db::Sqlite;
+    f.users(&db);
+    let server = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let b = &server.base;
+    let (tina, ivan) = (login(b, "tina"), login(b, "ivan"));
+    let get = |auth: &Auth, path: &str| call("GET", &format!("{b}{path}"), Some(auth), None, false);
+    // Filters: an account that exists but is not visible, and one that does not exist.
+    for (existing, missing) in [
+        ("/api/sessions?trainee=root", "/api/sessions?trainee=nosuchuser"),
+        ("/api/sessions?cohort=c2", "/api/sessions?cohort=nosuchcohort"),
+        (
+            "/api/export/sessions.csv?trainee=tom",
+            "/api/export/sessions.csv?trainee=nosuchuser",
+        ),
+    ] {
+        let who = if existing.contains("export") { &ivan } else { &tina };
+        let (s1, v1, _) = get(who, existing);
+        let (s2, v2, _) = get(who, missing);
+        assert_eq!((s1, s2), (200, 200), "{existing}: {v1} / {missing}: {v2}");
+        assert_eq!(v1, v2, "{existing} vs {missing}");
+    }
+    // Cohort summaries: not yours and does not exist are both 404.
+    let (s1, _, _) = get(&ivan, "/api/cohorts/c2/summary");
+    let (s2, _, _) = get(&ivan, "/api/cohorts/nosuchcohort/summary");
+    assert_eq!((s1, s2), (404, 404));
+    // Uploads naming another trainee: the same 403 whether or not the account exists.
+    let good = header_of(&f.session("tina-ok"));
+    let dir = f.dir.path();
+    for (uploader, auth) in [("tina", &tina), ("ivan", &ivan)] {
+        let mut answers = Vec::new();
+        for trainee in ["tom", "nosuchuser"] {
+            let mut h = good.clone();
+            h.trainee = trainee.into();
+            let bytes = written(dir, &format!("{uploader}-{trainee}"), &h, 0, 10);
+            let (status, body) = raw_post(b, "/api/sessions", Some(auth), &bytes);
+            let e = body["error"].as_str().unwrap().replace(trainee, "X");
+            answers.push((status, e));
+        }
+        assert_eq!(answers[0], answers[1], "{uploader}");
+        assert_eq!(answers[0].0, 403, "{uploader}: {:?}", answers[0]);
+    }
+}
+
+/// Defect 2: failed logins with long, distinct usernames are refused before anything is kept,
+/// and the server's memory stays flat.
+#[test]
+fn failed_logins_with_long_usernames_keep_memory_flat() {
+    let f = Fixture::new();
+    let db = Db::Sqlite;
+    f.users(&db);
+    let server = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let b = &server.base;
+    let pid = server.child.id();
+    reset_peak(pid);
+    let (_, rss0) = memory_mib(pid);
+    // 600 distinct 60 KB usernames: 36 MB if each were remembered.
+    for i in 0..600 {
+        let name = format!("{i:06}{}", "x".repeat(60_000));
+        let body = serde_json::to_vec(&serde_json::json!({ "username": name, "password": "wrong password" })).unwrap();
+        let (status, v, _) = call("POST", &format!("{b}/api/login"), None, Some(&body), true);
+        assert_eq!(status, 401, "{v}");
+    }
+    let (_, rss1) = memory_mib(pid);
+    println!("server RSS {rss0:.1} -> {rss1:.1} MiB after 600 failed logins with 60 KB usernames");
+    assert!(rss1 - rss0 < 16.0, "{rss0} -> {rss1} MiB");
+    // A login body over the limit is refused before it is read, as JSON.
+    let big = serde_json::to_vec(&serde_json::json!({ "username": "x".repeat(3 << 20), "password": "p" })).unwrap();
+    let (status, v) = raw_post(b, "/api/login", None, &big);
+    assert_eq!(status, 413, "{v}");
+    assert!(v["error"].is_string(), "{v}");
+    // The real account still logs in.
+    login(b, "tina");
+}
+
+/// Defect 3: password checks run on their own threads with a bounded queue: a flood of wrong
+/// passwords beyond it gets 503 with Retry-After, and other routes keep answering meanwhile.
+/// Prints /healthz latency during the flood (no threshold: machines differ).
+#[test]
+fn a_login_flood_is_queued_or_refused_and_other_routes_keep_answering() {
+    let f = Fixture::new();
+    let db = Db::Sqlite;
+    f.users(&db);
+    let server = Server::start(
+        &f.data(),
+        &db,
+        &f.atlases(),
+        &["--workers", "1", "--password-threads", "1", "--password-queue", "4"],
+    );
+    let b = server.base.clone();
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let flooders: Vec<_> = (0..32)
+        .map(|i| {
+            let (b, stop) = (b.clone(), stop.clone());
+            std::thread::spawn(move || {
+                let mut seen = std::collections::BTreeMap::<u16, u32>::new();
+                let body = format!(r#"{{"username":"user{i}","password":"wrong password"}}"#);
+                while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    let resp = ureq::post(&format!("{b}/api/login"))
+                        .set("Content-Type", "application/json")
+                        .send_bytes(body.as_bytes());
+                    let (status, retry) = match resp {
+                        Ok(r) => (r.status(), r.header("Retry-After").map(str::to_string)),
+                        Err(ureq::Error::Status(s, r)) => (s, r.header("Retry-After").map(str::to_string)),
+                        Err(e) => panic!("{e}"),
+                    };
+                    if status == 503 {
+                        assert_eq!(retry.as_deref(), Some("1"));
+                    }
+                    *seen.entry(status).or_default() += 1;
+                }
+                seen
+            })
+        })
+        .collect();
+    std::thread::sleep(Duration::from_millis(500));
+    let mut healthz_ms = Vec::new();
+    for _ in 0..100 {
+        let t0 = Instant::now();
+        let (status, _, _) = call("GET", &format!("{b}/healthz"), None, None, false);
+        assert_eq!(status, 200);
+        healthz_ms.push(t0.elapsed().as_secs_f64() * 1e3);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let mut totals = std::collections::BTreeMap::<u16, u32>::new();
+    for t in flooders {
+        for (k, v) in t.join().unwrap() {
+            *totals.entry(k).or_default() += v;
+        }
+    }
+    healthz_ms.sort_by(f64::total_cmp);
+    println!(
+        "32-way wrong-password flood: answers {totals:?}; /healthz p50 {:.1} ms, p99 {:.1} ms",
+        healthz_ms[50], healthz_ms[98]
+    );
+    assert!(totals.get(&503).copied().unwrap_or(0) > 0, "{totals:?}");
+    assert!(totals.get(&401).copied().unwrap_or(0) > 0, "{totals:?}");
+    // 429 once an account name has failed five times.
+    assert_eq!(
+        totals.keys().filter(|k| ![401, 429, 503].contains(*k)).count(),
+        0,
+        "{totals:?}"
+    );
+}
+
+/// Defect 6: slow clients are cut off: headers not finished in time, bodies sent too slowly,
+/// connections left idle; and at most --max-connections are served at once.
+#[test]
+fn slow_and_idle_connections_are_closed() {
+    let f = Fixture::new();
+    let db = Db::Sqlite;
+    f.users(&db);
+    let server = Server::start(
+        &f.data(),
+        &db,
+        &f.atlases(),
+        &[
+            "--workers",
+            "1",
+            "--header-timeout-s",
+            "2",
+            "--request-timeout-s",
+            "2",
+            "--min-upload-rate",
+            "1000000",
+            "--max-connections",
+            "64",
+        ],
+    );
+    let b = &server.base;
+    let addr = b.strip_prefix("http://").unwrap().to_string();
+    let tina = login(b, "tina");
+    let Auth::Cookie { token, csrf } = &tina else {
+        unreachable!()
+    };
+    let started = Instant::now();
+    let mut sockets: Vec<(&str, TcpStream)> = Vec::new();
+    for i in 0..50 {
+        let mut s = TcpStream::connect(&addr).unwrap();
+        let kind = match i % 3 {
+            0 => {
+                // Slow headers: a request line, then nothing more.
+                s.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n").unwrap();
+                "slow headers"
+            }
+            1 => {
+                // A slow upload body: 10 MB announced, a few bytes sent.
+                let head = format!(
+                    "POST /api/sessions HTTP/1.1\r\nHost: x\r\nCookie: stylet_session={token}\r\nX-CSRF-Token: {csrf}\r\n\
+                     Content-Type: application/octet-stream\r\nContent-Length: 10000000\r\n\r\n"
+                );
+                s.write_all(head.as_bytes()).unwrap();
+                s.write_all(&[0x89, b'M', b'C']).unwrap();
+                "slow body"
+            }
+            _ => "idle",
+        };
+        s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+        sockets.push((kind, s));
+    }
+    for (kind, mut s) in sockets {
+        let mut buf = Vec::new();
+        // The server closes it (EOF, possibly after an answer) well before our 30 s read timeout.
+        let r = s.read_to_end(&mut buf);
+        let waited = started.elapsed();
+        assert!(
+            r.is_ok() || matches!(r.as_ref().unwrap_err().kind(), std::io::ErrorKind::ConnectionReset),
+            "{kind}: {r:?} after {waited:?}"
+        );
+        assert!(waited < Duration::from_secs(20), "{kind}: open for {waited:?}");
+        if kind == "slow body" {
+            let text = String::from_utf8_lossy(&buf);
+            assert!(text.is_empty() || text.starts_with("HTTP/1.1 408"), "{kind}: {text}");
+        }
+    }
+    let (status, _, _) = call("GET", &format!("{b}/healthz"), None, None, false);
+    assert_eq!(status, 200);
+}
+
+/// Defect 6: past --max-connections, further connections wait (in the kernel's backlog) until
+/// a served one is closed.
+#[test]
+fn connections_past_the_cap_wait_for_a_free_slot() {
+    let f = Fixture::new();
+    let db = Db::Sqlite;
+    f.users(&db);
+    let server = Server::start(
+        &f.data(),
+        &db,
+        &f.atlases(),
+        &["--workers", "1", "--header-timeout-s", "3", "--max-connections", "4"],
+    );
+    let addr = server.base.strip_prefix("http://").unwrap().to_string();
+    let idle: Vec<TcpStream> = (0..4).map(|_| TcpStream::connect(&addr).unwrap()).collect();
+    std::thread::sleep(Duration::from_millis(300));
+    let t0 = Instant::now();
+    let mut s = TcpStream::connect(&addr).unwrap();
+    s.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+        .unwrap();
+    let mut answer = String::new();
+    s.read_to_string(&mut answer).unwrap();
+    let waited = t0.elapsed();
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+    // Served only once the header timeout had closed the four idle connections.
+    assert!(
+        waited >= Duration::from_secs(2),
+        "answered after {waited:?}: the cap did not hold"
+    );
+    drop(idle);
+}
+
+/// Defect 15: errors the framework writes (bad query, body over the limit, unknown route) are
+/// JSON like every API error, and every answer carries the security headers.
+#[test]
+fn framework_errors_are_json_and_every_answer_has_security_headers() {
+    let f = Fixture::new();
+    let db = Db::Sqlite;
+    f.users(&db);
+    let server = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let b = &server.base;
+    let tina = login(b, "tina");
+    for (path, status) in [
+        ("/api/sessions?page=abc", 400),
+        ("/api/no-such-route", 404),
+        ("/api/sessions?from=yesterday", 400),
+    ] {
+        let (got, v, _) = call("GET", &format!("{b}{path}"), Some(&tina), None, false);
+        assert_eq!(got, status, "{path}: {v}");
+        assert!(v["error"].as_str().is_some_and(|e| !e.is_empty()), "{path}: {v}");
+    }
+    let (got, v, _) = call(
+        "POST",
+        &format!("{b}/api/sessions/x/comments"),
+        Some(&tina),
+        Some(b"{not json"),
+        true,
+    );
+    assert_eq!(got, 400, "{v}");
+    for path in ["/login", "/healthz", "/api/sessions", "/"] {
+        let resp = match ureq::get(&format!("{b}{path}")).call() {
+            Ok(r) => r,
+            Err(ureq::Error::Status(_, r)) => r,
+            Err(e) => panic!("{e}"),
+        };
+        let csp = resp.header("Content-Security-Policy").unwrap_or_default().to_string();
+        assert!(
+            csp.contains("frame-ancestors 'none'") && csp.contains("default-src 'self'"),
+            "{path}: {csp}"
+        );
+        assert_eq!(resp.header("X-Frame-Options"), Some("DENY"), "{path}");
+        assert_eq!(resp.header("X-Content-Type-Options"), Some("nosniff"), "{path}");
+    }
+}
+
+/// Runs `stylet serve` as the unprivileged user `nobody` (so that file permissions bind it: the
+/// tests run as root, whom a read-only mode does not stop).
+fn start_unprivileged(data: &Path, atlases: &Path) -> Server {
+    use std::io::BufRead;
+    let log = std::fs::File::create(data.join("server.log")).unwrap();
+    let mut child = std::process::Command::new("setpriv")
+        .args(["--reuid=65534", "--regid=65534", "--clear-groups", "--"])
+        .arg(env!("CARGO_BIN_EXE_stylet"))
+        .args(["serve", "--bind", "127.0.0.1:0", "--workers", "1"])
+        .args(["--data-dir", s(data), "--atlases", s(atlases)])
+        .stdout(std::process::Stdio::piped())
+        .stderr(log)
+        .spawn()
+        .expect("setpriv (util-linux) runs");
+    let mut line = String::new();
+    std::io::BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let base = line
+        .trim()
+        .strip_prefix("listening on ")
+        .unwrap_or_else(|| panic!("unexpected: {line:?}; see {}", data.join("server.log").display()))
+        .to_string();
+    Server { child, base }
+}
+
+fn chmod_r(dir: &Path, writable: bool) {
+    let mode = if writable { "u+w" } else { "a-w" };
+    let out = std::process::Command::new("chmod")
+        .args(["-R", mode, s(dir)])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}
+
+/// Defect 5: after the data directory was read-only for a while, the service recovers by
+/// itself: /healthz says 503 during the window and 200 after it, every login and comment works
+/// again, and a session whose score could not be stored during the window is scored, not left
+/// `scoring` for ever.
+#[test]
+fn the_service_recovers_after_its_data_directory_was_read_only() {
+    let f = Fixture::new();
+    let db = Db::Sqlite;
+    f.users(&db);
+    let data = f.data();
+    // The server runs as nobody: it needs to reach its data and atlases.
+    let chown = std::process::Command::new("chown")
+        .args(["-R", "65534:65534", s(&data)])
+        .status()
+        .unwrap();
+    assert!(chown.success());
+    let chmod = std::process::Command::new("chmod")
+        .args(["a+rx", s(f.dir.path())])
+        .status()
+        .unwrap();
+    assert!(chmod.success());
+    let server = start_unprivileged(&data, &f.atlases());
+    let b = &server.base;
+    let (tina, ivan) = (login(b, "tina"), login(b, "ivan"));
+    let upload = |name: &str| {
+        let (status, v) = raw_post(
+            b,
+            "/api/sessions",
+            Some(&tina),
+            &std::fs::read(f.session(name)).unwrap(),
+        );
+        assert_eq!(status, 201, "{v}");
+        v["id"].as_str().unwrap().to_string()
+    };
+    let first = upload("tina-ok");
+    assert_eq!(wait_scored(b, &tina, &first)["status"], "scored");
+    // The window: a session is being scored when the directory turns read-only.
+    let during = upload("tina-lung");
+    chmod_r(&data, false);
+    let t0 = Instant::now();
+    loop {
+        let (status, v, _) = call("GET", &format!("{b}/healthz"), None, None, false);
+        if status == 503 {
+            assert!(v["error"].as_str().unwrap().contains("cannot be written"), "{v}");
+            break;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "healthz still {status} during the read-only window"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    // Traffic during the window: parallel logins and comments open new connections, which SQLite
+    // opens read-only. Whatever they answer, the server must not die.
+    let during_window: Vec<_> = (0..16)
+        .map(|i| {
+            let b = b.clone();
+            std::thread::spawn(move || {
+                // Names of no account: the real ones must not be locked by these failures.
+                let body = format!(r#"{{"username":"someone{i}","password":"x-password"}}"#);
+                call("POST", &format!("{b}/api/login"), None, Some(body.as_bytes()), true).0
+            })
+        })
+        .collect();
+    for t in during_window {
+        let status = t.join().unwrap();
+        assert!([401, 429, 500, 503].contains(&status), "{status}");
+    }
+    let comment = br#"{"body": "written during the window"}"#;
+    let (status, _, _) = call(
+        "POST",
+        &format!("{b}/api/sessions/{first}/comments"),
+        Some(&ivan),
+        Some(comment),
+        true,
+    );
+    assert_ne!(status, 0);
+    std::thread::sleep(Duration::from_secs(2));
+    chmod_r(&data, true);
+    // After the window: healthy within seconds, and everything works, every time.
+    let t1 = Instant::now();
+    loop {
+        let (status, _, _) = call("GET", &format!("{b}/healthz"), None, None, false);
+        if status == 200 {
+            break;
+        }
+        assert!(
+            t1.elapsed() < Duration::from_secs(30),
+            "healthz still {status} after the window"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let mut failures = Vec::new();
+    for i in 0..40 {
+        let user = if i % 2 == 0 { "tina" } else { "ivan" };
+        let body = format!(r#"{{"username":"{user}","password":"{user}-password"}}"#);
+        let (status, v, _) = call("POST", &format!("{b}/api/login"), None, Some(body.as_bytes()), true);
+        if status != 200 {
+            failures.push(format!("login {i}: {status} {v}"));
+        }
+        let comment = format!(r#"{{"body": "comment {i} after the window"}}"#);
+        let (status, v, _) = call(
+            "POST",
+            &format!("{b}/api/sessions/{first}/comments"),
+            Some(&ivan),
+            Some(comment.as_bytes()),
+            true,
+        );
+        if status != 201 {
+            failures.push(format!("comment {i}: {status} {v}"));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+    let scored = wait_scored(b, &tina, &during);
+    assert_eq!(scored["status"], "scored", "{scored}");
+    let after = upload("tina-two");
+    assert_eq!(wait_scored(b, &tina, &after)["status"], "scored");
+}
