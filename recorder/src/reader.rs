@@ -208,6 +208,9 @@ impl Walk<'_> {
             TOPIC_EVENTS => {
                 self.note()?;
                 let e: EventRecord = from_cbor(data)?;
+                // Bounded before anything else looks at them (unused fields are kept too).
+                check_text("event name", &e.name, MAX_NAME_CHARS)?;
+                check_text("event tool", e.tool.as_deref().unwrap_or_default(), MAX_NAME_CHARS)?;
                 e.to_event().map_err(|m| format!("event at tick {}: {m}", e.tick))?;
                 self.events.push(e);
             }
@@ -246,6 +249,19 @@ impl Walk<'_> {
     fn record(&mut self, op: u8, body: &[u8]) -> Result<(), String> {
         match records::parse(op, body).map_err(|e| format!("bad record (opcode {op:#04x}): {e}"))? {
             Record::Channel { id, topic } => {
+                // Only the session's own topics: nothing else is read, so nothing else is kept.
+                if ![
+                    TOPIC_TICKS,
+                    TOPIC_EVENTS,
+                    TOPIC_DIGESTS,
+                    TOPIC_ANNOTATIONS,
+                    TOPIC_PREVIEW,
+                ]
+                .contains(&topic)
+                {
+                    let shown: String = topic.chars().take(MAX_NAME_CHARS).collect();
+                    return Err(format!("channel on unexpected topic '{shown}'"));
+                }
                 self.channels.insert(id, topic.to_string());
             }
             Record::Message { channel_id, data } => self.message(channel_id, data)?,

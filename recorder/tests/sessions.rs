@@ -410,3 +410,23 @@ fn streaming_verification_bounds_the_ticks() {
     assert!(e.contains("more than 2000 ticks"), "{e}");
     assert!(reader::verify_streaming(&bytes, &Limits::for_upload(bytes.len() as u64, 1000, 3)).is_ok());
 }
+
+/// Strings a reader keeps are bounded even where the event's kind does not use them: an
+/// `xray-on` event carrying an 8 KB `tool` is damage, not 8 KB kept per event.
+#[test]
+fn unused_event_fields_are_bounded_too() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("s.mcap");
+    let w = SessionWriter::create(&p, &header(), WriterOptions::default()).unwrap();
+    let mut e = EventRecord::from_event(3, &Event::XrayOn);
+    e.tool = Some("x".repeat(8192));
+    w.event_record_blocking(e).unwrap();
+    for t in synthetic_ticks(100, 1) {
+        w.record_raw_blocking(t).unwrap();
+    }
+    w.finish().unwrap();
+    let bytes = std::fs::read(&p).unwrap();
+    let err = reader::verify_bytes(&bytes).unwrap_err();
+    assert!(err.contains("'event tool' is longer than 64 characters"), "{err}");
+    assert!(reader::verify_streaming(&bytes, &Limits::default()).is_err());
+}

@@ -44,12 +44,10 @@ pub struct LimitArgs {
     /// Largest request body other than a session upload (bytes).
     #[arg(long)]
     pub max_body_bytes: Option<usize>,
-    /// Seconds a client has to send a request's headers.
+    /// Seconds a client has to send a request's headers (and a keep-alive connection to start
+    /// its next request).
     #[arg(long)]
     pub header_timeout_s: Option<u64>,
-    /// Seconds after which a connection on which nothing moves is closed.
-    #[arg(long)]
-    pub idle_timeout_s: Option<u64>,
     /// Seconds a request other than an upload may take, body included.
     #[arg(long)]
     pub request_timeout_s: Option<u64>,
@@ -78,7 +76,6 @@ impl LimitArgs {
                 .map_or(d.max_session_s, |m| m.saturating_mul(60)),
             max_json_body_bytes: self.max_body_bytes.unwrap_or(d.max_json_body_bytes),
             header_timeout: self.header_timeout_s.map_or(d.header_timeout, secs),
-            idle_timeout: self.idle_timeout_s.map_or(d.idle_timeout, secs),
             request_timeout: self.request_timeout_s.map_or(d.request_timeout, secs),
             min_upload_bytes_per_s: self.min_upload_rate.unwrap_or(d.min_upload_bytes_per_s),
             max_connections: self.max_connections.unwrap_or(d.max_connections).max(1),

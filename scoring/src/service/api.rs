@@ -42,7 +42,7 @@ pub fn err(status: StatusCode, msg: impl Into<String>) -> ApiError {
 impl From<super::StoreError> for ApiError {
     fn from(e: super::StoreError) -> Self {
         tracing::error!(error = %e, "store");
-        if e.is_storage_failure() {
+        if e.is_transient() {
             return err(
                 StatusCode::SERVICE_UNAVAILABLE,
                 "the server cannot write its data right now; try again shortly",

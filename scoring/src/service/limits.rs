@@ -12,11 +12,9 @@ pub struct Limits {
     pub max_session_s: u64,
     /// Largest request body other than a session upload (bytes): logins, comments, forms.
     pub max_json_body_bytes: usize,
-    /// Time a client has to send a request's headers.
+    /// Time a client has to send a request's headers; also how long a keep-alive connection may
+    /// wait for its next request.
     pub header_timeout: Duration,
-    /// A connection on which nothing moves for this long is closed (idle keep-alive, stalled
-    /// bodies, unread answers).
-    pub idle_timeout: Duration,
     /// Longest time for a request other than an upload, body included.
     pub request_timeout: Duration,
     /// Uploads get `request_timeout` plus their size at this rate (bytes per second).
@@ -38,7 +36,6 @@ impl Default for Limits {
             max_session_s: 30 * 60,
             max_json_body_bytes: 64 << 10,
             header_timeout: Duration::from_secs(10),
-            idle_timeout: Duration::from_secs(60),
             request_timeout: Duration::from_secs(30),
             min_upload_bytes_per_s: 32 << 10,
             max_connections: 512,

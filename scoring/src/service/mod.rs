@@ -63,7 +63,7 @@ pub struct AppState {
     /// The last health check (it writes; at most once a second).
     pub health: store::health::Health,
     /// Upload verifications running at once (each holds a chunk and a tick block in memory).
-    pub verify_permits: tokio::sync::Semaphore,
+    pub verify_permits: Arc<tokio::sync::Semaphore>,
 }
 
 impl AppState {
@@ -135,7 +135,9 @@ pub async fn serve(
         login_failures,
         passwords,
         health: Default::default(),
-        verify_permits: tokio::sync::Semaphore::new(std::thread::available_parallelism().map_or(1, |n| n.get())),
+        verify_permits: Arc::new(tokio::sync::Semaphore::new(
+            std::thread::available_parallelism().map_or(1, |n| n.get()),
+        )),
     });
     worker::start(state.clone());
     let mut app = api::router(state.clone());

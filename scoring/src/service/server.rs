@@ -54,9 +54,11 @@ pub async fn run(listener: TcpListener, app: Router, limits: &Limits) -> std::io
     }
 }
 
-/// The deadline of a request, body included: [`Limits::request_timeout`], plus, for a request
-/// that sends a body, its declared size (or the largest upload) at the slowest accepted rate.
-/// A request past it gets 408 and its connection is closed.
+/// The deadline of a request, body included: [`Limits::request_timeout`], plus, for a session
+/// upload (`POST /api/sessions`, the dashboard's `POST /upload`), its declared size (or the
+/// largest upload) at the slowest accepted rate. Other bodies are small (at most
+/// [`Limits::max_json_body_bytes`]) and get no allowance. A request past its deadline gets 408
+/// and its connection is closed.
 pub async fn deadline(
     axum::extract::State((limits, max_upload)): axum::extract::State<(Arc<Limits>, u64)>,
     req: Request,
@@ -67,10 +69,11 @@ pub async fn deadline(
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse::<u64>().ok());
-    let bytes = match (declared, req.method()) {
-        (Some(n), _) => n.min(max_upload),
-        (None, &Method::GET | &Method::HEAD | &Method::OPTIONS) => 0,
-        (None, _) => max_upload,
+    let upload = req.method() == Method::POST && matches!(req.uri().path(), "/api/sessions" | "/upload");
+    let bytes = match (upload, declared) {
+        (false, _) => 0,
+        (true, Some(n)) => n.min(max_upload),
+        (true, None) => max_upload,
     };
     match tokio::time::timeout(limits.upload_timeout(bytes), next.run(req)).await {
         Ok(r) => r,

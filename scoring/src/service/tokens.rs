@@ -14,7 +14,7 @@ use serde_json::json;
 
 use super::AppState;
 use super::api::{ApiError, TokenUse, acting_user, current_user, err, user_for};
-use super::store::{TokenRow, TokenScope, TokenStatus, User};
+use super::store::{TokenRow, TokenScope, User};
 
 /// How long a token lasts unless asked for less, and the most it may last: a token forgotten
 /// on a training PC stops working on its own.
@@ -59,24 +59,15 @@ pub async fn create(
 ) -> Result<(String, TokenRow), ApiError> {
     let label = check_label(label)?;
     let days = check_days(days)?;
-    let active = s
-        .store
-        .api_tokens(Some(&user.id))
-        .await?
-        .iter()
-        .filter(|t| t.status == TokenStatus::Active)
-        .count();
-    if active >= MAX_ACTIVE_TOKENS {
-        return Err(err(
-            StatusCode::CONFLICT,
-            format!(
-                "{} has {active} active API tokens, the most allowed; revoke one first",
-                user.username
-            ),
-        ));
-    }
     let ttl = Duration::from_secs(u64::from(days) * 86_400);
-    Ok(s.store.create_api_token(user, label, scope, ttl).await?)
+    match s
+        .store
+        .create_api_token(user, label, scope, ttl, MAX_ACTIVE_TOKENS)
+        .await
+    {
+        Err(super::StoreError::Invalid(m)) => Err(err(StatusCode::CONFLICT, m)),
+        other => Ok(other?),
+    }
 }
 
 /// The tokens `user` may see and revoke: their own; an admin's, everyone's.

@@ -33,24 +33,28 @@ pub async fn check(s: &AppState, user: &User, bytes: &axum::body::Bytes) -> Resu
     let limits = Limits::for_upload(bytes.len() as u64, header.tick_rate_hz, s.config.limits.max_session_s);
     let data = bytes.clone();
     // At most a few verifications at once: each holds a chunk and a block in memory.
-    let _permit = s.verify_permits.acquire().await.map_err(|_| busy())?;
-    let verified = tokio::task::spawn_blocking(move || reader::verify_streaming(&data, &limits))
-        .await
-        .map_err(|_| err(StatusCode::INTERNAL_SERVER_ERROR, "validation failed"))?
-        .map_err(|e| {
-            let hint = if e.contains("more than") && e.contains("ticks") {
-                format!(
-                    " (this server accepts sessions of up to {} minutes)",
-                    s.config.limits.max_session_s / 60
-                )
-            } else {
-                String::new()
-            };
-            err(
-                StatusCode::UNPROCESSABLE_ENTITY,
-                format!("not a valid session file: {e}{hint}"),
+    // The permit goes with the thread: a request dropped meanwhile still counts until it ends.
+    let permit = s.verify_permits.clone().acquire_owned().await.map_err(|_| busy())?;
+    let verified = tokio::task::spawn_blocking(move || {
+        let _permit = permit;
+        reader::verify_streaming(&data, &limits)
+    })
+    .await
+    .map_err(|_| err(StatusCode::INTERNAL_SERVER_ERROR, "validation failed"))?
+    .map_err(|e| {
+        let hint = if e.contains("more than") && e.contains("ticks") {
+            format!(
+                " (this server accepts sessions of up to {} minutes)",
+                s.config.limits.max_session_s / 60
             )
-        })?;
+        } else {
+            String::new()
+        };
+        err(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!("not a valid session file: {e}{hint}"),
+        )
+    })?;
     if verified.session.header != header {
         return Err(err(
             StatusCode::UNPROCESSABLE_ENTITY,
@@ -111,6 +115,14 @@ fn check_header(s: &AppState, h: &SessionHeader) -> Result<(), ApiError> {
             h.atlas_id, h.atlas_hash
         )));
     };
+    // The limits on an upload's ticks follow from its rate: only the rate the simulator runs at.
+    if h.tick_rate_hz != stylet_physics::DEFAULT_TICK_RATE_HZ {
+        return Err(bad(format!(
+            "the session ticks at {} Hz; this server accepts {} Hz",
+            h.tick_rate_hz,
+            stylet_physics::DEFAULT_TICK_RATE_HZ
+        )));
+    }
     if !crate::rubric::LEVELS.contains(&h.difficulty.as_str()) {
         return Err(bad(format!(
             "unknown difficulty '{}' (beginner, advanced, expert)",

@@ -80,12 +80,21 @@ async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
 
 /// Longest wait between two tries to store a result, or before a job is retried.
 const MAX_BACKOFF: Duration = Duration::from_secs(60);
+/// Claims of a job whose file cannot be read before it is marked failed (about 7 minutes of
+/// back-off in all).
+const MAX_READ_ATTEMPTS: i64 = 10;
 
 /// Stores what a replay gave. If the store cannot write (a read-only or failing disk), the
 /// result is kept and stored again with back-off until it can: a finished replay is never lost
 /// and its session never left `scoring`. (If the process dies meanwhile, the next start
 /// re-queues the job.)
 async fn store_outcome(state: &Arc<AppState>, job: &super::store::Job, outcome: Outcome) {
+    let outcome = match outcome {
+        Outcome::Retry(e) if job.attempts >= MAX_READ_ATTEMPTS => {
+            Outcome::Failed(format!("{e} (after {} attempts)", job.attempts))
+        }
+        other => other,
+    };
     let mut wait = Duration::from_millis(500);
     loop {
         let stored = match &outcome {
@@ -110,10 +119,16 @@ async fn store_outcome(state: &Arc<AppState>, job: &super::store::Job, outcome: 
                 tracing::warn!(session = %job.session_id, error = %e, attempts = job.attempts, "cannot read the session now; queued again");
                 return;
             }
-            (Err(e), _) => {
+            (Err(e), _) if e.is_transient() => {
                 tracing::error!(session = %job.session_id, error = %e, retry_s = wait.as_secs_f64(), "cannot store the result; will try again");
                 tokio::time::sleep(wait).await;
                 wait = (wait * 2).min(MAX_BACKOFF);
+            }
+            (Err(e), _) => {
+                // Not the disk: retrying would not help. The job stays running and is queued
+                // again at the next start.
+                tracing::error!(session = %job.session_id, error = %e, "cannot store the result");
+                return;
             }
         }
     }

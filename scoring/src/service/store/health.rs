@@ -26,16 +26,20 @@ fn epoch() -> Instant {
 pub fn is_storage_failure(e: &sqlx::Error) -> bool {
     match e {
         sqlx::Error::Io(_) => true,
-        sqlx::Error::Database(d) => {
-            let code = d.code().unwrap_or_default();
-            match code.parse::<u32>() {
-                // SQLITE_READONLY 8, SQLITE_IOERR 10, SQLITE_FULL 13, SQLITE_CANTOPEN 14.
-                Ok(n) => matches!(n & 0xff, 8 | 10 | 13 | 14),
-                Err(_) => code.starts_with("53") || code.starts_with("58") || code == "25006",
-            }
-        }
+        sqlx::Error::Database(d) => is_storage_code(&d.code().unwrap_or_default()),
         _ => false,
     }
+}
+
+/// Whether a database error code says the storage failed. PostgreSQL SQLSTATEs have five
+/// characters (often all digits); SQLite's extended result codes at most four digits.
+fn is_storage_code(code: &str) -> bool {
+    if code.len() == 5 {
+        return code.starts_with("53") || code.starts_with("58") || code == "25006";
+    }
+    // SQLITE_READONLY 8, SQLITE_IOERR 10, SQLITE_FULL 13, SQLITE_CANTOPEN 14 (primary codes are
+    // the low byte of the extended ones).
+    code.parse::<u32>().is_ok_and(|n| matches!(n & 0xff, 8 | 10 | 13 | 14))
 }
 
 /// Notes `e` if it is a storage failure (every database error passes here, see [`StoreError`]).
@@ -97,6 +101,25 @@ impl Store {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn storage_failures_are_told_from_other_errors_on_both_databases() {
+        // SQLite: READONLY, READONLY_DBMOVED (1032), IOERR_WRITE (778), FULL, CANTOPEN.
+        for code in ["8", "1032", "778", "13", "14"] {
+            assert!(is_storage_code(code), "{code}");
+        }
+        // SQLite: CONSTRAINT_UNIQUE (2067), BUSY (5), ERROR (1).
+        for code in ["2067", "5", "1"] {
+            assert!(!is_storage_code(code), "{code}");
+        }
+        // PostgreSQL: disk full, I/O error, read-only transaction; not: unique violation, syntax.
+        for code in ["53100", "58030", "25006"] {
+            assert!(is_storage_code(code), "{code}");
+        }
+        for code in ["23505", "42601", "40001"] {
+            assert!(!is_storage_code(code), "{code}");
+        }
+    }
 
     #[test]
     fn connections_older_than_a_failure_are_not_reused() {

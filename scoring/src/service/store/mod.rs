@@ -72,9 +72,11 @@ impl From<sqlx::Error> for StoreError {
 }
 
 impl StoreError {
-    /// Whether the storage failed (read-only, I/O, full): the request may succeed later (503).
-    pub fn is_storage_failure(&self) -> bool {
-        matches!(self, StoreError::Db(e) if health::is_storage_failure(e))
+    /// Whether the request may succeed later (503; the worker tries again): the storage failed
+    /// (read-only, I/O, full), or no connection could be had in time (while the disk is
+    /// read-only, new SQLite connections are refused).
+    pub fn is_transient(&self) -> bool {
+        matches!(self, StoreError::Db(e) if health::is_storage_failure(e) || matches!(e, sqlx::Error::PoolTimedOut))
     }
 }
 

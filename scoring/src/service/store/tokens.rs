@@ -127,6 +127,7 @@ impl Store {
         label: &str,
         scope: TokenScope,
         ttl: Duration,
+        max_active: usize,
     ) -> Result<(String, TokenRow), StoreError> {
         let token = auth::random_token();
         let id = new_id();
@@ -134,6 +135,29 @@ impl Store {
         let expires_at = humantime::format_rfc3339_micros(SystemTime::now() + ttl).to_string();
         let last4 = token[token.len() - 4..].to_string();
         let mut tx = self.begin_write().await?;
+        // Counted in the writing transaction, so parallel requests cannot pass the cap together
+        // (SQLite: BEGIN IMMEDIATE serialises writers; PostgreSQL: the account's row is locked).
+        if !self.sqlite {
+            sqlx::query("SELECT id FROM users WHERE id = $1 FOR UPDATE")
+                .bind(user.id.clone())
+                .fetch_optional(&mut *tx)
+                .await?;
+        }
+        let active: i64 = sqlx::query(
+            "SELECT COUNT(*) AS n FROM api_tokens WHERE user_id = $1 AND revoked_at IS NULL AND expires_at > $2",
+        )
+        .bind(user.id.clone())
+        .bind(created_at.clone())
+        .fetch_one(&mut *tx)
+        .await?
+        .try_get("n")?;
+        if active >= max_active as i64 {
+            tx.rollback().await?;
+            return Err(StoreError::Invalid(format!(
+                "{} has {active} active API tokens, the most allowed; revoke one first",
+                user.username
+            )));
+        }
         sqlx::query(
             "INSERT INTO api_tokens (token_sha256, user_id, label, created_at, id, scope, expires_at, revoked_at, last4) \
              VALUES ($1, $2, $3, $4, $5, $6, $7, NULL, $8)",
@@ -321,7 +345,7 @@ mod tests {
         // A token made now has the narrow scope unless asked, an expiry, and works.
         let user = store.user_by_name("tina").await.unwrap().unwrap();
         let (new, row) = store
-            .create_api_token(&user, "sim", TokenScope::default(), Duration::from_secs(60))
+            .create_api_token(&user, "sim", TokenScope::default(), Duration::from_secs(60), 20)
             .await
             .unwrap();
         let found = store.api_token(&new).await.unwrap().unwrap();
