@@ -427,3 +427,44 @@ fn taking_the_review_trace_does_not_change_the_score() {
         assert!(!trace.t_s.is_empty(), "{name}: empty trace");
     }
 }
+
+/// Tissue damage (area the shaft sweeps sideways) and needle bending read 0 for a straight
+/// scripted in-and-out — a script moves the device exactly along the needle's own axis, so the
+/// shaft only slides and carries no sideways load — and are clearly above 0 when the needle is
+/// swept sideways while inserted (the thesis' Fig. 3.13 angulation) or loaded sideways at the hub
+/// without advancing (issue 14: metrics that can be checked).
+#[test]
+fn tissue_damage_and_bending_are_zero_only_for_a_straight_insertion() {
+    let (e, t) = ("152.6 1.5 15.9", "50.5 30 7.5");
+    let metrics = |name: &str, text: String| {
+        let r = score_text(name, &text);
+        assert_eq!(r["replay_verified"], true, "{name}");
+        let m = &r["metrics"];
+        let (damage, bending) = (
+            m["tissue_damage_mm2"].as_f64().unwrap(),
+            m["max_bending_mm"].as_f64().unwrap(),
+        );
+        println!("{name}: tissue damage {damage:.1} mm², bending {bending:.2} mm");
+        (damage, bending)
+    };
+    let straight = metrics(
+        "straight",
+        format!("stylet-script 1\nend 10\nat 0 aim {e} {t} -10\nat 4 aim {e} {t} 60\nat 9 aim {e} {t} -10\n"),
+    );
+    let swept = metrics(
+        "swept",
+        format!("stylet-script 1\nend 10\nat 0 aim {e} {t} -10\nat 4 aim {e} {t} 30\nat 9 aim {e} 50.5 30 -30.0 90\n"),
+    );
+    let loaded = metrics(
+        "loaded",
+        format!(
+            "stylet-script 1\nend 10\nat 0 aim {e} {t} -10\nat 4 aim {e} {t} 50\nat 5 aim {e} {t} 50\nat 8 aim {e} 50.5 30 -12.5 50\n"
+        ),
+    );
+    assert!(straight.0 < 1.0 && straight.1 < 0.05, "straight: {straight:?}");
+    assert!(
+        swept.0 > 100.0 && swept.1 > 1.0,
+        "swept sideways while inserted: {swept:?}"
+    );
+    assert!(loaded.1 > 0.5, "loaded sideways at the hub: {loaded:?}");
+}
