@@ -28,6 +28,14 @@ fn reset_peak(pid: u32) {
     std::fs::write(format!("/proc/{pid}/clear_refs"), "5").unwrap();
 }
 
+/// The test fixture's phantom, sessions and accounts, served on SQLite with `extra` flags.
+fn serve(extra: &[&str]) -> (Fixture, Server) {
+    let f = Fixture::new();
+    f.users(&Db::Sqlite);
+    let server = Server::start(&f.data(), &Db::Sqlite, &f.atlases(), extra);
+    (f, server)
+}
+
 fn header_of(file: &Path) -> SessionHeader {
     stylet_recorder::reader::read_header(&std::fs::read(file).unwrap()).unwrap()
 }
@@ -124,10 +132,7 @@ fn tick_bomb_file(header: &SessionHeader, ticks: u64) -> Vec<u8> {
 /// session accepted — and the server's peak memory grows by less than 100 MB either way.
 #[test]
 fn a_tick_bomb_is_refused_with_bounded_memory() {
-    let f = Fixture::new();
-    let db = Db::Sqlite;
-    f.users(&db);
-    let server = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let (f, server) = serve(&["--workers", "1"]);
     let b = &server.base;
     let bomb = tick_bomb_file(&header_of(&f.session("tina-ok")), 20_000_000);
     assert!(bomb.len() < 2 << 20, "the bomb is {} bytes", bomb.len());
@@ -159,10 +164,7 @@ fn a_tick_bomb_is_refused_with_bounded_memory() {
 /// and the reason, nothing stored.
 #[test]
 fn uploads_with_bad_headers_or_ticks_are_refused_with_the_reason() {
-    let f = Fixture::new();
-    let db = Db::Sqlite;
-    f.users(&db);
-    let server = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let (f, server) = serve(&["--workers", "1"]);
     let b = &server.base;
     let tina = login(b, "tina");
     let good = header_of(&f.session("tina-ok"));
@@ -237,10 +239,7 @@ fn uploads_with_bad_headers_or_ticks_are_refused_with_the_reason() {
 /// audited; nobody else may.
 #[test]
 fn an_admin_deletes_a_session_and_everything_about_it() {
-    let f = Fixture::new();
-    let db = Db::Sqlite;
-    f.users(&db);
-    let server = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let (f, server) = serve(&["--workers", "1"]);
     let b = &server.base;
     let (root, tina, ivan) = (login(b, "root"), login(b, "tina"), login(b, "ivan"));
     let bytes = std::fs::read(f.session("tina-lung")).unwrap();
@@ -284,7 +283,7 @@ fn an_admin_deletes_a_session_and_everything_about_it() {
     // Audited, and the same file can be uploaded again afterwards.
     let audit = tokio::runtime::Runtime::new().unwrap().block_on(async {
         sqlx::any::install_default_drivers();
-        let pool = sqlx::AnyPool::connect(&db.url(&f.data())).await.unwrap();
+        let pool = sqlx::AnyPool::connect(&Db::Sqlite.url(&f.data())).await.unwrap();
         let row: (String, String) =
             sqlx::query_as("SELECT action, detail FROM audit_log WHERE target = $1 AND action = 'session.delete'")
                 .bind(id.clone())
@@ -325,10 +324,7 @@ fn an_admin_deletes_a_session_and_everything_about_it() {
 /// Defect 11: names that do not exist get the same answer as names the caller may not see.
 #[test]
 fn names_that_do_not_exist_answer_like_names_one_may_not_see() {
-    let f = Fixture::new();
-    let db = Db::Sqlite;
-    f.users(&db);
-    let server = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let (f, server) = serve(&["--workers", "1"]);
     let b = &server.base;
     let (tina, ivan) = (login(b, "tina"), login(b, "ivan"));
     let get = |auth: &Auth, path: &str| call("GET", &format!("{b}{path}"), Some(auth), None, false);
@@ -373,10 +369,7 @@ fn names_that_do_not_exist_answer_like_names_one_may_not_see() {
 /// and the server's memory stays flat.
 #[test]
 fn failed_logins_with_long_usernames_keep_memory_flat() {
-    let f = Fixture::new();
-    let db = Db::Sqlite;
-    f.users(&db);
-    let server = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let (_f, server) = serve(&["--workers", "1"]);
     let b = &server.base;
     let pid = server.child.id();
     reset_peak(pid);
@@ -405,15 +398,7 @@ fn failed_logins_with_long_usernames_keep_memory_flat() {
 /// Prints /healthz latency during the flood (no threshold: machines differ).
 #[test]
 fn a_login_flood_is_queued_or_refused_and_other_routes_keep_answering() {
-    let f = Fixture::new();
-    let db = Db::Sqlite;
-    f.users(&db);
-    let server = Server::start(
-        &f.data(),
-        &db,
-        &f.atlases(),
-        &["--workers", "1", "--password-threads", "1", "--password-queue", "4"],
-    );
+    let (_f, server) = serve(&["--workers", "1", "--password-threads", "1", "--password-queue", "4"]);
     let b = server.base.clone();
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let flooders: Vec<_> = (0..32)
@@ -475,26 +460,18 @@ fn a_login_flood_is_queued_or_refused_and_other_routes_keep_answering() {
 /// connections left idle; and at most --max-connections are served at once.
 #[test]
 fn slow_and_idle_connections_are_closed() {
-    let f = Fixture::new();
-    let db = Db::Sqlite;
-    f.users(&db);
-    let server = Server::start(
-        &f.data(),
-        &db,
-        &f.atlases(),
-        &[
-            "--workers",
-            "1",
-            "--header-timeout-s",
-            "2",
-            "--request-timeout-s",
-            "2",
-            "--min-upload-rate",
-            "1000000",
-            "--max-connections",
-            "64",
-        ],
-    );
+    let (_f, server) = serve(&[
+        "--workers",
+        "1",
+        "--header-timeout-s",
+        "2",
+        "--request-timeout-s",
+        "2",
+        "--min-upload-rate",
+        "1000000",
+        "--max-connections",
+        "64",
+    ]);
     let b = &server.base;
     let addr = b.strip_prefix("http://").unwrap().to_string();
     let tina = login(b, "tina");
@@ -567,15 +544,7 @@ fn slow_and_idle_connections_are_closed() {
 /// a served one is closed.
 #[test]
 fn connections_past_the_cap_wait_for_a_free_slot() {
-    let f = Fixture::new();
-    let db = Db::Sqlite;
-    f.users(&db);
-    let server = Server::start(
-        &f.data(),
-        &db,
-        &f.atlases(),
-        &["--workers", "1", "--header-timeout-s", "3", "--max-connections", "4"],
-    );
+    let (_f, server) = serve(&["--workers", "1", "--header-timeout-s", "3", "--max-connections", "4"]);
     let addr = server.base.strip_prefix("http://").unwrap().to_string();
     let idle: Vec<TcpStream> = (0..4).map(|_| TcpStream::connect(&addr).unwrap()).collect();
     std::thread::sleep(Duration::from_millis(300));
@@ -599,10 +568,7 @@ fn connections_past_the_cap_wait_for_a_free_slot() {
 /// JSON like every API error, and every answer carries the security headers.
 #[test]
 fn framework_errors_are_json_and_every_answer_has_security_headers() {
-    let f = Fixture::new();
-    let db = Db::Sqlite;
-    f.users(&db);
-    let server = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let (_f, server) = serve(&["--workers", "1"]);
     let b = &server.base;
     let tina = login(b, "tina");
     for (path, status) in [

@@ -96,6 +96,26 @@ pub(crate) fn bound_query(
         .fold(sqlx::query(sqlx::AssertSqlSafe(sql)), |query, b| query.bind(b))
 }
 
+/// An audit record written in the transaction of the change it records.
+pub(super) async fn audit_in(
+    tx: &mut sqlx::Transaction<'_, sqlx::Any>,
+    actor_id: &str,
+    action: &str,
+    target: &str,
+    detail: &str,
+) -> Result<(), StoreError> {
+    sqlx::query("INSERT INTO audit_log (id, at, actor_id, action, target, detail) VALUES ($1, $2, $3, $4, $5, $6)")
+        .bind(new_id())
+        .bind(now())
+        .bind(actor_id.to_string())
+        .bind(action.to_string())
+        .bind(target.to_string())
+        .bind(detail.to_string())
+        .execute(&mut **tx)
+        .await?;
+    Ok(())
+}
+
 pub fn new_id() -> String {
     stylet_recorder::new_session_id()
 }

@@ -3,7 +3,7 @@
 use sqlx::Row;
 
 use super::{SessionRow, User};
-use super::{Store, StoreError, new_id, now};
+use super::{Store, StoreError, audit_in, new_id, now};
 
 impl Store {
     /// The session id of a file already uploaded (same bytes).
@@ -337,15 +337,7 @@ impl Store {
             .bind(id.to_string())
             .execute(&mut *tx)
             .await?;
-        sqlx::query("INSERT INTO audit_log (id, at, actor_id, action, target, detail) VALUES ($1, $2, $3, $4, $5, $6)")
-            .bind(new_id())
-            .bind(now())
-            .bind(actor.id.clone())
-            .bind("session.delete".to_string())
-            .bind(id.to_string())
-            .bind(detail)
-            .execute(&mut *tx)
-            .await?;
+        audit_in(&mut tx, &actor.id, "session.delete", id, &detail).await?;
         tx.commit().await?;
         Ok(Some(sha))
     }

@@ -7,7 +7,7 @@ use std::time::{Duration, SystemTime};
 use sqlx::Row;
 
 use super::super::auth;
-use super::{Store, StoreError, User, new_id, now};
+use super::{Store, StoreError, User, audit_in, new_id, now};
 
 /// What an API token may do. A token lives in a config file on a training PC; the narrow scope
 /// keeps a stolen simulator token from reading the account's other data.
@@ -273,26 +273,6 @@ impl Store {
         tx.commit().await?;
         self.api_token_by_id(id).await
     }
-}
-
-/// An audit record written in the transaction of the change it records.
-async fn audit_in(
-    tx: &mut sqlx::Transaction<'_, sqlx::Any>,
-    actor_id: &str,
-    action: &str,
-    target: &str,
-    detail: &str,
-) -> Result<(), StoreError> {
-    sqlx::query("INSERT INTO audit_log (id, at, actor_id, action, target, detail) VALUES ($1, $2, $3, $4, $5, $6)")
-        .bind(new_id())
-        .bind(now())
-        .bind(actor_id.to_string())
-        .bind(action.to_string())
-        .bind(target.to_string())
-        .bind(detail.to_string())
-        .execute(&mut **tx)
-        .await?;
-    Ok(())
 }
 
 #[cfg(test)]

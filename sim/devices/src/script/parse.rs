@@ -220,9 +220,17 @@ impl<'a> Tokens<'a> {
     }
 }
 
-/// `v` scaled to unit length, or `None` when it is (nearly) zero or not finite. Scaled by its
-/// largest component first, so the squares can neither overflow nor underflow.
+/// `v` scaled to unit length, or `None` when it is (nearly) zero or not finite. Ordinary vectors
+/// get glam's `normalize` (the bits scripts always produced); only when the squared length
+/// overflows or underflows is `v` scaled by its largest component first.
 pub fn unit(v: DVec3) -> Option<DVec3> {
+    // The plain normalisation first: directions stay bit-identical to those recorded before this
+    // check existed (scripted inputs must not change under the same script).
+    let len = v.length();
+    if len.is_finite() && len >= 1e-9 {
+        return Some(v.normalize());
+    }
+    // Its square overflowed or underflowed: scale by the largest component first.
     let m = v.abs().max_element();
     if !(m.is_finite() && m > 0.0) {
         return None;
@@ -572,6 +580,20 @@ mod tests {
 
     #[test]
     fn directions_normalise_without_overflow_or_underflow() {
+        // Ordinary directions: exactly the bits of the plain normalisation scripts always used.
+        let mut x = 0.123_456_789_f64;
+        for _ in 0..1000 {
+            let mut next = || {
+                x = (x * 3.987_654_321 + 0.271_828).fract();
+                x * 200.0 - 100.0
+            };
+            let v = DVec3::new(next(), next(), next());
+            assert_eq!(
+                unit(v).unwrap().to_array().map(f64::to_bits),
+                v.normalize().to_array().map(f64::to_bits),
+                "{v}"
+            );
+        }
         let big = unit(DVec3::splat(1e300)).unwrap();
         assert!((big - DVec3::ONE.normalize()).length() < 1e-15, "{big}");
         let tiny = unit(DVec3::new(3e-9, 4e-9, 0.0)).unwrap();
