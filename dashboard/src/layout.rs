@@ -40,6 +40,7 @@ a { color:var(--accent); }
 img.figure { width:100%; max-width:1100px; border:1px solid var(--line); background:black; }
 form.inline { display:flex; flex-wrap:wrap; gap:.6rem; align-items:end; }
 label { display:flex; flex-direction:column; font-size:.9rem; color:var(--muted); gap:.15rem; }
+label.check { flex-direction:row; align-items:center; gap:.5rem; }
 input, select, textarea, button { font: inherit; padding:.3rem .5rem; }
 button.primary { background:var(--accent); color:white; border:none; border-radius:4px; padding:.4rem 1rem; cursor:pointer; }
 .error { color:var(--bad); font-weight:600; }

@@ -314,7 +314,7 @@ fn review_forms(v: &Viewer, id: &str) -> Markup {
         @if v.role() == "admin" {
             form #delete-form.noprint method="post" action={ "/sessions/" (id) "/delete" } {
                 (csrf_field(v))
-                label {
+                label.check {
                     input type="checkbox" name="confirm" value="yes" required;
                     " Delete this session for good: its file, score, comments and overrides (audited)"
                 }
