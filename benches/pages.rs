@@ -16,7 +16,7 @@ use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use stylet_scoring::service::Store;
+use stylet_service::Store;
 
 const BIN: &str = env!("CARGO_BIN_EXE_stylet");
 const COHORTS: usize = 4;

@@ -694,13 +694,13 @@ fn a_killed_server_resumes_its_jobs_and_scores_each_session_once(db: Db) {
         .build()
         .unwrap();
     rt.block_on(async {
-        let store = stylet_scoring::service::Store::open(&db.url(&f.data())).await.unwrap();
+        let store = stylet_service::Store::open(&db.url(&f.data())).await.unwrap();
         for id in &ids {
             assert_eq!(store.score_count(id).await.unwrap(), 1, "{id}");
         }
         // Rows scored before migration 0002 get their summary columns filled at the next start.
         let lung_id = ids[2].clone();
-        let summary = |store: stylet_scoring::service::Store| {
+        let summary = |store: stylet_service::Store| {
             let id = lung_id.clone();
             async move {
             let row = sqlx::query("SELECT final_score, final_passed, attempts, risk_hits, replay_verified FROM sessions WHERE id = $1")
@@ -726,7 +726,7 @@ fn a_killed_server_resumes_its_jobs_and_scores_each_session_once(db: Db) {
             .await
             .unwrap();
         store.pool.close().await;
-        let store = stylet_scoring::service::Store::open(&db.url(&f.data())).await.unwrap();
+        let store = stylet_service::Store::open(&db.url(&f.data())).await.unwrap();
         assert_eq!(summary(store).await, before);
     });
 }

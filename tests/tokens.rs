@@ -72,13 +72,13 @@ fn error_of(json: &Value) -> &str {
 }
 
 /// Runs `sql` with `binds` on the server's database (what an operator or a clock would change).
-fn on_database<T>(db: &Db, data: &std::path::Path, work: impl AsyncFnOnce(stylet_scoring::service::Store) -> T) -> T {
+fn on_database<T>(db: &Db, data: &std::path::Path, work: impl AsyncFnOnce(stylet_service::Store) -> T) -> T {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
         .unwrap();
     rt.block_on(async {
-        let store = stylet_scoring::service::Store::open(&db.url(data)).await.unwrap();
+        let store = stylet_service::Store::open(&db.url(data)).await.unwrap();
         let out = work(store.clone()).await;
         store.pool.close().await;
         out

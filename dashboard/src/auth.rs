@@ -4,10 +4,10 @@
 use axum::http::{HeaderMap, StatusCode, Uri, header};
 use axum::response::{IntoResponse, Redirect, Response};
 use maud::html;
-use stylet_scoring::service::AppState;
-use stylet_scoring::service::api::ApiError;
-use stylet_scoring::service::auth::{from_other_site, token_from_cookie_header};
-use stylet_scoring::service::store::{StoreError, User};
+use stylet_service::AppState;
+use stylet_service::api::ApiError;
+use stylet_service::auth::{from_other_site, token_from_cookie_header};
+use stylet_service::store::{StoreError, User};
 
 use crate::layout;
 

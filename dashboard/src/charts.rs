@@ -4,7 +4,7 @@
 
 use stylet_render::charts::{ChartColor, LineChart, Series, chart_svg, palette};
 use stylet_scoring::ReviewTrace;
-use stylet_scoring::service::store::ProgressPoint;
+use stylet_service::store::ProgressPoint;
 
 /// Chart size in SVG user units (scaled to the page width by CSS).
 pub const CHART_SIZE: (u32, u32) = (1100, 440);

@@ -5,8 +5,8 @@
 
 use std::path::{Path, PathBuf};
 
-use stylet_scoring::service::AppState;
-use stylet_scoring::service::traces::review_trace;
+use stylet_service::AppState;
+use stylet_service::traces::review_trace;
 
 /// Where the figure of the session file `sha` is cached (the trace and physics versions are in
 /// the name: a new version draws a new figure).

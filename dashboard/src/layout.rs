@@ -3,7 +3,7 @@
 
 use axum::response::Html;
 use maud::{DOCTYPE, Markup, PreEscaped, html};
-use stylet_scoring::service::store::SessionLine;
+use stylet_service::store::SessionLine;
 
 use crate::auth::Viewer;
 

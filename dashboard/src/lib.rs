@@ -17,7 +17,7 @@ use std::sync::Arc;
 use axum::Router;
 use axum::extract::DefaultBodyLimit;
 use axum::routing::{get, post};
-use stylet_scoring::service::AppState;
+use stylet_service::AppState;
 
 /// The dashboard's routes (`stylet serve` merges them with the API's).
 pub fn router(state: Arc<AppState>) -> Router {

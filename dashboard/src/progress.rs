@@ -3,7 +3,7 @@
 //! failures in a row, else stay. The current level is the highest level with a scored session.
 
 use stylet_scoring::rubric::LEVELS;
-use stylet_scoring::service::store::ProgressPoint;
+use stylet_service::store::ProgressPoint;
 
 /// Sessions in a row that move a trainee up (all passed) or back (all failed).
 pub const STREAK: usize = 3;

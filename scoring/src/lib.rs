@@ -2,14 +2,12 @@
 //! claims. [`replay`] re-runs a session file's recorded inputs through `stylet_physics` and checks
 //! every recorded output and state digest bit for bit; [`metrics`] measures the replayed session
 //! (docs/metrics.md); [`rubric`] turns metrics into a grade per difficulty; [`score`] ties them
-//! together for one file or a batch; [`trace`] keeps what the dashboard draws of a replay; [`service`] (feature `service`) is the HTTP scoring service.
+//! together for one file or a batch; [`trace`] keeps what the dashboard draws of a replay. The HTTP service is the crate `stylet-service`.
 
 pub mod metrics;
 pub mod replay;
 pub mod rubric;
 pub mod score;
-#[cfg(feature = "service")]
-pub mod service;
 pub mod target;
 pub mod trace;
 

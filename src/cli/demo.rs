@@ -126,7 +126,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
 /// Serves the dashboard on a fresh demo database: the demo accounts, and the recorded sessions
 /// uploaded by their trainees and scored by the service's workers.
 fn serve_dashboard(args: &DemoArgs, files: &[PathBuf]) -> anyhow::Result<()> {
-    use stylet_scoring::service::{self, Config, Store};
+    use stylet_service::{self as service, Config, Store};
     let data = args.out.join("data");
     if data.exists() {
         std::fs::remove_dir_all(&data).with_context(|| format!("cannot clear {}", data.display()))?;

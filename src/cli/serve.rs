@@ -1,12 +1,12 @@
 //! `stylet serve` and `stylet user add`: the scoring service and its accounts
-//! (scoring::service; DESIGN.md "Service and security").
+//! (the crate stylet-service; DESIGN.md "Service and security").
 
 use std::io::Read;
 use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use stylet_scoring::service::{self, Config, Store};
+use stylet_service::{self as service, Config, Store};
 
 #[derive(Debug, Args)]
 pub struct ServeArgs {
@@ -35,7 +35,7 @@ pub struct ServeArgs {
     pub limits: LimitArgs,
 }
 
-/// Limits and timeouts (docs/security.md); defaults in `stylet_scoring::service::Limits`.
+/// Limits and timeouts (docs/security.md); defaults in `stylet_service::Limits`.
 #[derive(Debug, Args)]
 pub struct LimitArgs {
     /// Longest session accepted for upload (minutes).

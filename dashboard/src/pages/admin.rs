@@ -8,8 +8,8 @@ use axum::extract::State;
 use axum::http::{HeaderMap, StatusCode, Uri};
 use axum::response::{IntoResponse, Redirect, Response};
 use maud::{Markup, html};
-use stylet_scoring::service::AppState;
-use stylet_scoring::service::store::{ROLES, StoreError, UserRow};
+use stylet_service::AppState;
+use stylet_service::store::{ROLES, StoreError, UserRow};
 
 use crate::auth::{PageError, Viewer, check_csrf, fail, viewer};
 use crate::layout::{csrf_field, page, short_time};

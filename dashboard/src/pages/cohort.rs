@@ -8,10 +8,10 @@ use axum::extract::{Path, Query, State};
 use axum::http::{HeaderMap, StatusCode, Uri};
 use axum::response::Html;
 use maud::{Markup, PreEscaped, html};
-use stylet_scoring::service::AppState;
-use stylet_scoring::service::api::{ListQuery, PAGE_SIZE};
-use stylet_scoring::service::store::{ScorePoint, SessionLine, TraineeSummary};
-use stylet_scoring::service::traces::review_trace;
+use stylet_service::AppState;
+use stylet_service::api::{ListQuery, PAGE_SIZE};
+use stylet_service::store::{ScorePoint, SessionLine, TraineeSummary};
+use stylet_service::traces::review_trace;
 
 use crate::auth::{PageError, Viewer, fail, viewer};
 use crate::charts::{compare_chart, inline_svg, sparkline};
@@ -157,7 +157,7 @@ pub async fn compare(
     let b = visible_session(&s, &v, &q.b).await?;
     require_scored(&a)?;
     require_scored(&b)?;
-    let trace = |r: &stylet_scoring::service::store::SessionRow| {
+    let trace = |r: &stylet_service::store::SessionRow| {
         let (sha, atlas) = (r.file_sha256.clone(), r.atlas_hash.clone());
         let s = s.clone();
         async move { review_trace(&s, &sha, &atlas).await }
@@ -168,11 +168,11 @@ pub async fn compare(
     let tb = trace(&b)
         .await
         .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e))?;
-    let label = |r: &stylet_scoring::service::store::SessionRow| format!("A {} {}", r.trainee, r.scenario);
+    let label = |r: &stylet_service::store::SessionRow| format!("A {} {}", r.trainee, r.scenario);
     let (la, lb) = (label(&a), label(&b).replacen("A ", "B ", 1));
     let svg =
         inline_svg(&compare_chart((&ta, &la), (&tb, &lb))).map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e))?;
-    let grade = |r: &stylet_scoring::service::store::SessionRow| {
+    let grade = |r: &stylet_service::store::SessionRow| {
         let g = r.score.as_ref().map(|s| &s["grade"]);
         (
             g.and_then(|g| g["score"].as_f64()),

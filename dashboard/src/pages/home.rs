@@ -8,8 +8,8 @@ use axum::extract::State;
 use axum::http::{HeaderMap, Uri};
 use axum::response::Html;
 use maud::{Markup, PreEscaped, html};
-use stylet_scoring::service::AppState;
-use stylet_scoring::service::store::{CohortLine, SessionFilter};
+use stylet_service::AppState;
+use stylet_service::store::{CohortLine, SessionFilter};
 
 use crate::auth::{PageError, Viewer, viewer};
 use crate::charts::{inline_svg, progress_chart};

@@ -8,8 +8,8 @@ use axum::extract::{Query, State};
 use axum::http::{HeaderMap, StatusCode, Uri, header};
 use axum::response::{IntoResponse, Redirect, Response};
 use maud::html;
-use stylet_scoring::service::api::{LOGIN_TTL_S, log_in};
-use stylet_scoring::service::{AppState, auth};
+use stylet_service::api::{LOGIN_TTL_S, log_in};
+use stylet_service::{AppState, auth};
 
 use crate::auth::{PageError, check_csrf, check_same_site, safe_next, viewer};
 use crate::layout::page;

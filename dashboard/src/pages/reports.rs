@@ -8,8 +8,8 @@ use axum::extract::{Query, State};
 use axum::http::{HeaderMap, StatusCode, Uri};
 use axum::response::Html;
 use maud::{PreEscaped, html};
-use stylet_scoring::service::AppState;
-use stylet_scoring::service::api::ListQuery;
+use stylet_service::AppState;
+use stylet_service::api::ListQuery;
 
 use crate::auth::{PageError, encode_query, fail, viewer};
 use crate::charts::sparkline;

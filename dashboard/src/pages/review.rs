@@ -11,11 +11,11 @@ use axum::http::{HeaderMap, StatusCode, Uri, header};
 use axum::response::{IntoResponse, Redirect, Response};
 use maud::{Markup, PreEscaped, html};
 use stylet_scoring::rubric::{Rubric, metric_value};
-use stylet_scoring::service::AppState;
-use stylet_scoring::service::api::{check_comment, check_override, may_review, may_see, reviewable};
-use stylet_scoring::service::store::SessionRow;
-use stylet_scoring::service::traces::review_trace;
 use stylet_scoring::{ReviewTrace, ScoreReport};
+use stylet_service::AppState;
+use stylet_service::api::{check_comment, check_override, may_review, may_see, reviewable};
+use stylet_service::store::SessionRow;
+use stylet_service::traces::review_trace;
 
 use crate::auth::{PageError, Viewer, check_csrf, fail, viewer};
 use crate::charts::{depth_chart, force_chart, inline_svg};
@@ -344,7 +344,7 @@ pub async fn delete(
     if f.confirm != "yes" {
         return Err(fail(StatusCode::BAD_REQUEST, "tick the box to confirm the deletion"));
     }
-    stylet_scoring::service::api::remove_session(&s, &v.user, &id).await?;
+    stylet_service::api::remove_session(&s, &v.user, &id).await?;
     Ok(Redirect::to("/sessions"))
 }
 

@@ -7,8 +7,8 @@ use axum::extract::{Query, State};
 use axum::http::{HeaderMap, Uri};
 use axum::response::Html;
 use maud::{Markup, html};
-use stylet_scoring::service::AppState;
-use stylet_scoring::service::api::{ListQuery, PAGE_SIZE};
+use stylet_service::AppState;
+use stylet_service::api::{ListQuery, PAGE_SIZE};
 
 use crate::auth::{PageError, viewer};
 use crate::layout::{page, pager, sessions_table};

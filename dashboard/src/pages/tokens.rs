@@ -9,9 +9,9 @@ use axum::extract::{Path, State};
 use axum::http::{HeaderMap, StatusCode, Uri, header};
 use axum::response::{IntoResponse, Redirect, Response};
 use maud::{Markup, html};
-use stylet_scoring::service::AppState;
-use stylet_scoring::service::store::{TokenRow, TokenScope, TokenStatus};
-use stylet_scoring::service::tokens::{self, MAX_LABEL_CHARS, MAX_TOKEN_DAYS};
+use stylet_service::AppState;
+use stylet_service::store::{TokenRow, TokenScope, TokenStatus};
+use stylet_service::tokens::{self, MAX_LABEL_CHARS, MAX_TOKEN_DAYS};
 
 use crate::auth::{PageError, Viewer, check_csrf, viewer};
 use crate::layout::{csrf_field, page, short_time};
@@ -169,7 +169,7 @@ pub async fn revoke(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use stylet_scoring::service::store::User;
+    use stylet_service::store::User;
 
     fn row(id: &str, status: TokenStatus) -> TokenRow {
         TokenRow {

@@ -9,8 +9,8 @@ use axum::extract::{Multipart, State};
 use axum::http::{HeaderMap, StatusCode, Uri};
 use axum::response::{IntoResponse, Redirect, Response};
 use maud::{Markup, html};
-use stylet_scoring::service::AppState;
-use stylet_scoring::service::api::accept_upload;
+use stylet_service::AppState;
+use stylet_service::api::accept_upload;
 
 use crate::auth::{PageError, Viewer, check_csrf, fail, viewer};
 use crate::layout::{csrf_field, page};

@@ -59,7 +59,7 @@ impl Store {
     /// Stores a score and closes its job in one transaction, unless the job is no longer this
     /// worker's (finished elsewhere, or its session deleted meanwhile); a second score for the
     /// same session is refused by the key (never scored twice).
-    pub async fn finish_job(&self, job: &Job, report: &crate::ScoreReport) -> Result<(), StoreError> {
+    pub async fn finish_job(&self, job: &Job, report: &stylet_scoring::ScoreReport) -> Result<(), StoreError> {
         let json = serde_json::to_string(report).map_err(|e| StoreError::Invalid(e.to_string()))?;
         let mut tx = self.begin_write().await?;
         let closed =
@@ -166,7 +166,7 @@ pub struct Summary {
 }
 
 impl Summary {
-    pub fn from_report(r: &crate::ScoreReport) -> Summary {
+    pub fn from_report(r: &stylet_scoring::ScoreReport) -> Summary {
         Summary {
             score: r.grade.score,
             passed: r.grade.passed,
@@ -177,7 +177,7 @@ impl Summary {
         }
     }
 
-    /// From a stored report (JSON of [`crate::ScoreReport`]).
+    /// From a stored report (JSON of [`stylet_scoring::ScoreReport`]).
     pub fn from_json(v: &serde_json::Value) -> Option<Summary> {
         Some(Summary {
             score: v["grade"]["score"].as_f64()?,

@@ -718,7 +718,7 @@ async fn progress(
     }
     let points = s.store.progress(&trainee.id).await?;
     let mut by_level = serde_json::Map::new();
-    for level in crate::rubric::LEVELS {
+    for level in stylet_scoring::rubric::LEVELS {
         let series: Vec<&super::store::ProgressPoint> = points.iter().filter(|p| p.difficulty == level).collect();
         by_level.insert(level.to_string(), json!(series));
     }
@@ -781,7 +781,7 @@ impl ListQuery {
             ..Default::default()
         };
         if let Some(d) = &f.difficulty
-            && !crate::rubric::LEVELS.contains(&d.as_str())
+            && !stylet_scoring::rubric::LEVELS.contains(&d.as_str())
         {
             return Err(err(
                 StatusCode::BAD_REQUEST,

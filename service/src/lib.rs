@@ -1,4 +1,4 @@
-//! The scoring service (`stylet serve`; DESIGN.md "Service and security"): a JSON API over axum
+//! Stylet's scoring service, `stylet-service` (`stylet serve`; DESIGN.md "Service and security"): a JSON API over axum
 //! that takes session files, validates them with the recorder's reader before anything is
 //! stored, keeps them by content hash, and scores them by replay on a worker pool whose jobs live
 //! in the database (a restart resumes them; a session is never scored twice).
@@ -54,7 +54,7 @@ pub struct AppState {
     pub store: Store,
     pub config: Config,
     /// One scorer per known atlas, by content hash.
-    pub scorers: BTreeMap<String, Arc<crate::Scorer>>,
+    pub scorers: BTreeMap<String, Arc<stylet_scoring::Scorer>>,
     pub wake: tokio::sync::Notify,
     /// Recent failed logins per account (rate limiting), bounded.
     pub login_failures: logins::FailedLogins,
@@ -159,7 +159,7 @@ pub async fn serve(
     server::run(listener, app, &limits).await.map_err(|e| setup(&e))
 }
 
-fn load_atlases(dir: &std::path::Path) -> Result<Vec<(stylet_atlas::Atlas, crate::Scorer)>, ServiceError> {
+fn load_atlases(dir: &std::path::Path) -> Result<Vec<(stylet_atlas::Atlas, stylet_scoring::Scorer)>, ServiceError> {
     let err = |e: &dyn std::fmt::Display| ServiceError::Setup(format!("{}: {e}", dir.display()));
     let mut dirs: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(|e| err(&e))?
@@ -173,8 +173,8 @@ fn load_atlases(dir: &std::path::Path) -> Result<Vec<(stylet_atlas::Atlas, crate
     dirs.iter()
         .map(|d| {
             let atlas = stylet_atlas::load(d).map_err(|e| ServiceError::Setup(e.to_string()))?;
-            let scorer =
-                crate::Scorer::new(&atlas, crate::Rubric::default_rubric(), None).map_err(ServiceError::Setup)?;
+            let scorer = stylet_scoring::Scorer::new(&atlas, stylet_scoring::Rubric::default_rubric(), None)
+                .map_err(ServiceError::Setup)?;
             Ok((atlas, scorer))
         })
         .collect()

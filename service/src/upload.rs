@@ -123,7 +123,7 @@ fn check_header(s: &AppState, h: &SessionHeader) -> Result<(), ApiError> {
             stylet_physics::DEFAULT_TICK_RATE_HZ
         )));
     }
-    if !crate::rubric::LEVELS.contains(&h.difficulty.as_str()) {
+    if !stylet_scoring::rubric::LEVELS.contains(&h.difficulty.as_str()) {
         return Err(bad(format!(
             "unknown difficulty '{}' (beginner, advanced, expert)",
             h.difficulty

@@ -42,7 +42,7 @@ pub fn start(state: Arc<AppState>) {
 
 /// How a replay ended.
 enum Outcome {
-    Scored(Box<crate::ScoreReport>),
+    Scored(Box<stylet_scoring::ScoreReport>),
     /// The session cannot be scored (damaged beyond use, diverging, no atlas): final.
     Failed(String),
     /// The file could not be read for a reason that may pass (I/O): try again later.

@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::trace::{ReviewTrace, TRACE_VERSION};
+use stylet_scoring::trace::{ReviewTrace, TRACE_VERSION};
 
 use super::AppState;
 
