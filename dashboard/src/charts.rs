@@ -218,6 +218,8 @@ mod tests {
                 kind: "stylet-remove".into(),
                 label: "stylet removed".into(),
             }],
+            punctures: vec![],
+            risk_points: vec![],
         }
     }
 

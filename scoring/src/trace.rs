@@ -7,15 +7,23 @@
 //! A 1 kHz session is too dense for a chart, so ticks are grouped into buckets of
 //! [`BUCKET_TICKS`] (20 ms at 1 kHz) and each series keeps, per bucket, the sample of largest
 //! magnitude: a puncture's force peak, which lasts only a few ticks, survives decimation.
+//!
+//! Version 2 adds the structures the needle cut into ([`Puncture`], to label the force peaks) and
+//! the exact tip position where each risk structure was first touched ([`RiskPoint`], to draw
+//! slices through it): neither can be recovered from the 20 ms buckets.
 
 use serde::{Deserialize, Serialize};
 use stylet_physics::glam::DVec3;
-use stylet_physics::{Event, TickInput, TickOutput};
+use stylet_physics::{Event, LabelId, TickInput, TickOutput};
 
-use crate::metrics::Metrics;
+use crate::metrics::{Metrics, RiskHit};
 
 /// Format version of [`ReviewTrace`] (stored traces of another version are rebuilt).
-pub const TRACE_VERSION: u32 = 1;
+pub const TRACE_VERSION: u32 = 2;
+
+/// At most this many punctures are kept per session (a trainee jiggling at a boundary cannot grow
+/// the trace without bound).
+pub const MAX_PUNCTURES: usize = 256;
 
 /// Ticks per bucket.
 pub const BUCKET_TICKS: u64 = 20;
@@ -51,6 +59,37 @@ pub struct ReviewTrace {
     /// Needle tip (world mm) at the end of the bucket while the needle is in the body, else None.
     pub tip_mm: Vec<Option<[f64; 3]>>,
     pub events: Vec<TraceEvent>,
+    /// Structures the needle cut into, in time order (at most [`MAX_PUNCTURES`]).
+    #[serde(default)]
+    pub punctures: Vec<Puncture>,
+    /// Where each risk structure was first touched, in the order of the score's risk hits.
+    #[serde(default)]
+    pub risk_points: Vec<RiskPoint>,
+}
+
+/// The needle tip broke into a structure for the first time in an attempt (advancing, at the
+/// deepest point of the attempt so far). The force peak that preceded the entry is the
+/// structure's resistance: the dashboard labels that peak with the structure's name.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Puncture {
+    /// Time of the force peak before the entry (s).
+    pub peak_t_s: f64,
+    /// That peak: force on the hand along the needle (N, positive against the insertion).
+    pub peak_force_n: f64,
+    /// Time the tip entered the structure (s).
+    pub t_s: f64,
+    /// The label the tip entered (the atlas' label table names it).
+    pub label: LabelId,
+}
+
+/// The tip position at a risk structure's first contact (the score's `RiskHit.t_s`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RiskPoint {
+    pub structure: String,
+    pub label: LabelId,
+    pub t_s: f64,
+    /// Needle tip (world mm, RAS).
+    pub point_mm: [f64; 3],
 }
 
 impl ReviewTrace {
@@ -96,6 +135,15 @@ fn peak(slot: &mut f64, v: f64) {
 pub struct TraceCollector {
     trace: ReviewTrace,
     in_bucket: u64,
+    /// Tip label of the previous tick (0 outside the body).
+    prev_label: LabelId,
+    /// Deepest inserted length of the current attempt (mm); labels entered in it.
+    attempt_deepest_mm: f64,
+    attempt_labels: Vec<LabelId>,
+    /// Largest force along the needle since the last entry: (t_s, force_n).
+    peak: Option<(f64, f64)>,
+    /// First tick in the body with the tip in each label: (t_s, tip).
+    first_contact: std::collections::BTreeMap<LabelId, (f64, [f64; 3])>,
 }
 
 impl TraceCollector {
@@ -115,12 +163,20 @@ impl TraceCollector {
                 tip_depth_mm: Vec::new(),
                 tip_mm: Vec::new(),
                 events: Vec::new(),
+                punctures: Vec::new(),
+                risk_points: Vec::new(),
             },
             in_bucket: 0,
+            prev_label: 0,
+            attempt_deepest_mm: 0.0,
+            attempt_labels: Vec::new(),
+            peak: None,
+            first_contact: Default::default(),
         }
     }
 
     pub fn tick(&mut self, input: &TickInput, out: &TickOutput) {
+        self.punctures(out, -out.force_n.dot(out.insertion_dir));
         let t = &mut self.trace;
         if self.in_bucket == 0 {
             t.t_s.push(out.time_s);
@@ -166,9 +222,61 @@ impl TraceCollector {
         }
     }
 
+    /// Follows the tip through the labels: an advancing entry into a structure not yet entered in
+    /// this attempt is a puncture, credited with the force peak since the previous entry.
+    fn punctures(&mut self, out: &TickOutput, force_n: f64) {
+        let in_body = out.inserted_mm > 0.0 && out.inserted_mm.is_finite() && out.tip_mm.is_finite();
+        if force_n.is_finite() && self.peak.is_none_or(|(_, f)| force_n > f) {
+            self.peak = Some((out.time_s, force_n));
+        }
+        if !in_body {
+            // Out of the body (or another tool): the next skin entry starts a new attempt.
+            self.prev_label = 0;
+            self.attempt_deepest_mm = 0.0;
+            self.attempt_labels.clear();
+            return;
+        }
+        let label = out.tip_label;
+        self.first_contact
+            .entry(label)
+            .or_insert((out.time_s, out.tip_mm.to_array()));
+        let advancing = out.inserted_mm >= self.attempt_deepest_mm;
+        self.attempt_deepest_mm = self.attempt_deepest_mm.max(out.inserted_mm);
+        if label != self.prev_label && label != 0 && advancing && !self.attempt_labels.contains(&label) {
+            self.attempt_labels.push(label);
+            let (peak_t_s, peak_force_n) = self.peak.unwrap_or((out.time_s, force_n));
+            if self.trace.punctures.len() < MAX_PUNCTURES {
+                self.trace.punctures.push(Puncture {
+                    peak_t_s,
+                    peak_force_n,
+                    t_s: out.time_s,
+                    label,
+                });
+            }
+            self.peak = None;
+        }
+        self.prev_label = label;
+    }
+
+    /// The tip where each hit structure was first touched (the same tick the metrics count as
+    /// first contact: the first in the body with the tip in its label).
+    fn add_risk_points(&mut self, hits: &[RiskHit]) {
+        for hit in hits {
+            if let Some((t_s, p)) = self.first_contact.get(&hit.label) {
+                self.trace.risk_points.push(RiskPoint {
+                    structure: hit.structure.clone(),
+                    label: hit.label,
+                    t_s: *t_s,
+                    point_mm: *p,
+                });
+            }
+        }
+    }
+
     /// The trace, with the scored moments added as events: risk-structure hits (first contact)
     /// and the target reached.
     pub fn finish(mut self, metrics: &Metrics) -> ReviewTrace {
+        self.add_risk_points(&metrics.risk_hits);
         let t = &mut self.trace;
         for d in &mut t.tip_depth_mm {
             if !d.is_finite() {
@@ -197,6 +305,97 @@ impl TraceCollector {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use stylet_physics::glam::DQuat;
+
+    /// One tick of a needle along +z: tip at `depth` mm, in `label`, pushing back with `force` N.
+    fn out(tick: u64, depth: f64, label: LabelId, force: f64) -> TickOutput {
+        TickOutput {
+            tick,
+            time_s: tick as f64 / 1000.0,
+            force_n: DVec3::new(0.0, 0.0, -force),
+            torque_nmm: DVec3::ZERO,
+            components: Default::default(),
+            insertion_dir: DVec3::Z,
+            tip_label: label,
+            inserted_mm: depth,
+            tip_mm: DVec3::new(1.0, 2.0, depth),
+            tip_depth_mm: depth,
+            contacts: 0,
+            indentation_mm: 0.0,
+            stylet_in: true,
+            xray_on: false,
+            breath_hold: false,
+            contrast_ml: 0.0,
+        }
+    }
+
+    fn collect(ticks: &[(f64, LabelId, f64)]) -> TraceCollector {
+        let mut c = TraceCollector::new(1000);
+        let input = TickInput::pose(DVec3::ZERO, DQuat::IDENTITY);
+        for (k, (d, l, f)) in ticks.iter().enumerate() {
+            c.tick(&input, &out(k as u64, *d, *l, *f));
+        }
+        c
+    }
+
+    #[test]
+    fn punctures_are_advancing_entries_credited_with_the_peak_before_them() {
+        // Press on the skin (peak 2.5 N at tick 2), enter skin, fat, press on fascia (1.5 N at
+        // tick 6), enter it; retract into fat and advance again (no new puncture); leave; a second
+        // attempt punctures the skin again.
+        let c = collect(&[
+            (0.0, 0, 1.0),
+            (0.0, 0, 2.0),
+            (0.0, 0, 2.5),
+            (0.5, 2, 0.4),
+            (2.5, 3, 0.3),
+            (3.0, 3, 1.0),
+            (3.5, 3, 1.5),
+            (4.0, 30, 0.2),
+            (3.0, 3, -0.2),
+            (4.0, 30, 0.3),
+            (0.0, 0, 0.0),
+            (0.0, 0, 3.0),
+            (0.5, 2, 0.1),
+        ]);
+        let p: Vec<(LabelId, f64, f64, f64)> = c
+            .trace
+            .punctures
+            .iter()
+            .map(|p| (p.label, p.peak_t_s, p.peak_force_n, p.t_s))
+            .collect();
+        assert_eq!(
+            p,
+            vec![
+                (2, 0.002, 2.5, 0.003),
+                (3, 0.004, 0.3, 0.004),
+                (30, 0.006, 1.5, 0.007),
+                (2, 0.011, 3.0, 0.012),
+            ]
+        );
+    }
+
+    #[test]
+    fn risk_points_are_the_tip_at_first_contact() {
+        let c = collect(&[
+            (0.0, 0, 0.0),
+            (1.0, 2, 0.0),
+            (5.0, 40, 0.0),
+            (6.0, 40, 0.0),
+            (2.0, 3, 0.0),
+            (5.5, 40, 0.0),
+        ]);
+        let mut c = c;
+        let hit: RiskHit = serde_json::from_value(serde_json::json!({"structure": "right lung", "label": 40,
+            "t_s": 0.002, "depth_mm": 1.0, "duration_s": 0.003, "entries": 2}))
+        .unwrap();
+        c.add_risk_points(&[hit]);
+        let trace = c.trace;
+        assert_eq!(trace.risk_points.len(), 1);
+        assert_eq!(trace.risk_points[0].point_mm, [1.0, 2.0, 5.0]);
+        assert_eq!(trace.risk_points[0].t_s, 0.002);
+        assert_eq!(trace.risk_points[0].structure, "right lung");
+    }
 
     #[test]
     fn peaks_survive_decimation() {
