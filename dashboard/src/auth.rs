@@ -7,7 +7,7 @@ use maud::html;
 use stylet_service::AppState;
 use stylet_service::api::ApiError;
 use stylet_service::auth::{from_other_site, token_from_cookie_header};
-use stylet_service::store::{StoreError, User};
+use stylet_service::store::{Role, StoreError, User};
 
 use crate::layout;
 
@@ -18,8 +18,13 @@ pub struct Viewer {
 }
 
 impl Viewer {
+    /// The role's name (pages written before [`Role`] compare names).
     pub fn role(&self) -> &str {
-        &self.user.role
+        self.user.role.as_str()
+    }
+
+    pub fn role_kind(&self) -> Role {
+        self.user.role
     }
 }
 
@@ -38,7 +43,7 @@ pub fn fail(status: StatusCode, msg: impl Into<String>) -> PageError {
 
 impl From<ApiError> for PageError {
     fn from(e: ApiError) -> Self {
-        PageError::Status(e.0, e.1)
+        PageError::Status(e.status(), e.message())
     }
 }
 
@@ -91,6 +96,34 @@ pub async fn viewer(s: &AppState, headers: &HeaderMap, uri: &Uri) -> Result<View
         .ok_or_else(login)?;
     let (user, csrf) = s.store.user_for_login(token).await?.ok_or_else(login)?;
     Ok(Viewer { user, csrf })
+}
+
+/// Pages take the viewer as an argument: a page that needs a login names `Viewer` (not logged
+/// in: to the login page, then back), one that may be seen without names `Option<Viewer>`.
+impl axum::extract::FromRequestParts<std::sync::Arc<AppState>> for Viewer {
+    type Rejection = PageError;
+
+    async fn from_request_parts(
+        parts: &mut axum::http::request::Parts,
+        s: &std::sync::Arc<AppState>,
+    ) -> Result<Self, PageError> {
+        viewer(s, &parts.headers, &parts.uri).await
+    }
+}
+
+impl axum::extract::OptionalFromRequestParts<std::sync::Arc<AppState>> for Viewer {
+    type Rejection = PageError;
+
+    async fn from_request_parts(
+        parts: &mut axum::http::request::Parts,
+        s: &std::sync::Arc<AppState>,
+    ) -> Result<Option<Self>, PageError> {
+        match viewer(s, &parts.headers, &parts.uri).await {
+            Ok(v) => Ok(Some(v)),
+            Err(PageError::Login { .. }) => Ok(None),
+            Err(e) => Err(e),
+        }
+    }
 }
 
 /// A form's CSRF field must carry the login's token (another site's page cannot read it).

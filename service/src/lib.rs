@@ -14,6 +14,7 @@ pub mod store;
 pub mod tokens;
 pub mod traces;
 pub mod upload;
+pub mod users;
 pub mod worker;
 
 use std::collections::BTreeMap;

@@ -8,12 +8,12 @@ use std::time::Duration;
 use axum::Json;
 use axum::body::Bytes;
 use axum::extract::{Path, State};
-use axum::http::{HeaderMap, StatusCode};
+use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use serde_json::json;
 
 use super::AppState;
-use super::api::{ApiError, TokenUse, acting_user, current_user, err, user_for};
+use super::api::{Actor, ApiError, CookieActor, Reader, err};
 use super::store::{TokenRow, TokenScope, User};
 
 /// How long a token lasts unless asked for less, and the most it may last: a token forgotten
@@ -101,10 +101,9 @@ struct NewTokenRequest {
 /// Login cookie and CSRF token only: a Bearer token gets 403.
 pub async fn create_token(
     State(s): State<Arc<AppState>>,
-    headers: HeaderMap,
+    CookieActor(user): CookieActor,
     body: Bytes,
 ) -> Result<Response, ApiError> {
-    let user = user_for(&s, &headers, TokenUse::None, true).await?;
     let req: NewTokenRequest = serde_json::from_slice(&body).map_err(|e| {
         err(
             StatusCode::BAD_REQUEST,
@@ -120,18 +119,16 @@ pub async fn create_token(
 }
 
 /// GET /api/tokens: `{"tokens": [...]}`, newest first, without the tokens themselves.
-pub async fn list_tokens(State(s): State<Arc<AppState>>, headers: HeaderMap) -> Result<Response, ApiError> {
-    let user = current_user(&s, &headers).await?;
+pub async fn list_tokens(State(s): State<Arc<AppState>>, Reader(user): Reader) -> Result<Response, ApiError> {
     Ok(Json(json!({ "tokens": list(&s, &user).await? })).into_response())
 }
 
 /// POST /api/tokens/{id}/revoke: the token's row, now revoked. Audited.
 pub async fn revoke_token(
     State(s): State<Arc<AppState>>,
-    headers: HeaderMap,
+    Actor(user): Actor,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let user = acting_user(&s, &headers).await?;
     Ok(Json(revoke(&s, &user, &id).await?).into_response())
 }
 
@@ -143,14 +140,14 @@ mod tests {
     fn labels_count_characters_and_days_are_capped() {
         let e = |n: usize| "é".repeat(n);
         assert_eq!(check_label(&format!("  {}  ", e(100))).unwrap(), e(100));
-        assert_eq!(check_label(&e(101)).unwrap_err().0, StatusCode::BAD_REQUEST);
-        assert_eq!(check_label("   ").unwrap_err().0, StatusCode::BAD_REQUEST);
+        assert_eq!(check_label(&e(101)).unwrap_err().status(), StatusCode::BAD_REQUEST);
+        assert_eq!(check_label("   ").unwrap_err().status(), StatusCode::BAD_REQUEST);
         assert_eq!(check_days(None).unwrap(), MAX_TOKEN_DAYS);
         assert_eq!(check_days(Some(7)).unwrap(), 7);
         for bad in [0, MAX_TOKEN_DAYS + 1, u32::MAX] {
             let e = check_days(Some(bad)).unwrap_err();
-            assert_eq!(e.0, StatusCode::BAD_REQUEST);
-            assert!(e.1.contains("1–90 days"), "{}", e.1);
+            assert_eq!(e.status(), StatusCode::BAD_REQUEST);
+            assert!(e.message().contains("1–90 days"), "{e}");
         }
     }
 }

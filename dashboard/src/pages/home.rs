@@ -5,20 +5,19 @@
 use std::sync::Arc;
 
 use axum::extract::State;
-use axum::http::{HeaderMap, Uri};
+
 use axum::response::Html;
 use maud::{Markup, PreEscaped, html};
 use stylet_service::AppState;
 use stylet_service::store::{CohortLine, SessionFilter};
 
-use crate::auth::{PageError, Viewer, viewer};
+use crate::auth::{PageError, Viewer};
 use crate::charts::{inline_svg, progress_chart};
 use crate::layout::{page, score_text, sessions_table};
 use crate::pages::upload::upload_form;
 use crate::progress::suggest_next;
 
-pub async fn home(State(s): State<Arc<AppState>>, headers: HeaderMap, uri: Uri) -> Result<Html<String>, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
+pub async fn home(State(s): State<Arc<AppState>>, v: Viewer) -> Result<Html<String>, PageError> {
     let body = match v.role() {
         "trainee" => trainee_home(&s, &v).await?,
         _ => staff_home(&s, &v).await?,
@@ -143,8 +142,7 @@ async fn staff_home(s: &AppState, v: &Viewer) -> Result<Markup, PageError> {
 }
 
 /// `GET /cohorts`: the cohorts the viewer may look at.
-pub async fn cohorts(State(s): State<Arc<AppState>>, headers: HeaderMap, uri: Uri) -> Result<Html<String>, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
+pub async fn cohorts(State(s): State<Arc<AppState>>, v: Viewer) -> Result<Html<String>, PageError> {
     if v.role() == "trainee" {
         return Err(crate::auth::fail(
             axum::http::StatusCode::FORBIDDEN,

@@ -5,13 +5,13 @@ use std::sync::Arc;
 
 use axum::Form;
 use axum::extract::{Query, State};
-use axum::http::{HeaderMap, StatusCode, Uri, header};
+use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Redirect, Response};
 use maud::html;
 use stylet_service::api::{LOGIN_TTL_S, log_in};
 use stylet_service::{AppState, auth};
 
-use crate::auth::{PageError, check_csrf, check_same_site, safe_next, viewer};
+use crate::auth::{PageError, Viewer, check_csrf, check_same_site, safe_next};
 use crate::layout::page;
 
 #[derive(serde::Deserialize)]
@@ -62,11 +62,15 @@ pub async fn submit(State(s): State<Arc<AppState>>, headers: HeaderMap, Form(f):
             r
         }
         Err(e) => {
-            let status = match e.0 {
-                StatusCode::TOO_MANY_REQUESTS | StatusCode::SERVICE_UNAVAILABLE => e.0,
+            let status = match e.status() {
+                StatusCode::TOO_MANY_REQUESTS | StatusCode::SERVICE_UNAVAILABLE => e.status(),
                 _ => StatusCode::UNAUTHORIZED,
             };
-            let mut r = (status, page("Log in", None, login_page(&next, Some(&e.1), &f.username))).into_response();
+            let mut r = (
+                status,
+                page("Log in", None, login_page(&next, Some(&e.message()), &f.username)),
+            )
+                .into_response();
             if status == StatusCode::SERVICE_UNAVAILABLE {
                 r.headers_mut()
                     .insert(header::RETRY_AFTER, axum::http::HeaderValue::from_static("1"));
@@ -83,11 +87,10 @@ pub struct LogoutForm {
 
 pub async fn logout(
     State(s): State<Arc<AppState>>,
+    v: Viewer,
     headers: HeaderMap,
-    uri: Uri,
     Form(f): Form<LogoutForm>,
 ) -> Result<Response, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
     check_csrf(&v, &f.csrf)?;
     if let Some(token) = headers
         .get(header::COOKIE)

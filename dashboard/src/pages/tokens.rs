@@ -6,14 +6,14 @@ use std::sync::Arc;
 
 use axum::Form;
 use axum::extract::{Path, State};
-use axum::http::{HeaderMap, StatusCode, Uri, header};
+use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Redirect, Response};
 use maud::{Markup, html};
 use stylet_service::AppState;
 use stylet_service::store::{TokenRow, TokenScope, TokenStatus};
 use stylet_service::tokens::{self, MAX_LABEL_CHARS, MAX_TOKEN_DAYS};
 
-use crate::auth::{PageError, Viewer, check_csrf, viewer};
+use crate::auth::{PageError, Viewer, check_csrf};
 use crate::layout::{csrf_field, page, short_time};
 
 fn status_badge(status: TokenStatus) -> Markup {
@@ -89,8 +89,7 @@ fn no_store(status: StatusCode, body: impl IntoResponse) -> Response {
     (status, [(header::CACHE_CONTROL, "no-store")], body).into_response()
 }
 
-pub async fn index(State(s): State<Arc<AppState>>, headers: HeaderMap, uri: Uri) -> Result<Response, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
+pub async fn index(State(s): State<Arc<AppState>>, v: Viewer) -> Result<Response, PageError> {
     let rows = tokens::list(&s, &v.user).await?;
     Ok(page("API tokens", Some(&v), tokens_page(&v, &rows, None, None)).into_response())
 }
@@ -107,11 +106,9 @@ pub struct NewTokenForm {
 
 pub async fn create(
     State(s): State<Arc<AppState>>,
-    headers: HeaderMap,
-    uri: Uri,
+    v: Viewer,
     Form(f): Form<NewTokenForm>,
 ) -> Result<Response, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
     check_csrf(&v, &f.csrf)?;
     let scope = match f.scope.trim() {
         "" => Ok(TokenScope::default()),
@@ -127,7 +124,7 @@ pub async fn create(
     let made = match (scope, days) {
         (Ok(scope), Ok(days)) => tokens::create(&s, &v.user, &f.label, scope, days)
             .await
-            .map_err(|e| (e.0, e.1)),
+            .map_err(|e| (e.status(), e.message())),
         (Err(m), _) | (_, Err(m)) => Err((StatusCode::BAD_REQUEST, m)),
     };
     let rows = tokens::list(&s, &v.user).await?;
@@ -155,12 +152,10 @@ pub struct RevokeForm {
 
 pub async fn revoke(
     State(s): State<Arc<AppState>>,
-    headers: HeaderMap,
-    uri: Uri,
+    v: Viewer,
     Path(id): Path<String>,
     Form(f): Form<RevokeForm>,
 ) -> Result<Response, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
     check_csrf(&v, &f.csrf)?;
     tokens::revoke(&s, &v.user, &id).await?;
     Ok(Redirect::to("/tokens").into_response())
@@ -192,7 +187,7 @@ mod tests {
             user: User {
                 id: "u1".into(),
                 username: "tina".into(),
-                role: "trainee".into(),
+                role: stylet_service::store::Role::Trainee,
             },
             csrf: "c5rf".into(),
         };

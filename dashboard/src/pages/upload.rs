@@ -6,13 +6,13 @@
 use std::sync::Arc;
 
 use axum::extract::{Multipart, State};
-use axum::http::{HeaderMap, StatusCode, Uri};
+use axum::http::StatusCode;
 use axum::response::{IntoResponse, Redirect, Response};
 use maud::{Markup, html};
 use stylet_service::AppState;
 use stylet_service::api::accept_upload;
 
-use crate::auth::{PageError, Viewer, check_csrf, fail, viewer};
+use crate::auth::{PageError, Viewer, check_csrf, fail};
 use crate::layout::{csrf_field, page};
 
 /// The upload form (trainees upload their own sessions, instructors those of their trainees).
@@ -26,13 +26,7 @@ pub fn upload_form(v: &Viewer) -> Markup {
     }
 }
 
-pub async fn upload(
-    State(s): State<Arc<AppState>>,
-    headers: HeaderMap,
-    uri: Uri,
-    mut form: Multipart,
-) -> Result<Response, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
+pub async fn upload(State(s): State<Arc<AppState>>, v: Viewer, mut form: Multipart) -> Result<Response, PageError> {
     let bad = |m: String| fail(StatusCode::BAD_REQUEST, m);
     let mut csrf = None;
     let mut file = None;
@@ -64,13 +58,13 @@ pub async fn upload(
     match accept_upload(&s, &v.user, bytes).await {
         Ok((id, _, _)) => Ok(Redirect::to(&format!("/sessions/{id}")).into_response()),
         Err(e) => Ok((
-            e.0,
+            e.status(),
             page(
                 "Upload refused",
                 Some(&v),
                 html! {
                     h1 { "Upload refused" }
-                    p.error role="alert" #upload-error { (e.1) }
+                    p.error role="alert" #upload-error { (e.message()) }
                     p { "Nothing was stored." }
                     (upload_form(&v))
                 },

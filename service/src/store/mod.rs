@@ -15,7 +15,7 @@ mod review;
 mod sessions;
 mod tokens;
 
-pub use accounts::UserRow;
+pub use accounts::{AccountChange, AccountError, IMPORT_HEADER, ImportLine, ImportLineError, MAX_IMPORT_LINES, Role, UserRow, parse_import};
 pub use cohorts::{CohortLine, ReportLine, ScorePoint};
 pub use jobs::Job;
 pub use review::{ExportRow, ProgressPoint, TraineeSummary};
@@ -29,7 +29,7 @@ pub const ROLES: [&str; 4] = ["trainee", "instructor", "curriculum", "admin"];
 pub struct User {
     pub id: String,
     pub username: String,
-    pub role: String,
+    pub role: Role,
 }
 
 /// A stored session row.

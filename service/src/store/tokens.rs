@@ -92,6 +92,8 @@ pub struct TokenAuth {
     pub user: User,
     pub scope: TokenScope,
     pub status: TokenStatus,
+    /// Its owner's account is disabled: refused like a revoked token while it is.
+    pub account_disabled: bool,
 }
 
 const ROW_COLUMNS: &str =
@@ -199,7 +201,7 @@ impl Store {
     /// The account, scope and status of a presented token; None when no token has that hash.
     pub async fn api_token(&self, token: &str) -> Result<Option<TokenAuth>, StoreError> {
         let row = sqlx::query(
-            "SELECT u.id, u.username, u.role, t.scope, t.expires_at, t.revoked_at \
+            "SELECT u.id, u.username, u.role, u.disabled_at, t.scope, t.expires_at, t.revoked_at \
              FROM api_tokens t JOIN users u ON u.id = t.user_id WHERE t.token_sha256 = $1",
         )
         .bind(auth::sha256_hex(token))
@@ -216,6 +218,7 @@ impl Store {
             },
             scope: scope_of(&r.try_get::<String, _>("scope")?)?,
             status: TokenStatus::of(expires_at.as_deref(), revoked_at.as_deref(), &now()),
+            account_disabled: r.try_get::<Option<String>, _>("disabled_at")?.is_some(),
         }))
     }
 
