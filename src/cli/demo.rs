@@ -175,7 +175,7 @@ fn serve_dashboard(args: &DemoArgs, files: &[PathBuf]) -> anyhow::Result<()> {
                         _ => continue,
                     };
                     if let Err(e) = service::api::accept_upload(&state, &user, bytes.into()).await {
-                        eprintln!("demo upload of a session of {trainee} refused: {}", e.1);
+                        eprintln!("demo upload of a session of {trainee} refused: {}", e.message());
                     }
                 }
             });

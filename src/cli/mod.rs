@@ -11,6 +11,7 @@ mod score;
 mod script;
 mod serve;
 mod session;
+mod user;
 
 use clap::{Parser, Subcommand};
 
@@ -39,7 +40,7 @@ enum Command {
     Serve(serve::ServeArgs),
     /// Manage service accounts.
     #[command(subcommand)]
-    User(serve::UserCommand),
+    User(user::UserCommand),
     /// Inspect, verify, export and recover session files (docs/session-format.md).
     #[command(subcommand)]
     Session(session::SessionCommand),
@@ -54,7 +55,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Session(cmd) => session::run(cmd),
         Command::Score(args) => score::run(args),
         Command::Serve(args) => serve::serve(args),
-        Command::User(cmd) => serve::user(cmd),
+        Command::User(cmd) => user::run(cmd),
         Command::Demo(args) => demo::run(args),
     }
 }
