@@ -14,7 +14,7 @@ use serde_json::json;
 
 use super::AppState;
 use super::api::{AdminActor, AdminReader, ApiError, err};
-use super::store::{AccountChange, AccountError, Role, StoreError, User, UserRow, parse_import};
+use super::store::{AccountChange, AccountError, Role, StoreError, User, UserRow};
 
 type AppRef = Arc<AppState>;
 
@@ -45,8 +45,7 @@ pub async fn add(
 /// Imports the accounts of a CSV text for `admin`: all of them, or none with every bad line
 /// named (422). Returns the usernames added.
 pub async fn import(s: &AppState, admin: &User, csv: &str) -> Result<Vec<String>, ApiError> {
-    let lines = parse_import(csv).map_err(ApiError::ImportRejected)?;
-    Ok(s.store.import_users(&lines, Some(&admin.id)).await?)
+    Ok(s.store.import_csv(csv, Some(&admin.id)).await?)
 }
 
 /// Changes an account for `admin` (see [`super::Store::update_user`] for what is refused).

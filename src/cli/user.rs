@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use stylet_service::store::{AccountChange, Role, Store, parse_import};
+use stylet_service::store::{AccountChange, Role, Store};
 
 use super::serve;
 
@@ -208,18 +208,9 @@ pub fn run(cmd: UserCommand) -> anyhow::Result<()> {
             } else {
                 std::fs::read_to_string(&a.file).with_context(|| format!("cannot read {}", a.file.display()))?
             };
-            let lines = match parse_import(&text) {
-                Ok(lines) => lines,
-                Err(bad) => {
-                    for b in &bad {
-                        eprintln!("{}: {b}", a.file.display());
-                    }
-                    anyhow::bail!("nothing imported: {} bad line(s)", bad.len());
-                }
-            };
             rt.block_on(async {
                 let store = open(&a.db).await?;
-                match store.import_users(&lines, None).await {
+                match store.import_csv(&text, None).await {
                     Ok(added) => {
                         sayf!("imported {} accounts: {}", added.len(), added.join(", "));
                         Ok(())

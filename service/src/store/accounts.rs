@@ -149,6 +149,12 @@ fn valid_password(password: &str) -> bool {
 /// skipped). Every bad line is reported, by number, with why; existing usernames are checked by
 /// [`Store::import_users`].
 pub fn parse_import(text: &str) -> Result<Vec<ImportLine>, Vec<ImportLineError>> {
+    let (good, bad) = parse_lines(text);
+    if bad.is_empty() { Ok(good) } else { Err(bad) }
+}
+
+/// Every line of an import: the good ones and, for the others, why not.
+fn parse_lines(text: &str) -> (Vec<ImportLine>, Vec<ImportLineError>) {
     let mut out = Vec::new();
     let mut bad = Vec::new();
     let mut seen = std::collections::BTreeMap::new();
@@ -196,10 +202,13 @@ pub fn parse_import(text: &str) -> Result<Vec<ImportLine>, Vec<ImportLineError>>
         }
     }
     if out.len() + bad.len() > MAX_IMPORT_LINES {
-        return Err(vec![ImportLineError {
-            line: 0,
-            reason: format!("at most {MAX_IMPORT_LINES} accounts per import"),
-        }]);
+        return (
+            Vec::new(),
+            vec![ImportLineError {
+                line: 0,
+                reason: format!("at most {MAX_IMPORT_LINES} accounts per import"),
+            }],
+        );
     }
     if out.is_empty() && bad.is_empty() {
         bad.push(ImportLineError {
@@ -207,7 +216,7 @@ pub fn parse_import(text: &str) -> Result<Vec<ImportLine>, Vec<ImportLineError>>
             reason: format!("no accounts: one per line, {IMPORT_HEADER}"),
         });
     }
-    if bad.is_empty() { Ok(out) } else { Err(bad) }
+    (out, bad)
 }
 
 /// A change to an account ([`Store::update_user`]); None leaves that part as it is.
@@ -299,40 +308,31 @@ impl Store {
         Ok(id)
     }
 
-    /// Adds every account of a parsed import ([`parse_import`]) in one transaction, or none: a
-    /// username that exists already is reported by its line like any other bad line. Audited
-    /// (`user.import` with the count, and `user.add` per account). Returns the usernames added.
-    pub async fn import_users(&self, lines: &[ImportLine], actor: Option<&str>) -> Result<Vec<String>, AccountError> {
+    /// Imports the accounts of a CSV text ([`parse_import`]'s format): every one in one
+    /// transaction, or none. Every bad line is reported by number with why, usernames that
+    /// exist already included. Audited (`user.import` with the count, and `user.add` per
+    /// account). Returns the usernames added.
+    pub async fn import_csv(&self, text: &str, actor: Option<&str>) -> Result<Vec<String>, AccountError> {
+        let (lines, mut bad) = parse_lines(text);
+        bad.extend(Self::taken(&lines, &mut *self.pool.acquire().await?).await?);
+        if !bad.is_empty() {
+            bad.sort_by_key(|b| b.line);
+            return Err(AccountError::Import(bad));
+        }
+        // argon2id for every password before the write lock is taken.
         let hashes = hash_off_thread(lines.iter().map(|l| l.password.clone()).collect()).await?;
         let mut tx = self.begin_write().await?;
-        let mut bad = Vec::new();
-        for l in lines {
-            let exists = sqlx::query("SELECT id FROM users WHERE username = $1")
-                .bind(l.username.clone())
-                .fetch_optional(&mut *tx)
-                .await?;
-            if exists.is_some() {
-                bad.push(ImportLineError {
-                    line: l.line,
-                    reason: format!("user '{}' already exists", l.username),
-                });
-            }
-        }
-        if !bad.is_empty() {
-            return Err(AccountError::Import(bad));
+        // Again in the transaction: another admin may have added one of these meanwhile.
+        let taken = Self::taken(&lines, &mut tx).await?;
+        if !taken.is_empty() {
+            return Err(AccountError::Import(taken));
         }
         let actor_id = actor.map(str::to_string);
         for (l, hash) in lines.iter().zip(&hashes) {
             let id = new_id();
             insert_user(&mut tx, &id, &l.username, l.role, hash, l.cohort.as_deref()).await?;
-            audit_opt(
-                &mut tx,
-                actor_id.as_deref(),
-                "user.add",
-                &id,
-                &format!("{} as {} (import)", l.username, l.role),
-            )
-            .await?;
+            let detail = format!("{} as {} (import)", l.username, l.role);
+            audit_opt(&mut tx, actor_id.as_deref(), "user.add", &id, &detail).await?;
         }
         audit_opt(
             &mut tx,
@@ -344,6 +344,24 @@ impl Store {
         .await?;
         tx.commit().await?;
         Ok(lines.iter().map(|l| l.username.clone()).collect())
+    }
+
+    /// The lines whose username exists already.
+    async fn taken(lines: &[ImportLine], conn: &mut sqlx::AnyConnection) -> Result<Vec<ImportLineError>, sqlx::Error> {
+        let mut taken = Vec::new();
+        for l in lines {
+            let exists = sqlx::query("SELECT id FROM users WHERE username = $1")
+                .bind(l.username.clone())
+                .fetch_optional(&mut *conn)
+                .await?;
+            if exists.is_some() {
+                taken.push(ImportLineError {
+                    line: l.line,
+                    reason: format!("user '{}' already exists", l.username),
+                });
+            }
+        }
+        Ok(taken)
     }
 
     /// Changes an account in one transaction, audited per part (`user.role`, `user.cohorts`,
