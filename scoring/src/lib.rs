@@ -5,14 +5,17 @@
 //! together for one file or a batch; [`trace`] keeps what the dashboard draws of a replay. The HTTP service is the crate `stylet-service`.
 
 pub mod metrics;
+pub mod reasons;
 pub mod replay;
 pub mod rubric;
 pub mod score;
 pub mod target;
 pub mod trace;
 
-pub use metrics::{MetricParams, Metrics, RiskHit};
+pub use metrics::{MetricParams, Metrics, PalpationMetrics, RiskHit, UltrasoundMetrics};
+pub use reasons::{MetricInfo, Outcome, metric_label, reasons};
+pub use stylet_atlas::Exercise;
 pub use replay::{Divergence, ReplayError, ReplayReport, replay};
-pub use rubric::{Grade, Rubric};
+pub use rubric::{Grade, Rubric, Unmet};
 pub use score::{ScoreError, ScoreReport, Scorer};
 pub use trace::{ReviewTrace, TraceEvent};

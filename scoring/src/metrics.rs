@@ -53,6 +53,12 @@ pub struct RiskHit {
     pub duration_s: f64,
     /// Separate entries into the structure.
     pub entries: u32,
+    /// What hitting it does to a patient, from the atlas' label table ("pneumothorax").
+    #[serde(default)]
+    pub consequence: Option<String>,
+    /// Tip position at first contact (world mm), for slices through the hit.
+    #[serde(default)]
+    pub point_mm: [f64; 3],
     /// Ticks inside (duration_s = ticks / rate, computed at the end: no summed rounding).
     #[serde(skip)]
     ticks: u64,
@@ -115,6 +121,41 @@ pub struct Metrics {
     /// … and at its closest while the needle was in the body.
     pub target_distance_min_mm: Option<f64>,
     pub guided: Option<Guided>,
+    /// Palpation metrics, when the finger touched the skin.
+    #[serde(default)]
+    pub palpation: Option<PalpationMetrics>,
+    /// Ultrasound-survey metrics, when the probe touched the skin.
+    #[serde(default)]
+    pub ultrasound: Option<UltrasoundMetrics>,
+}
+
+/// What the finger found (docs/metrics.md "Palpation").
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+pub struct PalpationMetrics {
+    /// Intercostal spaces the finger passed over in skin contact: runs of the sweep with no rib
+    /// under the finger, between runs over a rib (from the atlas' bone geometry).
+    pub spaces_crossed: u32,
+    /// Of those, the spaces where the finger sank in: its indentation in the space exceeded the
+    /// indentation over the neighbouring ribs by at least 0.5 mm (felt, as in Fig. 3.14).
+    pub spaces_found: u32,
+    /// spaces_found / spaces_crossed (0 when none was crossed).
+    pub coverage: f64,
+    /// Ribs passed over in skin contact.
+    pub ribs_crossed: u32,
+}
+
+/// What the probe showed (docs/metrics.md "Ultrasound survey"; PerkTutor's TargetsScanned).
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+pub struct UltrasoundMetrics {
+    /// A target voxel came within 5 mm of the image plane, inside the image, while the probe
+    /// touched the skin.
+    pub target_scanned: bool,
+    /// First such tick (s from the start).
+    pub time_to_target_view_s: Option<f64>,
+    /// Ticks with the target in view / rate (s).
+    pub target_view_time_s: f64,
+    /// Ticks with at least 3/4 of the probe face on the skin / rate (s).
+    pub good_contact_time_s: f64,
 }
 
 /// One attempt: from a skin puncture until the needle leaves the body.
@@ -140,6 +181,8 @@ pub struct MetricsCollector<'a> {
     /// Role of every label id (a flat table: one lookup per tick).
     roles: Vec<Role>,
     names: BTreeMap<LabelId, String>,
+    /// Clinical consequences of risk labels (atlas TOML).
+    consequences: BTreeMap<LabelId, String>,
     target: &'a TargetDistance,
     paths: &'a [PlannedPath],
     chosen_path: Option<String>,
@@ -211,6 +254,7 @@ impl<'a> MetricsCollector<'a> {
             rate_hz: rate_hz as f64,
             roles,
             names,
+            consequences: BTreeMap::new(),
             target,
             paths,
             chosen_path: path,
@@ -247,6 +291,12 @@ impl<'a> MetricsCollector<'a> {
             tissue_damage_mm2: 0.0,
             min_distance_mm: None,
         }
+    }
+
+    /// The clinical consequence of each risk label (from the atlas TOML), copied into its hits.
+    pub fn with_consequences(mut self, consequences: BTreeMap<LabelId, String>) -> Self {
+        self.consequences = consequences;
+        self
     }
 
     fn role(&self, label: LabelId) -> Role {
@@ -345,6 +395,7 @@ impl<'a> MetricsCollector<'a> {
                 .cloned()
                 .unwrap_or_else(|| format!("label {label}"));
             let t_s = tick as f64 / self.rate_hz;
+            let consequence = self.consequences.get(&label).cloned();
             let hit = self.risk.entry(label).or_insert(RiskHit {
                 structure: name,
                 label,
@@ -352,6 +403,8 @@ impl<'a> MetricsCollector<'a> {
                 depth_mm: 0.0,
                 duration_s: 0.0,
                 entries: 0,
+                consequence,
+                point_mm: out.tip_mm.to_array(),
                 ticks: 0,
             });
             if entered {
@@ -535,6 +588,8 @@ impl<'a> MetricsCollector<'a> {
             target_distance_mm: self.attempts.last().and_then(|a| self.target.distance_mm(a.deepest.1)),
             target_distance_min_mm: self.min_distance_mm,
             guided,
+            palpation: None,
+            ultrasound: None,
         }
     }
 }

@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 
 use crate::metrics::{MetricParams, Metrics};
+use stylet_atlas::Exercise;
 
 /// The rubric shipped with Stylet (`scoring/rubrics/ptcd.toml`).
 pub const DEFAULT_RUBRIC: &str = include_str!("../rubrics/ptcd.toml");
@@ -19,6 +20,17 @@ pub struct Rubric {
     pub name: String,
     pub version: u32,
     pub metrics: RubricMetrics,
+    /// The puncture exercise's levels (kept at the top for rubrics written before exercises).
+    pub levels: BTreeMap<String, Level>,
+    /// The levels of the other exercises (`[exercises.palpation.levels.beginner]`, …).
+    #[serde(default)]
+    pub exercises: BTreeMap<Exercise, ExerciseRubric>,
+}
+
+/// The levels of one exercise.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExerciseRubric {
     pub levels: BTreeMap<String, Level>,
 }
 
@@ -58,8 +70,8 @@ pub struct Deduction {
     pub max_points: Option<f64>,
 }
 
-/// Metric names a rubric may use, with their meaning (docs/metrics.md).
-pub const RUBRIC_METRICS: [&str; 19] = [
+/// Metric names a puncture rubric may use, with their meaning (docs/metrics.md).
+pub const PUNCTURE_METRICS: &[&str] = &[
     "attempts",
     "redirections",
     "risk_hits",
@@ -80,6 +92,66 @@ pub const RUBRIC_METRICS: [&str; 19] = [
     "guided_angle_error_deg",
     "guided_mean_deviation_mm",
 ];
+
+/// Metric names a palpation rubric may use.
+pub const PALPATION_METRICS: &[&str] = &[
+    "intercostal_spaces_found",
+    "intercostal_spaces_missed",
+    "palpation_coverage",
+    "palpation_time_s",
+    "time_total_s",
+    "max_force_n",
+];
+
+/// Metric names an ultrasound-survey rubric may use.
+pub const ULTRASOUND_METRICS: &[&str] = &[
+    "target_not_scanned",
+    "time_to_target_view_s",
+    "good_contact_time_s",
+    "poor_contact_share",
+    "time_total_s",
+    "max_force_n",
+];
+
+/// Every metric name a rubric may use, over all exercises.
+pub const RUBRIC_METRICS: &[&str] = &[
+    "attempts",
+    "redirections",
+    "risk_hits",
+    "risk_time_s",
+    "bone_contacts",
+    "target_not_reached",
+    "target_not_confirmed",
+    "time_total_s",
+    "fluoro_time_s",
+    "xray_shots",
+    "max_force_n",
+    "tissue_damage_mm2",
+    "path_inefficiency",
+    "target_distance_mm",
+    "missing_palpation",
+    "missing_ultrasound",
+    "guided_entry_distance_mm",
+    "guided_angle_error_deg",
+    "guided_mean_deviation_mm",
+    "intercostal_spaces_found",
+    "intercostal_spaces_missed",
+    "palpation_coverage",
+    "palpation_time_s",
+    "target_not_scanned",
+    "time_to_target_view_s",
+    "good_contact_time_s",
+    "poor_contact_share",
+];
+
+/// The metric names a rubric may use for `exercise`.
+pub fn exercise_metrics(exercise: Exercise) -> &'static [&'static str] {
+    match exercise {
+        Exercise::Puncture => PUNCTURE_METRICS,
+        Exercise::Palpation => PALPATION_METRICS,
+        Exercise::UltrasoundSurvey => ULTRASOUND_METRICS,
+    }
+}
 
 /// The value of a rubric metric (absent guided or distance metrics count as 0: nothing to judge).
 pub fn metric_value(m: &Metrics, name: &str) -> Option<f64> {
@@ -104,6 +176,29 @@ pub fn metric_value(m: &Metrics, name: &str) -> Option<f64> {
         "guided_entry_distance_mm" => m.guided.as_ref().map_or(0.0, |g| g.entry_distance_mm),
         "guided_angle_error_deg" => m.guided.as_ref().map_or(0.0, |g| g.angle_error_deg),
         "guided_mean_deviation_mm" => m.guided.as_ref().map_or(0.0, |g| g.mean_deviation_mm),
+        // Palpation (0 when the finger never touched the skin).
+        "intercostal_spaces_found" => m.palpation.as_ref().map_or(0.0, |p| p.spaces_found as f64),
+        "intercostal_spaces_missed" => m
+            .palpation
+            .as_ref()
+            .map_or(0.0, |p| p.spaces_crossed.saturating_sub(p.spaces_found) as f64),
+        "palpation_coverage" => m.palpation.as_ref().map_or(0.0, |p| p.coverage),
+        "palpation_time_s" => m.palpation_time_s,
+        // Ultrasound survey (a target never shown takes the whole session to its first view).
+        "target_not_scanned" => flag(!m.ultrasound.as_ref().is_some_and(|u| u.target_scanned)),
+        "time_to_target_view_s" => m
+            .ultrasound
+            .as_ref()
+            .and_then(|u| u.time_to_target_view_s)
+            .unwrap_or(m.time_total_s),
+        "good_contact_time_s" => m.ultrasound.as_ref().map_or(0.0, |u| u.good_contact_time_s),
+        "poor_contact_share" => m.ultrasound.as_ref().map_or(1.0, |u| {
+            if m.ultrasound_time_s > 0.0 {
+                (1.0 - u.good_contact_time_s / m.ultrasound_time_s).clamp(0.0, 1.0)
+            } else {
+                1.0
+            }
+        }),
         _ => return None,
     })
 }
@@ -114,6 +209,18 @@ pub struct Applied {
     pub metric: String,
     pub value: f64,
     pub points: f64,
+    /// The amount that cost nothing (absent in grades stored before it was kept).
+    #[serde(default)]
+    pub free: Option<f64>,
+}
+
+/// A requirement the session did not meet.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Unmet {
+    pub metric: String,
+    pub value: f64,
+    pub min: Option<f64>,
+    pub max: Option<f64>,
 }
 
 /// A grade: what the rubric makes of the metrics at one difficulty.
@@ -121,13 +228,93 @@ pub struct Applied {
 pub struct Grade {
     pub score: f64,
     pub passed: bool,
+    /// The exercise whose rubric graded it.
+    #[serde(default)]
+    pub exercise: Exercise,
     pub difficulty: String,
+    /// The level's pass mark (absent in grades stored before it was kept).
+    #[serde(default)]
+    pub pass_score: Option<f64>,
     pub rubric: String,
     pub rubric_version: u32,
     pub physics_version: u32,
-    /// Requirements not met, in words.
+    /// Requirements not met, in words (from the table of `reasons`).
     pub failed: Vec<String>,
+    /// The same requirements, as numbers.
+    #[serde(default)]
+    pub unmet: Vec<Unmet>,
     pub deductions: Vec<Applied>,
+}
+
+/// Checks the levels of one exercise: all three present, pass marks in 0…100, known metrics,
+/// finite numbers, no negative points. `at` names the table in messages.
+fn check_levels(levels: &BTreeMap<String, Level>, exercise: Exercise, at: &str) -> Result<(), String> {
+    let finite = |v: f64, what: &str| {
+        if v.is_finite() {
+            Ok(())
+        } else {
+            Err(format!("{what} is not a finite number"))
+        }
+    };
+    let allowed = exercise_metrics(exercise);
+    for level in LEVELS {
+        if !levels.contains_key(level) {
+            if exercise == Exercise::Puncture {
+                return Err(format!("the rubric lacks level '{level}'"));
+            }
+            return Err(format!("{at}: the rubric lacks level '{level}'"));
+        }
+    }
+    for (name, l) in levels {
+        let name = if exercise == Exercise::Puncture {
+            name.clone()
+        } else {
+            format!("{}.{name}", exercise.as_str())
+        };
+        let bare = name.rsplit('.').next().unwrap_or(&name);
+        if !LEVELS.contains(&bare) {
+            return Err(format!("unknown level '{bare}' (levels: {})", LEVELS.join(", ")));
+        }
+        if !(0.0..=100.0).contains(&l.pass_score) {
+            return Err(format!("levels.{name}.pass_score must lie in 0…100"));
+        }
+        let known = |m: &str| {
+            if allowed.contains(&m) {
+                Ok(())
+            } else {
+                Err(format!(
+                    "levels.{name}: unknown metric '{m}' for the {} exercise (known: {})",
+                    exercise.label(),
+                    allowed.join(", ")
+                ))
+            }
+        };
+        for q in &l.require {
+            known(&q.metric)?;
+            if q.min.is_none() && q.max.is_none() {
+                return Err(format!(
+                    "levels.{name}: requirement on '{}' has neither min nor max",
+                    q.metric
+                ));
+            }
+            for v in q.min.iter().chain(&q.max) {
+                finite(*v, &format!("levels.{name}: requirement on '{}'", q.metric))?;
+            }
+        }
+        for d in &l.deduct {
+            known(&d.metric)?;
+            for v in [d.free, d.points].iter().chain(&d.max_points) {
+                finite(*v, &format!("levels.{name}: deduction on '{}'", d.metric))?;
+            }
+            if d.points < 0.0 {
+                return Err(format!(
+                    "levels.{name}: deduction on '{}' has negative points",
+                    d.metric
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 impl Rubric {
@@ -149,52 +336,12 @@ impl Rubric {
         if r.metrics.redirection_mm <= 0.0 || r.metrics.readvance_mm <= 0.0 {
             return Err("metrics.redirection_mm and readvance_mm must be positive".into());
         }
-        for level in LEVELS {
-            if !r.levels.contains_key(level) {
-                return Err(format!("the rubric lacks level '{level}'"));
+        check_levels(&r.levels, Exercise::Puncture, "levels")?;
+        for (exercise, e) in &r.exercises {
+            if *exercise == Exercise::Puncture {
+                return Err("the puncture's levels are the top-level [levels], not [exercises.puncture]".into());
             }
-        }
-        for (name, l) in &r.levels {
-            if !LEVELS.contains(&name.as_str()) {
-                return Err(format!("unknown level '{name}' (levels: {})", LEVELS.join(", ")));
-            }
-            if !(0.0..=100.0).contains(&l.pass_score) {
-                return Err(format!("levels.{name}.pass_score must lie in 0…100"));
-            }
-            let known = |m: &str| {
-                if RUBRIC_METRICS.contains(&m) {
-                    Ok(())
-                } else {
-                    Err(format!(
-                        "levels.{name}: unknown metric '{m}' (known: {})",
-                        RUBRIC_METRICS.join(", ")
-                    ))
-                }
-            };
-            for q in &l.require {
-                known(&q.metric)?;
-                if q.min.is_none() && q.max.is_none() {
-                    return Err(format!(
-                        "levels.{name}: requirement on '{}' has neither min nor max",
-                        q.metric
-                    ));
-                }
-                for v in q.min.iter().chain(&q.max) {
-                    finite(*v, &format!("levels.{name}: requirement on '{}'", q.metric))?;
-                }
-            }
-            for d in &l.deduct {
-                known(&d.metric)?;
-                for v in [d.free, d.points].iter().chain(&d.max_points) {
-                    finite(*v, &format!("levels.{name}: deduction on '{}'", d.metric))?;
-                }
-                if d.points < 0.0 {
-                    return Err(format!(
-                        "levels.{name}: deduction on '{}' has negative points",
-                        d.metric
-                    ));
-                }
-            }
+            check_levels(&e.levels, *exercise, &format!("exercises.{}.levels", exercise.as_str()))?;
         }
         Ok(r)
     }
@@ -212,9 +359,31 @@ impl Rubric {
         }
     }
 
-    /// Whether `difficulty` is a level of this rubric (checked before a replay is spent on it).
-    pub fn grade_check(&self, difficulty: &str) -> Result<(), String> {
-        if self.levels.contains_key(difficulty) {
+    /// The levels of `exercise`, if this rubric grades it.
+    pub fn levels_for(&self, exercise: Exercise) -> Option<&BTreeMap<String, Level>> {
+        match exercise {
+            Exercise::Puncture => Some(&self.levels),
+            other => self.exercises.get(&other).map(|e| &e.levels),
+        }
+    }
+
+    /// The level `difficulty` of `exercise`, if this rubric has it.
+    pub fn level(&self, exercise: Exercise, difficulty: &str) -> Option<&Level> {
+        self.levels_for(exercise)?.get(difficulty)
+    }
+
+    /// Whether this rubric grades `exercise` at `difficulty` (checked before a replay is spent
+    /// on it).
+    pub fn grade_check(&self, exercise: Exercise, difficulty: &str) -> Result<(), String> {
+        let Some(levels) = self.levels_for(exercise) else {
+            return Err(format!(
+                "rubric {} v{} has no levels for the {} exercise",
+                self.name,
+                self.version,
+                exercise.label()
+            ));
+        };
+        if levels.contains_key(difficulty) {
             Ok(())
         } else {
             Err(format!(
@@ -224,19 +393,26 @@ impl Rubric {
         }
     }
 
-    /// Grades `m` at `difficulty`.
-    pub fn grade(&self, m: &Metrics, difficulty: &str) -> Result<Grade, String> {
-        self.grade_check(difficulty)?;
-        let level = &self.levels[difficulty];
+    /// Grades `m` as `exercise` at `difficulty`.
+    pub fn grade(&self, m: &Metrics, exercise: Exercise, difficulty: &str) -> Result<Grade, String> {
+        self.grade_check(exercise, difficulty)?;
+        let level = self.level(exercise, difficulty).expect("checked above");
         let value = |name: &str| metric_value(m, name).expect("rubric metrics are checked at parse time");
         let mut failed = Vec::new();
+        let mut unmet = Vec::new();
         for q in &level.require {
             let v = value(&q.metric);
-            if let Some(min) = q.min.filter(|&min| v < min) {
-                failed.push(format!("{} = {v} is below {min}", q.metric));
-            }
-            if let Some(max) = q.max.filter(|&max| v > max) {
-                failed.push(format!("{} = {v} is above {max}", q.metric));
+            let below = q.min.is_some_and(|min| v < min);
+            let above = q.max.is_some_and(|max| v > max);
+            if below || above {
+                let info = crate::reasons::metric_info(&q.metric).expect("every rubric metric has words (tested)");
+                failed.push(info.unmet(v, q.min, q.max));
+                unmet.push(Unmet {
+                    metric: q.metric.clone(),
+                    value: v,
+                    min: q.min,
+                    max: q.max,
+                });
             }
         }
         let mut deductions = Vec::new();
@@ -251,6 +427,7 @@ impl Rubric {
                     metric: d.metric.clone(),
                     value: v,
                     points,
+                    free: Some(d.free),
                 });
             }
         }
@@ -260,11 +437,14 @@ impl Rubric {
         Ok(Grade {
             score,
             passed: failed.is_empty() && score >= level.pass_score,
+            exercise,
             difficulty: difficulty.to_string(),
+            pass_score: Some(level.pass_score),
             rubric: self.name.clone(),
             rubric_version: self.version,
             physics_version: stylet_physics::PHYSICS_VERSION,
             failed,
+            unmet,
             deductions,
         })
     }
@@ -305,6 +485,8 @@ mod tests {
             target_distance_mm: Some(0.0),
             target_distance_min_mm: Some(0.0),
             guided: None,
+            palpation: None,
+            ultrasound: None,
         }
     }
 
@@ -312,32 +494,38 @@ mod tests {
     #[test]
     fn the_shipped_rubric_grades_the_worked_example() {
         let r = Rubric::default_rubric();
-        assert_eq!((r.name.as_str(), r.version), ("ptcd", 1));
-        let g = r.grade(&metrics(), "beginner").unwrap();
+        assert_eq!((r.name.as_str(), r.version), ("ptcd", 2));
+        let g = r.grade(&metrics(), Exercise::Puncture, "beginner").unwrap();
         // attempts 2 (1 free) −10, redirections 3 (2 free) −3, fluoro 40 s (30 free) −5,
         // no palpation first −5: 100 − 23.
         assert_eq!(g.score, 77.0, "{:?}", g.deductions);
         assert!(g.passed && g.failed.is_empty());
-        let g = r.grade(&metrics(), "expert").unwrap();
+        let g = r.grade(&metrics(), Exercise::Puncture, "expert").unwrap();
         assert!(!g.passed);
         assert!(
-            g.failed.iter().any(|f| f.starts_with("attempts = 2 is above 1")),
+            g.failed.iter().any(|f| f == "2 attempts: at most 1 allowed."),
             "{:?}",
             g.failed
         );
         assert!(
-            g.failed.iter().any(|f| f.starts_with("fluoro_time_s = 40 is above 30")),
+            g.failed
+                .iter()
+                .any(|f| f == "40 s of time under X-ray: at most 30 s allowed."),
             "{:?}",
             g.failed
         );
-        assert!(r.grade(&metrics(), "wizard").unwrap_err().contains("'wizard'"));
+        assert!(
+            r.grade(&metrics(), Exercise::Puncture, "wizard")
+                .unwrap_err()
+                .contains("'wizard'")
+        );
     }
 
     #[test]
     fn bad_rubrics_are_named() {
         let base = DEFAULT_RUBRIC;
         let cases = [
-            (base.replace("version = 1", "version = 0"), "version"),
+            (base.replace("version = 2", "version = 0"), "version"),
             (
                 base.replace("[levels.expert]", "[levels.master]"),
                 "lacks level 'expert'",

@@ -10,10 +10,12 @@ use stylet_physics::glam::DVec3;
 use stylet_recorder::reader::{self, Session};
 
 use crate::metrics::{Metrics, MetricsCollector, PlannedPath};
+use crate::reasons::{self, Outcome};
 use crate::replay::{Divergence, ReplayError, replay};
 use crate::rubric::{Grade, Rubric};
 use crate::target::TargetDistance;
 use crate::trace::{ReviewTrace, TraceCollector};
+use stylet_atlas::Exercise;
 
 /// Why a session was not scored.
 #[derive(Debug, thiserror::Error)]
@@ -38,8 +40,11 @@ pub enum ScoreError {
 /// A file and what scoring it gave.
 pub type FileScore = (PathBuf, Result<ScoreReport, ScoreError>);
 
-/// The scored session: who and what, the replay check, the metrics and the grade.
+/// The scored session: who and what, the replay check, the metrics and the grade. Reports stored
+/// before exercises and outcomes were kept still load: they read as punctures, their outcome
+/// comes from `incomplete` and `grade.passed`, their reasons are phrased again from the grade.
 #[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+#[serde(from = "StoredReport")]
 pub struct ScoreReport {
     pub session_id: String,
     pub trainee: String,
@@ -55,6 +60,66 @@ pub struct ScoreReport {
     pub digests_checked: u64,
     pub metrics: Metrics,
     pub grade: Grade,
+    /// What the scenario practises (its rubric graded the session).
+    pub exercise: Exercise,
+    /// Passed, failed, or not gradeable (incomplete recordings are never graded).
+    pub outcome: Outcome,
+    /// Why, in plain words for people (docs/metrics.md "Outcomes and reasons").
+    pub reasons: Vec<String>,
+}
+
+/// A report as stored, any age: the fields added later are optional.
+#[derive(serde::Deserialize)]
+struct StoredReport {
+    session_id: String,
+    trainee: String,
+    scenario: String,
+    atlas_id: String,
+    replay_verified: bool,
+    divergence: Option<Divergence>,
+    physics_version: u32,
+    incomplete: bool,
+    incomplete_reason: Option<String>,
+    ticks: u64,
+    digests_checked: u64,
+    metrics: Metrics,
+    grade: Grade,
+    #[serde(default)]
+    exercise: Option<Exercise>,
+    #[serde(default)]
+    outcome: Option<Outcome>,
+    #[serde(default)]
+    reasons: Option<Vec<String>>,
+}
+
+impl From<StoredReport> for ScoreReport {
+    fn from(r: StoredReport) -> Self {
+        let exercise = r.exercise.unwrap_or(r.grade.exercise);
+        let outcome = r.outcome.unwrap_or_else(|| Outcome::of(r.incomplete, r.grade.passed));
+        let reasons = r.reasons.unwrap_or_else(|| {
+            let incomplete = (outcome == Outcome::NotGradeable)
+                .then(|| r.incomplete_reason.clone().unwrap_or_else(|| "unknown cause".into()));
+            reasons::reasons(exercise, &r.grade, &r.metrics, incomplete.as_deref())
+        });
+        ScoreReport {
+            session_id: r.session_id,
+            trainee: r.trainee,
+            scenario: r.scenario,
+            atlas_id: r.atlas_id,
+            replay_verified: r.replay_verified,
+            divergence: r.divergence,
+            physics_version: r.physics_version,
+            incomplete: r.incomplete,
+            incomplete_reason: r.incomplete_reason,
+            ticks: r.ticks,
+            digests_checked: r.digests_checked,
+            metrics: r.metrics,
+            grade: r.grade,
+            exercise,
+            outcome,
+            reasons,
+        }
+    }
 }
 
 /// Scores sessions recorded on one atlas with one rubric. Building it derives what every replay
@@ -69,6 +134,10 @@ pub struct Scorer {
     rubric: Rubric,
     /// The atlas' declared scenarios (empty: it declares none and any name is accepted).
     scenarios: Vec<String>,
+    /// The exercise of each declared scenario (undeclared: puncture).
+    exercises: std::collections::BTreeMap<String, Exercise>,
+    /// Clinical consequences of the risk labels (atlas TOML).
+    consequences: std::collections::BTreeMap<stylet_physics::LabelId, String>,
 }
 
 impl Scorer {
@@ -102,6 +171,13 @@ impl Scorer {
             path,
             rubric,
             scenarios: atlas.manifest.scenarios.iter().map(|s| s.name.clone()).collect(),
+            exercises: atlas
+                .manifest
+                .scenarios
+                .iter()
+                .map(|s| (s.name.clone(), s.exercise))
+                .collect(),
+            consequences: stylet_atlas::manifest::consequences(&atlas.manifest.labels),
         })
     }
 
@@ -109,9 +185,19 @@ impl Scorer {
         &self.rubric
     }
 
+    /// The atlas' planned insertion paths (guided-mode metrics name the one they measured).
+    pub fn paths(&self) -> &[PlannedPath] {
+        &self.paths
+    }
+
     /// Whether sessions on this atlas may name `scenario` (any name if it declares none).
     pub fn knows_scenario(&self, scenario: &str) -> bool {
         self.scenarios.is_empty() || self.scenarios.iter().any(|s| s == scenario)
+    }
+
+    /// The exercise a scenario practises (a scenario the atlas does not declare: puncture).
+    pub fn exercise_of(&self, scenario: &str) -> Exercise {
+        self.exercises.get(scenario).copied().unwrap_or_default()
     }
 
     /// The atlas' declared scenario names.
@@ -153,7 +239,10 @@ impl Scorer {
                 atlas_hash: self.atlas_hash.clone(),
             });
         }
-        self.rubric.grade_check(&h.difficulty).map_err(ScoreError::Grade)?;
+        let exercise = self.exercise_of(&h.scenario);
+        self.rubric
+            .grade_check(exercise, &h.difficulty)
+            .map_err(ScoreError::Grade)?;
         let mut collector = MetricsCollector::new(
             &self.atlas,
             &self.target,
@@ -161,7 +250,8 @@ impl Scorer {
             self.path.clone(),
             h.tick_rate_hz,
             self.rubric.metric_params(),
-        );
+        )
+        .with_consequences(self.consequences.clone());
         let report = replay(session, self.atlas.clone(), &mut |i, o, s| {
             collector.tick(i, o, s);
             if let Some(t) = trace.as_deref_mut() {
@@ -169,7 +259,10 @@ impl Scorer {
             }
         })?;
         let metrics = collector.finish();
-        let grade = self.rubric.grade(&metrics, &h.difficulty).map_err(ScoreError::Grade)?;
+        let grade = self
+            .rubric
+            .grade(&metrics, exercise, &h.difficulty)
+            .map_err(ScoreError::Grade)?;
         let mut reasons = Vec::new();
         if let Some(d) = &session.damage {
             reasons.push(format!("the file is damaged {d}"));
@@ -179,6 +272,9 @@ impl Scorer {
             Some(_) => {}
             None => reasons.push("the recording has no end (interrupted)".into()),
         }
+        let incomplete_reason = (!reasons.is_empty()).then(|| reasons.join("; "));
+        let outcome = Outcome::of(incomplete_reason.is_some(), grade.passed);
+        let reasons = reasons::reasons(exercise, &grade, &metrics, incomplete_reason.as_deref());
         Ok(ScoreReport {
             session_id: h.session_id.clone(),
             trainee: h.trainee.clone(),
@@ -187,12 +283,15 @@ impl Scorer {
             replay_verified: report.replay_verified,
             divergence: report.divergence,
             physics_version: stylet_physics::PHYSICS_VERSION,
-            incomplete: !reasons.is_empty(),
-            incomplete_reason: (!reasons.is_empty()).then(|| reasons.join("; ")),
+            incomplete: incomplete_reason.is_some(),
+            incomplete_reason,
             ticks: report.ticks,
             digests_checked: report.digests_checked,
             metrics,
             grade,
+            exercise,
+            outcome,
+            reasons,
         })
     }
 

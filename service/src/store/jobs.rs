@@ -2,6 +2,8 @@
 
 use sqlx::Row;
 
+use stylet_scoring::{Exercise, Outcome};
+
 use super::{Store, StoreError, now};
 
 impl Store {
@@ -143,6 +145,36 @@ impl Store {
     }
 }
 
+impl Store {
+    /// Phrases the reasons of sessions scored before migration 0005 from their stored reports
+    /// (once: later scores write them as they happen). Bounded: 500 rows per call, called until
+    /// none is left.
+    pub(super) async fn fill_session_reasons(&self) -> Result<(), StoreError> {
+        loop {
+            let rows = sqlx::query(
+                "SELECT s.id, sc.report_json FROM sessions s JOIN scores sc ON sc.session_id = s.id \
+                 WHERE s.reasons IS NULL ORDER BY s.id LIMIT 500",
+            )
+            .fetch_all(&self.pool)
+            .await?;
+            if rows.is_empty() {
+                return Ok(());
+            }
+            for r in rows {
+                let id: String = r.try_get("id")?;
+                let report: stylet_scoring::ScoreReport = serde_json::from_str(&r.try_get::<String, _>("report_json")?)
+                    .map_err(|e| StoreError::Invalid(format!("stored report of session {id}: {e}")))?;
+                sqlx::query("UPDATE sessions SET outcome = $1, reasons = $2 WHERE id = $3")
+                    .bind(report.outcome.as_str())
+                    .bind(join_reasons(&report.reasons))
+                    .bind(id)
+                    .execute(&self.pool)
+                    .await?;
+            }
+        }
+    }
+}
+
 /// A claimed scoring job.
 #[derive(Debug, Clone)]
 pub struct Job {
@@ -154,7 +186,7 @@ pub struct Job {
     pub atlas_hash: String,
 }
 
-/// What a session's row keeps of its score (migration 0002).
+/// What a session's row keeps of its score (migrations 0002 and 0005).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Summary {
     pub score: f64,
@@ -163,6 +195,10 @@ pub struct Summary {
     pub risk_hits: i64,
     pub replay_verified: bool,
     pub rubric_version: i64,
+    pub exercise: Exercise,
+    pub outcome: Outcome,
+    /// In plain words, one per line on the row.
+    pub reasons: Vec<String>,
 }
 
 impl Summary {
@@ -174,20 +210,34 @@ impl Summary {
             risk_hits: r.metrics.risk_hits.len() as i64,
             replay_verified: r.replay_verified,
             rubric_version: i64::from(r.grade.rubric_version),
+            exercise: r.exercise,
+            outcome: r.outcome,
+            reasons: r.reasons.clone(),
         }
     }
 
-    /// From a stored report (JSON of [`stylet_scoring::ScoreReport`]).
+    /// From a stored report (JSON of [`stylet_scoring::ScoreReport`], any age: reports stored
+    /// before exercises and outcomes get theirs from the grade).
     pub fn from_json(v: &serde_json::Value) -> Option<Summary> {
-        Some(Summary {
-            score: v["grade"]["score"].as_f64()?,
-            passed: v["grade"]["passed"].as_bool()?,
-            attempts: v["metrics"]["attempts"].as_i64()?,
-            risk_hits: v["metrics"]["risk_hits"].as_array()?.len() as i64,
-            replay_verified: v["replay_verified"].as_bool()?,
-            rubric_version: v["grade"]["rubric_version"].as_i64()?,
-        })
+        let report: stylet_scoring::ScoreReport = serde_json::from_value(v.clone()).ok()?;
+        Some(Summary::from_report(&report))
     }
+}
+
+/// A session's reasons as stored on its row: one per line (a reason never holds a line break).
+pub fn join_reasons(reasons: &[String]) -> String {
+    reasons
+        .iter()
+        .map(|r| r.replace(['\n', '\r'], " "))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// The reasons of a row's `reasons` column.
+pub fn split_reasons(stored: Option<&str>) -> Vec<String> {
+    stored
+        .map(|s| s.lines().filter(|l| !l.is_empty()).map(str::to_string).collect())
+        .unwrap_or_default()
 }
 
 /// Marks a session scored and writes its summary; the final grade is the computed one unless an
@@ -200,7 +250,8 @@ pub(super) async fn write_summary(
     sqlx::query(
         "UPDATE sessions SET status = 'scored', attempts = $1, risk_hits = $2, replay_verified = $3, rubric_version = $4, \
          final_score = CASE WHEN overridden = 1 THEN final_score ELSE $5 END, \
-         final_passed = CASE WHEN overridden = 1 THEN final_passed ELSE $6 END WHERE id = $7",
+         final_passed = CASE WHEN overridden = 1 THEN final_passed ELSE $6 END, \
+         exercise = $8, outcome = $9, reasons = $10 WHERE id = $7",
     )
     .bind(s.attempts)
     .bind(s.risk_hits)
@@ -209,6 +260,9 @@ pub(super) async fn write_summary(
     .bind(s.score)
     .bind(i64::from(s.passed))
     .bind(session_id.to_string())
+    .bind(s.exercise.as_str())
+    .bind(s.outcome.as_str())
+    .bind(join_reasons(&s.reasons))
     .execute(&mut **tx)
     .await?;
     Ok(())

@@ -17,7 +17,7 @@ mod tokens;
 
 pub use accounts::{AccountChange, AccountError, IMPORT_HEADER, ImportLine, ImportLineError, MAX_IMPORT_LINES, Role, UserRow, parse_import};
 pub use cohorts::{CohortLine, ReportLine, ScorePoint};
-pub use jobs::Job;
+pub use jobs::{Job, join_reasons, split_reasons};
 pub use review::{ExportRow, ProgressPoint, TraineeSummary};
 pub use sessions::{NewSession, SessionFilter, SessionLine};
 pub use tokens::{TokenAuth, TokenRow, TokenScope, TokenStatus};
@@ -51,6 +51,12 @@ pub struct SessionRow {
     pub size_bytes: i64,
     /// The full score report (docs/metrics.md) once scored.
     pub score: Option<serde_json::Value>,
+    /// What the scenario practises (migration 0005).
+    pub exercise: stylet_scoring::Exercise,
+    /// Passed, failed or not gradeable; `None` until scored.
+    pub outcome: Option<stylet_scoring::Outcome>,
+    /// Why, in plain words (empty until scored, and for a pass that cost nothing).
+    pub reasons: Vec<String>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -176,6 +182,7 @@ impl Store {
         sqlx::migrate!("../migrations").run(&pool).await?;
         let store = Store { pool, sqlite };
         store.fill_session_summaries().await?;
+        store.fill_session_reasons().await?;
         Ok(store)
     }
 

@@ -60,7 +60,8 @@ impl Store {
     }
 
     const SESSION_COLUMNS: &str = "s.id, u.username AS trainee, s.scenario, s.difficulty, s.status, s.uploaded_at, \
-        s.recorded_at, s.duration_s, s.error, s.file_sha256, s.atlas_hash, s.size_bytes, sc.report_json";
+        s.recorded_at, s.duration_s, s.error, s.file_sha256, s.atlas_hash, s.size_bytes, sc.report_json, \
+        s.exercise, s.outcome, s.reasons";
 
     fn session_of(row: &sqlx::any::AnyRow) -> Result<SessionRow, sqlx::Error> {
         let report: Option<String> = row.try_get("report_json")?;
@@ -78,6 +79,11 @@ impl Store {
             atlas_hash: row.try_get("atlas_hash")?,
             size_bytes: row.try_get("size_bytes")?,
             score: report.and_then(|r| serde_json::from_str(&r).ok()),
+            exercise: stylet_scoring::Exercise::parse(&row.try_get::<String, _>("exercise")?).unwrap_or_default(),
+            outcome: row
+                .try_get::<Option<String>, _>("outcome")?
+                .and_then(|o| stylet_scoring::Outcome::parse(&o)),
+            reasons: super::jobs::split_reasons(row.try_get::<Option<String>, _>("reasons")?.as_deref()),
         })
     }
 

@@ -47,6 +47,56 @@ pub struct ScenarioToml {
     pub name: String,
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub description: String,
+    /// What the trainee practises, which decides the metrics and the rubric a session is graded
+    /// with (a palpation is not a failed puncture). Absent: puncture.
+    #[serde(default)]
+    pub exercise: Exercise,
+}
+
+/// The kind of exercise a scenario is (docs/metrics.md "Exercises").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Exercise {
+    /// A needle puncture into the target (PTCD).
+    #[default]
+    Puncture,
+    /// Palpating the intercostal spaces with the finger.
+    Palpation,
+    /// Finding the target with the ultrasound probe.
+    UltrasoundSurvey,
+}
+
+impl Exercise {
+    pub const ALL: [Exercise; 3] = [Exercise::Puncture, Exercise::Palpation, Exercise::UltrasoundSurvey];
+
+    /// The identifier as stored and serialised ("puncture", "palpation", "ultrasound_survey").
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Exercise::Puncture => "puncture",
+            Exercise::Palpation => "palpation",
+            Exercise::UltrasoundSurvey => "ultrasound_survey",
+        }
+    }
+
+    /// Parses the identifier; `None` for anything else.
+    pub fn parse(s: &str) -> Option<Exercise> {
+        Exercise::ALL.into_iter().find(|e| e.as_str() == s)
+    }
+
+    /// The name for people ("ultrasound survey").
+    pub fn label(self) -> &'static str {
+        match self {
+            Exercise::Puncture => "puncture",
+            Exercise::Palpation => "palpation",
+            Exercise::UltrasoundSurvey => "ultrasound survey",
+        }
+    }
+}
+
+impl std::fmt::Display for Exercise {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.label())
+    }
 }
 
 /// Where the data came from and under which terms.
@@ -115,6 +165,10 @@ pub struct LabelToml {
     pub role: String,
     /// Property-tree node holding the material parameters.
     pub tissue: String,
+    /// Risk structures: the clinical consequence of hitting it, one line for people
+    /// ("pneumothorax", "haemorrhage"); shown with every hit in reviews and reports.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub consequence: Option<String>,
 }
 
 /// A parameter value in TOML: a number, or `{ hu = [...], value = [...] }`.
@@ -219,6 +273,14 @@ pub fn check_scenarios(scenarios: &[ScenarioToml]) -> Result<(), String> {
     Ok(())
 }
 
+/// The clinical consequences the labels declare, by label id (risk structures).
+pub fn consequences(labels: &[LabelToml]) -> BTreeMap<LabelId, String> {
+    labels
+        .iter()
+        .filter_map(|l| l.consequence.as_ref().map(|c| (l.id, c.clone())))
+        .collect()
+}
+
 /// The PTCD scenario shipped with Stylet: labels, property tree and presets (`atlases/ptcd.toml`).
 pub const PTCD_SCENARIO_TOML: &str = include_str!("../../../atlases/ptcd.toml");
 
@@ -291,6 +353,14 @@ pub fn property_tree(tissues: &BTreeMap<String, TissueToml>) -> Result<PropertyT
 pub fn label_table(labels: &[LabelToml], heuristic: &HeuristicToml) -> Result<LabelTable, String> {
     let mut out = Vec::with_capacity(labels.len());
     for l in labels {
+        if let Some(c) = &l.consequence
+            && (c.trim().is_empty() || c.len() > 200 || c.contains(['\n', '\r']))
+        {
+            return Err(format!(
+                "label '{}': a consequence is one line of 1–200 characters",
+                l.name
+            ));
+        }
         let role = Role::parse(&l.role).ok_or_else(|| {
             format!(
                 "label '{}' has role '{}'; expected one of target, risk, bone, organ, neutral",

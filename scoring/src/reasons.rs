@@ -1,0 +1,382 @@
+//! The one table of rubric metrics for people: each metric's identifier, its name in plain words,
+//! its unit, and how a failed requirement or a deduction on it reads. The CLI, the API (the
+//! `reasons` of a report), the dashboard and the CSV all phrase results from here, so no metric
+//! identifier reaches text meant for people.
+
+use crate::metrics::Metrics;
+use crate::rubric::Grade;
+use stylet_atlas::Exercise;
+
+/// The unit of a rubric metric, which decides how its values are written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Unit {
+    /// A whole number of things ("2 attempts").
+    Count,
+    /// Seconds.
+    Seconds,
+    Millimetres,
+    SquareMillimetres,
+    Newtons,
+    Degrees,
+    /// A plain ratio (1 = ideal).
+    Ratio,
+    /// 0 … 1, written as a percentage.
+    Fraction,
+    /// 0 or 1: something that did or did not happen; phrased by [`MetricInfo::flag_text`].
+    Flag,
+}
+
+/// One rubric metric for people.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MetricInfo {
+    /// The identifier rubrics and JSON use (`fluoro_time_s`).
+    pub id: &'static str,
+    /// Its name in plain words ("time under X-ray").
+    pub label: &'static str,
+    pub unit: Unit,
+    /// Flags: what happened when the flag is 1, as the end of a sentence ("the target was not
+    /// reached").
+    pub flag_text: &'static str,
+}
+
+const fn m(id: &'static str, label: &'static str, unit: Unit) -> MetricInfo {
+    MetricInfo {
+        id,
+        label,
+        unit,
+        flag_text: "",
+    }
+}
+
+const fn flag(id: &'static str, label: &'static str, text: &'static str) -> MetricInfo {
+    MetricInfo {
+        id,
+        label,
+        unit: Unit::Flag,
+        flag_text: text,
+    }
+}
+
+/// Every metric a rubric may name (rubric::RUBRIC_METRICS is checked against it by a test).
+pub const METRICS: &[MetricInfo] = &[
+    m("attempts", "attempts", Unit::Count),
+    m("redirections", "redirections", Unit::Count),
+    m("risk_hits", "risk structures hit", Unit::Count),
+    m("risk_time_s", "time inside risk structures", Unit::Seconds),
+    m("bone_contacts", "bone contacts", Unit::Count),
+    flag(
+        "target_not_reached",
+        "target not reached",
+        "the needle never reached the target",
+    ),
+    flag(
+        "target_not_confirmed",
+        "target not confirmed",
+        "the position in the target was not confirmed (stylet out and contrast in the target)",
+    ),
+    m("time_total_s", "total time", Unit::Seconds),
+    m("fluoro_time_s", "time under X-ray", Unit::Seconds),
+    m("xray_shots", "X-ray shots", Unit::Count),
+    m("max_force_n", "peak force", Unit::Newtons),
+    m("tissue_damage_mm2", "tissue damage", Unit::SquareMillimetres),
+    m("path_inefficiency", "path inefficiency", Unit::Ratio),
+    m("target_distance_mm", "distance from the target", Unit::Millimetres),
+    flag(
+        "missing_palpation",
+        "no palpation before the puncture",
+        "there was no palpation before the puncture",
+    ),
+    flag(
+        "missing_ultrasound",
+        "no ultrasound before the puncture",
+        "there was no ultrasound before the puncture",
+    ),
+    m(
+        "guided_entry_distance_mm",
+        "entry off the planned entry",
+        Unit::Millimetres,
+    ),
+    m("guided_angle_error_deg", "angle off the planned path", Unit::Degrees),
+    m(
+        "guided_mean_deviation_mm",
+        "mean deviation from the planned path",
+        Unit::Millimetres,
+    ),
+    // Palpation.
+    m("intercostal_spaces_found", "intercostal spaces found", Unit::Count),
+    m("intercostal_spaces_missed", "intercostal spaces missed", Unit::Count),
+    m(
+        "palpation_coverage",
+        "share of the intercostal spaces found",
+        Unit::Fraction,
+    ),
+    m("palpation_time_s", "palpation time", Unit::Seconds),
+    // Ultrasound survey.
+    flag(
+        "target_not_scanned",
+        "target never shown",
+        "the target never came within 5 mm of the ultrasound image",
+    ),
+    m(
+        "time_to_target_view_s",
+        "time to the first view of the target",
+        Unit::Seconds,
+    ),
+    m("good_contact_time_s", "time in good skin contact", Unit::Seconds),
+    m(
+        "poor_contact_share",
+        "share of probe time in poor skin contact",
+        Unit::Fraction,
+    ),
+];
+
+/// The table entry of a metric identifier.
+pub fn metric_info(id: &str) -> Option<&'static MetricInfo> {
+    METRICS.iter().find(|m| m.id == id)
+}
+
+/// The plain-words name of a metric identifier ("fluoro_time_s" → "time under X-ray").
+pub fn metric_label(id: &str) -> Option<&'static str> {
+    metric_info(id).map(|m| m.label)
+}
+
+/// A number without needless decimals: 2 → "2", 2.5 → "2.5", 40.04 → "40.04".
+fn num(v: f64) -> String {
+    let r = (v * 100.0).round() / 100.0;
+    if r == r.trunc() {
+        format!("{}", r as i64)
+    } else {
+        let s = format!("{r:.2}");
+        s.trim_end_matches('0').to_string()
+    }
+}
+
+impl MetricInfo {
+    /// A value with its unit: "2 attempts", "40.5 s", "9.5 mm", "75 %".
+    pub fn value(&self, v: f64) -> String {
+        match self.unit {
+            Unit::Count => format!("{} {}", num(v), self.label),
+            Unit::Seconds => format!("{} s", num(v)),
+            Unit::Millimetres => format!("{} mm", num(v)),
+            Unit::SquareMillimetres => format!("{} mm²", num(v)),
+            Unit::Newtons => format!("{} N", num(v)),
+            Unit::Degrees => format!("{}°", num(v)),
+            Unit::Ratio => num(v),
+            Unit::Fraction => format!("{} %", num(v * 100.0)),
+            Unit::Flag => {
+                if v > 0.0 {
+                    "yes".into()
+                } else {
+                    "no".into()
+                }
+            }
+        }
+    }
+
+    /// A bound alone: "1", "30 s", "75 %".
+    fn bound(&self, v: f64) -> String {
+        match self.unit {
+            Unit::Count | Unit::Ratio | Unit::Flag => num(v),
+            _ => self.value(v),
+        }
+    }
+
+    /// The measured value as a phrase with its name: "2 attempts", "40 s of time under X-ray".
+    pub fn phrase(&self, v: f64) -> String {
+        match self.unit {
+            Unit::Count => self.value(v),
+            Unit::Flag => self.label.to_string(),
+            Unit::Ratio => format!("{} of {}", self.label, num(v)),
+            _ => format!("{} of {}", self.value(v), self.label),
+        }
+    }
+
+    /// A requirement `min ≤ v ≤ max` that `v` misses, as a sentence.
+    pub fn unmet(&self, v: f64, min: Option<f64>, max: Option<f64>) -> String {
+        if self.unit == Unit::Flag {
+            return capitalise(&format!("{}.", self.flag_text));
+        }
+        let s = match (min, max) {
+            (Some(lo), _) if v < lo => format!("{}: at least {} required", self.phrase(v), self.bound(lo)),
+            (_, Some(hi)) => format!("{}: at most {} allowed", self.phrase(v), self.bound(hi)),
+            _ => format!("{} is out of range", self.phrase(v)),
+        };
+        capitalise(&format!("{s}."))
+    }
+
+    /// A deduction as a phrase: "−15 for 2 attempts (1 free)", "−40 because the needle never
+    /// reached the target".
+    pub fn deduction(&self, v: f64, points: f64, free: Option<f64>) -> String {
+        let pts = format!("−{}", num(points));
+        if self.unit == Unit::Flag {
+            return format!("{pts} because {}", self.flag_text);
+        }
+        match free.filter(|f| *f > 0.0) {
+            Some(f) => format!("{pts} for {} ({} free)", self.phrase(v), self.bound(f)),
+            None => format!("{pts} for {}", self.phrase(v)),
+        }
+    }
+}
+
+fn capitalise(s: &str) -> String {
+    let mut c = s.chars();
+    match c.next() {
+        Some(f) => f.to_uppercase().collect::<String>() + c.as_str(),
+        None => String::new(),
+    }
+}
+
+/// Whether a session can be graded, and how it came out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    Passed,
+    Failed,
+    /// The recording is incomplete (cut, damaged, dropped ticks): a grade would judge what is
+    /// missing, so none is given.
+    NotGradeable,
+}
+
+impl Outcome {
+    /// From the report's flags: an incomplete recording is never graded.
+    pub fn of(incomplete: bool, passed: bool) -> Outcome {
+        match (incomplete, passed) {
+            (true, _) => Outcome::NotGradeable,
+            (false, true) => Outcome::Passed,
+            (false, false) => Outcome::Failed,
+        }
+    }
+
+    /// The identifier as stored ("passed", "failed", "not_gradeable").
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Outcome::Passed => "passed",
+            Outcome::Failed => "failed",
+            Outcome::NotGradeable => "not_gradeable",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Outcome> {
+        [Outcome::Passed, Outcome::Failed, Outcome::NotGradeable]
+            .into_iter()
+            .find(|o| o.as_str() == s)
+    }
+
+    /// For people: "passed", "failed", "not gradeable".
+    pub fn label(self) -> &'static str {
+        match self {
+            Outcome::Passed => "passed",
+            Outcome::Failed => "failed",
+            Outcome::NotGradeable => "not gradeable",
+        }
+    }
+}
+
+impl std::fmt::Display for Outcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.label())
+    }
+}
+
+/// The reasons of a result in plain words: why it is not gradeable, or why it failed (unmet
+/// requirements, the score against the pass mark with every deduction), the risk structures hit
+/// with their consequence, and for a pass what still cost points.
+pub fn reasons(exercise: Exercise, grade: &Grade, metrics: &Metrics, incomplete_reason: Option<&str>) -> Vec<String> {
+    let mut out = Vec::new();
+    if let Some(why) = incomplete_reason {
+        out.push(format!(
+            "Not gradeable: the recording is incomplete ({why}). Record the exercise again; `stylet session recover` \
+             keeps what was saved for review."
+        ));
+        return out;
+    }
+    for u in &grade.unmet {
+        if let Some(info) = metric_info(&u.metric) {
+            out.push(info.unmet(u.value, u.min, u.max));
+        }
+    }
+    if exercise == Exercise::Puncture {
+        for h in &metrics.risk_hits {
+            let consequence = h
+                .consequence
+                .as_deref()
+                .map(|c| format!(" ({c} risk)"))
+                .unwrap_or_default();
+            out.push(format!(
+                "The needle entered the {} at {:.1} s, {:.1} mm deep{consequence}.",
+                h.structure, h.t_s, h.depth_mm
+            ));
+        }
+    }
+    let deductions: Vec<String> = grade
+        .deductions
+        .iter()
+        .filter_map(|d| metric_info(&d.metric).map(|i| i.deduction(d.value, d.points, d.free)))
+        .collect();
+    let pass = grade.pass_score.map(num);
+    let level = &grade.difficulty;
+    let costs = if deductions.is_empty() {
+        String::new()
+    } else {
+        format!(": {}", deductions.join(", "))
+    };
+    match pass {
+        Some(p) if grade.score < grade.pass_score.unwrap_or(0.0) => out.push(format!(
+            "Score {} is below the pass mark of {p} for {level}{costs}.",
+            num(grade.score)
+        )),
+        Some(p) if !deductions.is_empty() => out.push(format!(
+            "Score {} (pass mark {p} for {level}){costs}.",
+            num(grade.score)
+        )),
+        None if !deductions.is_empty() => out.push(format!("Score {}{costs}.", num(grade.score))),
+        _ => {}
+    }
+    if !grade.passed && out.is_empty() {
+        out.push(format!("Score {} did not pass at {level}.", num(grade.score)));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_rubric_metric_has_words_and_no_identifier_leaks() {
+        for id in crate::rubric::RUBRIC_METRICS {
+            let info = metric_info(id).unwrap_or_else(|| panic!("{id} lacks a table entry"));
+            for text in [
+                info.label.to_string(),
+                info.unmet(3.0, None, Some(1.0)),
+                info.unmet(0.0, Some(1.0), None),
+                info.deduction(3.0, 10.0, Some(1.0)),
+            ] {
+                assert!(!text.contains('_'), "{id}: {text}");
+            }
+        }
+        assert_eq!(metric_label("fluoro_time_s"), Some("time under X-ray"));
+        assert_eq!(metric_label("nonsense"), None);
+    }
+
+    #[test]
+    fn phrases_read_as_words() {
+        let a = metric_info("attempts").unwrap();
+        assert_eq!(a.deduction(2.0, 15.0, Some(1.0)), "−15 for 2 attempts (1 free)");
+        assert_eq!(a.unmet(2.0, None, Some(1.0)), "2 attempts: at most 1 allowed.");
+        let f = metric_info("fluoro_time_s").unwrap();
+        assert_eq!(
+            f.unmet(40.0, None, Some(30.0)),
+            "40 s of time under X-ray: at most 30 s allowed."
+        );
+        let t = metric_info("target_not_reached").unwrap();
+        assert_eq!(
+            t.deduction(1.0, 40.0, Some(0.0)),
+            "−40 because the needle never reached the target"
+        );
+        assert_eq!(t.unmet(1.0, None, Some(0.0)), "The needle never reached the target.");
+        assert_eq!(Outcome::of(true, true), Outcome::NotGradeable);
+        assert_eq!(Outcome::parse("not_gradeable"), Some(Outcome::NotGradeable));
+        assert_eq!(Outcome::NotGradeable.to_string(), "not gradeable");
+    }
+}
