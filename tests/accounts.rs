@@ -536,6 +536,21 @@ fn imports_are_all_or_nothing_and_name_the_bad_lines(db: Db) {
     assert_eq!(try_login(b, "pia", "pia-password").0, 200);
     assert_eq!(count(), before + 3);
 
+    // The OpenAPI document describes every account route.
+    let (_, doc, _) = call("GET", &format!("{b}/api/openapi.json"), None, None, false);
+    for (path, method) in [
+        ("/api/users", "get"),
+        ("/api/users", "post"),
+        ("/api/users/{username}", "get"),
+        ("/api/users/{username}", "patch"),
+        ("/api/users/{username}/disable", "post"),
+        ("/api/users/{username}/enable", "post"),
+        ("/api/users/{username}/password", "post"),
+    ] {
+        assert!(doc["paths"][path][method].is_object(), "openapi lacks {method} {path}");
+    }
+    assert!(doc["paths"]["/api/users"]["post"]["responses"]["422"].is_object());
+
     let audit = audit_rows(&db, &data);
     assert!(has_audit(&audit, "user.import", "root", ""), "{audit:?}");
     assert!(has_audit(&audit, "user.add", "root", "nora"), "{audit:?}");

@@ -138,6 +138,68 @@ fn review_progress_and_reports_by_role(db: Db) {
             [201, 403, 403, 403, 403, 401],
         ),
         (
+            "GET an account",
+            Box::new(|u: &str| get(u, "/api/users/tina")),
+            [200, 403, 403, 403, 403, 401],
+        ),
+        (
+            "GET an account that does not exist",
+            Box::new(|u: &str| get(u, "/api/users/nobody")),
+            [404, 403, 403, 403, 403, 401],
+        ),
+        // nina, added by the row above, is changed by admins only.
+        (
+            "PATCH an account's cohorts",
+            Box::new(|u: &str| {
+                call(
+                    "PATCH",
+                    &format!("{b}/api/users/nina"),
+                    auth(u),
+                    Some(br#"{"cohorts":["c1"]}"#),
+                    true,
+                )
+                .0
+            }),
+            [200, 403, 403, 403, 403, 401],
+        ),
+        (
+            "disable an account",
+            Box::new(|u: &str| post(u, "/api/users/nina/disable", "")),
+            [200, 403, 403, 403, 403, 401],
+        ),
+        (
+            "enable an account",
+            Box::new(|u: &str| post(u, "/api/users/nina/enable", "")),
+            [200, 403, 403, 403, 403, 401],
+        ),
+        (
+            "reset a password",
+            Box::new(|u: &str| post(u, "/api/users/nina/password", r#"{"password":"nina-password"}"#)),
+            [200, 403, 403, 403, 403, 401],
+        ),
+        (
+            "disable oneself",
+            Box::new(|u: &str| post(u, &format!("/api/users/{u}/disable"), "")),
+            [409, 403, 403, 403, 403, 401],
+        ),
+        (
+            "import accounts (CSV)",
+            Box::new(|u: &str| {
+                let mut req = ureq::post(&format!("{b}/api/users")).set("Content-Type", "text/csv");
+                if let Some(Auth::Cookie { token, csrf }) = auth(u) {
+                    req = req
+                        .set("Cookie", &format!("stylet_session={token}"))
+                        .set("X-CSRF-Token", csrf);
+                }
+                match req.send_string("zoe,trainee,c1,zoe-password\n") {
+                    Ok(r) => r.status(),
+                    Err(ureq::Error::Status(code, _)) => code,
+                    Err(e) => panic!("{e}"),
+                }
+            }),
+            [201, 403, 403, 403, 403, 401],
+        ),
+        (
             "comment on tina's",
             Box::new(|u: &str| post(u, &format!("/api/sessions/{t2}/comments"), comment)),
             [201, 201, 403, 404, 403, 401],

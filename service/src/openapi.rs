@@ -23,6 +23,26 @@ pub fn document() -> Value {
             },
             "schemas": {
                 "Error": { "type": "object", "required": ["error"], "properties": { "error": { "type": "string" } } },
+                "Role": { "type": "string", "enum": ["trainee", "instructor", "curriculum", "admin"] },
+                "Account": {
+                    "type": "object",
+                    "required": ["username", "role", "cohorts", "created_at"],
+                    "properties": {
+                        "username": { "type": "string" }, "role": { "$ref": "#/components/schemas/Role" },
+                        "cohorts": { "type": "array", "items": { "type": "string" } },
+                        "created_at": { "type": "string" },
+                        "disabled_at": { "type": ["string", "null"], "description": "when it was disabled; null: active" }
+                    }
+                },
+                "ImportRefused": {
+                    "type": "object", "required": ["error", "lines"],
+                    "properties": {
+                        "error": { "type": "string" },
+                        "lines": { "type": "array", "items": { "type": "object", "required": ["line", "reason"],
+                                   "properties": { "line": { "type": "integer", "description": "1 = the first line; 0 = the whole file" },
+                                                   "reason": { "type": "string" } } } }
+                    }
+                },
                 "ApiToken": {
                     "type": "object",
                     "required": ["id", "username", "label", "scope", "created_at", "status"],
@@ -68,26 +88,90 @@ pub fn document() -> Value {
             "/api/logout": { "post": { "summary": "Log out", "responses": { "200": { "description": "logged out" } } } },
             "/api/users": {
                 "get": {
-                    "summary": "Every account with role and cohorts (admin)",
+                    "summary": "Accounts with role, cohorts and status, by username, 100 a page (admin)",
                     "security": [{ "cookie": [] }, { "token": [] }],
-                    "responses": { "200": { "description": "{users: [{username, role, cohorts, created_at}]}" },
-                                   "401": error_response("not logged in"), "403": error_response("not an admin") }
+                    "parameters": [
+                        { "name": "q", "in": "query", "schema": { "type": "string" }, "description": "part of a username" },
+                        { "name": "page", "in": "query", "schema": { "type": "integer", "minimum": 1, "default": 1 } }
+                    ],
+                    "responses": { "200": { "description": "{users: [Account], total, page, page_size}" },
+                                   "401": error_response("not logged in, or the account is disabled"), "403": error_response("not an admin") }
                 },
                 "post": {
-                    "summary": "Add an account (admin; audited)",
+                    "summary": "Add an account, or import accounts from CSV (admin; audited)",
+                    "description": "JSON adds one account. `Content-Type: text/csv` imports one account per line, `username,role,cohort,password` (optional header line; cohort may be empty; the password is the rest of the line; at most 200 lines): every account or none; 422 names every bad line.",
                     "security": [{ "cookie": [] }, { "token": [] }],
-                    "requestBody": { "required": true, "content": { "application/json": { "schema": {
-                        "type": "object", "required": ["username", "role", "password"],
-                        "properties": { "username": { "type": "string" },
-                                        "role": { "type": "string", "enum": ["trainee", "instructor", "curriculum", "admin"] },
-                                        "password": { "type": "string", "minLength": 8 },
-                                        "cohort": { "type": "string" } } } } } },
-                    "responses": { "201": { "description": "{username, role, cohort}" },
+                    "requestBody": { "required": true, "content": {
+                        "application/json": { "schema": {
+                            "type": "object", "required": ["username", "role", "password"], "additionalProperties": false,
+                            "properties": { "username": { "type": "string" },
+                                            "role": { "$ref": "#/components/schemas/Role" },
+                                            "password": { "type": "string", "minLength": 8 },
+                                            "cohort": { "type": "string" } } } },
+                        "text/csv": { "schema": { "type": "string" } } } },
+                    "responses": { "201": { "description": "{username, role, cohort}; for a CSV import {imported: [usernames]}" },
                                    "400": error_response("invalid username, role, password or cohort"),
                                    "401": error_response("not logged in"), "403": error_response("not an admin, or CSRF token missing"),
-                                   "409": error_response("the username exists") }
+                                   "409": error_response("the username exists"),
+                                   "422": { "description": "an import with bad lines; nothing was imported",
+                                            "content": { "application/json": { "schema": { "$ref": "#/components/schemas/ImportRefused" } } } } }
                 }
             },
+            "/api/users/{username}": {
+                "get": {
+                    "summary": "One account (admin)",
+                    "security": [{ "cookie": [] }, { "token": [] }],
+                    "parameters": [{ "name": "username", "in": "path", "required": true, "schema": { "type": "string" } }],
+                    "responses": { "200": { "description": "Account", "content": { "application/json": { "schema": { "$ref": "#/components/schemas/Account" } } } },
+                                   "401": error_response("not logged in"), "403": error_response("not an admin"),
+                                   "404": error_response("no such account") }
+                },
+                "patch": {
+                    "summary": "Change an account's role, cohorts or status (admin; audited per change)",
+                    "description": "`cohorts` replaces the account's cohorts (created if new; [] for none). Takes effect on the account's next request.",
+                    "security": [{ "cookie": [] }, { "token": [] }],
+                    "parameters": [{ "name": "username", "in": "path", "required": true, "schema": { "type": "string" } }],
+                    "requestBody": { "required": true, "content": { "application/json": { "schema": {
+                        "type": "object", "additionalProperties": false,
+                        "properties": { "role": { "$ref": "#/components/schemas/Role" },
+                                        "cohorts": { "type": "array", "items": { "type": "string" } },
+                                        "disabled": { "type": "boolean" } } } } } },
+                    "responses": { "200": { "description": "Account", "content": { "application/json": { "schema": { "$ref": "#/components/schemas/Account" } } } },
+                                   "400": error_response("bad role or cohort name"),
+                                   "401": error_response("not logged in"), "403": error_response("not an admin, or CSRF token missing"),
+                                   "404": error_response("no such account"),
+                                   "409": error_response("it would leave no active admin, or an admin disabling or demoting their own account") }
+                }
+            },
+            "/api/users/{username}/disable": { "post": {
+                "summary": "Disable an account (admin; audited): its login cookies and API tokens are refused from the next request; its sessions stay",
+                "security": [{ "cookie": [] }, { "token": [] }],
+                "parameters": [{ "name": "username", "in": "path", "required": true, "schema": { "type": "string" } }],
+                "responses": { "200": { "description": "Account", "content": { "application/json": { "schema": { "$ref": "#/components/schemas/Account" } } } },
+                               "401": error_response("not logged in"), "403": error_response("not an admin, or CSRF token missing"),
+                               "404": error_response("no such account"),
+                               "409": error_response("the last active admin, or one's own account") }
+            } },
+            "/api/users/{username}/enable": { "post": {
+                "summary": "Enable a disabled account (admin; audited): its unexpired logins and tokens work again",
+                "security": [{ "cookie": [] }, { "token": [] }],
+                "parameters": [{ "name": "username", "in": "path", "required": true, "schema": { "type": "string" } }],
+                "responses": { "200": { "description": "Account", "content": { "application/json": { "schema": { "$ref": "#/components/schemas/Account" } } } },
+                               "401": error_response("not logged in"), "403": error_response("not an admin, or CSRF token missing"),
+                               "404": error_response("no such account") }
+            } },
+            "/api/users/{username}/password": { "post": {
+                "summary": "Reset an account's password (admin; audited); its logins end",
+                "security": [{ "cookie": [] }, { "token": [] }],
+                "parameters": [{ "name": "username", "in": "path", "required": true, "schema": { "type": "string" } }],
+                "requestBody": { "required": true, "content": { "application/json": { "schema": {
+                    "type": "object", "required": ["password"], "additionalProperties": false,
+                    "properties": { "password": { "type": "string", "minLength": 8, "maxLength": 1024 } } } } } },
+                "responses": { "200": { "description": "Account", "content": { "application/json": { "schema": { "$ref": "#/components/schemas/Account" } } } },
+                               "400": error_response("a password has 8–1024 characters"),
+                               "401": error_response("not logged in"), "403": error_response("not an admin, or CSRF token missing"),
+                               "404": error_response("no such account") }
+            } },
             "/api/tokens": {
                 "post": {
                     "summary": "Create an API token for the logged-in user (shown once; audited)",
