@@ -2,6 +2,7 @@
 //! has a title, axis labels with units and a legend, and each force component keeps its colour
 //! everywhere (`palette`). Sparklines are tiny hand-written SVG polylines.
 
+use stylet_physics::LabelId;
 use stylet_render::charts::{ChartColor, LineChart, Series, chart_svg, palette};
 use stylet_scoring::ReviewTrace;
 use stylet_service::store::ProgressPoint;
@@ -32,6 +33,31 @@ fn markers(trace: &ReviewTrace) -> Vec<(f64, String)> {
         .filter(|e| e.kind != "tool")
         .map(|e| (e.t_s, e.label.clone()))
         .collect()
+}
+
+/// The force peaks that broke into a structure, named by it (`name`: the atlas' label name):
+/// (time of the peak, its force, the structure). Air is not a structure.
+pub fn puncture_peaks(trace: &ReviewTrace, name: &dyn Fn(LabelId) -> String) -> Vec<(f64, f64, String)> {
+    trace
+        .punctures
+        .iter()
+        .map(|p| (p.peak_t_s, p.peak_force_n, name(p.label)))
+        .filter(|(_, f, n)| f.is_finite() && n != "air")
+        .collect()
+}
+
+/// Instructors' comments at a moment, as chart notes numbered in the review list's order
+/// (`annotations`' comments, oldest first).
+pub fn comment_notes(annotations: &serde_json::Value) -> Vec<(f64, String)> {
+    annotations["comments"]
+        .as_array()
+        .map(|cs| {
+            cs.iter()
+                .enumerate()
+                .filter_map(|(n, c)| Some((c["at_s"].as_f64()?, format!("[{}] comment", n + 1))))
+                .collect()
+        })
+        .unwrap_or_default()
 }
 
 /// Force along the needle over time: the total and its cutting, friction and base components

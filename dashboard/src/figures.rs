@@ -1,28 +1,115 @@
-//! The tip path over CT slices of the atlas with the label overlay (PNG, rendered on the
-//! server by `stylet_render::figure`): axial, coronal and sagittal slices through the deepest
-//! tip position, the path of every puncture drawn on each. Cached beside the review traces
-//! (`DATA/figures/`), derived data like them.
+//! Figures of a session over CT slices of its atlas with the label overlay (PNG, rendered on the
+//! server by `stylet_render::figure`), cached beside the review traces (`DATA/figures/`), derived
+//! data like them:
+//! - the tip path: axial, coronal and sagittal slices through the deepest tip position, the
+//!   needle's path and the planned path its guided metrics were measured against, with a legend;
+//! - one figure per risk hit: axial and coronal slices through the point where the tip first
+//!   touched the structure, the point marked.
 
 use std::path::{Path, PathBuf};
 
+use stylet_physics::glam::DVec3;
+use stylet_render::figure::{FigureSpec, Mark};
+use stylet_render::mpr::Plane;
+use stylet_scoring::{ReviewTrace, ScoreReport, Scorer};
 use stylet_service::AppState;
 use stylet_service::traces::review_trace;
 
-/// Where the figure of the session file `sha` is cached (the trace and physics versions are in
+/// Which figure of a session.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Figure {
+    /// The tip path through the deepest tip.
+    TipPath,
+    /// Slices through the `n`th risk hit of the score (0-based).
+    Hit(usize),
+}
+
+/// Where a figure of the session file `sha` is cached (the trace and physics versions are in
 /// the name: a new version draws a new figure).
-pub fn figure_path(data_dir: &Path, sha: &str) -> PathBuf {
+pub fn figure_path(data_dir: &Path, sha: &str, figure: Figure) -> PathBuf {
+    let which = match figure {
+        Figure::TipPath => String::new(),
+        Figure::Hit(n) => format!("-hit{n}"),
+    };
     data_dir.join("figures").join(&sha[..2.min(sha.len())]).join(format!(
-        "{sha}-t{}-p{}.png",
+        "{sha}{which}-t{}-p{}.png",
         stylet_scoring::trace::TRACE_VERSION,
         stylet_physics::PHYSICS_VERSION
     ))
 }
 
-/// The PNG bytes of a session's figure: from the cache, else drawn (and cached).
-pub async fn session_figure(s: &AppState, file_sha256: &str, atlas_hash: &str, title: &str) -> Result<Vec<u8>, String> {
-    let path = figure_path(&s.config.data_dir, file_sha256);
+/// Where the tip first touched the `n`th risk structure: the score's point (reports since
+/// issue 14), else the review trace's.
+pub fn hit_point(report: &ScoreReport, trace: &ReviewTrace, n: usize) -> Option<DVec3> {
+    let hit = report.metrics.risk_hits.get(n)?;
+    if hit.point_mm != [0.0; 3] {
+        return Some(DVec3::from_array(hit.point_mm));
+    }
+    trace
+        .risk_points
+        .iter()
+        .find(|p| p.label == hit.label)
+        .map(|p| DVec3::from_array(p.point_mm))
+}
+
+/// The planned path the session's guided metrics were measured against, if the atlas has it.
+fn planned(scorer: &Scorer, report: &ScoreReport) -> Vec<(String, DVec3, DVec3)> {
+    let Some(g) = &report.metrics.guided else {
+        return Vec::new();
+    };
+    scorer
+        .paths()
+        .iter()
+        .filter(|p| p.name == g.path)
+        .map(|p| (p.name.clone(), p.entry_mm, p.target_mm))
+        .collect()
+}
+
+/// What the figure shows.
+fn spec(scorer: &Scorer, report: &ScoreReport, trace: &ReviewTrace, figure: Figure, title: &str) -> Option<FigureSpec> {
+    let mut spec = FigureSpec {
+        needle: trace.tip_paths(),
+        planned: planned(scorer, report),
+        ..FigureSpec::new(title, DVec3::ZERO)
+    };
+    match figure {
+        Figure::TipPath => {
+            spec.center = trace
+                .deepest_tip()
+                .unwrap_or_else(|| stylet_render::figure::default_center(scorer.atlas()));
+        }
+        Figure::Hit(n) => {
+            let hit = report.metrics.risk_hits.get(n)?;
+            let point = hit_point(report, trace, n)?;
+            spec.center = point;
+            spec.planes = vec![Plane::Axial, Plane::Coronal];
+            spec.mark = Some(Mark {
+                point_mm: point,
+                label: format!("{}: first contact at {:.2} s (ring)", hit.structure, hit.t_s),
+            });
+        }
+    }
+    Some(spec)
+}
+
+/// The PNG bytes of a session's figure: from the cache, else drawn (and cached). `Ok(None)`: the
+/// session has no such risk hit (or no point for it).
+pub async fn session_figure(
+    s: &AppState,
+    file_sha256: &str,
+    atlas_hash: &str,
+    report: &ScoreReport,
+    figure: Figure,
+    title: &str,
+) -> Result<Option<Vec<u8>>, String> {
+    if let Figure::Hit(n) = figure
+        && n >= report.metrics.risk_hits.len()
+    {
+        return Ok(None);
+    }
+    let path = figure_path(&s.config.data_dir, file_sha256, figure);
     if let Ok(bytes) = tokio::fs::read(&path).await {
-        return Ok(bytes);
+        return Ok(Some(bytes));
     }
     let trace = review_trace(s, file_sha256, atlas_hash).await?;
     let scorer = s
@@ -30,12 +117,10 @@ pub async fn session_figure(s: &AppState, file_sha256: &str, atlas_hash: &str, t
         .get(atlas_hash)
         .cloned()
         .ok_or("the session's atlas is not loaded on this server")?;
-    let title = title.to_string();
+    let Some(spec) = spec(&scorer, report, &trace, figure, title) else {
+        return Ok(None);
+    };
     tokio::task::spawn_blocking(move || {
-        let atlas = scorer.atlas();
-        let center = trace
-            .deepest_tip()
-            .unwrap_or_else(|| stylet_render::figure::default_center(atlas));
         // A name of its own: two requests may draw the same figure at once.
         static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
         let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
@@ -43,10 +128,9 @@ pub async fn session_figure(s: &AppState, file_sha256: &str, atlas_hash: &str, t
         if let Some(dir) = path.parent() {
             std::fs::create_dir_all(dir).map_err(|e| e.to_string())?;
         }
-        stylet_render::figure::atlas_figure_at(atlas, &title, center, &trace.tip_paths(), &tmp)
-            .map_err(|e| e.to_string())?;
+        stylet_render::figure::figure(scorer.atlas(), &spec, &tmp).map_err(|e| e.to_string())?;
         std::fs::rename(&tmp, &path).map_err(|e| e.to_string())?;
-        std::fs::read(&path).map_err(|e| e.to_string())
+        std::fs::read(&path).map(Some).map_err(|e| e.to_string())
     })
     .await
     .map_err(|e| e.to_string())?

@@ -10,7 +10,9 @@ pub mod charts;
 pub mod figures;
 pub mod layout;
 pub mod pages;
+pub mod pdf;
 pub mod progress;
+pub mod trends;
 
 use std::sync::Arc;
 
@@ -31,6 +33,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/sessions/{id}", get(pages::review::review))
         .route("/sessions/{id}/file", get(pages::review::file))
         .route("/sessions/{id}/slices.png", get(pages::review::slices))
+        .route("/sessions/{id}/hits/{n}/slices.png", get(pages::review::hit_slices))
         .route("/sessions/{id}/comment", post(pages::review::comment))
         .route("/sessions/{id}/override", post(pages::review::override_grade))
         .route("/sessions/{id}/delete", post(pages::review::delete))
@@ -40,7 +43,9 @@ pub fn router(state: Arc<AppState>) -> Router {
         )
         .route("/cohorts", get(pages::home::cohorts))
         .route("/cohorts/{name}", get(pages::cohort::cohort))
-        .route("/compare", get(pages::cohort::compare))
+        .route("/compare", get(pages::compare::compare))
+        .route("/review-queue", get(pages::instructors::review_queue))
+        .route("/trainees/{username}", get(pages::instructors::trainee_progress))
         .route("/reports", get(pages::reports::index))
         .route("/reports/cohort", get(pages::reports::cohort_report))
         .route("/admin/users", get(pages::admin::users).post(pages::admin::add_user))

@@ -750,6 +750,19 @@ pub fn check_override(score: f64, reason: &str) -> Result<&str, ApiError> {
     Ok(reason)
 }
 
+/// A comment's moment lies within the session: 0 ≤ at_s ≤ its duration (s), to the millisecond.
+pub fn check_comment_time(at_s: Option<f64>, duration_s: f64) -> Result<Option<f64>, ApiError> {
+    let Some(t) = at_s else { return Ok(None) };
+    let end = (duration_s.max(0.0) * 1000.0).ceil() / 1000.0;
+    if !(t.is_finite() && (0.0..=end).contains(&t)) {
+        return Err(err(
+            StatusCode::BAD_REQUEST,
+            format!("a comment's moment must lie within the session, 0–{end:.1} s"),
+        ));
+    }
+    Ok(Some((t * 1000.0).round() / 1000.0))
+}
+
 /// A comment is 1–10000 characters; returns it trimmed.
 pub fn check_comment(text: &str) -> Result<&str, ApiError> {
     let text = text.trim();
@@ -794,6 +807,9 @@ async fn override_grade(
 #[derive(serde::Deserialize)]
 struct CommentRequest {
     body: String,
+    /// The moment of the session the comment points at (s from its start), if any.
+    #[serde(default)]
+    at_s: Option<f64>,
 }
 
 async fn add_comment(
@@ -806,7 +822,15 @@ async fn add_comment(
         .map_err(|e| err(StatusCode::BAD_REQUEST, format!("expected {{\"body\"}}: {e}")))?;
     let text = check_comment(&req.body)?;
     reviewable(&s, &user, &id).await?;
-    let cid = s.store.add_comment(&id, &user, text).await?;
+    let at_s = match req.at_s {
+        Some(t) => {
+            let gone = || err(StatusCode::NOT_FOUND, format!("no session {id}"));
+            let (row, _) = s.store.session(&id).await?.ok_or_else(gone)?;
+            check_comment_time(Some(t), row.duration_s)?
+        }
+        None => None,
+    };
+    let cid = s.store.add_comment(&id, &user, text, at_s).await?;
     Ok((StatusCode::CREATED, Json(json!({ "id": cid, "session": id }))).into_response())
 }
 

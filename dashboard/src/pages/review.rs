@@ -1,7 +1,10 @@
-//! `GET /sessions/{id}`: the review of one session. Force along the needle over time with its
-//! components and the events, insertion depth, the tip path over CT slices, risk hits, metrics
-//! beside the rubric's thresholds, the replay check, the file, comments and grade overrides.
-//! While the session waits for its replay the page refreshes itself.
+//! `GET /sessions/{id}`: the review of one session. The result with its reasons in words; force
+//! along the needle over time with its components, the events, the structures punctured at the
+//! force peaks and the instructors' timestamped comments; insertion depth; the tip path and the
+//! planned path over CT slices with the guided-path deviation; for each risk hit, slices through
+//! the point of first contact with the clinical consequence from the scenario; metrics beside
+//! the rubric's thresholds, the replay check, the file, comments and grade overrides. While the
+//! session waits for its replay the page refreshes itself.
 
 use std::sync::Arc;
 
@@ -11,14 +14,15 @@ use axum::http::{HeaderMap, StatusCode, Uri, header};
 use axum::response::{IntoResponse, Redirect, Response};
 use maud::{Markup, PreEscaped, html};
 use stylet_scoring::rubric::{Rubric, metric_value};
-use stylet_scoring::{ReviewTrace, ScoreReport};
+use stylet_scoring::{Outcome, ReviewTrace, ScoreReport, metric_label};
 use stylet_service::AppState;
-use stylet_service::api::{check_comment, check_override, may_review, may_see, reviewable};
+use stylet_service::api::{check_comment, check_comment_time, check_override, may_review, may_see, reviewable};
 use stylet_service::store::SessionRow;
 use stylet_service::traces::review_trace;
 
 use crate::auth::{PageError, Viewer, check_csrf, fail, viewer};
-use crate::charts::{depth_chart, force_chart, inline_svg};
+use crate::charts::{comment_notes, depth_chart, force_chart, inline_svg, puncture_peaks};
+use crate::figures::Figure;
 use crate::layout::{csrf_field, page, refreshing_page, result_badge, short_time, status_badge, verified_badge};
 
 /// The session `id` if the viewer may see it (404 otherwise: whether it exists is private).
@@ -86,28 +90,37 @@ pub async fn review(
         .await?
         .ok_or_else(|| fail(StatusCode::NOT_FOUND, "gone"))?;
     let reviewer = may_review(&s, &v.user, &trainee_id).await?;
+    let scorer = s.scorers.get(&row.atlas_hash).cloned();
+    let label_name = |l: stylet_physics::LabelId| {
+        scorer
+            .as_ref()
+            .and_then(|sc| sc.atlas().label_table().get(l).map(|x| x.name.clone()))
+            .unwrap_or_else(|| format!("label {l}"))
+    };
     let charts = match review_trace(&s, &row.file_sha256, &row.atlas_hash).await {
-        Ok(trace) => charts_block(&trace, &row)?,
+        Ok(trace) => charts_block(&trace, &row, &review, &label_name)?,
         Err(e) => html! { p.error { "The force curves cannot be shown: " (e) } },
     };
-    let rubric = s.scorers.get(&row.atlas_hash).map(|sc| sc.rubric().clone());
+    let rubric = scorer.as_ref().map(|sc| sc.rubric().clone());
     let body = html! {
         (head)
         (grade_block(&report, &review))
         h2 { "Forces and depth" }
         (charts)
         h2 { "Tip path over the CT" }
-        p.muted { "Axial, coronal and sagittal slices through the deepest tip position; the path of each puncture drawn in; partial labels in colour." }
-        img.figure #tip-path src={ "/sessions/" (row.id) "/slices.png" } alt="Needle tip path over CT slices with the label overlay";
-        div.grid2 {
-            div { h2 { "Risk-structure hits" } (risk_table(&report)) }
-            div { h2 { "Other metrics" } (other_metrics(&report)) }
-        }
+        p.muted { "Axial, coronal and sagittal slices through the deepest tip position; the needle tip's path (cyan) and the planned path (dashed orange) projected onto each plane; partial labels in colour (legend below the slices)." }
+        img.figure #tip-path src={ "/sessions/" (row.id) "/slices.png" } alt="Needle tip path and planned path over CT slices with the label overlay";
+        (guided_block(&report))
+        h2 { "Risk-structure hits" }
+        (risk_table(&report))
+        (hit_figures(&report, &row.id))
+        h2 { "Other metrics" }
+        (other_metrics(&report))
         h2 { "Metrics against the rubric (" (report.grade.rubric) " v" (report.grade.rubric_version) ", " (report.grade.difficulty) ")" }
         (rubric_table(&report, rubric.as_ref()))
         h2 { "Review" }
         (review_block(&review))
-        @if reviewer { (review_forms(&v, &row.id)) }
+        @if reviewer { (review_forms(&v, &row.id, row.duration_s)) }
     };
     Ok(page(&title, Some(&v), body).into_response())
 }
@@ -126,19 +139,35 @@ fn header_block(row: &SessionRow) -> Markup {
 
 fn grade_block(r: &ScoreReport, review: &serde_json::Value) -> Markup {
     let last_override = review["overrides"].as_array().and_then(|o| o.last()).cloned();
-    let (score, passed) = match &last_override {
+    let (score, outcome) = match &last_override {
         Some(o) => (
             o["score"].as_f64().unwrap_or(r.grade.score),
-            o["passed"].as_bool().unwrap_or(r.grade.passed),
+            if o["passed"].as_bool().unwrap_or(r.grade.passed) {
+                Outcome::Passed
+            } else {
+                Outcome::Failed
+            },
         ),
-        None => (r.grade.score, r.grade.passed),
+        None => (r.grade.score, r.outcome),
     };
     html! {
         div.cards #grade {
             div.card { div.muted { "Score" } div.big { (format!("{score:.1}")) }
                 @if last_override.is_some() { div.muted { "computed: " (format!("{:.1}", r.grade.score)) } } }
-            div.card { div.muted { "Result" } div.big { (result_badge(Some(passed), last_override.is_some())) }
-                @for f in &r.grade.failed { div.muted { "not met: " (f) } } }
+            div.card #result { div.muted { "Result" } div.big { (outcome_badge(outcome, last_override.is_some())) }
+                @if let Some(o) = &last_override {
+                    div { "Overridden by " (o["author"].as_str().unwrap_or("an instructor")) ": " em { (o["reason"].as_str().unwrap_or_default()) } }
+                    @if r.outcome != outcome { div.muted { "computed: " (r.outcome.label()) } }
+                }
+                @if r.reasons.is_empty() {
+                    div.muted #reasons { @match r.outcome {
+                        Outcome::Passed => "Every requirement met; nothing deducted.",
+                        Outcome::Failed => "The score is below the pass mark for this level.",
+                        Outcome::NotGradeable => "The recording is incomplete, so it is not graded.",
+                    } }
+                } @else {
+                    ul #reasons { @for reason in &r.reasons { li { (reason) } } }
+                } }
             div.card { div.muted { "Attempts · redirections" } div.big { (r.metrics.attempts) " · " (r.metrics.redirections) } }
             div.card #replay { div.muted { "Replay" } div.big { (verified_badge(Some(r.replay_verified))) }
                 @if let Some(d) = &r.divergence { div.muted { "first divergence: tick " (d.tick) " in " (d.stream) } }
@@ -148,21 +177,75 @@ fn grade_block(r: &ScoreReport, review: &serde_json::Value) -> Markup {
     }
 }
 
-fn charts_block(trace: &ReviewTrace, row: &SessionRow) -> Result<Markup, PageError> {
+/// A result badge: passed, failed or not gradeable (and whether an instructor overrode it).
+fn outcome_badge(outcome: Outcome, overridden: bool) -> Markup {
+    match outcome {
+        Outcome::NotGradeable => html! { span.badge.warn { "not gradeable" } },
+        o => result_badge(Some(o == Outcome::Passed), overridden),
+    }
+}
+
+fn charts_block(
+    trace: &ReviewTrace,
+    row: &SessionRow,
+    review: &serde_json::Value,
+    label_name: &dyn Fn(stylet_physics::LabelId) -> String,
+) -> Result<Markup, PageError> {
     let svg = |c| inline_svg(&c).map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e));
-    let force = svg(force_chart(
+    let notes = comment_notes(review);
+    let mut force = force_chart(
         trace,
         &format!("Force on the hand — {} ({})", row.scenario, row.trainee),
-    ))?;
-    let depth = svg(depth_chart(
-        trace,
-        &format!("Insertion depth — {} ({})", row.scenario, row.trainee),
-    ))?;
+    );
+    force.peaks = puncture_peaks(trace, label_name);
+    force.notes = notes.clone();
+    let mut depth = depth_chart(trace, &format!("Insertion depth — {} ({})", row.scenario, row.trainee));
+    depth.notes = notes;
+    let (force, depth) = (svg(force)?, svg(depth)?);
     Ok(html! {
         div #force-chart { (PreEscaped(force)) }
         div #depth-chart { (PreEscaped(depth)) }
-        p.muted { "Forces: the sample of largest magnitude in every 20 ms, so puncture peaks are kept. Positive = against the insertion." }
+        p.muted { "Forces: the sample of largest magnitude in every 20 ms, so puncture peaks are kept. Positive = against the insertion. Each force peak that broke into a structure is named (skin, fascia, liver, duct …); blue dashed lines are the instructors' comments at a moment (numbered as in the review below)." }
     })
+}
+
+/// How far the scored attempt was from the planned path (guided mode, docs/metrics.md).
+fn guided_block(r: &ScoreReport) -> Markup {
+    html! {
+        @match &r.metrics.guided {
+            Some(g) => {
+                h3 { "Deviation from the planned path '" (g.path) "'" }
+                div.cards #guided {
+                    div.card { div.muted { "Entry point" } div.big { (format!("{:.1} mm", g.entry_distance_mm)) } div.muted { "from the planned skin entry" } }
+                    div.card { div.muted { "Direction" } div.big { (format!("{:.1}°", g.angle_error_deg)) } div.muted { "off the planned direction" } }
+                    div.card { div.muted { "Tip distance from the planned line" } div.big { (format!("{:.1} mm", g.mean_deviation_mm)) }
+                        div.muted { "mean; largest " (format!("{:.1} mm", g.max_deviation_mm)) } }
+                }
+            }
+            None => p.muted #guided { "No planned path to compare with (the atlas has none, or the needle never entered the body)." }
+        }
+    }
+}
+
+/// For each risk hit: its clinical consequence (scenario TOML) and slices through the point where
+/// the tip first touched it.
+fn hit_figures(r: &ScoreReport, id: &str) -> Markup {
+    html! {
+        @for (n, h) in r.metrics.risk_hits.iter().enumerate() {
+            div.hit id={ "hit-" (n) } {
+                h3 { "Hit " (n + 1) ": " (h.structure) " at " (format!("{:.2} s", h.t_s)) }
+                @match &h.consequence {
+                    Some(c) => p.consequence { strong { "Clinical consequence: " } (c) },
+                    None => p.consequence.muted { "The scenario names no clinical consequence for this structure." },
+                }
+                p.muted { "Axial and coronal slices through the point where the tip first touched the " (h.structure)
+                    " (red ring; crosshair), " (format!("{:.1} mm", h.depth_mm)) " deep at most, "
+                    (format!("{:.2} s", h.duration_s)) " inside; the needle tip's path (cyan) and the planned path (dashed orange) projected." }
+                img.figure.hit-slices src={ "/sessions/" (id) "/hits/" (n + 1) "/slices.png" }
+                    alt={ "CT slices through the point where the needle touched the " (h.structure) ", marked with a red ring" };
+            }
+        }
+    }
 }
 
 fn risk_table(r: &ScoreReport) -> Markup {
@@ -249,7 +332,7 @@ fn rubric_table(r: &ScoreReport, rubric: Option<&Rubric>) -> Markup {
                     @let rule = level.deduct.iter().find(|d| d.metric == name);
                     @let applied = r.grade.deductions.iter().find(|d| d.metric == name).map_or(0.0, |d| d.points);
                     tr {
-                        td { (name) }
+                        td { (metric_label(name).unwrap_or(name)) }
                         td.num { (value.map_or("–".into(), fmt)) }
                         td {
                             @if let Some(q) = req {
@@ -281,7 +364,9 @@ fn review_block(review: &serde_json::Value) -> Markup {
         @if comments.is_empty() && overrides.is_empty() { p.muted #review { "No comments or overrides." } }
         @else {
             ul #review {
-                @for c in comments { li.comment { strong { (s(&c["author"])) } " (" (short_time(&s(&c["at"]))) "): " (s(&c["body"])) } }
+                @for (n, c) in comments.iter().enumerate() { li.comment {
+                    @if let Some(t) = c["at_s"].as_f64() { span.badge.muted.moment title="marked on the charts" { "[" (n + 1) "] at " (format!("{t:.2} s")) } " " }
+                    strong { (s(&c["author"])) } " (" (short_time(&s(&c["at"]))) "): " (s(&c["body"])) } }
                 @for o in overrides { li.override {
                     strong { (s(&o["author"])) } " (" (short_time(&s(&o["at"]))) ") overrode the grade: "
                     (o["score"].as_f64().map_or("?".into(), |v| format!("{v:.1}"))) ", "
@@ -293,12 +378,14 @@ fn review_block(review: &serde_json::Value) -> Markup {
     }
 }
 
-fn review_forms(v: &Viewer, id: &str) -> Markup {
+fn review_forms(v: &Viewer, id: &str, duration_s: f64) -> Markup {
     html! {
         div.grid2.noprint {
             form #comment-form method="post" action={ "/sessions/" (id) "/comment" } {
                 (csrf_field(v))
                 label { "Comment for the trainee" textarea name="body" rows="3" cols="50" required {} }
+                label { "At a moment (seconds into the session, optional; marked on the charts)"
+                    input type="number" name="at_s" min="0" max=(format!("{:.3}", duration_s)) step="0.01"; }
                 p { button.primary type="submit" { "Add comment" } }
             }
             form #override-form method="post" action={ "/sessions/" (id) "/override" } {
@@ -352,20 +439,30 @@ pub async fn delete(
 pub struct CommentForm {
     csrf: String,
     body: String,
+    /// Seconds into the session (empty: about the whole session).
+    #[serde(default)]
+    at_s: String,
 }
 
 pub async fn comment(
     State(s): State<Arc<AppState>>,
-    headers: HeaderMap,
-    uri: Uri,
+    v: Viewer,
     Path(id): Path<String>,
     Form(f): Form<CommentForm>,
 ) -> Result<Redirect, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
     check_csrf(&v, &f.csrf)?;
     let text = check_comment(&f.body)?;
+    let at_s = match f.at_s.trim() {
+        "" => None,
+        t => Some(
+            t.parse::<f64>()
+                .map_err(|_| fail(StatusCode::BAD_REQUEST, format!("'{t}' is not a time in seconds")))?,
+        ),
+    };
+    let row = visible_session(&s, &v, &id).await?;
+    let at_s = check_comment_time(at_s, row.duration_s)?;
     reviewable(&s, &v.user, &id).await?;
-    s.store.add_comment(&id, &v.user, text).await?;
+    s.store.add_comment(&id, &v.user, text, at_s).await?;
     Ok(Redirect::to(&format!("/sessions/{id}#review")))
 }
 
@@ -452,9 +549,42 @@ pub async fn slices(
     let row = visible_session(&s, &v, &id).await?;
     require_scored(&row)?;
     let title = format!("{} — {} ({}), tip path", row.trainee, row.scenario, row.difficulty);
-    let png = crate::figures::session_figure(&s, &row.file_sha256, &row.atlas_hash, &title)
+    figure_response(&s, &row, Figure::TipPath, &title).await
+}
+
+/// `GET /sessions/{id}/hits/{n}/slices.png`: axial and coronal slices through the point where the
+/// tip first touched the `n`th risk structure (1-based, as listed on the review), marked.
+pub async fn hit_slices(
+    State(s): State<Arc<AppState>>,
+    v: Viewer,
+    Path((id, n)): Path<(String, String)>,
+) -> Result<Response, PageError> {
+    let row = visible_session(&s, &v, &id).await?;
+    require_scored(&row)?;
+    let n: usize = n
+        .parse()
+        .ok()
+        .filter(|n| (1..=1000).contains(n))
+        .ok_or_else(|| fail(StatusCode::NOT_FOUND, format!("no risk hit {n}")))?;
+    let title = format!("{} — {} ({}), risk hit {n}", row.trainee, row.scenario, row.difficulty);
+    figure_response(&s, &row, Figure::Hit(n - 1), &title).await
+}
+
+async fn figure_response(s: &AppState, row: &SessionRow, figure: Figure, title: &str) -> Result<Response, PageError> {
+    let report: ScoreReport = row
+        .score
+        .clone()
+        .and_then(|r| serde_json::from_value(r).ok())
+        .ok_or_else(|| {
+            fail(
+                StatusCode::INTERNAL_SERVER_ERROR,
+                "the stored score report cannot be read",
+            )
+        })?;
+    let png = crate::figures::session_figure(s, &row.file_sha256, &row.atlas_hash, &report, figure, title)
         .await
-        .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e))?;
+        .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e))?
+        .ok_or_else(|| fail(StatusCode::NOT_FOUND, "the session has no such risk hit"))?;
     Ok((
         [
             (header::CONTENT_TYPE, "image/png"),

@@ -100,23 +100,35 @@ impl Store {
         Ok(())
     }
 
-    pub async fn add_comment(&self, session_id: &str, author: &User, body: &str) -> Result<String, StoreError> {
+    /// A comment on a session, optionally at a moment `at_s` (seconds from its start; checked by
+    /// [`crate::api::check_comment_time`]).
+    pub async fn add_comment(
+        &self,
+        session_id: &str,
+        author: &User,
+        body: &str,
+        at_s: Option<f64>,
+    ) -> Result<String, StoreError> {
         let id = new_id();
-        sqlx::query("INSERT INTO comments (id, session_id, author_id, body, created_at) VALUES ($1, $2, $3, $4, $5)")
-            .bind(id.clone())
-            .bind(session_id.to_string())
-            .bind(author.id.clone())
-            .bind(body.to_string())
-            .bind(now())
-            .execute(&self.pool)
-            .await?;
+        sqlx::query(
+            "INSERT INTO comments (id, session_id, author_id, body, created_at, at_s) VALUES ($1, $2, $3, $4, $5, $6)",
+        )
+        .bind(id.clone())
+        .bind(session_id.to_string())
+        .bind(author.id.clone())
+        .bind(body.to_string())
+        .bind(now())
+        .bind(at_s)
+        .execute(&self.pool)
+        .await?;
         Ok(id)
     }
 
-    /// Comments and overrides of a session, oldest first: (kind, author, text, created_at).
+    /// Comments and overrides of a session, oldest first: comments `{author, body, at, at_s}`
+    /// (`at_s`: the moment of the session, or null), overrides `{author, score, passed, reason, at}`.
     pub async fn annotations(&self, session_id: &str) -> Result<serde_json::Value, StoreError> {
         let comments = sqlx::query(
-            "SELECT u.username, c.body, c.created_at FROM comments c JOIN users u ON u.id = c.author_id \
+            "SELECT u.username, c.body, c.created_at, c.at_s FROM comments c JOIN users u ON u.id = c.author_id \
              WHERE c.session_id = $1 ORDER BY c.created_at, c.id",
         )
         .bind(session_id.to_string())
@@ -133,7 +145,8 @@ impl Store {
         let c: Vec<serde_json::Value> = comments
             .iter()
             .map(|r| -> Result<_, sqlx::Error> {
-                Ok(serde_json::json!({"author": r.try_get::<String, _>("username")?, "body": r.try_get::<String, _>("body")?, "at": r.try_get::<String, _>("created_at")?}))
+                Ok(serde_json::json!({"author": r.try_get::<String, _>("username")?, "body": r.try_get::<String, _>("body")?,
+                    "at": r.try_get::<String, _>("created_at")?, "at_s": r.try_get::<Option<f64>, _>("at_s")?}))
             })
             .collect::<Result<_, _>>()?;
         let o: Vec<serde_json::Value> = overrides

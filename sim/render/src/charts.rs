@@ -66,6 +66,10 @@ pub struct LineChart {
     pub series: Vec<Series>,
     /// Vertical markers (x, label), e.g. events.
     pub markers: Vec<(f64, String)>,
+    /// Labelled points (x, y, label), e.g. force peaks named by the structure punctured.
+    pub peaks: Vec<(f64, f64, String)>,
+    /// Vertical notes (x, label), drawn dashed in blue, e.g. an instructor's timestamped comments.
+    pub notes: Vec<(f64, String)>,
     /// A fixed y range (e.g. scores 0–100) instead of the data's.
     pub y_range: Option<(f64, f64)>,
     /// x is a count (session number): whole-number tick labels.
@@ -137,6 +141,19 @@ fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) ->
         )))
         .map_err(|e| e.to_string())?;
     }
+    let note_color = RGBColor(30, 90, 200);
+    for (n, (x, label)) in chart.notes.iter().enumerate() {
+        let style = ShapeStyle::from(&note_color).stroke_width(2);
+        c.draw_series(DashedLineSeries::new([(*x, y0), (*x, y1)], 6, 4, style))
+            .map_err(|e| e.to_string())?;
+        let y = y0 + (y1 - y0) * (0.04 + 0.06 * (n % 3) as f64);
+        c.draw_series(std::iter::once(Text::new(
+            format!(" {label}"),
+            (*x, y),
+            (SANS, 15).into_font().color(&note_color),
+        )))
+        .map_err(|e| e.to_string())?;
+    }
     for s in &chart.series {
         let style = ShapeStyle::from(&s.color).stroke_width(if s.bold { 3 } else { 2 });
         let color = s.color;
@@ -162,6 +179,27 @@ fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) ->
                 PathElement::new(vec![(x, y), (x + 24, y)], style)
             }
         });
+    }
+    for (x, y, label) in &chart.peaks {
+        c.draw_series(std::iter::once(Circle::new(
+            (*x, *y),
+            4,
+            ShapeStyle::from(&BLACK).filled(),
+        )))
+        .map_err(|e| e.to_string())?;
+        c.draw_series(std::iter::once(Text::new(
+            label.clone(),
+            (*x, *y),
+            (SANS, 15)
+                .into_font()
+                .style(FontStyle::Bold)
+                .color(&BLACK)
+                .pos(plotters::style::text_anchor::Pos::new(
+                    plotters::style::text_anchor::HPos::Center,
+                    plotters::style::text_anchor::VPos::Bottom,
+                )),
+        )))
+        .map_err(|e| e.to_string())?;
     }
     c.configure_series_labels()
         .background_style(WHITE.mix(0.9))

@@ -59,12 +59,132 @@ pub fn atlas_figure_at(
     polylines: &[Vec<DVec3>],
     png: &Path,
 ) -> Result<(), RenderError> {
+    let spec = FigureSpec {
+        needle: polylines.to_vec(),
+        ..FigureSpec::new(name, center)
+    };
+    figure(atlas, &spec, png)
+}
+
+/// The needle path's colour on figures.
+pub const NEEDLE_RGB: [u8; 3] = [0, 230, 255];
+/// The planned path's colour (drawn dashed).
+pub const PLANNED_RGB: [u8; 3] = [255, 170, 0];
+/// The marked point's colour (a ring with a white rim).
+pub const MARK_RGB: [u8; 3] = [255, 40, 40];
+
+/// A point marked on a figure, with its legend text ("right lung: first contact at 5.89 s").
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mark {
+    pub point_mm: DVec3,
+    pub label: String,
+}
+
+/// What a figure shows: slices through `center` in `planes`, the needle's tip path(s), planned
+/// paths and a marked point, each in the legend when present.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FigureSpec {
+    pub title: String,
+    pub center: DVec3,
+    pub planes: Vec<Plane>,
+    /// Needle tip paths (world mm), solid cyan, projected onto every plane.
+    pub needle: Vec<Vec<DVec3>>,
+    /// Planned paths (entry, target in world mm), dashed orange, with their names.
+    pub planned: Vec<(String, DVec3, DVec3)>,
+    pub mark: Option<Mark>,
+}
+
+impl FigureSpec {
+    /// Axial, coronal and sagittal slices through `center`, nothing drawn on them.
+    pub fn new(title: &str, center: DVec3) -> FigureSpec {
+        FigureSpec {
+            title: title.to_string(),
+            center,
+            planes: vec![Plane::Axial, Plane::Coronal, Plane::Sagittal],
+            needle: Vec::new(),
+            planned: Vec::new(),
+            mark: None,
+        }
+    }
+}
+
+/// The part of segment a–b inside the rectangle [0, w] × [0, h] (Liang–Barsky), if any.
+fn clip(a: (f64, f64), b: (f64, f64), w: f64, h: f64) -> Option<((f64, f64), (f64, f64))> {
+    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+    let (mut t0, mut t1) = (0.0f64, 1.0f64);
+    for (p, q) in [(-dx, a.0), (dx, w - a.0), (-dy, a.1), (dy, h - a.1)] {
+        if !q.is_finite() {
+            return None;
+        }
+        if p == 0.0 {
+            if q < 0.0 {
+                return None;
+            }
+        } else {
+            let r = q / p;
+            if p < 0.0 {
+                t0 = t0.max(r);
+            } else {
+                t1 = t1.min(r);
+            }
+        }
+    }
+    (t0 <= t1).then(|| ((a.0 + t0 * dx, a.1 + t0 * dy), (a.0 + t1 * dx, a.1 + t1 * dy)))
+}
+
+/// Segments of a polyline in panel pixels, clipped to the panel: a path projected from far
+/// away must not spill onto the neighbouring panel.
+fn clipped(pts: &[(f64, f64)], w: f64, h: f64) -> Vec<[(f64, f64); 2]> {
+    pts.windows(2)
+        .filter_map(|s| clip(s[0], s[1], w, h).map(|(a, b)| [a, b]))
+        .collect()
+}
+
+/// Splits a pixel polyline into dashes of `on` pixels separated by `off` pixels.
+fn dashes(pts: &[(f64, f64)], on: f64, off: f64) -> Vec<Vec<(i32, i32)>> {
+    let mut out: Vec<Vec<(i32, i32)>> = Vec::new();
+    let mut phase = 0.0; // distance into the current on+off period
+    let px = |p: (f64, f64)| (p.0.round() as i32, p.1.round() as i32);
+    for w in pts.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let len = ((b.0 - a.0).powi(2) + (b.1 - a.1).powi(2)).sqrt();
+        if !len.is_finite() || len == 0.0 {
+            continue;
+        }
+        let mut t = 0.0;
+        while t < len {
+            let at = |d: f64| (a.0 + (b.0 - a.0) * d / len, a.1 + (b.1 - a.1) * d / len);
+            if phase < on {
+                let step = (on - phase).min(len - t);
+                out.push(vec![px(at(t)), px(at(t + step))]);
+                t += step;
+                phase += step;
+            } else {
+                let step = (on + off - phase).min(len - t);
+                t += step;
+                phase += step;
+                if phase >= on + off {
+                    phase = 0.0;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Writes a figure: the slices of `spec.planes` through `spec.center` side by side with the label
+/// overlay, orientation letters and scale bars; the needle path, planned paths and the marked
+/// point drawn on each; a legend of the lines and the labels present.
+pub fn figure(atlas: &PunctureAtlas, spec: &FigureSpec, png: &Path) -> Result<(), RenderError> {
     ensure_fonts();
-    let slices: Vec<Slice> = [Plane::Axial, Plane::Coronal, Plane::Sagittal]
-        .into_iter()
-        .map(|p| render_slice(atlas, p, center, Window::ABDOMEN, MAX_PANEL_PX))
+    let center = spec.center;
+    let name = spec.title.as_str();
+    let slices: Vec<Slice> = spec
+        .planes
+        .iter()
+        .map(|p| render_slice(atlas, *p, center, Window::ABDOMEN, MAX_PANEL_PX))
         .collect();
-    // Legend: partial labels present in any slice.
+    // Legend: the lines drawn, then the partial labels present in any slice.
     let table = atlas.label_table();
     let mut present: Vec<u16> = slices
         .iter()
@@ -73,9 +193,17 @@ pub fn atlas_figure_at(
         .collect();
     present.sort_unstable();
     present.dedup();
-    let width = slices.iter().map(|s| s.width).sum::<usize>() + MARGIN * (slices.len() + 1);
+    let mut line_entries: Vec<(String, [u8; 3], bool)> = Vec::new();
+    if !spec.needle.is_empty() {
+        line_entries.push(("needle tip path".into(), NEEDLE_RGB, false));
+    }
+    for (path_name, _, _) in &spec.planned {
+        line_entries.push((format!("planned path '{path_name}'"), PLANNED_RGB, true));
+    }
+    let width = (slices.iter().map(|s| s.width).sum::<usize>() + MARGIN * (slices.len() + 1)).max(2 * 260 + 2 * MARGIN);
     let per_row = ((width - 2 * MARGIN) / 260).max(1);
-    let legend_rows = present.len().div_ceil(per_row).max(1);
+    let line_rows = usize::from(!line_entries.is_empty()) + usize::from(spec.mark.is_some());
+    let legend_rows = line_rows + present.len().div_ceil(per_row).max(1);
     let panel_h = slices.iter().map(|s| s.height).max().unwrap_or(0);
     let height = TITLE_H + PANEL_TITLE_H + panel_h + MARGIN + legend_rows * LEGEND_ROW_H + MARGIN;
 
@@ -100,6 +228,7 @@ pub fn atlas_figure_at(
         let white = TextStyle::from((SANS, 24).into_font()).color(&WHITE);
         let small = TextStyle::from((SANS, 16).into_font()).color(&WHITE);
         let letters = TextStyle::from((SANS, 20).into_font()).color(&RGBColor(255, 220, 80));
+        let rgb = |c: [u8; 3]| RGBColor(c[0], c[1], c[2]);
         let grid = atlas.ct().grid();
         let sp = grid.spacing_mm();
         let d = grid.dims();
@@ -111,9 +240,14 @@ pub fn atlas_figure_at(
             &white,
             (MARGIN as i32, 8),
         ))?;
+        let lines_note = if spec.needle.is_empty() && spec.planned.is_empty() {
+            ""
+        } else {
+            ", paths projected onto each plane"
+        };
         draw(root.draw_text(
             &format!(
-                "slices through ({:.0}, {:.0}, {:.0}) mm RAS (crosshair), CT window L 40 / W 400 HU, partial labels in colour",
+                "slices through ({:.0}, {:.0}, {:.0}) mm RAS (crosshair), CT window L 40 / W 400 HU, partial labels in colour{lines_note}",
                 center.x, center.y, center.z
             ),
             &small,
@@ -154,22 +288,81 @@ pub fn atlas_figure_at(
             draw(root.draw(&PathElement::new(vec![(cx + 4, cy), (cx + 12, cy)], cross)))?;
             draw(root.draw(&PathElement::new(vec![(cx, cy - 12), (cx, cy - 4)], cross)))?;
             draw(root.draw(&PathElement::new(vec![(cx, cy + 4), (cx, cy + 12)], cross)))?;
-            for line in polylines {
-                let pts: Vec<(i32, i32)> = line
-                    .iter()
-                    .map(|p| {
-                        let (c, r) = s.pixel(*p);
-                        ((ox as f64 + c).round() as i32, (oy as f64 + r).round() as i32)
-                    })
-                    .collect();
-                draw(root.draw(&PathElement::new(
-                    pts,
-                    ShapeStyle::from(&RGBColor(0, 230, 255)).stroke_width(2),
-                )))?;
+            let to_px = |p: DVec3| {
+                let (c, r) = s.pixel(p);
+                (ox as f64 + c, oy as f64 + r)
+            };
+            let local = |p: DVec3| {
+                let (x, y) = to_px(p);
+                (x - ox as f64, y - oy as f64)
+            };
+            let at = |p: (f64, f64)| (ox + p.0.round() as i32, oy + p.1.round() as i32);
+            let (wf, hf) = (w as f64 - 1.0, h as f64 - 1.0);
+            // Clipped to the panel: a path projected from far away must not spill onto the next.
+            for (_, a, b) in &spec.planned {
+                let style = ShapeStyle::from(&rgb(PLANNED_RGB)).stroke_width(3);
+                for [a, b] in clipped(&[local(*a), local(*b)], wf, hf) {
+                    for dash in dashes(&[a, b], 10.0, 7.0) {
+                        let dash: Vec<(i32, i32)> = dash.iter().map(|p| (ox + p.0, oy + p.1)).collect();
+                        draw(root.draw(&PathElement::new(dash, style)))?;
+                    }
+                }
+            }
+            for line in &spec.needle {
+                let pts: Vec<(f64, f64)> = line.iter().map(|p| local(*p)).collect();
+                for [a, b] in clipped(&pts, wf, hf) {
+                    draw(root.draw(&PathElement::new(
+                        vec![at(a), at(b)],
+                        ShapeStyle::from(&rgb(NEEDLE_RGB)).stroke_width(2),
+                    )))?;
+                }
+            }
+            if let Some(m) = &spec.mark {
+                let (x, y) = local(m.point_mm);
+                if (0.0..=wf).contains(&x) && (0.0..=hf).contains(&y) {
+                    let c = at((x, y));
+                    draw(root.draw(&Circle::new(c, 11, ShapeStyle::from(&WHITE).stroke_width(5))))?;
+                    draw(root.draw(&Circle::new(c, 11, ShapeStyle::from(&rgb(MARK_RGB)).stroke_width(3))))?;
+                    draw(root.draw(&Circle::new(c, 2, rgb(MARK_RGB).filled())))?;
+                }
             }
         }
-        // Legend.
-        let ly = (TITLE_H + PANEL_TITLE_H + panel_h + MARGIN) as i32;
+        // Legend: lines and the mark, then the labels.
+        let mut ly = (TITLE_H + PANEL_TITLE_H + panel_h + MARGIN) as i32;
+        if !line_entries.is_empty() {
+            for (n, (text, color, dashed)) in line_entries.iter().enumerate() {
+                let x = (MARGIN + n * 300) as i32;
+                let style = ShapeStyle::from(&rgb(*color)).stroke_width(3);
+                if *dashed {
+                    for dash in dashes(
+                        &[(x as f64, (ly + 10) as f64), ((x + 30) as f64, (ly + 10) as f64)],
+                        8.0,
+                        5.0,
+                    ) {
+                        draw(root.draw(&PathElement::new(dash, style)))?;
+                    }
+                } else {
+                    draw(root.draw(&PathElement::new(vec![(x, ly + 10), (x + 30, ly + 10)], style)))?;
+                }
+                draw(root.draw_text(text, &small, (x + 38, ly + 2)))?;
+            }
+            ly += LEGEND_ROW_H as i32;
+        }
+        if let Some(m) = &spec.mark {
+            let x = MARGIN as i32;
+            draw(root.draw(&Circle::new(
+                (x + 15, ly + 10),
+                7,
+                ShapeStyle::from(&WHITE).stroke_width(4),
+            )))?;
+            draw(root.draw(&Circle::new(
+                (x + 15, ly + 10),
+                7,
+                ShapeStyle::from(&rgb(MARK_RGB)).stroke_width(2),
+            )))?;
+            draw(root.draw_text(&m.label, &small, (x + 38, ly + 2)))?;
+            ly += LEGEND_ROW_H as i32;
+        }
         for (n, id) in present.iter().enumerate() {
             let Some(label) = table.get(*id) else {
                 continue;
