@@ -10,6 +10,7 @@ use sqlx::{AnyPool, Row};
 mod accounts;
 mod cohorts;
 pub mod health;
+mod instructors;
 mod jobs;
 mod review;
 mod sessions;
@@ -17,6 +18,10 @@ mod tokens;
 
 pub use accounts::{AccountChange, AccountError, IMPORT_HEADER, ImportLine, ImportLineError, MAX_IMPORT_LINES, Role, UserRow, parse_import};
 pub use cohorts::{CohortLine, ReportLine, ScorePoint};
+pub use instructors::{
+    CompareSearch, DatedScore, LevelTotals, OutcomeFilter, PROGRESS_POINTS, PROGRESS_RECENT, QUEUE_PAGE, QueueReason,
+    QueueScope, ReviewLine, RiskSession, SEARCH_PAGE, TraineeProgress,
+};
 pub use jobs::{Job, join_reasons, split_reasons};
 pub use review::{ExportRow, ProgressPoint, TraineeSummary};
 pub use sessions::{NewSession, SessionFilter, SessionLine};
