@@ -12,8 +12,10 @@ mod cohorts;
 pub mod health;
 mod instructors;
 mod jobs;
+mod reports;
 mod review;
 mod sessions;
+mod status;
 mod tokens;
 
 pub use accounts::{AccountChange, AccountError, IMPORT_HEADER, ImportLine, ImportLineError, MAX_IMPORT_LINES, Role, UserRow, parse_import};
@@ -23,7 +25,9 @@ pub use instructors::{
     QueueScope, ReviewLine, RiskSession, SEARCH_PAGE, TraineeProgress,
 };
 pub use jobs::{Job, join_reasons, split_reasons};
+pub use reports::{DayCount, FAILED_READ_MAX, FailureBreakdown, FailureCause, TREND_ROWS_MAX};
 pub use review::{ExportRow, ProgressPoint, TraineeSummary};
+pub use status::SessionStatus;
 pub use sessions::{NewSession, SessionFilter, SessionLine};
 pub use tokens::{TokenAuth, TokenRow, TokenScope, TokenStatus};
 
@@ -44,7 +48,7 @@ pub struct SessionRow {
     pub trainee: String,
     pub scenario: String,
     pub difficulty: String,
-    pub status: String,
+    pub status: SessionStatus,
     pub uploaded_at: String,
     /// The simulator's clock when recording started (from the file's header).
     pub recorded_at: String,
