@@ -15,7 +15,7 @@ use serde_json::json;
 
 use super::AppState;
 use super::auth;
-use super::store::{AccountError, ImportLineError, NewSession, Role, TokenScope, TokenStatus, User};
+use super::store::{AccountError, ImportLineError, NewSession, Role, SessionStatus, TokenScope, TokenStatus, User};
 
 type AppRef = Arc<AppState>;
 
@@ -558,7 +558,11 @@ async fn upload(
 
 /// Validates an upload and stores it (file by content hash, then the session and job rows):
 /// returns the session id, its status and whether it is new. Nothing is left behind on refusal.
-pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(String, String, bool), ApiError> {
+pub async fn accept_upload(
+    s: &AppState,
+    user: &User,
+    bytes: Bytes,
+) -> Result<(String, SessionStatus, bool), ApiError> {
     if bytes.is_empty() {
         return Err(err(
             StatusCode::BAD_REQUEST,
@@ -581,7 +585,7 @@ pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(S
             .store
             .session(&id)
             .await?
-            .map_or_else(|| "queued".to_string(), |(r, _)| r.status);
+            .map_or(SessionStatus::Queued, |(r, _)| r.status);
         return Ok((id, status, false));
     }
     // The file first (atomically, by content hash), then the rows in one transaction. The
@@ -620,7 +624,7 @@ pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(S
                     .store
                     .session(&id)
                     .await?
-                    .map_or_else(|| "queued".to_string(), |(r, _)| r.status);
+                    .map_or(SessionStatus::Queued, |(r, _)| r.status);
                 return Ok((id, status, false));
             }
             // The file stays: a concurrent upload of the same bytes whose row is not committed
@@ -630,7 +634,7 @@ pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(S
         }
     };
     s.wake.notify_one();
-    Ok((id, "queued".to_string(), true))
+    Ok((id, SessionStatus::Queued, true))
 }
 
 async fn get_session(

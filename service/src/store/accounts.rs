@@ -763,6 +763,43 @@ pub struct UserRow {
 mod tests {
     use super::*;
 
+    #[test]
+    fn roles_by_name() {
+        for r in Role::ALL {
+            assert_eq!(Role::parse(r.as_str()).unwrap(), r);
+            assert_eq!(serde_json::to_value(r).unwrap(), r.as_str());
+        }
+        assert_eq!(Role::ALL.map(Role::as_str), ROLES);
+        assert!(
+            Role::parse("janitor")
+                .unwrap_err()
+                .to_string()
+                .contains("unknown role 'janitor'")
+        );
+    }
+
+    #[test]
+    fn imports_name_every_bad_line() {
+        let text =
+            "username,role,cohort,password\nann,trainee,c1,ann-password\n\nbo b,admin,,x\nann,trainee,,ann-password\n";
+        let bad = parse_import(text).unwrap_err();
+        assert_eq!(bad.iter().map(|b| b.line).collect::<Vec<_>>(), [4, 5]);
+        assert!(
+            bad[0].reason.contains("username") && bad[0].reason.contains("8–1024"),
+            "{bad:?}"
+        );
+        assert!(bad[1].reason.contains("already on line 2"), "{bad:?}");
+        let good = parse_import("cy,instructor,,pass, with, commas\r\n").unwrap();
+        assert_eq!(good[0].password, "pass, with, commas");
+        assert_eq!((good[0].role, good[0].cohort.as_deref()), (Role::Instructor, None));
+        assert_eq!(parse_import("").unwrap_err()[0].line, 0);
+        assert_eq!(parse_import(IMPORT_HEADER).unwrap_err()[0].line, 0);
+        let many: String = (0..=MAX_IMPORT_LINES)
+            .map(|i| format!("u{i},trainee,,password{i}\n"))
+            .collect();
+        assert!(parse_import(&many).unwrap_err()[0].reason.contains("at most"));
+    }
+
     /// Password lengths are documented in characters: 1024 'é' (2048 bytes) are allowed.
     #[tokio::test]
     async fn password_lengths_count_characters() {

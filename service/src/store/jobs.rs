@@ -4,7 +4,7 @@ use sqlx::Row;
 
 use stylet_scoring::{Exercise, Outcome};
 
-use super::{Store, StoreError, now};
+use super::{SessionStatus, Store, StoreError, now};
 
 impl Store {
     /// At start: jobs a killed server left running go back to the queue. This assumes one server
@@ -15,7 +15,9 @@ impl Store {
         let r = sqlx::query("UPDATE scoring_jobs SET state = 'queued', started_at = NULL WHERE state = 'running'")
             .execute(&self.pool)
             .await?;
-        sqlx::query("UPDATE sessions SET status = 'queued' WHERE status = 'scoring'")
+        sqlx::query("UPDATE sessions SET status = $1 WHERE status = $2")
+            .bind(SessionStatus::Queued.as_str())
+            .bind(SessionStatus::Scoring.as_str())
             .execute(&self.pool)
             .await?;
         Ok(r.rows_affected())
@@ -50,8 +52,9 @@ impl Store {
             tx.rollback().await?;
             return Ok(None);
         }
-        sqlx::query("UPDATE sessions SET status = 'scoring' WHERE id = $1")
+        sqlx::query("UPDATE sessions SET status = $2 WHERE id = $1")
             .bind(job.session_id.clone())
+            .bind(SessionStatus::Scoring.as_str())
             .execute(&mut *tx)
             .await?;
         tx.commit().await?;
@@ -112,8 +115,9 @@ impl Store {
             tx.rollback().await?;
             return Ok(());
         }
-        sqlx::query("UPDATE sessions SET status = 'queued' WHERE id = $1")
+        sqlx::query("UPDATE sessions SET status = $2 WHERE id = $1")
             .bind(job.session_id.clone())
+            .bind(SessionStatus::Queued.as_str())
             .execute(&mut *tx)
             .await?;
         tx.commit().await?;
@@ -135,9 +139,10 @@ impl Store {
             tx.rollback().await?;
             return Ok(());
         }
-        sqlx::query("UPDATE sessions SET status = 'failed', error = $1 WHERE id = $2")
+        sqlx::query("UPDATE sessions SET status = $3, error = $1 WHERE id = $2")
             .bind(error.to_string())
             .bind(job.session_id.clone())
+            .bind(SessionStatus::Failed.as_str())
             .execute(&mut *tx)
             .await?;
         tx.commit().await?;

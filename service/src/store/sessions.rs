@@ -22,7 +22,7 @@ impl Store {
         sqlx::query(
             "INSERT INTO sessions (id, file_sha256, size_bytes, session_uuid, trainee_id, uploaded_by, scenario, difficulty, \
              atlas_hash, physics_version, duration_s, recorded_at, uploaded_at, status, error) \
-             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, 'queued', NULL)",
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, NULL)",
         )
         .bind(id.clone())
         .bind(s.file_sha256.clone())
@@ -37,6 +37,7 @@ impl Store {
         .bind(s.duration_s)
         .bind(s.recorded_at.clone())
         .bind(now())
+        .bind(super::SessionStatus::Queued.as_str())
         .execute(&mut *tx)
         .await?;
         sqlx::query(
@@ -279,7 +280,7 @@ pub struct SessionLine {
     pub trainee: String,
     pub scenario: String,
     pub difficulty: String,
-    pub status: String,
+    pub status: super::SessionStatus,
     pub uploaded_at: String,
     pub recorded_at: String,
     pub duration_s: f64,
