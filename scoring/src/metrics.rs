@@ -219,6 +219,152 @@ pub struct MetricsCollector<'a> {
     prev_nodes: Vec<DVec3>,
     tissue_damage_mm2: f64,
     min_distance_mm: Option<f64>,
+    /// D_bone of the atlas: which parts of a palpation sweep lie over a rib.
+    bone: &'a stylet_physics::Volume<f32>,
+    palpation: PalpationTrace,
+    /// Ultrasound: first tick with the target in view, ticks in view, ticks in good contact.
+    view_first_tick: Option<u64>,
+    view_ticks: u64,
+    good_contact_ticks: u64,
+    probe_ticks: u64,
+}
+
+/// The finger's sweep, cut into runs over a rib and over an intercostal space.
+#[derive(Debug, Default)]
+struct PalpationTrace {
+    /// Closed runs of the current contact stretch.
+    runs: Vec<Run>,
+    /// The run being followed.
+    open: Option<Run>,
+    /// A change of class seen for this many ticks (debounce: a run ends after [`RUN_MIN_TICKS`]).
+    pending: u64,
+    crossed: u32,
+    found: u32,
+    ribs: u32,
+}
+
+/// Part of a sweep over one rib or one space.
+#[derive(Debug, Clone, Copy)]
+struct Run {
+    over_rib: bool,
+    /// Deepest indentation (mm) and where (finger position).
+    deepest_mm: f64,
+    deepest_at: DVec3,
+    /// Sums of indentation and position, and the tick count (for means).
+    sum_mm: f64,
+    sum_at: DVec3,
+    ticks: u64,
+}
+
+impl Run {
+    fn new(over_rib: bool, indentation_mm: f64, at: DVec3) -> Run {
+        Run {
+            over_rib,
+            deepest_mm: indentation_mm,
+            deepest_at: at,
+            sum_mm: indentation_mm,
+            sum_at: at,
+            ticks: 1,
+        }
+    }
+    fn add(&mut self, indentation_mm: f64, at: DVec3) {
+        if indentation_mm > self.deepest_mm {
+            self.deepest_mm = indentation_mm;
+            self.deepest_at = at;
+        }
+        self.sum_mm += indentation_mm;
+        self.sum_at += at;
+        self.ticks += 1;
+    }
+    fn merge(&mut self, o: &Run) {
+        if o.deepest_mm > self.deepest_mm {
+            self.deepest_mm = o.deepest_mm;
+            self.deepest_at = o.deepest_at;
+        }
+        self.sum_mm += o.sum_mm;
+        self.sum_at += o.sum_at;
+        self.ticks += o.ticks;
+    }
+    fn mean_mm(&self) -> f64 {
+        self.sum_mm / self.ticks as f64
+    }
+    fn centre(&self) -> DVec3 {
+        self.sum_at / self.ticks as f64
+    }
+}
+
+/// A run shorter than this (ticks) is jitter, not a rib or a space.
+const RUN_MIN_TICKS: u64 = 20;
+/// How far under the finger a rib is looked for (mm along the pressing direction).
+const RIB_SEARCH_MM: f64 = 30.0;
+/// A space is found when the finger sank this much deeper there than over its ribs (mm).
+const SPACE_SINK_MM: f64 = 0.1;
+/// The image plane test of the ultrasound survey (PerkTutor's TargetsScanned): a target within
+/// this distance of the plane (mm), down to this depth (mm).
+const VIEW_PLANE_MM: f64 = 5.0;
+const VIEW_DEPTH_MM: f64 = 150.0;
+/// Good skin contact: at least this share of the probe face on the skin.
+const GOOD_CONTACT_SHARE: f64 = 0.75;
+
+impl PalpationTrace {
+    /// One tick in skin contact: over a rib or not, indentation, finger position.
+    fn tick(&mut self, over_rib: bool, indentation_mm: f64, at: DVec3) {
+        match &mut self.open {
+            None => self.open = Some(Run::new(over_rib, indentation_mm, at)),
+            Some(run) if run.over_rib == over_rib => {
+                run.add(indentation_mm, at);
+                self.pending = 0;
+            }
+            Some(run) => {
+                self.pending += 1;
+                if self.pending >= RUN_MIN_TICKS {
+                    let closed = *run;
+                    self.close(closed);
+                    self.open = Some(Run::new(over_rib, indentation_mm, at));
+                    self.pending = 0;
+                }
+            }
+        }
+    }
+
+    fn close(&mut self, run: Run) {
+        if run.ticks >= RUN_MIN_TICKS {
+            match self.runs.last_mut() {
+                // A dropped short run leaves two of a kind side by side: one run.
+                Some(last) if last.over_rib == run.over_rib => last.merge(&run),
+                _ => self.runs.push(run),
+            }
+        }
+    }
+
+    /// Contact lost (or the end). A space counts only between two ribs felt in one stretch; it
+    /// is found when its deepest indentation exceeds the rib level there (the ribs' mean
+    /// indentations, interpolated between their centres: the chest wall's own slope is not a
+    /// space) by [`SPACE_SINK_MM`].
+    fn lift(&mut self) {
+        if let Some(run) = self.open.take() {
+            self.close(run);
+        }
+        self.pending = 0;
+        let runs = std::mem::take(&mut self.runs);
+        self.ribs += runs.iter().filter(|r| r.over_rib).count() as u32;
+        for w in runs.windows(3) {
+            let [before, space, after] = w else { continue };
+            if !before.over_rib || space.over_rib || !after.over_rib {
+                continue;
+            }
+            self.crossed += 1;
+            let (a, b) = (
+                space.deepest_at.distance(before.centre()),
+                space.deepest_at.distance(after.centre()),
+            );
+            let t = if a + b > 0.0 { a / (a + b) } else { 0.5 };
+            let rib_level = before.mean_mm() + (after.mean_mm() - before.mean_mm()) * t;
+            if space.deepest_mm >= rib_level + SPACE_SINK_MM {
+                self.found += 1;
+            }
+        }
+    }
 }
 
 fn segment_distance(p: DVec3, a: DVec3, b: DVec3) -> f64 {
@@ -235,7 +381,7 @@ impl<'a> MetricsCollector<'a> {
     /// `labels`: the atlas' label table; `paths`: its planned paths; `path`: score guided mode
     /// against this one (else the one whose entry is nearest the scored attempt's entry).
     pub fn new(
-        atlas: &stylet_physics::PunctureAtlas,
+        atlas: &'a stylet_physics::PunctureAtlas,
         target: &'a TargetDistance,
         paths: &'a [PlannedPath],
         path: Option<String>,
@@ -290,6 +436,12 @@ impl<'a> MetricsCollector<'a> {
             prev_nodes: Vec::new(),
             tissue_damage_mm2: 0.0,
             min_distance_mm: None,
+            bone: atlas.bone_distance(),
+            palpation: PalpationTrace::default(),
+            view_first_tick: None,
+            view_ticks: 0,
+            good_contact_ticks: 0,
+            probe_ticks: 0,
         }
     }
 
@@ -448,11 +600,32 @@ impl<'a> MetricsCollector<'a> {
         }
         self.was_xray = out.xray_on;
         if out.contacts > 0 {
+            let press = (input.orientation * DVec3::Z).normalize_or_zero();
             match sim.tool_spec() {
-                ToolSpec::Probe(_) => self.ultrasound_ticks += 1,
-                ToolSpec::Finger => self.palpation_ticks += 1,
+                ToolSpec::Probe(kind) => {
+                    self.ultrasound_ticks += 1;
+                    let nodes = sim.contact().map_or(1, |c| c.nodes().len().max(1));
+                    if out.contacts as f64 >= GOOD_CONTACT_SHARE * nodes as f64 {
+                        self.good_contact_ticks += 1;
+                    }
+                    if self.target_in_view(input, *kind) {
+                        self.view_ticks += 1;
+                        self.view_first_tick.get_or_insert(tick);
+                    }
+                }
+                ToolSpec::Finger => {
+                    self.palpation_ticks += 1;
+                    let over_rib = (0..=(RIB_SEARCH_MM / 1.5) as usize)
+                        .any(|k| self.bone.sample(input.position_mm + press * (k as f64 * 1.5), -1000.0) > 0.0);
+                    self.palpation.tick(over_rib, out.indentation_mm, input.position_mm);
+                }
                 ToolSpec::Needle { .. } => {}
             }
+        } else if self.palpation.open.is_some() {
+            self.palpation.lift();
+        }
+        if matches!(sim.tool_spec(), ToolSpec::Probe(_)) {
+            self.probe_ticks += 1;
         }
 
         // Forces.
@@ -500,8 +673,54 @@ impl<'a> MetricsCollector<'a> {
         self.was_in_body = in_body;
     }
 
+    /// Whether a target point lies within [`VIEW_PLANE_MM`] of the probe's image plane, inside
+    /// the image: the plane holds the transducer array (tool x) and the beam (tool z); a linear
+    /// array images a 40 mm wide strip, a convex one a 60° sector from its 50 mm radius.
+    fn target_in_view(&self, input: &TickInput, kind: stylet_physics::ProbeKind) -> bool {
+        let q = input.orientation;
+        let (ax, normal, beam) = (q * DVec3::X, q * DVec3::Y, q * DVec3::Z);
+        let p = input.position_mm;
+        self.target.points().iter().any(|&t| {
+            let d = t - p;
+            let depth = d.dot(beam);
+            if d.dot(normal).abs() > VIEW_PLANE_MM || !(0.0..=VIEW_DEPTH_MM).contains(&depth) {
+                return false;
+            }
+            let half_width = match kind {
+                stylet_physics::ProbeKind::Linear => 20.0,
+                // 60° sector of a 50 mm radius face: 25 mm at the face, widening with depth.
+                stylet_physics::ProbeKind::Convex => 25.0 + depth * (30f64).to_radians().tan(),
+            };
+            d.dot(ax).abs() <= half_width
+        })
+    }
+
     /// The metrics of everything observed.
-    pub fn finish(self) -> Metrics {
+    pub fn finish(mut self) -> Metrics {
+        if self.palpation.open.is_some() {
+            self.palpation.lift();
+        }
+        // No puncture at all: whatever palpation and ultrasound there was came "before" it.
+        if self.attempts.is_empty() {
+            self.palpation_before = self.palpation_ticks > 0;
+            self.ultrasound_before = self.ultrasound_ticks > 0;
+        }
+        let palpation = (self.palpation_ticks > 0).then(|| PalpationMetrics {
+            spaces_crossed: self.palpation.crossed,
+            spaces_found: self.palpation.found,
+            coverage: if self.palpation.crossed > 0 {
+                self.palpation.found as f64 / self.palpation.crossed as f64
+            } else {
+                0.0
+            },
+            ribs_crossed: self.palpation.ribs,
+        });
+        let ultrasound = (self.probe_ticks > 0).then(|| UltrasoundMetrics {
+            target_scanned: self.view_first_tick.is_some(),
+            time_to_target_view_s: self.view_first_tick.map(|t| t as f64 / self.rate_hz),
+            target_view_time_s: self.view_ticks as f64 / self.rate_hz,
+            good_contact_time_s: self.good_contact_ticks as f64 / self.rate_hz,
+        });
         let rate = self.rate_hz;
         // The scored attempt: the first that reached the target, else the last.
         let scored = self
@@ -588,8 +807,8 @@ impl<'a> MetricsCollector<'a> {
             target_distance_mm: self.attempts.last().and_then(|a| self.target.distance_mm(a.deepest.1)),
             target_distance_min_mm: self.min_distance_mm,
             guided,
-            palpation: None,
-            ultrasound: None,
+            palpation,
+            ultrasound,
         }
     }
 }

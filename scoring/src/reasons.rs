@@ -155,7 +155,15 @@ impl MetricInfo {
     /// A value with its unit: "2 attempts", "40.5 s", "9.5 mm", "75 %".
     pub fn value(&self, v: f64) -> String {
         match self.unit {
-            Unit::Count => format!("{} {}", num(v), self.label),
+            Unit::Count => format!(
+                "{} {}",
+                num(v),
+                if v == 1.0 {
+                    singular(self.label)
+                } else {
+                    self.label.into()
+                }
+            ),
             Unit::Seconds => format!("{} s", num(v)),
             Unit::Millimetres => format!("{} mm", num(v)),
             Unit::SquareMillimetres => format!("{} mm²", num(v)),
@@ -187,6 +195,8 @@ impl MetricInfo {
             Unit::Count => self.value(v),
             Unit::Flag => self.label.to_string(),
             Unit::Ratio => format!("{} of {}", self.label, num(v)),
+            // "share of the spaces found" → "50 % of the spaces found".
+            Unit::Fraction => format!("{} {}", self.value(v), self.label.trim_start_matches("share ")),
             _ => format!("{} of {}", self.value(v), self.label),
         }
     }
@@ -216,6 +226,22 @@ impl MetricInfo {
             None => format!("{pts} for {}", self.phrase(v)),
         }
     }
+}
+
+/// "risk structures hit" → "risk structure hit": the first plural word loses its s.
+fn singular(label: &str) -> String {
+    let mut done = false;
+    label
+        .split(' ')
+        .map(|w| match w.strip_suffix('s') {
+            Some(one) if !done => {
+                done = true;
+                one
+            }
+            _ => w,
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 fn capitalise(s: &str) -> String {
@@ -364,6 +390,16 @@ mod tests {
         let a = metric_info("attempts").unwrap();
         assert_eq!(a.deduction(2.0, 15.0, Some(1.0)), "−15 for 2 attempts (1 free)");
         assert_eq!(a.unmet(2.0, None, Some(1.0)), "2 attempts: at most 1 allowed.");
+        let r = metric_info("risk_hits").unwrap();
+        assert_eq!(
+            r.unmet(1.0, None, Some(0.0)),
+            "1 risk structure hit: at most 0 allowed."
+        );
+        let c = metric_info("palpation_coverage").unwrap();
+        assert_eq!(
+            c.unmet(0.25, Some(0.5), None),
+            "25 % of the intercostal spaces found: at least 50 % required."
+        );
         let f = metric_info("fluoro_time_s").unwrap();
         assert_eq!(
             f.unmet(40.0, None, Some(30.0)),

@@ -7,7 +7,13 @@ use stylet_physics::{PunctureAtlas, Role, Volume};
 /// Distance (mm) to the nearest voxel centre labelled with a target role.
 pub struct TargetDistance {
     map: Option<Volume<f32>>,
+    /// Target voxel centres (world mm), at most [`MAX_TARGET_POINTS`] (evenly thinned): what an
+    /// ultrasound image plane is tested against.
+    points: Vec<stylet_physics::glam::DVec3>,
 }
+
+/// Bounds the per-tick cost of the ultrasound view test.
+pub const MAX_TARGET_POINTS: usize = 4096;
 
 impl TargetDistance {
     pub fn new(atlas: &PunctureAtlas) -> Self {
@@ -19,16 +25,28 @@ impl TargetDistance {
             .map(|&l| l != 0 && table.get(l).is_some_and(|x| x.role == Role::Target))
             .collect();
         if !target.iter().any(|&t| t) {
-            return TargetDistance { map: None };
+            return TargetDistance {
+                map: None,
+                points: Vec::new(),
+            };
         }
         let grid = *labels.grid();
         let d: Vec<f32> = stylet_physics::distance::squared_edt(&grid, &target)
             .into_iter()
             .map(f32::sqrt)
             .collect();
+        let all: Vec<usize> = (0..target.len()).filter(|&i| target[i]).collect();
+        let stride = all.len().div_ceil(MAX_TARGET_POINTS).max(1);
+        let points = all.iter().step_by(stride).map(|&i| grid.linear_to_world(i)).collect();
         TargetDistance {
             map: Some(Volume::new(grid, d).expect("same grid")),
+            points,
         }
+    }
+
+    /// Target voxel centres (world mm; thinned evenly to at most [`MAX_TARGET_POINTS`]).
+    pub fn points(&self) -> &[stylet_physics::glam::DVec3] {
+        &self.points
     }
 
     /// `None` when the atlas has no target voxels or `p` lies outside the CT grid.

@@ -106,7 +106,14 @@ fn opt(v: Option<f64>, unit: &str) -> String {
 fn print_report(file: &Path, r: &ScoreReport) {
     let m = &r.metrics;
     let g = &r.grade;
-    sayf!("{}: {} — {} at {}", file.display(), r.trainee, r.scenario, g.difficulty);
+    sayf!(
+        "{}: {} — {} ({}) at {}",
+        file.display(),
+        r.trainee,
+        r.scenario,
+        r.exercise,
+        g.difficulty
+    );
     match &r.divergence {
         None => sayf!(
             "replay       verified: {} ticks and {} digests reproduced bit for bit",
@@ -139,6 +146,9 @@ fn print_report(file: &Path, r: &ScoreReport) {
             h.entries,
             if h.entries == 1 { "y" } else { "ies" }
         );
+        if let Some(c) = &h.consequence {
+            sayf!("             risk: {c}");
+        }
     }
     sayf!("bone         {} contact(s)", m.bone_contacts);
     sayf!(
@@ -186,25 +196,62 @@ fn print_report(file: &Path, r: &ScoreReport) {
             gm.max_deviation_mm
         );
     }
+    if let Some(p) = &m.palpation {
+        sayf!(
+            "palpation    {} of {} intercostal spaces found ({:.0} %), {} ribs felt",
+            p.spaces_found,
+            p.spaces_crossed,
+            p.coverage * 100.0,
+            p.ribs_crossed
+        );
+    }
+    if let Some(u) = &m.ultrasound {
+        sayf!(
+            "ultrasound   target shown {} (first after {}, {:.1} s in view), good skin contact {:.1} s",
+            yes(u.target_scanned),
+            opt(u.time_to_target_view_s, "s"),
+            u.target_view_time_s,
+            u.good_contact_time_s
+        );
+    }
     for d in &g.deductions {
-        sayf!("deduction    −{:.1} for {} = {:.2}", d.points, d.metric, d.value);
+        let words = stylet_scoring::reasons::metric_info(&d.metric).map_or_else(
+            || format!("−{:.1}", d.points),
+            |i| i.deduction(d.value, d.points, d.free),
+        );
+        sayf!("deduction    {words}");
     }
     for f in &g.failed {
         sayf!("not met      {f}");
     }
-    sayf!(
-        "grade        {:.1} / 100, {} ({} rubric v{}, physics v{})",
-        g.score,
-        if g.passed { "PASSED" } else { "FAILED" },
-        g.rubric,
-        g.rubric_version,
-        g.physics_version
-    );
+    match r.outcome {
+        stylet_scoring::Outcome::NotGradeable => sayf!(
+            "grade        NOT GRADEABLE: the recording is incomplete ({} rubric v{}, physics v{})",
+            g.rubric,
+            g.rubric_version,
+            g.physics_version
+        ),
+        o => sayf!(
+            "grade        {:.1} / 100, {} ({} rubric v{}, physics v{})",
+            g.score,
+            if o == stylet_scoring::Outcome::Passed {
+                "PASSED"
+            } else {
+                "FAILED"
+            },
+            g.rubric,
+            g.rubric_version,
+            g.physics_version
+        ),
+    }
+    for reason in &r.reasons {
+        sayf!("why          {reason}");
+    }
 }
 
 pub fn print_table(results: &[(PathBuf, Result<ScoreReport, ScoreError>)]) {
     sayf!(
-        "{:<28} {:<12} {:<22} {:<9} {:>8} {:>5} {:>6} {:>4} {:>5} {:<7} {}",
+        "{:<28} {:<12} {:<22} {:<9} {:>8} {:>5} {:>6} {:>4} {:>5} {:<13} {}",
         "session",
         "trainee",
         "scenario",
@@ -223,7 +270,7 @@ pub fn print_table(results: &[(PathBuf, Result<ScoreReport, ScoreError>)]) {
             .map_or_else(|| f.display().to_string(), |n| n.to_string_lossy().into_owned());
         match r {
             Ok(s) => sayf!(
-                "{:<28} {:<12} {:<22} {:<9} {:>8} {:>5} {:>6} {:>4} {:>5.1} {:<7} {}",
+                "{:<28} {:<12} {:<22} {:<9} {:>8} {:>5} {:>6} {:>4} {:>5.1} {:<13} {}",
                 name,
                 s.trainee,
                 s.scenario,
@@ -233,7 +280,7 @@ pub fn print_table(results: &[(PathBuf, Result<ScoreReport, ScoreError>)]) {
                 s.metrics.risk_hits.len(),
                 s.metrics.bone_contacts,
                 s.grade.score,
-                if s.grade.passed { "passed" } else { "failed" },
+                s.outcome.label(),
                 why_not(s)
             ),
             Err(e) => sayf!("{name:<28} not scored: {e}"),
@@ -241,39 +288,19 @@ pub fn print_table(results: &[(PathBuf, Result<ScoreReport, ScoreError>)]) {
     }
 }
 
-/// The unmet requirements in a few words (empty when passed).
+/// Why a session did not pass, in words (empty when passed): its reasons, one after another.
 fn why_not(s: &ScoreReport) -> String {
-    if s.grade.passed {
+    if s.outcome == stylet_scoring::Outcome::Passed {
         return String::new();
     }
-    let mut why: Vec<String> = s
-        .grade
-        .failed
-        .iter()
-        .map(|f| {
-            let metric = f.split(' ').next().unwrap_or(f);
-            match metric {
-                "target_not_reached" => "target not reached".to_string(),
-                "target_not_confirmed" => "not confirmed".to_string(),
-                "risk_hits" => {
-                    let names: Vec<&str> = s.metrics.risk_hits.iter().map(|h| h.structure.as_str()).collect();
-                    format!("hit {}", names.join(", "))
-                }
-                other => other.replace('_', " "),
-            }
-        })
-        .collect();
-    if why.is_empty() {
-        why.push("score below the pass mark".into());
-    }
-    why.join("; ")
+    s.reasons.join(" ")
 }
 
 /// Columns of `stylet score --csv` (docs/metrics.md "Batch CSV").
 pub const SCORE_CSV_HEADER: &str = "file,session_id,trainee,scenario,difficulty,status,replay_verified,incomplete,score,passed,\
 rubric,rubric_version,physics_version,attempts,redirections,risk_hits,risk_structures,bone_contacts,target_reached,\
 target_confirmed,time_to_target_s,time_total_s,fluoro_time_s,xray_shots,path_length_mm,max_force_n,tissue_damage_mm2,\
-target_distance_mm,error";
+target_distance_mm,exercise,outcome,reasons,error";
 
 fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n', '\r']) {
@@ -298,7 +325,7 @@ fn write_csv(out: &Path, results: &[(PathBuf, Result<ScoreReport, ScoreError>)])
                 let structures: Vec<&str> = m.risk_hits.iter().map(|h| h.structure.as_str()).collect();
                 writeln!(
                     w,
-                    "{file},{},{},{},{},scored,{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},",
+                    "{file},{},{},{},{},scored,{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},",
                     csv_field(&s.session_id),
                     csv_field(&s.trainee),
                     csv_field(&s.scenario),
@@ -325,11 +352,14 @@ fn write_csv(out: &Path, results: &[(PathBuf, Result<ScoreReport, ScoreError>)])
                     m.max_force_n,
                     m.tissue_damage_mm2,
                     o(m.target_distance_mm),
+                    s.exercise.as_str(),
+                    s.outcome.as_str(),
+                    csv_field(&s.reasons.join(" | ")),
                 )?;
             }
             Err(e) => writeln!(
                 w,
-                "{file},,,,,error,,,,,,,,,,,,,,,,,,,,,,,{}",
+                "{file},,,,,error,,,,,,,,,,,,,,,,,,,,,,,,,,{}",
                 csv_field(&e.to_string())
             )?,
         }
