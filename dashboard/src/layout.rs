@@ -48,6 +48,24 @@ button.primary { background:var(--accent); color:white; border:none; border-radi
 .muted { color:var(--muted); }
 .grid2 { display:grid; grid-template-columns: 1fr 1fr; gap:1.5rem; }
 @media (max-width: 900px) { .grid2 { grid-template-columns: 1fr; } }
+/* Phones and tablets (390 px and up): the page never scrolls sideways; the navigation wraps, wide
+   tables scroll inside their own box, charts and images scale, long words break. */
+header.top { flex-wrap:wrap; }
+header.top nav { flex-wrap:wrap; row-gap:.3rem; }
+body { overflow-wrap:break-word; }
+img, svg, video { max-width:100%; }
+input, select, textarea { max-width:100%; }
+.scroll { overflow-x:auto; max-width:100%; }
+@media (max-width: 700px) {
+  header.top { gap:.4rem .9rem; padding:.5rem .8rem; }
+  header.top nav { gap:.3rem .9rem; flex-basis:100%; order:3; }
+  main { padding:.6rem .7rem 2rem; }
+  h1 { font-size:1.4rem; }
+  table { display:block; overflow-x:auto; max-width:100%; }
+  .card { min-width:0; flex:1 1 9rem; }
+  form.inline > * { max-width:100%; }
+  pre { white-space:pre-wrap; }
+}
 @media print {
   header.top, form, .noprint { display:none !important; }
   body { background:white; font-size:12pt; }
@@ -94,7 +112,10 @@ fn navigation(v: &Viewer) -> Markup {
             nav {
                 a href="/" { "Home" }
                 a href="/sessions" { "Sessions" }
+                @if role == "trainee" { a href={ "/trainees/" (crate::auth::encode_query(&v.user.username)) } { "My progress" } }
+                @if role == "instructor" || role == "admin" { a #nav-review-queue href="/review-queue" { "Needs review" } }
                 @if role != "trainee" { a href="/cohorts" { "Cohorts" } }
+                @if role != "trainee" { a href="/compare" { "Compare" } }
                 @if role == "curriculum" || role == "admin" { a href="/reports" { "Reports" } }
                 @if role == "admin" { a href="/admin/users" { "Accounts" } }
                 a href="/tokens" { "API tokens" }

@@ -48,6 +48,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/trainees/{username}", get(pages::instructors::trainee_progress))
         .route("/reports", get(pages::reports::index))
         .route("/reports/cohort", get(pages::reports::cohort_report))
+        .route("/reports/cohort.pdf", get(pages::reports::cohort_report_pdf))
         .route("/admin/users", get(pages::admin::users).post(pages::admin::add_user))
         .route("/admin/users/import", post(pages::admin::import))
         .route("/admin/users/{username}/status", post(pages::admin::set_status))
