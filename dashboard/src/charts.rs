@@ -35,14 +35,15 @@ fn markers(trace: &ReviewTrace) -> Vec<(f64, String)> {
         .collect()
 }
 
-/// The force peaks that broke into a structure, named by it (`name`: the atlas' label name):
-/// (time of the peak, its force, the structure). Air is not a structure.
-pub fn puncture_peaks(trace: &ReviewTrace, name: &dyn Fn(LabelId) -> String) -> Vec<(f64, f64, String)> {
+/// The force peaks of the structures the needle cut into, named (`name`: the atlas' label name,
+/// `None` for tissue not worth a label, e.g. unlabelled soft tissue): (time of the peak, its
+/// force, the structure).
+pub fn puncture_peaks(trace: &ReviewTrace, name: &dyn Fn(LabelId) -> Option<String>) -> Vec<(f64, f64, String)> {
     trace
         .punctures
         .iter()
-        .map(|p| (p.peak_t_s, p.peak_force_n, name(p.label)))
-        .filter(|(_, f, n)| f.is_finite() && n != "air")
+        .filter(|p| p.peak_force_n.is_finite())
+        .filter_map(|p| Some((p.peak_t_s, p.peak_force_n, name(p.label)?)))
         .collect()
 }
 
@@ -278,6 +279,43 @@ mod tests {
             assert!(svg.to_uppercase().contains(&format!("STROKE=\"{color}\"")), "{color}");
         }
         assert!(svg.starts_with("<svg class=\"chart\" role=\"img\" aria-label=\"Force on the hand — demo\""));
+    }
+
+    #[test]
+    fn force_peaks_are_named_and_comments_marked() {
+        let mut t = trace();
+        t.punctures = vec![
+            stylet_scoring::trace::Puncture {
+                peak_t_s: 0.5,
+                peak_force_n: 2.5,
+                t_s: 0.3,
+                label: 2,
+            },
+            stylet_scoring::trace::Puncture {
+                peak_t_s: 0.8,
+                peak_force_n: 0.4,
+                t_s: 0.7,
+                label: 3,
+            },
+        ];
+        let name = |l: LabelId| match l {
+            2 => Some("skin".to_string()),
+            _ => None,
+        };
+        let peaks = puncture_peaks(&t, &name);
+        assert_eq!(peaks, vec![(0.5, 2.5, "skin".to_string())]);
+        let notes = comment_notes(&serde_json::json!({"comments": [
+            {"author": "ivan", "body": "whole session", "at_s": null},
+            {"author": "ivan", "body": "here", "at_s": 1.25},
+        ]}));
+        assert_eq!(notes, vec![(1.25, "[2] comment".to_string())]);
+        let mut chart = force_chart(&t, "F");
+        chart.peaks = peaks;
+        chart.notes = notes;
+        let svg = texts(&inline_svg(&chart).unwrap());
+        for want in ["skin", "[2] comment"] {
+            assert!(svg.iter().any(|x| x == want), "no {want:?} in {svg:?}");
+        }
     }
 
     #[test]

@@ -8,9 +8,10 @@
 //! [`BUCKET_TICKS`] (20 ms at 1 kHz) and each series keeps, per bucket, the sample of largest
 //! magnitude: a puncture's force peak, which lasts only a few ticks, survives decimation.
 //!
-//! Version 2 adds the structures the needle cut into ([`Puncture`], to label the force peaks) and
+//! Since version 2 the trace keeps the structures the needle cut into ([`Puncture`], to label the force peaks) and
 //! the exact tip position where each risk structure was first touched ([`RiskPoint`], to draw
-//! slices through it): neither can be recovered from the 20 ms buckets.
+//! slices through it): neither can be recovered from the 20 ms buckets. Version 3: a puncture's
+//! peak is the largest force while the tip is in the structure (it was the one before entry).
 
 use serde::{Deserialize, Serialize};
 use stylet_physics::glam::DVec3;
@@ -19,7 +20,7 @@ use stylet_physics::{Event, LabelId, TickInput, TickOutput};
 use crate::metrics::{Metrics, RiskHit};
 
 /// Format version of [`ReviewTrace`] (stored traces of another version are rebuilt).
-pub const TRACE_VERSION: u32 = 2;
+pub const TRACE_VERSION: u32 = 3;
 
 /// At most this many punctures are kept per session (a trainee jiggling at a boundary cannot grow
 /// the trace without bound).
@@ -67,14 +68,14 @@ pub struct ReviewTrace {
     pub risk_points: Vec<RiskPoint>,
 }
 
-/// The needle tip broke into a structure for the first time in an attempt (advancing, at the
-/// deepest point of the attempt so far). The force peak that preceded the entry is the
-/// structure's resistance: the dashboard labels that peak with the structure's name.
+/// The needle tip entered a structure for the first time in an attempt (advancing, at the deepest
+/// point of the attempt so far). The largest force while the tip was in it is the structure's
+/// resistance to cutting: the dashboard labels that peak with the structure's name.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Puncture {
-    /// Time of the force peak before the entry (s).
+    /// Time of the largest force while the tip was in the structure (s).
     pub peak_t_s: f64,
-    /// That peak: force on the hand along the needle (N, positive against the insertion).
+    /// That force on the hand along the needle (N, positive against the insertion).
     pub peak_force_n: f64,
     /// Time the tip entered the structure (s).
     pub t_s: f64,
@@ -140,8 +141,8 @@ pub struct TraceCollector {
     /// Deepest inserted length of the current attempt (mm); labels entered in it.
     attempt_deepest_mm: f64,
     attempt_labels: Vec<LabelId>,
-    /// Largest force along the needle since the last entry: (t_s, force_n).
-    peak: Option<(f64, f64)>,
+    /// The puncture whose structure the tip is in now (its peak still grows).
+    open: Option<usize>,
     /// First tick in the body with the tip in each label: (t_s, tip).
     first_contact: std::collections::BTreeMap<LabelId, (f64, [f64; 3])>,
 }
@@ -170,7 +171,7 @@ impl TraceCollector {
             prev_label: 0,
             attempt_deepest_mm: 0.0,
             attempt_labels: Vec::new(),
-            peak: None,
+            open: None,
             first_contact: Default::default(),
         }
     }
@@ -223,17 +224,17 @@ impl TraceCollector {
     }
 
     /// Follows the tip through the labels: an advancing entry into a structure not yet entered in
-    /// this attempt is a puncture, credited with the force peak since the previous entry.
+    /// this attempt is a puncture. The tissue at the tip is what the cutting force works against
+    /// (Alg. 3.5 evaluates the material at the tip), so a structure's peak is the largest force
+    /// while the tip is in it, until it moves on.
     fn punctures(&mut self, out: &TickOutput, force_n: f64) {
         let in_body = out.inserted_mm > 0.0 && out.inserted_mm.is_finite() && out.tip_mm.is_finite();
-        if force_n.is_finite() && self.peak.is_none_or(|(_, f)| force_n > f) {
-            self.peak = Some((out.time_s, force_n));
-        }
         if !in_body {
             // Out of the body (or another tool): the next skin entry starts a new attempt.
             self.prev_label = 0;
             self.attempt_deepest_mm = 0.0;
             self.attempt_labels.clear();
+            self.open = None;
             return;
         }
         let label = out.tip_label;
@@ -242,18 +243,27 @@ impl TraceCollector {
             .or_insert((out.time_s, out.tip_mm.to_array()));
         let advancing = out.inserted_mm >= self.attempt_deepest_mm;
         self.attempt_deepest_mm = self.attempt_deepest_mm.max(out.inserted_mm);
-        if label != self.prev_label && label != 0 && advancing && !self.attempt_labels.contains(&label) {
-            self.attempt_labels.push(label);
-            let (peak_t_s, peak_force_n) = self.peak.unwrap_or((out.time_s, force_n));
-            if self.trace.punctures.len() < MAX_PUNCTURES {
-                self.trace.punctures.push(Puncture {
-                    peak_t_s,
-                    peak_force_n,
-                    t_s: out.time_s,
-                    label,
-                });
+        if label != self.prev_label {
+            self.open = None;
+            if label != 0 && advancing && !self.attempt_labels.contains(&label) {
+                self.attempt_labels.push(label);
+                if self.trace.punctures.len() < MAX_PUNCTURES {
+                    self.trace.punctures.push(Puncture {
+                        peak_t_s: out.time_s,
+                        peak_force_n: if force_n.is_finite() { force_n } else { 0.0 },
+                        t_s: out.time_s,
+                        label,
+                    });
+                    self.open = Some(self.trace.punctures.len() - 1);
+                }
             }
-            self.peak = None;
+        }
+        if let Some(p) = self.open.map(|k| &mut self.trace.punctures[k])
+            && force_n.is_finite()
+            && force_n > p.peak_force_n
+        {
+            p.peak_t_s = out.time_s;
+            p.peak_force_n = force_n;
         }
         self.prev_label = label;
     }
@@ -339,24 +349,24 @@ mod tests {
     }
 
     #[test]
-    fn punctures_are_advancing_entries_credited_with_the_peak_before_them() {
-        // Press on the skin (peak 2.5 N at tick 2), enter skin, fat, press on fascia (1.5 N at
-        // tick 6), enter it; retract into fat and advance again (no new puncture); leave; a second
-        // attempt punctures the skin again.
+    fn punctures_are_advancing_entries_with_the_peak_while_inside() {
+        // Skin (peak 2.5 N), fat (1.5 N), fascia (1.2 N); back into fat and on into the fascia
+        // again: no new puncture, and the fascia's closed peak stays; out, and a second attempt
+        // punctures the skin again.
         let c = collect(&[
-            (0.0, 0, 1.0),
-            (0.0, 0, 2.0),
-            (0.0, 0, 2.5),
-            (0.5, 2, 0.4),
+            (0.0, 0, 0.0),
+            (0.2, 2, 1.0),
+            (0.4, 2, 2.5),
             (2.5, 3, 0.3),
             (3.0, 3, 1.0),
             (3.5, 3, 1.5),
             (4.0, 30, 0.2),
+            (4.1, 30, 1.2),
             (3.0, 3, -0.2),
-            (4.0, 30, 0.3),
+            (4.0, 30, 5.0),
             (0.0, 0, 0.0),
-            (0.0, 0, 3.0),
             (0.5, 2, 0.1),
+            (0.6, 2, 0.9),
         ]);
         let p: Vec<(LabelId, f64, f64, f64)> = c
             .trace
@@ -367,10 +377,10 @@ mod tests {
         assert_eq!(
             p,
             vec![
-                (2, 0.002, 2.5, 0.003),
-                (3, 0.004, 0.3, 0.004),
-                (30, 0.006, 1.5, 0.007),
-                (2, 0.011, 3.0, 0.012),
+                (2, 0.002, 2.5, 0.001),
+                (3, 0.005, 1.5, 0.003),
+                (30, 0.007, 1.2, 0.006),
+                (2, 0.012, 0.9, 0.011),
             ]
         );
     }

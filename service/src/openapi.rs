@@ -241,7 +241,7 @@ pub fn document() -> Value {
                 "security": [{ "cookie": [] }, { "token": [] }],
                 "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
                 "requestBody": { "required": true, "content": { "application/json": { "schema": {
-                    "type": "object", "required": ["body"], "properties": { "body": { "type": "string" } } } } } },
+                    "type": "object", "required": ["body"], "properties": { "body": { "type": "string" }, "at_s": { "type": "number", "minimum": 0, "description": "moment of the session (s from its start) the comment points at" } } } } } },
                 "responses": { "201": { "description": "stored" }, "400": error_response("bad body"), "403": error_response("not a reviewer of this trainee"), "404": error_response("no such session") }
             } },
             "/api/trainees/{username}/progress": { "get": {

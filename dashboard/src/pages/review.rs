@@ -97,8 +97,15 @@ pub async fn review(
             .and_then(|sc| sc.atlas().label_table().get(l).map(|x| x.name.clone()))
             .unwrap_or_else(|| format!("label {l}"))
     };
+    // Peaks are named for the structures a reader looks for (skin, fascia, organs, ducts, risk
+    // structures), not air or the unlabelled soft tissue between them.
+    let peak_name = |l: stylet_physics::LabelId| {
+        let table = scorer.as_ref()?.atlas().label_table();
+        let h = table.heuristic();
+        (l != h.air && l != h.fat).then(|| label_name(l))
+    };
     let charts = match review_trace(&s, &row.file_sha256, &row.atlas_hash).await {
-        Ok(trace) => charts_block(&trace, &row, &review, &label_name)?,
+        Ok(trace) => charts_block(&trace, &row, &review, &peak_name)?,
         Err(e) => html! { p.error { "The force curves cannot be shown: " (e) } },
     };
     let rubric = scorer.as_ref().map(|sc| sc.rubric().clone());
@@ -110,6 +117,7 @@ pub async fn review(
         h2 { "Tip path over the CT" }
         p.muted { "Axial, coronal and sagittal slices through the deepest tip position; the needle tip's path (cyan) and the planned path (dashed orange) projected onto each plane; partial labels in colour (legend below the slices)." }
         img.figure #tip-path src={ "/sessions/" (row.id) "/slices.png" } alt="Needle tip path and planned path over CT slices with the label overlay";
+        (figure_legend(&report))
         (guided_block(&report))
         h2 { "Risk-structure hits" }
         (risk_table(&report))
@@ -189,7 +197,7 @@ fn charts_block(
     trace: &ReviewTrace,
     row: &SessionRow,
     review: &serde_json::Value,
-    label_name: &dyn Fn(stylet_physics::LabelId) -> String,
+    peak_name: &dyn Fn(stylet_physics::LabelId) -> Option<String>,
 ) -> Result<Markup, PageError> {
     let svg = |c| inline_svg(&c).map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e));
     let notes = comment_notes(review);
@@ -197,7 +205,7 @@ fn charts_block(
         trace,
         &format!("Force on the hand — {} ({})", row.scenario, row.trainee),
     );
-    force.peaks = puncture_peaks(trace, label_name);
+    force.peaks = puncture_peaks(trace, peak_name);
     force.notes = notes.clone();
     let mut depth = depth_chart(trace, &format!("Insertion depth — {} ({})", row.scenario, row.trainee));
     depth.notes = notes;
@@ -207,6 +215,18 @@ fn charts_block(
         div #depth-chart { (PreEscaped(depth)) }
         p.muted { "Forces: the sample of largest magnitude in every 20 ms, so puncture peaks are kept. Positive = against the insertion. Each force peak that broke into a structure is named (skin, fascia, liver, duct …); blue dashed lines are the instructors' comments at a moment (numbered as in the review below)." }
     })
+}
+
+/// The figure's line legend, also in text (the PNG carries it too).
+fn figure_legend(r: &ScoreReport) -> Markup {
+    let swatch = |css: &str| html! { span aria-hidden="true" style={ "display:inline-block;width:2.2rem;vertical-align:middle;margin-right:.4rem;border-top:" (css) } {} };
+    html! {
+        ul.muted #tip-path-legend style="list-style:none;padding-left:0" {
+            li { (swatch("3px solid #00e6ff")) "needle tip path" }
+            @if let Some(g) = &r.metrics.guided { li { (swatch("3px dashed #ffaa00")) "planned path '" (g.path) "' (the path the deviation below is measured against)" } }
+            li { (swatch("1px solid #ffdc50")) "crosshair: the deepest tip position" }
+        }
+    }
 }
 
 /// How far the scored attempt was from the planned path (guided mode, docs/metrics.md).

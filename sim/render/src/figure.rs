@@ -299,15 +299,6 @@ pub fn figure(atlas: &PunctureAtlas, spec: &FigureSpec, png: &Path) -> Result<()
             let at = |p: (f64, f64)| (ox + p.0.round() as i32, oy + p.1.round() as i32);
             let (wf, hf) = (w as f64 - 1.0, h as f64 - 1.0);
             // Clipped to the panel: a path projected from far away must not spill onto the next.
-            for (_, a, b) in &spec.planned {
-                let style = ShapeStyle::from(&rgb(PLANNED_RGB)).stroke_width(3);
-                for [a, b] in clipped(&[local(*a), local(*b)], wf, hf) {
-                    for dash in dashes(&[a, b], 10.0, 7.0) {
-                        let dash: Vec<(i32, i32)> = dash.iter().map(|p| (ox + p.0, oy + p.1)).collect();
-                        draw(root.draw(&PathElement::new(dash, style)))?;
-                    }
-                }
-            }
             for line in &spec.needle {
                 let pts: Vec<(f64, f64)> = line.iter().map(|p| local(*p)).collect();
                 for [a, b] in clipped(&pts, wf, hf) {
@@ -315,6 +306,16 @@ pub fn figure(atlas: &PunctureAtlas, spec: &FigureSpec, png: &Path) -> Result<()
                         vec![at(a), at(b)],
                         ShapeStyle::from(&rgb(NEEDLE_RGB)).stroke_width(2),
                     )))?;
+                }
+            }
+            // The planned path over the needle's: dashed, so a needle that followed it shows between.
+            for (_, a, b) in &spec.planned {
+                let style = ShapeStyle::from(&rgb(PLANNED_RGB)).stroke_width(3);
+                for [a, b] in clipped(&[local(*a), local(*b)], wf, hf) {
+                    for dash in dashes(&[a, b], 10.0, 7.0) {
+                        let dash: Vec<(i32, i32)> = dash.iter().map(|p| (ox + p.0, oy + p.1)).collect();
+                        draw(root.draw(&PathElement::new(dash, style)))?;
+                    }
                 }
             }
             if let Some(m) = &spec.mark {
@@ -401,4 +402,33 @@ fn write_png(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(),
     let mut w = enc.write_header().map_err(|e| err(e.to_string()))?;
     w.write_image_data(rgb).map_err(|e| err(e.to_string()))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn segments_are_clipped_to_the_panel() {
+        assert_eq!(
+            clip((-10.0, 5.0), (20.0, 5.0), 10.0, 10.0),
+            Some(((0.0, 5.0), (10.0, 5.0)))
+        );
+        assert_eq!(clip((2.0, 2.0), (3.0, 4.0), 10.0, 10.0), Some(((2.0, 2.0), (3.0, 4.0))));
+        assert_eq!(clip((-5.0, -5.0), (-1.0, 20.0), 10.0, 10.0), None);
+        assert_eq!(clip((f64::NAN, 0.0), (1.0, 1.0), 10.0, 10.0), None);
+        assert_eq!(clipped(&[(-5.0, 5.0), (5.0, 5.0), (5.0, 50.0)], 10.0, 10.0).len(), 2);
+    }
+
+    #[test]
+    fn dashes_alternate_along_the_line() {
+        let d = dashes(&[(0.0, 0.0), (40.0, 0.0)], 10.0, 5.0);
+        let spans: Vec<(i32, i32)> = d.iter().map(|s| (s[0].0, s[1].0)).collect();
+        assert_eq!(spans, vec![(0, 10), (15, 25), (30, 40)]);
+        // The pattern carries on across a corner.
+        let d = dashes(&[(0.0, 0.0), (8.0, 0.0), (8.0, 10.0)], 10.0, 5.0);
+        assert_eq!(d[0], vec![(0, 0), (8, 0)]);
+        assert_eq!(d[1], vec![(8, 0), (8, 2)]);
+        assert_eq!(d[2], vec![(8, 7), (8, 10)]);
+    }
 }
