@@ -5,7 +5,8 @@ use super::store::ExportRow;
 
 /// The header line; the columns are documented in docs/api.md.
 pub const SESSIONS_CSV_HEADER: &str = "session_id,trainee,cohorts,scenario,difficulty,status,recorded_at,uploaded_at,\
-duration_s,score,passed,overridden,attempts,risk_hits,replay_verified,rubric_version,physics_version";
+duration_s,score,passed,overridden,attempts,risk_hits,replay_verified,rubric_version,physics_version,\
+exercise,target_reached,structures_hit,outcome,reasons";
 
 /// A field quoted when it holds a comma, quote or line break (RFC 4180). Text that a spreadsheet
 /// would run as a formula (`=`, `+`, `-`, `@`, tab or carriage return first) gets a leading
@@ -52,6 +53,12 @@ pub fn sessions_csv(rows: &[ExportRow]) -> String {
             opt(l.replay_verified),
             opt(l.rubric_version),
             l.physics_version.to_string(),
+            r.outcome.exercise.as_str().to_string(),
+            opt(r.outcome.target_reached),
+            field(&r.outcome.risk_structures.join(";")),
+            r.outcome.outcome.map(|o| o.as_str().to_string()).unwrap_or_default(),
+            // Reasons are sentences for people; " | " keeps them on one line.
+            field(&r.outcome.reasons.join(" | ")),
         ];
         out += &cells.join(",");
         out.push('\n');
@@ -72,6 +79,6 @@ mod tests {
         assert_eq!(field("\t=1+2"), "'\t=1+2");
         assert_eq!(field("\r=1+2"), "\"'\r=1+2\"");
         assert_eq!(field("-1,2"), "\"'-1,2\"");
-        assert_eq!(SESSIONS_CSV_HEADER.split(',').count(), 17);
+        assert_eq!(SESSIONS_CSV_HEADER.split(',').count(), 22);
     }
 }

@@ -48,7 +48,11 @@ pub async fn check(s: &AppState, user: &User, bytes: &axum::body::Bytes) -> Resu
                 s.config.limits.max_session_s / 60
             )
         } else {
-            String::new()
+            // A cut or damaged recording: what was saved can still be kept (and reviewed; it is
+            // not gradeable).
+            " — if the recording was cut off or damaged, run `stylet session recover FILE --out FIXED.mcap` \
+             and upload the recovered file: it keeps what was saved and is shown as not gradeable"
+                .to_string()
         };
         err(
             StatusCode::UNPROCESSABLE_ENTITY,

@@ -169,14 +169,48 @@ impl Store {
                 let id: String = r.try_get("id")?;
                 let report: stylet_scoring::ScoreReport = serde_json::from_str(&r.try_get::<String, _>("report_json")?)
                     .map_err(|e| StoreError::Invalid(format!("stored report of session {id}: {e}")))?;
-                sqlx::query("UPDATE sessions SET outcome = $1, reasons = $2 WHERE id = $3")
-                    .bind(report.outcome.as_str())
-                    .bind(join_reasons(&report.reasons))
-                    .bind(id)
+                let summary = Summary::from_report(&report);
+                sqlx::query(
+                    "UPDATE sessions SET outcome = $1, reasons = $2, target_reached = $3, risk_structures = $4 WHERE id = $5",
+                )
+                .bind(summary.outcome.as_str())
+                .bind(join_reasons(&summary.reasons))
+                .bind(i64::from(summary.target_reached))
+                .bind(join_structures(&summary.risk_structures))
+                .bind(id)
                     .execute(&self.pool)
                     .await?;
             }
         }
+    }
+}
+
+impl Store {
+    /// The outcome columns of every session, by id (one query: the CSV export joins them to its
+    /// lines).
+    pub async fn outcome_columns(&self) -> Result<std::collections::BTreeMap<String, OutcomeColumns>, StoreError> {
+        let rows = sqlx::query("SELECT id, exercise, outcome, reasons, target_reached, risk_structures FROM sessions")
+            .fetch_all(&self.pool)
+            .await?;
+        let mut out = std::collections::BTreeMap::new();
+        for r in rows {
+            let structures: Option<String> = r.try_get("risk_structures")?;
+            out.insert(
+                r.try_get::<String, _>("id")?,
+                OutcomeColumns {
+                    exercise: Exercise::parse(&r.try_get::<String, _>("exercise")?).unwrap_or_default(),
+                    outcome: r
+                        .try_get::<Option<String>, _>("outcome")?
+                        .and_then(|o| Outcome::parse(&o)),
+                    reasons: split_reasons(r.try_get::<Option<String>, _>("reasons")?.as_deref()),
+                    target_reached: r.try_get::<Option<i64>, _>("target_reached")?.map(|v| v != 0),
+                    risk_structures: structures
+                        .map(|s| s.split(';').filter(|n| !n.is_empty()).map(str::to_string).collect())
+                        .unwrap_or_default(),
+                },
+            );
+        }
+        Ok(out)
     }
 }
 
@@ -204,6 +238,9 @@ pub struct Summary {
     pub outcome: Outcome,
     /// In plain words, one per line on the row.
     pub reasons: Vec<String>,
+    pub target_reached: bool,
+    /// Names of the risk structures hit.
+    pub risk_structures: Vec<String>,
 }
 
 impl Summary {
@@ -218,6 +255,8 @@ impl Summary {
             exercise: r.exercise,
             outcome: r.outcome,
             reasons: r.reasons.clone(),
+            target_reached: r.metrics.target_reached,
+            risk_structures: r.metrics.risk_hits.iter().map(|h| h.structure.clone()).collect(),
         }
     }
 
@@ -238,6 +277,21 @@ pub fn join_reasons(reasons: &[String]) -> String {
         .join("\n")
 }
 
+/// Risk structure names as stored: `;`-separated (a `;` inside a name becomes `,`).
+fn join_structures(names: &[String]) -> String {
+    names.iter().map(|n| n.replace(';', ",")).collect::<Vec<_>>().join(";")
+}
+
+/// What the CSV shows of a session's outcome (migration 0005), by session id.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct OutcomeColumns {
+    pub exercise: Exercise,
+    pub outcome: Option<Outcome>,
+    pub reasons: Vec<String>,
+    pub target_reached: Option<bool>,
+    pub risk_structures: Vec<String>,
+}
+
 /// The reasons of a row's `reasons` column.
 pub fn split_reasons(stored: Option<&str>) -> Vec<String> {
     stored
@@ -256,7 +310,7 @@ pub(super) async fn write_summary(
         "UPDATE sessions SET status = 'scored', attempts = $1, risk_hits = $2, replay_verified = $3, rubric_version = $4, \
          final_score = CASE WHEN overridden = 1 THEN final_score ELSE $5 END, \
          final_passed = CASE WHEN overridden = 1 THEN final_passed ELSE $6 END, \
-         exercise = $8, outcome = $9, reasons = $10 WHERE id = $7",
+         exercise = $8, outcome = $9, reasons = $10, target_reached = $11, risk_structures = $12 WHERE id = $7",
     )
     .bind(s.attempts)
     .bind(s.risk_hits)
@@ -268,6 +322,8 @@ pub(super) async fn write_summary(
     .bind(s.exercise.as_str())
     .bind(s.outcome.as_str())
     .bind(join_reasons(&s.reasons))
+    .bind(i64::from(s.target_reached))
+    .bind(join_structures(&s.risk_structures))
     .execute(&mut **tx)
     .await?;
     Ok(())

@@ -24,7 +24,7 @@ pub use instructors::{
     CompareSearch, DatedScore, LevelTotals, OutcomeFilter, PROGRESS_POINTS, PROGRESS_RECENT, QUEUE_PAGE, QueueReason,
     QueueScope, ReviewLine, RiskSession, SEARCH_PAGE, TraineeProgress,
 };
-pub use jobs::{Job, join_reasons, split_reasons};
+pub use jobs::{Job, OutcomeColumns, join_reasons, split_reasons};
 pub use reports::{DayCount, FAILED_READ_MAX, FailureBreakdown, FailureCause, TREND_ROWS_MAX};
 pub use review::{ExportRow, ProgressPoint, TraineeSummary};
 pub use status::SessionStatus;

@@ -180,10 +180,12 @@ impl Store {
                 .or_default()
                 .push(m.try_get("name")?);
         }
+        let mut outcomes = self.outcome_columns().await?;
         Ok(lines
             .into_iter()
             .map(|line| ExportRow {
                 cohorts: cohorts.get(&line.trainee).map(|c| c.join(";")).unwrap_or_default(),
+                outcome: outcomes.remove(&line.id).unwrap_or_default(),
                 line,
             })
             .collect())
@@ -218,6 +220,8 @@ pub struct TraineeSummary {
 pub struct ExportRow {
     pub line: SessionLine,
     pub cohorts: String,
+    /// Exercise, outcome, reasons, target reached, structures hit (migration 0005).
+    pub outcome: super::OutcomeColumns,
 }
 
 /// The latest override of a session, if any: (score, passed).
