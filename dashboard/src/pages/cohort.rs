@@ -1,6 +1,6 @@
 //! `GET /cohorts/{name}`: an instructor's view of a cohort. Trainees with their totals and a
 //! sparkline of their latest scores, filters (dates, scenario, difficulty), the cohort's
-//! sessions, and a form that puts two sessions' force curves on one chart (`GET /compare`).
+//! sessions, and a form that opens two of them in the comparison (`GET /compare`, compare.rs).
 
 use std::sync::Arc;
 
@@ -11,12 +11,10 @@ use maud::{Markup, PreEscaped, html};
 use stylet_service::AppState;
 use stylet_service::api::{ListQuery, PAGE_SIZE};
 use stylet_service::store::{ScorePoint, SessionLine, TraineeSummary};
-use stylet_service::traces::review_trace;
 
 use crate::auth::{PageError, Viewer, fail, viewer};
-use crate::charts::{compare_chart, inline_svg, sparkline};
-use crate::layout::{page, pager, result_badge, score_text, sessions_table, short_time};
-use crate::pages::review::{require_scored, visible_session};
+use crate::charts::sparkline;
+use crate::layout::{page, pager, score_text, sessions_table, short_time};
 use crate::pages::sessions::{filter_form, filter_query};
 
 /// Scores per trainee in a sparkline.
@@ -137,68 +135,4 @@ fn without_cohort_page(uri: &Uri) -> i64 {
         .find_map(|kv| kv.strip_prefix("page=")?.parse().ok())
         .unwrap_or(1i64)
         .max(1)
-}
-
-#[derive(serde::Deserialize)]
-pub struct CompareQuery {
-    a: String,
-    b: String,
-}
-
-/// `GET /compare?a=ID&b=ID`: two sessions' force curves on one chart.
-pub async fn compare(
-    State(s): State<Arc<AppState>>,
-    headers: HeaderMap,
-    uri: Uri,
-    Query(q): Query<CompareQuery>,
-) -> Result<Html<String>, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
-    let a = visible_session(&s, &v, &q.a).await?;
-    let b = visible_session(&s, &v, &q.b).await?;
-    require_scored(&a)?;
-    require_scored(&b)?;
-    let trace = |r: &stylet_service::store::SessionRow| {
-        let (sha, atlas) = (r.file_sha256.clone(), r.atlas_hash.clone());
-        let s = s.clone();
-        async move { review_trace(&s, &sha, &atlas).await }
-    };
-    let ta = trace(&a)
-        .await
-        .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e))?;
-    let tb = trace(&b)
-        .await
-        .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e))?;
-    let label = |r: &stylet_service::store::SessionRow| format!("A {} {}", r.trainee, r.scenario);
-    let (la, lb) = (label(&a), label(&b).replacen("A ", "B ", 1));
-    let svg =
-        inline_svg(&compare_chart((&ta, &la), (&tb, &lb))).map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e))?;
-    let grade = |r: &stylet_service::store::SessionRow| {
-        let g = r.score.as_ref().map(|s| &s["grade"]);
-        (
-            g.and_then(|g| g["score"].as_f64()),
-            g.and_then(|g| g["passed"].as_bool()),
-        )
-    };
-    Ok(page(
-        "Compare sessions",
-        Some(&v),
-        html! {
-            h1 { "Two sessions compared" }
-            div #compare-chart { (PreEscaped(svg)) }
-            p.muted { "Solid: session A; dashed: session B. Black: total force; red: cutting force." }
-            table {
-                thead { tr { th { "" } th { "Trainee" } th { "Scenario" } th { "Difficulty" } th { "Uploaded (UTC)" } th.num { "Computed score" } th { "Result" } } }
-                tbody {
-                    @for (tag, r) in [("A", &a), ("B", &b)] {
-                        @let (score, passed) = grade(r);
-                        tr {
-                            td { a href={ "/sessions/" (r.id) } { (tag) } }
-                            td { (r.trainee) } td { (r.scenario) } td { (r.difficulty) } td { (short_time(&r.uploaded_at)) }
-                            td.num { (score_text(score)) } td { (result_badge(passed, false)) }
-                        }
-                    }
-                }
-            }
-        },
-    ))
 }

@@ -116,6 +116,11 @@ async fn staff_home(s: &AppState, v: &Viewer) -> Result<Markup, PageError> {
         )
         .await?;
     let role = v.role();
+    // Instructors' and admins' review queue: how many sessions wait (one count; the page lists them).
+    let (_, to_review) = s
+        .store
+        .review_queue(&v.user, stylet_service::store::QueueScope::All, 0, 0)
+        .await?;
     Ok(html! {
         h1 {
             @match role {
@@ -127,6 +132,9 @@ async fn staff_home(s: &AppState, v: &Viewer) -> Result<Markup, PageError> {
         }
         h2 { @if role == "instructor" { "My cohorts" } @else { "Cohorts" } }
         (cohorts_table(&cohorts))
+        @if role == "instructor" || role == "admin" {
+            p #home-review-queue { a href="/review-queue" { (to_review) " sessions need review (not yet commented; risk hits and failures marked) →" } }
+        }
         @if role == "curriculum" || role == "admin" {
             p { a href="/reports" { "Cohort reports and the sessions CSV export →" } }
         }

@@ -2,7 +2,9 @@
 
 pub mod admin;
 pub mod cohort;
+pub mod compare;
 pub mod home;
+pub mod instructors;
 pub mod login;
 pub mod reports;
 pub mod review;
