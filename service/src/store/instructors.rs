@@ -9,7 +9,7 @@ use sqlx::Row;
 use stylet_scoring::rubric::LEVELS;
 use stylet_scoring::{Exercise, Outcome};
 
-use super::{Role, Store, StoreError, User};
+use super::{Role, SessionStatus, Store, StoreError, User};
 
 /// Queue lines per page.
 pub const QUEUE_PAGE: i64 = 50;
@@ -57,8 +57,7 @@ pub struct ReviewLine {
     pub trainee: String,
     pub scenario: String,
     pub difficulty: String,
-    /// `queued`, `scoring`, `scored` or `failed`.
-    pub status: String,
+    pub status: SessionStatus,
     pub uploaded_at: String,
     pub score: Option<f64>,
     pub passed: Option<bool>,
@@ -81,7 +80,7 @@ impl ReviewLine {
         if self.risk_hits.unwrap_or(0) > 0 {
             out.push(QueueReason::RiskHit);
         }
-        if self.status == "failed" {
+        if self.status == SessionStatus::Failed {
             out.push(QueueReason::ScoringFailed);
         } else if self.outcome == Some(Outcome::NotGradeable) {
             out.push(QueueReason::NotGradeable);
@@ -486,7 +485,7 @@ mod tests {
             trainee: "t".into(),
             scenario: "s".into(),
             difficulty: "beginner".into(),
-            status: status.into(),
+            status: SessionStatus::parse(status).unwrap(),
             uploaded_at: String::new(),
             score: None,
             passed,
