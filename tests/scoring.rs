@@ -53,7 +53,8 @@ impl Setup {
     }
 }
 
-const SCRIPTS: [&str; 7] = [
+const SCRIPTS: [&str; 8] = [
+    "probe-no-target",
     "success-intercostal",
     "two-attempts",
     "lung-hit",
@@ -186,6 +187,78 @@ fn every_example_script_scores_as_its_name_says() {
         assert!(m["ultrasound_time_s"].as_f64().unwrap() > 5.0, "{probe}: {m}");
         assert_eq!(m["attempts"], 0);
     }
+    // Exercises: the palpation and probe scripts are graded as what they practise, and pass.
+    let exercise = |n: &str| (get(n)["exercise"].clone(), get(n)["outcome"].clone());
+    for (n, e) in [
+        ("success-intercostal", "puncture"),
+        ("lung-hit", "puncture"),
+        ("palpation-sweep", "palpation"),
+        ("probe-parallel", "ultrasound_survey"),
+        ("probe-across", "ultrasound_survey"),
+    ] {
+        assert_eq!(get(n)["exercise"], e, "{n}");
+        assert_eq!(get(n)["grade"]["exercise"], e, "{n}");
+    }
+    for n in [
+        "palpation-sweep",
+        "probe-parallel",
+        "probe-across",
+        "success-intercostal",
+    ] {
+        assert_eq!(exercise(n).1, "passed", "{n}: {}", get(n)["reasons"]);
+    }
+    let palp = &get("palpation-sweep")["metrics"]["palpation"];
+    assert!(palp["spaces_found"].as_u64().unwrap() >= 3, "{palp}");
+    assert_eq!(palp["spaces_found"], palp["spaces_crossed"], "{palp}");
+    for probe in ["probe-across", "probe-parallel"] {
+        let u = &get(probe)["metrics"]["ultrasound"];
+        assert_eq!(u["target_scanned"], true, "{probe}: {u}");
+        // Ultrasound in a session without a puncture is not "missing".
+        assert_eq!(get(probe)["metrics"]["workflow"]["ultrasound_before_puncture"], true);
+    }
+    // The poor survey never shows the target and fails, saying so in words.
+    let poor = get("probe-no-target");
+    assert_eq!(poor["exercise"], "ultrasound_survey");
+    assert_eq!(poor["outcome"], "failed");
+    assert_eq!(poor["metrics"]["ultrasound"]["target_scanned"], false);
+    let reasons: Vec<&str> = poor["reasons"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r.as_str().unwrap())
+        .collect();
+    assert!(
+        reasons
+            .iter()
+            .any(|r| r.contains("target never came within 5 mm of the ultrasound image")),
+        "{reasons:?}"
+    );
+    // Failed punctures say why in words, with the consequence from the atlas TOML.
+    let lung = get("lung-hit");
+    assert_eq!(lung["outcome"], "failed");
+    assert_eq!(lung["metrics"]["risk_hits"][0]["consequence"], "pneumothorax");
+    let why = lung["reasons"].to_string();
+    assert!(why.contains("right lung") && why.contains("pneumothorax"), "{why}");
+    assert!(why.contains("is below the pass mark of 60 for beginner"), "{why}");
+    // No metric identifier in any text meant for people.
+    for (name, r) in &scores {
+        for text in r["reasons"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .chain(r["grade"]["failed"].as_array().unwrap())
+        {
+            let text = text.as_str().unwrap();
+            // (Identifiers without an underscore, like "attempts", are plain words.)
+            for id in stylet_scoring::rubric::RUBRIC_METRICS
+                .iter()
+                .filter(|id| id.contains('_'))
+            {
+                assert!(!text.contains(id), "{name}: '{id}' in {text}");
+            }
+            assert!(!text.contains('_'), "{name}: {text}");
+        }
+    }
     // Text output names the verdict.
     let text = ok(&["score", s(&setup().session("lung-hit")), "--atlas", s(&setup().atlas())]);
     assert!(
@@ -271,6 +344,12 @@ fn recovered_sessions_are_scored_and_flagged_incomplete() {
         );
         // What is there still replays bit for bit.
         assert_eq!(r["replay_verified"], true);
+        // Never graded 0 / failed: not gradeable, saying what was lost.
+        assert_eq!(r["outcome"], "not_gradeable", "{}", file.display());
+        let why = r["reasons"][0].as_str().unwrap();
+        assert!(why.starts_with("Not gradeable") && why.contains("damaged"), "{why}");
+        let text = ok(&["score", s(file), "--atlas", s(&st.atlas())]);
+        assert!(text.contains("NOT GRADEABLE") && !text.contains("FAILED"), "{text}");
         let ticks = r["ticks"].as_u64().unwrap();
         assert!(ticks > 10_000 && ticks < 34_000, "{ticks}");
     }
@@ -467,4 +546,55 @@ fn tissue_damage_and_bending_are_zero_only_for_a_straight_insertion() {
         "swept sideways while inserted: {swept:?}"
     );
     assert!(loaded.1 > 0.5, "loaded sideways at the hub: {loaded:?}");
+}
+
+/// Reports stored before exercises and outcomes still load: punctures, outcome from the grade,
+/// reasons phrased again in words.
+#[test]
+fn reports_stored_before_outcomes_still_load() {
+    let st = setup();
+    let mut v = score_json(&st.session("lung-hit"));
+    let obj = v.as_object_mut().unwrap();
+    for key in ["exercise", "outcome", "reasons"] {
+        obj.remove(key);
+    }
+    let grade = obj["grade"].as_object_mut().unwrap();
+    for key in ["exercise", "pass_score", "unmet"] {
+        grade.remove(key);
+    }
+    for d in grade["deductions"].as_array_mut().unwrap() {
+        d.as_object_mut().unwrap().remove("free");
+    }
+    for h in obj["metrics"]["risk_hits"].as_array_mut().unwrap() {
+        let h = h.as_object_mut().unwrap();
+        h.remove("consequence");
+        h.remove("point_mm");
+    }
+    let old: stylet_scoring::ScoreReport = serde_json::from_value(v).unwrap();
+    assert_eq!(old.exercise, stylet_scoring::Exercise::Puncture);
+    assert_eq!(old.outcome, stylet_scoring::Outcome::Failed);
+    assert!(
+        old.reasons.iter().any(|r| r.contains("right lung")),
+        "{:?}",
+        old.reasons
+    );
+    assert!(old.reasons.iter().all(|r| !r.contains('_')), "{:?}", old.reasons);
+}
+
+/// A finger pressed in one place crosses no intercostal space: the palpation fails, in words.
+#[test]
+fn a_palpation_that_does_not_sweep_fails_with_its_reason() {
+    let text = "stylet-script 1\ndevice premium\ntool finger\nend 6\n\nat 0 pos 175 8 60 dir -1 0 0\nat 0.5 press -1 0 0 1.0\nat 6 release\n";
+    // Recorded under the palpation scenario's name, so graded as a palpation.
+    let r = score_text("palpation-sweep", text);
+    assert_eq!(r["exercise"], "palpation");
+    assert_eq!(r["outcome"], "failed");
+    assert_eq!(r["metrics"]["palpation"]["spaces_found"], 0);
+    assert!(
+        r["reasons"]
+            .to_string()
+            .contains("0 intercostal spaces found: at least 1 required."),
+        "{}",
+        r["reasons"]
+    );
 }
