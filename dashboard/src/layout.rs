@@ -56,6 +56,9 @@ body { overflow-wrap:break-word; }
 img, svg, video { max-width:100%; }
 input, select, textarea { max-width:100%; }
 .scroll { overflow-x:auto; max-width:100%; }
+/* A grid cell may shrink below its content's width (a textarea's cols would widen the page). */
+.grid2 > * { min-width:0; }
+@media (max-width: 900px) { .grid2 { grid-template-columns: minmax(0, 1fr); } }
 @media (max-width: 700px) {
   header.top { gap:.4rem .9rem; padding:.5rem .8rem; }
   header.top nav { gap:.3rem .9rem; flex-basis:100%; order:3; }

@@ -1,0 +1,272 @@
+//! Phones and tablets (issue 14, item 9): at a 390 × 844 window, every page each role can open is
+//! no wider than the window (`document.documentElement.scrollWidth <= window.innerWidth`: no
+//! sideways scrolling; wide tables scroll inside their own box), and "Log out" is on screen.
+//! Headless Chromium through ChromeDriver, as tests/dashboard.rs. Full-page screenshots go to
+//! `$STYLET_SHOTS` (default `$CARGO_TARGET_TMPDIR/phone-screenshots/`) to be looked at.
+//!
+//! To add a page: add its path to the role's list in [`pages_of`].
+
+mod common;
+
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::*;
+use fantoccini::{Client, ClientBuilder, Locator};
+use serde_json::{Value, json};
+
+const CHROMIUM: &str = "/usr/bin/chromium";
+const CHROMEDRIVER: &str = "/usr/bin/chromedriver";
+const PHONE: (u32, u32) = (390, 844);
+
+struct Driver {
+    child: Child,
+    url: String,
+}
+
+impl Driver {
+    fn start() -> Driver {
+        for bin in [CHROMIUM, CHROMEDRIVER] {
+            assert!(
+                Path::new(bin).is_file(),
+                "{bin} is missing: scripts/test installs the Debian packages chromium and chromium-driver"
+            );
+        }
+        let port = TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+        let child = Command::new(CHROMEDRIVER)
+            .arg(format!("--port={port}"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("chromedriver starts");
+        let t0 = Instant::now();
+        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+            assert!(t0.elapsed() < Duration::from_secs(20), "chromedriver did not listen");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        Driver {
+            child,
+            url: format!("http://127.0.0.1:{port}"),
+        }
+    }
+}
+
+impl Drop for Driver {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+async fn phone_browser(driver: &Driver, profile: &Path) -> Client {
+    let mut args: Vec<String> = [
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--disable-dev-shm-usage",
+        "--hide-scrollbars",
+    ]
+    .iter()
+    .map(|a| a.to_string())
+    .collect();
+    args.push(format!("--window-size={},{}", PHONE.0, PHONE.1));
+    args.push(format!("--user-data-dir={}", profile.display()));
+    let caps = json!({
+        "browserName": "chrome",
+        "goog:chromeOptions": { "binary": CHROMIUM, "args": args }
+    });
+    let Value::Object(caps) = caps else { unreachable!() };
+    ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
+        .capabilities(caps)
+        .connect(&driver.url)
+        .await
+        .expect("a Chromium session")
+}
+
+fn shots() -> PathBuf {
+    let d = std::env::var_os("STYLET_SHOTS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_TARGET_TMPDIR")).join("phone-screenshots"));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+async fn number(c: &Client, js: &str) -> f64 {
+    c.execute(js, vec![]).await.unwrap().as_f64().unwrap()
+}
+
+/// A full-page screenshot at phone width (the window grows to the page's height, then back).
+async fn shot(c: &Client, name: &str) {
+    c.execute("window.scrollTo(0, 0)", vec![]).await.unwrap();
+    let h = number(c, "return document.documentElement.scrollHeight").await as u32;
+    c.set_window_size(PHONE.0, (h + 20).clamp(PHONE.1, 6000)).await.unwrap();
+    let png = c.screenshot().await.unwrap();
+    std::fs::write(shots().join(format!("{name}.png")), png).unwrap();
+    c.set_window_size(PHONE.0, PHONE.1).await.unwrap();
+}
+
+async fn log_in(c: &Client, base: &str, user: &str) {
+    c.goto(&format!("{base}/login")).await.unwrap();
+    c.find(Locator::Id("username"))
+        .await
+        .unwrap()
+        .send_keys(user)
+        .await
+        .unwrap();
+    c.find(Locator::Id("password"))
+        .await
+        .unwrap()
+        .send_keys(&format!("{user}-password"))
+        .await
+        .unwrap();
+    c.find(Locator::Css("form.login button[type=submit]"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    c.wait()
+        .at_most(Duration::from_secs(20))
+        .for_element(Locator::Css("header.top .who"))
+        .await
+        .unwrap_or_else(|e| panic!("{user} is not logged in: {e}"));
+}
+
+/// The pages each role can open (GET, HTML), with the ids of a session of tina's (`a`, `b`).
+fn pages_of(role: &str, a: &str, b: &str) -> Vec<String> {
+    let mut p: Vec<String> = vec![
+        "/".into(),
+        "/sessions".into(),
+        format!("/sessions/{a}"),
+        "/tokens".into(),
+    ];
+    let staff: Vec<String> = vec![
+        "/cohorts".into(),
+        "/cohorts/c1".into(),
+        "/compare".into(),
+        format!("/compare?a={a}&b={b}"),
+        "/trainees/tina".into(),
+        "/reports".into(),
+        "/reports/cohort?cohort=c1".into(),
+    ];
+    match role {
+        "trainee" => p.push("/trainees/tina".into()),
+        "instructor" => {
+            p.extend(staff);
+            p.push("/review-queue".into());
+        }
+        "curriculum" => p.extend(staff),
+        "admin" => {
+            p.extend(staff);
+            p.push("/review-queue".into());
+            p.push("/admin/users".into());
+        }
+        _ => unreachable!(),
+    }
+    p
+}
+
+#[test]
+fn every_page_fits_a_phone_for_every_role() {
+    let db = Db::Sqlite;
+    let f = Fixture::new();
+    f.users(&db);
+    let srv = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "2"]);
+    let base = srv.base.clone();
+    let tina = login(&base, "tina");
+    let mut ids = Vec::new();
+    for name in ["tina-lung", "tina-ok"] {
+        let body = std::fs::read(f.session(name)).unwrap();
+        let (status, json, _) = call("POST", &format!("{base}/api/sessions"), Some(&tina), Some(&body), false);
+        assert_eq!(status, 201, "{json}");
+        let id = json["id"].as_str().unwrap().to_string();
+        assert_eq!(wait_scored(&base, &tina, &id)["status"], "scored");
+        ids.push(id);
+    }
+    let driver = Driver::start();
+    let profiles = tempfile::tempdir().unwrap();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let mut too_wide = Vec::new();
+        for (user, role) in [
+            ("tina", "trainee"),
+            ("ivan", "instructor"),
+            ("cora", "curriculum"),
+            ("root", "admin"),
+        ] {
+            let c = phone_browser(&driver, &profiles.path().join(user)).await;
+            c.set_window_size(PHONE.0, PHONE.1).await.unwrap();
+            c.goto(&format!("{base}/login")).await.unwrap();
+            let inner = number(&c, "return window.innerWidth").await;
+            assert_eq!(inner, f64::from(PHONE.0), "the window's inner width is the phone's");
+            if role == "trainee" {
+                let w = number(&c, "return document.documentElement.scrollWidth").await;
+                assert!(w <= inner, "/login is {w} px wide at {inner} px");
+            }
+            log_in(&c, &base, user).await;
+            for path in pages_of(role, &ids[0], &ids[1]) {
+                c.goto(&format!("{base}{path}")).await.unwrap();
+                let h1 = c.find(Locator::Css("h1")).await.unwrap().text().await.unwrap();
+                assert!(
+                    !["400", "403", "404", "409", "500"]
+                        .iter()
+                        .any(|code| h1.starts_with(code)),
+                    "{user} {path}: error page {h1}"
+                );
+                let width = number(&c, "return document.documentElement.scrollWidth").await;
+                if width > inner {
+                    // Name the elements that stick out (the innermost few), to say what to fix.
+                    let culprits = c
+                        .execute(
+                            "const w = window.innerWidth; return [...document.querySelectorAll('body *')] \
+                             .filter(e => { for (let a = e.parentElement; a; a = a.parentElement) \
+                               { if (getComputedStyle(a).overflowX !== 'visible') return false; } return true; }) \
+                             .filter(e => e.getBoundingClientRect().right > w + 0.5 && \
+                               ![...e.children].some(k => k.getBoundingClientRect().right > w + 0.5)) \
+                             .slice(0, 5).map(e => e.tagName.toLowerCase() + (e.id ? '#' + e.id : '') + \
+                               (e.className && typeof e.className === 'string' ? '.' + e.className.split(' ').join('.') : '') + \
+                               ' ' + Math.round(e.getBoundingClientRect().right) + 'px').join(', ')",
+                            vec![],
+                        )
+                        .await
+                        .unwrap();
+                    too_wide.push(format!("{role} {path}: {width} px ({})", culprits.as_str().unwrap_or("")));
+                    shot(
+                        &c,
+                        &format!("too-wide-{role}-{}", path.replace(['/', '?', '=', '&'], "_")),
+                    )
+                    .await;
+                }
+                // "Log out" is on screen, not past the right edge.
+                let right = number(
+                    &c,
+                    "const b = document.querySelector('header.top form button'); \
+                     const r = b.getBoundingClientRect(); return r.width > 0 ? r.right : 1e9",
+                )
+                .await;
+                assert!(right <= inner, "{role} {path}: Log out ends at {right} px of {inner}");
+            }
+            if role == "curriculum" {
+                c.goto(&format!("{base}/reports/cohort?cohort=c1")).await.unwrap();
+                shot(&c, "phone-curriculum-report").await;
+                c.goto(&format!("{base}/cohorts/c1")).await.unwrap();
+                shot(&c, "phone-curriculum-cohort").await;
+            }
+            if role == "trainee" {
+                c.goto(&format!("{base}/sessions/{}", ids[0])).await.unwrap();
+                shot(&c, "phone-trainee-review").await;
+            }
+            c.close().await.unwrap();
+        }
+        assert!(too_wide.is_empty(), "pages wider than a phone: {too_wide:#?}");
+    });
+}
