@@ -121,7 +121,9 @@ pub async fn cohort(
             p.noprint {
                 a #export-csv href={ "/api/export/sessions.csv?cohort=" (crate::auth::encode_query(&name)) @if !query.is_empty() { "&" (query) } } { "Export these sessions as CSV" }
                 " · "
-                a href={ "/reports/cohort?cohort=" (crate::auth::encode_query(&name)) @if !query.is_empty() { "&" (query) } } { "Printable report" }
+                a href={ "/reports/cohort?cohort=" (crate::auth::encode_query(&name)) @if !query.is_empty() { "&" (query) } } { "Report with trends and failure reasons" }
+                " · "
+                a #report-pdf href={ "/reports/cohort.pdf?cohort=" (crate::auth::encode_query(&name)) @if !query.is_empty() { "&" (query) } } { "Report as PDF" }
             }
         },
     ))
