@@ -310,7 +310,9 @@ fn every_role_uses_the_dashboard(db: Db, tag: &'static str) {
             .unwrap();
         assert!(img.as_u64().unwrap_or(0) > 500, "tip-path image: {img}");
         assert!(text_of(&c, "#risk-hits").await.contains("No risk structure"));
-        assert!(text_of(&c, "#rubric").await.contains("target_not_reached"));
+        // The rubric's metrics by their names for people, never their identifiers.
+        let rubric = text_of(&c, "#rubric").await;
+        assert!(rubric.contains("target not reached") && !rubric.contains("target_not_reached"), "{rubric}");
         shot(&c, tag, "02-trainee-session-review").await;
         // The download is the uploaded file, byte for byte.
         let size = c
@@ -493,4 +495,289 @@ fn every_role_uses_the_dashboard(db: Db, tag: &'static str) {
         c.close().await.unwrap();
     });
     println!("screenshots in {}", shots().display());
+}
+
+/// A URL's status, content type and size, fetched by the browser with its login.
+async fn fetch_head(c: &Client, url: &str) -> (u64, String, u64) {
+    let v = c
+        .execute(
+            "return fetch(arguments[0]).then(r => r.arrayBuffer().then(b => [r.status, r.headers.get('content-type') || '', b.byteLength]))",
+            vec![json!(url)],
+        )
+        .await
+        .unwrap();
+    (
+        v[0].as_u64().unwrap(),
+        v[1].as_str().unwrap().to_string(),
+        v[2].as_u64().unwrap(),
+    )
+}
+
+/// The natural width of an image once it has loaded (0 if it failed).
+async fn image_width(c: &Client, css: &str) -> u64 {
+    c.execute(
+        "const i = document.querySelector(arguments[0]); \
+         return new Promise(r => { if (i.complete) r(i.naturalWidth); else { i.onload = () => r(i.naturalWidth); i.onerror = () => r(0); } });",
+        vec![json!(css)],
+    )
+    .await
+    .unwrap()
+    .as_u64()
+    .unwrap_or(0)
+}
+
+/// A scored session's reasons in words (from the API's session row); never empty for a failure.
+fn reasons_of(name: &str, row: &Value) -> Vec<String> {
+    let reasons: Vec<String> = row["reasons"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{name}: no reasons in {row}"))
+        .iter()
+        .map(|r| r.as_str().unwrap().to_string())
+        .collect();
+    assert!(!reasons.is_empty(), "{name} failed without reasons");
+    reasons
+}
+
+/// Metric identifiers that must never reach text meant for people.
+const IDENTIFIERS: [&str; 6] = [
+    "target_not_reached",
+    "target_not_confirmed",
+    "risk_hits",
+    "bone_contacts",
+    "time_total_s",
+    "max_force_n",
+];
+
+/// Issue 14, "show where and why": the lung-hit review shows slices through the lung hit with the
+/// point marked and the consequence from the scenario TOML; the success review shows the planned
+/// path (legend) and the same guided-path deviation as `stylet score`; force peaks are named;
+/// an instructor's comment at a moment is listed with its time and marked on the charts; every
+/// failed session has its reasons in words on its review and on the trainee's home.
+#[test]
+fn the_review_shows_where_and_why_in_headless_chromium() {
+    let db = Db::Sqlite;
+    let f = Fixture::new();
+    f.users(&db);
+    let srv = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "2"]);
+    let base = srv.base.clone();
+    let tina = login(&base, "tina");
+    let mut rows = Vec::new();
+    for name in ["tina-lung", "tina-ok", "tina-two"] {
+        let body = std::fs::read(f.session(name)).unwrap();
+        let (status, json, _) = call("POST", &format!("{base}/api/sessions"), Some(&tina), Some(&body), false);
+        assert_eq!(status, 201, "{json}");
+        let id = json["id"].as_str().unwrap().to_string();
+        let row = wait_scored(&base, &tina, &id);
+        assert_eq!(row["status"], "scored", "{row}");
+        rows.push((name, id, row));
+    }
+    let (lung, lung_row) = (&rows[0].1, &rows[0].2);
+    let (ok_id, ok_row) = (&rows[1].1, &rows[1].2);
+    let hits = lung_row["score"]["metrics"]["risk_hits"].as_array().unwrap().clone();
+    let lung_hit = hits
+        .iter()
+        .position(|h| h["structure"].as_str().unwrap().contains("lung"))
+        .expect("the lung-hit session hits a lung");
+    // The guided metrics the CLI prints for the success session.
+    let cli: Value = serde_json::from_str(&ok(&[
+        "score",
+        "--json",
+        "--atlas",
+        s(&f.atlases().join("phantom")),
+        s(&f.session("tina-ok")),
+    ]))
+    .unwrap();
+    let guided = cli["metrics"]["guided"].clone();
+    assert!(guided.is_object(), "the CLI scores guided metrics: {cli}");
+    assert_eq!(
+        ok_row["score"]["metrics"]["guided"], guided,
+        "the service's guided metrics are the CLI's"
+    );
+    // A comment's moment must lie within the session.
+    let ivan = login(&base, "ivan");
+    let (status, body, _) = call(
+        "POST",
+        &format!("{base}/api/sessions/{lung}/comments"),
+        Some(&ivan),
+        Some(json!({"body": "later", "at_s": 1.0e9}).to_string().as_bytes()),
+        false,
+    );
+    assert_eq!(status, 400, "{body}");
+
+    let driver = Driver::start();
+    let profiles = tempfile::tempdir().unwrap();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let c = browser(&driver, &profiles.path().join("p")).await;
+        log_in(&c, &base, "ivan").await;
+
+        // ---- the lung hit: where and why
+        open(&c, &base, &format!("/sessions/{lung}")).await;
+        let hit = format!("#hit-{lung_hit}");
+        let consequence = text_of(&c, &format!("{hit} .consequence")).await;
+        assert!(consequence.to_lowercase().contains("pneumothorax"), "{consequence}");
+        let src = c
+            .find(Locator::Css(&format!("{hit} img.hit-slices")))
+            .await
+            .unwrap()
+            .attr("src")
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(src, format!("/sessions/{lung}/hits/{}/slices.png", lung_hit + 1));
+        let (status, kind, size) = fetch_head(&c, &src).await;
+        assert_eq!((status, kind.as_str()), (200, "image/png"));
+        assert!(size > 10_000, "a real picture: {size} bytes");
+        assert!(image_width(&c, &format!("{hit} img.hit-slices")).await > 500);
+        // A hit the session does not have, and one that is no number.
+        for n in [format!("{}", hits.len() + 1), "0".into(), "x".into()] {
+            let (status, _, _) = fetch_head(&c, &format!("/sessions/{lung}/hits/{n}/slices.png")).await;
+            assert_eq!(status, 404, "hit {n}");
+        }
+        // The result card: failed, with its reasons in words.
+        let result = text_of(&c, "#result").await;
+        assert!(result.contains("failed"), "{result}");
+        let reasons = c.find_all(Locator::Css("#result #reasons li")).await.unwrap();
+        assert!(!reasons.is_empty(), "no reasons: {result}");
+        let page = body_text(&c).await;
+        for id in IDENTIFIERS {
+            assert!(!page.contains(id), "the page shows the identifier {id}");
+        }
+        // Force peaks named by the structure punctured.
+        let force = c
+            .find(Locator::Css("#force-chart svg"))
+            .await
+            .unwrap()
+            .html(false)
+            .await
+            .unwrap();
+        let labels: Vec<&str> = force
+            .split("<text")
+            .skip(1)
+            .filter_map(|t| Some(t.split_once('>')?.1.split_once("</text>")?.0.trim()))
+            .collect();
+        for want in ["skin", "right lung"] {
+            assert!(
+                labels.contains(&want),
+                "no {want} peak label on the force chart: {labels:?}"
+            );
+        }
+        // A comment at a moment: listed with its time, a marker on both charts.
+        c.find(Locator::Css("#comment-form textarea"))
+            .await
+            .unwrap()
+            .send_keys("Here the needle enters the lung.")
+            .await
+            .unwrap();
+        let at = hits[lung_hit]["t_s"].as_f64().unwrap();
+        c.find(Locator::Css("#comment-form input[name=at_s]"))
+            .await
+            .unwrap()
+            .send_keys(&format!("{at:.2}"))
+            .await
+            .unwrap();
+        c.find(Locator::Css("#comment-form button"))
+            .await
+            .unwrap()
+            .click()
+            .await
+            .unwrap();
+        let comment = wait_text(&c, "#review li.comment").await;
+        assert!(
+            comment.contains(&format!("[1] at {at:.2} s")) && comment.contains("enters the lung"),
+            "{comment}"
+        );
+        for chart in ["#force-chart svg", "#depth-chart svg"] {
+            let svg = c.find(Locator::Css(chart)).await.unwrap().html(false).await.unwrap();
+            assert!(svg.contains("[1] comment"), "{chart} lacks the comment marker");
+        }
+        shot(&c, "where-why", "01-lung-hit-review").await;
+
+        // ---- the success: planned path and deviation
+        open(&c, &base, &format!("/sessions/{ok_id}")).await;
+        let legend = text_of(&c, "#tip-path-legend").await;
+        let path_name = guided["path"].as_str().unwrap();
+        assert!(
+            legend.contains(&format!("planned path '{path_name}'")) && legend.contains("needle tip path"),
+            "{legend}"
+        );
+        assert!(image_width(&c, "#tip-path").await > 500);
+        let deviation = text_of(&c, "#guided").await;
+        for (key, unit) in [
+            ("entry_distance_mm", " mm"),
+            ("angle_error_deg", "°"),
+            ("mean_deviation_mm", " mm"),
+            ("max_deviation_mm", " mm"),
+        ] {
+            let want = format!("{:.1}{unit}", guided[key].as_f64().unwrap());
+            assert!(deviation.contains(&want), "{key}: {want} not in {deviation}");
+        }
+        assert!(text_of(&c, "#result").await.contains("passed"));
+        shot(&c, "where-why", "02-success-review").await;
+        log_out(&c, &base).await;
+
+        // ---- every failed session: its reasons in words on its review
+        log_in(&c, &base, "tina").await;
+        let failed: Vec<&(&str, String, Value)> = rows.iter().filter(|r| r.2["outcome"] == "failed").collect();
+        assert!(!failed.is_empty(), "the lung hit fails");
+        for (name, id, row) in &failed {
+            let reasons = reasons_of(name, row);
+            open(&c, &base, &format!("/sessions/{id}")).await;
+            let card = text_of(&c, "#result").await;
+            for r in &reasons {
+                assert!(card.contains(r.as_str()), "{name}: review lacks '{r}': {card}");
+            }
+        }
+        log_out(&c, &base).await;
+        c.close().await.unwrap();
+    });
+}
+
+/// Issue 14 acceptance, "reasons everywhere": every failed session of the trainee has its reasons
+/// in words on the trainee's home page (the review page: the test above).
+#[test]
+fn every_failed_session_has_its_reasons_on_the_trainee_home() {
+    let db = Db::Sqlite;
+    let f = Fixture::new();
+    f.users(&db);
+    let srv = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "2"]);
+    let base = srv.base.clone();
+    let tina = login(&base, "tina");
+    let mut failed = Vec::new();
+    for name in ["tina-lung", "tina-ok", "tina-two"] {
+        let body = std::fs::read(f.session(name)).unwrap();
+        let (status, json, _) = call("POST", &format!("{base}/api/sessions"), Some(&tina), Some(&body), false);
+        assert_eq!(status, 201, "{json}");
+        let row = wait_scored(&base, &tina, json["id"].as_str().unwrap());
+        if row["outcome"] == "failed" {
+            failed.push((name, reasons_of(name, &row)));
+        }
+    }
+    assert!(!failed.is_empty(), "the lung hit fails");
+    let driver = Driver::start();
+    let profiles = tempfile::tempdir().unwrap();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let c = browser(&driver, &profiles.path().join("p")).await;
+        log_in(&c, &base, "tina").await;
+        open(&c, &base, "/").await;
+        let home = body_text(&c).await;
+        shot(&c, "where-why", "03-trainee-home").await;
+        for (name, reasons) in &failed {
+            for r in reasons {
+                assert!(home.contains(r.as_str()), "{name}: the trainee home lacks '{r}'");
+            }
+        }
+        for id in IDENTIFIERS {
+            assert!(!home.contains(id), "the home shows the identifier {id}");
+        }
+        log_out(&c, &base).await;
+        c.close().await.unwrap();
+    });
 }
