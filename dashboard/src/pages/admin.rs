@@ -27,9 +27,13 @@ fn require_admin(v: &Viewer) -> Result<(), PageError> {
 }
 
 /// What the page says after a refused action.
+#[derive(Clone, Copy)]
 enum Notice<'a> {
     None,
+    /// A refused change of an account (top of the page).
     Error(&'a str),
+    /// A refused new account (beside its form).
+    AddError(&'a str),
     /// A refused import: every bad line.
     Import(&'a [ImportLineError]),
 }
@@ -48,12 +52,14 @@ fn accounts_page(v: &Viewer, l: &Listing, notice: Notice) -> Markup {
         @match notice {
             Notice::None => {},
             Notice::Error(e) => p.error role="alert" #account-error { (e) },
+            Notice::AddError(_) => {},
             Notice::Import(lines) => div.error role="alert" #import-error {
                 p { "Nothing was imported. Correct these lines and import the file again:" }
                 ul { @for l in lines { li { (l.to_string()) } } }
             },
         }
         h2 { "Add an account" }
+        @if let Notice::AddError(e) = notice { p.error role="alert" #add-user-error { (e) } }
         form.inline #add-user method="post" action="/admin/users" {
             (csrf_field(v))
             label { "Username" input name="username" required; }
@@ -144,6 +150,11 @@ async fn listing(s: &AppState, q: &UsersQuery) -> Result<Listing, PageError> {
 
 /// The page again with what was refused (4xx), or the error page for anything else.
 async fn refused(s: &AppState, v: &Viewer, e: ApiError) -> Result<Response, PageError> {
+    refused_at(s, v, e, false).await
+}
+
+/// [`refused`], the message beside the add form (`add`) or at the top.
+async fn refused_at(s: &AppState, v: &Viewer, e: ApiError, add: bool) -> Result<Response, PageError> {
     let status = e.status();
     if !status.is_client_error() {
         return Err(e.into());
@@ -152,6 +163,7 @@ async fn refused(s: &AppState, v: &Viewer, e: ApiError) -> Result<Response, Page
     let message = e.message();
     let body = match &e {
         ApiError::ImportRejected(lines) => accounts_page(v, &l, Notice::Import(lines)),
+        _ if add => accounts_page(v, &l, Notice::AddError(&message)),
         _ => accounts_page(v, &l, Notice::Error(&message)),
     };
     Ok((status, page("Accounts", Some(v), body)).into_response())
@@ -187,7 +199,7 @@ pub async fn add_user(
     let cohort = Some(f.cohort.trim()).filter(|c| !c.is_empty());
     match users::add(&s, &v.user, f.username.trim(), &f.role, &f.password, cohort).await {
         Ok(()) => Ok(Redirect::to("/admin/users").into_response()),
-        Err(e) => refused(&s, &v, e).await,
+        Err(e) => refused_at(&s, &v, e, true).await,
     }
 }
 
