@@ -146,7 +146,7 @@ fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) ->
         let style = ShapeStyle::from(&note_color).stroke_width(2);
         c.draw_series(DashedLineSeries::new([(*x, y0), (*x, y1)], 6, 4, style))
             .map_err(|e| e.to_string())?;
-        let y = y0 + (y1 - y0) * (0.04 + 0.06 * (n % 3) as f64);
+        let y = y0 + (y1 - y0) * (0.1 + 0.06 * (n % 3) as f64);
         c.draw_series(std::iter::once(Text::new(
             format!(" {label}"),
             (*x, y),
