@@ -3,7 +3,8 @@
 //! Set-up: a small phantom, two real sessions recorded on it and uploaded through the API (so
 //! their review pages have files, traces and figures), then 9 998 more session rows written
 //! straight into the database: 4 cohorts × 25 trainees × 100 sessions over 100 days, with
-//! scores, results, attempts and risk hits. Then `stylet serve` (the real server, release
+//! scores, results, attempts and risk hits; two in three carry an instructor's comment (the
+//! review queue lists the rest). Then `stylet serve` (the real server, release
 //! build) answers every page `STYLET_BENCH_REQUESTS` times (default 200) in sequence over one
 //! keep-alive connection per user; the p50 and p99 of each page are printed, and p50 as a ratio
 //! to `GET /healthz` (a database round trip) measured in the same run. Goal here: p99 < 100 ms.
@@ -254,6 +255,11 @@ fn main() {
                     .fetch_one(&mut *tx)
                     .await
                     .unwrap();
+                let instructor: String = sqlx::query_scalar("SELECT id FROM users WHERE username = $1")
+                    .bind(format!("i{c}"))
+                    .fetch_one(&mut *tx)
+                    .await
+                    .unwrap();
                 let n = if (c, t) == (0, 0) { SESSIONS_PER_TRAINEE - 2 } else { SESSIONS_PER_TRAINEE };
                 for s in 0..n {
                     k += 1;
@@ -266,8 +272,8 @@ fn main() {
                     sqlx::query(
                         "INSERT INTO sessions (id, file_sha256, size_bytes, session_uuid, trainee_id, uploaded_by, scenario, difficulty, \
                          atlas_hash, physics_version, duration_s, recorded_at, uploaded_at, status, final_score, final_passed, overridden, \
-                         attempts, risk_hits, replay_verified, rubric_version) \
-                         VALUES ($1, $2, 400000, $3, $4, $4, $5, $6, $7, 2, 34.0, $8, $8, 'scored', $9, $10, 0, $11, $12, 1, 1)",
+                         attempts, risk_hits, replay_verified, rubric_version, outcome) \
+                         VALUES ($1, $2, 400000, $3, $4, $4, $5, $6, $7, 2, 34.0, $8, $8, 'scored', $9, $10, 0, $11, $12, 1, 1, $13)",
                     )
                     .bind(id.clone())
                     .bind(format!("{k:064x}"))
@@ -281,9 +287,24 @@ fn main() {
                     .bind(passed)
                     .bind((1 + next() % 3) as i64)
                     .bind(i64::from(next() % 10 == 0))
+                    .bind(if passed != 0 { "passed" } else { "failed" })
                     .execute(&mut *tx)
                     .await
                     .unwrap();
+                    // Two sessions in three have been commented on (the review queue skips them).
+                    if k % 3 != 0 {
+                        sqlx::query(
+                            "INSERT INTO comments (id, session_id, author_id, body, created_at) VALUES ($1, $2, $3, $4, $5)",
+                        )
+                        .bind(format!("comment-{k:08}"))
+                        .bind(id.clone())
+                        .bind(instructor.clone())
+                        .bind("Reviewed.")
+                        .bind(at.clone())
+                        .execute(&mut *tx)
+                        .await
+                        .unwrap();
+                    }
                     sqlx::query(
                         "INSERT INTO scores (session_id, score, passed, difficulty, rubric, rubric_version, physics_version, \
                          replay_verified, incomplete, report_json, scored_at) VALUES ($1, $2, $3, $4, 'ptcd', 1, 2, TRUE, FALSE, $5, $6)",
@@ -328,6 +349,33 @@ fn main() {
             "/cohorts/c0?difficulty=advanced&scenario=lung-hit".into(),
         ),
         ("compare two sessions", &instructor, format!("/compare?a={a}&b={b}")),
+        ("needs review (instructor, 2 500)", &instructor, "/review-queue".into()),
+        (
+            "needs review, flagged, page 5",
+            &instructor,
+            "/review-queue?only=flagged&page=5".into(),
+        ),
+        ("needs review (admin, 10 000)", &admin, "/review-queue".into()),
+        (
+            "trainee progress (100 sessions)",
+            &instructor,
+            format!("/trainees/{}", trainee(0, 1)),
+        ),
+        (
+            "own progress (trainee)",
+            &trainee0,
+            format!("/trainees/{}", trainee(0, 0)),
+        ),
+        (
+            "compare search (trainee, outcome)",
+            &instructor,
+            format!("/compare?trainee={}&outcome=failed", trainee(0, 2)),
+        ),
+        (
+            "compare search, page 50 (10 000)",
+            &curriculum,
+            "/compare?page=50".into(),
+        ),
         ("curriculum home (10 000)", &curriculum, "/".into()),
         ("sessions, page 1 of 100", &curriculum, "/sessions".into()),
         ("sessions, page 50", &curriculum, "/sessions?page=50".into()),

@@ -264,9 +264,12 @@ fn visible_to(viewer: &User, binds: &mut Vec<String>) -> String {
     }
 }
 
-/// Not commented, not overridden: the review is still to do.
+/// Not commented, not overridden: the review is still to do. `NOT IN` an uncorrelated subquery:
+/// both engines read the commented sessions once into a hash or temporary index (a correlated
+/// `NOT EXISTS` scanned the comments once per session on SQLite, whose `comments` table has no
+/// index on `session_id`: 0.8 s for 2 500 sessions).
 const UNREVIEWED: &str = " AND s.status IN ('scored', 'failed') AND s.overridden = 0 \
-    AND NOT EXISTS (SELECT 1 FROM comments c WHERE c.session_id = s.id)";
+    AND s.id NOT IN (SELECT c.session_id FROM comments c)";
 
 const FLAGGED: &str = " AND (s.status = 'failed' OR s.final_passed = 0 OR s.risk_hits > 0 \
     OR s.outcome = 'not_gradeable')";
