@@ -46,6 +46,7 @@ button.primary { background:var(--accent); color:white; border:none; border-radi
 .error { color:var(--bad); font-weight:600; }
 .notice { background:#fff4dc; border:1px solid #e0c080; padding:.5rem .8rem; border-radius:4px; }
 .muted { color:var(--muted); }
+td.result .reason { font-size:.85em; min-width:14em; max-width:28em; white-space:normal; margin-top:.15em; }
 .grid2 { display:grid; grid-template-columns: 1fr 1fr; gap:1.5rem; }
 @media (max-width: 900px) { .grid2 { grid-template-columns: 1fr; } }
 /* Phones and tablets (390 px and up): the page never scrolls sideways; the navigation wraps, wide
@@ -162,6 +163,17 @@ pub fn result_badge(passed: Option<bool>, overridden: bool) -> Markup {
     }
 }
 
+/// The outcome of a listed session: an instructor's override decides passed/failed; an
+/// incomplete recording is "not gradeable", never failed.
+pub fn outcome_badge(outcome: Option<stylet_scoring::Outcome>, passed: Option<bool>, overridden: bool) -> Markup {
+    match outcome {
+        Some(stylet_scoring::Outcome::NotGradeable) if !overridden => {
+            html! { span.badge.warn title="the recording is incomplete: no grade is given" { "not gradeable" } }
+        }
+        _ => result_badge(passed, overridden),
+    }
+}
+
 pub fn status_badge(status: &str) -> Markup {
     html! {
         @match status {
@@ -202,7 +214,17 @@ pub fn sessions_table(lines: &[SessionLine], show_trainee: bool) -> Markup {
                             @if show_trainee { td { (l.trainee) } }
                             td { (l.scenario) } td { (l.difficulty) } td { (status_badge(&l.status)) }
                             td.num { (score_text(l.score)) }
-                            td { (result_badge(l.passed, l.overridden)) }
+                            td.result {
+                                (outcome_badge(l.outcome, l.passed, l.overridden))
+                                @if l.exercise != stylet_scoring::Exercise::Puncture {
+                                    " " span.badge.muted { (l.exercise.label()) }
+                                }
+                                // Why, in words, where it failed or cannot be graded (one line per
+                                // rubric rule at most, so the list stays short).
+                                @if l.outcome.is_some_and(|o| o != stylet_scoring::Outcome::Passed) || l.passed == Some(false) {
+                                    @for r in &l.reasons { div.reason.muted { (r) } }
+                                }
+                            }
                             td.num { (l.attempts.map_or("–".into(), |v| v.to_string())) }
                             td.num { (l.risk_hits.map_or("–".into(), |v| v.to_string())) }
                             td { (verified_badge(l.replay_verified)) }

@@ -109,7 +109,7 @@ impl Store {
     /// Columns of a listed session: its row only (migration 0002), never the report.
     const LINE_COLUMNS: &str = "s.id, u.username AS trainee, s.scenario, s.difficulty, s.status, s.uploaded_at, \
         s.recorded_at, s.duration_s, s.error, s.final_score, s.final_passed, s.overridden, s.attempts, s.risk_hits, \
-        s.replay_verified, s.rubric_version, s.physics_version";
+        s.replay_verified, s.rubric_version, s.physics_version, s.exercise, s.outcome, s.reasons";
 
     fn line_of(row: &sqlx::any::AnyRow) -> Result<SessionLine, sqlx::Error> {
         let flag = |name: &str| -> Result<Option<bool>, sqlx::Error> {
@@ -133,6 +133,11 @@ impl Store {
             replay_verified: flag("replay_verified")?,
             rubric_version: row.try_get("rubric_version")?,
             physics_version: row.try_get("physics_version")?,
+            exercise: stylet_scoring::Exercise::parse(&row.try_get::<String, _>("exercise")?).unwrap_or_default(),
+            outcome: row
+                .try_get::<Option<String>, _>("outcome")?
+                .and_then(|o| stylet_scoring::Outcome::parse(&o)),
+            reasons: super::jobs::split_reasons(row.try_get::<Option<String>, _>("reasons")?.as_deref()),
         })
     }
 
@@ -293,6 +298,12 @@ pub struct SessionLine {
     pub replay_verified: Option<bool>,
     pub rubric_version: Option<i64>,
     pub physics_version: i64,
+    /// What the scenario exercises (migration 0005).
+    pub exercise: stylet_scoring::Exercise,
+    /// Passed, failed or not gradeable once scored (an instructor's override sets passed/failed).
+    pub outcome: Option<stylet_scoring::Outcome>,
+    /// Why, in plain words (docs/metrics.md "Reasons").
+    pub reasons: Vec<String>,
 }
 
 /// A validated upload about to be stored.
