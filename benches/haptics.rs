@@ -14,9 +14,9 @@ use std::time::Instant;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use stylet_devices::run_headless;
-use stylet_devices::script::{NamedPath, ScriptedDevice, parse};
+use stylet_devices::script::{ScriptedDevice, parse, scripted_simulation};
 use stylet_physics::glam::DVec3;
-use stylet_physics::{SimConfig, Simulation, TickInput};
+use stylet_physics::{Simulation, TickInput};
 
 struct Setup {
     _dir: tempfile::TempDir,
@@ -34,22 +34,8 @@ fn setup() -> Setup {
 /// Runs a script and returns the simulation in its final state with the last input.
 fn prepared(atlas: &stylet_atlas::Atlas, text: &str) -> (Simulation, TickInput) {
     let script = parse(text).unwrap();
-    let paths: Vec<NamedPath> = atlas
-        .manifest
-        .paths
-        .iter()
-        .map(|p| NamedPath {
-            name: p.name.clone(),
-            entry_mm: DVec3::from_array(p.entry_mm),
-            target_mm: DVec3::from_array(p.target_mm),
-        })
-        .collect();
-    let mut device = ScriptedDevice::new(&script, &paths).unwrap();
-    let mut sim = Simulation::new(
-        Arc::new(atlas.model.clone()),
-        SimConfig::new(script.device, script.initial_tool),
-    )
-    .unwrap();
+    let (mut sim, mut device) =
+        scripted_simulation(Arc::new(atlas.model.clone()), &atlas.planned_paths(), &script).unwrap();
     let mut last = None;
     run_headless(&mut sim, &mut device, |i, _, _| last = Some(i.clone()));
     (sim, last.unwrap())

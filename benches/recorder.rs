@@ -12,9 +12,9 @@ use std::time::Instant;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use stylet_devices::run_headless;
-use stylet_devices::script::{NamedPath, ScriptedDevice, parse};
-use stylet_physics::glam::DVec3;
-use stylet_physics::{Event, Gauge, SimConfig, Simulation, ToolSpec};
+use stylet_devices::script::{parse, scripted_simulation};
+
+use stylet_physics::{Event, Gauge, ToolSpec};
 use stylet_recorder::format::TickRecord;
 use stylet_recorder::{SessionHeader, SessionWriter, WriterOptions, reader};
 
@@ -30,22 +30,8 @@ fn needle_ticks() -> Ticks {
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts/two-attempts.txt"))
             .unwrap();
     let script = parse(&text).unwrap();
-    let paths: Vec<NamedPath> = atlas
-        .manifest
-        .paths
-        .iter()
-        .map(|p| NamedPath {
-            name: p.name.clone(),
-            entry_mm: DVec3::from_array(p.entry_mm),
-            target_mm: DVec3::from_array(p.target_mm),
-        })
-        .collect();
-    let mut device = ScriptedDevice::new(&script, &paths).unwrap();
-    let mut sim = Simulation::new(
-        Arc::new(atlas.model.clone()),
-        SimConfig::new(script.device, script.initial_tool),
-    )
-    .unwrap();
+    let (mut sim, mut device) =
+        scripted_simulation(Arc::new(atlas.model.clone()), &atlas.planned_paths(), &script).unwrap();
     let mut out = Vec::new();
     run_headless(&mut sim, &mut device, |i, o, s| {
         let q = i.orientation;

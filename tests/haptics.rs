@@ -8,7 +8,7 @@ use std::sync::{Arc, OnceLock};
 use proptest::prelude::*;
 use stylet_atlas::Atlas;
 use stylet_devices::run_headless;
-use stylet_devices::script::{NamedPath, ScriptedDevice, parse};
+use stylet_devices::script::{parse, scripted_simulation};
 use stylet_physics::glam::{DQuat, DVec3};
 use stylet_physics::{DeviceProfile, Gauge, ProbeKind, SimConfig, Simulation, TickInput, TickOutput, ToolSpec};
 
@@ -25,19 +25,6 @@ fn phantom() -> &'static Atlas {
     .1
 }
 
-fn paths(atlas: &Atlas) -> Vec<NamedPath> {
-    atlas
-        .manifest
-        .paths
-        .iter()
-        .map(|p| NamedPath {
-            name: p.name.clone(),
-            entry_mm: DVec3::from_array(p.entry_mm),
-            target_mm: DVec3::from_array(p.target_mm),
-        })
-        .collect()
-}
-
 struct Run {
     ticks: Vec<(TickInput, TickOutput)>,
     sim: Simulation,
@@ -45,10 +32,8 @@ struct Run {
 
 fn run_text(atlas: &Atlas, text: &str) -> Run {
     let script = parse(text).unwrap();
-    let mut device = ScriptedDevice::new(&script, &paths(atlas)).unwrap();
-    let mut config = SimConfig::new(script.device, script.initial_tool);
-    config.tick_rate_hz = script.rate_hz;
-    let mut sim = Simulation::new(Arc::new(atlas.model.clone()), config).unwrap();
+    let (mut sim, mut device) =
+        scripted_simulation(Arc::new(atlas.model.clone()), &atlas.planned_paths(), &script).unwrap();
     let mut ticks = Vec::new();
     run_headless(&mut sim, &mut device, |i, o, _| ticks.push((i.clone(), *o)));
     Run { ticks, sim }

@@ -10,31 +10,16 @@ use std::time::Instant;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use stylet_devices::run_headless;
-use stylet_devices::script::{NamedPath, ScriptedDevice, parse};
-use stylet_physics::glam::DVec3;
-use stylet_physics::{SimConfig, Simulation};
+use stylet_devices::script::{parse, scripted_simulation};
+
 use stylet_recorder::{Recording, SessionInfo, WriterOptions, reader};
 use stylet_scoring::{Rubric, Scorer, replay};
 
 fn record(atlas: &stylet_atlas::Atlas, name: &str, dir: &Path) -> PathBuf {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../atlases/phantom/scripts/{name}.txt"));
     let script = parse(&std::fs::read_to_string(path).unwrap()).unwrap();
-    let paths: Vec<NamedPath> = atlas
-        .manifest
-        .paths
-        .iter()
-        .map(|p| NamedPath {
-            name: p.name.clone(),
-            entry_mm: DVec3::from_array(p.entry_mm),
-            target_mm: DVec3::from_array(p.target_mm),
-        })
-        .collect();
-    let mut device = ScriptedDevice::new(&script, &paths).unwrap();
-    let mut sim = Simulation::new(
-        Arc::new(atlas.model.clone()),
-        SimConfig::new(script.device, script.initial_tool),
-    )
-    .unwrap();
+    let (mut sim, mut device) =
+        scripted_simulation(Arc::new(atlas.model.clone()), &atlas.planned_paths(), &script).unwrap();
     let info = SessionInfo {
         trainee: "bench",
         scenario: name,

@@ -11,13 +11,8 @@ use stylet_physics::{Event, LabelId, Role, Simulation, TickInput, TickOutput, To
 
 use crate::target::TargetDistance;
 
-/// One planned insertion path of the atlas (the thesis' guided mode).
-#[derive(Debug, Clone, PartialEq)]
-pub struct PlannedPath {
-    pub name: String,
-    pub entry_mm: DVec3,
-    pub target_mm: DVec3,
-}
+/// One planned insertion path of the atlas (guided mode), the type every crate shares.
+pub use stylet_physics::PlannedPath;
 
 /// Settings of the metrics that come from the rubric.
 #[derive(Debug, Clone, Copy, PartialEq)]

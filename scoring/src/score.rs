@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use serde::Serialize;
 use stylet_physics::PunctureAtlas;
-use stylet_physics::glam::DVec3;
+
 use stylet_recorder::reader::{self, Session};
 
 use crate::metrics::{Metrics, MetricsCollector, PlannedPath};
@@ -143,16 +143,7 @@ pub struct Scorer {
 impl Scorer {
     /// `path`: score guided-mode metrics against this planned path of the atlas (by name).
     pub fn new(atlas: &stylet_atlas::Atlas, rubric: Rubric, path: Option<String>) -> Result<Scorer, String> {
-        let paths: Vec<PlannedPath> = atlas
-            .manifest
-            .paths
-            .iter()
-            .map(|p| PlannedPath {
-                name: p.name.clone(),
-                entry_mm: DVec3::from_array(p.entry_mm),
-                target_mm: DVec3::from_array(p.target_mm),
-            })
-            .collect();
+        let paths = atlas.planned_paths();
         if let Some(name) = &path
             && !paths.iter().any(|p| &p.name == name)
         {

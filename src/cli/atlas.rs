@@ -161,11 +161,9 @@ pub fn build_phantom(out: &Path, config: &PhantomConfig) -> anyhow::Result<()> {
 
 /// The atlas' predefined insertion paths as (entry, target) pairs for drawing.
 pub fn insertion_paths(atlas: &stylet_atlas::Atlas) -> Vec<(stylet_physics::glam::DVec3, stylet_physics::glam::DVec3)> {
-    use stylet_physics::glam::DVec3;
     atlas
-        .manifest
-        .paths
+        .planned_paths()
         .iter()
-        .map(|p| (DVec3::from_array(p.entry_mm), DVec3::from_array(p.target_mm)))
+        .map(|p| (p.entry_mm, p.target_mm))
         .collect()
 }

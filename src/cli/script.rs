@@ -8,9 +8,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use stylet_devices::script::{NamedPath, ScriptedDevice, parse};
+use stylet_devices::script::{ScriptedDevice, parse, scripted_simulation};
 use stylet_physics::glam::DVec3;
-use stylet_physics::{Event, SimConfig, Simulation, TickInput, TickOutput};
+use stylet_physics::{Event, Simulation, TickInput, TickOutput};
 use stylet_render::charts::{LineChart, Series, palette, write_chart};
 
 use stylet_recorder::{Recording, SessionInfo, WriterOptions};
@@ -98,21 +98,7 @@ pub fn script_simulation(atlas: &stylet_atlas::Atlas, path: &Path) -> anyhow::Re
 /// The simulation a script text starts with, and its device (bound to the atlas' named paths).
 pub fn script_text_simulation(atlas: &stylet_atlas::Atlas, text: &str) -> Result<(Simulation, ScriptedDevice), String> {
     let script = parse(text).map_err(|e| e.to_string())?;
-    let paths: Vec<NamedPath> = atlas
-        .manifest
-        .paths
-        .iter()
-        .map(|p| NamedPath {
-            name: p.name.clone(),
-            entry_mm: DVec3::from_array(p.entry_mm),
-            target_mm: DVec3::from_array(p.target_mm),
-        })
-        .collect();
-    let device = ScriptedDevice::new(&script, &paths).map_err(|e| e.to_string())?;
-    let mut config = SimConfig::new(script.device, script.initial_tool);
-    config.tick_rate_hz = script.rate_hz;
-    let sim = Simulation::new(Arc::new(atlas.model.clone()), config)?;
-    Ok((sim, device))
+    scripted_simulation(Arc::new(atlas.model.clone()), &atlas.planned_paths(), &script).map_err(|e| e.to_string())
 }
 
 /// Runs a script text headless and records it to `out` (offline: the recorder may wait).

@@ -305,4 +305,18 @@ impl Atlas {
     pub fn thresholds_toml(&self) -> ThresholdsToml {
         ThresholdsToml::from_thresholds(self.model.thresholds())
     }
+
+    /// The atlas' planned insertion paths (`[[paths]]`), as the physics, scripts and scoring use
+    /// them.
+    pub fn planned_paths(&self) -> Vec<stylet_physics::PlannedPath> {
+        self.manifest
+            .paths
+            .iter()
+            .map(|p| stylet_physics::PlannedPath {
+                name: p.name.clone(),
+                entry_mm: stylet_physics::glam::DVec3::from_array(p.entry_mm),
+                target_mm: stylet_physics::glam::DVec3::from_array(p.target_mm),
+            })
+            .collect()
+    }
 }

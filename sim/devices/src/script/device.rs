@@ -7,6 +7,7 @@
 //! 100 mm/s; the script's keyframes set the other components. Events fire on the tick
 //! round(t · rate).
 
+use stylet_physics::PlannedPath;
 use stylet_physics::glam::{DMat3, DQuat, DVec3};
 use stylet_physics::{Event, TickInput, TickOutput};
 
@@ -17,14 +18,6 @@ use crate::Device;
 const PRESS_ADMITTANCE_MM_PER_N: f64 = 0.02;
 /// Fastest motion of the force-controlled axis (mm/s).
 const PRESS_MAX_SPEED_MM_PER_S: f64 = 100.0;
-
-/// A named insertion path of the atlas, for `along`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct NamedPath {
-    pub name: String,
-    pub entry_mm: DVec3,
-    pub target_mm: DVec3,
-}
 
 /// A script bound to an atlas' paths, ready to run.
 #[derive(Debug, Clone)]
@@ -57,7 +50,7 @@ pub fn orientation(dir: DVec3, xaxis: Option<DVec3>) -> DQuat {
 impl ScriptedDevice {
     /// Binds the script to the atlas' insertion paths; an unknown path name is an error naming
     /// the script line.
-    pub fn new(script: &Script, paths: &[NamedPath]) -> Result<Self, String> {
+    pub fn new(script: &Script, paths: &[PlannedPath]) -> Result<Self, String> {
         let rate = script.rate_hz;
         let tick_of = |t: f64| (t * rate as f64).round() as u64;
         let mut keys = Vec::new();
@@ -267,7 +260,7 @@ mod tests {
         let s = parse("stylet-script 1\n\nat 0 along nowhere 3\n").unwrap();
         let e = ScriptedDevice::new(&s, &[]).unwrap_err();
         assert!(e.starts_with("line 3:") && e.contains("'nowhere'"), "{e}");
-        let paths = [NamedPath {
+        let paths = [PlannedPath {
             name: "p".into(),
             entry_mm: DVec3::ZERO,
             target_mm: DVec3::new(0.0, 0.0, 100.0),

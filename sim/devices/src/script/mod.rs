@@ -2,6 +2,9 @@
 //! plays it tick by tick.
 pub mod device;
 pub mod parse;
+pub mod setup;
 
-pub use device::{NamedPath, ScriptedDevice};
+pub use device::ScriptedDevice;
 pub use parse::{ParseError, Script, parse};
+pub use setup::{SetupError, scripted_simulation};
+pub use stylet_physics::PlannedPath;
