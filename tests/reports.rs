@@ -112,6 +112,25 @@ fn cohort_report_pdf(db: Db) {
         assert_eq!(scored["status"], "scored", "{scored}");
         reports.push(scored);
     }
+    // The palpation exercise is not a puncture: tina's progress (scores over time, the suggested
+    // difficulty) holds her three punctures only.
+    let (status, progress, _) = call(
+        "GET",
+        &format!("{base}/api/trainees/tina/progress"),
+        Some(&tina),
+        None,
+        false,
+    );
+    assert_eq!(status, 200, "{progress}");
+    let points: Vec<&Value> = progress["progress"]
+        .as_object()
+        .unwrap()
+        .values()
+        .flat_map(|v| v.as_array().unwrap())
+        .collect();
+    let palpation_id = reports[3]["id"].as_str().unwrap();
+    assert_eq!(points.len(), 3, "{progress}");
+    assert!(points.iter().all(|p| p["session_id"] != palpation_id), "{progress}");
     // tom (cohort c2) has a session that cohort c1's report must not count.
     let tom = login(&base, "tom");
     let body = std::fs::read(f.session("tom-ok")).unwrap();

@@ -558,11 +558,7 @@ async fn upload(
 
 /// Validates an upload and stores it (file by content hash, then the session and job rows):
 /// returns the session id, its status and whether it is new. Nothing is left behind on refusal.
-pub async fn accept_upload(
-    s: &AppState,
-    user: &User,
-    bytes: Bytes,
-) -> Result<(String, SessionStatus, bool), ApiError> {
+pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(String, SessionStatus, bool), ApiError> {
     if bytes.is_empty() {
         return Err(err(
             StatusCode::BAD_REQUEST,

@@ -5,14 +5,14 @@
 use std::sync::Arc;
 
 use axum::extract::{Path, Query, State};
-use axum::http::{HeaderMap, StatusCode, Uri};
+use axum::http::{StatusCode, Uri};
 use axum::response::Html;
 use maud::{Markup, PreEscaped, html};
 use stylet_service::AppState;
 use stylet_service::api::{ListQuery, PAGE_SIZE};
 use stylet_service::store::{ScorePoint, SessionLine, TraineeSummary};
 
-use crate::auth::{PageError, Viewer, fail, viewer};
+use crate::auth::{PageError, Viewer, fail};
 use crate::charts::sparkline;
 use crate::layout::{page, pager, score_text, sessions_table, short_time};
 use crate::pages::sessions::{filter_form, filter_query};
@@ -84,12 +84,11 @@ fn compare_form(lines: &[SessionLine]) -> Markup {
 
 pub async fn cohort(
     State(s): State<Arc<AppState>>,
-    headers: HeaderMap,
+    v: Viewer,
     uri: Uri,
     Path(name): Path<String>,
     Query(mut q): Query<ListQuery>,
 ) -> Result<Html<String>, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
     let cohort_id = visible_cohort(&s, &v, &name).await?;
     q.cohort = Some(name.clone());
     let mut filter = q.filter(&s).await?;

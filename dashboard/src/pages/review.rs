@@ -10,7 +10,7 @@ use std::sync::Arc;
 
 use axum::Form;
 use axum::extract::{Path, State};
-use axum::http::{HeaderMap, StatusCode, Uri, header};
+use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Redirect, Response};
 use maud::{Markup, PreEscaped, html};
 use stylet_scoring::rubric::{Rubric, metric_value};
@@ -20,7 +20,7 @@ use stylet_service::api::{check_comment, check_comment_time, check_override, may
 use stylet_service::store::SessionRow;
 use stylet_service::traces::review_trace;
 
-use crate::auth::{PageError, Viewer, check_csrf, fail, viewer};
+use crate::auth::{PageError, Viewer, check_csrf, fail};
 use crate::charts::{comment_notes, depth_chart, force_chart, inline_svg, puncture_peaks};
 use crate::figures::Figure;
 use crate::layout::{csrf_field, page, refreshing_page, result_badge, short_time, status_badge, verified_badge};
@@ -48,13 +48,7 @@ pub fn require_scored(row: &SessionRow) -> Result<(), PageError> {
     }
 }
 
-pub async fn review(
-    State(s): State<Arc<AppState>>,
-    headers: HeaderMap,
-    uri: Uri,
-    Path(id): Path<String>,
-) -> Result<Response, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
+pub async fn review(State(s): State<Arc<AppState>>, v: Viewer, Path(id): Path<String>) -> Result<Response, PageError> {
     let row = visible_session(&s, &v, &id).await?;
     let title = format!("{} — {} ({})", row.trainee, row.scenario, row.difficulty);
     let head = header_block(&row);
@@ -441,12 +435,10 @@ pub struct DeleteForm {
 /// POST /sessions/{id}/delete (admins, with the confirmation box ticked).
 pub async fn delete(
     State(s): State<Arc<AppState>>,
-    headers: HeaderMap,
-    uri: Uri,
+    v: Viewer,
     Path(id): Path<String>,
     Form(f): Form<DeleteForm>,
 ) -> Result<Redirect, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
     check_csrf(&v, &f.csrf)?;
     if f.confirm != "yes" {
         return Err(fail(StatusCode::BAD_REQUEST, "tick the box to confirm the deletion"));
@@ -496,12 +488,10 @@ pub struct OverrideForm {
 
 pub async fn override_grade(
     State(s): State<Arc<AppState>>,
-    headers: HeaderMap,
-    uri: Uri,
+    v: Viewer,
     Path(id): Path<String>,
     Form(f): Form<OverrideForm>,
 ) -> Result<Redirect, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
     check_csrf(&v, &f.csrf)?;
     let score: f64 = f
         .score
@@ -525,13 +515,7 @@ pub async fn override_grade(
 }
 
 /// `GET /sessions/{id}/file`: the session file as uploaded.
-pub async fn file(
-    State(s): State<Arc<AppState>>,
-    headers: HeaderMap,
-    uri: Uri,
-    Path(id): Path<String>,
-) -> Result<Response, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
+pub async fn file(State(s): State<Arc<AppState>>, v: Viewer, Path(id): Path<String>) -> Result<Response, PageError> {
     let row = visible_session(&s, &v, &id).await?;
     let bytes = tokio::fs::read(s.session_file(&row.file_sha256)).await.map_err(|e| {
         tracing::error!(error = %e, session = %id, "stored session file missing");
@@ -559,13 +543,7 @@ pub async fn file(
 }
 
 /// `GET /sessions/{id}/slices.png`: the tip path over CT slices.
-pub async fn slices(
-    State(s): State<Arc<AppState>>,
-    headers: HeaderMap,
-    uri: Uri,
-    Path(id): Path<String>,
-) -> Result<Response, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
+pub async fn slices(State(s): State<Arc<AppState>>, v: Viewer, Path(id): Path<String>) -> Result<Response, PageError> {
     let row = visible_session(&s, &v, &id).await?;
     require_scored(&row)?;
     let title = format!("{} — {} ({}), tip path", row.trainee, row.scenario, row.difficulty);

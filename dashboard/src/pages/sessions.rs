@@ -4,13 +4,13 @@
 use std::sync::Arc;
 
 use axum::extract::{Query, State};
-use axum::http::{HeaderMap, Uri};
+
 use axum::response::Html;
 use maud::{Markup, html};
 use stylet_service::AppState;
 use stylet_service::api::{ListQuery, PAGE_SIZE};
 
-use crate::auth::{PageError, viewer};
+use crate::auth::{PageError, Viewer};
 use crate::layout::{page, pager, sessions_table};
 
 /// The filter form, keeping what was chosen.
@@ -58,11 +58,9 @@ pub fn filter_query(q: &ListQuery) -> String {
 
 pub async fn list(
     State(s): State<Arc<AppState>>,
-    headers: HeaderMap,
-    uri: Uri,
+    v: Viewer,
     Query(q): Query<ListQuery>,
 ) -> Result<Html<String>, PageError> {
-    let v = viewer(&s, &headers, &uri).await?;
     let filter = q.filter(&s).await?;
     let lines = s.store.sessions(&v.user, &filter).await?;
     let total = s.store.count_sessions(&v.user, &filter).await?;

@@ -18,7 +18,10 @@ mod sessions;
 mod status;
 mod tokens;
 
-pub use accounts::{AccountChange, AccountError, IMPORT_HEADER, ImportLine, ImportLineError, MAX_IMPORT_LINES, Role, UserRow, parse_import};
+pub use accounts::{
+    AccountChange, AccountError, IMPORT_HEADER, ImportLine, ImportLineError, MAX_IMPORT_LINES, Role, UserRow,
+    parse_import,
+};
 pub use cohorts::{CohortLine, ReportLine, ScorePoint};
 pub use instructors::{
     CompareSearch, DatedScore, LevelTotals, OutcomeFilter, PROGRESS_POINTS, PROGRESS_RECENT, QUEUE_PAGE, QueueReason,
@@ -27,8 +30,8 @@ pub use instructors::{
 pub use jobs::{Job, OutcomeColumns, join_reasons, split_reasons};
 pub use reports::{DayCount, FAILED_READ_MAX, FailureBreakdown, FailureCause, TREND_ROWS_MAX};
 pub use review::{ExportRow, ProgressPoint, TraineeSummary};
-pub use status::SessionStatus;
 pub use sessions::{NewSession, SessionFilter, SessionLine};
+pub use status::SessionStatus;
 pub use tokens::{TokenAuth, TokenRow, TokenScope, TokenStatus};
 
 /// Roles, from least to most administrative.

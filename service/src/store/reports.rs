@@ -14,7 +14,7 @@ use super::{SessionFilter, Store, StoreError};
 pub const TREND_ROWS_MAX: i64 = 10_000;
 
 /// Failed sessions read for the reasons breakdown at most (the latest ones).
-pub const FAILED_READ_MAX: i64 = 2_000;
+pub const FAILED_READ_MAX: i64 = 1_000;
 
 /// Scored sessions of one exercise at one difficulty uploaded on one day (UTC).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]

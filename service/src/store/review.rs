@@ -7,12 +7,15 @@ use super::{SessionFilter, SessionLine, User};
 use super::{Store, StoreError, new_id, now};
 
 impl Store {
-    /// A trainee's scored sessions in upload order, with the final grade (the override's when
-    /// overridden).
+    /// A trainee's graded punctures in upload order, with the final grade (the override's when
+    /// overridden). Palpation and ultrasound-survey exercises are graded by their own rubrics and
+    /// a recording that is not gradeable has no grade: neither says how the trainee punctures, so
+    /// neither moves the scores over time or the suggested difficulty.
     pub async fn progress(&self, trainee_id: &str) -> Result<Vec<ProgressPoint>, StoreError> {
         let rows = sqlx::query(
             "SELECT id, uploaded_at, scenario, difficulty, final_score, final_passed, overridden FROM sessions \
-             WHERE trainee_id = $1 AND status = 'scored' ORDER BY uploaded_at, id",
+             WHERE trainee_id = $1 AND status = 'scored' AND exercise = 'puncture' \
+             AND (overridden = 1 OR outcome IS NULL OR outcome <> 'not_gradeable') ORDER BY uploaded_at, id",
         )
         .bind(trainee_id.to_string())
         .fetch_all(&self.pool)
