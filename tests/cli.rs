@@ -338,6 +338,57 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
         assert!(!why.contains('_'), "{why}");
     }
     assert_eq!(std::fs::read_dir(d.path().join("sessions")).unwrap().count(), 7);
+
+    // The demo's table and the dashboard agree on every session: the service's own replay gives
+    // the same score, outcome and reasons as the table, and the session list shows them.
+    let list: serde_json::Value = serde_json::from_str(
+        &ureq::get(&format!("{base}/api/sessions"))
+            .set("Cookie", &cookie)
+            .call()
+            .unwrap()
+            .into_string()
+            .unwrap(),
+    )
+    .unwrap();
+    let listed = list["sessions"].as_array().unwrap();
+    let page = ureq::get(&format!("{base}/sessions"))
+        .set("Cookie", &cookie)
+        .call()
+        .unwrap()
+        .into_string()
+        .unwrap();
+    let table_rows = text
+        .lines()
+        .filter(|l| l.split_whitespace().next().is_some_and(|w| w.ends_with(".mcap")));
+    assert_eq!(table_rows.clone().count(), 7, "{text}");
+    for line in table_rows {
+        let cols: Vec<&str> = line.split_whitespace().collect();
+        let (scenario, score) = (cols[2], cols[8]);
+        let outcome = if cols[9] == "not" { "not_gradeable" } else { cols[9] };
+        let row = listed
+            .iter()
+            .find(|r| r["scenario"] == scenario)
+            .unwrap_or_else(|| panic!("{scenario} not listed: {list}"));
+        assert_eq!(format!("{:.1}", row["score"].as_f64().unwrap()), score, "{line}\n{row}");
+        assert_eq!(row["outcome"], outcome, "{line}\n{row}");
+        let reasons: Vec<&str> = row["reasons"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r.as_str().unwrap())
+            .collect();
+        if outcome != "passed" {
+            assert!(!reasons.is_empty(), "{row}");
+            for r in &reasons {
+                assert!(line.contains(r), "the table lacks the service's reason {r:?}: {line}");
+            }
+        }
+        assert!(
+            page.contains(&format!("{score}<")),
+            "the sessions page lacks {scenario}'s score {score}"
+        );
+    }
+    assert!(page.contains("The needle entered the right lung"), "{page}");
 }
 
 /// `stylet script run`: the same script twice writes byte-identical CSVs; plots come out; a bad
