@@ -239,37 +239,61 @@ pub fn trend_chart_svg(trends: &Trends) -> Result<Option<String>, String> {
             root.draw(&Text::new(date_from_days(w as i64), (px, py + 8), tick_style.clone()))
                 .map_err(|x| e(&x))?;
         }
-        for (level, pts) in &series {
-            let (r, g, b) = level_rgb(level);
-            let color = RGBColor(r, g, b);
-            let pts: Vec<(f64, f64)> = pts.iter().map(|(w, p)| (*w as f64, *p)).collect();
-            c.draw_series(
-                pts.iter()
-                    .map(|p| Circle::new(*p, 4, ShapeStyle::from(&color).filled())),
-            )
-            .map_err(|x| e(&x))?;
-            c.draw_series(LineSeries::new(pts, ShapeStyle::from(&color).stroke_width(3)))
-                .map_err(|x| e(&x))?
-                .label(*level)
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 24, y)], ShapeStyle::from(&color).stroke_width(3))
-                });
-        }
-        c.configure_series_labels()
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .label_font((SANS, 16))
-            .position(SeriesLabelPosition::LowerRight)
-            .draw()
-            .map_err(|x| e(&x))?;
+        let lines: Vec<(&str, Vec<(f64, f64)>)> = series
+            .iter()
+            .map(|(level, pts)| (*level, pts.iter().map(|(w, p)| (*w as f64, *p)).collect()))
+            .collect();
+        draw_level_lines(&mut c, &lines)?;
         root.present().map_err(|x| e(&x))?;
     }
-    let label = TREND_TITLE.replace(['"', '<', '>', '&'], " ");
-    Ok(Some(out.replacen(
+    Ok(Some(labelled_svg(&out, TREND_TITLE)))
+}
+
+/// One line per difficulty level with a dot per point, in the level's colour, and the legend
+/// (the weekly pass rates and a trainee's scores over time draw alike).
+pub fn draw_level_lines<'a, 'b: 'a>(
+    c: &mut ChartContext<
+        'a,
+        SVGBackend<'b>,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+    lines: &[(&str, Vec<(f64, f64)>)],
+) -> Result<(), String> {
+    let e = |e: &dyn std::fmt::Display| e.to_string();
+    for (level, pts) in lines {
+        let (r, g, b) = level_rgb(level);
+        let color = RGBColor(r, g, b);
+        c.draw_series(
+            pts.iter()
+                .map(|p| Circle::new(*p, 4, ShapeStyle::from(&color).filled())),
+        )
+        .map_err(|x| e(&x))?;
+        c.draw_series(LineSeries::new(
+            pts.iter().copied(),
+            ShapeStyle::from(&color).stroke_width(3),
+        ))
+        .map_err(|x| e(&x))?
+        .label(*level)
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], ShapeStyle::from(&color).stroke_width(3)));
+    }
+    c.configure_series_labels()
+        .background_style(WHITE.mix(0.9))
+        .border_style(BLACK)
+        .label_font((SANS, 16))
+        .position(SeriesLabelPosition::LowerRight)
+        .draw()
+        .map_err(|x| e(&x))?;
+    Ok(())
+}
+
+/// An inline SVG chart marked as an image with its title as the accessible name.
+pub fn labelled_svg(svg: &str, title: &str) -> String {
+    let label = title.replace(['"', '<', '>', '&'], " ");
+    svg.replacen(
         "<svg ",
         &format!("<svg class=\"chart\" role=\"img\" aria-label=\"{label}\" "),
         1,
-    )))
+    )
 }
 
 #[cfg(test)]

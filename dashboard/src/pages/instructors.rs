@@ -17,7 +17,7 @@ use stylet_service::store::{DatedScore, LevelTotals, QUEUE_PAGE, QueueScope, Rev
 
 use crate::auth::{PageError, Viewer, encode_query, fail};
 use crate::layout::{page, pager, score_text, short_time};
-use crate::trends::{date_from_days, days_from_date, level_rgb};
+use crate::trends::{date_from_days, days_from_date, draw_level_lines, labelled_svg};
 
 /// `?only=flagged&page=N`.
 #[derive(Debug, Default, serde::Deserialize)]
@@ -364,49 +364,28 @@ pub fn progress_over_time_svg(scores: &[DatedScore], title: &str) -> Result<Opti
             .light_line_style(RGBColor(235, 235, 235))
             .draw()
             .map_err(|x| e(&x))?;
-        for level in LEVELS {
-            let pts: Vec<(f64, f64)> = points
-                .iter()
-                .filter(|(_, p)| p.difficulty == level)
-                .map(|(x, p)| (*x, p.score))
-                .collect();
-            if pts.is_empty() {
-                continue;
-            }
-            let (r, g, b) = level_rgb(level);
-            let color = RGBColor(r, g, b);
-            c.draw_series(
-                pts.iter()
-                    .map(|p| Circle::new(*p, 4, ShapeStyle::from(&color).filled())),
-            )
-            .map_err(|x| e(&x))?;
-            c.draw_series(LineSeries::new(pts, ShapeStyle::from(&color).stroke_width(3)))
-                .map_err(|x| e(&x))?
-                .label(level)
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 24, y)], ShapeStyle::from(&color).stroke_width(3))
-                });
-        }
-        c.configure_series_labels()
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .label_font((SANS, 16))
-            .position(SeriesLabelPosition::LowerRight)
-            .draw()
-            .map_err(|x| e(&x))?;
+        let lines: Vec<(&str, Vec<(f64, f64)>)> = LEVELS
+            .iter()
+            .map(|level| {
+                let pts = points
+                    .iter()
+                    .filter(|(_, p)| p.difficulty == *level)
+                    .map(|(x, p)| (*x, p.score))
+                    .collect();
+                (*level, pts)
+            })
+            .filter(|(_, pts): &(&str, Vec<(f64, f64)>)| !pts.is_empty())
+            .collect();
+        draw_level_lines(&mut c, &lines)?;
         root.present().map_err(|x| e(&x))?;
     }
-    let label = title.replace(['"', '<', '>', '&'], " ");
-    Ok(Some(out.replacen(
-        "<svg ",
-        &format!("<svg class=\"chart\" role=\"img\" aria-label=\"{label}\" "),
-        1,
-    )))
+    Ok(Some(labelled_svg(&out, title)))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::trends::level_rgb;
 
     fn texts(svg: &str) -> Vec<String> {
         svg.split("<text")
