@@ -293,23 +293,7 @@ impl Store {
         if scope == QueueScope::Flagged {
             clause += FLAGGED;
         }
-        let q = format!(
-            "SELECT {LINE_COLUMNS} FROM sessions s JOIN users u ON u.id = s.trainee_id{clause} \
-             ORDER BY s.uploaded_at DESC, s.id DESC LIMIT ${} OFFSET ${}",
-            binds.len() + 1,
-            binds.len() + 2
-        );
-        let rows = super::bound_query(q, binds.clone())
-            .bind(limit.clamp(0, 1000))
-            .bind(offset.max(0))
-            .fetch_all(&self.pool)
-            .await?;
-        let lines = rows.iter().map(line_of).collect::<Result<Vec<_>, _>>()?;
-        let count = super::bound_query(format!("SELECT COUNT(*) AS n FROM sessions s{clause}"), binds)
-            .fetch_one(&self.pool)
-            .await?
-            .try_get("n")?;
-        Ok((lines, count))
+        self.page_of_lines(&clause, binds, limit, offset).await
     }
 
     /// A trainee's progress as `viewer` may see it: `None` when there is no such trainee or the
@@ -443,6 +427,18 @@ impl Store {
             }
         }
         clause += search.outcome.condition();
+        self.page_of_lines(&clause, binds, limit, offset).await
+    }
+
+    /// One page of session lines matching `clause` (newest first, at most 1 000) and how many
+    /// match in all: the queue and the comparison search page alike.
+    async fn page_of_lines(
+        &self,
+        clause: &str,
+        binds: Vec<String>,
+        limit: i64,
+        offset: i64,
+    ) -> Result<(Vec<ReviewLine>, i64), StoreError> {
         let q = format!(
             "SELECT {LINE_COLUMNS} FROM sessions s JOIN users u ON u.id = s.trainee_id{clause} \
              ORDER BY s.uploaded_at DESC, s.id DESC LIMIT ${} OFFSET ${}",
