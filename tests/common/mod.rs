@@ -2,6 +2,8 @@
 //! accounts, a server on loopback, HTTP calls, a small phantom with recorded sessions.
 #![allow(dead_code)]
 
+pub mod browser;
+
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
