@@ -1,20 +1,30 @@
-//! Stylet renderers.
+//! Stylet renderers: the CPU side (ALGORITHMS.md §4, docs/rendering.md).
 //!
-//! Now: the CPU reference multi-planar reformation ([`mpr`]: CT slices with window/level and a
-//! label overlay, ALGORITHMS.md §4 "MPR") and the atlas figure ([`figure`]) used by
-//! `stylet atlas inspect --png` and by the server for thumbnails. The wgpu ray casting, X-ray and
-//! ultrasound renderers join in later issues, with this CPU path as their test oracle.
+//! One scene description ([`scene`]) drawn by two renderers: this crate's CPU reference
+//! (deterministic, rayon; the oracle in tests and what the server draws replays with) and the
+//! wgpu renderer in `stylet-render-gpu` (what the desktop simulator uses), so the service and the
+//! scoring workers never link wgpu. Modules: [`scene`] (camera, light, clip plane, tagging,
+//! quality, hooks), [`transfer`] (eq. 3.2.2), [`volume`] (the atlas prepared for rendering),
+//! [`tools`] (needle, finger, probes), [`image`] (pixels, PNG, difference statistics), [`mpr`]
+//! (slices) and [`figure`] (the atlas figure of `stylet atlas inspect`).
 
 pub mod charts;
 pub mod figure;
 pub mod fonts;
+pub mod image;
 pub mod mpr;
+pub mod scene;
+pub mod tools;
+pub mod transfer;
+pub mod volume;
 
 /// Rendering failures (file output, font set-up).
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
     #[error("cannot write {path}: {message}")]
     Write { path: String, message: String },
+    #[error("cannot read {path}: {message}")]
+    Read { path: String, message: String },
     #[error("drawing failed: {0}")]
     Draw(String),
 }
