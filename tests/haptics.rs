@@ -315,7 +315,7 @@ fn fig_3_14_palpation_and_probe_over_the_ribs() {
     let parallel = rib_contrast(&parallel_run);
     let across = rib_contrast(&across_run);
     // The figure (thesis Fig. 3.14): indentation along the sweep, ribs marked; a test artefact.
-    use stylet_render::charts::{LineChart, Series, palette, write_chart};
+    use stylet_dashboard::plot::{LineChart, Series, palette, write_chart};
     let trace = |r: &Run| -> Vec<(f64, f64)> {
         r.ticks
             .iter()

@@ -1,9 +1,9 @@
-//! The dashboard's charts as inline SVG (plotters, through `stylet_render::charts`): every chart
+//! The dashboard's charts as inline SVG (plotters, through `crate::plot`): every chart
 //! has a title, axis labels with units and a legend, and each force component keeps its colour
 //! everywhere (`palette`). Sparklines are tiny hand-written SVG polylines.
 
 use stylet_physics::LabelId;
-use stylet_render::charts::{ChartColor, LineChart, Series, chart_svg, palette};
+use crate::plot::{ChartColor, LineChart, Series, chart_svg, palette};
 use stylet_scoring::ReviewTrace;
 use stylet_service::store::ProgressPoint;
 

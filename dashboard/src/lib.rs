@@ -1,7 +1,7 @@
 //! The Stylet dashboard (DESIGN.md "Service and security"; docs/dashboard.md): server-rendered
 //! pages for trainees, instructors, curriculum staff and admins, mounted by `stylet serve` beside
 //! the JSON API and sharing its logins, store and authorization rules. Charts are drawn on the
-//! server with plotters as inline SVG ([`charts`]); the tip path over CT slices is a PNG drawn by
+//! server with plotters as inline SVG ([`charts`], on [`plot`]); the tip path over CT slices is a PNG drawn by
 //! the CPU renderer ([`figures`]). Pages work without JavaScript; every form carries the login's
 //! CSRF token.
 
@@ -11,6 +11,7 @@ pub mod figures;
 pub mod layout;
 pub mod pages;
 pub mod pdf;
+pub mod plot;
 pub mod progress;
 pub mod trends;
 

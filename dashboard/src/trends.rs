@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
-use stylet_render::charts::palette;
+use crate::plot::palette;
 use stylet_render::fonts::{SANS, ensure_fonts};
 use stylet_scoring::Exercise;
 use stylet_scoring::rubric::LEVELS;

@@ -11,7 +11,7 @@ use clap::{Args, Subcommand};
 use stylet_devices::script::{ScriptedDevice, parse, scripted_simulation};
 use stylet_physics::glam::DVec3;
 use stylet_physics::{Event, Simulation, TickInput, TickOutput};
-use stylet_render::charts::{LineChart, Series, palette, write_chart};
+use stylet_dashboard::plot::{LineChart, Series, palette, write_chart};
 
 use stylet_recorder::{Recording, SessionInfo, WriterOptions};
 

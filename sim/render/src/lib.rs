@@ -8,12 +8,13 @@
 //! [`tools`] (needle, finger, probes), [`image`] (pixels, PNG, difference statistics), [`mpr`]
 //! (slices) and [`figure`] (the atlas figure of `stylet atlas inspect`).
 
-pub mod charts;
 pub mod figure;
 pub mod fonts;
 pub mod image;
 pub mod mpr;
+pub mod raycast;
 pub mod scene;
+pub mod shadow;
 pub mod tools;
 pub mod transfer;
 pub mod volume;

@@ -1,16 +1,17 @@
 //! Line charts (plotters) for force curves and traces, as SVG or PNG: a title, axis labels with
-//! units, a legend, and one colour per force component everywhere ([`palette`]).
+//! units, a legend, and one colour per force component everywhere ([`palette`]). Used by the dashboard
+//! pages, `stylet script run --plot` and the haptics tests.
 
 use std::path::Path;
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::RenderError;
+use stylet_render::RenderError;
 
-use crate::fonts::{SANS, ensure_fonts};
 /// A chart colour (plotters' RGB).
 pub use plotters::style::RGBColor as ChartColor;
+use stylet_render::fonts::{SANS, ensure_fonts};
 
 /// The colours of the force components, used by every chart.
 pub mod palette {
