@@ -38,6 +38,10 @@ pub struct Manifest {
     /// declared) accepts any well-formed name.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub scenarios: Vec<ScenarioToml>,
+    /// Transfer-function presets and the slice window of the views (`stylet render`). An atlas
+    /// written before presets existed has none; renderers then use the shipped PTCD presets.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub render: Option<RenderToml>,
 }
 
 /// A scenario (exercise) of an atlas: its name, as sessions record it, and what it asks for.
@@ -242,6 +246,150 @@ pub struct InsertionPath {
     pub description: String,
 }
 
+/// `[render]`: what the views draw unless told otherwise (docs/atlas.md "Render presets").
+/// Checked when parsed (every error names the preset, the trapezoid and the field), so a loaded
+/// atlas always has usable presets.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "RenderFields")]
+pub struct RenderToml {
+    pub presets: RenderPresets,
+    /// The grey window of the slice views; the abdominal window (L 40, W 400) when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub window: Option<WindowToml>,
+}
+
+/// `[render]` as written, before [`RenderToml::check`].
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RenderFields {
+    presets: RenderPresets,
+    #[serde(default)]
+    window: Option<WindowToml>,
+}
+
+impl TryFrom<RenderFields> for RenderToml {
+    type Error = String;
+    fn try_from(f: RenderFields) -> Result<Self, String> {
+        let r = RenderToml {
+            presets: f.presets,
+            window: f.window,
+        };
+        r.check()?;
+        Ok(r)
+    }
+}
+
+/// The three transfer-function presets of the 3D view (thesis §3.2.1, eq. 3.2.2).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RenderPresets {
+    /// The body's surface, opaque.
+    pub skin: PresetToml,
+    /// Skin transparent, soft tissue faint, contrast-filled vessels and bone visible (Fig. 3.9).
+    pub soft: PresetToml,
+    /// Bone only.
+    pub bone: PresetToml,
+}
+
+impl RenderPresets {
+    /// The presets with their names, in the order skin, soft, bone.
+    pub fn named(&self) -> [(&'static str, &PresetToml); 3] {
+        [("skin", &self.skin), ("soft", &self.soft), ("bone", &self.bone)]
+    }
+}
+
+/// One preset: c(v) = Σ α_i a_i(v) (r_i, g_i, b_i, 1) over its trapezoids.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PresetToml {
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub description: String,
+    pub trapezoids: Vec<TrapezoidToml>,
+}
+
+/// One tissue's trapezoid a_i: opacity rises from hu[0] to hu[1], stays at `opacity` to hu[2],
+/// falls to zero at hu[3].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrapezoidToml {
+    /// What it shows, for people ("skin", "contrast vessels").
+    pub tissue: String,
+    /// Corners in HU, a < b ≤ c < d.
+    pub hu: [f64; 4],
+    /// Linear RGB, 0 … 1.
+    pub rgb: [f64; 3],
+    /// Plateau opacity per millimetre of ray, 0 … 1.
+    pub opacity: f64,
+    /// α_i of eq. 3.2.2, 0 … 1 (0 hides the tissue).
+    pub weight: f64,
+}
+
+/// A CT display window (level and width in HU).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WindowToml {
+    pub level_hu: f64,
+    pub width_hu: f64,
+}
+
+/// The most trapezoids a preset may hold (the GPU renderer keeps them in a fixed uniform array;
+/// `stylet_render::transfer::MAX_TRAPEZOIDS`).
+pub const MAX_PRESET_TRAPEZOIDS: usize = 8;
+
+impl RenderToml {
+    /// Checks every preset and the window; the error names the preset, trapezoid and field.
+    pub fn check(&self) -> Result<(), String> {
+        for (name, preset) in self.presets.named() {
+            preset.check().map_err(|e| format!("render preset '{name}': {e}"))?;
+        }
+        if let Some(w) = &self.window
+            && (!w.level_hu.is_finite() || !w.width_hu.is_finite() || w.width_hu <= 0.0)
+        {
+            return Err(format!(
+                "render.window: level_hu must be finite and width_hu a finite number > 0, got level {} width {}",
+                w.level_hu, w.width_hu
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl PresetToml {
+    fn check(&self) -> Result<(), String> {
+        let n = self.trapezoids.len();
+        if n == 0 || n > MAX_PRESET_TRAPEZOIDS {
+            return Err(format!("needs 1 … {MAX_PRESET_TRAPEZOIDS} trapezoids, has {n}"));
+        }
+        let unit = |v: f64| v.is_finite() && (0.0..=1.0).contains(&v);
+        for (i, t) in self.trapezoids.iter().enumerate() {
+            let at = format!("trapezoid {} ('{}')", i + 1, t.tissue);
+            if t.tissue.trim().is_empty() || t.tissue.len() > 64 {
+                return Err(format!("trapezoid {}: tissue must be a name of 1–64 characters", i + 1));
+            }
+            let [a, b, c, d] = t.hu;
+            if !t.hu.iter().all(|v| v.is_finite()) || !(a < b && b <= c && c < d) {
+                return Err(format!(
+                    "{at}: hu must be four finite corners a < b ≤ c < d, got {:?}",
+                    t.hu
+                ));
+            }
+            if !t.rgb.iter().all(|&v| unit(v)) {
+                return Err(format!("{at}: rgb must be three values 0 … 1, got {:?}", t.rgb));
+            }
+            if !unit(t.opacity) {
+                return Err(format!("{at}: opacity (per mm) must be 0 … 1, got {}", t.opacity));
+            }
+            if !unit(t.weight) {
+                return Err(format!("{at}: weight must be 0 … 1, got {}", t.weight));
+            }
+        }
+        if !self.trapezoids.iter().any(|t| t.weight > 0.0 && t.opacity > 0.0) {
+            return Err("every trapezoid has weight or opacity 0: the preset would draw nothing".into());
+        }
+        Ok(())
+    }
+}
+
 /// The scenario part of a manifest, in a file of its own (e.g. `atlases/ptcd.toml`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -252,6 +400,8 @@ pub struct ScenarioFile {
     pub difficulty: DifficultyPresets,
     #[serde(default)]
     pub scenarios: Vec<ScenarioToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub render: Option<RenderToml>,
 }
 
 /// Checks scenario names: 1–64 letters, digits or `. _ - @` (what a session header may name),
@@ -422,6 +572,7 @@ impl Manifest {
             difficulty: scenario.difficulty,
             paths: Vec::new(),
             scenarios: scenario.scenarios,
+            render: scenario.render,
         }
     }
 
@@ -443,5 +594,81 @@ mod tests {
         assert_eq!(labels.with_role(Role::Target).count(), 1);
         check_scenarios(&s.scenarios).unwrap();
         assert!(s.scenarios.iter().any(|sc| sc.name == "success-intercostal"));
+        let render = s.render.expect("ptcd.toml has [render] presets");
+        for (name, preset) in render.presets.named() {
+            assert!(!preset.trapezoids.is_empty(), "{name}");
+        }
+        // Fig. 3.9: the soft preset hides skin and shows bone fully.
+        let weight = |tissue: &str| {
+            render
+                .presets
+                .soft
+                .trapezoids
+                .iter()
+                .find(|t| t.tissue == tissue)
+                .unwrap()
+                .weight
+        };
+        assert_eq!((weight("skin"), weight("bone")), (0.0, 1.0));
+    }
+
+    fn ptcd_with(edit: impl Fn(&mut toml::Table)) -> Result<ScenarioFile, String> {
+        let mut t: toml::Table = toml::from_str(PTCD_SCENARIO_TOML).unwrap();
+        edit(&mut t);
+        ScenarioFile::parse(&toml::to_string(&t).unwrap())
+    }
+
+    fn soft_trapezoid(t: &mut toml::Table, i: usize) -> &mut toml::Table {
+        t["render"]["presets"]["soft"]["trapezoids"].as_array_mut().unwrap()[i]
+            .as_table_mut()
+            .unwrap()
+    }
+
+    #[test]
+    fn bad_render_presets_name_the_preset_the_trapezoid_and_the_field() {
+        use toml::Value;
+        let e = ptcd_with(|t| {
+            soft_trapezoid(t, 2).insert("hu".into(), Value::try_from([200.0, 100.0, 300.0, 400.0]).unwrap());
+        })
+        .unwrap_err();
+        assert!(
+            e.contains("render preset 'soft'") && e.contains("'contrast vessels'") && e.contains("hu"),
+            "{e}"
+        );
+        let e = ptcd_with(|t| {
+            soft_trapezoid(t, 1).insert("opacity".into(), Value::Float(1.5));
+        })
+        .unwrap_err();
+        assert!(e.contains("'soft tissue'") && e.contains("opacity"), "{e}");
+        let e = ptcd_with(|t| {
+            soft_trapezoid(t, 0).insert("rgb".into(), Value::try_from([0.5, 2.0, 0.5]).unwrap());
+        })
+        .unwrap_err();
+        assert!(e.contains("rgb"), "{e}");
+        let e = ptcd_with(|t| {
+            soft_trapezoid(t, 3).insert("weight".into(), Value::Float(-0.1));
+        })
+        .unwrap_err();
+        assert!(e.contains("'bone'") && e.contains("weight"), "{e}");
+        let e = ptcd_with(|t| {
+            t["render"]["presets"]["bone"]["trapezoids"] = Value::Array(vec![]);
+        })
+        .unwrap_err();
+        assert!(e.contains("render preset 'bone'") && e.contains("trapezoids"), "{e}");
+        let e = ptcd_with(|t| {
+            t["render"]["presets"].as_table_mut().unwrap().remove("skin");
+        })
+        .unwrap_err();
+        assert!(e.contains("skin"), "{e}");
+        let e = ptcd_with(|t| {
+            t["render"]["window"]["width_hu"] = Value::Float(0.0);
+        })
+        .unwrap_err();
+        assert!(e.contains("render.window"), "{e}");
+        let e = ptcd_with(|t| {
+            soft_trapezoid(t, 1).insert("colour".into(), Value::Float(1.0));
+        })
+        .unwrap_err();
+        assert!(e.contains("colour"), "{e}");
     }
 }
