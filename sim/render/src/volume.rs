@@ -3,9 +3,10 @@
 //! depth), each label's tagging class and colour (eqs. 3.2.4–3.2.5), and the per-cell CT value
 //! ranges behind the occupancy grid of empty-space leaping (thesis §3.2.1).
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
-use stylet_physics::{LabelId, PunctureAtlas, Role};
+use stylet_physics::glam::{DVec3, Vec3};
+use stylet_physics::{Grid, LabelId, PunctureAtlas, Role};
 
 /// How a label is tagged on the clipping plane (eq. 3.2.4).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -29,6 +30,59 @@ pub struct RenderVolume {
     pub labels: Vec<LabelId>,
     /// Style of every label id 0 ..= max id (ids not in the table: `Other`, transparent).
     pub styles: Vec<LabelStyle>,
+    /// Per-cell CT ranges of the occupancy grid, computed once per cell count N.
+    cell_cache: Mutex<Vec<Arc<CellRanges>>>,
+}
+
+/// World → continuous index of a grid in `f32`, c = M⁻¹(x − o): what both renderers use
+/// (the GPU receives `rows` and `origin` as uniforms).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IndexMap {
+    /// Rows of M⁻¹ (index units per mm).
+    pub rows: [Vec3; 3],
+    /// World position of voxel (0, 0, 0)'s centre (mm).
+    pub origin: Vec3,
+    pub dims: [u32; 3],
+}
+
+impl IndexMap {
+    /// The grid's inverse affine rounded to `f32`.
+    pub fn of(grid: &Grid) -> IndexMap {
+        let row = |a: usize| {
+            let mut e = DVec3::ZERO;
+            e[a] = 1.0;
+            grid.index_gradient_to_world(e).as_vec3()
+        };
+        let [nx, ny, nz] = grid.dims();
+        IndexMap {
+            rows: [row(0), row(1), row(2)],
+            origin: grid.affine().origin.as_vec3(),
+            dims: [nx as u32, ny as u32, nz as u32],
+        }
+    }
+
+    /// Continuous index of a world point: (r₀·p, r₁·p, r₂·p) with p = x − origin.
+    #[inline]
+    pub fn point(&self, x: Vec3) -> Vec3 {
+        self.vector(x - self.origin)
+    }
+
+    /// Index-space image of a world vector (M⁻¹v).
+    #[inline]
+    pub fn vector(&self, v: Vec3) -> Vec3 {
+        Vec3::new(self.rows[0].dot(v), self.rows[1].dot(v), self.rows[2].dot(v))
+    }
+}
+
+/// The CT value range of every cell of an N³ occupancy grid over the index box
+/// [−½, n − ½)³: cell q on axis a covers index coordinates [q·n/N − ½, (q+1)·n/N − ½), and its
+/// range spans the voxels a trilinear sample there reads, widened by one voxel on every side.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CellRanges {
+    pub cells: u32,
+    /// Minimum and maximum HU per cell, x fastest.
+    pub min_hu: Vec<f32>,
+    pub max_hu: Vec<f32>,
 }
 
 impl RenderVolume {
@@ -70,7 +124,25 @@ impl RenderVolume {
                 rgba: c.map(|v| v as f32 / 255.0),
             };
         }
-        RenderVolume { atlas, labels, styles }
+        RenderVolume {
+            atlas,
+            labels,
+            styles,
+            cell_cache: Mutex::new(Vec::new()),
+        }
+    }
+
+    /// The occupancy grid's CT ranges for `cells` per axis (clamped to 16 … 128), computed on
+    /// first use and cached (a few per atlas at most).
+    pub fn cell_ranges(&self, cells: u32) -> Arc<CellRanges> {
+        let cells = cells.clamp(16, 128);
+        let mut cache = self.cell_cache.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(r) = cache.iter().find(|r| r.cells == cells) {
+            return r.clone();
+        }
+        let r = Arc::new(crate::raycast::occupancy::cell_ranges(self.atlas.ct(), cells));
+        cache.push(r.clone());
+        r
     }
 
     /// The style of a label id (unknown ids: `Other`, transparent).

@@ -1,0 +1,301 @@
+//! One ray, docs/rendering.md "One ray" steps 1–9, written as plain loops without allocation or
+//! recursion so the WGSL port can follow it line by line.
+
+use stylet_physics::glam::{DVec3, Vec3};
+
+use super::jitter::jitter;
+use super::occupancy::Occupancy;
+use super::sampler::{At, Sampler};
+use super::shading::{corrected_alpha, phong, plane_colour};
+use crate::scene::{ClipPlane, Light, MotionHook, Quality, Tagging};
+use crate::transfer::TransferFunction;
+use crate::volume::RenderVolume;
+
+/// Everything a ray reads that is the same for every pixel of a frame.
+pub struct Frame<'a> {
+    pub volume: &'a RenderVolume,
+    pub sampler: Sampler<'a>,
+    pub transfer: &'a TransferFunction,
+    pub light: Light,
+    pub clip: Option<ClipPlane>,
+    pub tagging: Tagging,
+    pub quality: Quality,
+    /// Present when leaping is on (and no motion hook is set).
+    pub occupancy: Option<Occupancy>,
+    /// Whether air (outside the CT) is visible under the transfer function, or a deformed
+    /// region may lie outside the CT's box: then leaping never skips samples outside the box.
+    pub sample_outside: bool,
+    /// Distance from the eye to the farthest corner of the sampling domain (naive extent).
+    pub t_far: f32,
+    pub background: Vec3,
+    pub motion: Option<&'a MotionHook>,
+    // TOOLS (steps 4 and 6): the tool primitives (`ToolState::primitives`) and the shadows
+    // (`shadow::Shadows::from_tools`) are stored here once tools.rs and shadow.rs provide them.
+}
+
+/// The ray parameters [t_in, t_out] where the index-space ray `ce` + t·`dc` (t ≥ 0) crosses the
+/// sampling domain [−½, n − ½]³ (slabs), or `None` when it misses.
+#[inline]
+pub fn ray_box(ce: Vec3, dc: Vec3, dims: [u32; 3]) -> Option<(f32, f32)> {
+    let (mut t0, mut t1) = (0.0f32, f32::INFINITY);
+    for a in 0..3 {
+        let (lo, hi) = (-0.5f32, dims[a] as f32 - 0.5);
+        if dc[a] == 0.0 {
+            if ce[a] < lo || ce[a] > hi {
+                return None;
+            }
+        } else {
+            let inv = 1.0 / dc[a];
+            let ta = (lo - ce[a]) * inv;
+            let tb = (hi - ce[a]) * inv;
+            t0 = t0.max(ta.min(tb));
+            t1 = t1.min(ta.max(tb));
+        }
+    }
+    if t0 > t1 { None } else { Some((t0, t1)) }
+}
+
+/// Whether index `c` lies in the sampling domain (the trilinear inside rule).
+#[inline]
+fn inside(c: Vec3, dims: [u32; 3]) -> bool {
+    (0..3).all(|a| c[a] >= -0.5 && c[a] < dims[a] as f32 - 0.5)
+}
+
+/// t_k = (k + j)·Δ: the only formula for a lattice point.
+#[inline]
+fn lattice(k: u32, j: f32, step: f32) -> f32 {
+    (k as f32 + j) * step
+}
+
+/// The first k with t_k ≥ `t` (or > `t` when `strict`).
+#[inline]
+fn first_lattice(t: f32, strict: bool, j: f32, step: f32) -> u32 {
+    let ok = |k: u32| {
+        let tk = lattice(k, j, step);
+        if strict { tk > t } else { tk >= t }
+    };
+    let mut k = (t / step - j).ceil().max(0.0) as u32;
+    while k > 0 && ok(k - 1) {
+        k -= 1;
+    }
+    while !ok(k) {
+        k += 1;
+    }
+    k
+}
+
+/// Front-to-back accumulation (C, A) of one ray.
+struct Accum {
+    c: Vec3,
+    a: f32,
+}
+
+impl Accum {
+    #[inline]
+    fn add(&mut self, rgb: Vec3, alpha: f32) {
+        self.c += (1.0 - self.a) * alpha * rgb;
+        self.a += (1.0 - self.a) * alpha;
+    }
+}
+
+/// Motion warp of eqs. 5.4.1–5.4.2 along one ray: X⁺ = x⁺ − u(X + d, t), d = x⁺ − x.
+struct Warp<'a> {
+    hook: &'a MotionHook,
+    prev: Option<(Vec3, Vec3)>,
+}
+
+impl Warp<'_> {
+    /// Reference position X of world sample `x`: continues the fixed point from the previous
+    /// sample of this ray, or starts it at X = x.
+    fn to_reference(&mut self, x: Vec3) -> Vec3 {
+        let (x_prev, big_x_prev) = self.prev.unwrap_or((x, x));
+        let d = x - x_prev;
+        let u = self.hook.model.displacement((big_x_prev + d).as_dvec3(), self.hook.t_s);
+        let big_x = (x.as_dvec3() - u).as_vec3();
+        self.prev = Some((x, big_x));
+        big_x
+    }
+}
+
+/// The colour of pixel (`col`, `row`) for the ray `origin` + t·`dir` (unit `dir`), and the
+/// number of volume samples taken.
+pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4], u64) {
+    let q = &f.quality;
+    let step = q.step_mm;
+    let dims = f.sampler.ct.dims;
+    // 1. Sample lattice.
+    let j = if q.jitter { jitter(col, row) } else { 0.0 };
+    let ce = f.sampler.ct_map.point(origin);
+    let dc = f.sampler.ct_map.vector(dir);
+    let (je, dj) = match &f.sampler.deformed {
+        Some((_, m)) => (m.point(origin), m.vector(dir)),
+        None => (Vec3::ZERO, Vec3::ZERO),
+    };
+    let at_t = |t: f32| At {
+        ct: ce + dc * t,
+        j: je + dj * t,
+    };
+    let mut acc = Accum { c: Vec3::ZERO, a: 0.0 };
+    let mut samples = 0u64;
+
+    // 4. Tools: the nearest hit ends the march. TOOLS: t_tool = tools::nearest_hit(..) here.
+    let t_tool = f32::INFINITY;
+
+    // 2. Extent.
+    let extent = if q.ray_box && f.motion.is_none() {
+        ray_box(ce, dc, dims)
+    } else {
+        Some((0.0, f.t_far))
+    };
+    // 3. Clip plane: the visible part of the extent, and the plane sample where the ray enters it.
+    let mut lattice_from: Option<(f32, bool, f32)> = None; // (t_lo, strict, t_hi)
+    let mut plane_t: Option<f32> = None;
+    if let Some((t0, t1)) = extent {
+        match f.clip {
+            None => lattice_from = Some((t0, false, t1)),
+            Some(p) => {
+                let s0 = (origin - p.point_mm).dot(p.normal);
+                let rn = dir.dot(p.normal);
+                if rn > 0.0 {
+                    let tc = -s0 / rn;
+                    if tc < t0 {
+                        lattice_from = Some((t0, false, t1));
+                    } else if tc <= t1 {
+                        plane_t = Some(tc);
+                        lattice_from = Some((tc, true, t1));
+                    }
+                } else if rn < 0.0 {
+                    let tc = -s0 / rn;
+                    if tc >= t0 {
+                        lattice_from = Some((t0, false, t1.min(tc)));
+                    }
+                } else if s0 >= 0.0 {
+                    lattice_from = Some((t0, false, t1));
+                }
+            }
+        }
+    }
+
+    let mut warp = f.motion.map(|hook| Warp { hook, prev: None });
+    // The plane sample: no shading, no shadow, opacity as is.
+    if let Some(tc) = plane_t
+        && tc < t_tool
+    {
+        let at = match warp.as_mut() {
+            Some(w) => f.sampler.at_world(w.to_reference(origin + dir * tc)),
+            None => at_t(tc),
+        };
+        samples += 1;
+        let c = f.transfer.eval(f.sampler.s(at));
+        let style = match f.tagging {
+            Tagging::Off => f.volume.style(0),
+            _ => f.volume.style(f.sampler.label(at)),
+        };
+        let v = plane_colour(f.tagging, c, style);
+        if v[3] > 0.0 {
+            acc.add(Vec3::new(v[0], v[1], v[2]), v[3].min(1.0));
+        }
+        if let Some(w) = warp.as_mut() {
+            w.prev = None;
+        }
+    }
+
+    // 5.–8. The lattice samples.
+    if let Some((t_lo, strict, t_hi)) = lattice_from
+        && !(q.early_termination && acc.a >= crate::scene::Quality::OPAQUE)
+    {
+        let mut k = first_lattice(t_lo, strict, j, step);
+        loop {
+            let t = lattice(k, j, step);
+            if t > t_hi || t >= t_tool {
+                break;
+            }
+            let at = match warp.as_mut() {
+                Some(w) => f.sampler.at_world(w.to_reference(origin + dir * t)),
+                None => at_t(t),
+            };
+            // 8. Empty-space leaping.
+            if let Some(occ) = &f.occupancy {
+                if inside(at.ct, dims) {
+                    let cell = occ.cell(at.ct);
+                    if !occ.is_occupied(cell) {
+                        let t_exit = occ.exit_t(cell, ce, dc);
+                        let k_exit = (t_exit / step - j - 1e-3).ceil();
+                        let next = if k_exit.is_finite() && k_exit > (k + 1) as f32 {
+                            k_exit.min(u32::MAX as f32 / 2.0) as u32
+                        } else {
+                            k + 1
+                        };
+                        k = next;
+                        continue;
+                    }
+                } else if !f.sample_outside {
+                    k += 1;
+                    continue;
+                }
+            }
+            // 5. Sample.
+            samples += 1;
+            let c = f.transfer.eval(f.sampler.s(at));
+            if c[3] > 0.0 {
+                let alpha = corrected_alpha(c[3], step);
+                // 6. Shadow. TOOLS: f_shadow = shadows.factor(x, light.toward_light, light.shadow_in).
+                let f_shadow = 1.0;
+                let shade = phong(f.sampler.gradient(at), dir, &f.light, f_shadow);
+                acc.add(Vec3::new(c[0], c[1], c[2]) * shade, alpha);
+                // 7. Early termination.
+                if q.early_termination && acc.a >= crate::scene::Quality::OPAQUE {
+                    break;
+                }
+            }
+            k += 1;
+        }
+    }
+
+    // 4. (end) TOOLS: with a hit, acc.c += (1 − A)·tools::shade(hit, light, −dir); A = 1.
+
+    // 9. Finish.
+    let rgb = acc.c + (1.0 - acc.a) * f.background;
+    let to8 = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+    ([to8(rgb.x), to8(rgb.y), to8(rgb.z), 255], samples)
+}
+
+/// Distance from `eye` to the farthest corner of a grid's sampling domain (index box
+/// [−½, n − ½]³ mapped to the world).
+pub fn farthest_corner_mm(grid: &stylet_physics::Grid, eye: Vec3) -> f32 {
+    let [nx, ny, nz] = grid.dims();
+    let mut far = 0.0f32;
+    for cx in [-0.5, nx as f64 - 0.5] {
+        for cy in [-0.5, ny as f64 - 0.5] {
+            for cz in [-0.5, nz as f64 - 0.5] {
+                let p = grid.affine().apply(DVec3::new(cx, cy, cz)).as_vec3();
+                far = far.max((p - eye).length());
+            }
+        }
+    }
+    far
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn first_lattice_respects_strictness() {
+        let (j, step) = (0.25, 0.5);
+        // t_k = 0.125, 0.625, 1.125, ...
+        assert_eq!(first_lattice(0.0, false, j, step), 0);
+        assert_eq!(first_lattice(0.625, false, j, step), 1);
+        assert_eq!(first_lattice(0.625, true, j, step), 2);
+        assert_eq!(first_lattice(0.7, true, j, step), 2);
+    }
+
+    #[test]
+    fn ray_box_clips_to_the_half_voxel_domain() {
+        let (t0, t1) = ray_box(Vec3::new(-10.0, 1.0, 1.0), Vec3::X, [4, 4, 4]).unwrap();
+        assert_eq!((t0, t1), (9.5, 13.5));
+        assert!(ray_box(Vec3::new(-10.0, 5.0, 1.0), Vec3::X, [4, 4, 4]).is_none());
+        assert!(ray_box(Vec3::new(-10.0, 1.0, 1.0), -Vec3::X, [4, 4, 4]).is_none());
+        assert_eq!(ray_box(Vec3::new(1.0, 1.0, 1.0), Vec3::X, [4, 4, 4]), Some((0.0, 2.5)));
+    }
+}

@@ -1,0 +1,120 @@
+//! The CPU reference ray caster (thesis §3.2.1–3.2.3; docs/rendering.md "One ray"): front-to-back
+//! emission–absorption with ray/box clipping, empty-space leaping, early termination, jitter,
+//! Phong shading, the clipping plane and its tagging. Rayon over rows; every pixel is a pure
+//! function of the inputs, so the image is bit-identical on any number of threads.
+
+pub mod jitter;
+pub mod march;
+pub mod occupancy;
+pub mod sampler;
+pub mod shading;
+
+use rayon::prelude::*;
+
+use crate::image::Image;
+use crate::scene::Scene;
+use crate::volume::{IndexMap, RenderVolume};
+use march::{Frame, farthest_corner_mm, march};
+use occupancy::Occupancy;
+use sampler::{Grid3, Sampler};
+
+/// A rendered frame and the work it took.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RenderOutput {
+    pub image: Image,
+    /// Volume samples actually taken (lattice and plane samples; not the gradient's): what
+    /// ray/box clipping, leaping and early termination reduce.
+    pub samples: u64,
+}
+
+/// Renders `scene` at `width` × `height` (half resolution: ⌈w/2⌉ × ⌈h/2⌉, upscaled).
+pub fn render(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) -> RenderOutput {
+    if width == 0 || height == 0 {
+        return RenderOutput {
+            image: Image::new(width, height),
+            samples: 0,
+        };
+    }
+    if scene.quality.half_resolution {
+        let (w, h) = (width.div_ceil(2), height.div_ceil(2));
+        let out = render_full(volume, scene, w, h);
+        return RenderOutput {
+            image: out.image.upscale(width, height),
+            samples: out.samples,
+        };
+    }
+    render_full(volume, scene, width, height)
+}
+
+fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) -> RenderOutput {
+    let ct = volume.atlas.ct();
+    let grid = *ct.grid();
+    let ct_map = IndexMap::of(&grid);
+    let spacing = grid.spacing_mm();
+    let h_mm = (0.5 * spacing[0].min(spacing[1]).min(spacing[2])) as f32;
+    let deformed = scene.deformed.as_ref().map(|d| {
+        (
+            Grid3 {
+                data: d.volume.data(),
+                dims: IndexMap::of(d.volume.grid()).dims,
+            },
+            IndexMap::of(d.volume.grid()),
+        )
+    });
+    let sampler = Sampler::new(
+        Grid3 {
+            data: ct.data(),
+            dims: ct_map.dims,
+        },
+        ct_map,
+        deformed,
+        &volume.labels,
+        h_mm,
+    );
+    let quality = scene.quality;
+    // Leaping needs every lattice point's position from the ray alone; the motion warp does not
+    // give that, so with a motion hook every lattice point is visited.
+    let occupancy = (quality.leaping && scene.motion.is_none()).then(|| {
+        let ranges = volume.cell_ranges(quality.occupancy_cells);
+        Occupancy::new(
+            &ranges,
+            &scene.transfer,
+            ct_map.dims,
+            scene.deformed.as_ref().map(|d| (&*d.volume, &ct_map)),
+        )
+    });
+    let frame = Frame {
+        volume,
+        sampler,
+        transfer: &scene.transfer,
+        light: scene.light,
+        clip: scene.clip,
+        tagging: scene.tagging,
+        quality,
+        occupancy,
+        sample_outside: scene.deformed.is_some() || scene.transfer.eval(stylet_physics::AIR_HU)[3] > 0.0,
+        t_far: farthest_corner_mm(&grid, scene.camera.eye_mm),
+        background: scene.background,
+        motion: scene.motion.as_ref(),
+    };
+    let mut image = Image::new(width, height);
+    let camera = scene.camera;
+    let samples: u64 = image
+        .rgba
+        .par_chunks_mut(width as usize)
+        .enumerate()
+        .map(|(row, pixels)| {
+            let row = row as u32;
+            let mut n = 0u64;
+            for (col, px) in pixels.iter_mut().enumerate() {
+                let col = col as u32;
+                let (origin, dir) = camera.ray(col, row, width, height);
+                let (rgba, s) = march(&frame, col, row, origin, dir);
+                *px = rgba;
+                n += s;
+            }
+            n
+        })
+        .sum();
+    RenderOutput { image, samples }
+}

@@ -1,0 +1,78 @@
+//! Per-sample colour: opacity correction for the step length, Phong shading from the gradient
+//! (thesis eq. 3.2.3, two-sided) and the plane sample's tagging colours (eqs. 3.2.4–3.2.5).
+
+use stylet_physics::glam::Vec3;
+
+use crate::scene::{Light, Tagging};
+use crate::volume::{LabelStyle, TagClass};
+
+/// α = 1 − (1 − a)^Δ: opacity `a` per millimetre over a step of `step_mm`.
+#[inline]
+pub fn corrected_alpha(a: f32, step_mm: f32) -> f32 {
+    1.0 - (1.0 - a).powf(step_mm)
+}
+
+/// Gradients shorter than this (HU/mm) give no normal: the sample is unshaded (f = 1).
+pub const MIN_GRADIENT: f32 = 1e-3;
+
+/// f of eq. 3.2.3: ambient + (diffuse·|N·L| + specular·|N·H|^shininess)·f_shadow with
+/// N = −g/|g|, L toward the light, V = −r, H = normalize(L + V); 1 for a vanishing gradient.
+#[inline]
+pub fn phong(g: Vec3, ray_dir: Vec3, light: &Light, f_shadow: f32) -> f32 {
+    let len = g.length();
+    if len < MIN_GRADIENT {
+        return 1.0;
+    }
+    let n = -g / len;
+    let l = light.toward_light;
+    let h = (l - ray_dir).normalize();
+    light.ambient + (light.diffuse * n.dot(l).abs() + light.specular * n.dot(h).abs().powf(light.shininess)) * f_shadow
+}
+
+/// Colour (straight RGBA) of the plane sample: v₁ = c(s) (off), v₂ of eq. 3.2.4 (risk), or
+/// v₃ = c_label(l) of eq. 3.2.5 (labels).
+#[inline]
+pub fn plane_colour(tagging: Tagging, c: [f32; 4], style: LabelStyle) -> [f32; 4] {
+    match tagging {
+        Tagging::Off => c,
+        Tagging::Risk => match style.class {
+            TagClass::Target => [0.5 * c[0], 0.5 * c[1] + 0.5, 0.5 * c[2], 0.5 * c[3] + 0.5],
+            TagClass::Risk => [0.5 * c[0] + 0.5, 0.5 * c[1], 0.5 * c[2] + 0.2, 0.5 * c[3] + 0.5],
+            TagClass::Other => c,
+        },
+        Tagging::Labels => style.rgba,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn opacity_correction_is_exact_at_one_millimetre_and_compounds() {
+        assert!((corrected_alpha(0.3, 1.0) - 0.3).abs() < 1e-6);
+        let two = corrected_alpha(0.3, 2.0);
+        assert!((two - (1.0 - 0.7 * 0.7)).abs() < 1e-6);
+        assert_eq!(corrected_alpha(1.0, 0.5), 1.0);
+        assert_eq!(corrected_alpha(0.0, 0.5), 0.0);
+    }
+
+    #[test]
+    fn phong_is_two_sided_and_flat_without_a_gradient() {
+        let light = Light {
+            toward_light: Vec3::Z,
+            ambient: 0.2,
+            diffuse: 0.6,
+            specular: 0.0,
+            shininess: 8.0,
+            shadow_in: 0.3,
+        };
+        let r = -Vec3::Z;
+        assert_eq!(phong(Vec3::ZERO, r, &light, 1.0), 1.0);
+        let up = phong(Vec3::Z * 100.0, r, &light, 1.0);
+        let down = phong(-Vec3::Z * 100.0, r, &light, 1.0);
+        assert!((up - 0.8).abs() < 1e-6 && (down - 0.8).abs() < 1e-6);
+        assert!((phong(Vec3::Z, r, &light, 0.3) - (0.2 + 0.6 * 0.3)).abs() < 1e-6);
+        assert!((phong(Vec3::X, r, &light, 1.0) - 0.2).abs() < 1e-6);
+    }
+}
