@@ -12,6 +12,7 @@ pub mod figure;
 pub mod fonts;
 pub mod image;
 pub mod mpr;
+pub mod presets;
 pub mod raycast;
 pub mod scene;
 pub mod shadow;
