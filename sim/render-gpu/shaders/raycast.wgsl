@@ -1,0 +1,816 @@
+// Direct volume rendering by ray casting (thesis §3.2; docs/rendering.md "One ray").
+//
+// One invocation per pixel, 8 × 8 workgroups. This is a line-by-line port of the CPU reference
+// (stylet-render: raycast/march.rs, sampler.rs, shading.rs, occupancy.rs; tools.rs; shadow.rs):
+// f32, same formulas, same order; the numbered comments are the steps of docs/rendering.md.
+// The CT declaration and `ct_voxel` are prepended by the host (R16Sint for integer CTs,
+// R32Float otherwise; see raycast.rs). Voxels are read with textureLoad only (manual
+// trilinear interpolation, never hardware filtering), so the GPU sees the CPU's values.
+
+const AIR_HU: f32 = -1000.0;
+const OPAQUE: f32 = 0.99;          // Quality::OPAQUE
+const MIN_GRADIENT: f32 = 1e-3;    // shading::MIN_GRADIENT (HU/mm)
+const BIG: f32 = 1.0e30;           // tools.rs: no infinities
+const MAX_TRAPEZOIDS: u32 = 8u;
+
+// Switches (Params.image.z), mirrored in raycast.rs.
+const F_JITTER: u32 = 1u;
+const F_RAY_BOX: u32 = 2u;
+const F_LEAPING: u32 = 4u;
+const F_EARLY: u32 = 8u;
+const F_CLIP: u32 = 16u;
+const F_DEFORMED: u32 = 32u;
+const F_NEEDLE_SHADOW: u32 = 64u;
+const F_SAMPLE_OUTSIDE: u32 = 128u;
+
+// Primitive kinds (tools::Primitive).
+const P_CAPSULE: u32 = 0u;
+const P_SPHERE: u32 = 1u;
+const P_BOX: u32 = 2u;
+const P_CYLINDER: u32 = 3u;
+
+struct Trapezoid {
+    hu: vec4<f32>,          // corners hu0 < hu1 <= hu2 < hu3
+    rgb_opacity: vec4<f32>, // linear RGB, plateau opacity a_i (per mm)
+    weight: vec4<f32>,      // x: alpha_i of eq. 3.2.2
+}
+
+// Mirrored by `Params` in raycast.rs (#[repr(C)], every member a 16-byte vector).
+struct Params {
+    eye: vec4<f32>,          // xyz eye (mm), w tan(fov/2)
+    right: vec4<f32>,        // camera basis, w aspect (w/h)
+    up: vec4<f32>,           // w step Δ (mm)
+    forward: vec4<f32>,      // w t_far of the naive extent (mm)
+    inv0: vec4<f32>,         // CT IndexMap: c = rows . (x - origin)
+    inv1: vec4<f32>,
+    inv2: vec4<f32>,
+    origin: vec4<f32>,       // w 1/(2h), h = min spacing / 2
+    grad0: vec4<f32>,        // CT index offsets of +h along the world axes
+    grad1: vec4<f32>,
+    grad2: vec4<f32>,
+    dims: vec4<u32>,         // CT voxels, w occupancy cells N
+    occ_scale: vec4<f32>,    // N / n_a
+    occ_size: vec4<f32>,     // n_a / N
+    image: vec4<u32>,        // width, height, switches, trapezoid count
+    modes: vec4<u32>,        // transfer kind (0 trapezoids, 1 window), tagging (0 off, 1 risk, 2 labels), primitives, styles
+    window: vec4<f32>,       // level, width, opacity
+    background: vec4<f32>,
+    light: vec4<f32>,        // toward the light, w f_in (shadow factor)
+    phong: vec4<f32>,        // ambient, diffuse, specular, shininess
+    clip_point: vec4<f32>,
+    clip_normal: vec4<f32>,
+    def_inv0: vec4<f32>,     // deformed sub-volume J (hook of eq. 3.1.1): its IndexMap
+    def_inv1: vec4<f32>,
+    def_inv2: vec4<f32>,
+    def_origin: vec4<f32>,
+    def_grad0: vec4<f32>,    // J index offsets of +h along the world axes
+    def_grad1: vec4<f32>,
+    def_grad2: vec4<f32>,
+    def_dims: vec4<u32>,
+    needle_tip: vec4<f32>,   // needle shadow (Alg. 3.1): tip
+    needle_back: vec4<f32>,  // unit direction tip -> hub
+    needle_dims: vec4<f32>,  // length along the nodes, diameter, hub length, hub diameter (mm)
+    spheres: array<vec4<f32>, 2>, // sphere shadows (Alg. 3.2): centre, radius (0: none)
+    traps: array<Trapezoid, 8>,
+}
+
+struct Style {
+    rgba: vec4<f32>,
+    class_: u32, // 0 other, 1 target, 2 risk
+    _p0: u32,
+    _p1: u32,
+    _p2: u32,
+}
+
+// A tool primitive (mirrored by `GpuPrimitive`):
+// capsule  a = (a, r), b = (b, -)
+// sphere   a = (centre, r)
+// box      a = (centre, -), b/c/d = (unit axis e_i, half extent h_i)
+// cylinder a = (centre, r), b = (unit axis, half length), c = (cut normal m, cut distance k)
+struct Primitive {
+    a: vec4<f32>,
+    b: vec4<f32>,
+    c: vec4<f32>,
+    d: vec4<f32>,
+    rgb: vec4<f32>,
+    kind: vec4<u32>,
+}
+
+@group(0) @binding(0) var<uniform> P: Params;
+// binding 1: the CT (prepended by the host)
+@group(0) @binding(2) var labels: texture_3d<u32>;
+@group(0) @binding(3) var<storage, read> styles: array<Style>;
+@group(0) @binding(4) var<storage, read> occupancy: array<u32>;
+@group(0) @binding(5) var<storage, read> prims: array<Primitive>;
+@group(0) @binding(6) var deformed: texture_3d<f32>;
+@group(0) @binding(7) var<storage, read_write> out_px: array<u32>;
+
+// --- Step 1: jitter (raycast/jitter.rs) -----------------------------------------------------
+
+fn hash(x: u32) -> u32 {
+    var v = x;
+    v ^= v >> 16u;
+    v *= 0x7feb352du;
+    v ^= v >> 15u;
+    v *= 0x846ca68bu;
+    v ^= v >> 16u;
+    return v;
+}
+
+fn jitter(col: u32, row: u32) -> f32 {
+    return f32(hash(col + row * 65536u) >> 8u) / 16777216.0;
+}
+
+// --- Sampling (raycast/sampler.rs) ----------------------------------------------------------
+
+fn map_vector(r0: vec4<f32>, r1: vec4<f32>, r2: vec4<f32>, v: vec3<f32>) -> vec3<f32> {
+    return vec3<f32>(dot(r0.xyz, v), dot(r1.xyz, v), dot(r2.xyz, v));
+}
+
+// Trilinear as Volume::sample_index: inside when -1/2 <= c < n - 1/2, clamp into [0, n-1],
+// base min(floor, n-2), fraction from it; a one-voxel axis reads its voxel.
+struct Lerp {
+    ok: bool,
+    i0: vec3<i32>,
+    i1: vec3<i32>,
+    f: vec3<f32>,
+}
+
+fn lerp_setup(c: vec3<f32>, n: vec3<u32>) -> Lerp {
+    var l: Lerp;
+    l.ok = true;
+    for (var a = 0; a < 3; a++) {
+        let na = n[a];
+        let nf = f32(na);
+        let x0 = c[a];
+        if !(x0 >= -0.5 && x0 < nf - 0.5) {
+            l.ok = false;
+            return l;
+        }
+        let x = clamp(x0, 0.0, nf - 1.0);
+        let b = min(u32(x), select(0u, na - 2u, na >= 2u));
+        l.i0[a] = i32(b);
+        l.i1[a] = i32(b + select(0u, 1u, na > 1u));
+        l.f[a] = select(x - f32(b), 0.0, na == 1u);
+    }
+    return l;
+}
+
+struct Val {
+    ok: bool,
+    v: f32,
+}
+
+fn ct_trilinear(c: vec3<f32>) -> Val {
+    let l = lerp_setup(c, P.dims.xyz);
+    if !l.ok {
+        return Val(false, 0.0);
+    }
+    let fx = l.f.x;
+    let fy = l.f.y;
+    let fz = l.f.z;
+    let c00 = ct_voxel(vec3<i32>(l.i0.x, l.i0.y, l.i0.z)) * (1.0 - fx) + ct_voxel(vec3<i32>(l.i1.x, l.i0.y, l.i0.z)) * fx;
+    let c10 = ct_voxel(vec3<i32>(l.i0.x, l.i1.y, l.i0.z)) * (1.0 - fx) + ct_voxel(vec3<i32>(l.i1.x, l.i1.y, l.i0.z)) * fx;
+    let c01 = ct_voxel(vec3<i32>(l.i0.x, l.i0.y, l.i1.z)) * (1.0 - fx) + ct_voxel(vec3<i32>(l.i1.x, l.i0.y, l.i1.z)) * fx;
+    let c11 = ct_voxel(vec3<i32>(l.i0.x, l.i1.y, l.i1.z)) * (1.0 - fx) + ct_voxel(vec3<i32>(l.i1.x, l.i1.y, l.i1.z)) * fx;
+    let c0 = c00 * (1.0 - fy) + c10 * fy;
+    let c1 = c01 * (1.0 - fy) + c11 * fy;
+    return Val(true, c0 * (1.0 - fz) + c1 * fz);
+}
+
+fn def_voxel(p: vec3<i32>) -> f32 {
+    return textureLoad(deformed, p, 0).x;
+}
+
+fn def_trilinear(c: vec3<f32>) -> Val {
+    let l = lerp_setup(c, P.def_dims.xyz);
+    if !l.ok {
+        return Val(false, 0.0);
+    }
+    let fx = l.f.x;
+    let fy = l.f.y;
+    let fz = l.f.z;
+    let c00 = def_voxel(vec3<i32>(l.i0.x, l.i0.y, l.i0.z)) * (1.0 - fx) + def_voxel(vec3<i32>(l.i1.x, l.i0.y, l.i0.z)) * fx;
+    let c10 = def_voxel(vec3<i32>(l.i0.x, l.i1.y, l.i0.z)) * (1.0 - fx) + def_voxel(vec3<i32>(l.i1.x, l.i1.y, l.i0.z)) * fx;
+    let c01 = def_voxel(vec3<i32>(l.i0.x, l.i0.y, l.i1.z)) * (1.0 - fx) + def_voxel(vec3<i32>(l.i1.x, l.i0.y, l.i1.z)) * fx;
+    let c11 = def_voxel(vec3<i32>(l.i0.x, l.i1.y, l.i1.z)) * (1.0 - fx) + def_voxel(vec3<i32>(l.i1.x, l.i1.y, l.i1.z)) * fx;
+    let c0 = c00 * (1.0 - fy) + c10 * fy;
+    let c1 = c01 * (1.0 - fy) + c11 * fy;
+    return Val(true, c0 * (1.0 - fz) + c1 * fz);
+}
+
+// Where a sample is read: CT index and J index (both stepped along the ray in index space).
+struct At {
+    ct: vec3<f32>,
+    j: vec3<f32>,
+}
+
+// s(x) of eq. 3.1.1: J inside Omega_J, else the CT, else air.
+fn s(at: At) -> f32 {
+    if (P.image.z & F_DEFORMED) != 0u {
+        let v = def_trilinear(at.j);
+        if v.ok {
+            return v.v;
+        }
+    }
+    let v = ct_trilinear(at.ct);
+    return select(AIR_HU, v.v, v.ok);
+}
+
+// Gradient of s by central differences at +-h along the world axes (HU/mm).
+fn gradient(at: At) -> vec3<f32> {
+    let gct = array<vec3<f32>, 3>(P.grad0.xyz, P.grad1.xyz, P.grad2.xyz);
+    let gj = array<vec3<f32>, 3>(P.def_grad0.xyz, P.def_grad1.xyz, P.def_grad2.xyz);
+    var g = vec3<f32>(0.0);
+    for (var a = 0; a < 3; a++) {
+        let plus = At(at.ct + gct[a], at.j + gj[a]);
+        let minus = At(at.ct - gct[a], at.j - gj[a]);
+        g[a] = (s(plus) - s(minus)) * P.origin.w;
+    }
+    return g;
+}
+
+// l(x): the label of the CT voxel nearest the sample, 0 outside (never interpolated).
+fn label(at: At) -> u32 {
+    var v = vec3<i32>(0);
+    for (var a = 0; a < 3; a++) {
+        let r = at.ct[a] + 0.5;
+        if !(r >= 0.0 && r < f32(P.dims[a])) {
+            return 0u;
+        }
+        v[a] = i32(u32(r));
+    }
+    return textureLoad(labels, v, 0).x;
+}
+
+fn style(id: u32) -> Style {
+    if id < P.modes.w {
+        return styles[id];
+    }
+    var none: Style;
+    return none;
+}
+
+// --- Transfer function c(v), eq. 3.2.2 (transfer.rs) ----------------------------------------
+
+fn transfer(v: f32) -> vec4<f32> {
+    if P.modes.x == 1u {
+        let g = clamp((v - (P.window.x - P.window.y * 0.5)) / P.window.y, 0.0, 1.0);
+        return vec4<f32>(g, g, g, g * P.window.z);
+    }
+    var r = 0.0;
+    var gg = 0.0;
+    var b = 0.0;
+    var a = 0.0;
+    for (var i = 0u; i < min(P.image.w, MAX_TRAPEZOIDS); i++) {
+        let t = P.traps[i];
+        var shape = 0.0;
+        if v <= t.hu.x || v >= t.hu.w {
+            shape = 0.0;
+        } else if v < t.hu.y {
+            shape = (v - t.hu.x) / (t.hu.y - t.hu.x);
+        } else if v <= t.hu.z {
+            shape = 1.0;
+        } else {
+            shape = (t.hu.w - v) / (t.hu.w - t.hu.z);
+        }
+        let w = t.weight.x * (shape * t.rgb_opacity.w);
+        r += w * t.rgb_opacity.x;
+        gg += w * t.rgb_opacity.y;
+        b += w * t.rgb_opacity.z;
+        a += w;
+    }
+    if a <= 0.0 {
+        return vec4<f32>(0.0);
+    }
+    return vec4<f32>(r / a, gg / a, b / a, min(a, 1.0));
+}
+
+// --- Shading (raycast/shading.rs) -----------------------------------------------------------
+
+// alpha = 1 - (1 - a)^step: opacity per mm over one step.
+fn corrected_alpha(a: f32, step: f32) -> f32 {
+    if a >= 1.0 {
+        return 1.0;
+    }
+    return 1.0 - pow(1.0 - a, step);
+}
+
+// Eq. 3.2.3, two-sided: ambient + (diffuse |N.L| + specular |N.H|^shininess) f_shadow.
+fn phong(g: vec3<f32>, rd: vec3<f32>, f_shadow: f32) -> f32 {
+    let len = length(g);
+    if len < MIN_GRADIENT {
+        return 1.0;
+    }
+    let n = -g / len;
+    let l = P.light.xyz;
+    let h = normalize(l - rd);
+    return P.phong.x + (P.phong.y * abs(dot(n, l)) + P.phong.z * pow(abs(dot(n, h)), P.phong.w)) * f_shadow;
+}
+
+// The plane sample's colour: v1 (off), v2 of eq. 3.2.4 (risk), v3 of eq. 3.2.5 (labels).
+fn plane_colour(c: vec4<f32>, st: Style) -> vec4<f32> {
+    let tagging = P.modes.y;
+    if tagging == 1u {
+        if st.class_ == 1u {
+            return vec4<f32>(0.5 * c.x, 0.5 * c.y + 0.5, 0.5 * c.z, 0.5 * c.w + 0.5);
+        } else if st.class_ == 2u {
+            return vec4<f32>(0.5 * c.x + 0.5, 0.5 * c.y, 0.5 * c.z + 0.2, 0.5 * c.w + 0.5);
+        }
+        return c;
+    } else if tagging == 2u {
+        return st.rgba;
+    }
+    return c;
+}
+
+// --- Shadows, Alg. 3.1 and 3.2 (shadow.rs; l toward the light) ------------------------------
+
+fn in_needle_shadow(x: vec3<f32>, l: vec3<f32>) -> bool {
+    let n = P.needle_back.xyz;
+    let len = P.needle_dims.x;
+    let dia = P.needle_dims.y;
+    let hub_len = P.needle_dims.z;
+    let hub_dia = P.needle_dims.w;
+    let d = x - P.needle_tip.xyz;
+    let p0 = cross(l, n);
+    let pl = length(p0);
+    if pl < 1e-6 {
+        let along = dot(d, l);
+        let perp = length(d - l * along);
+        let r_shaft = 0.5 * dia;
+        let r_hub = 0.5 * hub_dia;
+        if dot(n, l) > 0.0 {
+            return perp < max(r_shaft, r_hub) && along < 0.0;
+        }
+        return (perp < r_shaft && along < 0.0) || (perp < r_hub && along < -len);
+    }
+    let p = p0 / pl;
+    let j = cross(p, l);
+    let q = normalize(l - n * dot(n, l));
+    let d1 = dot(d, p);
+    let d2 = dot(q, d);
+    let d3 = dot(j, d) / dot(j, n);
+    if d2 >= 0.0 {
+        return false;
+    }
+    return (abs(d1) < 0.5 * dia && d3 > 0.0 && d3 < len)
+        || (abs(d1) < 0.5 * hub_dia && d3 > len && d3 < len + hub_len);
+}
+
+fn shadow_factor(x: vec3<f32>) -> f32 {
+    let l = P.light.xyz;
+    var inside = (P.image.z & F_NEEDLE_SHADOW) != 0u && in_needle_shadow(x, l);
+    for (var i = 0; i < 2; i++) {
+        let sp = P.spheres[i];
+        if sp.w > 0.0 {
+            let rel = x - sp.xyz;
+            let k = dot(l, rel);
+            let d = length(rel - l * k);
+            inside = inside || (k < sp.w && d < sp.w);
+        }
+    }
+    return select(1.0, P.light.w, inside);
+}
+
+// --- Tools (tools.rs: closed-form f32 hits) -------------------------------------------------
+
+struct Span {
+    ok: bool,
+    t_in: f32,
+    n_in: vec3<f32>,
+    t_out: f32,
+    n_out: vec3<f32>,
+}
+
+fn span_all() -> Span {
+    return Span(true, -BIG, vec3<f32>(0.0), BIG, vec3<f32>(0.0));
+}
+
+fn span_clip(s0: Span, t_in: f32, n_in: vec3<f32>, t_out: f32, n_out: vec3<f32>) -> Span {
+    var s = s0;
+    if t_in > s.t_in {
+        s.t_in = t_in;
+        s.n_in = n_in;
+    }
+    if t_out < s.t_out {
+        s.t_out = t_out;
+        s.n_out = n_out;
+    }
+    s.ok = s.ok && s.t_in <= s.t_out;
+    return s;
+}
+
+fn span_slab(s: Span, o_rel: vec3<f32>, d: vec3<f32>, axis: vec3<f32>, half: f32) -> Span {
+    let o = dot(o_rel, axis);
+    let v = dot(d, axis);
+    if abs(v) < 1e-12 {
+        var r = s;
+        r.ok = s.ok && abs(o) <= half;
+        return r;
+    }
+    let t1 = (-half - o) / v;
+    let t2 = (half - o) / v;
+    let near = select(t2, t1, t1 < t2);
+    let far = select(t1, t2, t1 < t2);
+    let n_enter = select(axis, -axis, v > 0.0);
+    return span_clip(s, near, n_enter, far, -n_enter);
+}
+
+// (t, normal.xyz) packed in a vec4; t < 0 for no hit.
+fn span_first(s: Span, t_max: f32) -> vec4<f32> {
+    if !s.ok {
+        return vec4<f32>(-1.0, 0.0, 0.0, 0.0);
+    }
+    if s.t_in > 0.0 && s.t_in < t_max {
+        return vec4<f32>(s.t_in, s.n_in);
+    } else if s.t_in <= 0.0 && s.t_out > 0.0 && s.t_out < t_max {
+        return vec4<f32>(s.t_out, s.n_out);
+    }
+    return vec4<f32>(-1.0, 0.0, 0.0, 0.0);
+}
+
+// Keeps the smaller positive t below the current best (tools.rs `take`).
+fn take(best: vec4<f32>, t: f32, n: vec3<f32>, t_max: f32) -> vec4<f32> {
+    if t > 0.0 && t < t_max && (best.x < 0.0 || t < best.x) {
+        return vec4<f32>(t, n);
+    }
+    return best;
+}
+
+fn hit_primitive(p: Primitive, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> vec4<f32> {
+    var best = vec4<f32>(-1.0, 0.0, 0.0, 0.0);
+    let kind = p.kind.x;
+    if kind == P_SPHERE {
+        let center = p.a.xyz;
+        let radius = p.a.w;
+        let oc = o - center;
+        let b = dot(oc, d);
+        let h = b * b - (dot(oc, oc) - radius * radius);
+        if h >= 0.0 {
+            let sq = sqrt(h);
+            for (var i = 0; i < 2; i++) {
+                let t = select(-b + sq, -b - sq, i == 0);
+                best = take(best, t, (o + d * t - center) / radius, t_max);
+            }
+        }
+    } else if kind == P_CAPSULE {
+        let a = p.a.xyz;
+        let bb = p.b.xyz;
+        let radius = p.a.w;
+        let ab = bb - a;
+        let len = length(ab);
+        let u = select(vec3<f32>(0.0, 0.0, 1.0), ab / len, len > 1e-12);
+        let oa = o - a;
+        let dp = d - u * dot(d, u);
+        let op = oa - u * dot(oa, u);
+        let qa = dot(dp, dp);
+        if qa > 1e-12 && len > 1e-12 {
+            let h = dot(op, dp) * dot(op, dp) - qa * (dot(op, op) - radius * radius);
+            if h >= 0.0 {
+                let sq = sqrt(h);
+                for (var i = 0; i < 2; i++) {
+                    let t = select((-dot(op, dp) + sq) / qa, (-dot(op, dp) - sq) / qa, i == 0);
+                    let y = dot(oa, u) + t * dot(d, u);
+                    if y > 0.0 && y < len {
+                        let x = o + d * t;
+                        best = take(best, t, (x - (a + u * y)) / radius, t_max);
+                    }
+                }
+            }
+        }
+        for (var e = 0; e < 2; e++) {
+            let at_a = e == 0;
+            let c = select(bb, a, at_a);
+            let oc = o - c;
+            let b = dot(oc, d);
+            let h = b * b - (dot(oc, oc) - radius * radius);
+            if h >= 0.0 {
+                let sq = sqrt(h);
+                for (var i = 0; i < 2; i++) {
+                    let t = select(-b + sq, -b - sq, i == 0);
+                    let y = dot(oa, u) + t * dot(d, u);
+                    if (at_a && y <= 0.0) || (!at_a && y >= len) {
+                        best = take(best, t, (o + d * t - c) / radius, t_max);
+                    }
+                }
+            }
+        }
+    } else if kind == P_BOX {
+        let rel = o - p.a.xyz;
+        var sp = span_slab(span_all(), rel, d, p.b.xyz, p.b.w);
+        sp = span_slab(sp, rel, d, p.c.xyz, p.c.w);
+        sp = span_slab(sp, rel, d, p.d.xyz, p.d.w);
+        best = span_first(sp, t_max);
+    } else if kind == P_CYLINDER {
+        let center = p.a.xyz;
+        let radius = p.a.w;
+        let axis = p.b.xyz;
+        let cut_normal = p.c.xyz;
+        let cut_mm = p.c.w;
+        let rel = o - center;
+        var sp = span_slab(span_all(), rel, d, axis, p.b.w);
+        // Side: |rel_perp + t d_perp| <= r.
+        let dp = d - axis * dot(d, axis);
+        let op = rel - axis * dot(rel, axis);
+        let qa = dot(dp, dp);
+        if qa < 1e-12 {
+            sp.ok = sp.ok && dot(op, op) <= radius * radius;
+        } else {
+            let b = dot(op, dp);
+            let h = b * b - qa * (dot(op, op) - radius * radius);
+            if h < 0.0 {
+                sp.ok = false;
+            } else {
+                let sq = sqrt(h);
+                let t0 = (-b - sq) / qa;
+                let t1 = (-b + sq) / qa;
+                sp = span_clip(sp, t0, (op + dp * t0) / radius, t1, (op + dp * t1) / radius);
+            }
+        }
+        // Cut: (rel + t d).m >= k, outward normal -m.
+        let on = dot(rel, cut_normal);
+        let dn = dot(d, cut_normal);
+        if abs(dn) < 1e-12 {
+            sp.ok = sp.ok && on >= cut_mm;
+        } else {
+            let tc = (cut_mm - on) / dn;
+            if dn > 0.0 {
+                sp = span_clip(sp, tc, -cut_normal, BIG, vec3<f32>(0.0));
+            } else {
+                sp = span_clip(sp, -BIG, vec3<f32>(0.0), tc, -cut_normal);
+            }
+        }
+        best = span_first(sp, t_max);
+    }
+    return best;
+}
+
+struct Hit {
+    t: f32,
+    normal: vec3<f32>,
+    rgb: vec3<f32>,
+}
+
+// tools::nearest_hit: the nearest tool surface with t in (0, t_max); t = BIG for none.
+fn nearest_hit(o: vec3<f32>, d: vec3<f32>, t_max: f32) -> Hit {
+    var best = Hit(BIG, vec3<f32>(0.0), vec3<f32>(0.0));
+    var found = false;
+    for (var i = 0u; i < P.modes.z; i++) {
+        let limit = select(t_max, best.t, found);
+        let h = hit_primitive(prims[i], o, d, limit);
+        if h.x >= 0.0 {
+            best = Hit(h.x, h.yzw, prims[i].rgb.xyz);
+            found = true;
+        }
+    }
+    return best;
+}
+
+// tools::shade: rgb (ambient + diffuse max(N.L, 0)) + specular max(N.H, 0)^shininess, clamped.
+fn shade_tool(hit: Hit, rd: vec3<f32>) -> vec3<f32> {
+    let n = hit.normal;
+    let l = P.light.xyz;
+    let hv = l - rd;
+    let hl = length(hv);
+    let h = select(vec3<f32>(0.0), hv / hl, hl > 0.0);
+    let diffuse = max(dot(n, l), 0.0);
+    let spec = pow(max(dot(n, h), 0.0), P.phong.w);
+    return clamp(hit.rgb * (P.phong.x + P.phong.y * diffuse) + vec3<f32>(P.phong.z * spec), vec3<f32>(0.0), vec3<f32>(1.0));
+}
+
+// --- The ray (raycast/march.rs) -------------------------------------------------------------
+
+fn inside(c: vec3<f32>) -> bool {
+    let n = vec3<f32>(P.dims.xyz);
+    return all(c >= vec3<f32>(-0.5)) && all(c < n - vec3<f32>(0.5));
+}
+
+fn lattice(k: u32, j: f32, step: f32) -> f32 {
+    return (f32(k) + j) * step;
+}
+
+fn lattice_ok(k: u32, t: f32, strict: bool, j: f32, step: f32) -> bool {
+    let tk = lattice(k, j, step);
+    return select(tk >= t, tk > t, strict);
+}
+
+// The first k with t_k >= t (> t when strict).
+fn first_lattice(t: f32, strict: bool, j: f32, step: f32) -> u32 {
+    var k = u32(max(ceil(t / step - j), 0.0));
+    while k > 0u && lattice_ok(k - 1u, t, strict, j, step) {
+        k -= 1u;
+    }
+    while !lattice_ok(k, t, strict, j, step) {
+        k += 1u;
+    }
+    return k;
+}
+
+fn cell_of(c: vec3<f32>) -> vec3<u32> {
+    let last = f32(P.dims.w - 1u);
+    let q = clamp(floor((c + vec3<f32>(0.5)) * P.occ_scale.xyz), vec3<f32>(0.0), vec3<f32>(last));
+    return vec3<u32>(q);
+}
+
+// Ray parameter where c(t) = ce + t dc leaves cell q (BIG when parallel to every face).
+fn exit_t(q: vec3<u32>, ce: vec3<f32>, dc: vec3<f32>) -> f32 {
+    var t = BIG;
+    for (var a = 0; a < 3; a++) {
+        let d = dc[a];
+        if d != 0.0 {
+            let face = select(q[a], q[a] + 1u, d > 0.0);
+            let bound = f32(face) * P.occ_size[a] - 0.5;
+            t = min(t, (bound - ce[a]) / d);
+        }
+    }
+    return t;
+}
+
+fn to8(v: f32) -> u32 {
+    return u32(floor(clamp(v, 0.0, 1.0) * 255.0 + 0.5));
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let width = P.image.x;
+    let height = P.image.y;
+    if gid.x >= width || gid.y >= height {
+        return;
+    }
+    let flags = P.image.z;
+    let col = gid.x;
+    let row = gid.y;
+    // Camera::ray.
+    let tan_half = P.eye.w;
+    let aspect = P.right.w;
+    let xn = (2.0 * (f32(col) + 0.5) / f32(width) - 1.0) * tan_half * aspect;
+    let yn = (1.0 - 2.0 * (f32(row) + 0.5) / f32(height)) * tan_half;
+    let origin = P.eye.xyz;
+    let dir = normalize(P.forward.xyz + P.right.xyz * xn + P.up.xyz * yn);
+    let step = P.up.w;
+
+    // 1. Sample lattice.
+    var j = 0.0;
+    if (flags & F_JITTER) != 0u {
+        j = jitter(col, row);
+    }
+    let ce = map_vector(P.inv0, P.inv1, P.inv2, origin - P.origin.xyz);
+    let dc = map_vector(P.inv0, P.inv1, P.inv2, dir);
+    var je = vec3<f32>(0.0);
+    var dj = vec3<f32>(0.0);
+    if (flags & F_DEFORMED) != 0u {
+        je = map_vector(P.def_inv0, P.def_inv1, P.def_inv2, origin - P.def_origin.xyz);
+        dj = map_vector(P.def_inv0, P.def_inv1, P.def_inv2, dir);
+    }
+    var acc_c = vec3<f32>(0.0);
+    var acc_a = 0.0;
+
+    // 4. Tools: the nearest hit ends the march.
+    let tool = nearest_hit(origin, dir, BIG);
+    let t_tool = tool.t;
+
+    // 2. Extent: ray/box (slabs on [-1/2, n - 1/2]^3 in index space) or naive [0, t_far].
+    var has_extent = true;
+    var t0 = 0.0;
+    var t1 = P.forward.w;
+    if (flags & F_RAY_BOX) != 0u {
+        t1 = BIG;
+        for (var a = 0; a < 3; a++) {
+            let lo = -0.5;
+            let hi = f32(P.dims[a]) - 0.5;
+            if dc[a] == 0.0 {
+                if ce[a] < lo || ce[a] > hi {
+                    has_extent = false;
+                }
+            } else {
+                let inv = 1.0 / dc[a];
+                let ta = (lo - ce[a]) * inv;
+                let tb = (hi - ce[a]) * inv;
+                t0 = max(t0, min(ta, tb));
+                t1 = min(t1, max(ta, tb));
+            }
+        }
+        if t0 > t1 {
+            has_extent = false;
+        }
+    }
+
+    // 3. Clip plane: the visible part of the extent and the plane sample where the ray enters it.
+    var lat = false;      // lattice_from is Some
+    var lat_lo = 0.0;
+    var lat_strict = false;
+    var lat_hi = 0.0;
+    var has_plane = false;
+    var plane_t = 0.0;
+    if has_extent {
+        if (flags & F_CLIP) == 0u {
+            lat = true;
+            lat_lo = t0;
+            lat_hi = t1;
+        } else {
+            let s0 = dot(origin - P.clip_point.xyz, P.clip_normal.xyz);
+            let rn = dot(dir, P.clip_normal.xyz);
+            if rn > 0.0 {
+                let tc = -s0 / rn;
+                if tc < t0 {
+                    lat = true;
+                    lat_lo = t0;
+                    lat_hi = t1;
+                } else if tc <= t1 {
+                    has_plane = true;
+                    plane_t = tc;
+                    lat = true;
+                    lat_lo = tc;
+                    lat_strict = true;
+                    lat_hi = t1;
+                }
+            } else if rn < 0.0 {
+                let tc = -s0 / rn;
+                if tc >= t0 {
+                    lat = true;
+                    lat_lo = t0;
+                    lat_hi = min(t1, tc);
+                }
+            } else if s0 >= 0.0 {
+                lat = true;
+                lat_lo = t0;
+                lat_hi = t1;
+            }
+        }
+    }
+
+    // The plane sample: no shading, no shadow, opacity as is.
+    if has_plane && plane_t < t_tool {
+        let at = At(ce + dc * plane_t, je + dj * plane_t);
+        let c = transfer(s(at));
+        var st = style(0u);
+        if P.modes.y != 0u {
+            st = style(label(at));
+        }
+        let v = plane_colour(c, st);
+        if v.w > 0.0 {
+            let a = min(v.w, 1.0);
+            acc_c += (1.0 - acc_a) * a * v.xyz;
+            acc_a += (1.0 - acc_a) * a;
+        }
+    }
+
+    // 5.-8. The lattice samples.
+    let early = (flags & F_EARLY) != 0u;
+    if lat && !(early && acc_a >= OPAQUE) {
+        var k = first_lattice(lat_lo, lat_strict, j, step);
+        loop {
+            let t = lattice(k, j, step);
+            if t > lat_hi || t >= t_tool {
+                break;
+            }
+            let at = At(ce + dc * t, je + dj * t);
+            // 8. Empty-space leaping.
+            if (flags & F_LEAPING) != 0u {
+                if inside(at.ct) {
+                    let cell = cell_of(at.ct);
+                    let n = P.dims.w;
+                    if occupancy[cell.x + n * (cell.y + n * cell.z)] == 0u {
+                        let t_exit = exit_t(cell, ce, dc);
+                        let k_exit = ceil(t_exit / step - j - 1e-3);
+                        var next = k + 1u;
+                        if t_exit < BIG && k_exit > f32(k + 1u) {
+                            next = u32(min(k_exit, 2147483647.0));
+                        }
+                        k = next;
+                        continue;
+                    }
+                } else if (flags & F_SAMPLE_OUTSIDE) == 0u {
+                    k += 1u;
+                    continue;
+                }
+            }
+            // 5. Sample.
+            let c = transfer(s(at));
+            if c.w > 0.0 {
+                let alpha = corrected_alpha(c.w, step);
+                // 6. Shadow, at the sample's world position.
+                let f_shadow = shadow_factor(origin + dir * t);
+                let shade = phong(gradient(at), dir, f_shadow);
+                acc_c += (1.0 - acc_a) * alpha * (c.xyz * shade);
+                acc_a += (1.0 - acc_a) * alpha;
+                // 7. Early termination.
+                if early && acc_a >= OPAQUE {
+                    break;
+                }
+            }
+            k += 1u;
+        }
+    }
+
+    // 4. (end) The tool behind what was accumulated.
+    if t_tool < BIG {
+        acc_c += (1.0 - acc_a) * shade_tool(tool, dir);
+        acc_a = 1.0;
+    }
+
+    // 9. Finish.
+    let rgb = acc_c + (1.0 - acc_a) * P.background.xyz;
+    out_px[row * width + col] = to8(rgb.x) | (to8(rgb.y) << 8u) | (to8(rgb.z) << 16u) | (255u << 24u);
+}

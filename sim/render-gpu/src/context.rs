@@ -1,0 +1,145 @@
+//! A headless wgpu device: any adapter, the hardware one preferred, Mesa's lavapipe accepted.
+
+use crate::GpuError;
+
+/// What a report says about the adapter that drew.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct AdapterSummary {
+    pub name: String,
+    /// "Vulkan", "Gl", "Metal", …
+    pub backend: String,
+    /// "DiscreteGpu", "Cpu" (lavapipe), …
+    pub device_type: String,
+    pub driver: String,
+}
+
+impl std::fmt::Display for AdapterSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} ({}, {}, {})",
+            self.name, self.backend, self.device_type, self.driver
+        )
+    }
+}
+
+/// The device and queue every pipeline of this crate runs on.
+pub struct GpuContext {
+    pub(crate) device: wgpu::Device,
+    pub(crate) queue: wgpu::Queue,
+    pub(crate) limits: wgpu::Limits,
+    adapter: AdapterSummary,
+}
+
+impl GpuContext {
+    /// Opens the first adapter wgpu offers (high performance preferred, software accepted) with
+    /// the adapter's own limits, so big CTs fit where the hardware allows. `WGPU_BACKEND` and
+    /// `WGPU_ADAPTER_NAME` force a choice.
+    pub fn new() -> Result<GpuContext, GpuError> {
+        pollster::block_on(Self::open())
+    }
+
+    async fn open() -> Result<GpuContext, GpuError> {
+        let desc = wgpu::InstanceDescriptor::new_without_display_handle().with_env();
+        let instance = wgpu::Instance::new(desc);
+        let adapter = instance
+            .request_adapter(&wgpu::RequestAdapterOptions {
+                power_preference: wgpu::PowerPreference::HighPerformance,
+                ..Default::default()
+            })
+            .await
+            .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        let info = adapter.get_info();
+        let summary = AdapterSummary {
+            name: info.name.clone(),
+            backend: format!("{:?}", info.backend),
+            device_type: format!("{:?}", info.device_type),
+            driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+        };
+        let limits = adapter.limits();
+        let (device, queue) = adapter
+            .request_device(&wgpu::DeviceDescriptor {
+                label: Some("stylet-render-gpu"),
+                required_limits: limits.clone(),
+                ..Default::default()
+            })
+            .await
+            .map_err(|e| GpuError::RequestDevice {
+                adapter: summary.name.clone(),
+                message: e.to_string(),
+            })?;
+        Ok(GpuContext {
+            device,
+            queue,
+            limits,
+            adapter: summary,
+        })
+    }
+
+    /// The adapter that draws (for reports and benchmarks).
+    pub fn adapter(&self) -> &AdapterSummary {
+        &self.adapter
+    }
+
+    /// The device's limits (the largest 3D texture, storage buffer, …).
+    pub fn limits(&self) -> &wgpu::Limits {
+        &self.limits
+    }
+
+    /// Checks a 3D texture of `dims` fits before allocating it.
+    pub(crate) fn check_texture_3d(&self, what: &str, dims: [usize; 3]) -> Result<(), GpuError> {
+        let limit = self.limits.max_texture_dimension_3d as u64;
+        let needed = dims.iter().copied().max().unwrap_or(0) as u64;
+        if needed > limit {
+            return Err(GpuError::Limits {
+                what: format!("{what}: 3D texture of {} × {} × {} voxels", dims[0], dims[1], dims[2]),
+                needed,
+                limit,
+            });
+        }
+        Ok(())
+    }
+
+    /// Checks a storage buffer of `bytes` fits before allocating it.
+    pub(crate) fn check_storage_buffer(&self, what: &str, bytes: u64) -> Result<(), GpuError> {
+        let limit = (self.limits.max_storage_buffer_binding_size as u64).min(self.limits.max_buffer_size);
+        if bytes > limit {
+            return Err(GpuError::Limits {
+                what: format!("{what}: storage buffer of {bytes} bytes"),
+                needed: bytes,
+                limit,
+            });
+        }
+        Ok(())
+    }
+
+    /// Copies `bytes` of a storage buffer back to the CPU (blocking).
+    pub(crate) fn read_buffer(&self, src: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>, GpuError> {
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        enc.copy_buffer_to_buffer(src, 0, &staging, 0, bytes);
+        self.queue.submit([enc.finish()]);
+        let (tx, rx) = std::sync::mpsc::channel();
+        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        rx.recv()
+            .map_err(|e| GpuError::Readback(e.to_string()))?
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        let data = staging
+            .slice(..)
+            .get_mapped_range()
+            .map_err(|e| GpuError::Readback(e.to_string()))?
+            .to_vec();
+        staging.unmap();
+        Ok(data)
+    }
+}

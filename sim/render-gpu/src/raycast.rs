@@ -1,0 +1,562 @@
+//! The ray-casting pipeline (`shaders/raycast.wgsl`): one compute invocation per pixel in 8 × 8
+//! workgroups. Per frame only the uniforms and the tool primitives are written; the volumes stay
+//! on the GPU, the occupancy grid is rewritten only when the transfer function or N changes.
+
+use std::sync::Arc;
+
+use bytemuck::{Pod, Zeroable};
+use stylet_physics::AIR_HU;
+use stylet_physics::glam::Vec3;
+use stylet_render::image::Image;
+use stylet_render::raycast::march::farthest_corner_mm;
+use stylet_render::raycast::occupancy::Occupancy;
+use stylet_render::scene::{ClipPlane, Scene, Tagging};
+use stylet_render::shadow::Shadows;
+use stylet_render::tools::{MAX_PRIMITIVES, Primitive};
+use stylet_render::transfer::{MAX_TRAPEZOIDS, TransferFunction};
+use stylet_render::volume::IndexMap;
+
+use crate::volume::{CtFormat, GpuVolume, storage, texture_3d};
+use crate::{GpuContext, GpuError};
+
+const SHADER: &str = include_str!("../shaders/raycast.wgsl");
+
+/// The CT declaration the shader is compiled with (binding 1).
+fn ct_prelude(format: CtFormat) -> &'static str {
+    match format {
+        CtFormat::Int16 => {
+            "@group(0) @binding(1) var ct: texture_3d<i32>;\n\
+             fn ct_voxel(p: vec3<i32>) -> f32 { return f32(textureLoad(ct, p, 0).x); }\n"
+        }
+        CtFormat::Float32 => {
+            "@group(0) @binding(1) var ct: texture_3d<f32>;\n\
+             fn ct_voxel(p: vec3<i32>) -> f32 { return textureLoad(ct, p, 0).x; }\n"
+        }
+    }
+}
+
+// Switches of Params.image.z (mirrored in raycast.wgsl).
+const F_JITTER: u32 = 1;
+const F_RAY_BOX: u32 = 2;
+const F_LEAPING: u32 = 4;
+const F_EARLY: u32 = 8;
+const F_CLIP: u32 = 16;
+const F_DEFORMED: u32 = 32;
+const F_NEEDLE_SHADOW: u32 = 64;
+const F_SAMPLE_OUTSIDE: u32 = 128;
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct GpuTrapezoid {
+    hu: [f32; 4],
+    rgb_opacity: [f32; 4],
+    weight: [f32; 4],
+}
+
+/// Mirrors `Params` in raycast.wgsl: every member a 16-byte vector, so the WGSL uniform layout
+/// and repr(C) agree without hidden padding.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct Params {
+    eye: [f32; 4],
+    right: [f32; 4],
+    up: [f32; 4],
+    forward: [f32; 4],
+    inv0: [f32; 4],
+    inv1: [f32; 4],
+    inv2: [f32; 4],
+    origin: [f32; 4],
+    grad0: [f32; 4],
+    grad1: [f32; 4],
+    grad2: [f32; 4],
+    dims: [u32; 4],
+    occ_scale: [f32; 4],
+    occ_size: [f32; 4],
+    image: [u32; 4],
+    modes: [u32; 4],
+    window: [f32; 4],
+    background: [f32; 4],
+    light: [f32; 4],
+    phong: [f32; 4],
+    clip_point: [f32; 4],
+    clip_normal: [f32; 4],
+    def_inv0: [f32; 4],
+    def_inv1: [f32; 4],
+    def_inv2: [f32; 4],
+    def_origin: [f32; 4],
+    def_grad0: [f32; 4],
+    def_grad1: [f32; 4],
+    def_grad2: [f32; 4],
+    def_dims: [u32; 4],
+    needle_tip: [f32; 4],
+    needle_back: [f32; 4],
+    needle_dims: [f32; 4],
+    spheres: [[f32; 4]; 2],
+    traps: [GpuTrapezoid; MAX_TRAPEZOIDS],
+}
+
+/// A tool primitive as the shader reads it (mirrors `Primitive` in raycast.wgsl).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, PartialEq)]
+struct GpuPrimitive {
+    a: [f32; 4],
+    b: [f32; 4],
+    c: [f32; 4],
+    d: [f32; 4],
+    rgb: [f32; 4],
+    kind: [u32; 4],
+}
+
+fn v4(v: Vec3, w: f32) -> [f32; 4] {
+    [v.x, v.y, v.z, w]
+}
+
+/// `tools::Primitive` in the shader's layout.
+fn gpu_primitive(p: &Primitive) -> GpuPrimitive {
+    let z = [0.0; 4];
+    let (a, b, c, d, rgb, kind) = match *p {
+        Primitive::Capsule { a, b, radius, rgb } => (v4(a, radius), v4(b, 0.0), z, z, rgb, 0),
+        Primitive::Sphere { center, radius, rgb } => (v4(center, radius), z, z, z, rgb, 1),
+        Primitive::Box {
+            center,
+            axes,
+            half_mm,
+            rgb,
+        } => (
+            v4(center, 0.0),
+            v4(axes[0], half_mm.x),
+            v4(axes[1], half_mm.y),
+            v4(axes[2], half_mm.z),
+            rgb,
+            2,
+        ),
+        Primitive::Cylinder {
+            center,
+            axis,
+            radius,
+            half_length_mm,
+            cut_normal,
+            cut_mm,
+            rgb,
+        } => (
+            v4(center, radius),
+            v4(axis, half_length_mm),
+            v4(cut_normal, cut_mm),
+            z,
+            rgb,
+            3,
+        ),
+    };
+    GpuPrimitive {
+        a,
+        b,
+        c,
+        d,
+        rgb: v4(rgb, 1.0),
+        kind: [kind, 0, 0, 0],
+    }
+}
+
+/// Occupancy of one (volume, N, transfer function, J) on the GPU.
+struct OccupancyCache {
+    volume: u64,
+    cells: u32,
+    transfer: TransferFunction,
+    deformed: Option<usize>,
+    scale: Vec3,
+    size: Vec3,
+    buffer: wgpu::Buffer,
+}
+
+/// J of the deformation hook on the GPU, kept while the scene holds the same `Arc`.
+struct DeformedCache {
+    key: usize,
+    map: IndexMap,
+    view: wgpu::TextureView,
+}
+
+/// The ray-casting pipeline and its per-frame buffers.
+pub struct GpuRenderer {
+    pipelines: Vec<(CtFormat, wgpu::ComputePipeline)>,
+    params: wgpu::Buffer,
+    prims: wgpu::Buffer,
+    dummy_deformed: wgpu::TextureView,
+    occupancy: Option<OccupancyCache>,
+    deformed: Option<DeformedCache>,
+    output: Option<(u64, wgpu::Buffer)>,
+}
+
+impl GpuRenderer {
+    pub fn new(ctx: &GpuContext) -> GpuRenderer {
+        let params = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("raycast params"),
+            size: std::mem::size_of::<Params>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let prims = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("tool primitives"),
+            size: (MAX_PRIMITIVES * std::mem::size_of::<GpuPrimitive>()) as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let dummy_deformed = texture_3d(
+            ctx,
+            "no deformed region",
+            [1, 1, 1],
+            wgpu::TextureFormat::R32Float,
+            4,
+            bytemuck::bytes_of(&0.0f32),
+        );
+        GpuRenderer {
+            pipelines: Vec::new(),
+            params,
+            prims,
+            dummy_deformed,
+            occupancy: None,
+            deformed: None,
+            output: None,
+        }
+    }
+
+    fn pipeline(&mut self, ctx: &GpuContext, format: CtFormat) -> wgpu::ComputePipeline {
+        if let Some((_, p)) = self.pipelines.iter().find(|(f, _)| *f == format) {
+            return p.clone();
+        }
+        let source = format!("{}{}", ct_prelude(format), SHADER);
+        let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("raycast.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
+        });
+        let p = ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("raycast"),
+            layout: None,
+            module: &module,
+            entry_point: Some("main"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        self.pipelines.push((format, p.clone()));
+        p
+    }
+
+    /// Draws the scene at `width` × `height` (half resolution: ⌈w/2⌉ × ⌈h/2⌉, then
+    /// [`Image::upscale`]).
+    pub fn render(
+        &mut self,
+        ctx: &GpuContext,
+        vol: &GpuVolume,
+        scene: &Scene,
+        width: u32,
+        height: u32,
+    ) -> Result<Image, GpuError> {
+        if width == 0 || height == 0 || width > 16384 || height > 16384 {
+            return Err(GpuError::Invalid(format!("image size {width} × {height}")));
+        }
+        if scene.motion.is_some() {
+            return Err(GpuError::Unsupported("breathing motion"));
+        }
+        scene
+            .transfer
+            .validate()
+            .map_err(|e| GpuError::Invalid(format!("transfer function: {e}")))?;
+        let q = scene.quality;
+        if !(q.step_mm.is_finite() && q.step_mm > 0.0) {
+            return Err(GpuError::Invalid(format!("step {} mm", q.step_mm)));
+        }
+        if q.half_resolution {
+            let small = self.render_full(ctx, vol, scene, width.div_ceil(2), height.div_ceil(2))?;
+            return Ok(small.upscale(width, height));
+        }
+        self.render_full(ctx, vol, scene, width, height)
+    }
+
+    fn render_full(
+        &mut self,
+        ctx: &GpuContext,
+        vol: &GpuVolume,
+        scene: &Scene,
+        width: u32,
+        height: u32,
+    ) -> Result<Image, GpuError> {
+        let out_bytes = width as u64 * height as u64 * 4;
+        ctx.check_storage_buffer("the image", out_bytes)?;
+        let groups = (width.div_ceil(8), height.div_ceil(8));
+        let max_groups = ctx.limits.max_compute_workgroups_per_dimension;
+        if groups.0 > max_groups || groups.1 > max_groups {
+            return Err(GpuError::Limits {
+                what: "workgroups per dimension".into(),
+                needed: groups.0.max(groups.1) as u64,
+                limit: max_groups as u64,
+            });
+        }
+        let prims: Vec<GpuPrimitive> = scene.tools.primitives().iter().map(gpu_primitive).collect();
+        if prims.len() > MAX_PRIMITIVES {
+            return Err(GpuError::Invalid(format!(
+                "the tools make {} primitives; the GPU buffer holds {MAX_PRIMITIVES}",
+                prims.len()
+            )));
+        }
+        self.update_deformed(ctx, scene)?;
+        self.update_occupancy(ctx, vol, scene)?;
+        let params = self.params(vol, scene, width, height, prims.len() as u32);
+        ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
+        if !prims.is_empty() {
+            ctx.queue.write_buffer(&self.prims, 0, bytemuck::cast_slice(&prims));
+        }
+        let output = match &self.output {
+            Some((size, buf)) if *size >= out_bytes => buf.clone(),
+            _ => {
+                let buf = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("raycast image"),
+                    size: out_bytes,
+                    usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+                    mapped_at_creation: false,
+                });
+                self.output = Some((out_bytes, buf.clone()));
+                buf
+            }
+        };
+        let pipeline = self.pipeline(ctx, vol.format);
+        let deformed_view = self.deformed.as_ref().map(|d| &d.view).unwrap_or(&self.dummy_deformed);
+        let occupancy = &self.occupancy.as_ref().expect("occupancy set above").buffer;
+        let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("raycast"),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: self.params.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: wgpu::BindingResource::TextureView(&vol.ct_view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::TextureView(&vol.labels_view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: vol.styles.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: occupancy.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 5,
+                    resource: self.prims.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 6,
+                    resource: wgpu::BindingResource::TextureView(deformed_view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 7,
+                    resource: output.as_entire_binding(),
+                },
+            ],
+        });
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&pipeline);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.dispatch_workgroups(groups.0, groups.1, 1);
+        }
+        ctx.queue.submit([enc.finish()]);
+        let bytes = ctx.read_buffer(&output, out_bytes)?;
+        let rgba = bytes.chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]).collect();
+        Ok(Image { width, height, rgba })
+    }
+
+    fn update_deformed(&mut self, ctx: &GpuContext, scene: &Scene) -> Result<(), GpuError> {
+        let Some(d) = &scene.deformed else {
+            self.deformed = None;
+            return Ok(());
+        };
+        let key = Arc::as_ptr(&d.volume) as usize;
+        if self.deformed.as_ref().is_some_and(|c| c.key == key) {
+            return Ok(());
+        }
+        let dims = d.volume.grid().dims();
+        ctx.check_texture_3d("the deformed sub-volume", dims)?;
+        let view = texture_3d(
+            ctx,
+            "deformed sub-volume",
+            dims,
+            wgpu::TextureFormat::R32Float,
+            4,
+            bytemuck::cast_slice(d.volume.data()),
+        );
+        self.deformed = Some(DeformedCache {
+            key,
+            map: IndexMap::of(d.volume.grid()),
+            view,
+        });
+        Ok(())
+    }
+
+    /// The occupancy bits of `raycast::occupancy::Occupancy` (the CPU reference's own grid and
+    /// rule, Ω_J marked occupied), rebuilt when the volume, N, the transfer function or J change.
+    fn update_occupancy(&mut self, ctx: &GpuContext, vol: &GpuVolume, scene: &Scene) -> Result<(), GpuError> {
+        // The CPU reference clamps N the same way (RenderVolume::cell_ranges).
+        let cells = scene.quality.occupancy_cells.clamp(16, 128);
+        let deformed = self.deformed.as_ref().map(|d| d.key);
+        if let Some(c) = &self.occupancy
+            && c.volume == vol.id
+            && c.cells == cells
+            && c.transfer == scene.transfer
+            && c.deformed == deformed
+        {
+            return Ok(());
+        }
+        ctx.check_storage_buffer("the occupancy grid", 4 * (cells as u64).pow(3))?;
+        let ranges = vol.cell_ranges(cells);
+        let ct_map = IndexMap::of(vol.atlas.ct().grid());
+        let occ = Occupancy::new(
+            &ranges,
+            &scene.transfer,
+            ct_map.dims,
+            scene.deformed.as_ref().map(|d| (&*d.volume, &ct_map)),
+        );
+        let bits: Vec<u32> = occ.occupied.iter().map(|&b| b as u32).collect();
+        let buffer = storage(ctx, "occupancy", bytemuck::cast_slice(&bits));
+        self.occupancy = Some(OccupancyCache {
+            volume: vol.id,
+            cells,
+            transfer: scene.transfer.clone(),
+            deformed,
+            scale: occ.scale,
+            size: occ.size,
+            buffer,
+        });
+        Ok(())
+    }
+
+    fn params(&self, vol: &GpuVolume, scene: &Scene, width: u32, height: u32, n_prims: u32) -> Params {
+        let cam = &scene.camera;
+        let (right, up, forward) = cam.basis();
+        let tan_half = (cam.fov_y_deg.to_radians() * 0.5).tan();
+        let aspect = width as f32 / height as f32;
+        let q = scene.quality;
+        let grid = vol.atlas.ct().grid();
+        let m = IndexMap::of(grid);
+        let spacing = grid.spacing_mm();
+        let h_mm = (0.5 * spacing[0].min(spacing[1]).min(spacing[2])) as f32;
+        let axis = |m: &IndexMap, a: usize| {
+            let mut e = Vec3::ZERO;
+            e[a] = h_mm;
+            v4(m.vector(e), 0.0)
+        };
+        let t_far = farthest_corner_mm(grid, cam.eye_mm);
+        let occ = self.occupancy.as_ref().expect("occupancy is set before the parameters");
+        let shadows = Shadows::from_tools(&scene.tools);
+        let mut flags = 0;
+        for (on, f) in [
+            (q.jitter, F_JITTER),
+            (q.ray_box, F_RAY_BOX),
+            (q.leaping, F_LEAPING),
+            (q.early_termination, F_EARLY),
+            (scene.clip.is_some(), F_CLIP),
+            (self.deformed.is_some(), F_DEFORMED),
+            (shadows.needle.is_some(), F_NEEDLE_SHADOW),
+            (
+                scene.deformed.is_some() || scene.transfer.eval(AIR_HU)[3] > 0.0,
+                F_SAMPLE_OUTSIDE,
+            ),
+        ] {
+            if on {
+                flags |= f;
+            }
+        }
+        let mut traps = [GpuTrapezoid::zeroed(); MAX_TRAPEZOIDS];
+        let (kind, n_traps, window) = match &scene.transfer {
+            TransferFunction::Trapezoids(ts) => {
+                for (dst, t) in traps.iter_mut().zip(ts) {
+                    *dst = GpuTrapezoid {
+                        hu: t.hu,
+                        rgb_opacity: [t.rgb[0], t.rgb[1], t.rgb[2], t.opacity],
+                        weight: [t.weight, 0.0, 0.0, 0.0],
+                    };
+                }
+                (0, ts.len().min(MAX_TRAPEZOIDS) as u32, [0.0; 4])
+            }
+            TransferFunction::Window {
+                level_hu,
+                width_hu,
+                opacity,
+            } => (1, 0, [*level_hu, *width_hu, *opacity, 0.0]),
+        };
+        let tagging = match scene.tagging {
+            Tagging::Off => 0,
+            Tagging::Risk => 1,
+            Tagging::Labels => 2,
+        };
+        let z = [0.0; 4];
+        let (def_inv, def_origin, def_grad, def_dims) = match &self.deformed {
+            Some(d) => (
+                d.map.rows.map(|r| v4(r, 0.0)),
+                v4(d.map.origin, 0.0),
+                [axis(&d.map, 0), axis(&d.map, 1), axis(&d.map, 2)],
+                [d.map.dims[0], d.map.dims[1], d.map.dims[2], 1],
+            ),
+            None => ([z; 3], z, [z; 3], [1, 1, 1, 0]),
+        };
+        let (needle_tip, needle_back, needle_dims) = match &shadows.needle {
+            Some(n) => (
+                v4(n.tip_mm, 0.0),
+                v4(n.back, 0.0),
+                [n.length_mm, n.diameter_mm, n.hub_length_mm, n.hub_diameter_mm],
+            ),
+            None => (z, z, z),
+        };
+        let mut spheres = [z; 2];
+        for (dst, sp) in spheres.iter_mut().zip(&shadows.spheres) {
+            *dst = v4(sp.center_mm, sp.radius_mm);
+        }
+        let clip = scene.clip.unwrap_or(ClipPlane {
+            point_mm: Vec3::ZERO,
+            normal: Vec3::Z,
+        });
+        let l = &scene.light;
+        Params {
+            eye: v4(cam.eye_mm, tan_half),
+            right: v4(right, aspect),
+            up: v4(up, q.step_mm),
+            forward: v4(forward, t_far),
+            inv0: v4(m.rows[0], 0.0),
+            inv1: v4(m.rows[1], 0.0),
+            inv2: v4(m.rows[2], 0.0),
+            origin: v4(m.origin, 1.0 / (2.0 * h_mm)),
+            grad0: axis(&m, 0),
+            grad1: axis(&m, 1),
+            grad2: axis(&m, 2),
+            dims: [m.dims[0], m.dims[1], m.dims[2], occ.cells],
+            occ_scale: v4(occ.scale, 0.0),
+            occ_size: v4(occ.size, 0.0),
+            image: [width, height, flags, n_traps],
+            modes: [kind, tagging, n_prims, vol.style_count],
+            window,
+            background: v4(scene.background, 1.0),
+            light: v4(l.toward_light, l.shadow_in),
+            phong: [l.ambient, l.diffuse, l.specular, l.shininess],
+            clip_point: v4(clip.point_mm, 0.0),
+            clip_normal: v4(clip.normal, 0.0),
+            def_inv0: def_inv[0],
+            def_inv1: def_inv[1],
+            def_inv2: def_inv[2],
+            def_origin,
+            def_grad0: def_grad[0],
+            def_grad1: def_grad[1],
+            def_grad2: def_grad[2],
+            def_dims,
+            needle_tip,
+            needle_back,
+            needle_dims,
+            spheres,
+            traps,
+        }
+    }
+}

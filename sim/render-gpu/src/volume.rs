@@ -1,0 +1,209 @@
+//! The atlas volumes on the GPU, uploaded once per atlas (docs/rendering.md "Inputs"): the CT as
+//! 16-bit integers when every value is an integer in i16 range (real CT), else as 32-bit floats;
+//! the rendered labels l(x) and the partial labels (MPR overlay) as 16-bit integers; the label
+//! styles in a small buffer. Shaders read voxels with `textureLoad` only (manual trilinear
+//! interpolation, never hardware filtering), so they see exactly the CPU's values.
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+
+use crate::{GpuContext, GpuError};
+use bytemuck::{Pod, Zeroable};
+use stylet_physics::PunctureAtlas;
+use stylet_render::raycast::occupancy::cell_ranges;
+use stylet_render::volume::{CellRanges, RenderVolume, TagClass};
+
+/// How the CT is stored on the GPU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CtFormat {
+    /// R16Sint: every value an integer in −32768 … 32767 (real CT, 2 bytes a voxel).
+    Int16,
+    /// R32Float: anything else (the procedural phantom's partial-volume values).
+    Float32,
+}
+
+/// A label's style as the ray-casting shader reads it (32 bytes).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub(crate) struct GpuStyle {
+    pub rgba: [f32; 4],
+    /// 0 other, 1 target, 2 risk (eq. 3.2.4).
+    pub class: u32,
+    pub _pad: [u32; 3],
+}
+
+static NEXT_ID: AtomicU64 = AtomicU64::new(1);
+
+/// The atlas on the GPU.
+pub struct GpuVolume {
+    /// Unique per upload: caches (occupancy, pipelines) are keyed by it.
+    pub(crate) id: u64,
+    pub(crate) atlas: Arc<PunctureAtlas>,
+    pub(crate) format: CtFormat,
+    pub(crate) ct_view: wgpu::TextureView,
+    pub(crate) labels_view: wgpu::TextureView,
+    pub(crate) partial_view: wgpu::TextureView,
+    pub(crate) styles: wgpu::Buffer,
+    pub(crate) style_count: u32,
+    /// MPR overlay colours by label id (RGBA8 packed; alpha 0 for ids without a style).
+    pub(crate) mpr_colors: wgpu::Buffer,
+    ranges: Mutex<HashMap<u32, Arc<CellRanges>>>,
+    bytes: u64,
+}
+
+impl GpuVolume {
+    /// Uploads the CT, labels and styles (checks the device limits first).
+    pub fn upload(ctx: &GpuContext, vol: &RenderVolume) -> Result<GpuVolume, GpuError> {
+        let atlas = vol.atlas.clone();
+        let ct = atlas.ct();
+        let dims = ct.grid().dims();
+        ctx.check_texture_3d("the CT", dims)?;
+        if vol.labels.len() != ct.data().len() {
+            return Err(GpuError::Invalid(format!(
+                "{} labels for {} CT voxels",
+                vol.labels.len(),
+                ct.data().len()
+            )));
+        }
+        let int16 = ct
+            .data()
+            .iter()
+            .all(|&v| v.fract() == 0.0 && (i16::MIN as f32..=i16::MAX as f32).contains(&v));
+        let (format, ct_bytes): (CtFormat, Vec<u8>) = if int16 {
+            let v: Vec<i16> = ct.data().iter().map(|&v| v as i16).collect();
+            (CtFormat::Int16, bytemuck::cast_slice(&v).to_vec())
+        } else {
+            (CtFormat::Float32, bytemuck::cast_slice(ct.data()).to_vec())
+        };
+        let (tex_format, texel) = match format {
+            CtFormat::Int16 => (wgpu::TextureFormat::R16Sint, 2),
+            CtFormat::Float32 => (wgpu::TextureFormat::R32Float, 4),
+        };
+        let ct_view = texture_3d(ctx, "ct", dims, tex_format, texel, &ct_bytes);
+        let labels_view = texture_3d(
+            ctx,
+            "labels",
+            dims,
+            wgpu::TextureFormat::R16Uint,
+            2,
+            bytemuck::cast_slice(&vol.labels),
+        );
+        let partial_view = texture_3d(
+            ctx,
+            "partial labels",
+            dims,
+            wgpu::TextureFormat::R16Uint,
+            2,
+            bytemuck::cast_slice(atlas.partial_labels().data()),
+        );
+        let mut styles: Vec<GpuStyle> = vol
+            .styles
+            .iter()
+            .map(|s| GpuStyle {
+                rgba: s.rgba,
+                class: match s.class {
+                    TagClass::Other => 0,
+                    TagClass::Target => 1,
+                    TagClass::Risk => 2,
+                },
+                _pad: [0; 3],
+            })
+            .collect();
+        if styles.is_empty() {
+            styles.push(GpuStyle::zeroed());
+        }
+        let table = atlas.label_table();
+        let max_id = table.labels().iter().map(|l| l.id).max().unwrap_or(0) as usize;
+        let mut colors = vec![0u32; max_id + 1];
+        for (pos, label) in table.labels().iter().enumerate() {
+            colors[label.id as usize] = u32::from_le_bytes(atlas.materials().color(pos));
+        }
+        ctx.check_storage_buffer("label styles", (styles.len() * 32) as u64)?;
+        let style_count = styles.len() as u32;
+        let styles = storage(ctx, "label styles", bytemuck::cast_slice(&styles));
+        let mpr_colors = storage(ctx, "label colours", bytemuck::cast_slice(&colors));
+        let bytes = ct_bytes.len() as u64 + 4 * dims.iter().product::<usize>() as u64;
+        Ok(GpuVolume {
+            id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
+            atlas,
+            format,
+            ct_view,
+            labels_view,
+            partial_view,
+            styles,
+            style_count,
+            mpr_colors,
+            ranges: Mutex::new(HashMap::new()),
+            bytes,
+        })
+    }
+
+    /// How the CT is stored.
+    pub fn ct_format(&self) -> CtFormat {
+        self.format
+    }
+
+    /// Bytes of volume textures on the GPU.
+    pub fn texture_bytes(&self) -> u64 {
+        self.bytes
+    }
+
+    /// Per-cell CT ranges of an N³ grid (the CPU reference's `cell_ranges`), once per N.
+    pub(crate) fn cell_ranges(&self, cells: u32) -> Arc<CellRanges> {
+        let mut map = self.ranges.lock().unwrap_or_else(|e| e.into_inner());
+        map.entry(cells)
+            .or_insert_with(|| Arc::new(cell_ranges(self.atlas.ct(), cells)))
+            .clone()
+    }
+}
+
+pub(crate) fn texture_3d(
+    ctx: &GpuContext,
+    label: &str,
+    dims: [usize; 3],
+    format: wgpu::TextureFormat,
+    texel_bytes: u32,
+    data: &[u8],
+) -> wgpu::TextureView {
+    let size = wgpu::Extent3d {
+        width: dims[0] as u32,
+        height: dims[1] as u32,
+        depth_or_array_layers: dims[2] as u32,
+    };
+    let tex = ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size,
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D3,
+        format,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    ctx.queue.write_texture(
+        wgpu::TexelCopyTextureInfo {
+            texture: &tex,
+            mip_level: 0,
+            origin: wgpu::Origin3d::ZERO,
+            aspect: wgpu::TextureAspect::All,
+        },
+        data,
+        wgpu::TexelCopyBufferLayout {
+            offset: 0,
+            bytes_per_row: Some(dims[0] as u32 * texel_bytes),
+            rows_per_image: Some(dims[1] as u32),
+        },
+        size,
+    );
+    tex.create_view(&Default::default())
+}
+
+pub(crate) fn storage(ctx: &GpuContext, label: &str, data: &[u8]) -> wgpu::Buffer {
+    use wgpu::util::DeviceExt;
+    ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some(label),
+        contents: data,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+    })
+}
