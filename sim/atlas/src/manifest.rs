@@ -628,7 +628,7 @@ mod tests {
     fn bad_render_presets_name_the_preset_the_trapezoid_and_the_field() {
         use toml::Value;
         let e = ptcd_with(|t| {
-            soft_trapezoid(t, 2).insert("hu".into(), Value::try_from([200.0, 100.0, 300.0, 400.0]).unwrap());
+            soft_trapezoid(t, 3).insert("hu".into(), Value::try_from([200.0, 100.0, 300.0, 400.0]).unwrap());
         })
         .unwrap_err();
         assert!(
@@ -646,7 +646,7 @@ mod tests {
         .unwrap_err();
         assert!(e.contains("rgb"), "{e}");
         let e = ptcd_with(|t| {
-            soft_trapezoid(t, 3).insert("weight".into(), Value::Float(-0.1));
+            soft_trapezoid(t, 4).insert("weight".into(), Value::Float(-0.1));
         })
         .unwrap_err();
         assert!(e.contains("'bone'") && e.contains("weight"), "{e}");
