@@ -7,6 +7,7 @@ macro_rules! sayf {
 
 mod atlas;
 mod demo;
+mod render;
 mod score;
 mod script;
 mod serve;
@@ -44,6 +45,8 @@ enum Command {
     /// Inspect, verify, export and recover session files (docs/session-format.md).
     #[command(subcommand)]
     Session(session::SessionCommand),
+    /// Draw an atlas, or a recorded session at a moment, as a PNG (docs/rendering.md).
+    Render(render::RenderArgs),
     /// Run the demo on the embedded default: build the phantom atlas and print its summary.
     Demo(demo::DemoArgs),
 }
@@ -56,6 +59,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Score(args) => score::run(args),
         Command::Serve(args) => serve::serve(args),
         Command::User(cmd) => user::run(cmd),
+        Command::Render(args) => render::run(args),
         Command::Demo(args) => demo::run(args),
     }
 }
