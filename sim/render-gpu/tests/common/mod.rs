@@ -265,6 +265,15 @@ pub fn scene(v: &RenderVolume, transfer: TransferFunction) -> Scene {
     }
 }
 
+/// Renders `scene` on the GPU.
+pub fn render_gpu(both: &Both, scene: &Scene, w: u32, h: u32) -> Image {
+    renderer()
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .render(ctx(), &both.gpu, scene, w, h)
+        .unwrap_or_else(|e| panic!("GPU render failed: {e}"))
+}
+
 /// Renders `scene` on the GPU and with the CPU reference, prints the difference statistics,
 /// writes both images (and a difference image) under $TMPDIR/stylet-gpu/ and checks `tol`.
 pub fn compare(name: &str, both: &Both, scene: &Scene, w: u32, h: u32, tol: Tolerance) -> DiffStats {
