@@ -8,6 +8,7 @@
 //! [`tools`] (needle, finger, probes), [`image`] (pixels, PNG, difference statistics), [`mpr`]
 //! (slices) and [`figure`] (the atlas figure of `stylet atlas inspect`).
 
+pub mod annotate;
 pub mod figure;
 pub mod fonts;
 pub mod image;
