@@ -5,8 +5,9 @@
 //! wgpu renderer in `stylet-render-gpu` (what the desktop simulator uses), so the service and the
 //! scoring workers never link wgpu. Modules: [`scene`] (camera, light, clip plane, tagging,
 //! quality, hooks), [`transfer`] (eq. 3.2.2), [`volume`] (the atlas prepared for rendering),
-//! [`tools`] (needle, finger, probes), [`image`] (pixels, PNG, difference statistics), [`mpr`]
-//! (slices) and [`figure`] (the atlas figure of `stylet atlas inspect`).
+//! [`tools`] (needle, finger, probes), [`shadow`] (their shadows, Alg. 3.1/3.2), [`image`]
+//! (pixels, PNG, difference statistics), [`mpr`] (slices), [`annotate`] (tip marker, scale bar,
+//! letters on slices) and [`figure`] (the atlas figure of `stylet atlas inspect`).
 
 pub mod annotate;
 pub mod figure;
