@@ -14,7 +14,7 @@ use stylet_physics::{
 use stylet_render::image::{Image, Tolerance, diff};
 use stylet_render::raycast::{RenderOutput, render};
 use stylet_render::scene::{Camera, ClipPlane, DeformedRegion, Light, MotionHook, Quality, Scene, Tagging};
-use stylet_render::tools::ToolState;
+use stylet_render::tools::{NeedleShape, ToolState};
 use stylet_render::transfer::{TransferFunction, Trapezoid};
 use stylet_render::volume::RenderVolume;
 
@@ -584,4 +584,78 @@ fn the_motion_warp_moves_what_is_drawn() {
     let want = 8.0 * right.x as f64 / 150.0 / 15f64.to_radians().tan() * 48.0;
     let shift = centroid(&moved.image) - centroid(&plain.image);
     assert!((shift - want).abs() < 1.0, "moved by {shift:.2} px, expected {want:.2}");
+}
+
+fn needle(nodes: &[[f32; 3]]) -> NeedleShape {
+    NeedleShape {
+        nodes_mm: nodes.iter().map(|&p| Vec3::from_array(p)).collect(),
+        diameter_mm: 1.5,
+        hub_length_mm: 20.0,
+        hub_diameter_mm: 4.0,
+    }
+}
+
+#[test]
+fn the_needle_occludes_the_volume_behind_it() {
+    let body = atlas(48, 2.0, body_with_bone, |_| 0);
+    let empty = atlas(48, 2.0, |_| -1000.0, |_| 0);
+    let mut s = scene(soft_and_bone(), exact());
+    let without = render(&body, &s, 96, 96).image;
+    // A needle across the view in front of the body (y = 45 mm; the body ends at 42 mm): the
+    // centre ray meets it first.
+    s.tools.needle = Some(needle(&[[-30.0, 45.0, 0.0], [0.0, 45.0, 0.0], [30.0, 45.0, 0.0]]));
+    let with = render(&body, &s, 96, 96).image;
+    let alone = render(&empty, &s, 96, 96).image;
+    let (c, r) = (48, 48);
+    assert_ne!(without.get(c, r), background_px(), "the body shows at the centre");
+    assert_ne!(with.get(c, r), without.get(c, r), "the needle shows at the centre");
+    // Nothing of the volume behind the needle reaches the pixel: it is the needle's own colour.
+    assert_eq!(with.get(c, r), alone.get(c, r));
+    // Away from the needle the picture is unchanged.
+    assert_eq!(with.get(48, 10), without.get(48, 10));
+}
+
+#[test]
+fn the_needle_shadow_darkens_what_lies_under_it() {
+    let v = atlas(48, 2.0, body_with_bone, |_| 0);
+    let tf = TransferFunction::Trapezoids(vec![
+        trapezoid("soft", [-200.0, 0.0, 100.0, 150.0], [0.8, 0.4, 0.3], 0.4),
+        trapezoid("bone", [200.0, 400.0, 3000.0, 3100.0], [1.0, 1.0, 0.95], 0.6),
+    ]);
+    let mut s = scene(tf, exact());
+    // Seen from the front and above; light straight from above; the needle lies 13 mm above
+    // the body's top, so its shadow falls on the top surface along y ≈ 0.
+    s.camera = Camera::orbit(Vec3::ZERO, 150.0, 0.0, 50.0, 30.0);
+    s.light = Light {
+        toward_light: Vec3::Z,
+        ..Light::over_shoulder(&s.camera)
+    };
+    let no_needle = render(&v, &s, 96, 96).image;
+    s.tools.needle = Some(needle(&[[-20.0, 0.0, 55.0], [0.0, 0.0, 55.0], [20.0, 0.0, 55.0]]));
+    let shadowed = render(&v, &s, 96, 96).image;
+    s.light.shadow_in = 1.0;
+    let unshadowed = render(&v, &s, 96, 96).image;
+    let mut darker = 0;
+    for (i, (a, b)) in shadowed.rgba.iter().zip(&unshadowed.rgba).enumerate() {
+        if a != b {
+            // The shadow only darkens, and only where the needle itself is not drawn.
+            assert!((0..3).all(|ch| a[ch] <= b[ch]), "pixel {i}: {a:?} brighter than {b:?}");
+            assert_eq!(*b, no_needle.rgba[i], "pixel {i}: shadow on a tool pixel");
+            darker += 1;
+        }
+    }
+    eprintln!("needle shadow: {darker} pixels darker");
+    assert!(darker > 20, "only {darker} pixels in the needle's shadow");
+    // The shadow lies under the needle: the same columns as the needle (x −20 … 20 mm, and the
+    // hub beyond −20), not far to the sides.
+    let cols: Vec<u32> = (0..shadowed.rgba.len())
+        .filter(|&i| shadowed.rgba[i] != unshadowed.rgba[i])
+        .map(|i| i as u32 % 96)
+        .collect();
+    let px_per_mm = 48.0 / (150.0 * 15f32.to_radians().tan());
+    let half_width = ((40.0 + 2.0) * px_per_mm) as u32 + 4;
+    assert!(
+        cols.iter().all(|&c| c.abs_diff(48) <= half_width),
+        "shadow columns {cols:?}"
+    );
 }

@@ -8,6 +8,8 @@ use super::occupancy::Occupancy;
 use super::sampler::{At, Sampler};
 use super::shading::{corrected_alpha, phong, plane_colour};
 use crate::scene::{ClipPlane, Light, MotionHook, Quality, Tagging};
+use crate::shadow::Shadows;
+use crate::tools::{Primitive, nearest_hit, shade};
 use crate::transfer::TransferFunction;
 use crate::volume::RenderVolume;
 
@@ -29,9 +31,13 @@ pub struct Frame<'a> {
     pub t_far: f32,
     pub background: Vec3,
     pub motion: Option<&'a MotionHook>,
-    // TOOLS (steps 4 and 6): the tool primitives (`ToolState::primitives`) and the shadows
-    // (`shadow::Shadows::from_tools`) are stored here once tools.rs and shadow.rs provide them.
+    /// The tools' primitives (step 4) and the shadows they cast (step 6).
+    pub primitives: Vec<Primitive>,
+    pub shadows: Shadows,
 }
+
+/// "No hit" distance for the tools (no infinities, as in tools.rs and the WGSL port).
+const NO_TOOL: f32 = 1.0e30;
 
 /// The ray parameters [t_in, t_out] where the index-space ray `ce` + t·`dc` (t ≥ 0) crosses the
 /// sampling domain [−½, n − ½]³ (slabs), or `None` when it misses.
@@ -138,8 +144,9 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
     let mut acc = Accum { c: Vec3::ZERO, a: 0.0 };
     let mut samples = 0u64;
 
-    // 4. Tools: the nearest hit ends the march. TOOLS: t_tool = tools::nearest_hit(..) here.
-    let t_tool = f32::INFINITY;
+    // 4. Tools: the nearest hit ends the march (tools are never clipped).
+    let tool = nearest_hit(&f.primitives, origin, dir, NO_TOOL);
+    let t_tool = tool.map_or(NO_TOOL, |h| h.t);
 
     // 2. Extent.
     let extent = if q.ray_box && f.motion.is_none() {
@@ -239,8 +246,10 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
             let c = f.transfer.eval(f.sampler.s(at));
             if c[3] > 0.0 {
                 let alpha = corrected_alpha(c[3], step);
-                // 6. Shadow. TOOLS: f_shadow = shadows.factor(x, light.toward_light, light.shadow_in).
-                let f_shadow = 1.0;
+                // 6. Shadow, at the sample's world position.
+                let f_shadow = f
+                    .shadows
+                    .factor(origin + dir * t, f.light.toward_light, f.light.shadow_in);
                 let shade = phong(f.sampler.gradient(at), dir, &f.light, f_shadow);
                 acc.add(Vec3::new(c[0], c[1], c[2]) * shade, alpha);
                 // 7. Early termination.
@@ -252,7 +261,11 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
         }
     }
 
-    // 4. (end) TOOLS: with a hit, acc.c += (1 − A)·tools::shade(hit, light, −dir); A = 1.
+    // 4. (end) The tool behind what was accumulated.
+    if let Some(hit) = tool {
+        acc.c += (1.0 - acc.a) * shade(&hit, &f.light, dir);
+        acc.a = 1.0;
+    }
 
     // 9. Finish.
     let rgb = acc.c + (1.0 - acc.a) * f.background;

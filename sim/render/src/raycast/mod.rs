@@ -96,6 +96,8 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) ->
         t_far: farthest_corner_mm(&grid, scene.camera.eye_mm),
         background: scene.background,
         motion: scene.motion.as_ref(),
+        primitives: scene.tools.primitives(),
+        shadows: crate::shadow::Shadows::from_tools(&scene.tools),
     };
     let mut image = Image::new(width, height);
     let camera = scene.camera;
