@@ -18,9 +18,9 @@ pub mod raycast;
 pub mod volume;
 
 pub use context::{AdapterSummary, GpuContext};
-pub use mpr::{GpuMpr, SliceGeometry};
+pub use mpr::GpuMpr;
 pub use raycast::GpuRenderer;
-pub use volume::GpuVolume;
+pub use volume::{CtFormat, GpuVolume};
 
 /// Why the GPU could not draw.
 #[derive(Debug, thiserror::Error)]

@@ -1,3 +1,142 @@
-//! MPR on the GPU (placeholder while the ray caster is brought up).
-pub struct GpuMpr;
-pub struct SliceGeometry;
+//! MPR on the GPU (`shaders/mpr.wgsl`): any slice a `stylet_render::mpr::SliceSpec` describes
+//! (axial, coronal, sagittal, the oblique plane along the needle), drawn with the CPU's formulas
+//! (`mpr::render_spec`: f32 index frame, trilinear CT, window, nearest partial label, overlay
+//! opaque on label boundaries). The tip marker and the scale bar are drawn afterwards on the CPU
+//! by the shared annotate module, so this returns the slice pixels only.
+
+use bytemuck::{Pod, Zeroable};
+use stylet_render::mpr::{MprImage, SliceSpec};
+
+use crate::raycast::ct_prelude;
+use crate::volume::{CtFormat, GpuVolume};
+use crate::{GpuContext, GpuError};
+
+const SHADER: &str = include_str!("../shaders/mpr.wgsl");
+
+/// Mirrors `Params` in mpr.wgsl (16-byte members).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct MprParams {
+    origin: [f32; 4],
+    col_step: [f32; 4],
+    row_step: [f32; 4],
+    dims: [u32; 4],
+    size: [u32; 4],
+    window: [f32; 4],
+}
+
+/// The MPR pipeline (one per CT storage format, built on first use).
+pub struct GpuMpr {
+    pipelines: Vec<(CtFormat, wgpu::ComputePipeline)>,
+    params: wgpu::Buffer,
+}
+
+impl GpuMpr {
+    pub fn new(ctx: &GpuContext) -> GpuMpr {
+        let params = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("mpr params"),
+            size: std::mem::size_of::<MprParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        GpuMpr {
+            pipelines: Vec::new(),
+            params,
+        }
+    }
+
+    fn pipeline(&mut self, ctx: &GpuContext, format: CtFormat) -> wgpu::ComputePipeline {
+        if let Some((_, p)) = self.pipelines.iter().find(|(f, _)| *f == format) {
+            return p.clone();
+        }
+        let source = format!("{}{}", ct_prelude(format), SHADER);
+        let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("mpr.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
+        });
+        let p = ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("mpr"),
+            layout: None,
+            module: &module,
+            entry_point: Some("main"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        self.pipelines.push((format, p.clone()));
+        p
+    }
+
+    /// Draws the slice `spec` of the volume (pixels and each pixel's partial label).
+    pub fn render(&mut self, ctx: &GpuContext, vol: &GpuVolume, spec: &SliceSpec) -> Result<MprImage, GpuError> {
+        spec.validate().map_err(|e| GpuError::Invalid(format!("slice: {e}")))?;
+        let (w, h) = (spec.width as u32, spec.height as u32);
+        let out_bytes = w as u64 * h as u64 * 8;
+        ctx.check_storage_buffer("the slice", out_bytes)?;
+        let grid = vol.atlas.ct().grid();
+        let frame = spec.index_frame(grid);
+        let [nx, ny, nz] = grid.dims();
+        let v4 = |v: stylet_physics::glam::Vec3| [v.x, v.y, v.z, 0.0];
+        let params = MprParams {
+            origin: v4(frame.origin),
+            col_step: v4(frame.col_step),
+            row_step: v4(frame.row_step),
+            dims: [nx as u32, ny as u32, nz as u32, vol.mpr_color_count],
+            size: [w, h, 0, 0],
+            window: [spec.window.level_hu as f32, spec.window.width_hu as f32, 0.0, 0.0],
+        };
+        ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
+        let output = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("mpr image"),
+            size: out_bytes,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let pipeline = self.pipeline(ctx, vol.format);
+        let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("mpr"),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: self.params.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: wgpu::BindingResource::TextureView(&vol.ct_view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::TextureView(&vol.partial_view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: vol.mpr_colors.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: output.as_entire_binding(),
+                },
+            ],
+        });
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&pipeline);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.dispatch_workgroups(w.div_ceil(8), h.div_ceil(8), 1);
+        }
+        ctx.queue.submit([enc.finish()]);
+        let bytes = ctx.read_buffer(&output, out_bytes)?;
+        let words: &[u32] = bytemuck::cast_slice(&bytes);
+        let rgb = words.chunks_exact(2).map(|p| {
+            let b = p[0].to_le_bytes();
+            [b[0], b[1], b[2]]
+        });
+        let labels = words.chunks_exact(2).map(|p| p[1] as u16);
+        Ok(MprImage {
+            spec: *spec,
+            rgb: rgb.collect(),
+            labels: labels.collect(),
+        })
+    }
+}

@@ -22,7 +22,7 @@ use crate::{GpuContext, GpuError};
 const SHADER: &str = include_str!("../shaders/raycast.wgsl");
 
 /// The CT declaration the shader is compiled with (binding 1).
-fn ct_prelude(format: CtFormat) -> &'static str {
+pub(crate) fn ct_prelude(format: CtFormat) -> &'static str {
     match format {
         CtFormat::Int16 => {
             "@group(0) @binding(1) var ct: texture_3d<i32>;\n\

@@ -46,8 +46,9 @@ pub struct GpuVolume {
     pub(crate) partial_view: wgpu::TextureView,
     pub(crate) styles: wgpu::Buffer,
     pub(crate) style_count: u32,
-    /// MPR overlay colours by label id (RGBA8 packed; alpha 0 for ids without a style).
+    /// MPR overlay colours by label id: (RGBA8 packed, 1 when the id is in the label table).
     pub(crate) mpr_colors: wgpu::Buffer,
+    pub(crate) mpr_color_count: u32,
     ranges: Mutex<HashMap<u32, Arc<CellRanges>>>,
     bytes: u64,
 }
@@ -115,14 +116,16 @@ impl GpuVolume {
         }
         let table = atlas.label_table();
         let max_id = table.labels().iter().map(|l| l.id).max().unwrap_or(0) as usize;
-        let mut colors = vec![0u32; max_id + 1];
+        // (RGBA8, 1 when the id is in the label table): mpr.rs skips ids without a position.
+        let mut colors = vec![[0u32; 2]; max_id + 1];
         for (pos, label) in table.labels().iter().enumerate() {
-            colors[label.id as usize] = u32::from_le_bytes(atlas.materials().color(pos));
+            colors[label.id as usize] = [u32::from_le_bytes(atlas.materials().color(pos)), 1];
         }
+        let color_count = colors.len() as u32;
         ctx.check_storage_buffer("label styles", (styles.len() * 32) as u64)?;
         let style_count = styles.len() as u32;
         let styles = storage(ctx, "label styles", bytemuck::cast_slice(&styles));
-        let mpr_colors = storage(ctx, "label colours", bytemuck::cast_slice(&colors));
+        let mpr_colors = storage(ctx, "label colours", bytemuck::cast_slice(colors.as_flattened()));
         let bytes = ct_bytes.len() as u64 + 4 * dims.iter().product::<usize>() as u64;
         Ok(GpuVolume {
             id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
@@ -134,6 +137,7 @@ impl GpuVolume {
             styles,
             style_count,
             mpr_colors,
+            mpr_color_count: color_count,
             ranges: Mutex::new(HashMap::new()),
             bytes,
         })

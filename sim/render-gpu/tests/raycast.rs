@@ -37,6 +37,18 @@ fn transfer_functions_match_the_cpu_on_the_synthetic_atlas() {
 }
 
 #[test]
+fn a_float_ct_matches_the_cpu() {
+    let b = small_float();
+    assert_eq!(b.gpu.ct_format(), stylet_render_gpu::CtFormat::Float32);
+    for (name, tf) in transfer_functions() {
+        let mut s = scene(&b.cpu, tf);
+        s.clip = Some(ClipPlane::through_tool(Vec3::new(20.0, 5.0, 10.0), Vec3::Z, &s.camera));
+        s.tagging = Tagging::Risk;
+        compare(&format!("float-{name}"), b, &s, 160, 132, GPU_CPU);
+    }
+}
+
+#[test]
 fn tagging_modes_with_a_clip_plane_match_the_cpu() {
     let b = small();
     let (_, tf) = transfer_functions().swap_remove(1);

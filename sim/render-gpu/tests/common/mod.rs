@@ -166,7 +166,15 @@ pub fn small() -> &'static Both {
     S.get_or_init(|| synthetic(48, 2.0, body, body_labels))
 }
 
-/// The default phantom (written and loaded once per test binary; float CT values).
+/// The synthetic atlas with fractional CT values (a smooth ramp added), so it uploads as
+/// 32-bit floats.
+pub fn small_float() -> &'static Both {
+    static S: OnceLock<Both> = OnceLock::new();
+    S.get_or_init(|| synthetic(40, 2.4, |p| body(p) + (p.x * 0.37) as f32, body_labels))
+}
+
+/// The default phantom (written and loaded once per test binary; stored as integer HU, so it
+/// uploads as 16-bit).
 pub fn phantom() -> &'static Both {
     static P: OnceLock<(tempfile::TempDir, Both)> = OnceLock::new();
     &P.get_or_init(|| {
