@@ -659,3 +659,50 @@ fn the_needle_shadow_darkens_what_lies_under_it() {
         "shadow columns {cols:?}"
     );
 }
+
+#[test]
+fn a_bad_step_neither_hangs_nor_panics() {
+    let v = atlas(24, 4.0, body_with_bone, |_| 0);
+    let good = render(
+        &v,
+        &scene(
+            soft_and_bone(),
+            Quality {
+                step_mm: 1.0,
+                ..exact()
+            },
+        ),
+        32,
+        32,
+    );
+    for step_mm in [f32::NAN, 0.0, -2.0, f32::INFINITY] {
+        let out = render(&v, &scene(soft_and_bone(), Quality { step_mm, ..exact() }), 32, 32);
+        // Not a positive finite number: the march uses 1 mm.
+        assert_eq!(out, good, "step {step_mm}");
+    }
+    let tiny = render(
+        &v,
+        &scene(
+            soft_and_bone(),
+            Quality {
+                step_mm: 1e-30,
+                ..exact()
+            },
+        ),
+        8,
+        8,
+    );
+    let floor = render(
+        &v,
+        &scene(
+            soft_and_bone(),
+            Quality {
+                step_mm: 0.01,
+                ..exact()
+            },
+        ),
+        8,
+        8,
+    );
+    assert_eq!(tiny, floor);
+}

@@ -46,6 +46,19 @@ pub fn render(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) -> 
     render_full(volume, scene, width, height)
 }
 
+/// Shortest step the ray caster takes (mm): bounds the samples per ray.
+pub const MIN_STEP_MM: f32 = 0.01;
+
+/// The step actually used: `step_mm` clamped to [`MIN_STEP_MM`], 1 mm when it is not a
+/// positive finite number (a bad step must not hang or overflow the march).
+pub fn usable_step_mm(step_mm: f32) -> f32 {
+    if step_mm.is_finite() && step_mm > 0.0 {
+        step_mm.max(MIN_STEP_MM)
+    } else {
+        1.0
+    }
+}
+
 fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) -> RenderOutput {
     let ct = volume.atlas.ct();
     let grid = *ct.grid();
@@ -71,7 +84,8 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) ->
         &volume.labels,
         h_mm,
     );
-    let quality = scene.quality;
+    let mut quality = scene.quality;
+    quality.step_mm = usable_step_mm(quality.step_mm);
     // Leaping needs every lattice point's position from the ray alone; the motion warp does not
     // give that, so with a motion hook every lattice point is visited.
     let occupancy = (quality.leaping && scene.motion.is_none()).then(|| {
