@@ -34,6 +34,8 @@ pub struct Frame<'a> {
     /// The tools' primitives (step 4) and the shadows they cast (step 6).
     pub primitives: Vec<Primitive>,
     pub shadows: Shadows,
+    /// Whether any tool casts a shadow (else f_shadow = 1 without testing).
+    pub has_shadows: bool,
 }
 
 /// "No hit" distance for the tools (no infinities, as in tools.rs and the WGSL port).
@@ -113,7 +115,7 @@ struct Warp<'a> {
 impl Warp<'_> {
     /// Reference position X of world sample `x`: continues the fixed point from the previous
     /// sample of this ray, or starts it at X = x.
-    fn to_reference(&mut self, x: Vec3) -> Vec3 {
+    fn reference_of(&mut self, x: Vec3) -> Vec3 {
         let (x_prev, big_x_prev) = self.prev.unwrap_or((x, x));
         let d = x - x_prev;
         let u = self.hook.model.displacement((big_x_prev + d).as_dvec3(), self.hook.t_s);
@@ -189,7 +191,7 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
         && tc < t_tool
     {
         let at = match warp.as_mut() {
-            Some(w) => f.sampler.at_world(w.to_reference(origin + dir * tc)),
+            Some(w) => f.sampler.at_world(w.reference_of(origin + dir * tc)),
             None => at_t(tc),
         };
         samples += 1;
@@ -218,7 +220,7 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
                 break;
             }
             let at = match warp.as_mut() {
-                Some(w) => f.sampler.at_world(w.to_reference(origin + dir * t)),
+                Some(w) => f.sampler.at_world(w.reference_of(origin + dir * t)),
                 None => at_t(t),
             };
             // 8. Empty-space leaping.
@@ -247,9 +249,12 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
             if c[3] > 0.0 {
                 let alpha = corrected_alpha(c[3], step);
                 // 6. Shadow, at the sample's world position.
-                let f_shadow = f
-                    .shadows
-                    .factor(origin + dir * t, f.light.toward_light, f.light.shadow_in);
+                let f_shadow = if f.has_shadows {
+                    f.shadows
+                        .factor(origin + dir * t, f.light.toward_light, f.light.shadow_in)
+                } else {
+                    1.0
+                };
                 let shade = phong(f.sampler.gradient(at), dir, &f.light, f_shadow);
                 acc.add(Vec3::new(c[0], c[1], c[2]) * shade, alpha);
                 // 7. Early termination.

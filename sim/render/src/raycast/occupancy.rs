@@ -216,7 +216,7 @@ mod tests {
                 for s in 0..=20 {
                     let c = (c0 + (c1 - c0) * s as f64 / 20.0).clamp(0.0, n as f64 - 1.0);
                     let b = (c as usize).min(n as usize - 2);
-                    assert!(lo <= b && b + 1 <= hi, "cells {cells} n {n} q {q}: {lo}..{hi} vs {b}");
+                    assert!(lo <= b && b < hi, "cells {cells} n {n} q {q}: {lo}..{hi} vs {b}");
                 }
             }
         }

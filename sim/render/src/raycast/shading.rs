@@ -26,7 +26,12 @@ pub fn phong(g: Vec3, ray_dir: Vec3, light: &Light, f_shadow: f32) -> f32 {
     let n = -g / len;
     let l = light.toward_light;
     let h = (l - ray_dir).normalize();
-    light.ambient + (light.diffuse * n.dot(l).abs() + light.specular * n.dot(h).abs().powf(light.shininess)) * f_shadow
+    let specular = if light.specular > 0.0 {
+        light.specular * n.dot(h).abs().powf(light.shininess)
+    } else {
+        0.0
+    };
+    light.ambient + (light.diffuse * n.dot(l).abs() + specular) * f_shadow
 }
 
 /// Colour (straight RGBA) of the plane sample: v₁ = c(s) (off), v₂ of eq. 3.2.4 (risk), or
