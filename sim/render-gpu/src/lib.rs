@@ -20,7 +20,7 @@ pub mod volume;
 pub use context::{AdapterSummary, GpuContext};
 pub use mpr::GpuMpr;
 pub use raycast::GpuRenderer;
-pub use volume::{CtFormat, GpuVolume};
+pub use volume::{CtFormat, CtPlacement, GpuVolume};
 
 /// Why the GPU could not draw.
 #[derive(Debug, thiserror::Error)]

@@ -27,7 +27,7 @@ struct MprParams {
 
 /// The MPR pipeline (one per CT storage format, built on first use).
 pub struct GpuMpr {
-    pipelines: Vec<(CtFormat, wgpu::ComputePipeline)>,
+    pipelines: Vec<((CtFormat, bool), wgpu::ComputePipeline)>,
     params: wgpu::Buffer,
 }
 
@@ -45,7 +45,7 @@ impl GpuMpr {
         }
     }
 
-    fn pipeline(&mut self, ctx: &GpuContext, format: CtFormat) -> wgpu::ComputePipeline {
+    fn pipeline(&mut self, ctx: &GpuContext, format: (CtFormat, bool)) -> wgpu::ComputePipeline {
         if let Some((_, p)) = self.pipelines.iter().find(|(f, _)| *f == format) {
             return p.clone();
         }
@@ -91,7 +91,7 @@ impl GpuMpr {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
-        let pipeline = self.pipeline(ctx, vol.format);
+        let pipeline = self.pipeline(ctx, vol.ct_key());
         let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("mpr"),
             layout: &pipeline.get_bind_group_layout(0),
@@ -102,7 +102,7 @@ impl GpuMpr {
                 },
                 wgpu::BindGroupEntry {
                     binding: 1,
-                    resource: wgpu::BindingResource::TextureView(&vol.ct_view),
+                    resource: vol.ct_binding(),
                 },
                 wgpu::BindGroupEntry {
                     binding: 2,

@@ -21,16 +21,32 @@ use crate::{GpuContext, GpuError};
 
 const SHADER: &str = include_str!("../shaders/raycast.wgsl");
 
-/// The CT declaration the shader is compiled with (binding 1).
-pub(crate) fn ct_prelude(format: CtFormat) -> &'static str {
-    match format {
-        CtFormat::Int16 => {
+/// The CT declaration the shaders are compiled with (binding 1) and `ct_voxel`, which both
+/// raycast.wgsl and mpr.wgsl call; the buffer variants index with `P.dims` (both shaders' CT size).
+pub(crate) fn ct_prelude((format, buffer): (CtFormat, bool)) -> &'static str {
+    match (format, buffer) {
+        (CtFormat::Int16, false) => {
             "@group(0) @binding(1) var ct: texture_3d<i32>;\n\
              fn ct_voxel(p: vec3<i32>) -> f32 { return f32(textureLoad(ct, p, 0).x); }\n"
         }
-        CtFormat::Float32 => {
+        (CtFormat::Float32, false) => {
             "@group(0) @binding(1) var ct: texture_3d<f32>;\n\
              fn ct_voxel(p: vec3<i32>) -> f32 { return textureLoad(ct, p, 0).x; }\n"
+        }
+        (CtFormat::Int16, true) => {
+            "@group(0) @binding(1) var<storage, read> ct: array<u32>;\n\
+             fn ct_voxel(p: vec3<i32>) -> f32 {\n\
+                 let i = u32(p.x) + P.dims.x * (u32(p.y) + P.dims.y * u32(p.z));\n\
+                 let w = ct[i >> 1u];\n\
+                 let half = select(w << 16u, w & 0xffff0000u, (i & 1u) == 1u);\n\
+                 return f32(bitcast<i32>(half) >> 16u);\n\
+             }\n"
+        }
+        (CtFormat::Float32, true) => {
+            "@group(0) @binding(1) var<storage, read> ct: array<f32>;\n\
+             fn ct_voxel(p: vec3<i32>) -> f32 {\n\
+                 return ct[u32(p.x) + P.dims.x * (u32(p.y) + P.dims.y * u32(p.z))];\n\
+             }\n"
         }
     }
 }
@@ -177,7 +193,7 @@ struct DeformedCache {
 
 /// The ray-casting pipeline and its per-frame buffers.
 pub struct GpuRenderer {
-    pipelines: Vec<(CtFormat, wgpu::ComputePipeline)>,
+    pipelines: Vec<((CtFormat, bool), wgpu::ComputePipeline)>,
     params: wgpu::Buffer,
     prims: wgpu::Buffer,
     dummy_deformed: wgpu::TextureView,
@@ -219,7 +235,7 @@ impl GpuRenderer {
         }
     }
 
-    fn pipeline(&mut self, ctx: &GpuContext, format: CtFormat) -> wgpu::ComputePipeline {
+    fn pipeline(&mut self, ctx: &GpuContext, format: (CtFormat, bool)) -> wgpu::ComputePipeline {
         if let Some((_, p)) = self.pipelines.iter().find(|(f, _)| *f == format) {
             return p.clone();
         }
@@ -317,7 +333,7 @@ impl GpuRenderer {
                 buf
             }
         };
-        let pipeline = self.pipeline(ctx, vol.format);
+        let pipeline = self.pipeline(ctx, vol.ct_key());
         let deformed_view = self.deformed.as_ref().map(|d| &d.view).unwrap_or(&self.dummy_deformed);
         let occupancy = &self.occupancy.as_ref().expect("occupancy set above").buffer;
         let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -330,7 +346,7 @@ impl GpuRenderer {
                 },
                 wgpu::BindGroupEntry {
                     binding: 1,
-                    resource: wgpu::BindingResource::TextureView(&vol.ct_view),
+                    resource: vol.ct_binding(),
                 },
                 wgpu::BindGroupEntry {
                     binding: 2,

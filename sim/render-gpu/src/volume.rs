@@ -33,6 +33,24 @@ pub(crate) struct GpuStyle {
     pub _pad: [u32; 3],
 }
 
+/// Where to put the CT. `Auto`: a storage buffer on software adapters (lavapipe fetches texels
+/// through its general texture path; a buffer read is a plain load there) when it fits the
+/// binding limit, else a 3D texture (tiled, cache friendly on hardware). The environment variable
+/// STYLET_GPU_CT=texture|buffer overrides `Auto` for measuring.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CtPlacement {
+    Auto,
+    Texture,
+    Buffer,
+}
+
+/// Where the CT voxels live on the GPU (both read voxel by voxel, never filtered).
+pub(crate) enum CtStore {
+    Texture(wgpu::TextureView),
+    /// Voxels in x-fastest order: i16 pairs packed in u32 words, or f32.
+    Buffer(wgpu::Buffer),
+}
+
 static NEXT_ID: AtomicU64 = AtomicU64::new(1);
 
 /// The atlas on the GPU.
@@ -41,7 +59,7 @@ pub struct GpuVolume {
     pub(crate) id: u64,
     pub(crate) atlas: Arc<PunctureAtlas>,
     pub(crate) format: CtFormat,
-    pub(crate) ct_view: wgpu::TextureView,
+    pub(crate) ct: CtStore,
     pub(crate) labels_view: wgpu::TextureView,
     pub(crate) partial_view: wgpu::TextureView,
     pub(crate) styles: wgpu::Buffer,
@@ -54,8 +72,14 @@ pub struct GpuVolume {
 }
 
 impl GpuVolume {
-    /// Uploads the CT, labels and styles (checks the device limits first).
+    /// Uploads the CT, labels and styles (checks the device limits first), the CT where it is
+    /// fastest for the adapter ([`CtPlacement::Auto`]).
     pub fn upload(ctx: &GpuContext, vol: &RenderVolume) -> Result<GpuVolume, GpuError> {
+        Self::upload_with(ctx, vol, CtPlacement::Auto)
+    }
+
+    /// [`GpuVolume::upload`] with the CT's placement chosen (tests cover both shader variants).
+    pub fn upload_with(ctx: &GpuContext, vol: &RenderVolume, placement: CtPlacement) -> Result<GpuVolume, GpuError> {
         let atlas = vol.atlas.clone();
         let ct = atlas.ct();
         let dims = ct.grid().dims();
@@ -81,7 +105,30 @@ impl GpuVolume {
             CtFormat::Int16 => (wgpu::TextureFormat::R16Sint, 2),
             CtFormat::Float32 => (wgpu::TextureFormat::R32Float, 4),
         };
-        let ct_view = texture_3d(ctx, "ct", dims, tex_format, texel, &ct_bytes);
+        let buffer = match placement {
+            CtPlacement::Texture => false,
+            CtPlacement::Buffer => {
+                ctx.check_storage_buffer("the CT", ct_bytes.len().next_multiple_of(4) as u64)?;
+                true
+            }
+            CtPlacement::Auto => {
+                let fits = ctx
+                    .check_storage_buffer("the CT", ct_bytes.len().next_multiple_of(4) as u64)
+                    .is_ok();
+                match std::env::var("STYLET_GPU_CT").as_deref() {
+                    Ok("texture") => false,
+                    Ok("buffer") => fits,
+                    _ => fits && ctx.adapter().device_type == "Cpu",
+                }
+            }
+        };
+        let ct = if buffer {
+            let mut bytes = ct_bytes.clone();
+            bytes.resize(bytes.len().next_multiple_of(4), 0);
+            CtStore::Buffer(storage(ctx, "ct", &bytes))
+        } else {
+            CtStore::Texture(texture_3d(ctx, "ct", dims, tex_format, texel, &ct_bytes))
+        };
         let labels_view = texture_3d(
             ctx,
             "labels",
@@ -131,7 +178,7 @@ impl GpuVolume {
             id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
             atlas,
             format,
-            ct_view,
+            ct,
             labels_view,
             partial_view,
             styles,
@@ -146,6 +193,23 @@ impl GpuVolume {
     /// How the CT is stored.
     pub fn ct_format(&self) -> CtFormat {
         self.format
+    }
+
+    /// Whether the CT lives in a storage buffer (software adapters) rather than a 3D texture.
+    pub fn ct_in_buffer(&self) -> bool {
+        matches!(self.ct, CtStore::Buffer(_))
+    }
+
+    /// The shader variant this volume needs: (format, in a buffer).
+    pub(crate) fn ct_key(&self) -> (CtFormat, bool) {
+        (self.format, self.ct_in_buffer())
+    }
+
+    pub(crate) fn ct_binding(&self) -> wgpu::BindingResource<'_> {
+        match &self.ct {
+            CtStore::Texture(v) => wgpu::BindingResource::TextureView(v),
+            CtStore::Buffer(b) => b.as_entire_binding(),
+        }
     }
 
     /// Bytes of volume textures on the GPU.

@@ -93,6 +93,22 @@ fn mpr_matches_the_cpu_on_a_float_ct() {
 }
 
 #[test]
+fn mpr_matches_the_cpu_with_the_ct_in_a_texture_or_a_buffer() {
+    for (name, b) in placements() {
+        let spec = SliceSpec::oblique_along_needle(
+            DVec3::new(20.0, 5.0, 10.0),
+            DVec3::new(-0.4, -0.8, -0.45),
+            0.7,
+            120,
+            100,
+            Window::ABDOMEN,
+        )
+        .unwrap();
+        check(&format!("placement-{name}"), b, &spec);
+    }
+}
+
+#[test]
 fn a_bad_slice_is_a_named_error() {
     let b = small();
     let mut spec = SliceSpec::plane(&b.cpu.atlas, Plane::Axial, DVec3::ZERO, Window::ABDOMEN, 64);

@@ -49,6 +49,17 @@ fn a_float_ct_matches_the_cpu() {
 }
 
 #[test]
+fn ct_in_a_texture_or_a_buffer_16_bit_or_float_matches_the_cpu() {
+    for (name, b) in placements() {
+        assert_eq!(b.gpu.ct_in_buffer(), name.ends_with("buffer"));
+        let mut s = scene(&b.cpu, transfer_functions().swap_remove(1).1);
+        s.clip = Some(ClipPlane::through_tool(Vec3::new(20.0, 5.0, 10.0), Vec3::Z, &s.camera));
+        s.tagging = Tagging::Labels;
+        compare(&format!("placement-{name}"), b, &s, 120, 100, GPU_CPU);
+    }
+}
+
+#[test]
 fn tagging_modes_with_a_clip_plane_match_the_cpu() {
     let b = small();
     let (_, tf) = transfer_functions().swap_remove(1);

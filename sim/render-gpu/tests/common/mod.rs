@@ -16,7 +16,7 @@ use stylet_render::scene::{Camera, Light, Quality, Scene, Tagging};
 use stylet_render::tools::ToolState;
 use stylet_render::transfer::{TransferFunction, Trapezoid};
 use stylet_render::volume::RenderVolume;
-use stylet_render_gpu::{GpuContext, GpuRenderer, GpuVolume};
+use stylet_render_gpu::{CtPlacement, GpuContext, GpuRenderer, GpuVolume};
 
 /// The device, opened once; no adapter is a failure with the fix in the message.
 pub fn ctx() -> &'static GpuContext {
@@ -51,6 +51,17 @@ pub struct Both {
 /// An n³ atlas at `spacing` mm centred on the origin, CT and partial labels from functions of
 /// the voxel centre (mm): the synthetic atlas of sim/render/tests/raycast.rs.
 pub fn synthetic(n: usize, spacing: f64, ct: impl Fn(DVec3) -> f32, partial: impl Fn(DVec3) -> u16) -> Both {
+    synthetic_with(n, spacing, ct, partial, CtPlacement::Auto)
+}
+
+/// [`synthetic`] with the CT's placement on the GPU chosen.
+pub fn synthetic_with(
+    n: usize,
+    spacing: f64,
+    ct: impl Fn(DVec3) -> f32,
+    partial: impl Fn(DVec3) -> u16,
+    placement: CtPlacement,
+) -> Both {
     let half = (n as f64 - 1.0) * spacing / 2.0;
     let g = Grid::new([n; 3], Affine::from_spacing([spacing; 3], DVec3::splat(-half))).unwrap();
     let centre = |i: usize| {
@@ -127,7 +138,7 @@ pub fn synthetic(n: usize, spacing: f64, ct: impl Fn(DVec3) -> f32, partial: imp
     )
     .unwrap();
     let cpu = RenderVolume::new(Arc::new(a));
-    let gpu = GpuVolume::upload(ctx(), &cpu).unwrap();
+    let gpu = GpuVolume::upload_with(ctx(), &cpu, placement).unwrap();
     Both { cpu, gpu }
 }
 
@@ -164,6 +175,33 @@ pub fn body_labels(p: DVec3) -> u16 {
 pub fn small() -> &'static Both {
     static S: OnceLock<Both> = OnceLock::new();
     S.get_or_init(|| synthetic(48, 2.0, body, body_labels))
+}
+
+/// The synthetic atlas with its CT in a 3D texture and in a storage buffer (both shader
+/// variants, whatever the adapter), 16-bit and float.
+pub fn placements() -> &'static [(&'static str, Both); 4] {
+    static S: OnceLock<[(&'static str, Both); 4]> = OnceLock::new();
+    S.get_or_init(|| {
+        let float = |p: DVec3| body(p) + (p.x * 0.37) as f32;
+        [
+            (
+                "int16-texture",
+                synthetic_with(40, 2.4, body, body_labels, CtPlacement::Texture),
+            ),
+            (
+                "int16-buffer",
+                synthetic_with(40, 2.4, body, body_labels, CtPlacement::Buffer),
+            ),
+            (
+                "float-texture",
+                synthetic_with(40, 2.4, float, body_labels, CtPlacement::Texture),
+            ),
+            (
+                "float-buffer",
+                synthetic_with(40, 2.4, float, body_labels, CtPlacement::Buffer),
+            ),
+        ]
+    })
 }
 
 /// The synthetic atlas with fractional CT values (a smooth ramp added), so it uploads as
