@@ -7,8 +7,9 @@ use std::sync::Arc;
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 use stylet_physics::glam::{DVec3, Vec3};
+use stylet_render::annotate::{Annotations, annotate};
 use stylet_render::image::Image;
-use stylet_render::mpr::{self, Plane};
+use stylet_render::mpr::{self, Plane, SliceSpec};
 use stylet_render::presets::{self, Preset};
 use stylet_render::scene::{Camera, ClipPlane, Light, Quality, Scene, Tagging};
 use stylet_render::tools::ToolState;
@@ -140,10 +141,10 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     };
     let image = match a.view {
         View::ThreeD => render_3d(&atlas, moment.as_ref(), &a)?,
-        View::Axial => render_plane(&atlas, moment.as_ref(), Plane::Axial, a.size),
-        View::Coronal => render_plane(&atlas, moment.as_ref(), Plane::Coronal, a.size),
-        View::Sagittal => render_plane(&atlas, moment.as_ref(), Plane::Sagittal, a.size),
-        View::Needle => bail!("--view needle: the oblique slice along the needle is not available yet"),
+        View::Axial => render_plane(&atlas, moment.as_ref(), Plane::Axial, a.size, a.gpu)?,
+        View::Coronal => render_plane(&atlas, moment.as_ref(), Plane::Coronal, a.size, a.gpu)?,
+        View::Sagittal => render_plane(&atlas, moment.as_ref(), Plane::Sagittal, a.size, a.gpu)?,
+        View::Needle => render_needle(&atlas, moment.as_ref(), a.size, a.gpu)?,
     };
     write_atomically(&image, &a.out)?;
     match &moment {
@@ -259,34 +260,91 @@ fn focus(atlas: &stylet_atlas::Atlas, moment: Option<&Moment>) -> (DVec3, DVec3)
     ((lo + hi) * 0.5, DVec3::Z)
 }
 
-/// A slice through the focus, fitted into the image with the aspect kept (black margins).
-fn render_plane(atlas: &stylet_atlas::Atlas, moment: Option<&Moment>, plane: Plane, size: Size) -> Image {
-    let render = presets::render_settings(&atlas.manifest);
-    let window = presets::slice_window(&render);
-    let (center, _) = focus(atlas, moment);
-    // The slice's extent as mpr::render_slice computes it, to pick a pixel size that fits.
+/// A standard plane through the focus covering the whole atlas, scaled to fit the image, with the
+/// label overlay, the needle (at a moment), the scale bar and the orientation letters.
+fn render_plane(
+    atlas: &stylet_atlas::Atlas,
+    moment: Option<&Moment>,
+    plane: Plane,
+    size: Size,
+    gpu: bool,
+) -> anyhow::Result<Image> {
+    let window = presets::slice_window(&presets::render_settings(&atlas.manifest));
+    let (focus_mm, _) = focus(atlas, moment);
     let grid = atlas.model.ct().grid();
     let (lo, hi) = grid.world_bounds();
     let s = DVec3::from_array(grid.spacing_mm());
-    let extent = (hi - lo) + s;
-    let (u, v) = plane.axes();
-    let (eu, ev) = (extent.dot(u.abs()), extent.dot(v.abs()));
-    let scale = (size.width as f64 / eu).min(size.height as f64 / ev);
-    let max_px = ((eu.max(ev) * scale).floor() as usize).max(1);
-    let slice = mpr::render_slice(&atlas.model, plane, center, window, max_px);
-    let mut image = Image::new(size.width, size.height);
-    let (w, h) = (
-        slice.width.min(size.width as usize),
-        slice.height.min(size.height as usize),
-    );
-    let (x0, y0) = ((size.width as usize - w) / 2, (size.height as usize - h) / 2);
-    for row in 0..h {
-        for col in 0..w {
-            let [r, g, b] = slice.rgb[row * slice.width + col];
-            image.set((x0 + col) as u32, (y0 + row) as u32, [r, g, b, 255]);
-        }
-    }
-    image
+    let (lo, hi) = (lo - s * 0.5, hi + s * 0.5);
+    let (right, down) = plane.axes();
+    let normal = right.cross(down);
+    // In the plane: the volume's centre; across it: the focus.
+    let middle = (lo + hi) * 0.5;
+    let center_mm = middle + normal * (focus_mm - middle).dot(normal);
+    let (eu, ev) = ((hi - lo).dot(right.abs()), (hi - lo).dot(down.abs()));
+    let pixel_mm = (eu / size.width as f64).max(ev / size.height as f64);
+    let spec = SliceSpec {
+        center_mm,
+        right,
+        down,
+        pixel_mm,
+        width: size.width as usize,
+        height: size.height as usize,
+        window,
+    };
+    slice_image(atlas, moment, &spec, gpu)
+}
+
+/// The oblique slice along the needle at the moment, centred on the tip, wide enough for the
+/// whole needle on either side.
+fn render_needle(atlas: &stylet_atlas::Atlas, moment: Option<&Moment>, size: Size, gpu: bool) -> anyhow::Result<Image> {
+    let Some(m) = moment else {
+        bail!("--view needle shows the needle of a session: give --session FILE --at SECONDS");
+    };
+    let Some(needle) = m.tools.needle.as_ref().filter(|n| n.nodes_mm.len() >= 2) else {
+        bail!(
+            "--view needle: the needle is not in use at tick {} of the session (the tool then is the finger or a probe)",
+            m.tick
+        );
+    };
+    let window = presets::slice_window(&presets::render_settings(&atlas.manifest));
+    let reach_mm = (needle.length_mm() + needle.hub_length_mm) as f64 + 10.0;
+    let pixel_mm = 2.0 * reach_mm / size.width.min(size.height) as f64;
+    let spec = SliceSpec::oblique_along_needle(
+        needle.tip_mm().as_dvec3(),
+        needle.tip_tangent().as_dvec3(),
+        pixel_mm,
+        size.width as usize,
+        size.height as usize,
+        window,
+    )
+    .map_err(|e| anyhow::anyhow!("--view needle: {e}"))?;
+    slice_image(atlas, moment, &spec, gpu)
+}
+
+/// Draws a slice (CPU or GPU) and its annotations (always on the CPU).
+fn slice_image(
+    atlas: &stylet_atlas::Atlas,
+    moment: Option<&Moment>,
+    spec: &SliceSpec,
+    gpu: bool,
+) -> anyhow::Result<Image> {
+    let slice = if gpu {
+        slice_gpu(atlas, spec)?
+    } else {
+        mpr::render_spec(&atlas.model, spec).map_err(|e| anyhow::anyhow!("slice: {e}"))?
+    };
+    let mut image = slice.to_image();
+    let needle_mm = moment
+        .and_then(|m| m.tools.needle.as_ref())
+        .map(|n| n.nodes_mm.iter().map(|p| p.as_dvec3()).collect())
+        .unwrap_or_default();
+    let ann = Annotations {
+        needle_mm,
+        scale_bar: true,
+        letters: true,
+    };
+    annotate(&mut image, spec, &ann)?;
+    Ok(image)
 }
 
 /// The ray-cast view from anterior, framing the volume, with the tools of the moment.
@@ -327,11 +385,46 @@ fn render_3d(atlas: &stylet_atlas::Atlas, moment: Option<&Moment>, a: &RenderArg
         deformed: None,
         motion: None,
     };
-    if a.gpu {
-        bail!("--gpu: the GPU renderer is not available in this build yet; use --cpu");
-    }
     let volume = RenderVolume::new(Arc::new(atlas.model.clone()));
+    if a.gpu {
+        return render_gpu(&volume, &scene, a.size);
+    }
     Ok(stylet_render::raycast::render(&volume, &scene, a.size.width, a.size.height).image)
+}
+
+/// The same scene on the GPU renderer (wgpu).
+#[cfg(feature = "gpu")]
+fn render_gpu(volume: &RenderVolume, scene: &Scene, size: Size) -> anyhow::Result<Image> {
+    use stylet_render_gpu::{GpuContext, GpuRenderer, GpuVolume};
+    let ctx = GpuContext::new().map_err(|e| anyhow::anyhow!("--gpu: {e}"))?;
+    let gpu_volume =
+        GpuVolume::upload(&ctx, volume).map_err(|e| anyhow::anyhow!("--gpu on {}: {e}", ctx.adapter().name))?;
+    GpuRenderer::new(&ctx)
+        .render(&ctx, &gpu_volume, scene, size.width, size.height)
+        .map_err(|e| anyhow::anyhow!("--gpu on {}: {e}", ctx.adapter().name))
+}
+
+/// A slice on the GPU renderer.
+#[cfg(feature = "gpu")]
+fn slice_gpu(atlas: &stylet_atlas::Atlas, spec: &SliceSpec) -> anyhow::Result<mpr::MprImage> {
+    use stylet_render_gpu::{GpuContext, GpuMpr, GpuVolume};
+    let ctx = GpuContext::new().map_err(|e| anyhow::anyhow!("--gpu: {e}"))?;
+    let volume = RenderVolume::new(Arc::new(atlas.model.clone()));
+    let gpu_volume =
+        GpuVolume::upload(&ctx, &volume).map_err(|e| anyhow::anyhow!("--gpu on {}: {e}", ctx.adapter().name))?;
+    GpuMpr::new(&ctx)
+        .render(&ctx, &gpu_volume, spec)
+        .map_err(|e| anyhow::anyhow!("--gpu on {}: {e}", ctx.adapter().name))
+}
+
+#[cfg(not(feature = "gpu"))]
+fn slice_gpu(_: &stylet_atlas::Atlas, _: &SliceSpec) -> anyhow::Result<mpr::MprImage> {
+    bail!("--gpu: this stylet was built without the GPU renderer (cargo feature `gpu`); use --cpu")
+}
+
+#[cfg(not(feature = "gpu"))]
+fn render_gpu(_: &RenderVolume, _: &Scene, _: Size) -> anyhow::Result<Image> {
+    bail!("--gpu: this stylet was built without the GPU renderer (cargo feature `gpu`); use --cpu")
 }
 
 /// Writes the PNG beside its destination and renames it into place, so a failure leaves no
