@@ -136,6 +136,10 @@ fn differing(a: &Image, b: &Image, min: u8) -> Vec<(u32, u32)> {
 fn every_view_of_the_phantom_draws_the_body_at_the_requested_size() {
     let d = tempfile::tempdir().unwrap();
     let atlas = phantom(d.path());
+    // The phantom carries the PTCD scenario's presets in its own atlas.toml.
+    let manifest = stylet_atlas::load(&atlas).unwrap().manifest;
+    assert_eq!(manifest.render, stylet_atlas::ScenarioFile::ptcd().render);
+    assert!(manifest.render.is_some());
     let mut images = Vec::new();
     for (view, preset, tagging) in [
         ("3d", "skin", "off"),
