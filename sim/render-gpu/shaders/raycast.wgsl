@@ -136,23 +136,19 @@ struct Lerp {
     f: vec3<f32>,
 }
 
+// Written with whole-vector operations (no per-axis loop): dynamic component indexing makes
+// software rasterisers spill to memory in the hottest function of the shader.
 fn lerp_setup(c: vec3<f32>, n: vec3<u32>) -> Lerp {
     var l: Lerp;
-    l.ok = true;
-    for (var a = 0; a < 3; a++) {
-        let na = n[a];
-        let nf = f32(na);
-        let x0 = c[a];
-        if !(x0 >= -0.5 && x0 < nf - 0.5) {
-            l.ok = false;
-            return l;
-        }
-        let x = clamp(x0, 0.0, nf - 1.0);
-        let b = min(u32(x), select(0u, na - 2u, na >= 2u));
-        l.i0[a] = i32(b);
-        l.i1[a] = i32(b + select(0u, 1u, na > 1u));
-        l.f[a] = select(x - f32(b), 0.0, na == 1u);
-    }
+    let nf = vec3<f32>(n);
+    // !(x >= -1/2 && x < n - 1/2) on any axis (NaN included) -> outside.
+    l.ok = all(c >= vec3<f32>(-0.5)) && all(c < nf - vec3<f32>(0.5));
+    let x = clamp(c, vec3<f32>(0.0), nf - vec3<f32>(1.0));
+    let two = n >= vec3<u32>(2u);
+    let b = min(vec3<u32>(x), select(vec3<u32>(0u), n - vec3<u32>(2u), two));
+    l.i0 = vec3<i32>(b);
+    l.i1 = vec3<i32>(b + select(vec3<u32>(0u), vec3<u32>(1u), n > vec3<u32>(1u)));
+    l.f = select(x - vec3<f32>(b), vec3<f32>(0.0), n == vec3<u32>(1u));
     return l;
 }
 
@@ -219,28 +215,20 @@ fn s(at: At) -> f32 {
 
 // Gradient of s by central differences at +-h along the world axes (HU/mm).
 fn gradient(at: At) -> vec3<f32> {
-    let gct = array<vec3<f32>, 3>(P.grad0.xyz, P.grad1.xyz, P.grad2.xyz);
-    let gj = array<vec3<f32>, 3>(P.def_grad0.xyz, P.def_grad1.xyz, P.def_grad2.xyz);
-    var g = vec3<f32>(0.0);
-    for (var a = 0; a < 3; a++) {
-        let plus = At(at.ct + gct[a], at.j + gj[a]);
-        let minus = At(at.ct - gct[a], at.j - gj[a]);
-        g[a] = (s(plus) - s(minus)) * P.origin.w;
-    }
-    return g;
+    let inv_2h = P.origin.w;
+    let gx = s(At(at.ct + P.grad0.xyz, at.j + P.def_grad0.xyz)) - s(At(at.ct - P.grad0.xyz, at.j - P.def_grad0.xyz));
+    let gy = s(At(at.ct + P.grad1.xyz, at.j + P.def_grad1.xyz)) - s(At(at.ct - P.grad1.xyz, at.j - P.def_grad1.xyz));
+    let gz = s(At(at.ct + P.grad2.xyz, at.j + P.def_grad2.xyz)) - s(At(at.ct - P.grad2.xyz, at.j - P.def_grad2.xyz));
+    return vec3<f32>(gx * inv_2h, gy * inv_2h, gz * inv_2h);
 }
 
 // l(x): the label of the CT voxel nearest the sample, 0 outside (never interpolated).
 fn label(at: At) -> u32 {
-    var v = vec3<i32>(0);
-    for (var a = 0; a < 3; a++) {
-        let r = at.ct[a] + 0.5;
-        if !(r >= 0.0 && r < f32(P.dims[a])) {
-            return 0u;
-        }
-        v[a] = i32(u32(r));
+    let r = at.ct + vec3<f32>(0.5);
+    if !(all(r >= vec3<f32>(0.0)) && all(r < vec3<f32>(P.dims.xyz))) {
+        return 0u;
     }
-    return textureLoad(labels, v, 0).x;
+    return textureLoad(labels, vec3<i32>(vec3<u32>(r)), 0).x;
 }
 
 fn style(id: u32) -> Style {
@@ -615,16 +603,12 @@ fn cell_of(c: vec3<f32>) -> vec3<u32> {
 
 // Ray parameter where c(t) = ce + t dc leaves cell q (BIG when parallel to every face).
 fn exit_t(q: vec3<u32>, ce: vec3<f32>, dc: vec3<f32>) -> f32 {
-    var t = BIG;
-    for (var a = 0; a < 3; a++) {
-        let d = dc[a];
-        if d != 0.0 {
-            let face = select(q[a], q[a] + 1u, d > 0.0);
-            let bound = f32(face) * P.occ_size[a] - 0.5;
-            t = min(t, (bound - ce[a]) / d);
-        }
-    }
-    return t;
+    let moving = dc != vec3<f32>(0.0);
+    let face = select(q, q + vec3<u32>(1u), dc > vec3<f32>(0.0));
+    let bound = vec3<f32>(face) * P.occ_size.xyz - vec3<f32>(0.5);
+    // Axes the ray does not move along never bound the cell (their quotient is discarded).
+    let ta = select(vec3<f32>(BIG), (bound - ce) / select(vec3<f32>(1.0), dc, moving), moving);
+    return min(BIG, min(ta.x, min(ta.y, ta.z)));
 }
 
 fn to8(v: f32) -> u32 {

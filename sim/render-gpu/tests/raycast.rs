@@ -59,6 +59,37 @@ fn ct_in_a_texture_or_a_buffer_16_bit_or_float_matches_the_cpu() {
     }
 }
 
+/// Hook of eq. 3.1.1: a deformed sub-image J on its own (offset, finer) grid replaces the CT
+/// inside Ω_J, with leaping treating Ω_J as occupied.
+#[test]
+fn a_deformed_region_matches_the_cpu() {
+    use stylet_physics::glam::DVec3;
+    use stylet_physics::{Affine, Grid, Volume};
+    let b = small();
+    let g = Grid::new(
+        [14, 12, 10],
+        Affine::from_spacing([1.5; 3], DVec3::new(5.0, -10.0, 0.0)),
+    )
+    .unwrap();
+    let data: Vec<f32> = (0..g.len())
+        .map(|i| {
+            let [x, y, z] = g.unlinear(i);
+            if (x + y + z) % 5 == 0 {
+                1000.0
+            } else {
+                40.0 + x as f32 * 3.0
+            }
+        })
+        .collect();
+    let mut s = scene(&b.cpu, transfer_functions().swap_remove(1).1);
+    s.deformed = Some(stylet_render::scene::DeformedRegion {
+        volume: std::sync::Arc::new(Volume::new(g, data).unwrap()),
+    });
+    compare("small-deformed", b, &s, 160, 132, GPU_CPU);
+    s.quality.leaping = false;
+    compare("small-deformed-noleap", b, &s, 160, 132, GPU_CPU);
+}
+
 #[test]
 fn tagging_modes_with_a_clip_plane_match_the_cpu() {
     let b = small();
@@ -262,4 +293,14 @@ fn bad_input_gets_a_named_error() {
     let mut bad = s.clone();
     bad.transfer = stylet_render::transfer::TransferFunction::Trapezoids(vec![]);
     assert!(matches!(r.render(ctx(), &b.gpu, &bad, 8, 8), Err(GpuError::Invalid(_))));
+    // The breathing hook is not drawn on the GPU yet: a named refusal, not a wrong picture.
+    let mut moving = s.clone();
+    moving.motion = Some(stylet_render::scene::MotionHook {
+        model: std::sync::Arc::new(stylet_physics::motion::Static),
+        t_s: 0.0,
+    });
+    assert!(matches!(
+        r.render(ctx(), &b.gpu, &moving, 8, 8),
+        Err(GpuError::Unsupported("breathing motion"))
+    ));
 }
