@@ -271,6 +271,12 @@ fn main() {
                     .iter()
                     .find(|((r, fw, nm), _)| r == who && *fw == w && nm == name)
                     .map_or(0, |(_, n)| *n);
+                // The GPU does not count its samples.
+                let n = if *who == "GPU" {
+                    "–".to_string()
+                } else {
+                    n.to_string()
+                };
                 println!(
                     "{who:<5} {:<10} {name:<18} {ms:>12.1} {ratio:>10.1} {n:>14}",
                     format!("{w}×{h}")

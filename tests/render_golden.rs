@@ -378,6 +378,10 @@ fn gpu() -> &'static (GpuContext, std::sync::Mutex<GpuRenderer>) {
     })
 }
 
+/// GPU comparison size: a quarter of the goldens' pixels (lavapipe takes seconds a frame).
+const GPU_W: u32 = 200;
+const GPU_H: u32 = 165;
+
 /// Every preset, then the soft preset clipped through the target in every tagging mode.
 fn gpu_matches_cpu(atlas: &str, p: &Prepared) {
     let (ctx, renderer) = gpu();
@@ -395,9 +399,9 @@ fn gpu_matches_cpu(atlas: &str, p: &Prepared) {
     }
     let mut failed = Vec::new();
     for (name, s) in scenes {
-        let cpu = render(&p.volume, &s, W, H).image;
+        let cpu = render(&p.volume, &s, GPU_W, GPU_H).image;
         let t = std::time::Instant::now();
-        let gpu = renderer.lock().unwrap().render(ctx, &vol, &s, W, H).unwrap();
+        let gpu = renderer.lock().unwrap().render(ctx, &vol, &s, GPU_W, GPU_H).unwrap();
         let d = diff(&gpu, &cpu).unwrap();
         println!(
             "{atlas}-{name}: GPU ({}) {:.0} ms, {d} against the CPU",
