@@ -11,7 +11,7 @@ mod common;
 use common::*;
 use stylet_physics::ProbeKind;
 use stylet_physics::glam::{Quat, Vec3};
-use stylet_render::image::{Tolerance, diff};
+use stylet_render::image::Tolerance;
 use stylet_render::scene::{ClipPlane, Quality, Tagging};
 use stylet_render::tools::{FingerShape, NeedleShape, ProbeShape, ToolState};
 use stylet_render_gpu::GpuError;
@@ -181,17 +181,10 @@ fn tools() -> ToolState {
     }
 }
 
-/// The tools against the CPU's own tool code. The CPU reference's march does not draw tools yet
-/// (raycast/march.rs marks the TOOLS hooks), so the comparison is per part:
-/// a pixel whose ray meets a tool before the volume's box must be `tools::shade` of
-/// `tools::nearest_hit` exactly (±1 for rounding); every other pixel, with shadows switched off
-/// (f_in = 1), must match the CPU image without tools; and the shadows only darken.
-/// TODO(issue 15): a plain `compare` once the CPU march draws tools and shadows.
+/// The tools (needle, fingertip, linear and convex probe) and their shadows (Alg. 3.1, 3.2) drawn
+/// by both renderers: a plain comparison, tools and shadows on; then the shadows only darken.
 #[test]
-fn tools_and_their_shadows_match_the_cpu_tool_code() {
-    use stylet_render::raycast::march::ray_box;
-    use stylet_render::tools::{nearest_hit, shade};
-    use stylet_render::volume::IndexMap;
+fn tools_and_their_shadows_match_the_cpu() {
     let b = small();
     let (_, tf) = transfer_functions().swap_remove(1);
     let (w, h) = (160u32, 132u32);
@@ -202,48 +195,13 @@ fn tools_and_their_shadows_match_the_cpu_tool_code() {
             kind,
             ..s.tools.probe.unwrap()
         });
-        s.light.shadow_in = 1.0;
-        let gpu = render_gpu(b, &s, w, h);
-        let mut no_tools = s.clone();
-        no_tools.tools = ToolState::default();
-        let cpu = stylet_render::raycast::render(&b.cpu, &no_tools, w, h).image;
-        let prims = s.tools.primitives();
-        let map = IndexMap::of(b.cpu.atlas.ct().grid());
-        let (mut front, mut worst_front) = (0, 0u8);
-        let (mut masked_gpu, mut masked_cpu) = (gpu.clone(), cpu.clone());
-        for row in 0..h {
-            for col in 0..w {
-                let (o, d) = s.camera.ray(col, row, w, h);
-                let Some(hit) = nearest_hit(&prims, o, d, 1.0e30) else {
-                    continue;
-                };
-                masked_gpu.set(col, row, [0, 0, 0, 255]);
-                masked_cpu.set(col, row, [0, 0, 0, 255]);
-                let t_in = ray_box(map.point(o), map.vector(d), map.dims).map_or(f32::INFINITY, |(t0, _)| t0);
-                if hit.t < t_in {
-                    front += 1;
-                    let c = shade(&hit, &s.light, d);
-                    let to8 = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
-                    let want = [to8(c.x), to8(c.y), to8(c.z)];
-                    let got = gpu.get(col, row);
-                    let dmax = (0..3).map(|i| got[i].abs_diff(want[i])).max().unwrap();
-                    worst_front = worst_front.max(dmax);
-                }
-            }
-        }
-        let d = diff(&masked_gpu, &masked_cpu).unwrap();
-        println!("tools {kind:?}: {front} pixels of tools in front of the volume, worst {worst_front}; elsewhere {d}");
-        assert!(front > 300, "{kind:?}: only {front} tool pixels in front of the volume");
-        assert!(
-            worst_front <= 1,
-            "{kind:?}: a tool pixel differs by {worst_front} from tools::shade"
-        );
-        assert!(GPU_CPU.admits(&d), "{kind:?}: pixels off the tools differ: {d}");
-        // Shadows (Alg. 3.1, 3.2) darken the body behind the tools and never brighten.
-        s.light.shadow_in = 0.35;
+        compare(&format!("tools-{kind:?}"), b, &s, w, h, GPU_CPU);
         let shadowed = render_gpu(b, &s, w, h);
+        s.light.shadow_in = 1.0;
+        compare(&format!("tools-{kind:?}-no-shadow"), b, &s, w, h, GPU_CPU);
+        let unshadowed = render_gpu(b, &s, w, h);
         let (mut darker, mut brighter) = (0, 0);
-        for (p, q) in shadowed.rgba.iter().zip(&gpu.rgba) {
+        for (p, q) in shadowed.rgba.iter().zip(&unshadowed.rgba) {
             let (sp, sq) = (
                 p[0] as u32 + p[1] as u32 + p[2] as u32,
                 q[0] as u32 + q[1] as u32 + q[2] as u32,
