@@ -253,9 +253,20 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
         "demo-ivan    instructor",
         "demo-cora    curriculum",
         "demo-admin   admin",
+        "3d view of 'phantom' at tick 12000",
     ] {
         assert!(text.contains(s), "demo output lacks {s:?}:\n{text}");
     }
+    // The ray-cast picture of the puncture: the requested size, and a body in front of the
+    // background (many distinct colours, not one flat fill).
+    let picture = stylet_render::image::Image::read_png(&d.path().join("success-intercostal-3d.png")).unwrap();
+    assert_eq!((picture.width, picture.height), (900, 746));
+    let colours: std::collections::BTreeSet<[u8; 4]> = picture.rgba.iter().copied().collect();
+    assert!(
+        colours.len() > 1000,
+        "only {} colours in the demo's 3D picture",
+        colours.len()
+    );
     // The dashboard answers; the demo instructor sees all 7 sessions scored by the service.
     let agent = ureq::AgentBuilder::new().redirects(0).build();
     let login = agent.post(&format!("{base}/login")).send_form(&[

@@ -73,6 +73,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let t2 = Instant::now();
     let mut files = Vec::new();
     let mut simulated_s = 0.0;
+    let mut pictured = None;
     for (name, trainee, text) in DEMO_SCRIPTS {
         let out = sessions_dir.join(format!("{name}.mcap"));
         let info = stylet_recorder::SessionInfo {
@@ -86,6 +87,9 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         let summary = super::script::record_script_text(&atlas, text, &out, &info)
             .with_context(|| format!("recording the demo script {name}"))?;
         simulated_s += summary.ticks as f64 / 1000.0;
+        if name == PICTURED_SESSION {
+            pictured = Some((out.clone(), summary.ticks));
+        }
         files.push(out);
     }
     sayf!(
@@ -94,6 +98,29 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         t2.elapsed().as_secs_f64(),
         sessions_dir.display()
     );
+
+    // The successful puncture at 60 % of its course (the tip in the duct, contrast injected), ray
+    // cast (docs/rendering.md): soft-tissue preset, the volume cut along the needle with target
+    // and risk structures tagged on the cut.
+    if let Some((session, ticks)) = pictured {
+        super::render::run(super::render::RenderArgs {
+            atlas: atlas_dir.clone(),
+            session: Some(session),
+            at: Some(ticks as f64 * 0.6 / 1000.0),
+            view: super::render::View::ThreeD,
+            preset: super::render::PresetArg::Soft,
+            tagging: super::render::TaggingArg::Risk,
+            size: super::render::Size {
+                width: 900,
+                height: 746,
+            },
+            step_mm: None,
+            gpu: false,
+            cpu: true,
+            out: args.out.join(format!("{PICTURED_SESSION}-3d.png")),
+        })
+        .context("ray casting the demo puncture")?;
+    }
 
     // Scores: every session replayed through the physics and graded at its difficulty.
     let t3 = Instant::now();
@@ -191,6 +218,9 @@ fn trainee_of(file: &Path) -> anyhow::Result<String> {
 }
 
 /// The example scripts of the phantom (atlases/phantom/scripts), with the demo trainee who did each.
+/// The session the demo draws in 3D at the end of its puncture.
+const PICTURED_SESSION: &str = "success-intercostal";
+
 const DEMO_SCRIPTS: [(&str, &str, &str); 7] = [
     (
         "palpation-sweep",
