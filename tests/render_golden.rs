@@ -429,3 +429,63 @@ fn gpu_matches_cpu_on_the_chest_ct() {
 fn gpu_matches_cpu_on_the_abdomen_ct() {
     gpu_matches_cpu("ts-abdomen", abdomen());
 }
+
+/// GPU MPR against the CPU's on the real CTs: the three standard planes through the target and
+/// the oblique plane along a needle entering it from the right, pixels and labels (the GPU
+/// crate's own tests cover the phantom and the synthetic atlases). Same formulas on both sides:
+/// a grey level on a .5 boundary may round the other way; a pixel centre exactly on a label
+/// boundary may pick the other label (a large but rare difference), so labels must agree on
+/// ≥ 99.9 % of pixels.
+fn gpu_mpr_matches_cpu(atlas: &str, p: &Prepared) {
+    use stylet_physics::glam::DVec3;
+    use stylet_render::mpr::{Plane, SliceSpec, Window, render_spec};
+    const MPR: Tolerance = Tolerance {
+        mean: 0.02,
+        p99: 0,
+        max: 255,
+    };
+    let (ctx, _) = gpu();
+    let vol = GpuVolume::upload(ctx, &p.volume).unwrap();
+    let mut mpr = stylet_render_gpu::GpuMpr::new(ctx);
+    let target = label_centre(&p.atlas, 21).as_dvec3();
+    let mut specs: Vec<(String, SliceSpec)> = [Plane::Axial, Plane::Coronal, Plane::Sagittal]
+        .into_iter()
+        .map(|plane| {
+            let spec = SliceSpec::plane(&p.atlas.model, plane, target, Window::ABDOMEN, 320);
+            (plane.name().to_string(), spec)
+        })
+        .collect();
+    let tangent = DVec3::new(-0.85, -0.3, -0.2);
+    specs.push((
+        "oblique".into(),
+        SliceSpec::oblique_along_needle(target, tangent, 0.7, 320, 260, Window::ABDOMEN).unwrap(),
+    ));
+    for (name, spec) in specs {
+        let gpu = mpr.render(ctx, &vol, &spec).unwrap();
+        let cpu = render_spec(&p.atlas.model, &spec).unwrap();
+        let d = diff(&gpu.to_image(), &cpu.to_image()).unwrap();
+        let n = gpu.labels.len();
+        let label_diff = gpu.labels.iter().zip(&cpu.labels).filter(|(a, b)| a != b).count();
+        println!("{atlas}-mpr-{name}: {d}; labels differ on {label_diff} of {n} pixels");
+        assert!(MPR.admits(&d), "{atlas}-mpr-{name}: {d}");
+        assert!(
+            label_diff * 1000 <= n,
+            "{atlas}-mpr-{name}: labels differ on {label_diff} of {n}"
+        );
+        let tissue = cpu.rgb.iter().filter(|px| px[0] > 30 && px[0] < 225).count();
+        assert!(
+            tissue * 10 > n,
+            "{atlas}-mpr-{name}: only {tissue} of {n} pixels show tissue"
+        );
+    }
+}
+
+#[test]
+fn gpu_mpr_matches_cpu_on_the_chest_ct() {
+    gpu_mpr_matches_cpu("chest", chest());
+}
+
+#[test]
+fn gpu_mpr_matches_cpu_on_the_abdomen_ct() {
+    gpu_mpr_matches_cpu("ts-abdomen", abdomen());
+}
