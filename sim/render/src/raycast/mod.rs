@@ -67,18 +67,12 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) ->
     let h_mm = (0.5 * spacing[0].min(spacing[1]).min(spacing[2])) as f32;
     let deformed = scene.deformed.as_ref().map(|d| {
         (
-            Grid3 {
-                data: d.volume.data(),
-                dims: IndexMap::of(d.volume.grid()).dims,
-            },
+            Grid3::new(d.volume.data(), IndexMap::of(d.volume.grid()).dims),
             IndexMap::of(d.volume.grid()),
         )
     });
     let sampler = Sampler::new(
-        Grid3 {
-            data: ct.data(),
-            dims: ct_map.dims,
-        },
+        Grid3::new(ct.data(), ct_map.dims),
         ct_map,
         deformed,
         &volume.labels,

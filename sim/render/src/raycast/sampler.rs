@@ -9,19 +9,157 @@ use stylet_physics::glam::Vec3;
 
 use crate::volume::IndexMap;
 
-/// A scalar grid as the ray loop reads it: data (x fastest) and its dimensions.
+/// A scalar grid as the ray loop reads it: data (x fastest) and its dimensions, with the
+/// per-axis constants of the trilinear inside rule precomputed once per frame (the ray loop
+/// reads seven trilinear values per visible sample).
 #[derive(Clone, Copy)]
 pub struct Grid3<'a> {
     pub data: &'a [f32],
     pub dims: [u32; 3],
+    /// n_a − ½ (upper bound of the inside rule), n_a − 1 (clamp), n_a − 2 (last base voxel).
+    hi: [f32; 3],
+    top: [f32; 3],
+    last_base: [u32; 3],
+    /// Strides of y and z in `data`.
+    sy: usize,
+    sz: usize,
+    /// Every axis has ≥ 2 voxels and `data` holds them all: the unchecked fast path applies.
+    fast: bool,
+}
+
+impl<'a> Grid3<'a> {
+    pub fn new(data: &'a [f32], dims: [u32; 3]) -> Self {
+        let nf = dims.map(|n| n as f32);
+        let (nx, ny, nz) = (dims[0] as usize, dims[1] as usize, dims[2] as usize);
+        let len = nx.checked_mul(ny).and_then(|v| v.checked_mul(nz));
+        Grid3 {
+            data,
+            dims,
+            hi: nf.map(|n| n - 0.5),
+            top: nf.map(|n| n - 1.0),
+            last_base: dims.map(|n| n.saturating_sub(2)),
+            sy: nx,
+            sz: nx.saturating_mul(ny),
+            fast: dims.iter().all(|&n| n >= 2) && len.is_some_and(|l| l <= data.len()),
+        }
+    }
 }
 
 impl Grid3<'_> {
     /// Trilinear value at continuous index `c`: inside when −½ ≤ c_k < n_k − ½ on every axis
     /// (then clamped to [0, n_k − 1]), else `None`. Same arithmetic order as
     /// `Volume::sample_index`, in `f32`.
-    #[inline]
+    #[inline(always)]
     pub fn trilinear(&self, c: Vec3) -> Option<f32> {
+        if self.fast {
+            self.trilinear_fast(c)
+        } else {
+            self.trilinear_general(c)
+        }
+    }
+
+    /// The same values as [`Self::trilinear_general`] for grids with ≥ 2 voxels per axis,
+    /// without bounds checks: the hot path of the ray loop.
+    #[inline(always)]
+    fn trilinear_fast(&self, c: Vec3) -> Option<f32> {
+        let (x, y, z) = (c.x, c.y, c.z);
+        if !(x >= -0.5 && x < self.hi[0] && y >= -0.5 && y < self.hi[1] && z >= -0.5 && z < self.hi[2]) {
+            return None;
+        }
+        let x = x.clamp(0.0, self.top[0]);
+        let y = y.clamp(0.0, self.top[1]);
+        let z = z.clamp(0.0, self.top[2]);
+        let bx = (x as u32).min(self.last_base[0]);
+        let by = (y as u32).min(self.last_base[1]);
+        let bz = (z as u32).min(self.last_base[2]);
+        let (fx, fy, fz) = (x - bx as f32, y - by as f32, z - bz as f32);
+        let (sy, sz) = (self.sy, self.sz);
+        let o = bx as usize + sy * by as usize + sz * bz as usize;
+        // SAFETY: `fast` means n_a ≥ 2 and nx·ny·nz ≤ data.len(). The inside test (false for
+        // NaN) and the clamp put each coordinate in [0, n_a − 1], so b_a ≤ n_a − 2 after the
+        // `min`, and the largest index read, o + 1 + sy + sz, is at most
+        // (nx − 1) + nx·(ny − 1) + nx·ny·(nz − 1) = nx·ny·nz − 1.
+        let v = |i: usize| unsafe { *self.data.get_unchecked(i) };
+        let c00 = v(o) * (1.0 - fx) + v(o + 1) * fx;
+        let c10 = v(o + sy) * (1.0 - fx) + v(o + sy + 1) * fx;
+        let c01 = v(o + sz) * (1.0 - fx) + v(o + sz + 1) * fx;
+        let c11 = v(o + sz + sy) * (1.0 - fx) + v(o + sz + sy + 1) * fx;
+        let c0 = c00 * (1.0 - fy) + c10 * fy;
+        let c1 = c01 * (1.0 - fy) + c11 * fy;
+        Some(c0 * (1.0 - fz) + c1 * fz)
+    }
+
+    /// ∇s of [`Sampler::gradient`] when the three offsets lie along the index axes (`d`: the
+    /// signed index offset of each, |d_a| ≤ ½) and all seven positions are interior
+    /// (0 ≤ c_a ± d_a < n_a − 1, so the clamp and the last-base `min` are no-ops): the six
+    /// trilinear reads then share their set-up and most of their x-interpolated rows. Every
+    /// value is the same formula on the same voxels in the same order as six
+    /// [`Self::trilinear`] calls, so the result is bit-identical. `None`: use those calls.
+    #[inline(always)]
+    fn gradient_aligned(&self, c: Vec3, d: [f32; 3], inv_2h: f32) -> Option<Vec3> {
+        if !self.fast {
+            return None;
+        }
+        let cc = [c.x, c.y, c.z];
+        // The same sums as `at.ct ± grad_ct[a]` (the other components add ±0).
+        let p = [cc[0] + d[0], cc[1] + d[1], cc[2] + d[2]];
+        let m = [cc[0] - d[0], cc[1] - d[1], cc[2] - d[2]];
+        for a in 0..3 {
+            if !(p[a].min(m[a]) >= 0.0 && p[a].max(m[a]) < self.top[a]) {
+                return None;
+            }
+        }
+        // Interior and ≥ 0: truncation is the floor, and ≤ n_a − 2.
+        let split = |x: f32| {
+            let b = x as u32;
+            (b, x - b as f32)
+        };
+        let ((bx, fx), (by, fy), (bz, fz)) = (split(cc[0]), split(cc[1]), split(cc[2]));
+        // Window of rows j ∈ y0 … y0 + 2, k ∈ z0 … z0 + 2 (|d| ≤ ½: bases differ by ≤ 1).
+        let y0 = (p[1].min(m[1])) as u32;
+        let z0 = (p[2].min(m[2])) as u32;
+        let (sy, sz) = (self.sy, self.sz);
+        let (ny1, nz1) = (self.dims[1] - 1, self.dims[2] - 1);
+        // SAFETY: as in `trilinear_fast`: i ≤ n_x − 2, j ≤ n_y − 1, k ≤ n_z − 1 (clamped
+        // below), so o + 1 ≤ nx·ny·nz − 1 ≤ data.len() − 1.
+        let row = |i: u32, f: f32, j: u32, k: u32| {
+            let o = i as usize + sy * j as usize + sz * k as usize;
+            let (a, b) = unsafe { (*self.data.get_unchecked(o), *self.data.get_unchecked(o + 1)) };
+            a * (1.0 - f) + b * f
+        };
+        // Rows at the centre's x (bx, fx). Rows past the grid (clamped index) are never used:
+        // every sample's rows lie in [base, base + 1] ⊂ window, and base + 1 ≤ n − 1.
+        let mut r = [[0.0f32; 3]; 3];
+        for (kk, rk) in r.iter_mut().enumerate() {
+            let k = (z0 + kk as u32).min(nz1);
+            for (jj, v) in rk.iter_mut().enumerate() {
+                *v = row(bx, fx, (y0 + jj as u32).min(ny1), k);
+            }
+        }
+        // One trilinear value from the window: y base jb with fraction fy_, z base kb with fz_.
+        let yz = |jb: u32, fy_: f32, kb: u32, fz_: f32| {
+            let (j, k) = ((jb - y0) as usize, (kb - z0) as usize);
+            let c0 = r[k][j] * (1.0 - fy_) + r[k][j + 1] * fy_;
+            let c1 = r[k + 1][j] * (1.0 - fy_) + r[k + 1][j + 1] * fy_;
+            c0 * (1.0 - fz_) + c1 * fz_
+        };
+        // ±x: own x base and fraction, the centre's rows j = by, by + 1 and k = bz, bz + 1.
+        let along_x = |x: f32| {
+            let (bxs, fxs) = split(x);
+            let c0 = row(bxs, fxs, by, bz) * (1.0 - fy) + row(bxs, fxs, by + 1, bz) * fy;
+            let c1 = row(bxs, fxs, by, bz + 1) * (1.0 - fy) + row(bxs, fxs, by + 1, bz + 1) * fy;
+            c0 * (1.0 - fz) + c1 * fz
+        };
+        let gx = (along_x(p[0]) - along_x(m[0])) * inv_2h;
+        let ((pyb, pyf), (myb, myf)) = (split(p[1]), split(m[1]));
+        let gy = (yz(pyb, pyf, bz, fz) - yz(myb, myf, bz, fz)) * inv_2h;
+        let ((pzb, pzf), (mzb, mzf)) = (split(p[2]), split(m[2]));
+        let gz = (yz(by, fy, pzb, pzf) - yz(by, fy, mzb, mzf)) * inv_2h;
+        Some(Vec3::new(gx, gy, gz))
+    }
+
+    /// Any grid, including axes of one voxel (then that axis does not interpolate).
+    fn trilinear_general(&self, c: Vec3) -> Option<f32> {
         let mut base = [0u32; 3];
         let mut frac = [0.0f32; 3];
         let mut step = [0u32; 3];
@@ -91,6 +229,9 @@ pub struct Sampler<'a> {
     pub grad_j: [Vec3; 3],
     /// 1 / (2h), per mm.
     pub inv_2h: f32,
+    /// The CT offsets' index components when each lies along its own index axis with
+    /// |d| ≤ ½ (axis-aligned affines): the shared-read gradient applies.
+    grad_axis: Option<[f32; 3]>,
 }
 
 impl<'a> Sampler<'a> {
@@ -111,6 +252,7 @@ impl<'a> Sampler<'a> {
             Some((_, m)) => [axis(m, 0), axis(m, 1), axis(m, 2)],
             None => [Vec3::ZERO; 3],
         };
+        let aligned = (0..3).all(|a| (0..3).all(|b| a == b || grad_ct[a][b] == 0.0) && grad_ct[a][a].abs() <= 0.5);
         Sampler {
             ct,
             ct_map,
@@ -119,6 +261,7 @@ impl<'a> Sampler<'a> {
             grad_ct,
             grad_j,
             inv_2h: 1.0 / (2.0 * h_mm),
+            grad_axis: aligned.then(|| [grad_ct[0].x, grad_ct[1].y, grad_ct[2].z]),
         }
     }
 
@@ -135,7 +278,7 @@ impl<'a> Sampler<'a> {
     }
 
     /// s(x): J inside Ω_J, else the CT, else air.
-    #[inline]
+    #[inline(always)]
     pub fn s(&self, at: At) -> f32 {
         if let Some((j, _)) = &self.deformed
             && let Some(v) = j.trilinear(at.j)
@@ -151,6 +294,11 @@ impl<'a> Sampler<'a> {
         let mut g = Vec3::ZERO;
         if self.deformed.is_none() {
             // The same values as below without J's bookkeeping (the common case).
+            if let Some(d) = self.grad_axis
+                && let Some(g) = self.ct.gradient_aligned(at.ct, d, self.inv_2h)
+            {
+                return g;
+            }
             for a in 0..3 {
                 let plus = self.ct.trilinear(at.ct + self.grad_ct[a]).unwrap_or(AIR_HU);
                 let minus = self.ct.trilinear(at.ct - self.grad_ct[a]).unwrap_or(AIR_HU);
@@ -197,10 +345,7 @@ mod tests {
         .unwrap();
         let data: Vec<f32> = (0..g.len()).map(|i| ((i * 37) % 23) as f32 * 10.0 - 100.0).collect();
         let vol = Volume::new(g, data.clone()).unwrap();
-        let grid = Grid3 {
-            data: &data,
-            dims: [5, 4, 3],
-        };
+        let grid = Grid3::new(&data, [5, 4, 3]);
         for i in 0..400 {
             let f = i as f64;
             let c = DVec3::new(
