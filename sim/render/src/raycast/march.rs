@@ -6,7 +6,7 @@ use stylet_physics::glam::{DVec3, Vec3};
 use super::jitter::jitter;
 use super::occupancy::Occupancy;
 use super::sampler::{At, Sampler};
-use super::shading::{corrected_alpha, phong, plane_colour};
+use super::shading::{MIN_GRADIENT, corrected_alpha, half_vector, phong_half, plane_colour};
 use crate::scene::{ClipPlane, Light, MotionHook, Quality, Tagging};
 use crate::shadow::Shadows;
 use crate::tools::{Primitive, nearest_hit, shade};
@@ -143,6 +143,7 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
         ct: ce + dc * t,
         j: je + dj * t,
     };
+    let half = half_vector(dir, &f.light);
     let mut acc = Accum { c: Vec3::ZERO, a: 0.0 };
     let mut samples = 0u64;
 
@@ -214,6 +215,8 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
         && !(q.early_termination && acc.a >= crate::scene::Quality::OPAQUE)
     {
         let mut k = first_lattice(t_lo, strict, j, step);
+        // (a, α) of the last visible sample: α = corrected_alpha(a, Δ) is a pure function of a.
+        let mut last_a = (f32::NAN, 0.0f32);
         loop {
             let t = lattice(k, j, step);
             if t > t_hi || t >= t_tool {
@@ -247,7 +250,14 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
             samples += 1;
             let c = f.transfer.eval(f.sampler.s(at));
             if c[3] > 0.0 {
-                let alpha = corrected_alpha(c[3], step);
+                // Runs of equal opacity (a trapezoid's plateau) reuse the last correction.
+                let alpha = if c[3] == last_a.0 {
+                    last_a.1
+                } else {
+                    let alpha = corrected_alpha(c[3], step);
+                    last_a = (c[3], alpha);
+                    alpha
+                };
                 // 6. Shadow, at the sample's world position.
                 let f_shadow = if f.has_shadows {
                     f.shadows
@@ -255,7 +265,14 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
                 } else {
                     1.0
                 };
-                let shade = phong(f.sampler.gradient(at), dir, &f.light, f_shadow);
+                // `phong` with the ray's half vector hoisted (same values).
+                let g = f.sampler.gradient(at);
+                let len = g.length();
+                let shade = if len < MIN_GRADIENT {
+                    1.0
+                } else {
+                    phong_half(g, len, half, &f.light, f_shadow)
+                };
                 acc.add(Vec3::new(c[0], c[1], c[2]) * shade, alpha);
                 // 7. Early termination.
                 if q.early_termination && acc.a >= crate::scene::Quality::OPAQUE {

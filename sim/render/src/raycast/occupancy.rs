@@ -170,11 +170,12 @@ impl Occupancy {
     /// The cell of CT index `c`: q_a = ⌊(c_a + ½)·N/n_a⌋ clamped to [0, N − 1].
     #[inline]
     pub fn cell(&self, c: Vec3) -> [u32; 3] {
-        let last = (self.cells - 1) as f32;
-        let q = ((c + Vec3::splat(0.5)) * self.scale)
-            .floor()
-            .clamp(Vec3::ZERO, Vec3::splat(last));
-        [q.x as u32, q.y as u32, q.z as u32]
+        // ⌊v⌋ clamped to [0, N − 1] as max(v, 0) truncated then `min`: the same cell for every
+        // v (truncation is the floor for v ≥ 0) without a libm `floorf` call per sample.
+        let last = self.cells - 1;
+        let q = (c + Vec3::splat(0.5)) * self.scale;
+        let cell = |v: f32| (v.max(0.0) as u32).min(last);
+        [cell(q.x), cell(q.y), cell(q.z)]
     }
 
     #[inline]

@@ -118,15 +118,10 @@ impl Grid3<'_> {
         // Window of rows j ∈ y0 … y0 + 2, k ∈ z0 … z0 + 2 (|d| ≤ ½: bases differ by ≤ 1).
         let y0 = (p[1].min(m[1])) as u32;
         let z0 = (p[2].min(m[2])) as u32;
-        let (sy, sz) = (self.sy, self.sz);
         let (ny1, nz1) = (self.dims[1] - 1, self.dims[2] - 1);
-        // SAFETY: as in `trilinear_fast`: i ≤ n_x − 2, j ≤ n_y − 1, k ≤ n_z − 1 (clamped
-        // below), so o + 1 ≤ nx·ny·nz − 1 ≤ data.len() − 1.
-        let row = |i: u32, f: f32, j: u32, k: u32| {
-            let o = i as usize + sy * j as usize + sz * k as usize;
-            let (a, b) = unsafe { (*self.data.get_unchecked(o), *self.data.get_unchecked(o + 1)) };
-            a * (1.0 - f) + b * f
-        };
+        // `row_x`'s bounds: i ≤ n_x − 2 (interior), j ≤ n_y − 1, k ≤ n_z − 1 (clamped below, and
+        // by + 1, bz + 1 ≤ n − 1 for the interior centre).
+        let row = |i: u32, f: f32, j: u32, k: u32| self.row_x(i, f, j, k);
         // Rows at the centre's x (bx, fx). Rows past the grid (clamped index) are never used:
         // every sample's rows lie in [base, base + 1] ⊂ window, and base + 1 ≤ n − 1.
         let mut r = [[0.0f32; 3]; 3];
@@ -137,12 +132,7 @@ impl Grid3<'_> {
             }
         }
         // One trilinear value from the window: y base jb with fraction fy_, z base kb with fz_.
-        let yz = |jb: u32, fy_: f32, kb: u32, fz_: f32| {
-            let (j, k) = ((jb - y0) as usize, (kb - z0) as usize);
-            let c0 = r[k][j] * (1.0 - fy_) + r[k][j + 1] * fy_;
-            let c1 = r[k + 1][j] * (1.0 - fy_) + r[k + 1][j + 1] * fy_;
-            c0 * (1.0 - fz_) + c1 * fz_
-        };
+        let yz = |jb: u32, fy_: f32, kb: u32, fz_: f32| window_yz(&r, jb - y0, fy_, kb - z0, fz_);
         // ±x: own x base and fraction, the centre's rows j = by, by + 1 and k = bz, bz + 1.
         let along_x = |x: f32| {
             let (bxs, fxs) = split(x);
@@ -156,6 +146,19 @@ impl Grid3<'_> {
         let ((pzb, pzf), (mzb, mzf)) = (split(p[2]), split(m[2]));
         let gz = (yz(by, fy, pzb, pzf) - yz(by, fy, mzb, mzf)) * inv_2h;
         Some(Vec3::new(gx, gy, gz))
+    }
+
+    /// The x-interpolated row value v(i, j, k)·(1 − f) + v(i + 1, j, k)·f.
+    ///
+    /// Callers (`gradient_aligned`, with `fast`) keep i ≤ n_x − 2, j ≤ n_y − 1, k ≤ n_z − 1,
+    /// so the largest index read is ≤ nx·ny·nz − 1 < data.len().
+    #[inline(always)]
+    fn row_x(&self, i: u32, f: f32, j: u32, k: u32) -> f32 {
+        let o = i as usize + self.sy * j as usize + self.sz * k as usize;
+        debug_assert!(self.fast && o + 1 < self.data.len());
+        // SAFETY: see above.
+        let (a, b) = unsafe { (*self.data.get_unchecked(o), *self.data.get_unchecked(o + 1)) };
+        a * (1.0 - f) + b * f
     }
 
     /// Any grid, including axes of one voxel (then that axis does not interpolate).
@@ -328,6 +331,16 @@ impl<'a> Sampler<'a> {
             None => 0,
         }
     }
+}
+
+/// One trilinear value from a 3 × 3 window of x-interpolated rows `r[k][j]`: y row `j` (0 or 1)
+/// with fraction `fy`, z row `k` (0 or 1) with fraction `fz`; `Grid3::trilinear`'s order.
+#[inline(always)]
+fn window_yz(r: &[[f32; 3]; 3], j: u32, fy: f32, k: u32, fz: f32) -> f32 {
+    let (j, k) = (j as usize, k as usize);
+    let c0 = r[k][j] * (1.0 - fy) + r[k][j + 1] * fy;
+    let c1 = r[k + 1][j] * (1.0 - fy) + r[k + 1][j + 1] * fy;
+    c0 * (1.0 - fz) + c1 * fz
 }
 
 #[cfg(test)]

@@ -23,9 +23,21 @@ pub fn phong(g: Vec3, ray_dir: Vec3, light: &Light, f_shadow: f32) -> f32 {
     if len < MIN_GRADIENT {
         return 1.0;
     }
+    phong_half(g, len, half_vector(ray_dir, light), light, f_shadow)
+}
+
+/// H = normalize(L + V) with V = −r: the same for every sample of a ray.
+#[inline]
+pub fn half_vector(ray_dir: Vec3, light: &Light) -> Vec3 {
+    (light.toward_light - ray_dir).normalize()
+}
+
+/// [`phong`] with the ray's half vector `h` ([`half_vector`]) and |g| = `len` ≥ [`MIN_GRADIENT`]
+/// already computed (the ray loop hoists them; same values).
+#[inline]
+pub fn phong_half(g: Vec3, len: f32, h: Vec3, light: &Light, f_shadow: f32) -> f32 {
     let n = -g / len;
     let l = light.toward_light;
-    let h = (l - ray_dir).normalize();
     let specular = if light.specular > 0.0 {
         light.specular * n.dot(h).abs().powf(light.shininess)
     } else {
