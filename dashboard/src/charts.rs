@@ -2,8 +2,8 @@
 //! has a title, axis labels with units and a legend, and each force component keeps its colour
 //! everywhere (`palette`). Sparklines are tiny hand-written SVG polylines.
 
-use stylet_physics::LabelId;
 use crate::plot::{ChartColor, LineChart, Series, chart_svg, palette};
+use stylet_physics::LabelId;
 use stylet_scoring::ReviewTrace;
 use stylet_service::store::ProgressPoint;
 

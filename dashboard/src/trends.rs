@@ -8,9 +8,9 @@
 
 use std::collections::BTreeMap;
 
+use crate::plot::palette;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
-use crate::plot::palette;
 use stylet_render::fonts::{SANS, ensure_fonts};
 use stylet_scoring::Exercise;
 use stylet_scoring::rubric::LEVELS;

@@ -8,10 +8,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
+use stylet_dashboard::plot::{LineChart, Series, palette, write_chart};
 use stylet_devices::script::{ScriptedDevice, parse, scripted_simulation};
 use stylet_physics::glam::DVec3;
 use stylet_physics::{Event, Simulation, TickInput, TickOutput};
-use stylet_dashboard::plot::{LineChart, Series, palette, write_chart};
 
 use stylet_recorder::{Recording, SessionInfo, WriterOptions};
 

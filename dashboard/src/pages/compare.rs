@@ -7,11 +7,11 @@
 
 use std::sync::Arc;
 
+use crate::plot::ChartColor;
 use axum::extract::{Query, State};
 use axum::http::StatusCode;
 use axum::response::Html;
 use maud::{Markup, PreEscaped, html};
-use crate::plot::ChartColor;
 use stylet_scoring::{Outcome, ReviewTrace};
 use stylet_service::AppState;
 use stylet_service::store::{CompareSearch, OutcomeFilter, ReviewLine, SEARCH_PAGE, SessionRow};

@@ -71,7 +71,8 @@ impl Image {
         enc.set_color(png::ColorType::Rgba);
         enc.set_depth(png::BitDepth::Eight);
         let mut w = enc.write_header().map_err(|e| err(e.to_string()))?;
-        w.write_image_data(self.rgba.as_flattened()).map_err(|e| err(e.to_string()))?;
+        w.write_image_data(self.rgba.as_flattened())
+            .map_err(|e| err(e.to_string()))?;
         w.finish().map_err(|e| err(e.to_string()))
     }
 
@@ -115,7 +116,11 @@ pub struct DiffStats {
 
 impl std::fmt::Display for DiffStats {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "mean {:.3}, 99th percentile {}, max {}", self.mean, self.p99, self.max)
+        write!(
+            f,
+            "mean {:.3}, 99th percentile {}, max {}",
+            self.mean, self.p99, self.max
+        )
     }
 }
 

@@ -218,7 +218,9 @@ pub struct MotionHook {
 
 impl std::fmt::Debug for MotionHook {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("MotionHook").field("t_s", &self.t_s).finish_non_exhaustive()
+        f.debug_struct("MotionHook")
+            .field("t_s", &self.t_s)
+            .finish_non_exhaustive()
     }
 }
 

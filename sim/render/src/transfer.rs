@@ -73,7 +73,8 @@ impl TransferFunction {
                         tissue: t.tissue.clone(),
                         message: message.into(),
                     };
-                    if !t.hu.iter().all(|v| v.is_finite()) || !(t.hu[0] < t.hu[1] && t.hu[1] <= t.hu[2] && t.hu[2] < t.hu[3])
+                    if !t.hu.iter().all(|v| v.is_finite())
+                        || !(t.hu[0] < t.hu[1] && t.hu[1] <= t.hu[2] && t.hu[2] < t.hu[3])
                     {
                         return Err(bad("HU corners must be finite with a < b ≤ c < d"));
                     }
@@ -193,7 +194,10 @@ mod tests {
             ..skin()
         }]);
         assert!(matches!(t.validate(), Err(TransferError::Trapezoid { .. })));
-        assert_eq!(TransferFunction::Trapezoids(vec![]).validate(), Err(TransferError::Count(0)));
+        assert_eq!(
+            TransferFunction::Trapezoids(vec![]).validate(),
+            Err(TransferError::Count(0))
+        );
         let w = TransferFunction::Window {
             level_hu: 40.0,
             width_hu: 0.0,
