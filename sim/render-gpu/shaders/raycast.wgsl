@@ -72,6 +72,7 @@ struct Params {
     needle_dims: vec4<f32>,  // length along the nodes, diameter, hub length, hub diameter (mm)
     spheres: array<vec4<f32>, 2>, // sphere shadows (Alg. 3.2): centre, radius (0: none)
     traps: array<Trapezoid, 8>,
+    table: vec4<f32>,        // transfer table: lo_hu, 1/step_hu, entries - 1
 }
 
 struct Style {
@@ -104,6 +105,7 @@ struct Primitive {
 @group(0) @binding(5) var<storage, read> prims: array<Primitive>;
 @group(0) @binding(6) var deformed: texture_3d<f32>;
 @group(0) @binding(7) var<storage, read_write> out_px: array<u32>;
+@group(0) @binding(8) var<storage, read> tf_table: array<vec4<f32>>;
 
 // --- Step 1: jitter (raycast/jitter.rs) -----------------------------------------------------
 
@@ -274,15 +276,17 @@ fn transfer(v: f32) -> vec4<f32> {
     return vec4<f32>(r / a, gg / a, b / a, min(a, 1.0));
 }
 
-// --- Shading (raycast/shading.rs) -----------------------------------------------------------
-
-// alpha = 1 - (1 - a)^step: opacity per mm over one step.
-fn corrected_alpha(a: f32, step: f32) -> f32 {
-    if a >= 1.0 {
-        return 1.0;
-    }
-    return 1.0 - pow(1.0 - a, step);
+// The lattice samples' c(v): the transfer table (transfer_table.rs), (alpha rgb, alpha) with the
+// opacity correction applied, linear between entries.
+fn table_lookup(v: f32) -> vec4<f32> {
+    let last = P.table.z;
+    let x = min(max((v - P.table.x) * P.table.y, 0.0), last);
+    let i = min(u32(x), u32(last) - 1u);
+    let f = x - f32(i);
+    return tf_table[i] * (1.0 - f) + tf_table[i + 1u] * f;
 }
+
+// --- Shading (raycast/shading.rs) -----------------------------------------------------------
 
 // Eq. 3.2.3, two-sided: ambient + (diffuse |N.L| + specular |N.H|^shininess) f_shadow.
 fn phong(g: vec3<f32>, rd: vec3<f32>, f_shadow: f32) -> f32 {
@@ -771,14 +775,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 }
             }
             // 5. Sample.
-            let c = transfer(s(at));
+            let c = table_lookup(s(at));
             if c.w > 0.0 {
-                let alpha = corrected_alpha(c.w, step);
                 // 6. Shadow, at the sample's world position.
                 let f_shadow = shadow_factor(origin + dir * t);
                 let shade = phong(gradient(at), dir, f_shadow);
-                acc_c += (1.0 - acc_a) * alpha * (c.xyz * shade);
-                acc_a += (1.0 - acc_a) * alpha;
+                acc_c += (1.0 - acc_a) * (c.xyz * shade);
+                acc_a += (1.0 - acc_a) * c.w;
                 // 7. Early termination.
                 if early && acc_a >= OPAQUE {
                     break;

@@ -14,6 +14,7 @@ use stylet_render::scene::{ClipPlane, Scene, Tagging};
 use stylet_render::shadow::Shadows;
 use stylet_render::tools::{MAX_PRIMITIVES, Primitive};
 use stylet_render::transfer::{MAX_TRAPEZOIDS, TransferFunction};
+use stylet_render::transfer_table::TransferTable;
 use stylet_render::volume::IndexMap;
 
 use crate::volume::{CtFormat, GpuVolume, storage, texture_3d};
@@ -109,6 +110,8 @@ struct Params {
     needle_dims: [f32; 4],
     spheres: [[f32; 4]; 2],
     traps: [GpuTrapezoid; MAX_TRAPEZOIDS],
+    /// The transfer table: lo_hu, 1/step_hu, entries − 1.
+    table: [f32; 4],
 }
 
 /// A tool primitive as the shader reads it (mirrors `Primitive` in raycast.wgsl).
@@ -173,15 +176,20 @@ fn gpu_primitive(p: &Primitive) -> GpuPrimitive {
     }
 }
 
-/// Occupancy of one (volume, N, transfer function, J) on the GPU.
+/// The transfer table and the occupancy of one (volume, N, transfer function, step, J) on the
+/// GPU.
 struct OccupancyCache {
     volume: u64,
     cells: u32,
     transfer: TransferFunction,
+    step_mm: f32,
     deformed: Option<usize>,
     scale: Vec3,
     size: Vec3,
     buffer: wgpu::Buffer,
+    /// `TransferTable` entries, and (lo_hu, 1/step_hu, entries − 1, α at air).
+    table: wgpu::Buffer,
+    table_params: [f32; 4],
 }
 
 /// J of the deformation hook on the GPU, kept while the scene holds the same `Arc`.
@@ -336,6 +344,7 @@ impl GpuRenderer {
         let pipeline = self.pipeline(ctx, vol.ct_key());
         let deformed_view = self.deformed.as_ref().map(|d| &d.view).unwrap_or(&self.dummy_deformed);
         let occupancy = &self.occupancy.as_ref().expect("occupancy set above").buffer;
+        let occupancy_table = &self.occupancy.as_ref().expect("occupancy set above").table;
         let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("raycast"),
             layout: &pipeline.get_bind_group_layout(0),
@@ -371,6 +380,10 @@ impl GpuRenderer {
                 wgpu::BindGroupEntry {
                     binding: 7,
                     resource: output.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 8,
+                    resource: occupancy_table.as_entire_binding(),
                 },
             ],
         });
@@ -424,25 +437,39 @@ impl GpuRenderer {
             && c.volume == vol.id
             && c.cells == cells
             && c.transfer == scene.transfer
+            && c.step_mm == scene.quality.step_mm
             && c.deformed == deformed
         {
             return Ok(());
         }
         ctx.check_storage_buffer("the occupancy grid", 4 * (cells as u64).pow(3))?;
+        let (lo_hu, hi_hu) = vol.value_range_hu;
+        let table = TransferTable::new(&scene.transfer, lo_hu, hi_hu, scene.quality.step_mm);
+        ctx.check_storage_buffer("the transfer table", 16 * table.entries.len() as u64)?;
         let ranges = vol.cell_ranges(cells);
         let ct_map = IndexMap::of(vol.atlas.ct().grid());
         let occ = Occupancy::new(
             &ranges,
-            &scene.transfer,
+            &table,
             ct_map.dims,
             scene.deformed.as_ref().map(|d| (&*d.volume, &ct_map)),
         );
         let bits: Vec<u32> = occ.occupied.iter().map(|&b| b as u32).collect();
         let buffer = storage(ctx, "occupancy", bytemuck::cast_slice(&bits));
+        let table_params = [
+            table.lo_hu,
+            table.inv_step,
+            (table.entries.len() - 1) as f32,
+            table.lookup(AIR_HU)[3],
+        ];
+        let table = storage(ctx, "transfer table", bytemuck::cast_slice(&table.entries));
         self.occupancy = Some(OccupancyCache {
             volume: vol.id,
             cells,
             transfer: scene.transfer.clone(),
+            step_mm: scene.quality.step_mm,
+            table,
+            table_params,
             deformed,
             scale: occ.scale,
             size: occ.size,
@@ -478,10 +505,7 @@ impl GpuRenderer {
             (scene.clip.is_some(), F_CLIP),
             (self.deformed.is_some(), F_DEFORMED),
             (shadows.needle.is_some(), F_NEEDLE_SHADOW),
-            (
-                scene.deformed.is_some() || scene.transfer.eval(AIR_HU)[3] > 0.0,
-                F_SAMPLE_OUTSIDE,
-            ),
+            (scene.deformed.is_some() || occ.table_params[3] > 0.0, F_SAMPLE_OUTSIDE),
         ] {
             if on {
                 flags |= f;
@@ -573,6 +597,7 @@ impl GpuRenderer {
             needle_dims,
             spheres,
             traps,
+            table: occ.table_params,
         }
     }
 }

@@ -64,6 +64,8 @@ pub struct GpuVolume {
     pub(crate) partial_view: wgpu::TextureView,
     pub(crate) styles: wgpu::Buffer,
     pub(crate) style_count: u32,
+    /// `RenderVolume::value_range_hu`: the span of the transfer table.
+    pub(crate) value_range_hu: (f32, f32),
     /// MPR overlay colours by label id: (RGBA8 packed, 1 when the id is in the label table).
     pub(crate) mpr_colors: wgpu::Buffer,
     pub(crate) mpr_color_count: u32,
@@ -183,6 +185,7 @@ impl GpuVolume {
             partial_view,
             styles,
             style_count,
+            value_range_hu: vol.value_range_hu,
             mpr_colors,
             mpr_color_count: color_count,
             ranges: Mutex::new(HashMap::new()),

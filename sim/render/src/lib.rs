@@ -4,7 +4,7 @@
 //! (deterministic, rayon; the oracle in tests and what the server draws replays with) and the
 //! wgpu renderer in `stylet-render-gpu` (what the desktop simulator uses), so the service and the
 //! scoring workers never link wgpu. Modules: [`scene`] (camera, light, clip plane, tagging,
-//! quality, hooks), [`transfer`] (eq. 3.2.2), [`volume`] (the atlas prepared for rendering),
+//! quality, hooks), [`transfer`] (eq. 3.2.2), [`transfer_table`] (what the ray loops read), [`volume`] (the atlas prepared for rendering),
 //! [`tools`] (needle, finger, probes), [`shadow`] (their shadows, Alg. 3.1/3.2), [`image`]
 //! (pixels, PNG, difference statistics), [`mpr`] (slices), [`annotate`] (tip marker, scale bar,
 //! letters on slices) and [`figure`] (the atlas figure of `stylet atlas inspect`).
@@ -20,6 +20,7 @@ pub mod scene;
 pub mod shadow;
 pub mod tools;
 pub mod transfer;
+pub mod transfer_table;
 pub mod volume;
 
 /// Rendering failures (file output, font set-up).

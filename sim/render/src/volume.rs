@@ -5,6 +5,7 @@
 
 use std::sync::{Arc, Mutex};
 
+use stylet_physics::atlas::AIR_HU;
 use stylet_physics::glam::{DVec3, Vec3};
 use stylet_physics::{Grid, LabelId, PunctureAtlas, Role};
 
@@ -30,6 +31,9 @@ pub struct RenderVolume {
     pub labels: Vec<LabelId>,
     /// Style of every label id 0 ..= max id (ids not in the table: `Other`, transparent).
     pub styles: Vec<LabelStyle>,
+    /// Lowest and highest value a sample can read: the CT's range widened to air (outside the
+    /// CT), the span of the per-frame transfer table.
+    pub value_range_hu: (f32, f32),
     /// Per-cell CT ranges of the occupancy grid, computed once per cell count N.
     cell_cache: Mutex<Vec<Arc<CellRanges>>>,
 }
@@ -124,10 +128,24 @@ impl RenderVolume {
                 rgba: c.map(|v| v as f32 / 255.0),
             };
         }
+        let value_range_hu = ct
+            .par_iter()
+            .fold(
+                || (AIR_HU, AIR_HU),
+                |(lo, hi), &v| {
+                    if v.is_finite() {
+                        (lo.min(v), hi.max(v))
+                    } else {
+                        (lo, hi)
+                    }
+                },
+            )
+            .reduce(|| (AIR_HU, AIR_HU), |a, b| (a.0.min(b.0), a.1.max(b.1)));
         RenderVolume {
             atlas,
             labels,
             styles,
+            value_range_hu,
             cell_cache: Mutex::new(Vec::new()),
         }
     }

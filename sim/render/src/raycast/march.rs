@@ -1,23 +1,28 @@
 //! One ray, docs/rendering.md "One ray" steps 1–9, written as plain loops without allocation or
 //! recursion so the WGSL port can follow it line by line.
 
+use stylet_physics::atlas::AIR_HU;
 use stylet_physics::glam::{DVec3, Vec3};
 
 use super::jitter::jitter;
 use super::occupancy::Occupancy;
 use super::sampler::{At, Sampler};
-use super::shading::{MIN_GRADIENT, corrected_alpha, half_vector, phong_half, plane_colour};
+use super::shading::{MIN_GRADIENT, half_vector, phong_half, plane_colour};
 use crate::scene::{ClipPlane, Light, MotionHook, Quality, Tagging};
 use crate::shadow::Shadows;
 use crate::tools::{Primitive, nearest_hit, shade};
 use crate::transfer::TransferFunction;
+use crate::transfer_table::TransferTable;
 use crate::volume::RenderVolume;
 
 /// Everything a ray reads that is the same for every pixel of a frame.
 pub struct Frame<'a> {
     pub volume: &'a RenderVolume,
     pub sampler: Sampler<'a>,
+    /// c(v) for the plane sample (straight colour, opacity as is).
     pub transfer: &'a TransferFunction,
+    /// c(v) for the lattice samples: corrected for the step and premultiplied.
+    pub table: TransferTable,
     pub light: Light,
     pub clip: Option<ClipPlane>,
     pub tagging: Tagging,
@@ -104,6 +109,13 @@ impl Accum {
         self.c += (1.0 - self.a) * alpha * rgb;
         self.a += (1.0 - self.a) * alpha;
     }
+
+    /// [`Self::add`] with the colour already multiplied by α.
+    #[inline]
+    fn add_premultiplied(&mut self, alpha_rgb: Vec3, alpha: f32) {
+        self.c += (1.0 - self.a) * alpha_rgb;
+        self.a += (1.0 - self.a) * alpha;
+    }
 }
 
 /// Motion warp of eqs. 5.4.1–5.4.2 along one ray: X⁺ = x⁺ − u(X + d, t), d = x⁺ − x.
@@ -123,6 +135,150 @@ impl Warp<'_> {
         self.prev = Some((x, big_x));
         big_x
     }
+}
+
+/// One ray's constants for the lattice loop.
+struct Ray {
+    origin: Vec3,
+    dir: Vec3,
+    /// The ray in CT index space: c(t) = ce + t·dc.
+    ce: Vec3,
+    dc: Vec3,
+    /// Lattice offset j and the last t to sample (t ≤ t_hi, t < t_tool).
+    j: f32,
+    t_hi: f32,
+    t_tool: f32,
+    /// Phong's half vector (the same for every sample of the ray).
+    half: Vec3,
+}
+
+/// Steps 6–7 for one visible sample: shadow, shading, accumulation. `c` is the table's
+/// premultiplied (α·rgb, α). Returns whether the ray is done (early termination).
+#[inline(always)]
+fn composite(f: &Frame, ray: &Ray, t: f32, c: [f32; 4], g: Vec3, acc: &mut Accum) -> bool {
+    // 6. Shadow, at the sample's world position.
+    let f_shadow = if f.has_shadows {
+        f.shadows
+            .factor(ray.origin + ray.dir * t, f.light.toward_light, f.light.shadow_in)
+    } else {
+        1.0
+    };
+    let len = g.length();
+    let shade = if len < MIN_GRADIENT {
+        1.0
+    } else {
+        phong_half(g, len, ray.half, &f.light, f_shadow)
+    };
+    acc.add_premultiplied(Vec3::new(c[0], c[1], c[2]) * shade, c[3]);
+    // 7. Early termination.
+    f.quality.early_termination && acc.a >= crate::scene::Quality::OPAQUE
+}
+
+/// The first lattice index past a leap to `t_exit` (at least `k + 1`).
+#[inline]
+fn lattice_after(t_exit: f32, k: u32, j: f32, step: f32) -> u32 {
+    let k_exit = (t_exit / step - j - 1e-3).ceil();
+    if k_exit.is_finite() && k_exit > (k + 1) as f32 {
+        k_exit.min(u32::MAX as f32 / 2.0) as u32
+    } else {
+        k + 1
+    }
+}
+
+/// Steps 5–8 for a frame without a motion hook or deformed region (the common case): the
+/// samples of [`lattice_general`] with the occupancy grid read once per cell rather than once
+/// per sample. Inside an occupied cell every lattice point up to the cell's exit is sampled
+/// without another look; one that rounding puts just past the face reads α = 0 there (empty
+/// cells and, without `sample_outside`, air are invisible), so the picture is the same.
+/// Returns the number of samples taken.
+fn lattice_plain(f: &Frame, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
+    let step = f.quality.step_mm;
+    let dims = f.sampler.ct.dims;
+    let mut samples = 0u64;
+    let mut k = k0;
+    // Lattice points k < checked_to lie in an occupied cell: no occupancy look.
+    let mut checked_to = k0;
+    loop {
+        let t = lattice(k, ray.j, step);
+        if t > ray.t_hi || t >= ray.t_tool {
+            break;
+        }
+        let c = ray.ce + ray.dc * t;
+        // 8. Empty-space leaping.
+        if k >= checked_to
+            && let Some(occ) = &f.occupancy
+        {
+            if inside(c, dims) {
+                let cell = occ.cell(c);
+                let t_exit = occ.exit_t(cell, ray.ce, ray.dc);
+                let next = lattice_after(t_exit, k, ray.j, step);
+                if !occ.is_occupied(cell) {
+                    k = next;
+                    continue;
+                }
+                checked_to = next;
+            } else if !f.sample_outside {
+                k += 1;
+                continue;
+            }
+        }
+        // 5. Sample.
+        samples += 1;
+        let v = f.sampler.ct.trilinear(c).unwrap_or(AIR_HU);
+        let cv = f.table.lookup(v);
+        if cv[3] > 0.0 && composite(f, ray, t, cv, f.sampler.gradient(At { ct: c, j: Vec3::ZERO }), acc) {
+            break;
+        }
+        k += 1;
+    }
+    samples
+}
+
+/// Steps 5–8 with the motion warp or a deformed region: every sample placed and looked up on
+/// its own. Returns the number of samples taken.
+fn lattice_general(
+    f: &Frame,
+    ray: &Ray,
+    k0: u32,
+    mut warp: Option<&mut Warp>,
+    at_t: impl Fn(f32) -> At,
+    acc: &mut Accum,
+) -> u64 {
+    let step = f.quality.step_mm;
+    let dims = f.sampler.ct.dims;
+    let mut samples = 0u64;
+    let mut k = k0;
+    loop {
+        let t = lattice(k, ray.j, step);
+        if t > ray.t_hi || t >= ray.t_tool {
+            break;
+        }
+        let at = match warp.as_mut() {
+            Some(w) => f.sampler.at_world(w.reference_of(ray.origin + ray.dir * t)),
+            None => at_t(t),
+        };
+        // 8. Empty-space leaping.
+        if let Some(occ) = &f.occupancy {
+            if inside(at.ct, dims) {
+                let cell = occ.cell(at.ct);
+                if !occ.is_occupied(cell) {
+                    k = lattice_after(occ.exit_t(cell, ray.ce, ray.dc), k, ray.j, step);
+                    continue;
+                }
+            } else if !f.sample_outside {
+                k += 1;
+                continue;
+            }
+        }
+        // 5. Sample.
+        samples += 1;
+        let c = f.table.lookup(f.sampler.s(at));
+        if c[3] > 0.0 && composite(f, ray, t, c, f.sampler.gradient(at), acc) {
+            break;
+        }
+        k += 1;
+    }
+    samples
 }
 
 /// The colour of pixel (`col`, `row`) for the ray `origin` + t·`dir` (unit `dir`), and the
@@ -214,73 +370,21 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
     if let Some((t_lo, strict, t_hi)) = lattice_from
         && !(q.early_termination && acc.a >= crate::scene::Quality::OPAQUE)
     {
-        let mut k = first_lattice(t_lo, strict, j, step);
-        // (a, α) of the last visible sample: α = corrected_alpha(a, Δ) is a pure function of a.
-        let mut last_a = (f32::NAN, 0.0f32);
-        loop {
-            let t = lattice(k, j, step);
-            if t > t_hi || t >= t_tool {
-                break;
-            }
-            let at = match warp.as_mut() {
-                Some(w) => f.sampler.at_world(w.reference_of(origin + dir * t)),
-                None => at_t(t),
-            };
-            // 8. Empty-space leaping.
-            if let Some(occ) = &f.occupancy {
-                if inside(at.ct, dims) {
-                    let cell = occ.cell(at.ct);
-                    if !occ.is_occupied(cell) {
-                        let t_exit = occ.exit_t(cell, ce, dc);
-                        let k_exit = (t_exit / step - j - 1e-3).ceil();
-                        let next = if k_exit.is_finite() && k_exit > (k + 1) as f32 {
-                            k_exit.min(u32::MAX as f32 / 2.0) as u32
-                        } else {
-                            k + 1
-                        };
-                        k = next;
-                        continue;
-                    }
-                } else if !f.sample_outside {
-                    k += 1;
-                    continue;
-                }
-            }
-            // 5. Sample.
-            samples += 1;
-            let c = f.transfer.eval(f.sampler.s(at));
-            if c[3] > 0.0 {
-                // Runs of equal opacity (a trapezoid's plateau) reuse the last correction.
-                let alpha = if c[3] == last_a.0 {
-                    last_a.1
-                } else {
-                    let alpha = corrected_alpha(c[3], step);
-                    last_a = (c[3], alpha);
-                    alpha
-                };
-                // 6. Shadow, at the sample's world position.
-                let f_shadow = if f.has_shadows {
-                    f.shadows
-                        .factor(origin + dir * t, f.light.toward_light, f.light.shadow_in)
-                } else {
-                    1.0
-                };
-                // `phong` with the ray's half vector hoisted (same values).
-                let g = f.sampler.gradient(at);
-                let len = g.length();
-                let shade = if len < MIN_GRADIENT {
-                    1.0
-                } else {
-                    phong_half(g, len, half, &f.light, f_shadow)
-                };
-                acc.add(Vec3::new(c[0], c[1], c[2]) * shade, alpha);
-                // 7. Early termination.
-                if q.early_termination && acc.a >= crate::scene::Quality::OPAQUE {
-                    break;
-                }
-            }
-            k += 1;
-        }
+        let k0 = first_lattice(t_lo, strict, j, step);
+        let ray = Ray {
+            origin,
+            dir,
+            ce,
+            dc,
+            j,
+            t_hi,
+            t_tool,
+            half,
+        };
+        samples += match warp.as_mut() {
+            None if f.sampler.deformed.is_none() => lattice_plain(f, &ray, k0, &mut acc),
+            _ => lattice_general(f, &ray, k0, warp.as_mut(), at_t, &mut acc),
+        };
     }
 
     // 4. (end) The tool behind what was accumulated.

@@ -13,6 +13,7 @@ use rayon::prelude::*;
 
 use crate::image::Image;
 use crate::scene::Scene;
+use crate::transfer_table::TransferTable;
 use crate::volume::{IndexMap, RenderVolume};
 use march::{Frame, farthest_corner_mm, march};
 use occupancy::Occupancy;
@@ -45,6 +46,9 @@ pub fn render(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) -> 
     }
     render_full(volume, scene, width, height)
 }
+
+/// Side of the square pixel tiles rendered as one task (pixels).
+const TILE: u32 = 16;
 
 /// Shortest step the ray caster takes (mm): bounds the samples per ray.
 pub const MIN_STEP_MM: f32 = 0.01;
@@ -82,11 +86,13 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) ->
     quality.step_mm = usable_step_mm(quality.step_mm);
     // Leaping needs every lattice point's position from the ray alone; the motion warp does not
     // give that, so with a motion hook every lattice point is visited.
+    let (lo_hu, hi_hu) = volume.value_range_hu;
+    let table = TransferTable::new(&scene.transfer, lo_hu, hi_hu, quality.step_mm);
     let occupancy = (quality.leaping && scene.motion.is_none()).then(|| {
         let ranges = volume.cell_ranges(quality.occupancy_cells);
         Occupancy::new(
             &ranges,
-            &scene.transfer,
+            &table,
             ct_map.dims,
             scene.deformed.as_ref().map(|d| (&*d.volume, &ct_map)),
         )
@@ -100,7 +106,8 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) ->
         tagging: scene.tagging,
         quality,
         occupancy,
-        sample_outside: scene.deformed.is_some() || scene.transfer.eval(stylet_physics::AIR_HU)[3] > 0.0,
+        sample_outside: scene.deformed.is_some() || table.lookup(stylet_physics::AIR_HU)[3] > 0.0,
+        table,
         t_far: farthest_corner_mm(&grid, scene.camera.eye_mm),
         background: scene.background,
         motion: scene.motion.as_ref(),
@@ -110,22 +117,38 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) ->
     };
     let mut image = Image::new(width, height);
     let camera = scene.camera;
-    let samples: u64 = image
-        .rgba
-        .par_chunks_mut(width as usize)
-        .enumerate()
-        .map(|(row, pixels)| {
-            let row = row as u32;
+    // Square tiles: neighbouring rays read neighbouring voxels, so a tile's rays share cache
+    // lines in both image directions (rows alone share them in one).
+    let tiles_x = width.div_ceil(TILE);
+    let tiles_y = height.div_ceil(TILE);
+    let tiles: Vec<(Vec<[u8; 4]>, u64)> = (0..tiles_x * tiles_y)
+        .into_par_iter()
+        .map(|t| {
+            let (x0, y0) = ((t % tiles_x) * TILE, (t / tiles_x) * TILE);
+            let (x1, y1) = ((x0 + TILE).min(width), (y0 + TILE).min(height));
+            let mut px = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
             let mut n = 0u64;
-            for (col, px) in pixels.iter_mut().enumerate() {
-                let col = col as u32;
-                let (origin, dir) = camera.ray(col, row, width, height);
-                let (rgba, s) = march(&frame, col, row, origin, dir);
-                *px = rgba;
-                n += s;
+            for row in y0..y1 {
+                for col in x0..x1 {
+                    let (origin, dir) = camera.ray(col, row, width, height);
+                    let (rgba, s) = march(&frame, col, row, origin, dir);
+                    px.push(rgba);
+                    n += s;
+                }
             }
-            n
+            (px, n)
         })
-        .sum();
+        .collect();
+    let mut samples = 0u64;
+    for (t, (px, n)) in tiles.into_iter().enumerate() {
+        let t = t as u32;
+        let (x0, y0) = ((t % tiles_x) * TILE, (t / tiles_x) * TILE);
+        let tw = (x0 + TILE).min(width) - x0;
+        for (i, rgba) in px.into_iter().enumerate() {
+            let (col, row) = (x0 + i as u32 % tw, y0 + i as u32 / tw);
+            image.rgba[(row * width + col) as usize] = rgba;
+        }
+        samples += n;
+    }
     RenderOutput { image, samples }
 }

@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use stylet_physics::Volume;
 use stylet_physics::glam::{DVec3, Vec3};
 
-use crate::transfer::TransferFunction;
+use crate::transfer_table::TransferTable;
 use crate::volume::{CellRanges, IndexMap};
 
 /// First and last voxel (inclusive) whose values a sample in cell `q` of `cells` along an axis
@@ -101,11 +101,11 @@ pub struct Occupancy {
 }
 
 impl Occupancy {
-    /// Bits for `tf` over `ranges`; `deformed` (J's grid, in CT index space through `ct_map`)
+    /// Bits for the transfer table `tf` over `ranges`; `deformed` (J's grid, in CT index space through `ct_map`)
     /// marks every cell its box touches as occupied (Ω_J counts as occupied).
     pub fn new(
         ranges: &CellRanges,
-        tf: &TransferFunction,
+        tf: &TransferTable,
         dims: [u32; 3],
         deformed: Option<(&Volume<f32>, &IndexMap)>,
     ) -> Occupancy {

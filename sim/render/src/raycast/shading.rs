@@ -39,11 +39,31 @@ pub fn phong_half(g: Vec3, len: f32, h: Vec3, light: &Light, f_shadow: f32) -> f
     let n = -g / len;
     let l = light.toward_light;
     let specular = if light.specular > 0.0 {
-        light.specular * n.dot(h).abs().powf(light.shininess)
+        light.specular * power(n.dot(h).abs(), light.shininess)
     } else {
         0.0
     };
     light.ambient + (light.diffuse * n.dot(l).abs() + specular) * f_shadow
+}
+
+/// x^e for the specular term: repeated squaring when e is a whole number up to 256 (the
+/// usual shininess; a few multiplications instead of `powf`, equal to within rounding), else
+/// `powf`.
+#[inline]
+pub fn power(x: f32, e: f32) -> f32 {
+    if e >= 0.0 && e <= 256.0 && e == e.trunc() {
+        let (mut base, mut n, mut r) = (x, e as u32, 1.0f32);
+        while n > 0 {
+            if n & 1 == 1 {
+                r *= base;
+            }
+            base *= base;
+            n >>= 1;
+        }
+        r
+    } else {
+        x.powf(e)
+    }
 }
 
 /// Colour (straight RGBA) of the plane sample: v₁ = c(s) (off), v₂ of eq. 3.2.4 (risk), or
