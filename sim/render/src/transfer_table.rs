@@ -95,6 +95,16 @@ impl TransferTable {
         ]
     }
 
+    /// What [`Self::visible_in`] depends on: equal keys give equal answers for every range (the
+    /// cache key of the cube masks).
+    pub fn visibility_key(&self) -> VisibilityKey {
+        VisibilityKey {
+            lo_hu: self.lo_hu.to_bits(),
+            step_hu: self.step_hu.to_bits(),
+            visible_before: self.visible_before.clone(),
+        }
+    }
+
     /// Whether any value in [`lo_hu`, `hi_hu`] looks up α > 0: cells of the occupancy grid whose
     /// range fails this are skipped by empty-space leaping without changing the image.
     pub fn visible_in(&self, lo_hu: f32, hi_hu: f32) -> bool {
@@ -106,6 +116,14 @@ impl TransferTable {
         // Values in [lo, hi] interpolate entries i0 … i1 + 1.
         self.visible_before[i1 + 2] > self.visible_before[i0]
     }
+}
+
+/// See [`TransferTable::visibility_key`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct VisibilityKey {
+    lo_hu: u32,
+    step_hu: u32,
+    visible_before: Vec<u32>,
 }
 
 #[cfg(test)]

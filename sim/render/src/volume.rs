@@ -6,6 +6,9 @@
 use std::sync::{Arc, Mutex};
 
 use stylet_physics::atlas::AIR_HU;
+
+use crate::raycast::cube_mask::CubeMask;
+use crate::transfer_table::{TransferTable, VisibilityKey};
 use stylet_physics::glam::{DVec3, Vec3};
 use stylet_physics::{Grid, LabelId, PunctureAtlas, Role};
 
@@ -24,6 +27,9 @@ pub struct LabelStyle {
     pub rgba: [f32; 4],
 }
 
+/// Cube masks a [`RenderVolume`] keeps (1 bit per voxel each).
+pub const CUBE_MASKS_KEPT: usize = 3;
+
 /// The atlas prepared for rendering.
 pub struct RenderVolume {
     pub atlas: Arc<PunctureAtlas>,
@@ -36,6 +42,8 @@ pub struct RenderVolume {
     pub value_range_hu: (f32, f32),
     /// Per-cell CT ranges of the occupancy grid, computed once per cell count N.
     cell_cache: Mutex<Vec<Arc<CellRanges>>>,
+    /// Cube masks of the last few transfer-table visibilities (most recent last).
+    cube_cache: Mutex<Vec<(VisibilityKey, Arc<CubeMask>)>>,
 }
 
 /// World → continuous index of a grid in `f32`, c = M⁻¹(x − o): what both renderers use
@@ -147,6 +155,7 @@ impl RenderVolume {
             styles,
             value_range_hu,
             cell_cache: Mutex::new(Vec::new()),
+            cube_cache: Mutex::new(Vec::new()),
         }
     }
 
@@ -161,6 +170,27 @@ impl RenderVolume {
         let r = Arc::new(crate::raycast::occupancy::cell_ranges(self.atlas.ct(), cells));
         cache.push(r.clone());
         r
+    }
+
+    /// The cube mask of the CT under `table` (CT axes of ≥ 2 voxels), built on first use and
+    /// cached for the last [`CUBE_MASKS_KEPT`] visibilities (a preset switch rebuilds it once).
+    pub fn cube_mask(&self, table: &TransferTable) -> Arc<CubeMask> {
+        let key = table.visibility_key();
+        let mut cache = self.cube_cache.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(pos) = cache.iter().position(|(k, _)| *k == key) {
+            let hit = cache.remove(pos);
+            let mask = hit.1.clone();
+            cache.push(hit);
+            return mask;
+        }
+        let ct = self.atlas.ct();
+        let dims = IndexMap::of(ct.grid()).dims;
+        let mask = Arc::new(CubeMask::new(ct.data(), dims, table));
+        if cache.len() >= CUBE_MASKS_KEPT {
+            cache.remove(0);
+        }
+        cache.push((key, mask.clone()));
+        mask
     }
 
     /// The style of a label id (unknown ids: `Other`, transparent).

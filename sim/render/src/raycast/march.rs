@@ -4,6 +4,9 @@
 use stylet_physics::atlas::AIR_HU;
 use stylet_physics::glam::{DVec3, Vec3};
 
+use std::sync::Arc;
+
+use super::cube_mask::CubeMask;
 use super::jitter::jitter;
 use super::occupancy::Occupancy;
 use super::sampler::{At, Sampler};
@@ -29,6 +32,8 @@ pub struct Frame<'a> {
     pub quality: Quality,
     /// Present when leaping is on (and no motion hook is set).
     pub occupancy: Option<Occupancy>,
+    /// Per-cube skip bits: with leaping on, no hooks and a CT of ≥ 2 voxels per axis.
+    pub cubes: Option<Arc<CubeMask>>,
     /// Whether air (outside the CT) is visible under the transfer function, or a deformed
     /// region may lie outside the CT's box: then leaping never skips samples outside the box.
     pub sample_outside: bool,
@@ -174,14 +179,21 @@ fn composite(f: &Frame, ray: &Ray, t: f32, c: [f32; 4], g: Vec3, acc: &mut Accum
     f.quality.early_termination && acc.a >= crate::scene::Quality::OPAQUE
 }
 
-/// The first lattice index past a leap to `t_exit` (at least `k + 1`).
+/// The first lattice index past a leap to `t_exit`, at least `k_min`:
+/// max(k_min, ⌈t_exit/Δ − j − 10⁻³⌉), capped at 2·10⁹ (far past any extent). `inv_step` = 1/Δ
+/// (t_exit·(1/Δ) may differ from t_exit/Δ by an ulp: far inside the 10⁻³ margin).
 #[inline]
-fn lattice_after(t_exit: f32, k: u32, j: f32, step: f32) -> u32 {
-    let k_exit = (t_exit / step - j - 1e-3).ceil();
-    if k_exit.is_finite() && k_exit > (k + 1) as f32 {
-        k_exit.min(u32::MAX as f32 / 2.0) as u32
+fn lattice_from(t_exit: f32, k_min: u32, j: f32, inv_step: f32) -> u32 {
+    let x = t_exit * inv_step - j - 1e-3;
+    // NaN and x ≤ k_min fail the test; ⌈x⌉ > k_min exactly when x > k_min.
+    if x > k_min as f32 {
+        let x = x.min(2.0e9);
+        // ⌈x⌉ without a libm call: truncate (x > 0), then round up a fraction.
+        // SAFETY: 0 < x ≤ 2·10⁹ fits an i64.
+        let c = unsafe { x.to_int_unchecked::<i64>() };
+        (if (c as f32) < x { c + 1 } else { c }) as u32
     } else {
-        k + 1
+        k_min
     }
 }
 
@@ -198,6 +210,8 @@ fn lattice_plain(f: &Frame, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
     let mut k = k0;
     // Lattice points k < checked_to lie in an occupied cell: no occupancy look.
     let mut checked_to = k0;
+    let inv_dc = Vec3::ONE / ray.dc;
+    let inv_step = 1.0 / step;
     loop {
         let t = lattice(k, ray.j, step);
         if t > ray.t_hi || t >= ray.t_tool {
@@ -210,8 +224,8 @@ fn lattice_plain(f: &Frame, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
         {
             if inside(c, dims) {
                 let cell = occ.cell(c);
-                let t_exit = occ.exit_t(cell, ray.ce, ray.dc);
-                let next = lattice_after(t_exit, k, ray.j, step);
+                let t_exit = occ.exit_t_inv(cell, ray.ce, ray.dc, inv_dc);
+                let next = lattice_from(t_exit, k + 1, ray.j, inv_step);
                 if !occ.is_occupied(cell) {
                     k = next;
                     continue;
@@ -222,16 +236,121 @@ fn lattice_plain(f: &Frame, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
                 continue;
             }
         }
-        // 5. Sample.
-        samples += 1;
-        let v = f.sampler.ct.trilinear(c).unwrap_or(AIR_HU);
-        let cv = f.table.lookup(v);
-        if cv[3] > 0.0 && composite(f, ray, t, cv, f.sampler.gradient(At { ct: c, j: Vec3::ZERO }), acc) {
-            break;
+        match sample_plain(f, ray, t, acc) {
+            Sampled::Skipped => {}
+            Sampled::Taken => samples += 1,
+            Sampled::Opaque => return samples + 1,
         }
         k += 1;
     }
     samples
+}
+
+/// What [`sample_plain`] did.
+enum Sampled {
+    /// Its cube reads only invisible values (leaping's finest level): nothing read.
+    Skipped,
+    Taken,
+    /// Taken, and the ray reached [`crate::scene::Quality::OPAQUE`] (early termination).
+    Opaque,
+}
+
+/// Steps 5–7 for the lattice point at `t` of a frame without hooks.
+#[inline(always)]
+fn sample_plain(f: &Frame, ray: &Ray, t: f32, acc: &mut Accum) -> Sampled {
+    let c = ray.ce + ray.dc * t;
+    let v = match &f.cubes {
+        Some(cubes) => match f.sampler.ct.locate(c) {
+            Some(cell) => {
+                if !cubes.visible(cell.b[0], cell.b[1], cell.b[2]) {
+                    return Sampled::Skipped;
+                }
+                f.sampler.ct.interpolate(&cell)
+            }
+            None => AIR_HU,
+        },
+        None => f.sampler.ct.trilinear(c).unwrap_or(AIR_HU),
+    };
+    let cv = f.table.lookup(v);
+    if cv[3] > 0.0 && composite(f, ray, t, cv, f.sampler.gradient(At { ct: c, j: Vec3::ZERO }), acc) {
+        return Sampled::Opaque;
+    }
+    Sampled::Taken
+}
+
+/// Steps 5–8 of [`lattice_plain`] when the extent is ray/box clipped and air is invisible: the
+/// occupancy cells along the ray are walked by a 3D DDA (Amanatides & Woo 1987) instead of
+/// being found from each sample's position. Empty cells move the lattice index past their exit
+/// (k ← max(k, ⌈t_exit/Δ − j − 10⁻³⌉), as step 8), occupied cells sample every lattice point
+/// before their exit. The DDA's face parameters are sums that drift by ulps from
+/// `Occupancy::exit_t`; a sample that drift moves across a face lies within a voxel of an empty
+/// cell's box, still inside the voxels its range covers, so it reads α = 0 either way. The walk
+/// ends when the ray leaves the grid (the CT's box: nothing visible beyond).
+fn lattice_dda(f: &Frame, occ: &Occupancy, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
+    let step = f.quality.step_mm;
+    let inv_step = 1.0 / step;
+    let mut samples = 0u64;
+    let mut k = k0;
+    let t0 = lattice(k, ray.j, step);
+    if t0 > ray.t_hi || t0 >= ray.t_tool {
+        return 0;
+    }
+    let last = occ.cells as i32 - 1;
+    let start = occ.cell(ray.ce + ray.dc * t0);
+    let mut q = start.map(|v| v as i32);
+    let mut t_next = [f32::INFINITY; 3];
+    let mut t_delta = [f32::INFINITY; 3];
+    let mut dir = [0i32; 3];
+    for a in 0..3 {
+        let d = ray.dc[a];
+        if d != 0.0 {
+            let inv = 1.0 / d;
+            dir[a] = if d > 0.0 { 1 } else { -1 };
+            let face = if d > 0.0 { start[a] + 1 } else { start[a] };
+            t_next[a] = (face as f32 * occ.size[a] - 0.5 - ray.ce[a]) * inv;
+            t_delta[a] = occ.size[a] * inv.abs();
+        }
+    }
+    let n = occ.cells as usize;
+    loop {
+        let axis = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
+            0
+        } else if t_next[1] <= t_next[2] {
+            1
+        } else {
+            2
+        };
+        let t_exit = t_next[axis];
+        let occupied = occ.occupied[q[0] as usize + n * (q[1] as usize + n * q[2] as usize)] != 0;
+        if occupied {
+            loop {
+                let t = lattice(k, ray.j, step);
+                if t > ray.t_hi || t >= ray.t_tool {
+                    return samples;
+                }
+                if t >= t_exit {
+                    break;
+                }
+                match sample_plain(f, ray, t, acc) {
+                    Sampled::Skipped => {}
+                    Sampled::Taken => samples += 1,
+                    Sampled::Opaque => return samples + 1,
+                }
+                k += 1;
+            }
+        } else {
+            k = lattice_from(t_exit, k, ray.j, inv_step);
+            let t = lattice(k, ray.j, step);
+            if t > ray.t_hi || t >= ray.t_tool {
+                return samples;
+            }
+        }
+        q[axis] += dir[axis];
+        if q[axis] < 0 || q[axis] > last || !t_exit.is_finite() {
+            return samples;
+        }
+        t_next[axis] += t_delta[axis];
+    }
 }
 
 /// Steps 5–8 with the motion warp or a deformed region: every sample placed and looked up on
@@ -262,7 +381,7 @@ fn lattice_general(
             if inside(at.ct, dims) {
                 let cell = occ.cell(at.ct);
                 if !occ.is_occupied(cell) {
-                    k = lattice_after(occ.exit_t(cell, ray.ce, ray.dc), k, ray.j, step);
+                    k = lattice_from(occ.exit_t(cell, ray.ce, ray.dc), k + 1, ray.j, 1.0 / step);
                     continue;
                 }
             } else if !f.sample_outside {
@@ -382,7 +501,10 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
             half,
         };
         samples += match warp.as_mut() {
-            None if f.sampler.deformed.is_none() => lattice_plain(f, &ray, k0, &mut acc),
+            None if f.sampler.deformed.is_none() => match &f.occupancy {
+                Some(occ) if q.ray_box && !f.sample_outside => lattice_dda(f, occ, &ray, k0, &mut acc),
+                _ => lattice_plain(f, &ray, k0, &mut acc),
+            },
             _ => lattice_general(f, &ray, k0, warp.as_mut(), at_t, &mut acc),
         };
     }

@@ -3,6 +3,7 @@
 //! Phong shading, the clipping plane and its tagging. Rayon over rows; every pixel is a pure
 //! function of the inputs, so the image is bit-identical on any number of threads.
 
+pub mod cube_mask;
 pub mod jitter;
 pub mod march;
 pub mod occupancy;
@@ -97,7 +98,11 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) ->
             scene.deformed.as_ref().map(|d| (&*d.volume, &ct_map)),
         )
     });
+    // The finest leaping level: per-cube skip bits, for the common frame (no hooks).
+    let cubes = (quality.leaping && scene.motion.is_none() && scene.deformed.is_none() && sampler.ct.is_fast())
+        .then(|| volume.cube_mask(&table));
     let frame = Frame {
+        cubes,
         volume,
         sampler,
         transfer: &scene.transfer,

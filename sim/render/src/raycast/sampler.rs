@@ -62,6 +62,15 @@ impl Grid3<'_> {
     /// without bounds checks: the hot path of the ray loop.
     #[inline(always)]
     fn trilinear_fast(&self, c: Vec3) -> Option<f32> {
+        self.locate(c).map(|cell| self.interpolate(&cell))
+    }
+
+    /// The base voxel and fractions of a trilinear read at `c` (the inside rule, the clamp to
+    /// [0, n_a − 1] and base ≤ n_a − 2), or `None` outside. Only for grids with ≥ 2 voxels per
+    /// axis ([`Self::is_fast`]).
+    #[inline(always)]
+    pub fn locate(&self, c: Vec3) -> Option<Cell> {
+        debug_assert!(self.fast);
         let (x, y, z) = (c.x, c.y, c.z);
         if !(x >= -0.5 && x < self.hi[0] && y >= -0.5 && y < self.hi[1] && z >= -0.5 && z < self.hi[2]) {
             return None;
@@ -69,15 +78,26 @@ impl Grid3<'_> {
         let x = x.clamp(0.0, self.top[0]);
         let y = y.clamp(0.0, self.top[1]);
         let z = z.clamp(0.0, self.top[2]);
-        let bx = trunc(x).min(self.last_base[0]);
-        let by = trunc(y).min(self.last_base[1]);
-        let bz = trunc(z).min(self.last_base[2]);
-        let (fx, fy, fz) = (x - bx as f32, y - by as f32, z - bz as f32);
+        let b = [
+            trunc(x).min(self.last_base[0]),
+            trunc(y).min(self.last_base[1]),
+            trunc(z).min(self.last_base[2]),
+        ];
+        Some(Cell {
+            f: [x - b[0] as f32, y - b[1] as f32, z - b[2] as f32],
+            b,
+        })
+    }
+
+    /// The trilinear value of a located read (`Volume::sample_index`'s order, in `f32`).
+    #[inline(always)]
+    pub fn interpolate(&self, cell: &Cell) -> f32 {
+        let [bx, by, bz] = cell.b;
+        let [fx, fy, fz] = cell.f;
         let (sy, sz) = (self.sy, self.sz);
         let o = bx as usize + sy * by as usize + sz * bz as usize;
-        // SAFETY: `fast` means n_a ≥ 2 and nx·ny·nz ≤ data.len(). The inside test (false for
-        // NaN) and the clamp put each coordinate in [0, n_a − 1], so b_a ≤ n_a − 2 after the
-        // `min`, and the largest index read, o + 1 + sy + sz, is at most
+        // SAFETY: `fast` means n_a ≥ 2 and nx·ny·nz ≤ data.len(), and `locate` keeps
+        // b_a ≤ n_a − 2, so the largest index read, o + 1 + sy + sz, is at most
         // (nx − 1) + nx·(ny − 1) + nx·ny·(nz − 1) = nx·ny·nz − 1.
         let v = |i: usize| unsafe { *self.data.get_unchecked(i) };
         let c00 = v(o) * (1.0 - fx) + v(o + 1) * fx;
@@ -86,7 +106,12 @@ impl Grid3<'_> {
         let c11 = v(o + sz + sy) * (1.0 - fx) + v(o + sz + sy + 1) * fx;
         let c0 = c00 * (1.0 - fy) + c10 * fy;
         let c1 = c01 * (1.0 - fy) + c11 * fy;
-        Some(c0 * (1.0 - fz) + c1 * fz)
+        c0 * (1.0 - fz) + c1 * fz
+    }
+
+    /// Whether every axis has ≥ 2 voxels and the data holds them all ([`Self::locate`] applies).
+    pub fn is_fast(&self) -> bool {
+        self.fast
     }
 
     /// ∇s of [`Sampler::gradient`] when the three offsets lie along the index axes (`d`: the
@@ -203,6 +228,13 @@ fn trunc(x: f32) -> u32 {
     // SAFETY: callers pass finite x in [0, n_a − 1] (after the inside test and clamp) or
     // checked ≥ 0 and < n_a − 1, and grid sizes are < 2³¹ voxels per axis.
     unsafe { x.to_int_unchecked::<i32>() as u32 }
+}
+
+/// Where a trilinear read lands: base voxel b (each ≤ n_a − 2) and fractions f ∈ [0, 1].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Cell {
+    pub b: [u32; 3],
+    pub f: [f32; 3],
 }
 
 /// Linear index of the voxel nearest `c`, or `None` outside the voxels' boxes

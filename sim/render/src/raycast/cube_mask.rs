@@ -1,0 +1,148 @@
+//! The finest level of empty-space leaping (docs/rendering.md "One ray", step 8): one bit per
+//! voxel cube, the eight voxels a trilinear sample with that base voxel reads. A cube is visible
+//! when the transfer table has α > 0 anywhere between the least and the greatest of its eight
+//! values; a sample whose cube is not visible interpolates only values the table maps to α = 0,
+//! so the CPU ray loop skips it after computing its base voxel, without reading the CT or the
+//! table. The picture is the same with and without the mask.
+//!
+//! Built per transfer-table visibility (not per frame) and cached by [`crate::volume::RenderVolume`]:
+//! a few hundred milliseconds for a 512 × 512 × 133 CT, 1 bit per voxel.
+
+use rayon::prelude::*;
+
+use crate::transfer_table::TransferTable;
+
+/// Visibility bits of every voxel cube, one z-slab of cubes after another.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CubeMask {
+    /// CT dimensions.
+    pub dims: [u32; 3],
+    /// 64-bit words per slab: ⌈nx·ny / 64⌉ (slabs start on a word, so they are built in parallel).
+    words_per_slab: usize,
+    bits: Vec<u64>,
+}
+
+impl CubeMask {
+    /// The mask of a CT (`data`, x fastest, every axis ≥ 2 voxels) under `table`.
+    pub fn new(data: &[f32], dims: [u32; 3], table: &TransferTable) -> CubeMask {
+        let [nx, ny, nz] = dims.map(|n| n as usize);
+        let words_per_slab = (nx * ny).div_ceil(64);
+        let mut bits = vec![0u64; words_per_slab * nz];
+        if nx < 2 || ny < 2 || nz < 2 || data.len() < nx * ny * nz {
+            return CubeMask {
+                dims,
+                words_per_slab,
+                bits,
+            };
+        }
+        let slab = nx * ny;
+        bits.par_chunks_mut(words_per_slab)
+            .enumerate()
+            .take(nz - 1)
+            .for_each(|(k, words)| {
+                let (lo_slice, hi_slice) = (&data[k * slab..(k + 1) * slab], &data[(k + 1) * slab..(k + 2) * slab]);
+                // Per row pair: the min and max over the four voxels (i, j), (i, j + 1) of both
+                // slices, then over i and i + 1.
+                let mut col_min = vec![0.0f32; nx];
+                let mut col_max = vec![0.0f32; nx];
+                for j in 0..ny - 1 {
+                    let rows = [
+                        &lo_slice[j * nx..(j + 1) * nx],
+                        &lo_slice[(j + 1) * nx..(j + 2) * nx],
+                        &hi_slice[j * nx..(j + 1) * nx],
+                        &hi_slice[(j + 1) * nx..(j + 2) * nx],
+                    ];
+                    for i in 0..nx {
+                        let (a, b, c, d) = (rows[0][i], rows[1][i], rows[2][i], rows[3][i]);
+                        col_min[i] = a.min(b).min(c.min(d));
+                        col_max[i] = a.max(b).max(c.max(d));
+                    }
+                    for i in 0..nx - 1 {
+                        let lo = col_min[i].min(col_min[i + 1]);
+                        let hi = col_max[i].max(col_max[i + 1]);
+                        // NaN voxels: `min`/`max` pass the other operand; a cube of NaNs reads
+                        // lo > hi and stays visible (never skipped).
+                        if !(lo <= hi) || table.visible_in(lo, hi) {
+                            let r = i + nx * j;
+                            words[r >> 6] |= 1u64 << (r & 63);
+                        }
+                    }
+                }
+            });
+        CubeMask {
+            dims,
+            words_per_slab,
+            bits,
+        }
+    }
+
+    /// Whether the cube with base voxel (`bx`, `by`, `bz`) (each ≤ n − 2) may be visible.
+    #[inline(always)]
+    pub fn visible(&self, bx: u32, by: u32, bz: u32) -> bool {
+        let r = bx as usize + self.dims[0] as usize * by as usize;
+        let w = bz as usize * self.words_per_slab + (r >> 6);
+        // Out-of-range bases (not produced by the ray loop) count as visible.
+        self.bits.get(w).is_none_or(|word| word >> (r & 63) & 1 == 1)
+    }
+
+    /// Number of visible cubes (tests, statistics).
+    pub fn count_visible(&self) -> u64 {
+        self.bits.iter().map(|w| w.count_ones() as u64).sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::transfer::{TransferFunction, Trapezoid};
+
+    fn table() -> TransferTable {
+        let tf = TransferFunction::Trapezoids(vec![Trapezoid {
+            tissue: "soft".into(),
+            hu: [-60.0, 0.0, 50.0, 70.0],
+            rgb: [0.8, 0.7, 0.6],
+            opacity: 1.0,
+            weight: 0.5,
+        }]);
+        TransferTable::new(&tf, -1024.0, 3071.0, 0.5)
+    }
+
+    #[test]
+    fn a_cube_is_visible_exactly_when_its_value_range_reads_opacity() {
+        let dims = [7u32, 5, 4];
+        let n = 7 * 5 * 4;
+        // Fat everywhere (invisible), one soft-tissue voxel, and a fat/bone pair whose
+        // interpolation passes through soft tissue.
+        let mut data = vec![-100.0f32; n];
+        let at = |i: usize, j: usize, k: usize| i + 7 * (j + 5 * k);
+        data[at(3, 2, 1)] = 20.0;
+        data[at(5, 0, 3)] = 400.0;
+        let t = table();
+        let mask = CubeMask::new(&data, dims, &t);
+        for k in 0..3u32 {
+            for j in 0..4u32 {
+                for i in 0..6u32 {
+                    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+                    for (di, dj, dk) in [
+                        (0, 0, 0),
+                        (1, 0, 0),
+                        (0, 1, 0),
+                        (1, 1, 0),
+                        (0, 0, 1),
+                        (1, 0, 1),
+                        (0, 1, 1),
+                        (1, 1, 1),
+                    ] {
+                        let v = data[at((i + di) as usize, (j + dj) as usize, (k + dk) as usize)];
+                        lo = lo.min(v);
+                        hi = hi.max(v);
+                    }
+                    assert_eq!(mask.visible(i, j, k), t.visible_in(lo, hi), "cube {i} {j} {k}");
+                }
+            }
+        }
+        // The soft voxel touches the 8 cubes around it, the bone voxel (a corner on two faces)
+        // the 2 that contain it.
+        assert_eq!(mask.count_visible(), 8 + 2);
+    }
+}
