@@ -7,12 +7,9 @@
 use std::sync::{Arc, Mutex, OnceLock};
 
 use stylet_physics::glam::{DVec3, Vec3};
-use stylet_physics::{
-    Affine, Grid, HeuristicLabels, Label, LabelTable, Param, ParamValue, PropertyTree, PunctureAtlas, Role, Thresholds,
-    TissueSpec, Volume,
-};
 use stylet_render::image::{DiffStats, Image, Tolerance, diff};
 use stylet_render::scene::{Camera, Light, Quality, Scene, Tagging};
+use stylet_render::synthetic;
 use stylet_render::tools::ToolState;
 use stylet_render::transfer::{TransferFunction, Trapezoid};
 use stylet_render::volume::RenderVolume;
@@ -37,8 +34,7 @@ pub fn renderer() -> &'static Mutex<GpuRenderer> {
     R.get_or_init(|| Mutex::new(GpuRenderer::new(ctx())))
 }
 
-pub const TARGET: u16 = 10;
-pub const RISK: u16 = 5;
+pub use stylet_render::synthetic::{RISK, TARGET};
 pub const BONE_HU: f32 = 1000.0;
 pub const SOFT_HU: f32 = 40.0;
 
@@ -49,7 +45,7 @@ pub struct Both {
 }
 
 /// An n³ atlas at `spacing` mm centred on the origin, CT and partial labels from functions of
-/// the voxel centre (mm): the synthetic atlas of sim/render/tests/raycast.rs.
+/// the voxel centre (mm): [`synthetic::atlas`] on both renderers.
 pub fn synthetic(n: usize, spacing: f64, ct: impl Fn(DVec3) -> f32, partial: impl Fn(DVec3) -> u16) -> Both {
     synthetic_with(n, spacing, ct, partial, CtPlacement::Auto)
 }
@@ -62,81 +58,7 @@ pub fn synthetic_with(
     partial: impl Fn(DVec3) -> u16,
     placement: CtPlacement,
 ) -> Both {
-    let half = (n as f64 - 1.0) * spacing / 2.0;
-    let g = Grid::new([n; 3], Affine::from_spacing([spacing; 3], DVec3::splat(-half))).unwrap();
-    let centre = |i: usize| {
-        let [a, b, c] = g.unlinear(i);
-        g.voxel_to_world(a, b, c)
-    };
-    let hu: Vec<f32> = (0..g.len()).map(|i| ct(centre(i))).collect();
-    let labels: Vec<u16> = (0..g.len()).map(|i| partial(centre(i))).collect();
-    let lab = |id, name: &str, role, tissue: &str| Label {
-        id,
-        name: name.into(),
-        role,
-        tissue: tissue.into(),
-    };
-    let table = LabelTable::new(
-        vec![
-            lab(1, "air", Role::Neutral, "body"),
-            lab(2, "skin", Role::Neutral, "body"),
-            lab(3, "fat", Role::Neutral, "body"),
-            lab(4, "bone", Role::Bone, "bone"),
-            lab(RISK, "risk", Role::Risk, "body"),
-            lab(TARGET, "target", Role::Target, "tumour"),
-        ],
-        HeuristicLabels {
-            air: 1,
-            skin: 2,
-            fat: 3,
-            bone: 4,
-            risk: RISK,
-        },
-    )
-    .unwrap();
-    let params = Param::ALL
-        .into_iter()
-        .map(|p| {
-            (
-                p,
-                ParamValue::PiecewiseLinear {
-                    hu: vec![-100.0, 50.0],
-                    value: vec![0.3, 0.8],
-                },
-            )
-        })
-        .collect();
-    let tissue = |name: &str, color| TissueSpec {
-        name: name.into(),
-        parent: Some("body".into()),
-        params: Default::default(),
-        color_rgba: Some(color),
-    };
-    let tree = PropertyTree::new(vec![
-        TissueSpec {
-            name: "body".into(),
-            parent: None,
-            params,
-            color_rgba: Some([200, 120, 90, 255]),
-        },
-        tissue("tumour", [0, 200, 40, 255]),
-        tissue("bone", [240, 240, 230, 255]),
-    ])
-    .unwrap();
-    let t = Thresholds {
-        air_skin_hu: -500.0,
-        skin_fat_hu: -300.0,
-        fat_bone_hu: 200.0,
-        risk_depth_mm: 15.0,
-    };
-    let a = PunctureAtlas::new(
-        Volume::new(g, hu).unwrap(),
-        Volume::new(g, labels).unwrap(),
-        table,
-        tree,
-        t,
-    )
-    .unwrap();
+    let a = synthetic::atlas(n, spacing, ct, partial);
     let cpu = RenderVolume::new(Arc::new(a));
     let gpu = GpuVolume::upload_with(ctx(), &cpu, placement).unwrap();
     Both { cpu, gpu }
