@@ -10,7 +10,7 @@ use super::cube_mask::CubeMask;
 use super::jitter::jitter;
 use super::occupancy::Occupancy;
 use super::sampler::{At, Sampler};
-use super::shading::{MIN_GRADIENT, half_vector, phong_half, plane_colour};
+use super::shading::{MIN_GRADIENT, PhongTerms, half_vector, plane_colour};
 use crate::scene::{ClipPlane, Light, MotionHook, Quality, Tagging};
 use crate::shadow::Shadows;
 use crate::tools::{Primitive, nearest_hit, shade};
@@ -27,6 +27,8 @@ pub struct Frame<'a> {
     /// c(v) for the lattice samples: corrected for the step and premultiplied.
     pub table: TransferTable,
     pub light: Light,
+    /// `light`'s Phong terms, prepared once.
+    pub phong: PhongTerms,
     pub clip: Option<ClipPlane>,
     pub tagging: Tagging,
     pub quality: Quality,
@@ -172,7 +174,7 @@ fn composite(f: &Frame, ray: &Ray, t: f32, c: [f32; 4], g: Vec3, acc: &mut Accum
     let shade = if len < MIN_GRADIENT {
         1.0
     } else {
-        phong_half(g, len, ray.half, &f.light, f_shadow)
+        f.phong.shade(g, len, ray.half, f_shadow)
     };
     acc.add_premultiplied(Vec3::new(c[0], c[1], c[2]) * shade, c[3]);
     // 7. Early termination.

@@ -107,6 +107,7 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) ->
         sampler,
         transfer: &scene.transfer,
         light: scene.light,
+        phong: shading::PhongTerms::new(&scene.light),
         clip: scene.clip,
         tagging: scene.tagging,
         quality,

@@ -36,34 +36,73 @@ pub fn half_vector(ray_dir: Vec3, light: &Light) -> Vec3 {
 /// already computed (the ray loop hoists them; same values).
 #[inline]
 pub fn phong_half(g: Vec3, len: f32, h: Vec3, light: &Light, f_shadow: f32) -> f32 {
-    let n = -g / len;
-    let l = light.toward_light;
-    let specular = if light.specular > 0.0 {
-        light.specular * power(n.dot(h).abs(), light.shininess)
-    } else {
-        0.0
-    };
-    light.ambient + (light.diffuse * n.dot(l).abs() + specular) * f_shadow
+    PhongTerms::new(light).shade(g, len, h, f_shadow)
 }
 
-/// x^e for the specular term: repeated squaring when e is a whole number up to 256 (the
-/// usual shininess; a few multiplications instead of `powf`, equal to within rounding), else
-/// `powf`.
-#[inline]
-pub fn power(x: f32, e: f32) -> f32 {
-    if e >= 0.0 && e <= 256.0 && e == e.trunc() {
-        let (mut base, mut n, mut r) = (x, e as u32, 1.0f32);
-        while n > 0 {
-            if n & 1 == 1 {
-                r *= base;
-            }
-            base *= base;
-            n >>= 1;
+/// The light's terms of eq. 3.2.3 prepared once per frame: the specular exponent is classified
+/// here (whole numbers up to 256 are raised by squaring), not per sample.
+#[derive(Debug, Clone, Copy)]
+pub struct PhongTerms {
+    toward_light: Vec3,
+    ambient: f32,
+    diffuse: f32,
+    specular: f32,
+    exponent: Exponent,
+}
+
+#[derive(Debug, Clone, Copy)]
+enum Exponent {
+    Whole(u32),
+    Real(f32),
+}
+
+impl PhongTerms {
+    pub fn new(light: &Light) -> PhongTerms {
+        let e = light.shininess;
+        PhongTerms {
+            toward_light: light.toward_light,
+            ambient: light.ambient,
+            diffuse: light.diffuse,
+            specular: light.specular,
+            exponent: if (0.0..=256.0).contains(&e) && e == e.trunc() {
+                Exponent::Whole(e as u32)
+            } else {
+                Exponent::Real(e)
+            },
         }
-        r
-    } else {
-        x.powf(e)
     }
+
+    /// f for a gradient `g` with |g| = `len` ≥ [`MIN_GRADIENT`] and half vector `h`.
+    #[inline(always)]
+    pub fn shade(&self, g: Vec3, len: f32, h: Vec3, f_shadow: f32) -> f32 {
+        // N = −g/|g| as one reciprocal and three products (within an ulp of three quotients).
+        let n = g * (-1.0 / len);
+        let specular = if self.specular > 0.0 {
+            let x = n.dot(h).abs();
+            self.specular
+                * match self.exponent {
+                    Exponent::Whole(e) => power_whole(x, e),
+                    Exponent::Real(e) => x.powf(e),
+                }
+        } else {
+            0.0
+        };
+        self.ambient + (self.diffuse * n.dot(self.toward_light).abs() + specular) * f_shadow
+    }
+}
+
+/// x^e by repeated squaring: a few multiplications instead of `powf`, equal to within rounding.
+#[inline(always)]
+fn power_whole(x: f32, e: u32) -> f32 {
+    let (mut base, mut n, mut r) = (x, e, 1.0f32);
+    while n > 0 {
+        if n & 1 == 1 {
+            r *= base;
+        }
+        base *= base;
+        n >>= 1;
+    }
+    r
 }
 
 /// Colour (straight RGBA) of the plane sample: v₁ = c(s) (off), v₂ of eq. 3.2.4 (risk), or
