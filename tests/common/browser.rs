@@ -33,9 +33,14 @@ impl Driver {
             .stderr(Stdio::null())
             .spawn()
             .expect("chromedriver starts");
+        // Listening is not ready: a session requested before ChromeDriver says so in /status
+        // can have its connection reset.
         let t0 = Instant::now();
-        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(t0.elapsed() < Duration::from_secs(20), "chromedriver did not listen");
+        while !ready(port) {
+            assert!(
+                t0.elapsed() < Duration::from_secs(20),
+                "chromedriver did not become ready"
+            );
             std::thread::sleep(Duration::from_millis(50));
         }
         Driver {
@@ -43,6 +48,23 @@ impl Driver {
             url: format!("http://127.0.0.1:{port}"),
         }
     }
+}
+
+/// Whether ChromeDriver on `port` answers /status with `"ready": true`.
+fn ready(port: u16) -> bool {
+    use std::io::{Read, Write};
+    let Ok(mut s) = std::net::TcpStream::connect(("127.0.0.1", port)) else {
+        return false;
+    };
+    let _ = s.set_read_timeout(Some(Duration::from_secs(2)));
+    if s.write_all(b"GET /status HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n")
+        .is_err()
+    {
+        return false;
+    }
+    let mut body = String::new();
+    let _ = s.read_to_string(&mut body);
+    body.replace(' ', "").contains("\"ready\":true")
 }
 
 impl Drop for Driver {
@@ -77,11 +99,23 @@ pub async fn chromium(driver: &Driver, profile: &Path, size: (u32, u32), extra: 
         "goog:chromeOptions": { "binary": CHROMIUM, "args": args }
     });
     let Value::Object(caps) = caps else { unreachable!() };
-    ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
-        .capabilities(caps)
-        .connect(&driver.url)
-        .await
-        .expect("a Chromium session")
+    // A session request can still meet a reset connection on a loaded machine: retry a few
+    // times before failing the test with the last error.
+    let mut last = None;
+    for attempt in 0..3 {
+        if attempt > 0 {
+            tokio::time::sleep(Duration::from_millis(500)).await;
+        }
+        match ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
+            .capabilities(caps.clone())
+            .connect(&driver.url)
+            .await
+        {
+            Ok(c) => return c,
+            Err(e) => last = Some(e),
+        }
+    }
+    panic!("a Chromium session: {:?}", last.expect("three attempts were made"))
 }
 
 /// Logs `user` in through the login form (password `<user>-password`, as the fixtures set).

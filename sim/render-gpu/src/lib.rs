@@ -14,6 +14,7 @@
 
 mod context;
 pub mod mpr;
+mod pipeline;
 pub mod raycast;
 pub mod volume;
 

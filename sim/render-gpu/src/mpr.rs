@@ -7,8 +7,8 @@
 use bytemuck::{Pod, Zeroable};
 use stylet_render::mpr::{MprImage, SliceSpec};
 
-use crate::raycast::ct_prelude;
-use crate::volume::{CtFormat, GpuVolume};
+use crate::pipeline::{Pipelines, dispatch};
+use crate::volume::GpuVolume;
 use crate::{GpuContext, GpuError};
 
 const SHADER: &str = include_str!("../shaders/mpr.wgsl");
@@ -27,7 +27,7 @@ struct MprParams {
 
 /// The MPR pipeline (one per CT storage format, built on first use).
 pub struct GpuMpr {
-    pipelines: Vec<((CtFormat, bool), wgpu::ComputePipeline)>,
+    pipelines: Pipelines,
     params: wgpu::Buffer,
 }
 
@@ -40,30 +40,9 @@ impl GpuMpr {
             mapped_at_creation: false,
         });
         GpuMpr {
-            pipelines: Vec::new(),
+            pipelines: Pipelines::new("mpr.wgsl", SHADER),
             params,
         }
-    }
-
-    fn pipeline(&mut self, ctx: &GpuContext, format: (CtFormat, bool)) -> wgpu::ComputePipeline {
-        if let Some((_, p)) = self.pipelines.iter().find(|(f, _)| *f == format) {
-            return p.clone();
-        }
-        let source = format!("{}{}", ct_prelude(format), SHADER);
-        let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("mpr.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(source.into()),
-        });
-        let p = ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("mpr"),
-            layout: None,
-            module: &module,
-            entry_point: Some("main"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
-        self.pipelines.push((format, p.clone()));
-        p
     }
 
     /// Draws the slice `spec` of the volume (pixels and each pixel's partial label).
@@ -91,41 +70,19 @@ impl GpuMpr {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
-        let pipeline = self.pipeline(ctx, vol.ct_key());
-        let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("mpr"),
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: self.params.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: vol.ct_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: wgpu::BindingResource::TextureView(&vol.partial_view),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: vol.mpr_colors.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 4,
-                    resource: output.as_entire_binding(),
-                },
+        let pipeline = self.pipelines.get(ctx, vol.ct_key());
+        dispatch(
+            ctx,
+            &pipeline,
+            &[
+                self.params.as_entire_binding(),
+                vol.ct_binding(),
+                wgpu::BindingResource::TextureView(&vol.partial_view),
+                vol.mpr_colors.as_entire_binding(),
+                output.as_entire_binding(),
             ],
-        });
-        let mut enc = ctx.device.create_command_encoder(&Default::default());
-        {
-            let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&pipeline);
-            pass.set_bind_group(0, &bind, &[]);
-            pass.dispatch_workgroups(w.div_ceil(8), h.div_ceil(8), 1);
-        }
-        ctx.queue.submit([enc.finish()]);
+            (w.div_ceil(8), h.div_ceil(8)),
+        );
         let bytes = ctx.read_buffer(&output, out_bytes)?;
         let words: &[u32] = bytemuck::cast_slice(&bytes);
         let rgb = words.chunks_exact(2).map(|p| {

@@ -17,6 +17,7 @@ use stylet_render::transfer::{MAX_TRAPEZOIDS, TransferFunction};
 use stylet_render::transfer_table::TransferTable;
 use stylet_render::volume::IndexMap;
 
+use crate::pipeline::{Pipelines, dispatch};
 use crate::volume::{CtFormat, GpuVolume, storage, texture_3d};
 use crate::{GpuContext, GpuError};
 
@@ -201,7 +202,7 @@ struct DeformedCache {
 
 /// The ray-casting pipeline and its per-frame buffers.
 pub struct GpuRenderer {
-    pipelines: Vec<((CtFormat, bool), wgpu::ComputePipeline)>,
+    pipelines: Pipelines,
     params: wgpu::Buffer,
     prims: wgpu::Buffer,
     dummy_deformed: wgpu::TextureView,
@@ -233,7 +234,7 @@ impl GpuRenderer {
             bytemuck::bytes_of(&0.0f32),
         );
         GpuRenderer {
-            pipelines: Vec::new(),
+            pipelines: Pipelines::new("raycast.wgsl", SHADER),
             params,
             prims,
             dummy_deformed,
@@ -241,27 +242,6 @@ impl GpuRenderer {
             deformed: None,
             output: None,
         }
-    }
-
-    fn pipeline(&mut self, ctx: &GpuContext, format: (CtFormat, bool)) -> wgpu::ComputePipeline {
-        if let Some((_, p)) = self.pipelines.iter().find(|(f, _)| *f == format) {
-            return p.clone();
-        }
-        let source = format!("{}{}", ct_prelude(format), SHADER);
-        let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("raycast.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(source.into()),
-        });
-        let p = ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("raycast"),
-            layout: None,
-            module: &module,
-            entry_point: Some("main"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
-        self.pipelines.push((format, p.clone()));
-        p
     }
 
     /// Draws the scene at `width` × `height` (half resolution: ⌈w/2⌉ × ⌈h/2⌉, then
@@ -341,60 +321,25 @@ impl GpuRenderer {
                 buf
             }
         };
-        let pipeline = self.pipeline(ctx, vol.ct_key());
+        let pipeline = self.pipelines.get(ctx, vol.ct_key());
         let deformed_view = self.deformed.as_ref().map(|d| &d.view).unwrap_or(&self.dummy_deformed);
-        let occupancy = &self.occupancy.as_ref().expect("occupancy set above").buffer;
-        let occupancy_table = &self.occupancy.as_ref().expect("occupancy set above").table;
-        let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("raycast"),
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: self.params.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: vol.ct_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: wgpu::BindingResource::TextureView(&vol.labels_view),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: vol.styles.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 4,
-                    resource: occupancy.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 5,
-                    resource: self.prims.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 6,
-                    resource: wgpu::BindingResource::TextureView(deformed_view),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 7,
-                    resource: output.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 8,
-                    resource: occupancy_table.as_entire_binding(),
-                },
+        let cache = self.occupancy.as_ref().expect("occupancy set above");
+        dispatch(
+            ctx,
+            &pipeline,
+            &[
+                self.params.as_entire_binding(),
+                vol.ct_binding(),
+                wgpu::BindingResource::TextureView(&vol.labels_view),
+                vol.styles.as_entire_binding(),
+                cache.buffer.as_entire_binding(),
+                self.prims.as_entire_binding(),
+                wgpu::BindingResource::TextureView(deformed_view),
+                output.as_entire_binding(),
+                cache.table.as_entire_binding(),
             ],
-        });
-        let mut enc = ctx.device.create_command_encoder(&Default::default());
-        {
-            let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&pipeline);
-            pass.set_bind_group(0, &bind, &[]);
-            pass.dispatch_workgroups(groups.0, groups.1, 1);
-        }
-        ctx.queue.submit([enc.finish()]);
+            groups,
+        );
         let bytes = ctx.read_buffer(&output, out_bytes)?;
         let rgba = bytes.chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]).collect();
         Ok(Image { width, height, rgba })
