@@ -1,6 +1,6 @@
 //! The CPU reference ray caster (thesis §3.2.1–3.2.3; docs/rendering.md "One ray"): front-to-back
 //! emission–absorption with ray/box clipping, empty-space leaping, early termination, jitter,
-//! Phong shading, the clipping plane and its tagging. Rayon over rows; every pixel is a pure
+//! Phong shading, the clipping plane and its tagging. Rayon over 16 × 16 pixel tiles; every pixel is a pure
 //! function of the inputs, so the image is bit-identical on any number of threads.
 
 pub mod cube_mask;
