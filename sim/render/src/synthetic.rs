@@ -52,18 +52,7 @@ pub fn atlas(n: usize, spacing: f64, ct: impl Fn(DVec3) -> f32, partial: impl Fn
         },
     )
     .expect("the synthetic label table is consistent");
-    let params = Param::ALL
-        .into_iter()
-        .map(|p| {
-            (
-                p,
-                ParamValue::PiecewiseLinear {
-                    hu: vec![-100.0, 50.0],
-                    value: vec![0.3, 0.8],
-                },
-            )
-        })
-        .collect();
+    let params = body_params();
     let tissue = |name: &str, color| TissueSpec {
         name: name.into(),
         parent: Some("body".into()),
@@ -81,18 +70,82 @@ pub fn atlas(n: usize, spacing: f64, ct: impl Fn(DVec3) -> f32, partial: impl Fn
         tissue("bone", [240, 240, 230, 255]),
     ])
     .expect("the synthetic property tree is consistent");
-    let t = Thresholds {
-        air_skin_hu: -500.0,
-        skin_fat_hu: -300.0,
-        fat_bone_hu: 200.0,
-        risk_depth_mm: 15.0,
-    };
     PunctureAtlas::new(
         Volume::new(g, hu).expect("one value per voxel"),
         Volume::new(g, labels).expect("one label per voxel"),
         table,
         tree,
-        t,
+        THRESHOLDS,
     )
     .expect("the synthetic atlas is consistent")
 }
+
+/// An atlas on `grid` with the given CT and partial labels (one value per voxel, x fastest):
+/// the heuristic labels 1 air, 2 skin, 3 fat, 4 bone, 5 risk, then `extra` labels (id, name,
+/// role), all of one tissue "body" without a colour; the thresholds of [`atlas`].
+pub fn atlas_with(grid: Grid, ct: Vec<f32>, labels: Vec<u16>, extra: &[(u16, &str, Role)]) -> PunctureAtlas {
+    let lab = |id, name: &str, role| Label {
+        id,
+        name: name.into(),
+        role,
+        tissue: "body".into(),
+    };
+    let mut all = vec![
+        lab(1, "air", Role::Neutral),
+        lab(2, "skin", Role::Neutral),
+        lab(3, "fat", Role::Neutral),
+        lab(4, "bone", Role::Bone),
+        lab(5, "risk", Role::Risk),
+    ];
+    all.extend(extra.iter().map(|&(id, name, role)| lab(id, name, role)));
+    let table = LabelTable::new(
+        all,
+        HeuristicLabels {
+            air: 1,
+            skin: 2,
+            fat: 3,
+            bone: 4,
+            risk: 5,
+        },
+    )
+    .expect("the synthetic label table is consistent");
+    let tree = PropertyTree::new(vec![TissueSpec {
+        name: "body".into(),
+        parent: None,
+        params: body_params(),
+        color_rgba: None,
+    }])
+    .expect("the synthetic property tree is consistent");
+    PunctureAtlas::new(
+        Volume::new(grid, ct).expect("one value per voxel"),
+        Volume::new(grid, labels).expect("one label per voxel"),
+        table,
+        tree,
+        THRESHOLDS,
+    )
+    .expect("the synthetic atlas is consistent")
+}
+
+/// Every material parameter as one ramp over −100 … 50 HU.
+fn body_params() -> std::collections::BTreeMap<Param, ParamValue> {
+    Param::ALL
+        .into_iter()
+        .map(|p| {
+            (
+                p,
+                ParamValue::PiecewiseLinear {
+                    hu: vec![-100.0, 50.0],
+                    value: vec![0.3, 0.8],
+                },
+            )
+        })
+        .collect()
+}
+
+/// Heuristic thresholds of every synthetic atlas.
+const THRESHOLDS: Thresholds = Thresholds {
+    air_skin_hu: -500.0,
+    skin_fat_hu: -300.0,
+    fat_bone_hu: 200.0,
+    risk_depth_mm: 15.0,
+};

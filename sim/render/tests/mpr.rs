@@ -6,13 +6,11 @@
 use std::sync::OnceLock;
 
 use stylet_physics::glam::DVec3;
-use stylet_physics::{
-    Affine, Grid, HeuristicLabels, Label, LabelTable, Param, ParamValue, PropertyTree, PunctureAtlas, Role, Thresholds,
-    TissueSpec, Volume,
-};
+use stylet_physics::{Affine, Grid, PunctureAtlas, Role};
 use stylet_render::annotate::{Annotations, BAR_RGB, NEEDLE_RGB, ScaleBar, TIP_RGB, annotate, bar_origin};
 use stylet_render::image::Image;
 use stylet_render::mpr::{MprError, Plane, SliceSpec, Window, render_slice, render_spec};
+use stylet_render::synthetic;
 
 /// Marker centres (world mm) and their labels: A in the middle, R to the patient's right of it
 /// (+x), N anterior (+y), S superior (+z).
@@ -45,65 +43,17 @@ fn marker_atlas() -> &'static PunctureAtlas {
                 }
             }
         }
-        let lab = |id, name: &str, role| Label {
-            id,
-            name: name.into(),
-            role,
-            tissue: "body".into(),
-        };
-        let table = LabelTable::new(
-            vec![
-                lab(1, "air", Role::Neutral),
-                lab(2, "skin", Role::Neutral),
-                lab(3, "fat", Role::Neutral),
-                lab(4, "bone", Role::Bone),
-                lab(5, "risk", Role::Risk),
-                lab(10, "a", Role::Target),
-                lab(11, "r", Role::Organ),
-                lab(12, "n", Role::Organ),
-                lab(13, "s", Role::Organ),
+        synthetic::atlas_with(
+            g,
+            ct,
+            labels,
+            &[
+                (10, "a", Role::Target),
+                (11, "r", Role::Organ),
+                (12, "n", Role::Organ),
+                (13, "s", Role::Organ),
             ],
-            HeuristicLabels {
-                air: 1,
-                skin: 2,
-                fat: 3,
-                bone: 4,
-                risk: 5,
-            },
         )
-        .unwrap();
-        let tree = PropertyTree::new(vec![TissueSpec {
-            name: "body".into(),
-            parent: None,
-            params: Param::ALL
-                .into_iter()
-                .map(|p| {
-                    (
-                        p,
-                        ParamValue::PiecewiseLinear {
-                            hu: vec![-100.0, 50.0],
-                            value: vec![0.3, 0.8],
-                        },
-                    )
-                })
-                .collect(),
-            color_rgba: None,
-        }])
-        .unwrap();
-        let t = Thresholds {
-            air_skin_hu: -500.0,
-            skin_fat_hu: -300.0,
-            fat_bone_hu: 200.0,
-            risk_depth_mm: 15.0,
-        };
-        PunctureAtlas::new(
-            Volume::new(g, ct).unwrap(),
-            Volume::new(g, labels).unwrap(),
-            table,
-            tree,
-            t,
-        )
-        .unwrap()
     })
 }
 

@@ -6,11 +6,11 @@ use std::sync::Arc;
 
 use stylet_physics::glam::{DQuat, DVec3, Quat, Vec3};
 use stylet_physics::{
-    Affine, DeviceProfile, Gauge, Grid, HeuristicLabels, Label, LabelTable, Param, ParamValue, ProbeKind, PropertyTree,
-    PunctureAtlas, Role, SimConfig, Simulation, Thresholds, TickInput, TissueSpec, ToolSpec, Volume,
+    Affine, DeviceProfile, Gauge, Grid, ProbeKind, PunctureAtlas, Role, SimConfig, Simulation, TickInput, ToolSpec,
 };
 use stylet_render::scene::Light;
 use stylet_render::shadow::Shadows;
+use stylet_render::synthetic;
 use stylet_render::tools::{
     FingerShape, MAX_PRIMITIVES, NeedleShape, Primitive, ProbeShape, ToolState, nearest_hit, shade,
 };
@@ -314,62 +314,7 @@ fn ball_atlas() -> PunctureAtlas {
         })
         .collect();
     let labels: Vec<u16> = ct.iter().map(|&v| if v == 60.0 { 10 } else { 0 }).collect();
-    let lab = |id, name: &str, role| Label {
-        id,
-        name: name.into(),
-        role,
-        tissue: "body".into(),
-    };
-    let table = LabelTable::new(
-        vec![
-            lab(1, "air", Role::Neutral),
-            lab(2, "skin", Role::Neutral),
-            lab(3, "fat", Role::Neutral),
-            lab(4, "bone", Role::Bone),
-            lab(5, "risk", Role::Risk),
-            lab(10, "liver", Role::Organ),
-        ],
-        HeuristicLabels {
-            air: 1,
-            skin: 2,
-            fat: 3,
-            bone: 4,
-            risk: 5,
-        },
-    )
-    .unwrap();
-    let tree = PropertyTree::new(vec![TissueSpec {
-        name: "body".into(),
-        parent: None,
-        params: Param::ALL
-            .into_iter()
-            .map(|p| {
-                (
-                    p,
-                    ParamValue::PiecewiseLinear {
-                        hu: vec![-100.0, 50.0],
-                        value: vec![0.3, 0.8],
-                    },
-                )
-            })
-            .collect(),
-        color_rgba: None,
-    }])
-    .unwrap();
-    let t = Thresholds {
-        air_skin_hu: -500.0,
-        skin_fat_hu: -300.0,
-        fat_bone_hu: 200.0,
-        risk_depth_mm: 15.0,
-    };
-    PunctureAtlas::new(
-        Volume::new(g, ct).unwrap(),
-        Volume::new(g, labels).unwrap(),
-        table,
-        tree,
-        t,
-    )
-    .unwrap()
+    synthetic::atlas_with(g, ct, labels, &[(10, "liver", Role::Organ)])
 }
 
 #[test]
