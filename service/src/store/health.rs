@@ -1,7 +1,8 @@
 //! Storage failures and recovery from them. When the disk under the database turns read-only or
 //! fails, SQLite keeps failing on connections opened meanwhile (they open read-only) even after
 //! the disk is writable again. So: every storage failure is noted; connections that existed at
-//! a failure are closed when returned to the pool rather than reused; a new SQLite connection
+//! a failure are closed when returned to the pool, or when they would be handed out after
+//! idling through it, rather than reused; a new SQLite connection
 //! must be able to write before the pool hands it out; and the health check writes, so that
 //! `/healthz` says 503 while writes fail.
 

@@ -182,8 +182,11 @@ impl Store {
                     Ok(())
                 })
             })
-            // A connection in use when the storage failed is closed, not reused.
+            // A connection that existed when the storage failed is closed, not reused: when it
+            // is returned, and when it would be handed out after idling through the failure
+            // (else each such idle connection fails one request after the disk recovered).
             .after_release(|_, meta| Box::pin(async move { Ok(!health::outlived_failure(meta.age)) }))
+            .before_acquire(|_, meta| Box::pin(async move { Ok(!health::outlived_failure(meta.age)) }))
             // And none lives forever.
             .max_lifetime(std::time::Duration::from_secs(30 * 60))
             .connect(url)
