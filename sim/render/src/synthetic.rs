@@ -28,30 +28,13 @@ pub fn atlas(n: usize, spacing: f64, ct: impl Fn(DVec3) -> f32, partial: impl Fn
     };
     let hu: Vec<f32> = (0..g.len()).map(|i| ct(centre(i))).collect();
     let labels: Vec<u16> = (0..g.len()).map(|i| partial(centre(i))).collect();
-    let lab = |id, name: &str, role, tissue: &str| Label {
-        id,
-        name: name.into(),
-        role,
-        tissue: tissue.into(),
-    };
-    let table = LabelTable::new(
-        vec![
-            lab(1, "air", Role::Neutral, "body"),
-            lab(2, "skin", Role::Neutral, "body"),
-            lab(3, "fat", Role::Neutral, "body"),
-            lab(4, "bone", Role::Bone, "bone"),
-            lab(RISK, "risk", Role::Risk, "body"),
-            lab(TARGET, "target", Role::Target, "tumour"),
+    let table = label_table(
+        "bone",
+        &[
+            (RISK, "risk", Role::Risk, "body"),
+            (TARGET, "target", Role::Target, "tumour"),
         ],
-        HeuristicLabels {
-            air: 1,
-            skin: 2,
-            fat: 3,
-            bone: 4,
-            risk: RISK,
-        },
-    )
-    .expect("the synthetic label table is consistent");
+    );
     let params = body_params();
     let tissue = |name: &str, color| TissueSpec {
         name: name.into(),
@@ -84,31 +67,10 @@ pub fn atlas(n: usize, spacing: f64, ct: impl Fn(DVec3) -> f32, partial: impl Fn
 /// the heuristic labels 1 air, 2 skin, 3 fat, 4 bone, 5 risk, then `extra` labels (id, name,
 /// role), all of one tissue "body" without a colour; the thresholds of [`atlas`].
 pub fn atlas_with(grid: Grid, ct: Vec<f32>, labels: Vec<u16>, extra: &[(u16, &str, Role)]) -> PunctureAtlas {
-    let lab = |id, name: &str, role| Label {
-        id,
-        name: name.into(),
-        role,
-        tissue: "body".into(),
-    };
-    let mut all = vec![
-        lab(1, "air", Role::Neutral),
-        lab(2, "skin", Role::Neutral),
-        lab(3, "fat", Role::Neutral),
-        lab(4, "bone", Role::Bone),
-        lab(5, "risk", Role::Risk),
-    ];
-    all.extend(extra.iter().map(|&(id, name, role)| lab(id, name, role)));
-    let table = LabelTable::new(
-        all,
-        HeuristicLabels {
-            air: 1,
-            skin: 2,
-            fat: 3,
-            bone: 4,
-            risk: 5,
-        },
-    )
-    .expect("the synthetic label table is consistent");
+    let rest: Vec<(u16, &str, Role, &str)> = std::iter::once((RISK, "risk", Role::Risk, "body"))
+        .chain(extra.iter().map(|&(id, name, role)| (id, name, role, "body")))
+        .collect();
+    let table = label_table("body", &rest);
     let tree = PropertyTree::new(vec![TissueSpec {
         name: "body".into(),
         parent: None,
@@ -124,6 +86,35 @@ pub fn atlas_with(grid: Grid, ct: Vec<f32>, labels: Vec<u16>, extra: &[(u16, &st
         THRESHOLDS,
     )
     .expect("the synthetic atlas is consistent")
+}
+
+/// Labels 1 air, 2 skin, 3 fat (tissue "body"), 4 bone (tissue `bone_tissue`), then `rest`
+/// (id, name, role, tissue), which must hold the heuristic's risk label [`RISK`].
+fn label_table(bone_tissue: &str, rest: &[(u16, &str, Role, &str)]) -> LabelTable {
+    let lab = |id, name: &str, role, tissue: &str| Label {
+        id,
+        name: name.into(),
+        role,
+        tissue: tissue.into(),
+    };
+    let mut all = vec![
+        lab(1, "air", Role::Neutral, "body"),
+        lab(2, "skin", Role::Neutral, "body"),
+        lab(3, "fat", Role::Neutral, "body"),
+        lab(4, "bone", Role::Bone, bone_tissue),
+    ];
+    all.extend(rest.iter().map(|&(id, name, role, tissue)| lab(id, name, role, tissue)));
+    LabelTable::new(
+        all,
+        HeuristicLabels {
+            air: 1,
+            skin: 2,
+            fat: 3,
+            bone: 4,
+            risk: RISK,
+        },
+    )
+    .expect("the synthetic label table is consistent")
 }
 
 /// Every material parameter as one ramp over −100 … 50 HU.

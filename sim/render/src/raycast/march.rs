@@ -199,55 +199,6 @@ fn lattice_from(t_exit: f32, k_min: u32, j: f32, inv_step: f32) -> u32 {
     }
 }
 
-/// Steps 5–8 for a frame without a motion hook or deformed region (the common case): the
-/// samples of [`lattice_general`] with the occupancy grid read once per cell rather than once
-/// per sample. Inside an occupied cell every lattice point up to the cell's exit is sampled
-/// without another look; one that rounding puts just past the face reads α = 0 there (empty
-/// cells and, without `sample_outside`, air are invisible), so the picture is the same.
-/// Returns the number of samples taken.
-fn lattice_plain(f: &Frame, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
-    let step = f.quality.step_mm;
-    let dims = f.sampler.ct.dims;
-    let mut samples = 0u64;
-    let mut k = k0;
-    // Lattice points k < checked_to lie in an occupied cell: no occupancy look.
-    let mut checked_to = k0;
-    let inv_dc = Vec3::ONE / ray.dc;
-    let inv_step = 1.0 / step;
-    loop {
-        let t = lattice(k, ray.j, step);
-        if t > ray.t_hi || t >= ray.t_tool {
-            break;
-        }
-        let c = ray.ce + ray.dc * t;
-        // 8. Empty-space leaping.
-        if k >= checked_to
-            && let Some(occ) = &f.occupancy
-        {
-            if inside(c, dims) {
-                let cell = occ.cell(c);
-                let t_exit = occ.exit_t_inv(cell, ray.ce, ray.dc, inv_dc);
-                let next = lattice_from(t_exit, k + 1, ray.j, inv_step);
-                if !occ.is_occupied(cell) {
-                    k = next;
-                    continue;
-                }
-                checked_to = next;
-            } else if !f.sample_outside {
-                k += 1;
-                continue;
-            }
-        }
-        match sample_plain(f, ray, t, acc) {
-            Sampled::Skipped => {}
-            Sampled::Taken => samples += 1,
-            Sampled::Opaque => return samples + 1,
-        }
-        k += 1;
-    }
-    samples
-}
-
 /// What [`sample_plain`] did.
 enum Sampled {
     /// Its cube reads only invisible values (leaping's finest level): nothing read.
@@ -257,7 +208,7 @@ enum Sampled {
     Opaque,
 }
 
-/// Steps 5–7 for the lattice point at `t` of a frame without hooks.
+/// Steps 5–7 for the lattice point at `t` of [`lattice_dda`].
 #[inline(always)]
 fn sample_plain(f: &Frame, ray: &Ray, t: f32, acc: &mut Accum) -> Sampled {
     let c = ray.ce + ray.dc * t;
@@ -280,7 +231,8 @@ fn sample_plain(f: &Frame, ray: &Ray, t: f32, acc: &mut Accum) -> Sampled {
     Sampled::Taken
 }
 
-/// Steps 5–8 of [`lattice_plain`] when the extent is ray/box clipped and air is invisible: the
+/// Steps 5–8 for the common frame (no motion hook, no deformed region, a ray/box-clipped extent,
+/// invisible air, leaping on): the
 /// occupancy cells along the ray are walked by a 3D DDA (Amanatides & Woo 1987) instead of
 /// being found from each sample's position. Empty cells move the lattice index past their exit
 /// (k ← max(k, ⌈t_exit/Δ − j − 10⁻³⌉), as step 8), occupied cells sample every lattice point
@@ -355,8 +307,8 @@ fn lattice_dda(f: &Frame, occ: &Occupancy, ray: &Ray, k0: u32, acc: &mut Accum) 
     }
 }
 
-/// Steps 5–8 with the motion warp or a deformed region: every sample placed and looked up on
-/// its own. Returns the number of samples taken.
+/// Steps 5–8 in every other case (motion warp, deformed region, leaping off, no ray/box, visible
+/// air): every sample placed and looked up on its own. Returns the number of samples taken.
 fn lattice_general(
     f: &Frame,
     ray: &Ray,
@@ -366,6 +318,7 @@ fn lattice_general(
     acc: &mut Accum,
 ) -> u64 {
     let step = f.quality.step_mm;
+    let inv_step = 1.0 / step;
     let dims = f.sampler.ct.dims;
     let mut samples = 0u64;
     let mut k = k0;
@@ -383,7 +336,7 @@ fn lattice_general(
             if inside(at.ct, dims) {
                 let cell = occ.cell(at.ct);
                 if !occ.is_occupied(cell) {
-                    k = lattice_from(occ.exit_t(cell, ray.ce, ray.dc), k + 1, ray.j, 1.0 / step);
+                    k = lattice_from(occ.exit_t(cell, ray.ce, ray.dc), k + 1, ray.j, inv_step);
                     continue;
                 }
             } else if !f.sample_outside {
@@ -502,11 +455,10 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
             t_tool,
             half,
         };
-        samples += match warp.as_mut() {
-            None if f.sampler.deformed.is_none() => match &f.occupancy {
-                Some(occ) if q.ray_box && !f.sample_outside => lattice_dda(f, occ, &ray, k0, &mut acc),
-                _ => lattice_plain(f, &ray, k0, &mut acc),
-            },
+        samples += match (&f.occupancy, warp.as_mut()) {
+            (Some(occ), None) if f.sampler.deformed.is_none() && q.ray_box && !f.sample_outside => {
+                lattice_dda(f, occ, &ray, k0, &mut acc)
+            }
             _ => lattice_general(f, &ray, k0, warp.as_mut(), at_t, &mut acc),
         };
     }
