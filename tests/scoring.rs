@@ -595,3 +595,45 @@ fn a_palpation_that_does_not_sweep_fails_with_its_reason() {
         r["reasons"]
     );
 }
+
+/// Contrast is physics (eqs. 3.3.1–3.3.2): injected into the liver it is extravasation, deducted
+/// by the rubric; the puncture is confirmed only when contrast filled the ducts, which it cannot
+/// through a needle with the stylet in.
+#[test]
+fn contrast_outside_the_ducts_is_extravasation_and_confirmation_needs_filled_ducts() {
+    let r = score_text(
+        "extravasation",
+        "stylet-script 1\nend 24\nat 0 along intercostal-10-11 -15\nat 1 along intercostal-10-11 -15\n\
+         at 8 along intercostal-10-11 65\nat 8.5 event stylet-remove\nat 9 event contrast-inject 1\n\
+         at 11 event stylet-insert\nat 11 along intercostal-10-11 65\nat 13 along intercostal-10-11 111\n\
+         at 13.5 event stylet-remove\nat 14 event contrast-inject 2\nat 17 event stylet-insert\n\
+         at 17 along intercostal-10-11 111\nat 23 along intercostal-10-11 -15\n",
+    );
+    assert_eq!(r["replay_verified"], true, "{r}");
+    let m = &r["metrics"];
+    let ml = |k: &str| m[k].as_f64().unwrap();
+    assert!((ml("extravasated_ml") - 1.0).abs() < 1e-9, "{m}");
+    assert!((ml("contrast_in_ducts_ml") - 2.0).abs() < 1e-9, "{m}");
+    assert!(ml("contrast_extent_mm") >= 10.0, "{m}");
+    assert_eq!(m["target_confirmed"], true, "{m}");
+    let deductions = r["grade"]["deductions"].as_array().unwrap();
+    assert!(
+        deductions
+            .iter()
+            .any(|d| d["metric"] == "extravasated_ml" && (d["points"].as_f64().unwrap() - 5.0).abs() < 1e-6),
+        "{deductions:?}"
+    );
+
+    // The stylet came out in the target, but the contrast was "injected" with it back in.
+    let r = score_text(
+        "stylet-in",
+        "stylet-script 1\nend 20\nat 0 along intercostal-10-11 -15\nat 1 along intercostal-10-11 -15\n\
+         at 11 along intercostal-10-11 111\nat 11.5 event stylet-remove\nat 12 event stylet-insert\n\
+         at 12.5 event contrast-inject 2\nat 14 along intercostal-10-11 111\nat 19.5 along intercostal-10-11 -15\n",
+    );
+    let m = &r["metrics"];
+    assert_eq!(m["stylet_removed_in_target"], true, "{m}");
+    assert_eq!(m["contrast_in_ducts_ml"].as_f64(), Some(0.0), "{m}");
+    assert_eq!(m["target_confirmed"], false, "{m}");
+    assert_eq!(r["grade"]["passed"], false, "{r}");
+}

@@ -92,6 +92,15 @@ pub struct Metrics {
     pub target_confirmed: bool,
     pub stylet_removed_in_target: bool,
     pub contrast_in_target: bool,
+    /// Contrast that entered the duct system (ml; physics, eqs. 3.3.1–3.3.2).
+    #[serde(default)]
+    pub contrast_in_ducts_ml: f64,
+    /// Contrast delivered into tissue that is not a duct (ml): extravasation.
+    #[serde(default)]
+    pub extravasated_ml: f64,
+    /// How far the contrast filled the duct system from where it entered (mm).
+    #[serde(default)]
+    pub contrast_extent_mm: f64,
     pub time_to_target_s: Option<f64>,
     pub time_total_s: f64,
     pub fluoro_time_s: f64,
@@ -196,6 +205,11 @@ pub struct MetricsCollector<'a> {
     first_target_tick: Option<u64>,
     stylet_in_target: bool,
     contrast_in_target: bool,
+    /// The physics' contrast reached the confirmation length.
+    contrast_filled: bool,
+    contrast_in_ducts_ml: f64,
+    extravasated_ml: f64,
+    contrast_extent_mm: f64,
     confirmed_tick: Option<u64>,
     last_exit_tick: Option<u64>,
     xray_ticks: u64,
@@ -413,6 +427,10 @@ impl<'a> MetricsCollector<'a> {
             first_target_tick: None,
             stylet_in_target: false,
             contrast_in_target: false,
+            contrast_filled: false,
+            contrast_in_ducts_ml: 0.0,
+            extravasated_ml: 0.0,
+            contrast_extent_mm: 0.0,
             confirmed_tick: None,
             last_exit_tick: None,
             xray_ticks: 0,
@@ -581,9 +599,15 @@ impl<'a> MetricsCollector<'a> {
                     _ => {}
                 }
             }
-            if self.stylet_in_target && self.contrast_in_target {
-                self.confirmed_tick.get_or_insert(tick);
-            }
+        }
+        // Confirmation: the stylet came out in the target (bile would flow) and the contrast the
+        // physics spread has filled the duct system beyond the confirmation length.
+        self.contrast_filled = sim.contrast().confirmed();
+        self.contrast_in_ducts_ml = out.contrast_in_ducts_ml;
+        self.extravasated_ml = out.extravasated_ml;
+        self.contrast_extent_mm = out.contrast_extent_mm;
+        if self.stylet_in_target && self.contrast_filled {
+            self.confirmed_tick.get_or_insert(tick);
         }
 
         // Imaging and contact tools.
@@ -757,7 +781,7 @@ impl<'a> MetricsCollector<'a> {
                 max_deviation_mm: max,
             })
         });
-        let target_confirmed = self.stylet_in_target && self.contrast_in_target;
+        let target_confirmed = self.stylet_in_target && self.contrast_filled;
         Metrics {
             attempts: self.attempts.len() as u32,
             redirections: self.redirections,
@@ -774,6 +798,9 @@ impl<'a> MetricsCollector<'a> {
             target_confirmed,
             stylet_removed_in_target: self.stylet_in_target,
             contrast_in_target: self.contrast_in_target,
+            contrast_in_ducts_ml: self.contrast_in_ducts_ml,
+            extravasated_ml: self.extravasated_ml,
+            contrast_extent_mm: self.contrast_extent_mm,
             time_to_target_s: self.first_target_tick.map(|t| t as f64 / rate),
             time_total_s: self.ticks as f64 / rate,
             fluoro_time_s: self.xray_ticks as f64 / rate,

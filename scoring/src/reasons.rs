@@ -17,6 +17,7 @@ pub enum Unit {
     Millimetres,
     SquareMillimetres,
     Newtons,
+    Millilitres,
     Degrees,
     /// A plain ratio (1 = ideal).
     Ratio,
@@ -72,8 +73,9 @@ pub const METRICS: &[MetricInfo] = &[
     flag(
         "target_not_confirmed",
         "target not confirmed",
-        "the position in the target was not confirmed (stylet out and contrast in the target)",
+        "the position in the target was not confirmed (stylet out in the target, and contrast filling the ducts)",
     ),
+    m("extravasated_ml", "contrast outside the ducts", Unit::Millilitres),
     m("time_total_s", "total time", Unit::Seconds),
     m("fluoro_time_s", "time under X-ray", Unit::Seconds),
     m("xray_shots", "X-ray shots", Unit::Count),
@@ -168,6 +170,7 @@ impl MetricInfo {
             Unit::Millimetres => format!("{} mm", num(v)),
             Unit::SquareMillimetres => format!("{} mm²", num(v)),
             Unit::Newtons => format!("{} N", num(v)),
+            Unit::Millilitres => format!("{} ml", num(v)),
             Unit::Degrees => format!("{}°", num(v)),
             Unit::Ratio => num(v),
             Unit::Fraction => format!("{} %", num(v * 100.0)),

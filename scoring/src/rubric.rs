@@ -79,6 +79,7 @@ pub const PUNCTURE_METRICS: &[&str] = &[
     "bone_contacts",
     "target_not_reached",
     "target_not_confirmed",
+    "extravasated_ml",
     "time_total_s",
     "fluoro_time_s",
     "xray_shots",
@@ -143,6 +144,7 @@ pub fn metric_value(m: &Metrics, name: &str) -> Option<f64> {
         "bone_contacts" => m.bone_contacts as f64,
         "target_not_reached" => flag(!m.target_reached),
         "target_not_confirmed" => flag(!m.target_confirmed),
+        "extravasated_ml" => m.extravasated_ml,
         "time_total_s" => m.time_total_s,
         "fluoro_time_s" => m.fluoro_time_s,
         "xray_shots" => m.xray_shots as f64,
@@ -444,6 +446,9 @@ mod tests {
             target_confirmed: true,
             stylet_removed_in_target: true,
             contrast_in_target: true,
+            contrast_in_ducts_ml: 2.0,
+            extravasated_ml: 0.0,
+            contrast_extent_mm: 30.0,
             time_to_target_s: Some(20.0),
             time_total_s: 60.0,
             fluoro_time_s: 40.0,
@@ -473,7 +478,7 @@ mod tests {
     #[test]
     fn the_shipped_rubric_grades_the_worked_example() {
         let r = Rubric::default_rubric();
-        assert_eq!((r.name.as_str(), r.version), ("ptcd", 2));
+        assert_eq!((r.name.as_str(), r.version), ("ptcd", 3));
         let g = r.grade(&metrics(), Exercise::Puncture, "beginner").unwrap();
         // attempts 2 (1 free) −10, redirections 3 (2 free) −3, fluoro 40 s (30 free) −5,
         // no palpation first −5: 100 − 23.
@@ -504,7 +509,7 @@ mod tests {
     fn bad_rubrics_are_named() {
         let base = DEFAULT_RUBRIC;
         let cases = [
-            (base.replace("version = 2", "version = 0"), "version"),
+            (base.replace("version = 3", "version = 0"), "version"),
             (
                 base.replace("[levels.expert]", "[levels.master]"),
                 "lacks level 'expert'",

@@ -336,6 +336,9 @@ mod tests {
             xray_on: false,
             breath_hold: false,
             contrast_ml: 0.0,
+            contrast_in_ducts_ml: 0.0,
+            extravasated_ml: 0.0,
+            contrast_extent_mm: 0.0,
         }
     }
 

@@ -87,7 +87,7 @@ pub fn run(cmd: ScriptCommand) -> anyhow::Result<()> {
 /// along the insertion direction d (−F·d): positive against pushing in.
 pub const CSV_HEADER: &str = "tick,t_s,x_mm,y_mm,z_mm,qw,qx,qy,qz,fx_n,fy_n,fz_n,tx_nmm,ty_nmm,tz_nmm,\
 f_insert_n,cut_n,friction_n,base_n,skin_n,slide_n,bone_n,tip_label,tip_name,inserted_mm,tip_depth_mm,\
-indentation_mm,contacts,stylet_in,xray_on,contrast_ml,events";
+indentation_mm,contacts,stylet_in,xray_on,contrast_ml,contrast_in_ducts_ml,extravasated_ml,contrast_extent_mm,events";
 
 /// The simulation a script file starts with, and its device.
 pub fn script_simulation(atlas: &stylet_atlas::Atlas, path: &Path) -> anyhow::Result<(Simulation, ScriptedDevice)> {
@@ -130,7 +130,7 @@ fn csv_row(i: &TickInput, o: &TickOutput, name: &str) -> String {
         })
         .collect();
     format!(
-        "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+        "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
         o.tick,
         o.time_s,
         i.position_mm.x,
@@ -162,6 +162,9 @@ fn csv_row(i: &TickInput, o: &TickOutput, name: &str) -> String {
         u8::from(o.stylet_in),
         u8::from(o.xray_on),
         o.contrast_ml,
+        o.contrast_in_ducts_ml,
+        o.extravasated_ml,
+        o.contrast_extent_mm,
         events.join(";"),
     )
 }

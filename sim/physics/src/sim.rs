@@ -11,6 +11,7 @@ use std::sync::Arc;
 use glam::{DQuat, DVec3};
 
 use crate::contact::{ContactFriction, ContactPattern, ContactTool};
+use crate::contrast::{ContrastAgent, ContrastSettings};
 use crate::device::DeviceProfile;
 use crate::events::{Event, ProbeKind, ToolSpec};
 use crate::motion::{self, MotionModel, Static};
@@ -20,7 +21,7 @@ use crate::{LabelId, PunctureAtlas};
 
 /// Version of the physics: bump it with every change that alters any output bit, so a replay
 /// knows which physics graded a session.
-pub const PHYSICS_VERSION: u32 = 2;
+pub const PHYSICS_VERSION: u32 = 3;
 
 /// Default haptic rate.
 pub const DEFAULT_TICK_RATE_HZ: u32 = 1000;
@@ -88,8 +89,14 @@ pub struct TickOutput {
     pub stylet_in: bool,
     pub xray_on: bool,
     pub breath_hold: bool,
-    /// Contrast injected so far (ml).
+    /// Contrast asked for by injection events so far (ml).
     pub contrast_ml: f64,
+    /// Contrast that entered the duct system so far (ml).
+    pub contrast_in_ducts_ml: f64,
+    /// Contrast delivered into tissue that is not a duct so far (ml): extravasation.
+    pub extravasated_ml: f64,
+    /// Filled duct length from where contrast entered the ducts (mm, max so far).
+    pub contrast_extent_mm: f64,
 }
 
 /// The tool in hand.
@@ -106,6 +113,7 @@ pub struct SimConfig {
     pub device: DeviceProfile,
     pub tool: ToolSpec,
     pub motion: Arc<dyn MotionModel>,
+    pub contrast: ContrastSettings,
 }
 
 impl SimConfig {
@@ -115,6 +123,7 @@ impl SimConfig {
             device,
             tool,
             motion: Arc::new(Static),
+            contrast: ContrastSettings::default(),
         }
     }
 }
@@ -130,6 +139,7 @@ pub struct Simulation {
     breath_hold: bool,
     xray_on: bool,
     contrast_ml: f64,
+    contrast: ContrastAgent,
     /// Device position mapped to reference space on the previous tick (fixed point of §5.4.3).
     device_ref: Option<DVec3>,
     last_position: DVec3,
@@ -164,7 +174,9 @@ impl Simulation {
             NeedleSpec { gauge, length_mm }.validate()?;
         }
         let tool_spec = config.tool;
+        let contrast = ContrastAgent::new(&atlas, config.contrast)?;
         Ok(Simulation {
+            contrast,
             tool: make_tool(&tool_spec),
             tool_spec,
             atlas,
@@ -201,6 +213,10 @@ impl Simulation {
             Tool::Contact(_) => None,
         }
     }
+    /// The contrast agent (eqs. 3.3.1–3.3.2).
+    pub fn contrast(&self) -> &ContrastAgent {
+        &self.contrast
+    }
     pub fn contact(&self) -> Option<&ContactTool> {
         match &self.tool {
             Tool::Contact(c) => Some(c),
@@ -229,6 +245,7 @@ impl Simulation {
             Event::ContrastInject { ml } => {
                 if ml.is_finite() && *ml > 0.0 {
                     self.contrast_ml += ml;
+                    self.contrast.inject(*ml);
                 }
             }
             Event::BreathHold => self.breath_hold = true,
@@ -280,6 +297,9 @@ impl Simulation {
             xray_on: self.xray_on,
             breath_hold: self.breath_hold,
             contrast_ml: self.contrast_ml,
+            contrast_in_ducts_ml: 0.0,
+            extravasated_ml: 0.0,
+            contrast_extent_mm: 0.0,
         };
         let (force, torque) = match &mut self.tool {
             Tool::Needle(n) => {
@@ -314,6 +334,20 @@ impl Simulation {
         out.force_n = clamp_length(force, device.max_force_n);
         out.torque_nmm = clamp_length(torque, device.max_torque_nmm);
         self.tick += 1;
+        // Contrast at its sub-rate: through a needle in the body with the stylet out.
+        let every = self.config.contrast.update_every_ticks;
+        if self.tick.is_multiple_of(u64::from(every)) {
+            let tip = match &self.tool {
+                Tool::Needle(n) if !n.stylet_in() && n.inserted_mm() > 0.0 => n.nodes().last().copied(),
+                _ => None,
+            };
+            self.contrast
+                .update(&atlas, tip, f64::from(every) / f64::from(self.config.tick_rate_hz));
+        }
+        let tally = self.contrast.tally();
+        out.contrast_in_ducts_ml = tally.in_ducts_ml;
+        out.extravasated_ml = tally.extravasated_ml;
+        out.contrast_extent_mm = self.contrast.filled_extent_mm();
         if !self.breath_hold {
             self.breath_time_s = self.tick as f64 / self.config.tick_rate_hz as f64;
         }
@@ -328,6 +362,7 @@ impl Simulation {
         h.f64(self.breath_time_s);
         h.u64(u64::from(self.breath_hold) | u64::from(self.xray_on) << 1);
         h.f64(self.contrast_ml);
+        self.contrast.digest_into(|v| h.u64(v));
         h.vec(self.last_position);
         for v in self.last_orientation.to_array() {
             h.f64(v);
