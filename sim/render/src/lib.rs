@@ -7,7 +7,7 @@
 //! quality, hooks), [`transfer`] (eq. 3.2.2), [`transfer_table`] (what the ray loops read), [`volume`] (the atlas prepared for rendering),
 //! [`tools`] (needle, finger, probes), [`shadow`] (their shadows, Alg. 3.1/3.2), [`image`]
 //! (pixels, PNG, difference statistics), [`mpr`] (slices), [`annotate`] (tip marker, scale bar,
-//! letters on slices), [`synthetic`] (small atlases from functions, for tests) and [`figure`] (the atlas figure of `stylet atlas inspect`).
+//! letters on slices), [`xray`] (the radiograph of a C-arm, §3.3), [`synthetic`] (small atlases from functions, for tests) and [`figure`] (the atlas figure of `stylet atlas inspect`).
 
 pub mod annotate;
 pub mod figure;
@@ -23,6 +23,7 @@ pub mod tools;
 pub mod transfer;
 pub mod transfer_table;
 pub mod volume;
+pub mod xray;
 
 /// Rendering failures (file output, font set-up).
 #[derive(Debug, thiserror::Error)]
@@ -33,4 +34,7 @@ pub enum RenderError {
     Read { path: String, message: String },
     #[error("drawing failed: {0}")]
     Draw(String),
+    /// A scene the renderer refuses (image size, geometry, tools), with what is wrong.
+    #[error("invalid scene: {0}")]
+    Invalid(String),
 }

@@ -1,0 +1,85 @@
+//! From attenuation to grey (docs/xray.md "Display"): the detector's log signal is the line
+//! integral a = −ln(I/I₀) itself, shown through a window as on a fluoroscopy monitor, where more
+//! photons are brighter: air white, bone, steel and contrast medium dark.
+
+use crate::image::Image;
+
+/// The range of a mapped from white (`low`) to black (`high`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct XrayWindow {
+    pub low: f32,
+    pub high: f32,
+}
+
+impl XrayWindow {
+    /// Fits an abdomen or chest at 100 keV: a from 0.3 (lung, thin tissue) to 7 (spine and
+    /// liver together).
+    pub const DEFAULT: XrayWindow = XrayWindow { low: 0.3, high: 7.0 };
+
+    /// Names a bad window.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.low.is_finite() && self.high.is_finite() && self.low >= 0.0 && self.high > self.low) {
+            return Err(format!(
+                "X-ray window low {} / high {} must be finite with 0 ≤ low < high",
+                self.low, self.high
+            ));
+        }
+        Ok(())
+    }
+
+    /// Grey level of attenuation `a`: 255·(1 − clamp((a − low)/(high − low), 0, 1)), rounded.
+    #[inline]
+    pub fn grey(&self, a: f32) -> u8 {
+        let x = ((a - self.low) / (self.high - self.low)).clamp(0.0, 1.0);
+        (255.0 * (1.0 - x)).round() as u8
+    }
+}
+
+/// A radiograph as the detector measured it: a per pixel, rows top to bottom.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Radiograph {
+    pub width: u32,
+    pub height: u32,
+    pub attenuation: Vec<f32>,
+}
+
+impl Radiograph {
+    #[inline]
+    pub fn at(&self, col: u32, row: u32) -> f32 {
+        self.attenuation[row as usize * self.width as usize + col as usize]
+    }
+
+    /// The windowed grey image.
+    pub fn to_image(&self, window: XrayWindow) -> Image {
+        let mut image = Image::new(self.width, self.height);
+        for (px, &a) in image.rgba.iter_mut().zip(&self.attenuation) {
+            let g = window.grey(a);
+            *px = [g, g, g, 255];
+        }
+        image
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_window_maps_low_to_white_and_high_to_black() {
+        let w = XrayWindow { low: 1.0, high: 3.0 };
+        assert_eq!(w.grey(0.0), 255);
+        assert_eq!(w.grey(1.0), 255);
+        assert_eq!(w.grey(2.0), 128);
+        assert_eq!(w.grey(9.0), 0);
+        assert!(w.validate().is_ok());
+        assert!(XrayWindow { low: 2.0, high: 2.0 }.validate().is_err());
+        assert!(
+            XrayWindow {
+                low: f32::NAN,
+                high: 2.0
+            }
+            .validate()
+            .is_err()
+        );
+    }
+}
