@@ -298,6 +298,59 @@ fn a_session_at_a_moment_shows_the_needle_where_the_replay_has_it() {
     assert!(body_fraction(&oblique) > 0.3);
 }
 
+/// The X-ray (docs/xray.md) of a recorded puncture: the steel needle where the replay has it,
+/// and after the injection the contrast medium darkening the ducts: only darker, never lighter.
+#[test]
+fn the_xray_of_a_session_shows_the_needle_and_then_the_contrast() {
+    let d = tempfile::tempdir().unwrap();
+    let atlas = phantom(d.path());
+    let session = d.path().join("success.mcap");
+    record(&atlas, "success-intercostal", &session);
+    let s = session.to_str().unwrap();
+    let xray = |name: &str, extra: &[&str]| {
+        let out = d.path().join(name);
+        let text = ok(&[
+            &[
+                "render",
+                "--atlas",
+                atlas.to_str().unwrap(),
+                "--view",
+                "xray",
+                "--size",
+                "256x256",
+            ][..],
+            extra,
+            &["--out", out.to_str().unwrap()],
+        ]
+        .concat());
+        assert!(text.contains("xray view"), "{text}");
+        let img = Image::read_png(&out).unwrap();
+        assert_eq!((img.width, img.height), (256, 256));
+        img
+    };
+    let empty = xray("empty.png", &[]);
+    // The body is in the picture: grey, not the white of air, in the centre.
+    assert!(empty.get(128, 128)[0] < 200, "{:?}", empty.get(128, 128));
+    // 11.4 s: the needle at the target, stylet just out, nothing injected yet.
+    let needle = xray("needle.png", &["--session", s, "--at", "11.4"]);
+    let steel = differing(&empty, &needle, 3);
+    assert!(steel.len() > 40, "the needle changed {} pixels", steel.len());
+    assert!(steel.iter().all(|&(c, r)| needle.get(c, r)[0] < empty.get(c, r)[0]));
+    // 13.9 s: the same needle position, 1.7 ml of contrast injected under fluoroscopy.
+    let contrast = xray("contrast.png", &["--session", s, "--at", "13.9"]);
+    let dark = differing(&needle, &contrast, 3);
+    assert!(dark.len() > 30, "the contrast changed {} pixels", dark.len());
+    for &(c, r) in &dark {
+        assert!(
+            contrast.get(c, r)[0] < needle.get(c, r)[0],
+            "pixel ({c}, {r}) got lighter"
+        );
+    }
+    // A turned C-arm sees another projection of the same patient.
+    let lao = xray("lao.png", &["--lao-deg", "40", "--cranial-deg", "-10"]);
+    assert!(differing(&empty, &lao, 10).len() > 1000);
+}
+
 /// `--gpu` draws the same pictures as the CPU reference (on lavapipe where there is no GPU;
 /// scripts/test installs it), and a machine with no usable adapter gets a named error.
 #[test]
@@ -324,6 +377,12 @@ fn the_gpu_renderer_draws_what_the_cpu_draws_and_no_adapter_is_a_clear_error() {
         p99: 0,
         max: 255,
     };
+    // The X-ray: the same f32 line integrals; a grey level on a .5 boundary may round apart.
+    let xray = Tolerance {
+        mean: 0.02,
+        p99: 0,
+        max: 1,
+    };
     for (extra, tolerance) in [
         (vec!["--view", "3d", "--preset", "skin"], volume),
         (
@@ -344,6 +403,7 @@ fn the_gpu_renderer_draws_what_the_cpu_draws_and_no_adapter_is_a_clear_error() {
         (vec!["--view", "3d", "--preset", "bone", "--tagging", "labels"], volume),
         (vec!["--view", "coronal"], slice),
         (vec!["--view", "needle", "--session", s, "--at", "10"], slice),
+        (vec!["--view", "xray", "--session", s, "--at", "13.9"], xray),
     ] {
         let cpu = render(&atlas, &d.path().join("cpu.png"), &[&extra[..], &["--cpu"]].concat());
         let gpu = render(&atlas, &d.path().join("gpu.png"), &[&extra[..], &["--gpu"]].concat());
@@ -472,4 +532,30 @@ fn bad_input_is_refused_with_the_problem_named_and_nothing_written() {
     assert!(e.contains("needle"), "{e}");
     let e = run(&["--view", "needle", "--session", s, "--at", "1"]);
     assert!(e.contains("needle"), "{e}");
+
+    // The C-arm: angles it cannot reach, a scenario the atlas lacks, a detector image too large.
+    let e = run(&["--view", "xray", "--lao-deg", "200"]);
+    assert!(e.contains("lao_deg 200") && e.contains("RAO"), "{e}");
+    let e = run(&["--view", "xray", "--cranial-deg", "nan"]);
+    assert!(e.contains("cranial_deg"), "{e}");
+    let e = run(&["--view", "xray", "--scenario", "no-such-scenario"]);
+    assert!(
+        e.contains("no-such-scenario") && e.contains("success-intercostal"),
+        "{e}"
+    );
+    let e = refused(
+        &[
+            "render",
+            "--atlas",
+            a,
+            "--out",
+            out.to_str().unwrap(),
+            "--view",
+            "xray",
+            "--size",
+            "5000x64",
+        ][..],
+        &out,
+    );
+    assert!(e.contains("4096"), "{e}");
 }

@@ -103,23 +103,44 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     // cast (docs/rendering.md): soft-tissue preset, the volume cut along the needle with target
     // and risk structures tagged on the cut.
     if let Some((session, ticks)) = pictured {
-        super::render::run(super::render::RenderArgs {
+        let args_for = |at_s: f64, view, size, out: &str| super::render::RenderArgs {
             atlas: atlas_dir.clone(),
-            session: Some(session),
-            at: Some(ticks as f64 * 0.6 / 1000.0),
-            view: super::render::View::ThreeD,
+            session: Some(session.clone()),
+            at: Some(at_s),
+            view,
             preset: super::render::PresetArg::Soft,
             tagging: super::render::TaggingArg::Risk,
-            size: super::render::Size {
-                width: 900,
-                height: 746,
-            },
+            size: Some(size),
+            scenario: None,
+            lao_deg: None,
+            cranial_deg: None,
             step_mm: None,
             gpu: false,
             cpu: true,
-            out: args.out.join(format!("{PICTURED_SESSION}-3d.png")),
-        })
+            out: args.out.join(format!("{PICTURED_SESSION}-{out}.png")),
+        };
+        super::render::run(args_for(
+            ticks as f64 * 0.6 / 1000.0,
+            super::render::View::ThreeD,
+            super::render::Size {
+                width: 900,
+                height: 746,
+            },
+            "3d",
+        ))
         .context("ray casting the demo puncture")?;
+        // Under fluoroscopy 1.4 s after the injection began (67 % of its course, docs/xray.md):
+        // the needle in the duct and the contrast spreading along it.
+        super::render::run(args_for(
+            ticks as f64 * 0.67 / 1000.0,
+            super::render::View::Xray,
+            super::render::Size {
+                width: 512,
+                height: 512,
+            },
+            "xray",
+        ))
+        .context("the X-ray of the demo puncture")?;
     }
 
     // Scores: every session replayed through the physics and graded at its difficulty.

@@ -15,6 +15,8 @@ use stylet_render::scene::{Camera, ClipPlane, Light, Quality, Scene, Tagging};
 use stylet_render::tools::ToolState;
 use stylet_render::transfer::TransferFunction;
 use stylet_render::volume::RenderVolume;
+use stylet_render::xray::attenuation::DEFAULT_IODINE_MG_PER_ML;
+use stylet_render::xray::{self, CArm, ContrastOverlay, Radiograph, XrayScene, XrayWindow};
 
 /// The largest image side `--size` accepts.
 pub const MAX_SIDE_PX: u32 = 8192;
@@ -42,9 +44,20 @@ pub struct RenderArgs {
     /// tool (or the atlas' first planned path).
     #[arg(long, value_enum, default_value_t = TaggingArg::Off)]
     pub tagging: TaggingArg,
-    /// Image size in pixels, WIDTHxHEIGHT (each 1 … 8192).
-    #[arg(long, default_value = "1225x1016", value_parser = parse_size)]
-    pub size: Size,
+    /// Image size in pixels, WIDTHxHEIGHT (each 1 … 8192; the X-ray at most 4096). Default
+    /// 1225x1016, the X-ray 512x512.
+    #[arg(long, value_parser = parse_size)]
+    pub size: Option<Size>,
+    /// The scenario whose C-arm the X-ray uses (`[scenarios.c_arm]`) when no session names one;
+    /// default: the atlas' first scenario.
+    #[arg(long)]
+    pub scenario: Option<String>,
+    /// Turns the C-arm for the X-ray: > 0 LAO, < 0 RAO (degrees; overrides the scenario's).
+    #[arg(long, value_name = "DEG", allow_negative_numbers = true)]
+    pub lao_deg: Option<f64>,
+    /// Tilts the C-arm for the X-ray: > 0 cranial, < 0 caudal (degrees; overrides the scenario's).
+    #[arg(long, value_name = "DEG", allow_negative_numbers = true)]
+    pub cranial_deg: Option<f64>,
     /// Distance between samples along a ray in the 3D view (mm; default half the finest voxel
     /// spacing).
     #[arg(long, value_name = "MM")]
@@ -71,6 +84,8 @@ pub enum View {
     Sagittal,
     /// The oblique slice along the needle (needs a session with the needle in use).
     Needle,
+    /// The C-arm's radiograph with the needle and the contrast medium of the moment (docs/xray.md).
+    Xray,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -127,6 +142,11 @@ fn parse_size(s: &str) -> Result<Size, String> {
 /// The tools at the requested moment of a session, and where the device was.
 struct Moment {
     tools: ToolState,
+    /// The contrast medium in the patient (CT voxels, μ_c), if any was injected.
+    contrast: Option<ContrastOverlay>,
+    /// The scenario the session was recorded for (its C-arm).
+    scenario: String,
+    xray_on: bool,
     device_mm: DVec3,
     /// The device's axis (orientation · +z).
     axis: DVec3,
@@ -139,20 +159,36 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         (Some(path), Some(at_s)) => Some(replay_to(&atlas, path, at_s)?),
         _ => None,
     };
+    let size = a.size.unwrap_or(match a.view {
+        View::Xray => Size {
+            width: 512,
+            height: 512,
+        },
+        _ => Size {
+            width: 1225,
+            height: 1016,
+        },
+    });
     let image = match a.view {
-        View::ThreeD => render_3d(&atlas, moment.as_ref(), &a)?,
-        View::Axial => render_plane(&atlas, moment.as_ref(), Plane::Axial, a.size, a.gpu)?,
-        View::Coronal => render_plane(&atlas, moment.as_ref(), Plane::Coronal, a.size, a.gpu)?,
-        View::Sagittal => render_plane(&atlas, moment.as_ref(), Plane::Sagittal, a.size, a.gpu)?,
-        View::Needle => render_needle(&atlas, moment.as_ref(), a.size, a.gpu)?,
+        View::ThreeD => render_3d(&atlas, moment.as_ref(), &a, size)?,
+        View::Axial => render_plane(&atlas, moment.as_ref(), Plane::Axial, size, a.gpu)?,
+        View::Coronal => render_plane(&atlas, moment.as_ref(), Plane::Coronal, size, a.gpu)?,
+        View::Sagittal => render_plane(&atlas, moment.as_ref(), Plane::Sagittal, size, a.gpu)?,
+        View::Needle => render_needle(&atlas, moment.as_ref(), size, a.gpu)?,
+        View::Xray => render_xray(&atlas, moment.as_ref(), &a, size)?,
     };
     write_atomically(&image, &a.out)?;
     match &moment {
         Some(m) => sayf!(
-            "{} view of '{}' at tick {} written to {}",
+            "{} view of '{}' at tick {}{} written to {}",
             view_name(a.view),
             atlas.manifest.name,
             m.tick,
+            match (a.view, m.xray_on) {
+                (View::Xray, true) => " (fluoroscopy on)",
+                (View::Xray, false) => " (X-ray off then: the picture the C-arm would take)",
+                _ => "",
+            },
             a.out.display()
         ),
         None => sayf!(
@@ -172,6 +208,7 @@ fn view_name(v: View) -> &'static str {
         View::Coronal => "coronal",
         View::Sagittal => "sagittal",
         View::Needle => "needle",
+        View::Xray => "xray",
     }
 }
 
@@ -210,11 +247,16 @@ fn replay_to(atlas: &stylet_atlas::Atlas, path: &Path, at_s: f64) -> anyhow::Res
     // The ticks after the moment are not needed: replaying a prefix is bit-exact for the prefix.
     session.ticks.truncate(last + 1);
     let mut moment = None;
+    let ct_dims = atlas.model.ct().grid().dims();
+    let scenario = h.scenario.clone();
     let report = stylet_scoring::replay(&session, Arc::new(atlas.model.clone()), &mut |input, out, sim| {
         if out.tick == tick {
             let q = input.orientation;
             moment = Some(Moment {
                 tools: ToolState::from_simulation(sim, input),
+                contrast: ContrastOverlay::from_agent(sim.contrast(), ct_dims, DEFAULT_IODINE_MG_PER_ML),
+                scenario: scenario.clone(),
+                xray_on: out.xray_on,
                 device_mm: out.tip_mm,
                 axis: if q.is_finite() && q.length_squared() > 1e-12 {
                     q.normalize() * DVec3::Z
@@ -348,7 +390,12 @@ fn slice_image(
 }
 
 /// The ray-cast view from anterior, framing the volume, with the tools of the moment.
-fn render_3d(atlas: &stylet_atlas::Atlas, moment: Option<&Moment>, a: &RenderArgs) -> anyhow::Result<Image> {
+fn render_3d(
+    atlas: &stylet_atlas::Atlas,
+    moment: Option<&Moment>,
+    a: &RenderArgs,
+    size: Size,
+) -> anyhow::Result<Image> {
     let render = presets::render_settings(&atlas.manifest);
     let preset = Preset::from(a.preset);
     let transfer = TransferFunction::from_preset(preset.of(&render)).map_err(|e| {
@@ -387,9 +434,78 @@ fn render_3d(atlas: &stylet_atlas::Atlas, moment: Option<&Moment>, a: &RenderArg
     };
     let volume = RenderVolume::new(Arc::new(atlas.model.clone()));
     if a.gpu {
-        return render_gpu(&volume, &scene, a.size);
+        return render_gpu(&volume, &scene, size);
     }
-    Ok(stylet_render::raycast::render(&volume, &scene, a.size.width, a.size.height).image)
+    Ok(stylet_render::raycast::render(&volume, &scene, size.width, size.height).image)
+}
+
+/// The radiograph of the scenario's C-arm (the session's scenario, else `--scenario`, else the
+/// atlas' first), with the needle and the contrast medium of the moment.
+fn render_xray(
+    atlas: &stylet_atlas::Atlas,
+    moment: Option<&Moment>,
+    a: &RenderArgs,
+    size: Size,
+) -> anyhow::Result<Image> {
+    let scenarios = &atlas.manifest.scenarios;
+    let wanted = moment.map(|m| m.scenario.as_str()).or(a.scenario.as_deref());
+    let scenario = match wanted {
+        Some(name) => match scenarios.iter().find(|s| s.name == name) {
+            Some(s) => Some(s),
+            // A session of a scenario the atlas no longer declares still has a picture.
+            None if moment.is_some() => None,
+            None => bail!(
+                "--scenario {name}: atlas '{}' has no such scenario (it has: {})",
+                atlas.manifest.name,
+                scenarios.iter().map(|s| s.name.as_str()).collect::<Vec<_>>().join(", ")
+            ),
+        },
+        None => scenarios.first(),
+    };
+    let mut toml = scenario.and_then(|s| s.c_arm).unwrap_or_default();
+    if let Some(v) = a.lao_deg {
+        toml.lao_deg = v;
+    }
+    if let Some(v) = a.cranial_deg {
+        toml.cranial_deg = v;
+    }
+    toml.check().map_err(|e| anyhow::anyhow!("the C-arm: {e}"))?;
+    let isocenter_mm = match atlas.planned_paths().first() {
+        Some(p) => p.target_mm,
+        None => {
+            let (lo, hi) = atlas.model.ct().grid().world_bounds();
+            (lo + hi) * 0.5
+        }
+    };
+    let scene = XrayScene {
+        c_arm: CArm::from_toml(&toml, isocenter_mm.as_vec3()),
+        needle: moment.and_then(|m| m.tools.needle.clone()),
+        contrast: moment.and_then(|m| m.contrast.clone()),
+    };
+    let window = XrayWindow::from_toml(&toml.window);
+    if a.gpu {
+        return xray_gpu(atlas, &scene, size).map(|r| r.to_image(window));
+    }
+    let radiograph =
+        xray::render(&atlas.model, &scene, size.width, size.height).map_err(|e| anyhow::anyhow!("--view xray: {e}"))?;
+    Ok(radiograph.to_image(window))
+}
+
+#[cfg(feature = "gpu")]
+fn xray_gpu(atlas: &stylet_atlas::Atlas, scene: &XrayScene, size: Size) -> anyhow::Result<Radiograph> {
+    use stylet_render_gpu::{GpuContext, GpuVolume, GpuXray};
+    let ctx = GpuContext::new().map_err(|e| anyhow::anyhow!("--gpu: {e}"))?;
+    let volume = RenderVolume::new(Arc::new(atlas.model.clone()));
+    let gpu_volume =
+        GpuVolume::upload(&ctx, &volume).map_err(|e| anyhow::anyhow!("--gpu on {}: {e}", ctx.adapter().name))?;
+    GpuXray::new(&ctx)
+        .render(&ctx, &gpu_volume, scene, size.width, size.height)
+        .map_err(|e| anyhow::anyhow!("--gpu on {}: {e}", ctx.adapter().name))
+}
+
+#[cfg(not(feature = "gpu"))]
+fn xray_gpu(_: &stylet_atlas::Atlas, _: &XrayScene, _: Size) -> anyhow::Result<Radiograph> {
+    bail!("--gpu: this stylet was built without the GPU renderer (cargo feature `gpu`); use --cpu")
 }
 
 /// The same scene on the GPU renderer (wgpu).

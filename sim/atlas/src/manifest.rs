@@ -55,6 +55,113 @@ pub struct ScenarioToml {
     /// with (a palpation is not a failed puncture). Absent: puncture.
     #[serde(default)]
     pub exercise: Exercise,
+    /// Where the C-arm stands for this scenario's X-ray (docs/xray.md "Geometry"); absent: a
+    /// posterior-anterior beam centred on the first planned path's target.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub c_arm: Option<CArmToml>,
+}
+
+/// `[scenarios.c_arm]`: the C-arm's cone-beam geometry and the X-ray display window. Every
+/// field has a default (a typical interventional C-arm, posterior-anterior).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CArmToml {
+    /// > 0 LAO (detector toward the patient's left), < 0 RAO, degrees.
+    pub lao_deg: f64,
+    /// > 0 cranial (detector toward the head), < 0 caudal, degrees.
+    pub cranial_deg: f64,
+    /// Focal spot to detector (SID), mm.
+    pub source_to_detector_mm: f64,
+    /// Focal spot to isocentre, mm.
+    pub source_to_isocenter_mm: f64,
+    /// Detector width and height, mm.
+    pub detector_mm: [f64; 2],
+    /// The point the central ray passes through (world mm); absent: the first planned path's
+    /// target, else the CT's centre.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub isocenter_mm: Option<[f64; 3]>,
+    /// The attenuation shown white and black (the log display's window).
+    pub window: XrayWindowToml,
+}
+
+/// The range of the line integral a = −ln(I/I₀) from white (`low`) to black (`high`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct XrayWindowToml {
+    pub low: f64,
+    pub high: f64,
+}
+
+/// Limits of [`CArmToml::check`] (what a C-arm can do, with margin).
+pub const C_ARM_SID_RANGE_MM: (f64, f64) = (500.0, 2000.0);
+pub const C_ARM_DETECTOR_SIDE_RANGE_MM: (f64, f64) = (50.0, 600.0);
+pub const C_ARM_MAX_LAO_DEG: f64 = 135.0;
+pub const C_ARM_MAX_CRANIAL_DEG: f64 = 60.0;
+
+impl Default for CArmToml {
+    fn default() -> Self {
+        CArmToml {
+            lao_deg: 0.0,
+            cranial_deg: 0.0,
+            source_to_detector_mm: 1000.0,
+            source_to_isocenter_mm: 750.0,
+            detector_mm: [300.0, 300.0],
+            isocenter_mm: None,
+            window: XrayWindowToml { low: 1.5, high: 5.0 },
+        }
+    }
+}
+
+impl CArmToml {
+    /// Names the first value outside what a C-arm can be set to.
+    pub fn check(&self) -> Result<(), String> {
+        if let Some(p) = self.isocenter_mm
+            && !p.iter().all(|v| v.is_finite())
+        {
+            return Err(format!("c_arm.isocenter_mm {p:?} must be finite"));
+        }
+        let sid = self.source_to_detector_mm;
+        let (lo, hi) = C_ARM_SID_RANGE_MM;
+        if !(sid.is_finite() && (lo..=hi).contains(&sid)) {
+            return Err(format!("c_arm.source_to_detector_mm {sid} must be {lo} … {hi} mm"));
+        }
+        let sod = self.source_to_isocenter_mm;
+        if !(sod.is_finite() && sod >= 0.2 * sid && sod <= sid - 100.0) {
+            return Err(format!(
+                "c_arm.source_to_isocenter_mm {sod} must be between 20 % of the source-to-detector distance and 100 mm short of it ({} … {} mm)",
+                0.2 * sid,
+                sid - 100.0
+            ));
+        }
+        let (lo, hi) = C_ARM_DETECTOR_SIDE_RANGE_MM;
+        for (name, side) in [("width", self.detector_mm[0]), ("height", self.detector_mm[1])] {
+            if !(side.is_finite() && (lo..=hi).contains(&side)) {
+                return Err(format!("c_arm.detector_mm {name} {side} must be {lo} … {hi} mm"));
+            }
+        }
+        let m = C_ARM_MAX_LAO_DEG;
+        if !(self.lao_deg.is_finite() && self.lao_deg.abs() <= m) {
+            return Err(format!(
+                "c_arm.lao_deg {} must be −{m} (RAO) … {m} (LAO) degrees",
+                self.lao_deg
+            ));
+        }
+        let m = C_ARM_MAX_CRANIAL_DEG;
+        if !(self.cranial_deg.is_finite() && self.cranial_deg.abs() <= m) {
+            return Err(format!(
+                "c_arm.cranial_deg {} must be −{m} (caudal) … {m} (cranial) degrees",
+                self.cranial_deg
+            ));
+        }
+        let w = self.window;
+        if !(w.low.is_finite() && w.high.is_finite() && w.low >= 0.0 && w.high > w.low) {
+            return Err(format!(
+                "c_arm.window low {} / high {} must be finite with 0 ≤ low < high",
+                w.low, w.high
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// The kind of exercise a scenario is (docs/metrics.md "Exercises").
@@ -419,6 +526,9 @@ pub fn check_scenarios(scenarios: &[ScenarioToml]) -> Result<(), String> {
         if !seen.insert(sc.name.as_str()) {
             return Err(format!("scenario '{}' is declared twice", sc.name));
         }
+        if let Some(c) = &sc.c_arm {
+            c.check().map_err(|e| format!("scenario '{}': {e}", sc.name))?;
+        }
     }
     Ok(())
 }
@@ -610,6 +720,27 @@ mod tests {
                 .weight
         };
         assert_eq!((weight("skin"), weight("bone")), (0.0, 1.0));
+    }
+
+    #[test]
+    fn scenario_c_arms_parse_with_defaults_and_bad_ones_are_named() {
+        let s = ScenarioFile::parse(PTCD_SCENARIO_TOML).unwrap();
+        let success = s.scenarios.iter().find(|sc| sc.name == "success-intercostal").unwrap();
+        assert_eq!(success.c_arm, Some(CArmToml::default()));
+        let parsed: ScenarioToml = toml::from_str("name = \"x\"\n[c_arm]\nlao_deg = -30.0\n").unwrap();
+        let c = parsed.c_arm.unwrap();
+        assert_eq!((c.lao_deg, c.source_to_detector_mm), (-30.0, 1000.0));
+        let check = |text: &str| {
+            let sc: ScenarioToml = toml::from_str(&format!("name = \"x\"\n[c_arm]\n{text}\n")).unwrap();
+            check_scenarios(&[sc]).unwrap_err()
+        };
+        let e = check("lao_deg = 150.0");
+        assert!(e.contains("scenario 'x'") && e.contains("lao_deg 150"), "{e}");
+        assert!(check("cranial_deg = -61.0").contains("cranial_deg"));
+        assert!(check("source_to_isocenter_mm = 950.0").contains("source_to_isocenter_mm"));
+        assert!(check("detector_mm = [300.0, 10.0]").contains("height"));
+        assert!(check("window = { low = 3.0, high = 2.0 }").contains("window"));
+        assert!(toml::from_str::<ScenarioToml>("name = \"x\"\n[c_arm]\nkv = 70\n").is_err());
     }
 
     fn ptcd_with(edit: impl Fn(&mut toml::Table)) -> Result<ScenarioFile, String> {

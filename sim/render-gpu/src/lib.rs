@@ -8,6 +8,7 @@
 //! - [`GpuRenderer`]: the ray-casting pipeline (`shaders/raycast.wgsl`); per frame only the
 //!   uniforms and the tool primitives are written.
 //! - [`GpuMpr`]: slices with the label overlay (`shaders/mpr.wgsl`).
+//! - [`GpuXray`]: the C-arm's radiograph with contrast and needle (`shaders/xray.wgsl`).
 //!
 //! Only the desktop simulator and the CLI link this crate; the service and the scoring workers
 //! draw with the CPU reference and never link wgpu.
@@ -17,11 +18,13 @@ pub mod mpr;
 mod pipeline;
 pub mod raycast;
 pub mod volume;
+pub mod xray;
 
 pub use context::{AdapterSummary, GpuContext};
 pub use mpr::GpuMpr;
 pub use raycast::GpuRenderer;
 pub use volume::{CtFormat, CtPlacement, GpuVolume};
+pub use xray::GpuXray;
 
 /// Why the GPU could not draw.
 #[derive(Debug, thiserror::Error)]

@@ -10,6 +10,7 @@
 //!
 //!   d = (−sin θ·cos φ, cos θ·cos φ, sin φ).
 
+use stylet_atlas::manifest::CArmToml;
 use stylet_physics::glam::Vec3;
 
 /// Where the C-arm stands and what its detector covers.
@@ -29,12 +30,6 @@ pub struct CArm {
     pub cranial_deg: f32,
 }
 
-/// Limits [`CArm::validate`] checks (what a real C-arm can do, with margin).
-pub const SID_RANGE_MM: (f32, f32) = (500.0, 2000.0);
-pub const DETECTOR_SIDE_RANGE_MM: (f32, f32) = (50.0, 600.0);
-pub const MAX_LAO_DEG: f32 = 135.0;
-pub const MAX_CRANIAL_DEG: f32 = 60.0;
-
 impl CArm {
     /// A typical interventional C-arm at the given isocentre: SID 1000 mm, source 750 mm from
     /// the isocentre, a 300 × 300 mm flat detector, posterior-anterior beam.
@@ -49,47 +44,37 @@ impl CArm {
         }
     }
 
-    /// Names the first value outside what a C-arm can be set to.
+    /// The scenario's `[scenarios.c_arm]` (docs/atlas.md), centred on `default_isocenter_mm`
+    /// unless it names its own isocentre.
+    pub fn from_toml(t: &CArmToml, default_isocenter_mm: Vec3) -> CArm {
+        CArm {
+            isocenter_mm: t.isocenter_mm.map_or(default_isocenter_mm, |p| {
+                Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32)
+            }),
+            source_to_detector_mm: t.source_to_detector_mm as f32,
+            source_to_isocenter_mm: t.source_to_isocenter_mm as f32,
+            detector_mm: t.detector_mm.map(|v| v as f32),
+            lao_deg: t.lao_deg as f32,
+            cranial_deg: t.cranial_deg as f32,
+        }
+    }
+
+    /// Names the first value outside what a C-arm can be set to (the limits of the scenario
+    /// format, `CArmToml::check`).
     pub fn validate(&self) -> Result<(), String> {
         if !self.isocenter_mm.is_finite() {
             return Err(format!("C-arm isocenter {:?} must be finite", self.isocenter_mm));
         }
-        let sid = self.source_to_detector_mm;
-        if !(sid.is_finite() && (SID_RANGE_MM.0..=SID_RANGE_MM.1).contains(&sid)) {
-            return Err(format!(
-                "C-arm source_to_detector_mm {sid} must be {} … {} mm",
-                SID_RANGE_MM.0, SID_RANGE_MM.1
-            ));
+        CArmToml {
+            lao_deg: self.lao_deg as f64,
+            cranial_deg: self.cranial_deg as f64,
+            source_to_detector_mm: self.source_to_detector_mm as f64,
+            source_to_isocenter_mm: self.source_to_isocenter_mm as f64,
+            detector_mm: self.detector_mm.map(|v| v as f64),
+            isocenter_mm: None,
+            ..CArmToml::default()
         }
-        let sod = self.source_to_isocenter_mm;
-        if !(sod.is_finite() && sod >= 0.2 * sid && sod <= sid - 100.0) {
-            return Err(format!(
-                "C-arm source_to_isocenter_mm {sod} must be between 20 % of the source-to-detector distance and 100 mm short of it ({} … {} mm)",
-                0.2 * sid,
-                sid - 100.0
-            ));
-        }
-        for (name, side) in [("width", self.detector_mm[0]), ("height", self.detector_mm[1])] {
-            if !(side.is_finite() && (DETECTOR_SIDE_RANGE_MM.0..=DETECTOR_SIDE_RANGE_MM.1).contains(&side)) {
-                return Err(format!(
-                    "C-arm detector {name} {side} mm must be {} … {} mm",
-                    DETECTOR_SIDE_RANGE_MM.0, DETECTOR_SIDE_RANGE_MM.1
-                ));
-            }
-        }
-        if !(self.lao_deg.is_finite() && self.lao_deg.abs() <= MAX_LAO_DEG) {
-            return Err(format!(
-                "C-arm lao_deg {} must be −{MAX_LAO_DEG} (RAO) … {MAX_LAO_DEG} (LAO) degrees",
-                self.lao_deg
-            ));
-        }
-        if !(self.cranial_deg.is_finite() && self.cranial_deg.abs() <= MAX_CRANIAL_DEG) {
-            return Err(format!(
-                "C-arm cranial_deg {} must be −{MAX_CRANIAL_DEG} (caudal) … {MAX_CRANIAL_DEG} (cranial) degrees",
-                self.cranial_deg
-            ));
-        }
-        Ok(())
+        .check()
     }
 
     /// Unit vector from the isocentre toward the detector (see the module doc).
@@ -98,7 +83,9 @@ impl CArm {
         Vec3::new(-t.sin() * p.cos(), t.cos() * p.cos(), p.sin())
     }
 
-    /// The projection onto a `width` × `height` pixel detector image.
+    /// The projection onto a `width` × `height` pixel image of the detector. Pixels are square:
+    /// pitch = min(detector width / width, detector height / height), so an image of another
+    /// aspect than the detector shows its centre.
     pub fn projection(&self, width: u32, height: u32) -> Projection {
         let d = self.beam_direction();
         // Image up: superior, made perpendicular to the beam (at 90° cranial, anterior).
@@ -109,8 +96,9 @@ impl CArm {
         let source_mm = self.isocenter_mm - d * self.source_to_isocenter_mm;
         let detector_center_mm = source_mm + d * self.source_to_detector_mm;
         let (w, h) = (width.max(1) as f32, height.max(1) as f32);
-        let col_mm = right * (self.detector_mm[0] / w);
-        let row_mm = -up * (self.detector_mm[1] / h);
+        let pitch_mm = self.pixel_pitch_mm(width, height);
+        let col_mm = right * pitch_mm;
+        let row_mm = -up * pitch_mm;
         Projection {
             source_mm,
             pixel00_mm: detector_center_mm - col_mm * (0.5 * w - 0.5) - row_mm * (0.5 * h - 0.5),
@@ -121,10 +109,15 @@ impl CArm {
         }
     }
 
-    /// Detector pixel pitch projected back to the isocentre (mm per pixel across the patient):
-    /// the detector pitch × SOD / SID.
-    pub fn pixel_at_isocenter_mm(&self, width: u32) -> f32 {
-        self.detector_mm[0] / width.max(1) as f32 * self.source_to_isocenter_mm / self.source_to_detector_mm
+    /// The detector pixel pitch of a `width` × `height` image (mm).
+    pub fn pixel_pitch_mm(&self, width: u32, height: u32) -> f32 {
+        (self.detector_mm[0] / width.max(1) as f32).min(self.detector_mm[1] / height.max(1) as f32)
+    }
+
+    /// The pixel pitch projected back to the isocentre (mm across the patient per pixel): the
+    /// detector pitch × SOD / SID.
+    pub fn pixel_at_isocenter_mm(&self, width: u32, height: u32) -> f32 {
+        self.pixel_pitch_mm(width, height) * self.source_to_isocenter_mm / self.source_to_detector_mm
     }
 
     /// Area of the beam at the detector (cm²), for the dose-area product.

@@ -2,6 +2,8 @@
 //! integral a = −ln(I/I₀) itself, shown through a window as on a fluoroscopy monitor, where more
 //! photons are brighter: air white, bone, steel and contrast medium dark.
 
+use stylet_atlas::manifest::XrayWindowToml;
+
 use crate::image::Image;
 
 /// The range of a mapped from white (`low`) to black (`high`).
@@ -12,9 +14,13 @@ pub struct XrayWindow {
 }
 
 impl XrayWindow {
-    /// Fits an abdomen or chest at 100 keV: a from 0.3 (lung, thin tissue) to 7 (spine and
-    /// liver together).
-    pub const DEFAULT: XrayWindow = XrayWindow { low: 0.3, high: 7.0 };
+    /// The scenario's window (`[scenarios.c_arm] window`, checked when the atlas loads).
+    pub fn from_toml(w: &XrayWindowToml) -> XrayWindow {
+        XrayWindow {
+            low: w.low as f32,
+            high: w.high as f32,
+        }
+    }
 
     /// Names a bad window.
     pub fn validate(&self) -> Result<(), String> {

@@ -1,0 +1,164 @@
+//! The simulated X-ray on the GPU (`shaders/xray.wgsl`): the same per-ray loop as
+//! `stylet_render::xray` (Joseph's line integral through the CT and the contrast overlay, the
+//! needle's steel chords), one invocation per detector pixel. Returns the attenuation a per
+//! pixel; the window is applied on the CPU (`Radiograph::to_image`), as for the CPU image.
+
+use bytemuck::{Pod, Zeroable};
+use stylet_physics::glam::Vec3;
+use stylet_render::volume::IndexMap;
+use stylet_render::xray::attenuation::{MU_STEEL_PER_MM, MU_WATER_PER_MM};
+use stylet_render::xray::{MAX_SIDE_PX, Radiograph, XrayScene};
+
+use crate::pipeline::{Pipelines, dispatch};
+use crate::volume::{GpuVolume, storage};
+use crate::{GpuContext, GpuError};
+
+const SHADER: &str = include_str!("../shaders/xray.wgsl");
+
+/// The most needle nodes the shader reads (the physics' needle has far fewer).
+pub const MAX_NEEDLE_NODES: usize = 1024;
+
+/// Mirrors `Params` in xray.wgsl (16-byte members).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct XrayParams {
+    source: [f32; 4],
+    pixel00: [f32; 4],
+    col_step: [f32; 4],
+    row_step: [f32; 4],
+    row0: [f32; 4],
+    row1: [f32; 4],
+    row2: [f32; 4],
+    origin: [f32; 4],
+    dims: [u32; 4],
+    size: [u32; 4],
+    c_origin: [f32; 4],
+    c_dims: [u32; 4],
+    consts: [f32; 4],
+}
+
+fn v4(v: Vec3) -> [f32; 4] {
+    [v.x, v.y, v.z, 0.0]
+}
+
+/// The X-ray pipeline (one per CT storage format, built on first use).
+pub struct GpuXray {
+    pipelines: Pipelines,
+    params: wgpu::Buffer,
+}
+
+impl GpuXray {
+    pub fn new(ctx: &GpuContext) -> GpuXray {
+        let params = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("xray params"),
+            size: std::mem::size_of::<XrayParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        GpuXray {
+            pipelines: Pipelines::new("xray.wgsl", SHADER),
+            params,
+        }
+    }
+
+    /// The radiograph of `scene` at `width` × `height` detector pixels.
+    pub fn render(
+        &mut self,
+        ctx: &GpuContext,
+        vol: &GpuVolume,
+        scene: &XrayScene,
+        width: u32,
+        height: u32,
+    ) -> Result<Radiograph, GpuError> {
+        if !(1..=MAX_SIDE_PX).contains(&width) || !(1..=MAX_SIDE_PX).contains(&height) {
+            return Err(GpuError::Invalid(format!(
+                "X-ray image {width} × {height}: each side must be 1 … {MAX_SIDE_PX} pixels"
+            )));
+        }
+        scene.c_arm.validate().map_err(GpuError::Invalid)?;
+        let nodes: Vec<[f32; 4]> = match &scene.needle {
+            Some(n) => {
+                if n.nodes_mm.len() > MAX_NEEDLE_NODES {
+                    return Err(GpuError::Invalid(format!(
+                        "a needle of {} nodes (at most {MAX_NEEDLE_NODES})",
+                        n.nodes_mm.len()
+                    )));
+                }
+                if !(n.diameter_mm.is_finite() && n.diameter_mm > 0.0 && n.nodes_mm.iter().all(|p| p.is_finite())) {
+                    return Err(GpuError::Invalid(
+                        "the needle's nodes and diameter must be finite".into(),
+                    ));
+                }
+                n.nodes_mm.iter().map(|&p| v4(p)).collect()
+            }
+            None => Vec::new(),
+        };
+        let grid = vol.atlas.ct().grid();
+        let map = IndexMap::of(grid);
+        let dims = map.dims;
+        let (c_origin, c_dims, c_values) = match &scene.contrast {
+            Some(c) => {
+                let inside = (0..3).all(|a| c.origin[a] as u64 + c.dims[a] as u64 <= dims[a] as u64);
+                let n = c.dims.iter().map(|&d| d as usize).product::<usize>();
+                if !inside || n != c.mu_per_mm.len() || n == 0 {
+                    return Err(GpuError::Invalid("the contrast overlay does not fit the CT".into()));
+                }
+                ctx.check_storage_buffer("the contrast overlay", n as u64 * 4)?;
+                (c.origin.map(|v| v as f32), c.dims, c.mu_per_mm.as_slice())
+            }
+            None => ([0.0; 3], [1, 1, 1], &[0.0f32][..]),
+        };
+        let out_bytes = width as u64 * height as u64 * 4;
+        ctx.check_storage_buffer("the X-ray image", out_bytes)?;
+        let proj = scene.c_arm.projection(width, height);
+        let params = XrayParams {
+            source: v4(proj.source_mm),
+            pixel00: v4(proj.pixel00_mm),
+            col_step: v4(proj.col_mm),
+            row_step: v4(proj.row_mm),
+            row0: v4(map.rows[0]),
+            row1: v4(map.rows[1]),
+            row2: v4(map.rows[2]),
+            origin: v4(map.origin),
+            dims: [dims[0], dims[1], dims[2], 0],
+            size: [width, height, nodes.len() as u32, scene.contrast.is_some() as u32],
+            c_origin: [c_origin[0], c_origin[1], c_origin[2], 0.0],
+            c_dims: [c_dims[0], c_dims[1], c_dims[2], 0],
+            consts: [
+                MU_WATER_PER_MM / 1000.0,
+                MU_STEEL_PER_MM,
+                scene.needle.as_ref().map_or(0.0, |n| 0.5 * n.diameter_mm),
+                0.0,
+            ],
+        };
+        ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
+        let contrast = storage(ctx, "contrast overlay", bytemuck::cast_slice(c_values));
+        let needle_words: Vec<[f32; 4]> = if nodes.is_empty() { vec![[0.0; 4]] } else { nodes };
+        let needle = storage(ctx, "needle nodes", bytemuck::cast_slice(&needle_words));
+        let output = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("xray image"),
+            size: out_bytes,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let pipeline = self.pipelines.get(ctx, vol.ct_key());
+        dispatch(
+            ctx,
+            &pipeline,
+            &[
+                self.params.as_entire_binding(),
+                vol.ct_binding(),
+                contrast.as_entire_binding(),
+                needle.as_entire_binding(),
+                output.as_entire_binding(),
+            ],
+            (width.div_ceil(8), height.div_ceil(8)),
+        );
+        let bytes = ctx.read_buffer(&output, out_bytes)?;
+        Ok(Radiograph {
+            width,
+            height,
+            attenuation: bytemuck::cast_slice(&bytes).to_vec(),
+        })
+    }
+}
