@@ -637,3 +637,55 @@ fn contrast_outside_the_ducts_is_extravasation_and_confirmation_needs_filled_duc
     assert_eq!(m["target_confirmed"], false, "{m}");
     assert_eq!(r["grade"]["passed"], false, "{r}");
 }
+
+/// The dose-area product is the fluoroscopy time × the scenario C-arm's kerma rate × its beam
+/// area at the isocentre (docs/metrics.md), so moving the source toward the patient (a smaller
+/// field at the isocentre) lowers it.
+#[test]
+fn the_dose_area_product_follows_the_scenarios_c_arm() {
+    let st = setup();
+    let r = score_json(&st.session("success-intercostal"));
+    let m = &r["metrics"];
+    let fluoro_s = m["fluoro_time_s"].as_f64().unwrap();
+    assert!(fluoro_s > 1.0, "{m}");
+    // 5 mGy/min at the isocentre over 300 × 300 mm × (750/1000)² = 506.25 cm².
+    let rate = 5e-3 / 60.0 * 506.25;
+    let dap = m["dose_area_product_gy_cm2"].as_f64().unwrap();
+    assert!((dap - fluoro_s * rate).abs() < 1e-12, "{dap} vs {}", fluoro_s * rate);
+
+    // The same atlas with the source at 375 mm: a quarter of the area at the isocentre.
+    let d = tempfile::tempdir().unwrap();
+    let near = d.path().join("near");
+    std::fs::create_dir(&near).unwrap();
+    for f in std::fs::read_dir(st.atlas()).unwrap() {
+        let f = f.unwrap().path();
+        std::fs::copy(&f, near.join(f.file_name().unwrap())).unwrap();
+    }
+    let manifest = near.join("atlas.toml");
+    let text = std::fs::read_to_string(&manifest).unwrap();
+    assert_eq!(
+        text.matches("source_to_isocenter_mm = 750.0").count(),
+        1,
+        "one scenario sets a C-arm"
+    );
+    std::fs::write(
+        &manifest,
+        text.replace("source_to_isocenter_mm = 750.0", "source_to_isocenter_mm = 375.0"),
+    )
+    .unwrap();
+    let session = d.path().join("success-intercostal.mcap");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts/success-intercostal.txt");
+    ok(&[
+        "script",
+        "run",
+        "--atlas",
+        s(&near),
+        "--script",
+        s(&script),
+        "--out",
+        s(&session),
+    ]);
+    let r: Value = serde_json::from_str(&ok(&["score", s(&session), "--atlas", s(&near), "--json"])).unwrap();
+    let near_dap = r["metrics"]["dose_area_product_gy_cm2"].as_f64().unwrap();
+    assert!((near_dap - dap / 4.0).abs() < 1e-12, "{near_dap} vs {}", dap / 4.0);
+}

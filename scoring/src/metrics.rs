@@ -105,6 +105,9 @@ pub struct Metrics {
     pub time_total_s: f64,
     pub fluoro_time_s: f64,
     pub xray_shots: u32,
+    /// Estimated dose-area product (Gy·cm²): fluoroscopy time × the scenario C-arm's rate.
+    #[serde(default)]
+    pub dose_area_product_gy_cm2: f64,
     pub ultrasound_time_s: f64,
     pub palpation_time_s: f64,
     pub path_length_mm: f64,
@@ -805,6 +808,8 @@ impl<'a> MetricsCollector<'a> {
             time_total_s: self.ticks as f64 / rate,
             fluoro_time_s: self.xray_ticks as f64 / rate,
             xray_shots: self.xray_shots,
+            // Set by the scorer, which knows the scenario's C-arm.
+            dose_area_product_gy_cm2: 0.0,
             ultrasound_time_s: self.ultrasound_ticks as f64 / rate,
             palpation_time_s: self.palpation_ticks as f64 / rate,
             path_length_mm: self.path_length_mm,

@@ -18,6 +18,8 @@ pub enum Unit {
     SquareMillimetres,
     Newtons,
     Millilitres,
+    /// Gy·cm² (dose-area product).
+    GrayCm2,
     Degrees,
     /// A plain ratio (1 = ideal).
     Ratio,
@@ -79,6 +81,7 @@ pub const METRICS: &[MetricInfo] = &[
     m("time_total_s", "total time", Unit::Seconds),
     m("fluoro_time_s", "time under X-ray", Unit::Seconds),
     m("xray_shots", "X-ray shots", Unit::Count),
+    m("dose_area_product_gy_cm2", "dose-area product", Unit::GrayCm2),
     m("max_force_n", "peak force", Unit::Newtons),
     m("tissue_damage_mm2", "tissue damage", Unit::SquareMillimetres),
     m("path_inefficiency", "path inefficiency", Unit::Ratio),
@@ -171,6 +174,7 @@ impl MetricInfo {
             Unit::SquareMillimetres => format!("{} mm²", num(v)),
             Unit::Newtons => format!("{} N", num(v)),
             Unit::Millilitres => format!("{} ml", num(v)),
+            Unit::GrayCm2 => format!("{} Gy·cm²", num(v)),
             Unit::Degrees => format!("{}°", num(v)),
             Unit::Ratio => num(v),
             Unit::Fraction => format!("{} %", num(v * 100.0)),

@@ -138,6 +138,8 @@ pub struct Scorer {
     exercises: std::collections::BTreeMap<String, Exercise>,
     /// Clinical consequences of the risk labels (atlas TOML).
     consequences: std::collections::BTreeMap<stylet_physics::LabelId, String>,
+    /// Dose-area product per second of fluoroscopy of each declared scenario's C-arm.
+    dose_area_rates: std::collections::BTreeMap<String, f64>,
 }
 
 impl Scorer {
@@ -169,6 +171,17 @@ impl Scorer {
                 .map(|s| (s.name.clone(), s.exercise))
                 .collect(),
             consequences: stylet_atlas::manifest::consequences(&atlas.manifest.labels),
+            dose_area_rates: atlas
+                .manifest
+                .scenarios
+                .iter()
+                .map(|s| {
+                    (
+                        s.name.clone(),
+                        s.c_arm.unwrap_or_default().dose_area_rate_gy_cm2_per_s(),
+                    )
+                })
+                .collect(),
         })
     }
 
@@ -249,7 +262,14 @@ impl Scorer {
                 t.tick(i, o);
             }
         })?;
-        let metrics = collector.finish();
+        let mut metrics = collector.finish();
+        // The scenario's C-arm (an undeclared scenario: the default one).
+        let rate = self
+            .dose_area_rates
+            .get(&h.scenario)
+            .copied()
+            .unwrap_or_else(|| stylet_atlas::manifest::CArmToml::default().dose_area_rate_gy_cm2_per_s());
+        metrics.dose_area_product_gy_cm2 = metrics.fluoro_time_s * rate;
         let grade = self
             .rubric
             .grade(&metrics, exercise, &h.difficulty)

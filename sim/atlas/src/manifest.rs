@@ -82,6 +82,9 @@ pub struct CArmToml {
     pub isocenter_mm: Option<[f64; 3]>,
     /// The attenuation shown white and black (the log display's window).
     pub window: XrayWindowToml,
+    /// Air kerma rate at the isocentre under fluoroscopy (mGy/min): with the beam's area there it
+    /// gives the dose-area product estimate (docs/metrics.md).
+    pub kerma_rate_mgy_per_min: f64,
 }
 
 /// The range of the line integral a = −ln(I/I₀) from white (`low`) to black (`high`).
@@ -108,11 +111,24 @@ impl Default for CArmToml {
             detector_mm: [300.0, 300.0],
             isocenter_mm: None,
             window: XrayWindowToml { low: 1.5, high: 5.0 },
+            kerma_rate_mgy_per_min: 5.0,
         }
     }
 }
 
 impl CArmToml {
+    /// Area of the beam at the isocentre (cm²): the detector's area scaled by (SOD/SID)².
+    pub fn field_area_at_isocenter_cm2(&self) -> f64 {
+        let m = self.source_to_isocenter_mm / self.source_to_detector_mm;
+        self.detector_mm[0] * self.detector_mm[1] / 100.0 * m * m
+    }
+
+    /// Dose-area product per second of fluoroscopy (Gy·cm²/s): kerma rate × field area, both at
+    /// the isocentre (the product is the same in every plane across the beam).
+    pub fn dose_area_rate_gy_cm2_per_s(&self) -> f64 {
+        self.kerma_rate_mgy_per_min / 1000.0 / 60.0 * self.field_area_at_isocenter_cm2()
+    }
+
     /// Names the first value outside what a C-arm can be set to.
     pub fn check(&self) -> Result<(), String> {
         if let Some(p) = self.isocenter_mm
@@ -152,6 +168,10 @@ impl CArmToml {
                 "c_arm.cranial_deg {} must be −{m} (caudal) … {m} (cranial) degrees",
                 self.cranial_deg
             ));
+        }
+        let k = self.kerma_rate_mgy_per_min;
+        if !(k.is_finite() && (0.1..=200.0).contains(&k)) {
+            return Err(format!("c_arm.kerma_rate_mgy_per_min {k} must be 0.1 … 200 mGy/min"));
         }
         let w = self.window;
         if !(w.low.is_finite() && w.high.is_finite() && w.low >= 0.0 && w.high > w.low) {
@@ -740,6 +760,11 @@ mod tests {
         assert!(check("source_to_isocenter_mm = 950.0").contains("source_to_isocenter_mm"));
         assert!(check("detector_mm = [300.0, 10.0]").contains("height"));
         assert!(check("window = { low = 3.0, high = 2.0 }").contains("window"));
+        assert!(check("kerma_rate_mgy_per_min = 0.0").contains("kerma_rate"));
+        // 300 × 300 mm at SID 1000, SOD 750: 900 cm² × 0.5625 at the isocentre; 5 mGy/min.
+        let d = CArmToml::default();
+        assert!((d.field_area_at_isocenter_cm2() - 506.25).abs() < 1e-9);
+        assert!((d.dose_area_rate_gy_cm2_per_s() - 5e-3 / 60.0 * 506.25).abs() < 1e-12);
         assert!(toml::from_str::<ScenarioToml>("name = \"x\"\n[c_arm]\nkv = 70\n").is_err());
     }
 
