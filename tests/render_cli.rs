@@ -538,6 +538,20 @@ fn bad_input_is_refused_with_the_problem_named_and_nothing_written() {
     assert!(e.contains("lao_deg 200") && e.contains("RAO"), "{e}");
     let e = run(&["--view", "xray", "--cranial-deg", "nan"]);
     assert!(e.contains("cranial_deg"), "{e}");
+    let e = run(&[
+        "--view",
+        "xray",
+        "--session",
+        s,
+        "--at",
+        "1",
+        "--scenario",
+        "success-intercostal",
+    ]);
+    assert!(
+        e.contains("palpation-sweep") && e.contains("leave --scenario out"),
+        "{e}"
+    );
     let e = run(&["--view", "xray", "--scenario", "no-such-scenario"]);
     assert!(
         e.contains("no-such-scenario") && e.contains("success-intercostal"),

@@ -129,7 +129,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             "3d",
         ))
         .context("ray casting the demo puncture")?;
-        // Under fluoroscopy 1.4 s after the injection began (67 % of its course, docs/xray.md):
+        // Under fluoroscopy 1.2 s after the injection began (67 % of its course, docs/xray.md):
         // the needle in the duct and the contrast spreading along it.
         super::render::run(args_for(
             ticks as f64 * 0.67 / 1000.0,

@@ -448,6 +448,14 @@ fn render_xray(
     size: Size,
 ) -> anyhow::Result<Image> {
     let scenarios = &atlas.manifest.scenarios;
+    if let (Some(m), Some(asked)) = (moment, a.scenario.as_deref())
+        && m.scenario != asked
+    {
+        bail!(
+            "--scenario {asked}: the session was recorded for scenario '{}', whose C-arm the X-ray uses; leave --scenario out",
+            m.scenario
+        );
+    }
     let wanted = moment.map(|m| m.scenario.as_str()).or(a.scenario.as_deref());
     let scenario = match wanted {
         Some(name) => match scenarios.iter().find(|s| s.name == name) {

@@ -18,7 +18,7 @@ struct Params {
     size: vec4<u32>,      // width, height, needle nodes, 1 when there is contrast
     c_origin: vec4<f32>,  // contrast box: first CT voxel
     c_dims: vec4<u32>,    // contrast box: voxels per axis
-    consts: vec4<f32>,    // μ_water/1000 per mm, μ_steel per mm, needle radius mm
+    consts: vec4<f32>,    // μ_water/1000 per mm, the needle's μ' and r' (needle.rs `resolved_radius_and_mu`)
 }
 
 @group(0) @binding(0) var<uniform> P: Params;
@@ -93,8 +93,9 @@ fn integrate(src: u32, n_u: vec3<u32>, c0: vec3<f32>, d: vec3<f32>, t_max: f32) 
         let t = (f32(k) - c0[a]) * inv;
         let pu = c0[u] + t * d[u];
         let pv = c0[v] + t * d[v];
-        let fu0 = floor(pu);
-        let fv0 = floor(pv);
+        // joseph.rs `floor_above_minus_one`: ⌊x⌋ by truncation for x > −1.
+        let fu0 = f32(i32(pu + 1.0)) - 1.0;
+        let fv0 = f32(i32(pv + 1.0)) - 1.0;
         let fu = pu - fu0;
         let fv = pv - fv0;
         let iu = i32(fu0);

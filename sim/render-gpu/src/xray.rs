@@ -7,7 +7,8 @@ use bytemuck::{Pod, Zeroable};
 use stylet_physics::glam::Vec3;
 use stylet_render::volume::IndexMap;
 use stylet_render::xray::attenuation::{MU_STEEL_PER_MM, MU_WATER_PER_MM};
-use stylet_render::xray::{MAX_SIDE_PX, Radiograph, XrayScene};
+use stylet_render::xray::needle::resolved_radius_and_mu;
+use stylet_render::xray::{MAX_SIDE_PX, Radiograph, XrayScene, check_scene_fits};
 
 use crate::pipeline::{Pipelines, dispatch};
 use crate::volume::{GpuVolume, storage};
@@ -94,20 +95,23 @@ impl GpuXray {
             None => Vec::new(),
         };
         let grid = vol.atlas.ct().grid();
+        check_scene_fits(scene, grid).map_err(GpuError::Invalid)?;
         let map = IndexMap::of(grid);
         let dims = map.dims;
         let (c_origin, c_dims, c_values) = match &scene.contrast {
             Some(c) => {
-                let inside = (0..3).all(|a| c.origin[a] as u64 + c.dims[a] as u64 <= dims[a] as u64);
-                let n = c.dims.iter().map(|&d| d as usize).product::<usize>();
-                if !inside || n != c.mu_per_mm.len() || n == 0 {
-                    return Err(GpuError::Invalid("the contrast overlay does not fit the CT".into()));
-                }
-                ctx.check_storage_buffer("the contrast overlay", n as u64 * 4)?;
+                ctx.check_storage_buffer("the contrast overlay", c.mu_per_mm.len() as u64 * 4)?;
                 (c.origin.map(|v| v as f32), c.dims, c.mu_per_mm.as_slice())
             }
             None => ([0.0; 3], [1, 1, 1], &[0.0f32][..]),
         };
+        let (needle_r, needle_mu) = scene.needle.as_ref().map_or((0.0, 0.0), |n| {
+            resolved_radius_and_mu(
+                n.diameter_mm,
+                scene.c_arm.pixel_at_isocenter_mm(width, height),
+                MU_STEEL_PER_MM,
+            )
+        });
         let out_bytes = width as u64 * height as u64 * 4;
         ctx.check_storage_buffer("the X-ray image", out_bytes)?;
         let proj = scene.c_arm.projection(width, height);
@@ -124,12 +128,7 @@ impl GpuXray {
             size: [width, height, nodes.len() as u32, scene.contrast.is_some() as u32],
             c_origin: [c_origin[0], c_origin[1], c_origin[2], 0.0],
             c_dims: [c_dims[0], c_dims[1], c_dims[2], 0],
-            consts: [
-                MU_WATER_PER_MM / 1000.0,
-                MU_STEEL_PER_MM,
-                scene.needle.as_ref().map_or(0.0, |n| 0.5 * n.diameter_mm),
-                0.0,
-            ],
+            consts: [MU_WATER_PER_MM / 1000.0, needle_mu, needle_r, 0.0],
         };
         ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
         let contrast = storage(ctx, "contrast overlay", bytemuck::cast_slice(c_values));

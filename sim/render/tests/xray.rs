@@ -6,6 +6,7 @@ use stylet_physics::glam::{DVec3, Vec3};
 use stylet_render::synthetic;
 use stylet_render::tools::NeedleShape;
 use stylet_render::xray::attenuation::{MU_STEEL_PER_MM, MU_WATER_PER_MM, iodine_mu_per_mm};
+use stylet_render::xray::needle::resolved_radius_and_mu;
 use stylet_render::xray::{CArm, ContrastOverlay, Radiograph, XrayScene, render};
 
 const N: usize = 160;
@@ -169,11 +170,45 @@ fn the_steel_needle_is_visible() {
         render(&atlas, &with, SIZE, SIZE).unwrap(),
     );
     let added = |img: &Radiograph, base: &Radiograph, col: u32, row: u32| img.at(col, row) - base.at(col, row);
+    // Pixels (3.5 mm at the isocentre) are wider than the 1.27 mm shaft: it is drawn one pixel
+    // wide with its steel kept, so the centre ray sees μ'·2r' and the profile across the shaft
+    // integrates to μ_steel·πr² (the steel per mm of shaft).
+    let pitch_mm = arm.pixel_at_isocenter_mm(SIZE, SIZE);
+    let (r, mu) = resolved_radius_and_mu(1.27, pitch_mm, MU_STEEL_PER_MM);
     let peak = added(&steel, &plain, SIZE / 2, row);
     assert!(
-        (peak - MU_STEEL_PER_MM * 1.27).abs() < 0.01 * MU_STEEL_PER_MM,
-        "peak {peak}"
+        (peak - mu * 2.0 * r).abs() < 1e-3 * peak,
+        "peak {peak}, expected {}",
+        mu * 2.0 * r
     );
+    // A thin (22 G, 0.7 mm) needle running obliquely across the image leaves no gaps: every
+    // column it crosses has a darkened pixel (drawn at its own 0.35 mm radius, most columns'
+    // rays would pass beside it).
+    let thin = XrayScene {
+        needle: Some(NeedleShape {
+            nodes_mm: (0..=8)
+                .map(|i| Vec3::new(-20.0 + 5.0 * i as f32, 0.0, -12.0 + 3.0 * i as f32))
+                .collect(),
+            diameter_mm: 0.7,
+            hub_length_mm: 20.0,
+            hub_diameter_mm: 4.0,
+        }),
+        ..scene(arm)
+    };
+    let thin = render(&atlas, &thin, SIZE, SIZE).unwrap();
+    let cols: Vec<u32> = (0..SIZE)
+        .filter(|&c| {
+            let (o, d) = world_ray(&arm, c, SIZE / 2);
+            (o.x + d.x * (0.0 - o.y) / d.y).abs() < 18.0
+        })
+        .collect();
+    assert!(cols.len() >= 8, "{cols:?}");
+    for c in cols {
+        assert!(
+            (0..SIZE).any(|r| added(&thin, &plain, c, r) > 0.0),
+            "column {c}: the needle has a gap"
+        );
+    }
     // Beyond the needle's ends (x > 20 mm at the isocentre) and far from its row: nothing.
     assert_eq!(added(&steel, &plain, 2, row), 0.0);
     assert_eq!(added(&steel, &plain, SIZE / 2, row + 8), 0.0);
@@ -209,6 +244,59 @@ fn a_radiograph_is_a_pure_function_of_its_inputs() {
     );
 }
 
+/// Bit-identical on one thread and on four (every pixel a pure function of the inputs).
+#[test]
+fn the_thread_count_does_not_change_a_bit() {
+    let atlas = synthetic::atlas(
+        40,
+        2.0,
+        |p| if p.length() < 30.0 { 60.0 + p.x as f32 } else { -1000.0 },
+        |_| 0,
+    );
+    let mut arm = CArm::posterior_anterior(Vec3::new(1.0, 2.0, -3.0));
+    arm.lao_deg = -25.0;
+    let draw = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| render(&atlas, &scene(arm), 48, 40).unwrap())
+            .attenuation
+            .iter()
+            .map(|v| v.to_bits())
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(draw(1), draw(4));
+}
+
+/// Where things land, for the operator at the monitor: at PA a dense marker on the patient's
+/// right shows on the image's left and a superior one in the upper half; seen from the patient's
+/// left (LAO 90) anterior is on the image's left, from the right (RAO 90) on its right.
+#[test]
+fn markers_land_where_the_operator_expects_them() {
+    let marker = |c: DVec3| move |p: DVec3| if (p - c).length() < 6.0 { 3000.0 } else { 0.0 };
+    let darkest_col_row = |img: &Radiograph| {
+        let i = (0..img.attenuation.len())
+            .max_by(|&i, &j| img.attenuation[i].total_cmp(&img.attenuation[j]))
+            .unwrap();
+        (i as u32 % img.width, i as u32 / img.width)
+    };
+    let right = synthetic::atlas(64, 1.5, marker(DVec3::new(30.0, 0.0, 0.0)), |_| 0);
+    let pa = render(&right, &scene(CArm::posterior_anterior(Vec3::ZERO)), SIZE, SIZE).unwrap();
+    assert!(
+        darkest_col_row(&pa).0 < SIZE / 2,
+        "patient's right must be on the image's left"
+    );
+    let superior = synthetic::atlas(64, 1.5, marker(DVec3::new(0.0, 0.0, 30.0)), |_| 0);
+    let pa = render(&superior, &scene(CArm::posterior_anterior(Vec3::ZERO)), SIZE, SIZE).unwrap();
+    assert!(darkest_col_row(&pa).1 < SIZE / 2, "superior must be up");
+    let anterior = synthetic::atlas(64, 1.5, marker(DVec3::new(0.0, 30.0, 0.0)), |_| 0);
+    let mut arm = CArm::posterior_anterior(Vec3::ZERO);
+    arm.lao_deg = 90.0;
+    let lao = render(&anterior, &scene(arm), SIZE, SIZE).unwrap();
+    assert!(darkest_col_row(&lao).0 < SIZE / 2, "LAO 90: anterior on the left");
+    arm.lao_deg = -90.0;
+    let rao = render(&anterior, &scene(arm), SIZE, SIZE).unwrap();
+    assert!(darkest_col_row(&rao).0 >= SIZE / 2, "RAO 90: anterior on the right");
+}
+
 #[test]
 fn bad_scenes_are_refused_with_the_reason() {
     let atlas = synthetic::atlas(8, 1.0, |_| 0.0, |_| 0);
@@ -226,4 +314,36 @@ fn bad_scenes_are_refused_with_the_reason() {
             .to_string()
             .contains("lao_deg")
     );
+    // An isocentre far from the patient; an overlay bigger than its values or outside the CT.
+    let far = CArm::posterior_anterior(Vec3::new(0.0, 5000.0, 0.0));
+    assert!(
+        render(&atlas, &scene(far), 10, 10)
+            .unwrap_err()
+            .to_string()
+            .contains("isocentre")
+    );
+    let ok = CArm::posterior_anterior(Vec3::ZERO);
+    for overlay in [
+        ContrastOverlay {
+            origin: [0, 0, 0],
+            dims: [2, 2, 2],
+            mu_per_mm: vec![0.1; 7],
+        },
+        ContrastOverlay {
+            origin: [7, 0, 0],
+            dims: [2, 1, 1],
+            mu_per_mm: vec![0.1; 2],
+        },
+    ] {
+        let bad = XrayScene {
+            contrast: Some(overlay),
+            ..scene(ok)
+        };
+        assert!(
+            render(&atlas, &bad, 10, 10)
+                .unwrap_err()
+                .to_string()
+                .contains("overlay")
+        );
+    }
 }

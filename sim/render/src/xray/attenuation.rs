@@ -75,11 +75,18 @@ impl ContrastOverlay {
     }
 
     /// The contrast the simulation holds (docs/contrast.md), as a medium of `iodine_mg_per_ml`.
+    /// A voxel cannot hold more than undiluted medium: the physics' ρ, which exceeds 1 at the node
+    /// the syringe feeds (it conserves mass, not volume), is drawn as min(ρ, 1).
     pub fn from_agent(agent: &ContrastAgent, ct_dims: [usize; 3], iodine_mg_per_ml: f32) -> Option<ContrastOverlay> {
         let voxels: Vec<([usize; 3], f32)> = agent
             .filled_voxels()
             .into_iter()
-            .map(|(v, fraction)| (v, iodine_mu_per_mm(fraction as f32 * iodine_mg_per_ml / 1000.0)))
+            .map(|(v, fraction)| {
+                (
+                    v,
+                    iodine_mu_per_mm(fraction.min(1.0) as f32 * iodine_mg_per_ml / 1000.0),
+                )
+            })
             .collect();
         ContrastOverlay::from_voxels(&voxels, ct_dims)
     }

@@ -119,11 +119,6 @@ impl CArm {
     pub fn pixel_at_isocenter_mm(&self, width: u32, height: u32) -> f32 {
         self.pixel_pitch_mm(width, height) * self.source_to_isocenter_mm / self.source_to_detector_mm
     }
-
-    /// Area of the beam at the detector (cm²), for the dose-area product.
-    pub fn field_area_cm2(&self) -> f32 {
-        self.detector_mm[0] * self.detector_mm[1] / 100.0
-    }
 }
 
 /// Where each detector pixel is: rays go from `source_mm` to the pixel's centre.
@@ -166,7 +161,7 @@ mod tests {
         // Column 0 toward the patient's right (+x), row 0 superior (+z).
         assert!(p.pixel_mm(0, 1).x > p.pixel_mm(2, 1).x);
         assert!(p.pixel_mm(1, 0).z > p.pixel_mm(1, 2).z);
-        assert!((p.pixel_mm(0, 1) - p.pixel_mm(2, 1)).length() - 200.0 < 1e-3);
+        assert!(((p.pixel_mm(0, 1) - p.pixel_mm(2, 1)).length() - 200.0).abs() < 1e-3);
     }
 
     #[test]

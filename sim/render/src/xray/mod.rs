@@ -67,9 +67,18 @@ pub fn render(atlas: &PunctureAtlas, scene: &XrayScene, width: u32, height: u32)
         ));
     }
     let ct = atlas.ct();
+    check_scene_fits(scene, ct.grid()).map_err(RenderError::Invalid)?;
     let map = IndexMap::of(ct.grid());
     let data = ct.data();
     let proj = scene.c_arm.projection(width, height);
+    let needle = scene.needle.as_ref().map(|n| {
+        let (r, mu) = needle::resolved_radius_and_mu(
+            n.diameter_mm,
+            scene.c_arm.pixel_at_isocenter_mm(width, height),
+            MU_STEEL_PER_MM,
+        );
+        (n.nodes_mm.as_slice(), r, mu)
+    });
     let mut attenuation = vec![0.0f32; width as usize * height as usize];
     attenuation
         .par_chunks_mut(width as usize)
@@ -77,7 +86,7 @@ pub fn render(atlas: &PunctureAtlas, scene: &XrayScene, width: u32, height: u32)
         .for_each(|(row, out)| {
             for (col, a) in out.iter_mut().enumerate() {
                 let ray = ray(&proj, &map, col as u32, row as u32);
-                *a = line_integral(&ray, map.dims, data, scene);
+                *a = line_integral(&ray, map.dims, data, scene.contrast.as_ref(), needle);
             }
         });
     Ok(Radiograph {
@@ -103,11 +112,41 @@ fn ray(proj: &Projection, map: &IndexMap, col: u32, row: u32) -> Ray {
     }
 }
 
-/// a of one ray: tissue, then contrast, then the needle's segments.
-fn line_integral(ray: &Ray, dims: [u32; 3], ct: &[f32], scene: &XrayScene) -> f32 {
+/// What both renderers check before drawing: the contrast overlay lies inside the CT and holds
+/// one value per voxel of its box, and the isocentre is within the source-to-detector distance of
+/// the CT (farther, the patient would not be in the beam).
+pub fn check_scene_fits(scene: &XrayScene, grid: &stylet_physics::Grid) -> Result<(), String> {
+    let dims = grid.dims();
+    if let Some(c) = &scene.contrast {
+        let inside = (0..3).all(|a| c.origin[a] as u64 + c.dims[a] as u64 <= dims[a] as u64);
+        let n = c.dims.iter().map(|&d| d as u64).product::<u64>();
+        if !inside || n != c.mu_per_mm.len() as u64 || n == 0 {
+            return Err("the contrast overlay does not fit the CT".into());
+        }
+    }
+    let (lo, hi) = grid.world_bounds();
+    let reach = scene.c_arm.source_to_detector_mm as f64;
+    let iso = scene.c_arm.isocenter_mm.as_dvec3();
+    if (iso - iso.clamp(lo, hi)).length() > reach {
+        return Err(format!(
+            "the C-arm's isocentre {:?} mm is farther than the source-to-detector distance ({reach} mm) from the CT",
+            scene.c_arm.isocenter_mm
+        ));
+    }
+    Ok(())
+}
+
+/// a of one ray: tissue, then contrast, then the needle's segments (nodes, radius, μ).
+fn line_integral(
+    ray: &Ray,
+    dims: [u32; 3],
+    ct: &[f32],
+    contrast: Option<&ContrastOverlay>,
+    needle: Option<(&[Vec3], f32, f32)>,
+) -> f32 {
     let tissue = integrate(dims, &ray.index, |i| water_relative(ct[i]));
     let mut a = MU_WATER_PER_MM / 1000.0 * tissue;
-    if let Some(c) = &scene.contrast {
+    if let Some(c) = contrast {
         let o = Vec3::new(c.origin[0] as f32, c.origin[1] as f32, c.origin[2] as f32);
         let local = IndexRay {
             start: ray.index.start - o,
@@ -115,10 +154,9 @@ fn line_integral(ray: &Ray, dims: [u32; 3], ct: &[f32], scene: &XrayScene) -> f3
         };
         a += integrate(c.dims, &local, |i| c.mu_per_mm[i]);
     }
-    if let Some(n) = &scene.needle {
-        let r = 0.5 * n.diameter_mm;
-        for w in n.nodes_mm.windows(2) {
-            a += MU_STEEL_PER_MM * needle::chord_mm(ray.origin_mm, ray.dir, ray.length_mm, w[0], w[1], r);
+    if let Some((nodes, r, mu)) = needle {
+        for w in nodes.windows(2) {
+            a += mu * needle::chord_mm(ray.origin_mm, ray.dir, ray.length_mm, w[0], w[1], r);
         }
     }
     a

@@ -53,6 +53,16 @@ pub fn chord_mm(origin: Vec3, dir: Vec3, t_max: f32, a: Vec3, b: Vec3, radius_mm
     (s_hi - s_lo).max(0.0)
 }
 
+/// The needle as the detector resolves it: a shaft thinner than a pixel's footprint at the
+/// isocentre is drawn with radius r' = max(r, ½ footprint) and μ' = μ_steel (r/r')², which keeps
+/// ∫ μ·chord across the shaft (μπr², the steel per mm of shaft) and so each pixel's mean, while a
+/// shaft hit only between pixel centres would otherwise break into dots. Returns (r', μ').
+pub fn resolved_radius_and_mu(diameter_mm: f32, pixel_at_isocenter_mm: f32, mu_per_mm: f32) -> (f32, f32) {
+    let r = 0.5 * diameter_mm;
+    let r_eff = r.max(0.5 * pixel_at_isocenter_mm);
+    (r_eff, mu_per_mm * (r / r_eff) * (r / r_eff))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -68,6 +78,15 @@ mod tests {
         assert_eq!(chord_mm(Vec3::new(-800.0, 0.6, 0.0), Vec3::X, 2000.0, a, b, 0.5), 0.0);
         assert_eq!(chord_mm(Vec3::new(-800.0, 0.0, 6.0), Vec3::X, 2000.0, a, b, 0.5), 0.0);
         assert_eq!(chord_mm(origin, Vec3::X, 700.0, a, b, 0.5), 0.0);
+    }
+
+    #[test]
+    fn a_thin_needle_keeps_its_steel_when_widened_to_a_pixel() {
+        let (r, mu) = resolved_radius_and_mu(0.7, 0.44, 0.294);
+        assert_eq!((r, mu), (0.35, 0.294));
+        let (r, mu) = resolved_radius_and_mu(0.7, 1.76, 0.294);
+        assert_eq!(r, 0.88);
+        assert!((mu * r * r - 0.294 * 0.35 * 0.35).abs() < 1e-7);
     }
 
     #[test]
