@@ -455,6 +455,7 @@ mod tests {
             time_total_s: 60.0,
             fluoro_time_s: 40.0,
             xray_shots: 2,
+            dose_area_product_gy_cm2: 1.7,
             ultrasound_time_s: 10.0,
             palpation_time_s: 0.0,
             path_length_mm: 100.0,
