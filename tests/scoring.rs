@@ -689,3 +689,46 @@ fn the_dose_area_product_follows_the_scenarios_c_arm() {
     let near_dap = r["metrics"]["dose_area_product_gy_cm2"].as_f64().unwrap();
     assert!((near_dap - dap / 4.0).abs() < 1e-12, "{near_dap} vs {}", dap / 4.0);
 }
+
+/// "Target scanned before the puncture" (issue 16 item 4): an ultrasound sweep that shows the
+/// target, then the puncture, sets it; a sweep of the wrong flank does not, and the rubric metric
+/// `missing_target_scan` reads it.
+#[test]
+fn the_target_must_be_in_the_ultrasound_image_before_the_puncture() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts");
+    // The survey's keyframes, then the probe lifted off the skin (anterior, y = 300 mm) and
+    // carried to the right flank before the tool change: keyframes interpolate across it, and a
+    // probe dragged through the patient to the needle's entry would see the target on the way.
+    let probe_lines = |name: &str| {
+        let text = std::fs::read_to_string(dir.join(format!("{name}.txt"))).unwrap();
+        let lines: Vec<&str> = text.lines().filter(|l| l.starts_with("at ")).collect();
+        let last_pose = lines.iter().rev().find(|l| l.contains(" pos ")).unwrap();
+        let t: Vec<&str> = last_pose.split_whitespace().collect();
+        let (x, z) = (t[3], t[5]);
+        let lift = format!("at 16.4 pos {x} 300 {z} dir 0 -1 0\nat 16.9 pos 200 300 17 dir 0 -1 0\n");
+        lines.iter().map(|l| format!("{l}\n")).collect::<String>() + &lift
+    };
+    let puncture = "at 17 tool needle gauge 18 length 150 stylet in\n\
+                    at 17 along intercostal-10-11 -15\nat 18 along intercostal-10-11 -15\n\
+                    at 28 along intercostal-10-11 111\nat 28.5 event stylet-remove\n\
+                    at 29 event contrast-inject 2\nat 31 event stylet-insert\n\
+                    at 36 along intercostal-10-11 -15\n";
+    let session = |name: &str, survey: &str| {
+        score_text(
+            name,
+            &format!(
+                "stylet-script 1\ndevice premium\ntool probe linear\nend 37\n{}{puncture}",
+                probe_lines(survey)
+            ),
+        )
+    };
+    let seen = session("scan-then-puncture", "probe-parallel");
+    let w = &seen["metrics"]["workflow"];
+    assert_eq!(w["ultrasound_before_puncture"], true, "{w}");
+    assert_eq!(w["target_scanned_before_puncture"], true, "{w}");
+    assert_eq!(seen["metrics"]["ultrasound"]["target_scanned"], true, "{seen}");
+    let missed = session("wrong-flank-then-puncture", "probe-no-target");
+    let w = &missed["metrics"]["workflow"];
+    assert_eq!(w["ultrasound_before_puncture"], true, "{w}");
+    assert_eq!(w["target_scanned_before_puncture"], false, "{w}");
+}

@@ -64,6 +64,10 @@ pub struct RiskHit {
 pub struct Workflow {
     pub palpation_before_puncture: bool,
     pub ultrasound_before_puncture: bool,
+    /// The target lay in the ultrasound image plane (the survey's `target_scanned` test) at some
+    /// moment before the first puncture.
+    #[serde(default)]
+    pub target_scanned_before_puncture: bool,
     /// The target was confirmed before the needle last left the body (or the session ended).
     pub confirmed_before_withdrawal: bool,
 }
@@ -222,6 +226,7 @@ pub struct MetricsCollector<'a> {
     palpation_ticks: u64,
     palpation_before: bool,
     ultrasound_before: bool,
+    target_scanned_before: bool,
     path_length_mm: f64,
     prev_tip_mm: Option<DVec3>,
     max_force_n: f64,
@@ -443,6 +448,7 @@ impl<'a> MetricsCollector<'a> {
             palpation_ticks: 0,
             palpation_before: false,
             ultrasound_before: false,
+            target_scanned_before: false,
             path_length_mm: 0.0,
             prev_tip_mm: None,
             max_force_n: 0.0,
@@ -497,6 +503,7 @@ impl<'a> MetricsCollector<'a> {
             if self.attempts.len() == 1 {
                 self.palpation_before = self.palpation_ticks > 0;
                 self.ultrasound_before = self.ultrasound_ticks > 0;
+                self.target_scanned_before = self.view_first_tick.is_some();
             }
             self.peak_mm = out.inserted_mm;
             self.valley_mm = None;
@@ -726,6 +733,7 @@ impl<'a> MetricsCollector<'a> {
         if self.attempts.is_empty() {
             self.palpation_before = self.palpation_ticks > 0;
             self.ultrasound_before = self.ultrasound_ticks > 0;
+            self.target_scanned_before = self.view_first_tick.is_some();
         }
         let palpation = (self.palpation_ticks > 0).then(|| PalpationMetrics {
             spaces_crossed: self.palpation.crossed,
@@ -825,6 +833,7 @@ impl<'a> MetricsCollector<'a> {
             workflow: Workflow {
                 palpation_before_puncture: self.palpation_before,
                 ultrasound_before_puncture: self.ultrasound_before,
+                target_scanned_before_puncture: self.target_scanned_before,
                 confirmed_before_withdrawal: match (self.confirmed_tick, self.last_exit_tick) {
                     (Some(c), Some(e)) => c < e,
                     (Some(_), None) => true,

@@ -96,6 +96,11 @@ pub const METRICS: &[MetricInfo] = &[
         "no ultrasound before the puncture",
         "there was no ultrasound before the puncture",
     ),
+    flag(
+        "missing_target_scan",
+        "target not scanned before the puncture",
+        "the target was not seen in the ultrasound image before the puncture",
+    ),
     m(
         "guided_entry_distance_mm",
         "entry off the planned entry",

@@ -90,6 +90,7 @@ pub const PUNCTURE_METRICS: &[&str] = &[
     "target_distance_mm",
     "missing_palpation",
     "missing_ultrasound",
+    "missing_target_scan",
     "guided_entry_distance_mm",
     "guided_angle_error_deg",
     "guided_mean_deviation_mm",
@@ -156,6 +157,7 @@ pub fn metric_value(m: &Metrics, name: &str) -> Option<f64> {
         "target_distance_mm" => m.target_distance_mm.unwrap_or(0.0),
         "missing_palpation" => flag(!m.workflow.palpation_before_puncture),
         "missing_ultrasound" => flag(!m.workflow.ultrasound_before_puncture),
+        "missing_target_scan" => flag(!m.workflow.target_scanned_before_puncture),
         "guided_entry_distance_mm" => m.guided.as_ref().map_or(0.0, |g| g.entry_distance_mm),
         "guided_angle_error_deg" => m.guided.as_ref().map_or(0.0, |g| g.angle_error_deg),
         "guided_mean_deviation_mm" => m.guided.as_ref().map_or(0.0, |g| g.mean_deviation_mm),
@@ -467,6 +469,7 @@ mod tests {
             workflow: Workflow {
                 palpation_before_puncture: false,
                 ultrasound_before_puncture: true,
+                target_scanned_before_puncture: true,
                 confirmed_before_withdrawal: true,
             },
             target_distance_mm: Some(0.0),
