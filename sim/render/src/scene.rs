@@ -49,7 +49,7 @@ impl Camera {
 
     /// A camera on a sphere around `center_mm`, looking at it. Azimuth 0° looks from anterior
     /// (+y in RAS) with the patient's right on the image's left (radiological convention);
-    /// azimuth 90° looks from the patient's right (−x); elevation lifts the eye toward superior.
+    /// azimuth 90° looks from the patient's left (−x; RAS+, x to the patient's right); elevation lifts the eye toward superior.
     pub fn orbit(center_mm: Vec3, distance_mm: f32, azimuth_deg: f32, elevation_deg: f32, fov_y_deg: f32) -> Camera {
         let (az, el) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
         let dir = Vec3::new(-az.sin() * el.cos(), az.cos() * el.cos(), el.sin());
