@@ -499,16 +499,26 @@ fn render_xray(
     Ok(radiograph.to_image(window))
 }
 
+/// A GPU device and the atlas uploaded to it (wgpu; lavapipe will do).
+#[cfg(feature = "gpu")]
+fn gpu_upload(volume: &RenderVolume) -> anyhow::Result<(stylet_render_gpu::GpuContext, stylet_render_gpu::GpuVolume)> {
+    let ctx = stylet_render_gpu::GpuContext::new().map_err(|e| anyhow::anyhow!("--gpu: {e}"))?;
+    let gpu_volume = stylet_render_gpu::GpuVolume::upload(&ctx, volume).map_err(|e| on_gpu(&ctx, e))?;
+    Ok((ctx, gpu_volume))
+}
+
+/// A GPU failure, naming the adapter.
+#[cfg(feature = "gpu")]
+fn on_gpu(ctx: &stylet_render_gpu::GpuContext, e: stylet_render_gpu::GpuError) -> anyhow::Error {
+    anyhow::anyhow!("--gpu on {}: {e}", ctx.adapter().name)
+}
+
 #[cfg(feature = "gpu")]
 fn xray_gpu(atlas: &stylet_atlas::Atlas, scene: &XrayScene, size: Size) -> anyhow::Result<Radiograph> {
-    use stylet_render_gpu::{GpuContext, GpuVolume, GpuXray};
-    let ctx = GpuContext::new().map_err(|e| anyhow::anyhow!("--gpu: {e}"))?;
-    let volume = RenderVolume::new(Arc::new(atlas.model.clone()));
-    let gpu_volume =
-        GpuVolume::upload(&ctx, &volume).map_err(|e| anyhow::anyhow!("--gpu on {}: {e}", ctx.adapter().name))?;
-    GpuXray::new(&ctx)
+    let (ctx, gpu_volume) = gpu_upload(&RenderVolume::new(Arc::new(atlas.model.clone())))?;
+    stylet_render_gpu::GpuXray::new(&ctx)
         .render(&ctx, &gpu_volume, scene, size.width, size.height)
-        .map_err(|e| anyhow::anyhow!("--gpu on {}: {e}", ctx.adapter().name))
+        .map_err(|e| on_gpu(&ctx, e))
 }
 
 #[cfg(not(feature = "gpu"))]
@@ -519,26 +529,19 @@ fn xray_gpu(_: &stylet_atlas::Atlas, _: &XrayScene, _: Size) -> anyhow::Result<R
 /// The same scene on the GPU renderer (wgpu).
 #[cfg(feature = "gpu")]
 fn render_gpu(volume: &RenderVolume, scene: &Scene, size: Size) -> anyhow::Result<Image> {
-    use stylet_render_gpu::{GpuContext, GpuRenderer, GpuVolume};
-    let ctx = GpuContext::new().map_err(|e| anyhow::anyhow!("--gpu: {e}"))?;
-    let gpu_volume =
-        GpuVolume::upload(&ctx, volume).map_err(|e| anyhow::anyhow!("--gpu on {}: {e}", ctx.adapter().name))?;
-    GpuRenderer::new(&ctx)
+    let (ctx, gpu_volume) = gpu_upload(volume)?;
+    stylet_render_gpu::GpuRenderer::new(&ctx)
         .render(&ctx, &gpu_volume, scene, size.width, size.height)
-        .map_err(|e| anyhow::anyhow!("--gpu on {}: {e}", ctx.adapter().name))
+        .map_err(|e| on_gpu(&ctx, e))
 }
 
 /// A slice on the GPU renderer.
 #[cfg(feature = "gpu")]
 fn slice_gpu(atlas: &stylet_atlas::Atlas, spec: &SliceSpec) -> anyhow::Result<mpr::MprImage> {
-    use stylet_render_gpu::{GpuContext, GpuMpr, GpuVolume};
-    let ctx = GpuContext::new().map_err(|e| anyhow::anyhow!("--gpu: {e}"))?;
-    let volume = RenderVolume::new(Arc::new(atlas.model.clone()));
-    let gpu_volume =
-        GpuVolume::upload(&ctx, &volume).map_err(|e| anyhow::anyhow!("--gpu on {}: {e}", ctx.adapter().name))?;
-    GpuMpr::new(&ctx)
+    let (ctx, gpu_volume) = gpu_upload(&RenderVolume::new(Arc::new(atlas.model.clone())))?;
+    stylet_render_gpu::GpuMpr::new(&ctx)
         .render(&ctx, &gpu_volume, spec)
-        .map_err(|e| anyhow::anyhow!("--gpu on {}: {e}", ctx.adapter().name))
+        .map_err(|e| on_gpu(&ctx, e))
 }
 
 #[cfg(not(feature = "gpu"))]

@@ -7,7 +7,7 @@
 use bytemuck::{Pod, Zeroable};
 use stylet_render::mpr::{MprImage, SliceSpec};
 
-use crate::pipeline::{Pipelines, dispatch};
+use crate::pipeline::{Pipelines, dispatch, uniform_buffer};
 use crate::volume::GpuVolume;
 use crate::{GpuContext, GpuError};
 
@@ -33,12 +33,7 @@ pub struct GpuMpr {
 
 impl GpuMpr {
     pub fn new(ctx: &GpuContext) -> GpuMpr {
-        let params = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("mpr params"),
-            size: std::mem::size_of::<MprParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let params = uniform_buffer(ctx, "mpr params", std::mem::size_of::<MprParams>());
         GpuMpr {
             pipelines: Pipelines::new("mpr.wgsl", SHADER),
             params,

@@ -74,3 +74,18 @@ pub(crate) fn dispatch(
     }
     ctx.queue.submit([enc.finish()]);
 }
+
+/// A uniform buffer of `size` bytes the host rewrites each frame.
+pub(crate) fn uniform_buffer(ctx: &GpuContext, label: &str, size: usize) -> wgpu::Buffer {
+    ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: size as u64,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
+
+/// A vector as a 16-byte WGSL vec4 (`w` in the fourth lane).
+pub(crate) fn v4(v: stylet_physics::glam::Vec3, w: f32) -> [f32; 4] {
+    [v.x, v.y, v.z, w]
+}

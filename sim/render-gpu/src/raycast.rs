@@ -17,7 +17,7 @@ use stylet_render::transfer::{MAX_TRAPEZOIDS, TransferFunction};
 use stylet_render::transfer_table::TransferTable;
 use stylet_render::volume::IndexMap;
 
-use crate::pipeline::{Pipelines, dispatch};
+use crate::pipeline::{Pipelines, dispatch, uniform_buffer, v4};
 use crate::volume::{CtFormat, GpuVolume, storage, texture_3d};
 use crate::{GpuContext, GpuError};
 
@@ -127,10 +127,6 @@ struct GpuPrimitive {
     kind: [u32; 4],
 }
 
-fn v4(v: Vec3, w: f32) -> [f32; 4] {
-    [v.x, v.y, v.z, w]
-}
-
 /// `tools::Primitive` in the shader's layout.
 fn gpu_primitive(p: &Primitive) -> GpuPrimitive {
     let z = [0.0; 4];
@@ -213,12 +209,7 @@ pub struct GpuRenderer {
 
 impl GpuRenderer {
     pub fn new(ctx: &GpuContext) -> GpuRenderer {
-        let params = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("raycast params"),
-            size: std::mem::size_of::<Params>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let params = uniform_buffer(ctx, "raycast params", std::mem::size_of::<Params>());
         let prims = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("tool primitives"),
             size: (MAX_PRIMITIVES * std::mem::size_of::<GpuPrimitive>()) as u64,

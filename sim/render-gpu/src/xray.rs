@@ -4,13 +4,12 @@
 //! pixel; the window is applied on the CPU (`Radiograph::to_image`), as for the CPU image.
 
 use bytemuck::{Pod, Zeroable};
-use stylet_physics::glam::Vec3;
 use stylet_render::volume::IndexMap;
 use stylet_render::xray::attenuation::{MU_STEEL_PER_MM, MU_WATER_PER_MM};
 use stylet_render::xray::needle::resolved_radius_and_mu;
 use stylet_render::xray::{MAX_SIDE_PX, Radiograph, XrayScene, check_scene_fits};
 
-use crate::pipeline::{Pipelines, dispatch};
+use crate::pipeline::{Pipelines, dispatch, uniform_buffer, v4};
 use crate::volume::{GpuVolume, storage};
 use crate::{GpuContext, GpuError};
 
@@ -38,10 +37,6 @@ struct XrayParams {
     consts: [f32; 4],
 }
 
-fn v4(v: Vec3) -> [f32; 4] {
-    [v.x, v.y, v.z, 0.0]
-}
-
 /// The X-ray pipeline (one per CT storage format, built on first use).
 pub struct GpuXray {
     pipelines: Pipelines,
@@ -50,12 +45,7 @@ pub struct GpuXray {
 
 impl GpuXray {
     pub fn new(ctx: &GpuContext) -> GpuXray {
-        let params = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("xray params"),
-            size: std::mem::size_of::<XrayParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let params = uniform_buffer(ctx, "xray params", std::mem::size_of::<XrayParams>());
         GpuXray {
             pipelines: Pipelines::new("xray.wgsl", SHADER),
             params,
@@ -90,7 +80,7 @@ impl GpuXray {
                         "the needle's nodes and diameter must be finite".into(),
                     ));
                 }
-                n.nodes_mm.iter().map(|&p| v4(p)).collect()
+                n.nodes_mm.iter().map(|&p| v4(p, 0.0)).collect()
             }
             None => Vec::new(),
         };
@@ -116,14 +106,14 @@ impl GpuXray {
         ctx.check_storage_buffer("the X-ray image", out_bytes)?;
         let proj = scene.c_arm.projection(width, height);
         let params = XrayParams {
-            source: v4(proj.source_mm),
-            pixel00: v4(proj.pixel00_mm),
-            col_step: v4(proj.col_mm),
-            row_step: v4(proj.row_mm),
-            row0: v4(map.rows[0]),
-            row1: v4(map.rows[1]),
-            row2: v4(map.rows[2]),
-            origin: v4(map.origin),
+            source: v4(proj.source_mm, 0.0),
+            pixel00: v4(proj.pixel00_mm, 0.0),
+            col_step: v4(proj.col_mm, 0.0),
+            row_step: v4(proj.row_mm, 0.0),
+            row0: v4(map.rows[0], 0.0),
+            row1: v4(map.rows[1], 0.0),
+            row2: v4(map.rows[2], 0.0),
+            origin: v4(map.origin, 0.0),
             dims: [dims[0], dims[1], dims[2], 0],
             size: [width, height, nodes.len() as u32, scene.contrast.is_some() as u32],
             c_origin: [c_origin[0], c_origin[1], c_origin[2], 0.0],
