@@ -751,7 +751,18 @@ fn the_service_recovers_after_its_data_directory_was_read_only() {
             failures.push(format!("comment {i}: {status} {v}"));
         }
     }
-    assert!(failures.is_empty(), "{failures:#?}");
+    if !failures.is_empty() {
+        let log = std::fs::read_to_string(data.join("server.log")).unwrap_or_default();
+        let tail: Vec<&str> = log
+            .lines()
+            .rev()
+            .take(60)
+            .collect::<Vec<_>>()
+            .into_iter()
+            .rev()
+            .collect();
+        panic!("{failures:#?}\nserver log, last lines:\n{}", tail.join("\n"));
+    }
     let scored = wait_scored(b, &tina, &during);
     assert_eq!(scored["status"], "scored", "{scored}");
     let after = upload("tina-two");

@@ -12,6 +12,7 @@ use stylet_render::annotate;
 use stylet_render::image::{Image, Tolerance, diff};
 use stylet_render::scene::Camera;
 use stylet_render::tools::ToolState;
+use stylet_render::ultrasound;
 
 fn stylet(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_stylet"))
@@ -349,6 +350,107 @@ fn the_xray_of_a_session_shows_the_needle_and_then_the_contrast() {
     // A turned C-arm sees another projection of the same patient.
     let lao = xray("lao.png", &["--lao-deg", "40", "--cranial-deg", "-10"]);
     assert!(differing(&empty, &lao, 10).len() > 1000);
+}
+
+/// `--view ultrasound` (docs/ultrasound.md): the fan beside the planned path with Doppler colour
+/// and the beginner's aids, none of them at expert level; the probe of a session; the needle of a
+/// session in the image; a probe the session does not hold is refused.
+#[test]
+fn the_ultrasound_view_shows_the_fan_the_aids_by_level_and_the_sessions_tools() {
+    let d = tempfile::tempdir().unwrap();
+    let atlas = phantom(d.path());
+    let us = |name: &str, extra: &[&str]| {
+        let out = d.path().join(name);
+        let text = ok(&[
+            &[
+                "render",
+                "--atlas",
+                atlas.to_str().unwrap(),
+                "--view",
+                "ultrasound",
+                "--size",
+                "320x256",
+            ][..],
+            extra,
+            &["--out", out.to_str().unwrap()],
+        ]
+        .concat());
+        assert!(text.contains("ultrasound view"), "{text}");
+        let img = Image::read_png(&out).unwrap();
+        assert_eq!((img.width, img.height), (320, 256));
+        img
+    };
+    let count = |img: &Image, f: &dyn Fn([u8; 4]) -> bool| img.rgba.iter().filter(|&&p| f(p)).count();
+    let target = |p: [u8; 4]| p[..3] == ultrasound::display::TARGET_RGB;
+    let guide = |p: [u8; 4]| p[..3] == ultrasound::display::GUIDE_RGB;
+    let vein = |p: [u8; 4]| p[0] == 0 && p[2] == 255;
+    let grey = |p: [u8; 4]| p[0] == p[1] && p[1] == p[2] && p[0] > 30;
+    let beginner = us("beginner.png", &["--doppler"]);
+    assert!(count(&beginner, &grey) > 20_000, "the fan shows tissue");
+    assert!(count(&beginner, &target) > 20, "the target is outlined");
+    assert!(count(&beginner, &guide) > 20, "the guide line is drawn");
+    assert!(count(&beginner, &vein) > 20, "the veins are coloured");
+    // The corners lie outside the convex fan.
+    assert_eq!(beginner.get(1, 1), [0, 0, 0, 255]);
+    let expert = us("expert.png", &["--difficulty", "expert"]);
+    assert_eq!(
+        count(&expert, &target) + count(&expert, &guide) + count(&expert, &vein),
+        0
+    );
+    // A probe session: its linear probe, not the default convex one beside the path.
+    let probe = d.path().join("probe.mcap");
+    record(&atlas, "probe-parallel", &probe);
+    let p = probe.to_str().unwrap();
+    let held = us("held.png", &["--session", p, "--at", "1.0", "--difficulty", "expert"]);
+    assert!(differing(&expert, &held, 30).len() > 10_000);
+    let bad = d.path().join("refused.png");
+    let text = refused(
+        &[
+            "render",
+            "--atlas",
+            atlas.to_str().unwrap(),
+            "--view",
+            "ultrasound",
+            "--session",
+            p,
+            "--at",
+            "1.0",
+            "--probe",
+            "convex",
+            "--out",
+            bad.to_str().unwrap(),
+        ],
+        &bad,
+    );
+    assert!(text.contains("--probe"), "{text}");
+    let text = refused(
+        &[
+            "render",
+            "--atlas",
+            atlas.to_str().unwrap(),
+            "--view",
+            "ultrasound",
+            "--gpu",
+            "--out",
+            bad.to_str().unwrap(),
+        ],
+        &bad,
+    );
+    assert!(text.contains("--gpu"), "{text}");
+    // A needle session: the needle beside the path's target adds its bright echo.
+    let needle = d.path().join("needle.mcap");
+    record(&atlas, "success-intercostal", &needle);
+    let n = needle.to_str().unwrap();
+    let with = us(
+        "needle.png",
+        &["--session", n, "--at", "11.4", "--difficulty", "expert"],
+    );
+    // The shaft and its reverberations: pixels 60 grey levels brighter than without it.
+    let brighter = differing(&expert, &with, 60)
+        .into_iter()
+        .filter(|&(c, r)| with.get(c, r)[0] > expert.get(c, r)[0].saturating_add(60))
+        .count();
+    assert!(brighter > 100, "{brighter} pixels brighter");
 }
 
 /// `--gpu` draws the same pictures as the CPU reference (on lavapipe where there is no GPU;

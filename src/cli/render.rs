@@ -14,9 +14,12 @@ use stylet_render::presets::{self, Preset};
 use stylet_render::scene::{Camera, ClipPlane, Light, Quality, Scene, Tagging};
 use stylet_render::tools::ToolState;
 use stylet_render::transfer::TransferFunction;
+use stylet_render::ultrasound::{self, EchoTable, FlowField, UltrasoundScene, UltrasoundSettings};
 use stylet_render::volume::RenderVolume;
 use stylet_render::xray::attenuation::DEFAULT_IODINE_MG_PER_ML;
 use stylet_render::xray::{self, CArm, ContrastOverlay, Radiograph, XrayScene, XrayWindow};
+
+use super::script::Difficulty;
 
 /// The largest image side `--size` accepts.
 pub const MAX_SIDE_PX: u32 = 8192;
@@ -62,6 +65,17 @@ pub struct RenderArgs {
     /// spacing).
     #[arg(long, value_name = "MM")]
     pub step_mm: Option<f32>,
+    /// The probe of the ultrasound view when the session holds none (default convex); the view
+    /// then images the atlas' first planned path in plane, from beside its skin entry.
+    #[arg(long, value_enum)]
+    pub probe: Option<ProbeArg>,
+    /// Colour Doppler over the vessels in the ultrasound view.
+    #[arg(long)]
+    pub doppler: bool,
+    /// The difficulty whose aids the ultrasound view shows (guide line, outlined target; from the
+    /// atlas' `[difficulty]` presets); default the session's, else beginner.
+    #[arg(long, value_enum)]
+    pub difficulty: Option<Difficulty>,
     /// Draw the 3D view on the GPU (wgpu; a software Vulkan such as lavapipe will do).
     #[arg(long, conflicts_with = "cpu")]
     pub gpu: bool,
@@ -86,6 +100,15 @@ pub enum View {
     Needle,
     /// The C-arm's radiograph with the needle and the contrast medium of the moment (docs/xray.md).
     Xray,
+    /// The ultrasound image of the probe of the moment, or of one beside the planned path
+    /// (docs/ultrasound.md).
+    Ultrasound,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ProbeArg {
+    Linear,
+    Convex,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -147,6 +170,10 @@ struct Moment {
     /// The scenario the session was recorded for (its C-arm).
     scenario: String,
     xray_on: bool,
+    /// The session's seed (the ultrasound's speckle), time (s) and difficulty.
+    seed: u64,
+    time_s: f64,
+    difficulty: String,
     device_mm: DVec3,
     /// The device's axis (orientation · +z).
     axis: DVec3,
@@ -164,6 +191,10 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
             width: 512,
             height: 512,
         },
+        View::Ultrasound => Size {
+            width: 640,
+            height: 512,
+        },
         _ => Size {
             width: 1225,
             height: 1016,
@@ -176,6 +207,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         View::Sagittal => render_plane(&atlas, moment.as_ref(), Plane::Sagittal, size, a.gpu)?,
         View::Needle => render_needle(&atlas, moment.as_ref(), size, a.gpu)?,
         View::Xray => render_xray(&atlas, moment.as_ref(), &a, size)?,
+        View::Ultrasound => render_ultrasound(&atlas, moment.as_ref(), &a, size)?,
     };
     write_atomically(&image, &a.out)?;
     match &moment {
@@ -209,6 +241,7 @@ fn view_name(v: View) -> &'static str {
         View::Sagittal => "sagittal",
         View::Needle => "needle",
         View::Xray => "xray",
+        View::Ultrasound => "ultrasound",
     }
 }
 
@@ -249,6 +282,7 @@ fn replay_to(atlas: &stylet_atlas::Atlas, path: &Path, at_s: f64) -> anyhow::Res
     let mut moment = None;
     let ct_dims = atlas.model.ct().grid().dims();
     let scenario = h.scenario.clone();
+    let (seed, difficulty, rate) = (h.seed, h.difficulty.clone(), h.tick_rate_hz as f64);
     let report = stylet_scoring::replay(&session, Arc::new(atlas.model.clone()), &mut |input, out, sim| {
         if out.tick == tick {
             let q = input.orientation;
@@ -257,6 +291,9 @@ fn replay_to(atlas: &stylet_atlas::Atlas, path: &Path, at_s: f64) -> anyhow::Res
                 contrast: ContrastOverlay::from_agent(sim.contrast(), ct_dims, DEFAULT_IODINE_MG_PER_ML),
                 scenario: scenario.clone(),
                 xray_on: out.xray_on,
+                seed,
+                time_s: tick as f64 / rate,
+                difficulty: difficulty.clone(),
                 device_mm: out.tip_mm,
                 axis: if q.is_finite() && q.length_squared() > 1e-12 {
                     q.normalize() * DVec3::Z
@@ -497,6 +534,89 @@ fn render_xray(
     let radiograph =
         xray::render(&atlas.model, &scene, size.width, size.height).map_err(|e| anyhow::anyhow!("--view xray: {e}"))?;
     Ok(radiograph.to_image(window))
+}
+
+/// The ultrasound frame of the moment's probe, else of a probe beside the atlas' first planned
+/// path imaging it in plane; the needle of the moment; the aids of the difficulty.
+fn render_ultrasound(
+    atlas: &stylet_atlas::Atlas,
+    moment: Option<&Moment>,
+    a: &RenderArgs,
+    size: Size,
+) -> anyhow::Result<Image> {
+    if a.gpu {
+        bail!("--view ultrasound has no GPU renderer yet (docs/ultrasound.md): leave out --gpu");
+    }
+    let path = atlas.planned_paths().first().cloned();
+    let probe = match (moment.and_then(|m| m.tools.probe), &path) {
+        (Some(p), _) => {
+            if let Some(asked) = a.probe
+                && (asked == ProbeArg::Linear) != (p.kind == stylet_physics::ProbeKind::Linear)
+            {
+                bail!(
+                    "--probe {asked:?}: the session holds a {:?} probe; leave --probe out",
+                    p.kind
+                );
+            }
+            p
+        }
+        (None, Some(path)) => {
+            let kind = match a.probe.unwrap_or(ProbeArg::Convex) {
+                ProbeArg::Linear => stylet_physics::ProbeKind::Linear,
+                ProbeArg::Convex => stylet_physics::ProbeKind::Convex,
+            };
+            ultrasound::probe::facing_path(&atlas.model, kind, path.entry_mm, path.target_mm)
+                .ok_or_else(|| anyhow::anyhow!("the planned path '{}' has no length", path.name))?
+        }
+        (None, None) => bail!(
+            "--view ultrasound needs a probe: a session recorded with one, or an atlas with a planned path to image ('{}' has none)",
+            atlas.manifest.name
+        ),
+    };
+    let level = match (a.difficulty, moment) {
+        (Some(d), _) => d.name().to_string(),
+        (None, Some(m)) => m.difficulty.clone(),
+        (None, None) => Difficulty::Beginner.name().to_string(),
+    };
+    let presets = &atlas.manifest.difficulty;
+    let aids = match level.as_str() {
+        "advanced" => &presets.advanced,
+        "expert" => &presets.expert,
+        _ => &presets.beginner,
+    };
+    let needle = moment.and_then(|m| m.tools.needle.clone());
+    // The guide: where the needle goes on from its tip; with no needle, the planned path.
+    let guide_mm = aids.needle_guide.then(|| match &needle {
+        Some(n) if n.nodes_mm.len() >= 2 => Some([n.tip_mm(), n.tip_mm() + n.tip_tangent() * 100.0]),
+        _ => path.as_ref().map(|p| [p.entry_mm.as_vec3(), p.target_mm.as_vec3()]),
+    });
+    let m = &atlas.manifest;
+    let targets: Vec<_> = atlas
+        .model
+        .label_table()
+        .labels()
+        .iter()
+        .filter(|l| l.role == stylet_physics::Role::Target)
+        .map(|l| l.id)
+        .collect();
+    let echo = Arc::new(EchoTable::new(
+        &stylet_atlas::manifest::echo_classes(&m.labels, &m.tissues),
+        &targets,
+    ));
+    let doppler = a.doppler.then(|| Arc::new(FlowField::build(&atlas.model, &echo)));
+    let scene = UltrasoundScene {
+        probe,
+        settings: UltrasoundSettings::for_probe(probe.kind),
+        seed: moment.map_or(0, |m| m.seed),
+        time_s: moment.map_or(0.0, |m| m.time_s),
+        needle,
+        echo,
+        doppler,
+        guide_mm: guide_mm.flatten(),
+        outline_target: aids.target_overlay,
+    };
+    let frame = ultrasound::render(&atlas.model, &scene).map_err(|e| anyhow::anyhow!("--view ultrasound: {e}"))?;
+    Ok(frame.to_image(size.width, size.height))
 }
 
 /// A GPU device and the atlas uploaded to it (wgpu; lavapipe will do).

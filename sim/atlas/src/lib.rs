@@ -15,7 +15,7 @@ pub mod summary;
 
 use std::path::{Path, PathBuf};
 
-pub use manifest::{Exercise, Manifest, ScenarioFile};
+pub use manifest::{EchoClass, Exercise, Manifest, ScenarioFile};
 pub use store::{Atlas, ThresholdSource, load, write};
 
 /// A problem with atlas input, always naming the file it concerns.

@@ -335,8 +335,47 @@ pub struct TissueToml {
     pub friction_max_n_per_mm: Option<ParamToml>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub color_rgba: Option<[u8; 4]>,
+    /// How the tissue looks in ultrasound (inherited like the parameters; default `tissue`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub echo: Option<EchoClass>,
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub note: String,
+}
+
+/// How a tissue appears in simulated ultrasound (docs/ultrasound.md): solid tissue scatters
+/// (speckle) by its CT value; fluid (bile, the gallbladder) is anechoic; veins and arteries are
+/// anechoic and carry blood flow for the Doppler view (veins blue→cyan, arteries red→yellow).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum EchoClass {
+    #[default]
+    Tissue,
+    Fluid,
+    Vein,
+    Artery,
+}
+
+/// Each label's [`EchoClass`]: its tissue node's `echo`, else the nearest ancestor's, else
+/// `tissue`. Labels whose tissue is not in the tree (a manifest the loader would refuse) get
+/// `tissue`.
+pub fn echo_classes(labels: &[LabelToml], tissues: &BTreeMap<String, TissueToml>) -> Vec<(LabelId, EchoClass)> {
+    labels
+        .iter()
+        .map(|l| {
+            let mut node = Some(l.tissue.as_str());
+            // The tree is acyclic once loaded; the bound keeps an unchecked manifest finite.
+            for _ in 0..=tissues.len() {
+                let Some(t) = node.and_then(|n| tissues.get(n)) else {
+                    break;
+                };
+                if let Some(e) = t.echo {
+                    return (l.id, e);
+                }
+                node = t.parent.as_deref();
+            }
+            (l.id, EchoClass::Tissue)
+        })
+        .collect()
 }
 
 /// Visual aids and rules per difficulty (thesis §6.3: the level changes the available aids).
@@ -714,6 +753,29 @@ impl Manifest {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn echo_classes_are_inherited_down_the_property_tree() {
+        let s = ScenarioFile::ptcd();
+        let classes = echo_classes(&s.labels, &s.tissues);
+        let of = |name: &str| {
+            let id = s
+                .labels
+                .iter()
+                .find(|l| l.name == name)
+                .unwrap_or_else(|| panic!("{name}"))
+                .id;
+            classes.iter().find(|c| c.0 == id).unwrap().1
+        };
+        // vessel → vein; aorta overrides → artery; bile_duct → fluid, its child target_duct too.
+        assert_eq!(of("portal vein"), EchoClass::Vein);
+        assert_eq!(of("aorta"), EchoClass::Artery);
+        assert_eq!(of("bile duct"), EchoClass::Fluid);
+        assert_eq!(of("right hepatic duct"), EchoClass::Fluid);
+        assert_eq!(of("liver"), EchoClass::Tissue);
+        let bad: Result<TissueToml, _> = toml::from_str("echo = \"blood\"");
+        assert!(bad.unwrap_err().to_string().contains("unknown variant"));
+    }
 
     #[test]
     fn the_shipped_ptcd_scenario_is_valid() {

@@ -7,7 +7,7 @@
 //! quality, hooks), [`transfer`] (eq. 3.2.2), [`transfer_table`] (what the ray loops read), [`volume`] (the atlas prepared for rendering),
 //! [`tools`] (needle, finger, probes), [`shadow`] (their shadows, Alg. 3.1/3.2), [`image`]
 //! (pixels, PNG, difference statistics), [`mpr`] (slices), [`annotate`] (tip marker, scale bar,
-//! letters on slices), [`xray`] (the radiograph of a C-arm, §3.3), [`synthetic`] (small atlases from functions, for tests) and [`figure`] (the atlas figure of `stylet atlas inspect`).
+//! letters on slices), [`xray`] (the radiograph of a C-arm, §3.3), [`ultrasound`] (B-mode and colour Doppler, §3.4), [`synthetic`] (small atlases from functions, for tests) and [`figure`] (the atlas figure of `stylet atlas inspect`).
 
 pub mod annotate;
 pub mod figure;
@@ -22,6 +22,7 @@ pub mod synthetic;
 pub mod tools;
 pub mod transfer;
 pub mod transfer_table;
+pub mod ultrasound;
 pub mod volume;
 pub mod xray;
 

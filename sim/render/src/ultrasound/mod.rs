@@ -1,0 +1,368 @@
+//! Simulated ultrasound with colour Doppler (thesis §3.4; docs/ultrasound.md): B-mode from the
+//! CT along the scan lines of a linear or convex probe, after Wein et al. 2008 and Reichl et
+//! al. 2009. Per sample: CT value and label → acoustic impedance, attenuation and scatter
+//! ([`acoustic`]); the echo is the amplitude still travelling times the reflection at the
+//! interface with the previous sample plus the tissue's speckle ([`speckle`], fixed to the
+//! patient); the amplitude then loses the reflected part and the round-trip attenuation, so bone
+//! and air cast shadows. The needle adds its specular echo, reverberation and shadow
+//! ([`needle`]). Time-gain compensation, log compression to the dynamic range, then scan
+//! conversion to the fan with the training aids ([`display`]); Doppler colour over veins and
+//! arteries ([`doppler`]). The CPU reference: rayon over scan lines, every line a pure function
+//! of the inputs, so the image is bit-identical on any number of threads.
+
+pub mod acoustic;
+pub mod display;
+pub mod doppler;
+pub mod needle;
+pub mod probe;
+pub mod speckle;
+
+use std::sync::Arc;
+
+use rayon::prelude::*;
+use stylet_atlas::EchoClass;
+use stylet_physics::atlas::AIR_HU;
+use stylet_physics::glam::Vec3;
+use stylet_physics::{ProbeKind, PunctureAtlas};
+
+pub use acoustic::EchoTable;
+pub use display::Sonogram;
+pub use doppler::FlowField;
+pub use probe::ScanGeometry;
+
+use crate::RenderError;
+use crate::raycast::sampler::{Grid3, nearest_voxel};
+use crate::tools::{NeedleShape, ProbeShape};
+use crate::volume::IndexMap;
+
+/// The most scan lines and samples per line a frame may have.
+pub const MAX_LINES: u32 = 2048;
+pub const MAX_SAMPLES: u32 = 4096;
+/// Gain of the specular reflection and of the diffuse scatter (liver speckle about −34 dB
+/// under a perfect reflector at the face).
+const SPECULAR_GAIN: f32 = 1.0;
+const SCATTER_GAIN: f32 = 0.02;
+/// The attenuation time-gain compensation makes up for (dB/cm/MHz, round trip): an average
+/// soft tissue, so deep liver stays visible and tissue behind fluid looks brighter
+/// (enhancement), as on a scanner with its TGC sliders in the middle.
+pub const TGC_DB_PER_CM_MHZ: f32 = 0.55;
+/// Impedance of the coupling gel under the face (MRayl), and the thickest layer of it that
+/// fills the gap between face and skin (mm; a curved face on a curved flank): air within this
+/// depth before the first tissue counts as gel, so a probe lifted farther off shows black.
+const GEL_MRAYL: f32 = 1.52;
+pub const GEL_MAX_MM: f32 = 8.0;
+/// The weakest signal Doppler still measures, relative to the transmitted amplitude after
+/// time-gain compensation: in an acoustic shadow there is no colour.
+const DOPPLER_MIN_SIGNAL: f32 = 0.01;
+/// CT values below this are air and the partial-volume voxels of the skin's surface; the gel
+/// replaces them at the face.
+const AIR_BELOW_HU: f32 = -200.0;
+
+/// What a frame depends on besides the atlas.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UltrasoundSettings {
+    pub lines: u32,
+    pub samples: u32,
+    pub depth_mm: f32,
+    pub frequency_mhz: f32,
+    /// Overall gain added after compression (dB).
+    pub gain_db: f32,
+    /// Echo range mapped from black to white (dB).
+    pub dynamic_range_db: f32,
+}
+
+impl UltrasoundSettings {
+    /// 256 lines × 512 samples; a convex abdominal probe at 3.5 MHz to 150 mm, a linear one at
+    /// 7.5 MHz to 60 mm.
+    pub fn for_probe(kind: ProbeKind) -> UltrasoundSettings {
+        let (depth_mm, frequency_mhz) = match kind {
+            ProbeKind::Convex => (150.0, 3.5),
+            ProbeKind::Linear => (60.0, 7.5),
+        };
+        UltrasoundSettings {
+            lines: 256,
+            samples: 512,
+            depth_mm,
+            frequency_mhz,
+            gain_db: 0.0,
+            dynamic_range_db: 60.0,
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), String> {
+        if !(1..=MAX_LINES).contains(&self.lines) || !(2..=MAX_SAMPLES).contains(&self.samples) {
+            return Err(format!(
+                "{} lines × {} samples: at most {MAX_LINES} lines and 2 … {MAX_SAMPLES} samples",
+                self.lines, self.samples
+            ));
+        }
+        let ok = |v: f32, lo: f32, hi: f32| v.is_finite() && (lo..=hi).contains(&v);
+        if !ok(self.depth_mm, 10.0, 300.0) {
+            return Err(format!("depth {} mm must be 10 … 300", self.depth_mm));
+        }
+        if !ok(self.frequency_mhz, 1.0, 20.0) {
+            return Err(format!("frequency {} MHz must be 1 … 20", self.frequency_mhz));
+        }
+        if !ok(self.gain_db, -60.0, 60.0) || !ok(self.dynamic_range_db, 20.0, 120.0) {
+            return Err(format!(
+                "gain {} dB must be −60 … 60 and dynamic range {} dB 20 … 120",
+                self.gain_db, self.dynamic_range_db
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Everything one ultrasound frame depends on besides the CT and its labels.
+#[derive(Debug, Clone)]
+pub struct UltrasoundScene {
+    pub probe: ProbeShape,
+    pub settings: UltrasoundSettings,
+    /// The session seed: the speckle pattern (fixed to the patient).
+    pub seed: u64,
+    /// Session time (s): the arterial pulse of the Doppler view.
+    pub time_s: f64,
+    pub needle: Option<NeedleShape>,
+    pub echo: Arc<EchoTable>,
+    /// Colour Doppler over the vessels, with their flow axes; `None`: B-mode only.
+    pub doppler: Option<Arc<FlowField>>,
+    /// Training aids: a guide line (two world points: the needle's expected course, drawn
+    /// projected into the image) and the target's outline.
+    pub guide_mm: Option<[Vec3; 2]>,
+    pub outline_target: bool,
+}
+
+/// Per-sample flags of a [`Sonogram`].
+pub const FLAG_TARGET: u8 = 1;
+pub const FLAG_DOPPLER: u8 = 2;
+
+/// Renders one frame (before scan conversion) of `atlas` seen by the scene's probe.
+pub fn render(atlas: &PunctureAtlas, scene: &UltrasoundScene) -> Result<Sonogram, RenderError> {
+    let s = scene.settings;
+    s.validate().map_err(RenderError::Invalid)?;
+    let p = &scene.probe;
+    let q = p.orientation;
+    if !(p.position_mm.is_finite() && q.is_finite() && q.length() > 0.5) {
+        return Err(RenderError::Invalid(
+            "the probe's pose must be finite with a unit orientation".into(),
+        ));
+    }
+    if let Some(n) = &scene.needle
+        && !(n.diameter_mm.is_finite() && n.diameter_mm > 0.0 && n.nodes_mm.iter().all(|p| p.is_finite()))
+    {
+        return Err(RenderError::Invalid(
+            "the needle's nodes and diameter must be finite".into(),
+        ));
+    }
+    if !scene.time_s.is_finite() {
+        return Err(RenderError::Invalid("the session time must be finite".into()));
+    }
+    let geometry = ScanGeometry::new(p, s.lines, s.samples, s.depth_mm);
+    let ct = atlas.ct();
+    let labels = atlas.partial_labels();
+    if labels.grid().dims() != ct.grid().dims() {
+        return Err(RenderError::Invalid(
+            "the labels and the CT have different grids".into(),
+        ));
+    }
+    let frame = Frame::new(atlas, scene, geometry);
+    let n = s.samples as usize;
+    let mut envelope = vec![0.0f32; s.lines as usize * n];
+    let mut colour = vec![[0u8; 3]; s.lines as usize * n];
+    let mut flags = vec![0u8; s.lines as usize * n];
+    envelope
+        .par_chunks_mut(n)
+        .zip(colour.par_chunks_mut(n))
+        .zip(flags.par_chunks_mut(n))
+        .enumerate()
+        .for_each(|(i, ((b, c), f))| frame.scan_line(i as u32, b, c, f));
+    let mut bmode = vec![0.0f32; envelope.len()];
+    bmode
+        .par_chunks_mut(n)
+        .enumerate()
+        .for_each(|(i, out)| compress_line(&envelope, n, i, &s, out));
+    Ok(Sonogram {
+        geometry,
+        bmode,
+        colour,
+        flags,
+        guide_mm: scene.guide_mm,
+        outline_target: scene.outline_target,
+    })
+}
+
+/// One tissue's per-sample constants: impedance, the round-trip amplitude factor of one
+/// sample's depth, scatter.
+#[derive(Debug, Clone, Copy)]
+struct SampleProps {
+    z: f32,
+    loss: f32,
+    scatter: f32,
+}
+
+/// The lookup of solid tissue by whole HU, from this value up.
+const LUT_LOW_HU: i32 = -1024;
+const LUT_LEN: usize = 4096;
+
+/// What every scan line of one frame shares.
+struct Frame<'a> {
+    scene: &'a UltrasoundScene,
+    geometry: ScanGeometry,
+    grid: Grid3<'a>,
+    map: IndexMap,
+    labels: &'a [u16],
+    tissue: Vec<SampleProps>,
+    fluid: SampleProps,
+    blood: SampleProps,
+    /// Time-gain compensation per sample.
+    tgc: Vec<f32>,
+    speckle_seed: u64,
+    /// Blood speed per vessel kind now (m/s).
+    vein_m_s: f32,
+    artery_m_s: f32,
+}
+
+impl<'a> Frame<'a> {
+    fn new(atlas: &'a PunctureAtlas, scene: &'a UltrasoundScene, geometry: ScanGeometry) -> Frame<'a> {
+        let s = scene.settings;
+        let dz_cm = geometry.sample_mm() / 10.0;
+        let props = |a: acoustic::Acoustic| SampleProps {
+            z: a.impedance_mrayl,
+            loss: 10f32.powf(-a.attenuation_db_per_cm_mhz * s.frequency_mhz * 2.0 * dz_cm / 20.0),
+            scatter: a.scatter,
+        };
+        let ct = atlas.ct();
+        let dims = IndexMap::of(ct.grid()).dims;
+        let tgc = (0..s.samples)
+            .map(|j| {
+                let z_cm = (j as f32 + 0.5) * dz_cm;
+                10f32.powf((TGC_DB_PER_CM_MHZ * s.frequency_mhz * 2.0 * z_cm) / 20.0)
+            })
+            .collect();
+        Frame {
+            scene,
+            geometry,
+            grid: Grid3::new(ct.data(), dims),
+            map: IndexMap::of(ct.grid()),
+            labels: atlas.partial_labels().data(),
+            tissue: (0..LUT_LEN)
+                .map(|k| props(acoustic::tissue((LUT_LOW_HU + k as i32) as f32)))
+                .collect(),
+            fluid: props(acoustic::FLUID),
+            blood: props(acoustic::BLOOD),
+            tgc,
+            speckle_seed: speckle::lattice_seed(scene.seed),
+            vein_m_s: doppler::speed_m_s(doppler::pressure_pa(EchoClass::Vein, scene.time_s)),
+            artery_m_s: doppler::speed_m_s(doppler::pressure_pa(EchoClass::Artery, scene.time_s)),
+        }
+    }
+
+    /// One scan line: B-mode display values (0 … 1), Doppler colours and flags per sample.
+    fn scan_line(&self, i: u32, bmode: &mut [f32], colour: &mut [[u8; 3]], flags: &mut [u8]) {
+        let g = &self.geometry;
+        let (origin, dir) = g.line(i);
+        let dz = g.sample_mm();
+        let needle = self.scene.needle.as_ref().and_then(|n| {
+            needle::first_hit(origin, dir, g.depth_mm, &n.nodes_mm, n.diameter_mm / 2.0).map(|h| (h, n.diameter_mm))
+        });
+        let hit_sample = needle.map(|(h, _)| ((h.depth_mm / dz) as usize).min(bmode.len() - 1));
+        let mut travelling = 1.0f32;
+        let mut z_prev = GEL_MRAYL;
+        let mut ring: Option<(f32, f32)> = None;
+        let mut in_gel = true;
+        for j in 0..bmode.len() {
+            let depth_mm = (j as f32 + 0.5) * dz;
+            let x = origin + dir * depth_mm;
+            let c = self.map.point(x);
+            let hu = self.grid.trilinear(c).unwrap_or(AIR_HU);
+            let label = nearest_voxel(c, self.map.dims).map_or(0, |v| self.labels[v]);
+            let class = self.scene.echo.class(label);
+            in_gel = in_gel && hu < AIR_BELOW_HU && depth_mm <= GEL_MAX_MM;
+            if in_gel {
+                bmode[j] = 0.0;
+                continue;
+            }
+            let p = match class {
+                EchoClass::Tissue => {
+                    let k = (hu.round() as i32 - LUT_LOW_HU).clamp(0, LUT_LEN as i32 - 1);
+                    self.tissue[k as usize]
+                }
+                EchoClass::Fluid => self.fluid,
+                EchoClass::Vein | EchoClass::Artery => self.blood,
+            };
+            let r = acoustic::reflection(z_prev, p.z);
+            let scatter = if p.scatter > 0.0 {
+                SCATTER_GAIN * p.scatter * speckle::amplitude(x, self.speckle_seed)
+            } else {
+                0.0
+            };
+            let mut echo = travelling * (SPECULAR_GAIN * r.abs() + scatter);
+            travelling *= (1.0 - r * r) * p.loss;
+            z_prev = p.z;
+            if hit_sample == Some(j)
+                && let Some((h, _)) = needle
+            {
+                let e = travelling * needle::STEEL_REFLECTION * h.specular;
+                echo += e;
+                travelling *= needle::TRANSMISSION;
+                ring = Some((e, h.depth_mm));
+            }
+            bmode[j] = echo;
+            if self.scene.echo.is_target(label) {
+                flags[j] |= FLAG_TARGET;
+            }
+            if let Some(flow) = &self.scene.doppler
+                && matches!(class, EchoClass::Vein | EchoClass::Artery)
+                && travelling * self.tgc[j] >= DOPPLER_MIN_SIGNAL
+                && let Some(axis) = flow.axis_at(x)
+            {
+                let speed = if class == EchoClass::Artery {
+                    self.artery_m_s
+                } else {
+                    self.vein_m_s
+                };
+                if let Some(rgb) = doppler::colour(class, speed * axis.dot(dir).abs()) {
+                    colour[j] = rgb;
+                    flags[j] |= FLAG_DOPPLER;
+                }
+            }
+        }
+        // The comet tail: echoes one shaft diameter apart below the first, each weaker.
+        if let (Some((e, depth)), Some((_, diameter))) = (ring, needle) {
+            let mut a = e;
+            for k in 1..=needle::REVERB_ECHOES {
+                a *= needle::REVERB_DECAY;
+                let j = ((depth + k as f32 * diameter) / dz) as usize;
+                if let Some(b) = bmode.get_mut(j) {
+                    *b += a;
+                }
+            }
+        }
+        for (b, t) in bmode.iter_mut().zip(&self.tgc) {
+            *b *= t;
+        }
+    }
+}
+
+/// The beam's lateral profile over neighbouring lines (weights of lines i − 2 … i + 2): a real
+/// beam is 1–2 mm wide, so neighbouring lines share echoes and a rib's edge shades gradually.
+const LATERAL_PSF: [f32; 5] = [1.0 / 9.0, 2.0 / 9.0, 3.0 / 9.0, 2.0 / 9.0, 1.0 / 9.0];
+
+/// Line `i` of the display: the time-gain-compensated envelopes averaged over the beam's width
+/// ([`LATERAL_PSF`], lines beyond the array's ends clamped), log-compressed to the dynamic range
+/// with the gain.
+fn compress_line(envelope: &[f32], samples: usize, i: usize, s: &UltrasoundSettings, out: &mut [f32]) {
+    let last = envelope.len() / samples - 1;
+    let rows: [&[f32]; 5] = std::array::from_fn(|k| {
+        let line = (i + k).saturating_sub(2).min(last);
+        &envelope[line * samples..(line + 1) * samples]
+    });
+    for (j, o) in out.iter_mut().enumerate() {
+        let mut e = 0.0;
+        for (w, r) in LATERAL_PSF.iter().zip(&rows) {
+            e += w * r[j];
+        }
+        let db = 20.0 * e.max(1e-12).log10() + s.gain_db;
+        *o = ((db + s.dynamic_range_db) / s.dynamic_range_db).clamp(0.0, 1.0);
+    }
+}
