@@ -732,3 +732,60 @@ fn the_target_must_be_in_the_ultrasound_image_before_the_puncture() {
     assert_eq!(w["ultrasound_before_puncture"], true, "{w}");
     assert_eq!(w["target_scanned_before_puncture"], false, "{w}");
 }
+
+/// "Needle visible in the ultrasound plane" (issue 16 item 4): the share of the insertion time
+/// the tip lies in the image of the probe's last pose on the skin. A probe beside the path
+/// imaging it in plane (`stylet render --view ultrasound`'s default placement), then the
+/// puncture along the path: nearly all the time; the same probe turned 90° about its beam (the
+/// plane across the path): the tip only crosses it; no probe: no value.
+#[test]
+fn the_needle_in_the_ultrasound_plane_is_measured_against_the_last_probe_image() {
+    use stylet_physics::ProbeKind;
+    use stylet_physics::glam::{DQuat, DVec3};
+    let atlas = stylet_atlas::load(&setup().atlas()).unwrap();
+    let path = atlas
+        .planned_paths()
+        .into_iter()
+        .find(|p| p.name == "intercostal-10-11")
+        .unwrap();
+    let probe =
+        stylet_render::ultrasound::probe::facing_path(&atlas.model, ProbeKind::Convex, path.entry_mm, path.target_mm)
+            .unwrap();
+    let puncture = "at 3 tool needle gauge 18 length 150 stylet in\n\
+                    at 3 along intercostal-10-11 -15\nat 4 along intercostal-10-11 -15\n\
+                    at 14 along intercostal-10-11 111\nat 15 along intercostal-10-11 -15\n";
+    let session = |name: &str, turn_deg: f64| {
+        let q = probe.orientation.as_dquat() * DQuat::from_rotation_z(turn_deg.to_radians());
+        let (p, dir, x) = (probe.position_mm.as_dvec3(), q * DVec3::Z, q * DVec3::X);
+        // Held on the skin until 2.5 s, then lifted 60 mm straight off before the tool change
+        // (keyframes interpolate: a probe dragged to the needle's start would image elsewhere).
+        let at = |t: f64, p: DVec3| {
+            format!(
+                "at {t} pos {} {} {} dir {} {} {} xaxis {} {} {}\n",
+                p.x, p.y, p.z, dir.x, dir.y, dir.z, x.x, x.y, x.z
+            )
+        };
+        let pose = at(0.0, p) + &at(2.5, p) + &at(2.8, p - dir * 60.0);
+        score_text(
+            name,
+            &format!("stylet-script 1\ndevice premium\ntool probe convex\nend 16\n{pose}{puncture}"),
+        )
+    };
+    let in_plane = session("needle-in-plane", 0.0);
+    let share = in_plane["metrics"]["needle_in_plane_share"].as_f64().unwrap();
+    // The first fifth of the way the tip is still beside the fan (the probe sits 50 mm from the
+    // entry; a convex sector is 58 mm wide at the face): it enters the image from its edge.
+    assert!(share > 0.7, "in plane: {share}");
+    let across = session("needle-across-plane", 90.0);
+    let share = across["metrics"]["needle_in_plane_share"].as_f64().unwrap();
+    assert!(share < 0.2, "across: {share}");
+    let none = score_text(
+        "needle-no-probe",
+        &format!("stylet-script 1\ndevice premium\nend 16\n{puncture}"),
+    );
+    assert!(
+        none["metrics"]["needle_in_plane_share"].is_null(),
+        "{}",
+        none["metrics"]
+    );
+}

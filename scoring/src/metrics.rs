@@ -113,6 +113,12 @@ pub struct Metrics {
     #[serde(default)]
     pub dose_area_product_gy_cm2: f64,
     pub ultrasound_time_s: f64,
+    /// Share of the insertion time (needle in the body) the tip lay in the image of the
+    /// ultrasound probe's last pose on the skin (the beam's thickness, inside the image): how
+    /// well the trainee kept the needle in the plane they scanned. `None` without a probe in skin
+    /// contact before the needle went in.
+    #[serde(default)]
+    pub needle_in_plane_share: Option<f64>,
     pub palpation_time_s: f64,
     pub path_length_mm: f64,
     /// The scored attempt's tip path length from its skin entry until it reached the target (else
@@ -244,6 +250,11 @@ pub struct MetricsCollector<'a> {
     view_ticks: u64,
     good_contact_ticks: u64,
     probe_ticks: u64,
+    /// The probe's last pose in skin contact (its image stays on the screen after the tool
+    /// change), and the needle's ticks in the body with such an image / with the tip in it.
+    last_probe: Option<(DVec3, stylet_physics::glam::DQuat, stylet_physics::ProbeKind)>,
+    imaged_insertion_ticks: u64,
+    tip_in_plane_ticks: u64,
 }
 
 /// The finger's sweep, cut into runs over a rib and over an intercostal space.
@@ -320,6 +331,36 @@ const SPACE_SINK_MM: f64 = 0.1;
 /// this distance of the plane (mm), down to this depth (mm).
 const VIEW_PLANE_MM: f64 = 5.0;
 const VIEW_DEPTH_MM: f64 = 150.0;
+/// Half the ultrasound beam's thickness across the image plane (mm): the needle's tip within it
+/// shows in the image (docs/ultrasound.md "Needle": shaft radius + 1 mm; a 2.5 mm band).
+const BEAM_HALF_THICKNESS_MM: f64 = 2.5;
+
+/// Whether `point` lies in the image of a probe at `position` / `orientation`: within
+/// `plane_mm` of the image plane (array along tool x, beam along tool z), down to
+/// [`VIEW_DEPTH_MM`], inside the field: a linear array images a 40 mm wide strip, a convex one a
+/// 60° sector from its 50 mm radius.
+fn in_image(
+    position: DVec3,
+    orientation: stylet_physics::glam::DQuat,
+    kind: stylet_physics::ProbeKind,
+    point: DVec3,
+    plane_mm: f64,
+) -> bool {
+    let q = orientation;
+    let (ax, normal, beam) = (q * DVec3::X, q * DVec3::Y, q * DVec3::Z);
+    let d = point - position;
+    let depth = d.dot(beam);
+    if d.dot(normal).abs() > plane_mm || !(0.0..=VIEW_DEPTH_MM).contains(&depth) {
+        return false;
+    }
+    let half_width = match kind {
+        stylet_physics::ProbeKind::Linear => 20.0,
+        // 60° sector of a 50 mm radius face: 25 mm at the face, widening with depth.
+        stylet_physics::ProbeKind::Convex => 25.0 + depth * (30f64).to_radians().tan(),
+    };
+    d.dot(ax).abs() <= half_width
+}
+
 /// Good skin contact: at least this share of the probe face on the skin.
 const GOOD_CONTACT_SHARE: f64 = 0.75;
 
@@ -462,6 +503,9 @@ impl<'a> MetricsCollector<'a> {
             palpation: PalpationTrace::default(),
             view_first_tick: None,
             view_ticks: 0,
+            last_probe: None,
+            imaged_insertion_ticks: 0,
+            tip_in_plane_ticks: 0,
             good_contact_ticks: 0,
             probe_ticks: 0,
         }
@@ -512,6 +556,12 @@ impl<'a> MetricsCollector<'a> {
             self.last_exit_tick = Some(tick);
         }
 
+        if in_body && let Some((position, orientation, kind)) = self.last_probe {
+            self.imaged_insertion_ticks += 1;
+            if in_image(position, orientation, kind, out.tip_mm, BEAM_HALF_THICKNESS_MM) {
+                self.tip_in_plane_ticks += 1;
+            }
+        }
         if in_body {
             // Redirections: retract by ≥ R from the deepest point, then re-advance.
             match self.valley_mm {
@@ -633,6 +683,7 @@ impl<'a> MetricsCollector<'a> {
             match sim.tool_spec() {
                 ToolSpec::Probe(kind) => {
                     self.ultrasound_ticks += 1;
+                    self.last_probe = Some((input.position_mm, input.orientation, *kind));
                     let nodes = sim.contact().map_or(1, |c| c.nodes().len().max(1));
                     if out.contacts as f64 >= GOOD_CONTACT_SHARE * nodes as f64 {
                         self.good_contact_ticks += 1;
@@ -706,22 +757,10 @@ impl<'a> MetricsCollector<'a> {
     /// the image: the plane holds the transducer array (tool x) and the beam (tool z); a linear
     /// array images a 40 mm wide strip, a convex one a 60° sector from its 50 mm radius.
     fn target_in_view(&self, input: &TickInput, kind: stylet_physics::ProbeKind) -> bool {
-        let q = input.orientation;
-        let (ax, normal, beam) = (q * DVec3::X, q * DVec3::Y, q * DVec3::Z);
-        let p = input.position_mm;
-        self.target.points().iter().any(|&t| {
-            let d = t - p;
-            let depth = d.dot(beam);
-            if d.dot(normal).abs() > VIEW_PLANE_MM || !(0.0..=VIEW_DEPTH_MM).contains(&depth) {
-                return false;
-            }
-            let half_width = match kind {
-                stylet_physics::ProbeKind::Linear => 20.0,
-                // 60° sector of a 50 mm radius face: 25 mm at the face, widening with depth.
-                stylet_physics::ProbeKind::Convex => 25.0 + depth * (30f64).to_radians().tan(),
-            };
-            d.dot(ax).abs() <= half_width
-        })
+        self.target
+            .points()
+            .iter()
+            .any(|&t| in_image(input.position_mm, input.orientation, kind, t, VIEW_PLANE_MM))
     }
 
     /// The metrics of everything observed.
@@ -819,6 +858,8 @@ impl<'a> MetricsCollector<'a> {
             // Set by the scorer, which knows the scenario's C-arm.
             dose_area_product_gy_cm2: 0.0,
             ultrasound_time_s: self.ultrasound_ticks as f64 / rate,
+            needle_in_plane_share: (self.imaged_insertion_ticks > 0)
+                .then(|| self.tip_in_plane_ticks as f64 / self.imaged_insertion_ticks as f64),
             palpation_time_s: self.palpation_ticks as f64 / rate,
             path_length_mm: self.path_length_mm,
             path_inefficiency,

@@ -459,6 +459,7 @@ mod tests {
             xray_shots: 2,
             dose_area_product_gy_cm2: 1.7,
             ultrasound_time_s: 10.0,
+            needle_in_plane_share: None,
             palpation_time_s: 0.0,
             path_length_mm: 100.0,
             path_inefficiency: Some(1.1),

@@ -298,6 +298,13 @@ fn other_metrics(r: &ScoreReport) -> Markup {
             "Palpation · ultrasound",
             format!("{:.1} s · {:.1} s", m.palpation_time_s, m.ultrasound_time_s),
         ),
+        (
+            "Needle tip in the ultrasound image",
+            m.needle_in_plane_share
+                .map_or("no ultrasound before the puncture".to_string(), |s| {
+                    format!("{:.0} % of the insertion time", 100.0 * s)
+                }),
+        ),
         ("Path length in the body", format!("{:.1} mm", m.path_length_mm)),
         (
             "Largest force · RMS",
