@@ -1,7 +1,9 @@
 //! Ultrasound speed (issue 16; the thesis reports ≈ 8 ms a frame, §3.7): frames of the real
 //! 512 × 512 × 133 chest CT at 256 scan lines × 512 samples on the CPU reference (2-thread rayon
 //! pool): B-mode, B-mode with colour Doppler and the needle, the scan conversion to a 640 × 512
-//! image, and the once-per-atlas flow-axis estimate. The convex probe sits beside the atlas'
+//! image, and the once-per-atlas flow-axis estimate; the same frames on the GPU renderer
+//! (lavapipe where there is no GPU; `STYLET_BENCH_GPU=0` skips it), including the read-back and
+//! the CPU's log compression. The convex probe sits beside the atlas'
 //! planned path, imaging it in plane (`stylet render --view ultrasound`'s default). Ratios are to
 //! the B-mode frame of the same run; frames per second = 1000 / ms.
 //!
@@ -17,6 +19,8 @@ use criterion::Criterion;
 use stylet_physics::{ProbeKind, Role};
 use stylet_render::tools::NeedleShape;
 use stylet_render::ultrasound::{self, EchoTable, FlowField, UltrasoundScene, UltrasoundSettings, render};
+use stylet_render::volume::RenderVolume;
+use stylet_render_gpu::{GpuContext, GpuUltrasound, GpuVolume};
 
 #[path = "common/chest.rs"]
 mod chest;
@@ -113,6 +117,18 @@ fn main() {
     timed(&mut c, &format!("us-doppler-needle-{lines}"), &|| {
         render(&atlas.model, &full).unwrap();
     });
+    if std::env::var("STYLET_BENCH_GPU").as_deref() != Ok("0") {
+        let ctx = GpuContext::new().expect("a GPU adapter (lavapipe will do); STYLET_BENCH_GPU=0 skips the GPU");
+        let vol = GpuVolume::upload(&ctx, &RenderVolume::new(Arc::new(atlas.model.clone()))).unwrap();
+        eprintln!("GPU: {}", ctx.adapter());
+        let us = RefCell::new(GpuUltrasound::new(&ctx));
+        timed(&mut c, &format!("us-GPU-bmode-{lines}"), &|| {
+            us.borrow_mut().render(&ctx, &vol, &bmode).unwrap();
+        });
+        timed(&mut c, &format!("us-GPU-doppler-needle-{lines}"), &|| {
+            us.borrow_mut().render(&ctx, &vol, &full).unwrap();
+        });
+    }
     let frame = render(&atlas.model, &full).unwrap();
     timed(&mut c, "us-scan-convert-640x512", &|| {
         frame.to_image(640, 512);

@@ -544,9 +544,6 @@ fn render_ultrasound(
     a: &RenderArgs,
     size: Size,
 ) -> anyhow::Result<Image> {
-    if a.gpu {
-        bail!("--view ultrasound has no GPU renderer yet (docs/ultrasound.md): leave out --gpu");
-    }
     let path = atlas.planned_paths().first().cloned();
     let probe = match (moment.and_then(|m| m.tools.probe), &path) {
         (Some(p), _) => {
@@ -615,7 +612,11 @@ fn render_ultrasound(
         guide_mm: guide_mm.flatten(),
         outline_target: aids.target_overlay,
     };
-    let frame = ultrasound::render(&atlas.model, &scene).map_err(|e| anyhow::anyhow!("--view ultrasound: {e}"))?;
+    let frame = if a.gpu {
+        ultrasound_gpu(atlas, &scene)?
+    } else {
+        ultrasound::render(&atlas.model, &scene).map_err(|e| anyhow::anyhow!("--view ultrasound: {e}"))?
+    };
     Ok(frame.to_image(size.width, size.height))
 }
 
@@ -639,6 +640,19 @@ fn xray_gpu(atlas: &stylet_atlas::Atlas, scene: &XrayScene, size: Size) -> anyho
     stylet_render_gpu::GpuXray::new(&ctx)
         .render(&ctx, &gpu_volume, scene, size.width, size.height)
         .map_err(|e| on_gpu(&ctx, e))
+}
+
+#[cfg(feature = "gpu")]
+fn ultrasound_gpu(atlas: &stylet_atlas::Atlas, scene: &UltrasoundScene) -> anyhow::Result<ultrasound::Sonogram> {
+    let (ctx, gpu_volume) = gpu_upload(&RenderVolume::new(Arc::new(atlas.model.clone())))?;
+    stylet_render_gpu::GpuUltrasound::new(&ctx)
+        .render(&ctx, &gpu_volume, scene)
+        .map_err(|e| on_gpu(&ctx, e))
+}
+
+#[cfg(not(feature = "gpu"))]
+fn ultrasound_gpu(_: &stylet_atlas::Atlas, _: &UltrasoundScene) -> anyhow::Result<ultrasound::Sonogram> {
+    bail!("--gpu: this stylet was built without the GPU renderer (cargo feature `gpu`); use --cpu")
 }
 
 #[cfg(not(feature = "gpu"))]

@@ -9,6 +9,7 @@
 //!   uniforms and the tool primitives are written.
 //! - [`GpuMpr`]: slices with the label overlay (`shaders/mpr.wgsl`).
 //! - [`GpuXray`]: the C-arm's radiograph with contrast and needle (`shaders/xray.wgsl`).
+//! - [`GpuUltrasound`]: B-mode and colour Doppler along the scan lines (`shaders/ultrasound.wgsl`).
 //!
 //! Only the desktop simulator and the CLI link this crate; the service and the scoring workers
 //! draw with the CPU reference and never link wgpu.
@@ -17,12 +18,14 @@ mod context;
 pub mod mpr;
 mod pipeline;
 pub mod raycast;
+pub mod ultrasound;
 pub mod volume;
 pub mod xray;
 
 pub use context::{AdapterSummary, GpuContext};
 pub use mpr::GpuMpr;
 pub use raycast::GpuRenderer;
+pub use ultrasound::GpuUltrasound;
 pub use volume::{CtFormat, CtPlacement, GpuVolume};
 pub use xray::GpuXray;
 

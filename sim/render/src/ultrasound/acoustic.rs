@@ -109,6 +109,22 @@ impl EchoTable {
         self.target.get(id as usize).copied().unwrap_or(false)
     }
 
+    /// Per label id: the class's code (0 tissue, 1 fluid, 2 vein, 3 artery) | 256 when it is a
+    /// target label (what the GPU reads).
+    pub fn packed(&self) -> Vec<u32> {
+        let code = |c: EchoClass| match c {
+            EchoClass::Tissue => 0,
+            EchoClass::Fluid => 1,
+            EchoClass::Vein => 2,
+            EchoClass::Artery => 3,
+        };
+        self.class
+            .iter()
+            .zip(&self.target)
+            .map(|(&c, &t)| code(c) | if t { 256 } else { 0 })
+            .collect()
+    }
+
     /// Whether any label carries blood flow (the Doppler view has something to show).
     pub fn has_flow(&self) -> bool {
         self.class

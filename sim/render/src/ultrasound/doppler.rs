@@ -70,6 +70,14 @@ pub fn colour(kind: EchoClass, beam_speed_m_s: f32) -> Option<[u8; 3]> {
     }
 }
 
+/// [`FlowField::dense`]'s grid.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DenseFlow {
+    pub first_cell: [i32; 3],
+    pub dims: [u32; 3],
+    pub axes: Vec<[f32; 4]>,
+}
+
 /// First and second moments of the vessel voxels in one cell.
 #[derive(Debug, Clone, Copy, Default)]
 struct Moments {
@@ -181,6 +189,30 @@ impl FlowField {
     /// The vessel axis (unit, sign arbitrary) at a point, if its cell holds vessel voxels.
     pub fn axis_at(&self, x_mm: Vec3) -> Option<Vec3> {
         self.axes.get(&key(cell_of(x_mm.as_dvec3()))).copied()
+    }
+
+    /// The axes on a dense grid of cells covering `lo_mm … hi_mm` (what the GPU reads): the first
+    /// cell's index, the cells per axis and, x fastest, each cell's axis (zero: no vessel).
+    pub fn dense(&self, lo_mm: DVec3, hi_mm: DVec3) -> DenseFlow {
+        let lo = cell_of(lo_mm);
+        let hi = cell_of(hi_mm);
+        let dims = [0, 1, 2].map(|a| (hi[a] - lo[a] + 1).max(1) as u32);
+        let mut axes = vec![[0.0f32; 4]; dims.iter().map(|&d| d as usize).product()];
+        for z in 0..dims[2] as i64 {
+            for y in 0..dims[1] as i64 {
+                for x in 0..dims[0] as i64 {
+                    if let Some(a) = self.axes.get(&key([lo[0] + x, lo[1] + y, lo[2] + z])) {
+                        let i = x as usize + dims[0] as usize * (y as usize + dims[1] as usize * z as usize);
+                        axes[i] = [a.x, a.y, a.z, 0.0];
+                    }
+                }
+            }
+        }
+        DenseFlow {
+            first_cell: lo.map(|v| v as i32),
+            dims,
+            axes,
+        }
     }
 
     /// How many cells carry an axis.

@@ -20,7 +20,7 @@ pub mod speckle;
 use std::sync::Arc;
 
 use rayon::prelude::*;
-use stylet_atlas::EchoClass;
+pub use stylet_atlas::EchoClass;
 use stylet_physics::atlas::AIR_HU;
 use stylet_physics::glam::Vec3;
 use stylet_physics::{ProbeKind, PunctureAtlas};
@@ -40,8 +40,8 @@ pub const MAX_LINES: u32 = 2048;
 pub const MAX_SAMPLES: u32 = 4096;
 /// Gain of the specular reflection and of the diffuse scatter (liver speckle about −34 dB
 /// under a perfect reflector at the face).
-const SPECULAR_GAIN: f32 = 1.0;
-const SCATTER_GAIN: f32 = 0.02;
+pub const SPECULAR_GAIN: f32 = 1.0;
+pub const SCATTER_GAIN: f32 = 0.02;
 /// The attenuation time-gain compensation makes up for (dB/cm/MHz, round trip): an average
 /// soft tissue, so deep liver stays visible and tissue behind fluid looks brighter
 /// (enhancement), as on a scanner with its TGC sliders in the middle.
@@ -49,14 +49,14 @@ pub const TGC_DB_PER_CM_MHZ: f32 = 0.55;
 /// Impedance of the coupling gel under the face (MRayl), and the thickest layer of it that
 /// fills the gap between face and skin (mm; a curved face on a curved flank): air within this
 /// depth before the first tissue counts as gel, so a probe lifted farther off shows black.
-const GEL_MRAYL: f32 = 1.52;
+pub const GEL_MRAYL: f32 = 1.52;
 pub const GEL_MAX_MM: f32 = 8.0;
 /// The weakest signal Doppler still measures, relative to the transmitted amplitude after
 /// time-gain compensation: in an acoustic shadow there is no colour.
-const DOPPLER_MIN_SIGNAL: f32 = 0.01;
+pub const DOPPLER_MIN_SIGNAL: f32 = 0.01;
 /// CT values below this are air and the partial-volume voxels of the skin's surface; the gel
 /// replaces them at the face.
-const AIR_BELOW_HU: f32 = -200.0;
+pub const AIR_BELOW_HU: f32 = -200.0;
 
 /// What a frame depends on besides the atlas.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -138,33 +138,10 @@ pub const FLAG_DOPPLER: u8 = 2;
 
 /// Renders one frame (before scan conversion) of `atlas` seen by the scene's probe.
 pub fn render(atlas: &PunctureAtlas, scene: &UltrasoundScene) -> Result<Sonogram, RenderError> {
+    check_scene(scene, atlas).map_err(RenderError::Invalid)?;
     let s = scene.settings;
-    s.validate().map_err(RenderError::Invalid)?;
     let p = &scene.probe;
-    let q = p.orientation;
-    if !(p.position_mm.is_finite() && q.is_finite() && q.length() > 0.5) {
-        return Err(RenderError::Invalid(
-            "the probe's pose must be finite with a unit orientation".into(),
-        ));
-    }
-    if let Some(n) = &scene.needle
-        && !(n.diameter_mm.is_finite() && n.diameter_mm > 0.0 && n.nodes_mm.iter().all(|p| p.is_finite()))
-    {
-        return Err(RenderError::Invalid(
-            "the needle's nodes and diameter must be finite".into(),
-        ));
-    }
-    if !scene.time_s.is_finite() {
-        return Err(RenderError::Invalid("the session time must be finite".into()));
-    }
     let geometry = ScanGeometry::new(p, s.lines, s.samples, s.depth_mm);
-    let ct = atlas.ct();
-    let labels = atlas.partial_labels();
-    if labels.grid().dims() != ct.grid().dims() {
-        return Err(RenderError::Invalid(
-            "the labels and the CT have different grids".into(),
-        ));
-    }
     let frame = Frame::new(atlas, scene, geometry);
     let n = s.samples as usize;
     let mut envelope = vec![0.0f32; s.lines as usize * n];
@@ -176,11 +153,7 @@ pub fn render(atlas: &PunctureAtlas, scene: &UltrasoundScene) -> Result<Sonogram
         .zip(flags.par_chunks_mut(n))
         .enumerate()
         .for_each(|(i, ((b, c), f))| frame.scan_line(i as u32, b, c, f));
-    let mut bmode = vec![0.0f32; envelope.len()];
-    bmode
-        .par_chunks_mut(n)
-        .enumerate()
-        .for_each(|(i, out)| compress_line(&envelope, n, i, &s, out));
+    let bmode = compress(&envelope, &s);
     Ok(Sonogram {
         geometry,
         bmode,
@@ -191,18 +164,97 @@ pub fn render(atlas: &PunctureAtlas, scene: &UltrasoundScene) -> Result<Sonogram
     })
 }
 
+/// What both renderers check before drawing: settings, a finite pose with a unit orientation,
+/// a finite needle and time, labels on the CT's grid.
+pub fn check_scene(scene: &UltrasoundScene, atlas: &PunctureAtlas) -> Result<(), String> {
+    scene.settings.validate()?;
+    let p = &scene.probe;
+    let q = p.orientation;
+    if !(p.position_mm.is_finite() && q.is_finite() && q.length() > 0.5) {
+        return Err("the probe's pose must be finite with a unit orientation".into());
+    }
+    if let Some(n) = &scene.needle
+        && !(n.diameter_mm.is_finite() && n.diameter_mm > 0.0 && n.nodes_mm.iter().all(|p| p.is_finite()))
+    {
+        return Err("the needle's nodes and diameter must be finite".into());
+    }
+    if !scene.time_s.is_finite() {
+        return Err("the session time must be finite".into());
+    }
+    if atlas.partial_labels().grid().dims() != atlas.ct().grid().dims() {
+        return Err("the labels and the CT have different grids".into());
+    }
+    Ok(())
+}
+
+/// The needle's first meeting with each scan line (`None`: none or no needle) and the sample
+/// it lands on: what both renderers add to the line's echoes.
+pub fn needle_hits(scene: &UltrasoundScene, geometry: &ScanGeometry) -> Vec<Option<(needle::NeedleHit, u32)>> {
+    let dz = geometry.sample_mm();
+    (0..geometry.lines)
+        .map(|i| {
+            let n = scene.needle.as_ref()?;
+            let (origin, dir) = geometry.line(i);
+            needle::first_hit(origin, dir, geometry.depth_mm, &n.nodes_mm, n.diameter_mm / 2.0)
+                .map(|h| (h, ((h.depth_mm / dz) as u32).min(geometry.samples - 1)))
+        })
+        .collect()
+}
+
 /// One tissue's per-sample constants: impedance, the round-trip amplitude factor of one
 /// sample's depth, scatter.
-#[derive(Debug, Clone, Copy)]
-struct SampleProps {
-    z: f32,
-    loss: f32,
-    scatter: f32,
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SampleProps {
+    pub z: f32,
+    pub loss: f32,
+    pub scatter: f32,
 }
 
 /// The lookup of solid tissue by whole HU, from this value up.
-const LUT_LOW_HU: i32 = -1024;
-const LUT_LEN: usize = 4096;
+pub const LUT_LOW_HU: i32 = -1024;
+pub const LUT_LEN: usize = 4096;
+
+/// The per-frame tables both renderers read: solid tissue by whole HU from [`LUT_LOW_HU`],
+/// fluid, blood, and the time-gain compensation per sample.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameTables {
+    pub tissue: Vec<SampleProps>,
+    pub fluid: SampleProps,
+    pub blood: SampleProps,
+    pub tgc: Vec<f32>,
+}
+
+impl FrameTables {
+    pub fn new(settings: &UltrasoundSettings) -> FrameTables {
+        let s = settings;
+        let dz_cm = s.depth_mm / s.samples as f32 / 10.0;
+        let props = |a: acoustic::Acoustic| SampleProps {
+            z: a.impedance_mrayl,
+            loss: 10f32.powf(-a.attenuation_db_per_cm_mhz * s.frequency_mhz * 2.0 * dz_cm / 20.0),
+            scatter: a.scatter,
+        };
+        FrameTables {
+            tissue: (0..LUT_LEN)
+                .map(|k| props(acoustic::tissue((LUT_LOW_HU + k as i32) as f32)))
+                .collect(),
+            fluid: props(acoustic::FLUID),
+            blood: props(acoustic::BLOOD),
+            tgc: (0..s.samples)
+                .map(|j| {
+                    let z_cm = (j as f32 + 0.5) * dz_cm;
+                    10f32.powf((TGC_DB_PER_CM_MHZ * s.frequency_mhz * 2.0 * z_cm) / 20.0)
+                })
+                .collect(),
+        }
+    }
+
+    /// The tissue entry of a CT value.
+    #[inline]
+    pub fn tissue_at(&self, hu: f32) -> SampleProps {
+        let k = (hu.round() as i32 - LUT_LOW_HU).clamp(0, LUT_LEN as i32 - 1);
+        self.tissue[k as usize]
+    }
+}
 
 /// What every scan line of one frame shares.
 struct Frame<'a> {
@@ -211,12 +263,9 @@ struct Frame<'a> {
     grid: Grid3<'a>,
     map: IndexMap,
     labels: &'a [u16],
-    tissue: Vec<SampleProps>,
-    fluid: SampleProps,
-    blood: SampleProps,
-    /// Time-gain compensation per sample.
-    tgc: Vec<f32>,
-    speckle_seed: u64,
+    tables: FrameTables,
+    hits: Vec<Option<(needle::NeedleHit, u32)>>,
+    speckle_seed: u32,
     /// Blood speed per vessel kind now (m/s).
     vein_m_s: f32,
     artery_m_s: f32,
@@ -224,33 +273,16 @@ struct Frame<'a> {
 
 impl<'a> Frame<'a> {
     fn new(atlas: &'a PunctureAtlas, scene: &'a UltrasoundScene, geometry: ScanGeometry) -> Frame<'a> {
-        let s = scene.settings;
-        let dz_cm = geometry.sample_mm() / 10.0;
-        let props = |a: acoustic::Acoustic| SampleProps {
-            z: a.impedance_mrayl,
-            loss: 10f32.powf(-a.attenuation_db_per_cm_mhz * s.frequency_mhz * 2.0 * dz_cm / 20.0),
-            scatter: a.scatter,
-        };
         let ct = atlas.ct();
         let dims = IndexMap::of(ct.grid()).dims;
-        let tgc = (0..s.samples)
-            .map(|j| {
-                let z_cm = (j as f32 + 0.5) * dz_cm;
-                10f32.powf((TGC_DB_PER_CM_MHZ * s.frequency_mhz * 2.0 * z_cm) / 20.0)
-            })
-            .collect();
         Frame {
             scene,
             geometry,
             grid: Grid3::new(ct.data(), dims),
             map: IndexMap::of(ct.grid()),
             labels: atlas.partial_labels().data(),
-            tissue: (0..LUT_LEN)
-                .map(|k| props(acoustic::tissue((LUT_LOW_HU + k as i32) as f32)))
-                .collect(),
-            fluid: props(acoustic::FLUID),
-            blood: props(acoustic::BLOOD),
-            tgc,
+            tables: FrameTables::new(&scene.settings),
+            hits: needle_hits(scene, &geometry),
             speckle_seed: speckle::lattice_seed(scene.seed),
             vein_m_s: doppler::speed_m_s(doppler::pressure_pa(EchoClass::Vein, scene.time_s)),
             artery_m_s: doppler::speed_m_s(doppler::pressure_pa(EchoClass::Artery, scene.time_s)),
@@ -262,10 +294,8 @@ impl<'a> Frame<'a> {
         let g = &self.geometry;
         let (origin, dir) = g.line(i);
         let dz = g.sample_mm();
-        let needle = self.scene.needle.as_ref().and_then(|n| {
-            needle::first_hit(origin, dir, g.depth_mm, &n.nodes_mm, n.diameter_mm / 2.0).map(|h| (h, n.diameter_mm))
-        });
-        let hit_sample = needle.map(|(h, _)| ((h.depth_mm / dz) as usize).min(bmode.len() - 1));
+        let needle = self.hits[i as usize];
+        let hit_sample = needle.map(|(_, j)| j as usize);
         let mut travelling = 1.0f32;
         let mut z_prev = GEL_MRAYL;
         let mut ring: Option<(f32, f32)> = None;
@@ -283,12 +313,9 @@ impl<'a> Frame<'a> {
                 continue;
             }
             let p = match class {
-                EchoClass::Tissue => {
-                    let k = (hu.round() as i32 - LUT_LOW_HU).clamp(0, LUT_LEN as i32 - 1);
-                    self.tissue[k as usize]
-                }
-                EchoClass::Fluid => self.fluid,
-                EchoClass::Vein | EchoClass::Artery => self.blood,
+                EchoClass::Tissue => self.tables.tissue_at(hu),
+                EchoClass::Fluid => self.tables.fluid,
+                EchoClass::Vein | EchoClass::Artery => self.tables.blood,
             };
             let r = acoustic::reflection(z_prev, p.z);
             let scatter = if p.scatter > 0.0 {
@@ -313,7 +340,7 @@ impl<'a> Frame<'a> {
             }
             if let Some(flow) = &self.scene.doppler
                 && matches!(class, EchoClass::Vein | EchoClass::Artery)
-                && travelling * self.tgc[j] >= DOPPLER_MIN_SIGNAL
+                && travelling * self.tables.tgc[j] >= DOPPLER_MIN_SIGNAL
                 && let Some(axis) = flow.axis_at(x)
             {
                 let speed = if class == EchoClass::Artery {
@@ -328,7 +355,8 @@ impl<'a> Frame<'a> {
             }
         }
         // The comet tail: echoes one shaft diameter apart below the first, each weaker.
-        if let (Some((e, depth)), Some((_, diameter))) = (ring, needle) {
+        if let (Some((e, depth)), Some(n)) = (ring, &self.scene.needle) {
+            let diameter = n.diameter_mm;
             let mut a = e;
             for k in 1..=needle::REVERB_ECHOES {
                 a *= needle::REVERB_DECAY;
@@ -338,7 +366,7 @@ impl<'a> Frame<'a> {
                 }
             }
         }
-        for (b, t) in bmode.iter_mut().zip(&self.tgc) {
+        for (b, t) in bmode.iter_mut().zip(&self.tables.tgc) {
             *b *= t;
         }
     }
@@ -347,6 +375,18 @@ impl<'a> Frame<'a> {
 /// The beam's lateral profile over neighbouring lines (weights of lines i − 2 … i + 2): a real
 /// beam is 1–2 mm wide, so neighbouring lines share echoes and a rib's edge shades gradually.
 const LATERAL_PSF: [f32; 5] = [1.0 / 9.0, 2.0 / 9.0, 3.0 / 9.0, 2.0 / 9.0, 1.0 / 9.0];
+
+/// The display values (0 … 1) of a frame's time-gain-compensated envelopes (line-major), line by
+/// line in parallel ([`compress_line`]).
+pub fn compress(envelope: &[f32], s: &UltrasoundSettings) -> Vec<f32> {
+    let n = s.samples as usize;
+    let mut bmode = vec![0.0f32; envelope.len()];
+    bmode
+        .par_chunks_mut(n)
+        .enumerate()
+        .for_each(|(i, out)| compress_line(envelope, n, i, s, out));
+    bmode
+}
 
 /// Line `i` of the display: the time-gain-compensated envelopes averaged over the beam's width
 /// ([`LATERAL_PSF`], lines beyond the array's ends clamped), log-compressed to the dynamic range

@@ -11,36 +11,36 @@ use stylet_physics::glam::Vec3;
 /// Lattice spacing (mm): about the axial resolution of a 3–7 MHz probe.
 pub const LATTICE_MM: f32 = 0.5;
 
-/// SplitMix64's finaliser: a good 64-bit mix, cheap enough for eight calls per sample.
+/// A 32-bit integer hash (Wellons' "lowbias32"): good avalanche, and exactly the same in WGSL,
+/// which has no 64-bit integers, so the GPU draws the same speckle.
 #[inline(always)]
-fn mix(mut z: u64) -> u64 {
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
+pub fn hash32(mut x: u32) -> u32 {
+    x ^= x >> 16;
+    x = x.wrapping_mul(0x7feb_352d);
+    x ^= x >> 15;
+    x = x.wrapping_mul(0x846c_a68b);
+    x ^ (x >> 16)
 }
 
-/// Rayleigh amplitude (mean 1) of lattice node (i, j, k) under a mixed seed. 21 bits per axis
-/// (± 500 m of lattice) make the key unique.
+/// Rayleigh amplitude (mean 1) of lattice node (i, j, k) under a mixed seed.
 #[inline(always)]
-fn node(i: i32, j: i32, k: i32, seed: u64) -> f32 {
-    const M: u64 = (1 << 21) - 1;
-    let key = (i as u64 & M) | ((j as u64 & M) << 21) | ((k as u64 & M) << 42);
-    let h = mix(key ^ seed);
+fn node(i: i32, j: i32, k: i32, seed: u32) -> f32 {
+    let h = hash32(i as u32 ^ hash32(j as u32 ^ hash32(k as u32 ^ seed)));
     // u in (0, 1]: 24 random bits.
-    let u = ((h >> 40) as f32 + 1.0) * (1.0 / 16_777_216.0);
+    let u = ((h >> 8) as f32 + 1.0) * (1.0 / 16_777_216.0);
     // Rayleigh with σ² = 1/2 has mean √π/2; scaled to mean 1.
     (-u.ln()).sqrt() * (2.0 / std::f32::consts::PI.sqrt())
 }
 
 /// The session seed as the lattice uses it (mixed once per frame).
-pub fn lattice_seed(session_seed: u64) -> u64 {
-    mix(session_seed ^ 0x5bd1_e995_2545_f491)
+pub fn lattice_seed(session_seed: u64) -> u32 {
+    hash32(session_seed as u32 ^ hash32((session_seed >> 32) as u32 ^ 0x9e37_79b9))
 }
 
 /// The speckle amplitude at reference-space point `x_mm` (trilinear between lattice nodes);
 /// `seed` from [`lattice_seed`].
 #[inline]
-pub fn amplitude(x_mm: Vec3, seed: u64) -> f32 {
+pub fn amplitude(x_mm: Vec3, seed: u32) -> f32 {
     let g = x_mm * (1.0 / LATTICE_MM);
     let b = g.floor();
     let f = g - b;

@@ -1,0 +1,245 @@
+// Simulated ultrasound (docs/ultrasound.md): one invocation per scan line, 64 lines a
+// workgroup. A port of stylet-render's ultrasound module `Frame::scan_line`: the line's samples
+// front to back (trilinear CT, nearest partial label, the label's echo class, impedance /
+// attenuation / scatter from the frame tables, reflection and transmission, coupling gel, the
+// tissue's speckle by the same 32-bit hash), the needle's echo, shadow and comet tail at the
+// sample the host found, Doppler colour over vessels from the dense flow-axis grid, then time-gain
+// compensation. The CT declaration and `ct_voxel` are prepended by the host. Output per sample:
+// the envelope and the colour | flags << 24; the host compresses and scan-converts.
+
+// Mirrored by `UsParams` in ultrasound.rs.
+struct Params {
+    face: vec4<f32>,       // face centre, world mm
+    lateral: vec4<f32>,    // unit axes of the probe
+    beam: vec4<f32>,
+    row0: vec4<f32>,       // rows of the CT's inverse affine (index units per mm)
+    row1: vec4<f32>,
+    row2: vec4<f32>,
+    origin: vec4<f32>,     // world position of voxel (0, 0, 0)
+    dims: vec4<u32>,       // CT voxels; w: label ids in `classes`
+    scan: vec4<u32>,       // lines, samples, 1 convex / 0 linear, 1 Doppler on
+    geo: vec4<f32>,        // depth (mm), sample spacing (mm), convex radius (mm), half angle (rad)
+    gains: vec4<f32>,      // specular gain, scatter gain, gel impedance, gel layer (mm)
+    limits: vec4<f32>,     // air below (HU), Doppler min signal, vein speed, artery speed (m/s)
+    doppler: vec4<f32>,    // cell (mm), wall filter, scale (m/s), needle outer diameter (mm)
+    reverb: vec4<f32>,     // steel reflection, transmission, decay, echoes
+    fluid: vec4<f32>,      // z, loss, scatter
+    blood: vec4<f32>,
+    flow_first: vec4<i32>, // first cell of the dense flow grid
+    flow_dims: vec4<u32>,  // cells per axis; w: speckle seed
+}
+
+@group(0) @binding(0) var<uniform> P: Params;
+// binding 1: the CT (prepended by the host)
+@group(0) @binding(2) var partial: texture_3d<u32>;
+@group(0) @binding(3) var<storage, read> classes: array<u32>;
+@group(0) @binding(4) var<storage, read> tissue: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read> tgc: array<f32>;
+// Per line: (needle depth mm, specular, hit sample, 1 when hit).
+@group(0) @binding(6) var<storage, read> hits: array<vec4<f32>>;
+@group(0) @binding(7) var<storage, read> flow: array<vec4<f32>>;
+@group(0) @binding(8) var<storage, read_write> out_env: array<f32>;
+@group(0) @binding(9) var<storage, read_write> out_col: array<u32>;
+
+const AIR_HU: f32 = -1000.0;
+const LUT_LOW_HU: i32 = -1024;
+const LUT_LEN: i32 = 4096;
+const LATTICE_MM: f32 = 0.5;
+const FLAG_TARGET: u32 = 1u;
+const FLAG_DOPPLER: u32 = 2u;
+
+// sampler.rs `Grid3::trilinear`: inside when -1/2 <= c < n - 1/2, clamped; air outside.
+fn trilinear(c: vec3<f32>) -> f32 {
+    var i0 = vec3<i32>(0);
+    var f = vec3<f32>(0.0);
+    for (var a = 0; a < 3; a++) {
+        let na = P.dims[a];
+        let n = f32(na);
+        if !(c[a] >= -0.5 && c[a] < n - 0.5) {
+            return AIR_HU;
+        }
+        let x = clamp(c[a], 0.0, n - 1.0);
+        let b = min(u32(x), na - 2u);
+        i0[a] = i32(b);
+        f[a] = x - f32(b);
+    }
+    let i1 = i0 + vec3<i32>(1);
+    let fx = f.x;
+    let fy = f.y;
+    let fz = f.z;
+    let c00 = ct_voxel(vec3<i32>(i0.x, i0.y, i0.z)) * (1.0 - fx) + ct_voxel(vec3<i32>(i1.x, i0.y, i0.z)) * fx;
+    let c10 = ct_voxel(vec3<i32>(i0.x, i1.y, i0.z)) * (1.0 - fx) + ct_voxel(vec3<i32>(i1.x, i1.y, i0.z)) * fx;
+    let c01 = ct_voxel(vec3<i32>(i0.x, i0.y, i1.z)) * (1.0 - fx) + ct_voxel(vec3<i32>(i1.x, i0.y, i1.z)) * fx;
+    let c11 = ct_voxel(vec3<i32>(i0.x, i1.y, i1.z)) * (1.0 - fx) + ct_voxel(vec3<i32>(i1.x, i1.y, i1.z)) * fx;
+    let c0 = c00 * (1.0 - fy) + c10 * fy;
+    let c1 = c01 * (1.0 - fy) + c11 * fy;
+    return c0 * (1.0 - fz) + c1 * fz;
+}
+
+// sampler.rs `nearest_voxel` and the partial label there; 0 outside.
+fn label_at(c: vec3<f32>) -> u32 {
+    var v = vec3<i32>(0);
+    for (var a = 0; a < 3; a++) {
+        let r = c[a] + 0.5;
+        if !(r >= 0.0 && r < f32(P.dims[a])) {
+            return 0u;
+        }
+        v[a] = i32(r);
+    }
+    return textureLoad(partial, v, 0).x;
+}
+
+// speckle.rs `hash32` (lowbias32).
+fn hash32(x0: u32) -> u32 {
+    var x = x0;
+    x ^= x >> 16u;
+    x *= 0x7feb352du;
+    x ^= x >> 15u;
+    x *= 0x846ca68bu;
+    return x ^ (x >> 16u);
+}
+
+fn node(i: i32, j: i32, k: i32, seed: u32) -> f32 {
+    let h = hash32(bitcast<u32>(i) ^ hash32(bitcast<u32>(j) ^ hash32(bitcast<u32>(k) ^ seed)));
+    let u = (f32(h >> 8u) + 1.0) * (1.0 / 16777216.0);
+    return sqrt(-log(u)) * (2.0 / sqrt(3.14159265358979));
+}
+
+// speckle.rs `amplitude`.
+fn speckle(x: vec3<f32>, seed: u32) -> f32 {
+    let g = x * (1.0 / LATTICE_MM);
+    let b = floor(g);
+    let f = g - b;
+    let i = i32(b.x);
+    let j = i32(b.y);
+    let k = i32(b.z);
+    let r00 = mix(node(i, j, k, seed), node(i + 1, j, k, seed), f.x);
+    let r10 = mix(node(i, j + 1, k, seed), node(i + 1, j + 1, k, seed), f.x);
+    let r01 = mix(node(i, j, k + 1, seed), node(i + 1, j, k + 1, seed), f.x);
+    let r11 = mix(node(i, j + 1, k + 1, seed), node(i + 1, j + 1, k + 1, seed), f.x);
+    return mix(mix(r00, r10, f.y), mix(r01, r11, f.y), f.z);
+}
+
+// doppler.rs `FlowField::axis_at` on the dense grid; zero without a vessel.
+fn flow_axis(x: vec3<f32>) -> vec3<f32> {
+    let c = vec3<i32>(floor(x / P.doppler.x)) - P.flow_first.xyz;
+    let d = vec3<i32>(P.flow_dims.xyz);
+    if any(c < vec3<i32>(0)) || any(c >= d) {
+        return vec3<f32>(0.0);
+    }
+    return flow[u32(c.x) + P.flow_dims.x * (u32(c.y) + P.flow_dims.y * u32(c.z))].xyz;
+}
+
+// doppler.rs `colour`, packed RGB; 0xffffffff: none.
+fn doppler_colour(artery: bool, v: f32) -> u32 {
+    if v < P.doppler.y {
+        return 0xffffffffu;
+    }
+    let ramp = u32(round(255.0 * min(v / P.doppler.z, 1.0)));
+    if artery {
+        return 255u | (ramp << 8u);
+    }
+    return (ramp << 8u) | (255u << 16u);
+}
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    let lines = P.scan.x;
+    let samples = P.scan.y;
+    if i >= lines {
+        return;
+    }
+    // probe.rs `ScanGeometry::line`.
+    let f = (f32(i) + 0.5) / f32(lines);
+    var origin = P.face.xyz + P.lateral.xyz * ((f - 0.5) * 40.0);
+    var dir = P.beam.xyz;
+    if P.scan.z == 1u {
+        let theta = (2.0 * f - 1.0) * P.geo.w;
+        dir = P.beam.xyz * cos(theta) + P.lateral.xyz * sin(theta);
+        origin = (P.face.xyz - P.beam.xyz * P.geo.z) + dir * P.geo.z;
+    }
+    let dz = P.geo.y;
+    let hit = hits[i];
+    let hit_sample = select(-1, i32(hit.z), hit.w > 0.5);
+    let seed = P.flow_dims.w;
+    let base = i * samples;
+    var travelling = 1.0;
+    var z_prev = P.gains.z;
+    var in_gel = true;
+    var ring = 0.0;
+    var rang = false;
+    for (var j = 0u; j < samples; j++) {
+        let depth = (f32(j) + 0.5) * dz;
+        let x = origin + dir * depth;
+        let p = x - P.origin.xyz;
+        let c = vec3<f32>(dot(P.row0.xyz, p), dot(P.row1.xyz, p), dot(P.row2.xyz, p));
+        let hu = trilinear(c);
+        let label = label_at(c);
+        var code = 0u;
+        if label < P.dims.w {
+            code = classes[label];
+        }
+        let kind = code & 255u;
+        in_gel = in_gel && hu < P.limits.x && depth <= P.gains.w;
+        var flags = 0u;
+        var colour = 0u;
+        if in_gel {
+            out_env[base + j] = 0.0;
+            out_col[base + j] = 0u;
+            continue;
+        }
+        var props = P.fluid.xyz;
+        if kind == 0u {
+            let k = clamp(i32(round(hu)) - LUT_LOW_HU, 0, LUT_LEN - 1);
+            props = tissue[k].xyz;
+        } else if kind >= 2u {
+            props = P.blood.xyz;
+        }
+        let r = (props.x - z_prev) / (props.x + z_prev);
+        var scatter = 0.0;
+        if props.z > 0.0 {
+            scatter = P.gains.y * props.z * speckle(x, seed);
+        }
+        var echo = travelling * (P.gains.x * abs(r) + scatter);
+        travelling *= (1.0 - r * r) * props.y;
+        z_prev = props.x;
+        if i32(j) == hit_sample {
+            let e = travelling * P.reverb.x * hit.y;
+            echo += e;
+            travelling *= P.reverb.y;
+            ring = e;
+            rang = true;
+        }
+        out_env[base + j] = echo;
+        if (code & 256u) != 0u {
+            flags |= FLAG_TARGET;
+        }
+        if P.scan.w == 1u && kind >= 2u && travelling * tgc[j] >= P.limits.y {
+            let axis = flow_axis(x);
+            if any(axis != vec3<f32>(0.0)) {
+                let speed = select(P.limits.z, P.limits.w, kind == 3u);
+                let rgb = doppler_colour(kind == 3u, speed * abs(dot(axis, dir)));
+                if rgb != 0xffffffffu {
+                    colour = rgb;
+                    flags |= FLAG_DOPPLER;
+                }
+            }
+        }
+        out_col[base + j] = colour | (flags << 24u);
+    }
+    // The comet tail.
+    if rang {
+        var a = ring;
+        for (var k = 1u; k <= u32(P.reverb.w); k++) {
+            a *= P.reverb.z;
+            let j = u32((hit.x + f32(k) * P.doppler.w) / dz);
+            if j < samples {
+                out_env[base + j] += a;
+            }
+        }
+    }
+    for (var j = 0u; j < samples; j++) {
+        out_env[base + j] *= tgc[j];
+    }
+}

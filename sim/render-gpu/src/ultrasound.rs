@@ -1,0 +1,233 @@
+//! Simulated ultrasound on the GPU (`shaders/ultrasound.wgsl`): the same per-line loop as
+//! `stylet_render::ultrasound` (one invocation per scan line), reading the frame tables, the
+//! echo classes and the needle's per-line hits the CPU reference computes the same way, and the
+//! vessels' flow axes on a dense grid (uploaded once per flow field). Returns the frame as the CPU
+//! does: log compression over the beam's width runs on the CPU (`ultrasound::compress`), as does
+//! scan conversion (`Sonogram::to_image`).
+
+use std::sync::Arc;
+
+use bytemuck::{Pod, Zeroable};
+use stylet_render::tools::{CONVEX_HALF_ANGLE_DEG, CONVEX_RADIUS_MM};
+use stylet_render::ultrasound::EchoClass;
+use stylet_render::ultrasound::doppler::{self, CELL_MM, SCALE_M_S, WALL_FILTER_M_S};
+use stylet_render::ultrasound::needle::{REVERB_DECAY, REVERB_ECHOES, STEEL_REFLECTION, TRANSMISSION};
+use stylet_render::ultrasound::{
+    AIR_BELOW_HU, DOPPLER_MIN_SIGNAL, FLAG_DOPPLER, FLAG_TARGET, FlowField, FrameTables, GEL_MAX_MM, GEL_MRAYL,
+    SCATTER_GAIN, SPECULAR_GAIN, ScanGeometry, Sonogram, UltrasoundScene, check_scene, compress, needle_hits, speckle,
+};
+use stylet_render::volume::IndexMap;
+
+use crate::pipeline::{Pipelines, dispatch, uniform_buffer, v4};
+use crate::volume::{GpuVolume, storage};
+use crate::{GpuContext, GpuError};
+
+const SHADER: &str = include_str!("../shaders/ultrasound.wgsl");
+
+/// Mirrors `Params` in ultrasound.wgsl (16-byte members).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct UsParams {
+    face: [f32; 4],
+    lateral: [f32; 4],
+    beam: [f32; 4],
+    row0: [f32; 4],
+    row1: [f32; 4],
+    row2: [f32; 4],
+    origin: [f32; 4],
+    dims: [u32; 4],
+    scan: [u32; 4],
+    geo: [f32; 4],
+    gains: [f32; 4],
+    limits: [f32; 4],
+    doppler: [f32; 4],
+    reverb: [f32; 4],
+    fluid: [f32; 4],
+    blood: [f32; 4],
+    flow_first: [i32; 4],
+    flow_dims: [u32; 4],
+}
+
+/// A flow field on the GPU, kept while the scene holds the same field.
+struct UploadedFlow {
+    field: Arc<FlowField>,
+    first: [i32; 3],
+    dims: [u32; 3],
+    buffer: wgpu::Buffer,
+}
+
+/// The ultrasound pipeline (one per CT storage format, built on first use).
+pub struct GpuUltrasound {
+    pipelines: Pipelines,
+    params: wgpu::Buffer,
+    flow: Option<UploadedFlow>,
+}
+
+impl GpuUltrasound {
+    pub fn new(ctx: &GpuContext) -> GpuUltrasound {
+        GpuUltrasound {
+            pipelines: Pipelines::new("ultrasound.wgsl", SHADER),
+            params: uniform_buffer(ctx, "ultrasound params", std::mem::size_of::<UsParams>()),
+            flow: None,
+        }
+    }
+
+    /// One frame of `scene` (before scan conversion), as `stylet_render::ultrasound::render`.
+    pub fn render(&mut self, ctx: &GpuContext, vol: &GpuVolume, scene: &UltrasoundScene) -> Result<Sonogram, GpuError> {
+        let atlas = &vol.atlas;
+        check_scene(scene, atlas).map_err(GpuError::Invalid)?;
+        let s = scene.settings;
+        let geometry = ScanGeometry::new(&scene.probe, s.lines, s.samples, s.depth_mm);
+        let n = s.lines as u64 * s.samples as u64;
+        ctx.check_storage_buffer("the ultrasound frame", n * 4)?;
+        let tables = FrameTables::new(&s);
+        let hits: Vec<[f32; 4]> = needle_hits(scene, &geometry)
+            .into_iter()
+            .map(|h| h.map_or([0.0; 4], |(h, j)| [h.depth_mm, h.specular, j as f32, 1.0]))
+            .collect();
+        let classes = {
+            let c = scene.echo.packed();
+            if c.is_empty() { vec![0] } else { c }
+        };
+        let grid = atlas.ct().grid();
+        let map = IndexMap::of(grid);
+        let (flow_first, flow_dims) = match &scene.doppler {
+            Some(field) => {
+                let (first, dims) = self.upload_flow(ctx, field, grid)?;
+                ([first[0], first[1], first[2], 0], dims)
+            }
+            None => ([0; 4], [1, 1, 1]),
+        };
+        let props = |p: stylet_render::ultrasound::SampleProps| [p.z, p.loss, p.scatter, 0.0];
+        let speed = |k: EchoClass| doppler::speed_m_s(doppler::pressure_pa(k, scene.time_s));
+        let params = UsParams {
+            face: v4(geometry.face_mm, 0.0),
+            lateral: v4(geometry.lateral, 0.0),
+            beam: v4(geometry.beam, 0.0),
+            row0: v4(map.rows[0], 0.0),
+            row1: v4(map.rows[1], 0.0),
+            row2: v4(map.rows[2], 0.0),
+            origin: v4(map.origin, 0.0),
+            dims: [map.dims[0], map.dims[1], map.dims[2], classes.len() as u32],
+            scan: [
+                s.lines,
+                s.samples,
+                (scene.probe.kind == stylet_physics::ProbeKind::Convex) as u32,
+                scene.doppler.is_some() as u32,
+            ],
+            geo: [
+                s.depth_mm,
+                geometry.sample_mm(),
+                CONVEX_RADIUS_MM,
+                CONVEX_HALF_ANGLE_DEG.to_radians(),
+            ],
+            gains: [SPECULAR_GAIN, SCATTER_GAIN, GEL_MRAYL, GEL_MAX_MM],
+            limits: [
+                AIR_BELOW_HU,
+                DOPPLER_MIN_SIGNAL,
+                speed(EchoClass::Vein),
+                speed(EchoClass::Artery),
+            ],
+            doppler: [
+                CELL_MM as f32,
+                WALL_FILTER_M_S,
+                SCALE_M_S,
+                scene.needle.as_ref().map_or(0.0, |n| n.diameter_mm),
+            ],
+            reverb: [STEEL_REFLECTION, TRANSMISSION, REVERB_DECAY, REVERB_ECHOES as f32],
+            fluid: props(tables.fluid),
+            blood: props(tables.blood),
+            flow_first,
+            flow_dims: [
+                flow_dims[0],
+                flow_dims[1],
+                flow_dims[2],
+                speckle::lattice_seed(scene.seed),
+            ],
+        };
+        ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
+        let lut: Vec<[f32; 4]> = tables.tissue.iter().map(|&p| props(p)).collect();
+        let classes = storage(ctx, "echo classes", bytemuck::cast_slice(&classes));
+        let lut = storage(ctx, "tissue table", bytemuck::cast_slice(&lut));
+        let tgc = storage(ctx, "tgc", bytemuck::cast_slice(&tables.tgc));
+        let hits = storage(ctx, "needle hits", bytemuck::cast_slice(&hits));
+        let empty_flow;
+        let flow = match (&self.flow, &scene.doppler) {
+            (Some(f), Some(_)) => &f.buffer,
+            _ => {
+                empty_flow = storage(ctx, "no flow", bytemuck::cast_slice(&[[0.0f32; 4]]));
+                &empty_flow
+            }
+        };
+        let out = |label: &str| {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: n * 4,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            })
+        };
+        let (env, col) = (out("ultrasound envelope"), out("ultrasound colour"));
+        let pipeline = self.pipelines.get(ctx, vol.ct_key());
+        dispatch(
+            ctx,
+            &pipeline,
+            &[
+                self.params.as_entire_binding(),
+                vol.ct_binding(),
+                wgpu::BindingResource::TextureView(&vol.partial_view),
+                classes.as_entire_binding(),
+                lut.as_entire_binding(),
+                tgc.as_entire_binding(),
+                hits.as_entire_binding(),
+                flow.as_entire_binding(),
+                env.as_entire_binding(),
+                col.as_entire_binding(),
+            ],
+            (s.lines.div_ceil(64), 1),
+        );
+        let envelope: Vec<f32> = bytemuck::cast_slice(&ctx.read_buffer(&env, n * 4)?).to_vec();
+        let packed: Vec<u32> = bytemuck::cast_slice(&ctx.read_buffer(&col, n * 4)?).to_vec();
+        let colour = packed
+            .iter()
+            .map(|&p| [p as u8, (p >> 8) as u8, (p >> 16) as u8])
+            .collect();
+        let flags = packed
+            .iter()
+            .map(|&p| ((p >> 24) as u8) & (FLAG_TARGET | FLAG_DOPPLER))
+            .collect();
+        Ok(Sonogram {
+            geometry,
+            bmode: compress(&envelope, &s),
+            colour,
+            flags,
+            guide_mm: scene.guide_mm,
+            outline_target: scene.outline_target,
+        })
+    }
+
+    /// Uploads `field` on a dense grid over the CT's box (once per field).
+    fn upload_flow(
+        &mut self,
+        ctx: &GpuContext,
+        field: &Arc<FlowField>,
+        grid: &stylet_physics::Grid,
+    ) -> Result<([i32; 3], [u32; 3]), GpuError> {
+        if let Some(f) = &self.flow
+            && Arc::ptr_eq(&f.field, field)
+        {
+            return Ok((f.first, f.dims));
+        }
+        let (lo, hi) = grid.world_bounds();
+        let dense = field.dense(lo, hi);
+        ctx.check_storage_buffer("the flow axes", dense.axes.len() as u64 * 16)?;
+        let buffer = storage(ctx, "flow axes", bytemuck::cast_slice(&dense.axes));
+        self.flow = Some(UploadedFlow {
+            field: field.clone(),
+            first: dense.first_cell,
+            dims: dense.dims,
+            buffer,
+        });
+        Ok((dense.first_cell, dense.dims))
+    }
+}
