@@ -254,6 +254,7 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
         "demo-cora    curriculum",
         "demo-admin   admin",
         "3d view of 'phantom' at tick 12000",
+        "ultrasound view of 'phantom' at tick 12000",
     ] {
         assert!(text.contains(s), "demo output lacks {s:?}:\n{text}");
     }
@@ -266,6 +267,13 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
         colours.len() > 1000,
         "only {} colours in the demo's 3D picture",
         colours.len()
+    );
+    // The ultrasound of the same moment: the fan, with the veins in Doppler colour.
+    let us = stylet_render::image::Image::read_png(&d.path().join("success-intercostal-ultrasound.png")).unwrap();
+    assert_eq!((us.width, us.height), (640, 512));
+    assert!(
+        us.rgba.iter().any(|p| p[0] == 0 && p[2] == 255),
+        "no Doppler colour in the demo's ultrasound"
     );
     // The dashboard answers; the demo instructor sees all 7 sessions scored by the service.
     let agent = ureq::AgentBuilder::new().redirects(0).build();

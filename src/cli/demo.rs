@@ -144,6 +144,19 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             "xray",
         ))
         .context("the X-ray of the demo puncture")?;
+        // The same moment in ultrasound (docs/ultrasound.md): a convex probe beside the path
+        // images it in plane, the needle and its comet tail in the outlined duct, veins in colour.
+        let mut us = args_for(
+            ticks as f64 * 0.6 / 1000.0,
+            super::render::View::Ultrasound,
+            super::render::Size {
+                width: 640,
+                height: 512,
+            },
+            "ultrasound",
+        );
+        us.doppler = true;
+        super::render::run(us).context("the ultrasound of the demo puncture")?;
     }
 
     // Scores: every session replayed through the physics and graded at its difficulty.
