@@ -331,14 +331,31 @@ const SPACE_SINK_MM: f64 = 0.1;
 /// this distance of the plane (mm), down to this depth (mm).
 const VIEW_PLANE_MM: f64 = 5.0;
 const VIEW_DEPTH_MM: f64 = 150.0;
-/// Half the ultrasound beam's thickness across the image plane (mm): the needle's tip within it
-/// shows in the image (docs/ultrasound.md "Needle": shaft radius + 1 mm; a 2.5 mm band).
-const BEAM_HALF_THICKNESS_MM: f64 = 2.5;
+/// Whether `point` lies in the image the renderer draws for a probe at `position` /
+/// `orientation` (its default depth), within `plane_mm` of the image plane.
+fn in_rendered_image(
+    position: DVec3,
+    orientation: stylet_physics::glam::DQuat,
+    kind: stylet_physics::ProbeKind,
+    point: DVec3,
+    plane_mm: f64,
+) -> bool {
+    let q = orientation;
+    let d = point - position;
+    d.dot(q * DVec3::Y).abs() <= plane_mm
+        && stylet_physics::probe_image::in_field(
+            kind,
+            kind.default_depth_mm(),
+            d.dot(q * DVec3::X),
+            d.dot(q * DVec3::Z),
+        )
+}
 
-/// Whether `point` lies in the image of a probe at `position` / `orientation`: within
-/// `plane_mm` of the image plane (array along tool x, beam along tool z), down to
-/// [`VIEW_DEPTH_MM`], inside the field: a linear array images a 40 mm wide strip, a convex one a
-/// 60° sector from its 50 mm radius.
+/// The ultrasound survey's "in view" (PerkTutor's TargetsScanned; grades were computed with it,
+/// so it stays): within `plane_mm` of the image plane (array along tool x, beam along tool z),
+/// down to [`VIEW_DEPTH_MM`] for both probes, a 40 mm strip or a sector 25 mm + depth·tan 30°
+/// wide each side. A little looser than the image the renderer draws
+/// (`stylet_physics::probe_image`), which the needle-in-plane share uses.
 fn in_image(
     position: DVec3,
     orientation: stylet_physics::glam::DQuat,
@@ -556,9 +573,14 @@ impl<'a> MetricsCollector<'a> {
             self.last_exit_tick = Some(tick);
         }
 
-        if in_body && let Some((position, orientation, kind)) = self.last_probe {
+        if in_body
+            && let Some((position, orientation, kind)) = self.last_probe
+            && let Some(n) = needle
+        {
             self.imaged_insertion_ticks += 1;
-            if in_image(position, orientation, kind, out.tip_mm, BEAM_HALF_THICKNESS_MM) {
+            // The tip shows where the shaft does: within its radius + the beam's half thickness.
+            let band_mm = n.spec().gauge.outer_diameter_mm() / 2.0 + stylet_physics::probe_image::ELEVATION_HALF_MM;
+            if in_rendered_image(position, orientation, kind, out.tip_mm, band_mm) {
                 self.tip_in_plane_ticks += 1;
             }
         }

@@ -27,6 +27,7 @@ pub mod masks;
 pub mod motion;
 pub mod needle;
 pub mod planned_path;
+pub mod probe_image;
 pub mod properties;
 pub mod sim;
 pub mod thresholds;

@@ -51,6 +51,7 @@ const FLAG_DOPPLER: u32 = 2u;
 // sampler.rs `Grid3::trilinear`: inside when -1/2 <= c < n - 1/2, clamped; air outside.
 fn trilinear(c: vec3<f32>) -> f32 {
     var i0 = vec3<i32>(0);
+    var i1 = vec3<i32>(0);
     var f = vec3<f32>(0.0);
     for (var a = 0; a < 3; a++) {
         let na = P.dims[a];
@@ -59,11 +60,12 @@ fn trilinear(c: vec3<f32>) -> f32 {
             return AIR_HU;
         }
         let x = clamp(c[a], 0.0, n - 1.0);
-        let b = min(u32(x), na - 2u);
+        // An axis of one voxel reads it with weight 1 (no neighbour past the edge).
+        let b = min(u32(x), select(0u, na - 2u, na >= 2u));
         i0[a] = i32(b);
-        f[a] = x - f32(b);
+        i1[a] = i32(b + select(0u, 1u, na > 1u));
+        f[a] = select(x - f32(b), 0.0, na == 1u);
     }
-    let i1 = i0 + vec3<i32>(1);
     let fx = f.x;
     let fy = f.y;
     let fz = f.z;
@@ -135,7 +137,7 @@ fn doppler_colour(artery: bool, v: f32) -> u32 {
     if v < P.doppler.y {
         return 0xffffffffu;
     }
-    let ramp = u32(round(255.0 * min(v / P.doppler.z, 1.0)));
+    let ramp = u32(floor(255.0 * min(v / P.doppler.z, 1.0) + 0.5));
     if artery {
         return 255u | (ramp << 8u);
     }
@@ -181,7 +183,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             code = classes[label];
         }
         let kind = code & 255u;
-        in_gel = in_gel && hu < P.limits.x && depth <= P.gains.w;
+        let gel = in_gel && hu < P.limits.x && depth <= P.gains.w;
+        if in_gel && !gel && hu < P.limits.x {
+            travelling = 0.0;
+        }
+        in_gel = gel;
         var flags = 0u;
         var colour = 0u;
         if in_gel {
@@ -191,7 +197,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
         var props = P.fluid.xyz;
         if kind == 0u {
-            let k = clamp(i32(round(hu)) - LUT_LOW_HU, 0, LUT_LEN - 1);
+            let k = clamp(i32(floor(hu + 0.5)) - LUT_LOW_HU, 0, LUT_LEN - 1);
             props = tissue[k].xyz;
         } else if kind >= 2u {
             props = P.blood.xyz;

@@ -48,9 +48,10 @@ struct UsParams {
     flow_dims: [u32; 4],
 }
 
-/// A flow field on the GPU, kept while the scene holds the same field.
+/// A flow field on the GPU, kept while the scene holds the same field on the same volume.
 struct UploadedFlow {
     field: Arc<FlowField>,
+    volume: u64,
     first: [i32; 3],
     dims: [u32; 3],
     buffer: wgpu::Buffer,
@@ -93,7 +94,7 @@ impl GpuUltrasound {
         let map = IndexMap::of(grid);
         let (flow_first, flow_dims) = match &scene.doppler {
             Some(field) => {
-                let (first, dims) = self.upload_flow(ctx, field, grid)?;
+                let (first, dims) = self.upload_flow(ctx, field, vol)?;
                 ([first[0], first[1], first[2], 0], dims)
             }
             None => ([0; 4], [1, 1, 1]),
@@ -206,24 +207,26 @@ impl GpuUltrasound {
         })
     }
 
-    /// Uploads `field` on a dense grid over the CT's box (once per field).
+    /// Uploads `field` on a dense grid over the CT's box (once per field and volume).
     fn upload_flow(
         &mut self,
         ctx: &GpuContext,
         field: &Arc<FlowField>,
-        grid: &stylet_physics::Grid,
+        vol: &GpuVolume,
     ) -> Result<([i32; 3], [u32; 3]), GpuError> {
         if let Some(f) = &self.flow
             && Arc::ptr_eq(&f.field, field)
+            && f.volume == vol.id
         {
             return Ok((f.first, f.dims));
         }
-        let (lo, hi) = grid.world_bounds();
+        let (lo, hi) = vol.atlas.ct().grid().world_bounds();
         let dense = field.dense(lo, hi);
         ctx.check_storage_buffer("the flow axes", dense.axes.len() as u64 * 16)?;
         let buffer = storage(ctx, "flow axes", bytemuck::cast_slice(&dense.axes));
         self.flow = Some(UploadedFlow {
             field: field.clone(),
+            volume: vol.id,
             first: dense.first_cell,
             dims: dense.dims,
             buffer,

@@ -59,8 +59,8 @@ pub const PROBE_RGB: Vec3 = Vec3::new(0.25, 0.25, 0.28);
 pub const PROBE_FACE_RGB: Vec3 = Vec3::new(0.45, 0.47, 0.50);
 
 /// Convex probe face: physics' pattern is 60° of a 50 mm radius along x, 16 mm wide in y.
-pub const CONVEX_RADIUS_MM: f32 = 50.0;
-pub const CONVEX_HALF_ANGLE_DEG: f32 = 30.0;
+pub const CONVEX_RADIUS_MM: f32 = stylet_physics::probe_image::CONVEX_RADIUS_MM as f32;
+pub const CONVEX_HALF_ANGLE_DEG: f32 = stylet_physics::probe_image::CONVEX_HALF_ANGLE_DEG as f32;
 
 /// One analytic shape both renderers intersect with the same closed-form `f32` formulas.
 #[derive(Debug, Clone, Copy, PartialEq)]

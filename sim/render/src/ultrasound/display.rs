@@ -62,6 +62,9 @@ impl Sonogram {
 
     /// The scan-converted image with Doppler colour and the aids.
     pub fn to_image(&self, width: u32, height: u32) -> Image {
+        if width == 0 || height == 0 {
+            return Image::new(width, height);
+        }
         let r = self.raster(width, height);
         let (lines, samples) = (self.geometry.lines as usize, self.geometry.samples as usize);
         let mut img = Image::new(width, height);

@@ -1,7 +1,7 @@
 //! Colour Doppler over vessels (thesis §3.4; docs/ultrasound.md "Doppler"). The blood's speed
 //! follows the thesis from a pressure p(t): |v| = √(2p/ρ_blood), with p pulsatile in arteries
 //! (72 beats a minute) and steady in veins; the flow runs along the vessel, whose local axis
-//! comes from the labels (the principal axis of the vessel voxels within 14 mm); the scanner
+//! comes from the labels (the principal axis of the vessel voxels in a 28 mm cube around it); the scanner
 //! measures only the part along the beam, |v|·|cos θ|, and shows nothing below its wall filter,
 //! so a vessel crossing the beam at right angles stays dark as on a real scanner. Colours by
 //! vessel kind as in the thesis: arteries red→yellow, veins blue→cyan with increasing speed.
@@ -62,7 +62,8 @@ pub fn colour(kind: EchoClass, beam_speed_m_s: f32) -> Option<[u8; 3]> {
         return None;
     }
     let c = (beam_speed_m_s / SCALE_M_S).min(1.0);
-    let ramp = (255.0 * c).round() as u8;
+    // ⌊x + ½⌋ as the shader computes it.
+    let ramp = (255.0 * c + 0.5).floor() as u8;
     match kind {
         EchoClass::Artery => Some([255, ramp, 0]),
         EchoClass::Vein => Some([0, ramp, 255]),

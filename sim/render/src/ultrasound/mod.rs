@@ -42,7 +42,8 @@ pub const MAX_SAMPLES: u32 = 4096;
 /// under a perfect reflector at the face).
 pub const SPECULAR_GAIN: f32 = 1.0;
 pub const SCATTER_GAIN: f32 = 0.02;
-/// The attenuation time-gain compensation makes up for (dB/cm/MHz, round trip): an average
+/// The attenuation time-gain compensation makes up for (dB/cm/MHz, one way; applied to the
+/// round trip): an average
 /// soft tissue, so deep liver stays visible and tissue behind fluid looks brighter
 /// (enhancement), as on a scanner with its TGC sliders in the middle.
 pub const TGC_DB_PER_CM_MHZ: f32 = 0.55;
@@ -75,10 +76,11 @@ impl UltrasoundSettings {
     /// 256 lines × 512 samples; a convex abdominal probe at 3.5 MHz to 150 mm, a linear one at
     /// 7.5 MHz to 60 mm.
     pub fn for_probe(kind: ProbeKind) -> UltrasoundSettings {
-        let (depth_mm, frequency_mhz) = match kind {
-            ProbeKind::Convex => (150.0, 3.5),
-            ProbeKind::Linear => (60.0, 7.5),
+        let frequency_mhz = match kind {
+            ProbeKind::Convex => 3.5,
+            ProbeKind::Linear => 7.5,
         };
+        let depth_mm = kind.default_depth_mm() as f32;
         UltrasoundSettings {
             lines: 256,
             samples: 512,
@@ -251,7 +253,8 @@ impl FrameTables {
     /// The tissue entry of a CT value.
     #[inline]
     pub fn tissue_at(&self, hu: f32) -> SampleProps {
-        let k = (hu.round() as i32 - LUT_LOW_HU).clamp(0, LUT_LEN as i32 - 1);
+        // ⌊hu + ½⌋, not `round` (halves away from zero): WGSL's round takes halves to even.
+        let k = ((hu + 0.5).floor() as i32 - LUT_LOW_HU).clamp(0, LUT_LEN as i32 - 1);
         self.tissue[k as usize]
     }
 }
@@ -307,7 +310,13 @@ impl<'a> Frame<'a> {
             let hu = self.grid.trilinear(c).unwrap_or(AIR_HU);
             let label = nearest_voxel(c, self.map.dims).map_or(0, |v| self.labels[v]);
             let class = self.scene.echo.class(label);
-            in_gel = in_gel && hu < AIR_BELOW_HU && depth_mm <= GEL_MAX_MM;
+            let gel = in_gel && hu < AIR_BELOW_HU && depth_mm <= GEL_MAX_MM;
+            if in_gel && !gel && hu < AIR_BELOW_HU {
+                // The gap is wider than the gel bridges: the probe is off the skin, and sound
+                // does not pass from the face into air.
+                travelling = 0.0;
+            }
+            in_gel = gel;
             if in_gel {
                 bmode[j] = 0.0;
                 continue;

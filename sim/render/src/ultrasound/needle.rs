@@ -13,7 +13,7 @@ use crate::tools::Primitive;
 pub const STEEL_REFLECTION: f32 = 0.93;
 /// Half the beam's thickness across the image plane (mm): a shaft this far out of the plane
 /// still echoes (a 3–5 MHz beam is 2–4 mm thick at its elevation focus).
-pub const ELEVATION_HALF_MM: f32 = 1.0;
+pub const ELEVATION_HALF_MM: f32 = stylet_physics::probe_image::ELEVATION_HALF_MM as f32;
 /// Share of the amplitude that passes the shaft (the rest is reflected or scattered).
 pub const TRANSMISSION: f32 = 0.2;
 /// Each reverberation echo's amplitude relative to the one before, and how many are drawn.

@@ -10,7 +10,7 @@ use stylet_physics::{ProbeKind, PunctureAtlas};
 use crate::tools::{CONVEX_HALF_ANGLE_DEG, CONVEX_RADIUS_MM, ProbeShape};
 
 /// Width of the linear array (mm): physics' linear contact pattern is 40 mm long.
-pub const LINEAR_APERTURE_MM: f32 = 40.0;
+pub const LINEAR_APERTURE_MM: f32 = stylet_physics::probe_image::LINEAR_APERTURE_MM as f32;
 
 /// The lines and samples of one frame, in world space.
 #[derive(Debug, Clone, Copy, PartialEq)]
