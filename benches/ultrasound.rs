@@ -16,7 +16,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use criterion::Criterion;
-use stylet_physics::{ProbeKind, Role};
+use stylet_physics::ProbeKind;
 use stylet_render::tools::NeedleShape;
 use stylet_render::ultrasound::{self, EchoTable, FlowField, UltrasoundScene, UltrasoundSettings, render};
 use stylet_render::volume::RenderVolume;
@@ -34,19 +34,7 @@ fn main() {
     let atlas = stylet_atlas::load(&dir).unwrap();
     let path = atlas.planned_paths()[0].clone();
     let probe = ultrasound::probe::facing_path(&atlas.model, ProbeKind::Convex, path.entry_mm, path.target_mm).unwrap();
-    let m = &atlas.manifest;
-    let targets: Vec<_> = atlas
-        .model
-        .label_table()
-        .labels()
-        .iter()
-        .filter(|l| l.role == Role::Target)
-        .map(|l| l.id)
-        .collect();
-    let echo = Arc::new(EchoTable::new(
-        &stylet_atlas::manifest::echo_classes(&m.labels, &m.tissues),
-        &targets,
-    ));
+    let echo = Arc::new(EchoTable::of_atlas(&atlas));
     let t = Instant::now();
     let flow = Arc::new(FlowField::build(&atlas.model, &echo));
     eprintln!(

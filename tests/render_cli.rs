@@ -108,6 +108,30 @@ fn render(atlas: &Path, out: &Path, extra: &[&str]) -> Image {
     img
 }
 
+/// `stylet render --view VIEW` of `atlas` at `size` with `extra` arguments into `out`: it says
+/// what it drew and the PNG has the size asked for.
+fn view_png(atlas: &Path, out: &Path, view: &str, size: (u32, u32), extra: &[&str]) -> Image {
+    let size_arg = format!("{}x{}", size.0, size.1);
+    let text = ok(&[
+        &[
+            "render",
+            "--atlas",
+            atlas.to_str().unwrap(),
+            "--view",
+            view,
+            "--size",
+            &size_arg,
+        ][..],
+        extra,
+        &["--out", out.to_str().unwrap()],
+    ]
+    .concat());
+    assert!(text.contains(&format!("{view} view")), "{text}");
+    let img = Image::read_png(out).unwrap();
+    assert_eq!((img.width, img.height), size);
+    img
+}
+
 /// Pixels whose colour differs from the top-left corner's (the background) by more than 10.
 fn body_fraction(img: &Image) -> f64 {
     let bg = img.get(0, 0);
@@ -308,27 +332,7 @@ fn the_xray_of_a_session_shows_the_needle_and_then_the_contrast() {
     let session = d.path().join("success.mcap");
     record(&atlas, "success-intercostal", &session);
     let s = session.to_str().unwrap();
-    let xray = |name: &str, extra: &[&str]| {
-        let out = d.path().join(name);
-        let text = ok(&[
-            &[
-                "render",
-                "--atlas",
-                atlas.to_str().unwrap(),
-                "--view",
-                "xray",
-                "--size",
-                "256x256",
-            ][..],
-            extra,
-            &["--out", out.to_str().unwrap()],
-        ]
-        .concat());
-        assert!(text.contains("xray view"), "{text}");
-        let img = Image::read_png(&out).unwrap();
-        assert_eq!((img.width, img.height), (256, 256));
-        img
-    };
+    let xray = |name: &str, extra: &[&str]| view_png(&atlas, &d.path().join(name), "xray", (256, 256), extra);
     let empty = xray("empty.png", &[]);
     // The body is in the picture: grey, not the white of air, in the centre.
     assert!(empty.get(128, 128)[0] < 200, "{:?}", empty.get(128, 128));
@@ -359,27 +363,7 @@ fn the_xray_of_a_session_shows_the_needle_and_then_the_contrast() {
 fn the_ultrasound_view_shows_the_fan_the_aids_by_level_and_the_sessions_tools() {
     let d = tempfile::tempdir().unwrap();
     let atlas = phantom(d.path());
-    let us = |name: &str, extra: &[&str]| {
-        let out = d.path().join(name);
-        let text = ok(&[
-            &[
-                "render",
-                "--atlas",
-                atlas.to_str().unwrap(),
-                "--view",
-                "ultrasound",
-                "--size",
-                "320x256",
-            ][..],
-            extra,
-            &["--out", out.to_str().unwrap()],
-        ]
-        .concat());
-        assert!(text.contains("ultrasound view"), "{text}");
-        let img = Image::read_png(&out).unwrap();
-        assert_eq!((img.width, img.height), (320, 256));
-        img
-    };
+    let us = |name: &str, extra: &[&str]| view_png(&atlas, &d.path().join(name), "ultrasound", (320, 256), extra);
     let count = |img: &Image, f: &dyn Fn([u8; 4]) -> bool| img.rgba.iter().filter(|&&p| f(p)).count();
     let target = |p: [u8; 4]| p[..3] == ultrasound::display::TARGET_RGB;
     let guide = |p: [u8; 4]| p[..3] == ultrasound::display::GUIDE_RGB;

@@ -331,6 +331,14 @@ const SPACE_SINK_MM: f64 = 0.1;
 /// this distance of the plane (mm), down to this depth (mm).
 const VIEW_PLANE_MM: f64 = 5.0;
 const VIEW_DEPTH_MM: f64 = 150.0;
+/// A point in a probe's frame: (lateral along the array, depth along the beam, distance off the
+/// image plane), mm; the array along tool x, the beam along tool z.
+fn probe_coords(position: DVec3, orientation: stylet_physics::glam::DQuat, point: DVec3) -> (f64, f64, f64) {
+    let d = point - position;
+    let q = orientation;
+    (d.dot(q * DVec3::X), d.dot(q * DVec3::Z), d.dot(q * DVec3::Y))
+}
+
 /// Whether `point` lies in the image the renderer draws for a probe at `position` /
 /// `orientation` (its default depth), within `plane_mm` of the image plane.
 fn in_rendered_image(
@@ -340,34 +348,24 @@ fn in_rendered_image(
     point: DVec3,
     plane_mm: f64,
 ) -> bool {
-    let q = orientation;
-    let d = point - position;
-    d.dot(q * DVec3::Y).abs() <= plane_mm
-        && stylet_physics::probe_image::in_field(
-            kind,
-            kind.default_depth_mm(),
-            d.dot(q * DVec3::X),
-            d.dot(q * DVec3::Z),
-        )
+    let (u, v, off) = probe_coords(position, orientation, point);
+    off.abs() <= plane_mm && stylet_physics::probe_image::in_field(kind, kind.default_depth_mm(), u, v)
 }
 
 /// The ultrasound survey's "in view" (PerkTutor's TargetsScanned; grades were computed with it,
-/// so it stays): within `plane_mm` of the image plane (array along tool x, beam along tool z),
-/// down to [`VIEW_DEPTH_MM`] for both probes, a 40 mm strip or a sector 25 mm + depth·tan 30°
-/// wide each side. A little looser than the image the renderer draws
-/// (`stylet_physics::probe_image`), which the needle-in-plane share uses.
-fn in_image(
+/// so it stays): within `plane_mm` of the image plane, down to [`VIEW_DEPTH_MM`] for both
+/// probes, a 40 mm strip or a sector 25 mm + depth·tan 30° wide each side. A little looser than
+/// the image the renderer draws (`stylet_physics::probe_image`), which the needle-in-plane share
+/// uses.
+fn in_survey_view(
     position: DVec3,
     orientation: stylet_physics::glam::DQuat,
     kind: stylet_physics::ProbeKind,
     point: DVec3,
     plane_mm: f64,
 ) -> bool {
-    let q = orientation;
-    let (ax, normal, beam) = (q * DVec3::X, q * DVec3::Y, q * DVec3::Z);
-    let d = point - position;
-    let depth = d.dot(beam);
-    if d.dot(normal).abs() > plane_mm || !(0.0..=VIEW_DEPTH_MM).contains(&depth) {
+    let (u, depth, off) = probe_coords(position, orientation, point);
+    if off.abs() > plane_mm || !(0.0..=VIEW_DEPTH_MM).contains(&depth) {
         return false;
     }
     let half_width = match kind {
@@ -375,7 +373,7 @@ fn in_image(
         // 60° sector of a 50 mm radius face: 25 mm at the face, widening with depth.
         stylet_physics::ProbeKind::Convex => 25.0 + depth * (30f64).to_radians().tan(),
     };
-    d.dot(ax).abs() <= half_width
+    u.abs() <= half_width
 }
 
 /// Good skin contact: at least this share of the probe face on the skin.
@@ -782,7 +780,7 @@ impl<'a> MetricsCollector<'a> {
         self.target
             .points()
             .iter()
-            .any(|&t| in_image(input.position_mm, input.orientation, kind, t, VIEW_PLANE_MM))
+            .any(|&t| in_survey_view(input.position_mm, input.orientation, kind, t, VIEW_PLANE_MM))
     }
 
     /// The metrics of everything observed.

@@ -587,19 +587,7 @@ fn render_ultrasound(
         Some(n) if n.nodes_mm.len() >= 2 => Some([n.tip_mm(), n.tip_mm() + n.tip_tangent() * 100.0]),
         _ => path.as_ref().map(|p| [p.entry_mm.as_vec3(), p.target_mm.as_vec3()]),
     });
-    let m = &atlas.manifest;
-    let targets: Vec<_> = atlas
-        .model
-        .label_table()
-        .labels()
-        .iter()
-        .filter(|l| l.role == stylet_physics::Role::Target)
-        .map(|l| l.id)
-        .collect();
-    let echo = Arc::new(EchoTable::new(
-        &stylet_atlas::manifest::echo_classes(&m.labels, &m.tissues),
-        &targets,
-    ));
+    let echo = Arc::new(EchoTable::of_atlas(atlas));
     let doppler = a.doppler.then(|| Arc::new(FlowField::build(&atlas.model, &echo)));
     let scene = UltrasoundScene {
         probe,

@@ -48,35 +48,7 @@ const LATTICE_MM: f32 = 0.5;
 const FLAG_TARGET: u32 = 1u;
 const FLAG_DOPPLER: u32 = 2u;
 
-// sampler.rs `Grid3::trilinear`: inside when -1/2 <= c < n - 1/2, clamped; air outside.
-fn trilinear(c: vec3<f32>) -> f32 {
-    var i0 = vec3<i32>(0);
-    var i1 = vec3<i32>(0);
-    var f = vec3<f32>(0.0);
-    for (var a = 0; a < 3; a++) {
-        let na = P.dims[a];
-        let n = f32(na);
-        if !(c[a] >= -0.5 && c[a] < n - 0.5) {
-            return AIR_HU;
-        }
-        let x = clamp(c[a], 0.0, n - 1.0);
-        // An axis of one voxel reads it with weight 1 (no neighbour past the edge).
-        let b = min(u32(x), select(0u, na - 2u, na >= 2u));
-        i0[a] = i32(b);
-        i1[a] = i32(b + select(0u, 1u, na > 1u));
-        f[a] = select(x - f32(b), 0.0, na == 1u);
-    }
-    let fx = f.x;
-    let fy = f.y;
-    let fz = f.z;
-    let c00 = ct_voxel(vec3<i32>(i0.x, i0.y, i0.z)) * (1.0 - fx) + ct_voxel(vec3<i32>(i1.x, i0.y, i0.z)) * fx;
-    let c10 = ct_voxel(vec3<i32>(i0.x, i1.y, i0.z)) * (1.0 - fx) + ct_voxel(vec3<i32>(i1.x, i1.y, i0.z)) * fx;
-    let c01 = ct_voxel(vec3<i32>(i0.x, i0.y, i1.z)) * (1.0 - fx) + ct_voxel(vec3<i32>(i1.x, i0.y, i1.z)) * fx;
-    let c11 = ct_voxel(vec3<i32>(i0.x, i1.y, i1.z)) * (1.0 - fx) + ct_voxel(vec3<i32>(i1.x, i1.y, i1.z)) * fx;
-    let c0 = c00 * (1.0 - fy) + c10 * fy;
-    let c1 = c01 * (1.0 - fy) + c11 * fy;
-    return c0 * (1.0 - fz) + c1 * fz;
-}
+// sample_ct: ct_sample.wgsl (prepended by the host).
 
 // sampler.rs `nearest_voxel` and the partial label there; 0 outside.
 fn label_at(c: vec3<f32>) -> u32 {
@@ -176,7 +148,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         let x = origin + dir * depth;
         let p = x - P.origin.xyz;
         let c = vec3<f32>(dot(P.row0.xyz, p), dot(P.row1.xyz, p), dot(P.row2.xyz, p));
-        let hu = trilinear(c);
+        let hu = sample_ct(c);
         let label = label_at(c);
         var code = 0u;
         if label < P.dims.w {

@@ -11,7 +11,11 @@ use crate::pipeline::{Pipelines, dispatch, uniform_buffer};
 use crate::volume::GpuVolume;
 use crate::{GpuContext, GpuError};
 
-const SHADER: &str = include_str!("../shaders/mpr.wgsl");
+/// The shader after the shared CT sampler.
+const SHADER: &str = concat!(
+    include_str!("../shaders/ct_sample.wgsl"),
+    include_str!("../shaders/mpr.wgsl")
+);
 
 /// Mirrors `Params` in mpr.wgsl (16-byte members).
 #[repr(C)]

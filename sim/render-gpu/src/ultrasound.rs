@@ -22,7 +22,11 @@ use crate::pipeline::{Pipelines, dispatch, uniform_buffer, v4};
 use crate::volume::{GpuVolume, storage};
 use crate::{GpuContext, GpuError};
 
-const SHADER: &str = include_str!("../shaders/ultrasound.wgsl");
+/// The shader after the shared CT sampler.
+const SHADER: &str = concat!(
+    include_str!("../shaders/ct_sample.wgsl"),
+    include_str!("../shaders/ultrasound.wgsl")
+);
 
 /// Mirrors `Params` in ultrasound.wgsl (16-byte members).
 #[repr(C)]

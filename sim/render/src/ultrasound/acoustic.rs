@@ -99,6 +99,21 @@ impl EchoTable {
         t
     }
 
+    /// The table of a loaded atlas: its labels' `echo` classes (inherited in the property tree)
+    /// and its target labels.
+    pub fn of_atlas(atlas: &stylet_atlas::Atlas) -> EchoTable {
+        let m = &atlas.manifest;
+        let targets: Vec<LabelId> = atlas
+            .model
+            .label_table()
+            .labels()
+            .iter()
+            .filter(|l| l.role == stylet_physics::Role::Target)
+            .map(|l| l.id)
+            .collect();
+        EchoTable::new(&stylet_atlas::manifest::echo_classes(&m.labels, &m.tissues), &targets)
+    }
+
     #[inline]
     pub fn class(&self, id: LabelId) -> EchoClass {
         self.class.get(id as usize).copied().unwrap_or_default()
