@@ -88,6 +88,17 @@ impl Recording {
         }
     }
 
+    /// Records a note at `tick` (metadata such as the haptic loop's missed deadlines; the replay
+    /// ignores notes). Never blocks in real time (a full queue drops it).
+    pub fn note(&self, tick: u64, text: &str) {
+        if self.realtime {
+            self.writer.annotate(tick, text);
+        } else {
+            // Offline: an error here shows again at `finish`.
+            let _ = self.writer.annotate_blocking(tick, text);
+        }
+    }
+
     /// Ends the session (summary, indexes); an error if anything could not be written.
     pub fn finish(self) -> Result<WriteSummary, WriteError> {
         let summary = self.writer.finish()?;

@@ -12,6 +12,7 @@ mod score;
 mod script;
 mod serve;
 mod session;
+mod sim;
 mod user;
 
 use clap::{Parser, Subcommand};
@@ -47,6 +48,8 @@ enum Command {
     Session(session::SessionCommand),
     /// Draw an atlas, or a recorded session at a moment, as a PNG (docs/rendering.md).
     Render(render::RenderArgs),
+    /// The desktop simulator; today its haptic loop, headless, driven by a script (docs/simulator.md).
+    Sim(sim::SimArgs),
     /// Run the demo on the embedded default: build the phantom atlas and print its summary.
     Demo(demo::DemoArgs),
 }
@@ -60,6 +63,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Serve(args) => serve::serve(args),
         Command::User(cmd) => user::run(cmd),
         Command::Render(args) => render::run(args),
+        Command::Sim(args) => sim::run(args),
         Command::Demo(args) => demo::run(args),
     }
 }

@@ -101,6 +101,11 @@ pub struct Server {
 
 impl Server {
     pub fn start(data: &Path, db: &Db, atlases: &Path, extra: &[&str]) -> Server {
+        Server::start_at("127.0.0.1:0", data, db, atlases, extra)
+    }
+
+    /// [`Server::start`] on a given address (a client may have tried it while it was down).
+    pub fn start_at(bind: &str, data: &Path, db: &Db, atlases: &Path, extra: &[&str]) -> Server {
         std::fs::create_dir_all(data).unwrap();
         let log = std::fs::OpenOptions::new()
             .create(true)
@@ -108,15 +113,7 @@ impl Server {
             .open(data.join("server.log"))
             .unwrap();
         let mut child = Command::new(env!("CARGO_BIN_EXE_stylet"))
-            .args([
-                "serve",
-                "--bind",
-                "127.0.0.1:0",
-                "--data-dir",
-                s(data),
-                "--atlases",
-                s(atlases),
-            ])
+            .args(["serve", "--bind", bind, "--data-dir", s(data), "--atlases", s(atlases)])
             .args(extra)
             .args(db.args())
             .stdout(Stdio::piped())

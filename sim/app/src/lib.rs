@@ -1,3 +1,12 @@
-//! The egui/eframe desktop simulator (viewports, tools, workflow, recording, replay viewer).
+//! The Stylet desktop simulator (thesis §2.1, §6.2–6.3; docs/simulator.md).
 //!
-//! Empty on purpose: a later issue fills it. Nothing here pretends to work yet.
+//! This crate holds what the simulator is made of below its windows: the real-time haptic loop
+//! ([`haptic`], paced by [`pacing`]), and the outbox that uploads finished sessions to the
+//! scoring service and keeps them until the service confirms ([`outbox`]). The egui views build
+//! on these.
+
+pub mod credentials;
+pub mod haptic;
+pub mod outbox;
+pub mod pacing;
+pub mod service_client;

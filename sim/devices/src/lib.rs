@@ -1,8 +1,15 @@
-//! Input devices for the simulator (DESIGN.md "Layout"): the [`Device`] trait and its backends.
-//! Now: the scripted device and its script language ([`script`]), which drives reproducible,
-//! faster-than-real-time runs. Keyboard/mouse, HID (hidapi) and replay backends join later.
+//! Input devices for the simulator (DESIGN.md "Layout"): the [`Device`] trait and its backends:
+//! the scripted device and its script language ([`script`]), which drives reproducible,
+//! faster-than-real-time runs; the live device the window drives ([`live`]); SpaceMouse reports
+//! ([`spacemouse`]) and rate control ([`rate`]); raw-HID device profiles ([`hid_profile`]).
 
+#[cfg(feature = "hid")]
+pub mod hid;
+pub mod hid_profile;
+pub mod live;
+pub mod rate;
 pub mod script;
+pub mod spacemouse;
 
 use stylet_physics::{Simulation, TickInput, TickOutput};
 

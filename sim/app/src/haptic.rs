@@ -1,0 +1,289 @@
+//! The haptic loop (thesis §6.3; DESIGN.md "Simulation tick"): a thread of its own ticking at the
+//! simulation's rate (1 kHz): device sample → `Simulation::step` → force to the device (the
+//! device receives the previous tick's output with its next sample) → recorder.
+//!
+//! Nothing outside the thread can make it wait. The recorder never blocks in real time (a full
+//! queue marks the session incomplete); the views read [`Snapshot`]s that the loop publishes with
+//! `try_lock` every few ticks, skipping a publication rather than waiting for a reader. Ticks done
+//! after their deadline are counted ([`LoopStats`], shown in the status bar) and written to the
+//! session as notes, which the replay ignores: pacing decides when a tick runs, never what it
+//! computes.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use stylet_devices::Device;
+use stylet_physics::glam::{DQuat, DVec3};
+use stylet_physics::{Simulation, TickOutput};
+use stylet_recorder::{Recording, WriteError, WriteSummary};
+use stylet_render::tools::ToolState;
+
+use crate::pacing::Pacer;
+
+/// How the loop runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LoopOptions {
+    /// Real time (ticks at the simulation's rate) or as fast as the CPU allows (headless runs,
+    /// tests: same ticks, same session file).
+    pub paced: bool,
+    /// A snapshot for the views every this many ticks (16: 62.5 Hz at 1 kHz; DESIGN.md's
+    /// render sub-rate).
+    pub publish_every: u64,
+}
+
+impl Default for LoopOptions {
+    fn default() -> Self {
+        LoopOptions {
+            paced: true,
+            publish_every: 16,
+        }
+    }
+}
+
+/// What the views draw: the state after one tick.
+#[derive(Debug, Clone)]
+pub struct Snapshot {
+    pub tick: u64,
+    pub position_mm: DVec3,
+    pub orientation: DQuat,
+    pub output: TickOutput,
+    pub tools: ToolState,
+}
+
+/// Counters the loop keeps for the status bar (read at any time, never locked).
+#[derive(Debug, Default)]
+pub struct LoopStats {
+    ticks: AtomicU64,
+    missed: AtomicU64,
+    worst_late_ns: AtomicU64,
+    skipped_periods: AtomicU64,
+    skipped_publications: AtomicU64,
+}
+
+/// A copy of [`LoopStats`] at one moment.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct StatsView {
+    /// Ticks simulated so far.
+    pub ticks: u64,
+    /// Ticks done after their deadline (paced loops only).
+    pub missed: u64,
+    /// The latest any tick was done past its deadline.
+    pub worst_late: Duration,
+    /// Periods given up when the loop was stalled for more than `pacing::MAX_BACKLOG_PERIODS`.
+    pub skipped_periods: u64,
+    /// Snapshots not published because a view was reading the previous one.
+    pub skipped_publications: u64,
+}
+
+impl LoopStats {
+    pub fn view(&self) -> StatsView {
+        StatsView {
+            ticks: self.ticks.load(Ordering::Relaxed),
+            missed: self.missed.load(Ordering::Relaxed),
+            worst_late: Duration::from_nanos(self.worst_late_ns.load(Ordering::Relaxed)),
+            skipped_periods: self.skipped_periods.load(Ordering::Relaxed),
+            skipped_publications: self.skipped_publications.load(Ordering::Relaxed),
+        }
+    }
+}
+
+/// Why the loop ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Ended {
+    /// The device had no more samples (a script's end, a replay's end).
+    DeviceEnded,
+    /// [`HapticLoop::stop`] was called (the trainee finished or quit).
+    Stopped,
+}
+
+/// The loop's account of a finished run.
+#[derive(Debug)]
+pub struct LoopReport {
+    pub ended: Ended,
+    pub stats: StatsView,
+    /// Wall time from the first tick to the last.
+    pub wall: Duration,
+    /// The recording's summary, or why it could not be written completely.
+    pub recording: Option<Result<WriteSummary, WriteError>>,
+    /// The simulation after the last tick (for the results screen's local score).
+    pub final_tick: u64,
+}
+
+/// Errors of the loop thread itself.
+#[derive(Debug, thiserror::Error)]
+pub enum LoopError {
+    #[error("cannot start the haptic thread: {0}")]
+    Spawn(#[from] std::io::Error),
+    #[error("the haptic thread stopped unexpectedly (panic): {0}")]
+    Panicked(String),
+}
+
+struct Shared {
+    stop: AtomicBool,
+    snapshot: Mutex<Option<Snapshot>>,
+    stats: LoopStats,
+}
+
+/// A running haptic loop.
+pub struct HapticLoop {
+    shared: Arc<Shared>,
+    handle: JoinHandle<LoopReport>,
+}
+
+impl HapticLoop {
+    /// Starts the loop on its own thread. `recording`, when given, must be in real-time mode for
+    /// a paced loop (it never blocks then).
+    pub fn spawn(
+        sim: Simulation,
+        device: Box<dyn Device + Send>,
+        recording: Option<Recording>,
+        options: LoopOptions,
+    ) -> Result<HapticLoop, LoopError> {
+        let shared = Arc::new(Shared {
+            stop: AtomicBool::new(false),
+            snapshot: Mutex::new(None),
+            stats: LoopStats::default(),
+        });
+        let inner = Arc::clone(&shared);
+        let handle = std::thread::Builder::new()
+            .name("stylet-haptic".into())
+            .spawn(move || run(sim, device, recording, options, &inner))?;
+        Ok(HapticLoop { shared, handle })
+    }
+
+    /// The latest published state (a brief lock the loop never waits on).
+    pub fn snapshot(&self) -> Option<Snapshot> {
+        self.shared.snapshot.lock().ok().and_then(|s| s.clone())
+    }
+
+    pub fn stats(&self) -> StatsView {
+        self.shared.stats.view()
+    }
+
+    /// Asks the loop to end after its current tick.
+    pub fn stop(&self) {
+        self.shared.stop.store(true, Ordering::Relaxed);
+    }
+
+    pub fn is_finished(&self) -> bool {
+        self.handle.is_finished()
+    }
+
+    /// Waits for the loop to end (call [`Self::stop`] first unless the device ends by itself).
+    pub fn join(self) -> Result<LoopReport, LoopError> {
+        self.handle.join().map_err(|p| {
+            let why = p
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "no message".into());
+            LoopError::Panicked(why)
+        })
+    }
+}
+
+fn run(
+    mut sim: Simulation,
+    mut device: Box<dyn Device + Send>,
+    mut recording: Option<Recording>,
+    options: LoopOptions,
+    shared: &Shared,
+) -> LoopReport {
+    let rate = sim.tick_rate_hz();
+    let mut pacer = options.paced.then(|| Pacer::new(rate, sim.tick()));
+    let publish_every = options.publish_every.max(1);
+    let stats = &shared.stats;
+    let started = Instant::now();
+    let mut last: Option<TickOutput> = None;
+    // Misses within the current second, for the session notes.
+    let (mut window_missed, mut window_worst) = (0u64, Duration::ZERO);
+    let ended = loop {
+        if shared.stop.load(Ordering::Relaxed) {
+            break Ended::Stopped;
+        }
+        let tick = sim.tick();
+        if let Some(p) = &pacer {
+            p.wait_until_due(tick);
+        }
+        let Some(input) = device.next(tick, last.as_ref()) else {
+            break Ended::DeviceEnded;
+        };
+        let out = sim.step(&input);
+        if let Some(r) = recording.as_mut() {
+            r.tick(&input, &out, &sim);
+        }
+        if out.tick % publish_every == 0 {
+            publish(shared, &sim, &input, &out);
+        }
+        stats.ticks.fetch_add(1, Ordering::Relaxed);
+        if let Some(p) = pacer.as_mut() {
+            let timing = p.done(tick);
+            if !timing.late.is_zero() {
+                stats.missed.fetch_add(1, Ordering::Relaxed);
+                stats
+                    .worst_late_ns
+                    .fetch_max(timing.late.as_nanos() as u64, Ordering::Relaxed);
+                stats
+                    .skipped_periods
+                    .fetch_add(timing.skipped_periods, Ordering::Relaxed);
+                window_missed += 1;
+                window_worst = window_worst.max(timing.late);
+            }
+            if (tick + 1) % u64::from(rate) == 0 && window_missed > 0 {
+                if let Some(r) = recording.as_ref() {
+                    r.note(
+                        tick,
+                        &format!(
+                            "haptic loop: {window_missed} of the last {rate} ticks missed their deadline (worst {:.2} ms late)",
+                            window_worst.as_secs_f64() * 1e3
+                        ),
+                    );
+                }
+                (window_missed, window_worst) = (0, Duration::ZERO);
+            }
+        }
+        last = Some(out);
+    };
+    let wall = started.elapsed();
+    let view = stats.view();
+    if let (Some(r), true) = (recording.as_ref(), options.paced) {
+        r.note(
+            sim.tick(),
+            &format!(
+                "haptic loop: {} ticks in {:.3} s, {} missed their deadline (worst {:.2} ms late), {} periods skipped",
+                view.ticks,
+                wall.as_secs_f64(),
+                view.missed,
+                view.worst_late.as_secs_f64() * 1e3,
+                view.skipped_periods
+            ),
+        );
+    }
+    LoopReport {
+        ended,
+        stats: view,
+        wall,
+        recording: recording.map(Recording::finish),
+        final_tick: sim.tick(),
+    }
+}
+
+/// Publishes the state after a tick unless a view is reading the previous one.
+fn publish(shared: &Shared, sim: &Simulation, input: &stylet_physics::TickInput, out: &TickOutput) {
+    match shared.snapshot.try_lock() {
+        Ok(mut slot) => {
+            *slot = Some(Snapshot {
+                tick: out.tick,
+                position_mm: input.position_mm,
+                orientation: input.orientation,
+                output: *out,
+                tools: ToolState::from_simulation(sim, input),
+            });
+        }
+        Err(_) => {
+            shared.stats.skipped_publications.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}

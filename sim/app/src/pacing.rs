@@ -1,0 +1,128 @@
+//! Drift-free pacing of the 1 kHz haptic loop (DESIGN.md "Simulation tick").
+//!
+//! Tick k is due at `start + k·period` and must be done by `start + (k + 1)·period`: deadlines
+//! are absolute, so one late tick does not push every later one back (no drift). The pacer sleeps
+//! until shortly before a tick is due and spins the rest, since `thread::sleep` overshoots by
+//! tens of microseconds. Pacing decides only *when* a tick runs, never what it computes: the
+//! simulation is a function of the recorded inputs alone.
+
+use std::time::{Duration, Instant};
+
+/// Sleeping stops this long before a deadline; the rest is spun (sleep overshoot on Linux is
+/// typically 50–100 µs).
+const SPIN: Duration = Duration::from_micros(150);
+
+/// A loop more than this many periods behind (a stalled machine) starts a new schedule at the
+/// current time instead of running the backlog back to back; the skipped periods count as missed.
+pub const MAX_BACKLOG_PERIODS: u32 = 10;
+
+/// When ticks are due.
+#[derive(Debug)]
+pub struct Pacer {
+    start: Instant,
+    period: Duration,
+    /// Ticks of the current schedule are counted from this tick.
+    first_tick: u64,
+}
+
+/// How one tick kept its deadline.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Timing {
+    /// Time past the tick's deadline when it was done (zero when on time).
+    pub late: Duration,
+    /// Periods given up because the loop was too far behind (the schedule restarted).
+    pub skipped_periods: u64,
+}
+
+impl Pacer {
+    /// A schedule of `rate_hz` ticks per second starting now with tick `first_tick`.
+    pub fn new(rate_hz: u32, first_tick: u64) -> Pacer {
+        Pacer {
+            start: Instant::now(),
+            period: Duration::from_secs(1) / rate_hz.max(1),
+            first_tick,
+        }
+    }
+
+    pub fn period(&self) -> Duration {
+        self.period
+    }
+
+    /// When `tick` is due (it may start then).
+    pub fn due(&self, tick: u64) -> Instant {
+        self.start + self.period * (tick.saturating_sub(self.first_tick)) as u32
+    }
+
+    /// Waits until `tick` is due (returns at once when it is already due).
+    pub fn wait_until_due(&self, tick: u64) {
+        let due = self.due(tick);
+        loop {
+            let now = Instant::now();
+            let Some(left) = due.checked_duration_since(now) else {
+                return;
+            };
+            if left > SPIN {
+                std::thread::sleep(left - SPIN);
+            } else {
+                std::hint::spin_loop();
+            }
+        }
+    }
+
+    /// Call when `tick` is done: how late it was. When the loop has fallen more than
+    /// [`MAX_BACKLOG_PERIODS`] behind, the schedule restarts at the next tick.
+    pub fn done(&mut self, tick: u64) -> Timing {
+        let now = Instant::now();
+        let deadline = self.due(tick + 1);
+        let late = now.saturating_duration_since(deadline);
+        let mut skipped_periods = 0;
+        if late > self.period * MAX_BACKLOG_PERIODS {
+            skipped_periods = (late.as_nanos() / self.period.as_nanos().max(1)) as u64;
+            self.start = now;
+            self.first_tick = tick + 1;
+        }
+        Timing { late, skipped_periods }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn deadlines_are_absolute() {
+        let p = Pacer::new(1000, 5);
+        assert_eq!(p.period(), Duration::from_millis(1));
+        assert_eq!(p.due(5), p.start);
+        assert_eq!(p.due(1005) - p.due(5), Duration::from_secs(1));
+        // Ticks before the schedule's first are due at once.
+        assert_eq!(p.due(0), p.start);
+    }
+
+    #[test]
+    fn a_paced_loop_keeps_the_rate_without_drift() {
+        let mut p = Pacer::new(1000, 0);
+        let t0 = Instant::now();
+        for k in 0..200 {
+            p.wait_until_due(k);
+            assert!(Instant::now() >= p.due(k));
+            p.done(k);
+        }
+        // 200 ticks at 1 kHz: the last starts 199 ms after the first, never before.
+        assert!(t0.elapsed() >= Duration::from_millis(199));
+    }
+
+    #[test]
+    fn a_stalled_loop_restarts_its_schedule_and_counts_the_gap() {
+        let mut p = Pacer::new(1000, 0);
+        p.wait_until_due(0);
+        std::thread::sleep(Duration::from_millis(30));
+        let t = p.done(0);
+        assert!(t.late >= Duration::from_millis(28), "{t:?}");
+        assert!(t.skipped_periods >= 28, "{t:?}");
+        // The next tick is due now, not 30 ms ago.
+        assert!(p.due(1) >= Instant::now() - Duration::from_millis(5));
+        let on_time = p.done(1);
+        assert_eq!(on_time.skipped_periods, 0);
+    }
+}

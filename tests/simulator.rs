@@ -1,0 +1,201 @@
+//! The desktop simulator's machinery end to end (issue 17): a complete PTCD session driven
+//! through the haptic loop by the scripted device records a file that `stylet score` replays
+//! verified; a paced loop records its timing as notes; the outbox uploads a session recorded
+//! while the server was down once when it comes back, and loses nothing on the way.
+
+mod common;
+
+use std::path::Path;
+
+use common::{Db, Fixture, Server, call, login, ok, s};
+use stylet_app::outbox::Outbox;
+use stylet_app::service_client::{ServiceClient, TokenUploader};
+
+fn script(name: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("atlases/phantom/scripts")
+        .join(format!("{name}.txt"))
+}
+
+#[test]
+fn a_complete_session_through_the_haptic_loop_is_graded_by_the_same_replay() {
+    let f = Fixture::new();
+    let atlas = f.atlases().join("phantom");
+    let through_app = f.dir.path().join("app.mcap");
+    let out = ok(&[
+        "sim",
+        "--headless",
+        "--unpaced",
+        "--atlas",
+        s(&atlas),
+        "--script",
+        s(&script("complete-ptcd")),
+        "--out",
+        s(&through_app),
+        "--trainee",
+        "tina",
+    ]);
+    assert!(out.contains("haptic loop unpaced: 46000 ticks"), "{out}");
+    assert!(out.contains("complete"), "{out}");
+    let report = ok(&["score", s(&through_app), "--atlas", s(&atlas), "--json"]);
+    let r: serde_json::Value = serde_json::from_str(&report).unwrap();
+    assert_eq!(r["replay_verified"], true, "{r}");
+    let m = &r["metrics"];
+    // Palpate, scan, puncture, stylet out, contrast, finish: the whole workflow, graded.
+    assert_eq!(m["workflow"]["palpation_before_puncture"], true, "{m}");
+    assert_eq!(m["workflow"]["ultrasound_before_puncture"], true, "{m}");
+    assert_eq!(m["workflow"]["target_scanned_before_puncture"], true, "{m}");
+    assert_eq!(m["workflow"]["confirmed_before_withdrawal"], true, "{m}");
+    assert_eq!(m["target_reached"], true, "{m}");
+    assert_eq!(m["target_confirmed"], true, "{m}");
+    assert_eq!(m["attempts"], 1, "{m}");
+    assert_eq!(m["risk_hits"].as_array().map(Vec::len), Some(0), "{m}");
+    assert!(m["contrast_in_ducts_ml"].as_f64().unwrap() > 0.0, "{m}");
+    assert_eq!(r["grade"]["passed"], true, "{r}");
+    // The loop computes exactly what the scripted runner does: the same ticks, bit for bit.
+    let direct = f.dir.path().join("direct.mcap");
+    ok(&[
+        "script",
+        "run",
+        "--atlas",
+        s(&atlas),
+        "--script",
+        s(&script("complete-ptcd")),
+        "--out",
+        s(&direct),
+        "--trainee",
+        "tina",
+    ]);
+    let a = stylet_recorder::read(&through_app).unwrap();
+    let b = stylet_recorder::read(&direct).unwrap();
+    assert_eq!(a.ticks.len(), 46_000);
+    assert!(
+        a.ticks == b.ticks,
+        "the haptic loop's ticks differ from the script runner's"
+    );
+    assert_eq!(a.events, b.events);
+}
+
+#[test]
+fn a_paced_loop_runs_in_real_time_and_notes_its_timing() {
+    let f = Fixture::new();
+    let atlas = f.atlases().join("phantom");
+    let text = "stylet-script 1\ndevice premium\ntool needle gauge 18 length 150 stylet in\nend 1.5\n\
+                at 0 along intercostal-10-11 -15\nat 1.5 along intercostal-10-11 5\n";
+    let sc = f.dir.path().join("short.txt");
+    std::fs::write(&sc, text).unwrap();
+    let out_file = f.dir.path().join("paced.mcap");
+    let t0 = std::time::Instant::now();
+    let out = ok(&[
+        "sim",
+        "--headless",
+        "--atlas",
+        s(&atlas),
+        "--script",
+        s(&sc),
+        "--out",
+        s(&out_file),
+    ]);
+    // Pacing never runs a tick early: 1 500 ticks at 1 kHz take at least 1.499 s.
+    assert!(t0.elapsed().as_secs_f64() >= 1.499, "{out}");
+    assert!(out.contains("haptic loop paced: 1500 ticks"), "{out}");
+    let session = stylet_recorder::read(&out_file).unwrap();
+    let notes: Vec<&str> = session.annotations.iter().map(|a| a.text.as_str()).collect();
+    assert!(
+        notes.iter().any(|n| n.starts_with("haptic loop: 1500 ticks in")),
+        "{notes:?}"
+    );
+    let report = ok(&["score", s(&out_file), "--atlas", s(&atlas), "--json"]);
+    let v: serde_json::Value = serde_json::from_str(&report).unwrap();
+    assert_eq!(v["replay_verified"], true, "{v}");
+}
+
+#[test]
+fn without_a_window_the_simulator_says_what_runs_instead() {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stylet"))
+        .args(["sim", "--atlas", "/nonexistent"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--headless --script"), "{err}");
+}
+
+#[test]
+fn a_session_recorded_while_the_server_is_down_is_uploaded_once_when_it_is_back() {
+    let f = Fixture::new();
+    let db = Db::Sqlite;
+    f.users(&db);
+    // An address with nothing listening yet: the server starts there later.
+    let addr = {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        l.local_addr().unwrap()
+    };
+    let base = format!("http://{addr}");
+    let outbox = Outbox::open(&f.dir.path().join("outbox")).unwrap();
+    let name = outbox.add(&f.session("tina-ok")).unwrap();
+    // A damaged file never enters: the outbox holds sessions only.
+    let damaged = f.dir.path().join("damaged.mcap");
+    let mut bytes = std::fs::read(f.session("tina-ok")).unwrap();
+    bytes.truncate(bytes.len() / 2);
+    std::fs::write(&damaged, &bytes).unwrap();
+    assert!(outbox.add(&damaged).is_err());
+
+    // Server down: the login fails with a clear reason, the upload waits, nothing is lost.
+    let client = ServiceClient::new(&base);
+    let e = client.upload_token("tina", "tina-password", "test").unwrap_err();
+    assert!(e.to_string().contains("cannot be reached"), "{e}");
+    let down = TokenUploader {
+        client: client.clone(),
+        token: "0".repeat(64),
+    };
+    let round = outbox.upload_all(&down).unwrap();
+    assert!(round.uploaded.is_empty() && round.refused.is_empty(), "{round:?}");
+    assert_eq!(round.waiting.len(), 1);
+    assert!(round.waiting[0].1.contains("unavailable"), "{round:?}");
+    assert_eq!(outbox.pending().unwrap(), vec![name.clone()]);
+
+    // The server comes back at the same address.
+    let server = Server::start_at(&addr.to_string(), &f.data(), &db, &f.atlases(), &[]);
+    assert_eq!(server.base, base);
+    // A token the server does not know: kept, and the round says to log in again.
+    let round = outbox.upload_all(&down).unwrap();
+    assert!(round.needs_login, "{round:?}");
+    assert_eq!(outbox.pending().unwrap(), vec![name.clone()]);
+    // Log in once: an upload-only token.
+    let token = client.upload_token("tina", "tina-password", "stylet sim test").unwrap();
+    let up = TokenUploader { client, token };
+    let round = outbox.upload_all(&up).unwrap();
+    assert_eq!(round.uploaded.len(), 1, "{round:?}");
+    let id = round.uploaded[0].1.clone();
+    assert!(outbox.pending().unwrap().is_empty());
+    // Nothing left: the next round uploads nothing.
+    assert_eq!(outbox.upload_all(&up).unwrap(), Default::default());
+    // A crash between the upload and the removal leaves the file: sent again, the service
+    // recognises the bytes (200, same id) and the outbox lets it go. One session on the server.
+    outbox.add(&f.session("tina-ok")).unwrap();
+    let round = outbox.upload_all(&up).unwrap();
+    assert_eq!(round.uploaded[0].1, id);
+    let tina = login(&base, "tina");
+    let (status, list, _) = call("GET", &format!("{base}/api/sessions"), Some(&tina), None, false);
+    assert_eq!(status, 200, "{list}");
+    assert_eq!(list["total"], 1, "{list}");
+    assert_eq!(list["sessions"][0]["id"], id.as_str());
+    // A session the service refuses (recorded on an atlas it does not have) moves aside with
+    // the service's reason; the token is upload-only and cannot list sessions.
+    outbox.add(&f.session("tina-other-atlas")).unwrap();
+    let round = outbox.upload_all(&up).unwrap();
+    assert_eq!(round.refused.len(), 1, "{round:?}");
+    let refused = outbox.refused().unwrap();
+    assert!(refused[0].1.contains("(422)"), "{refused:?}");
+    assert!(outbox.pending().unwrap().is_empty());
+    let (status, _, _) = call(
+        "GET",
+        &format!("{base}/api/sessions"),
+        Some(&common::Auth::Bearer(up.token.clone())),
+        None,
+        false,
+    );
+    assert_eq!(status, 403);
+    drop(server);
+}
