@@ -6,18 +6,14 @@ use std::sync::Arc;
 
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
-use stylet_physics::glam::{DVec3, Vec3};
-use stylet_render::annotate::{Annotations, annotate};
 use stylet_render::image::Image;
 use stylet_render::mpr::{self, Plane, SliceSpec};
-use stylet_render::presets::{self, Preset};
-use stylet_render::scene::{Camera, ClipPlane, Light, Quality, Scene, Tagging};
-use stylet_render::tools::ToolState;
-use stylet_render::transfer::TransferFunction;
-use stylet_render::ultrasound::{self, EchoTable, FlowField, UltrasoundScene, UltrasoundSettings};
+use stylet_render::presets::Preset;
+use stylet_render::scene::{Scene, Tagging};
+use stylet_render::ultrasound::{self, EchoTable, FlowField, UltrasoundScene};
+use stylet_render::views::{self, Moment, SessionLabels, ViewError};
 use stylet_render::volume::RenderVolume;
-use stylet_render::xray::attenuation::DEFAULT_IODINE_MG_PER_ML;
-use stylet_render::xray::{self, CArm, ContrastOverlay, Radiograph, XrayScene, XrayWindow};
+use stylet_render::xray::{self, Radiograph, XrayScene};
 
 use super::script::Difficulty;
 
@@ -162,24 +158,6 @@ fn parse_size(s: &str) -> Result<Size, String> {
     }
 }
 
-/// The tools at the requested moment of a session, and where the device was.
-struct Moment {
-    tools: ToolState,
-    /// The contrast medium in the patient (CT voxels, μ_c), if any was injected.
-    contrast: Option<ContrastOverlay>,
-    /// The scenario the session was recorded for (its C-arm).
-    scenario: String,
-    xray_on: bool,
-    /// The session's seed (the ultrasound's speckle), time (s) and difficulty.
-    seed: u64,
-    time_s: f64,
-    difficulty: String,
-    device_mm: DVec3,
-    /// The device's axis (orientation · +z).
-    axis: DVec3,
-    tick: u64,
-}
-
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     let atlas = stylet_atlas::load(&a.atlas)?;
     let moment = match (&a.session, a.at) {
@@ -280,28 +258,14 @@ fn replay_to(atlas: &stylet_atlas::Atlas, path: &Path, at_s: f64) -> anyhow::Res
     // The ticks after the moment are not needed: replaying a prefix is bit-exact for the prefix.
     session.ticks.truncate(last + 1);
     let mut moment = None;
-    let ct_dims = atlas.model.ct().grid().dims();
-    let scenario = h.scenario.clone();
-    let (seed, difficulty, rate) = (h.seed, h.difficulty.clone(), h.tick_rate_hz as f64);
+    let labels = SessionLabels {
+        scenario: h.scenario.clone(),
+        difficulty: h.difficulty.clone(),
+        seed: h.seed,
+    };
     let report = stylet_scoring::replay(&session, Arc::new(atlas.model.clone()), &mut |input, out, sim| {
         if out.tick == tick {
-            let q = input.orientation;
-            moment = Some(Moment {
-                tools: ToolState::from_simulation(sim, input),
-                contrast: ContrastOverlay::from_agent(sim.contrast(), ct_dims, DEFAULT_IODINE_MG_PER_ML),
-                scenario: scenario.clone(),
-                xray_on: out.xray_on,
-                seed,
-                time_s: tick as f64 / rate,
-                difficulty: difficulty.clone(),
-                device_mm: out.tip_mm,
-                axis: if q.is_finite() && q.length_squared() > 1e-12 {
-                    q.normalize() * DVec3::Z
-                } else {
-                    out.insertion_dir
-                },
-                tick,
-            });
+            moment = Some(Moment::of_simulation(sim, input, out, &labels));
         }
     })
     .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
@@ -323,22 +287,6 @@ fn replay_to(atlas: &stylet_atlas::Atlas, path: &Path, at_s: f64) -> anyhow::Res
     })
 }
 
-/// Where the slices pass and the clipping plane cuts: the needle tip (or the contact tool) at
-/// the moment, else the atlas' first planned path (its target), else the volume's centre.
-fn focus(atlas: &stylet_atlas::Atlas, moment: Option<&Moment>) -> (DVec3, DVec3) {
-    if let Some(m) = moment {
-        return match &m.tools.needle {
-            Some(n) if n.nodes_mm.len() >= 2 => (n.tip_mm().as_dvec3(), n.tip_tangent().as_dvec3()),
-            _ => (m.device_mm, m.axis),
-        };
-    }
-    if let Some(p) = atlas.planned_paths().first() {
-        return (p.target_mm, p.direction().unwrap_or(DVec3::Z));
-    }
-    let (lo, hi) = atlas.model.ct().grid().world_bounds();
-    ((lo + hi) * 0.5, DVec3::Z)
-}
-
 /// A standard plane through the focus covering the whole atlas, scaled to fit the image, with the
 /// label overlay, the needle (at a moment), the scale bar and the orientation letters.
 fn render_plane(
@@ -348,55 +296,19 @@ fn render_plane(
     size: Size,
     gpu: bool,
 ) -> anyhow::Result<Image> {
-    let window = presets::slice_window(&presets::render_settings(&atlas.manifest));
-    let (focus_mm, _) = focus(atlas, moment);
-    let grid = atlas.model.ct().grid();
-    let (lo, hi) = grid.world_bounds();
-    let s = DVec3::from_array(grid.spacing_mm());
-    let (lo, hi) = (lo - s * 0.5, hi + s * 0.5);
-    let (right, down) = plane.axes();
-    let normal = right.cross(down);
-    // In the plane: the volume's centre; across it: the focus.
-    let middle = (lo + hi) * 0.5;
-    let center_mm = middle + normal * (focus_mm - middle).dot(normal);
-    let (eu, ev) = ((hi - lo).dot(right.abs()), (hi - lo).dot(down.abs()));
-    let pixel_mm = (eu / size.width as f64).max(ev / size.height as f64);
-    let spec = SliceSpec {
-        center_mm,
-        right,
-        down,
-        pixel_mm,
-        width: size.width as usize,
-        height: size.height as usize,
-        window,
-    };
+    let spec = views::plane_spec(atlas, moment, plane, size.width, size.height);
     slice_image(atlas, moment, &spec, gpu)
 }
 
 /// The oblique slice along the needle at the moment, centred on the tip, wide enough for the
 /// whole needle on either side.
 fn render_needle(atlas: &stylet_atlas::Atlas, moment: Option<&Moment>, size: Size, gpu: bool) -> anyhow::Result<Image> {
-    let Some(m) = moment else {
-        bail!("--view needle shows the needle of a session: give --session FILE --at SECONDS");
-    };
-    let Some(needle) = m.tools.needle.as_ref().filter(|n| n.nodes_mm.len() >= 2) else {
-        bail!(
-            "--view needle: the needle is not in use at tick {} of the session (the tool then is the finger or a probe)",
-            m.tick
-        );
-    };
-    let window = presets::slice_window(&presets::render_settings(&atlas.manifest));
-    let reach_mm = (needle.length_mm() + needle.hub_length_mm) as f64 + 10.0;
-    let pixel_mm = 2.0 * reach_mm / size.width.min(size.height) as f64;
-    let spec = SliceSpec::oblique_along_needle(
-        needle.tip_mm().as_dvec3(),
-        needle.tip_tangent().as_dvec3(),
-        pixel_mm,
-        size.width as usize,
-        size.height as usize,
-        window,
-    )
-    .map_err(|e| anyhow::anyhow!("--view needle: {e}"))?;
+    let spec = views::needle_spec(atlas, moment, size.width, size.height).map_err(|e| match e {
+        ViewError::NoMoment => {
+            anyhow::anyhow!("--view needle shows the needle of a session: give --session FILE --at SECONDS")
+        }
+        e => anyhow::anyhow!("--view needle: {e}"),
+    })?;
     slice_image(atlas, moment, &spec, gpu)
 }
 
@@ -407,23 +319,11 @@ fn slice_image(
     spec: &SliceSpec,
     gpu: bool,
 ) -> anyhow::Result<Image> {
-    let slice = if gpu {
-        slice_gpu(atlas, spec)?
+    if gpu {
+        Ok(views::annotated_slice(&slice_gpu(atlas, spec)?, moment)?)
     } else {
-        mpr::render_spec(&atlas.model, spec).map_err(|e| anyhow::anyhow!("slice: {e}"))?
-    };
-    let mut image = slice.to_image();
-    let needle_mm = moment
-        .and_then(|m| m.tools.needle.as_ref())
-        .map(|n| n.nodes_mm.iter().map(|p| p.as_dvec3()).collect())
-        .unwrap_or_default();
-    let ann = Annotations {
-        needle_mm,
-        scale_bar: true,
-        letters: true,
-    };
-    annotate(&mut image, spec, &ann)?;
-    Ok(image)
+        Ok(views::slice_image(atlas, moment, spec).map_err(|e| anyhow::anyhow!("slice: {e}"))?)
+    }
 }
 
 /// The ray-cast view from anterior, framing the volume, with the tools of the moment.
@@ -433,42 +333,13 @@ fn render_3d(
     a: &RenderArgs,
     size: Size,
 ) -> anyhow::Result<Image> {
-    let render = presets::render_settings(&atlas.manifest);
-    let preset = Preset::from(a.preset);
-    let transfer = TransferFunction::from_preset(preset.of(&render)).map_err(|e| {
-        anyhow::anyhow!(
-            "render preset '{}' of atlas '{}': {e}",
-            preset.as_str(),
-            atlas.manifest.name
-        )
-    })?;
-    let grid = *atlas.model.ct().grid();
-    let (lo, hi) = grid.world_bounds();
-    let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), 0.0, 0.0);
-    let tagging = Tagging::from(a.tagging);
-    let clip = (tagging != Tagging::Off).then(|| {
-        let (point, axis) = focus(atlas, moment);
-        ClipPlane::through_tool(point.as_vec3(), axis.as_vec3(), &camera)
-    });
-    let spacing = grid.spacing_mm();
-    // Two samples per voxel along the finest axis (Nyquist for trilinear interpolation).
+    // Two samples per voxel along the finest axis by default (Nyquist for trilinear interpolation).
     let step_mm = match a.step_mm {
         Some(s) if s.is_finite() && (0.05..=10.0).contains(&s) => s,
         Some(s) => bail!("--step-mm {s}: the sample distance must be 0.05 … 10 mm"),
-        None => 0.5 * spacing[0].min(spacing[1]).min(spacing[2]) as f32,
+        None => views::default_step_mm(atlas),
     };
-    let scene = Scene {
-        camera,
-        transfer,
-        light: Light::over_shoulder(&camera),
-        clip,
-        tagging,
-        quality: Quality::fast(step_mm),
-        tools: moment.map(|m| m.tools.clone()).unwrap_or_default(),
-        background: Vec3::new(0.05, 0.06, 0.08),
-        deformed: None,
-        motion: None,
-    };
+    let scene = views::scene_3d(atlas, moment, Preset::from(a.preset), Tagging::from(a.tagging), step_mm)?;
     let volume = RenderVolume::new(Arc::new(atlas.model.clone()));
     if a.gpu {
         return render_gpu(&volume, &scene, size);
@@ -507,27 +378,7 @@ fn render_xray(
         },
         None => scenarios.first(),
     };
-    let mut toml = scenario.and_then(|s| s.c_arm).unwrap_or_default();
-    if let Some(v) = a.lao_deg {
-        toml.lao_deg = v;
-    }
-    if let Some(v) = a.cranial_deg {
-        toml.cranial_deg = v;
-    }
-    toml.check().map_err(|e| anyhow::anyhow!("the C-arm: {e}"))?;
-    let isocenter_mm = match atlas.planned_paths().first() {
-        Some(p) => p.target_mm,
-        None => {
-            let (lo, hi) = atlas.model.ct().grid().world_bounds();
-            (lo + hi) * 0.5
-        }
-    };
-    let scene = XrayScene {
-        c_arm: CArm::from_toml(&toml, isocenter_mm.as_vec3()),
-        needle: moment.and_then(|m| m.tools.needle.clone()),
-        contrast: moment.and_then(|m| m.contrast.clone()),
-    };
-    let window = XrayWindow::from_toml(&toml.window);
+    let (scene, window) = views::xray_scene(atlas, moment, scenario, a.lao_deg, a.cranial_deg)?;
     if a.gpu {
         return xray_gpu(atlas, &scene, size).map(|r| r.to_image(window));
     }
@@ -544,62 +395,29 @@ fn render_ultrasound(
     a: &RenderArgs,
     size: Size,
 ) -> anyhow::Result<Image> {
-    let path = atlas.planned_paths().first().cloned();
-    let probe = match (moment.and_then(|m| m.tools.probe), &path) {
-        (Some(p), _) => {
-            if let Some(asked) = a.probe
-                && (asked == ProbeArg::Linear) != (p.kind == stylet_physics::ProbeKind::Linear)
-            {
-                bail!(
-                    "--probe {asked:?}: the session holds a {:?} probe; leave --probe out",
-                    p.kind
-                );
-            }
-            p
-        }
-        (None, Some(path)) => {
-            let kind = match a.probe.unwrap_or(ProbeArg::Convex) {
-                ProbeArg::Linear => stylet_physics::ProbeKind::Linear,
-                ProbeArg::Convex => stylet_physics::ProbeKind::Convex,
-            };
-            ultrasound::probe::facing_path(&atlas.model, kind, path.entry_mm, path.target_mm)
-                .ok_or_else(|| anyhow::anyhow!("the planned path '{}' has no length", path.name))?
-        }
-        (None, None) => bail!(
-            "--view ultrasound needs a probe: a session recorded with one, or an atlas with a planned path to image ('{}' has none)",
-            atlas.manifest.name
-        ),
-    };
+    if let (Some(p), Some(asked)) = (moment.and_then(|m| m.tools.probe), a.probe)
+        && (asked == ProbeArg::Linear) != (p.kind == stylet_physics::ProbeKind::Linear)
+    {
+        bail!(
+            "--probe {asked:?}: the session holds a {:?} probe; leave --probe out",
+            p.kind
+        );
+    }
+    let kind = a.probe.map(|p| match p {
+        ProbeArg::Linear => stylet_physics::ProbeKind::Linear,
+        ProbeArg::Convex => stylet_physics::ProbeKind::Convex,
+    });
     let level = match (a.difficulty, moment) {
         (Some(d), _) => d.name().to_string(),
         (None, Some(m)) => m.difficulty.clone(),
         (None, None) => Difficulty::Beginner.name().to_string(),
     };
-    let presets = &atlas.manifest.difficulty;
-    let aids = match level.as_str() {
-        "advanced" => &presets.advanced,
-        "expert" => &presets.expert,
-        _ => &presets.beginner,
-    };
-    let needle = moment.and_then(|m| m.tools.needle.clone());
-    // The guide: where the needle goes on from its tip; with no needle, the planned path.
-    let guide_mm = aids.needle_guide.then(|| match &needle {
-        Some(n) if n.nodes_mm.len() >= 2 => Some([n.tip_mm(), n.tip_mm() + n.tip_tangent() * 100.0]),
-        _ => path.as_ref().map(|p| [p.entry_mm.as_vec3(), p.target_mm.as_vec3()]),
-    });
     let echo = Arc::new(EchoTable::of_atlas(atlas));
     let doppler = a.doppler.then(|| Arc::new(FlowField::build(&atlas.model, &echo)));
-    let scene = UltrasoundScene {
-        probe,
-        settings: UltrasoundSettings::for_probe(probe.kind),
-        seed: moment.map_or(0, |m| m.seed),
-        time_s: moment.map_or(0.0, |m| m.time_s),
-        needle,
-        echo,
-        doppler,
-        guide_mm: guide_mm.flatten(),
-        outline_target: aids.target_overlay,
-    };
+    let scene = views::ultrasound_scene(atlas, moment, kind, &level, echo, doppler).map_err(|e| match e {
+        ViewError::NoProbe { .. } => anyhow::anyhow!("--view {e}"),
+        e => anyhow::anyhow!(e),
+    })?;
     let frame = if a.gpu {
         ultrasound_gpu(atlas, &scene)?
     } else {

@@ -7,7 +7,9 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use stylet_app::haptic::{Ended, HapticLoop, LoopOptions};
+use stylet_app::views::{ViewKind, ViewRenderer, ViewSettings};
 use stylet_recorder::{Recording, SessionInfo, WriterOptions};
+use stylet_render::views::SessionLabels;
 
 use super::script::{Difficulty, script_simulation};
 
@@ -40,6 +42,39 @@ pub struct SimArgs {
     /// Tick as fast as the CPU allows instead of at the simulation's rate (same session file).
     #[arg(long)]
     pub unpaced: bool,
+    /// While the loop runs, draw these views from its snapshots one after the other, as the
+    /// window does, and report each view's frame rate: 3d, axial, needle, ultrasound, xray.
+    #[arg(long, value_delimiter = ',', value_parser = parse_view)]
+    pub views: Vec<ViewKind>,
+    /// Size of each drawn view on screen, WIDTHxHEIGHT.
+    #[arg(long, default_value = "1280x800", value_parser = parse_view_size)]
+    pub view_size: (u32, u32),
+}
+
+fn parse_view(s: &str) -> Result<ViewKind, String> {
+    ViewKind::parse(s).ok_or_else(|| {
+        let names: Vec<&str> = ViewKind::ALL.iter().map(|v| v.name()).collect();
+        format!("unknown view '{s}' (views: {})", names.join(", "))
+    })
+}
+
+fn parse_view_size(s: &str) -> Result<(u32, u32), String> {
+    let bad = || format!("'{s}' is not WIDTHxHEIGHT with each 16 … 4096");
+    let (w, h) = s.split_once('x').ok_or_else(bad)?;
+    let (w, h): (u32, u32) = (w.parse().map_err(|_| bad())?, h.parse().map_err(|_| bad())?);
+    if !(16..=4096).contains(&w) || !(16..=4096).contains(&h) {
+        return Err(bad());
+    }
+    Ok((w, h))
+}
+
+/// Frames drawn of one view while the loop ran.
+#[derive(Default)]
+struct ViewTally {
+    frames: u64,
+    drawing: std::time::Duration,
+    scale_sum: f64,
+    failed: Option<String>,
 }
 
 pub fn run(a: SimArgs) -> anyhow::Result<()> {
@@ -75,15 +110,58 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
         None => None,
     };
     let rate_hz = sim.tick_rate_hz();
+    let stem = script
+        .file_stem()
+        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+    let labels = SessionLabels {
+        scenario: a.scenario.clone().unwrap_or(stem),
+        difficulty: a.difficulty.name().to_string(),
+        seed: a.seed,
+    };
+    let atlas = std::sync::Arc::new(atlas);
+    let mut renderer = match a.views.is_empty() {
+        true => None,
+        false => Some(ViewRenderer::new(
+            std::sync::Arc::clone(&atlas),
+            ViewSettings::default(),
+        )?),
+    };
     let haptic = HapticLoop::spawn(
         sim,
         Box::new(device),
         recording,
+        labels,
         LoopOptions {
             paced,
             ..LoopOptions::default()
         },
     )?;
+    let mut tallies: Vec<ViewTally> = a.views.iter().map(|_| ViewTally::default()).collect();
+    if let Some(r) = renderer.as_mut() {
+        let (w, h) = a.view_size;
+        while !haptic.is_finished() {
+            let Some(snap) = haptic.snapshot() else {
+                std::thread::sleep(std::time::Duration::from_millis(1));
+                continue;
+            };
+            for (kind, tally) in a.views.iter().zip(tallies.iter_mut()) {
+                if tally.failed.is_some() {
+                    continue;
+                }
+                match r.draw(*kind, &snap.moment, w, h) {
+                    Ok(frame) => {
+                        tally.frames += 1;
+                        tally.drawing += frame.took;
+                        tally.scale_sum += f64::from(frame.scale);
+                    }
+                    // A view with nothing to show yet (the needle before it is taken) is
+                    // skipped this time, not counted.
+                    Err(stylet_render::views::ViewError::NoNeedle { .. }) => {}
+                    Err(e) => tally.failed = Some(e.to_string()),
+                }
+            }
+        }
+    }
     let report = haptic.join()?;
     let s = report.stats;
     let wall_s = report.wall.as_secs_f64();
@@ -98,6 +176,21 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
         s.worst_late.as_secs_f64() * 1e3,
         s.skipped_periods
     ));
+    let (w, h) = a.view_size;
+    for (kind, t) in a.views.iter().zip(&tallies) {
+        let ms = t.drawing.as_secs_f64() * 1e3 / t.frames.max(1) as f64;
+        match &t.failed {
+            Some(e) => super::say(&format!("view {}: failed: {e}", kind.name())),
+            None => super::say(&format!(
+                "view {} at {w}x{h}: {} frames, {:.1} ms each ({:.1} per second), mean scale {:.2}",
+                kind.name(),
+                t.frames,
+                ms,
+                1e3 / ms.max(1e-9),
+                t.scale_sum / t.frames.max(1) as f64
+            )),
+        }
+    }
     if report.ended == Ended::Stopped {
         super::say("stopped before the script's end");
     }

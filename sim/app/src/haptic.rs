@@ -19,6 +19,9 @@ use stylet_physics::glam::{DQuat, DVec3};
 use stylet_physics::{Simulation, TickOutput};
 use stylet_recorder::{Recording, WriteError, WriteSummary};
 use stylet_render::tools::ToolState;
+use stylet_render::views::{Moment, SessionLabels};
+use stylet_render::xray::ContrastOverlay;
+use stylet_render::xray::attenuation::DEFAULT_IODINE_MG_PER_ML;
 
 use crate::pacing::Pacer;
 
@@ -45,11 +48,11 @@ impl Default for LoopOptions {
 /// What the views draw: the state after one tick.
 #[derive(Debug, Clone)]
 pub struct Snapshot {
-    pub tick: u64,
     pub position_mm: DVec3,
     pub orientation: DQuat,
     pub output: TickOutput,
-    pub tools: ToolState,
+    /// The tools, the contrast medium and the session's labels at this tick.
+    pub moment: Moment,
 }
 
 /// Counters the loop keeps for the status bar (read at any time, never locked).
@@ -139,6 +142,7 @@ impl HapticLoop {
         sim: Simulation,
         device: Box<dyn Device + Send>,
         recording: Option<Recording>,
+        labels: SessionLabels,
         options: LoopOptions,
     ) -> Result<HapticLoop, LoopError> {
         let shared = Arc::new(Shared {
@@ -149,7 +153,7 @@ impl HapticLoop {
         let inner = Arc::clone(&shared);
         let handle = std::thread::Builder::new()
             .name("stylet-haptic".into())
-            .spawn(move || run(sim, device, recording, options, &inner))?;
+            .spawn(move || run(sim, device, recording, &labels, options, &inner))?;
         Ok(HapticLoop { shared, handle })
     }
 
@@ -188,9 +192,11 @@ fn run(
     mut sim: Simulation,
     mut device: Box<dyn Device + Send>,
     mut recording: Option<Recording>,
+    labels: &SessionLabels,
     options: LoopOptions,
     shared: &Shared,
 ) -> LoopReport {
+    let mut contrast = ContrastCache::default();
     let rate = sim.tick_rate_hz();
     let mut pacer = options.paced.then(|| Pacer::new(rate, sim.tick()));
     let publish_every = options.publish_every.max(1);
@@ -215,7 +221,7 @@ fn run(
             r.tick(&input, &out, &sim);
         }
         if out.tick % publish_every == 0 {
-            publish(shared, &sim, &input, &out);
+            publish(shared, &sim, &input, &out, labels, &mut contrast);
         }
         stats.ticks.fetch_add(1, Ordering::Relaxed);
         if let Some(p) = pacer.as_mut() {
@@ -270,16 +276,61 @@ fn run(
     }
 }
 
+/// The contrast overlay of the latest publication, rebuilt only when the contrast changed.
+#[derive(Default)]
+struct ContrastCache {
+    key: Option<[u64; 3]>,
+    overlay: Option<ContrastOverlay>,
+}
+
+impl ContrastCache {
+    fn get(&mut self, sim: &Simulation, out: &TickOutput) -> Option<ContrastOverlay> {
+        let key = [
+            out.contrast_in_ducts_ml.to_bits(),
+            out.extravasated_ml.to_bits(),
+            out.contrast_extent_mm.to_bits(),
+        ];
+        if self.key != Some(key) {
+            let dims = sim.atlas().ct().grid().dims();
+            self.overlay = ContrastOverlay::from_agent(sim.contrast(), dims, DEFAULT_IODINE_MG_PER_ML);
+            self.key = Some(key);
+        }
+        self.overlay.clone()
+    }
+}
+
 /// Publishes the state after a tick unless a view is reading the previous one.
-fn publish(shared: &Shared, sim: &Simulation, input: &stylet_physics::TickInput, out: &TickOutput) {
+fn publish(
+    shared: &Shared,
+    sim: &Simulation,
+    input: &stylet_physics::TickInput,
+    out: &TickOutput,
+    labels: &SessionLabels,
+    contrast: &mut ContrastCache,
+) {
     match shared.snapshot.try_lock() {
         Ok(mut slot) => {
+            let q = input.orientation;
             *slot = Some(Snapshot {
-                tick: out.tick,
                 position_mm: input.position_mm,
-                orientation: input.orientation,
+                orientation: q,
                 output: *out,
-                tools: ToolState::from_simulation(sim, input),
+                moment: Moment {
+                    tools: ToolState::from_simulation(sim, input),
+                    contrast: contrast.get(sim, out),
+                    scenario: labels.scenario.clone(),
+                    xray_on: out.xray_on,
+                    seed: labels.seed,
+                    time_s: out.time_s,
+                    difficulty: labels.difficulty.clone(),
+                    device_mm: out.tip_mm,
+                    axis: if q.is_finite() && q.length_squared() > 1e-12 {
+                        q.normalize() * DVec3::Z
+                    } else {
+                        out.insertion_dir
+                    },
+                    tick: out.tick,
+                },
             });
         }
         Err(_) => {

@@ -23,6 +23,7 @@ pub mod tools;
 pub mod transfer;
 pub mod transfer_table;
 pub mod ultrasound;
+pub mod views;
 pub mod volume;
 pub mod xray;
 
