@@ -199,3 +199,103 @@ fn a_session_recorded_while_the_server_is_down_is_uploaded_once_when_it_is_back(
     assert_eq!(status, 403);
     drop(server);
 }
+
+/// The window shows what `stylet render` shows for the same tick: the loop's snapshot at 8 s of
+/// the example puncture, drawn by the simulator's view renderer, equals the CLI's picture of the
+/// recorded session at 8 s, pixel for pixel, in every view.
+#[test]
+fn the_simulator_draws_what_stylet_render_draws_for_the_same_tick() {
+    use std::sync::Arc;
+    use stylet_app::haptic::{HapticLoop, LoopOptions};
+    use stylet_app::views::{ViewKind, ViewRenderer, ViewSettings};
+    use stylet_devices::Device;
+    use stylet_devices::script::{ScriptedDevice, parse, scripted_simulation};
+    use stylet_physics::{TickInput, TickOutput};
+    use stylet_render::views::SessionLabels;
+
+    /// The script's device, ending after `last`.
+    struct Until {
+        inner: ScriptedDevice,
+        last: u64,
+    }
+    impl Device for Until {
+        fn next(&mut self, tick: u64, last: Option<&TickOutput>) -> Option<TickInput> {
+            if tick > self.last {
+                None
+            } else {
+                self.inner.next(tick, last)
+            }
+        }
+    }
+
+    let f = Fixture::new();
+    let dir = f.atlases().join("phantom");
+    let atlas = Arc::new(stylet_atlas::load(&dir).unwrap());
+    let text = std::fs::read_to_string(script("success-intercostal")).unwrap();
+    let (sim, device) = scripted_simulation(
+        Arc::new(atlas.model.clone()),
+        &atlas.planned_paths(),
+        &parse(&text).unwrap(),
+    )
+    .unwrap();
+    let labels = SessionLabels {
+        scenario: "success-intercostal".into(),
+        difficulty: "beginner".into(),
+        seed: 0,
+    };
+    let haptic = HapticLoop::spawn(
+        sim,
+        Box::new(Until {
+            inner: device,
+            last: 8000,
+        }),
+        None,
+        labels,
+        LoopOptions {
+            paced: false,
+            publish_every: 16,
+        },
+    )
+    .unwrap();
+    while !haptic.is_finished() {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    let snap = haptic.snapshot().expect("the loop published");
+    haptic.join().unwrap();
+    assert_eq!(snap.moment.tick, 8000);
+    assert!(snap.moment.tools.needle.is_some());
+    let mut views = ViewRenderer::new(
+        Arc::clone(&atlas),
+        ViewSettings {
+            doppler: false,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    for kind in ViewKind::ALL {
+        let frame = views.draw(kind, &snap.moment, 240, 160).unwrap();
+        assert_eq!(frame.scale, 1.0, "the first frame is at full resolution");
+        let png = f.dir.path().join(format!("{}.png", kind.name()));
+        ok(&[
+            "render",
+            "--atlas",
+            s(&dir),
+            "--session",
+            s(&f.session("tina-ok")),
+            "--at",
+            "8",
+            "--view",
+            kind.name(),
+            "--size",
+            "240x160",
+            "--out",
+            s(&png),
+        ]);
+        let cli = stylet_render::image::Image::read_png(&png).unwrap();
+        assert!(
+            cli == frame.image,
+            "{}: the simulator's view differs from stylet render's",
+            kind.name()
+        );
+    }
+}

@@ -1,0 +1,267 @@
+//! Keyboard and mouse controls: a mapping a person learns in a minute (docs/simulator.md
+//! "Controls"), and the numeric-keypad commands of the thesis' workbench (§6.2.2).
+//!
+//! | input | does |
+//! |---|---|
+//! | W / S | move the tool away from / toward you |
+//! | A / D | move it left / right |
+//! | R / F | move it up / down |
+//! | arrow keys | tilt the tool (up/down, left/right) |
+//! | Shift | everything at a quarter of the speed (fine placement) |
+//! | left drag | move the tool in the screen plane (0.2 mm per pixel) |
+//! | right drag | aim it (0.25° per pixel) |
+//! | wheel | advance / withdraw along the tool's axis (1 mm per notch, 0.2 with Shift) |
+//! | keypad 1 2 3 4 | finger, linear probe, convex probe, needle 18 G |
+//! | keypad 5 | stylet out / in |
+//! | keypad 6 | inject 1 ml of contrast |
+//! | keypad 7 | fluoroscopy on / off; keypad 8: one X-ray shot |
+//! | keypad 9 | breath hold / release |
+//! | keypad 0 | next view layout; keypad Enter: finish the session |
+//!
+//! The window turns its key and pointer events into a [`ControlInput`] per frame; what the
+//! controls produce is a pose and events for the live device, which the session records.
+
+use stylet_devices::rate::{RatePose, RateSettings};
+use stylet_physics::glam::{DQuat, DVec3};
+use stylet_physics::needle::spec::Gauge;
+use stylet_physics::{Event, ProbeKind, TickOutput, ToolSpec};
+
+/// Speeds of held keys (a key is full deflection).
+pub const KEYS: RateSettings = RateSettings {
+    full_scale: 1.0,
+    deadzone: 0.0,
+    speed_mm_per_s: 20.0,
+    turn_deg_per_s: 30.0,
+};
+/// Mouse drag in the screen plane (mm per pixel).
+pub const DRAG_MM_PER_PX: f64 = 0.2;
+/// Right-drag aiming (degrees per pixel).
+pub const AIM_DEG_PER_PX: f64 = 0.25;
+/// Wheel advance (mm per notch).
+pub const WHEEL_MM_PER_NOTCH: f64 = 1.0;
+/// Speed factor with Shift held.
+pub const FINE: f64 = 0.25;
+
+/// The keys that move the tool, held or not.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct HeldKeys {
+    pub away: bool,
+    pub toward: bool,
+    pub left: bool,
+    pub right: bool,
+    pub up: bool,
+    pub down: bool,
+    pub tilt_up: bool,
+    pub tilt_down: bool,
+    pub tilt_left: bool,
+    pub tilt_right: bool,
+    pub fine: bool,
+}
+
+/// One frame of keyboard and pointer input.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ControlInput {
+    pub held: HeldKeys,
+    /// Left-button drag this frame (pixels; x right, y down on screen).
+    pub drag_px: [f64; 2],
+    /// Right-button drag this frame (pixels).
+    pub aim_px: [f64; 2],
+    /// Wheel notches this frame (> 0: away from you, into the patient).
+    pub wheel_notches: f64,
+}
+
+fn axis(plus: bool, minus: bool) -> f64 {
+    f64::from(u8::from(plus)) - f64::from(u8::from(minus))
+}
+
+/// Moves `pose` by one frame of input lasting `dt_s`, in the frame of `view` (the camera: device
+/// x right, y away from the viewer, z up).
+pub fn apply(input: &ControlInput, view: DQuat, pose: &mut RatePose, dt_s: f64) {
+    let k = &input.held;
+    let fine = if k.fine { FINE } else { 1.0 };
+    let translation = DVec3::new(axis(k.right, k.left), axis(k.away, k.toward), axis(k.up, k.down)) * fine;
+    let rotation = DVec3::new(axis(k.tilt_up, k.tilt_down), 0.0, axis(k.tilt_left, k.tilt_right)) * fine;
+    pose.step(&KEYS, view, translation, rotation, dt_s);
+    // Drag: screen right is the view's x, screen down its −z.
+    let [dx, dy] = input.drag_px;
+    pose.position_mm += view * DVec3::new(dx, 0.0, -dy) * (DRAG_MM_PER_PX * fine);
+    let [ax, ay] = input.aim_px;
+    if ax != 0.0 || ay != 0.0 {
+        let yaw = DQuat::from_axis_angle(view * DVec3::Z, (-ax * AIM_DEG_PER_PX * fine).to_radians());
+        let pitch = DQuat::from_axis_angle(view * DVec3::X, (-ay * AIM_DEG_PER_PX * fine).to_radians());
+        pose.orientation = (yaw * pitch * pose.orientation).normalize();
+    }
+    if input.wheel_notches != 0.0 {
+        let tool_axis = pose.orientation * DVec3::Z;
+        pose.position_mm += tool_axis * (input.wheel_notches * WHEEL_MM_PER_NOTCH * fine);
+    }
+}
+
+/// What a keypad key asks for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Command {
+    Tool(ToolSpec),
+    ToggleStylet,
+    Contrast {
+        ml: f64,
+    },
+    ToggleFluoroscopy,
+    /// One short exposure: X-ray on now, off [`XRAY_SHOT_S`] later (the window sends the off).
+    XrayShot,
+    ToggleBreathHold,
+    NextLayout,
+    Finish,
+}
+
+/// Length of a single X-ray shot (s).
+pub const XRAY_SHOT_S: f64 = 0.1;
+
+/// A numeric-keypad key.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum KeypadKey {
+    Digit(u8),
+    Enter,
+}
+
+/// The command of a keypad key, if it has one.
+pub fn keypad(key: KeypadKey) -> Option<Command> {
+    Some(match key {
+        KeypadKey::Digit(1) => Command::Tool(ToolSpec::Finger),
+        KeypadKey::Digit(2) => Command::Tool(ToolSpec::Probe(ProbeKind::Linear)),
+        KeypadKey::Digit(3) => Command::Tool(ToolSpec::Probe(ProbeKind::Convex)),
+        KeypadKey::Digit(4) => Command::Tool(ToolSpec::Needle {
+            gauge: Gauge::G18,
+            length_mm: 150.0,
+            stylet_in: true,
+        }),
+        KeypadKey::Digit(5) => Command::ToggleStylet,
+        KeypadKey::Digit(6) => Command::Contrast { ml: 1.0 },
+        KeypadKey::Digit(7) => Command::ToggleFluoroscopy,
+        KeypadKey::Digit(8) => Command::XrayShot,
+        KeypadKey::Digit(9) => Command::ToggleBreathHold,
+        KeypadKey::Digit(0) => Command::NextLayout,
+        KeypadKey::Enter => Command::Finish,
+        KeypadKey::Digit(_) => return None,
+    })
+}
+
+/// The events a command sends, given the state of the latest tick (toggles need it). Layout and
+/// finishing are the window's own business and send none.
+pub fn events_of(command: Command, last: &TickOutput) -> Vec<Event> {
+    match command {
+        Command::Tool(t) => vec![Event::SelectTool(t)],
+        Command::ToggleStylet if last.stylet_in => vec![Event::StyletRemove],
+        Command::ToggleStylet => vec![Event::StyletInsert],
+        Command::Contrast { ml } => vec![Event::ContrastInject { ml }],
+        Command::ToggleFluoroscopy if last.xray_on => vec![Event::XrayOff],
+        Command::ToggleFluoroscopy | Command::XrayShot => vec![Event::XrayOn],
+        Command::ToggleBreathHold if last.breath_hold => vec![Event::BreathRelease],
+        Command::ToggleBreathHold => vec![Event::BreathHold],
+        Command::NextLayout | Command::Finish => Vec::new(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pose() -> RatePose {
+        RatePose {
+            position_mm: DVec3::ZERO,
+            orientation: DQuat::IDENTITY,
+        }
+    }
+
+    #[test]
+    fn keys_move_at_their_speed_and_shift_slows_them() {
+        let mut p = pose();
+        let away = ControlInput {
+            held: HeldKeys {
+                away: true,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        apply(&away, DQuat::IDENTITY, &mut p, 0.5);
+        assert!((p.position_mm - DVec3::new(0.0, 10.0, 0.0)).length() < 1e-9);
+        let mut q = pose();
+        let fine = ControlInput {
+            held: HeldKeys {
+                left: true,
+                fine: true,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        apply(&fine, DQuat::IDENTITY, &mut q, 1.0);
+        assert!((q.position_mm - DVec3::new(-5.0, 0.0, 0.0)).length() < 1e-9);
+        // Opposite keys cancel.
+        let mut r = pose();
+        let both = ControlInput {
+            held: HeldKeys {
+                up: true,
+                down: true,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        apply(&both, DQuat::IDENTITY, &mut r, 1.0);
+        assert_eq!(r.position_mm, DVec3::ZERO);
+    }
+
+    #[test]
+    fn the_mouse_drags_in_the_screen_plane_aims_and_the_wheel_advances_along_the_tool() {
+        let mut p = pose();
+        let drag = ControlInput {
+            drag_px: [10.0, 5.0],
+            ..Default::default()
+        };
+        apply(&drag, DQuat::IDENTITY, &mut p, 0.016);
+        // 10 px right, 5 px down: +2 mm x, −1 mm z.
+        assert!((p.position_mm - DVec3::new(2.0, 0.0, -1.0)).length() < 1e-9);
+        // The wheel: 3 notches along the tool's axis (+z here).
+        let wheel = ControlInput {
+            wheel_notches: 3.0,
+            ..Default::default()
+        };
+        apply(&wheel, DQuat::IDENTITY, &mut p, 0.016);
+        assert!((p.position_mm - DVec3::new(2.0, 0.0, 2.0)).length() < 1e-9);
+        // Aiming 360 px to the side turns the axis by 90° about the view's vertical.
+        let mut a = pose();
+        a.orientation = DQuat::from_rotation_x(-std::f64::consts::FRAC_PI_2); // axis along +y
+        let aim = ControlInput {
+            aim_px: [360.0, 0.0],
+            ..Default::default()
+        };
+        apply(&aim, DQuat::IDENTITY, &mut a, 0.016);
+        let axis = a.orientation * DVec3::Z;
+        assert!((axis - DVec3::X).length() < 1e-9, "{axis:?}");
+        assert_eq!(a.position_mm, DVec3::ZERO);
+    }
+
+    #[test]
+    fn the_keypad_sends_the_events_of_the_thesis_workbench() {
+        let mut last = crate::tests_support::output();
+        assert_eq!(
+            keypad(KeypadKey::Digit(2)).map(|c| events_of(c, &last)),
+            Some(vec![Event::SelectTool(ToolSpec::Probe(ProbeKind::Linear))])
+        );
+        let stylet = keypad(KeypadKey::Digit(5)).unwrap();
+        assert_eq!(events_of(stylet, &last), vec![Event::StyletRemove]);
+        last.stylet_in = false;
+        assert_eq!(events_of(stylet, &last), vec![Event::StyletInsert]);
+        let fluoro = keypad(KeypadKey::Digit(7)).unwrap();
+        assert_eq!(events_of(fluoro, &last), vec![Event::XrayOn]);
+        last.xray_on = true;
+        assert_eq!(events_of(fluoro, &last), vec![Event::XrayOff]);
+        assert_eq!(
+            events_of(keypad(KeypadKey::Digit(6)).unwrap(), &last),
+            vec![Event::ContrastInject { ml: 1.0 }]
+        );
+        assert_eq!(keypad(KeypadKey::Enter), Some(Command::Finish));
+        assert!(events_of(Command::Finish, &last).is_empty());
+        assert_eq!(keypad(KeypadKey::Digit(42)), None);
+        // Every digit 0–9 does something.
+        assert!((0..=9).all(|d| keypad(KeypadKey::Digit(d)).is_some()));
+    }
+}
