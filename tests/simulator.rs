@@ -299,3 +299,72 @@ fn the_simulator_draws_what_stylet_render_draws_for_the_same_tick() {
         );
     }
 }
+
+/// The outbox's retrier uploads by itself once the server is back, with no one pressing a
+/// button.
+#[test]
+fn the_retrier_uploads_when_the_server_comes_back() {
+    use stylet_app::outbox::{Backoff, Retrier};
+    let f = Fixture::new();
+    let db = Db::Sqlite;
+    f.users(&db);
+    let addr = {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        l.local_addr().unwrap()
+    };
+    let base = format!("http://{addr}");
+    // A token made on a first run of the server, which then goes down.
+    let token = {
+        let server = Server::start_at(&addr.to_string(), &f.data(), &db, &f.atlases(), &[]);
+        let t = ServiceClient::new(&server.base)
+            .upload_token("tina", "tina-password", "retrier test")
+            .unwrap();
+        drop(server);
+        t
+    };
+    let outbox = Outbox::open(&f.dir.path().join("outbox")).unwrap();
+    outbox.add(&f.session("tina-ok")).unwrap();
+    let retrier = Retrier::start(
+        outbox.clone(),
+        Box::new(TokenUploader {
+            client: ServiceClient::new(&base),
+            token,
+        }),
+        Backoff {
+            first: std::time::Duration::from_millis(100),
+            max: std::time::Duration::from_millis(400),
+        },
+    )
+    .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(500));
+    assert_eq!(
+        outbox.pending().unwrap().len(),
+        1,
+        "nothing can be uploaded while the server is down"
+    );
+    let last = retrier.last_round().unwrap().unwrap();
+    assert!(last.waiting[0].1.contains("unavailable"), "{last:?}");
+    let server = Server::start_at(&addr.to_string(), &f.data(), &db, &f.atlases(), &[]);
+    // The round that uploads records itself after the file has left: wait for the record.
+    let t0 = std::time::Instant::now();
+    while retrier.uploaded().is_empty() {
+        assert!(
+            t0.elapsed().as_secs() < 60,
+            "not uploaded a minute after the server came back: {:?}",
+            retrier.last_round()
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    assert_eq!(retrier.uploaded().len(), 1);
+    assert!(outbox.pending().unwrap().is_empty());
+    drop(retrier);
+    let tina = login(&server.base, "tina");
+    let (_, list, _) = call(
+        "GET",
+        &format!("{}/api/sessions", server.base),
+        Some(&tina),
+        None,
+        false,
+    );
+    assert_eq!(list["total"], 1, "{list}");
+}

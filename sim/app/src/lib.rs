@@ -12,6 +12,7 @@ pub mod haptic;
 pub mod outbox;
 pub mod pacing;
 pub mod service_client;
+pub mod tablet;
 pub mod views;
 
 /// Values shared by the unit tests.

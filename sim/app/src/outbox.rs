@@ -184,6 +184,128 @@ impl Outbox {
     }
 }
 
+/// How long the retrier waits between rounds while the service is unavailable: `first`, then
+/// twice as long each time, at most `max`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Backoff {
+    pub first: std::time::Duration,
+    pub max: std::time::Duration,
+}
+
+impl Default for Backoff {
+    fn default() -> Self {
+        Backoff {
+            first: std::time::Duration::from_secs(1),
+            max: std::time::Duration::from_secs(60),
+        }
+    }
+}
+
+#[derive(Default)]
+struct RetrierState {
+    stop: bool,
+    wake: bool,
+    last: Option<Result<Round, String>>,
+    /// Every upload the service confirmed since the start: (file name, session id).
+    uploaded: Vec<(String, String)>,
+}
+
+/// Uploads the outbox in the background: a round at start, after every [`Retrier::wake`] (a
+/// session was added), and while sessions wait, again after a growing pause ([`Backoff`]).
+pub struct Retrier {
+    state: std::sync::Arc<(std::sync::Mutex<RetrierState>, std::sync::Condvar)>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Retrier {
+    pub fn start(outbox: Outbox, uploader: Box<dyn Uploader + Send>, backoff: Backoff) -> Result<Retrier, OutboxError> {
+        let state = std::sync::Arc::new((
+            std::sync::Mutex::new(RetrierState::default()),
+            std::sync::Condvar::new(),
+        ));
+        let shared = std::sync::Arc::clone(&state);
+        let thread = std::thread::Builder::new()
+            .name("stylet-outbox".into())
+            .spawn(move || {
+                let (lock, cvar) = &*shared;
+                let mut pause = backoff.first;
+                loop {
+                    let round = outbox.upload_all(&*uploader);
+                    let waiting = match &round {
+                        Ok(r) => !r.waiting.is_empty(),
+                        Err(_) => true,
+                    };
+                    let Ok(mut st) = lock.lock() else { return };
+                    if let Ok(r) = &round {
+                        st.uploaded.extend(r.uploaded.iter().cloned());
+                    }
+                    st.last = Some(round.map_err(|e| e.to_string()));
+                    // Wait: for a wake-up only when nothing waits; else at most the pause.
+                    let deadline = std::time::Instant::now() + if waiting { pause } else { backoff.max };
+                    while !st.stop && !st.wake {
+                        let now = std::time::Instant::now();
+                        if now >= deadline {
+                            break;
+                        }
+                        st = match cvar.wait_timeout(st, deadline - now) {
+                            Ok((g, _)) => g,
+                            Err(_) => return,
+                        };
+                    }
+                    if st.stop {
+                        return;
+                    }
+                    if st.wake {
+                        st.wake = false;
+                        pause = backoff.first;
+                    } else if waiting {
+                        pause = (pause * 2).min(backoff.max);
+                    }
+                }
+            })
+            .map_err(|source| OutboxError::Io {
+                path: PathBuf::from("(outbox thread)"),
+                source,
+            })?;
+        Ok(Retrier {
+            state,
+            thread: Some(thread),
+        })
+    }
+
+    /// Starts a round now (call after adding a session, or after a new login).
+    pub fn wake(&self) {
+        let (lock, cvar) = &*self.state;
+        if let Ok(mut st) = lock.lock() {
+            st.wake = true;
+            cvar.notify_all();
+        }
+    }
+
+    /// Every upload the service confirmed since the retrier started.
+    pub fn uploaded(&self) -> Vec<(String, String)> {
+        self.state.0.lock().map(|st| st.uploaded.clone()).unwrap_or_default()
+    }
+
+    /// What the latest round did (for the window's status line).
+    pub fn last_round(&self) -> Option<Result<Round, String>> {
+        self.state.0.lock().ok().and_then(|st| st.last.clone())
+    }
+}
+
+impl Drop for Retrier {
+    fn drop(&mut self) {
+        let (lock, cvar) = &*self.state;
+        if let Ok(mut st) = lock.lock() {
+            st.stop = true;
+            cvar.notify_all();
+        }
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
 /// Makes a rename or removal in `dir` durable (best effort where directories cannot be synced).
 fn sync_dir(dir: &Path) {
     if let Ok(d) = fs::File::open(dir) {
