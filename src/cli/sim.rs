@@ -144,12 +144,14 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
                 std::thread::sleep(std::time::Duration::from_millis(1));
                 continue;
             };
+            let mut drawn = false;
             for (kind, tally) in a.views.iter().zip(tallies.iter_mut()) {
                 if tally.failed.is_some() {
                     continue;
                 }
                 match r.draw(*kind, &snap.moment, w, h) {
                     Ok(frame) => {
+                        drawn = true;
                         tally.frames += 1;
                         tally.drawing += frame.took;
                         tally.scale_sum += f64::from(frame.scale);
@@ -159,6 +161,10 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
                     Err(stylet_render::views::ViewError::NoNeedle { .. }) => {}
                     Err(e) => tally.failed = Some(e.to_string()),
                 }
+            }
+            if !drawn {
+                // Nothing to draw yet (or every view failed): do not spin.
+                std::thread::sleep(std::time::Duration::from_millis(10));
             }
         }
     }

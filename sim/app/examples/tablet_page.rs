@@ -15,7 +15,7 @@ fn main() {
             std::process::exit(1);
         }
     };
-    println!("tablet page on http://{}, pairing code {}", page.addr, page.code);
+    println!("tablet page on http://{}, pairing code {}", page.addr, page.code());
     for cmd in rx {
         println!("{cmd:?}");
     }

@@ -19,12 +19,14 @@
 //! | keypad 0 | next view layout; keypad Enter: finish the session |
 //!
 //! The window turns its key and pointer events into a [`ControlInput`] per frame; what the
-//! controls produce is a pose and events for the live device, which the session records.
+//! controls produce is a target pose and [`Command`]s for the live device, which resolves the
+//! commands into events in the loop (`stylet_devices::command`); the session records them.
 
+pub use stylet_devices::command::Command;
 use stylet_devices::rate::{RatePose, RateSettings};
 use stylet_physics::glam::{DQuat, DVec3};
 use stylet_physics::needle::spec::Gauge;
-use stylet_physics::{Event, ProbeKind, TickOutput, ToolSpec};
+use stylet_physics::{ProbeKind, ToolSpec};
 
 /// Speeds of held keys (a key is full deflection).
 pub const KEYS: RateSettings = RateSettings {
@@ -97,25 +99,6 @@ pub fn apply(input: &ControlInput, view: DQuat, pose: &mut RatePose, dt_s: f64) 
     }
 }
 
-/// What a keypad key asks for.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Command {
-    Tool(ToolSpec),
-    ToggleStylet,
-    Contrast {
-        ml: f64,
-    },
-    ToggleFluoroscopy,
-    /// One short exposure: X-ray on now, off [`XRAY_SHOT_S`] later (the window sends the off).
-    XrayShot,
-    ToggleBreathHold,
-    NextLayout,
-    Finish,
-}
-
-/// Length of a single X-ray shot (s).
-pub const XRAY_SHOT_S: f64 = 0.1;
-
 /// A numeric-keypad key.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum KeypadKey {
@@ -143,22 +126,6 @@ pub fn keypad(key: KeypadKey) -> Option<Command> {
         KeypadKey::Enter => Command::Finish,
         KeypadKey::Digit(_) => return None,
     })
-}
-
-/// The events a command sends, given the state of the latest tick (toggles need it). Layout and
-/// finishing are the window's own business and send none.
-pub fn events_of(command: Command, last: &TickOutput) -> Vec<Event> {
-    match command {
-        Command::Tool(t) => vec![Event::SelectTool(t)],
-        Command::ToggleStylet if last.stylet_in => vec![Event::StyletRemove],
-        Command::ToggleStylet => vec![Event::StyletInsert],
-        Command::Contrast { ml } => vec![Event::ContrastInject { ml }],
-        Command::ToggleFluoroscopy if last.xray_on => vec![Event::XrayOff],
-        Command::ToggleFluoroscopy | Command::XrayShot => vec![Event::XrayOn],
-        Command::ToggleBreathHold if last.breath_hold => vec![Event::BreathRelease],
-        Command::ToggleBreathHold => vec![Event::BreathHold],
-        Command::NextLayout | Command::Finish => Vec::new(),
-    }
 }
 
 #[cfg(test)]
@@ -240,28 +207,27 @@ mod tests {
     }
 
     #[test]
-    fn the_keypad_sends_the_events_of_the_thesis_workbench() {
-        let mut last = crate::tests_support::output();
+    fn the_keypad_sends_the_commands_of_the_thesis_workbench() {
+        use stylet_devices::command::{Switches, resolve};
+        use stylet_physics::Event;
+        let mut s = Switches {
+            stylet_in: true,
+            xray_on: false,
+            breath_hold: false,
+            shot: false,
+        };
         assert_eq!(
-            keypad(KeypadKey::Digit(2)).map(|c| events_of(c, &last)),
+            keypad(KeypadKey::Digit(2)).map(|c| resolve(c, &mut s)),
             Some(vec![Event::SelectTool(ToolSpec::Probe(ProbeKind::Linear))])
         );
-        let stylet = keypad(KeypadKey::Digit(5)).unwrap();
-        assert_eq!(events_of(stylet, &last), vec![Event::StyletRemove]);
-        last.stylet_in = false;
-        assert_eq!(events_of(stylet, &last), vec![Event::StyletInsert]);
-        let fluoro = keypad(KeypadKey::Digit(7)).unwrap();
-        assert_eq!(events_of(fluoro, &last), vec![Event::XrayOn]);
-        last.xray_on = true;
-        assert_eq!(events_of(fluoro, &last), vec![Event::XrayOff]);
-        assert_eq!(
-            events_of(keypad(KeypadKey::Digit(6)).unwrap(), &last),
-            vec![Event::ContrastInject { ml: 1.0 }]
-        );
+        assert_eq!(keypad(KeypadKey::Digit(5)), Some(Command::ToggleStylet));
+        assert_eq!(keypad(KeypadKey::Digit(6)), Some(Command::Contrast { ml: 1.0 }));
+        assert_eq!(keypad(KeypadKey::Digit(7)), Some(Command::ToggleFluoroscopy));
+        assert_eq!(keypad(KeypadKey::Digit(8)), Some(Command::XrayShot));
+        assert_eq!(keypad(KeypadKey::Digit(9)), Some(Command::ToggleBreathHold));
+        assert_eq!(keypad(KeypadKey::Digit(0)), Some(Command::NextLayout));
         assert_eq!(keypad(KeypadKey::Enter), Some(Command::Finish));
-        assert!(events_of(Command::Finish, &last).is_empty());
         assert_eq!(keypad(KeypadKey::Digit(42)), None);
-        // Every digit 0–9 does something.
         assert!((0..=9).all(|d| keypad(KeypadKey::Digit(d)).is_some()));
     }
 }

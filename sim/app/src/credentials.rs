@@ -12,13 +12,24 @@ use serde::{Deserialize, Serialize};
 /// File name of the credentials in the configuration directory.
 pub const FILE_NAME: &str = "credentials.json";
 
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Credentials {
     pub server_url: String,
     pub username: String,
     /// An API token of scope `upload` (docs/api.md "API tokens").
     pub token: String,
+}
+
+impl std::fmt::Debug for Credentials {
+    /// Never prints the token.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Credentials")
+            .field("server_url", &self.server_url)
+            .field("username", &self.username)
+            .field("token", &"…")
+            .finish()
+    }
 }
 
 #[derive(Debug, thiserror::Error)]

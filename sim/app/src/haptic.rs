@@ -18,7 +18,6 @@ use stylet_devices::Device;
 use stylet_physics::glam::{DQuat, DVec3};
 use stylet_physics::{Simulation, TickOutput};
 use stylet_recorder::{Recording, WriteError, WriteSummary};
-use stylet_render::tools::ToolState;
 use stylet_render::views::{Moment, SessionLabels};
 use stylet_render::xray::ContrastOverlay;
 use stylet_render::xray::attenuation::DEFAULT_IODINE_MG_PER_ML;
@@ -129,10 +128,19 @@ struct Shared {
     stats: LoopStats,
 }
 
-/// A running haptic loop.
+/// A running haptic loop. Dropping it without [`HapticLoop::join`] asks the loop to stop (the
+/// recording is then finished by the loop thread on its own).
 pub struct HapticLoop {
     shared: Arc<Shared>,
-    handle: JoinHandle<LoopReport>,
+    handle: Option<JoinHandle<LoopReport>>,
+}
+
+impl Drop for HapticLoop {
+    fn drop(&mut self) {
+        if self.handle.is_some() {
+            self.stop();
+        }
+    }
 }
 
 impl HapticLoop {
@@ -154,7 +162,10 @@ impl HapticLoop {
         let handle = std::thread::Builder::new()
             .name("stylet-haptic".into())
             .spawn(move || run(sim, device, recording, &labels, options, &inner))?;
-        Ok(HapticLoop { shared, handle })
+        Ok(HapticLoop {
+            shared,
+            handle: Some(handle),
+        })
     }
 
     /// The latest published state (a brief lock the loop never waits on).
@@ -172,12 +183,13 @@ impl HapticLoop {
     }
 
     pub fn is_finished(&self) -> bool {
-        self.handle.is_finished()
+        self.handle.as_ref().is_none_or(|h| h.is_finished())
     }
 
     /// Waits for the loop to end (call [`Self::stop`] first unless the device ends by itself).
-    pub fn join(self) -> Result<LoopReport, LoopError> {
-        self.handle.join().map_err(|p| {
+    pub fn join(mut self) -> Result<LoopReport, LoopError> {
+        let handle = self.handle.take().expect("joined once");
+        handle.join().map_err(|p| {
             let why = p
                 .downcast_ref::<String>()
                 .cloned()
@@ -299,7 +311,8 @@ impl ContrastCache {
     }
 }
 
-/// Publishes the state after a tick unless a view is reading the previous one.
+/// Publishes the state after a tick unless a view is reading the previous one. The snapshot is
+/// built before the lock is tried, so a view never waits for the building either.
 fn publish(
     shared: &Shared,
     sim: &Simulation,
@@ -308,31 +321,14 @@ fn publish(
     labels: &SessionLabels,
     contrast: &mut ContrastCache,
 ) {
+    let snapshot = Snapshot {
+        position_mm: input.position_mm,
+        orientation: input.orientation,
+        output: *out,
+        moment: Moment::with_contrast(sim, input, out, labels, contrast.get(sim, out)),
+    };
     match shared.snapshot.try_lock() {
-        Ok(mut slot) => {
-            let q = input.orientation;
-            *slot = Some(Snapshot {
-                position_mm: input.position_mm,
-                orientation: q,
-                output: *out,
-                moment: Moment {
-                    tools: ToolState::from_simulation(sim, input),
-                    contrast: contrast.get(sim, out),
-                    scenario: labels.scenario.clone(),
-                    xray_on: out.xray_on,
-                    seed: labels.seed,
-                    time_s: out.time_s,
-                    difficulty: labels.difficulty.clone(),
-                    device_mm: out.tip_mm,
-                    axis: if q.is_finite() && q.length_squared() > 1e-12 {
-                        q.normalize() * DVec3::Z
-                    } else {
-                        out.insertion_dir
-                    },
-                    tick: out.tick,
-                },
-            });
-        }
+        Ok(mut slot) => *slot = Some(snapshot),
         Err(_) => {
             shared.stats.skipped_publications.fetch_add(1, Ordering::Relaxed);
         }

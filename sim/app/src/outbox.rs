@@ -54,10 +54,12 @@ pub struct Round {
     pub needs_login: bool,
 }
 
-/// A directory of sessions waiting for upload.
+/// A directory of sessions waiting for upload. Clones share one lock, so rounds of one process
+/// never run at the same time (two processes on one outbox are not supported).
 #[derive(Debug, Clone)]
 pub struct Outbox {
     dir: PathBuf,
+    round: std::sync::Arc<std::sync::Mutex<()>>,
 }
 
 impl Outbox {
@@ -71,7 +73,10 @@ impl Outbox {
                 fs::remove_file(&p).map_err(io(&p))?;
             }
         }
-        Ok(Outbox { dir: dir.to_path_buf() })
+        Ok(Outbox {
+            dir: dir.to_path_buf(),
+            round: Default::default(),
+        })
     }
 
     pub fn dir(&self) -> &Path {
@@ -104,7 +109,14 @@ impl Outbox {
             .filter(|c| c.is_ascii_alphanumeric() || *c == '-')
             .take(64)
             .collect();
-        let name = format!("{ms:015}-{id}.mcap");
+        let _round = self.round.lock();
+        // A name not in use (the same millisecond and id: a suffix).
+        let mut name = format!("{ms:015}-{id}.mcap");
+        let mut n = 1;
+        while self.dir.join(&name).exists() {
+            name = format!("{ms:015}-{id}-{n}.mcap");
+            n += 1;
+        }
         let incoming = self.dir.join(format!(".incoming-{name}"));
         let mut f = fs::File::create(&incoming).map_err(io(&incoming))?;
         f.write_all(&data).map_err(io(&incoming))?;
@@ -133,7 +145,12 @@ impl Outbox {
     pub fn refused(&self) -> Result<Vec<(String, String)>, OutboxError> {
         let dir = self.dir.join("refused");
         let mut out = Vec::new();
-        for name in (Outbox { dir: dir.clone() }).pending()? {
+        for name in (Outbox {
+            dir: dir.clone(),
+            round: Default::default(),
+        })
+        .pending()?
+        {
             let reason = fs::read_to_string(dir.join(format!("{name}.txt"))).unwrap_or_default();
             out.push((name, reason.trim().to_string()));
         }
@@ -141,41 +158,74 @@ impl Outbox {
     }
 
     /// Tries to upload every waiting session, oldest first. Stops at the first sign that the
-    /// service is unavailable or the token is refused (the rest wait for the next round).
+    /// service is unavailable or the account may not upload (the rest wait for the next round).
+    /// A file that cannot be read is reported and skipped; the others go on.
     pub fn upload_all(&self, uploader: &dyn Uploader) -> Result<Round, OutboxError> {
+        self.upload_all_until(uploader, &|| false)
+    }
+
+    /// [`Self::upload_all`], checking `stop` before each file (a closing window).
+    pub fn upload_all_until(&self, uploader: &dyn Uploader, stop: &dyn Fn() -> bool) -> Result<Round, OutboxError> {
+        let _round = self.round.lock();
         let mut round = Round::default();
-        let pending = self.pending()?;
-        let mut stop: Option<String> = None;
-        for name in pending {
-            if let Some(reason) = &stop {
+        let mut halt: Option<String> = None;
+        for name in self.pending()? {
+            if halt.is_none() && stop() {
+                halt = Some("the simulator is closing: will retry".into());
+            }
+            if let Some(reason) = &halt {
                 round.waiting.push((name, reason.clone()));
                 continue;
             }
             let path = self.dir.join(&name);
-            let data = fs::read(&path).map_err(io(&path))?;
+            let data = match fs::read(&path) {
+                Ok(d) => d,
+                // Gone since the listing: nothing to do.
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+                Err(e) => {
+                    round.waiting.push((name, format!("cannot read it ({e}): will retry")));
+                    continue;
+                }
+            };
             match uploader.upload(&data) {
                 UploadReply::Accepted { id, .. } => {
-                    fs::remove_file(&path).map_err(io(&path))?;
+                    match fs::remove_file(&path) {
+                        Ok(()) => {}
+                        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                        // Confirmed but still here: the next round sends it again and the
+                        // service recognises it (200, same id).
+                        Err(e) => {
+                            round
+                                .waiting
+                                .push((name.clone(), format!("uploaded, but cannot be removed ({e})")));
+                        }
+                    }
                     round.uploaded.push((name, id));
                 }
                 UploadReply::Refused { status, reason } => {
                     let why = format!("refused by the server ({status}): {reason}");
                     let target = self.dir.join("refused").join(&name);
                     let note = self.dir.join("refused").join(format!("{name}.txt"));
-                    fs::write(&note, format!("{why}\n")).map_err(io(&note))?;
-                    fs::rename(&path, &target).map_err(io(&target))?;
-                    round.refused.push((name, why));
+                    match fs::write(&note, format!("{why}\n")).and_then(|()| fs::rename(&path, &target)) {
+                        Ok(()) => round.refused.push((name, why)),
+                        Err(e) => round.waiting.push((name, format!("{why}; cannot move it aside ({e})"))),
+                    }
                 }
                 UploadReply::Unauthorized { reason } => {
                     round.needs_login = true;
                     let why = format!("the server refused the token ({reason}): log in again");
                     round.waiting.push((name, why.clone()));
-                    stop = Some(why);
+                    halt = Some(why);
+                }
+                UploadReply::Forbidden { reason } => {
+                    let why = format!("the account may not upload ({reason}): will retry");
+                    round.waiting.push((name, why.clone()));
+                    halt = Some(why);
                 }
                 UploadReply::Unavailable { reason } => {
                     let why = format!("the server is unavailable ({reason}): will retry");
                     round.waiting.push((name, why.clone()));
-                    stop = Some(why);
+                    halt = Some(why);
                 }
             }
         }
@@ -203,6 +253,8 @@ impl Default for Backoff {
 
 #[derive(Default)]
 struct RetrierState {
+    /// Replaced by [`Retrier::set_uploader`] (a new login).
+    uploader: Option<std::sync::Arc<dyn Uploader + Send + Sync>>,
     stop: bool,
     wake: bool,
     last: Option<Result<Round, String>>,
@@ -214,23 +266,37 @@ struct RetrierState {
 /// session was added), and while sessions wait, again after a growing pause ([`Backoff`]).
 pub struct Retrier {
     state: std::sync::Arc<(std::sync::Mutex<RetrierState>, std::sync::Condvar)>,
+    stopping: std::sync::Arc<std::sync::atomic::AtomicBool>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
 impl Retrier {
-    pub fn start(outbox: Outbox, uploader: Box<dyn Uploader + Send>, backoff: Backoff) -> Result<Retrier, OutboxError> {
+    pub fn start(
+        outbox: Outbox,
+        uploader: std::sync::Arc<dyn Uploader + Send + Sync>,
+        backoff: Backoff,
+    ) -> Result<Retrier, OutboxError> {
         let state = std::sync::Arc::new((
-            std::sync::Mutex::new(RetrierState::default()),
+            std::sync::Mutex::new(RetrierState {
+                uploader: Some(uploader),
+                ..Default::default()
+            }),
             std::sync::Condvar::new(),
         ));
+        let stopping = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
         let shared = std::sync::Arc::clone(&state);
+        let stop_flag = std::sync::Arc::clone(&stopping);
         let thread = std::thread::Builder::new()
             .name("stylet-outbox".into())
             .spawn(move || {
                 let (lock, cvar) = &*shared;
                 let mut pause = backoff.first;
                 loop {
-                    let round = outbox.upload_all(&*uploader);
+                    let Some(uploader) = lock.lock().ok().and_then(|st| st.uploader.clone()) else {
+                        return;
+                    };
+                    let stop = || stop_flag.load(std::sync::atomic::Ordering::Relaxed);
+                    let round = outbox.upload_all_until(&*uploader, &stop);
                     let waiting = match &round {
                         Ok(r) => !r.waiting.is_empty(),
                         Err(_) => true,
@@ -269,11 +335,20 @@ impl Retrier {
             })?;
         Ok(Retrier {
             state,
+            stopping,
             thread: Some(thread),
         })
     }
 
-    /// Starts a round now (call after adding a session, or after a new login).
+    /// Uploads with `uploader` from now on (a new login's token) and starts a round.
+    pub fn set_uploader(&self, uploader: std::sync::Arc<dyn Uploader + Send + Sync>) {
+        if let Ok(mut st) = self.state.0.lock() {
+            st.uploader = Some(uploader);
+        }
+        self.wake();
+    }
+
+    /// Starts a round now (call after adding a session).
     pub fn wake(&self) {
         let (lock, cvar) = &*self.state;
         if let Ok(mut st) = lock.lock() {
@@ -294,7 +369,9 @@ impl Retrier {
 }
 
 impl Drop for Retrier {
+    /// Stops after the file being sent (at most one upload's time limits).
     fn drop(&mut self) {
+        self.stopping.store(true, std::sync::atomic::Ordering::Relaxed);
         let (lock, cvar) = &*self.state;
         if let Ok(mut st) = lock.lock() {
             st.stop = true;

@@ -50,7 +50,9 @@ impl Pacer {
 
     /// When `tick` is due (it may start then).
     pub fn due(&self, tick: u64) -> Instant {
-        self.start + self.period * (tick.saturating_sub(self.first_tick)) as u32
+        let n = tick.saturating_sub(self.first_tick);
+        // u64 nanoseconds: no wrap for 584 years of ticks.
+        self.start + Duration::from_nanos((self.period.as_nanos() as u64).saturating_mul(n))
     }
 
     /// Waits until `tick` is due (returns at once when it is already due).

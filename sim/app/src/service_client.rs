@@ -18,6 +18,9 @@ pub enum UploadReply {
     Refused { status: u16, reason: String },
     /// The token is missing, expired or revoked (401): log in again.
     Unauthorized { reason: String },
+    /// The account may not upload (403 without a file problem: a disabled account, a token of
+    /// the wrong scope): nothing is moved aside; the next round tries again.
+    Forbidden { reason: String },
     /// The service is down, overloaded or unreachable: try again later.
     Unavailable { reason: String },
 }
@@ -25,6 +28,8 @@ pub enum UploadReply {
 /// Errors of logging in.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum LoginError {
+    #[error("{0}")]
+    Address(#[from] AddressError),
     #[error("the server at {url} cannot be reached: {reason}")]
     Unreachable { url: String, reason: String },
     #[error("the server refused: {status} {reason}")]
@@ -33,8 +38,42 @@ pub enum LoginError {
     Protocol(String),
 }
 
+/// A server address the simulator will not use.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum AddressError {
+    #[error("'{0}' is not a server address such as https://stylet.example.org")]
+    NotUrl(String),
+    #[error(
+        "'{0}': use https (a password and tokens must not cross the network in clear); plain http is accepted for this computer only (localhost, 127.0.0.1, [::1])"
+    )]
+    Cleartext(String),
+}
+
+/// Checks a server address: `https://HOST[:PORT]`, or `http://` to this computer only.
+pub fn check_address(base: &str) -> Result<String, AddressError> {
+    let base = base.trim().trim_end_matches('/');
+    let (scheme, rest) = base
+        .split_once("://")
+        .ok_or_else(|| AddressError::NotUrl(base.to_string()))?;
+    let host_port = rest.split('/').next().unwrap_or("");
+    if host_port.is_empty() || rest.contains(['?', '#', '@', ' ']) {
+        return Err(AddressError::NotUrl(base.to_string()));
+    }
+    let host = if let Some(v6) = host_port.strip_prefix('[') {
+        v6.split(']').next().unwrap_or("")
+    } else {
+        host_port.rsplit_once(':').map_or(host_port, |(h, _)| h)
+    };
+    match scheme.to_ascii_lowercase().as_str() {
+        "https" => Ok(base.to_string()),
+        "http" if matches!(host, "localhost" | "127.0.0.1" | "::1") => Ok(base.to_string()),
+        "http" => Err(AddressError::Cleartext(base.to_string())),
+        _ => Err(AddressError::NotUrl(base.to_string())),
+    }
+}
+
 /// A client of one scoring service.
-#[derive(Debug, Clone)]
+#[derive(Clone)]
 pub struct ServiceClient {
     base: String,
     agent: ureq::Agent,
@@ -57,17 +96,18 @@ fn read_body(resp: ureq::Response) -> std::io::Result<String> {
 }
 
 impl ServiceClient {
-    /// A client of the service at `base` (e.g. `https://stylet.example.org`), with time limits so
-    /// that a dead server never hangs the caller.
-    pub fn new(base: &str) -> ServiceClient {
+    /// A client of the service at `base` (e.g. `https://stylet.example.org`; see
+    /// [`check_address`]), with time limits so that a dead server never hangs the caller: 5 s to
+    /// connect, 60 s for any one read or write (a large upload on a slow line may take longer in
+    /// all, as long as it moves).
+    pub fn new(base: &str) -> Result<ServiceClient, AddressError> {
+        let base = check_address(base)?;
         let agent = ureq::AgentBuilder::new()
             .timeout_connect(Duration::from_secs(5))
-            .timeout(Duration::from_secs(120))
+            .timeout_read(Duration::from_secs(60))
+            .timeout_write(Duration::from_secs(60))
             .build();
-        ServiceClient {
-            base: base.trim_end_matches('/').to_string(),
-            agent,
-        }
+        Ok(ServiceClient { base, agent })
     }
 
     pub fn base(&self) -> &str {
@@ -158,7 +198,8 @@ impl ServiceClient {
                 }
             }
             Err(ureq::Error::Status(401, r)) => UploadReply::Unauthorized { reason: reason_of(r) },
-            Err(ureq::Error::Status(status @ (400 | 403 | 413 | 415 | 422), r)) => UploadReply::Refused {
+            Err(ureq::Error::Status(403, r)) => UploadReply::Forbidden { reason: reason_of(r) },
+            Err(ureq::Error::Status(status @ (400 | 413 | 415 | 422), r)) => UploadReply::Refused {
                 status,
                 reason: reason_of(r),
             },
@@ -170,15 +211,68 @@ impl ServiceClient {
     }
 }
 
+impl std::fmt::Debug for ServiceClient {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ServiceClient").field("base", &self.base).finish()
+    }
+}
+
 /// A client and an API token: what the outbox uploads with.
-#[derive(Debug, Clone)]
+#[derive(Clone)]
 pub struct TokenUploader {
     pub client: ServiceClient,
     pub token: String,
 }
 
+impl std::fmt::Debug for TokenUploader {
+    /// Never prints the token.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TokenUploader")
+            .field("client", &self.client)
+            .field("token", &"…")
+            .finish()
+    }
+}
+
 impl crate::outbox::Uploader for TokenUploader {
     fn upload(&self, session: &[u8]) -> UploadReply {
         self.client.upload(&self.token, session)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn passwords_and_tokens_never_cross_the_network_in_clear() {
+        assert_eq!(
+            check_address("https://stylet.example.org/").unwrap(),
+            "https://stylet.example.org"
+        );
+        assert!(check_address("https://stylet.example.org:8443").is_ok());
+        assert!(check_address("http://127.0.0.1:8080").is_ok());
+        assert!(check_address("http://localhost:8080").is_ok());
+        assert!(check_address("http://[::1]:8080").is_ok());
+        let e = check_address("http://stylet.example.org").unwrap_err();
+        assert!(e.to_string().contains("use https"), "{e}");
+        assert!(matches!(
+            check_address("http://127.0.0.1.evil.org"),
+            Err(AddressError::Cleartext(_))
+        ));
+        assert!(matches!(
+            check_address("http://localhost@evil.org"),
+            Err(AddressError::NotUrl(_))
+        ));
+        assert!(matches!(check_address("ftp://x"), Err(AddressError::NotUrl(_))));
+        assert!(matches!(
+            check_address("stylet.example.org"),
+            Err(AddressError::NotUrl(_))
+        ));
+        let t = TokenUploader {
+            client: ServiceClient::new("https://stylet.example.org").unwrap(),
+            token: "secret-token".into(),
+        };
+        assert!(!format!("{t:?}").contains("secret-token"));
     }
 }

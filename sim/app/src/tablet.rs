@@ -3,10 +3,14 @@
 //! on the device never has to let go.
 //!
 //! Off by default. When started it shows a six-digit pairing code in the window; a browser that
-//! enters it gets a cookie (HttpOnly, SameSite=Strict) and the buttons. Five wrong codes lock
-//! pairing for a minute. Buttons post a [`Command`] to the simulator, which turns it into events
-//! exactly as the numeric keypad does (`controls::events_of`), so the session records them like
-//! any other event. No script, no external asset; bodies are limited to 1 KiB.
+//! enters it gets a cookie (HttpOnly, SameSite=Strict, 12 h) and the buttons, and the code
+//! changes (each code pairs one tablet; at most [`MAX_TABLETS`]). Five wrong codes lock pairing for
+//! a minute and change the code. Requests must name this machine by address (or `localhost`) in
+//! `Host`, and must not come from another site (`Origin`, `Sec-Fetch-Site`): a web page elsewhere
+//! cannot drive the page through DNS rebinding or a cross-site form. Buttons post a [`Command`]
+//! to the simulator, which the live device resolves into events in the loop exactly as for the
+//! numeric keypad, so the session records them like any other event. No script, no external
+//! asset; bodies are limited to 1 KiB.
 
 use std::net::SocketAddr;
 use std::sync::mpsc::Sender;
@@ -21,12 +25,16 @@ use axum::routing::{get, post};
 use stylet_physics::needle::spec::Gauge;
 use stylet_physics::{ProbeKind, ToolSpec};
 
-use crate::controls::Command;
+use stylet_devices::command::Command;
 
 /// Wrong pairing codes allowed before pairing locks.
 pub const MAX_WRONG_CODES: u32 = 5;
 /// How long pairing stays locked after too many wrong codes.
 pub const LOCKOUT: Duration = Duration::from_secs(60);
+/// Most tablets paired at once.
+pub const MAX_TABLETS: usize = 8;
+/// Time a stopping page waits for open connections.
+const SHUTDOWN_GRACE: Duration = Duration::from_secs(2);
 const COOKIE: &str = "stylet_tablet";
 
 /// The buttons, in page order: form value, label, command.
@@ -88,9 +96,8 @@ struct AppState {
 /// A running tablet page.
 pub struct TabletPage {
     pub addr: SocketAddr,
-    /// The code to show in the window.
-    pub code: String,
-    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    pairing: Arc<Mutex<Pairing>>,
+    stop: Option<tokio::sync::watch::Sender<bool>>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
@@ -132,11 +139,13 @@ impl TabletPage {
         listener
             .set_nonblocking(true)
             .map_err(|source| TabletError::Bind { addr, source })?;
-        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+        let (stop, stopped) = tokio::sync::watch::channel(false);
+        let pairing = Arc::clone(&state.pairing);
         let app = Router::new()
             .route("/", get(page))
             .route("/pair", post(pair))
             .route("/command", post(command))
+            .layer(axum::middleware::from_fn(same_site_only))
             .layer(DefaultBodyLimit::max(1024))
             .with_state(state);
         let thread = std::thread::Builder::new()
@@ -149,27 +158,72 @@ impl TabletPage {
                     let Ok(listener) = tokio::net::TcpListener::from_std(listener) else {
                         return;
                     };
-                    let _ = axum::serve(listener, app)
-                        .with_graceful_shutdown(async {
-                            let _ = stopped.await;
-                        })
-                        .await;
+                    let mut graceful = stopped.clone();
+                    let mut deadline = stopped;
+                    let serve = axum::serve(listener, app).with_graceful_shutdown(async move {
+                        let _ = graceful.changed().await;
+                    });
+                    // Open connections get a short grace, then the page stops regardless.
+                    tokio::select! {
+                        _ = serve => {}
+                        _ = async move {
+                            let _ = deadline.changed().await;
+                            tokio::time::sleep(SHUTDOWN_GRACE).await;
+                        } => {}
+                    }
                 });
             })
             .map_err(TabletError::Thread)?;
+        let _ = code;
         Ok(TabletPage {
             addr: local,
-            code,
+            pairing,
             stop: Some(stop),
             thread: Some(thread),
         })
     }
+
+    /// The pairing code to show in the window now (it changes after each pairing and lockout).
+    pub fn code(&self) -> String {
+        self.pairing.lock().map(|p| p.code.clone()).unwrap_or_default()
+    }
+}
+
+/// Whether a `Host` header names this machine by address (or `localhost`), with any port.
+fn host_is_address(host: &str) -> bool {
+    let name = if let Some(v6) = host.strip_prefix('[') {
+        v6.split(']').next().unwrap_or("")
+    } else {
+        host.rsplit_once(':').map_or(host, |(h, _)| h)
+    };
+    name == "localhost" || name.parse::<std::net::IpAddr>().is_ok()
+}
+
+/// Refuses requests that name this page by a domain (DNS rebinding) or come from another site.
+async fn same_site_only(request: axum::extract::Request, next: axum::middleware::Next) -> Response {
+    let headers = request.headers();
+    let host = headers.get(header::HOST).and_then(|v| v.to_str().ok()).unwrap_or("");
+    let cross_site = headers
+        .get("sec-fetch-site")
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v == "cross-site");
+    let foreign_origin = headers
+        .get(header::ORIGIN)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|o| o.split_once("://").map(|(_, h)| h) != Some(host));
+    if !host_is_address(host) || cross_site || foreign_origin {
+        return html(
+            StatusCode::FORBIDDEN,
+            shell("<p>Open this page by the simulator's address.</p>"),
+        );
+    }
+    next.run(request).await
 }
 
 impl Drop for TabletPage {
     fn drop(&mut self) {
         if let Some(s) = self.stop.take() {
-            let _ = s.send(());
+            let _ = s.send(true);
         }
         if let Some(t) = self.thread.take() {
             let _ = t.join();
@@ -267,25 +321,34 @@ async fn pair(State(state): State<AppState>, Form(form): Form<PairForm>) -> Resp
             if p.wrong >= MAX_WRONG_CODES {
                 p.wrong = 0;
                 p.locked_until = Some(Instant::now() + LOCKOUT);
+                if let Ok(c) = pairing_code() {
+                    p.code = c;
+                }
             }
             return html(
                 StatusCode::FORBIDDEN,
                 shell("<p>Wrong code.</p><p><a href=\"/\">Try again</a></p>"),
             );
         }
-        let Ok(cookie) = random_hex(16) else {
+        if p.paired.len() >= MAX_TABLETS {
+            return html(
+                StatusCode::CONFLICT,
+                shell("<p>Enough tablets are paired with this simulator.</p>"),
+            );
+        }
+        let (Ok(cookie), Ok(next_code)) = (random_hex(16), pairing_code()) else {
             return html(StatusCode::INTERNAL_SERVER_ERROR, shell("<p>Pairing failed.</p>"));
         };
         p.wrong = 0;
-        // A handful of tablets at most; the oldest pairing goes first.
-        if p.paired.len() >= 8 {
-            p.paired.remove(0);
-        }
         p.paired.push(cookie.clone());
+        // Each code pairs one tablet.
+        p.code = next_code;
         cookie
     };
     let mut r = Redirect::to("/").into_response();
-    if let Ok(v) = HeaderValue::from_str(&format!("{COOKIE}={cookie}; HttpOnly; SameSite=Strict; Path=/")) {
+    if let Ok(v) = HeaderValue::from_str(&format!(
+        "{COOKIE}={cookie}; HttpOnly; SameSite=Strict; Path=/; Max-Age=43200"
+    )) {
         r.headers_mut().insert(header::SET_COOKIE, v);
     }
     r
@@ -352,15 +415,19 @@ mod tests {
         let (tx, rx) = std::sync::mpsc::channel();
         let page = TabletPage::start("127.0.0.1:0".parse().unwrap(), tx).unwrap();
         let base = format!("http://{}", page.addr);
-        assert_eq!(page.code.len(), 6);
+        let code = page.code();
+        assert_eq!(code.len(), 6);
         // Unpaired: the pairing form, and commands are refused.
         assert!(get(&base, None).contains("pairing code"));
         assert_eq!(post(&base, "/command", "cmd=stylet", None).0, 403);
         assert_eq!(post(&base, "/command", "cmd=stylet", Some("stylet_tablet=00")).0, 403);
         // Pairing with the code shown in the window.
-        let (status, _, cookie) = post(&base, "/pair", &format!("code={}", page.code), None);
+        let (status, _, cookie) = post(&base, "/pair", &format!("code={code}"), None);
         assert_eq!(status, 303);
         let cookie = cookie.expect("a pairing cookie");
+        // The code pairs one tablet only.
+        assert_eq!(post(&base, "/pair", &format!("code={code}"), None).0, 403);
+        assert_ne!(page.code(), code);
         let buttons = get(&base, Some(&cookie));
         assert!(
             buttons.contains("Stylet out / in") && buttons.contains("Finish"),
@@ -376,13 +443,46 @@ mod tests {
         let big = format!("cmd={}", "x".repeat(2000));
         assert_eq!(post(&base, "/command", &big, Some(&cookie)).0, 413);
         // Guessing: five wrong codes lock pairing, even for the right code; paired tablets go on.
-        let wrong = if page.code == "000000" { "111111" } else { "000000" };
-        for _ in 0..MAX_WRONG_CODES {
+        // (One wrong code was spent above.)
+        let wrong = if page.code() == "000000" { "111111" } else { "000000" };
+        for _ in 1..MAX_WRONG_CODES {
             assert_eq!(post(&base, "/pair", &format!("code={wrong}"), None).0, 403);
         }
-        assert_eq!(post(&base, "/pair", &format!("code={}", page.code), None).0, 429);
+        assert_eq!(post(&base, "/pair", &format!("code={}", page.code()), None).0, 429);
         assert_eq!(post(&base, "/command", "cmd=finish", Some(&cookie)).0, 303);
         assert_eq!(rx.try_recv().unwrap(), Command::Finish);
+        // Named by a domain (DNS rebinding) or posted from another site: refused.
+        let raw = |head: &str| {
+            use std::io::{Read, Write};
+            let mut sock = std::net::TcpStream::connect(page.addr).unwrap();
+            let body = "cmd=stylet";
+            write!(
+                sock,
+                "POST /command HTTP/1.1\r\n{head}\r\nCookie: {cookie}\r\nContent-Type: application/x-www-form-urlencoded\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+                body.len()
+            )
+            .unwrap();
+            let mut out = String::new();
+            let _ = sock.read_to_string(&mut out);
+            out.split_whitespace().nth(1).unwrap_or("").to_string()
+        };
+        assert_eq!(raw("Host: evil.example.org"), "403");
+        let here = format!("Host: {}", page.addr);
+        assert_eq!(raw(&format!("{here}\r\nOrigin: http://evil.example.org")), "403");
+        assert_eq!(raw(&format!("{here}\r\nSec-Fetch-Site: cross-site")), "403");
+        assert_eq!(raw(&format!("{here}\r\nOrigin: http://{}", page.addr)), "303");
+        assert_eq!(rx.try_recv().unwrap(), Command::ToggleStylet);
+        assert!(rx.try_recv().is_err());
         drop(page);
+    }
+
+    #[test]
+    fn hosts_must_be_addresses() {
+        assert!(host_is_address("192.168.1.20:8765"));
+        assert!(host_is_address("[fe80::1]:8765"));
+        assert!(host_is_address("localhost:8765"));
+        assert!(!host_is_address("evil.example.org"));
+        assert!(!host_is_address("192.168.1.20.nip.io:8765"));
+        assert!(!host_is_address(""));
     }
 }

@@ -12,17 +12,26 @@ use crate::spacemouse::{Model, Motion6, SpaceMouseState, find_model};
 
 /// Most reports taken from the device in one poll (a tick); the rest wait for the next.
 const MAX_REPORTS_PER_POLL: usize = 32;
+/// A deflected SpaceMouse repeats its reports every ≈ 16 ms; with none for this long (a wireless
+/// link lost) the deflection counts as zero, so the tool does not run on by itself.
+const STALE_AFTER: std::time::Duration = std::time::Duration::from_millis(250);
+/// HID usage of six-axis controllers (Generic Desktop page, Multi-axis Controller); a receiver
+/// exposes other interfaces too (keyboard, vendor) that must not be opened instead.
+const USAGE_PAGE_GENERIC_DESKTOP: u16 = 0x01;
+const USAGE_MULTI_AXIS: u16 = 0x08;
 
 /// A SpaceMouse opened through hidapi.
 pub struct HidSpaceMouse {
     device: HidDevice,
     pub model: Model,
     state: SpaceMouseState,
+    last_report: std::time::Instant,
 }
 
 /// The connected SpaceMice Stylet knows (model and hidapi path).
 pub fn connected_spacemice(api: &HidApi) -> Vec<(Model, std::ffi::CString)> {
     api.device_list()
+        .filter(|d| d.usage_page() == USAGE_PAGE_GENERIC_DESKTOP && d.usage() == USAGE_MULTI_AXIS)
         .filter_map(|d| find_model(d.vendor_id(), d.product_id()).map(|m| (m, d.path().to_owned())))
         .collect()
 }
@@ -47,6 +56,7 @@ impl HidSpaceMouse {
             device,
             model,
             state: SpaceMouseState::default(),
+            last_report: std::time::Instant::now(),
         })
     }
 }
@@ -58,12 +68,17 @@ impl SixAxisSource for HidSpaceMouse {
             match self.device.read(&mut buf) {
                 Ok(0) => break,
                 Ok(n) => {
+                    self.last_report = std::time::Instant::now();
                     self.state
                         .apply(self.model.family, &buf[..n])
                         .map_err(|e| SourceError(format!("{}: {e}", self.model.name)))?;
                 }
                 Err(e) => return Err(SourceError(format!("{}: {e}", self.model.name))),
             }
+        }
+        if self.last_report.elapsed() > STALE_AFTER {
+            self.state.translation = [0; 3];
+            self.state.rotation = [0; 3];
         }
         Ok((self.state.motion(&self.model), self.state.buttons))
     }

@@ -3,6 +3,7 @@
 //! faster-than-real-time runs; the live device the window drives ([`live`]); SpaceMouse reports
 //! ([`spacemouse`]) and rate control ([`rate`]); raw-HID device profiles ([`hid_profile`]).
 
+pub mod command;
 #[cfg(feature = "hid")]
 pub mod hid;
 pub mod hid_profile;

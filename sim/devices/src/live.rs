@@ -1,14 +1,17 @@
-//! A device driven from the user interface: the window (keyboard, mouse, SpaceMouse, tablet page)
-//! sets the pose it wants and queues events; the haptic loop takes them each tick.
+//! A device driven from the user interface: the window (keyboard, mouse, tablet page) sets the
+//! pose it wants, queues events and commands; the haptic loop takes them each tick.
 //!
 //! The loop never waits for the window: it reads the shared state with `try_lock`, and when the
-//! window holds the lock it repeats the previous pose (events stay queued for the next tick). The
-//! force of each tick goes back the same way, for the on-screen force display of devices that
-//! cannot display force themselves.
+//! window holds the lock it keeps moving toward the last target it saw (events and commands stay
+//! queued for the next tick; none is lost). The window updates its target once per frame; the
+//! tool follows it tick by tick at a bounded speed ([`FOLLOW_MM_PER_S`], [`FOLLOW_DEG_PER_S`]), so
+//! the physics sees smooth motion, not a jump every 16 ticks. Commands are resolved into events
+//! here, against the latest tick ([`crate::command`]). The force of each tick goes back to the
+//! window, for devices that cannot display force themselves.
 //!
 //! With a six-axis source (a SpaceMouse, [`SixAxisSource`]) the loop moves the pose itself by
 //! rate control, tick by tick in the window's view, and hands the pose back for display; the
-//! window then only sends events and the view.
+//! window then only sends events, commands and the view.
 
 use std::sync::{Arc, Mutex};
 
@@ -16,8 +19,14 @@ use stylet_physics::glam::{DQuat, DVec3};
 use stylet_physics::{Event, TickInput, TickOutput};
 
 use crate::Device;
+use crate::command::{Command, Switches, XRAY_SHOT_S, resolve};
 use crate::rate::{RatePose, RateSettings};
 use crate::spacemouse::Motion6;
+
+/// Fastest the tool follows the window's target (mm/s).
+pub const FOLLOW_MM_PER_S: f64 = 150.0;
+/// Fastest the tool turns toward the window's target (degrees/s).
+pub const FOLLOW_DEG_PER_S: f64 = 180.0;
 
 /// A six-axis input polled once per tick without waiting (a SpaceMouse through hidapi).
 pub trait SixAxisSource: Send {
@@ -34,12 +43,15 @@ pub struct SourceError(pub String);
 /// What the window asks for.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LiveInput {
+    /// The pose the tool should move to.
     pub position_mm: DVec3,
     pub orientation: DQuat,
     pub buttons: u32,
     /// Events for the next tick, in order.
     pub events: Vec<Event>,
-    /// Set to end the session (the loop's device then ends).
+    /// Commands for the next tick, in order (resolved after the events).
+    pub commands: Vec<Command>,
+    /// Set to end the session (the loop's device then ends, after what is queued).
     pub finished: bool,
     /// The device frame's orientation in the world (the camera), for rate control.
     pub view: DQuat,
@@ -64,26 +76,32 @@ pub struct LiveHandle {
 pub struct LiveDevice {
     input: Arc<Mutex<LiveInput>>,
     feedback: Arc<Mutex<LiveFeedback>>,
+    /// The pose given to the last tick.
     last: TickInput,
+    /// The window's target as last seen.
+    target: (DVec3, DQuat),
+    view: DQuat,
+    dt_s: f64,
     rate: Option<RateControl>,
+    /// Tick at which a single shot's X-ray goes off.
+    shot_off_at: Option<u64>,
 }
 
 /// A six-axis source moving the pose.
 struct RateControl {
     source: Box<dyn SixAxisSource>,
     settings: RateSettings,
-    dt_s: f64,
-    view: DQuat,
     errors: u64,
 }
 
-/// A live device starting at a pose, and the window's handle to it.
-pub fn live_device(position_mm: DVec3, orientation: DQuat) -> (LiveDevice, LiveHandle) {
+/// A live device starting at a pose, ticking at `rate_hz`, and the window's handle to it.
+pub fn live_device(position_mm: DVec3, orientation: DQuat, rate_hz: u32) -> (LiveDevice, LiveHandle) {
     let input = Arc::new(Mutex::new(LiveInput {
         position_mm,
         orientation,
         buttons: 0,
         events: Vec::new(),
+        commands: Vec::new(),
         finished: false,
         view: DQuat::IDENTITY,
     }));
@@ -93,20 +111,22 @@ pub fn live_device(position_mm: DVec3, orientation: DQuat) -> (LiveDevice, LiveH
             input: Arc::clone(&input),
             feedback: Arc::clone(&feedback),
             last: TickInput::pose(position_mm, orientation),
+            target: (position_mm, orientation),
+            view: DQuat::IDENTITY,
+            dt_s: 1.0 / f64::from(rate_hz.max(1)),
             rate: None,
+            shot_off_at: None,
         },
         LiveHandle { input, feedback },
     )
 }
 
 impl LiveDevice {
-    /// Lets `source` move the pose by rate control, ticking at `rate_hz`.
-    pub fn with_source(mut self, source: Box<dyn SixAxisSource>, settings: RateSettings, rate_hz: u32) -> Self {
+    /// Lets `source` move the pose by rate control.
+    pub fn with_source(mut self, source: Box<dyn SixAxisSource>, settings: RateSettings) -> Self {
         self.rate = Some(RateControl {
             source,
             settings,
-            dt_s: 1.0 / f64::from(rate_hz.max(1)),
-            view: DQuat::IDENTITY,
             errors: 0,
         });
         self
@@ -116,21 +136,36 @@ impl LiveDevice {
     pub fn source_errors(&self) -> u64 {
         self.rate.as_ref().map_or(0, |r| r.errors)
     }
+
+    /// One tick's move toward the window's target, at most the follow speeds.
+    fn follow(&self) -> (DVec3, DQuat) {
+        let (p0, q0) = (self.last.position_mm, self.last.orientation);
+        let (p1, q1) = self.target;
+        let p = p0 + (p1 - p0).clamp_length_max(FOLLOW_MM_PER_S * self.dt_s);
+        let angle = q0.angle_between(q1);
+        let max = FOLLOW_DEG_PER_S.to_radians() * self.dt_s;
+        let q = if angle <= max || !angle.is_finite() {
+            q1
+        } else {
+            q0.slerp(q1, max / angle).normalize()
+        };
+        (p, q)
+    }
 }
 
 impl LiveHandle {
-    /// Sets the view (camera orientation) that rate control moves the tool in.
-    pub fn set_view(&self, view: DQuat) {
-        if let Ok(mut i) = self.input.lock() {
-            i.view = view;
-        }
-    }
-
-    /// Sets the pose the tool should take from the next tick on.
+    /// Sets the pose the tool should move to.
     pub fn set_pose(&self, position_mm: DVec3, orientation: DQuat) {
         if let Ok(mut i) = self.input.lock() {
             i.position_mm = position_mm;
             i.orientation = orientation;
+        }
+    }
+
+    /// Sets the view (camera orientation) that rate control moves the tool in.
+    pub fn set_view(&self, view: DQuat) {
+        if let Ok(mut i) = self.input.lock() {
+            i.view = view;
         }
     }
 
@@ -147,14 +182,21 @@ impl LiveHandle {
         }
     }
 
-    /// Ends the session after the events queued so far.
+    /// Queues a command, resolved into events in the loop against the latest tick.
+    pub fn command(&self, command: Command) {
+        if let Ok(mut i) = self.input.lock() {
+            i.commands.push(command);
+        }
+    }
+
+    /// Ends the session after what is queued so far.
     pub fn finish(&self) {
         if let Ok(mut i) = self.input.lock() {
             i.finished = true;
         }
     }
 
-    /// The pose asked for last.
+    /// The pose asked for last (with a six-axis source: the pose the loop reached).
     pub fn pose(&self) -> Option<(DVec3, DQuat)> {
         self.input.lock().ok().map(|i| (i.position_mm, i.orientation))
     }
@@ -174,55 +216,78 @@ impl Device for LiveDevice {
                 torque_nmm: out.torque_nmm,
             };
         }
-        let _ = tick;
-        let mut input = TickInput::pose(self.last.position_mm, self.last.orientation);
-        input.buttons = self.last.buttons;
-        let shared = self.input.try_lock();
-        if let Ok(shared) = &shared
-            && shared.finished
-            && shared.events.is_empty()
-        {
-            return None;
+        let mut events = Vec::new();
+        let mut commands = Vec::new();
+        let mut buttons = self.last.buttons;
+        let mut shared = self.input.try_lock().ok();
+        if let Some(s) = shared.as_mut() {
+            if s.finished && s.events.is_empty() && s.commands.is_empty() {
+                return None;
+            }
+            self.target = (s.position_mm, s.orientation);
+            self.view = s.view;
+            buttons = s.buttons;
+            events = std::mem::take(&mut s.events);
+            commands = std::mem::take(&mut s.commands);
         }
-        match (&mut self.rate, shared) {
-            (Some(rate), shared) => {
-                // The source moves the pose; the window gets it back for display.
-                if let Ok(s) = &shared {
-                    rate.view = s.view;
-                }
+        let (position_mm, orientation) = match self.rate.as_mut() {
+            Some(rate) => {
+                let mut pose = RatePose {
+                    position_mm: self.last.position_mm,
+                    orientation: self.last.orientation,
+                };
                 match rate.source.poll() {
-                    Ok((motion, buttons)) => {
-                        let mut pose = RatePose {
-                            position_mm: input.position_mm,
-                            orientation: input.orientation,
-                        };
+                    Ok((motion, b)) => {
                         pose.step(
                             &rate.settings,
-                            rate.view,
+                            self.view,
                             motion.translation,
                             motion.rotation,
-                            rate.dt_s,
+                            self.dt_s,
                         );
-                        input.position_mm = pose.position_mm;
-                        input.orientation = pose.orientation;
-                        input.buttons = buttons;
+                        buttons = b;
                     }
                     Err(_) => rate.errors += 1,
                 }
-                if let Ok(mut s) = shared {
-                    s.position_mm = input.position_mm;
-                    s.orientation = input.orientation;
-                    input.events = std::mem::take(&mut s.events);
+                // The window shows where the source took the tool.
+                if let Some(s) = shared.as_mut() {
+                    s.position_mm = pose.position_mm;
+                    s.orientation = pose.orientation;
                 }
+                (pose.position_mm, pose.orientation)
             }
-            (None, Ok(mut s)) => {
-                input.position_mm = s.position_mm;
-                input.orientation = s.orientation;
-                input.buttons = s.buttons;
-                input.events = std::mem::take(&mut s.events);
-            }
-            (None, Err(_)) => {}
+            None => self.follow(),
+        };
+        drop(shared);
+        // Commands against the latest tick's switches (before the first tick: the start state).
+        let mut switches = match last {
+            Some(out) => Switches::of(out, self.shot_off_at.is_some()),
+            None => Switches {
+                stylet_in: true,
+                xray_on: false,
+                breath_hold: false,
+                shot: false,
+            },
+        };
+        let was_shot = switches.shot;
+        for c in commands {
+            events.extend(resolve(c, &mut switches));
         }
+        if switches.shot && !was_shot {
+            self.shot_off_at = Some(tick + (XRAY_SHOT_S / self.dt_s).round().max(1.0) as u64);
+        } else if !switches.shot {
+            self.shot_off_at = None;
+        }
+        if self.shot_off_at.is_some_and(|t| tick >= t) {
+            events.push(Event::XrayOff);
+            self.shot_off_at = None;
+        }
+        let input = TickInput {
+            position_mm,
+            orientation,
+            buttons,
+            events,
+        };
         self.last = TickInput {
             events: Vec::new(),
             ..input.clone()
@@ -236,41 +301,81 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_loop_takes_the_latest_pose_and_every_event_once() {
-        let (mut dev, handle) = live_device(DVec3::ZERO, DQuat::IDENTITY);
+    fn the_loop_follows_the_window_smoothly_and_takes_every_event_once() {
+        let (mut dev, handle) = live_device(DVec3::ZERO, DQuat::IDENTITY, 1000);
         let a = dev.next(0, None).unwrap();
         assert_eq!(a.position_mm, DVec3::ZERO);
-        handle.set_pose(DVec3::new(1.0, 2.0, 3.0), DQuat::IDENTITY);
+        // A 3 mm jump of the target is followed at 150 mm/s: 0.15 mm a tick, 20 ticks.
+        handle.set_pose(DVec3::new(3.0, 0.0, 0.0), DQuat::IDENTITY);
         handle.send(Event::StyletRemove);
         handle.send(Event::XrayOn);
         let b = dev.next(1, None).unwrap();
-        assert_eq!(b.position_mm, DVec3::new(1.0, 2.0, 3.0));
+        assert!((b.position_mm.x - 0.15).abs() < 1e-12, "{:?}", b.position_mm);
         assert_eq!(b.events, vec![Event::StyletRemove, Event::XrayOn]);
-        let c = dev.next(2, None).unwrap();
-        assert!(c.events.is_empty());
+        let mut x = b.position_mm.x;
+        for t in 2..=20 {
+            let p = dev.next(t, None).unwrap();
+            assert!(p.events.is_empty());
+            assert!(p.position_mm.x - x <= 0.15 + 1e-12);
+            x = p.position_mm.x;
+        }
+        assert!((x - 3.0).abs() < 1e-9);
         handle.finish();
-        assert!(dev.next(3, None).is_none());
+        assert!(dev.next(21, None).is_none());
     }
 
     #[test]
     fn a_busy_window_never_blocks_the_loop() {
-        let (mut dev, handle) = live_device(DVec3::X, DQuat::IDENTITY);
-        handle.set_pose(DVec3::Y, DQuat::IDENTITY);
+        let (mut dev, handle) = live_device(DVec3::X, DQuat::IDENTITY, 1000);
+        handle.set_pose(DVec3::new(1.1, 0.0, 0.0), DQuat::IDENTITY);
         handle.send(Event::XrayOn);
         let held = handle.input.lock().unwrap();
-        // The window holds the lock: the loop repeats the last pose it took, events wait.
+        // The window holds the lock: the loop keeps its last target, events wait.
         let t = dev.next(0, None).unwrap();
         assert_eq!(t.position_mm, DVec3::X);
         assert!(t.events.is_empty());
         drop(held);
         let t = dev.next(1, None).unwrap();
-        assert_eq!(t.position_mm, DVec3::Y);
+        assert!((t.position_mm.x - 1.1).abs() < 1e-12);
         assert_eq!(t.events, vec![Event::XrayOn]);
     }
 
     #[test]
+    fn commands_resolve_against_the_latest_tick_and_a_shot_lasts_its_ticks() {
+        let (mut dev, handle) = live_device(DVec3::ZERO, DQuat::IDENTITY, 1000);
+        let mut out = zero_output();
+        handle.command(Command::ToggleStylet);
+        handle.command(Command::ToggleStylet);
+        assert_eq!(
+            dev.next(0, Some(&out)).unwrap().events,
+            vec![Event::StyletRemove, Event::StyletInsert]
+        );
+        handle.command(Command::XrayShot);
+        assert_eq!(dev.next(1, Some(&out)).unwrap().events, vec![Event::XrayOn]);
+        out.xray_on = true;
+        for t in 2..101 {
+            assert!(dev.next(t, Some(&out)).unwrap().events.is_empty(), "tick {t}");
+        }
+        assert_eq!(dev.next(101, Some(&out)).unwrap().events, vec![Event::XrayOff]);
+        out.xray_on = false;
+        // Fluoroscopy during a shot takes over: no automatic off.
+        handle.command(Command::XrayShot);
+        dev.next(200, Some(&out));
+        out.xray_on = true;
+        handle.command(Command::ToggleFluoroscopy);
+        assert_eq!(dev.next(201, Some(&out)).unwrap().events, vec![Event::XrayOff]);
+        out.xray_on = false;
+        handle.command(Command::ToggleFluoroscopy);
+        assert_eq!(dev.next(202, Some(&out)).unwrap().events, vec![Event::XrayOn]);
+        out.xray_on = true;
+        for t in 203..400 {
+            assert!(dev.next(t, Some(&out)).unwrap().events.is_empty(), "tick {t}");
+        }
+    }
+
+    #[test]
     fn the_force_comes_back_to_the_window() {
-        let (mut dev, handle) = live_device(DVec3::ZERO, DQuat::IDENTITY);
+        let (mut dev, handle) = live_device(DVec3::ZERO, DQuat::IDENTITY, 1000);
         let out = TickOutput {
             tick: 7,
             force_n: DVec3::new(0.0, 0.0, 1.5),
@@ -302,13 +407,13 @@ mod tests {
 
     #[test]
     fn a_spacemouse_moves_the_pose_by_rate_control_and_the_window_sees_it() {
-        // Full push to the right (+X 350) for one tick's report, then held (the state persists).
+        // Full push to the right (+X 350), held (the state persists), then button 1.
         let source = Recorded {
             reports: vec![vec![0x01, 0x5e, 0x01, 0, 0, 0, 0], vec![0x03, 0x01, 0x00], vec![0x7f]],
             state: Default::default(),
         };
-        let (dev, handle) = live_device(DVec3::ZERO, DQuat::IDENTITY);
-        let mut dev = dev.with_source(Box::new(source), RateSettings::SPACEMOUSE, 1000);
+        let (dev, handle) = live_device(DVec3::ZERO, DQuat::IDENTITY, 1000);
+        let mut dev = dev.with_source(Box::new(source), RateSettings::SPACEMOUSE);
         handle.send(Event::XrayOn);
         let first = dev.next(0, None).unwrap();
         assert!((first.position_mm.x - 0.04).abs() < 1e-12, "40 mm/s for 1 ms");

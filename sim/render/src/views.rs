@@ -51,11 +51,24 @@ pub struct SessionLabels {
 impl Moment {
     /// The moment after the tick that produced `out` from `input`.
     pub fn of_simulation(sim: &Simulation, input: &TickInput, out: &TickOutput, labels: &SessionLabels) -> Moment {
-        let q = input.orientation;
         let ct_dims = sim.atlas().ct().grid().dims();
+        let contrast = ContrastOverlay::from_agent(sim.contrast(), ct_dims, DEFAULT_IODINE_MG_PER_ML);
+        Moment::with_contrast(sim, input, out, labels, contrast)
+    }
+
+    /// [`Self::of_simulation`] with the contrast overlay given (the haptic loop rebuilds it only
+    /// when the contrast changed).
+    pub fn with_contrast(
+        sim: &Simulation,
+        input: &TickInput,
+        out: &TickOutput,
+        labels: &SessionLabels,
+        contrast: Option<ContrastOverlay>,
+    ) -> Moment {
+        let q = input.orientation;
         Moment {
             tools: ToolState::from_simulation(sim, input),
-            contrast: ContrastOverlay::from_agent(sim.contrast(), ct_dims, DEFAULT_IODINE_MG_PER_ML),
+            contrast,
             scenario: labels.scenario.clone(),
             xray_on: out.xray_on,
             seed: labels.seed,
