@@ -127,17 +127,23 @@ fn without_a_window_the_simulator_says_what_runs_instead() {
     assert!(err.contains("--headless --script"), "{err}");
 }
 
-#[test]
-fn a_session_recorded_while_the_server_is_down_is_uploaded_once_when_it_is_back() {
+/// The fixture with its accounts (SQLite), and a loopback address with nothing listening yet, where
+/// the server starts later: (fixture, database, address, base URL).
+fn accounts_and_a_free_address() -> (Fixture, Db, std::net::SocketAddr, String) {
     let f = Fixture::new();
     let db = Db::Sqlite;
     f.users(&db);
-    // An address with nothing listening yet: the server starts there later.
     let addr = {
         let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
         l.local_addr().unwrap()
     };
     let base = format!("http://{addr}");
+    (f, db, addr, base)
+}
+
+#[test]
+fn a_session_recorded_while_the_server_is_down_is_uploaded_once_when_it_is_back() {
+    let (f, db, addr, base) = accounts_and_a_free_address();
     let outbox = Outbox::open(&f.dir.path().join("outbox")).unwrap();
     let name = outbox.add(&f.session("tina-ok")).unwrap();
     // A damaged file never enters: the outbox holds sessions only.
@@ -315,14 +321,7 @@ fn the_simulator_draws_what_stylet_render_draws_for_the_same_tick() {
 #[test]
 fn the_retrier_uploads_when_the_server_comes_back() {
     use stylet_app::outbox::{Backoff, Retrier};
-    let f = Fixture::new();
-    let db = Db::Sqlite;
-    f.users(&db);
-    let addr = {
-        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        l.local_addr().unwrap()
-    };
-    let base = format!("http://{addr}");
+    let (f, db, addr, base) = accounts_and_a_free_address();
     // A token made on a first run of the server, which then goes down.
     let token = {
         let server = Server::start_at(&addr.to_string(), &f.data(), &db, &f.atlases(), &[]);

@@ -38,6 +38,20 @@ pub struct RunArgs {
     /// Record the session to this file (docs/session-format.md), as the desktop app does.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    #[command(flatten)]
+    pub session: SessionArgs,
+    /// Pace the ticks to the wall clock (1 kHz real time) and record without ever blocking, as the
+    /// haptic loop does.
+    #[arg(long)]
+    pub realtime: bool,
+    /// Print `tick N` on stdout every N ticks (for supervising processes and tests).
+    #[arg(long, value_name = "N")]
+    pub progress: Option<u64>,
+}
+
+/// Who and what a session recorded from a script is about (`stylet script run`, `stylet sim`).
+#[derive(Debug, Args)]
+pub struct SessionArgs {
     /// Trainee for the session header: their account username on the scoring service.
     #[arg(long, default_value = "demo-trainee")]
     pub trainee: String,
@@ -50,13 +64,40 @@ pub struct RunArgs {
     /// Seed of the session's random generators (breathing variation, speckle), recorded in the header.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Pace the ticks to the wall clock (1 kHz real time) and record without ever blocking, as the
-    /// haptic loop does.
-    #[arg(long)]
-    pub realtime: bool,
-    /// Print `tick N` on stdout every N ticks (for supervising processes and tests).
-    #[arg(long, value_name = "N")]
-    pub progress: Option<u64>,
+}
+
+impl SessionArgs {
+    /// The scenario: `--scenario`, else the script's file name without extension.
+    pub fn scenario_of(&self, script: &Path) -> String {
+        self.scenario.clone().unwrap_or_else(|| {
+            script
+                .file_stem()
+                .map_or_else(String::new, |n| n.to_string_lossy().into_owned())
+        })
+    }
+
+    /// Starts recording `sim` on `atlas` to `out` (real time: never blocking; else waiting).
+    pub fn start_recording(
+        &self,
+        sim: &Simulation,
+        atlas: &stylet_atlas::Atlas,
+        script: &Path,
+        out: &Path,
+        realtime: bool,
+    ) -> anyhow::Result<Recording> {
+        let scenario = self.scenario_of(script);
+        let info = SessionInfo {
+            trainee: &self.trainee,
+            scenario: &scenario,
+            difficulty: self.difficulty.name(),
+            seed: self.seed,
+            atlas_id: &atlas.manifest.name,
+            atlas_hash: &atlas.content_hash,
+        };
+        let header = stylet_recorder::recording::header(sim, &info);
+        Recording::start(out, &header, realtime, WriterOptions::default())
+            .with_context(|| format!("cannot record to {}", out.display()))
+    }
 }
 
 /// Difficulty levels (rubrics per level come with the scoring engine).
@@ -199,25 +240,7 @@ fn run_script(a: &RunArgs) -> anyhow::Result<()> {
         .file_name()
         .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
     let mut recording = match &a.out {
-        Some(path) => {
-            let stem = a
-                .script
-                .file_stem()
-                .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-            let info = SessionInfo {
-                trainee: &a.trainee,
-                scenario: a.scenario.as_deref().unwrap_or(&stem),
-                difficulty: a.difficulty.name(),
-                seed: a.seed,
-                atlas_id: &atlas.manifest.name,
-                atlas_hash: &atlas.content_hash,
-            };
-            let header = stylet_recorder::recording::header(&sim, &info);
-            Some(
-                Recording::start(path, &header, a.realtime, WriterOptions::default())
-                    .with_context(|| format!("cannot record to {}", path.display()))?,
-            )
-        }
+        Some(path) => Some(a.session.start_recording(&sim, &atlas, &a.script, path, a.realtime)?),
         None => None,
     };
     let rate_hz = sim.tick_rate_hz() as f64;

@@ -8,10 +8,9 @@ use anyhow::Context;
 use clap::Args;
 use stylet_app::haptic::{Ended, HapticLoop, LoopOptions};
 use stylet_app::views::{ViewKind, ViewRenderer, ViewSettings};
-use stylet_recorder::{Recording, SessionInfo, WriterOptions};
 use stylet_render::views::SessionLabels;
 
-use super::script::{Difficulty, script_simulation};
+use super::script::{SessionArgs, script_simulation};
 
 #[derive(Debug, Args)]
 pub struct SimArgs {
@@ -27,18 +26,8 @@ pub struct SimArgs {
     /// Record the session to this file (docs/session-format.md).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Trainee for the session header: their account username on the scoring service.
-    #[arg(long, default_value = "demo-trainee")]
-    pub trainee: String,
-    /// Difficulty level the session is graded at.
-    #[arg(long, value_enum, default_value_t = Difficulty::Beginner)]
-    pub difficulty: Difficulty,
-    /// Scenario name for the session header (default: the script's file name without extension).
-    #[arg(long)]
-    pub scenario: Option<String>,
-    /// Seed of the session's random generators, recorded in the header.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
+    #[command(flatten)]
+    pub session: SessionArgs,
     /// Tick as fast as the CPU allows instead of at the simulation's rate (same session file).
     #[arg(long)]
     pub unpaced: bool,
@@ -86,37 +75,17 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
     let atlas = stylet_atlas::load(&a.atlas)?;
     let (sim, device) = script_simulation(&atlas, script)?;
     let paced = !a.unpaced;
+    // Real time: the recorder must never block the loop (a full queue marks the session
+    // incomplete); unpaced: it may wait, nothing is lost.
     let recording = match &a.out {
-        Some(path) => {
-            let stem = script
-                .file_stem()
-                .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-            let info = SessionInfo {
-                trainee: &a.trainee,
-                scenario: a.scenario.as_deref().unwrap_or(&stem),
-                difficulty: a.difficulty.name(),
-                seed: a.seed,
-                atlas_id: &atlas.manifest.name,
-                atlas_hash: &atlas.content_hash,
-            };
-            let header = stylet_recorder::recording::header(&sim, &info);
-            // Real time: the recorder must never block the loop (a full queue marks the session
-            // incomplete); unpaced: it may wait, nothing is lost.
-            Some(
-                Recording::start(path, &header, paced, WriterOptions::default())
-                    .with_context(|| format!("cannot record to {}", path.display()))?,
-            )
-        }
+        Some(path) => Some(a.session.start_recording(&sim, &atlas, script, path, paced)?),
         None => None,
     };
     let rate_hz = sim.tick_rate_hz();
-    let stem = script
-        .file_stem()
-        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
     let labels = SessionLabels {
-        scenario: a.scenario.clone().unwrap_or(stem),
-        difficulty: a.difficulty.name().to_string(),
-        seed: a.seed,
+        scenario: a.session.scenario_of(script),
+        difficulty: a.session.difficulty.name().to_string(),
+        seed: a.session.seed,
     };
     let atlas = std::sync::Arc::new(atlas);
     let mut renderer = match a.views.is_empty() {

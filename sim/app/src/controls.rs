@@ -132,16 +132,9 @@ pub fn keypad(key: KeypadKey) -> Option<Command> {
 mod tests {
     use super::*;
 
-    fn pose() -> RatePose {
-        RatePose {
-            position_mm: DVec3::ZERO,
-            orientation: DQuat::IDENTITY,
-        }
-    }
-
     #[test]
     fn keys_move_at_their_speed_and_shift_slows_them() {
-        let mut p = pose();
+        let mut p = RatePose::default();
         let away = ControlInput {
             held: HeldKeys {
                 away: true,
@@ -151,7 +144,7 @@ mod tests {
         };
         apply(&away, DQuat::IDENTITY, &mut p, 0.5);
         assert!((p.position_mm - DVec3::new(0.0, 10.0, 0.0)).length() < 1e-9);
-        let mut q = pose();
+        let mut q = RatePose::default();
         let fine = ControlInput {
             held: HeldKeys {
                 left: true,
@@ -163,7 +156,7 @@ mod tests {
         apply(&fine, DQuat::IDENTITY, &mut q, 1.0);
         assert!((q.position_mm - DVec3::new(-5.0, 0.0, 0.0)).length() < 1e-9);
         // Opposite keys cancel.
-        let mut r = pose();
+        let mut r = RatePose::default();
         let both = ControlInput {
             held: HeldKeys {
                 up: true,
@@ -178,7 +171,7 @@ mod tests {
 
     #[test]
     fn the_mouse_drags_in_the_screen_plane_aims_and_the_wheel_advances_along_the_tool() {
-        let mut p = pose();
+        let mut p = RatePose::default();
         let drag = ControlInput {
             drag_px: [10.0, 5.0],
             ..Default::default()
@@ -194,7 +187,7 @@ mod tests {
         apply(&wheel, DQuat::IDENTITY, &mut p, 0.016);
         assert!((p.position_mm - DVec3::new(2.0, 0.0, 2.0)).length() < 1e-9);
         // Aiming 360 px to the side turns the axis by 90° about the view's vertical.
-        let mut a = pose();
+        let mut a = RatePose::default();
         a.orientation = DQuat::from_rotation_x(-std::f64::consts::FRAC_PI_2); // axis along +y
         let aim = ControlInput {
             aim_px: [360.0, 0.0],

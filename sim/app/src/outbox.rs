@@ -178,6 +178,19 @@ impl Outbox {
                 continue;
             }
             let path = self.dir.join(&name);
+            // Files placed here by hand are bounded like those `add` takes.
+            if let Ok(m) = fs::metadata(&path)
+                && m.len() > MAX_SESSION_BYTES
+            {
+                round.waiting.push((
+                    name,
+                    format!(
+                        "{} bytes, more than the {MAX_SESSION_BYTES} an upload may be: not sent",
+                        m.len()
+                    ),
+                ));
+                continue;
+            }
             let data = match fs::read(&path) {
                 Ok(d) => d,
                 // Gone since the listing: nothing to do.

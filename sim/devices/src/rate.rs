@@ -44,8 +44,8 @@ impl RateSettings {
     }
 }
 
-/// The tool pose moved by rate control.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// The tool pose moved by rate control (default: at the origin, tool axis along +z).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct RatePose {
     pub position_mm: DVec3,
     pub orientation: DQuat,
@@ -72,24 +72,17 @@ impl RatePose {
 mod tests {
     use super::*;
 
-    fn pose() -> RatePose {
-        RatePose {
-            position_mm: DVec3::ZERO,
-            orientation: DQuat::IDENTITY,
-        }
-    }
-
     #[test]
     fn full_deflection_moves_at_the_set_speed_and_rest_noise_does_not() {
         let s = RateSettings::SPACEMOUSE;
-        let mut p = pose();
+        let mut p = RatePose::default();
         for _ in 0..1000 {
             p.step(&s, DQuat::IDENTITY, DVec3::new(350.0, 0.0, 10.0), DVec3::ZERO, 1e-3);
         }
         assert!((p.position_mm.x - 40.0).abs() < 1e-9, "{:?}", p.position_mm);
         assert_eq!(p.position_mm.z, 0.0, "10 counts is inside the dead zone");
         // Over-deflection is clamped to full speed.
-        let mut q = pose();
+        let mut q = RatePose::default();
         q.step(&s, DQuat::IDENTITY, DVec3::new(0.0, 900.0, 0.0), DVec3::ZERO, 1.0);
         assert!((q.position_mm.y - 40.0).abs() < 1e-9);
     }
@@ -99,11 +92,11 @@ mod tests {
         let s = RateSettings::SPACEMOUSE;
         // A view turned 90° about z: the device's "right" is the world's +y.
         let view = DQuat::from_rotation_z(std::f64::consts::FRAC_PI_2);
-        let mut p = pose();
+        let mut p = RatePose::default();
         p.step(&s, view, DVec3::new(350.0, 0.0, 0.0), DVec3::ZERO, 0.5);
         assert!((p.position_mm - DVec3::new(0.0, 20.0, 0.0)).length() < 1e-9);
         // Full rotation about x for 1 s: 45°.
-        let mut r = pose();
+        let mut r = RatePose::default();
         for _ in 0..1000 {
             r.step(&s, DQuat::IDENTITY, DVec3::ZERO, DVec3::new(350.0, 0.0, 0.0), 1e-3);
         }
