@@ -117,13 +117,27 @@ fn a_paced_loop_runs_in_real_time_and_notes_its_timing() {
 }
 
 #[test]
-fn without_a_window_the_simulator_says_what_runs_instead() {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stylet"))
-        .args(["sim", "--atlas", "/nonexistent"])
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+fn the_window_needs_a_patient_and_a_display_and_says_so() {
+    let run = |args: &[&str], display: bool| {
+        let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_stylet"));
+        c.args(args);
+        if !display {
+            c.env_remove("DISPLAY")
+                .env_remove("WAYLAND_DISPLAY")
+                .env_remove("WAYLAND_SOCKET");
+        }
+        let out = c.output().unwrap();
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let err = run(&["sim", "--atlas", "/nonexistent"], true);
+    assert!(err.contains("/nonexistent is not an atlas"), "{err}");
+    let f = tempfile::tempdir().unwrap();
+    let atlas = f.path().join("phantom");
+    common::phantom_atlas(&atlas, "64,64,48", "6");
+    let data = f.path().join("data");
+    let err = run(&["sim", "--atlas", s(&atlas), "--data-dir", s(&data)], false);
+    assert!(err.contains("cannot open the window"), "{err}");
     assert!(err.contains("--headless --script"), "{err}");
 }
 
@@ -170,6 +184,15 @@ fn a_session_recorded_while_the_server_is_down_is_uploaded_once_when_it_is_back(
     // The server comes back at the same address.
     let server = Server::start_at(&addr.to_string(), &f.data(), &db, &f.atlases(), &[]);
     assert_eq!(server.base, base);
+    // The server refuses an unknown token before it reads the body and closes while a large
+    // file is still being sent: the client still reads that as "log in again", not as a network
+    // failure.
+    let big = vec![0u8; 16 << 20];
+    let reply = client.upload(&down.token, &big);
+    assert!(
+        matches!(reply, stylet_app::service_client::UploadReply::Unauthorized { .. }),
+        "{reply:?}"
+    );
     // A token the server does not know: kept, and the round says to log in again.
     let round = outbox.upload_all(&down).unwrap();
     assert!(round.needs_login, "{round:?}");
@@ -209,6 +232,30 @@ fn a_session_recorded_while_the_server_is_down_is_uploaded_once_when_it_is_back(
         false,
     );
     assert_eq!(status, 403);
+    // The replay viewer fetches a session with the same upload-only token: the very bytes.
+    let fetched_dir = f.dir.path().join("fetched");
+    let fetched = up.client.fetch_session(&up.token, &id, &fetched_dir).unwrap();
+    assert_eq!(
+        std::fs::read(&fetched).unwrap(),
+        std::fs::read(f.session("tina-ok")).unwrap()
+    );
+    // Not another trainee's (404, as if it did not exist), not a made-up id, nothing half-written.
+    let tom = up
+        .client
+        .upload_token("tom", "tom-password", "tom's simulator")
+        .unwrap();
+    let e = up.client.fetch_session(&tom, &id, &fetched_dir).unwrap_err();
+    assert!(matches!(e, stylet_app::service_client::FetchError::NotFound(_)), "{e}");
+    let e = up
+        .client
+        .fetch_session(&up.token, "../../etc/passwd", &fetched_dir)
+        .unwrap_err();
+    assert!(matches!(e, stylet_app::service_client::FetchError::BadId(_)), "{e}");
+    let names: Vec<_> = std::fs::read_dir(&fetched_dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(names.len(), 1, "{names:?}");
     drop(server);
 }
 
@@ -311,6 +358,57 @@ fn the_simulator_draws_what_stylet_render_draws_for_the_same_tick() {
         assert!(
             cli == frame.image,
             "{}: the simulator's view differs from stylet render's",
+            kind.name()
+        );
+    }
+    // The same on the GPU renderers (lavapipe here): the window's views drawn by wgpu equal
+    // `stylet render --gpu`'s pictures, and stay close to the CPU's.
+    let mut gpu_views = ViewRenderer::new(
+        Arc::clone(&atlas),
+        ViewSettings {
+            doppler: false,
+            backend: stylet_app::views::Backend::Gpu,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert!(gpu_views.drawn_by().starts_with("GPU: "), "{}", gpu_views.drawn_by());
+    for kind in ViewKind::ALL {
+        let frame = gpu_views.draw(kind, &snap.moment, 240, 160).unwrap();
+        let png = f.dir.path().join(format!("{}-gpu.png", kind.name()));
+        ok(&[
+            "render",
+            "--atlas",
+            s(&dir),
+            "--session",
+            s(&f.session("tina-ok")),
+            "--at",
+            "13.008",
+            "--view",
+            kind.name(),
+            "--size",
+            "240x160",
+            "--gpu",
+            "--out",
+            s(&png),
+        ]);
+        let cli = stylet_render::image::Image::read_png(&png).unwrap();
+        assert!(
+            cli == frame.image,
+            "{}: the simulator's GPU view differs from stylet render --gpu's",
+            kind.name()
+        );
+        let cpu = stylet_render::image::Image::read_png(&f.dir.path().join(format!("{}.png", kind.name()))).unwrap();
+        let mean_abs = cpu
+            .rgba
+            .iter()
+            .zip(&frame.image.rgba)
+            .map(|(a, b)| (0..3).map(|c| f64::from(a[c].abs_diff(b[c]))).sum::<f64>() / 3.0)
+            .sum::<f64>()
+            / cpu.rgba.len() as f64;
+        assert!(
+            mean_abs < 4.0,
+            "{}: GPU and CPU differ by {mean_abs:.2} grey levels on average",
             kind.name()
         );
     }

@@ -14,7 +14,7 @@ pub mod trace;
 
 pub use metrics::{MetricParams, Metrics, PalpationMetrics, RiskHit, UltrasoundMetrics};
 pub use reasons::{MetricInfo, Outcome, metric_label, reasons};
-pub use replay::{Divergence, ReplayError, ReplayReport, replay};
+pub use replay::{Divergence, ReplayError, ReplayReport, Replayer, replay};
 pub use rubric::{Grade, Rubric, Unmet};
 pub use score::{ScoreError, ScoreReport, Scorer};
 pub use stylet_atlas::Exercise;

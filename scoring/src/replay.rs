@@ -2,6 +2,7 @@
 //! events through `stylet_physics::Simulation` — the same code the simulator ran — and check
 //! every recomputed output and state digest against the recorded ones, bit for bit.
 
+use std::borrow::Borrow;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
@@ -101,60 +102,118 @@ pub fn replay(
     atlas: Arc<PunctureAtlas>,
     observe: &mut dyn FnMut(&TickInput, &TickOutput, &Simulation),
 ) -> Result<ReplayReport, ReplayError> {
-    let h = &session.header;
-    if h.physics_version != stylet_physics::PHYSICS_VERSION {
-        return Err(ReplayError::PhysicsVersion {
-            recorded: h.physics_version,
-            this: stylet_physics::PHYSICS_VERSION,
-        });
+    let mut r = Replayer::new(session, atlas)?;
+    while let Some((input, out)) = r.step() {
+        observe(&input, &out, r.simulation());
     }
-    let device = DeviceProfile::by_name(&h.device).ok_or_else(|| ReplayError::UnknownDevice(h.device.clone()))?;
-    let mut config = SimConfig::new(device, h.initial_tool);
-    config.tick_rate_hz = h.tick_rate_hz;
-    let mut sim = Simulation::new(atlas, config).map_err(ReplayError::Simulation)?;
-    let mut events: BTreeMap<u64, Vec<Event>> = BTreeMap::new();
-    for e in &session.events {
-        let ev = e
-            .to_event()
-            .map_err(|message| ReplayError::BadEvent { tick: e.tick, message })?;
-        events.entry(e.tick).or_default().push(ev);
+    Ok(r.report())
+}
+
+/// A replay one tick at a time (the scorer runs it to the end; the replay viewer steps and
+/// seeks through it). Each step feeds the recorded pose, buttons and events of the next tick to
+/// `Simulation::step` and checks the outputs and digests against the recording.
+pub struct Replayer<S: Borrow<Session>> {
+    session: S,
+    sim: Simulation,
+    /// Events and digests by tick, in tick order, consumed as the ticks pass.
+    events: Vec<(u64, Vec<Event>)>,
+    next_event: usize,
+    digests: Vec<(u64, u64)>,
+    next_digest: usize,
+    /// Index of the next recorded tick.
+    next: usize,
+    /// A gap in the recorded ticks ended the replay.
+    gap: bool,
+    divergence: Option<Divergence>,
+    ticks: u64,
+    digests_checked: u64,
+}
+
+impl<S: Borrow<Session>> Replayer<S> {
+    /// Checks that the session can be replayed by this build and starts its simulation.
+    pub fn new(session: S, atlas: Arc<PunctureAtlas>) -> Result<Self, ReplayError> {
+        let h = &session.borrow().header;
+        if h.physics_version != stylet_physics::PHYSICS_VERSION {
+            return Err(ReplayError::PhysicsVersion {
+                recorded: h.physics_version,
+                this: stylet_physics::PHYSICS_VERSION,
+            });
+        }
+        let device = DeviceProfile::by_name(&h.device).ok_or_else(|| ReplayError::UnknownDevice(h.device.clone()))?;
+        let mut config = SimConfig::new(device, h.initial_tool);
+        config.tick_rate_hz = h.tick_rate_hz;
+        let sim = Simulation::new(atlas, config).map_err(ReplayError::Simulation)?;
+        let mut events: BTreeMap<u64, Vec<Event>> = BTreeMap::new();
+        for e in &session.borrow().events {
+            let ev = e
+                .to_event()
+                .map_err(|message| ReplayError::BadEvent { tick: e.tick, message })?;
+            events.entry(e.tick).or_default().push(ev);
+        }
+        let digests: BTreeMap<u64, u64> = session.borrow().digests.iter().map(|d| (d.tick, d.digest)).collect();
+        Ok(Replayer {
+            session,
+            sim,
+            events: events.into_iter().collect(),
+            next_event: 0,
+            digests: digests.into_iter().collect(),
+            next_digest: 0,
+            next: 0,
+            gap: false,
+            divergence: None,
+            ticks: 0,
+            digests_checked: 0,
+        })
     }
-    // Both in tick order, consumed as the ticks pass (no lookup per tick).
-    let mut events = events.into_iter().peekable();
-    let digest_map: BTreeMap<u64, u64> = session.digests.iter().map(|d| (d.tick, d.digest)).collect();
-    let mut digests = digest_map.into_iter().peekable();
-    let mut divergence: Option<Divergence> = None;
-    let (mut ticks, mut digests_checked) = (0u64, 0u64);
-    for t in &session.ticks {
-        if t.tick != sim.tick() {
-            // A gap (ticks dropped while recording): the state after it cannot be reproduced.
-            divergence.get_or_insert(Divergence {
-                tick: sim.tick(),
+
+    /// Replays the next recorded tick: its input and the replayed output; `None` at the end of
+    /// the recording or at a gap in it (the state after a gap cannot be reproduced).
+    pub fn step(&mut self) -> Option<(TickInput, TickOutput)> {
+        if self.gap {
+            return None;
+        }
+        let t = self.session.borrow().ticks.get(self.next)?;
+        if t.tick != self.sim.tick() {
+            self.divergence.get_or_insert(Divergence {
+                tick: self.sim.tick(),
                 stream: "ticks".into(),
                 recorded: format!("next recorded tick {}", t.tick),
-                replayed: format!("tick {}", sim.tick()),
+                replayed: format!("tick {}", self.sim.tick()),
             });
-            break;
+            self.gap = true;
+            return None;
         }
-        while events.next_if(|(tick, _)| *tick < t.tick).is_some() {}
-        let input = tick_input(
-            t,
-            events
-                .next_if(|(tick, _)| *tick == t.tick)
-                .map(|(_, e)| e)
-                .unwrap_or_default(),
-        );
-        let out = sim.step(&input);
-        ticks += 1;
-        if divergence.is_none() {
-            divergence = compare(t, &out);
+        while self.events.get(self.next_event).is_some_and(|(tick, _)| *tick < t.tick) {
+            self.next_event += 1;
         }
-        while digests.next_if(|(tick, _)| *tick < t.tick).is_some() {}
-        if let Some((_, recorded)) = digests.next_if(|(tick, _)| *tick == t.tick) {
-            digests_checked += 1;
-            let replayed = sim.state_digest();
-            if recorded != replayed && divergence.is_none() {
-                divergence = Some(Divergence {
+        let events = match self.events.get(self.next_event) {
+            Some((tick, e)) if *tick == t.tick => {
+                self.next_event += 1;
+                e.clone()
+            }
+            _ => Vec::new(),
+        };
+        let input = tick_input(t, events);
+        let out = self.sim.step(&input);
+        self.ticks += 1;
+        if self.divergence.is_none() {
+            self.divergence = compare(t, &out);
+        }
+        while self
+            .digests
+            .get(self.next_digest)
+            .is_some_and(|(tick, _)| *tick < t.tick)
+        {
+            self.next_digest += 1;
+        }
+        if let Some(&(tick, recorded)) = self.digests.get(self.next_digest)
+            && tick == t.tick
+        {
+            self.next_digest += 1;
+            self.digests_checked += 1;
+            let replayed = self.sim.state_digest();
+            if recorded != replayed && self.divergence.is_none() {
+                self.divergence = Some(Divergence {
                     tick: t.tick,
                     stream: "digests".into(),
                     recorded: format!("{recorded:016x}"),
@@ -162,12 +221,31 @@ pub fn replay(
                 });
             }
         }
-        observe(&input, &out, &sim);
+        self.next += 1;
+        Some((input, out))
     }
-    Ok(ReplayReport {
-        replay_verified: divergence.is_none(),
-        divergence,
-        ticks,
-        digests_checked,
-    })
+
+    /// The simulation after the last replayed tick.
+    pub fn simulation(&self) -> &Simulation {
+        &self.sim
+    }
+
+    pub fn session(&self) -> &Session {
+        self.session.borrow()
+    }
+
+    /// Ticks replayed so far.
+    pub fn ticks(&self) -> u64 {
+        self.ticks
+    }
+
+    /// The check so far (at the end of the recording: of the whole session).
+    pub fn report(&self) -> ReplayReport {
+        ReplayReport {
+            replay_verified: self.divergence.is_none(),
+            divergence: self.divergence.clone(),
+            ticks: self.ticks,
+            digests_checked: self.digests_checked,
+        }
+    }
 }

@@ -164,6 +164,7 @@ pub fn router(state: AppRef) -> Router {
         .route("/api/users/{username}/password", post(super::users::password))
         .route("/api/sessions", post(upload).get(list_sessions))
         .route("/api/sessions/{id}", get(get_session).delete(delete_session))
+        .route("/api/sessions/{id}/file", get(get_session_file))
         .route("/api/sessions/{id}/override", post(override_grade))
         .route("/api/sessions/{id}/comments", post(add_comment))
         .route("/api/trainees/{username}/progress", get(progress))
@@ -331,8 +332,9 @@ pub async fn user_for(s: &AppState, headers: &HeaderMap, tokens: TokenUse, write
             (TokenUse::Full, TokenScope::Upload) => {
                 return Err(err(
                     StatusCode::FORBIDDEN,
-                    "this API token has scope 'upload': it may only upload sessions (POST /api/sessions) \
-                     and read their status (GET /api/sessions/{id}); use a 'full' token for this",
+                    "this API token has scope 'upload': it may only upload sessions (POST /api/sessions), \
+                     read their status (GET /api/sessions/{id}) and fetch their files (GET /api/sessions/{id}/file); \
+                     use a 'full' token for this",
                 ));
             }
             (TokenUse::Upload, _) | (TokenUse::Full, TokenScope::Full) => {}
@@ -633,25 +635,71 @@ pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(S
     Ok((id, SessionStatus::Queued, true))
 }
 
-async fn get_session(
-    State(s): State<AppRef>,
-    SimulatorReader(user): SimulatorReader,
-    Path(id): Path<String>,
-) -> Result<Response, ApiError> {
+/// The session `id` if `user` may see it: their own (trainees), their cohorts' (instructors),
+/// every session (curriculum, admins). 404 otherwise, not 403: whether a session exists is
+/// itself private.
+async fn visible_session(s: &AppState, user: &User, id: &str) -> Result<super::store::SessionRow, ApiError> {
     let not_found = || err(StatusCode::NOT_FOUND, format!("no session {id}"));
-    let (row, trainee_id) = s.store.session(&id).await?.ok_or_else(not_found)?;
+    let (row, trainee_id) = s.store.session(id).await?.ok_or_else(not_found)?;
     let allowed = match user.role.as_str() {
         "trainee" => trainee_id == user.id,
         "instructor" => s.store.teaches(&user.id, &trainee_id).await?,
         _ => true,
     };
-    if !allowed {
-        // Not 403: whether a session exists is itself private.
-        return Err(not_found());
-    }
+    if allowed { Ok(row) } else { Err(not_found()) }
+}
+
+async fn get_session(
+    State(s): State<AppRef>,
+    SimulatorReader(user): SimulatorReader,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let row = visible_session(&s, &user, &id).await?;
     let mut v = serde_json::to_value(&row).map_err(|_| err(StatusCode::INTERNAL_SERVER_ERROR, "internal error"))?;
     v["review"] = s.store.annotations(&id).await?;
     Ok(Json(v).into_response())
+}
+
+/// GET /api/sessions/{id}/file: the session file as uploaded, for whoever may see the session
+/// (upload-scoped tokens too: the simulator's replay viewer fetches it). Streamed in 64 KiB
+/// chunks, so a download holds no more than that in memory.
+async fn get_session_file(
+    State(s): State<AppRef>,
+    SimulatorReader(user): SimulatorReader,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let row = visible_session(&s, &user, &id).await?;
+    let path = s.session_file(&row.file_sha256);
+    let file = tokio::fs::File::open(&path)
+        .await
+        .map_err(|_| err(StatusCode::NOT_FOUND, format!("the file of session {id} is gone")))?;
+    let len = file.metadata().await.map(|m| m.len()).ok();
+    let chunks = futures_util::stream::unfold(Some(file), |file| async move {
+        use tokio::io::AsyncReadExt;
+        let mut file = file?;
+        let mut buf = vec![0u8; 64 * 1024];
+        match file.read(&mut buf).await {
+            Ok(0) => None,
+            Ok(n) => {
+                buf.truncate(n);
+                Some((Ok::<_, std::io::Error>(Bytes::from(buf)), Some(file)))
+            }
+            Err(e) => Some((Err(e), None)),
+        }
+    });
+    let mut resp = Body::from_stream(chunks).into_response();
+    let h = resp.headers_mut();
+    h.insert(
+        header::CONTENT_TYPE,
+        header::HeaderValue::from_static("application/octet-stream"),
+    );
+    if let Some(len) = len {
+        h.insert(header::CONTENT_LENGTH, header::HeaderValue::from(len));
+    }
+    if let Ok(v) = header::HeaderValue::from_str(&format!("attachment; filename=\"{}.mcap\"", row.id)) {
+        h.insert(header::CONTENT_DISPOSITION, v);
+    }
+    Ok(resp)
 }
 
 /// DELETE /api/sessions/{id} (admins): the session, its file, score, job, comments, overrides and

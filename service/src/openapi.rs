@@ -19,7 +19,7 @@ pub fn document() -> Value {
             "securitySchemes": {
                 "cookie": { "type": "apiKey", "in": "cookie", "name": "stylet_session",
                             "description": "From POST /api/login. State-changing requests also send X-CSRF-Token." },
-                "token": { "type": "http", "scheme": "bearer", "description": "From POST /api/tokens. Scope `upload` (the desktop simulator): POST /api/sessions and GET /api/sessions/{id} only, 403 elsewhere; scope `full`: the account's rights. Expired or revoked: 401." }
+                "token": { "type": "http", "scheme": "bearer", "description": "From POST /api/tokens. Scope `upload` (the desktop simulator): POST /api/sessions, GET /api/sessions/{id} and GET /api/sessions/{id}/file only, 403 elsewhere; scope `full`: the account's rights. Expired or revoked: 401." }
             },
             "schemas": {
                 "Error": { "type": "object", "required": ["error"], "properties": { "error": { "type": "string" } } },
@@ -260,6 +260,17 @@ pub fn document() -> Value {
                 "summary": "One CSV row per visible session (columns in docs/api.md)",
                 "security": [{ "cookie": [] }, { "token": [] }],
                 "responses": { "200": { "description": "text/csv" }, "403": error_response("trainees have no export") }
+            } },
+            "/api/sessions/{id}/file": { "get": {
+                "summary": "The session file as uploaded (application/octet-stream, streamed)",
+                "description": "For whoever may see the session; API tokens of either scope (the simulator's replay viewer fetches sessions with its upload token).",
+                "security": [{ "cookie": [] }, { "token": [] }],
+                "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
+                "responses": {
+                    "200": { "description": "The session file (docs/session-format.md)" },
+                    "401": error_response("not logged in"),
+                    "404": error_response("no such session, or not yours to see")
+                }
             } },
             "/api/sessions/{id}": { "get": {
                 "summary": "One session and its score",

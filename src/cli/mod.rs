@@ -48,7 +48,7 @@ enum Command {
     Session(session::SessionCommand),
     /// Draw an atlas, or a recorded session at a moment, as a PNG (docs/rendering.md).
     Render(render::RenderArgs),
-    /// The desktop simulator; today its haptic loop, headless, driven by a script (docs/simulator.md).
+    /// The desktop simulator: its window, or its haptic loop headless (docs/simulator.md).
     Sim(sim::SimArgs),
     /// Run the demo on the embedded default: build the phantom atlas and print its summary.
     Demo(demo::DemoArgs),

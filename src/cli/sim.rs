@@ -1,26 +1,43 @@
-//! `stylet sim`: the desktop simulator. Its window is being built (issue 17); what runs today is
-//! the simulator's haptic loop, headless, driven by a device script, recording the session as the
-//! window will (docs/simulator.md).
+//! `stylet sim`: the desktop simulator (docs/simulator.md). With no flags it opens the window on
+//! the phantom patient; `--headless --script FILE` runs the same haptic loop without a window,
+//! driven by a device script, and reports its rate and the views' frame rates.
 
 use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
 use stylet_app::haptic::{Ended, HapticLoop, LoopOptions};
-use stylet_app::views::{ViewKind, ViewRenderer, ViewSettings};
+use stylet_app::views::{Backend, ViewKind, ViewRenderer, ViewSettings};
 use stylet_render::views::SessionLabels;
 
 use super::script::{SessionArgs, script_simulation};
 
 #[derive(Debug, Args)]
 pub struct SimArgs {
-    /// Atlas directory (the patient).
+    /// Atlas directory (the patient); repeat to offer several. Default: the phantom in the data
+    /// folder, built there on first use.
     #[arg(long)]
-    pub atlas: PathBuf,
+    pub atlas: Vec<PathBuf>,
+    /// Where sessions, the outbox and the built phantom are kept (default: the user's data
+    /// folder, e.g. ~/.local/share/stylet).
+    #[arg(long)]
+    pub data_dir: Option<PathBuf>,
+    /// Serve the tablet page (tool, mode and event buttons for a tablet beside the workbench) on
+    /// this address, e.g. 0.0.0.0:8765; off by default. The window shows its pairing code.
+    #[arg(long, conflicts_with = "headless")]
+    pub tablet: Option<std::net::SocketAddr>,
+    /// Sessions by hand use the raw-HID haptic device this profile describes (docs/devices.md
+    /// "HID profiles"); it is checked before the window opens.
+    #[arg(long, conflicts_with = "headless")]
+    pub hid_profile: Option<PathBuf>,
+    /// Open this session file in the replay viewer.
+    #[arg(long, conflicts_with = "headless")]
+    pub replay: Option<PathBuf>,
     /// Run without a window: the haptic loop driven by the device script given with --script.
     #[arg(long, requires = "script")]
     pub headless: bool,
-    /// Device script (docs/scripts.md) for --headless.
+    /// Device script (docs/scripts.md): drives --headless runs; in the window, sessions are then
+    /// driven by the script instead of by hand (a demonstration).
     #[arg(long)]
     pub script: Option<PathBuf>,
     /// Record the session to this file (docs/session-format.md).
@@ -38,6 +55,14 @@ pub struct SimArgs {
     /// Size of each drawn view on screen, WIDTHxHEIGHT.
     #[arg(long, default_value = "1280x800", value_parser = parse_view_size)]
     pub view_size: (u32, u32),
+    /// What draws the views: gpu (wgpu; a software Vulkan will do), cpu (the reference
+    /// renderers), or auto: the GPU when the machine has a real one, else the CPU.
+    #[arg(long, default_value = "auto", value_parser = parse_renderer)]
+    pub renderer: Backend,
+}
+
+fn parse_renderer(s: &str) -> Result<Backend, String> {
+    Backend::parse(s).ok_or_else(|| format!("unknown renderer '{s}' (auto, cpu or gpu)"))
 }
 
 fn parse_view(s: &str) -> Result<ViewKind, String> {
@@ -66,13 +91,44 @@ struct ViewTally {
     failed: Option<String>,
 }
 
+/// The data folder: --data-dir, else the user's data folder.
+fn data_dir(a: &SimArgs) -> anyhow::Result<PathBuf> {
+    match &a.data_dir {
+        Some(d) => Ok(d.clone()),
+        None => dirs::data_dir()
+            .map(|d| d.join("stylet"))
+            .context("this system has no user data folder: give --data-dir"),
+    }
+}
+
+/// The patients: --atlas, else the phantom in the data folder (built on first use).
+fn atlases(a: &SimArgs, data: &std::path::Path) -> anyhow::Result<Vec<PathBuf>> {
+    if !a.atlas.is_empty() {
+        for dir in &a.atlas {
+            if !dir.join("atlas.toml").is_file() {
+                anyhow::bail!(
+                    "{} is not an atlas (no atlas.toml): build one with `stylet atlas phantom` or `stylet atlas build` (docs/atlas.md)",
+                    dir.display()
+                );
+            }
+        }
+        return Ok(a.atlas.clone());
+    }
+    let phantom = data.join("atlases/phantom");
+    if !phantom.join("atlas.toml").exists() {
+        super::say(&format!("building the phantom patient in {} (once)", phantom.display()));
+        super::atlas::build_phantom(&phantom, &stylet_atlas::phantom::PhantomConfig::default())?;
+    }
+    Ok(vec![phantom])
+}
+
 pub fn run(a: SimArgs) -> anyhow::Result<()> {
+    let data = data_dir(&a)?;
+    let atlases = atlases(&a, &data)?;
     let Some(script) = a.script.as_ref().filter(|_| a.headless) else {
-        anyhow::bail!(
-            "the simulator's window is not built yet (issue 17); `stylet sim --headless --script FILE --atlas DIR` runs its haptic loop driven by a device script"
-        );
+        return window(a, data, atlases);
     };
-    let atlas = stylet_atlas::load(&a.atlas)?;
+    let atlas = stylet_atlas::load(&atlases[0])?;
     let (sim, device) = script_simulation(&atlas, script)?;
     let paced = !a.unpaced;
     // Real time: the recorder must never block the loop (a full queue marks the session
@@ -90,10 +146,17 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
     let atlas = std::sync::Arc::new(atlas);
     let mut renderer = match a.views.is_empty() {
         true => None,
-        false => Some(ViewRenderer::new(
-            std::sync::Arc::clone(&atlas),
-            ViewSettings::default(),
-        )?),
+        false => {
+            let r = ViewRenderer::new(
+                std::sync::Arc::clone(&atlas),
+                ViewSettings {
+                    backend: a.renderer,
+                    ..ViewSettings::default()
+                },
+            )?;
+            super::say(&format!("views drawn by {}", r.drawn_by()));
+            Some(r)
+        }
     };
     let haptic = HapticLoop::spawn(
         sim,
@@ -184,4 +247,45 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
         ));
     }
     Ok(())
+}
+
+#[cfg(feature = "window")]
+fn window(a: SimArgs, data: PathBuf, atlases: Vec<PathBuf>) -> anyhow::Result<()> {
+    let options = stylet_app::window::AppOptions {
+        atlases,
+        sessions_dir: data.join("sessions"),
+        outbox_dir: data.join("outbox"),
+        config_dir: match &a.data_dir {
+            Some(d) => Some(d.join("config")),
+            None => stylet_app::credentials::config_dir().ok(),
+        },
+        script: a.script,
+        paced: !a.unpaced,
+        view_budget: std::time::Duration::from_millis(50),
+        renderer: a.renderer,
+        replay: a.replay,
+        tablet: a.tablet,
+        hid_profile: match &a.hid_profile {
+            Some(p) => {
+                let text = std::fs::read_to_string(p).with_context(|| format!("cannot read {}", p.display()))?;
+                Some(
+                    stylet_devices::hid_profile::HidProfile::parse(&text)
+                        .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?,
+                )
+            }
+            None => None,
+        },
+    };
+    stylet_app::window::run(options).map_err(|e| {
+        anyhow::anyhow!(
+            "{e}\n(without a display, `stylet sim --headless --script FILE` runs the simulator's haptic loop)"
+        )
+    })
+}
+
+#[cfg(not(feature = "window"))]
+fn window(_: SimArgs, _: PathBuf, _: Vec<PathBuf>) -> anyhow::Result<()> {
+    anyhow::bail!(
+        "this build of stylet has no window (built without the `window` feature); use --headless --script FILE"
+    )
 }

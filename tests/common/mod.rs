@@ -297,32 +297,28 @@ pub struct Fixture {
     pub dir: tempfile::TempDir,
 }
 
+/// Builds a phantom atlas at `out` (`dims` "X,Y,Z" voxels of `spacing_mm`).
+pub fn phantom_atlas(out: &Path, dims: &str, spacing_mm: &str) {
+    ok(&[
+        "atlas",
+        "phantom",
+        "--out",
+        s(out),
+        "--dims",
+        dims,
+        "--spacing",
+        spacing_mm,
+    ]);
+}
+
 impl Fixture {
     pub fn new() -> Fixture {
         let dir = tempfile::tempdir().unwrap();
         let f = Fixture { dir };
         let atlas = f.atlases().join("phantom");
-        ok(&[
-            "atlas",
-            "phantom",
-            "--out",
-            s(&atlas),
-            "--dims",
-            "160,160,130",
-            "--spacing",
-            "2.4",
-        ]);
+        phantom_atlas(&atlas, "160,160,130", "2.4");
         let other = f.dir.path().join("other-atlas");
-        ok(&[
-            "atlas",
-            "phantom",
-            "--out",
-            s(&other),
-            "--dims",
-            "96,96,80",
-            "--spacing",
-            "4",
-        ]);
+        phantom_atlas(&other, "96,96,80", "4");
         let scripts = Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts");
         for (name, script, trainee, on) in [
             ("tina-ok", "success-intercostal", "tina", &atlas),

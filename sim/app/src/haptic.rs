@@ -10,13 +10,14 @@
 //! computes.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use stylet_devices::Device;
 use stylet_physics::glam::{DQuat, DVec3};
-use stylet_physics::{Simulation, TickOutput};
+use stylet_physics::{Event, LabelId, Simulation, TickInput, TickOutput};
 use stylet_recorder::{Recording, WriteError, WriteSummary};
 use stylet_render::views::{Moment, SessionLabels};
 use stylet_render::xray::ContrastOverlay;
@@ -111,7 +112,20 @@ pub struct LoopReport {
     pub recording: Option<Result<WriteSummary, WriteError>>,
     /// The simulation after the last tick (for the results screen's local score).
     pub final_tick: u64,
+    /// `Simulation::state_digest` after the last tick: a replay of the recording reaches it.
+    pub final_digest: u64,
 }
+
+/// A line of the event console: what happened at a tick, in words.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConsoleLine {
+    pub tick: u64,
+    pub time_s: f64,
+    pub text: String,
+}
+
+/// Console lines waiting for the window; more are dropped (and counted), never waited for.
+pub const CONSOLE_CAPACITY: usize = 1024;
 
 /// Errors of the loop thread itself.
 #[derive(Debug, thiserror::Error)]
@@ -126,6 +140,7 @@ struct Shared {
     stop: AtomicBool,
     snapshot: Mutex<Option<Snapshot>>,
     stats: LoopStats,
+    dropped_console_lines: AtomicU64,
 }
 
 /// A running haptic loop. Dropping it without [`HapticLoop::join`] asks the loop to stop (the
@@ -133,6 +148,7 @@ struct Shared {
 pub struct HapticLoop {
     shared: Arc<Shared>,
     handle: Option<JoinHandle<LoopReport>>,
+    console: Receiver<ConsoleLine>,
 }
 
 impl Drop for HapticLoop {
@@ -157,15 +173,26 @@ impl HapticLoop {
             stop: AtomicBool::new(false),
             snapshot: Mutex::new(None),
             stats: LoopStats::default(),
+            dropped_console_lines: AtomicU64::new(0),
         });
         let inner = Arc::clone(&shared);
-        let handle = std::thread::Builder::new()
-            .name("stylet-haptic".into())
-            .spawn(move || run(sim, device, recording, &labels, options, &inner))?;
+        let (tx, console) = std::sync::mpsc::sync_channel(CONSOLE_CAPACITY);
+        let handle = spawn_at_normal_priority(move || run(sim, device, recording, &labels, options, &inner, &tx))?;
         Ok(HapticLoop {
             shared,
             handle: Some(handle),
+            console,
         })
+    }
+
+    /// The console lines written since the last call (never blocks the loop).
+    pub fn console(&self) -> Vec<ConsoleLine> {
+        self.console.try_iter().collect()
+    }
+
+    /// Console lines the loop dropped because the window did not read them in time.
+    pub fn dropped_console_lines(&self) -> u64 {
+        self.shared.dropped_console_lines.load(Ordering::Relaxed)
     }
 
     /// The latest published state (a brief lock the loop never waits on).
@@ -200,6 +227,55 @@ impl HapticLoop {
     }
 }
 
+type Job = Box<dyn FnOnce() + Send>;
+
+/// A thread of normal priority that starts the haptic loops, once the window has lowered its own.
+static SPAWNER: std::sync::OnceLock<Mutex<std::sync::mpsc::Sender<Job>>> = std::sync::OnceLock::new();
+
+/// Keeps a thread of normal priority that starts every later haptic loop. The window calls this
+/// before it lowers its own thread's priority (which the threads it starts would inherit, and
+/// which an unprivileged process cannot raise again), so that the loop outranks the window and
+/// its software renderer on a machine with few cores.
+pub fn keep_a_normal_priority_spawner() -> Result<(), std::io::Error> {
+    if SPAWNER.get().is_some() {
+        return Ok(());
+    }
+    let (tx, rx) = std::sync::mpsc::channel::<Job>();
+    std::thread::Builder::new()
+        .name("stylet-spawner".into())
+        .spawn(move || {
+            for job in rx {
+                job();
+            }
+        })?;
+    let _ = SPAWNER.set(Mutex::new(tx));
+    Ok(())
+}
+
+/// Runs `f` on the normal-priority spawner when there is one (else here), so that the threads
+/// it starts run at normal priority: the haptic loop, the recorder's writer.
+pub fn at_normal_priority<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> Result<T, std::io::Error> {
+    let Some(spawner) = SPAWNER.get() else {
+        return Ok(f());
+    };
+    let (tx, rx) = std::sync::mpsc::channel();
+    let job: Job = Box::new(move || {
+        let _ = tx.send(f());
+    });
+    let sent = spawner.lock().map(|s| s.send(job).is_ok()).unwrap_or(false);
+    match (sent, rx.recv()) {
+        (true, Ok(t)) => Ok(t),
+        _ => Err(std::io::Error::other("the normal-priority spawner thread is gone")),
+    }
+}
+
+/// Starts the loop's thread, from the normal-priority spawner when there is one.
+fn spawn_at_normal_priority(
+    f: impl FnOnce() -> LoopReport + Send + 'static,
+) -> Result<JoinHandle<LoopReport>, std::io::Error> {
+    at_normal_priority(move || std::thread::Builder::new().name("stylet-haptic".into()).spawn(f))?
+}
+
 fn run(
     mut sim: Simulation,
     mut device: Box<dyn Device + Send>,
@@ -207,6 +283,7 @@ fn run(
     labels: &SessionLabels,
     options: LoopOptions,
     shared: &Shared,
+    console: &SyncSender<ConsoleLine>,
 ) -> LoopReport {
     let mut contrast = ContrastCache::default();
     let rate = sim.tick_rate_hz();
@@ -215,6 +292,7 @@ fn run(
     let stats = &shared.stats;
     let started = Instant::now();
     let mut last: Option<TickOutput> = None;
+    let mut last_input: Option<TickInput> = None;
     // Misses within the current second, for the session notes.
     let (mut window_missed, mut window_worst) = (0u64, Duration::ZERO);
     let ended = loop {
@@ -229,11 +307,21 @@ fn run(
             break Ended::DeviceEnded;
         };
         let out = sim.step(&input);
+        for text in happenings(&sim, &input, &out, last.as_ref()) {
+            let line = ConsoleLine {
+                tick: out.tick,
+                time_s: out.time_s,
+                text,
+            };
+            if let Err(TrySendError::Full(_)) = console.try_send(line) {
+                shared.dropped_console_lines.fetch_add(1, Ordering::Relaxed);
+            }
+        }
         if let Some(r) = recording.as_mut() {
             r.tick(&input, &out, &sim);
         }
         if out.tick % publish_every == 0 {
-            publish(shared, &sim, &input, &out, labels, &mut contrast);
+            publish(shared, snapshot_of(&sim, &input, &out, labels, &mut contrast));
         }
         stats.ticks.fetch_add(1, Ordering::Relaxed);
         if let Some(p) = pacer.as_mut() {
@@ -263,8 +351,17 @@ fn run(
             }
         }
         last = Some(out);
+        last_input = Some(input);
     };
     let wall = started.elapsed();
+    // The final state is always published (the loop no longer races anyone for it), so the
+    // window shows where the session ended, not up to 15 ticks before.
+    if let (Some(out), Some(input)) = (last.as_ref(), last_input.as_ref()) {
+        let last = snapshot_of(&sim, input, out, labels, &mut contrast);
+        if let Ok(mut slot) = shared.snapshot.lock() {
+            *slot = Some(last);
+        }
+    }
     let view = stats.view();
     if let (Some(r), true) = (recording.as_ref(), options.paced) {
         r.note(
@@ -285,7 +382,41 @@ fn run(
         wall,
         recording: recording.map(Recording::finish),
         final_tick: sim.tick(),
+        final_digest: sim.state_digest(),
     }
+}
+
+/// What a tick did that a trainee or instructor wants to read: the device's events and the tip
+/// entering another structure.
+fn happenings(sim: &Simulation, input: &TickInput, out: &TickOutput, last: Option<&TickOutput>) -> Vec<String> {
+    let mut lines: Vec<String> = input.events.iter().map(event_text).collect();
+    let entered = out.inserted_mm > 0.0 && last.is_none_or(|l| l.tip_label != out.tip_label || l.inserted_mm <= 0.0);
+    if entered {
+        lines.push(format!("needle tip in {}", label_name(sim, out.tip_label)));
+    }
+    lines
+}
+
+/// An event in words.
+pub fn event_text(e: &Event) -> String {
+    match e {
+        Event::SelectTool(t) => format!("tool: {}", t.name()),
+        Event::StyletRemove => "stylet out".into(),
+        Event::StyletInsert => "stylet in".into(),
+        Event::XrayOn => "fluoroscopy on".into(),
+        Event::XrayOff => "fluoroscopy off".into(),
+        Event::ContrastInject { ml } => format!("contrast injected: {ml} ml"),
+        Event::BreathHold => "breath hold".into(),
+        Event::BreathRelease => "breathing again".into(),
+    }
+}
+
+/// A label's name in the atlas' table ("label 7" if the table does not know it).
+pub fn label_name(sim: &Simulation, id: LabelId) -> String {
+    sim.atlas()
+        .label_table()
+        .get(id)
+        .map_or_else(|| format!("label {id}"), |l| l.name.clone())
 }
 
 /// The contrast overlay of the latest publication, rebuilt only when the contrast changed.
@@ -311,22 +442,25 @@ impl ContrastCache {
     }
 }
 
-/// Publishes the state after a tick unless a view is reading the previous one. The snapshot is
-/// built before the lock is tried, so a view never waits for the building either.
-fn publish(
-    shared: &Shared,
+/// The state after the tick that turned `input` into `out`, as the views draw it.
+fn snapshot_of(
     sim: &Simulation,
-    input: &stylet_physics::TickInput,
+    input: &TickInput,
     out: &TickOutput,
     labels: &SessionLabels,
     contrast: &mut ContrastCache,
-) {
-    let snapshot = Snapshot {
+) -> Snapshot {
+    Snapshot {
         position_mm: input.position_mm,
         orientation: input.orientation,
         output: *out,
         moment: Moment::with_contrast(sim, input, out, labels, contrast.get(sim, out)),
-    };
+    }
+}
+
+/// Publishes the state after a tick unless a view is reading the previous one. The snapshot is
+/// built before the lock is tried, so a view never waits for the building either.
+fn publish(shared: &Shared, snapshot: Snapshot) {
     match shared.snapshot.try_lock() {
         Ok(mut slot) => *slot = Some(snapshot),
         Err(_) => {

@@ -1,16 +1,24 @@
 //! The Stylet desktop simulator (thesis §2.1, §6.2–6.3; docs/simulator.md).
 //!
-//! This crate holds what the simulator is made of below its windows: the real-time haptic loop
+//! The window ([`window`], egui on wgpu, feature `window`) shows the start screen, the session,
+//! the results and the replay viewer. Below it: the real-time haptic loop
 //! ([`haptic`], paced by [`pacing`]), and the outbox that uploads finished sessions to the
 //! scoring service and keeps them until the service confirms ([`outbox`]), and the views drawn
-//! from the loop's snapshots at a resolution that keeps their frame budget ([`views`]). The egui
-//! window builds on these.
+//! from the loop's snapshots at a resolution that keeps their frame budget ([`views`]) on a thread
+//! of their own ([`view_worker`]); a session from start to score ([`session`]); the replay
+//! viewer's cursor ([`replay_cursor`]).
 
 pub mod controls;
 pub mod credentials;
 pub mod haptic;
 pub mod outbox;
 pub mod pacing;
+pub mod priority;
+pub mod replay_cursor;
 pub mod service_client;
+pub mod session;
 pub mod tablet;
+pub mod view_worker;
 pub mod views;
+#[cfg(feature = "window")]
+pub mod window;

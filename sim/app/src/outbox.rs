@@ -230,10 +230,11 @@ impl Outbox {
                     round.waiting.push((name, why.clone()));
                     halt = Some(why);
                 }
+                // This account may not upload this file (a session of another trainee, a disabled
+                // account): it waits for a login that may, and the others still go.
                 UploadReply::Forbidden { reason } => {
-                    let why = format!("the account may not upload ({reason}): will retry");
-                    round.waiting.push((name, why.clone()));
-                    halt = Some(why);
+                    let why = format!("this login may not upload it ({reason}): it waits");
+                    round.waiting.push((name, why));
                 }
                 UploadReply::Unavailable { reason } => {
                     let why = format!("the server is unavailable ({reason}): will retry");
@@ -419,6 +420,33 @@ mod tests {
             self.sent.borrow_mut().push(session.len());
             self.replies.borrow_mut().remove(0)
         }
+    }
+
+    #[test]
+    fn a_file_this_login_may_not_upload_waits_without_holding_up_the_others() {
+        let dir = tempfile::tempdir().unwrap();
+        let outbox = Outbox::open(&dir.path().join("outbox")).unwrap();
+        for n in ["001-a.mcap", "002-b.mcap"] {
+            fs::write(outbox.dir().join(n), n).unwrap();
+        }
+        let uploader = Scripted {
+            replies: RefCell::new(vec![
+                UploadReply::Forbidden {
+                    reason: "tina may not upload sessions of trainee 'trainee'".into(),
+                },
+                UploadReply::Accepted {
+                    id: "s2".into(),
+                    new: true,
+                },
+            ]),
+            sent: RefCell::new(Vec::new()),
+        };
+        let round = outbox.upload_all(&uploader).unwrap();
+        assert_eq!(round.uploaded, vec![("002-b.mcap".to_string(), "s2".to_string())]);
+        assert_eq!(round.waiting.len(), 1);
+        assert!(round.waiting[0].1.contains("may not upload"), "{round:?}");
+        assert_eq!(outbox.pending().unwrap(), vec!["001-a.mcap"]);
+        assert!(outbox.refused().unwrap().is_empty());
     }
 
     #[test]

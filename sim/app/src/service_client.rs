@@ -1,6 +1,7 @@
 //! The simulator's side of the scoring service's HTTP API (docs/api.md): logging in once to get
 //! an upload-only API token, and uploading session files with it.
 
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use serde_json::Value;
@@ -23,6 +24,23 @@ pub enum UploadReply {
     Forbidden { reason: String },
     /// The service is down, overloaded or unreachable: try again later.
     Unavailable { reason: String },
+}
+
+/// Errors of fetching a session file.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum FetchError {
+    #[error("'{0}' is not a session id (letters, digits and '-')")]
+    BadId(String),
+    #[error("the service has no session {0} that this login may see")]
+    NotFound(String),
+    #[error("the service refused ({status}): {reason}")]
+    Refused { status: u16, reason: String },
+    #[error("the service cannot be reached: {0}")]
+    Unavailable(String),
+    #[error("the file is larger than {0} bytes")]
+    TooLarge(u64),
+    #[error("cannot keep the file: {0}")]
+    Write(String),
 }
 
 /// Errors of logging in.
@@ -114,6 +132,48 @@ impl ServiceClient {
         &self.base
     }
 
+    /// Fetches the file of session `id` (one the token's account may see) and writes it to
+    /// `dir/fetched-ID.mcap` completely or not at all; refuses ids that are not the service's
+    /// (letters, digits, `-`) and files over the upload limit.
+    pub fn fetch_session(&self, token: &str, id: &str, dir: &Path) -> Result<PathBuf, FetchError> {
+        use std::io::Read;
+        if id.is_empty() || id.len() > 64 || !id.chars().all(|c| c.is_ascii_alphanumeric() || c == '-') {
+            return Err(FetchError::BadId(id.to_string()));
+        }
+        let resp = match self
+            .agent
+            .get(&format!("{}/api/sessions/{id}/file", self.base))
+            .set("Authorization", &format!("Bearer {token}"))
+            .call()
+        {
+            Ok(r) => r,
+            Err(ureq::Error::Status(404, _)) => return Err(FetchError::NotFound(id.to_string())),
+            Err(ureq::Error::Status(status, r)) => {
+                return Err(FetchError::Refused {
+                    status,
+                    reason: reason_of(r),
+                });
+            }
+            Err(ureq::Error::Transport(t)) => return Err(FetchError::Unavailable(t.to_string())),
+        };
+        let limit = crate::outbox::MAX_SESSION_BYTES;
+        let mut bytes = Vec::new();
+        resp.into_reader()
+            .take(limit + 1)
+            .read_to_end(&mut bytes)
+            .map_err(|e| FetchError::Unavailable(e.to_string()))?;
+        if bytes.len() as u64 > limit {
+            return Err(FetchError::TooLarge(limit));
+        }
+        let io = |e: std::io::Error| FetchError::Write(e.to_string());
+        std::fs::create_dir_all(dir).map_err(io)?;
+        let path = dir.join(format!("fetched-{id}.mcap"));
+        let part = dir.join(format!(".fetching-{id}.mcap"));
+        std::fs::write(&part, &bytes).map_err(io)?;
+        std::fs::rename(&part, &path).map_err(io)?;
+        Ok(path)
+    }
+
     /// Logs in with a username and password, makes an upload-only API token labelled `label`,
     /// logs out again and returns the token (the password is not kept).
     pub fn upload_token(&self, username: &str, password: &str, label: &str) -> Result<String, LoginError> {
@@ -176,7 +236,25 @@ impl ServiceClient {
     }
 
     /// Uploads one session file with an API token.
+    ///
+    /// The service checks the token before it reads a byte of the body, and a refusal closes the
+    /// connection while the file is still being sent: the client then sees a broken pipe or a
+    /// reset instead of the 401/403 the server wrote. So a failure in transit is followed by an
+    /// empty upload with the same token, which has no body to lose the answer under: 401/403
+    /// there is the real reason; 400 (the empty body) means the token is good and the network or
+    /// the server failed, so the file waits for the next round.
     pub fn upload(&self, token: &str, session: &[u8]) -> UploadReply {
+        match self.upload_reply(token, session) {
+            UploadReply::Unavailable { reason } if !session.is_empty() => match self.upload_reply(token, &[]) {
+                refused @ (UploadReply::Unauthorized { .. } | UploadReply::Forbidden { .. }) => refused,
+                _ => UploadReply::Unavailable { reason },
+            },
+            reply => reply,
+        }
+    }
+
+    /// One POST /api/sessions and what it means.
+    fn upload_reply(&self, token: &str, session: &[u8]) -> UploadReply {
         let resp = self
             .agent
             .post(&format!("{}/api/sessions", self.base))

@@ -1,10 +1,12 @@
-//! The simulator's views drawn from the haptic loop's snapshots on the CPU reference renderers
-//! (`stylet_render::views` composes each scene, so the window shows what `stylet render` and
-//! the dashboard show for the same tick). Each view keeps a frame budget by adapting its
-//! resolution: a frame over budget lowers the scale, one well under raises it again.
+//! The simulator's views drawn from the haptic loop's snapshots (`stylet_render::views` composes
+//! each scene, so the window shows what `stylet render` and the dashboard show for the same tick),
+//! on the CPU reference renderers or, with the feature `gpu`, on the wgpu renderers of
+//! `stylet-render-gpu` (the same per-ray algorithms; slices are annotated on the CPU either way).
+//! Each view keeps a frame budget by adapting its resolution: a frame over budget lowers the
+//! scale, one well under raises it again.
 //!
-//! Drawing runs in a thread pool of its own that leaves one core to the haptic loop, so the loop
-//! never pays for drawing (docs/simulator.md "Views").
+//! CPU drawing runs in a thread pool of its own that leaves one core to the haptic loop, so the
+//! loop never pays for drawing (docs/simulator.md "Views").
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -26,6 +28,10 @@ pub enum ViewKind {
     ThreeD,
     /// The axial slice through the tip.
     Axial,
+    /// The coronal slice through the tip.
+    Coronal,
+    /// The sagittal slice through the tip.
+    Sagittal,
     /// The oblique slice along the needle.
     Needle,
     Ultrasound,
@@ -33,9 +39,11 @@ pub enum ViewKind {
 }
 
 impl ViewKind {
-    pub const ALL: [ViewKind; 5] = [
+    pub const ALL: [ViewKind; 7] = [
         ViewKind::ThreeD,
         ViewKind::Axial,
+        ViewKind::Coronal,
+        ViewKind::Sagittal,
         ViewKind::Needle,
         ViewKind::Ultrasound,
         ViewKind::Xray,
@@ -45,9 +53,24 @@ impl ViewKind {
         match self {
             ViewKind::ThreeD => "3d",
             ViewKind::Axial => "axial",
+            ViewKind::Coronal => "coronal",
+            ViewKind::Sagittal => "sagittal",
             ViewKind::Needle => "needle",
             ViewKind::Ultrasound => "ultrasound",
             ViewKind::Xray => "xray",
+        }
+    }
+
+    /// The view's title in the window.
+    pub fn title(self) -> &'static str {
+        match self {
+            ViewKind::ThreeD => "3D",
+            ViewKind::Axial => "Axial",
+            ViewKind::Coronal => "Coronal",
+            ViewKind::Sagittal => "Sagittal",
+            ViewKind::Needle => "Along the needle",
+            ViewKind::Ultrasound => "Ultrasound",
+            ViewKind::Xray => "X-ray",
         }
     }
 
@@ -60,9 +83,34 @@ impl ViewKind {
 pub const MIN_SCALE: f32 = 0.25;
 pub const MAX_SCALE: f32 = 1.0;
 
+/// What draws the views.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Backend {
+    /// The CPU reference renderers.
+    #[default]
+    Cpu,
+    /// The wgpu renderers (feature `gpu`): any adapter, Mesa's software Vulkan included.
+    Gpu,
+    /// The GPU when the first adapter is a real GPU, else the CPU: a software adapter
+    /// (lavapipe) runs on the very cores the CPU renderers and the haptic loop share.
+    Auto,
+}
+
+impl Backend {
+    pub fn parse(s: &str) -> Option<Backend> {
+        match s {
+            "cpu" => Some(Backend::Cpu),
+            "gpu" => Some(Backend::Gpu),
+            "auto" => Some(Backend::Auto),
+            _ => None,
+        }
+    }
+}
+
 /// How the views are drawn.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ViewSettings {
+    pub backend: Backend,
     pub preset: Preset,
     pub tagging: Tagging,
     pub doppler: bool,
@@ -73,6 +121,7 @@ pub struct ViewSettings {
 impl Default for ViewSettings {
     fn default() -> Self {
         ViewSettings {
+            backend: Backend::Cpu,
             preset: Preset::Skin,
             tagging: Tagging::Off,
             doppler: true,
@@ -98,8 +147,50 @@ pub struct ViewRenderer {
     doppler: Option<Arc<FlowField>>,
     settings: ViewSettings,
     step_mm: f32,
-    scales: [f32; 5],
+    scales: [f32; ViewKind::ALL.len()],
     pool: rayon::ThreadPool,
+    #[cfg(feature = "gpu")]
+    gpu: Option<GpuViews>,
+}
+
+/// The wgpu renderers and the atlas uploaded to them.
+#[cfg(feature = "gpu")]
+struct GpuViews {
+    ctx: stylet_render_gpu::GpuContext,
+    volume: stylet_render_gpu::GpuVolume,
+    raycast: stylet_render_gpu::GpuRenderer,
+    mpr: stylet_render_gpu::GpuMpr,
+    xray: stylet_render_gpu::GpuXray,
+    ultrasound: stylet_render_gpu::GpuUltrasound,
+}
+
+#[cfg(feature = "gpu")]
+impl GpuViews {
+    /// Opens the GPU and uploads the atlas; `None` for [`Backend::Auto`] on a software adapter.
+    fn open(backend: Backend, volume: &RenderVolume) -> Result<Option<GpuViews>, ViewError> {
+        let ctx = match stylet_render_gpu::GpuContext::new() {
+            Ok(ctx) => ctx,
+            Err(_) if backend == Backend::Auto => return Ok(None),
+            Err(e) => return Err(gpu_error(e)),
+        };
+        if backend == Backend::Auto && ctx.adapter().device_type == "Cpu" {
+            return Ok(None);
+        }
+        let uploaded = stylet_render_gpu::GpuVolume::upload(&ctx, volume).map_err(gpu_error)?;
+        Ok(Some(GpuViews {
+            volume: uploaded,
+            raycast: stylet_render_gpu::GpuRenderer::new(&ctx),
+            mpr: stylet_render_gpu::GpuMpr::new(&ctx),
+            xray: stylet_render_gpu::GpuXray::new(&ctx),
+            ultrasound: stylet_render_gpu::GpuUltrasound::new(&ctx),
+            ctx,
+        }))
+    }
+}
+
+#[cfg(feature = "gpu")]
+fn gpu_error(e: stylet_render_gpu::GpuError) -> ViewError {
+    ViewError::Render(stylet_render::RenderError::Draw(format!("GPU: {e}")))
 }
 
 /// Threads for drawing: every core but one, which the haptic loop keeps.
@@ -114,6 +205,9 @@ impl ViewRenderer {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(drawing_threads())
             .thread_name(|i| format!("stylet-draw-{i}"))
+            .start_handler(|_| {
+                crate::priority::lower_this_thread(crate::priority::DRAWING_NICENESS);
+            })
             .build()
             .map_err(|e| ViewError::Render(stylet_render::RenderError::Draw(e.to_string())))?;
         let (volume, echo, doppler) = pool.install(|| {
@@ -124,16 +218,38 @@ impl ViewRenderer {
                 .then(|| Arc::new(FlowField::build(&atlas.model, &echo)));
             (volume, echo, doppler)
         });
+        #[cfg(feature = "gpu")]
+        let gpu = match settings.backend {
+            Backend::Cpu => None,
+            backend => GpuViews::open(backend, &volume)?,
+        };
+        #[cfg(not(feature = "gpu"))]
+        if settings.backend == Backend::Gpu {
+            return Err(ViewError::Render(stylet_render::RenderError::Draw(
+                "this simulator was built without the GPU renderer (cargo feature `gpu`)".into(),
+            )));
+        }
         Ok(ViewRenderer {
+            #[cfg(feature = "gpu")]
+            gpu,
             step_mm: views::default_step_mm(&atlas),
             atlas,
             volume,
             echo,
             doppler,
             settings,
-            scales: [MAX_SCALE; 5],
+            scales: [MAX_SCALE; ViewKind::ALL.len()],
             pool,
         })
+    }
+
+    /// What draws: "CPU (n threads)" or the GPU adapter's name.
+    pub fn drawn_by(&self) -> String {
+        #[cfg(feature = "gpu")]
+        if let Some(g) = &self.gpu {
+            return format!("GPU: {}", g.ctx.adapter().name);
+        }
+        format!("CPU ({} threads)", self.pool.current_num_threads())
     }
 
     /// The current resolution scale of a view.
@@ -148,6 +264,16 @@ impl ViewRenderer {
         let w = ((width as f32 * scale).round() as u32).max(1);
         let h = ((height as f32 * scale).round() as u32).max(1);
         let t0 = Instant::now();
+        #[cfg(feature = "gpu")]
+        let image = match self.gpu.take() {
+            Some(mut gpu) => {
+                let image = self.draw_on_gpu(&mut gpu, kind, moment, w, h);
+                self.gpu = Some(gpu);
+                image?
+            }
+            None => self.pool.install(|| self.draw_at(kind, moment, w, h))?,
+        };
+        #[cfg(not(feature = "gpu"))]
         let image = self.pool.install(|| self.draw_at(kind, moment, w, h))?;
         let took = t0.elapsed();
         let budget = self.settings.budget;
@@ -176,6 +302,8 @@ impl ViewRenderer {
                 Ok(stylet_render::raycast::render(&self.volume, &scene, w, h).image)
             }
             ViewKind::Axial => views::slice_image(atlas, m, &views::plane_spec(atlas, m, Plane::Axial, w, h)),
+            ViewKind::Coronal => views::slice_image(atlas, m, &views::plane_spec(atlas, m, Plane::Coronal, w, h)),
+            ViewKind::Sagittal => views::slice_image(atlas, m, &views::plane_spec(atlas, m, Plane::Sagittal, w, h)),
             ViewKind::Needle => views::slice_image(atlas, m, &views::needle_spec(atlas, m, w, h)?),
             ViewKind::Ultrasound => {
                 let scene = views::ultrasound_scene(
@@ -192,6 +320,56 @@ impl ViewRenderer {
                 let scenario = atlas.manifest.scenarios.iter().find(|s| s.name == moment.scenario);
                 let (scene, window) = views::xray_scene(atlas, m, scenario, None, None)?;
                 Ok(stylet_render::xray::render(&atlas.model, &scene, w, h)?.to_image(window))
+            }
+        }
+    }
+
+    /// [`Self::draw_at`] on the wgpu renderers: the same scenes, drawn on the GPU.
+    #[cfg(feature = "gpu")]
+    fn draw_on_gpu(
+        &self,
+        g: &mut GpuViews,
+        kind: ViewKind,
+        moment: &Moment,
+        w: u32,
+        h: u32,
+    ) -> Result<Image, ViewError> {
+        let atlas = &*self.atlas;
+        let m = Some(moment);
+        let slice = |g: &mut GpuViews, spec: &stylet_render::mpr::SliceSpec| {
+            let image = g.mpr.render(&g.ctx, &g.volume, spec).map_err(gpu_error)?;
+            views::annotated_slice(&image, m)
+        };
+        match kind {
+            ViewKind::ThreeD => {
+                let scene = views::scene_3d(atlas, m, self.settings.preset, self.settings.tagging, self.step_mm)?;
+                g.raycast.render(&g.ctx, &g.volume, &scene, w, h).map_err(gpu_error)
+            }
+            ViewKind::Axial => slice(g, &views::plane_spec(atlas, m, Plane::Axial, w, h)),
+            ViewKind::Coronal => slice(g, &views::plane_spec(atlas, m, Plane::Coronal, w, h)),
+            ViewKind::Sagittal => slice(g, &views::plane_spec(atlas, m, Plane::Sagittal, w, h)),
+            ViewKind::Needle => slice(g, &views::needle_spec(atlas, m, w, h)?),
+            ViewKind::Ultrasound => {
+                let scene = views::ultrasound_scene(
+                    atlas,
+                    m,
+                    Some(ProbeKind::Convex),
+                    &moment.difficulty,
+                    Arc::clone(&self.echo),
+                    self.doppler.clone(),
+                )?;
+                Ok(g.ultrasound
+                    .render(&g.ctx, &g.volume, &scene)
+                    .map_err(gpu_error)?
+                    .to_image(w, h))
+            }
+            ViewKind::Xray => {
+                let scenario = atlas.manifest.scenarios.iter().find(|s| s.name == moment.scenario);
+                let (scene, window) = views::xray_scene(atlas, m, scenario, None, None)?;
+                Ok(g.xray
+                    .render(&g.ctx, &g.volume, &scene, w, h)
+                    .map_err(gpu_error)?
+                    .to_image(window))
             }
         }
     }

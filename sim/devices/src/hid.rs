@@ -1,11 +1,14 @@
 //! HID devices through hidapi (feature `hid`; hidraw on Linux, no system library needed):
-//! SpaceMice as six-axis sources for the live device.
+//! SpaceMice as six-axis sources for the live device, and raw-HID haptic devices described by a
+//! profile as its pose sources (with force output).
 //!
 //! Only the opening and reading live here; the report layouts are in [`crate::spacemouse`] and
 //! tested from recorded report bytes. No SpaceMouse was at hand when this was written: it is
 //! built and type-checked in CI but not yet tried with hardware.
 
 use hidapi::{HidApi, HidDevice};
+
+use stylet_physics::glam::{DQuat, DVec3};
 
 use crate::live::{SixAxisSource, SourceError};
 use crate::spacemouse::{Model, Motion6, SpaceMouseState, find_model};
@@ -81,5 +84,71 @@ impl SixAxisSource for HidSpaceMouse {
             self.state.rotation = [0; 3];
         }
         Ok((self.state.motion(&self.model), self.state.buttons))
+    }
+}
+
+/// A raw-HID device described by a profile (`hid_profile`): its input reports move the tool,
+/// its output report displays the force. Reads never wait; the latest report of a tick wins.
+pub struct HidProfileDevice {
+    device: HidDevice,
+    pub profile: crate::hid_profile::HidProfile,
+    last: Option<crate::hid_profile::HidSample>,
+    last_report: std::time::Instant,
+}
+
+impl HidProfileDevice {
+    /// Opens the first connected device with the profile's vendor and product ids.
+    pub fn open(profile: crate::hid_profile::HidProfile) -> Result<HidProfileDevice, SourceError> {
+        let api = HidApi::new().map_err(|e| SourceError(format!("cannot use HID devices: {e}")))?;
+        let device = api.open(profile.vendor_id, profile.product_id).map_err(|e| {
+            SourceError(format!(
+                "cannot open '{}' ({:04x}:{:04x}): {e} (is it connected, and may this user read /dev/hidraw*?)",
+                profile.name, profile.vendor_id, profile.product_id
+            ))
+        })?;
+        device
+            .set_blocking_mode(false)
+            .map_err(|e| SourceError(format!("{}: {e}", profile.name)))?;
+        Ok(HidProfileDevice {
+            device,
+            profile,
+            last: None,
+            last_report: std::time::Instant::now(),
+        })
+    }
+}
+
+impl crate::live::PoseSource for HidProfileDevice {
+    fn poll(&mut self) -> Result<(DVec3, Option<DQuat>, u32), SourceError> {
+        let mut buf = [0u8; crate::hid_profile::MAX_REPORT_BYTES as usize];
+        for _ in 0..MAX_REPORTS_PER_POLL {
+            match self.device.read(&mut buf) {
+                Ok(0) => break,
+                Ok(n) => {
+                    // Other reports (not the profile's input report) are skipped.
+                    if let Ok(sample) = self.profile.decode(&buf[..n]) {
+                        self.last = Some(sample);
+                        self.last_report = std::time::Instant::now();
+                    }
+                }
+                Err(e) => return Err(SourceError(format!("{}: {e}", self.profile.name))),
+            }
+        }
+        match &self.last {
+            Some(s) if self.last_report.elapsed() <= STALE_AFTER * 4 => Ok((s.position_mm, s.orientation, s.buttons)),
+            Some(_) => Err(SourceError(format!("{}: no report for a second", self.profile.name))),
+            None => Err(SourceError(format!("{}: no report yet", self.profile.name))),
+        }
+    }
+
+    fn display(&mut self, force_n: DVec3) -> Result<(), SourceError> {
+        match self.profile.encode_force(force_n) {
+            Some(report) => self
+                .device
+                .write(&report)
+                .map(|_| ())
+                .map_err(|e| SourceError(format!("{}: {e}", self.profile.name))),
+            None => Ok(()),
+        }
     }
 }

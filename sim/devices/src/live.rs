@@ -35,6 +35,16 @@ pub trait SixAxisSource: Send {
     fn poll(&mut self) -> Result<(Motion6, u32), SourceError>;
 }
 
+/// A device that senses where the tool is (a haptic arm) and may display a force, polled once per
+/// tick without waiting (a raw-HID device described by a profile: `hid::HidProfileDevice`).
+pub trait PoseSource: Send {
+    /// The tool's position in the device's frame (mm), its orientation if the device senses one,
+    /// and the buttons.
+    fn poll(&mut self) -> Result<(DVec3, Option<DQuat>, u32), SourceError>;
+    /// Displays `force_n` (device frame); a device without force output does nothing.
+    fn display(&mut self, force_n: DVec3) -> Result<(), SourceError>;
+}
+
 /// A six-axis source that failed.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{0}")]
@@ -83,8 +93,18 @@ pub struct LiveDevice {
     view: DQuat,
     dt_s: f64,
     rate: Option<RateControl>,
+    absolute: Option<AbsoluteControl>,
     /// Tick at which a single shot's X-ray goes off.
     shot_off_at: Option<u64>,
+}
+
+/// A pose source moving the tool: the device's origin is where the tool was when the source was
+/// first read, its axes the view's.
+struct AbsoluteControl {
+    source: Box<dyn PoseSource>,
+    /// World position of the device's origin (set at the first reading).
+    anchor: Option<DVec3>,
+    errors: u64,
 }
 
 /// A six-axis source moving the pose.
@@ -115,6 +135,7 @@ pub fn live_device(position_mm: DVec3, orientation: DQuat, rate_hz: u32) -> (Liv
             view: DQuat::IDENTITY,
             dt_s: 1.0 / f64::from(rate_hz.max(1)),
             rate: None,
+            absolute: None,
             shot_off_at: None,
         },
         LiveHandle { input, feedback },
@@ -132,9 +153,19 @@ impl LiveDevice {
         self
     }
 
+    /// Lets a device that senses the tool's pose move it, and displays the force on it.
+    pub fn with_pose_source(mut self, source: Box<dyn PoseSource>) -> Self {
+        self.absolute = Some(AbsoluteControl {
+            source,
+            anchor: None,
+            errors: 0,
+        });
+        self
+    }
+
     /// Polls that failed so far (a SpaceMouse unplugged, unreadable reports).
     pub fn source_errors(&self) -> u64 {
-        self.rate.as_ref().map_or(0, |r| r.errors)
+        self.rate.as_ref().map_or(0, |r| r.errors) + self.absolute.as_ref().map_or(0, |a| a.errors)
     }
 
     /// One tick's move toward the window's target, at most the follow speeds.
@@ -230,8 +261,34 @@ impl Device for LiveDevice {
             events = std::mem::take(&mut s.events);
             commands = std::mem::take(&mut s.commands);
         }
-        let (position_mm, orientation) = match self.rate.as_mut() {
-            Some(rate) => {
+        if let (Some(abs), Some(out)) = (self.absolute.as_mut(), last)
+            && abs.source.display(self.view.inverse() * out.force_n).is_err()
+        {
+            abs.errors += 1;
+        }
+        let (position_mm, orientation) = match (self.rate.as_mut(), self.absolute.as_mut()) {
+            (None, Some(abs)) => {
+                let mut pose = (self.last.position_mm, self.last.orientation);
+                match abs.source.poll() {
+                    Ok((p, q, b)) => {
+                        let anchor = *abs.anchor.get_or_insert(self.last.position_mm - self.view * p);
+                        pose.0 = anchor + self.view * p;
+                        if let Some(q) = q {
+                            pose.1 = (self.view * q).normalize();
+                        } else {
+                            pose.1 = self.target.1;
+                        }
+                        buttons = b;
+                    }
+                    Err(_) => abs.errors += 1,
+                }
+                if let Some(s) = shared.as_mut() {
+                    s.position_mm = pose.0;
+                    s.orientation = pose.1;
+                }
+                pose
+            }
+            (Some(rate), _) => {
                 let mut pose = RatePose {
                     position_mm: self.last.position_mm,
                     orientation: self.last.orientation,
@@ -256,7 +313,7 @@ impl Device for LiveDevice {
                 }
                 (pose.position_mm, pose.orientation)
             }
-            None => self.follow(),
+            (None, None) => self.follow(),
         };
         drop(shared);
         // Commands against the latest tick's switches (before the first tick: the start state).
@@ -322,6 +379,59 @@ mod tests {
         assert!((x - 3.0).abs() < 1e-9);
         handle.finish();
         assert!(dev.next(21, None).is_none());
+    }
+
+    /// A haptic arm that moves 1 mm along its x per reading and records the forces shown to it.
+    struct Arm {
+        x: f64,
+        shown: Arc<Mutex<Vec<DVec3>>>,
+    }
+
+    impl PoseSource for Arm {
+        fn poll(&mut self) -> Result<(DVec3, Option<DQuat>, u32), SourceError> {
+            self.x += 1.0;
+            Ok((DVec3::new(self.x, 0.0, 0.0), None, 1))
+        }
+        fn display(&mut self, force_n: DVec3) -> Result<(), SourceError> {
+            self.shown.lock().unwrap().push(force_n);
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_pose_sensing_device_moves_the_tool_in_the_view_and_feels_the_force_in_its_own_frame() {
+        let shown = Arc::new(Mutex::new(Vec::new()));
+        let (dev, handle) = live_device(DVec3::new(100.0, 0.0, 0.0), DQuat::IDENTITY, 1000);
+        let mut dev = dev.with_pose_source(Box::new(Arm {
+            x: 0.0,
+            shown: Arc::clone(&shown),
+        }));
+        // The view turned 90° about z: the device's x is the world's y.
+        let view = DQuat::from_rotation_z(std::f64::consts::FRAC_PI_2);
+        handle.set_view(view);
+        let a = dev.next(0, None).unwrap();
+        // The first reading anchors the device's origin at the tool.
+        assert!(
+            (a.position_mm - DVec3::new(100.0, 0.0, 0.0)).length() < 1e-9,
+            "{:?}",
+            a.position_mm
+        );
+        assert_eq!(a.buttons, 1);
+        let out = TickOutput {
+            force_n: DVec3::new(0.0, 2.0, 0.0),
+            ..zero_output()
+        };
+        let b = dev.next(1, Some(&out)).unwrap();
+        assert!(
+            (b.position_mm - DVec3::new(100.0, 1.0, 0.0)).length() < 1e-9,
+            "{:?}",
+            b.position_mm
+        );
+        // The world's +y force is the device's +x.
+        let f = shown.lock().unwrap()[0];
+        assert!((f - DVec3::new(2.0, 0.0, 0.0)).length() < 1e-9, "{f:?}");
+        // The window sees where the device took the tool.
+        assert!((handle.pose().unwrap().0 - b.position_mm).length() < 1e-12);
     }
 
     #[test]

@@ -1,0 +1,378 @@
+//! One training session as the window runs it: the plan chosen on the start screen (patient,
+//! scenario, difficulty, trainee), the running haptic loop with its recording, and the finished
+//! session with its local score (the same scorer and rubric as the service: thesis §6.3,
+//! docs/metrics.md) and its place in the outbox.
+//!
+//! Nothing here draws: the window and the tests drive it alike.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use stylet_atlas::Atlas;
+use stylet_atlas::manifest::DifficultyPreset;
+use stylet_devices::Device;
+use stylet_devices::live::{LiveHandle, live_device};
+use stylet_devices::script::{ScriptedDevice, parse, scripted_simulation};
+use stylet_physics::glam::{DQuat, DVec3};
+use stylet_physics::{DeviceProfile, SimConfig, Simulation, ToolSpec};
+use stylet_recorder::{Recording, SessionInfo, WriterOptions};
+use stylet_render::scene::Tagging;
+use stylet_render::views::SessionLabels;
+use stylet_scoring::{Exercise, Rubric, ScoreReport, Scorer};
+
+use crate::haptic::{ConsoleLine, HapticLoop, LoopError, LoopOptions, LoopReport, Snapshot, StatsView};
+use crate::views::ViewSettings;
+
+/// The difficulty levels a session is graded at (the rubric has one level per name).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Difficulty {
+    #[default]
+    Beginner,
+    Advanced,
+    Expert,
+}
+
+impl Difficulty {
+    pub const ALL: [Difficulty; 3] = [Difficulty::Beginner, Difficulty::Advanced, Difficulty::Expert];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Difficulty::Beginner => "beginner",
+            Difficulty::Advanced => "advanced",
+            Difficulty::Expert => "expert",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Difficulty> {
+        Difficulty::ALL.into_iter().find(|d| d.name() == s)
+    }
+}
+
+/// Console lines a session keeps (the oldest go first).
+pub const CONSOLE_LINES: usize = 500;
+
+/// Errors of starting and finishing a session.
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    #[error("the script cannot drive this patient: {0}")]
+    Script(String),
+    #[error("the simulation cannot start: {0}")]
+    Simulation(String),
+    #[error("the device cannot be used: {0}")]
+    Device(String),
+    #[error("cannot record the session to {path}: {reason}")]
+    Record { path: PathBuf, reason: String },
+    #[error(transparent)]
+    Loop(#[from] LoopError),
+    #[error("cannot start a thread: {0}")]
+    Thread(#[from] std::io::Error),
+    #[error("the recording of {path} failed: {reason}")]
+    Recording { path: PathBuf, reason: String },
+}
+
+/// What the trainee chose on the start screen.
+#[derive(Clone)]
+pub struct SessionPlan {
+    pub atlas: Arc<Atlas>,
+    pub scenario: String,
+    pub difficulty: Difficulty,
+    /// The account username the session is recorded for (offline: a local name).
+    pub trainee: String,
+    /// Seed of the session's random generators (speckle), recorded in the header.
+    pub seed: u64,
+    /// Where session files are written.
+    pub sessions_dir: PathBuf,
+}
+
+impl SessionPlan {
+    /// The aids of the difficulty level, as the atlas declares them (`[difficulty.*]`).
+    pub fn aids(&self) -> &DifficultyPreset {
+        let d = &self.atlas.manifest.difficulty;
+        match self.difficulty {
+            Difficulty::Beginner => &d.beginner,
+            Difficulty::Advanced => &d.advanced,
+            Difficulty::Expert => &d.expert,
+        }
+    }
+
+    /// What the scenario practises (decides the rubric).
+    pub fn exercise(&self) -> Exercise {
+        self.atlas
+            .manifest
+            .scenarios
+            .iter()
+            .find(|s| s.name == self.scenario)
+            .map(|s| s.exercise)
+            .unwrap_or_default()
+    }
+
+    /// The views' settings for the level: risk tagging with its clipping plane where the level
+    /// highlights risk structures (thesis eq. 3.2.4), none otherwise.
+    pub fn view_settings(&self) -> ViewSettings {
+        let aids = self.aids();
+        ViewSettings {
+            tagging: if aids.risk_overlay || aids.target_overlay {
+                Tagging::Risk
+            } else {
+                Tagging::Off
+            },
+            ..ViewSettings::default()
+        }
+    }
+
+    /// The planned path the level shows (the guided mode), if any.
+    pub fn guided_path(&self) -> Option<stylet_physics::PlannedPath> {
+        let name = self.aids().guided_path.as_ref()?;
+        self.atlas.planned_paths().into_iter().find(|p| &p.name == name)
+    }
+
+    pub fn labels(&self) -> SessionLabels {
+        SessionLabels {
+            scenario: self.scenario.clone(),
+            difficulty: self.difficulty.name().to_string(),
+            seed: self.seed,
+        }
+    }
+}
+
+/// Who moves the tools.
+pub enum Driver {
+    /// The trainee, through the window (keyboard, mouse, SpaceMouse, tablet).
+    Hands,
+    /// A device script (docs/scripts.md): demonstrations and tests of the whole application.
+    Script(String),
+    /// A raw-HID haptic device described by a profile (docs/devices.md "HID profiles"): it moves
+    /// the tool and displays the force; the window gives commands.
+    HidDevice(stylet_devices::hid_profile::HidProfile),
+}
+
+/// Where the tool starts for a session by hand: 60 mm above the skin entry of the atlas' first
+/// planned path, aimed along it (or above the volume's centre, pointing down).
+pub fn start_pose(atlas: &Atlas) -> (DVec3, DQuat) {
+    let paths = atlas.planned_paths();
+    let (point, dir) = match paths.first().and_then(|p| p.direction().map(|d| (p.entry_mm, d))) {
+        Some(p) => p,
+        None => {
+            let (lo, hi) = atlas.model.ct().grid().world_bounds();
+            (
+                (lo + hi) * 0.5 + DVec3::new(0.0, (hi.y - lo.y) * 0.5, 0.0),
+                DVec3::NEG_Y,
+            )
+        }
+    };
+    (
+        point - dir * 60.0,
+        stylet_devices::script::device::orientation(dir, None),
+    )
+}
+
+/// A session in progress.
+pub struct RunningSession {
+    pub plan: SessionPlan,
+    haptic: HapticLoop,
+    live: Option<LiveHandle>,
+    /// The device moving the tool besides the window (a SpaceMouse's model, a HID profile's
+    /// name), if any.
+    moved_by: Option<String>,
+    path: PathBuf,
+    started: Instant,
+    console: std::collections::VecDeque<ConsoleLine>,
+}
+
+impl RunningSession {
+    /// Starts the haptic loop and its recording to a new file in the plan's sessions folder.
+    /// `paced`: real time (the window); unpaced runs as fast as the CPU allows (tests).
+    pub fn start(plan: SessionPlan, driver: Driver, paced: bool) -> Result<RunningSession, SessionError> {
+        let atlas = &plan.atlas;
+        let model = Arc::new(atlas.model.clone());
+        let mut moved_by = None;
+        let (sim, device, live): (Simulation, Box<dyn Device + Send>, Option<LiveHandle>) = match driver {
+            Driver::Hands => {
+                let config = SimConfig::new(DeviceProfile::IDEAL, ToolSpec::Finger);
+                let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
+                let (position, orientation) = start_pose(atlas);
+                let (device, handle) = live_device(position, orientation, sim.tick_rate_hz());
+                // A connected SpaceMouse moves the tool by rate control; the keys and mouse
+                // then only give commands.
+                let device = match stylet_devices::hid::HidSpaceMouse::open_first() {
+                    Ok(sm) => {
+                        moved_by = Some(sm.model.name.to_string());
+                        device.with_source(Box::new(sm), stylet_devices::rate::RateSettings::SPACEMOUSE)
+                    }
+                    Err(_) => device,
+                };
+                (sim, Box::new(device), Some(handle))
+            }
+            Driver::HidDevice(profile) => {
+                let config = SimConfig::new(profile.physics_profile(), ToolSpec::Finger);
+                let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
+                let (position, orientation) = start_pose(atlas);
+                let (device, handle) = live_device(position, orientation, sim.tick_rate_hz());
+                let name = profile.name.clone();
+                let arm =
+                    stylet_devices::hid::HidProfileDevice::open(profile).map_err(|e| SessionError::Device(e.0))?;
+                moved_by = Some(name);
+                (sim, Box::new(device.with_pose_source(Box::new(arm))), Some(handle))
+            }
+            Driver::Script(text) => {
+                let script = parse(&text).map_err(|e| SessionError::Script(e.to_string()))?;
+                let (sim, device): (Simulation, ScriptedDevice) =
+                    scripted_simulation(model, &atlas.planned_paths(), &script)
+                        .map_err(|e| SessionError::Script(e.to_string()))?;
+                (sim, Box::new(device), None)
+            }
+        };
+        let path = new_session_path(&plan.sessions_dir, &plan.scenario);
+        let info = SessionInfo {
+            trainee: &plan.trainee,
+            scenario: &plan.scenario,
+            difficulty: plan.difficulty.name(),
+            seed: plan.seed,
+            atlas_id: &atlas.manifest.name,
+            atlas_hash: &atlas.content_hash,
+        };
+        let header = stylet_recorder::recording::header(&sim, &info);
+        std::fs::create_dir_all(&plan.sessions_dir).map_err(|e| SessionError::Record {
+            path: plan.sessions_dir.clone(),
+            reason: e.to_string(),
+        })?;
+        let recording =
+            Recording::start(&path, &header, paced, WriterOptions::default()).map_err(|e| SessionError::Record {
+                path: path.clone(),
+                reason: e.to_string(),
+            })?;
+        let options = LoopOptions {
+            paced,
+            ..LoopOptions::default()
+        };
+        let haptic = HapticLoop::spawn(sim, device, Some(recording), plan.labels(), options)?;
+        Ok(RunningSession {
+            plan,
+            haptic,
+            live,
+            moved_by,
+            path,
+            started: Instant::now(),
+            console: std::collections::VecDeque::new(),
+        })
+    }
+
+    /// The latest state the loop published.
+    pub fn snapshot(&self) -> Option<Snapshot> {
+        self.haptic.snapshot()
+    }
+
+    pub fn stats(&self) -> StatsView {
+        self.haptic.stats()
+    }
+
+    /// The window's end of the device (sessions by hand).
+    pub fn live(&self) -> Option<&LiveHandle> {
+        self.live.as_ref()
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The device moving the tool besides the window (a SpaceMouse found at the start, a HID
+    /// profile's device), if any.
+    pub fn moved_by(&self) -> Option<&str> {
+        self.moved_by.as_deref()
+    }
+
+    pub fn started(&self) -> Instant {
+        self.started
+    }
+
+    /// Takes the loop's new console lines; returns the session's recent ones, oldest first.
+    pub fn console(&mut self) -> &std::collections::VecDeque<ConsoleLine> {
+        for line in self.haptic.console() {
+            if self.console.len() == CONSOLE_LINES {
+                self.console.pop_front();
+            }
+            self.console.push_back(line);
+        }
+        &self.console
+    }
+
+    /// Console lines the loop could not hand over in time.
+    pub fn dropped_console_lines(&self) -> u64 {
+        self.haptic.dropped_console_lines()
+    }
+
+    /// The device has nothing more to say (a script's end).
+    pub fn is_over(&self) -> bool {
+        self.haptic.is_finished()
+    }
+
+    /// Ends the session: the device finishes (by hand, after what is queued) or the loop is
+    /// stopped, the recording is closed, and the file is checked complete.
+    pub fn finish(self) -> Result<FinishedSession, SessionError> {
+        match &self.live {
+            Some(live) => live.finish(),
+            None => self.haptic.stop(),
+        }
+        let report = self.haptic.join()?;
+        match &report.recording {
+            Some(Err(e)) => {
+                return Err(SessionError::Recording {
+                    path: self.path,
+                    reason: e.to_string(),
+                });
+            }
+            Some(Ok(_)) | None => {}
+        }
+        Ok(FinishedSession {
+            plan: self.plan,
+            path: self.path,
+            report,
+        })
+    }
+}
+
+/// A session that ended, its file closed.
+pub struct FinishedSession {
+    pub plan: SessionPlan,
+    pub path: PathBuf,
+    pub report: LoopReport,
+}
+
+impl FinishedSession {
+    /// Scores the file as the service will: a replay through the same physics, the default
+    /// rubric, reasons in plain words.
+    pub fn score(&self) -> Result<ScoreReport, String> {
+        score_file(&self.plan.atlas, &self.path)
+    }
+}
+
+/// Scores a session file on its atlas with the default rubric.
+pub fn score_file(atlas: &Atlas, path: &Path) -> Result<ScoreReport, String> {
+    let scorer = Scorer::new(atlas, Rubric::default_rubric(), None)?;
+    scorer.score_file(path).map_err(|e| e.to_string())
+}
+
+/// A new file name in `dir`: the time and the scenario, never one that exists.
+fn new_session_path(dir: &Path, scenario: &str) -> PathBuf {
+    let stamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis());
+    let safe: String = scenario
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' })
+        .take(40)
+        .collect();
+    let mut n = 0u32;
+    loop {
+        let name = match n {
+            0 => format!("{stamp}-{safe}.mcap"),
+            n => format!("{stamp}-{safe}-{n}.mcap"),
+        };
+        let p = dir.join(name);
+        if !p.exists() {
+            return p;
+        }
+        n += 1;
+    }
+}

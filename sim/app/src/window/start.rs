@@ -1,0 +1,346 @@
+//! The start screen: log in to a scoring service (an upload-only API token, kept in the user's
+//! configuration folder) or work offline; choose the patient, the scenario and the difficulty;
+//! start a session, or open a session file in the replay viewer.
+
+use std::path::PathBuf;
+use std::sync::mpsc::{Receiver, TryRecvError};
+
+use eframe::egui;
+
+use super::replay_screen::LoadingReplay;
+use super::{Go, SessionScreen, Shared};
+use crate::credentials::Credentials;
+use crate::service_client::ServiceClient;
+use crate::session::{Difficulty, Driver, SessionPlan};
+
+/// The start screen's fields.
+pub struct StartScreen {
+    pub server_url: String,
+    pub username: String,
+    password: String,
+    /// A login under way on its own thread.
+    login: Option<Receiver<Result<Credentials, String>>>,
+    pub atlas_index: usize,
+    pub scenario: String,
+    pub difficulty: Difficulty,
+    /// The name sessions are recorded under when offline.
+    pub offline_name: String,
+    pub replay_path: String,
+    /// A session id on the service, to fetch and replay.
+    pub fetch_id: String,
+    /// The last thing that went wrong, shown until the next action.
+    pub problem: Option<String>,
+}
+
+impl StartScreen {
+    pub fn new(shared: &Shared) -> StartScreen {
+        let (server_url, username) = shared.login.as_ref().map_or_else(
+            || ("https://".to_string(), String::new()),
+            |c| (c.server_url.clone(), c.username.clone()),
+        );
+        StartScreen {
+            server_url,
+            username,
+            password: String::new(),
+            login: None,
+            atlas_index: 0,
+            scenario: String::new(),
+            difficulty: Difficulty::Beginner,
+            offline_name: "trainee".into(),
+            replay_path: String::new(),
+            fetch_id: String::new(),
+            problem: None,
+        }
+    }
+
+    pub fn ui(&mut self, ui: &mut egui::Ui, shared: &mut Shared) -> Option<Go> {
+        self.poll_login(shared);
+        let mut go = None;
+        egui::CentralPanel::default().show(ui, |ui| {
+            ui.heading("Stylet — percutaneous transhepatic cholangiodrainage (PTCD)");
+            ui.label("Train the puncture on a virtual patient built from a CT: palpate, scan, puncture, confirm.");
+            ui.add_space(12.0);
+            ui.columns(2, |cols| {
+                self.account_ui(&mut cols[0], shared);
+                go = self.exercise_ui(&mut cols[1], shared);
+            });
+            ui.add_space(12.0);
+            ui.separator();
+            ui.label(format!("Uploads: {}", shared.upload_status()));
+            if let Some(t) = shared.tablet_line() {
+                ui.label(t);
+            }
+            if let Some(p) = &self.problem {
+                ui.colored_label(egui::Color32::from_rgb(255, 120, 100), p);
+            }
+        });
+        go
+    }
+
+    fn account_ui(&mut self, ui: &mut egui::Ui, shared: &mut Shared) {
+        ui.strong("Scoring service");
+        match shared.login.clone() {
+            Some(c) => {
+                ui.label(format!("Logged in as {} at {}", c.username, c.server_url));
+                ui.label("Sessions upload by themselves; a session waits in the outbox while the service is down.");
+                ui.horizontal(|ui| {
+                    if ui.button("Upload waiting sessions now").clicked() {
+                        shared.upload_now();
+                    }
+                    if ui.button("Log out").clicked() {
+                        shared.log_out();
+                    }
+                });
+            }
+            None => {
+                egui::Grid::new("login").num_columns(2).show(ui, |ui| {
+                    let l = ui.label("Server");
+                    ui.text_edit_singleline(&mut self.server_url).labelled_by(l.id);
+                    ui.end_row();
+                    let l = ui.label("Account");
+                    ui.text_edit_singleline(&mut self.username).labelled_by(l.id);
+                    ui.end_row();
+                    let l = ui.label("Password");
+                    ui.add(egui::TextEdit::singleline(&mut self.password).password(true))
+                        .labelled_by(l.id);
+                    ui.end_row();
+                });
+                ui.horizontal(|ui| {
+                    let busy = self.login.is_some();
+                    if ui.add_enabled(!busy, egui::Button::new("Log in")).clicked() {
+                        self.start_login(shared);
+                    }
+                    if busy {
+                        ui.spinner();
+                        ui.label("logging in…");
+                    }
+                });
+                ui.add_space(8.0);
+                ui.label("Or work offline: sessions are scored here and wait in the outbox until you log in.");
+                ui.horizontal(|ui| {
+                    let l = ui.label("Your name");
+                    ui.text_edit_singleline(&mut self.offline_name).labelled_by(l.id);
+                });
+            }
+        }
+    }
+
+    /// Logs in on a thread of its own: the password is used once for an upload-only token and
+    /// never stored.
+    fn start_login(&mut self, shared: &Shared) {
+        self.problem = None;
+        let client = match ServiceClient::new(self.server_url.trim()) {
+            Ok(c) => c,
+            Err(e) => {
+                self.problem = Some(e.to_string());
+                return;
+            }
+        };
+        let (username, password) = (self.username.trim().to_string(), std::mem::take(&mut self.password));
+        let config_dir = shared.options.config_dir.clone();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let host = std::env::var("HOSTNAME").unwrap_or_else(|_| "this computer".into());
+            let result = client
+                .upload_token(&username, &password, &format!("stylet sim on {host}"))
+                .map_err(|e| e.to_string())
+                .and_then(|token| {
+                    let c = Credentials {
+                        server_url: client.base().to_string(),
+                        username,
+                        token,
+                    };
+                    if let Some(dir) = config_dir {
+                        c.save(&dir)
+                            .map_err(|e| format!("logged in, but the token cannot be kept: {e}"))?;
+                    }
+                    Ok(c)
+                });
+            let _ = tx.send(result);
+        });
+        self.login = Some(rx);
+    }
+
+    fn poll_login(&mut self, shared: &mut Shared) {
+        let Some(rx) = &self.login else { return };
+        match rx.try_recv() {
+            Ok(Ok(c)) => {
+                shared.logged_in(c);
+                self.login = None;
+            }
+            Ok(Err(e)) => {
+                self.problem = Some(format!("login failed: {e}"));
+                self.login = None;
+            }
+            Err(TryRecvError::Empty) => {}
+            Err(TryRecvError::Disconnected) => self.login = None,
+        }
+    }
+
+    fn exercise_ui(&mut self, ui: &mut egui::Ui, shared: &mut Shared) -> Option<Go> {
+        ui.strong("Exercise");
+        let atlases: Vec<PathBuf> = shared.options.atlases.clone();
+        if atlases.is_empty() {
+            ui.label("No patient: start with --atlas DIR (docs/simulator.md).");
+            return None;
+        }
+        self.atlas_index = self.atlas_index.min(atlases.len() - 1);
+        let dir = atlases[self.atlas_index].clone();
+        let atlas = match shared.atlas(&dir) {
+            Ok(a) => Some(a),
+            Err(e) => {
+                ui.colored_label(
+                    egui::Color32::from_rgb(255, 120, 100),
+                    format!("{}: {e}", dir.display()),
+                );
+                None
+            }
+        };
+        let scenarios: Vec<(String, String)> = atlas.as_ref().map_or_else(Vec::new, |a| {
+            a.manifest
+                .scenarios
+                .iter()
+                .map(|s| (s.name.clone(), s.description.clone()))
+                .collect()
+        });
+        if !scenarios.iter().any(|(n, _)| n == &self.scenario) {
+            self.scenario = scenarios.first().map_or_else(|| "ptcd".to_string(), |s| s.0.clone());
+        }
+        egui::Grid::new("exercise").num_columns(2).show(ui, |ui| {
+            let l = ui.label("Patient");
+            egui::ComboBox::from_id_salt("patient")
+                .selected_text(atlas_name(&dir))
+                .show_ui(ui, |ui| {
+                    for (i, d) in atlases.iter().enumerate() {
+                        ui.selectable_value(&mut self.atlas_index, i, atlas_name(d));
+                    }
+                })
+                .response
+                .labelled_by(l.id);
+            ui.end_row();
+            let l = ui.label("Scenario");
+            egui::ComboBox::from_id_salt("scenario")
+                .selected_text(self.scenario.clone())
+                .show_ui(ui, |ui| {
+                    for (name, _) in &scenarios {
+                        ui.selectable_value(&mut self.scenario, name.clone(), name);
+                    }
+                })
+                .response
+                .labelled_by(l.id);
+            ui.end_row();
+            ui.label("Difficulty");
+            ui.horizontal(|ui| {
+                for d in Difficulty::ALL {
+                    ui.selectable_value(&mut self.difficulty, d, d.name());
+                }
+            });
+            ui.end_row();
+        });
+        if let Some((_, desc)) = scenarios.iter().find(|(n, _)| n == &self.scenario)
+            && !desc.is_empty()
+        {
+            ui.label(desc);
+        }
+        if let Some(a) = &atlas {
+            let plan = self.plan(a, shared);
+            let aids = plan.aids();
+            let mut list = Vec::new();
+            if aids.risk_overlay || aids.target_overlay {
+                list.push("clipping with risk tagging");
+            }
+            if aids.needle_guide {
+                list.push("needle guide in the ultrasound");
+            }
+            if aids.guided_path.is_some() {
+                list.push("planned path");
+            }
+            ui.label(match list.is_empty() {
+                true => "Aids: none".to_string(),
+                false => format!("Aids: {}", list.join(", ")),
+            });
+        }
+        ui.add_space(8.0);
+        let mut go = None;
+        let driven = shared.options.script.clone();
+        let label = match (&driven, &shared.options.hid_profile) {
+            (Some(_), _) => "Start session (scripted)".to_string(),
+            (None, Some(p)) => format!("Start session with {}", p.name),
+            (None, None) => "Start session".to_string(),
+        };
+        if ui
+            .add_enabled(
+                atlas.is_some(),
+                egui::Button::new(label).min_size(egui::vec2(180.0, 32.0)),
+            )
+            .clicked()
+            && let Some(a) = &atlas
+        {
+            let driver = match &driven {
+                Some(path) => match std::fs::read_to_string(path) {
+                    Ok(text) => Some(Driver::Script(text)),
+                    Err(e) => {
+                        self.problem = Some(format!("cannot read the script {}: {e}", path.display()));
+                        None
+                    }
+                },
+                None => Some(match &shared.options.hid_profile {
+                    Some(p) => Driver::HidDevice(p.clone()),
+                    None => Driver::Hands,
+                }),
+            };
+            if let Some(driver) = driver {
+                match SessionScreen::start(ui.ctx(), self.plan(a, shared), driver, shared) {
+                    Ok(s) => go = Some(Go::Session(Box::new(s))),
+                    Err(e) => self.problem = Some(e.to_string()),
+                }
+            }
+        }
+        ui.add_space(16.0);
+        ui.strong("Replay a session");
+        ui.horizontal(|ui| {
+            let l = ui.label("Session file");
+            ui.text_edit_singleline(&mut self.replay_path).labelled_by(l.id);
+            if ui.button("Open replay").clicked() {
+                let path = PathBuf::from(self.replay_path.trim());
+                match LoadingReplay::open_file(ui.ctx(), shared, &path) {
+                    Ok(r) => go = Some(Go::Loading(Box::new(r))),
+                    Err(e) => self.problem = Some(e),
+                }
+            }
+        });
+        if shared.login.is_some() {
+            ui.horizontal(|ui| {
+                let l = ui.label("Session id on the service");
+                ui.text_edit_singleline(&mut self.fetch_id).labelled_by(l.id);
+                if ui.button("Fetch and replay").clicked() {
+                    match LoadingReplay::fetch(ui.ctx(), shared, &self.fetch_id) {
+                        Ok(r) => go = Some(Go::Loading(Box::new(r))),
+                        Err(e) => self.problem = Some(e),
+                    }
+                }
+            });
+        }
+        go
+    }
+
+    fn plan(&self, atlas: &std::sync::Arc<stylet_atlas::Atlas>, shared: &Shared) -> SessionPlan {
+        let trainee = shared
+            .login
+            .as_ref()
+            .map_or_else(|| self.offline_name.trim().to_string(), |c| c.username.clone());
+        SessionPlan {
+            atlas: std::sync::Arc::clone(atlas),
+            scenario: self.scenario.clone(),
+            difficulty: self.difficulty,
+            trainee: if trainee.is_empty() { "trainee".into() } else { trainee },
+            seed: 0,
+            sessions_dir: shared.options.sessions_dir.clone(),
+        }
+    }
+}
+
+fn atlas_name(dir: &std::path::Path) -> String {
+    dir.file_name()
+        .map_or_else(|| dir.display().to_string(), |n| n.to_string_lossy().into_owned())
+}
