@@ -12,7 +12,7 @@ use std::time::Instant;
 use stylet_atlas::Atlas;
 use stylet_atlas::manifest::DifficultyPreset;
 use stylet_devices::Device;
-use stylet_devices::live::{LiveHandle, live_device};
+use stylet_devices::live::{LiveDevice, LiveHandle, live_device};
 use stylet_devices::script::{ScriptedDevice, parse, scripted_simulation};
 use stylet_physics::glam::{DQuat, DVec3};
 use stylet_physics::{DeviceProfile, SimConfig, Simulation, ToolSpec};
@@ -167,6 +167,22 @@ pub fn start_pose(atlas: &Atlas) -> (DVec3, DQuat) {
     )
 }
 
+/// The live device moved by a connected SpaceMouse, else by a gamepad (with the feature
+/// `gamepad`), else unchanged; and the name of what moves it.
+fn with_six_axis_source(device: LiveDevice) -> (LiveDevice, Option<String>) {
+    use stylet_devices::rate::RateSettings;
+    if let Ok(sm) = stylet_devices::hid::HidSpaceMouse::open_first() {
+        let name = sm.model.name.to_string();
+        return (device.with_source(Box::new(sm), RateSettings::SPACEMOUSE), Some(name));
+    }
+    #[cfg(feature = "gamepad")]
+    if let Ok(pad) = stylet_devices::gilrs_pad::GilrsGamepad::open_first() {
+        let name = format!("gamepad {}", pad.name);
+        return (device.with_source(Box::new(pad), RateSettings::GAMEPAD), Some(name));
+    }
+    (device, None)
+}
+
 /// A session in progress.
 pub struct RunningSession {
     pub plan: SessionPlan,
@@ -193,15 +209,10 @@ impl RunningSession {
                 let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
                 let (position, orientation) = start_pose(atlas);
                 let (device, handle) = live_device(position, orientation, sim.tick_rate_hz());
-                // A connected SpaceMouse moves the tool by rate control; the keys and mouse
-                // then only give commands.
-                let device = match stylet_devices::hid::HidSpaceMouse::open_first() {
-                    Ok(sm) => {
-                        moved_by = Some(sm.model.name.to_string());
-                        device.with_source(Box::new(sm), stylet_devices::rate::RateSettings::SPACEMOUSE)
-                    }
-                    Err(_) => device,
-                };
+                // A connected SpaceMouse (else a gamepad) moves the tool by rate control; the
+                // keys and mouse then only give commands.
+                let (device, by) = with_six_axis_source(device);
+                moved_by = by;
                 (sim, Box::new(device), Some(handle))
             }
             Driver::HidDevice(profile) => {
