@@ -34,8 +34,7 @@ fn setup() -> Setup {
 /// Runs a script and returns the simulation in its final state with the last input.
 fn prepared(atlas: &stylet_atlas::Atlas, text: &str) -> (Simulation, TickInput) {
     let script = parse(text).unwrap();
-    let (mut sim, mut device) =
-        scripted_simulation(Arc::new(atlas.model.clone()), &atlas.planned_paths(), &script).unwrap();
+    let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
     let mut last = None;
     run_headless(&mut sim, &mut device, |i, _, _| last = Some(i.clone()));
     (sim, last.unwrap())

@@ -30,8 +30,7 @@ fn needle_ticks() -> Ticks {
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts/two-attempts.txt"))
             .unwrap();
     let script = parse(&text).unwrap();
-    let (mut sim, mut device) =
-        scripted_simulation(Arc::new(atlas.model.clone()), &atlas.planned_paths(), &script).unwrap();
+    let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
     let mut out = Vec::new();
     run_headless(&mut sim, &mut device, |i, o, s| {
         let q = i.orientation;

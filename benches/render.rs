@@ -51,7 +51,7 @@ fn main() {
     let dir = atlas_dir(measuring, &mut keep);
     let t = Instant::now();
     let atlas = stylet_atlas::load(&dir).unwrap();
-    let volume = RenderVolume::new(Arc::new(atlas.model.clone()));
+    let volume = RenderVolume::new(Arc::clone(&atlas.model));
     eprintln!(
         "atlas {} loaded and prepared in {:.1} s",
         dir.display(),

@@ -107,7 +107,7 @@ fn main() {
     });
     if std::env::var("STYLET_BENCH_GPU").as_deref() != Ok("0") {
         let ctx = GpuContext::new().expect("a GPU adapter (lavapipe will do); STYLET_BENCH_GPU=0 skips the GPU");
-        let vol = GpuVolume::upload(&ctx, &RenderVolume::new(Arc::new(atlas.model.clone()))).unwrap();
+        let vol = GpuVolume::upload(&ctx, &RenderVolume::new(Arc::clone(&atlas.model))).unwrap();
         eprintln!("GPU: {}", ctx.adapter());
         let us = RefCell::new(GpuUltrasound::new(&ctx));
         timed(&mut c, &format!("us-GPU-bmode-{lines}"), &|| {

@@ -131,12 +131,8 @@ fn moment_of_the_puncture(atlas: &stylet_atlas::Atlas) -> Moment {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts/success-intercostal.txt"),
     )
     .unwrap();
-    let (mut sim, mut device) = scripted_simulation(
-        Arc::new(atlas.model.clone()),
-        &atlas.planned_paths(),
-        &parse(&text).unwrap(),
-    )
-    .unwrap();
+    let (mut sim, mut device) =
+        scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &parse(&text).unwrap()).unwrap();
     let labels = SessionLabels {
         scenario: "success-intercostal".into(),
         difficulty: "beginner".into(),

@@ -47,7 +47,7 @@ fn main() {
 
     let gpu = (std::env::var("STYLET_BENCH_GPU").as_deref() != Ok("0")).then(|| {
         let ctx = GpuContext::new().expect("a GPU adapter (lavapipe will do); STYLET_BENCH_GPU=0 skips the GPU");
-        let volume = RenderVolume::new(Arc::new(atlas.model.clone()));
+        let volume = RenderVolume::new(Arc::clone(&atlas.model));
         let vol = GpuVolume::upload(&ctx, &volume).unwrap();
         eprintln!("GPU: {}", ctx.adapter());
         let xray = RefCell::new(GpuXray::new(&ctx));

@@ -32,8 +32,7 @@ struct Run {
 
 fn run_text(atlas: &Atlas, text: &str) -> Run {
     let script = parse(text).unwrap();
-    let (mut sim, mut device) =
-        scripted_simulation(Arc::new(atlas.model.clone()), &atlas.planned_paths(), &script).unwrap();
+    let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
     let mut ticks = Vec::new();
     run_headless(&mut sim, &mut device, |i, o, _| ticks.push((i.clone(), *o)));
     Run { ticks, sim }
@@ -438,7 +437,7 @@ proptest! {
             ToolSpec::Probe(ProbeKind::Linear),
             ToolSpec::Probe(ProbeKind::Convex),
         ][tool];
-        let mut sim = Simulation::new(Arc::new(atlas.model.clone()), SimConfig::new(DeviceProfile::PREMIUM, spec)).unwrap();
+        let mut sim = Simulation::new(Arc::clone(&atlas.model), SimConfig::new(DeviceProfile::PREMIUM, spec)).unwrap();
         let entry = DVec3::new(152.6, 1.5, 15.9);
         for ((x, y, z), (a, b, c, d), kind) in steps {
             // Mostly near the entry (so the needle goes in), sometimes anywhere, sometimes garbage.

@@ -257,7 +257,7 @@ fn a_session_at_a_moment_shows_the_needle_where_the_replay_has_it() {
     let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), 0.0, 0.0);
     let rec = stylet_recorder::reader::read(&session).unwrap();
     let mut tools = None;
-    stylet_scoring::replay(&rec, Arc::new(loaded.model.clone()), &mut |i, o, sim| {
+    stylet_scoring::replay(&rec, Arc::clone(&loaded.model), &mut |i, o, sim| {
         if o.tick == 6000 {
             tools = Some(ToolState::from_simulation(sim, i));
         }

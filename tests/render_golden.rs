@@ -62,7 +62,7 @@ struct Prepared {
 
 fn prepare(dir: tempfile::TempDir, report: Option<ImportReport>) -> Prepared {
     let atlas = load(dir.path()).unwrap_or_else(|e| panic!("the atlas does not load and validate: {e}"));
-    let volume = RenderVolume::new(Arc::new(atlas.model.clone()));
+    let volume = RenderVolume::new(Arc::clone(&atlas.model));
     Prepared {
         _dir: dir,
         atlas,

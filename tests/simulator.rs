@@ -292,12 +292,8 @@ fn the_simulator_draws_what_stylet_render_draws_for_the_same_tick() {
     let dir = f.atlases().join("phantom");
     let atlas = Arc::new(stylet_atlas::load(&dir).unwrap());
     let text = std::fs::read_to_string(script("success-intercostal")).unwrap();
-    let (sim, device) = scripted_simulation(
-        Arc::new(atlas.model.clone()),
-        &atlas.planned_paths(),
-        &parse(&text).unwrap(),
-    )
-    .unwrap();
+    let (sim, device) =
+        scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &parse(&text).unwrap()).unwrap();
     let labels = SessionLabels {
         scenario: "success-intercostal".into(),
         difficulty: "beginner".into(),

@@ -18,8 +18,7 @@ use stylet_scoring::{Rubric, Scorer, replay};
 fn record(atlas: &stylet_atlas::Atlas, name: &str, dir: &Path) -> PathBuf {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../atlases/phantom/scripts/{name}.txt"));
     let script = parse(&std::fs::read_to_string(path).unwrap()).unwrap();
-    let (mut sim, mut device) =
-        scripted_simulation(Arc::new(atlas.model.clone()), &atlas.planned_paths(), &script).unwrap();
+    let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
     let info = SessionInfo {
         trainee: "bench",
         scenario: name,
@@ -63,7 +62,7 @@ fn replay_bench(c: &mut Criterion) {
     stylet_atlas::write(&dir.path().join("atlas"), &p.manifest, &p.ct, &p.partial).unwrap();
     let atlas = stylet_atlas::load(&dir.path().join("atlas")).unwrap();
     let scorer = Scorer::new(&atlas, Rubric::default_rubric(), None).unwrap();
-    let model = Arc::new(atlas.model.clone());
+    let model = Arc::clone(&atlas.model);
     let mut g = c.benchmark_group("replay");
     g.sample_size(10);
     for name in ["two-attempts", "success-intercostal"] {

@@ -5,7 +5,7 @@ fn main() {
     let atlas = stylet_atlas::load(std::path::Path::new(&args[1])).unwrap();
     let session = stylet_recorder::reader::read(std::path::Path::new(&args[2])).unwrap();
     let runs: usize = args.get(3).map_or(1, |r| r.parse().unwrap());
-    let model = Arc::new(atlas.model.clone());
+    let model = Arc::clone(&atlas.model);
     let scorer = stylet_scoring::Scorer::new(&atlas, stylet_scoring::Rubric::default_rubric(), None).unwrap();
     let seconds = session.ticks.len() as f64 / 1000.0;
     let t = std::time::Instant::now();

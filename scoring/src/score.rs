@@ -156,7 +156,7 @@ impl Scorer {
             ));
         }
         Ok(Scorer {
-            atlas: Arc::new(atlas.model.clone()),
+            atlas: Arc::clone(&atlas.model),
             atlas_id: atlas.manifest.name.clone(),
             atlas_hash: atlas.content_hash.clone(),
             target: TargetDistance::new(&atlas.model),

@@ -263,7 +263,7 @@ fn replay_to(atlas: &stylet_atlas::Atlas, path: &Path, at_s: f64) -> anyhow::Res
         difficulty: h.difficulty.clone(),
         seed: h.seed,
     };
-    let report = stylet_scoring::replay(&session, Arc::new(atlas.model.clone()), &mut |input, out, sim| {
+    let report = stylet_scoring::replay(&session, Arc::clone(&atlas.model), &mut |input, out, sim| {
         if out.tick == tick {
             moment = Some(Moment::of_simulation(sim, input, out, &labels));
         }
@@ -340,7 +340,7 @@ fn render_3d(
         None => views::default_step_mm(atlas),
     };
     let scene = views::scene_3d(atlas, moment, Preset::from(a.preset), Tagging::from(a.tagging), step_mm)?;
-    let volume = RenderVolume::new(Arc::new(atlas.model.clone()));
+    let volume = RenderVolume::new(Arc::clone(&atlas.model));
     if a.gpu {
         return render_gpu(&volume, &scene, size);
     }
@@ -442,7 +442,7 @@ fn on_gpu(ctx: &stylet_render_gpu::GpuContext, e: stylet_render_gpu::GpuError) -
 
 #[cfg(feature = "gpu")]
 fn xray_gpu(atlas: &stylet_atlas::Atlas, scene: &XrayScene, size: Size) -> anyhow::Result<Radiograph> {
-    let (ctx, gpu_volume) = gpu_upload(&RenderVolume::new(Arc::new(atlas.model.clone())))?;
+    let (ctx, gpu_volume) = gpu_upload(&RenderVolume::new(Arc::clone(&atlas.model)))?;
     stylet_render_gpu::GpuXray::new(&ctx)
         .render(&ctx, &gpu_volume, scene, size.width, size.height)
         .map_err(|e| on_gpu(&ctx, e))
@@ -450,7 +450,7 @@ fn xray_gpu(atlas: &stylet_atlas::Atlas, scene: &XrayScene, size: Size) -> anyho
 
 #[cfg(feature = "gpu")]
 fn ultrasound_gpu(atlas: &stylet_atlas::Atlas, scene: &UltrasoundScene) -> anyhow::Result<ultrasound::Sonogram> {
-    let (ctx, gpu_volume) = gpu_upload(&RenderVolume::new(Arc::new(atlas.model.clone())))?;
+    let (ctx, gpu_volume) = gpu_upload(&RenderVolume::new(Arc::clone(&atlas.model)))?;
     stylet_render_gpu::GpuUltrasound::new(&ctx)
         .render(&ctx, &gpu_volume, scene)
         .map_err(|e| on_gpu(&ctx, e))
@@ -478,7 +478,7 @@ fn render_gpu(volume: &RenderVolume, scene: &Scene, size: Size) -> anyhow::Resul
 /// A slice on the GPU renderer.
 #[cfg(feature = "gpu")]
 fn slice_gpu(atlas: &stylet_atlas::Atlas, spec: &SliceSpec) -> anyhow::Result<mpr::MprImage> {
-    let (ctx, gpu_volume) = gpu_upload(&RenderVolume::new(Arc::new(atlas.model.clone())))?;
+    let (ctx, gpu_volume) = gpu_upload(&RenderVolume::new(Arc::clone(&atlas.model)))?;
     stylet_render_gpu::GpuMpr::new(&ctx)
         .render(&ctx, &gpu_volume, spec)
         .map_err(|e| on_gpu(&ctx, e))

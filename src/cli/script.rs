@@ -139,7 +139,7 @@ pub fn script_simulation(atlas: &stylet_atlas::Atlas, path: &Path) -> anyhow::Re
 /// The simulation a script text starts with, and its device (bound to the atlas' named paths).
 pub fn script_text_simulation(atlas: &stylet_atlas::Atlas, text: &str) -> Result<(Simulation, ScriptedDevice), String> {
     let script = parse(text).map_err(|e| e.to_string())?;
-    scripted_simulation(Arc::new(atlas.model.clone()), &atlas.planned_paths(), &script).map_err(|e| e.to_string())
+    scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).map_err(|e| e.to_string())
 }
 
 /// Runs a script text headless and records it to `out` (offline: the recorder may wait).

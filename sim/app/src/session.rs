@@ -201,7 +201,7 @@ impl RunningSession {
     /// `paced`: real time (the window); unpaced runs as fast as the CPU allows (tests).
     pub fn start(plan: SessionPlan, driver: Driver, paced: bool) -> Result<RunningSession, SessionError> {
         let atlas = &plan.atlas;
-        let model = Arc::new(atlas.model.clone());
+        let model = Arc::clone(&atlas.model);
         let mut moved_by = None;
         let (sim, device, live): (Simulation, Box<dyn Device + Send>, Option<LiveHandle>) = match driver {
             Driver::Hands => {

@@ -211,7 +211,7 @@ impl ViewRenderer {
             .build()
             .map_err(|e| ViewError::Render(stylet_render::RenderError::Draw(e.to_string())))?;
         let (volume, echo, doppler) = pool.install(|| {
-            let volume = RenderVolume::new(Arc::new(atlas.model.clone()));
+            let volume = RenderVolume::new(Arc::clone(&atlas.model));
             let echo = Arc::new(EchoTable::of_atlas(&atlas));
             let doppler = settings
                 .doppler

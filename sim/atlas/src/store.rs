@@ -41,7 +41,9 @@ impl ThresholdSource {
 pub struct Atlas {
     pub dir: PathBuf,
     pub manifest: Manifest,
-    pub model: PunctureAtlas,
+    /// The volumes and tables the physics and the renderers read; shared (an `Arc`) so that a
+    /// scorer, a simulation and the views of one atlas hold one copy of the CT, not one each.
+    pub model: std::sync::Arc<PunctureAtlas>,
     pub threshold_source: ThresholdSource,
     /// SHA-256 over the manifest and both volume files (docs/atlas.md "Content hash"), hex.
     pub content_hash: String,
@@ -234,7 +236,7 @@ pub fn load(dir: &Path) -> Result<Atlas, AtlasError> {
     Ok(Atlas {
         dir: dir.to_path_buf(),
         manifest,
-        model,
+        model: std::sync::Arc::new(model),
         threshold_source,
         content_hash,
     })

@@ -27,7 +27,7 @@ fn main() {
     };
     let atlas = stylet_atlas::load(&atlas_dir).unwrap();
     let tf = TransferFunction::from_preset(Preset::Soft.of(&render_settings(&atlas.manifest))).unwrap();
-    let cpu = RenderVolume::new(Arc::new(atlas.model.clone()));
+    let cpu = RenderVolume::new(Arc::clone(&atlas.model));
     let ctx = GpuContext::new().unwrap();
     println!("adapter: {}", ctx.adapter());
     let t = Instant::now();

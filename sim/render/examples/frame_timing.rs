@@ -34,7 +34,7 @@ fn main() {
             std::process::exit(1);
         }
     };
-    let volume = RenderVolume::new(Arc::new(atlas.model.clone()));
+    let volume = RenderVolume::new(Arc::clone(&atlas.model));
     let g = volume.atlas.ct().grid();
     let [nx, ny, nz] = g.dims();
     let (a, b) = (g.voxel_to_world(0, 0, 0), g.voxel_to_world(nx - 1, ny - 1, nz - 1));

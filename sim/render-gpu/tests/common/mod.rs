@@ -142,7 +142,7 @@ pub fn phantom() -> &'static Both {
         let p = stylet_atlas::phantom::generate(&Default::default()).unwrap();
         stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
         let atlas = stylet_atlas::load(dir.path()).unwrap();
-        let cpu = RenderVolume::new(Arc::new(atlas.model.clone()));
+        let cpu = RenderVolume::new(Arc::clone(&atlas.model));
         let gpu = GpuVolume::upload(ctx(), &cpu).unwrap();
         (dir, Both { cpu, gpu })
     })
