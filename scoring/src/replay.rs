@@ -112,13 +112,18 @@ pub fn replay(
 /// A replay one tick at a time (the scorer runs it to the end; the replay viewer steps and
 /// seeks through it). Each step feeds the recorded pose, buttons and events of the next tick to
 /// `Simulation::step` and checks the outputs and digests against the recording.
+///
+/// A clone (with a shared session, `S = Arc<Session>`) is a snapshot: it copies the simulation
+/// and shares the recording, and replaying on from it gives the same ticks, bit for bit, as
+/// replaying on from the original (the dashboard's player seeks from such snapshots).
+#[derive(Clone)]
 pub struct Replayer<S: Borrow<Session>> {
     session: S,
     sim: Simulation,
     /// Events and digests by tick, in tick order, consumed as the ticks pass.
-    events: Vec<(u64, Vec<Event>)>,
+    events: Arc<[(u64, Vec<Event>)]>,
     next_event: usize,
-    digests: Vec<(u64, u64)>,
+    digests: Arc<[(u64, u64)]>,
     next_digest: usize,
     /// Index of the next recorded tick.
     next: usize,
@@ -232,6 +237,15 @@ impl<S: Borrow<Session>> Replayer<S> {
 
     pub fn session(&self) -> &Session {
         self.session.borrow()
+    }
+
+    /// The recorded tick the next [`Self::step`] replays (`None` at the end of the recording or
+    /// after a gap).
+    pub fn next_tick(&self) -> Option<u64> {
+        if self.gap {
+            return None;
+        }
+        self.session.borrow().ticks.get(self.next).map(|t| t.tick)
     }
 
     /// Ticks replayed so far.

@@ -93,7 +93,72 @@ pub struct RiskPoint {
     pub point_mm: [f64; 3],
 }
 
+/// What a key moment of a session is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MomentKind {
+    SkinEntry,
+    RiskHit,
+    TargetReached,
+    Contrast,
+    StyletOut,
+}
+
+impl MomentKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            MomentKind::SkinEntry => "skin entry",
+            MomentKind::RiskHit => "risk hit",
+            MomentKind::TargetReached => "target reached",
+            MomentKind::Contrast => "contrast",
+            MomentKind::StyletOut => "stylet out",
+        }
+    }
+}
+
+/// A moment worth jumping to in a replay (the simulator's viewer, the dashboard's player).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TraceMoment {
+    pub kind: MomentKind,
+    /// Seconds from the start of the session.
+    pub t_s: f64,
+    pub label: String,
+}
+
 impl ReviewTrace {
+    /// Skin entries (each time the needle enters the body), risk hits, the target reached,
+    /// contrast injections and the stylet taken out, in time order.
+    pub fn key_moments(&self) -> Vec<TraceMoment> {
+        let mut out = Vec::new();
+        let mut inside = false;
+        for (k, &mm) in self.inserted_mm.iter().enumerate() {
+            let now = mm > 0.0;
+            if now && !inside {
+                out.push(TraceMoment {
+                    kind: MomentKind::SkinEntry,
+                    t_s: self.t_s[k],
+                    label: "skin entry".into(),
+                });
+            }
+            inside = now;
+        }
+        for e in &self.events {
+            let kind = match e.kind.as_str() {
+                "risk-hit" => MomentKind::RiskHit,
+                "target-reached" => MomentKind::TargetReached,
+                "contrast-inject" => MomentKind::Contrast,
+                "stylet-remove" => MomentKind::StyletOut,
+                _ => continue,
+            };
+            out.push(TraceMoment {
+                kind,
+                t_s: e.t_s,
+                label: e.label.clone(),
+            });
+        }
+        out.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
+        out
+    }
+
     /// The tip path as polylines: one per stretch of buckets with the needle in the body.
     pub fn tip_paths(&self) -> Vec<Vec<DVec3>> {
         let mut out: Vec<Vec<DVec3>> = Vec::new();

@@ -23,27 +23,7 @@ pub enum OpenError {
     Replay(#[from] ReplayError),
 }
 
-/// What a key moment is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum MomentKind {
-    SkinEntry,
-    RiskHit,
-    TargetReached,
-    Contrast,
-    StyletOut,
-}
-
-impl MomentKind {
-    pub fn name(self) -> &'static str {
-        match self {
-            MomentKind::SkinEntry => "skin entry",
-            MomentKind::RiskHit => "risk hit",
-            MomentKind::TargetReached => "target reached",
-            MomentKind::Contrast => "contrast",
-            MomentKind::StyletOut => "stylet out",
-        }
-    }
-}
+pub use stylet_scoring::trace::MomentKind;
 
 /// A moment worth jumping to.
 #[derive(Debug, Clone, PartialEq)]
@@ -189,40 +169,17 @@ impl ReplayCursor {
     }
 }
 
-/// Skin entries (each time the needle enters the body), risk hits, the target reached, contrast
-/// injections and the stylet taken out, in time order.
+/// The trace's key moments (`ReviewTrace::key_moments`) at their cursor positions.
 fn key_moments(trace: &ReviewTrace, rate_hz: f64, total: u64) -> Vec<KeyMoment> {
     let at = |t_s: f64| (((t_s * rate_hz).round().max(0.0)) as u64 + 1).min(total);
-    let mut out = Vec::new();
-    let mut inside = false;
-    for (k, &mm) in trace.inserted_mm.iter().enumerate() {
-        let now = mm > 0.0;
-        if now && !inside {
-            let t_s = trace.t_s[k];
-            out.push(KeyMoment {
-                kind: MomentKind::SkinEntry,
-                ticks: at(t_s),
-                time_s: t_s,
-                label: "skin entry".into(),
-            });
-        }
-        inside = now;
-    }
-    for e in &trace.events {
-        let kind = match e.kind.as_str() {
-            "risk-hit" => MomentKind::RiskHit,
-            "target-reached" => MomentKind::TargetReached,
-            "contrast-inject" => MomentKind::Contrast,
-            "stylet-remove" => MomentKind::StyletOut,
-            _ => continue,
-        };
-        out.push(KeyMoment {
-            kind,
-            ticks: at(e.t_s),
-            time_s: e.t_s,
-            label: e.label.clone(),
-        });
-    }
-    out.sort_by(|a, b| a.time_s.total_cmp(&b.time_s));
-    out
+    trace
+        .key_moments()
+        .into_iter()
+        .map(|m| KeyMoment {
+            kind: m.kind,
+            ticks: at(m.t_s),
+            time_s: m.t_s,
+            label: m.label,
+        })
+        .collect()
 }

@@ -128,7 +128,9 @@ impl SimConfig {
     }
 }
 
-/// The simulation of one session on one atlas.
+/// The simulation of one session on one atlas. A clone is an independent copy of the state (the
+/// atlas is shared): stepping both with the same inputs gives the same outputs, bit for bit.
+#[derive(Clone)]
 pub struct Simulation {
     atlas: Arc<PunctureAtlas>,
     config: SimConfig,
