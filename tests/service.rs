@@ -62,6 +62,20 @@ fn review_progress_and_reports_by_role(db: Db) {
     let over = r#"{"score": 75, "passed": true, "reason": "lung contact was a recess artefact"}"#;
     let comment = r#"{"body": "aim one rib lower"}"#;
     let new_user = r#"{"username": "nina", "role": "trainee", "password": "nina-password", "cohort": "c1"}"#;
+    // The player's frames (PNG, dashboard login; no redirect is followed: a stranger is sent to
+    // the login page with a 303).
+    let frame = |u: &str, id: &str| {
+        let agent = ureq::AgentBuilder::new().redirects(0).build();
+        let mut req = agent.get(&format!("{b}/sessions/{id}/frame?view=axial&tick=1000&w=320&h=240"));
+        if let Some(Auth::Cookie { token, .. }) = auth(u) {
+            req = req.set("Cookie", &format!("stylet_session={token}"));
+        }
+        match req.call() {
+            Ok(r) => r.status(),
+            Err(ureq::Error::Status(code, _)) => code,
+            Err(e) => panic!("{e}"),
+        }
+    };
     type Row<'a> = (&'a str, Box<dyn Fn(&str) -> u16 + 'a>, [u16; 6]);
     //                                                        root ivan tina  tom cora anon
     let matrix: Vec<Row> = vec![
@@ -84,6 +98,16 @@ fn review_progress_and_reports_by_role(db: Db) {
             "GET tom's session",
             Box::new(|u: &str| get(u, &format!("/api/sessions/{m1}"))),
             [200, 404, 404, 200, 200, 401],
+        ),
+        (
+            "GET a frame of tina's session (player)",
+            Box::new(|u: &str| frame(u, &t1)),
+            [200, 200, 200, 404, 200, 303],
+        ),
+        (
+            "GET a frame of tom's session (player)",
+            Box::new(|u: &str| frame(u, &m1)),
+            [200, 404, 404, 200, 200, 303],
         ),
         (
             "GET a session that does not exist",

@@ -2,7 +2,7 @@
 //! has a title, axis labels with units and a legend, and each force component keeps its colour
 //! everywhere (`palette`). Sparklines are tiny hand-written SVG polylines.
 
-use crate::plot::{ChartColor, LineChart, Series, chart_svg, palette};
+use crate::plot::{ChartColor, LineChart, Series, palette};
 use stylet_physics::LabelId;
 use stylet_scoring::ReviewTrace;
 use stylet_service::store::ProgressPoint;
@@ -170,11 +170,15 @@ pub fn progress_chart(points: &[ProgressPoint], title: &str) -> LineChart {
 
 /// The chart as inline SVG that scales with the page, with `aria-label` for screen readers.
 pub fn inline_svg(chart: &LineChart) -> Result<String, String> {
-    let svg = chart_svg(chart, CHART_SIZE).map_err(|e| e.to_string())?;
+    let (svg, axis) = crate::plot::chart_svg_axis(chart, CHART_SIZE).map_err(|e| e.to_string())?;
     let label = chart.title.replace(['"', '<', '>', '&'], " ");
+    // Where the x axis lies (data and SVG units): the player's cursor and click-to-seek.
     Ok(svg.replacen(
         "<svg ",
-        &format!("<svg class=\"chart\" role=\"img\" aria-label=\"{label}\" "),
+        &format!(
+            "<svg class=\"chart\" role=\"img\" aria-label=\"{label}\" data-x0=\"{}\" data-x1=\"{}\" data-px0=\"{}\" data-px1=\"{}\" ",
+            axis.x0, axis.x1, axis.px0, axis.px1
+        ),
         1,
     ))
 }

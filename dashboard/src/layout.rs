@@ -70,6 +70,22 @@ input, select, textarea { max-width:100%; }
   form.inline > * { max-width:100%; }
   pre { white-space:pre-wrap; }
 }
+/* The replay player: four views in a 2 × 2 grid (one column on phones), controls, key moments. */
+#player [hidden] { display:none !important; }
+#player .frames { display:grid; grid-template-columns: repeat(2, minmax(0, 1fr)); gap:.6rem; max-width:1100px; }
+#player figure { margin:0; background:black; border:1px solid var(--line); }
+#player figure img { display:block; width:100%; height:auto; }
+#player figcaption { background:#16324f; color:white; padding:.15rem .5rem; font-size:.9rem; }
+#player .controls { display:flex; flex-wrap:wrap; align-items:center; gap:.6rem; margin:.6rem 0 .2rem; max-width:1100px; }
+#player #timeline { flex:1 1 16rem; min-height:2rem; }
+#player #clock { font-variant-numeric: tabular-nums; min-width:5.5rem; font-weight:600; }
+#player label.speed { flex-direction:row; align-items:center; gap:.3rem; color:var(--ink); }
+#player .moments { display:flex; flex-wrap:wrap; gap:.4rem; max-width:1100px; }
+#player a.moment { border:1px solid var(--accent); border-radius:999px; padding:.15rem .7rem; text-decoration:none; font-size:.9rem; background:white; }
+#player a.moment[data-kind="risk hit"] { border-color:var(--bad); color:var(--bad); }
+#player a.moment[data-kind="target reached"] { border-color:var(--ok); color:var(--ok); }
+#player a.moment[data-kind="comment"] { border-style:dashed; border-color:#1e5ac8; color:#1e5ac8; }
+@media (max-width: 600px) { #player .frames { grid-template-columns: minmax(0, 1fr); } }
 @media print {
   header.top, form, .noprint { display:none !important; }
   body { background:white; font-size:12pt; }

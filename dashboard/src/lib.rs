@@ -11,6 +11,7 @@ pub mod figures;
 pub mod layout;
 pub mod pages;
 pub mod pdf;
+pub mod player;
 pub mod plot;
 pub mod progress;
 pub mod trends;
@@ -34,6 +35,8 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/sessions/{id}", get(pages::review::review))
         .route("/sessions/{id}/file", get(pages::review::file))
         .route("/sessions/{id}/slices.png", get(pages::review::slices))
+        .route("/sessions/{id}/frame", get(player::frame))
+        .route("/assets/player.js", get(player::script))
         .route("/sessions/{id}/hits/{n}/slices.png", get(pages::review::hit_slices))
         .route("/sessions/{id}/comment", post(pages::review::comment))
         .route("/sessions/{id}/override", post(pages::review::override_grade))

@@ -88,7 +88,17 @@ fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     (lo - pad, hi + pad)
 }
 
-fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+/// Where a chart's x axis lies in the picture: data values `x0 … x1` span pixels `px0 … px1`
+/// (the player draws its cursor there and turns a click into a time).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct XAxis {
+    pub x0: f64,
+    pub x1: f64,
+    pub px0: i32,
+    pub px1: i32,
+}
+
+fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) -> Result<XAxis, String> {
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let (mut x0, mut x1) = range(chart.series.iter().flat_map(|s| s.points.iter().map(|p| p.0)));
     if chart.x_whole {
@@ -109,6 +119,13 @@ fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) ->
         .y_label_area_size(72)
         .build_cartesian_2d(x0..x1, y0..y1)
         .map_err(|e| e.to_string())?;
+    let (px, _) = c.plotting_area().get_pixel_range();
+    let axis = XAxis {
+        x0,
+        x1,
+        px0: px.start,
+        px1: px.end,
+    };
     // Whole numbers only (a tick between two sessions gets no label).
     let whole = |x: &f64| {
         if (x - x.round()).abs() < 1e-9 {
@@ -209,7 +226,8 @@ fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) ->
         .position(SeriesLabelPosition::UpperRight)
         .draw()
         .map_err(|e| e.to_string())?;
-    root.present().map_err(|e| e.to_string())
+    root.present().map_err(|e| e.to_string())?;
+    Ok(axis)
 }
 
 /// Writes the chart to `path`: SVG if it ends in `.svg`, else PNG.
@@ -225,20 +243,25 @@ pub fn write_chart(chart: &LineChart, path: &Path, size: (u32, u32)) -> Result<(
     let svg = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("svg"));
     if svg {
         let root = SVGBackend::new(path, size).into_drawing_area();
-        draw(chart, &root).map_err(err)
+        draw(chart, &root).map(|_| ()).map_err(err)
     } else {
         let root = BitMapBackend::new(path, size).into_drawing_area();
-        draw(chart, &root).map_err(err)
+        draw(chart, &root).map(|_| ()).map_err(err)
     }
 }
 
 /// The chart as an SVG string (for pages and tests).
 pub fn chart_svg(chart: &LineChart, size: (u32, u32)) -> Result<String, RenderError> {
+    chart_svg_axis(chart, size).map(|(svg, _)| svg)
+}
+
+/// [`chart_svg`] and where its x axis lies.
+pub fn chart_svg_axis(chart: &LineChart, size: (u32, u32)) -> Result<(String, XAxis), RenderError> {
     ensure_fonts();
     let mut out = String::new();
-    {
+    let axis = {
         let root = SVGBackend::with_string(&mut out, size).into_drawing_area();
-        draw(chart, &root).map_err(RenderError::Draw)?;
-    }
-    Ok(out)
+        draw(chart, &root).map_err(RenderError::Draw)?
+    };
+    Ok((out, axis))
 }

@@ -56,6 +56,9 @@ pub struct AppState {
     pub config: Config,
     /// One scorer per known atlas, by content hash.
     pub scorers: BTreeMap<String, Arc<stylet_scoring::Scorer>>,
+    /// The same atlases with their manifests (presets, scenarios' C-arms), by content hash, for
+    /// pictures drawn as `stylet render` draws them; the volumes are shared with the scorers.
+    pub atlases: BTreeMap<String, Arc<stylet_atlas::Atlas>>,
     pub wake: tokio::sync::Notify,
     /// Recent failed logins per account (rate limiting), bounded.
     pub login_failures: logins::FailedLogins,
@@ -101,6 +104,7 @@ pub async fn serve(
         .map_err(|e| setup(&format!("{}: {e}", config.data_dir.display())))?;
     let store = Store::open(&config.database_url()).await?;
     let mut scorers = BTreeMap::new();
+    let mut atlases = BTreeMap::new();
     if let Some(dir) = &config.atlases_dir {
         let dir = dir.clone();
         let loaded = tokio::task::spawn_blocking(move || load_atlases(&dir))
@@ -116,6 +120,7 @@ pub async fn serve(
                 .await?;
             tracing::info!(atlas = %atlas.manifest.name, hash = %atlas.content_hash, "atlas ready");
             scorers.insert(atlas.content_hash.clone(), Arc::new(scorer));
+            atlases.insert(atlas.content_hash.clone(), Arc::new(atlas));
         }
     }
     let requeued = store.requeue_running().await?;
@@ -132,6 +137,7 @@ pub async fn serve(
         store,
         config,
         scorers,
+        atlases,
         wake: tokio::sync::Notify::new(),
         login_failures,
         passwords,

@@ -48,7 +48,19 @@ pub fn require_scored(row: &SessionRow) -> Result<(), PageError> {
     }
 }
 
-pub async fn review(State(s): State<Arc<AppState>>, v: Viewer, Path(id): Path<String>) -> Result<Response, PageError> {
+/// The review's query: `?tick=N` shows the player's frames at tick N (the key moments' links,
+/// for browsers without JavaScript).
+#[derive(Debug, Default, serde::Deserialize)]
+pub struct ReviewQuery {
+    tick: Option<u64>,
+}
+
+pub async fn review(
+    State(s): State<Arc<AppState>>,
+    v: Viewer,
+    Path(id): Path<String>,
+    axum::extract::Query(q): axum::extract::Query<ReviewQuery>,
+) -> Result<Response, PageError> {
     let row = visible_session(&s, &v, &id).await?;
     let title = format!("{} — {} ({})", row.trainee, row.scenario, row.difficulty);
     let head = header_block(&row);
@@ -98,14 +110,25 @@ pub async fn review(State(s): State<Arc<AppState>>, v: Viewer, Path(id): Path<St
         let h = table.heuristic();
         (l != h.air && l != h.fat).then(|| label_name(l))
     };
-    let charts = match review_trace(&s, &row.file_sha256, &row.atlas_hash).await {
-        Ok(trace) => charts_block(&trace, &row, &review, &peak_name)?,
+    let trace = review_trace(&s, &row.file_sha256, &row.atlas_hash).await;
+    let charts = match &trace {
+        Ok(trace) => charts_block(trace, &row, &review, &peak_name)?,
         Err(e) => html! { p.error { "The force curves cannot be shown: " (e) } },
+    };
+    let player = match (&trace, crate::player::tick_rate_hz(&s, &row).await) {
+        (Ok(trace), Some(rate)) => {
+            crate::player::warm(&s, &row);
+            crate::player::block(&row, trace, rate, report.ticks, q.tick, &comment_notes(&review))
+        }
+        (Err(_), _) => html! {},
+        (_, None) => html! { p.error { "The replay cannot be shown: the session file's header cannot be read." } },
     };
     let rubric = scorer.as_ref().map(|sc| sc.rubric().clone());
     let body = html! {
         (head)
         (grade_block(&report, &review))
+        h2 { "Replay" }
+        (player)
         h2 { "Forces and depth" }
         (charts)
         h2 { "Tip path over the CT" }

@@ -67,13 +67,27 @@ impl Image {
             message,
         };
         let file = std::fs::File::create(path).map_err(|e| err(e.to_string()))?;
-        let mut enc = png::Encoder::new(std::io::BufWriter::new(file), self.width, self.height);
+        self.encode_png(std::io::BufWriter::new(file)).map_err(err)
+    }
+
+    /// The 8-bit RGBA PNG's bytes (pictures served over HTTP).
+    pub fn to_png(&self) -> Result<Vec<u8>, RenderError> {
+        let mut out = Vec::new();
+        self.encode_png(&mut out).map_err(|message| RenderError::Write {
+            path: "(memory)".into(),
+            message,
+        })?;
+        Ok(out)
+    }
+
+    fn encode_png(&self, to: impl std::io::Write) -> Result<(), String> {
+        let mut enc = png::Encoder::new(to, self.width, self.height);
         enc.set_color(png::ColorType::Rgba);
         enc.set_depth(png::BitDepth::Eight);
-        let mut w = enc.write_header().map_err(|e| err(e.to_string()))?;
+        let mut w = enc.write_header().map_err(|e| e.to_string())?;
         w.write_image_data(self.rgba.as_flattened())
-            .map_err(|e| err(e.to_string()))?;
-        w.finish().map_err(|e| err(e.to_string()))
+            .map_err(|e| e.to_string())?;
+        w.finish().map_err(|e| e.to_string())
     }
 
     /// Reads an 8-bit RGB or RGBA PNG (golden images).
