@@ -476,6 +476,10 @@ fn redirections_and_bone_contacts_are_counted() {
     let m = &r["metrics"];
     assert_eq!(m["attempts"], 1, "{m}");
     assert_eq!(m["redirections"], 1, "{m}");
+    // It completes while the needle goes in again from 45 mm (5 s) to 70 mm (7 s).
+    let at = m["redirection_times_s"].as_array().unwrap();
+    assert_eq!(at.len(), 1, "{m}");
+    assert!((5.0..7.0).contains(&at[0].as_f64().unwrap()), "{m}");
     // Aimed at a rib: the tip stops on bone.
     let r = score_text(
         "rib",

@@ -30,7 +30,8 @@ fn markers(trace: &ReviewTrace) -> Vec<(f64, String)> {
     trace
         .events
         .iter()
-        .filter(|e| e.kind != "tool")
+        // Redirections are key moments of the player, not lines on the chart (there may be many).
+        .filter(|e| e.kind != "tool" && e.kind != "redirection")
         .map(|e| (e.t_s, e.label.clone()))
         .collect()
 }

@@ -85,11 +85,18 @@ pub struct Guided {
     pub max_deviation_mm: f64,
 }
 
+/// Most redirection times a score keeps (the count goes on).
+pub const MAX_REDIRECTION_TIMES: usize = 1000;
+
 /// All metrics of one session.
 #[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct Metrics {
     pub attempts: u32,
     pub redirections: u32,
+    /// When each redirection completed (s from the session start; its re-advance reached the
+    /// rubric's `readvance_mm`), at most [`MAX_REDIRECTION_TIMES`]: the replay's key moments.
+    #[serde(default)]
+    pub redirection_times_s: Vec<f64>,
     pub risk_hits: Vec<RiskHit>,
     pub bone_contacts: u32,
     pub target_reached: bool,
@@ -210,6 +217,7 @@ pub struct MetricsCollector<'a> {
     peak_mm: f64,
     valley_mm: Option<f64>,
     redirections: u32,
+    redirection_times_s: Vec<f64>,
     risk: BTreeMap<LabelId, RiskHit>,
     risk_entry_mm: Option<(LabelId, f64)>,
     prev_tip_label: LabelId,
@@ -483,6 +491,7 @@ impl<'a> MetricsCollector<'a> {
             peak_mm: 0.0,
             valley_mm: None,
             redirections: 0,
+            redirection_times_s: Vec::new(),
             risk: BTreeMap::new(),
             risk_entry_mm: None,
             prev_tip_label: 0,
@@ -591,6 +600,9 @@ impl<'a> MetricsCollector<'a> {
                 None => self.peak_mm = self.peak_mm.max(out.inserted_mm),
                 Some(v) if out.inserted_mm - v >= self.params.readvance_mm => {
                     self.redirections += 1;
+                    if self.redirection_times_s.len() < MAX_REDIRECTION_TIMES {
+                        self.redirection_times_s.push(out.time_s);
+                    }
                     self.valley_mm = None;
                     self.peak_mm = out.inserted_mm;
                 }
@@ -855,6 +867,7 @@ impl<'a> MetricsCollector<'a> {
         Metrics {
             attempts: self.attempts.len() as u32,
             redirections: self.redirections,
+            redirection_times_s: self.redirection_times_s,
             risk_hits: self
                 .risk
                 .into_values()

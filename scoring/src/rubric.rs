@@ -444,6 +444,7 @@ mod tests {
         Metrics {
             attempts: 2,
             redirections: 3,
+            redirection_times_s: vec![4.0, 9.0, 15.0],
             risk_hits: Vec::new(),
             bone_contacts: 0,
             target_reached: true,

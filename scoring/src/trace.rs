@@ -20,7 +20,7 @@ use stylet_physics::{Event, LabelId, TickInput, TickOutput};
 use crate::metrics::{Metrics, RiskHit};
 
 /// Format version of [`ReviewTrace`] (stored traces of another version are rebuilt).
-pub const TRACE_VERSION: u32 = 3;
+pub const TRACE_VERSION: u32 = 4;
 
 /// At most this many punctures are kept per session (a trainee jiggling at a boundary cannot grow
 /// the trace without bound).
@@ -101,6 +101,7 @@ pub enum MomentKind {
     TargetReached,
     Contrast,
     StyletOut,
+    Redirection,
 }
 
 impl MomentKind {
@@ -111,6 +112,7 @@ impl MomentKind {
             MomentKind::TargetReached => "target reached",
             MomentKind::Contrast => "contrast",
             MomentKind::StyletOut => "stylet out",
+            MomentKind::Redirection => "redirection",
         }
     }
 }
@@ -125,8 +127,8 @@ pub struct TraceMoment {
 }
 
 impl ReviewTrace {
-    /// Skin entries (each time the needle enters the body), risk hits, the target reached,
-    /// contrast injections and the stylet taken out, in time order.
+    /// Skin entries (each time the needle enters the body), risk hits, redirections, the target
+    /// reached, contrast injections and the stylet taken out, in time order.
     pub fn key_moments(&self) -> Vec<TraceMoment> {
         let mut out = Vec::new();
         let mut inside = false;
@@ -147,6 +149,7 @@ impl ReviewTrace {
                 "target-reached" => MomentKind::TargetReached,
                 "contrast-inject" => MomentKind::Contrast,
                 "stylet-remove" => MomentKind::StyletOut,
+                "redirection" => MomentKind::Redirection,
                 _ => continue,
             };
             out.push(TraceMoment {
@@ -348,8 +351,8 @@ impl TraceCollector {
         }
     }
 
-    /// The trace, with the scored moments added as events: risk-structure hits (first contact)
-    /// and the target reached.
+    /// The trace, with the scored moments added as events: risk-structure hits (first contact),
+    /// redirections and the target reached.
     pub fn finish(mut self, metrics: &Metrics) -> ReviewTrace {
         self.add_risk_points(&metrics.risk_hits);
         let t = &mut self.trace;
@@ -363,6 +366,13 @@ impl TraceCollector {
                 t_s: hit.t_s,
                 kind: "risk-hit".into(),
                 label: format!("risk hit: {}", hit.structure),
+            });
+        }
+        for (n, &t_s) in metrics.redirection_times_s.iter().enumerate() {
+            t.events.push(TraceEvent {
+                t_s,
+                kind: "redirection".into(),
+                label: format!("redirection {}", n + 1),
             });
         }
         if let Some(s) = metrics.time_to_target_s {

@@ -15,6 +15,7 @@ pub fn moment_color(kind: MomentKind) -> egui::Color32 {
         MomentKind::TargetReached => egui::Color32::from_rgb(90, 210, 120),
         MomentKind::Contrast => egui::Color32::from_rgb(120, 170, 255),
         MomentKind::StyletOut => egui::Color32::from_rgb(200, 140, 230),
+        MomentKind::Redirection => egui::Color32::from_rgb(240, 150, 60),
     }
 }
 
