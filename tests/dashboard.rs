@@ -83,6 +83,26 @@ async fn open(c: &Client, base: &str, path: &str) -> String {
     h1
 }
 
+/// Submits a form and waits for the page it leads to. The old page is marked first, so that an
+/// element both pages have is not found on the old one while the browser is still navigating.
+async fn submit_and_wait(c: &Client, form: fantoccini::elements::Form) {
+    c.execute("window.__styletOldPage = true", vec![]).await.unwrap();
+    form.submit().await.unwrap();
+    for _ in 0..300 {
+        let loaded = c
+            .execute(
+                "return window.__styletOldPage === undefined && document.readyState === 'complete'",
+                vec![],
+            )
+            .await;
+        if matches!(loaded, Ok(Value::Bool(true))) {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    panic!("the page the form leads to did not load within 30 s");
+}
+
 async fn log_out(c: &Client, base: &str) {
     c.goto(&format!("{base}/")).await.unwrap();
     c.find(Locator::Css("header.top form button"))
@@ -272,7 +292,7 @@ fn every_role_uses_the_dashboard(db: Db, tag: &'static str) {
         c.execute(&format!("document.querySelector('form.filters input[name=from]').value = '{today}'"), vec![])
             .await
             .unwrap();
-        form.submit().await.unwrap();
+        submit_and_wait(&c, form).await;
         c.wait().at_most(Duration::from_secs(20)).for_element(Locator::Id("trainees")).await.unwrap();
         let url = c.current_url().await.unwrap();
         assert!(url.as_str().contains("difficulty=beginner") && url.as_str().contains(&today), "{url}");
@@ -328,7 +348,7 @@ fn every_role_uses_the_dashboard(db: Db, tag: &'static str) {
         shot(&c, tag, "10-curriculum-home").await;
         open(&c, &base, "/reports").await;
         shot(&c, tag, "11-curriculum-reports").await;
-        c.form(Locator::Id("report-form")).await.unwrap().submit().await.unwrap();
+        submit_and_wait(&c, c.form(Locator::Id("report-form")).await.unwrap()).await;
         c.wait().at_most(Duration::from_secs(20)).for_element(Locator::Id("report-lines")).await.unwrap();
         assert!(text_of(&c, "#report-title").await.starts_with("Cohort c1"));
         let lines = text_of(&c, "#report-lines").await;
@@ -385,7 +405,7 @@ fn every_role_uses_the_dashboard(db: Db, tag: &'static str) {
         form.set_by_name("username", "nora").await.unwrap();
         form.set_by_name("cohort", "c1").await.unwrap();
         form.set_by_name("password", "nora-password").await.unwrap();
-        form.submit().await.unwrap();
+        submit_and_wait(&c, form).await;
         c.wait().at_most(Duration::from_secs(20)).for_element(Locator::Id("users")).await.unwrap();
         assert!(text_of(&c, "#users").await.contains("nora"));
         // A second time: refused with the reason.
