@@ -331,16 +331,19 @@ fn the_simulator_draws_what_stylet_render_draws_for_the_same_tick() {
         },
     )
     .unwrap();
-    for kind in ViewKind::ALL {
-        let frame = views.draw(kind, &snap.moment, 240, 160).unwrap();
-        assert_eq!(frame.scale, 1.0, "the first frame is at full resolution");
-        let png = f.dir.path().join(format!("{}.png", kind.name()));
-        ok(&[
+    // `stylet render`'s picture of the recorded session at the same tick (`--gpu` on the GPU).
+    let session = f.session("tina-ok");
+    let cli_view = |kind: ViewKind, gpu: bool| {
+        let png = f
+            .dir
+            .path()
+            .join(format!("{}{}.png", kind.name(), if gpu { "-gpu" } else { "" }));
+        let mut args = vec![
             "render",
             "--atlas",
             s(&dir),
             "--session",
-            s(&f.session("tina-ok")),
+            s(&session),
             "--at",
             "13.008",
             "--view",
@@ -349,13 +352,24 @@ fn the_simulator_draws_what_stylet_render_draws_for_the_same_tick() {
             "240x160",
             "--out",
             s(&png),
-        ]);
-        let cli = stylet_render::image::Image::read_png(&png).unwrap();
+        ];
+        if gpu {
+            args.push("--gpu");
+        }
+        ok(&args);
+        stylet_render::image::Image::read_png(&png).unwrap()
+    };
+    let mut cpu_frames = Vec::new();
+    for kind in ViewKind::ALL {
+        let frame = views.draw(kind, &snap.moment, 240, 160).unwrap();
+        assert_eq!(frame.scale, 1.0, "the first frame is at full resolution");
+        let cli = cli_view(kind, false);
         assert!(
             cli == frame.image,
             "{}: the simulator's view differs from stylet render's",
             kind.name()
         );
+        cpu_frames.push(frame.image);
     }
     // The same on the GPU renderers (lavapipe here): the window's views drawn by wgpu equal
     // `stylet render --gpu`'s pictures, and stay close to the CPU's.
@@ -369,32 +383,14 @@ fn the_simulator_draws_what_stylet_render_draws_for_the_same_tick() {
     )
     .unwrap();
     assert!(gpu_views.drawn_by().starts_with("GPU: "), "{}", gpu_views.drawn_by());
-    for kind in ViewKind::ALL {
+    for (kind, cpu) in ViewKind::ALL.into_iter().zip(&cpu_frames) {
         let frame = gpu_views.draw(kind, &snap.moment, 240, 160).unwrap();
-        let png = f.dir.path().join(format!("{}-gpu.png", kind.name()));
-        ok(&[
-            "render",
-            "--atlas",
-            s(&dir),
-            "--session",
-            s(&f.session("tina-ok")),
-            "--at",
-            "13.008",
-            "--view",
-            kind.name(),
-            "--size",
-            "240x160",
-            "--gpu",
-            "--out",
-            s(&png),
-        ]);
-        let cli = stylet_render::image::Image::read_png(&png).unwrap();
+        let cli = cli_view(kind, true);
         assert!(
             cli == frame.image,
             "{}: the simulator's GPU view differs from stylet render --gpu's",
             kind.name()
         );
-        let cpu = stylet_render::image::Image::read_png(&f.dir.path().join(format!("{}.png", kind.name()))).unwrap();
         let mean_abs = cpu
             .rgba
             .iter()

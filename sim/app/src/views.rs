@@ -306,22 +306,36 @@ impl ViewRenderer {
             ViewKind::Sagittal => views::slice_image(atlas, m, &views::plane_spec(atlas, m, Plane::Sagittal, w, h)),
             ViewKind::Needle => views::slice_image(atlas, m, &views::needle_spec(atlas, m, w, h)?),
             ViewKind::Ultrasound => {
-                let scene = views::ultrasound_scene(
-                    atlas,
-                    m,
-                    Some(ProbeKind::Convex),
-                    &moment.difficulty,
-                    Arc::clone(&self.echo),
-                    self.doppler.clone(),
-                )?;
+                let scene = self.ultrasound_scene(moment)?;
                 Ok(ultrasound::render(&atlas.model, &scene)?.to_image(w, h))
             }
             ViewKind::Xray => {
-                let scenario = atlas.manifest.scenarios.iter().find(|s| s.name == moment.scenario);
-                let (scene, window) = views::xray_scene(atlas, m, scenario, None, None)?;
+                let (scene, window) = self.xray_scene(moment)?;
                 Ok(stylet_render::xray::render(&atlas.model, &scene, w, h)?.to_image(window))
             }
         }
+    }
+
+    /// The ultrasound view's scene (both renderers): the probe in hand, else a convex probe
+    /// beside the planned path, with the level's aids.
+    fn ultrasound_scene(&self, moment: &Moment) -> Result<stylet_render::ultrasound::UltrasoundScene, ViewError> {
+        views::ultrasound_scene(
+            &self.atlas,
+            Some(moment),
+            Some(ProbeKind::Convex),
+            &moment.difficulty,
+            Arc::clone(&self.echo),
+            self.doppler.clone(),
+        )
+    }
+
+    /// The X-ray view's scene and window (both renderers): the scenario's C-arm.
+    fn xray_scene(
+        &self,
+        moment: &Moment,
+    ) -> Result<(stylet_render::xray::XrayScene, stylet_render::xray::XrayWindow), ViewError> {
+        let scenario = self.atlas.manifest.scenarios.iter().find(|s| s.name == moment.scenario);
+        views::xray_scene(&self.atlas, Some(moment), scenario, None, None)
     }
 
     /// [`Self::draw_at`] on the wgpu renderers: the same scenes, drawn on the GPU.
@@ -350,22 +364,14 @@ impl ViewRenderer {
             ViewKind::Sagittal => slice(g, &views::plane_spec(atlas, m, Plane::Sagittal, w, h)),
             ViewKind::Needle => slice(g, &views::needle_spec(atlas, m, w, h)?),
             ViewKind::Ultrasound => {
-                let scene = views::ultrasound_scene(
-                    atlas,
-                    m,
-                    Some(ProbeKind::Convex),
-                    &moment.difficulty,
-                    Arc::clone(&self.echo),
-                    self.doppler.clone(),
-                )?;
+                let scene = self.ultrasound_scene(moment)?;
                 Ok(g.ultrasound
                     .render(&g.ctx, &g.volume, &scene)
                     .map_err(gpu_error)?
                     .to_image(w, h))
             }
             ViewKind::Xray => {
-                let scenario = atlas.manifest.scenarios.iter().find(|s| s.name == moment.scenario);
-                let (scene, window) = views::xray_scene(atlas, m, scenario, None, None)?;
+                let (scene, window) = self.xray_scene(moment)?;
                 Ok(g.xray
                     .render(&g.ctx, &g.volume, &scene, w, h)
                     .map_err(gpu_error)?
