@@ -243,6 +243,37 @@ fn review_progress_and_reports_by_role(db: Db) {
             Box::new(|u: &str| post(u, &format!("/api/sessions/{m1}/override"), over)),
             [201, 404, 404, 403, 403, 401],
         ),
+        // The expert benchmark: its reviewers mark and unmark; whoever sees a session reads it.
+        (
+            "mark tina's as an expert reference",
+            Box::new(|u: &str| post(u, &format!("/api/sessions/{t1}/expert"), "")),
+            [201, 201, 403, 404, 403, 401],
+        ),
+        (
+            "mark tom's as an expert reference",
+            Box::new(|u: &str| post(u, &format!("/api/sessions/{m1}/expert"), "")),
+            [201, 404, 404, 403, 403, 401],
+        ),
+        (
+            "GET the benchmark of tina's",
+            Box::new(|u: &str| get(u, &format!("/api/sessions/{t1}/benchmark"))),
+            [200, 200, 200, 404, 200, 401],
+        ),
+        (
+            "GET the benchmark of tom's",
+            Box::new(|u: &str| get(u, &format!("/api/sessions/{m1}/benchmark"))),
+            [200, 404, 404, 200, 200, 401],
+        ),
+        (
+            "unmark tina's",
+            Box::new(|u: &str| call("DELETE", &format!("{b}/api/sessions/{t1}/expert"), auth(u), None, false).0),
+            [200, 200, 403, 404, 403, 401],
+        ),
+        (
+            "unmark tom's",
+            Box::new(|u: &str| call("DELETE", &format!("{b}/api/sessions/{m1}/expert"), auth(u), None, false).0),
+            [200, 404, 404, 403, 403, 401],
+        ),
     ];
     for (what, f, want) in &matrix {
         for (k, u) in users.iter().enumerate() {
@@ -614,6 +645,8 @@ fn upload_score_and_see_only_what_you_may(db: Db) {
         "/api/tokens",
         "/api/sessions",
         "/api/sessions/{id}",
+        "/api/sessions/{id}/expert",
+        "/api/sessions/{id}/benchmark",
     ] {
         assert!(doc["paths"].get(path).is_some(), "openapi lacks {path}");
     }

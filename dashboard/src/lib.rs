@@ -41,6 +41,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/sessions/{id}/comment", post(pages::review::comment))
         .route("/sessions/{id}/override", post(pages::review::override_grade))
         .route("/sessions/{id}/delete", post(pages::review::delete))
+        .route("/sessions/{id}/expert", post(pages::benchmark::mark))
         .route(
             "/upload",
             post(pages::upload::upload).layer(DefaultBodyLimit::max(upload_limit)),

@@ -4,6 +4,7 @@
 //! (docs/metrics.md); [`rubric`] turns metrics into a grade per difficulty; [`score`] ties them
 //! together for one file or a batch; [`trace`] keeps what the dashboard draws of a replay. The HTTP service is the crate `stylet-service`.
 
+pub mod benchmark;
 pub mod metrics;
 pub mod reasons;
 pub mod replay;
@@ -12,6 +13,7 @@ pub mod score;
 pub mod target;
 pub mod trace;
 
+pub use benchmark::Benchmark;
 pub use metrics::{MetricParams, Metrics, PalpationMetrics, RiskHit, UltrasoundMetrics};
 pub use reasons::{MetricInfo, Outcome, metric_label, reasons};
 pub use replay::{Divergence, ReplayError, ReplayReport, Replayer, replay};

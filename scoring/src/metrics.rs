@@ -922,3 +922,59 @@ impl<'a> MetricsCollector<'a> {
         }
     }
 }
+
+/// Metrics to test rubrics and benchmarks with.
+#[cfg(test)]
+pub(crate) mod tests_support {
+    use super::{Metrics, Workflow};
+
+    /// The worked example of docs/metrics.md "Rubrics".
+    pub fn example() -> Metrics {
+        Metrics {
+            attempts: 2,
+            redirections: 3,
+            redirection_times_s: vec![4.0, 9.0, 15.0],
+            risk_hits: Vec::new(),
+            bone_contacts: 0,
+            target_reached: true,
+            target_confirmed: true,
+            stylet_removed_in_target: true,
+            contrast_in_target: true,
+            contrast_in_ducts_ml: 2.0,
+            extravasated_ml: 0.0,
+            contrast_extent_mm: 30.0,
+            time_to_target_s: Some(20.0),
+            time_total_s: 60.0,
+            fluoro_time_s: 40.0,
+            xray_shots: 2,
+            dose_area_product_gy_cm2: 1.7,
+            ultrasound_time_s: 10.0,
+            needle_in_plane_share: None,
+            palpation_time_s: 0.0,
+            path_length_mm: 100.0,
+            path_inefficiency: Some(1.1),
+            max_force_n: 3.0,
+            rms_force_n: 1.0,
+            max_bending_mm: 1.0,
+            tissue_damage_mm2: 0.0,
+            workflow: Workflow {
+                palpation_before_puncture: false,
+                ultrasound_before_puncture: true,
+                target_scanned_before_puncture: true,
+                confirmed_before_withdrawal: true,
+            },
+            target_distance_mm: Some(0.0),
+            target_distance_min_mm: Some(0.0),
+            guided: None,
+            palpation: None,
+            ultrasound: None,
+        }
+    }
+
+    /// The worked example changed by `f`.
+    pub fn metrics_with(f: impl FnOnce(&mut Metrics)) -> Metrics {
+        let mut m = example();
+        f(&mut m);
+        m
+    }
+}

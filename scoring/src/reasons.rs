@@ -349,7 +349,18 @@ pub fn reasons(exercise: Exercise, grade: &Grade, metrics: &Metrics, incomplete_
     let deductions: Vec<String> = grade
         .deductions
         .iter()
-        .filter_map(|d| metric_info(&d.metric).map(|i| i.deduction(d.value, d.points, d.free)))
+        .filter_map(|d| {
+            let phrase = metric_info(&d.metric)?.deduction(d.value, d.points, d.free);
+            // A deduction against the expert benchmark says where its free amount came from.
+            Some(match (&d.relative, phrase.strip_suffix(')')) {
+                (Some(r), Some(open)) => format!(
+                    "{open}: the experts' mean + {} spread{})",
+                    num(r.spreads),
+                    if r.spreads == 1.0 { "" } else { "s" }
+                ),
+                _ => phrase,
+            })
+        })
         .collect();
     let pass = grade.pass_score.map(num);
     let level = &grade.difficulty;

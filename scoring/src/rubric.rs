@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+use crate::benchmark::Benchmark;
 use crate::metrics::{MetricParams, Metrics};
 use stylet_atlas::Exercise;
 
@@ -25,6 +26,17 @@ pub struct Rubric {
     /// The levels of the other exercises (`[exercises.palpation.levels.beginner]`, …).
     #[serde(default)]
     pub exercises: BTreeMap<Exercise, ExerciseRubric>,
+    /// Grading relative to the expert benchmark (since version 4): when it applies.
+    #[serde(default)]
+    pub benchmark: Option<RubricBenchmark>,
+}
+
+/// `[benchmark]`: the levels' `relative` deductions apply only when the scenario has at least
+/// `min_experts` expert references (fewer say too little about how experts do it).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RubricBenchmark {
+    pub min_experts: u32,
 }
 
 /// The levels of one exercise.
@@ -49,6 +61,20 @@ pub struct Level {
     pub require: Vec<Requirement>,
     #[serde(default)]
     pub deduct: Vec<Deduction>,
+    /// Deductions against the expert benchmark (need `[benchmark]`).
+    #[serde(default)]
+    pub relative: Vec<RelativeDeduction>,
+}
+
+/// `points` per unit of the metric above the expert mean plus `spreads` expert spreads, at most
+/// `max_points`: a [`Deduction`] whose free amount comes from the benchmark.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RelativeDeduction {
+    pub metric: String,
+    pub spreads: f64,
+    pub points: f64,
+    pub max_points: Option<f64>,
 }
 
 /// The metric must lie within [min, max].
@@ -197,6 +223,28 @@ pub struct Applied {
     /// The amount that cost nothing (absent in grades stored before it was kept).
     #[serde(default)]
     pub free: Option<f64>,
+    /// For a deduction against the expert benchmark: the expert figures its free amount came from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub relative: Option<RelativeFree>,
+}
+
+/// Where a relative deduction's free amount came from: expert mean + `spreads` × spread.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RelativeFree {
+    pub mean: f64,
+    pub spread: f64,
+    pub spreads: f64,
+}
+
+/// Whether a grade was measured against the expert benchmark (levels with relative deductions).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GradeBenchmark {
+    /// Expert references the scenario had when the session was graded.
+    pub experts: u32,
+    /// The rubric's minimum for its relative deductions to apply.
+    pub min_experts: u32,
+    /// Whether they applied (`experts ≥ min_experts`).
+    pub applied: bool,
 }
 
 /// A requirement the session did not meet.
@@ -229,6 +277,10 @@ pub struct Grade {
     #[serde(default)]
     pub unmet: Vec<Unmet>,
     pub deductions: Vec<Applied>,
+    /// The expert benchmark, when the level grades against it (absent otherwise and in grades
+    /// stored before rubric version 4).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub benchmark: Option<GradeBenchmark>,
 }
 
 /// Checks the levels of one exercise: all three present, pass marks in 0…100, known metrics,
@@ -286,6 +338,18 @@ fn check_levels(levels: &BTreeMap<String, Level>, exercise: Exercise, at: &str) 
                 finite(*v, &format!("levels.{name}: requirement on '{}'", q.metric))?;
             }
         }
+        for d in &l.relative {
+            known(&d.metric)?;
+            for v in [d.spreads, d.points].iter().chain(&d.max_points) {
+                finite(*v, &format!("levels.{name}: relative deduction on '{}'", d.metric))?;
+            }
+            if d.points < 0.0 || d.spreads < 0.0 {
+                return Err(format!(
+                    "levels.{name}: relative deduction on '{}' has negative points or spreads",
+                    d.metric
+                ));
+            }
+        }
         for d in &l.deduct {
             known(&d.metric)?;
             for v in [d.free, d.points].iter().chain(&d.max_points) {
@@ -322,6 +386,26 @@ impl Rubric {
             return Err("metrics.redirection_mm and readvance_mm must be positive".into());
         }
         check_levels(&r.levels, Exercise::Puncture, "levels")?;
+        let relative = r
+            .levels
+            .values()
+            .chain(r.exercises.values().flat_map(|e| e.levels.values()))
+            .any(|l| !l.relative.is_empty());
+        match r.benchmark {
+            None if relative => {
+                return Err("relative deductions need a [benchmark] table with min_experts".into());
+            }
+            Some(b) if b.min_experts < 2 => {
+                return Err("benchmark.min_experts must be 2 or more (one expert has no spread)".into());
+            }
+            Some(b) if b.min_experts as usize > crate::benchmark::MAX_EXPERTS => {
+                return Err(format!(
+                    "benchmark.min_experts must be at most {} (the most expert references a scenario may have)",
+                    crate::benchmark::MAX_EXPERTS
+                ));
+            }
+            _ => {}
+        }
         for (exercise, e) in &r.exercises {
             if *exercise == Exercise::Puncture {
                 return Err("the puncture's levels are the top-level [levels], not [exercises.puncture]".into());
@@ -378,8 +462,21 @@ impl Rubric {
         }
     }
 
-    /// Grades `m` as `exercise` at `difficulty`.
+    /// Grades `m` as `exercise` at `difficulty` with no expert benchmark (a level's relative
+    /// deductions do not apply).
     pub fn grade(&self, m: &Metrics, exercise: Exercise, difficulty: &str) -> Result<Grade, String> {
+        self.grade_against(m, exercise, difficulty, None)
+    }
+
+    /// Grades `m` as `exercise` at `difficulty`; the level's relative deductions measure against
+    /// `benchmark` (the scenario's) when it has enough experts.
+    pub fn grade_against(
+        &self,
+        m: &Metrics,
+        exercise: Exercise,
+        difficulty: &str,
+        benchmark: Option<&Benchmark>,
+    ) -> Result<Grade, String> {
         self.grade_check(exercise, difficulty)?;
         let level = self.level(exercise, difficulty).expect("checked above");
         let value = |name: &str| metric_value(m, name).expect("rubric metrics are checked at parse time");
@@ -413,7 +510,45 @@ impl Rubric {
                     value: v,
                     points,
                     free: Some(d.free),
+                    relative: None,
                 });
+            }
+        }
+        let graded_benchmark = match (&self.benchmark, level.relative.is_empty()) {
+            (Some(rb), false) => {
+                let experts = benchmark.map_or(0, |b| b.experts.len()) as u32;
+                Some(GradeBenchmark {
+                    experts,
+                    min_experts: rb.min_experts,
+                    applied: experts >= rb.min_experts,
+                })
+            }
+            _ => None,
+        };
+        if let (Some(gb), Some(bench)) = (&graded_benchmark, benchmark)
+            && gb.applied
+        {
+            for d in &level.relative {
+                let Some(f) = bench.figure(&d.metric) else { continue };
+                let v = value(&d.metric);
+                let free = f.mean + d.spreads * f.spread;
+                let mut points = (v - free).max(0.0) * d.points;
+                if let Some(cap) = d.max_points {
+                    points = points.min(cap);
+                }
+                if points > 0.0 {
+                    deductions.push(Applied {
+                        metric: d.metric.clone(),
+                        value: v,
+                        points,
+                        free: Some(free),
+                        relative: Some(RelativeFree {
+                            mean: f.mean,
+                            spread: f.spread,
+                            spreads: d.spreads,
+                        }),
+                    });
+                }
             }
         }
         let score = (100.0 - deductions.iter().map(|d| d.points).sum::<f64>()).clamp(0.0, 100.0);
@@ -431,6 +566,7 @@ impl Rubric {
             failed,
             unmet,
             deductions,
+            benchmark: graded_benchmark,
         })
     }
 }
@@ -438,55 +574,17 @@ impl Rubric {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::metrics::{Metrics, Workflow};
+    use crate::metrics::Metrics;
 
     fn metrics() -> Metrics {
-        Metrics {
-            attempts: 2,
-            redirections: 3,
-            redirection_times_s: vec![4.0, 9.0, 15.0],
-            risk_hits: Vec::new(),
-            bone_contacts: 0,
-            target_reached: true,
-            target_confirmed: true,
-            stylet_removed_in_target: true,
-            contrast_in_target: true,
-            contrast_in_ducts_ml: 2.0,
-            extravasated_ml: 0.0,
-            contrast_extent_mm: 30.0,
-            time_to_target_s: Some(20.0),
-            time_total_s: 60.0,
-            fluoro_time_s: 40.0,
-            xray_shots: 2,
-            dose_area_product_gy_cm2: 1.7,
-            ultrasound_time_s: 10.0,
-            needle_in_plane_share: None,
-            palpation_time_s: 0.0,
-            path_length_mm: 100.0,
-            path_inefficiency: Some(1.1),
-            max_force_n: 3.0,
-            rms_force_n: 1.0,
-            max_bending_mm: 1.0,
-            tissue_damage_mm2: 0.0,
-            workflow: Workflow {
-                palpation_before_puncture: false,
-                ultrasound_before_puncture: true,
-                target_scanned_before_puncture: true,
-                confirmed_before_withdrawal: true,
-            },
-            target_distance_mm: Some(0.0),
-            target_distance_min_mm: Some(0.0),
-            guided: None,
-            palpation: None,
-            ultrasound: None,
-        }
+        crate::metrics::tests_support::example()
     }
 
     /// The worked example of docs/metrics.md "Rubrics".
     #[test]
     fn the_shipped_rubric_grades_the_worked_example() {
         let r = Rubric::default_rubric();
-        assert_eq!((r.name.as_str(), r.version), ("ptcd", 3));
+        assert_eq!((r.name.as_str(), r.version), ("ptcd", 4));
         let g = r.grade(&metrics(), Exercise::Puncture, "beginner").unwrap();
         // attempts 2 (1 free) −10, redirections 3 (2 free) −3, fluoro 40 s (30 free) −5,
         // no palpation first −5: 100 − 23.
@@ -513,11 +611,71 @@ mod tests {
         );
     }
 
+    /// The expert level's relative deductions: nothing without a benchmark or with too few
+    /// experts; with three, time above the expert mean + 1 spread costs 0.1 points a second.
+    #[test]
+    fn the_expert_level_grades_against_the_benchmark() {
+        use crate::benchmark::Benchmark;
+        use crate::metrics::tests_support::metrics_with;
+        let r = Rubric::default_rubric();
+        let trainee = metrics_with(|m| {
+            m.attempts = 1;
+            m.redirections = 0;
+            m.fluoro_time_s = 20.0;
+            m.time_total_s = 200.0;
+        });
+        let alone = r.grade(&trainee, Exercise::Puncture, "expert").unwrap();
+        assert_eq!(
+            alone.benchmark,
+            Some(GradeBenchmark {
+                experts: 0,
+                min_experts: 3,
+                applied: false
+            })
+        );
+        assert!(alone.deductions.iter().all(|d| d.relative.is_none()));
+        let experts: Vec<Metrics> = [100.0, 120.0, 140.0]
+            .iter()
+            .map(|&t| {
+                metrics_with(|m| {
+                    m.time_total_s = t;
+                    m.fluoro_time_s = 20.0;
+                })
+            })
+            .collect();
+        let refs: Vec<(String, &Metrics)> = experts.iter().enumerate().map(|(i, m)| (format!("e{i}"), m)).collect();
+        let two = Benchmark::from_sessions("s", Exercise::Puncture, &refs[..2]);
+        let g = r
+            .grade_against(&trainee, Exercise::Puncture, "expert", Some(&two))
+            .unwrap();
+        assert_eq!(g.score, alone.score, "two experts are fewer than min_experts");
+        assert!(!g.benchmark.unwrap().applied);
+        let three = Benchmark::from_sessions("s", Exercise::Puncture, &refs);
+        let g = r
+            .grade_against(&trainee, Exercise::Puncture, "expert", Some(&three))
+            .unwrap();
+        assert!(g.benchmark.as_ref().unwrap().applied);
+        // Mean 120 s, spread 20 s: 60 s above 140 s at 0.1 points = 6; fluoroscopy equals the
+        // experts' (spread 0) and costs nothing.
+        let rel: Vec<&Applied> = g.deductions.iter().filter(|d| d.relative.is_some()).collect();
+        assert_eq!(rel.len(), 1, "{rel:?}");
+        assert_eq!(rel[0].metric, "time_total_s");
+        assert!((rel[0].points - 6.0).abs() < 1e-9, "{}", rel[0].points);
+        assert_eq!(rel[0].free, Some(140.0));
+        assert_eq!(g.score, alone.score - 6.0);
+        // The beginner level has no relative deductions: the benchmark changes nothing there.
+        let b = r
+            .grade_against(&trainee, Exercise::Puncture, "beginner", Some(&three))
+            .unwrap();
+        assert_eq!(b, r.grade(&trainee, Exercise::Puncture, "beginner").unwrap());
+        assert_eq!(b.benchmark, None);
+    }
+
     #[test]
     fn bad_rubrics_are_named() {
         let base = DEFAULT_RUBRIC;
         let cases = [
-            (base.replace("version = 3", "version = 0"), "version"),
+            (base.replace("version = 4", "version = 0"), "version"),
             (
                 base.replace("[levels.expert]", "[levels.master]"),
                 "lacks level 'expert'",
@@ -540,6 +698,15 @@ mod tests {
             ),
             (base.replacen("points = 10 }", "points = -10 }", 1), "negative points"),
             (format!("{base}\nsurprise = 1\n"), "surprise"),
+            (
+                base.replace("min_experts = 3", "min_experts = 1"),
+                "min_experts must be 2",
+            ),
+            (base.replace("[benchmark]\nmin_experts = 3\n", ""), "need a [benchmark]"),
+            (
+                base.replacen("spreads = 2,", "spreads = -2,", 1),
+                "negative points or spreads",
+            ),
             ("name = ".to_string(), "line 1"),
         ];
         for (text, want) in cases {

@@ -9,6 +9,7 @@ use stylet_physics::PunctureAtlas;
 
 use stylet_recorder::reader::{self, Session};
 
+use crate::benchmark::Benchmark;
 use crate::metrics::{Metrics, MetricsCollector, PlannedPath};
 use crate::reasons::{self, Outcome};
 use crate::replay::{Divergence, ReplayError, replay};
@@ -217,13 +218,32 @@ impl Scorer {
     }
 
     pub fn score_session(&self, session: &Session) -> Result<ScoreReport, ScoreError> {
-        self.run(session, None)
+        self.run(session, None, None)
+    }
+
+    /// Scores a session, the rubric's relative deductions against `benchmark` (the expert
+    /// benchmark of the session's scenario; see [`Rubric::grade_against`]).
+    pub fn score_session_against(
+        &self,
+        session: &Session,
+        benchmark: Option<&Benchmark>,
+    ) -> Result<ScoreReport, ScoreError> {
+        self.run(session, None, benchmark)
     }
 
     /// Scores a session and takes its review trace (what the dashboard draws) in the same replay.
     pub fn score_session_traced(&self, session: &Session) -> Result<(ScoreReport, ReviewTrace), ScoreError> {
+        self.score_session_traced_against(session, None)
+    }
+
+    /// [`Self::score_session_traced`] graded against `benchmark`.
+    pub fn score_session_traced_against(
+        &self,
+        session: &Session,
+        benchmark: Option<&Benchmark>,
+    ) -> Result<(ScoreReport, ReviewTrace), ScoreError> {
         let mut trace = TraceCollector::new(session.header.tick_rate_hz);
-        let report = self.run(session, Some(&mut trace))?;
+        let report = self.run(session, Some(&mut trace), benchmark)?;
         let trace = trace.finish(&report.metrics);
         Ok((report, trace))
     }
@@ -233,7 +253,12 @@ impl Scorer {
         &self.atlas
     }
 
-    fn run(&self, session: &Session, mut trace: Option<&mut TraceCollector>) -> Result<ScoreReport, ScoreError> {
+    fn run(
+        &self,
+        session: &Session,
+        mut trace: Option<&mut TraceCollector>,
+        benchmark: Option<&Benchmark>,
+    ) -> Result<ScoreReport, ScoreError> {
         let h = &session.header;
         if h.atlas_hash != self.atlas_hash {
             return Err(ScoreError::AtlasMismatch {
@@ -272,7 +297,12 @@ impl Scorer {
         metrics.dose_area_product_gy_cm2 = metrics.fluoro_time_s * rate;
         let grade = self
             .rubric
-            .grade(&metrics, exercise, &h.difficulty)
+            .grade_against(
+                &metrics,
+                exercise,
+                &h.difficulty,
+                benchmark.filter(|b| b.scenario == h.scenario),
+            )
             .map_err(ScoreError::Grade)?;
         let mut reasons = Vec::new();
         if let Some(d) = &session.damage {

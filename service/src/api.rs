@@ -167,6 +167,11 @@ pub fn router(state: AppRef) -> Router {
         .route("/api/sessions/{id}/file", get(get_session_file))
         .route("/api/sessions/{id}/override", post(override_grade))
         .route("/api/sessions/{id}/comments", post(add_comment))
+        .route(
+            "/api/sessions/{id}/expert",
+            post(super::experts::mark).delete(super::experts::unmark),
+        )
+        .route("/api/sessions/{id}/benchmark", get(super::experts::get))
         .route("/api/trainees/{username}/progress", get(progress))
         .route("/api/cohorts/{name}/summary", get(cohort_summary))
         .route("/api/export/sessions.csv", get(export_csv))
@@ -638,7 +643,7 @@ pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(S
 /// The session `id` if `user` may see it: their own (trainees), their cohorts' (instructors),
 /// every session (curriculum, admins). 404 otherwise, not 403: whether a session exists is
 /// itself private.
-async fn visible_session(s: &AppState, user: &User, id: &str) -> Result<super::store::SessionRow, ApiError> {
+pub async fn visible_session(s: &AppState, user: &User, id: &str) -> Result<super::store::SessionRow, ApiError> {
     let not_found = || err(StatusCode::NOT_FOUND, format!("no session {id}"));
     let (row, trainee_id) = s.store.session(id).await?.ok_or_else(not_found)?;
     let allowed = match user.role.as_str() {

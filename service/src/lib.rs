@@ -5,6 +5,7 @@
 
 pub mod api;
 pub mod auth;
+pub mod experts;
 pub mod export;
 pub mod limits;
 pub mod logins;

@@ -244,6 +244,26 @@ pub fn document() -> Value {
                     "type": "object", "required": ["body"], "properties": { "body": { "type": "string" }, "at_s": { "type": "number", "minimum": 0, "description": "moment of the session (s from its start) the comment points at" } } } } } },
                 "responses": { "201": { "description": "stored" }, "400": error_response("bad body"), "403": error_response("not a reviewer of this trainee"), "404": error_response("no such session") }
             } },
+            "/api/sessions/{id}/expert": {
+                "post": {
+                    "summary": "Mark the session as an expert reference of its scenario (the trainee's instructors, admins; audited). It must be scored, complete, its replay verified",
+                    "security": [{ "cookie": [] }, { "token": [] }],
+                    "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
+                    "responses": { "201": { "description": "{session, expert: true}" }, "403": error_response("not a reviewer of this trainee"), "404": error_response("no such session"), "409": error_response("not scored, incomplete, not verified, or the scenario has the most references") }
+                },
+                "delete": {
+                    "summary": "Unmark an expert reference (the trainee's instructors, admins; audited)",
+                    "security": [{ "cookie": [] }, { "token": [] }],
+                    "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
+                    "responses": { "200": { "description": "{session, expert: false}" }, "403": error_response("not a reviewer of this trainee"), "404": error_response("no such session") }
+                }
+            },
+            "/api/sessions/{id}/benchmark": { "get": {
+                "summary": "The expert benchmark of the session's scenario (mean and spread per metric over its expert references) and the session's metrics against it",
+                "security": [{ "cookie": [] }, { "token": [] }],
+                "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
+                "responses": { "200": { "description": "{scenario, exercise, experts, metrics: [{metric, mean, spread}], expert, comparison: [{metric, value, mean, spread, spreads_from_mean}], references (staff only)}" }, "404": error_response("no such session") }
+            } },
             "/api/trainees/{username}/progress": { "get": {
                 "summary": "A trainee's scored sessions per difficulty, in upload order (overrides applied)",
                 "security": [{ "cookie": [] }, { "token": [] }],

@@ -54,6 +54,15 @@ async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
     let file = state.session_file(&job.file_sha256);
     let trace_file = super::traces::trace_path(&state.config.data_dir, &job.file_sha256);
     let scorer = state.scorers.get(&job.atlas_hash).cloned();
+    // The scenario's expert benchmark, when the rubric grades against one: read now, so the
+    // grade (which records it) measures against the references marked at scoring time.
+    let benchmark = match &scorer {
+        Some(sc) if sc.rubric().benchmark.is_some() => match expert_benchmark(state, job).await {
+            Ok(b) => b,
+            Err(e) => return Outcome::Retry(format!("cannot read the expert benchmark: {e}")),
+        },
+        _ => None,
+    };
     tokio::task::spawn_blocking(move || {
         let Some(scorer) = scorer else {
             return Outcome::Failed("the session's atlas is not loaded on this server".into());
@@ -63,7 +72,7 @@ async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
             Err(e @ stylet_recorder::ReadError::Io(_)) => return Outcome::Retry(e.to_string()),
             Err(e) => return Outcome::Failed(format!("{}: {e}", file.display())),
         };
-        match scorer.score_session_traced(&session) {
+        match scorer.score_session_traced_against(&session, benchmark.as_ref()) {
             Ok((report, trace)) => {
                 // A cache: a failure to store it only costs a replay later.
                 if let Err(e) = super::traces::write_trace(&trace_file, &trace) {
@@ -76,6 +85,18 @@ async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
     })
     .await
     .unwrap_or_else(|e| Outcome::Failed(format!("scoring panicked: {e}")))
+}
+
+/// The expert benchmark of the job's scenario (none for a session that is gone).
+async fn expert_benchmark(
+    state: &Arc<AppState>,
+    job: &super::store::Job,
+) -> Result<Option<stylet_scoring::Benchmark>, super::StoreError> {
+    let Some((row, _)) = state.store.session(&job.session_id).await? else {
+        return Ok(None);
+    };
+    let (benchmark, _) = super::experts::benchmark(state, &row.atlas_hash, &row.scenario).await?;
+    Ok(Some(benchmark))
 }
 
 /// Longest wait between two tries to store a result, or before a job is retried.

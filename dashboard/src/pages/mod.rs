@@ -1,6 +1,7 @@
 //! One module per page (or group of pages and the forms they post).
 
 pub mod admin;
+pub mod benchmark;
 pub mod cohort;
 pub mod compare;
 pub mod home;

@@ -124,6 +124,23 @@ pub async fn review(
         (_, None) => html! { p.error { "The replay cannot be shown: the session file's header cannot be read." } },
     };
     let rubric = scorer.as_ref().map(|sc| sc.rubric().clone());
+    let level = rubric
+        .as_ref()
+        .filter(|ru| ru.name == report.grade.rubric && ru.version == report.grade.rubric_version)
+        .and_then(|ru| ru.level(report.exercise, &report.grade.difficulty));
+    let (benchmark, references) = stylet_service::experts::benchmark(&s, &row.atlas_hash, &row.scenario).await?;
+    let benchmark = crate::pages::benchmark::block(
+        &v,
+        &crate::pages::benchmark::BenchmarkView {
+            session_id: &row.id,
+            report: &report,
+            benchmark: &benchmark,
+            references: &references,
+            level,
+            reviewer,
+            staff: v.role() != "trainee",
+        },
+    );
     let body = html! {
         (head)
         (grade_block(&report, &review))
@@ -139,6 +156,8 @@ pub async fn review(
         h2 { "Risk-structure hits" }
         (risk_table(&report))
         (hit_figures(&report, &row.id))
+        h2 { "Against the expert benchmark" }
+        (benchmark)
         h2 { "Other metrics" }
         (other_metrics(&report))
         h2 { "Metrics against the rubric (" (report.grade.rubric) " v" (report.grade.rubric_version) ", " (report.grade.difficulty) ")" }
@@ -348,7 +367,7 @@ fn other_metrics(r: &ScoreReport) -> Markup {
 fn rubric_table(r: &ScoreReport, rubric: Option<&Rubric>) -> Markup {
     let level = rubric
         .filter(|ru| ru.name == r.grade.rubric && ru.version == r.grade.rubric_version)
-        .and_then(|ru| ru.levels.get(&r.grade.difficulty));
+        .and_then(|ru| ru.level(r.exercise, &r.grade.difficulty));
     let Some(level) = level else {
         return html! { p.muted { "This server no longer has rubric " (r.grade.rubric) " v" (r.grade.rubric_version) "; the deductions applied:" }
         ul { @for d in &r.grade.deductions { li { (d.metric) ": −" (format!("{:.1}", d.points)) } } } };
@@ -374,7 +393,7 @@ fn rubric_table(r: &ScoreReport, rubric: Option<&Rubric>) -> Markup {
                     @let value = metric_value(&r.metrics, name);
                     @let req = level.require.iter().find(|q| q.metric == name);
                     @let rule = level.deduct.iter().find(|d| d.metric == name);
-                    @let applied = r.grade.deductions.iter().find(|d| d.metric == name).map_or(0.0, |d| d.points);
+                    @let applied = r.grade.deductions.iter().find(|d| d.metric == name && d.relative.is_none()).map_or(0.0, |d| d.points);
                     tr {
                         td { (metric_label(name).unwrap_or(name)) }
                         td.num { (value.map_or("–".into(), fmt)) }
@@ -391,6 +410,22 @@ fn rubric_table(r: &ScoreReport, rubric: Option<&Rubric>) -> Markup {
                             @if let Some(m) = d.max_points { " (at most " (fmt(m)) ")" }
                         } }
                         td.num { @if applied > 0.0 { "−" (format!("{applied:.1}")) } @else { "0" } }
+                    }
+                }
+                @for d in &level.relative {
+                    @let value = metric_value(&r.metrics, &d.metric);
+                    @let applied = r.grade.deductions.iter().find(|a| a.metric == d.metric && a.relative.is_some());
+                    tr.relative {
+                        td { (metric_label(&d.metric).unwrap_or(&d.metric)) }
+                        td.num { (value.map_or("–".into(), fmt)) }
+                        td { span.muted { "–" } }
+                        td { (fmt(d.points)) " per unit above the expert mean + " (fmt(d.spreads)) " spread" @if d.spreads != 1.0 { "s" }
+                            @if let Some(m) = d.max_points { " (at most " (fmt(m)) ")" }
+                            @if let Some(a) = applied { @if let (Some(free), Some(rel)) = (a.free, a.relative) {
+                                br; span.muted { "= " (fmt(rel.mean)) " + " (fmt(d.spreads)) " × " (fmt(rel.spread)) " = " (fmt(free)) }
+                            } }
+                        }
+                        td.num { @match applied { Some(a) => { "−" (format!("{:.1}", a.points)) }, None => "0" } }
                     }
                 }
                 tr { th { "Score" } td.num { strong { (format!("{:.1}", r.grade.score)) } } td colspan="3" { "pass at ≥ " (fmt(level.pass_score)) " with every requirement met" } }

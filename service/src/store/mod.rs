@@ -9,6 +9,7 @@ use sqlx::{AnyPool, Row};
 
 mod accounts;
 mod cohorts;
+mod experts;
 pub mod health;
 mod instructors;
 mod jobs;
@@ -23,6 +24,7 @@ pub use accounts::{
     parse_import,
 };
 pub use cohorts::{CohortLine, ReportLine, ScorePoint};
+pub use experts::{ExpertReference, Marked};
 pub use instructors::{
     CompareSearch, DatedScore, LevelTotals, OutcomeFilter, PROGRESS_POINTS, PROGRESS_RECENT, QUEUE_PAGE, QueueReason,
     QueueScope, ReviewLine, RiskSession, SEARCH_PAGE, TraineeProgress,

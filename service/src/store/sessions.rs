@@ -343,7 +343,13 @@ impl Store {
             row.try_get::<String, _>("username")?,
             row.try_get::<String, _>("scenario")?
         );
-        for table in ["scores", "comments", "grade_overrides", "scoring_jobs"] {
+        for table in [
+            "scores",
+            "comments",
+            "grade_overrides",
+            "scoring_jobs",
+            "expert_references",
+        ] {
             sqlx::query(sqlx::AssertSqlSafe(format!(
                 "DELETE FROM {table} WHERE session_id = $1"
             )))

@@ -1,0 +1,202 @@
+//! The expert benchmark (docs/metrics.md "Expert benchmark"): instructors mark sessions as
+//! expert references of their scenario; the benchmark is computed from the references' stored
+//! metrics whenever it is asked for (the review, the API) or a session of the scenario is scored.
+//!
+//! - `POST /api/sessions/{id}/expert`: mark (the session's instructors and admins; audited).
+//! - `DELETE /api/sessions/{id}/expert`: unmark (the same people; audited).
+//! - `GET /api/sessions/{id}/benchmark`: the benchmark of the session's scenario and the
+//!   session's metrics against it (whoever may see the session).
+
+use std::sync::Arc;
+
+use axum::Json;
+use axum::extract::{Path, State};
+use axum::http::StatusCode;
+use axum::response::{IntoResponse, Response};
+use serde_json::json;
+use stylet_scoring::{Benchmark, ScoreReport};
+
+use super::AppState;
+use super::api::{Actor, ApiError, Reader, err, reviewable, visible_session};
+use super::store::{ExpertReference, Marked, SessionRow, SessionStatus, StoreError, User};
+
+/// The benchmark of `scenario` on the atlas `atlas_hash` and the references it comes from
+/// (references whose report cannot be read are left out and logged).
+pub async fn benchmark(
+    s: &AppState,
+    atlas_hash: &str,
+    scenario: &str,
+) -> Result<(Benchmark, Vec<ExpertReference>), StoreError> {
+    let rows = s.store.expert_references(atlas_hash, scenario).await?;
+    let exercise = s
+        .scorers
+        .get(atlas_hash)
+        .map_or_else(Default::default, |sc| sc.exercise_of(scenario));
+    let mut reports = Vec::new();
+    let mut references = Vec::new();
+    for (reference, json) in rows {
+        match json.as_deref().map(serde_json::from_str::<ScoreReport>) {
+            Some(Ok(report)) => {
+                reports.push((reference.session_id.clone(), report));
+                references.push(reference);
+            }
+            _ => {
+                tracing::warn!(session = %reference.session_id, "an expert reference has no readable score; left out of the benchmark")
+            }
+        }
+    }
+    let metrics: Vec<(String, &stylet_scoring::Metrics)> =
+        reports.iter().map(|(id, r)| (id.clone(), &r.metrics)).collect();
+    Ok((Benchmark::from_sessions(scenario, exercise, &metrics), references))
+}
+
+/// Why a session cannot be an expert reference, if it cannot: it must be scored, a complete
+/// recording, and its replay must have verified (its metrics are then the physics', bit for bit).
+pub fn reference_problem(row: &SessionRow) -> Option<String> {
+    if row.status != SessionStatus::Scored {
+        return Some(format!(
+            "session {} is {}: only a scored session can be an expert reference",
+            row.id, row.status
+        ));
+    }
+    let report: Option<ScoreReport> = row.score.clone().and_then(|v| serde_json::from_value(v).ok());
+    match report {
+        None => Some("the session's score cannot be read".into()),
+        Some(r) if r.incomplete => Some("the recording is incomplete: it cannot be an expert reference".into()),
+        Some(r) if !r.replay_verified => {
+            Some("the session's replay did not verify: its metrics cannot be an expert reference".into())
+        }
+        Some(_) => None,
+    }
+}
+
+/// Marks (`true`) or unmarks a session for `user` (API and dashboard): its reviewers only; a
+/// session that cannot be a reference, or a scenario with the most references, is a 409.
+/// Returns whether the session is a reference now.
+pub async fn set_expert(s: &AppState, user: &User, id: &str, expert: bool) -> Result<bool, ApiError> {
+    reviewable(s, user, id).await?;
+    if !expert {
+        s.store.unmark_expert(id, user).await?;
+        return Ok(false);
+    }
+    let row = visible_session(s, user, id).await?;
+    if let Some(problem) = reference_problem(&row) {
+        return Err(err(StatusCode::CONFLICT, problem));
+    }
+    match s.store.mark_expert(id, user).await? {
+        Marked::Now | Marked::Already => Ok(true),
+        Marked::Full => Err(err(
+            StatusCode::CONFLICT,
+            format!(
+                "scenario '{}' has {} expert references already: unmark one first",
+                row.scenario,
+                stylet_scoring::benchmark::MAX_EXPERTS
+            ),
+        )),
+    }
+}
+
+/// POST /api/sessions/{id}/expert.
+pub async fn mark(
+    State(s): State<Arc<AppState>>,
+    Actor(user): Actor,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    set_expert(&s, &user, &id, true).await?;
+    Ok((StatusCode::CREATED, Json(json!({ "session": id, "expert": true }))).into_response())
+}
+
+/// DELETE /api/sessions/{id}/expert.
+pub async fn unmark(
+    State(s): State<Arc<AppState>>,
+    Actor(user): Actor,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    set_expert(&s, &user, &id, false).await?;
+    Ok(Json(json!({ "session": id, "expert": false })).into_response())
+}
+
+/// GET /api/sessions/{id}/benchmark: `{scenario, exercise, experts, metrics: [{metric, mean,
+/// spread}], expert, comparison: [{metric, value, mean, spread, spreads_from_mean}]}`; the
+/// references' session ids (`references`) only for staff (a trainee learns how many there are).
+pub async fn get(
+    State(s): State<Arc<AppState>>,
+    Reader(user): Reader,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let row = visible_session(&s, &user, &id).await?;
+    let (bench, references) = benchmark(&s, &row.atlas_hash, &row.scenario).await?;
+    let report: Option<ScoreReport> = row.score.clone().and_then(|v| serde_json::from_value(v).ok());
+    let comparison: Vec<serde_json::Value> = report
+        .iter()
+        .flat_map(|r| bench.compare(&r.metrics))
+        .map(|c| {
+            json!({ "metric": c.metric, "value": c.value, "mean": c.mean, "spread": c.spread,
+                    "spreads_from_mean": c.spreads_from_mean() })
+        })
+        .collect();
+    let mut v = json!({
+        "scenario": bench.scenario,
+        "exercise": bench.exercise,
+        "experts": bench.experts.len(),
+        "metrics": bench.metrics,
+        "expert": references.iter().any(|r| r.session_id == id),
+        "comparison": comparison,
+    });
+    if user.role.as_str() != "trainee" {
+        v["references"] = json!(references);
+    }
+    Ok(Json(v).into_response())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(status: SessionStatus, incomplete: bool, verified: bool) -> SessionRow {
+        let score = (status == SessionStatus::Scored).then(|| {
+            let mut v = serde_json::to_value(stored_report()).unwrap();
+            v["incomplete"] = json!(incomplete);
+            v["replay_verified"] = json!(verified);
+            v
+        });
+        SessionRow {
+            id: "s1".into(),
+            trainee: "eve".into(),
+            scenario: "right-duct".into(),
+            difficulty: "expert".into(),
+            status,
+            uploaded_at: String::new(),
+            recorded_at: String::new(),
+            duration_s: 20.0,
+            error: None,
+            file_sha256: "ab".into(),
+            atlas_hash: "cd".into(),
+            size_bytes: 1,
+            score,
+            exercise: Default::default(),
+            outcome: None,
+            reasons: Vec::new(),
+        }
+    }
+
+    /// A report as the shipped rubric writes it, from the scoring crate's own JSON.
+    fn stored_report() -> serde_json::Value {
+        serde_json::from_str(include_str!("../tests/data/report.json")).unwrap()
+    }
+
+    #[test]
+    fn only_scored_complete_verified_sessions_can_be_references() {
+        assert_eq!(reference_problem(&row(SessionStatus::Scored, false, true)), None);
+        for (r, want) in [
+            (row(SessionStatus::Queued, false, true), "is queued"),
+            (row(SessionStatus::Scoring, false, true), "is scoring"),
+            (row(SessionStatus::Failed, false, true), "is failed"),
+            (row(SessionStatus::Scored, true, true), "incomplete"),
+            (row(SessionStatus::Scored, false, false), "did not verify"),
+        ] {
+            let e = reference_problem(&r).unwrap();
+            assert!(e.contains(want), "expected '{want}' in: {e}");
+        }
+    }
+}

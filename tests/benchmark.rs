@@ -1,0 +1,312 @@
+//! Issue 18, the expert benchmark, against a real server (SQLite and PostgreSQL): an instructor
+//! marks sessions as expert references of a scenario and unmarks them (both audited, repeats
+//! not); the benchmark's figures are the mean and sample spread of the references' metrics; a
+//! session scored once the scenario has enough references is graded against them by the
+//! rubric's relative deductions (recorded in its grade), one scored before is not; the review
+//! page shows the session against the benchmark and marks through its form. (Which sessions
+//! cannot be references is a unit test of `stylet_service::experts`.)
+
+mod common;
+
+use std::path::Path;
+
+use common::*;
+use serde_json::Value;
+
+#[test]
+fn experts_mark_and_the_benchmark_grades_sqlite() {
+    experts_mark_and_the_benchmark_grades(Db::Sqlite);
+}
+
+#[test]
+fn experts_mark_and_the_benchmark_grades_postgres() {
+    experts_mark_and_the_benchmark_grades(Db::postgres("benchmark"));
+}
+
+const SCENARIO: &str = "success-intercostal";
+
+/// Records `script` as scenario [`SCENARIO`] at the expert level.
+fn record(f: &Fixture, name: &str, script: &str, trainee: &str, seed: u64) -> std::path::PathBuf {
+    let scripts = Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts");
+    let out = f.dir.path().join(format!("{name}.mcap"));
+    ok(&[
+        "script",
+        "run",
+        "--atlas",
+        s(&f.atlases().join("phantom")),
+        "--script",
+        s(&scripts.join(format!("{script}.txt"))),
+        "--out",
+        s(&out),
+        "--trainee",
+        trainee,
+        "--scenario",
+        SCENARIO,
+        "--difficulty",
+        "expert",
+        "--seed",
+        &seed.to_string(),
+    ]);
+    out
+}
+
+/// The audit rows of `action`: (actor username, target).
+fn audits(db: &Db, data: &Path, action: &str) -> Vec<(String, String)> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let store = stylet_service::Store::open(&db.url(data)).await.unwrap();
+        let rows = sqlx::query(
+            "SELECT u.username, a.target FROM audit_log a JOIN users u ON u.id = a.actor_id \
+             WHERE a.action = $1 ORDER BY a.at, a.id",
+        )
+        .bind(action.to_string())
+        .fetch_all(&store.pool)
+        .await
+        .unwrap();
+        use sqlx::Row;
+        let out = rows
+            .iter()
+            .map(|r| (r.get::<String, _>("username"), r.get::<String, _>("target")))
+            .collect();
+        store.pool.close().await;
+        out
+    })
+}
+
+fn mean_and_sample_spread(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, var.sqrt())
+}
+
+fn experts_mark_and_the_benchmark_grades(db: Db) {
+    let f = Fixture::new();
+    f.users(&db);
+    add_user(&f.data(), &db, "eve", "trainee", Some("c1"));
+    let srv = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "2"]);
+    let b = &srv.base;
+    let (ivan, tina, eve, cora, tom) = (
+        login(b, "ivan"),
+        login(b, "tina"),
+        login(b, "eve"),
+        login(b, "cora"),
+        login(b, "tom"),
+    );
+    let upload = |who: &Auth, file: &Path| -> (String, Value) {
+        let body = std::fs::read(file).unwrap();
+        let (status, json, _) = call("POST", &format!("{b}/api/sessions"), Some(who), Some(&body), false);
+        assert_eq!(status, 201, "{json}");
+        let id = json["id"].as_str().unwrap().to_string();
+        let row = wait_scored(b, who, &id);
+        assert_eq!(row["status"], "scored", "{row}");
+        (id, row)
+    };
+    let expert = |who: &Auth, method: &str, id: &str| {
+        call(method, &format!("{b}/api/sessions/{id}/expert"), Some(who), None, false).0
+    };
+    let bench = |who: &Auth, id: &str| {
+        let (status, json, _) = call(
+            "GET",
+            &format!("{b}/api/sessions/{id}/benchmark"),
+            Some(who),
+            None,
+            false,
+        );
+        assert_eq!(status, 200, "{json}");
+        json
+    };
+
+    // Three expert sessions by eve, of different lengths (different scripts and seeds).
+    let experts: Vec<(String, Value)> = [
+        ("success-intercostal", 1),
+        ("two-attempts", 2),
+        ("success-intercostal", 3),
+    ]
+    .iter()
+    .enumerate()
+    .map(|(k, (script, seed))| upload(&eve, &record(&f, &format!("eve-{k}"), script, "eve", *seed)))
+    .collect();
+    let ids: Vec<&str> = experts.iter().map(|(id, _)| id.as_str()).collect();
+    assert_eq!(bench(&ivan, ids[0])["experts"], 0);
+
+    // Who may mark: the trainee's instructor and admins; not the trainee, curriculum staff or
+    // an instructor of another cohort (not found for a stranger's session).
+    assert_eq!(expert(&tina, "POST", ids[0]), 404, "tina may not see eve's session");
+    assert_eq!(expert(&eve, "POST", ids[0]), 403, "a trainee does not mark herself");
+    assert_eq!(expert(&cora, "POST", ids[0]), 403);
+    assert_eq!(expert(&tom, "POST", ids[0]), 404);
+    assert_eq!(expert(&ivan, "POST", ids[0]), 201);
+    assert_eq!(expert(&ivan, "POST", ids[0]), 201, "marking again changes nothing");
+    assert_eq!(expert(&ivan, "POST", ids[1]), 201);
+
+    // A session scored with two references is not graded against them (the rubric wants 3).
+    let (before, row) = upload(&tina, &record(&f, "tina-slow-0", "two-attempts", "tina", 5));
+    let g = &row["score"]["grade"]["benchmark"];
+    assert_eq!(
+        (g["experts"].as_u64(), g["applied"].as_bool()),
+        (Some(2), Some(false)),
+        "{g}"
+    );
+
+    assert_eq!(expert(&ivan, "POST", ids[2]), 201);
+    let all = bench(&ivan, ids[0]);
+    assert_eq!(all["experts"], 3, "{all}");
+    assert_eq!(all["expert"], true);
+    assert_eq!(all["references"].as_array().unwrap().len(), 3);
+    // The figures are the mean and sample spread of the references' metrics.
+    let metric_of = |row: &Value, m: &str| row["score"]["metrics"][m].as_f64().unwrap();
+    for m in ["time_total_s", "fluoro_time_s", "tissue_damage_mm2", "max_force_n"] {
+        let values: Vec<f64> = experts.iter().map(|(_, r)| metric_of(r, m)).collect();
+        let (mean, spread) = mean_and_sample_spread(&values);
+        let fig = all["metrics"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|x| x["metric"] == m)
+            .unwrap();
+        assert!(
+            (fig["mean"].as_f64().unwrap() - mean).abs() < 1e-9,
+            "{m}: {fig} vs {mean}"
+        );
+        assert!(
+            (fig["spread"].as_f64().unwrap() - spread).abs() < 1e-9,
+            "{m}: {fig} vs {spread}"
+        );
+    }
+    let times: Vec<f64> = experts.iter().map(|(_, r)| metric_of(r, "time_total_s")).collect();
+    assert!(
+        mean_and_sample_spread(&times).1 > 0.0,
+        "the references differ: {times:?}"
+    );
+    // A trainee sees the figures of her session's scenario, not whose sessions they are.
+    let hers = bench(&tina, &before);
+    assert_eq!(hers["experts"], 3);
+    assert!(hers.get("references").is_none(), "{hers}");
+    assert!(
+        hers["comparison"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|c| c["metric"] == "time_total_s")
+    );
+
+    // Scored now, a slower session (the whole PTCD workflow) is graded against the three: the
+    // rubric's relative deductions (expert level: mean + 1 spread) as the benchmark gives them.
+    let (after, row) = upload(&tina, &record(&f, "tina-slow-1", "complete-ptcd", "tina", 6));
+    let grade = &row["score"]["grade"];
+    assert_eq!(grade["benchmark"]["experts"], 3, "{grade}");
+    assert_eq!(grade["benchmark"]["applied"], true);
+    let rubric = stylet_scoring::Rubric::default_rubric();
+    let level = rubric.level(stylet_scoring::Exercise::Puncture, "expert").unwrap();
+    assert!(!level.relative.is_empty());
+    let mut relative_points = 0.0;
+    for d in &level.relative {
+        let fig = all["metrics"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|x| x["metric"] == d.metric)
+            .unwrap();
+        let free = fig["mean"].as_f64().unwrap() + d.spreads * fig["spread"].as_f64().unwrap();
+        let v = metric_of(&row, &d.metric);
+        let want = ((v - free).max(0.0) * d.points).min(d.max_points.unwrap_or(f64::INFINITY));
+        let got = grade["deductions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|a| a["metric"] == d.metric && a.get("relative").is_some())
+            .map_or(0.0, |a| a["points"].as_f64().unwrap());
+        assert!((got - want).abs() < 1e-9, "{}: {got} vs {want} ({grade})", d.metric);
+        relative_points += got;
+    }
+    assert!(
+        relative_points > 0.0,
+        "the whole workflow takes longer than the experts: {grade}"
+    );
+    // The same recording graded without the benchmark scores higher by exactly those points
+    // (before rounding to 0.01).
+    let plain = rubric
+        .grade(
+            &serde_json::from_value(row["score"]["metrics"].clone()).unwrap(),
+            stylet_scoring::Exercise::Puncture,
+            "expert",
+        )
+        .unwrap();
+    assert!(
+        (plain.score - grade["score"].as_f64().unwrap() - relative_points).abs() < 0.011,
+        "{} vs {grade}",
+        plain.score
+    );
+    // The reasons say where the free amount came from.
+    let reasons = row["reasons"].as_array().unwrap();
+    assert!(
+        reasons
+            .iter()
+            .any(|r| r.as_str().unwrap().contains("the experts' mean + 1 spread")),
+        "{reasons:?}"
+    );
+
+    // The review shows the session against the benchmark, and the rubric's relative rows.
+    let page = |who: &Auth, id: &str| {
+        let (status, html, _) = call("GET", &format!("{b}/sessions/{id}"), Some(who), None, false);
+        assert_eq!(status, 200);
+        html.as_str().unwrap().to_string()
+    };
+    let review = page(&ivan, &after);
+    for want in [
+        "id=\"benchmark-table\"",
+        "data-metric=\"time_total_s\"",
+        "Graded against the expert benchmark: 3 expert references",
+        "per unit above the expert mean + 1 spread",
+        "Mark as expert reference",
+        "id=\"expert-references\"",
+    ] {
+        assert!(review.contains(want), "the review lacks {want}");
+    }
+    assert!(page(&ivan, &before).contains("it had 2 when this session was scored"));
+    let trainee_view = page(&tina, &after);
+    assert!(trainee_view.contains("id=\"benchmark-table\""));
+    assert!(!trainee_view.contains("id=\"expert-references\"") && !trainee_view.contains("id=\"expert-form\""));
+    assert!(page(&ivan, ids[2]).contains("This session is an expert reference"));
+
+    // Unmarking by the dashboard's form (CSRF-checked) and by the API; repeats change nothing.
+    let Auth::Cookie { token, csrf } = &ivan else {
+        unreachable!()
+    };
+    let form = |id: &str, body: String| {
+        let agent = ureq::AgentBuilder::new().redirects(0).build();
+        match agent
+            .post(&format!("{b}/sessions/{id}/expert"))
+            .set("Cookie", &format!("stylet_session={token}"))
+            .set("Content-Type", "application/x-www-form-urlencoded")
+            .send_string(&body)
+        {
+            Ok(r) => r.status(),
+            Err(ureq::Error::Status(code, _)) => code,
+            Err(e) => panic!("{e}"),
+        }
+    };
+    assert_eq!(form(ids[2], "csrf=wrong&expert=no".into()), 403);
+    assert_eq!(form(ids[2], format!("csrf={csrf}&expert=maybe")), 400);
+    assert_eq!(form(ids[2], format!("csrf={csrf}&expert=no")), 303);
+    assert_eq!(expert(&ivan, "DELETE", ids[1]), 200);
+    assert_eq!(expert(&ivan, "DELETE", ids[1]), 200);
+    assert_eq!(expert(&cora, "DELETE", ids[0]), 403);
+    assert_eq!(bench(&ivan, ids[0])["experts"], 1);
+    assert!(!page(&ivan, ids[2]).contains("This session is an expert reference"));
+    // Marked again through the form.
+    assert_eq!(form(ids[2], format!("csrf={csrf}&expert=yes")), 303);
+    assert_eq!(bench(&ivan, ids[0])["experts"], 2);
+
+    // The audit log: three marks, two unmarks and one mark again, each once, by ivan.
+    let marks = audits(&db, &f.data(), "expert.mark");
+    let unmarks = audits(&db, &f.data(), "expert.unmark");
+    let targets = |rows: &[(String, String)]| rows.iter().map(|(_, t)| t.clone()).collect::<Vec<_>>();
+    assert_eq!(targets(&marks), [ids[0], ids[1], ids[2], ids[2]]);
+    assert_eq!(targets(&unmarks), [ids[2], ids[1]]);
+    assert!(marks.iter().chain(&unmarks).all(|(who, _)| who == "ivan"));
+}
