@@ -10,24 +10,50 @@ mod common;
 
 use std::path::Path;
 
+use common::browser::{Driver, chromium, log_in};
 use common::*;
-use serde_json::Value;
+use fantoccini::{Client, Locator};
+use serde_json::{Value, json};
 
 #[test]
 fn experts_mark_and_the_benchmark_grades_sqlite() {
-    experts_mark_and_the_benchmark_grades(Db::Sqlite);
+    experts_mark_and_the_benchmark_grades(Db::Sqlite, "sqlite");
 }
 
 #[test]
 fn experts_mark_and_the_benchmark_grades_postgres() {
-    experts_mark_and_the_benchmark_grades(Db::postgres("benchmark"));
+    experts_mark_and_the_benchmark_grades(Db::postgres("benchmark"), "postgres");
 }
 
 const SCENARIO: &str = "success-intercostal";
 
-/// Records `script` as scenario [`SCENARIO`] at the expert level.
+/// An expert's puncture of the phantom's target duct from a skin entry `dy_mm` beside the
+/// planned entry of path intercostal-10-11 (152.6, 1.5, 15.9 mm): the same 20 s as the shipped
+/// success script, by another line (the corridor has a width).
+fn beside_the_planned_path(f: &Fixture, dy_mm: f64) -> String {
+    let aim = format!("aim 152.6 {} 15.9  50.5 30 7.5", 1.5 + dy_mm);
+    let text = format!(
+        "stylet-script 1\ndevice premium\ntool needle gauge 18 length 150 stylet in\nend 20\n\n\
+         at 0 {aim} -15\nat 1 {aim} -15\nat 11 {aim} 111\nat 11.5 event stylet-remove\n\
+         at 12 event xray-on\nat 12.2 event contrast-inject 2\nat 13.5 event xray-off\n\
+         at 14 event stylet-insert\nat 14 {aim} 111\nat 19.5 {aim} -15\n"
+    );
+    let path = f.dir.path().join(format!("beside-{dy_mm}.txt"));
+    std::fs::write(&path, text).unwrap();
+    path.display().to_string()
+}
+
+/// Records `script` (a shipped phantom script's name, or a script file) as scenario
+/// [`SCENARIO`] at the expert level.
 fn record(f: &Fixture, name: &str, script: &str, trainee: &str, seed: u64) -> std::path::PathBuf {
-    let scripts = Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts");
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("atlases/phantom/scripts")
+        .join(format!("{script}.txt"));
+    let script = if shipped.is_file() {
+        shipped
+    } else {
+        Path::new(script).to_path_buf()
+    };
     let out = f.dir.path().join(format!("{name}.mcap"));
     ok(&[
         "script",
@@ -35,7 +61,7 @@ fn record(f: &Fixture, name: &str, script: &str, trainee: &str, seed: u64) -> st
         "--atlas",
         s(&f.atlases().join("phantom")),
         "--script",
-        s(&scripts.join(format!("{script}.txt"))),
+        s(&script),
         "--out",
         s(&out),
         "--trainee",
@@ -83,7 +109,7 @@ fn mean_and_sample_spread(v: &[f64]) -> (f64, f64) {
     (mean, var.sqrt())
 }
 
-fn experts_mark_and_the_benchmark_grades(db: Db) {
+fn experts_mark_and_the_benchmark_grades(db: Db, tag: &str) {
     let f = Fixture::new();
     f.users(&db);
     add_user(&f.data(), &db, "eve", "trainee", Some("c1"));
@@ -120,11 +146,12 @@ fn experts_mark_and_the_benchmark_grades(db: Db) {
         json
     };
 
-    // Three expert sessions by eve, of different lengths (different scripts and seeds).
+    // Three expert sessions by eve: two by lines 4 mm either side of the planned path, one with
+    // a first attempt withdrawn (its final approach follows the planned path); 20, 20 and 34 s.
     let experts: Vec<(String, Value)> = [
-        ("success-intercostal", 1),
-        ("two-attempts", 2),
-        ("success-intercostal", 3),
+        (beside_the_planned_path(&f, -4.0), 1),
+        ("two-attempts".to_string(), 2),
+        (beside_the_planned_path(&f, 4.0), 3),
     ]
     .iter()
     .enumerate()
@@ -273,6 +300,51 @@ fn experts_mark_and_the_benchmark_grades(db: Db) {
     assert!(!trainee_view.contains("id=\"expert-references\"") && !trainee_view.contains("id=\"expert-form\""));
     assert!(page(&ivan, ids[2]).contains("This session is an expert reference"));
 
+    // The 3D overview's turntable: a frame per 30°, drawn with the corridor of the three; the
+    // tip-path slices with it too. Written for a person to look at.
+    let png = |who: &Auth, path: &str| {
+        let Auth::Cookie { token, .. } = who else {
+            unreachable!()
+        };
+        let resp = match ureq::get(&format!("{b}{path}"))
+            .set("Cookie", &format!("stylet_session={token}"))
+            .call()
+        {
+            Ok(r) => r,
+            Err(ureq::Error::Status(_, r)) => r,
+            Err(e) => panic!("{e}"),
+        };
+        let status = resp.status();
+        let mut body = Vec::new();
+        std::io::Read::read_to_end(&mut resp.into_reader(), &mut body).unwrap();
+        (status, body)
+    };
+    let shots = Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join("browser-screenshots")
+        .join(tag);
+    std::fs::create_dir_all(&shots).unwrap();
+    let mut frames = Vec::new();
+    for frame in [0, 3] {
+        let (status, body) = png(&ivan, &format!("/sessions/{after}/overview?frame={frame}"));
+        assert_eq!(status, 200);
+        let file = shots.join(format!("overview-{frame}.png"));
+        std::fs::write(&file, &body).unwrap();
+        let img = stylet_render::image::Image::read_png(&file).unwrap();
+        assert_eq!((img.width, img.height), (480, 360));
+        frames.push(img);
+    }
+    assert_ne!(frames[0].rgba, frames[1].rgba, "the turntable turns");
+    assert_eq!(png(&ivan, &format!("/sessions/{after}/overview?frame=12")).0, 400);
+    assert_eq!(png(&tom, &format!("/sessions/{after}/overview?frame=0")).0, 404);
+    assert_eq!(png(&tina, &format!("/sessions/{after}/overview?frame=0")).0, 200);
+    let (status, slices) = png(&ivan, &format!("/sessions/{after}/slices.png"));
+    assert_eq!(status, 200);
+    std::fs::write(shots.join("slices-with-corridor.png"), &slices).unwrap();
+
+    // In the browser: the turntable turns by its arrow and by dragging; pictures of the overview
+    // and of the benchmark for a person to look at.
+    turn_the_overview(b, &after, &shots);
+
     // Unmarking by the dashboard's form (CSRF-checked) and by the API; repeats change nothing.
     let Auth::Cookie { token, csrf } = &ivan else {
         unreachable!()
@@ -309,4 +381,55 @@ fn experts_mark_and_the_benchmark_grades(db: Db) {
     assert_eq!(targets(&marks), [ids[0], ids[1], ids[2], ids[2]]);
     assert_eq!(targets(&unmarks), [ids[2], ids[1]]);
     assert!(marks.iter().chain(&unmarks).all(|(who, _)| who == "ivan"));
+}
+
+async fn js(c: &Client, script: &str) -> Value {
+    c.execute(script, vec![]).await.unwrap()
+}
+
+async fn until(c: &Client, what: &str, script: &str) {
+    for _ in 0..300 {
+        if js(c, &format!("return !!({script})")).await == json!(true) {
+            return;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    }
+    panic!("{what}: `{script}` never became true");
+}
+
+fn turn_the_overview(base: &str, id: &str, shots: &Path) {
+    let driver = Driver::start();
+    let profiles = tempfile::tempdir().unwrap();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let c = chromium(&driver, &profiles.path().join("p"), (1400, 1000), &[]).await;
+        log_in(&c, base, "ivan").await;
+        c.goto(&format!("{base}/sessions/{id}")).await.unwrap();
+        until(&c, "the overview's script", "document.getElementById('overview').dataset.ready === '1'").await;
+        until(&c, "the first frame", "document.getElementById('overview').dataset.shown === '0'").await;
+        c.find(Locator::Id("turn-right")).await.unwrap().click().await.unwrap();
+        until(&c, "the arrow turns it", "document.getElementById('overview').dataset.shown === '1'").await;
+        let src = js(&c, "return document.getElementById('overview-frame').src").await;
+        assert!(src.as_str().unwrap().contains("frame=1&"), "{src}");
+        // Dragging 85 px to the right turns it back two frames (the picture follows the hand).
+        js(
+            &c,
+            "const i = document.getElementById('overview-frame'); const r = i.getBoundingClientRect(); \
+             const at = (t, x) => i.dispatchEvent(new PointerEvent(t, {pointerId: 7, clientX: x, clientY: r.top + 50, bubbles: true})); \
+             at('pointerdown', r.left + 100); at('pointermove', r.left + 185); at('pointerup', r.left + 185);",
+        )
+        .await;
+        until(&c, "dragging turns it", "document.getElementById('overview').dataset.shown === '11'").await;
+        c.find(Locator::Id("turn-right")).await.unwrap().click().await.unwrap();
+        until(&c, "round the turntable", "document.getElementById('overview').dataset.shown === '0'").await;
+        for (section, name) in [("overview", "overview"), ("benchmark", "benchmark")] {
+            js(&c, &format!("document.getElementById('{section}').scrollIntoView()")).await;
+            tokio::time::sleep(std::time::Duration::from_millis(300)).await;
+            std::fs::write(shots.join(format!("review-{name}.png")), c.screenshot().await.unwrap()).unwrap();
+        }
+        c.close().await.unwrap();
+    });
 }

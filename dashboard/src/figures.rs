@@ -9,6 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use stylet_physics::glam::DVec3;
+use stylet_render::corridor::Corridor;
 use stylet_render::figure::{FigureSpec, Mark};
 use stylet_render::mpr::Plane;
 use stylet_scoring::{ReviewTrace, ScoreReport, Scorer};
@@ -25,10 +26,11 @@ pub enum Figure {
 }
 
 /// Where a figure of the session file `sha` is cached (the trace and physics versions are in
-/// the name: a new version draws a new figure).
-pub fn figure_path(data_dir: &Path, sha: &str, figure: Figure) -> PathBuf {
+/// the name: a new version draws a new figure; so is the key of the expert references whose
+/// corridor the tip path's figure shows).
+pub fn figure_path(data_dir: &Path, sha: &str, figure: Figure, corridor_key: &str) -> PathBuf {
     let which = match figure {
-        Figure::TipPath => String::new(),
+        Figure::TipPath => format!("-e{corridor_key}"),
         Figure::Hit(n) => format!("-hit{n}"),
     };
     data_dir.join("figures").join(&sha[..2.min(sha.len())]).join(format!(
@@ -66,7 +68,14 @@ fn planned(scorer: &Scorer, report: &ScoreReport) -> Vec<(String, DVec3, DVec3)>
 }
 
 /// What the figure shows.
-fn spec(scorer: &Scorer, report: &ScoreReport, trace: &ReviewTrace, figure: Figure, title: &str) -> Option<FigureSpec> {
+fn spec(
+    scorer: &Scorer,
+    report: &ScoreReport,
+    trace: &ReviewTrace,
+    figure: Figure,
+    title: &str,
+    corridor: Option<&Corridor>,
+) -> Option<FigureSpec> {
     let mut spec = FigureSpec {
         needle: trace.tip_paths(),
         planned: planned(scorer, report),
@@ -74,6 +83,7 @@ fn spec(scorer: &Scorer, report: &ScoreReport, trace: &ReviewTrace, figure: Figu
     };
     match figure {
         Figure::TipPath => {
+            spec.corridor = corridor.cloned();
             spec.center = trace
                 .deepest_tip()
                 .unwrap_or_else(|| stylet_render::figure::default_center(scorer.atlas()));
@@ -107,7 +117,16 @@ pub async fn session_figure(
     {
         return Ok(None);
     }
-    let path = figure_path(&s.config.data_dir, file_sha256, figure);
+    let (corridor, key) = match figure {
+        Figure::TipPath => crate::player::overview::expert_corridor(s, atlas_hash, &report.scenario)
+            .await
+            .map_err(|e| match e {
+                crate::auth::PageError::Status(_, m) => m,
+                crate::auth::PageError::Login { .. } => "not logged in".into(),
+            })?,
+        Figure::Hit(_) => (None, String::new()),
+    };
+    let path = figure_path(&s.config.data_dir, file_sha256, figure, &key);
     if let Ok(bytes) = tokio::fs::read(&path).await {
         return Ok(Some(bytes));
     }
@@ -117,7 +136,7 @@ pub async fn session_figure(
         .get(atlas_hash)
         .cloned()
         .ok_or("the session's atlas is not loaded on this server")?;
-    let Some(spec) = spec(&scorer, report, &trace, figure, title) else {
+    let Some(spec) = spec(&scorer, report, &trace, figure, title, corridor.as_deref()) else {
         return Ok(None);
     };
     tokio::task::spawn_blocking(move || {

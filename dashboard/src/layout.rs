@@ -86,6 +86,15 @@ input, select, textarea { max-width:100%; }
 #player a.moment[data-kind="target reached"] { border-color:var(--ok); color:var(--ok); }
 #player a.moment[data-kind="comment"] { border-style:dashed; border-color:#1e5ac8; color:#1e5ac8; }
 @media (max-width: 600px) { #player .frames { grid-template-columns: minmax(0, 1fr); } }
+#overview { display:flex; flex-wrap:wrap; gap:1rem; align-items:flex-start; }
+#overview figure { margin:0; background:black; border:1px solid var(--line); max-width:480px; width:100%; }
+#overview figure img { display:block; width:100%; height:auto; cursor:grab; touch-action:pan-y; }
+#overview figcaption { background:#16324f; color:white; padding:.2rem .5rem; font-size:.9rem; text-align:center; }
+#overview a.turn { color:white; text-decoration:none; font-size:1.2rem; padding:0 .6rem; }
+#overview .legend { list-style:none; padding:0; margin:0; max-width:26rem; }
+#overview .legend li { margin:.2rem 0; }
+.swatch { display:inline-block; width:1.6rem; height:.8rem; margin-right:.4rem; vertical-align:middle; border-radius:2px; }
+#benchmark-table tr.far td { background:#fff4e0; }
 @media print {
   header.top, form, .noprint { display:none !important; }
   body { background:white; font-size:12pt; }

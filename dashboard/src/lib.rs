@@ -36,6 +36,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/sessions/{id}/file", get(pages::review::file))
         .route("/sessions/{id}/slices.png", get(pages::review::slices))
         .route("/sessions/{id}/frame", get(player::frame))
+        .route("/sessions/{id}/overview", get(player::overview::frame))
         .route("/assets/player.js", get(player::script))
         .route("/sessions/{id}/hits/{n}/slices.png", get(pages::review::hit_slices))
         .route("/sessions/{id}/comment", post(pages::review::comment))

@@ -48,9 +48,10 @@ pub struct Comparison {
 
 impl Comparison {
     /// How many expert spreads the value lies above (+) or below (−) the expert mean; `None`
-    /// when the experts all had the same value (no spread to measure by).
+    /// when the experts all had the same value (no spread to measure by; a spread below a
+    /// millionth of the mean is rounding, not disagreement).
     pub fn spreads_from_mean(&self) -> Option<f64> {
-        (self.spread > 0.0).then(|| (self.value - self.mean) / self.spread)
+        (self.spread > 1e-6 * self.mean.abs().max(1.0)).then(|| (self.value - self.mean) / self.spread)
     }
 }
 

@@ -194,6 +194,11 @@ impl MetricInfo {
     }
 
     /// A bound alone: "1", "30 s", "75 %".
+    /// An amount of this metric with its unit: "40 s", "2", "1.5 ml" (flags and counts bare).
+    pub fn amount(&self, v: f64) -> String {
+        self.bound(v)
+    }
+
     fn bound(&self, v: f64) -> String {
         match self.unit {
             Unit::Count | Unit::Ratio | Unit::Flag => num(v),

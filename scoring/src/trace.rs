@@ -179,6 +179,36 @@ impl ReviewTrace {
         out
     }
 
+    /// Each stay of the needle in the body: the tip positions (world mm) with their depths under
+    /// the skin (mm), in time order.
+    pub fn tip_stays(&self) -> Vec<Vec<(DVec3, f64)>> {
+        let mut out: Vec<Vec<(DVec3, f64)>> = Vec::new();
+        let mut open = false;
+        for (p, d) in self.tip_mm.iter().zip(&self.tip_depth_mm) {
+            match p {
+                Some(p) if open => out.last_mut().expect("open").push((DVec3::from_array(*p), *d)),
+                Some(p) => {
+                    out.push(vec![(DVec3::from_array(*p), *d)]);
+                    open = true;
+                }
+                None => open = false,
+            }
+        }
+        out
+    }
+
+    /// The final approach: the tip's path in the last stay in the body, from the skin entry to
+    /// its deepest point (what an expert's path contributes to the expert corridor); `None` if
+    /// the needle never entered.
+    pub fn final_approach(&self) -> Option<Vec<DVec3>> {
+        let stay = self.tip_stays().pop()?;
+        let deepest = stay
+            .iter()
+            .enumerate()
+            .fold(0, |best, (k, p)| if p.1 > stay[best].1 { k } else { best });
+        Some(stay[..=deepest].iter().map(|p| p.0).collect())
+    }
+
     /// The deepest tip position of the session, if the needle entered the body.
     pub fn deepest_tip(&self) -> Option<DVec3> {
         self.tip_mm
@@ -483,6 +513,36 @@ mod tests {
         assert_eq!(trace.risk_points[0].point_mm, [1.0, 2.0, 5.0]);
         assert_eq!(trace.risk_points[0].t_s, 0.002);
         assert_eq!(trace.risk_points[0].structure, "right lung");
+    }
+
+    #[test]
+    fn the_final_approach_is_the_last_stay_up_to_its_deepest_point() {
+        let p = |z: f64| Some([0.0, 0.0, z]);
+        let trace = ReviewTrace {
+            version: TRACE_VERSION,
+            physics_version: 0,
+            bucket_s: 0.02,
+            t_s: (0..8).map(|k| k as f64 * 0.02).collect(),
+            force_n: vec![0.0; 8],
+            cutting_n: vec![0.0; 8],
+            friction_n: vec![0.0; 8],
+            base_n: vec![0.0; 8],
+            inserted_mm: vec![0.0; 8],
+            // A first stay, out, then a second stay that goes 30 mm deep and backs out to 20.
+            tip_depth_mm: vec![5.0, 9.0, -1.0, 2.0, 12.0, 30.0, 20.0, -1.0],
+            tip_mm: vec![p(-5.0), p(-9.0), None, p(-2.0), p(-12.0), p(-30.0), p(-20.0), None],
+            events: Vec::new(),
+            punctures: Vec::new(),
+            risk_points: Vec::new(),
+        };
+        assert_eq!(trace.tip_stays().len(), 2);
+        let path: Vec<f64> = trace.final_approach().unwrap().iter().map(|v| v.z).collect();
+        assert_eq!(path, [-2.0, -12.0, -30.0]);
+        let empty = ReviewTrace {
+            tip_mm: vec![None; 8],
+            ..trace
+        };
+        assert_eq!(empty.final_approach(), None);
     }
 
     #[test]

@@ -50,6 +50,20 @@ pub async fn benchmark(
     Ok((Benchmark::from_sessions(scenario, exercise, &metrics), references))
 }
 
+/// A short name for a set of references (the first 12 hex digits of the SHA-256 of their sorted
+/// session ids; "none" for none): pictures drawn with the expert corridor carry it, so marking
+/// or unmarking draws them anew.
+pub fn references_key(references: &[ExpertReference]) -> String {
+    use sha2::Digest;
+    if references.is_empty() {
+        return "none".into();
+    }
+    let mut ids: Vec<&str> = references.iter().map(|r| r.session_id.as_str()).collect();
+    ids.sort_unstable();
+    let digest = sha2::Sha256::digest(ids.join(",").as_bytes());
+    digest.iter().take(6).map(|b| format!("{b:02x}")).collect()
+}
+
 /// Why a session cannot be an expert reference, if it cannot: it must be scored, a complete
 /// recording, and its replay must have verified (its metrics are then the physics', bit for bit).
 pub fn reference_problem(row: &SessionRow) -> Option<String> {

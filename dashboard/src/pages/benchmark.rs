@@ -10,6 +10,7 @@ use axum::extract::{Path, State};
 use axum::response::Redirect;
 use maud::{Markup, html};
 use stylet_scoring::benchmark::Comparison;
+use stylet_scoring::reasons::metric_info;
 use stylet_scoring::rubric::Level;
 use stylet_scoring::{Benchmark, ScoreReport, metric_label};
 use stylet_service::AppState;
@@ -40,7 +41,7 @@ pub struct BenchmarkView<'a> {
 pub fn far_from_experts(c: &Comparison) -> bool {
     match c.spreads_from_mean() {
         Some(z) => z.abs() > MARK_SPREADS,
-        None => (c.value - c.mean).abs() > 1e-9,
+        None => (c.value - c.mean).abs() > 1e-6 * c.mean.abs().max(1.0),
     }
 }
 
@@ -96,13 +97,14 @@ pub fn block(v: &Viewer, b: &BenchmarkView) -> Markup {
                     thead { tr { th { "Metric" } th.num { "This session" } th.num { "Expert mean" } th.num { "Spread" } th.num { "Spreads from the mean" } } }
                     tbody { @for c in rows {
                         tr class=(if far_from_experts(c) { "far" } else { "" }) data-metric=(c.metric) {
+                            @let amount = |v: f64| metric_info(&c.metric).map_or_else(|| num(v), |i| i.amount(v));
                             td { (metric_label(&c.metric).unwrap_or(&c.metric)) }
-                            td.num { (num(c.value)) }
-                            td.num { (num(c.mean)) }
-                            td.num { (num(c.spread)) }
+                            td.num { (amount(c.value)) }
+                            td.num { (amount(c.mean)) }
+                            td.num { (amount(c.spread)) }
                             td.num { @match c.spreads_from_mean() {
                                 Some(z) => { (format!("{z:+.1}")) @if z.abs() > MARK_SPREADS { " " span.badge.warn { "far" } } }
-                                None => { @if far_from_experts(c) { span.badge.warn { "experts all " (num(c.mean)) } } @else { "–" } }
+                                None => { @if far_from_experts(c) { span.badge.warn { "experts all " (metric_info(&c.metric).map_or_else(|| num(c.mean), |i| i.amount(c.mean))) } } @else { "–" } }
                             } }
                         }
                     } }

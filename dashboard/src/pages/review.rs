@@ -53,6 +53,8 @@ pub fn require_scored(row: &SessionRow) -> Result<(), PageError> {
 #[derive(Debug, Default, serde::Deserialize)]
 pub struct ReviewQuery {
     tick: Option<u64>,
+    /// The 3D overview's turntable frame (links for browsers without JavaScript).
+    turn: Option<u32>,
 }
 
 pub async fn review(
@@ -129,6 +131,8 @@ pub async fn review(
         .filter(|ru| ru.name == report.grade.rubric && ru.version == report.grade.rubric_version)
         .and_then(|ru| ru.level(report.exercise, &report.grade.difficulty));
     let (benchmark, references) = stylet_service::experts::benchmark(&s, &row.atlas_hash, &row.scenario).await?;
+    let corridor_key = stylet_service::experts::references_key(&references);
+    let overview = crate::player::overview::block(&row, q.turn.unwrap_or(0), &corridor_key, references.len());
     let benchmark = crate::pages::benchmark::block(
         &v,
         &crate::pages::benchmark::BenchmarkView {
@@ -148,9 +152,11 @@ pub async fn review(
         (player)
         h2 { "Forces and depth" }
         (charts)
+        h2 { "3D overview of the attempt" }
+        (overview)
         h2 { "Tip path over the CT" }
-        p.muted { "Axial, coronal and sagittal slices through the deepest tip position; the needle tip's path (cyan) and the planned path (dashed orange) projected onto each plane; partial labels in colour (legend below the slices)." }
-        img.figure #tip-path src={ "/sessions/" (row.id) "/slices.png" } alt="Needle tip path and planned path over CT slices with the label overlay";
+        p.muted { "Axial, coronal and sagittal slices through the deepest tip position; the needle tip's path (cyan), the planned path (dashed orange) and the expert corridor (white band) projected onto each plane; partial labels in colour (legend below the slices)." }
+        img.figure #tip-path src={ "/sessions/" (row.id) "/slices.png?e=" (corridor_key) } alt="Needle tip path, planned path and expert corridor over CT slices with the label overlay";
         (figure_legend(&report))
         (guided_block(&report))
         h2 { "Risk-structure hits" }

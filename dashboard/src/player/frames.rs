@@ -138,6 +138,14 @@ impl FrameCache {
         ))
     }
 
+    /// Where a frame of the 3D overview is kept (`corridor_key`: the expert references drawn).
+    pub fn overview_path(&self, sha: &str, frame: u32, corridor_key: &str, width: u32, height: u32) -> PathBuf {
+        self.dir.join(&sha[..2.min(sha.len())]).join(sha).join(format!(
+            "overview-{frame}-{corridor_key}-{width}x{height}-v{FRAME_VERSION}-p{}.png",
+            stylet_physics::PHYSICS_VERSION
+        ))
+    }
+
     /// The cached frame, if there is one.
     pub fn get(&self, path: &Path) -> Option<Vec<u8>> {
         std::fs::read(path).ok()

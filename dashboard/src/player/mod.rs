@@ -6,10 +6,12 @@
 //! - [`states`]: snapshots of the replay, so a frame replays from the nearest one, not the start.
 //! - [`frames`]: the views drawn as `stylet render` draws them, and their disk cache.
 //! - `GET /sessions/{id}/frame?view=…&tick=…&w=…&h=…`: one frame (PNG).
+//! - [`overview`]: the 3D overview of the whole attempt (a turntable) and the expert corridor.
 //! - `GET /assets/player.js`: the player's script (the page works without it: key-moment
 //!   frames are links).
 
 pub mod frames;
+pub mod overview;
 pub mod states;
 
 use std::collections::{BTreeMap, VecDeque};

@@ -238,3 +238,52 @@
   player.dataset.ready = "1";
   moveCursors();
 })();
+
+// The 3D overview's turntable (docs/dashboard.md "3D overview"): the arrows, dragging the
+// picture sideways (mouse, pen or touch) and ← → on it turn it one frame (30°); the frame shown
+// is in data-frame, and data-shown once it has loaded.
+(function () {
+  "use strict";
+  var box = document.getElementById("overview");
+  if (!box) return;
+  var img = document.getElementById("overview-frame");
+  var frames = Number(box.dataset.frames);
+  var frame = Number(box.dataset.frame);
+  var url = function (f) {
+    return "/sessions/" + box.dataset.session + "/overview?frame=" + f + "&e=" + box.dataset.key;
+  };
+  var turn = function (by) {
+    frame = (((frame + by) % frames) + frames) % frames;
+    box.dataset.frame = String(frame);
+    img.src = url(frame);
+    img.alt = img.alt.replace(/azimuth \d+°/, "azimuth " + frame * (360 / frames) + "°");
+  };
+  img.addEventListener("load", function () { box.dataset.shown = String(frame); });
+  if (img.complete) box.dataset.shown = String(frame);
+  var arrow = function (id, by) {
+    var a = document.getElementById(id);
+    a.addEventListener("click", function (e) { e.preventDefault(); turn(by); });
+  };
+  arrow("turn-left", -1);
+  arrow("turn-right", 1);
+  img.tabIndex = 0;
+  img.addEventListener("keydown", function (e) {
+    if (e.key === "ArrowLeft") { turn(-1); e.preventDefault(); }
+    if (e.key === "ArrowRight") { turn(1); e.preventDefault(); }
+  });
+  var dragX = null;
+  img.addEventListener("pointerdown", function (e) {
+    dragX = e.clientX;
+    try { img.setPointerCapture(e.pointerId); } catch (err) { /* a pointer the page cannot capture */ }
+    e.preventDefault();
+  });
+  img.addEventListener("pointermove", function (e) {
+    if (dragX === null) return;
+    var steps = Math.trunc((e.clientX - dragX) / 40);
+    if (steps !== 0) { dragX += steps * 40; turn(-steps); }
+  });
+  var end = function () { dragX = null; };
+  img.addEventListener("pointerup", end);
+  img.addEventListener("pointercancel", end);
+  box.dataset.ready = "1";
+})();

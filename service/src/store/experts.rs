@@ -13,6 +13,9 @@ pub struct ExpertReference {
     pub trainee: String,
     pub marked_by: String,
     pub marked_at: String,
+    /// The session file (its review trace holds the path for the expert corridor).
+    #[serde(skip)]
+    pub file_sha256: String,
 }
 
 /// What marking did.
@@ -132,7 +135,7 @@ impl Store {
         binds: Vec<String>,
     ) -> Result<Vec<(ExpertReference, Option<String>)>, StoreError> {
         let q = format!(
-            "SELECT e.session_id, t.username AS trainee, m.username AS marked_by, e.marked_at, sc.report_json \
+            "SELECT e.session_id, t.username AS trainee, m.username AS marked_by, e.marked_at, s.file_sha256, sc.report_json \
              FROM expert_references e JOIN sessions s ON s.id = e.session_id \
              JOIN users t ON t.id = s.trainee_id JOIN users m ON m.id = e.marked_by \
              LEFT JOIN scores sc ON sc.session_id = e.session_id \
@@ -148,6 +151,7 @@ impl Store {
                         trainee: r.try_get("trainee")?,
                         marked_by: r.try_get("marked_by")?,
                         marked_at: r.try_get("marked_at")?,
+                        file_sha256: r.try_get("file_sha256")?,
                     },
                     r.try_get("report_json")?,
                 ))

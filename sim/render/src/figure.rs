@@ -9,6 +9,7 @@ use stylet_physics::glam::DVec3;
 use stylet_physics::{PunctureAtlas, Role};
 
 use crate::RenderError;
+use crate::corridor::{CORRIDOR_ALPHA, CORRIDOR_RGB, Corridor, MIN_HALF_WIDTH_PX, band_polygon, clip_polygon};
 use crate::fonts::{SANS, ensure_fonts};
 use crate::mpr::{Plane, Slice, Window, render_slice};
 
@@ -92,6 +93,16 @@ pub struct FigureSpec {
     /// Planned paths (entry, target in world mm), dashed orange, with their names.
     pub planned: Vec<(String, DVec3, DVec3)>,
     pub mark: Option<Mark>,
+    /// The expert corridor, a translucent green band projected onto every plane.
+    pub corridor: Option<Corridor>,
+}
+
+/// How a legend entry's line is drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stroke {
+    Solid,
+    Dashed,
+    Band,
 }
 
 impl FigureSpec {
@@ -104,6 +115,7 @@ impl FigureSpec {
             needle: Vec::new(),
             planned: Vec::new(),
             mark: None,
+            corridor: None,
         }
     }
 }
@@ -193,12 +205,20 @@ pub fn figure(atlas: &PunctureAtlas, spec: &FigureSpec, png: &Path) -> Result<()
         .collect();
     present.sort_unstable();
     present.dedup();
-    let mut line_entries: Vec<(String, [u8; 3], bool)> = Vec::new();
+    let mut line_entries: Vec<(String, [u8; 3], Stroke)> = Vec::new();
     if !spec.needle.is_empty() {
-        line_entries.push(("needle tip path".into(), NEEDLE_RGB, false));
+        line_entries.push(("needle tip path".into(), NEEDLE_RGB, Stroke::Solid));
     }
     for (path_name, _, _) in &spec.planned {
-        line_entries.push((format!("planned path '{path_name}'"), PLANNED_RGB, true));
+        line_entries.push((format!("planned path '{path_name}'"), PLANNED_RGB, Stroke::Dashed));
+    }
+    if let Some(c) = &spec.corridor {
+        let plural = if c.experts == 1 { "" } else { "s" };
+        line_entries.push((
+            format!("expert corridor ({} path{plural})", c.experts),
+            CORRIDOR_RGB,
+            Stroke::Band,
+        ));
     }
     let width = (slices.iter().map(|s| s.width).sum::<usize>() + MARGIN * (slices.len() + 1)).max(2 * 260 + 2 * MARGIN);
     let per_row = ((width - 2 * MARGIN) / 260).max(1);
@@ -298,6 +318,20 @@ pub fn figure(atlas: &PunctureAtlas, spec: &FigureSpec, png: &Path) -> Result<()
             };
             let at = |p: (f64, f64)| (ox + p.0.round() as i32, oy + p.1.round() as i32);
             let (wf, hf) = (w as f64 - 1.0, h as f64 - 1.0);
+            // The expert corridor under every line: a band as wide as the corridor.
+            if let Some(c) = &spec.corridor {
+                let centre: Vec<(f64, f64)> = c.centre_mm.iter().map(|p| local(*p)).collect();
+                let radius: Vec<f64> = c
+                    .radius_mm
+                    .iter()
+                    .map(|r| (r / s.pixel_mm).max(MIN_HALF_WIDTH_PX))
+                    .collect();
+                let band = clip_polygon(&band_polygon(&centre, &radius), (0.0, 0.0), (wf, hf));
+                if band.len() >= 3 {
+                    let pts: Vec<(i32, i32)> = band.iter().map(|p| at(*p)).collect();
+                    draw(root.draw(&Polygon::new(pts, rgb(CORRIDOR_RGB).mix(CORRIDOR_ALPHA).filled())))?;
+                }
+            }
             // Clipped to the panel: a path projected from far away must not spill onto the next.
             for line in &spec.needle {
                 let pts: Vec<(f64, f64)> = line.iter().map(|p| local(*p)).collect();
@@ -331,10 +365,15 @@ pub fn figure(atlas: &PunctureAtlas, spec: &FigureSpec, png: &Path) -> Result<()
         // Legend: lines and the mark, then the labels.
         let mut ly = (TITLE_H + PANEL_TITLE_H + panel_h + MARGIN) as i32;
         if !line_entries.is_empty() {
-            for (n, (text, color, dashed)) in line_entries.iter().enumerate() {
+            for (n, (text, color, stroke)) in line_entries.iter().enumerate() {
                 let x = (MARGIN + n * 300) as i32;
                 let style = ShapeStyle::from(&rgb(*color)).stroke_width(3);
-                if *dashed {
+                if *stroke == Stroke::Band {
+                    draw(root.draw(&Rectangle::new(
+                        [(x, ly + 3), (x + 30, ly + 17)],
+                        rgb(*color).mix(CORRIDOR_ALPHA + 0.2).filled(),
+                    )))?;
+                } else if *stroke == Stroke::Dashed {
                     for dash in dashes(
                         &[(x as f64, (ly + 10) as f64), ((x + 30) as f64, (ly + 10) as f64)],
                         8.0,

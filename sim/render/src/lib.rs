@@ -7,13 +7,15 @@
 //! quality, hooks), [`transfer`] (eq. 3.2.2), [`transfer_table`] (what the ray loops read), [`volume`] (the atlas prepared for rendering),
 //! [`tools`] (needle, finger, probes), [`shadow`] (their shadows, Alg. 3.1/3.2), [`image`]
 //! (pixels, PNG, difference statistics), [`mpr`] (slices), [`annotate`] (tip marker, scale bar,
-//! letters on slices), [`xray`] (the radiograph of a C-arm, §3.3), [`ultrasound`] (B-mode and colour Doppler, §3.4), [`synthetic`] (small atlases from functions, for tests) and [`figure`] (the atlas figure of `stylet atlas inspect`).
+//! letters on slices), [`xray`] (the radiograph of a C-arm, §3.3), [`ultrasound`] (B-mode and colour Doppler, §3.4), [`synthetic`] (small atlases from functions, for tests), [`figure`] (the atlas figure of `stylet atlas inspect` and the review's slices), [`corridor`] (the expert corridor) and [`overview`] (the review's turntable of a whole attempt).
 
 pub mod annotate;
+pub mod corridor;
 pub mod figure;
 pub mod fonts;
 pub mod image;
 pub mod mpr;
+pub mod overview;
 pub mod presets;
 pub mod raycast;
 pub mod scene;

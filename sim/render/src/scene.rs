@@ -47,6 +47,31 @@ impl Camera {
         (self.eye_mm, (forward + right * x + up * y).normalize())
     }
 
+    /// Where a world point lands in a `width` × `height` image: (column, row) in pixels (the
+    /// inverse of [`Camera::ray`]: pixel centres at +½) and its depth along the view direction
+    /// (mm); `None` behind the eye.
+    pub fn project(&self, world_mm: Vec3, width: u32, height: u32) -> Option<(f32, f32, f32)> {
+        let (right, up, forward) = self.basis();
+        let v = world_mm - self.eye_mm;
+        let depth = v.dot(forward);
+        if !(depth > 1e-3) {
+            return None;
+        }
+        let tan_half = (self.fov_y_deg.to_radians() * 0.5).tan();
+        let aspect = width as f32 / height as f32;
+        let x = v.dot(right) / depth / (tan_half * aspect);
+        let y = v.dot(up) / depth / tan_half;
+        let col = (x + 1.0) * 0.5 * width as f32 - 0.5;
+        let row = (1.0 - y) * 0.5 * height as f32 - 0.5;
+        Some((col, row, depth))
+    }
+
+    /// Pixels per millimetre at `depth_mm` in front of the eye, in an image `height` pixels high.
+    pub fn pixels_per_mm(&self, depth_mm: f32, height: u32) -> f32 {
+        let tan_half = (self.fov_y_deg.to_radians() * 0.5).tan();
+        0.5 * height as f32 / (tan_half * depth_mm.max(1e-3))
+    }
+
     /// A camera on a sphere around `center_mm`, looking at it. Azimuth 0° looks from anterior
     /// (+y in RAS) with the patient's right on the image's left (radiological convention);
     /// azimuth 90° looks from the patient's left (−x; RAS+, x to the patient's right); elevation lifts the eye toward superior.

@@ -215,30 +215,70 @@ pub fn scene_3d(
     tagging: Tagging,
     step_mm: f32,
 ) -> Result<Scene, ViewError> {
+    let transfer = transfer_of(atlas, preset)?;
+    let (lo, hi) = atlas.model.ct().grid().world_bounds();
+    let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), 0.0, 0.0);
+    let cut = (tagging != Tagging::Off).then(|| focus(atlas, moment));
+    let tools = moment.map(|m| m.tools.clone()).unwrap_or_default();
+    Ok(scene_3d_from(camera, transfer, tagging, cut, tools, step_mm))
+}
+
+/// The ray-cast view of the atlas from `azimuth_deg`/`elevation_deg` (see [`Camera::orbit`])
+/// framing the box `frame_mm` (world bounds), no tools, the volume cut along the line through `cut_point_mm` in
+/// direction `cut_axis` (tagging shows the target and the risk structures on the cut): the
+/// frames of the dashboard's 3D overview.
+pub fn scene_3d_orbit(
+    atlas: &Atlas,
+    preset: Preset,
+    tagging: Tagging,
+    (cut_point_mm, cut_axis): (DVec3, DVec3),
+    step_mm: f32,
+    (azimuth_deg, elevation_deg): (f32, f32),
+    (lo, hi): (DVec3, DVec3),
+) -> Result<Scene, ViewError> {
+    let transfer = transfer_of(atlas, preset)?;
+    let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), azimuth_deg, elevation_deg);
+    let cut = Some((cut_point_mm, cut_axis));
+    Ok(scene_3d_from(
+        camera,
+        transfer,
+        tagging,
+        cut,
+        ToolState::default(),
+        step_mm,
+    ))
+}
+
+fn transfer_of(atlas: &Atlas, preset: Preset) -> Result<TransferFunction, ViewError> {
     let render = presets::render_settings(&atlas.manifest);
-    let transfer = TransferFunction::from_preset(preset.of(&render)).map_err(|e| ViewError::Preset {
+    TransferFunction::from_preset(preset.of(&render)).map_err(|e| ViewError::Preset {
         preset: preset.as_str(),
         atlas: atlas.manifest.name.clone(),
         reason: e.to_string(),
-    })?;
-    let (lo, hi) = atlas.model.ct().grid().world_bounds();
-    let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), 0.0, 0.0);
-    let clip = (tagging != Tagging::Off).then(|| {
-        let (point, axis) = focus(atlas, moment);
-        ClipPlane::through_tool(point.as_vec3(), axis.as_vec3(), &camera)
-    });
-    Ok(Scene {
+    })
+}
+
+fn scene_3d_from(
+    camera: Camera,
+    transfer: TransferFunction,
+    tagging: Tagging,
+    cut: Option<(DVec3, DVec3)>,
+    tools: ToolState,
+    step_mm: f32,
+) -> Scene {
+    let clip = cut.map(|(point, axis)| ClipPlane::through_tool(point.as_vec3(), axis.as_vec3(), &camera));
+    Scene {
         camera,
         transfer,
         light: Light::over_shoulder(&camera),
         clip,
         tagging,
         quality: Quality::fast(step_mm),
-        tools: moment.map(|m| m.tools.clone()).unwrap_or_default(),
+        tools,
         background: Vec3::new(0.05, 0.06, 0.08),
         deformed: None,
         motion: None,
-    })
+    }
 }
 
 /// The radiograph scene of a scenario's C-arm (`scenario`: its name; `None`: the atlas' first

@@ -1,0 +1,234 @@
+//! The 3D overview of the whole attempt on the review (docs/dashboard.md "3D overview"): a
+//! turntable of [`stylet_render::overview::FRAMES`] server-drawn frames, the tip's path through
+//! the anatomy coloured by what the tip was in, the planned path and the expert corridor, and
+//! the expert corridor the review's slices show too.
+//!
+//! - `GET /sessions/{id}/overview?frame=N`: one turntable frame (PNG, cached with the player's
+//!   frames; the corridor's references are in the name, so marking draws new frames).
+//! - [`expert_corridor`]: the corridor of a scenario's expert references, from their review
+//!   traces (kept in memory per set of references).
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+
+use axum::extract::{Path, Query, State};
+use axum::http::{StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use maud::{Markup, html};
+use stylet_render::corridor::Corridor;
+use stylet_render::overview::{self, OverviewSpec, PathRegion};
+use stylet_scoring::{ReviewTrace, ScoreReport};
+use stylet_service::AppState;
+use stylet_service::store::SessionRow;
+use stylet_service::traces::review_trace;
+
+use super::{DRAW_WAIT, DRAWING, drawing, frame_cache, internal};
+use crate::auth::{PageError, Viewer, fail};
+use crate::pages::review::{require_scored, visible_session};
+
+/// The overview's frame size.
+pub const OVERVIEW_SIZE: (u32, u32) = (480, 360);
+/// Corridors kept in memory (one per scenario and set of references).
+const CACHED_CORRIDORS: usize = 32;
+
+type CorridorCache = BTreeMap<String, Option<Arc<Corridor>>>;
+static CORRIDORS: Mutex<CorridorCache> = Mutex::new(BTreeMap::new());
+
+/// The expert corridor of `scenario` on the atlas `atlas_hash` and the key of its references
+/// (`"none"` without any): the final approaches of the references' review traces (references
+/// whose trace cannot be had are left out and logged).
+pub async fn expert_corridor(
+    s: &AppState,
+    atlas_hash: &str,
+    scenario: &str,
+) -> Result<(Option<Arc<Corridor>>, String), PageError> {
+    let references = s.store.expert_references(atlas_hash, scenario).await?;
+    let key = stylet_service::experts::references_key(&references.iter().map(|(r, _)| r.clone()).collect::<Vec<_>>());
+    let cache_key = format!("{atlas_hash}|{scenario}|{key}");
+    if let Some(c) = CORRIDORS
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+        .get(&cache_key)
+    {
+        return Ok((c.clone(), key));
+    }
+    let mut paths = Vec::new();
+    for (r, _) in &references {
+        match review_trace(s, &r.file_sha256, atlas_hash).await {
+            Ok(trace) => paths.extend(trace.final_approach()),
+            Err(e) => {
+                tracing::warn!(session = %r.session_id, error = %e, "an expert reference's path is left out of the corridor")
+            }
+        }
+    }
+    let corridor = Corridor::from_paths(&paths).map(Arc::new);
+    let mut cache = CORRIDORS.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    if cache.len() >= CACHED_CORRIDORS {
+        cache.clear();
+    }
+    cache.insert(cache_key, corridor.clone());
+    Ok((corridor, key))
+}
+
+/// What a frame shows: the session's tip path, its planned path, the corridor.
+fn spec(
+    atlas: &stylet_physics::PunctureAtlas,
+    paths: &[stylet_physics::PlannedPath],
+    report: &ScoreReport,
+    trace: &ReviewTrace,
+    corridor: Option<&Corridor>,
+    frame: u32,
+) -> OverviewSpec {
+    let tip_paths = trace
+        .tip_stays()
+        .iter()
+        .map(|stay| stay.iter().map(|&(p, d)| (p, PathRegion::at(atlas, p, d), d)).collect())
+        .collect();
+    // The path its guided metrics were measured against, else the atlas' first.
+    let guided = report.metrics.guided.as_ref().map(|g| g.path.as_str());
+    let planned = paths
+        .iter()
+        .find(|p| Some(p.name.as_str()) == guided)
+        .or_else(|| paths.first())
+        .map(|p| (p.entry_mm, p.target_mm));
+    OverviewSpec {
+        tip_paths,
+        planned,
+        corridor: corridor.cloned(),
+        frame,
+    }
+}
+
+#[derive(Debug, serde::Deserialize)]
+pub struct OverviewQuery {
+    #[serde(default)]
+    frame: u32,
+}
+
+/// `GET /sessions/{id}/overview?frame=N` (0 … 11, 30° apart): a frame of the turntable of a
+/// scored session the viewer may see (404 otherwise, 409 while it is being scored; 503 when the
+/// server has been busy drawing for [`DRAW_WAIT`]).
+pub async fn frame(
+    State(s): State<Arc<AppState>>,
+    v: Viewer,
+    Path(id): Path<String>,
+    Query(q): Query<OverviewQuery>,
+) -> Result<Response, PageError> {
+    let row = visible_session(&s, &v, &id).await?;
+    require_scored(&row)?;
+    if q.frame >= overview::FRAMES {
+        return Err(fail(
+            StatusCode::BAD_REQUEST,
+            format!(
+                "frame {} of the overview: frames are 0 … {}",
+                q.frame,
+                overview::FRAMES - 1
+            ),
+        ));
+    }
+    let (corridor, key) = expert_corridor(&s, &row.atlas_hash, &row.scenario).await?;
+    let cache = frame_cache(&s);
+    let (w, h) = OVERVIEW_SIZE;
+    let path = cache.overview_path(&row.file_sha256, q.frame, &key, w, h);
+    if let Ok(png) = tokio::fs::read(&path).await {
+        return Ok(png_response(png));
+    }
+    let report = report_of(&row)?;
+    let trace = review_trace(&s, &row.file_sha256, &row.atlas_hash)
+        .await
+        .map_err(internal)?;
+    let drawing = drawing(&s, &row.atlas_hash).await?;
+    let scorer = s.scorers.get(&row.atlas_hash).cloned().ok_or_else(|| {
+        fail(
+            StatusCode::NOT_FOUND,
+            "the session's atlas is not loaded on this server",
+        )
+    })?;
+    let turn = match tokio::time::timeout(DRAW_WAIT, Arc::clone(&DRAWING).acquire_owned()).await {
+        Ok(turn) => turn.map_err(|e| internal(e.to_string()))?,
+        Err(_) => {
+            return Ok((
+                StatusCode::SERVICE_UNAVAILABLE,
+                [(header::RETRY_AFTER, "2")],
+                "the server is busy drawing frames; try again in a moment",
+            )
+                .into_response());
+        }
+    };
+    let frame = q.frame;
+    let png = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, String> {
+        let _turn = turn;
+        if let Some(png) = cache.get(&path) {
+            return Ok(png);
+        }
+        let spec = spec(
+            scorer.atlas(),
+            scorer.paths(),
+            &report,
+            &trace,
+            corridor.as_deref(),
+            frame,
+        );
+        let image = overview::render(&drawing.atlas, &drawing.volume, &spec, w, h).map_err(|e| e.to_string())?;
+        let png = image.to_png().map_err(|e| e.to_string())?;
+        cache.put(&path, &png);
+        Ok(png)
+    })
+    .await
+    .map_err(|e| internal(e.to_string()))?
+    .map_err(internal)?;
+    Ok(png_response(png))
+}
+
+fn report_of(row: &SessionRow) -> Result<ScoreReport, PageError> {
+    row.score
+        .clone()
+        .and_then(|r| serde_json::from_value(r).ok())
+        .ok_or_else(|| internal("the stored score report cannot be read"))
+}
+
+fn png_response(png: Vec<u8>) -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, "image/png"),
+            (header::CACHE_CONTROL, "private, max-age=3600"),
+        ],
+        png,
+    )
+        .into_response()
+}
+
+/// The overview's block on the review: frame `turn` (the page's `?turn=`, default 0) with links
+/// to the neighbouring frames (without JavaScript), buttons and dragging to turn it (with it).
+/// `key` names the corridor's references, so a browser does not show a frame drawn before a
+/// marking.
+pub fn block(row: &SessionRow, turn: u32, key: &str, experts: usize) -> Markup {
+    let n = overview::FRAMES;
+    let turn = turn % n;
+    let (w, h) = OVERVIEW_SIZE;
+    let src = |f: u32| format!("/sessions/{}/overview?frame={f}&e={key}", row.id);
+    let link = |f: u32| format!("/sessions/{}?turn={f}#overview", row.id);
+    let step = overview::STEP_DEG;
+    html! {
+        section #overview data-session=(row.id) data-frames=(n) data-frame=(turn) data-key=(key) {
+            figure.frame {
+                img #overview-frame src=(src(turn)) width=(w) height=(h) draggable="false"
+                    alt={ "3D overview of the whole attempt from azimuth " (format!("{:.0}", turn as f32 * step)) "°: the needle tip's path, the planned path and the expert corridor" };
+                figcaption {
+                    a.turn #turn-left href=(link((turn + n - 1) % n)) aria-label="Turn left" { "◀" }
+                    " Turn (drag the picture, or ← → on it) "
+                    a.turn #turn-right href=(link((turn + 1) % n)) aria-label="Turn right" { "▶" }
+                }
+            }
+            ul.muted.legend {
+                li { span.swatch style="background:#00e6ff" {} "tip path in tissue" }
+                li { span.swatch style="background:#ff3232" {} "in a risk structure" }
+                li { span.swatch style="background:#3cff3c" {} "in the target" }
+                li { span.swatch style="background:#ffaa00" {} "planned path (dashed)" }
+                li { span.swatch style="background:rgba(255,255,255,.6);outline:1px solid #888" {} "expert corridor, a white band"
+                    @if experts == 0 { " (no expert references yet)" } @else { " (" (experts) " reference" @if experts != 1 { "s" } ")" } }
+                li { "cut along the needle: target green, risk structures magenta; white dots: skin entries, red ring: the deepest point" }
+            }
+        }
+    }
+}
