@@ -1,7 +1,8 @@
 //! The dashboard player's frames (issue 18) for a 10-minute session on the default phantom: the
 //! replay snapshots built once per session, then frames at arbitrary ticks — the first time
 //! (replayed from the nearest snapshot and drawn: 3D, axial, ultrasound, X-ray at 480 × 360) and
-//! from the disk cache — with p50 and p99, and the cache's disk use per frame. Timed by hand
+//! from the disk cache — with p50 and p99, and the cache's disk use per frame; then the 12 frames
+//! of the 3D overview's turntable (tip path, planned path and a corridor drawn). Timed by hand
 //! (percentiles, not criterion's means); the ratio is the first frame to the cached one.
 //!
 //! `cargo bench --bench player`. Rayon gets 2 threads, as on the development machine. Under
@@ -81,6 +82,8 @@ fn main() {
     ]);
     let atlas = Arc::new(stylet_atlas::load(&atlas_dir).unwrap());
     let session = stylet_recorder::reader::read(&session_path).unwrap();
+    let scorer = stylet_scoring::Scorer::new(&atlas, stylet_scoring::Rubric::default_rubric(), None).unwrap();
+    let (report, trace) = scorer.score_session_traced(&session).unwrap();
     let file_bytes = std::fs::metadata(&session_path).unwrap().len();
 
     let t = Instant::now();
@@ -129,6 +132,29 @@ fn main() {
             assert!(!png.is_empty());
         }
     }
+    // The overview's turntable, with the session's own final approach as a one-path corridor.
+    let corridor = trace
+        .final_approach()
+        .and_then(|p| stylet_render::corridor::Corridor::from_paths(&[p]));
+    let mut overview = Vec::new();
+    for frame in 0..stylet_render::overview::FRAMES {
+        let t = Instant::now();
+        let spec = stylet_dashboard::player::overview::spec(
+            scorer.atlas(),
+            scorer.paths(),
+            &report,
+            &trace,
+            corridor.as_ref(),
+            frame,
+        );
+        let (ow, oh) = stylet_dashboard::player::overview::OVERVIEW_SIZE;
+        let png = stylet_render::overview::render(&atlas, &drawing.volume, &spec, ow, oh)
+            .unwrap()
+            .to_png()
+            .unwrap();
+        overview.push(t.elapsed());
+        assert!(!png.is_empty());
+    }
     if !measuring {
         return;
     }
@@ -162,6 +188,13 @@ fn main() {
         "cached frame (disk read): p50 {:.3} ms, p99 {:.3} ms",
         cached_p50,
         percentile(&mut cached, 0.99)
+    );
+    println!(
+        "3D overview frame (tip path of {} stays, drawn and encoded): p50 {:.1} ms, p99 {:.1} ms over the {} turntable angles",
+        trace.tip_stays().len(),
+        percentile(&mut overview.clone(), 0.5),
+        percentile(&mut overview, 0.99),
+        stylet_render::overview::FRAMES
     );
     let frames = (samples * FrameView::ALL.len()) as f64;
     println!(

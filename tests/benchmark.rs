@@ -295,6 +295,19 @@ fn experts_mark_and_the_benchmark_grades(db: Db, tag: &str) {
         assert!(review.contains(want), "the review lacks {want}");
     }
     assert!(page(&ivan, &before).contains("it had 2 when this session was scored"));
+    // Without JavaScript the overview turns by links: ?turn=N shows frame N, its arrows link to
+    // the neighbours.
+    let turned = page(&ivan, &format!("{after}?turn=3"));
+    assert!(
+        turned.contains(&format!("/sessions/{after}/overview?frame=3&amp;e=")),
+        "frame 3 shown"
+    );
+    for n in [2, 4] {
+        assert!(
+            turned.contains(&format!("href=\"/sessions/{after}?turn={n}#overview\"")),
+            "link to {n}"
+        );
+    }
     let trainee_view = page(&tina, &after);
     assert!(trainee_view.contains("id=\"benchmark-table\""));
     assert!(!trainee_view.contains("id=\"expert-references\"") && !trainee_view.contains("id=\"expert-form\""));
@@ -426,7 +439,12 @@ fn turn_the_overview(base: &str, id: &str, shots: &Path) {
         c.find(Locator::Id("turn-right")).await.unwrap().click().await.unwrap();
         until(&c, "round the turntable", "document.getElementById('overview').dataset.shown === '0'").await;
         for (section, name) in [("overview", "overview"), ("benchmark", "benchmark")] {
-            js(&c, &format!("document.getElementById('{section}').scrollIntoView()")).await;
+            // From the section's heading.
+            js(
+                &c,
+                &format!("document.getElementById('{section}').previousElementSibling.scrollIntoView()"),
+            )
+            .await;
             tokio::time::sleep(std::time::Duration::from_millis(300)).await;
             std::fs::write(shots.join(format!("review-{name}.png")), c.screenshot().await.unwrap()).unwrap();
         }

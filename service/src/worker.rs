@@ -57,7 +57,7 @@ async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
     // The scenario's expert benchmark, when the rubric grades against one: read now, so the
     // grade (which records it) measures against the references marked at scoring time.
     let benchmark = match &scorer {
-        Some(sc) if sc.rubric().benchmark.is_some() => match expert_benchmark(state, job).await {
+        Some(sc) if sc.rubric().benchmark.is_some() => match expert_benchmark(state, job, sc).await {
             Ok(b) => b,
             Err(e) => return Outcome::Retry(format!("cannot read the expert benchmark: {e}")),
         },
@@ -87,14 +87,22 @@ async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
     .unwrap_or_else(|e| Outcome::Failed(format!("scoring panicked: {e}")))
 }
 
-/// The expert benchmark of the job's scenario (none for a session that is gone).
+/// The expert benchmark of the job's scenario when the level it is graded at has relative
+/// deductions (none for other levels, and for a session that is gone).
 async fn expert_benchmark(
     state: &Arc<AppState>,
     job: &super::store::Job,
+    scorer: &stylet_scoring::Scorer,
 ) -> Result<Option<stylet_scoring::Benchmark>, super::StoreError> {
     let Some((row, _)) = state.store.session(&job.session_id).await? else {
         return Ok(None);
     };
+    let level = scorer
+        .rubric()
+        .level(scorer.exercise_of(&row.scenario), &row.difficulty);
+    if level.is_none_or(|l| l.relative.is_empty()) {
+        return Ok(None);
+    }
     let (benchmark, _) = super::experts::benchmark(state, &row.atlas_hash, &row.scenario).await?;
     Ok(Some(benchmark))
 }

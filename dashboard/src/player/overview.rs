@@ -70,8 +70,9 @@ pub async fn expert_corridor(
     Ok((corridor, key))
 }
 
-/// What a frame shows: the session's tip path, its planned path, the corridor.
-fn spec(
+/// What a frame shows: the session's tip path (each point's region from the atlas), its planned
+/// path (the one its guided metrics were measured against, else the atlas' first), the corridor.
+pub fn spec(
     atlas: &stylet_physics::PunctureAtlas,
     paths: &[stylet_physics::PlannedPath],
     report: &ScoreReport,
