@@ -115,6 +115,10 @@ fn experts_mark_and_the_benchmark_grades(db: Db, tag: &str) {
     add_user(&f.data(), &db, "eve", "trainee", Some("c1"));
     let srv = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "2"]);
     let b = &srv.base;
+    let olga = {
+        add_user(&f.data(), &db, "olga", "instructor", Some("c2"));
+        login(b, "olga")
+    };
     let (ivan, tina, eve, cora, tom) = (
         login(b, "ivan"),
         login(b, "tina"),
@@ -146,6 +150,12 @@ fn experts_mark_and_the_benchmark_grades(db: Db, tag: &str) {
         json
     };
 
+    // A review page as `who` sees it.
+    let page = |who: &Auth, id: &str| {
+        let (status, html, _) = call("GET", &format!("{b}/sessions/{id}"), Some(who), None, false);
+        assert_eq!(status, 200);
+        html.as_str().unwrap().to_string()
+    };
     // Three expert sessions by eve: two by lines 4 mm either side of the planned path, one with
     // a first attempt withdrawn (its final approach follows the planned path); 20, 20 and 34 s.
     let experts: Vec<(String, Value)> = [
@@ -160,12 +170,13 @@ fn experts_mark_and_the_benchmark_grades(db: Db, tag: &str) {
     let ids: Vec<&str> = experts.iter().map(|(id, _)| id.as_str()).collect();
     assert_eq!(bench(&ivan, ids[0])["experts"], 0);
 
-    // Who may mark: the trainee's instructor and admins; not the trainee, curriculum staff or
-    // an instructor of another cohort (not found for a stranger's session).
+    // Who may mark: the trainee's instructor and admins; not the trainee, curriculum staff,
+    // another trainee or another cohort's instructor (not found for a stranger's session).
     assert_eq!(expert(&tina, "POST", ids[0]), 404, "tina may not see eve's session");
     assert_eq!(expert(&eve, "POST", ids[0]), 403, "a trainee does not mark herself");
     assert_eq!(expert(&cora, "POST", ids[0]), 403);
     assert_eq!(expert(&tom, "POST", ids[0]), 404);
+    assert_eq!(expert(&olga, "POST", ids[0]), 404);
     assert_eq!(expert(&ivan, "POST", ids[0]), 201);
     assert_eq!(expert(&ivan, "POST", ids[0]), 201, "marking again changes nothing");
     assert_eq!(expert(&ivan, "POST", ids[1]), 201);
@@ -178,12 +189,27 @@ fn experts_mark_and_the_benchmark_grades(db: Db, tag: &str) {
         (Some(2), Some(false)),
         "{g}"
     );
+    // Two references are two people's metrics, not a benchmark: a trainee sees how many, not
+    // their figures; staff see them.
+    let two = bench(&tina, &before);
+    assert_eq!(two["experts"], 2);
+    assert!(two["metrics"].as_array().unwrap().is_empty() && two["comparison"].as_array().unwrap().is_empty());
+    assert!(page(&tina, &before).contains("its benchmark is shown from 3 on"));
+    assert!(!bench(&ivan, &before)["metrics"].as_array().unwrap().is_empty());
 
     assert_eq!(expert(&ivan, "POST", ids[2]), 201);
     let all = bench(&ivan, ids[0]);
     assert_eq!(all["experts"], 3, "{all}");
     assert_eq!(all["expert"], true);
     assert_eq!(all["references"].as_array().unwrap().len(), 3);
+    // Another cohort's instructor, on a session of their own trainee, learns the figures and how
+    // many references there are, not whose.
+    let (toms, _) = upload(&tom, &record(&f, "tom-0", "success-intercostal", "tom", 9));
+    let theirs = bench(&olga, &toms);
+    assert_eq!(theirs["experts"], 3);
+    assert!(theirs["references"].as_array().unwrap().is_empty(), "{theirs}");
+    let olgas_review = page(&olga, &toms);
+    assert!(olgas_review.contains("3 of other cohorts") && !olgas_review.contains("eve ("));
     // The figures are the mean and sample spread of the references' metrics.
     let metric_of = |row: &Value, m: &str| row["score"]["metrics"][m].as_f64().unwrap();
     for m in ["time_total_s", "fluoro_time_s", "tissue_damage_mm2", "max_force_n"] {
@@ -227,6 +253,19 @@ fn experts_mark_and_the_benchmark_grades(db: Db, tag: &str) {
     let grade = &row["score"]["grade"];
     assert_eq!(grade["benchmark"]["experts"], 3, "{grade}");
     assert_eq!(grade["benchmark"]["applied"], true);
+    // The grade records what it was measured against: the references and every relative
+    // metric's figures (also those that cost nothing).
+    let mut recorded: Vec<&str> = grade["benchmark"]["references"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
+    let mut marked = ids.clone();
+    recorded.sort_unstable();
+    marked.sort_unstable();
+    assert_eq!(recorded, marked);
+    assert_eq!(grade["benchmark"]["figures"].as_array().unwrap().len(), 3, "{grade}");
     let rubric = stylet_scoring::Rubric::default_rubric();
     let level = rubric.level(stylet_scoring::Exercise::Puncture, "expert").unwrap();
     assert!(!level.relative.is_empty());
@@ -277,12 +316,6 @@ fn experts_mark_and_the_benchmark_grades(db: Db, tag: &str) {
         "{reasons:?}"
     );
 
-    // The review shows the session against the benchmark, and the rubric's relative rows.
-    let page = |who: &Auth, id: &str| {
-        let (status, html, _) = call("GET", &format!("{b}/sessions/{id}"), Some(who), None, false);
-        assert_eq!(status, 200);
-        html.as_str().unwrap().to_string()
-    };
     let review = page(&ivan, &after);
     for want in [
         "id=\"benchmark-table\"",

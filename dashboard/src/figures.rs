@@ -102,8 +102,9 @@ fn spec(
     Some(spec)
 }
 
-/// The PNG bytes of a session's figure: from the cache, else drawn (and cached). `Ok(None)`: the
-/// session has no such risk hit (or no point for it).
+/// The PNG bytes of a session's figure: from the cache, else drawn (and cached). `corridor`: the
+/// expert corridor the tip path's figure shows and its key (`player::overview::expert_corridor`).
+/// `Ok(None)`: the session has no such risk hit (or no point for it).
 pub async fn session_figure(
     s: &AppState,
     file_sha256: &str,
@@ -111,21 +112,13 @@ pub async fn session_figure(
     report: &ScoreReport,
     figure: Figure,
     title: &str,
+    (corridor, key): (Option<std::sync::Arc<Corridor>>, String),
 ) -> Result<Option<Vec<u8>>, String> {
     if let Figure::Hit(n) = figure
         && n >= report.metrics.risk_hits.len()
     {
         return Ok(None);
     }
-    let (corridor, key) = match figure {
-        Figure::TipPath => crate::player::overview::expert_corridor(s, atlas_hash, &report.scenario)
-            .await
-            .map_err(|e| match e {
-                crate::auth::PageError::Status(_, m) => m,
-                crate::auth::PageError::Login { .. } => "not logged in".into(),
-            })?,
-        Figure::Hit(_) => (None, String::new()),
-    };
     let path = figure_path(&s.config.data_dir, file_sha256, figure, &key);
     if let Ok(bytes) = tokio::fs::read(&path).await {
         return Ok(Some(bytes));
@@ -149,8 +142,29 @@ pub async fn session_figure(
         }
         stylet_render::figure::figure(scorer.atlas(), &spec, &tmp).map_err(|e| e.to_string())?;
         std::fs::rename(&tmp, &path).map_err(|e| e.to_string())?;
+        if figure == Figure::TipPath {
+            remove_older_tip_paths(&path);
+        }
         std::fs::read(&path).map(Some).map_err(|e| e.to_string())
     })
     .await
     .map_err(|e| e.to_string())?
+}
+
+/// Removes the tip-path figures of the same session drawn with another expert corridor (before a
+/// marking or unmarking): one figure per session stays, so the folder grows with the sessions,
+/// not with the markings.
+fn remove_older_tip_paths(kept: &Path) {
+    let (Some(dir), Some(name)) = (kept.parent(), kept.file_name().and_then(|n| n.to_str())) else {
+        return;
+    };
+    let Some((sha, _)) = name.split_once("-e") else { return };
+    let prefix = format!("{sha}-e");
+    for entry in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+        let other = entry.file_name();
+        let other = other.to_string_lossy();
+        if other.starts_with(&prefix) && other.ends_with(".png") && !other.contains(".partial") && *other != *name {
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
 }

@@ -193,11 +193,12 @@ impl MetricInfo {
         }
     }
 
-    /// A bound alone: "1", "30 s", "75 %".
     /// An amount of this metric with its unit: "40 s", "2", "1.5 ml" (flags and counts bare).
     pub fn amount(&self, v: f64) -> String {
         self.bound(v)
     }
+
+    /// A bound alone: "1", "30 s", "75 %".
 
     fn bound(&self, v: f64) -> String {
         match self.unit {
@@ -355,15 +356,19 @@ pub fn reasons(exercise: Exercise, grade: &Grade, metrics: &Metrics, incomplete_
         .deductions
         .iter()
         .filter_map(|d| {
-            let phrase = metric_info(&d.metric)?.deduction(d.value, d.points, d.free);
-            // A deduction against the expert benchmark says where its free amount came from.
-            Some(match (&d.relative, phrase.strip_suffix(')')) {
-                (Some(r), Some(open)) => format!(
-                    "{open}: the experts' mean + {} spread{})",
+            let info = metric_info(&d.metric)?;
+            // A deduction against the expert benchmark says where its free amount came from
+            // (also when that amount is 0, which a plain deduction does not mention).
+            Some(match (&d.relative, d.free) {
+                (Some(r), Some(free)) => format!(
+                    "−{} for {} ({} free: the experts' mean + {} spread{})",
+                    num(d.points),
+                    info.phrase(d.value),
+                    info.amount(free),
                     num(r.spreads),
                     if r.spreads == 1.0 { "" } else { "s" }
                 ),
-                _ => phrase,
+                _ => info.deduction(d.value, d.points, d.free),
             })
         })
         .collect();

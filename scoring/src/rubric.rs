@@ -122,6 +122,9 @@ pub const PUNCTURE_METRICS: &[&str] = &[
     "guided_mean_deviation_mm",
 ];
 
+/// Metrics where more is better: a deduction "above the experts" makes no sense for them.
+pub const HIGHER_IS_BETTER: &[&str] = &["intercostal_spaces_found", "palpation_coverage", "good_contact_time_s"];
+
 /// Metric names a palpation rubric may use.
 pub const PALPATION_METRICS: &[&str] = &[
     "intercostal_spaces_found",
@@ -245,6 +248,14 @@ pub struct GradeBenchmark {
     pub min_experts: u32,
     /// Whether they applied (`experts ≥ min_experts`).
     pub applied: bool,
+    /// The expert sessions (ids, sorted) it was measured against, when it applied.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub references: Vec<String>,
+    /// The experts' figures of every metric the level's relative deductions use, when it applied
+    /// (a rule that cost nothing is recorded too): with `references`, the grade can be checked
+    /// and recomputed whatever is marked later.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub figures: Vec<crate::benchmark::MetricBenchmark>,
 }
 
 /// A requirement the session did not meet.
@@ -343,9 +354,15 @@ fn check_levels(levels: &BTreeMap<String, Level>, exercise: Exercise, at: &str) 
             for v in [d.spreads, d.points].iter().chain(&d.max_points) {
                 finite(*v, &format!("levels.{name}: relative deduction on '{}'", d.metric))?;
             }
-            if d.points < 0.0 || d.spreads < 0.0 {
+            if d.points < 0.0 || d.spreads < 0.0 || d.max_points.is_some_and(|m| m < 0.0) {
                 return Err(format!(
-                    "levels.{name}: relative deduction on '{}' has negative points or spreads",
+                    "levels.{name}: relative deduction on '{}' has negative points, spreads or max_points",
+                    d.metric
+                ));
+            }
+            if HIGHER_IS_BETTER.contains(&d.metric.as_str()) {
+                return Err(format!(
+                    "levels.{name}: a relative deduction on '{}' would cost points for doing better than the experts (more is better for it)",
                     d.metric
                 ));
             }
@@ -517,10 +534,22 @@ impl Rubric {
         let graded_benchmark = match (&self.benchmark, level.relative.is_empty()) {
             (Some(rb), false) => {
                 let experts = benchmark.map_or(0, |b| b.experts.len()) as u32;
+                let applied = experts >= rb.min_experts;
+                let used = benchmark.filter(|_| applied);
                 Some(GradeBenchmark {
                     experts,
                     min_experts: rb.min_experts,
-                    applied: experts >= rb.min_experts,
+                    applied,
+                    references: used.map(|b| b.experts.clone()).unwrap_or_default(),
+                    figures: used
+                        .map(|b| {
+                            level
+                                .relative
+                                .iter()
+                                .filter_map(|d| b.figure(&d.metric).cloned())
+                                .collect()
+                        })
+                        .unwrap_or_default(),
                 })
             }
             _ => None,
@@ -630,7 +659,9 @@ mod tests {
             Some(GradeBenchmark {
                 experts: 0,
                 min_experts: 3,
-                applied: false
+                applied: false,
+                references: Vec::new(),
+                figures: Vec::new(),
             })
         );
         assert!(alone.deductions.iter().all(|d| d.relative.is_none()));
@@ -654,7 +685,11 @@ mod tests {
         let g = r
             .grade_against(&trainee, Exercise::Puncture, "expert", Some(&three))
             .unwrap();
-        assert!(g.benchmark.as_ref().unwrap().applied);
+        let gb = g.benchmark.as_ref().unwrap();
+        assert!(gb.applied);
+        assert_eq!(gb.references, ["e0", "e1", "e2"]);
+        let recorded: Vec<&str> = gb.figures.iter().map(|f| f.metric.as_str()).collect();
+        assert_eq!(recorded, ["time_total_s", "fluoro_time_s", "tissue_damage_mm2"]);
         // Mean 120 s, spread 20 s: 60 s above 140 s at 0.1 points = 6; fluoroscopy equals the
         // experts' (spread 0) and costs nothing.
         let rel: Vec<&Applied> = g.deductions.iter().filter(|d| d.relative.is_some()).collect();
@@ -705,7 +740,7 @@ mod tests {
             (base.replace("[benchmark]\nmin_experts = 3\n", ""), "need a [benchmark]"),
             (
                 base.replacen("spreads = 2,", "spreads = -2,", 1),
-                "negative points or spreads",
+                "negative points, spreads or max_points",
             ),
             ("name = ".to_string(), "line 1"),
         ];

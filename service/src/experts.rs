@@ -21,7 +21,8 @@ use super::api::{Actor, ApiError, Reader, err, reviewable, visible_session};
 use super::store::{ExpertReference, Marked, SessionRow, SessionStatus, StoreError, User};
 
 /// The benchmark of `scenario` on the atlas `atlas_hash` and the references it comes from
-/// (references whose report cannot be read are left out and logged).
+/// (references whose report cannot be read, or was scored by another physics version, are left
+/// out and logged): the one list the grades, the review and the expert corridor use.
 pub async fn benchmark(
     s: &AppState,
     atlas_hash: &str,
@@ -36,9 +37,12 @@ pub async fn benchmark(
     let mut references = Vec::new();
     for (reference, json) in rows {
         match json.as_deref().map(serde_json::from_str::<ScoreReport>) {
-            Some(Ok(report)) => {
+            Some(Ok(report)) if report.physics_version == stylet_physics::PHYSICS_VERSION => {
                 reports.push((reference.session_id.clone(), report));
                 references.push(reference);
+            }
+            Some(Ok(_)) => {
+                tracing::info!(session = %reference.session_id, "an expert reference scored by another physics version; left out of the benchmark")
             }
             _ => {
                 tracing::warn!(session = %reference.session_id, "an expert reference has no readable score; left out of the benchmark")
@@ -48,6 +52,39 @@ pub async fn benchmark(
     let metrics: Vec<(String, &stylet_scoring::Metrics)> =
         reports.iter().map(|(id, r)| (id.clone(), &r.metrics)).collect();
     Ok((Benchmark::from_sessions(scenario, exercise, &metrics), references))
+}
+
+/// Fewer references than this are one or two named people's metrics, not a benchmark: a trainee
+/// sees the figures (and the corridor) only from this many on; staff always do.
+pub const MIN_SHOWN_TO_TRAINEES: usize = 3;
+
+/// Whether `user` sees the figures of a benchmark of `experts` references.
+pub fn figures_shown(user: &User, experts: usize) -> bool {
+    user.role.as_str() != "trainee" || experts >= MIN_SHOWN_TO_TRAINEES
+}
+
+/// The references `user` may know by name: all of them for curriculum staff and admins, those of
+/// an instructor's own trainees, none for a trainee (`None`: they learn only how many there are).
+pub async fn visible_references(
+    s: &AppState,
+    user: &User,
+    references: &[ExpertReference],
+) -> Result<Option<Vec<ExpertReference>>, StoreError> {
+    match user.role.as_str() {
+        "trainee" => Ok(None),
+        "instructor" => {
+            let mut mine = Vec::new();
+            for r in references {
+                if let Some((_, trainee_id)) = s.store.session(&r.session_id).await?
+                    && s.store.teaches(&user.id, &trainee_id).await?
+                {
+                    mine.push(r.clone());
+                }
+            }
+            Ok(Some(mine))
+        }
+        _ => Ok(Some(references.to_vec())),
+    }
 }
 
 /// A short name for a set of references (the first 12 hex digits of the SHA-256 of their sorted
@@ -149,16 +186,18 @@ pub async fn get(
                     "spreads_from_mean": c.spreads_from_mean() })
         })
         .collect();
+    let n = bench.experts.len();
+    let shown = figures_shown(&user, n);
     let mut v = json!({
         "scenario": bench.scenario,
         "exercise": bench.exercise,
-        "experts": bench.experts.len(),
-        "metrics": bench.metrics,
+        "experts": n,
+        "metrics": if shown { json!(bench.metrics) } else { json!([]) },
         "expert": references.iter().any(|r| r.session_id == id),
-        "comparison": comparison,
+        "comparison": if shown { json!(comparison) } else { json!([]) },
     });
-    if user.role.as_str() != "trainee" {
-        v["references"] = json!(references);
+    if let Some(visible) = visible_references(&s, &user, &references).await? {
+        v["references"] = json!(visible);
     }
     Ok(Json(v).into_response())
 }

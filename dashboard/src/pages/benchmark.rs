@@ -32,8 +32,11 @@ pub struct BenchmarkView<'a> {
     pub level: Option<&'a Level>,
     /// May mark and unmark (the session's instructors, admins).
     pub reviewer: bool,
-    /// May see who the references are (staff).
-    pub staff: bool,
+    /// The references the viewer may know by name (`None` for a trainee).
+    pub listed: Option<&'a [ExpertReference]>,
+    /// Whether the viewer sees the figures (a trainee only from
+    /// `stylet_service::experts::MIN_SHOWN_TO_TRAINEES` references on).
+    pub figures_shown: bool,
 }
 
 /// Whether a comparison lies far from the experts: more than [`MARK_SPREADS`] spreads from
@@ -89,7 +92,9 @@ pub fn block(v: &Viewer, b: &BenchmarkView) -> Markup {
                 Some(g) => p.muted #benchmark-grading { "The rubric grades this level against the expert benchmark once the scenario has " (g.min_experts) " expert references; it had " (g.experts) " when this session was scored, so no relative deduction applied." },
                 None => {}
             }
-            @if n == 0 {
+            @if n > 0 && !b.figures_shown {
+                p.muted #benchmark-none { "Scenario '" (b.report.scenario) "' has " (n) " expert reference" @if n != 1 { "s" } " so far; its benchmark is shown from " (stylet_service::experts::MIN_SHOWN_TO_TRAINEES) " on." }
+            } @else if n == 0 {
                 p.muted #benchmark-none { "No expert references for scenario '" (b.report.scenario) "' yet. An instructor marks sessions that show how experts do it; their mean and spread per metric become the benchmark." }
             } @else {
                 p.muted { "Expert mean ± spread (sample standard deviation) of " (n) " expert reference" @if n != 1 { "s" } " of '" (b.report.scenario) "' on this atlas, now. The mean is the proficiency level; rows more than " (num(MARK_SPREADS)) " spreads from it are marked." }
@@ -109,12 +114,13 @@ pub fn block(v: &Viewer, b: &BenchmarkView) -> Markup {
                         }
                     } }
                 }
-                @if b.staff {
+                @if let Some(listed) = b.listed {
                     p.muted #expert-references { "Expert references: "
-                        @for (k, r) in b.references.iter().enumerate() {
+                        @for (k, r) in listed.iter().enumerate() {
                             @if k > 0 { ", " }
                             a href={ "/sessions/" (r.session_id) } { (r.trainee) " (" (short_time(&r.marked_at)) ")" }
                         }
+                        @if listed.len() < n { @if !listed.is_empty() { "; " } (n - listed.len()) " of other cohorts" }
                     }
                 }
             }

@@ -131,8 +131,13 @@ pub async fn review(
         .filter(|ru| ru.name == report.grade.rubric && ru.version == report.grade.rubric_version)
         .and_then(|ru| ru.level(report.exercise, &report.grade.difficulty));
     let (benchmark, references) = stylet_service::experts::benchmark(&s, &row.atlas_hash, &row.scenario).await?;
-    let corridor_key = stylet_service::experts::references_key(&references);
+    let corridor_key = if stylet_service::experts::figures_shown(&v.user, references.len()) {
+        stylet_service::experts::references_key(&references)
+    } else {
+        "none".to_string()
+    };
     let overview = crate::player::overview::block(&row, q.turn.unwrap_or(0), &corridor_key, references.len());
+    let listed = stylet_service::experts::visible_references(&s, &v.user, &references).await?;
     let benchmark = crate::pages::benchmark::block(
         &v,
         &crate::pages::benchmark::BenchmarkView {
@@ -142,7 +147,8 @@ pub async fn review(
             references: &references,
             level,
             reviewer,
-            staff: v.role() != "trainee",
+            listed: listed.as_deref(),
+            figures_shown: stylet_service::experts::figures_shown(&v.user, references.len()),
         },
     );
     let body = html! {
@@ -618,7 +624,8 @@ pub async fn slices(State(s): State<Arc<AppState>>, v: Viewer, Path(id): Path<St
     let row = visible_session(&s, &v, &id).await?;
     require_scored(&row)?;
     let title = format!("{} — {} ({}), tip path", row.trainee, row.scenario, row.difficulty);
-    figure_response(&s, &row, Figure::TipPath, &title).await
+    let corridor = crate::player::overview::expert_corridor(&s, &v.user, &row.atlas_hash, &row.scenario).await?;
+    figure_response(&s, &row, Figure::TipPath, &title, corridor).await
 }
 
 /// `GET /sessions/{id}/hits/{n}/slices.png`: axial and coronal slices through the point where the
@@ -636,10 +643,16 @@ pub async fn hit_slices(
         .filter(|n| (1..=1000).contains(n))
         .ok_or_else(|| fail(StatusCode::NOT_FOUND, format!("no risk hit {n}")))?;
     let title = format!("{} — {} ({}), risk hit {n}", row.trainee, row.scenario, row.difficulty);
-    figure_response(&s, &row, Figure::Hit(n - 1), &title).await
+    figure_response(&s, &row, Figure::Hit(n - 1), &title, (None, String::new())).await
 }
 
-async fn figure_response(s: &AppState, row: &SessionRow, figure: Figure, title: &str) -> Result<Response, PageError> {
+async fn figure_response(
+    s: &AppState,
+    row: &SessionRow,
+    figure: Figure,
+    title: &str,
+    corridor: (Option<Arc<stylet_render::corridor::Corridor>>, String),
+) -> Result<Response, PageError> {
     let report: ScoreReport = row
         .score
         .clone()
@@ -650,7 +663,7 @@ async fn figure_response(s: &AppState, row: &SessionRow, figure: Figure, title: 
                 "the stored score report cannot be read",
             )
         })?;
-    let png = crate::figures::session_figure(s, &row.file_sha256, &row.atlas_hash, &report, figure, title)
+    let png = crate::figures::session_figure(s, &row.file_sha256, &row.atlas_hash, &report, figure, title, corridor)
         .await
         .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e))?
         .ok_or_else(|| fail(StatusCode::NOT_FOUND, "the session has no such risk hit"))?;

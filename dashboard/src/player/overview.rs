@@ -34,16 +34,23 @@ const CACHED_CORRIDORS: usize = 32;
 type CorridorCache = BTreeMap<String, Option<Arc<Corridor>>>;
 static CORRIDORS: Mutex<CorridorCache> = Mutex::new(BTreeMap::new());
 
-/// The expert corridor of `scenario` on the atlas `atlas_hash` and the key of its references
-/// (`"none"` without any): the final approaches of the references' review traces (references
-/// whose trace cannot be had are left out and logged).
+/// The expert corridor of `scenario` on the atlas `atlas_hash` as `user` may see it, and the key
+/// of what it was drawn from (`"none"`: no corridor): the final approaches of the benchmark's
+/// references (`stylet_service::experts::benchmark`, the list the review uses), from their review
+/// traces on disk. A trace missing from disk is rebuilt in the background (one page replay at a
+/// time) and the corridor drawn without it meanwhile, under a key of its own that is neither
+/// kept in memory nor reused once the trace is back: a request never waits for replays.
 pub async fn expert_corridor(
-    s: &AppState,
+    s: &Arc<AppState>,
+    user: &stylet_service::store::User,
     atlas_hash: &str,
     scenario: &str,
 ) -> Result<(Option<Arc<Corridor>>, String), PageError> {
-    let references = s.store.expert_references(atlas_hash, scenario).await?;
-    let key = stylet_service::experts::references_key(&references.iter().map(|(r, _)| r.clone()).collect::<Vec<_>>());
+    let (_, references) = stylet_service::experts::benchmark(s, atlas_hash, scenario).await?;
+    if references.is_empty() || !stylet_service::experts::figures_shown(user, references.len()) {
+        return Ok((None, "none".into()));
+    }
+    let key = stylet_service::experts::references_key(&references);
     let cache_key = format!("{atlas_hash}|{scenario}|{key}");
     if let Some(c) = CORRIDORS
         .lock()
@@ -53,15 +60,28 @@ pub async fn expert_corridor(
         return Ok((c.clone(), key));
     }
     let mut paths = Vec::new();
-    for (r, _) in &references {
-        match review_trace(s, &r.file_sha256, atlas_hash).await {
-            Ok(trace) => paths.extend(trace.final_approach()),
-            Err(e) => {
-                tracing::warn!(session = %r.session_id, error = %e, "an expert reference's path is left out of the corridor")
+    for r in &references {
+        let file = stylet_service::traces::trace_path(&s.config.data_dir, &r.file_sha256);
+        let trace = tokio::task::spawn_blocking(move || stylet_service::traces::read_trace(&file))
+            .await
+            .map_err(|e| internal(e.to_string()))?;
+        match trace {
+            Some(trace) => paths.extend(trace.final_approach()),
+            None => {
+                tracing::info!(session = %r.session_id, "an expert reference's trace is rebuilt; the corridor is drawn without it meanwhile");
+                let (s, sha, atlas) = (Arc::clone(s), r.file_sha256.clone(), atlas_hash.to_string());
+                tokio::spawn(async move {
+                    if let Err(e) = review_trace(&s, &sha, &atlas).await {
+                        tracing::warn!(error = %e, "cannot rebuild an expert reference's trace");
+                    }
+                });
             }
         }
     }
     let corridor = Corridor::from_paths(&paths).map(Arc::new);
+    if paths.len() < references.len() {
+        return Ok((corridor, format!("{key}-partial{}", paths.len())));
+    }
     let mut cache = CORRIDORS.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     if cache.len() >= CACHED_CORRIDORS {
         cache.clear();
@@ -127,7 +147,7 @@ pub async fn frame(
             ),
         ));
     }
-    let (corridor, key) = expert_corridor(&s, &row.atlas_hash, &row.scenario).await?;
+    let (corridor, key) = expert_corridor(&s, &v.user, &row.atlas_hash, &row.scenario).await?;
     let cache = frame_cache(&s);
     let (w, h) = OVERVIEW_SIZE;
     let path = cache.overview_path(&row.file_sha256, q.frame, &key, w, h);

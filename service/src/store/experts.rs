@@ -61,8 +61,11 @@ impl Store {
             tx.rollback().await?;
             return Ok(Marked::Full);
         }
-        sqlx::query(
-            "INSERT INTO expert_references (session_id, atlas_hash, scenario, marked_by, marked_at) VALUES ($1, $2, $3, $4, $5)",
+        // Two marks of one session at once (PostgreSQL reads committed rows only): the second
+        // inserts nothing and changes nothing.
+        let inserted = sqlx::query(
+            "INSERT INTO expert_references (session_id, atlas_hash, scenario, marked_by, marked_at) VALUES ($1, $2, $3, $4, $5) \
+             ON CONFLICT (session_id) DO NOTHING",
         )
         .bind(session_id.to_string())
         .bind(atlas_hash)
@@ -70,7 +73,12 @@ impl Store {
         .bind(actor.id.clone())
         .bind(now())
         .execute(&mut *tx)
-        .await?;
+        .await?
+        .rows_affected();
+        if inserted == 0 {
+            tx.rollback().await?;
+            return Ok(Marked::Already);
+        }
         audit_in(
             &mut tx,
             &actor.id,

@@ -93,7 +93,7 @@ pub struct FigureSpec {
     /// Planned paths (entry, target in world mm), dashed orange, with their names.
     pub planned: Vec<(String, DVec3, DVec3)>,
     pub mark: Option<Mark>,
-    /// The expert corridor, a translucent green band projected onto every plane.
+    /// The expert corridor, a translucent white band projected onto every plane.
     pub corridor: Option<Corridor>,
 }
 
