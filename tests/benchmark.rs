@@ -10,10 +10,10 @@ mod common;
 
 use std::path::Path;
 
-use common::browser::{Driver, chromium, log_in};
+use common::browser::{Driver, chromium, get_bytes, js, log_in, until};
 use common::*;
-use fantoccini::{Client, Locator};
-use serde_json::{Value, json};
+use fantoccini::Locator;
+use serde_json::Value;
 
 #[test]
 fn experts_mark_and_the_benchmark_grades_sqlite() {
@@ -348,23 +348,7 @@ fn experts_mark_and_the_benchmark_grades(db: Db, tag: &str) {
 
     // The 3D overview's turntable: a frame per 30°, drawn with the corridor of the three; the
     // tip-path slices with it too. Written for a person to look at.
-    let png = |who: &Auth, path: &str| {
-        let Auth::Cookie { token, .. } = who else {
-            unreachable!()
-        };
-        let resp = match ureq::get(&format!("{b}{path}"))
-            .set("Cookie", &format!("stylet_session={token}"))
-            .call()
-        {
-            Ok(r) => r,
-            Err(ureq::Error::Status(_, r)) => r,
-            Err(e) => panic!("{e}"),
-        };
-        let status = resp.status();
-        let mut body = Vec::new();
-        std::io::Read::read_to_end(&mut resp.into_reader(), &mut body).unwrap();
-        (status, body)
-    };
+    let png = |who: &Auth, path: &str| get_bytes(&format!("{b}{path}"), who);
     let shots = Path::new(env!("CARGO_TARGET_TMPDIR"))
         .join("browser-screenshots")
         .join(tag);
@@ -427,20 +411,6 @@ fn experts_mark_and_the_benchmark_grades(db: Db, tag: &str) {
     assert_eq!(targets(&marks), [ids[0], ids[1], ids[2], ids[2]]);
     assert_eq!(targets(&unmarks), [ids[2], ids[1]]);
     assert!(marks.iter().chain(&unmarks).all(|(who, _)| who == "ivan"));
-}
-
-async fn js(c: &Client, script: &str) -> Value {
-    c.execute(script, vec![]).await.unwrap()
-}
-
-async fn until(c: &Client, what: &str, script: &str) {
-    for _ in 0..300 {
-        if js(c, &format!("return !!({script})")).await == json!(true) {
-            return;
-        }
-        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
-    }
-    panic!("{what}: `{script}` never became true");
 }
 
 fn turn_the_overview(base: &str, id: &str, shots: &Path) {

@@ -10,10 +10,10 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use common::browser::{Driver, chromium, log_in};
+use common::browser::{Driver, chromium, get_bytes, js, log_in, until};
 use common::*;
 use fantoccini::{Client, Locator};
-use serde_json::{Value, json};
+use serde_json::json;
 
 #[test]
 fn an_instructor_plays_and_seeks_the_replay_sqlite() {
@@ -29,38 +29,6 @@ fn shots() -> PathBuf {
     let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join("browser-screenshots");
     std::fs::create_dir_all(&d).unwrap();
     d
-}
-
-/// A GET's status and body bytes.
-fn get_bytes(url: &str, auth: &Auth) -> (u16, Vec<u8>) {
-    let Auth::Cookie { token, .. } = auth else {
-        panic!("a login cookie")
-    };
-    let resp = match ureq::get(url).set("Cookie", &format!("stylet_session={token}")).call() {
-        Ok(r) => r,
-        Err(ureq::Error::Status(_, r)) => r,
-        Err(e) => panic!("GET {url}: {e}"),
-    };
-    let status = resp.status();
-    let mut body = Vec::new();
-    std::io::Read::read_to_end(&mut resp.into_reader(), &mut body).unwrap();
-    (status, body)
-}
-
-/// Runs a script in the page and returns its value.
-async fn js(c: &Client, script: &str) -> Value {
-    c.execute(script, vec![]).await.unwrap()
-}
-
-/// Waits until `script` (an expression) is true in the page.
-async fn until(c: &Client, what: &str, script: &str) {
-    for _ in 0..300 {
-        if js(c, &format!("return !!({script})")).await == json!(true) {
-            return;
-        }
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
-    panic!("{what}: `{script}` never became true");
 }
 
 async fn shown_tick(c: &Client) -> u64 {

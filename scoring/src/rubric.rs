@@ -294,6 +294,12 @@ pub struct Grade {
     pub benchmark: Option<GradeBenchmark>,
 }
 
+/// The points a deduction takes: `points` per unit of `value` above `free`, at most `max_points`.
+fn deducted(value: f64, free: f64, points: f64, max_points: Option<f64>) -> f64 {
+    let p = (value - free).max(0.0) * points;
+    max_points.map_or(p, |cap| p.min(cap))
+}
+
 /// Checks the levels of one exercise: all three present, pass marks in 0…100, known metrics,
 /// finite numbers, no negative points. `at` names the table in messages.
 fn check_levels(levels: &BTreeMap<String, Level>, exercise: Exercise, at: &str) -> Result<(), String> {
@@ -517,10 +523,7 @@ impl Rubric {
         let mut deductions = Vec::new();
         for d in &level.deduct {
             let v = value(&d.metric);
-            let mut points = (v - d.free).max(0.0) * d.points;
-            if let Some(cap) = d.max_points {
-                points = points.min(cap);
-            }
+            let points = deducted(v, d.free, d.points, d.max_points);
             if points > 0.0 {
                 deductions.push(Applied {
                     metric: d.metric.clone(),
@@ -561,10 +564,7 @@ impl Rubric {
                 let Some(f) = bench.figure(&d.metric) else { continue };
                 let v = value(&d.metric);
                 let free = f.mean + d.spreads * f.spread;
-                let mut points = (v - free).max(0.0) * d.points;
-                if let Some(cap) = d.max_points {
-                    points = points.min(cap);
-                }
+                let points = deducted(v, free, d.points, d.max_points);
                 if points > 0.0 {
                     deductions.push(Applied {
                         metric: d.metric.clone(),

@@ -145,3 +145,35 @@ pub async fn log_in(c: &Client, base: &str, user: &str) {
         .await
         .unwrap_or_else(|e| panic!("{user} is not logged in: {e}"));
 }
+
+/// A GET's status and body bytes.
+pub fn get_bytes(url: &str, auth: &super::Auth) -> (u16, Vec<u8>) {
+    let super::Auth::Cookie { token, .. } = auth else {
+        panic!("a login cookie")
+    };
+    let resp = match ureq::get(url).set("Cookie", &format!("stylet_session={token}")).call() {
+        Ok(r) => r,
+        Err(ureq::Error::Status(_, r)) => r,
+        Err(e) => panic!("GET {url}: {e}"),
+    };
+    let status = resp.status();
+    let mut body = Vec::new();
+    std::io::Read::read_to_end(&mut resp.into_reader(), &mut body).unwrap();
+    (status, body)
+}
+
+/// Runs a script in the page and returns its value.
+pub async fn js(c: &Client, script: &str) -> Value {
+    c.execute(script, vec![]).await.unwrap()
+}
+
+/// Waits until `script` (an expression) is true in the page.
+pub async fn until(c: &Client, what: &str, script: &str) {
+    for _ in 0..300 {
+        if js(c, &format!("return !!({script})")).await == json!(true) {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    panic!("{what}: `{script}` never became true");
+}

@@ -259,16 +259,9 @@ pub async fn frame(
         ));
     }
     let drawing = drawing(&s, &row.atlas_hash).await?;
-    let turn = match tokio::time::timeout(DRAW_WAIT, Arc::clone(&DRAWING).acquire_owned()).await {
-        Ok(turn) => turn.map_err(|e| internal(e.to_string()))?,
-        Err(_) => {
-            return Ok((
-                StatusCode::SERVICE_UNAVAILABLE,
-                [(header::RETRY_AFTER, "2")],
-                "the server is busy drawing frames; try again in a moment",
-            )
-                .into_response());
-        }
+    let turn = match draw_turn().await? {
+        Ok(turn) => turn,
+        Err(busy) => return Ok(busy),
     };
     let tick = q.tick;
     let png = tokio::task::spawn_blocking(move || -> Result<Option<Vec<u8>>, String> {
@@ -290,6 +283,20 @@ pub async fn frame(
     .map_err(internal)?
     .ok_or_else(|| fail(StatusCode::NOT_FOUND, format!("tick {tick} cannot be replayed")))?;
     Ok(png_response(png))
+}
+
+/// A turn to draw a frame, waited for at most [`DRAW_WAIT`]; `Err` holds the 503 to answer when
+/// the server stayed busy.
+async fn draw_turn() -> Result<Result<tokio::sync::OwnedSemaphorePermit, Response>, PageError> {
+    match tokio::time::timeout(DRAW_WAIT, Arc::clone(&DRAWING).acquire_owned()).await {
+        Ok(turn) => Ok(Ok(turn.map_err(|e| internal(e.to_string()))?)),
+        Err(_) => Ok(Err((
+            StatusCode::SERVICE_UNAVAILABLE,
+            [(header::RETRY_AFTER, "2")],
+            "the server is busy drawing frames; try again in a moment",
+        )
+            .into_response())),
+    }
 }
 
 fn png_response(png: Vec<u8>) -> Response {

@@ -12,8 +12,8 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 
 use axum::extract::{Path, Query, State};
-use axum::http::{StatusCode, header};
-use axum::response::{IntoResponse, Response};
+use axum::http::StatusCode;
+use axum::response::Response;
 use maud::{Markup, html};
 use stylet_render::corridor::Corridor;
 use stylet_render::overview::{self, OverviewSpec, PathRegion};
@@ -22,7 +22,7 @@ use stylet_service::AppState;
 use stylet_service::store::SessionRow;
 use stylet_service::traces::review_trace;
 
-use super::{DRAW_WAIT, DRAWING, drawing, frame_cache, internal};
+use super::{draw_turn, drawing, frame_cache, internal, png_response};
 use crate::auth::{PageError, Viewer, fail};
 use crate::pages::review::{require_scored, visible_session};
 
@@ -128,7 +128,7 @@ pub struct OverviewQuery {
 
 /// `GET /sessions/{id}/overview?frame=N` (0 … 11, 30° apart): a frame of the turntable of a
 /// scored session the viewer may see (404 otherwise, 409 while it is being scored; 503 when the
-/// server has been busy drawing for [`DRAW_WAIT`]).
+/// server has been busy drawing for [`super::DRAW_WAIT`]).
 pub async fn frame(
     State(s): State<Arc<AppState>>,
     v: Viewer,
@@ -165,16 +165,9 @@ pub async fn frame(
             "the session's atlas is not loaded on this server",
         )
     })?;
-    let turn = match tokio::time::timeout(DRAW_WAIT, Arc::clone(&DRAWING).acquire_owned()).await {
-        Ok(turn) => turn.map_err(|e| internal(e.to_string()))?,
-        Err(_) => {
-            return Ok((
-                StatusCode::SERVICE_UNAVAILABLE,
-                [(header::RETRY_AFTER, "2")],
-                "the server is busy drawing frames; try again in a moment",
-            )
-                .into_response());
-        }
+    let turn = match draw_turn().await? {
+        Ok(turn) => turn,
+        Err(busy) => return Ok(busy),
     };
     let frame = q.frame;
     let png = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, String> {
@@ -206,17 +199,6 @@ fn report_of(row: &SessionRow) -> Result<ScoreReport, PageError> {
         .clone()
         .and_then(|r| serde_json::from_value(r).ok())
         .ok_or_else(|| internal("the stored score report cannot be read"))
-}
-
-fn png_response(png: Vec<u8>) -> Response {
-    (
-        [
-            (header::CONTENT_TYPE, "image/png"),
-            (header::CACHE_CONTROL, "private, max-age=3600"),
-        ],
-        png,
-    )
-        .into_response()
 }
 
 /// The overview's block on the review: frame `turn` (the page's `?turn=`, default 0) with links
