@@ -44,10 +44,7 @@ struct Params {
     inv0: vec4<f32>,         // CT IndexMap: c = rows . (x - origin)
     inv1: vec4<f32>,
     inv2: vec4<f32>,
-    origin: vec4<f32>,       // w 1/(2h), h = min spacing / 2
-    grad0: vec4<f32>,        // CT index offsets of +h along the world axes
-    grad1: vec4<f32>,
-    grad2: vec4<f32>,
+    origin: vec4<f32>,
     dims: vec4<u32>,         // CT voxels, w occupancy cells N
     occ_scale: vec4<f32>,    // N / n_a
     occ_size: vec4<f32>,     // n_a / N
@@ -63,9 +60,6 @@ struct Params {
     def_inv1: vec4<f32>,
     def_inv2: vec4<f32>,
     def_origin: vec4<f32>,
-    def_grad0: vec4<f32>,    // J index offsets of +h along the world axes
-    def_grad1: vec4<f32>,
-    def_grad2: vec4<f32>,
     def_dims: vec4<u32>,
     needle_tip: vec4<f32>,   // needle shadow (Alg. 3.1): tip
     needle_back: vec4<f32>,  // unit direction tip -> hub
@@ -215,13 +209,95 @@ fn s(at: At) -> f32 {
     return select(AIR_HU, v.v, v.ok);
 }
 
-// Gradient of s by central differences at +-h along the world axes (HU/mm).
+// --- Gradient (sampler.rs `Sampler::gradient`, gradient_volume.rs) --------------------------
+// The central differences D_a = I(p + e_a) - I(p - e_a) of the eight voxels a trilinear read
+// uses, blended in the trilinear order, then grad s = sum_a D_a (rows_a / 2) in the world. The CPU
+// reads the CT's differences from its precomputed records; here they are formed on the fly
+// from the same voxels with the same subtraction, so both see the same numbers.
+
+// CT voxel p, air beyond the grid (Edge::Air: the CT box's faces are surfaces).
+fn ct_or_air(p: vec3<i32>) -> f32 {
+    if any(p < vec3<i32>(0)) || any(p >= vec3<i32>(P.dims.xyz)) {
+        return AIR_HU;
+    }
+    return ct_voxel(p);
+}
+
+fn ct_diff(p: vec3<i32>) -> vec3<f32> {
+    let ex = vec3<i32>(1, 0, 0);
+    let ey = vec3<i32>(0, 1, 0);
+    let ez = vec3<i32>(0, 0, 1);
+    return vec3<f32>(
+        ct_or_air(p + ex) - ct_or_air(p - ex),
+        ct_or_air(p + ey) - ct_or_air(p - ey),
+        ct_or_air(p + ez) - ct_or_air(p - ez),
+    );
+}
+
+// J's voxel p, the nearest voxel beyond its grid (Edge::Clamp: J continues into the CT).
+fn def_clamped(p: vec3<i32>) -> f32 {
+    return def_voxel(clamp(p, vec3<i32>(0), vec3<i32>(P.def_dims.xyz) - vec3<i32>(1)));
+}
+
+fn def_diff(p: vec3<i32>) -> vec3<f32> {
+    let ex = vec3<i32>(1, 0, 0);
+    let ey = vec3<i32>(0, 1, 0);
+    let ez = vec3<i32>(0, 0, 1);
+    return vec3<f32>(
+        def_clamped(p + ex) - def_clamped(p - ex),
+        def_clamped(p + ey) - def_clamped(p - ey),
+        def_clamped(p + ez) - def_clamped(p - ez),
+    );
+}
+
+struct Diff {
+    ok: bool,
+    d: vec3<f32>,
+}
+
+fn ct_differences(c: vec3<f32>) -> Diff {
+    let l = lerp_setup(c, P.dims.xyz);
+    if !l.ok {
+        return Diff(false, vec3<f32>(0.0));
+    }
+    let g = vec3<f32>(1.0) - l.f;
+    let c00 = ct_diff(vec3<i32>(l.i0.x, l.i0.y, l.i0.z)) * g.x + ct_diff(vec3<i32>(l.i1.x, l.i0.y, l.i0.z)) * l.f.x;
+    let c10 = ct_diff(vec3<i32>(l.i0.x, l.i1.y, l.i0.z)) * g.x + ct_diff(vec3<i32>(l.i1.x, l.i1.y, l.i0.z)) * l.f.x;
+    let c01 = ct_diff(vec3<i32>(l.i0.x, l.i0.y, l.i1.z)) * g.x + ct_diff(vec3<i32>(l.i1.x, l.i0.y, l.i1.z)) * l.f.x;
+    let c11 = ct_diff(vec3<i32>(l.i0.x, l.i1.y, l.i1.z)) * g.x + ct_diff(vec3<i32>(l.i1.x, l.i1.y, l.i1.z)) * l.f.x;
+    let c0 = c00 * g.y + c10 * l.f.y;
+    let c1 = c01 * g.y + c11 * l.f.y;
+    return Diff(true, c0 * g.z + c1 * l.f.z);
+}
+
+fn def_differences(c: vec3<f32>) -> Diff {
+    let l = lerp_setup(c, P.def_dims.xyz);
+    if !l.ok {
+        return Diff(false, vec3<f32>(0.0));
+    }
+    let g = vec3<f32>(1.0) - l.f;
+    let c00 = def_diff(vec3<i32>(l.i0.x, l.i0.y, l.i0.z)) * g.x + def_diff(vec3<i32>(l.i1.x, l.i0.y, l.i0.z)) * l.f.x;
+    let c10 = def_diff(vec3<i32>(l.i0.x, l.i1.y, l.i0.z)) * g.x + def_diff(vec3<i32>(l.i1.x, l.i1.y, l.i0.z)) * l.f.x;
+    let c01 = def_diff(vec3<i32>(l.i0.x, l.i0.y, l.i1.z)) * g.x + def_diff(vec3<i32>(l.i1.x, l.i0.y, l.i1.z)) * l.f.x;
+    let c11 = def_diff(vec3<i32>(l.i0.x, l.i1.y, l.i1.z)) * g.x + def_diff(vec3<i32>(l.i1.x, l.i1.y, l.i1.z)) * l.f.x;
+    let c0 = c00 * g.y + c10 * l.f.y;
+    let c1 = c01 * g.y + c11 * l.f.y;
+    return Diff(true, c0 * g.z + c1 * l.f.z);
+}
+
+// grad s (HU/mm): J's differences inside Omega_J, else the CT's, else 0 (unshaded).
 fn gradient(at: At) -> vec3<f32> {
-    let inv_2h = P.origin.w;
-    let gx = s(At(at.ct + P.grad0.xyz, at.j + P.def_grad0.xyz)) - s(At(at.ct - P.grad0.xyz, at.j - P.def_grad0.xyz));
-    let gy = s(At(at.ct + P.grad1.xyz, at.j + P.def_grad1.xyz)) - s(At(at.ct - P.grad1.xyz, at.j - P.def_grad1.xyz));
-    let gz = s(At(at.ct + P.grad2.xyz, at.j + P.def_grad2.xyz)) - s(At(at.ct - P.grad2.xyz, at.j - P.def_grad2.xyz));
-    return vec3<f32>(gx * inv_2h, gy * inv_2h, gz * inv_2h);
+    if (P.image.z & F_DEFORMED) != 0u {
+        let d = def_differences(at.j);
+        if d.ok {
+            return (P.def_inv0.xyz * 0.5) * d.d.x + (P.def_inv1.xyz * 0.5) * d.d.y + (P.def_inv2.xyz * 0.5) * d.d.z;
+        }
+    }
+    let d = ct_differences(at.ct);
+    if !d.ok {
+        return vec3<f32>(0.0);
+    }
+    return (P.inv0.xyz * 0.5) * d.d.x + (P.inv1.xyz * 0.5) * d.d.y + (P.inv2.xyz * 0.5) * d.d.z;
 }
 
 // l(x): the label of the CT voxel nearest the sample, 0 outside (never interpolated).

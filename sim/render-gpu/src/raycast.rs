@@ -84,9 +84,6 @@ struct Params {
     inv1: [f32; 4],
     inv2: [f32; 4],
     origin: [f32; 4],
-    grad0: [f32; 4],
-    grad1: [f32; 4],
-    grad2: [f32; 4],
     dims: [u32; 4],
     occ_scale: [f32; 4],
     occ_size: [f32; 4],
@@ -102,9 +99,6 @@ struct Params {
     def_inv1: [f32; 4],
     def_inv2: [f32; 4],
     def_origin: [f32; 4],
-    def_grad0: [f32; 4],
-    def_grad1: [f32; 4],
-    def_grad2: [f32; 4],
     def_dims: [u32; 4],
     needle_tip: [f32; 4],
     needle_back: [f32; 4],
@@ -422,13 +416,6 @@ impl GpuRenderer {
         let q = scene.quality;
         let grid = vol.atlas.ct().grid();
         let m = IndexMap::of(grid);
-        let spacing = grid.spacing_mm();
-        let h_mm = (0.5 * spacing[0].min(spacing[1]).min(spacing[2])) as f32;
-        let axis = |m: &IndexMap, a: usize| {
-            let mut e = Vec3::ZERO;
-            e[a] = h_mm;
-            v4(m.vector(e), 0.0)
-        };
         let t_far = farthest_corner_mm(grid, cam.eye_mm);
         let occ = self.occupancy.as_ref().expect("occupancy is set before the parameters");
         let shadows = Shadows::from_tools(&scene.tools);
@@ -471,14 +458,13 @@ impl GpuRenderer {
             Tagging::Labels => 2,
         };
         let z = [0.0; 4];
-        let (def_inv, def_origin, def_grad, def_dims) = match &self.deformed {
+        let (def_inv, def_origin, def_dims) = match &self.deformed {
             Some(d) => (
                 d.map.rows.map(|r| v4(r, 0.0)),
                 v4(d.map.origin, 0.0),
-                [axis(&d.map, 0), axis(&d.map, 1), axis(&d.map, 2)],
                 [d.map.dims[0], d.map.dims[1], d.map.dims[2], 1],
             ),
-            None => ([z; 3], z, [z; 3], [1, 1, 1, 0]),
+            None => ([z; 3], z, [1, 1, 1, 0]),
         };
         let (needle_tip, needle_back, needle_dims) = match &shadows.needle {
             Some(n) => (
@@ -505,10 +491,7 @@ impl GpuRenderer {
             inv0: v4(m.rows[0], 0.0),
             inv1: v4(m.rows[1], 0.0),
             inv2: v4(m.rows[2], 0.0),
-            origin: v4(m.origin, 1.0 / (2.0 * h_mm)),
-            grad0: axis(&m, 0),
-            grad1: axis(&m, 1),
-            grad2: axis(&m, 2),
+            origin: v4(m.origin, 0.0),
             dims: [m.dims[0], m.dims[1], m.dims[2], occ.cells],
             occ_scale: v4(occ.scale, 0.0),
             occ_size: v4(occ.size, 0.0),
@@ -524,9 +507,6 @@ impl GpuRenderer {
             def_inv1: def_inv[1],
             def_inv2: def_inv[2],
             def_origin,
-            def_grad0: def_grad[0],
-            def_grad1: def_grad[1],
-            def_grad2: def_grad[2],
             def_dims,
             needle_tip,
             needle_back,

@@ -3,11 +3,12 @@
 //! depth), each label's tagging class and colour (eqs. 3.2.4–3.2.5), and the per-cell CT value
 //! ranges behind the occupancy grid of empty-space leaping (thesis §3.2.1).
 
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 
 use stylet_physics::atlas::AIR_HU;
 
 use crate::raycast::cube_mask::CubeMask;
+use crate::raycast::gradient_volume::GradientVolume;
 use crate::transfer_table::{TransferTable, VisibilityKey};
 use stylet_physics::glam::{DVec3, Vec3};
 use stylet_physics::{Grid, LabelId, PunctureAtlas, Role};
@@ -44,6 +45,8 @@ pub struct RenderVolume {
     cell_cache: Mutex<Vec<Arc<CellRanges>>>,
     /// Cube masks of the last few transfer-table visibilities (most recent last).
     cube_cache: Mutex<Vec<(VisibilityKey, Arc<CubeMask>)>>,
+    /// The CT's value and central differences per voxel, built by the first 3D frame.
+    gradients: OnceLock<Arc<GradientVolume>>,
 }
 
 /// World → continuous index of a grid in `f32`, c = M⁻¹(x − o): what both renderers use
@@ -156,6 +159,7 @@ impl RenderVolume {
             value_range_hu,
             cell_cache: Mutex::new(Vec::new()),
             cube_cache: Mutex::new(Vec::new()),
+            gradients: OnceLock::new(),
         }
     }
 
@@ -191,6 +195,18 @@ impl RenderVolume {
         }
         cache.push((key, mask.clone()));
         mask
+    }
+
+    /// The CT's records of value and central differences (the ray caster's samples and
+    /// gradients), built on first use: 8 bytes a voxel for an integer CT, else 16 (≈ 0.3 s and
+    /// 280 MB for a 512 × 512 × 133 CT on 2 cores). Slices, X-ray and ultrasound never build it.
+    pub fn gradient_volume(&self) -> Arc<GradientVolume> {
+        self.gradients
+            .get_or_init(|| {
+                let ct = self.atlas.ct();
+                Arc::new(GradientVolume::new(ct.data(), IndexMap::of(ct.grid()).dims))
+            })
+            .clone()
     }
 
     /// The style of a label id (unknown ids: `Other`, transparent).

@@ -1,7 +1,6 @@
 //! One ray, docs/rendering.md "One ray" steps 1–9, written as plain loops without allocation or
 //! recursion so the WGSL port can follow it line by line.
 
-use stylet_physics::atlas::AIR_HU;
 use stylet_physics::glam::{DVec3, Vec3};
 
 use std::sync::Arc;
@@ -208,24 +207,37 @@ enum Sampled {
     Opaque,
 }
 
-/// Steps 5–7 for the lattice point at `t` of [`lattice_dda`].
+/// Steps 5–7 for the lattice point at `t` of [`lattice_dda`]. With the cube bits (a CT of ≥ 2
+/// voxels per axis) the value and the gradient come from one read of the eight records.
 #[inline(always)]
 fn sample_plain(f: &Frame, ray: &Ray, t: f32, acc: &mut Accum) -> Sampled {
     let c = ray.ce + ray.dc * t;
-    let v = match &f.cubes {
-        Some(cubes) => match f.sampler.ct.locate(c) {
-            Some(cell) => {
-                if !cubes.visible(cell.b[0], cell.b[1], cell.b[2]) {
-                    return Sampled::Skipped;
-                }
-                f.sampler.ct.interpolate(&cell)
+    let (cv, g) = match &f.cubes {
+        Some(cubes) => {
+            let Some(cell) = f.sampler.ct.locate(c) else {
+                // Air outside the CT, invisible on this path (`sample_outside` is false).
+                return Sampled::Taken;
+            };
+            if !cubes.visible(cell.b[0], cell.b[1], cell.b[2]) {
+                return Sampled::Skipped;
             }
-            None => AIR_HU,
-        },
-        None => f.sampler.ct.trilinear(c).unwrap_or(AIR_HU),
+            let r = f.sampler.grads.interpolate(&cell);
+            let cv = f.table.lookup(r.w);
+            if cv[3] <= 0.0 {
+                return Sampled::Taken;
+            }
+            (cv, f.sampler.world_gradient_ct(r.truncate()))
+        }
+        None => {
+            let at = At { ct: c, j: Vec3::ZERO };
+            let cv = f.table.lookup(f.sampler.s(at));
+            if cv[3] <= 0.0 {
+                return Sampled::Taken;
+            }
+            (cv, f.sampler.gradient(at))
+        }
     };
-    let cv = f.table.lookup(v);
-    if cv[3] > 0.0 && composite(f, ray, t, cv, f.sampler.gradient(At { ct: c, j: Vec3::ZERO }), acc) {
+    if composite(f, ray, t, cv, g, acc) {
         return Sampled::Opaque;
     }
     Sampled::Taken

@@ -4,6 +4,7 @@
 //! function of the inputs, so the image is bit-identical on any number of threads.
 
 pub mod cube_mask;
+pub mod gradient_volume;
 pub mod jitter;
 pub mod march;
 pub mod occupancy;
@@ -68,8 +69,7 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) ->
     let ct = volume.atlas.ct();
     let grid = *ct.grid();
     let ct_map = IndexMap::of(&grid);
-    let spacing = grid.spacing_mm();
-    let h_mm = (0.5 * spacing[0].min(spacing[1]).min(spacing[2])) as f32;
+    let grads = volume.gradient_volume();
     let deformed = scene.deformed.as_ref().map(|d| {
         (
             Grid3::new(d.volume.data(), IndexMap::of(d.volume.grid()).dims),
@@ -79,9 +79,9 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) ->
     let sampler = Sampler::new(
         Grid3::new(ct.data(), ct_map.dims),
         ct_map,
+        &grads,
         deformed,
         &volume.labels,
-        h_mm,
     );
     let mut quality = scene.quality;
     quality.step_mm = usable_step_mm(quality.step_mm);

@@ -7,6 +7,7 @@ use stylet_physics::LabelId;
 use stylet_physics::atlas::AIR_HU;
 use stylet_physics::glam::Vec3;
 
+use super::gradient_volume::GradientVolume;
 use crate::volume::IndexMap;
 
 /// A scalar grid as the ray loop reads it: data (x fastest) and its dimensions, with the
@@ -114,78 +115,6 @@ impl Grid3<'_> {
         self.fast
     }
 
-    /// ∇s of [`Sampler::gradient`] when the three offsets lie along the index axes (`d`: the
-    /// signed index offset of each, |d_a| ≤ ½) and all seven positions are interior
-    /// (0 ≤ c_a ± d_a < n_a − 1, so the clamp and the last-base `min` are no-ops): the six
-    /// trilinear reads then share their set-up and most of their x-interpolated rows. Every
-    /// value is the same formula on the same voxels in the same order as six
-    /// [`Self::trilinear`] calls, so the result is bit-identical. `None`: use those calls.
-    #[inline(always)]
-    fn gradient_aligned(&self, c: Vec3, d: [f32; 3], inv_2h: f32) -> Option<Vec3> {
-        if !self.fast {
-            return None;
-        }
-        let cc = [c.x, c.y, c.z];
-        // The same sums as `at.ct ± grad_ct[a]` (the other components add ±0).
-        let p = [cc[0] + d[0], cc[1] + d[1], cc[2] + d[2]];
-        let m = [cc[0] - d[0], cc[1] - d[1], cc[2] - d[2]];
-        for a in 0..3 {
-            if !(p[a].min(m[a]) >= 0.0 && p[a].max(m[a]) < self.top[a]) {
-                return None;
-            }
-        }
-        // Interior and ≥ 0: truncation is the floor, and ≤ n_a − 2.
-        let split = |x: f32| {
-            let b = trunc(x);
-            (b, x - b as f32)
-        };
-        let ((bx, fx), (by, fy), (bz, fz)) = (split(cc[0]), split(cc[1]), split(cc[2]));
-        // Window of rows j ∈ y0 … y0 + 2, k ∈ z0 … z0 + 2 (|d| ≤ ½: bases differ by ≤ 1).
-        let y0 = trunc(p[1].min(m[1]));
-        let z0 = trunc(p[2].min(m[2]));
-        let (ny1, nz1) = (self.dims[1] - 1, self.dims[2] - 1);
-        // `row_x`'s bounds: i ≤ n_x − 2 (interior), j ≤ n_y − 1, k ≤ n_z − 1 (clamped below, and
-        // by + 1, bz + 1 ≤ n − 1 for the interior centre).
-        let row = |i: u32, f: f32, j: u32, k: u32| self.row_x(i, f, j, k);
-        // Rows at the centre's x (bx, fx). Rows past the grid (clamped index) are never used:
-        // every sample's rows lie in [base, base + 1] ⊂ window, and base + 1 ≤ n − 1.
-        let mut r = [[0.0f32; 3]; 3];
-        for (kk, rk) in r.iter_mut().enumerate() {
-            let k = (z0 + kk as u32).min(nz1);
-            for (jj, v) in rk.iter_mut().enumerate() {
-                *v = row(bx, fx, (y0 + jj as u32).min(ny1), k);
-            }
-        }
-        // One trilinear value from the window: y base jb with fraction fy_, z base kb with fz_.
-        let yz = |jb: u32, fy_: f32, kb: u32, fz_: f32| window_yz(&r, jb - y0, fy_, kb - z0, fz_);
-        // ±x: own x base and fraction, the centre's rows j = by, by + 1 and k = bz, bz + 1.
-        let along_x = |x: f32| {
-            let (bxs, fxs) = split(x);
-            let c0 = row(bxs, fxs, by, bz) * (1.0 - fy) + row(bxs, fxs, by + 1, bz) * fy;
-            let c1 = row(bxs, fxs, by, bz + 1) * (1.0 - fy) + row(bxs, fxs, by + 1, bz + 1) * fy;
-            c0 * (1.0 - fz) + c1 * fz
-        };
-        let gx = (along_x(p[0]) - along_x(m[0])) * inv_2h;
-        let ((pyb, pyf), (myb, myf)) = (split(p[1]), split(m[1]));
-        let gy = (yz(pyb, pyf, bz, fz) - yz(myb, myf, bz, fz)) * inv_2h;
-        let ((pzb, pzf), (mzb, mzf)) = (split(p[2]), split(m[2]));
-        let gz = (yz(by, fy, pzb, pzf) - yz(by, fy, mzb, mzf)) * inv_2h;
-        Some(Vec3::new(gx, gy, gz))
-    }
-
-    /// The x-interpolated row value v(i, j, k)·(1 − f) + v(i + 1, j, k)·f.
-    ///
-    /// Callers (`gradient_aligned`, with `fast`) keep i ≤ n_x − 2, j ≤ n_y − 1, k ≤ n_z − 1,
-    /// so the largest index read is ≤ nx·ny·nz − 1 < data.len().
-    #[inline(always)]
-    fn row_x(&self, i: u32, f: f32, j: u32, k: u32) -> f32 {
-        let o = i as usize + self.sy * j as usize + self.sz * k as usize;
-        debug_assert!(self.fast && o + 1 < self.data.len());
-        // SAFETY: see above.
-        let (a, b) = unsafe { (*self.data.get_unchecked(o), *self.data.get_unchecked(o + 1)) };
-        a * (1.0 - f) + b * f
-    }
-
     /// Any grid, including axes of one voxel (then that axis does not interpolate).
     fn trilinear_general(&self, c: Vec3) -> Option<f32> {
         let mut base = [0u32; 3];
@@ -218,6 +147,74 @@ impl Grid3<'_> {
         let c1 = c01 * (1.0 - fy) + c11 * fy;
         Some(c0 * (1.0 - fz) + c1 * fz)
     }
+
+    /// The central differences (Δx, Δy, Δz) of the eight voxels a trilinear read at `c` uses,
+    /// Δa = I(i + e_a) − I(i − e_a), blended in [`Self::trilinear`]'s order; neighbours outside
+    /// the grid read air (`Edge::Air`, the CT: its box's faces are surfaces) or the nearest
+    /// voxel (`Edge::Clamp`, a deformed region J, whose box is not a surface). `None` outside
+    /// the sampling domain. Computed from the voxels on the fly: the CT's hot path reads the same
+    /// numbers from its [`GradientVolume`](super::gradient_volume::GradientVolume).
+    pub fn differences(&self, c: Vec3, edge: Edge) -> Option<Vec3> {
+        let mut base = [0u32; 3];
+        let mut frac = [0.0f32; 3];
+        let mut step = [0u32; 3];
+        for a in 0..3 {
+            let n = self.dims[a];
+            let nf = n as f32;
+            let x = c[a];
+            if !(x >= -0.5 && x < nf - 0.5) {
+                return None;
+            }
+            let x = x.clamp(0.0, nf - 1.0);
+            let b = (x as u32).min(n.saturating_sub(2));
+            base[a] = b;
+            frac[a] = if n == 1 { 0.0 } else { x - b as f32 };
+            step[a] = u32::from(n > 1);
+        }
+        let dims = self.dims.map(|n| n as i64);
+        let value = |p: [i64; 3]| -> f32 {
+            let mut q = p;
+            for a in 0..3 {
+                if q[a] < 0 || q[a] >= dims[a] {
+                    match edge {
+                        Edge::Air => return AIR_HU,
+                        Edge::Clamp => q[a] = q[a].clamp(0, dims[a] - 1),
+                    }
+                }
+            }
+            self.data[(q[0] + dims[0] * (q[1] + dims[1] * q[2])) as usize]
+        };
+        let diff = |i: u32, j: u32, k: u32| -> Vec3 {
+            let p = [i as i64, j as i64, k as i64];
+            let d = |a: usize| {
+                let (mut hi, mut lo) = (p, p);
+                hi[a] += 1;
+                lo[a] -= 1;
+                value(hi) - value(lo)
+            };
+            Vec3::new(d(0), d(1), d(2))
+        };
+        let [i0, j0, k0] = base;
+        let [i1, j1, k1] = [i0 + step[0], j0 + step[1], k0 + step[2]];
+        let [fx, fy, fz] = frac;
+        let (gx, gy, gz) = (1.0 - fx, 1.0 - fy, 1.0 - fz);
+        let c00 = diff(i0, j0, k0) * gx + diff(i1, j0, k0) * fx;
+        let c10 = diff(i0, j1, k0) * gx + diff(i1, j1, k0) * fx;
+        let c01 = diff(i0, j0, k1) * gx + diff(i1, j0, k1) * fx;
+        let c11 = diff(i0, j1, k1) * gx + diff(i1, j1, k1) * fx;
+        let c0 = c00 * gy + c10 * fy;
+        let c1 = c01 * gy + c11 * fy;
+        Some(c0 * gz + c1 * fz)
+    }
+}
+
+/// What a central difference reads beyond a grid's last voxel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Edge {
+    /// Air (−1000 HU): the CT, outside which the patient ends.
+    Air,
+    /// The nearest voxel: a deformed region J, which continues into the CT around it.
+    Clamp,
 }
 
 /// ⌊x⌋ of an `x` already known to lie in [0, 2³¹): one conversion instruction instead of the
@@ -261,52 +258,41 @@ pub struct At {
     pub j: Vec3,
 }
 
-/// s(x) and l(x) for one frame.
+/// s(x), ∇s and l(x) for one frame.
 #[derive(Clone, Copy)]
 pub struct Sampler<'a> {
     pub ct: Grid3<'a>,
     pub ct_map: IndexMap,
+    /// The CT's value and central differences per voxel: the hot path's one read per sample.
+    pub grads: &'a GradientVolume,
     /// J of eq. 3.1.1 on its own grid, when the scene carries one.
     pub deformed: Option<(Grid3<'a>, IndexMap)>,
     pub labels: &'a [LabelId],
-    /// Index-space offsets of ±h along the world axes (h = ½·min CT spacing), CT and J grids.
-    pub grad_ct: [Vec3; 3],
-    pub grad_j: [Vec3; 3],
-    /// 1 / (2h), per mm.
-    pub inv_2h: f32,
-    /// The CT offsets' index components when each lies along its own index axis with
-    /// |d| ≤ ½ (axis-aligned affines): the shared-read gradient applies.
-    grad_axis: Option<[f32; 3]>,
+    /// ½ M⁻¹'s rows of the CT and of J: ∇s = Σ_a Δ_a·half_rows[a] (world, HU/mm) for the
+    /// interpolated index-space differences Δ.
+    half_rows_ct: [Vec3; 3],
+    half_rows_j: [Vec3; 3],
 }
 
 impl<'a> Sampler<'a> {
+    /// `grads` must be the records of `ct` ([`GradientVolume::new`] of the same data).
     pub fn new(
         ct: Grid3<'a>,
         ct_map: IndexMap,
+        grads: &'a GradientVolume,
         deformed: Option<(Grid3<'a>, IndexMap)>,
         labels: &'a [LabelId],
-        h_mm: f32,
     ) -> Self {
-        let axis = |m: &IndexMap, a: usize| {
-            let mut e = Vec3::ZERO;
-            e[a] = h_mm;
-            m.vector(e)
-        };
-        let grad_ct = [axis(&ct_map, 0), axis(&ct_map, 1), axis(&ct_map, 2)];
-        let grad_j = match &deformed {
-            Some((_, m)) => [axis(m, 0), axis(m, 1), axis(m, 2)],
-            None => [Vec3::ZERO; 3],
-        };
-        let aligned = (0..3).all(|a| (0..3).all(|b| a == b || grad_ct[a][b] == 0.0) && grad_ct[a][a].abs() <= 0.5);
+        debug_assert_eq!(grads.dims(), ct.dims);
+        let half = |m: &IndexMap| m.rows.map(|r| r * 0.5);
         Sampler {
             ct,
             ct_map,
+            grads,
+            half_rows_ct: half(&ct_map),
+            half_rows_j: deformed.as_ref().map_or([Vec3::ZERO; 3], |(_, m)| half(m)),
             deformed,
             labels,
-            grad_ct,
-            grad_j,
-            inv_2h: 1.0 / (2.0 * h_mm),
-            grad_axis: aligned.then(|| [grad_ct[0].x, grad_ct[1].y, grad_ct[2].z]),
         }
     }
 
@@ -333,36 +319,36 @@ impl<'a> Sampler<'a> {
         self.ct.trilinear(at.ct).unwrap_or(AIR_HU)
     }
 
-    /// ∇s by central differences at ±h along the world axes (HU/mm).
+    /// The world gradient of index-space differences Δ: ½ Σ_a Δ_a·r_a with r_a the rows of M⁻¹
+    /// (∂s/∂c_a ≈ Δ_a/2, ∂c_a/∂x = r_a).
+    #[inline(always)]
+    pub fn world_gradient_ct(&self, d: Vec3) -> Vec3 {
+        let r = &self.half_rows_ct;
+        r[0] * d.x + r[1] * d.y + r[2] * d.z
+    }
+
+    /// ∇s (HU/mm, docs/rendering.md "Gradient"): the trilinear blend of the central differences
+    /// of the eight voxels s reads, in J inside Ω_J, else in the CT, else 0 (unshaded).
     #[inline]
     pub fn gradient(&self, at: At) -> Vec3 {
-        let mut g = Vec3::ZERO;
-        if self.deformed.is_none() {
-            // The same values as below without J's bookkeeping (the common case).
-            if let Some(d) = self.grad_axis
-                && let Some(g) = self.ct.gradient_aligned(at.ct, d, self.inv_2h)
-            {
-                return g;
-            }
-            for a in 0..3 {
-                let plus = self.ct.trilinear(at.ct + self.grad_ct[a]).unwrap_or(AIR_HU);
-                let minus = self.ct.trilinear(at.ct - self.grad_ct[a]).unwrap_or(AIR_HU);
-                g[a] = (plus - minus) * self.inv_2h;
-            }
-            return g;
+        if let Some((j, _)) = &self.deformed
+            && let Some(d) = j.differences(at.j, Edge::Clamp)
+        {
+            let r = &self.half_rows_j;
+            return r[0] * d.x + r[1] * d.y + r[2] * d.z;
         }
-        for a in 0..3 {
-            let plus = At {
-                ct: at.ct + self.grad_ct[a],
-                j: at.j + self.grad_j[a],
-            };
-            let minus = At {
-                ct: at.ct - self.grad_ct[a],
-                j: at.j - self.grad_j[a],
-            };
-            g[a] = (self.s(plus) - self.s(minus)) * self.inv_2h;
-        }
-        g
+        let d = if self.ct.is_fast() && self.grads.is_fast() {
+            match self.ct.locate(at.ct) {
+                Some(cell) => self.grads.interpolate(&cell).truncate(),
+                None => return Vec3::ZERO,
+            }
+        } else {
+            match self.ct.differences(at.ct, Edge::Air) {
+                Some(d) => d,
+                None => return Vec3::ZERO,
+            }
+        };
+        self.world_gradient_ct(d)
     }
 
     /// l(x): the label of the CT voxel nearest the sample, 0 outside.
@@ -373,16 +359,6 @@ impl<'a> Sampler<'a> {
             None => 0,
         }
     }
-}
-
-/// One trilinear value from a 3 × 3 window of x-interpolated rows `r[k][j]`: y row `j` (0 or 1)
-/// with fraction `fy`, z row `k` (0 or 1) with fraction `fz`; `Grid3::trilinear`'s order.
-#[inline(always)]
-fn window_yz(r: &[[f32; 3]; 3], j: u32, fy: f32, k: u32, fz: f32) -> f32 {
-    let (j, k) = (j as usize, k as usize);
-    let c0 = r[k][j] * (1.0 - fy) + r[k][j + 1] * fy;
-    let c1 = r[k + 1][j] * (1.0 - fy) + r[k + 1][j + 1] * fy;
-    c0 * (1.0 - fz) + c1 * fz
 }
 
 #[cfg(test)]
