@@ -174,13 +174,51 @@ fn import_real_ct_and_dicom() {
         out.to_str().unwrap(),
     ]);
     assert!(
-        text.contains("intercostal window between source ribs 113 and 114"),
+        text.contains(
+            "intercostal window: right 10th–11th intercostal space (rib_right_10 (113) / rib_right_11 (114))"
+        ),
         "{text}"
     );
     let json: serde_json::Value =
         serde_json::from_str(&ok(&["atlas", "inspect", out.to_str().unwrap(), "--json"])).unwrap();
     check_inspect_json(&json);
     assert_eq!(json["name"], "ts-abdomen");
+
+    // The same patient with no recipe (issue 19): structures by name, the window by rib number.
+    let abdomen = data.join("ts-example-abdomen");
+    let (ct, seg) = (abdomen.join("example_ct.nii.gz"), abdomen.join("example_seg.nii.gz"));
+    let new = d.path().join("new-patient");
+    let new_args = |offset: &'static str| {
+        vec![
+            "atlas".to_string(),
+            "new".into(),
+            "--ct".into(),
+            ct.to_str().unwrap().into(),
+            "--labels".into(),
+            seg.to_str().unwrap().into(),
+            "--offset-voxels".into(),
+            offset.into(),
+            "--out".into(),
+            new.to_str().unwrap().into(),
+        ]
+    };
+    fn strs(v: &[String]) -> Vec<&str> {
+        v.iter().map(String::as_str).collect()
+    }
+    let e = fails(&strs(&new_args("0,82")));
+    assert!(e.contains("--offset-voxels takes three numbers"), "{e}");
+    assert!(!new.exists(), "nothing written on bad input");
+    let text = ok(&strs(&new_args("0,0,82")));
+    assert!(
+        text.contains("atlas 'new-patient' written")
+            && text.contains("liver (5)")
+            && text.contains("right 10th–11th intercostal space"),
+        "{text}"
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&ok(&["atlas", "inspect", new.to_str().unwrap(), "--json"])).unwrap();
+    check_inspect_json(&json);
+    assert_eq!(json["name"], "new-patient");
 
     let dcm = d.path().join("dcm");
     let text = ok(&[

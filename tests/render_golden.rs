@@ -322,6 +322,25 @@ fn chest_recipe_imports_and_validates() {
     let w = report.window.as_ref().expect("a window search");
     assert!(w.requested_found, "{}", report.to_text());
     assert_eq!(p.atlas.manifest.paths.len(), 1);
+    // The window and every unmapped structure by name, from the data's structures.csv (issue 19):
+    // right ribs 8 and 9 are classes 111/112; 118 is the costal cartilages there.
+    let path = &p.atlas.manifest.paths[0];
+    assert_eq!(path.name, "intercostal-right-8-9");
+    assert!(
+        path.description.contains("right 8th–9th intercostal space"),
+        "{}",
+        path.description
+    );
+    let text = report.to_text();
+    assert!(
+        text.contains("intercostal window: right 8th–9th intercostal space (rib_right_8 (111) / rib_right_9 (112))"),
+        "{text}"
+    );
+    assert!(
+        text.contains("costal_cartilages (118)") && text.contains("trachea (16)"),
+        "{text}"
+    );
+    assert!(!text.contains("not in structures.csv"), "{text}");
     // Contrast-enhanced liver (SOURCE.md: median 73 HU) under the liver label.
     let mut liver: Vec<f32> = model
         .ct()

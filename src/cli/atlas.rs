@@ -17,6 +17,9 @@ pub enum AtlasCommand {
     Import(ImportArgs),
     /// Import a DICOM CT series as a heuristic-only atlas.
     ImportDicom(ImportDicomArgs),
+    /// Make a PTCD atlas from a CT and an automatic segmentation, no recipe needed (labels by
+    /// structure name: TotalSegmentator's classes built in).
+    New(NewArgs),
     /// Print an atlas' summary; optionally write JSON or a PNG of three orthogonal slices.
     Inspect(InspectArgs),
 }
@@ -32,6 +35,31 @@ pub struct ImportArgs {
     /// Output atlas directory.
     #[arg(long)]
     pub out: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct NewArgs {
+    /// The CT: a NIfTI file in HU, or a folder holding one DICOM series.
+    #[arg(long)]
+    pub ct: PathBuf,
+    /// The labels: one multi-label NIfTI, or a TotalSegmentator output folder of per-structure
+    /// masks (<structure>.nii.gz).
+    #[arg(long)]
+    pub labels: PathBuf,
+    /// Output atlas directory.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Atlas name (default: the output folder's name).
+    #[arg(long)]
+    pub name: Option<String>,
+    /// Class table of a multi-label file: CSV with `id` and `structure` columns (default:
+    /// TotalSegmentator's "total" classes).
+    #[arg(long)]
+    pub classes: Option<PathBuf>,
+    /// A label map that covers part of the CT and kept its header: label voxel (i,j,k) is CT
+    /// voxel (i,j,k) + offset, e.g. 0,0,82.
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
+    pub offset_voxels: Option<Vec<i64>>,
 }
 
 #[derive(Debug, Args)]
@@ -104,6 +132,32 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
         }
         AtlasCommand::Import(a) => {
             let report = stylet_atlas::import::import(&a.recipe, &a.data, &a.out)?;
+            sayf!("atlas '{}' written to {}", report.manifest.name, a.out.display());
+            say(report.to_text().trim_end());
+            Ok(())
+        }
+        AtlasCommand::New(a) => {
+            let name = match &a.name {
+                Some(n) => n.clone(),
+                None => a
+                    .out
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .context("--out has no folder name; give --name")?,
+            };
+            let offset = match a.offset_voxels.as_deref() {
+                None => [0, 0, 0],
+                Some(&[i, j, k]) => [i, j, k],
+                Some(other) => anyhow::bail!("--offset-voxels takes three numbers, got {}", other.len()),
+            };
+            let args = stylet_atlas::import::new::NewAtlas {
+                ct: a.ct,
+                labels: a.labels,
+                classes: a.classes,
+                offset_voxels: offset,
+                name,
+            };
+            let report = stylet_atlas::import::new::new_atlas(&args, &a.out)?;
             sayf!("atlas '{}' written to {}", report.manifest.name, a.out.display());
             say(report.to_text().trim_end());
             Ok(())

@@ -365,3 +365,46 @@ fn import_inputs_that_are_not_regular_files_are_refused() {
         assert_mentions(&r.unwrap_err(), &["slice-001.dcm", "named pipe (FIFO)"]);
     }
 }
+
+/// A recipe's class table (issue 19) that is broken is refused with the file and the line named,
+/// before any CT is read, and nothing is written.
+#[test]
+fn a_bad_class_table_is_refused_before_anything_is_read_or_written() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let d = tempfile::tempdir().unwrap();
+    let recipes = d.path().join("recipes");
+    fs::create_dir(&recipes).unwrap();
+    fs::copy(root.join("atlases/ptcd.toml"), d.path().join("ptcd.toml")).unwrap();
+    let recipe = fs::read_to_string(root.join("atlases/ts-abdomen/recipe.toml"))
+        .unwrap()
+        .replace("[source]\n", "[source]\nclasses = \"classes.csv\"\n");
+    assert!(recipe.contains("classes = \"classes.csv\""));
+    fs::write(recipes.join("recipe.toml"), recipe).unwrap();
+    // No CT in the data directory: the class table must be refused first.
+    let data = d.path().join("data");
+    fs::create_dir(&data).unwrap();
+    let out = d.path().join("out");
+    for (csv, want) in [
+        ("id,structure\n5,liver\n5,spleen\n", "line 3: class 5 is listed twice"),
+        ("structure\nliver\n", "no `id` column"),
+        ("id,structure\n-3,liver\n", "class number \"-3\" is not 1"),
+    ] {
+        fs::write(data.join("classes.csv"), csv).unwrap();
+        let e = stylet_atlas::import::import(&recipes.join("recipe.toml"), &data, &out)
+            .unwrap_err()
+            .to_string();
+        assert_mentions(&e, &["classes.csv", want]);
+        assert!(!out.exists(), "{csv:?} wrote {}", out.display());
+    }
+    // A path out of the data directory is refused by the recipe check.
+    let text = fs::read_to_string(recipes.join("recipe.toml")).unwrap();
+    fs::write(
+        recipes.join("recipe.toml"),
+        text.replace("classes.csv", "../classes.csv"),
+    )
+    .unwrap();
+    let e = stylet_atlas::import::import(&recipes.join("recipe.toml"), &data, &out)
+        .unwrap_err()
+        .to_string();
+    assert_mentions(&e, &["recipe.toml", "inside the data directory"]);
+}

@@ -146,10 +146,10 @@ fn straight_intercostal_path_between_ribs_10_and_11_reaches_the_target() {
     let w = i.report.window.as_ref().unwrap();
     assert!(w.requested_found, "importer reports: {}", i.report.to_text());
     let path = &i.atlas.manifest.paths[0];
-    assert_eq!(path.name, "intercostal-113-114");
+    assert_eq!(path.name, "intercostal-right-10-11");
     assert_eq!(
         i.atlas.manifest.difficulty.beginner.guided_path.as_deref(),
-        Some("intercostal-113-114")
+        Some("intercostal-right-10-11")
     );
     let m = &i.atlas.model;
     let (a, b) = (DVec3::from_array(path.entry_mm), DVec3::from_array(path.target_mm));

@@ -2,9 +2,12 @@
 //! TotalSegmentator output folder imports as is) and, behind the `dicom` feature, a DICOM series
 //! importer. Recipes are documented in docs/atlas.md "Import recipes".
 
+pub mod auto;
 pub mod biliary;
+pub mod classes;
 #[cfg(feature = "dicom")]
 pub mod dicom;
+pub mod new;
 pub mod recipe;
 pub mod resample;
 pub mod window;
@@ -17,6 +20,7 @@ use stylet_physics::{LabelId, PunctureAtlas, Volume};
 use crate::manifest::{self, Manifest};
 use crate::{AtlasError, nifti_io};
 use biliary::BiliaryReport;
+use classes::ClassTable;
 use recipe::{LoadedRecipe, load_recipe};
 use window::WindowReport;
 
@@ -26,6 +30,8 @@ pub struct ImportReport {
     pub manifest: Manifest,
     pub biliary: Option<BiliaryReport>,
     pub window: Option<WindowReport>,
+    /// The source label maps' class names (ribs by side and number in the window's text).
+    pub classes: ClassTable,
     pub notes: Vec<String>,
 }
 
@@ -53,13 +59,15 @@ impl ImportReport {
             );
         }
         if let Some(w) = &self.window {
+            let c = &self.classes;
             match (&w.found, w.requested_found) {
                 (Some(f), true) => {
                     out += &format!(
-                        "- intercostal window between source ribs {} and {}: entry ({:.1}, {:.1}, {:.1}) mm → target \
+                        "- intercostal window: {} ({} / {}): entry ({:.1}, {:.1}, {:.1}) mm → target \
                          ({:.1}, {:.1}, {:.1}) mm, {:.0} mm long, {:.1} mm clear of bone, no risk structure crossed\n",
-                        f.upper_rib,
-                        f.lower_rib,
+                        window::space_name(c, f.upper_rib, f.lower_rib),
+                        c.describe(f.upper_rib),
+                        c.describe(f.lower_rib),
                         f.entry_mm.x,
                         f.entry_mm.y,
                         f.entry_mm.z,
@@ -72,12 +80,14 @@ impl ImportReport {
                 }
                 (Some(f), false) => {
                     out += &format!(
-                        "- NO straight path between source ribs {} and {} reaches the target without bone or risk; \
-                         best window found: between ribs {} and {}, entry ({:.1}, {:.1}, {:.1}) mm, {:.0} mm long, {:.1} mm clear of bone\n",
-                        w.requested.0,
-                        w.requested.1,
-                        f.upper_rib,
-                        f.lower_rib,
+                        "- NO straight path through the {} ({} / {}) reaches the target without bone or risk; \
+                         best window found: {} ({} / {}), entry ({:.1}, {:.1}, {:.1}) mm, {:.0} mm long, {:.1} mm clear of bone\n",
+                        window::space_name(c, w.requested.0, w.requested.1),
+                        c.describe(w.requested.0),
+                        c.describe(w.requested.1),
+                        window::space_name(c, f.upper_rib, f.lower_rib),
+                        c.describe(f.upper_rib),
+                        c.describe(f.lower_rib),
                         f.entry_mm.x,
                         f.entry_mm.y,
                         f.entry_mm.z,
@@ -88,8 +98,10 @@ impl ImportReport {
                 (None, _) => {
                     out += &format!(
                         "- NO intercostal window found: no straight path from the skin between any listed rib pair \
-                         (requested {} / {}) reaches the target without crossing bone or a risk structure\n",
-                        w.requested.0, w.requested.1
+                         (requested: the {}, {} / {}) reaches the target without crossing bone or a risk structure\n",
+                        window::space_name(c, w.requested.0, w.requested.1),
+                        c.describe(w.requested.0),
+                        c.describe(w.requested.1)
                     )
                 }
             }
@@ -114,7 +126,7 @@ fn place_labels(
             return Err(AtlasError::file(
                 path,
                 format!(
-                    "label map has dimensions {ld:?} but the CT has {cd:?}; if it covers part of the CT, set offset_voxels in the recipe"
+                    "label map has dimensions {ld:?} but the CT has {cd:?}; if it covers part of the CT, give its offset in voxels (recipe: offset_voxels; atlas new: --offset-voxels)"
                 ),
             ));
         }
@@ -209,12 +221,26 @@ pub fn read_sources(r: &LoadedRecipe, data_dir: &Path) -> Result<Sources, AtlasE
 pub fn import(recipe_path: &Path, data_dir: &Path, out: &Path) -> Result<ImportReport, AtlasError> {
     let r: LoadedRecipe = load_recipe(recipe_path)?;
     let rec = &r.recipe;
-    let ct_path = data_dir.join(&rec.source.ct);
+    // The small file first: a bad class table is refused before the CT is read.
+    let classes = match &rec.source.classes {
+        Some(file) => ClassTable::read_csv(&data_dir.join(file))?,
+        None => ClassTable::totalsegmentator(),
+    };
+    let sources = read_sources(&r, data_dir)?;
+    build(&r, sources, classes, out)
+}
+
+/// The importer's work on sources already read (a recipe's, or `atlas new`'s): maps the source
+/// classes to atlas labels, synthesises the biliary tree, finds the intercostal window and writes
+/// the atlas to `out`. Errors name `r.path` (the recipe, or what made it).
+pub fn build(r: &LoadedRecipe, sources: Sources, classes: ClassTable, out: &Path) -> Result<ImportReport, AtlasError> {
+    let rec = &r.recipe;
+    let recipe_path = r.path.as_path();
     let Sources {
         mut ct,
         labels: source,
         mut notes,
-    } = read_sources(&r, data_dir)?;
+    } = sources;
     let mut lut = vec![0 as LabelId; LabelId::MAX as usize + 1];
     for m in &rec.map {
         for &f in &m.from {
@@ -231,8 +257,11 @@ pub fn import(recipe_path: &Path, data_dir: &Path, out: &Path) -> Result<ImportR
     unmapped.sort_unstable();
     unmapped.dedup();
     if !unmapped.is_empty() {
+        let named: Vec<String> = unmapped.iter().map(|&s| classes.describe(s)).collect();
         notes.push(format!(
-            "source labels left to the heuristic (not mapped): {unmapped:?}"
+            "source labels left to the heuristic (not mapped; names from {}): {}",
+            classes.source,
+            named.join(", ")
         ));
     }
 
@@ -279,7 +308,7 @@ pub fn import(recipe_path: &Path, data_dir: &Path, out: &Path) -> Result<ImportR
                 .map_err(|e| AtlasError::file(recipe_path, e))?;
             let tree = manifest::property_tree(&manifest.tissues).map_err(|e| AtlasError::file(recipe_path, e))?;
             let t = estimate_thresholds(&ct, manifest.heuristic.risk_depth_mm)
-                .map_err(|e| AtlasError::file(&ct_path, e.to_string()))?;
+                .map_err(|e| AtlasError::file(recipe_path, format!("CT thresholds: {e}")))?;
             let atlas = PunctureAtlas::new(ct.clone(), labels.clone(), table, tree, t)
                 .map_err(|e| AtlasError::file(recipe_path, e.to_string()))?;
             let report = window::find_window(
@@ -290,7 +319,7 @@ pub fn import(recipe_path: &Path, data_dir: &Path, out: &Path) -> Result<ImportR
                 &w.rib_sequence,
                 &w.bone_labels,
             );
-            if let Some(p) = report.path() {
+            if let Some(p) = report.path(&classes) {
                 manifest.difficulty.beginner.guided_path = Some(p.name.clone());
                 manifest.paths.push(p);
             }
@@ -303,6 +332,7 @@ pub fn import(recipe_path: &Path, data_dir: &Path, out: &Path) -> Result<ImportR
         manifest,
         biliary,
         window,
+        classes,
         notes,
     })
 }

@@ -42,6 +42,11 @@ pub struct Source {
     pub ct: String,
     #[serde(default)]
     pub labels: Vec<LabelSource>,
+    /// The label maps' class table (CSV with `id` and `structure` columns, docs/atlas.md
+    /// "Class tables"), relative to the data directory; TotalSegmentator's "total" classes when
+    /// absent.
+    #[serde(default)]
+    pub classes: Option<String>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -136,73 +141,84 @@ pub fn load_recipe(path: &Path) -> Result<LoadedRecipe, AtlasError> {
     let text = std::fs::read_to_string(path).map_err(|e| AtlasError::file(path, format!("cannot read: {e}")))?;
     let recipe: Recipe =
         toml::from_str(&text).map_err(|e| AtlasError::file(path, e.to_string().trim_end().to_string()))?;
-    let bad = |m: String| AtlasError::file(path, m);
-    if recipe.name.trim().is_empty() {
-        return Err(bad("name must not be empty".into()));
-    }
-    if let Some(r) = recipe.resample_mm
-        && !(r.is_finite() && (0.2..=10.0).contains(&r))
-    {
-        return Err(bad(format!("resample_mm = {r} must be 0.2 … 10")));
-    }
     let scenario_path = path.parent().unwrap_or(Path::new(".")).join(&recipe.scenario);
     crate::check_regular_file(&scenario_path)?;
     let scenario_text = std::fs::read_to_string(&scenario_path)
         .map_err(|e| AtlasError::file(&scenario_path, format!("cannot read scenario: {e}")))?;
-    let mut scenario = ScenarioFile::parse(&scenario_text).map_err(|e| AtlasError::file(&scenario_path, e))?;
-    scenario.labels.extend(recipe.labels.iter().cloned());
-    let table = crate::manifest::label_table(&scenario.labels, &scenario.heuristic).map_err(bad)?;
-    let mut seen = BTreeSet::new();
-    for m in &recipe.map {
-        if table.get(m.to).is_none() {
-            return Err(bad(format!(
-                "[[map]] to = {} is not a label of the scenario or the recipe",
-                m.to
-            )));
+    let scenario = ScenarioFile::parse(&scenario_text).map_err(|e| AtlasError::file(&scenario_path, e))?;
+    LoadedRecipe::new(path, recipe, scenario)
+}
+
+impl LoadedRecipe {
+    /// A recipe and its scenario (before the recipe's own labels are added), checked for
+    /// consistency; errors name `path` (the recipe file, or what made the recipe).
+    pub fn new(path: &Path, recipe: Recipe, mut scenario: ScenarioFile) -> Result<LoadedRecipe, AtlasError> {
+        let bad = |m: String| AtlasError::file(path, m);
+        if recipe.name.trim().is_empty() {
+            return Err(bad("name must not be empty".into()));
         }
-        for &f in &m.from {
-            if f == 0 {
-                return Err(bad("[[map]] from = 0: source label 0 means unlabelled".into()));
-            }
-            if !seen.insert(f) {
-                return Err(bad(format!("source label {f} is mapped twice")));
-            }
+        if let Some(r) = recipe.resample_mm
+            && !(r.is_finite() && (0.2..=10.0).contains(&r))
+        {
+            return Err(bad(format!("resample_mm = {r} must be 0.2 … 10")));
         }
-    }
-    if let Some(b) = &recipe.biliary {
-        for (what, id) in [
-            ("liver_label", b.liver_label),
-            ("duct_label", b.duct_label),
-            ("target_label", b.target_label),
-        ] {
-            if table.get(id).is_none() {
+        scenario.labels.extend(recipe.labels.iter().cloned());
+        let table = crate::manifest::label_table(&scenario.labels, &scenario.heuristic).map_err(bad)?;
+        let mut seen = BTreeSet::new();
+        for m in &recipe.map {
+            if table.get(m.to).is_none() {
                 return Err(bad(format!(
-                    "[biliary] {what} = {id} is not a label of the scenario or the recipe"
+                    "[[map]] to = {} is not a label of the scenario or the recipe",
+                    m.to
                 )));
             }
+            for &f in &m.from {
+                if f == 0 {
+                    return Err(bad("[[map]] from = 0: source label 0 means unlabelled".into()));
+                }
+                if !seen.insert(f) {
+                    return Err(bad(format!("source label {f} is mapped twice")));
+                }
+            }
         }
-        let lengths = [
-            b.target_length_mm,
-            b.target_radius_mm,
-            b.duct_radius_mm,
-            b.branch_radius_mm,
-        ];
-        if lengths.iter().any(|v| !(v.is_finite() && *v > 0.0 && *v < 500.0)) {
-            return Err(bad("[biliary] lengths and radii must be positive numbers of mm".into()));
+        if let Some(b) = &recipe.biliary {
+            for (what, id) in [
+                ("liver_label", b.liver_label),
+                ("duct_label", b.duct_label),
+                ("target_label", b.target_label),
+            ] {
+                if table.get(id).is_none() {
+                    return Err(bad(format!(
+                        "[biliary] {what} = {id} is not a label of the scenario or the recipe"
+                    )));
+                }
+            }
+            let lengths = [
+                b.target_length_mm,
+                b.target_radius_mm,
+                b.duct_radius_mm,
+                b.branch_radius_mm,
+            ];
+            if lengths.iter().any(|v| !(v.is_finite() && *v > 0.0 && *v < 500.0)) {
+                return Err(bad("[biliary] lengths and radii must be positive numbers of mm".into()));
+            }
+            if !b.bile_hu.is_finite() {
+                return Err(bad("[biliary] bile_hu must be a number".into()));
+            }
+            if b.branches > 32 {
+                return Err(bad("[biliary] branches must be ≤ 32".into()));
+            }
         }
-        if !b.bile_hu.is_finite() {
-            return Err(bad("[biliary] bile_hu must be a number".into()));
+        if recipe.source.ct.contains("..")
+            || recipe.source.labels.iter().any(|l| l.file.contains(".."))
+            || recipe.source.classes.as_ref().is_some_and(|c| c.contains(".."))
+        {
+            return Err(bad("source files must lie inside the data directory (no '..')".into()));
         }
-        if b.branches > 32 {
-            return Err(bad("[biliary] branches must be ≤ 32".into()));
-        }
+        Ok(LoadedRecipe {
+            path: path.to_path_buf(),
+            recipe,
+            scenario,
+        })
     }
-    if recipe.source.ct.contains("..") || recipe.source.labels.iter().any(|l| l.file.contains("..")) {
-        return Err(bad("source files must lie inside the data directory (no '..')".into()));
-    }
-    Ok(LoadedRecipe {
-        path: path.to_path_buf(),
-        recipe,
-        scenario,
-    })
 }

@@ -8,6 +8,7 @@ use stylet_physics::distance::squared_edt;
 use stylet_physics::glam::DVec3;
 use stylet_physics::{LabelId, PunctureAtlas, Role};
 
+use super::classes::{ClassTable, intercostal_space};
 use crate::manifest::InsertionPath;
 
 /// Step along candidate lines (mm).
@@ -41,7 +42,10 @@ pub struct WindowReport {
 }
 
 impl WindowReport {
-    pub fn path(&self) -> Option<InsertionPath> {
+    /// The window as a planned path: named by the ribs' side and numbers when the class table
+    /// knows them as ribs ("intercostal-right-10-11", described as the "right 10th–11th
+    /// intercostal space"), else by their class numbers.
+    pub fn path(&self, classes: &ClassTable) -> Option<InsertionPath> {
         let f = self.found.as_ref()?;
         let r = |v: DVec3| {
             [
@@ -50,15 +54,36 @@ impl WindowReport {
                 (v.z * 10.0).round() / 10.0,
             ]
         };
+        let name = match (classes.rib(f.upper_rib), classes.rib(f.lower_rib)) {
+            (Some(a), Some(b)) if a.side == b.side => {
+                format!("intercostal-{}-{}-{}", a.side.word(), a.number, b.number)
+            }
+            _ => format!("intercostal-{}-{}", f.upper_rib, f.lower_rib),
+        };
         Some(InsertionPath {
-            name: format!("intercostal-{}-{}", f.upper_rib, f.lower_rib),
+            name,
             entry_mm: r(f.entry_mm),
             target_mm: r(f.target_mm),
             description: format!(
-                "straight path between source ribs {} and {} to the target, {:.0} mm long, {:.1} mm from bone",
-                f.upper_rib, f.lower_rib, f.length_mm, f.bone_clearance_mm
+                "straight path through the {} to the target, {:.0} mm long, {:.1} mm from bone",
+                space_name(classes, f.upper_rib, f.lower_rib),
+                f.length_mm,
+                f.bone_clearance_mm
             ),
         })
+    }
+}
+
+/// The space between source classes `upper` and `lower` in words: "right 10th–11th intercostal
+/// space" when both are ribs, else "space between rib_x (n) and class m (…)".
+pub fn space_name(classes: &ClassTable, upper: LabelId, lower: LabelId) -> String {
+    match (classes.rib(upper), classes.rib(lower)) {
+        (Some(a), Some(b)) => intercostal_space(a, b),
+        _ => format!(
+            "space between {} and {}",
+            classes.describe(upper),
+            classes.describe(lower)
+        ),
     }
 }
 
@@ -219,7 +244,8 @@ impl<'a> Search<'a> {
     }
 
     /// Walks from the target outward. Returns the skin entry, the bone clearance and the point
-    /// where both ribs are nearest (if within reach), or `None` if the line hits bone or risk.
+    /// where both ribs are nearest (if within reach), or `None` if the line hits bone or risk or
+    /// leaves the CT through a face of its box before it reaches the skin.
     fn cast(
         &self,
         t: DVec3,
@@ -233,7 +259,13 @@ impl<'a> Search<'a> {
         let mut s = 0.0;
         while s <= MAX_LENGTH_MM {
             let p = t + dir * s;
-            if a.skin_distance().sample(p, -1.0) < 0.0 {
+            let skin = a.skin_distance().sample(p, f32::NAN);
+            if skin.is_nan() {
+                // The line leaves the CT before it leaves the body (through a face of the scan,
+                // e.g. a liver cut off at the bottom slice): no skin entry, not a path.
+                return None;
+            }
+            if skin < 0.0 {
                 return Some((
                     p,
                     clearance,
