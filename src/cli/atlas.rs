@@ -157,10 +157,11 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
                 offset_voxels: offset,
                 name,
             };
-            let report = stylet_atlas::import::new::new_atlas(&args, &a.out)?;
+            let made = stylet_atlas::import::new::new_atlas(&args, &a.out)?;
+            let report = &made.import;
             sayf!("atlas '{}' written to {}", report.manifest.name, a.out.display());
             say(report.to_text().trim_end());
-            Ok(())
+            smoke_test(&made, &a.out)
         }
         AtlasCommand::ImportDicom(a) => {
             let series = stylet_atlas::import::dicom::import_series(&a.series, &a.out, &a.name)?;
@@ -220,4 +221,75 @@ pub fn insertion_paths(atlas: &stylet_atlas::Atlas) -> Vec<(stylet_physics::glam
         .iter()
         .map(|p| (p.entry_mm, p.target_mm))
         .collect()
+}
+
+/// Runs the new scenario's generated scripts through the physics, the recorder and the scorer
+/// (the pipeline a trainee's session takes): the success script must reach and confirm the target
+/// with no risk hit or bone contact, the risk script must hit the structure it names. A failure
+/// keeps the atlas (for a look) and ends the command with the reason.
+fn smoke_test(made: &stylet_atlas::import::new::NewAtlasReport, out: &Path) -> anyhow::Result<()> {
+    use stylet_atlas::import::scripts::Expectation;
+    if made.scripts.is_empty() {
+        say("- smoke test: no planned path, so no example scripts");
+        return Ok(());
+    }
+    let atlas = &made.atlas;
+    let scorer = stylet_scoring::Scorer::new(atlas, stylet_scoring::Rubric::default_rubric(), None)
+        .map_err(|e| anyhow::anyhow!(e))?;
+    let tmp = tempfile::tempdir().context("cannot make a temporary folder for the smoke test")?;
+    let mut failures = Vec::new();
+    for s in &made.scripts {
+        let scenario = s.file_name.trim_end_matches(".txt");
+        let session = tmp.path().join(format!("{scenario}.mcap"));
+        let info = stylet_recorder::SessionInfo {
+            trainee: "smoke-test",
+            scenario,
+            difficulty: "beginner",
+            seed: 0,
+            atlas_id: &atlas.manifest.name,
+            atlas_hash: &atlas.content_hash,
+        };
+        super::script::record_script_text(atlas, &s.text, &session, &info)
+            .with_context(|| format!("smoke test: running scripts/{}", s.file_name))?;
+        let r = scorer
+            .score_file(&session)
+            .map_err(|e| anyhow::anyhow!("smoke test: scoring scripts/{}: {e}", s.file_name))?;
+        let m = &r.metrics;
+        let hits: Vec<&str> = m.risk_hits.iter().map(|h| h.structure.as_str()).collect();
+        let (ok, what) = match &s.expect {
+            Expectation::Success => (
+                r.replay_verified && m.target_reached && m.target_confirmed && hits.is_empty() && m.bone_contacts == 0,
+                "reaches and confirms the target, no risk hit, no bone contact".to_string(),
+            ),
+            Expectation::Hit { name, .. } => (
+                r.replay_verified && hits.first() == Some(&name.as_str()),
+                format!("hits the {name} first"),
+            ),
+        };
+        let got = format!(
+            "target reached {}, confirmed {}, risk hits [{}], bone contacts {}, replay verified {}",
+            m.target_reached,
+            m.target_confirmed,
+            hits.join(", "),
+            m.bone_contacts,
+            r.replay_verified
+        );
+        say(&format!(
+            "- smoke test scripts/{}: {} — {} ({got})",
+            s.file_name,
+            if ok { "ok" } else { "FAILED" },
+            what
+        ));
+        if !ok {
+            failures.push(format!("scripts/{} should: {what}; got: {got}", s.file_name));
+        }
+    }
+    if !failures.is_empty() {
+        anyhow::bail!(
+            "the new scenario in {} failed its smoke test (the atlas is kept for a look): {}",
+            out.display(),
+            failures.join("; ")
+        );
+    }
+    Ok(())
 }

@@ -47,7 +47,7 @@ fn the_abdominal_ct_with_partial_labels_becomes_a_scenario_between_the_right_10t
     let dir = out.path().join("abdomen");
     let mut a = args(&ct, &seg);
     a.offset_voxels = [0, 0, 82];
-    let report = new_atlas(&a, &dir).unwrap();
+    let report = new_atlas(&a, &dir).unwrap().import;
     assert!(report.window.as_ref().unwrap().requested_found, "{}", report.to_text());
     assert_window(&report, "intercostal-right-10-11", "right 10th–11th intercostal space");
     let text = report.to_text();
@@ -65,6 +65,11 @@ fn the_abdominal_ct_with_partial_labels_becomes_a_scenario_between_the_right_10t
         atlas.manifest.difficulty.beginner.guided_path.as_deref(),
         Some("intercostal-right-10-11")
     );
+    // The example scripts along that path (run and scored by the CLI's smoke test, tests/cli.rs).
+    let success = std::fs::read_to_string(dir.join("scripts/success.txt")).unwrap();
+    assert!(success.contains("along intercostal-right-10-11"), "{success}");
+    let risk = std::fs::read_to_string(dir.join("scripts/risk-portal-vein.txt")).unwrap();
+    assert!(risk.contains("aimed at the portal vein"), "{risk}");
 }
 
 #[test]
@@ -74,7 +79,7 @@ fn the_chest_ct_with_its_class_table_gets_a_window_whose_entry_is_on_the_skin() 
     let dir = out.path().join("chest");
     let mut a = args(&d.join("ct.nii.gz"), &d.join("labels.nii.gz"));
     a.classes = Some(d.join("structures.csv"));
-    let report = new_atlas(&a, &dir).unwrap();
+    let report = new_atlas(&a, &dir).unwrap().import;
     let text = report.to_text();
     // Right ribs 10/11 are asked for; in this scan the liver leaves the field of view below, so
     // lines there leave through the CT's bottom face and are refused: another right space is
@@ -131,7 +136,7 @@ fn a_folder_of_per_structure_masks_is_merged_by_name() {
     nifti_io::write_labels(&masks.join("brain.nii.gz"), &full.map(|_| 0), "mask").unwrap();
     std::fs::write(masks.join("README.txt"), "not a mask").unwrap();
     let dir = t.path().join("atlas");
-    let report = new_atlas(&args(&ct_path, &masks), &dir).unwrap();
+    let report = new_atlas(&args(&ct_path, &masks), &dir).unwrap().import;
     assert_window(&report, "intercostal-right-10-11", "right 10th–11th intercostal space");
     let text = report.to_text();
     assert!(text.contains(&format!("{} masks merged", present.len() + 2)), "{text}");

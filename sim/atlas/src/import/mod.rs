@@ -10,6 +10,7 @@ pub mod dicom;
 pub mod new;
 pub mod recipe;
 pub mod resample;
+pub mod scripts;
 pub mod window;
 
 use std::path::Path;

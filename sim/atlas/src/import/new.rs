@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 use stylet_physics::{LabelId, Volume};
 
 use super::classes::ClassTable;
+use super::scripts::{self, GeneratedScript};
 use super::{ImportReport, Sources, auto, build};
 use crate::{AtlasError, nifti_io};
 
@@ -33,8 +34,47 @@ pub struct NewAtlas {
     pub name: String,
 }
 
-/// Makes the atlas: reads and checks the inputs (the small ones first), writes it to `out`.
-pub fn new_atlas(args: &NewAtlas, out: &Path) -> Result<ImportReport, AtlasError> {
+/// What `atlas new` made: the import's report, the atlas as loaded back (validated), and the
+/// example scripts written to `out/scripts/`.
+pub struct NewAtlasReport {
+    pub import: ImportReport,
+    pub atlas: crate::Atlas,
+    pub scripts: Vec<GeneratedScript>,
+}
+
+/// Makes the atlas: reads and checks the inputs (the small ones first), writes it to `out`,
+/// loads it back through the validating loader and writes the example scripts of its guided
+/// path to `out/scripts/` (none without a path).
+pub fn new_atlas(args: &NewAtlas, out: &Path) -> Result<NewAtlasReport, AtlasError> {
+    let import = new_atlas_only(args, out)?;
+    let atlas = crate::load(out)?;
+    let guided = atlas.manifest.difficulty.beginner.guided_path.clone();
+    let path = atlas
+        .manifest
+        .paths
+        .iter()
+        .find(|p| Some(&p.name) == guided.as_ref())
+        .or(atlas.manifest.paths.first());
+    let scripts = match path {
+        Some(p) => scripts::generate(&atlas.model, p),
+        None => Vec::new(),
+    };
+    if !scripts.is_empty() {
+        let dir = out.join("scripts");
+        std::fs::create_dir_all(&dir).map_err(|e| AtlasError::file(&dir, format!("cannot create: {e}")))?;
+        for s in &scripts {
+            let file = dir.join(&s.file_name);
+            let tmp = dir.join(format!(".{}.partial", s.file_name));
+            std::fs::write(&tmp, &s.text).map_err(|e| AtlasError::file(&tmp, format!("cannot write: {e}")))?;
+            std::fs::rename(&tmp, &file)
+                .map_err(|e| AtlasError::file(&file, format!("cannot move into place: {e}")))?;
+        }
+    }
+    Ok(NewAtlasReport { import, atlas, scripts })
+}
+
+/// [`new_atlas`] without loading it back or writing scripts.
+pub fn new_atlas_only(args: &NewAtlas, out: &Path) -> Result<ImportReport, AtlasError> {
     let name = args.name.trim();
     if name.is_empty() || name.len() > 64 {
         return Err(AtlasError::file(out, "the atlas name must be 1 … 64 characters"));
