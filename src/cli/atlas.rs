@@ -157,7 +157,7 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
                 offset_voxels: offset,
                 name,
             };
-            let made = stylet_atlas::import::new::new_atlas(&args, &a.out)?;
+            let made = stylet_atlas::import::new::new_atlas(&args, &a.out, &mut progress())?;
             let report = &made.import;
             sayf!("atlas '{}' written to {}", report.manifest.name, a.out.display());
             say(report.to_text().trim_end());
@@ -239,6 +239,7 @@ fn smoke_test(made: &stylet_atlas::import::new::NewAtlasReport, out: &Path) -> a
     let tmp = tempfile::tempdir().context("cannot make a temporary folder for the smoke test")?;
     let mut failures = Vec::new();
     for s in &made.scripts {
+        let started = std::time::Instant::now();
         let scenario = s.file_name.trim_end_matches(".txt");
         let session = tmp.path().join(format!("{scenario}.mcap"));
         let info = stylet_recorder::SessionInfo {
@@ -275,10 +276,11 @@ fn smoke_test(made: &stylet_atlas::import::new::NewAtlasReport, out: &Path) -> a
             r.replay_verified
         );
         say(&format!(
-            "- smoke test scripts/{}: {} — {} ({got})",
+            "- smoke test scripts/{}: {} — {} ({got}; {:.1} s)",
             s.file_name,
             if ok { "ok" } else { "FAILED" },
-            what
+            what,
+            started.elapsed().as_secs_f64()
         ));
         if !ok {
             failures.push(format!("scripts/{} should: {what}; got: {got}", s.file_name));
@@ -292,4 +294,30 @@ fn smoke_test(made: &stylet_atlas::import::new::NewAtlasReport, out: &Path) -> a
         );
     }
     Ok(())
+}
+
+/// A spinner on standard error for each step of `atlas new` (hidden when standard error is not a
+/// terminal), and a line with its time when it ends.
+fn progress() -> impl FnMut(stylet_atlas::import::steps::StepEvent) {
+    use stylet_atlas::import::steps::StepEvent;
+    let mut bar: Option<indicatif::ProgressBar> = None;
+    move |e| match e {
+        StepEvent::Started(step) => {
+            let b = indicatif::ProgressBar::new_spinner().with_style(
+                indicatif::ProgressStyle::with_template("{spinner} {msg} ({elapsed})")
+                    .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
+            );
+            b.set_message(step.describe());
+            b.enable_steady_tick(std::time::Duration::from_millis(120));
+            bar = Some(b);
+        }
+        StepEvent::Finished(step, took) => {
+            if let Some(b) = bar.take() {
+                b.finish_and_clear();
+                if !b.is_hidden() {
+                    eprintln!("✓ {} ({:.1} s)", step.describe(), took.as_secs_f64());
+                }
+            }
+        }
+    }
 }

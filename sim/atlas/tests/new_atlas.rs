@@ -47,7 +47,7 @@ fn the_abdominal_ct_with_partial_labels_becomes_a_scenario_between_the_right_10t
     let dir = out.path().join("abdomen");
     let mut a = args(&ct, &seg);
     a.offset_voxels = [0, 0, 82];
-    let report = new_atlas(&a, &dir).unwrap().import;
+    let report = new_atlas(&a, &dir, &mut |_| {}).unwrap().import;
     assert!(report.window.as_ref().unwrap().requested_found, "{}", report.to_text());
     assert_window(&report, "intercostal-right-10-11", "right 10th–11th intercostal space");
     let text = report.to_text();
@@ -79,7 +79,7 @@ fn the_chest_ct_with_its_class_table_gets_a_window_whose_entry_is_on_the_skin() 
     let dir = out.path().join("chest");
     let mut a = args(&d.join("ct.nii.gz"), &d.join("labels.nii.gz"));
     a.classes = Some(d.join("structures.csv"));
-    let report = new_atlas(&a, &dir).unwrap().import;
+    let report = new_atlas(&a, &dir, &mut |_| {}).unwrap().import;
     let text = report.to_text();
     // Right ribs 10/11 are asked for; in this scan the liver leaves the field of view below, so
     // lines there leave through the CT's bottom face and are refused: another right space is
@@ -136,7 +136,7 @@ fn a_folder_of_per_structure_masks_is_merged_by_name() {
     nifti_io::write_labels(&masks.join("brain.nii.gz"), &full.map(|_| 0), "mask").unwrap();
     std::fs::write(masks.join("README.txt"), "not a mask").unwrap();
     let dir = t.path().join("atlas");
-    let report = new_atlas(&args(&ct_path, &masks), &dir).unwrap().import;
+    let report = new_atlas(&args(&ct_path, &masks), &dir, &mut |_| {}).unwrap().import;
     assert_window(&report, "intercostal-right-10-11", "right 10th–11th intercostal space");
     let text = report.to_text();
     assert!(text.contains(&format!("{} masks merged", present.len() + 2)), "{text}");
@@ -149,7 +149,7 @@ fn a_folder_of_per_structure_masks_is_merged_by_name() {
 }
 
 fn refused(a: &NewAtlas, out: &Path, want: &[&str]) {
-    let e = new_atlas(a, out)
+    let e = new_atlas(a, out, &mut |_| {})
         .err()
         .unwrap_or_else(|| panic!("{a:?} was accepted"))
         .to_string();
@@ -230,7 +230,7 @@ fn hostile_inputs_are_refused_with_the_reason_and_nothing_written() {
         };
         std::fs::write(series.join(f.file_name().unwrap()), &bytes[..keep]).unwrap();
     }
-    let e = new_atlas(&args(&series, &seg), &out)
+    let e = new_atlas(&args(&series, &seg), &out, &mut |_| {})
         .err()
         .expect("a truncated series is refused")
         .to_string();

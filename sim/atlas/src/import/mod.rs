@@ -11,6 +11,7 @@ pub mod new;
 pub mod recipe;
 pub mod resample;
 pub mod scripts;
+pub mod steps;
 pub mod window;
 
 use std::path::Path;
@@ -23,6 +24,7 @@ use crate::{AtlasError, nifti_io};
 use biliary::BiliaryReport;
 use classes::ClassTable;
 use recipe::{LoadedRecipe, load_recipe};
+use steps::{Step, StepTimer};
 use window::WindowReport;
 
 /// What an import did, for the command's output and the tests.
@@ -34,10 +36,21 @@ pub struct ImportReport {
     /// The source label maps' class names (ribs by side and number in the window's text).
     pub classes: ClassTable,
     pub notes: Vec<String>,
+    /// The time each step took (reading, tree, window, writing; `atlas new` adds its own).
+    pub timings: Vec<(Step, std::time::Duration)>,
 }
 
 impl ImportReport {
     pub fn to_text(&self) -> String {
+        let mut out = self.to_text_without_time();
+        if !self.timings.is_empty() {
+            out += &format!("- time: {}\n", steps::describe_timings(&self.timings));
+        }
+        out
+    }
+
+    /// [`Self::to_text`] without the timings line (what does not change from run to run).
+    pub fn to_text_without_time(&self) -> String {
         let mut out = String::new();
         for n in &self.notes {
             out += &format!("- {n}\n");
@@ -227,14 +240,22 @@ pub fn import(recipe_path: &Path, data_dir: &Path, out: &Path) -> Result<ImportR
         Some(file) => ClassTable::read_csv(&data_dir.join(file))?,
         None => ClassTable::totalsegmentator(),
     };
-    let sources = read_sources(&r, data_dir)?;
-    build(&r, sources, classes, out)
+    let mut quiet = |_| {};
+    let mut timer = StepTimer::new(&mut quiet);
+    let sources = timer.run(Step::ReadCt, || read_sources(&r, data_dir))?;
+    build(&r, sources, classes, out, &mut timer)
 }
 
 /// The importer's work on sources already read (a recipe's, or `atlas new`'s): maps the source
 /// classes to atlas labels, synthesises the biliary tree, finds the intercostal window and writes
 /// the atlas to `out`. Errors name `r.path` (the recipe, or what made it).
-pub fn build(r: &LoadedRecipe, sources: Sources, classes: ClassTable, out: &Path) -> Result<ImportReport, AtlasError> {
+pub fn build(
+    r: &LoadedRecipe,
+    sources: Sources,
+    classes: ClassTable,
+    out: &Path,
+    timer: &mut StepTimer,
+) -> Result<ImportReport, AtlasError> {
     let rec = &r.recipe;
     let recipe_path = r.path.as_path();
     let Sources {
@@ -268,7 +289,8 @@ pub fn build(r: &LoadedRecipe, sources: Sources, classes: ClassTable, out: &Path
 
     let biliary = match &rec.biliary {
         Some(b) => Some(
-            biliary::synthesize(b, &mut ct, &mut labels, &source)
+            timer
+                .run(Step::Biliary, || biliary::synthesize(b, &mut ct, &mut labels, &source))
                 .map_err(|e| AtlasError::file(recipe_path, format!("[biliary]: {e}")))?,
         ),
         None => None,
@@ -305,21 +327,24 @@ pub fn build(r: &LoadedRecipe, sources: Sources, classes: ClassTable, out: &Path
 
     let window = match &rec.window {
         Some(w) => {
-            let table = manifest::label_table(&manifest.labels, &manifest.heuristic)
-                .map_err(|e| AtlasError::file(recipe_path, e))?;
-            let tree = manifest::property_tree(&manifest.tissues).map_err(|e| AtlasError::file(recipe_path, e))?;
-            let t = estimate_thresholds(&ct, manifest.heuristic.risk_depth_mm)
-                .map_err(|e| AtlasError::file(recipe_path, format!("CT thresholds: {e}")))?;
-            let atlas = PunctureAtlas::new(ct.clone(), labels.clone(), table, tree, t)
-                .map_err(|e| AtlasError::file(recipe_path, e.to_string()))?;
-            let report = window::find_window(
-                &atlas,
-                &source,
-                w.upper_rib,
-                w.lower_rib,
-                &w.rib_sequence,
-                &w.bone_labels,
-            );
+            // The atlas the search walks through (its distance maps included) is part of the step.
+            let report = timer.run(Step::Window, || -> Result<WindowReport, AtlasError> {
+                let table = manifest::label_table(&manifest.labels, &manifest.heuristic)
+                    .map_err(|e| AtlasError::file(recipe_path, e))?;
+                let tree = manifest::property_tree(&manifest.tissues).map_err(|e| AtlasError::file(recipe_path, e))?;
+                let t = estimate_thresholds(&ct, manifest.heuristic.risk_depth_mm)
+                    .map_err(|e| AtlasError::file(recipe_path, format!("CT thresholds: {e}")))?;
+                let atlas = PunctureAtlas::new(ct.clone(), labels.clone(), table, tree, t)
+                    .map_err(|e| AtlasError::file(recipe_path, e.to_string()))?;
+                Ok(window::find_window(
+                    &atlas,
+                    &source,
+                    w.upper_rib,
+                    w.lower_rib,
+                    &w.rib_sequence,
+                    &w.bone_labels,
+                ))
+            })?;
             if let Some(p) = report.path(&classes) {
                 manifest.difficulty.beginner.guided_path = Some(p.name.clone());
                 manifest.paths.push(p);
@@ -328,12 +353,13 @@ pub fn build(r: &LoadedRecipe, sources: Sources, classes: ClassTable, out: &Path
         }
         None => None,
     };
-    crate::write(out, &manifest, &ct, &labels)?;
+    timer.run(Step::Write, || crate::write(out, &manifest, &ct, &labels))?;
     Ok(ImportReport {
         manifest,
         biliary,
         window,
         classes,
         notes,
+        timings: timer.timings.clone(),
     })
 }

@@ -12,6 +12,7 @@ use stylet_physics::{LabelId, Volume};
 
 use super::classes::ClassTable;
 use super::scripts::{self, GeneratedScript};
+use super::steps::{Step, StepEvent, StepTimer};
 use super::{ImportReport, Sources, auto, build};
 use crate::{AtlasError, nifti_io};
 
@@ -44,10 +45,16 @@ pub struct NewAtlasReport {
 
 /// Makes the atlas: reads and checks the inputs (the small ones first), writes it to `out`,
 /// loads it back through the validating loader and writes the example scripts of its guided
-/// path to `out/scripts/` (none without a path).
-pub fn new_atlas(args: &NewAtlas, out: &Path) -> Result<NewAtlasReport, AtlasError> {
-    let import = new_atlas_only(args, out)?;
-    let atlas = crate::load(out)?;
+/// path to `out/scripts/` (none without a path). `on_step` hears each step start and end (the
+/// command's progress display); the report keeps the time of each.
+pub fn new_atlas(
+    args: &NewAtlas,
+    out: &Path,
+    on_step: &mut dyn FnMut(StepEvent),
+) -> Result<NewAtlasReport, AtlasError> {
+    let mut timer = StepTimer::new(on_step);
+    let mut import = new_atlas_only(args, out, &mut timer)?;
+    let atlas = timer.run(Step::Load, || crate::load(out))?;
     let guided = atlas.manifest.difficulty.beginner.guided_path.clone();
     let path = atlas
         .manifest
@@ -59,22 +66,29 @@ pub fn new_atlas(args: &NewAtlas, out: &Path) -> Result<NewAtlasReport, AtlasErr
         Some(p) => scripts::generate(&atlas.model, p),
         None => Vec::new(),
     };
-    if !scripts.is_empty() {
-        let dir = out.join("scripts");
-        std::fs::create_dir_all(&dir).map_err(|e| AtlasError::file(&dir, format!("cannot create: {e}")))?;
-        for s in &scripts {
-            let file = dir.join(&s.file_name);
-            let tmp = dir.join(format!(".{}.partial", s.file_name));
-            std::fs::write(&tmp, &s.text).map_err(|e| AtlasError::file(&tmp, format!("cannot write: {e}")))?;
-            std::fs::rename(&tmp, &file)
-                .map_err(|e| AtlasError::file(&file, format!("cannot move into place: {e}")))?;
-        }
-    }
+    timer.run(Step::Scripts, || write_scripts(out, &scripts))?;
+    import.timings = timer.timings.clone();
     Ok(NewAtlasReport { import, atlas, scripts })
 }
 
+/// The scripts into `out/scripts/`, each written beside its place and renamed into it.
+fn write_scripts(out: &Path, scripts: &[GeneratedScript]) -> Result<(), AtlasError> {
+    if scripts.is_empty() {
+        return Ok(());
+    }
+    let dir = out.join("scripts");
+    std::fs::create_dir_all(&dir).map_err(|e| AtlasError::file(&dir, format!("cannot create: {e}")))?;
+    for s in scripts {
+        let file = dir.join(&s.file_name);
+        let tmp = dir.join(format!(".{}.partial", s.file_name));
+        std::fs::write(&tmp, &s.text).map_err(|e| AtlasError::file(&tmp, format!("cannot write: {e}")))?;
+        std::fs::rename(&tmp, &file).map_err(|e| AtlasError::file(&file, format!("cannot move into place: {e}")))?;
+    }
+    Ok(())
+}
+
 /// [`new_atlas`] without loading it back or writing scripts.
-pub fn new_atlas_only(args: &NewAtlas, out: &Path) -> Result<ImportReport, AtlasError> {
+pub fn new_atlas_only(args: &NewAtlas, out: &Path, timer: &mut StepTimer) -> Result<ImportReport, AtlasError> {
     let name = args.name.trim();
     if name.is_empty() || name.len() > 64 {
         return Err(AtlasError::file(out, "the atlas name must be 1 … 64 characters"));
@@ -95,15 +109,15 @@ pub fn new_atlas_only(args: &NewAtlas, out: &Path) -> Result<ImportReport, Atlas
         None
     };
     let mut notes = Vec::new();
-    let ct = read_ct(&args.ct, &mut notes)?;
+    let ct = timer.run(Step::ReadCt, || read_ct(&args.ct, &mut notes))?;
     let mut labels = Volume::filled(*ct.grid(), 0 as LabelId);
-    match masks {
-        Some(files) => merge_masks(&files, &ct, &mut classes, &mut labels, &mut notes)?,
+    timer.run(Step::ReadLabels, || match masks {
+        Some(files) => merge_masks(&files, &ct, &mut classes, &mut labels, &mut notes),
         None => {
             let l = nifti_io::read_labels(&args.labels)?;
-            super::place_labels(ct.grid(), &l, args.offset_voxels, &args.labels, &mut labels, &mut notes)?;
+            super::place_labels(ct.grid(), &l, args.offset_voxels, &args.labels, &mut labels, &mut notes)
         }
-    }
+    })?;
     let present: BTreeSet<LabelId> = labels.data().iter().copied().filter(|&l| l != 0).collect();
     if present.is_empty() {
         return Err(AtlasError::file(&args.labels, "the label map labels no voxel"));
@@ -122,7 +136,7 @@ pub fn new_atlas_only(args: &NewAtlas, out: &Path) -> Result<ImportReport, Atlas
             classes.source
         ),
     );
-    build(&recipe, Sources { ct, labels, notes }, classes, out)
+    build(&recipe, Sources { ct, labels, notes }, classes, out, timer)
 }
 
 /// The CT: a NIfTI file, or a DICOM series folder.
