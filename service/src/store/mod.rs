@@ -140,6 +140,23 @@ pub fn new_id() -> String {
     stylet_recorder::new_session_id()
 }
 
+/// Whether an SQLite connection can really write. SQLite opens a file it cannot write read-only,
+/// silently, and such a connection stays read-only; `BEGIN IMMEDIATE` alone is no test, for it
+/// succeeds on such a connection once the file is writable again (a connection opened just before
+/// a read-only window ends). Writing the header's `user_version` back to its own value, rolled
+/// back, fails on it.
+pub(crate) async fn check_sqlite_writable(conn: &mut sqlx::AnyConnection) -> Result<(), sqlx::Error> {
+    let version: i64 = sqlx::query_scalar("PRAGMA user_version").fetch_one(&mut *conn).await?;
+    sqlx::query("BEGIN IMMEDIATE").execute(&mut *conn).await?;
+    let wrote = sqlx::query(sqlx::AssertSqlSafe(format!("PRAGMA user_version = {version}")))
+        .execute(&mut *conn)
+        .await;
+    let rolled_back = sqlx::query("ROLLBACK").execute(&mut *conn).await;
+    wrote?;
+    rolled_back?;
+    Ok(())
+}
+
 #[derive(Clone)]
 pub struct Store {
     pub pool: AnyPool,
@@ -172,11 +189,7 @@ impl Store {
                         // SQLite opens a file it cannot write read-only, silently, and the
                         // connection stays so: refuse it, so that a data directory that was
                         // read-only for a while leaves no such connection in the pool.
-                        let writable = async {
-                            sqlx::query("BEGIN IMMEDIATE").execute(&mut *conn).await?;
-                            sqlx::query("ROLLBACK").execute(&mut *conn).await
-                        };
-                        if let Err(e) = writable.await {
+                        if let Err(e) = check_sqlite_writable(conn).await {
                             health::note(&e);
                             return Err(e);
                         }
@@ -301,5 +314,36 @@ mod tests {
             }
         }
         assert_eq!(store.users().await.unwrap().len(), 24);
+    }
+
+    /// A connection SQLite opened read-only is refused even while the file is writable (the race
+    /// at the end of a read-only window: opened during it, checked after it), and a normal one
+    /// passes without changing the database.
+    #[tokio::test]
+    async fn a_read_only_sqlite_connection_fails_the_write_check() {
+        use sqlx::Connection;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.db");
+        let store = Store::open(&format!("sqlite://{}?mode=rwc", path.display()))
+            .await
+            .unwrap();
+        let mut ro = sqlx::AnyConnection::connect(&format!("sqlite://{}?mode=ro", path.display()))
+            .await
+            .unwrap();
+        // `BEGIN IMMEDIATE` alone succeeds on it: the old check let it through.
+        sqlx::query("BEGIN IMMEDIATE").execute(&mut ro).await.unwrap();
+        sqlx::query("ROLLBACK").execute(&mut ro).await.unwrap();
+        let e = check_sqlite_writable(&mut ro).await.unwrap_err();
+        assert!(health::is_storage_failure(&e), "{e}");
+        let mut rw = sqlx::AnyConnection::connect(&format!("sqlite://{}", path.display()))
+            .await
+            .unwrap();
+        check_sqlite_writable(&mut rw).await.unwrap();
+        let v: i64 = sqlx::query_scalar("PRAGMA user_version")
+            .fetch_one(&mut rw)
+            .await
+            .unwrap();
+        assert_eq!(v, 0);
+        store.probe_write().await.unwrap();
     }
 }
