@@ -45,6 +45,11 @@ fn needle_length_mm(depth_mm: f64) -> f64 {
         .unwrap_or(400.0)
 }
 
+/// When a push from [`OUTSIDE_MM`] starting at 1 s reaches `depth_mm` (s, rounded up to 0.1 s).
+fn arrival_s(depth_mm: f64) -> f64 {
+    ((1.0 + (depth_mm - OUTSIDE_MM) / SPEED_MM_S) * 10.0).ceil() / 10.0
+}
+
 fn fmt_s(t: f64) -> String {
     format!("{:.1}", t)
 }
@@ -64,7 +69,7 @@ pub fn generate(atlas: &PunctureAtlas, path: &InsertionPath) -> Vec<GeneratedScr
 
 fn success(path: &InsertionPath, depth: f64) -> GeneratedScript {
     let d = (depth * 10.0).round() / 10.0;
-    let t1 = ((1.0 + (d - OUTSIDE_MM) / SPEED_MM_S) * 10.0).ceil() / 10.0;
+    let t1 = arrival_s(d);
     let p = &path.name;
     let text = format!(
         "stylet-script 1\n\
@@ -104,7 +109,7 @@ fn success(path: &InsertionPath, depth: f64) -> GeneratedScript {
 
 fn risk(path: &InsertionPath, entry: DVec3, aim: DVec3, label: LabelId, name: &str, hit_depth: f64) -> GeneratedScript {
     let d = ((hit_depth + PAST_BOUNDARY_MM) * 10.0).round() / 10.0;
-    let t1 = ((1.0 + (d - OUTSIDE_MM) / SPEED_MM_S) * 10.0).ceil() / 10.0;
+    let t1 = arrival_s(d);
     let r = |v: DVec3| format!("{:.1} {:.1} {:.1}", v.x, v.y, v.z);
     let line = format!("aim {}  {}", r(entry), r(aim));
     let slug: String = name

@@ -115,8 +115,9 @@ impl Grid3<'_> {
         self.fast
     }
 
-    /// Any grid, including axes of one voxel (then that axis does not interpolate).
-    fn trilinear_general(&self, c: Vec3) -> Option<f32> {
+    /// The trilinear read's base voxel, fractions and steps (0 on an axis of one voxel, which
+    /// does not interpolate) on any grid, or `None` outside the sampling domain.
+    fn general_setup(&self, c: Vec3) -> Option<([u32; 3], [f32; 3], [u32; 3])> {
         let mut base = [0u32; 3];
         let mut frac = [0.0f32; 3];
         let mut step = [0u32; 3];
@@ -133,6 +134,12 @@ impl Grid3<'_> {
             frac[a] = if n == 1 { 0.0 } else { x - b as f32 };
             step[a] = u32::from(n > 1);
         }
+        Some((base, frac, step))
+    }
+
+    /// Any grid, including axes of one voxel (then that axis does not interpolate).
+    fn trilinear_general(&self, c: Vec3) -> Option<f32> {
+        let (base, frac, step) = self.general_setup(c)?;
         let (nx, ny) = (self.dims[0] as usize, self.dims[1] as usize);
         let (i0, j0, k0) = (base[0] as usize, base[1] as usize, base[2] as usize);
         let (di, dj, dk) = (step[0] as usize, step[1] as usize * nx, step[2] as usize * nx * ny);
@@ -155,22 +162,7 @@ impl Grid3<'_> {
     /// the sampling domain. Computed from the voxels on the fly: the CT's hot path reads the same
     /// numbers from its [`GradientVolume`](super::gradient_volume::GradientVolume).
     pub fn differences(&self, c: Vec3, edge: Edge) -> Option<Vec3> {
-        let mut base = [0u32; 3];
-        let mut frac = [0.0f32; 3];
-        let mut step = [0u32; 3];
-        for a in 0..3 {
-            let n = self.dims[a];
-            let nf = n as f32;
-            let x = c[a];
-            if !(x >= -0.5 && x < nf - 0.5) {
-                return None;
-            }
-            let x = x.clamp(0.0, nf - 1.0);
-            let b = (x as u32).min(n.saturating_sub(2));
-            base[a] = b;
-            frac[a] = if n == 1 { 0.0 } else { x - b as f32 };
-            step[a] = u32::from(n > 1);
-        }
+        let (base, frac, step) = self.general_setup(c)?;
         let dims = self.dims.map(|n| n as i64);
         let value = |p: [i64; 3]| -> f32 {
             let mut q = p;
