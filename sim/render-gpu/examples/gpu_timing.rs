@@ -1,6 +1,9 @@
-//! Frame times of the GPU ray caster on the phantom (not a test): 512 × 512 and 1225 × 1016 with
-//! the soft-tissue preset-like transfer function, everything fast on, next to the CPU reference
-//! on this machine's cores.
+//! Frame times of the GPU ray caster (not a test) on the phantom or an atlas: 512 × 512 and
+//! 1225 × 1016, soft-tissue preset, naive, + ray/box, + leaping, + early termination, half
+//! resolution. Each is the median of the GPU's own pass time (timestamps) and of the whole call
+//! with the image read back; the CPU reference on this machine's cores beside the fast case,
+//! with the difference statistics of the two images (both written as PNG under
+//! `$STYLET_TIMING_PNG` when set).
 //!
 //! `cargo run --profile ci -p stylet-render-gpu --example gpu_timing [-- ATLAS_DIR]`
 
@@ -58,38 +61,93 @@ fn main() {
         motion: None,
     };
     let mut r = GpuRenderer::new(&ctx);
+    println!("GPU timestamps: {}", ctx.has_timestamps());
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    // The thesis' Table 3.1 analogue: each speed-up added to the last, then half resolution.
+    let fast = Quality::fast(step);
+    let cases = [
+        ("naive", Quality::naive(step)),
+        (
+            "ray/box",
+            Quality {
+                leaping: false,
+                early_termination: false,
+                ..fast
+            },
+        ),
+        (
+            "+leaping",
+            Quality {
+                early_termination: false,
+                ..fast
+            },
+        ),
+        ("+early termination", fast),
+        (
+            "+early termination, leaping N = 32",
+            Quality {
+                occupancy_cells: 32,
+                ..fast
+            },
+        ),
+        (
+            "+early termination, leaping N = 128",
+            Quality {
+                occupancy_cells: 128,
+                ..fast
+            },
+        ),
+        (
+            "half resolution",
+            Quality {
+                half_resolution: true,
+                ..fast
+            },
+        ),
+    ];
     for (w, h) in [(512u32, 512u32), (1225, 1016)] {
-        for (name, q) in [
-            ("fast", Quality::fast(step)),
-            (
-                "half",
-                Quality {
-                    half_resolution: true,
-                    ..Quality::fast(step)
-                },
-            ),
-        ] {
+        for (name, q) in cases {
             scene.quality = q;
-            let _ = r.render(&ctx, &gpu, &scene, w, h).unwrap(); // warm-up (pipeline, occupancy)
-            let mut times: Vec<f64> = (0..3)
-                .map(|_| {
-                    let t = Instant::now();
-                    let _ = r.render(&ctx, &gpu, &scene, w, h).unwrap();
-                    t.elapsed().as_secs_f64() * 1e3
-                })
-                .collect();
-            times.sort_by(f64::total_cmp);
-            let t = Instant::now();
-            let out = stylet_render::raycast::render(&cpu, &scene, w, h);
-            let t_cpu = t.elapsed().as_secs_f64() * 1e3;
-            println!(
-                "{w}×{h} {name}: GPU median {:.0} ms (min {:.0}); CPU reference {:.0} ms on {} threads ({} samples)",
-                times[1],
-                times[0],
-                t_cpu,
-                rayon::current_num_threads(),
-                out.samples
+            let first = r.render(&ctx, &gpu, &scene, w, h).unwrap(); // warm-up (pipeline, occupancy)
+            let (mut pass, mut wall) = (Vec::new(), Vec::new());
+            for _ in 0..FRAMES {
+                let t = Instant::now();
+                let _ = r.render(&ctx, &gpu, &scene, w, h).unwrap();
+                wall.push(t.elapsed().as_secs_f64() * 1e3);
+                pass.extend(r.last_pass_ms());
+            }
+            let pass = if pass.is_empty() {
+                "n/a".to_string()
+            } else {
+                format!("{:.2} ms", median(pass))
+            };
+            print!(
+                "{w}×{h} {name}: GPU pass median {pass}, frame with readback median {:.2} ms",
+                median(wall)
             );
+            if name == "+early termination" {
+                let t = Instant::now();
+                let out = stylet_render::raycast::render(&cpu, &scene, w, h);
+                print!(
+                    "; CPU reference {:.0} ms on {} threads ({} samples); GPU − CPU {:?}",
+                    t.elapsed().as_secs_f64() * 1e3,
+                    rayon::current_num_threads(),
+                    out.samples,
+                    stylet_render::image::diff(&first, &out.image)
+                );
+                if let Some(dir) = std::env::var_os("STYLET_TIMING_PNG") {
+                    let dir = std::path::Path::new(&dir);
+                    first.write_png(&dir.join(format!("gpu-{w}x{h}.png"))).unwrap();
+                    out.image.write_png(&dir.join(format!("cpu-{w}x{h}.png"))).unwrap();
+                }
+            }
+            println!();
         }
     }
 }
+
+/// Timed frames per case (after one warm-up frame).
+const FRAMES: usize = 11;

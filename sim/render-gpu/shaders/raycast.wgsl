@@ -100,6 +100,7 @@ struct Primitive {
 @group(0) @binding(6) var deformed: texture_3d<f32>;
 @group(0) @binding(7) var<storage, read_write> out_px: array<u32>;
 @group(0) @binding(8) var<storage, read> tf_table: array<vec4<f32>>;
+// Binding 9, the gradient records, is declared by the host's prelude (volume.rs `records_prelude`).
 
 // --- Step 1: jitter (raycast/jitter.rs) -----------------------------------------------------
 
@@ -211,27 +212,31 @@ fn s(at: At) -> f32 {
 
 // --- Gradient (sampler.rs `Sampler::gradient`, gradient_volume.rs) --------------------------
 // The central differences D_a = I(p + e_a) - I(p - e_a) of the eight voxels a trilinear read
-// uses, blended in the trilinear order, then grad s = sum_a D_a (rows_a / 2) in the world. The CPU
-// reads the CT's differences from its precomputed records; here they are formed on the fly
-// from the same voxels with the same subtraction, so both see the same numbers.
+// uses, blended in the trilinear order, then grad s = sum_a D_a (rows_a / 2) in the world. The CT's
+// differences are the CPU's own precomputed records (`ct_record`, air beyond the grid), read
+// with the value in one trilinear pass; J's are formed on the fly (J changes with the tissue).
 
-// CT voxel p, air beyond the grid (Edge::Air: the CT box's faces are surfaces).
-fn ct_or_air(p: vec3<i32>) -> f32 {
-    if any(p < vec3<i32>(0)) || any(p >= vec3<i32>(P.dims.xyz)) {
-        return AIR_HU;
-    }
-    return ct_voxel(p);
+struct Records {
+    ok: bool,
+    r: vec4<f32>,
 }
 
-fn ct_diff(p: vec3<i32>) -> vec3<f32> {
-    let ex = vec3<i32>(1, 0, 0);
-    let ey = vec3<i32>(0, 1, 0);
-    let ez = vec3<i32>(0, 0, 1);
-    return vec3<f32>(
-        ct_or_air(p + ex) - ct_or_air(p - ex),
-        ct_or_air(p + ey) - ct_or_air(p - ey),
-        ct_or_air(p + ez) - ct_or_air(p - ez),
-    );
+// The CT's records (dx, dy, dz, I) trilinearly interpolated, all four lanes in ct_trilinear's order.
+fn ct_records(c: vec3<f32>) -> Records {
+    let l = lerp_setup(c, P.dims.xyz);
+    if !l.ok {
+        return Records(false, vec4<f32>(0.0));
+    }
+    let fx = l.f.x;
+    let fy = l.f.y;
+    let fz = l.f.z;
+    let c00 = ct_record(vec3<i32>(l.i0.x, l.i0.y, l.i0.z)) * (1.0 - fx) + ct_record(vec3<i32>(l.i1.x, l.i0.y, l.i0.z)) * fx;
+    let c10 = ct_record(vec3<i32>(l.i0.x, l.i1.y, l.i0.z)) * (1.0 - fx) + ct_record(vec3<i32>(l.i1.x, l.i1.y, l.i0.z)) * fx;
+    let c01 = ct_record(vec3<i32>(l.i0.x, l.i0.y, l.i1.z)) * (1.0 - fx) + ct_record(vec3<i32>(l.i1.x, l.i0.y, l.i1.z)) * fx;
+    let c11 = ct_record(vec3<i32>(l.i0.x, l.i1.y, l.i1.z)) * (1.0 - fx) + ct_record(vec3<i32>(l.i1.x, l.i1.y, l.i1.z)) * fx;
+    let c0 = c00 * (1.0 - fy) + c10 * fy;
+    let c1 = c01 * (1.0 - fy) + c11 * fy;
+    return Records(true, c0 * (1.0 - fz) + c1 * fz);
 }
 
 // J's voxel p, the nearest voxel beyond its grid (Edge::Clamp: J continues into the CT).
@@ -255,21 +260,6 @@ struct Diff {
     d: vec3<f32>,
 }
 
-fn ct_differences(c: vec3<f32>) -> Diff {
-    let l = lerp_setup(c, P.dims.xyz);
-    if !l.ok {
-        return Diff(false, vec3<f32>(0.0));
-    }
-    let g = vec3<f32>(1.0) - l.f;
-    let c00 = ct_diff(vec3<i32>(l.i0.x, l.i0.y, l.i0.z)) * g.x + ct_diff(vec3<i32>(l.i1.x, l.i0.y, l.i0.z)) * l.f.x;
-    let c10 = ct_diff(vec3<i32>(l.i0.x, l.i1.y, l.i0.z)) * g.x + ct_diff(vec3<i32>(l.i1.x, l.i1.y, l.i0.z)) * l.f.x;
-    let c01 = ct_diff(vec3<i32>(l.i0.x, l.i0.y, l.i1.z)) * g.x + ct_diff(vec3<i32>(l.i1.x, l.i0.y, l.i1.z)) * l.f.x;
-    let c11 = ct_diff(vec3<i32>(l.i0.x, l.i1.y, l.i1.z)) * g.x + ct_diff(vec3<i32>(l.i1.x, l.i1.y, l.i1.z)) * l.f.x;
-    let c0 = c00 * g.y + c10 * l.f.y;
-    let c1 = c01 * g.y + c11 * l.f.y;
-    return Diff(true, c0 * g.z + c1 * l.f.z);
-}
-
 fn def_differences(c: vec3<f32>) -> Diff {
     let l = lerp_setup(c, P.def_dims.xyz);
     if !l.ok {
@@ -285,19 +275,42 @@ fn def_differences(c: vec3<f32>) -> Diff {
     return Diff(true, c0 * g.z + c1 * l.f.z);
 }
 
-// grad s (HU/mm): J's differences inside Omega_J, else the CT's, else 0 (unshaded).
-fn gradient(at: At) -> vec3<f32> {
+// A lattice sample: s(x) of eq. 3.1.1 and where its gradient comes from (SRC_*); the CT's
+// interpolated differences ride along.
+const SRC_AIR: u32 = 0u;
+const SRC_CT: u32 = 1u;
+const SRC_J: u32 = 2u;
+
+struct Sample {
+    v: f32,
+    src: u32,
+    d: vec3<f32>,
+}
+
+fn sample(at: At) -> Sample {
     if (P.image.z & F_DEFORMED) != 0u {
-        let d = def_differences(at.j);
-        if d.ok {
-            return (P.def_inv0.xyz * 0.5) * d.d.x + (P.def_inv1.xyz * 0.5) * d.d.y + (P.def_inv2.xyz * 0.5) * d.d.z;
+        let v = def_trilinear(at.j);
+        if v.ok {
+            return Sample(v.v, SRC_J, vec3<f32>(0.0));
         }
     }
-    let d = ct_differences(at.ct);
-    if !d.ok {
-        return vec3<f32>(0.0);
+    let r = ct_records(at.ct);
+    if !r.ok {
+        return Sample(AIR_HU, SRC_AIR, vec3<f32>(0.0));
     }
-    return (P.inv0.xyz * 0.5) * d.d.x + (P.inv1.xyz * 0.5) * d.d.y + (P.inv2.xyz * 0.5) * d.d.z;
+    return Sample(r.r.w, SRC_CT, r.r.xyz);
+}
+
+// grad s (HU/mm): J's differences inside Omega_J, else the CT's, else 0 (unshaded).
+fn gradient(at: At, smp: Sample) -> vec3<f32> {
+    if smp.src == SRC_J {
+        let d = def_differences(at.j);
+        return (P.def_inv0.xyz * 0.5) * d.d.x + (P.def_inv1.xyz * 0.5) * d.d.y + (P.def_inv2.xyz * 0.5) * d.d.z;
+    }
+    if smp.src == SRC_CT {
+        return (P.inv0.xyz * 0.5) * smp.d.x + (P.inv1.xyz * 0.5) * smp.d.y + (P.inv2.xyz * 0.5) * smp.d.z;
+    }
+    return vec3<f32>(0.0);
 }
 
 // l(x): the label of the CT voxel nearest the sample, 0 outside (never interpolated).
@@ -851,11 +864,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 }
             }
             // 5. Sample.
-            let c = table_lookup(s(at));
+            let smp = sample(at);
+            let c = table_lookup(smp.v);
             if c.w > 0.0 {
                 // 6. Shadow, at the sample's world position.
                 let f_shadow = shadow_factor(origin + dir * t);
-                let shade = phong(gradient(at), dir, f_shadow);
+                let shade = phong(gradient(at, smp), dir, f_shadow);
                 acc_c += (1.0 - acc_a) * (c.xyz * shade);
                 acc_a += (1.0 - acc_a) * c.w;
                 // 7. Early termination.

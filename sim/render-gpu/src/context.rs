@@ -61,6 +61,8 @@ impl GpuContext {
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("stylet-render-gpu"),
                 required_limits: limits.clone(),
+                // GPU frame times (GpuRenderer::last_pass_ms) where the adapter has a clock.
+                required_features: adapter.features() & wgpu::Features::TIMESTAMP_QUERY,
                 ..Default::default()
             })
             .await
@@ -79,6 +81,11 @@ impl GpuContext {
     /// The adapter that draws (for reports and benchmarks).
     pub fn adapter(&self) -> &AdapterSummary {
         &self.adapter
+    }
+
+    /// Whether the GPU reports its own pass times (`GpuRenderer::last_pass_ms`).
+    pub fn has_timestamps(&self) -> bool {
+        self.device.features().contains(wgpu::Features::TIMESTAMP_QUERY)
     }
 
     /// The device's limits (the largest 3D texture, storage buffer, …).

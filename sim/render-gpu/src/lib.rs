@@ -18,6 +18,7 @@ mod context;
 pub mod mpr;
 mod pipeline;
 pub mod raycast;
+mod timer;
 pub mod ultrasound;
 pub mod volume;
 pub mod xray;

@@ -8,6 +8,7 @@ use bytemuck::{Pod, Zeroable};
 use stylet_render::mpr::{MprImage, SliceSpec};
 
 use crate::pipeline::{Pipelines, dispatch, uniform_buffer};
+use crate::raycast::ct_prelude;
 use crate::volume::GpuVolume;
 use crate::{GpuContext, GpuError};
 
@@ -69,7 +70,7 @@ impl GpuMpr {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
-        let pipeline = self.pipelines.get(ctx, vol.ct_key());
+        let pipeline = self.pipelines.get(ctx, ct_prelude(vol.ct_key()));
         dispatch(
             ctx,
             &pipeline,
@@ -81,6 +82,7 @@ impl GpuMpr {
                 output.as_entire_binding(),
             ],
             (w.div_ceil(8), h.div_ceil(8)),
+            None,
         );
         let bytes = ctx.read_buffer(&output, out_bytes)?;
         let words: &[u32] = bytemuck::cast_slice(&bytes);

@@ -1,16 +1,16 @@
-//! What the ray-casting and MPR passes share: one compute pipeline per CT storage (the CT
-//! declaration, `raycast::ct_prelude`, is prepended to the shader), built on first use, and
-//! binding resources 0 … n − 1 in order then dispatching a grid of 8 × 8 workgroups.
+//! What the GPU passes share: one compute pipeline per storage of the volumes (their
+//! declarations, `raycast::ct_prelude` and for ray casting `volume::records_prelude`, are
+//! prepended to the shader), built on first use, and binding resources 0 … n − 1 in order then
+//! dispatching a grid of 8 × 8 workgroups.
 
 use crate::GpuContext;
-use crate::raycast::ct_prelude;
-use crate::volume::CtFormat;
+use crate::timer::PassTimer;
 
-/// One shader's compute pipelines, one per CT storage (format, in a storage buffer or not).
+/// One shader's compute pipelines, one per prelude (the volumes' declarations).
 pub(crate) struct Pipelines {
     label: &'static str,
     shader: &'static str,
-    built: Vec<((CtFormat, bool), wgpu::ComputePipeline)>,
+    built: Vec<(String, wgpu::ComputePipeline)>,
 }
 
 impl Pipelines {
@@ -22,12 +22,12 @@ impl Pipelines {
         }
     }
 
-    /// The pipeline for a CT stored as `format` (entry point `main`).
-    pub(crate) fn get(&mut self, ctx: &GpuContext, format: (CtFormat, bool)) -> wgpu::ComputePipeline {
-        if let Some((_, p)) = self.built.iter().find(|(f, _)| *f == format) {
+    /// The pipeline for volumes declared by `prelude` (entry point `main`).
+    pub(crate) fn get(&mut self, ctx: &GpuContext, prelude: &str) -> wgpu::ComputePipeline {
+        if let Some((_, p)) = self.built.iter().find(|(f, _)| f == prelude) {
             return p.clone();
         }
-        let source = format!("{}{}", ct_prelude(format), self.shader);
+        let source = format!("{prelude}{}", self.shader);
         let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(self.label),
             source: wgpu::ShaderSource::Wgsl(source.into()),
@@ -40,17 +40,19 @@ impl Pipelines {
             compilation_options: Default::default(),
             cache: None,
         });
-        self.built.push((format, p.clone()));
+        self.built.push((prelude.to_string(), p.clone()));
         p
     }
 }
 
-/// Binds `resources` at bindings 0, 1, 2, … of group 0 and runs `groups` (x, y) workgroups.
+/// Binds `resources` at bindings 0, 1, 2, … of group 0 and runs `groups` (x, y) workgroups,
+/// with the pass timed by `timer` when given.
 pub(crate) fn dispatch(
     ctx: &GpuContext,
     pipeline: &wgpu::ComputePipeline,
     resources: &[wgpu::BindingResource],
     groups: (u32, u32),
+    timer: Option<&PassTimer>,
 ) {
     let entries: Vec<wgpu::BindGroupEntry> = resources
         .iter()
@@ -67,10 +69,16 @@ pub(crate) fn dispatch(
     });
     let mut enc = ctx.device.create_command_encoder(&Default::default());
     {
-        let mut pass = enc.begin_compute_pass(&Default::default());
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: None,
+            timestamp_writes: timer.map(PassTimer::writes),
+        });
         pass.set_pipeline(pipeline);
         pass.set_bind_group(0, &bind, &[]);
         pass.dispatch_workgroups(groups.0, groups.1, 1);
+    }
+    if let Some(t) = timer {
+        t.resolve(&mut enc);
     }
     ctx.queue.submit([enc.finish()]);
 }

@@ -18,6 +18,7 @@ use stylet_render::transfer_table::TransferTable;
 use stylet_render::volume::IndexMap;
 
 use crate::pipeline::{Pipelines, dispatch, uniform_buffer, v4};
+use crate::timer::PassTimer;
 use crate::volume::{CtFormat, GpuVolume, storage, texture_3d};
 use crate::{GpuContext, GpuError};
 
@@ -199,6 +200,8 @@ pub struct GpuRenderer {
     occupancy: Option<OccupancyCache>,
     deformed: Option<DeformedCache>,
     output: Option<(u64, wgpu::Buffer)>,
+    timer: Option<PassTimer>,
+    last_pass_ms: Option<f64>,
 }
 
 impl GpuRenderer {
@@ -226,7 +229,15 @@ impl GpuRenderer {
             occupancy: None,
             deformed: None,
             output: None,
+            timer: PassTimer::new(ctx),
+            last_pass_ms: None,
         }
+    }
+
+    /// The GPU time of the last frame's ray-casting pass in milliseconds, measured by the GPU's
+    /// own timestamps (no upload, submission or readback); `None` on adapters without them.
+    pub fn last_pass_ms(&self) -> Option<f64> {
+        self.last_pass_ms
     }
 
     /// Draws the scene at `width` × `height` (half resolution: ⌈w/2⌉ × ⌈h/2⌉, then
@@ -306,7 +317,7 @@ impl GpuRenderer {
                 buf
             }
         };
-        let pipeline = self.pipelines.get(ctx, vol.ct_key());
+        let pipeline = self.pipelines.get(ctx, &vol.raycast_prelude());
         let deformed_view = self.deformed.as_ref().map(|d| &d.view).unwrap_or(&self.dummy_deformed);
         let cache = self.occupancy.as_ref().expect("occupancy set above");
         dispatch(
@@ -322,10 +333,13 @@ impl GpuRenderer {
                 wgpu::BindingResource::TextureView(deformed_view),
                 output.as_entire_binding(),
                 cache.table.as_entire_binding(),
+                vol.records_binding(),
             ],
             groups,
+            self.timer.as_ref(),
         );
         let bytes = ctx.read_buffer(&output, out_bytes)?;
+        self.last_pass_ms = self.timer.as_ref().and_then(|t| t.read_ms(ctx));
         let rgba = bytes.chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]).collect();
         Ok(Image { width, height, rgba })
     }

@@ -19,6 +19,7 @@ use stylet_render::ultrasound::{
 use stylet_render::volume::IndexMap;
 
 use crate::pipeline::{Pipelines, dispatch, uniform_buffer, v4};
+use crate::raycast::ct_prelude;
 use crate::volume::{GpuVolume, storage};
 use crate::{GpuContext, GpuError};
 
@@ -173,7 +174,7 @@ impl GpuUltrasound {
             })
         };
         let (env, col) = (out("ultrasound envelope"), out("ultrasound colour"));
-        let pipeline = self.pipelines.get(ctx, vol.ct_key());
+        let pipeline = self.pipelines.get(ctx, ct_prelude(vol.ct_key()));
         dispatch(
             ctx,
             &pipeline,
@@ -190,6 +191,7 @@ impl GpuUltrasound {
                 col.as_entire_binding(),
             ],
             (s.lines.div_ceil(64), 1),
+            None,
         );
         let envelope: Vec<f32> = bytemuck::cast_slice(&ctx.read_buffer(&env, n * 4)?).to_vec();
         let packed: Vec<u32> = bytemuck::cast_slice(&ctx.read_buffer(&col, n * 4)?).to_vec();

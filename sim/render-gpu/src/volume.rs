@@ -1,5 +1,8 @@
 //! The atlas volumes on the GPU, uploaded once per atlas (docs/rendering.md "Inputs"): the CT as
 //! 16-bit integers when every value is an integer in i16 range (real CT), else as 32-bit floats;
+//! the ray caster's records of value and central differences (`GradientVolume`, the CPU
+//! reference's own, 4 × 16-bit integers or 4 × f32 a voxel), so a shaded sample reads 8 texels
+//! instead of the 56 that differences formed on the fly need;
 //! the rendered labels l(x) and the partial labels (MPR overlay) as 16-bit integers; the label
 //! styles in a small buffer. Shaders read voxels with `textureLoad` only (manual trilinear
 //! interpolation, never hardware filtering), so they see exactly the CPU's values.
@@ -11,6 +14,7 @@ use std::sync::{Arc, Mutex};
 use crate::{GpuContext, GpuError};
 use bytemuck::{Pod, Zeroable};
 use stylet_physics::PunctureAtlas;
+use stylet_render::raycast::gradient_volume::RecordSlice;
 use stylet_render::raycast::occupancy::cell_ranges;
 use stylet_render::volume::{CellRanges, RenderVolume, TagClass};
 
@@ -51,6 +55,42 @@ pub(crate) enum CtStore {
     Buffer(wgpu::Buffer),
 }
 
+/// Where the gradient records live (the CT's placement when they fit there too).
+pub(crate) enum RecordsStore {
+    Texture(wgpu::TextureView),
+    /// Records in x-fastest order: four i16 in two u32 words, or four f32.
+    Buffer(wgpu::Buffer),
+}
+
+/// The records' declaration for the ray-casting shader (binding 9): `ct_record(p)` is voxel p's
+/// (Δx, Δy, Δz, I).
+pub(crate) fn records_prelude(int16: bool, buffer: bool) -> &'static str {
+    match (int16, buffer) {
+        (true, false) => {
+            "@group(0) @binding(9) var records: texture_3d<i32>;\n\
+             fn ct_record(p: vec3<i32>) -> vec4<f32> { return vec4<f32>(textureLoad(records, p, 0)); }\n"
+        }
+        (false, false) => {
+            "@group(0) @binding(9) var records: texture_3d<f32>;\n\
+             fn ct_record(p: vec3<i32>) -> vec4<f32> { return textureLoad(records, p, 0); }\n"
+        }
+        (true, true) => {
+            "@group(0) @binding(9) var<storage, read> records: array<vec2<u32>>;\n\
+             fn ct_record(p: vec3<i32>) -> vec4<f32> {\n\
+                 let w = records[u32(p.x) + P.dims.x * (u32(p.y) + P.dims.y * u32(p.z))];\n\
+                 return vec4<f32>(vec4<i32>(bitcast<i32>(w.x << 16u) >> 16u, bitcast<i32>(w.x) >> 16u,\n\
+                                            bitcast<i32>(w.y << 16u) >> 16u, bitcast<i32>(w.y) >> 16u));\n\
+             }\n"
+        }
+        (false, true) => {
+            "@group(0) @binding(9) var<storage, read> records: array<vec4<f32>>;\n\
+             fn ct_record(p: vec3<i32>) -> vec4<f32> {\n\
+                 return records[u32(p.x) + P.dims.x * (u32(p.y) + P.dims.y * u32(p.z))];\n\
+             }\n"
+        }
+    }
+}
+
 static NEXT_ID: AtomicU64 = AtomicU64::new(1);
 
 /// The atlas on the GPU.
@@ -60,6 +100,8 @@ pub struct GpuVolume {
     pub(crate) atlas: Arc<PunctureAtlas>,
     pub(crate) format: CtFormat,
     pub(crate) ct: CtStore,
+    pub(crate) records: RecordsStore,
+    records_int16: bool,
     pub(crate) labels_view: wgpu::TextureView,
     pub(crate) partial_view: wgpu::TextureView,
     pub(crate) styles: wgpu::Buffer,
@@ -131,6 +173,25 @@ impl GpuVolume {
         } else {
             CtStore::Texture(texture_3d(ctx, "ct", dims, tex_format, texel, &ct_bytes))
         };
+        let grads = vol.gradient_volume();
+        let (records_int16, record_bytes): (bool, &[u8]) = match grads.records() {
+            RecordSlice::Int16(r) => (true, bytemuck::cast_slice(r)),
+            RecordSlice::Float32(r) => (false, bytemuck::cast_slice(r)),
+        };
+        let records = if buffer
+            && ctx
+                .check_storage_buffer("the records", record_bytes.len() as u64)
+                .is_ok()
+        {
+            RecordsStore::Buffer(storage(ctx, "gradient records", record_bytes))
+        } else {
+            let (format, texel) = if records_int16 {
+                (wgpu::TextureFormat::Rgba16Sint, 8)
+            } else {
+                (wgpu::TextureFormat::Rgba32Float, 16)
+            };
+            RecordsStore::Texture(texture_3d(ctx, "gradient records", dims, format, texel, record_bytes))
+        };
         let labels_view = texture_3d(
             ctx,
             "labels",
@@ -175,12 +236,14 @@ impl GpuVolume {
         let style_count = styles.len() as u32;
         let styles = storage(ctx, "label styles", bytemuck::cast_slice(&styles));
         let mpr_colors = storage(ctx, "label colours", bytemuck::cast_slice(colors.as_flattened()));
-        let bytes = ct_bytes.len() as u64 + 4 * dims.iter().product::<usize>() as u64;
+        let bytes = ct_bytes.len() as u64 + record_bytes.len() as u64 + 4 * dims.iter().product::<usize>() as u64;
         Ok(GpuVolume {
             id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
             atlas,
             format,
             ct,
+            records,
+            records_int16,
             labels_view,
             partial_view,
             styles,
@@ -206,6 +269,23 @@ impl GpuVolume {
     /// The shader variant this volume needs: (format, in a buffer).
     pub(crate) fn ct_key(&self) -> (CtFormat, bool) {
         (self.format, self.ct_in_buffer())
+    }
+
+    /// The ray-casting shader's declarations of the CT and the records.
+    pub(crate) fn raycast_prelude(&self) -> String {
+        let in_buffer = matches!(self.records, RecordsStore::Buffer(_));
+        format!(
+            "{}{}",
+            crate::raycast::ct_prelude(self.ct_key()),
+            records_prelude(self.records_int16, in_buffer)
+        )
+    }
+
+    pub(crate) fn records_binding(&self) -> wgpu::BindingResource<'_> {
+        match &self.records {
+            RecordsStore::Texture(v) => wgpu::BindingResource::TextureView(v),
+            RecordsStore::Buffer(b) => b.as_entire_binding(),
+        }
     }
 
     pub(crate) fn ct_binding(&self) -> wgpu::BindingResource<'_> {

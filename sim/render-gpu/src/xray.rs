@@ -10,6 +10,7 @@ use stylet_render::xray::needle::resolved_radius_and_mu;
 use stylet_render::xray::{MAX_SIDE_PX, Radiograph, XrayScene, check_scene_fits};
 
 use crate::pipeline::{Pipelines, dispatch, uniform_buffer, v4};
+use crate::raycast::ct_prelude;
 use crate::volume::{GpuVolume, storage};
 use crate::{GpuContext, GpuError};
 
@@ -130,7 +131,7 @@ impl GpuXray {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
-        let pipeline = self.pipelines.get(ctx, vol.ct_key());
+        let pipeline = self.pipelines.get(ctx, ct_prelude(vol.ct_key()));
         dispatch(
             ctx,
             &pipeline,
@@ -142,6 +143,7 @@ impl GpuXray {
                 output.as_entire_binding(),
             ],
             (width.div_ceil(8), height.div_ceil(8)),
+            None,
         );
         let bytes = ctx.read_buffer(&output, out_bytes)?;
         Ok(Radiograph {

@@ -155,6 +155,29 @@ fn speed_switches_and_half_resolution_match_the_cpu() {
     }
 }
 
+/// Frame times come from the GPU's own clock where the adapter has one: the pass of a 161 × 133
+/// frame takes a positive, finite time; without a clock there is no time rather than a made-up one.
+#[test]
+fn the_gpu_times_its_own_ray_casting_pass() {
+    let b = small();
+    let (_, tf) = transfer_functions().swap_remove(1);
+    let mut s = scene(&b.cpu, tf);
+    s.quality = Quality::naive(0.5);
+    let mut r = renderer().lock().unwrap_or_else(|e| e.into_inner());
+    for _ in 0..2 {
+        // The first pass may include the driver's compilation of the shader.
+        r.render(ctx(), &b.gpu, &s, 161, 133).unwrap();
+    }
+    let pass_ms = r.last_pass_ms();
+    eprintln!("adapter timestamps: {}, pass: {pass_ms:?} ms", ctx().has_timestamps());
+    if !ctx().has_timestamps() {
+        assert_eq!(pass_ms, None, "no clock, no time");
+        return;
+    }
+    let ms = pass_ms.expect("an adapter with timestamps times the pass");
+    assert!(ms.is_finite() && ms > 0.0, "pass time {ms} ms");
+}
+
 /// A needle entering the body toward the target, the fingertip beside it and a linear probe on
 /// the surface; a light from the camera's upper right so their shadows fall on the body.
 fn tools() -> ToolState {

@@ -36,27 +36,41 @@ impl Image {
     /// Bilinear upscale to `width` × `height` with pixel centres aligned (edges clamped): the
     /// half-resolution mode renders ⌈w/2⌉ × ⌈h/2⌉ and both renderers upscale with this.
     pub fn upscale(&self, width: u32, height: u32) -> Image {
+        use rayon::prelude::*;
         let mut out = Image::new(width, height);
+        if width == 0 || height == 0 || self.width == 0 || self.height == 0 {
+            return out;
+        }
         let sx = self.width as f32 / width as f32;
         let sy = self.height as f32 / height as f32;
-        for row in 0..height {
-            let y = ((row as f32 + 0.5) * sy - 0.5).clamp(0.0, (self.height - 1) as f32);
-            let (y0, fy) = (y.floor() as u32, y - y.floor());
-            let y1 = (y0 + 1).min(self.height - 1);
-            for col in 0..width {
+        // Per column once: the two source columns and the weight of the right one.
+        let columns: Vec<(usize, usize, f32)> = (0..width)
+            .map(|col| {
                 let x = ((col as f32 + 0.5) * sx - 0.5).clamp(0.0, (self.width - 1) as f32);
                 let (x0, fx) = (x.floor() as u32, x - x.floor());
                 let x1 = (x0 + 1).min(self.width - 1);
-                let (a, b, c, d) = (self.get(x0, y0), self.get(x1, y0), self.get(x0, y1), self.get(x1, y1));
-                let mut px = [0u8; 4];
-                for ch in 0..4 {
-                    let top = a[ch] as f32 * (1.0 - fx) + b[ch] as f32 * fx;
-                    let bottom = c[ch] as f32 * (1.0 - fx) + d[ch] as f32 * fx;
-                    px[ch] = (top * (1.0 - fy) + bottom * fy).round() as u8;
+                (x0 as usize, x1 as usize, fx)
+            })
+            .collect();
+        let src_w = self.width as usize;
+        out.rgba
+            .par_chunks_mut(width as usize)
+            .enumerate()
+            .for_each(|(row, dst)| {
+                let y = ((row as f32 + 0.5) * sy - 0.5).clamp(0.0, (self.height - 1) as f32);
+                let (y0, fy) = (y.floor() as u32, y - y.floor());
+                let y1 = (y0 + 1).min(self.height - 1);
+                let top_row = &self.rgba[y0 as usize * src_w..][..src_w];
+                let bottom_row = &self.rgba[y1 as usize * src_w..][..src_w];
+                for (px, &(x0, x1, fx)) in dst.iter_mut().zip(&columns) {
+                    let (a, b, c, d) = (top_row[x0], top_row[x1], bottom_row[x0], bottom_row[x1]);
+                    for ch in 0..4 {
+                        let top = a[ch] as f32 * (1.0 - fx) + b[ch] as f32 * fx;
+                        let bottom = c[ch] as f32 * (1.0 - fx) + d[ch] as f32 * fx;
+                        px[ch] = (top * (1.0 - fy) + bottom * fy).round() as u8;
+                    }
                 }
-                out.set(col, row, px);
-            }
-        }
+            });
         out
     }
 
@@ -208,6 +222,55 @@ mod tests {
         let big = small.upscale(4, 2);
         let row: Vec<u8> = (0..4).map(|c| big.get(c, 1)[0]).collect();
         assert_eq!(row, vec![0, 50, 150, 200]);
+    }
+
+    /// The bilinear formula pixel by pixel, as first written: the parallel, per-column-hoisted
+    /// upscale must give the same bytes (golden images and GPU comparisons rely on it).
+    fn upscale_pixel_by_pixel(src: &Image, width: u32, height: u32) -> Image {
+        let mut out = Image::new(width, height);
+        let sx = src.width as f32 / width as f32;
+        let sy = src.height as f32 / height as f32;
+        for row in 0..height {
+            let y = ((row as f32 + 0.5) * sy - 0.5).clamp(0.0, (src.height - 1) as f32);
+            let (y0, fy) = (y.floor() as u32, y - y.floor());
+            let y1 = (y0 + 1).min(src.height - 1);
+            for col in 0..width {
+                let x = ((col as f32 + 0.5) * sx - 0.5).clamp(0.0, (src.width - 1) as f32);
+                let (x0, fx) = (x.floor() as u32, x - x.floor());
+                let x1 = (x0 + 1).min(src.width - 1);
+                let (a, b, c, d) = (src.get(x0, y0), src.get(x1, y0), src.get(x0, y1), src.get(x1, y1));
+                let mut px = [0u8; 4];
+                for ch in 0..4 {
+                    let top = a[ch] as f32 * (1.0 - fx) + b[ch] as f32 * fx;
+                    let bottom = c[ch] as f32 * (1.0 - fx) + d[ch] as f32 * fx;
+                    px[ch] = (top * (1.0 - fy) + bottom * fy).round() as u8;
+                }
+                out.set(col, row, px);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn upscaling_matches_the_pixel_by_pixel_formula() {
+        let mut state = 0x2545_f491u32;
+        for (w, h, big_w, big_h) in [(1, 1, 3, 2), (7, 5, 13, 9), (613, 508, 1225, 1016), (40, 3, 80, 6)] {
+            let mut small = Image::new(w, h);
+            for px in &mut small.rgba {
+                for ch in px.iter_mut() {
+                    state ^= state << 13;
+                    state ^= state >> 17;
+                    state ^= state << 5;
+                    *ch = state as u8;
+                }
+            }
+            assert_eq!(
+                small.upscale(big_w, big_h),
+                upscale_pixel_by_pixel(&small, big_w, big_h),
+                "{w}×{h} → {big_w}×{big_h}"
+            );
+        }
+        assert_eq!(Image::new(0, 4).upscale(3, 3), Image::new(3, 3));
     }
 
     #[test]

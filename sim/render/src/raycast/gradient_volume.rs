@@ -23,6 +23,13 @@ enum Records {
     Float32(Vec<[f32; 4]>),
 }
 
+/// The records as stored, for uploading them unchanged (the GPU ray caster reads the same ones).
+#[derive(Debug, Clone, Copy)]
+pub enum RecordSlice<'a> {
+    Int16(&'a [[i16; 4]]),
+    Float32(&'a [[f32; 4]]),
+}
+
 /// Value and index-space central differences of every CT voxel.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GradientVolume {
@@ -104,6 +111,14 @@ impl GradientVolume {
     /// Whether the records are 16-bit integers (8 bytes a voxel) rather than `f32` (16).
     pub fn is_int16(&self) -> bool {
         matches!(self.records, Records::Int16(_))
+    }
+
+    /// The records, x fastest.
+    pub fn records(&self) -> RecordSlice<'_> {
+        match &self.records {
+            Records::Int16(r) => RecordSlice::Int16(r),
+            Records::Float32(r) => RecordSlice::Float32(r),
+        }
     }
 
     /// Bytes held.
