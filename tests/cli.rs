@@ -585,4 +585,28 @@ fn a_new_chest_scenario_passes_its_smoke_test() {
         out.join("scripts/success.txt").to_str().unwrap(),
     ]);
     assert!(!run.is_empty());
+    // The validation report names the window by the right ribs' numbers, shows both smoke tests
+    // passed and has its pictures.
+    assert!(text.contains("validation report: "), "{text}");
+    let html = std::fs::read_to_string(out.join("report/index.html")).unwrap();
+    let window = rib_numbered_window(&html).unwrap_or_else(|| panic!("no rib-numbered window in the report"));
+    assert!(html.contains(&window), "{window}");
+    assert!(html.contains("scripts/success.txt: passed") && html.contains(&format!("scripts/{risk}: passed")));
+    for png in ["slices.png", "3d-anterior.png", "3d-right.png"] {
+        assert!(out.join("report").join(png).is_file(), "{png}");
+    }
+}
+
+/// "right Nth–Mth intercostal space" with M = N + 1, as the report's window table names it.
+fn rib_numbered_window(html: &str) -> Option<String> {
+    (1..12).find_map(|n: u32| {
+        let ord = |k: u32| match k {
+            1 => "1st".to_string(),
+            2 => "2nd".to_string(),
+            3 => "3rd".to_string(),
+            k => format!("{k}th"),
+        };
+        let name = format!("<td>right {}–{} intercostal space</td>", ord(n), ord(n + 1));
+        html.contains(&name).then_some(name)
+    })
 }

@@ -157,11 +157,41 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
                 offset_voxels: offset,
                 name,
             };
-            let made = stylet_atlas::import::new::new_atlas(&args, &a.out, &mut progress())?;
+            let (ct_source, labels_source) = (args.ct.display().to_string(), args.labels.display().to_string());
+            let mut on_step = progress();
+            let made = stylet_atlas::import::new::new_atlas(&args, &a.out, &mut on_step)?;
             let report = &made.import;
             sayf!("atlas '{}' written to {}", report.manifest.name, a.out.display());
             say(report.to_text().trim_end());
-            smoke_test(&made, &a.out)
+            let smoke = smoke_test(&made)?;
+            // The report shows a failed smoke test too: it is what the clinician must see.
+            let mut timer = stylet_atlas::import::steps::StepTimer::new(&mut on_step);
+            let files = timer.run(stylet_atlas::import::steps::Step::Report, || {
+                stylet_atlas_report::write_report(
+                    &a.out.join("report"),
+                    &stylet_atlas_report::ReportInput {
+                        atlas: &made.atlas,
+                        import: report,
+                        smoke: &smoke,
+                        ct_source: &ct_source,
+                        labels_source: &labels_source,
+                    },
+                )
+            })?;
+            sayf!("- validation report: {}", files.html.display());
+            let failures: Vec<String> = smoke
+                .iter()
+                .filter(|s| !s.passed)
+                .map(|s| format!("scripts/{} should: {}; got: {}", s.script, s.expected, s.got))
+                .collect();
+            if !failures.is_empty() {
+                anyhow::bail!(
+                    "the new scenario in {} failed its smoke test (the atlas is kept for a look): {}",
+                    a.out.display(),
+                    failures.join("; ")
+                );
+            }
+            Ok(())
         }
         AtlasCommand::ImportDicom(a) => {
             let series = stylet_atlas::import::dicom::import_series(&a.series, &a.out, &a.name)?;
@@ -225,19 +255,22 @@ pub fn insertion_paths(atlas: &stylet_atlas::Atlas) -> Vec<(stylet_physics::glam
 
 /// Runs the new scenario's generated scripts through the physics, the recorder and the scorer
 /// (the pipeline a trainee's session takes): the success script must reach and confirm the target
-/// with no risk hit or bone contact, the risk script must hit the structure it names. A failure
-/// keeps the atlas (for a look) and ends the command with the reason.
-fn smoke_test(made: &stylet_atlas::import::new::NewAtlasReport, out: &Path) -> anyhow::Result<()> {
+/// with no risk hit or bone contact, the risk script must hit the structure it names. Returns
+/// each outcome (the caller reports them and fails on any failure, keeping the atlas for a look);
+/// an error is a script that could not be run or scored at all.
+fn smoke_test(
+    made: &stylet_atlas::import::new::NewAtlasReport,
+) -> anyhow::Result<Vec<stylet_atlas_report::SmokeResult>> {
     use stylet_atlas::import::scripts::Expectation;
     if made.scripts.is_empty() {
         say("- smoke test: no planned path, so no example scripts");
-        return Ok(());
+        return Ok(Vec::new());
     }
     let atlas = &made.atlas;
     let scorer = stylet_scoring::Scorer::new(atlas, stylet_scoring::Rubric::default_rubric(), None)
         .map_err(|e| anyhow::anyhow!(e))?;
     let tmp = tempfile::tempdir().context("cannot make a temporary folder for the smoke test")?;
-    let mut failures = Vec::new();
+    let mut results = Vec::new();
     for s in &made.scripts {
         let started = std::time::Instant::now();
         let scenario = s.file_name.trim_end_matches(".txt");
@@ -275,25 +308,22 @@ fn smoke_test(made: &stylet_atlas::import::new::NewAtlasReport, out: &Path) -> a
             m.bone_contacts,
             r.replay_verified
         );
+        let seconds = started.elapsed().as_secs_f64();
         say(&format!(
-            "- smoke test scripts/{}: {} — {} ({got}; {:.1} s)",
+            "- smoke test scripts/{}: {} — {} ({got}; {seconds:.1} s)",
             s.file_name,
             if ok { "ok" } else { "FAILED" },
             what,
-            started.elapsed().as_secs_f64()
         ));
-        if !ok {
-            failures.push(format!("scripts/{} should: {what}; got: {got}", s.file_name));
-        }
+        results.push(stylet_atlas_report::SmokeResult {
+            script: s.file_name.clone(),
+            expected: what,
+            got,
+            passed: ok,
+            seconds,
+        });
     }
-    if !failures.is_empty() {
-        anyhow::bail!(
-            "the new scenario in {} failed its smoke test (the atlas is kept for a look): {}",
-            out.display(),
-            failures.join("; ")
-        );
-    }
-    Ok(())
+    Ok(results)
 }
 
 /// A spinner on standard error for each step of `atlas new` (hidden when standard error is not a

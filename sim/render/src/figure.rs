@@ -221,7 +221,15 @@ pub fn figure(atlas: &PunctureAtlas, spec: &FigureSpec, png: &Path) -> Result<()
         ));
     }
     let width = (slices.iter().map(|s| s.width).sum::<usize>() + MARGIN * (slices.len() + 1)).max(2 * 260 + 2 * MARGIN);
-    let per_row = ((width - 2 * MARGIN) / 260).max(1);
+    // Legend columns 260 px wide, wider when a name needs it (≈ 8 px a character at 16 px).
+    let longest = present
+        .iter()
+        .filter_map(|id| table.get(*id))
+        .map(|l| l.name.chars().count() + l.role.as_str().len() + 3)
+        .max()
+        .unwrap_or(0);
+    let column_px = (22 + longest * 8 + 12).clamp(260, width - 2 * MARGIN);
+    let per_row = ((width - 2 * MARGIN) / column_px).max(1);
     let line_rows = usize::from(!line_entries.is_empty()) + usize::from(spec.mark.is_some());
     let legend_rows = line_rows + present.len().div_ceil(per_row).max(1);
     let panel_h = slices.iter().map(|s| s.height).max().unwrap_or(0);
@@ -409,7 +417,7 @@ pub fn figure(atlas: &PunctureAtlas, spec: &FigureSpec, png: &Path) -> Result<()
             };
             let pos = table.position(*id).expect("label exists");
             let c = atlas.materials().color(pos);
-            let x = (MARGIN + (n % per_row) * 260) as i32;
+            let x = (MARGIN + (n % per_row) * column_px) as i32;
             let y = ly + (n / per_row) as i32 * LEGEND_ROW_H as i32;
             draw(root.draw(&Rectangle::new(
                 [(x, y + 3), (x + 16, y + 17)],

@@ -12,7 +12,7 @@ use stylet_physics::LabelId;
 use super::classes::{ClassTable, Rib, Side};
 use super::recipe::{Biliary, LabelMap, LoadedRecipe, Recipe, RecipeProvenance, Source, Window};
 use crate::AtlasError;
-use crate::manifest::{LabelToml, PTCD_SCENARIO_TOML, ScenarioFile};
+use crate::manifest::{LabelToml, PTCD_SCENARIO_TOML, ScenarioFile, TissueToml};
 
 /// Atlas labels of the PTCD scenario (atlases/ptcd.toml) and the ones this recipe adds.
 const LIVER: LabelId = 10;
@@ -103,23 +103,52 @@ fn added_labels() -> Vec<LabelToml> {
         consequence: Some(consequence.into()),
     };
     vec![
-        l(KIDNEY, "kidney", "viscus", "renal haemorrhage"),
-        l(SPLEEN, "spleen", "viscus", "splenic haemorrhage"),
+        l(KIDNEY, "kidney", "kidney", "renal haemorrhage"),
+        l(SPLEEN, "spleen", "spleen", "splenic haemorrhage"),
         l(
             STOMACH,
             "stomach / oesophagus / duodenum",
-            "viscus",
+            "stomach",
             "gastric, oesophageal or duodenal perforation",
         ),
-        l(BOWEL, "bowel", "viscus", "bowel perforation, peritonitis"),
-        l(PANCREAS, "pancreas", "viscus", "pancreatitis, pancreatic leak"),
+        l(BOWEL, "bowel", "bowel", "bowel perforation, peritonitis"),
+        l(PANCREAS, "pancreas", "pancreas", "pancreatitis, pancreatic leak"),
         l(
             HEART,
             "heart and great vessels",
-            "aorta",
+            "heart",
             "cardiac tamponade or major haemorrhage",
         ),
     ]
+}
+
+/// Tissues the recipe adds: the organs the scenario lumps together as `viscus`, and the heart
+/// beside the aorta, each with its own colour (the slices, the label tagging mode and the report
+/// tell them apart), every mechanical and echo parameter inherited from the parent.
+fn added_tissues() -> std::collections::BTreeMap<String, TissueToml> {
+    let t = |parent: &str, rgba: [u8; 4], note: &str| TissueToml {
+        parent: Some(parent.into()),
+        color_rgba: Some(rgba),
+        note: note.into(),
+        ..Default::default()
+    };
+    [
+        ("kidney", t("viscus", [215, 175, 40, 150], "kidneys and adrenal glands")),
+        ("spleen", t("viscus", [150, 50, 110, 150], "spleen")),
+        (
+            "stomach",
+            t("viscus", [240, 215, 120, 140], "stomach, oesophagus, duodenum"),
+        ),
+        ("bowel", t("viscus", [200, 150, 90, 140], "small bowel and colon")),
+        ("pancreas", t("viscus", [245, 140, 180, 150], "pancreas")),
+        (
+            "heart",
+            t("aorta", [140, 20, 50, 190], "heart, pulmonary veins, great vessels"),
+        ),
+    ]
+    .into_iter()
+    .map(|(name, tissue)| (name.to_string(), tissue))
+    .collect()
 }
 
 /// The PTCD recipe for the source classes `present` (named by `classes`): the mapping above,
@@ -218,6 +247,7 @@ pub fn ptcd_recipe(
         },
         map: maps,
         labels: added_labels(),
+        tissues: added_tissues(),
         biliary: Some(Biliary {
             liver_label: LIVER,
             hilum_from,
@@ -296,5 +326,28 @@ mod tests {
         );
         let e = ptcd_recipe("p", &ts, &[52, 64].into(), origin).unwrap_err().to_string();
         assert!(e.contains("labels.nii.gz") && e.contains("no liver"), "{e}");
+    }
+
+    /// Every organ and vessel of the scenario in its own colour (the lungs excepted: left and
+    /// right never touch), so slices, the label tagging mode and the report tell them apart.
+    #[test]
+    fn the_structures_have_distinct_colours() {
+        let ts = ClassTable::totalsegmentator();
+        let r = ptcd_recipe("p", &ts, &(1..=117).collect(), Path::new("l.nii.gz")).unwrap();
+        let tree = crate::manifest::property_tree(&r.scenario.tissues).unwrap();
+        let mut seen: Vec<([u8; 4], String)> = Vec::new();
+        for l in &r.scenario.labels {
+            if l.role == "neutral" || l.id == LEFT_LUNG {
+                continue;
+            }
+            let c = tree
+                .resolve_color(&l.tissue)
+                .unwrap_or_else(|| panic!("no colour for tissue {}", l.tissue));
+            if let Some((_, other)) = seen.iter().find(|(k, _)| *k == c) {
+                panic!("{} and {other} share the colour {c:?}", l.name);
+            }
+            seen.push((c, l.name.clone()));
+        }
+        assert!(seen.len() >= 15, "{seen:?}");
     }
 }

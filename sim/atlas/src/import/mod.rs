@@ -4,6 +4,7 @@
 
 pub mod auto;
 pub mod biliary;
+pub mod checks;
 pub mod classes;
 #[cfg(feature = "dicom")]
 pub mod dicom;
@@ -36,6 +37,10 @@ pub struct ImportReport {
     /// The source label maps' class names (ribs by side and number in the window's text).
     pub classes: ClassTable,
     pub notes: Vec<String>,
+    /// The source CT and label map as they came (grid, HU range, label coverage).
+    pub source: checks::SourceSummary,
+    /// What a clinician should check before approving the patient.
+    pub warnings: Vec<checks::Warning>,
     /// The time each step took (reading, tree, window, writing; `atlas new` adds its own).
     pub timings: Vec<(Step, std::time::Duration)>,
 }
@@ -119,6 +124,9 @@ impl ImportReport {
                     )
                 }
             }
+        }
+        for w in &self.warnings {
+            out += &format!("- WARNING ({}): {}\n", w.kind.title(), w.text);
         }
         out
     }
@@ -263,6 +271,7 @@ pub fn build(
         labels: source,
         mut notes,
     } = sources;
+    let source_summary = checks::SourceSummary::of(&ct, &source);
     let mut lut = vec![0 as LabelId; LabelId::MAX as usize + 1];
     for m in &rec.map {
         for &f in &m.from {
@@ -354,12 +363,16 @@ pub fn build(
         None => None,
     };
     timer.run(Step::Write, || crate::write(out, &manifest, &ct, &labels))?;
+    let window_found = window.as_ref().is_some_and(|w| w.found.is_some());
+    let warnings = checks::warnings(&source_summary, &manifest, window_found);
     Ok(ImportReport {
         manifest,
         biliary,
         window,
         classes,
         notes,
+        source: source_summary,
+        warnings,
         timings: timer.timings.clone(),
     })
 }

@@ -8,7 +8,7 @@ use serde::Deserialize;
 use stylet_physics::LabelId;
 
 use crate::AtlasError;
-use crate::manifest::{LabelToml, Provenance, ScenarioFile};
+use crate::manifest::{LabelToml, Provenance, ScenarioFile, TissueToml};
 
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -29,6 +29,10 @@ pub struct Recipe {
     /// Labels added to the scenario's table.
     #[serde(default)]
     pub labels: Vec<LabelToml>,
+    /// Tissues added to the scenario's property tree, by name (a child of one of its tissues
+    /// inherits every parameter it does not set: a structure's own colour, say).
+    #[serde(default)]
+    pub tissues: std::collections::BTreeMap<String, TissueToml>,
     #[serde(default)]
     pub biliary: Option<Biliary>,
     #[serde(default)]
@@ -161,6 +165,12 @@ impl LoadedRecipe {
             && !(r.is_finite() && (0.2..=10.0).contains(&r))
         {
             return Err(bad(format!("resample_mm = {r} must be 0.2 … 10")));
+        }
+        for (name, tissue) in &recipe.tissues {
+            if scenario.tissues.contains_key(name) {
+                return Err(bad(format!("[tissues.{name}] is already a tissue of the scenario")));
+            }
+            scenario.tissues.insert(name.clone(), tissue.clone());
         }
         scenario.labels.extend(recipe.labels.iter().cloned());
         let table = crate::manifest::label_table(&scenario.labels, &scenario.heuristic).map_err(bad)?;

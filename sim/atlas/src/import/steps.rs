@@ -13,6 +13,8 @@ pub enum Step {
     Write,
     Load,
     Scripts,
+    /// `stylet atlas new`'s validation report (stylet-atlas-report), after the smoke test.
+    Report,
 }
 
 impl Step {
@@ -26,6 +28,7 @@ impl Step {
             Step::Write => "writing the atlas",
             Step::Load => "loading it back (validation, distance maps)",
             Step::Scripts => "writing the example scripts",
+            Step::Report => "drawing the validation report",
         }
     }
 }

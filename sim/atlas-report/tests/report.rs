@@ -1,0 +1,132 @@
+//! The validation report (issue 19) on the real abdominal CT with partial labels: the page and
+//! its pictures are written whole, name the window by its ribs, list every structure with its
+//! colour, carry the warnings and the step times, and escape what a class table names.
+//! Reads `../shared/data` (or $STYLET_DATA) and fails, with a message, without it.
+
+use std::path::{Path, PathBuf};
+
+use stylet_atlas::import::checks::WarningKind;
+use stylet_atlas::import::classes::ClassTable;
+use stylet_atlas::import::new::{NewAtlas, new_atlas};
+use stylet_atlas_report::{ReportInput, SmokeResult, write_report};
+
+fn shared_data() -> PathBuf {
+    let d = match std::env::var("STYLET_DATA") {
+        Ok(d) => PathBuf::from(d),
+        Err(_) => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"),
+    };
+    assert!(
+        d.join("ts-example-abdomen/example_ct.nii.gz").is_file(),
+        "the real CT data is missing: expected {} (set STYLET_DATA to its location)",
+        d.display()
+    );
+    d
+}
+
+/// TotalSegmentator's classes with the unmapped class 79 (spinal cord) renamed to markup.
+fn hostile_classes(dir: &Path) -> PathBuf {
+    let ts = ClassTable::totalsegmentator();
+    let mut csv = String::from("id,structure\n");
+    for id in 1..=117 {
+        let name = if id == 79 {
+            "<img src=x onerror=alert(1)>"
+        } else {
+            ts.name(id).unwrap()
+        };
+        csv += &format!("{id},{name}\n");
+    }
+    let p = dir.join("classes.csv");
+    std::fs::write(&p, csv).unwrap();
+    p
+}
+
+#[test]
+fn the_abdominal_scenario_gets_a_whole_report() {
+    let d = shared_data().join("ts-example-abdomen");
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("abdomen");
+    let args = NewAtlas {
+        ct: d.join("example_ct.nii.gz"),
+        labels: d.join("example_seg.nii.gz"),
+        classes: Some(hostile_classes(tmp.path())),
+        offset_voxels: [0, 0, 82],
+        name: "abdomen".into(),
+    };
+    let made = new_atlas(&args, &out, &mut |_| {}).unwrap();
+    let import = &made.import;
+    // The label map covers 0 … 81 + its own slices: a coverage warning, named.
+    assert!(
+        import.warnings.iter().any(|w| w.kind == WarningKind::LabelCoverage),
+        "{:?}",
+        import.warnings
+    );
+    let smoke = [SmokeResult {
+        script: "success.txt".into(),
+        expected: "reaches and confirms the target".into(),
+        got: "target reached true".into(),
+        passed: true,
+        seconds: 0.1,
+    }];
+    let files = write_report(
+        &out.join("report"),
+        &ReportInput {
+            atlas: &made.atlas,
+            import,
+            smoke: &smoke,
+            ct_source: "example_ct.nii.gz",
+            labels_source: "example_seg.nii.gz",
+        },
+    )
+    .unwrap();
+    let html = std::fs::read_to_string(&files.html).unwrap();
+    for png in &files.images {
+        let bytes = std::fs::read(png).unwrap();
+        assert!(bytes.starts_with(b"\x89PNG"), "{}", png.display());
+        let name = png.file_name().unwrap().to_str().unwrap();
+        assert!(html.contains(&format!("src=\"{name}\"")), "{name} not on the page");
+    }
+    assert_eq!(files.images.len(), 3);
+    assert!(
+        html.contains("right 10th–11th intercostal space"),
+        "window not named by its ribs"
+    );
+    assert!(html.contains("rib_right_10 (113) / rib_right_11 (114)"));
+    // Every structure of the atlas in the legend with a swatch.
+    for l in made.atlas.model.label_table().labels() {
+        assert!(
+            html.contains(&format!("<td>{}</td>", l.name.replace('&', "&amp;"))),
+            "{} missing",
+            l.name
+        );
+    }
+    assert_eq!(
+        html.matches("class=\"sw\"").count(),
+        made.atlas.model.label_table().labels().len()
+    );
+    for w in &import.warnings {
+        assert!(html.contains(w.kind.title()), "warning {w:?} missing");
+    }
+    assert!(html.contains("Time per step") && html.contains("growing the biliary tree"));
+    assert!(html.contains("scripts/success.txt: passed"));
+    // The class table's markup is text on the page, never markup.
+    assert!(
+        html.contains("&lt;img src=x onerror=alert(1)&gt;"),
+        "hostile name not shown escaped"
+    );
+    assert!(!html.contains("<img src=x"), "hostile name not escaped");
+    // Written whole: no partial folder left beside it; a second report replaces the first.
+    assert!(!tmp.path().join("abdomen/.report.partial").exists());
+    let again = write_report(
+        &out.join("report"),
+        &ReportInput {
+            atlas: &made.atlas,
+            import,
+            smoke: &[],
+            ct_source: "a",
+            labels_source: "b",
+        },
+    )
+    .unwrap();
+    let html = std::fs::read_to_string(again.html).unwrap();
+    assert!(html.contains("No example scripts"));
+}
