@@ -205,13 +205,28 @@ fn paths(h: &mut String, input: &ReportInput) {
     let classes = &import.classes;
     match &import.window {
         Some(w) => {
-            *h += "<table><tr><th>intercostal window</th><th>ribs</th><th>entry (mm)</th><th>target (mm)</th>\
-                   <th>length</th><th>clear of bone</th><th>risk structures crossed</th><th>chosen</th></tr>";
-            if let Some(f) = &w.found {
+            *h += "<p>Every pair of neighbouring right ribs was searched for a straight line from the skin to \
+                   the target that crosses no bone and no risk structure; each pair's best line is listed, \
+                   ranked by its clearance (the nearer of bone and risk structures). Beginners are guided \
+                   along the chosen one.</p>\
+                   <table><tr><th>rank</th><th>intercostal window</th><th>ribs</th><th>entry (mm)</th>\
+                   <th>target (mm)</th><th>length</th><th>clear of bone</th><th>clear of risk</th><th>chosen</th></tr>";
+            for (rank, f) in w.ranked.iter().enumerate() {
+                let chosen = w
+                    .found
+                    .as_ref()
+                    .is_some_and(|c| (c.upper_rib, c.lower_rib) == (f.upper_rib, f.lower_rib));
+                let why = match (chosen, w.requested_found) {
+                    (false, _) => "",
+                    (true, true) => "yes (the space asked for)",
+                    (true, false) => "yes (best ranked)",
+                };
                 let _ = write!(
                     h,
-                    "<tr><td>{}</td><td>{} / {}</td><td>({:.1}, {:.1}, {:.1})</td><td>({:.1}, {:.1}, {:.1})</td>\
-                     <td class=\"n\">{:.0} mm</td><td class=\"n\">{:.1} mm</td><td>none</td><td>{}</td></tr>",
+                    "<tr><td class=\"n\">{}</td><td>{}</td><td>{} / {}</td><td>({:.1}, {:.1}, {:.1})</td>\
+                     <td>({:.1}, {:.1}, {:.1})</td><td class=\"n\">{:.0} mm</td><td class=\"n\">{:.1} mm</td>\
+                     <td class=\"n\">{:.1} mm</td><td>{why}</td></tr>",
+                    rank + 1,
                     escape(&window::space_name(classes, f.upper_rib, f.lower_rib)),
                     escape(&classes.describe(f.upper_rib)),
                     escape(&classes.describe(f.lower_rib)),
@@ -223,18 +238,14 @@ fn paths(h: &mut String, input: &ReportInput) {
                     f.target_mm.z,
                     f.length_mm,
                     f.bone_clearance_mm,
-                    if w.requested_found {
-                        "yes (the space asked for)"
-                    } else {
-                        "yes (fall-back)"
-                    }
+                    f.risk_clearance_mm,
                 );
             }
             if !w.requested_found {
                 let _ = write!(
                     h,
-                    "<tr><td>{}</td><td>{} / {}</td><td colspan=\"6\">no straight line from the skin reaches the \
-                     target clear of bone and risk structures</td></tr>",
+                    "<tr><td></td><td>{}</td><td>{} / {}</td><td colspan=\"6\">asked for, but no straight line \
+                     from the skin reaches the target clear of bone and risk structures</td></tr>",
                     escape(&window::space_name(classes, w.requested.0, w.requested.1)),
                     escape(&classes.describe(w.requested.0)),
                     escape(&classes.describe(w.requested.1))

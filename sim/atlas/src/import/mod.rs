@@ -8,6 +8,7 @@ pub mod checks;
 pub mod classes;
 #[cfg(feature = "dicom")]
 pub mod dicom;
+pub mod mapping;
 pub mod new;
 pub mod recipe;
 pub mod resample;
@@ -83,7 +84,7 @@ impl ImportReport {
                 (Some(f), true) => {
                     out += &format!(
                         "- intercostal window: {} ({} / {}): entry ({:.1}, {:.1}, {:.1}) mm → target \
-                         ({:.1}, {:.1}, {:.1}) mm, {:.0} mm long, {:.1} mm clear of bone, no risk structure crossed\n",
+                         ({:.1}, {:.1}, {:.1}) mm, {:.0} mm long, {:.1} mm clear of bone, {:.1} mm of risk structures\n",
                         window::space_name(c, f.upper_rib, f.lower_rib),
                         c.describe(f.upper_rib),
                         c.describe(f.lower_rib),
@@ -94,7 +95,8 @@ impl ImportReport {
                         f.target_mm.y,
                         f.target_mm.z,
                         f.length_mm,
-                        f.bone_clearance_mm
+                        f.bone_clearance_mm,
+                        f.risk_clearance_mm
                     )
                 }
                 (Some(f), false) => {
@@ -124,6 +126,25 @@ impl ImportReport {
                     )
                 }
             }
+        }
+        if let Some(w) = &self.window
+            && w.ranked.len() > 1
+        {
+            let list: Vec<String> = w
+                .ranked
+                .iter()
+                .map(|f| {
+                    format!(
+                        "{} {:.1} mm",
+                        window::space_name(&self.classes, f.upper_rib, f.lower_rib),
+                        f.clearance_mm()
+                    )
+                })
+                .collect();
+            out += &format!(
+                "- windows ranked by clearance from bone and risk structures: {}\n",
+                list.join(", ")
+            );
         }
         for w in &self.warnings {
             out += &format!("- WARNING ({}): {}\n", w.kind.title(), w.text);
@@ -354,10 +375,13 @@ pub fn build(
                     &w.bone_labels,
                 ))
             })?;
-            if let Some(p) = report.path(&classes) {
+            // The chosen window guides beginners; the others are planned paths too (scoring
+            // measures a trainee against the path whose entry is nearest).
+            let paths = report.paths(&classes);
+            if let Some(p) = paths.first() {
                 manifest.difficulty.beginner.guided_path = Some(p.name.clone());
-                manifest.paths.push(p);
             }
+            manifest.paths.extend(paths);
             Some(report)
         }
         None => None,

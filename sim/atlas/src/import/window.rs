@@ -2,11 +2,14 @@
 //! crosses no bone and no risk structure (ALGORITHMS.md §7, PTCD entry between the right 10th and
 //! 11th ribs). Straight lines from points of the target are cast in many directions; a line counts
 //! as passing between two ribs where, at its point closest to both, each rib is within 20 mm and
-//! the upper rib lies cranial and the lower rib caudal of it.
+//! the upper rib lies cranial and the lower rib caudal of it. Every neighbouring pair of the
+//! rib sequence is searched and the windows found are ranked by clearance (the smaller of the
+//! line's distances to bone and to risk structures, then the shorter line).
 
+use rayon::prelude::*;
 use stylet_physics::distance::squared_edt;
 use stylet_physics::glam::DVec3;
-use stylet_physics::{LabelId, PunctureAtlas, Role};
+use stylet_physics::{Affine, Grid, LabelId, PunctureAtlas, Role};
 
 use super::classes::{ClassTable, intercostal_space};
 use crate::manifest::InsertionPath;
@@ -30,15 +33,32 @@ pub struct WindowFound {
     pub length_mm: f64,
     /// Smallest distance between the line and bone (mm).
     pub bone_clearance_mm: f64,
+    /// Smallest distance between the line (outside the target) and a risk structure (mm).
+    pub risk_clearance_mm: f64,
 }
 
-/// Result of the search: the requested pair, or the best fall-back pair.
+impl WindowFound {
+    /// The clearance windows are ranked by: the nearer of bone and risk structures (mm).
+    pub fn clearance_mm(&self) -> f64 {
+        self.bone_clearance_mm.min(self.risk_clearance_mm)
+    }
+
+    /// Ranking key: larger clearance first, then the shorter line.
+    fn key(&self) -> (f64, f64) {
+        (self.clearance_mm(), -self.length_mm)
+    }
+}
+
+/// Result of the search: the chosen window (the requested pair's when it has one, else the
+/// best-ranked) and every window found, ranked.
 #[derive(Debug, Clone)]
 pub struct WindowReport {
     pub requested: (LabelId, LabelId),
     pub found: Option<WindowFound>,
     /// Whether `found` is between the requested ribs.
     pub requested_found: bool,
+    /// The best window of each rib pair that has one, best clearance first (`found` among them).
+    pub ranked: Vec<WindowFound>,
 }
 
 impl WindowReport {
@@ -46,31 +66,62 @@ impl WindowReport {
     /// knows them as ribs ("intercostal-right-10-11", described as the "right 10th–11th
     /// intercostal space"), else by their class numbers.
     pub fn path(&self, classes: &ClassTable) -> Option<InsertionPath> {
-        let f = self.found.as_ref()?;
-        let r = |v: DVec3| {
-            [
-                (v.x * 10.0).round() / 10.0,
-                (v.y * 10.0).round() / 10.0,
-                (v.z * 10.0).round() / 10.0,
-            ]
+        self.found.as_ref().map(|f| window_path(classes, f, None))
+    }
+
+    /// Every window found as a planned path: the chosen one first, then the others by rank, each
+    /// described with its rank.
+    pub fn paths(&self, classes: &ClassTable) -> Vec<InsertionPath> {
+        let Some(chosen) = &self.found else {
+            return Vec::new();
         };
-        let name = match (classes.rib(f.upper_rib), classes.rib(f.lower_rib)) {
-            (Some(a), Some(b)) if a.side == b.side => {
-                format!("intercostal-{}-{}-{}", a.side.word(), a.number, b.number)
-            }
-            _ => format!("intercostal-{}-{}", f.upper_rib, f.lower_rib),
+        let rank = |f: &WindowFound| {
+            self.ranked
+                .iter()
+                .position(|r| (r.upper_rib, r.lower_rib) == (f.upper_rib, f.lower_rib))
+                .map(|i| i + 1)
         };
-        Some(InsertionPath {
-            name,
-            entry_mm: r(f.entry_mm),
-            target_mm: r(f.target_mm),
-            description: format!(
-                "straight path through the {} to the target, {:.0} mm long, {:.1} mm from bone",
-                space_name(classes, f.upper_rib, f.lower_rib),
-                f.length_mm,
-                f.bone_clearance_mm
-            ),
-        })
+        let others = self
+            .ranked
+            .iter()
+            .filter(|f| (f.upper_rib, f.lower_rib) != (chosen.upper_rib, chosen.lower_rib));
+        std::iter::once(chosen)
+            .chain(others)
+            .map(|f| window_path(classes, f, rank(f).map(|r| (r, self.ranked.len()))))
+            .collect()
+    }
+}
+
+/// A window as a planned path, named by the ribs' side and numbers when the class table knows
+/// them as ribs, else by their class numbers; `rank`: (its rank, of how many).
+fn window_path(classes: &ClassTable, f: &WindowFound, rank: Option<(usize, usize)>) -> InsertionPath {
+    let r = |v: DVec3| {
+        [
+            (v.x * 10.0).round() / 10.0,
+            (v.y * 10.0).round() / 10.0,
+            (v.z * 10.0).round() / 10.0,
+        ]
+    };
+    let name = match (classes.rib(f.upper_rib), classes.rib(f.lower_rib)) {
+        (Some(a), Some(b)) if a.side == b.side => {
+            format!("intercostal-{}-{}-{}", a.side.word(), a.number, b.number)
+        }
+        _ => format!("intercostal-{}-{}", f.upper_rib, f.lower_rib),
+    };
+    let ranked = rank
+        .map(|(k, n)| format!(", window {k} of {n} by clearance"))
+        .unwrap_or_default();
+    InsertionPath {
+        name,
+        entry_mm: r(f.entry_mm),
+        target_mm: r(f.target_mm),
+        description: format!(
+            "straight path through the {} to the target, {:.0} mm long, {:.1} mm from bone, {:.1} mm from risk structures{ranked}",
+            space_name(classes, f.upper_rib, f.lower_rib),
+            f.length_mm,
+            f.bone_clearance_mm,
+            f.risk_clearance_mm
+        ),
     }
 }
 
@@ -87,7 +138,8 @@ pub fn space_name(classes: &ClassTable, upper: LabelId, lower: LabelId) -> Strin
     }
 }
 
-/// Searches the window between `upper`/`lower`, then between the adjacent pairs of `sequence`.
+/// Searches the window between `upper`/`lower` and between every adjacent pair of `sequence`,
+/// and ranks the windows found; the requested pair's is chosen when it has one.
 pub fn find_window(
     atlas: &PunctureAtlas,
     source: &stylet_physics::Volume<LabelId>,
@@ -98,34 +150,24 @@ pub fn find_window(
 ) -> WindowReport {
     let mut pairs = vec![(upper, lower)];
     for w in sequence.windows(2) {
-        if (w[0], w[1]) != (upper, lower) {
+        if !pairs.contains(&(w[0], w[1])) {
             pairs.push((w[0], w[1]));
         }
     }
     let search = Search::new(atlas, source, bone_labels);
-    let mut best_fallback: Option<WindowFound> = None;
-    for (n, &(a, b)) in pairs.iter().enumerate() {
-        let Some(found) = search.best_between(a, b) else {
-            continue;
-        };
-        if n == 0 {
-            return WindowReport {
-                requested: (upper, lower),
-                found: Some(found),
-                requested_found: true,
-            };
-        }
-        if best_fallback
-            .as_ref()
-            .is_none_or(|f| found.bone_clearance_mm > f.bone_clearance_mm)
-        {
-            best_fallback = Some(found);
-        }
-    }
+    let found: Vec<WindowFound> = pairs.iter().filter_map(|&(a, b)| search.best_between(a, b)).collect();
+    let requested = found
+        .iter()
+        .find(|f| (f.upper_rib, f.lower_rib) == (upper, lower))
+        .cloned();
+    let mut ranked = found;
+    // Stable: equal keys keep the pairs' order (requested first, then cranial to caudal).
+    ranked.sort_by(|a, b| b.key().partial_cmp(&a.key()).unwrap_or(std::cmp::Ordering::Equal));
     WindowReport {
         requested: (upper, lower),
-        found: best_fallback,
-        requested_found: false,
+        requested_found: requested.is_some(),
+        found: requested.or_else(|| ranked.first().cloned()),
+        ranked,
     }
 }
 
@@ -136,6 +178,8 @@ struct Search<'a> {
     targets: Vec<DVec3>,
     target_labels: Vec<LabelId>,
     risk_labels: Vec<LabelId>,
+    /// Squared distance (mm²) of every voxel to the nearest risk voxel.
+    risk_sq: Vec<f32>,
 }
 
 impl<'a> Search<'a> {
@@ -166,6 +210,13 @@ impl<'a> Search<'a> {
                 targets.push(pts[s * (pts.len() - 1) / 11]);
             }
         }
+        let risk_mask: Vec<bool> = atlas
+            .partial_labels()
+            .data()
+            .iter()
+            .map(|l| risk_labels.contains(l))
+            .collect();
+        let risk_sq = squared_edt(grid, &risk_mask);
         Search {
             atlas,
             source,
@@ -173,77 +224,85 @@ impl<'a> Search<'a> {
             targets,
             target_labels,
             risk_labels,
+            risk_sq,
         }
     }
 
     fn best_between(&self, upper: LabelId, lower: LabelId) -> Option<WindowFound> {
         let grid = self.atlas.ct().grid();
-        let mask = |id: LabelId| -> Vec<bool> { self.source.data().iter().map(|&l| l == id).collect() };
-        let (mu, ml) = (mask(upper), mask(lower));
-        if !mu.contains(&true) || !ml.contains(&true) {
-            return None;
-        }
-        let du = squared_edt(grid, &mu);
-        let dl = squared_edt(grid, &ml);
-        let dist = |d: &[f32], p: DVec3| {
-            grid.nearest_voxel(p)
-                .map(|[i, j, k]| (d[grid.linear(i, j, k)] as f64).sqrt())
-                .unwrap_or(f64::INFINITY)
-        };
-        let rib_points = |m: &[bool]| -> Vec<DVec3> {
-            m.iter()
+        let rib_points = |id: LabelId| -> Vec<DVec3> {
+            self.source
+                .data()
+                .iter()
                 .enumerate()
-                .filter(|(_, b)| **b)
+                .filter(|(_, l)| **l == id)
                 .map(|(idx, _)| grid.linear_to_world(idx))
                 .collect()
         };
-        let (pu, pl) = (rib_points(&mu), rib_points(&ml));
+        let (pu, pl) = (rib_points(upper), rib_points(lower));
+        if pu.is_empty() || pl.is_empty() {
+            return None;
+        }
+        // The ribs' distance maps on the box around both ribs (a crossing is within
+        // RIB_NEAR_MM of both, so inside it); beyond the box the distance is infinite.
+        let crop = Crop::around(grid, self.source, &[upper, lower], RIB_NEAR_MM + 5.0);
+        let du = crop.squared_edt(self.source, upper);
+        let dl = crop.squared_edt(self.source, lower);
+        let dist = |d: &[f32], p: DVec3| {
+            crop.grid
+                .nearest_voxel(p)
+                .map(|[i, j, k]| (d[crop.grid.linear(i, j, k)] as f64).sqrt())
+                .unwrap_or(f64::INFINITY)
+        };
         let thresholds = *self.atlas.thresholds();
-        let mut best: Option<WindowFound> = None;
-        for &t in &self.targets {
-            for n in 0..DIRECTIONS {
-                let dir = fibonacci(n, DIRECTIONS);
-                let Some((entry, clearance, crossing)) =
-                    self.cast(t, dir, &|p| dist(&du, p).max(dist(&dl, p)), thresholds.fat_bone_hu)
-                else {
-                    continue;
-                };
-                let Some(c) = crossing else { continue };
-                // Upper rib cranial, lower rib caudal of the crossing, looking at the nearby parts.
-                let local_z = |pts: &[DVec3]| {
-                    let near: Vec<f64> = pts
-                        .iter()
-                        .filter(|p| p.distance(c) <= RIB_NEAR_MM + 10.0)
-                        .map(|p| p.z)
-                        .collect();
-                    (!near.is_empty()).then(|| near.iter().sum::<f64>() / near.len() as f64)
-                };
-                let (Some(zu), Some(zl)) = (local_z(&pu), local_z(&pl)) else {
-                    continue;
-                };
-                if !(zu > c.z && c.z > zl) {
-                    continue;
-                }
-                let found = WindowFound {
-                    upper_rib: upper,
-                    lower_rib: lower,
-                    entry_mm: entry,
-                    target_mm: t,
-                    length_mm: entry.distance(t),
-                    bone_clearance_mm: clearance,
-                };
-                let better = best
-                    .as_ref()
-                    .is_none_or(|b| (found.bone_clearance_mm, -found.length_mm) > (b.bone_clearance_mm, -b.length_mm));
-                if better {
-                    best = Some(found);
+        let candidate = |t: DVec3, n: usize| -> Option<WindowFound> {
+            let dir = fibonacci(n, DIRECTIONS);
+            let (entry, clearance, crossing) =
+                self.cast(t, dir, &|p| dist(&du, p).max(dist(&dl, p)), thresholds.fat_bone_hu)?;
+            let c = crossing?;
+            // Upper rib cranial, lower rib caudal of the crossing, looking at the nearby parts.
+            let local_z = |pts: &[DVec3]| {
+                let near: Vec<f64> = pts
+                    .iter()
+                    .filter(|p| p.distance(c) <= RIB_NEAR_MM + 10.0)
+                    .map(|p| p.z)
+                    .collect();
+                (!near.is_empty()).then(|| near.iter().sum::<f64>() / near.len() as f64)
+            };
+            let (zu, zl) = (local_z(&pu)?, local_z(&pl)?);
+            if !(zu > c.z && c.z > zl) {
+                return None;
+            }
+            Some(WindowFound {
+                upper_rib: upper,
+                lower_rib: lower,
+                entry_mm: entry,
+                target_mm: t,
+                length_mm: entry.distance(t),
+                bone_clearance_mm: clearance.bone_mm,
+                risk_clearance_mm: clearance.risk_mm,
+            })
+        };
+        // Every line in parallel; the best by key, ties to the first line tried (deterministic).
+        let best = |a: (usize, WindowFound), b: (usize, WindowFound)| match b.1.key().partial_cmp(&a.1.key()) {
+            Some(std::cmp::Ordering::Greater) => b,
+            Some(std::cmp::Ordering::Less) => a,
+            _ => {
+                if b.0 < a.0 {
+                    b
+                } else {
+                    a
                 }
             }
-        }
-        best
+        };
+        (0..self.targets.len() * DIRECTIONS)
+            .into_par_iter()
+            .filter_map(|i| candidate(self.targets[i / DIRECTIONS], i % DIRECTIONS).map(|f| (i, f)))
+            .reduce_with(best)
+            .map(|(_, f)| f)
     }
 
-    /// Walks from the target outward. Returns the skin entry, the bone clearance and the point
+    /// Walks from the target outward. Returns the skin entry, the clearances and the point
     /// where both ribs are nearest (if within reach), or `None` if the line hits bone or risk or
     /// leaves the CT through a face of its box before it reaches the skin.
     fn cast(
@@ -252,9 +311,13 @@ impl<'a> Search<'a> {
         dir: DVec3,
         rib_gap: &dyn Fn(DVec3) -> f64,
         fat_bone_hu: f64,
-    ) -> Option<(DVec3, f64, Option<DVec3>)> {
+    ) -> Option<(DVec3, Clearance, Option<DVec3>)> {
         let a = self.atlas;
-        let mut clearance = f64::INFINITY;
+        let grid = a.ct().grid();
+        let mut clearance = Clearance {
+            bone_mm: f64::INFINITY,
+            risk_mm: f64::INFINITY,
+        };
         let mut crossing: Option<(f64, DVec3)> = None;
         let mut s = 0.0;
         while s <= MAX_LENGTH_MM {
@@ -280,7 +343,12 @@ impl<'a> Search<'a> {
                 return None;
             }
             if !self.target_labels.contains(&partial) {
-                clearance = clearance.min(-a.bone_distance().sample(p, -1000.0) as f64);
+                clearance.bone_mm = clearance.bone_mm.min(-a.bone_distance().sample(p, -1000.0) as f64);
+                if let Some([i, j, k]) = grid.nearest_voxel(p) {
+                    clearance.risk_mm = clearance
+                        .risk_mm
+                        .min((self.risk_sq[grid.linear(i, j, k)] as f64).sqrt());
+                }
             }
             let g = rib_gap(p);
             if crossing.is_none_or(|(best, _)| g < best) {
@@ -289,6 +357,70 @@ impl<'a> Search<'a> {
             s += STEP_MM;
         }
         None
+    }
+}
+
+/// A line's smallest distances to bone and to risk structures (mm).
+#[derive(Debug, Clone, Copy)]
+struct Clearance {
+    bone_mm: f64,
+    risk_mm: f64,
+}
+
+/// A box of the CT's grid (as a grid of its own) around some labels, with a margin.
+struct Crop {
+    grid: Grid,
+    offset: [usize; 3],
+}
+
+impl Crop {
+    fn around(grid: &Grid, source: &stylet_physics::Volume<LabelId>, ids: &[LabelId], margin_mm: f64) -> Crop {
+        let dims = grid.dims();
+        let (mut lo, mut hi) = ([usize::MAX; 3], [0usize; 3]);
+        for (idx, l) in source.data().iter().enumerate() {
+            if ids.contains(l) {
+                let v = grid.unlinear(idx);
+                for a in 0..3 {
+                    lo[a] = lo[a].min(v[a]);
+                    hi[a] = hi[a].max(v[a]);
+                }
+            }
+        }
+        let s = grid.spacing_mm();
+        let mut size = [0usize; 3];
+        for a in 0..3 {
+            let m = (margin_mm / s[a]).ceil() as usize;
+            lo[a] = lo[a].saturating_sub(m);
+            hi[a] = (hi[a] + m).min(dims[a] - 1);
+            size[a] = hi[a] + 1 - lo[a];
+        }
+        let o = grid.voxel_to_world(lo[0], lo[1], lo[2]);
+        let rows = grid.affine().rows();
+        let shifted = Affine::from_rows([
+            [rows[0][0], rows[0][1], rows[0][2], o.x],
+            [rows[1][0], rows[1][1], rows[1][2], o.y],
+            [rows[2][0], rows[2][1], rows[2][2], o.z],
+        ]);
+        Crop {
+            grid: Grid::new(size, shifted).expect("a box inside a valid grid is valid"),
+            offset: lo,
+        }
+    }
+
+    /// Squared distance (mm²) within the box to the nearest voxel labelled `id`.
+    fn squared_edt(&self, source: &stylet_physics::Volume<LabelId>, id: LabelId) -> Vec<f32> {
+        let [nx, ny, nz] = self.grid.dims();
+        let full = source.grid();
+        let mut mask = Vec::with_capacity(nx * ny * nz);
+        for k in 0..nz {
+            for j in 0..ny {
+                for i in 0..nx {
+                    let [a, b, c] = [i + self.offset[0], j + self.offset[1], k + self.offset[2]];
+                    mask.push(source.data()[full.linear(a, b, c)] == id);
+                }
+            }
+        }
+        squared_edt(&self.grid, &mask)
     }
 }
 
