@@ -56,6 +56,10 @@ pub struct NewArgs {
     /// TotalSegmentator's "total" classes).
     #[arg(long)]
     pub classes: Option<PathBuf>,
+    /// Corrections to the default PTCD mapping: CSV with `structure` and `label` columns, the
+    /// label an atlas label's id or name, `heuristic` or `heuristic-bone`.
+    #[arg(long)]
+    pub map: Option<PathBuf>,
     /// A label map that covers part of the CT and kept its header: label voxel (i,j,k) is CT
     /// voxel (i,j,k) + offset, e.g. 0,0,82.
     #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
@@ -154,6 +158,7 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
                 ct: a.ct,
                 labels: a.labels,
                 classes: a.classes,
+                map: a.map,
                 offset_voxels: offset,
                 name,
             };

@@ -49,6 +49,7 @@ fn the_abdominal_scenario_gets_a_whole_report() {
         ct: d.join("example_ct.nii.gz"),
         labels: d.join("example_seg.nii.gz"),
         classes: Some(hostile_classes(tmp.path())),
+        map: None,
         offset_voxels: [0, 0, 82],
         name: "abdomen".into(),
     };

@@ -17,6 +17,7 @@ fn args(ct: &Path, labels: &Path) -> NewAtlas {
         ct: ct.to_path_buf(),
         labels: labels.to_path_buf(),
         classes: None,
+        map: None,
         offset_voxels: [0, 0, 0],
         name: "patient".into(),
     }
@@ -98,6 +99,34 @@ fn the_chest_ct_with_its_class_table_gets_a_window_whose_entry_is_on_the_skin() 
         atlas.model.skin_distance().sample(entry, f32::NAN).abs() < 2.0,
         "entry on the skin: {text}"
     );
+    // Every neighbouring pair of right ribs searched (ribs 1–12 labelled): several windows,
+    // ranked by clearance, each a planned path, the chosen one first and guiding beginners.
+    assert!(w.ranked.len() >= 3, "{text}");
+    for pair in w.ranked.windows(2) {
+        assert!(pair[0].clearance_mm() >= pair[1].clearance_mm(), "{text}");
+    }
+    for f in &w.ranked {
+        assert!(f.clearance_mm() > 0.0 && f.risk_clearance_mm.is_finite(), "{f:?}");
+    }
+    assert_eq!(atlas.manifest.paths.len(), w.ranked.len());
+    assert_eq!(
+        atlas.manifest.difficulty.beginner.guided_path.as_deref(),
+        Some(name.as_str())
+    );
+    let n = w.ranked.len();
+    for (k, path) in atlas.manifest.paths.iter().enumerate().skip(1) {
+        assert!(
+            path.description.contains(&format!(" of {n} by clearance")),
+            "{}",
+            path.description
+        );
+        let entry = stylet_physics::glam::DVec3::from_array(path.entry_mm);
+        assert!(
+            atlas.model.skin_distance().sample(entry, f32::NAN).abs() < 2.0,
+            "path {k} entry on the skin"
+        );
+    }
+    assert!(text.contains("windows ranked by clearance"), "{text}");
 }
 
 /// A TotalSegmentator output folder (one mask per structure, on the CT's grid) made from the
@@ -200,6 +229,15 @@ fn hostile_inputs_are_refused_with_the_reason_and_nothing_written() {
     );
     nifti_io::write_labels(&t.path().join("empty.nii.gz"), &Volume::filled(*g, 0 as LabelId), "x").unwrap();
     refused(&args(&ct, &t.path().join("empty.nii.gz")), &out, &["labels no voxel"]);
+    // A mapping file naming a label the scenario has not, and one too big to read.
+    let map = t.path().join("map.csv");
+    std::fs::write(&map, "structure,label\nliver,liver\nspleen,brain\n").unwrap();
+    let mut with_map = args(&ct, &seg);
+    with_map.offset_voxels = [0, 0, 82];
+    with_map.map = Some(map.clone());
+    refused(&with_map, &out, &["map.csv", "line 3", "'brain' is not a label"]);
+    std::fs::write(&map, "structure,label\n".repeat(20_000)).unwrap();
+    refused(&with_map, &out, &["map.csv", "bytes"]);
     // A mask folder with a mask of another size.
     let masks = t.path().join("masks");
     std::fs::create_dir(&masks).unwrap();

@@ -10,6 +10,7 @@ use std::path::Path;
 use stylet_physics::LabelId;
 
 use super::classes::{ClassTable, Rib, Side};
+use super::mapping::{Mapped, MappingOverride};
 use super::recipe::{Biliary, LabelMap, LoadedRecipe, Recipe, RecipeProvenance, Source, Window};
 use crate::AtlasError;
 use crate::manifest::{LabelToml, PTCD_SCENARIO_TOML, ScenarioFile, TissueToml};
@@ -74,6 +75,16 @@ pub fn ptcd_label(name: &str) -> Option<LabelId> {
     } else {
         return None;
     })
+}
+
+/// The default mapping of a structure by its name: its PTCD label, else bone left to the
+/// heuristic, else left to the heuristic.
+pub fn default_mapping(name: &str) -> Mapped {
+    match ptcd_label(name) {
+        Some(id) => Mapped::Label(id),
+        None if is_bone(name) => Mapped::HeuristicBone,
+        None => Mapped::Heuristic,
+    }
 }
 
 /// Whether a structure is bone (or cartilage) that a needle must not cross: the window search's
@@ -161,11 +172,26 @@ pub fn ptcd_recipe(
     classes: &ClassTable,
     present: &BTreeSet<LabelId>,
     origin: &Path,
+    overrides: Option<&MappingOverride>,
 ) -> Result<LoadedRecipe, AtlasError> {
     let named = |id: LabelId| classes.name(id);
+    let scenario = ScenarioFile::parse(PTCD_SCENARIO_TOML).map_err(|e| AtlasError::file(origin, e))?;
+    let labels: Vec<LabelToml> = scenario.labels.iter().cloned().chain(added_labels()).collect();
+    let overrides = match overrides {
+        Some(o) => o.resolve(classes, &labels, &[DUCTS, TARGET])?,
+        None => Default::default(),
+    };
+    // The user's mapping, else the default by name.
+    let mapping = |id: LabelId| -> Mapped {
+        let Some(n) = named(id) else {
+            return Mapped::Heuristic;
+        };
+        overrides.get(n).copied().unwrap_or_else(|| default_mapping(n))
+    };
+    let bone_role = |to: LabelId| labels.iter().any(|l| l.id == to && l.role == "bone");
     let mut maps: Vec<LabelMap> = Vec::new();
     for &id in present {
-        if let Some(to) = named(id).and_then(ptcd_label) {
+        if let Mapped::Label(to) = mapping(id) {
             match maps.iter_mut().find(|m| m.to == to) {
                 Some(m) => m.from.push(id),
                 None => maps.push(LabelMap { from: vec![id], to }),
@@ -196,7 +222,11 @@ pub fn ptcd_recipe(
     let bone_labels: Vec<LabelId> = present
         .iter()
         .copied()
-        .filter(|&id| named(id).is_some_and(is_bone))
+        .filter(|&id| match mapping(id) {
+            Mapped::HeuristicBone => true,
+            Mapped::Label(to) => bone_role(to),
+            Mapped::Heuristic => false,
+        })
         .collect();
     // Right ribs present, cranial to caudal.
     let mut right_ribs: Vec<(u8, LabelId)> = present
@@ -263,7 +293,6 @@ pub fn ptcd_recipe(
         }),
         window,
     };
-    let scenario = ScenarioFile::parse(PTCD_SCENARIO_TOML).map_err(|e| AtlasError::file(origin, e))?;
     LoadedRecipe::new(origin, recipe, scenario)
 }
 
@@ -307,25 +336,60 @@ mod tests {
         let ts = ClassTable::totalsegmentator();
         let origin = Path::new("labels.nii.gz");
         let present: BTreeSet<LabelId> = [5, 52, 63, 64, 110, 111, 112, 113, 114, 115, 30].into();
-        let r = ptcd_recipe("p", &ts, &present, origin).unwrap();
+        let r = ptcd_recipe("p", &ts, &present, origin, None).unwrap();
         let w = r.recipe.window.as_ref().unwrap();
         assert_eq!((w.upper_rib, w.lower_rib), (113, 114));
         assert_eq!(w.rib_sequence, vec![110, 111, 112, 113, 114, 115]);
         assert_eq!(w.bone_labels, vec![30, 110, 111, 112, 113, 114, 115]);
         assert_eq!(r.recipe.biliary.as_ref().unwrap().hilum_from, vec![64]);
         // Without ribs 10/11: the lowest neighbours present; without ribs: no window.
-        let r = ptcd_recipe("p", &ts, &[5, 109, 110, 111].into(), origin).unwrap();
+        let r = ptcd_recipe("p", &ts, &[5, 109, 110, 111].into(), origin, None).unwrap();
         let w = r.recipe.window.unwrap();
         assert_eq!((w.upper_rib, w.lower_rib), (110, 111));
         assert!(
-            ptcd_recipe("p", &ts, &[5].into(), origin)
+            ptcd_recipe("p", &ts, &[5].into(), origin, None)
                 .unwrap()
                 .recipe
                 .window
                 .is_none()
         );
-        let e = ptcd_recipe("p", &ts, &[52, 64].into(), origin).unwrap_err().to_string();
+        let e = ptcd_recipe("p", &ts, &[52, 64].into(), origin, None)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("labels.nii.gz") && e.contains("no liver"), "{e}");
+    }
+
+    /// The user's mapping replaces the default for the structures it names, the rest keep it.
+    #[test]
+    fn a_mapping_file_overrides_the_default_by_structure_name() {
+        let ts = ClassTable::totalsegmentator();
+        let present: BTreeSet<LabelId> = [4, 5, 16, 52, 63, 64, 113, 114].into();
+        let m = MappingOverride::parse_csv(
+            "structure,label\ngallbladder,heuristic\ninferior_vena_cava,aorta\ntrachea,heuristic-bone\n",
+            Path::new("map.csv"),
+        )
+        .unwrap();
+        let r = ptcd_recipe("p", &ts, &present, Path::new("l.nii.gz"), Some(&m)).unwrap();
+        let to = |id: LabelId| r.recipe.map.iter().find(|m| m.from.contains(&id)).map(|m| m.to);
+        assert_eq!(to(4), None, "gallbladder left to the heuristic");
+        assert_eq!(to(63), Some(AORTA), "IVC mapped to the aorta's label");
+        assert_eq!(to(52), Some(AORTA));
+        assert_eq!(to(5), Some(LIVER), "default kept");
+        let w = r.recipe.window.unwrap();
+        assert_eq!(
+            w.bone_labels,
+            vec![16, 113, 114],
+            "trachea now bone for the window search"
+        );
+        // A name the class table lacks is refused, naming the file and line.
+        let m = MappingOverride::parse_csv("structure,label\nlivr,liver\n", Path::new("map.csv")).unwrap();
+        let e = ptcd_recipe("p", &ts, &present, Path::new("l.nii.gz"), Some(&m))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("map.csv") && e.contains("line 2") && e.contains("livr"),
+            "{e}"
+        );
     }
 
     /// Every organ and vessel of the scenario in its own colour (the lungs excepted: left and
@@ -333,7 +397,7 @@ mod tests {
     #[test]
     fn the_structures_have_distinct_colours() {
         let ts = ClassTable::totalsegmentator();
-        let r = ptcd_recipe("p", &ts, &(1..=117).collect(), Path::new("l.nii.gz")).unwrap();
+        let r = ptcd_recipe("p", &ts, &(1..=117).collect(), Path::new("l.nii.gz"), None).unwrap();
         let tree = crate::manifest::property_tree(&r.scenario.tissues).unwrap();
         let mut seen: Vec<([u8; 4], String)> = Vec::new();
         for l in &r.scenario.labels {

@@ -29,6 +29,9 @@ pub struct NewAtlas {
     /// Class table (CSV, `id` and `structure` columns) of a multi-label map; TotalSegmentator's
     /// "total" classes when absent.
     pub classes: Option<PathBuf>,
+    /// The user's corrections to the default mapping by structure name (CSV `structure,label`,
+    /// [`super::mapping`]).
+    pub map: Option<PathBuf>,
     /// Label voxel (i, j, k) is CT voxel (i, j, k) + offset (a cropped map that kept the CT's
     /// header, like TotalSegmentator's example); [0, 0, 0]: same grid and affine as the CT.
     pub offset_voxels: [i64; 3],
@@ -97,6 +100,11 @@ pub fn new_atlas_only(args: &NewAtlas, out: &Path, timer: &mut StepTimer) -> Res
         Some(p) => ClassTable::read_csv(p)?,
         None => ClassTable::totalsegmentator(),
     };
+    let overrides = args
+        .map
+        .as_deref()
+        .map(super::mapping::MappingOverride::read_csv)
+        .transpose()?;
     let masks = if args.labels.is_dir() {
         if args.classes.is_some() {
             return Err(AtlasError::file(
@@ -122,7 +130,7 @@ pub fn new_atlas_only(args: &NewAtlas, out: &Path, timer: &mut StepTimer) -> Res
     if present.is_empty() {
         return Err(AtlasError::file(&args.labels, "the label map labels no voxel"));
     }
-    let recipe = auto::ptcd_recipe(name, &classes, &present, &args.labels)?;
+    let recipe = auto::ptcd_recipe(name, &classes, &present, &args.labels, overrides.as_ref())?;
     notes.insert(
         0,
         format!(
