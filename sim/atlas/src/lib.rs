@@ -51,6 +51,22 @@ pub(crate) fn check_regular_file(path: &Path) -> Result<(), AtlasError> {
     }
 }
 
+/// A small text file (`what`: "class table", "mapping file"), refused unread when it is not a
+/// regular file or holds more than `max_bytes`.
+pub(crate) fn read_small_text(path: &Path, what: &str, max_bytes: u64) -> Result<String, AtlasError> {
+    check_regular_file(path)?;
+    let len = std::fs::metadata(path)
+        .map_err(|e| AtlasError::file(path, format!("cannot read: {e}")))?
+        .len();
+    if len > max_bytes {
+        return Err(AtlasError::file(
+            path,
+            format!("{what} is {len} bytes, more than the {max_bytes} accepted"),
+        ));
+    }
+    std::fs::read_to_string(path).map_err(|e| AtlasError::file(path, format!("cannot read: {e}")))
+}
+
 fn file_kind(t: &std::fs::FileType) -> &'static str {
     #[cfg(unix)]
     {

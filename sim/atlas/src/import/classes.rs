@@ -235,17 +235,7 @@ impl ClassTable {
     /// Every problem is refused with its line: a missing column, a number that is not 1 … 65535,
     /// a class listed twice, an empty or over-long name, a file over [`MAX_TABLE_BYTES`].
     pub fn read_csv(path: &Path) -> Result<ClassTable, AtlasError> {
-        crate::check_regular_file(path)?;
-        let len = std::fs::metadata(path)
-            .map_err(|e| AtlasError::file(path, format!("cannot read: {e}")))?
-            .len();
-        if len > MAX_TABLE_BYTES {
-            return Err(AtlasError::file(
-                path,
-                format!("class table is {len} bytes, more than the {MAX_TABLE_BYTES} accepted"),
-            ));
-        }
-        let text = std::fs::read_to_string(path).map_err(|e| AtlasError::file(path, format!("cannot read: {e}")))?;
+        let text = crate::read_small_text(path, "class table", MAX_TABLE_BYTES)?;
         let source = path
             .file_name()
             .map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());

@@ -40,17 +40,7 @@ pub struct MappingOverride {
 impl MappingOverride {
     /// Reads a CSV with `structure` and `label` columns (header first; blank lines ignored).
     pub fn read_csv(path: &Path) -> Result<MappingOverride, AtlasError> {
-        crate::check_regular_file(path)?;
-        let len = std::fs::metadata(path)
-            .map_err(|e| AtlasError::file(path, format!("cannot read: {e}")))?
-            .len();
-        if len > MAX_MAPPING_BYTES {
-            return Err(AtlasError::file(
-                path,
-                format!("mapping file is {len} bytes, more than the {MAX_MAPPING_BYTES} accepted"),
-            ));
-        }
-        let text = std::fs::read_to_string(path).map_err(|e| AtlasError::file(path, format!("cannot read: {e}")))?;
+        let text = crate::read_small_text(path, "mapping file", MAX_MAPPING_BYTES)?;
         Self::parse_csv(&text, path).map_err(|e| AtlasError::file(path, e))
     }
 

@@ -6,6 +6,8 @@
 //! rib sequence is searched and the windows found are ranked by clearance (the smaller of the
 //! line's distances to bone and to risk structures, then the shorter line).
 
+use std::collections::BTreeMap;
+
 use rayon::prelude::*;
 use stylet_physics::distance::squared_edt;
 use stylet_physics::glam::DVec3;
@@ -155,7 +157,22 @@ pub fn find_window(
         }
     }
     let search = Search::new(atlas, source, bone_labels);
-    let found: Vec<WindowFound> = pairs.iter().filter_map(|&(a, b)| search.best_between(a, b)).collect();
+    // Every rib's voxels in one pass over the label map (a rib belongs to two pairs).
+    let mut wanted = vec![false; LabelId::MAX as usize + 1];
+    for &(a, b) in &pairs {
+        wanted[a as usize] = true;
+        wanted[b as usize] = true;
+    }
+    let mut rib_voxels: BTreeMap<LabelId, Vec<usize>> = BTreeMap::new();
+    for (idx, &l) in source.data().iter().enumerate() {
+        if wanted[l as usize] {
+            rib_voxels.entry(l).or_default().push(idx);
+        }
+    }
+    let found: Vec<WindowFound> = pairs
+        .iter()
+        .filter_map(|&(a, b)| search.best_between(a, b, &rib_voxels))
+        .collect();
     let requested = found
         .iter()
         .find(|f| (f.upper_rib, f.lower_rib) == (upper, lower))
@@ -228,24 +245,21 @@ impl<'a> Search<'a> {
         }
     }
 
-    fn best_between(&self, upper: LabelId, lower: LabelId) -> Option<WindowFound> {
+    /// The best line between `upper` and `lower` (`rib_voxels`: each rib's voxels, linear
+    /// indices).
+    fn best_between(
+        &self,
+        upper: LabelId,
+        lower: LabelId,
+        rib_voxels: &BTreeMap<LabelId, Vec<usize>>,
+    ) -> Option<WindowFound> {
         let grid = self.atlas.ct().grid();
-        let rib_points = |id: LabelId| -> Vec<DVec3> {
-            self.source
-                .data()
-                .iter()
-                .enumerate()
-                .filter(|(_, l)| **l == id)
-                .map(|(idx, _)| grid.linear_to_world(idx))
-                .collect()
-        };
-        let (pu, pl) = (rib_points(upper), rib_points(lower));
-        if pu.is_empty() || pl.is_empty() {
-            return None;
-        }
+        let (vu, vl) = (rib_voxels.get(&upper)?, rib_voxels.get(&lower)?);
+        let rib_points = |v: &[usize]| -> Vec<DVec3> { v.iter().map(|&idx| grid.linear_to_world(idx)).collect() };
+        let (pu, pl) = (rib_points(vu), rib_points(vl));
         // The ribs' distance maps on the box around both ribs (a crossing is within
         // RIB_NEAR_MM of both, so inside it); beyond the box the distance is infinite.
-        let crop = Crop::around(grid, self.source, &[upper, lower], RIB_NEAR_MM + 5.0);
+        let crop = Crop::around(grid, &[vu, vl], RIB_NEAR_MM + 5.0);
         let du = crop.squared_edt(self.source, upper);
         let dl = crop.squared_edt(self.source, lower);
         let dist = |d: &[f32], p: DVec3| {
@@ -374,16 +388,15 @@ struct Crop {
 }
 
 impl Crop {
-    fn around(grid: &Grid, source: &stylet_physics::Volume<LabelId>, ids: &[LabelId], margin_mm: f64) -> Crop {
+    /// The box around `voxels` (linear indices, at least one) widened by `margin_mm`.
+    fn around(grid: &Grid, voxels: &[&Vec<usize>], margin_mm: f64) -> Crop {
         let dims = grid.dims();
         let (mut lo, mut hi) = ([usize::MAX; 3], [0usize; 3]);
-        for (idx, l) in source.data().iter().enumerate() {
-            if ids.contains(l) {
-                let v = grid.unlinear(idx);
-                for a in 0..3 {
-                    lo[a] = lo[a].min(v[a]);
-                    hi[a] = hi[a].max(v[a]);
-                }
+        for &idx in voxels.iter().copied().flatten() {
+            let v = grid.unlinear(idx);
+            for a in 0..3 {
+                lo[a] = lo[a].min(v[a]);
+                hi[a] = hi[a].max(v[a]);
             }
         }
         let s = grid.spacing_mm();
