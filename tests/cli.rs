@@ -222,6 +222,7 @@ fn import_real_ct_and_dicom() {
         "{text}"
     );
     assert!(new.join("scripts/success.txt").is_file());
+    assert!(text.contains("- validation record: "), "{text}");
     let json: serde_json::Value =
         serde_json::from_str(&ok(&["atlas", "inspect", new.to_str().unwrap(), "--json"])).unwrap();
     check_inspect_json(&json);
@@ -595,6 +596,13 @@ fn a_new_chest_scenario_passes_its_smoke_test() {
     for png in ["slices.png", "3d-anterior.png", "3d-right.png"] {
         assert!(out.join("report").join(png).is_file(), "{png}");
     }
+    // The validation record publishing needs: this atlas' content, both scripts passed.
+    let record = stylet_atlas::validation::read_record(&out)
+        .unwrap()
+        .expect("a validation record");
+    let atlas = stylet_atlas::load(&out).unwrap();
+    assert_eq!(record.vouches_for(&atlas.content_hash), Ok(()));
+    assert_eq!(record.smoke.len(), 2, "{record:?}");
 }
 
 /// "right Nth–Mth intercostal space" with M = N + 1, as the report's window table names it.

@@ -152,6 +152,17 @@ fn review_progress_and_reports_by_role(db: Db) {
             [201, 200, 200, 403, 403, 401],
         ),
         (
+            "GET the atlas catalogue",
+            Box::new(|u: &str| get(u, "/api/atlases")),
+            [200, 200, 200, 200, 200, 401],
+        ),
+        // Who may publish is settled before the body is looked at (a JSON body: 415 for them).
+        (
+            "POST an atlas",
+            Box::new(|u: &str| post(u, "/api/atlases", "{}")),
+            [415, 415, 403, 403, 403, 401],
+        ),
+        (
             "POST token",
             Box::new(|u: &str| post(u, "/api/tokens", r#"{"label":"matrix"}"#)),
             [201, 201, 201, 201, 201, 401],
@@ -643,6 +654,7 @@ fn upload_score_and_see_only_what_you_may(db: Db) {
         "/api/login",
         "/api/logout",
         "/api/tokens",
+        "/api/atlases",
         "/api/sessions",
         "/api/sessions/{id}",
         "/api/sessions/{id}/expert",

@@ -125,9 +125,8 @@ pub async fn session_figure(
     }
     let trace = review_trace(s, file_sha256, atlas_hash).await?;
     let scorer = s
-        .scorers
-        .get(atlas_hash)
-        .cloned()
+        .catalogue
+        .scorer(atlas_hash)
         .ok_or("the session's atlas is not loaded on this server")?;
     let Some(spec) = spec(&scorer, report, &trace, figure, title, corridor.as_deref()) else {
         return Ok(None);

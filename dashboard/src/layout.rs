@@ -141,6 +141,7 @@ fn navigation(v: &Viewer) -> Markup {
             nav {
                 a href="/" { "Home" }
                 a href="/sessions" { "Sessions" }
+                a href="/atlases" { "Catalogue" }
                 @if role == "trainee" { a href={ "/trainees/" (crate::auth::encode_query(&v.user.username)) } { "My progress" } }
                 @if role == "instructor" || role == "admin" { a #nav-review-queue href="/review-queue" { "Needs review" } }
                 @if role != "trainee" { a href="/cohorts" { "Cohorts" } }

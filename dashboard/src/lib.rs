@@ -47,6 +47,7 @@ pub fn router(state: Arc<AppState>) -> Router {
             "/upload",
             post(pages::upload::upload).layer(DefaultBodyLimit::max(upload_limit)),
         )
+        .route("/atlases", get(pages::catalogue::index))
         .route("/cohorts", get(pages::home::cohorts))
         .route("/cohorts/{name}", get(pages::cohort::cohort))
         .route("/compare", get(pages::compare::compare))

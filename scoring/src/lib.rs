@@ -10,6 +10,7 @@ pub mod reasons;
 pub mod replay;
 pub mod rubric;
 pub mod score;
+pub mod smoke;
 pub mod target;
 pub mod trace;
 

@@ -162,6 +162,10 @@ pub fn router(state: AppRef) -> Router {
         .route("/api/users/{username}/disable", post(super::users::disable))
         .route("/api/users/{username}/enable", post(super::users::enable))
         .route("/api/users/{username}/password", post(super::users::password))
+        .route(
+            "/api/atlases",
+            post(super::atlases::publish_atlas).get(super::atlases::list),
+        )
         .route("/api/sessions", post(upload).get(list_sessions))
         .route("/api/sessions/{id}", get(get_session).delete(delete_session))
         .route("/api/sessions/{id}/file", get(get_session_file))

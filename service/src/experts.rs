@@ -30,8 +30,8 @@ pub async fn benchmark(
 ) -> Result<(Benchmark, Vec<ExpertReference>), StoreError> {
     let rows = s.store.expert_references(atlas_hash, scenario).await?;
     let exercise = s
-        .scorers
-        .get(atlas_hash)
+        .catalogue
+        .scorer(atlas_hash)
         .map_or_else(Default::default, |sc| sc.exercise_of(scenario));
     let mut reports = Vec::new();
     let mut references = Vec::new();

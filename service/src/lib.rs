@@ -4,12 +4,15 @@
 //! in the database (a restart resumes them; a session is never scored twice).
 
 pub mod api;
+pub mod atlases;
 pub mod auth;
+pub mod catalogue;
 pub mod experts;
 pub mod export;
 pub mod limits;
 pub mod logins;
 pub mod openapi;
+pub mod publish;
 pub mod server;
 pub mod store;
 pub mod tokens;
@@ -18,7 +21,6 @@ pub mod upload;
 pub mod users;
 pub mod worker;
 
-use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -55,11 +57,10 @@ impl Config {
 pub struct AppState {
     pub store: Store,
     pub config: Config,
-    /// One scorer per known atlas, by content hash.
-    pub scorers: BTreeMap<String, Arc<stylet_scoring::Scorer>>,
-    /// The same atlases with their manifests (presets, scenarios' C-arms), by content hash, for
-    /// pictures drawn as `stylet render` draws them; the volumes are shared with the scorers.
-    pub atlases: BTreeMap<String, Arc<stylet_atlas::Atlas>>,
+    /// Every known atlas and its scorer, by content hash (configured and published ones).
+    pub catalogue: catalogue::Catalogue,
+    /// One atlas publication at a time (each loads a whole CT and replays its smoke test).
+    pub publish_permit: Arc<tokio::sync::Semaphore>,
     pub wake: tokio::sync::Notify,
     /// Recent failed logins per account (rate limiting), bounded.
     pub login_failures: logins::FailedLogins,
@@ -79,6 +80,16 @@ impl AppState {
             .join(&sha[..2])
             .join(format!("{sha}.mcap"))
     }
+
+    /// Where published atlases live: `DATA/atlases/<content hash>/`.
+    pub fn published_dir(&self) -> PathBuf {
+        published_dir(&self.config.data_dir)
+    }
+}
+
+/// `DATA/atlases`: the published atlases of the service whose data directory is `data_dir`.
+pub fn published_dir(data_dir: &std::path::Path) -> PathBuf {
+    data_dir.join("atlases")
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -104,25 +115,36 @@ pub async fn serve(
     std::fs::create_dir_all(config.data_dir.join("sessions"))
         .map_err(|e| setup(&format!("{}: {e}", config.data_dir.display())))?;
     let store = Store::open(&config.database_url()).await?;
-    let mut scorers = BTreeMap::new();
-    let mut atlases = BTreeMap::new();
-    if let Some(dir) = &config.atlases_dir {
-        let dir = dir.clone();
-        let loaded = tokio::task::spawn_blocking(move || load_atlases(&dir))
+    let catalogue = catalogue::Catalogue::default();
+    let configured = match config.atlases_dir.clone() {
+        Some(dir) => tokio::task::spawn_blocking(move || load_atlases(&dir))
             .await
-            .map_err(|e| setup(&e))??;
-        for (atlas, scorer) in loaded {
-            store
-                .register_atlas(
-                    &atlas.content_hash,
-                    &atlas.manifest.name,
-                    &atlas.dir.display().to_string(),
-                )
-                .await?;
-            tracing::info!(atlas = %atlas.manifest.name, hash = %atlas.content_hash, "atlas ready");
-            scorers.insert(atlas.content_hash.clone(), Arc::new(scorer));
-            atlases.insert(atlas.content_hash.clone(), Arc::new(atlas));
-        }
+            .map_err(|e| setup(&e))??,
+        None => Vec::new(),
+    };
+    let published_root = published_dir(&config.data_dir);
+    let published = tokio::task::spawn_blocking(move || publish::load_published(&published_root))
+        .await
+        .map_err(|e| setup(&e))?
+        .map_err(|e| setup(&e))?;
+    let all = configured
+        .into_iter()
+        .map(|(a, s)| (a, s, catalogue::AtlasOrigin::Configured))
+        .chain(
+            published
+                .into_iter()
+                .map(|(a, s)| (a, s, catalogue::AtlasOrigin::Published)),
+        );
+    for (atlas, scorer, origin) in all {
+        store
+            .register_atlas(
+                &atlas.content_hash,
+                &atlas.manifest.name,
+                &atlas.dir.display().to_string(),
+            )
+            .await?;
+        tracing::info!(atlas = %atlas.manifest.name, hash = %atlas.content_hash, origin = origin.as_str(), "atlas ready");
+        catalogue.insert(atlas, scorer, origin);
     }
     let requeued = store.requeue_running().await?;
     if requeued > 0 {
@@ -137,8 +159,8 @@ pub async fn serve(
     let state = Arc::new(AppState {
         store,
         config,
-        scorers,
-        atlases,
+        catalogue,
+        publish_permit: Arc::new(tokio::sync::Semaphore::new(1)),
         wake: tokio::sync::Notify::new(),
         login_failures,
         passwords,

@@ -27,6 +27,14 @@ pub struct Limits {
     pub password_queue: usize,
     /// Accounts whose recent failed logins are remembered (the oldest are forgotten first).
     pub login_failure_accounts: usize,
+    /// Largest atlas upload (`POST /api/atlases`, the archive's bytes).
+    pub max_atlas_bytes: u64,
+    /// Most atlases the catalogue holds (each is kept loaded, CT and all): a publication past it
+    /// is refused.
+    pub max_atlases: usize,
+    /// Time a publication gets for its checks (loading the atlas, its smoke test), beyond its
+    /// upload time.
+    pub atlas_check_timeout: Duration,
 }
 
 impl Default for Limits {
@@ -42,6 +50,9 @@ impl Default for Limits {
             password_threads: (cores / 2).max(1),
             password_queue: 32,
             login_failure_accounts: 10_000,
+            max_atlas_bytes: 1 << 30,
+            max_atlases: 32,
+            atlas_check_timeout: Duration::from_secs(300),
         }
     }
 }

@@ -205,6 +205,31 @@ pub fn document() -> Value {
                                "403": error_response("CSRF token missing, or an upload-scoped token"),
                                "404": error_response("no such token, or not yours") }
             } },
+            "/api/atlases": {
+                "post": {
+                    "summary": "Publish an atlas (admins and instructors; audited)",
+                    "description": "A tar archive of atlas.toml, validation.toml, the two volumes and the record's scripts/*.txt (stylet atlas publish makes it). The service loads it, checks the validation record against its content hash and runs the smoke test again before it keeps it by content hash and lists it in the catalogue.",
+                    "security": [{ "cookie": [] }, { "token": [] }],
+                    "requestBody": { "required": true, "content": { "application/x-tar": { "schema": { "type": "string", "format": "binary" } } } },
+                    "responses": {
+                        "201": { "description": "{content_hash, name, status: published, smoke, atlas}" },
+                        "200": { "description": "{content_hash, name, status: already_published}" },
+                        "400": error_response("empty body"),
+                        "401": error_response("not logged in"),
+                        "403": error_response("not an admin or instructor, CSRF token missing, or an upload-scoped token"),
+                        "409": error_response("the catalogue is full"),
+                        "413": error_response("over the atlas size limit"),
+                        "415": error_response("not application/x-tar"),
+                        "422": error_response("not a valid archive, a damaged atlas, not validated, or its smoke test failed"),
+                        "503": error_response("another publication is running")
+                    }
+                },
+                "get": {
+                    "summary": "The scenario catalogue: every atlas this server scores sessions on",
+                    "security": [{ "cookie": [] }, { "token": [] }],
+                    "responses": { "200": { "description": "{atlases: [{content_hash, name, description, origin, published_by, published_at, scenarios, paths, structures, dims, spacing_mm, sessions}]}" }, "401": error_response("not logged in") }
+                }
+            },
             "/api/sessions": {
                 "post": {
                     "summary": "Upload a session file",

@@ -7,6 +7,7 @@
 //! [`Limits::max_connections`] are served at once; further ones wait in the kernel's backlog.
 
 use std::sync::Arc;
+use std::time::Duration;
 
 use axum::Router;
 use axum::extract::Request;
@@ -56,7 +57,8 @@ pub async fn run(listener: TcpListener, app: Router, limits: &Limits) -> std::io
 
 /// The deadline of a request, body included: [`Limits::request_timeout`], plus, for a session
 /// upload (`POST /api/sessions`, the dashboard's `POST /upload`), its declared size (or the
-/// largest upload) at the slowest accepted rate. Other bodies are small (at most
+/// largest upload) at the slowest accepted rate; an atlas publication (`POST /api/atlases`) the
+/// same for its size and [`Limits::atlas_check_timeout`] for its checks. Other bodies are small (at most
 /// [`Limits::max_json_body_bytes`]) and get no allowance. A request past its deadline gets 408
 /// and its connection is closed.
 pub async fn deadline(
@@ -69,13 +71,22 @@ pub async fn deadline(
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse::<u64>().ok());
-    let upload = req.method() == Method::POST && matches!(req.uri().path(), "/api/sessions" | "/upload");
-    let bytes = match (upload, declared) {
-        (false, _) => 0,
-        (true, Some(n)) => n.min(max_upload),
-        (true, None) => max_upload,
+    let post = req.method() == Method::POST;
+    let upload = post && matches!(req.uri().path(), "/api/sessions" | "/upload");
+    let publication = post && req.uri().path() == "/api/atlases";
+    let bytes = match (upload, publication, declared) {
+        (true, _, Some(n)) => n.min(max_upload),
+        (true, _, None) => max_upload,
+        (_, true, Some(n)) => n.min(limits.max_atlas_bytes),
+        (_, true, None) => limits.max_atlas_bytes,
+        (false, false, _) => 0,
     };
-    match tokio::time::timeout(limits.upload_timeout(bytes), next.run(req)).await {
+    let checks = if publication {
+        limits.atlas_check_timeout
+    } else {
+        Duration::ZERO
+    };
+    match tokio::time::timeout(limits.upload_timeout(bytes) + checks, next.run(req)).await {
         Ok(r) => r,
         Err(_) => {
             let mut r = err(

@@ -64,9 +64,8 @@ pub async fn review_trace(state: &AppState, file_sha256: &str, atlas_hash: &str)
         return Ok(t);
     }
     let scorer = state
-        .scorers
-        .get(atlas_hash)
-        .cloned()
+        .catalogue
+        .scorer(atlas_hash)
         .ok_or("the session's atlas is not loaded on this server")?;
     let file = state.session_file(file_sha256);
     tokio::task::spawn_blocking(move || {

@@ -113,7 +113,7 @@ async fn authorise(s: &AppState, user: &User, trainee_name: &str) -> Result<User
 /// The header's fields against what this server knows; 422 with the reason.
 fn check_header(s: &AppState, h: &SessionHeader) -> Result<(), ApiError> {
     let bad = |m: String| err(StatusCode::UNPROCESSABLE_ENTITY, m);
-    let Some(scorer) = s.scorers.get(&h.atlas_hash) else {
+    let Some(scorer) = s.catalogue.scorer(&h.atlas_hash) else {
         return Err(bad(format!(
             "the session was recorded on atlas '{}' ({}), which this server does not know",
             h.atlas_id, h.atlas_hash

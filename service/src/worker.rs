@@ -53,7 +53,7 @@ enum Outcome {
 async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
     let file = state.session_file(&job.file_sha256);
     let trace_file = super::traces::trace_path(&state.config.data_dir, &job.file_sha256);
-    let scorer = state.scorers.get(&job.atlas_hash).cloned();
+    let scorer = state.catalogue.scorer(&job.atlas_hash);
     // The scenario's expert benchmark, when the rubric grades against one: read now, so the
     // grade (which records it) measures against the references marked at scoring time.
     let benchmark = match &scorer {

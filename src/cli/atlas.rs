@@ -22,6 +22,31 @@ pub enum AtlasCommand {
     New(NewArgs),
     /// Print an atlas' summary; optionally write JSON or a PNG of three orthogonal slices.
     Inspect(InspectArgs),
+    /// Smoke-test an atlas' guided path with generated example scripts and write its validation
+    /// record (`validation.toml`), which publishing requires.
+    Validate(ValidateArgs),
+    /// Upload a validated atlas to a scoring service (an admin's or instructor's `full` API
+    /// token in STYLET_TOKEN), which checks it again and lists it in its scenario catalogue.
+    Publish(PublishArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ValidateArgs {
+    /// Atlas directory.
+    pub dir: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct PublishArgs {
+    /// Atlas directory (validated: `stylet atlas new` or `stylet atlas validate`).
+    pub dir: PathBuf,
+    /// The service, e.g. https://stylet.example.org (plain http only to this computer).
+    #[arg(long)]
+    pub server: String,
+    /// Environment variable holding the API token (never a command-line argument: other users
+    /// can read those).
+    #[arg(long, default_value = "STYLET_TOKEN")]
+    pub token_env: String,
 }
 
 #[derive(Debug, Args)]
@@ -168,7 +193,8 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
             let report = &made.import;
             sayf!("atlas '{}' written to {}", report.manifest.name, a.out.display());
             say(report.to_text().trim_end());
-            let smoke = smoke_test(&made)?;
+            let outcomes = smoke_test(&made.atlas, &a.out, &made.scripts)?;
+            let smoke = report_rows(&outcomes);
             // The report shows a failed smoke test too: it is what the clinician must see.
             let mut timer = stylet_atlas::import::steps::StepTimer::new(&mut on_step);
             let files = timer.run(stylet_atlas::import::steps::Step::Report, || {
@@ -184,10 +210,10 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
                 )
             })?;
             sayf!("- validation report: {}", files.html.display());
-            let failures: Vec<String> = smoke
+            let failures: Vec<String> = outcomes
                 .iter()
-                .filter(|s| !s.passed)
-                .map(|s| format!("scripts/{} should: {}; got: {}", s.script, s.expected, s.got))
+                .filter(|o| !o.passed)
+                .map(|o| format!("scripts/{} should: {}; got: {}", o.script, o.expect.describe(), o.got))
                 .collect();
             if !failures.is_empty() {
                 anyhow::bail!(
@@ -198,6 +224,8 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
             }
             Ok(())
         }
+        AtlasCommand::Validate(a) => validate(&a.dir),
+        AtlasCommand::Publish(a) => publish(&a),
         AtlasCommand::ImportDicom(a) => {
             let series = stylet_atlas::import::dicom::import_series(&a.series, &a.out, &a.name)?;
             let g = series.ct.grid();
@@ -258,77 +286,111 @@ pub fn insertion_paths(atlas: &stylet_atlas::Atlas) -> Vec<(stylet_physics::glam
         .collect()
 }
 
-/// Runs the new scenario's generated scripts through the physics, the recorder and the scorer
-/// (the pipeline a trainee's session takes): the success script must reach and confirm the target
-/// with no risk hit or bone contact, the risk script must hit the structure it names. Returns
-/// each outcome (the caller reports them and fails on any failure, keeping the atlas for a look);
-/// an error is a script that could not be run or scored at all.
+/// Runs the scenario's example scripts through the physics, the recorder and the scorer (the
+/// pipeline a trainee's session takes; `stylet_scoring::smoke`), prints each outcome and keeps
+/// the validation record in `dir` only when every script passed (an old record is removed
+/// otherwise). Returns the outcomes for the report; an error is a script that could not be run or
+/// scored at all.
 fn smoke_test(
-    made: &stylet_atlas::import::new::NewAtlasReport,
-) -> anyhow::Result<Vec<stylet_atlas_report::SmokeResult>> {
-    use stylet_atlas::import::scripts::Expectation;
-    if made.scripts.is_empty() {
+    atlas: &stylet_atlas::Atlas,
+    dir: &Path,
+    generated: &[stylet_atlas::import::scripts::GeneratedScript],
+) -> anyhow::Result<Vec<stylet_scoring::smoke::SmokeOutcome>> {
+    use stylet_atlas::validation;
+    use stylet_scoring::smoke;
+    if generated.is_empty() {
         say("- smoke test: no planned path, so no example scripts");
+        validation::remove_record(dir)?;
         return Ok(Vec::new());
     }
-    let atlas = &made.atlas;
-    let scorer = stylet_scoring::Scorer::new(atlas, stylet_scoring::Rubric::default_rubric(), None)
-        .map_err(|e| anyhow::anyhow!(e))?;
     let tmp = tempfile::tempdir().context("cannot make a temporary folder for the smoke test")?;
-    let mut results = Vec::new();
-    for s in &made.scripts {
-        let started = std::time::Instant::now();
-        let scenario = s.file_name.trim_end_matches(".txt");
-        let session = tmp.path().join(format!("{scenario}.mcap"));
-        let info = stylet_recorder::SessionInfo {
-            trainee: "smoke-test",
-            scenario,
-            difficulty: "beginner",
-            seed: 0,
-            atlas_id: &atlas.manifest.name,
-            atlas_hash: &atlas.content_hash,
-        };
-        super::script::record_script_text(atlas, &s.text, &session, &info)
-            .with_context(|| format!("smoke test: running scripts/{}", s.file_name))?;
-        let r = scorer
-            .score_file(&session)
-            .map_err(|e| anyhow::anyhow!("smoke test: scoring scripts/{}: {e}", s.file_name))?;
-        let m = &r.metrics;
-        let hits: Vec<&str> = m.risk_hits.iter().map(|h| h.structure.as_str()).collect();
-        let (ok, what) = match &s.expect {
-            Expectation::Success => (
-                r.replay_verified && m.target_reached && m.target_confirmed && hits.is_empty() && m.bone_contacts == 0,
-                "reaches and confirms the target, no risk hit, no bone contact".to_string(),
-            ),
-            Expectation::Hit { name, .. } => (
-                r.replay_verified && hits.first() == Some(&name.as_str()),
-                format!("hits the {name} first"),
-            ),
-        };
-        let got = format!(
-            "target reached {}, confirmed {}, risk hits [{}], bone contacts {}, replay verified {}",
-            m.target_reached,
-            m.target_confirmed,
-            hits.join(", "),
-            m.bone_contacts,
-            r.replay_verified
-        );
-        let seconds = started.elapsed().as_secs_f64();
+    let outcomes = smoke::run(atlas, &smoke::smoke_scripts(generated), tmp.path()).context("smoke test")?;
+    for o in &outcomes {
         say(&format!(
-            "- smoke test scripts/{}: {} — {} ({got}; {seconds:.1} s)",
-            s.file_name,
-            if ok { "ok" } else { "FAILED" },
-            what,
+            "- smoke test scripts/{}: {} — {} ({}; {:.1} s)",
+            o.script,
+            if o.passed { "ok" } else { "FAILED" },
+            o.expect.describe(),
+            o.got,
+            o.seconds,
         ));
-        results.push(stylet_atlas_report::SmokeResult {
-            script: s.file_name.clone(),
-            expected: what,
-            got,
-            passed: ok,
-            seconds,
-        });
     }
-    Ok(results)
+    if smoke::first_failure(&outcomes).is_none() {
+        validation::write_record(dir, &smoke::record(atlas, &outcomes))?;
+        sayf!(
+            "- validation record: {}",
+            dir.join(validation::VALIDATION_FILE).display()
+        );
+    } else {
+        validation::remove_record(dir)?;
+    }
+    Ok(outcomes)
+}
+
+/// The smoke test's outcomes as the report shows them.
+fn report_rows(outcomes: &[stylet_scoring::smoke::SmokeOutcome]) -> Vec<stylet_atlas_report::SmokeResult> {
+    outcomes
+        .iter()
+        .map(|o| stylet_atlas_report::SmokeResult {
+            script: o.script.clone(),
+            expected: o.expect.describe(),
+            got: o.got.clone(),
+            passed: o.passed,
+            seconds: o.seconds,
+        })
+        .collect()
+}
+
+/// `stylet atlas publish DIR --server URL`: the token from the environment, never an argument.
+fn publish(a: &PublishArgs) -> anyhow::Result<()> {
+    let token = std::env::var(&a.token_env)
+        .ok()
+        .filter(|t| !t.trim().is_empty())
+        .with_context(|| {
+            format!(
+                "set {} to an admin's or instructor's `full` API token (dashboard: API tokens)",
+                a.token_env
+            )
+        })?;
+    let client = stylet_app::service_client::ServiceClient::new(&a.server)?;
+    let started = std::time::Instant::now();
+    let published = client.publish_atlas(token.trim(), &a.dir)?;
+    sayf!(
+        "atlas '{}' ({}) {} on {} ({:.1} s)",
+        published.name,
+        published.content_hash,
+        if published.new {
+            "published"
+        } else {
+            "was already published"
+        },
+        client.base(),
+        started.elapsed().as_secs_f64()
+    );
+    for line in &published.smoke {
+        sayf!("- the service's smoke test: {line}");
+    }
+    Ok(())
+}
+
+/// `stylet atlas validate DIR`: loads the atlas, writes the example scripts of its guided path to
+/// `DIR/scripts/`, smoke-tests them and writes `DIR/validation.toml` when every one passed.
+fn validate(dir: &Path) -> anyhow::Result<()> {
+    let atlas = stylet_atlas::load(dir)?;
+    let generated = stylet_scoring::smoke::example_scripts(&atlas);
+    if generated.is_empty() {
+        anyhow::bail!(
+            "{}: the atlas has no planned insertion path, so there is nothing to smoke-test (an atlas without one cannot be published)",
+            dir.display()
+        );
+    }
+    stylet_atlas::import::new::write_scripts(dir, &generated)?;
+    let outcomes = smoke_test(&atlas, dir, &generated)?;
+    if let Some(failure) = stylet_scoring::smoke::first_failure(&outcomes) {
+        anyhow::bail!("{}: the smoke test failed: {failure}", dir.display());
+    }
+    sayf!("atlas '{}' ({}) is validated", atlas.manifest.name, atlas.content_hash);
+    Ok(())
 }
 
 /// A spinner on standard error for each step of `atlas new` (hidden when standard error is not a

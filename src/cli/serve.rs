@@ -19,7 +19,8 @@ pub struct ServeArgs {
     /// Database URL (default: SQLite in the data directory; or postgres://…).
     #[arg(long)]
     pub database: Option<String>,
-    /// Directory of atlas directories that uploaded sessions may use.
+    /// Directory of atlas directories that uploaded sessions may use (besides the atlases
+    /// published through the API, kept in DATA_DIR/atlases).
     #[arg(long)]
     pub atlases: Option<PathBuf>,
     /// Scoring threads (default: all cores).
@@ -64,6 +65,16 @@ pub struct LimitArgs {
     /// Password checks that may wait; more get 503.
     #[arg(long)]
     pub password_queue: Option<usize>,
+    /// Largest atlas publication accepted (bytes of its archive).
+    #[arg(long)]
+    pub max_atlas_bytes: Option<u64>,
+    /// Most atlases the catalogue holds (each stays loaded in memory).
+    #[arg(long)]
+    pub max_atlases: Option<usize>,
+    /// Seconds a publication may take for its checks (loading the atlas, its smoke test), beyond
+    /// its upload time.
+    #[arg(long)]
+    pub atlas_check_timeout_s: Option<u64>,
 }
 
 impl LimitArgs {
@@ -82,6 +93,9 @@ impl LimitArgs {
             password_threads: self.password_threads.unwrap_or(d.password_threads).max(1),
             password_queue: self.password_queue.unwrap_or(d.password_queue),
             login_failure_accounts: d.login_failure_accounts,
+            max_atlas_bytes: self.max_atlas_bytes.unwrap_or(d.max_atlas_bytes),
+            max_atlases: self.max_atlases.unwrap_or(d.max_atlases),
+            atlas_check_timeout: self.atlas_check_timeout_s.map_or(d.atlas_check_timeout, secs),
         }
     }
 }

@@ -2,6 +2,7 @@
 
 pub mod admin;
 pub mod benchmark;
+pub mod catalogue;
 pub mod cohort;
 pub mod compare;
 pub mod home;

@@ -98,7 +98,7 @@ pub async fn review(
         .await?
         .ok_or_else(|| fail(StatusCode::NOT_FOUND, "gone"))?;
     let reviewer = may_review(&s, &v.user, &trainee_id).await?;
-    let scorer = s.scorers.get(&row.atlas_hash).cloned();
+    let scorer = s.catalogue.scorer(&row.atlas_hash);
     let label_name = |l: stylet_physics::LabelId| {
         scorer
             .as_ref()

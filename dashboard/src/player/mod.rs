@@ -109,7 +109,7 @@ async fn replay_states(s: &AppState, row: &SessionRow) -> Result<Arc<ReplayState
         .acquire_owned()
         .await
         .map_err(|e| internal(e.to_string()))?;
-    let scorer = s.scorers.get(&row.atlas_hash).cloned().ok_or_else(|| {
+    let scorer = s.catalogue.scorer(&row.atlas_hash).ok_or_else(|| {
         fail(
             StatusCode::NOT_FOUND,
             "the session's atlas is not loaded on this server",
@@ -181,7 +181,7 @@ async fn drawing(s: &AppState, atlas_hash: &str) -> Result<Arc<AtlasDrawing>, Pa
     if let Some(d) = with_caches(|c| c.drawings.get(atlas_hash).cloned()) {
         return Ok(d);
     }
-    let atlas = s.atlases.get(atlas_hash).cloned().ok_or_else(|| {
+    let atlas = s.catalogue.atlas(atlas_hash).ok_or_else(|| {
         fail(
             StatusCode::NOT_FOUND,
             "the session's atlas is not loaded on this server",

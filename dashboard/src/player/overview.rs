@@ -159,7 +159,7 @@ pub async fn frame(
         .await
         .map_err(internal)?;
     let drawing = drawing(&s, &row.atlas_hash).await?;
-    let scorer = s.scorers.get(&row.atlas_hash).cloned().ok_or_else(|| {
+    let scorer = s.catalogue.scorer(&row.atlas_hash).ok_or_else(|| {
         fail(
             StatusCode::NOT_FOUND,
             "the session's atlas is not loaded on this server",

@@ -8,6 +8,7 @@ use sqlx::any::{AnyPoolOptions, install_default_drivers};
 use sqlx::{AnyPool, Row};
 
 mod accounts;
+mod atlases;
 mod cohorts;
 mod experts;
 pub mod health;
@@ -23,6 +24,7 @@ pub use accounts::{
     AccountChange, AccountError, IMPORT_HEADER, ImportLine, ImportLineError, MAX_IMPORT_LINES, Role, UserRow,
     parse_import,
 };
+pub use atlases::AtlasRow;
 pub use cohorts::{CohortLine, ReportLine, ScorePoint};
 pub use experts::{ExpertReference, Marked};
 pub use instructors::{

@@ -14,6 +14,7 @@ pub mod haptic;
 pub mod outbox;
 pub mod pacing;
 pub mod priority;
+pub mod publish_client;
 pub mod replay_cursor;
 pub mod service_client;
 pub mod session;

@@ -12,6 +12,7 @@ pub mod nifti_io;
 pub mod phantom;
 pub mod store;
 pub mod summary;
+pub mod validation;
 
 use std::path::{Path, PathBuf};
 

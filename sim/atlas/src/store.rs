@@ -310,6 +310,14 @@ impl Atlas {
 
     /// The atlas' planned insertion paths (`[[paths]]`), as the physics, scripts and scoring use
     /// them.
+    /// The path a beginner is guided along (else the first planned path): the one the example
+    /// scripts follow. `None` without planned paths.
+    pub fn guided_path(&self) -> Option<&crate::manifest::InsertionPath> {
+        let guided = self.manifest.difficulty.beginner.guided_path.as_ref();
+        let paths = &self.manifest.paths;
+        paths.iter().find(|p| Some(&p.name) == guided).or(paths.first())
+    }
+
     pub fn planned_paths(&self) -> Vec<stylet_physics::PlannedPath> {
         self.manifest
             .paths

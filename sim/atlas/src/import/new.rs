@@ -58,14 +58,7 @@ pub fn new_atlas(
     let mut timer = StepTimer::new(on_step);
     let mut import = new_atlas_only(args, out, &mut timer)?;
     let atlas = timer.run(Step::Load, || crate::load(out))?;
-    let guided = atlas.manifest.difficulty.beginner.guided_path.clone();
-    let path = atlas
-        .manifest
-        .paths
-        .iter()
-        .find(|p| Some(&p.name) == guided.as_ref())
-        .or(atlas.manifest.paths.first());
-    let scripts = match path {
+    let scripts = match atlas.guided_path() {
         Some(p) => scripts::generate(&atlas.model, p),
         None => Vec::new(),
     };
@@ -75,7 +68,7 @@ pub fn new_atlas(
 }
 
 /// The scripts into `out/scripts/`, each written beside its place and renamed into it.
-fn write_scripts(out: &Path, scripts: &[GeneratedScript]) -> Result<(), AtlasError> {
+pub fn write_scripts(out: &Path, scripts: &[GeneratedScript]) -> Result<(), AtlasError> {
     if scripts.is_empty() {
         return Ok(());
     }

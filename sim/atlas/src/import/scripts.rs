@@ -17,6 +17,18 @@ pub enum Expectation {
     Hit { label: LabelId, name: String },
 }
 
+impl Expectation {
+    /// The expectation as the validation record keeps it (by structure name).
+    pub fn to_record(&self) -> crate::validation::Expect {
+        match self {
+            Expectation::Success => crate::validation::Expect::Success,
+            Expectation::Hit { name, .. } => crate::validation::Expect::Hit {
+                structure: name.clone(),
+            },
+        }
+    }
+}
+
 /// A script file of the new scenario.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GeneratedScript {

@@ -1,0 +1,303 @@
+//! Publishing an atlas (`POST /api/atlases`; `stylet atlas publish`; docs/api.md "Atlases"): an
+//! admin or instructor uploads a validated atlas as one tar archive; the service checks it as
+//! fully as it can and only then keeps it, by content hash, in `DATA/atlases/<hash>/` and in the
+//! catalogue, so that sessions on it are accepted and scored.
+//!
+//! Cheapest and most decisive first: who asks (before a byte of the body is read), the declared
+//! size, one publication at a time, the catalogue's room; then the body is streamed to disk with
+//! its limit; the archive is unpacked entry by entry (plain names, regular files, each kind of
+//! file with its own size limit); the atlas is loaded through the validating loader, its
+//! validation record must vouch for exactly this content, and the server runs the record's
+//! smoke-test scripts again itself. A refusal says why and leaves nothing behind.
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use axum::body::Body;
+use axum::http::StatusCode;
+use futures_util::StreamExt;
+use stylet_atlas::validation::{self, NotValidated, SCRIPTS_DIR, VALIDATION_FILE};
+use stylet_atlas::{Atlas, store::MANIFEST_FILE};
+use stylet_scoring::smoke::{self, SmokeOutcome};
+use stylet_scoring::{Rubric, Scorer};
+use tokio::io::AsyncWriteExt;
+
+use super::api::{ApiError, err};
+
+/// The media type of an atlas upload.
+pub const CONTENT_TYPE: &str = "application/x-tar";
+/// Most entries an archive may hold (atlas.toml, validation.toml, two volumes, the scripts and
+/// their folder).
+pub const MAX_ENTRIES: usize = 8 + validation::MAX_SCRIPTS;
+/// Largest `atlas.toml` accepted (the loader's own limit).
+const MAX_MANIFEST_BYTES: u64 = 4 << 20;
+
+/// Why an atlas was not published (422 unless said otherwise).
+#[derive(Debug, thiserror::Error)]
+pub enum Refusal {
+    #[error("the archive is not valid: {0}")]
+    Archive(String),
+    #[error("the atlas is damaged: {0}")]
+    Damaged(String),
+    #[error("the atlas is not validated: {0}")]
+    NotValidated(#[from] NotValidated),
+    #[error("the server's own smoke test of the atlas failed: {0}")]
+    SmokeFailed(String),
+    #[error("the server cannot keep the atlas: {0}")]
+    Storage(String),
+}
+
+impl From<Refusal> for ApiError {
+    fn from(r: Refusal) -> ApiError {
+        match r {
+            Refusal::Storage(m) => {
+                tracing::error!(error = %m, "publishing an atlas");
+                err(
+                    StatusCode::SERVICE_UNAVAILABLE,
+                    "the server cannot store the atlas right now; try again later",
+                )
+            }
+            r => err(StatusCode::UNPROCESSABLE_ENTITY, r.to_string()),
+        }
+    }
+}
+
+/// A checked atlas, ready to keep.
+pub struct Checked {
+    pub atlas: Atlas,
+    pub scorer: Scorer,
+    pub smoke: Vec<SmokeOutcome>,
+}
+
+/// Streams `body` into `file`, refusing it (and stopping) past `limit` bytes; returns its size.
+pub async fn receive(body: Body, file: &Path, limit: u64) -> Result<u64, ApiError> {
+    let too_large = || {
+        err(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!("the atlas upload exceeds the limit of {limit} bytes"),
+        )
+    };
+    let storage = |e: std::io::Error| ApiError::from(Refusal::Storage(format!("{}: {e}", file.display())));
+    let mut out = tokio::fs::File::create(file).await.map_err(storage)?;
+    let mut stream = body.into_data_stream();
+    let mut n = 0u64;
+    while let Some(chunk) = stream.next().await {
+        let chunk = chunk.map_err(|e| err(StatusCode::BAD_REQUEST, format!("the upload broke off: {e}")))?;
+        n += chunk.len() as u64;
+        if n > limit {
+            return Err(too_large());
+        }
+        out.write_all(&chunk).await.map_err(storage)?;
+    }
+    out.flush().await.map_err(storage)?;
+    if n == 0 {
+        return Err(err(
+            StatusCode::BAD_REQUEST,
+            "the request body is empty: send the atlas as a tar archive (stylet atlas publish does)",
+        ));
+    }
+    Ok(n)
+}
+
+/// What an archive entry is, by its name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Manifest,
+    Record,
+    Script,
+    Volume,
+    Folder,
+}
+
+/// The kind of the entry named `name` (its path inside the archive), or the reason it cannot be
+/// in an atlas upload.
+fn kind_of(name: &str, is_dir: bool) -> Result<Kind, String> {
+    let name = name.trim_start_matches("./");
+    let refuse = || {
+        format!(
+            "unexpected entry {name:?}: an atlas upload holds {MANIFEST_FILE}, {VALIDATION_FILE}, the two NIfTI volumes atlas.toml names and {SCRIPTS_DIR}/*.txt"
+        )
+    };
+    if is_dir {
+        return match name.trim_end_matches('/') {
+            "" | "." | SCRIPTS_DIR => Ok(Kind::Folder),
+            _ => Err(refuse()),
+        };
+    }
+    match name {
+        MANIFEST_FILE => Ok(Kind::Manifest),
+        VALIDATION_FILE => Ok(Kind::Record),
+        _ => {
+            if let Some(script) = name.strip_prefix(&format!("{SCRIPTS_DIR}/")) {
+                validation::check_script_name(script).map_err(|e| format!("entry {name:?}: {e}"))?;
+                return Ok(Kind::Script);
+            }
+            let plain = !name.is_empty() && !name.contains(['/', '\\', '\0']) && !name.starts_with('.');
+            if plain && (name.ends_with(".nii") || name.ends_with(".nii.gz")) {
+                Ok(Kind::Volume)
+            } else {
+                Err(refuse())
+            }
+        }
+    }
+}
+
+/// Unpacks the tar archive `archive` into the new folder `out`: regular files with the names an
+/// atlas has, each within its kind's limit; anything else (links, devices, paths that climb out,
+/// unknown files, repeated names, too many entries) refuses the whole archive.
+pub fn unpack(archive: &Path, out: &Path) -> Result<(), Refusal> {
+    let storage = |e: std::io::Error| Refusal::Storage(format!("{}: {e}", out.display()));
+    let bad = |m: String| Refusal::Archive(m);
+    std::fs::create_dir(out).map_err(storage)?;
+    std::fs::create_dir(out.join(SCRIPTS_DIR)).map_err(storage)?;
+    let file = std::fs::File::open(archive).map_err(storage)?;
+    let mut tar = tar::Archive::new(std::io::BufReader::new(file));
+    let entries = tar.entries().map_err(|e| bad(e.to_string()))?;
+    let mut seen = std::collections::BTreeSet::new();
+    let mut volumes = 0;
+    for (i, entry) in entries.enumerate() {
+        if i >= MAX_ENTRIES {
+            return Err(bad(format!("more than {MAX_ENTRIES} entries")));
+        }
+        let mut entry = entry.map_err(|e| match i {
+            0 => bad(format!("not a tar archive ({e})")),
+            _ => bad(e.to_string()),
+        })?;
+        let kind_byte = entry.header().entry_type();
+        let name = String::from_utf8(entry.path_bytes().into_owned())
+            .map_err(|_| bad("an entry's name is not UTF-8".into()))?;
+        let is_dir = kind_byte.is_dir();
+        if !(is_dir || kind_byte.is_file()) {
+            return Err(bad(format!(
+                "entry {name:?} is not a regular file (links and special files are refused)"
+            )));
+        }
+        let kind = kind_of(&name, is_dir).map_err(bad)?;
+        if kind == Kind::Folder {
+            continue;
+        }
+        let name = name.trim_start_matches("./").to_string();
+        if !seen.insert(name.clone()) {
+            return Err(bad(format!("entry {name:?} appears twice")));
+        }
+        let limit = match kind {
+            Kind::Manifest => MAX_MANIFEST_BYTES,
+            Kind::Record => validation::MAX_RECORD_BYTES,
+            Kind::Script => validation::MAX_SCRIPT_BYTES,
+            Kind::Volume | Kind::Folder => u64::MAX,
+        };
+        if kind == Kind::Volume {
+            volumes += 1;
+            if volumes > 2 {
+                return Err(bad(
+                    "more than two NIfTI volumes (an atlas has a CT and a label map)".into()
+                ));
+            }
+        }
+        let size = entry.size();
+        if size > limit {
+            return Err(bad(format!("{name} is {size} bytes, more than the {limit} accepted")));
+        }
+        let target = out.join(&name);
+        let mut dest = std::fs::File::create_new(&target).map_err(storage)?;
+        let copied = std::io::copy(&mut (&mut entry).take(size), &mut dest).map_err(|e| bad(format!("{name}: {e}")))?;
+        if copied != size {
+            return Err(bad(format!("{name} is cut short ({copied} of {size} bytes)")));
+        }
+    }
+    for required in [MANIFEST_FILE, VALIDATION_FILE] {
+        if !seen.contains(required) {
+            return Err(match required {
+                VALIDATION_FILE => Refusal::NotValidated(NotValidated::Missing),
+                _ => bad(format!("it has no {required}")),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Checks the unpacked atlas in `dir` (see the module doc), running its smoke test in `work`.
+pub fn check(dir: &Path, work: &Path) -> Result<Checked, Refusal> {
+    let atlas = stylet_atlas::load(dir).map_err(|e| Refusal::Damaged(strip_dir(&e.to_string(), dir)))?;
+    for entry in std::fs::read_dir(dir).map_err(|e| Refusal::Storage(e.to_string()))? {
+        let name = entry.map_err(|e| Refusal::Storage(e.to_string()))?.file_name();
+        let name = name.to_string_lossy();
+        let named = [&atlas.manifest.volumes.ct, &atlas.manifest.volumes.labels]
+            .iter()
+            .any(|v| v.as_str() == name);
+        if (name.ends_with(".nii") || name.ends_with(".nii.gz")) && !named {
+            return Err(Refusal::Archive(format!(
+                "{name} is not one of the volumes atlas.toml names"
+            )));
+        }
+    }
+    let record = validation::read_record(dir)
+        .map_err(|e| Refusal::Archive(strip_dir(&e.to_string(), dir)))?
+        .ok_or(NotValidated::Missing)?;
+    record.vouches_for(&atlas.content_hash)?;
+    let scripts = smoke::scripts_of(dir, &record).map_err(|e| Refusal::Archive(strip_dir(&e.to_string(), dir)))?;
+    let scorer = Scorer::new(&atlas, Rubric::default_rubric(), None).map_err(Refusal::Damaged)?;
+    std::fs::create_dir_all(work).map_err(|e| Refusal::Storage(e.to_string()))?;
+    let outcomes = smoke::run(&atlas, &scripts, work).map_err(|e| Refusal::SmokeFailed(e.to_string()))?;
+    if let Some(failure) = smoke::first_failure(&outcomes) {
+        return Err(Refusal::SmokeFailed(failure));
+    }
+    Ok(Checked {
+        atlas,
+        scorer,
+        smoke: outcomes,
+    })
+}
+
+/// Messages name files by the server's temporary folder; the publisher knows them by name.
+fn strip_dir(message: &str, dir: &Path) -> String {
+    message.replace(&format!("{}/", dir.display()), "")
+}
+
+/// Whether `name` is a content hash (a published atlas' folder name).
+pub fn is_hash(name: &str) -> bool {
+    name.len() == 64 && name.chars().all(|c| c.is_ascii_digit() || ('a'..='f').contains(&c))
+}
+
+/// The atlases published before, from `root` (`DATA/atlases`): each folder named by its content
+/// hash is loaded and kept when it still has that hash; one that does not is left where it is and
+/// logged. Leftovers of publications cut short (`.incoming-*`) are removed.
+pub fn load_published(root: &Path) -> Result<Vec<(Atlas, Scorer)>, String> {
+    if !root.exists() {
+        return Ok(Vec::new());
+    }
+    let mut dirs: Vec<PathBuf> = Vec::new();
+    for entry in std::fs::read_dir(root).map_err(|e| format!("{}: {e}", root.display()))? {
+        let path = entry.map_err(|e| format!("{}: {e}", root.display()))?.path();
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        if name.starts_with(".incoming-") {
+            let _ = std::fs::remove_dir_all(&path);
+        } else if is_hash(&name) && path.join(MANIFEST_FILE).is_file() {
+            dirs.push(path);
+        }
+    }
+    dirs.sort();
+    let mut loaded = Vec::new();
+    for d in dirs {
+        let name = d
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        match stylet_atlas::load(&d) {
+            Ok(atlas) if atlas.content_hash == name => {
+                let scorer = Scorer::new(&atlas, Rubric::default_rubric(), None)?;
+                loaded.push((atlas, scorer));
+            }
+            Ok(atlas) => tracing::error!(
+                dir = %d.display(),
+                hash = %atlas.content_hash,
+                "a published atlas no longer has the content hash it was published with; not loaded"
+            ),
+            Err(e) => tracing::error!(dir = %d.display(), error = %e, "a published atlas cannot be loaded; not loaded"),
+        }
+    }
+    Ok(loaded)
+}

@@ -1,0 +1,464 @@
+//! Publishing atlases (issue 19 item 4; docs/api.md "Atlases"): `stylet atlas validate`, then
+//! `stylet atlas publish` with an instructor's token; the service checks the atlas again, keeps
+//! it by content hash, lists it in the catalogue (API and page), audits it, and accepts and
+//! scores sessions on it, also after a restart. Every kind of bad publication is refused with its
+//! reason and leaves nothing behind.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use common::*;
+use serde_json::Value;
+
+#[test]
+fn publishing_an_atlas_sqlite() {
+    publishing_an_atlas(Db::Sqlite);
+}
+
+#[test]
+fn publishing_an_atlas_postgres() {
+    publishing_an_atlas(Db::postgres("publish"));
+}
+
+/// `stylet atlas publish DIR --server BASE` with `token` in STYLET_TOKEN: (success, stdout, stderr).
+fn publish_cli(dir: &Path, base: &str, token: &str) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_stylet"))
+        .args(["atlas", "publish", s(dir), "--server", base])
+        .env("STYLET_TOKEN", token)
+        .output()
+        .unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// A `full` API token of `user`.
+fn full_token(base: &str, user: &str) -> String {
+    let who = login(base, user);
+    let (status, made, _) = call(
+        "POST",
+        &format!("{base}/api/tokens"),
+        Some(&who),
+        Some(br#"{"label":"publishing","scope":"full"}"#),
+        true,
+    );
+    assert_eq!(status, 201, "{made}");
+    made["token"].as_str().unwrap().to_string()
+}
+
+/// The audit rows of `action`: (actor username, target, detail).
+fn audits(db: &Db, data: &Path, action: &str) -> Vec<(String, String, String)> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let store = stylet_service::Store::open(&db.url(data)).await.unwrap();
+        let rows = sqlx::query(
+            "SELECT u.username, a.target, a.detail FROM audit_log a JOIN users u ON u.id = a.actor_id \
+             WHERE a.action = $1 ORDER BY a.at, a.id",
+        )
+        .bind(action.to_string())
+        .fetch_all(&store.pool)
+        .await
+        .unwrap();
+        use sqlx::Row;
+        let out = rows
+            .iter()
+            .map(|r| {
+                (
+                    r.get::<String, _>("username"),
+                    r.get::<String, _>("target"),
+                    r.get::<String, _>("detail"),
+                )
+            })
+            .collect();
+        store.pool.close().await;
+        out
+    })
+}
+
+/// What `DATA/atlases` holds: the published atlases' folders, and nothing else.
+fn published_entries(data: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(data.join("atlases"))
+        .map(|rd| {
+            rd.flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    names.sort();
+    names
+}
+
+fn catalogue(base: &str, who: &Auth) -> Vec<Value> {
+    let (status, json, _) = call("GET", &format!("{base}/api/atlases"), Some(who), None, false);
+    assert_eq!(status, 200, "{json}");
+    json["atlases"].as_array().unwrap().clone()
+}
+
+/// An upload's files: (name inside the archive, bytes).
+type Files = Vec<(String, Vec<u8>)>;
+
+fn publishing_an_atlas(db: Db) {
+    let f = Fixture::new();
+    f.users(&db);
+    let data = f.data();
+    let other = f.dir.path().join("other-atlas");
+    let session = std::fs::read(f.session("tina-other-atlas")).unwrap();
+
+    // Not validated yet: the command refuses before sending anything.
+    let srv = Server::start(&data, &db, &f.atlases(), &["--workers", "1"]);
+    let b = srv.base.clone();
+    let ivan_token = full_token(&b, "ivan");
+    let (ok_, _, err) = publish_cli(&other, &b, &ivan_token);
+    assert!(
+        !ok_ && err.contains("not validated") && err.contains("stylet atlas validate"),
+        "{err}"
+    );
+
+    // A session on the unpublished atlas is refused.
+    let tina = login(&b, "tina");
+    let (status, json, _) = call("POST", &format!("{b}/api/sessions"), Some(&tina), Some(&session), false);
+    assert_eq!(status, 422, "{json}");
+    assert!(json["error"].as_str().unwrap().contains("does not know"), "{json}");
+
+    let out = ok(&["atlas", "validate", s(&other)]);
+    assert!(out.contains("is validated"), "{out}");
+    assert!(other.join("validation.toml").is_file());
+
+    // Trainees and curriculum staff may not publish, whatever their token.
+    for user in ["tina", "cora"] {
+        let token = full_token(&b, user);
+        let (ok_, _, err) = publish_cli(&other, &b, &token);
+        assert!(
+            !ok_ && err.contains("403") && err.contains("only admins and instructors may publish"),
+            "{user}: {err}"
+        );
+    }
+    // No token at all.
+    let out = Command::new(env!("CARGO_BIN_EXE_stylet"))
+        .args(["atlas", "publish", s(&other), "--server", &b])
+        .env_remove("STYLET_TOKEN")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("set STYLET_TOKEN"), "{err}");
+    assert!(published_entries(&data).is_empty(), "{:?}", published_entries(&data));
+
+    // The instructor publishes it.
+    let (ok_, out, err) = publish_cli(&other, &b, &ivan_token);
+    assert!(ok_, "{out}{err}");
+    assert!(out.contains("published on"), "{out}");
+    assert!(out.contains("success.txt ok"), "{out}");
+    let list = catalogue(&b, &tina);
+    let item = list
+        .iter()
+        .find(|a| a["origin"] == "published")
+        .unwrap_or_else(|| panic!("{list:?}"));
+    let hash = item["content_hash"].as_str().unwrap().to_string();
+    assert_eq!(item["published_by"], "ivan", "{item}");
+    assert_eq!(published_entries(&data), vec![hash.clone()]);
+    let audit = audits(&db, &data, "atlas.publish");
+    assert_eq!(audit.len(), 1, "{audit:?}");
+    assert_eq!((audit[0].0.as_str(), audit[0].1.as_str()), ("ivan", hash.as_str()));
+    assert!(audit[0].2.contains("success.txt ok"), "{audit:?}");
+
+    // Sessions on it are now accepted and scored.
+    let (status, json, _) = call("POST", &format!("{b}/api/sessions"), Some(&tina), Some(&session), false);
+    assert_eq!(status, 201, "{json}");
+    let id = json["id"].as_str().unwrap().to_string();
+    let scored = wait_scored(&b, &tina, &id);
+    assert_eq!(scored["status"], "scored", "{scored}");
+    assert_eq!(scored["atlas_hash"].as_str(), Some(hash.as_str()), "{scored}");
+
+    // Publishing it again changes nothing.
+    let (ok_, out, err) = publish_cli(&other, &b, &ivan_token);
+    assert!(ok_ && out.contains("was already published"), "{out}{err}");
+    assert_eq!(published_entries(&data), vec![hash.clone()]);
+
+    // The catalogue page lists it, with its publisher and its session.
+    let page = dashboard_page(&b, &tina, "/atlases");
+    assert!(
+        page.contains("Scenario catalogue") && page.contains(&format!("data-hash=\"{hash}\"")),
+        "{page}"
+    );
+    assert!(page.contains("published by ivan"), "{page}");
+
+    // After a restart the published atlas is still known, and its session still scored.
+    drop(srv);
+    let srv = Server::start(&data, &db, &f.atlases(), &["--workers", "1"]);
+    let b = srv.base.clone();
+    let tina = login(&b, "tina");
+    let list = catalogue(&b, &tina);
+    let item = list
+        .iter()
+        .find(|a| a["content_hash"] == hash.as_str())
+        .expect("still listed");
+    assert_eq!(
+        (item["origin"].as_str(), item["sessions"].as_i64()),
+        (Some("published"), Some(1)),
+        "{item}"
+    );
+    let (status, json, _) = call("GET", &format!("{b}/api/sessions/{id}"), Some(&tina), None, false);
+    assert_eq!((status, json["status"].as_str()), (200, Some("scored")), "{json}");
+}
+
+/// The HTML of a dashboard page seen by `who` (its login cookie).
+fn dashboard_page(base: &str, who: &Auth, path: &str) -> String {
+    let Auth::Cookie { token, .. } = who else {
+        panic!("a login")
+    };
+    ureq::get(&format!("{base}{path}"))
+        .set("Cookie", &format!("stylet_session={token}"))
+        .call()
+        .unwrap()
+        .into_string()
+        .unwrap()
+}
+
+/// A tar archive of `files` (name, bytes), as regular files.
+fn tar_of(files: &[(&str, Vec<u8>)]) -> Vec<u8> {
+    let mut b = tar::Builder::new(Vec::new());
+    for (name, bytes) in files {
+        let mut h = tar::Header::new_gnu();
+        h.set_size(bytes.len() as u64);
+        h.set_mode(0o644);
+        h.set_entry_type(tar::EntryType::Regular);
+        // Names set raw: the builder's own checks would refuse the hostile ones.
+        let field = &mut h.as_old_mut().name;
+        field[..name.len()].copy_from_slice(name.as_bytes());
+        h.set_cksum();
+        b.append(&h, bytes.as_slice()).unwrap();
+    }
+    b.into_inner().unwrap()
+}
+
+/// The files of the atlas in `dir` as an upload holds them.
+fn atlas_files(dir: &Path) -> Files {
+    let mut files: Files = ["atlas.toml", "validation.toml", "ct.nii.gz", "labels.nii.gz"]
+        .iter()
+        .map(|n| (n.to_string(), std::fs::read(dir.join(n)).unwrap()))
+        .collect();
+    for e in std::fs::read_dir(dir.join("scripts")).unwrap().flatten() {
+        let name = format!("scripts/{}", e.file_name().to_string_lossy());
+        files.push((name, std::fs::read(e.path()).unwrap()));
+    }
+    files
+}
+
+/// A POST of an archive over a raw socket that ignores write errors (the server may answer and
+/// close before the whole body is sent, as it does for refusals decided from the headers):
+/// status and the error it gives (the whole answer when it has none).
+fn post_tar(base: &str, token: &str, body: &[u8], content_type: &str) -> (u16, String) {
+    use std::io::{Read, Write};
+    let addr = base.strip_prefix("http://").unwrap();
+    let mut sock = std::net::TcpStream::connect(addr).unwrap();
+    let head = format!(
+        "POST /api/atlases HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {token}\r\n\
+         Content-Type: {content_type}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+        body.len()
+    );
+    sock.write_all(head.as_bytes()).unwrap();
+    let _ = sock.write_all(body);
+    let mut resp = Vec::new();
+    let _ = sock.read_to_end(&mut resp);
+    let text = String::from_utf8_lossy(&resp).to_string();
+    let status = text.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
+    let error = text
+        .split("\r\n\r\n")
+        .nth(1)
+        .and_then(|b| serde_json::from_str::<Value>(b).ok())
+        .and_then(|v| v["error"].as_str().map(str::to_string))
+        .unwrap_or(text);
+    (status, error)
+}
+
+#[test]
+fn bad_publications_are_refused_with_the_reason_and_leave_nothing() {
+    let db = Db::Sqlite;
+    let f = Fixture::new();
+    f.users(&db);
+    let data = f.data();
+    let good = f.dir.path().join("other-atlas");
+    ok(&["atlas", "validate", s(&good)]);
+    let srv = Server::start(
+        &data,
+        &db,
+        &f.atlases(),
+        &["--workers", "1", "--max-atlas-bytes", "8000000"],
+    );
+    let b = srv.base.clone();
+    let token = full_token(&b, "root");
+    let files = atlas_files(&good);
+    let with = |edit: &dyn Fn(&mut Files)| {
+        let mut f = files.clone();
+        edit(&mut f);
+        let refs: Vec<(&str, Vec<u8>)> = f.iter().map(|(n, b)| (n.as_str(), b.clone())).collect();
+        tar_of(&refs)
+    };
+    let replace = |name: &'static str, bytes: Vec<u8>| {
+        move |f: &mut Files| {
+            for e in f.iter_mut().filter(|e| e.0 == name) {
+                e.1 = bytes.clone();
+            }
+        }
+    };
+    let text = |name: &str| String::from_utf8(files.iter().find(|f| f.0 == name).unwrap().1.clone()).unwrap();
+    let ct = files.iter().find(|f| f.0 == "ct.nii.gz").unwrap().1.clone();
+
+    let cases: Vec<(&str, Vec<u8>, &str, u16, &str)> = vec![
+        (
+            "not a tar",
+            b"hello, this is not an archive".to_vec(),
+            "application/x-tar",
+            422,
+            "the archive is not valid",
+        ),
+        (
+            "wrong media type",
+            with(&|_| {}),
+            "application/zip",
+            415,
+            "Content-Type application/x-tar",
+        ),
+        (
+            "no validation record",
+            with(&|f| f.retain(|e| e.0 != "validation.toml")),
+            "application/x-tar",
+            422,
+            "not validated: it has no validation.toml",
+        ),
+        (
+            "changed after validation",
+            with(&replace(
+                "atlas.toml",
+                text("atlas.toml")
+                    .replacen("description = \"", "description = \"Edited. ", 1)
+                    .into_bytes(),
+            )),
+            "application/x-tar",
+            422,
+            "changed after it was validated",
+        ),
+        (
+            "a damaged CT",
+            with(&replace("ct.nii.gz", ct[..ct.len() / 2].to_vec())),
+            "application/x-tar",
+            422,
+            "the atlas is damaged: ct.nii.gz",
+        ),
+        (
+            "a smoke script that no longer reaches the target",
+            with(&replace(
+                "scripts/success.txt",
+                text("scripts/risk-portal-vein.txt").into_bytes(),
+            )),
+            "application/x-tar",
+            422,
+            "smoke test of the atlas failed: scripts/success.txt should: reaches and confirms the target",
+        ),
+        (
+            "a record that claims a failed script passed is rerun",
+            with(&replace(
+                "validation.toml",
+                text("validation.toml")
+                    .replace(
+                        "kind = \"hit\"\nstructure = \"portal vein\"",
+                        "kind = \"hit\"\nstructure = \"aorta\"",
+                    )
+                    .into_bytes(),
+            )),
+            "application/x-tar",
+            422,
+            "should: hits the aorta first",
+        ),
+        (
+            "a path that climbs out",
+            with(&|f| f.push(("../escape.nii".into(), b"x".to_vec()))),
+            "application/x-tar",
+            422,
+            "unexpected entry \"../escape.nii\"",
+        ),
+        (
+            "an unknown file",
+            with(&|f| f.push(("report/index.html".into(), b"<script>".to_vec()))),
+            "application/x-tar",
+            422,
+            "unexpected entry \"report/index.html\"",
+        ),
+        (
+            "a third volume",
+            with(&|f| f.push(("extra.nii.gz".into(), b"x".to_vec()))),
+            "application/x-tar",
+            422,
+            "more than two NIfTI volumes",
+        ),
+        (
+            "a name twice",
+            with(&|f| f.push(("atlas.toml".into(), b"x".to_vec()))),
+            "application/x-tar",
+            422,
+            "appears twice",
+        ),
+    ];
+    for (what, body, media, status, reason) in cases {
+        let (got, error) = post_tar(&b, &token, &body, media);
+        eprintln!("{what}: {got} {error}");
+        assert_eq!(got, status, "{what}: {error}");
+        assert!(error.contains(reason), "{what}: {error}");
+        assert!(
+            published_entries(&data).is_empty(),
+            "{what} left {:?}",
+            published_entries(&data)
+        );
+    }
+
+    // A symbolic link in the archive.
+    let mut tb = tar::Builder::new(Vec::new());
+    let mut h = tar::Header::new_gnu();
+    h.set_entry_type(tar::EntryType::Symlink);
+    h.set_size(0);
+    h.set_link_name("/etc/passwd").unwrap();
+    tb.append_data(&mut h, "atlas.toml", std::io::empty()).unwrap();
+    let (got, error) = post_tar(&b, &token, &tb.into_inner().unwrap(), "application/x-tar");
+    assert_eq!(got, 422, "{error}");
+    assert!(error.contains("not a regular file"), "{error}");
+
+    // Larger than the server's limit: refused before the body is read.
+    let (got, error) = post_tar(
+        &b,
+        &token,
+        &with(&replace("ct.nii.gz", vec![0u8; 9_000_000])),
+        "application/x-tar",
+    );
+    assert_eq!(got, 413, "{error}");
+    assert!(error.contains("limit of 8000000 bytes"), "{error}");
+    assert!(published_entries(&data).is_empty(), "{:?}", published_entries(&data));
+
+    // The good archive still publishes.
+    let (got, error) = post_tar(&b, &token, &with(&|_| {}), "application/x-tar");
+    assert_eq!(got, 201, "{error}");
+    assert_eq!(published_entries(&data).len(), 1);
+}
+
+#[test]
+fn a_stale_atlas_is_refused_before_anything_is_sent() {
+    let dir = tempfile::tempdir().unwrap();
+    let atlas: PathBuf = dir.path().join("a");
+    phantom_atlas(&atlas, "96,96,80", "4");
+    ok(&["atlas", "validate", s(&atlas)]);
+    let manifest = std::fs::read_to_string(atlas.join("atlas.toml")).unwrap();
+    std::fs::write(
+        atlas.join("atlas.toml"),
+        manifest.replacen("description = \"", "description = \"Edited. ", 1),
+    )
+    .unwrap();
+    // No server listens there: the refusal comes before any connection.
+    let (ok_, _, err) = publish_cli(&atlas, "http://127.0.0.1:9", "token");
+    assert!(!ok_ && err.contains("changed after it was validated"), "{err}");
+}
