@@ -1,5 +1,7 @@
 //! End-to-end tests of the `stylet` command line: the contract later issues and tools rely on.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -603,6 +605,58 @@ fn a_new_chest_scenario_passes_its_smoke_test() {
     let atlas = stylet_atlas::load(&out).unwrap();
     assert_eq!(record.vouches_for(&atlas.content_hash), Ok(()));
     assert_eq!(record.smoke.len(), 2, "{record:?}");
+}
+
+/// The real DICOM series with a label map made for it (tests/common/dicom_labels.rs): `atlas new`
+/// reads the series, maps the effusions to the pleura's risk labels as told, finds a window
+/// between right ribs named by number, and both generated scripts pass their smoke test.
+#[test]
+fn a_dicom_series_with_a_label_map_made_for_it_becomes_a_scenario() {
+    let series = shared_data().join("ts-example-dicom");
+    let d = tempfile::tempdir().unwrap();
+    common::dicom_labels::make(&series, d.path());
+    let out = d.path().join("dicom-patient");
+    let text = ok(&[
+        "atlas",
+        "new",
+        "--ct",
+        series.to_str().unwrap(),
+        "--labels",
+        d.path().join("labels.nii.gz").to_str().unwrap(),
+        "--classes",
+        d.path().join("classes.csv").to_str().unwrap(),
+        "--map",
+        d.path().join("map.csv").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        text.contains("CT from the DICOM series") && text.contains("(20 slices)"),
+        "{text}"
+    );
+    assert!(
+        text.contains("pleural_effusion_right (200)") && text.contains("liver (5)"),
+        "{text}"
+    );
+    assert!(
+        text.contains("best window found: right ") || text.contains("intercostal window: right "),
+        "{text}"
+    );
+    assert!(text.contains("smoke test scripts/success.txt: ok"), "{text}");
+    assert!(
+        text.contains("smoke test scripts/risk-") && !text.contains("FAILED"),
+        "{text}"
+    );
+    let record = stylet_atlas::validation::read_record(&out)
+        .unwrap()
+        .expect("a validation record");
+    let atlas = stylet_atlas::load(&out).unwrap();
+    assert_eq!(record.vouches_for(&atlas.content_hash), Ok(()));
+    let html = std::fs::read_to_string(out.join("report/index.html")).unwrap();
+    assert!(
+        rib_numbered_window(&html).is_some(),
+        "no rib-numbered window in the report"
+    );
 }
 
 /// "right Nth–Mth intercostal space" with M = N + 1, as the report's window table names it.

@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 pub mod browser;
+pub mod dicom_labels;
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
