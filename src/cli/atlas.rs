@@ -67,8 +67,8 @@ pub struct NewArgs {
     /// The CT: a NIfTI file in HU, or a folder holding one DICOM series.
     #[arg(long)]
     pub ct: PathBuf,
-    /// The labels: one multi-label NIfTI, or a TotalSegmentator output folder of per-structure
-    /// masks (<structure>.nii.gz).
+    /// The labels: one multi-label NIfTI, a TotalSegmentator output folder of per-structure
+    /// masks (<structure>.nii.gz), or a binary DICOM SEG on the CT's grid.
     #[arg(long)]
     pub labels: PathBuf,
     /// Output atlas directory.

@@ -328,3 +328,169 @@ fn segment(ct: &Volume<f32>) -> Volume<LabelId> {
     }
     Volume::new(*ct.grid(), out).unwrap()
 }
+
+/// Writes `labels` (on the grid of the DICOM series it was made for) as a binary DICOM SEG at
+/// `out`: one segment per label of `names` (number, SegmentLabel), one frame per segment and
+/// slice the segment marks, placed by ImagePositionPatient in DICOM's LPS. `drop_last_bytes`
+/// cuts the pixel data short (a damaged file).
+pub fn write_seg(labels: &Volume<LabelId>, names: &[(LabelId, &str)], out: &Path, drop_last_bytes: usize) {
+    use dicom_core::value::DataSetSequence;
+    use dicom_core::{DataElement, PrimitiveValue, VR};
+    use dicom_dictionary_std::tags;
+    use dicom_object::{FileMetaTableBuilder, InMemDicomObject};
+
+    let grid = labels.grid();
+    let [nx, ny, nz] = grid.dims();
+    let lps = |v: stylet_physics::glam::DVec3| [-v.x, -v.y, v.z];
+    let o = grid.voxel_to_world(0, 0, 0);
+    let row_dir = (grid.voxel_to_world(1, 0, 0) - o).normalize();
+    let col_dir = (grid.voxel_to_world(0, 1, 0) - o).normalize();
+    let sp = grid.spacing_mm();
+    let seq = |items: Vec<InMemDicomObject>| DataSetSequence::from(items);
+    let floats = |v: &[f64]| PrimitiveValue::from(v.iter().map(|x| format!("{x:.6}")).collect::<Vec<_>>().join("\\"));
+
+    let mut obj = InMemDicomObject::new_empty();
+    let put_str =
+        |o: &mut InMemDicomObject, tag, vr, s: &str| o.put(DataElement::new(tag, vr, PrimitiveValue::from(s)));
+    put_str(&mut obj, tags::SOP_CLASS_UID, VR::UI, "1.2.840.10008.5.1.4.1.1.66.4");
+    put_str(&mut obj, tags::SOP_INSTANCE_UID, VR::UI, "2.25.1234567890");
+    put_str(&mut obj, tags::MODALITY, VR::CS, "SEG");
+    put_str(&mut obj, tags::SEGMENTATION_TYPE, VR::CS, "BINARY");
+    obj.put(DataElement::new(tags::ROWS, VR::US, PrimitiveValue::from(ny as u16)));
+    obj.put(DataElement::new(tags::COLUMNS, VR::US, PrimitiveValue::from(nx as u16)));
+    obj.put(DataElement::new(
+        tags::BITS_ALLOCATED,
+        VR::US,
+        PrimitiveValue::from(1u16),
+    ));
+    obj.put(DataElement::new(tags::BITS_STORED, VR::US, PrimitiveValue::from(1u16)));
+    obj.put(DataElement::new(tags::HIGH_BIT, VR::US, PrimitiveValue::from(0u16)));
+    obj.put(DataElement::new(
+        tags::SAMPLES_PER_PIXEL,
+        VR::US,
+        PrimitiveValue::from(1u16),
+    ));
+    put_str(&mut obj, tags::PHOTOMETRIC_INTERPRETATION, VR::CS, "MONOCHROME2");
+    let segments: Vec<InMemDicomObject> = names
+        .iter()
+        .enumerate()
+        .map(|(n, (_, name))| {
+            let mut s = InMemDicomObject::new_empty();
+            s.put(DataElement::new(
+                tags::SEGMENT_NUMBER,
+                VR::US,
+                PrimitiveValue::from(n as u16 + 1),
+            ));
+            put_str(&mut s, tags::SEGMENT_LABEL, VR::LO, name);
+            put_str(&mut s, tags::SEGMENT_ALGORITHM_TYPE, VR::CS, "SEMIAUTOMATIC");
+            s
+        })
+        .collect();
+    obj.put(DataElement::new(tags::SEGMENT_SEQUENCE, VR::SQ, seq(segments)));
+    let mut shared = InMemDicomObject::new_empty();
+    let mut orientation = InMemDicomObject::new_empty();
+    let (r, c) = (lps(row_dir), lps(col_dir));
+    orientation.put(DataElement::new(
+        tags::IMAGE_ORIENTATION_PATIENT,
+        VR::DS,
+        floats(&[r[0], r[1], r[2], c[0], c[1], c[2]]),
+    ));
+    shared.put(DataElement::new(
+        tags::PLANE_ORIENTATION_SEQUENCE,
+        VR::SQ,
+        seq(vec![orientation]),
+    ));
+    let mut measures = InMemDicomObject::new_empty();
+    measures.put(DataElement::new(tags::PIXEL_SPACING, VR::DS, floats(&[sp[1], sp[0]])));
+    measures.put(DataElement::new(tags::SLICE_THICKNESS, VR::DS, floats(&[sp[2]])));
+    shared.put(DataElement::new(
+        tags::PIXEL_MEASURES_SEQUENCE,
+        VR::SQ,
+        seq(vec![measures]),
+    ));
+    obj.put(DataElement::new(
+        tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE,
+        VR::SQ,
+        seq(vec![shared]),
+    ));
+
+    let mut frames = Vec::new();
+    let mut bits: Vec<u8> = Vec::new();
+    let mut nbits = 0usize;
+    for (n, &(label, _)) in names.iter().enumerate() {
+        for k in 0..nz {
+            let slice = &labels.data()[k * nx * ny..(k + 1) * nx * ny];
+            if !slice.contains(&label) {
+                continue;
+            }
+            for &v in slice {
+                if nbits % 8 == 0 {
+                    bits.push(0);
+                }
+                if v == label {
+                    *bits.last_mut().unwrap() |= 1 << (nbits % 8);
+                }
+                nbits += 1;
+            }
+            let mut position = InMemDicomObject::new_empty();
+            position.put(DataElement::new(
+                tags::IMAGE_POSITION_PATIENT,
+                VR::DS,
+                floats(&lps(grid.voxel_to_world(0, 0, k))),
+            ));
+            let mut ident = InMemDicomObject::new_empty();
+            ident.put(DataElement::new(
+                tags::REFERENCED_SEGMENT_NUMBER,
+                VR::US,
+                PrimitiveValue::from(n as u16 + 1),
+            ));
+            let mut frame = InMemDicomObject::new_empty();
+            frame.put(DataElement::new(
+                tags::PLANE_POSITION_SEQUENCE,
+                VR::SQ,
+                seq(vec![position]),
+            ));
+            frame.put(DataElement::new(
+                tags::SEGMENT_IDENTIFICATION_SEQUENCE,
+                VR::SQ,
+                seq(vec![ident]),
+            ));
+            frames.push(frame);
+        }
+    }
+    put_str(&mut obj, tags::NUMBER_OF_FRAMES, VR::IS, &frames.len().to_string());
+    obj.put(DataElement::new(
+        tags::PER_FRAME_FUNCTIONAL_GROUPS_SEQUENCE,
+        VR::SQ,
+        seq(frames),
+    ));
+    if bits.len() % 2 == 1 {
+        bits.push(0);
+    }
+    bits.truncate(bits.len() - drop_last_bytes.min(bits.len()));
+    obj.put(DataElement::new(tags::PIXEL_DATA, VR::OB, PrimitiveValue::from(bits)));
+    let file = obj
+        .with_meta(
+            FileMetaTableBuilder::new()
+                .media_storage_sop_class_uid("1.2.840.10008.5.1.4.1.1.66.4")
+                .media_storage_sop_instance_uid("2.25.1234567890")
+                .transfer_syntax("1.2.840.10008.1.2.1"),
+        )
+        .unwrap();
+    file.write_to_file(out).unwrap();
+}
+
+/// The label map [`make`] writes, with its class names (for [`write_seg`]).
+pub fn made_labels(dir: &Path) -> (Volume<LabelId>, Vec<(LabelId, String)>) {
+    let labels = stylet_atlas::nifti_io::read_labels(&dir.join("labels.nii.gz")).unwrap();
+    let classes = std::fs::read_to_string(dir.join("classes.csv")).unwrap();
+    let names = classes
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let (id, name) = l.split_once(',').unwrap();
+            (id.parse().unwrap(), name.to_string())
+        })
+        .collect();
+    (labels, names)
+}

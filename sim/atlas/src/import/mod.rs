@@ -8,6 +8,8 @@ pub mod checks;
 pub mod classes;
 #[cfg(feature = "dicom")]
 pub mod dicom;
+#[cfg(feature = "dicom")]
+pub mod dicom_seg;
 pub mod mapping;
 pub mod new;
 pub mod recipe;

@@ -1,7 +1,8 @@
 //! `stylet atlas new` (issue 19): a CT and an automatic segmentation become a PTCD atlas without a
 //! hand-written recipe. The CT is a NIfTI file or a DICOM series folder; the labels are one
-//! multi-label NIfTI (classes named by TotalSegmentator's built-in table or a CSV) or a
-//! TotalSegmentator output folder of per-structure masks (`liver.nii.gz`, …). The recipe is
+//! multi-label NIfTI (classes named by TotalSegmentator's built-in table or a CSV), a
+//! TotalSegmentator output folder of per-structure masks (`liver.nii.gz`, …) or a binary DICOM
+//! SEG ([`super::dicom_seg`]). The recipe is
 //! made from the structure names ([`super::auto`]) and the importer does the rest
 //! (docs/atlas.md "New patients").
 
@@ -98,6 +99,19 @@ pub fn new_atlas_only(args: &NewAtlas, out: &Path, timer: &mut StepTimer) -> Res
         .as_deref()
         .map(super::mapping::MappingOverride::read_csv)
         .transpose()?;
+    let seg = !args.labels.is_dir() && is_dicom_seg(&args.labels);
+    if seg && args.classes.is_some() {
+        return Err(AtlasError::file(
+            &args.labels,
+            "a DICOM SEG names its own segments; --classes is for a multi-label NIfTI",
+        ));
+    }
+    if seg && args.offset_voxels != [0, 0, 0] {
+        return Err(AtlasError::file(
+            &args.labels,
+            "a DICOM SEG places its frames by their positions; --offset-voxels is for a NIfTI label map",
+        ));
+    }
     let masks = if args.labels.is_dir() {
         if args.classes.is_some() {
             return Err(AtlasError::file(
@@ -114,6 +128,7 @@ pub fn new_atlas_only(args: &NewAtlas, out: &Path, timer: &mut StepTimer) -> Res
     let mut labels = Volume::filled(*ct.grid(), 0 as LabelId);
     timer.run(Step::ReadLabels, || match masks {
         Some(files) => merge_masks(&files, &ct, &mut classes, &mut labels, &mut notes),
+        None if seg => read_seg(&args.labels, &mut classes, &mut labels, &mut notes),
         None => {
             let l = nifti_io::read_labels(&args.labels)?;
             super::place_labels(ct.grid(), &l, args.offset_voxels, &args.labels, &mut labels, &mut notes)
@@ -138,6 +153,59 @@ pub fn new_atlas_only(args: &NewAtlas, out: &Path, timer: &mut StepTimer) -> Res
         ),
     );
     build(&recipe, Sources { ct, labels, notes }, classes, out, timer)
+}
+
+/// Whether the label file is a DICOM object (then a DICOM SEG), not a NIfTI file.
+fn is_dicom_seg(path: &Path) -> bool {
+    #[cfg(feature = "dicom")]
+    {
+        super::dicom_seg::is_dicom_file(path)
+    }
+    #[cfg(not(feature = "dicom"))]
+    {
+        let _ = path;
+        false
+    }
+}
+
+/// A DICOM SEG onto the CT's grid: each segment the class of its name (names the table lacks get
+/// new classes after its last).
+fn read_seg(
+    path: &Path,
+    classes: &mut ClassTable,
+    labels: &mut Volume<LabelId>,
+    notes: &mut Vec<String>,
+) -> Result<(), AtlasError> {
+    #[cfg(feature = "dicom")]
+    {
+        let mut class_of = |name: &str| classes.id_of(name).map_or_else(|| classes.add(name), Ok);
+        let s = super::dicom_seg::read_seg(path, labels, &mut class_of)?;
+        notes.push(format!(
+            "labels from the DICOM SEG {} ({} segments in {} frames){}{}",
+            path.display(),
+            s.segments.len(),
+            s.frames,
+            if s.empty.is_empty() {
+                String::new()
+            } else {
+                format!("; empty: {}", s.empty.join(", "))
+            },
+            if s.overlaps == 0 {
+                String::new()
+            } else {
+                format!(
+                    "; {} voxels claimed by two segments kept the lower-numbered",
+                    s.overlaps
+                )
+            }
+        ));
+        Ok(())
+    }
+    #[cfg(not(feature = "dicom"))]
+    {
+        let _ = (classes, labels, notes);
+        Err(AtlasError::file(path, "a DICOM SEG needs the `dicom` feature"))
+    }
 }
 
 /// The CT: a NIfTI file, or a DICOM series folder.
