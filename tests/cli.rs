@@ -569,6 +569,12 @@ fn a_new_chest_scenario_passes_its_smoke_test() {
         "{text}"
     );
     assert!(text.contains("smoke test scripts/success.txt: ok"), "{text}");
+    // Presets for this patient: beginners guided along the standard space (it leaves room).
+    assert!(
+        text.contains("difficulty beginner: guided along the right 10th–11th intercostal space")
+            && text.contains("difficulty expert: chooses the window; no visual aids"),
+        "{text}"
+    );
     let risk = std::fs::read_dir(out.join("scripts"))
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
@@ -595,6 +601,7 @@ fn a_new_chest_scenario_passes_its_smoke_test() {
     let window = rib_numbered_window(&html).unwrap_or_else(|| panic!("no rib-numbered window in the report"));
     assert!(html.contains(&window), "{window}");
     assert!(html.contains("scripts/success.txt: passed") && html.contains(&format!("scripts/{risk}: passed")));
+    assert!(html.contains("<h2>Difficulty presets</h2>") && html.contains("<td>intercostal-right-10-11</td>"));
     for png in ["slices.png", "3d-anterior.png", "3d-right.png"] {
         assert!(out.join("report").join(png).is_file(), "{png}");
     }

@@ -67,6 +67,7 @@ pub(crate) fn page(input: &ReportInput, pictures: &[Picture]) -> String {
     h += "</div>";
     legend(&mut h, input, &summary);
     paths(&mut h, input);
+    difficulty(&mut h, input);
     smoke(&mut h, input);
     times(&mut h, input);
     let _ = write!(
@@ -262,6 +263,32 @@ fn paths(h: &mut String, input: &ReportInput) {
             "<tr><td>{}</td><td>{}</td></tr>",
             escape(&p.name),
             escape(&p.description)
+        );
+    }
+    *h += "</table>";
+}
+
+/// The difficulty presets as this patient's atlas declares them, with why (`import::presets`).
+fn difficulty(h: &mut String, input: &ReportInput) {
+    let d = &input.atlas.manifest.difficulty;
+    *h += "<h2>Difficulty presets</h2><p>What each level shows and follows on this patient (thesis §6.3: \
+           the level changes the visual aids).</p><table><tr><th>level</th><th>target shown</th>\
+           <th>risk structures shown</th><th>needle guide</th><th>guided path</th><th>why</th></tr>";
+    let yes = |b: bool| if b { "yes" } else { "no" };
+    let notes = input.import.presets.as_ref();
+    for (level, p, note) in [
+        ("beginner", &d.beginner, notes.map(|n| n.beginner.as_str())),
+        ("advanced", &d.advanced, notes.map(|n| n.advanced.as_str())),
+        ("expert", &d.expert, notes.map(|n| n.expert.as_str())),
+    ] {
+        let _ = write!(
+            h,
+            "<tr><td>{level}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            yes(p.target_overlay),
+            yes(p.risk_overlay),
+            yes(p.needle_guide),
+            escape(p.guided_path.as_deref().unwrap_or("—")),
+            escape(note.unwrap_or("the scenario's preset"))
         );
     }
     *h += "</table>";

@@ -255,6 +255,7 @@ pub fn ptcd_recipe(
         lower_rib,
         rib_sequence: right_ribs.iter().map(|(_, id)| *id).collect(),
         bone_labels: bone_labels.clone(),
+        adapt_presets: true,
     });
     let recipe = Recipe {
         name: name.into(),

@@ -12,6 +12,7 @@ pub mod dicom;
 pub mod dicom_seg;
 pub mod mapping;
 pub mod new;
+pub mod presets;
 pub mod recipe;
 pub mod resample;
 pub mod scripts;
@@ -46,6 +47,8 @@ pub struct ImportReport {
     pub warnings: Vec<checks::Warning>,
     /// The time each step took (reading, tree, window, writing; `atlas new` adds its own).
     pub timings: Vec<(Step, std::time::Duration)>,
+    /// The difficulty presets adapted to this patient (`atlas new`), level by level.
+    pub presets: Option<presets::PresetNotes>,
 }
 
 impl ImportReport {
@@ -147,6 +150,11 @@ impl ImportReport {
                 "- windows ranked by clearance from bone and risk structures: {}\n",
                 list.join(", ")
             );
+        }
+        if let Some(p) = &self.presets {
+            for (level, note) in p.lines() {
+                out += &format!("- difficulty {level}: {note}\n");
+            }
         }
         for w in &self.warnings {
             out += &format!("- WARNING ({}): {}\n", w.kind.title(), w.text);
@@ -357,6 +365,7 @@ pub fn build(
     }
     let mut manifest = Manifest::new(&rec.name, &rec.description, provenance, scenario);
 
+    let mut presets = None;
     let window = match &rec.window {
         Some(w) => {
             // The atlas the search walks through (its distance maps included) is part of the step.
@@ -380,7 +389,9 @@ pub fn build(
             // The chosen window guides beginners; the others are planned paths too (scoring
             // measures a trainee against the path whose entry is nearest).
             let paths = report.paths(&classes);
-            if let Some(p) = paths.first() {
+            if w.adapt_presets {
+                presets = presets::adapt(&mut manifest.difficulty, &report, &classes);
+            } else if let Some(p) = paths.first() {
                 manifest.difficulty.beginner.guided_path = Some(p.name.clone());
             }
             manifest.paths.extend(paths);
@@ -400,5 +411,6 @@ pub fn build(
         source: source_summary,
         warnings,
         timings: timer.timings.clone(),
+        presets,
     })
 }

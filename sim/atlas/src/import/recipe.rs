@@ -115,6 +115,9 @@ pub struct Window {
     pub rib_sequence: Vec<LabelId>,
     #[serde(default)]
     pub bone_labels: Vec<LabelId>,
+    /// Adapt the difficulty presets to the windows found (`import::presets`; `atlas new` does).
+    #[serde(default)]
+    pub adapt_presets: bool,
 }
 
 /// A parsed recipe with its scenario, checked for consistency.

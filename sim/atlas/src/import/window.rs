@@ -96,7 +96,7 @@ impl WindowReport {
 
 /// A window as a planned path, named by the ribs' side and numbers when the class table knows
 /// them as ribs, else by their class numbers; `rank`: (its rank, of how many).
-fn window_path(classes: &ClassTable, f: &WindowFound, rank: Option<(usize, usize)>) -> InsertionPath {
+pub(crate) fn window_path(classes: &ClassTable, f: &WindowFound, rank: Option<(usize, usize)>) -> InsertionPath {
     let r = |v: DVec3| {
         [
             (v.x * 10.0).round() / 10.0,
