@@ -304,7 +304,10 @@ fn smoke_test(
         return Ok(Vec::new());
     }
     let tmp = tempfile::tempdir().context("cannot make a temporary folder for the smoke test")?;
-    let outcomes = smoke::run(atlas, &smoke::smoke_scripts(generated), tmp.path()).context("smoke test")?;
+    let bar = spinner("smoke test: recording and scoring the example scripts");
+    let outcomes = smoke::run(atlas, &smoke::smoke_scripts(generated), tmp.path());
+    bar.finish_and_clear();
+    let outcomes = outcomes.context("smoke test")?;
     for o in &outcomes {
         say(&format!(
             "- smoke test scripts/{}: {} — {} ({}; {:.1} s)",
@@ -354,7 +357,28 @@ fn publish(a: &PublishArgs) -> anyhow::Result<()> {
         })?;
     let client = stylet_app::service_client::ServiceClient::new(&a.server)?;
     let started = std::time::Instant::now();
-    let published = client.publish_atlas(token.trim(), &a.dir)?;
+    let bar = spinner("checking and packing the atlas");
+    let show = |p: stylet_app::publish_client::PublishProgress| {
+        use stylet_app::publish_client::PublishProgress as P;
+        match p {
+            P::Packed { bytes } => {
+                bar.set_length(bytes);
+                bar.set_style(
+                    indicatif::ProgressStyle::with_template("{msg} {bar:30} {bytes}/{total_bytes} ({elapsed})")
+                        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+                );
+                bar.set_message("uploading");
+            }
+            P::Sent { bytes, .. } => bar.set_position(bytes),
+            P::Checking => {
+                bar.set_style(spinner_style());
+                bar.set_message("the service checks the atlas and runs its smoke test");
+            }
+        }
+    };
+    let published = client.publish_atlas_with(token.trim(), &a.dir, &show);
+    bar.finish_and_clear();
+    let published = published?;
     sayf!(
         "atlas '{}' ({}) {} on {} ({:.1} s)",
         published.name,
@@ -376,7 +400,10 @@ fn publish(a: &PublishArgs) -> anyhow::Result<()> {
 /// `stylet atlas validate DIR`: loads the atlas, writes the example scripts of its guided path to
 /// `DIR/scripts/`, smoke-tests them and writes `DIR/validation.toml` when every one passed.
 fn validate(dir: &Path) -> anyhow::Result<()> {
-    let atlas = stylet_atlas::load(dir)?;
+    let bar = spinner("loading the atlas (validation, distance maps)");
+    let atlas = stylet_atlas::load(dir);
+    bar.finish_and_clear();
+    let atlas = atlas?;
     let generated = stylet_scoring::smoke::example_scripts(&atlas);
     if generated.is_empty() {
         anyhow::bail!(
@@ -393,6 +420,20 @@ fn validate(dir: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn spinner_style() -> indicatif::ProgressStyle {
+    indicatif::ProgressStyle::with_template("{spinner} {msg} ({elapsed})")
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner())
+}
+
+/// A spinner on standard error while `message` runs (hidden when standard error is not a
+/// terminal); the caller clears it.
+fn spinner(message: &str) -> indicatif::ProgressBar {
+    let b = indicatif::ProgressBar::new_spinner().with_style(spinner_style());
+    b.set_message(message.to_string());
+    b.enable_steady_tick(std::time::Duration::from_millis(120));
+    b
+}
+
 /// A spinner on standard error for each step of `atlas new` (hidden when standard error is not a
 /// terminal), and a line with its time when it ends.
 fn progress() -> impl FnMut(stylet_atlas::import::steps::StepEvent) {
@@ -400,13 +441,7 @@ fn progress() -> impl FnMut(stylet_atlas::import::steps::StepEvent) {
     let mut bar: Option<indicatif::ProgressBar> = None;
     move |e| match e {
         StepEvent::Started(step) => {
-            let b = indicatif::ProgressBar::new_spinner().with_style(
-                indicatif::ProgressStyle::with_template("{spinner} {msg} ({elapsed})")
-                    .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
-            );
-            b.set_message(step.describe());
-            b.enable_steady_tick(std::time::Duration::from_millis(120));
-            bar = Some(b);
+            bar = Some(spinner(step.describe()));
         }
         StepEvent::Finished(step, took) => {
             if let Some(b) = bar.take() {

@@ -36,6 +36,42 @@ pub struct Published {
     pub smoke: Vec<String>,
 }
 
+/// How far a publication got, for a progress display.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PublishProgress {
+    /// Checked and packed: the archive's size.
+    Packed { bytes: u64 },
+    /// Bytes of the archive sent so far.
+    Sent { bytes: u64, total: u64 },
+    /// All sent: the service is checking the atlas and running its smoke test.
+    Checking,
+}
+
+/// A reader that reports how much of the archive has been read (sent).
+struct Reporting<'a, R> {
+    inner: R,
+    sent: u64,
+    total: u64,
+    progress: &'a dyn Fn(PublishProgress),
+}
+
+impl<R: std::io::Read> std::io::Read for Reporting<'_, R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        if n > 0 {
+            self.sent += n as u64;
+            (self.progress)(PublishProgress::Sent {
+                bytes: self.sent,
+                total: self.total,
+            });
+            if self.sent == self.total {
+                (self.progress)(PublishProgress::Checking);
+            }
+        }
+        Ok(n)
+    }
+}
+
 /// The packed archive, in a temporary file removed when dropped.
 pub struct Packed {
     pub file: std::fs::File,
@@ -93,8 +129,19 @@ fn reason_of(resp: ureq::Response) -> String {
 impl ServiceClient {
     /// Publishes the atlas in `dir` with an admin's or instructor's `full` API token.
     pub fn publish_atlas(&self, token: &str, dir: &Path) -> Result<Published, PublishError> {
+        self.publish_atlas_with(token, dir, &|_| {})
+    }
+
+    /// [`Self::publish_atlas`], telling `progress` how far it got.
+    pub fn publish_atlas_with(
+        &self,
+        token: &str,
+        dir: &Path,
+        progress: &dyn Fn(PublishProgress),
+    ) -> Result<Published, PublishError> {
         let packed = pack(dir)?;
-        match self.post_archive(token, Some(&packed)) {
+        progress(PublishProgress::Packed { bytes: packed.bytes });
+        match self.post_archive(token, Some((&packed, progress))) {
             Err(PublishError::Unavailable(reason)) => {
                 // The service refuses a caller (or a size) before it reads the body, and the
                 // refusal is then often lost under a broken pipe: ask again without a body.
@@ -110,7 +157,11 @@ impl ServiceClient {
         }
     }
 
-    fn post_archive(&self, token: &str, packed: Option<&Packed>) -> Result<Published, PublishError> {
+    fn post_archive(
+        &self,
+        token: &str,
+        packed: Option<(&Packed, &dyn Fn(PublishProgress))>,
+    ) -> Result<Published, PublishError> {
         // The service loads the atlas and runs its smoke test before it answers (up to its
         // `atlas_check_timeout`, 5 minutes by default): wait that long for the answer.
         let agent = ureq::AgentBuilder::new()
@@ -123,9 +174,15 @@ impl ServiceClient {
             .set("Authorization", &format!("Bearer {token}"))
             .set("Content-Type", "application/x-tar");
         let resp = match packed {
-            Some(p) => {
+            Some((p, progress)) => {
                 let file = p.file.try_clone().map_err(|e| PublishError::Atlas(e.to_string()))?;
-                req.set("Content-Length", &p.bytes.to_string()).send(file)
+                let reader = Reporting {
+                    inner: file,
+                    sent: 0,
+                    total: p.bytes,
+                    progress,
+                };
+                req.set("Content-Length", &p.bytes.to_string()).send(reader)
             }
             None => req.send_bytes(&[]),
         };
