@@ -311,6 +311,29 @@ fn bad_publications_are_refused_with_the_reason_and_leave_nothing() {
     let text = |name: &str| String::from_utf8(files.iter().find(|f| f.0 == name).unwrap().1.clone()).unwrap();
     let ct = files.iter().find(|f| f.0 == "ct.nii.gz").unwrap().1.clone();
 
+    // The guided path's target moved 40 mm off the duct, and the record rewritten for the new
+    // content: the record vouches, but the scripts the server generates fail.
+    let moved_target = {
+        let manifest = text("atlas.toml");
+        let at = manifest.find("target_mm = [\n").unwrap() + "target_mm = [\n".len();
+        let end = at + manifest[at..].find(',').unwrap();
+        let x: f64 = manifest[at..end].trim().parse().unwrap();
+        let moved = format!("{}    {:.1}{}", &manifest[..at], x - 40.0, &manifest[end..]);
+        let tmp = tempfile::tempdir().unwrap();
+        std::fs::write(tmp.path().join("atlas.toml"), &moved).unwrap();
+        for v in ["ct.nii.gz", "labels.nii.gz"] {
+            std::fs::copy(good.join(v), tmp.path().join(v)).unwrap();
+        }
+        let parsed = stylet_atlas::store::parse_manifest(&moved).unwrap();
+        let hash = stylet_atlas::store::content_hash(tmp.path(), &parsed).unwrap();
+        let old = stylet_atlas::store::parse_manifest(&text("atlas.toml")).unwrap();
+        let old_hash = stylet_atlas::store::content_hash(&good, &old).unwrap();
+        let record = text("validation.toml").replace(&old_hash, &hash);
+        with(&|f: &mut Files| {
+            replace("atlas.toml", moved.clone().into_bytes())(f);
+            replace("validation.toml", record.clone().into_bytes())(f);
+        })
+    };
     let cases: Vec<(&str, Vec<u8>, &str, u16, &str)> = vec![
         (
             "not a tar",
@@ -353,29 +376,45 @@ fn bad_publications_are_refused_with_the_reason_and_leave_nothing() {
             "the atlas is damaged: ct.nii.gz",
         ),
         (
-            "a smoke script that no longer reaches the target",
-            with(&replace(
-                "scripts/success.txt",
-                text("scripts/risk-portal-vein.txt").into_bytes(),
-            )),
-            "application/x-tar",
-            422,
-            "smoke test of the atlas failed: scripts/success.txt should: reaches and confirms the target",
-        ),
-        (
-            "a record that claims a failed script passed is rerun",
+            "a record whose script failed",
             with(&replace(
                 "validation.toml",
                 text("validation.toml")
-                    .replace(
-                        "kind = \"hit\"\nstructure = \"portal vein\"",
-                        "kind = \"hit\"\nstructure = \"aorta\"",
-                    )
+                    .replacen("passed = true", "passed = false", 1)
                     .into_bytes(),
             )),
             "application/x-tar",
             422,
-            "should: hits the aorta first",
+            "not validated: its smoke test failed: scripts/success.txt should: reaches and confirms the target",
+        ),
+        (
+            "a script the record names is missing",
+            with(&|f| f.retain(|e| e.0 != "scripts/success.txt")),
+            "application/x-tar",
+            422,
+            "scripts/success.txt",
+        ),
+        (
+            "a target moved off the duct, the record rewritten for it",
+            moved_target.clone(),
+            "application/x-tar",
+            422,
+            "the server's own smoke test of the atlas failed: scripts/success.txt should: reaches and confirms the target",
+        ),
+        (
+            "a long name beyond the extended-header limit",
+            {
+                let mut b = tar::Builder::new(Vec::new());
+                let mut h = tar::Header::new_gnu();
+                h.set_size(1);
+                h.set_mode(0o644);
+                let long = format!("scripts/{}.txt", "a".repeat(5000));
+                b.append_data(&mut h, long, &b"x"[..]).unwrap();
+                b.into_inner().unwrap()
+            },
+            "application/x-tar",
+            422,
+            "an extended header (long name or PAX record) of 5013 bytes",
         ),
         (
             "a path that climbs out",
@@ -428,6 +467,24 @@ fn bad_publications_are_refused_with_the_reason_and_leave_nothing() {
     let (got, error) = post_tar(&b, &token, &tb.into_inner().unwrap(), "application/x-tar");
     assert_eq!(got, 422, "{error}");
     assert!(error.contains("not a regular file"), "{error}");
+
+    // No Content-Length (a chunked body): its time limit could not follow from its size.
+    {
+        use std::io::{Read, Write};
+        let addr = b.strip_prefix("http://").unwrap();
+        let mut sock = std::net::TcpStream::connect(addr).unwrap();
+        let head = format!(
+            "POST /api/atlases HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {token}\r\n\
+             Content-Type: application/x-tar\r\nTransfer-Encoding: chunked\r\nConnection: close\r\n\r\n5\r\nhello\r\n0\r\n\r\n"
+        );
+        sock.write_all(head.as_bytes()).unwrap();
+        let mut resp = String::new();
+        let _ = sock.read_to_string(&mut resp);
+        assert!(
+            resp.starts_with("HTTP/1.1 411") && resp.contains("Content-Length"),
+            "{resp}"
+        );
+    }
 
     // Larger than the server's limit: refused before the body is read.
     let (got, error) = post_tar(

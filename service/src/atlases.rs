@@ -136,17 +136,26 @@ pub async fn publish_atlas(
     let declared = headers
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<u64>().ok());
-    if declared.is_some_and(|n| n > limit) {
+        .and_then(|v| v.parse::<u64>().ok())
+        .ok_or_else(|| {
+            err(
+                StatusCode::LENGTH_REQUIRED,
+                "send the archive with its Content-Length (its time limit follows from its size)",
+            )
+        })?;
+    if declared > limit {
         return Err(err(
             StatusCode::PAYLOAD_TOO_LARGE,
             format!("the atlas upload exceeds the limit of {limit} bytes"),
         ));
     }
-    let _permit = s.publish_permit.clone().try_acquire_owned().map_err(|_| {
+    // At most two archives on disk at once (each until its publication ends), one checked at a
+    // time: the permits live in the publication's own task, so a client that goes away
+    // releases them only when the work it started has ended.
+    let arriving = s.publish_uploads.clone().try_acquire_owned().map_err(|_| {
         err(
             StatusCode::SERVICE_UNAVAILABLE,
-            "another atlas is being published; try again when it is done",
+            "other atlases are being published; try again when they are done",
         )
     })?;
     let max = s.config.limits.max_atlases;
@@ -156,17 +165,42 @@ pub async fn publish_atlas(
             format!("the catalogue holds {max} atlases, the most this server keeps loaded"),
         ));
     }
-    let root = s.published_dir();
-    let incoming = Incoming::create(&root).map_err(ApiError::from)?;
-    publish::receive(body, &incoming.path.join("upload.tar"), limit).await?;
-    let work = incoming.path.clone();
-    let checked = tokio::task::spawn_blocking(move || {
-        publish::unpack(&work.join("upload.tar"), &work.join("atlas"))?;
-        let _ = std::fs::remove_file(work.join("upload.tar"));
-        publish::check(&work.join("atlas"), &work.join("smoke"))
-    })
-    .await
-    .map_err(|_| ApiError::Internal)??;
+    let incoming = Incoming::create(&s.published_dir()).map_err(ApiError::from)?;
+    let received = publish::receive(body, &incoming.path.join("upload.tar"), declared).await?;
+    if received != declared {
+        return Err(err(
+            StatusCode::BAD_REQUEST,
+            format!("the upload ended after {received} of the {declared} bytes it declared"),
+        ));
+    }
+    // From here the publication runs to its end in a task of its own: the rename, the row and
+    // the catalogue entry happen together or not at all, whatever the client does.
+    let state = s.clone();
+    let task = tokio::spawn(async move {
+        let _arriving = arriving;
+        let checking = state.publish_permit.clone().acquire_owned().await.map_err(|_| busy())?;
+        let work = incoming.path.clone();
+        let checked = tokio::task::spawn_blocking(move || {
+            let _checking = checking;
+            publish::unpack(&work.join("upload.tar"), &work.join("atlas"))?;
+            let _ = std::fs::remove_file(work.join("upload.tar"));
+            publish::check(&work.join("atlas"), &work.join("smoke"))
+        })
+        .await
+        .map_err(|_| ApiError::Internal)??;
+        keep(&state, &user, checked, &incoming).await
+    });
+    task.await.map_err(|_| ApiError::Internal)?
+}
+
+fn busy() -> ApiError {
+    err(StatusCode::SERVICE_UNAVAILABLE, "the server is shutting down")
+}
+
+/// Keeps a checked atlas: renamed to `DATA/atlases/<hash>/`, its row and audit record, then the
+/// catalogue. A folder of that hash that is not in the catalogue (left by a failure, or no longer
+/// of its hash) is moved aside first; the folder is removed again when the row cannot be written.
+async fn keep(s: &AppState, user: &User, checked: publish::Checked, incoming: &Incoming) -> Result<Response, ApiError> {
     let hash = checked.atlas.content_hash.clone();
     let name = checked.atlas.manifest.name.clone();
     let smoke: Vec<String> = checked
@@ -181,19 +215,26 @@ pub async fn publish_atlas(
         )
             .into_response());
     }
+    let root = s.published_dir();
     let dest = root.join(&hash);
-    if !dest.exists() {
-        std::fs::rename(incoming.path.join("atlas"), &dest)
-            .map_err(|e| Refusal::Storage(format!("{}: {e}", dest.display())))?;
+    let storage = |e: std::io::Error| ApiError::from(Refusal::Storage(format!("{}: {e}", dest.display())));
+    if dest.exists() {
+        let aside = root.join(format!(".replaced-{hash}-{}", super::store::new_id()));
+        tracing::warn!(dir = %dest.display(), aside = %aside.display(), "a folder of this hash was not in the catalogue; moved aside");
+        std::fs::rename(&dest, &aside).map_err(storage)?;
     }
+    std::fs::rename(incoming.path.join("atlas"), &dest).map_err(storage)?;
     let dir = dest.display().to_string();
     let detail = format!("{name}: smoke test {}", smoke.join(", "));
-    s.store.publish_atlas(&hash, &name, &dir, &user, &detail).await?;
+    if let Err(e) = s.store.publish_atlas(&hash, &name, &dir, user, &detail).await {
+        let _ = std::fs::remove_dir_all(&dest);
+        return Err(e.into());
+    }
     let mut atlas = checked.atlas;
     atlas.dir = dest;
     s.catalogue.insert(atlas, checked.scorer, AtlasOrigin::Published);
     tracing::info!(atlas = %name, hash = %hash, by = %user.username, "atlas published");
-    let item = catalogue(&s).await?.into_iter().find(|i| i.content_hash == hash);
+    let item = catalogue(s).await?.into_iter().find(|i| i.content_hash == hash);
     Ok((
         StatusCode::CREATED,
         Json(json!({ "content_hash": hash, "name": name, "status": "published", "smoke": smoke, "atlas": item })),

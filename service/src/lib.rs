@@ -59,8 +59,10 @@ pub struct AppState {
     pub config: Config,
     /// Every known atlas and its scorer, by content hash (configured and published ones).
     pub catalogue: catalogue::Catalogue,
-    /// One atlas publication at a time (each loads a whole CT and replays its smoke test).
+    /// One atlas publication checked at a time (each loads a whole CT and replays its smoke test).
     pub publish_permit: Arc<tokio::sync::Semaphore>,
+    /// Atlas archives arriving or waiting to be checked at once (each up to the size limit on disk).
+    pub publish_uploads: Arc<tokio::sync::Semaphore>,
     pub wake: tokio::sync::Notify,
     /// Recent failed logins per account (rate limiting), bounded.
     pub login_failures: logins::FailedLogins,
@@ -161,6 +163,7 @@ pub async fn serve(
         config,
         catalogue,
         publish_permit: Arc::new(tokio::sync::Semaphore::new(1)),
+        publish_uploads: Arc::new(tokio::sync::Semaphore::new(2)),
         wake: tokio::sync::Notify::new(),
         login_failures,
         passwords,

@@ -218,10 +218,11 @@ pub fn document() -> Value {
                         "401": error_response("not logged in"),
                         "403": error_response("not an admin or instructor, CSRF token missing, or an upload-scoped token"),
                         "409": error_response("the catalogue is full"),
+                        "411": error_response("no Content-Length"),
                         "413": error_response("over the atlas size limit"),
                         "415": error_response("not application/x-tar"),
                         "422": error_response("not a valid archive, a damaged atlas, not validated, or its smoke test failed"),
-                        "503": error_response("another publication is running")
+                        "503": error_response("two other publications are under way")
                     }
                 },
                 "get": {

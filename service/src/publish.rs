@@ -6,9 +6,10 @@
 //! Cheapest and most decisive first: who asks (before a byte of the body is read), the declared
 //! size, one publication at a time, the catalogue's room; then the body is streamed to disk with
 //! its limit; the archive is unpacked entry by entry (plain names, regular files, each kind of
-//! file with its own size limit); the atlas is loaded through the validating loader, its
-//! validation record must vouch for exactly this content, and the server runs the record's
-//! smoke-test scripts again itself. A refusal says why and leaves nothing behind.
+//! file with its own size limit, extended headers bounded before they are read); the atlas is
+//! loaded through the validating loader, its validation record must vouch for exactly this
+//! content, and the server generates the example scripts of its guided path and runs them
+//! itself. A refusal says why and leaves nothing behind.
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -142,12 +143,56 @@ fn kind_of(name: &str, is_dir: bool) -> Result<Kind, String> {
     }
 }
 
+/// Largest extended header (GNU long name or link, PAX record) accepted: the `tar` crate reads
+/// them whole into memory.
+const MAX_EXTENSION_BYTES: u64 = 4096;
+
+/// Walks the archive's 512-byte headers without reading any entry: refuses extended headers
+/// (long names, PAX records) over [`MAX_EXTENSION_BYTES`] before the `tar` crate would read them.
+fn check_headers(archive: &Path) -> Result<(), Refusal> {
+    use std::io::{Seek, SeekFrom};
+    let storage = |e: std::io::Error| Refusal::Storage(format!("{}: {e}", archive.display()));
+    let mut f = std::fs::File::open(archive).map_err(storage)?;
+    let len = f.metadata().map_err(storage)?.len();
+    let mut at = 0u64;
+    let mut block = [0u8; 512];
+    for _ in 0..4 * MAX_ENTRIES {
+        if at + 512 > len {
+            return Ok(());
+        }
+        f.seek(SeekFrom::Start(at)).map_err(storage)?;
+        f.read_exact(&mut block).map_err(storage)?;
+        if block.iter().all(|&b| b == 0) {
+            return Ok(());
+        }
+        let header = tar::Header::from_byte_slice(&block);
+        let size = header
+            .entry_size()
+            .map_err(|e| Refusal::Archive(format!("not a tar archive ({e})")))?;
+        let kind = header.entry_type();
+        let extension = kind.is_gnu_longname()
+            || kind.is_gnu_longlink()
+            || kind.is_pax_local_extensions()
+            || kind.is_pax_global_extensions();
+        if extension && size > MAX_EXTENSION_BYTES {
+            return Err(Refusal::Archive(format!(
+                "an extended header (long name or PAX record) of {size} bytes, more than the {MAX_EXTENSION_BYTES} accepted"
+            )));
+        }
+        at = at
+            .saturating_add(512)
+            .saturating_add(size.div_ceil(512).saturating_mul(512));
+    }
+    Err(Refusal::Archive(format!("more than {MAX_ENTRIES} entries")))
+}
+
 /// Unpacks the tar archive `archive` into the new folder `out`: regular files with the names an
 /// atlas has, each within its kind's limit; anything else (links, devices, paths that climb out,
 /// unknown files, repeated names, too many entries) refuses the whole archive.
 pub fn unpack(archive: &Path, out: &Path) -> Result<(), Refusal> {
     let storage = |e: std::io::Error| Refusal::Storage(format!("{}: {e}", out.display()));
     let bad = |m: String| Refusal::Archive(m);
+    check_headers(archive)?;
     std::fs::create_dir(out).map_err(storage)?;
     std::fs::create_dir(out.join(SCRIPTS_DIR)).map_err(storage)?;
     let file = std::fs::File::open(archive).map_err(storage)?;
@@ -235,7 +280,22 @@ pub fn check(dir: &Path, work: &Path) -> Result<Checked, Refusal> {
         .map_err(|e| Refusal::Archive(strip_dir(&e.to_string(), dir)))?
         .ok_or(NotValidated::Missing)?;
     record.vouches_for(&atlas.content_hash)?;
-    let scripts = smoke::scripts_of(dir, &record).map_err(|e| Refusal::Archive(strip_dir(&e.to_string(), dir)))?;
+    // The record's scripts must be in the archive (the published folder is complete), but the
+    // server runs its own: the example scripts of the guided path, generated from the atlas whose
+    // content the hash covers, as `stylet atlas validate` does (bounded: a push of at most 400 mm
+    // at 12 mm/s each).
+    smoke::scripts_of(dir, &record).map_err(|e| {
+        Refusal::Archive(format!(
+            "a script the validation record names is missing or unreadable: {}",
+            strip_dir(&e.to_string(), dir)
+        ))
+    })?;
+    let scripts = smoke::smoke_scripts(&smoke::example_scripts(&atlas));
+    if !scripts.iter().any(|s| s.expect == validation::Expect::Success) {
+        return Err(Refusal::SmokeFailed(
+            "the atlas has no planned path to generate a success script along".into(),
+        ));
+    }
     let scorer = Scorer::new(&atlas, Rubric::default_rubric(), None).map_err(Refusal::Damaged)?;
     std::fs::create_dir_all(work).map_err(|e| Refusal::Storage(e.to_string()))?;
     let outcomes = smoke::run(&atlas, &scripts, work).map_err(|e| Refusal::SmokeFailed(e.to_string()))?;
@@ -287,10 +347,12 @@ pub fn load_published(root: &Path) -> Result<Vec<(Atlas, Scorer)>, String> {
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
         match stylet_atlas::load(&d) {
-            Ok(atlas) if atlas.content_hash == name => {
-                let scorer = Scorer::new(&atlas, Rubric::default_rubric(), None)?;
-                loaded.push((atlas, scorer));
-            }
+            Ok(atlas) if atlas.content_hash == name => match Scorer::new(&atlas, Rubric::default_rubric(), None) {
+                Ok(scorer) => loaded.push((atlas, scorer)),
+                Err(e) => {
+                    tracing::error!(dir = %d.display(), error = %e, "a published atlas cannot be scored; not loaded")
+                }
+            },
             Ok(atlas) => tracing::error!(
                 dir = %d.display(),
                 hash = %atlas.content_hash,

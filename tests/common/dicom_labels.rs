@@ -424,7 +424,7 @@ pub fn write_seg(labels: &Volume<LabelId>, names: &[(LabelId, &str)], out: &Path
                 continue;
             }
             for &v in slice {
-                if nbits % 8 == 0 {
+                if nbits.is_multiple_of(8) {
                     bits.push(0);
                 }
                 if v == label {

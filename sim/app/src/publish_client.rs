@@ -147,10 +147,13 @@ impl ServiceClient {
                 // refusal is then often lost under a broken pipe: ask again without a body.
                 match self.post_archive(token, None) {
                     Err(refused @ PublishError::Refused { status: 401 | 403, .. }) => Err(refused),
-                    _ => Err(PublishError::Unavailable(format!(
-                        "{reason} (the archive is {} bytes: the service may accept less, see `stylet serve --max-atlas-bytes`)",
-                        packed.bytes
-                    ))),
+                    _ if reason.contains("Broken pipe") || reason.contains("reset") => {
+                        Err(PublishError::Unavailable(format!(
+                            "{reason} (the archive is {} bytes: the service may accept less, see `stylet serve --max-atlas-bytes`)",
+                            packed.bytes
+                        )))
+                    }
+                    _ => Err(PublishError::Unavailable(reason)),
                 }
             }
             other => other,

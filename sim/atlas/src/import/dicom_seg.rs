@@ -273,11 +273,18 @@ pub fn read_seg(
                 "its pixels do not lie on the CT's voxels (another scan, or resampled?)",
             ));
         };
-        if !unit(&dc) || !unit(&dr) || dc == dr {
+        // Rows and columns along two different axes of the CT (not the same one either way).
+        if !unit(&dc) || !unit(&dr) || (0..3).any(|a| dc[a] != 0 && dr[a] != 0) {
             return Err(at("its pixel spacing or orientation differs from the CT's"));
         }
         let corner = |r: i64, c: i64| [0, 1, 2].map(|a| s[a] + c * dc[a] + r * dr[a]);
-        for p in [corner(0, 0), corner(rows as i64 - 1, cols as i64 - 1)] {
+        let (last_r, last_c) = (rows as i64 - 1, cols as i64 - 1);
+        for p in [
+            corner(0, 0),
+            corner(0, last_c),
+            corner(last_r, 0),
+            corner(last_r, last_c),
+        ] {
             if p.iter().zip([nx, ny, nz]).any(|(&v, n)| v < 0 || v >= n as i64) {
                 return Err(at("it lies outside the CT (another scan?)"));
             }

@@ -67,7 +67,12 @@ pub fn adapt(presets: &mut DifficultyPresets, report: &WindowReport, classes: &C
             w.clearance_mm()
         )
     };
-    let (guide, why) = if chosen.clearance_mm() >= BEGINNER_CLEARANCE_MM {
+    let (guide, why) = if !report.requested_found {
+        (
+            widest,
+            "the space asked for has no window, so the widest one found".to_string(),
+        )
+    } else if chosen.clearance_mm() >= BEGINNER_CLEARANCE_MM {
         (chosen, "the standard space leaves enough room".to_string())
     } else {
         (
@@ -170,6 +175,18 @@ mod tests {
         assert_eq!(p.beginner.guided_path.as_deref(), Some("intercostal-right-7-8"));
         assert!(notes.beginner.contains("leaves only 3.2 mm"), "{}", notes.beginner);
         assert!(!p.advanced.risk_overlay, "the widest window leaves room");
+
+        // No window in the space asked for: the widest one, said so.
+        let mut missing = report(&wide);
+        missing.requested_found = false;
+        let mut p = presets();
+        let notes = adapt(&mut p, &missing, &ribs()).unwrap();
+        assert_eq!(p.beginner.guided_path.as_deref(), Some("intercostal-right-7-8"));
+        assert!(
+            notes.beginner.contains("the space asked for has no window"),
+            "{}",
+            notes.beginner
+        );
     }
 
     #[test]
