@@ -251,30 +251,12 @@ fn atlas_files(dir: &Path) -> Files {
     files
 }
 
-/// A POST of an archive over a raw socket that ignores write errors (the server may answer and
-/// close before the whole body is sent, as it does for refusals decided from the headers):
-/// status and the error it gives (the whole answer when it has none).
+/// A POST of an archive (over a raw socket: the server may answer and close before the whole
+/// body is sent, as it does for refusals decided from the headers): status and its error.
 fn post_tar(base: &str, token: &str, body: &[u8], content_type: &str) -> (u16, String) {
-    use std::io::{Read, Write};
-    let addr = base.strip_prefix("http://").unwrap();
-    let mut sock = std::net::TcpStream::connect(addr).unwrap();
-    let head = format!(
-        "POST /api/atlases HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {token}\r\n\
-         Content-Type: {content_type}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
-        body.len()
-    );
-    sock.write_all(head.as_bytes()).unwrap();
-    let _ = sock.write_all(body);
-    let mut resp = Vec::new();
-    let _ = sock.read_to_end(&mut resp);
-    let text = String::from_utf8_lossy(&resp).to_string();
-    let status = text.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
-    let error = text
-        .split("\r\n\r\n")
-        .nth(1)
-        .and_then(|b| serde_json::from_str::<Value>(b).ok())
-        .and_then(|v| v["error"].as_str().map(str::to_string))
-        .unwrap_or(text);
+    let auth = Auth::Bearer(token.to_string());
+    let (status, json) = raw_post_as(base, "/api/atlases", Some(&auth), content_type, body);
+    let error = json["error"].as_str().map_or_else(|| json.to_string(), str::to_string);
     (status, error)
 }
 

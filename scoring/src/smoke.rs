@@ -35,6 +35,20 @@ pub struct SmokeOutcome {
     pub seconds: f64,
 }
 
+impl SmokeOutcome {
+    /// What went wrong, in one sentence, or `None` when the script passed.
+    pub fn failure(&self) -> Option<String> {
+        (!self.passed).then(|| {
+            format!(
+                "scripts/{} should: {}; got: {}",
+                self.script,
+                self.expect.describe(),
+                self.got
+            )
+        })
+    }
+}
+
 /// A script that could not be run, recorded or scored at all (a script that runs and does the
 /// wrong thing is a failed [`SmokeOutcome`], not an error).
 #[derive(Debug, thiserror::Error)]
@@ -49,7 +63,17 @@ pub enum SmokeError {
 /// removes), in order. Deterministic: the same atlas and scripts give the same outcomes.
 pub fn run(atlas: &Atlas, scripts: &[SmokeScript], work_dir: &Path) -> Result<Vec<SmokeOutcome>, SmokeError> {
     let scorer = Scorer::new(atlas, Rubric::default_rubric(), None).map_err(SmokeError::Scorer)?;
-    scripts.iter().map(|s| run_one(atlas, &scorer, s, work_dir)).collect()
+    run_with(atlas, &scorer, scripts, work_dir)
+}
+
+/// [`run`] with a scorer of `atlas` the caller already has (the service keeps it).
+pub fn run_with(
+    atlas: &Atlas,
+    scorer: &Scorer,
+    scripts: &[SmokeScript],
+    work_dir: &Path,
+) -> Result<Vec<SmokeOutcome>, SmokeError> {
+    scripts.iter().map(|s| run_one(atlas, scorer, s, work_dir)).collect()
 }
 
 fn run_one(atlas: &Atlas, scorer: &Scorer, s: &SmokeScript, work_dir: &Path) -> Result<SmokeOutcome, SmokeError> {
@@ -138,10 +162,7 @@ pub fn scripts_of(dir: &Path, record: &ValidationRecord) -> Result<Vec<SmokeScri
 
 /// The first failed outcome as the reason a scenario is not ready, or `None` when all passed.
 pub fn first_failure(outcomes: &[SmokeOutcome]) -> Option<String> {
-    outcomes
-        .iter()
-        .find(|o| !o.passed)
-        .map(|o| format!("scripts/{} should: {}; got: {}", o.script, o.expect.describe(), o.got))
+    outcomes.iter().find_map(SmokeOutcome::failure)
 }
 
 /// The example scripts of the atlas' guided path (the beginner's, else its first planned path),

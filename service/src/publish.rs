@@ -298,7 +298,7 @@ pub fn check(dir: &Path, work: &Path) -> Result<Checked, Refusal> {
     }
     let scorer = Scorer::new(&atlas, Rubric::default_rubric(), None).map_err(Refusal::Damaged)?;
     std::fs::create_dir_all(work).map_err(|e| Refusal::Storage(e.to_string()))?;
-    let outcomes = smoke::run(&atlas, &scripts, work).map_err(|e| Refusal::SmokeFailed(e.to_string()))?;
+    let outcomes = smoke::run_with(&atlas, &scorer, &scripts, work).map_err(|e| Refusal::SmokeFailed(e.to_string()))?;
     if let Some(failure) = smoke::first_failure(&outcomes) {
         return Err(Refusal::SmokeFailed(failure));
     }

@@ -210,11 +210,7 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
                 )
             })?;
             sayf!("- validation report: {}", files.html.display());
-            let failures: Vec<String> = outcomes
-                .iter()
-                .filter(|o| !o.passed)
-                .map(|o| format!("scripts/{} should: {}; got: {}", o.script, o.expect.describe(), o.got))
-                .collect();
+            let failures: Vec<String> = outcomes.iter().filter_map(|o| o.failure()).collect();
             if !failures.is_empty() {
                 anyhow::bail!(
                     "the new scenario in {} failed its smoke test (the atlas is kept for a look): {}",

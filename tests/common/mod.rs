@@ -216,6 +216,11 @@ pub fn login(base: &str, user: &str) -> Auth {
 /// A POST over a raw socket that ignores write errors (the server may answer and close before
 /// the whole body is sent); returns status and JSON body.
 pub fn raw_post(base: &str, path: &str, auth: Option<&Auth>, body: &[u8]) -> (u16, Value) {
+    raw_post_as(base, path, auth, "application/octet-stream", body)
+}
+
+/// [`raw_post`] with another `Content-Type`.
+pub fn raw_post_as(base: &str, path: &str, auth: Option<&Auth>, content_type: &str, body: &[u8]) -> (u16, Value) {
     use std::io::Read;
     let addr = base.strip_prefix("http://").unwrap();
     let mut sock = std::net::TcpStream::connect(addr).unwrap();
@@ -226,7 +231,7 @@ pub fn raw_post(base: &str, path: &str, auth: Option<&Auth>, body: &[u8]) -> (u1
     };
     let head = format!(
         "POST {path} HTTP/1.1\r\nHost: {addr}\r\n{credentials}\
-         Content-Type: application/octet-stream\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+         Content-Type: {content_type}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
         body.len()
     );
     sock.write_all(head.as_bytes()).unwrap();
