@@ -14,7 +14,7 @@ use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use stylet_devices::run_headless;
 use stylet_devices::script::{parse, scripted_simulation};
 
-use stylet_physics::{Event, Gauge, ToolSpec};
+use stylet_physics::{DeformSettings, Event, Gauge, ToolSpec};
 use stylet_recorder::format::TickRecord;
 use stylet_recorder::{SessionHeader, SessionWriter, WriterOptions, reader};
 
@@ -69,6 +69,7 @@ fn header() -> SessionHeader {
             stylet_in: true,
         },
         wall_clock_start: stylet_recorder::wall_clock_now(),
+        deformation: DeformSettings::default(),
     }
 }
 

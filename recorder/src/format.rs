@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
-use stylet_physics::{Event, Gauge, ProbeKind, ToolSpec};
+use stylet_physics::{DeformSettings, Event, Gauge, ProbeKind, ToolSpec};
 
 /// The session schema version this code writes; it reads this version and the one before.
 pub const SCHEMA_VERSION: u32 = 1;
@@ -266,6 +266,9 @@ pub struct SessionHeader {
     pub initial_tool: ToolSpec,
     /// Wall-clock start, RFC 3339 UTC (metadata only: physics never reads it).
     pub wall_clock_start: String,
+    /// The world model's tissue deformation (thesis Chapter 4): replay solves with exactly these
+    /// settings. Files written before physics version 4 lack it and read as deformation off.
+    pub deformation: DeformSettings,
 }
 
 impl SessionHeader {
@@ -299,6 +302,7 @@ impl SessionHeader {
             put("tool_stylet_in", stylet_in.to_string());
         }
         put("wall_clock_start", self.wall_clock_start.clone());
+        world::put_deformation(&self.deformation, &mut put);
         m
     }
 
@@ -366,7 +370,101 @@ impl SessionHeader {
             device: name("device")?,
             initial_tool,
             wall_clock_start,
+            deformation: world::get_deformation(m)?,
         })
+    }
+}
+
+/// The world model in the header: one metadata key per setting, `world.deformation.*`, numbers
+/// as decimal integers or, for real numbers, exact f64 bits in hex (so replay gets the same bits).
+mod world {
+    use std::collections::BTreeMap;
+
+    use stylet_physics::{DeformSettings, Regulariser};
+
+    const P: &str = "world.deformation.";
+
+    pub fn put_deformation(d: &DeformSettings, put: &mut impl FnMut(&str, String)) {
+        let mut int = |k: &str, v: u64| put(&format!("{P}{k}"), v.to_string());
+        int("enabled", u64::from(d.enabled));
+        int("cells", d.cells.into());
+        int("every_ticks", d.every_ticks.into());
+        int("latency_ticks", d.latency_ticks.into());
+        int("levels", d.schedule.levels.into());
+        int("cycles", d.schedule.cycles.into());
+        int("pre_steps", d.schedule.pre_steps.into());
+        int("post_steps", d.schedule.post_steps.into());
+        int("coarsest_steps", d.schedule.coarsest_steps.into());
+        int("fed_cycle_steps", d.schedule.fed_cycle_steps.into());
+        let mut real = |k: &str, v: f64| put(&format!("{P}{k}_bits"), format!("{:016x}", v.to_bits()));
+        real("spacing_mm", d.spacing_mm);
+        real("material_k_per_hu", d.material_k_per_hu);
+        real("material_s_hu", d.material_s_hu);
+        match d.regulariser {
+            Regulariser::Diffusion => put(&format!("{P}regulariser"), "diffusion".into()),
+            Regulariser::LinearElastic { poisson_ratio } => {
+                put(&format!("{P}regulariser"), "linear_elastic".into());
+                put(
+                    &format!("{P}poisson_ratio_bits"),
+                    format!("{:016x}", poisson_ratio.to_bits()),
+                );
+            }
+        }
+    }
+
+    /// The deformation settings of a header (off when the file has none), checked like the
+    /// simulation checks them.
+    pub fn get_deformation(m: &BTreeMap<String, String>) -> Result<DeformSettings, String> {
+        if !m.contains_key(&format!("{P}enabled")) {
+            return Ok(DeformSettings::off());
+        }
+        let get = |k: &str| {
+            m.get(&format!("{P}{k}"))
+                .ok_or_else(|| format!("session header lacks '{P}{k}'"))
+        };
+        let int = |k: &str| -> Result<u32, String> {
+            get(k)?
+                .parse::<u32>()
+                .map_err(|_| format!("session header '{P}{k}' is not a number"))
+        };
+        let real = |k: &str| -> Result<f64, String> {
+            let key = format!("{k}_bits");
+            u64::from_str_radix(get(&key)?, 16)
+                .map(f64::from_bits)
+                .map_err(|_| format!("session header '{P}{key}' is not hex"))
+        };
+        let regulariser = match get("regulariser")?.as_str() {
+            "diffusion" => Regulariser::Diffusion,
+            "linear_elastic" => Regulariser::LinearElastic {
+                poisson_ratio: real("poisson_ratio")?,
+            },
+            other => return Err(format!("session header '{P}regulariser' '{other}' is unknown")),
+        };
+        let enabled = match int("enabled")? {
+            0 => false,
+            1 => true,
+            _ => return Err(format!("session header '{P}enabled' must be 0 or 1")),
+        };
+        let d = DeformSettings {
+            enabled,
+            cells: int("cells")?,
+            spacing_mm: real("spacing_mm")?,
+            every_ticks: int("every_ticks")?,
+            latency_ticks: int("latency_ticks")?,
+            regulariser,
+            material_k_per_hu: real("material_k_per_hu")?,
+            material_s_hu: real("material_s_hu")?,
+            schedule: stylet_physics::deform::Schedule {
+                levels: int("levels")?,
+                cycles: int("cycles")?,
+                pre_steps: int("pre_steps")?,
+                post_steps: int("post_steps")?,
+                coarsest_steps: int("coarsest_steps")?,
+                fed_cycle_steps: int("fed_cycle_steps")?,
+            },
+        };
+        d.validate().map_err(|e| format!("session header deformation: {e}"))?;
+        Ok(d)
     }
 }
 

@@ -41,6 +41,7 @@ pub fn header(sim: &Simulation, info: &SessionInfo) -> SessionHeader {
         device: sim.device().name.to_string(),
         initial_tool: *sim.tool_spec(),
         wall_clock_start: crate::wall_clock_now(),
+        deformation: sim.config().deformation,
     }
 }
 

@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use stylet_physics::{Event, Gauge, ToolSpec};
+use stylet_physics::{DeformSettings, Event, Gauge, ToolSpec};
 use stylet_recorder::format::{DigestRecord, TickRecord};
 use stylet_recorder::reader::{self, Limits, Mode};
 use stylet_recorder::{EventRecord, SessionHeader, SessionWriter, WriterOptions};
@@ -28,6 +28,7 @@ fn header() -> SessionHeader {
             stylet_in: true,
         },
         wall_clock_start: "2026-11-22T12:00:00Z".into(),
+        deformation: DeformSettings::default(),
     }
 }
 
@@ -292,6 +293,8 @@ fn schema_v1_fixture_reads() {
     let s = reader::verify(&path).unwrap();
     assert_eq!(s.header.schema_version, 1);
     assert_eq!(s.header.trainee, "alice");
+    // Written before the world model was recorded: no deformation.
+    assert_eq!(s.header.deformation, DeformSettings::off());
     assert!(same(&s.ticks, &ticks));
     assert_eq!(s.digests.len(), 15);
 }
@@ -375,6 +378,29 @@ fn header_fields_are_bounded_and_exact() {
     assert!(with("physics_version", "4294967298".into()).contains("'physics_version' is out of range"));
     assert!(with("wall_clock_start", "yesterday".into()).contains("RFC 3339"));
     assert!(with("atlas_id", "é".repeat(257)).contains("longer than 256 characters"));
+    // The world model: every deformation setting is checked as the simulation checks it.
+    assert!(with("world.deformation.cells", "7".into()).contains("deformation cells 7"));
+    assert!(with("world.deformation.regulariser", "chainmail".into()).contains("'chainmail' is unknown"));
+    assert!(with("world.deformation.enabled", "2".into()).contains("must be 0 or 1"));
+    assert!(with("world.deformation.latency_ticks", "51".into()).contains("latency_ticks 51"));
+    let mut m = good.clone();
+    m.remove("world.deformation.spacing_mm_bits");
+    assert!(
+        SessionHeader::from_metadata(&m)
+            .unwrap_err()
+            .contains("lacks 'world.deformation.spacing_mm_bits'")
+    );
+    let diffusion = SessionHeader {
+        deformation: DeformSettings {
+            regulariser: stylet_physics::Regulariser::Diffusion,
+            ..DeformSettings::off()
+        },
+        ..header()
+    };
+    assert_eq!(
+        SessionHeader::from_metadata(&diffusion.to_metadata()).unwrap(),
+        diffusion
+    );
     // Characters, not bytes: 64 two-byte characters are too many for a name only because they
     // are not ASCII; 256 of them are a valid atlas name.
     let mut m = good.clone();

@@ -444,6 +444,8 @@ mod tests {
             contrast_in_ducts_ml: 0.0,
             extravasated_ml: 0.0,
             contrast_extent_mm: 0.0,
+            tissue_displacement_mm: 0.0,
+            risk_displacement_mm: 0.0,
         }
     }
 

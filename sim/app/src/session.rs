@@ -205,7 +205,9 @@ impl RunningSession {
         let mut moved_by = None;
         let (sim, device, live): (Simulation, Box<dyn Device + Send>, Option<LiveHandle>) = match driver {
             Driver::Hands => {
-                let config = SimConfig::new(DeviceProfile::IDEAL, ToolSpec::Finger);
+                let mut config = SimConfig::new(DeviceProfile::IDEAL, ToolSpec::Finger);
+                // Solves off the haptic thread; the bits are the same (fixed latency).
+                config.deform_in_background = true;
                 let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
                 let (position, orientation) = start_pose(atlas);
                 let (device, handle) = live_device(position, orientation, sim.tick_rate_hz());
@@ -216,7 +218,8 @@ impl RunningSession {
                 (sim, Box::new(device), Some(handle))
             }
             Driver::HidDevice(profile) => {
-                let config = SimConfig::new(profile.physics_profile(), ToolSpec::Finger);
+                let mut config = SimConfig::new(profile.physics_profile(), ToolSpec::Finger);
+                config.deform_in_background = true;
                 let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
                 let (position, orientation) = start_pose(atlas);
                 let (device, handle) = live_device(position, orientation, sim.tick_rate_hz());

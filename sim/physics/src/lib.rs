@@ -8,7 +8,7 @@
 //! table and l(x, d)), [`properties`] (property tree), [`thresholds`] (HU threshold estimation),
 //! [`masks`] and [`distance`] (skin/bone distance maps), [`atlas`] (the validated whole);
 //! the haptic core: [`sim`] (the fixed-step loop), [`needle`] (bendable needle, §3.5),
-//! [`contact`] (finger and ultrasound probe, §3.6), [`contrast`] (contrast agent, §3.3), [`motion`] (breathing hook, §5.4),
+//! [`contact`] (finger and ultrasound probe, §3.6), [`deform`] (local tissue deformation, Chapter 4), [`contrast`] (contrast agent, §3.3), [`motion`] (breathing hook, §5.4),
 //! [`device`] (device profiles), [`events`].
 
 // Numerical code over grids and bands reads best with explicit indices.
@@ -17,6 +17,7 @@
 pub mod atlas;
 pub mod contact;
 pub mod contrast;
+pub mod deform;
 pub mod device;
 pub mod distance;
 pub mod events;
@@ -35,6 +36,7 @@ pub mod volume;
 
 pub use atlas::{AIR_HU, PunctureAtlas};
 pub use contrast::{ContrastAgent, ContrastSettings, ContrastTally};
+pub use deform::{DeformField, DeformSettings, Regulariser};
 pub use device::DeviceProfile;
 pub use events::{Event, ProbeKind, ToolSpec};
 pub use glam;

@@ -12,6 +12,7 @@ use glam::{DQuat, DVec3};
 
 use crate::contact::{ContactFriction, ContactPattern, ContactTool};
 use crate::contrast::{ContrastAgent, ContrastSettings};
+use crate::deform::{self, DeformSettings, DeformState};
 use crate::device::DeviceProfile;
 use crate::events::{Event, ProbeKind, ToolSpec};
 use crate::motion::{self, MotionModel, Static};
@@ -21,7 +22,7 @@ use crate::{LabelId, PunctureAtlas};
 
 /// Version of the physics: bump it with every change that alters any output bit, so a replay
 /// knows which physics graded a session.
-pub const PHYSICS_VERSION: u32 = 3;
+pub const PHYSICS_VERSION: u32 = 4;
 
 /// Default haptic rate.
 pub const DEFAULT_TICK_RATE_HZ: u32 = 1000;
@@ -97,6 +98,10 @@ pub struct TickOutput {
     pub extravasated_ml: f64,
     /// Filled duct length from where contrast entered the ducts (mm, max so far).
     pub contrast_extent_mm: f64,
+    /// Largest tissue displacement of the deformation in effect (mm; thesis Chapter 4).
+    pub tissue_displacement_mm: f64,
+    /// Largest displacement of a segmented risk structure (mm): a vessel pushed aside.
+    pub risk_displacement_mm: f64,
 }
 
 /// The tool in hand.
@@ -114,6 +119,11 @@ pub struct SimConfig {
     pub tool: ToolSpec,
     pub motion: Arc<dyn MotionModel>,
     pub contrast: ContrastSettings,
+    /// Tissue deformation (part of the world model, recorded in the session header).
+    pub deformation: DeformSettings,
+    /// Run each deformation solve on a thread of its own (the live simulator). The bits are the
+    /// same either way: a result enters at its fixed due tick, waited for if late.
+    pub deform_in_background: bool,
 }
 
 impl SimConfig {
@@ -124,6 +134,8 @@ impl SimConfig {
             tool,
             motion: Arc::new(Static),
             contrast: ContrastSettings::default(),
+            deformation: DeformSettings::default(),
+            deform_in_background: false,
         }
     }
 }
@@ -142,6 +154,7 @@ pub struct Simulation {
     xray_on: bool,
     contrast_ml: f64,
     contrast: ContrastAgent,
+    deformation: DeformState,
     /// Device position mapped to reference space on the previous tick (fixed point of §5.4.3).
     device_ref: Option<DVec3>,
     last_position: DVec3,
@@ -177,8 +190,10 @@ impl Simulation {
         }
         let tool_spec = config.tool;
         let contrast = ContrastAgent::new(&atlas, config.contrast)?;
+        config.deformation.validate()?;
         Ok(Simulation {
             contrast,
+            deformation: DeformState::new(config.deformation, config.deform_in_background),
             tool: make_tool(&tool_spec),
             tool_spec,
             atlas,
@@ -218,6 +233,13 @@ impl Simulation {
     /// The contrast agent (eqs. 3.3.1–3.3.2).
     pub fn contrast(&self) -> &ContrastAgent {
         &self.contrast
+    }
+    /// The tissue deformation in effect (thesis Chapter 4).
+    pub fn deformation(&self) -> &DeformState {
+        &self.deformation
+    }
+    pub fn config(&self) -> &SimConfig {
+        &self.config
     }
     pub fn contact(&self) -> Option<&ContactTool> {
         match &self.tool {
@@ -302,6 +324,8 @@ impl Simulation {
             contrast_in_ducts_ml: 0.0,
             extravasated_ml: 0.0,
             contrast_extent_mm: 0.0,
+            tissue_displacement_mm: 0.0,
+            risk_displacement_mm: 0.0,
         };
         let (force, torque) = match &mut self.tool {
             Tool::Needle(n) => {
@@ -350,6 +374,24 @@ impl Simulation {
         out.contrast_in_ducts_ml = tally.in_ducts_ml;
         out.extravasated_ml = tally.extravasated_ml;
         out.contrast_extent_mm = self.contrast.filled_extent_mm();
+        // Deformation at its sub-rate with a fixed latency: enter what is due, then start the
+        // solve for the tool as it is now.
+        self.deformation.enter_due(self.tick);
+        if self.deformation.launch_due(self.tick) {
+            let (centre, points) = match &self.tool {
+                Tool::Needle(n) => {
+                    let centre = n.path().tip().map_or(x_ref, |t| t.pos);
+                    let step = 0.5 * self.config.deformation.spacing_mm;
+                    (centre, deform::tool_points::needle_points(n, step))
+                }
+                Tool::Contact(c) => (x_ref, deform::tool_points::contact_points(c)),
+            };
+            self.deformation.launch(&atlas, self.tick, centre, points);
+        }
+        if let Some(f) = self.deformation.field() {
+            out.tissue_displacement_mm = f.max_displacement_mm();
+            out.risk_displacement_mm = f.risk_displacement_mm();
+        }
         if !self.breath_hold {
             self.breath_time_s = self.tick as f64 / self.config.tick_rate_hz as f64;
         }
@@ -365,6 +407,7 @@ impl Simulation {
         h.u64(u64::from(self.breath_hold) | u64::from(self.xray_on) << 1);
         h.f64(self.contrast_ml);
         self.contrast.digest_into(|v| h.u64(v));
+        self.deformation.digest_into(|v| h.u64(v));
         h.vec(self.last_position);
         for v in self.last_orientation.to_array() {
             h.f64(v);

@@ -1,0 +1,269 @@
+//! One solved displacement field on its placement of Ω_J, and the solve that makes it from the
+//! previous one (thesis Alg. 4.1): place the lattice around the tool, warm-start from the
+//! previous field shifted by whole nodes, impose eqs. 4.2.5–4.2.7, run the schedule.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use glam::DVec3;
+use rayon::prelude::*;
+
+use super::lattice::Lattice;
+use super::material::f_mat;
+use super::solver::{self, Level};
+use super::{DeformSettings, ToolPoint};
+use crate::{PunctureAtlas, Role};
+
+/// What depends only on where Ω_J lies: hard tissue, f_mat and risk structures per node.
+#[derive(Debug)]
+pub struct Placement {
+    pub lattice: Lattice,
+    /// Border or hard tissue (HU ≥ t_fat→bone): u = 0 (eqs. 4.2.5–4.2.6).
+    pub fixed: Vec<bool>,
+    pub f_mat: Vec<f64>,
+    /// The node lies in a segmented risk structure (partial labels, role risk).
+    pub risk: Vec<bool>,
+}
+
+impl Placement {
+    fn new(atlas: &PunctureAtlas, s: &DeformSettings, lattice: Lattice) -> Placement {
+        let n = lattice.n;
+        let bone_hu = atlas.thresholds().fat_bone_hu;
+        let table = atlas.label_table();
+        let mut fixed = vec![false; lattice.len()];
+        let mut fm = vec![0.0; lattice.len()];
+        let mut risk = vec![false; lattice.len()];
+        fixed
+            .par_chunks_mut(n * n)
+            .zip(fm.par_chunks_mut(n * n))
+            .zip(risk.par_chunks_mut(n * n))
+            .enumerate()
+            .for_each(|(k, ((fx, fm), rk))| {
+                for j in 0..n {
+                    for i in 0..n {
+                        let x = lattice.position(i, j, k);
+                        let hu = atlas.hu_at(x);
+                        let o = i + n * j;
+                        fx[o] = lattice.is_border(i, j, k) || hu >= bone_hu;
+                        fm[o] = f_mat(hu, s.material_k_per_hu, s.material_s_hu);
+                        let label = atlas.partial_label_at(x);
+                        rk[o] = label != 0 && table.get(label).is_some_and(|l| l.role == Role::Risk);
+                    }
+                }
+            });
+        Placement {
+            lattice,
+            fixed,
+            f_mat: fm,
+            risk,
+        }
+    }
+}
+
+/// A solved field u (reference → world: x = X + u(X), eq. 4.2.1) on its lattice.
+#[derive(Debug, Clone)]
+pub struct DeformField {
+    placement: Arc<Placement>,
+    u: Vec<DVec3>,
+    /// Nodes that carried a tool condition in this solve.
+    tool_nodes: usize,
+    digest: u64,
+    max_mm: f64,
+    risk_max_mm: f64,
+}
+
+impl DeformField {
+    pub fn lattice(&self) -> &Lattice {
+        &self.placement.lattice
+    }
+    pub fn placement(&self) -> &Placement {
+        &self.placement
+    }
+    /// Nodal displacements (mm), index as [`Lattice::index`].
+    pub fn displacements(&self) -> &[DVec3] {
+        &self.u
+    }
+    /// u(X) by trilinear interpolation, zero outside Ω_J.
+    pub fn displacement(&self, x_ref: DVec3) -> DVec3 {
+        self.placement.lattice.sample(&self.u, x_ref)
+    }
+    pub fn tool_nodes(&self) -> usize {
+        self.tool_nodes
+    }
+    /// Largest |u| over the nodes (mm).
+    pub fn max_displacement_mm(&self) -> f64 {
+        self.max_mm
+    }
+    /// Largest |u| over nodes inside segmented risk structures (mm): a vessel pushed aside.
+    pub fn risk_displacement_mm(&self) -> f64 {
+        self.risk_max_mm
+    }
+    /// Hash of the lattice origin and every displacement bit (computed once per solve).
+    pub fn digest(&self) -> u64 {
+        self.digest
+    }
+
+    /// The reference point X with X + u(X) = `x_world`, by the fixed point X⁺ = x − u(X)
+    /// (thesis §4.3.1, [CLC⁺08]); converges where u is a contraction (|∇u| < 1).
+    pub fn to_reference(&self, x_world: DVec3, iterations: u32) -> DVec3 {
+        let mut x = x_world;
+        for _ in 0..iterations {
+            x = x_world - self.displacement(x);
+        }
+        x
+    }
+}
+
+/// Where Ω_J goes for a tool at `centre`: kept while the centre stays within an eighth of the
+/// cube of the current centre, else re-centred on the world lattice of spacing h (so a shift is
+/// a whole number of nodes and the warm start copies exactly).
+fn place(s: &DeformSettings, prev: Option<&Lattice>, centre: DVec3) -> Lattice {
+    let n = s.cells as usize + 1;
+    let h = s.spacing_mm;
+    if let Some(p) = prev
+        && p.n == n
+        && p.h_mm == h
+        && (centre - p.centre()).abs().max_element() <= h * n as f64 / 8.0
+    {
+        return *p;
+    }
+    let half = 0.5 * h * (n - 1) as f64;
+    let snap = |v: f64| libm::round((v - half) / h) * h;
+    Lattice {
+        n,
+        h_mm: h,
+        origin_mm: DVec3::new(snap(centre.x), snap(centre.y), snap(centre.z)),
+    }
+}
+
+/// The previous field on the new lattice (whole-node shift), zero where it did not reach.
+fn warm_start(prev: Option<&DeformField>, lattice: &Lattice) -> Vec<DVec3> {
+    let mut u = vec![DVec3::ZERO; lattice.len()];
+    let Some(prev) = prev else { return u };
+    let p = prev.lattice();
+    if p.n != lattice.n || p.h_mm != lattice.h_mm {
+        return u;
+    }
+    let off = (lattice.origin_mm - p.origin_mm) / p.h_mm;
+    let off = [
+        libm::round(off.x) as i64,
+        libm::round(off.y) as i64,
+        libm::round(off.z) as i64,
+    ];
+    let n = lattice.n as i64;
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                let (a, b, c) = (i + off[0], j + off[1], k + off[2]);
+                if (0..n).contains(&a) && (0..n).contains(&b) && (0..n).contains(&c) {
+                    u[lattice.index(i as usize, j as usize, k as usize)] =
+                        prev.u[p.index(a as usize, b as usize, c as usize)];
+                }
+            }
+        }
+    }
+    u
+}
+
+/// Tool conditions of eq. 4.2.7 on the nearest interior nodes; several points on one node are
+/// averaged in the order given.
+fn tool_conditions(lattice: &Lattice, points: &[ToolPoint]) -> BTreeMap<usize, DVec3> {
+    let mut acc: BTreeMap<usize, (DVec3, f64)> = BTreeMap::new();
+    for p in points {
+        if !(p.reference_mm.is_finite() && p.displacement_mm.is_finite()) {
+            continue;
+        }
+        if let Some([i, j, k]) = lattice.nearest(p.reference_mm)
+            && !lattice.is_border(i, j, k)
+        {
+            let e = acc.entry(lattice.index(i, j, k)).or_insert((DVec3::ZERO, 0.0));
+            e.0 += p.displacement_mm;
+            e.1 += 1.0;
+        }
+    }
+    acc.into_iter().map(|(i, (s, c))| (i, s / c)).collect()
+}
+
+/// One solve of Alg. 4.1: the field for tool conditions `points` around `centre`, warm-started
+/// from `prev`. A pure function of its arguments.
+pub fn solve(
+    atlas: &PunctureAtlas,
+    s: &DeformSettings,
+    prev: Option<&DeformField>,
+    centre: DVec3,
+    points: &[ToolPoint],
+) -> DeformField {
+    let lattice = place(s, prev.map(DeformField::lattice), centre);
+    let placement = match prev {
+        Some(p) if *p.lattice() == lattice => Arc::clone(&p.placement),
+        _ => Arc::new(Placement::new(atlas, s, lattice)),
+    };
+    let conditions = tool_conditions(&lattice, points);
+    let mut u = if conditions.is_empty() {
+        // Only u = 0 conditions: the converged field is zero; the tissue springs back.
+        vec![DVec3::ZERO; lattice.len()]
+    } else {
+        let mut u = warm_start(prev, &lattice);
+        let mut fixed = placement.fixed.clone();
+        for (i, f) in fixed.iter().enumerate() {
+            if *f {
+                u[i] = DVec3::ZERO;
+            }
+        }
+        for (&i, &v) in &conditions {
+            fixed[i] = true;
+            u[i] = v;
+        }
+        let finest = Level {
+            lattice,
+            fixed,
+            f_mat: placement.f_mat.clone(),
+        };
+        let levels = solver::hierarchy(finest, s.schedule.levels);
+        solver::solve(&levels, s.regulariser, &s.schedule, &mut u, None);
+        u
+    };
+    // Per plane in parallel (non-finite values zeroed, a hash, the largest |u| overall and in
+    // risk structures), then combined in plane order: the same bits on any number of threads.
+    let n = lattice.n;
+    let planes: Vec<(u64, f64, f64)> = u
+        .par_chunks_mut(n * n)
+        .zip(placement.risk.par_chunks(n * n))
+        .map(|(plane, risk)| {
+            let mut h = super::Fnv64::new();
+            let (mut max_mm, mut risk_max_mm) = (0.0f64, 0.0f64);
+            for (v, r) in plane.iter_mut().zip(risk) {
+                if !v.is_finite() {
+                    *v = DVec3::ZERO;
+                }
+                h.f64(v.x);
+                h.f64(v.y);
+                h.f64(v.z);
+                let l = v.length();
+                max_mm = max_mm.max(l);
+                if *r {
+                    risk_max_mm = risk_max_mm.max(l);
+                }
+            }
+            (h.finish(), max_mm, risk_max_mm)
+        })
+        .collect();
+    let mut h = super::Fnv64::new();
+    h.f64(lattice.origin_mm.x);
+    h.f64(lattice.origin_mm.y);
+    h.f64(lattice.origin_mm.z);
+    let (mut max_mm, mut risk_max_mm) = (0.0f64, 0.0f64);
+    for (ph, m, r) in planes {
+        h.u64(ph);
+        max_mm = max_mm.max(m);
+        risk_max_mm = risk_max_mm.max(r);
+    }
+    DeformField {
+        placement,
+        u,
+        tool_nodes: conditions.len(),
+        digest: h.finish(),
+        max_mm,
+        risk_max_mm,
+    }
+}

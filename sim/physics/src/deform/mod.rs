@@ -1,0 +1,172 @@
+//! Local tissue deformation on the voxel grid (thesis Chapter 4, ALGORITHMS.md §5; docs/deformation.md).
+//!
+//! Tissue yields to the needle, the finger and the probe: a displacement field u on a local
+//! lattice Ω_J around the tool (64³ cells, 65³ nodes, by default) minimises a regulariser (diffusion or
+//! Navier–Lamé, eqs. 4.2.13, 4.2.15, weighted by the material function f_mat of eq. 4.2.17) under
+//! Dirichlet conditions: u = 0 on the border of Ω_J and in hard tissue, u = ũ at tool points
+//! (eqs. 4.2.5–4.2.7). The solve is a fixed amount of explicit work warm-started from the
+//! previous field (Alg. 4.1), accelerated by multigrid and Fast Explicit Diffusion (§4.4).
+//!
+//! The deformation is visual and graded, not felt: forces come from the haptic algorithms of
+//! §3.5–3.6 as in the thesis. It is part of the simulation's state ([`crate::Simulation`]): a
+//! solve starts every `every_ticks` ticks from the state at that tick, and its result enters the
+//! state `latency_ticks` later, so the result never depends on how long the solve took or on
+//! which thread ran it; the state digest covers every bit of the field.
+//!
+//! One concept per module: [`lattice`] (Ω_J), [`material`] (f_mat), [`operator`] (the
+//! discretised regularisers), [`solver`] (explicit steps, multigrid, FED), [`field`] (one
+//! solve), [`tool_points`] (ũ from the tools), [`resample`] (the inverse map and J).
+
+pub mod field;
+pub mod lattice;
+pub mod material;
+pub mod operator;
+pub mod resample;
+pub mod solver;
+pub mod state;
+pub mod tool_points;
+
+use glam::DVec3;
+
+pub use field::{DeformField, solve};
+pub use lattice::Lattice;
+pub use operator::Regulariser;
+pub use solver::Schedule;
+pub use state::DeformState;
+
+/// A tool point of eq. 4.2.7: the tissue at `reference_mm` (reference space) is displaced by
+/// `displacement_mm` (it sits at reference + displacement in the world).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ToolPoint {
+    pub reference_mm: DVec3,
+    pub displacement_mm: DVec3,
+}
+
+/// Deformation settings: part of the world model, recorded in every session header, so replay
+/// solves exactly what the simulator solved.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DeformSettings {
+    pub enabled: bool,
+    /// Cells per axis of Ω_J (a multiple of 2^(levels−1), 8 … 128). The lattice has cells + 1
+    /// nodes per axis, so every coarse level's nodes are every second fine node, border on
+    /// border, and a load symmetric about the centre node gives a symmetric field.
+    pub cells: u32,
+    /// Node spacing h (mm).
+    pub spacing_mm: f64,
+    /// A solve starts every this many ticks.
+    pub every_ticks: u32,
+    /// Its result enters the state this many ticks later (1 … every_ticks).
+    pub latency_ticks: u32,
+    pub regulariser: Regulariser,
+    /// k of f_mat (eq. 4.2.17), per HU. The thesis' 0.001 barely separates soft tissues.
+    pub material_k_per_hu: f64,
+    /// s of f_mat (HU).
+    pub material_s_hu: f64,
+    pub schedule: Schedule,
+}
+
+impl Default for DeformSettings {
+    fn default() -> Self {
+        DeformSettings {
+            enabled: true,
+            cells: 64,
+            spacing_mm: 1.0,
+            every_ticks: 50,
+            latency_ticks: 50,
+            regulariser: Regulariser::LinearElastic { poisson_ratio: 0.45 },
+            material_k_per_hu: 0.01,
+            material_s_hu: 175.0,
+            schedule: Schedule {
+                levels: 3,
+                cycles: 1,
+                pre_steps: 2,
+                post_steps: 2,
+                coarsest_steps: 40,
+                fed_cycle_steps: 10,
+            },
+        }
+    }
+}
+
+impl DeformSettings {
+    /// No deformation (the physics of versions ≤ 3).
+    pub fn off() -> Self {
+        DeformSettings {
+            enabled: false,
+            ..DeformSettings::default()
+        }
+    }
+
+    /// Checks every value, naming the first one out of range.
+    pub fn validate(&self) -> Result<(), String> {
+        let s = &self.schedule;
+        if !(1..=4).contains(&s.levels) {
+            return Err(format!("deformation levels {} must be 1 … 4", s.levels));
+        }
+        let unit = 1u32 << (s.levels - 1);
+        if !(8..=128).contains(&self.cells) || !self.cells.is_multiple_of(unit) || self.cells / unit < 4 {
+            return Err(format!(
+                "deformation cells {} must be 8 … 128, a multiple of {unit}, with ≥ 4 cells on the coarsest level",
+                self.cells
+            ));
+        }
+        if !(self.spacing_mm.is_finite() && (0.1..=10.0).contains(&self.spacing_mm)) {
+            return Err(format!("deformation spacing {} mm must be 0.1 … 10", self.spacing_mm));
+        }
+        if !(1..=10_000).contains(&self.every_ticks) {
+            return Err(format!(
+                "deformation every_ticks {} must be 1 … 10000",
+                self.every_ticks
+            ));
+        }
+        if !(1..=self.every_ticks).contains(&self.latency_ticks) {
+            return Err(format!(
+                "deformation latency_ticks {} must be 1 … every_ticks ({})",
+                self.latency_ticks, self.every_ticks
+            ));
+        }
+        self.regulariser.validate()?;
+        if !(self.material_k_per_hu.is_finite() && (0.0..=1.0).contains(&self.material_k_per_hu)) {
+            return Err(format!("material k {} /HU must be 0 … 1", self.material_k_per_hu));
+        }
+        if !(self.material_s_hu.is_finite() && (-1000.0..=3000.0).contains(&self.material_s_hu)) {
+            return Err(format!("material s {} HU must be −1000 … 3000", self.material_s_hu));
+        }
+        for (what, v) in [
+            ("cycles", s.cycles),
+            ("pre_steps", s.pre_steps),
+            ("post_steps", s.post_steps),
+            ("coarsest_steps", s.coarsest_steps),
+            ("fed_cycle_steps", s.fed_cycle_steps),
+        ] {
+            if v > 1000 {
+                return Err(format!("deformation {what} {v} must be ≤ 1000"));
+            }
+        }
+        if s.cycles == 0 || s.coarsest_steps == 0 {
+            return Err("deformation cycles and coarsest_steps must be ≥ 1".into());
+        }
+        Ok(())
+    }
+}
+
+/// FNV-1a over 64-bit words (a field has ~800 000 of them; hashing words, not bytes, keeps the
+/// digest of a 64³ field under a millisecond).
+pub(crate) struct Fnv64(u64);
+
+impl Fnv64 {
+    pub(crate) fn new() -> Self {
+        Fnv64(0xcbf2_9ce4_8422_2325)
+    }
+    pub(crate) fn u64(&mut self, v: u64) {
+        self.0 ^= v;
+        self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
+        self.0 ^= self.0 >> 29;
+    }
+    pub(crate) fn f64(&mut self, v: f64) {
+        self.u64(v.to_bits());
+    }
+    pub(crate) fn finish(&self) -> u64 {
+        self.0
+    }
+}

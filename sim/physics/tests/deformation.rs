@@ -1,0 +1,407 @@
+//! Tissue deformation (thesis Chapter 4): manufactured solutions, multigrid convergence,
+//! symmetry, hard tissue, robustness and determinism of the solve (issue 20 acceptance).
+
+use proptest::prelude::*;
+use stylet_physics::deform::solver::{self, Level, Schedule};
+use stylet_physics::deform::{self, DeformSettings, Lattice, Regulariser, ToolPoint};
+use stylet_physics::glam::DVec3;
+use stylet_physics::labels::HeuristicLabels;
+use stylet_physics::properties::{Param, ParamValue, PropertyTree, TissueSpec};
+use stylet_physics::{Affine, Grid, Label, LabelTable, PunctureAtlas, Role, Thresholds, Volume};
+
+const VESSEL: u16 = 11;
+
+/// An 80³ atlas at 1 mm: soft tissue (40 HU) under air at z > 25 mm (the skin), a bone slab
+/// (700 HU) at x ≥ 20 mm and a vessel (risk) tube along z at (x, y) = (−8, 0), radius 2 mm.
+fn atlas() -> PunctureAtlas {
+    let n = 80;
+    let g = Grid::new([n; 3], Affine::from_spacing([1.0; 3], DVec3::splat(-39.5))).unwrap();
+    let mut ct = vec![40.0f32; g.len()];
+    let mut labels = vec![0u16; g.len()];
+    for i in 0..g.len() {
+        let [a, b, c] = g.unlinear(i);
+        let p = g.voxel_to_world(a, b, c);
+        if p.x >= 20.0 {
+            ct[i] = 700.0;
+        }
+        if p.z > 25.0 {
+            ct[i] = -1000.0;
+        }
+        if ((p.x + 8.0).powi(2) + p.y * p.y).sqrt() < 2.0 {
+            labels[i] = VESSEL;
+        }
+    }
+    let lab = |id, name: &str, role| Label {
+        id,
+        name: name.into(),
+        role,
+        tissue: "body".into(),
+    };
+    let table = LabelTable::new(
+        vec![
+            lab(1, "air", Role::Neutral),
+            lab(2, "skin", Role::Neutral),
+            lab(3, "fat", Role::Neutral),
+            lab(4, "bone", Role::Bone),
+            lab(5, "risk", Role::Risk),
+            lab(VESSEL, "portal vein", Role::Risk),
+        ],
+        HeuristicLabels {
+            air: 1,
+            skin: 2,
+            fat: 3,
+            bone: 4,
+            risk: 5,
+        },
+    )
+    .unwrap();
+    let params = Param::ALL.into_iter().map(|p| (p, ParamValue::Scalar(0.5))).collect();
+    let tree = PropertyTree::new(vec![TissueSpec {
+        name: "body".into(),
+        parent: None,
+        params,
+        color_rgba: None,
+    }])
+    .unwrap();
+    let thresholds = Thresholds {
+        air_skin_hu: -500.0,
+        skin_fat_hu: -300.0,
+        fat_bone_hu: 200.0,
+        risk_depth_mm: 15.0,
+    };
+    PunctureAtlas::new(
+        Volume::new(g, ct).unwrap(),
+        Volume::new(g, labels).unwrap(),
+        table,
+        tree,
+        thresholds,
+    )
+    .unwrap()
+}
+
+fn settings(cells: u32, levels: u32) -> DeformSettings {
+    let mut s = DeformSettings::default();
+    s.cells = cells;
+    s.schedule.levels = levels;
+    s
+}
+
+/// A finger-like push: a 3 × 3 patch of points at `at` pressed 4 mm along −z.
+fn push(at: DVec3) -> Vec<ToolPoint> {
+    let mut v = Vec::new();
+    for a in -1..=1 {
+        for b in -1..=1 {
+            v.push(ToolPoint {
+                reference_mm: at + DVec3::new(a as f64, b as f64, 0.0),
+                displacement_mm: DVec3::new(0.0, 0.0, -4.0),
+            });
+        }
+    }
+    v
+}
+
+fn max_diff(a: &[DVec3], b: &[DVec3]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (*x - *y).length()).fold(0.0, f64::max)
+}
+
+/// Solves A u = g on an n³ lattice of [0, 1]³·30 mm with u on the border and g taken from the
+/// exact field u*(x) = (sin, cos, sin products); returns the largest nodal error.
+fn manufactured_error(reg: Regulariser, n: usize) -> f64 {
+    let side_mm = 30.0;
+    let lattice = Lattice {
+        n,
+        h_mm: side_mm / (n - 1) as f64,
+        origin_mm: DVec3::ZERO,
+    };
+    let w = std::f64::consts::PI / side_mm;
+    let exact = |p: DVec3| {
+        DVec3::new(
+            (w * p.x).sin() * (w * p.y).sin() * (w * p.z).cos(),
+            (w * p.y).sin() * (w * p.z).cos(),
+            (w * p.x).cos() * (w * p.z).sin(),
+        )
+    };
+    // g = L u* evaluated analytically by finite differences of tiny step (≪ h: exact to 1e-7).
+    let (mu, lm) = reg.lame();
+    let e = 1e-3;
+    let d2 = |a: DVec3, b: DVec3, p: DVec3| {
+        (exact(p + a * e + b * e) - exact(p + a * e - b * e) - exact(p - a * e + b * e) + exact(p - a * e - b * e))
+            / (4.0 * e * e)
+    };
+    let axes = [DVec3::X, DVec3::Y, DVec3::Z];
+    let l_exact = |p: DVec3| {
+        let lap = axes.iter().fold(DVec3::ZERO, |s, a| s + d2(*a, *a, p));
+        let gd = DVec3::new(
+            (0..3).map(|j| d2(DVec3::X, axes[j], p)[j]).sum(),
+            (0..3).map(|j| d2(DVec3::Y, axes[j], p)[j]).sum(),
+            (0..3).map(|j| d2(DVec3::Z, axes[j], p)[j]).sum(),
+        );
+        lap * mu + gd * lm
+    };
+    let mut u = vec![DVec3::ZERO; lattice.len()];
+    let mut g = vec![DVec3::ZERO; lattice.len()];
+    let mut fixed = vec![false; lattice.len()];
+    for idx in 0..lattice.len() {
+        let [i, j, k] = lattice.ijk(idx);
+        let p = lattice.position(i, j, k);
+        g[idx] = l_exact(p);
+        if lattice.is_border(i, j, k) {
+            fixed[idx] = true;
+            u[idx] = exact(p);
+        }
+    }
+    let finest = Level {
+        lattice,
+        fixed,
+        f_mat: vec![1.0; lattice.len()],
+    };
+    let levels = solver::hierarchy(finest, 3);
+    let schedule = Schedule {
+        levels: 3,
+        cycles: 400,
+        pre_steps: 3,
+        post_steps: 3,
+        coarsest_steps: 60,
+        fed_cycle_steps: 0,
+    };
+    solver::solve(&levels, reg, &schedule, &mut u, Some(&g));
+    (0..lattice.len())
+        .map(|idx| {
+            let [i, j, k] = lattice.ijk(idx);
+            (u[idx] - exact(lattice.position(i, j, k))).length()
+        })
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn each_operator_solves_a_manufactured_solution_at_second_order() {
+    for reg in [
+        Regulariser::Diffusion,
+        Regulariser::LinearElastic { poisson_ratio: 0.4 },
+    ] {
+        let errors: Vec<f64> = [9, 17, 33].iter().map(|&n| manufactured_error(reg, n)).collect();
+        for w in errors.windows(2) {
+            // h halves: second order means the error falls by ≈ 4.
+            let order = (w[0] / w[1]).log2();
+            assert!(order > 1.7, "{reg:?}: errors {errors:?}");
+        }
+        assert!(errors[2] < 3e-3, "{reg:?}: errors {errors:?}");
+    }
+}
+
+/// The field after `frames` warm-started solves with the same tool points.
+fn frames(atlas: &PunctureAtlas, s: &DeformSettings, points: &[ToolPoint], frames: usize) -> deform::DeformField {
+    frames_at(atlas, s, points, frames, DVec3::new(-2.0, 3.0, 10.0))
+}
+
+fn frames_at(
+    atlas: &PunctureAtlas,
+    s: &DeformSettings,
+    points: &[ToolPoint],
+    frames: usize,
+    centre: DVec3,
+) -> deform::DeformField {
+    let mut f = deform::solve(atlas, s, None, centre, points);
+    for _ in 1..frames {
+        f = deform::solve(atlas, s, Some(&f), centre, points);
+    }
+    f
+}
+
+#[test]
+fn the_multigrid_schedule_converges_to_the_fully_converged_solve() {
+    let atlas = atlas();
+    let points = push(DVec3::new(-2.0, 3.0, 10.0));
+    for reg in [
+        Regulariser::Diffusion,
+        Regulariser::LinearElastic { poisson_ratio: 0.45 },
+    ] {
+        let mut s = settings(32, 3);
+        s.regulariser = reg;
+        let mut converged = s;
+        converged.schedule.cycles = 300;
+        let reference = frames(&atlas, &converged, &points, 1);
+        let err = |f: &deform::DeformField| max_diff(f.displacements(), reference.displacements());
+        let e: Vec<f64> = [1, 5, 40, 150]
+            .iter()
+            .map(|&k| err(&frames(&atlas, &s, &points, k)))
+            .collect();
+        println!("{reg:?}: error after 1, 5, 40, 150 frames {e:?} mm");
+        assert!(e.windows(2).all(|w| w[0] > w[1]) && e[3] < 1e-3, "{reg:?}: {e:?}");
+        // The same number of finest-level steps without the coarse levels is much further off.
+        let mut plain = s;
+        plain.schedule.levels = 1;
+        plain.schedule.coarsest_steps = s.schedule.pre_steps + s.schedule.post_steps;
+        plain.schedule.fed_cycle_steps = 0;
+        let e_plain = err(&frames(&atlas, &plain, &points, 5));
+        assert!(e_plain > 5.0 * e[1], "{reg:?}: plain {e_plain} vs multigrid {}", e[1]);
+    }
+}
+
+#[test]
+fn fed_cycles_converge_faster_than_plain_steps_for_diffusion() {
+    let atlas = atlas();
+    let points = push(DVec3::new(-2.0, 3.0, 10.0));
+    let mut s = settings(32, 1);
+    s.regulariser = Regulariser::Diffusion;
+    s.schedule.coarsest_steps = 40;
+    let mut converged = s;
+    converged.schedule.levels = 3;
+    converged.schedule.cycles = 300;
+    let reference = frames(&atlas, &converged, &points, 1);
+    let mut plain = s;
+    plain.schedule.fed_cycle_steps = 0;
+    let e_fed = max_diff(
+        frames(&atlas, &s, &points, 3).displacements(),
+        reference.displacements(),
+    );
+    let e_plain = max_diff(
+        frames(&atlas, &plain, &points, 3).displacements(),
+        reference.displacements(),
+    );
+    assert!(e_fed < 0.5 * e_plain, "FED {e_fed} vs plain {e_plain}");
+}
+
+#[test]
+fn a_symmetric_load_gives_a_symmetric_field() {
+    let atlas = atlas();
+    let s = settings(32, 3);
+    // The lattice centred on the origin has nodes at −16 … 16 mm: the 3 × 3 patch around node
+    // 16 is symmetric in x and y.
+    let points = push(DVec3::ZERO);
+    let f = frames_at(&atlas, &s, &points, 10, DVec3::ZERO);
+    let l = *f.lattice();
+    assert_eq!(l.origin_mm, DVec3::splat(-16.0));
+    let u = f.displacements();
+    let m = l.n - 1;
+    let mut worst: f64 = 0.0;
+    for idx in 0..l.len() {
+        let [i, j, k] = l.ijk(idx);
+        let a = u[idx];
+        let bx = u[l.index(m - i, j, k)];
+        let by = u[l.index(i, m - j, k)];
+        worst = worst.max((a.x + bx.x).abs() + (a.y - bx.y).abs() + (a.z - bx.z).abs());
+        worst = worst.max((a.x - by.x).abs() + (a.y + by.y).abs() + (a.z - by.z).abs());
+    }
+    assert!(f.max_displacement_mm() > 3.9, "{}", f.max_displacement_mm());
+    assert!(worst < 1e-9, "asymmetry {worst}");
+}
+
+#[test]
+fn hard_tissue_stays_where_it_is() {
+    let atlas = atlas();
+    let s = settings(32, 3);
+    let points = push(DVec3::new(16.0, 0.0, 10.0));
+    let f = frames_at(&atlas, &s, &points, 10, DVec3::new(16.0, 0.0, 10.0));
+    let l = *f.lattice();
+    let (mut bone_nodes, mut moved_soft) = (0, 0);
+    for idx in 0..l.len() {
+        let [i, j, k] = l.ijk(idx);
+        let p = l.position(i, j, k);
+        if atlas.hu_at(p) >= 200.0 {
+            bone_nodes += 1;
+            assert_eq!(f.displacements()[idx], DVec3::ZERO, "bone node at {p} moved");
+        } else if f.displacements()[idx].length() > 0.1 {
+            moved_soft += 1;
+        }
+    }
+    assert!(
+        bone_nodes > 1000 && moved_soft > 100,
+        "{bone_nodes} bone, {moved_soft} moved"
+    );
+}
+
+#[test]
+fn a_vessel_pushed_aside_is_measured() {
+    let atlas = atlas();
+    let s = settings(32, 3);
+    // Pressing beside the vessel at x = −8 moves it; pressing far away barely does.
+    let at = |p: DVec3| frames_at(&atlas, &s, &push(p), 10, p);
+    let near = at(DVec3::new(-5.0, 0.0, 10.0));
+    let far = at(DVec3::new(10.0, 10.0, 10.0));
+    assert!(near.risk_displacement_mm() > 1.0, "{}", near.risk_displacement_mm());
+    assert!(far.risk_displacement_mm() < 0.5 * near.risk_displacement_mm());
+}
+
+#[test]
+fn the_solve_gives_the_same_bits_on_one_and_two_threads() {
+    let atlas = atlas();
+    let s = settings(64, 3);
+    let points = push(DVec3::new(-2.0, 3.0, 10.0));
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| frames(&atlas, &s, &points, 3))
+    };
+    let (a, b) = (run(1), run(2));
+    assert_eq!(a.digest(), b.digest());
+    assert!(
+        a.displacements()
+            .iter()
+            .zip(b.displacements())
+            .all(|(x, y)| x.to_array().map(f64::to_bits) == y.to_array().map(f64::to_bits))
+    );
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(24))]
+    /// Random tool points anywhere (inside bone, on the border, outside Ω_J) and random
+    /// displacements: never NaN, never larger than the largest imposed displacement × 2.
+    #[test]
+    fn no_nan_under_random_tool_motion(
+        pts in prop::collection::vec(((-30.0..30.0f64, -30.0..30.0f64, -10.0..30.0f64), (-8.0..8.0f64, -8.0..8.0f64, -8.0..8.0f64)), 0..40),
+        centre in (-20.0..20.0f64, -20.0..20.0f64, 0.0..20.0f64),
+    ) {
+        let atlas = atlas();
+        let s = settings(16, 2);
+        let points: Vec<ToolPoint> = pts.iter().map(|(p, d)| ToolPoint {
+            reference_mm: DVec3::new(p.0, p.1, p.2),
+            displacement_mm: DVec3::new(d.0, d.1, d.2),
+        }).collect();
+        let c = DVec3::new(centre.0, centre.1, centre.2);
+        let mut f = deform::solve(&atlas, &s, None, c, &points);
+        for shift in 0..3 {
+            f = deform::solve(&atlas, &s, Some(&f), c + DVec3::splat(shift as f64 * 3.0), &points);
+        }
+        let bound = points.iter().map(|p| p.displacement_mm.length()).fold(0.0, f64::max);
+        prop_assert!(f.displacements().iter().all(|v| v.is_finite()));
+        prop_assert!(f.max_displacement_mm() <= 2.0 * bound + 1e-9, "{} vs {bound}", f.max_displacement_mm());
+    }
+}
+
+/// A finger pressed into the skin at z = 25 mm and held: outputs and state digests.
+fn press(background: bool, deformation: DeformSettings) -> Vec<(stylet_physics::TickOutput, u64)> {
+    use stylet_physics::glam::DQuat;
+    use stylet_physics::{DeviceProfile, SimConfig, Simulation, TickInput, ToolSpec};
+    let mut config = SimConfig::new(DeviceProfile::IDEAL, ToolSpec::Finger);
+    config.deformation = deformation;
+    config.deform_in_background = background;
+    let mut sim = Simulation::new(std::sync::Arc::new(atlas()), config).unwrap();
+    // The finger's axis points into the patient: −z.
+    let q = DQuat::from_rotation_x(std::f64::consts::PI);
+    (0..800)
+        .map(|t| {
+            let z = 28.0 - 8.0 * (t.min(400) as f64 / 400.0);
+            let out = sim.step(&TickInput::pose(DVec3::new(-3.0, 2.0, z), q));
+            (out, sim.state_digest())
+        })
+        .collect()
+}
+
+#[test]
+fn a_background_solve_enters_at_the_same_tick_with_the_same_bits() {
+    let s = settings(32, 3);
+    let inline = press(false, s);
+    let background = press(true, s);
+    assert_eq!(inline, background);
+    let last = inline.last().unwrap().0;
+    assert!(last.indentation_mm > 1.0, "{}", last.indentation_mm);
+    assert!(last.tissue_displacement_mm > 1.0, "{}", last.tissue_displacement_mm);
+    // The field enters `latency_ticks` after the solve starts, never earlier.
+    let first = inline.iter().position(|(o, _)| o.tissue_displacement_mm > 0.0).unwrap() as u64;
+    // (Tick t ends at time t + 1, when due results enter.)
+    assert_eq!((first + 1) % u64::from(s.every_ticks), 0);
+    // Deformation is state: the digests differ from a run without it; the forces do not.
+    let off = press(false, DeformSettings::off());
+    assert_ne!(off.last().unwrap().1, inline.last().unwrap().1);
+    assert!(off.iter().zip(&inline).all(|(a, b)| a.0.force_n == b.0.force_n));
+}
