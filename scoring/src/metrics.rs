@@ -112,6 +112,13 @@ pub struct Metrics {
     /// How far the contrast filled the duct system from where it entered (mm).
     #[serde(default)]
     pub contrast_extent_mm: f64,
+    /// Largest tissue displacement of the deformation over the session (mm; thesis Chapter 4).
+    #[serde(default)]
+    pub max_tissue_displacement_mm: f64,
+    /// Largest displacement of a segmented risk structure over the session (mm): a vessel the
+    /// tool pushed aside.
+    #[serde(default)]
+    pub max_risk_displacement_mm: f64,
     pub time_to_target_s: Option<f64>,
     pub time_total_s: f64,
     pub fluoro_time_s: f64,
@@ -231,6 +238,8 @@ pub struct MetricsCollector<'a> {
     contrast_in_ducts_ml: f64,
     extravasated_ml: f64,
     contrast_extent_mm: f64,
+    max_tissue_displacement_mm: f64,
+    max_risk_displacement_mm: f64,
     confirmed_tick: Option<u64>,
     last_exit_tick: Option<u64>,
     xray_ticks: u64,
@@ -504,6 +513,8 @@ impl<'a> MetricsCollector<'a> {
             contrast_in_ducts_ml: 0.0,
             extravasated_ml: 0.0,
             contrast_extent_mm: 0.0,
+            max_tissue_displacement_mm: 0.0,
+            max_risk_displacement_mm: 0.0,
             confirmed_tick: None,
             last_exit_tick: None,
             xray_ticks: 0,
@@ -698,6 +709,8 @@ impl<'a> MetricsCollector<'a> {
         self.contrast_in_ducts_ml = out.contrast_in_ducts_ml;
         self.extravasated_ml = out.extravasated_ml;
         self.contrast_extent_mm = out.contrast_extent_mm;
+        self.max_tissue_displacement_mm = self.max_tissue_displacement_mm.max(out.tissue_displacement_mm);
+        self.max_risk_displacement_mm = self.max_risk_displacement_mm.max(out.risk_displacement_mm);
         if self.stylet_in_target && self.contrast_filled {
             self.confirmed_tick.get_or_insert(tick);
         }
@@ -884,6 +897,8 @@ impl<'a> MetricsCollector<'a> {
             contrast_in_ducts_ml: self.contrast_in_ducts_ml,
             extravasated_ml: self.extravasated_ml,
             contrast_extent_mm: self.contrast_extent_mm,
+            max_tissue_displacement_mm: self.max_tissue_displacement_mm,
+            max_risk_displacement_mm: self.max_risk_displacement_mm,
             time_to_target_s: self.first_target_tick.map(|t| t as f64 / rate),
             time_total_s: self.ticks as f64 / rate,
             fluoro_time_s: self.xray_ticks as f64 / rate,
@@ -943,6 +958,8 @@ pub(crate) mod tests_support {
             contrast_in_ducts_ml: 2.0,
             extravasated_ml: 0.0,
             contrast_extent_mm: 30.0,
+            max_tissue_displacement_mm: 3.0,
+            max_risk_displacement_mm: 0.5,
             time_to_target_s: Some(20.0),
             time_total_s: 60.0,
             fluoro_time_s: 40.0,

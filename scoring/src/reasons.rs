@@ -78,6 +78,7 @@ pub const METRICS: &[MetricInfo] = &[
         "the position in the target was not confirmed (stylet out in the target, and contrast filling the ducts)",
     ),
     m("extravasated_ml", "contrast outside the ducts", Unit::Millilitres),
+    m("risk_displacement_mm", "risk structure pushed aside", Unit::Millimetres),
     m("time_total_s", "total time", Unit::Seconds),
     m("fluoro_time_s", "time under X-ray", Unit::Seconds),
     m("xray_shots", "X-ray shots", Unit::Count),

@@ -319,7 +319,12 @@ fn slice_image(
     spec: &SliceSpec,
     gpu: bool,
 ) -> anyhow::Result<Image> {
-    if gpu {
+    let deformed = moment.is_some_and(|m| m.deformation.is_some());
+    if gpu && deformed {
+        // The GPU slice shader samples the undeformed CT; the deformed slice is CPU-only for now.
+        eprintln!("note: this moment has tissue deformation; its slice is drawn by the CPU renderer");
+    }
+    if gpu && !deformed {
         Ok(views::annotated_slice(&slice_gpu(atlas, spec)?, moment)?)
     } else {
         Ok(views::slice_image(atlas, moment, spec).map_err(|e| anyhow::anyhow!("slice: {e}"))?)

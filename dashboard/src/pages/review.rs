@@ -366,6 +366,13 @@ fn other_metrics(r: &ScoreReport) -> Markup {
         ),
         ("Needle bending (max)", format!("{:.2} mm", m.max_bending_mm)),
         ("Tissue damage", format!("{:.0} mm²", m.tissue_damage_mm2)),
+        (
+            "Tissue displaced (max) · risk structures",
+            format!(
+                "{:.1} mm · {:.1} mm",
+                m.max_tissue_displacement_mm, m.max_risk_displacement_mm
+            ),
+        ),
         ("Bone contacts", m.bone_contacts.to_string()),
         ("Distance to the target", opt(m.target_distance_mm, "mm")),
     ];

@@ -234,6 +234,11 @@ impl Simulation {
     pub fn contrast(&self) -> &ContrastAgent {
         &self.contrast
     }
+    /// Runs later deformation solves on a thread of their own (or inline): the bits stay the same.
+    pub fn set_deform_in_background(&mut self, background: bool) {
+        self.config.deform_in_background = background;
+        self.deformation.set_background(background);
+    }
     /// The tissue deformation in effect (thesis Chapter 4).
     pub fn deformation(&self) -> &DeformState {
         &self.deformation

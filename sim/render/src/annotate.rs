@@ -184,6 +184,54 @@ pub fn annotate(img: &mut Image, spec: &SliceSpec, ann: &Annotations) -> Result<
     Ok(())
 }
 
+/// Height and width of the displacement colour bar (pixels).
+const LEGEND_BAR_PX: (i32, i32) = (120, 12);
+
+/// The displacement colour map's legend in the top-left corner: a vertical bar from 0 (bottom) to
+/// `scale_mm` (top), labelled in mm.
+pub fn displacement_legend(img: &mut Image, scale_mm: f64) -> Result<(), RenderError> {
+    let (w, h) = (img.width as i32, img.height as i32);
+    let (bar_h, bar_w) = LEGEND_BAR_PX;
+    let (x0, y0) = (14, 40);
+    if w < x0 + bar_w + 80 || h < y0 + bar_h + 20 {
+        return Ok(()); // too small a view for a legend
+    }
+    for dy in 0..bar_h {
+        let t = 1.0 - dy as f32 / (bar_h - 1) as f32;
+        let c = crate::mpr::displacement_rgb(t);
+        for dx in 0..bar_w {
+            img.set((x0 + dx) as u32, (y0 + dy) as u32, [c[0], c[1], c[2], 255]);
+        }
+    }
+    ensure_fonts();
+    let mut buf: Vec<u8> = img.rgba.iter().flat_map(|p| [p[0], p[1], p[2]]).collect();
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (img.width, img.height)).into_drawing_area();
+        let draw = |r: Result<(), DrawingAreaErrorKind<_>>| r.map_err(|e| RenderError::Draw(e.to_string()));
+        let text = |t: &str, vp: VPos, at: (i32, i32)| {
+            let font = (SANS, 13).into_font();
+            let st = TextStyle::from(font.clone())
+                .color(&RGBColor(0, 0, 0))
+                .pos(Pos::new(HPos::Left, vp));
+            for (dx, dy) in [(-1, 0), (1, 0), (0, -1), (0, 1)] {
+                draw(root.draw_text(t, &st, (at.0 + dx, at.1 + dy)))?;
+            }
+            let st = TextStyle::from(font)
+                .color(&RGBColor(255, 255, 255))
+                .pos(Pos::new(HPos::Left, vp));
+            draw(root.draw_text(t, &st, at))
+        };
+        text("tissue displacement", VPos::Bottom, (x0, y0 - 4))?;
+        text(&format!("{scale_mm:.0} mm"), VPos::Top, (x0 + bar_w + 5, y0))?;
+        text("0", VPos::Bottom, (x0 + bar_w + 5, y0 + bar_h))?;
+        root.present().map_err(|e| RenderError::Draw(e.to_string()))?;
+    }
+    for (p, q) in img.rgba.iter_mut().zip(buf.chunks_exact(3)) {
+        *p = [q[0], q[1], q[2], 255];
+    }
+    Ok(())
+}
+
 /// Left end and top row of the scale bar: in the bottom-right corner, clear of the bottom letter.
 pub fn bar_origin(bar: &ScaleBar, width: i32, height: i32) -> (i32, i32) {
     (

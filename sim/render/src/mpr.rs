@@ -9,6 +9,8 @@
 //! GPU's MPR shader repeats (docs/rendering.md "MPR"), so the two agree to a grey level.
 
 use rayon::prelude::*;
+use stylet_physics::deform::DeformField;
+use stylet_physics::deform::resample::INVERSE_ITERATIONS;
 use stylet_physics::glam::{DVec3, Vec3};
 use stylet_physics::{AIR_HU, Grid, LabelId, PunctureAtlas};
 
@@ -463,6 +465,106 @@ fn draw(atlas: &PunctureAtlas, spec: &SliceSpec) -> MprImage {
     };
     overlay_labels(atlas, &mut img);
     img
+}
+
+/// Draws a slice of the deformed patient (thesis §5.4.1 "MPR inverts u per pixel"): inside the
+/// deformation's lattice each pixel's world point x is mapped to the reference point X with
+/// X + u(X) = x by the fixed point X⁺ = x − u(X), and the CT and the labels are read there, so the
+/// labels move with the tissue; then the displacement colour map |u(X)| is blended on top of
+/// tissue (CT at X above the atlas' air threshold; [`displacement_rgb`], up to
+/// [`displacement_scale_mm`]).
+pub fn render_spec_deformed(
+    atlas: &PunctureAtlas,
+    spec: &SliceSpec,
+    field: &DeformField,
+) -> Result<MprImage, MprError> {
+    spec.validate()?;
+    let grid = atlas.ct().grid();
+    let dims = grid.dims();
+    let ct = atlas.ct().data();
+    let partial = atlas.partial_labels().data();
+    let frame = spec.index_frame(grid);
+    let (lo, hi) = field.lattice().bounds();
+    let air_hu = atlas.thresholds().air_skin_hu as f32;
+    let (w, h) = (spec.width, spec.height);
+    let mut rgb = vec![[0u8; 3]; w * h];
+    let mut labels: Vec<LabelId> = vec![0; w * h];
+    let mut moved_mm = vec![0.0f32; w * h];
+    rgb.par_chunks_mut(w)
+        .zip(labels.par_chunks_mut(w))
+        .zip(moved_mm.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(row, ((rgb_row, label_row), moved_row))| {
+            for col in 0..w {
+                let x = spec.world(col as f64, row as f64);
+                let (c, moved) = if x.cmpge(lo).all() && x.cmple(hi).all() {
+                    let x_ref = field.to_reference(x, INVERSE_ITERATIONS);
+                    (
+                        grid.world_to_index(x_ref).as_vec3(),
+                        field.displacement(x_ref).length() as f32,
+                    )
+                } else {
+                    (
+                        frame.origin + frame.col_step * col as f32 + frame.row_step * row as f32,
+                        0.0,
+                    )
+                };
+                let hu = sample_ct_f32(ct, dims, c);
+                // Tissue only: air moving with the skin is not shown.
+                moved_row[col] = if hu >= air_hu { moved } else { 0.0 };
+                let g = window_gray_f32(&spec.window, hu);
+                rgb_row[col] = [g, g, g];
+                label_row[col] = nearest_voxel_f32(dims, c).map_or(0, |i| partial[i]);
+            }
+        });
+    let mut img = MprImage {
+        spec: *spec,
+        rgb,
+        labels,
+    };
+    overlay_labels(atlas, &mut img);
+    let scale = displacement_scale_mm(field) as f32;
+    img.rgb.par_iter_mut().zip(moved_mm.par_iter()).for_each(|(px, &m)| {
+        if m < DISPLACEMENT_SHOWN_FROM_MM {
+            return;
+        }
+        let c = displacement_rgb(m / scale);
+        let alpha = 0.6 * ((m - DISPLACEMENT_SHOWN_FROM_MM) / DISPLACEMENT_SHOWN_FROM_MM).min(1.0);
+        for ch in 0..3 {
+            px[ch] = (px[ch] as f32 * (1.0 - alpha) + c[ch] as f32 * alpha).round() as u8;
+        }
+    });
+    Ok(img)
+}
+
+/// Displacements below this are not coloured (mm).
+pub const DISPLACEMENT_SHOWN_FROM_MM: f32 = 0.1;
+
+/// The top of the displacement colour scale: the field's largest |u| rounded up to a whole mm
+/// (at least 1 mm).
+pub fn displacement_scale_mm(field: &DeformField) -> f64 {
+    field.max_displacement_mm().ceil().max(1.0)
+}
+
+/// The displacement colour map at `t` = |u| / scale in 0 … 1: dark blue → cyan → yellow → red
+/// (monotone in lightness up to yellow, so small and large displacements read apart in grey too).
+pub fn displacement_rgb(t: f32) -> [u8; 3] {
+    const STOPS: [(f32, [f32; 3]); 4] = [
+        (0.0, [40.0, 40.0, 200.0]),
+        (0.35, [0.0, 200.0, 230.0]),
+        (0.7, [255.0, 230.0, 0.0]),
+        (1.0, [230.0, 30.0, 20.0]),
+    ];
+    let t = t.clamp(0.0, 1.0);
+    let i = STOPS
+        .iter()
+        .rposition(|(s, _)| *s <= t)
+        .unwrap_or(0)
+        .min(STOPS.len() - 2);
+    let (t0, c0) = STOPS[i];
+    let (t1, c1) = STOPS[i + 1];
+    let f = (t - t0) / (t1 - t0);
+    [0, 1, 2].map(|k| (c0[k] + (c1[k] - c0[k]) * f).round() as u8)
 }
 
 /// The label overlay: a labelled pixel is blended with its label's colour c (RGBA 0 … 255) at

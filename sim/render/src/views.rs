@@ -7,14 +7,14 @@ use std::sync::Arc;
 
 use stylet_atlas::Atlas;
 use stylet_physics::glam::{DVec3, Vec3};
-use stylet_physics::{ProbeKind, Simulation, TickInput, TickOutput};
+use stylet_physics::{DeformField, ProbeKind, Simulation, TickInput, TickOutput};
 
 use crate::RenderError;
 use crate::annotate::{Annotations, annotate};
 use crate::image::Image;
 use crate::mpr::{self, Plane, SliceSpec};
 use crate::presets::{self, Preset};
-use crate::scene::{Camera, ClipPlane, Light, Quality, Scene, Tagging};
+use crate::scene::{Camera, ClipPlane, DeformedRegion, Light, Quality, Scene, Tagging};
 use crate::tools::ToolState;
 use crate::transfer::TransferFunction;
 use crate::ultrasound::{self, EchoTable, FlowField, UltrasoundScene, UltrasoundSettings};
@@ -38,6 +38,9 @@ pub struct Moment {
     /// The device's axis (orientation · +z).
     pub axis: DVec3,
     pub tick: u64,
+    /// The tissue deformation in effect (thesis Chapter 4), if any: the slices invert it per
+    /// pixel and the 3D view samples the deformed sub-image J inside its lattice.
+    pub deformation: Option<Arc<DeformField>>,
 }
 
 /// Who the session is for, to label a [`Moment`].
@@ -81,6 +84,7 @@ impl Moment {
                 out.insertion_dir
             },
             tick: out.tick,
+            deformation: sim.deformation().field().cloned(),
         }
     }
 }
@@ -194,9 +198,18 @@ pub fn annotated_slice(slice: &mpr::MprImage, moment: Option<&Moment>) -> Result
     Ok(image)
 }
 
-/// A slice drawn on the CPU reference renderer, annotated.
+/// A slice drawn on the CPU reference renderer, annotated; with a deformation at the moment, the
+/// deformed patient with its displacement colour map and legend.
 pub fn slice_image(atlas: &Atlas, moment: Option<&Moment>, spec: &SliceSpec) -> Result<Image, ViewError> {
-    annotated_slice(&mpr::render_spec(&atlas.model, spec)?, moment)
+    match moment.and_then(|m| m.deformation.as_deref()) {
+        Some(field) => {
+            let slice = mpr::render_spec_deformed(&atlas.model, spec, field)?;
+            let mut image = annotated_slice(&slice, moment)?;
+            crate::annotate::displacement_legend(&mut image, mpr::displacement_scale_mm(field))?;
+            Ok(image)
+        }
+        None => annotated_slice(&mpr::render_spec(&atlas.model, spec)?, moment),
+    }
 }
 
 /// The default sample distance of the 3D view: two samples per voxel along the finest axis
@@ -220,7 +233,13 @@ pub fn scene_3d(
     let camera = Camera::framing(lo.as_vec3(), hi.as_vec3(), 0.0, 0.0);
     let cut = (tagging != Tagging::Off).then(|| focus(atlas, moment));
     let tools = moment.map(|m| m.tools.clone()).unwrap_or_default();
-    Ok(scene_3d_from(camera, transfer, tagging, cut, tools, step_mm))
+    let mut scene = scene_3d_from(camera, transfer, tagging, cut, tools, step_mm);
+    scene.deformed = moment
+        .and_then(|m| m.deformation.as_deref())
+        .map(|field| DeformedRegion {
+            volume: Arc::new(stylet_physics::deform::resample::deformed_ct(&atlas.model, field)),
+        });
+    Ok(scene)
 }
 
 /// The ray-cast view of the atlas from `azimuth_deg`/`elevation_deg` (see [`Camera::orbit`])

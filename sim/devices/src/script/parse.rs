@@ -70,6 +70,8 @@ pub struct Script {
     /// Script length (s); the last time stamp when absent.
     pub end_s: Option<f64>,
     pub items: Vec<Timed>,
+    /// The world model's tissue deformation (`deformation on|off`, default on).
+    pub deformation: stylet_physics::DeformSettings,
 }
 
 /// The script language version this parser reads.
@@ -385,6 +387,7 @@ pub fn parse(text: &str) -> Result<Script, ParseError> {
         },
         end_s: None,
         items: Vec::new(),
+        deformation: stylet_physics::DeformSettings::default(),
     };
     let mut last_t = f64::NEG_INFINITY;
     for (n, raw) in text.lines().enumerate() {
@@ -424,6 +427,11 @@ pub fn parse(text: &str) -> Result<Script, ParseError> {
             "tool" => {
                 t.pos += 1;
                 script.initial_tool = parse_tool(&mut t)?;
+                t.end()?;
+            }
+            "deformation" => {
+                t.pos += 1;
+                script.deformation.enabled = t.keyword(&["on", "off"])? == "on";
                 t.end()?;
             }
             "end" => {

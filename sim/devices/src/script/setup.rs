@@ -28,6 +28,7 @@ pub fn scripted_simulation(
     let device = ScriptedDevice::new(script, paths).map_err(SetupError::Script)?;
     let mut config = SimConfig::new(script.device, script.initial_tool);
     config.tick_rate_hz = script.rate_hz;
+    config.deformation = script.deformation;
     let sim = Simulation::new(atlas, config).map_err(SetupError::Simulation)?;
     Ok((sim, device))
 }

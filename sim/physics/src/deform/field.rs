@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 use super::lattice::Lattice;
 use super::material::f_mat;
-use super::solver::{self, Level};
+use super::solver::{self, Components, Level};
 use super::{DeformSettings, ToolPoint};
 use crate::{PunctureAtlas, Role};
 
@@ -64,7 +64,8 @@ impl Placement {
 #[derive(Debug, Clone)]
 pub struct DeformField {
     placement: Arc<Placement>,
-    u: Vec<DVec3>,
+    /// u by component (x, y, z), node index as [`Lattice::index`].
+    u: Components,
     /// Nodes that carried a tool condition in this solve.
     tool_nodes: usize,
     digest: u64,
@@ -79,13 +80,22 @@ impl DeformField {
     pub fn placement(&self) -> &Placement {
         &self.placement
     }
-    /// Nodal displacements (mm), index as [`Lattice::index`].
-    pub fn displacements(&self) -> &[DVec3] {
+    /// The displacement at node `idx` (mm), index as [`Lattice::index`].
+    #[inline]
+    pub fn node(&self, idx: usize) -> DVec3 {
+        DVec3::new(self.u[0][idx], self.u[1][idx], self.u[2][idx])
+    }
+    /// Every nodal displacement (mm), index as [`Lattice::index`] (a copy).
+    pub fn displacements(&self) -> Vec<DVec3> {
+        solver::join(&self.u)
+    }
+    /// The nodal displacements by component (x, y, z).
+    pub fn components(&self) -> &Components {
         &self.u
     }
     /// u(X) by trilinear interpolation, zero outside Ω_J.
     pub fn displacement(&self, x_ref: DVec3) -> DVec3 {
-        self.placement.lattice.sample(&self.u, x_ref)
+        self.placement.lattice.sample_with(|i| self.node(i), x_ref)
     }
     pub fn tool_nodes(&self) -> usize {
         self.tool_nodes
@@ -137,12 +147,16 @@ fn place(s: &DeformSettings, prev: Option<&Lattice>, centre: DVec3) -> Lattice {
 }
 
 /// The previous field on the new lattice (whole-node shift), zero where it did not reach.
-fn warm_start(prev: Option<&DeformField>, lattice: &Lattice) -> Vec<DVec3> {
-    let mut u = vec![DVec3::ZERO; lattice.len()];
-    let Some(prev) = prev else { return u };
+fn warm_start(prev: Option<&DeformField>, lattice: &Lattice) -> Components {
+    let len = lattice.len();
+    let zero = || [vec![0.0; len], vec![0.0; len], vec![0.0; len]];
+    let Some(prev) = prev else { return zero() };
     let p = prev.lattice();
     if p.n != lattice.n || p.h_mm != lattice.h_mm {
-        return u;
+        return zero();
+    }
+    if p.origin_mm == lattice.origin_mm {
+        return prev.u.clone();
     }
     let off = (lattice.origin_mm - p.origin_mm) / p.h_mm;
     let off = [
@@ -151,37 +165,94 @@ fn warm_start(prev: Option<&DeformField>, lattice: &Lattice) -> Vec<DVec3> {
         libm::round(off.z) as i64,
     ];
     let n = lattice.n as i64;
-    for k in 0..n {
-        for j in 0..n {
-            for i in 0..n {
-                let (a, b, c) = (i + off[0], j + off[1], k + off[2]);
-                if (0..n).contains(&a) && (0..n).contains(&b) && (0..n).contains(&c) {
-                    u[lattice.index(i as usize, j as usize, k as usize)] =
-                        prev.u[p.index(a as usize, b as usize, c as usize)];
+    let mut u = zero();
+    for (a, comp) in u.iter_mut().enumerate() {
+        comp.par_chunks_mut((n * n) as usize)
+            .enumerate()
+            .for_each(|(k, plane)| {
+                let c = k as i64 + off[2];
+                if !(0..n).contains(&c) {
+                    return;
                 }
-            }
-        }
+                for j in 0..n {
+                    let b = j + off[1];
+                    if !(0..n).contains(&b) {
+                        continue;
+                    }
+                    // Row j of the new plane takes row b of the old plane c, shifted by off[0].
+                    let (lo, hi) = ((-off[0]).max(0), (n - off[0]).min(n));
+                    if lo >= hi {
+                        continue;
+                    }
+                    let src = p.index((lo + off[0]) as usize, b as usize, c as usize);
+                    let dst = (j * n + lo) as usize;
+                    plane[dst..dst + (hi - lo) as usize].copy_from_slice(&prev.u[a][src..src + (hi - lo) as usize]);
+                }
+            });
     }
     u
 }
 
-/// Tool conditions of eq. 4.2.7 on the nearest interior nodes; several points on one node are
-/// averaged in the order given.
+/// Tool conditions of eq. 4.2.7 on the nearest interior node of each point, or on every interior
+/// node within its radius; several points on one node are averaged in the order given.
 fn tool_conditions(lattice: &Lattice, points: &[ToolPoint]) -> BTreeMap<usize, DVec3> {
     let mut acc: BTreeMap<usize, (DVec3, f64)> = BTreeMap::new();
+    let mut add = |i: usize, j: usize, k: usize, v: DVec3| {
+        if !lattice.is_border(i, j, k) {
+            let e = acc.entry(lattice.index(i, j, k)).or_insert((DVec3::ZERO, 0.0));
+            e.0 += v;
+            e.1 += 1.0;
+        }
+    };
     for p in points {
-        if !(p.reference_mm.is_finite() && p.displacement_mm.is_finite()) {
+        if !(p.reference_mm.is_finite() && p.displacement_mm.is_finite() && p.radius_mm.is_finite()) {
             continue;
         }
-        if let Some([i, j, k]) = lattice.nearest(p.reference_mm)
-            && !lattice.is_border(i, j, k)
-        {
-            let e = acc.entry(lattice.index(i, j, k)).or_insert((DVec3::ZERO, 0.0));
-            e.0 += p.displacement_mm;
-            e.1 += 1.0;
+        // At most a few nodes' radius: a patch, not a volume.
+        let r = p.radius_mm.clamp(0.0, 4.0 * lattice.h_mm);
+        if r == 0.0 {
+            if let Some([i, j, k]) = lattice.nearest(p.reference_mm) {
+                add(i, j, k, p.displacement_mm);
+            }
+            continue;
+        }
+        let c = (p.reference_mm - lattice.origin_mm) / lattice.h_mm;
+        let reach = r / lattice.h_mm;
+        let last = (lattice.n - 1) as f64;
+        let lo = (c - DVec3::splat(reach)).ceil().max(DVec3::ZERO);
+        let hi = (c + DVec3::splat(reach)).floor().min(DVec3::splat(last));
+        if lo.x > hi.x || lo.y > hi.y || lo.z > hi.z {
+            continue;
+        }
+        for k in lo.z as usize..=hi.z as usize {
+            for j in lo.y as usize..=hi.y as usize {
+                for i in lo.x as usize..=hi.x as usize {
+                    if (lattice.position(i, j, k) - p.reference_mm).length() <= r {
+                        add(i, j, k, p.displacement_mm);
+                    }
+                }
+            }
         }
     }
     acc.into_iter().map(|(i, (s, c))| (i, s / c)).collect()
+}
+
+/// The Dirichlet nodes and values of a solve on `lattice` (border, hard tissue: 0; tool
+/// points: ũ) as the solve imposes them, for comparisons with other solvers.
+pub fn dirichlet(
+    atlas: &PunctureAtlas,
+    s: &DeformSettings,
+    lattice: &Lattice,
+    points: &[ToolPoint],
+) -> (Vec<bool>, Vec<DVec3>) {
+    let placement = Placement::new(atlas, s, *lattice);
+    let mut fixed = placement.fixed;
+    let mut u = vec![DVec3::ZERO; lattice.len()];
+    for (i, v) in tool_conditions(lattice, points) {
+        fixed[i] = true;
+        u[i] = v;
+    }
+    (fixed, u)
 }
 
 /// One solve of Alg. 4.1: the field for tool conditions `points` around `centre`, warm-started
@@ -199,20 +270,25 @@ pub fn solve(
         _ => Arc::new(Placement::new(atlas, s, lattice)),
     };
     let conditions = tool_conditions(&lattice, points);
+    let len = lattice.len();
     let mut u = if conditions.is_empty() {
         // Only u = 0 conditions: the converged field is zero; the tissue springs back.
-        vec![DVec3::ZERO; lattice.len()]
+        [vec![0.0; len], vec![0.0; len], vec![0.0; len]]
     } else {
         let mut u = warm_start(prev, &lattice);
         let mut fixed = placement.fixed.clone();
-        for (i, f) in fixed.iter().enumerate() {
-            if *f {
-                u[i] = DVec3::ZERO;
-            }
+        for comp in u.iter_mut() {
+            comp.iter_mut().zip(&fixed).for_each(|(v, f)| {
+                if *f {
+                    *v = 0.0;
+                }
+            });
         }
         for (&i, &v) in &conditions {
             fixed[i] = true;
-            u[i] = v;
+            for a in 0..3 {
+                u[a][i] = v[a];
+            }
         }
         let finest = Level {
             lattice,
@@ -226,22 +302,27 @@ pub fn solve(
     // Per plane in parallel (non-finite values zeroed, a hash, the largest |u| overall and in
     // risk structures), then combined in plane order: the same bits on any number of threads.
     let n = lattice.n;
-    let planes: Vec<(u64, f64, f64)> = u
+    let [ux, uy, uz] = &mut u;
+    let planes: Vec<(u64, f64, f64)> = ux
         .par_chunks_mut(n * n)
+        .zip(uy.par_chunks_mut(n * n))
+        .zip(uz.par_chunks_mut(n * n))
         .zip(placement.risk.par_chunks(n * n))
-        .map(|(plane, risk)| {
+        .map(|(((x, y), z), risk)| {
             let mut h = super::Fnv64::new();
             let (mut max_mm, mut risk_max_mm) = (0.0f64, 0.0f64);
-            for (v, r) in plane.iter_mut().zip(risk) {
+            for i in 0..x.len() {
+                let mut v = DVec3::new(x[i], y[i], z[i]);
                 if !v.is_finite() {
-                    *v = DVec3::ZERO;
+                    v = DVec3::ZERO;
+                    (x[i], y[i], z[i]) = (0.0, 0.0, 0.0);
                 }
                 h.f64(v.x);
                 h.f64(v.y);
                 h.f64(v.z);
                 let l = v.length();
                 max_mm = max_mm.max(l);
-                if *r {
+                if risk[i] {
                     risk_max_mm = risk_max_mm.max(l);
                 }
             }

@@ -75,6 +75,12 @@ impl Lattice {
     /// Trilinear interpolation of a nodal field at `x`; zero outside the lattice (u = 0 beyond
     /// ∂Ω_J, eq. 4.2.5).
     pub fn sample(&self, field: &[DVec3], x: DVec3) -> DVec3 {
+        self.sample_with(|i| field[i], x)
+    }
+
+    /// [`Lattice::sample`] of a field given node by node.
+    #[inline]
+    pub fn sample_with(&self, field: impl Fn(usize) -> DVec3, x: DVec3) -> DVec3 {
         let c = (x - self.origin_mm) / self.h_mm;
         let m = (self.n - 1) as f64;
         if !(c.x >= 0.0 && c.y >= 0.0 && c.z >= 0.0 && c.x <= m && c.y <= m && c.z <= m) {
@@ -87,7 +93,7 @@ impl Lattice {
             (c.z as usize).min(last),
         );
         let (fx, fy, fz) = (c.x - i as f64, c.y - j as f64, c.z - k as f64);
-        let v = |di: usize, dj: usize, dk: usize| field[self.index(i + di, j + dj, k + dk)];
+        let v = |di: usize, dj: usize, dk: usize| field(self.index(i + di, j + dj, k + dk));
         let x00 = v(0, 0, 0) * (1.0 - fx) + v(1, 0, 0) * fx;
         let x10 = v(0, 1, 0) * (1.0 - fx) + v(1, 1, 0) * fx;
         let x01 = v(0, 0, 1) * (1.0 - fx) + v(1, 0, 1) * fx;

@@ -35,11 +35,14 @@ pub use solver::Schedule;
 pub use state::DeformState;
 
 /// A tool point of eq. 4.2.7: the tissue at `reference_mm` (reference space) is displaced by
-/// `displacement_mm` (it sits at reference + displacement in the world).
+/// `displacement_mm` (it sits at reference + displacement in the world). With a `radius_mm`, the
+/// condition holds on every lattice node within that distance (a patch of a finger or probe face
+/// between its sparse contact nodes); without, on the nearest node.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ToolPoint {
     pub reference_mm: DVec3,
     pub displacement_mm: DVec3,
+    pub radius_mm: f64,
 }
 
 /// Deformation settings: part of the world model, recorded in every session header, so replay
@@ -71,16 +74,16 @@ impl Default for DeformSettings {
             enabled: true,
             cells: 64,
             spacing_mm: 1.0,
-            every_ticks: 50,
-            latency_ticks: 50,
+            every_ticks: 100,
+            latency_ticks: 100,
             regulariser: Regulariser::LinearElastic { poisson_ratio: 0.45 },
             material_k_per_hu: 0.01,
             material_s_hu: 175.0,
             schedule: Schedule {
                 levels: 3,
                 cycles: 1,
-                pre_steps: 2,
-                post_steps: 2,
+                pre_steps: 1,
+                post_steps: 1,
                 coarsest_steps: 40,
                 fed_cycle_steps: 10,
             },

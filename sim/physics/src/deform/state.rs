@@ -36,6 +36,21 @@ impl Slot {
     }
 }
 
+/// The threads background solves run on: all cores but one, which stays with the haptic loop
+/// (handing a job to a pool costs the haptic thread far less than starting a thread). The solve
+/// gives the same bits on any number of threads.
+fn background_pool() -> &'static rayon::ThreadPool {
+    static POOL: std::sync::OnceLock<rayon::ThreadPool> = std::sync::OnceLock::new();
+    POOL.get_or_init(|| {
+        let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(cores.saturating_sub(1).max(1))
+            .thread_name(|i| format!("stylet-deform-{i}"))
+            .build()
+            .expect("the deformation thread pool starts")
+    })
+}
+
 #[derive(Clone)]
 enum Result {
     /// No tool condition: u = 0 everywhere, nothing to solve.
@@ -67,6 +82,9 @@ impl DeformState {
             pending: None,
             background,
         }
+    }
+    pub fn set_background(&mut self, background: bool) {
+        self.background = background;
     }
     pub fn settings(&self) -> &DeformSettings {
         &self.settings
@@ -109,7 +127,7 @@ impl DeformState {
         let prev = self.field.clone();
         if self.background {
             let (atlas, slot) = (Arc::clone(atlas), Arc::clone(&slot));
-            std::thread::spawn(move || {
+            background_pool().spawn(move || {
                 let f = field::solve(&atlas, &settings, prev.as_deref(), centre, &points);
                 slot.put(Arc::new(f));
             });

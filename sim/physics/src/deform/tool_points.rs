@@ -2,10 +2,17 @@
 //!
 //! - Needle: the channel (path nodes P, reference space) and the needle (nodes N) at the same
 //!   distance d back from the tip, X̃(d) on P and x̃(d) on N, the bendable-needle form of
-//!   eqs. 4.2.2–4.2.3: ũ = x̃(d) − X̃(d) every half node spacing along the inserted length. A tip
-//!   resting on the skin (one path node) pushes the skin point it touched: ũ = tip − p₁.
-//! - Finger and probe: each node in contact drags the skin point under its friction proxy to
-//!   where the node is, ũ = x_i − p_i (indentation plus the tangential stick of §3.6).
+//!   eqs. 4.2.2–4.2.3: ũ = x̃(d) − X̃(d) every half node spacing along the inserted length, plus
+//!   the tissue the shaft's friction drags along: the segment's stick offset Δx_i (eq. 3.5.3)
+//!   along its direction d_i. A tip resting on the skin (one path node) pushes the skin point it
+//!   touched: ũ = tip − p₁.
+//! - Finger and probe: each node in contact x_i, D_skin deep, pushed the skin point above it,
+//!   s* = x_i + D_skin·v_s (v_s the outward skin normal), to where the node is, and the stick of
+//!   §3.6 dragged it along by the tangential part t of the proxy's offset p_i − s_i: X = s* + t, ũ = x_i − X
+//!   (indentation plus tangential drag). (The contact code's s_i = x_i − D_skin·v_s lies as far
+//!   below the node as the skin is above it; only p_i − s_i enters its friction.) Over a
+//!   patch of 0.6 × the pattern's node spacing around it, so the sparse contact nodes press as
+//!   one face rather than as separate needles.
 
 use glam::DVec3;
 
@@ -38,39 +45,88 @@ pub fn needle_points(needle: &NeedleTool, step_mm: f64) -> Vec<ToolPoint> {
         1 => vec![ToolPoint {
             reference_mm: path.nodes()[0].pos,
             displacement_mm: tip - path.nodes()[0].pos,
+            radius_mm: 0.0,
         }],
         _ => {
-            let len = path.inserted_length_mm();
-            let count = (len / step_mm) as usize + 1;
-            let mut out = Vec::with_capacity(count);
-            path.points_from_tip((0..count).map(|i| (i, i as f64 * step_mm)), |i, x_ref, _| {
-                if let Some(x) = polyline_from_end(nodes, i as f64 * step_mm) {
-                    out.push(ToolPoint {
-                        reference_mm: x_ref,
-                        displacement_mm: x - x_ref,
-                    });
+            // Walk the channel from the tip back (segment i joins node i to node i − 1): the
+            // channel point X̃(d), its segment's friction offset Δx_i along d_i, and the needle
+            // point x̃(d) the same distance back from the needle's tip.
+            let p = path.nodes();
+            let mut out = Vec::new();
+            let (mut i, mut behind, mut a) = (p.len() - 1, 0.0, 0.0);
+            while i >= 1 {
+                let seg = (p[i].pos - p[i - 1].pos).length();
+                if a - behind > seg {
+                    behind += seg;
+                    i -= 1;
+                    continue;
                 }
-            });
+                let t = if seg > 0.0 { (a - behind) / seg } else { 0.0 };
+                let x_ref = p[i].pos + (p[i - 1].pos - p[i].pos) * t;
+                let Some(x) = polyline_from_end(nodes, a) else { break };
+                out.push(ToolPoint {
+                    reference_mm: x_ref,
+                    displacement_mm: (x - x_ref) + p[i].tangent * p[i].offset_mm,
+                    radius_mm: 0.0,
+                });
+                a += step_mm;
+            }
             out
         }
     }
 }
 
-/// Tool points of a finger or probe: its nodes in contact.
+/// Tool points of a finger or probe: its nodes in contact, each over its share of the face.
 pub fn contact_points(tool: &ContactTool) -> Vec<ToolPoint> {
+    let radius_mm = 0.6 * node_spacing_mm(tool.pattern().points());
     tool.nodes()
         .iter()
         .filter(|n| n.in_contact)
-        .map(|n| ToolPoint {
-            reference_mm: n.proxy,
-            displacement_mm: n.pos - n.proxy,
+        .map(|n| {
+            // s* = x_i + D·v_s = 2 x_i − s_i, dragged by the tangential part of the stick offset
+            // p_i − s_i (its normal part is the contact code's lag of s_i, not tissue motion).
+            let skin_point = n.pos * 2.0 - n.surface;
+            let v_s = (n.pos - n.surface).normalize_or_zero();
+            let lag = n.proxy - n.surface;
+            let reference_mm = skin_point + (lag - v_s * lag.dot(v_s));
+            ToolPoint {
+                reference_mm,
+                displacement_mm: n.pos - reference_mm,
+                radius_mm,
+            }
         })
         .collect()
+}
+
+/// The largest distance from a node of a contact pattern to its nearest neighbour (0 for one node).
+fn node_spacing_mm(points: &[DVec3]) -> f64 {
+    points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            points
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| *j != i)
+                .map(|(_, q)| (*q - *p).length())
+                .fold(f64::INFINITY, f64::min)
+        })
+        .filter(|d| d.is_finite())
+        .fold(0.0, f64::max)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn contact_patches_cover_the_gaps_between_nodes() {
+        use crate::contact::ContactPattern;
+        // The fingertip's ring lies 4 mm from its centre: patches of 2.4 mm touch.
+        let d = node_spacing_mm(ContactPattern::fingertip().points());
+        assert!((d - 4.0).abs() < 0.2, "{d}");
+        assert_eq!(node_spacing_mm(&[DVec3::ZERO]), 0.0);
+    }
 
     #[test]
     fn polyline_points_run_back_from_the_end() {

@@ -1,0 +1,220 @@
+//! Tissue deformation speed (issue 20; thesis Table 4.1 analogue), on the default phantom with an
+//! 18 G needle 10 cm into the liver along the intercostal path, 2-thread rayon pool:
+//!
+//! - one warm-started solve of the default schedule on 32 and 64 cells (33³ and 65³ nodes), and
+//!   one explicit step on 64 cells as the unit of work (ratios in the same run);
+//! - the haptic tick's median, p99 and p99.9 over 30 s at 1 kHz with deformation off, and on with
+//!   the solves on their own thread (the live simulator's set-up), same trembling needle;
+//! - replay speed of a 1-minute needle session recorded with and without deformation.
+//!
+//! `STYLET_BENCH_EXPORT=DIR` also writes the 64-cell system and the Stylet solution of one
+//! cold-started frame (`fixed.u8`, `u_bc.f64`, `u_stylet.f64`, `meta.json`) for
+//! `benches/deformation/scipy_cg.py DIR`, which solves the same discretised system with
+//! `scipy.sparse.linalg.cg` to the residual Stylet reached. Under `cargo test --all-targets` each
+//! part runs once on a small case: a smoke test.
+
+use std::hint::black_box;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+use criterion::Criterion;
+use stylet_devices::run_headless;
+use stylet_devices::script::{parse, scripted_simulation};
+use stylet_physics::deform::{self, DeformSettings};
+use stylet_physics::glam::DVec3;
+use stylet_physics::{Simulation, TickInput};
+use stylet_recorder::recording::{Recording, SessionInfo, header};
+use stylet_recorder::{WriterOptions, reader};
+
+const NEEDLE_IN: &str = "stylet-script 1\ntool needle gauge 18 length 200\nend 11\nat 0 along intercostal-10-11 -10\nat 10 along intercostal-10-11 100\nat 11 along intercostal-10-11 100\n";
+
+fn main() {
+    let measuring = std::env::args().any(|a| a == "--bench");
+    // SAFETY: no other thread runs yet.
+    unsafe { std::env::set_var("RAYON_NUM_THREADS", "2") };
+    let dir = tempfile::tempdir().unwrap();
+    let p = stylet_atlas::phantom::generate(&Default::default()).unwrap();
+    stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
+    let atlas = stylet_atlas::load(dir.path()).unwrap();
+
+    let (sim, _) = prepared(&atlas, NEEDLE_IN, DeformSettings::default(), false);
+    let needle = sim.needle().expect("a needle");
+    let tip = needle.path().tip().expect("inserted").pos;
+    let points = deform::tool_points::needle_points(needle, 0.5);
+    println!(
+        "needle {:.0} mm inserted, {} tool points",
+        needle.inserted_mm(),
+        points.len()
+    );
+    let mut c = Criterion::default().configure_from_args();
+    if !measuring {
+        c = c
+            .sample_size(10)
+            .warm_up_time(std::time::Duration::from_millis(1))
+            .measurement_time(std::time::Duration::from_millis(1));
+    }
+    let mut g = c.benchmark_group("deformation");
+    g.sample_size(if measuring { 30 } else { 10 });
+    for cells in [32u32, 64] {
+        let s = DeformSettings {
+            cells,
+            ..DeformSettings::default()
+        };
+        let mut field = deform::solve(&atlas.model, &s, None, tip, &points);
+        g.bench_function(format!("solve {cells} cells"), |b| {
+            b.iter(|| {
+                field = deform::solve(&atlas.model, &s, Some(&field), tip, &points);
+                black_box(field.max_displacement_mm())
+            })
+        });
+        if !measuring {
+            break;
+        }
+    }
+    // The unit of work: the same solve with one explicit step and no coarse levels.
+    let one_step = DeformSettings {
+        schedule: deform::Schedule {
+            levels: 1,
+            coarsest_steps: 1,
+            ..DeformSettings::default().schedule
+        },
+        ..DeformSettings::default()
+    };
+    let mut field = deform::solve(&atlas.model, &one_step, None, tip, &points);
+    g.bench_function("one explicit step, 64 cells (with the solve's fixed costs)", |b| {
+        b.iter(|| {
+            field = deform::solve(&atlas.model, &one_step, Some(&field), tip, &points);
+            black_box(field.max_displacement_mm())
+        })
+    });
+    g.finish();
+
+    if let Ok(out) = std::env::var("STYLET_BENCH_EXPORT") {
+        export(&atlas, tip, &points, Path::new(&out));
+    }
+
+    // The haptic tick with deformation off and on (solves on their own thread).
+    let ticks = if measuring { 30_000 } else { 300 };
+    for (name, settings, background) in [
+        ("off", DeformSettings::off(), false),
+        ("on, solves on their own thread", DeformSettings::default(), true),
+    ] {
+        let (mut sim, input) = prepared(&atlas, NEEDLE_IN, settings, background);
+        let (m, p99, p999) = percentiles(&mut sim, &input, ticks);
+        println!("needle tick, deformation {name}: median {m:.2} µs, p99 {p99:.2} µs, p99.9 {p999:.1} µs");
+    }
+
+    // Replay speed of a one-minute needle session.
+    let seconds = if measuring { 60 } else { 2 };
+    let script = format!(
+        "stylet-script 1\ntool needle gauge 18 length 200\nend {seconds}\nat 0 along intercostal-10-11 -10\nat {} along intercostal-10-11 100\nat {seconds} along intercostal-10-11 100\n",
+        seconds * 2 / 3
+    );
+    let mut base = None;
+    for (name, settings) in [("off", DeformSettings::off()), ("on", DeformSettings::default())] {
+        let file = dir.path().join(format!("{name}.mcap"));
+        record(&atlas, &script, settings, &file);
+        let session = reader::read(&file).unwrap();
+        let t = Instant::now();
+        let r = stylet_scoring::replay::replay(&session, Arc::clone(&atlas.model), &mut |_, _, _| {}).unwrap();
+        let s = t.elapsed().as_secs_f64();
+        assert!(r.replay_verified, "{name}: {:?}", r.divergence);
+        let rt = seconds as f64 / s;
+        let ratio = base.map_or(String::new(), |b: f64| format!(", {:.3} of the time without", s / b));
+        base.get_or_insert(s);
+        println!("replay of a {seconds} s needle session, deformation {name}: {s:.3} s = {rt:.1}× real time{ratio}");
+    }
+}
+
+/// Runs a script to its end with the given deformation and returns the simulation and last input.
+fn prepared(atlas: &stylet_atlas::Atlas, text: &str, d: DeformSettings, background: bool) -> (Simulation, TickInput) {
+    let mut script = parse(text).unwrap();
+    script.deformation = d;
+    let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
+    let mut last = None;
+    run_headless(&mut sim, &mut device, |i, _, _| last = Some(i.clone()));
+    if background {
+        sim.set_deform_in_background(true);
+    }
+    (sim, last.unwrap())
+}
+
+/// Median, 99th and 99.9th percentile of single ticks (µs), the device trembling ±5 µm, one
+/// tick per millisecond as in the haptic loop (so a solve on its own thread has the latency's
+/// time to finish before the tick that needs its result).
+fn percentiles(sim: &mut Simulation, input: &TickInput, n: usize) -> (f64, f64, f64) {
+    let axis = sim
+        .needle()
+        .and_then(|n| n.path().tip())
+        .map_or(DVec3::Z, |t| t.tangent);
+    let mut times = Vec::with_capacity(n);
+    let start = Instant::now();
+    for i in 0..n {
+        let mut inp = input.clone();
+        inp.position_mm += axis * if i % 2 == 0 { 0.005 } else { -0.005 };
+        let due = start + std::time::Duration::from_millis(i as u64);
+        while Instant::now() < due {
+            std::hint::spin_loop();
+        }
+        let t = Instant::now();
+        black_box(sim.step(&inp));
+        times.push(t.elapsed().as_secs_f64() * 1e6);
+    }
+    times.sort_by(f64::total_cmp);
+    (times[n / 2], times[n * 99 / 100], times[n * 999 / 1000])
+}
+
+fn record(atlas: &stylet_atlas::Atlas, text: &str, d: DeformSettings, file: &Path) {
+    let mut script = parse(text).unwrap();
+    script.deformation = d;
+    let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
+    let info = SessionInfo {
+        trainee: "bench",
+        scenario: "bench",
+        difficulty: "beginner",
+        seed: 0,
+        atlas_id: &atlas.manifest.name,
+        atlas_hash: &atlas.content_hash,
+    };
+    let mut rec = Recording::start(file, &header(&sim, &info), false, WriterOptions::default()).unwrap();
+    run_headless(&mut sim, &mut device, |i, o, s| rec.tick(i, o, s));
+    rec.finish().unwrap();
+}
+
+/// The 64-cell system of one cold-started frame and Stylet's solution, for scipy_cg.py.
+fn export(atlas: &stylet_atlas::Atlas, tip: DVec3, points: &[deform::ToolPoint], out: &Path) {
+    std::fs::create_dir_all(out).unwrap();
+    let s = DeformSettings::default();
+    let t = Instant::now();
+    let f = deform::solve(&atlas.model, &s, None, tip, points);
+    let ms = t.elapsed().as_secs_f64() * 1e3;
+    let (fixed, u_bc) = deform::field::dirichlet(&atlas.model, &s, f.lattice(), points);
+    let bytes = |v: &[DVec3]| {
+        v.iter()
+            .flat_map(|d| d.to_array())
+            .flat_map(f64::to_le_bytes)
+            .collect::<Vec<u8>>()
+    };
+    std::fs::write(
+        out.join("fixed.u8"),
+        fixed.iter().map(|&b| u8::from(b)).collect::<Vec<u8>>(),
+    )
+    .unwrap();
+    std::fs::write(out.join("u_bc.f64"), bytes(&u_bc)).unwrap();
+    std::fs::write(out.join("u_stylet.f64"), bytes(&f.displacements())).unwrap();
+    let (mu, lm) = s.regulariser.lame();
+    std::fs::write(
+        out.join("meta.json"),
+        format!(
+            "{{\"n\": {}, \"h_mm\": {}, \"mu\": {mu}, \"lambda_plus_mu\": {lm}, \"stylet_cold_solve_ms\": {ms:.3}}}\n",
+            f.lattice().n,
+            f.lattice().h_mm
+        ),
+    )
+    .unwrap();
+    println!(
+        "exported the 64-cell system to {} (cold solve {ms:.1} ms)",
+        out.display()
+    );
+}
