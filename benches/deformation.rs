@@ -38,7 +38,7 @@ fn main() {
     stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
     let atlas = stylet_atlas::load(dir.path()).unwrap();
 
-    let (sim, _) = prepared(&atlas, NEEDLE_IN, DeformSettings::default(), false);
+    let (sim, _) = prepared(&atlas, NEEDLE_IN, DeformSettings::on(), false);
     let needle = sim.needle().expect("a needle");
     let tip = needle.path().tip().expect("inserted").pos;
     let points = deform::tool_points::needle_points(needle, 0.5);
@@ -98,7 +98,7 @@ fn main() {
     let ticks = if measuring { 30_000 } else { 300 };
     for (name, settings, background) in [
         ("off", DeformSettings::off(), false),
-        ("on, solves on their own thread", DeformSettings::default(), true),
+        ("on, solves on their own thread", DeformSettings::on(), true),
     ] {
         let (mut sim, input) = prepared(&atlas, NEEDLE_IN, settings, background);
         let (m, p99, p999) = percentiles(&mut sim, &input, ticks);
@@ -112,7 +112,7 @@ fn main() {
         seconds * 2 / 3
     );
     let mut base = None;
-    for (name, settings) in [("off", DeformSettings::off()), ("on", DeformSettings::default())] {
+    for (name, settings) in [("off", DeformSettings::off()), ("on", DeformSettings::on())] {
         let file = dir.path().join(format!("{name}.mcap"));
         record(&atlas, &script, settings, &file);
         let session = reader::read(&file).unwrap();

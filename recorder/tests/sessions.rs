@@ -28,7 +28,7 @@ fn header() -> SessionHeader {
             stylet_in: true,
         },
         wall_clock_start: "2026-11-22T12:00:00Z".into(),
-        deformation: DeformSettings::default(),
+        deformation: DeformSettings::on(),
     }
 }
 
@@ -382,7 +382,7 @@ fn header_fields_are_bounded_and_exact() {
     assert!(with("world.deformation.cells", "7".into()).contains("deformation cells 7"));
     assert!(with("world.deformation.regulariser", "chainmail".into()).contains("'chainmail' is unknown"));
     assert!(with("world.deformation.enabled", "2".into()).contains("must be 0 or 1"));
-    assert!(with("world.deformation.latency_ticks", "51".into()).contains("latency_ticks 51"));
+    assert!(with("world.deformation.latency_ticks", "101".into()).contains("latency_ticks 101"));
     let mut m = good.clone();
     m.remove("world.deformation.spacing_mm_bits");
     assert!(

@@ -80,7 +80,7 @@ fn atlas() -> PunctureAtlas {
 }
 
 fn settings(cells: u32, levels: u32) -> DeformSettings {
-    let mut s = DeformSettings::default();
+    let mut s = DeformSettings::on();
     s.cells = cells;
     s.schedule.levels = levels;
     s

@@ -70,7 +70,7 @@ pub struct Script {
     /// Script length (s); the last time stamp when absent.
     pub end_s: Option<f64>,
     pub items: Vec<Timed>,
-    /// The world model's tissue deformation (`deformation on|off`, default on).
+    /// The world model's tissue deformation (`deformation on|off`, default off).
     pub deformation: stylet_physics::DeformSettings,
 }
 
