@@ -213,6 +213,24 @@ fn uploads_with_bad_headers_or_ticks_are_refused_with_the_reason() {
             "physics version 99",
         ),
         (
+            "a deformation on a 129³ lattice solved every tick (a scoring worker's hour)",
+            written(
+                dir,
+                "deformation",
+                &with(&|h| {
+                    h.deformation = stylet_physics::DeformSettings {
+                        cells: 128,
+                        every_ticks: 1,
+                        latency_ticks: 1,
+                        ..stylet_physics::DeformSettings::on()
+                    }
+                }),
+                0,
+                100,
+            ),
+            "the session's tissue deformation (128 cells, a solve every 1 ticks) costs",
+        ),
+        (
             "a tick rate of 100 kHz (a hundred times the ticks allowed per minute)",
             written(dir, "rate", &with(&|h| h.tick_rate_hz = 100_000), 0, 100),
             "the session ticks at 100000 Hz; this server accepts 1000 Hz",

@@ -144,6 +144,19 @@ fn check_header(s: &AppState, h: &SessionHeader) -> Result<(), ApiError> {
             stylet_physics::PHYSICS_VERSION
         )));
     }
+    // A scoring worker replays the deformation the header asks for: no more than the
+    // simulator's default costs, in memory and in work per tick.
+    let (asked, budget) = (h.deformation.cost(), stylet_physics::DeformSettings::on().cost());
+    if !asked.within(&budget) {
+        return Err(bad(format!(
+            "the session's tissue deformation ({} cells, a solve every {} ticks) costs {:.1}× the work per tick \
+             and {:.1}× the memory of the simulator's default; this server replays at most the default",
+            h.deformation.cells,
+            h.deformation.every_ticks,
+            asked.node_updates_per_tick / budget.node_updates_per_tick,
+            asked.nodes as f64 / budget.nodes as f64,
+        )));
+    }
     if !scorer.knows_scenario(&h.scenario) {
         return Err(bad(format!(
             "unknown scenario '{}' for atlas '{}' (its scenarios: {})",

@@ -36,7 +36,7 @@ pub mod volume;
 
 pub use atlas::{AIR_HU, PunctureAtlas};
 pub use contrast::{ContrastAgent, ContrastSettings, ContrastTally};
-pub use deform::{DeformField, DeformSettings, Regulariser};
+pub use deform::{DeformCost, DeformField, DeformSettings, Regulariser};
 pub use device::DeviceProfile;
 pub use events::{Event, ProbeKind, ToolSpec};
 pub use glam;

@@ -110,6 +110,43 @@ impl DeformSettings {
         }
     }
 
+    /// What these settings cost a replay, from the schedule alone (no solve): the service
+    /// compares it with the default's before it accepts a session for scoring, so a header
+    /// cannot ask a scoring worker for a 129³ lattice solved every tick.
+    pub fn cost(&self) -> DeformCost {
+        if !self.enabled {
+            return DeformCost {
+                nodes: 0,
+                node_updates_per_tick: 0.0,
+            };
+        }
+        let s = &self.schedule;
+        let nodes_at = |level: u32| -> f64 {
+            let n = f64::from(self.cells >> level) + 1.0;
+            n * n * n
+        };
+        let coarsest = s.levels - 1;
+        // Coarsest level: its steps (FED rounds them up to whole cycles).
+        let coarsest_steps = match self.regulariser {
+            Regulariser::Diffusion if s.fed_cycle_steps > 0 => {
+                s.coarsest_steps.div_ceil(s.fed_cycle_steps) * s.fed_cycle_steps
+            }
+            _ => s.coarsest_steps,
+        };
+        let mut per_cycle = f64::from(coarsest_steps) * nodes_at(coarsest);
+        // Finer levels: smoothing steps and a residual on the level, the coarse residual,
+        // injection, restriction and prolongation on the level below.
+        for level in 0..coarsest {
+            per_cycle += f64::from(s.pre_steps + s.post_steps + 1) * nodes_at(level) + 4.0 * nodes_at(level + 1);
+        }
+        // Placing Ω_J samples the CT and the labels at every node; the field is hashed once.
+        let per_solve = f64::from(s.cycles) * per_cycle + 2.0 * nodes_at(0);
+        DeformCost {
+            nodes: (nodes_at(0) as u64),
+            node_updates_per_tick: per_solve / f64::from(self.every_ticks),
+        }
+    }
+
     /// Checks every value, naming the first one out of range.
     pub fn validate(&self) -> Result<(), String> {
         let s = &self.schedule;
@@ -163,6 +200,22 @@ impl DeformSettings {
     }
 }
 
+/// The work and memory a replay with some [`DeformSettings`] needs: nodes of Ω_J (each holds a
+/// few dozen bytes across the levels and buffers) and lattice-node updates per tick (a model
+/// that counts sweeps, not a timing).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DeformCost {
+    pub nodes: u64,
+    pub node_updates_per_tick: f64,
+}
+
+impl DeformCost {
+    /// Whether this costs no more than `budget`, in memory and in work.
+    pub fn within(&self, budget: &DeformCost) -> bool {
+        self.nodes <= budget.nodes && self.node_updates_per_tick <= budget.node_updates_per_tick
+    }
+}
+
 /// FNV-1a over 64-bit words (a field has ~800 000 of them; hashing words, not bytes, keeps the
 /// digest of a 64³ field under a millisecond).
 pub(crate) struct Fnv64(u64);
@@ -181,5 +234,48 @@ impl Fnv64 {
     }
     pub(crate) fn finish(&self) -> u64 {
         self.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_cost_grows_with_what_a_header_may_ask_for() {
+        let on = DeformSettings::on();
+        let budget = on.cost();
+        assert!(budget.nodes == 65 * 65 * 65 && budget.node_updates_per_tick > 0.0, "{budget:?}");
+        assert_eq!(DeformSettings::off().cost().node_updates_per_tick, 0.0);
+        assert!(on.cost().within(&budget));
+        // Material and latency do not change the work.
+        let softer = DeformSettings {
+            material_k_per_hu: 0.05,
+            latency_ticks: 10,
+            ..on
+        };
+        assert!(softer.cost().within(&budget));
+        // What an attacker would ask for: each alone is over the budget.
+        let schedule = on.schedule;
+        let dearer = [
+            DeformSettings { cells: 128, every_ticks: 10_000, latency_ticks: 1, ..on },
+            DeformSettings { every_ticks: 1, latency_ticks: 1, ..on },
+            DeformSettings { schedule: Schedule { cycles: 1000, ..schedule }, ..on },
+            DeformSettings { schedule: Schedule { pre_steps: 1000, ..schedule }, ..on },
+            DeformSettings { schedule: Schedule { coarsest_steps: 1000, ..schedule }, ..on },
+            DeformSettings { schedule: Schedule { levels: 1, coarsest_steps: 40, ..schedule }, ..on },
+        ];
+        for d in dearer {
+            d.validate().expect("valid, only dear");
+            assert!(!d.cost().within(&budget), "{d:?}: {:?}", d.cost());
+        }
+        // Cheaper ones pass: fewer cells, or solves half as often.
+        let cheaper = [
+            DeformSettings { cells: 32, ..on },
+            DeformSettings { every_ticks: 200, latency_ticks: 200, ..on },
+        ];
+        for d in cheaper {
+            assert!(d.cost().within(&budget), "{d:?}");
+        }
     }
 }
