@@ -245,7 +245,10 @@ mod tests {
     fn the_cost_grows_with_what_a_header_may_ask_for() {
         let on = DeformSettings::on();
         let budget = on.cost();
-        assert!(budget.nodes == 65 * 65 * 65 && budget.node_updates_per_tick > 0.0, "{budget:?}");
+        assert!(
+            budget.nodes == 65 * 65 * 65 && budget.node_updates_per_tick > 0.0,
+            "{budget:?}"
+        );
         assert_eq!(DeformSettings::off().cost().node_updates_per_tick, 0.0);
         assert!(on.cost().within(&budget));
         // Material and latency do not change the work.
@@ -258,12 +261,46 @@ mod tests {
         // What an attacker would ask for: each alone is over the budget.
         let schedule = on.schedule;
         let dearer = [
-            DeformSettings { cells: 128, every_ticks: 10_000, latency_ticks: 1, ..on },
-            DeformSettings { every_ticks: 1, latency_ticks: 1, ..on },
-            DeformSettings { schedule: Schedule { cycles: 1000, ..schedule }, ..on },
-            DeformSettings { schedule: Schedule { pre_steps: 1000, ..schedule }, ..on },
-            DeformSettings { schedule: Schedule { coarsest_steps: 1000, ..schedule }, ..on },
-            DeformSettings { schedule: Schedule { levels: 1, coarsest_steps: 40, ..schedule }, ..on },
+            DeformSettings {
+                cells: 128,
+                every_ticks: 10_000,
+                latency_ticks: 1,
+                ..on
+            },
+            DeformSettings {
+                every_ticks: 1,
+                latency_ticks: 1,
+                ..on
+            },
+            DeformSettings {
+                schedule: Schedule {
+                    cycles: 1000,
+                    ..schedule
+                },
+                ..on
+            },
+            DeformSettings {
+                schedule: Schedule {
+                    pre_steps: 1000,
+                    ..schedule
+                },
+                ..on
+            },
+            DeformSettings {
+                schedule: Schedule {
+                    coarsest_steps: 1000,
+                    ..schedule
+                },
+                ..on
+            },
+            DeformSettings {
+                schedule: Schedule {
+                    levels: 1,
+                    coarsest_steps: 40,
+                    ..schedule
+                },
+                ..on
+            },
         ];
         for d in dearer {
             d.validate().expect("valid, only dear");
@@ -272,7 +309,11 @@ mod tests {
         // Cheaper ones pass: fewer cells, or solves half as often.
         let cheaper = [
             DeformSettings { cells: 32, ..on },
-            DeformSettings { every_ticks: 200, latency_ticks: 200, ..on },
+            DeformSettings {
+                every_ticks: 200,
+                latency_ticks: 200,
+                ..on
+            },
         ];
         for d in cheaper {
             assert!(d.cost().within(&budget), "{d:?}");

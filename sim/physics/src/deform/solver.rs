@@ -106,29 +106,53 @@ enum Sweep {
     Residual,
 }
 
+/// What every row of one sweep shares.
+#[derive(Clone, Copy)]
+struct SweepJob<'a> {
+    u: &'a Components,
+    g: Option<&'a Components>,
+    level: &'a Level,
+    /// (μ, λ + μ, 1/h²).
+    coef: (f64, f64, f64),
+    sweep: Sweep,
+}
+
+/// Partial sums of one row, reused from row to row of a plane.
+struct RowScratch {
+    lap: [f64; MAX_ROW],
+    d: [f64; MAX_ROW],
+}
+
+impl RowScratch {
+    fn new() -> Self {
+        RowScratch {
+            lap: [0.0; MAX_ROW],
+            d: [0.0; MAX_ROW],
+        }
+    }
+}
+
 /// One row of free-node candidates: nodes `c0 .. c0 + m` (an interior row without its two border
 /// nodes). Writes `out[a][0..m]` for the three components. The arithmetic is that of
 /// [`super::operator::apply`] (second differences, then the mixed ones), in component form.
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn row(
-    u: &Components,
-    g: Option<&Components>,
-    level: &Level,
-    c0: usize,
-    m: usize,
-    n: usize,
-    (mu, lm, inv_h2): (f64, f64, f64),
-    sweep: Sweep,
-    out: [&mut [f64]; 3],
-) {
+fn row(job: &SweepJob, c0: usize, m: usize, out: [&mut [f64]; 3], scratch: &mut RowScratch) {
+    let SweepJob {
+        u,
+        g,
+        level,
+        coef,
+        sweep,
+    } = *job;
+    let n = level.lattice.n;
+    let lm = coef.1;
     let s = [1usize, n, n * n];
     // The slice of component `a` shifted by `plus − minus` nodes (all offsets stay inside u for
     // an interior row).
     let sl = |a: usize, plus: usize, minus: usize| &u[a][c0 + plus - minus..][..m];
     let fixed = &level.fixed[c0..][..m];
     let f_mat = &level.f_mat[c0..][..m];
-    const ZEROS: [f64; 256] = [0.0; 256];
+    const ZEROS: [f64; MAX_ROW] = [0.0; MAX_ROW];
     for (a, out) in out.into_iter().enumerate() {
         let (b1, b2) = ((a + 1) % 3, (a + 2) % 3);
         // The two other components b and the offsets of ∂²u_b/∂x_a∂x_b.
@@ -155,12 +179,12 @@ fn row(
         };
         let g = g.map_or(&ZEROS[..m], |g| &g[a][c0..][..m]);
         let out = &mut out[..m];
-        let coef = (mu, lm, inv_h2);
+        let rows = (g, fixed, f_mat, out);
         match (lm == 0.0, sweep) {
-            (true, Sweep::Step(tau)) => kernel::<false, false>(&nb, g, fixed, f_mat, out, coef, tau),
-            (true, Sweep::Residual) => kernel::<false, true>(&nb, g, fixed, f_mat, out, coef, 0.0),
-            (false, Sweep::Step(tau)) => kernel::<true, false>(&nb, g, fixed, f_mat, out, coef, tau),
-            (false, Sweep::Residual) => kernel::<true, true>(&nb, g, fixed, f_mat, out, coef, 0.0),
+            (true, Sweep::Step(tau)) => kernel::<false, false>(&nb, rows, coef, tau, scratch),
+            (true, Sweep::Residual) => kernel::<false, true>(&nb, rows, coef, 0.0, scratch),
+            (false, Sweep::Step(tau)) => kernel::<true, false>(&nb, rows, coef, tau, scratch),
+            (false, Sweep::Residual) => kernel::<true, true>(&nb, rows, coef, 0.0, scratch),
         }
     }
 }
@@ -175,33 +199,55 @@ struct Neighbours<'a> {
     mixed: [[&'a [f64]; 4]; 2],
 }
 
-/// The branch-free inner loop (equal lengths asserted once, so it vectorises).
+/// Longest interior row a sweep handles (`cells` ≤ 128 leaves 127).
+const MAX_ROW: usize = 256;
+
+/// The inner loops, in passes of at most eleven streams each so that every pointer stays in a
+/// register and each loop vectorises (one loop over all nineteen neighbour rows spilled its
+/// pointers and ran scalar). The arithmetic and its order per node are those of
+/// [`super::operator::apply`]: the passes only split where partial sums are kept.
 #[inline(always)]
 fn kernel<const ELASTIC: bool, const RESIDUAL: bool>(
     nb: &Neighbours,
-    g: &[f64],
-    fixed: &[bool],
-    f_mat: &[f64],
-    out: &mut [f64],
+    (g, fixed, f_mat, out): (&[f64], &[bool], &[f64], &mut [f64]),
     (mu, lm, inv_h2): (f64, f64, f64),
     tau: f64,
+    scratch: &mut RowScratch,
 ) {
     let m = out.len();
+    let (lap, d) = (&mut scratch.lap[..m], &mut scratch.d[..m]);
     let uc = &nb.c[..m];
-    let [xp, xm, yp, ym, zp, zm] = nb.faces.map(|f| &f[..m]);
-    let [ap, am] = nb.along.map(|f| &f[..m]);
-    let [[p1, q1, r1, t1], [p2, q2, r2, t2]] = nb.mixed.map(|q| q.map(|f| &f[..m]));
+    // Pass 1: the Laplacian and the second difference along the component's own axis.
+    {
+        let [xp, xm, yp, ym, zp, zm] = nb.faces.map(|f| &f[..m]);
+        for i in 0..m {
+            let two_c = uc[i] + uc[i];
+            lap[i] = (xp[i] + xm[i] - two_c) + (yp[i] + ym[i] - two_c) + (zp[i] + zm[i] - two_c);
+        }
+        if ELASTIC {
+            let [ap, am] = nb.along.map(|f| &f[..m]);
+            for i in 0..m {
+                let two_c = uc[i] + uc[i];
+                d[i] = ap[i] + am[i] - two_c;
+            }
+        }
+    }
+    // Passes 2–3: the mixed differences of the two other components, (daa + d1) + d2.
+    if ELASTIC {
+        for q in &nb.mixed {
+            let [p, q_, r, t] = q.map(|f| &f[..m]);
+            for i in 0..m {
+                d[i] += ((p[i] - q_[i]) - (r[i] - t[i])) * 0.25;
+            }
+        }
+    }
+    // Pass 4: f_mat, the right-hand side, and the step or the residual (Dirichlet nodes kept).
     let (g, fixed, f_mat) = (&g[..m], &fixed[..m], &f_mat[..m]);
     for i in 0..m {
-        let two_c = uc[i] + uc[i];
-        let lap = (xp[i] + xm[i] - two_c) + (yp[i] + ym[i] - two_c) + (zp[i] + zm[i] - two_c);
         let l = if ELASTIC {
-            let daa = ap[i] + am[i] - two_c;
-            let d1 = ((p1[i] - q1[i]) - (r1[i] - t1[i])) * 0.25;
-            let d2 = ((p2[i] - q2[i]) - (r2[i] - t2[i])) * 0.25;
-            (lap * mu + (daa + d1 + d2) * lm) * inv_h2
+            (lap[i] * mu + d[i] * lm) * inv_h2
         } else {
-            lap * (mu * inv_h2)
+            lap[i] * (mu * inv_h2)
         };
         let rhs = l * f_mat[i] - g[i];
         out[i] = if RESIDUAL {
@@ -214,13 +260,56 @@ fn kernel<const ELASTIC: bool, const RESIDUAL: bool>(
     }
 }
 
+/// The interior rows 1 … n−2 of plane `k` (`out`: that plane of each component).
+#[inline(always)]
+fn interior_rows(job: &SweepJob, k: usize, out: [&mut [f64]; 3]) {
+    let n = job.level.lattice.n;
+    let mut scratch = RowScratch::new();
+    let [ox, oy, oz] = out;
+    for j in 1..n - 1 {
+        let r = j * n + 1;
+        row(
+            job,
+            k * n * n + r,
+            n - 2,
+            [&mut ox[r..], &mut oy[r..], &mut oz[r..]],
+            &mut scratch,
+        );
+    }
+}
+
+/// [`interior_rows`] compiled for AVX2 (four lanes): the same IEEE operations per node, so the
+/// same bits (no fused multiply–add: Rust never contracts). Chosen at run time where the CPU
+/// has it.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn interior_rows_avx2(job: &SweepJob, k: usize, out: [&mut [f64]; 3]) {
+    interior_rows(job, k, out)
+}
+
+/// The interior rows of a plane by the widest kernel this CPU runs.
+fn interior_rows_dispatch(job: &SweepJob, k: usize, out: [&mut [f64]; 3]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2 (checked just above).
+        return unsafe { interior_rows_avx2(job, k, out) };
+    }
+    interior_rows(job, k, out)
+}
+
 /// One sweep over the lattice: every free node by [`row`]; Dirichlet and border nodes keep their
 /// value (a step) or get a zero residual.
 fn sweep(level: &Level, reg: Regulariser, sweep: Sweep, u: &Components, g: Option<&Components>, out: &mut Components) {
     let n = level.lattice.n;
     let h = level.lattice.h_mm;
     let (mu, lm) = reg.lame();
-    let coef = (mu, lm, 1.0 / (h * h));
+    let job = SweepJob {
+        u,
+        g,
+        level,
+        coef: (mu, lm, 1.0 / (h * h)),
+        sweep,
+    };
     let plane = |k: usize, o: [&mut [f64]; 3]| {
         let base = k * n * n;
         let [ox, oy, oz] = o;
@@ -245,18 +334,8 @@ fn sweep(level: &Level, reg: Regulariser, sweep: Sweep, u: &Components, g: Optio
                 border(o, a, r, r + 1);
                 border(o, a, r + n - 1, r + n);
             }
-            row(
-                u,
-                g,
-                level,
-                base + r + 1,
-                n - 2,
-                n,
-                coef,
-                sweep,
-                [&mut ox[r + 1..], &mut oy[r + 1..], &mut oz[r + 1..]],
-            );
         }
+        interior_rows_dispatch(&job, k, [ox, oy, oz]);
     };
     let [ox, oy, oz] = out;
     if n >= PARALLEL_FROM_N {
@@ -365,29 +444,43 @@ fn inject(fine: &Lattice, coarse: &Lattice, u: &Components, out: &mut Components
     });
 }
 
-/// u += P e at free fine nodes, P trilinear (fine node f at coarse coordinate f/2).
+/// u += P e at free fine nodes, P trilinear (fine node f at coarse coordinate f/2). Separable:
+/// per fine plane, the coarse rows of its two coarse planes are first interpolated along i to
+/// fine rows, then each fine row mixes two of them along j and the two planes along k; the
+/// products and sums per node are those of the trilinear formula, in its order.
 fn prolong_add(level: &Level, coarse: &Lattice, e: &Components, u: &mut Components) {
     let fine = &level.lattice;
     let n = fine.n;
-    let m = coarse.n - 1;
+    let nc = coarse.n;
+    let m = nc - 1;
     let fixed = &level.fixed;
+    let wi: Vec<(usize, usize, f64)> = (0..n).map(|i| weights(i, m)).collect();
     let plane = |k: usize, o: [&mut [f64]; 3]| {
         let (k0, k1, wk) = weights(k, m);
+        // Fine-resolution rows of the coarse planes k0 and k1: rows[p][jc * n + i].
+        let mut rows = [vec![0.0; nc * n], vec![0.0; nc * n]];
+        let fixed = &fixed[k * n * n..][..n * n];
         for (a, o) in o.into_iter().enumerate() {
             let e = &e[a];
-            let v = |i: usize, j: usize, kk: usize| e[coarse.index(i, j, kk)];
+            for (rows, kc) in rows.iter_mut().zip([k0, k1]) {
+                for jc in 0..nc {
+                    let src = &e[coarse.index(0, jc, kc)..][..nc];
+                    let dst = &mut rows[jc * n..][..n];
+                    for (d, &(i0, i1, w)) in dst.iter_mut().zip(&wi) {
+                        *d = src[i0] * (1.0 - w) + src[i1] * w;
+                    }
+                }
+            }
             for j in 0..n {
                 let (j0, j1, wj) = weights(j, m);
+                let [r00, r10] = [&rows[0][j0 * n..][..n], &rows[0][j1 * n..][..n]];
+                let [r01, r11] = [&rows[1][j0 * n..][..n], &rows[1][j1 * n..][..n]];
+                let (out, fx) = (&mut o[j * n..][..n], &fixed[j * n..][..n]);
                 for i in 0..n {
-                    if fixed[fine.index(i, j, k)] {
-                        continue;
-                    }
-                    let (i0, i1, wi) = weights(i, m);
-                    let x0 = (v(i0, j0, k0) * (1.0 - wi) + v(i1, j0, k0) * wi) * (1.0 - wj)
-                        + (v(i0, j1, k0) * (1.0 - wi) + v(i1, j1, k0) * wi) * wj;
-                    let x1 = (v(i0, j0, k1) * (1.0 - wi) + v(i1, j0, k1) * wi) * (1.0 - wj)
-                        + (v(i0, j1, k1) * (1.0 - wi) + v(i1, j1, k1) * wi) * wj;
-                    o[i + n * j] += x0 * (1.0 - wk) + x1 * wk;
+                    let x0 = r00[i] * (1.0 - wj) + r10[i] * wj;
+                    let x1 = r01[i] * (1.0 - wj) + r11[i] * wj;
+                    let v = x0 * (1.0 - wk) + x1 * wk;
+                    out[i] = if fx[i] { out[i] } else { out[i] + v };
                 }
             }
         }
@@ -541,6 +634,65 @@ pub fn hierarchy(finest: Level, levels: u32) -> Vec<Level> {
 mod tests {
     use super::*;
     use crate::deform::operator;
+
+    /// The rows compiled for AVX2 give the bits of the plain rows (no FMA, same order per node),
+    /// so a session replays alike on any x86-64.
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn the_avx2_rows_give_the_bits_of_the_plain_rows() {
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            // Not skipped silently: without AVX2 the plain rows are the only ones that run.
+            eprintln!("this CPU has no AVX2: only the plain rows run on it");
+            return;
+        }
+        let lattice = Lattice {
+            n: 21,
+            h_mm: 0.7,
+            origin_mm: DVec3::ZERO,
+        };
+        let mut seed = 99u64;
+        let mut rnd = || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let len = lattice.len();
+        let u: Components = [0, 1, 2].map(|_| (0..len).map(|_| rnd()).collect());
+        let g: Components = [0, 1, 2].map(|_| (0..len).map(|_| rnd()).collect());
+        let level = Level {
+            lattice,
+            fixed: (0..len).map(|i| i % 5 == 0).collect(),
+            f_mat: (0..len).map(|_| 0.5 + rnd()).collect(),
+        };
+        let n = lattice.n;
+        for reg in [
+            Regulariser::Diffusion,
+            Regulariser::LinearElastic { poisson_ratio: 0.45 },
+        ] {
+            let (mu, lm) = reg.lame();
+            for sweep in [Sweep::Step(0.07), Sweep::Residual] {
+                let job = SweepJob {
+                    u: &u,
+                    g: Some(&g),
+                    level: &level,
+                    coef: (mu, lm, 1.0 / 0.49),
+                    sweep,
+                };
+                let run = |avx2: bool| {
+                    let mut out: Components = [vec![0.0; n * n], vec![0.0; n * n], vec![0.0; n * n]];
+                    let [x, y, z] = &mut out;
+                    let o = [&mut x[..], &mut y[..], &mut z[..]];
+                    if avx2 {
+                        // SAFETY: AVX2 checked above.
+                        unsafe { interior_rows_avx2(&job, 9, o) }
+                    } else {
+                        interior_rows(&job, 9, o)
+                    }
+                    out.map(|c| c.into_iter().map(f64::to_bits).collect::<Vec<_>>())
+                };
+                assert_eq!(run(true), run(false), "{reg:?}");
+            }
+        }
+    }
 
     /// The vectorised rows compute the reference operator: one step from a random field equals
     /// u + τ·f_mat·apply(u) node by node.
