@@ -146,11 +146,11 @@ fn check_header(s: &AppState, h: &SessionHeader) -> Result<(), ApiError> {
     }
     // A scoring worker replays the deformation the header asks for: no more than the
     // simulator's default costs, in memory and in work per tick.
-    let (asked, budget) = (h.deformation.cost(), stylet_physics::DeformSettings::on().cost());
+    let (asked, budget) = (h.deformation.cost(), stylet_physics::DeformCost::replay_budget());
     if !asked.within(&budget) {
         return Err(bad(format!(
             "the session's tissue deformation ({} cells, a solve every {} ticks) costs {:.1}× the work per tick \
-             and {:.1}× the memory of the simulator's default; this server replays at most the default",
+             and {:.1}× the memory this server allows (the simulator's default, with a quarter's headroom for work)",
             h.deformation.cells,
             h.deformation.every_ticks,
             asked.node_updates_per_tick / budget.node_updates_per_tick,

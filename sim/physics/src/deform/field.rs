@@ -14,13 +14,15 @@ use super::solver::{self, Components, Level};
 use super::{DeformSettings, ToolPoint};
 use crate::{PunctureAtlas, Role};
 
-/// What depends only on where Ω_J lies: hard tissue, f_mat and risk structures per node.
+/// What depends only on where Ω_J lies: hard tissue, f_mat and risk structures per node, and the
+/// multigrid levels with those conditions (each solve adds its tool nodes to a copy of their
+/// `fixed` flags and shares f_mat).
 #[derive(Debug)]
 pub struct Placement {
     pub lattice: Lattice,
-    /// Border or hard tissue (HU ≥ t_fat→bone): u = 0 (eqs. 4.2.5–4.2.6).
-    pub fixed: Vec<bool>,
-    pub f_mat: Vec<f64>,
+    /// Finest first; `levels[0].fixed`: border or hard tissue (HU ≥ t_fat→bone), u = 0
+    /// (eqs. 4.2.5–4.2.6).
+    levels: Vec<Level>,
     /// The node lies in a segmented risk structure (partial labels, role risk).
     pub risk: Vec<bool>,
 }
@@ -51,12 +53,26 @@ impl Placement {
                     }
                 }
             });
-        Placement {
+        let finest = Level {
             lattice,
             fixed,
-            f_mat: fm,
+            f_mat: fm.into(),
+        };
+        Placement {
+            lattice,
+            levels: solver::hierarchy(finest, s.schedule.levels),
             risk,
         }
+    }
+
+    /// Border and hard-tissue nodes (u = 0).
+    pub fn fixed(&self) -> &[bool] {
+        &self.levels[0].fixed
+    }
+
+    /// f_mat at each node (eq. 4.2.17).
+    pub fn f_mat(&self) -> &[f64] {
+        &self.levels[0].f_mat
     }
 }
 
@@ -156,7 +172,15 @@ fn warm_start(prev: Option<&DeformField>, lattice: &Lattice) -> Components {
         return zero();
     }
     if p.origin_mm == lattice.origin_mm {
-        return prev.u.clone();
+        // A plain copy, a plane per task (megabytes: one core's memcpy is the slower way).
+        let mut u = [vec![0.0; len], vec![0.0; len], vec![0.0; len]];
+        let n2 = lattice.n * lattice.n;
+        for (dst, src) in u.iter_mut().zip(&prev.u) {
+            dst.par_chunks_mut(n2)
+                .zip(src.par_chunks(n2))
+                .for_each(|(d, s)| d.copy_from_slice(s));
+        }
+        return u;
     }
     let off = (lattice.origin_mm - p.origin_mm) / p.h_mm;
     let off = [
@@ -246,7 +270,7 @@ pub fn dirichlet(
     points: &[ToolPoint],
 ) -> (Vec<bool>, Vec<DVec3>) {
     let placement = Placement::new(atlas, s, *lattice);
-    let mut fixed = placement.fixed;
+    let mut fixed = placement.fixed().to_vec();
     let mut u = vec![DVec3::ZERO; lattice.len()];
     for (i, v) in tool_conditions(lattice, points) {
         fixed[i] = true;
@@ -276,59 +300,61 @@ pub fn solve(
         [vec![0.0; len], vec![0.0; len], vec![0.0; len]]
     } else {
         let mut u = warm_start(prev, &lattice);
-        let mut fixed = placement.fixed.clone();
+        let fixed = placement.fixed();
         for comp in u.iter_mut() {
-            comp.iter_mut().zip(&fixed).for_each(|(v, f)| {
-                if *f {
-                    *v = 0.0;
-                }
-            });
+            comp.iter_mut()
+                .zip(fixed)
+                .for_each(|(v, &f)| *v = if f { 0.0 } else { *v });
         }
+        let mut tool_nodes = Vec::with_capacity(conditions.len());
         for (&i, &v) in &conditions {
-            fixed[i] = true;
+            tool_nodes.push(i);
             for a in 0..3 {
                 u[a][i] = v[a];
             }
         }
-        let finest = Level {
-            lattice,
-            fixed,
-            f_mat: placement.f_mat.clone(),
-        };
-        let levels = solver::hierarchy(finest, s.schedule.levels);
+        let levels = solver::with_fixed(&placement.levels, &tool_nodes);
         solver::solve(&levels, s.regulariser, &s.schedule, &mut u, None);
         u
     };
     // Per plane in parallel (non-finite values zeroed, a hash, the largest |u| overall and in
     // risk structures), then combined in plane order: the same bits on any number of threads.
+    // Each task hashes four planes with their chains interleaved (a hash is a chain of
+    // dependent multiplies; four at once keep the multiplier busy).
     let n = lattice.n;
     let [ux, uy, uz] = &mut u;
-    let planes: Vec<(u64, f64, f64)> = ux
-        .par_chunks_mut(n * n)
-        .zip(uy.par_chunks_mut(n * n))
-        .zip(uz.par_chunks_mut(n * n))
-        .zip(placement.risk.par_chunks(n * n))
+    const GROUP: usize = 4;
+    let groups: Vec<[(u64, f64, f64); GROUP]> = ux
+        .par_chunks_mut(GROUP * n * n)
+        .zip(uy.par_chunks_mut(GROUP * n * n))
+        .zip(uz.par_chunks_mut(GROUP * n * n))
+        .zip(placement.risk.par_chunks(GROUP * n * n))
         .map(|(((x, y), z), risk)| {
-            let mut h = super::Fnv64::new();
-            let (mut max_mm, mut risk_max_mm) = (0.0f64, 0.0f64);
-            for i in 0..x.len() {
-                let mut v = DVec3::new(x[i], y[i], z[i]);
-                if !v.is_finite() {
-                    v = DVec3::ZERO;
-                    (x[i], y[i], z[i]) = (0.0, 0.0, 0.0);
-                }
-                h.f64(v.x);
-                h.f64(v.y);
-                h.f64(v.z);
-                let l = v.length();
-                max_mm = max_mm.max(l);
-                if risk[i] {
-                    risk_max_mm = risk_max_mm.max(l);
+            let planes = x.len() / (n * n);
+            let mut h = [(); GROUP].map(|()| super::Fnv64::new());
+            let (mut max_mm, mut risk_max_mm) = ([0.0f64; GROUP], [0.0f64; GROUP]);
+            for o in 0..n * n {
+                for p in 0..planes {
+                    let i = p * n * n + o;
+                    let mut v = DVec3::new(x[i], y[i], z[i]);
+                    if !v.is_finite() {
+                        v = DVec3::ZERO;
+                        (x[i], y[i], z[i]) = (0.0, 0.0, 0.0);
+                    }
+                    h[p].f64(v.x);
+                    h[p].f64(v.y);
+                    h[p].f64(v.z);
+                    let l = v.length();
+                    max_mm[p] = max_mm[p].max(l);
+                    if risk[i] {
+                        risk_max_mm[p] = risk_max_mm[p].max(l);
+                    }
                 }
             }
-            (h.finish(), max_mm, risk_max_mm)
+            std::array::from_fn(|p| (h[p].finish(), max_mm[p], risk_max_mm[p]))
         })
         .collect();
+    let planes = groups.into_iter().flatten().take(n);
     let mut h = super::Fnv64::new();
     h.f64(lattice.origin_mm.x);
     h.f64(lattice.origin_mm.y);

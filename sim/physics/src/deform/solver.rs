@@ -2,7 +2,7 @@
 //! pseudo-time u ← u + τ (A u − g) (eqs. 4.2.22–4.2.24, A = f_mat·L) that never change a
 //! Dirichlet node, accelerated by multigrid over the levels 16³ → 32³ → 64³ (thesis §4.4.2) and,
 //! for the diffusion operator, by Fast Explicit Diffusion cycles on the coarsest level. Lattices
-//! have 2^k + 1 nodes per axis (65 → 33 → 17 by default), so the levels nest exactly.
+//! have 2^k + 1 nodes per axis (65 → 33 → 17 → 9 by default), so the levels nest exactly.
 //!
 //! The multigrid is the full-approximation scheme (FAS): a coarse level solves
 //! A_c u_c = A_c(R u) + R_fw(g − A u) from u_c = R u, where R injects (coarse node c is fine node
@@ -12,6 +12,8 @@
 //!
 //! Deterministic and independent of the number of threads: each sweep reads one buffer and
 //! writes another, node by node, with no reduction; planes of the lattice go to rayon tasks.
+
+use std::sync::Arc;
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -45,7 +47,8 @@ pub fn join(c: &Components) -> Vec<DVec3> {
 pub struct Level {
     pub lattice: Lattice,
     pub fixed: Vec<bool>,
-    pub f_mat: Vec<f64>,
+    /// Shared between solves on one placement of Ω_J (only the Dirichlet nodes change).
+    pub f_mat: Arc<[f64]>,
 }
 
 impl Level {
@@ -69,7 +72,45 @@ impl Level {
                 }
             }
         }
-        Level { lattice, fixed, f_mat }
+        Level {
+            lattice,
+            fixed,
+            f_mat: f_mat.into(),
+        }
+    }
+
+    /// Fixes the nodes `new` of this level and returns the nodes of the next coarser level
+    /// that this newly fixes: those whose restriction stencil (2c ± 1 on each axis) holds one of
+    /// them and that were free. Marking level by level gives exactly the levels [`Level::coarsen`]
+    /// builds from the marked finest level, at the cost of the new nodes only.
+    fn fix_and_coarsen(&mut self, new: &[usize], coarse: &Level) -> Vec<usize> {
+        let mut out = Vec::new();
+        let cl = &coarse.lattice;
+        // Coarse coordinates c with |2c − f| ≤ 1: f/2 for even f, (f ± 1)/2 for odd f.
+        let span = |f: usize| {
+            if f % 2 == 0 {
+                f / 2..=f / 2
+            } else {
+                (f - 1) / 2..=(f + 1) / 2
+            }
+        };
+        for &f in new {
+            self.fixed[f] = true;
+            let [i, j, k] = self.lattice.ijk(f);
+            for kc in span(k) {
+                for jc in span(j) {
+                    for ic in span(i) {
+                        let c = cl.index(ic, jc, kc);
+                        if !coarse.fixed[c] {
+                            out.push(c);
+                        }
+                    }
+                }
+            }
+        }
+        out.sort_unstable();
+        out.dedup();
+        out
     }
 
     /// Whether a fine node within one node of (i, j, k) on every axis is fixed.
@@ -102,8 +143,9 @@ pub struct Schedule {
 enum Sweep {
     /// u + τ (f_mat·L u − g).
     Step(f64),
-    /// g − f_mat·L u (the residual).
-    Residual,
+    /// f_mat·L u − g: the residual's negative, which both FAS transfers use (−0 at Dirichlet
+    /// and border nodes: the bits of negating a zero residual).
+    Defect,
 }
 
 /// What every row of one sweep shares.
@@ -182,9 +224,9 @@ fn row(job: &SweepJob, c0: usize, m: usize, out: [&mut [f64]; 3], scratch: &mut 
         let rows = (g, fixed, f_mat, out);
         match (lm == 0.0, sweep) {
             (true, Sweep::Step(tau)) => kernel::<false, false>(&nb, rows, coef, tau, scratch),
-            (true, Sweep::Residual) => kernel::<false, true>(&nb, rows, coef, 0.0, scratch),
+            (true, Sweep::Defect) => kernel::<false, true>(&nb, rows, coef, 0.0, scratch),
             (false, Sweep::Step(tau)) => kernel::<true, false>(&nb, rows, coef, tau, scratch),
-            (false, Sweep::Residual) => kernel::<true, true>(&nb, rows, coef, 0.0, scratch),
+            (false, Sweep::Defect) => kernel::<true, true>(&nb, rows, coef, 0.0, scratch),
         }
     }
 }
@@ -207,7 +249,7 @@ const MAX_ROW: usize = 256;
 /// pointers and ran scalar). The arithmetic and its order per node are those of
 /// [`super::operator::apply`]: the passes only split where partial sums are kept.
 #[inline(always)]
-fn kernel<const ELASTIC: bool, const RESIDUAL: bool>(
+fn kernel<const ELASTIC: bool, const DEFECT: bool>(
     nb: &Neighbours,
     (g, fixed, f_mat, out): (&[f64], &[bool], &[f64], &mut [f64]),
     (mu, lm, inv_h2): (f64, f64, f64),
@@ -250,8 +292,8 @@ fn kernel<const ELASTIC: bool, const RESIDUAL: bool>(
             lap[i] * (mu * inv_h2)
         };
         let rhs = l * f_mat[i] - g[i];
-        out[i] = if RESIDUAL {
-            if fixed[i] { 0.0 } else { -rhs }
+        out[i] = if DEFECT {
+            if fixed[i] { -0.0 } else { rhs }
         } else if fixed[i] {
             uc[i]
         } else {
@@ -315,7 +357,7 @@ fn sweep(level: &Level, reg: Regulariser, sweep: Sweep, u: &Components, g: Optio
         let [ox, oy, oz] = o;
         let border = |o: &mut [f64], a: usize, lo: usize, hi: usize| match sweep {
             Sweep::Step(_) => o[lo..hi].copy_from_slice(&u[a][base + lo..base + hi]),
-            Sweep::Residual => o[lo..hi].fill(0.0),
+            Sweep::Defect => o[lo..hi].fill(-0.0),
         };
         if k == 0 || k == n - 1 {
             // A border plane: u = 0 (eq. 4.2.5).
@@ -404,26 +446,43 @@ fn per_coarse_plane(nc: usize, out: &mut Components, f: impl Fn(usize, [&mut [f6
 }
 
 /// `out −= R_fw r` at interior coarse nodes: full weighting, the (¼, ½, ¼)³-weighted mean of the
-/// fine nodes around 2c.
+/// fine nodes around 2c. Separable: each fine row of the three fine planes around a coarse
+/// plane is first weighted along i, then nine such values are summed per coarse node in the
+/// order of the full stencil (k outer, j inner), so the bits are those of the direct sum.
 fn subtract_restricted(fine: &Lattice, coarse: &Lattice, r: &Components, out: &mut Components) {
     const W: [f64; 3] = [0.25, 0.5, 0.25];
-    let nc = coarse.n;
+    let (n, nc) = (fine.n, coarse.n);
     per_coarse_plane(nc, out, |k, o| {
         if k == 0 || k == nc - 1 {
             return;
         }
+        // rows[dk][jf * nc + i]: fine row jf of fine plane 2k + dk − 1, weighted along i.
+        let mut rows = [vec![0.0; n * nc], vec![0.0; n * nc], vec![0.0; n * nc]];
         for (a, o) in o.into_iter().enumerate() {
+            for (dk, rows) in rows.iter_mut().enumerate() {
+                for jf in 0..n {
+                    let src = &r[a][fine.index(0, jf, 2 * k + dk - 1)..][..n];
+                    let dst = &mut rows[jf * nc..][..nc];
+                    for i in 1..nc - 1 {
+                        dst[i] = src[2 * i - 1] * W[0] + src[2 * i] * W[1] + src[2 * i + 1] * W[2];
+                    }
+                }
+            }
+            let mut s = vec![0.0; nc];
             for j in 1..nc - 1 {
-                for i in 1..nc - 1 {
-                    let mut s = 0.0;
-                    for (dk, wk) in W.iter().enumerate() {
-                        for (dj, wj) in W.iter().enumerate() {
-                            let base = fine.index(2 * i - 1, 2 * j + dj - 1, 2 * k + dk - 1);
-                            let rr = &r[a][base..base + 3];
-                            s += (rr[0] * W[0] + rr[1] * W[1] + rr[2] * W[2]) * (wj * wk);
+                let out = &mut o[nc * j..][..nc];
+                s.fill(0.0);
+                for (dk, wk) in W.iter().enumerate() {
+                    for (dj, wj) in W.iter().enumerate() {
+                        let w = wj * wk;
+                        let row = &rows[dk][(2 * j + dj - 1) * nc..][..nc];
+                        for i in 1..nc - 1 {
+                            s[i] += row[i] * w;
                         }
                     }
-                    o[i + nc * j] -= s;
+                }
+                for i in 1..nc - 1 {
+                    out[i] -= s[i];
                 }
             }
         }
@@ -573,14 +632,13 @@ fn v_cycle(
     let coarse = &levels[l + 1];
     let nc = coarse.lattice.len();
     let r = sized(&mut b.residual, len);
-    sweep(level, reg, Sweep::Residual, u, g, r);
+    sweep(level, reg, Sweep::Defect, u, g, r);
     let u_c0 = sized(&mut b.u_c0, nc);
     inject(&level.lattice, &coarse.lattice, u, u_c0);
-    // g_c = A_c(R u) + R_fw(r): the coarse right-hand side of FAS (A_c u = −residual with g = 0).
+    // g_c = A_c(R u) + R_fw(g − A u) = A_c(R u) − R_fw(defect): the coarse right-hand side
+    // of FAS (A_c u is the defect with g = 0).
     let g_c = sized(&mut b.g_c, nc);
-    sweep(coarse, reg, Sweep::Residual, u_c0, None, g_c);
-    g_c.iter_mut().for_each(|c| c.iter_mut().for_each(|v| *v = -*v));
-    r.iter_mut().for_each(|c| c.iter_mut().for_each(|v| *v = -*v));
+    sweep(coarse, reg, Sweep::Defect, u_c0, None, g_c);
     subtract_restricted(&level.lattice, &coarse.lattice, r, g_c);
     let u_c = sized(&mut b.u_c, nc);
     for a in 0..3 {
@@ -630,10 +688,73 @@ pub fn hierarchy(finest: Level, levels: u32) -> Vec<Level> {
     out
 }
 
+/// The levels of `base` (a [`hierarchy`]) with the finest-level nodes `new` fixed as well, and
+/// every coarse node that fixes in turn: equal to the hierarchy of the marked finest level.
+pub fn with_fixed(base: &[Level], new: &[usize]) -> Vec<Level> {
+    let mut levels = base.to_vec();
+    let mut new = new.to_vec();
+    for l in 0..levels.len() {
+        let (this, below) = levels.split_at_mut(l + 1);
+        match below.first() {
+            Some(coarse) => new = this[l].fix_and_coarsen(&new, coarse),
+            None => new.iter().for_each(|&f| this[l].fixed[f] = true),
+        }
+    }
+    levels
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::deform::operator;
+
+    /// Fixing tool nodes on a cached hierarchy gives the levels built from scratch.
+    #[test]
+    fn marking_a_cached_hierarchy_equals_coarsening_the_marked_lattice() {
+        let lattice = Lattice {
+            n: 33,
+            h_mm: 1.0,
+            origin_mm: DVec3::ZERO,
+        };
+        let len = lattice.len();
+        let base_fixed: Vec<bool> = (0..len)
+            .map(|i| {
+                let [a, b, c] = lattice.ijk(i);
+                lattice.is_border(a, b, c) || (a > 20 && b < 9)
+            })
+            .collect();
+        let f_mat: Arc<[f64]> = (0..len).map(|i| (i % 13) as f64 / 13.0).collect();
+        let base = hierarchy(
+            Level {
+                lattice,
+                fixed: base_fixed.clone(),
+                f_mat: Arc::clone(&f_mat),
+            },
+            4,
+        );
+        assert_eq!(base.len(), 4);
+        // Tool nodes on even and odd coordinates, some already fixed, one twice.
+        let new: Vec<usize> = [[5, 5, 5], [6, 7, 8], [21, 3, 4], [30, 30, 1], [5, 5, 5], [15, 16, 17]]
+            .iter()
+            .map(|&[i, j, k]| lattice.index(i, j, k))
+            .collect();
+        let mut marked = base_fixed;
+        new.iter().for_each(|&i| marked[i] = true);
+        let want = hierarchy(
+            Level {
+                lattice,
+                fixed: marked,
+                f_mat,
+            },
+            4,
+        );
+        let got = with_fixed(&base, &new);
+        for (l, (g, w)) in got.iter().zip(&want).enumerate() {
+            assert_eq!(g.fixed, w.fixed, "level {l}");
+            assert_eq!(g.f_mat, w.f_mat, "level {l}");
+        }
+        assert!(got[1].fixed.iter().filter(|&&f| f).count() > base[1].fixed.iter().filter(|&&f| f).count());
+    }
 
     /// The rows compiled for AVX2 give the bits of the plain rows (no FMA, same order per node),
     /// so a session replays alike on any x86-64.
@@ -669,7 +790,7 @@ mod tests {
             Regulariser::LinearElastic { poisson_ratio: 0.45 },
         ] {
             let (mu, lm) = reg.lame();
-            for sweep in [Sweep::Step(0.07), Sweep::Residual] {
+            for sweep in [Sweep::Step(0.07), Sweep::Defect] {
                 let job = SweepJob {
                     u: &u,
                     g: Some(&g),
@@ -719,7 +840,7 @@ mod tests {
         let level = Level {
             lattice,
             fixed: fixed.clone(),
-            f_mat: f_mat.clone(),
+            f_mat: f_mat.clone().into(),
         };
         for reg in [
             Regulariser::Diffusion,
