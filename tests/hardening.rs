@@ -231,6 +231,24 @@ fn uploads_with_bad_headers_or_ticks_are_refused_with_the_reason() {
             "the session's tissue deformation (128 cells, a solve every 1 ticks) costs",
         ),
         (
+            "a contrast agent on a 160³ grid stepped 64 times every tick",
+            written(
+                dir,
+                "contrast",
+                &with(&|h| {
+                    h.contrast = stylet_physics::ContrastSettings {
+                        grid_nodes: 160,
+                        update_every_ticks: 1,
+                        steps_per_update: 64,
+                        ..Default::default()
+                    }
+                }),
+                0,
+                100,
+            ),
+            "the session's contrast agent (160³ nodes, 64 steps every 1 ticks) costs",
+        ),
+        (
             "a tick rate of 100 kHz (a hundred times the ticks allowed per minute)",
             written(dir, "rate", &with(&|h| h.tick_rate_hz = 100_000), 0, 100),
             "the session ticks at 100000 Hz; this server accepts 1000 Hz",

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
-use stylet_physics::{DeformSettings, Event, Gauge, ProbeKind, ToolSpec};
+use stylet_physics::{ContrastSettings, DeformSettings, Event, Gauge, ProbeKind, ToolSpec};
 
 /// The session schema version this code writes; it reads this version and the one before.
 pub const SCHEMA_VERSION: u32 = 1;
@@ -269,6 +269,9 @@ pub struct SessionHeader {
     /// The world model's tissue deformation (thesis Chapter 4): replay solves with exactly these
     /// settings. Files written before physics version 4 lack it and read as deformation off.
     pub deformation: DeformSettings,
+    /// The world model's contrast agent (thesis §3.3): replay diffuses with exactly these
+    /// settings. Files written before 2026-11-27 lack it; they ran the defaults and read so.
+    pub contrast: ContrastSettings,
 }
 
 impl SessionHeader {
@@ -303,6 +306,7 @@ impl SessionHeader {
         }
         put("wall_clock_start", self.wall_clock_start.clone());
         world::put_deformation(&self.deformation, &mut put);
+        world::put_contrast(&self.contrast, &mut put);
         m
     }
 
@@ -371,16 +375,18 @@ impl SessionHeader {
             initial_tool,
             wall_clock_start,
             deformation: world::get_deformation(m)?,
+            contrast: world::get_contrast(m)?,
         })
     }
 }
 
-/// The world model in the header: one metadata key per setting, `world.deformation.*`, numbers
+/// The world model in the header: one metadata key per setting, `world.deformation.*` and
+/// `world.contrast.*`, numbers
 /// as decimal integers or, for real numbers, exact f64 bits in hex (so replay gets the same bits).
 mod world {
     use std::collections::BTreeMap;
 
-    use stylet_physics::{DeformSettings, Regulariser};
+    use stylet_physics::{ContrastSettings, DeformSettings, Regulariser};
 
     const P: &str = "world.deformation.";
 
@@ -465,6 +471,55 @@ mod world {
         };
         d.validate().map_err(|e| format!("session header deformation: {e}"))?;
         Ok(d)
+    }
+
+    const C: &str = "world.contrast.";
+
+    pub fn put_contrast(c: &ContrastSettings, put: &mut impl FnMut(&str, String)) {
+        put(&format!("{C}grid_nodes"), c.grid_nodes.to_string());
+        put(&format!("{C}update_every_ticks"), c.update_every_ticks.to_string());
+        put(&format!("{C}steps_per_update"), c.steps_per_update.to_string());
+        let mut real = |k: &str, v: f64| put(&format!("{C}{k}_bits"), format!("{:016x}", v.to_bits()));
+        real("tau", c.tau);
+        real("rate_ml_per_s", c.rate_ml_per_s);
+        real("visible_fraction", c.visible_fraction);
+        real("confirm_extent_mm", c.confirm_extent_mm);
+        real("settle_s", c.settle_s);
+    }
+
+    /// The contrast settings of a header (the defaults when the file has none, as every session
+    /// before they were recorded ran them), checked like the simulation checks them.
+    pub fn get_contrast(m: &BTreeMap<String, String>) -> Result<ContrastSettings, String> {
+        if !m.keys().any(|k| k.starts_with(C)) {
+            return Ok(ContrastSettings::default());
+        }
+        let get = |k: &str| {
+            m.get(&format!("{C}{k}"))
+                .ok_or_else(|| format!("session header lacks '{C}{k}'"))
+        };
+        let int = |k: &str| -> Result<u32, String> {
+            get(k)?
+                .parse::<u32>()
+                .map_err(|_| format!("session header '{C}{k}' is not a number"))
+        };
+        let real = |k: &str| -> Result<f64, String> {
+            let key = format!("{k}_bits");
+            u64::from_str_radix(get(&key)?, 16)
+                .map(f64::from_bits)
+                .map_err(|_| format!("session header '{C}{key}' is not hex"))
+        };
+        let c = ContrastSettings {
+            grid_nodes: int("grid_nodes")? as usize,
+            update_every_ticks: int("update_every_ticks")?,
+            steps_per_update: int("steps_per_update")?,
+            tau: real("tau")?,
+            rate_ml_per_s: real("rate_ml_per_s")?,
+            visible_fraction: real("visible_fraction")?,
+            confirm_extent_mm: real("confirm_extent_mm")?,
+            settle_s: real("settle_s")?,
+        };
+        c.validate().map_err(|e| format!("session header contrast: {e}"))?;
+        Ok(c)
     }
 }
 

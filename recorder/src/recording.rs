@@ -42,6 +42,7 @@ pub fn header(sim: &Simulation, info: &SessionInfo) -> SessionHeader {
         initial_tool: *sim.tool_spec(),
         wall_clock_start: crate::wall_clock_now(),
         deformation: sim.config().deformation,
+        contrast: sim.config().contrast,
     }
 }
 

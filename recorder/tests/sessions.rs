@@ -29,6 +29,14 @@ fn header() -> SessionHeader {
         },
         wall_clock_start: "2026-11-22T12:00:00Z".into(),
         deformation: DeformSettings::on(),
+        // Not the defaults, so that the round trip shows every value travels.
+        contrast: stylet_physics::ContrastSettings {
+            grid_nodes: 48,
+            steps_per_update: 3,
+            rate_ml_per_s: 0.75,
+            settle_s: 7.5,
+            ..Default::default()
+        },
     }
 }
 
@@ -389,6 +397,24 @@ fn header_fields_are_bounded_and_exact() {
         SessionHeader::from_metadata(&m)
             .unwrap_err()
             .contains("lacks 'world.deformation.spacing_mm_bits'")
+    );
+    // And every contrast setting; a file without any (written before they were recorded) ran
+    // the defaults and reads so.
+    assert!(with("world.contrast.grid_nodes", "4".into()).contains("contrast grid_nodes 4"));
+    assert!(with("world.contrast.tau_bits", format!("{:016x}", 0.5f64.to_bits())).contains("contrast tau 0.5"));
+    assert!(with("world.contrast.settle_s_bits", "zz".into()).contains("'world.contrast.settle_s_bits' is not hex"));
+    let mut m = good.clone();
+    m.remove("world.contrast.rate_ml_per_s_bits");
+    assert!(
+        SessionHeader::from_metadata(&m)
+            .unwrap_err()
+            .contains("lacks 'world.contrast.rate_ml_per_s_bits'")
+    );
+    let mut m = good.clone();
+    m.retain(|k, _| !k.starts_with("world.contrast."));
+    assert_eq!(
+        SessionHeader::from_metadata(&m).unwrap().contrast,
+        stylet_physics::ContrastSettings::default()
     );
     let diffusion = SessionHeader {
         deformation: DeformSettings {

@@ -148,6 +148,7 @@ impl<S: Borrow<Session>> Replayer<S> {
         let mut config = SimConfig::new(device, h.initial_tool);
         config.tick_rate_hz = h.tick_rate_hz;
         config.deformation = h.deformation;
+        config.contrast = h.contrast;
         let sim = Simulation::new(atlas, config).map_err(ReplayError::Simulation)?;
         let mut events: BTreeMap<u64, Vec<Event>> = BTreeMap::new();
         for e in &session.borrow().events {

@@ -157,6 +157,21 @@ fn check_header(s: &AppState, h: &SessionHeader) -> Result<(), ApiError> {
             asked.nodes as f64 / budget.nodes as f64,
         )));
     }
+    // Likewise the contrast agent's diffusion: no larger a grid, no more work per tick.
+    let contrast = stylet_physics::ContrastSettings::default();
+    if h.contrast.grid_nodes > contrast.grid_nodes
+        || h.contrast.node_updates_per_tick() > contrast.node_updates_per_tick()
+    {
+        return Err(bad(format!(
+            "the session's contrast agent ({}³ nodes, {} steps every {} ticks) costs {:.1}× the work per tick \
+             of the simulator's default ({}³ nodes); this server replays at most the default",
+            h.contrast.grid_nodes,
+            h.contrast.steps_per_update,
+            h.contrast.update_every_ticks,
+            h.contrast.node_updates_per_tick() / contrast.node_updates_per_tick(),
+            contrast.grid_nodes,
+        )));
+    }
     if !scorer.knows_scenario(&h.scenario) {
         return Err(bad(format!(
             "unknown scenario '{}' for atlas '{}' (its scenarios: {})",

@@ -15,7 +15,7 @@ use stylet_devices::Device;
 use stylet_devices::live::{LiveDevice, LiveHandle, live_device};
 use stylet_devices::script::{ScriptedDevice, parse, scripted_simulation};
 use stylet_physics::glam::{DQuat, DVec3};
-use stylet_physics::{DeviceProfile, SimConfig, Simulation, ToolSpec};
+use stylet_physics::{DeformSettings, DeviceProfile, SimConfig, Simulation, ToolSpec};
 use stylet_recorder::{Recording, SessionInfo, WriterOptions};
 use stylet_render::scene::Tagging;
 use stylet_render::views::SessionLabels;
@@ -206,7 +206,9 @@ impl RunningSession {
         let (sim, device, live): (Simulation, Box<dyn Device + Send>, Option<LiveHandle>) = match driver {
             Driver::Hands => {
                 let mut config = SimConfig::new(DeviceProfile::IDEAL, ToolSpec::Finger);
-                // Solves off the haptic thread; the bits are the same (fixed latency).
+                // A trainee's tissue yields (recorded in the header, replayed by scoring), solved
+                // off the haptic thread; the bits are the same (fixed latency).
+                config.deformation = DeformSettings::on();
                 config.deform_in_background = true;
                 let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
                 let (position, orientation) = start_pose(atlas);
@@ -219,6 +221,7 @@ impl RunningSession {
             }
             Driver::HidDevice(profile) => {
                 let mut config = SimConfig::new(profile.physics_profile(), ToolSpec::Finger);
+                config.deformation = DeformSettings::on();
                 config.deform_in_background = true;
                 let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
                 let (position, orientation) = start_pose(atlas);

@@ -65,6 +65,13 @@ impl Default for ContrastSettings {
 }
 
 impl ContrastSettings {
+    /// Grid-node updates per tick while the agent diffuses (a model of the work, not a timing):
+    /// what the service compares with the default's before it replays a session's world model.
+    pub fn node_updates_per_tick(&self) -> f64 {
+        let n = self.grid_nodes as f64;
+        n * n * n * f64::from(self.steps_per_update) / f64::from(self.update_every_ticks)
+    }
+
     /// Names the first setting outside its range.
     pub fn validate(&self) -> Result<(), String> {
         let finite_pos = |v: f64| v.is_finite() && v > 0.0;

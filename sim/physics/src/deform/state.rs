@@ -72,6 +72,10 @@ pub struct DeformState {
     field: Option<Arc<DeformField>>,
     pending: Option<Pending>,
     background: bool,
+    /// A field that left the state and is to be freed by the next background solve (freeing a
+    /// 65³ field returns megabytes to the system: tens of µs the haptic thread must not pay,
+    /// and a job of its own would cost it a thread wake-up).
+    retired: Option<Arc<DeformField>>,
 }
 
 impl DeformState {
@@ -81,6 +85,7 @@ impl DeformState {
             field: None,
             pending: None,
             background,
+            retired: None,
         }
     }
     pub fn set_background(&mut self, background: bool) {
@@ -105,12 +110,8 @@ impl DeformState {
             };
             let left = std::mem::replace(&mut self.field, entering);
             self.pending = None;
-            // Freeing a 65³ field returns megabytes to the system (tens of µs): not on the
-            // haptic thread.
-            if self.background
-                && let Some(left) = left
-            {
-                background_pool().spawn(move || drop(left));
+            if self.background && left.is_some() {
+                self.retired = left;
             }
         }
     }
@@ -135,7 +136,9 @@ impl DeformState {
         let prev = self.field.clone();
         if self.background {
             let (atlas, slot) = (Arc::clone(atlas), Arc::clone(&slot));
+            let retired = self.retired.take();
             background_pool().spawn(move || {
+                drop(retired);
                 let f = field::solve(&atlas, &settings, prev.as_deref(), centre, &points);
                 slot.put(Arc::new(f));
             });
