@@ -793,3 +793,54 @@ fn the_needle_in_the_ultrasound_plane_is_measured_against_the_last_probe_image()
         none["metrics"]
     );
 }
+
+/// The world model travels in the header and replay runs exactly it: a session with tissue
+/// deformation and an injection replays verified and measures the displaced tissue; the same
+/// ticks under a header whose deformation or contrast settings were changed do not verify.
+#[test]
+fn replay_runs_the_world_model_of_the_header() {
+    let st = setup();
+    let d = tempfile::tempdir().unwrap();
+    let script = d.path().join("world.txt");
+    std::fs::write(
+        &script,
+        "stylet-script 1\ndeformation on\nend 16\nat 0 along intercostal-10-11 -15\n\
+         at 1 along intercostal-10-11 -15\nat 11 along intercostal-10-11 111\n\
+         at 11.5 event stylet-remove\nat 12 event contrast-inject 2\nat 15 along intercostal-10-11 111\n",
+    )
+    .unwrap();
+    let session = d.path().join("world.mcap");
+    ok(&[
+        "script",
+        "run",
+        "--atlas",
+        s(&st.atlas()),
+        "--script",
+        s(&script),
+        "--out",
+        s(&session),
+    ]);
+    let header = reader::read(&session).unwrap().header;
+    assert!(header.deformation.enabled);
+    assert_eq!(header.contrast, stylet_physics::ContrastSettings::default());
+    let r = score_json(&session);
+    assert_eq!(r["replay_verified"], true, "{r}");
+    let m = &r["metrics"];
+    assert!(m["max_tissue_displacement_mm"].as_f64().unwrap() > 0.1, "{m}");
+    assert!(m["contrast_in_ducts_ml"].as_f64().unwrap() > 0.0, "{m}");
+
+    let changed: [(&str, Box<dyn Fn(&mut reader::Session)>); 3] = [
+        ("deformation off", Box::new(|s| s.header.deformation.enabled = false)),
+        (
+            "a stiffer tissue",
+            Box::new(|s| s.header.deformation.material_k_per_hu = 0.02),
+        ),
+        ("a faster syringe", Box::new(|s| s.header.contrast.rate_ml_per_s = 2.0)),
+    ];
+    for (what, edit) in changed {
+        let tampered = d.path().join("tampered.mcap");
+        rewrite(&session, &tampered, |s| edit(s));
+        let r = score_json(&tampered);
+        assert_eq!(r["replay_verified"], false, "{what}: {r}");
+    }
+}
