@@ -86,14 +86,8 @@ impl Level {
     fn fix_and_coarsen(&mut self, new: &[usize], coarse: &Level) -> Vec<usize> {
         let mut out = Vec::new();
         let cl = &coarse.lattice;
-        // Coarse coordinates c with |2c − f| ≤ 1: f/2 for even f, (f ± 1)/2 for odd f.
-        let span = |f: usize| {
-            if f % 2 == 0 {
-                f / 2..=f / 2
-            } else {
-                (f - 1) / 2..=(f + 1) / 2
-            }
-        };
+        // Coarse coordinates c with |2c − f| ≤ 1: f/2 for even f, (f ± 1)/2 for odd f (⌊f/2⌋ … ⌈f/2⌉).
+        let span = |f: usize| f / 2..=f.div_ceil(2);
         for &f in new {
             self.fixed[f] = true;
             let [i, j, k] = self.lattice.ijk(f);
