@@ -20,7 +20,9 @@ use super::ToolPoint;
 use crate::contact::ContactTool;
 use crate::needle::tool::NeedleTool;
 
-/// The point `a` mm back from the last node along a polyline (None beyond its first node).
+/// The point `a` mm back from the last node along a polyline (None beyond its first node): the
+/// definition [`FromEnd`] walks incrementally.
+#[cfg(test)]
 fn polyline_from_end(nodes: &[DVec3], a: f64) -> Option<DVec3> {
     let mut behind = 0.0;
     for w in nodes.windows(2).rev() {
@@ -33,6 +35,41 @@ fn polyline_from_end(nodes: &[DVec3], a: f64) -> Option<DVec3> {
         behind += seg;
     }
     None
+}
+
+/// [`polyline_from_end`] for distances that only grow: it resumes where the last one ended, so a
+/// needle's points cost one walk along its nodes, not one per point (the same partial sums in
+/// the same order, so the same bits).
+struct FromEnd<'a> {
+    nodes: &'a [DVec3],
+    /// The segment from node `j` back to node `j − 1`, and the length behind it.
+    j: usize,
+    behind: f64,
+}
+
+impl<'a> FromEnd<'a> {
+    fn new(nodes: &'a [DVec3]) -> Self {
+        FromEnd {
+            nodes,
+            j: nodes.len().saturating_sub(1),
+            behind: 0.0,
+        }
+    }
+
+    /// The point `a` mm back from the last node (`a` never less than at the last call).
+    fn at(&mut self, a: f64) -> Option<DVec3> {
+        while self.j >= 1 {
+            let (p, q) = (self.nodes[self.j], self.nodes[self.j - 1]);
+            let seg = (q - p).length();
+            if a - self.behind <= seg {
+                let t = if seg > 0.0 { (a - self.behind) / seg } else { 0.0 };
+                return Some(p + (q - p) * t);
+            }
+            self.behind += seg;
+            self.j -= 1;
+        }
+        None
+    }
 }
 
 /// Tool points of a needle, sampled every `step_mm` from the tip.
@@ -53,6 +90,7 @@ pub fn needle_points(needle: &NeedleTool, step_mm: f64) -> Vec<ToolPoint> {
             // point x̃(d) the same distance back from the needle's tip.
             let p = path.nodes();
             let mut out = Vec::new();
+            let mut needle_from_end = FromEnd::new(nodes);
             let (mut i, mut behind, mut a) = (p.len() - 1, 0.0, 0.0);
             while i >= 1 {
                 let seg = (p[i].pos - p[i - 1].pos).length();
@@ -63,7 +101,7 @@ pub fn needle_points(needle: &NeedleTool, step_mm: f64) -> Vec<ToolPoint> {
                 }
                 let t = if seg > 0.0 { (a - behind) / seg } else { 0.0 };
                 let x_ref = p[i].pos + (p[i - 1].pos - p[i].pos) * t;
-                let Some(x) = polyline_from_end(nodes, a) else { break };
+                let Some(x) = needle_from_end.at(a) else { break };
                 out.push(ToolPoint {
                     reference_mm: x_ref,
                     displacement_mm: (x - x_ref) + p[i].tangent * p[i].offset_mm,
@@ -126,6 +164,38 @@ mod tests {
         let d = node_spacing_mm(ContactPattern::fingertip().points());
         assert!((d - 4.0).abs() < 0.2, "{d}");
         assert_eq!(node_spacing_mm(&[DVec3::ZERO]), 0.0);
+    }
+
+    #[test]
+    fn the_incremental_walk_gives_the_bits_of_the_definition() {
+        let mut seed = 5u64;
+        let mut rnd = || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for _ in 0..20 {
+            let mut x = DVec3::ZERO;
+            let nodes: Vec<DVec3> = (0..40)
+                .map(|k| {
+                    // Now and then a zero-length segment.
+                    if k % 13 != 5 {
+                        x += DVec3::new(rnd() - 0.5, rnd() - 0.5, 2.0 * rnd());
+                    }
+                    x
+                })
+                .collect();
+            let mut walk = FromEnd::new(&nodes);
+            let mut a = 0.0;
+            while a < 200.0 {
+                let (want, got) = (polyline_from_end(&nodes, a), walk.at(a));
+                assert_eq!(
+                    want.map(|v| v.to_array().map(f64::to_bits)),
+                    got.map(|v| v.to_array().map(f64::to_bits)),
+                    "a = {a}"
+                );
+                a += 0.37;
+            }
+        }
     }
 
     #[test]
