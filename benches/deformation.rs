@@ -165,21 +165,22 @@ fn percentiles(sim: &mut Simulation, input: &TickInput, n: usize) -> (f64, f64, 
     // The ticks that launch a solve and enter the last one (every 100th) apart from the rest:
     // what the haptic thread does itself, and what the solve on the other core costs it.
     let every = sim.config().deformation.every_ticks as usize;
-    if sim.config().deformation.enabled {
-        let mut launch: Vec<f64> = times
-            .iter()
-            .copied()
-            .skip((every - (sim.tick() as usize - n) % every) % every)
-            .step_by(every)
-            .collect();
-        launch.sort_by(f64::total_cmp);
-        let mut rest: Vec<f64> = times
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| (sim.tick() as usize - n + i) % every != 0)
-            .map(|(_, t)| *t)
-            .collect();
-        rest.sort_by(f64::total_cmp);
+    if sim.config().deformation.enabled && n > every {
+        // Step i runs from tick t0 + i and launches (and enters) when the tick it ends on,
+        // t0 + i + 1, is a multiple of `every_ticks`.
+        let t0 = sim.tick() as usize - n;
+        let launches = |i: usize| (t0 + i + 1).is_multiple_of(every);
+        let split = |want: bool| -> Vec<f64> {
+            let mut v: Vec<f64> = times
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| launches(*i) == want)
+                .map(|(_, t)| *t)
+                .collect();
+            v.sort_by(f64::total_cmp);
+            v
+        };
+        let (launch, rest) = (split(true), split(false));
         let q = |v: &[f64], p: f64| v[((v.len() as f64 * p) as usize).min(v.len() - 1)];
         println!(
             "  ticks that launch and enter solves: median {:.2} µs, max {:.1} µs; the other ticks: median {:.2} µs, p99 {:.2} µs, p99.9 {:.1} µs",
