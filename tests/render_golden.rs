@@ -306,6 +306,37 @@ fn chest_speedups_keep_the_picture() {
     }
 }
 
+/// Leaping (whole bricks of voxel cubes, then single cubes) passes only lattice points that read
+/// α = 0: on the real CT with every preset the picture is, bit for bit, that of sampling every
+/// lattice point, with far fewer samples.
+#[test]
+fn chest_leaping_is_exact_for_every_preset() {
+    let p = chest();
+    let (w, h) = (256, 212);
+    for which in [Preset::Skin, Preset::Soft, Preset::Bone] {
+        let leaping = scene(&p.volume, preset(p, which));
+        assert!(leaping.quality.leaping && leaping.quality.ray_box);
+        let every = Scene {
+            quality: Quality {
+                leaping: false,
+                ..leaping.quality
+            },
+            ..leaping.clone()
+        };
+        let (a, b) = (render(&p.volume, &every, w, h), render(&p.volume, &leaping, w, h));
+        let d = diff(&a.image, &b.image).unwrap();
+        println!("{}: {d}; {} of {} samples", which.as_str(), b.samples, a.samples);
+        assert_eq!(d.max, 0, "{}: leaping changes the picture: {d}", which.as_str());
+        assert!(
+            b.samples * 3 < a.samples,
+            "{}: {} vs {}",
+            which.as_str(),
+            b.samples,
+            a.samples
+        );
+    }
+}
+
 /// The chest recipe imports at the native resolution, the atlas loads and validates, the biliary
 /// tree is one piece inside the liver, and the intercostal path is the requested one.
 #[test]

@@ -175,7 +175,7 @@ fn speed_ups_change_the_work_not_the_picture() {
             boxed.samples
         );
     }
-    // Leaping without ray/box (per-sample cell look-ups instead of the cell walk): exact too.
+    // Leaping without ray/box (per-sample cell look-ups instead of the bricks): exact too.
     let leap_naive = run(Quality { leaping: true, ..base });
     assert_eq!(diff(&naive.image, &leap_naive.image).unwrap().max, 0);
     assert!(leap_naive.samples < naive.samples);

@@ -198,124 +198,68 @@ fn lattice_from(t_exit: f32, k_min: u32, j: f32, inv_step: f32) -> u32 {
     }
 }
 
-/// What [`sample_plain`] did.
-enum Sampled {
-    /// Its cube reads only invisible values (leaping's finest level): nothing read.
-    Skipped,
-    Taken,
-    /// Taken, and the ray reached [`crate::scene::Quality::OPAQUE`] (early termination).
-    Opaque,
-}
-
-/// Steps 5–7 for the lattice point at `t` of [`lattice_dda`]. With the cube bits (a CT of ≥ 2
-/// voxels per axis) the value and the gradient come from one read of the eight records.
-#[inline(always)]
-fn sample_plain(f: &Frame, ray: &Ray, t: f32, acc: &mut Accum) -> Sampled {
-    let c = ray.ce + ray.dc * t;
-    let (cv, g) = match &f.cubes {
-        Some(cubes) => {
-            let Some(cell) = f.sampler.ct.locate(c) else {
-                // Air outside the CT, invisible on this path (`sample_outside` is false).
-                return Sampled::Taken;
-            };
-            if !cubes.visible(cell.b[0], cell.b[1], cell.b[2]) {
-                return Sampled::Skipped;
-            }
-            let r = f.sampler.grads.interpolate(&cell);
-            let cv = f.table.lookup(r.w);
-            if cv[3] <= 0.0 {
-                return Sampled::Taken;
-            }
-            (cv, f.sampler.world_gradient_ct(r.truncate()))
-        }
-        None => {
-            let at = At { ct: c, j: Vec3::ZERO };
-            let cv = f.table.lookup(f.sampler.s(at));
-            if cv[3] <= 0.0 {
-                return Sampled::Taken;
-            }
-            (cv, f.sampler.gradient(at))
-        }
-    };
-    if composite(f, ray, t, cv, g, acc) {
-        return Sampled::Opaque;
-    }
-    Sampled::Taken
-}
+/// Index-space margin by which a brick box is shrunk before a ray passes it: far above the
+/// rounding of c(t) = c_e + t·c_r (≈ 10⁻⁴ of a voxel at a few hundred voxels), so no sample
+/// outside the box is passed.
+const BOX_MARGIN: f32 = 1e-3;
 
 /// Steps 5–8 for the common frame (no motion hook, no deformed region, a ray/box-clipped extent,
-/// invisible air, leaping on): the
-/// occupancy cells along the ray are walked by a 3D DDA (Amanatides & Woo 1987) instead of
-/// being found from each sample's position. Empty cells move the lattice index past their exit
-/// (k ← max(k, ⌈t_exit/Δ − j − 10⁻³⌉), as step 8), occupied cells sample every lattice point
-/// before their exit. The DDA's face parameters are sums that drift by ulps from
-/// `Occupancy::exit_t`; a sample that drift moves across a face lies within a voxel of an empty
-/// cell's box, still inside the voxels its range covers, so it reads α = 0 either way. The walk
-/// ends when the ray leaves the grid (the CT's box: nothing visible beyond).
-fn lattice_dda(f: &Frame, occ: &Occupancy, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
+/// invisible air, leaping on, a CT of ≥ 2 voxels per axis): every lattice point is located once;
+/// when its brick of cubes is at chessboard distance d ≥ 1 from any visible cube
+/// ([`super::brick_distance`]), the march passes every lattice point before the ray leaves the
+/// box of bricks within d − 1 (k ← max(k + 1, ⌈t_exit/Δ − j − 10⁻³⌉), as step 8); else a point
+/// whose own cube is invisible is passed alone ([`CubeMask`]), and the rest are sampled. Only
+/// samples that interpolate invisible values are passed: the picture is that of every lattice
+/// point sampled.
+fn lattice_bricks(f: &Frame, cubes: &CubeMask, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
     let step = f.quality.step_mm;
     let inv_step = 1.0 / step;
+    let inv_dc = ray.dc.recip();
+    let bricks = cubes.bricks();
     let mut samples = 0u64;
     let mut k = k0;
-    let t0 = lattice(k, ray.j, step);
-    if t0 > ray.t_hi || t0 >= ray.t_tool {
-        return 0;
-    }
-    let last = occ.cells as i32 - 1;
-    let start = occ.cell(ray.ce + ray.dc * t0);
-    let mut q = start.map(|v| v as i32);
-    let mut t_next = [f32::INFINITY; 3];
-    let mut t_delta = [f32::INFINITY; 3];
-    let mut dir = [0i32; 3];
-    for a in 0..3 {
-        let d = ray.dc[a];
-        if d != 0.0 {
-            let inv = 1.0 / d;
-            dir[a] = if d > 0.0 { 1 } else { -1 };
-            let face = if d > 0.0 { start[a] + 1 } else { start[a] };
-            t_next[a] = (face as f32 * occ.size[a] - 0.5 - ray.ce[a]) * inv;
-            t_delta[a] = occ.size[a] * inv.abs();
-        }
-    }
-    let n = occ.cells as usize;
     loop {
-        let axis = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
-            0
-        } else if t_next[1] <= t_next[2] {
-            1
-        } else {
-            2
-        };
-        let t_exit = t_next[axis];
-        let occupied = occ.occupied[q[0] as usize + n * (q[1] as usize + n * q[2] as usize)] != 0;
-        if occupied {
-            loop {
-                let t = lattice(k, ray.j, step);
-                if t > ray.t_hi || t >= ray.t_tool {
-                    return samples;
-                }
-                if t >= t_exit {
-                    break;
-                }
-                match sample_plain(f, ray, t, acc) {
-                    Sampled::Skipped => {}
-                    Sampled::Taken => samples += 1,
-                    Sampled::Opaque => return samples + 1,
-                }
-                k += 1;
-            }
-        } else {
-            k = lattice_from(t_exit, k, ray.j, inv_step);
-            let t = lattice(k, ray.j, step);
-            if t > ray.t_hi || t >= ray.t_tool {
-                return samples;
-            }
-        }
-        q[axis] += dir[axis];
-        if q[axis] < 0 || q[axis] > last || !t_exit.is_finite() {
+        let t = lattice(k, ray.j, step);
+        if t > ray.t_hi || t >= ray.t_tool {
             return samples;
         }
-        t_next[axis] += t_delta[axis];
+        let c = ray.ce + ray.dc * t;
+        let Some(cell) = f.sampler.ct.locate(c) else {
+            // Air outside the CT (rounding at the box's faces), invisible on this path.
+            samples += 1;
+            k += 1;
+            continue;
+        };
+        let d = bricks.at(cell.b);
+        if d > 0 {
+            let b = bricks.empty_box(cell.b, d, BOX_MARGIN);
+            let mut t_exit = f32::INFINITY;
+            for a in 0..3 {
+                // The face the ray leaves by on this axis (none when it runs parallel to it).
+                let face = if ray.dc[a] > 0.0 {
+                    b[a].1
+                } else if ray.dc[a] < 0.0 {
+                    b[a].0
+                } else {
+                    continue;
+                };
+                if face.is_finite() {
+                    t_exit = t_exit.min((face - ray.ce[a]) * inv_dc[a]);
+                }
+            }
+            k = lattice_from(t_exit, k + 1, ray.j, inv_step);
+            continue;
+        }
+        k += 1;
+        if !cubes.visible(cell.b[0], cell.b[1], cell.b[2]) {
+            continue;
+        }
+        samples += 1;
+        let r = f.sampler.grads.interpolate(&cell);
+        let cv = f.table.lookup(r.w);
+        if cv[3] > 0.0 && composite(f, ray, t, cv, f.sampler.world_gradient_ct(r.truncate()), acc) {
+            return samples;
+        }
     }
 }
 
@@ -467,9 +411,9 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
             t_tool,
             half,
         };
-        samples += match (&f.occupancy, warp.as_mut()) {
-            (Some(occ), None) if f.sampler.deformed.is_none() && q.ray_box && !f.sample_outside => {
-                lattice_dda(f, occ, &ray, k0, &mut acc)
+        samples += match (&f.cubes, warp.as_mut()) {
+            (Some(cubes), None) if f.sampler.deformed.is_none() && q.ray_box && !f.sample_outside => {
+                lattice_bricks(f, cubes, &ray, k0, &mut acc)
             }
             _ => lattice_general(f, &ray, k0, warp.as_mut(), at_t, &mut acc),
         };

@@ -3,6 +3,7 @@
 //! Phong shading, the clipping plane and its tagging. Rayon over 16 × 16 pixel tiles; every pixel is a pure
 //! function of the inputs, so the image is bit-identical on any number of threads.
 
+pub mod brick_distance;
 pub mod cube_mask;
 pub mod gradient_volume;
 pub mod jitter;
