@@ -479,3 +479,46 @@ const PINNED: [(u64, u64); 3] = [
     (0x76d176f241ac047f, 0x54d1c75da1d16bcb),
     (0xd1cdfd83eb564f01, 0x7b5b0c9ba6a59c99),
 ];
+
+/// Eqs. 4.2.2–4.2.3 at the tip: a needle pressed on the skin without cutting it pushes the skin
+/// point it touched along the needle by as far as the device is past the needle's tip (the
+/// cutting spring's extension Δd): the skin tents.
+#[test]
+fn a_needle_pressing_on_the_skin_tents_it_by_the_cutting_springs_extension() {
+    use stylet_physics::glam::DQuat;
+    use stylet_physics::{DeviceProfile, Gauge, SimConfig, Simulation, TickInput, ToolSpec};
+    let config = SimConfig::new(
+        DeviceProfile::IDEAL,
+        ToolSpec::Needle {
+            gauge: Gauge::G18,
+            length_mm: 150.0,
+            stylet_in: true,
+        },
+    );
+    let mut sim = Simulation::new(std::sync::Arc::new(atlas()), config).unwrap();
+    // The needle points into the patient (−z); the skin is at z = 25 mm.
+    let q = DQuat::from_rotation_x(std::f64::consts::PI);
+    let mut at = |z: f64| {
+        let out = sim.step(&TickInput::pose(DVec3::new(-3.0, 2.0, z), q));
+        let needle = sim.needle().unwrap();
+        let points = deform::tool_points::needle_points(needle, 0.5);
+        let channel_tip = needle.path().tip().copied();
+        (out, points, needle.nodes().last().copied().unwrap(), channel_tip)
+    };
+    for t in 0..=200 {
+        at(30.0 - 5.3 * f64::from(t) / 200.0);
+    }
+    // 0.3 mm past the skin: under the cutting threshold of this atlas (0.5 N), nothing cut.
+    let (out, points, tip, channel_tip) = at(24.7);
+    let cut_n = out.components.cut.length();
+    assert!(cut_n > 0.0 && cut_n < 0.5, "{cut_n}");
+    assert_eq!(points.len(), 1, "the tip rests on the skin");
+    let past_mm = tip.z - 24.7;
+    assert!(past_mm > 0.2, "{past_mm}");
+    // ũ = (needle tip − channel tip) + the shaft's stick offset + Δd, all along −z.
+    let channel_tip = channel_tip.unwrap();
+    let expected = (tip - channel_tip.pos) + channel_tip.tangent * (channel_tip.offset_mm + past_mm);
+    let u = points[0].displacement_mm;
+    assert!((u - expected).length() < 1e-12, "{u} vs {expected}");
+    assert!(u.x.abs() < 1e-9 && u.y.abs() < 1e-9 && -u.z >= past_mm, "{u}");
+}

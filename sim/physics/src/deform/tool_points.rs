@@ -5,7 +5,11 @@
 //!   eqs. 4.2.2–4.2.3: ũ = x̃(d) − X̃(d) every half node spacing along the inserted length, plus
 //!   the tissue the shaft's friction drags along: the segment's stick offset Δx_i (eq. 3.5.3)
 //!   along its direction d_i. A tip resting on the skin (one path node) pushes the skin point it
-//!   touched: ũ = tip − p₁.
+//!   touched: ũ = tip − p₁. At the tip, the rigid form x̃(0) − X̃(0) = x_t − p_t of eqs.
+//!   4.2.2–4.2.3 adds what the bent needle's nodes leave out: while the tip presses before it cuts
+//!   (Alg. 3.5's cutting spring, f_k2·Δd² + f_k1·Δd < f_cutthresh), the device is Δd past the
+//!   needle's tip along the channel's direction, and the tissue ahead of the tip gives by Δd
+//!   (skin and fascia tent before they are punctured).
 //! - Finger and probe: each node in contact x_i, D_skin deep, pushed the skin point above it,
 //!   s* = x_i + D_skin·v_s (v_s the outward skin normal), to where the node is, and the stick of
 //!   §3.6 dragged it along by the tangential part t of the proxy's offset p_i − s_i: X = s* + t, ũ = x_i − X
@@ -77,11 +81,18 @@ pub fn needle_points(needle: &NeedleTool, step_mm: f64) -> Vec<ToolPoint> {
     let path = needle.path();
     let nodes = needle.nodes();
     let Some(&tip) = nodes.last() else { return Vec::new() };
+    let Some(path_tip) = path.tip() else { return Vec::new() };
+    // The cutting spring's extension Δd: how far the device is past the needle's tip along the
+    // channel (none while it pulls back).
+    let d = path_tip.tangent;
+    let tip_push = needle
+        .last_device_mm()
+        .map_or(DVec3::ZERO, |x| d * (x - tip).dot(d).max(0.0));
     match path.nodes().len() {
         0 => Vec::new(),
         1 => vec![ToolPoint {
             reference_mm: path.nodes()[0].pos,
-            displacement_mm: tip - path.nodes()[0].pos,
+            displacement_mm: tip - path.nodes()[0].pos + tip_push,
             radius_mm: 0.0,
         }],
         _ => {
@@ -104,7 +115,7 @@ pub fn needle_points(needle: &NeedleTool, step_mm: f64) -> Vec<ToolPoint> {
                 let Some(x) = needle_from_end.at(a) else { break };
                 out.push(ToolPoint {
                     reference_mm: x_ref,
-                    displacement_mm: (x - x_ref) + p[i].tangent * p[i].offset_mm,
+                    displacement_mm: (x - x_ref) + p[i].tangent * p[i].offset_mm + tip_push,
                     radius_mm: 0.0,
                 });
                 a += step_mm;
