@@ -436,6 +436,20 @@ fn the_gpu_renderer_draws_what_the_cpu_draws_and_no_adapter_is_a_clear_error() {
     let session = d.path().join("success.mcap");
     record(&atlas, "success-intercostal", &session);
     let s = session.to_str().unwrap();
+    // A moment with tissue deformation: the needle pressing on the intercostal fascia.
+    let pressing = d.path().join("fascia.mcap");
+    let fascia_script = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/img/deform-needle-fascia.txt");
+    ok(&[
+        "script",
+        "run",
+        "--atlas",
+        atlas.to_str().unwrap(),
+        "--script",
+        fascia_script.to_str().unwrap(),
+        "--out",
+        pressing.to_str().unwrap(),
+    ]);
+    let deformed = pressing.to_str().unwrap();
     // The tolerances of the GPU-versus-CPU tests (tests/render_golden.rs, sim/render-gpu/tests):
     // the same f32 formulas, so rounding moves a channel by about one level (mean, p99); where it
     // flips a discrete decision (a leaping cell, the clip plane, a label's nearest voxel) one
@@ -479,6 +493,10 @@ fn the_gpu_renderer_draws_what_the_cpu_draws_and_no_adapter_is_a_clear_error() {
         (vec!["--view", "3d", "--preset", "bone", "--tagging", "labels"], volume),
         (vec!["--view", "coronal"], slice),
         (vec!["--view", "needle", "--session", s, "--at", "10"], slice),
+        // The deformed slice: reference points by the fixed point in f32 on the GPU, f64 on the
+        // CPU (sim/render-gpu/tests/mpr.rs); displacement colours and legend as on the CPU.
+        (vec!["--view", "needle", "--session", deformed, "--at", "8.9"], slice),
+        (vec!["--view", "axial", "--session", deformed, "--at", "8.9"], slice),
         (vec!["--view", "xray", "--session", s, "--at", "13.9"], xray),
     ] {
         let cpu = render(&atlas, &d.path().join("cpu.png"), &[&extra[..], &["--cpu"]].concat());

@@ -319,16 +319,16 @@ fn slice_image(
     spec: &SliceSpec,
     gpu: bool,
 ) -> anyhow::Result<Image> {
-    let deformed = moment.is_some_and(|m| m.deformation.is_some());
-    if gpu && deformed {
-        // The GPU slice shader samples the undeformed CT; the deformed slice is CPU-only for now.
-        eprintln!("note: this moment has tissue deformation; its slice is drawn by the CPU renderer");
+    if !gpu {
+        return Ok(views::slice_image(atlas, moment, spec).map_err(|e| anyhow::anyhow!("slice: {e}"))?);
     }
-    if gpu && !deformed {
-        Ok(views::annotated_slice(&slice_gpu(atlas, spec)?, moment)?)
-    } else {
-        Ok(views::slice_image(atlas, moment, spec).map_err(|e| anyhow::anyhow!("slice: {e}"))?)
+    let field = moment.and_then(|m| m.deformation.as_deref());
+    let mut image = views::annotated_slice(&slice_gpu(atlas, spec, field)?, moment)?;
+    if let Some(field) = field {
+        stylet_render::annotate::displacement_legend(&mut image, mpr::displacement_scale_mm(field))
+            .map_err(|e| anyhow::anyhow!("slice: {e}"))?;
     }
+    Ok(image)
 }
 
 /// The ray-cast view from anterior, framing the volume, with the tools of the moment.
@@ -482,15 +482,26 @@ fn render_gpu(volume: &RenderVolume, scene: &Scene, size: Size) -> anyhow::Resul
 
 /// A slice on the GPU renderer.
 #[cfg(feature = "gpu")]
-fn slice_gpu(atlas: &stylet_atlas::Atlas, spec: &SliceSpec) -> anyhow::Result<mpr::MprImage> {
+fn slice_gpu(
+    atlas: &stylet_atlas::Atlas,
+    spec: &SliceSpec,
+    field: Option<&stylet_physics::DeformField>,
+) -> anyhow::Result<mpr::MprImage> {
     let (ctx, gpu_volume) = gpu_upload(&RenderVolume::new(Arc::clone(&atlas.model)))?;
-    stylet_render_gpu::GpuMpr::new(&ctx)
-        .render(&ctx, &gpu_volume, spec)
-        .map_err(|e| on_gpu(&ctx, e))
+    let mut mpr = stylet_render_gpu::GpuMpr::new(&ctx);
+    match field {
+        Some(field) => mpr.render_deformed(&ctx, &gpu_volume, spec, field),
+        None => mpr.render(&ctx, &gpu_volume, spec),
+    }
+    .map_err(|e| on_gpu(&ctx, e))
 }
 
 #[cfg(not(feature = "gpu"))]
-fn slice_gpu(_: &stylet_atlas::Atlas, _: &SliceSpec) -> anyhow::Result<mpr::MprImage> {
+fn slice_gpu(
+    _: &stylet_atlas::Atlas,
+    _: &SliceSpec,
+    _: Option<&stylet_physics::DeformField>,
+) -> anyhow::Result<mpr::MprImage> {
     bail!("--gpu: this stylet was built without the GPU renderer (cargo feature `gpu`); use --cpu")
 }
 

@@ -3,9 +3,17 @@
 //! (`mpr::render_spec`: f32 index frame, trilinear CT, window, nearest partial label, overlay
 //! opaque on label boundaries). The tip marker and the scale bar are drawn afterwards on the CPU
 //! by the shared annotate module, so this returns the slice pixels only.
+//!
+//! A moment with tissue deformation ([`GpuMpr::render_deformed`]) is drawn as
+//! `mpr::render_spec_deformed` draws it: each pixel inside the deformation's lattice reads the CT
+//! and the labels at its reference point (the fixed point X⁺ = x − u(X), in `f32` here, `f64` on
+//! the CPU) and gets the displacement colour map.
 
 use bytemuck::{Pod, Zeroable};
-use stylet_render::mpr::{MprImage, SliceSpec};
+use stylet_physics::deform::DeformField;
+use stylet_physics::deform::resample::INVERSE_ITERATIONS;
+use stylet_render::mpr::{DISPLACEMENT_SHOWN_FROM_MM, MprImage, SliceSpec, displacement_scale_mm};
+use stylet_render::volume::IndexMap;
 
 use crate::pipeline::{Pipelines, dispatch, uniform_buffer};
 use crate::raycast::ct_prelude;
@@ -28,6 +36,16 @@ struct MprParams {
     dims: [u32; 4],
     size: [u32; 4],
     window: [f32; 4],
+    w_origin: [f32; 4],
+    w_col: [f32; 4],
+    w_row: [f32; 4],
+    to_index_o: [f32; 4],
+    to_index_x: [f32; 4],
+    to_index_y: [f32; 4],
+    to_index_z: [f32; 4],
+    lattice: [f32; 4],
+    lattice_n: [u32; 4],
+    deform: [f32; 4],
 }
 
 /// The MPR pipeline (one per CT storage format, built on first use).
@@ -47,6 +65,28 @@ impl GpuMpr {
 
     /// Draws the slice `spec` of the volume (pixels and each pixel's partial label).
     pub fn render(&mut self, ctx: &GpuContext, vol: &GpuVolume, spec: &SliceSpec) -> Result<MprImage, GpuError> {
+        self.draw(ctx, vol, spec, None)
+    }
+
+    /// Draws the slice `spec` of the patient deformed by `field`, with its displacement colour
+    /// map (the legend is the caller's, as on the CPU).
+    pub fn render_deformed(
+        &mut self,
+        ctx: &GpuContext,
+        vol: &GpuVolume,
+        spec: &SliceSpec,
+        field: &DeformField,
+    ) -> Result<MprImage, GpuError> {
+        self.draw(ctx, vol, spec, Some(field))
+    }
+
+    fn draw(
+        &mut self,
+        ctx: &GpuContext,
+        vol: &GpuVolume,
+        spec: &SliceSpec,
+        field: Option<&DeformField>,
+    ) -> Result<MprImage, GpuError> {
         spec.validate().map_err(|e| GpuError::Invalid(format!("slice: {e}")))?;
         let (w, h) = (spec.width as u32, spec.height as u32);
         let out_bytes = w as u64 * h as u64 * 8;
@@ -55,6 +95,25 @@ impl GpuMpr {
         let frame = spec.index_frame(grid);
         let [nx, ny, nz] = grid.dims();
         let v4 = |v: stylet_physics::glam::Vec3| [v.x, v.y, v.z, 0.0];
+        let w4 = |v: stylet_physics::glam::DVec3| v4(v.as_vec3());
+        let map = IndexMap::of(grid);
+        let unit = |a: usize| {
+            let mut e = stylet_physics::glam::Vec3::ZERO;
+            e[a] = 1.0;
+            v4(map.vector(e))
+        };
+        // u at the nodes as 16-byte texels; one zero node when there is no deformation.
+        let nodes: Vec<[f32; 4]> = match field {
+            Some(f) => f
+                .displacements()
+                .iter()
+                .map(|u| [u.x as f32, u.y as f32, u.z as f32, 0.0])
+                .collect(),
+            None => vec![[0.0; 4]],
+        };
+        let field_bytes: &[u8] = bytemuck::cast_slice(&nodes);
+        ctx.check_storage_buffer("the deformation", field_bytes.len() as u64)?;
+        let lattice = field.map(|f| *f.lattice());
         let params = MprParams {
             origin: v4(frame.origin),
             col_step: v4(frame.col_step),
@@ -62,6 +121,27 @@ impl GpuMpr {
             dims: [nx as u32, ny as u32, nz as u32, vol.mpr_color_count],
             size: [w, h, 0, 0],
             window: [spec.window.level_hu as f32, spec.window.width_hu as f32, 0.0, 0.0],
+            w_origin: w4(spec.world(0.0, 0.0)),
+            w_col: w4(spec.world(1.0, 0.0) - spec.world(0.0, 0.0)),
+            w_row: w4(spec.world(0.0, 1.0) - spec.world(0.0, 0.0)),
+            to_index_o: v4(map.point(stylet_physics::glam::Vec3::ZERO)),
+            to_index_x: unit(0),
+            to_index_y: unit(1),
+            to_index_z: unit(2),
+            lattice: lattice.map_or([0.0; 4], |l| {
+                let o = l.origin_mm.as_vec3();
+                [o.x, o.y, o.z, l.h_mm as f32]
+            }),
+            lattice_n: match lattice {
+                Some(l) => [l.n as u32, 1, INVERSE_ITERATIONS, 0],
+                None => [2, 0, 0, 0],
+            },
+            deform: [
+                field.map_or(1.0, |f| displacement_scale_mm(f) as f32),
+                vol.atlas.thresholds().air_skin_hu as f32,
+                DISPLACEMENT_SHOWN_FROM_MM,
+                0.0,
+            ],
         };
         ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
         let output = ctx.device.create_buffer(&wgpu::BufferDescriptor {
@@ -70,6 +150,14 @@ impl GpuMpr {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
+        let field_buffer = wgpu::util::DeviceExt::create_buffer_init(
+            &ctx.device,
+            &wgpu::util::BufferInitDescriptor {
+                label: Some("mpr deformation"),
+                contents: field_bytes,
+                usage: wgpu::BufferUsages::STORAGE,
+            },
+        );
         let pipeline = self.pipelines.get(ctx, ct_prelude(vol.ct_key()));
         dispatch(
             ctx,
@@ -80,6 +168,7 @@ impl GpuMpr {
                 wgpu::BindingResource::TextureView(&vol.partial_view),
                 vol.mpr_colors.as_entire_binding(),
                 output.as_entire_binding(),
+                field_buffer.as_entire_binding(),
             ],
             (w.div_ceil(8), h.div_ceil(8)),
             None,

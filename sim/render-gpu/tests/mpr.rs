@@ -5,9 +5,10 @@
 mod common;
 
 use common::*;
+use stylet_physics::deform::{self, DeformSettings, ToolPoint};
 use stylet_physics::glam::DVec3;
 use stylet_render::image::{Tolerance, diff};
-use stylet_render::mpr::{Plane, SliceSpec, Window, render_spec};
+use stylet_render::mpr::{Plane, SliceSpec, Window, render_spec, render_spec_deformed};
 use stylet_render_gpu::{CtFormat, GpuMpr};
 
 /// Both sides compute the same f32 index frame, trilinear value, window and blend; only the
@@ -119,3 +120,92 @@ fn a_bad_slice_is_a_named_error() {
         Err(stylet_render_gpu::GpuError::Invalid(_))
     ));
 }
+
+/// A deformed moment: the GPU slice reads the CT and the labels at each pixel's reference point
+/// and colours the displacement as the CPU's `render_spec_deformed` does. The fixed point runs in
+/// `f32` on the GPU and `f64` on the CPU, so reference points differ by ~10⁻⁵ mm: a grey level or
+/// a colour channel on a .5 boundary may round the other way, and a pixel on a label boundary may
+/// pick the other label.
+#[test]
+fn a_deformed_slice_matches_the_cpu() {
+    let b = phantom();
+    let atlas = &b.cpu.atlas;
+    // The anterior skin above (20, ·, 20): the first voxel from anterior that is not air.
+    let skin_y = (0..400)
+        .map(|i| 200.0 - 0.5 * f64::from(i))
+        .find(|&y| atlas.hu_at(DVec3::new(20.0, y, 20.0)) > -300.0)
+        .expect("skin above the body");
+    // A fingertip-sized patch pressed 5 mm in, held for ten frames.
+    let mut points = Vec::new();
+    for dx in [-3.0, 0.0, 3.0] {
+        for dz in [-3.0, 0.0, 3.0] {
+            points.push(ToolPoint {
+                reference_mm: DVec3::new(20.0 + dx, skin_y, 20.0 + dz),
+                displacement_mm: DVec3::new(0.0, -5.0, 0.0),
+                radius_mm: 1.5,
+            });
+        }
+    }
+    let s = DeformSettings::on();
+    let centre = DVec3::new(20.0, skin_y - 5.0, 20.0);
+    let mut field = deform::solve(atlas, &s, None, centre, &points);
+    for _ in 0..9 {
+        field = deform::solve(atlas, &s, Some(&field), centre, &points);
+    }
+    assert!(field.max_displacement_mm() > 4.0, "{}", field.max_displacement_mm());
+    let mut mpr = GpuMpr::new(ctx());
+    for (name, spec) in [
+        (
+            "axial",
+            SliceSpec::plane(atlas, Plane::Axial, centre, Window::ABDOMEN, 256),
+        ),
+        (
+            "sagittal",
+            SliceSpec::plane(atlas, Plane::Sagittal, centre, Window::ABDOMEN, 256),
+        ),
+        (
+            "oblique",
+            SliceSpec::oblique_along_needle(centre, DVec3::new(0.2, -1.0, 0.1), 0.25, 240, 200, Window::ABDOMEN)
+                .unwrap(),
+        ),
+    ] {
+        let gpu = mpr
+            .render_deformed(ctx(), &b.gpu, &spec, &field)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let cpu = render_spec_deformed(atlas, &spec, &field).unwrap();
+        let undeformed = render_spec(atlas, &spec).unwrap();
+        let d = diff(&gpu.to_image(), &cpu.to_image()).unwrap();
+        let moved = diff(&undeformed.to_image(), &cpu.to_image()).unwrap();
+        let n = gpu.labels.len();
+        let label_diff = gpu.labels.iter().zip(&cpu.labels).filter(|(a, b)| a != b).count();
+        println!("deformed {name}: GPU vs CPU {d}, labels differ on {label_diff} of {n}; deformed vs not {moved}");
+        let dir = std::env::temp_dir().join("stylet-gpu");
+        std::fs::create_dir_all(&dir).unwrap();
+        gpu.to_image()
+            .write_png(&dir.join(format!("mpr-deformed-{name}-gpu.png")))
+            .unwrap();
+        cpu.to_image()
+            .write_png(&dir.join(format!("mpr-deformed-{name}-cpu.png")))
+            .unwrap();
+        // The deformation shows (colour map, moved tissue): hundreds of pixels change clearly.
+        let changed = (undeformed.rgb.iter().zip(&cpu.rgb))
+            .filter(|(a, b)| (0..3).any(|k| a[k].abs_diff(b[k]) > 20))
+            .count();
+        assert!(
+            changed > 200,
+            "{name}: the deformation changes only {changed} pixels: {moved}"
+        );
+        assert!(DEFORMED.admits(&d), "{name}: {d}");
+        assert!(
+            label_diff * 1000 <= n,
+            "{name}: labels differ on {label_diff} of {n} pixels"
+        );
+    }
+}
+
+/// GPU against CPU for deformed slices (see `a_deformed_slice_matches_the_cpu`).
+const DEFORMED: Tolerance = Tolerance {
+    mean: 0.05,
+    p99: 1,
+    max: 255,
+};
