@@ -323,12 +323,7 @@ fn slice_image(
         return Ok(views::slice_image(atlas, moment, spec).map_err(|e| anyhow::anyhow!("slice: {e}"))?);
     }
     let field = moment.and_then(|m| m.deformation.as_deref());
-    let mut image = views::annotated_slice(&slice_gpu(atlas, spec, field)?, moment)?;
-    if let Some(field) = field {
-        stylet_render::annotate::displacement_legend(&mut image, mpr::displacement_scale_mm(field))
-            .map_err(|e| anyhow::anyhow!("slice: {e}"))?;
-    }
-    Ok(image)
+    Ok(views::annotated_slice(&slice_gpu(atlas, spec, field)?, moment)?)
 }
 
 /// The ray-cast view from anterior, framing the volume, with the tools of the moment.

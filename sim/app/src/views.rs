@@ -351,7 +351,11 @@ impl ViewRenderer {
         let atlas = &*self.atlas;
         let m = Some(moment);
         let slice = |g: &mut GpuViews, spec: &stylet_render::mpr::SliceSpec| {
-            let image = g.mpr.render(&g.ctx, &g.volume, spec).map_err(gpu_error)?;
+            let image = match moment.deformation.as_deref() {
+                Some(field) => g.mpr.render_deformed(&g.ctx, &g.volume, spec, field),
+                None => g.mpr.render(&g.ctx, &g.volume, spec),
+            }
+            .map_err(gpu_error)?;
             views::annotated_slice(&image, m)
         };
         match kind {

@@ -182,7 +182,9 @@ pub fn needle_spec(atlas: &Atlas, moment: Option<&Moment>, width: u32, height: u
     )?)
 }
 
-/// A drawn slice with its annotations: the needle of the moment, the scale bar, the letters.
+/// A drawn slice with its annotations: the needle of the moment, the scale bar, the letters,
+/// and with a deformation at the moment (a slice drawn by `render_spec_deformed` or its GPU
+/// port) the displacement colour map's legend.
 pub fn annotated_slice(slice: &mpr::MprImage, moment: Option<&Moment>) -> Result<Image, ViewError> {
     let mut image = slice.to_image();
     let needle_mm = moment
@@ -195,6 +197,9 @@ pub fn annotated_slice(slice: &mpr::MprImage, moment: Option<&Moment>) -> Result
         letters: true,
     };
     annotate(&mut image, &slice.spec, &ann)?;
+    if let Some(field) = moment.and_then(|m| m.deformation.as_deref()) {
+        crate::annotate::displacement_legend(&mut image, mpr::displacement_scale_mm(field))?;
+    }
     Ok(image)
 }
 
@@ -202,12 +207,7 @@ pub fn annotated_slice(slice: &mpr::MprImage, moment: Option<&Moment>) -> Result
 /// deformed patient with its displacement colour map and legend.
 pub fn slice_image(atlas: &Atlas, moment: Option<&Moment>, spec: &SliceSpec) -> Result<Image, ViewError> {
     match moment.and_then(|m| m.deformation.as_deref()) {
-        Some(field) => {
-            let slice = mpr::render_spec_deformed(&atlas.model, spec, field)?;
-            let mut image = annotated_slice(&slice, moment)?;
-            crate::annotate::displacement_legend(&mut image, mpr::displacement_scale_mm(field))?;
-            Ok(image)
-        }
+        Some(field) => annotated_slice(&mpr::render_spec_deformed(&atlas.model, spec, field)?, moment),
         None => annotated_slice(&mpr::render_spec(&atlas.model, spec)?, moment),
     }
 }
