@@ -444,11 +444,16 @@ fn batch_results_do_not_depend_on_jobs_or_file_order() {
 
 /// Records a script text on the default phantom and scores it.
 fn score_text(name: &str, text: &str) -> Value {
-    let st = setup();
     let d = tempfile::tempdir().unwrap();
-    let script = d.path().join(format!("{name}.txt"));
+    score_json(&record_text(d.path(), name, text))
+}
+
+/// Records script `text` on the fixture's phantom as `dir/name.mcap` and returns its path.
+fn record_text(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let st = setup();
+    let script = dir.join(format!("{name}.txt"));
     std::fs::write(&script, text).unwrap();
-    let session = d.path().join(format!("{name}.mcap"));
+    let session = dir.join(format!("{name}.mcap"));
     ok(&[
         "script",
         "run",
@@ -459,7 +464,7 @@ fn score_text(name: &str, text: &str) -> Value {
         "--out",
         s(&session),
     ]);
-    score_json(&session)
+    session
 }
 
 #[test]
@@ -799,27 +804,14 @@ fn the_needle_in_the_ultrasound_plane_is_measured_against_the_last_probe_image()
 /// ticks under a header whose deformation or contrast settings were changed do not verify.
 #[test]
 fn replay_runs_the_world_model_of_the_header() {
-    let st = setup();
     let d = tempfile::tempdir().unwrap();
-    let script = d.path().join("world.txt");
-    std::fs::write(
-        &script,
+    let session = record_text(
+        d.path(),
+        "world",
         "stylet-script 1\ndeformation on\nend 16\nat 0 along intercostal-10-11 -15\n\
          at 1 along intercostal-10-11 -15\nat 11 along intercostal-10-11 111\n\
          at 11.5 event stylet-remove\nat 12 event contrast-inject 2\nat 15 along intercostal-10-11 111\n",
-    )
-    .unwrap();
-    let session = d.path().join("world.mcap");
-    ok(&[
-        "script",
-        "run",
-        "--atlas",
-        s(&st.atlas()),
-        "--script",
-        s(&script),
-        "--out",
-        s(&session),
-    ]);
+    );
     let header = reader::read(&session).unwrap().header;
     assert!(header.deformation.enabled);
     assert_eq!(header.contrast, stylet_physics::ContrastSettings::default());

@@ -418,55 +418,69 @@ mod world {
         }
     }
 
+    /// One part of the world model in a header's metadata: the keys under `prefix`, whole numbers
+    /// as decimal, reals as the hex of their bits (exact).
+    struct WorldKeys<'a> {
+        prefix: &'static str,
+        map: &'a BTreeMap<String, String>,
+    }
+
+    impl WorldKeys<'_> {
+        fn get(&self, k: &str) -> Result<&String, String> {
+            let p = self.prefix;
+            self.map
+                .get(&format!("{p}{k}"))
+                .ok_or_else(|| format!("session header lacks '{p}{k}'"))
+        }
+        fn int(&self, k: &str) -> Result<u32, String> {
+            let p = self.prefix;
+            self.get(k)?
+                .parse::<u32>()
+                .map_err(|_| format!("session header '{p}{k}' is not a number"))
+        }
+        fn real(&self, k: &str) -> Result<f64, String> {
+            let (p, key) = (self.prefix, format!("{k}_bits"));
+            u64::from_str_radix(self.get(&key)?, 16)
+                .map(f64::from_bits)
+                .map_err(|_| format!("session header '{p}{key}' is not hex"))
+        }
+    }
+
     /// The deformation settings of a header (off when the file has none), checked like the
     /// simulation checks them.
     pub fn get_deformation(m: &BTreeMap<String, String>) -> Result<DeformSettings, String> {
         if !m.contains_key(&format!("{P}enabled")) {
             return Ok(DeformSettings::off());
         }
-        let get = |k: &str| {
-            m.get(&format!("{P}{k}"))
-                .ok_or_else(|| format!("session header lacks '{P}{k}'"))
-        };
-        let int = |k: &str| -> Result<u32, String> {
-            get(k)?
-                .parse::<u32>()
-                .map_err(|_| format!("session header '{P}{k}' is not a number"))
-        };
-        let real = |k: &str| -> Result<f64, String> {
-            let key = format!("{k}_bits");
-            u64::from_str_radix(get(&key)?, 16)
-                .map(f64::from_bits)
-                .map_err(|_| format!("session header '{P}{key}' is not hex"))
-        };
-        let regulariser = match get("regulariser")?.as_str() {
+        let keys = WorldKeys { prefix: P, map: m };
+        let regulariser = match keys.get("regulariser")?.as_str() {
             "diffusion" => Regulariser::Diffusion,
             "linear_elastic" => Regulariser::LinearElastic {
-                poisson_ratio: real("poisson_ratio")?,
+                poisson_ratio: keys.real("poisson_ratio")?,
             },
             other => return Err(format!("session header '{P}regulariser' '{other}' is unknown")),
         };
-        let enabled = match int("enabled")? {
+        let enabled = match keys.int("enabled")? {
             0 => false,
             1 => true,
             _ => return Err(format!("session header '{P}enabled' must be 0 or 1")),
         };
         let d = DeformSettings {
             enabled,
-            cells: int("cells")?,
-            spacing_mm: real("spacing_mm")?,
-            every_ticks: int("every_ticks")?,
-            latency_ticks: int("latency_ticks")?,
+            cells: keys.int("cells")?,
+            spacing_mm: keys.real("spacing_mm")?,
+            every_ticks: keys.int("every_ticks")?,
+            latency_ticks: keys.int("latency_ticks")?,
             regulariser,
-            material_k_per_hu: real("material_k_per_hu")?,
-            material_s_hu: real("material_s_hu")?,
+            material_k_per_hu: keys.real("material_k_per_hu")?,
+            material_s_hu: keys.real("material_s_hu")?,
             schedule: stylet_physics::deform::Schedule {
-                levels: int("levels")?,
-                cycles: int("cycles")?,
-                pre_steps: int("pre_steps")?,
-                post_steps: int("post_steps")?,
-                coarsest_steps: int("coarsest_steps")?,
-                fed_cycle_steps: int("fed_cycle_steps")?,
+                levels: keys.int("levels")?,
+                cycles: keys.int("cycles")?,
+                pre_steps: keys.int("pre_steps")?,
+                post_steps: keys.int("post_steps")?,
+                coarsest_steps: keys.int("coarsest_steps")?,
+                fed_cycle_steps: keys.int("fed_cycle_steps")?,
             },
         };
         d.validate().map_err(|e| format!("session header deformation: {e}"))?;
@@ -493,30 +507,16 @@ mod world {
         if !m.keys().any(|k| k.starts_with(C)) {
             return Ok(ContrastSettings::default());
         }
-        let get = |k: &str| {
-            m.get(&format!("{C}{k}"))
-                .ok_or_else(|| format!("session header lacks '{C}{k}'"))
-        };
-        let int = |k: &str| -> Result<u32, String> {
-            get(k)?
-                .parse::<u32>()
-                .map_err(|_| format!("session header '{C}{k}' is not a number"))
-        };
-        let real = |k: &str| -> Result<f64, String> {
-            let key = format!("{k}_bits");
-            u64::from_str_radix(get(&key)?, 16)
-                .map(f64::from_bits)
-                .map_err(|_| format!("session header '{C}{key}' is not hex"))
-        };
+        let keys = WorldKeys { prefix: C, map: m };
         let c = ContrastSettings {
-            grid_nodes: int("grid_nodes")? as usize,
-            update_every_ticks: int("update_every_ticks")?,
-            steps_per_update: int("steps_per_update")?,
-            tau: real("tau")?,
-            rate_ml_per_s: real("rate_ml_per_s")?,
-            visible_fraction: real("visible_fraction")?,
-            confirm_extent_mm: real("confirm_extent_mm")?,
-            settle_s: real("settle_s")?,
+            grid_nodes: keys.int("grid_nodes")? as usize,
+            update_every_ticks: keys.int("update_every_ticks")?,
+            steps_per_update: keys.int("steps_per_update")?,
+            tau: keys.real("tau")?,
+            rate_ml_per_s: keys.real("rate_ml_per_s")?,
+            visible_fraction: keys.real("visible_fraction")?,
+            confirm_extent_mm: keys.real("confirm_extent_mm")?,
+            settle_s: keys.real("settle_s")?,
         };
         c.validate().map_err(|e| format!("session header contrast: {e}"))?;
         Ok(c)

@@ -705,14 +705,27 @@ mod tests {
     use super::*;
     use crate::deform::operator;
 
+    /// A cube lattice of `n` nodes per axis at spacing `h_mm`, origin at zero.
+    fn cube(n: usize, h_mm: f64) -> Lattice {
+        Lattice {
+            n,
+            h_mm,
+            origin_mm: DVec3::ZERO,
+        }
+    }
+
+    /// Seeded uniform numbers in [−½, ½) (a 64-bit LCG: the same sequence on every machine).
+    fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
+        move || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        }
+    }
+
     /// Fixing tool nodes on a cached hierarchy gives the levels built from scratch.
     #[test]
     fn marking_a_cached_hierarchy_equals_coarsening_the_marked_lattice() {
-        let lattice = Lattice {
-            n: 33,
-            h_mm: 1.0,
-            origin_mm: DVec3::ZERO,
-        };
+        let lattice = cube(33, 1.0);
         let len = lattice.len();
         let base_fixed: Vec<bool> = (0..len)
             .map(|i| {
@@ -763,16 +776,8 @@ mod tests {
             eprintln!("this CPU has no AVX2: only the plain rows run on it");
             return;
         }
-        let lattice = Lattice {
-            n: 21,
-            h_mm: 0.7,
-            origin_mm: DVec3::ZERO,
-        };
-        let mut seed = 99u64;
-        let mut rnd = || {
-            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let lattice = cube(21, 0.7);
+        let mut rnd = uniform(99);
         let len = lattice.len();
         let u: Components = [0, 1, 2].map(|_| (0..len).map(|_| rnd()).collect());
         let g: Components = [0, 1, 2].map(|_| (0..len).map(|_| rnd()).collect());
@@ -816,16 +821,8 @@ mod tests {
     /// u + τ·f_mat·apply(u) node by node.
     #[test]
     fn the_row_kernel_is_the_reference_operator() {
-        let lattice = Lattice {
-            n: 9,
-            h_mm: 1.5,
-            origin_mm: DVec3::ZERO,
-        };
-        let mut seed = 12345u64;
-        let mut rnd = || {
-            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let lattice = cube(9, 1.5);
+        let mut rnd = uniform(12345);
         let u: Vec<DVec3> = (0..lattice.len()).map(|_| DVec3::new(rnd(), rnd(), rnd())).collect();
         let f_mat: Vec<f64> = (0..lattice.len()).map(|_| 0.5 + rnd()).collect();
         let fixed: Vec<bool> = (0..lattice.len())
