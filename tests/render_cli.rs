@@ -72,18 +72,25 @@ fn script(name: &str) -> PathBuf {
 
 /// Records a script as a session on `atlas`.
 fn record(atlas: &Path, name: &str, out: &Path) {
-    ok(&[
+    record_file(atlas, &script(name), Some(name), out);
+}
+
+/// Records the script file `script` on `atlas` (graded as `scenario` when given).
+fn record_file(atlas: &Path, script: &Path, scenario: Option<&str>, out: &Path) {
+    let mut args = vec![
         "script",
         "run",
         "--atlas",
         atlas.to_str().unwrap(),
         "--script",
-        script(name).to_str().unwrap(),
-        "--scenario",
-        name,
+        script.to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
-    ]);
+    ];
+    if let Some(name) = scenario {
+        args.extend(["--scenario", name]);
+    }
+    ok(&args);
 }
 
 const W: u32 = 320;
@@ -439,16 +446,7 @@ fn the_gpu_renderer_draws_what_the_cpu_draws_and_no_adapter_is_a_clear_error() {
     // A moment with tissue deformation: the needle pressing on the intercostal fascia.
     let pressing = d.path().join("fascia.mcap");
     let fascia_script = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/img/deform-needle-fascia.txt");
-    ok(&[
-        "script",
-        "run",
-        "--atlas",
-        atlas.to_str().unwrap(),
-        "--script",
-        fascia_script.to_str().unwrap(),
-        "--out",
-        pressing.to_str().unwrap(),
-    ]);
+    record_file(&atlas, &fascia_script, None, &pressing);
     let deformed = pressing.to_str().unwrap();
     // The tolerances of the GPU-versus-CPU tests (tests/render_golden.rs, sim/render-gpu/tests):
     // the same f32 formulas, so rounding moves a channel by about one level (mean, p99); where it
