@@ -435,33 +435,54 @@ fn gpu() -> &'static (GpuContext, std::sync::Mutex<GpuRenderer>) {
 const GPU_W: u32 = 200;
 const GPU_H: u32 = 165;
 
-/// Every preset, then the soft preset clipped through the target in every tagging mode.
+/// The records interpolated by the texture unit (`RecordFilter::Hardware`): exact voxel values,
+/// the filter's weights (1/256 voxel on NVIDIA and AMD). On an H200 the chest's fast frame
+/// differed from the CPU's by mean 0.06–0.07, p99 1, max 8–13 (docs/rendering.md "GPU on
+/// hardware"); the tolerance is the GPU crate's for the same path.
+const GPU_CPU_FILTERED: Tolerance = Tolerance {
+    mean: 0.15,
+    p99: 2,
+    max: 64,
+};
+
+/// Every preset, then the soft preset clipped through the target in every tagging mode; then
+/// every preset again with the records filtered by the texture unit.
 fn gpu_matches_cpu(atlas: &str, p: &Prepared) {
+    use stylet_render_gpu::{CtPlacement, RecordFilter, UploadOptions};
     let (ctx, renderer) = gpu();
     let vol = GpuVolume::upload(ctx, &p.volume).unwrap();
-    let mut scenes: Vec<(String, Scene)> = Preset::ALL
+    let hardware = UploadOptions {
+        placement: CtPlacement::Texture,
+        records: RecordFilter::Hardware,
+    };
+    let filtered = GpuVolume::upload_with(ctx, &p.volume, hardware).unwrap();
+    let mut scenes: Vec<(String, Scene, &GpuVolume, Tolerance)> = Preset::ALL
         .into_iter()
-        .map(|pr| (pr.as_str().to_string(), scene(&p.volume, preset(p, pr))))
+        .map(|pr| (pr.as_str().to_string(), scene(&p.volume, preset(p, pr)), &vol, GPU_CPU))
         .collect();
     let target = label_centre(&p.atlas, 21);
     for tagging in Tagging::ALL {
         let mut s = scene(&p.volume, preset(p, Preset::Soft));
         s.clip = Some(ClipPlane::through_tool(target, Vec3::Z, &s.camera));
         s.tagging = tagging;
-        scenes.push((format!("soft-clip-{}", tagging.as_str()), s));
+        scenes.push((format!("soft-clip-{}", tagging.as_str()), s, &vol, GPU_CPU));
+    }
+    for pr in Preset::ALL {
+        let s = scene(&p.volume, preset(p, pr));
+        scenes.push((format!("{}-filtered", pr.as_str()), s, &filtered, GPU_CPU_FILTERED));
     }
     let mut failed = Vec::new();
-    for (name, s) in scenes {
+    for (name, s, vol, tolerance) in scenes {
         let cpu = render(&p.volume, &s, GPU_W, GPU_H).image;
         let t = std::time::Instant::now();
-        let gpu = renderer.lock().unwrap().render(ctx, &vol, &s, GPU_W, GPU_H).unwrap();
+        let gpu = renderer.lock().unwrap().render(ctx, vol, &s, GPU_W, GPU_H).unwrap();
         let d = diff(&gpu, &cpu).unwrap();
         println!(
             "{atlas}-{name}: GPU ({}) {:.0} ms, {d} against the CPU",
             ctx.adapter().name,
             t.elapsed().as_secs_f64() * 1e3
         );
-        if !GPU_CPU.admits(&d) {
+        if !tolerance.admits(&d) {
             let out = std::env::temp_dir().join(format!("stylet-gpu-{atlas}-{name}.png"));
             gpu.write_png(&out).unwrap();
             failed.push(format!("{name}: {d} (GPU image {})", out.display()));

@@ -4,8 +4,10 @@
 // (stylet-render: raycast/march.rs, sampler.rs, shading.rs, occupancy.rs; tools.rs; shadow.rs):
 // f32, same formulas, same order; the numbered comments are the steps of docs/rendering.md.
 // The CT declaration and `ct_voxel` are prepended by the host (R16Sint for integer CTs,
-// R32Float otherwise; see raycast.rs). Voxels are read with textureLoad only (manual
-// trilinear interpolation, never hardware filtering), so the GPU sees the CPU's values.
+// R32Float otherwise; see raycast.rs). Voxels are read with textureLoad (manual trilinear
+// interpolation), so the GPU sees the CPU's values; the one exception, chosen at upload, is the
+// records of a shaded sample, which the texture unit may interpolate (volume.rs
+// `RecordFilter::Hardware`: exact voxel values, weights at the hardware's precision).
 
 const AIR_HU: f32 = -1000.0;
 const OPAQUE: f32 = 0.99;          // Quality::OPAQUE
@@ -221,8 +223,10 @@ struct Records {
     r: vec4<f32>,
 }
 
-// The CT's records (dx, dy, dz, I) trilinearly interpolated, all four lanes in ct_trilinear's order.
-fn ct_records(c: vec3<f32>) -> Records {
+// The CT's records (dx, dy, dz, I) trilinearly interpolated, all four lanes in ct_trilinear's
+// order. The prelude's ct_records(c) is this, or the texture unit's filtered read
+// (volume.rs `RecordFilter::Hardware`).
+fn ct_records_exact(c: vec3<f32>) -> Records {
     let l = lerp_setup(c, P.dims.xyz);
     if !l.ok {
         return Records(false, vec4<f32>(0.0));

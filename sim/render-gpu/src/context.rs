@@ -61,8 +61,10 @@ impl GpuContext {
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("stylet-render-gpu"),
                 required_limits: limits.clone(),
-                // GPU frame times (GpuRenderer::last_pass_ms) where the adapter has a clock.
-                required_features: adapter.features() & wgpu::Features::TIMESTAMP_QUERY,
+                // GPU frame times (GpuRenderer::last_pass_ms) where the adapter has a clock;
+                // filterable 16-bit records (volume::RecordFilter::Hardware) where it has them.
+                required_features: adapter.features()
+                    & (wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::TEXTURE_FORMAT_16BIT_NORM),
                 ..Default::default()
             })
             .await
@@ -86,6 +88,14 @@ impl GpuContext {
     /// Whether the GPU reports its own pass times (`GpuRenderer::last_pass_ms`).
     pub fn has_timestamps(&self) -> bool {
         self.device.features().contains(wgpu::Features::TIMESTAMP_QUERY)
+    }
+
+    /// Whether 16-bit normalised textures can be sampled with filtering
+    /// (`volume::RecordFilter::Hardware`).
+    pub fn has_16bit_norm(&self) -> bool {
+        self.device
+            .features()
+            .contains(wgpu::Features::TEXTURE_FORMAT_16BIT_NORM)
     }
 
     /// The device's limits (the largest 3D texture, storage buffer, …).

@@ -27,7 +27,7 @@ pub use context::{AdapterSummary, GpuContext};
 pub use mpr::GpuMpr;
 pub use raycast::GpuRenderer;
 pub use ultrasound::GpuUltrasound;
-pub use volume::{CtFormat, CtPlacement, GpuVolume};
+pub use volume::{CtFormat, CtPlacement, GpuVolume, RecordFilter, UploadOptions};
 pub use xray::GpuXray;
 
 /// Why the GPU could not draw.

@@ -320,24 +320,19 @@ impl GpuRenderer {
         let pipeline = self.pipelines.get(ctx, &vol.raycast_prelude());
         let deformed_view = self.deformed.as_ref().map(|d| &d.view).unwrap_or(&self.dummy_deformed);
         let cache = self.occupancy.as_ref().expect("occupancy set above");
-        dispatch(
-            ctx,
-            &pipeline,
-            &[
-                self.params.as_entire_binding(),
-                vol.ct_binding(),
-                wgpu::BindingResource::TextureView(&vol.labels_view),
-                vol.styles.as_entire_binding(),
-                cache.buffer.as_entire_binding(),
-                self.prims.as_entire_binding(),
-                wgpu::BindingResource::TextureView(deformed_view),
-                output.as_entire_binding(),
-                cache.table.as_entire_binding(),
-                vol.records_binding(),
-            ],
-            groups,
-            self.timer.as_ref(),
-        );
+        let mut resources = vec![
+            self.params.as_entire_binding(),
+            vol.ct_binding(),
+            wgpu::BindingResource::TextureView(&vol.labels_view),
+            vol.styles.as_entire_binding(),
+            cache.buffer.as_entire_binding(),
+            self.prims.as_entire_binding(),
+            wgpu::BindingResource::TextureView(deformed_view),
+            output.as_entire_binding(),
+            cache.table.as_entire_binding(),
+        ];
+        resources.extend(vol.records_bindings());
+        dispatch(ctx, &pipeline, &resources, groups, self.timer.as_ref());
         let bytes = ctx.read_buffer(&output, out_bytes)?;
         self.last_pass_ms = self.timer.as_ref().and_then(|t| t.read_ms(ctx));
         let rgba = bytes.chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]).collect();

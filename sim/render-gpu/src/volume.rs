@@ -4,8 +4,11 @@
 //! reference's own, 4 × 16-bit integers or 4 × f32 a voxel), so a shaded sample reads 8 texels
 //! instead of the 56 that differences formed on the fly need;
 //! the rendered labels l(x) and the partial labels (MPR overlay) as 16-bit integers; the label
-//! styles in a small buffer. Shaders read voxels with `textureLoad` only (manual trilinear
-//! interpolation, never hardware filtering), so they see exactly the CPU's values.
+//! styles in a small buffer. Shaders read voxels with `textureLoad` (manual trilinear
+//! interpolation), so they see exactly the CPU's values, with one exception chosen at upload
+//! ([`RecordFilter`]): on a hardware GPU the ray caster may let the texture unit interpolate the
+//! records, one filtered read instead of eight loads, with the weights at the hardware's
+//! precision.
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -48,6 +51,40 @@ pub enum CtPlacement {
     Buffer,
 }
 
+/// How the ray caster interpolates the gradient records (the trilinear read of a shaded sample,
+/// docs/rendering.md "GPU on hardware").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RecordFilter {
+    /// `Hardware` where it can be and pays: 16-bit records in a texture on a hardware adapter
+    /// with 16-bit normalised textures (`TEXTURE_FORMAT_16BIT_NORM`); else `Shader`.
+    Auto,
+    /// Eight texel loads blended in the shader in the CPU's order: the CPU's values up to f32
+    /// rounding.
+    Shader,
+    /// One read filtered by the texture unit: the records as `Rgba16Snorm` (the same 16-bit
+    /// integers, read as i/32767 and scaled back), clamp-to-edge addressing, which is the CPU's
+    /// clamp of c into [0, n − 1]. The voxel values are exact; the trilinear weights have the
+    /// hardware's precision (8 fractional bits on NVIDIA and AMD: 1/256 voxel), so a sample may
+    /// differ from the CPU's by up to 1/512 of the step between neighbouring voxels.
+    Hardware,
+}
+
+/// Choices made when the volumes are uploaded; the defaults pick what is fastest on the adapter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct UploadOptions {
+    pub placement: CtPlacement,
+    pub records: RecordFilter,
+}
+
+impl Default for UploadOptions {
+    fn default() -> Self {
+        UploadOptions {
+            placement: CtPlacement::Auto,
+            records: RecordFilter::Auto,
+        }
+    }
+}
+
 /// Where the CT voxels live on the GPU (both read voxel by voxel, never filtered).
 pub(crate) enum CtStore {
     Texture(wgpu::TextureView),
@@ -58,34 +95,57 @@ pub(crate) enum CtStore {
 /// Where the gradient records live (the CT's placement when they fit there too).
 pub(crate) enum RecordsStore {
     Texture(wgpu::TextureView),
+    /// [`RecordFilter::Hardware`]: `Rgba16Snorm` and its linear, clamp-to-edge sampler.
+    Filtered(wgpu::TextureView, wgpu::Sampler),
     /// Records in x-fastest order: four i16 in two u32 words, or four f32.
     Buffer(wgpu::Buffer),
 }
 
-/// The records' declaration for the ray-casting shader (binding 9): `ct_record(p)` is voxel p's
-/// (Δx, Δy, Δz, I).
-pub(crate) fn records_prelude(int16: bool, buffer: bool) -> &'static str {
-    match (int16, buffer) {
-        (true, false) => {
+/// The records' declaration for the ray-casting shader (binding 9, and the sampler at 10 when
+/// filtered): `ct_record(p)` is voxel p's (Δx, Δy, Δz, I); `ct_records(c)` their trilinear
+/// interpolation at index c (`Records` of raycast.wgsl), by the shader's eight loads
+/// (`ct_records_exact`) or by the texture unit.
+pub(crate) fn records_prelude(store: &RecordsStore, int16: bool) -> &'static str {
+    match (store, int16) {
+        (RecordsStore::Texture(_), true) => {
             "@group(0) @binding(9) var records: texture_3d<i32>;\n\
-             fn ct_record(p: vec3<i32>) -> vec4<f32> { return vec4<f32>(textureLoad(records, p, 0)); }\n"
+             fn ct_record(p: vec3<i32>) -> vec4<f32> { return vec4<f32>(textureLoad(records, p, 0)); }\n\
+             fn ct_records(c: vec3<f32>) -> Records { return ct_records_exact(c); }\n"
         }
-        (false, false) => {
+        (RecordsStore::Texture(_), false) => {
             "@group(0) @binding(9) var records: texture_3d<f32>;\n\
-             fn ct_record(p: vec3<i32>) -> vec4<f32> { return textureLoad(records, p, 0); }\n"
+             fn ct_record(p: vec3<i32>) -> vec4<f32> { return textureLoad(records, p, 0); }\n\
+             fn ct_records(c: vec3<f32>) -> Records { return ct_records_exact(c); }\n"
         }
-        (true, true) => {
+        (RecordsStore::Buffer(_), true) => {
             "@group(0) @binding(9) var<storage, read> records: array<vec2<u32>>;\n\
              fn ct_record(p: vec3<i32>) -> vec4<f32> {\n\
                  let w = records[u32(p.x) + P.dims.x * (u32(p.y) + P.dims.y * u32(p.z))];\n\
                  return vec4<f32>(vec4<i32>(bitcast<i32>(w.x << 16u) >> 16u, bitcast<i32>(w.x) >> 16u,\n\
                                             bitcast<i32>(w.y << 16u) >> 16u, bitcast<i32>(w.y) >> 16u));\n\
-             }\n"
+             }\n\
+             fn ct_records(c: vec3<f32>) -> Records { return ct_records_exact(c); }\n"
         }
-        (false, true) => {
+        (RecordsStore::Buffer(_), false) => {
             "@group(0) @binding(9) var<storage, read> records: array<vec4<f32>>;\n\
              fn ct_record(p: vec3<i32>) -> vec4<f32> {\n\
                  return records[u32(p.x) + P.dims.x * (u32(p.y) + P.dims.y * u32(p.z))];\n\
+             }\n\
+             fn ct_records(c: vec3<f32>) -> Records { return ct_records_exact(c); }\n"
+        }
+        // Texel centres sit at (i + 1/2)/n in normalised coordinates, so index c reads at
+        // (c + 1/2)/n; the inside rule is lerp_setup's.
+        (RecordsStore::Filtered(..), _) => {
+            "@group(0) @binding(9) var records: texture_3d<f32>;\n\
+             @group(0) @binding(10) var records_filter: sampler;\n\
+             fn ct_record(p: vec3<i32>) -> vec4<f32> { return round(textureLoad(records, p, 0) * 32767.0); }\n\
+             fn ct_records(c: vec3<f32>) -> Records {\n\
+                 let n = vec3<f32>(P.dims.xyz);\n\
+                 if !(all(c >= vec3<f32>(-0.5)) && all(c < n - vec3<f32>(0.5))) {\n\
+                     return Records(false, vec4<f32>(0.0));\n\
+                 }\n\
+                 let r = textureSampleLevel(records, records_filter, (c + vec3<f32>(0.5)) / n, 0.0);\n\
+                 return Records(true, r * 32767.0);\n\
              }\n"
         }
     }
@@ -117,13 +177,16 @@ pub struct GpuVolume {
 
 impl GpuVolume {
     /// Uploads the CT, labels and styles (checks the device limits first), the CT where it is
-    /// fastest for the adapter ([`CtPlacement::Auto`]).
+    /// fastest for the adapter ([`CtPlacement::Auto`], [`RecordFilter::Auto`]).
     pub fn upload(ctx: &GpuContext, vol: &RenderVolume) -> Result<GpuVolume, GpuError> {
-        Self::upload_with(ctx, vol, CtPlacement::Auto)
+        Self::upload_with(ctx, vol, UploadOptions::default())
     }
 
-    /// [`GpuVolume::upload`] with the CT's placement chosen (tests cover both shader variants).
-    pub fn upload_with(ctx: &GpuContext, vol: &RenderVolume, placement: CtPlacement) -> Result<GpuVolume, GpuError> {
+    /// [`GpuVolume::upload`] with the CT's placement and the records' filtering chosen (tests
+    /// cover every shader variant; the timing example compares them). Asking for
+    /// [`RecordFilter::Hardware`] where it cannot be had is an error, not a silent fallback.
+    pub fn upload_with(ctx: &GpuContext, vol: &RenderVolume, options: UploadOptions) -> Result<GpuVolume, GpuError> {
+        let placement = options.placement;
         let atlas = vol.atlas.clone();
         let ct = atlas.ct();
         let dims = ct.grid().dims();
@@ -178,12 +241,54 @@ impl GpuVolume {
             RecordSlice::Int16(r) => (true, bytemuck::cast_slice(r)),
             RecordSlice::Float32(r) => (false, bytemuck::cast_slice(r)),
         };
-        let records = if buffer
+        let records_in_buffer = buffer
             && ctx
                 .check_storage_buffer("the records", record_bytes.len() as u64)
-                .is_ok()
-        {
+                .is_ok();
+        let can_filter = records_int16 && !records_in_buffer && ctx.has_16bit_norm();
+        let filtered = match options.records {
+            RecordFilter::Shader => false,
+            RecordFilter::Auto => can_filter && ctx.adapter().device_type != "Cpu",
+            RecordFilter::Hardware if can_filter => true,
+            RecordFilter::Hardware => {
+                return Err(GpuError::Invalid(format!(
+                    "hardware filtering of the records needs 16-bit records ({}) in a texture ({}) \
+                     and an adapter with 16-bit normalised textures ({})",
+                    if records_int16 {
+                        "yes"
+                    } else {
+                        "no: the CT has fractional values"
+                    },
+                    if records_in_buffer {
+                        "no: in a storage buffer"
+                    } else {
+                        "yes"
+                    },
+                    if ctx.has_16bit_norm() { "yes" } else { "no" },
+                )));
+            }
+        };
+        let records = if records_in_buffer {
             RecordsStore::Buffer(storage(ctx, "gradient records", record_bytes))
+        } else if filtered {
+            let view = texture_3d(
+                ctx,
+                "gradient records (filtered)",
+                dims,
+                wgpu::TextureFormat::Rgba16Snorm,
+                8,
+                record_bytes,
+            );
+            let sampler = ctx.device.create_sampler(&wgpu::SamplerDescriptor {
+                label: Some("gradient records"),
+                address_mode_u: wgpu::AddressMode::ClampToEdge,
+                address_mode_v: wgpu::AddressMode::ClampToEdge,
+                address_mode_w: wgpu::AddressMode::ClampToEdge,
+                mag_filter: wgpu::FilterMode::Linear,
+                min_filter: wgpu::FilterMode::Linear,
+                ..Default::default()
+            });
+            RecordsStore::Filtered(view, sampler)
         } else {
             let (format, texel) = if records_int16 {
                 (wgpu::TextureFormat::Rgba16Sint, 8)
@@ -271,20 +376,32 @@ impl GpuVolume {
         (self.format, self.ct_in_buffer())
     }
 
+    /// How the ray caster interpolates the records of this upload (`Shader` or `Hardware`).
+    pub fn record_filter(&self) -> RecordFilter {
+        match self.records {
+            RecordsStore::Filtered(..) => RecordFilter::Hardware,
+            _ => RecordFilter::Shader,
+        }
+    }
+
     /// The ray-casting shader's declarations of the CT and the records.
     pub(crate) fn raycast_prelude(&self) -> String {
-        let in_buffer = matches!(self.records, RecordsStore::Buffer(_));
         format!(
             "{}{}",
             crate::raycast::ct_prelude(self.ct_key()),
-            records_prelude(self.records_int16, in_buffer)
+            records_prelude(&self.records, self.records_int16)
         )
     }
 
-    pub(crate) fn records_binding(&self) -> wgpu::BindingResource<'_> {
+    /// The records' bindings (9, and the sampler at 10 when filtered).
+    pub(crate) fn records_bindings(&self) -> Vec<wgpu::BindingResource<'_>> {
         match &self.records {
-            RecordsStore::Texture(v) => wgpu::BindingResource::TextureView(v),
-            RecordsStore::Buffer(b) => b.as_entire_binding(),
+            RecordsStore::Texture(v) => vec![wgpu::BindingResource::TextureView(v)],
+            RecordsStore::Buffer(b) => vec![b.as_entire_binding()],
+            RecordsStore::Filtered(v, sampler) => vec![
+                wgpu::BindingResource::TextureView(v),
+                wgpu::BindingResource::Sampler(sampler),
+            ],
         }
     }
 

@@ -14,7 +14,7 @@ use stylet_physics::glam::{Quat, Vec3};
 use stylet_render::image::Tolerance;
 use stylet_render::scene::{ClipPlane, Quality, Tagging};
 use stylet_render::tools::{FingerShape, NeedleShape, ProbeShape, ToolState};
-use stylet_render_gpu::GpuError;
+use stylet_render_gpu::{CtPlacement, GpuError, GpuVolume, RecordFilter, UploadOptions};
 
 /// GPU against CPU. Both run the same f32 formulas in the same order; what differs is the
 /// rounding of the shader compiler (fused multiply-adds, pow, normalize, sqrt and division to
@@ -152,6 +152,71 @@ fn speed_switches_and_half_resolution_match_the_cpu() {
         let mut s = scene(&b.cpu, tf.clone());
         s.quality = q;
         compare(&format!("small-{name}"), b, &s, 161, 133, GPU_CPU);
+    }
+}
+
+/// `RecordFilter::Hardware`: the texture unit interpolates the records (one filtered read of
+/// `Rgba16Snorm` instead of eight loads). The voxel values are the CPU's exactly; the trilinear
+/// weights have the filter's precision (1/256 voxel on NVIDIA and AMD), so a sample may move by
+/// up to 1/512 of the step between neighbouring voxels, which across a 1000 HU bone edge is 2 HU:
+/// more pixels move by a level than with the shader's own blend. Measured on an H200 (chest CT,
+/// docs/rendering.md "GPU on hardware"): mean 0.06–0.07, p99 1, max 8–13; lavapipe's weights are
+/// full floats (mean 0.000, max 1). The tolerance allows twice the hardware's mean and one level
+/// more at p99; a records scale off by 9 % already fails it (mean 0.33, p99 4).
+const FILTERED: Tolerance = Tolerance {
+    mean: 0.15,
+    p99: 2,
+    max: 64,
+};
+
+#[test]
+fn hardware_filtered_records_match_the_cpu() {
+    assert!(
+        ctx().has_16bit_norm(),
+        "the adapter lacks 16-bit normalised textures (lavapipe and every desktop GPU have them)"
+    );
+    let hardware = UploadOptions {
+        placement: CtPlacement::Texture,
+        records: RecordFilter::Hardware,
+    };
+    let b = synthetic_upload(48, 2.0, body, body_labels, hardware);
+    assert_eq!(b.gpu.record_filter(), RecordFilter::Hardware);
+    for (name, tf) in transfer_functions() {
+        compare(&format!("filtered-{name}"), &b, &scene(&b.cpu, tf), 160, 132, FILTERED);
+    }
+    let mut s = scene(&b.cpu, transfer_functions().swap_remove(1).1);
+    s.clip = Some(ClipPlane::through_tool(Vec3::new(20.0, 5.0, 10.0), Vec3::Z, &s.camera));
+    s.tagging = Tagging::Risk;
+    s.tools = tools();
+    compare("filtered-clip-tools", &b, &s, 160, 132, FILTERED);
+    s.quality = Quality::naive(1.0);
+    compare("filtered-naive", &b, &s, 160, 132, FILTERED);
+}
+
+/// Hardware filtering asked for where it cannot be had is a named error, never a silent
+/// fallback: fractional CT values (float records) or records in a storage buffer.
+#[test]
+fn hardware_filtering_where_it_cannot_be_had_is_refused() {
+    let hardware = |placement| UploadOptions {
+        placement,
+        records: RecordFilter::Hardware,
+    };
+    let err = |cpu: &stylet_render::volume::RenderVolume, placement| match GpuVolume::upload_with(
+        ctx(),
+        cpu,
+        hardware(placement),
+    ) {
+        Err(GpuError::Invalid(m)) => m,
+        Err(e) => panic!("wrong error: {e}"),
+        Ok(_) => panic!("hardware filtering accepted"),
+    };
+    let m = err(&small_float().cpu, CtPlacement::Texture);
+    assert!(m.contains("fractional values"), "{m}");
+    let m = err(&small().cpu, CtPlacement::Buffer);
+    assert!(m.contains("storage buffer"), "{m}");
+    // The default on a software adapter stays with the shader's exact blend.
+    if ctx().adapter().device_type == "Cpu" {
+        assert_eq!(small().gpu.record_filter(), RecordFilter::Shader);
     }
 }
 

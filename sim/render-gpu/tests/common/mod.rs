@@ -13,7 +13,7 @@ use stylet_render::synthetic;
 use stylet_render::tools::ToolState;
 use stylet_render::transfer::{TransferFunction, Trapezoid};
 use stylet_render::volume::RenderVolume;
-use stylet_render_gpu::{CtPlacement, GpuContext, GpuRenderer, GpuVolume};
+use stylet_render_gpu::{CtPlacement, GpuContext, GpuRenderer, GpuVolume, RecordFilter, UploadOptions};
 
 /// The device, opened once; no adapter is a failure with the fix in the message.
 pub fn ctx() -> &'static GpuContext {
@@ -58,9 +58,29 @@ pub fn synthetic_with(
     partial: impl Fn(DVec3) -> u16,
     placement: CtPlacement,
 ) -> Both {
+    synthetic_upload(
+        n,
+        spacing,
+        ct,
+        partial,
+        UploadOptions {
+            placement,
+            records: RecordFilter::Auto,
+        },
+    )
+}
+
+/// [`synthetic`] with every upload choice given.
+pub fn synthetic_upload(
+    n: usize,
+    spacing: f64,
+    ct: impl Fn(DVec3) -> f32,
+    partial: impl Fn(DVec3) -> u16,
+    options: UploadOptions,
+) -> Both {
     let a = synthetic::atlas(n, spacing, ct, partial);
     let cpu = RenderVolume::new(Arc::new(a));
-    let gpu = GpuVolume::upload_with(ctx(), &cpu, placement).unwrap();
+    let gpu = GpuVolume::upload_with(ctx(), &cpu, options).unwrap();
     Both { cpu, gpu }
 }
 
