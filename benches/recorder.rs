@@ -71,6 +71,7 @@ fn header() -> SessionHeader {
         wall_clock_start: stylet_recorder::wall_clock_now(),
         deformation: DeformSettings::default(),
         contrast: Default::default(),
+        breathing: Default::default(),
     }
 }
 

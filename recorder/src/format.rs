@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
+use stylet_physics::motion::BreathingSettings;
 use stylet_physics::{ContrastSettings, DeformSettings, Event, Gauge, ProbeKind, ToolSpec};
 
 /// The session schema version this code writes; it reads this version and the one before.
@@ -272,6 +273,10 @@ pub struct SessionHeader {
     /// The world model's contrast agent (thesis §3.3): replay diffuses with exactly these
     /// settings. Files written before 2026-11-27 lack it; they ran the defaults and read so.
     pub contrast: ContrastSettings,
+    /// The world model's respiratory motion (thesis Chapter 5): the synthetic motion's
+    /// parameters and the breathing signal with its seed; replay rebuilds the same motion from
+    /// the atlas. Files without it did not breathe.
+    pub breathing: BreathingSettings,
 }
 
 impl SessionHeader {
@@ -307,6 +312,7 @@ impl SessionHeader {
         put("wall_clock_start", self.wall_clock_start.clone());
         world::put_deformation(&self.deformation, &mut put);
         world::put_contrast(&self.contrast, &mut put);
+        world::put_breathing(&self.breathing, &mut put);
         m
     }
 
@@ -376,16 +382,18 @@ impl SessionHeader {
             wall_clock_start,
             deformation: world::get_deformation(m)?,
             contrast: world::get_contrast(m)?,
+            breathing: world::get_breathing(m)?,
         })
     }
 }
 
-/// The world model in the header: one metadata key per setting, `world.deformation.*` and
-/// `world.contrast.*`, numbers
+/// The world model in the header: one metadata key per setting, `world.deformation.*`,
+/// `world.contrast.*` and `world.breathing.*`, numbers
 /// as decimal integers or, for real numbers, exact f64 bits in hex (so replay gets the same bits).
 mod world {
     use std::collections::BTreeMap;
 
+    use stylet_physics::motion::BreathingSettings;
     use stylet_physics::{ContrastSettings, DeformSettings, Regulariser};
 
     const P: &str = "world.deformation.";
@@ -520,6 +528,63 @@ mod world {
         };
         c.validate().map_err(|e| format!("session header contrast: {e}"))?;
         Ok(c)
+    }
+
+    const B: &str = "world.breathing.";
+
+    pub fn put_breathing(b: &BreathingSettings, put: &mut impl FnMut(&str, String)) {
+        put(&format!("{B}enabled"), u64::from(b.enabled).to_string());
+        put(&format!("{B}model"), "synthetic".into());
+        put(&format!("{B}power"), b.signal.power.to_string());
+        put(&format!("{B}seed"), b.signal.seed.to_string());
+        let mut real = |k: &str, v: f64| put(&format!("{B}{k}_bits"), format!("{:016x}", v.to_bits()));
+        real("amplitude_mm", b.motion.amplitude_mm);
+        real("anterior_ratio", b.motion.anterior_ratio);
+        real("wall_mm", b.motion.wall_mm);
+        real("bone_margin_mm", b.motion.bone_margin_mm);
+        real("period_s", b.signal.period_s);
+        real("period_jitter", b.signal.period_jitter);
+        real("depth_jitter", b.signal.depth_jitter);
+    }
+
+    /// The breathing of a header (none when the file has none: it did not breathe), checked like
+    /// the simulation checks it.
+    pub fn get_breathing(m: &BTreeMap<String, String>) -> Result<BreathingSettings, String> {
+        if !m.keys().any(|k| k.starts_with(B)) {
+            return Ok(BreathingSettings::default());
+        }
+        let keys = WorldKeys { prefix: B, map: m };
+        match keys.get("model")?.as_str() {
+            "synthetic" => {}
+            other => return Err(format!("session header '{B}model' '{other}' is unknown")),
+        }
+        let enabled = match keys.int("enabled")? {
+            0 => false,
+            1 => true,
+            _ => return Err(format!("session header '{B}enabled' must be 0 or 1")),
+        };
+        let seed = keys
+            .get("seed")?
+            .parse::<u64>()
+            .map_err(|_| format!("session header '{B}seed' is not a number"))?;
+        let b = BreathingSettings {
+            enabled,
+            motion: stylet_physics::motion::SyntheticMotion {
+                amplitude_mm: keys.real("amplitude_mm")?,
+                anterior_ratio: keys.real("anterior_ratio")?,
+                wall_mm: keys.real("wall_mm")?,
+                bone_margin_mm: keys.real("bone_margin_mm")?,
+            },
+            signal: stylet_physics::motion::SignalParams {
+                period_s: keys.real("period_s")?,
+                period_jitter: keys.real("period_jitter")?,
+                depth_jitter: keys.real("depth_jitter")?,
+                power: keys.int("power")?,
+                seed,
+            },
+        };
+        b.validate().map_err(|e| format!("session header breathing: {e}"))?;
+        Ok(b)
     }
 }
 

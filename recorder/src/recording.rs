@@ -43,6 +43,7 @@ pub fn header(sim: &Simulation, info: &SessionInfo) -> SessionHeader {
         wall_clock_start: crate::wall_clock_now(),
         deformation: sim.config().deformation,
         contrast: sim.config().contrast,
+        breathing: sim.config().breathing,
     }
 }
 

@@ -37,6 +37,23 @@ fn header() -> SessionHeader {
             settle_s: 7.5,
             ..Default::default()
         },
+        // Not the defaults either: every breathing value must travel.
+        breathing: stylet_physics::motion::BreathingSettings {
+            enabled: true,
+            motion: stylet_physics::motion::SyntheticMotion {
+                amplitude_mm: 17.5,
+                anterior_ratio: 0.25,
+                wall_mm: 14.0,
+                bone_margin_mm: 2.5,
+            },
+            signal: stylet_physics::motion::SignalParams {
+                period_s: 4.7,
+                period_jitter: 0.2,
+                depth_jitter: 0.05,
+                power: 3,
+                seed: 1_234_567_890_123,
+            },
+        },
     }
 }
 
@@ -415,6 +432,31 @@ fn header_fields_are_bounded_and_exact() {
     assert_eq!(
         SessionHeader::from_metadata(&m).unwrap().contrast,
         stylet_physics::ContrastSettings::default()
+    );
+    // Breathing: bad values named; a file without it did not breathe.
+    assert!(with("world.breathing.model", "4d-ct".into()).contains("'world.breathing.model' '4d-ct' is unknown"));
+    assert!(with("world.breathing.enabled", "2".into()).contains("'world.breathing.enabled' must be 0 or 1"));
+    assert!(with("world.breathing.seed", "-1".into()).contains("'world.breathing.seed' is not a number"));
+    assert!(
+        with(
+            "world.breathing.amplitude_mm_bits",
+            format!("{:016x}", 90.0f64.to_bits())
+        )
+        .contains("breathing amplitude (mm) 90")
+    );
+    assert!(with("world.breathing.power", "9".into()).contains("power n = 9"));
+    let mut m = good.clone();
+    m.remove("world.breathing.period_s_bits");
+    assert!(
+        SessionHeader::from_metadata(&m)
+            .unwrap_err()
+            .contains("lacks 'world.breathing.period_s_bits'")
+    );
+    let mut m = good.clone();
+    m.retain(|k, _| !k.starts_with("world.breathing."));
+    assert_eq!(
+        SessionHeader::from_metadata(&m).unwrap().breathing,
+        stylet_physics::motion::BreathingSettings::default()
     );
     let diffusion = SessionHeader {
         deformation: DeformSettings {

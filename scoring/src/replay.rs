@@ -149,6 +149,7 @@ impl<S: Borrow<Session>> Replayer<S> {
         config.tick_rate_hz = h.tick_rate_hz;
         config.deformation = h.deformation;
         config.contrast = h.contrast;
+        config.breathing = h.breathing;
         let sim = Simulation::new(atlas, config).map_err(ReplayError::Simulation)?;
         let mut events: BTreeMap<u64, Vec<Event>> = BTreeMap::new();
         for e in &session.borrow().events {

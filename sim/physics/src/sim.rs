@@ -15,14 +15,14 @@ use crate::contrast::{ContrastAgent, ContrastSettings};
 use crate::deform::{self, DeformSettings, DeformState};
 use crate::device::DeviceProfile;
 use crate::events::{Event, ProbeKind, ToolSpec};
-use crate::motion::{self, MotionModel, Static};
+use crate::motion::{self, BreathingSettings, MotionModel, Static};
 use crate::needle::spec::NeedleSpec;
 use crate::needle::tool::NeedleTool;
 use crate::{LabelId, PunctureAtlas};
 
 /// Version of the physics: bump it with every change that alters any output bit, so a replay
 /// knows which physics graded a session.
-pub const PHYSICS_VERSION: u32 = 5;
+pub const PHYSICS_VERSION: u32 = 6;
 
 /// Default haptic rate.
 pub const DEFAULT_TICK_RATE_HZ: u32 = 1000;
@@ -117,7 +117,11 @@ pub struct SimConfig {
     pub tick_rate_hz: u32,
     pub device: DeviceProfile,
     pub tool: ToolSpec,
+    /// The motion model when `breathing` is off (tests supply their own); with breathing on,
+    /// [`Simulation::new`] builds it from `breathing` and the atlas.
     pub motion: Arc<dyn MotionModel>,
+    /// Respiratory motion (part of the world model, recorded in the session header).
+    pub breathing: BreathingSettings,
     pub contrast: ContrastSettings,
     /// Tissue deformation (part of the world model, recorded in the session header).
     pub deformation: DeformSettings,
@@ -133,6 +137,7 @@ impl SimConfig {
             device,
             tool,
             motion: Arc::new(Static),
+            breathing: BreathingSettings::default(),
             contrast: ContrastSettings::default(),
             deformation: DeformSettings::default(),
             deform_in_background: false,
@@ -149,7 +154,9 @@ pub struct Simulation {
     tool_spec: ToolSpec,
     tool: Tool,
     tick: u64,
-    breath_time_s: f64,
+    /// Ticks breathed so far: the breathing clock stands still during a breath hold, so the
+    /// motion resumes where it was held (t_breath = breath_ticks / rate).
+    breath_ticks: u64,
     breath_hold: bool,
     xray_on: bool,
     contrast_ml: f64,
@@ -181,7 +188,7 @@ fn make_tool(spec: &ToolSpec) -> Tool {
 }
 
 impl Simulation {
-    pub fn new(atlas: Arc<PunctureAtlas>, config: SimConfig) -> Result<Self, String> {
+    pub fn new(atlas: Arc<PunctureAtlas>, mut config: SimConfig) -> Result<Self, String> {
         if config.tick_rate_hz == 0 || config.tick_rate_hz > 100_000 {
             return Err(format!("tick rate {} Hz must be 1 … 100000", config.tick_rate_hz));
         }
@@ -191,6 +198,11 @@ impl Simulation {
         let tool_spec = config.tool;
         let contrast = ContrastAgent::new(&atlas, config.contrast)?;
         config.deformation.validate()?;
+        if config.breathing.enabled {
+            config.motion = config.breathing.build(&atlas)?;
+        } else {
+            config.breathing.validate()?;
+        }
         Ok(Simulation {
             contrast,
             deformation: DeformState::new(config.deformation, config.deform_in_background),
@@ -199,7 +211,7 @@ impl Simulation {
             atlas,
             config,
             tick: 0,
-            breath_time_s: 0.0,
+            breath_ticks: 0,
             breath_hold: false,
             xray_on: false,
             contrast_ml: 0.0,
@@ -245,6 +257,18 @@ impl Simulation {
     }
     pub fn config(&self) -> &SimConfig {
         &self.config
+    }
+    /// The motion model u(X, t) in effect (identity without breathing).
+    pub fn motion(&self) -> &Arc<dyn MotionModel> {
+        &self.config.motion
+    }
+    /// The breathing clock t (s) the next tick's motion is evaluated at.
+    pub fn breath_time_s(&self) -> f64 {
+        self.breath_ticks as f64 / self.config.tick_rate_hz as f64
+    }
+    /// Whether the patient holds their breath.
+    pub fn breath_hold(&self) -> bool {
+        self.breath_hold
     }
     pub fn contact(&self) -> Option<&ContactTool> {
         match &self.tool {
@@ -302,7 +326,7 @@ impl Simulation {
         self.last_position = x_world;
         self.last_orientation = q;
 
-        let t_breath = self.breath_time_s;
+        let t_breath = self.breath_time_s();
         let model = self.config.motion.clone();
         let x_ref = motion::to_reference(model.as_ref(), x_world, self.device_ref.unwrap_or(x_world), t_breath);
         self.device_ref = Some(x_ref);
@@ -398,7 +422,7 @@ impl Simulation {
             out.risk_displacement_mm = f.risk_displacement_mm();
         }
         if !self.breath_hold {
-            self.breath_time_s = self.tick as f64 / self.config.tick_rate_hz as f64;
+            self.breath_ticks += 1;
         }
         out
     }
@@ -408,7 +432,7 @@ impl Simulation {
     pub fn state_digest(&self) -> u64 {
         let mut h = Fnv::new();
         h.u64(self.tick);
-        h.f64(self.breath_time_s);
+        h.u64(self.breath_ticks);
         h.u64(u64::from(self.breath_hold) | u64::from(self.xray_on) << 1);
         h.f64(self.contrast_ml);
         self.contrast.digest_into(|v| h.u64(v));

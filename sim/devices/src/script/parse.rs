@@ -72,6 +72,9 @@ pub struct Script {
     pub items: Vec<Timed>,
     /// The world model's tissue deformation (`deformation on|off`, default off).
     pub deformation: stylet_physics::DeformSettings,
+    /// The world model's respiratory motion (`breathing on|off [amplitude MM] [period S] [seed N]`,
+    /// default off).
+    pub breathing: stylet_physics::motion::BreathingSettings,
 }
 
 /// The script language version this parser reads.
@@ -242,6 +245,46 @@ pub fn unit(v: DVec3) -> Option<DVec3> {
     (m * s.length() >= 1e-9 && u.is_finite()).then_some(u)
 }
 
+/// `breathing on|off [amplitude MM] [period S] [seed N]` (docs/breathing.md for the ranges).
+fn parse_breathing(t: &mut Tokens) -> Result<stylet_physics::motion::BreathingSettings, ParseError> {
+    let mut b = stylet_physics::motion::BreathingSettings {
+        enabled: t.keyword(&["on", "off"])? == "on",
+        ..Default::default()
+    };
+    while let Some(k) = t.peek() {
+        let at = t.pos + 1;
+        match k {
+            "amplitude" => {
+                t.pos += 1;
+                b.motion.amplitude_mm = t.number("breathing amplitude in mm")?;
+                if b.motion.validate().is_err() {
+                    t.pos = at;
+                    return Err(t.err("an amplitude of 0 … 50 mm"));
+                }
+            }
+            "period" => {
+                t.pos += 1;
+                b.signal.period_s = t.number("breathing period in s")?;
+                if b.signal.validate().is_err() {
+                    t.pos = at;
+                    return Err(t.err("a period of 1 … 20 s"));
+                }
+            }
+            "seed" => {
+                t.pos += 1;
+                let v = t.number("breathing seed")?;
+                if !(v >= 0.0 && v.fract() == 0.0 && v < 9.0e15) {
+                    t.pos = at;
+                    return Err(t.err("a whole seed of 0 … 9e15"));
+                }
+                b.signal.seed = v as u64;
+            }
+            _ => break,
+        }
+    }
+    Ok(b)
+}
+
 fn parse_tool(t: &mut Tokens) -> Result<ToolSpec, ParseError> {
     match t.keyword(&["needle", "finger", "probe"])? {
         "finger" => Ok(ToolSpec::Finger),
@@ -388,6 +431,7 @@ pub fn parse(text: &str) -> Result<Script, ParseError> {
         end_s: None,
         items: Vec::new(),
         deformation: stylet_physics::DeformSettings::default(),
+        breathing: stylet_physics::motion::BreathingSettings::default(),
     };
     let mut last_t = f64::NEG_INFINITY;
     for (n, raw) in text.lines().enumerate() {
@@ -432,6 +476,11 @@ pub fn parse(text: &str) -> Result<Script, ParseError> {
             "deformation" => {
                 t.pos += 1;
                 script.deformation.enabled = t.keyword(&["on", "off"])? == "on";
+                t.end()?;
+            }
+            "breathing" => {
+                t.pos += 1;
+                script.breathing = parse_breathing(&mut t)?;
                 t.end()?;
             }
             "end" => {
@@ -560,6 +609,37 @@ mod tests {
             e.to_string(),
             format!("line 1, column 1: expected {}, found end of script", e.expected)
         );
+    }
+
+    /// `breathing`: on with the defaults, or with amplitude, period and seed; bad values named.
+    #[test]
+    fn breathing_statements_parse_and_bad_values_are_named() {
+        let s = parse("stylet-script 1\nbreathing on\nat 0 pos 0 0 0 dir 0 0 1\n").unwrap();
+        assert_eq!(s.breathing, stylet_physics::motion::BreathingSettings::on());
+        let s =
+            parse("stylet-script 1\nbreathing on amplitude 18 period 5 seed 42\nat 0 pos 0 0 0 dir 0 0 1\n").unwrap();
+        assert!(s.breathing.enabled);
+        assert_eq!(
+            (
+                s.breathing.motion.amplitude_mm,
+                s.breathing.signal.period_s,
+                s.breathing.signal.seed
+            ),
+            (18.0, 5.0, 42)
+        );
+        let s = parse("stylet-script 1\nbreathing off\nat 0 pos 0 0 0 dir 0 0 1\n").unwrap();
+        assert!(!s.breathing.enabled);
+        let e = err("stylet-script 1\nbreathing on amplitude 80\n");
+        assert_eq!((e.line, e.column), (2, 24));
+        assert!(e.expected.contains("0 … 50 mm") && e.found == "'80'", "{e}");
+        let e = err("stylet-script 1\nbreathing on period 0.2\n");
+        assert!(e.expected.contains("1 … 20 s"), "{e}");
+        let e = err("stylet-script 1\nbreathing on seed 1.5\n");
+        assert!(e.expected.contains("whole seed"), "{e}");
+        let e = err("stylet-script 1\nbreathing maybe\n");
+        assert!(e.expected.contains("on, off"), "{e}");
+        let e = err("stylet-script 1\nbreathing on depth 3\n");
+        assert!(e.expected.contains("end of line") && e.found == "'depth'", "{e}");
     }
 
     /// Issue 13: `dir 1e300 …` normalised to NaN and `aim` with ±1e308 gave NaN poses that were

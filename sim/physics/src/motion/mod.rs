@@ -9,8 +9,26 @@
 //!   (eq. 5.4.3): d_l = R⁻¹ r_m / ‖R⁻¹ r_m‖.
 //! - Forces are sent to the device without transforming back (the thesis neglects the small
 //!   rotation of u near the skin).
+//!
+//! The models (§5.3) are in [`models`], driven by the seeded breathing signal of [`signal`]; an
+//! atlas without a 4D CT gets the [`synthetic`] motion built from its own maps. What a session
+//! breathes is part of its world model ([`BreathingSettings`], recorded in the session header).
+
+pub mod field;
+pub mod models;
+pub mod signal;
+pub mod synthetic;
+
+use std::sync::Arc;
 
 use glam::{DMat3, DVec3};
+
+pub use field::{GridField, SpatialField};
+pub use models::{FullCycle, HalfCycle, Surrogate};
+pub use signal::{BreathingSignal, SignalParams};
+pub use synthetic::{SyntheticField, SyntheticMotion};
+
+use crate::PunctureAtlas;
 
 /// A displacement field over time. Implementations must be pure functions of (X, t).
 pub trait MotionModel: Send + Sync {
@@ -26,6 +44,67 @@ impl MotionModel for Static {
     fn displacement(&self, _x_ref: DVec3, _t_s: f64) -> DVec3 {
         DVec3::ZERO
     }
+}
+
+/// Whether and how the patient breathes in a session (part of the world model, recorded in the
+/// session header): the synthetic motion of the atlas driven by the seeded breathing signal.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct BreathingSettings {
+    pub enabled: bool,
+    pub motion: SyntheticMotion,
+    pub signal: SignalParams,
+}
+
+impl BreathingSettings {
+    /// Breathing with the default motion and signal.
+    pub fn on() -> BreathingSettings {
+        BreathingSettings {
+            enabled: true,
+            ..Default::default()
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), String> {
+        self.motion.validate()?;
+        self.signal.validate()
+    }
+
+    /// The motion model of these settings on `atlas` ([`Static`] when breathing is off).
+    pub fn build(&self, atlas: &Arc<PunctureAtlas>) -> Result<Arc<dyn MotionModel>, String> {
+        self.validate()?;
+        if !self.enabled {
+            return Ok(Arc::new(Static));
+        }
+        let field = SyntheticField::new(Arc::clone(atlas), self.motion)?;
+        Ok(Arc::new(Surrogate {
+            a1: Arc::new(field),
+            a2: None,
+            a3: None,
+            signal: BreathingSignal::new(self.signal)?,
+        }))
+    }
+}
+
+/// The reference position of world point `x_world` after `iterations` fixed-point steps from
+/// X = x (the inversion every view and the haptics use, thesis §5.4.1).
+pub fn invert(model: &dyn MotionModel, x_world: DVec3, t_s: f64, iterations: u32) -> DVec3 {
+    let mut x_ref = x_world;
+    for _ in 0..iterations {
+        x_ref = to_reference(model, x_world, x_ref, t_s);
+    }
+    x_ref
+}
+
+/// How far the inverse misses: for each reference point X, x = X + u(X, t) is inverted by
+/// [`invert`] and the largest |X̂ − X| (mm) is returned.
+pub fn inversion_error_mm(model: &dyn MotionModel, points: &[DVec3], t_s: f64, iterations: u32) -> f64 {
+    points
+        .iter()
+        .map(|&x_ref| {
+            let x_world = x_ref + model.displacement(x_ref, t_s);
+            (invert(model, x_world, t_s, iterations) - x_ref).length()
+        })
+        .fold(0.0, f64::max)
 }
 
 /// One fixed-point step of the inverse: X⁺ = x − u(X, t).

@@ -1,0 +1,117 @@
+//! Displacement fields over reference space: what a motion model combines over time (the u_j of
+//! the key frames, thesis eq. 5.3.1; the a₁, a₂, a₃ of the surrogate model, eq. 5.3.6).
+
+use glam::DVec3;
+
+use crate::Grid;
+
+/// A displacement field X ↦ v(X) (mm → mm) over reference space. Implementations must be pure.
+pub trait SpatialField: Send + Sync {
+    fn at(&self, x_ref: DVec3) -> DVec3;
+}
+
+/// A field sampled on a grid (an imported registration result, a generated key frame),
+/// interpolated trilinearly; zero outside the grid's sampling domain.
+#[derive(Debug, Clone)]
+pub struct GridField {
+    grid: Grid,
+    /// (x, y, z) per node in the grid's linear order (mm).
+    values: Vec<[f32; 3]>,
+}
+
+impl GridField {
+    /// A field of `values` on `grid` (one vector per node), refused when the counts differ or a
+    /// value is not finite.
+    pub fn new(grid: Grid, values: Vec<[f32; 3]>) -> Result<GridField, String> {
+        if values.len() != grid.len() {
+            return Err(format!(
+                "{} displacement vectors for a grid of {} nodes",
+                values.len(),
+                grid.len()
+            ));
+        }
+        if let Some(i) = values.iter().position(|v| !v.iter().all(|c| c.is_finite())) {
+            let [x, y, z] = grid.unlinear(i);
+            return Err(format!("the displacement at node ({x}, {y}, {z}) is not finite"));
+        }
+        Ok(GridField { grid, values })
+    }
+
+    /// A field sampled from `f` at every node of `grid`.
+    pub fn sample(grid: Grid, f: impl Fn(DVec3) -> DVec3) -> GridField {
+        let values = (0..grid.len())
+            .map(|i| {
+                let v = f(grid.linear_to_world(i));
+                [v.x as f32, v.y as f32, v.z as f32]
+            })
+            .collect();
+        GridField { grid, values }
+    }
+
+    pub fn grid(&self) -> &Grid {
+        &self.grid
+    }
+
+    /// The largest displacement on the grid (mm).
+    pub fn max_length_mm(&self) -> f64 {
+        self.values
+            .iter()
+            .map(|v| DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64).length())
+            .fold(0.0, f64::max)
+    }
+}
+
+impl SpatialField for GridField {
+    fn at(&self, x_ref: DVec3) -> DVec3 {
+        let c = self.grid.world_to_index(x_ref);
+        let d = self.grid.dims();
+        let mut base = [0usize; 3];
+        let mut frac = [0.0f64; 3];
+        for a in 0..3 {
+            let n = d[a] as f64;
+            if !(c[a] >= -0.5 && c[a] < n - 0.5) {
+                return DVec3::ZERO;
+            }
+            let x = c[a].clamp(0.0, n - 1.0);
+            let b = (x as usize).min(d[a].saturating_sub(2));
+            base[a] = b;
+            frac[a] = if d[a] == 1 { 0.0 } else { x - b as f64 };
+        }
+        let step = |a: usize| usize::from(d[a] > 1);
+        let v = |i: usize, j: usize, k: usize| {
+            let p = self.values[self.grid.linear(i, j, k)];
+            DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+        };
+        let (i0, j0, k0) = (base[0], base[1], base[2]);
+        let (i1, j1, k1) = (i0 + step(0), j0 + step(1), k0 + step(2));
+        let (fx, fy, fz) = (frac[0], frac[1], frac[2]);
+        let c00 = v(i0, j0, k0) * (1.0 - fx) + v(i1, j0, k0) * fx;
+        let c10 = v(i0, j1, k0) * (1.0 - fx) + v(i1, j1, k0) * fx;
+        let c01 = v(i0, j0, k1) * (1.0 - fx) + v(i1, j0, k1) * fx;
+        let c11 = v(i0, j1, k1) * (1.0 - fx) + v(i1, j1, k1) * fx;
+        let c0 = c00 * (1.0 - fy) + c10 * fy;
+        let c1 = c01 * (1.0 - fy) + c11 * fy;
+        c0 * (1.0 - fz) + c1 * fz
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_linear_field_is_reproduced_inside_and_zero_outside() {
+        let affine = crate::Affine::from_spacing([2.0, 3.0, 4.0], DVec3::new(-4.0, -6.0, -8.0));
+        let grid = Grid::new([5, 6, 7], affine).unwrap();
+        let lin = |x: DVec3| DVec3::new(0.1 * x.y + 1.0, -0.2 * x.z, 0.05 * x.x);
+        let f = GridField::sample(grid, lin);
+        for p in [DVec3::new(0.3, 1.7, -2.2), DVec3::new(-3.0, 6.5, 12.0), DVec3::ZERO] {
+            assert!((f.at(p) - lin(p)).length() < 1e-5, "{p}");
+        }
+        assert_eq!(f.at(DVec3::new(100.0, 0.0, 0.0)), DVec3::ZERO);
+        assert!(GridField::new(grid, vec![[0.0; 3]; 3]).is_err());
+        let mut bad = vec![[0.0f32; 3]; grid.len()];
+        bad[7][1] = f32::NAN;
+        assert!(GridField::new(grid, bad).unwrap_err().contains("not finite"));
+    }
+}

@@ -1,0 +1,219 @@
+//! The thesis' three motion models (§5.3), each u(X, t) from displacement fields and the
+//! breathing signal ([`BreathingSignal`]).
+
+use std::sync::Arc;
+
+use glam::DVec3;
+
+use super::MotionModel;
+use super::field::SpatialField;
+use super::signal::BreathingSignal;
+
+/// Key frames over one full cycle (thesis §5.3.1): n fields u_j at τ_j = j/n on the cycle's
+/// normalised time τ = f(t) (a sawtooth whose period is re-drawn every cycle, eq. 5.3.2), the
+/// last followed by the first; between neighbours
+///
+///   b(X, τ) = (1 − α) u_j(X) + α u_{j+1}(X),  α = (τ − τ_j)/(τ_{j+1} − τ_j)  (eq. 5.3.1).
+///
+/// Frame 0 is the phase at which a cycle starts (end-expiration for [`BreathingSignal`]).
+pub struct FullCycle {
+    frames: Vec<Arc<dyn SpatialField>>,
+    signal: BreathingSignal,
+}
+
+impl FullCycle {
+    pub fn new(frames: Vec<Arc<dyn SpatialField>>, signal: BreathingSignal) -> Result<FullCycle, String> {
+        if frames.len() < 2 {
+            return Err(format!(
+                "a full cycle needs at least 2 key frames, got {}",
+                frames.len()
+            ));
+        }
+        Ok(FullCycle { frames, signal })
+    }
+}
+
+impl MotionModel for FullCycle {
+    fn displacement(&self, x_ref: DVec3, t_s: f64) -> DVec3 {
+        let n = self.frames.len();
+        let s = self.signal.phase(t_s).tau * n as f64;
+        let j = (s as usize).min(n - 1);
+        let alpha = s - j as f64;
+        let next = (j + 1) % n;
+        (1.0 - alpha) * self.frames[j].at(x_ref) + alpha * self.frames[next].at(x_ref)
+    }
+}
+
+/// Key frames over half a cycle (thesis §5.3.2): m fields from end-expiration (s = 0) to
+/// end-inspiration (s = 1) at s_j = j/(m − 1), driven by s = g(t). Within [0, 1] neighbours are
+/// interpolated (eq. 5.3.1); beyond (a breath deeper than the recorded end-inspiration, g > 1)
+/// the displacement is extrapolated along u_EE → u_EI (eq. 5.3.3):
+///
+///   b_oos(X, s) = (1 − s) u_EE(X) + s u_EI(X).
+///
+/// Inspiration and expiration follow the same path (no hysteresis).
+pub struct HalfCycle {
+    frames: Vec<Arc<dyn SpatialField>>,
+    signal: BreathingSignal,
+}
+
+impl HalfCycle {
+    pub fn new(frames: Vec<Arc<dyn SpatialField>>, signal: BreathingSignal) -> Result<HalfCycle, String> {
+        if frames.len() < 2 {
+            return Err(format!(
+                "a half cycle needs at least 2 key frames (EE … EI), got {}",
+                frames.len()
+            ));
+        }
+        Ok(HalfCycle { frames, signal })
+    }
+}
+
+impl MotionModel for HalfCycle {
+    fn displacement(&self, x_ref: DVec3, t_s: f64) -> DVec3 {
+        let m = self.frames.len();
+        let s = self.signal.g(t_s);
+        if !(0.0..=1.0).contains(&s) {
+            let (ee, ei) = (&self.frames[0], &self.frames[m - 1]);
+            return (1.0 - s) * ee.at(x_ref) + s * ei.at(x_ref);
+        }
+        let pos = s * (m - 1) as f64;
+        let j = (pos as usize).min(m - 2);
+        let alpha = pos - j as f64;
+        (1.0 - alpha) * self.frames[j].at(x_ref) + alpha * self.frames[j + 1].at(x_ref)
+    }
+}
+
+/// The surrogate-driven linear model (thesis §5.3.3, eqs. 5.3.4–5.3.6):
+///
+///   u(X, t) = a₁(X) g(t) + a₂(X) g′(t) + a₃(X),
+///
+/// g the breathing signal, g′ its rate (which separates inspiration from expiration: hysteresis).
+/// a₂ and a₃ may be absent (zero).
+pub struct Surrogate {
+    pub a1: Arc<dyn SpatialField>,
+    pub a2: Option<Arc<dyn SpatialField>>,
+    pub a3: Option<Arc<dyn SpatialField>>,
+    pub signal: BreathingSignal,
+}
+
+impl MotionModel for Surrogate {
+    fn displacement(&self, x_ref: DVec3, t_s: f64) -> DVec3 {
+        let (g, rate) = match self.a2 {
+            Some(_) => self.signal.g_and_rate(t_s),
+            None => (self.signal.g(t_s), 0.0),
+        };
+        let mut u = self.a1.at(x_ref) * g;
+        if let Some(a2) = &self.a2 {
+            u += a2.at(x_ref) * rate;
+        }
+        if let Some(a3) = &self.a3 {
+            u += a3.at(x_ref);
+        }
+        u
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::signal::SignalParams;
+    use super::*;
+
+    /// A uniform displacement.
+    struct Uniform(DVec3);
+    impl SpatialField for Uniform {
+        fn at(&self, _x: DVec3) -> DVec3 {
+            self.0
+        }
+    }
+
+    fn uniform(v: DVec3) -> Arc<dyn SpatialField> {
+        Arc::new(Uniform(v))
+    }
+
+    fn signal() -> BreathingSignal {
+        BreathingSignal::new(SignalParams {
+            seed: 11,
+            ..Default::default()
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn a_full_cycle_interpolates_neighbouring_frames_and_wraps_to_the_first() {
+        let s = signal();
+        let frames: Vec<_> = (0..4).map(|j| uniform(DVec3::new(j as f64 * 10.0, 0.0, 0.0))).collect();
+        let m = FullCycle::new(frames, s.clone()).unwrap();
+        for i in 0..500 {
+            let t = i as f64 * 0.0371;
+            let tau = s.phase(t).tau;
+            let u = m.displacement(DVec3::ZERO, t).x;
+            // Piecewise linear through 0, 10, 20, 30 and back to 0 over τ ∈ [0, 1).
+            let expected = if tau < 0.75 {
+                40.0 * tau
+            } else {
+                30.0 * (1.0 - tau) / 0.25
+            };
+            assert!((u - expected).abs() < 1e-9, "t {t} τ {tau}: {u} vs {expected}");
+        }
+        assert!(FullCycle::new(vec![uniform(DVec3::ZERO)], s).is_err());
+    }
+
+    #[test]
+    fn a_half_cycle_follows_g_and_extrapolates_beyond_end_inspiration() {
+        // Deep breaths (depth up to 1.5) go past the recorded end-inspiration.
+        let s = BreathingSignal::new(SignalParams {
+            depth_jitter: 0.5,
+            seed: 2,
+            ..Default::default()
+        })
+        .unwrap();
+        let ee = DVec3::new(0.0, 0.0, 0.0);
+        let mid = DVec3::new(0.0, 1.0, -5.0);
+        let ei = DVec3::new(0.0, 3.0, -12.0);
+        let m = HalfCycle::new(vec![uniform(ee), uniform(mid), uniform(ei)], s.clone()).unwrap();
+        let mut beyond = 0;
+        for i in 0..4000 {
+            let t = i as f64 * 0.0113;
+            let g = s.g(t);
+            let u = m.displacement(DVec3::ZERO, t);
+            let expected = if g > 1.0 {
+                beyond += 1;
+                (1.0 - g) * ee + g * ei
+            } else if g <= 0.5 {
+                ee + (mid - ee) * (g / 0.5)
+            } else {
+                mid + (ei - mid) * ((g - 0.5) / 0.5)
+            };
+            assert!((u - expected).length() < 1e-9, "t {t} g {g}: {u} vs {expected}");
+        }
+        assert!(beyond > 0, "no breath went beyond end-inspiration");
+    }
+
+    #[test]
+    fn the_surrogate_model_sums_its_three_terms() {
+        let s = signal();
+        let (a1, a2, a3) = (
+            DVec3::new(0.0, 3.0, -12.0),
+            DVec3::new(0.0, 0.5, 0.0),
+            DVec3::new(1.0, 0.0, 0.0),
+        );
+        let m = Surrogate {
+            a1: uniform(a1),
+            a2: Some(uniform(a2)),
+            a3: Some(uniform(a3)),
+            signal: s.clone(),
+        };
+        for i in 0..300 {
+            let t = i as f64 * 0.05;
+            let (g, rate) = s.g_and_rate(t);
+            let expected = a1 * g + a2 * rate + a3;
+            assert_eq!(m.displacement(DVec3::ONE, t), expected);
+        }
+        // Hysteresis: the same g on the way in and out gives different displacements.
+        let c = s.phase(0.0);
+        let (t_in, t_out) = (0.3 * c.period_s, 0.7 * c.period_s);
+        assert!((s.g(t_in) - s.g(t_out)).abs() < 1e-12);
+        assert!((m.displacement(DVec3::ZERO, t_in) - m.displacement(DVec3::ZERO, t_out)).length() > 0.1);
+    }
+}

