@@ -322,6 +322,9 @@ fn slice_image(
     if !gpu {
         return Ok(views::slice_image(atlas, moment, spec).map_err(|e| anyhow::anyhow!("slice: {e}"))?);
     }
+    if moment.is_some_and(|m| m.breathing.is_some()) {
+        bail!("--gpu: the GPU renderer does not draw a breathing patient yet; draw this moment with --cpu");
+    }
     let field = moment.and_then(|m| m.deformation.as_deref());
     Ok(views::annotated_slice(&slice_gpu(atlas, spec, field)?, moment)?)
 }

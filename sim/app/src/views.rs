@@ -264,14 +264,21 @@ impl ViewRenderer {
         let w = ((width as f32 * scale).round() as u32).max(1);
         let h = ((height as f32 * scale).round() as u32).max(1);
         let t0 = Instant::now();
+        // The GPU does not warp a breathing patient yet (docs/breathing.md): its 3D view and
+        // slices are drawn on the CPU, which does.
+        #[cfg(feature = "gpu")]
+        let on_gpu = moment.breathing.is_none() || matches!(kind, ViewKind::Ultrasound | ViewKind::Xray);
         #[cfg(feature = "gpu")]
         let image = match self.gpu.take() {
-            Some(mut gpu) => {
+            Some(mut gpu) if on_gpu => {
                 let image = self.draw_on_gpu(&mut gpu, kind, moment, w, h);
                 self.gpu = Some(gpu);
                 image?
             }
-            None => self.pool.install(|| self.draw_at(kind, moment, w, h))?,
+            kept => {
+                self.gpu = kept;
+                self.pool.install(|| self.draw_at(kind, moment, w, h))?
+            }
         };
         #[cfg(not(feature = "gpu"))]
         let image = self.pool.install(|| self.draw_at(kind, moment, w, h))?;

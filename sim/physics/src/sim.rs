@@ -157,6 +157,8 @@ pub struct Simulation {
     /// Ticks breathed so far: the breathing clock stands still during a breath hold, so the
     /// motion resumes where it was held (t_breath = breath_ticks / rate).
     breath_ticks: u64,
+    /// The breathing time the last tick's motion was evaluated at (what the views show).
+    motion_time_s: f64,
     breath_hold: bool,
     xray_on: bool,
     contrast_ml: f64,
@@ -212,6 +214,7 @@ impl Simulation {
             config,
             tick: 0,
             breath_ticks: 0,
+            motion_time_s: 0.0,
             breath_hold: false,
             xray_on: false,
             contrast_ml: 0.0,
@@ -265,6 +268,15 @@ impl Simulation {
     /// The breathing clock t (s) the next tick's motion is evaluated at.
     pub fn breath_time_s(&self) -> f64 {
         self.breath_ticks as f64 / self.config.tick_rate_hz as f64
+    }
+    /// The breathing time at which the last tick evaluated the motion: the patient the views of
+    /// that tick show is X + u(X, t) at this t.
+    pub fn motion_time_s(&self) -> f64 {
+        self.motion_time_s
+    }
+    /// Whether the patient breathes (a motion model from the world model is in effect).
+    pub fn breathes(&self) -> bool {
+        self.config.breathing.enabled
     }
     /// Whether the patient holds their breath.
     pub fn breath_hold(&self) -> bool {
@@ -327,6 +339,7 @@ impl Simulation {
         self.last_orientation = q;
 
         let t_breath = self.breath_time_s();
+        self.motion_time_s = t_breath;
         let model = self.config.motion.clone();
         let x_ref = motion::to_reference(model.as_ref(), x_world, self.device_ref.unwrap_or(x_world), t_breath);
         self.device_ref = Some(x_ref);

@@ -9,9 +9,12 @@
 //! GPU's MPR shader repeats (docs/rendering.md "MPR"), so the two agree to a grey level.
 
 use rayon::prelude::*;
+
+use crate::scene::MotionHook;
 use stylet_physics::deform::DeformField;
 use stylet_physics::deform::resample::INVERSE_ITERATIONS;
 use stylet_physics::glam::{DVec3, Vec3};
+use stylet_physics::motion;
 use stylet_physics::{AIR_HU, Grid, LabelId, PunctureAtlas};
 
 /// Which plane.
@@ -478,13 +481,27 @@ pub fn render_spec_deformed(
     spec: &SliceSpec,
     field: &DeformField,
 ) -> Result<MprImage, MprError> {
+    render_spec_moving(atlas, spec, None, Some(field))
+}
+
+/// Draws a slice of a breathing and possibly deformed patient: each pixel's world point x is first
+/// mapped into the breathing patient's reference by [`motion::invert`] (8 fixed-point steps
+/// X⁺ = x − u(X, t), thesis §5.4.1), then through the deformation's inverse as
+/// [`render_spec_deformed`] does (the deformation lives in reference space), and the CT and the
+/// labels are read there. Without breathing it is [`render_spec_deformed`], bit for bit.
+pub fn render_spec_moving(
+    atlas: &PunctureAtlas,
+    spec: &SliceSpec,
+    breathing: Option<&MotionHook>,
+    field: Option<&DeformField>,
+) -> Result<MprImage, MprError> {
     spec.validate()?;
     let grid = atlas.ct().grid();
     let dims = grid.dims();
     let ct = atlas.ct().data();
     let partial = atlas.partial_labels().data();
     let frame = spec.index_frame(grid);
-    let (lo, hi) = field.lattice().bounds();
+    let bounds = field.map(|f| f.lattice().bounds());
     let air_hu = atlas.thresholds().air_skin_hu as f32;
     let (w, h) = (spec.width, spec.height);
     let mut rgb = vec![[0u8; 3]; w * h];
@@ -497,17 +514,23 @@ pub fn render_spec_deformed(
         .for_each(|(row, ((rgb_row, label_row), moved_row))| {
             for col in 0..w {
                 let x = spec.world(col as f64, row as f64);
-                let (c, moved) = if x.cmpge(lo).all() && x.cmple(hi).all() {
-                    let x_ref = field.to_reference(x, INVERSE_ITERATIONS);
-                    (
-                        grid.world_to_index(x_ref).as_vec3(),
-                        field.displacement(x_ref).length() as f32,
-                    )
-                } else {
-                    (
+                let x = match breathing {
+                    Some(b) => motion::invert(b.model.as_ref(), x, b.t_s, INVERSE_ITERATIONS),
+                    None => x,
+                };
+                let (c, moved) = match (field, bounds) {
+                    (Some(field), Some((lo, hi))) if x.cmpge(lo).all() && x.cmple(hi).all() => {
+                        let x_ref = field.to_reference(x, INVERSE_ITERATIONS);
+                        (
+                            grid.world_to_index(x_ref).as_vec3(),
+                            field.displacement(x_ref).length() as f32,
+                        )
+                    }
+                    _ if breathing.is_some() => (grid.world_to_index(x).as_vec3(), 0.0),
+                    _ => (
                         frame.origin + frame.col_step * col as f32 + frame.row_step * row as f32,
                         0.0,
-                    )
+                    ),
                 };
                 let hu = sample_ct_f32(ct, dims, c);
                 // Tissue only: air moving with the skin is not shown.
@@ -523,6 +546,9 @@ pub fn render_spec_deformed(
         labels,
     };
     overlay_labels(atlas, &mut img);
+    let Some(field) = field else {
+        return Ok(img);
+    };
     let scale = displacement_scale_mm(field) as f32;
     img.rgb.par_iter_mut().zip(moved_mm.par_iter()).for_each(|(px, &m)| {
         if m < DISPLACEMENT_SHOWN_FROM_MM {

@@ -477,9 +477,9 @@ impl ToolState {
 
     /// The tools of a simulation after its latest tick with the device at `input`'s pose.
     ///
-    /// The needle comes from `sim.needle()` (nodes hub first, in reference space, which is world
-    /// space while the motion model is static), with the gauge's outer diameter and a 20 × 4 mm
-    /// hub. Before the first tick the needle has no shape yet; it is then laid on the device ray
+    /// The needle comes from `sim.needle()` (nodes hub first, in reference space, moved into the
+    /// world by the breathing motion x = X + u(X, t) of the tick), with the gauge's outer diameter
+    /// and a 20 × 4 mm hub. Before the first tick the needle has no shape yet; it is then laid on the device ray
     /// (tip at the device position, back along the tool axis q·(0, 0, 1)), as the physics does
     /// outside the patient. Contact tools take the device pose: the fingertip sphere sits behind
     /// the pad's apex (centre at position − 8 mm·axis), a probe's face at the position. A
@@ -497,7 +497,15 @@ impl ToolState {
         let mut state = ToolState::default();
         if let Some(n) = sim.needle() {
             let spec = n.spec();
-            let mut nodes: Vec<Vec3> = n.nodes().iter().map(|p| p.as_vec3()).collect();
+            let (model, t) = (sim.motion(), sim.motion_time_s());
+            let mut nodes: Vec<Vec3> = if sim.breathes() {
+                n.nodes()
+                    .iter()
+                    .map(|&p| (p + model.displacement(p, t)).as_vec3())
+                    .collect()
+            } else {
+                n.nodes().iter().map(|p| p.as_vec3()).collect()
+            };
             let m = nodes.len().max(2);
             let degenerate = nodes.len() < 2 || (nodes[nodes.len() - 1] - nodes[0]).length() < 1e-3;
             if degenerate && pose_ok {

@@ -14,7 +14,7 @@ use crate::annotate::{Annotations, annotate};
 use crate::image::Image;
 use crate::mpr::{self, Plane, SliceSpec};
 use crate::presets::{self, Preset};
-use crate::scene::{Camera, ClipPlane, DeformedRegion, Light, Quality, Scene, Tagging};
+use crate::scene::{Camera, ClipPlane, DeformedRegion, Light, MotionHook, Quality, Scene, Tagging};
 use crate::tools::ToolState;
 use crate::transfer::TransferFunction;
 use crate::ultrasound::{self, EchoTable, FlowField, UltrasoundScene, UltrasoundSettings};
@@ -41,6 +41,9 @@ pub struct Moment {
     /// The tissue deformation in effect (thesis Chapter 4), if any: the slices invert it per
     /// pixel and the 3D view samples the deformed sub-image J inside its lattice.
     pub deformation: Option<Arc<DeformField>>,
+    /// The breathing motion at this moment (thesis Chapter 5), if the patient breathes: the
+    /// slices invert u per pixel and the 3D view warps its rays (eqs. 5.4.1–5.4.2).
+    pub breathing: Option<MotionHook>,
 }
 
 /// Who the session is for, to label a [`Moment`].
@@ -85,6 +88,10 @@ impl Moment {
             },
             tick: out.tick,
             deformation: sim.deformation().field().cloned(),
+            breathing: sim.breathes().then(|| MotionHook {
+                model: Arc::clone(sim.motion()),
+                t_s: sim.motion_time_s(),
+            }),
         }
     }
 }
@@ -206,10 +213,14 @@ pub fn annotated_slice(slice: &mpr::MprImage, moment: Option<&Moment>) -> Result
 /// A slice drawn on the CPU reference renderer, annotated; with a deformation at the moment, the
 /// deformed patient with its displacement colour map and legend.
 pub fn slice_image(atlas: &Atlas, moment: Option<&Moment>, spec: &SliceSpec) -> Result<Image, ViewError> {
-    match moment.and_then(|m| m.deformation.as_deref()) {
-        Some(field) => annotated_slice(&mpr::render_spec_deformed(&atlas.model, spec, field)?, moment),
-        None => annotated_slice(&mpr::render_spec(&atlas.model, spec)?, moment),
-    }
+    let deformation = moment.and_then(|m| m.deformation.as_deref());
+    let breathing = moment.and_then(|m| m.breathing.as_ref());
+    let slice = match (breathing, deformation) {
+        (Some(_), _) => mpr::render_spec_moving(&atlas.model, spec, breathing, deformation)?,
+        (None, Some(field)) => mpr::render_spec_deformed(&atlas.model, spec, field)?,
+        (None, None) => mpr::render_spec(&atlas.model, spec)?,
+    };
+    annotated_slice(&slice, moment)
 }
 
 /// The default sample distance of the 3D view: two samples per voxel along the finest axis
@@ -239,6 +250,7 @@ pub fn scene_3d(
         .map(|field| DeformedRegion {
             volume: Arc::new(stylet_physics::deform::resample::deformed_ct(&atlas.model, field)),
         });
+    scene.motion = moment.and_then(|m| m.breathing.clone());
     Ok(scene)
 }
 

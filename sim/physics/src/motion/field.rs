@@ -8,6 +8,9 @@ use crate::Grid;
 /// A displacement field X ↦ v(X) (mm → mm) over reference space. Implementations must be pure.
 pub trait SpatialField: Send + Sync {
     fn at(&self, x_ref: DVec3) -> DVec3;
+
+    /// A bound on |v(X)| over all X (mm).
+    fn max_length_mm(&self) -> f64;
 }
 
 /// A field sampled on a grid (an imported registration result, a generated key frame),
@@ -51,17 +54,17 @@ impl GridField {
     pub fn grid(&self) -> &Grid {
         &self.grid
     }
+}
 
-    /// The largest displacement on the grid (mm).
-    pub fn max_length_mm(&self) -> f64 {
+impl SpatialField for GridField {
+    /// The largest displacement on the grid: trilinear interpolation never exceeds it.
+    fn max_length_mm(&self) -> f64 {
         self.values
             .iter()
             .map(|v| DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64).length())
             .fold(0.0, f64::max)
     }
-}
 
-impl SpatialField for GridField {
     fn at(&self, x_ref: DVec3) -> DVec3 {
         let c = self.grid.world_to_index(x_ref);
         let d = self.grid.dims();

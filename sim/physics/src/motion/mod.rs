@@ -34,6 +34,18 @@ use crate::PunctureAtlas;
 pub trait MotionModel: Send + Sync {
     /// u(X, t) in mm at reference position `x_ref` (mm) and breathing time `t_s`.
     fn displacement(&self, x_ref: DVec3, t_s: f64) -> DVec3;
+
+    /// A bound on |u| over all X and t (mm): renderers widen their box and their empty-space
+    /// leaping by it. Infinite when unknown (then they visit every sample).
+    fn max_displacement_mm(&self) -> f64 {
+        f64::INFINITY
+    }
+
+    /// u(·, t) at one moment, for many points (a frame, a slice): the same values as
+    /// [`Self::displacement`], bit for bit, with what depends on t alone worked out once.
+    fn at_time(&self, t_s: f64) -> Box<dyn Fn(DVec3) -> DVec3 + Send + Sync + '_> {
+        Box::new(move |x| self.displacement(x, t_s))
+    }
 }
 
 /// No motion: u = 0 (the default until the motion-model issue supplies fields).
@@ -43,6 +55,10 @@ pub struct Static;
 impl MotionModel for Static {
     fn displacement(&self, _x_ref: DVec3, _t_s: f64) -> DVec3 {
         DVec3::ZERO
+    }
+
+    fn max_displacement_mm(&self) -> f64 {
+        0.0
     }
 }
 

@@ -34,6 +34,10 @@ impl FullCycle {
 }
 
 impl MotionModel for FullCycle {
+    fn max_displacement_mm(&self) -> f64 {
+        self.frames.iter().map(|f| f.max_length_mm()).fold(0.0, f64::max)
+    }
+
     fn displacement(&self, x_ref: DVec3, t_s: f64) -> DVec3 {
         let n = self.frames.len();
         let s = self.signal.phase(t_s).tau * n as f64;
@@ -70,6 +74,17 @@ impl HalfCycle {
 }
 
 impl MotionModel for HalfCycle {
+    /// Within [0, 1] a blend of two frames; beyond, |(1 − s) u_EE + s u_EI| with s ≤ max g.
+    fn max_displacement_mm(&self) -> f64 {
+        let frames = self.frames.iter().map(|f| f.max_length_mm()).fold(0.0, f64::max);
+        let s = self.signal.max_g();
+        let (ee, ei) = (
+            self.frames[0].max_length_mm(),
+            self.frames[self.frames.len() - 1].max_length_mm(),
+        );
+        frames.max((s - 1.0).abs() * ee + s * ei)
+    }
+
     fn displacement(&self, x_ref: DVec3, t_s: f64) -> DVec3 {
         let m = self.frames.len();
         let s = self.signal.g(t_s);
@@ -97,12 +112,16 @@ pub struct Surrogate {
     pub signal: BreathingSignal,
 }
 
-impl MotionModel for Surrogate {
-    fn displacement(&self, x_ref: DVec3, t_s: f64) -> DVec3 {
-        let (g, rate) = match self.a2 {
+impl Surrogate {
+    /// g and g′ at `t_s` (g′ only when a₂ needs it).
+    fn signal_at(&self, t_s: f64) -> (f64, f64) {
+        match self.a2 {
             Some(_) => self.signal.g_and_rate(t_s),
             None => (self.signal.g(t_s), 0.0),
-        };
+        }
+    }
+
+    fn combine(&self, x_ref: DVec3, (g, rate): (f64, f64)) -> DVec3 {
         let mut u = self.a1.at(x_ref) * g;
         if let Some(a2) = &self.a2 {
             u += a2.at(x_ref) * rate;
@@ -111,6 +130,27 @@ impl MotionModel for Surrogate {
             u += a3.at(x_ref);
         }
         u
+    }
+}
+
+impl MotionModel for Surrogate {
+    fn displacement(&self, x_ref: DVec3, t_s: f64) -> DVec3 {
+        self.combine(x_ref, self.signal_at(t_s))
+    }
+
+    fn max_displacement_mm(&self) -> f64 {
+        self.a1.max_length_mm() * self.signal.max_g()
+            + self
+                .a2
+                .as_ref()
+                .map_or(0.0, |a| a.max_length_mm() * self.signal.max_rate())
+            + self.a3.as_ref().map_or(0.0, |a| a.max_length_mm())
+    }
+
+    /// The signal once per moment, then three field reads per point.
+    fn at_time(&self, t_s: f64) -> Box<dyn Fn(DVec3) -> DVec3 + Send + Sync + '_> {
+        let signal = self.signal_at(t_s);
+        Box::new(move |x| self.combine(x, signal))
     }
 }
 
@@ -124,6 +164,9 @@ mod tests {
     impl SpatialField for Uniform {
         fn at(&self, _x: DVec3) -> DVec3 {
             self.0
+        }
+        fn max_length_mm(&self) -> f64 {
+            self.0.length()
         }
     }
 
@@ -215,5 +258,17 @@ mod tests {
         let (t_in, t_out) = (0.3 * c.period_s, 0.7 * c.period_s);
         assert!((s.g(t_in) - s.g(t_out)).abs() < 1e-12);
         assert!((m.displacement(DVec3::ZERO, t_in) - m.displacement(DVec3::ZERO, t_out)).length() > 0.1);
+        // One moment for many points: the same bits; and the bound holds at every time.
+        let bound = m.max_displacement_mm();
+        for i in 0..2000 {
+            let t = i as f64 * 0.0123;
+            let at = m.at_time(t);
+            let x = DVec3::new(i as f64, 1.0, 2.0);
+            assert_eq!(
+                at(x).to_array().map(f64::to_bits),
+                m.displacement(x, t).to_array().map(f64::to_bits)
+            );
+            assert!(at(x).length() <= bound, "t {t}: |u| {} > {bound}", at(x).length());
+        }
     }
 }

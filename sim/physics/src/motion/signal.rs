@@ -134,6 +134,17 @@ impl BreathingSignal {
         }
     }
 
+    /// The largest g can be: the deepest drawn cycle's depth.
+    pub fn max_g(&self) -> f64 {
+        1.0 + self.params.depth_jitter
+    }
+
+    /// A bound on |g′(t)| (1/s): depth · 2n · π / (shortest period), as sin, cos ≤ 1.
+    pub fn max_rate(&self) -> f64 {
+        let shortest_s = self.params.period_s * (1.0 - self.params.period_jitter);
+        self.max_g() * 2.0 * self.params.power as f64 * std::f64::consts::PI / shortest_s
+    }
+
     /// g(t): 0 at end-expiration, the cycle's depth (about 1) at end-inspiration.
     pub fn g(&self, t_s: f64) -> f64 {
         let p = self.phase(t_s);

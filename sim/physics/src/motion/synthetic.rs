@@ -13,8 +13,11 @@
 //!   lungs follow, falling linearly to 0 at 150 mm above it (the apex hardly moves).
 //! - m(X) ∈ [0, 1]: what may move. 0 in the body wall (less than `wall_mm` under the skin), in
 //!   bone and within `bone_margin_mm` of it, and outside the body; 1 deeper inside, reached over
-//!   a ramp of [`RAMP_MM`]. The step from the wall to the cavity is the sliding interface: liver
-//!   and lung slide along the inside of the ribs while the ribs stay.
+//!   a ramp of [`RAMP_MM`]. Bone is the atlas' bone map (CT above the bone threshold) outside
+//!   the segmented soft structures: a contrast-filled vessel is as dense as bone but moves with
+//!   its organ, and an organ's voxel next to a rib moves fully. The step from the wall and the
+//!   ribs to the cavity is the sliding interface: liver and lung slide along the inside of the
+//!   ribs while the ribs stay.
 
 use std::sync::Arc;
 
@@ -79,6 +82,8 @@ pub struct SyntheticField {
     params: SyntheticMotion,
     /// The liver's dome: the highest z of an organ or target voxel (mm).
     dome_z_mm: f64,
+    /// By label id: a segmented soft structure (organ, target or risk), never bone.
+    soft: Vec<bool>,
 }
 
 impl SyntheticField {
@@ -89,10 +94,17 @@ impl SyntheticField {
             "the synthetic breathing motion needs an organ or target label (the liver) to place the diaphragm"
                 .to_string()
         })?;
+        let table = atlas.label_table();
+        let max_id = table.labels().iter().map(|l| l.id as usize).max().unwrap_or(0);
+        let mut soft = vec![false; max_id + 1];
+        for l in table.labels() {
+            soft[l.id as usize] = matches!(l.role, Role::Organ | Role::Target | Role::Risk);
+        }
         Ok(SyntheticField {
             atlas,
             params,
             dome_z_mm,
+            soft,
         })
     }
 
@@ -122,13 +134,23 @@ impl SyntheticField {
         if depth <= self.params.wall_mm {
             return 0.0;
         }
+        let wall = ramp(depth - self.params.wall_mm);
+        let label = self.atlas.partial_label_at(x_ref) as usize;
+        if self.soft.get(label).copied().unwrap_or(false) {
+            return wall;
+        }
         // Positive inside bone; far from any bone outside the map.
         let bone = self.atlas.bone_distance().sample(x_ref, -1000.0) as f64;
-        ramp(depth - self.params.wall_mm) * ramp(-bone - self.params.bone_margin_mm)
+        wall * ramp(-bone - self.params.bone_margin_mm)
     }
 }
 
 impl SpatialField for SyntheticField {
+    /// A · |(0, r_ap, −1)|: w and m never exceed 1.
+    fn max_length_mm(&self) -> f64 {
+        self.params.amplitude_mm * (1.0 + self.params.anterior_ratio * self.params.anterior_ratio).sqrt()
+    }
+
     fn at(&self, x_ref: DVec3) -> DVec3 {
         let m = self.mobility(x_ref);
         if m == 0.0 {

@@ -42,6 +42,11 @@ pub struct Frame<'a> {
     pub t_far: f32,
     pub background: Vec3,
     pub motion: Option<&'a MotionHook>,
+    /// u(·, t) of `motion` at its moment (the signal worked out once per frame).
+    pub motion_at: Option<Box<dyn Fn(DVec3) -> DVec3 + Send + Sync + 'a>>,
+    /// With a bounded motion: its bound in CT index units per axis; the ray/box extent and the
+    /// leaping test are widened by it (a sample reads within it of its world point).
+    pub motion_margin: Option<Vec3>,
     /// The tools' primitives (step 4) and the shadows they cast (step 6).
     pub primitives: Vec<Primitive>,
     pub shadows: Shadows,
@@ -74,10 +79,36 @@ pub fn ray_box(ce: Vec3, dc: Vec3, dims: [u32; 3]) -> Option<(f32, f32)> {
     if t0 > t1 { None } else { Some((t0, t1)) }
 }
 
+/// [`ray_box`] on the domain widened by `margin` index units per axis.
+fn ray_box_widened(ce: Vec3, dc: Vec3, dims: [u32; 3], margin: Vec3) -> Option<(f32, f32)> {
+    let (mut t0, mut t1) = (0.0f32, f32::INFINITY);
+    for a in 0..3 {
+        let (lo, hi) = (-0.5 - margin[a], dims[a] as f32 - 0.5 + margin[a]);
+        if dc[a] == 0.0 {
+            if ce[a] < lo || ce[a] > hi {
+                return None;
+            }
+        } else {
+            let inv = 1.0 / dc[a];
+            let ta = (lo - ce[a]) * inv;
+            let tb = (hi - ce[a]) * inv;
+            t0 = t0.max(ta.min(tb));
+            t1 = t1.min(ta.max(tb));
+        }
+    }
+    if t0 > t1 { None } else { Some((t0, t1)) }
+}
+
 /// Whether index `c` lies in the sampling domain (the trilinear inside rule).
 #[inline]
 fn inside(c: Vec3, dims: [u32; 3]) -> bool {
     (0..3).all(|a| c[a] >= -0.5 && c[a] < dims[a] as f32 - 0.5)
+}
+
+/// Whether index `c` lies in the sampling domain widened by `margin` index units per axis.
+#[inline]
+fn inside_by(c: Vec3, dims: [u32; 3], margin: Vec3) -> bool {
+    (0..3).all(|a| c[a] >= -0.5 - margin[a] && c[a] < dims[a] as f32 - 0.5 + margin[a])
 }
 
 /// t_k = (k + j)·Δ: the only formula for a lattice point.
@@ -126,7 +157,8 @@ impl Accum {
 
 /// Motion warp of eqs. 5.4.1–5.4.2 along one ray: X⁺ = x⁺ − u(X + d, t), d = x⁺ − x.
 struct Warp<'a> {
-    hook: &'a MotionHook,
+    /// u(·, t) at the frame's moment.
+    u: &'a (dyn Fn(DVec3) -> DVec3 + Send + Sync),
     prev: Option<(Vec3, Vec3)>,
 }
 
@@ -136,7 +168,7 @@ impl Warp<'_> {
     fn reference_of(&mut self, x: Vec3) -> Vec3 {
         let (x_prev, big_x_prev) = self.prev.unwrap_or((x, x));
         let d = x - x_prev;
-        let u = self.hook.model.displacement((big_x_prev + d).as_dvec3(), self.hook.t_s);
+        let u = (self.u)((big_x_prev + d).as_dvec3());
         let big_x = (x.as_dvec3() - u).as_vec3();
         self.prev = Some((x, big_x));
         big_x
@@ -276,6 +308,7 @@ fn lattice_general(
     let step = f.quality.step_mm;
     let inv_step = 1.0 / step;
     let dims = f.sampler.ct.dims;
+    let margin = f.motion_margin.unwrap_or(Vec3::ZERO);
     let mut samples = 0u64;
     let mut k = k0;
     loop {
@@ -283,23 +316,24 @@ fn lattice_general(
         if t > ray.t_hi || t >= ray.t_tool {
             break;
         }
-        let at = match warp.as_mut() {
-            Some(w) => f.sampler.at_world(w.reference_of(ray.origin + ray.dir * t)),
-            None => at_t(t),
-        };
-        // 8. Empty-space leaping.
+        // 8. Empty-space leaping, at the world point (its cells dilated by the motion's bound).
         if let Some(occ) = &f.occupancy {
-            if inside(at.ct, dims) {
-                let cell = occ.cell(at.ct);
+            let c = ray.ce + ray.dc * t;
+            if inside(c, dims) {
+                let cell = occ.cell(c);
                 if !occ.is_occupied(cell) {
                     k = lattice_from(occ.exit_t(cell, ray.ce, ray.dc), k + 1, ray.j, inv_step);
                     continue;
                 }
-            } else if !f.sample_outside {
+            } else if !f.sample_outside && !inside_by(c, dims, margin) {
                 k += 1;
                 continue;
             }
         }
+        let at = match warp.as_mut() {
+            Some(w) => f.sampler.at_world(w.reference_of(ray.origin + ray.dir * t)),
+            None => at_t(t),
+        };
         // 5. Sample.
         samples += 1;
         let c = f.table.lookup(f.sampler.s(at));
@@ -337,11 +371,11 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
     let tool = nearest_hit(&f.primitives, origin, dir, NO_TOOL);
     let t_tool = tool.map_or(NO_TOOL, |h| h.t);
 
-    // 2. Extent.
-    let extent = if q.ray_box && f.motion.is_none() {
-        ray_box(ce, dc, dims)
-    } else {
-        Some((0.0, f.t_far))
+    // 2. Extent: the CT's box, widened by a motion's bound (an unbounded motion: naive).
+    let extent = match (q.ray_box, f.motion.is_some(), f.motion_margin) {
+        (true, false, _) => ray_box(ce, dc, dims),
+        (true, true, Some(m)) => ray_box_widened(ce, dc, dims, m),
+        _ => Some((0.0, f.t_far)),
     };
     // 3. Clip plane: the visible part of the extent, and the plane sample where the ray enters it.
     let mut lattice_from: Option<(f32, bool, f32)> = None; // (t_lo, strict, t_hi)
@@ -372,7 +406,7 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
         }
     }
 
-    let mut warp = f.motion.map(|hook| Warp { hook, prev: None });
+    let mut warp = f.motion_at.as_deref().map(|u| Warp { u, prev: None });
     // The plane sample: no shading, no shadow, opacity as is.
     if let Some(tc) = plane_t
         && tc < t_tool

@@ -86,18 +86,32 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) ->
     );
     let mut quality = scene.quality;
     quality.step_mm = usable_step_mm(quality.step_mm);
-    // Leaping needs every lattice point's position from the ray alone; the motion warp does not
-    // give that, so with a motion hook every lattice point is visited.
+    // With the breathing motion a world point x samples X = x − u(X, t), within |u| ≤ U of x:
+    // the ray/box extent and the leaping cells are widened by U (index units per axis: U times
+    // the length of the index map's row, which bounds |Δc_a| for any |Δx| ≤ U, oblique grids
+    // included). An unbounded motion visits every sample.
     let (lo_hu, hi_hu) = volume.value_range_hu;
     let table = TransferTable::new(&scene.transfer, lo_hu, hi_hu, quality.step_mm);
-    let occupancy = (quality.leaping && scene.motion.is_none()).then(|| {
+    let motion_margin = scene.motion.as_ref().map(|m| {
+        use stylet_physics::glam::Vec3;
+        let u_mm = m.model.max_displacement_mm() as f32;
+        let (ex, ey, ez) = (ct_map.vector(Vec3::X), ct_map.vector(Vec3::Y), ct_map.vector(Vec3::Z));
+        let row = |a: usize| Vec3::new(ex[a], ey[a], ez[a]).length();
+        Vec3::new(row(0), row(1), row(2)) * u_mm
+    });
+    let bounded = motion_margin.is_none_or(|m| m.is_finite());
+    let occupancy = (quality.leaping && bounded).then(|| {
         let ranges = volume.cell_ranges(quality.occupancy_cells);
-        Occupancy::new(
+        let occ = Occupancy::new(
             &ranges,
             &table,
             ct_map.dims,
             scene.deformed.as_ref().map(|d| (&*d.volume, &ct_map)),
-        )
+        );
+        match motion_margin {
+            Some(m) => occ.dilated(m),
+            None => occ,
+        }
     });
     // The finest leaping level: per-cube skip bits, for the common frame (no hooks).
     let cubes = (quality.leaping && scene.motion.is_none() && scene.deformed.is_none() && sampler.ct.is_fast())
@@ -118,6 +132,8 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) ->
         t_far: farthest_corner_mm(&grid, scene.camera.eye_mm),
         background: scene.background,
         motion: scene.motion.as_ref(),
+        motion_at: scene.motion.as_ref().map(|m| m.model.at_time(m.t_s)),
+        motion_margin: motion_margin.filter(|m| m.is_finite()),
         primitives: scene.tools.primitives(),
         shadows: crate::shadow::Shadows::from_tools(&scene.tools),
         has_shadows: scene.tools.needle.is_some() || scene.tools.finger.is_some() || scene.tools.probe.is_some(),

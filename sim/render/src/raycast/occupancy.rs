@@ -167,6 +167,37 @@ impl Occupancy {
         }
     }
 
+    /// These bits dilated by `margin` index units along every axis (a cell is occupied when any
+    /// cell within the margin is): for the breathing motion, whose world point x samples the
+    /// reference point X = x − u with |u| within the margin (thesis §5.4.1), so an empty dilated
+    /// cell at x means an empty cell at X.
+    pub fn dilated(&self, margin: Vec3) -> Occupancy {
+        let n = self.cells as usize;
+        let reach = |a: usize| ((margin[a] * self.scale[a]).ceil().max(0.0) as usize).min(n);
+        let r = [reach(0), reach(1), reach(2)];
+        let mut out = self.occupied.clone();
+        // Separable: a running OR along x, then y, then z.
+        for (a, stride) in [(0usize, 1usize), (1, n), (2, n * n)] {
+            if r[a] == 0 {
+                continue;
+            }
+            let src = out.clone();
+            for idx in 0..n * n * n {
+                let q = (idx / stride) % n;
+                let lo = q.saturating_sub(r[a]);
+                let hi = (q + r[a]).min(n - 1);
+                let base = idx - q * stride;
+                out[idx] = u8::from((lo..=hi).any(|p| src[base + p * stride] != 0));
+            }
+        }
+        Occupancy {
+            cells: self.cells,
+            occupied: out,
+            scale: self.scale,
+            size: self.size,
+        }
+    }
+
     /// The cell of CT index `c`: q_a = ⌊(c_a + ½)·N/n_a⌋ clamped to [0, N − 1].
     #[inline]
     pub fn cell(&self, c: Vec3) -> [u32; 3] {
