@@ -341,7 +341,10 @@ impl Simulation {
         let t_breath = self.breath_time_s();
         self.motion_time_s = t_breath;
         let model = self.config.motion.clone();
-        let x_ref = motion::to_reference(model.as_ref(), x_world, self.device_ref.unwrap_or(x_world), t_breath);
+        // u(·, t) of this tick: the signal worked out once for its six evaluations.
+        let u_at = model.at_time(t_breath);
+        // One fixed-point step of the inverse, X⁺ = x − u(X, t) (thesis §5.4.3).
+        let x_ref = x_world - u_at(self.device_ref.unwrap_or(x_world));
         self.device_ref = Some(x_ref);
         let device = self.config.device;
         let atlas = self.atlas.clone();
@@ -372,7 +375,7 @@ impl Simulation {
         let (force, torque) = match &mut self.tool {
             Tool::Needle(n) => {
                 let tip_ref = n.path().tip().map_or(x_ref, |t| t.pos);
-                let r = motion::deformation_gradient(model.as_ref(), tip_ref, t_breath);
+                let r = motion::gradient_of(&*u_at, tip_ref);
                 let correct = |d: DVec3| motion::correct_direction(&r, d);
                 let f = n.step(&atlas, x_ref, q, &correct, &device);
                 out.components.cut = f.cut;
@@ -382,7 +385,7 @@ impl Simulation {
                     out.insertion_dir = t.tangent;
                 }
                 let tip = *n.nodes().last().expect("needle has nodes");
-                out.tip_mm = tip + model.displacement(tip, t_breath);
+                out.tip_mm = tip + u_at(tip);
                 out.tip_label = n.tip_label();
                 out.inserted_mm = n.inserted_mm();
                 out.tip_depth_mm = atlas.skin_distance().sample(tip, -1000.0) as f64;

@@ -130,8 +130,14 @@ pub fn to_reference(model: &dyn MotionModel, x_world: DVec3, x_ref_prev: DVec3, 
 
 /// R = ∂u/∂X + I at `x_ref` by forward differences of 1 mm (eq. 5.4.3).
 pub fn deformation_gradient(model: &dyn MotionModel, x_ref: DVec3, t_s: f64) -> DMat3 {
-    let u0 = model.displacement(x_ref, t_s);
-    let col = |e: DVec3| model.displacement(x_ref + e, t_s) - u0;
+    gradient_of(&*model.at_time(t_s), x_ref)
+}
+
+/// R = ∂u/∂X + I of u(·, t) at one moment ([`MotionModel::at_time`]), by forward differences of
+/// 1 mm (eq. 5.4.3).
+pub fn gradient_of(u: &dyn Fn(DVec3) -> DVec3, x_ref: DVec3) -> DMat3 {
+    let u0 = u(x_ref);
+    let col = |e: DVec3| u(x_ref + e) - u0;
     DMat3::from_cols(col(DVec3::X), col(DVec3::Y), col(DVec3::Z)) + DMat3::IDENTITY
 }
 
