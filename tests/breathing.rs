@@ -479,9 +479,68 @@ fn sessions_with_breathing_replay_verified_and_score_the_hits() {
             serde_json::from_str(&ok(&["score", s(&session), "--atlas", s(dir.path()), "--json"])).unwrap();
         assert_eq!(r["replay_verified"], true, "{name}: {}", r["divergence"]);
         risk_hits.push(r["metrics"]["risk_hits"].as_array().unwrap().len());
+        // The breathing metrics: nothing breathed past a needle put in and left in a held
+        // breath; the free breath carried tissue past it while it was in.
+        let b = &r["metrics"]["breathing"];
+        let (slide, breathing_s) = (
+            b["tissue_slide_mm"].as_f64().unwrap(),
+            b["needle_in_while_breathing_s"].as_f64().unwrap(),
+        );
+        println!(
+            "{name}: risk hits {}, tissue slide {slide:.1} mm, needle in while breathing {breathing_s:.1} s",
+            risk_hits.last().unwrap()
+        );
+        if hold {
+            assert_eq!((slide, breathing_s), (0.0, 0.0), "{name}: {b}");
+        } else {
+            assert!(slide > 5.0 && breathing_s > 3.0, "{name}: {b}");
+        }
     }
     assert_eq!(risk_hits[0], 0, "held breath: {risk_hits:?}");
     assert!(risk_hits[1] >= 1, "free breathing: {risk_hits:?}");
+    // The phase the target was reached in, from the shipped successful puncture: held at
+    // end-expiration, or breathing (then the rubric metric flags it).
+    let base = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts/success-intercostal.txt"),
+    )
+    .unwrap();
+    for (name, extra, phase, flag) in [
+        (
+            "hold",
+            "breathing on\nat 0 event breath-hold\n",
+            "held_end_expiration",
+            0.0,
+        ),
+        ("breathe", "breathing on\n", "free_breathing", 1.0),
+    ] {
+        let script = work.path().join(format!("{name}.txt"));
+        std::fs::write(&script, base.replacen("end 20\n", &format!("end 20\n{extra}"), 1)).unwrap();
+        let session = work.path().join(format!("{name}.mcap"));
+        ok(&[
+            "script",
+            "run",
+            "--atlas",
+            s(dir.path()),
+            "--script",
+            s(&script),
+            "--out",
+            s(&session),
+        ]);
+        let r: serde_json::Value =
+            serde_json::from_str(&ok(&["score", s(&session), "--atlas", s(dir.path()), "--json"])).unwrap();
+        assert_eq!(r["replay_verified"], true, "{name}: {}", r["divergence"]);
+        assert_eq!(
+            r["metrics"]["breathing"]["target_reached_phase"], phase,
+            "{name}: {}",
+            r["metrics"]["breathing"]
+        );
+        let m: stylet_scoring::metrics::Metrics = serde_json::from_value(r["metrics"].clone()).unwrap();
+        assert_eq!(
+            stylet_scoring::rubric::metric_value(&m, "target_reached_while_breathing"),
+            Some(flag),
+            "{name}"
+        );
+    }
 }
 
 /// The moments of a needle left in the phantom's liver (as in the Fig. 5.11 test) at the first

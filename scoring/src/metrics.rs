@@ -158,6 +158,60 @@ pub struct Metrics {
     /// Ultrasound-survey metrics, when the probe touched the skin.
     #[serde(default)]
     pub ultrasound: Option<UltrasoundMetrics>,
+    /// Respiratory-motion metrics, when the patient breathed (docs/breathing.md).
+    #[serde(default)]
+    pub breathing: Option<BreathingMetrics>,
+}
+
+/// Where in the breathing the needle reached the target.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BreathPhase {
+    /// Breath held at end-expiration (g ≤ 0.15 of a breath): the CT's phase, where the plan
+    /// holds — the correct hold for PTCD.
+    HeldEndExpiration,
+    /// Breath held at end-inspiration (g ≥ 0.85).
+    HeldEndInspiration,
+    /// Breath held somewhere between.
+    HeldBetween,
+    /// The patient breathed.
+    FreeBreathing,
+}
+
+impl BreathPhase {
+    /// Of a tick: held or not, and g, the breathing signal (0 at end-expiration, ≈ 1 at
+    /// end-inspiration).
+    pub fn of(held: bool, g: f64) -> BreathPhase {
+        match (held, g) {
+            (false, _) => BreathPhase::FreeBreathing,
+            (true, g) if g <= 0.15 => BreathPhase::HeldEndExpiration,
+            (true, g) if g >= 0.85 => BreathPhase::HeldEndInspiration,
+            (true, _) => BreathPhase::HeldBetween,
+        }
+    }
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            BreathPhase::HeldEndExpiration => "breath held at end-expiration",
+            BreathPhase::HeldEndInspiration => "breath held at end-inspiration",
+            BreathPhase::HeldBetween => "breath held between expiration and inspiration",
+            BreathPhase::FreeBreathing => "free breathing",
+        }
+    }
+}
+
+/// What the needle did in a breathing patient (docs/metrics.md "Breathing").
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+pub struct BreathingMetrics {
+    /// Where in the breathing the target was first reached (`None`: never).
+    pub target_reached_phase: Option<BreathPhase>,
+    /// The needle in the body while the patient breathed (s).
+    pub needle_in_while_breathing_s: f64,
+    /// How far the breathing carried the tissue at the needle's tip while the needle was in the
+    /// body (mm): Σ |u(X_tip, t) − u(X_tip, t_prev)| over those ticks, the tip's reference
+    /// position X_tip held fixed, so the needle's own motion does not count. A needle left in a
+    /// breathing liver is dragged through it; a held breath adds nothing.
+    pub tissue_slide_mm: f64,
 }
 
 /// What the finger found (docs/metrics.md "Palpation").
@@ -272,6 +326,19 @@ pub struct MetricsCollector<'a> {
     last_probe: Option<(DVec3, stylet_physics::glam::DQuat, stylet_physics::ProbeKind)>,
     imaged_insertion_ticks: u64,
     tip_in_plane_ticks: u64,
+    /// With a breathing patient: the signal (g per tick), the phase the target was reached in,
+    /// the ticks breathed with the needle in, the tissue slide and the last u at the tip.
+    breathing: Option<BreathingTrace>,
+}
+
+/// What [`BreathingMetrics`] is collected from.
+struct BreathingTrace {
+    signal: stylet_physics::motion::BreathingSignal,
+    target_reached_phase: Option<BreathPhase>,
+    needle_in_breathing_ticks: u64,
+    tissue_slide_mm: f64,
+    /// The previous tick's motion time, while the needle was in the body.
+    last_t: Option<f64>,
 }
 
 /// The finger's sweep, cut into runs over a rib and over an intercostal space.
@@ -541,6 +608,7 @@ impl<'a> MetricsCollector<'a> {
             last_probe: None,
             imaged_insertion_ticks: 0,
             tip_in_plane_ticks: 0,
+            breathing: None,
             good_contact_ticks: 0,
             probe_ticks: 0,
         }
@@ -692,6 +760,10 @@ impl<'a> MetricsCollector<'a> {
         }
         self.was_on_bone = on_bone;
 
+        if sim.breathes() {
+            self.breathing_tick(sim, out, in_body, tip_role == Role::Target && needle.is_some());
+        }
+
         // Target and confirmation.
         if needle.is_some() && tip_role == Role::Target {
             self.first_target_tick.get_or_insert(tick);
@@ -809,6 +881,43 @@ impl<'a> MetricsCollector<'a> {
     }
 
     /// The metrics of everything observed.
+    /// One tick of a breathing patient: the phase when the target is first reached; with the
+    /// needle in the body, the time breathed and how far the breathing moved the tissue at the
+    /// tip since the last tick (nothing while the breath is held: the motion time stands).
+    fn breathing_tick(&mut self, sim: &Simulation, out: &TickOutput, in_body: bool, at_target: bool) {
+        if self.breathing.is_none() {
+            let Ok(signal) = stylet_physics::motion::BreathingSignal::new(sim.config().breathing.signal) else {
+                return;
+            };
+            self.breathing = Some(BreathingTrace {
+                signal,
+                target_reached_phase: None,
+                needle_in_breathing_ticks: 0,
+                tissue_slide_mm: 0.0,
+                last_t: None,
+            });
+        }
+        let b = self.breathing.as_mut().expect("set above");
+        let t = sim.motion_time_s();
+        if at_target && self.first_target_tick.is_none() {
+            b.target_reached_phase = Some(BreathPhase::of(out.breath_hold, b.signal.g(t)));
+        }
+        let tip = sim.needle().and_then(|n| n.nodes().last().copied());
+        match (in_body, tip) {
+            (true, Some(tip)) => {
+                if !out.breath_hold {
+                    b.needle_in_breathing_ticks += 1;
+                }
+                if let Some(t_prev) = b.last_t.filter(|&p| p != t) {
+                    let m = sim.motion();
+                    b.tissue_slide_mm += m.displacement(tip, t).distance(m.displacement(tip, t_prev));
+                }
+                b.last_t = Some(t);
+            }
+            _ => b.last_t = None,
+        }
+    }
+
     pub fn finish(mut self) -> Metrics {
         if self.palpation.open.is_some() {
             self.palpation.lift();
@@ -934,6 +1043,11 @@ impl<'a> MetricsCollector<'a> {
             guided,
             palpation,
             ultrasound,
+            breathing: self.breathing.map(|b| BreathingMetrics {
+                target_reached_phase: b.target_reached_phase,
+                needle_in_while_breathing_s: b.needle_in_breathing_ticks as f64 / rate,
+                tissue_slide_mm: b.tissue_slide_mm,
+            }),
         }
     }
 }
@@ -985,6 +1099,7 @@ pub(crate) mod tests_support {
             guided: None,
             palpation: None,
             ultrasound: None,
+            breathing: None,
         }
     }
 

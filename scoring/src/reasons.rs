@@ -85,6 +85,16 @@ pub const METRICS: &[MetricInfo] = &[
     m("dose_area_product_gy_cm2", "dose-area product", Unit::GrayCm2),
     m("max_force_n", "peak force", Unit::Newtons),
     m("tissue_damage_mm2", "tissue damage", Unit::SquareMillimetres),
+    flag(
+        "target_reached_while_breathing",
+        "target reached without a breath hold at end-expiration",
+        "the needle reached the target while the patient breathed or held their breath in another phase than end-expiration",
+    ),
+    m(
+        "breathing_tissue_slide_mm",
+        "tissue moved past the needle by breathing",
+        Unit::Millimetres,
+    ),
     m("path_inefficiency", "path inefficiency", Unit::Ratio),
     m("target_distance_mm", "distance from the target", Unit::Millimetres),
     flag(

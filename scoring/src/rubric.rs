@@ -121,6 +121,8 @@ pub const PUNCTURE_METRICS: &[&str] = &[
     "guided_entry_distance_mm",
     "guided_angle_error_deg",
     "guided_mean_deviation_mm",
+    "target_reached_while_breathing",
+    "breathing_tissue_slide_mm",
 ];
 
 /// Metrics where more is better: a deduction "above the experts" makes no sense for them.
@@ -192,6 +194,13 @@ pub fn metric_value(m: &Metrics, name: &str) -> Option<f64> {
         "guided_entry_distance_mm" => m.guided.as_ref().map_or(0.0, |g| g.entry_distance_mm),
         "guided_angle_error_deg" => m.guided.as_ref().map_or(0.0, |g| g.angle_error_deg),
         "guided_mean_deviation_mm" => m.guided.as_ref().map_or(0.0, |g| g.mean_deviation_mm),
+        // Breathing (0 when the patient did not breathe): the target reached in any phase but a
+        // breath held at end-expiration, and the tissue the breathing carried past the needle.
+        "target_reached_while_breathing" => flag(m.breathing.as_ref().is_some_and(|b| {
+            b.target_reached_phase
+                .is_some_and(|p| p != crate::metrics::BreathPhase::HeldEndExpiration)
+        })),
+        "breathing_tissue_slide_mm" => m.breathing.as_ref().map_or(0.0, |b| b.tissue_slide_mm),
         // Palpation (0 when the finger never touched the skin).
         "intercostal_spaces_found" => m.palpation.as_ref().map_or(0.0, |p| p.spaces_found as f64),
         "intercostal_spaces_missed" => m

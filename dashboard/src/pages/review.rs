@@ -376,6 +376,18 @@ fn other_metrics(r: &ScoreReport) -> Markup {
         ("Bone contacts", m.bone_contacts.to_string()),
         ("Distance to the target", opt(m.target_distance_mm, "mm")),
     ];
+    let mut rows = rows;
+    if let Some(b) = &m.breathing {
+        rows.push((
+            "Breathing: target reached",
+            b.target_reached_phase
+                .map_or("target not reached".to_string(), |p| p.as_str().to_string()),
+        ));
+        rows.push((
+            "Breathing: needle in while breathing · tissue carried past the tip",
+            format!("{:.1} s · {:.0} mm", b.needle_in_while_breathing_s, b.tissue_slide_mm),
+        ));
+    }
     html! {
         table #metrics { tbody { @for (k, v) in rows { tr { th { (k) } td { (v) } } } } }
     }
