@@ -13,6 +13,8 @@
 //! `cargo bench --bench breathing`. Under `cargo test --all-targets` each part runs once on a
 //! small case: a smoke test.
 
+mod common;
+
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -21,11 +23,8 @@ use std::time::Instant;
 use criterion::Criterion;
 use stylet_devices::run_headless;
 use stylet_devices::script::{parse, scripted_simulation};
-use stylet_physics::glam::DVec3;
 use stylet_physics::motion::{BreathingSettings, BreathingSignal};
-use stylet_physics::{Simulation, TickInput};
-use stylet_recorder::recording::{Recording, SessionInfo, header};
-use stylet_recorder::{WriterOptions, reader};
+use stylet_recorder::reader;
 use stylet_render::presets::Preset;
 use stylet_render::scene::{ClipPlane, Scene, Tagging};
 use stylet_render::views::{self, Moment, SessionLabels};
@@ -37,16 +36,16 @@ fn main() {
     let measuring = std::env::args().any(|a| a == "--bench");
     // SAFETY: no other thread runs yet.
     unsafe { std::env::set_var("RAYON_NUM_THREADS", "2") };
-    let dir = tempfile::tempdir().unwrap();
-    let p = stylet_atlas::phantom::generate(&Default::default()).unwrap();
-    stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
-    let atlas = stylet_atlas::load(dir.path()).unwrap();
+    let (dir, atlas) = common::phantom();
 
     // The haptic tick, still and breathing.
     let ticks = if measuring { 30_000 } else { 300 };
-    for (name, breathing) in [("still", BreathingSettings::default()), ("breathing", BreathingSettings::on())] {
-        let (mut sim, input) = prepared(&atlas, NEEDLE_IN, breathing);
-        let (m, p99, p999) = percentiles(&mut sim, &input, ticks);
+    for (name, breathing) in [
+        ("still", BreathingSettings::default()),
+        ("breathing", BreathingSettings::on()),
+    ] {
+        let (mut sim, input) = common::prepared(&atlas, &with_breathing(NEEDLE_IN, breathing));
+        let (m, p99, p999) = common::quantiles(common::tick_times(&mut sim, &input, ticks));
         println!("needle tick, patient {name}: median {m:.2} µs, p99 {p99:.2} µs, p99.9 {p999:.1} µs");
     }
 
@@ -57,9 +56,12 @@ fn main() {
         seconds * 2 / 3
     );
     let mut base = None;
-    for (name, breathing) in [("still", BreathingSettings::default()), ("breathing", BreathingSettings::on())] {
+    for (name, breathing) in [
+        ("still", BreathingSettings::default()),
+        ("breathing", BreathingSettings::on()),
+    ] {
         let file = dir.path().join(format!("{name}.mcap"));
-        record(&atlas, &script, breathing, &file);
+        common::record(&atlas, &with_breathing(&script, breathing), &file);
         let session = reader::read(&file).unwrap();
         let t = Instant::now();
         let r = stylet_scoring::replay::replay(&session, Arc::clone(&atlas.model), &mut |_, _, _| {}).unwrap();
@@ -148,53 +150,9 @@ fn end_inspiration_scene(atlas: &stylet_atlas::Atlas) -> Scene {
     scene
 }
 
-/// Runs a script to its end with the given breathing and returns the simulation and last input.
-fn prepared(atlas: &stylet_atlas::Atlas, text: &str, breathing: BreathingSettings) -> (Simulation, TickInput) {
+/// The script with the given breathing.
+fn with_breathing(text: &str, breathing: BreathingSettings) -> stylet_devices::script::Script {
     let mut script = parse(text).unwrap();
     script.breathing = breathing;
-    let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
-    let mut last = None;
-    run_headless(&mut sim, &mut device, |i, _, _| last = Some(i.clone()));
-    (sim, last.unwrap())
-}
-
-/// Median, 99th and 99.9th percentile of single ticks (µs), the device trembling ±5 µm, one
-/// tick per millisecond as in the haptic loop.
-fn percentiles(sim: &mut Simulation, input: &TickInput, n: usize) -> (f64, f64, f64) {
-    let axis = sim
-        .needle()
-        .and_then(|n| n.path().tip())
-        .map_or(DVec3::Z, |t| t.tangent);
-    let mut times = Vec::with_capacity(n);
-    let start = Instant::now();
-    for i in 0..n {
-        let mut inp = input.clone();
-        inp.position_mm += axis * if i % 2 == 0 { 0.005 } else { -0.005 };
-        let due = start + std::time::Duration::from_millis(i as u64);
-        while Instant::now() < due {
-            std::hint::spin_loop();
-        }
-        let t = Instant::now();
-        black_box(sim.step(&inp));
-        times.push(t.elapsed().as_secs_f64() * 1e6);
-    }
-    times.sort_by(f64::total_cmp);
-    (times[n / 2], times[n * 99 / 100], times[n * 999 / 1000])
-}
-
-fn record(atlas: &stylet_atlas::Atlas, text: &str, breathing: BreathingSettings, file: &Path) {
-    let mut script = parse(text).unwrap();
-    script.breathing = breathing;
-    let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
-    let info = SessionInfo {
-        trainee: "bench",
-        scenario: "bench",
-        difficulty: "beginner",
-        seed: 0,
-        atlas_id: &atlas.manifest.name,
-        atlas_hash: &atlas.content_hash,
-    };
-    let mut rec = Recording::start(file, &header(&sim, &info), false, WriterOptions::default()).unwrap();
-    run_headless(&mut sim, &mut device, |i, o, s| rec.tick(i, o, s));
-    rec.finish().unwrap();
+    script
 }

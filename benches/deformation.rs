@@ -14,19 +14,19 @@
 //! `scipy.sparse.linalg.cg` to the residual Stylet reached. Under `cargo test --all-targets` each
 //! part runs once on a small case: a smoke test.
 
+mod common;
+
 use std::hint::black_box;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
 use criterion::Criterion;
-use stylet_devices::run_headless;
-use stylet_devices::script::{parse, scripted_simulation};
+use stylet_devices::script::parse;
 use stylet_physics::deform::{self, DeformSettings};
 use stylet_physics::glam::DVec3;
 use stylet_physics::{Simulation, TickInput};
-use stylet_recorder::recording::{Recording, SessionInfo, header};
-use stylet_recorder::{WriterOptions, reader};
+use stylet_recorder::reader;
 
 const NEEDLE_IN: &str = "stylet-script 1\ntool needle gauge 18 length 200\nend 11\nat 0 along intercostal-10-11 -10\nat 10 along intercostal-10-11 100\nat 11 along intercostal-10-11 100\n";
 
@@ -34,10 +34,7 @@ fn main() {
     let measuring = std::env::args().any(|a| a == "--bench");
     // SAFETY: no other thread runs yet.
     unsafe { std::env::set_var("RAYON_NUM_THREADS", "2") };
-    let dir = tempfile::tempdir().unwrap();
-    let p = stylet_atlas::phantom::generate(&Default::default()).unwrap();
-    stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
-    let atlas = stylet_atlas::load(dir.path()).unwrap();
+    let (dir, atlas) = common::phantom();
 
     let (sim, _) = prepared(&atlas, NEEDLE_IN, DeformSettings::on(), false);
     let needle = sim.needle().expect("a needle");
@@ -115,7 +112,7 @@ fn main() {
     let mut base = None;
     for (name, settings) in [("off", DeformSettings::off()), ("on", DeformSettings::on())] {
         let file = dir.path().join(format!("{name}.mcap"));
-        record(&atlas, &script, settings, &file);
+        common::record(&atlas, &with_deformation(&script, settings), &file);
         let session = reader::read(&file).unwrap();
         let t = Instant::now();
         let r = stylet_scoring::replay::replay(&session, Arc::clone(&atlas.model), &mut |_, _, _| {}).unwrap();
@@ -130,38 +127,25 @@ fn main() {
 
 /// Runs a script to its end with the given deformation and returns the simulation and last input.
 fn prepared(atlas: &stylet_atlas::Atlas, text: &str, d: DeformSettings, background: bool) -> (Simulation, TickInput) {
-    let mut script = parse(text).unwrap();
-    script.deformation = d;
-    let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
-    let mut last = None;
-    run_headless(&mut sim, &mut device, |i, _, _| last = Some(i.clone()));
+    let (mut sim, last) = common::prepared(atlas, &with_deformation(text, d));
     if background {
         sim.set_deform_in_background(true);
     }
-    (sim, last.unwrap())
+    (sim, last)
 }
 
-/// Median, 99th and 99.9th percentile of single ticks (µs), the device trembling ±5 µm, one
-/// tick per millisecond as in the haptic loop (so a solve on its own thread has the latency's
-/// time to finish before the tick that needs its result).
+/// The script with the given deformation.
+fn with_deformation(text: &str, d: DeformSettings) -> stylet_devices::script::Script {
+    let mut script = parse(text).unwrap();
+    script.deformation = d;
+    script
+}
+
+/// Median, 99th and 99.9th percentile of single ticks (µs), paced as in the haptic loop (so a
+/// solve on its own thread has the latency's time to finish before the tick that needs its
+/// result); with deformation on, the ticks that launch and enter solves reported apart.
 fn percentiles(sim: &mut Simulation, input: &TickInput, n: usize) -> (f64, f64, f64) {
-    let axis = sim
-        .needle()
-        .and_then(|n| n.path().tip())
-        .map_or(DVec3::Z, |t| t.tangent);
-    let mut times = Vec::with_capacity(n);
-    let start = Instant::now();
-    for i in 0..n {
-        let mut inp = input.clone();
-        inp.position_mm += axis * if i % 2 == 0 { 0.005 } else { -0.005 };
-        let due = start + std::time::Duration::from_millis(i as u64);
-        while Instant::now() < due {
-            std::hint::spin_loop();
-        }
-        let t = Instant::now();
-        black_box(sim.step(&inp));
-        times.push(t.elapsed().as_secs_f64() * 1e6);
-    }
+    let times = common::tick_times(sim, input, n);
     // The ticks that launch a solve and enter the last one (every 100th) apart from the rest:
     // what the haptic thread does itself, and what the solve on the other core costs it.
     let every = sim.config().deformation.every_ticks as usize;
@@ -191,25 +175,7 @@ fn percentiles(sim: &mut Simulation, input: &TickInput, n: usize) -> (f64, f64, 
             q(&rest, 0.999)
         );
     }
-    times.sort_by(f64::total_cmp);
-    (times[n / 2], times[n * 99 / 100], times[n * 999 / 1000])
-}
-
-fn record(atlas: &stylet_atlas::Atlas, text: &str, d: DeformSettings, file: &Path) {
-    let mut script = parse(text).unwrap();
-    script.deformation = d;
-    let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
-    let info = SessionInfo {
-        trainee: "bench",
-        scenario: "bench",
-        difficulty: "beginner",
-        seed: 0,
-        atlas_id: &atlas.manifest.name,
-        atlas_hash: &atlas.content_hash,
-    };
-    let mut rec = Recording::start(file, &header(&sim, &info), false, WriterOptions::default()).unwrap();
-    run_headless(&mut sim, &mut device, |i, o, s| rec.tick(i, o, s));
-    rec.finish().unwrap();
+    common::quantiles(times)
 }
 
 /// The 64-cell system of one cold-started frame and Stylet's solution, for scipy_cg.py.

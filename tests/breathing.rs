@@ -452,6 +452,28 @@ fn breathing_is_deterministic_the_seed_matters_and_a_hold_freezes_it() {
     assert!(lag.abs() < 2e-3, "the clock resumed {lag} s off");
 }
 
+/// Records script `text` on the atlas in `atlas_dir` as `work/name.mcap` with `stylet script run`,
+/// scores it with `stylet score --json` and checks that its replay verified.
+fn record_and_score(atlas_dir: &Path, work: &Path, name: &str, text: &str) -> serde_json::Value {
+    let script = work.join(format!("{name}.txt"));
+    std::fs::write(&script, text).unwrap();
+    let session = work.join(format!("{name}.mcap"));
+    ok(&[
+        "script",
+        "run",
+        "--atlas",
+        s(atlas_dir),
+        "--script",
+        s(&script),
+        "--out",
+        s(&session),
+    ]);
+    let r: serde_json::Value =
+        serde_json::from_str(&ok(&["score", s(&session), "--atlas", s(atlas_dir), "--json"])).unwrap();
+    assert_eq!(r["replay_verified"], true, "{name}: {}", r["divergence"]);
+    r
+}
+
 /// A recorded session with breathing replays verified (bit for bit, digests included), and the
 /// scoring sees the lung hit of free breathing and not that of the held breath.
 #[test]
@@ -462,22 +484,7 @@ fn sessions_with_breathing_replay_verified_and_score_the_hits() {
     let arrive = (peak_s(&signal, 2) * 10.0).round() / 10.0;
     let mut risk_hits = Vec::new();
     for (name, hold) in [("held", true), ("free", false)] {
-        let script = work.path().join(format!("{name}.txt"));
-        std::fs::write(&script, high_puncture(hold, arrive)).unwrap();
-        let session = work.path().join(format!("{name}.mcap"));
-        ok(&[
-            "script",
-            "run",
-            "--atlas",
-            s(dir.path()),
-            "--script",
-            s(&script),
-            "--out",
-            s(&session),
-        ]);
-        let r: serde_json::Value =
-            serde_json::from_str(&ok(&["score", s(&session), "--atlas", s(dir.path()), "--json"])).unwrap();
-        assert_eq!(r["replay_verified"], true, "{name}: {}", r["divergence"]);
+        let r = record_and_score(dir.path(), work.path(), name, &high_puncture(hold, arrive));
         risk_hits.push(r["metrics"]["risk_hits"].as_array().unwrap().len());
         // The breathing metrics: nothing breathed past a needle put in and left in a held
         // breath; the free breath carried tissue past it while it was in.
@@ -513,22 +520,8 @@ fn sessions_with_breathing_replay_verified_and_score_the_hits() {
         ),
         ("breathe", "breathing on\n", "free_breathing", 1.0),
     ] {
-        let script = work.path().join(format!("{name}.txt"));
-        std::fs::write(&script, base.replacen("end 20\n", &format!("end 20\n{extra}"), 1)).unwrap();
-        let session = work.path().join(format!("{name}.mcap"));
-        ok(&[
-            "script",
-            "run",
-            "--atlas",
-            s(dir.path()),
-            "--script",
-            s(&script),
-            "--out",
-            s(&session),
-        ]);
-        let r: serde_json::Value =
-            serde_json::from_str(&ok(&["score", s(&session), "--atlas", s(dir.path()), "--json"])).unwrap();
-        assert_eq!(r["replay_verified"], true, "{name}: {}", r["divergence"]);
+        let text = base.replacen("end 20\n", &format!("end 20\n{extra}"), 1);
+        let r = record_and_score(dir.path(), work.path(), name, &text);
         assert_eq!(
             r["metrics"]["breathing"]["target_reached_phase"], phase,
             "{name}: {}",

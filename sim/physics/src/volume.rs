@@ -87,34 +87,7 @@ impl Volume<f32> {
 
     /// Trilinear interpolation at a continuous index.
     pub fn sample_index(&self, c: DVec3, outside: f32) -> f32 {
-        let d = self.grid.dims();
-        let mut base = [0usize; 3];
-        let mut frac = [0.0f64; 3];
-        for a in 0..3 {
-            let x = c[a];
-            let n = d[a] as f64;
-            if !(x >= -0.5 && x < n - 0.5) {
-                return outside;
-            }
-            // Clamp into [0, n−1] so the half-voxel margin takes the edge value.
-            let x = x.clamp(0.0, n - 1.0);
-            // x ≥ 0, so truncation is floor (and avoids a libm call on baseline x86-64).
-            let b = (x as usize).min(d[a].saturating_sub(2));
-            base[a] = b;
-            frac[a] = if d[a] == 1 { 0.0 } else { x - b as f64 };
-        }
-        let step = |a: usize| usize::from(d[a] > 1);
-        let (i0, j0, k0) = (base[0], base[1], base[2]);
-        let (i1, j1, k1) = (i0 + step(0), j0 + step(1), k0 + step(2));
-        let v = |i, j, k| self.get(i, j, k) as f64;
-        let (fx, fy, fz) = (frac[0], frac[1], frac[2]);
-        let c00 = v(i0, j0, k0) * (1.0 - fx) + v(i1, j0, k0) * fx;
-        let c10 = v(i0, j1, k0) * (1.0 - fx) + v(i1, j1, k0) * fx;
-        let c01 = v(i0, j0, k1) * (1.0 - fx) + v(i1, j0, k1) * fx;
-        let c11 = v(i0, j1, k1) * (1.0 - fx) + v(i1, j1, k1) * fx;
-        let c0 = c00 * (1.0 - fy) + c10 * fy;
-        let c1 = c01 * (1.0 - fy) + c11 * fy;
-        (c0 * (1.0 - fz) + c1 * fz) as f32
+        trilinear(c, self.grid.dims(), |i, j, k| self.get(i, j, k) as f64).map_or(outside, |v| v as f32)
     }
 
     /// Gradient by central differences of the trilinear field, in value units per mm along the
@@ -132,6 +105,44 @@ impl Volume<f32> {
         }
         g
     }
+}
+
+/// The trilinear blend at continuous index `c` of a grid of `dims` nodes, `node(i, j, k)` read at
+/// the eight corners and blended along x, then y, then z: `None` outside −½ ≤ c_a < n_a − ½ on
+/// any axis (NaN included); c is clamped into [0, n − 1] so the half-voxel margin takes the
+/// edge value, and a one-node axis reads its node. Every volume and field of the physics
+/// interpolates with it.
+#[inline]
+pub fn trilinear<T>(c: DVec3, dims: [usize; 3], node: impl Fn(usize, usize, usize) -> T) -> Option<T>
+where
+    T: Copy + std::ops::Mul<f64, Output = T> + std::ops::Add<Output = T>,
+{
+    let d = dims;
+    let mut base = [0usize; 3];
+    let mut frac = [0.0f64; 3];
+    for a in 0..3 {
+        let x = c[a];
+        let n = d[a] as f64;
+        if !(x >= -0.5 && x < n - 0.5) {
+            return None;
+        }
+        let x = x.clamp(0.0, n - 1.0);
+        // x ≥ 0, so truncation is floor (and avoids a libm call on baseline x86-64).
+        let b = (x as usize).min(d[a].saturating_sub(2));
+        base[a] = b;
+        frac[a] = if d[a] == 1 { 0.0 } else { x - b as f64 };
+    }
+    let step = |a: usize| usize::from(d[a] > 1);
+    let (i0, j0, k0) = (base[0], base[1], base[2]);
+    let (i1, j1, k1) = (i0 + step(0), j0 + step(1), k0 + step(2));
+    let (fx, fy, fz) = (frac[0], frac[1], frac[2]);
+    let c00 = node(i0, j0, k0) * (1.0 - fx) + node(i1, j0, k0) * fx;
+    let c10 = node(i0, j1, k0) * (1.0 - fx) + node(i1, j1, k0) * fx;
+    let c01 = node(i0, j0, k1) * (1.0 - fx) + node(i1, j0, k1) * fx;
+    let c11 = node(i0, j1, k1) * (1.0 - fx) + node(i1, j1, k1) * fx;
+    let c0 = c00 * (1.0 - fy) + c10 * fy;
+    let c1 = c01 * (1.0 - fy) + c11 * fy;
+    Some(c0 * (1.0 - fz) + c1 * fz)
 }
 
 #[cfg(test)]

@@ -67,34 +67,11 @@ impl SpatialField for GridField {
 
     fn at(&self, x_ref: DVec3) -> DVec3 {
         let c = self.grid.world_to_index(x_ref);
-        let d = self.grid.dims();
-        let mut base = [0usize; 3];
-        let mut frac = [0.0f64; 3];
-        for a in 0..3 {
-            let n = d[a] as f64;
-            if !(c[a] >= -0.5 && c[a] < n - 0.5) {
-                return DVec3::ZERO;
-            }
-            let x = c[a].clamp(0.0, n - 1.0);
-            let b = (x as usize).min(d[a].saturating_sub(2));
-            base[a] = b;
-            frac[a] = if d[a] == 1 { 0.0 } else { x - b as f64 };
-        }
-        let step = |a: usize| usize::from(d[a] > 1);
-        let v = |i: usize, j: usize, k: usize| {
+        crate::volume::trilinear(c, self.grid.dims(), |i, j, k| {
             let p = self.values[self.grid.linear(i, j, k)];
             DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
-        };
-        let (i0, j0, k0) = (base[0], base[1], base[2]);
-        let (i1, j1, k1) = (i0 + step(0), j0 + step(1), k0 + step(2));
-        let (fx, fy, fz) = (frac[0], frac[1], frac[2]);
-        let c00 = v(i0, j0, k0) * (1.0 - fx) + v(i1, j0, k0) * fx;
-        let c10 = v(i0, j1, k0) * (1.0 - fx) + v(i1, j1, k0) * fx;
-        let c01 = v(i0, j0, k1) * (1.0 - fx) + v(i1, j0, k1) * fx;
-        let c11 = v(i0, j1, k1) * (1.0 - fx) + v(i1, j1, k1) * fx;
-        let c0 = c00 * (1.0 - fy) + c10 * fy;
-        let c1 = c01 * (1.0 - fy) + c11 * fy;
-        c0 * (1.0 - fz) + c1 * fz
+        })
+        .unwrap_or(DVec3::ZERO)
     }
 }
 

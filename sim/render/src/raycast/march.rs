@@ -61,25 +61,12 @@ const NO_TOOL: f32 = 1.0e30;
 /// sampling domain [−½, n − ½]³ (slabs), or `None` when it misses.
 #[inline]
 pub fn ray_box(ce: Vec3, dc: Vec3, dims: [u32; 3]) -> Option<(f32, f32)> {
-    let (mut t0, mut t1) = (0.0f32, f32::INFINITY);
-    for a in 0..3 {
-        let (lo, hi) = (-0.5f32, dims[a] as f32 - 0.5);
-        if dc[a] == 0.0 {
-            if ce[a] < lo || ce[a] > hi {
-                return None;
-            }
-        } else {
-            let inv = 1.0 / dc[a];
-            let ta = (lo - ce[a]) * inv;
-            let tb = (hi - ce[a]) * inv;
-            t0 = t0.max(ta.min(tb));
-            t1 = t1.min(ta.max(tb));
-        }
-    }
-    if t0 > t1 { None } else { Some((t0, t1)) }
+    ray_box_widened(ce, dc, dims, Vec3::ZERO)
 }
 
-/// [`ray_box`] on the domain widened by `margin` index units per axis.
+/// [`ray_box`] on the domain widened by `margin` index units per axis (−½ − 0 and n − ½ + 0 are
+/// exact, so a zero margin is [`ray_box`] bit for bit).
+#[inline]
 fn ray_box_widened(ce: Vec3, dc: Vec3, dims: [u32; 3], margin: Vec3) -> Option<(f32, f32)> {
     let (mut t0, mut t1) = (0.0f32, f32::INFINITY);
     for a in 0..3 {
