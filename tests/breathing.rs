@@ -729,3 +729,42 @@ fn the_cli_draws_a_breathing_session_and_names_what_the_gpu_cannot() {
     assert!(!out.status.success() && err.contains("breathing"), "{err}");
     assert!(!work.path().join("g.png").exists(), "a picture was written");
 }
+
+/// The radiograph of a breathing moment (docs/breathing.md "Views"): each ray's samples read the
+/// reference patient, so at g = 0 it is the still radiograph (up to the rounding of the index of
+/// a plane crossing), and at end-inspiration the diaphragm and the liver have moved in it.
+#[test]
+fn the_radiograph_of_a_breathing_patient_moves() {
+    use stylet_render::views;
+    use stylet_render::xray::render_moving;
+    let atlas = &phantom().1;
+    let [ei, _, still] = moments(atlas);
+    let scenario = atlas.manifest.scenarios.first();
+    let (scene, _) = views::xray_scene(atlas, Some(&ei), scenario, None, None).unwrap();
+    let (w, h) = (128, 128);
+    let plain = render_moving(&atlas.model, &scene, None, w, h).unwrap();
+    let same = stylet_render::xray::render(&atlas.model, &scene, w, h).unwrap();
+    assert_eq!(plain, same, "without breathing render_moving is render");
+    let hook = stylet_render::scene::MotionHook {
+        model: Arc::clone(&ei.breathing.as_ref().unwrap().model),
+        t_s: 0.0,
+    };
+    let at_zero = render_moving(&atlas.model, &scene, Some(&hook), w, h).unwrap();
+    let moving = render_moving(&atlas.model, &scene, ei.breathing.as_ref(), w, h).unwrap();
+    let top = plain.attenuation.iter().cloned().fold(0.0f32, f32::max);
+    let worst = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max) / top;
+    let changed = moving
+        .attenuation
+        .iter()
+        .zip(&plain.attenuation)
+        .filter(|(x, y)| (*x - *y).abs() > 0.01 * top)
+        .count();
+    println!(
+        "radiograph {w} × {h}: at g = 0 off by {:.1e} of the largest attenuation; end-inspiration changes {changed} pixels by > 1 %",
+        worst(&at_zero.attenuation, &plain.attenuation)
+    );
+    assert!(worst(&at_zero.attenuation, &plain.attenuation) < 1e-4);
+    assert!(changed > 200, "end-inspiration changed {changed} pixels");
+    // The same moment without breathing drew the still needle: the scene differs only by it.
+    assert!(still.breathing.is_none());
+}

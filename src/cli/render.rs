@@ -382,11 +382,15 @@ fn render_xray(
         None => scenarios.first(),
     };
     let (scene, window) = views::xray_scene(atlas, moment, scenario, a.lao_deg, a.cranial_deg)?;
+    let breathing = moment.and_then(|m| m.breathing.as_ref());
     if a.gpu {
+        if breathing.is_some() {
+            bail!("--gpu: the GPU renderer does not draw a breathing patient yet; draw this moment with --cpu");
+        }
         return xray_gpu(atlas, &scene, size).map(|r| r.to_image(window));
     }
-    let radiograph =
-        xray::render(&atlas.model, &scene, size.width, size.height).map_err(|e| anyhow::anyhow!("--view xray: {e}"))?;
+    let radiograph = xray::render_moving(&atlas.model, &scene, breathing, size.width, size.height)
+        .map_err(|e| anyhow::anyhow!("--view xray: {e}"))?;
     Ok(radiograph.to_image(window))
 }
 

@@ -98,7 +98,11 @@ impl AtlasDrawing {
             FrameView::Xray => {
                 let scenario = atlas.manifest.scenarios.iter().find(|s| s.name == moment.scenario);
                 let (scene, window) = views::xray_scene(atlas, m, scenario, None, None)?;
-                Ok(stylet_render::xray::render(&atlas.model, &scene, width, height)?.to_image(window))
+                let breathing = moment.breathing.as_ref();
+                Ok(
+                    stylet_render::xray::render_moving(&atlas.model, &scene, breathing, width, height)?
+                        .to_image(window),
+                )
             }
         }
     }

@@ -264,10 +264,10 @@ impl ViewRenderer {
         let w = ((width as f32 * scale).round() as u32).max(1);
         let h = ((height as f32 * scale).round() as u32).max(1);
         let t0 = Instant::now();
-        // The GPU does not warp a breathing patient yet (docs/breathing.md): its 3D view and
-        // slices are drawn on the CPU, which does.
+        // The GPU does not warp a breathing patient yet (docs/breathing.md): its 3D view, slices
+        // and radiograph are drawn on the CPU, which does (the ultrasound moves on neither).
         #[cfg(feature = "gpu")]
-        let on_gpu = moment.breathing.is_none() || matches!(kind, ViewKind::Ultrasound | ViewKind::Xray);
+        let on_gpu = moment.breathing.is_none() || matches!(kind, ViewKind::Ultrasound);
         #[cfg(feature = "gpu")]
         let image = match self.gpu.take() {
             Some(mut gpu) if on_gpu => {
@@ -318,7 +318,8 @@ impl ViewRenderer {
             }
             ViewKind::Xray => {
                 let (scene, window) = self.xray_scene(moment)?;
-                Ok(stylet_render::xray::render(&atlas.model, &scene, w, h)?.to_image(window))
+                let breathing = moment.breathing.as_ref();
+                Ok(stylet_render::xray::render_moving(&atlas.model, &scene, breathing, w, h)?.to_image(window))
             }
         }
     }

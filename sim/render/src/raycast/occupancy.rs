@@ -182,12 +182,12 @@ impl Occupancy {
                 continue;
             }
             let src = out.clone();
-            for idx in 0..n * n * n {
+            for (idx, o) in out.iter_mut().enumerate() {
                 let q = (idx / stride) % n;
                 let lo = q.saturating_sub(r[a]);
                 let hi = (q + r[a]).min(n - 1);
                 let base = idx - q * stride;
-                out[idx] = u8::from((lo..=hi).any(|p| src[base + p * stride] != 0));
+                *o = u8::from((lo..=hi).any(|p| src[base + p * stride] != 0));
             }
         }
         Occupancy {
@@ -236,6 +236,41 @@ impl Occupancy {
 mod tests {
     use super::*;
     use stylet_physics::{Affine, Grid};
+
+    /// The separable dilation equals the brute-force one: a cell is occupied when any cell within
+    /// ⌈margin·N/n⌉ cells per axis (a box) is.
+    #[test]
+    fn dilation_marks_every_cell_within_the_margin() {
+        let n = 12u32;
+        let occupied: Vec<u8> = (0..n.pow(3) as usize)
+            .map(|i| u8::from((i * 2_654_435_761) % 97 == 0))
+            .collect();
+        let occ = Occupancy {
+            cells: n,
+            occupied,
+            scale: Vec3::new(0.25, 0.5, 0.125),
+            size: Vec3::new(4.0, 2.0, 8.0),
+        };
+        let margin = Vec3::new(5.0, 1.5, 20.0);
+        let d = occ.dilated(margin);
+        let r = [2i64, 1, 3]; // ⌈5·0.25⌉, ⌈1.5·0.5⌉, ⌈20·0.125⌉
+        let n = n as i64;
+        let at = |v: &[u8], x: i64, y: i64, z: i64| v[(x + n * (y + n * z)) as usize] != 0;
+        for (z, y, x) in (0..n).flat_map(|z| (0..n).flat_map(move |y| (0..n).map(move |x| (z, y, x)))) {
+            let mut any = false;
+            for dz in -r[2]..=r[2] {
+                for dy in -r[1]..=r[1] {
+                    for dx in -r[0]..=r[0] {
+                        let (a, b, c) = (x + dx, y + dy, z + dz);
+                        if (0..n).contains(&a) && (0..n).contains(&b) && (0..n).contains(&c) {
+                            any |= at(&occ.occupied, a, b, c);
+                        }
+                    }
+                }
+            }
+            assert_eq!(at(&d.occupied, x, y, z), any, "cell ({x}, {y}, {z})");
+        }
+    }
 
     #[test]
     fn cell_windows_cover_every_voxel_a_sample_reads() {

@@ -44,6 +44,13 @@ pub struct ContrastOverlay {
 }
 
 impl ContrastOverlay {
+    /// μ_c (per mm) at CT index `c`: trilinear over the box's voxels, zero outside them (the
+    /// field the radiograph's line integral integrates).
+    pub fn mu_at_index(&self, c: stylet_physics::glam::Vec3) -> f32 {
+        let o = stylet_physics::glam::Vec3::new(self.origin[0] as f32, self.origin[1] as f32, self.origin[2] as f32);
+        super::joseph::trilinear_zero_outside(self.dims, c - o, |i| self.mu_per_mm[i])
+    }
+
     /// The box around `voxels` (CT voxel index, μ_c per mm); `None` when there are none or a
     /// voxel lies outside `ct_dims`.
     pub fn from_voxels(voxels: &[([usize; 3], f32)], ct_dims: [usize; 3]) -> Option<ContrastOverlay> {

@@ -94,6 +94,86 @@ pub fn integrate(dims: [u32; 3], ray: &IndexRay, voxel: impl Fn(usize) -> f32) -
     sum * inv.abs()
 }
 
+/// ∫ μ(X(t)) dt along a world ray of a breathing patient: the same planes as [`integrate`] (one
+/// sample where the straight world ray crosses each plane of its dominant axis, Δt apart), each
+/// sample read by `mu` at the CT index of its reference point X = x − u(X, t), found by one
+/// fixed-point step from the previous sample's X (eqs. 5.4.1–5.4.2). The planes run over the
+/// grid widened by nothing: the synthetic motion is zero outside the body, so the grid's own
+/// extent bounds what moves.
+pub fn integrate_warped(
+    ray: &IndexRay,
+    origin_mm: Vec3,
+    dir: Vec3,
+    dims: [u32; 3],
+    u: &(dyn Fn(stylet_physics::glam::DVec3) -> stylet_physics::glam::DVec3 + Send + Sync),
+    map: &crate::volume::IndexMap,
+    mu: impl Fn(Vec3) -> f32,
+) -> f32 {
+    let d = ray.dir.to_array();
+    let c0 = ray.start.to_array();
+    let a = dominant_axis(d);
+    if d[a].abs() < 1e-12 {
+        return 0.0;
+    }
+    let n = dims.map(|x| x as f32);
+    // The planes the straight ray crosses inside the grid's box on every axis.
+    let (mut t_lo, mut t_hi) = (0.0f32, ray.t_max_mm);
+    for b in 0..3 {
+        if d[b] == 0.0 {
+            if c0[b] <= -1.0 || c0[b] >= n[b] {
+                return 0.0;
+            }
+        } else {
+            let (ta, tb) = ((-1.0 - c0[b]) / d[b], (n[b] - c0[b]) / d[b]);
+            t_lo = t_lo.max(ta.min(tb));
+            t_hi = t_hi.min(ta.max(tb));
+        }
+    }
+    if t_lo > t_hi {
+        return 0.0;
+    }
+    let (ca, cb) = (c0[a] + t_lo * d[a], c0[a] + t_hi * d[a]);
+    let k_first = ca.min(cb).ceil().max(0.0) as i64;
+    let k_last = ca.max(cb).floor().min(n[a] - 1.0) as i64;
+    let inv = 1.0 / d[a];
+    let mut sum = 0.0f32;
+    let mut prev: Option<(Vec3, Vec3)> = None;
+    for step in 0..(k_last - k_first + 1).max(0) {
+        let k = if d[a] > 0.0 { k_first + step } else { k_last - step };
+        let t = (k as f32 - c0[a]) * inv;
+        let x = origin_mm + dir * t;
+        let (x_prev, big_x_prev) = prev.unwrap_or((x, x));
+        let big_x = (x.as_dvec3() - u((big_x_prev + (x - x_prev)).as_dvec3())).as_vec3();
+        prev = Some((x, big_x));
+        sum += mu(map.point(big_x));
+    }
+    sum * inv.abs()
+}
+
+/// The trilinear field of a grid of `dims` voxels at index `c`, zero outside the voxels (so it
+/// fades to zero over the last voxel, as [`integrate`]'s bilinear planes do): what
+/// [`integrate_warped`] reads at a reference point. `voxel(i + dims₀·(j + dims₁·k))`.
+#[inline]
+pub fn trilinear_zero_outside(dims: [u32; 3], c: Vec3, voxel: impl Fn(usize) -> f32) -> f32 {
+    let c = c.to_array();
+    if (0..3).any(|a| !(c[a] > -1.0 && c[a] < dims[a] as f32)) {
+        return 0.0;
+    }
+    let base = c.map(floor_above_minus_one);
+    let f = [c[0] - base[0], c[1] - base[1], c[2] - base[2]];
+    let mut sum = 0.0f32;
+    for corner in 0..8usize {
+        let o = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
+        let idx = [0, 1, 2].map(|a| base[a] as i64 + o[a] as i64);
+        if (0..3).any(|a| idx[a] < 0 || idx[a] >= dims[a] as i64) {
+            continue;
+        }
+        let w: f32 = (0..3).map(|a| if o[a] == 1 { f[a] } else { 1.0 - f[a] }).product();
+        sum += w * voxel(idx[0] as usize + dims[0] as usize * (idx[1] as usize + dims[1] as usize * idx[2] as usize));
+    }
+    sum
+}
+
 /// ⌊x⌋ for x > −1 by truncation: (x + 1) truncated toward zero, minus 1. The in-plane
 /// coordinates the loop visits lie in (−1, n), and on x86-64 without SSE4.1 `f32::floor` is a
 /// library call (it halved the frame rate). A coordinate rounding to just below −1 gives −1

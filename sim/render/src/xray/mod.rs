@@ -17,17 +17,18 @@ pub mod needle;
 
 use rayon::prelude::*;
 use stylet_physics::PunctureAtlas;
-use stylet_physics::glam::Vec3;
+use stylet_physics::glam::{DVec3, Vec3};
 
 pub use attenuation::ContrastOverlay;
 pub use c_arm::{CArm, Projection};
 pub use display::{Radiograph, XrayWindow};
 
 use crate::RenderError;
+use crate::scene::MotionHook;
 use crate::tools::NeedleShape;
 use crate::volume::IndexMap;
 use attenuation::{MU_STEEL_PER_MM, MU_WATER_PER_MM, water_relative};
-use joseph::{IndexRay, integrate};
+use joseph::{IndexRay, integrate, integrate_warped, trilinear_zero_outside};
 
 /// The largest detector image side (pixels).
 pub const MAX_SIDE_PX: u32 = 4096;
@@ -53,6 +54,21 @@ struct Ray {
 
 /// Renders the radiograph of `atlas`'s CT at `width` × `height` detector pixels.
 pub fn render(atlas: &PunctureAtlas, scene: &XrayScene, width: u32, height: u32) -> Result<Radiograph, RenderError> {
+    render_moving(atlas, scene, None, width, height)
+}
+
+/// [`render`] of a breathing patient (docs/breathing.md): with `breathing`, each ray's samples
+/// read the CT and the contrast at the reference point X = x − u(X, t) of their world point x,
+/// found by one fixed-point step per sample from the previous sample's X (eqs. 5.4.1–5.4.2, as
+/// the ray caster warps its rays; [`joseph::integrate_warped`]). The needle is already in the
+/// world. Without `breathing` it is [`render`], bit for bit.
+pub fn render_moving(
+    atlas: &PunctureAtlas,
+    scene: &XrayScene,
+    breathing: Option<&MotionHook>,
+    width: u32,
+    height: u32,
+) -> Result<Radiograph, RenderError> {
     if !(1..=MAX_SIDE_PX).contains(&width) || !(1..=MAX_SIDE_PX).contains(&height) {
         return Err(RenderError::Invalid(format!(
             "X-ray image {width} × {height}: each side must be 1 … {MAX_SIDE_PX} pixels"
@@ -79,6 +95,8 @@ pub fn render(atlas: &PunctureAtlas, scene: &XrayScene, width: u32, height: u32)
         );
         (n.nodes_mm.as_slice(), r, mu)
     });
+    let u_at = breathing.map(|b| b.model.at_time(b.t_s));
+    let warp = u_at.as_deref().map(|u| (u, &map));
     let mut attenuation = vec![0.0f32; width as usize * height as usize];
     attenuation
         .par_chunks_mut(width as usize)
@@ -86,7 +104,7 @@ pub fn render(atlas: &PunctureAtlas, scene: &XrayScene, width: u32, height: u32)
         .for_each(|(row, out)| {
             for (col, a) in out.iter_mut().enumerate() {
                 let ray = ray(&proj, &map, col as u32, row as u32);
-                *a = line_integral(&ray, map.dims, data, scene.contrast.as_ref(), needle);
+                *a = line_integral(&ray, map.dims, data, scene.contrast.as_ref(), needle, warp);
             }
         });
     Ok(Radiograph {
@@ -136,14 +154,31 @@ pub fn check_scene_fits(scene: &XrayScene, grid: &stylet_physics::Grid) -> Resul
     Ok(())
 }
 
-/// a of one ray: tissue, then contrast, then the needle's segments (nodes, radius, μ).
+/// u(·, t) of a breathing moment and the CT's index map (world → index of a reference point).
+type Warp<'a> = (&'a (dyn Fn(DVec3) -> DVec3 + Send + Sync), &'a IndexMap);
+
+/// a of one ray: tissue, then contrast, then the needle's segments (nodes, radius, μ); with a
+/// warp, tissue and contrast are read at each sample's reference point.
 fn line_integral(
     ray: &Ray,
     dims: [u32; 3],
     ct: &[f32],
     contrast: Option<&ContrastOverlay>,
     needle: Option<(&[Vec3], f32, f32)>,
+    warp: Option<Warp>,
 ) -> f32 {
+    if let Some((u, map)) = warp {
+        let mu_c = |c: Vec3| contrast.map_or(0.0, |o| o.mu_at_index(c));
+        let mu =
+            |c: Vec3| MU_WATER_PER_MM / 1000.0 * trilinear_zero_outside(dims, c, |i| water_relative(ct[i])) + mu_c(c);
+        let mut a = integrate_warped(&ray.index, ray.origin_mm, ray.dir, dims, u, map, mu);
+        if let Some((nodes, r, mu)) = needle {
+            for w in nodes.windows(2) {
+                a += mu * needle::chord_mm(ray.origin_mm, ray.dir, ray.length_mm, w[0], w[1], r);
+            }
+        }
+        return a;
+    }
     let tissue = integrate(dims, &ray.index, |i| water_relative(ct[i]));
     let mut a = MU_WATER_PER_MM / 1000.0 * tissue;
     if let Some(c) = contrast {
