@@ -18,13 +18,11 @@ mod common;
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::time::Instant;
 
 use criterion::Criterion;
 use stylet_devices::run_headless;
 use stylet_devices::script::{parse, scripted_simulation};
 use stylet_physics::motion::{BreathingSettings, BreathingSignal};
-use stylet_recorder::reader;
 use stylet_render::presets::Preset;
 use stylet_render::scene::{ClipPlane, Scene, Tagging};
 use stylet_render::views::{self, Moment, SessionLabels};
@@ -51,22 +49,14 @@ fn main() {
 
     // Replay speed of a one-minute needle session.
     let seconds = if measuring { 60 } else { 2 };
-    let script = format!(
-        "stylet-script 1\ntool needle gauge 18 length 200\nend {seconds}\nat 0 along intercostal-10-11 -10\nat {} along intercostal-10-11 100\nat {seconds} along intercostal-10-11 100\n",
-        seconds * 2 / 3
-    );
+    let script = common::needle_session_script(seconds);
     let mut base = None;
     for (name, breathing) in [
         ("still", BreathingSettings::default()),
         ("breathing", BreathingSettings::on()),
     ] {
         let file = dir.path().join(format!("{name}.mcap"));
-        common::record(&atlas, &with_breathing(&script, breathing), &file);
-        let session = reader::read(&file).unwrap();
-        let t = Instant::now();
-        let r = stylet_scoring::replay::replay(&session, Arc::clone(&atlas.model), &mut |_, _, _| {}).unwrap();
-        let s = t.elapsed().as_secs_f64();
-        assert!(r.replay_verified, "{name}: {:?}", r.divergence);
+        let s = common::replay_time_s(&atlas, &with_breathing(&script, breathing), &file);
         let ratio = base.map_or(String::new(), |b: f64| format!(", {:.2} × the time still", s / b));
         base.get_or_insert(s);
         println!(

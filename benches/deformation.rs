@@ -18,7 +18,6 @@ mod common;
 
 use std::hint::black_box;
 use std::path::Path;
-use std::sync::Arc;
 use std::time::Instant;
 
 use criterion::Criterion;
@@ -26,7 +25,6 @@ use stylet_devices::script::parse;
 use stylet_physics::deform::{self, DeformSettings};
 use stylet_physics::glam::DVec3;
 use stylet_physics::{Simulation, TickInput};
-use stylet_recorder::reader;
 
 const NEEDLE_IN: &str = "stylet-script 1\ntool needle gauge 18 length 200\nend 11\nat 0 along intercostal-10-11 -10\nat 10 along intercostal-10-11 100\nat 11 along intercostal-10-11 100\n";
 
@@ -105,19 +103,11 @@ fn main() {
 
     // Replay speed of a one-minute needle session.
     let seconds = if measuring { 60 } else { 2 };
-    let script = format!(
-        "stylet-script 1\ntool needle gauge 18 length 200\nend {seconds}\nat 0 along intercostal-10-11 -10\nat {} along intercostal-10-11 100\nat {seconds} along intercostal-10-11 100\n",
-        seconds * 2 / 3
-    );
+    let script = common::needle_session_script(seconds);
     let mut base = None;
     for (name, settings) in [("off", DeformSettings::off()), ("on", DeformSettings::on())] {
         let file = dir.path().join(format!("{name}.mcap"));
-        common::record(&atlas, &with_deformation(&script, settings), &file);
-        let session = reader::read(&file).unwrap();
-        let t = Instant::now();
-        let r = stylet_scoring::replay::replay(&session, Arc::clone(&atlas.model), &mut |_, _, _| {}).unwrap();
-        let s = t.elapsed().as_secs_f64();
-        assert!(r.replay_verified, "{name}: {:?}", r.divergence);
+        let s = common::replay_time_s(&atlas, &with_deformation(&script, settings), &file);
         let rt = seconds as f64 / s;
         let ratio = base.map_or(String::new(), |b: f64| format!(", {:.3} of the time without", s / b));
         base.get_or_insert(s);

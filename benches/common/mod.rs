@@ -77,3 +77,24 @@ pub fn record(atlas: &stylet_atlas::Atlas, script: &Script, file: &Path) {
     run_headless(&mut sim, &mut device, |i, o, s| rec.tick(i, o, s));
     rec.finish().unwrap();
 }
+
+/// The one-minute needle script of the replay-speed figures (`seconds` long: in for two thirds,
+/// then held).
+pub fn needle_session_script(seconds: u32) -> String {
+    format!(
+        "stylet-script 1\ntool needle gauge 18 length 200\nend {seconds}\nat 0 along intercostal-10-11 -10\nat {} along intercostal-10-11 100\nat {seconds} along intercostal-10-11 100\n",
+        seconds * 2 / 3
+    )
+}
+
+/// Records `script` into `file`, replays it through the scoring's replay (checked verified) and
+/// returns the replay's wall time (s).
+pub fn replay_time_s(atlas: &stylet_atlas::Atlas, script: &Script, file: &Path) -> f64 {
+    record(atlas, script, file);
+    let session = stylet_recorder::reader::read(file).unwrap();
+    let t = Instant::now();
+    let r = stylet_scoring::replay::replay(&session, Arc::clone(&atlas.model), &mut |_, _, _| {}).unwrap();
+    let s = t.elapsed().as_secs_f64();
+    assert!(r.replay_verified, "{}: {:?}", file.display(), r.divergence);
+    s
+}

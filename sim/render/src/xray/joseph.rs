@@ -20,10 +20,17 @@ pub struct IndexRay {
     pub t_max_mm: f32,
 }
 
-/// ∫ v(c(t)) dt over the ray for the grid of `dims` whose voxel (i, j, k) holds
-/// `voxel(i + dims₀·(j + dims₁·k))`, v its trilinear interpolation, zero outside the grid.
-#[inline]
-pub fn integrate(dims: [u32; 3], ray: &IndexRay, voxel: impl Fn(usize) -> f32) -> f32 {
+/// The voxel planes of a ray's dominant axis `a` it crosses while its in-plane coordinates (axes
+/// `u`, `v`) can touch the grid (−1 < c < n), clamped to 0 … n_a − 1; `None` when there are none.
+struct Planes {
+    a: usize,
+    u: usize,
+    v: usize,
+    k_first: i64,
+    k_last: i64,
+}
+
+fn planes(dims: [u32; 3], ray: &IndexRay) -> Option<Planes> {
     let d = ray.dir.to_array();
     let c0 = ray.start.to_array();
     let a = dominant_axis(d);
@@ -33,7 +40,7 @@ pub fn integrate(dims: [u32; 3], ray: &IndexRay, voxel: impl Fn(usize) -> f32) -
         _ => (0, 1),
     };
     if d[a].abs() < 1e-12 {
-        return 0.0;
+        return None;
     }
     let n = dims.map(|x| x as f32);
     // The t interval in which the in-plane coordinates can touch the grid: c ∈ (−1, n).
@@ -41,7 +48,7 @@ pub fn integrate(dims: [u32; 3], ray: &IndexRay, voxel: impl Fn(usize) -> f32) -
     for b in [u, v] {
         if d[b] == 0.0 {
             if c0[b] <= -1.0 || c0[b] >= n[b] {
-                return 0.0;
+                return None;
             }
         } else {
             let (ta, tb) = ((-1.0 - c0[b]) / d[b], (n[b] - c0[b]) / d[b]);
@@ -50,16 +57,41 @@ pub fn integrate(dims: [u32; 3], ray: &IndexRay, voxel: impl Fn(usize) -> f32) -
         }
     }
     if t_lo > t_hi {
-        return 0.0;
+        return None;
     }
     // Planes crossed inside [t_lo, t_hi], clamped to the grid's 0 … n − 1.
     let (ca, cb) = (c0[a] + t_lo * d[a], c0[a] + t_hi * d[a]);
     let k_first = ca.min(cb).ceil().max(0.0);
     let k_last = ca.max(cb).floor().min(n[a] - 1.0);
     if k_first > k_last {
-        return 0.0;
+        return None;
     }
     let (k_first, k_last) = (k_first as i64, k_last as i64);
+    Some(Planes {
+        a,
+        u,
+        v,
+        k_first,
+        k_last,
+    })
+}
+
+/// ∫ v(c(t)) dt over the ray for the grid of `dims` whose voxel (i, j, k) holds
+/// `voxel(i + dims₀·(j + dims₁·k))`, v its trilinear interpolation, zero outside the grid.
+#[inline]
+pub fn integrate(dims: [u32; 3], ray: &IndexRay, voxel: impl Fn(usize) -> f32) -> f32 {
+    let Some(Planes {
+        a,
+        u,
+        v,
+        k_first,
+        k_last,
+    }) = planes(dims, ray)
+    else {
+        return 0.0;
+    };
+    let d = ray.dir.to_array();
+    let c0 = ray.start.to_array();
     let stride = [1usize, dims[0] as usize, dims[0] as usize * dims[1] as usize];
     let (nu, nv) = (dims[u] as i64, dims[v] as i64);
     let inv = 1.0 / d[a];
@@ -94,12 +126,12 @@ pub fn integrate(dims: [u32; 3], ray: &IndexRay, voxel: impl Fn(usize) -> f32) -
     sum * inv.abs()
 }
 
-/// ∫ μ(X(t)) dt along a world ray of a breathing patient: the same planes as [`integrate`] (one
+/// ∫ μ(X(t)) dt along a world ray of a breathing patient: the planes of [`integrate`] (one
 /// sample where the straight world ray crosses each plane of its dominant axis, Δt apart), each
 /// sample read by `mu` at the CT index of its reference point X = x − u(X, t), found by one
-/// fixed-point step from the previous sample's X (eqs. 5.4.1–5.4.2). The planes run over the
-/// grid widened by nothing: the synthetic motion is zero outside the body, so the grid's own
-/// extent bounds what moves.
+/// fixed-point step from the previous sample's X (eqs. 5.4.1–5.4.2). The planes are those of the
+/// straight ray through the grid: the synthetic motion is zero outside the body, so the grid's
+/// own extent bounds what moves.
 pub fn integrate_warped(
     ray: &IndexRay,
     origin_mm: Vec3,
@@ -109,32 +141,11 @@ pub fn integrate_warped(
     map: &crate::volume::IndexMap,
     mu: impl Fn(Vec3) -> f32,
 ) -> f32 {
+    let Some(Planes { a, k_first, k_last, .. }) = planes(dims, ray) else {
+        return 0.0;
+    };
     let d = ray.dir.to_array();
     let c0 = ray.start.to_array();
-    let a = dominant_axis(d);
-    if d[a].abs() < 1e-12 {
-        return 0.0;
-    }
-    let n = dims.map(|x| x as f32);
-    // The planes the straight ray crosses inside the grid's box on every axis.
-    let (mut t_lo, mut t_hi) = (0.0f32, ray.t_max_mm);
-    for b in 0..3 {
-        if d[b] == 0.0 {
-            if c0[b] <= -1.0 || c0[b] >= n[b] {
-                return 0.0;
-            }
-        } else {
-            let (ta, tb) = ((-1.0 - c0[b]) / d[b], (n[b] - c0[b]) / d[b]);
-            t_lo = t_lo.max(ta.min(tb));
-            t_hi = t_hi.min(ta.max(tb));
-        }
-    }
-    if t_lo > t_hi {
-        return 0.0;
-    }
-    let (ca, cb) = (c0[a] + t_lo * d[a], c0[a] + t_hi * d[a]);
-    let k_first = ca.min(cb).ceil().max(0.0) as i64;
-    let k_last = ca.max(cb).floor().min(n[a] - 1.0) as i64;
     let inv = 1.0 / d[a];
     let mut sum = 0.0f32;
     let mut prev: Option<(Vec3, Vec3)> = None;
