@@ -3,7 +3,7 @@
 
 use glam::DVec3;
 
-use crate::Grid;
+use crate::{Grid, Volume};
 
 /// A displacement field X ↦ v(X) (mm → mm) over reference space. Implementations must be pure.
 pub trait SpatialField: Send + Sync {
@@ -11,6 +11,22 @@ pub trait SpatialField: Send + Sync {
 
     /// A bound on |v(X)| over all X (mm).
     fn max_length_mm(&self) -> f64;
+
+    /// The field as a [`FactoredField`], when it has that form.
+    fn factored(&self) -> Option<FactoredField<'_>> {
+        None
+    }
+}
+
+/// A field of the form v(X) = d · w(X.z) · m(X): a constant direction d, a piecewise-linear
+/// profile w along z (knots (z mm, w) ascending, constant beyond the ends) and a scalar map m
+/// read trilinearly on a grid, zero outside it. The form a GPU draws: m uploaded once, d scaled
+/// per frame (docs/breathing.md "On the GPU").
+#[derive(Clone, Copy)]
+pub struct FactoredField<'a> {
+    pub direction_mm: DVec3,
+    pub profile: [(f64, f64); 4],
+    pub map: &'a Volume<f32>,
 }
 
 /// A field sampled on a grid (an imported registration result, a generated key frame),

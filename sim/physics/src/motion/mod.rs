@@ -23,7 +23,7 @@ use std::sync::Arc;
 
 use glam::{DMat3, DVec3};
 
-pub use field::{GridField, SpatialField};
+pub use field::{FactoredField, GridField, SpatialField};
 pub use models::{FullCycle, HalfCycle, Surrogate};
 pub use signal::{BreathingSignal, SignalParams};
 pub use synthetic::{SyntheticField, SyntheticMotion};
@@ -45,6 +45,12 @@ pub trait MotionModel: Send + Sync {
     /// [`Self::displacement`], bit for bit, with what depends on t alone worked out once.
     fn at_time(&self, t_s: f64) -> Box<dyn Fn(DVec3) -> DVec3 + Send + Sync + '_> {
         Box::new(move |x| self.displacement(x, t_s))
+    }
+
+    /// u(·, t) as one [`FactoredField`] (its direction scaled by the moment), when the model
+    /// has that form: what the GPU renderers draw.
+    fn factored_at(&self, _t_s: f64) -> Option<FactoredField<'_>> {
+        None
     }
 }
 

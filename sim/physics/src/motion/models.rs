@@ -6,7 +6,7 @@ use std::sync::Arc;
 use glam::DVec3;
 
 use super::MotionModel;
-use super::field::SpatialField;
+use super::field::{FactoredField, SpatialField};
 use super::signal::BreathingSignal;
 
 /// Key frames over one full cycle (thesis §5.3.1): n fields u_j at τ_j = j/n on the cycle's
@@ -151,6 +151,16 @@ impl MotionModel for Surrogate {
     fn at_time(&self, t_s: f64) -> Box<dyn Fn(DVec3) -> DVec3 + Send + Sync + '_> {
         let signal = self.signal_at(t_s);
         Box::new(move |x| self.combine(x, signal))
+    }
+
+    /// g(t)·a₁ when a₁ is factored and there is no a₂ or a₃.
+    fn factored_at(&self, t_s: f64) -> Option<FactoredField<'_>> {
+        if self.a2.is_some() || self.a3.is_some() {
+            return None;
+        }
+        let mut f = self.a1.factored()?;
+        f.direction_mm *= self.signal.g(t_s);
+        Some(f)
     }
 }
 

@@ -11,7 +11,10 @@
 //! - w(z): the diaphragm as a piston. 1 from the liver's dome down to 150 mm below it, then
 //!   falling linearly to 0.4 at 300 mm below (the lower abdomen moves less); above the dome the
 //!   lungs follow, falling linearly to 0 at 150 mm above it (the apex hardly moves).
-//! - m(X) ∈ [0, 1]: what may move. 0 in the body wall (less than `wall_mm` under the skin), in
+//! - m(X) ∈ [0, 1]: what may move, worked out once at the nodes of a grid aligned with the CT
+//!   (every f-th voxel, f chosen for nodes about [`MOBILITY_SPACING_MM`] apart; a node keeps the
+//!   least m of the voxels around it, so still voxels stay still) and read trilinearly between
+//!   them: the haptics, the CPU views and the GPU all read the same map. 0 in the body wall (less than `wall_mm` under the skin), in
 //!   bone and within `bone_margin_mm` of it, and outside the body; 1 deeper inside, reached over
 //!   a ramp of [`RAMP_MM`]. Bone is the atlas' bone map (CT above the bone threshold) outside
 //!   the segmented soft structures: a contrast-filled vessel is as dense as bone but moves with
@@ -22,10 +25,11 @@
 use std::sync::Arc;
 
 use glam::DVec3;
+use rayon::prelude::*;
 
-use super::field::SpatialField;
-use crate::PunctureAtlas;
+use super::field::{FactoredField, SpatialField};
 use crate::labels::Role;
+use crate::{Affine, Grid, PunctureAtlas, Volume};
 
 /// Width of the transition from still to moving tissue (mm).
 pub const RAMP_MM: f64 = 4.0;
@@ -34,6 +38,9 @@ pub const LUNG_FALL_MM: f64 = 150.0;
 /// Below the dome, full motion over this height, then a fall to [`PELVIS_WEIGHT`] over as much again.
 pub const ABDOMEN_FULL_MM: f64 = 150.0;
 pub const PELVIS_WEIGHT: f64 = 0.4;
+/// The mobility map's node spacing (mm), at least one CT voxel: fine enough for the
+/// [`RAMP_MM`] transitions, a ninth of the chest CT's voxels.
+pub const MOBILITY_SPACING_MM: f64 = 2.0;
 
 /// The synthetic motion's parameters (part of the world model in the session header).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -78,33 +85,27 @@ impl SyntheticMotion {
 
 /// a₁(X) of the synthetic motion on one atlas.
 pub struct SyntheticField {
-    atlas: Arc<PunctureAtlas>,
     params: SyntheticMotion,
     /// The liver's dome: the highest z of an organ or target voxel (mm).
     dome_z_mm: f64,
-    /// By label id: a segmented soft structure (organ, target or risk), never bone.
-    soft: Vec<bool>,
+    /// m at the nodes of a coarse grid aligned with the CT ([`mobility_grid`]).
+    mobility: Volume<f32>,
 }
 
 impl SyntheticField {
-    /// Needs an organ (the liver) in the atlas' labels to place the diaphragm.
+    /// Needs an organ (the liver) in the atlas' labels to place the diaphragm. Works out the
+    /// mobility map (about 0.1 s on two cores for the 512 × 512 × 133 chest CT).
     pub fn new(atlas: Arc<PunctureAtlas>, params: SyntheticMotion) -> Result<SyntheticField, String> {
         params.validate()?;
         let dome_z_mm = dome_z_mm(&atlas).ok_or_else(|| {
             "the synthetic breathing motion needs an organ or target label (the liver) to place the diaphragm"
                 .to_string()
         })?;
-        let table = atlas.label_table();
-        let max_id = table.labels().iter().map(|l| l.id as usize).max().unwrap_or(0);
-        let mut soft = vec![false; max_id + 1];
-        for l in table.labels() {
-            soft[l.id as usize] = matches!(l.role, Role::Organ | Role::Target | Role::Risk);
-        }
+        let mobility = mobility_map(&atlas, params);
         Ok(SyntheticField {
-            atlas,
             params,
             dome_z_mm,
-            soft,
+            mobility,
         })
     }
 
@@ -113,34 +114,156 @@ impl SyntheticField {
         self.dome_z_mm
     }
 
-    /// w(z): the share of the full motion at height z.
-    pub fn weight(&self, z_mm: f64) -> f64 {
-        let above = z_mm - self.dome_z_mm;
-        if above >= 0.0 {
-            return (1.0 - above / LUNG_FALL_MM).max(0.0);
-        }
-        let below = -above - ABDOMEN_FULL_MM;
-        if below <= 0.0 {
-            1.0
-        } else {
-            (1.0 - (1.0 - PELVIS_WEIGHT) * below / ABDOMEN_FULL_MM).max(PELVIS_WEIGHT)
-        }
+    /// w(z) as knots (z mm, w) ascending in z, constant beyond the first and the last.
+    pub fn profile(&self) -> [(f64, f64); 4] {
+        let d = self.dome_z_mm;
+        [
+            (d - 2.0 * ABDOMEN_FULL_MM, PELVIS_WEIGHT),
+            (d - ABDOMEN_FULL_MM, 1.0),
+            (d, 1.0),
+            (d + LUNG_FALL_MM, 0.0),
+        ]
     }
 
-    /// m(X): 0 in the body wall, bone and its margin and outside the body; 1 deep inside.
+    /// w(z): the share of the full motion at height z.
+    pub fn weight(&self, z_mm: f64) -> f64 {
+        piecewise_linear(&self.profile(), z_mm)
+    }
+
+    /// m(X): 0 in the body wall, bone and its margin and outside the body; 1 deep inside
+    /// (trilinear in the mobility map).
     pub fn mobility(&self, x_ref: DVec3) -> f64 {
+        let c = self.mobility.grid().world_to_index(x_ref);
+        crate::volume::trilinear(c, self.mobility.grid().dims(), |i, j, k| self.mobility.get(i, j, k) as f64)
+            .unwrap_or(0.0)
+    }
+
+    /// The mobility map (m at its nodes).
+    pub fn mobility_map(&self) -> &Volume<f32> {
+        &self.mobility
+    }
+
+    /// d = A·(0, r_ap, −1): the displacement where w = m = 1 (mm).
+    pub fn direction_mm(&self) -> DVec3 {
+        DVec3::new(0.0, self.params.anterior_ratio, -1.0) * self.params.amplitude_mm
+    }
+}
+
+/// w at z of a piecewise-linear profile (knots ascending in z, constant beyond the ends).
+pub fn piecewise_linear(knots: &[(f64, f64)], z: f64) -> f64 {
+    let (first, last) = (knots[0], knots[knots.len() - 1]);
+    if z <= first.0 {
+        return first.1;
+    }
+    if z >= last.0 {
+        return last.1;
+    }
+    for w in knots.windows(2) {
+        let ((z0, w0), (z1, w1)) = (w[0], w[1]);
+        if z <= z1 {
+            return w0 + (w1 - w0) * (z - z0) / (z1 - z0);
+        }
+    }
+    last.1
+}
+
+/// The thinning of [`mobility_grid`]: every f-th CT voxel per axis, f = max(1,
+/// round(MOBILITY_SPACING_MM / spacing)).
+fn thinning(ct: &Grid) -> [usize; 3] {
+    let spacing = ct.spacing_mm();
+    std::array::from_fn(|a| ((MOBILITY_SPACING_MM / spacing[a]).round() as usize).max(1))
+}
+
+/// The CT grid thinned to every f-th voxel per axis ([`thinning`]), one node more where needed
+/// so the nodes reach the CT's last voxel.
+pub fn mobility_grid(ct: &Grid) -> Grid {
+    let f = thinning(ct);
+    let dims = ct.dims();
+    let n: [usize; 3] = std::array::from_fn(|a| dims[a].saturating_sub(1).div_ceil(f[a]) + 1);
+    let mut rows = ct.affine().rows();
+    for row in &mut rows {
+        for (a, fa) in f.iter().enumerate() {
+            row[a] *= *fa as f64;
+        }
+    }
+    Grid::new(n, Affine::from_rows(rows)).expect("a thinned grid of a valid grid is valid")
+}
+
+/// m at the nodes of [`mobility_grid`]: the least m of the CT voxels within f − 1 voxels of the
+/// node on each axis. Trilinear reads between the nodes are then 0 at every voxel centre the
+/// rule makes still (a rib's voxel next to the liver stays): each node of the cell around a
+/// voxel centre sees that voxel. The mobile side of an interface loses up to one node spacing.
+fn mobility_map(atlas: &PunctureAtlas, params: SyntheticMotion) -> Volume<f32> {
+    let ct = *atlas.ct().grid();
+    let grid = mobility_grid(&ct);
+    let f = thinning(&ct);
+    let [nx, ny, nz] = ct.dims();
+    let [mx, my, mz] = grid.dims();
+    let rule = MobilityRule::new(atlas, params);
+    // CT voxels within f − 1 of node n (clipped to the grid; never empty, see mobility_grid).
+    let window = |n: usize, f: usize, len: usize| (n * f).saturating_sub(f - 1)..=(n * f + f - 1).min(len - 1);
+    let planes: Vec<Vec<f32>> = (0..mz)
+        .into_par_iter()
+        .map(|kn| {
+            let mut over_z = vec![1.0f32; nx * ny];
+            for k in window(kn, f[2], nz) {
+                for j in 0..ny {
+                    for i in 0..nx {
+                        let v = &mut over_z[i + nx * j];
+                        *v = v.min(rule.at_voxel(i, j, k) as f32);
+                    }
+                }
+            }
+            let mut over_x = vec![1.0f32; mx * ny];
+            for j in 0..ny {
+                for in_ in 0..mx {
+                    over_x[in_ + mx * j] = window(in_, f[0], nx).map(|i| over_z[i + nx * j]).fold(1.0, f32::min);
+                }
+            }
+            let mut plane = vec![1.0f32; mx * my];
+            for jn in 0..my {
+                for in_ in 0..mx {
+                    plane[in_ + mx * jn] = window(jn, f[1], ny).map(|j| over_x[in_ + mx * j]).fold(1.0, f32::min);
+                }
+            }
+            plane
+        })
+        .collect();
+    Volume::new(grid, planes.concat()).expect("one value per node")
+}
+
+/// m of one CT voxel from the atlas' maps (all on the CT's grid).
+struct MobilityRule<'a> {
+    atlas: &'a PunctureAtlas,
+    params: SyntheticMotion,
+    /// By label id: a segmented soft structure (organ, target or risk), never bone.
+    soft: Vec<bool>,
+}
+
+impl<'a> MobilityRule<'a> {
+    fn new(atlas: &'a PunctureAtlas, params: SyntheticMotion) -> MobilityRule<'a> {
+        let table = atlas.label_table();
+        let max_id = table.labels().iter().map(|l| l.id as usize).max().unwrap_or(0);
+        let mut soft = vec![false; max_id + 1];
+        for l in table.labels() {
+            soft[l.id as usize] = matches!(l.role, Role::Organ | Role::Target | Role::Risk);
+        }
+        MobilityRule { atlas, params, soft }
+    }
+
+    fn at_voxel(&self, i: usize, j: usize, k: usize) -> f64 {
         let ramp = |d: f64| (d / RAMP_MM).clamp(0.0, 1.0);
-        let depth = self.atlas.skin_distance().sample(x_ref, -1000.0) as f64;
+        let depth = self.atlas.skin_distance().get(i, j, k) as f64;
         if depth <= self.params.wall_mm {
             return 0.0;
         }
         let wall = ramp(depth - self.params.wall_mm);
-        let label = self.atlas.partial_label_at(x_ref) as usize;
+        let label = self.atlas.partial_labels().get(i, j, k) as usize;
         if self.soft.get(label).copied().unwrap_or(false) {
             return wall;
         }
-        // Positive inside bone; far from any bone outside the map.
-        let bone = self.atlas.bone_distance().sample(x_ref, -1000.0) as f64;
+        // Positive inside bone.
+        let bone = self.atlas.bone_distance().get(i, j, k) as f64;
         wall * ramp(-bone - self.params.bone_margin_mm)
     }
 }
@@ -156,8 +279,15 @@ impl SpatialField for SyntheticField {
         if m == 0.0 {
             return DVec3::ZERO;
         }
-        let p = &self.params;
-        DVec3::new(0.0, p.anterior_ratio, -1.0) * (p.amplitude_mm * self.weight(x_ref.z) * m)
+        self.direction_mm() * (self.weight(x_ref.z) * m)
+    }
+
+    fn factored(&self) -> Option<FactoredField<'_>> {
+        Some(FactoredField {
+            direction_mm: self.direction_mm(),
+            profile: self.profile(),
+            map: &self.mobility,
+        })
     }
 }
 
@@ -179,4 +309,24 @@ fn dome_z_mm(atlas: &PunctureAtlas) -> Option<f64> {
         .filter(|&(_, &id)| moving(id))
         .map(|(i, _)| grid.linear_to_world(i).z)
         .fold(None, |m: Option<f64>, z| Some(m.map_or(z, |m| m.max(z))))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_profile_is_the_piston_and_the_thinned_grid_reaches_the_last_voxel() {
+        let knots = [(-300.0, 0.4), (-150.0, 1.0), (0.0, 1.0), (150.0, 0.0)];
+        for (z, w) in [(-500.0, 0.4), (-225.0, 0.7), (-150.0, 1.0), (-10.0, 1.0), (75.0, 0.5), (400.0, 0.0)] {
+            assert!((piecewise_linear(&knots, z) - w).abs() < 1e-12, "w({z})");
+        }
+        let ct = Grid::new([512, 512, 133], Affine::from_spacing([0.7, 0.7, 2.5], DVec3::ZERO)).unwrap();
+        let g = mobility_grid(&ct);
+        assert_eq!(g.dims(), [172, 172, 133]);
+        assert_eq!(g.spacing_mm().map(|s| (s * 10.0).round() / 10.0), [2.1, 2.1, 2.5]);
+        assert!(g.voxel_to_world(171, 0, 0).x >= ct.voxel_to_world(511, 0, 0).x);
+        let odd = Grid::new([10, 1, 12], Affine::from_spacing([1.0, 1.0, 0.5], DVec3::ZERO)).unwrap();
+        assert_eq!(mobility_grid(&odd).dims(), [6, 1, 4]);
+    }
 }
