@@ -5,7 +5,9 @@
 // raycast.wgsl. The tip marker and the scale bar are drawn afterwards on the CPU (annotate).
 // With a tissue deformation (mpr.rs `render_spec_deformed`), each pixel inside the deformation's
 // lattice reads the CT and the labels at its reference point X (X + u(X) = x by the fixed point
-// X⁺ = x − u(X), trilinear u) and gets the displacement colour map |u(X)| over tissue.
+// X⁺ = x − u(X), trilinear u) and gets the displacement colour map |u(X)| over tissue. A
+// breathing patient (mpr.rs `render_spec_moving`): each pixel's world point is first taken to
+// the breathing patient's reference by `invert_breathing` (motion.wgsl), then as above.
 
 const AIR_HU: f32 = -1000.0;
 
@@ -26,7 +28,7 @@ struct Params {
     to_index_y: vec4<f32>,
     to_index_z: vec4<f32>,
     lattice: vec4<f32>,    // origin (mm), spacing h (mm)
-    lattice_n: vec4<u32>,  // nodes per axis, deformed flag, fixed-point iterations
+    lattice_n: vec4<u32>,  // nodes per axis, deformed flag, fixed-point iterations (both inverses)
     deform: vec4<f32>,     // colour scale (mm), air threshold (HU), coloured from (mm)
 }
 
@@ -74,22 +76,32 @@ struct Reading {
     moved_mm: f32,
 }
 
+fn world_to_index(x: vec3<f32>) -> vec3<f32> {
+    return P.to_index_o.xyz + P.to_index_x.xyz * x.x + P.to_index_y.xyz * x.y + P.to_index_z.xyz * x.z;
+}
+
 fn reading_of(col: i32, row: i32) -> Reading {
-    if P.lattice_n.y == 0u {
+    let moving = breathing();
+    if P.lattice_n.y == 0u && !moving {
         return Reading(index_of(col, row), 0.0);
     }
-    let x = P.w_origin.xyz + P.w_col.xyz * f32(col) + P.w_row.xyz * f32(row);
+    var x = P.w_origin.xyz + P.w_col.xyz * f32(col) + P.w_row.xyz * f32(row);
+    if moving {
+        x = invert_breathing(x, P.lattice_n.z);
+    }
     let lo = P.lattice.xyz;
     let hi = lo + vec3<f32>(P.lattice.w * f32(P.lattice_n.x - 1u));
-    if !(all(x >= lo) && all(x <= hi)) {
+    if P.lattice_n.y == 0u || !(all(x >= lo) && all(x <= hi)) {
+        if moving {
+            return Reading(world_to_index(x), 0.0);
+        }
         return Reading(index_of(col, row), 0.0);
     }
     var r = x;
     for (var it = 0u; it < P.lattice_n.z; it++) {
         r = x - u_at(r);
     }
-    let c = P.to_index_o.xyz + P.to_index_x.xyz * r.x + P.to_index_y.xyz * r.y + P.to_index_z.xyz * r.z;
-    return Reading(c, length(u_at(r)));
+    return Reading(world_to_index(r), length(u_at(r)));
 }
 
 // mpr::displacement_rgb: dark blue → cyan → yellow → red over t in 0 … 1.

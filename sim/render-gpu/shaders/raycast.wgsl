@@ -69,6 +69,7 @@ struct Params {
     spheres: array<vec4<f32>, 2>, // sphere shadows (Alg. 3.2): centre, radius (0: none)
     traps: array<Trapezoid, 8>,
     table: vec4<f32>,        // transfer table: lo_hu, 1/step_hu, entries - 1
+    margin: vec4<f32>,       // the motion's bound in CT index units per axis (0 when still)
 }
 
 struct Style {
@@ -103,6 +104,7 @@ struct Primitive {
 @group(0) @binding(7) var<storage, read_write> out_px: array<u32>;
 @group(0) @binding(8) var<storage, read> tf_table: array<vec4<f32>>;
 // Binding 9, the gradient records, is declared by the host's prelude (volume.rs `records_prelude`).
+// Bindings 20 and 21, the breathing motion, are declared by motion.wgsl.
 
 // --- Step 1: jitter (raycast/jitter.rs) -----------------------------------------------------
 
@@ -332,6 +334,16 @@ fn style(id: u32) -> Style {
     }
     var none: Style;
     return none;
+}
+
+// --- Breathing: rays warped by u(X, t) (motion.wgsl, prepended by the host) ----------------
+
+// Where reference point X is read (Sampler::at_world).
+fn at_world(x: vec3<f32>) -> At {
+    return At(
+        map_vector(P.inv0, P.inv1, P.inv2, x - P.origin.xyz),
+        map_vector(P.def_inv0, P.def_inv1, P.def_inv2, x - P.def_origin.xyz),
+    );
 }
 
 // --- Transfer function c(v), eq. 3.2.2 (transfer.rs) ----------------------------------------
@@ -671,6 +683,13 @@ fn inside(c: vec3<f32>) -> bool {
     return all(c >= vec3<f32>(-0.5)) && all(c < n - vec3<f32>(0.5));
 }
 
+// Inside the CT's box widened by the motion's bound (march.rs `inside_by`).
+fn inside_by_margin(c: vec3<f32>) -> bool {
+    let n = vec3<f32>(P.dims.xyz);
+    let m = P.margin.xyz;
+    return all(c >= vec3<f32>(-0.5) - m) && all(c < n - vec3<f32>(0.5) + m);
+}
+
 fn lattice(k: u32, j: f32, step: f32) -> f32 {
     return (f32(k) + j) * step;
 }
@@ -751,15 +770,16 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let tool = nearest_hit(origin, dir, BIG);
     let t_tool = tool.t;
 
-    // 2. Extent: ray/box (slabs on [-1/2, n - 1/2]^3 in index space) or naive [0, t_far].
+    // 2. Extent: ray/box (slabs on [-1/2, n - 1/2]^3 in index space, widened by the motion's
+    // bound) or naive [0, t_far].
     var has_extent = true;
     var t0 = 0.0;
     var t1 = P.forward.w;
     if (flags & F_RAY_BOX) != 0u {
         t1 = BIG;
         for (var a = 0; a < 3; a++) {
-            let lo = -0.5;
-            let hi = f32(P.dims[a]) - 0.5;
+            let lo = -0.5 - P.margin[a];
+            let hi = f32(P.dims[a]) - 0.5 + P.margin[a];
             if dc[a] == 0.0 {
                 if ce[a] < lo || ce[a] > hi {
                     has_extent = false;
@@ -821,9 +841,15 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
 
+    let warping = breathing();
+    var warp = no_warp();
     // The plane sample: no shading, no shadow, opacity as is.
     if has_plane && plane_t < t_tool {
-        let at = At(ce + dc * plane_t, je + dj * plane_t);
+        var at = At(ce + dc * plane_t, je + dj * plane_t);
+        if warping {
+            at = at_world(reference_of(&warp, origin + dir * plane_t));
+            warp.has_prev = false;
+        }
         let c = transfer(s(at));
         var st = style(0u);
         if P.modes.y != 0u {
@@ -846,8 +872,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             if t > lat_hi || t >= t_tool {
                 break;
             }
-            let at = At(ce + dc * t, je + dj * t);
-            // 8. Empty-space leaping.
+            var at = At(ce + dc * t, je + dj * t);
+            // 8. Empty-space leaping, at the world point (cells dilated by the motion's bound).
             if (flags & F_LEAPING) != 0u {
                 if inside(at.ct) {
                     let cell = cell_of(at.ct);
@@ -862,10 +888,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                         k = next;
                         continue;
                     }
-                } else if (flags & F_SAMPLE_OUTSIDE) == 0u {
+                } else if (flags & F_SAMPLE_OUTSIDE) == 0u && !inside_by_margin(at.ct) {
                     k += 1u;
                     continue;
                 }
+            }
+            if warping {
+                at = at_world(reference_of(&warp, origin + dir * t));
             }
             // 5. Sample.
             let smp = sample(at);

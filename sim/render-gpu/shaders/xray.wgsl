@@ -2,7 +2,9 @@
 // of stylet-render's xray module: Joseph's line integral through the CT (joseph.rs `integrate`,
 // the same plane order and bilinear sums), the contrast overlay on the same planes, and the
 // needle's steel chords (needle.rs `chord_mm`). The CT declaration and `ct_voxel` are
-// prepended by the host, as for raycast.wgsl. Output: a = −ln(I/I₀) per pixel.
+// prepended by the host, as for raycast.wgsl. Output: a = −ln(I/I₀) per pixel. A breathing
+// patient (xray/mod.rs `render_moving`): the samples on the planes are read at their reference
+// points (joseph.rs `integrate_warped`; the motion is motion.wgsl's).
 
 // Mirrored by `XrayParams` in xray.rs.
 struct Params {
@@ -41,28 +43,37 @@ fn voxel(src: u32, p: vec3<i32>) -> f32 {
     return contrast[u32(p.x) + d.x * (u32(p.y) + d.y * u32(p.z))];
 }
 
-// joseph.rs `integrate`: ∫ v(c(t)) dt for c(t) = c0 + t·d, t ∈ [0, t_max], on a grid of `n`.
-fn integrate(src: u32, n_u: vec3<u32>, c0: vec3<f32>, d: vec3<f32>, t_max: f32) -> f32 {
+// joseph.rs `planes`: the planes of the dominant axis a a ray c(t) = c0 + t·d, t ∈ [0, t_max],
+// crosses where its in-plane coordinates can touch a grid of `n` (u, v the other axes).
+struct Planes {
+    ok: bool,
+    a: i32,
+    u: i32,
+    v: i32,
+    k_first: i32,
+    k_last: i32,
+}
+
+fn planes(n_u: vec3<u32>, c0: vec3<f32>, d: vec3<f32>, t_max: f32) -> Planes {
+    var p = Planes(false, 2, 0, 1, 0, -1);
     let m = abs(d);
-    var a = 2;
-    var u = 0;
-    var v = 1;
     if m.x >= m.y && m.x >= m.z {
-        a = 0; u = 1; v = 2;
+        p.a = 0; p.u = 1; p.v = 2;
     } else if m.y >= m.z {
-        a = 1; u = 0; v = 2;
+        p.a = 1; p.u = 0; p.v = 2;
     }
+    let a = p.a;
     if abs(d[a]) < 1e-12 {
-        return 0.0;
+        return p;
     }
     let n = vec3<f32>(n_u);
     var t_lo = 0.0;
     var t_hi = t_max;
     for (var q = 0; q < 2; q++) {
-        let b = select(v, u, q == 0);
+        let b = select(p.v, p.u, q == 0);
         if d[b] == 0.0 {
             if c0[b] <= -1.0 || c0[b] >= n[b] {
-                return 0.0;
+                return p;
             }
         } else {
             let ta = (-1.0 - c0[b]) / d[b];
@@ -72,24 +83,37 @@ fn integrate(src: u32, n_u: vec3<u32>, c0: vec3<f32>, d: vec3<f32>, t_max: f32) 
         }
     }
     if t_lo > t_hi {
-        return 0.0;
+        return p;
     }
     let ca = c0[a] + t_lo * d[a];
     let cb = c0[a] + t_hi * d[a];
     let k_first_f = max(ceil(min(ca, cb)), 0.0);
     let k_last_f = min(floor(max(ca, cb)), n[a] - 1.0);
     if k_first_f > k_last_f {
+        return p;
+    }
+    p.ok = true;
+    p.k_first = i32(k_first_f);
+    p.k_last = i32(k_last_f);
+    return p;
+}
+
+// joseph.rs `integrate`: ∫ v(c(t)) dt for c(t) = c0 + t·d, t ∈ [0, t_max], on a grid of `n`.
+fn integrate(src: u32, n_u: vec3<u32>, c0: vec3<f32>, d: vec3<f32>, t_max: f32) -> f32 {
+    let pl = planes(n_u, c0, d, t_max);
+    if !pl.ok {
         return 0.0;
     }
-    let k_first = i32(k_first_f);
-    let k_last = i32(k_last_f);
+    let a = pl.a;
+    let u = pl.u;
+    let v = pl.v;
     let nu = i32(n_u[u]);
     let nv = i32(n_u[v]);
     let inv = 1.0 / d[a];
     var sum = 0.0;
-    let count = k_last - k_first + 1;
+    let count = pl.k_last - pl.k_first + 1;
     for (var step = 0; step < count; step++) {
-        let k = select(k_last - step, k_first + step, d[a] > 0.0);
+        let k = select(pl.k_last - step, pl.k_first + step, d[a] > 0.0);
         let t = (f32(k) - c0[a]) * inv;
         let pu = c0[u] + t * d[u];
         let pv = c0[v] + t * d[v];
@@ -114,6 +138,59 @@ fn integrate(src: u32, n_u: vec3<u32>, c0: vec3<f32>, d: vec3<f32>, t_max: f32) 
             }
         }
         sum += s;
+    }
+    return sum * abs(inv);
+}
+
+// joseph.rs `trilinear_zero_outside`: the trilinear field of source `src` (a grid of `n`) at
+// index c, zero outside the voxels.
+fn trilinear_zero(src: u32, n_u: vec3<u32>, c: vec3<f32>) -> f32 {
+    let n = vec3<i32>(n_u);
+    if !(all(c > vec3<f32>(-1.0)) && all(c < vec3<f32>(n_u))) {
+        return 0.0;
+    }
+    let base = vec3<f32>(vec3<i32>(c + vec3<f32>(1.0))) - vec3<f32>(1.0);
+    let f = c - base;
+    let ib = vec3<i32>(base);
+    var sum = 0.0;
+    for (var corner = 0; corner < 8; corner++) {
+        let o = vec3<i32>(corner & 1, (corner >> 1u) & 1, (corner >> 2u) & 1);
+        let idx = ib + o;
+        if any(idx < vec3<i32>(0)) || any(idx >= n) {
+            continue;
+        }
+        let w3 = select(vec3<f32>(1.0) - f, f, o == vec3<i32>(1));
+        sum += w3.x * w3.y * w3.z * voxel(src, idx);
+    }
+    return sum;
+}
+
+// μ at CT index c of a reference point: tissue, and the contrast when there is some.
+fn mu_at(c: vec3<f32>) -> f32 {
+    var mu = P.consts.x * trilinear_zero(0u, P.dims.xyz, c);
+    if P.size.w == 1u {
+        mu += trilinear_zero(1u, P.c_dims.xyz, c - P.c_origin.xyz);
+    }
+    return mu;
+}
+
+// joseph.rs `integrate_warped`: the CT's planes of the straight world ray x(t) = src + t·dir,
+// each sample read at its reference point X (one fixed-point step from the previous one).
+fn integrate_warped(c0: vec3<f32>, d: vec3<f32>, t_max: f32, src: vec3<f32>, dir: vec3<f32>) -> f32 {
+    let pl = planes(P.dims.xyz, c0, d, t_max);
+    if !pl.ok {
+        return 0.0;
+    }
+    let a = pl.a;
+    let inv = 1.0 / d[a];
+    var warp = no_warp();
+    var sum = 0.0;
+    let count = pl.k_last - pl.k_first + 1;
+    for (var step = 0; step < count; step++) {
+        let k = select(pl.k_last - step, pl.k_first + step, d[a] > 0.0);
+        let t = (f32(k) - c0[a]) * inv;
+        let x = reference_of(&warp, src + dir * t) - P.origin.xyz;
+        sum += mu_at(vec3<f32>(dot(P.row0.xyz, x), dot(P.row1.xyz, x), dot(P.row2.xyz, x)));
     }
     return sum * abs(inv);
 }
@@ -174,9 +251,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let q = src - P.origin.xyz;
     let c0 = vec3<f32>(dot(P.row0.xyz, q), dot(P.row1.xyz, q), dot(P.row2.xyz, q));
     let dc = vec3<f32>(dot(P.row0.xyz, dir), dot(P.row1.xyz, dir), dot(P.row2.xyz, dir));
-    var a = P.consts.x * integrate(0u, P.dims.xyz, c0, dc, len);
-    if P.size.w == 1u {
-        a += integrate(1u, P.c_dims.xyz, c0 - P.c_origin.xyz, dc, len);
+    var a = 0.0;
+    if breathing() {
+        a = integrate_warped(c0, dc, len, src, dir);
+    } else {
+        a = P.consts.x * integrate(0u, P.dims.xyz, c0, dc, len);
+        if P.size.w == 1u {
+            a += integrate(1u, P.c_dims.xyz, c0 - P.c_origin.xyz, dc, len);
+        }
     }
     let nodes = P.size.z;
     for (var i = 1u; i < nodes; i++) {

@@ -15,6 +15,7 @@
 //! draw with the CPU reference and never link wgpu.
 
 mod context;
+mod motion;
 pub mod mpr;
 mod pipeline;
 pub mod raycast;

@@ -7,21 +7,26 @@
 //! A moment with tissue deformation ([`GpuMpr::render_deformed`]) is drawn as
 //! `mpr::render_spec_deformed` draws it: each pixel inside the deformation's lattice reads the CT
 //! and the labels at its reference point (the fixed point X⁺ = x − u(X), in `f32` here, `f64` on
-//! the CPU) and gets the displacement colour map.
+//! the CPU) and gets the displacement colour map. A breathing moment
+//! ([`GpuMpr::render_moving`]) first takes each pixel's world point to the breathing patient's
+//! reference (`motion.wgsl`), as `mpr::render_spec_moving` does.
 
 use bytemuck::{Pod, Zeroable};
 use stylet_physics::deform::DeformField;
 use stylet_physics::deform::resample::INVERSE_ITERATIONS;
 use stylet_render::mpr::{DISPLACEMENT_SHOWN_FROM_MM, MprImage, SliceSpec, displacement_scale_mm};
+use stylet_render::scene::MotionHook;
 use stylet_render::volume::IndexMap;
 
-use crate::pipeline::{Pipelines, dispatch, uniform_buffer};
+use crate::motion::GpuMotion;
+use crate::pipeline::{Pipelines, dispatch_entries, uniform_buffer};
 use crate::raycast::ct_prelude;
 use crate::volume::GpuVolume;
 use crate::{GpuContext, GpuError};
 
 /// The shader after the shared CT sampler.
 const SHADER: &str = concat!(
+    include_str!("../shaders/motion.wgsl"),
     include_str!("../shaders/ct_sample.wgsl"),
     include_str!("../shaders/mpr.wgsl")
 );
@@ -52,6 +57,7 @@ struct MprParams {
 pub struct GpuMpr {
     pipelines: Pipelines,
     params: wgpu::Buffer,
+    motion: GpuMotion,
 }
 
 impl GpuMpr {
@@ -60,12 +66,13 @@ impl GpuMpr {
         GpuMpr {
             pipelines: Pipelines::new("mpr.wgsl", SHADER),
             params,
+            motion: GpuMotion::new(ctx),
         }
     }
 
     /// Draws the slice `spec` of the volume (pixels and each pixel's partial label).
     pub fn render(&mut self, ctx: &GpuContext, vol: &GpuVolume, spec: &SliceSpec) -> Result<MprImage, GpuError> {
-        self.draw(ctx, vol, spec, None)
+        self.draw(ctx, vol, spec, None, None)
     }
 
     /// Draws the slice `spec` of the patient deformed by `field`, with its displacement colour
@@ -77,7 +84,21 @@ impl GpuMpr {
         spec: &SliceSpec,
         field: &DeformField,
     ) -> Result<MprImage, GpuError> {
-        self.draw(ctx, vol, spec, Some(field))
+        self.draw(ctx, vol, spec, Some(field), None)
+    }
+
+    /// Draws the slice `spec` of a breathing (and possibly deformed) patient, as
+    /// `stylet_render::mpr::render_spec_moving` does: each pixel's world point taken to the
+    /// reference by the inverse of the breathing motion, then through the deformation's.
+    pub fn render_moving(
+        &mut self,
+        ctx: &GpuContext,
+        vol: &GpuVolume,
+        spec: &SliceSpec,
+        breathing: Option<&MotionHook>,
+        field: Option<&DeformField>,
+    ) -> Result<MprImage, GpuError> {
+        self.draw(ctx, vol, spec, field, breathing)
     }
 
     fn draw(
@@ -86,6 +107,7 @@ impl GpuMpr {
         vol: &GpuVolume,
         spec: &SliceSpec,
         field: Option<&DeformField>,
+        breathing: Option<&MotionHook>,
     ) -> Result<MprImage, GpuError> {
         spec.validate().map_err(|e| GpuError::Invalid(format!("slice: {e}")))?;
         let (w, h) = (spec.width as u32, spec.height as u32);
@@ -134,7 +156,7 @@ impl GpuMpr {
             }),
             lattice_n: match lattice {
                 Some(l) => [l.n as u32, 1, INVERSE_ITERATIONS, 0],
-                None => [2, 0, 0, 0],
+                None => [2, 0, INVERSE_ITERATIONS, 0],
             },
             deform: [
                 field.map_or(1.0, |f| displacement_scale_mm(f) as f32),
@@ -143,6 +165,7 @@ impl GpuMpr {
                 0.0,
             ],
         };
+        self.motion.prepare(ctx, breathing)?;
         ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
         let output = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("mpr image"),
@@ -159,20 +182,23 @@ impl GpuMpr {
             },
         );
         let pipeline = self.pipelines.get(ctx, ct_prelude(vol.ct_key()));
-        dispatch(
-            ctx,
-            &pipeline,
-            &[
-                self.params.as_entire_binding(),
-                vol.ct_binding(),
-                wgpu::BindingResource::TextureView(&vol.partial_view),
-                vol.mpr_colors.as_entire_binding(),
-                output.as_entire_binding(),
-                field_buffer.as_entire_binding(),
-            ],
-            (w.div_ceil(8), h.div_ceil(8)),
-            None,
-        );
+        let mut entries: Vec<wgpu::BindGroupEntry> = [
+            self.params.as_entire_binding(),
+            vol.ct_binding(),
+            wgpu::BindingResource::TextureView(&vol.partial_view),
+            vol.mpr_colors.as_entire_binding(),
+            output.as_entire_binding(),
+            field_buffer.as_entire_binding(),
+        ]
+        .into_iter()
+        .enumerate()
+        .map(|(i, resource)| wgpu::BindGroupEntry {
+            binding: i as u32,
+            resource,
+        })
+        .collect();
+        entries.extend(self.motion.entries());
+        dispatch_entries(ctx, &pipeline, &entries, (w.div_ceil(8), h.div_ceil(8)), None);
         let bytes = ctx.read_buffer(&output, out_bytes)?;
         let words: &[u32] = bytemuck::cast_slice(&bytes);
         let rgb = words.chunks_exact(2).map(|p| {

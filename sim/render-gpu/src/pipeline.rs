@@ -62,10 +62,21 @@ pub(crate) fn dispatch(
             resource: r.clone(),
         })
         .collect();
+    dispatch_entries(ctx, pipeline, &entries, groups, timer);
+}
+
+/// [`dispatch`] with the binding numbers given (a shader whose bindings have gaps).
+pub(crate) fn dispatch_entries(
+    ctx: &GpuContext,
+    pipeline: &wgpu::ComputePipeline,
+    entries: &[wgpu::BindGroupEntry],
+    groups: (u32, u32),
+    timer: Option<&PassTimer>,
+) {
     let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
         label: None,
         layout: &pipeline.get_bind_group_layout(0),
-        entries: &entries,
+        entries,
     });
     let mut enc = ctx.device.create_command_encoder(&Default::default());
     {

@@ -17,12 +17,14 @@ use stylet_render::transfer::{MAX_TRAPEZOIDS, TransferFunction};
 use stylet_render::transfer_table::TransferTable;
 use stylet_render::volume::IndexMap;
 
-use crate::pipeline::{Pipelines, dispatch, uniform_buffer, v4};
+use crate::pipeline::{Pipelines, dispatch_entries, uniform_buffer, v4};
+use crate::motion::{GpuMotion, index_margin};
 use crate::timer::PassTimer;
 use crate::volume::{CtFormat, GpuVolume, storage, texture_3d};
 use crate::{GpuContext, GpuError};
 
-const SHADER: &str = include_str!("../shaders/raycast.wgsl");
+/// The shader after the shared breathing motion.
+const SHADER: &str = concat!(include_str!("../shaders/motion.wgsl"), include_str!("../shaders/raycast.wgsl"));
 
 /// The CT declaration the shaders are compiled with (binding 1) and `ct_voxel`, which both
 /// raycast.wgsl and mpr.wgsl call; the buffer variants index with `P.dims` (both shaders' CT size).
@@ -108,6 +110,8 @@ struct Params {
     traps: [GpuTrapezoid; MAX_TRAPEZOIDS],
     /// The transfer table: lo_hu, 1/step_hu, entries − 1.
     table: [f32; 4],
+    /// The breathing motion's bound in CT index units per axis (0 when still).
+    margin: [f32; 4],
 }
 
 /// A tool primitive as the shader reads it (mirrors `Primitive` in raycast.wgsl).
@@ -176,6 +180,8 @@ struct OccupancyCache {
     transfer: TransferFunction,
     step_mm: f32,
     deformed: Option<usize>,
+    /// The motion's bound the cells were dilated by (index units per axis).
+    margin: Option<[u32; 3]>,
     scale: Vec3,
     size: Vec3,
     buffer: wgpu::Buffer,
@@ -199,6 +205,7 @@ pub struct GpuRenderer {
     dummy_deformed: wgpu::TextureView,
     occupancy: Option<OccupancyCache>,
     deformed: Option<DeformedCache>,
+    motion: GpuMotion,
     output: Option<(u64, wgpu::Buffer)>,
     timer: Option<PassTimer>,
     last_pass_ms: Option<f64>,
@@ -226,6 +233,7 @@ impl GpuRenderer {
             params,
             prims,
             dummy_deformed,
+            motion: GpuMotion::new(ctx),
             occupancy: None,
             deformed: None,
             output: None,
@@ -252,9 +260,6 @@ impl GpuRenderer {
     ) -> Result<Image, GpuError> {
         if width == 0 || height == 0 || width > 16384 || height > 16384 {
             return Err(GpuError::Invalid(format!("image size {width} × {height}")));
-        }
-        if scene.motion.is_some() {
-            return Err(GpuError::Unsupported("breathing motion"));
         }
         scene
             .transfer
@@ -298,8 +303,13 @@ impl GpuRenderer {
             )));
         }
         self.update_deformed(ctx, scene)?;
-        self.update_occupancy(ctx, vol, scene)?;
-        let params = self.params(vol, scene, width, height, prims.len() as u32);
+        let margin = self
+            .motion
+            .prepare(ctx, scene.motion.as_ref())?
+            .map(|bound_mm| index_margin(&IndexMap::of(vol.atlas.ct().grid()), bound_mm));
+        self.update_occupancy(ctx, vol, scene, margin)?;
+        let mut params = self.params(vol, scene, width, height, prims.len() as u32);
+        params.margin = v4(margin.unwrap_or(Vec3::ZERO), 0.0);
         ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
         if !prims.is_empty() {
             ctx.queue.write_buffer(&self.prims, 0, bytemuck::cast_slice(&prims));
@@ -319,6 +329,7 @@ impl GpuRenderer {
         };
         let pipeline = self.pipelines.get(ctx, &vol.raycast_prelude());
         let deformed_view = self.deformed.as_ref().map(|d| &d.view).unwrap_or(&self.dummy_deformed);
+
         let cache = self.occupancy.as_ref().expect("occupancy set above");
         let mut resources = vec![
             self.params.as_entire_binding(),
@@ -332,7 +343,17 @@ impl GpuRenderer {
             cache.table.as_entire_binding(),
         ];
         resources.extend(vol.records_bindings());
-        dispatch(ctx, &pipeline, &resources, groups, self.timer.as_ref());
+        // Bindings 0–8, the records at 9 (and their sampler at 10), the motion at 20 and 21.
+        let mut entries: Vec<wgpu::BindGroupEntry> = resources
+            .into_iter()
+            .enumerate()
+            .map(|(i, resource)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource,
+            })
+            .collect();
+        entries.extend(self.motion.entries());
+        dispatch_entries(ctx, &pipeline, &entries, groups, self.timer.as_ref());
         let bytes = ctx.read_buffer(&output, out_bytes)?;
         self.last_pass_ms = self.timer.as_ref().and_then(|t| t.read_ms(ctx));
         let rgba = bytes.chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]).collect();
@@ -367,17 +388,26 @@ impl GpuRenderer {
     }
 
     /// The occupancy bits of `raycast::occupancy::Occupancy` (the CPU reference's own grid and
-    /// rule, Ω_J marked occupied), rebuilt when the volume, N, the transfer function or J change.
-    fn update_occupancy(&mut self, ctx: &GpuContext, vol: &GpuVolume, scene: &Scene) -> Result<(), GpuError> {
+    /// rule, Ω_J marked occupied, dilated by a motion's bound), rebuilt when the volume, N, the
+    /// transfer function, J or the bound change.
+    fn update_occupancy(
+        &mut self,
+        ctx: &GpuContext,
+        vol: &GpuVolume,
+        scene: &Scene,
+        margin: Option<Vec3>,
+    ) -> Result<(), GpuError> {
         // The CPU reference clamps N the same way (RenderVolume::cell_ranges).
         let cells = scene.quality.occupancy_cells.clamp(16, 128);
         let deformed = self.deformed.as_ref().map(|d| d.key);
+        let margin_key = margin.map(|m| m.to_array().map(f32::to_bits));
         if let Some(c) = &self.occupancy
             && c.volume == vol.id
             && c.cells == cells
             && c.transfer == scene.transfer
             && c.step_mm == scene.quality.step_mm
             && c.deformed == deformed
+            && c.margin == margin_key
         {
             return Ok(());
         }
@@ -393,6 +423,10 @@ impl GpuRenderer {
             ct_map.dims,
             scene.deformed.as_ref().map(|d| (&*d.volume, &ct_map)),
         );
+        let occ = match margin {
+            Some(m) => occ.dilated(m),
+            None => occ,
+        };
         let bits: Vec<u32> = occ.occupied.iter().map(|&b| b as u32).collect();
         let buffer = storage(ctx, "occupancy", bytemuck::cast_slice(&bits));
         let table_params = [
@@ -410,6 +444,7 @@ impl GpuRenderer {
             table,
             table_params,
             deformed,
+            margin: margin_key,
             scale: occ.scale,
             size: occ.size,
             buffer,
@@ -523,6 +558,7 @@ impl GpuRenderer {
             spheres,
             traps,
             table: occ.table_params,
+            margin: z,
         }
     }
 }

@@ -2,19 +2,24 @@
 //! `stylet_render::xray` (Joseph's line integral through the CT and the contrast overlay, the
 //! needle's steel chords), one invocation per detector pixel. Returns the attenuation a per
 //! pixel; the window is applied on the CPU (`Radiograph::to_image`), as for the CPU image.
+//! A breathing moment ([`GpuXray::render_moving`]) reads each plane's sample at its reference
+//! point, as `xray::render_moving` does.
 
 use bytemuck::{Pod, Zeroable};
+use stylet_render::scene::MotionHook;
 use stylet_render::volume::IndexMap;
 use stylet_render::xray::attenuation::{MU_STEEL_PER_MM, MU_WATER_PER_MM};
 use stylet_render::xray::needle::resolved_radius_and_mu;
 use stylet_render::xray::{MAX_SIDE_PX, Radiograph, XrayScene, check_scene_fits};
 
-use crate::pipeline::{Pipelines, dispatch, uniform_buffer, v4};
+use crate::motion::GpuMotion;
+use crate::pipeline::{Pipelines, dispatch_entries, uniform_buffer, v4};
 use crate::raycast::ct_prelude;
 use crate::volume::{GpuVolume, storage};
 use crate::{GpuContext, GpuError};
 
-const SHADER: &str = include_str!("../shaders/xray.wgsl");
+/// The shader after the shared breathing motion.
+const SHADER: &str = concat!(include_str!("../shaders/motion.wgsl"), include_str!("../shaders/xray.wgsl"));
 
 /// The most needle nodes the shader reads (the physics' needle has far fewer).
 pub const MAX_NEEDLE_NODES: usize = 1024;
@@ -42,6 +47,7 @@ struct XrayParams {
 pub struct GpuXray {
     pipelines: Pipelines,
     params: wgpu::Buffer,
+    motion: GpuMotion,
 }
 
 impl GpuXray {
@@ -50,6 +56,7 @@ impl GpuXray {
         GpuXray {
             pipelines: Pipelines::new("xray.wgsl", SHADER),
             params,
+            motion: GpuMotion::new(ctx),
         }
     }
 
@@ -59,6 +66,19 @@ impl GpuXray {
         ctx: &GpuContext,
         vol: &GpuVolume,
         scene: &XrayScene,
+        width: u32,
+        height: u32,
+    ) -> Result<Radiograph, GpuError> {
+        self.render_moving(ctx, vol, scene, None, width, height)
+    }
+
+    /// The radiograph of a breathing patient (`breathing`; `None`: [`Self::render`]).
+    pub fn render_moving(
+        &mut self,
+        ctx: &GpuContext,
+        vol: &GpuVolume,
+        scene: &XrayScene,
+        breathing: Option<&MotionHook>,
         width: u32,
         height: u32,
     ) -> Result<Radiograph, GpuError> {
@@ -121,6 +141,7 @@ impl GpuXray {
             c_dims: [c_dims[0], c_dims[1], c_dims[2], 0],
             consts: [MU_WATER_PER_MM / 1000.0, needle_mu, needle_r, 0.0],
         };
+        self.motion.prepare(ctx, breathing)?;
         ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
         let contrast = storage(ctx, "contrast overlay", bytemuck::cast_slice(c_values));
         let needle_words: Vec<[f32; 4]> = if nodes.is_empty() { vec![[0.0; 4]] } else { nodes };
@@ -132,19 +153,22 @@ impl GpuXray {
             mapped_at_creation: false,
         });
         let pipeline = self.pipelines.get(ctx, ct_prelude(vol.ct_key()));
-        dispatch(
-            ctx,
-            &pipeline,
-            &[
-                self.params.as_entire_binding(),
-                vol.ct_binding(),
-                contrast.as_entire_binding(),
-                needle.as_entire_binding(),
-                output.as_entire_binding(),
-            ],
-            (width.div_ceil(8), height.div_ceil(8)),
-            None,
-        );
+        let mut entries: Vec<wgpu::BindGroupEntry> = [
+            self.params.as_entire_binding(),
+            vol.ct_binding(),
+            contrast.as_entire_binding(),
+            needle.as_entire_binding(),
+            output.as_entire_binding(),
+        ]
+        .into_iter()
+        .enumerate()
+        .map(|(i, resource)| wgpu::BindGroupEntry {
+            binding: i as u32,
+            resource,
+        })
+        .collect();
+        entries.extend(self.motion.entries());
+        dispatch_entries(ctx, &pipeline, &entries, (width.div_ceil(8), height.div_ceil(8)), None);
         let bytes = ctx.read_buffer(&output, out_bytes)?;
         Ok(Radiograph {
             width,

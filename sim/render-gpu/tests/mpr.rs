@@ -8,7 +8,7 @@ use common::*;
 use stylet_physics::deform::{self, DeformSettings, ToolPoint};
 use stylet_physics::glam::DVec3;
 use stylet_render::image::{Tolerance, diff};
-use stylet_render::mpr::{Plane, SliceSpec, Window, render_spec, render_spec_deformed};
+use stylet_render::mpr::{Plane, SliceSpec, Window, render_spec, render_spec_deformed, render_spec_moving};
 use stylet_render_gpu::{CtFormat, GpuMpr};
 
 /// Both sides compute the same f32 index frame, trilinear value, window and blend; only the
@@ -209,3 +209,28 @@ const DEFORMED: Tolerance = Tolerance {
     p99: 1,
     max: 255,
 };
+
+/// A slice of the breathing phantom (each pixel's world point inverted through u(X, t), thesis
+/// §5.4.1) matches the CPU's `render_spec_moving`, and differs from the still slice.
+#[test]
+fn a_breathing_slice_matches_the_cpu() {
+    let both = phantom();
+    let atlas = &both.cpu.atlas;
+    let (hook, g) = breathing_hook(both);
+    let (lo, hi) = atlas.ct().grid().world_bounds();
+    let spec = SliceSpec::plane(atlas, Plane::Coronal, (lo + hi) * 0.5, Window::ABDOMEN, 256);
+    let mut mpr = GpuMpr::new(ctx());
+    let gpu = mpr.render_moving(ctx(), &both.gpu, &spec, Some(&hook), None).unwrap();
+    let cpu = render_spec_moving(atlas, &spec, Some(&hook), None).unwrap();
+    let d = diff(&gpu.to_image(), &cpu.to_image()).unwrap();
+    let label_diff = gpu.labels.iter().zip(&cpu.labels).filter(|(a, b)| a != b).count();
+    let still = mpr.render(ctx(), &both.gpu, &spec).unwrap();
+    let moved = gpu.rgb.iter().zip(&still.rgb).filter(|(a, b)| a != b).count();
+    println!("breathing coronal (g = {g:.3}): {d}; labels differ on {label_diff}; {moved} pixels moved");
+    let dir = std::env::temp_dir().join("stylet-gpu");
+    std::fs::create_dir_all(&dir).unwrap();
+    gpu.to_image().write_png(&dir.join("mpr-breathing-gpu.png")).unwrap();
+    assert!(MPR.admits(&d), "{d}");
+    assert!(label_diff * 1000 <= gpu.labels.len(), "labels differ on {label_diff}");
+    assert!(moved > 2000, "only {moved} pixels moved with the breath");
+}

@@ -339,14 +339,64 @@ fn bad_input_gets_a_named_error() {
     let mut bad = s.clone();
     bad.transfer = stylet_render::transfer::TransferFunction::Trapezoids(vec![]);
     assert!(matches!(r.render(ctx(), &b.gpu, &bad, 8, 8), Err(GpuError::Invalid(_))));
-    // The breathing hook is not drawn on the GPU yet: a named refusal, not a wrong picture.
+    // A motion that never moves is the still patient.
     let mut moving = s.clone();
     moving.motion = Some(stylet_render::scene::MotionHook {
         model: std::sync::Arc::new(stylet_physics::motion::Static),
         t_s: 0.0,
     });
-    assert!(matches!(
-        r.render(ctx(), &b.gpu, &moving, 8, 8),
-        Err(GpuError::Unsupported("breathing motion"))
-    ));
+    assert_eq!(r.render(ctx(), &b.gpu, &moving, 40, 30).unwrap(), r.render(ctx(), &b.gpu, &s, 40, 30).unwrap());
+}
+
+/// Rays warped by the breathing motion (eqs. 5.4.1–5.4.2) on the GPU against the CPU
+/// reference: fast switches and naive, a clip plane with label tagging (its plane sample is
+/// warped too), and the motion visible (the still frame differs).
+#[test]
+fn warped_rays_of_a_breathing_patient_match_the_cpu() {
+    let b = phantom();
+    let (hook, g) = breathing_hook(b);
+    let (_, tf) = transfer_functions().swap_remove(1);
+    let still = scene(&b.cpu, tf);
+    let mut s = still.clone();
+    s.motion = Some(hook);
+    println!("breathing g = {g:.3}");
+    compare("phantom-breathing", b, &s, 320, 264, GPU_CPU);
+    let moved = render_gpu(b, &s, 320, 264);
+    let at_rest = render_gpu(b, &still, 320, 264);
+    let changed = moved.rgba.iter().zip(&at_rest.rgba).filter(|(a, b)| a != b).count();
+    println!("breathing changes {changed} of {} pixels", moved.rgba.len());
+    assert!(changed > 2000, "the breathing frame differs from the still one in {changed} pixels");
+    let mut naive = s.clone();
+    naive.quality = Quality::naive(s.quality.step_mm);
+    compare("phantom-breathing-naive", b, &naive, 160, 132, GPU_CPU);
+    let (lo, hi) = bounds(&b.cpu);
+    s.clip = Some(ClipPlane::through_tool((lo + hi) * 0.5, Vec3::Z, &s.camera));
+    s.tagging = Tagging::Labels;
+    compare("phantom-breathing-clip-labels", b, &s, 320, 264, GPU_CPU);
+}
+
+/// A motion the GPU cannot draw (a surrogate model with a rate term is not one factored field)
+/// is a named refusal, not a still picture.
+#[test]
+fn a_motion_the_gpu_cannot_draw_is_refused() {
+    use std::sync::Arc;
+    use stylet_physics::motion::{BreathingSettings, BreathingSignal, Surrogate, SyntheticField};
+    let b = phantom();
+    let settings = BreathingSettings::on();
+    let a1 = Arc::new(SyntheticField::new(Arc::clone(&b.cpu.atlas), settings.motion).unwrap());
+    let model = Arc::new(Surrogate {
+        a1: a1.clone(),
+        a2: Some(a1),
+        a3: None,
+        signal: BreathingSignal::new(settings.signal).unwrap(),
+    });
+    let mut s = scene(&b.cpu, transfer_functions().swap_remove(0).1);
+    s.motion = Some(stylet_render::scene::MotionHook { model, t_s: 1.0 });
+    let err = renderer()
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .render(ctx(), &b.gpu, &s, 64, 48)
+        .unwrap_err();
+    assert!(matches!(err, GpuError::Unsupported(_)), "{err}");
+    assert!(err.to_string().contains("factored"), "{err}");
 }

@@ -311,3 +311,18 @@ pub fn difference_image(a: &Image, b: &Image) -> Image {
     }
     out
 }
+
+/// The phantom breathing at its deepest breath of the first minute (amplitude 25 mm, so the
+/// motion is many voxels).
+pub fn breathing_hook(both: &Both) -> (stylet_render::scene::MotionHook, f64) {
+    use stylet_physics::motion::{BreathingSettings, BreathingSignal};
+    let mut settings = BreathingSettings::on();
+    settings.motion.amplitude_mm = 25.0;
+    let model = settings.build(&both.cpu.atlas).unwrap();
+    let signal = BreathingSignal::new(settings.signal).unwrap();
+    let t_s = (0..600)
+        .map(|i| i as f64 * 0.1)
+        .max_by(|&a, &b| signal.g(a).total_cmp(&signal.g(b)))
+        .unwrap();
+    (stylet_render::scene::MotionHook { model, t_s }, signal.g(t_s))
+}
