@@ -9,7 +9,7 @@ use clap::{Args, ValueEnum};
 use stylet_render::image::Image;
 use stylet_render::mpr::{self, Plane, SliceSpec};
 use stylet_render::presets::Preset;
-use stylet_render::scene::{Scene, Tagging};
+use stylet_render::scene::{MotionHook, Scene, Tagging};
 use stylet_render::ultrasound::{self, EchoTable, FlowField, UltrasoundScene};
 use stylet_render::views::{self, Moment, SessionLabels, ViewError};
 use stylet_render::volume::RenderVolume;
@@ -322,11 +322,12 @@ fn slice_image(
     if !gpu {
         return Ok(views::slice_image(atlas, moment, spec).map_err(|e| anyhow::anyhow!("slice: {e}"))?);
     }
-    if moment.is_some_and(|m| m.breathing.is_some()) {
-        bail!("--gpu: the GPU renderer does not draw a breathing patient yet; draw this moment with --cpu");
-    }
     let field = moment.and_then(|m| m.deformation.as_deref());
-    Ok(views::annotated_slice(&slice_gpu(atlas, spec, field)?, moment)?)
+    let breathing = moment.and_then(|m| m.breathing.as_ref());
+    Ok(views::annotated_slice(
+        &slice_gpu(atlas, spec, breathing, field)?,
+        moment,
+    )?)
 }
 
 /// The ray-cast view from anterior, framing the volume, with the tools of the moment.
@@ -384,10 +385,7 @@ fn render_xray(
     let (scene, window) = views::xray_scene(atlas, moment, scenario, a.lao_deg, a.cranial_deg)?;
     let breathing = moment.and_then(|m| m.breathing.as_ref());
     if a.gpu {
-        if breathing.is_some() {
-            bail!("--gpu: the GPU renderer does not draw a breathing patient yet; draw this moment with --cpu");
-        }
-        return xray_gpu(atlas, &scene, size).map(|r| r.to_image(window));
+        return xray_gpu(atlas, &scene, breathing, size).map(|r| r.to_image(window));
     }
     let radiograph = xray::render_moving(&atlas.model, &scene, breathing, size.width, size.height)
         .map_err(|e| anyhow::anyhow!("--view xray: {e}"))?;
@@ -448,10 +446,15 @@ fn on_gpu(ctx: &stylet_render_gpu::GpuContext, e: stylet_render_gpu::GpuError) -
 }
 
 #[cfg(feature = "gpu")]
-fn xray_gpu(atlas: &stylet_atlas::Atlas, scene: &XrayScene, size: Size) -> anyhow::Result<Radiograph> {
+fn xray_gpu(
+    atlas: &stylet_atlas::Atlas,
+    scene: &XrayScene,
+    breathing: Option<&MotionHook>,
+    size: Size,
+) -> anyhow::Result<Radiograph> {
     let (ctx, gpu_volume) = gpu_upload(&RenderVolume::new(Arc::clone(&atlas.model)))?;
     stylet_render_gpu::GpuXray::new(&ctx)
-        .render(&ctx, &gpu_volume, scene, size.width, size.height)
+        .render_moving(&ctx, &gpu_volume, scene, breathing, size.width, size.height)
         .map_err(|e| on_gpu(&ctx, e))
 }
 
@@ -469,7 +472,7 @@ fn ultrasound_gpu(_: &stylet_atlas::Atlas, _: &UltrasoundScene) -> anyhow::Resul
 }
 
 #[cfg(not(feature = "gpu"))]
-fn xray_gpu(_: &stylet_atlas::Atlas, _: &XrayScene, _: Size) -> anyhow::Result<Radiograph> {
+fn xray_gpu(_: &stylet_atlas::Atlas, _: &XrayScene, _: Option<&MotionHook>, _: Size) -> anyhow::Result<Radiograph> {
     bail!("--gpu: this stylet was built without the GPU renderer (cargo feature `gpu`); use --cpu")
 }
 
@@ -487,13 +490,15 @@ fn render_gpu(volume: &RenderVolume, scene: &Scene, size: Size) -> anyhow::Resul
 fn slice_gpu(
     atlas: &stylet_atlas::Atlas,
     spec: &SliceSpec,
+    breathing: Option<&MotionHook>,
     field: Option<&stylet_physics::DeformField>,
 ) -> anyhow::Result<mpr::MprImage> {
     let (ctx, gpu_volume) = gpu_upload(&RenderVolume::new(Arc::clone(&atlas.model)))?;
     let mut mpr = stylet_render_gpu::GpuMpr::new(&ctx);
-    match field {
-        Some(field) => mpr.render_deformed(&ctx, &gpu_volume, spec, field),
-        None => mpr.render(&ctx, &gpu_volume, spec),
+    match (breathing, field) {
+        (Some(_), _) => mpr.render_moving(&ctx, &gpu_volume, spec, breathing, field),
+        (None, Some(field)) => mpr.render_deformed(&ctx, &gpu_volume, spec, field),
+        (None, None) => mpr.render(&ctx, &gpu_volume, spec),
     }
     .map_err(|e| on_gpu(&ctx, e))
 }
@@ -502,6 +507,7 @@ fn slice_gpu(
 fn slice_gpu(
     _: &stylet_atlas::Atlas,
     _: &SliceSpec,
+    _: Option<&MotionHook>,
     _: Option<&stylet_physics::DeformField>,
 ) -> anyhow::Result<mpr::MprImage> {
     bail!("--gpu: this stylet was built without the GPU renderer (cargo feature `gpu`); use --cpu")

@@ -264,13 +264,9 @@ impl ViewRenderer {
         let w = ((width as f32 * scale).round() as u32).max(1);
         let h = ((height as f32 * scale).round() as u32).max(1);
         let t0 = Instant::now();
-        // The GPU does not warp a breathing patient yet (docs/breathing.md): its 3D view, slices
-        // and radiograph are drawn on the CPU, which does (the ultrasound moves on neither).
-        #[cfg(feature = "gpu")]
-        let on_gpu = moment.breathing.is_none() || matches!(kind, ViewKind::Ultrasound);
         #[cfg(feature = "gpu")]
         let image = match self.gpu.take() {
-            Some(mut gpu) if on_gpu => {
+            Some(mut gpu) => {
                 let image = self.draw_on_gpu(&mut gpu, kind, moment, w, h);
                 self.gpu = Some(gpu);
                 image?
@@ -359,9 +355,11 @@ impl ViewRenderer {
         let atlas = &*self.atlas;
         let m = Some(moment);
         let slice = |g: &mut GpuViews, spec: &stylet_render::mpr::SliceSpec| {
-            let image = match moment.deformation.as_deref() {
-                Some(field) => g.mpr.render_deformed(&g.ctx, &g.volume, spec, field),
-                None => g.mpr.render(&g.ctx, &g.volume, spec),
+            let field = moment.deformation.as_deref();
+            let image = match (moment.breathing.as_ref(), field) {
+                (Some(b), _) => g.mpr.render_moving(&g.ctx, &g.volume, spec, Some(b), field),
+                (None, Some(field)) => g.mpr.render_deformed(&g.ctx, &g.volume, spec, field),
+                (None, None) => g.mpr.render(&g.ctx, &g.volume, spec),
             }
             .map_err(gpu_error)?;
             views::annotated_slice(&image, m)
@@ -385,7 +383,7 @@ impl ViewRenderer {
             ViewKind::Xray => {
                 let (scene, window) = self.xray_scene(moment)?;
                 Ok(g.xray
-                    .render(&g.ctx, &g.volume, &scene, w, h)
+                    .render_moving(&g.ctx, &g.volume, &scene, moment.breathing.as_ref(), w, h)
                     .map_err(gpu_error)?
                     .to_image(window))
             }

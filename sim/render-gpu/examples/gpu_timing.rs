@@ -4,7 +4,10 @@
 //! the texture unit (`RecordFilter`), in the same run. Each is the median of the GPU's own pass
 //! time (timestamps) and of the whole call with the image read back; the CPU reference on this
 //! machine's cores beside the fast case, with the difference statistics of the images (written
-//! as PNG under `$STYLET_TIMING_PNG` when set).
+//! as PNG under `$STYLET_TIMING_PNG` when set). Then the breathing patient (the synthetic motion,
+//! default amplitude, at the deepest breath of the first minute) against the still one in the
+//! same run: warped rays (the thesis' 16 ms still against 27–37 ms moving), slices and the
+//! radiograph.
 //!
 //! `cargo run --profile ci -p stylet-render-gpu --example gpu_timing [-- ATLAS_DIR]`
 
@@ -170,6 +173,104 @@ fn main() {
             }
         }
     }
+    breathing(&ctx, &cpu, &uploads, &scene);
+}
+
+/// The median of `FRAMES` calls of `f` after a warm-up call (ms), and the warm-up's output.
+fn timed<T>(mut f: impl FnMut() -> T) -> (f64, T) {
+    let first = f();
+    let mut wall: Vec<f64> = (0..FRAMES)
+        .map(|_| {
+            let t = Instant::now();
+            let _ = f();
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    wall.sort_by(f64::total_cmp);
+    (wall[wall.len() / 2], first)
+}
+
+/// Still against breathing, same frames: ray casting (GPU pass and with readback), a coronal
+/// slice and the radiograph.
+fn breathing(ctx: &GpuContext, cpu: &RenderVolume, uploads: &[(RecordFilter, GpuVolume)], scene: &Scene) {
+    use stylet_physics::motion::{BreathingSettings, BreathingSignal};
+    use stylet_render::mpr::{Plane, SliceSpec, Window};
+    use stylet_render::scene::MotionHook;
+    use stylet_render::xray::{CArm, XrayScene};
+    let settings = BreathingSettings::on();
+    let model = match settings.build(&cpu.atlas) {
+        Ok(m) => m,
+        Err(e) => return println!("breathing: {e}"),
+    };
+    let signal = BreathingSignal::new(settings.signal).unwrap();
+    let t_s = (0..600)
+        .map(|i| i as f64 * 0.1)
+        .max_by(|&a, &b| signal.g(a).total_cmp(&signal.g(b)))
+        .unwrap();
+    let hook = MotionHook { model, t_s };
+    println!(
+        "breathing: synthetic motion, amplitude {} mm, g = {:.3} at {t_s:.1} s, bound {:.1} mm",
+        settings.motion.amplitude_mm,
+        signal.g(t_s),
+        hook.model.max_displacement_mm()
+    );
+    let mut r = GpuRenderer::new(ctx);
+    let mut moving = scene.clone();
+    moving.quality = Quality::fast(scene.quality.step_mm);
+    moving.motion = Some(hook.clone());
+    let mut still = moving.clone();
+    still.motion = None;
+    for (w, h) in [(512u32, 512u32), (1225, 1016)] {
+        for (filter, gpu) in uploads {
+            let mut line = format!("{w}×{h} ray casting, records by {filter:?}:");
+            for (name, s) in [("still", &still), ("breathing", &moving)] {
+                let mut pass = Vec::new();
+                let (wall, image) = timed(|| {
+                    let image = r.render(ctx, gpu, s, w, h).unwrap();
+                    pass.extend(r.last_pass_ms());
+                    image
+                });
+                pass.sort_by(f64::total_cmp);
+                let pass = pass.get(pass.len() / 2).map_or("n/a".into(), |p| format!("{p:.2} ms"));
+                line += &format!(" {name} GPU pass {pass}, with readback {wall:.2} ms;");
+                if name == "breathing" && *filter == RecordFilter::Shader {
+                    let t = Instant::now();
+                    let out = stylet_render::raycast::render(cpu, s, w, h);
+                    let d = stylet_render::image::diff(&image, &out.image).unwrap();
+                    line += &format!(
+                        " CPU reference {:.0} ms, GPU − CPU {d};",
+                        t.elapsed().as_secs_f64() * 1e3
+                    );
+                    if let Some(dir) = std::env::var_os("STYLET_TIMING_PNG") {
+                        let dir = std::path::Path::new(&dir);
+                        image
+                            .write_png(&dir.join(format!("gpu-breathing-{w}x{h}.png")))
+                            .unwrap();
+                        out.image
+                            .write_png(&dir.join(format!("cpu-breathing-{w}x{h}.png")))
+                            .unwrap();
+                    }
+                }
+            }
+            println!("{line}");
+        }
+    }
+    let gpu = &uploads[0].1;
+    let (lo, hi) = cpu.atlas.ct().grid().world_bounds();
+    let spec = SliceSpec::plane(&cpu.atlas, Plane::Coronal, (lo + hi) * 0.5, Window::ABDOMEN, 512);
+    let mut mpr = stylet_render_gpu::GpuMpr::new(ctx);
+    let (t_still, _) = timed(|| mpr.render(ctx, gpu, &spec).unwrap());
+    let (t_moving, _) = timed(|| mpr.render_moving(ctx, gpu, &spec, Some(&hook), None).unwrap());
+    println!("coronal slice 512 px: still {t_still:.2} ms, breathing {t_moving:.2} ms (with readback)");
+    let scene = XrayScene {
+        c_arm: CArm::posterior_anterior(((lo + hi) * 0.5).as_vec3()),
+        needle: None,
+        contrast: None,
+    };
+    let mut xray = stylet_render_gpu::GpuXray::new(ctx);
+    let (t_still, _) = timed(|| xray.render(ctx, gpu, &scene, 1024, 1024).unwrap());
+    let (t_moving, _) = timed(|| xray.render_moving(ctx, gpu, &scene, Some(&hook), 1024, 1024).unwrap());
+    println!("radiograph 1024²: still {t_still:.2} ms, breathing {t_moving:.2} ms (with readback)");
 }
 
 /// Timed frames per case (after one warm-up frame).

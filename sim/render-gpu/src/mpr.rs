@@ -19,7 +19,7 @@ use stylet_render::scene::MotionHook;
 use stylet_render::volume::IndexMap;
 
 use crate::motion::GpuMotion;
-use crate::pipeline::{Pipelines, dispatch_entries, uniform_buffer};
+use crate::pipeline::{Pipelines, dispatch_entries, numbered, uniform_buffer};
 use crate::raycast::ct_prelude;
 use crate::volume::GpuVolume;
 use crate::{GpuContext, GpuError};
@@ -182,21 +182,14 @@ impl GpuMpr {
             },
         );
         let pipeline = self.pipelines.get(ctx, ct_prelude(vol.ct_key()));
-        let mut entries: Vec<wgpu::BindGroupEntry> = [
+        let mut entries = numbered([
             self.params.as_entire_binding(),
             vol.ct_binding(),
             wgpu::BindingResource::TextureView(&vol.partial_view),
             vol.mpr_colors.as_entire_binding(),
             output.as_entire_binding(),
             field_buffer.as_entire_binding(),
-        ]
-        .into_iter()
-        .enumerate()
-        .map(|(i, resource)| wgpu::BindGroupEntry {
-            binding: i as u32,
-            resource,
-        })
-        .collect();
+        ]);
         entries.extend(self.motion.entries());
         dispatch_entries(ctx, &pipeline, &entries, (w.div_ceil(8), h.div_ceil(8)), None);
         let bytes = ctx.read_buffer(&output, out_bytes)?;

@@ -54,15 +54,21 @@ pub(crate) fn dispatch(
     groups: (u32, u32),
     timer: Option<&PassTimer>,
 ) {
-    let entries: Vec<wgpu::BindGroupEntry> = resources
-        .iter()
+    dispatch_entries(ctx, pipeline, &numbered(resources.iter().cloned()), groups, timer);
+}
+
+/// `resources` at bindings 0, 1, 2, …
+pub(crate) fn numbered<'a>(
+    resources: impl IntoIterator<Item = wgpu::BindingResource<'a>>,
+) -> Vec<wgpu::BindGroupEntry<'a>> {
+    resources
+        .into_iter()
         .enumerate()
-        .map(|(i, r)| wgpu::BindGroupEntry {
+        .map(|(i, resource)| wgpu::BindGroupEntry {
             binding: i as u32,
-            resource: r.clone(),
+            resource,
         })
-        .collect();
-    dispatch_entries(ctx, pipeline, &entries, groups, timer);
+        .collect()
 }
 
 /// [`dispatch`] with the binding numbers given (a shader whose bindings have gaps).

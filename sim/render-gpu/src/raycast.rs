@@ -17,14 +17,17 @@ use stylet_render::transfer::{MAX_TRAPEZOIDS, TransferFunction};
 use stylet_render::transfer_table::TransferTable;
 use stylet_render::volume::IndexMap;
 
-use crate::pipeline::{Pipelines, dispatch_entries, uniform_buffer, v4};
 use crate::motion::{GpuMotion, index_margin};
+use crate::pipeline::{Pipelines, dispatch_entries, numbered, uniform_buffer, v4};
 use crate::timer::PassTimer;
 use crate::volume::{CtFormat, GpuVolume, storage, texture_3d};
 use crate::{GpuContext, GpuError};
 
 /// The shader after the shared breathing motion.
-const SHADER: &str = concat!(include_str!("../shaders/motion.wgsl"), include_str!("../shaders/raycast.wgsl"));
+const SHADER: &str = concat!(
+    include_str!("../shaders/motion.wgsl"),
+    include_str!("../shaders/raycast.wgsl")
+);
 
 /// The CT declaration the shaders are compiled with (binding 1) and `ct_voxel`, which both
 /// raycast.wgsl and mpr.wgsl call; the buffer variants index with `P.dims` (both shaders' CT size).
@@ -344,14 +347,7 @@ impl GpuRenderer {
         ];
         resources.extend(vol.records_bindings());
         // Bindings 0–8, the records at 9 (and their sampler at 10), the motion at 20 and 21.
-        let mut entries: Vec<wgpu::BindGroupEntry> = resources
-            .into_iter()
-            .enumerate()
-            .map(|(i, resource)| wgpu::BindGroupEntry {
-                binding: i as u32,
-                resource,
-            })
-            .collect();
+        let mut entries = numbered(resources);
         entries.extend(self.motion.entries());
         dispatch_entries(ctx, &pipeline, &entries, groups, self.timer.as_ref());
         let bytes = ctx.read_buffer(&output, out_bytes)?;

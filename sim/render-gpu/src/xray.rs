@@ -13,13 +13,16 @@ use stylet_render::xray::needle::resolved_radius_and_mu;
 use stylet_render::xray::{MAX_SIDE_PX, Radiograph, XrayScene, check_scene_fits};
 
 use crate::motion::GpuMotion;
-use crate::pipeline::{Pipelines, dispatch_entries, uniform_buffer, v4};
+use crate::pipeline::{Pipelines, dispatch_entries, numbered, uniform_buffer, v4};
 use crate::raycast::ct_prelude;
 use crate::volume::{GpuVolume, storage};
 use crate::{GpuContext, GpuError};
 
 /// The shader after the shared breathing motion.
-const SHADER: &str = concat!(include_str!("../shaders/motion.wgsl"), include_str!("../shaders/xray.wgsl"));
+const SHADER: &str = concat!(
+    include_str!("../shaders/motion.wgsl"),
+    include_str!("../shaders/xray.wgsl")
+);
 
 /// The most needle nodes the shader reads (the physics' needle has far fewer).
 pub const MAX_NEEDLE_NODES: usize = 1024;
@@ -153,20 +156,13 @@ impl GpuXray {
             mapped_at_creation: false,
         });
         let pipeline = self.pipelines.get(ctx, ct_prelude(vol.ct_key()));
-        let mut entries: Vec<wgpu::BindGroupEntry> = [
+        let mut entries = numbered([
             self.params.as_entire_binding(),
             vol.ct_binding(),
             contrast.as_entire_binding(),
             needle.as_entire_binding(),
             output.as_entire_binding(),
-        ]
-        .into_iter()
-        .enumerate()
-        .map(|(i, resource)| wgpu::BindGroupEntry {
-            binding: i as u32,
-            resource,
-        })
-        .collect();
+        ]);
         entries.extend(self.motion.entries());
         dispatch_entries(ctx, &pipeline, &entries, (width.div_ceil(8), height.div_ceil(8)), None);
         let bytes = ctx.read_buffer(&output, out_bytes)?;

@@ -345,7 +345,10 @@ fn bad_input_gets_a_named_error() {
         model: std::sync::Arc::new(stylet_physics::motion::Static),
         t_s: 0.0,
     });
-    assert_eq!(r.render(ctx(), &b.gpu, &moving, 40, 30).unwrap(), r.render(ctx(), &b.gpu, &s, 40, 30).unwrap());
+    assert_eq!(
+        r.render(ctx(), &b.gpu, &moving, 40, 30).unwrap(),
+        r.render(ctx(), &b.gpu, &s, 40, 30).unwrap()
+    );
 }
 
 /// Rays warped by the breathing motion (eqs. 5.4.1–5.4.2) on the GPU against the CPU
@@ -365,7 +368,10 @@ fn warped_rays_of_a_breathing_patient_match_the_cpu() {
     let at_rest = render_gpu(b, &still, 320, 264);
     let changed = moved.rgba.iter().zip(&at_rest.rgba).filter(|(a, b)| a != b).count();
     println!("breathing changes {changed} of {} pixels", moved.rgba.len());
-    assert!(changed > 2000, "the breathing frame differs from the still one in {changed} pixels");
+    assert!(
+        changed > 2000,
+        "the breathing frame differs from the still one in {changed} pixels"
+    );
     let mut naive = s.clone();
     naive.quality = Quality::naive(s.quality.step_mm);
     compare("phantom-breathing-naive", b, &naive, 160, 132, GPU_CPU);

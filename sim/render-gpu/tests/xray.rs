@@ -150,7 +150,12 @@ fn gpu_xray_of_a_breathing_patient_matches_the_cpu() {
     let target = ((lo + hi) * 0.5).as_vec3();
     let dims = atlas.ct().grid().dims();
     let voxels: Vec<([usize; 3], f32)> = (0..20)
-        .map(|i| ([dims[0] / 2 + i % 5, dims[1] / 2, dims[2] / 2 + i / 5], iodine_mu_per_mm(30.0)))
+        .map(|i| {
+            (
+                [dims[0] / 2 + i % 5, dims[1] / 2, dims[2] / 2 + i / 5],
+                iodine_mu_per_mm(30.0),
+            )
+        })
         .collect();
     let scene = XrayScene {
         c_arm: CArm::posterior_anterior(target),
@@ -159,7 +164,9 @@ fn gpu_xray_of_a_breathing_patient_matches_the_cpu() {
     };
     let cpu = render_moving(atlas, &scene, Some(&hook), 128, 128).unwrap();
     let mut xray = GpuXray::new(ctx());
-    let gpu = xray.render_moving(ctx(), &both.gpu, &scene, Some(&hook), 128, 128).unwrap();
+    let gpu = xray
+        .render_moving(ctx(), &both.gpu, &scene, Some(&hook), 128, 128)
+        .unwrap();
     assert_agree_within(&format!("phantom breathing (g = {g:.3})"), &cpu, &gpu, 1e-3);
     let still = xray.render(ctx(), &both.gpu, &scene, 128, 128).unwrap();
     let top = still.attenuation.iter().cloned().fold(0.0f32, f32::max);
@@ -169,6 +176,9 @@ fn gpu_xray_of_a_breathing_patient_matches_the_cpu() {
         .zip(&still.attenuation)
         .filter(|(a, b)| (*a - *b).abs() > 0.01 * top)
         .count();
-    println!("{moved} of {} pixels changed by more than 1 % with the breath", gpu.attenuation.len());
+    println!(
+        "{moved} of {} pixels changed by more than 1 % with the breath",
+        gpu.attenuation.len()
+    );
     assert!(moved > 500, "only {moved} pixels changed");
 }

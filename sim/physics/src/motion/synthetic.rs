@@ -134,8 +134,10 @@ impl SyntheticField {
     /// (trilinear in the mobility map).
     pub fn mobility(&self, x_ref: DVec3) -> f64 {
         let c = self.mobility.grid().world_to_index(x_ref);
-        crate::volume::trilinear(c, self.mobility.grid().dims(), |i, j, k| self.mobility.get(i, j, k) as f64)
-            .unwrap_or(0.0)
+        crate::volume::trilinear(c, self.mobility.grid().dims(), |i, j, k| {
+            self.mobility.get(i, j, k) as f64
+        })
+        .unwrap_or(0.0)
     }
 
     /// The mobility map (m at its nodes).
@@ -318,7 +320,14 @@ mod tests {
     #[test]
     fn the_profile_is_the_piston_and_the_thinned_grid_reaches_the_last_voxel() {
         let knots = [(-300.0, 0.4), (-150.0, 1.0), (0.0, 1.0), (150.0, 0.0)];
-        for (z, w) in [(-500.0, 0.4), (-225.0, 0.7), (-150.0, 1.0), (-10.0, 1.0), (75.0, 0.5), (400.0, 0.0)] {
+        for (z, w) in [
+            (-500.0, 0.4),
+            (-225.0, 0.7),
+            (-150.0, 1.0),
+            (-10.0, 1.0),
+            (75.0, 0.5),
+            (400.0, 0.0),
+        ] {
             assert!((piecewise_linear(&knots, z) - w).abs() < 1e-12, "w({z})");
         }
         let ct = Grid::new([512, 512, 133], Affine::from_spacing([0.7, 0.7, 2.5], DVec3::ZERO)).unwrap();
