@@ -22,7 +22,7 @@ use std::sync::Arc;
 use criterion::Criterion;
 use stylet_devices::run_headless;
 use stylet_devices::script::{parse, scripted_simulation};
-use stylet_physics::motion::{BreathingSettings, BreathingSignal};
+use stylet_physics::motion::{BreathingRequest, BreathingSettings, BreathingSignal};
 use stylet_render::presets::Preset;
 use stylet_render::scene::{ClipPlane, Scene, Tagging};
 use stylet_render::views::{self, Moment, SessionLabels};
@@ -39,8 +39,8 @@ fn main() {
     // The haptic tick, still and breathing.
     let ticks = if measuring { 30_000 } else { 300 };
     for (name, breathing) in [
-        ("still", BreathingSettings::default()),
-        ("breathing", BreathingSettings::on()),
+        ("still", BreathingRequest::default()),
+        ("breathing", BreathingRequest::on()),
     ] {
         let (mut sim, input) = common::prepared(&atlas, &with_breathing(NEEDLE_IN, breathing));
         let (m, p99, p999) = common::quantiles(common::tick_times(&mut sim, &input, ticks));
@@ -52,8 +52,8 @@ fn main() {
     let script = common::needle_session_script(seconds);
     let mut base = None;
     for (name, breathing) in [
-        ("still", BreathingSettings::default()),
-        ("breathing", BreathingSettings::on()),
+        ("still", BreathingRequest::default()),
+        ("breathing", BreathingRequest::on()),
     ] {
         let file = dir.path().join(format!("{name}.mcap"));
         let s = common::replay_time_s(&atlas, &with_breathing(&script, breathing), &file);
@@ -141,7 +141,7 @@ fn end_inspiration_scene(atlas: &stylet_atlas::Atlas) -> Scene {
 }
 
 /// The script with the given breathing.
-fn with_breathing(text: &str, breathing: BreathingSettings) -> stylet_devices::script::Script {
+fn with_breathing(text: &str, breathing: BreathingRequest) -> stylet_devices::script::Script {
     let mut script = parse(text).unwrap();
     script.breathing = breathing;
     script

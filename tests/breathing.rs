@@ -793,3 +793,98 @@ fn the_radiograph_of_a_breathing_patient_moves() {
     // The same moment without breathing drew the still needle: the scene differs only by it.
     assert!(still.breathing.is_none());
 }
+
+/// Atlases carry their breathing motion (docs/breathing.md "Atlases"): `stylet atlas phantom`
+/// attaches the synthetic motion by default and `stylet atlas inspect` reports its inversion
+/// error; `--no-breathing` leaves it out and a breathing script is then refused by name; a
+/// script's `breathing on` takes the atlas' amplitude unless it gives one; a bad `[breathing]`
+/// is refused at load, naming the field.
+#[test]
+fn atlases_carry_their_breathing_motion_and_report_its_inverse() {
+    let work = tempfile::tempdir().unwrap();
+    let (with, without) = (work.path().join("with"), work.path().join("without"));
+    common::phantom_atlas(&with, "128,128,100", "3");
+    ok(&[
+        "atlas",
+        "phantom",
+        "--out",
+        s(&without),
+        "--dims",
+        "128,128,100",
+        "--spacing",
+        "3",
+        "--no-breathing",
+    ]);
+    let inspect = |dir: &Path| -> serde_json::Value {
+        serde_json::from_str(&ok(&["atlas", "inspect", s(dir), "--json"])).unwrap()
+    };
+    let b = &inspect(&with)["breathing"];
+    println!("attached: {b}");
+    assert_eq!(b["motion"], "synthetic");
+    assert_eq!(b["amplitude_mm"], 12.0);
+    let inv = &b["inversion"];
+    assert!(inv["worst_mm"].as_f64().unwrap() < 0.1, "{inv}");
+    assert!(inv["points"].as_u64().unwrap() > 1000, "{inv}");
+    assert_eq!(inv["iterations"], 8);
+    let b = &inspect(&without)["breathing"];
+    assert_eq!(b["motion"], "none");
+    assert!(b["inversion"].is_null());
+
+    let script = work.path().join("b.txt");
+    std::fs::write(
+        &script,
+        "stylet-script 1\nbreathing on\nend 1\nat 0 along intercostal-10-11 -15\nat 1 along intercostal-10-11 10\n",
+    )
+    .unwrap();
+    let run = |atlas: &Path, out: &Path| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_stylet"))
+            .args([
+                "script",
+                "run",
+                "--atlas",
+                s(atlas),
+                "--script",
+                s(&script),
+                "--out",
+                s(out),
+            ])
+            .output()
+            .unwrap()
+    };
+    let refused = run(&without, &work.path().join("none.mcap"));
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        !refused.status.success() && err.contains("no breathing motion"),
+        "{err}"
+    );
+    assert!(!work.path().join("none.mcap").exists());
+
+    // The atlas' amplitude is the session's.
+    let manifest = with.join("atlas.toml");
+    let text = std::fs::read_to_string(&manifest).unwrap();
+    std::fs::write(&manifest, text.replace("amplitude_mm = 12.0", "amplitude_mm = 20.0")).unwrap();
+    let session = work.path().join("deep.mcap");
+    assert!(run(&with, &session).status.success());
+    let header = stylet_recorder::reader::read_header(&std::fs::read(&session).unwrap()).unwrap();
+    assert!(header.breathing.enabled);
+    assert_eq!(header.breathing.motion.amplitude_mm, 20.0);
+
+    // A bad [breathing] is refused at load, by name.
+    std::fs::write(&manifest, text.replace("amplitude_mm = 12.0", "amplitude_mm = 80.0")).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stylet"))
+        .args(["atlas", "inspect", s(&with)])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("amplitude") && err.contains("80"),
+        "{err}"
+    );
+    std::fs::write(&manifest, text.replace("motion = \"synthetic\"", "motion = \"wobbly\"")).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stylet"))
+        .args(["atlas", "inspect", s(&with)])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("wobbly"), "{err}");
+}

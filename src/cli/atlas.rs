@@ -60,6 +60,10 @@ pub struct ImportArgs {
     /// Output atlas directory.
     #[arg(long)]
     pub out: PathBuf,
+    /// Leave out the breathing motion the atlas gets by default (docs/breathing.md "Atlases"):
+    /// its sessions cannot breathe.
+    #[arg(long)]
+    pub no_breathing: bool,
 }
 
 #[derive(Debug, Args)]
@@ -89,6 +93,10 @@ pub struct NewArgs {
     /// voxel (i,j,k) + offset, e.g. 0,0,82.
     #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     pub offset_voxels: Option<Vec<i64>>,
+    /// Leave out the breathing motion the atlas gets by default (docs/breathing.md "Atlases"):
+    /// its sessions cannot breathe.
+    #[arg(long)]
+    pub no_breathing: bool,
 }
 
 #[derive(Debug, Args)]
@@ -123,6 +131,10 @@ pub struct PhantomArgs {
     /// Standard deviation of the scanner's point-spread function (mm).
     #[arg(long, default_value_t = 0.7)]
     pub psf: f64,
+    /// Leave out the breathing motion the atlas gets by default (docs/breathing.md "Atlases"):
+    /// its sessions cannot breathe.
+    #[arg(long)]
+    pub no_breathing: bool,
 }
 
 #[derive(Debug, Args)]
@@ -155,14 +167,16 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
                 noise_hu: a.noise,
                 psf_mm: a.psf,
             };
-            build_phantom(&a.out, &config)?;
+            build_phantom(&a.out, &config, !a.no_breathing)?;
             sayf!("phantom atlas written to {}", a.out.display());
+            say(breathing_line(!a.no_breathing));
             Ok(())
         }
         AtlasCommand::Import(a) => {
-            let report = stylet_atlas::import::import(&a.recipe, &a.data, &a.out)?;
+            let report = stylet_atlas::import::import_with(&a.recipe, &a.data, &a.out, !a.no_breathing)?;
             sayf!("atlas '{}' written to {}", report.manifest.name, a.out.display());
             say(report.to_text().trim_end());
+            say(breathing_line(report.manifest.breathing_motion().is_some()));
             Ok(())
         }
         AtlasCommand::New(a) => {
@@ -186,6 +200,7 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
                 map: a.map,
                 offset_voxels: offset,
                 name,
+                breathing: !a.no_breathing,
             };
             let (ct_source, labels_source) = (args.ct.display().to_string(), args.labels.display().to_string());
             let mut on_step = progress();
@@ -244,6 +259,9 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
                 series.ct.data().iter().copied().fold(f32::INFINITY, f32::min),
                 series.ct.data().iter().copied().fold(f32::NEG_INFINITY, f32::max),
             ));
+            say(
+                "breathing: none attached (no organ is labelled to place the diaphragm); this patient does not breathe",
+            );
             Ok(())
         }
         AtlasCommand::Inspect(a) => {
@@ -266,9 +284,20 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
     }
 }
 
-/// Generates the phantom and writes it as an atlas directory.
-pub fn build_phantom(out: &Path, config: &PhantomConfig) -> anyhow::Result<()> {
-    let p = phantom::generate(config)?;
+/// What an atlas-writing command says about the breathing motion it attached.
+fn breathing_line(attached: bool) -> &'static str {
+    if attached {
+        "breathing: the synthetic motion is attached (`stylet atlas inspect` reports its inversion error; --no-breathing leaves it out)"
+    } else {
+        "breathing: none attached; this patient does not breathe"
+    }
+}
+
+/// Generates the phantom and writes it as an atlas directory, with the synthetic breathing
+/// motion attached when `breathing`.
+pub fn build_phantom(out: &Path, config: &PhantomConfig, breathing: bool) -> anyhow::Result<()> {
+    let mut p = phantom::generate(config)?;
+    p.manifest.breathing = Some(stylet_atlas::manifest::BreathingToml::attached(breathing));
     stylet_atlas::write(out, &p.manifest, &p.ct, &p.partial)?;
     Ok(())
 }

@@ -47,6 +47,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             seed: args.seed,
             ..Default::default()
         },
+        true,
     )?;
     let built = t0.elapsed();
     let t1 = Instant::now();

@@ -117,7 +117,7 @@ fn atlases(a: &SimArgs, data: &std::path::Path) -> anyhow::Result<Vec<PathBuf>> 
     let phantom = data.join("atlases/phantom");
     if !phantom.join("atlas.toml").exists() {
         super::say(&format!("building the phantom patient in {} (once)", phantom.display()));
-        super::atlas::build_phantom(&phantom, &stylet_atlas::phantom::PhantomConfig::default())?;
+        super::atlas::build_phantom(&phantom, &stylet_atlas::phantom::PhantomConfig::default(), true)?;
     }
     Ok(vec![phantom])
 }

@@ -52,6 +52,7 @@ fn the_abdominal_scenario_gets_a_whole_report() {
         map: None,
         offset_voxels: [0, 0, 82],
         name: "abdomen".into(),
+        breathing: true,
     };
     let made = new_atlas(&args, &out, &mut |_| {}).unwrap();
     let import = &made.import;

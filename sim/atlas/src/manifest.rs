@@ -42,6 +42,70 @@ pub struct Manifest {
     /// written before presets existed has none; renderers then use the shipped PTCD presets.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub render: Option<RenderToml>,
+    /// The breathing motion attached to the patient (docs/breathing.md "Atlases"). An atlas
+    /// written before it existed has none and breathes with the default synthetic motion.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub breathing: Option<BreathingToml>,
+}
+
+/// What moves the patient when a session breathes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MotionKind {
+    /// The synthetic motion built from the atlas' own maps (`stylet_physics::motion::synthetic`).
+    Synthetic,
+    /// None: the patient does not breathe (built with `--no-breathing`, or no organ to place
+    /// the diaphragm).
+    None,
+}
+
+/// `[breathing]`: the attached motion and, for the synthetic one, its parameters (defaults and
+/// ranges in docs/breathing.md).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BreathingToml {
+    pub motion: MotionKind,
+    pub amplitude_mm: f64,
+    pub anterior_ratio: f64,
+    pub wall_mm: f64,
+    pub bone_margin_mm: f64,
+}
+
+impl Default for BreathingToml {
+    fn default() -> Self {
+        let m = stylet_physics::motion::SyntheticMotion::default();
+        BreathingToml {
+            motion: MotionKind::Synthetic,
+            amplitude_mm: m.amplitude_mm,
+            anterior_ratio: m.anterior_ratio,
+            wall_mm: m.wall_mm,
+            bone_margin_mm: m.bone_margin_mm,
+        }
+    }
+}
+
+impl BreathingToml {
+    /// The default synthetic motion when `attached`, else none.
+    pub fn attached(attached: bool) -> Self {
+        BreathingToml {
+            motion: if attached {
+                MotionKind::Synthetic
+            } else {
+                MotionKind::None
+            },
+            ..Default::default()
+        }
+    }
+
+    /// The motion's parameters; `None` when the patient does not breathe.
+    pub fn motion(&self) -> Option<stylet_physics::motion::SyntheticMotion> {
+        (self.motion == MotionKind::Synthetic).then_some(stylet_physics::motion::SyntheticMotion {
+            amplitude_mm: self.amplitude_mm,
+            anterior_ratio: self.anterior_ratio,
+            wall_mm: self.wall_mm,
+            bone_margin_mm: self.bone_margin_mm,
+        })
+    }
 }
 
 /// A scenario (exercise) of an atlas: its name, as sessions record it, and what it asks for.
@@ -742,7 +806,14 @@ impl Manifest {
             paths: Vec::new(),
             scenarios: scenario.scenarios,
             render: scenario.render,
+            breathing: Some(BreathingToml::default()),
         }
+    }
+
+    /// The attached breathing motion: `[breathing]`'s, or the default synthetic one for an atlas
+    /// written before the section existed; `None` when the patient does not breathe.
+    pub fn breathing_motion(&self) -> Option<stylet_physics::motion::SyntheticMotion> {
+        self.breathing.unwrap_or_default().motion()
     }
 
     pub fn to_toml(&self) -> String {

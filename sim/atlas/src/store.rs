@@ -209,6 +209,7 @@ pub fn load(dir: &Path) -> Result<Atlas, AtlasError> {
     };
     let model = PunctureAtlas::new(ct, partial, labels, tree, thresholds)
         .and_then(|m| m.with_skin_layer_mm(manifest.heuristic.skin_layer_mm))
+        .and_then(|m| m.with_breathing(manifest.breathing_motion()))
         .map_err(|e| match e {
             PhysicsError::InvalidLabels(_) => AtlasError::file(&labels_path, e.to_string()),
             PhysicsError::NotFinite(_) => AtlasError::file(&ct_path, e.to_string()),

@@ -3,7 +3,7 @@
 use serde::Serialize;
 
 use crate::Atlas;
-use crate::manifest::{InsertionPath, Provenance, ThresholdsToml};
+use crate::manifest::{InsertionPath, MotionKind, Provenance, ThresholdsToml};
 
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
@@ -23,6 +23,97 @@ pub struct Summary {
     pub labels: Vec<LabelSummary>,
     pub paths: Vec<InsertionPath>,
     pub provenance: Provenance,
+    pub breathing: BreathingSummary,
+}
+
+/// The attached breathing motion and how well its inverse works (docs/breathing.md "Atlases").
+#[derive(Debug, Clone, Serialize)]
+pub struct BreathingSummary {
+    pub motion: MotionKind,
+    pub amplitude_mm: f64,
+    pub anterior_ratio: f64,
+    pub wall_mm: f64,
+    pub bone_margin_mm: f64,
+    /// The fixed point's error at the signal's deepest breath (thesis §5.4.1), when the motion
+    /// could be built.
+    pub inversion: Option<InversionSummary>,
+    /// Why the attached motion cannot be built on this atlas.
+    pub problem: Option<String>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct InversionSummary {
+    pub depth: f64,
+    pub iterations: u32,
+    pub points: usize,
+    pub sliding: usize,
+    pub worst_mm: f64,
+    pub worst_all_mm: f64,
+}
+
+/// Points of the mobility map the load-time inversion check visits at most.
+pub const INVERSION_POINTS: usize = 20_000;
+
+impl BreathingSummary {
+    /// Builds the attached motion (its mobility map) and checks its inverse at the deepest breath
+    /// of the default signal, with the views' 8 fixed-point steps.
+    pub fn of(atlas: &Atlas) -> BreathingSummary {
+        use stylet_physics::motion::{BreathingSignal, SignalParams, SyntheticField};
+        let toml = atlas.manifest.breathing.unwrap_or_default();
+        let mut out = BreathingSummary {
+            motion: toml.motion,
+            amplitude_mm: toml.amplitude_mm,
+            anterior_ratio: toml.anterior_ratio,
+            wall_mm: toml.wall_mm,
+            bone_margin_mm: toml.bone_margin_mm,
+            inversion: None,
+            problem: None,
+        };
+        let Some(motion) = atlas.model.breathing() else {
+            return out;
+        };
+        match SyntheticField::new(std::sync::Arc::clone(&atlas.model), motion) {
+            Ok(field) => {
+                let depth = BreathingSignal::new(SignalParams::default()).map_or(1.0, |s| s.max_g());
+                let c = field.inversion_check(
+                    depth,
+                    stylet_physics::deform::resample::INVERSE_ITERATIONS,
+                    INVERSION_POINTS,
+                );
+                out.inversion = Some(InversionSummary {
+                    depth: c.depth,
+                    iterations: c.iterations,
+                    points: c.points,
+                    sliding: c.sliding,
+                    worst_mm: c.worst_mm,
+                    worst_all_mm: c.worst_all_mm,
+                });
+            }
+            Err(e) => out.problem = Some(e),
+        }
+        out
+    }
+
+    fn to_text(&self) -> String {
+        if self.motion == MotionKind::None {
+            return "breathing    none: this patient does not breathe\n".into();
+        }
+        let mut out = format!(
+            "breathing    synthetic motion, amplitude {} mm (anterior share {}), body wall {} mm, bone margin {} mm\n",
+            self.amplitude_mm, self.anterior_ratio, self.wall_mm, self.bone_margin_mm
+        );
+        if let Some(i) = &self.inversion {
+            out += &format!(
+                "             inversion error at depth g = {:.2}, {} fixed-point steps: ≤ {:.2e} mm in moving tissue ({} points); \
+                 {:.1} mm with the {} points in a ramp or across the sliding interface\n",
+                i.depth, i.iterations, i.worst_mm, i.points, i.worst_all_mm, i.sliding
+            );
+        }
+        if let Some(p) = &self.problem {
+            out += &format!("             cannot be built: {p}\n");
+        }
+        out
+    }
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -86,6 +177,7 @@ impl Summary {
             labels,
             paths: atlas.manifest.paths.clone(),
             provenance: atlas.manifest.provenance.clone(),
+            breathing: BreathingSummary::of(atlas),
         }
     }
 
@@ -114,6 +206,7 @@ impl Summary {
             t.air_skin, t.skin_fat, t.fat_bone, self.thresholds_source, self.risk_depth_mm
         );
         out += &format!("source       {}\n", self.provenance.source);
+        out += &self.breathing.to_text();
         out += "labels (depth 0):\n";
         out += &format!(
             "  {:>5}  {:<34} {:<8} {:<9} {:>10} {:>10}\n",

@@ -20,6 +20,7 @@ fn args(ct: &Path, labels: &Path) -> NewAtlas {
         map: None,
         offset_voxels: [0, 0, 0],
         name: "patient".into(),
+        breathing: true,
     }
 }
 

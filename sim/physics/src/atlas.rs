@@ -28,6 +28,9 @@ pub struct PunctureAtlas {
     skin_distance: Volume<f32>,
     bone_distance: Volume<f32>,
     skin_layer_mm: f64,
+    /// The breathing motion attached to the atlas (docs/breathing.md "Atlases"); `None`: this
+    /// patient does not breathe.
+    breathing: Option<crate::motion::SyntheticMotion>,
 }
 
 impl PunctureAtlas {
@@ -101,6 +104,7 @@ impl PunctureAtlas {
             skin_distance,
             bone_distance,
             skin_layer_mm: DEFAULT_SKIN_LAYER_MM,
+            breathing: Some(Default::default()),
         })
     }
 
@@ -163,6 +167,21 @@ impl PunctureAtlas {
 
     pub fn skin_layer_mm(&self) -> f64 {
         self.skin_layer_mm
+    }
+
+    /// The atlas with `motion` attached (`None`: it does not breathe); refused out of range.
+    pub fn with_breathing(mut self, motion: Option<crate::motion::SyntheticMotion>) -> Result<Self, PhysicsError> {
+        if let Some(m) = &motion {
+            m.validate().map_err(PhysicsError::InvalidBreathing)?;
+        }
+        self.breathing = motion;
+        Ok(self)
+    }
+
+    /// The breathing motion attached to the atlas (the default synthetic motion unless the
+    /// atlas says otherwise).
+    pub fn breathing(&self) -> Option<crate::motion::SyntheticMotion> {
+        self.breathing
     }
 
     /// The label the needle tip feels: l(x, d) of eq. 6.1.2, except that unlabelled tissue within

@@ -64,4 +64,6 @@ pub enum PhysicsError {
     InvalidPropertyTree(String),
     #[error("invalid thresholds: {0}")]
     InvalidThresholds(String),
+    #[error("invalid breathing motion: {0}")]
+    InvalidBreathing(String),
 }

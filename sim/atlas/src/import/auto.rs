@@ -293,6 +293,7 @@ pub fn ptcd_recipe(
             seed: 1,
         }),
         window,
+        breathing: None,
     };
     LoadedRecipe::new(origin, recipe, scenario)
 }

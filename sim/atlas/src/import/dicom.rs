@@ -282,7 +282,9 @@ pub fn import_series(dir: &Path, out: &Path, name: &str) -> Result<Series, Atlas
             "no partial labels: every structure comes from the heuristic".into(),
         ],
     };
-    let manifest = Manifest::new(name, "CT imported from a DICOM series", provenance, scenario);
+    let mut manifest = Manifest::new(name, "CT imported from a DICOM series", provenance, scenario);
+    // No organ is labelled, so nothing places the diaphragm: this patient does not breathe.
+    manifest.breathing = Some(crate::manifest::BreathingToml::attached(false));
     crate::write(out, &manifest, &series.ct, &labels)?;
     Ok(series)
 }

@@ -272,7 +272,20 @@ pub fn read_sources(r: &LoadedRecipe, data_dir: &Path) -> Result<Sources, AtlasE
 
 /// Imports a CT and label maps from `data_dir` following the recipe, writes the atlas to `out`.
 pub fn import(recipe_path: &Path, data_dir: &Path, out: &Path) -> Result<ImportReport, AtlasError> {
-    let r: LoadedRecipe = load_recipe(recipe_path)?;
+    import_with(recipe_path, data_dir, out, true)
+}
+
+/// [`import`], attaching the synthetic breathing motion or not (`--no-breathing`).
+pub fn import_with(
+    recipe_path: &Path,
+    data_dir: &Path,
+    out: &Path,
+    breathing: bool,
+) -> Result<ImportReport, AtlasError> {
+    let mut r: LoadedRecipe = load_recipe(recipe_path)?;
+    if !breathing {
+        r.recipe.breathing = Some(crate::manifest::BreathingToml::attached(false));
+    }
     let rec = &r.recipe;
     // The small file first: a bad class table is refused before the CT is read.
     let classes = match &rec.source.classes {
@@ -364,6 +377,7 @@ pub fn build(
         ));
     }
     let mut manifest = Manifest::new(&rec.name, &rec.description, provenance, scenario);
+    manifest.breathing = Some(rec.breathing.unwrap_or_default());
 
     let mut presets = None;
     let window = match &rec.window {

@@ -37,6 +37,8 @@ pub struct NewAtlas {
     /// header, like TotalSegmentator's example); [0, 0, 0]: same grid and affine as the CT.
     pub offset_voxels: [i64; 3],
     pub name: String,
+    /// Attach the synthetic breathing motion (`--no-breathing`: false).
+    pub breathing: bool,
 }
 
 /// What `atlas new` made: the import's report, the atlas as loaded back (validated), and the
@@ -138,7 +140,8 @@ pub fn new_atlas_only(args: &NewAtlas, out: &Path, timer: &mut StepTimer) -> Res
     if present.is_empty() {
         return Err(AtlasError::file(&args.labels, "the label map labels no voxel"));
     }
-    let recipe = auto::ptcd_recipe(name, &classes, &present, &args.labels, overrides.as_ref())?;
+    let mut recipe = auto::ptcd_recipe(name, &classes, &present, &args.labels, overrides.as_ref())?;
+    recipe.recipe.breathing = Some(crate::manifest::BreathingToml::attached(args.breathing));
     notes.insert(
         0,
         format!(

@@ -37,6 +37,10 @@ pub struct Recipe {
     pub biliary: Option<Biliary>,
     #[serde(default)]
     pub window: Option<Window>,
+    /// The breathing motion to attach (docs/breathing.md "Atlases"); absent: the default
+    /// synthetic motion.
+    #[serde(default)]
+    pub breathing: Option<crate::manifest::BreathingToml>,
 }
 
 #[derive(Debug, Clone, Deserialize)]

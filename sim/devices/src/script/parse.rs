@@ -73,8 +73,8 @@ pub struct Script {
     /// The world model's tissue deformation (`deformation on|off`, default off).
     pub deformation: stylet_physics::DeformSettings,
     /// The world model's respiratory motion (`breathing on|off [amplitude MM] [period S] [seed N]`,
-    /// default off).
-    pub breathing: stylet_physics::motion::BreathingSettings,
+    /// default off); the atlas' attached motion fills in the rest when the run starts.
+    pub breathing: stylet_physics::motion::BreathingRequest,
 }
 
 /// The script language version this parser reads.
@@ -246,8 +246,8 @@ pub fn unit(v: DVec3) -> Option<DVec3> {
 }
 
 /// `breathing on|off [amplitude MM] [period S] [seed N]` (docs/breathing.md for the ranges).
-fn parse_breathing(t: &mut Tokens) -> Result<stylet_physics::motion::BreathingSettings, ParseError> {
-    let mut b = stylet_physics::motion::BreathingSettings {
+fn parse_breathing(t: &mut Tokens) -> Result<stylet_physics::motion::BreathingRequest, ParseError> {
+    let mut b = stylet_physics::motion::BreathingRequest {
         enabled: t.keyword(&["on", "off"])? == "on",
         ..Default::default()
     };
@@ -256,8 +256,13 @@ fn parse_breathing(t: &mut Tokens) -> Result<stylet_physics::motion::BreathingSe
         match k {
             "amplitude" => {
                 t.pos += 1;
-                b.motion.amplitude_mm = t.number("breathing amplitude in mm")?;
-                if b.motion.validate().is_err() {
+                let amplitude_mm = t.number("breathing amplitude in mm")?;
+                let motion = stylet_physics::motion::SyntheticMotion {
+                    amplitude_mm,
+                    ..Default::default()
+                };
+                b.amplitude_mm = Some(amplitude_mm);
+                if motion.validate().is_err() {
                     t.pos = at;
                     return Err(t.err("an amplitude of 0 … 50 mm"));
                 }
@@ -431,7 +436,7 @@ pub fn parse(text: &str) -> Result<Script, ParseError> {
         end_s: None,
         items: Vec::new(),
         deformation: stylet_physics::DeformSettings::default(),
-        breathing: stylet_physics::motion::BreathingSettings::default(),
+        breathing: stylet_physics::motion::BreathingRequest::default(),
     };
     let mut last_t = f64::NEG_INFINITY;
     for (n, raw) in text.lines().enumerate() {
@@ -615,17 +620,17 @@ mod tests {
     #[test]
     fn breathing_statements_parse_and_bad_values_are_named() {
         let s = parse("stylet-script 1\nbreathing on\nat 0 pos 0 0 0 dir 0 0 1\n").unwrap();
-        assert_eq!(s.breathing, stylet_physics::motion::BreathingSettings::on());
+        assert_eq!(s.breathing, stylet_physics::motion::BreathingRequest::on());
         let s =
             parse("stylet-script 1\nbreathing on amplitude 18 period 5 seed 42\nat 0 pos 0 0 0 dir 0 0 1\n").unwrap();
         assert!(s.breathing.enabled);
         assert_eq!(
             (
-                s.breathing.motion.amplitude_mm,
+                s.breathing.amplitude_mm,
                 s.breathing.signal.period_s,
                 s.breathing.signal.seed
             ),
-            (18.0, 5.0, 42)
+            (Some(18.0), 5.0, 42)
         );
         let s = parse("stylet-script 1\nbreathing off\nat 0 pos 0 0 0 dir 0 0 1\n").unwrap();
         assert!(!s.breathing.enabled);

@@ -29,7 +29,7 @@ pub fn scripted_simulation(
     let mut config = SimConfig::new(script.device, script.initial_tool);
     config.tick_rate_hz = script.rate_hz;
     config.deformation = script.deformation;
-    config.breathing = script.breathing;
+    config.breathing = script.breathing.resolve(&atlas).map_err(SetupError::Simulation)?;
     let sim = Simulation::new(atlas, config).map_err(SetupError::Simulation)?;
     Ok((sim, device))
 }

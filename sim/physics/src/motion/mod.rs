@@ -26,7 +26,7 @@ use glam::{DMat3, DVec3};
 pub use field::{FactoredField, GridField, SpatialField};
 pub use models::{FullCycle, HalfCycle, Surrogate};
 pub use signal::{BreathingSignal, SignalParams};
-pub use synthetic::{SyntheticField, SyntheticMotion};
+pub use synthetic::{InversionCheck, SyntheticField, SyntheticMotion};
 
 use crate::PunctureAtlas;
 
@@ -104,6 +104,49 @@ impl BreathingSettings {
             a3: None,
             signal: BreathingSignal::new(self.signal)?,
         }))
+    }
+}
+
+/// What a script or a scenario asks for: breathing on or off, the amplitude if it sets one, and
+/// the signal. The rest of the motion is the atlas' attached one
+/// ([`PunctureAtlas::breathing`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct BreathingRequest {
+    pub enabled: bool,
+    pub amplitude_mm: Option<f64>,
+    pub signal: SignalParams,
+}
+
+impl BreathingRequest {
+    /// Breathing with the atlas' motion and the default signal.
+    pub fn on() -> BreathingRequest {
+        BreathingRequest {
+            enabled: true,
+            ..Default::default()
+        }
+    }
+
+    /// The settings on `atlas`: off stays off; on needs an atlas that breathes.
+    pub fn resolve(&self, atlas: &PunctureAtlas) -> Result<BreathingSettings, String> {
+        if !self.enabled {
+            return Ok(BreathingSettings {
+                signal: self.signal,
+                ..Default::default()
+            });
+        }
+        let mut motion = atlas
+            .breathing()
+            .ok_or("breathing on: this atlas has no breathing motion (it was built with --no-breathing)")?;
+        if let Some(a) = self.amplitude_mm {
+            motion.amplitude_mm = a;
+        }
+        let settings = BreathingSettings {
+            enabled: true,
+            motion,
+            signal: self.signal,
+        };
+        settings.validate()?;
+        Ok(settings)
     }
 }
 

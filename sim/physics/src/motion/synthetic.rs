@@ -151,6 +151,79 @@ impl SyntheticField {
     }
 }
 
+/// How well the fixed point inverts a field (thesis §5.4.1): reported when an atlas' motion is
+/// loaded (docs/breathing.md "Atlases").
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InversionCheck {
+    /// The breathing depth g the field was scaled by (the deepest breath of the signal).
+    pub depth: f64,
+    /// Fixed-point steps from X = x.
+    pub iterations: u32,
+    /// Points checked: moving nodes of the mobility map whose way to their moved position lies
+    /// in fully moving tissue.
+    pub points: usize,
+    /// Moving nodes in a ramp of m or whose way crosses one (the sliding interface): there u
+    /// changes faster than the fixed point contracts, and a world point that the motion reaches
+    /// from two places rightly belongs to the still side.
+    pub sliding: usize,
+    /// The largest |X̂ − X| over the points (mm).
+    pub worst_mm: f64,
+    /// The largest |X̂ − X| over the sliding nodes too (mm).
+    pub worst_all_mm: f64,
+}
+
+impl SyntheticField {
+    /// The inversion error of g·a₁ at depth `depth` over up to `max_points` nodes of the mobility
+    /// map (evenly strided), after `iterations` steps.
+    pub fn inversion_check(&self, depth: f64, iterations: u32, max_points: usize) -> InversionCheck {
+        let grid = *self.mobility.grid();
+        let moving: Vec<usize> = (0..grid.len()).filter(|&i| self.mobility.data()[i] > 0.0).collect();
+        let stride = moving.len().div_ceil(max_points.max(1)).max(1);
+        let around = [
+            DVec3::ZERO,
+            DVec3::X,
+            DVec3::Y,
+            DVec3::Z,
+            -DVec3::X,
+            -DVec3::Y,
+            -DVec3::Z,
+        ];
+        let (inside, sliding): (Vec<DVec3>, Vec<DVec3>) = moving
+            .iter()
+            .step_by(stride)
+            .map(|&i| grid.linear_to_world(i))
+            .partition(|&x| {
+                let u = self.at(x) * depth;
+                (0..=12).all(|k| {
+                    let p = x + u * (k as f64 * 0.1);
+                    around.iter().all(|&e| self.mobility(p + e) == 1.0)
+                })
+            });
+        let worst = |points: &[DVec3]| {
+            points
+                .par_iter()
+                .map(|&x_ref| {
+                    let x_world = x_ref + self.at(x_ref) * depth;
+                    let mut x = x_world;
+                    for _ in 0..iterations {
+                        x = x_world - self.at(x) * depth;
+                    }
+                    (x - x_ref).length()
+                })
+                .reduce(|| 0.0, f64::max)
+        };
+        let worst_mm = worst(&inside);
+        InversionCheck {
+            depth,
+            iterations,
+            points: inside.len(),
+            sliding: sliding.len(),
+            worst_mm,
+            worst_all_mm: worst_mm.max(worst(&sliding)),
+        }
+    }
+}
+
 /// w at z of a piecewise-linear profile (knots ascending in z, constant beyond the ends).
 pub fn piecewise_linear(knots: &[(f64, f64)], z: f64) -> f64 {
     let (first, last) = (knots[0], knots[knots.len() - 1]);
