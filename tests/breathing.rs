@@ -534,7 +534,48 @@ fn sessions_with_breathing_replay_verified_and_score_the_hits() {
             Some(flag),
             "{name}"
         );
+        assert_eq!(r["metrics"]["breathing"]["correct_phase"], "held_end_expiration");
+        // The shipped rubric deducts it.
+        let deducted = deduction(&r, "target_reached_while_breathing");
+        println!(
+            "{name}: score {}, deducted for the phase {deducted}",
+            r["grade"]["score"]
+        );
+        assert_eq!(deducted > 0.0, flag == 1.0, "{name}: {}", r["grade"]);
     }
+    // A scenario whose correct hold is end-inspiration: the same held-at-end-expiration
+    // puncture is now outside it.
+    let inspired = work.path().join("inspired");
+    std::fs::create_dir_all(&inspired).unwrap();
+    for f in ["ct.nii.gz", "labels.nii.gz"] {
+        std::fs::copy(dir.path().join(f), inspired.join(f)).unwrap();
+    }
+    let manifest = std::fs::read_to_string(dir.path().join("atlas.toml")).unwrap();
+    let with_hold = manifest.replacen(
+        "name = \"success-intercostal\"\n",
+        "name = \"success-intercostal\"\nhold_phase = \"end_inspiration\"\n",
+        1,
+    );
+    assert_ne!(with_hold, manifest);
+    std::fs::write(inspired.join("atlas.toml"), with_hold).unwrap();
+    let text = base.replacen("end 20\n", "end 20\nbreathing on\nat 0 event breath-hold\n", 1);
+    // The session's scenario is the script's name.
+    let r = record_and_score(&inspired, work.path(), "success-intercostal", &text);
+    let b = &r["metrics"]["breathing"];
+    assert_eq!(b["correct_phase"], "held_end_inspiration", "{b}");
+    assert_eq!(b["target_reached_phase"], "held_end_expiration", "{b}");
+    assert!(deduction(&r, "target_reached_while_breathing") > 0.0, "{}", r["grade"]);
+}
+
+/// The points a score report's grade deducted for `metric` (0 when none).
+fn deduction(report: &serde_json::Value, metric: &str) -> f64 {
+    report["grade"]["deductions"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no deductions in {}", report["grade"]))
+        .iter()
+        .filter(|d| d["metric"] == metric)
+        .map(|d| d["points"].as_f64().unwrap())
+        .fold(0.0, |a, b| a + b)
 }
 
 /// The moments of a needle left in the phantom's liver (as in the Fig. 5.11 test) at the first

@@ -168,7 +168,7 @@ pub struct Metrics {
 #[serde(rename_all = "snake_case")]
 pub enum BreathPhase {
     /// Breath held at end-expiration (g ≤ 0.15 of a breath): the CT's phase, where the plan
-    /// holds — the correct hold for PTCD.
+    /// holds — the usual correct hold for PTCD.
     HeldEndExpiration,
     /// Breath held at end-inspiration (g ≥ 0.85).
     HeldEndInspiration,
@@ -190,6 +190,14 @@ impl BreathPhase {
         }
     }
 
+    /// The phase a scenario's correct hold is.
+    pub fn of_hold(hold: stylet_atlas::manifest::HoldPhase) -> BreathPhase {
+        match hold {
+            stylet_atlas::manifest::HoldPhase::EndExpiration => BreathPhase::HeldEndExpiration,
+            stylet_atlas::manifest::HoldPhase::EndInspiration => BreathPhase::HeldEndInspiration,
+        }
+    }
+
     pub fn as_str(self) -> &'static str {
         match self {
             BreathPhase::HeldEndExpiration => "breath held at end-expiration",
@@ -205,6 +213,9 @@ impl BreathPhase {
 pub struct BreathingMetrics {
     /// Where in the breathing the target was first reached (`None`: never).
     pub target_reached_phase: Option<BreathPhase>,
+    /// The scenario's correct hold (its `hold_phase`; end-expiration unless it says otherwise).
+    #[serde(default = "end_expiration")]
+    pub correct_phase: BreathPhase,
     /// The needle in the body while the patient breathed (s).
     pub needle_in_while_breathing_s: f64,
     /// How far the breathing carried the tissue at the needle's tip while the needle was in the
@@ -212,6 +223,10 @@ pub struct BreathingMetrics {
     /// position X_tip held fixed, so the needle's own motion does not count. A needle left in a
     /// breathing liver is dragged through it; a held breath adds nothing.
     pub tissue_slide_mm: f64,
+}
+
+fn end_expiration() -> BreathPhase {
+    BreathPhase::HeldEndExpiration
 }
 
 /// What the finger found (docs/metrics.md "Palpation").
@@ -1045,6 +1060,7 @@ impl<'a> MetricsCollector<'a> {
             ultrasound,
             breathing: self.breathing.map(|b| BreathingMetrics {
                 target_reached_phase: b.target_reached_phase,
+                correct_phase: BreathPhase::HeldEndExpiration,
                 needle_in_while_breathing_s: b.needle_in_breathing_ticks as f64 / rate,
                 tissue_slide_mm: b.tissue_slide_mm,
             }),

@@ -194,12 +194,13 @@ pub fn metric_value(m: &Metrics, name: &str) -> Option<f64> {
         "guided_entry_distance_mm" => m.guided.as_ref().map_or(0.0, |g| g.entry_distance_mm),
         "guided_angle_error_deg" => m.guided.as_ref().map_or(0.0, |g| g.angle_error_deg),
         "guided_mean_deviation_mm" => m.guided.as_ref().map_or(0.0, |g| g.mean_deviation_mm),
-        // Breathing (0 when the patient did not breathe): the target reached in any phase but a
-        // breath held at end-expiration, and the tissue the breathing carried past the needle.
-        "target_reached_while_breathing" => flag(m.breathing.as_ref().is_some_and(|b| {
-            b.target_reached_phase
-                .is_some_and(|p| p != crate::metrics::BreathPhase::HeldEndExpiration)
-        })),
+        // Breathing (0 when the patient did not breathe): the target reached in any phase but the
+        // scenario's correct hold, and the tissue the breathing carried past the needle.
+        "target_reached_while_breathing" => flag(
+            m.breathing
+                .as_ref()
+                .is_some_and(|b| b.target_reached_phase.is_some_and(|p| p != b.correct_phase)),
+        ),
         "breathing_tissue_slide_mm" => m.breathing.as_ref().map_or(0.0, |b| b.tissue_slide_mm),
         // Palpation (0 when the finger never touched the skin).
         "intercostal_spaces_found" => m.palpation.as_ref().map_or(0.0, |p| p.spaces_found as f64),
@@ -624,7 +625,7 @@ mod tests {
     #[test]
     fn the_shipped_rubric_grades_the_worked_example() {
         let r = Rubric::default_rubric();
-        assert_eq!((r.name.as_str(), r.version), ("ptcd", 4));
+        assert_eq!((r.name.as_str(), r.version), ("ptcd", 5));
         let g = r.grade(&metrics(), Exercise::Puncture, "beginner").unwrap();
         // attempts 2 (1 free) −10, redirections 3 (2 free) −3, fluoro 40 s (30 free) −5,
         // no palpation first −5: 100 − 23.
@@ -721,7 +722,7 @@ mod tests {
     fn bad_rubrics_are_named() {
         let base = DEFAULT_RUBRIC;
         let cases = [
-            (base.replace("version = 4", "version = 0"), "version"),
+            (base.replace("version = 5", "version = 0"), "version"),
             (
                 base.replace("[levels.expert]", "[levels.master]"),
                 "lacks level 'expert'",

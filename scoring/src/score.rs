@@ -141,6 +141,8 @@ pub struct Scorer {
     consequences: std::collections::BTreeMap<stylet_physics::LabelId, String>,
     /// Dose-area product per second of fluoroscopy of each declared scenario's C-arm.
     dose_area_rates: std::collections::BTreeMap<String, f64>,
+    /// The correct breath hold of each declared scenario (undeclared: end-expiration).
+    hold_phases: std::collections::BTreeMap<String, stylet_atlas::manifest::HoldPhase>,
 }
 
 impl Scorer {
@@ -182,6 +184,12 @@ impl Scorer {
                         s.c_arm.unwrap_or_default().dose_area_rate_gy_cm2_per_s(),
                     )
                 })
+                .collect(),
+            hold_phases: atlas
+                .manifest
+                .scenarios
+                .iter()
+                .map(|s| (s.name.clone(), s.hold_phase))
                 .collect(),
         })
     }
@@ -295,6 +303,10 @@ impl Scorer {
             .copied()
             .unwrap_or_else(|| stylet_atlas::manifest::CArmToml::default().dose_area_rate_gy_cm2_per_s());
         metrics.dose_area_product_gy_cm2 = metrics.fluoro_time_s * rate;
+        if let Some(b) = &mut metrics.breathing {
+            let hold = self.hold_phases.get(&h.scenario).copied().unwrap_or_default();
+            b.correct_phase = crate::metrics::BreathPhase::of_hold(hold);
+        }
         let grade = self
             .rubric
             .grade_against(

@@ -123,6 +123,27 @@ pub struct ScenarioToml {
     /// posterior-anterior beam centred on the first planned path's target.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub c_arm: Option<CArmToml>,
+    /// The breath hold the puncture should be made in when the patient breathes
+    /// (docs/breathing.md "Scoring"); absent: end-expiration, the CT's phase.
+    #[serde(default, skip_serializing_if = "HoldPhase::is_end_expiration")]
+    pub hold_phase: HoldPhase,
+}
+
+/// The correct breath hold of a scenario.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HoldPhase {
+    /// The CT's phase, where the plan holds: the usual hold for PTCD.
+    #[default]
+    EndExpiration,
+    /// A deep breath in: lowers the liver below the lung's base for a high target.
+    EndInspiration,
+}
+
+impl HoldPhase {
+    fn is_end_expiration(&self) -> bool {
+        *self == HoldPhase::EndExpiration
+    }
 }
 
 /// `[scenarios.c_arm]`: the C-arm's cone-beam geometry and the X-ray display window. Every
