@@ -57,6 +57,7 @@ fn main() {
         doppler: None,
         guide_mm: None,
         outline_target: true,
+        breathing: None,
     };
     // The needle along the planned path, 80 % of the way in.
     let (e, tg) = (path.entry_mm.as_vec3(), path.target_mm.as_vec3());

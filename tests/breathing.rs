@@ -929,3 +929,54 @@ fn atlases_carry_their_breathing_motion_and_report_its_inverse() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("wobbly"), "{err}");
 }
+
+/// The ultrasound of a breathing moment (docs/breathing.md "Views"): each sample reads the
+/// tissue at its reference point, so at g = 0 it is the still image bit for bit, and at
+/// end-inspiration the liver has moved under the probe (the probe and the needle stay in the
+/// world).
+#[test]
+fn the_ultrasound_of_a_breathing_patient_moves() {
+    use stylet_render::ultrasound::{EchoTable, render};
+    use stylet_render::views;
+    let atlas = &phantom().1;
+    let [ei, _, still] = moments(atlas);
+    let echo = Arc::new(EchoTable::of_atlas(atlas));
+    let scene = |m: &views::Moment| {
+        views::ultrasound_scene(
+            atlas,
+            Some(m),
+            Some(stylet_physics::ProbeKind::Convex),
+            "beginner",
+            Arc::clone(&echo),
+            None,
+        )
+        .unwrap()
+    };
+    let (s_ei, s_still) = (scene(&ei), scene(&still));
+    assert!(s_ei.breathing.is_some() && s_still.breathing.is_none());
+    let plain = render(&atlas.model, &s_still).unwrap();
+    let at_zero = stylet_render::ultrasound::UltrasoundScene {
+        breathing: Some(stylet_render::scene::MotionHook {
+            model: Arc::clone(&ei.breathing.as_ref().unwrap().model),
+            t_s: 0.0,
+        }),
+        ..s_still.clone()
+    };
+    assert_eq!(
+        render(&atlas.model, &at_zero).unwrap().bmode,
+        plain.bmode,
+        "g = 0 is the still image"
+    );
+    let moving = render(&atlas.model, &s_ei).unwrap();
+    let changed = moving
+        .bmode
+        .iter()
+        .zip(&plain.bmode)
+        .filter(|(a, b)| (*a - *b).abs() > 0.05)
+        .count();
+    println!(
+        "end-inspiration: {changed} of {} samples changed by more than 0.05",
+        plain.bmode.len()
+    );
+    assert!(changed * 20 > plain.bmode.len(), "only {changed} samples changed");
+}

@@ -4,7 +4,9 @@
 // attenuation / scatter from the frame tables, reflection and transmission, coupling gel, the
 // tissue's speckle by the same 32-bit hash), the needle's echo, shadow and comet tail at the
 // sample the host found, Doppler colour over vessels from the dense flow-axis grid, then time-gain
-// compensation. The CT declaration and `ct_voxel` are prepended by the host. Output per sample:
+// compensation. A breathing patient: each sample reads the CT, the labels, the speckle and the
+// flow at its reference point (motion.wgsl's `reference_of` along the line). The CT declaration
+// and `ct_voxel` are prepended by the host. Output per sample:
 // the envelope and the colour | flags << 24; the host compresses and scan-converts.
 
 // Mirrored by `UsParams` in ultrasound.rs.
@@ -143,9 +145,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var in_gel = true;
     var ring = 0.0;
     var rang = false;
+    var warp = no_warp();
+    let moving = breathing();
     for (var j = 0u; j < samples; j++) {
         let depth = (f32(j) + 0.5) * dz;
-        let x = origin + dir * depth;
+        var x = origin + dir * depth;
+        if moving {
+            x = reference_of(&warp, x);
+        }
         let p = x - P.origin.xyz;
         let c = vec3<f32>(dot(P.row0.xyz, p), dot(P.row1.xyz, p), dot(P.row2.xyz, p));
         let hu = sample_ct(c);

@@ -19,7 +19,7 @@ use stylet_render::scene::MotionHook;
 use stylet_render::volume::IndexMap;
 
 use crate::motion::GpuMotion;
-use crate::pipeline::{Pipelines, dispatch_entries, numbered, uniform_buffer};
+use crate::pipeline::{Pipelines, dispatch, numbered, uniform_buffer};
 use crate::raycast::ct_prelude;
 use crate::volume::GpuVolume;
 use crate::{GpuContext, GpuError};
@@ -191,7 +191,7 @@ impl GpuMpr {
             field_buffer.as_entire_binding(),
         ]);
         entries.extend(self.motion.entries());
-        dispatch_entries(ctx, &pipeline, &entries, (w.div_ceil(8), h.div_ceil(8)), None);
+        dispatch(ctx, &pipeline, &entries, (w.div_ceil(8), h.div_ceil(8)), None);
         let bytes = ctx.read_buffer(&output, out_bytes)?;
         let words: &[u32] = bytemuck::cast_slice(&bytes);
         let rgb = words.chunks_exact(2).map(|p| {

@@ -45,18 +45,6 @@ impl Pipelines {
     }
 }
 
-/// Binds `resources` at bindings 0, 1, 2, … of group 0 and runs `groups` (x, y) workgroups,
-/// with the pass timed by `timer` when given.
-pub(crate) fn dispatch(
-    ctx: &GpuContext,
-    pipeline: &wgpu::ComputePipeline,
-    resources: &[wgpu::BindingResource],
-    groups: (u32, u32),
-    timer: Option<&PassTimer>,
-) {
-    dispatch_entries(ctx, pipeline, &numbered(resources.iter().cloned()), groups, timer);
-}
-
 /// `resources` at bindings 0, 1, 2, …
 pub(crate) fn numbered<'a>(
     resources: impl IntoIterator<Item = wgpu::BindingResource<'a>>,
@@ -71,8 +59,9 @@ pub(crate) fn numbered<'a>(
         .collect()
 }
 
-/// [`dispatch`] with the binding numbers given (a shader whose bindings have gaps).
-pub(crate) fn dispatch_entries(
+/// Binds `entries` in group 0 ([`numbered`] for bindings 0, 1, 2, …; the breathing motion adds
+/// 20 and 21) and runs `groups` (x, y) workgroups, with the pass timed by `timer` when given.
+pub(crate) fn dispatch(
     ctx: &GpuContext,
     pipeline: &wgpu::ComputePipeline,
     entries: &[wgpu::BindGroupEntry],

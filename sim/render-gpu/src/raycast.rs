@@ -18,7 +18,7 @@ use stylet_render::transfer_table::TransferTable;
 use stylet_render::volume::IndexMap;
 
 use crate::motion::{GpuMotion, index_margin};
-use crate::pipeline::{Pipelines, dispatch_entries, numbered, uniform_buffer, v4};
+use crate::pipeline::{Pipelines, dispatch, numbered, uniform_buffer, v4};
 use crate::timer::PassTimer;
 use crate::volume::{CtFormat, GpuVolume, storage, texture_3d};
 use crate::{GpuContext, GpuError};
@@ -349,7 +349,7 @@ impl GpuRenderer {
         // Bindings 0–8, the records at 9 (and their sampler at 10), the motion at 20 and 21.
         let mut entries = numbered(resources);
         entries.extend(self.motion.entries());
-        dispatch_entries(ctx, &pipeline, &entries, groups, self.timer.as_ref());
+        dispatch(ctx, &pipeline, &entries, groups, self.timer.as_ref());
         let bytes = ctx.read_buffer(&output, out_bytes)?;
         self.last_pass_ms = self.timer.as_ref().and_then(|t| t.read_ms(ctx));
         let rgba = bytes.chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]).collect();

@@ -18,13 +18,15 @@ use stylet_render::ultrasound::{
 };
 use stylet_render::volume::IndexMap;
 
-use crate::pipeline::{Pipelines, dispatch, uniform_buffer, v4};
+use crate::motion::GpuMotion;
+use crate::pipeline::{Pipelines, dispatch, numbered, uniform_buffer, v4};
 use crate::raycast::ct_prelude;
 use crate::volume::{GpuVolume, storage};
 use crate::{GpuContext, GpuError};
 
-/// The shader after the shared CT sampler.
+/// The shader after the shared breathing motion and CT sampler.
 const SHADER: &str = concat!(
+    include_str!("../shaders/motion.wgsl"),
     include_str!("../shaders/ct_sample.wgsl"),
     include_str!("../shaders/ultrasound.wgsl")
 );
@@ -67,6 +69,7 @@ pub struct GpuUltrasound {
     pipelines: Pipelines,
     params: wgpu::Buffer,
     flow: Option<UploadedFlow>,
+    motion: GpuMotion,
 }
 
 impl GpuUltrasound {
@@ -75,6 +78,7 @@ impl GpuUltrasound {
             pipelines: Pipelines::new("ultrasound.wgsl", SHADER),
             params: uniform_buffer(ctx, "ultrasound params", std::mem::size_of::<UsParams>()),
             flow: None,
+            motion: GpuMotion::new(ctx),
         }
     }
 
@@ -175,24 +179,21 @@ impl GpuUltrasound {
         };
         let (env, col) = (out("ultrasound envelope"), out("ultrasound colour"));
         let pipeline = self.pipelines.get(ctx, ct_prelude(vol.ct_key()));
-        dispatch(
-            ctx,
-            &pipeline,
-            &[
-                self.params.as_entire_binding(),
-                vol.ct_binding(),
-                wgpu::BindingResource::TextureView(&vol.partial_view),
-                classes.as_entire_binding(),
-                lut.as_entire_binding(),
-                tgc.as_entire_binding(),
-                hits.as_entire_binding(),
-                flow.as_entire_binding(),
-                env.as_entire_binding(),
-                col.as_entire_binding(),
-            ],
-            (s.lines.div_ceil(64), 1),
-            None,
-        );
+        self.motion.prepare(ctx, scene.breathing.as_ref())?;
+        let mut entries = numbered([
+            self.params.as_entire_binding(),
+            vol.ct_binding(),
+            wgpu::BindingResource::TextureView(&vol.partial_view),
+            classes.as_entire_binding(),
+            lut.as_entire_binding(),
+            tgc.as_entire_binding(),
+            hits.as_entire_binding(),
+            flow.as_entire_binding(),
+            env.as_entire_binding(),
+            col.as_entire_binding(),
+        ]);
+        entries.extend(self.motion.entries());
+        dispatch(ctx, &pipeline, &entries, (s.lines.div_ceil(64), 1), None);
         let envelope: Vec<f32> = bytemuck::cast_slice(&ctx.read_buffer(&env, n * 4)?).to_vec();
         let packed: Vec<u32> = bytemuck::cast_slice(&ctx.read_buffer(&col, n * 4)?).to_vec();
         let colour = packed

@@ -13,7 +13,7 @@ use stylet_render::xray::needle::resolved_radius_and_mu;
 use stylet_render::xray::{MAX_SIDE_PX, Radiograph, XrayScene, check_scene_fits};
 
 use crate::motion::GpuMotion;
-use crate::pipeline::{Pipelines, dispatch_entries, numbered, uniform_buffer, v4};
+use crate::pipeline::{Pipelines, dispatch, numbered, uniform_buffer, v4};
 use crate::raycast::ct_prelude;
 use crate::volume::{GpuVolume, storage};
 use crate::{GpuContext, GpuError};
@@ -164,7 +164,7 @@ impl GpuXray {
             output.as_entire_binding(),
         ]);
         entries.extend(self.motion.entries());
-        dispatch_entries(ctx, &pipeline, &entries, (width.div_ceil(8), height.div_ceil(8)), None);
+        dispatch(ctx, &pipeline, &entries, (width.div_ceil(8), height.div_ceil(8)), None);
         let bytes = ctx.read_buffer(&output, out_bytes)?;
         Ok(Radiograph {
             width,

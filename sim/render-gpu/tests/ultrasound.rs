@@ -85,6 +85,7 @@ fn scene(both: &Both) -> UltrasoundScene {
         doppler: Some(flow),
         guide_mm: None,
         outline_target: true,
+        breathing: None,
     }
 }
 
@@ -137,6 +138,7 @@ fn gpu_ultrasound_matches_the_cpu_on_the_phantom() {
         doppler: Some(flow),
         guide_mm: None,
         outline_target: false,
+        breathing: None,
     };
     let cpu = render(atlas, &s).unwrap();
     let mut us = GpuUltrasound::new(ctx());
@@ -144,6 +146,28 @@ fn gpu_ultrasound_matches_the_cpu_on_the_phantom() {
     let gpu = us.render(ctx(), &both.gpu, &s).unwrap();
     eprintln!("phantom 256 × 512 on {}: {:?}", ctx().adapter().name, t.elapsed());
     assert_agree("phantom", &cpu, &gpu);
+
+    // The breathing phantom at its deepest breath: each sample read at its reference point, on
+    // both renderers; the liver has moved under the probe.
+    let (hook, g) = breathing_hook(both);
+    let moving = UltrasoundScene {
+        breathing: Some(hook),
+        ..s.clone()
+    };
+    let cpu_moving = render(atlas, &moving).unwrap();
+    let gpu_moving = us.render(ctx(), &both.gpu, &moving).unwrap();
+    assert_agree(&format!("phantom breathing (g = {g:.3})"), &cpu_moving, &gpu_moving);
+    let changed = cpu_moving
+        .bmode
+        .iter()
+        .zip(&cpu.bmode)
+        .filter(|(a, b)| (*a - *b).abs() > 0.05)
+        .count();
+    eprintln!(
+        "breathing changed {changed} of {} samples by more than 0.05",
+        cpu.bmode.len()
+    );
+    assert!(changed * 10 > cpu.bmode.len(), "only {changed} samples changed");
 }
 
 #[test]

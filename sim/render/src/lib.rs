@@ -27,6 +27,7 @@ pub mod transfer_table;
 pub mod ultrasound;
 pub mod views;
 pub mod volume;
+pub mod warp;
 pub mod xray;
 
 /// Rendering failures (file output, font set-up).

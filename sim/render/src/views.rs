@@ -395,5 +395,6 @@ pub fn ultrasound_scene(
         doppler,
         guide_mm: guide_mm.flatten(),
         outline_target: aids.target_overlay,
+        breathing: moment.and_then(|m| m.breathing.clone()),
     })
 }

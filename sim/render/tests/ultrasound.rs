@@ -41,6 +41,7 @@ fn scene(position: Vec3, lines: u32, echo: EchoTable) -> UltrasoundScene {
         doppler: None,
         guide_mm: None,
         outline_target: false,
+        breathing: None,
     }
 }
 

@@ -16,6 +16,7 @@ use crate::tools::{Primitive, nearest_hit, shade};
 use crate::transfer::TransferFunction;
 use crate::transfer_table::TransferTable;
 use crate::volume::RenderVolume;
+use crate::warp::Warp;
 
 /// Everything a ray reads that is the same for every pixel of a frame.
 pub struct Frame<'a> {
@@ -139,26 +140,6 @@ impl Accum {
     fn add_premultiplied(&mut self, alpha_rgb: Vec3, alpha: f32) {
         self.c += (1.0 - self.a) * alpha_rgb;
         self.a += (1.0 - self.a) * alpha;
-    }
-}
-
-/// Motion warp of eqs. 5.4.1–5.4.2 along one ray: X⁺ = x⁺ − u(X + d, t), d = x⁺ − x.
-struct Warp<'a> {
-    /// u(·, t) at the frame's moment.
-    u: &'a (dyn Fn(DVec3) -> DVec3 + Send + Sync),
-    prev: Option<(Vec3, Vec3)>,
-}
-
-impl Warp<'_> {
-    /// Reference position X of world sample `x`: continues the fixed point from the previous
-    /// sample of this ray, or starts it at X = x.
-    fn reference_of(&mut self, x: Vec3) -> Vec3 {
-        let (x_prev, big_x_prev) = self.prev.unwrap_or((x, x));
-        let d = x - x_prev;
-        let u = (self.u)((big_x_prev + d).as_dvec3());
-        let big_x = (x.as_dvec3() - u).as_vec3();
-        self.prev = Some((x, big_x));
-        big_x
     }
 }
 
@@ -393,7 +374,7 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
         }
     }
 
-    let mut warp = f.motion_at.as_deref().map(|u| Warp { u, prev: None });
+    let mut warp = f.motion_at.as_deref().map(Warp::new);
     // The plane sample: no shading, no shadow, opacity as is.
     if let Some(tc) = plane_t
         && tc < t_tool
@@ -413,7 +394,7 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
             acc.add(Vec3::new(v[0], v[1], v[2]), v[3].min(1.0));
         }
         if let Some(w) = warp.as_mut() {
-            w.prev = None;
+            w.restart();
         }
     }
 

@@ -8,7 +8,10 @@
 //! ([`needle`]). Time-gain compensation, log compression to the dynamic range, then scan
 //! conversion to the fan with the training aids ([`display`]); Doppler colour over veins and
 //! arteries ([`doppler`]). The CPU reference: rayon over scan lines, every line a pure function
-//! of the inputs, so the image is bit-identical on any number of threads.
+//! of the inputs, so the image is bit-identical on any number of threads. A breathing patient
+//! (`UltrasoundScene::breathing`): each sample reads the CT, the labels, the speckle and the flow
+//! at its reference point, found along the scan line as the ray caster finds it ([`crate::warp`]);
+//! the probe, the needle and the aids are in the world.
 
 pub mod acoustic;
 pub mod display;
@@ -132,6 +135,8 @@ pub struct UltrasoundScene {
     /// projected into the image) and the target's outline.
     pub guide_mm: Option<[Vec3; 2]>,
     pub outline_target: bool,
+    /// The breathing motion at the frame's moment (eqs. 5.4.1–5.4.2); `None`: a still patient.
+    pub breathing: Option<crate::scene::MotionHook>,
 }
 
 /// Per-sample flags of a [`Sonogram`].
@@ -144,7 +149,8 @@ pub fn render(atlas: &PunctureAtlas, scene: &UltrasoundScene) -> Result<Sonogram
     let s = scene.settings;
     let p = &scene.probe;
     let geometry = ScanGeometry::new(p, s.lines, s.samples, s.depth_mm);
-    let frame = Frame::new(atlas, scene, geometry);
+    let u_at = scene.breathing.as_ref().map(|b| b.model.at_time(b.t_s));
+    let frame = Frame::new(atlas, scene, geometry, u_at.as_deref());
     let n = s.samples as usize;
     let mut envelope = vec![0.0f32; s.lines as usize * n];
     let mut colour = vec![[0u8; 3]; s.lines as usize * n];
@@ -272,10 +278,17 @@ struct Frame<'a> {
     /// Blood speed per vessel kind now (m/s).
     vein_m_s: f32,
     artery_m_s: f32,
+    /// u(·, t) of a breathing patient.
+    u_at: Option<&'a (dyn Fn(stylet_physics::glam::DVec3) -> stylet_physics::glam::DVec3 + Send + Sync)>,
 }
 
 impl<'a> Frame<'a> {
-    fn new(atlas: &'a PunctureAtlas, scene: &'a UltrasoundScene, geometry: ScanGeometry) -> Frame<'a> {
+    fn new(
+        atlas: &'a PunctureAtlas,
+        scene: &'a UltrasoundScene,
+        geometry: ScanGeometry,
+        u_at: Option<&'a (dyn Fn(stylet_physics::glam::DVec3) -> stylet_physics::glam::DVec3 + Send + Sync)>,
+    ) -> Frame<'a> {
         let ct = atlas.ct();
         let dims = IndexMap::of(ct.grid()).dims;
         Frame {
@@ -289,6 +302,7 @@ impl<'a> Frame<'a> {
             speckle_seed: speckle::lattice_seed(scene.seed),
             vein_m_s: doppler::speed_m_s(doppler::pressure_pa(EchoClass::Vein, scene.time_s)),
             artery_m_s: doppler::speed_m_s(doppler::pressure_pa(EchoClass::Artery, scene.time_s)),
+            u_at,
         }
     }
 
@@ -303,9 +317,14 @@ impl<'a> Frame<'a> {
         let mut z_prev = GEL_MRAYL;
         let mut ring: Option<(f32, f32)> = None;
         let mut in_gel = true;
+        let mut warp = self.u_at.map(crate::warp::Warp::new);
         for j in 0..bmode.len() {
             let depth_mm = (j as f32 + 0.5) * dz;
-            let x = origin + dir * depth_mm;
+            // The tissue seen: the world point, or its reference point in a breathing patient.
+            let x = match warp.as_mut() {
+                Some(w) => w.reference_of(origin + dir * depth_mm),
+                None => origin + dir * depth_mm,
+            };
             let c = self.map.point(x);
             let hu = self.grid.trilinear(c).unwrap_or(AIR_HU);
             let label = nearest_voxel(c, self.map.dims).map_or(0, |v| self.labels[v]);

@@ -148,15 +148,11 @@ pub fn integrate_warped(
     let c0 = ray.start.to_array();
     let inv = 1.0 / d[a];
     let mut sum = 0.0f32;
-    let mut prev: Option<(Vec3, Vec3)> = None;
+    let mut warp = crate::warp::Warp::new(u);
     for step in 0..(k_last - k_first + 1).max(0) {
         let k = if d[a] > 0.0 { k_first + step } else { k_last - step };
         let t = (k as f32 - c0[a]) * inv;
-        let x = origin_mm + dir * t;
-        let (x_prev, big_x_prev) = prev.unwrap_or((x, x));
-        let big_x = (x.as_dvec3() - u((big_x_prev + (x - x_prev)).as_dvec3())).as_vec3();
-        prev = Some((x, big_x));
-        sum += mu(map.point(big_x));
+        sum += mu(map.point(warp.reference_of(origin_mm + dir * t)));
     }
     sum * inv.abs()
 }
