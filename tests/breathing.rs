@@ -179,7 +179,7 @@ fn the_inverse_of_smooth_fields_misses_by_less_than_a_tenth_of_a_millimetre() {
         a1: Arc::new(GridField::sample(grid, wave)),
         a2: None,
         a3: None,
-        signal: BreathingSignal::new(SignalParams::default()).unwrap(),
+        signal: BreathingSignal::new(SignalParams::default()).unwrap().into(),
     };
     let points: Vec<DVec3> = (0..2000)
         .map(|i| {
@@ -979,4 +979,118 @@ fn the_ultrasound_of_a_breathing_patient_moves() {
         plain.bmode.len()
     );
     assert!(changed * 20 > plain.bmode.len(), "only {changed} samples changed");
+}
+
+/// Measured motion (docs/breathing.md "Measured motion"): a displacement field written in
+/// ITK's convention and a surrogate signal CSV are attached to an atlas, checked and pinned by
+/// its content hash; a breathing session then moves with them and replays verified; bad files are
+/// refused by name and leave the atlas as it was.
+#[test]
+fn measured_fields_and_a_surrogate_signal_drive_a_session() {
+    use stylet_atlas::nifti_io::write_displacement_field;
+    let work = tempfile::tempdir().unwrap();
+    let atlas_dir = work.path().join("atlas");
+    common::phantom_atlas(&atlas_dir, "128,128,100", "3");
+    let atlas = stylet_atlas::load(&atlas_dir).unwrap();
+    let hash_before = atlas.content_hash.clone();
+    let manifest_before = std::fs::read_to_string(atlas_dir.join("atlas.toml")).unwrap();
+    // A smooth field around the liver: 10 mm caudal and 3 mm anterior at its centre.
+    let liver = voxels_with_role(&atlas.model, Role::Organ, 7);
+    let centre = liver.iter().fold(DVec3::ZERO, |a, &x| a + x) / liver.len() as f64;
+    let grid = Grid::new(
+        [48, 48, 40],
+        stylet_physics::Affine::from_spacing([8.0; 3], atlas.model.ct().grid().world_bounds().0),
+    )
+    .unwrap();
+    let u = move |x: DVec3| DVec3::new(0.0, 3.0, -10.0) * (-(x - centre).length_squared() / (2.0 * 60.0 * 60.0)).exp();
+    let field = GridField::sample(grid, u);
+    let a1 = work.path().join("a1.nii.gz");
+    write_displacement_field(&a1, &field, "test a1").unwrap();
+    // A 5 s breath sampled at 10 Hz for 20 s.
+    let signal = work.path().join("signal.csv");
+    let mut csv = String::from("time_s,g\n");
+    for k in 0..=200 {
+        let t = k as f64 * 0.1;
+        csv += &format!("{t:.1},{:.6}\n", (std::f64::consts::PI * t / 5.0).sin().powi(2));
+    }
+    std::fs::write(&signal, &csv).unwrap();
+
+    // Bad files first: each refused by name, the atlas unchanged.
+    let attach = |args: &[&str]| {
+        let mut all = vec!["atlas", "attach-motion", s(&atlas_dir)];
+        all.extend_from_slice(args);
+        std::process::Command::new(env!("CARGO_BIN_EXE_stylet"))
+            .args(&all)
+            .output()
+            .unwrap()
+    };
+    let ct = atlas_dir.join("ct.nii.gz");
+    let bad_csv = work.path().join("bad.csv");
+    std::fs::write(&bad_csv, "time_s,g\n0,0\n1,0.5\n1,0.7\n").unwrap();
+    for (args, want) in [
+        (vec!["--a1", s(&ct)], "(x, y, z, 1, 3)"),
+        (vec!["--a1", s(&a1), "--signal", s(&bad_csv)], "does not follow"),
+        (vec!["--a1", s(&work.path().join("missing.nii.gz"))], "missing.nii.gz"),
+    ] {
+        let out = attach(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(want), "{args:?}: {err}");
+        assert_eq!(
+            std::fs::read_to_string(atlas_dir.join("atlas.toml")).unwrap(),
+            manifest_before
+        );
+    }
+
+    let out = attach(&["--a1", s(&a1), "--signal", s(&signal)]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let summary: serde_json::Value = serde_json::from_str(&ok(&["atlas", "inspect", s(&atlas_dir), "--json"])).unwrap();
+    let b = &summary["breathing"];
+    println!("measured: {b}");
+    assert_eq!(b["motion"], "measured");
+    assert_eq!(b["files"], serde_json::json!(["motion/a1.nii.gz", "motion/signal.csv"]));
+    assert!(b["inversion"]["worst_mm"].as_f64().unwrap() < 0.1, "{b}");
+    assert_ne!(
+        summary["content_hash"],
+        hash_before.as_str(),
+        "the fields are part of the atlas"
+    );
+
+    // A session breathes with them and replays verified; an amplitude of its own is refused.
+    let measured = stylet_atlas::load(&atlas_dir).unwrap();
+    let model = BreathingSettings {
+        enabled: true,
+        measured: true,
+        ..Default::default()
+    }
+    .build(&measured.model)
+    .unwrap();
+    // At t = 2.5 s the signal is at its peak (g = 1): the liver's centre moved by the field
+    // (trilinear on its 8 mm grid).
+    let moved = model.displacement(centre, 2.5);
+    assert!((moved - u(centre)).length() < 0.2, "{moved} against {}", u(centre));
+    assert_eq!(model.displacement(centre, 0.0), DVec3::ZERO);
+    let text =
+        "stylet-script 1\nbreathing on\nend 6\nat 0 along intercostal-10-11 -15\nat 5 along intercostal-10-11 60\n";
+    let r = record_and_score(&atlas_dir, work.path(), "measured", text);
+    assert!(r["metrics"]["breathing"].is_object(), "{}", r["metrics"]);
+    let header =
+        stylet_recorder::reader::read_header(&std::fs::read(work.path().join("measured.mcap")).unwrap()).unwrap();
+    assert!(header.breathing.enabled && header.breathing.measured);
+    let script = work.path().join("amp.txt");
+    std::fs::write(&script, text.replace("breathing on", "breathing on amplitude 20")).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stylet"))
+        .args([
+            "script",
+            "run",
+            "--atlas",
+            s(&atlas_dir),
+            "--script",
+            s(&script),
+            "--out",
+            s(&work.path().join("amp.mcap")),
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("measured"), "{err}");
 }

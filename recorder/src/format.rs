@@ -534,7 +534,12 @@ mod world {
 
     pub fn put_breathing(b: &BreathingSettings, put: &mut impl FnMut(&str, String)) {
         put(&format!("{B}enabled"), u64::from(b.enabled).to_string());
-        put(&format!("{B}model"), "synthetic".into());
+        // The synthetic motion's parameters are written either way (unused with measured fields,
+        // which the atlas' content hash pins).
+        put(
+            &format!("{B}model"),
+            if b.measured { "measured" } else { "synthetic" }.into(),
+        );
         put(&format!("{B}power"), b.signal.power.to_string());
         put(&format!("{B}seed"), b.signal.seed.to_string());
         let mut real = |k: &str, v: f64| put(&format!("{B}{k}_bits"), format!("{:016x}", v.to_bits()));
@@ -554,10 +559,11 @@ mod world {
             return Ok(BreathingSettings::default());
         }
         let keys = WorldKeys { prefix: B, map: m };
-        match keys.get("model")?.as_str() {
-            "synthetic" => {}
+        let measured = match keys.get("model")?.as_str() {
+            "synthetic" => false,
+            "measured" => true,
             other => return Err(format!("session header '{B}model' '{other}' is unknown")),
-        }
+        };
         let enabled = match keys.int("enabled")? {
             0 => false,
             1 => true,
@@ -582,6 +588,7 @@ mod world {
                 power: keys.int("power")?,
                 seed,
             },
+            measured,
         };
         b.validate().map_err(|e| format!("session header breathing: {e}"))?;
         Ok(b)

@@ -22,6 +22,11 @@ pub enum AtlasCommand {
     New(NewArgs),
     /// Print an atlas' summary; optionally write JSON or a PNG of three orthogonal slices.
     Inspect(InspectArgs),
+    /// Attach measured breathing motion to an atlas: displacement fields of the surrogate model
+    /// (NIfTI vector images as ITK and ANTs write them) and the surrogate signal (CSV
+    /// `time_s,g`); checked, copied into the atlas' `motion/` folder (docs/breathing.md
+    /// "Measured motion").
+    AttachMotion(AttachMotionArgs),
     /// Smoke-test an atlas' guided path with generated example scripts and write its validation
     /// record (`validation.toml`), which publishing requires.
     Validate(ValidateArgs),
@@ -138,6 +143,25 @@ pub struct PhantomArgs {
 }
 
 #[derive(Debug, Args)]
+pub struct AttachMotionArgs {
+    /// Atlas directory.
+    pub dir: PathBuf,
+    /// a₁: the displacement at an average end-inspiration (u = a₁g + a₂g′ + a₃).
+    #[arg(long)]
+    pub a1: PathBuf,
+    /// a₂: the displacement per unit of g′ (hysteresis).
+    #[arg(long)]
+    pub a2: Option<PathBuf>,
+    /// a₃: a constant offset.
+    #[arg(long)]
+    pub a3: Option<PathBuf>,
+    /// The surrogate signal recorded with the fields; without it sessions use the seeded Lujan
+    /// signal.
+    #[arg(long)]
+    pub signal: Option<PathBuf>,
+}
+
+#[derive(Debug, Args)]
 pub struct InspectArgs {
     /// Atlas directory.
     pub dir: PathBuf,
@@ -176,7 +200,9 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
             let report = stylet_atlas::import::import_with(&a.recipe, &a.data, &a.out, !a.no_breathing)?;
             sayf!("atlas '{}' written to {}", report.manifest.name, a.out.display());
             say(report.to_text().trim_end());
-            say(breathing_line(report.manifest.breathing_motion().is_some()));
+            say(breathing_line(
+                report.manifest.breathing_or_default().motion != stylet_atlas::manifest::MotionKind::None,
+            ));
             Ok(())
         }
         AtlasCommand::New(a) => {
@@ -236,6 +262,18 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
             Ok(())
         }
         AtlasCommand::Validate(a) => validate(&a.dir),
+        AtlasCommand::AttachMotion(a) => {
+            let atlas = stylet_atlas::motion::attach_measured(
+                &a.dir,
+                &a.a1,
+                a.a2.as_deref(),
+                a.a3.as_deref(),
+                a.signal.as_deref(),
+            )?;
+            sayf!("measured breathing motion attached to {}", a.dir.display());
+            say(stylet_atlas::summary::BreathingSummary::of(&atlas).to_text().trim_end());
+            Ok(())
+        }
         AtlasCommand::Publish(a) => publish(&a),
         AtlasCommand::ImportDicom(a) => {
             let series = stylet_atlas::import::dicom::import_series(&a.series, &a.out, &a.name)?;

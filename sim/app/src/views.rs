@@ -264,9 +264,16 @@ impl ViewRenderer {
         let w = ((width as f32 * scale).round() as u32).max(1);
         let h = ((height as f32 * scale).round() as u32).max(1);
         let t0 = Instant::now();
+        // The GPU draws a breathing motion that is one factored field (the synthetic motion);
+        // measured fields are drawn on the CPU.
+        #[cfg(feature = "gpu")]
+        let on_gpu = moment
+            .breathing
+            .as_ref()
+            .is_none_or(|b| b.model.factored_at(b.t_s).is_some() || b.model.max_displacement_mm() == 0.0);
         #[cfg(feature = "gpu")]
         let image = match self.gpu.take() {
-            Some(mut gpu) => {
+            Some(mut gpu) if on_gpu => {
                 let image = self.draw_on_gpu(&mut gpu, kind, moment, w, h);
                 self.gpu = Some(gpu);
                 image?

@@ -8,6 +8,7 @@
 
 pub mod import;
 pub mod manifest;
+pub mod motion;
 pub mod nifti_io;
 pub mod phantom;
 pub mod store;

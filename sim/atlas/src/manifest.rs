@@ -54,14 +54,18 @@ pub struct Manifest {
 pub enum MotionKind {
     /// The synthetic motion built from the atlas' own maps (`stylet_physics::motion::synthetic`).
     Synthetic,
+    /// Displacement fields measured on a 4D CT (`a1`, optionally `a2`, `a3`, and the surrogate
+    /// `signal`), files beside `atlas.toml` (`stylet atlas attach-motion`).
+    Measured,
     /// None: the patient does not breathe (built with `--no-breathing`, or no organ to place
     /// the diaphragm).
     None,
 }
 
-/// `[breathing]`: the attached motion and, for the synthetic one, its parameters (defaults and
-/// ranges in docs/breathing.md).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+/// `[breathing]`: the attached motion; for the synthetic one its parameters (defaults and ranges
+/// in docs/breathing.md), for measured fields their files (paths relative to the atlas
+/// directory).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct BreathingToml {
     pub motion: MotionKind,
@@ -69,6 +73,14 @@ pub struct BreathingToml {
     pub anterior_ratio: f64,
     pub wall_mm: f64,
     pub bone_margin_mm: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub a1: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub a2: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub a3: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub signal: Option<String>,
 }
 
 impl Default for BreathingToml {
@@ -80,6 +92,10 @@ impl Default for BreathingToml {
             anterior_ratio: m.anterior_ratio,
             wall_mm: m.wall_mm,
             bone_margin_mm: m.bone_margin_mm,
+            a1: None,
+            a2: None,
+            a3: None,
+            signal: None,
         }
     }
 }
@@ -97,8 +113,20 @@ impl BreathingToml {
         }
     }
 
-    /// The motion's parameters; `None` when the patient does not breathe.
-    pub fn motion(&self) -> Option<stylet_physics::motion::SyntheticMotion> {
+    /// The measured motion's files, `a1` first (none for another motion).
+    pub fn measured_files(&self) -> Vec<&str> {
+        if self.motion != MotionKind::Measured {
+            return Vec::new();
+        }
+        [&self.a1, &self.a2, &self.a3, &self.signal]
+            .into_iter()
+            .flatten()
+            .map(String::as_str)
+            .collect()
+    }
+
+    /// The synthetic motion's parameters; `None` for another motion.
+    pub fn synthetic(&self) -> Option<stylet_physics::motion::SyntheticMotion> {
         (self.motion == MotionKind::Synthetic).then_some(stylet_physics::motion::SyntheticMotion {
             amplitude_mm: self.amplitude_mm,
             anterior_ratio: self.anterior_ratio,
@@ -831,10 +859,10 @@ impl Manifest {
         }
     }
 
-    /// The attached breathing motion: `[breathing]`'s, or the default synthetic one for an atlas
-    /// written before the section existed; `None` when the patient does not breathe.
-    pub fn breathing_motion(&self) -> Option<stylet_physics::motion::SyntheticMotion> {
-        self.breathing.unwrap_or_default().motion()
+    /// `[breathing]`, or the default synthetic motion for an atlas written before the section
+    /// existed.
+    pub fn breathing_or_default(&self) -> BreathingToml {
+        self.breathing.clone().unwrap_or_default()
     }
 
     pub fn to_toml(&self) -> String {

@@ -14,6 +14,7 @@ use flate2::read::MultiGzDecoder;
 use nifti::{Endianness, NiftiHeader, writer::WriterOptions};
 use stylet_physics::glam::DVec3;
 use stylet_physics::grid::MAX_VOXELS;
+use stylet_physics::motion::GridField;
 use stylet_physics::{Affine, Grid, LabelId, Volume};
 
 use crate::AtlasError;
@@ -93,11 +94,20 @@ fn open(path: &Path) -> Result<Box<dyn Read>, AtlasError> {
 pub fn read_grid(path: &Path) -> Result<Grid, AtlasError> {
     let mut r = open(path)?;
     let header = NiftiHeader::from_reader(&mut r).map_err(|e| err(path, format!("not a NIfTI-1 file: {e}")))?;
-    Ok(check_header(path, &header)?.0)
+    Ok(check_header(path, &header, Shape::Scalar)?.0)
+}
+
+/// What a file must hold per voxel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Shape {
+    /// One value: a 3-D volume (trailing dimensions of 1 allowed).
+    Scalar,
+    /// Three components: ITK's vector image, dimensions (x, y, z, 1, 3).
+    Vector3,
 }
 
 /// Validates the header; returns the grid and the data type.
-fn check_header(path: &Path, h: &NiftiHeader) -> Result<(Grid, DType), AtlasError> {
+fn check_header(path: &Path, h: &NiftiHeader, shape: Shape) -> Result<(Grid, DType), AtlasError> {
     if &h.magic != b"n+1\0" {
         return Err(err(
             path,
@@ -115,8 +125,19 @@ fn check_header(path: &Path, h: &NiftiHeader) -> Result<(Grid, DType), AtlasErro
     if dims.contains(&0) {
         return Err(err(path, format!("dimension list {dims:?} contains a zero")));
     }
-    if dims.len() > 3 && dims[3..].iter().any(|&d| d != 1) {
-        return Err(err(path, format!("expected a 3-D volume, got dimensions {dims:?}")));
+    match shape {
+        Shape::Scalar if dims.len() > 3 && dims[3..].iter().any(|&d| d != 1) => {
+            return Err(err(path, format!("expected a 3-D volume, got dimensions {dims:?}")));
+        }
+        Shape::Vector3 if !(dims.len() == 5 && dims[3] == 1 && dims[4] == 3) => {
+            return Err(err(
+                path,
+                format!(
+                    "expected a displacement field of dimensions (x, y, z, 1, 3) as ITK and ANTs write them, got {dims:?}"
+                ),
+            ));
+        }
+        _ => {}
     }
     let d3 = [dims[0], *dims.get(1).unwrap_or(&1), *dims.get(2).unwrap_or(&1)];
     let n = d3[0] as u128 * d3[1] as u128 * d3[2] as u128;
@@ -188,9 +209,31 @@ fn header_affine(h: &NiftiHeader) -> Result<Affine, String> {
 }
 
 fn read_raw(path: &Path) -> Result<RawVolume, AtlasError> {
+    read_raw_shaped(path, Shape::Scalar)
+}
+
+/// The file's values (for a vector image: every voxel's first component, then every second,
+/// then every third) after the header is checked for `shape`.
+fn read_raw_shaped(path: &Path, shape: Shape) -> Result<RawVolume, AtlasError> {
     let mut r = open(path)?;
     let h = NiftiHeader::from_reader(&mut r).map_err(|e| err(path, format!("not a NIfTI-1 file: {e}")))?;
-    let (grid, dtype) = check_header(path, &h)?;
+    let (grid, dtype) = check_header(path, &h, shape)?;
+    if shape == Shape::Vector3 {
+        // NIFTI_INTENT_DISPVECT (1006) or NIFTI_INTENT_VECTOR (1007, ITK); 0 from tools that leave it.
+        if ![0, 1006, 1007].contains(&h.intent_code) {
+            return Err(err(
+                path,
+                format!(
+                    "intent code {} is not a vector (1007, as ITK writes) or displacement (1006)",
+                    h.intent_code
+                ),
+            ));
+        }
+        if !matches!(dtype, DType::F32 | DType::F64) {
+            return Err(err(path, "a displacement field must hold float32 or float64 values"));
+        }
+    }
+    let components = if shape == Shape::Vector3 { 3 } else { 1 };
     // Skip the extension block between the 348-byte header and the data.
     let skip = (h.vox_offset as u64).saturating_sub(348);
     let skipped = std::io::copy(&mut (&mut r).take(skip), &mut std::io::sink())
@@ -202,7 +245,7 @@ fn read_raw(path: &Path) -> Result<RawVolume, AtlasError> {
         ));
     }
     let size = dtype.size_of();
-    let nbytes = grid.len() * size;
+    let nbytes = grid.len() * size * components;
     if nbytes > MAX_DATA_BYTES {
         return Err(err(
             path,
@@ -276,6 +319,56 @@ pub fn read_ct(path: &Path) -> Result<Volume<f32>, AtlasError> {
     }
     let data = raw.values.into_iter().map(|v| v as f32).collect();
     Volume::new(raw.grid, data).map_err(|e| err(path, e.to_string()))
+}
+
+/// The largest displacement a field may hold (mm): breathing moves organs by centimetres.
+pub const MAX_DISPLACEMENT_MM: f64 = 100.0;
+
+/// Reads a displacement field as ITK and ANTs write it (docs/breathing.md "Measured motion"): a
+/// NIfTI vector image of dimensions (x, y, z, 1, 3), float, intent 1007 (or 1006, or unset), the
+/// vectors in ITK's LPS physical space (mm), the grid in the header's RAS world. Returned in
+/// Stylet's RAS: (−x, −y, z). Each vector must be finite and at most [`MAX_DISPLACEMENT_MM`].
+pub fn read_displacement_field(path: &Path) -> Result<GridField, AtlasError> {
+    let raw = read_raw_shaped(path, Shape::Vector3)?;
+    let n = raw.grid.len();
+    let mut values = Vec::with_capacity(n);
+    for i in 0..n {
+        let lps = [raw.values[i], raw.values[n + i], raw.values[2 * n + i]];
+        let length = (lps[0] * lps[0] + lps[1] * lps[1] + lps[2] * lps[2]).sqrt();
+        if !(length.is_finite() && length <= MAX_DISPLACEMENT_MM) {
+            let [x, y, z] = raw.grid.unlinear(i);
+            return Err(err(
+                path,
+                format!(
+                    "the displacement at voxel ({x}, {y}, {z}) is {lps:?} mm: each must be finite and at most {MAX_DISPLACEMENT_MM} mm long"
+                ),
+            ));
+        }
+        values.push([-lps[0] as f32, -lps[1] as f32, lps[2] as f32]);
+    }
+    GridField::new(raw.grid, values).map_err(|e| err(path, e))
+}
+
+/// Writes a displacement field the way [`read_displacement_field`] reads it (ITK's convention:
+/// LPS vectors, intent 1007, float32).
+pub fn write_displacement_field(path: &Path, field: &GridField, description: &str) -> Result<(), AtlasError> {
+    let grid = field.grid();
+    let [nx, ny, nz] = grid.dims();
+    let n = grid.len();
+    let mut data = vec![0.0f32; 3 * n];
+    for (i, v) in field.values().iter().enumerate() {
+        data[i] = -v[0];
+        data[n + i] = -v[1];
+        data[2 * n + i] = v[2];
+    }
+    use ndarray::ShapeBuilder;
+    let array = ndarray::Array5::from_shape_vec((nx, ny, nz, 1, 3).f(), data).map_err(|e| err(path, e.to_string()))?;
+    let mut header = header_for(grid, description);
+    header.intent_code = 1007;
+    WriterOptions::new(path)
+        .reference_header(&header)
+        .write_nifti(&array)
+        .map_err(|e| err(path, format!("cannot write: {e}")))
 }
 
 /// Reads a label map: whole numbers from 0 to 65535.
@@ -372,5 +465,50 @@ pub fn write_labels(path: &Path, labels: &Volume<LabelId>, description: &str) ->
         write_array(path, labels.grid(), data, description)
     } else {
         write_array(path, labels.grid(), labels.data().to_vec(), description)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// ITK's convention: the file holds LPS vectors, intent 1007, dimensions (x, y, z, 1, 3);
+    /// Stylet reads RAS back.
+    #[test]
+    fn displacement_fields_are_written_and_read_in_itk_convention() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("u.nii.gz");
+        let grid = Grid::new(
+            [4, 3, 2],
+            Affine::from_spacing([2.0, 3.0, 4.0], DVec3::new(-4.0, 1.0, 2.0)),
+        )
+        .unwrap();
+        let field = GridField::sample(grid, |x| DVec3::new(1.0, 2.0, 3.0) + x * 0.01);
+        write_displacement_field(&path, &field, "test").unwrap();
+        let raw = read_raw_shaped(&path, Shape::Vector3).unwrap();
+        let n = grid.len();
+        let v0 = field.values()[0];
+        assert_eq!(
+            [raw.values[0], raw.values[n], raw.values[2 * n]],
+            [-v0[0] as f64, -v0[1] as f64, v0[2] as f64]
+        );
+        let mut r = open(&path).unwrap();
+        let h = NiftiHeader::from_reader(&mut r).unwrap();
+        assert_eq!((h.intent_code, &h.dim[..6]), (1007, &[5u16, 4, 3, 2, 1, 3][..]));
+        let back = read_displacement_field(&path).unwrap();
+        assert_eq!(back.values(), field.values());
+        assert_eq!(back.grid(), field.grid());
+        // Too long a displacement is refused, naming the voxel.
+        let far = dir.path().join("far.nii.gz");
+        write_displacement_field(&far, &GridField::sample(grid, |_| DVec3::new(0.0, 0.0, 150.0)), "far").unwrap();
+        let e = read_displacement_field(&far).unwrap_err().to_string();
+        assert!(e.contains("voxel (0, 0, 0)") && e.contains("at most 100 mm"), "{e}");
+        // A scalar volume is not a field, and a field is not a CT.
+        let ct = dir.path().join("ct.nii.gz");
+        write_ct(&ct, &Volume::filled(grid, 40.0), "ct").unwrap();
+        let e = read_displacement_field(&ct).unwrap_err().to_string();
+        assert!(e.contains("(x, y, z, 1, 3)"), "{e}");
+        let e = read_ct(&path).unwrap_err().to_string();
+        assert!(e.contains("3-D volume"), "{e}");
     }
 }

@@ -137,7 +137,7 @@ fn check_file_name(name: &str) -> Result<(), String> {
     Ok(())
 }
 
-fn read_manifest_text(dir: &Path) -> Result<String, AtlasError> {
+pub(crate) fn read_manifest_text(dir: &Path) -> Result<String, AtlasError> {
     if !dir.is_dir() {
         return Err(AtlasError::file(dir, "atlas directory does not exist"));
     }
@@ -170,15 +170,18 @@ fn hex(bytes: &[u8]) -> String {
 }
 
 /// The atlas content hash: SHA-256 of "stylet-atlas-v1\n" followed by one line
-/// "<file name> <sha256 of the file>\n" for atlas.toml, the CT and the label map, in that order.
+/// "<file name> <sha256 of the file>\n" for atlas.toml, the CT and the label map, in that order,
+/// then for each measured breathing file (a1, a2, a3, signal) the atlas has.
 pub fn content_hash(dir: &Path, manifest: &Manifest) -> Result<String, AtlasError> {
     let mut h = Sha256::new();
     h.update(b"stylet-atlas-v1\n");
-    for name in [
+    let breathing = manifest.breathing_or_default();
+    let files = [
         MANIFEST_FILE,
         manifest.volumes.ct.as_str(),
         manifest.volumes.labels.as_str(),
-    ] {
+    ];
+    for name in files.into_iter().chain(breathing.measured_files()) {
         let digest = sha256_file(&dir.join(name))?;
         h.update(format!("{name} {digest}\n").as_bytes());
     }
@@ -193,6 +196,7 @@ pub fn load(dir: &Path) -> Result<Atlas, AtlasError> {
     manifest::check_scenarios(&manifest.scenarios).map_err(|e| manifest_error(dir, e))?;
     let tree = manifest::property_tree(&manifest.tissues).map_err(|e| manifest_error(dir, e))?;
 
+    let motion = crate::motion::load_motion(dir, &manifest.breathing_or_default())?;
     let ct_path = dir.join(&manifest.volumes.ct);
     let labels_path = dir.join(&manifest.volumes.labels);
     let (ct, partial) = rayon::join(|| nifti_io::read_ct(&ct_path), || nifti_io::read_labels(&labels_path));
@@ -209,7 +213,7 @@ pub fn load(dir: &Path) -> Result<Atlas, AtlasError> {
     };
     let model = PunctureAtlas::new(ct, partial, labels, tree, thresholds)
         .and_then(|m| m.with_skin_layer_mm(manifest.heuristic.skin_layer_mm))
-        .and_then(|m| m.with_breathing(manifest.breathing_motion()))
+        .and_then(|m| m.with_breathing(motion))
         .map_err(|e| match e {
             PhysicsError::InvalidLabels(_) => AtlasError::file(&labels_path, e.to_string()),
             PhysicsError::NotFinite(_) => AtlasError::file(&ct_path, e.to_string()),
@@ -298,9 +302,22 @@ pub fn write(dir: &Path, manifest: &Manifest, ct: &Volume<f32>, labels: &Volume<
     };
     rename(&ct_tmp, &dir.join(&manifest.volumes.ct))?;
     rename(&labels_tmp, &dir.join(&manifest.volumes.labels))?;
+    write_manifest_text(dir, &text)
+}
+
+/// Rewrites `atlas.toml` alone (checked first), atomically.
+pub(crate) fn write_manifest(dir: &Path, manifest: &Manifest) -> Result<(), AtlasError> {
+    let text = manifest.to_toml();
+    parse_manifest(&text).map_err(|e| manifest_error(dir, format!("refusing to write an invalid manifest: {e}")))?;
+    write_manifest_text(dir, &text)
+}
+
+/// `text` as `atlas.toml`, through a temporary file renamed into place.
+pub(crate) fn write_manifest_text(dir: &Path, text: &str) -> Result<(), AtlasError> {
     let manifest_tmp = dir.join(".atlas.toml.partial");
     fs::write(&manifest_tmp, text).map_err(|e| AtlasError::file(&manifest_tmp, format!("cannot write: {e}")))?;
-    rename(&manifest_tmp, &dir.join(MANIFEST_FILE))
+    fs::rename(&manifest_tmp, dir.join(MANIFEST_FILE))
+        .map_err(|e| AtlasError::file(dir.join(MANIFEST_FILE), format!("cannot move into place: {e}")))
 }
 
 impl Atlas {

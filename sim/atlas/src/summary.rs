@@ -34,6 +34,8 @@ pub struct BreathingSummary {
     pub anterior_ratio: f64,
     pub wall_mm: f64,
     pub bone_margin_mm: f64,
+    /// A measured motion's files (a1, a2, a3, signal as given).
+    pub files: Vec<String>,
     /// The fixed point's error at the signal's deepest breath (thesis §5.4.1), when the motion
     /// could be built.
     pub inversion: Option<InversionSummary>,
@@ -55,54 +57,83 @@ pub struct InversionSummary {
 pub const INVERSION_POINTS: usize = 20_000;
 
 impl BreathingSummary {
-    /// Builds the attached motion (its mobility map) and checks its inverse at the deepest breath
-    /// of the default signal, with the views' 8 fixed-point steps.
+    /// Builds the attached motion and checks its inverse at the deepest breath of its signal
+    /// (the measured one, else the default Lujan signal), with the views' 8 fixed-point steps.
     pub fn of(atlas: &Atlas) -> BreathingSummary {
-        use stylet_physics::motion::{BreathingSignal, SignalParams, SyntheticField};
-        let toml = atlas.manifest.breathing.unwrap_or_default();
+        use stylet_physics::motion::{AtlasMotion, BreathingSignal, SignalParams, SyntheticField};
+        let toml = atlas.manifest.breathing_or_default();
         let mut out = BreathingSummary {
             motion: toml.motion,
             amplitude_mm: toml.amplitude_mm,
             anterior_ratio: toml.anterior_ratio,
             wall_mm: toml.wall_mm,
             bone_margin_mm: toml.bone_margin_mm,
+            files: toml.measured_files().into_iter().map(String::from).collect(),
             inversion: None,
             problem: None,
         };
-        let Some(motion) = atlas.model.breathing() else {
-            return out;
-        };
-        match SyntheticField::new(std::sync::Arc::clone(&atlas.model), motion) {
-            Ok(field) => {
-                let depth = BreathingSignal::new(SignalParams::default()).map_or(1.0, |s| s.max_g());
-                let c = field.inversion_check(
-                    depth,
-                    stylet_physics::deform::resample::INVERSE_ITERATIONS,
-                    INVERSION_POINTS,
-                );
+        let iterations = stylet_physics::deform::resample::INVERSE_ITERATIONS;
+        let lujan_depth = BreathingSignal::new(SignalParams::default()).map_or(1.0, |s| s.max_g());
+        match atlas.model.breathing() {
+            None => {}
+            Some(AtlasMotion::Synthetic(motion)) => {
+                match SyntheticField::new(std::sync::Arc::clone(&atlas.model), *motion) {
+                    Ok(field) => {
+                        let c = field.inversion_check(lujan_depth, iterations, INVERSION_POINTS);
+                        out.inversion = Some(InversionSummary {
+                            depth: c.depth,
+                            iterations: c.iterations,
+                            points: c.points,
+                            sliding: c.sliding,
+                            worst_mm: c.worst_mm,
+                            worst_all_mm: c.worst_all_mm,
+                        });
+                    }
+                    Err(e) => out.problem = Some(e),
+                }
+            }
+            Some(AtlasMotion::Measured(m)) => {
+                let depth = m.signal.as_ref().map_or(lujan_depth, |s| s.max_g());
+                let grid = m.a1.grid();
+                let stride = grid.len().div_ceil(INVERSION_POINTS).max(1);
+                let points: Vec<_> = (0..grid.len())
+                    .step_by(stride)
+                    .map(|i| grid.linear_to_world(i))
+                    .collect();
+                let worst = stylet_physics::motion::field_inversion_error_mm(&*m.a1, &points, depth, iterations);
                 out.inversion = Some(InversionSummary {
-                    depth: c.depth,
-                    iterations: c.iterations,
-                    points: c.points,
-                    sliding: c.sliding,
-                    worst_mm: c.worst_mm,
-                    worst_all_mm: c.worst_all_mm,
+                    depth,
+                    iterations,
+                    points: points.len(),
+                    sliding: 0,
+                    worst_mm: worst,
+                    worst_all_mm: worst,
                 });
             }
-            Err(e) => out.problem = Some(e),
         }
         out
     }
 
-    fn to_text(&self) -> String {
+    pub fn to_text(&self) -> String {
         if self.motion == MotionKind::None {
             return "breathing    none: this patient does not breathe\n".into();
         }
-        let mut out = format!(
-            "breathing    synthetic motion, amplitude {} mm (anterior share {}), body wall {} mm, bone margin {} mm\n",
-            self.amplitude_mm, self.anterior_ratio, self.wall_mm, self.bone_margin_mm
-        );
-        if let Some(i) = &self.inversion {
+        let mut out = if self.motion == MotionKind::Measured {
+            format!("breathing    measured fields: {}\n", self.files.join(", "))
+        } else {
+            format!(
+                "breathing    synthetic motion, amplitude {} mm (anterior share {}), body wall {} mm, bone margin {} mm\n",
+                self.amplitude_mm, self.anterior_ratio, self.wall_mm, self.bone_margin_mm
+            )
+        };
+        if let Some(i) = &self.inversion
+            && i.sliding == 0
+        {
+            out += &format!(
+                "             inversion error at depth g = {:.2}, {} fixed-point steps: ≤ {:.2e} mm ({} points)\n",
+                i.depth, i.iterations, i.worst_mm, i.points
+            );
+        } else if let Some(i) = &self.inversion {
             out += &format!(
                 "             inversion error at depth g = {:.2}, {} fixed-point steps: ≤ {:.2e} mm in moving tissue ({} points); \
                  {:.1} mm with the {} points in a ramp or across the sliding interface\n",

@@ -30,7 +30,7 @@ pub struct PunctureAtlas {
     skin_layer_mm: f64,
     /// The breathing motion attached to the atlas (docs/breathing.md "Atlases"); `None`: this
     /// patient does not breathe.
-    breathing: Option<crate::motion::SyntheticMotion>,
+    breathing: Option<crate::motion::AtlasMotion>,
 }
 
 impl PunctureAtlas {
@@ -104,7 +104,7 @@ impl PunctureAtlas {
             skin_distance,
             bone_distance,
             skin_layer_mm: DEFAULT_SKIN_LAYER_MM,
-            breathing: Some(Default::default()),
+            breathing: Some(crate::motion::AtlasMotion::Synthetic(Default::default())),
         })
     }
 
@@ -169,9 +169,10 @@ impl PunctureAtlas {
         self.skin_layer_mm
     }
 
-    /// The atlas with `motion` attached (`None`: it does not breathe); refused out of range.
-    pub fn with_breathing(mut self, motion: Option<crate::motion::SyntheticMotion>) -> Result<Self, PhysicsError> {
-        if let Some(m) = &motion {
+    /// The atlas with `motion` attached (`None`: it does not breathe); a synthetic motion out of
+    /// range is refused.
+    pub fn with_breathing(mut self, motion: Option<crate::motion::AtlasMotion>) -> Result<Self, PhysicsError> {
+        if let Some(crate::motion::AtlasMotion::Synthetic(m)) = &motion {
             m.validate().map_err(PhysicsError::InvalidBreathing)?;
         }
         self.breathing = motion;
@@ -180,8 +181,8 @@ impl PunctureAtlas {
 
     /// The breathing motion attached to the atlas (the default synthetic motion unless the
     /// atlas says otherwise).
-    pub fn breathing(&self) -> Option<crate::motion::SyntheticMotion> {
-        self.breathing
+    pub fn breathing(&self) -> Option<&crate::motion::AtlasMotion> {
+        self.breathing.as_ref()
     }
 
     /// The label the needle tip feels: l(x, d) of eq. 6.1.2, except that unlabelled tissue within

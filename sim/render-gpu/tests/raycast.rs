@@ -394,7 +394,7 @@ fn a_motion_the_gpu_cannot_draw_is_refused() {
         a1: a1.clone(),
         a2: Some(a1),
         a3: None,
-        signal: BreathingSignal::new(settings.signal).unwrap(),
+        signal: BreathingSignal::new(settings.signal).unwrap().into(),
     });
     let mut s = scene(&b.cpu, transfer_functions().swap_remove(0).1);
     s.motion = Some(stylet_render::scene::MotionHook { model, t_s: 1.0 });

@@ -377,7 +377,14 @@ pub fn build(
         ));
     }
     let mut manifest = Manifest::new(&rec.name, &rec.description, provenance, scenario);
-    manifest.breathing = Some(rec.breathing.unwrap_or_default());
+    let breathing = rec.breathing.clone().unwrap_or_default();
+    if breathing.motion == crate::manifest::MotionKind::Measured {
+        return Err(AtlasError::file(
+            &r.path,
+            "[breathing] motion = \"measured\" cannot come with a recipe: attach measured fields to the imported atlas with `stylet atlas attach-motion`",
+        ));
+    }
+    manifest.breathing = Some(breathing);
 
     let mut presets = None;
     let window = match &rec.window {

@@ -70,6 +70,11 @@ impl GridField {
     pub fn grid(&self) -> &Grid {
         &self.grid
     }
+
+    /// (x, y, z) per node in the grid's linear order (mm).
+    pub fn values(&self) -> &[[f32; 3]] {
+        &self.values
+    }
 }
 
 impl SpatialField for GridField {

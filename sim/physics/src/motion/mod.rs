@@ -16,6 +16,7 @@
 
 pub mod field;
 pub mod models;
+pub mod sampled;
 pub mod signal;
 pub mod synthetic;
 
@@ -24,7 +25,8 @@ use std::sync::Arc;
 use glam::{DMat3, DVec3};
 
 pub use field::{FactoredField, GridField, SpatialField};
-pub use models::{FullCycle, HalfCycle, Surrogate};
+pub use models::{FullCycle, HalfCycle, Surrogate, SurrogateSignal};
+pub use sampled::SampledSignal;
 pub use signal::{BreathingSignal, SignalParams};
 pub use synthetic::{InversionCheck, SyntheticField, SyntheticMotion};
 
@@ -68,13 +70,49 @@ impl MotionModel for Static {
     }
 }
 
+/// Fields measured on a 4D CT (registered displacement fields of the surrogate model, thesis
+/// eqs. 5.3.4–5.3.6) and, optionally, the surrogate signal recorded with them (docs/breathing.md
+/// "Measured motion").
+#[derive(Clone)]
+pub struct MeasuredMotion {
+    pub a1: Arc<GridField>,
+    pub a2: Option<Arc<GridField>>,
+    pub a3: Option<Arc<GridField>>,
+    /// Without one, the session's seeded Lujan signal drives the fields.
+    pub signal: Option<Arc<SampledSignal>>,
+}
+
+impl std::fmt::Debug for MeasuredMotion {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("MeasuredMotion")
+            .field("a1", &self.a1.grid().dims())
+            .field("a2", &self.a2.as_ref().map(|a| a.grid().dims()))
+            .field("a3", &self.a3.as_ref().map(|a| a.grid().dims()))
+            .field("signal_period_s", &self.signal.as_ref().map(|s| s.period_s()))
+            .finish()
+    }
+}
+
+/// The motion attached to an atlas ([`PunctureAtlas::breathing`]).
+#[derive(Debug, Clone)]
+pub enum AtlasMotion {
+    /// Built from the atlas' own maps.
+    Synthetic(SyntheticMotion),
+    /// Read from files beside the atlas.
+    Measured(Arc<MeasuredMotion>),
+}
+
 /// Whether and how the patient breathes in a session (part of the world model, recorded in the
-/// session header): the synthetic motion of the atlas driven by the seeded breathing signal.
+/// session header): the atlas' synthetic motion with these parameters, or its measured motion
+/// (`measured`), driven by the seeded breathing signal (or the measured signal, when the atlas
+/// has one).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct BreathingSettings {
     pub enabled: bool,
     pub motion: SyntheticMotion,
     pub signal: SignalParams,
+    /// The atlas' measured fields instead of the synthetic motion (`motion` is then unused).
+    pub measured: bool,
 }
 
 impl BreathingSettings {
@@ -97,12 +135,28 @@ impl BreathingSettings {
         if !self.enabled {
             return Ok(Arc::new(Static));
         }
+        let lujan = || BreathingSignal::new(self.signal).map(SurrogateSignal::Lujan);
+        if self.measured {
+            let Some(AtlasMotion::Measured(m)) = atlas.breathing() else {
+                return Err("the session breathes with measured fields, and this atlas has none".into());
+            };
+            let field = |a: &Arc<GridField>| -> Arc<dyn SpatialField> { a.clone() };
+            return Ok(Arc::new(Surrogate {
+                a1: field(&m.a1),
+                a2: m.a2.as_ref().map(field),
+                a3: m.a3.as_ref().map(field),
+                signal: match &m.signal {
+                    Some(s) => SurrogateSignal::Sampled(Arc::clone(s)),
+                    None => lujan()?,
+                },
+            }));
+        }
         let field = SyntheticField::new(Arc::clone(atlas), self.motion)?;
         Ok(Arc::new(Surrogate {
             a1: Arc::new(field),
             a2: None,
             a3: None,
-            signal: BreathingSignal::new(self.signal)?,
+            signal: lujan()?,
         }))
     }
 }
@@ -134,16 +188,34 @@ impl BreathingRequest {
                 ..Default::default()
             });
         }
-        let mut motion = atlas
+        let attached = atlas
             .breathing()
             .ok_or("breathing on: this atlas has no breathing motion (it was built with --no-breathing)")?;
-        if let Some(a) = self.amplitude_mm {
-            motion.amplitude_mm = a;
-        }
-        let settings = BreathingSettings {
-            enabled: true,
-            motion,
-            signal: self.signal,
+        let settings = match attached {
+            AtlasMotion::Synthetic(m) => {
+                let mut motion = *m;
+                if let Some(a) = self.amplitude_mm {
+                    motion.amplitude_mm = a;
+                }
+                BreathingSettings {
+                    enabled: true,
+                    motion,
+                    signal: self.signal,
+                    measured: false,
+                }
+            }
+            AtlasMotion::Measured(_) if self.amplitude_mm.is_some() => {
+                return Err(
+                    "breathing amplitude: this atlas breathes with measured fields, whose amplitude is their own"
+                        .into(),
+                );
+            }
+            AtlasMotion::Measured(_) => BreathingSettings {
+                enabled: true,
+                signal: self.signal,
+                measured: true,
+                ..Default::default()
+            },
         };
         settings.validate()?;
         Ok(settings)
@@ -170,6 +242,24 @@ pub fn inversion_error_mm(model: &dyn MotionModel, points: &[DVec3], t_s: f64, i
             (invert(model, x_world, t_s, iterations) - x_ref).length()
         })
         .fold(0.0, f64::max)
+}
+
+/// How far the inverse of d·v misses (mm): for each reference point X, x = X + d·v(X) is
+/// inverted by `iterations` fixed-point steps from X = x; the largest |X̂ − X|. A field's check
+/// at a breathing depth d (docs/breathing.md "Atlases").
+pub fn field_inversion_error_mm(field: &dyn SpatialField, points: &[DVec3], depth: f64, iterations: u32) -> f64 {
+    use rayon::prelude::*;
+    points
+        .par_iter()
+        .map(|&x_ref| {
+            let x_world = x_ref + field.at(x_ref) * depth;
+            let mut x = x_world;
+            for _ in 0..iterations {
+                x = x_world - field.at(x) * depth;
+            }
+            (x - x_ref).length()
+        })
+        .reduce(|| 0.0, f64::max)
 }
 
 /// One fixed-point step of the inverse: X⁺ = x − u(X, t).

@@ -7,6 +7,7 @@ use glam::DVec3;
 
 use super::MotionModel;
 use super::field::{FactoredField, SpatialField};
+use super::sampled::SampledSignal;
 use super::signal::BreathingSignal;
 
 /// Key frames over one full cycle (thesis §5.3.1): n fields u_j at τ_j = j/n on the cycle's
@@ -109,7 +110,50 @@ pub struct Surrogate {
     pub a1: Arc<dyn SpatialField>,
     pub a2: Option<Arc<dyn SpatialField>>,
     pub a3: Option<Arc<dyn SpatialField>>,
-    pub signal: BreathingSignal,
+    pub signal: SurrogateSignal,
+}
+
+/// What drives a surrogate model: the seeded Lujan waveform, or a measured signal.
+#[derive(Debug, Clone)]
+pub enum SurrogateSignal {
+    Lujan(BreathingSignal),
+    Sampled(Arc<SampledSignal>),
+}
+
+impl SurrogateSignal {
+    pub fn g(&self, t_s: f64) -> f64 {
+        match self {
+            SurrogateSignal::Lujan(s) => s.g(t_s),
+            SurrogateSignal::Sampled(s) => s.g(t_s),
+        }
+    }
+
+    pub fn g_and_rate(&self, t_s: f64) -> (f64, f64) {
+        match self {
+            SurrogateSignal::Lujan(s) => s.g_and_rate(t_s),
+            SurrogateSignal::Sampled(s) => s.g_and_rate(t_s),
+        }
+    }
+
+    pub fn max_g(&self) -> f64 {
+        match self {
+            SurrogateSignal::Lujan(s) => s.max_g(),
+            SurrogateSignal::Sampled(s) => s.max_g(),
+        }
+    }
+
+    pub fn max_rate(&self) -> f64 {
+        match self {
+            SurrogateSignal::Lujan(s) => s.max_rate(),
+            SurrogateSignal::Sampled(s) => s.max_rate(),
+        }
+    }
+}
+
+impl From<BreathingSignal> for SurrogateSignal {
+    fn from(s: BreathingSignal) -> SurrogateSignal {
+        SurrogateSignal::Lujan(s)
+    }
 }
 
 impl Surrogate {
@@ -255,7 +299,7 @@ mod tests {
             a1: uniform(a1),
             a2: Some(uniform(a2)),
             a3: Some(uniform(a3)),
-            signal: s.clone(),
+            signal: s.clone().into(),
         };
         for i in 0..300 {
             let t = i as f64 * 0.05;

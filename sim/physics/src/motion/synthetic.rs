@@ -199,19 +199,7 @@ impl SyntheticField {
                     around.iter().all(|&e| self.mobility(p + e) == 1.0)
                 })
             });
-        let worst = |points: &[DVec3]| {
-            points
-                .par_iter()
-                .map(|&x_ref| {
-                    let x_world = x_ref + self.at(x_ref) * depth;
-                    let mut x = x_world;
-                    for _ in 0..iterations {
-                        x = x_world - self.at(x) * depth;
-                    }
-                    (x - x_ref).length()
-                })
-                .reduce(|| 0.0, f64::max)
-        };
+        let worst = |points: &[DVec3]| super::field_inversion_error_mm(self, points, depth, iterations);
         let worst_mm = worst(&inside);
         InversionCheck {
             depth,
