@@ -53,6 +53,7 @@ fn header() -> SessionHeader {
                 power: 3,
                 seed: 1_234_567_890_123,
             },
+            measured: false,
         },
     }
 }
@@ -433,8 +434,13 @@ fn header_fields_are_bounded_and_exact() {
         SessionHeader::from_metadata(&m).unwrap().contrast,
         stylet_physics::ContrastSettings::default()
     );
-    // Breathing: bad values named; a file without it did not breathe.
+    // Breathing: bad values named; a file without it did not breathe; measured fields travel.
     assert!(with("world.breathing.model", "4d-ct".into()).contains("'world.breathing.model' '4d-ct' is unknown"));
+    let mut m = good.clone();
+    m.insert("world.breathing.model".into(), "measured".into());
+    let h = SessionHeader::from_metadata(&m).unwrap();
+    assert!(h.breathing.measured);
+    assert_eq!(h.to_metadata()["world.breathing.model"], "measured");
     assert!(with("world.breathing.enabled", "2".into()).contains("'world.breathing.enabled' must be 0 or 1"));
     assert!(with("world.breathing.seed", "-1".into()).contains("'world.breathing.seed' is not a number"));
     assert!(

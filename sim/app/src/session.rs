@@ -96,6 +96,28 @@ impl SessionPlan {
         }
     }
 
+    /// The breathing of the session: the scenario's `breathes` with the atlas' motion and the
+    /// session's seed (its cycles), off otherwise. Refused when the scenario breathes and the
+    /// atlas has no motion.
+    pub fn breathing(&self) -> Result<stylet_physics::motion::BreathingSettings, SessionError> {
+        let breathes = self
+            .atlas
+            .manifest
+            .scenarios
+            .iter()
+            .any(|s| s.name == self.scenario && s.breathes);
+        stylet_physics::motion::BreathingRequest {
+            enabled: breathes,
+            amplitude_mm: None,
+            signal: stylet_physics::motion::SignalParams {
+                seed: self.seed,
+                ..Default::default()
+            },
+        }
+        .resolve(&self.atlas.model)
+        .map_err(SessionError::Simulation)
+    }
+
     /// What the scenario practises (decides the rubric).
     pub fn exercise(&self) -> Exercise {
         self.atlas
@@ -210,6 +232,7 @@ impl RunningSession {
                 // off the haptic thread; the bits are the same (fixed latency).
                 config.deformation = DeformSettings::on();
                 config.deform_in_background = true;
+                config.breathing = plan.breathing()?;
                 let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
                 let (position, orientation) = start_pose(atlas);
                 let (device, handle) = live_device(position, orientation, sim.tick_rate_hz());
@@ -223,6 +246,7 @@ impl RunningSession {
                 let mut config = SimConfig::new(profile.physics_profile(), ToolSpec::Finger);
                 config.deformation = DeformSettings::on();
                 config.deform_in_background = true;
+                config.breathing = plan.breathing()?;
                 let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
                 let (position, orientation) = start_pose(atlas);
                 let (device, handle) = live_device(position, orientation, sim.tick_rate_hz());
@@ -391,5 +415,46 @@ fn new_session_path(dir: &Path, scenario: &str) -> PathBuf {
             return p;
         }
         n += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A scenario that breathes gives its sessions the atlas' motion with the session's seed; the
+    /// others stay still; an atlas without motion refuses a breathing scenario by name.
+    #[test]
+    fn the_scenario_decides_whether_the_patient_breathes() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut p = stylet_atlas::phantom::generate(&stylet_atlas::phantom::PhantomConfig {
+            dims: [64, 64, 50],
+            spacing_mm: [6.0; 3],
+            ..Default::default()
+        })
+        .unwrap();
+        p.manifest.scenarios[0].breathes = true;
+        let breathing_scenario = p.manifest.scenarios[0].name.clone();
+        let still_scenario = p.manifest.scenarios[1].name.clone();
+        stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
+        let atlas = Arc::new(stylet_atlas::load(dir.path()).unwrap());
+        let plan = |scenario: &str, atlas: &Arc<Atlas>| SessionPlan {
+            atlas: Arc::clone(atlas),
+            scenario: scenario.into(),
+            difficulty: Difficulty::Beginner,
+            trainee: "t".into(),
+            seed: 42,
+            sessions_dir: dir.path().join("sessions"),
+        };
+        let b = plan(&breathing_scenario, &atlas).breathing().unwrap();
+        assert!(b.enabled && !b.measured);
+        assert_eq!((b.signal.seed, b.motion.amplitude_mm), (42, 12.0));
+        assert!(!plan(&still_scenario, &atlas).breathing().unwrap().enabled);
+        p.manifest.breathing = Some(stylet_atlas::manifest::BreathingToml::attached(false));
+        let still_dir = dir.path().join("still");
+        stylet_atlas::write(&still_dir, &p.manifest, &p.ct, &p.partial).unwrap();
+        let still = Arc::new(stylet_atlas::load(&still_dir).unwrap());
+        let e = plan(&breathing_scenario, &still).breathing().unwrap_err();
+        assert!(e.to_string().contains("no breathing motion"), "{e}");
     }
 }

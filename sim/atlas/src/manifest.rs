@@ -155,6 +155,10 @@ pub struct ScenarioToml {
     /// (docs/breathing.md "Scoring"); absent: end-expiration, the CT's phase.
     #[serde(default, skip_serializing_if = "HoldPhase::is_end_expiration")]
     pub hold_phase: HoldPhase,
+    /// The patient breathes in this scenario's sessions on the desktop simulator, with the
+    /// atlas' motion (docs/breathing.md "Sessions"); absent: still.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub breathes: bool,
 }
 
 /// The correct breath hold of a scenario.
