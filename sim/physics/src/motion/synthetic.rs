@@ -263,6 +263,17 @@ fn mobility_map(atlas: &PunctureAtlas, params: SyntheticMotion) -> Volume<f32> {
     let [nx, ny, nz] = ct.dims();
     let [mx, my, mz] = grid.dims();
     let rule = MobilityRule::new(atlas, params);
+    if f == [1, 1, 1] {
+        // Every voxel a node (voxels of 2.5 mm or more): the rule itself, in one pass.
+        let values = (0..ct.len())
+            .into_par_iter()
+            .map(|i| {
+                let [x, y, z] = ct.unlinear(i);
+                rule.at_voxel(x, y, z) as f32
+            })
+            .collect();
+        return Volume::new(grid, values).expect("one value per node");
+    }
     // CT voxels within f − 1 of node n (clipped to the grid; never empty, see mobility_grid).
     let window = |n: usize, f: usize, len: usize| (n * f).saturating_sub(f - 1)..=(n * f + f - 1).min(len - 1);
     let planes: Vec<Vec<f32>> = (0..mz)
