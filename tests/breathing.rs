@@ -1047,7 +1047,11 @@ fn measured_fields_and_a_surrogate_signal_drive_a_session() {
     let b = &summary["breathing"];
     println!("measured: {b}");
     assert_eq!(b["motion"], "measured");
-    assert_eq!(b["files"], serde_json::json!(["motion/a1.nii.gz", "motion/signal.csv"]));
+    let files: Vec<String> = serde_json::from_value(b["files"].clone()).unwrap();
+    assert!(
+        files.len() == 2 && files[0].starts_with("motion/a1-") && files[1].starts_with("motion/signal-"),
+        "{files:?}"
+    );
     assert!(b["inversion"]["worst_mm"].as_f64().unwrap() < 0.1, "{b}");
     assert_ne!(
         summary["content_hash"],
@@ -1093,4 +1097,31 @@ fn measured_fields_and_a_surrogate_signal_drive_a_session() {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("measured"), "{err}");
+
+    // Attaching again replaces the files: the ones named before are removed once the atlas
+    // loads with the new ones, never overwritten on the way.
+    let a1_half = work.path().join("a1-half.nii.gz");
+    write_displacement_field(&a1_half, &GridField::sample(grid, move |x| u(x) * 0.5), "half").unwrap();
+    let out = attach(&["--a1", s(&a1_half)]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let mut left: Vec<String> = std::fs::read_dir(atlas_dir.join("motion"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert!(left.len() == 1 && left[0].starts_with("a1-") && !files[0].ends_with(&left[0]), "{left:?}");
+    let halved = BreathingSettings {
+        enabled: true,
+        measured: true,
+        ..Default::default()
+    }
+    .build(&stylet_atlas::load(&atlas_dir).unwrap().model)
+    .unwrap();
+    // Without a signal the seeded Lujan waveform drives it (g peaks at 1 each breath): the
+    // liver's centre now moves by half the first field at most.
+    let peak_mm = (0..400)
+        .map(|k| halved.displacement(centre, k as f64 * 0.05).length())
+        .fold(0.0, f64::max);
+    let half_mm = 0.5 * u(centre).length();
+    assert!((peak_mm - half_mm).abs() < 0.3, "{peak_mm} against {half_mm}");
 }

@@ -157,7 +157,7 @@ pub(crate) fn read_manifest_text(dir: &Path) -> Result<String, AtlasError> {
     String::from_utf8(bytes).map_err(|_| AtlasError::file(&path, "not UTF-8 text"))
 }
 
-fn sha256_file(path: &Path) -> Result<String, AtlasError> {
+pub(crate) fn sha256_file(path: &Path) -> Result<String, AtlasError> {
     crate::check_regular_file(path)?;
     let mut f = fs::File::open(path).map_err(|e| AtlasError::file(path, format!("cannot open: {e}")))?;
     let mut h = Sha256::new();
