@@ -501,3 +501,127 @@ fn a_stale_atlas_is_refused_before_anything_is_sent() {
     let (ok_, _, err) = publish_cli(&atlas, "http://127.0.0.1:9", "token");
     assert!(!ok_ && err.contains("changed after it was validated"), "{err}");
 }
+
+/// An atlas with measured breathing motion (`stylet atlas attach-motion`) is published with its
+/// fields and signal under `motion/`, and a breathing session on it is accepted and scored; a
+/// motion file atlas.toml does not name, one missing, or too many are refused.
+#[test]
+fn an_atlas_with_measured_breathing_is_published_with_its_motion() {
+    use stylet_atlas::nifti_io::write_displacement_field;
+    use stylet_physics::Grid;
+    use stylet_physics::glam::DVec3;
+    use stylet_physics::motion::GridField;
+
+    let db = Db::Sqlite;
+    let f = Fixture::new();
+    f.users(&db);
+    let data = f.data();
+    let work = f.dir.path().join("work");
+    std::fs::create_dir_all(&work).unwrap();
+    let dir = f.dir.path().join("breathing-atlas");
+    phantom_atlas(&dir, "96,96,80", "4");
+    let bounds = stylet_atlas::load(&dir).unwrap().model.ct().grid().world_bounds();
+    let centre = (bounds.0 + bounds.1) * 0.5;
+    let grid = Grid::new([24, 24, 20], stylet_physics::Affine::from_spacing([16.0; 3], bounds.0)).unwrap();
+    let field = GridField::sample(grid, move |x| {
+        DVec3::new(0.0, 2.0, -8.0) * (-(x - centre).length_squared() / (2.0 * 80.0 * 80.0)).exp()
+    });
+    let a1 = work.join("a1.nii.gz");
+    write_displacement_field(&a1, &field, "publish test").unwrap();
+    let signal = work.join("signal.csv");
+    let rows: String = (0..=80)
+        .map(|k| format!("{:.2},{:.6}\n", k as f64 * 0.25, (std::f64::consts::PI * k as f64 * 0.25 / 4.0).sin().powi(2)))
+        .collect();
+    std::fs::write(&signal, format!("time_s,g\n{rows}")).unwrap();
+    ok(&["atlas", "attach-motion", s(&dir), "--a1", s(&a1), "--signal", s(&signal)]);
+    ok(&["atlas", "validate", s(&dir)]);
+
+    let srv = Server::start(&data, &db, &f.atlases(), &["--workers", "1"]);
+    let b = srv.base.clone();
+    let token = full_token(&b, "ivan");
+
+    // Hand-made archives first: each refused with its reason, nothing kept.
+    let mut files = atlas_files(&dir);
+    let mut motion: Vec<String> = std::fs::read_dir(dir.join("motion"))
+        .unwrap()
+        .map(|e| format!("motion/{}", e.unwrap().file_name().to_string_lossy()))
+        .collect();
+    motion.sort();
+    assert_eq!(motion.len(), 2, "{motion:?}");
+    for m in &motion {
+        files.push((m.clone(), std::fs::read(dir.join(m)).unwrap()));
+    }
+    let with = |edit: &dyn Fn(&mut Files)| {
+        let mut f = files.clone();
+        edit(&mut f);
+        let refs: Vec<(&str, Vec<u8>)> = f.iter().map(|(n, b)| (n.as_str(), b.clone())).collect();
+        tar_of(&refs)
+    };
+    let field_bytes = std::fs::read(&a1).unwrap();
+    let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+        (
+            "a field atlas.toml does not name",
+            with(&|f| f.push(("motion/a2.nii.gz".into(), field_bytes.clone()))),
+            "motion/a2.nii.gz is not a breathing file atlas.toml names",
+        ),
+        (
+            "the signal left out",
+            with(&|f| f.retain(|e| !e.0.ends_with(".csv"))),
+            "the atlas is damaged",
+        ),
+        (
+            "five motion files",
+            with(&|f| {
+                for k in 0..3 {
+                    f.push((format!("motion/x{k}.nii.gz"), b"x".to_vec()));
+                }
+            }),
+            "more than 4 files of breathing motion",
+        ),
+        (
+            "a motion file in a folder of its own",
+            with(&|f| f.push(("motion/deep/a.nii.gz".into(), b"x".to_vec()))),
+            "unexpected entry \"motion/deep/a.nii.gz\"",
+        ),
+    ];
+    for (what, body, reason) in cases {
+        let (got, error) = post_tar(&b, &token, &body, "application/x-tar");
+        eprintln!("{what}: {got} {error}");
+        assert_eq!(got, 422, "{what}: {error}");
+        assert!(error.contains(reason), "{what}: {error}");
+        assert!(published_entries(&data).is_empty(), "{what} left {:?}", published_entries(&data));
+    }
+
+    // The command packs the motion with the atlas; the service keeps it.
+    let (ok_, out, err) = publish_cli(&dir, &b, &token);
+    assert!(ok_, "{out}{err}");
+    let hash = stylet_atlas::load(&dir).unwrap().content_hash;
+    assert_eq!(published_entries(&data), vec![hash.clone()]);
+    for m in &motion {
+        assert_eq!(
+            std::fs::read(data.join("atlases").join(&hash).join(m)).unwrap(),
+            std::fs::read(dir.join(m)).unwrap(),
+            "{m}"
+        );
+    }
+
+    // A breathing session on it is accepted, replayed with the measured motion and scored.
+    // (The script's name is the scenario's: one the atlas declares.)
+    let script = work.join("success-intercostal.txt");
+    std::fs::write(
+        &script,
+        "stylet-script 1\nbreathing on\nend 5\nat 0 along intercostal-10-11 -15\nat 4 along intercostal-10-11 40\n",
+    )
+    .unwrap();
+    let session = work.join("breathe.mcap");
+    ok(&[
+        "script", "run", "--atlas", s(&dir), "--script", s(&script), "--out", s(&session), "--trainee", "tina",
+    ]);
+    let tina = login(&b, "tina");
+    let body = std::fs::read(&session).unwrap();
+    let (status, json, _) = call("POST", &format!("{b}/api/sessions"), Some(&tina), Some(&body), false);
+    assert_eq!(status, 201, "{json}");
+    let scored = wait_scored(&b, &tina, json["id"].as_str().unwrap());
+    assert_eq!(scored["status"], "scored", "{scored}");
+    assert_eq!(scored["atlas_hash"].as_str(), Some(hash.as_str()), "{scored}");
+}

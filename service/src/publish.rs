@@ -6,7 +6,8 @@
 //! Cheapest and most decisive first: who asks (before a byte of the body is read), the declared
 //! size, one publication at a time, the catalogue's room; then the body is streamed to disk with
 //! its limit; the archive is unpacked entry by entry (plain names, regular files, each kind of
-//! file with its own size limit, extended headers bounded before they are read); the atlas is
+//! file with its own size limit, extended headers bounded before they are read; measured
+//! breathing motion under `motion/`, exactly the files atlas.toml names); the atlas is
 //! loaded through the validating loader, its validation record must vouch for exactly this
 //! content, and the server generates the example scripts of its guided path and runs them
 //! itself. A refusal says why and leaves nothing behind.
@@ -28,8 +29,12 @@ use super::api::{ApiError, err};
 /// The media type of an atlas upload.
 pub const CONTENT_TYPE: &str = "application/x-tar";
 /// Most entries an archive may hold (atlas.toml, validation.toml, two volumes, the scripts and
-/// their folder).
-pub const MAX_ENTRIES: usize = 8 + validation::MAX_SCRIPTS;
+/// their folder, the measured breathing motion and its folder).
+pub const MAX_ENTRIES: usize = 8 + validation::MAX_SCRIPTS + MAX_MOTION_FILES + 1;
+/// The folder of an atlas' measured breathing motion (`stylet atlas attach-motion`).
+pub const MOTION_DIR: &str = "motion";
+/// Most files of measured motion: the fields a₁, a₂, a₃ and the surrogate signal.
+const MAX_MOTION_FILES: usize = 4;
 /// Largest `atlas.toml` accepted (the loader's own limit).
 const MAX_MANIFEST_BYTES: u64 = 4 << 20;
 
@@ -107,6 +112,10 @@ enum Kind {
     Record,
     Script,
     Volume,
+    /// A measured breathing field (`motion/*.nii.gz`).
+    MotionField,
+    /// A surrogate breathing signal (`motion/*.csv`).
+    MotionSignal,
     Folder,
 }
 
@@ -116,12 +125,12 @@ fn kind_of(name: &str, is_dir: bool) -> Result<Kind, String> {
     let name = name.trim_start_matches("./");
     let refuse = || {
         format!(
-            "unexpected entry {name:?}: an atlas upload holds {MANIFEST_FILE}, {VALIDATION_FILE}, the two NIfTI volumes atlas.toml names and {SCRIPTS_DIR}/*.txt"
+            "unexpected entry {name:?}: an atlas upload holds {MANIFEST_FILE}, {VALIDATION_FILE}, the two NIfTI volumes atlas.toml names, {SCRIPTS_DIR}/*.txt and its measured breathing motion, {MOTION_DIR}/*.nii.gz and {MOTION_DIR}/*.csv"
         )
     };
     if is_dir {
         return match name.trim_end_matches('/') {
-            "" | "." | SCRIPTS_DIR => Ok(Kind::Folder),
+            "" | "." | SCRIPTS_DIR | MOTION_DIR => Ok(Kind::Folder),
             _ => Err(refuse()),
         };
     }
@@ -133,8 +142,16 @@ fn kind_of(name: &str, is_dir: bool) -> Result<Kind, String> {
                 validation::check_script_name(script).map_err(|e| format!("entry {name:?}: {e}"))?;
                 return Ok(Kind::Script);
             }
-            let plain = !name.is_empty() && !name.contains(['/', '\\', '\0']) && !name.starts_with('.');
-            if plain && (name.ends_with(".nii") || name.ends_with(".nii.gz")) {
+            let plain = |n: &str| !n.is_empty() && !n.contains(['/', '\\', '\0']) && !n.starts_with('.');
+            let nifti = |n: &str| n.ends_with(".nii") || n.ends_with(".nii.gz");
+            if let Some(motion) = name.strip_prefix(&format!("{MOTION_DIR}/")) {
+                return match (plain(motion), nifti(motion), motion.ends_with(".csv")) {
+                    (true, true, _) => Ok(Kind::MotionField),
+                    (true, _, true) => Ok(Kind::MotionSignal),
+                    _ => Err(refuse()),
+                };
+            }
+            if plain(name) && nifti(name) {
                 Ok(Kind::Volume)
             } else {
                 Err(refuse())
@@ -195,11 +212,13 @@ pub fn unpack(archive: &Path, out: &Path) -> Result<(), Refusal> {
     check_headers(archive)?;
     std::fs::create_dir(out).map_err(storage)?;
     std::fs::create_dir(out.join(SCRIPTS_DIR)).map_err(storage)?;
+    std::fs::create_dir(out.join(MOTION_DIR)).map_err(storage)?;
     let file = std::fs::File::open(archive).map_err(storage)?;
     let mut tar = tar::Archive::new(std::io::BufReader::new(file));
     let entries = tar.entries().map_err(|e| bad(e.to_string()))?;
     let mut seen = std::collections::BTreeSet::new();
     let mut volumes = 0;
+    let mut motion_files = 0;
     for (i, entry) in entries.enumerate() {
         if i >= MAX_ENTRIES {
             return Err(bad(format!("more than {MAX_ENTRIES} entries")));
@@ -229,8 +248,18 @@ pub fn unpack(archive: &Path, out: &Path) -> Result<(), Refusal> {
             Kind::Manifest => MAX_MANIFEST_BYTES,
             Kind::Record => validation::MAX_RECORD_BYTES,
             Kind::Script => validation::MAX_SCRIPT_BYTES,
-            Kind::Volume | Kind::Folder => u64::MAX,
+            Kind::MotionSignal => stylet_atlas::motion::MAX_SIGNAL_BYTES,
+            // Volumes and fields: bounded by the upload's own limit.
+            Kind::Volume | Kind::MotionField | Kind::Folder => u64::MAX,
         };
+        if matches!(kind, Kind::MotionField | Kind::MotionSignal) {
+            motion_files += 1;
+            if motion_files > MAX_MOTION_FILES {
+                return Err(bad(format!(
+                    "more than {MAX_MOTION_FILES} files of breathing motion (a₁, a₂, a₃ and a signal)"
+                )));
+            }
+        }
         if kind == Kind::Volume {
             volumes += 1;
             if volumes > 2 {
@@ -264,6 +293,24 @@ pub fn unpack(archive: &Path, out: &Path) -> Result<(), Refusal> {
 /// Checks the unpacked atlas in `dir` (see the module doc), running its smoke test in `work`.
 pub fn check(dir: &Path, work: &Path) -> Result<Checked, Refusal> {
     let atlas = stylet_atlas::load(dir).map_err(|e| Refusal::Damaged(strip_dir(&e.to_string(), dir)))?;
+    // Every motion file travels under the name atlas.toml gives it (the content hash covers it),
+    // and nothing else does.
+    let breathing = atlas.manifest.breathing_or_default();
+    let motion_named = breathing.measured_files();
+    if let Some(outside) = motion_named.iter().find(|n| !n.starts_with(&format!("{MOTION_DIR}/"))) {
+        return Err(Refusal::Archive(format!(
+            "atlas.toml names the breathing file {outside} outside {MOTION_DIR}/ (stylet atlas attach-motion puts them there)"
+        )));
+    }
+    for entry in std::fs::read_dir(dir.join(MOTION_DIR)).map_err(|e| Refusal::Storage(e.to_string()))? {
+        let name = entry.map_err(|e| Refusal::Storage(e.to_string()))?.file_name();
+        let name = format!("{MOTION_DIR}/{}", name.to_string_lossy());
+        if !motion_named.contains(&name.as_str()) {
+            return Err(Refusal::Archive(format!(
+                "{name} is not a breathing file atlas.toml names"
+            )));
+        }
+    }
     for entry in std::fs::read_dir(dir).map_err(|e| Refusal::Storage(e.to_string()))? {
         let name = entry.map_err(|e| Refusal::Storage(e.to_string()))?.file_name();
         let name = name.to_string_lossy();

@@ -81,7 +81,8 @@ pub struct Packed {
 }
 
 /// Checks the atlas in `dir` (its manifest, its content hash against its validation record) and
-/// packs `atlas.toml`, `validation.toml`, the two volumes and the record's scripts.
+/// packs `atlas.toml`, `validation.toml`, the two volumes, the record's scripts and the measured
+/// breathing motion (`motion/`), if any.
 pub fn pack(dir: &Path) -> Result<Packed, PublishError> {
     let fail = |m: String| PublishError::Atlas(format!("{}: {m}", dir.display()));
     let manifest_text =
@@ -105,6 +106,16 @@ pub fn pack(dir: &Path) -> Result<Packed, PublishError> {
     add(&manifest.volumes.labels)?;
     for s in &record.smoke {
         add(&format!("{SCRIPTS_DIR}/{}", s.script))?;
+    }
+    // Measured breathing motion: the files travel under the names atlas.toml gives them, which
+    // the content hash covers; the service takes them from motion/ only.
+    for name in manifest.breathing_or_default().measured_files() {
+        if !name.starts_with("motion/") || name.matches('/').count() != 1 {
+            return Err(fail(format!(
+                "{MANIFEST_FILE} names the breathing file {name} outside motion/; attach it with stylet atlas attach-motion"
+            )));
+        }
+        add(name)?;
     }
     let mut file = tar.into_inner().map_err(|e| fail(format!("packing: {e}")))?;
     let bytes = file.seek(SeekFrom::End(0)).map_err(|e| fail(e.to_string()))?;
