@@ -1080,6 +1080,40 @@ fn measured_fields_and_a_surrogate_signal_drive_a_session() {
     let header =
         stylet_recorder::reader::read_header(&std::fs::read(work.path().join("measured.mcap")).unwrap()).unwrap();
     assert!(header.breathing.enabled && header.breathing.measured);
+    // `stylet render` draws a moment of it on the CPU and on the GPU (the fields as textures).
+    for view in ["coronal", "3d"] {
+        let draw = |renderer: &str| {
+            let png = work.path().join(format!("measured-{view}{renderer}.png"));
+            ok(&[
+                "render",
+                "--atlas",
+                s(&atlas_dir),
+                "--session",
+                s(&work.path().join("measured.mcap")),
+                "--at",
+                "2.5",
+                "--view",
+                view,
+                "--size",
+                "160x120",
+                renderer,
+                "--out",
+                s(&png),
+            ]);
+            stylet_render::image::Image::read_png(&png).unwrap()
+        };
+        let d = stylet_render::image::diff(&draw("--gpu"), &draw("--cpu")).unwrap();
+        println!("measured {view}: GPU against CPU {d}");
+        assert!(
+            Tolerance {
+                mean: 0.05,
+                p99: 1,
+                max: 40
+            }
+            .admits(&d),
+            "{view}: {d}"
+        );
+    }
     let script = work.path().join("amp.txt");
     std::fs::write(&script, text.replace("breathing on", "breathing on amplitude 20")).unwrap();
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_stylet"))
@@ -1109,7 +1143,10 @@ fn measured_fields_and_a_surrogate_signal_drive_a_session() {
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
     left.sort();
-    assert!(left.len() == 1 && left[0].starts_with("a1-") && !files[0].ends_with(&left[0]), "{left:?}");
+    assert!(
+        left.len() == 1 && left[0].starts_with("a1-") && !files[0].ends_with(&left[0]),
+        "{left:?}"
+    );
     let halved = BreathingSettings {
         enabled: true,
         measured: true,

@@ -530,10 +530,24 @@ fn an_atlas_with_measured_breathing_is_published_with_its_motion() {
     write_displacement_field(&a1, &field, "publish test").unwrap();
     let signal = work.join("signal.csv");
     let rows: String = (0..=80)
-        .map(|k| format!("{:.2},{:.6}\n", k as f64 * 0.25, (std::f64::consts::PI * k as f64 * 0.25 / 4.0).sin().powi(2)))
+        .map(|k| {
+            format!(
+                "{:.2},{:.6}\n",
+                k as f64 * 0.25,
+                (std::f64::consts::PI * k as f64 * 0.25 / 4.0).sin().powi(2)
+            )
+        })
         .collect();
     std::fs::write(&signal, format!("time_s,g\n{rows}")).unwrap();
-    ok(&["atlas", "attach-motion", s(&dir), "--a1", s(&a1), "--signal", s(&signal)]);
+    ok(&[
+        "atlas",
+        "attach-motion",
+        s(&dir),
+        "--a1",
+        s(&a1),
+        "--signal",
+        s(&signal),
+    ]);
     ok(&["atlas", "validate", s(&dir)]);
 
     let srv = Server::start(&data, &db, &f.atlases(), &["--workers", "1"]);
@@ -589,7 +603,11 @@ fn an_atlas_with_measured_breathing_is_published_with_its_motion() {
         eprintln!("{what}: {got} {error}");
         assert_eq!(got, 422, "{what}: {error}");
         assert!(error.contains(reason), "{what}: {error}");
-        assert!(published_entries(&data).is_empty(), "{what} left {:?}", published_entries(&data));
+        assert!(
+            published_entries(&data).is_empty(),
+            "{what} left {:?}",
+            published_entries(&data)
+        );
     }
 
     // The command packs the motion with the atlas; the service keeps it.
@@ -615,7 +633,16 @@ fn an_atlas_with_measured_breathing_is_published_with_its_motion() {
     .unwrap();
     let session = work.join("breathe.mcap");
     ok(&[
-        "script", "run", "--atlas", s(&dir), "--script", s(&script), "--out", s(&session), "--trainee", "tina",
+        "script",
+        "run",
+        "--atlas",
+        s(&dir),
+        "--script",
+        s(&script),
+        "--out",
+        s(&session),
+        "--trainee",
+        "tina",
     ]);
     let tina = login(&b, "tina");
     let body = std::fs::read(&session).unwrap();

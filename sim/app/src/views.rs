@@ -264,13 +264,13 @@ impl ViewRenderer {
         let w = ((width as f32 * scale).round() as u32).max(1);
         let h = ((height as f32 * scale).round() as u32).max(1);
         let t0 = Instant::now();
-        // The GPU draws a breathing motion that is one factored field (the synthetic motion);
-        // measured fields are drawn on the CPU.
+        // The GPU draws the synthetic motion and measured fields it can hold; anything else
+        // is drawn on the CPU.
         #[cfg(feature = "gpu")]
         let on_gpu = moment
             .breathing
             .as_ref()
-            .is_none_or(|b| b.model.factored_at(b.t_s).is_some() || b.model.max_displacement_mm() == 0.0);
+            .is_none_or(|b| stylet_render_gpu::draws_breathing(b.model.as_ref(), b.t_s));
         #[cfg(feature = "gpu")]
         let image = match self.gpu.take() {
             Some(mut gpu) if on_gpu => {

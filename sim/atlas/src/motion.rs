@@ -115,7 +115,12 @@ pub fn attach_measured(
     let before = crate::store::read_manifest_text(dir)?;
     let mut manifest = crate::store::parse_manifest(&before)
         .map_err(|e| AtlasError::file(dir.join(crate::store::MANIFEST_FILE), e))?;
-    let old_files: Vec<String> = manifest.breathing_or_default().measured_files().into_iter().map(str::to_owned).collect();
+    let old_files: Vec<String> = manifest
+        .breathing_or_default()
+        .measured_files()
+        .into_iter()
+        .map(str::to_owned)
+        .collect();
     let motion_dir = dir.join("motion");
     std::fs::create_dir_all(&motion_dir)
         .map_err(|e| AtlasError::file(&motion_dir, format!("cannot create directory: {e}")))?;
@@ -158,7 +163,11 @@ pub fn attach_measured(
         Ok(_) => {
             let breathing = manifest.breathing_or_default();
             let new_files = breathing.measured_files();
-            remove(&mut old_files.iter().filter(|f| f.starts_with("motion/") && !new_files.contains(&f.as_str())));
+            remove(
+                &mut old_files
+                    .iter()
+                    .filter(|f| f.starts_with("motion/") && !new_files.contains(&f.as_str())),
+            );
         }
         Err(_) => remove(&mut copied.iter()),
     }

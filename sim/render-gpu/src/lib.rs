@@ -25,6 +25,7 @@ pub mod volume;
 pub mod xray;
 
 pub use context::{AdapterSummary, GpuContext};
+pub use motion::{MAX_FIELD_BYTES, draws as draws_breathing};
 pub use mpr::GpuMpr;
 pub use raycast::GpuRenderer;
 pub use ultrasound::GpuUltrasound;

@@ -234,3 +234,26 @@ fn a_breathing_slice_matches_the_cpu() {
     assert!(label_diff * 1000 <= gpu.labels.len(), "labels differ on {label_diff}");
     assert!(moved > 2000, "only {moved} pixels moved with the breath");
 }
+
+/// A slice of the phantom breathing with measured fields (three grid fields, each on its own
+/// grid, weighted by g, g′ and 1) matches the CPU's.
+#[test]
+fn a_slice_breathing_with_measured_fields_matches_the_cpu() {
+    let both = phantom();
+    let atlas = &both.cpu.atlas;
+    let (hook, g) = measured_hook(both);
+    assert!(stylet_render_gpu::draws_breathing(hook.model.as_ref(), hook.t_s));
+    let (lo, hi) = atlas.ct().grid().world_bounds();
+    let spec = SliceSpec::plane(atlas, Plane::Coronal, (lo + hi) * 0.5, Window::ABDOMEN, 256);
+    let mut mpr = GpuMpr::new(ctx());
+    let gpu = mpr.render_moving(ctx(), &both.gpu, &spec, Some(&hook), None).unwrap();
+    let cpu = render_spec_moving(atlas, &spec, Some(&hook), None).unwrap();
+    let d = diff(&gpu.to_image(), &cpu.to_image()).unwrap();
+    let label_diff = gpu.labels.iter().zip(&cpu.labels).filter(|(a, b)| a != b).count();
+    let still = mpr.render(ctx(), &both.gpu, &spec).unwrap();
+    let moved = gpu.rgb.iter().zip(&still.rgb).filter(|(a, b)| a != b).count();
+    println!("measured coronal (g = {g:.3}): {d}; labels differ on {label_diff}; {moved} pixels moved");
+    assert!(MPR.admits(&d), "{d}");
+    assert!(label_diff * 1000 <= gpu.labels.len(), "labels differ on {label_diff}");
+    assert!(moved > 2000, "only {moved} pixels moved with the breath");
+}

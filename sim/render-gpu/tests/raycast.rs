@@ -381,8 +381,28 @@ fn warped_rays_of_a_breathing_patient_match_the_cpu() {
     compare("phantom-breathing-clip-labels", b, &s, 320, 264, GPU_CPU);
 }
 
-/// A motion the GPU cannot draw (a surrogate model with a rate term is not one factored field)
-/// is a named refusal, not a still picture.
+/// Warped rays through measured fields (three grid fields on their own grids) match the CPU.
+#[test]
+fn warped_rays_through_measured_fields_match_the_cpu() {
+    let b = phantom();
+    let (hook, g) = measured_hook(b);
+    let (_, tf) = transfer_functions().swap_remove(1);
+    let still = scene(&b.cpu, tf);
+    let mut s = still.clone();
+    s.motion = Some(hook);
+    println!("measured g = {g:.3}");
+    compare("phantom-measured", b, &s, 320, 264, GPU_CPU);
+    let moved = render_gpu(b, &s, 320, 264);
+    let at_rest = render_gpu(b, &still, 320, 264);
+    let changed = moved.rgba.iter().zip(&at_rest.rgba).filter(|(a, b)| a != b).count();
+    assert!(
+        changed > 2000,
+        "the measured frame differs from the still one in {changed} pixels"
+    );
+}
+
+/// A motion the GPU cannot draw (a surrogate model whose fields are neither one factored field
+/// nor grid fields) is a named refusal, not a still picture.
 #[test]
 fn a_motion_the_gpu_cannot_draw_is_refused() {
     use std::sync::Arc;
@@ -396,6 +416,7 @@ fn a_motion_the_gpu_cannot_draw_is_refused() {
         a3: None,
         signal: BreathingSignal::new(settings.signal).unwrap().into(),
     });
+    assert!(!stylet_render_gpu::draws_breathing(model.as_ref(), 1.0));
     let mut s = scene(&b.cpu, transfer_functions().swap_remove(0).1);
     s.motion = Some(stylet_render::scene::MotionHook { model, t_s: 1.0 });
     let err = renderer()

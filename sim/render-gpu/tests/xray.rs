@@ -168,6 +168,18 @@ fn gpu_xray_of_a_breathing_patient_matches_the_cpu() {
         .render_moving(ctx(), &both.gpu, &scene, Some(&hook), 128, 128)
         .unwrap();
     assert_agree_within(&format!("phantom breathing (g = {g:.3})"), &cpu, &gpu, 1e-3);
+    // The same with measured fields (three grid fields on grids of their own).
+    let (measured, g_measured) = measured_hook(both);
+    let cpu_measured = render_moving(atlas, &scene, Some(&measured), 128, 128).unwrap();
+    let gpu_measured = xray
+        .render_moving(ctx(), &both.gpu, &scene, Some(&measured), 128, 128)
+        .unwrap();
+    assert_agree_within(
+        &format!("phantom measured (g = {g_measured:.3})"),
+        &cpu_measured,
+        &gpu_measured,
+        1e-3,
+    );
     let still = xray.render(ctx(), &both.gpu, &scene, 128, 128).unwrap();
     let top = still.attenuation.iter().cloned().fold(0.0f32, f32::max);
     let moved = gpu

@@ -16,6 +16,21 @@ pub trait SpatialField: Send + Sync {
     fn factored(&self) -> Option<FactoredField<'_>> {
         None
     }
+
+    /// The field as a [`GridField`], when it is one (measured motion).
+    fn as_grid(&self) -> Option<&GridField> {
+        None
+    }
+}
+
+/// A field of the form v(X) = Σᵢ wᵢ · fᵢ(X): up to three [`GridField`]s, each scaled — the
+/// surrogate model at one moment (thesis eq. 5.3.6: a₁ by g(t), a₂ by g′(t), a₃ by 1) when its
+/// fields are measured. The form a GPU draws: the fields uploaded once, the weights written per
+/// frame (docs/breathing.md "On the GPU").
+#[derive(Clone, Copy)]
+pub struct WeightedGrids<'a> {
+    /// (field, weight) in the order a₁, a₂, a₃; absent terms are `None`.
+    pub terms: [Option<(&'a GridField, f64)>; 3],
 }
 
 /// A field of the form v(X) = d · w(X.z) · m(X): a constant direction d, a piecewise-linear
@@ -84,6 +99,10 @@ impl SpatialField for GridField {
             .iter()
             .map(|v| DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64).length())
             .fold(0.0, f64::max)
+    }
+
+    fn as_grid(&self) -> Option<&GridField> {
+        Some(self)
     }
 
     fn at(&self, x_ref: DVec3) -> DVec3 {

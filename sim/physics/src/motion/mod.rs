@@ -24,7 +24,7 @@ use std::sync::Arc;
 
 use glam::{DMat3, DVec3};
 
-pub use field::{FactoredField, GridField, SpatialField};
+pub use field::{FactoredField, GridField, SpatialField, WeightedGrids};
 pub use models::{FullCycle, HalfCycle, Surrogate, SurrogateSignal};
 pub use sampled::SampledSignal;
 pub use signal::{BreathingSignal, SignalParams};
@@ -52,6 +52,12 @@ pub trait MotionModel: Send + Sync {
     /// u(·, t) as one [`FactoredField`] (its direction scaled by the moment), when the model
     /// has that form: what the GPU renderers draw.
     fn factored_at(&self, _t_s: f64) -> Option<FactoredField<'_>> {
+        None
+    }
+
+    /// u(·, t) as [`WeightedGrids`] (measured fields, their weights at the moment), when the
+    /// model has that form: what the GPU renderers draw of a measured motion.
+    fn weighted_grids_at(&self, _t_s: f64) -> Option<WeightedGrids<'_>> {
         None
     }
 }

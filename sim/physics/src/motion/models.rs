@@ -6,7 +6,7 @@ use std::sync::Arc;
 use glam::DVec3;
 
 use super::MotionModel;
-use super::field::{FactoredField, SpatialField};
+use super::field::{FactoredField, GridField, SpatialField, WeightedGrids};
 use super::sampled::SampledSignal;
 use super::signal::BreathingSignal;
 
@@ -197,6 +197,24 @@ impl MotionModel for Surrogate {
         Box::new(move |x| self.combine(x, signal))
     }
 
+    /// g(t)·a₁ + g′(t)·a₂ + a₃ when every field present is a grid field.
+    fn weighted_grids_at(&self, t_s: f64) -> Option<WeightedGrids<'_>> {
+        let (g, rate) = self.signal_at(t_s);
+        fn term(f: &Option<Arc<dyn SpatialField>>, w: f64) -> Option<Option<(&GridField, f64)>> {
+            match f {
+                None => Some(None),
+                Some(f) => Some(Some((f.as_grid()?, w))),
+            }
+        }
+        Some(WeightedGrids {
+            terms: [
+                Some((self.a1.as_grid()?, g)),
+                term(&self.a2, rate)?,
+                term(&self.a3, 1.0)?,
+            ],
+        })
+    }
+
     /// g(t)·a₁ when a₁ is factored and there is no a₂ or a₃.
     fn factored_at(&self, t_s: f64) -> Option<FactoredField<'_>> {
         if self.a2.is_some() || self.a3.is_some() {
@@ -324,5 +342,49 @@ mod tests {
             );
             assert!(at(x).length() <= bound, "t {t}: |u| {} > {bound}", at(x).length());
         }
+    }
+
+    /// The weighted grids of a measured surrogate model are its displacement at that moment,
+    /// bit for bit; a field that is not a grid has no such form.
+    #[test]
+    fn a_surrogate_of_grid_fields_is_weighted_grids() {
+        let grid = crate::Grid::new(
+            [6, 5, 4],
+            crate::Affine::from_spacing([4.0; 3], DVec3::new(-10.0, -8.0, -6.0)),
+        )
+        .unwrap();
+        let field = |k: f64| {
+            Arc::new(GridField::sample(grid, move |x| {
+                DVec3::new(0.1 * x.y, k, -0.2 * x.z + k)
+            })) as Arc<dyn SpatialField>
+        };
+        let signal = BreathingSignal::new(SignalParams::default()).unwrap();
+        let model = Surrogate {
+            a1: field(1.0),
+            a2: Some(field(-0.5)),
+            a3: Some(field(0.25)),
+            signal: signal.clone().into(),
+        };
+        for t in [0.0, 0.7, 2.3, 4.1] {
+            let w = model.weighted_grids_at(t).expect("grid fields");
+            for x in [
+                DVec3::new(1.0, 2.0, 3.0),
+                DVec3::new(-7.5, 4.0, 0.2),
+                DVec3::new(50.0, 0.0, 0.0),
+            ] {
+                let mut u = DVec3::ZERO;
+                for (f, weight) in w.terms.iter().flatten() {
+                    u += f.at(x) * *weight;
+                }
+                assert_eq!(u, model.displacement(x, t), "{x} at {t}");
+            }
+        }
+        let uniform = Surrogate {
+            a1: Arc::new(Uniform(DVec3::X)),
+            a2: None,
+            a3: None,
+            signal: signal.into(),
+        };
+        assert!(uniform.weighted_grids_at(1.0).is_none());
     }
 }

@@ -326,3 +326,48 @@ pub fn breathing_hook(both: &Both) -> (stylet_render::scene::MotionHook, f64) {
         .unwrap();
     (stylet_render::scene::MotionHook { model, t_s }, signal.g(t_s))
 }
+
+/// A measured-style motion on the phantom (three grid fields on grids of their own, as an
+/// imported registration gives, thesis eq. 5.3.6): a₁ the synthetic motion's displacement at its
+/// deepest breath per unit g sampled on a 5 mm grid, a₂ a third of it on a 7 mm grid, a₃ a
+/// constant 1.5 mm cranial shift on a 20 mm grid; driven by the default signal at its deepest
+/// breath. Returns the hook and g.
+pub fn measured_hook(both: &Both) -> (stylet_render::scene::MotionHook, f64) {
+    use std::sync::Arc;
+    use stylet_physics::glam::DVec3;
+    use stylet_physics::motion::{BreathingSignal, GridField, SpatialField, Surrogate};
+    use stylet_physics::{Affine, Grid};
+    let (synthetic, _) = breathing_hook(both);
+    let (lo, hi) = both.cpu.atlas.ct().grid().world_bounds();
+    let grid = |spacing: f64| {
+        let n = ((hi - lo) / spacing).ceil().as_uvec3();
+        Grid::new(
+            [n.x as usize + 1, n.y as usize + 1, n.z as usize + 1],
+            Affine::from_spacing([spacing; 3], lo),
+        )
+        .unwrap()
+    };
+    let (model, t_peak) = (synthetic.model.clone(), synthetic.t_s);
+    let g_peak = {
+        let s = BreathingSignal::new(stylet_physics::motion::BreathingSettings::on().signal).unwrap();
+        s.g(t_peak)
+    };
+    let per_g = move |x: DVec3| model.displacement(x, t_peak) / g_peak;
+    let a1 = GridField::sample(grid(5.0), per_g.clone());
+    let a2 = GridField::sample(grid(7.0), move |x| per_g(x) / 3.0);
+    let a3 = GridField::sample(grid(20.0), |_| DVec3::new(0.0, 0.0, 1.5));
+    let signal = BreathingSignal::new(stylet_physics::motion::BreathingSettings::on().signal).unwrap();
+    // A moment on the way in: g′ is not zero, so a₂ counts.
+    let t_s = (0..600)
+        .map(|i| i as f64 * 0.1)
+        .find(|&t| signal.g(t) > 0.6 && signal.g_and_rate(t).1 > 0.0)
+        .unwrap();
+    let g = signal.g(t_s);
+    let model = Arc::new(Surrogate {
+        a1: Arc::new(a1) as Arc<dyn SpatialField>,
+        a2: Some(Arc::new(a2)),
+        a3: Some(Arc::new(a3)),
+        signal: signal.into(),
+    });
+    (stylet_render::scene::MotionHook { model, t_s }, g)
+}
