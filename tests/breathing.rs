@@ -1162,3 +1162,45 @@ fn measured_fields_and_a_surrogate_signal_drive_a_session() {
     let half_mm = 0.5 * u(centre).length();
     assert!((peak_mm - half_mm).abs() < 0.3, "{peak_mm} against {half_mm}");
 }
+
+/// The needle through the sliding interface while the patient breathes (the default phantom's
+/// shipped success script with `breathing on`): the device's step to reference space is relaxed
+/// where u is steep (`motion::device_step`), so the force never alternates tick by tick (as the
+/// plain fixed-point step did in the intercostal wall: 8 N one tick, 0 the next, for 0.45 s,
+/// which the scoring counted as 7 redirections), and the session scores no redirection.
+#[test]
+fn a_needle_through_the_sliding_interface_feels_no_buzz() {
+    let (dir, atlas) = phantom();
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts/success-intercostal.txt"))
+        .unwrap()
+        .replace("end 20", "breathing on\nend 20");
+    let script = parse(&text).unwrap();
+    let (mut sim, mut device) =
+        scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
+    let mut forces = Vec::new();
+    let mut in_ramp = 0;
+    run_headless(&mut sim, &mut device, |_, o, sim| {
+        forces.push(o.force_n);
+        // Ticks whose tip is where the motion is steep (the ramps of the mobility map).
+        let u = sim.motion().at_time(sim.breath_time_s());
+        if let Some(tip) = sim.needle().and_then(|n| n.nodes().last().copied()) {
+            if (u(tip + DVec3::X) - u(tip)).length() > 0.5 {
+                in_ramp += 1;
+            }
+        }
+    });
+    // A tick-by-tick alternation: two successive changes of more than 2 N in opposite directions.
+    let alternations = forces
+        .windows(3)
+        .filter(|w| {
+            let (a, b) = (w[1] - w[0], w[2] - w[1]);
+            a.length() > 2.0 && b.length() > 2.0 && a.dot(b) < 0.0
+        })
+        .count();
+    println!("{in_ramp} ticks with the tip where u is steep; {alternations} alternations");
+    assert!(in_ramp > 100, "the script never takes the tip through a ramp ({in_ramp} ticks)");
+    assert_eq!(alternations, 0);
+    let work = tempfile::tempdir().unwrap();
+    let r = record_and_score(dir.path(), work.path(), "success-intercostal", &text);
+    assert_eq!(r["metrics"]["redirections"], 0, "{}", r["metrics"]);
+}

@@ -22,7 +22,7 @@ use crate::{LabelId, PunctureAtlas};
 
 /// Version of the physics: bump it with every change that alters any output bit, so a replay
 /// knows which physics graded a session.
-pub const PHYSICS_VERSION: u32 = 7;
+pub const PHYSICS_VERSION: u32 = 8;
 
 /// Default haptic rate.
 pub const DEFAULT_TICK_RATE_HZ: u32 = 1000;
@@ -343,8 +343,9 @@ impl Simulation {
         let model = self.config.motion.clone();
         // u(·, t) of this tick: the signal worked out once for its six evaluations.
         let u_at = model.at_time(t_breath);
-        // One fixed-point step of the inverse, X⁺ = x − u(X, t) (thesis §5.4.3).
-        let x_ref = x_world - u_at(self.device_ref.unwrap_or(x_world));
+        // One fixed-point step of the inverse, X⁺ = x − u(X, t) (thesis §5.4.3), relaxed where u
+        // is steep.
+        let x_ref = motion::device_step(&*u_at, x_world, self.device_ref.unwrap_or(x_world));
         self.device_ref = Some(x_ref);
         let device = self.config.device;
         let atlas = self.atlas.clone();

@@ -273,6 +273,41 @@ pub fn to_reference(model: &dyn MotionModel, x_world: DVec3, x_ref_prev: DVec3, 
     x_world - model.displacement(x_ref_prev, t_s)
 }
 
+/// Above this steepness L (how much u changes along the step per mm of step) the device's step
+/// to reference space is relaxed ([`device_step`]); below it the plain step contracts by L or
+/// better.
+pub const RELAX_ABOVE: f64 = 0.5;
+
+/// The device's reference position this tick (thesis §5.4.3): one fixed-point step from last
+/// tick's X, X⁺ = x − u(X), with u(·, t) of this tick.
+///
+/// Where u changes faster than the step contracts (the ramps of the sliding interface: 12 mm
+/// over 4 mm for the default synthetic motion), the plain step overshoots and can alternate
+/// between two points tick after tick — a period-2 oscillation the hand would feel as a buzz of
+/// several newtons. So the step's steepness is measured along the step itself,
+/// L = |u(X⁺) − u(X)| / |X⁺ − X| (one more read of u), and above [`RELAX_ABOVE`] the step is
+/// relaxed,
+///
+///   X⁺ = X + (x − u(X) − X) / (1 + L),
+///
+/// which lands on the root of a linear ramp that rises along the step, and moves away without
+/// overshoot from a fold (a world point the motion reaches from two places) to one of its sides.
+/// Elsewhere the plain step is kept bit for bit.
+pub fn device_step(u: &dyn Fn(DVec3) -> DVec3, x_world: DVec3, x_ref_prev: DVec3) -> DVec3 {
+    let u0 = u(x_ref_prev);
+    let plain = x_world - u0;
+    let step = plain - x_ref_prev;
+    let step_mm = step.length();
+    if step_mm == 0.0 {
+        return plain;
+    }
+    let steepness = (u(plain) - u0).length() / step_mm;
+    if !(steepness > RELAX_ABOVE) {
+        return plain;
+    }
+    x_ref_prev + step / (1.0 + steepness)
+}
+
 /// R = ∂u/∂X + I at `x_ref` by forward differences of 1 mm (eq. 5.4.3).
 pub fn deformation_gradient(model: &dyn MotionModel, x_ref: DVec3, t_s: f64) -> DMat3 {
     gradient_of(&*model.at_time(t_s), x_ref)
@@ -330,5 +365,36 @@ mod tests {
         let r = deformation_gradient(&Shear, x_ref, 0.0);
         let d_world = (r * DVec3::Z).normalize();
         assert!((correct_direction(&r, d_world) - DVec3::Z).length() < 1e-12);
+    }
+
+    /// A cranio-caudal motion of 12 mm below z = 0 that falls to 0 over 4 mm of z (the
+    /// steepness of a sliding interface's ramp): the plain step alternates between the two
+    /// plateaus for ever; the relaxed step settles on X with X + u(X) = x, as it does on the
+    /// mirrored ramp (12 mm above z = 4).
+    #[test]
+    fn the_device_step_settles_where_u_is_steep() {
+        let rising = |x: DVec3| DVec3::new(0.0, 0.0, -12.0 * (1.0 - (x.z / 4.0).clamp(0.0, 1.0)));
+        let falling = |x: DVec3| DVec3::new(0.0, 0.0, -12.0 * (x.z / 4.0).clamp(0.0, 1.0));
+        for (name, u, x) in [
+            ("rising", &rising as &dyn Fn(DVec3) -> DVec3, DVec3::new(5.0, 0.0, -4.0)),
+            ("falling", &falling, DVec3::new(5.0, 0.0, 3.0)),
+        ] {
+            let (mut plain, mut relaxed) = (x, x);
+            let mut plain_moves = Vec::new();
+            for _ in 0..200 {
+                let next = x - u(plain);
+                plain_moves.push((next - plain).length());
+                plain = next;
+                relaxed = device_step(u, x, relaxed);
+            }
+            if name == "rising" {
+                assert!(plain_moves[190..].iter().all(|&d| d > 1.0), "{plain_moves:?}");
+            }
+            assert!((relaxed + u(relaxed) - x).length() < 1e-9, "{name}: {relaxed}");
+        }
+        // Where u is gentle the step is the plain one, bit for bit.
+        let gentle = |x: DVec3| DVec3::new(0.0, 0.1 * x.y, -0.2 * x.z);
+        let (x, p) = (DVec3::new(5.0, 0.0, -4.0), DVec3::new(1.0, 2.0, 3.0));
+        assert_eq!(device_step(&gentle, x, p), x - gentle(p));
     }
 }
