@@ -1171,12 +1171,13 @@ fn measured_fields_and_a_surrogate_signal_drive_a_session() {
 #[test]
 fn a_needle_through_the_sliding_interface_feels_no_buzz() {
     let (dir, atlas) = phantom();
-    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts/success-intercostal.txt"))
-        .unwrap()
-        .replace("end 20", "breathing on\nend 20");
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts/success-intercostal.txt"),
+    )
+    .unwrap()
+    .replace("end 20", "breathing on\nend 20");
     let script = parse(&text).unwrap();
-    let (mut sim, mut device) =
-        scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
+    let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
     let mut forces = Vec::new();
     let mut in_ramp = 0;
     run_headless(&mut sim, &mut device, |_, o, sim| {
@@ -1198,7 +1199,10 @@ fn a_needle_through_the_sliding_interface_feels_no_buzz() {
         })
         .count();
     println!("{in_ramp} ticks with the tip where u is steep; {alternations} alternations");
-    assert!(in_ramp > 100, "the script never takes the tip through a ramp ({in_ramp} ticks)");
+    assert!(
+        in_ramp > 100,
+        "the script never takes the tip through a ramp ({in_ramp} ticks)"
+    );
     assert_eq!(alternations, 0);
     let work = tempfile::tempdir().unwrap();
     let r = record_and_score(dir.path(), work.path(), "success-intercostal", &text);

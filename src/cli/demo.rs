@@ -259,7 +259,7 @@ fn trainee_of(file: &Path) -> anyhow::Result<String> {
 /// The session the demo draws in 3D at the end of its puncture.
 const PICTURED_SESSION: &str = "success-intercostal";
 
-const DEMO_SCRIPTS: [(&str, &str, &str); 7] = [
+const DEMO_SCRIPTS: [(&str, &str, &str); 8] = [
     (
         "palpation-sweep",
         "demo-alice",
@@ -294,5 +294,10 @@ const DEMO_SCRIPTS: [(&str, &str, &str); 7] = [
         "probe-across",
         "demo-carol",
         include_str!("../../atlases/phantom/scripts/probe-across.txt"),
+    ),
+    (
+        "breath-hold",
+        "demo-carol",
+        include_str!("../../atlases/phantom/scripts/breath-hold.txt"),
     ),
 ];

@@ -186,6 +186,15 @@ fn print_report(file: &Path, r: &ScoreReport) {
         yes(m.workflow.ultrasound_before_puncture),
         yes(m.workflow.confirmed_before_withdrawal)
     );
+    if let Some(b) = &m.breathing {
+        sayf!(
+            "breathing    target reached {} (correct: {}), needle in while breathing {:.1} s, tissue carried past the tip {:.1} mm",
+            b.target_reached_phase.map_or("never", |p| p.as_str()),
+            b.correct_phase.as_str(),
+            b.needle_in_while_breathing_s,
+            b.tissue_slide_mm
+        );
+    }
     if let Some(gm) = &m.guided {
         sayf!(
             "guided       path {}: entry {:.1} mm off, angle {:.1}°, deviation mean {:.1} mm, max {:.1} mm",
