@@ -382,10 +382,13 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
         "lung-hit",
         "vessel-hit",
         "palpation-sweep",
+        "breath-hold",
     ] {
         assert!(row(name).split_whitespace().nth(4) == Some("yes"), "{}", row(name));
     }
     assert!(row("success-intercostal").contains("passed"));
+    // The breathing patient punctured in a breath held at end-expiration passes too.
+    assert!(row("breath-hold").contains("passed"), "{}", row("breath-hold"));
     // The palpation and probe scripts are graded as their exercises, and pass.
     for name in ["palpation-sweep", "probe-parallel", "probe-across"] {
         assert!(row(name).contains(" passed"), "{}", row(name));
@@ -404,7 +407,7 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
         let why = &why[why.find("failed").unwrap()..];
         assert!(!why.contains('_'), "{why}");
     }
-    assert_eq!(std::fs::read_dir(d.path().join("sessions")).unwrap().count(), 7);
+    assert_eq!(std::fs::read_dir(d.path().join("sessions")).unwrap().count(), 8);
 
     // The demo's table and the dashboard agree on every session: the service's own replay gives
     // the same score, outcome and reasons as the table, and the session list shows them.
@@ -427,7 +430,7 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
     let table_rows = text
         .lines()
         .filter(|l| l.split_whitespace().next().is_some_and(|w| w.ends_with(".mcap")));
-    assert_eq!(table_rows.clone().count(), 7, "{text}");
+    assert_eq!(table_rows.clone().count(), 8, "{text}");
     for line in table_rows {
         let cols: Vec<&str> = line.split_whitespace().collect();
         let (scenario, score) = (cols[2], cols[8]);
