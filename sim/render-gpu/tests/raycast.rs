@@ -12,7 +12,7 @@ use common::*;
 use stylet_physics::ProbeKind;
 use stylet_physics::glam::{Quat, Vec3};
 use stylet_render::image::Tolerance;
-use stylet_render::scene::{ClipPlane, Quality, Tagging};
+use stylet_render::scene::{ClipPlane, Quality, Scene, Tagging};
 use stylet_render::tools::{FingerShape, NeedleShape, ProbeShape, ToolState};
 use stylet_render_gpu::{CtPlacement, GpuError, GpuVolume, RecordFilter, UploadOptions};
 
@@ -351,6 +351,26 @@ fn bad_input_gets_a_named_error() {
     );
 }
 
+/// The soft preset at the moment of `hook` on both renderers (fast switches): the GPU matches
+/// the CPU and the frame differs from the still one. Returns the moving scene.
+fn check_warped(name: &str, b: &Both, hook: stylet_render::scene::MotionHook, g: f64) -> Scene {
+    let (_, tf) = transfer_functions().swap_remove(1);
+    let still = scene(&b.cpu, tf);
+    let mut s = still.clone();
+    s.motion = Some(hook);
+    println!("{name} g = {g:.3}");
+    compare(&format!("phantom-{name}"), b, &s, 320, 264, GPU_CPU);
+    let moved = render_gpu(b, &s, 320, 264);
+    let at_rest = render_gpu(b, &still, 320, 264);
+    let changed = moved.rgba.iter().zip(&at_rest.rgba).filter(|(a, b)| a != b).count();
+    println!("{name} changes {changed} of {} pixels", moved.rgba.len());
+    assert!(
+        changed > 2000,
+        "the {name} frame differs from the still one in {changed} pixels"
+    );
+    s
+}
+
 /// Rays warped by the breathing motion (eqs. 5.4.1–5.4.2) on the GPU against the CPU
 /// reference: fast switches and naive, a clip plane with label tagging (its plane sample is
 /// warped too), and the motion visible (the still frame differs).
@@ -358,20 +378,7 @@ fn bad_input_gets_a_named_error() {
 fn warped_rays_of_a_breathing_patient_match_the_cpu() {
     let b = phantom();
     let (hook, g) = breathing_hook(b);
-    let (_, tf) = transfer_functions().swap_remove(1);
-    let still = scene(&b.cpu, tf);
-    let mut s = still.clone();
-    s.motion = Some(hook);
-    println!("breathing g = {g:.3}");
-    compare("phantom-breathing", b, &s, 320, 264, GPU_CPU);
-    let moved = render_gpu(b, &s, 320, 264);
-    let at_rest = render_gpu(b, &still, 320, 264);
-    let changed = moved.rgba.iter().zip(&at_rest.rgba).filter(|(a, b)| a != b).count();
-    println!("breathing changes {changed} of {} pixels", moved.rgba.len());
-    assert!(
-        changed > 2000,
-        "the breathing frame differs from the still one in {changed} pixels"
-    );
+    let mut s = check_warped("breathing", b, hook, g);
     let mut naive = s.clone();
     naive.quality = Quality::naive(s.quality.step_mm);
     compare("phantom-breathing-naive", b, &naive, 160, 132, GPU_CPU);
@@ -386,19 +393,7 @@ fn warped_rays_of_a_breathing_patient_match_the_cpu() {
 fn warped_rays_through_measured_fields_match_the_cpu() {
     let b = phantom();
     let (hook, g) = measured_hook(b);
-    let (_, tf) = transfer_functions().swap_remove(1);
-    let still = scene(&b.cpu, tf);
-    let mut s = still.clone();
-    s.motion = Some(hook);
-    println!("measured g = {g:.3}");
-    compare("phantom-measured", b, &s, 320, 264, GPU_CPU);
-    let moved = render_gpu(b, &s, 320, 264);
-    let at_rest = render_gpu(b, &still, 320, 264);
-    let changed = moved.rgba.iter().zip(&at_rest.rgba).filter(|(a, b)| a != b).count();
-    assert!(
-        changed > 2000,
-        "the measured frame differs from the still one in {changed} pixels"
-    );
+    check_warped("measured", b, hook, g);
 }
 
 /// A motion the GPU cannot draw (a surrogate model whose fields are neither one factored field
