@@ -728,7 +728,8 @@ fn the_service_recovers_after_its_data_directory_was_read_only() {
         std::thread::sleep(Duration::from_millis(200));
     }
     // Traffic during the window: parallel logins and comments open new connections, which SQLite
-    // opens read-only. Whatever they answer, the server must not die.
+    // opens read-only. Whatever they answer, the server must not die, and it answers before the
+    // request deadline (no 408): a request waits for a connection at most Store::ACQUIRE_TIMEOUT.
     let during_window: Vec<_> = (0..16)
         .map(|i| {
             let b = b.clone();

@@ -177,12 +177,19 @@ impl Store {
         }
     }
 
+    /// How long a request waits for a database connection before it gets 503 (try later). Well
+    /// under the request timeout (30 s by default): while the disk is read-only every new SQLite
+    /// connection is refused and the pool keeps trying until this deadline, and the client should
+    /// hear "the storage failed, try again", not a 408 from the request deadline winning the race.
+    pub const ACQUIRE_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10);
+
     /// Connects, sets SQLite to WAL, applies the migrations.
     pub async fn open(url: &str) -> Result<Store, StoreError> {
         install_default_drivers();
         let sqlite = url.starts_with("sqlite:");
         let pool = AnyPoolOptions::new()
             .max_connections(8)
+            .acquire_timeout(Self::ACQUIRE_TIMEOUT)
             .after_connect(move |conn, _| {
                 Box::pin(async move {
                     if sqlite {
