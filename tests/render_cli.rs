@@ -571,7 +571,10 @@ fn bad_input_is_refused_with_the_problem_named_and_nothing_written() {
     std::fs::create_dir(&other).unwrap();
     for f in std::fs::read_dir(&atlas).unwrap() {
         let f = f.unwrap().path();
-        std::fs::copy(&f, other.join(f.file_name().unwrap())).unwrap();
+        // Files only: not the derived-data cache folder.
+        if f.is_file() {
+            std::fs::copy(&f, other.join(f.file_name().unwrap())).unwrap();
+        }
     }
     let manifest = other.join("atlas.toml");
     let text = std::fs::read_to_string(&manifest).unwrap();

@@ -410,3 +410,22 @@ pub fn load_published(root: &Path) -> Result<Vec<(Atlas, Scorer)>, String> {
     }
     Ok(loaded)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_archive_cannot_carry_a_derived_data_cache() {
+        // The loader trusts a cache whose header and checksums agree; only this machine writes one.
+        for (name, is_dir) in [
+            (".stylet-cache", true),
+            ("./.stylet-cache/", true),
+            (".stylet-cache/derived-0123456789abcdef.bin", false),
+            ("./.stylet-cache/derived-0123456789abcdef.bin", false),
+        ] {
+            assert!(kind_of(name, is_dir).is_err(), "{name} accepted");
+        }
+        assert!(matches!(kind_of("ct.nii.gz", false), Ok(Kind::Volume)));
+    }
+}

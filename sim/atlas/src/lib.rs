@@ -6,6 +6,7 @@
 //! (NIfTI + label maps such as TotalSegmentator output, and DICOM series behind the `dicom`
 //! feature).
 
+pub mod cache;
 pub mod import;
 pub mod manifest;
 pub mod motion;
@@ -17,8 +18,9 @@ pub mod validation;
 
 use std::path::{Path, PathBuf};
 
+pub use cache::{CacheMode, CacheStatus};
 pub use manifest::{EchoClass, Exercise, Manifest, ScenarioFile};
-pub use store::{Atlas, ThresholdSource, load, write};
+pub use store::{Atlas, ThresholdSource, load, load_with, write};
 
 /// A problem with atlas input, always naming the file it concerns.
 #[derive(Debug, thiserror::Error)]

@@ -62,10 +62,58 @@ impl DType {
     }
 }
 
-/// A volume as stored: grid plus values converted to f64 with the file's scaling applied.
+/// A volume as stored: grid, the voxel bytes, their type and the file's scaling.
 struct RawVolume {
     grid: Grid,
-    values: Vec<f64>,
+    bytes: Vec<u8>,
+    dtype: DType,
+    little: bool,
+    /// `scl_slope` and `scl_inter` when they change values (else `None`).
+    scaling: Option<(f64, f64)>,
+}
+
+impl RawVolume {
+    /// Calls `f` with every value in file order, converted to f64 with the scaling applied; one
+    /// loop per voxel type, no intermediate buffer.
+    fn for_each_value(&self, mut f: impl FnMut(f64)) {
+        let scaled = |v: f64| match self.scaling {
+            Some((slope, inter)) => v * slope + inter,
+            None => v,
+        };
+        let raw = &self.bytes;
+        let little = self.little;
+        macro_rules! conv {
+            ($t:ty) => {{
+                const N: usize = std::mem::size_of::<$t>();
+                for c in raw.chunks_exact(N) {
+                    let b: [u8; N] = c.try_into().expect("chunk size");
+                    let v = if little {
+                        <$t>::from_le_bytes(b)
+                    } else {
+                        <$t>::from_be_bytes(b)
+                    };
+                    f(scaled(v as f64));
+                }
+            }};
+        }
+        match self.dtype {
+            DType::U8 => raw.iter().for_each(|&b| f(scaled(b as f64))),
+            DType::I8 => raw.iter().for_each(|&b| f(scaled(b as i8 as f64))),
+            DType::I16 => conv!(i16),
+            DType::U16 => conv!(u16),
+            DType::I32 => conv!(i32),
+            DType::U32 => conv!(u32),
+            DType::F32 => conv!(f32),
+            DType::F64 => conv!(f64),
+        }
+    }
+
+    /// Every value as f64 (for fields read component by component).
+    fn values(&self) -> Vec<f64> {
+        let mut out = Vec::with_capacity(self.bytes.len() / self.dtype.size_of());
+        self.for_each_value(|v| out.push(v));
+        out
+    }
 }
 
 fn err(path: &Path, message: impl Into<String>) -> AtlasError {
@@ -252,9 +300,10 @@ fn read_raw_shaped(path: &Path, shape: Shape) -> Result<RawVolume, AtlasError> {
             format!("{nbytes} bytes of voxel data exceed the limit of {MAX_DATA_BYTES}"),
         ));
     }
-    // No reservation up front: the buffer grows with the bytes that really arrive, so a header
-    // that promises more than the file holds cannot make us allocate it.
-    let mut raw = Vec::new();
+    // Reserved up front only as far as the file can hold: deflate expands at most 1032-fold,
+    // so a header that promises more than the file holds cannot make us allocate it.
+    let file_bytes = std::fs::metadata(path).map(|m| m.len() as usize).unwrap_or(0);
+    let mut raw = Vec::with_capacity(nbytes.min(file_bytes.saturating_mul(1032)));
     let got = (&mut r)
         .take(nbytes as u64)
         .read_to_end(&mut raw)
@@ -265,59 +314,35 @@ fn read_raw_shaped(path: &Path, shape: Shape) -> Result<RawVolume, AtlasError> {
             format!("file is truncated: {got} of {nbytes} bytes of voxel data"),
         ));
     }
-    let little = h.endianness == Endianness::Little;
-    let values = decode(&raw, dtype, little);
     let (slope, inter) = (h.scl_slope as f64, h.scl_inter as f64);
-    let values = if slope != 0.0 && slope.is_finite() && inter.is_finite() && (slope != 1.0 || inter != 0.0) {
-        values.into_iter().map(|v| v * slope + inter).collect()
-    } else {
-        values
-    };
-    Ok(RawVolume { grid, values })
-}
-
-fn decode(raw: &[u8], dtype: DType, little: bool) -> Vec<f64> {
-    macro_rules! conv {
-        ($t:ty) => {{
-            const N: usize = std::mem::size_of::<$t>();
-            raw.chunks_exact(N)
-                .map(|c| {
-                    let b: [u8; N] = c.try_into().expect("chunk size");
-                    (if little {
-                        <$t>::from_le_bytes(b)
-                    } else {
-                        <$t>::from_be_bytes(b)
-                    }) as f64
-                })
-                .collect()
-        }};
-    }
-    match dtype {
-        DType::U8 => raw.iter().map(|&b| b as f64).collect(),
-        DType::I8 => raw.iter().map(|&b| b as i8 as f64).collect(),
-        DType::I16 => conv!(i16),
-        DType::U16 => conv!(u16),
-        DType::I32 => conv!(i32),
-        DType::U32 => conv!(u32),
-        DType::F32 => conv!(f32),
-        DType::F64 => conv!(f64),
-    }
+    let scales = slope != 0.0 && slope.is_finite() && inter.is_finite() && (slope != 1.0 || inter != 0.0);
+    Ok(RawVolume {
+        grid,
+        bytes: raw,
+        dtype,
+        little: h.endianness == Endianness::Little,
+        scaling: scales.then_some((slope, inter)),
+    })
 }
 
 /// Reads a CT volume in HU. Non-finite values are an error naming the first voxel.
 pub fn read_ct(path: &Path) -> Result<Volume<f32>, AtlasError> {
     let raw = read_raw(path)?;
-    if let Some(pos) = raw.values.iter().position(|v| !v.is_finite() || v.abs() > 1e6) {
+    let mut data = Vec::with_capacity(raw.grid.len());
+    let mut bad = None;
+    raw.for_each_value(|v| {
+        if bad.is_none() && (!v.is_finite() || v.abs() > 1e6) {
+            bad = Some((data.len(), v));
+        }
+        data.push(v as f32);
+    });
+    if let Some((pos, v)) = bad {
         let [i, j, k] = raw.grid.unlinear(pos);
         return Err(err(
             path,
-            format!(
-                "voxel ({i}, {j}, {k}) holds {} which is not a CT value",
-                raw.values[pos]
-            ),
+            format!("voxel ({i}, {j}, {k}) holds {v} which is not a CT value"),
         ));
     }
-    let data = raw.values.into_iter().map(|v| v as f32).collect();
     Volume::new(raw.grid, data).map_err(|e| err(path, e.to_string()))
 }
 
@@ -331,9 +356,10 @@ pub const MAX_DISPLACEMENT_MM: f64 = 100.0;
 pub fn read_displacement_field(path: &Path) -> Result<GridField, AtlasError> {
     let raw = read_raw_shaped(path, Shape::Vector3)?;
     let n = raw.grid.len();
+    let components = raw.values();
     let mut values = Vec::with_capacity(n);
     for i in 0..n {
-        let lps = [raw.values[i], raw.values[n + i], raw.values[2 * n + i]];
+        let lps = [components[i], components[n + i], components[2 * n + i]];
         let length = (lps[0] * lps[0] + lps[1] * lps[1] + lps[2] * lps[2]).sqrt();
         if !(length.is_finite() && length <= MAX_DISPLACEMENT_MM) {
             let [x, y, z] = raw.grid.unlinear(i);
@@ -374,16 +400,20 @@ pub fn write_displacement_field(path: &Path, field: &GridField, description: &st
 /// Reads a label map: whole numbers from 0 to 65535.
 pub fn read_labels(path: &Path) -> Result<Volume<LabelId>, AtlasError> {
     let raw = read_raw(path)?;
-    let mut data = Vec::with_capacity(raw.values.len());
-    for (pos, &v) in raw.values.iter().enumerate() {
-        if !(v.is_finite() && v >= 0.0 && v <= LabelId::MAX as f64 && v.fract() == 0.0) {
-            let [i, j, k] = raw.grid.unlinear(pos);
-            return Err(err(
-                path,
-                format!("voxel ({i}, {j}, {k}) holds {v}, not a label number 0 … 65535"),
-            ));
+    let mut data = Vec::with_capacity(raw.grid.len());
+    let mut bad = None;
+    raw.for_each_value(|v| {
+        if bad.is_none() && !(v.is_finite() && v >= 0.0 && v <= LabelId::MAX as f64 && v.fract() == 0.0) {
+            bad = Some((data.len(), v));
         }
         data.push(v as LabelId);
+    });
+    if let Some((pos, v)) = bad {
+        let [i, j, k] = raw.grid.unlinear(pos);
+        return Err(err(
+            path,
+            format!("voxel ({i}, {j}, {k}) holds {v}, not a label number 0 … 65535"),
+        ));
     }
     Volume::new(raw.grid, data).map_err(|e| err(path, e.to_string()))
 }
@@ -485,11 +515,11 @@ mod tests {
         .unwrap();
         let field = GridField::sample(grid, |x| DVec3::new(1.0, 2.0, 3.0) + x * 0.01);
         write_displacement_field(&path, &field, "test").unwrap();
-        let raw = read_raw_shaped(&path, Shape::Vector3).unwrap();
+        let raw = read_raw_shaped(&path, Shape::Vector3).unwrap().values();
         let n = grid.len();
         let v0 = field.values()[0];
         assert_eq!(
-            [raw.values[0], raw.values[n], raw.values[2 * n]],
+            [raw[0], raw[n], raw[2 * n]],
             [-v0[0] as f64, -v0[1] as f64, v0[2] as f64]
         );
         let mut r = open(&path).unwrap();

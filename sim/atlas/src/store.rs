@@ -10,6 +10,7 @@ use stylet_physics::glam::DVec3;
 use stylet_physics::thresholds::estimate_thresholds;
 use stylet_physics::{LabelId, PhysicsError, PunctureAtlas, Volume};
 
+use crate::cache::{self, CacheMode, CacheStatus};
 use crate::manifest::{self, FORMAT_VERSION, Manifest, ThresholdsToml};
 use crate::{AtlasError, nifti_io};
 
@@ -47,6 +48,8 @@ pub struct Atlas {
     pub threshold_source: ThresholdSource,
     /// SHA-256 over the manifest and both volume files (docs/atlas.md "Content hash"), hex.
     pub content_hash: String,
+    /// Whether the distance maps came from the derived-data cache (docs/atlas.md).
+    pub cache: CacheStatus,
 }
 
 fn manifest_error(dir: &Path, message: impl Into<String>) -> AtlasError {
@@ -188,8 +191,14 @@ pub fn content_hash(dir: &Path, manifest: &Manifest) -> Result<String, AtlasErro
     Ok(hex(&h.finalize()))
 }
 
-/// Loads and validates an atlas directory.
+/// Loads and validates an atlas directory, its distance maps from the derived-data cache when
+/// it holds this atlas' content (else derived, and cached).
 pub fn load(dir: &Path) -> Result<Atlas, AtlasError> {
+    load_with(dir, CacheMode::Use)
+}
+
+/// As [`load`]; `CacheMode::Off` derives everything and leaves the cache alone.
+pub fn load_with(dir: &Path, cache_mode: CacheMode) -> Result<Atlas, AtlasError> {
     let text = read_manifest_text(dir)?;
     let manifest = parse_manifest(&text).map_err(|e| manifest_error(dir, e))?;
     let labels = manifest::label_table(&manifest.labels, &manifest.heuristic).map_err(|e| manifest_error(dir, e))?;
@@ -199,19 +208,39 @@ pub fn load(dir: &Path) -> Result<Atlas, AtlasError> {
     let motion = crate::motion::load_motion(dir, &manifest.breathing_or_default())?;
     let ct_path = dir.join(&manifest.volumes.ct);
     let labels_path = dir.join(&manifest.volumes.labels);
-    let (ct, partial) = rayon::join(|| nifti_io::read_ct(&ct_path), || nifti_io::read_labels(&labels_path));
-    let (ct, partial) = (ct?, partial?);
+    // The content hash keys the cache: hashed while the volumes decompress.
+    let ((ct, partial), content_hash) = rayon::join(
+        || rayon::join(|| nifti_io::read_ct(&ct_path), || nifti_io::read_labels(&labels_path)),
+        || content_hash(dir, &manifest),
+    );
+    let (ct, partial, content_hash) = (ct?, partial?, content_hash?);
     check_same_grid(&ct_path, &ct, &labels_path, &partial)?;
 
+    let mut cached = match cache_mode {
+        CacheMode::Use => cache::read(dir, &content_hash, ct.grid()),
+        CacheMode::Off => Ok(None),
+    };
     let depth = manifest.heuristic.risk_depth_mm;
-    let (thresholds, threshold_source) = match &manifest.thresholds {
-        Some(t) => (t.with_depth(depth), ThresholdSource::Atlas),
-        None => (
+    let (thresholds, threshold_source) = match (&manifest.thresholds, &cached) {
+        (Some(t), _) => (t.with_depth(depth), ThresholdSource::Atlas),
+        (None, Ok(Some(d))) => (d.thresholds, ThresholdSource::Estimated),
+        (None, _) => (
             estimate_thresholds(&ct, depth).map_err(|e| AtlasError::file(&ct_path, e.to_string()))?,
             ThresholdSource::Estimated,
         ),
     };
-    let model = PunctureAtlas::new(ct, partial, labels, tree, thresholds)
+    if let Ok(Some(d)) = &cached
+        && d.thresholds != thresholds
+    {
+        cached = Err(format!("derived at other thresholds ({:?})", d.thresholds));
+    }
+    let (maps, refused) = match cached {
+        Ok(Some(d)) => (Some(d.maps), None),
+        Ok(None) => (None, None),
+        Err(reason) => (None, Some(reason)),
+    };
+    let from_cache = maps.is_some();
+    let model = PunctureAtlas::with_distance_maps(ct, partial, labels, tree, thresholds, maps)
         .and_then(|m| m.with_skin_layer_mm(manifest.heuristic.skin_layer_mm))
         .and_then(|m| m.with_breathing(motion))
         .map_err(|e| match e {
@@ -237,13 +266,29 @@ pub fn load(dir: &Path) -> Result<Atlas, AtlasError> {
             }
         }
     }
-    let content_hash = content_hash(dir, &manifest)?;
+    let cache = match (cache_mode, from_cache) {
+        (CacheMode::Off, _) => CacheStatus::Disabled,
+        (CacheMode::Use, true) => CacheStatus::Hit,
+        (CacheMode::Use, false) => {
+            let derived = cache::DerivedRef {
+                thresholds: model.thresholds(),
+                skin_distance: model.skin_distance(),
+                bone_distance: model.bone_distance(),
+            };
+            match (cache::write(dir, &content_hash, derived), refused) {
+                (Err(error), _) => CacheStatus::NotWritten { error },
+                (Ok(()), Some(refused)) => CacheStatus::Rebuilt { refused },
+                (Ok(()), None) => CacheStatus::Written,
+            }
+        }
+    };
     Ok(Atlas {
         dir: dir.to_path_buf(),
         manifest,
         model: std::sync::Arc::new(model),
         threshold_source,
         content_hash,
+        cache,
     })
 }
 

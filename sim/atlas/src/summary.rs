@@ -20,6 +20,9 @@ pub struct Summary {
     /// "atlas" (given in atlas.toml) or "estimated" (from the CT histogram).
     pub thresholds_source: String,
     pub risk_depth_mm: f64,
+    /// Where this load's skin and bone distance maps came from (the derived-data cache or a
+    /// derivation), in words.
+    pub distance_maps: String,
     pub labels: Vec<LabelSummary>,
     pub paths: Vec<InsertionPath>,
     pub provenance: Provenance,
@@ -205,6 +208,7 @@ impl Summary {
             thresholds_hu: atlas.thresholds_toml(),
             thresholds_source: atlas.threshold_source.as_str().into(),
             risk_depth_mm: m.thresholds().risk_depth_mm,
+            distance_maps: atlas.cache.describe(),
             labels,
             paths: atlas.manifest.paths.clone(),
             provenance: atlas.manifest.provenance.clone(),
@@ -236,6 +240,7 @@ impl Summary {
             "thresholds   air|skin {:.0} HU, skin|fat {:.0} HU, fat|bone {:.0} HU ({}), risk depth δ = {} mm\n",
             t.air_skin, t.skin_fat, t.fat_bone, self.thresholds_source, self.risk_depth_mm
         );
+        out += &format!("derived      distance maps {}\n", self.distance_maps);
         out += &format!("source       {}\n", self.provenance.source);
         out += &self.breathing.to_text();
         out += "labels (depth 0):\n";

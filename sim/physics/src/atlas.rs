@@ -16,6 +16,34 @@ pub const AIR_HU: f32 = -1000.0;
 /// Default thickness of the skin layer the needle feels (mm): epidermis and dermis are 1.5–3 mm.
 pub const DEFAULT_SKIN_LAYER_MM: f64 = 2.0;
 
+/// The skin and bone signed distance maps (thesis §3.6), derived from the CT and the thresholds:
+/// the costliest part of loading an atlas, hence cacheable.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DistanceMaps {
+    /// D_skin, mm, positive inside the body.
+    pub skin_distance: Volume<f32>,
+    /// D_bone, mm, positive inside bone.
+    pub bone_distance: Volume<f32>,
+}
+
+impl DistanceMaps {
+    /// Derives both maps: the body and bone masks at `thresholds`, then their sub-voxel signed
+    /// distances, corrected near the surface by the CT's iso-surfaces at the thresholds (a slanted
+    /// surface is otherwise a staircase of ledges).
+    pub fn derive(ct: &Volume<f32>, thresholds: &Thresholds) -> DistanceMaps {
+        let body = body_mask(ct, thresholds.air_skin_hu);
+        let bone = bone_mask(ct, thresholds.fat_bone_hu, &body);
+        let (skin_distance, bone_distance) = rayon::join(
+            || subvoxel_signed_distance(ct, &body, thresholds.air_skin_hu),
+            || subvoxel_signed_distance(ct, &bone, thresholds.fat_bone_hu),
+        );
+        DistanceMaps {
+            skin_distance,
+            bone_distance,
+        }
+    }
+}
+
 /// A validated puncture atlas.
 #[derive(Debug, Clone)]
 pub struct PunctureAtlas {
@@ -42,6 +70,22 @@ impl PunctureAtlas {
         labels: LabelTable,
         tree: PropertyTree,
         thresholds: Thresholds,
+    ) -> Result<Self, PhysicsError> {
+        Self::with_distance_maps(ct, partial, labels, tree, thresholds, None)
+    }
+
+    /// As [`PunctureAtlas::new`], with the skin and bone distance maps given when `maps` is
+    /// `Some` (read from a cache of this very atlas, docs/atlas.md "Derived-data cache"), derived
+    /// from the CT otherwise. Given maps must lie on the CT's grid; that they are the maps this
+    /// CT and these thresholds derive is the cache's promise (its key and checksum), not checked
+    /// here.
+    pub fn with_distance_maps(
+        ct: Volume<f32>,
+        partial: Volume<LabelId>,
+        labels: LabelTable,
+        tree: PropertyTree,
+        thresholds: Thresholds,
+        maps: Option<DistanceMaps>,
     ) -> Result<Self, PhysicsError> {
         let (gc, gl) = (*ct.grid(), *partial.grid());
         if gc.dims() != gl.dims() {
@@ -86,14 +130,22 @@ impl PunctureAtlas {
         }
         thresholds.validate()?;
         let materials = Materials::resolve(&labels, &tree)?;
-        let body = body_mask(&ct, thresholds.air_skin_hu);
-        let bone = bone_mask(&ct, thresholds.fat_bone_hu, &body);
-        // Sub-voxel maps: the binary masks' exact maps, corrected near the surface by the CT's
-        // iso-surfaces at the thresholds (a slanted surface is otherwise a staircase of ledges).
-        let (skin_distance, bone_distance) = rayon::join(
-            || subvoxel_signed_distance(&ct, &body, thresholds.air_skin_hu),
-            || subvoxel_signed_distance(&ct, &bone, thresholds.fat_bone_hu),
-        );
+        let DistanceMaps {
+            skin_distance,
+            bone_distance,
+        } = match maps {
+            Some(maps) => {
+                for (what, map) in [("skin", &maps.skin_distance), ("bone", &maps.bone_distance)] {
+                    if map.grid() != &gc {
+                        return Err(PhysicsError::Mismatch(format!(
+                            "the given {what} distance map does not lie on the CT's grid"
+                        )));
+                    }
+                }
+                maps
+            }
+            None => DistanceMaps::derive(&ct, &thresholds),
+        };
         Ok(PunctureAtlas {
             ct,
             partial,
