@@ -107,8 +107,13 @@ pub struct InverseAffine {
 impl InverseAffine {
     #[inline]
     pub fn apply(&self, world: DVec3) -> DVec3 {
-        let p = world - self.origin;
-        DVec3::new(self.rows[0].dot(p), self.rows[1].dot(p), self.rows[2].dot(p))
+        self.apply_vector(world - self.origin)
+    }
+
+    /// A world displacement (mm) in index units.
+    #[inline]
+    pub fn apply_vector(&self, v: DVec3) -> DVec3 {
+        DVec3::new(self.rows[0].dot(v), self.rows[1].dot(v), self.rows[2].dot(v))
     }
 }
 
@@ -191,6 +196,13 @@ impl Grid {
     #[inline]
     pub fn world_to_index(&self, world: DVec3) -> DVec3 {
         self.inverse.apply(world)
+    }
+
+    /// A world displacement (mm) in index units: world_to_index(x + v) = world_to_index(x) +
+    /// world_vector_to_index(v), up to rounding.
+    #[inline]
+    pub fn world_vector_to_index(&self, v: DVec3) -> DVec3 {
+        self.inverse.apply_vector(v)
     }
 
     /// A gradient taken in index units (per voxel step along i, j, k) expressed per mm along the

@@ -22,6 +22,7 @@ pub mod device;
 pub mod distance;
 pub mod events;
 pub mod filter;
+pub mod gradient;
 pub mod grid;
 pub mod labels;
 pub mod masks;
@@ -34,7 +35,7 @@ pub mod sim;
 pub mod thresholds;
 pub mod volume;
 
-pub use atlas::{AIR_HU, PunctureAtlas};
+pub use atlas::{AIR_HU, DistanceMaps, PunctureAtlas};
 pub use contrast::{ContrastAgent, ContrastSettings, ContrastTally};
 pub use deform::{DeformCost, DeformField, DeformSettings, Regulariser};
 pub use device::DeviceProfile;

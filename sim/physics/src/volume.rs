@@ -7,6 +7,7 @@
 
 use glam::DVec3;
 
+use crate::gradient::GradientSampler;
 use crate::{Grid, PhysicsError};
 
 /// A scalar field stored voxel by voxel, i fastest.
@@ -90,20 +91,11 @@ impl Volume<f32> {
         trilinear(c, self.grid.dims(), |i, j, k| self.get(i, j, k) as f64).map_or(outside, |v| v as f32)
     }
 
-    /// Gradient by central differences of the trilinear field, in value units per mm along the
-    /// world axes (used for the distance-map directions of eqs. 3.6.1 and 3.6.4).
+    /// Gradient of the trilinear field by central differences, in value units per mm along the
+    /// world axes (the distance-map directions of eqs. 3.6.1 and 3.6.4; see [`GradientSampler`],
+    /// which callers sampling many points should keep).
     pub fn gradient(&self, world: DVec3, outside: f32) -> DVec3 {
-        let s = self.grid.spacing_mm();
-        let h = 0.5 * s[0].min(s[1]).min(s[2]);
-        let mut g = DVec3::ZERO;
-        for a in 0..3 {
-            let mut e = DVec3::ZERO;
-            e[a] = h;
-            let fp = self.sample(world + e, outside) as f64;
-            let fm = self.sample(world - e, outside) as f64;
-            g[a] = (fp - fm) / (2.0 * h);
-        }
-        g
+        GradientSampler::new(self).gradient_at_index(self.grid.world_to_index(world), outside)
     }
 }
 

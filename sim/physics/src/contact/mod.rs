@@ -16,9 +16,10 @@
 
 pub mod patterns;
 
-use glam::{DQuat, DVec3};
+use glam::{DMat3, DQuat, DVec3};
 
 use crate::PunctureAtlas;
+use crate::gradient::GradientSampler;
 pub use patterns::ContactPattern;
 
 /// Friction constants of eqs. 3.6.8–3.6.11.
@@ -125,13 +126,23 @@ impl ContactTool {
     pub fn step(&mut self, atlas: &PunctureAtlas, x: DVec3, q: DQuat) -> ContactForces {
         let skin = atlas.skin_distance();
         let bone = atlas.bone_distance();
+        // Both maps lie on the CT's grid (PunctureAtlas checks it): one index per node for both,
+        // and their values and gradients from one gather.
+        let grid = *skin.grid();
+        let maps = GradientSampler::on_one_grid([skin, bone]).expect("the distance maps share the CT's grid");
+        // The pattern's geometry once per tick: the rotation as a matrix, and the device
+        // position in index units (each node's index is then c_x + A⁻¹ Q x_i⁰).
+        let rotation = DMat3::from_quat(q);
+        let c_x = grid.world_to_index(x);
         let (mut sum_f_skin, mut sum_f_slide, mut sum_f_bone, mut sum_t) =
             (DVec3::ZERO, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
         let mut n = 0usize;
         for (node, p0) in self.nodes.iter_mut().zip(self.pattern.points()) {
-            let xi = x + q * *p0;
+            let arm = rotation * *p0;
+            let xi = x + arm;
             node.pos = xi;
-            let d_skin = skin.sample(xi, -1000.0) as f64;
+            let c = c_x + grid.world_vector_to_index(arm);
+            let d_skin = skin.sample_index(c, -1000.0) as f64;
             if d_skin <= 0.0 {
                 // Not touching: the proxy waits at the node (no stick across lifts).
                 node.in_contact = false;
@@ -140,18 +151,19 @@ impl ContactTool {
                 node.proxy = xi;
                 continue;
             }
-            let g = skin.gradient(xi, -1000.0);
-            let vs = (-g).normalize_or_zero();
+            let [skin_at, bone_at] = maps.at_index(c, -1000.0);
+            let vs = (-skin_at.gradient).normalize_or_zero();
             let f_skin = skin_force_n(d_skin) * vs;
             // Bone penalty, turned towards the skin normal when pointing more than 90° away.
-            let d_bone = bone.sample(xi, -1000.0) as f64;
-            let vb = (-bone.gradient(xi, -1000.0)).normalize_or_zero();
+            let d_bone = bone_at.value;
+            let vb = (-bone_at.gradient).normalize_or_zero();
+            // (vb is a unit vector or zero already: only the turned direction needs normalising.)
             let dir = if vb.dot(vs) > 0.0 {
                 vb
             } else {
-                vb - 4.0 * vs * vb.dot(vs)
+                (vb - 4.0 * vs * vb.dot(vs)).normalize_or_zero()
             };
-            let f_bone = bone_force_n(-d_bone) * dir.normalize_or_zero();
+            let f_bone = bone_force_n(-d_bone) * dir;
             // Stick–slip proxy on the surface point.
             let s_new = xi - d_skin * vs;
             let f_n = f_skin + f_bone;
@@ -182,7 +194,7 @@ impl ContactTool {
             sum_f_skin += f_skin;
             sum_f_slide += f_slide;
             sum_f_bone += f_bone;
-            sum_t += (xi - x).cross(f_i);
+            sum_t += arm.cross(f_i);
             n += 1;
         }
         if n == 0 {
