@@ -1,7 +1,9 @@
-//! Replay speed for needle sessions (goal: ≥ 1000× real time, i.e. a 10-minute session in under
-//! 0.6 s): the example scripts `two-attempts` (34 s) and `success-intercostal` (20 s) recorded on
-//! the default phantom, replayed through the physics with every output and digest checked, with
-//! and without the metrics. Baseline in the same run: reading and decoding the session file.
+//! Replay speed per tool (goal: ≥ 500× real time for every tool, ≥ 1000× for the needle): the
+//! example scripts `two-attempts` (34 s) and `success-intercostal` (20 s) with the needle,
+//! `palpation-sweep` (16 s) with the finger, `probe-parallel` (16 s) with the linear probe and
+//! the same motion with the convex probe, recorded on the default phantom, replayed through the
+//! physics with every output and digest checked, with and without the metrics. Baseline in the
+//! same run: reading and decoding the session file. Also prints each file's size per minute.
 
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
@@ -15,9 +17,20 @@ use stylet_devices::script::{parse, scripted_simulation};
 use stylet_recorder::{Recording, SessionInfo, WriterOptions, reader};
 use stylet_scoring::{Rubric, Scorer, replay};
 
-fn record(atlas: &stylet_atlas::Atlas, name: &str, dir: &Path) -> PathBuf {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../atlases/phantom/scripts/{name}.txt"));
-    let script = parse(&std::fs::read_to_string(path).unwrap()).unwrap();
+/// The example script `file`, with `tool probe linear` turned convex when `convex`.
+fn script_text(file: &str, convex: bool) -> String {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../atlases/phantom/scripts/{file}.txt"));
+    let text = std::fs::read_to_string(path).unwrap();
+    if convex {
+        assert!(text.contains("tool probe linear"));
+        text.replace("tool probe linear", "tool probe convex")
+    } else {
+        text
+    }
+}
+
+fn record(atlas: &stylet_atlas::Atlas, name: &str, text: &str, dir: &Path) -> PathBuf {
+    let script = parse(text).unwrap();
     let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
     let info = SessionInfo {
         trainee: "bench",
@@ -65,10 +78,22 @@ fn replay_bench(c: &mut Criterion) {
     let model = Arc::clone(&atlas.model);
     let mut g = c.benchmark_group("replay");
     g.sample_size(10);
-    for name in ["two-attempts", "success-intercostal"] {
-        let file = record(&atlas, name, dir.path());
+    for (name, file, convex) in [
+        ("two-attempts", "two-attempts", false),
+        ("success-intercostal", "success-intercostal", false),
+        ("palpation-sweep", "palpation-sweep", false),
+        ("probe-parallel", "probe-parallel", false),
+        ("probe-parallel-convex", "probe-parallel", true),
+    ] {
+        let file = record(&atlas, name, &script_text(file, convex), dir.path());
         let session = reader::read(&file).unwrap();
         let seconds = session.ticks.len() as f64 / 1000.0;
+        let bytes = std::fs::metadata(&file).unwrap().len() as f64;
+        println!(
+            "{name} ({seconds:.0} s): session file {:.0} KiB = {:.2} MB/min",
+            bytes / 1024.0,
+            bytes / 1e6 * 60.0 / seconds
+        );
         let base = median_s(7, || {
             black_box(reader::read(&file).unwrap());
         });

@@ -1,6 +1,9 @@
 //! Atlas generation and loading, each beside a baseline measured in the same run: loading an
 //! atlas (decompress, validate, thresholds, body mask, two distance maps, hash) vs only
-//! decompressing its two NIfTI files; generating a phantom vs writing it.
+//! decompressing its two NIfTI files; generating a phantom vs writing it. On the default phantom
+//! (256 × 256 × 200): a load from the derived-data cache, a cold load (no cache: derive and write
+//! it) and a load that does not use the cache, against the same decompression baseline (the
+//! nibabel side of the comparison is `benches/atlas_load/nibabel_load.py`).
 
 use std::hint::black_box;
 use std::io::Read;
@@ -34,7 +37,7 @@ fn atlas(c: &mut Criterion) {
         })
     });
     group.bench_function("load_and_validate", |b| {
-        b.iter(|| black_box(stylet_atlas::load(dir.path()).unwrap()))
+        b.iter(|| black_box(stylet_atlas::load_with(dir.path(), stylet_atlas::CacheMode::Off).unwrap()))
     });
     group.bench_function("generate_phantom", |b| b.iter(|| black_box(generate(&config).unwrap())));
     group.bench_function("write_atlas", |b| {
@@ -44,5 +47,80 @@ fn atlas(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, atlas);
+fn gunzip_volumes(dir: &std::path::Path) -> usize {
+    let mut n = 0;
+    for f in ["ct.nii.gz", "labels.nii.gz"] {
+        let mut buf = Vec::new();
+        flate2::read::MultiGzDecoder::new(std::fs::File::open(dir.join(f)).unwrap())
+            .read_to_end(&mut buf)
+            .unwrap();
+        n += buf.len();
+    }
+    n
+}
+
+fn default_phantom_load(c: &mut Criterion) {
+    use stylet_atlas::{CacheMode, CacheStatus};
+    let dir = tempfile::tempdir().unwrap();
+    let p = generate(&PhantomConfig::default()).unwrap();
+    stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
+    let cache = dir.path().join(stylet_atlas::cache::CACHE_DIR);
+
+    // One timed pass of each first, printed as ratios to the baseline (criterion's means follow).
+    let time = |f: &mut dyn FnMut()| {
+        let mut best = f64::INFINITY;
+        for _ in 0..3 {
+            let t = std::time::Instant::now();
+            f();
+            best = best.min(t.elapsed().as_secs_f64());
+        }
+        best
+    };
+    let base = time(&mut || {
+        black_box(gunzip_volumes(dir.path()));
+    });
+    let uncached = time(&mut || {
+        black_box(stylet_atlas::load_with(dir.path(), CacheMode::Off).unwrap());
+    });
+    let cold = time(&mut || {
+        let _ = std::fs::remove_dir_all(&cache);
+        let a = stylet_atlas::load(dir.path()).unwrap();
+        assert_eq!(a.cache, CacheStatus::Written);
+    });
+    let cached = time(&mut || {
+        let a = stylet_atlas::load(dir.path()).unwrap();
+        assert_eq!(a.cache, CacheStatus::Hit);
+    });
+    println!(
+        "default phantom: gunzip {:.3} s; load cached {:.3} s ({:.2}×), cold {:.3} s ({:.2}×), without cache {:.3} s ({:.2}×)",
+        base,
+        cached,
+        cached / base,
+        cold,
+        cold / base,
+        uncached,
+        uncached / base
+    );
+
+    let mut group = c.benchmark_group("atlas_default_phantom");
+    group.sample_size(10);
+    group.bench_function("baseline_gunzip_volumes", |b| {
+        b.iter(|| black_box(gunzip_volumes(dir.path())))
+    });
+    group.bench_function("load_cached", |b| {
+        b.iter(|| black_box(stylet_atlas::load(dir.path()).unwrap()))
+    });
+    group.bench_function("load_cold_writes_cache", |b| {
+        b.iter(|| {
+            let _ = std::fs::remove_dir_all(&cache);
+            black_box(stylet_atlas::load(dir.path()).unwrap())
+        })
+    });
+    group.bench_function("load_without_cache", |b| {
+        b.iter(|| black_box(stylet_atlas::load_with(dir.path(), CacheMode::Off).unwrap()))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, atlas, default_phantom_load);
 criterion_main!(benches);
