@@ -9,7 +9,7 @@
 //! renamed into place; a cache that cannot be written costs the next load its time, nothing else.
 
 use std::fs;
-use std::io::{Read, Write};
+use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -214,7 +214,6 @@ fn write_file(tmp: &Path, content_hash: &str, derived: DerivedRef<'_>) -> Result
     if derived.bone_distance.grid().dims() != dims {
         return Err("the skin and bone maps have different dimensions".into());
     }
-    let (skin_digest, bone_digest) = rayon::join(|| digest_le(skin), || digest_le(bone));
     let t = derived.thresholds;
     let mut header = Vec::with_capacity(HEADER_BYTES);
     header.extend_from_slice(MAGIC);
@@ -227,21 +226,30 @@ fn write_file(tmp: &Path, content_hash: &str, derived: DerivedRef<'_>) -> Result
     for v in [t.air_skin_hu, t.skin_fat_hu, t.fat_bone_hu, t.risk_depth_mm] {
         header.extend_from_slice(&v.to_le_bytes());
     }
-    header.extend_from_slice(&skin_digest);
-    header.extend_from_slice(&bone_digest);
-    debug_assert_eq!(header.len(), HEADER_BYTES);
+    let digests_at = header.len() as u64;
+    // The digests' place stays zero until they are known: the maps are hashed while written.
+    header.resize(HEADER_BYTES, 0);
     let io = |e: std::io::Error| format!("cannot write {}: {e}", tmp.display());
-    let mut f = fs::File::create(tmp).map_err(io)?;
-    f.write_all(&header).map_err(io)?;
-    for map in [skin, bone] {
-        if cfg!(target_endian = "little") {
-            f.write_all(bytemuck::cast_slice(map)).map_err(io)?;
-        } else {
-            let bytes: Vec<u8> = map.iter().flat_map(|v| v.to_le_bytes()).collect();
-            f.write_all(&bytes).map_err(io)?;
+    let write_maps = || -> std::io::Result<fs::File> {
+        let mut f = fs::File::create(tmp)?;
+        f.write_all(&header)?;
+        for map in [skin, bone] {
+            if cfg!(target_endian = "little") {
+                f.write_all(bytemuck::cast_slice(map))?;
+            } else {
+                let bytes: Vec<u8> = map.iter().flat_map(|v| v.to_le_bytes()).collect();
+                f.write_all(&bytes)?;
+            }
         }
-    }
-    f.sync_all().map_err(io)
+        Ok(f)
+    };
+    let (file, (skin_digest, bone_digest)) =
+        rayon::join(write_maps, || rayon::join(|| digest_le(skin), || digest_le(bone)));
+    let mut f = file.map_err(io)?;
+    f.seek(SeekFrom::Start(digests_at)).map_err(io)?;
+    f.write_all(&[skin_digest, bone_digest].concat()).map_err(io)?;
+    // No fsync: a cache half on disk after a power cut fails its checksums and is rebuilt.
+    f.flush().map_err(io)
 }
 
 /// Removes cache files of other content (the atlas changed) and temporary files of writes that

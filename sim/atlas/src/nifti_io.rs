@@ -108,6 +108,39 @@ impl RawVolume {
         }
     }
 
+    /// Calls `f` with every value when the file holds integers without scaling (label maps):
+    /// no float round trip. `false` (and no call) for other files.
+    fn for_each_integer(&self, mut f: impl FnMut(i64)) -> bool {
+        if self.scaling.is_some() {
+            return false;
+        }
+        let raw = &self.bytes;
+        let little = self.little;
+        macro_rules! conv {
+            ($t:ty) => {{
+                const N: usize = std::mem::size_of::<$t>();
+                for c in raw.chunks_exact(N) {
+                    let b: [u8; N] = c.try_into().expect("chunk size");
+                    f(if little {
+                        <$t>::from_le_bytes(b)
+                    } else {
+                        <$t>::from_be_bytes(b)
+                    } as i64);
+                }
+            }};
+        }
+        match self.dtype {
+            DType::U8 => raw.iter().for_each(|&b| f(b as i64)),
+            DType::I8 => raw.iter().for_each(|&b| f(b as i8 as i64)),
+            DType::I16 => conv!(i16),
+            DType::U16 => conv!(u16),
+            DType::I32 => conv!(i32),
+            DType::U32 => conv!(u32),
+            DType::F32 | DType::F64 => return false,
+        }
+        true
+    }
+
     /// Every value as f64 (for fields read component by component).
     fn values(&self) -> Vec<f64> {
         let mut out = Vec::with_capacity(self.bytes.len() / self.dtype.size_of());
@@ -402,12 +435,20 @@ pub fn read_labels(path: &Path) -> Result<Volume<LabelId>, AtlasError> {
     let raw = read_raw(path)?;
     let mut data = Vec::with_capacity(raw.grid.len());
     let mut bad = None;
-    raw.for_each_value(|v| {
-        if bad.is_none() && !(v.is_finite() && v >= 0.0 && v <= LabelId::MAX as f64 && v.fract() == 0.0) {
-            bad = Some((data.len(), v));
+    let integers = raw.for_each_integer(|v| {
+        if bad.is_none() && !(0..=LabelId::MAX as i64).contains(&v) {
+            bad = Some((data.len(), v as f64));
         }
         data.push(v as LabelId);
     });
+    if !integers {
+        raw.for_each_value(|v| {
+            if bad.is_none() && !(v.is_finite() && v >= 0.0 && v <= LabelId::MAX as f64 && v.fract() == 0.0) {
+                bad = Some((data.len(), v));
+            }
+            data.push(v as LabelId);
+        });
+    }
     if let Some((pos, v)) = bad {
         let [i, j, k] = raw.grid.unlinear(pos);
         return Err(err(

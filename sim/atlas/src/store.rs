@@ -208,18 +208,28 @@ pub fn load_with(dir: &Path, cache_mode: CacheMode) -> Result<Atlas, AtlasError>
     let motion = crate::motion::load_motion(dir, &manifest.breathing_or_default())?;
     let ct_path = dir.join(&manifest.volumes.ct);
     let labels_path = dir.join(&manifest.volumes.labels);
-    // The content hash keys the cache: hashed while the volumes decompress.
-    let ((ct, partial), content_hash) = rayon::join(
+    // The content hash keys the cache: the files are hashed and the cache is read (for the grid
+    // the CT's header gives) while the volumes decompress.
+    let ct_grid = nifti_io::read_grid(&ct_path)?;
+    let ((ct, partial), hashed) = rayon::join(
         || rayon::join(|| nifti_io::read_ct(&ct_path), || nifti_io::read_labels(&labels_path)),
-        || content_hash(dir, &manifest),
+        || {
+            content_hash(dir, &manifest).map(|hash| {
+                let cached = match cache_mode {
+                    CacheMode::Use => cache::read(dir, &hash, &ct_grid),
+                    CacheMode::Off => Ok(None),
+                };
+                (hash, cached)
+            })
+        },
     );
-    let (ct, partial, content_hash) = (ct?, partial?, content_hash?);
+    let (ct, partial, (content_hash, mut cached)) = (ct?, partial?, hashed?);
     check_same_grid(&ct_path, &ct, &labels_path, &partial)?;
+    if ct.grid() != &ct_grid {
+        // The CT changed between its header read and its load: derive from what was loaded.
+        cached = Err("the CT changed while it was read".into());
+    }
 
-    let mut cached = match cache_mode {
-        CacheMode::Use => cache::read(dir, &content_hash, ct.grid()),
-        CacheMode::Off => Ok(None),
-    };
     let depth = manifest.heuristic.risk_depth_mm;
     let (thresholds, threshold_source) = match (&manifest.thresholds, &cached) {
         (Some(t), _) => (t.with_depth(depth), ThresholdSource::Atlas),
