@@ -668,7 +668,10 @@ fn the_dose_area_product_follows_the_scenarios_c_arm() {
     std::fs::create_dir(&near).unwrap();
     for f in std::fs::read_dir(st.atlas()).unwrap() {
         let f = f.unwrap().path();
-        std::fs::copy(&f, near.join(f.file_name().unwrap())).unwrap();
+        // Files only: not the derived-data cache folder.
+        if f.is_file() {
+            std::fs::copy(&f, near.join(f.file_name().unwrap())).unwrap();
+        }
     }
     let manifest = near.join("atlas.toml");
     let text = std::fs::read_to_string(&manifest).unwrap();
