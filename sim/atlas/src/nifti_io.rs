@@ -153,18 +153,24 @@ fn err(path: &Path, message: impl Into<String>) -> AtlasError {
     AtlasError::file(path, message)
 }
 
-fn open(path: &Path) -> Result<Box<dyn Read>, AtlasError> {
-    crate::check_regular_file(path)?;
+/// Whether the file starts with the gzip magic.
+fn is_gzip(path: &Path) -> Result<bool, AtlasError> {
     let mut file = File::open(path).map_err(|e| err(path, format!("cannot open: {e}")))?;
     let mut magic = [0u8; 2];
     let n = file
         .read(&mut magic)
         .map_err(|e| err(path, format!("cannot read: {e}")))?;
+    Ok(n == 2 && magic == [0x1f, 0x8b])
+}
+
+fn open(path: &Path) -> Result<Box<dyn Read>, AtlasError> {
+    crate::check_regular_file(path)?;
+    let gzip = is_gzip(path)?;
     let file = BufReader::with_capacity(
         1 << 20,
         File::open(path).map_err(|e| err(path, format!("cannot open: {e}")))?,
     );
-    if n == 2 && magic == [0x1f, 0x8b] {
+    if gzip {
         Ok(Box::new(BufReader::with_capacity(1 << 20, MultiGzDecoder::new(file))))
     } else {
         Ok(Box::new(file))
@@ -333,10 +339,12 @@ fn read_raw_shaped(path: &Path, shape: Shape) -> Result<RawVolume, AtlasError> {
             format!("{nbytes} bytes of voxel data exceed the limit of {MAX_DATA_BYTES}"),
         ));
     }
-    // Reserved up front only as far as the file can hold: deflate expands at most 1032-fold,
-    // so a header that promises more than the file holds cannot make us allocate it.
+    // Reserved up front only as far as the file can hold (deflate expands at most 1032-fold; an
+    // uncompressed file holds at most its size), so a header that promises more than the file
+    // holds cannot make us allocate it.
     let file_bytes = std::fs::metadata(path).map(|m| m.len() as usize).unwrap_or(0);
-    let mut raw = Vec::with_capacity(nbytes.min(file_bytes.saturating_mul(1032)));
+    let expansion = if is_gzip(path)? { 1032 } else { 1 };
+    let mut raw = Vec::with_capacity(nbytes.min(file_bytes.saturating_mul(expansion)));
     let got = (&mut r)
         .take(nbytes as u64)
         .read_to_end(&mut raw)
