@@ -264,7 +264,8 @@ fn every_example_script_scores_as_its_name_says() {
     );
 }
 
-/// Rewrites a session with `edit` applied to its contents (header, ticks, events, digests).
+/// Rewrites a session with `edit` applied to its contents (header, ticks, output checks, events,
+/// digests).
 fn rewrite(src: &Path, dst: &Path, edit: impl FnOnce(&mut reader::Session)) {
     let mut session = reader::read(src).unwrap();
     edit(&mut session);
@@ -283,20 +284,20 @@ fn rewrite(src: &Path, dst: &Path, edit: impl FnOnce(&mut reader::Session)) {
     for d in &session.digests {
         w.digest_blocking(d.tick, d.digest).unwrap();
     }
-    for t in &session.ticks {
-        w.record_raw_blocking(*t).unwrap();
-    }
+    w.record_read_blocking(&session.ticks, &session.output_checks).unwrap();
     w.finish().unwrap();
 }
 
+/// A recorded force changed by one step of its rounding (15 µN) is caught at its tick; a change
+/// below that, in the exact bits the file pins by digest, at the last tick of its block.
 #[test]
-fn a_one_ulp_change_of_a_recorded_force_is_caught_at_its_tick() {
+fn a_changed_recorded_force_is_caught_at_its_tick_or_block() {
     let st = setup();
     let d = tempfile::tempdir().unwrap();
     let tampered = d.path().join("tampered.mcap");
     rewrite(&st.session("success-intercostal"), &tampered, |s| {
         let t = &mut s.ticks[12_345];
-        t.force_n[1] = f64::from_bits(t.force_n[1].to_bits() + 1);
+        t.force_n[1] += 1.0 / stylet_recorder::outputs::FORCE_STEPS_PER_N;
     });
     let r = score_json(&tampered);
     assert_eq!(r["replay_verified"], false);
@@ -310,6 +311,24 @@ fn a_one_ulp_change_of_a_recorded_force_is_caught_at_its_tick() {
         text.contains("NOT verified: first difference at tick 12345 in ticks.force_n"),
         "{text}"
     );
+
+    // The digest of the exact outputs of the block holding tick 12 345, one bit off: as if one
+    // output had changed in its last mantissa bit.
+    let low_bits = d.path().join("low-bits.mcap");
+    let mut block_end = 0;
+    rewrite(&st.session("success-intercostal"), &low_bits, |s| {
+        let c = s.output_checks.iter_mut().find(|c| c.covers(12_345)).unwrap();
+        c.digest ^= 1;
+        block_end = c.last_tick();
+    });
+    let r = score_json(&low_bits);
+    assert_eq!(r["replay_verified"], false);
+    assert_eq!(r["divergence"]["stream"], "ticks.outputs_digest");
+    assert_eq!(r["divergence"]["tick"], block_end);
+    // Every other block of the session was checked the same way.
+    let session = reader::read(&st.session("success-intercostal")).unwrap();
+    let covered: u64 = session.output_checks.iter().map(|c| u64::from(c.count)).sum();
+    assert_eq!(covered, session.ticks.len() as u64);
 
     // A changed state digest is caught too.
     let digest = d.path().join("digest.mcap");

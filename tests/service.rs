@@ -897,9 +897,7 @@ fn bounded_load_on_loopback() {
             for d in &source.digests {
                 w.digest_blocking(d.tick, d.digest).unwrap();
             }
-            for t in &source.ticks {
-                w.record_raw_blocking(*t).unwrap();
-            }
+            w.record_read_blocking(&source.ticks, &source.output_checks).unwrap();
             w.finish().unwrap();
             std::fs::read(&path).unwrap()
         })

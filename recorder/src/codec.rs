@@ -1,15 +1,21 @@
-//! Exact, compressible tick columns (codec `stylet-columns-v1`).
+//! Exact, compressible tick columns (codecs `stylet-columns-v1` and `-v2`).
 //!
 //! - f64 columns: each value's bit pattern minus a linear prediction from the two before it
 //!   (`2·b[i−1] − b[i−2]`, wrapping u64 arithmetic), zigzag-coded. For a smooth signal sampled at
 //!   1 kHz sign, exponent and leading mantissa bits cancel, so the residuals are small integers.
 //! - Integer columns (buttons, labels): each value XOR-ed with the one before it.
 //!
+//! - Integer steps of rounded outputs (`-v2`, [`crate::outputs`]): the residual of the same linear
+//!   prediction on the integers, zigzag-coded.
+//!
 //! Then the bytes are transposed into planes (all first bytes, then all second bytes …), so zstd
 //! sees long runs of zeros. Lossless for every bit pattern (NaN payloads and −0 included).
 
-/// The codec name stored in every tick block.
+/// The codec name of blocks whose columns hold every value exactly.
 pub const CODEC: &str = "stylet-columns-v1";
+/// The codec name of blocks whose force and torque columns hold rounded outputs (integer steps,
+/// [`crate::outputs`]) and whose exact outputs are pinned by a digest.
+pub const CODEC_ROUNDED_OUTPUTS: &str = "stylet-columns-v2";
 
 fn shuffle(words: impl ExactSizeIterator<Item = u64>, width: usize) -> Vec<u8> {
     let n = words.len();
@@ -95,6 +101,37 @@ pub fn decode_f64(bytes: &[u8], count: usize) -> Option<Vec<f64>> {
     )
 }
 
+/// Encodes signed integers: zigzag residuals of the linear prediction `2·v[i−1] − v[i−2]`
+/// (wrapping). Integer steps of a smooth signal leave residuals of a few units.
+pub fn encode_i64(values: &[i64]) -> Vec<u8> {
+    let (mut v1, mut v2) = (0u64, 0u64);
+    shuffle(
+        values.iter().map(|&v| {
+            let v = v as u64;
+            let r = v.wrapping_sub(predict(v1, v2)) as i64;
+            (v2, v1) = (v1, v);
+            ((r << 1) ^ (r >> 63)) as u64
+        }),
+        8,
+    )
+}
+
+/// Decodes `count` integers of [`encode_i64`]; `None` if the byte count does not match.
+pub fn decode_i64(bytes: &[u8], count: usize) -> Option<Vec<i64>> {
+    let (mut v1, mut v2) = (0u64, 0u64);
+    Some(
+        unshuffle(bytes, 8, count)?
+            .into_iter()
+            .map(|z| {
+                let r = (z >> 1) as i64 ^ -((z & 1) as i64);
+                let v = predict(v1, v2).wrapping_add(r as u64);
+                (v2, v1) = (v1, v);
+                v as i64
+            })
+            .collect(),
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -107,6 +144,11 @@ mod tests {
             let values: Vec<u64> = values.into_iter().map(|v| v & mask).collect();
             let enc = encode(&values, w);
             prop_assert_eq!(decode(&enc, w, values.len()).unwrap(), values);
+        }
+
+        #[test]
+        fn integers_round_trip(values in prop::collection::vec(any::<i64>(), 0..300)) {
+            prop_assert_eq!(decode_i64(&encode_i64(&values), values.len()).unwrap(), values);
         }
 
         #[test]
@@ -132,5 +174,6 @@ mod tests {
         assert!(decode(&[0; 8], 3, 1).is_none());
         assert!(decode(&[0; 8], 8, usize::MAX).is_none());
         assert!(decode_f64(&[0; 15], 2).is_none());
+        assert!(decode_i64(&[0; 17], 2).is_none());
     }
 }

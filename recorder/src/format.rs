@@ -10,7 +10,9 @@ use stylet_physics::motion::BreathingSettings;
 use stylet_physics::{ContrastSettings, DeformSettings, Event, Gauge, ProbeKind, ToolSpec};
 
 /// The session schema version this code writes; it reads this version and the one before.
-pub const SCHEMA_VERSION: u32 = 1;
+/// Version 2 (2026-11-28): tick blocks may round their forces and torques (codec
+/// `stylet-columns-v2`, [`crate::outputs`]).
+pub const SCHEMA_VERSION: u32 = 2;
 /// MCAP profile string of Stylet sessions.
 pub const PROFILE: &str = "stylet-session";
 
@@ -29,8 +31,10 @@ pub const TOPIC_PREVIEW: &str = "/stylet/preview";
 pub const MESSAGE_ENCODING: &str = "cbor";
 pub const SCHEMA_ENCODING: &str = "jsonschema";
 
-/// Codec name of tick-block columns (see [`crate::codec`]).
+/// Codec name of tick blocks that hold every value exactly (see [`crate::codec`]).
 pub const COLUMN_CODEC: &str = crate::codec::CODEC;
+/// Codec name of tick blocks with rounded forces and torques and the digest of their exact bits.
+pub const COLUMN_CODEC_ROUNDED: &str = crate::codec::CODEC_ROUNDED_OUTPUTS;
 
 /// One tick as recorded: the device input (what replay needs) and the device output (what replay
 /// checks).
@@ -93,6 +97,9 @@ pub struct TickBlock {
     pub count: u32,
     pub codec: String,
     pub columns: BTreeMap<String, ByteBuf>,
+    /// Codec v2 only: [`crate::outputs::OutputDigest`] of the block's exact forces and torques.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub outputs_digest: Option<u64>,
 }
 
 /// An event message.
@@ -640,7 +647,7 @@ impl SessionEnd {
 pub fn json_schema(topic: &str) -> &'static str {
     match topic {
         TOPIC_TICKS => {
-            r#"{"title":"stylet.TickBlock","type":"object","description":"Consecutive ticks column by column. Each column (codec stylet-columns-v1, docs/session-format.md): f64 columns hold zigzag residuals of the bit patterns after the linear prediction 2*b[i-1]-b[i-2]; integer columns each value XOR the previous; little-endian bytes transposed into planes. f64 columns: pos_x_mm pos_y_mm pos_z_mm q_w q_x q_y q_z force_x_n force_y_n force_z_n torque_x_nmm torque_y_nmm torque_z_nmm inserted_mm; u32: buttons; u16: tip_label.","properties":{"first_tick":{"type":"integer"},"count":{"type":"integer"},"codec":{"type":"string"},"columns":{"type":"object","additionalProperties":{"type":"string","contentEncoding":"binary"}}},"required":["first_tick","count","codec","columns"]}"#
+            r#"{"title":"stylet.TickBlock","type":"object","description":"Consecutive ticks column by column. Each column (codec stylet-columns-v1, docs/session-format.md): f64 columns hold zigzag residuals of the bit patterns after the linear prediction 2*b[i-1]-b[i-2]; integer columns each value XOR the previous; little-endian bytes transposed into planes. f64 columns: pos_x_mm pos_y_mm pos_z_mm q_w q_x q_y q_z force_x_n force_y_n force_z_n torque_x_nmm torque_y_nmm torque_z_nmm inserted_mm; u32: buttons; u16: tip_label. Codec stylet-columns-v2: the same, except that the force and torque columns hold i64 step counts (2^16 per N, 2^12 per N*mm, zigzag residuals of the same prediction) and outputs_digest is the FNV-1a 64 of the exact outputs.","properties":{"first_tick":{"type":"integer"},"count":{"type":"integer"},"codec":{"type":"string"},"columns":{"type":"object","additionalProperties":{"type":"string","contentEncoding":"binary"}},"outputs_digest":{"type":"integer"}},"required":["first_tick","count","codec","columns"]}"#
         }
         TOPIC_EVENTS => {
             r#"{"title":"stylet.Event","type":"object","properties":{"tick":{"type":"integer"},"name":{"type":"string"},"tool":{"type":"string"},"gauge":{"type":"integer"},"length_mm":{"type":"number"},"stylet_in":{"type":"boolean"},"ml":{"type":"number"}},"required":["tick","name"]}"#

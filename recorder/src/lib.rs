@@ -4,10 +4,12 @@
 //!
 //! [`writer`] records without ever blocking the haptic loop; [`reader`] reads strictly, streams,
 //! seeks by tick through the index, and recovers cut or damaged files; [`format`] defines the
-//! header, channels and messages; [`codec`] the exact, compressible tick columns.
+//! header, channels and messages; [`codec`] the compressible tick columns; [`outputs`] the rounded
+//! forces and torques and the digest that pins their exact bits.
 
 pub mod codec;
 pub mod format;
+pub mod outputs;
 pub mod reader;
 pub mod recording;
 pub mod records;

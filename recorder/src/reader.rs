@@ -10,8 +10,9 @@ use std::io::Read;
 use std::path::Path;
 
 use crate::format::*;
+use crate::outputs::OutputCheck;
 use crate::records::{self, OP_CHUNK, OP_DATA_END, OP_FOOTER, OP_HEADER, Record};
-use crate::writer::decode_block;
+use crate::writer::{DecodedBlock, decode_block};
 
 /// Hard limits against hostile files.
 #[derive(Debug, Clone, Copy)]
@@ -106,6 +107,9 @@ pub struct Session {
     pub ticks: Vec<TickRecord>,
     pub events: Vec<EventRecord>,
     pub digests: Vec<DigestRecord>,
+    /// One per tick block with rounded outputs (codec v2), in tick order: the digest replay checks
+    /// the exact outputs of the block's ticks against.
+    pub output_checks: Vec<OutputCheck>,
     pub annotations: Vec<AnnotationRecord>,
     pub chunks: Vec<ChunkInfo>,
     /// The first damage (recovery mode only; `None` for an intact file).
@@ -152,6 +156,7 @@ struct Walk<'l> {
     ticks: Vec<TickRecord>,
     events: Vec<EventRecord>,
     digests: Vec<DigestRecord>,
+    output_checks: Vec<OutputCheck>,
     annotations: Vec<AnnotationRecord>,
     chunks: Vec<ChunkInfo>,
     /// Ticks read so far (kept or streamed): bounded by `limits.max_ticks` before decoding.
@@ -191,7 +196,7 @@ impl Walk<'_> {
                 if self.tick_count.saturating_add(u64::from(block.count)) > self.limits.max_ticks {
                     return Err(format!("more than {} ticks", self.limits.max_ticks));
                 }
-                let ticks = decode_block(&block)?;
+                let DecodedBlock { ticks, check } = decode_block(&block)?;
                 check_poses_finite(&ticks)?;
                 if let (Some(last), Some(first)) = (self.last_tick, ticks.first())
                     && first.tick <= last
@@ -200,6 +205,7 @@ impl Walk<'_> {
                 }
                 self.tick_count += ticks.len() as u64;
                 self.last_tick = ticks.last().map(|t| t.tick);
+                self.output_checks.extend(check);
                 match self.sink.as_mut() {
                     Some(sink) => sink(&ticks),
                     None => self.ticks.extend(ticks),
@@ -317,6 +323,7 @@ impl Walk<'_> {
             self.digests.len(),
             self.annotations.len(),
             self.tick_count,
+            self.output_checks.len(),
         );
         let first = self.ticks.len();
         if let Err(e) = self.records(&plain) {
@@ -325,6 +332,7 @@ impl Walk<'_> {
             self.digests.truncate(saved.2);
             self.annotations.truncate(saved.3);
             self.tick_count = saved.4;
+            self.output_checks.truncate(saved.5);
             return Err(e);
         }
         let added = &self.ticks[first..];
@@ -376,6 +384,7 @@ pub fn read_bytes_with<'a>(
         ticks: Vec::new(),
         events: Vec::new(),
         digests: Vec::new(),
+        output_checks: Vec::new(),
         annotations: Vec::new(),
         chunks: Vec::new(),
         tick_count: 0,
@@ -510,6 +519,7 @@ pub fn read_bytes_with<'a>(
         ticks: w.ticks,
         events: w.events,
         digests: w.digests,
+        output_checks: w.output_checks,
         annotations: w.annotations,
         chunks: w.chunks,
         damage,
@@ -661,6 +671,7 @@ pub fn read_tick_range(path: &Path, first: u64, last: u64) -> Result<Vec<TickRec
         ticks: Vec::new(),
         events: Vec::new(),
         digests: Vec::new(),
+        output_checks: Vec::new(),
         annotations: Vec::new(),
         chunks: Vec::new(),
         tick_count: 0,

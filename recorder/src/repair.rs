@@ -29,9 +29,7 @@ pub fn rewrite_recovered(session: &Session, source: &str, out: &Path) -> Result<
         for d in &session.digests {
             w.digest_blocking(d.tick, d.digest)?;
         }
-        for t in &session.ticks {
-            w.record_raw_blocking(*t)?;
-        }
+        w.record_read_blocking(&session.ticks, &session.output_checks)?;
         let mut reasons = Vec::new();
         if let Some(d) = &session.damage {
             reasons.push(format!("recovered from {source}, damaged {d}"));

@@ -24,6 +24,7 @@ use stylet_physics::{Event, TickInput, TickOutput};
 
 use crate::codec;
 use crate::format::*;
+use crate::outputs::{self, FORCE_STEPS_PER_N, OutputCheck, OutputDigest, TORQUE_STEPS_PER_NMM};
 
 /// Ticks per block message.
 pub const BLOCK_TICKS: usize = 500;
@@ -62,6 +63,9 @@ impl Default for WriterOptions {
 
 enum Item {
     Tick(TickRecord),
+    /// A block read from a session file with rounded outputs, written as it was read: the same
+    /// ticks, the same rounded values, the digest of the original's exact outputs.
+    RoundedBlock(Vec<TickRecord>, u64),
     Event(EventRecord),
     Digest(DigestRecord),
     Annotation(AnnotationRecord),
@@ -235,6 +239,44 @@ impl SessionWriter {
             .map_err(|_| WriteError::Thread("the writer thread stopped".into()))
     }
 
+    /// Records ticks as a reader returned them ([`crate::reader::Session`]'s `ticks` and
+    /// `output_checks`), waiting while the queue is full: the ticks of each block with rounded
+    /// outputs are written as one block with its digest (the exact outputs are not in the file
+    /// any more, so only the original digest still pins them); every other tick as
+    /// [`Self::record_raw_blocking`]. For rewriting a session (recovery, tests, tools).
+    pub fn record_read_blocking(&self, ticks: &[TickRecord], checks: &[OutputCheck]) -> Result<(), WriteError> {
+        let tx = self.tx.as_ref().ok_or_else(|| WriteError::Thread("finished".into()))?;
+        let stopped = |_| WriteError::Thread("the writer thread stopped".into());
+        let mut checks = checks.iter().peekable();
+        let mut i = 0;
+        while i < ticks.len() {
+            let tick = ticks[i].tick;
+            while checks.next_if(|c| c.last_tick() < tick).is_some() {}
+            match checks.peek() {
+                Some(c) if c.first_tick == tick => {
+                    let n = c.count as usize;
+                    let block = ticks
+                        .get(i..i + n)
+                        .filter(|b| b.iter().zip(c.first_tick..).all(|(t, k)| t.tick == k));
+                    let Some(block) = block else {
+                        return Err(WriteError::Thread(format!(
+                            "the block of ticks {}–{} is not among the ticks given",
+                            c.first_tick,
+                            c.last_tick()
+                        )));
+                    };
+                    tx.send(Item::RoundedBlock(block.to_vec(), c.digest)).map_err(stopped)?;
+                    i += n;
+                }
+                _ => {
+                    tx.send(Item::Tick(ticks[i])).map_err(stopped)?;
+                    i += 1;
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Records an event record, waiting while the queue is full (offline recording).
     pub fn event_record_blocking(&self, e: EventRecord) -> Result<(), WriteError> {
         let tx = self.tx.as_ref().ok_or_else(|| WriteError::Thread("finished".into()))?;
@@ -362,23 +404,29 @@ fn run(
         let item = rx.recv_timeout(timeout);
         let ended = matches!(item, Err(RecvTimeoutError::Disconnected));
         match item {
+            Ok(Item::RoundedBlock(read, digest)) => {
+                write_block(&mut write, &mut w, &block)?;
+                block.clear();
+                for t in read.iter().filter(|t| t.tick % PREVIEW_EVERY == 0) {
+                    write(&mut w, TOPIC_PREVIEW, t.tick, &to_cbor(&preview(t, rate)))?;
+                }
+                let b = encode_rounded_block(&read, digest).ok_or_else(|| {
+                    WriteError::Thread(format!(
+                        "the block at tick {} does not hold rounded outputs",
+                        read.first().map_or(0, |t| t.tick)
+                    ))
+                })?;
+                write(&mut w, TOPIC_TICKS, b.first_tick, &to_cbor(&b))?;
+                ticks += read.len() as u64;
+                since_flush += read.len() as u64;
+            }
             Ok(Item::Tick(t)) => {
                 if block.last().is_some_and(|b| b.tick + 1 != t.tick) {
                     write_block(&mut write, &mut w, &block)?;
                     block.clear();
                 }
                 if t.tick % PREVIEW_EVERY == 0 {
-                    let f = t.force_n;
-                    let p = PreviewRecord {
-                        tick: t.tick,
-                        t_s: (t.tick as f64 / rate as f64) as f32,
-                        position_mm: t.position_mm.map(|v| v as f32),
-                        force_n: f.map(|v| v as f32),
-                        force_magnitude_n: (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt() as f32,
-                        tip_label: t.tip_label,
-                        inserted_mm: t.inserted_mm as f32,
-                    };
-                    write(&mut w, TOPIC_PREVIEW, t.tick, &to_cbor(&p))?;
+                    write(&mut w, TOPIC_PREVIEW, t.tick, &to_cbor(&preview(&t, rate)))?;
                 }
                 block.push(t);
                 ticks += 1;
@@ -447,6 +495,20 @@ fn run(
     Ok((ticks, bytes, end.complete))
 }
 
+/// The preview sample of a tick (f32, for plotting in MCAP tools).
+fn preview(t: &TickRecord, rate: u64) -> PreviewRecord {
+    let f = t.force_n;
+    PreviewRecord {
+        tick: t.tick,
+        t_s: (t.tick as f64 / rate as f64) as f32,
+        position_mm: t.position_mm.map(|v| v as f32),
+        force_n: f.map(|v| v as f32),
+        force_magnitude_n: (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt() as f32,
+        tip_label: t.tip_label,
+        inserted_mm: t.inserted_mm as f32,
+    }
+}
+
 fn write_block(write: &mut WriteFn, w: &mut mcap::Writer<SyncingFile>, block: &[TickRecord]) -> Result<(), WriteError> {
     if block.is_empty() {
         return Ok(());
@@ -455,7 +517,8 @@ fn write_block(write: &mut WriteFn, w: &mut mcap::Writer<SyncingFile>, block: &[
     write(w, TOPIC_TICKS, block[0].tick, &to_cbor(&b))
 }
 
-/// Columns of a block of consecutive ticks.
+/// Columns of a block of consecutive ticks: codec v2 (rounded forces and torques, the digest of
+/// their exact bits) when every output rounds exactly, else codec v1 (every bit stored).
 pub fn encode_block(block: &[TickRecord]) -> TickBlock {
     let mut columns = BTreeMap::new();
     let mut f = |name: &str, get: &dyn Fn(&TickRecord) -> f64| {
@@ -469,13 +532,26 @@ pub fn encode_block(block: &[TickRecord]) -> TickBlock {
     f("q_x", &|t| t.orientation[1]);
     f("q_y", &|t| t.orientation[2]);
     f("q_z", &|t| t.orientation[3]);
-    f("force_x_n", &|t| t.force_n[0]);
-    f("force_y_n", &|t| t.force_n[1]);
-    f("force_z_n", &|t| t.force_n[2]);
-    f("torque_x_nmm", &|t| t.torque_nmm[0]);
-    f("torque_y_nmm", &|t| t.torque_nmm[1]);
-    f("torque_z_nmm", &|t| t.torque_nmm[2]);
     f("inserted_mm", &|t| t.inserted_mm);
+    let rounded = output_steps(block);
+    let outputs_digest = match &rounded {
+        Some(steps) => {
+            for (name, column) in OUTPUT_COLUMNS.iter().zip(steps) {
+                columns.insert(name.to_string(), ByteBuf::from(codec::encode_i64(column)));
+            }
+            let mut d = OutputDigest::default();
+            for t in block {
+                d.add(t.force_n, t.torque_nmm);
+            }
+            Some(d.value())
+        }
+        None => {
+            for (a, name) in OUTPUT_COLUMNS.iter().enumerate() {
+                f(name, &|t| output(t, a));
+            }
+            None
+        }
+    };
     let buttons: Vec<u64> = block.iter().map(|t| t.buttons as u64).collect();
     columns.insert("buttons".into(), ByteBuf::from(codec::encode(&buttons, 4)));
     let labels: Vec<u64> = block.iter().map(|t| t.tip_label as u64).collect();
@@ -483,16 +559,88 @@ pub fn encode_block(block: &[TickRecord]) -> TickBlock {
     TickBlock {
         first_tick: block[0].tick,
         count: block.len() as u32,
-        codec: COLUMN_CODEC.into(),
+        codec: if rounded.is_some() {
+            COLUMN_CODEC_ROUNDED
+        } else {
+            COLUMN_CODEC
+        }
+        .into(),
         columns,
+        outputs_digest,
     }
 }
 
-/// The ticks of a block; names the first problem.
-pub fn decode_block(b: &TickBlock) -> Result<Vec<TickRecord>, String> {
-    if b.codec != COLUMN_CODEC {
-        return Err(format!("unknown column codec '{}'", b.codec));
+/// A block read back from a file with rounded outputs, encoded again with the `digest` it was
+/// read with (the exact outputs are gone). `None` if a value is not a rounded output or the
+/// ticks are not consecutive.
+fn encode_rounded_block(block: &[TickRecord], digest: u64) -> Option<TickBlock> {
+    let first = block.first()?.tick;
+    let consecutive = block.iter().zip(first..).all(|(t, k)| t.tick == k);
+    let rounded = block
+        .iter()
+        .all(|t| outputs::rounded_outputs(t.force_n, t.torque_nmm) == Some((t.force_n, t.torque_nmm)));
+    if !consecutive || !rounded {
+        return None;
     }
+    let mut b = encode_block(block);
+    b.outputs_digest = Some(digest);
+    Some(b)
+}
+
+/// The output columns: force (N) then torque (N·mm), x, y, z.
+const OUTPUT_COLUMNS: [&str; 6] = [
+    "force_x_n",
+    "force_y_n",
+    "force_z_n",
+    "torque_x_nmm",
+    "torque_y_nmm",
+    "torque_z_nmm",
+];
+
+/// Steps per unit of output column `a` ([`OUTPUT_COLUMNS`]).
+fn steps_per_unit(a: usize) -> f64 {
+    if a < 3 { FORCE_STEPS_PER_N } else { TORQUE_STEPS_PER_NMM }
+}
+
+/// Output column `a` of a tick.
+fn output(t: &TickRecord, a: usize) -> f64 {
+    if a < 3 { t.force_n[a] } else { t.torque_nmm[a - 3] }
+}
+
+/// The block's outputs in steps, column by column, or `None` if one cannot be rounded exactly.
+fn output_steps(block: &[TickRecord]) -> Option<Vec<Vec<i64>>> {
+    (0..OUTPUT_COLUMNS.len())
+        .map(|a| {
+            block
+                .iter()
+                .map(|t| outputs::steps(output(t, a), steps_per_unit(a)))
+                .collect()
+        })
+        .collect()
+}
+
+/// A decoded tick block: its ticks and, for a codec-v2 block, what its rounded outputs promise.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DecodedBlock {
+    /// The ticks; in a codec-v2 block their forces and torques are the rounded values.
+    pub ticks: Vec<TickRecord>,
+    pub check: Option<OutputCheck>,
+}
+
+/// The ticks of a block; names the first problem.
+pub fn decode_block(b: &TickBlock) -> Result<DecodedBlock, String> {
+    let rounded = match (b.codec.as_str(), b.outputs_digest) {
+        (COLUMN_CODEC, None) => false,
+        (COLUMN_CODEC_ROUNDED, Some(_)) => true,
+        (COLUMN_CODEC, Some(_)) => return Err(format!("a '{COLUMN_CODEC}' block with an outputs digest")),
+        (COLUMN_CODEC_ROUNDED, None) => {
+            return Err(format!("a '{COLUMN_CODEC_ROUNDED}' block without its outputs digest"));
+        }
+        (other, _) => {
+            let shown: String = other.chars().take(64).collect();
+            return Err(format!("unknown column codec '{shown}'"));
+        }
+    };
     let n = b.count as usize;
     if n == 0 || n > 100_000 {
         return Err(format!("block of {n} ticks"));
@@ -500,29 +648,48 @@ pub fn decode_block(b: &TickBlock) -> Result<Vec<TickRecord>, String> {
     if b.first_tick.checked_add(n as u64).is_none() {
         return Err("block tick numbers overflow".into());
     }
-    let col = |name: &str, width: usize| -> Result<Vec<u64>, String> {
-        let bytes = b
-            .columns
+    let bytes_of = |name: &str| {
+        b.columns
             .get(name)
-            .ok_or_else(|| format!("block lacks column '{name}'"))?;
+            .ok_or_else(|| format!("block lacks column '{name}'"))
+    };
+    let col = |name: &str, width: usize| -> Result<Vec<u64>, String> {
+        let bytes = bytes_of(name)?;
         codec::decode(bytes, width, n)
             .ok_or_else(|| format!("column '{name}' has {} bytes, not {}", bytes.len(), n * width))
     };
     let fc = |name: &str| -> Result<Vec<f64>, String> {
-        let bytes = b
-            .columns
-            .get(name)
-            .ok_or_else(|| format!("block lacks column '{name}'"))?;
+        let bytes = bytes_of(name)?;
         codec::decode_f64(bytes, n).ok_or_else(|| format!("column '{name}' has {} bytes, not {}", bytes.len(), n * 8))
+    };
+    let out = |a: usize| -> Result<Vec<f64>, String> {
+        let name = OUTPUT_COLUMNS[a];
+        if !rounded {
+            return fc(name);
+        }
+        let bytes = bytes_of(name)?;
+        let steps = codec::decode_i64(bytes, n)
+            .ok_or_else(|| format!("column '{name}' has {} bytes, not {}", bytes.len(), n * 8))?;
+        let per = steps_per_unit(a);
+        steps
+            .into_iter()
+            .map(|s| {
+                // Counts beyond 2⁵³ were never written (and would not be exact).
+                let v = outputs::from_steps(s, per);
+                (outputs::steps(v, per) == Some(s))
+                    .then_some(v)
+                    .ok_or_else(|| format!("column '{name}' holds a step count out of range"))
+            })
+            .collect()
     };
     let (px, py, pz) = (fc("pos_x_mm")?, fc("pos_y_mm")?, fc("pos_z_mm")?);
     let (qw, qx, qy, qz) = (fc("q_w")?, fc("q_x")?, fc("q_y")?, fc("q_z")?);
-    let (fx, fy, fz) = (fc("force_x_n")?, fc("force_y_n")?, fc("force_z_n")?);
-    let (tx, ty, tz) = (fc("torque_x_nmm")?, fc("torque_y_nmm")?, fc("torque_z_nmm")?);
+    let (fx, fy, fz) = (out(0)?, out(1)?, out(2)?);
+    let (tx, ty, tz) = (out(3)?, out(4)?, out(5)?);
     let ins = fc("inserted_mm")?;
     let buttons = col("buttons", 4)?;
     let labels = col("tip_label", 2)?;
-    Ok((0..n)
+    let ticks = (0..n)
         .map(|i| TickRecord {
             tick: b.first_tick + i as u64,
             position_mm: [px[i], py[i], pz[i]],
@@ -533,5 +700,13 @@ pub fn decode_block(b: &TickBlock) -> Result<Vec<TickRecord>, String> {
             tip_label: labels[i] as u16,
             inserted_mm: ins[i],
         })
-        .collect())
+        .collect();
+    Ok(DecodedBlock {
+        ticks,
+        check: b.outputs_digest.map(|digest| OutputCheck {
+            first_tick: b.first_tick,
+            count: b.count,
+            digest,
+        }),
+    })
 }

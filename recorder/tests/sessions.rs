@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use stylet_physics::{DeformSettings, Event, Gauge, ToolSpec};
 use stylet_recorder::format::{DigestRecord, TickRecord};
+use stylet_recorder::outputs::{OutputCheck, OutputDigest, rounded_outputs};
 use stylet_recorder::reader::{self, Limits, Mode};
 use stylet_recorder::{EventRecord, SessionHeader, SessionWriter, WriterOptions};
 
@@ -114,8 +115,42 @@ fn write_session(path: &Path, ticks: &[TickRecord], options: WriterOptions) -> s
     w.finish().unwrap()
 }
 
+/// `t` as a block with rounded outputs (codec v2) stores it.
+fn as_recorded(t: &TickRecord) -> TickRecord {
+    let (force_n, torque_nmm) = rounded_outputs(t.force_n, t.torque_nmm).unwrap();
+    TickRecord {
+        force_n,
+        torque_nmm,
+        ..*t
+    }
+}
+
+/// Whether the ticks read (`a`) are the ticks written (`b`), bit for bit, with the forces and
+/// torques rounded as the writer stores them.
 fn same(a: &[TickRecord], b: &[TickRecord]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.same_bits(&as_recorded(y)))
+}
+
+/// Every bit, outputs included (files and blocks written with codec v1).
+fn same_exact(a: &[TickRecord], b: &[TickRecord]) -> bool {
     a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.same_bits(y))
+}
+
+/// The output checks of a session cover `ticks` block after block, and each digest is that of
+/// the exact outputs written.
+fn checks_pin_the_exact_outputs(checks: &[OutputCheck], ticks: &[TickRecord]) {
+    let base = ticks[0].tick;
+    let mut next = base;
+    for c in checks {
+        assert_eq!(c.first_tick, next);
+        let mut d = OutputDigest::default();
+        for t in &ticks[(c.first_tick - base) as usize..=(c.last_tick() - base) as usize] {
+            d.add(t.force_n, t.torque_nmm);
+        }
+        assert_eq!(d.value(), c.digest, "block at tick {}", c.first_tick);
+        next = c.last_tick() + 1;
+    }
+    assert_eq!(next, ticks.last().unwrap().tick + 1);
 }
 
 /// 10 minutes of 1 kHz ticks come back bit for bit; prints the size per minute.
@@ -129,6 +164,7 @@ fn ten_minutes_round_trip() {
     assert!(summary.complete);
     let s = reader::verify(&p).unwrap();
     assert!(same(&s.ticks, &ticks));
+    checks_pin_the_exact_outputs(&s.output_checks, &ticks);
     assert_eq!(s.header, header());
     assert_eq!(s.events.len(), 60);
     assert_eq!(
@@ -296,6 +332,8 @@ fn streaming_and_indexed_access() {
     .unwrap();
     assert!(s.ticks.is_empty() && blocks >= 12_345 / 500);
     assert!(same(&streamed, &ticks));
+    // Streaming keeps the blocks' output checks (a few bytes per 500 ticks).
+    checks_pin_the_exact_outputs(&s.output_checks, &ticks);
     let range = reader::read_tick_range(&p, 1234, 5678).unwrap();
     assert!(same(&range, &ticks[1234..=5678]));
     let tail = reader::read_tick_range(&p, 12_000, 20_000).unwrap();
@@ -306,23 +344,78 @@ fn fixture(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures").join(name)
 }
 
-/// The committed schema-version-1 file still reads, with its exact content. (Regenerate it only
-/// when adding a new schema version: `STYLET_WRITE_FIXTURE=1 cargo test -p stylet-recorder fixture`.)
+/// The committed schema-version-1 file still reads, with its exact content (every output bit:
+/// version 1 had no rounded blocks). Frozen: it was written by the version-1 writer.
 #[test]
 fn schema_v1_fixture_reads() {
     let path = fixture("session-v1.mcap");
+    let ticks = synthetic_ticks(1500, 6);
+    let s = reader::verify(&path).unwrap();
+    assert_eq!(s.header.schema_version, 1);
+    assert_eq!(s.header.trainee, "alice");
+    // Written before the world model was recorded: no deformation.
+    assert_eq!(s.header.deformation, DeformSettings::off());
+    assert!(same_exact(&s.ticks, &ticks));
+    assert!(s.output_checks.is_empty());
+    assert_eq!(s.digests.len(), 15);
+}
+
+/// The committed schema-version-2 file reads: rounded outputs and the digests of the exact ones.
+/// (Regenerate it only when adding a new schema version:
+/// `STYLET_WRITE_FIXTURE=1 cargo test -p stylet-recorder fixture`.)
+#[test]
+fn schema_v2_fixture_reads() {
+    let path = fixture("session-v2.mcap");
     let ticks = synthetic_ticks(1500, 6);
     if std::env::var("STYLET_WRITE_FIXTURE").is_ok() {
         std::fs::create_dir_all(path.parent().unwrap()).unwrap();
         write_session(&path, &ticks, WriterOptions::default());
     }
     let s = reader::verify(&path).unwrap();
-    assert_eq!(s.header.schema_version, 1);
+    assert_eq!(s.header.schema_version, 2);
     assert_eq!(s.header.trainee, "alice");
-    // Written before the world model was recorded: no deformation.
-    assert_eq!(s.header.deformation, DeformSettings::off());
     assert!(same(&s.ticks, &ticks));
+    assert_eq!(s.output_checks.len(), 3);
+    checks_pin_the_exact_outputs(&s.output_checks, &ticks);
     assert_eq!(s.digests.len(), 15);
+}
+
+/// A block whose outputs cannot be rounded exactly (here a NaN force) is stored with every bit
+/// (codec v1); the blocks around it still round theirs.
+#[test]
+fn outputs_that_cannot_be_rounded_are_stored_exactly() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("s.mcap");
+    let mut ticks = synthetic_ticks(1500, 3);
+    ticks[700].force_n[1] = f64::from_bits(f64::NAN.to_bits() | 0x5);
+    ticks[701].torque_nmm[2] = 1e300;
+    write_session(&p, &ticks, WriterOptions::default());
+    let s = reader::verify(&p).unwrap();
+    assert_eq!(s.output_checks.len(), 2);
+    let exact = s
+        .ticks
+        .iter()
+        .filter(|t| !s.output_checks.iter().any(|c| c.covers(t.tick)));
+    let exact: Vec<TickRecord> = exact.copied().collect();
+    assert!(exact.iter().any(|t| t.tick == 700));
+    let first = exact[0].tick as usize;
+    assert!(same_exact(&exact, &ticks[first..first + exact.len()]));
+    assert_eq!(s.ticks[700].force_n[1].to_bits(), ticks[700].force_n[1].to_bits());
+    for c in &s.output_checks {
+        let range = c.first_tick as usize..=c.last_tick() as usize;
+        assert!(same(&s.ticks[range.clone()], &ticks[range.clone()]));
+        checks_pin_the_exact_outputs(std::slice::from_ref(c), &ticks[range]);
+    }
+
+    // Written again from what was read (as `session recover` does), the file says the same:
+    // the same ticks and the original digests of the exact outputs.
+    let again = d.path().join("again.mcap");
+    let w = SessionWriter::create(&again, &s.header, WriterOptions::default()).unwrap();
+    w.record_read_blocking(&s.ticks, &s.output_checks).unwrap();
+    w.finish().unwrap();
+    let s2 = reader::verify(&again).unwrap();
+    assert!(same_exact(&s2.ticks, &s.ticks));
+    assert_eq!(s2.output_checks, s.output_checks);
 }
 
 /// Inputs the fuzzer once broke the reader with (scripts/fuzz): each now gives a clear error.

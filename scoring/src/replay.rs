@@ -9,14 +9,16 @@ use std::sync::Arc;
 use stylet_physics::glam::{DQuat, DVec3};
 use stylet_physics::{DeviceProfile, Event, PunctureAtlas, SimConfig, Simulation, TickInput, TickOutput};
 use stylet_recorder::format::TickRecord;
+use stylet_recorder::outputs::{OutputCheck, OutputDigest, rounded_outputs};
 use stylet_recorder::reader::Session;
 
 /// Where a replay first differs from the recording.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Divergence {
     pub tick: u64,
-    /// `ticks.force_n`, `ticks.torque_nmm`, `ticks.tip_label`, `ticks.inserted_mm`, `digests` or
-    /// `ticks` (a gap in the recorded ticks).
+    /// `ticks.force_n`, `ticks.torque_nmm`, `ticks.tip_label`, `ticks.inserted_mm`,
+    /// `ticks.outputs_digest` (the exact outputs of a block with rounded ones, at its last tick),
+    /// `digests` or `ticks` (a gap in the recorded ticks).
     pub stream: String,
     pub recorded: String,
     pub replayed: String,
@@ -64,8 +66,10 @@ fn bits3(v: &[f64; 3]) -> [u64; 3] {
     v.map(f64::to_bits)
 }
 
-/// The first recorded output of `t` that `o` does not reproduce.
-fn compare(t: &TickRecord, o: &TickOutput) -> Option<Divergence> {
+/// The first recorded output of `t` that `o` does not reproduce; `rounded`: the file holds `t`'s
+/// force and torque rounded ([`stylet_recorder::outputs`]), so `o`'s are rounded the same way
+/// before the comparison (their exact bits are checked by the block's digest).
+fn compare(t: &TickRecord, o: &TickOutput, rounded: bool) -> Option<Divergence> {
     let d = |stream: &str, recorded: String, replayed: String| {
         Some(Divergence {
             tick: t.tick,
@@ -74,7 +78,19 @@ fn compare(t: &TickRecord, o: &TickOutput) -> Option<Divergence> {
             replayed,
         })
     };
-    let (f, m) = (o.force_n.to_array(), o.torque_nmm.to_array());
+    let (mut f, mut m) = (o.force_n.to_array(), o.torque_nmm.to_array());
+    if rounded {
+        match rounded_outputs(f, m) {
+            Some((rf, rm)) => (f, m) = (rf, rm),
+            None => {
+                return d(
+                    "ticks.force_n",
+                    format!("{:?} (rounded)", t.force_n),
+                    format!("{f:?} (cannot be rounded)"),
+                );
+            }
+        }
+    }
     if bits3(&t.force_n) != bits3(&f) {
         return d("ticks.force_n", format!("{:?}", t.force_n), format!("{f:?}"));
     }
@@ -125,6 +141,11 @@ pub struct Replayer<S: Borrow<Session>> {
     next_event: usize,
     digests: Arc<[(u64, u64)]>,
     next_digest: usize,
+    /// The blocks with rounded outputs, in tick order, and the digest of the exact outputs
+    /// replayed so far in the current one.
+    output_checks: Arc<[OutputCheck]>,
+    next_check: usize,
+    outputs: OutputDigest,
     /// Index of the next recorded tick.
     next: usize,
     /// A gap in the recorded ticks ended the replay.
@@ -159,6 +180,7 @@ impl<S: Borrow<Session>> Replayer<S> {
             events.entry(e.tick).or_default().push(ev);
         }
         let digests: BTreeMap<u64, u64> = session.borrow().digests.iter().map(|d| (d.tick, d.digest)).collect();
+        let output_checks = session.borrow().output_checks.iter().copied().collect();
         Ok(Replayer {
             session,
             sim,
@@ -166,6 +188,9 @@ impl<S: Borrow<Session>> Replayer<S> {
             next_event: 0,
             digests: digests.into_iter().collect(),
             next_digest: 0,
+            output_checks,
+            next_check: 0,
+            outputs: OutputDigest::default(),
             next: 0,
             gap: false,
             divergence: None,
@@ -180,7 +205,7 @@ impl<S: Borrow<Session>> Replayer<S> {
         if self.gap {
             return None;
         }
-        let t = self.session.borrow().ticks.get(self.next)?;
+        let t = *self.session.borrow().ticks.get(self.next)?;
         if t.tick != self.sim.tick() {
             self.divergence.get_or_insert(Divergence {
                 tick: self.sim.tick(),
@@ -201,11 +226,12 @@ impl<S: Borrow<Session>> Replayer<S> {
             }
             _ => Vec::new(),
         };
-        let input = tick_input(t, events);
+        let input = tick_input(&t, events);
         let out = self.sim.step(&input);
         self.ticks += 1;
+        let rounded = self.check_outputs(t.tick, &out);
         if self.divergence.is_none() {
-            self.divergence = compare(t, &out);
+            self.divergence = compare(&t, &out, rounded);
         }
         while self
             .digests
@@ -231,6 +257,41 @@ impl<S: Borrow<Session>> Replayer<S> {
         }
         self.next += 1;
         Some((input, out))
+    }
+
+    /// Adds `out` to the digest of its block when the file rounded the outputs of `tick` (and
+    /// says so), checking the digest at the block's last tick.
+    fn check_outputs(&mut self, tick: u64, out: &TickOutput) -> bool {
+        while self
+            .output_checks
+            .get(self.next_check)
+            .is_some_and(|c| c.last_tick() < tick)
+        {
+            self.next_check += 1;
+        }
+        let Some(&check) = self.output_checks.get(self.next_check) else {
+            return false;
+        };
+        if !check.covers(tick) {
+            return false;
+        }
+        if tick == check.first_tick {
+            self.outputs = OutputDigest::default();
+        }
+        self.outputs.add(out.force_n.to_array(), out.torque_nmm.to_array());
+        if tick == check.last_tick() {
+            let replayed = self.outputs.value();
+            if replayed != check.digest && self.divergence.is_none() {
+                self.divergence = Some(Divergence {
+                    tick,
+                    stream: "ticks.outputs_digest".into(),
+                    recorded: format!("{:016x} (ticks {}–{tick})", check.digest, check.first_tick),
+                    replayed: format!("{replayed:016x}"),
+                });
+            }
+            self.next_check += 1;
+        }
+        true
     }
 
     /// The simulation after the last replayed tick.
