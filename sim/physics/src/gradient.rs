@@ -114,56 +114,158 @@ impl<'a, const N: usize> GradientSampler<'a, N> {
         }
     }
 
+    /// [`Self::at_index`] when the first volume's value passes `wanted`, else that value alone
+    /// (`Err`), having read only it: the contact tools skip the nodes off the skin after one
+    /// trilinear read and take the value of the nodes on it from the gather (the same bits as
+    /// [`Volume::sample_index`]).
+    #[inline(always)]
+    pub fn at_index_if(&self, c: DVec3, outside: f32, wanted: impl Fn(f64) -> bool) -> Result<[ValueGradient; N], f64> {
+        let grid = self.volumes[0].grid();
+        let dims = grid.dims();
+        let interior = (0..3).all(|a| c[a] >= 1.0 && c[a] < dims[a] as f64 - 2.0);
+        let mut out = if interior {
+            let cell = self.cell(c);
+            let (d0, rows0) = self.rows(self.volumes[0], &cell);
+            let value = cell.value(&rows0);
+            if !wanted(value) {
+                return Err(value);
+            }
+            let mut out = [ValueGradient {
+                value,
+                gradient: cell.gradient(d0, &rows0),
+            }; N];
+            for (o, v) in out.iter_mut().zip(&self.volumes).skip(1) {
+                *o = self.gather(v, &cell);
+            }
+            out
+        } else {
+            let value = self.volumes[0].sample_index(c, outside) as f64;
+            if !wanted(value) {
+                return Err(value);
+            }
+            self.volumes.map(|v| self.border(v, c, outside))
+        };
+        for o in &mut out {
+            o.gradient = grid.index_gradient_to_world(o.gradient);
+        }
+        Ok(out)
+    }
+
     /// Value and index gradient from the 32 voxels the six samples and the value touch: the
     /// 2 × 2 rows of four along x through the cell, and the ends of the columns along y and z.
     /// Along each axis the difference is a four-tap stencil ([`difference_stencil`]) on the
     /// lines through the cell, blended bilinearly across them as the trilinear field is.
     fn interior(&self, c: DVec3) -> [ValueGradient; N] {
+        let cell = self.cell(c);
+        self.volumes.map(|v| self.gather(v, &cell))
+    }
+
+    /// What every volume's gather at an interior index `c` shares.
+    #[inline(always)]
+    fn cell(&self, c: DVec3) -> Cell {
         let [nx, ny, _] = self.volumes[0].grid().dims();
         // c ≥ 1 on every axis, so truncation is floor.
         let b = [c.x as usize, c.y as usize, c.z as usize];
         let f = [c.x - b[0] as f64, c.y - b[1] as f64, c.z - b[2] as f64];
-        // Offset of voxel floor(c) − 1 + (i, j, k).
-        let base = (b[0] - 1) + nx * ((b[1] - 1) + ny * (b[2] - 1));
-        let (sj, sk) = (nx, nx * ny);
-        let stencil = [0, 1, 2].map(|a| difference_stencil(f[a], self.delta[a]));
         let w = |t: f64| [1.0 - t, t];
-        let (wx, wy, wz) = (w(f[0]), w(f[1]), w(f[2]));
-        self.volumes.map(|v| {
-            let d = &v.data()[base..=base + 3 + 3 * sj + 3 * sk];
-            let get = |i: usize, j: usize, k: usize| d[i + j * sj + k * sk] as f64;
-            // rows[k − 1][j − 1]: voxels i = 0 … 3 at j, k ∈ {1, 2}.
-            let row = |j, k| [get(0, j, k), get(1, j, k), get(2, j, k), get(3, j, k)];
-            let rows = [[row(1, 1), row(2, 1)], [row(1, 2), row(2, 2)]];
-            // The value, blended along x, then y, then z as `trilinear` does (the same bits).
-            let fx = f[0];
-            let c00 = rows[0][0][1] * (1.0 - fx) + rows[0][0][2] * fx;
-            let c10 = rows[0][1][1] * (1.0 - fx) + rows[0][1][2] * fx;
-            let c01 = rows[1][0][1] * (1.0 - fx) + rows[1][0][2] * fx;
-            let c11 = rows[1][1][1] * (1.0 - fx) + rows[1][1][2] * fx;
-            let c0 = c00 * (1.0 - f[1]) + c10 * f[1];
-            let c1 = c01 * (1.0 - f[1]) + c11 * f[1];
-            let value = (c0 * (1.0 - f[2]) + c1 * f[2]) as f32 as f64;
-            let mut g = DVec3::ZERO;
-            for kk in 0..2 {
-                for jj in 0..2 {
-                    g.x += wy[jj] * wz[kk] * dot4(&stencil[0], rows[kk][jj]);
-                }
-                for ii in 0..2 {
-                    let (i, k) = (ii + 1, kk + 1);
-                    let col = [get(i, 0, k), rows[kk][0][i], rows[kk][1][i], get(i, 3, k)];
-                    g.y += wx[ii] * wz[kk] * dot4(&stencil[1], col);
-                }
-            }
+        Cell {
+            // Offset of voxel floor(c) − 1 + (i, j, k).
+            base: (b[0] - 1) + nx * ((b[1] - 1) + ny * (b[2] - 1)),
+            sj: nx,
+            sk: nx * ny,
+            f,
+            stencil: [0, 1, 2].map(|a| difference_stencil(f[a], self.delta[a])),
+            wx: w(f[0]),
+            wy: w(f[1]),
+            wz: w(f[2]),
+        }
+    }
+
+    /// The voxels of `v` around the cell and its 2 × 2 rows of four along x
+    /// (rows[k − 1][j − 1]: voxels i = 0 … 3 at j, k ∈ {1, 2}).
+    #[inline(always)]
+    fn rows<'v>(&self, v: &'v Volume<f32>, cell: &Cell) -> (&'v [f32], [[[f64; 4]; 2]; 2]) {
+        let (sj, sk) = (cell.sj, cell.sk);
+        let d = &v.data()[cell.base..=cell.base + 3 + 3 * sj + 3 * sk];
+        let get = |i: usize, j: usize, k: usize| voxel(d, i + j * sj + k * sk);
+        let row = |j, k| [get(0, j, k), get(1, j, k), get(2, j, k), get(3, j, k)];
+        (d, [[row(1, 1), row(2, 1)], [row(1, 2), row(2, 2)]])
+    }
+
+    #[inline(always)]
+    fn gather(&self, v: &Volume<f32>, cell: &Cell) -> ValueGradient {
+        let (d, rows) = self.rows(v, cell);
+        ValueGradient {
+            value: cell.value(&rows),
+            gradient: cell.gradient(d, &rows),
+        }
+    }
+}
+
+/// Voxel `o` of a gather's voxels `d` (the 4 × 4 × 4 block from the cell's base: `o` = i + j·sj +
+/// k·sk with i, j, k ≤ 3), as f64, without a bounds check in the hot loop.
+#[inline(always)]
+fn voxel(d: &[f32], o: usize) -> f64 {
+    debug_assert!(o < d.len());
+    // SAFETY: `d` is the slice base ..= base + 3 + 3·sj + 3·sk (checked when it was cut), and
+    // every caller's offset i + j·sj + k·sk has i, j, k ∈ 0 … 3, so o ≤ 3 + 3·sj + 3·sk < d.len().
+    unsafe { *d.get_unchecked(o) as f64 }
+}
+
+/// The shared part of an interior gather: the offset of its first voxel, the strides, the
+/// fractions, the difference stencils and the blend weights.
+struct Cell {
+    base: usize,
+    sj: usize,
+    sk: usize,
+    f: [f64; 3],
+    stencil: [[f64; 4]; 3],
+    wx: [f64; 2],
+    wy: [f64; 2],
+    wz: [f64; 2],
+}
+
+impl Cell {
+    /// The value, blended along x, then y, then z as `trilinear` does (the same bits).
+    #[inline(always)]
+    fn value(&self, rows: &[[[f64; 4]; 2]; 2]) -> f64 {
+        let f = self.f;
+        let fx = f[0];
+        let c00 = rows[0][0][1] * (1.0 - fx) + rows[0][0][2] * fx;
+        let c10 = rows[0][1][1] * (1.0 - fx) + rows[0][1][2] * fx;
+        let c01 = rows[1][0][1] * (1.0 - fx) + rows[1][0][2] * fx;
+        let c11 = rows[1][1][1] * (1.0 - fx) + rows[1][1][2] * fx;
+        let c0 = c00 * (1.0 - f[1]) + c10 * f[1];
+        let c1 = c01 * (1.0 - f[1]) + c11 * f[1];
+        (c0 * (1.0 - f[2]) + c1 * f[2]) as f32 as f64
+    }
+
+    /// The index gradient from the rows and the ends of the columns along y and z (read from
+    /// `d`, the voxels from the cell's base).
+    #[inline(always)]
+    fn gradient(&self, d: &[f32], rows: &[[[f64; 4]; 2]; 2]) -> DVec3 {
+        let (sj, sk) = (self.sj, self.sk);
+        let get = |i: usize, j: usize, k: usize| voxel(d, i + j * sj + k * sk);
+        let (stencil, wx, wy, wz) = (&self.stencil, self.wx, self.wy, self.wz);
+        let mut g = DVec3::ZERO;
+        for kk in 0..2 {
             for jj in 0..2 {
-                for ii in 0..2 {
-                    let (i, j) = (ii + 1, jj + 1);
-                    let pillar = [get(i, j, 0), rows[0][jj][i], rows[1][jj][i], get(i, j, 3)];
-                    g.z += wx[ii] * wy[jj] * dot4(&stencil[2], pillar);
-                }
+                g.x += wy[jj] * wz[kk] * dot4(&stencil[0], rows[kk][jj]);
             }
-            ValueGradient { value, gradient: g }
-        })
+            for ii in 0..2 {
+                let (i, k) = (ii + 1, kk + 1);
+                let col = [get(i, 0, k), rows[kk][0][i], rows[kk][1][i], get(i, 3, k)];
+                g.y += wx[ii] * wz[kk] * dot4(&stencil[1], col);
+            }
+        }
+        for jj in 0..2 {
+            for ii in 0..2 {
+                let (i, j) = (ii + 1, jj + 1);
+                let pillar = [get(i, j, 0), rows[0][jj][i], rows[1][jj][i], get(i, j, 3)];
+                g.z += wx[ii] * wy[jj] * dot4(&stencil[2], pillar);
+            }
+        }
+        g
     }
 }
 
@@ -228,6 +330,37 @@ mod tests {
             checked += 1;
         }
         assert_eq!(checked, 2000);
+    }
+
+    /// `at_index_if` reads the first volume's value (the same bits as `sample_index`) and gives
+    /// either it alone or exactly what `at_index` gives, inside and at the border.
+    #[test]
+    fn at_index_if_is_the_first_value_or_everything() {
+        let v = field();
+        let w = Volume::new(*v.grid(), v.data().iter().map(|x| 3.0 - 0.5 * x).collect()).unwrap();
+        let s = GradientSampler::on_one_grid([&v, &w]).unwrap();
+        let (mut inside, mut border) = (0, 0);
+        for n in 0..3000 {
+            let t = n as f64;
+            // Over the whole sampling domain and a little beyond it.
+            let c = DVec3::new(
+                -1.0 + (t * 0.7371).fract() * 13.5,
+                -1.0 + (t * 0.3119 + 0.1).fract() * 11.5,
+                -1.0 + (t * 0.5813 + 0.2).fract() * 10.5,
+            );
+            let first = v.sample_index(c, -7.0) as f64;
+            let all = s.at_index(c, -7.0);
+            assert_eq!(all[0].value.to_bits(), first.to_bits(), "at {c}");
+            assert_eq!(s.at_index_if(c, -7.0, |d| d == first), Ok(all), "at {c}");
+            let skipped = s.at_index_if(c, -7.0, |_| false).unwrap_err();
+            assert_eq!(skipped.to_bits(), first.to_bits(), "at {c}");
+            if (0..3).all(|a| c[a] >= 1.0 && c[a] < v.grid().dims()[a] as f64 - 2.0) {
+                inside += 1;
+            } else {
+                border += 1;
+            }
+        }
+        assert!(inside > 300 && border > 300, "{inside} inside, {border} at the border");
     }
 
     fn trilinear_f64(v: &Volume<f32>, c: DVec3) -> f64 {

@@ -142,16 +142,16 @@ impl ContactTool {
             let xi = x + arm;
             node.pos = xi;
             let c = c_x + grid.world_vector_to_index(arm);
-            let d_skin = skin.sample_index(c, -1000.0) as f64;
-            if d_skin <= 0.0 {
+            // D_skin first; the gradients and D_bone only for a node inside the skin.
+            let Ok([skin_at, bone_at]) = maps.at_index_if(c, -1000.0, |d_skin| !(d_skin <= 0.0)) else {
                 // Not touching: the proxy waits at the node (no stick across lifts).
                 node.in_contact = false;
                 node.depth_mm = 0.0;
                 node.surface = xi;
                 node.proxy = xi;
                 continue;
-            }
-            let [skin_at, bone_at] = maps.at_index(c, -1000.0);
+            };
+            let d_skin = skin_at.value;
             let vs = (-skin_at.gradient).normalize_or_zero();
             let f_skin = skin_force_n(d_skin) * vs;
             // Bone penalty, turned towards the skin normal when pointing more than 90° away.
