@@ -71,65 +71,49 @@ fn predict(b1: u64, b2: u64) -> u64 {
     b1.wrapping_mul(2).wrapping_sub(b2)
 }
 
-/// Encodes f64s: zigzag residuals of the linear prediction of their bit patterns.
+/// Encodes f64s: zigzag residuals of the linear prediction of their bit patterns (as u64).
 pub fn encode_f64(values: &[f64]) -> Vec<u8> {
-    let (mut b1, mut b2) = (0u64, 0u64);
-    shuffle(
-        values.iter().map(|v| {
-            let bits = v.to_bits();
-            let r = bits.wrapping_sub(predict(b1, b2)) as i64;
-            (b2, b1) = (b1, bits);
-            ((r << 1) ^ (r >> 63)) as u64
-        }),
-        8,
-    )
+    encode_predicted(values.iter().map(|v| v.to_bits()))
 }
 
 /// Decodes `count` f64s; `None` if the byte count does not match.
 pub fn decode_f64(bytes: &[u8], count: usize) -> Option<Vec<f64>> {
-    let (mut b1, mut b2) = (0u64, 0u64);
-    Some(
-        unshuffle(bytes, 8, count)?
-            .into_iter()
-            .map(|z| {
-                let r = (z >> 1) as i64 ^ -((z & 1) as i64);
-                let bits = predict(b1, b2).wrapping_add(r as u64);
-                (b2, b1) = (b1, bits);
-                f64::from_bits(bits)
-            })
-            .collect(),
-    )
+    Some(decode_predicted(bytes, count)?.map(f64::from_bits).collect())
 }
 
 /// Encodes signed integers: zigzag residuals of the linear prediction `2·v[i−1] − v[i−2]`
 /// (wrapping). Integer steps of a smooth signal leave residuals of a few units.
 pub fn encode_i64(values: &[i64]) -> Vec<u8> {
-    let (mut v1, mut v2) = (0u64, 0u64);
+    encode_predicted(values.iter().map(|&v| v as u64))
+}
+
+/// Decodes `count` integers of [`encode_i64`]; `None` if the byte count does not match.
+pub fn decode_i64(bytes: &[u8], count: usize) -> Option<Vec<i64>> {
+    Some(decode_predicted(bytes, count)?.map(|v| v as i64).collect())
+}
+
+/// Zigzag residuals of `2·w[i−1] − w[i−2]` (wrapping u64 arithmetic), in byte planes.
+fn encode_predicted(words: impl ExactSizeIterator<Item = u64>) -> Vec<u8> {
+    let (mut w1, mut w2) = (0u64, 0u64);
     shuffle(
-        values.iter().map(|&v| {
-            let v = v as u64;
-            let r = v.wrapping_sub(predict(v1, v2)) as i64;
-            (v2, v1) = (v1, v);
+        words.map(|w| {
+            let r = w.wrapping_sub(predict(w1, w2)) as i64;
+            (w2, w1) = (w1, w);
             ((r << 1) ^ (r >> 63)) as u64
         }),
         8,
     )
 }
 
-/// Decodes `count` integers of [`encode_i64`]; `None` if the byte count does not match.
-pub fn decode_i64(bytes: &[u8], count: usize) -> Option<Vec<i64>> {
-    let (mut v1, mut v2) = (0u64, 0u64);
-    Some(
-        unshuffle(bytes, 8, count)?
-            .into_iter()
-            .map(|z| {
-                let r = (z >> 1) as i64 ^ -((z & 1) as i64);
-                let v = predict(v1, v2).wrapping_add(r as u64);
-                (v2, v1) = (v1, v);
-                v as i64
-            })
-            .collect(),
-    )
+/// The words of [`encode_predicted`]; `None` if the byte count does not match.
+fn decode_predicted(bytes: &[u8], count: usize) -> Option<impl Iterator<Item = u64>> {
+    let (mut w1, mut w2) = (0u64, 0u64);
+    Some(unshuffle(bytes, 8, count)?.into_iter().map(move |z| {
+        let r = (z >> 1) as i64 ^ -((z & 1) as i64);
+        let w = predict(w1, w2).wrapping_add(r as u64);
+        (w2, w1) = (w1, w);
+        w
+    }))
 }
 
 #[cfg(test)]
