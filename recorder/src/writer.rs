@@ -90,6 +90,9 @@ pub enum WriteError {
     Io { path: String, message: String },
     #[error("the writer thread stopped: {0}")]
     Thread(String),
+    /// [`SessionWriter::record_read_blocking`] got ticks that are not whole blocks as read.
+    #[error("the ticks are not as a reader returned them: {0}")]
+    NotAsRead(String),
 }
 
 /// A file handle whose `flush` also syncs to disk when asked.
@@ -259,7 +262,7 @@ impl SessionWriter {
                         .get(i..i + n)
                         .filter(|b| b.iter().zip(c.first_tick..).all(|(t, k)| t.tick == k));
                     let Some(block) = block else {
-                        return Err(WriteError::Thread(format!(
+                        return Err(WriteError::NotAsRead(format!(
                             "the block of ticks {}–{} is not among the ticks given",
                             c.first_tick,
                             c.last_tick()
@@ -267,6 +270,14 @@ impl SessionWriter {
                     };
                     tx.send(Item::RoundedBlock(block.to_vec(), c.digest)).map_err(stopped)?;
                     i += n;
+                }
+                Some(c) if c.covers(tick) => {
+                    // The block's first ticks are missing: its digest cannot be checked any more.
+                    return Err(WriteError::NotAsRead(format!(
+                        "tick {tick} lies inside the block of ticks {}–{}, whose first ticks are not among the ticks given",
+                        c.first_tick,
+                        c.last_tick()
+                    )));
                 }
                 _ => {
                     tx.send(Item::Tick(ticks[i])).map_err(stopped)?;

@@ -416,6 +416,17 @@ fn outputs_that_cannot_be_rounded_are_stored_exactly() {
     let s2 = reader::verify(&again).unwrap();
     assert!(same_exact(&s2.ticks, &s.ticks));
     assert_eq!(s2.output_checks, s.output_checks);
+
+    // Part of a rounded block cannot be written again: its digest would no longer hold.
+    let part = d.path().join("part.mcap");
+    let w = SessionWriter::create(&part, &s.header, WriterOptions::default()).unwrap();
+    let e = w.record_read_blocking(&s.ticks[10..], &s.output_checks).unwrap_err();
+    assert!(
+        e.to_string().contains("tick 10 lies inside the block of ticks 0–"),
+        "{e}"
+    );
+    let e = w.record_read_blocking(&s.ticks[..10], &s.output_checks).unwrap_err();
+    assert!(e.to_string().contains("ticks 0–"), "{e}");
 }
 
 /// Inputs the fuzzer once broke the reader with (scripts/fuzz): each now gives a clear error.
