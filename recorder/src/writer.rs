@@ -721,3 +721,77 @@ pub fn decode_block(b: &TickBlock) -> Result<DecodedBlock, String> {
         }),
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ticks(n: u64) -> Vec<TickRecord> {
+        (0..n)
+            .map(|tick| {
+                let t = tick as f64 * 1e-3;
+                TickRecord {
+                    tick,
+                    position_mm: [t, 2.0 * t, 3.0],
+                    orientation: [1.0, 0.0, 0.0, 0.0],
+                    buttons: 0,
+                    force_n: [0.1 + t.sin(), -0.3 * t, 0.0],
+                    torque_nmm: [t.cos(), 0.0, 1e-7 * t],
+                    tip_label: 1,
+                    inserted_mm: 0.0,
+                }
+            })
+            .collect()
+    }
+
+    /// A block with rounded outputs states so twice (codec and digest); each mismatch, a missing
+    /// column and a step count beyond 2⁵³ is named.
+    #[test]
+    fn rounded_blocks_are_checked_when_decoded() {
+        let block = encode_block(&ticks(50));
+        assert_eq!(block.codec, COLUMN_CODEC_ROUNDED);
+        let decoded = decode_block(&block).unwrap();
+        assert_eq!(decoded.check.map(|c| (c.first_tick, c.count)), Some((0, 50)));
+
+        let mut no_digest = block.clone();
+        no_digest.outputs_digest = None;
+        assert!(
+            decode_block(&no_digest)
+                .unwrap_err()
+                .contains("without its outputs digest")
+        );
+
+        let mut exact_with_digest = encode_block(&{
+            let mut t = ticks(50);
+            t[3].force_n[0] = f64::INFINITY;
+            t
+        });
+        assert_eq!(exact_with_digest.codec, COLUMN_CODEC);
+        assert!(decode_block(&exact_with_digest).unwrap().check.is_none());
+        exact_with_digest.outputs_digest = Some(1);
+        assert!(
+            decode_block(&exact_with_digest)
+                .unwrap_err()
+                .contains("with an outputs digest")
+        );
+
+        let mut missing = block.clone();
+        missing.columns.remove("torque_y_nmm");
+        assert!(
+            decode_block(&missing)
+                .unwrap_err()
+                .contains("lacks column 'torque_y_nmm'")
+        );
+
+        let mut huge = block.clone();
+        let mut steps = vec![0i64; 50];
+        steps[7] = 1 << 60;
+        huge.columns
+            .insert("force_z_n".into(), ByteBuf::from(codec::encode_i64(&steps)));
+        assert!(
+            decode_block(&huge)
+                .unwrap_err()
+                .contains("'force_z_n' holds a step count out of range")
+        );
+    }
+}
