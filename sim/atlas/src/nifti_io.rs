@@ -72,6 +72,22 @@ struct RawVolume {
     scaling: Option<(f64, f64)>,
 }
 
+/// Calls `$f` with every `$t` of the bytes `$raw`, little- or big-endian as `$little` says.
+macro_rules! each_word {
+    ($raw:expr, $little:expr, $t:ty, $f:expr) => {{
+        const N: usize = std::mem::size_of::<$t>();
+        let mut f = $f;
+        for c in $raw.chunks_exact(N) {
+            let b: [u8; N] = c.try_into().expect("chunk size");
+            f(if $little {
+                <$t>::from_le_bytes(b)
+            } else {
+                <$t>::from_be_bytes(b)
+            });
+        }
+    }};
+}
+
 impl RawVolume {
     /// Calls `f` with every value in file order, converted to f64 with the scaling applied; one
     /// loop per voxel type, no intermediate buffer.
@@ -83,18 +99,9 @@ impl RawVolume {
         let raw = &self.bytes;
         let little = self.little;
         macro_rules! conv {
-            ($t:ty) => {{
-                const N: usize = std::mem::size_of::<$t>();
-                for c in raw.chunks_exact(N) {
-                    let b: [u8; N] = c.try_into().expect("chunk size");
-                    let v = if little {
-                        <$t>::from_le_bytes(b)
-                    } else {
-                        <$t>::from_be_bytes(b)
-                    };
-                    f(scaled(v as f64));
-                }
-            }};
+            ($t:ty) => {
+                each_word!(raw, little, $t, |v: $t| f(scaled(v as f64)))
+            };
         }
         match self.dtype {
             DType::U8 => raw.iter().for_each(|&b| f(scaled(b as f64))),
@@ -117,17 +124,9 @@ impl RawVolume {
         let raw = &self.bytes;
         let little = self.little;
         macro_rules! conv {
-            ($t:ty) => {{
-                const N: usize = std::mem::size_of::<$t>();
-                for c in raw.chunks_exact(N) {
-                    let b: [u8; N] = c.try_into().expect("chunk size");
-                    f(if little {
-                        <$t>::from_le_bytes(b)
-                    } else {
-                        <$t>::from_be_bytes(b)
-                    } as i64);
-                }
-            }};
+            ($t:ty) => {
+                each_word!(raw, little, $t, |v: $t| f(v as i64))
+            };
         }
         match self.dtype {
             DType::U8 => raw.iter().for_each(|&b| f(b as i64)),
@@ -163,7 +162,8 @@ fn is_gzip(path: &Path) -> Result<bool, AtlasError> {
     Ok(n == 2 && magic == [0x1f, 0x8b])
 }
 
-fn open(path: &Path) -> Result<Box<dyn Read>, AtlasError> {
+/// A reader of the file's bytes (decompressed when it is gzip) and whether it is gzip.
+fn open_checked(path: &Path) -> Result<(Box<dyn Read>, bool), AtlasError> {
     crate::check_regular_file(path)?;
     let gzip = is_gzip(path)?;
     let file = BufReader::with_capacity(
@@ -171,10 +171,17 @@ fn open(path: &Path) -> Result<Box<dyn Read>, AtlasError> {
         File::open(path).map_err(|e| err(path, format!("cannot open: {e}")))?,
     );
     if gzip {
-        Ok(Box::new(BufReader::with_capacity(1 << 20, MultiGzDecoder::new(file))))
+        Ok((
+            Box::new(BufReader::with_capacity(1 << 20, MultiGzDecoder::new(file))),
+            true,
+        ))
     } else {
-        Ok(Box::new(file))
+        Ok((Box::new(file), false))
     }
+}
+
+fn open(path: &Path) -> Result<Box<dyn Read>, AtlasError> {
+    open_checked(path).map(|(r, _)| r)
 }
 
 /// Reads just the header and the grid it describes (cheap: used to compare files).
@@ -302,7 +309,7 @@ fn read_raw(path: &Path) -> Result<RawVolume, AtlasError> {
 /// The file's values (for a vector image: every voxel's first component, then every second,
 /// then every third) after the header is checked for `shape`.
 fn read_raw_shaped(path: &Path, shape: Shape) -> Result<RawVolume, AtlasError> {
-    let mut r = open(path)?;
+    let (mut r, gzip) = open_checked(path)?;
     let h = NiftiHeader::from_reader(&mut r).map_err(|e| err(path, format!("not a NIfTI-1 file: {e}")))?;
     let (grid, dtype) = check_header(path, &h, shape)?;
     if shape == Shape::Vector3 {
@@ -343,7 +350,7 @@ fn read_raw_shaped(path: &Path, shape: Shape) -> Result<RawVolume, AtlasError> {
     // uncompressed file holds at most its size), so a header that promises more than the file
     // holds cannot make us allocate it.
     let file_bytes = std::fs::metadata(path).map(|m| m.len() as usize).unwrap_or(0);
-    let expansion = if is_gzip(path)? { 1032 } else { 1 };
+    let expansion = if gzip { 1032 } else { 1 };
     let mut raw = Vec::with_capacity(nbytes.min(file_bytes.saturating_mul(expansion)));
     let got = (&mut r)
         .take(nbytes as u64)
