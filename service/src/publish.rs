@@ -349,6 +349,8 @@ pub fn check(dir: &Path, work: &Path) -> Result<Checked, Refusal> {
     if let Some(failure) = smoke::first_failure(&outcomes) {
         return Err(Refusal::SmokeFailed(failure));
     }
+    // The folder is renamed into place next: its derived-data cache must be written by then.
+    let _ = atlas.cache_status();
     Ok(Checked {
         atlas,
         scorer,

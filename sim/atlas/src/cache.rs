@@ -11,6 +11,8 @@
 use std::fs;
 use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::thread::JoinHandle;
 use std::time::Duration;
 
 use sha2::{Digest, Sha256};
@@ -52,6 +54,63 @@ impl CacheStatus {
             CacheStatus::NotWritten { error } => format!("derived; the cache could not be written: {error}"),
             CacheStatus::Disabled => "derived (cache not used)".into(),
         }
+    }
+}
+
+/// A load's cache status, settled or still being written.
+///
+/// A load that derives the maps hands the cache write to a thread of its own and returns: the
+/// caller's work (a summary, a scoring run, the first frames) overlaps the write instead of
+/// waiting for ≈ 100 MB to be hashed and written. [`Self::status`] waits for the write; so does
+/// dropping the last clone of the atlas, so a process that ends normally leaves a whole cache
+/// file (one killed mid-write leaves a temporary file, removed by a later write).
+#[derive(Debug)]
+pub struct CacheWork(Mutex<CacheState>);
+
+#[derive(Debug)]
+enum CacheState {
+    Settled(CacheStatus),
+    Writing(JoinHandle<CacheStatus>),
+}
+
+impl CacheWork {
+    /// A status known at load time.
+    pub(crate) fn settled(status: CacheStatus) -> Self {
+        CacheWork(Mutex::new(CacheState::Settled(status)))
+    }
+
+    /// Runs `write` on a thread of its own. When no thread can be started the cache is not
+    /// written (the next load derives again), which never fails the load.
+    pub(crate) fn spawn(write: impl FnOnce() -> CacheStatus + Send + 'static) -> Self {
+        match std::thread::Builder::new()
+            .name("atlas-cache-write".into())
+            .spawn(write)
+        {
+            Ok(handle) => CacheWork(Mutex::new(CacheState::Writing(handle))),
+            Err(e) => CacheWork::settled(CacheStatus::NotWritten {
+                error: format!("no thread to write it: {e}"),
+            }),
+        }
+    }
+
+    /// The status, once the write (if any) has finished.
+    pub fn status(&self) -> CacheStatus {
+        let mut state = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let settled = match std::mem::replace(&mut *state, CacheState::Settled(CacheStatus::Disabled)) {
+            CacheState::Writing(handle) => handle.join().unwrap_or_else(|_| CacheStatus::NotWritten {
+                error: "the cache writer panicked".into(),
+            }),
+            CacheState::Settled(status) => status,
+        };
+        *state = CacheState::Settled(settled.clone());
+        settled
+    }
+}
+
+impl Drop for CacheWork {
+    fn drop(&mut self) {
+        // Waits for a write still running, so that it finishes before the process ends.
+        let _ = self.status();
     }
 }
 
@@ -230,24 +289,22 @@ fn write_file(tmp: &Path, content_hash: &str, derived: DerivedRef<'_>) -> Result
     // The digests' place stays zero until they are known: the maps are hashed while written.
     header.resize(HEADER_BYTES, 0);
     let io = |e: std::io::Error| format!("cannot write {}: {e}", tmp.display());
-    let write_maps = || -> std::io::Result<fs::File> {
-        let mut f = fs::File::create(tmp)?;
-        f.write_all(&header)?;
-        for map in [skin, bone] {
-            if cfg!(target_endian = "little") {
-                f.write_all(bytemuck::cast_slice(map))?;
-            } else {
-                let bytes: Vec<u8> = map.iter().flat_map(|v| v.to_le_bytes()).collect();
-                f.write_all(&bytes)?;
-            }
+    // One pass over each map: every chunk is hashed and written while it is in the cache.
+    // Sequential on purpose: the write runs on its own thread beside the caller's work.
+    let mut f = fs::File::create(tmp).map_err(io)?;
+    f.write_all(&header).map_err(io)?;
+    let mut digests = Vec::with_capacity(64);
+    for map in [skin, bone] {
+        let mut hash = Sha256::new();
+        for chunk in map.chunks(CHUNK_VALUES) {
+            let bytes = le_bytes(chunk);
+            hash.update(&bytes);
+            f.write_all(&bytes).map_err(io)?;
         }
-        Ok(f)
-    };
-    let (file, (skin_digest, bone_digest)) =
-        rayon::join(write_maps, || rayon::join(|| digest_le(skin), || digest_le(bone)));
-    let mut f = file.map_err(io)?;
+        digests.extend_from_slice(&hash.finalize());
+    }
     f.seek(SeekFrom::Start(digests_at)).map_err(io)?;
-    f.write_all(&[skin_digest, bone_digest].concat()).map_err(io)?;
+    f.write_all(&digests).map_err(io)?;
     // No fsync: a cache half on disk after a power cut fails its checksums and is rebuilt.
     f.flush().map_err(io)
 }
@@ -277,16 +334,15 @@ fn digest(map: &[f32]) -> [u8; 32] {
     Sha256::digest(bytemuck::cast_slice::<f32, u8>(map)).into()
 }
 
-/// SHA-256 of the map's little-endian bytes.
-fn digest_le(map: &[f32]) -> [u8; 32] {
+/// Values per chunk of a map written to the cache (256 KiB: hashed while still in the cache).
+const CHUNK_VALUES: usize = 1 << 16;
+
+/// The values' little-endian bytes (borrowed on little-endian machines).
+fn le_bytes(values: &[f32]) -> std::borrow::Cow<'_, [u8]> {
     if cfg!(target_endian = "little") {
-        Sha256::digest(bytemuck::cast_slice::<f32, u8>(map)).into()
+        std::borrow::Cow::Borrowed(bytemuck::cast_slice(values))
     } else {
-        let mut h = Sha256::new();
-        for v in map {
-            h.update(v.to_le_bytes());
-        }
-        h.finalize().into()
+        std::borrow::Cow::Owned(values.iter().flat_map(|v| v.to_le_bytes()).collect())
     }
 }
 

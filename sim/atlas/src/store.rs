@@ -48,8 +48,17 @@ pub struct Atlas {
     pub threshold_source: ThresholdSource,
     /// SHA-256 over the manifest and both volume files (docs/atlas.md "Content hash"), hex.
     pub content_hash: String,
-    /// Whether the distance maps came from the derived-data cache (docs/atlas.md).
-    pub cache: CacheStatus,
+    /// Whether the distance maps came from the derived-data cache (docs/atlas.md), and the
+    /// cache write a deriving load started (shared by the clones; the last one waits for it).
+    cache: std::sync::Arc<cache::CacheWork>,
+}
+
+impl Atlas {
+    /// Where this load's distance maps came from; after a deriving load, waits until its cache
+    /// write has finished (it runs beside the caller's work).
+    pub fn cache_status(&self) -> CacheStatus {
+        self.cache.status()
+    }
 }
 
 fn manifest_error(dir: &Path, message: impl Into<String>) -> AtlasError {
@@ -276,29 +285,33 @@ pub fn load_with(dir: &Path, cache_mode: CacheMode) -> Result<Atlas, AtlasError>
             }
         }
     }
+    let model = std::sync::Arc::new(model);
     let cache = match (cache_mode, from_cache) {
-        (CacheMode::Off, _) => CacheStatus::Disabled,
-        (CacheMode::Use, true) => CacheStatus::Hit,
+        (CacheMode::Off, _) => cache::CacheWork::settled(CacheStatus::Disabled),
+        (CacheMode::Use, true) => cache::CacheWork::settled(CacheStatus::Hit),
         (CacheMode::Use, false) => {
-            let derived = cache::DerivedRef {
-                thresholds: model.thresholds(),
-                skin_distance: model.skin_distance(),
-                bone_distance: model.bone_distance(),
-            };
-            match (cache::write(dir, &content_hash, derived), refused) {
-                (Err(error), _) => CacheStatus::NotWritten { error },
-                (Ok(()), Some(refused)) => CacheStatus::Rebuilt { refused },
-                (Ok(()), None) => CacheStatus::Written,
-            }
+            let (model, dir, content_hash) = (model.clone(), dir.to_path_buf(), content_hash.clone());
+            cache::CacheWork::spawn(move || {
+                let derived = cache::DerivedRef {
+                    thresholds: model.thresholds(),
+                    skin_distance: model.skin_distance(),
+                    bone_distance: model.bone_distance(),
+                };
+                match (cache::write(&dir, &content_hash, derived), refused) {
+                    (Err(error), _) => CacheStatus::NotWritten { error },
+                    (Ok(()), Some(refused)) => CacheStatus::Rebuilt { refused },
+                    (Ok(()), None) => CacheStatus::Written,
+                }
+            })
         }
     };
     Ok(Atlas {
         dir: dir.to_path_buf(),
         manifest,
-        model: std::sync::Arc::new(model),
+        model,
         threshold_source,
         content_hash,
-        cache,
+        cache: std::sync::Arc::new(cache),
     })
 }
 

@@ -208,7 +208,7 @@ impl Summary {
             thresholds_hu: atlas.thresholds_toml(),
             thresholds_source: atlas.threshold_source.as_str().into(),
             risk_depth_mm: m.thresholds().risk_depth_mm,
-            distance_maps: atlas.cache.describe(),
+            distance_maps: atlas.cache_status().describe(),
             labels,
             paths: atlas.manifest.paths.clone(),
             provenance: atlas.manifest.provenance.clone(),

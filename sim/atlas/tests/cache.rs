@@ -30,7 +30,7 @@ fn file_of(a: &Atlas) -> PathBuf {
 /// The derived data of `a` equals, bit for bit, that of a load that does not use the cache.
 fn assert_same_as_derived(a: &Atlas) {
     let fresh = stylet_atlas::load_with(&a.dir, CacheMode::Off).unwrap();
-    assert_eq!(fresh.cache, CacheStatus::Disabled);
+    assert_eq!(fresh.cache_status(), CacheStatus::Disabled);
     assert_eq!(a.model.thresholds(), fresh.model.thresholds());
     let bits = |v: &stylet_physics::Volume<f32>| v.data().iter().map(|x| x.to_bits()).collect::<Vec<_>>();
     assert!(
@@ -49,10 +49,10 @@ fn a_load_writes_the_cache_and_the_next_reads_the_same_bits() {
         let d = tempfile::tempdir().unwrap();
         make(d.path());
         let first = stylet_atlas::load(d.path()).unwrap();
-        assert_eq!(first.cache, CacheStatus::Written, "{name}");
+        assert_eq!(first.cache_status(), CacheStatus::Written, "{name}");
         assert!(file_of(&first).is_file(), "{name}");
         let second = stylet_atlas::load(d.path()).unwrap();
-        assert_eq!(second.cache, CacheStatus::Hit, "{name}");
+        assert_eq!(second.cache_status(), CacheStatus::Hit, "{name}");
         assert_eq!(second.content_hash, first.content_hash);
         assert_eq!(second.threshold_source, first.threshold_source);
         assert_same_as_derived(&second);
@@ -69,8 +69,9 @@ fn estimated_thresholds_come_from_the_cache_too() {
         ThresholdSource::Estimated,
         "the tiny atlas has no thresholds"
     );
+    assert_eq!(first.cache_status(), CacheStatus::Written);
     let second = stylet_atlas::load(d.path()).unwrap();
-    assert_eq!(second.cache, CacheStatus::Hit);
+    assert_eq!(second.cache_status(), CacheStatus::Hit);
     assert_eq!(second.threshold_source, ThresholdSource::Estimated);
     assert_eq!(second.model.thresholds(), first.model.thresholds());
 }
@@ -79,12 +80,12 @@ fn estimated_thresholds_come_from_the_cache_too() {
 /// are right and the cache was rewritten (the next load hits).
 fn assert_rebuilt(dir: &Path, why: &str) {
     let a = stylet_atlas::load(dir).unwrap();
-    match &a.cache {
+    match &a.cache_status() {
         CacheStatus::Rebuilt { refused } => assert!(refused.contains(why), "refused for {refused:?}, expected {why:?}"),
         other => panic!("expected the cache to be rebuilt ({why}), got {other:?}"),
     }
     assert_same_as_derived(&a);
-    assert_eq!(stylet_atlas::load(dir).unwrap().cache, CacheStatus::Hit);
+    assert_eq!(stylet_atlas::load(dir).unwrap().cache_status(), CacheStatus::Hit);
 }
 
 #[test]
@@ -92,6 +93,7 @@ fn a_damaged_cache_is_detected_and_rebuilt() {
     let d = tempfile::tempdir().unwrap();
     small_phantom(d.path());
     let a = stylet_atlas::load(d.path()).unwrap();
+    assert_eq!(a.cache_status(), CacheStatus::Written);
     let path = file_of(&a);
     let len = fs::metadata(&path).unwrap().len() as usize;
 
@@ -121,8 +123,33 @@ fn a_damaged_cache_is_detected_and_rebuilt() {
     fs::remove_file(&path).unwrap();
     fs::create_dir(&path).unwrap();
     let a = stylet_atlas::load(d.path()).unwrap();
-    assert!(matches!(a.cache, CacheStatus::NotWritten { .. }), "{:?}", a.cache);
+    assert!(
+        matches!(a.cache_status(), CacheStatus::NotWritten { .. }),
+        "{:?}",
+        a.cache_status()
+    );
     assert_same_as_derived(&a);
+}
+
+#[test]
+fn dropping_a_deriving_load_waits_for_its_cache_write() {
+    // The write runs on its own thread; the last clone of the atlas waits for it, so the next
+    // load reads a whole file even when nobody asked for the status.
+    let d = tempfile::tempdir().unwrap();
+    small_phantom(d.path());
+    let first = stylet_atlas::load(d.path()).unwrap();
+    let clone = first.clone();
+    drop(first);
+    drop(clone);
+    let leftovers: Vec<_> = fs::read_dir(d.path().join(CACHE_DIR))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".partial"))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+    let second = stylet_atlas::load(d.path()).unwrap();
+    assert_eq!(second.cache_status(), CacheStatus::Hit);
+    assert_same_as_derived(&second);
 }
 
 #[test]
@@ -130,6 +157,7 @@ fn a_cache_of_other_content_is_not_used_and_is_replaced() {
     let d = tempfile::tempdir().unwrap();
     small_phantom(d.path());
     let before = stylet_atlas::load(d.path()).unwrap();
+    assert_eq!(before.cache_status(), CacheStatus::Written);
     // The same volumes under an edited manifest: other content, so the old cache must not serve
     // it, and is removed once the new one is written.
     let manifest = d.path().join("atlas.toml");
@@ -137,7 +165,7 @@ fn a_cache_of_other_content_is_not_used_and_is_replaced() {
     fs::write(&manifest, format!("# edited\n{text}")).unwrap();
     let after = stylet_atlas::load(d.path()).unwrap();
     assert_ne!(after.content_hash, before.content_hash);
-    assert_eq!(after.cache, CacheStatus::Written);
+    assert_eq!(after.cache_status(), CacheStatus::Written);
     assert!(!file_of(&before).exists(), "the cache of the old content is left");
     assert!(file_of(&after).is_file());
     // A cache file copied under the name of other content is refused by its header.
@@ -154,7 +182,7 @@ fn a_cache_that_cannot_be_written_never_fails_a_load() {
     fs::write(d.path().join(CACHE_DIR), b"a file where the cache folder would be").unwrap();
     for _ in 0..2 {
         let a = stylet_atlas::load(d.path()).unwrap();
-        match &a.cache {
+        match &a.cache_status() {
             CacheStatus::NotWritten { error } => assert!(error.contains(CACHE_DIR), "{error}"),
             other => panic!("{other:?}"),
         }
