@@ -15,6 +15,7 @@
 use glam::DVec3;
 
 use crate::Volume;
+use crate::lanes::{F4, LANES, Lane, V4, has_avx2};
 
 /// Volumes on one grid prepared for values and gradients at shared points (the contact tools
 /// read D_skin and D_bone at every node): the per-axis steps in voxels.
@@ -23,6 +24,8 @@ pub struct GradientSampler<'a, const N: usize> {
     volumes: [&'a Volume<f32>; N],
     /// δ_a in voxels of axis a (≤ ½).
     delta: [f64; 3],
+    /// 1/(2δ_a), the difference stencils' scale.
+    inv_two_delta: [f64; 3],
 }
 
 /// A value and its gradient (value units per mm along the world axes).
@@ -39,12 +42,12 @@ pub struct ValueGradient {
 /// a₀ = max(δ − f, 0) is the part of the step left of sample 0, a₂ = max(f + δ − 1, 0) the part
 /// right of sample 1 and a₁ the rest.
 #[inline]
-fn difference_stencil(f: f64, delta: f64) -> [f64; 4] {
+/// `k` is 1/(2δ), worked out once per sampler.
+fn difference_stencil(f: f64, delta: f64, k: f64) -> [f64; 4] {
     let (plus, minus) = (f + delta, f - delta);
     let a0 = -minus.min(0.0);
     let a1 = plus.min(1.0) - minus.max(0.0);
     let a2 = (plus - 1.0).max(0.0);
-    let k = 1.0 / (2.0 * delta);
     [-a0 * k, (a0 - a1) * k, (a1 - a2) * k, a2 * k]
 }
 
@@ -74,9 +77,11 @@ impl<'a, const N: usize> GradientSampler<'a, N> {
         }
         let s = grid.spacing_mm();
         let h = 0.5 * s[0].min(s[1]).min(s[2]);
+        let delta = [h / s[0], h / s[1], h / s[2]];
         Some(GradientSampler {
             volumes,
-            delta: [h / s[0], h / s[1], h / s[2]],
+            delta,
+            inv_two_delta: delta.map(|d| 1.0 / (2.0 * d)),
         })
     }
 
@@ -151,6 +156,85 @@ impl<'a, const N: usize> GradientSampler<'a, N> {
         Ok(out)
     }
 
+    /// Whether [`Self::at_interior4_if`] may read at `c`: the 4 × 4 × 4 voxels from floor(c) − 1
+    /// lie in the grid (the same test as [`Self::at_index_if`]'s interior branch).
+    #[inline(always)]
+    pub(crate) fn is_interior(&self, c: DVec3) -> bool {
+        let dims = self.volumes[0].grid().dims();
+        (0..3).all(|a| c[a] >= 1.0 && c[a] < dims[a] as f64 - 2.0)
+    }
+
+    /// The first volume's value at four interior indices (each [`Self::is_interior`]): the bits
+    /// of [`Self::at_index_if`]'s first value (and of `sample_index`), from the 2 × 2 × 2 voxels
+    /// around each, blended four lanes wide (AVX2 where the CPU has it).
+    #[inline]
+    pub(crate) fn values4(&self, cs: &[DVec3; LANES]) -> [f64; LANES] {
+        debug_assert!(cs.iter().all(|&c| self.is_interior(c)));
+        #[cfg(target_arch = "x86_64")]
+        if has_avx2() {
+            // SAFETY: the CPU has AVX2 (checked above).
+            return unsafe { self.values4_avx2(cs) };
+        }
+        self.values4_in::<F4>(cs)
+    }
+
+    /// [`Self::at_index`] at four interior indices at once (each [`Self::is_interior`]), with
+    /// the same bits per lane: the voxels are read one by one; the blends, differences and the
+    /// turn into world units run four lanes wide (AVX2 where the CPU has it).
+    #[inline]
+    pub(crate) fn at_interior4(&self, cs: &[DVec3; LANES]) -> [[ValueGradient; N]; LANES] {
+        debug_assert!(cs.iter().all(|&c| self.is_interior(c)));
+        #[cfg(target_arch = "x86_64")]
+        if has_avx2() {
+            // SAFETY: the CPU has AVX2 (checked above).
+            return unsafe { self.at_interior4_avx2(cs) };
+        }
+        self.at_interior4_in::<F4>(cs)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn values4_avx2(&self, cs: &[DVec3; LANES]) -> [f64; LANES] {
+        self.values4_in::<crate::lanes::avx::Avx>(cs)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn at_interior4_avx2(&self, cs: &[DVec3; LANES]) -> [[ValueGradient; N]; LANES] {
+        self.at_interior4_in::<crate::lanes::avx::Avx>(cs)
+    }
+
+    #[inline(always)]
+    fn values4_in<L: Lane>(&self, cs: &[DVec3; LANES]) -> [f64; LANES] {
+        let cells = [self.cell(cs[0]), self.cell(cs[1]), self.cell(cs[2]), self.cell(cs[3])];
+        let lanes = Cells4::<L>::new(&cells);
+        lanes.value_only(self.volumes[0], &cells).store()
+    }
+
+    #[inline(always)]
+    fn at_interior4_in<L: Lane>(&self, cs: &[DVec3; LANES]) -> [[ValueGradient; N]; LANES] {
+        let cells = [self.cell(cs[0]), self.cell(cs[1]), self.cell(cs[2]), self.cell(cs[3])];
+        let lanes = Cells4::<L>::new(&cells);
+        let rows = self.volumes[0].grid().index_gradient_rows();
+        let zero = ValueGradient {
+            value: 0.0,
+            gradient: DVec3::ZERO,
+        };
+        let mut out = [[zero; N]; LANES];
+        for (n, v) in self.volumes.iter().enumerate() {
+            let r = lanes.rows(v, &cells);
+            let values = lanes.value(&r).store();
+            let g = world_gradient(rows, lanes.gradient(v, &cells, &r)).store();
+            for (lane, o) in out.iter_mut().enumerate() {
+                o[n] = ValueGradient {
+                    value: values[lane],
+                    gradient: g.get(lane),
+                };
+            }
+        }
+        out
+    }
+
     /// Value and index gradient from the 32 voxels the six samples and the value touch: the
     /// 2 × 2 rows of four along x through the cell, and the ends of the columns along y and z.
     /// Along each axis the difference is a four-tap stencil ([`difference_stencil`]) on the
@@ -174,7 +258,11 @@ impl<'a, const N: usize> GradientSampler<'a, N> {
             sj: nx,
             sk: nx * ny,
             f,
-            stencil: [0, 1, 2].map(|a| difference_stencil(f[a], self.delta[a])),
+            stencil: [
+                difference_stencil(f[0], self.delta[0], self.inv_two_delta[0]),
+                difference_stencil(f[1], self.delta[1], self.inv_two_delta[1]),
+                difference_stencil(f[2], self.delta[2], self.inv_two_delta[2]),
+            ],
             wx: w(f[0]),
             wy: w(f[1]),
             wz: w(f[2]),
@@ -266,6 +354,176 @@ impl Cell {
             }
         }
         g
+    }
+}
+
+/// Four interior cells' fractions, blend weights and difference stencils as lanes.
+struct Cells4<L> {
+    f: [L; 3],
+    /// (1 − f_a, f_a) per axis.
+    w: [[L; 2]; 3],
+    stencil: [[L; 4]; 3],
+    sj: usize,
+    sk: usize,
+}
+
+impl<L: Lane> Cells4<L> {
+    #[inline(always)]
+    fn new(cells: &[Cell; LANES]) -> Self {
+        let mut f = [[0.0; LANES]; 3];
+        let mut w = [[[0.0; LANES]; 2]; 3];
+        let mut stencil = [[[0.0; LANES]; 4]; 3];
+        for (lane, c) in cells.iter().enumerate() {
+            for a in 0..3 {
+                f[a][lane] = c.f[a];
+                for t in 0..4 {
+                    stencil[a][t][lane] = c.stencil[a][t];
+                }
+            }
+            for e in 0..2 {
+                w[0][e][lane] = c.wx[e];
+                w[1][e][lane] = c.wy[e];
+                w[2][e][lane] = c.wz[e];
+            }
+        }
+        let zero = L::splat(0.0);
+        let mut lanes = Cells4 {
+            f: [zero; 3],
+            w: [[zero; 2]; 3],
+            stencil: [[zero; 4]; 3],
+            sj: cells[0].sj,
+            sk: cells[0].sk,
+        };
+        for a in 0..3 {
+            lanes.f[a] = L::load(f[a]);
+            for e in 0..2 {
+                lanes.w[a][e] = L::load(w[a][e]);
+            }
+            for t in 0..4 {
+                lanes.stencil[a][t] = L::load(stencil[a][t]);
+            }
+        }
+        lanes
+    }
+
+    /// Voxel (i, j, k) of every lane's block (as `Cell`'s `get`).
+    #[inline(always)]
+    fn voxels(&self, d: &[&[f32]; LANES], i: usize, j: usize, k: usize) -> L {
+        let o = i + j * self.sj + k * self.sk;
+        L::load([voxel(d[0], o), voxel(d[1], o), voxel(d[2], o), voxel(d[3], o)])
+    }
+
+    /// Each lane's 4 × 4 × 4 block of `v`, bounds-checked once (as `GradientSampler::rows`).
+    #[inline(always)]
+    fn blocks<'v>(&self, v: &'v Volume<f32>, cells: &[Cell; LANES]) -> [&'v [f32]; LANES] {
+        let span = 3 + 3 * self.sj + 3 * self.sk;
+        let d = v.data();
+        [
+            &d[cells[0].base..=cells[0].base + span],
+            &d[cells[1].base..=cells[1].base + span],
+            &d[cells[2].base..=cells[2].base + span],
+            &d[cells[3].base..=cells[3].base + span],
+        ]
+    }
+
+    /// The 2 × 2 rows of four along x (as `GradientSampler::rows`).
+    #[inline(always)]
+    fn rows(&self, v: &Volume<f32>, cells: &[Cell; LANES]) -> [[[L; 4]; 2]; 2] {
+        let d = self.blocks(v, cells);
+        let mut rows = [[[L::splat(0.0); 4]; 2]; 2];
+        for (kk, plane) in rows.iter_mut().enumerate() {
+            for (jj, row) in plane.iter_mut().enumerate() {
+                for (i, r) in row.iter_mut().enumerate() {
+                    *r = self.voxels(&d, i, jj + 1, kk + 1);
+                }
+            }
+        }
+        rows
+    }
+
+    /// [`Self::value`] reading only the 2 × 2 × 2 voxels it blends.
+    #[inline(always)]
+    fn value_only(&self, v: &Volume<f32>, cells: &[Cell; LANES]) -> L {
+        let d = self.blocks(v, cells);
+        let mut rows = [[[L::splat(0.0); 4]; 2]; 2];
+        for (kk, plane) in rows.iter_mut().enumerate() {
+            for (jj, row) in plane.iter_mut().enumerate() {
+                row[1] = self.voxels(&d, 1, jj + 1, kk + 1);
+                row[2] = self.voxels(&d, 2, jj + 1, kk + 1);
+            }
+        }
+        self.value(&rows)
+    }
+
+    /// `Cell::value` lane by lane (rounded through f32 as `sample_index`).
+    #[inline(always)]
+    fn value(&self, rows: &[[[L; 4]; 2]; 2]) -> L {
+        let one = L::splat(1.0);
+        let [fx, fy, fz] = self.f;
+        let c00 = rows[0][0][1] * (one - fx) + rows[0][0][2] * fx;
+        let c10 = rows[0][1][1] * (one - fx) + rows[0][1][2] * fx;
+        let c01 = rows[1][0][1] * (one - fx) + rows[1][0][2] * fx;
+        let c11 = rows[1][1][1] * (one - fx) + rows[1][1][2] * fx;
+        let c0 = c00 * (one - fy) + c10 * fy;
+        let c1 = c01 * (one - fy) + c11 * fy;
+        (c0 * (one - fz) + c1 * fz).round_f32()
+    }
+
+    /// `Cell::gradient` lane by lane: the same products, summed in the same order.
+    #[inline(always)]
+    fn gradient(&self, v: &Volume<f32>, cells: &[Cell; LANES], rows: &[[[L; 4]; 2]; 2]) -> V4<L> {
+        let d = self.blocks(v, cells);
+        let [wx, wy, wz] = self.w;
+        let zero = L::splat(0.0);
+        let mut g = V4 {
+            x: zero,
+            y: zero,
+            z: zero,
+        };
+        for kk in 0..2 {
+            for jj in 0..2 {
+                g.x = g.x + wy[jj] * wz[kk] * dot4_lanes(&self.stencil[0], rows[kk][jj]);
+            }
+            for ii in 0..2 {
+                let (i, k) = (ii + 1, kk + 1);
+                let col = [
+                    self.voxels(&d, i, 0, k),
+                    rows[kk][0][i],
+                    rows[kk][1][i],
+                    self.voxels(&d, i, 3, k),
+                ];
+                g.y = g.y + wx[ii] * wz[kk] * dot4_lanes(&self.stencil[1], col);
+            }
+        }
+        for jj in 0..2 {
+            for ii in 0..2 {
+                let (i, j) = (ii + 1, jj + 1);
+                let pillar = [
+                    self.voxels(&d, i, j, 0),
+                    rows[0][jj][i],
+                    rows[1][jj][i],
+                    self.voxels(&d, i, j, 3),
+                ];
+                g.z = g.z + wx[ii] * wy[jj] * dot4_lanes(&self.stencil[2], pillar);
+            }
+        }
+        g
+    }
+}
+
+/// [`dot4`] lane by lane.
+#[inline(always)]
+fn dot4_lanes<L: Lane>(w: &[L; 4], p: [L; 4]) -> L {
+    w[0] * p[0] + w[1] * p[1] + w[2] * p[2] + w[3] * p[3]
+}
+
+/// `Grid::index_gradient_to_world` lane by lane: r₀·g_x + r₁·g_y + r₂·g_z per component.
+#[inline(always)]
+fn world_gradient<L: Lane>(r: [DVec3; 3], g: V4<L>) -> V4<L> {
+    V4 {
+        x: L::splat(r[0].x) * g.x + L::splat(r[1].x) * g.y + L::splat(r[2].x) * g.z,
+        y: L::splat(r[0].y) * g.x + L::splat(r[1].y) * g.y + L::splat(r[2].y) * g.z,
+        z: L::splat(r[0].z) * g.x + L::splat(r[1].z) * g.y + L::splat(r[2].z) * g.z,
     }
 }
 
@@ -361,6 +619,44 @@ mod tests {
             }
         }
         assert!(inside > 300 && border > 300, "{inside} inside, {border} at the border");
+    }
+
+    /// The batched reads give, lane by lane, the bits of one read at a time (with and without
+    /// AVX2): the first value as `at_index_if` and `sample_index` give it, everything as
+    /// `at_index` gives it.
+    #[test]
+    fn four_interior_reads_at_once_give_the_bits_of_one_at_a_time() {
+        let v = field();
+        let w = Volume::new(*v.grid(), v.data().iter().map(|x| 3.0 - 0.5 * x * x).collect()).unwrap();
+        let s = GradientSampler::on_one_grid([&v, &w]).unwrap();
+        let dims = v.grid().dims();
+        let bits = |g: &ValueGradient| (g.value.to_bits(), g.gradient.to_array().map(f64::to_bits));
+        for n in 0..2000 {
+            let t = n as f64;
+            let cs: [DVec3; LANES] = std::array::from_fn(|lane| {
+                let u = t * 4.0 + lane as f64;
+                // Over the interior: 1 ≤ c_a < n_a − 2.
+                DVec3::new(
+                    1.0 + (u * 0.7371).fract() * (dims[0] as f64 - 3.0),
+                    1.0 + (u * 0.3119 + 0.1).fract() * (dims[1] as f64 - 3.0),
+                    1.0 + (u * 0.5813 + 0.2).fract() * (dims[2] as f64 - 3.0),
+                )
+            });
+            assert!(cs.iter().all(|&c| s.is_interior(c)));
+            let values = [s.values4(&cs), s.values4_in::<F4>(&cs)];
+            let reads = [s.at_interior4(&cs), s.at_interior4_in::<F4>(&cs)];
+            for (lane, &c) in cs.iter().enumerate() {
+                let first = s.at_index_if(c, -7.0, |_| false).unwrap_err();
+                assert_eq!(first.to_bits(), (v.sample_index(c, -7.0) as f64).to_bits());
+                let one = s.at_index(c, -7.0);
+                for (vs, rs) in values.iter().zip(&reads) {
+                    assert_eq!(vs[lane].to_bits(), first.to_bits(), "at {c}");
+                    for (a, e) in rs[lane].iter().zip(&one) {
+                        assert_eq!(bits(a), bits(e), "at {c}");
+                    }
+                }
+            }
+        }
     }
 
     fn trilinear_f64(v: &Volume<f32>, c: DVec3) -> f64 {

@@ -212,6 +212,12 @@ impl Grid {
         r[0] * g.x + r[1] * g.y + r[2] * g.z
     }
 
+    /// The rows of the inverse affine that [`Self::index_gradient_to_world`] weights (for the
+    /// batched gathers, which repeat its products and sums lane by lane).
+    pub(crate) fn index_gradient_rows(&self) -> [DVec3; 3] {
+        self.inverse.rows
+    }
+
     /// Nearest voxel of a world position, or `None` when it lies outside the grid's extent
     /// (the voxels' boxes, i.e. −0.5 … n − 0.5 in index units).
     #[inline]

@@ -25,6 +25,7 @@ pub mod filter;
 pub mod gradient;
 pub mod grid;
 pub mod labels;
+mod lanes;
 pub mod masks;
 pub mod motion;
 pub mod needle;

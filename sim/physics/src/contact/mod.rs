@@ -14,12 +14,13 @@
 //! Device output (eqs. 3.6.12–3.6.14): the means of f_i = f_skin + f_slide + f_bone and of
 //! t_i = (x_i − x) × f_i over the nodes in contact.
 
+mod lanes;
 pub mod patterns;
 
 use glam::{DMat3, DQuat, DVec3};
 
 use crate::PunctureAtlas;
-use crate::gradient::GradientSampler;
+use crate::gradient::{GradientSampler, ValueGradient};
 pub use patterns::ContactPattern;
 
 /// Friction constants of eqs. 3.6.8–3.6.11.
@@ -123,6 +124,12 @@ impl ContactTool {
     }
 
     /// One tick for device position `x` and orientation `q` (reference space).
+    ///
+    /// Four nodes at a time: interior nodes read D_skin four at once
+    /// ([`GradientSampler::values4`]), those inside the skin then both maps' values and
+    /// gradients ([`GradientSampler::at_interior4`]) and the force law ([`lanes`]) four at once;
+    /// each gives the bits of one node at a time, and the nodes in contact are settled and
+    /// summed in node order.
     pub fn step(&mut self, atlas: &PunctureAtlas, x: DVec3, q: DQuat) -> ContactForces {
         let skin = atlas.skin_distance();
         let bone = atlas.bone_distance();
@@ -134,86 +141,208 @@ impl ContactTool {
         // position in index units (each node's index is then c_x + A⁻¹ Q x_i⁰).
         let rotation = DMat3::from_quat(q);
         let c_x = grid.world_to_index(x);
-        let (mut sum_f_skin, mut sum_f_slide, mut sum_f_bone, mut sum_t) =
-            (DVec3::ZERO, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
-        let mut n = 0usize;
-        for (node, p0) in self.nodes.iter_mut().zip(self.pattern.points()) {
+        let mut tick = Tick {
+            nodes: &mut self.nodes,
+            friction: self.friction,
+            law: Batch::default(),
+            sums: Sums::default(),
+        };
+        // Interior nodes wait in two queues of four: D_skin alone for every node, then both
+        // maps' values and gradients for the nodes inside the skin.
+        let mut probing = Queue::default();
+        let mut touching = Queue::default();
+        for (i, p0) in self.pattern.points().iter().enumerate() {
             let arm = rotation * *p0;
             let xi = x + arm;
-            node.pos = xi;
             let c = c_x + grid.world_vector_to_index(arm);
-            // D_skin first; the gradients and D_bone only for a node inside the skin.
-            let Ok([skin_at, bone_at]) = maps.at_index_if(c, -1000.0, |d_skin| !(d_skin <= 0.0)) else {
-                // Not touching: the proxy waits at the node (no stick across lifts).
-                node.in_contact = false;
-                node.depth_mm = 0.0;
-                node.surface = xi;
-                node.proxy = xi;
+            if maps.is_interior(c) {
+                if probing.push(i, arm, xi, c) {
+                    probing.probe(&maps, &mut touching, &mut tick);
+                }
                 continue;
-            };
-            let d_skin = skin_at.value;
-            let vs = (-skin_at.gradient).normalize_or_zero();
-            let f_skin = skin_force_n(d_skin) * vs;
-            // Bone penalty, turned towards the skin normal when pointing more than 90° away.
-            let d_bone = bone_at.value;
-            let vb = (-bone_at.gradient).normalize_or_zero();
-            // (vb is a unit vector or zero already: only the turned direction needs normalising.)
-            let dir = if vb.dot(vs) > 0.0 {
-                vb
-            } else {
-                (vb - 4.0 * vs * vb.dot(vs)).normalize_or_zero()
-            };
-            let f_bone = bone_force_n(-d_bone) * dir;
-            // Stick–slip proxy on the surface point.
-            let s_new = xi - d_skin * vs;
-            let f_n = f_skin + f_bone;
-            let press = f_n.dot(vs).abs();
-            let z_max = self.friction.c_fric * press + 1.0;
-            let z_stick = z_max - 1.0;
-            let s_old = if node.in_contact { node.surface } else { s_new };
-            let p_old = if node.in_contact { node.proxy } else { s_new };
-            let dvec = s_new - p_old;
-            let dist = dvec.length();
-            let alpha = if dist > 0.0 {
-                let z8 = powi8(dist);
-                (1.0 / z_max) * z8 / (powi8(z_stick) + z8)
-            } else {
-                0.0
-            };
-            let proxy = if alpha * dist > 1.0 {
-                s_new - (dvec / dist) * z_max
-            } else {
-                p_old + (s_new - s_old).length() * alpha * dvec
-            };
-            let f_slide = self.friction.k_fric * (proxy - s_new);
-            node.in_contact = true;
-            node.depth_mm = d_skin;
-            node.surface = s_new;
-            node.proxy = proxy;
-            let f_i = f_skin + f_slide + f_bone;
-            sum_f_skin += f_skin;
-            sum_f_slide += f_slide;
-            sum_f_bone += f_bone;
-            sum_t += arm.cross(f_i);
-            n += 1;
+            }
+            // A node near the grid's border: the interior nodes before it first (node order).
+            probing.probe(&maps, &mut touching, &mut tick);
+            touching.read(&maps, &mut tick);
+            tick.settle(i, arm, xi, maps.at_index_if(c, -1000.0, in_skin));
         }
-        if n == 0 {
-            return ContactForces::default();
-        }
-        let k = 1.0 / n as f64;
-        ContactForces {
-            skin: sum_f_skin * k,
-            slide: sum_f_slide * k,
-            bone: sum_f_bone * k,
-            torque: sum_t * k,
-            contacts: n,
+        probing.probe(&maps, &mut touching, &mut tick);
+        touching.read(&maps, &mut tick);
+        tick.law.finish(tick.nodes, tick.friction, &mut tick.sums);
+        tick.sums.means()
+    }
+}
+
+/// D_skin > 0 (or NaN): the node is inside the skin, and the gradients and D_bone are read.
+#[inline(always)]
+fn in_skin(d_skin: f64) -> bool {
+    !(d_skin <= 0.0)
+}
+
+/// One tick's nodes, force-law batch and sums.
+struct Tick<'n> {
+    nodes: &'n mut [ContactNode],
+    friction: ContactFriction,
+    law: Batch,
+    sums: Sums,
+}
+
+impl Tick<'_> {
+    /// Node `i` at `xi` with its maps read (`Err(D_skin)` off the skin): idle, or queued for the
+    /// force law.
+    #[inline(always)]
+    fn settle(&mut self, i: usize, arm: DVec3, xi: DVec3, read: Result<[ValueGradient; 2], f64>) {
+        let node = &mut self.nodes[i];
+        node.pos = xi;
+        let Ok([skin_at, bone_at]) = read else {
+            // Not touching: the proxy waits at the node (no stick across lifts).
+            node.in_contact = false;
+            node.depth_mm = 0.0;
+            node.surface = xi;
+            node.proxy = xi;
+            return;
+        };
+        let lane = self.law.len;
+        let l = &mut self.law.input;
+        l.pos.set(lane, xi);
+        l.d_skin[lane] = skin_at.value;
+        l.grad_skin.set(lane, skin_at.gradient);
+        l.d_bone[lane] = bone_at.value;
+        l.grad_bone.set(lane, bone_at.gradient);
+        l.was_in_contact[lane] = node.in_contact;
+        l.surface.set(lane, node.surface);
+        l.proxy.set(lane, node.proxy);
+        self.law.nodes[lane] = (i, arm);
+        self.law.len += 1;
+        if self.law.len == crate::lanes::LANES {
+            self.law.finish(self.nodes, self.friction, &mut self.sums);
         }
     }
 }
 
-#[inline]
-fn powi8(x: f64) -> f64 {
-    let x2 = x * x;
-    let x4 = x2 * x2;
-    x4 * x4
+/// Up to four interior nodes waiting for a batched read.
+#[derive(Default)]
+struct Queue {
+    /// Each lane's node index, lever arm and position.
+    nodes: [(usize, DVec3, DVec3); crate::lanes::LANES],
+    /// Each lane's continuous index.
+    c: [DVec3; crate::lanes::LANES],
+    len: usize,
+}
+
+impl Queue {
+    /// Queues a node; true when the queue is full.
+    #[inline(always)]
+    fn push(&mut self, i: usize, arm: DVec3, xi: DVec3, c: DVec3) -> bool {
+        self.nodes[self.len] = (i, arm, xi);
+        self.c[self.len] = c;
+        self.len += 1;
+        self.len == crate::lanes::LANES
+    }
+
+    /// The indices with unused lanes repeating the first (their results are ignored).
+    #[inline(always)]
+    fn indices(&mut self) -> &[DVec3; crate::lanes::LANES] {
+        for lane in self.len..crate::lanes::LANES {
+            self.c[lane] = self.c[0];
+        }
+        &self.c
+    }
+
+    /// D_skin at the queued nodes: those off the skin are settled idle, the others queued in
+    /// `touching` (in node order).
+    fn probe(&mut self, maps: &GradientSampler<'_, 2>, touching: &mut Queue, tick: &mut Tick) {
+        if self.len == 0 {
+            return;
+        }
+        let d_skin = maps.values4(self.indices());
+        for (&(i, arm, xi), (d, c)) in self.nodes.iter().zip(d_skin.into_iter().zip(self.c)).take(self.len) {
+            if in_skin(d) {
+                if touching.push(i, arm, xi, c) {
+                    touching.read(maps, tick);
+                }
+            } else {
+                tick.settle(i, arm, xi, Err(d));
+            }
+        }
+        self.len = 0;
+    }
+
+    /// Both maps' values and gradients at the queued nodes (all inside the skin), settled in
+    /// order.
+    fn read(&mut self, maps: &GradientSampler<'_, 2>, tick: &mut Tick) {
+        if self.len == 0 {
+            return;
+        }
+        let reads = maps.at_interior4(self.indices());
+        for (&(i, arm, xi), read) in self.nodes.iter().zip(reads).take(self.len) {
+            tick.settle(i, arm, xi, Ok(read));
+        }
+        self.len = 0;
+    }
+}
+
+/// Up to four nodes inside the skin waiting for the force law.
+#[derive(Default)]
+struct Batch {
+    input: lanes::LanesIn,
+    /// Each lane's node index and lever arm Q x_i⁰.
+    nodes: [(usize, DVec3); crate::lanes::LANES],
+    len: usize,
+}
+
+impl Batch {
+    /// Runs the law for the waiting nodes, stores their state and adds their forces to `sums`
+    /// in node order. Unused lanes compute on stale inputs and are ignored.
+    fn finish(&mut self, nodes: &mut [ContactNode], friction: ContactFriction, sums: &mut Sums) {
+        if self.len == 0 {
+            return;
+        }
+        let out = lanes::contact_lanes(&self.input, friction);
+        for (lane, &(i, arm)) in self.nodes.iter().enumerate().take(self.len) {
+            let node = &mut nodes[i];
+            node.in_contact = true;
+            node.depth_mm = self.input.d_skin[lane];
+            node.surface = out.surface.get(lane);
+            node.proxy = out.proxy.get(lane);
+            sums.add(arm, out.f_skin.get(lane), out.f_slide.get(lane), out.f_bone.get(lane));
+        }
+        self.len = 0;
+    }
+}
+
+/// Running sums of eqs. 3.6.12–3.6.14 over the nodes in contact.
+#[derive(Default)]
+struct Sums {
+    f_skin: DVec3,
+    f_slide: DVec3,
+    f_bone: DVec3,
+    torque: DVec3,
+    n: usize,
+}
+
+impl Sums {
+    fn add(&mut self, arm: DVec3, f_skin: DVec3, f_slide: DVec3, f_bone: DVec3) {
+        let f_i = f_skin + f_slide + f_bone;
+        self.f_skin += f_skin;
+        self.f_slide += f_slide;
+        self.f_bone += f_bone;
+        self.torque += arm.cross(f_i);
+        self.n += 1;
+    }
+
+    /// The device output: the means over the nodes in contact (zero without contact).
+    fn means(&self) -> ContactForces {
+        if self.n == 0 {
+            return ContactForces::default();
+        }
+        let k = 1.0 / self.n as f64;
+        ContactForces {
+            skin: self.f_skin * k,
+            slide: self.f_slide * k,
+            bone: self.f_bone * k,
+            torque: self.torque * k,
+            contacts: self.n,
+        }
+    }
 }
