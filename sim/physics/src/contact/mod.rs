@@ -250,9 +250,23 @@ impl Queue {
     }
 
     /// D_skin at the queued nodes: those off the skin are settled idle, the others queued in
-    /// `touching` (in node order).
+    /// `touching` (in node order). Four nodes that all touched on the last tick are read in full
+    /// at once instead.
     fn probe(&mut self, maps: &GradientSampler<'_, 2>, touching: &mut Queue, tick: &mut Tick) {
         if self.len == 0 {
+            return;
+        }
+        if self.len == crate::lanes::LANES && self.nodes.iter().all(|&(i, ..)| tick.nodes[i].in_contact) {
+            // Four nodes that touched on the last tick most likely still do: everything is read
+            // at once (the same bits as D_skin first; only the work differs). The nodes queued
+            // before them are settled first.
+            touching.read(maps, tick);
+            let reads = maps.at_interior4(&self.c);
+            for (&(i, arm, xi), read) in self.nodes.iter().zip(reads) {
+                let d = read[0].value;
+                tick.settle(i, arm, xi, if in_skin(d) { Ok(read) } else { Err(d) });
+            }
+            self.len = 0;
             return;
         }
         let d_skin = maps.values4(self.indices());
