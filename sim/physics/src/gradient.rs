@@ -89,10 +89,7 @@ impl<'a, const N: usize> GradientSampler<'a, N> {
     #[inline]
     pub fn at_index(&self, c: DVec3, outside: f32) -> [ValueGradient; N] {
         let grid = self.volumes[0].grid();
-        let dims = grid.dims();
-        // Interior: the 4 × 4 × 4 voxels from floor(c) − 1 to floor(c) + 2 lie in the grid.
-        let interior = (0..3).all(|a| c[a] >= 1.0 && c[a] < dims[a] as f64 - 2.0);
-        let mut out = if interior {
+        let mut out = if self.is_interior(c) {
             self.interior(c)
         } else {
             self.volumes.map(|v| self.border(v, c, outside))
@@ -126,9 +123,7 @@ impl<'a, const N: usize> GradientSampler<'a, N> {
     #[inline(always)]
     pub fn at_index_if(&self, c: DVec3, outside: f32, wanted: impl Fn(f64) -> bool) -> Result<[ValueGradient; N], f64> {
         let grid = self.volumes[0].grid();
-        let dims = grid.dims();
-        let interior = (0..3).all(|a| c[a] >= 1.0 && c[a] < dims[a] as f64 - 2.0);
-        let mut out = if interior {
+        let mut out = if self.is_interior(c) {
             let cell = self.cell(c);
             let (d0, rows0) = self.rows(self.volumes[0], &cell);
             let value = cell.value(&rows0);
@@ -156,8 +151,8 @@ impl<'a, const N: usize> GradientSampler<'a, N> {
         Ok(out)
     }
 
-    /// Whether [`Self::at_interior4_if`] may read at `c`: the 4 × 4 × 4 voxels from floor(c) − 1
-    /// lie in the grid (the same test as [`Self::at_index_if`]'s interior branch).
+    /// Whether `c` is interior: the 4 × 4 × 4 voxels from floor(c) − 1 to floor(c) + 2 lie in
+    /// the grid (the gathers read there; elsewhere [`Self::at_index`] takes trilinear samples).
     #[inline(always)]
     pub(crate) fn is_interior(&self, c: DVec3) -> bool {
         let dims = self.volumes[0].grid().dims();
