@@ -93,17 +93,28 @@ fn score_json(file: &Path) -> Value {
     serde_json::from_str(&ok(&["score", s(file), "--atlas", s(&setup().atlas()), "--json"])).unwrap()
 }
 
-/// Finger, linear and convex probe sessions recorded with physics version 9 before the contact
-/// nodes were read and pushed four at a time (tests/fixtures/physics-v9, the scripts beside them)
-/// still replay bit for bit: batching changed the speed, not one output bit. They are frozen;
-/// when PHYSICS_VERSION changes on purpose, record them again from their scripts on
-/// `stylet atlas phantom` with the new binary.
+/// Sessions recorded with physics version 9 before two speed-ups still replay bit for bit: the
+/// finger, linear and convex probe sessions from before the contact nodes were read and pushed
+/// four at a time, and a needle session with contrast (2 ml spreading through the ducts for 2.5
+/// s) from before the duct nodes' diffusion was grouped by neighbour count
+/// (tests/fixtures/physics-v9, the scripts beside them). Both changed the speed, not one output
+/// bit. They are frozen; when PHYSICS_VERSION changes on purpose, record them again from their
+/// scripts on `stylet atlas phantom` with the new binary.
 #[test]
-fn contact_sessions_recorded_before_batching_replay_bit_for_bit() {
+fn sessions_recorded_before_the_speed_ups_replay_bit_for_bit() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/physics-v9");
-    for name in ["finger-sweep", "probe-linear-across", "probe-convex-parallel"] {
+    for name in [
+        "finger-sweep",
+        "probe-linear-across",
+        "probe-convex-parallel",
+        "needle-contrast",
+    ] {
         let r = score_json(&dir.join(format!("{name}.mcap")));
         assert_eq!(r["replay_verified"], true, "{name}: {}", r["divergence"]);
+        if name == "needle-contrast" {
+            // The contrast filled the ducts: the diffusion ran in this session.
+            assert_eq!(r["metrics"]["target_confirmed"], true, "{r}");
+        }
     }
 }
 

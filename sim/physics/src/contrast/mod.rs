@@ -25,6 +25,9 @@ use glam::DVec3;
 
 use crate::{LabelId, PunctureAtlas, Role};
 
+mod diffusion;
+use diffusion::DuctNeighbours;
+
 /// Settings of the contrast model (part of the physics: replay uses the same values).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ContrastSettings {
@@ -144,8 +147,8 @@ struct DiffusionGrid {
     slot: Vec<u32>,
     /// Node index of each duct slot (increasing).
     duct_nodes: Vec<u32>,
-    /// Duct neighbours of each slot (slots), `NOT_DUCT` after the last.
-    neighbours: Vec<[u32; 6]>,
+    /// Duct neighbours of each slot (slots), grouped for the steps of eq. 3.3.2.
+    neighbours: DuctNeighbours,
     /// ρ of the duct nodes, and the update's new values.
     duct_rho: Vec<f64>,
     next_rho: Vec<f64>,
@@ -187,12 +190,12 @@ impl DiffusionGrid {
                 }
             }
         }
-        let neighbours = duct_nodes
+        let lists: Vec<([u32; 6], usize)> = duct_nodes
             .iter()
             .map(|&node| {
                 let node = node as usize;
                 let (i, j, k) = (node % n[0], (node / n[0]) % n[1], node / (n[0] * n[1]));
-                let mut out = [NOT_DUCT; 6];
+                let mut out = [0u32; 6];
                 let mut m = 0;
                 let (sy, sz) = (n[0], n[0] * n[1]);
                 let candidates = [
@@ -209,11 +212,13 @@ impl DiffusionGrid {
                         m += 1;
                     }
                 }
-                out
+                (out, m)
             })
             .collect();
+        let neighbours = DuctNeighbours::new(lists.iter().map(|(out, m)| &out[..*m]));
         let s = grid.spacing_mm();
         let slots = duct_nodes.len();
+        debug_assert_eq!(neighbours.len(), slots);
         DiffusionGrid {
             origin,
             n,
@@ -250,21 +255,9 @@ impl DiffusionGrid {
     }
 
     /// One explicit step of eq. 3.3.2 (with τ) over the duct nodes (Jacobi: every new value from
-    /// the old ones, in slot order).
+    /// the old ones; see `diffusion`).
     fn step(&mut self, tau: f64) {
-        for (s, nb) in self.neighbours.iter().enumerate() {
-            let rho = self.duct_rho[s];
-            let mut sum = 0.0;
-            let mut count = 0.0;
-            for &j in nb {
-                if j == NOT_DUCT {
-                    break;
-                }
-                sum += self.duct_rho[j as usize];
-                count += 1.0;
-            }
-            self.next_rho[s] = rho + tau * (sum - count * rho);
-        }
+        self.neighbours.step(&self.duct_rho, &mut self.next_rho, tau);
         std::mem::swap(&mut self.duct_rho, &mut self.next_rho);
     }
 }
