@@ -116,15 +116,12 @@ mod tests {
             .collect()
     }
 
-    /// A splitmix64 stream (no dependency for a test's random numbers).
+    /// A SplitMix64 stream (the breathing signal's mixer): a test's random numbers.
     struct Stream(u64);
     impl Stream {
         fn next(&mut self) -> u64 {
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^ (z >> 31)
+            self.0 += 1;
+            crate::motion::signal::mix64(self.0)
         }
     }
 
