@@ -5,13 +5,14 @@
 //! Jacobi: every new value is computed from the old ones alone, so the order in which the nodes
 //! are visited does not change a bit. The nodes are visited grouped by their number of duct
 //! neighbours |N| (0 … 6): each group's loop reads exactly |N| neighbours, with no end-of-list
-//! test per neighbour (a branch the CPU cannot predict along the duct tree's walls). Within a node the neighbours are summed in the same order as before (−x, +x,
-//! −y, +y, −z, +z), so ρᵢ⁺ is the same number bit for bit.
+//! test per neighbour (a branch the CPU cannot predict along the duct tree's walls). Within a
+//! node the neighbours are summed in the same order as before (−x, +x, −y, +y, −z, +z), so ρᵢ⁺
+//! is the same number bit for bit.
 
 /// The duct neighbours of every slot, grouped by their count.
 #[derive(Debug, Clone)]
 pub(super) struct DuctNeighbours {
-    /// Slots in the diffusion's vectors (`rho`), and how many there are.
+    /// How many slots the diffusion's vectors (`rho`) hold.
     slots: usize,
     /// `groups[c]`: the slots with c duct neighbours (increasing).
     groups: [Vec<u32>; 7],
