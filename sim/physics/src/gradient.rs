@@ -155,8 +155,15 @@ impl<'a, const N: usize> GradientSampler<'a, N> {
     /// the grid (the gathers read there; elsewhere [`Self::at_index`] takes trilinear samples).
     #[inline(always)]
     pub(crate) fn is_interior(&self, c: DVec3) -> bool {
-        let dims = self.volumes[0].grid().dims();
-        (0..3).all(|a| c[a] >= 1.0 && c[a] < dims[a] as f64 - 2.0)
+        let [nx, ny, nz] = self.volumes[0].grid().dims();
+        // Written out (no iterator): the contact tools test every node every tick. `&` keeps it
+        // free of branches; NaN fails every comparison.
+        (c.x >= 1.0)
+            & (c.x < nx as f64 - 2.0)
+            & (c.y >= 1.0)
+            & (c.y < ny as f64 - 2.0)
+            & (c.z >= 1.0)
+            & (c.z < nz as f64 - 2.0)
     }
 
     /// The first volume's value at four interior indices (each [`Self::is_interior`]): the bits
@@ -217,9 +224,9 @@ impl<'a, const N: usize> GradientSampler<'a, N> {
         };
         let mut out = [[zero; N]; LANES];
         for (n, v) in self.volumes.iter().enumerate() {
-            let r = lanes.rows(v, &cells);
-            let values = lanes.value(&r).store();
-            let g = world_gradient(rows, lanes.gradient(v, &cells, &r)).store();
+            let (value, gradient) = lanes.value_gradient(v, &cells);
+            let values = value.store();
+            let g = world_gradient(rows, gradient).store();
             for (lane, o) in out.iter_mut().enumerate() {
                 o[n] = ValueGradient {
                     value: values[lane],
@@ -293,6 +300,16 @@ fn voxel(d: &[f32], o: usize) -> f64 {
     // SAFETY: `d` is the slice base ..= base + 3 + 3·sj + 3·sk (checked when it was cut), and
     // every caller's offset i + j·sj + k·sk has i, j, k ∈ 0 … 3, so o ≤ 3 + 3·sj + 3·sk < d.len().
     unsafe { *d.get_unchecked(o) as f64 }
+}
+
+/// The `K` voxels from offset `o` of a gather's voxels `d` (a run along x: `o` = i + j·sj + k·sk
+/// with i + K ≤ 4 and j, k ≤ 3), without a bounds check in the hot loop.
+#[inline(always)]
+fn run<const K: usize>(d: &[f32], o: usize) -> &[f32; K] {
+    debug_assert!(o + K <= d.len());
+    // SAFETY: as in `voxel`: the run's last offset is at most 3 + 3·sj + 3·sk < d.len(), and
+    // `[f32; K]` has the alignment of `f32`.
+    unsafe { &*d.as_ptr().add(o).cast::<[f32; K]>() }
 }
 
 /// The shared part of an interior gather: the offset of its first voxel, the strides, the
@@ -401,13 +418,6 @@ impl<L: Lane> Cells4<L> {
         lanes
     }
 
-    /// Voxel (i, j, k) of every lane's block (as `Cell`'s `get`).
-    #[inline(always)]
-    fn voxels(&self, d: &[&[f32]; LANES], i: usize, j: usize, k: usize) -> L {
-        let o = i + j * self.sj + k * self.sk;
-        L::load([voxel(d[0], o), voxel(d[1], o), voxel(d[2], o), voxel(d[3], o)])
-    }
-
     /// Each lane's 4 × 4 × 4 block of `v`, bounds-checked once (as `GradientSampler::rows`).
     #[inline(always)]
     fn blocks<'v>(&self, v: &'v Volume<f32>, cells: &[Cell; LANES]) -> [&'v [f32]; LANES] {
@@ -421,88 +431,82 @@ impl<L: Lane> Cells4<L> {
         ]
     }
 
-    /// The 2 × 2 rows of four along x (as `GradientSampler::rows`).
+    /// Every lane's run of `K` voxels from (i, j, k) of its block.
     #[inline(always)]
-    fn rows(&self, v: &Volume<f32>, cells: &[Cell; LANES]) -> [[[L; 4]; 2]; 2] {
-        let d = self.blocks(v, cells);
-        let mut rows = [[[L::splat(0.0); 4]; 2]; 2];
-        for (kk, plane) in rows.iter_mut().enumerate() {
-            for (jj, row) in plane.iter_mut().enumerate() {
-                for (i, r) in row.iter_mut().enumerate() {
-                    *r = self.voxels(&d, i, jj + 1, kk + 1);
-                }
-            }
-        }
-        rows
+    fn runs<'v, const K: usize>(&self, d: &[&'v [f32]; LANES], i: usize, j: usize, k: usize) -> [&'v [f32; K]; LANES] {
+        let o = i + j * self.sj + k * self.sk;
+        [run(d[0], o), run(d[1], o), run(d[2], o), run(d[3], o)]
     }
 
-    /// [`Self::value`] reading only the 2 × 2 × 2 voxels it blends.
+    /// [`Self::value_gradient`]'s value alone, reading only the 2 × 2 × 2 voxels it blends.
     #[inline(always)]
     fn value_only(&self, v: &Volume<f32>, cells: &[Cell; LANES]) -> L {
         let d = self.blocks(v, cells);
-        let mut rows = [[[L::splat(0.0); 4]; 2]; 2];
-        for (kk, plane) in rows.iter_mut().enumerate() {
-            for (jj, row) in plane.iter_mut().enumerate() {
-                row[1] = self.voxels(&d, 1, jj + 1, kk + 1);
-                row[2] = self.voxels(&d, 2, jj + 1, kk + 1);
+        let mut mid = [[[L::splat(0.0); 2]; 2]; 2];
+        for (kk, plane) in mid.iter_mut().enumerate() {
+            for (jj, m) in plane.iter_mut().enumerate() {
+                *m = L::runs2(self.runs(&d, 1, jj + 1, kk + 1));
             }
         }
-        self.value(&rows)
+        self.value(&mid)
     }
 
-    /// `Cell::value` lane by lane (rounded through f32 as `sample_index`).
+    /// `Cell::value` lane by lane from the voxels i = 1, 2 of the rows (mid[k − 1][j − 1][i − 1]),
+    /// rounded through f32 as `sample_index`.
     #[inline(always)]
-    fn value(&self, rows: &[[[L; 4]; 2]; 2]) -> L {
+    fn value(&self, mid: &[[[L; 2]; 2]; 2]) -> L {
         let one = L::splat(1.0);
         let [fx, fy, fz] = self.f;
-        let c00 = rows[0][0][1] * (one - fx) + rows[0][0][2] * fx;
-        let c10 = rows[0][1][1] * (one - fx) + rows[0][1][2] * fx;
-        let c01 = rows[1][0][1] * (one - fx) + rows[1][0][2] * fx;
-        let c11 = rows[1][1][1] * (one - fx) + rows[1][1][2] * fx;
+        let c00 = mid[0][0][0] * (one - fx) + mid[0][0][1] * fx;
+        let c10 = mid[0][1][0] * (one - fx) + mid[0][1][1] * fx;
+        let c01 = mid[1][0][0] * (one - fx) + mid[1][0][1] * fx;
+        let c11 = mid[1][1][0] * (one - fx) + mid[1][1][1] * fx;
         let c0 = c00 * (one - fy) + c10 * fy;
         let c1 = c01 * (one - fy) + c11 * fy;
         (c0 * (one - fz) + c1 * fz).round_f32()
     }
 
-    /// `Cell::gradient` lane by lane: the same products, summed in the same order.
+    /// `Cell::value` and `Cell::gradient` lane by lane: the same products, summed in the same
+    /// order. One plane k of rows at a time (the rows along x give g_x, with the ends of the
+    /// columns along y they give g_y), keeping only the rows' middle voxels for the value and
+    /// the pillars along z: fewer values live at once than all 32 voxels.
     #[inline(always)]
-    fn gradient(&self, v: &Volume<f32>, cells: &[Cell; LANES], rows: &[[[L; 4]; 2]; 2]) -> V4<L> {
+    fn value_gradient(&self, v: &Volume<f32>, cells: &[Cell; LANES]) -> (L, V4<L>) {
         let d = self.blocks(v, cells);
         let [wx, wy, wz] = self.w;
+        let [sx, sy, sz] = &self.stencil;
         let zero = L::splat(0.0);
         let mut g = V4 {
             x: zero,
             y: zero,
             z: zero,
         };
+        let mut mid = [[[zero; 2]; 2]; 2];
         for kk in 0..2 {
+            let k = kk + 1;
+            let rows = [L::runs4(self.runs(&d, 0, 1, k)), L::runs4(self.runs(&d, 0, 2, k))];
             for jj in 0..2 {
-                g.x = g.x + wy[jj] * wz[kk] * dot4_lanes(&self.stencil[0], rows[kk][jj]);
+                g.x = g.x + wy[jj] * wz[kk] * dot4_lanes(sx, rows[jj]);
             }
+            // The ends of the columns along y (j = 0 and 3) at i = 1, 2.
+            let (low, high) = (L::runs2(self.runs(&d, 1, 0, k)), L::runs2(self.runs(&d, 1, 3, k)));
             for ii in 0..2 {
-                let (i, k) = (ii + 1, kk + 1);
-                let col = [
-                    self.voxels(&d, i, 0, k),
-                    rows[kk][0][i],
-                    rows[kk][1][i],
-                    self.voxels(&d, i, 3, k),
-                ];
-                g.y = g.y + wx[ii] * wz[kk] * dot4_lanes(&self.stencil[1], col);
+                let i = ii + 1;
+                let col = [low[ii], rows[0][i], rows[1][i], high[ii]];
+                g.y = g.y + wx[ii] * wz[kk] * dot4_lanes(sy, col);
             }
+            mid[kk] = [[rows[0][1], rows[0][2]], [rows[1][1], rows[1][2]]];
         }
         for jj in 0..2 {
+            let j = jj + 1;
+            // The ends of the pillars along z (k = 0 and 3) at i = 1, 2.
+            let (low, high) = (L::runs2(self.runs(&d, 1, j, 0)), L::runs2(self.runs(&d, 1, j, 3)));
             for ii in 0..2 {
-                let (i, j) = (ii + 1, jj + 1);
-                let pillar = [
-                    self.voxels(&d, i, j, 0),
-                    rows[0][jj][i],
-                    rows[1][jj][i],
-                    self.voxels(&d, i, j, 3),
-                ];
-                g.z = g.z + wx[ii] * wy[jj] * dot4_lanes(&self.stencil[2], pillar);
+                let pillar = [low[ii], mid[0][jj][ii], mid[1][jj][ii], high[ii]];
+                g.z = g.z + wx[ii] * wy[jj] * dot4_lanes(sz, pillar);
             }
         }
-        g
+        (self.value(&mid), g)
     }
 }
 
