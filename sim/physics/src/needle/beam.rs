@@ -26,6 +26,21 @@ pub struct BeamScratch {
     l1: Vec<f64>,
     l2: Vec<f64>,
     rhs: Vec<Lateral>,
+    /// What the factorisation in `d`, `l1`, `l2` is of, when it succeeded: the bits of `ei`,
+    /// `h` and every `k`. The springs rarely change from one tick to the next (they change when
+    /// a node crosses into other tissue), and the same inputs give the same factors, so
+    /// [`solve`] then skips straight to the substitutions with the same bits.
+    factored: Option<(u64, u64)>,
+    factored_k: Vec<u64>,
+}
+
+impl BeamScratch {
+    /// Whether `d`, `l1`, `l2` hold the factorisation for exactly these inputs.
+    fn holds_factors_of(&self, ei: f64, h: f64, k: &[f64]) -> bool {
+        self.factored == Some((ei.to_bits(), h.to_bits()))
+            && self.factored_k.len() == k.len()
+            && self.factored_k.iter().zip(k).all(|(&a, b)| a == b.to_bits())
+    }
 }
 
 /// Solves for the deflections `out` (len m) given per-node spring stiffness `k` (N/mm), spring
@@ -47,6 +62,23 @@ pub fn solve(
         return true;
     }
     let (target, load, out) = (&target[..m], &load[..m], &mut out[..m]);
+    if !s.holds_factors_of(ei, h, k) {
+        s.factored = None;
+        if !factor(ei, h, k, s) {
+            return false;
+        }
+        s.factored = Some((ei.to_bits(), h.to_bits()));
+        s.factored_k.clear();
+        s.factored_k.extend(k.iter().map(|v| v.to_bits()));
+    }
+    substitute(k, target, load, out, s);
+    true
+}
+
+/// The LDLᵀ factorisation of A = c·DᵀD + diag(k) into `s.d`, `s.l1`, `s.l2` (len m = k.len() ≥ 1);
+/// false when A is not safely positive definite.
+fn factor(ei: f64, h: f64, k: &[f64], s: &mut BeamScratch) -> bool {
+    let m = k.len();
     let c = ei / (h * h * h);
     // The three bands of A = c·DᵀD + diag(k): a0[j] = A(j, j), a1[j] = A(j, j+1), a2[j] = A(j, j+2).
     // (Loops are peeled so the hot path has no branches or bounds checks; the arithmetic and its
@@ -92,6 +124,13 @@ pub fn solve(
         }
         (l1[j], l2[j], d[j]) = (l1j, l2j, dj);
     }
+    true
+}
+
+/// Solves L D Lᵀ w = diag(k) t + f into `out` with the factors in `s` (from [`factor`]).
+fn substitute(k: &[f64], target: &[Lateral], load: &[Lateral], out: &mut [Lateral], s: &mut BeamScratch) {
+    let m = k.len();
+    let (d, l1, l2) = (&s.d[..m], &s.l1[..m], &s.l2[..m]);
     // Forward substitution L y = b.
     let y = &mut s.rhs[..m];
     let b = |j: usize| [k[j] * target[j][0] + load[j][0], k[j] * target[j][1] + load[j][1]];
@@ -123,7 +162,6 @@ pub fn solve(
             y[j][1] / d[j] - l1[j + 1] * out[j + 1][1] - l2[j + 2] * out[j + 2][1],
         ];
     }
-    true
 }
 
 #[cfg(test)]
@@ -231,5 +269,49 @@ mod tests {
             &mut out,
             &mut BeamScratch::default()
         ));
+    }
+
+    /// A scratch reused across solves (the needle's, tick after tick) gives the bits of a fresh
+    /// one: whether its factors are reused (same springs), redone (one spring changed, another
+    /// node count, another rigidity) or refused (an unheld beam), and after a refusal.
+    #[test]
+    fn reused_factors_give_the_bits_of_a_fresh_solve() {
+        let mut rng = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = move || {
+            rng = crate::motion::signal::mix64(rng);
+            (rng >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut shared = BeamScratch::default();
+        let mut k: Vec<f64> = (0..31).map(|j| if j < 2 { 50.0 } else { 0.4 }).collect();
+        let (mut reused, mut changed) = (0, 0);
+        for step in 0..400 {
+            let mut ei = 2.0e5;
+            match step % 10 {
+                // The springs as the needle advances: one node meets other tissue.
+                3 => {
+                    let j = 2 + (next() * 29.0) as usize;
+                    k[j] = 0.1 + 2.0 * next();
+                    changed += 1;
+                }
+                // Another needle.
+                7 if step % 20 == 7 => ei = 1.5e5,
+                _ => reused += 1,
+            }
+            // Now and then a beam nothing holds, and one node fewer.
+            let (ks, m): (Vec<f64>, usize) = match step % 37 {
+                11 => (vec![0.0; k.len()], k.len()),
+                19 => (k[..30].to_vec(), 30),
+                _ => (k.clone(), k.len()),
+            };
+            let target: Vec<Lateral> = (0..m).map(|_| [next() - 0.5, 2.0 * next() - 1.0]).collect();
+            let load: Vec<Lateral> = (0..m).map(|_| [0.01 * (next() - 0.5), 0.0]).collect();
+            let (mut a, mut b) = (vec![[0.0; 2]; m], vec![[0.0; 2]; m]);
+            let ok_shared = solve(ei, 5.0, &ks, &target, &load, &mut a, &mut shared);
+            let ok_fresh = solve(ei, 5.0, &ks, &target, &load, &mut b, &mut BeamScratch::default());
+            assert_eq!(ok_shared, ok_fresh, "step {step}");
+            let bits = |w: &[Lateral]| w.iter().flat_map(|l| l.map(f64::to_bits)).collect::<Vec<_>>();
+            assert_eq!(bits(&a), bits(&b), "step {step}");
+        }
+        assert!(reused > 300 && changed > 30);
     }
 }
