@@ -368,6 +368,18 @@ impl<L: Lane> V4<L> {
             z: L::select(ok, self.z * rcp, zero),
         }
     }
+    /// glam's `normalize_or`: v·(1/‖v‖) where that reciprocal is finite and > 0, else
+    /// `fallback`.
+    #[inline(always)]
+    pub(crate) fn normalize_or(self, fallback: Self) -> Self {
+        let rcp = L::splat(1.0) / self.length();
+        let ok = rcp.finite_positive();
+        V4 {
+            x: L::select(ok, self.x * rcp, fallback.x),
+            y: L::select(ok, self.y * rcp, fallback.y),
+            z: L::select(ok, self.z * rcp, fallback.z),
+        }
+    }
     #[inline(always)]
     pub(crate) fn select(m: L::Mask, a: Self, b: Self) -> Self {
         V4 {

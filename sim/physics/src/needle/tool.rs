@@ -306,16 +306,7 @@ impl NeedleTool {
             let w = s.w[j];
             self.nodes[j] = v + e * (hc * j as f64) + u1 * w[0] + u2 * w[1];
         }
-        for j in 0..m {
-            let (a, b) = if j == 0 {
-                (0, 1)
-            } else if j == m - 1 {
-                (m - 2, m - 1)
-            } else {
-                (j - 1, j + 1)
-            };
-            self.tangents[j] = (self.nodes[b] - self.nodes[a]).normalize_or(e);
-        }
+        super::tangents::tangents(&self.nodes, e, &mut self.tangents);
     }
 }
 
