@@ -359,14 +359,12 @@ impl<L: Lane> V4<L> {
     /// glam's `normalize_or_zero`: v·(1/‖v‖) where that reciprocal is finite and > 0, else 0.
     #[inline(always)]
     pub(crate) fn normalize_or_zero(self) -> Self {
-        let rcp = L::splat(1.0) / self.length();
-        let ok = rcp.finite_positive();
         let zero = L::splat(0.0);
-        V4 {
-            x: L::select(ok, self.x * rcp, zero),
-            y: L::select(ok, self.y * rcp, zero),
-            z: L::select(ok, self.z * rcp, zero),
-        }
+        self.normalize_or(V4 {
+            x: zero,
+            y: zero,
+            z: zero,
+        })
     }
     /// glam's `normalize_or`: v·(1/‖v‖) where that reciprocal is finite and > 0, else
     /// `fallback`.

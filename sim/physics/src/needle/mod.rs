@@ -1,5 +1,6 @@
 //! The bendable needle (thesis §3.5, ALGORITHMS.md §2): needle types ([`spec`]), the rod model
-//! ([`beam`]), the insertion channel ([`path`]), the node tangents ([`tangents`]) and one haptic tick ([`tool`]).
+//! ([`beam`]), the insertion channel ([`path`]), the node tangents ([`tangents`]) and one haptic
+//! tick ([`tool`]).
 pub mod beam;
 pub mod path;
 pub mod spec;

@@ -46,11 +46,11 @@ fn ends(j: usize, m: usize) -> (usize, usize) {
 #[inline(always)]
 fn tangents_in<L: Lane>(nodes: &[DVec3], fallback: DVec3, out: &mut [DVec3]) {
     let m = nodes.len();
-    let mut fb = Vec4s::default();
-    for lane in 0..LANES {
-        fb.set(lane, fallback);
-    }
-    let fb = V4::<L>::load(&fb);
+    let fb = V4 {
+        x: L::splat(fallback.x),
+        y: L::splat(fallback.y),
+        z: L::splat(fallback.z),
+    };
     for start in (0..m).step_by(LANES) {
         let n = LANES.min(m - start);
         // Unused lanes repeat the last node's difference; their results are dropped.
