@@ -2,13 +2,16 @@
 //! `cargo bench --bench render` and scripts/vtk-compare.py).
 //!
 //! `cargo run --release -p stylet-render --example frame_timing -- ATLAS_DIR [WxH] [frames] [preset]`
+//!
+//! Each frame is drawn twice, with the samples evaluated on SIMD lanes and one at a time (in turn,
+//! so both see the same machine), and the two images must be equal.
 
 use std::sync::Arc;
 use std::time::Instant;
 
 use stylet_physics::glam::Vec3;
 use stylet_render::presets::{Preset, render_settings};
-use stylet_render::raycast::render;
+use stylet_render::raycast::{Lanes, render_with};
 use stylet_render::scene::{Camera, Light, Quality, Scene, Tagging};
 use stylet_render::tools::ToolState;
 use stylet_render::transfer::TransferFunction;
@@ -53,16 +56,40 @@ fn main() {
     };
     let _ = volume.cell_ranges(scene.quality.occupancy_cells);
     let mut last = None;
-    for _ in 0..frames {
-        let t = Instant::now();
-        let out = render(&volume, &scene, w, h);
-        println!(
-            "{w}x{h} {}: {:.1} ms, {} samples",
-            preset.as_str(),
-            t.elapsed().as_secs_f64() * 1e3,
-            out.samples
-        );
-        last = Some(out);
+    let (mut lanes_ms, mut one_ms) = (Vec::new(), Vec::new());
+    for i in 0..frames {
+        // Alternate which goes first, so neither always meets a warm cache.
+        let order = if i % 2 == 0 {
+            [Lanes::Auto, Lanes::OneAtATime]
+        } else {
+            [Lanes::OneAtATime, Lanes::Auto]
+        };
+        let mut images = Vec::new();
+        for lanes in order {
+            let t = Instant::now();
+            let out = render_with(&volume, &scene, w, h, lanes);
+            let ms = t.elapsed().as_secs_f64() * 1e3;
+            println!(
+                "{w}x{h} {} {lanes:?}: {ms:.1} ms, {} samples",
+                preset.as_str(),
+                out.samples
+            );
+            match lanes {
+                Lanes::Auto => lanes_ms.push(ms),
+                Lanes::OneAtATime => one_ms.push(ms),
+            }
+            images.push(out);
+        }
+        assert_eq!(images[0], images[1], "the lanes changed the picture");
+        last = images.pop();
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    if frames > 0 {
+        let (a, b) = (median(&mut lanes_ms), median(&mut one_ms));
+        println!("median: lanes {a:.1} ms, one at a time {b:.1} ms, ratio {:.2}", b / a);
     }
     if let (Some(path), Some(out)) = (args.get(5), last) {
         out.image.write_png(std::path::Path::new(path)).unwrap();

@@ -631,3 +631,71 @@ fn a_bad_step_neither_hangs_nor_panics() {
     );
     assert_eq!(tiny, floor);
 }
+
+/// A needle across the body, casting its shadow on what lies behind it.
+fn needle_through_body() -> ToolState {
+    let nodes: Vec<Vec3> = (0..11).map(|j| Vec3::new(-50.0 + 6.0 * j as f32, 30.0, 10.0)).collect();
+    ToolState {
+        needle: Some(NeedleShape {
+            nodes_mm: nodes,
+            diameter_mm: 2.0,
+            hub_length_mm: 20.0,
+            hub_diameter_mm: 6.0,
+        }),
+        ..Default::default()
+    }
+}
+
+#[test]
+fn lanes_draw_the_pixels_of_one_sample_at_a_time() {
+    use stylet_render::raycast::{Lanes, render_with};
+    // Integer values (16-bit records: the AVX2 kernel) and fractional ones (f32 records: only
+    // the placing of points runs on lanes).
+    let integral = atlas(48, 2.0, body_with_bone, |_| 0);
+    let fractional = atlas(48, 2.0, textured_body, |_| 0);
+    for (name, v) in [("integral", &integral), ("fractional", &fractional)] {
+        for (tf_name, tf) in [("soft and bone", soft_and_bone()), ("patchy", patchy())] {
+            let plain = scene(tf, Quality::fast(0.5));
+            let clipped = Scene {
+                clip: Some(ClipPlane {
+                    point_mm: Vec3::new(0.0, 10.0, 0.0),
+                    normal: Vec3::new(0.0, -1.0, 0.2).normalize(),
+                }),
+                tools: needle_through_body(),
+                ..plain.clone()
+            };
+            let exact_early = Scene {
+                quality: Quality {
+                    early_termination: true,
+                    ..exact()
+                },
+                ..clipped.clone()
+            };
+            let half = Scene {
+                quality: Quality {
+                    half_resolution: true,
+                    ..plain.quality
+                },
+                ..plain.clone()
+            };
+            for (what, s) in [
+                ("plain", &plain),
+                ("clip and needle", &clipped),
+                ("no jitter", &exact_early),
+                ("half", &half),
+            ] {
+                let a = render_with(v, s, 80, 72, Lanes::Auto);
+                let b = render_with(v, s, 80, 72, Lanes::OneAtATime);
+                assert!(
+                    count_not_background(&b.image) > 500,
+                    "{name}, {tf_name}, {what}: an empty picture"
+                );
+                assert_eq!(a.image, b.image, "{name}, {tf_name}, {what}: the lanes changed pixels");
+                assert_eq!(
+                    a.samples, b.samples,
+                    "{name}, {tf_name}, {what}: the lanes counted other samples"
+                );
+            }
+        }
+    }
+}

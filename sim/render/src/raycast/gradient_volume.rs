@@ -129,6 +129,11 @@ impl GradientVolume {
         }
     }
 
+    /// The records' strides along y and z.
+    pub fn strides(&self) -> (usize, usize) {
+        (self.sy, self.sz)
+    }
+
     /// Whether every axis has ≥ 2 voxels ([`Self::interpolate`] applies).
     pub fn is_fast(&self) -> bool {
         self.fast

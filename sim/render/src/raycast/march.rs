@@ -5,11 +5,13 @@ use stylet_physics::glam::{DVec3, Vec3};
 
 use std::sync::Arc;
 
+use super::batch::{Batch, Evaluated, Kernel, Lanes};
 use super::cube_mask::CubeMask;
 use super::jitter::jitter;
 use super::occupancy::Occupancy;
 use super::sampler::{At, Sampler};
 use super::shading::{MIN_GRADIENT, PhongTerms, half_vector, plane_colour};
+use super::window::{Lattice, POINTS, Placer, Window};
 use crate::scene::{ClipPlane, Light, MotionHook, Quality, Tagging};
 use crate::shadow::Shadows;
 use crate::tools::{Primitive, nearest_hit, shade};
@@ -53,6 +55,8 @@ pub struct Frame<'a> {
     pub shadows: Shadows,
     /// Whether any tool casts a shadow (else f_shadow = 1 without testing).
     pub has_shadows: bool,
+    /// Whether the common frame's samples may be evaluated on SIMD lanes ([`super::batch`]).
+    pub lanes: Lanes,
 }
 
 /// "No hit" distance for the tools (no infinities, as in tools.rs and the WGSL port).
@@ -210,57 +214,124 @@ const BOX_MARGIN: f32 = 1e-3;
 /// box of bricks within d − 1 (k ← max(k + 1, ⌈t_exit/Δ − j − 10⁻³⌉), as step 8); else a point
 /// whose own cube is invisible is passed alone ([`CubeMask`]), and the rest are sampled. Only
 /// samples that interpolate invisible values are passed: the picture is that of every lattice
-/// point sampled.
+/// point sampled. Points are placed eight at a time ([`super::window`]) and the visible ones read
+/// and lit eight at a time ([`super::batch`]), with the numbers of one at a time; a march that
+/// would pass lattice index 2·10⁹ (a ray kilometres long) stops there.
 fn lattice_bricks(f: &Frame, cubes: &CubeMask, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
     let step = f.quality.step_mm;
     let inv_step = 1.0 / step;
     let inv_dc = ray.dc.recip();
     let bricks = cubes.bricks();
+    let kernel = Kernel::new(f.sampler.grads, &f.table, &f.phong, f.sampler.half_rows_ct(), f.lanes);
+    let placer = Placer::new(f.lanes);
+    let lattice_of_ray = Lattice {
+        ce: ray.ce,
+        dc: ray.dc,
+        j: ray.j,
+        step,
+    };
+    let mut window = Window::default();
+    let mut batch = Batch::default();
+    let mut evaluated = Evaluated::default();
     let mut samples = 0u64;
+    // Samples counted (air at the box's faces) since the batch's last entry.
+    let mut counted = 0u32;
     let mut k = k0;
-    loop {
-        let t = lattice(k, ray.j, step);
-        if t > ray.t_hi || t >= ray.t_tool {
-            return samples;
-        }
-        let c = ray.ce + ray.dc * t;
-        let Some(cell) = f.sampler.ct.locate(c) else {
-            // Air outside the CT (rounding at the box's faces), invisible on this path.
-            samples += 1;
-            k += 1;
-            continue;
-        };
-        let d = bricks.at(cell.b);
-        if d > 0 {
-            let b = bricks.empty_box(cell.b, d, BOX_MARGIN);
-            let mut t_exit = f32::INFINITY;
-            for a in 0..3 {
-                // The face the ray leaves by on this axis (none when it runs parallel to it).
-                let face = if ray.dc[a] > 0.0 {
-                    b[a].1
-                } else if ray.dc[a] < 0.0 {
-                    b[a].0
-                } else {
-                    continue;
-                };
-                if face.is_finite() {
-                    t_exit = t_exit.min((face - ray.ce[a]) * inv_dc[a]);
-                }
+    'march: while k <= LAST_WINDOW_K {
+        // Lattice points k … k + 7, placed and located together; visited in order below.
+        placer.place(&f.sampler.ct, &lattice_of_ray, k, &mut window);
+        for i in 0..POINTS {
+            let t = window.t[i];
+            if t > ray.t_hi || t >= ray.t_tool {
+                break 'march;
             }
-            k = lattice_from(t_exit, k + 1, ray.j, inv_step);
-            continue;
+            let Some(cell) = window.cell(i) else {
+                // Air outside the CT (rounding at the box's faces), invisible on this path.
+                counted += 1;
+                continue;
+            };
+            let d = bricks.at(cell.b);
+            if d > 0 {
+                let b = bricks.empty_box(cell.b, d, BOX_MARGIN);
+                let mut t_exit = f32::INFINITY;
+                for a in 0..3 {
+                    // The face the ray leaves by on this axis (none when it runs parallel to it).
+                    let face = if ray.dc[a] > 0.0 {
+                        b[a].1
+                    } else if ray.dc[a] < 0.0 {
+                        b[a].0
+                    } else {
+                        continue;
+                    };
+                    if face.is_finite() {
+                        t_exit = t_exit.min((face - ray.ce[a]) * inv_dc[a]);
+                    }
+                }
+                // The rest of the window is passed: the march resumes past the leap.
+                k = lattice_from(t_exit, k + i as u32 + 1, ray.j, inv_step);
+                continue 'march;
+            }
+            if !cubes.visible(cell.b[0], cell.b[1], cell.b[2]) {
+                continue;
+            }
+            batch.push(cell, t, counted);
+            counted = 0;
+            if batch.is_full() && composite_batch(f, &kernel, ray, &mut batch, &mut evaluated, &mut samples, acc) {
+                return samples;
+            }
         }
-        k += 1;
-        if !cubes.visible(cell.b[0], cell.b[1], cell.b[2]) {
-            continue;
-        }
-        samples += 1;
-        let r = f.sampler.grads.interpolate(&cell);
-        let cv = f.table.lookup(r.w);
-        if cv[3] > 0.0 && composite(f, ray, t, cv, f.sampler.world_gradient_ct(r.truncate()), acc) {
-            return samples;
+        k += POINTS as u32;
+    }
+    if !batch.is_empty() && composite_batch(f, &kernel, ray, &mut batch, &mut evaluated, &mut samples, acc) {
+        return samples;
+    }
+    samples + u64::from(counted)
+}
+
+/// The last lattice index a window starts at: `lattice_from`'s cap (2·10⁹, far past any
+/// extent), below which k … k + 7 fit the lanes' `i32`.
+const LAST_WINDOW_K: u32 = 2_000_000_000;
+
+/// Steps 5–7 for a batch of visible samples ([`super::batch`]): evaluated together, then shadowed
+/// and accumulated one after the other in the ray's order, exactly as [`composite`] would have
+/// one at a time. Counts the samples up to the last one composited; returns whether the ray is
+/// done (early termination), and empties the batch.
+#[inline(always)]
+fn composite_batch(
+    f: &Frame,
+    kernel: &Kernel,
+    ray: &Ray,
+    batch: &mut Batch,
+    evaluated: &mut Evaluated,
+    samples: &mut u64,
+    acc: &mut Accum,
+) -> bool {
+    kernel.evaluate(batch, ray.half, evaluated);
+    let n = batch.len();
+    batch.clear();
+    for i in 0..n {
+        *samples += u64::from(batch.counted_before[i]) + 1;
+        let c = evaluated.colour[i];
+        if c[3] > 0.0 {
+            // 6. Shadow, at the sample's world position.
+            let f_shadow = if f.has_shadows {
+                f.shadows.factor(
+                    ray.origin + ray.dir * batch.t[i],
+                    f.light.toward_light,
+                    f.light.shadow_in,
+                )
+            } else {
+                1.0
+            };
+            let shade = evaluated.shade(i, &f.phong, f_shadow);
+            acc.add_premultiplied(Vec3::new(c[0], c[1], c[2]) * shade, c[3]);
+            // 7. Early termination.
+            if f.quality.early_termination && acc.a >= crate::scene::Quality::OPAQUE {
+                return true;
+            }
         }
     }
+    false
 }
 
 /// Steps 5–8 in every other case (motion warp, deformed region, leaping off, no ray/box, visible

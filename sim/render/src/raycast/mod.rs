@@ -3,6 +3,7 @@
 //! Phong shading, the clipping plane and its tagging. Rayon over 16 × 16 pixel tiles; every pixel is a pure
 //! function of the inputs, so the image is bit-identical on any number of threads.
 
+pub mod batch;
 pub mod brick_distance;
 pub mod cube_mask;
 pub mod gradient_volume;
@@ -11,8 +12,11 @@ pub mod march;
 pub mod occupancy;
 pub mod sampler;
 pub mod shading;
+pub mod window;
 
 use rayon::prelude::*;
+
+pub use batch::Lanes;
 
 use crate::image::Image;
 use crate::scene::Scene;
@@ -33,6 +37,12 @@ pub struct RenderOutput {
 
 /// Renders `scene` at `width` × `height` (half resolution: ⌈w/2⌉ × ⌈h/2⌉, upscaled).
 pub fn render(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) -> RenderOutput {
+    render_with(volume, scene, width, height, Lanes::Auto)
+}
+
+/// [`render`] with a choice of sample evaluation: [`Lanes::OneAtATime`] is the reference the SIMD
+/// lanes are tested against (the same pixels, bit for bit).
+pub fn render_with(volume: &RenderVolume, scene: &Scene, width: u32, height: u32, lanes: Lanes) -> RenderOutput {
     if width == 0 || height == 0 {
         return RenderOutput {
             image: Image::new(width, height),
@@ -41,13 +51,13 @@ pub fn render(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) -> 
     }
     if scene.quality.half_resolution {
         let (w, h) = (width.div_ceil(2), height.div_ceil(2));
-        let out = render_full(volume, scene, w, h);
+        let out = render_full(volume, scene, w, h, lanes);
         return RenderOutput {
             image: out.image.upscale(width, height),
             samples: out.samples,
         };
     }
-    render_full(volume, scene, width, height)
+    render_full(volume, scene, width, height, lanes)
 }
 
 /// Side of the square pixel tiles rendered as one task (pixels).
@@ -66,7 +76,7 @@ pub fn usable_step_mm(step_mm: f32) -> f32 {
     }
 }
 
-fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) -> RenderOutput {
+fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32, lanes: Lanes) -> RenderOutput {
     let ct = volume.atlas.ct();
     let grid = *ct.grid();
     let ct_map = IndexMap::of(&grid);
@@ -137,6 +147,7 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32) ->
         primitives: scene.tools.primitives(),
         shadows: crate::shadow::Shadows::from_tools(&scene.tools),
         has_shadows: scene.tools.needle.is_some() || scene.tools.finger.is_some() || scene.tools.probe.is_some(),
+        lanes,
     };
     let mut image = Image::new(width, height);
     let camera = scene.camera;

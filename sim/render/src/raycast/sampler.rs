@@ -110,6 +110,12 @@ impl Grid3<'_> {
         c0 * (1.0 - fz) + c1 * fz
     }
 
+    /// [`Self::locate`]'s constants per axis: n_a − ½ (the inside rule's upper bound), n_a − 1
+    /// (the clamp) and n_a − 2 (the last base voxel).
+    pub fn locate_bounds(&self) -> ([f32; 3], [f32; 3], [u32; 3]) {
+        (self.hi, self.top, self.last_base)
+    }
+
     /// Whether every axis has ≥ 2 voxels and the data holds them all ([`Self::locate`] applies).
     pub fn is_fast(&self) -> bool {
         self.fast
@@ -309,6 +315,11 @@ impl<'a> Sampler<'a> {
             return v;
         }
         self.ct.trilinear(at.ct).unwrap_or(AIR_HU)
+    }
+
+    /// ½ M⁻¹'s rows of the CT ([`Self::world_gradient_ct`]'s factors).
+    pub fn half_rows_ct(&self) -> [Vec3; 3] {
+        self.half_rows_ct
     }
 
     /// The world gradient of index-space differences Δ: ½ Σ_a Δ_a·r_a with r_a the rows of M⁻¹

@@ -43,15 +43,15 @@ pub fn phong_half(g: Vec3, len: f32, h: Vec3, light: &Light, f_shadow: f32) -> f
 /// here (whole numbers up to 256 are raised by squaring), not per sample.
 #[derive(Debug, Clone, Copy)]
 pub struct PhongTerms {
-    toward_light: Vec3,
-    ambient: f32,
-    diffuse: f32,
-    specular: f32,
-    exponent: Exponent,
+    pub(super) toward_light: Vec3,
+    pub(super) ambient: f32,
+    pub(super) diffuse: f32,
+    pub(super) specular: f32,
+    pub(super) exponent: Exponent,
 }
 
 #[derive(Debug, Clone, Copy)]
-enum Exponent {
+pub(super) enum Exponent {
     Whole(u32),
     Real(f32),
 }
@@ -75,6 +75,12 @@ impl PhongTerms {
     /// f for a gradient `g` with |g| = `len` ≥ [`MIN_GRADIENT`] and half vector `h`.
     #[inline(always)]
     pub fn shade(&self, g: Vec3, len: f32, h: Vec3, f_shadow: f32) -> f32 {
+        self.ambient + self.lit(g, len, h) * f_shadow
+    }
+
+    /// The part of f the shadow scales: diffuse·|N·L| + specular·|N·H|^shininess.
+    #[inline(always)]
+    pub fn lit(&self, g: Vec3, len: f32, h: Vec3) -> f32 {
         // N = −g/|g| as one reciprocal and three products (within an ulp of three quotients).
         let n = g * (-1.0 / len);
         let specular = if self.specular > 0.0 {
@@ -87,13 +93,13 @@ impl PhongTerms {
         } else {
             0.0
         };
-        self.ambient + (self.diffuse * n.dot(self.toward_light).abs() + specular) * f_shadow
+        self.diffuse * n.dot(self.toward_light).abs() + specular
     }
 }
 
 /// x^e by repeated squaring: a few multiplications instead of `powf`, equal to within rounding.
 #[inline(always)]
-fn power_whole(x: f32, e: u32) -> f32 {
+pub(super) fn power_whole(x: f32, e: u32) -> f32 {
     let (mut base, mut n, mut r) = (x, e, 1.0f32);
     while n > 0 {
         if n & 1 == 1 {

@@ -1,0 +1,466 @@
+//! Eight visible samples of one ray evaluated together (docs/rendering.md "Sample lanes"): the
+//! march finds the visible lattice points one after the other, as before, but reads, classifies
+//! and lights them eight at a time, then composites them in order. Every number is that of the
+//! one-at-a-time loop bit for bit — the same products and sums of the same values in the same
+//! order, several per instruction (AVX2 where the CPU has it) — so the picture does not change.
+//!
+//! Compositing stays one sample at a time and in order (front-to-back accumulation is a chain),
+//! so early termination stops at the very sample the one-at-a-time loop stops at; the samples of
+//! the last batch beyond it were read for nothing (at most seven per ray).
+
+use stylet_physics::glam::Vec3;
+
+use super::gradient_volume::GradientVolume;
+use super::sampler::Cell;
+use super::shading::{MIN_GRADIENT, PhongTerms};
+use crate::transfer_table::TransferTable;
+
+/// Samples evaluated together.
+pub const LANES: usize = 8;
+
+/// Up to [`LANES`] visible samples of one ray, in the order the ray meets them.
+#[derive(Debug, Clone)]
+pub struct Batch {
+    len: usize,
+    cells: [Cell; LANES],
+    /// The ray parameter of each sample (the shadow is tested at composite time).
+    pub t: [f32; LANES],
+    /// Samples counted just before each entry (air outside the CT at the box's faces), so the
+    /// count stops where the one-at-a-time loop's stops.
+    pub counted_before: [u32; LANES],
+}
+
+impl Default for Batch {
+    fn default() -> Self {
+        Batch {
+            len: 0,
+            cells: [Cell { b: [0; 3], f: [0.0; 3] }; LANES],
+            t: [0.0; LANES],
+            counted_before: [0; LANES],
+        }
+    }
+}
+
+impl Batch {
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    pub fn is_full(&self) -> bool {
+        self.len == LANES
+    }
+
+    /// Adds a located sample (`Grid3::locate` on the records' grid) at ray parameter `t`.
+    #[inline(always)]
+    pub fn push(&mut self, cell: Cell, t: f32, counted_before: u32) {
+        assert!(self.len < LANES, "a batch holds {LANES} samples");
+        self.cells[self.len] = cell;
+        self.t[self.len] = t;
+        self.counted_before[self.len] = counted_before;
+        self.len += 1;
+    }
+
+    pub fn clear(&mut self) {
+        self.len = 0;
+    }
+}
+
+/// What compositing needs of each sample of a batch.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Evaluated {
+    /// The table's (α·r, α·g, α·b, α) at the sample's value.
+    pub colour: [[f32; 4]; LANES],
+    /// diffuse·|N·L| + specular·|N·H|^shininess of eq. 3.2.3 (the part the shadow scales);
+    /// 0 for an unshaded sample.
+    pub lit: [f32; LANES],
+    /// Bit i: sample i's gradient is shorter than [`MIN_GRADIENT`] (unshaded, f = 1).
+    pub unshaded: u8,
+}
+
+impl Default for Evaluated {
+    fn default() -> Self {
+        Evaluated {
+            colour: [[0.0; 4]; LANES],
+            lit: [0.0; LANES],
+            unshaded: 0,
+        }
+    }
+}
+
+impl Evaluated {
+    /// f of eq. 3.2.3 for sample `i` under shadow factor `f_shadow` (`PhongTerms::shade`'s last
+    /// operation).
+    #[inline(always)]
+    pub fn shade(&self, i: usize, phong: &PhongTerms, f_shadow: f32) -> f32 {
+        if self.unshaded & (1 << i) != 0 {
+            1.0
+        } else {
+            phong.ambient + self.lit[i] * f_shadow
+        }
+    }
+}
+
+/// What a batch is evaluated against: the records, the table and the frame's shading terms.
+#[derive(Clone, Copy)]
+pub struct Kernel<'a> {
+    pub grads: &'a GradientVolume,
+    pub table: &'a TransferTable,
+    pub phong: &'a PhongTerms,
+    /// ½ M⁻¹'s rows: ∇s = Σ_a Δ_a·rows[a] (`Sampler::world_gradient_ct`).
+    pub half_rows: [Vec3; 3],
+    /// Evaluate on AVX2 lanes (16-bit records on a CPU with AVX2), else one sample at a time.
+    avx2: bool,
+}
+
+impl<'a> Kernel<'a> {
+    /// The kernel for `grads`: AVX2 lanes when `lanes` allows them, the records are 16-bit
+    /// integers and the CPU has AVX2; else one sample at a time (the reference).
+    pub fn new(
+        grads: &'a GradientVolume,
+        table: &'a TransferTable,
+        phong: &'a PhongTerms,
+        half_rows: [Vec3; 3],
+        lanes: Lanes,
+    ) -> Self {
+        Kernel {
+            grads,
+            table,
+            phong,
+            half_rows,
+            avx2: lanes == Lanes::Auto && grads.is_int16() && avx2_available(),
+        }
+    }
+
+    /// Whether batches go through the AVX2 lanes.
+    pub fn uses_avx2(&self) -> bool {
+        self.avx2
+    }
+
+    /// Reads, classifies and lights the batch's samples for a ray with Phong half vector
+    /// `half`. Entries past `batch.len()` are unspecified.
+    #[inline(always)]
+    pub fn evaluate(&self, batch: &Batch, half: Vec3, out: &mut Evaluated) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2
+            && let super::gradient_volume::RecordSlice::Int16(records) = self.grads.records()
+        {
+            // SAFETY: `avx2` is set only when the CPU has AVX2 (`Kernel::new`); the cells come
+            // from `Grid3::locate` on the records' grid, as `GradientVolume::interpolate` needs.
+            unsafe { avx2::evaluate(self, records, batch, half, out) };
+            return;
+        }
+        self.evaluate_one_at_a_time(batch, half, out);
+    }
+
+    /// The reference: each sample as the one-at-a-time loop computes it.
+    pub fn evaluate_one_at_a_time(&self, batch: &Batch, half: Vec3, out: &mut Evaluated) {
+        out.unshaded = 0;
+        for i in 0..batch.len {
+            let r = self.grads.interpolate(&batch.cells[i]);
+            out.colour[i] = self.table.lookup(r.w);
+            let d = r.truncate();
+            let rows = &self.half_rows;
+            let g = rows[0] * d.x + rows[1] * d.y + rows[2] * d.z;
+            let len = g.length();
+            if len < MIN_GRADIENT {
+                out.unshaded |= 1 << i;
+                out.lit[i] = 0.0;
+            } else {
+                out.lit[i] = self.phong.lit(g, len, half);
+            }
+        }
+    }
+}
+
+/// Which evaluation the ray caster may use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Lanes {
+    /// SIMD lanes where the CPU and the records allow (the same pixels, faster).
+    Auto,
+    /// One sample at a time: the reference the lanes are tested against.
+    OneAtATime,
+}
+
+/// Whether this CPU has AVX2 (false off x86-64).
+pub fn avx2_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use std::arch::x86_64::*;
+
+    use stylet_physics::glam::Vec3;
+
+    use super::super::shading::{Exponent, MIN_GRADIENT};
+    use super::{Batch, Evaluated, Kernel, LANES};
+
+    /// The trilinear read of one cell's eight records, `GradientVolume::interpolate`'s products
+    /// and sums on four lanes: each row's two records (x and x + 1, adjacent) are one 16-byte
+    /// load, widened to eight `f32` and weighted by (1 − f_x, f_x) at once.
+    ///
+    /// # Safety
+    /// AVX2; `o + sy + sz + 1` < `records.len()` (a located cell's base, `lerp8`'s bound).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn interpolate(records: &[[i16; 4]], sy: usize, sz: usize, b: [u32; 3], f: [f32; 3]) -> __m128 {
+        let o = b[0] as usize + sy * b[1] as usize + sz * b[2] as usize;
+        debug_assert!(o + sy + sz + 1 < records.len());
+        let base = records.as_ptr();
+        let (fx, fy, fz) = (f[0], f[1], f[2]);
+        let (gx, gy, gz) = (1.0 - fx, 1.0 - fy, 1.0 - fz);
+        let wx = _mm256_set_m128(_mm_set1_ps(fx), _mm_set1_ps(gx));
+        // SAFETY (all loads): the caller's bound; each reads records i and i + 1 (16 bytes).
+        let row = |i: usize| unsafe {
+            let v = _mm256_cvtepi32_ps(_mm256_cvtepi16_epi32(_mm_loadu_si128(base.add(i).cast())));
+            let p = _mm256_mul_ps(v, wx);
+            // (record i)·(1 − f_x) + (record i + 1)·f_x, as `lerp8`.
+            _mm_add_ps(_mm256_castps256_ps128(p), _mm256_extractf128_ps::<1>(p))
+        };
+        let c00 = row(o);
+        let c10 = row(o + sy);
+        let c01 = row(o + sz);
+        let c11 = row(o + sz + sy);
+        let (gy, fy, gz, fz) = (_mm_set1_ps(gy), _mm_set1_ps(fy), _mm_set1_ps(gz), _mm_set1_ps(fz));
+        let c0 = _mm_add_ps(_mm_mul_ps(c00, gy), _mm_mul_ps(c10, fy));
+        let c1 = _mm_add_ps(_mm_mul_ps(c01, gy), _mm_mul_ps(c11, fy));
+        _mm_add_ps(_mm_mul_ps(c0, gz), _mm_mul_ps(c1, fz))
+    }
+
+    /// (a·x + b·y) + c·z per lane: glam's `Vec3::dot` order and the world gradient's.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn dot(a: __m256, b: __m256, c: __m256, x: __m256, y: __m256, z: __m256) -> __m256 {
+        _mm256_add_ps(
+            _mm256_add_ps(_mm256_mul_ps(a, x), _mm256_mul_ps(b, y)),
+            _mm256_mul_ps(c, z),
+        )
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn splat(v: f32) -> __m256 {
+        _mm256_set1_ps(v)
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn abs(v: __m256) -> __m256 {
+        _mm256_andnot_ps(_mm256_set1_ps(-0.0), v)
+    }
+
+    /// `Kernel::evaluate_one_at_a_time` on eight lanes.
+    ///
+    /// # Safety
+    /// AVX2, and `records` are `kernel.grads`' records with every batch cell located on them.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn evaluate(
+        kernel: &Kernel,
+        records: &[[i16; 4]],
+        batch: &Batch,
+        half: Vec3,
+        out: &mut Evaluated,
+    ) {
+        let (sy, sz) = kernel.grads.strides();
+        // 1. Each sample's (Δx, Δy, Δz, s) and its colour; unused lanes repeat sample 0.
+        let mut r = [_mm_setzero_ps(); LANES];
+        for (i, ri) in r.iter_mut().enumerate() {
+            let cell = &batch.cells[if i < batch.len { i } else { 0 }];
+            // SAFETY: the caller's contract.
+            *ri = unsafe { interpolate(records, sy, sz, cell.b, cell.f) };
+            if i < batch.len {
+                out.colour[i] = kernel.table.lookup(f32::from_bits(_mm_extract_ps::<3>(*ri) as u32));
+            }
+        }
+        // 2. Transposed: Δx, Δy, Δz of the eight samples, one register each.
+        let a = _mm256_set_m128(r[4], r[0]);
+        let b = _mm256_set_m128(r[5], r[1]);
+        let c = _mm256_set_m128(r[6], r[2]);
+        let d = _mm256_set_m128(r[7], r[3]);
+        let ab_lo = _mm256_unpacklo_ps(a, b); // x0 x1 y0 y1 | x4 x5 y4 y5
+        let cd_lo = _mm256_unpacklo_ps(c, d); // x2 x3 y2 y3 | x6 x7 y6 y7
+        let ab_hi = _mm256_unpackhi_ps(a, b); // z0 z1 w0 w1 | …
+        let cd_hi = _mm256_unpackhi_ps(c, d);
+        let dx = _mm256_shuffle_ps::<0x44>(ab_lo, cd_lo);
+        let dy = _mm256_shuffle_ps::<0xEE>(ab_lo, cd_lo);
+        let dz = _mm256_shuffle_ps::<0x44>(ab_hi, cd_hi);
+        // 3. ∇s = rows[0]·Δx + rows[1]·Δy + rows[2]·Δz, per component.
+        let [r0, r1, r2] = kernel.half_rows;
+        let gx = dot(splat(r0.x), splat(r1.x), splat(r2.x), dx, dy, dz);
+        let gy = dot(splat(r0.y), splat(r1.y), splat(r2.y), dx, dy, dz);
+        let gz = dot(splat(r0.z), splat(r1.z), splat(r2.z), dx, dy, dz);
+        // 4. |∇s|, and N = ∇s·(−1/|∇s|) (`PhongTerms::lit`).
+        let len = _mm256_sqrt_ps(dot(gx, gy, gz, gx, gy, gz));
+        let unshaded = _mm256_cmp_ps::<_CMP_LT_OQ>(len, splat(MIN_GRADIENT));
+        let inv = _mm256_div_ps(splat(-1.0), len);
+        let (nx, ny, nz) = (_mm256_mul_ps(gx, inv), _mm256_mul_ps(gy, inv), _mm256_mul_ps(gz, inv));
+        let p = kernel.phong;
+        let specular = if p.specular > 0.0 {
+            let x = abs(dot(nx, ny, nz, splat(half.x), splat(half.y), splat(half.z)));
+            let power = match p.exponent {
+                Exponent::Whole(e) => {
+                    // `power_whole` on every lane: the same products in the same order.
+                    let (mut base, mut n, mut r) = (x, e, splat(1.0));
+                    while n > 0 {
+                        if n & 1 == 1 {
+                            r = _mm256_mul_ps(r, base);
+                        }
+                        base = _mm256_mul_ps(base, base);
+                        n >>= 1;
+                    }
+                    r
+                }
+                Exponent::Real(e) => {
+                    let mut lanes = [0.0f32; LANES];
+                    // SAFETY: 8 floats into 8 floats.
+                    unsafe { _mm256_storeu_ps(lanes.as_mut_ptr(), x) };
+                    let lanes = lanes.map(|v| v.powf(e));
+                    // SAFETY: as above.
+                    unsafe { _mm256_loadu_ps(lanes.as_ptr()) }
+                }
+            };
+            _mm256_mul_ps(splat(p.specular), power)
+        } else {
+            _mm256_setzero_ps()
+        };
+        let l = p.toward_light;
+        let diffuse = abs(dot(nx, ny, nz, splat(l.x), splat(l.y), splat(l.z)));
+        let lit = _mm256_add_ps(_mm256_mul_ps(splat(p.diffuse), diffuse), specular);
+        // Unshaded lanes hold 0, as the reference writes.
+        let lit = _mm256_andnot_ps(unshaded, lit);
+        // SAFETY: 8 floats into `lit`'s 8.
+        unsafe { _mm256_storeu_ps(out.lit.as_mut_ptr(), lit) };
+        let live = (1u32 << batch.len) - 1;
+        out.unshaded = (_mm256_movemask_ps(unshaded) as u32 & live) as u8;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::Light;
+    use crate::transfer::{TransferFunction, Trapezoid};
+    use stylet_physics::glam::Vec3;
+
+    fn ct(dims: [usize; 3]) -> Vec<f32> {
+        let mut v = Vec::with_capacity(dims.iter().product());
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                for i in 0..dims[0] {
+                    // Edges, and a flat block whose inside has no gradient (unshaded).
+                    let x = ((i * 37 + j * 11 + k * 5) % 23) as f32;
+                    v.push(if i < 5 && j < 5 && k < 5 {
+                        40.0
+                    } else {
+                        x * 90.0 - 1000.0
+                    });
+                }
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn lanes_give_the_bits_of_one_sample_at_a_time() {
+        if !avx2_available() {
+            eprintln!("this CPU has no AVX2: the lanes are not used here, nothing to compare");
+        }
+        let dims = [9usize, 8, 7];
+        let data = ct(dims);
+        let d = dims.map(|n| n as u32);
+        let grads = GradientVolume::new(&data, d);
+        let grid = super::super::sampler::Grid3::new(&data, d);
+        let tf = TransferFunction::Trapezoids(vec![Trapezoid {
+            tissue: "soft".into(),
+            hu: [-400.0, -100.0, 300.0, 900.0],
+            rgb: [0.9, 0.6, 0.5],
+            opacity: 0.7,
+            weight: 1.0,
+        }]);
+        let table = TransferTable::new(&tf, -1024.0, 1200.0, 0.5);
+        let rows = [
+            Vec3::new(0.7, 0.1, 0.0),
+            Vec3::new(-0.1, 0.8, 0.05),
+            Vec3::new(0.0, 0.02, 0.3),
+        ];
+        for shininess in [0.0, 1.0, 20.0, 7.5] {
+            for specular in [0.0, 0.4] {
+                let light = Light {
+                    toward_light: Vec3::new(0.3, -0.5, 0.8).normalize(),
+                    ambient: 0.25,
+                    diffuse: 0.6,
+                    specular,
+                    shininess,
+                    shadow_in: 0.3,
+                };
+                let phong = PhongTerms::new(&light);
+                let lanes = Kernel::new(&grads, &table, &phong, rows, Lanes::Auto);
+                let one = Kernel::new(&grads, &table, &phong, rows, Lanes::OneAtATime);
+                assert_eq!(lanes.uses_avx2(), avx2_available());
+                assert!(!one.uses_avx2());
+                let mut batch = Batch::default();
+                let (mut n, mut unshaded) = (0, 0);
+                for s in 0..600 {
+                    let f = s as f32;
+                    let c = Vec3::new(
+                        (f * 0.37).sin() * 4.6 + 4.0,
+                        (f * 0.11).cos() * 4.1 + 3.5,
+                        (f * 0.23).sin() * 3.6 + 3.0,
+                    ) * if s % 3 == 0 { 0.45 } else { 1.0 };
+                    let Some(cell) = grid.locate(c) else { continue };
+                    batch.push(cell, f, 0);
+                    // Full batches and, every so often, a short one.
+                    if batch.is_full() || s % 97 == 0 {
+                        let half = Vec3::new(f.sin(), 0.4, f.cos()).normalize();
+                        let (mut a, mut b) = (Evaluated::default(), Evaluated::default());
+                        lanes.evaluate(&batch, half, &mut a);
+                        one.evaluate(&batch, half, &mut b);
+                        for i in 0..batch.len() {
+                            assert_eq!(a.colour[i].map(f32::to_bits), b.colour[i].map(f32::to_bits), "{s}/{i}");
+                            assert_eq!(a.lit[i].to_bits(), b.lit[i].to_bits(), "sample {s}, lane {i}");
+                            for f_shadow in [1.0, 0.3] {
+                                let want = if b.unshaded & (1 << i) != 0 {
+                                    1.0
+                                } else {
+                                    let g = {
+                                        let r = grads.interpolate(&batch.cells[i]);
+                                        rows[0] * r.x + rows[1] * r.y + rows[2] * r.z
+                                    };
+                                    phong.shade(g, g.length(), half, f_shadow)
+                                };
+                                assert_eq!(a.shade(i, &phong, f_shadow).to_bits(), want.to_bits());
+                            }
+                        }
+                        assert_eq!(a.unshaded, b.unshaded, "sample {s}");
+                        unshaded += b.unshaded.count_ones() as usize;
+                        n += batch.len();
+                        batch.clear();
+                    }
+                }
+                assert!(n > 400, "{n} samples compared");
+                assert!(unshaded > 0 && unshaded < n, "{unshaded} of {n} samples unshaded");
+            }
+        }
+    }
+
+    #[test]
+    #[should_panic(expected = "a batch holds 8 samples")]
+    fn a_ninth_sample_is_refused() {
+        let mut batch = Batch::default();
+        let cell = Cell { b: [0; 3], f: [0.0; 3] };
+        for _ in 0..=LANES {
+            batch.push(cell, 0.0, 0);
+        }
+    }
+}
