@@ -135,6 +135,27 @@ impl<'a> Kernel<'a> {
         }
     }
 
+    /// Asks the CPU to start loading the four record rows a located sample will read (the batch
+    /// reads them only once it is full, up to seven samples later).
+    #[inline(always)]
+    pub fn prefetch(&self, cell: &Cell) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2
+            && let super::gradient_volume::RecordSlice::Int16(records) = self.grads.records()
+        {
+            use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+            let (sy, sz) = self.grads.strides();
+            let o = cell.b[0] as usize + sy * cell.b[1] as usize + sz * cell.b[2] as usize;
+            let p = records.as_ptr().cast::<i8>();
+            // A prefetch never faults; the offsets are those `interpolate` reads.
+            for i in [o, o + sy, o + sz, o + sy + sz] {
+                // SAFETY: `_mm_prefetch` is a hint (SSE, part of x86-64) and reads nothing;
+                // `wrapping_add` keeps the address computation defined.
+                unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(i * 8)) };
+            }
+        }
+    }
+
     /// Whether batches go through the AVX2 lanes.
     pub fn uses_avx2(&self) -> bool {
         self.avx2

@@ -274,6 +274,7 @@ fn lattice_bricks(f: &Frame, cubes: &CubeMask, ray: &Ray, k0: u32, acc: &mut Acc
             if !cubes.visible(cell.b[0], cell.b[1], cell.b[2]) {
                 continue;
             }
+            kernel.prefetch(&cell);
             batch.push(cell, t, counted);
             counted = 0;
             if batch.is_full() && composite_batch(f, &kernel, ray, &mut batch, &mut evaluated, &mut samples, acc) {
