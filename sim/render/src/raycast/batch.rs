@@ -20,7 +20,7 @@ pub const LANES: usize = 8;
 
 /// Up to [`LANES`] visible samples of one ray, in the order the ray meets them.
 #[derive(Debug, Clone)]
-pub struct Batch {
+pub(crate) struct Batch {
     len: usize,
     cells: [Cell; LANES],
     /// The ray parameter of each sample (the shadow is tested at composite time).
@@ -71,7 +71,7 @@ impl Batch {
 
 /// What compositing needs of each sample of a batch.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Evaluated {
+pub(crate) struct Evaluated {
     /// The table's (α·r, α·g, α·b, α) at the sample's value.
     pub colour: [[f32; 4]; LANES],
     /// diffuse·|N·L| + specular·|N·H|^shininess of eq. 3.2.3 (the part the shadow scales);
@@ -106,7 +106,7 @@ impl Evaluated {
 
 /// What a batch is evaluated against: the records, the table and the frame's shading terms.
 #[derive(Clone, Copy)]
-pub struct Kernel<'a> {
+pub(crate) struct Kernel<'a> {
     pub grads: &'a GradientVolume,
     pub table: &'a TransferTable,
     pub phong: &'a PhongTerms,
@@ -157,6 +157,7 @@ impl<'a> Kernel<'a> {
     }
 
     /// Whether batches go through the AVX2 lanes.
+    #[cfg(test)]
     pub fn uses_avx2(&self) -> bool {
         self.avx2
     }

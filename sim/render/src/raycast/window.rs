@@ -13,7 +13,7 @@ pub const POINTS: usize = 8;
 
 /// Lattice points k … k + 7 of a ray, located in the CT grid.
 #[derive(Debug, Clone, Copy)]
-pub struct Window {
+pub(crate) struct Window {
     /// t of each point.
     pub t: [f32; POINTS],
     /// Base voxel per axis and point (meaningful where `inside` is set).
@@ -48,7 +48,7 @@ impl Window {
 
 /// A ray's lattice in CT index space: c(t) = `ce` + t·`dc` at t_k = (k + `j`)·`step`.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Lattice {
+pub(crate) struct Lattice {
     pub ce: Vec3,
     pub dc: Vec3,
     pub j: f32,
@@ -57,7 +57,7 @@ pub struct Lattice {
 
 /// How the window is computed: AVX2 lanes, or one point at a time (the reference).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Placer {
+pub(crate) struct Placer {
     avx2: bool,
 }
 
@@ -88,7 +88,7 @@ impl Placer {
 }
 
 /// The reference: the march's own formulas, one point after the other.
-pub fn place_one_at_a_time(grid: &Grid3, lattice: &Lattice, k: u32, out: &mut Window) {
+pub(crate) fn place_one_at_a_time(grid: &Grid3, lattice: &Lattice, k: u32, out: &mut Window) {
     let Lattice { ce, dc, j, step } = *lattice;
     out.inside = 0;
     for i in 0..POINTS {
