@@ -217,13 +217,14 @@ const BOX_MARGIN: f32 = 1e-3;
 /// point sampled. Points are placed eight at a time ([`super::window`]) and the visible ones read
 /// and lit eight at a time ([`super::batch`]), with the numbers of one at a time; a march that
 /// would pass lattice index 2·10⁹ (a ray kilometres long) stops there.
-fn lattice_bricks(f: &Frame, cubes: &CubeMask, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
+fn lattice_bricks<const LANES: bool>(f: &Frame, cubes: &CubeMask, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
     let step = f.quality.step_mm;
     let inv_step = 1.0 / step;
     let inv_dc = ray.dc.recip();
     let bricks = cubes.bricks();
     let kernel = Kernel::new(f.sampler.grads, &f.table, &f.phong, f.sampler.half_rows_ct(), f.lanes);
     let placer = Placer::new(f.lanes);
+    debug_assert_eq!(placer.uses_lanes(), LANES);
     let lattice_of_ray = Lattice {
         ce: ray.ce,
         dc: ray.dc,
@@ -241,11 +242,11 @@ fn lattice_bricks(f: &Frame, cubes: &CubeMask, ray: &Ray, k0: u32, acc: &mut Acc
         // Lattice points k … k + 7, placed and located together; visited in order below.
         placer.place(&f.sampler.ct, &lattice_of_ray, k, &mut window);
         for i in 0..POINTS {
-            let t = window.t[i];
+            let (t, cell) = placer.point::<LANES>(&f.sampler.ct, &lattice_of_ray, &window, k, i);
             if t > ray.t_hi || t >= ray.t_tool {
                 break 'march;
             }
-            let Some(cell) = window.cell(i) else {
+            let Some(cell) = cell else {
                 // Air outside the CT (rounding at the box's faces), invisible on this path.
                 counted += 1;
                 continue;
@@ -487,7 +488,11 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
         };
         samples += match (&f.cubes, warp.as_mut()) {
             (Some(cubes), None) if f.sampler.deformed.is_none() && q.ray_box && !f.sample_outside => {
-                lattice_bricks(f, cubes, &ray, k0, &mut acc)
+                if Placer::new(f.lanes).uses_lanes() {
+                    lattice_bricks::<true>(f, cubes, &ray, k0, &mut acc)
+                } else {
+                    lattice_bricks::<false>(f, cubes, &ray, k0, &mut acc)
+                }
             }
             _ => lattice_general(f, &ray, k0, warp.as_mut(), at_t, &mut acc),
         };

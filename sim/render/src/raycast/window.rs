@@ -70,7 +70,9 @@ impl Placer {
     }
 
     /// Points k … k + 7 of `lattice`, located in `grid` (one with ≥ 2 voxels per axis:
-    /// `Grid3::is_fast`). `k` + 7 must fit an `i32`.
+    /// `Grid3::is_fast`), on the lanes. Without them nothing is placed ahead: [`Self::point`]
+    /// places each point when the march asks for it (a leap would waste the rest). `k` + 7 must
+    /// fit an `i32`.
     #[inline(always)]
     pub fn place(&self, grid: &Grid3, lattice: &Lattice, k: u32, out: &mut Window) {
         assert!(
@@ -81,14 +83,40 @@ impl Placer {
         if self.avx2 {
             // SAFETY: `avx2` is set only when the CPU has AVX2 (`Placer::new`).
             unsafe { avx2::place(grid, lattice, k, out) };
-            return;
         }
-        place_one_at_a_time(grid, lattice, k, out);
+        let _ = (grid, lattice, out);
+    }
+
+    /// Whether points are placed on the lanes (the march is compiled once for each answer).
+    pub fn uses_lanes(&self) -> bool {
+        self.avx2
+    }
+
+    /// Point k + `i` of the window [`Self::place`] placed at k: its t and, when it lies inside,
+    /// its cell. `LANES` must be [`Self::uses_lanes`] (a constant, so the march's loop has no
+    /// branch for it).
+    #[inline(always)]
+    pub fn point<const LANES: bool>(
+        &self,
+        grid: &Grid3,
+        lattice: &Lattice,
+        window: &Window,
+        k: u32,
+        i: usize,
+    ) -> (f32, Option<Cell>) {
+        debug_assert_eq!(LANES, self.avx2);
+        if LANES {
+            (window.t[i], window.cell(i))
+        } else {
+            let t = (((k + i as u32) as f32) + lattice.j) * lattice.step;
+            (t, grid.locate(lattice.ce + lattice.dc * t))
+        }
     }
 }
 
-/// The reference: the march's own formulas, one point after the other.
-pub(crate) fn place_one_at_a_time(grid: &Grid3, lattice: &Lattice, k: u32, out: &mut Window) {
+/// The reference: the march's own formulas, one point after the other (the lanes' test).
+#[cfg(test)]
+fn place_one_at_a_time(grid: &Grid3, lattice: &Lattice, k: u32, out: &mut Window) {
     let Lattice { ce, dc, j, step } = *lattice;
     out.inside = 0;
     for i in 0..POINTS {
@@ -194,7 +222,21 @@ mod tests {
             for k in [0u32, 1, 2, 3, 5, 8, 13, 17, 24, 40, 1_000_000, i32::MAX as u32 - 7] {
                 let lattice = Lattice { ce, dc, j, step };
                 lanes.place(&grid, &lattice, k, &mut a);
-                one.place(&grid, &lattice, k, &mut b);
+                place_one_at_a_time(&grid, &lattice, k, &mut b);
+                // What the march reads, with and without lanes.
+                for i in 0..POINTS {
+                    let (ta, ca) = if lanes.uses_lanes() {
+                        lanes.point::<true>(&grid, &lattice, &a, k, i)
+                    } else {
+                        lanes.point::<false>(&grid, &lattice, &a, k, i)
+                    };
+                    let (tb, cb) = one.point::<false>(&grid, &lattice, &Window::default(), k, i);
+                    assert_eq!(ta.to_bits(), tb.to_bits(), "ray {r}, k {k}, point {i}");
+                    assert_eq!(
+                        ca.map(|c| (c.b, c.f.map(f32::to_bits))),
+                        cb.map(|c| (c.b, c.f.map(f32::to_bits)))
+                    );
+                }
                 assert_eq!(a.t.map(f32::to_bits), b.t.map(f32::to_bits), "ray {r}, k {k}");
                 assert_eq!(a.inside, b.inside, "ray {r}, k {k}");
                 for i in 0..POINTS {
