@@ -103,9 +103,10 @@ fn inside_by(c: Vec3, dims: [u32; 3], margin: Vec3) -> bool {
     (0..3).all(|a| c[a] >= -0.5 - margin[a] && c[a] < dims[a] as f32 - 0.5 + margin[a])
 }
 
-/// t_k = (k + j)·Δ: the only formula for a lattice point.
+/// t_k = (k + j)·Δ: the only formula for a lattice point (the SIMD lanes of
+/// [`super::window`] do the same operations).
 #[inline]
-fn lattice(k: u32, j: f32, step: f32) -> f32 {
+pub(super) fn lattice(k: u32, j: f32, step: f32) -> f32 {
     (k as f32 + j) * step
 }
 
@@ -214,9 +215,11 @@ const BOX_MARGIN: f32 = 1e-3;
 /// box of bricks within d − 1 (k ← max(k + 1, ⌈t_exit/Δ − j − 10⁻³⌉), as step 8); else a point
 /// whose own cube is invisible is passed alone ([`CubeMask`]), and the rest are sampled. Only
 /// samples that interpolate invisible values are passed: the picture is that of every lattice
-/// point sampled. Points are placed eight at a time ([`super::window`]) and the visible ones read
-/// and lit eight at a time ([`super::batch`]), with the numbers of one at a time; a march that
-/// would pass lattice index 2·10⁹ (a ray kilometres long) stops there.
+/// point sampled. With SIMD lanes (`LANES`, docs/rendering.md "Sample lanes") points are placed
+/// eight at a time ([`super::window`]) and the visible ones read and lit eight at a time
+/// ([`super::batch`]), with the numbers of one at a time; without, each point is placed when the
+/// march reaches it. A march that would pass lattice index 2·10⁹ (a ray kilometres long) stops
+/// there.
 fn lattice_bricks<const LANES: bool>(f: &Frame, cubes: &CubeMask, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
     let step = f.quality.step_mm;
     let inv_step = 1.0 / step;
@@ -239,7 +242,7 @@ fn lattice_bricks<const LANES: bool>(f: &Frame, cubes: &CubeMask, ray: &Ray, k0:
     let mut counted = 0u32;
     let mut k = k0;
     'march: while k <= LAST_WINDOW_K {
-        // Lattice points k … k + 7, placed and located together; visited in order below.
+        // Lattice points k … k + 7 (placed and located together on the lanes), in order.
         placer.place(&f.sampler.ct, &lattice_of_ray, k, &mut window);
         for i in 0..POINTS {
             let (t, cell) = placer.point::<LANES>(&f.sampler.ct, &lattice_of_ray, &window, k, i);
@@ -309,9 +312,8 @@ fn composite_batch(
     acc: &mut Accum,
 ) -> bool {
     kernel.evaluate(batch, ray.half, evaluated);
-    let n = batch.len();
-    batch.clear();
-    for i in 0..n {
+    let mut done = false;
+    for i in 0..batch.len() {
         *samples += u64::from(batch.counted_before[i]) + 1;
         let c = evaluated.colour[i];
         if c[3] > 0.0 {
@@ -329,11 +331,13 @@ fn composite_batch(
             acc.add_premultiplied(Vec3::new(c[0], c[1], c[2]) * shade, c[3]);
             // 7. Early termination.
             if f.quality.early_termination && acc.a >= crate::scene::Quality::OPAQUE {
-                return true;
+                done = true;
+                break;
             }
         }
     }
-    false
+    batch.clear();
+    done
 }
 
 /// Steps 5–8 in every other case (motion warp, deformed region, leaping off, no ray/box, visible

@@ -2,7 +2,8 @@
 //! "Sample lanes"): t_k = (k + j)·Δ, c = c_e + t·c_r and `Grid3::locate` (the inside rule, the
 //! clamp, the base voxel and the fractions) for k … k + 7, on AVX2 lanes where the CPU has them.
 //! Every number is the one the march computes one point at a time, bit for bit; the march then
-//! visits the points in order and drops the rest of a window when it leaps.
+//! visits the points in order and drops the rest of a window when it leaps. Without the lanes
+//! each point is placed only when the march reaches it (`Placer::point`).
 
 use stylet_physics::glam::Vec3;
 
@@ -108,7 +109,7 @@ impl Placer {
         if LANES {
             (window.t[i], window.cell(i))
         } else {
-            let t = (((k + i as u32) as f32) + lattice.j) * lattice.step;
+            let t = super::march::lattice(k + i as u32, lattice.j, lattice.step);
             (t, grid.locate(lattice.ce + lattice.dc * t))
         }
     }
@@ -120,7 +121,7 @@ fn place_one_at_a_time(grid: &Grid3, lattice: &Lattice, k: u32, out: &mut Window
     let Lattice { ce, dc, j, step } = *lattice;
     out.inside = 0;
     for i in 0..POINTS {
-        let t = (((k + i as u32) as f32) + j) * step;
+        let t = super::march::lattice(k + i as u32, j, step);
         out.t[i] = t;
         if let Some(cell) = grid.locate(ce + dc * t) {
             out.inside |= 1 << i;
