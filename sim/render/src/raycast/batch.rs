@@ -11,7 +11,7 @@
 use stylet_physics::glam::Vec3;
 
 use super::gradient_volume::GradientVolume;
-use super::sampler::Cell;
+use super::sampler::{Cell, world_gradient};
 use super::shading::{MIN_GRADIENT, PhongTerms};
 use crate::transfer_table::TransferTable;
 
@@ -110,28 +110,28 @@ pub(crate) struct Kernel<'a> {
     pub grads: &'a GradientVolume,
     pub table: &'a TransferTable,
     pub phong: &'a PhongTerms,
-    /// ½ M⁻¹'s rows: ∇s = Σ_a Δ_a·rows[a] (`Sampler::world_gradient_ct`).
+    /// ½ M⁻¹'s rows: ∇s = Σ_a Δ_a·rows[a] ([`world_gradient`]).
     pub half_rows: [Vec3; 3],
     /// Evaluate on AVX2 lanes (16-bit records on a CPU with AVX2), else one sample at a time.
-    avx2: bool,
+    avx2: Option<Avx2>,
 }
 
 impl<'a> Kernel<'a> {
-    /// The kernel for `grads`: AVX2 lanes when `lanes` allows them, the records are 16-bit
-    /// integers and the CPU has AVX2; else one sample at a time (the reference).
+    /// The kernel for `grads`: AVX2 lanes when `avx2` is given and the records are 16-bit
+    /// integers; else one sample at a time (the reference).
     pub fn new(
         grads: &'a GradientVolume,
         table: &'a TransferTable,
         phong: &'a PhongTerms,
         half_rows: [Vec3; 3],
-        lanes: Lanes,
+        avx2: Option<Avx2>,
     ) -> Self {
         Kernel {
             grads,
             table,
             phong,
             half_rows,
-            avx2: lanes == Lanes::Auto && grads.is_int16() && avx2_available(),
+            avx2: avx2.filter(|_| grads.is_int16()),
         }
     }
 
@@ -140,7 +140,7 @@ impl<'a> Kernel<'a> {
     #[inline(always)]
     pub fn prefetch(&self, cell: &Cell) {
         #[cfg(target_arch = "x86_64")]
-        if self.avx2
+        if self.avx2.is_some()
             && let super::gradient_volume::RecordSlice::Int16(records) = self.grads.records()
         {
             use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
@@ -159,7 +159,7 @@ impl<'a> Kernel<'a> {
     /// Whether batches go through the AVX2 lanes.
     #[cfg(test)]
     pub fn uses_avx2(&self) -> bool {
-        self.avx2
+        self.avx2.is_some()
     }
 
     /// Reads, classifies and lights the batch's samples for a ray with Phong half vector
@@ -167,10 +167,10 @@ impl<'a> Kernel<'a> {
     #[inline(always)]
     pub fn evaluate(&self, batch: &Batch, half: Vec3, out: &mut Evaluated) {
         #[cfg(target_arch = "x86_64")]
-        if self.avx2
+        if self.avx2.is_some()
             && let super::gradient_volume::RecordSlice::Int16(records) = self.grads.records()
         {
-            // SAFETY: `avx2` is set only when the CPU has AVX2 (`Kernel::new`); the cells come
+            // SAFETY: an `Avx2` exists only when the CPU has AVX2 (`Avx2::detect`); the cells come
             // from `Grid3::locate` on the records' grid, as `GradientVolume::interpolate` needs.
             unsafe { avx2::evaluate(self, records, batch, half, out) };
             return;
@@ -184,9 +184,7 @@ impl<'a> Kernel<'a> {
         for i in 0..batch.len {
             let r = self.grads.interpolate(&batch.cells[i]);
             out.colour[i] = self.table.lookup(r.w);
-            let d = r.truncate();
-            let rows = &self.half_rows;
-            let g = rows[0] * d.x + rows[1] * d.y + rows[2] * d.z;
+            let g = world_gradient(&self.half_rows, r.truncate());
             let len = g.length();
             if len < MIN_GRADIENT {
                 out.unshaded |= 1 << i;
@@ -205,6 +203,18 @@ pub enum Lanes {
     Auto,
     /// One sample at a time: the reference the lanes are tested against.
     OneAtATime,
+}
+
+/// Proof that this CPU has AVX2 and the lanes were asked for: only [`Avx2::detect`] makes one,
+/// once per frame, so the lane kernels' safety rests on it rather than on a flag.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Avx2(());
+
+impl Avx2 {
+    /// `Some` when `lanes` is [`Lanes::Auto`] and the CPU has AVX2.
+    pub fn detect(lanes: Lanes) -> Option<Avx2> {
+        (lanes == Lanes::Auto && avx2_available()).then_some(Avx2(()))
+    }
 }
 
 /// Whether this CPU has AVX2 (false off x86-64).
@@ -427,8 +437,8 @@ mod tests {
                     shadow_in: 0.3,
                 };
                 let phong = PhongTerms::new(&light);
-                let lanes = Kernel::new(&grads, &table, &phong, rows, Lanes::Auto);
-                let one = Kernel::new(&grads, &table, &phong, rows, Lanes::OneAtATime);
+                let lanes = Kernel::new(&grads, &table, &phong, rows, Avx2::detect(Lanes::Auto));
+                let one = Kernel::new(&grads, &table, &phong, rows, Avx2::detect(Lanes::OneAtATime));
                 assert_eq!(lanes.uses_avx2(), avx2_available());
                 assert!(!one.uses_avx2());
                 let mut batch = Batch::default();

@@ -5,7 +5,7 @@ use stylet_physics::glam::{DVec3, Vec3};
 
 use std::sync::Arc;
 
-use super::batch::{Batch, Evaluated, Kernel, Lanes};
+use super::batch::{Avx2, Batch, Evaluated, Kernel};
 use super::cube_mask::CubeMask;
 use super::jitter::jitter;
 use super::occupancy::Occupancy;
@@ -55,8 +55,9 @@ pub struct Frame<'a> {
     pub shadows: Shadows,
     /// Whether any tool casts a shadow (else f_shadow = 1 without testing).
     pub has_shadows: bool,
-    /// Whether the common frame's samples may be evaluated on SIMD lanes ([`super::batch`]).
-    pub lanes: Lanes,
+    /// The SIMD lanes for the common frame's points and samples ([`super::batch`],
+    /// [`super::window`]), when asked for and the CPU has them (detected once per frame).
+    pub(crate) avx2: Option<Avx2>,
 }
 
 /// "No hit" distance for the tools (no infinities, as in tools.rs and the WGSL port).
@@ -167,6 +168,21 @@ struct Ray {
 /// premultiplied (α·rgb, α). Returns whether the ray is done (early termination).
 #[inline(always)]
 fn composite(f: &Frame, ray: &Ray, t: f32, c: [f32; 4], g: Vec3, acc: &mut Accum) -> bool {
+    let len = g.length();
+    let shade = |f_shadow| {
+        if len < MIN_GRADIENT {
+            1.0
+        } else {
+            f.phong.shade(g, len, ray.half, f_shadow)
+        }
+    };
+    accumulate(f, ray, t, c, shade, acc)
+}
+
+/// Steps 6–7 once f is known as a function of the shadow factor (`shade`): the shadow at the
+/// sample's world position, the front-to-back accumulation, and whether the ray is done.
+#[inline(always)]
+fn accumulate(f: &Frame, ray: &Ray, t: f32, c: [f32; 4], shade: impl FnOnce(f32) -> f32, acc: &mut Accum) -> bool {
     // 6. Shadow, at the sample's world position.
     let f_shadow = if f.has_shadows {
         f.shadows
@@ -174,13 +190,7 @@ fn composite(f: &Frame, ray: &Ray, t: f32, c: [f32; 4], g: Vec3, acc: &mut Accum
     } else {
         1.0
     };
-    let len = g.length();
-    let shade = if len < MIN_GRADIENT {
-        1.0
-    } else {
-        f.phong.shade(g, len, ray.half, f_shadow)
-    };
-    acc.add_premultiplied(Vec3::new(c[0], c[1], c[2]) * shade, c[3]);
+    acc.add_premultiplied(Vec3::new(c[0], c[1], c[2]) * shade(f_shadow), c[3]);
     // 7. Early termination.
     f.quality.early_termination && acc.a >= crate::scene::Quality::OPAQUE
 }
@@ -225,8 +235,8 @@ fn lattice_bricks<const LANES: bool>(f: &Frame, cubes: &CubeMask, ray: &Ray, k0:
     let inv_step = 1.0 / step;
     let inv_dc = ray.dc.recip();
     let bricks = cubes.bricks();
-    let kernel = Kernel::new(f.sampler.grads, &f.table, &f.phong, f.sampler.half_rows_ct(), f.lanes);
-    let placer = Placer::new(f.lanes);
+    let kernel = Kernel::new(f.sampler.grads, &f.table, &f.phong, f.sampler.half_rows_ct(), f.avx2);
+    let placer = Placer::new(f.avx2);
     debug_assert_eq!(placer.uses_lanes(), LANES);
     let lattice_of_ray = Lattice {
         ce: ray.ce,
@@ -316,24 +326,10 @@ fn composite_batch(
     for i in 0..batch.len() {
         *samples += u64::from(batch.counted_before[i]) + 1;
         let c = evaluated.colour[i];
-        if c[3] > 0.0 {
-            // 6. Shadow, at the sample's world position.
-            let f_shadow = if f.has_shadows {
-                f.shadows.factor(
-                    ray.origin + ray.dir * batch.t[i],
-                    f.light.toward_light,
-                    f.light.shadow_in,
-                )
-            } else {
-                1.0
-            };
-            let shade = evaluated.shade(i, &f.phong, f_shadow);
-            acc.add_premultiplied(Vec3::new(c[0], c[1], c[2]) * shade, c[3]);
-            // 7. Early termination.
-            if f.quality.early_termination && acc.a >= crate::scene::Quality::OPAQUE {
-                done = true;
-                break;
-            }
+        let shade = |f_shadow| evaluated.shade(i, &f.phong, f_shadow);
+        if c[3] > 0.0 && accumulate(f, ray, batch.t[i], c, shade, acc) {
+            done = true;
+            break;
         }
     }
     batch.clear();
@@ -492,7 +488,7 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
         };
         samples += match (&f.cubes, warp.as_mut()) {
             (Some(cubes), None) if f.sampler.deformed.is_none() && q.ray_box && !f.sample_outside => {
-                if Placer::new(f.lanes).uses_lanes() {
+                if f.avx2.is_some() {
                     lattice_bricks::<true>(f, cubes, &ray, k0, &mut acc)
                 } else {
                     lattice_bricks::<false>(f, cubes, &ray, k0, &mut acc)

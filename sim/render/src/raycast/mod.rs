@@ -147,7 +147,7 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32, la
         primitives: scene.tools.primitives(),
         shadows: crate::shadow::Shadows::from_tools(&scene.tools),
         has_shadows: scene.tools.needle.is_some() || scene.tools.finger.is_some() || scene.tools.probe.is_some(),
-        lanes,
+        avx2: batch::Avx2::detect(lanes),
     };
     let mut image = Image::new(width, height);
     let camera = scene.camera;

@@ -247,6 +247,14 @@ pub fn nearest_voxel(c: Vec3, dims: [u32; 3]) -> Option<usize> {
     Some(v[0] + dims[0] as usize * (v[1] + dims[1] as usize * v[2]))
 }
 
+/// ½ Σ_a Δ_a·r_a for index-space differences Δ and `half_rows` = ½ M⁻¹'s rows r_a: the world
+/// gradient (∂s/∂c_a ≈ Δ_a/2, ∂c_a/∂x = r_a), summed in this order everywhere (the SIMD lanes of
+/// `batch` too).
+#[inline(always)]
+pub fn world_gradient(half_rows: &[Vec3; 3], d: Vec3) -> Vec3 {
+    half_rows[0] * d.x + half_rows[1] * d.y + half_rows[2] * d.z
+}
+
 /// Where one sample is read: the continuous index in the CT grid and, with a deformed region,
 /// in J's grid. Both are stepped along the ray in index space (c = c_e + t·M⁻¹r), so a J on the
 /// CT's own grid reads exactly the CT's values.
@@ -326,8 +334,7 @@ impl<'a> Sampler<'a> {
     /// (∂s/∂c_a ≈ Δ_a/2, ∂c_a/∂x = r_a).
     #[inline(always)]
     pub fn world_gradient_ct(&self, d: Vec3) -> Vec3 {
-        let r = &self.half_rows_ct;
-        r[0] * d.x + r[1] * d.y + r[2] * d.z
+        world_gradient(&self.half_rows_ct, d)
     }
 
     /// ∇s (HU/mm, docs/rendering.md "Gradient"): the trilinear blend of the central differences
@@ -337,8 +344,7 @@ impl<'a> Sampler<'a> {
         if let Some((j, _)) = &self.deformed
             && let Some(d) = j.differences(at.j, Edge::Clamp)
         {
-            let r = &self.half_rows_j;
-            return r[0] * d.x + r[1] * d.y + r[2] * d.z;
+            return world_gradient(&self.half_rows_j, d);
         }
         let d = if self.ct.is_fast() && self.grads.is_fast() {
             match self.ct.locate(at.ct) {

@@ -7,6 +7,7 @@
 
 use stylet_physics::glam::Vec3;
 
+use super::batch::Avx2;
 use super::sampler::{Cell, Grid3};
 
 /// Points per window.
@@ -59,15 +60,13 @@ pub(crate) struct Lattice {
 /// How the window is computed: AVX2 lanes, or one point at a time (the reference).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Placer {
-    avx2: bool,
+    avx2: Option<Avx2>,
 }
 
 impl Placer {
-    /// AVX2 lanes when `lanes` allows them and the CPU has AVX2.
-    pub fn new(lanes: super::batch::Lanes) -> Placer {
-        Placer {
-            avx2: lanes == super::batch::Lanes::Auto && super::batch::avx2_available(),
-        }
+    /// AVX2 lanes when `avx2` is given, else one point at a time.
+    pub fn new(avx2: Option<Avx2>) -> Placer {
+        Placer { avx2 }
     }
 
     /// Points k … k + 7 of `lattice`, located in `grid` (one with ≥ 2 voxels per axis:
@@ -81,8 +80,8 @@ impl Placer {
             "lattice index {k} out of range"
         );
         #[cfg(target_arch = "x86_64")]
-        if self.avx2 {
-            // SAFETY: `avx2` is set only when the CPU has AVX2 (`Placer::new`).
+        if self.avx2.is_some() {
+            // SAFETY: an `Avx2` exists only when the CPU has AVX2 (`Avx2::detect`).
             unsafe { avx2::place(grid, lattice, k, out) };
         }
         let _ = (grid, lattice, out);
@@ -90,7 +89,7 @@ impl Placer {
 
     /// Whether points are placed on the lanes (the march is compiled once for each answer).
     pub fn uses_lanes(&self) -> bool {
-        self.avx2
+        self.avx2.is_some()
     }
 
     /// Point k + `i` of the window [`Self::place`] placed at k: its t and, when it lies inside,
@@ -105,7 +104,7 @@ impl Placer {
         k: u32,
         i: usize,
     ) -> (f32, Option<Cell>) {
-        debug_assert_eq!(LANES, self.avx2);
+        debug_assert_eq!(LANES, self.avx2.is_some());
         if LANES {
             (window.t[i], window.cell(i))
         } else {
@@ -194,8 +193,8 @@ mod tests {
         let dims = [9u32, 7, 5];
         let data = vec![0.0f32; 9 * 7 * 5];
         let grid = Grid3::new(&data, dims);
-        let lanes = Placer::new(Lanes::Auto);
-        let one = Placer::new(Lanes::OneAtATime);
+        let lanes = Placer::new(Avx2::detect(Lanes::Auto));
+        let one = Placer::new(Avx2::detect(Lanes::OneAtATime));
         let (mut a, mut b) = (Window::default(), Window::default());
         let mut inside = 0u32;
         let mut outside = 0u32;
@@ -279,6 +278,6 @@ mod tests {
             j: 0.0,
             step: 1.0,
         };
-        Placer::new(Lanes::Auto).place(&grid, &lattice, i32::MAX as u32, &mut w);
+        Placer::new(Avx2::detect(Lanes::Auto)).place(&grid, &lattice, i32::MAX as u32, &mut w);
     }
 }
