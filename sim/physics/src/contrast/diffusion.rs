@@ -3,21 +3,47 @@
 //!   ρᵢ⁺ = ρᵢ + τ·(Σ_{j∈N} ρⱼ − |N|·ρᵢ)
 //!
 //! Jacobi: every new value is computed from the old ones alone, so the order in which the nodes
-//! are visited does not change a bit. The nodes are visited grouped by their number of duct
-//! neighbours |N| (0 … 6): each group's loop reads exactly |N| neighbours, with no end-of-list
-//! test per neighbour (a branch the CPU cannot predict along the duct tree's walls). Within a
-//! node the neighbours are summed in the same order as before (−x, +x, −y, +y, −z, +z), so ρᵢ⁺
-//! is the same number bit for bit.
+//! are visited does not change a bit. Within a node the neighbours are summed in one fixed order
+//! (the grid's −x, +x, −y, +y, −z, +z), so ρᵢ⁺ is the same number however the nodes are visited.
+//!
+//! Slots follow the grid's node order (x fastest), so inside a duct four consecutive slots are
+//! often four nodes along x whose neighbours on each side are four consecutive slots as well: a
+//! **quad**. A quad is stepped at once from contiguous loads of its own and its neighbours' rows
+//! (AVX lanes where the CPU has it, each lane the scalar operations in their order), without a
+//! neighbour index per node. The other slots are stepped one at a time from their neighbour
+//! lists. Both are grouped by the neighbour count |N| (0 … 6), so every loop has a fixed number
+//! of neighbours and lanes: no branch the CPU cannot predict along the duct tree's walls.
 
-/// The duct neighbours of every slot, grouped by their count.
+use crate::lanes::{F4, LANES, Lane, has_avx2};
+
+/// The duct slots' neighbours, grouped by their count: quads, and single slots.
 #[derive(Debug, Clone)]
 pub(super) struct DuctNeighbours {
     /// How many slots the diffusion's vectors (`rho`) hold.
     slots: usize,
-    /// `groups[c]`: the slots with c duct neighbours (increasing).
-    groups: [Vec<u32>; 7],
-    /// `neighbours[c]`: c neighbour slots for each entry of `groups[c]`, one after the other.
-    neighbours: [Vec<u32>; 7],
+    /// `quads[c]`: quads whose slots have c neighbours.
+    quads: [Quads; 7],
+    /// `singles[c]`: the other slots with c neighbours.
+    singles: [Singles; 7],
+}
+
+/// Quads with the same neighbour count C.
+#[derive(Debug, Clone, Default)]
+struct Quads {
+    /// Each quad's first slot s (its slots are s … s + 3).
+    first: Vec<u32>,
+    /// C entries per quad, one after the other: the k-th neighbour t_k of its first slot (slot
+    /// s + i has the k-th neighbour t_k + i).
+    neighbours: Vec<u32>,
+}
+
+/// Slots with the same neighbour count C, stepped one at a time.
+#[derive(Debug, Clone, Default)]
+struct Singles {
+    /// The slots (increasing).
+    slot: Vec<u32>,
+    /// C neighbour slots for each entry of `slot`, one after the other.
+    neighbours: Vec<u32>,
 }
 
 impl DuctNeighbours {
@@ -25,8 +51,17 @@ impl DuctNeighbours {
     /// must be slots (< `lists.len()`), at most 6 per slot.
     pub(super) fn new<'a>(lists: impl ExactSizeIterator<Item = &'a [u32]>) -> DuctNeighbours {
         let slots = lists.len();
-        let mut groups: [Vec<u32>; 7] = Default::default();
-        let mut neighbours: [Vec<u32>; 7] = Default::default();
+        let mut quads: [Quads; 7] = Default::default();
+        let mut singles: [Singles; 7] = Default::default();
+        // The slots since the last quad that may still start one: consecutive slots with the
+        // same count whose k-th neighbours are consecutive (at most three wait).
+        let mut waiting: Vec<(u32, usize, [u32; 6])> = Vec::with_capacity(LANES);
+        let flush = |waiting: &mut Vec<(u32, usize, [u32; 6])>, singles: &mut [Singles; 7]| {
+            for (s, c, nb) in waiting.drain(..) {
+                singles[c].slot.push(s);
+                singles[c].neighbours.extend_from_slice(&nb[..c]);
+            }
+        };
         for (s, list) in lists.enumerate() {
             let c = list.len();
             assert!(c <= 6, "slot {s} has {c} neighbours (at most 6)");
@@ -34,19 +69,41 @@ impl DuctNeighbours {
                 list.iter().all(|&j| (j as usize) < slots),
                 "slot {s} has a neighbour outside the {slots} slots"
             );
-            groups[c].push(s as u32);
-            neighbours[c].extend_from_slice(list);
+            let s = s as u32;
+            let mut nb = [0u32; 6];
+            nb[..c].copy_from_slice(list);
+            let continues = waiting.last().is_some_and(|&(ps, pc, pnb)| {
+                pc == c
+                    && ps + 1 == s
+                    && nb[..c]
+                        .iter()
+                        .zip(&pnb[..c])
+                        .all(|(&j, &t)| u64::from(j) == u64::from(t) + 1)
+            });
+            if !continues {
+                flush(&mut waiting, &mut singles);
+            }
+            waiting.push((s, c, nb));
+            if waiting.len() == LANES {
+                let (first, c, nb) = waiting[0];
+                quads[c].first.push(first);
+                quads[c].neighbours.extend_from_slice(&nb[..c]);
+                waiting.clear();
+            }
         }
-        DuctNeighbours {
-            slots,
-            groups,
-            neighbours,
-        }
+        flush(&mut waiting, &mut singles);
+        DuctNeighbours { slots, quads, singles }
     }
 
     /// Number of slots.
     pub(super) fn len(&self) -> usize {
         self.slots
+    }
+
+    /// Number of slots stepped in quads.
+    #[cfg(test)]
+    fn slots_in_quads(&self) -> usize {
+        self.quads.iter().map(|q| q.first.len() * LANES).sum()
     }
 
     /// `next` ← one step of eq. 3.3.2 from `rho` with step τ (`tau`).
@@ -58,37 +115,84 @@ impl DuctNeighbours {
             next.len(),
             self.slots
         );
-        self.group::<0>(rho, next, tau);
-        self.group::<1>(rho, next, tau);
-        self.group::<2>(rho, next, tau);
-        self.group::<3>(rho, next, tau);
-        self.group::<4>(rho, next, tau);
-        self.group::<5>(rho, next, tau);
-        self.group::<6>(rho, next, tau);
+        #[cfg(target_arch = "x86_64")]
+        if has_avx2() {
+            // SAFETY: the CPU has AVX2 (checked above).
+            return unsafe { self.step_avx2(rho, next, tau) };
+        }
+        self.step_in::<F4>(rho, next, tau);
     }
 
-    /// The slots with `C` neighbours. Sum and count are formed as the one-list-per-slot loop
-    /// formed them (0.0, then each neighbour in turn; |N| = C exactly).
+    /// The step with the portable lanes (what a CPU without AVX2 runs; a reference in tests).
+    #[cfg(test)]
+    fn step_portable(&self, rho: &[f64], next: &mut [f64], tau: f64) {
+        self.step_in::<F4>(rho, next, tau);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn step_avx2(&self, rho: &[f64], next: &mut [f64], tau: f64) {
+        self.step_in::<crate::lanes::avx::Avx>(rho, next, tau);
+    }
+
     #[inline(always)]
-    fn group<const C: usize>(&self, rho: &[f64], next: &mut [f64], tau: f64) {
-        let slots = &self.groups[C];
-        let neighbours = &self.neighbours[C];
-        debug_assert_eq!(neighbours.len(), slots.len() * C);
-        let count = C as f64;
-        for (i, &s) in slots.iter().enumerate() {
-            let s = s as usize;
-            // SAFETY: `new` checked every slot and neighbour < `self.slots`, `step` that both
-            // vectors hold `self.slots` values, and `neighbours[C]` holds C entries per slot.
+    fn step_in<L: Lane>(&self, rho: &[f64], next: &mut [f64], tau: f64) {
+        self.group::<0, L>(rho, next, tau);
+        self.group::<1, L>(rho, next, tau);
+        self.group::<2, L>(rho, next, tau);
+        self.group::<3, L>(rho, next, tau);
+        self.group::<4, L>(rho, next, tau);
+        self.group::<5, L>(rho, next, tau);
+        self.group::<6, L>(rho, next, tau);
+    }
+
+    /// The quads and single slots with `C` neighbours. Sum and count are formed as the
+    /// one-list-per-slot loop formed them (0.0, then each neighbour in turn; |N| = C exactly),
+    /// lane by lane in a quad.
+    #[inline(always)]
+    fn group<const C: usize, L: Lane>(&self, rho: &[f64], next: &mut [f64], tau: f64) {
+        let (quads, singles) = (&self.quads[C], &self.singles[C]);
+        debug_assert_eq!(quads.neighbours.len(), quads.first.len() * C);
+        debug_assert_eq!(singles.neighbours.len(), singles.slot.len() * C);
+        let (count, tau_l, count_l) = (C as f64, L::splat(tau), L::splat(C as f64));
+        let (rho_p, next_p) = (rho.as_ptr(), next.as_mut_ptr());
+        // SAFETY (both loops): `new` checked every slot and neighbour < `self.slots` and built
+        // each quad so that its slots s … s + 3 and its neighbours t_k … t_k + 3 are slots
+        // (each t_k + i is slot s + i's k-th neighbour); `step` checked that both vectors hold
+        // `self.slots` values; the neighbour vectors hold C entries per quad or slot. `rho` and
+        // `next` are distinct borrows.
+        for (q, &first) in quads.first.iter().enumerate() {
             unsafe {
-                let r = *rho.get_unchecked(s);
+                let here = load4::<L>(rho_p, first as usize);
+                let mut sum = L::splat(0.0);
+                for k in 0..C {
+                    sum = sum + load4::<L>(rho_p, *quads.neighbours.get_unchecked(q * C + k) as usize);
+                }
+                let new = here + tau_l * (sum - count_l * here);
+                *next_p.add(first as usize).cast::<[f64; LANES]>() = new.store();
+            }
+        }
+        for (i, &s) in singles.slot.iter().enumerate() {
+            unsafe {
+                let here = *rho_p.add(s as usize);
                 let mut sum = 0.0;
                 for k in 0..C {
-                    sum += *rho.get_unchecked(*neighbours.get_unchecked(i * C + k) as usize);
+                    sum += *rho_p.add(*singles.neighbours.get_unchecked(i * C + k) as usize);
                 }
-                *next.get_unchecked_mut(s) = r + tau * (sum - count * r);
+                *next_p.add(s as usize) = here + tau * (sum - count * here);
             }
         }
     }
+}
+
+/// The four values from `p + o` as lanes (a function, not a closure: see `crate::lanes`).
+///
+/// # Safety
+/// `p + o … p + o + 3` must be values of one allocation.
+#[inline(always)]
+unsafe fn load4<L: Lane>(p: *const f64, o: usize) -> L {
+    // SAFETY: the caller's; `[f64; 4]` has the alignment of `f64`.
+    L::load(unsafe { *p.add(o).cast::<[f64; LANES]>() })
 }
 
 #[cfg(test)]
@@ -127,7 +231,7 @@ mod tests {
     }
 
     #[test]
-    fn grouped_steps_equal_one_list_per_slot_bit_for_bit() {
+    fn random_lists_step_as_one_list_per_slot_bit_for_bit() {
         let mut rng = Stream(7);
         for slots in [1usize, 2, 7, 300, 5000] {
             // Random neighbour lists of every length 0 … 6 (the grid's symmetry is not needed
@@ -161,6 +265,14 @@ mod tests {
             for tau in [1.0 / 6.0, 0.1, 1e-3] {
                 for _ in 0..5 {
                     let want = step_one_list_per_slot(&lists, &rho, tau);
+                    grouped.step_portable(&rho, &mut next, tau);
+                    for s in 0..slots {
+                        assert_eq!(
+                            next[s].to_bits(),
+                            want[s].to_bits(),
+                            "slot {s} of {slots}, τ {tau} (portable)"
+                        );
+                    }
                     grouped.step(&rho, &mut next, tau);
                     for s in 0..slots {
                         assert_eq!(next[s].to_bits(), want[s].to_bits(), "slot {s} of {slots}, τ {tau}");
@@ -168,6 +280,97 @@ mod tests {
                     std::mem::swap(&mut rho, &mut next);
                 }
             }
+        }
+    }
+
+    /// The neighbour lists `DiffusionGrid::place` makes for the duct voxels of a mask on an
+    /// n × n × n grid (slots in node order, x fastest; neighbours −x, +x, −y, +y, −z, +z).
+    fn grid_lists(n: usize, duct: impl Fn(usize, usize, usize) -> bool) -> Vec<[u32; 6]> {
+        let mut slot = vec![u32::MAX; n * n * n];
+        let mut nodes = Vec::new();
+        for k in 0..n {
+            for j in 0..n {
+                for i in 0..n {
+                    if duct(i, j, k) {
+                        slot[i + n * (j + n * k)] = nodes.len() as u32;
+                        nodes.push((i, j, k));
+                    }
+                }
+            }
+        }
+        let at = |i: usize, j: usize, k: usize| slot[i + n * (j + n * k)];
+        nodes
+            .iter()
+            .map(|&(i, j, k)| {
+                let candidates = [
+                    (i > 0).then(|| at(i - 1, j, k)),
+                    (i + 1 < n).then(|| at(i + 1, j, k)),
+                    (j > 0).then(|| at(i, j - 1, k)),
+                    (j + 1 < n).then(|| at(i, j + 1, k)),
+                    (k > 0).then(|| at(i, j, k - 1)),
+                    (k + 1 < n).then(|| at(i, j, k + 1)),
+                ];
+                let mut l = [u32::MAX; 6];
+                for (v, s) in l
+                    .iter_mut()
+                    .zip(candidates.into_iter().flatten().filter(|&s| s != u32::MAX))
+                {
+                    *v = s;
+                }
+                l
+            })
+            .collect()
+    }
+
+    /// A duct tree as the phantom's: thick tubes along x, y and z that meet, with rough walls
+    /// (a few voxels knocked out), so that quads, broken rows and single slots all occur.
+    #[test]
+    fn quads_and_single_slots_step_as_one_list_per_slot_on_a_duct_tree() {
+        let n = 24;
+        let mut rng = Stream(11);
+        let rough: Vec<bool> = (0..n * n * n).map(|_| rng.next().is_multiple_of(40)).collect();
+        let duct = |i: usize, j: usize, k: usize| {
+            let d2 = |a: usize, b: usize, c: usize| (a as i64 - b as i64).pow(2) + (a as i64 - c as i64).pow(2);
+            let along_x = d2(12, j, k) <= 16;
+            let along_y = (i as i64 - 6).pow(2) + (k as i64 - 12).pow(2) <= 9 && j >= 12;
+            let along_z = (i as i64 - 18).pow(2) + (j as i64 - 12).pow(2) <= 6;
+            (along_x || along_y || along_z) && !rough[i + n * (j + n * k)]
+        };
+        let lists = grid_lists(n, duct);
+        let slots = lists.len();
+        let steps = DuctNeighbours::new(lists.iter().map(|l| {
+            let c = l.iter().position(|&j| j == u32::MAX).unwrap_or(6);
+            &l[..c]
+        }));
+        assert_eq!(steps.len(), slots);
+        let in_quads = steps.slots_in_quads();
+        assert!(
+            in_quads > slots / 4 && in_quads < slots,
+            "{in_quads} of {slots} slots in quads: both kinds must be exercised"
+        );
+        // Contrast entering at one slot, spreading over many magnitudes; then random values.
+        let mut rho = vec![0.0; slots];
+        rho[slots / 2] = 1.0;
+        let mut next = vec![f64::NAN; slots];
+        let mut portable = vec![f64::NAN; slots];
+        for round in 0..60 {
+            if round == 40 {
+                for r in rho.iter_mut() {
+                    *r = (rng.next() >> 11) as f64 / (1u64 << 53) as f64 * 10f64.powi((rng.next() % 40) as i32 - 30);
+                }
+            }
+            let want = step_one_list_per_slot(&lists, &rho, 1.0 / 6.0);
+            steps.step(&rho, &mut next, 1.0 / 6.0);
+            steps.step_portable(&rho, &mut portable, 1.0 / 6.0);
+            for s in 0..slots {
+                assert_eq!(next[s].to_bits(), want[s].to_bits(), "slot {s}, step {round}");
+                assert_eq!(
+                    portable[s].to_bits(),
+                    want[s].to_bits(),
+                    "slot {s}, step {round} (portable)"
+                );
+            }
+            std::mem::swap(&mut rho, &mut next);
         }
     }
 
