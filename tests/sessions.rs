@@ -132,9 +132,20 @@ fn recorded_session_matches_the_simulation_and_the_cli_reports_it() {
     assert!(j["wall_clock_start"].as_str().unwrap().ends_with('Z'));
     // A digest every 100 ticks and at each of the 5 event ticks.
     assert_eq!(j["digests"], 200 + 5);
+    // Every block's forces and torques rounded (a needle's outputs always round exactly), each
+    // block at most 500 ticks.
+    assert_eq!(j["rounded_output_ticks"], 20_000);
+    let blocks = j["rounded_output_blocks"].as_u64().unwrap();
+    assert!((40..=20_000 / 100).contains(&blocks), "{blocks} blocks");
     let text = ok(&["session", "inspect", s(&session)]);
     assert!(
         text.contains("trainee   bob") && text.contains("contrast injected: 2 ml"),
+        "{text}"
+    );
+    assert!(
+        text.contains(&format!(
+            "forces and torques of 20000 ticks stored rounded (2^-16 N, 2^-12 N·mm) in {blocks} blocks"
+        )) && text.contains("0 ticks stored exactly"),
         "{text}"
     );
 

@@ -67,6 +67,12 @@ fn state(s: &Session) -> (&'static str, String) {
     }
 }
 
+/// Ticks whose forces and torques the file stores rounded, their exact bits pinned by a block
+/// digest (docs/session-format.md "Rounded outputs").
+fn rounded_output_ticks(s: &Session) -> u64 {
+    s.output_checks.iter().map(|c| u64::from(c.count)).sum()
+}
+
 /// The JSON of `inspect --json`: header fields at the top level, then counts and state.
 pub fn inspect_json(s: &Session) -> Value {
     let h = &s.header;
@@ -93,6 +99,8 @@ pub fn inspect_json(s: &Session) -> Value {
         "digests": s.digests.len(),
         "annotations": s.annotations.len(),
         "chunks": s.chunks.len(),
+        "rounded_output_blocks": s.output_checks.len(),
+        "rounded_output_ticks": rounded_output_ticks(s),
         "event_list": s.events.iter().map(|e| {
             let mut ev = serde_json::to_value(e).expect("events serialise");
             ev["t_s"] = json!(e.tick as f64 / h.tick_rate_hz as f64);
@@ -143,6 +151,17 @@ fn inspect(a: &InspectArgs) -> anyhow::Result<()> {
         s.annotations.len(),
         s.chunks.len()
     );
+    let rounded = rounded_output_ticks(&s);
+    if rounded == 0 {
+        sayf!("outputs   forces and torques stored exactly");
+    } else {
+        sayf!(
+            "outputs   forces and torques of {rounded} ticks stored rounded (2^-16 N, 2^-12 N·mm) in {} blocks, \
+             their exact bits checked by each block's digest; {} ticks stored exactly",
+            s.output_checks.len(),
+            (s.ticks.len() as u64).saturating_sub(rounded)
+        );
+    }
     for e in &s.events {
         sayf!("  {:>10.3} s  {}", e.tick as f64 / h.tick_rate_hz as f64, event_text(e));
     }
