@@ -185,6 +185,34 @@ impl DuctNeighbours {
     }
 }
 
+/// The largest of `far` and every distance `d[s]` whose slot holds ρ ≥ `visible` (slots beyond
+/// the shorter vector are not read). A maximum, so it does not depend on the order the slots are
+/// compared in: compiled for AVX2 where the CPU has it (four slots at a time), portable elsewhere.
+pub(super) fn farthest_visible(rho: &[f64], d: &[f64], visible: f64, far: f64) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2() {
+        // SAFETY: the CPU has AVX2 (checked above).
+        return unsafe { farthest_visible_avx2(rho, d, visible, far) };
+    }
+    farthest_visible_in(rho, d, visible, far)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn farthest_visible_avx2(rho: &[f64], d: &[f64], visible: f64, far: f64) -> f64 {
+    farthest_visible_in(rho, d, visible, far)
+}
+
+#[inline(always)]
+fn farthest_visible_in(rho: &[f64], d: &[f64], visible: f64, mut far: f64) -> f64 {
+    for (&rho, &d) in rho.iter().zip(d) {
+        if d > far && rho >= visible {
+            far = d;
+        }
+    }
+    far
+}
+
 /// The four values from `p + o` as lanes (a function, not a closure: see `crate::lanes`).
 ///
 /// # Safety
@@ -372,6 +400,30 @@ mod tests {
             }
             std::mem::swap(&mut rho, &mut next);
         }
+    }
+
+    #[test]
+    fn the_farthest_visible_node_is_the_largest_distance_holding_enough_contrast() {
+        let mut rng = Stream(5);
+        for n in [0usize, 1, 3, 4, 5, 17, 1000] {
+            let rho: Vec<f64> = (0..n).map(|_| (rng.next() % 100) as f64 / 1000.0).collect();
+            let d: Vec<f64> = (0..n).map(|_| (rng.next() % 10_000) as f64 / 100.0).collect();
+            for far in [0.0, 30.0, 99.0] {
+                let want = rho
+                    .iter()
+                    .zip(&d)
+                    .filter(|(r, _)| **r >= 0.05)
+                    .map(|(_, d)| *d)
+                    .fold(far, f64::max);
+                assert_eq!(
+                    farthest_visible(&rho, &d, 0.05, far).to_bits(),
+                    want.to_bits(),
+                    "{n} slots, far {far}"
+                );
+            }
+        }
+        // Only slots present in both vectors count.
+        assert_eq!(farthest_visible(&[1.0, 1.0], &[3.0], 0.05, 0.0), 3.0);
     }
 
     #[test]

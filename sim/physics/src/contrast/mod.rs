@@ -439,14 +439,12 @@ impl ContrastAgent {
         let Some(g) = &self.grid else {
             return;
         };
-        let visible = self.settings.visible_fraction;
-        let mut far = self.filled_extent_mm;
-        for (&rho, &d) in g.duct_rho.iter().zip(&g.entry_distance_mm) {
-            if d > far && rho >= visible {
-                far = d;
-            }
-        }
-        self.filled_extent_mm = far;
+        self.filled_extent_mm = diffusion::farthest_visible(
+            &g.duct_rho,
+            &g.entry_distance_mm,
+            self.settings.visible_fraction,
+            self.filled_extent_mm,
+        );
     }
 
     /// ρ (volume fraction of contrast medium) of every node that holds contrast, with its CT
