@@ -180,8 +180,10 @@ impl DiffusionGrid {
         let mut duct_nodes = Vec::new();
         for k in 0..n[2] {
             for j in 0..n[1] {
-                for i in 0..n[0] {
-                    let label = partial.get(origin[0] + i, origin[1] + j, origin[2] + k);
+                // The grid's row of labels along x, read as one slice (the grid lies in the CT).
+                let start = partial.grid().linear(origin[0], origin[1] + j, origin[2] + k);
+                let row = &partial.data()[start..start + n[0]];
+                for (i, &label) in row.iter().enumerate() {
                     if label != 0 && duct_labels.contains(&label) {
                         let node = i + n[0] * (j + n[1] * k);
                         slot[node] = duct_nodes.len() as u32;
