@@ -311,40 +311,22 @@ mod tests {
         }
     }
 
-    /// The neighbour lists `DiffusionGrid::place` makes for the duct voxels of a mask on an
-    /// n × n × n grid (slots in node order, x fastest; neighbours −x, +x, −y, +y, −z, +z).
+    /// The neighbour lists `DiffusionGrid::place` makes (`super::duct_neighbour_lists`) for the
+    /// duct voxels of a mask on an n × n × n grid, as arrays ended by `u32::MAX`.
     fn grid_lists(n: usize, duct: impl Fn(usize, usize, usize) -> bool) -> Vec<[u32; 6]> {
         let mut slot = vec![u32::MAX; n * n * n];
-        let mut nodes = Vec::new();
-        for k in 0..n {
-            for j in 0..n {
-                for i in 0..n {
-                    if duct(i, j, k) {
-                        slot[i + n * (j + n * k)] = nodes.len() as u32;
-                        nodes.push((i, j, k));
-                    }
-                }
+        let mut duct_nodes = Vec::new();
+        for node in 0..n * n * n {
+            if duct(node % n, (node / n) % n, node / (n * n)) {
+                slot[node] = duct_nodes.len() as u32;
+                duct_nodes.push(node as u32);
             }
         }
-        let at = |i: usize, j: usize, k: usize| slot[i + n * (j + n * k)];
-        nodes
-            .iter()
-            .map(|&(i, j, k)| {
-                let candidates = [
-                    (i > 0).then(|| at(i - 1, j, k)),
-                    (i + 1 < n).then(|| at(i + 1, j, k)),
-                    (j > 0).then(|| at(i, j - 1, k)),
-                    (j + 1 < n).then(|| at(i, j + 1, k)),
-                    (k > 0).then(|| at(i, j, k - 1)),
-                    (k + 1 < n).then(|| at(i, j, k + 1)),
-                ];
+        super::super::duct_neighbour_lists([n; 3], &slot, &duct_nodes)
+            .into_iter()
+            .map(|(list, m)| {
                 let mut l = [u32::MAX; 6];
-                for (v, s) in l
-                    .iter_mut()
-                    .zip(candidates.into_iter().flatten().filter(|&s| s != u32::MAX))
-                {
-                    *v = s;
-                }
+                l[..m].copy_from_slice(&list[..m]);
                 l
             })
             .collect()

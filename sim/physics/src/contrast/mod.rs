@@ -192,31 +192,7 @@ impl DiffusionGrid {
                 }
             }
         }
-        let lists: Vec<([u32; 6], usize)> = duct_nodes
-            .iter()
-            .map(|&node| {
-                let node = node as usize;
-                let (i, j, k) = (node % n[0], (node / n[0]) % n[1], node / (n[0] * n[1]));
-                let mut out = [0u32; 6];
-                let mut m = 0;
-                let (sy, sz) = (n[0], n[0] * n[1]);
-                let candidates = [
-                    (i > 0).then(|| node - 1),
-                    (i + 1 < n[0]).then(|| node + 1),
-                    (j > 0).then(|| node - sy),
-                    (j + 1 < n[1]).then(|| node + sy),
-                    (k > 0).then(|| node - sz),
-                    (k + 1 < n[2]).then(|| node + sz),
-                ];
-                for nb in candidates.into_iter().flatten() {
-                    if slot[nb] != NOT_DUCT {
-                        out[m] = slot[nb];
-                        m += 1;
-                    }
-                }
-                (out, m)
-            })
-            .collect();
+        let lists = duct_neighbour_lists(n, &slot, &duct_nodes);
         let neighbours = DuctNeighbours::new(lists.iter().map(|(out, m)| &out[..*m]));
         let s = grid.spacing_mm();
         let slots = duct_nodes.len();
@@ -262,6 +238,37 @@ impl DiffusionGrid {
         self.neighbours.step(&self.duct_rho, &mut self.next_rho, tau);
         std::mem::swap(&mut self.duct_rho, &mut self.next_rho);
     }
+}
+
+/// Each duct node's duct neighbours, as slots in summation order (−x, +x, −y, +y, −z, +z) and
+/// their count, for a grid of `n` nodes (x fastest) whose node i has slot `slot[i]` (`NOT_DUCT`
+/// for the others) and whose slots are the nodes `duct_nodes` (increasing).
+pub(super) fn duct_neighbour_lists(n: [usize; 3], slot: &[u32], duct_nodes: &[u32]) -> Vec<([u32; 6], usize)> {
+    duct_nodes
+        .iter()
+        .map(|&node| {
+            let node = node as usize;
+            let (i, j, k) = (node % n[0], (node / n[0]) % n[1], node / (n[0] * n[1]));
+            let mut out = [0u32; 6];
+            let mut m = 0;
+            let (sy, sz) = (n[0], n[0] * n[1]);
+            let candidates = [
+                (i > 0).then(|| node - 1),
+                (i + 1 < n[0]).then(|| node + 1),
+                (j > 0).then(|| node - sy),
+                (j + 1 < n[1]).then(|| node + sy),
+                (k > 0).then(|| node - sz),
+                (k + 1 < n[2]).then(|| node + sz),
+            ];
+            for nb in candidates.into_iter().flatten() {
+                if slot[nb] != NOT_DUCT {
+                    out[m] = slot[nb];
+                    m += 1;
+                }
+            }
+            (out, m)
+        })
+        .collect()
 }
 
 /// The contrast agent of one session.
