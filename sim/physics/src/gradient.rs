@@ -215,24 +215,46 @@ impl<'a, const N: usize> GradientSampler<'a, N> {
 
     #[inline(always)]
     fn at_interior4_in<L: Lane>(&self, cs: &[DVec3; LANES]) -> [[ValueGradient; N]; LANES] {
-        let cells = [self.cell(cs[0]), self.cell(cs[1]), self.cell(cs[2]), self.cell(cs[3])];
-        let lanes = Cells4::<L>::new(&cells);
-        let rows = self.volumes[0].grid().index_gradient_rows();
         let zero = ValueGradient {
             value: 0.0,
             gradient: DVec3::ZERO,
         };
         let mut out = [[zero; N]; LANES];
-        for (n, v) in self.volumes.iter().enumerate() {
-            let (value, gradient) = lanes.value_gradient(v, &cells);
+        for (n, (value, gradient)) in self.at_interior4_lanes::<L>(cs).into_iter().enumerate() {
             let values = value.store();
-            let g = world_gradient(rows, gradient).store();
+            let g = gradient.store();
             for (lane, o) in out.iter_mut().enumerate() {
                 o[n] = ValueGradient {
                     value: values[lane],
                     gradient: g.get(lane),
                 };
             }
+        }
+        out
+    }
+
+    /// [`Self::at_interior4`] as lanes: each volume's values and world gradients at the four
+    /// interior indices, kept in registers for a caller compiled with the same lanes (the contact
+    /// tools pass them straight to their force law).
+    #[inline(always)]
+    pub(crate) fn at_interior4_lanes<L: Lane>(&self, cs: &[DVec3; LANES]) -> [(L, V4<L>); N] {
+        debug_assert!(cs.iter().all(|&c| self.is_interior(c)));
+        let cells = [self.cell(cs[0]), self.cell(cs[1]), self.cell(cs[2]), self.cell(cs[3])];
+        let lanes = Cells4::<L>::new(&cells);
+        let rows = self.volumes[0].grid().index_gradient_rows();
+        // A loop, not `map` with a closure (see `crate::lanes`).
+        let zero = L::splat(0.0);
+        let mut out = [(
+            zero,
+            V4 {
+                x: zero,
+                y: zero,
+                z: zero,
+            },
+        ); N];
+        for (o, v) in out.iter_mut().zip(&self.volumes) {
+            let (value, gradient) = lanes.value_gradient(v, &cells);
+            *o = (value, world_gradient(rows, gradient));
         }
         out
     }

@@ -9,7 +9,10 @@
 //! The law is written once over [`Lane`] (crate::lanes): AVX registers where the CPU has AVX2
 //! (chosen at run time, [`contact_lanes`]), plain arrays elsewhere; no operation is fused.
 
-use super::ContactFriction;
+use glam::DVec3;
+
+use super::{ContactFriction, in_skin};
+use crate::gradient::{GradientSampler, ValueGradient};
 use crate::lanes::{F4, LANES, Lane, V4, Vec4s, has_avx2};
 
 /// What the law reads for four nodes inside the skin.
@@ -56,35 +59,153 @@ fn contact_lanes_avx2(i: &LanesIn, friction: ContactFriction) -> LanesOut {
     law::<crate::lanes::avx::Avx>(i, friction)
 }
 
+/// Where four nodes that were all in contact on the last tick are now (x_i), and their surface
+/// points and proxies from then: what [`read_and_law`] reads besides the maps.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Held {
+    pub pos: Vec4s,
+    pub surface: Vec4s,
+    pub proxy: Vec4s,
+}
+
+/// What [`read_and_law`] gives (returned into the caller's frame and consumed there, never
+/// stored: boxing the larger variant would only add an allocation per batch).
+#[allow(clippy::large_enum_variant)]
+pub(super) enum ReadLaw {
+    /// All four nodes are inside the skin: their D_skin and the law's results.
+    Law { d_skin: [f64; LANES], out: LanesOut },
+    /// Some node left the skin: the maps' reads, for settling node by node.
+    Reads([[ValueGradient; 2]; LANES]),
+}
+
+/// Both maps' values and gradients at four interior indices `cs` and, when all four nodes are
+/// inside the skin, the law for them with `held` (all in contact on the last tick), the maps'
+/// lanes going straight into the law: the bits of [`GradientSampler::at_interior4`] followed by
+/// [`contact_lanes`], without storing the reads and loading them back. AVX2 where the CPU has it.
+pub(super) fn read_and_law(
+    maps: &GradientSampler<'_, 2>,
+    cs: &[DVec3; LANES],
+    held: &Held,
+    friction: ContactFriction,
+) -> ReadLaw {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2() {
+        // SAFETY: the CPU has AVX2 (checked above).
+        return unsafe { read_and_law_avx2(maps, cs, held, friction) };
+    }
+    read_and_law_in::<F4>(maps, cs, held, friction)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn read_and_law_avx2(
+    maps: &GradientSampler<'_, 2>,
+    cs: &[DVec3; LANES],
+    held: &Held,
+    friction: ContactFriction,
+) -> ReadLaw {
+    read_and_law_in::<crate::lanes::avx::Avx>(maps, cs, held, friction)
+}
+
+#[inline(always)]
+fn read_and_law_in<L: Lane>(
+    maps: &GradientSampler<'_, 2>,
+    cs: &[DVec3; LANES],
+    held: &Held,
+    friction: ContactFriction,
+) -> ReadLaw {
+    let [(d_skin, grad_skin), (d_bone, grad_bone)] = maps.at_interior4_lanes::<L>(cs);
+    let skin = d_skin.store();
+    if !(in_skin(skin[0]) && in_skin(skin[1]) && in_skin(skin[2]) && in_skin(skin[3])) {
+        let (gs, bone, gb) = (grad_skin.store(), d_bone.store(), grad_bone.store());
+        let mut reads = [[ValueGradient {
+            value: 0.0,
+            gradient: DVec3::ZERO,
+        }; 2]; LANES];
+        for (lane, r) in reads.iter_mut().enumerate() {
+            r[0] = ValueGradient {
+                value: skin[lane],
+                gradient: gs.get(lane),
+            };
+            r[1] = ValueGradient {
+                value: bone[lane],
+                gradient: gb.get(lane),
+            };
+        }
+        return ReadLaw::Reads(reads);
+    }
+    let input = LawIn {
+        pos: V4::load(&held.pos),
+        d_skin,
+        grad_skin,
+        d_bone,
+        grad_bone,
+        was_in_contact: L::mask([true; LANES]),
+        surface: V4::load(&held.surface),
+        proxy: V4::load(&held.proxy),
+    };
+    ReadLaw::Law {
+        d_skin: skin,
+        out: law_lanes(input, friction),
+    }
+}
+
+/// [`LanesIn`] as lanes.
+struct LawIn<L: Lane> {
+    pos: V4<L>,
+    d_skin: L,
+    grad_skin: V4<L>,
+    d_bone: L,
+    grad_bone: V4<L>,
+    was_in_contact: L::Mask,
+    surface: V4<L>,
+    proxy: V4<L>,
+}
+
+#[inline(always)]
+fn law<L: Lane>(i: &LanesIn, friction: ContactFriction) -> LanesOut {
+    let input = LawIn {
+        pos: V4::load(&i.pos),
+        d_skin: L::load(i.d_skin),
+        grad_skin: V4::load(&i.grad_skin),
+        d_bone: L::load(i.d_bone),
+        grad_bone: V4::load(&i.grad_bone),
+        was_in_contact: L::mask(i.was_in_contact),
+        surface: V4::load(&i.surface),
+        proxy: V4::load(&i.proxy),
+    };
+    law_lanes(input, friction)
+}
+
 /// Eqs. 3.6.1–3.6.11 lane by lane; each line mirrors the node-by-node law (`ContactTool::step`
 /// before it batched nodes; the tests keep that law as the reference).
 #[inline(always)]
-fn law<L: Lane>(i: &LanesIn, friction: ContactFriction) -> LanesOut {
+fn law_lanes<L: Lane>(i: LawIn<L>, friction: ContactFriction) -> LanesOut {
     let zero = L::splat(0.0);
     let one = L::splat(1.0);
     // Skin penalty (eqs. 3.6.1–3.6.3): f_s(D_skin) along v_s = −∇D_skin/‖·‖.
-    let d_skin = L::load(i.d_skin);
-    let vs = V4::<L>::load(&i.grad_skin).neg().normalize_or_zero();
+    let d_skin = i.d_skin;
+    let vs = i.grad_skin.neg().normalize_or_zero();
     let x = d_skin;
     let cubic = L::splat(1.78e-2) * x * x * x + L::splat(3.82e-3) * x * x + L::splat(2.28e-4) * x;
     let f_skin = vs.scaled(L::select(x.gt(zero), cubic, zero));
     // Bone penalty (eqs. 3.6.4–3.6.7), turned towards v_s when more than 90° away.
-    let vb = V4::<L>::load(&i.grad_bone).neg().normalize_or_zero();
+    let vb = i.grad_bone.neg().normalize_or_zero();
     let vb_vs = vb.dot(vs);
     let turned = vb.sub(vs.scaled(L::splat(4.0)).scaled(vb_vs)).normalize_or_zero();
     let dir = V4::select(vb_vs.gt(zero), vb, turned);
-    let x = -L::load(i.d_bone);
+    let x = -i.d_bone;
     let r = L::splat(5.0) / x;
     let f_bone = dir.scaled(L::select(x.gt(zero), L::splat(20.0) * r * r * r, zero));
     // Stick–slip proxy on the surface point (eqs. 3.6.8–3.6.11).
-    let s_new = V4::<L>::load(&i.pos).sub(vs.scaled(d_skin));
+    let s_new = i.pos.sub(vs.scaled(d_skin));
     let f_n = f_skin.add(f_bone);
     let press = f_n.dot(vs).abs();
     let z_max = L::splat(friction.c_fric) * press + one;
     let z_stick = z_max - one;
-    let was = L::mask(i.was_in_contact);
-    let s_old = V4::select(was, V4::load(&i.surface), s_new);
-    let p_old = V4::select(was, V4::load(&i.proxy), s_new);
+    let was = i.was_in_contact;
+    let s_old = V4::select(was, i.surface, s_new);
+    let p_old = V4::select(was, i.proxy, s_new);
     let dvec = s_new.sub(p_old);
     let dist = dvec.length();
     let z8 = pow8(dist);
@@ -113,7 +234,7 @@ fn pow8<L: Lane>(x: L) -> L {
 mod tests {
     use super::*;
     use crate::contact::{bone_force_n, skin_force_n};
-    use glam::DVec3;
+    use crate::{Affine, Grid, Volume};
 
     /// The node-by-node law as `ContactTool::step` computed it before nodes were batched
     /// (physics version 9): the reference every lane must match bit for bit.
@@ -257,5 +378,113 @@ mod tests {
             taken.iter().flatten().all(|&n| n > 1000),
             "every branch both ways, often: {taken:?} (turned, slipped, bone force; not/taken)"
         );
+    }
+
+    /// A skin and a bone distance map on an anisotropic 24 × 20 × 16 grid: D_skin positive below
+    /// a curved skin surface, D_bone positive inside a tilted slab.
+    fn maps() -> (Volume<f32>, Volume<f32>) {
+        let g = Grid::new(
+            [24, 20, 16],
+            Affine::from_spacing([1.5, 1.2, 2.5], DVec3::new(-18.0, -12.0, -20.0)),
+        )
+        .unwrap();
+        let (mut skin, mut bone) = (Vec::new(), Vec::new());
+        for k in 0..16 {
+            for j in 0..20 {
+                for i in 0..24 {
+                    let p = g.voxel_to_world(i, j, k);
+                    skin.push((-p.z + 0.02 * p.x * p.x - 0.3 * (0.2 * p.y).sin()) as f32);
+                    bone.push((4.0 - (0.3 * p.x + p.z + 12.0).abs()) as f32);
+                }
+            }
+        }
+        (Volume::new(g, skin).unwrap(), Volume::new(g, bone).unwrap())
+    }
+
+    /// Reading both maps and running the law in one pass gives the bits of the two steps it
+    /// replaces (`at_interior4`, then `contact_lanes` with every node in contact on the last
+    /// tick), with and without AVX2; and when a node is off the skin it gives the reads alone,
+    /// those of `at_interior4`.
+    #[test]
+    fn reading_straight_into_the_law_gives_the_bits_of_reads_then_law() {
+        let (skin, bone) = maps();
+        let sampler = GradientSampler::on_one_grid([&skin, &bone]).unwrap();
+        let mut rng = Rng(0xFEED);
+        let (mut laws, mut reads) = (0, 0);
+        for friction in [ContactFriction::FINGER, ContactFriction::PROBE_WITH_GEL] {
+            for _ in 0..5_000 {
+                // Interior indices (1 ≤ c < n − 2), mostly below the skin.
+                let cs: [DVec3; LANES] = std::array::from_fn(|_| {
+                    DVec3::new(rng.range(1.0, 20.999), rng.range(1.0, 16.999), rng.range(1.0, 12.999))
+                });
+                let mut held = Held::default();
+                for lane in 0..LANES {
+                    let xi = sampler_world(&skin, cs[lane]);
+                    held.pos.set(lane, xi);
+                    held.surface.set(lane, xi + rng.vec(2.0));
+                    let reach = if rng.unit() < 0.5 { 0.3 } else { 8.0 };
+                    held.proxy.set(lane, xi + rng.vec(reach));
+                }
+                let separate = sampler.at_interior4(&cs);
+                let fused = [
+                    read_and_law(&sampler, &cs, &held, friction),
+                    read_and_law_in::<F4>(&sampler, &cs, &held, friction),
+                ];
+                if separate.iter().all(|r| in_skin(r[0].value)) {
+                    let mut input = LanesIn {
+                        pos: held.pos,
+                        was_in_contact: [true; LANES],
+                        surface: held.surface,
+                        proxy: held.proxy,
+                        ..LanesIn::default()
+                    };
+                    for (lane, [s, b]) in separate.iter().enumerate() {
+                        input.d_skin[lane] = s.value;
+                        input.grad_skin.set(lane, s.gradient);
+                        input.d_bone[lane] = b.value;
+                        input.grad_bone.set(lane, b.gradient);
+                    }
+                    let want = contact_lanes(&input, friction);
+                    for got in fused {
+                        let ReadLaw::Law { d_skin, out } = got else {
+                            panic!("every node is in the skin at {cs:?}");
+                        };
+                        assert_eq!(d_skin.map(f64::to_bits), input.d_skin.map(f64::to_bits));
+                        for (g, w) in [
+                            (out.f_skin, want.f_skin),
+                            (out.f_bone, want.f_bone),
+                            (out.f_slide, want.f_slide),
+                            (out.surface, want.surface),
+                            (out.proxy, want.proxy),
+                        ] {
+                            for lane in 0..LANES {
+                                assert_eq!(bits(g.get(lane)), bits(w.get(lane)), "lane {lane} at {cs:?}");
+                            }
+                        }
+                    }
+                    laws += 1;
+                } else {
+                    for got in fused {
+                        let ReadLaw::Reads(r) = got else {
+                            panic!("a node is off the skin at {cs:?}");
+                        };
+                        for (g, w) in r.iter().flatten().zip(separate.iter().flatten()) {
+                            assert_eq!(g.value.to_bits(), w.value.to_bits());
+                            assert_eq!(bits(g.gradient), bits(w.gradient));
+                        }
+                    }
+                    reads += 1;
+                }
+            }
+        }
+        assert!(
+            laws > 1000 && reads > 1000,
+            "both outcomes, often: {laws} laws, {reads} reads"
+        );
+    }
+
+    /// The world point of continuous index `c` on `v`'s grid.
+    fn sampler_world(v: &Volume<f32>, c: DVec3) -> DVec3 {
+        v.grid().affine().apply(c)
     }
 }

@@ -258,13 +258,30 @@ impl Queue {
         }
         if self.len == crate::lanes::LANES && self.nodes.iter().all(|&(i, ..)| tick.nodes[i].in_contact) {
             // Four nodes that touched on the last tick most likely still do: everything is read
-            // at once (the same bits as D_skin first; only the work differs). The nodes queued
-            // before them are settled first.
+            // at once (the same bits as D_skin first; only the work differs), and when all four
+            // still touch, the reads go straight into the force law. The nodes queued before
+            // them are settled, and their law run, first (sums in node order).
             touching.read(maps, tick);
-            let reads = maps.at_interior4(&self.c);
-            for (&(i, arm, xi), read) in self.nodes.iter().zip(reads) {
-                let d = read[0].value;
-                tick.settle(i, arm, xi, if in_skin(d) { Ok(read) } else { Err(d) });
+            let mut held = lanes::Held::default();
+            for (lane, &(i, _, xi)) in self.nodes.iter().enumerate() {
+                held.pos.set(lane, xi);
+                held.surface.set(lane, tick.nodes[i].surface);
+                held.proxy.set(lane, tick.nodes[i].proxy);
+            }
+            match lanes::read_and_law(maps, &self.c, &held, tick.friction) {
+                lanes::ReadLaw::Law { d_skin, out } => {
+                    tick.law.finish(tick.nodes, tick.friction, &mut tick.sums);
+                    for (lane, &(i, arm, xi)) in self.nodes.iter().enumerate() {
+                        tick.nodes[i].pos = xi;
+                        store_lane(&mut tick.nodes[i], arm, d_skin[lane], &out, lane, &mut tick.sums);
+                    }
+                }
+                lanes::ReadLaw::Reads(reads) => {
+                    for (&(i, arm, xi), read) in self.nodes.iter().zip(reads) {
+                        let d = read[0].value;
+                        tick.settle(i, arm, xi, if in_skin(d) { Ok(read) } else { Err(d) });
+                    }
+                }
             }
             self.len = 0;
             return;
@@ -314,15 +331,21 @@ impl Batch {
         }
         let out = lanes::contact_lanes(&self.input, friction);
         for (lane, &(i, arm)) in self.nodes.iter().enumerate().take(self.len) {
-            let node = &mut nodes[i];
-            node.in_contact = true;
-            node.depth_mm = self.input.d_skin[lane];
-            node.surface = out.surface.get(lane);
-            node.proxy = out.proxy.get(lane);
-            sums.add(arm, out.f_skin.get(lane), out.f_slide.get(lane), out.f_bone.get(lane));
+            store_lane(&mut nodes[i], arm, self.input.d_skin[lane], &out, lane, sums);
         }
         self.len = 0;
     }
+}
+
+/// The law's results of `lane` (a node inside the skin at depth `d_skin`, lever arm `arm`) into
+/// the node's state and the sums.
+#[inline(always)]
+fn store_lane(node: &mut ContactNode, arm: DVec3, d_skin: f64, out: &lanes::LanesOut, lane: usize, sums: &mut Sums) {
+    node.in_contact = true;
+    node.depth_mm = d_skin;
+    node.surface = out.surface.get(lane);
+    node.proxy = out.proxy.get(lane);
+    sums.add(arm, out.f_skin.get(lane), out.f_slide.get(lane), out.f_bone.get(lane));
 }
 
 /// Running sums of eqs. 3.6.12–3.6.14 over the nodes in contact.
