@@ -10,9 +10,15 @@
 //! often four nodes along x whose neighbours on each side are four consecutive slots as well: a
 //! **quad**. A quad is stepped at once from contiguous loads of its own and its neighbours' rows
 //! (AVX lanes where the CPU has it, each lane the scalar operations in their order), without a
-//! neighbour index per node. The other slots are stepped one at a time from their neighbour
-//! lists. Both are grouped by the neighbour count |N| (0 … 6), so every loop has a fixed number
-//! of neighbours and lanes: no branch the CPU cannot predict along the duct tree's walls.
+//! neighbour index per node. A run of such slots whose length is not a multiple of four ends
+//! with a quad that overlaps the one before it: the slots in both are computed twice, from the
+//! same old values, and written twice with the same bits (Jacobi). The other slots are stepped
+//! one at a time from their neighbour lists, except that a neighbour that is the slot just
+//! before or after (slot s − 1 first in the list, slot s + 1 next: the node's −x and +x
+//! neighbours, usually) is read at s ∓ 1 without an index. Quads are grouped by the neighbour
+//! count |N| (0 … 6), single slots by the listed count and by which of s ∓ 1 they read, so every
+//! loop has a fixed number of neighbours and lanes: no branch the CPU cannot predict along the
+//! duct tree's walls.
 
 use crate::lanes::{F4, LANES, Lane, has_avx2};
 
@@ -23,8 +29,34 @@ pub(super) struct DuctNeighbours {
     slots: usize,
     /// `quads[c]`: quads whose slots have c neighbours.
     quads: [Quads; 7],
-    /// `singles[c]`: the other slots with c neighbours.
-    singles: [Singles; 7],
+    /// `singles[kind][r]`: the other slots, with r listed neighbours after those of `kind`
+    /// ([`Adjacent::index`]).
+    singles: [[Singles; 7]; 4],
+}
+
+/// Which of its adjacent slots a single slot s reads without an index: s − 1 as its first
+/// neighbour, s + 1 as its next.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Adjacent {
+    before: bool,
+    after: bool,
+}
+
+impl Adjacent {
+    /// The adjacent slots the list `nb` of slot `s` starts with.
+    fn of(s: u32, nb: &[u32]) -> Adjacent {
+        let s = u64::from(s);
+        let before = nb.first().is_some_and(|&j| u64::from(j) + 1 == s);
+        let after = nb.get(usize::from(before)).is_some_and(|&j| u64::from(j) == s + 1);
+        Adjacent { before, after }
+    }
+    /// How many list entries they stand for.
+    fn count(self) -> usize {
+        usize::from(self.before) + usize::from(self.after)
+    }
+    fn index(self) -> usize {
+        usize::from(self.before) | usize::from(self.after) << 1
+    }
 }
 
 /// Quads with the same neighbour count C.
@@ -37,12 +69,13 @@ struct Quads {
     neighbours: Vec<u32>,
 }
 
-/// Slots with the same neighbour count C, stepped one at a time.
+/// Slots with the same adjacent slots read and R listed neighbours, stepped one at a time.
 #[derive(Debug, Clone, Default)]
 struct Singles {
     /// The slots (increasing).
     slot: Vec<u32>,
-    /// C neighbour slots for each entry of `slot`, one after the other.
+    /// R neighbour slots for each entry of `slot`, one after the other (those after the
+    /// adjacent ones, in summation order).
     neighbours: Vec<u32>,
 }
 
@@ -52,14 +85,32 @@ impl DuctNeighbours {
     pub(super) fn new<'a>(lists: impl ExactSizeIterator<Item = &'a [u32]>) -> DuctNeighbours {
         let slots = lists.len();
         let mut quads: [Quads; 7] = Default::default();
-        let mut singles: [Singles; 7] = Default::default();
+        let mut singles: [[Singles; 7]; 4] = Default::default();
         // The slots since the last quad that may still start one: consecutive slots with the
         // same count whose k-th neighbours are consecutive (at most three wait).
         let mut waiting: Vec<(u32, usize, [u32; 6])> = Vec::with_capacity(LANES);
-        let flush = |waiting: &mut Vec<(u32, usize, [u32; 6])>, singles: &mut [Singles; 7]| {
+        // Whether the run the waiting slots belong to has a quad already, and its last slot.
+        let mut run_has_quad = false;
+        let mut previous: Option<(u32, usize, [u32; 6])> = None;
+        // The end of a run: its waiting slots form a quad with the run's last slots before them
+        // (overlapping its last quad) when it has one, else they are single slots.
+        let flush = |waiting: &mut Vec<(u32, usize, [u32; 6])>,
+                     run_has_quad: bool,
+                     quads: &mut [Quads; 7],
+                     singles: &mut [[Singles; 7]; 4]| {
+            if run_has_quad && let Some(&(s, c, nb)) = waiting.first() {
+                // Slot s − back + i has the k-th neighbour nb_k − back + i (the run continues).
+                let back = (LANES - waiting.len()) as u32;
+                quads[c].first.push(s - back);
+                quads[c].neighbours.extend(nb[..c].iter().map(|&t| t - back));
+                waiting.clear();
+                return;
+            }
             for (s, c, nb) in waiting.drain(..) {
-                singles[c].slot.push(s);
-                singles[c].neighbours.extend_from_slice(&nb[..c]);
+                let adjacent = Adjacent::of(s, &nb[..c]);
+                let group = &mut singles[adjacent.index()][c - adjacent.count()];
+                group.slot.push(s);
+                group.neighbours.extend_from_slice(&nb[adjacent.count()..c]);
             }
         };
         for (s, list) in lists.enumerate() {
@@ -72,7 +123,8 @@ impl DuctNeighbours {
             let s = s as u32;
             let mut nb = [0u32; 6];
             nb[..c].copy_from_slice(list);
-            let continues = waiting.last().is_some_and(|&(ps, pc, pnb)| {
+            // Continues the run of the slot before (waiting, or the last of a quad).
+            let continues = previous.is_some_and(|(ps, pc, pnb): (u32, usize, [u32; 6])| {
                 pc == c
                     && ps + 1 == s
                     && nb[..c]
@@ -81,17 +133,20 @@ impl DuctNeighbours {
                         .all(|(&j, &t)| u64::from(j) == u64::from(t) + 1)
             });
             if !continues {
-                flush(&mut waiting, &mut singles);
+                flush(&mut waiting, run_has_quad, &mut quads, &mut singles);
+                run_has_quad = false;
             }
             waiting.push((s, c, nb));
+            previous = Some((s, c, nb));
             if waiting.len() == LANES {
                 let (first, c, nb) = waiting[0];
                 quads[c].first.push(first);
                 quads[c].neighbours.extend_from_slice(&nb[..c]);
                 waiting.clear();
+                run_has_quad = true;
             }
         }
-        flush(&mut waiting, &mut singles);
+        flush(&mut waiting, run_has_quad, &mut quads, &mut singles);
         DuctNeighbours { slots, quads, singles }
     }
 
@@ -100,10 +155,28 @@ impl DuctNeighbours {
         self.slots
     }
 
-    /// Number of slots stepped in quads.
+    /// Number of slots stepped in quads (those of overlapping quads once).
     #[cfg(test)]
     fn slots_in_quads(&self) -> usize {
-        self.quads.iter().map(|q| q.first.len() * LANES).sum()
+        let mut covered = vec![false; self.slots];
+        for q in &self.quads {
+            for &first in &q.first {
+                covered[first as usize..first as usize + LANES].fill(true);
+            }
+        }
+        covered.iter().filter(|&&c| c).count()
+    }
+
+    /// Number of single slots that read s − 1 or s + 1 without an index.
+    #[cfg(test)]
+    fn singles_reading_adjacent(&self) -> [usize; 2] {
+        let mut n = [0; 2];
+        for (kind, groups) in self.singles.iter().enumerate() {
+            let slots: usize = groups.iter().map(|g| g.slot.len()).sum();
+            n[0] += if kind & 1 != 0 { slots } else { 0 };
+            n[1] += if kind & 2 != 0 { slots } else { 0 };
+        }
+        n
     }
 
     /// `next` ← one step of eq. 3.3.2 from `rho` with step τ (`tau`).
@@ -137,30 +210,43 @@ impl DuctNeighbours {
 
     #[inline(always)]
     fn step_in<L: Lane>(&self, rho: &[f64], next: &mut [f64], tau: f64) {
-        self.group::<0, L>(rho, next, tau);
-        self.group::<1, L>(rho, next, tau);
-        self.group::<2, L>(rho, next, tau);
-        self.group::<3, L>(rho, next, tau);
-        self.group::<4, L>(rho, next, tau);
-        self.group::<5, L>(rho, next, tau);
-        self.group::<6, L>(rho, next, tau);
+        self.quads::<0, L>(rho, next, tau);
+        self.quads::<1, L>(rho, next, tau);
+        self.quads::<2, L>(rho, next, tau);
+        self.quads::<3, L>(rho, next, tau);
+        self.quads::<4, L>(rho, next, tau);
+        self.quads::<5, L>(rho, next, tau);
+        self.quads::<6, L>(rho, next, tau);
+        // Every (s − 1, s + 1, R) with at most six neighbours in all.
+        macro_rules! singles {
+            ($($before:literal $after:literal $r:literal),*) => {
+                $(self.singles::<$before, $after, $r>(rho, next, tau);)*
+            };
+        }
+        singles!(
+            false false 0, true false 0, false true 0, true true 0,
+            false false 1, true false 1, false true 1, true true 1,
+            false false 2, true false 2, false true 2, true true 2,
+            false false 3, true false 3, false true 3, true true 3,
+            false false 4, true false 4, false true 4, true true 4,
+            false false 5, true false 5, false true 5,
+            false false 6
+        );
     }
 
-    /// The quads and single slots with `C` neighbours. Sum and count are formed as the
-    /// one-list-per-slot loop formed them (0.0, then each neighbour in turn; |N| = C exactly),
-    /// lane by lane in a quad.
+    /// The quads with `C` neighbours. Sum and count are formed lane by lane as the
+    /// one-list-per-slot loop formed them (0.0, then each neighbour in turn; |N| = C exactly).
     #[inline(always)]
-    fn group<const C: usize, L: Lane>(&self, rho: &[f64], next: &mut [f64], tau: f64) {
-        let (quads, singles) = (&self.quads[C], &self.singles[C]);
+    fn quads<const C: usize, L: Lane>(&self, rho: &[f64], next: &mut [f64], tau: f64) {
+        let quads = &self.quads[C];
         debug_assert_eq!(quads.neighbours.len(), quads.first.len() * C);
-        debug_assert_eq!(singles.neighbours.len(), singles.slot.len() * C);
-        let (count, tau_l, count_l) = (C as f64, L::splat(tau), L::splat(C as f64));
+        let (tau_l, count_l) = (L::splat(tau), L::splat(C as f64));
         let (rho_p, next_p) = (rho.as_ptr(), next.as_mut_ptr());
-        // SAFETY (both loops): `new` checked every slot and neighbour < `self.slots` and built
-        // each quad so that its slots s … s + 3 and its neighbours t_k … t_k + 3 are slots
-        // (each t_k + i is slot s + i's k-th neighbour); `step` checked that both vectors hold
-        // `self.slots` values; the neighbour vectors hold C entries per quad or slot. `rho` and
-        // `next` are distinct borrows.
+        // SAFETY: `new` checked every slot and neighbour < `self.slots` and built each quad so
+        // that its slots s … s + 3 and its neighbours t_k … t_k + 3 are slots (each t_k + i is
+        // slot s + i's k-th neighbour); `step` checked that both vectors hold `self.slots`
+        // values; the neighbour vector holds C entries per quad. `rho` and `next` are distinct
+        // borrows.
         for (q, &first) in quads.first.iter().enumerate() {
             unsafe {
                 let here = load4::<L>(rho_p, first as usize);
@@ -172,14 +258,40 @@ impl DuctNeighbours {
                 *next_p.add(first as usize).cast::<[f64; LANES]>() = new.store();
             }
         }
+    }
+
+    /// The single slots that read s − 1 first (`BEFORE`), then s + 1 (`AFTER`), then `R` listed
+    /// neighbours: sum and count as the one-list-per-slot loop formed them (0.0, then each
+    /// neighbour in list order; |N| = BEFORE + AFTER + R exactly).
+    #[inline(always)]
+    fn singles<const BEFORE: bool, const AFTER: bool, const R: usize>(&self, rho: &[f64], next: &mut [f64], tau: f64) {
+        let kind = Adjacent {
+            before: BEFORE,
+            after: AFTER,
+        };
+        let singles = &self.singles[kind.index()][R];
+        debug_assert_eq!(singles.neighbours.len(), singles.slot.len() * R);
+        let count = (kind.count() + R) as f64;
+        let (rho_p, next_p) = (rho.as_ptr(), next.as_mut_ptr());
+        // SAFETY: `new` checked every slot and neighbour < `self.slots`, and put a slot here
+        // only when s − 1 (`BEFORE`) and s + 1 (`AFTER`) are among its neighbours, so slots;
+        // `step` checked that both vectors hold `self.slots` values; the neighbour vector holds
+        // R entries per slot. `rho` and `next` are distinct borrows.
         for (i, &s) in singles.slot.iter().enumerate() {
             unsafe {
-                let here = *rho_p.add(s as usize);
+                let s = s as usize;
+                let here = *rho_p.add(s);
                 let mut sum = 0.0;
-                for k in 0..C {
-                    sum += *rho_p.add(*singles.neighbours.get_unchecked(i * C + k) as usize);
+                if BEFORE {
+                    sum += *rho_p.add(s - 1);
                 }
-                *next_p.add(s as usize) = here + tau * (sum - count * here);
+                if AFTER {
+                    sum += *rho_p.add(s + 1);
+                }
+                for k in 0..R {
+                    sum += *rho_p.add(*singles.neighbours.get_unchecked(i * R + k) as usize);
+                }
+                *next_p.add(s) = here + tau * (sum - count * here);
             }
         }
     }
@@ -264,12 +376,21 @@ mod tests {
         for slots in [1usize, 2, 7, 300, 5000] {
             // Random neighbour lists of every length 0 … 6 (the grid's symmetry is not needed
             // for the step's arithmetic).
+            // Often s − 1 first and s + 1 next, as a node's −x and +x neighbours are.
             let lists: Vec<[u32; 6]> = (0..slots)
-                .map(|_| {
+                .map(|s| {
                     let c = (rng.next() % 7) as usize;
                     let mut l = [u32::MAX; 6];
                     for v in l.iter_mut().take(c) {
                         *v = (rng.next() % slots as u64) as u32;
+                    }
+                    let mut k = 0;
+                    if c > k && s > 0 && rng.next() % 2 == 0 {
+                        l[k] = s as u32 - 1;
+                        k += 1;
+                    }
+                    if c > k && s + 1 < slots && rng.next() % 2 == 0 {
+                        l[k] = s as u32 + 1;
                     }
                     l
                 })
@@ -279,6 +400,10 @@ mod tests {
                 &l[..c]
             }));
             assert_eq!(grouped.len(), slots);
+            if slots >= 300 {
+                let [before, after] = grouped.singles_reading_adjacent();
+                assert!(before > slots / 8 && after > slots / 8, "{before}, {after} of {slots}");
+            }
             // Values over many magnitudes, zeros (both signs), subnormals and negatives.
             let mut rho: Vec<f64> = (0..slots)
                 .map(|_| match rng.next() % 8 {
@@ -357,6 +482,16 @@ mod tests {
         assert!(
             in_quads > slots / 4 && in_quads < slots,
             "{in_quads} of {slots} slots in quads: both kinds must be exercised"
+        );
+        let quads: usize = steps.quads.iter().map(|q| q.first.len()).sum();
+        assert!(
+            quads * LANES > in_quads + 40,
+            "overlapping quads at the ends of runs: {quads} quads over {in_quads} slots"
+        );
+        let [before, after] = steps.singles_reading_adjacent();
+        assert!(
+            before > 20 && after > 20,
+            "single slots reading s − 1 ({before}) and s + 1 ({after})"
         );
         // Contrast entering at one slot, spreading over many magnitudes; then random values.
         let mut rho = vec![0.0; slots];
