@@ -550,6 +550,26 @@ fn an_atlas_with_measured_breathing_is_published_with_its_motion() {
     ]);
     ok(&["atlas", "validate", s(&dir)]);
 
+    // A server whose voxel limit the CT (96 × 96 × 80 = 737 280 voxels) fits but not the CT and
+    // the field (24 × 24 × 20 = 11 520) together: refused from the headers, with the count.
+    {
+        let small = Server::start(
+            &data,
+            &db,
+            &f.atlases(),
+            &["--workers", "1", "--max-atlas-voxels", "740000"],
+        );
+        let token = full_token(&small.base, "ivan");
+        let (ok_, out, err) = publish_cli(&dir, &small.base, &token);
+        assert!(!ok_, "{out}{err}");
+        assert!(err.contains("413") || err.contains("too large"), "{err}");
+        assert!(
+            err.contains("748800 voxels") && err.contains("limit of 740000"),
+            "{err}"
+        );
+        assert!(published_entries(&data).is_empty(), "{:?}", published_entries(&data));
+    }
+
     let srv = Server::start(&data, &db, &f.atlases(), &["--workers", "1"]);
     let b = srv.base.clone();
     let token = full_token(&b, "ivan");

@@ -180,11 +180,12 @@ pub async fn publish_atlas(
         let _arriving = arriving;
         let checking = state.publish_permit.clone().acquire_owned().await.map_err(|_| busy())?;
         let work = incoming.path.clone();
+        let max_voxels = state.config.limits.max_atlas_voxels;
         let checked = tokio::task::spawn_blocking(move || {
             let _checking = checking;
             publish::unpack(&work.join("upload.tar"), &work.join("atlas"))?;
             let _ = std::fs::remove_file(work.join("upload.tar"));
-            publish::check(&work.join("atlas"), &work.join("smoke"))
+            publish::check(&work.join("atlas"), &work.join("smoke"), max_voxels)
         })
         .await
         .map_err(|_| ApiError::Internal)??;

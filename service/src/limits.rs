@@ -32,6 +32,11 @@ pub struct Limits {
     /// Most atlases the catalogue holds (each is kept loaded, CT and all): a publication past it
     /// is refused.
     pub max_atlases: usize,
+    /// Most voxels a published atlas may hold, its CT and measured breathing fields counted
+    /// (`stylet_atlas::store::voxel_count`): checked from the headers before the atlas is
+    /// loaded, it bounds the memory the atlas takes in the catalogue and its derived-data cache
+    /// on disk (a compressed archive far under `max_atlas_bytes` can describe a huge grid).
+    pub max_atlas_voxels: u64,
     /// Time a publication gets for its checks (loading the atlas, its smoke test), beyond its
     /// upload time.
     pub atlas_check_timeout: Duration,
@@ -52,6 +57,8 @@ impl Default for Limits {
             login_failure_accounts: 10_000,
             max_atlas_bytes: 1 << 30,
             max_atlases: 32,
+            // 512 × 512 × 256.
+            max_atlas_voxels: 1 << 26,
             atlas_check_timeout: Duration::from_secs(300),
         }
     }

@@ -51,6 +51,8 @@ pub enum Refusal {
     SmokeFailed(String),
     #[error("the server cannot keep the atlas: {0}")]
     Storage(String),
+    #[error("the atlas is too large for this server: {0}")]
+    TooLarge(String),
 }
 
 impl From<Refusal> for ApiError {
@@ -63,6 +65,7 @@ impl From<Refusal> for ApiError {
                     "the server cannot store the atlas right now; try again later",
                 )
             }
+            r @ Refusal::TooLarge(_) => err(StatusCode::PAYLOAD_TOO_LARGE, r.to_string()),
             r => err(StatusCode::UNPROCESSABLE_ENTITY, r.to_string()),
         }
     }
@@ -291,7 +294,15 @@ pub fn unpack(archive: &Path, out: &Path) -> Result<(), Refusal> {
 }
 
 /// Checks the unpacked atlas in `dir` (see the module doc), running its smoke test in `work`.
-pub fn check(dir: &Path, work: &Path) -> Result<Checked, Refusal> {
+pub fn check(dir: &Path, work: &Path, max_voxels: u64) -> Result<Checked, Refusal> {
+    // The load's memory and its derived-data cache grow with the voxels: bounded from the
+    // headers before any volume is read.
+    let voxels = stylet_atlas::store::voxel_count(dir).map_err(|e| Refusal::Damaged(strip_dir(&e.to_string(), dir)))?;
+    if voxels > max_voxels {
+        return Err(Refusal::TooLarge(format!(
+            "it holds {voxels} voxels (CT and breathing fields), more than the limit of {max_voxels} (stylet serve --max-atlas-voxels)"
+        )));
+    }
     let atlas = stylet_atlas::load(dir).map_err(|e| Refusal::Damaged(strip_dir(&e.to_string(), dir)))?;
     // Every motion file travels under the name atlas.toml gives it (the content hash covers it),
     // and nothing else does.

@@ -71,6 +71,9 @@ pub struct LimitArgs {
     /// Most atlases the catalogue holds (each stays loaded in memory).
     #[arg(long)]
     pub max_atlases: Option<usize>,
+    /// Most voxels a published atlas may hold (its CT and measured breathing fields).
+    #[arg(long)]
+    pub max_atlas_voxels: Option<u64>,
     /// Seconds a publication may take for its checks (loading the atlas, its smoke test), beyond
     /// its upload time.
     #[arg(long)]
@@ -95,6 +98,7 @@ impl LimitArgs {
             login_failure_accounts: d.login_failure_accounts,
             max_atlas_bytes: self.max_atlas_bytes.unwrap_or(d.max_atlas_bytes),
             max_atlases: self.max_atlases.unwrap_or(d.max_atlases),
+            max_atlas_voxels: self.max_atlas_voxels.unwrap_or(d.max_atlas_voxels),
             atlas_check_timeout: self.atlas_check_timeout_s.map_or(d.atlas_check_timeout, secs),
         }
     }

@@ -191,6 +191,14 @@ pub fn read_grid(path: &Path) -> Result<Grid, AtlasError> {
     Ok(check_header(path, &header, Shape::Scalar)?.0)
 }
 
+/// Reads just the header of a displacement field ([`read_displacement_field`]'s shape) and the
+/// grid it describes.
+pub fn read_field_grid(path: &Path) -> Result<Grid, AtlasError> {
+    let mut r = open(path)?;
+    let header = NiftiHeader::from_reader(&mut r).map_err(|e| err(path, format!("not a NIfTI-1 file: {e}")))?;
+    Ok(check_header(path, &header, Shape::Vector3)?.0)
+}
+
 /// What a file must hold per voxel.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Shape {

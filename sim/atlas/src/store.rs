@@ -200,6 +200,26 @@ pub fn content_hash(dir: &Path, manifest: &Manifest) -> Result<String, AtlasErro
     Ok(hex(&h.finalize()))
 }
 
+/// The voxels an atlas holds, from its files' headers alone (no volume is read): the CT's grid,
+/// or the labels' when that is larger (the loader refuses a mismatch only after reading both),
+/// plus each measured breathing field's grid. The memory and the derived-data cache of a load
+/// grow with it: what a server checks against its limit before loading an atlas it is sent.
+pub fn voxel_count(dir: &Path) -> Result<u64, AtlasError> {
+    let text = read_manifest_text(dir)?;
+    let manifest = parse_manifest(&text).map_err(|e| manifest_error(dir, e))?;
+    let voxels = |grid: stylet_physics::Grid| grid.len() as u64;
+    let ct = voxels(nifti_io::read_grid(&dir.join(&manifest.volumes.ct))?);
+    let labels = voxels(nifti_io::read_grid(&dir.join(&manifest.volumes.labels))?);
+    let breathing = manifest.breathing_or_default();
+    let mut fields = 0u64;
+    for name in breathing.measured_files() {
+        if name.ends_with(".nii") || name.ends_with(".nii.gz") {
+            fields += voxels(nifti_io::read_field_grid(&dir.join(name))?);
+        }
+    }
+    Ok(ct.max(labels) + fields)
+}
+
 /// Loads and validates an atlas directory, its distance maps from the derived-data cache when
 /// it holds this atlas' content (else derived, and cached).
 pub fn load(dir: &Path) -> Result<Atlas, AtlasError> {
