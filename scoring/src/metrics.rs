@@ -430,24 +430,39 @@ const SPACE_SINK_MM: f64 = 0.1;
 /// this distance of the plane (mm), down to this depth (mm).
 const VIEW_PLANE_MM: f64 = 5.0;
 const VIEW_DEPTH_MM: f64 = 150.0;
-/// A point in a probe's frame: (lateral along the array, depth along the beam, distance off the
-/// image plane), mm; the array along tool x, the beam along tool z.
-fn probe_coords(position: DVec3, orientation: stylet_physics::glam::DQuat, point: DVec3) -> (f64, f64, f64) {
-    let d = point - position;
-    let q = orientation;
-    (d.dot(q * DVec3::X), d.dot(q * DVec3::Z), d.dot(q * DVec3::Y))
+/// A probe's frame in the world: its position, the array (tool x), the beam (tool z) and the
+/// image plane's normal (tool y). The axes are rotated once per pose, not once per point tested
+/// (the survey tests every target point on a tick), with the same bits.
+struct ProbeFrame {
+    position: DVec3,
+    array: DVec3,
+    beam: DVec3,
+    normal: DVec3,
 }
 
-/// Whether `point` lies in the image the renderer draws for a probe at `position` /
-/// `orientation` (its default depth), within `plane_mm` of the image plane.
-fn in_rendered_image(
-    position: DVec3,
-    orientation: stylet_physics::glam::DQuat,
-    kind: stylet_physics::ProbeKind,
-    point: DVec3,
-    plane_mm: f64,
-) -> bool {
-    let (u, v, off) = probe_coords(position, orientation, point);
+impl ProbeFrame {
+    fn new(position: DVec3, orientation: stylet_physics::glam::DQuat) -> ProbeFrame {
+        let q = orientation;
+        ProbeFrame {
+            position,
+            array: q * DVec3::X,
+            beam: q * DVec3::Z,
+            normal: q * DVec3::Y,
+        }
+    }
+
+    /// A point in the probe's frame: (lateral along the array, depth along the beam, distance
+    /// off the image plane), mm.
+    fn coords(&self, point: DVec3) -> (f64, f64, f64) {
+        let d = point - self.position;
+        (d.dot(self.array), d.dot(self.beam), d.dot(self.normal))
+    }
+}
+
+/// Whether `point` lies in the image the renderer draws for a probe in `frame` (its default
+/// depth), within `plane_mm` of the image plane.
+fn in_rendered_image(frame: &ProbeFrame, kind: stylet_physics::ProbeKind, point: DVec3, plane_mm: f64) -> bool {
+    let (u, v, off) = frame.coords(point);
     off.abs() <= plane_mm && stylet_physics::probe_image::in_field(kind, kind.default_depth_mm(), u, v)
 }
 
@@ -456,14 +471,8 @@ fn in_rendered_image(
 /// probes, a 40 mm strip or a sector 25 mm + depth·tan 30° wide each side. A little looser than
 /// the image the renderer draws (`stylet_physics::probe_image`), which the needle-in-plane share
 /// uses.
-fn in_survey_view(
-    position: DVec3,
-    orientation: stylet_physics::glam::DQuat,
-    kind: stylet_physics::ProbeKind,
-    point: DVec3,
-    plane_mm: f64,
-) -> bool {
-    let (u, depth, off) = probe_coords(position, orientation, point);
+fn in_survey_view(frame: &ProbeFrame, kind: stylet_physics::ProbeKind, point: DVec3, plane_mm: f64) -> bool {
+    let (u, depth, off) = frame.coords(point);
     if off.abs() > plane_mm || !(0.0..=VIEW_DEPTH_MM).contains(&depth) {
         return false;
     }
@@ -681,7 +690,7 @@ impl<'a> MetricsCollector<'a> {
             self.imaged_insertion_ticks += 1;
             // The tip shows where the shaft does: within its radius + the beam's half thickness.
             let band_mm = n.spec().gauge.outer_diameter_mm() / 2.0 + stylet_physics::probe_image::ELEVATION_HALF_MM;
-            if in_rendered_image(position, orientation, kind, out.tip_mm, band_mm) {
+            if in_rendered_image(&ProbeFrame::new(position, orientation), kind, out.tip_mm, band_mm) {
                 self.tip_in_plane_ticks += 1;
             }
         }
@@ -889,10 +898,11 @@ impl<'a> MetricsCollector<'a> {
     /// the image: the plane holds the transducer array (tool x) and the beam (tool z); a linear
     /// array images a 40 mm wide strip, a convex one a 60° sector from its 50 mm radius.
     fn target_in_view(&self, input: &TickInput, kind: stylet_physics::ProbeKind) -> bool {
+        let frame = ProbeFrame::new(input.position_mm, input.orientation);
         self.target
             .points()
             .iter()
-            .any(|&t| in_survey_view(input.position_mm, input.orientation, kind, t, VIEW_PLANE_MM))
+            .any(|&t| in_survey_view(&frame, kind, t, VIEW_PLANE_MM))
     }
 
     /// The metrics of everything observed.
@@ -1124,5 +1134,36 @@ pub(crate) mod tests_support {
         let mut m = example();
         f(&mut m);
         m
+    }
+}
+
+#[cfg(test)]
+mod probe_frame_tests {
+    use super::*;
+    use stylet_physics::glam::DQuat;
+
+    /// The frame's coordinates are those of rotating the axes for every point, as the survey
+    /// computed them before the axes were rotated once per pose: the same bits, so the same
+    /// in-view decisions.
+    #[test]
+    fn a_probe_frame_gives_the_coordinates_of_rotating_the_axes_per_point() {
+        let mut seed = 0x5EEDu64;
+        let mut unit = || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for _ in 0..5_000 {
+            let position = DVec3::new(unit() * 400.0 - 200.0, unit() * 400.0 - 200.0, unit() * 400.0 - 200.0);
+            let axis = DVec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5).normalize_or(DVec3::Z);
+            let q = DQuat::from_axis_angle(axis, unit() * 6.3);
+            let point = position + DVec3::new(unit() * 100.0 - 50.0, unit() * 100.0 - 50.0, unit() * 160.0 - 10.0);
+            let d = point - position;
+            let per_point = (d.dot(q * DVec3::X), d.dot(q * DVec3::Z), d.dot(q * DVec3::Y));
+            let got = ProbeFrame::new(position, q).coords(point);
+            assert_eq!(
+                [got.0, got.1, got.2].map(f64::to_bits),
+                [per_point.0, per_point.1, per_point.2].map(f64::to_bits)
+            );
+        }
     }
 }
