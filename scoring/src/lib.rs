@@ -6,6 +6,7 @@
 
 pub mod benchmark;
 pub mod metrics;
+pub mod probe_view;
 pub mod reasons;
 pub mod replay;
 pub mod rubric;

@@ -9,6 +9,7 @@ use serde::Serialize;
 use stylet_physics::glam::DVec3;
 use stylet_physics::{Event, LabelId, Role, Simulation, TickInput, TickOutput, ToolSpec};
 
+use crate::probe_view::{ProbeFrame, in_rendered_image};
 use crate::target::TargetDistance;
 
 /// One planned insertion path of the atlas (guided mode), the type every crate shares.
@@ -426,64 +427,6 @@ const RUN_MIN_TICKS: u64 = 20;
 const RIB_SEARCH_MM: f64 = 30.0;
 /// A space is found when the finger sank this much deeper there than over its ribs (mm).
 const SPACE_SINK_MM: f64 = 0.1;
-/// The image plane test of the ultrasound survey (PerkTutor's TargetsScanned): a target within
-/// this distance of the plane (mm), down to this depth (mm).
-const VIEW_PLANE_MM: f64 = 5.0;
-const VIEW_DEPTH_MM: f64 = 150.0;
-/// A probe's frame in the world: its position, the array (tool x), the beam (tool z) and the
-/// image plane's normal (tool y). The axes are rotated once per pose, not once per point tested
-/// (the survey tests every target point on a tick), with the same bits.
-struct ProbeFrame {
-    position: DVec3,
-    array: DVec3,
-    beam: DVec3,
-    normal: DVec3,
-}
-
-impl ProbeFrame {
-    fn new(position: DVec3, orientation: stylet_physics::glam::DQuat) -> ProbeFrame {
-        let q = orientation;
-        ProbeFrame {
-            position,
-            array: q * DVec3::X,
-            beam: q * DVec3::Z,
-            normal: q * DVec3::Y,
-        }
-    }
-
-    /// A point in the probe's frame: (lateral along the array, depth along the beam, distance
-    /// off the image plane), mm.
-    fn coords(&self, point: DVec3) -> (f64, f64, f64) {
-        let d = point - self.position;
-        (d.dot(self.array), d.dot(self.beam), d.dot(self.normal))
-    }
-}
-
-/// Whether `point` lies in the image the renderer draws for a probe in `frame` (its default
-/// depth), within `plane_mm` of the image plane.
-fn in_rendered_image(frame: &ProbeFrame, kind: stylet_physics::ProbeKind, point: DVec3, plane_mm: f64) -> bool {
-    let (u, v, off) = frame.coords(point);
-    off.abs() <= plane_mm && stylet_physics::probe_image::in_field(kind, kind.default_depth_mm(), u, v)
-}
-
-/// The ultrasound survey's "in view" (PerkTutor's TargetsScanned; grades were computed with it,
-/// so it stays): within `plane_mm` of the image plane, down to [`VIEW_DEPTH_MM`] for both
-/// probes, a 40 mm strip or a sector 25 mm + depth·tan 30° wide each side. A little looser than
-/// the image the renderer draws (`stylet_physics::probe_image`), which the needle-in-plane share
-/// uses.
-fn in_survey_view(frame: &ProbeFrame, kind: stylet_physics::ProbeKind, point: DVec3, plane_mm: f64) -> bool {
-    let (u, depth, off) = frame.coords(point);
-    if off.abs() > plane_mm || !(0.0..=VIEW_DEPTH_MM).contains(&depth) {
-        return false;
-    }
-    let half_width = match kind {
-        stylet_physics::ProbeKind::Linear => 20.0,
-        // 60° sector of a 50 mm radius face: 25 mm at the face, widening with depth.
-        stylet_physics::ProbeKind::Convex => 25.0 + depth * (30f64).to_radians().tan(),
-    };
-    u.abs() <= half_width
-}
-
 /// Good skin contact: at least this share of the probe face on the skin.
 const GOOD_CONTACT_SHARE: f64 = 0.75;
 
@@ -894,15 +837,11 @@ impl<'a> MetricsCollector<'a> {
         self.was_in_body = in_body;
     }
 
-    /// Whether a target point lies within [`VIEW_PLANE_MM`] of the probe's image plane, inside
-    /// the image: the plane holds the transducer array (tool x) and the beam (tool z); a linear
-    /// array images a 40 mm wide strip, a convex one a 60° sector from its 50 mm radius.
+    /// Whether a target point lies in the probe's survey view ([`crate::probe_view::in_survey_view`]):
+    /// within [`crate::probe_view::VIEW_PLANE_MM`] of the image plane, inside the image.
     fn target_in_view(&self, input: &TickInput, kind: stylet_physics::ProbeKind) -> bool {
         let frame = ProbeFrame::new(input.position_mm, input.orientation);
-        self.target
-            .points()
-            .iter()
-            .any(|&t| in_survey_view(&frame, kind, t, VIEW_PLANE_MM))
+        self.target.survey_points().any_in_survey_view(&frame, kind)
     }
 
     /// The metrics of everything observed.
@@ -1134,36 +1073,5 @@ pub(crate) mod tests_support {
         let mut m = example();
         f(&mut m);
         m
-    }
-}
-
-#[cfg(test)]
-mod probe_frame_tests {
-    use super::*;
-    use stylet_physics::glam::DQuat;
-
-    /// The frame's coordinates are those of rotating the axes for every point, as the survey
-    /// computed them before the axes were rotated once per pose: the same bits, so the same
-    /// in-view decisions.
-    #[test]
-    fn a_probe_frame_gives_the_coordinates_of_rotating_the_axes_per_point() {
-        let mut seed = 0x5EEDu64;
-        let mut unit = || {
-            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
-        for _ in 0..5_000 {
-            let position = DVec3::new(unit() * 400.0 - 200.0, unit() * 400.0 - 200.0, unit() * 400.0 - 200.0);
-            let axis = DVec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5).normalize_or(DVec3::Z);
-            let q = DQuat::from_axis_angle(axis, unit() * 6.3);
-            let point = position + DVec3::new(unit() * 100.0 - 50.0, unit() * 100.0 - 50.0, unit() * 160.0 - 10.0);
-            let d = point - position;
-            let per_point = (d.dot(q * DVec3::X), d.dot(q * DVec3::Z), d.dot(q * DVec3::Y));
-            let got = ProbeFrame::new(position, q).coords(point);
-            assert_eq!(
-                [got.0, got.1, got.2].map(f64::to_bits),
-                [per_point.0, per_point.1, per_point.2].map(f64::to_bits)
-            );
-        }
     }
 }

@@ -4,12 +4,14 @@
 
 use stylet_physics::{PunctureAtlas, Role, Volume};
 
+use crate::probe_view::SurveyPoints;
+
 /// Distance (mm) to the nearest voxel centre labelled with a target role.
 pub struct TargetDistance {
     map: Option<Volume<f32>>,
     /// Target voxel centres (world mm), at most [`MAX_TARGET_POINTS`] (evenly thinned): what an
     /// ultrasound image plane is tested against.
-    points: Vec<stylet_physics::glam::DVec3>,
+    points: SurveyPoints,
 }
 
 /// Bounds the per-tick cost of the ultrasound view test.
@@ -27,7 +29,7 @@ impl TargetDistance {
         if !target.iter().any(|&t| t) {
             return TargetDistance {
                 map: None,
-                points: Vec::new(),
+                points: SurveyPoints::default(),
             };
         }
         let grid = *labels.grid();
@@ -37,7 +39,7 @@ impl TargetDistance {
             .collect();
         let all: Vec<usize> = (0..target.len()).filter(|&i| target[i]).collect();
         let stride = all.len().div_ceil(MAX_TARGET_POINTS).max(1);
-        let points = all.iter().step_by(stride).map(|&i| grid.linear_to_world(i)).collect();
+        let points = SurveyPoints::new(all.iter().step_by(stride).map(|&i| grid.linear_to_world(i)).collect());
         TargetDistance {
             map: Some(Volume::new(grid, d).expect("same grid")),
             points,
@@ -46,6 +48,11 @@ impl TargetDistance {
 
     /// Target voxel centres (world mm; thinned evenly to at most [`MAX_TARGET_POINTS`]).
     pub fn points(&self) -> &[stylet_physics::glam::DVec3] {
+        self.points.points()
+    }
+
+    /// The same points, blocked for the ultrasound survey's test.
+    pub fn survey_points(&self) -> &SurveyPoints {
         &self.points
     }
 
