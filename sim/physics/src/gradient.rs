@@ -29,7 +29,7 @@ pub struct GradientSampler<'a, const N: usize> {
 }
 
 /// A value and its gradient (value units per mm along the world axes).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ValueGradient {
     /// As [`Volume::sample_index`] gives it (the same bits).
     pub value: f64,

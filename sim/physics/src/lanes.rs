@@ -397,6 +397,15 @@ pub(crate) struct Vec4s {
 }
 
 impl Vec4s {
+    /// Lane i holding `v[i]` (built without zeroing first).
+    #[inline(always)]
+    pub(crate) fn from_lanes(v: [DVec3; LANES]) -> Self {
+        Vec4s {
+            x: v.map(|p| p.x),
+            y: v.map(|p| p.y),
+            z: v.map(|p| p.z),
+        }
+    }
     /// Lane `i` set to `v`.
     #[inline(always)]
     pub(crate) fn set(&mut self, i: usize, v: DVec3) {

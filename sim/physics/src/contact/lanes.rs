@@ -68,32 +68,36 @@ pub(super) struct Held {
     pub proxy: Vec4s,
 }
 
-/// What [`read_and_law`] gives (returned into the caller's frame and consumed there, never
-/// stored: boxing the larger variant would only add an allocation per batch).
-#[allow(clippy::large_enum_variant)]
-pub(super) enum ReadLaw {
-    /// All four nodes are inside the skin: their D_skin and the law's results.
-    Law { d_skin: [f64; LANES], out: LanesOut },
-    /// Some node left the skin: the maps' reads, for settling node by node.
-    Reads([[ValueGradient; 2]; LANES]),
+/// Where [`read_and_law`] leaves its results: kept by the tool between ticks (one write in
+/// place; returning them by value cost a copy of half a kilobyte per call).
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Fused {
+    /// When all four nodes are inside the skin: their D_skin and the law's results.
+    pub d_skin: [f64; LANES],
+    pub law: LanesOut,
+    /// When some node left the skin: the maps' reads, for settling node by node.
+    pub reads: [[ValueGradient; 2]; LANES],
 }
 
 /// Both maps' values and gradients at four interior indices `cs` and, when all four nodes are
 /// inside the skin, the law for them with `held` (all in contact on the last tick), the maps'
 /// lanes going straight into the law: the bits of [`GradientSampler::at_interior4`] followed by
 /// [`contact_lanes`], without storing the reads and loading them back. AVX2 where the CPU has it.
+/// True when all four are inside the skin (`into.d_skin` and `into.law` are set), false when some
+/// node left it (`into.reads` is set).
 pub(super) fn read_and_law(
     maps: &GradientSampler<'_, 2>,
     cs: &[DVec3; LANES],
     held: &Held,
     friction: ContactFriction,
-) -> ReadLaw {
+    into: &mut Fused,
+) -> bool {
     #[cfg(target_arch = "x86_64")]
     if has_avx2() {
         // SAFETY: the CPU has AVX2 (checked above).
-        return unsafe { read_and_law_avx2(maps, cs, held, friction) };
+        return unsafe { read_and_law_avx2(maps, cs, held, friction, into) };
     }
-    read_and_law_in::<F4>(maps, cs, held, friction)
+    read_and_law_in::<F4>(maps, cs, held, friction, into)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -103,8 +107,9 @@ fn read_and_law_avx2(
     cs: &[DVec3; LANES],
     held: &Held,
     friction: ContactFriction,
-) -> ReadLaw {
-    read_and_law_in::<crate::lanes::avx::Avx>(maps, cs, held, friction)
+    into: &mut Fused,
+) -> bool {
+    read_and_law_in::<crate::lanes::avx::Avx>(maps, cs, held, friction, into)
 }
 
 #[inline(always)]
@@ -113,16 +118,13 @@ fn read_and_law_in<L: Lane>(
     cs: &[DVec3; LANES],
     held: &Held,
     friction: ContactFriction,
-) -> ReadLaw {
+    into: &mut Fused,
+) -> bool {
     let [(d_skin, grad_skin), (d_bone, grad_bone)] = maps.at_interior4_lanes::<L>(cs);
     let skin = d_skin.store();
     if !(in_skin(skin[0]) && in_skin(skin[1]) && in_skin(skin[2]) && in_skin(skin[3])) {
         let (gs, bone, gb) = (grad_skin.store(), d_bone.store(), grad_bone.store());
-        let mut reads = [[ValueGradient {
-            value: 0.0,
-            gradient: DVec3::ZERO,
-        }; 2]; LANES];
-        for (lane, r) in reads.iter_mut().enumerate() {
+        for (lane, r) in into.reads.iter_mut().enumerate() {
             r[0] = ValueGradient {
                 value: skin[lane],
                 gradient: gs.get(lane),
@@ -132,7 +134,7 @@ fn read_and_law_in<L: Lane>(
                 gradient: gb.get(lane),
             };
         }
-        return ReadLaw::Reads(reads);
+        return false;
     }
     let input = LawIn {
         pos: V4::load(&held.pos),
@@ -144,10 +146,9 @@ fn read_and_law_in<L: Lane>(
         surface: V4::load(&held.surface),
         proxy: V4::load(&held.proxy),
     };
-    ReadLaw::Law {
-        d_skin: skin,
-        out: law_lanes(input, friction),
-    }
+    into.d_skin = skin;
+    into.law = law_lanes(input, friction);
+    true
 }
 
 /// [`LanesIn`] as lanes.
@@ -426,9 +427,10 @@ mod tests {
                     held.proxy.set(lane, xi + rng.vec(reach));
                 }
                 let separate = sampler.at_interior4(&cs);
-                let fused = [
-                    read_and_law(&sampler, &cs, &held, friction),
-                    read_and_law_in::<F4>(&sampler, &cs, &held, friction),
+                let mut fused = [Fused::default(); 2];
+                let all_in = [
+                    read_and_law(&sampler, &cs, &held, friction, &mut fused[0]),
+                    read_and_law_in::<F4>(&sampler, &cs, &held, friction, &mut fused[1]),
                 ];
                 if separate.iter().all(|r| in_skin(r[0].value)) {
                     let mut input = LanesIn {
@@ -445,10 +447,9 @@ mod tests {
                         input.grad_bone.set(lane, b.gradient);
                     }
                     let want = contact_lanes(&input, friction);
-                    for got in fused {
-                        let ReadLaw::Law { d_skin, out } = got else {
-                            panic!("every node is in the skin at {cs:?}");
-                        };
+                    for (got, all_in) in fused.iter().zip(all_in) {
+                        assert!(all_in, "every node is in the skin at {cs:?}");
+                        let (d_skin, out) = (got.d_skin, got.law);
                         assert_eq!(d_skin.map(f64::to_bits), input.d_skin.map(f64::to_bits));
                         for (g, w) in [
                             (out.f_skin, want.f_skin),
@@ -464,10 +465,9 @@ mod tests {
                     }
                     laws += 1;
                 } else {
-                    for got in fused {
-                        let ReadLaw::Reads(r) = got else {
-                            panic!("a node is off the skin at {cs:?}");
-                        };
+                    for (got, all_in) in fused.iter().zip(all_in) {
+                        assert!(!all_in, "a node is off the skin at {cs:?}");
+                        let r = got.reads;
                         for (g, w) in r.iter().flatten().zip(separate.iter().flatten()) {
                             assert_eq!(g.value.to_bits(), w.value.to_bits());
                             assert_eq!(bits(g.gradient), bits(w.gradient));

@@ -21,6 +21,7 @@ use glam::{DMat3, DQuat, DVec3};
 
 use crate::PunctureAtlas;
 use crate::gradient::{GradientSampler, ValueGradient};
+use crate::lanes::Vec4s;
 pub use patterns::ContactPattern;
 
 /// Friction constants of eqs. 3.6.8–3.6.11.
@@ -97,6 +98,24 @@ pub struct ContactTool {
     pattern: ContactPattern,
     friction: ContactFriction,
     nodes: Vec<ContactNode>,
+    /// A tick's queues and batches, kept between ticks so that a tick does not clear them first
+    /// (they hold no state: every lane a tick reads, it wrote).
+    scratch: Scratch,
+}
+
+/// The working space of one tick.
+#[derive(Clone, Default)]
+struct Scratch {
+    probing: Queue,
+    touching: Queue,
+    law: Batch,
+    fused: lanes::Fused,
+}
+
+impl std::fmt::Debug for Scratch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Scratch")
+    }
 }
 
 impl ContactTool {
@@ -113,6 +132,7 @@ impl ContactTool {
             pattern,
             friction,
             nodes: vec![idle; n],
+            scratch: Scratch::default(),
         }
     }
 
@@ -141,32 +161,39 @@ impl ContactTool {
         // position in index units (each node's index is then c_x + A⁻¹ Q x_i⁰).
         let rotation = DMat3::from_quat(q);
         let c_x = grid.world_to_index(x);
+        let Scratch {
+            probing,
+            touching,
+            law,
+            fused,
+        } = &mut self.scratch;
+        // Left empty by the last tick (each ends by emptying them).
+        debug_assert!(probing.len == 0 && touching.len == 0 && law.len == 0);
         let mut tick = Tick {
             nodes: &mut self.nodes,
             friction: self.friction,
-            law: Batch::default(),
+            law,
+            fused,
             sums: Sums::default(),
         };
         // Interior nodes wait in two queues of four: D_skin alone for every node, then both
         // maps' values and gradients for the nodes inside the skin.
-        let mut probing = Queue::default();
-        let mut touching = Queue::default();
         for (i, p0) in self.pattern.points().iter().enumerate() {
             let arm = rotation * *p0;
             let xi = x + arm;
             let c = c_x + grid.world_vector_to_index(arm);
             if maps.is_interior(c) {
                 if probing.push(i, arm, xi, c) {
-                    probing.probe(&maps, &mut touching, &mut tick);
+                    probing.probe(&maps, touching, &mut tick);
                 }
                 continue;
             }
             // A node near the grid's border: the interior nodes before it first (node order).
-            probing.probe(&maps, &mut touching, &mut tick);
+            probing.probe(&maps, touching, &mut tick);
             touching.read(&maps, &mut tick);
             tick.settle(i, arm, xi, maps.at_index_if(c, -1000.0, in_skin));
         }
-        probing.probe(&maps, &mut touching, &mut tick);
+        probing.probe(&maps, touching, &mut tick);
         touching.read(&maps, &mut tick);
         tick.law.finish(tick.nodes, tick.friction, &mut tick.sums);
         tick.sums.means()
@@ -179,11 +206,12 @@ fn in_skin(d_skin: f64) -> bool {
     !(d_skin <= 0.0)
 }
 
-/// One tick's nodes, force-law batch and sums.
+/// One tick's nodes, force-law batch, fused reads and sums.
 struct Tick<'n> {
     nodes: &'n mut [ContactNode],
     friction: ContactFriction,
-    law: Batch,
+    law: &'n mut Batch,
+    fused: &'n mut lanes::Fused,
     sums: Sums,
 }
 
@@ -221,7 +249,7 @@ impl Tick<'_> {
 }
 
 /// Up to four interior nodes waiting for a batched read.
-#[derive(Default)]
+#[derive(Clone, Default)]
 struct Queue {
     /// Each lane's node index, lever arm and position.
     nodes: [(usize, DVec3, DVec3); crate::lanes::LANES],
@@ -262,25 +290,31 @@ impl Queue {
             // still touch, the reads go straight into the force law. The nodes queued before
             // them are settled, and their law run, first (sums in node order).
             touching.read(maps, tick);
-            let mut held = lanes::Held::default();
-            for (lane, &(i, _, xi)) in self.nodes.iter().enumerate() {
-                held.pos.set(lane, xi);
-                held.surface.set(lane, tick.nodes[i].surface);
-                held.proxy.set(lane, tick.nodes[i].proxy);
-            }
-            match lanes::read_and_law(maps, &self.c, &held, tick.friction) {
-                lanes::ReadLaw::Law { d_skin, out } => {
-                    tick.law.finish(tick.nodes, tick.friction, &mut tick.sums);
-                    for (lane, &(i, arm, xi)) in self.nodes.iter().enumerate() {
-                        tick.nodes[i].pos = xi;
-                        store_lane(&mut tick.nodes[i], arm, d_skin[lane], &out, lane, &mut tick.sums);
-                    }
+            let nodes = &tick.nodes;
+            let held = lanes::Held {
+                pos: Vec4s::from_lanes(self.nodes.map(|(_, _, xi)| xi)),
+                surface: Vec4s::from_lanes(self.nodes.map(|(i, ..)| nodes[i].surface)),
+                proxy: Vec4s::from_lanes(self.nodes.map(|(i, ..)| nodes[i].proxy)),
+            };
+            if lanes::read_and_law(maps, &self.c, &held, tick.friction, tick.fused) {
+                tick.law.finish(tick.nodes, tick.friction, &mut tick.sums);
+                let fused = &*tick.fused;
+                for (lane, &(i, arm, xi)) in self.nodes.iter().enumerate() {
+                    tick.nodes[i].pos = xi;
+                    store_lane(
+                        &mut tick.nodes[i],
+                        arm,
+                        fused.d_skin[lane],
+                        &fused.law,
+                        lane,
+                        &mut tick.sums,
+                    );
                 }
-                lanes::ReadLaw::Reads(reads) => {
-                    for (&(i, arm, xi), read) in self.nodes.iter().zip(reads) {
-                        let d = read[0].value;
-                        tick.settle(i, arm, xi, if in_skin(d) { Ok(read) } else { Err(d) });
-                    }
+            } else {
+                for (lane, &(i, arm, xi)) in self.nodes.iter().enumerate() {
+                    let read = tick.fused.reads[lane];
+                    let d = read[0].value;
+                    tick.settle(i, arm, xi, if in_skin(d) { Ok(read) } else { Err(d) });
                 }
             }
             self.len = 0;
@@ -314,7 +348,7 @@ impl Queue {
 }
 
 /// Up to four nodes inside the skin waiting for the force law.
-#[derive(Default)]
+#[derive(Clone, Default)]
 struct Batch {
     input: lanes::LanesIn,
     /// Each lane's node index and lever arm Q x_i⁰.
