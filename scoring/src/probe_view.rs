@@ -29,7 +29,8 @@ pub struct ProbeFrame {
     beam: DVec3,
     normal: DVec3,
     /// At least the longest axis' length (1 for a unit quaternion; a recorded orientation need
-    /// not be one exactly): how far a coordinate can move per mm the point moves.
+    /// not be one exactly): how far a coordinate can move per mm the point moves. max(1, ‖axis‖²)
+    /// is such a bound without a square root.
     stretch: f64,
 }
 
@@ -37,13 +38,16 @@ impl ProbeFrame {
     pub fn new(position: DVec3, orientation: DQuat) -> ProbeFrame {
         let q = orientation;
         let (array, beam, normal) = (q * DVec3::X, q * DVec3::Z, q * DVec3::Y);
-        let longest = array.length().max(beam.length()).max(normal.length());
+        let longest_squared = array
+            .length_squared()
+            .max(beam.length_squared())
+            .max(normal.length_squared());
         ProbeFrame {
             position,
             array,
             beam,
             normal,
-            stretch: longest * (1.0 + 1e-9),
+            stretch: longest_squared.max(1.0) * (1.0 + 1e-9),
         }
     }
 
@@ -91,8 +95,8 @@ fn in_survey_view_widening(frame: &ProbeFrame, kind: ProbeKind, point: DVec3, pl
 
 /// Points per block: 4096 target points are 128 blocks.
 const BLOCK_POINTS: usize = 32;
-/// Added to every reach (mm): far more than the rounding of any coordinate within a kilometre
-/// of the probe, so a block is never passed by a rounding error.
+/// Added to every block's reach (mm): far more than the rounding of any coordinate, radius or
+/// sector width within a kilometre of the probe, so a block is never passed by a rounding error.
 const ROUNDING_MARGIN_MM: f64 = 1e-6;
 
 /// Consecutive target points and the sphere that holds them.
@@ -124,18 +128,13 @@ impl SurveyPoints {
                 let radius_mm = run.iter().map(|&p| p.distance(centre)).fold(0.0, f64::max);
                 Block {
                     centre,
-                    // Over the rounding of the distances just taken.
-                    radius_mm: radius_mm * (1.0 + 1e-9) + ROUNDING_MARGIN_MM,
+                    radius_mm,
                     start,
                     end,
                 }
             })
             .collect();
         SurveyPoints { points, blocks }
-    }
-
-    pub fn points(&self) -> &[DVec3] {
-        &self.points
     }
 
     /// Whether any point is in the survey view of a probe in `frame` ([`in_survey_view`] with
@@ -165,8 +164,8 @@ fn block_may_be_in_view(frame: &ProbeFrame, kind: ProbeKind, block: &Block, wide
     }
     let widest_mm = match kind {
         ProbeKind::Linear => LINEAR_HALF_WIDTH_MM,
-        // The sector is widest at the deepest the block's points can be.
-        ProbeKind::Convex => CONVEX_HALF_WIDTH_MM + (depth + reach).max(0.0) * widening + ROUNDING_MARGIN_MM,
+        // The sector is widest at the deepest the block's points can be (depth ≥ −reach here).
+        ProbeKind::Convex => CONVEX_HALF_WIDTH_MM + (depth + reach) * widening,
     };
     // Written so that NaN keeps the block (`<=` would pass it).
     u.abs().partial_cmp(&(widest_mm + reach)) != Some(std::cmp::Ordering::Greater)
@@ -317,5 +316,16 @@ mod tests {
         let points = vec![p, p + away * 20.0];
         assert!(in_survey_view(&frame, ProbeKind::Convex, p, VIEW_PLANE_MM));
         assert!(SurveyPoints::new(points).any_in_survey_view(&frame, ProbeKind::Convex));
+        // A recorded quaternion 0.1 % longer than unit stretches every coordinate by 0.2 %: a
+        // point 4.99 mm off the plane, in view, and a partner 40 mm farther off put the block's
+        // centre 25.03 mm off, beyond 5 mm + its 20 mm radius; only the stretch keeps the block.
+        let stretched = ProbeFrame::new(frame.position, q * 1.001);
+        let (normal, beam) = (stretched.normal.normalize(), stretched.beam.normalize());
+        let p =
+            stretched.position + normal * (4.99 / stretched.normal.length()) + beam * (50.0 / stretched.beam.length());
+        for kind in [ProbeKind::Linear, ProbeKind::Convex] {
+            assert!(in_survey_view(&stretched, kind, p, VIEW_PLANE_MM));
+            assert!(SurveyPoints::new(vec![p, p + normal * 40.0]).any_in_survey_view(&stretched, kind));
+        }
     }
 }

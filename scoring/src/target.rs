@@ -46,12 +46,8 @@ impl TargetDistance {
         }
     }
 
-    /// Target voxel centres (world mm; thinned evenly to at most [`MAX_TARGET_POINTS`]).
-    pub fn points(&self) -> &[stylet_physics::glam::DVec3] {
-        self.points.points()
-    }
-
-    /// The same points, blocked for the ultrasound survey's test.
+    /// Target voxel centres (world mm; thinned evenly to at most [`MAX_TARGET_POINTS`]), blocked
+    /// for the ultrasound survey's test.
     pub fn survey_points(&self) -> &SurveyPoints {
         &self.points
     }
