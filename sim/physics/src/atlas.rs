@@ -55,6 +55,8 @@ pub struct PunctureAtlas {
     thresholds: Thresholds,
     skin_distance: Volume<f32>,
     bone_distance: Volume<f32>,
+    /// [`Volume::max_neighbour_steps`] of `skin_distance` (mm per index unit).
+    skin_distance_steps_mm: [f64; 3],
     skin_layer_mm: f64,
     /// The breathing motion attached to the atlas (docs/breathing.md "Atlases"); `None`: this
     /// patient does not breathe.
@@ -146,7 +148,9 @@ impl PunctureAtlas {
             }
             None => DistanceMaps::derive(&ct, &thresholds),
         };
+        let skin_distance_steps_mm = skin_distance.max_neighbour_steps();
         Ok(PunctureAtlas {
+            skin_distance_steps_mm,
             ct,
             partial,
             labels,
@@ -181,6 +185,12 @@ impl PunctureAtlas {
     /// D_skin: signed distance to the skin surface, mm, positive inside the body (§3.6).
     pub fn skin_distance(&self) -> &Volume<f32> {
         &self.skin_distance
+    }
+    /// The most D_skin changes between neighbouring voxels along each index axis (mm): a bound
+    /// on the interpolated map's slope (the contact tools use it to pass nodes certainly off the
+    /// skin without reading it).
+    pub fn skin_distance_steps_mm(&self) -> [f64; 3] {
+        self.skin_distance_steps_mm
     }
     /// D_bone: signed distance to the bone surface, mm, positive inside bone (§3.6).
     pub fn bone_distance(&self) -> &Volume<f32> {

@@ -16,6 +16,7 @@
 
 mod lanes;
 pub mod patterns;
+mod skin_bound;
 
 use glam::{DMat3, DQuat, DVec3};
 
@@ -23,6 +24,7 @@ use crate::PunctureAtlas;
 use crate::gradient::{GradientSampler, ValueGradient};
 use crate::lanes::Vec4s;
 pub use patterns::ContactPattern;
+use skin_bound::SkinBound;
 
 /// Friction constants of eqs. 3.6.8–3.6.11.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -98,6 +100,15 @@ pub struct ContactTool {
     pattern: ContactPattern,
     friction: ContactFriction,
     nodes: Vec<ContactNode>,
+    /// Per node, an upper bound on D_skin where it was last ([`skin_bound`]): nodes it proves off
+    /// the skin are not read. Work only: the outputs are those of reading every node.
+    bounds: Vec<SkinBound>,
+    /// The skin map the bounds were taken on (its grid and its values' address): another map
+    /// starts them afresh.
+    bounds_map: Option<(crate::Grid, usize)>,
+    /// Nodes passed by their bound (the tests check that the bound is used).
+    #[cfg(test)]
+    passed: u64,
     /// A tick's queues and batches, kept between ticks so that a tick does not clear them first
     /// (they hold no state: every lane a tick reads, it wrote).
     scratch: Scratch,
@@ -132,6 +143,10 @@ impl ContactTool {
             pattern,
             friction,
             nodes: vec![idle; n],
+            bounds: vec![SkinBound::UNKNOWN; n],
+            bounds_map: None,
+            #[cfg(test)]
+            passed: 0,
             scratch: Scratch::default(),
         }
     }
@@ -160,6 +175,12 @@ impl ContactTool {
         // The pattern's geometry once per tick: the rotation as a matrix, and the device
         // position in index units (each node's index is then c_x + A⁻¹ Q x_i⁰).
         let rotation = DMat3::from_quat(q);
+        let map_key = Some((grid, skin.data().as_ptr() as usize));
+        if self.bounds_map != map_key {
+            self.bounds.fill(SkinBound::UNKNOWN);
+            self.bounds_map = map_key;
+        }
+        let slopes_mm = skin_bound::slopes_mm(atlas.skin_distance_steps_mm());
         let c_x = grid.world_to_index(x);
         let Scratch {
             probing,
@@ -171,6 +192,7 @@ impl ContactTool {
         debug_assert!(probing.len == 0 && touching.len == 0 && law.len == 0);
         let mut tick = Tick {
             nodes: &mut self.nodes,
+            bounds: &mut self.bounds,
             friction: self.friction,
             law,
             fused,
@@ -183,6 +205,17 @@ impl ContactTool {
             let xi = x + arm;
             let c = c_x + grid.world_vector_to_index(arm);
             if maps.is_interior(c) {
+                if let Some(bound) = tick.bounds[i].off_skin_at(c, slopes_mm) {
+                    // Certainly off the skin: settled idle at once (it adds nothing to the
+                    // sums, so the nodes waiting before it are unaffected).
+                    tick.bounds[i] = bound;
+                    tick.settle(i, arm, xi, Err(bound.upper_mm()));
+                    #[cfg(test)]
+                    {
+                        self.passed += 1;
+                    }
+                    continue;
+                }
                 if probing.push(i, arm, xi, c) {
                     probing.probe(&maps, touching, &mut tick);
                 }
@@ -191,6 +224,7 @@ impl ContactTool {
             // A node near the grid's border: the interior nodes before it first (node order).
             probing.probe(&maps, touching, &mut tick);
             touching.read(&maps, &mut tick);
+            tick.bounds[i] = SkinBound::UNKNOWN;
             tick.settle(i, arm, xi, maps.at_index_if(c, -1000.0, in_skin));
         }
         probing.probe(&maps, touching, &mut tick);
@@ -209,6 +243,7 @@ fn in_skin(d_skin: f64) -> bool {
 /// One tick's nodes, force-law batch, fused reads and sums.
 struct Tick<'n> {
     nodes: &'n mut [ContactNode],
+    bounds: &'n mut [SkinBound],
     friction: ContactFriction,
     law: &'n mut Batch,
     fused: &'n mut lanes::Fused,
@@ -296,7 +331,16 @@ impl Queue {
                 surface: Vec4s::from_lanes(self.nodes.map(|(i, ..)| nodes[i].surface)),
                 proxy: Vec4s::from_lanes(self.nodes.map(|(i, ..)| nodes[i].proxy)),
             };
-            if lanes::read_and_law(maps, &self.c, &held, tick.friction, tick.fused) {
+            let all_in = lanes::read_and_law(maps, &self.c, &held, tick.friction, tick.fused);
+            for (lane, &(i, ..)) in self.nodes.iter().enumerate() {
+                let d = if all_in {
+                    tick.fused.d_skin[lane]
+                } else {
+                    tick.fused.reads[lane][0].value
+                };
+                tick.bounds[i] = SkinBound::read(self.c[lane], d);
+            }
+            if all_in {
                 tick.law.finish(tick.nodes, tick.friction, &mut tick.sums);
                 let fused = &*tick.fused;
                 for (lane, &(i, arm, xi)) in self.nodes.iter().enumerate() {
@@ -322,6 +366,7 @@ impl Queue {
         }
         let d_skin = maps.values4(self.indices());
         for (&(i, arm, xi), (d, c)) in self.nodes.iter().zip(d_skin.into_iter().zip(self.c)).take(self.len) {
+            tick.bounds[i] = SkinBound::read(c, d);
             if in_skin(d) {
                 if touching.push(i, arm, xi, c) {
                     touching.read(maps, tick);
@@ -414,6 +459,161 @@ impl Sums {
             bone: self.f_bone * k,
             torque: self.torque * k,
             contacts: self.n,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::{DQuat, DVec3};
+
+    use super::*;
+    use crate::labels::HeuristicLabels;
+    use crate::properties::{Param, ParamValue, TissueSpec};
+    use crate::{Affine, Grid, Label, LabelTable, PropertyTree, Role, Thresholds, Volume};
+
+    /// A 56 × 48 × 30 atlas of anisotropic voxels (0.9 × 0.8 × 1.6 mm): a body (40 HU) whose skin
+    /// is an ellipsoid cap, air above it, and a rib-like bone bar (700 HU) 12 mm under the top.
+    fn atlas() -> PunctureAtlas {
+        let g = Grid::new(
+            [56, 48, 30],
+            Affine::from_spacing([0.9, 0.8, 1.6], DVec3::new(-25.0, -19.0, -30.0)),
+        )
+        .unwrap();
+        let mut ct = vec![-1000.0f32; g.len()];
+        for (i, v) in ct.iter_mut().enumerate() {
+            let [a, b, c] = g.unlinear(i);
+            let p = g.voxel_to_world(a, b, c);
+            // Ellipsoid centred 40 mm below the origin: the top of the body is curved.
+            let r = (p.x / 60.0).powi(2) + (p.y / 50.0).powi(2) + ((p.z + 40.0) / 45.0).powi(2);
+            if r < 1.0 {
+                *v = if (p.z + 8.0).abs() < 2.5 && p.y.abs() < 12.0 {
+                    700.0
+                } else {
+                    40.0
+                };
+            }
+        }
+        let lab = |id, name: &str, role| Label {
+            id,
+            name: name.into(),
+            role,
+            tissue: "body".into(),
+        };
+        let table = LabelTable::new(
+            vec![
+                lab(1, "air", Role::Neutral),
+                lab(2, "skin", Role::Neutral),
+                lab(3, "fat", Role::Neutral),
+                lab(4, "bone", Role::Bone),
+                lab(5, "risk", Role::Risk),
+            ],
+            HeuristicLabels {
+                air: 1,
+                skin: 2,
+                fat: 3,
+                bone: 4,
+                risk: 5,
+            },
+        )
+        .unwrap();
+        let params = Param::ALL.into_iter().map(|p| (p, ParamValue::Scalar(0.5))).collect();
+        let tree = PropertyTree::new(vec![TissueSpec {
+            name: "body".into(),
+            parent: None,
+            params,
+            color_rgba: None,
+        }])
+        .unwrap();
+        let thresholds = Thresholds {
+            air_skin_hu: -500.0,
+            skin_fat_hu: -300.0,
+            fat_bone_hu: 200.0,
+            risk_depth_mm: 15.0,
+        };
+        let labels = Volume::new(g, vec![0u16; g.len()]).unwrap();
+        PunctureAtlas::new(Volume::new(g, ct).unwrap(), labels, table, tree, thresholds).unwrap()
+    }
+
+    /// SplitMix64 in [0, 1).
+    fn unit(state: &mut u64) -> f64 {
+        *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = *state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    fn bits(v: DVec3) -> [u64; 3] {
+        v.to_array().map(f64::to_bits)
+    }
+
+    /// Passing the nodes the bound proves off the skin changes the work, not the bits: every
+    /// tool, stepped along a wandering path that presses into the curved skin, tilts, slides,
+    /// lifts into the air and runs into the grid's border, gives the forces and node states of
+    /// a tool that reads every node (its bounds forgotten before each tick), and many nodes are
+    /// passed.
+    #[test]
+    fn passing_nodes_off_the_skin_gives_the_bits_of_reading_them() {
+        let atlas = atlas();
+        for (pattern, friction) in [
+            (ContactPattern::fingertip(), ContactFriction::FINGER),
+            (ContactPattern::linear_probe(), ContactFriction::PROBE_WITH_GEL),
+            (ContactPattern::convex_probe(), ContactFriction::PROBE_WITH_GEL),
+        ] {
+            let kind = pattern.kind();
+            let mut passing = ContactTool::new(pattern.clone(), friction);
+            let mut reading = ContactTool::new(pattern, friction);
+            let mut rng = 0x5EED_u64;
+            let (mut x, mut tilt) = (DVec3::new(0.0, 0.0, 8.0), DVec3::ZERO);
+            let (mut contacts, mut idle) = (0u64, 0u64);
+            for tick in 0..6_000 {
+                // Down into the skin, then wandering (0.2 mm a tick at most), with lifts into
+                // the air and a run to the border every 1 500 ticks.
+                let phase = tick % 1_500;
+                let dz = if phase < 300 {
+                    -0.05
+                } else if phase < 900 {
+                    0.02 * (unit(&mut rng) - 0.55)
+                } else if phase < 1_100 {
+                    0.06
+                } else {
+                    -0.04
+                };
+                let side = if phase >= 1_100 && tick >= 3_000 { 0.15 } else { 0.0 };
+                x += DVec3::new(0.1 * (unit(&mut rng) - 0.5) + side, 0.1 * (unit(&mut rng) - 0.5), dz);
+                if phase == 1_499 {
+                    x = DVec3::new(0.0, 0.0, 8.0);
+                }
+                tilt += DVec3::new(0.004 * (unit(&mut rng) - 0.5), 0.004 * (unit(&mut rng) - 0.5), 0.0);
+                let q = DQuat::from_rotation_x(tilt.x) * DQuat::from_rotation_y(tilt.y);
+                reading.bounds.fill(SkinBound::UNKNOWN);
+                let (a, b) = (passing.step(&atlas, x, q), reading.step(&atlas, x, q));
+                assert_eq!(a.contacts, b.contacts, "{kind:?} tick {tick}");
+                for (fa, fb) in [
+                    (a.skin, b.skin),
+                    (a.slide, b.slide),
+                    (a.bone, b.bone),
+                    (a.torque, b.torque),
+                ] {
+                    assert_eq!(bits(fa), bits(fb), "{kind:?} tick {tick}");
+                }
+                for (na, nb) in passing.nodes().iter().zip(reading.nodes()) {
+                    assert_eq!(na.in_contact, nb.in_contact, "{kind:?} tick {tick}");
+                    assert_eq!(na.depth_mm.to_bits(), nb.depth_mm.to_bits());
+                    for (va, vb) in [(na.pos, nb.pos), (na.proxy, nb.proxy), (na.surface, nb.surface)] {
+                        assert_eq!(bits(va), bits(vb), "{kind:?} tick {tick}");
+                    }
+                }
+                contacts += a.contacts as u64;
+                idle += (passing.nodes().len() - a.contacts) as u64;
+            }
+            assert_eq!(reading.passed, 0);
+            assert!(
+                contacts > 20_000 && passing.passed > 1_000,
+                "{kind:?}: {contacts} node-ticks in contact, {idle} off the skin, {} passed",
+                passing.passed
+            );
         }
     }
 }
