@@ -103,9 +103,9 @@ pub struct ContactTool {
     /// Per node, an upper bound on D_skin where it was last ([`skin_bound`]): nodes it proves off
     /// the skin are not read. Work only: the outputs are those of reading every node.
     bounds: Vec<SkinBound>,
-    /// The skin map the bounds were taken on (its grid and its values' address): another map
+    /// The skin map the bounds were taken on (its values' address and count): another map
     /// starts them afresh.
-    bounds_map: Option<(crate::Grid, usize)>,
+    bounds_map: Option<(usize, usize)>,
     /// Nodes passed by their bound (the tests check that the bound is used).
     #[cfg(test)]
     passed: u64,
@@ -175,7 +175,7 @@ impl ContactTool {
         // The pattern's geometry once per tick: the rotation as a matrix, and the device
         // position in index units (each node's index is then c_x + A⁻¹ Q x_i⁰).
         let rotation = DMat3::from_quat(q);
-        let map_key = Some((grid, skin.data().as_ptr() as usize));
+        let map_key = Some((skin.data().as_ptr() as usize, skin.data().len()));
         if self.bounds_map != map_key {
             self.bounds.fill(SkinBound::UNKNOWN);
             self.bounds_map = map_key;
