@@ -7,10 +7,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
 use stylet_physics::distance::{signed_distance_map, squared_edt};
 use stylet_physics::glam::DVec3;
-use stylet_physics::{
-    Affine, Grid, HeuristicLabels, Label, LabelTable, Param, ParamValue, PropertyTree, PunctureAtlas, Role, Thresholds,
-    TissueSpec, Volume,
-};
+use stylet_physics::{Affine, Grid, Param, PunctureAtlas, Role, synthetic_atlas};
 
 fn ball_mask(n: usize) -> (Grid, Vec<bool>) {
     let g = Grid::new([n; 3], Affine::from_spacing([1.5; 3], DVec3::splat(-(n as f64) * 0.75))).unwrap();
@@ -60,60 +57,12 @@ fn small_atlas() -> PunctureAtlas {
         })
         .collect();
     let labels: Vec<u16> = ct.iter().map(|&v| if v == 60.0 { 10 } else { 0 }).collect();
-    let lab = |id, name: &str, role| Label {
-        id,
-        name: name.into(),
-        role,
-        tissue: "body".into(),
-    };
-    let table = LabelTable::new(
-        vec![
-            lab(1, "air", Role::Neutral),
-            lab(2, "skin", Role::Neutral),
-            lab(3, "fat", Role::Neutral),
-            lab(4, "bone", Role::Bone),
-            lab(5, "risk", Role::Risk),
-            lab(10, "liver", Role::Organ),
-        ],
-        HeuristicLabels {
-            air: 1,
-            skin: 2,
-            fat: 3,
-            bone: 4,
-            risk: 5,
-        },
-    )
-    .unwrap();
-    let tree = PropertyTree::new(vec![TissueSpec {
-        name: "body".into(),
-        parent: None,
-        params: Param::ALL
-            .into_iter()
-            .map(|p| {
-                (
-                    p,
-                    ParamValue::PiecewiseLinear {
-                        hu: vec![-100.0, 50.0],
-                        value: vec![0.3, 0.8],
-                    },
-                )
-            })
-            .collect(),
-        color_rgba: None,
-    }])
-    .unwrap();
-    let t = Thresholds {
-        air_skin_hu: -500.0,
-        skin_fat_hu: -300.0,
-        fat_bone_hu: 200.0,
-        risk_depth_mm: 15.0,
-    };
-    PunctureAtlas::new(
-        Volume::new(g, ct).unwrap(),
-        Volume::new(g, labels).unwrap(),
-        table,
-        tree,
-        t,
+    synthetic_atlas::atlas_with(
+        g,
+        ct,
+        labels,
+        &[(10, "liver", Role::Organ)],
+        synthetic_atlas::body_ramp(),
     )
     .unwrap()
 }

@@ -9,7 +9,8 @@
 //! [`masks`] and [`distance`] (skin/bone distance maps), [`atlas`] (the validated whole);
 //! the haptic core: [`sim`] (the fixed-step loop), [`needle`] (bendable needle, §3.5),
 //! [`contact`] (finger and ultrasound probe, §3.6), [`deform`] (local tissue deformation, Chapter 4), [`contrast`] (contrast agent, §3.3), [`motion`] (breathing hook, §5.4),
-//! [`device`] (device profiles), [`events`].
+//! [`device`] (device profiles), [`events`]; [`synthetic_atlas`] (the shared pieces of small
+//! hand-built atlases for tests and benchmarks).
 
 // Numerical code over grids and bands reads best with explicit indices.
 #![allow(clippy::needless_range_loop)]
@@ -33,6 +34,7 @@ pub mod planned_path;
 pub mod probe_image;
 pub mod properties;
 pub mod sim;
+pub mod synthetic_atlas;
 pub mod thresholds;
 pub mod volume;
 

@@ -5,9 +5,8 @@ use proptest::prelude::*;
 use stylet_physics::deform::solver::{self, Level, Schedule};
 use stylet_physics::deform::{self, DeformSettings, Lattice, Regulariser, ToolPoint};
 use stylet_physics::glam::DVec3;
-use stylet_physics::labels::HeuristicLabels;
-use stylet_physics::properties::{Param, ParamValue, PropertyTree, TissueSpec};
-use stylet_physics::{Affine, Grid, Label, LabelTable, PunctureAtlas, Role, Thresholds, Volume};
+use stylet_physics::properties::ParamValue;
+use stylet_physics::{Affine, Grid, PunctureAtlas, Role, synthetic_atlas};
 
 const VESSEL: u16 = 11;
 
@@ -31,50 +30,12 @@ fn atlas() -> PunctureAtlas {
             labels[i] = VESSEL;
         }
     }
-    let lab = |id, name: &str, role| Label {
-        id,
-        name: name.into(),
-        role,
-        tissue: "body".into(),
-    };
-    let table = LabelTable::new(
-        vec![
-            lab(1, "air", Role::Neutral),
-            lab(2, "skin", Role::Neutral),
-            lab(3, "fat", Role::Neutral),
-            lab(4, "bone", Role::Bone),
-            lab(5, "risk", Role::Risk),
-            lab(VESSEL, "portal vein", Role::Risk),
-        ],
-        HeuristicLabels {
-            air: 1,
-            skin: 2,
-            fat: 3,
-            bone: 4,
-            risk: 5,
-        },
-    )
-    .unwrap();
-    let params = Param::ALL.into_iter().map(|p| (p, ParamValue::Scalar(0.5))).collect();
-    let tree = PropertyTree::new(vec![TissueSpec {
-        name: "body".into(),
-        parent: None,
-        params,
-        color_rgba: None,
-    }])
-    .unwrap();
-    let thresholds = Thresholds {
-        air_skin_hu: -500.0,
-        skin_fat_hu: -300.0,
-        fat_bone_hu: 200.0,
-        risk_depth_mm: 15.0,
-    };
-    PunctureAtlas::new(
-        Volume::new(g, ct).unwrap(),
-        Volume::new(g, labels).unwrap(),
-        table,
-        tree,
-        thresholds,
+    synthetic_atlas::atlas_with(
+        g,
+        ct,
+        labels,
+        &[(VESSEL, "portal vein", Role::Risk)],
+        ParamValue::Scalar(0.5),
     )
     .unwrap()
 }

@@ -1,18 +1,16 @@
 //! Small synthetic atlases built from functions of position: what the tests of both renderers
 //! (and quick experiments) draw when a real CT would be too slow or too opaque to reason about.
 //! Labels: 1 air, 2 skin, 3 fat, 4 bone, [`RISK`] (risk), [`TARGET`] (target, tissue "tumour"
-//! coloured [`TUMOUR_RGBA`]); heuristic thresholds air/skin −500, skin/fat −300, fat/bone 200 HU.
+//! coloured [`TUMOUR_RGBA`]); the label table, parameters and thresholds of
+//! `stylet_physics::synthetic_atlas`.
 
 use stylet_physics::glam::DVec3;
-use stylet_physics::{
-    Affine, Grid, HeuristicLabels, Label, LabelTable, Param, ParamValue, PropertyTree, PunctureAtlas, Role, Thresholds,
-    TissueSpec, Volume,
-};
+use stylet_physics::{Affine, Grid, PropertyTree, PunctureAtlas, Role, TissueSpec, Volume, synthetic_atlas};
 
 /// Label id of the target structure.
 pub const TARGET: u16 = 10;
-/// Label id of the risk structure.
-pub const RISK: u16 = 5;
+/// Label id of the risk structure (the heuristic's).
+pub const RISK: u16 = synthetic_atlas::RISK;
 /// Property-tree colour of the target's tissue (its label colour, eq. 3.2.5).
 pub const TUMOUR_RGBA: [u8; 4] = [0, 200, 40, 255];
 
@@ -28,14 +26,15 @@ pub fn atlas(n: usize, spacing: f64, ct: impl Fn(DVec3) -> f32, partial: impl Fn
     };
     let hu: Vec<f32> = (0..g.len()).map(|i| ct(centre(i))).collect();
     let labels: Vec<u16> = (0..g.len()).map(|i| partial(centre(i))).collect();
-    let table = label_table(
+    let table = synthetic_atlas::label_table(
         "bone",
         &[
             (RISK, "risk", Role::Risk, "body"),
             (TARGET, "target", Role::Target, "tumour"),
         ],
-    );
-    let params = body_params();
+    )
+    .expect("the synthetic label table is consistent");
+    let params = synthetic_atlas::every_param(synthetic_atlas::body_ramp());
     let tissue = |name: &str, color| TissueSpec {
         name: name.into(),
         parent: Some("body".into()),
@@ -58,7 +57,7 @@ pub fn atlas(n: usize, spacing: f64, ct: impl Fn(DVec3) -> f32, partial: impl Fn
         Volume::new(g, labels).expect("one label per voxel"),
         table,
         tree,
-        THRESHOLDS,
+        synthetic_atlas::THRESHOLDS,
     )
     .expect("the synthetic atlas is consistent")
 }
@@ -67,76 +66,6 @@ pub fn atlas(n: usize, spacing: f64, ct: impl Fn(DVec3) -> f32, partial: impl Fn
 /// the heuristic labels 1 air, 2 skin, 3 fat, 4 bone, 5 risk, then `extra` labels (id, name,
 /// role), all of one tissue "body" without a colour; the thresholds of [`atlas`].
 pub fn atlas_with(grid: Grid, ct: Vec<f32>, labels: Vec<u16>, extra: &[(u16, &str, Role)]) -> PunctureAtlas {
-    let rest: Vec<(u16, &str, Role, &str)> = std::iter::once((RISK, "risk", Role::Risk, "body"))
-        .chain(extra.iter().map(|&(id, name, role)| (id, name, role, "body")))
-        .collect();
-    let table = label_table("body", &rest);
-    let tree = PropertyTree::new(vec![TissueSpec {
-        name: "body".into(),
-        parent: None,
-        params: body_params(),
-        color_rgba: None,
-    }])
-    .expect("the synthetic property tree is consistent");
-    PunctureAtlas::new(
-        Volume::new(grid, ct).expect("one value per voxel"),
-        Volume::new(grid, labels).expect("one label per voxel"),
-        table,
-        tree,
-        THRESHOLDS,
-    )
-    .expect("the synthetic atlas is consistent")
+    synthetic_atlas::atlas_with(grid, ct, labels, extra, synthetic_atlas::body_ramp())
+        .expect("the synthetic atlas is consistent")
 }
-
-/// Labels 1 air, 2 skin, 3 fat (tissue "body"), 4 bone (tissue `bone_tissue`), then `rest`
-/// (id, name, role, tissue), which must hold the heuristic's risk label [`RISK`].
-fn label_table(bone_tissue: &str, rest: &[(u16, &str, Role, &str)]) -> LabelTable {
-    let lab = |id, name: &str, role, tissue: &str| Label {
-        id,
-        name: name.into(),
-        role,
-        tissue: tissue.into(),
-    };
-    let mut all = vec![
-        lab(1, "air", Role::Neutral, "body"),
-        lab(2, "skin", Role::Neutral, "body"),
-        lab(3, "fat", Role::Neutral, "body"),
-        lab(4, "bone", Role::Bone, bone_tissue),
-    ];
-    all.extend(rest.iter().map(|&(id, name, role, tissue)| lab(id, name, role, tissue)));
-    LabelTable::new(
-        all,
-        HeuristicLabels {
-            air: 1,
-            skin: 2,
-            fat: 3,
-            bone: 4,
-            risk: RISK,
-        },
-    )
-    .expect("the synthetic label table is consistent")
-}
-
-/// Every material parameter as one ramp over −100 … 50 HU.
-fn body_params() -> std::collections::BTreeMap<Param, ParamValue> {
-    Param::ALL
-        .into_iter()
-        .map(|p| {
-            (
-                p,
-                ParamValue::PiecewiseLinear {
-                    hu: vec![-100.0, 50.0],
-                    value: vec![0.3, 0.8],
-                },
-            )
-        })
-        .collect()
-}
-
-/// Heuristic thresholds of every synthetic atlas.
-const THRESHOLDS: Thresholds = Thresholds {
-    air_skin_hu: -500.0,
-    skin_fat_hu: -300.0,
-    fat_bone_hu: 200.0,
-    risk_depth_mm: 15.0,
-};

@@ -468,9 +468,8 @@ mod tests {
     use glam::{DQuat, DVec3};
 
     use super::*;
-    use crate::labels::HeuristicLabels;
-    use crate::properties::{Param, ParamValue, TissueSpec};
-    use crate::{Affine, Grid, Label, LabelTable, PropertyTree, Role, Thresholds, Volume};
+    use crate::properties::ParamValue;
+    use crate::{Affine, Grid, synthetic_atlas};
 
     /// A 56 × 48 × 30 atlas of anisotropic voxels (0.9 × 0.8 × 1.6 mm): a body (40 HU) whose skin
     /// is an ellipsoid cap, air above it, and a rib-like bone bar (700 HU) 12 mm under the top.
@@ -494,45 +493,7 @@ mod tests {
                 };
             }
         }
-        let lab = |id, name: &str, role| Label {
-            id,
-            name: name.into(),
-            role,
-            tissue: "body".into(),
-        };
-        let table = LabelTable::new(
-            vec![
-                lab(1, "air", Role::Neutral),
-                lab(2, "skin", Role::Neutral),
-                lab(3, "fat", Role::Neutral),
-                lab(4, "bone", Role::Bone),
-                lab(5, "risk", Role::Risk),
-            ],
-            HeuristicLabels {
-                air: 1,
-                skin: 2,
-                fat: 3,
-                bone: 4,
-                risk: 5,
-            },
-        )
-        .unwrap();
-        let params = Param::ALL.into_iter().map(|p| (p, ParamValue::Scalar(0.5))).collect();
-        let tree = PropertyTree::new(vec![TissueSpec {
-            name: "body".into(),
-            parent: None,
-            params,
-            color_rgba: None,
-        }])
-        .unwrap();
-        let thresholds = Thresholds {
-            air_skin_hu: -500.0,
-            skin_fat_hu: -300.0,
-            fat_bone_hu: 200.0,
-            risk_depth_mm: 15.0,
-        };
-        let labels = Volume::new(g, vec![0u16; g.len()]).unwrap();
-        PunctureAtlas::new(Volume::new(g, ct).unwrap(), labels, table, tree, thresholds).unwrap()
+        synthetic_atlas::atlas_with(g, ct, vec![0; g.len()], &[], ParamValue::Scalar(0.5)).unwrap()
     }
 
     /// SplitMix64 in [0, 1).

@@ -523,10 +523,7 @@ impl ContrastAgent {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{
-        Affine, Grid, HeuristicLabels, Label, LabelTable, Param, ParamValue, PropertyTree, Thresholds, TissueSpec,
-        Volume,
-    };
+    use crate::{Affine, Grid, PropertyTree, TissueSpec, Volume, synthetic_atlas};
 
     const DUCT: LabelId = 20;
     const TARGET: LabelId = 21;
@@ -558,45 +555,17 @@ mod tests {
             };
         }
         let ct = vec![40.0f32; g.len()];
-        let lab = |id, name: &str, role, tissue: &str| Label {
-            id,
-            name: name.into(),
-            role,
-            tissue: tissue.into(),
-        };
-        let table = LabelTable::new(
-            vec![
-                lab(1, "air", Role::Neutral, "body"),
-                lab(2, "skin", Role::Neutral, "body"),
-                lab(3, "fat", Role::Neutral, "body"),
-                lab(4, "bone", Role::Bone, "body"),
-                lab(5, "risk", Role::Risk, "body"),
-                lab(LIVER, "liver", Role::Organ, "liver"),
-                lab(VESSEL, "portal vein", Role::Risk, "vessel"),
-                lab(DUCT, "bile duct", Role::Organ, "bile_duct"),
-                lab(TARGET, "right hepatic duct", Role::Target, "target_duct"),
+        let table = synthetic_atlas::label_table(
+            "body",
+            &[
+                (synthetic_atlas::RISK, "risk", Role::Risk, "body"),
+                (LIVER, "liver", Role::Organ, "liver"),
+                (VESSEL, "portal vein", Role::Risk, "vessel"),
+                (DUCT, "bile duct", Role::Organ, "bile_duct"),
+                (TARGET, "right hepatic duct", Role::Target, "target_duct"),
             ],
-            HeuristicLabels {
-                air: 1,
-                skin: 2,
-                fat: 3,
-                bone: 4,
-                risk: 5,
-            },
         )
         .unwrap();
-        let params = Param::ALL
-            .into_iter()
-            .map(|p| {
-                (
-                    p,
-                    ParamValue::PiecewiseLinear {
-                        hu: vec![-100.0, 50.0],
-                        value: vec![0.3, 0.8],
-                    },
-                )
-            })
-            .collect();
         let tissue = |name: &str, parent: &str| TissueSpec {
             name: name.into(),
             parent: Some(parent.into()),
@@ -604,30 +573,19 @@ mod tests {
             color_rgba: None,
         };
         let tree = PropertyTree::new(vec![
-            TissueSpec {
-                name: "body".into(),
-                parent: None,
-                params,
-                color_rgba: None,
-            },
+            synthetic_atlas::body(synthetic_atlas::body_ramp()),
             tissue("liver", "body"),
             tissue("vessel", "body"),
             tissue("bile_duct", "liver"),
             tissue("target_duct", "bile_duct"),
         ])
         .unwrap();
-        let thresholds = Thresholds {
-            air_skin_hu: -500.0,
-            skin_fat_hu: -300.0,
-            fat_bone_hu: 200.0,
-            risk_depth_mm: 15.0,
-        };
         PunctureAtlas::new(
             Volume::new(g, ct).unwrap(),
             Volume::new(g, labels).unwrap(),
             table,
             tree,
-            thresholds,
+            synthetic_atlas::THRESHOLDS,
         )
         .unwrap()
     }
