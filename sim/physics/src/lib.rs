@@ -35,6 +35,8 @@ pub mod probe_image;
 pub mod properties;
 pub mod sim;
 pub mod synthetic_atlas;
+#[cfg(test)]
+mod test_rng;
 pub mod thresholds;
 pub mod volume;
 

@@ -469,6 +469,7 @@ mod tests {
 
     use super::*;
     use crate::properties::ParamValue;
+    use crate::test_rng::unit;
     use crate::{Affine, Grid, synthetic_atlas};
 
     /// A 56 × 48 × 30 atlas of anisotropic voxels (0.9 × 0.8 × 1.6 mm): a body (40 HU) whose skin
@@ -494,15 +495,6 @@ mod tests {
             }
         }
         synthetic_atlas::atlas_with(g, ct, vec![0; g.len()], &[], ParamValue::Scalar(0.5)).unwrap()
-    }
-
-    /// SplitMix64 in [0, 1).
-    fn unit(state: &mut u64) -> f64 {
-        *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = *state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
     }
 
     fn bits(v: DVec3) -> [u64; 3] {

@@ -71,16 +71,8 @@ mod tests {
     use crate::distance::subvoxel_signed_distance;
     use crate::gradient::GradientSampler;
     use crate::masks::body_mask;
+    use crate::test_rng::unit;
     use crate::{Affine, Grid, Volume};
-
-    /// SplitMix64 in [0, 1).
-    fn unit(state: &mut u64) -> f64 {
-        *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = *state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    }
 
     /// On the sub-voxel skin map of a lumpy body (anisotropic voxels), D_skin read at an index
     /// never exceeds the bound carried there from a read at another index, over moves from a
