@@ -10,7 +10,13 @@
 //! slices and the radiograph. The CPU references are drawn after the timed frames: a GPU left
 //! idle for a second lowers its clock, and the frames after it would pay.
 //!
+//! Last, the other views against the CPU reference on this machine's cores: the radiograph at
+//! 256² and 512² (the geometry of `benches/xray.rs`) and the ultrasound frame at 256 lines × 512
+//! samples, B-mode alone and with colour Doppler and the needle (that of
+//! `benches/ultrasound.rs`), each with its readback (and the ultrasound's log compression).
+//!
 //! `cargo run --profile ci -p stylet-render-gpu --example gpu_timing [-- ATLAS_DIR]`
+//! (`STYLET_TIMING_ONLY=views`: the radiograph and ultrasound alone)
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -77,6 +83,9 @@ fn main() {
         deformed: None,
         motion: None,
     };
+    if std::env::var("STYLET_TIMING_ONLY").as_deref() == Ok("views") {
+        return views(&ctx, &atlas, &cpu, &uploads[0].1);
+    }
     let mut r = GpuRenderer::new(&ctx);
     println!("GPU timestamps: {}", ctx.has_timestamps());
     let median = |mut v: Vec<f64>| {
@@ -175,6 +184,7 @@ fn main() {
         }
     }
     breathing(&ctx, &cpu, &uploads, &scene);
+    views(&ctx, &atlas, &cpu, &uploads[0].1);
 }
 
 /// The median of `FRAMES` calls of `f` after a warm-up call (ms), and the warm-up's output.
@@ -286,3 +296,86 @@ fn breathing(ctx: &GpuContext, cpu: &RenderVolume, uploads: &[(RecordFilter, Gpu
 
 /// Timed frames per case (after one warm-up frame).
 const FRAMES: usize = 21;
+
+/// The radiograph and the ultrasound frame on the GPU against the CPU reference (ms, with
+/// readback), as `benches/xray.rs` and `benches/ultrasound.rs` set them up.
+fn views(ctx: &GpuContext, atlas: &stylet_atlas::Atlas, cpu: &RenderVolume, gpu: &GpuVolume) {
+    use stylet_physics::ProbeKind;
+    use stylet_render::tools::NeedleShape;
+    use stylet_render::ultrasound::{self, EchoTable, FlowField, UltrasoundScene, UltrasoundSettings};
+    use stylet_render::xray::{CArm, XrayScene};
+    let (lo, hi) = cpu.atlas.ct().grid().world_bounds();
+    let mut c_arm = CArm::posterior_anterior(((lo + hi) * 0.5).as_vec3());
+    c_arm.detector_mm = [400.0, 400.0];
+    let scene = XrayScene {
+        c_arm,
+        needle: None,
+        contrast: None,
+    };
+    // Every GPU frame first, then the CPU's (an idle GPU lowers its clock).
+    let mut xray = stylet_render_gpu::GpuXray::new(ctx);
+    let sizes = [256u32, 512];
+    let gpu_ms = sizes.map(|n| timed(|| xray.render(ctx, gpu, &scene, n, n).unwrap()).0);
+    for (n, t_gpu) in sizes.into_iter().zip(gpu_ms) {
+        let (t_cpu, _) = timed(|| stylet_render::xray::render(&cpu.atlas, &scene, n, n).unwrap());
+        println!(
+            "radiograph {n}²: GPU {t_gpu:.2} ms, CPU reference {t_cpu:.1} ms on {} threads (medians, with readback)",
+            rayon::current_num_threads()
+        );
+    }
+    let Some(path) = atlas.planned_paths().first().cloned() else {
+        return println!("ultrasound: the atlas has no planned path to image");
+    };
+    let probe = match ultrasound::probe::facing_path(&cpu.atlas, ProbeKind::Convex, path.entry_mm, path.target_mm) {
+        Some(p) => p,
+        None => return println!("ultrasound: no probe pose faces the planned path"),
+    };
+    let echo = std::sync::Arc::new(EchoTable::of_atlas(atlas));
+    let flow = std::sync::Arc::new(FlowField::build(&cpu.atlas, &echo));
+    let bmode = UltrasoundScene {
+        probe,
+        settings: UltrasoundSettings::for_probe(ProbeKind::Convex),
+        seed: 1,
+        time_s: 0.0,
+        needle: None,
+        echo: echo.clone(),
+        doppler: None,
+        guide_mm: None,
+        outline_target: true,
+        breathing: None,
+    };
+    let (e, tg) = (path.entry_mm.as_vec3(), path.target_mm.as_vec3());
+    let full = UltrasoundScene {
+        needle: Some(NeedleShape {
+            nodes_mm: (0..=20)
+                .map(|k| e + (tg - e) * (0.8 * k as f32 / 20.0) - (tg - e).normalize() * 20.0)
+                .collect(),
+            diameter_mm: 1.27,
+            hub_length_mm: 20.0,
+            hub_diameter_mm: 4.0,
+        }),
+        doppler: Some(flow),
+        guide_mm: Some([e, tg]),
+        ..bmode.clone()
+    };
+    let mut us = stylet_render_gpu::GpuUltrasound::new(ctx);
+    let s = &bmode.settings;
+    let scenes = [("B-mode", &bmode), ("B-mode + Doppler + needle", &full)];
+    let gpu_ms = scenes.map(|(_, scene)| {
+        let mut pass = Vec::new();
+        let (wall, _) = timed(|| {
+            us.render(ctx, gpu, scene).unwrap();
+            pass.extend(us.last_pass_ms());
+        });
+        pass.sort_by(f64::total_cmp);
+        (wall, pass.get(pass.len() / 2).copied())
+    });
+    for ((name, scene), (t_gpu, pass)) in scenes.into_iter().zip(gpu_ms) {
+        let (t_cpu, _) = timed(|| ultrasound::render(&cpu.atlas, scene).unwrap());
+        let pass = pass.map_or("n/a".into(), |p| format!("{p:.2} ms"));
+        println!(
+            "ultrasound {name}, {} lines × {} samples: GPU pass {pass}, frame {t_gpu:.2} ms; CPU reference {t_cpu:.1} ms (medians)",
+            s.lines, s.samples
+        );
+    }
+}

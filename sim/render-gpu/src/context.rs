@@ -132,14 +132,33 @@ impl GpuContext {
 
     /// Copies `bytes` of a storage buffer back to the CPU (blocking).
     pub(crate) fn read_buffer(&self, src: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>, GpuError> {
+        let [data] = self.read_buffers([(src, bytes)])?;
+        Ok(data)
+    }
+
+    /// The first bytes of several buffers, copied into one staging buffer and mapped once (one
+    /// wait for the GPU instead of one per buffer).
+    pub(crate) fn read_buffers<const N: usize>(
+        &self,
+        sources: [(&wgpu::Buffer, u64); N],
+    ) -> Result<[Vec<u8>; N], GpuError> {
+        // Copies start at multiples of 4 bytes (wgpu::COPY_BUFFER_ALIGNMENT).
+        let mut offsets = [0u64; N];
+        let mut total = 0u64;
+        for (offset, (_, bytes)) in offsets.iter_mut().zip(&sources) {
+            *offset = total;
+            total += bytes.div_ceil(wgpu::COPY_BUFFER_ALIGNMENT) * wgpu::COPY_BUFFER_ALIGNMENT;
+        }
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
-            size: bytes,
+            size: total.max(wgpu::COPY_BUFFER_ALIGNMENT),
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         let mut enc = self.device.create_command_encoder(&Default::default());
-        enc.copy_buffer_to_buffer(src, 0, &staging, 0, bytes);
+        for ((src, bytes), &offset) in sources.iter().zip(&offsets) {
+            enc.copy_buffer_to_buffer(src, 0, &staging, offset, *bytes);
+        }
         self.queue.submit([enc.finish()]);
         let (tx, rx) = std::sync::mpsc::channel();
         staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
@@ -151,11 +170,13 @@ impl GpuContext {
         rx.recv()
             .map_err(|e| GpuError::Readback(e.to_string()))?
             .map_err(|e| GpuError::Readback(e.to_string()))?;
-        let data = staging
-            .slice(..)
-            .get_mapped_range()
-            .map_err(|e| GpuError::Readback(e.to_string()))?
-            .to_vec();
+        let data = {
+            let view = staging
+                .slice(..)
+                .get_mapped_range()
+                .map_err(|e| GpuError::Readback(e.to_string()))?;
+            std::array::from_fn(|k| view[offsets[k] as usize..(offsets[k] + sources[k].1) as usize].to_vec())
+        };
         staging.unmap();
         Ok(data)
     }

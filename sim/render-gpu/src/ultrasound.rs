@@ -21,6 +21,7 @@ use stylet_render::volume::IndexMap;
 use crate::motion::GpuMotion;
 use crate::pipeline::{Pipelines, dispatch, numbered, uniform_buffer, v4};
 use crate::raycast::ct_prelude;
+use crate::timer::PassTimer;
 use crate::volume::{GpuVolume, storage};
 use crate::{GpuContext, GpuError};
 
@@ -70,6 +71,8 @@ pub struct GpuUltrasound {
     params: wgpu::Buffer,
     flow: Option<UploadedFlow>,
     motion: GpuMotion,
+    timer: Option<PassTimer>,
+    last_pass_ms: Option<f64>,
 }
 
 impl GpuUltrasound {
@@ -79,7 +82,14 @@ impl GpuUltrasound {
             params: uniform_buffer(ctx, "ultrasound params", std::mem::size_of::<UsParams>()),
             flow: None,
             motion: GpuMotion::new(ctx),
+            timer: PassTimer::new(ctx),
+            last_pass_ms: None,
         }
+    }
+
+    /// The GPU's own time for the last frame's pass (ms), where the adapter has timestamps.
+    pub fn last_pass_ms(&self) -> Option<f64> {
+        self.last_pass_ms
     }
 
     /// One frame of `scene` (before scan conversion), as `stylet_render::ultrasound::render`.
@@ -193,9 +203,11 @@ impl GpuUltrasound {
             col.as_entire_binding(),
         ]);
         entries.extend(self.motion.entries());
-        dispatch(ctx, &pipeline, &entries, (s.lines.div_ceil(64), 1), None);
-        let envelope: Vec<f32> = bytemuck::cast_slice(&ctx.read_buffer(&env, n * 4)?).to_vec();
-        let packed: Vec<u32> = bytemuck::cast_slice(&ctx.read_buffer(&col, n * 4)?).to_vec();
+        dispatch(ctx, &pipeline, &entries, (s.lines.div_ceil(64), 1), self.timer.as_ref());
+        let [envelope, packed] = ctx.read_buffers([(&env, n * 4), (&col, n * 4)])?;
+        self.last_pass_ms = self.timer.as_ref().and_then(|t| t.read_ms(ctx));
+        let envelope: Vec<f32> = bytemuck::cast_slice(&envelope).to_vec();
+        let packed: Vec<u32> = bytemuck::cast_slice(&packed).to_vec();
         let colour = packed
             .iter()
             .map(|&p| [p as u8, (p >> 8) as u8, (p >> 16) as u8])
