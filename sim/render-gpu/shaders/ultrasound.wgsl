@@ -1,5 +1,4 @@
-// Simulated ultrasound (docs/ultrasound.md): one invocation per scan line, 64 lines a
-// workgroup. A port of stylet-render's ultrasound module `Frame::scan_line`: the line's samples
+// Simulated ultrasound (docs/ultrasound.md): one workgroup per scan line (see `main`). A port of stylet-render's ultrasound module `Frame::scan_line`: the line's samples
 // front to back (trilinear CT, nearest partial label, the label's echo class, impedance /
 // attenuation / scatter from the frame tables, reflection and transmission, coupling gel, the
 // tissue's speckle by the same 32-bit hash), the needle's echo, shadow and comet tail at the
@@ -118,14 +117,32 @@ fn doppler_colour(artery: bool, v: f32) -> u32 {
     return (ramp << 8u) | (255u << 16u);
 }
 
+// One workgroup per scan line. The line's samples go in chunks of CHUNK: the invocations read
+// the CT, labels, speckle and flow of a chunk's samples side by side (what each sample needs that
+// does not depend on the samples before it), then invocation 0 walks the chunk in order for what
+// carries from sample to sample (transmission, coupling gel, impedance step, needle), with the
+// same arithmetic as the CPU's `Frame::scan_line`. A breathing patient's reference points carry
+// too (each fixed-point step starts from the previous sample's): invocation 0 finds a chunk's
+// first. Then the comet tail, then time-gain compensation side by side.
+const LANES: u32 = 64u;
+const CHUNK: u32 = 256u;
+// Bits of `s_code` above the candidate Doppler colour (24 bits).
+const HAS_COLOUR: u32 = 0x1000000u;
+const IS_TARGET: u32 = 0x2000000u;
+const GEL_CANDIDATE: u32 = 0x4000000u;
+const AIR: u32 = 0x8000000u;
+
+var<workgroup> s_x: array<vec3<f32>, CHUNK>;
+var<workgroup> s_z: array<f32, CHUNK>;
+var<workgroup> s_loss: array<f32, CHUNK>;
+var<workgroup> s_scatter: array<f32, CHUNK>;
+var<workgroup> s_code: array<u32, CHUNK>;
+
 @compute @workgroup_size(64)
-fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let i = gid.x;
+fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
+    let i = wid.x;
     let lines = P.scan.x;
     let samples = P.scan.y;
-    if i >= lines {
-        return;
-    }
     // probe.rs `ScanGeometry::line`.
     let f = (f32(i) + 0.5) / f32(lines);
     var origin = P.face.xyz + P.lateral.xyz * ((f - 0.5) * 40.0);
@@ -140,81 +157,119 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let hit_sample = select(-1, i32(hit.z), hit.w > 0.5);
     let seed = P.flow_dims.w;
     let base = i * samples;
+    let moving = breathing();
+    // Invocation 0's state along the line.
     var travelling = 1.0;
     var z_prev = P.gains.z;
     var in_gel = true;
     var ring = 0.0;
     var rang = false;
     var warp = no_warp();
-    let moving = breathing();
-    for (var j = 0u; j < samples; j++) {
-        let depth = (f32(j) + 0.5) * dz;
-        var x = origin + dir * depth;
-        if moving {
-            x = reference_of(&warp, x);
-        }
-        let p = x - P.origin.xyz;
-        let c = vec3<f32>(dot(P.row0.xyz, p), dot(P.row1.xyz, p), dot(P.row2.xyz, p));
-        let hu = sample_ct(c);
-        let label = label_at(c);
-        var code = 0u;
-        if label < P.dims.w {
-            code = classes[label];
-        }
-        let kind = code & 255u;
-        let gel = in_gel && hu < P.limits.x && depth <= P.gains.w;
-        if in_gel && !gel && hu < P.limits.x {
-            travelling = 0.0;
-        }
-        in_gel = gel;
-        var flags = 0u;
-        var colour = 0u;
-        if in_gel {
-            out_env[base + j] = 0.0;
-            out_col[base + j] = 0u;
-            continue;
-        }
-        var props = P.fluid.xyz;
-        if kind == 0u {
-            let k = clamp(i32(floor(hu + 0.5)) - LUT_LOW_HU, 0, LUT_LEN - 1);
-            props = tissue[k].xyz;
-        } else if kind >= 2u {
-            props = P.blood.xyz;
-        }
-        let r = (props.x - z_prev) / (props.x + z_prev);
-        var scatter = 0.0;
-        if props.z > 0.0 {
-            scatter = P.gains.y * props.z * speckle(x, seed);
-        }
-        var echo = travelling * (P.gains.x * abs(r) + scatter);
-        travelling *= (1.0 - r * r) * props.y;
-        z_prev = props.x;
-        if i32(j) == hit_sample {
-            let e = travelling * P.reverb.x * hit.y;
-            echo += e;
-            travelling *= P.reverb.y;
-            ring = e;
-            rang = true;
-        }
-        out_env[base + j] = echo;
-        if (code & 256u) != 0u {
-            flags |= FLAG_TARGET;
-        }
-        if P.scan.w == 1u && kind >= 2u && travelling * tgc[j] >= P.limits.y {
-            let axis = flow_axis(x);
-            if any(axis != vec3<f32>(0.0)) {
-                let speed = select(P.limits.z, P.limits.w, kind == 3u);
-                let rgb = doppler_colour(kind == 3u, speed * abs(dot(axis, dir)));
-                if rgb != 0xffffffffu {
-                    colour = rgb;
-                    flags |= FLAG_DOPPLER;
-                }
+    for (var first = 0u; first < samples; first += CHUNK) {
+        let count = min(CHUNK, samples - first);
+        if moving && lane == 0u {
+            for (var k = 0u; k < count; k++) {
+                let depth = (f32(first + k) + 0.5) * dz;
+                s_x[k] = reference_of(&warp, origin + dir * depth);
             }
         }
-        out_col[base + j] = colour | (flags << 24u);
+        workgroupBarrier();
+        for (var k = lane; k < count; k += LANES) {
+            let j = first + k;
+            let depth = (f32(j) + 0.5) * dz;
+            var x = origin + dir * depth;
+            if moving {
+                x = s_x[k];
+            }
+            let p = x - P.origin.xyz;
+            let c = vec3<f32>(dot(P.row0.xyz, p), dot(P.row1.xyz, p), dot(P.row2.xyz, p));
+            let hu = sample_ct(c);
+            let label = label_at(c);
+            var code = 0u;
+            if label < P.dims.w {
+                code = classes[label];
+            }
+            let kind = code & 255u;
+            var bits = 0u;
+            if hu < P.limits.x {
+                bits |= AIR;
+                if depth <= P.gains.w {
+                    bits |= GEL_CANDIDATE;
+                }
+            }
+            if (code & 256u) != 0u {
+                bits |= IS_TARGET;
+            }
+            var props = P.fluid.xyz;
+            if kind == 0u {
+                let h = clamp(i32(floor(hu + 0.5)) - LUT_LOW_HU, 0, LUT_LEN - 1);
+                props = tissue[h].xyz;
+            } else if kind >= 2u {
+                props = P.blood.xyz;
+            }
+            var scatter = 0.0;
+            if props.z > 0.0 {
+                scatter = P.gains.y * props.z * speckle(x, seed);
+            }
+            if P.scan.w == 1u && kind >= 2u {
+                let axis = flow_axis(x);
+                if any(axis != vec3<f32>(0.0)) {
+                    let speed = select(P.limits.z, P.limits.w, kind == 3u);
+                    let rgb = doppler_colour(kind == 3u, speed * abs(dot(axis, dir)));
+                    if rgb != 0xffffffffu {
+                        bits |= HAS_COLOUR | rgb;
+                    }
+                }
+            }
+            s_z[k] = props.x;
+            s_loss[k] = props.y;
+            s_scatter[k] = scatter;
+            s_code[k] = bits;
+        }
+        workgroupBarrier();
+        if lane == 0u {
+            for (var k = 0u; k < count; k++) {
+                let j = first + k;
+                let bits = s_code[k];
+                let gel = in_gel && (bits & GEL_CANDIDATE) != 0u;
+                if in_gel && !gel && (bits & AIR) != 0u {
+                    travelling = 0.0;
+                }
+                in_gel = gel;
+                if in_gel {
+                    out_env[base + j] = 0.0;
+                    out_col[base + j] = 0u;
+                    continue;
+                }
+                let z = s_z[k];
+                let r = (z - z_prev) / (z + z_prev);
+                var echo = travelling * (P.gains.x * abs(r) + s_scatter[k]);
+                travelling *= (1.0 - r * r) * s_loss[k];
+                z_prev = z;
+                if i32(j) == hit_sample {
+                    let e = travelling * P.reverb.x * hit.y;
+                    echo += e;
+                    travelling *= P.reverb.y;
+                    ring = e;
+                    rang = true;
+                }
+                out_env[base + j] = echo;
+                var flags = 0u;
+                var colour = 0u;
+                if (bits & IS_TARGET) != 0u {
+                    flags |= FLAG_TARGET;
+                }
+                if (bits & HAS_COLOUR) != 0u && travelling * tgc[j] >= P.limits.y {
+                    colour = bits & 0xffffffu;
+                    flags |= FLAG_DOPPLER;
+                }
+                out_col[base + j] = colour | (flags << 24u);
+            }
+        }
+        workgroupBarrier();
     }
     // The comet tail.
-    if rang {
+    if lane == 0u && rang {
         var a = ring;
         for (var k = 1u; k <= u32(P.reverb.w); k++) {
             a *= P.reverb.z;
@@ -224,7 +279,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
         }
     }
-    for (var j = 0u; j < samples; j++) {
+    storageBarrier();
+    for (var j = lane; j < samples; j += LANES) {
         out_env[base + j] *= tgc[j];
     }
 }

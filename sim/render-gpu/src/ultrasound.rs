@@ -1,5 +1,6 @@
 //! Simulated ultrasound on the GPU (`shaders/ultrasound.wgsl`): the same per-line loop as
-//! `stylet_render::ultrasound` (one invocation per scan line), reading the frame tables, the
+//! `stylet_render::ultrasound` (one workgroup per scan line: the samples' reads side by side, the
+//! carried part in order), reading the frame tables, the
 //! echo classes and the needle's per-line hits the CPU reference computes the same way, and the
 //! vessels' flow axes on a dense grid (uploaded once per flow field). Returns the frame as the CPU
 //! does: log compression over the beam's width runs on the CPU (`ultrasound::compress`), as does
@@ -203,7 +204,8 @@ impl GpuUltrasound {
             col.as_entire_binding(),
         ]);
         entries.extend(self.motion.entries());
-        dispatch(ctx, &pipeline, &entries, (s.lines.div_ceil(64), 1), self.timer.as_ref());
+        // One workgroup per scan line (ultrasound.wgsl).
+        dispatch(ctx, &pipeline, &entries, (s.lines, 1), self.timer.as_ref());
         let [envelope, packed] = ctx.read_buffers([(&env, n * 4), (&col, n * 4)])?;
         self.last_pass_ms = self.timer.as_ref().and_then(|t| t.read_ms(ctx));
         let envelope: Vec<f32> = bytemuck::cast_slice(&envelope).to_vec();

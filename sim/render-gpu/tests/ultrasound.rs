@@ -115,6 +115,23 @@ fn gpu_ultrasound_matches_the_cpu_for_every_ct_storage() {
     }
 }
 
+/// A line longer than the shader's chunk of 256 samples and not a multiple of it (the last
+/// chunk partly filled), and a single line: what carries from sample to sample (transmission,
+/// gel, the needle's shadow) carries across chunks as on the CPU.
+#[test]
+fn gpu_ultrasound_carries_the_line_across_chunks() {
+    let (name, both) = &placements()[0];
+    let mut us = GpuUltrasound::new(ctx());
+    for (lines, samples) in [(96, 700), (1, 257)] {
+        let mut s = scene(both);
+        s.settings.lines = lines;
+        s.settings.samples = samples;
+        let cpu = render(&both.cpu.atlas, &s).unwrap();
+        let gpu = us.render(ctx(), &both.gpu, &s).unwrap();
+        assert_agree(&format!("{name}, {lines} × {samples}"), &cpu, &gpu);
+    }
+}
+
 #[test]
 fn gpu_ultrasound_matches_the_cpu_on_the_phantom() {
     let both = phantom();
