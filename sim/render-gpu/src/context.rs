@@ -136,6 +136,17 @@ impl GpuContext {
         Ok(data)
     }
 
+    /// Read-back bytes as values of `T`, copied into a `Vec<T>` so the values are aligned
+    /// (a `Vec<u8>` need not be, and casting it in place could panic); trailing bytes that make
+    /// no whole value are dropped.
+    pub(crate) fn values<T: bytemuck::Pod>(bytes: &[u8]) -> Vec<T> {
+        let size = std::mem::size_of::<T>().max(1);
+        let mut values = vec![T::zeroed(); bytes.len() / size];
+        let whole = values.len() * size;
+        bytemuck::cast_slice_mut::<T, u8>(&mut values).copy_from_slice(&bytes[..whole]);
+        values
+    }
+
     /// The first bytes of several buffers, copied into one staging buffer and mapped once (one
     /// wait for the GPU instead of one per buffer).
     pub(crate) fn read_buffers<const N: usize>(
@@ -179,5 +190,23 @@ impl GpuContext {
         };
         staging.unmap();
         Ok(data)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::GpuContext;
+
+    /// Values come back whatever the bytes' address: from a slice starting at an odd byte, and
+    /// with trailing bytes that make no whole value.
+    #[test]
+    fn read_back_bytes_become_values_at_any_alignment() {
+        let want = [1.5f32, -2.25, f32::MAX];
+        let mut bytes = vec![0u8];
+        bytes.extend(want.iter().flat_map(|v| v.to_le_bytes()));
+        bytes.push(7);
+        let got: Vec<f32> = GpuContext::values(&bytes[1..]);
+        assert_eq!(got, want);
+        assert!(GpuContext::values::<u32>(&[1, 2, 3]).is_empty());
     }
 }

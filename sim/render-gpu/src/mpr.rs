@@ -193,7 +193,7 @@ impl GpuMpr {
         entries.extend(self.motion.entries());
         dispatch(ctx, &pipeline, &entries, (w.div_ceil(8), h.div_ceil(8)), None);
         let bytes = ctx.read_buffer(&output, out_bytes)?;
-        let words: &[u32] = bytemuck::cast_slice(&bytes);
+        let words: Vec<u32> = GpuContext::values(&bytes);
         let rgb = words.chunks_exact(2).map(|p| {
             let b = p[0].to_le_bytes();
             [b[0], b[1], b[2]]

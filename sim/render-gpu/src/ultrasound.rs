@@ -208,8 +208,8 @@ impl GpuUltrasound {
         dispatch(ctx, &pipeline, &entries, (s.lines, 1), self.timer.as_ref());
         let [envelope, packed] = ctx.read_buffers([(&env, n * 4), (&col, n * 4)])?;
         self.last_pass_ms = self.timer.as_ref().and_then(|t| t.read_ms(ctx));
-        let envelope: Vec<f32> = bytemuck::cast_slice(&envelope).to_vec();
-        let packed: Vec<u32> = bytemuck::cast_slice(&packed).to_vec();
+        let envelope: Vec<f32> = GpuContext::values(&envelope);
+        let packed: Vec<u32> = GpuContext::values(&packed);
         let colour = packed
             .iter()
             .map(|&p| [p as u8, (p >> 8) as u8, (p >> 16) as u8])

@@ -169,7 +169,7 @@ impl GpuXray {
         Ok(Radiograph {
             width,
             height,
-            attenuation: bytemuck::cast_slice(&bytes).to_vec(),
+            attenuation: GpuContext::values(&bytes),
         })
     }
 }
