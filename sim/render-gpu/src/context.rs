@@ -138,13 +138,10 @@ impl GpuContext {
 
     /// Read-back bytes as values of `T`, copied into a `Vec<T>` so the values are aligned
     /// (a `Vec<u8>` need not be, and casting it in place could panic); trailing bytes that make
-    /// no whole value are dropped.
+    /// no whole value are dropped (bytemuck's collect would pad them into one).
     pub(crate) fn values<T: bytemuck::Pod>(bytes: &[u8]) -> Vec<T> {
-        let size = std::mem::size_of::<T>().max(1);
-        let mut values = vec![T::zeroed(); bytes.len() / size];
-        let whole = values.len() * size;
-        bytemuck::cast_slice_mut::<T, u8>(&mut values).copy_from_slice(&bytes[..whole]);
-        values
+        let whole = bytes.len() - bytes.len() % std::mem::size_of::<T>().max(1);
+        bytemuck::pod_collect_to_vec(&bytes[..whole])
     }
 
     /// The first bytes of several buffers, copied into one staging buffer and mapped once (one
