@@ -13,6 +13,8 @@
 /// 0.7 × 0.7 × 2.5 mm voxels).
 const SHIFT: [u32; 3] = [2, 2, 1];
 
+use stylet_physics::glam::Vec3;
+
 /// Largest stored distance: "no visible brick within 254 bricks".
 const CAP: u8 = 255;
 
@@ -93,6 +95,80 @@ impl BrickDistance {
             };
             (lo, hi)
         })
+    }
+}
+
+/// Which way a ray runs along one axis of the index space.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Heading {
+    /// c_a grows with t: the ray leaves a box by its upper face.
+    Increasing,
+    /// c_a shrinks with t: the ray leaves by the lower face.
+    Decreasing,
+    /// c_r,a = ±0: the ray never leaves by this axis.
+    Parallel,
+}
+
+/// A ray c(t) = c_e + t·c_r in index space as a leap reads it, prepared once per ray: 1/c_r and
+/// the face each axis leaves a box by.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LeavingRay {
+    ce: [f32; 3],
+    inv_dc: [f32; 3],
+    heading: [Heading; 3],
+}
+
+impl LeavingRay {
+    pub fn new(ce: Vec3, dc: Vec3) -> LeavingRay {
+        let heading = [0, 1, 2].map(|a| {
+            if dc[a] > 0.0 {
+                Heading::Increasing
+            } else if dc[a] < 0.0 {
+                Heading::Decreasing
+            } else {
+                Heading::Parallel
+            }
+        });
+        LeavingRay {
+            ce: ce.to_array(),
+            inv_dc: dc.recip().to_array(),
+            heading,
+        }
+    }
+}
+
+impl BrickDistance {
+    /// The t at which `ray` leaves [`Self::empty_box`]`(b, d, margin)`: the least over the axes
+    /// of (face − c_e,a)·(1/c_r,a) at the finite face the ray runs toward, +∞ when there is
+    /// none. Only that face is worked out (the leap of docs/rendering.md step 8, taken millions
+    /// of times a frame); the numbers are those of the box's faces, bit for bit.
+    #[inline(always)]
+    pub fn exit_t(&self, b: [u32; 3], d: u8, margin: f32, ray: &LeavingRay) -> f32 {
+        let r = d as u32 - 1;
+        let mut t = f32::INFINITY;
+        for a in 0..3 {
+            let q = b[a] >> SHIFT[a];
+            let face = match ray.heading[a] {
+                Heading::Increasing => {
+                    // One past the last cube of the box (hi_cube + 1 of `empty_box`).
+                    let end = ((q + r).min(self.dims[a] - 1) + 1) << SHIFT[a];
+                    if end >= self.cubes[a] {
+                        continue;
+                    }
+                    end as f32 - margin
+                }
+                Heading::Decreasing => {
+                    let lo_cube = q.saturating_sub(r) << SHIFT[a];
+                    if lo_cube == 0 {
+                        continue;
+                    }
+                    lo_cube as f32 + margin
+                }
+                Heading::Parallel => continue,
+            };
+            t = t.min((face - ray.ce[a]) * ray.inv_dc[a]);
+        }
+        t
     }
 }
 
@@ -240,5 +316,53 @@ mod tests {
         assert_eq!(b[0], (16.0 + 1e-3, f32::INFINITY));
         assert_eq!(b[1], (8.0 + 1e-3, f32::INFINITY));
         assert_eq!(b[2], (4.0 + 1e-3, f32::INFINITY));
+    }
+
+    /// The leap's exit as the march took it before `exit_t`: the face of `empty_box` the ray runs
+    /// toward on each axis, skipped when infinite.
+    fn exit_through_the_box(bd: &BrickDistance, b: [u32; 3], d: u8, ce: Vec3, dc: Vec3) -> f32 {
+        let bx = bd.empty_box(b, d, 1e-3);
+        let inv_dc = dc.recip();
+        let mut t_exit = f32::INFINITY;
+        for a in 0..3 {
+            let face = if dc[a] > 0.0 {
+                bx[a].1
+            } else if dc[a] < 0.0 {
+                bx[a].0
+            } else {
+                continue;
+            };
+            if face.is_finite() {
+                t_exit = t_exit.min((face - ce[a]) * inv_dc[a]);
+            }
+        }
+        t_exit
+    }
+
+    #[test]
+    fn the_exit_is_that_of_the_empty_box_bit_for_bit() {
+        let cubes = [37u32, 23, 11];
+        let bd = BrickDistance::new(cubes, |x0, x1, y, z| (x0..x1).contains(&20) && (y, z) == (11, 5));
+        let (mut finite, mut infinite) = (0, 0);
+        for r in 0..3000u32 {
+            let f = r as f32;
+            let b = [r * 7 % cubes[0], r * 5 % cubes[1], r * 3 % cubes[2]];
+            let d = bd.at(b).max(1 + (r % 4) as u8);
+            let ce = Vec3::new((f * 0.37).sin() * 30.0, (f * 0.11).cos() * 20.0, (f * 0.23).sin() * 9.0);
+            let dc = match r % 6 {
+                0 => Vec3::new(0.0, -0.0, (f * 0.7).cos()),
+                1 => Vec3::new(-0.0, 0.3, 0.0),
+                _ => Vec3::new((f * 1.3).cos(), (f * 0.7).sin(), (f * 2.1).cos()) * 0.8,
+            };
+            let want = exit_through_the_box(&bd, b, d, ce, dc);
+            let got = bd.exit_t(b, d, 1e-3, &LeavingRay::new(ce, dc));
+            assert_eq!(got.to_bits(), want.to_bits(), "b {b:?}, d {d}, ce {ce}, dc {dc}");
+            if want.is_finite() {
+                finite += 1;
+            } else {
+                infinite += 1;
+            }
+        }
+        assert!(finite > 1000 && infinite > 50, "{finite} finite, {infinite} infinite");
     }
 }

@@ -6,6 +6,7 @@ use stylet_physics::glam::{DVec3, Vec3};
 use std::sync::Arc;
 
 use super::batch::{Avx2, Batch, Evaluated, Kernel};
+use super::brick_distance::LeavingRay;
 use super::cube_mask::CubeMask;
 use super::jitter::jitter;
 use super::occupancy::Occupancy;
@@ -233,7 +234,7 @@ const BOX_MARGIN: f32 = 1e-3;
 fn lattice_bricks<const LANES: bool>(f: &Frame, cubes: &CubeMask, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
     let step = f.quality.step_mm;
     let inv_step = 1.0 / step;
-    let inv_dc = ray.dc.recip();
+    let leaving = LeavingRay::new(ray.ce, ray.dc);
     let bricks = cubes.bricks();
     let kernel = Kernel::new(f.sampler.grads, &f.table, &f.phong, f.sampler.half_rows_ct(), f.avx2);
     let placer = Placer::new(f.avx2);
@@ -266,21 +267,7 @@ fn lattice_bricks<const LANES: bool>(f: &Frame, cubes: &CubeMask, ray: &Ray, k0:
             };
             let d = bricks.at(cell.b);
             if d > 0 {
-                let b = bricks.empty_box(cell.b, d, BOX_MARGIN);
-                let mut t_exit = f32::INFINITY;
-                for a in 0..3 {
-                    // The face the ray leaves by on this axis (none when it runs parallel to it).
-                    let face = if ray.dc[a] > 0.0 {
-                        b[a].1
-                    } else if ray.dc[a] < 0.0 {
-                        b[a].0
-                    } else {
-                        continue;
-                    };
-                    if face.is_finite() {
-                        t_exit = t_exit.min((face - ray.ce[a]) * inv_dc[a]);
-                    }
-                }
+                let t_exit = bricks.exit_t(cell.b, d, BOX_MARGIN, &leaving);
                 // The rest of the window is passed: the march resumes past the leap.
                 k = lattice_from(t_exit, k + i as u32 + 1, ray.j, inv_step);
                 continue 'march;
