@@ -25,6 +25,10 @@ pub struct TransferTable {
     /// visible_before[i]: how many of entries 0 … i − 1 have α > 0 (len = entries + 1), so
     /// [`Self::visible_in`] is two loads.
     visible_before: Vec<u32>,
+    /// len − 1 as `f32` and len − 2: the clamps of [`Self::position`], worked out once rather
+    /// than per sample.
+    last_position: f32,
+    last_base: usize,
 }
 
 impl TransferTable {
@@ -66,6 +70,8 @@ impl TransferTable {
             lo_hu: lo,
             step_hu,
             inv_step: 1.0 / step_hu,
+            last_position: (entries.len() - 1) as f32,
+            last_base: entries.len() - 2,
             entries,
             visible_before,
         }
@@ -75,12 +81,17 @@ impl TransferTable {
     /// i ≤ len − 2, so entries i and i + 1 exist.
     #[inline(always)]
     fn position(&self, hu: f32) -> (usize, f32) {
-        let last = (self.entries.len() - 1) as f32;
         // NaN clamps to 0 (`max` returns the other operand).
-        let x = ((hu - self.lo_hu) * self.inv_step).max(0.0).min(last);
+        let x = ((hu - self.lo_hu) * self.inv_step).max(0.0).min(self.last_position);
         // SAFETY: 0 ≤ x ≤ len − 1 (NaN became 0 above), so the conversion is exact truncation.
-        let i = (unsafe { x.to_int_unchecked::<u32>() } as usize).min(self.entries.len() - 2);
+        let i = (unsafe { x.to_int_unchecked::<u32>() } as usize).min(self.last_base);
         (i, x - i as f32)
+    }
+
+    /// The clamps of a table position: len − 1 (as `f32`) and the last entry an interpolation
+    /// may start from, len − 2 (for the lanes of `raycast::batch`, which repeat `position`).
+    pub(crate) fn clamps(&self) -> (f32, usize) {
+        (self.last_position, self.last_base)
     }
 
     /// (α·r, α·g, α·b, α) at `hu`: linear interpolation between the two nearest entries.

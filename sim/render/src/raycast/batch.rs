@@ -233,10 +233,11 @@ pub fn avx2_available() -> bool {
 mod avx2 {
     use std::arch::x86_64::*;
 
-    use stylet_physics::glam::Vec3;
+    use stylet_physics::glam::{Vec3, Vec4};
 
     use super::super::shading::{Exponent, MIN_GRADIENT};
     use super::{Batch, Evaluated, Kernel, LANES};
+    use crate::transfer_table::TransferTable;
 
     /// The trilinear read of one cell's eight records, `GradientVolume::interpolate`'s products
     /// and sums on four lanes: each row's two records (x and x + 1, adjacent) are one 16-byte
@@ -292,6 +293,34 @@ mod avx2 {
         _mm256_andnot_ps(_mm256_set1_ps(-0.0), v)
     }
 
+    /// `TransferTable::lookup` of the first `len` lanes of `values` into `colours`: the clamped
+    /// table position x = clamp((v − lo)/step, 0, len − 1), its entry i = min(⌊x⌋, len − 2) and
+    /// fraction x − i on the lanes, then entries i and i + 1 blended by (1 − f, f) per sample.
+    /// `max` gives 0 for NaN, as the scalar clamp; for x = ±0 either zero blends to entry 0.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn colours(table: &TransferTable, values: __m256, len: usize, colours: &mut [[f32; 4]; LANES]) {
+        let (last_position, last_base) = table.clamps();
+        let x = _mm256_mul_ps(_mm256_sub_ps(values, splat(table.lo_hu)), splat(table.inv_step));
+        let x = _mm256_min_ps(_mm256_max_ps(x, _mm256_setzero_ps()), splat(last_position));
+        // Truncation of 0 ≤ x ≤ len − 1 < 2³¹.
+        let i = _mm256_min_epi32(_mm256_cvttps_epi32(x), _mm256_set1_epi32(last_base as i32));
+        let f = _mm256_sub_ps(x, _mm256_cvtepi32_ps(i));
+        let g = _mm256_sub_ps(splat(1.0), f);
+        let (mut is, mut fs, mut gs) = ([0i32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+        // SAFETY: eight lanes into eight.
+        unsafe {
+            _mm256_storeu_si256(is.as_mut_ptr().cast(), i);
+            _mm256_storeu_ps(fs.as_mut_ptr(), f);
+            _mm256_storeu_ps(gs.as_mut_ptr(), g);
+        }
+        for k in 0..len.min(LANES) {
+            let i = is[k] as usize;
+            let (a, b) = (table.entries[i], table.entries[i + 1]);
+            colours[k] = (Vec4::from_array(a) * gs[k] + Vec4::from_array(b) * fs[k]).to_array();
+        }
+    }
+
     /// `Kernel::evaluate_one_at_a_time` on eight lanes.
     ///
     /// # Safety
@@ -305,15 +334,12 @@ mod avx2 {
         out: &mut Evaluated,
     ) {
         let (sy, sz) = kernel.grads.strides();
-        // 1. Each sample's (Δx, Δy, Δz, s) and its colour; unused lanes repeat sample 0.
+        // 1. Each sample's (Δx, Δy, Δz, s); unused lanes repeat sample 0.
         let mut r = [_mm_setzero_ps(); LANES];
         for (i, ri) in r.iter_mut().enumerate() {
             let cell = &batch.cells[if i < batch.len { i } else { 0 }];
             // SAFETY: the caller's contract.
             *ri = unsafe { interpolate(records, sy, sz, cell.b, cell.f) };
-            if i < batch.len {
-                out.colour[i] = kernel.table.lookup(f32::from_bits(_mm_extract_ps::<3>(*ri) as u32));
-            }
         }
         // 2. Transposed: Δx, Δy, Δz of the eight samples, one register each.
         let a = _mm256_set_m128(r[4], r[0]);
@@ -327,12 +353,16 @@ mod avx2 {
         let dx = _mm256_shuffle_ps::<0x44>(ab_lo, cd_lo);
         let dy = _mm256_shuffle_ps::<0xEE>(ab_lo, cd_lo);
         let dz = _mm256_shuffle_ps::<0x44>(ab_hi, cd_hi);
-        // 3. ∇s = rows[0]·Δx + rows[1]·Δy + rows[2]·Δz, per component.
+        // 3. The colours: the table's position of the eight values at once, then two entries and
+        // a lerp per sample (`TransferTable::lookup`'s operations).
+        let values = _mm256_shuffle_ps::<0xEE>(ab_hi, cd_hi);
+        colours(kernel.table, values, batch.len, &mut out.colour);
+        // 4. ∇s = rows[0]·Δx + rows[1]·Δy + rows[2]·Δz, per component.
         let [r0, r1, r2] = kernel.half_rows;
         let gx = dot(splat(r0.x), splat(r1.x), splat(r2.x), dx, dy, dz);
         let gy = dot(splat(r0.y), splat(r1.y), splat(r2.y), dx, dy, dz);
         let gz = dot(splat(r0.z), splat(r1.z), splat(r2.z), dx, dy, dz);
-        // 4. |∇s|, and N = ∇s·(−1/|∇s|) (`PhongTerms::lit`).
+        // 5. |∇s|, and N = ∇s·(−1/|∇s|) (`PhongTerms::lit`).
         let len = _mm256_sqrt_ps(dot(gx, gy, gz, gx, gy, gz));
         let unshaded = _mm256_cmp_ps::<_CMP_LT_OQ>(len, splat(MIN_GRADIENT));
         let inv = _mm256_div_ps(splat(-1.0), len);
@@ -390,10 +420,15 @@ mod tests {
         for k in 0..dims[2] {
             for j in 0..dims[1] {
                 for i in 0..dims[0] {
-                    // Edges, and a flat block whose inside has no gradient (unshaded).
+                    // Edges, a flat block whose inside has no gradient (unshaded), and values
+                    // beyond both ends of the table (its clamps).
                     let x = ((i * 37 + j * 11 + k * 5) % 23) as f32;
                     v.push(if i < 5 && j < 5 && k < 5 {
                         40.0
+                    } else if i == 8 && j % 3 == 0 {
+                        4000.0
+                    } else if j == 7 && k % 2 == 0 {
+                        -3000.0
                     } else {
                         x * 90.0 - 1000.0
                     });
@@ -413,13 +448,23 @@ mod tests {
         let d = dims.map(|n| n as u32);
         let grads = GradientVolume::new(&data, d);
         let grid = super::super::sampler::Grid3::new(&data, d);
-        let tf = TransferFunction::Trapezoids(vec![Trapezoid {
-            tissue: "soft".into(),
-            hu: [-400.0, -100.0, 300.0, 900.0],
-            rgb: [0.9, 0.6, 0.5],
-            opacity: 0.7,
-            weight: 1.0,
-        }]);
+        // Soft tissue, and bone visible up to the table's top end (where the clamp matters).
+        let tf = TransferFunction::Trapezoids(vec![
+            Trapezoid {
+                tissue: "soft".into(),
+                hu: [-400.0, -100.0, 300.0, 900.0],
+                rgb: [0.9, 0.6, 0.5],
+                opacity: 0.7,
+                weight: 1.0,
+            },
+            Trapezoid {
+                tissue: "bone".into(),
+                hu: [700.0, 1000.0, 3000.0, 3100.0],
+                rgb: [1.0, 0.95, 0.9],
+                opacity: 0.9,
+                weight: 1.0,
+            },
+        ]);
         let table = TransferTable::new(&tf, -1024.0, 1200.0, 0.5);
         let rows = [
             Vec3::new(0.7, 0.1, 0.0),
@@ -443,6 +488,8 @@ mod tests {
                 assert!(!one.uses_avx2());
                 let mut batch = Batch::default();
                 let (mut n, mut unshaded) = (0, 0);
+                // Samples whose value lies below or above the table (clamped to its ends).
+                let (mut below, mut above) = (0, 0);
                 for s in 0..600 {
                     let f = s as f32;
                     let c = Vec3::new(
@@ -459,6 +506,9 @@ mod tests {
                         lanes.evaluate(&batch, half, &mut a);
                         one.evaluate(&batch, half, &mut b);
                         for i in 0..batch.len() {
+                            let v = grads.interpolate(&batch.cells[i]).w;
+                            below += usize::from(v < -1024.0);
+                            above += usize::from(v > 1200.0);
                             assert_eq!(a.colour[i].map(f32::to_bits), b.colour[i].map(f32::to_bits), "{s}/{i}");
                             assert_eq!(a.lit[i].to_bits(), b.lit[i].to_bits(), "sample {s}, lane {i}");
                             for f_shadow in [1.0, 0.3] {
@@ -481,6 +531,7 @@ mod tests {
                     }
                 }
                 assert!(n > 400, "{n} samples compared");
+                assert!(below > 10 && above > 10, "{below} below and {above} above the table");
                 assert!(unshaded > 0 && unshaded < n, "{unshaded} of {n} samples unshaded");
             }
         }
