@@ -231,6 +231,7 @@ const BOX_MARGIN: f32 = 1e-3;
 /// ([`super::batch`]), with the numbers of one at a time; without, each point is placed when the
 /// march reaches it. A march that would pass lattice index 2·10⁹ (a ray kilometres long) stops
 /// there.
+#[inline(always)]
 fn lattice_bricks<const LANES: bool>(f: &Frame, cubes: &CubeMask, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
     let step = f.quality.step_mm;
     let inv_step = 1.0 / step;
@@ -288,6 +289,28 @@ fn lattice_bricks<const LANES: bool>(f: &Frame, cubes: &CubeMask, ray: &Ray, k0:
         return samples;
     }
     samples + u64::from(counted)
+}
+
+/// [`lattice_bricks`] with the lanes, the whole march compiled for AVX2 so that placing the
+/// windows and evaluating the batches (AVX2 kernels) are inlined into it rather than called.
+/// The numbers do not change: Rust never fuses a product and a sum into one rounding, and the
+/// other operations round the same in either encoding (the lanes' tests compare bits).
+fn lattice_bricks_avx2(avx2: Avx2, f: &Frame, cubes: &CubeMask, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx2")]
+        unsafe fn compiled_for_avx2(f: &Frame, cubes: &CubeMask, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
+            lattice_bricks::<true>(f, cubes, ray, k0, acc)
+        }
+        let _ = avx2;
+        // SAFETY: an `Avx2` exists only when the CPU has AVX2 (`Avx2::detect`).
+        unsafe { compiled_for_avx2(f, cubes, ray, k0, acc) }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = avx2;
+        lattice_bricks::<true>(f, cubes, ray, k0, acc)
+    }
 }
 
 /// The last lattice index a window starts at: `lattice_from`'s cap (2·10⁹, far past any
@@ -475,8 +498,8 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
         };
         samples += match (&f.cubes, warp.as_mut()) {
             (Some(cubes), None) if f.sampler.deformed.is_none() && q.ray_box && !f.sample_outside => {
-                if f.avx2.is_some() {
-                    lattice_bricks::<true>(f, cubes, &ray, k0, &mut acc)
+                if let Some(avx2) = f.avx2 {
+                    lattice_bricks_avx2(avx2, f, cubes, &ray, k0, &mut acc)
                 } else {
                     lattice_bricks::<false>(f, cubes, &ray, k0, &mut acc)
                 }
