@@ -57,11 +57,13 @@ impl Batch {
     /// Adds a located sample (`Grid3::locate` on the records' grid) at ray parameter `t`.
     #[inline(always)]
     pub fn push(&mut self, cell: Cell, t: f32, counted_before: u32) {
-        assert!(self.len < LANES, "a batch holds {LANES} samples");
-        self.cells[self.len] = cell;
-        self.t[self.len] = t;
-        self.counted_before[self.len] = counted_before;
-        self.len += 1;
+        // The length read once: the stores below cannot change it (and it is not reloaded).
+        let n = self.len;
+        assert!(n < LANES, "a batch holds {LANES} samples");
+        self.cells[n] = cell;
+        self.t[n] = t;
+        self.counted_before[n] = counted_before;
+        self.len = n + 1;
     }
 
     pub fn clear(&mut self) {
@@ -114,6 +116,9 @@ pub(crate) struct Kernel<'a> {
     pub half_rows: [Vec3; 3],
     /// Evaluate on AVX2 lanes (16-bit records on a CPU with AVX2), else one sample at a time.
     avx2: Option<Avx2>,
+    /// With the lanes: the 16-bit records and their strides along y and z, taken out of
+    /// `grads` once for [`Self::prefetch`] (called for every visible sample).
+    lane_records: Option<(&'a [[i16; 4]], usize, usize)>,
 }
 
 impl<'a> Kernel<'a> {
@@ -126,12 +131,21 @@ impl<'a> Kernel<'a> {
         half_rows: [Vec3; 3],
         avx2: Option<Avx2>,
     ) -> Self {
+        let avx2 = avx2.filter(|_| grads.is_int16());
+        let lane_records = match (avx2, grads.records()) {
+            (Some(_), super::gradient_volume::RecordSlice::Int16(records)) => {
+                let (sy, sz) = grads.strides();
+                Some((records, sy, sz))
+            }
+            _ => None,
+        };
         Kernel {
             grads,
             table,
             phong,
             half_rows,
-            avx2: avx2.filter(|_| grads.is_int16()),
+            avx2,
+            lane_records,
         }
     }
 
@@ -140,11 +154,8 @@ impl<'a> Kernel<'a> {
     #[inline(always)]
     pub fn prefetch(&self, cell: &Cell) {
         #[cfg(target_arch = "x86_64")]
-        if self.avx2.is_some()
-            && let super::gradient_volume::RecordSlice::Int16(records) = self.grads.records()
-        {
+        if let Some((records, sy, sz)) = self.lane_records {
             use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-            let (sy, sz) = self.grads.strides();
             let o = cell.b[0] as usize + sy * cell.b[1] as usize + sz * cell.b[2] as usize;
             let p = records.as_ptr().cast::<i8>();
             // A prefetch never faults; the offsets are those `interpolate` reads.
