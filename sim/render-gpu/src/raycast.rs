@@ -410,7 +410,7 @@ impl GpuRenderer {
         ctx.check_storage_buffer("the occupancy grid", 4 * (cells as u64).pow(3))?;
         let (lo_hu, hi_hu) = vol.value_range_hu;
         let table = TransferTable::new(&scene.transfer, lo_hu, hi_hu, scene.quality.step_mm);
-        ctx.check_storage_buffer("the transfer table", 16 * table.entries.len() as u64)?;
+        ctx.check_storage_buffer("the transfer table", 16 * table.entries().len() as u64)?;
         let ranges = vol.cell_ranges(cells);
         let ct_map = IndexMap::of(vol.atlas.ct().grid());
         let occ = Occupancy::new(
@@ -428,10 +428,10 @@ impl GpuRenderer {
         let table_params = [
             table.lo_hu,
             table.inv_step,
-            (table.entries.len() - 1) as f32,
+            (table.entries().len() - 1) as f32,
             table.lookup(AIR_HU)[3],
         ];
-        let table = storage(ctx, "transfer table", bytemuck::cast_slice(&table.entries));
+        let table = storage(ctx, "transfer table", bytemuck::cast_slice(table.entries()));
         self.occupancy = Some(OccupancyCache {
             volume: vol.id,
             cells,

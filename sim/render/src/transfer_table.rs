@@ -20,8 +20,9 @@ pub struct TransferTable {
     pub step_hu: f32,
     /// 1 / `step_hu`.
     pub inv_step: f32,
-    /// Premultiplied, step-corrected RGBA per entry; at least two entries.
-    pub entries: Vec<[f32; 4]>,
+    /// Premultiplied, step-corrected RGBA per entry; at least two entries. Private, like the
+    /// clamps derived from its length below.
+    entries: Vec<[f32; 4]>,
     /// visible_before[i]: how many of entries 0 … i − 1 have α > 0 (len = entries + 1), so
     /// [`Self::visible_in`] is two loads.
     visible_before: Vec<u32>,
@@ -86,6 +87,12 @@ impl TransferTable {
         // SAFETY: 0 ≤ x ≤ len − 1 (NaN became 0 above), so the conversion is exact truncation.
         let i = (unsafe { x.to_int_unchecked::<u32>() } as usize).min(self.last_base);
         (i, x - i as f32)
+    }
+
+    /// Premultiplied, step-corrected (α·r, α·g, α·b, α) per entry (at least two), at CT values
+    /// `lo_hu + i·step_hu`.
+    pub fn entries(&self) -> &[[f32; 4]] {
+        &self.entries
     }
 
     /// The clamps of a table position: len − 1 (as `f32`) and the last entry an interpolation

@@ -327,7 +327,7 @@ mod avx2 {
         }
         for k in 0..len.min(LANES) {
             let i = is[k] as usize;
-            let (a, b) = (table.entries[i], table.entries[i + 1]);
+            let (a, b) = (table.entries()[i], table.entries()[i + 1]);
             colours[k] = (Vec4::from_array(a) * gs[k] + Vec4::from_array(b) * fs[k]).to_array();
         }
     }
