@@ -39,12 +39,23 @@ impl Camera {
     /// x_ndc = (2(col + ½)/w − 1)·tan(fov/2)·w/h, y_ndc = (1 − 2(row + ½)/h)·tan(fov/2),
     /// d = normalize(forward + x_ndc·right + y_ndc·up).
     pub fn ray(&self, col: u32, row: u32, width: u32, height: u32) -> (Vec3, Vec3) {
+        self.rays(width, height).ray(col, row)
+    }
+
+    /// What [`Camera::ray`] works out that is the same for every pixel of a `width` × `height`
+    /// image (the basis, tan(fov/2), the aspect), prepared once for a frame's rays.
+    pub fn rays(&self, width: u32, height: u32) -> ImageRays {
         let (right, up, forward) = self.basis();
-        let tan_half = (self.fov_y_deg.to_radians() * 0.5).tan();
-        let aspect = width as f32 / height as f32;
-        let x = (2.0 * (col as f32 + 0.5) / width as f32 - 1.0) * tan_half * aspect;
-        let y = (1.0 - 2.0 * (row as f32 + 0.5) / height as f32) * tan_half;
-        (self.eye_mm, (forward + right * x + up * y).normalize())
+        ImageRays {
+            eye_mm: self.eye_mm,
+            right,
+            up,
+            forward,
+            tan_half: (self.fov_y_deg.to_radians() * 0.5).tan(),
+            aspect: width as f32 / height as f32,
+            width: width as f32,
+            height: height as f32,
+        }
     }
 
     /// Where a world point lands in a `width` × `height` image: (column, row) in pixels (the
@@ -263,4 +274,28 @@ pub struct Scene {
     pub background: Vec3,
     pub deformed: Option<DeformedRegion>,
     pub motion: Option<MotionHook>,
+}
+
+/// The rays of one image ([`Camera::rays`]): [`Camera::ray`]'s formulas with the per-frame
+/// parts prepared, the same numbers bit for bit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImageRays {
+    eye_mm: Vec3,
+    right: Vec3,
+    up: Vec3,
+    forward: Vec3,
+    tan_half: f32,
+    aspect: f32,
+    width: f32,
+    height: f32,
+}
+
+impl ImageRays {
+    /// The ray through the centre of pixel (`col`, `row`): origin and unit direction.
+    #[inline(always)]
+    pub fn ray(&self, col: u32, row: u32) -> (Vec3, Vec3) {
+        let x = (2.0 * (col as f32 + 0.5) / self.width - 1.0) * self.tan_half * self.aspect;
+        let y = (1.0 - 2.0 * (row as f32 + 0.5) / self.height) * self.tan_half;
+        (self.eye_mm, (self.forward + self.right * x + self.up * y).normalize())
+    }
 }

@@ -398,6 +398,7 @@ fn lattice_general(
 
 /// The colour of pixel (`col`, `row`) for the ray `origin` + t·`dir` (unit `dir`), and the
 /// number of volume samples taken.
+#[inline(always)]
 pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4], u64) {
     let q = &f.quality;
     let step = q.step_mm;
