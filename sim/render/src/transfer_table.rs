@@ -105,10 +105,17 @@ impl TransferTable {
     #[inline(always)]
     pub fn lookup(&self, hu: f32) -> [f32; 4] {
         let (i, f) = self.position(hu);
-        // `position` keeps i + 1 < len.
+        self.blend(i, 1.0 - f, f)
+    }
+
+    /// Entries i and i + 1 weighted by (1 − f, f), given as (`one_minus_f`, `f`): the last step
+    /// of [`Self::lookup`], shared with the lanes of `raycast::batch`, which compute the position
+    /// eight at a time. i must be ≤ len − 2, as [`Self::position`] keeps it.
+    #[inline(always)]
+    pub(crate) fn blend(&self, i: usize, one_minus_f: f32, f: f32) -> [f32; 4] {
         let (a, b) = (self.entries[i], self.entries[i + 1]);
         // Four lanes at once (SSE on x86-64): the same products and sums as lane by lane.
-        (Vec4::from_array(a) * (1.0 - f) + Vec4::from_array(b) * f).to_array()
+        (Vec4::from_array(a) * one_minus_f + Vec4::from_array(b) * f).to_array()
     }
 
     /// What [`Self::visible_in`] depends on: equal keys give equal answers for every range (the

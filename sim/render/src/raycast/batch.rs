@@ -244,7 +244,7 @@ pub fn avx2_available() -> bool {
 mod avx2 {
     use std::arch::x86_64::*;
 
-    use stylet_physics::glam::{Vec3, Vec4};
+    use stylet_physics::glam::Vec3;
 
     use super::super::shading::{Exponent, MIN_GRADIENT};
     use super::{Batch, Evaluated, Kernel, LANES};
@@ -326,9 +326,7 @@ mod avx2 {
             _mm256_storeu_ps(gs.as_mut_ptr(), g);
         }
         for k in 0..len.min(LANES) {
-            let i = is[k] as usize;
-            let (a, b) = (table.entries()[i], table.entries()[i + 1]);
-            colours[k] = (Vec4::from_array(a) * gs[k] + Vec4::from_array(b) * fs[k]).to_array();
+            colours[k] = table.blend(is[k] as usize, gs[k], fs[k]);
         }
     }
 
