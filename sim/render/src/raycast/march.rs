@@ -291,28 +291,6 @@ fn lattice_bricks<const LANES: bool>(f: &Frame, cubes: &CubeMask, ray: &Ray, k0:
     samples + u64::from(counted)
 }
 
-/// [`lattice_bricks`] with the lanes, the whole march compiled for AVX2 so that placing the
-/// windows and evaluating the batches (AVX2 kernels) are inlined into it rather than called.
-/// The numbers do not change: Rust never fuses a product and a sum into one rounding, and the
-/// other operations round the same in either encoding (the lanes' tests compare bits).
-fn lattice_bricks_avx2(avx2: Avx2, f: &Frame, cubes: &CubeMask, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
-    #[cfg(target_arch = "x86_64")]
-    {
-        #[target_feature(enable = "avx2")]
-        unsafe fn compiled_for_avx2(f: &Frame, cubes: &CubeMask, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
-            lattice_bricks::<true>(f, cubes, ray, k0, acc)
-        }
-        let _ = avx2;
-        // SAFETY: an `Avx2` exists only when the CPU has AVX2 (`Avx2::detect`).
-        unsafe { compiled_for_avx2(f, cubes, ray, k0, acc) }
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        let _ = avx2;
-        lattice_bricks::<true>(f, cubes, ray, k0, acc)
-    }
-}
-
 /// The last lattice index a window starts at: `lattice_from`'s cap (2·10⁹, far past any
 /// extent), below which k … k + 7 fit the lanes' `i32`.
 const LAST_WINDOW_K: u32 = 2_000_000_000;
@@ -499,8 +477,10 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
         };
         samples += match (&f.cubes, warp.as_mut()) {
             (Some(cubes), None) if f.sampler.deformed.is_none() && q.ray_box && !f.sample_outside => {
-                if let Some(avx2) = f.avx2 {
-                    lattice_bricks_avx2(avx2, f, cubes, &ray, k0, &mut acc)
+                // With the lanes this runs inside the tile compiled for AVX2 (`draw_tile`), so
+                // the lanes' kernels are inlined into the march.
+                if f.avx2.is_some() {
+                    lattice_bricks::<true>(f, cubes, &ray, k0, &mut acc)
                 } else {
                     lattice_bricks::<false>(f, cubes, &ray, k0, &mut acc)
                 }
