@@ -646,6 +646,8 @@ fn needle_through_body() -> ToolState {
     }
 }
 
+/// The lanes and the two rays marched in turn against one sample at a time, one ray after the
+/// other.
 #[test]
 fn lanes_draw_the_pixels_of_one_sample_at_a_time() {
     use stylet_render::raycast::{Lanes, render_with};
@@ -678,14 +680,16 @@ fn lanes_draw_the_pixels_of_one_sample_at_a_time() {
                 },
                 ..plain.clone()
             };
-            for (what, s) in [
-                ("plain", &plain),
-                ("clip and needle", &clipped),
-                ("no jitter", &exact_early),
-                ("half", &half),
+            // 81 × 71: tiles of odd width, whose last pixel of a row is marched alone.
+            for (what, s, (w, h)) in [
+                ("plain", &plain, (80, 72)),
+                ("plain, odd width", &plain, (81, 71)),
+                ("clip and needle", &clipped, (80, 72)),
+                ("no jitter", &exact_early, (80, 72)),
+                ("half", &half, (80, 72)),
             ] {
-                let a = render_with(v, s, 80, 72, Lanes::Auto);
-                let b = render_with(v, s, 80, 72, Lanes::OneAtATime);
+                let a = render_with(v, s, w, h, Lanes::Auto);
+                let b = render_with(v, s, w, h, Lanes::OneAtATime);
                 assert!(
                     count_not_background(&b.image) > 500,
                     "{name}, {tf_name}, {what}: an empty picture"

@@ -10,8 +10,19 @@
 
 use rayon::prelude::*;
 
+use super::batch::Avx2;
 use super::brick_distance::BrickDistance;
+use super::window::Window;
 use crate::transfer_table::TransferTable;
+
+/// What [`CubeMask::classify`] tells of a window's points, one bit per point.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct WindowClasses {
+    /// Inside points whose brick is at distance ≥ 1 from a visible one (a leap starts there).
+    pub far: u8,
+    /// Inside points whose cube is visible.
+    pub visible: u8,
+}
 
 /// Visibility bits of every voxel cube, one z-slab of cubes after another.
 #[derive(Debug, Clone, PartialEq)]
@@ -21,6 +32,9 @@ pub struct CubeMask {
     /// 64-bit words per slab: ⌈nx·ny / 64⌉ (slabs start on a word, so they are built in parallel).
     words_per_slab: usize,
     bits: Vec<u64>,
+    /// Whether every cube and bit-word index fits an `i32` lane ([`Self::classify`]); always
+    /// so for a grid of at most `MAX_VOXELS` (2²⁸).
+    lanes_fit: bool,
     /// The cubes' bricks and their distances to visible ones (leaping over many cubes at once).
     bricks: BrickDistance,
 }
@@ -31,11 +45,13 @@ impl CubeMask {
         let [nx, ny, nz] = dims.map(|n| n as usize);
         let words_per_slab = (nx * ny).div_ceil(64);
         let mut bits = vec![0u64; words_per_slab * nz];
+        let lanes_fit = nx * ny < i32::MAX as usize && bits.len() * 2 < i32::MAX as usize;
         if nx < 2 || ny < 2 || nz < 2 || data.len() < nx * ny * nz {
             return CubeMask {
                 dims,
                 words_per_slab,
                 bits,
+                lanes_fit: false,
                 bricks: BrickDistance::new([0; 3], |_, _, _, _| true),
             };
         }
@@ -77,6 +93,7 @@ impl CubeMask {
             dims,
             words_per_slab,
             bits,
+            lanes_fit,
             bricks: BrickDistance::new([0; 3], |_, _, _, _| true),
         };
         let bricks = BrickDistance::new(dims.map(|n| n - 1), |x0, x1, y, z| mask.any_visible(x0, x1, y, z));
@@ -96,6 +113,23 @@ impl CubeMask {
         let w = bz as usize * self.words_per_slab + (r >> 6);
         // Out-of-range bases (not produced by the ray loop) count as visible.
         self.bits.get(w).is_none_or(|word| word >> (r & 63) & 1 == 1)
+    }
+
+    /// The march's two questions for every point of a window at once (`Window::inside` points
+    /// only; the others read 0): bit i of `far` when point i's brick is at distance ≥ 1
+    /// ([`BrickDistance::at`] > 0), bit i of `visible` when its cube is ([`Self::visible`]).
+    /// `None` when the lanes do not apply (no AVX2 module, or indices past `i32`).
+    #[inline(always)]
+    pub(crate) fn classify(&self, avx2: Avx2, window: &Window) -> Option<WindowClasses> {
+        let _ = avx2;
+        #[cfg(target_arch = "x86_64")]
+        if self.lanes_fit {
+            // SAFETY: an `Avx2` exists only when the CPU has AVX2; the indices fit (`lanes_fit`);
+            // inside points are located cells, within the cubes.
+            return Some(unsafe { avx2::classify(self, window) });
+        }
+        let _ = window;
+        None
     }
 
     /// Whether any cube with base voxel (x, `by`, `bz`), `x0` ≤ x < `x1`, is visible (a word's
@@ -119,6 +153,55 @@ impl CubeMask {
     /// Number of visible cubes (tests, statistics).
     pub fn count_visible(&self) -> u64 {
         self.bits.iter().map(|w| w.count_ones() as u64).sum()
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use std::arch::x86_64::*;
+
+    use super::{CubeMask, WindowClasses};
+    use crate::raycast::window::Window;
+
+    /// `CubeMask::classify` on eight lanes: the brick distances through
+    /// `BrickDistance::at_lanes`, the cube bits by one gather of the 32-bit half-words that hold
+    /// them (x86-64 is little-endian: bit r of a `u64` word is bit r mod 32 of half-word
+    /// 2w + r / 32).
+    ///
+    /// # Safety
+    /// AVX2; `mask.lanes_fit`; every inside point's base within the cubes.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn classify(mask: &CubeMask, window: &Window) -> WindowClasses {
+        // SAFETY (loads): eight lanes from eight.
+        let b = [0, 1, 2].map(|a| unsafe { _mm256_loadu_si256(window.b[a].as_ptr().cast()) });
+        let bit_of_lane = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+        let live = _mm256_cmpeq_epi32(
+            _mm256_and_si256(_mm256_set1_epi32(window.inside as i32), bit_of_lane),
+            bit_of_lane,
+        );
+        // SAFETY: the caller's.
+        let d = unsafe { mask.bricks.at_lanes(b, live) };
+        let near = _mm256_cmpeq_epi32(d, _mm256_setzero_si256());
+        // r = b_x + n_x·b_y; half-word 2·w_slab·b_z + r / 32, bit r mod 32.
+        let r = _mm256_add_epi32(b[0], _mm256_mullo_epi32(_mm256_set1_epi32(mask.dims[0] as i32), b[1]));
+        let half_word = _mm256_add_epi32(
+            _mm256_mullo_epi32(_mm256_set1_epi32(2 * mask.words_per_slab as i32), b[2]),
+            _mm256_srli_epi32::<5>(r),
+        );
+        // SAFETY: a live lane's half-word lies in `bits` (its cube does; the indices fit).
+        let words = unsafe {
+            _mm256_mask_i32gather_epi32::<4>(_mm256_setzero_si256(), mask.bits.as_ptr().cast(), half_word, live)
+        };
+        let bit = _mm256_and_si256(
+            _mm256_srlv_epi32(words, _mm256_and_si256(r, _mm256_set1_epi32(31))),
+            _mm256_set1_epi32(1),
+        );
+        let visible = _mm256_cmpeq_epi32(bit, _mm256_set1_epi32(1));
+        let lanes = |v: __m256i| _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_and_si256(v, live))) as u8;
+        WindowClasses {
+            far: lanes(_mm256_andnot_si256(near, live)),
+            visible: lanes(visible),
+        }
     }
 }
 
@@ -214,5 +297,64 @@ mod tests {
                 }
             }
         }
+    }
+    #[test]
+    fn the_lanes_classify_a_window_as_point_by_point() {
+        use crate::raycast::batch::{Avx2, Lanes};
+        let Some(avx2) = Avx2::detect(Lanes::Auto) else {
+            eprintln!("this CPU has no AVX2: the lanes are not used here, nothing to compare");
+            return;
+        };
+        // Rows of 149 cubes cross 32- and 64-bit words; sparse soft tissue in fat, so bricks
+        // at distances 0, 1, 2 and more all occur.
+        let dims = [150u32, 37, 11];
+        let mut seed = 0x2545f491u32;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        };
+        let data: Vec<f32> = (0..150 * 37 * 11)
+            .map(|_| if next() % 211 == 0 { 20.0 } else { -100.0 })
+            .collect();
+        let mask = CubeMask::new(&data, dims, &table());
+        let (mut far, mut visible, mut outside) = (0, 0, 0);
+        for w in 0..4000 {
+            // Mostly inside points; the others hold bases no lane may read.
+            let mut window = Window {
+                inside: if w % 5 == 0 { next() as u8 } else { u8::MAX },
+                ..Window::default()
+            };
+            for i in 0..8 {
+                for (b, n) in window.b.iter_mut().zip(dims) {
+                    b[i] = if window.inside & (1 << i) != 0 {
+                        next() % (n - 1)
+                    } else {
+                        i32::MIN as u32
+                    };
+                }
+            }
+            let classes = mask.classify(avx2, &window).expect("the indices fit");
+            for i in 0..8 {
+                let b = [window.b[0][i], window.b[1][i], window.b[2][i]];
+                let inside = window.inside & (1 << i) != 0;
+                let want_far = inside && mask.bricks().at(b) > 0;
+                let want_visible = inside && mask.visible(b[0], b[1], b[2]);
+                assert_eq!(classes.far & (1 << i) != 0, want_far, "window {w}, point {i}, {b:?}");
+                assert_eq!(
+                    classes.visible & (1 << i) != 0,
+                    want_visible,
+                    "window {w}, point {i}, {b:?}"
+                );
+                far += usize::from(want_far);
+                visible += usize::from(want_visible);
+                outside += usize::from(!inside);
+            }
+        }
+        assert!(
+            far > 1000 && visible > 100 && outside > 1000,
+            "{far} far, {visible} visible, {outside} outside"
+        );
     }
 }

@@ -59,6 +59,9 @@ pub struct Frame<'a> {
     /// The SIMD lanes for the common frame's points and samples ([`super::batch`],
     /// [`super::window`]), when asked for and the CPU has them (detected once per frame).
     pub(crate) avx2: Option<Avx2>,
+    /// Whether the tiles march two pixels' rays in turn ([`march_pair`]); else one after the
+    /// other ([`march`], the reference).
+    pub pairs: bool,
 }
 
 /// "No hit" distance for the tools (no infinities, as in tools.rs and the WGSL port).
@@ -227,78 +230,211 @@ const BOX_MARGIN: f32 = 1e-3;
 /// whose own cube is invisible is passed alone ([`CubeMask`]), and the rest are sampled. Only
 /// samples that interpolate invisible values are passed: the picture is that of every lattice
 /// point sampled. With SIMD lanes (`LANES`, docs/rendering.md "Sample lanes") points are placed
-/// eight at a time ([`super::window`]) and the visible ones read and lit eight at a time
-/// ([`super::batch`]), with the numbers of one at a time; without, each point is placed when the
-/// march reaches it. A march that would pass lattice index 2·10⁹ (a ray kilometres long) stops
-/// there.
-#[inline(always)]
-fn lattice_bricks<const LANES: bool>(f: &Frame, cubes: &CubeMask, ray: &Ray, k0: u32, acc: &mut Accum) -> u64 {
-    let step = f.quality.step_mm;
-    let inv_step = 1.0 / step;
-    let leaving = LeavingRay::new(ray.ce, ray.dc);
-    let bricks = cubes.bricks();
-    let kernel = Kernel::new(f.sampler.grads, &f.table, &f.phong, f.sampler.half_rows_ct(), f.avx2);
-    let placer = Placer::new(f.avx2);
-    debug_assert_eq!(placer.uses_lanes(), LANES);
-    let lattice_of_ray = Lattice {
-        ce: ray.ce,
-        dc: ray.dc,
-        j: ray.j,
-        step,
-    };
-    let mut window = Window::default();
-    let mut batch = Batch::default();
-    let mut evaluated = Evaluated::default();
-    let mut samples = 0u64;
-    // Samples counted (air at the box's faces) since the batch's last entry.
-    let mut counted = 0u32;
-    let mut k = k0;
-    'march: while k <= LAST_WINDOW_K {
+/// and classified eight at a time ([`super::window`], [`CubeMask::classify`]) and the visible ones
+/// read and lit eight at a time ([`super::batch`]), with the numbers of one at a time; without,
+/// each point is placed when the march reaches it. A march that would pass lattice index 2·10⁹
+/// (a ray kilometres long) stops there.
+///
+/// The march goes a window (or a leap) at a time ([`Self::step`]), so that two rays can be
+/// marched in turn ([`march_pair`]): their chains of dependent loads and leaps then overlap.
+struct BrickMarch {
+    ray: Ray,
+    leaving: LeavingRay,
+    lattice: Lattice,
+    /// The next lattice index to visit.
+    k: u32,
+    /// Whether the last step ended in a leap.
+    leapt: bool,
+    /// Samples counted (air at the box's faces) since the batch's last entry.
+    counted: u32,
+    samples: u64,
+    window: Window,
+    batch: Batch,
+    evaluated: Evaluated,
+}
+
+/// What a march step reads that is the same for every ray of a frame.
+#[derive(Clone, Copy)]
+struct BrickContext<'a> {
+    cubes: &'a CubeMask,
+    kernel: Kernel<'a>,
+    placer: Placer,
+    inv_step: f32,
+}
+
+impl<'a> BrickContext<'a> {
+    #[inline(always)]
+    fn new(f: &'a Frame, cubes: &'a CubeMask) -> Self {
+        BrickContext {
+            cubes,
+            kernel: Kernel::new(f.sampler.grads, &f.table, &f.phong, f.sampler.half_rows_ct(), f.avx2),
+            placer: Placer::new(f.avx2),
+            inv_step: 1.0 / f.quality.step_mm,
+        }
+    }
+}
+
+impl BrickMarch {
+    #[inline(always)]
+    fn new(f: &Frame, ray: Ray, k0: u32) -> Self {
+        BrickMarch {
+            leaving: LeavingRay::new(ray.ce, ray.dc),
+            lattice: Lattice {
+                ce: ray.ce,
+                dc: ray.dc,
+                j: ray.j,
+                step: f.quality.step_mm,
+            },
+            ray,
+            k: k0,
+            leapt: false,
+            counted: 0,
+            samples: 0,
+            window: Window::default(),
+            batch: Batch::default(),
+            evaluated: Evaluated::default(),
+        }
+    }
+
+    /// The march to its end; the samples taken.
+    #[inline(always)]
+    fn run<const LANES: bool>(mut self, f: &Frame, cx: &BrickContext, acc: &mut Accum) -> u64 {
+        while !self.step::<LANES>(f, cx, acc) {}
+        self.samples
+    }
+
+    /// The leap from lattice index `k`'s point, in brick `b` at distance `d` ≥ 1.
+    #[inline(always)]
+    fn leap(&mut self, cx: &BrickContext, b: [u32; 3], d: u8, k: u32) {
+        let t_exit = cx.cubes.bricks().exit_t(b, d, BOX_MARGIN, &self.leaving);
+        self.k = lattice_from(t_exit, k + 1, self.ray.j, cx.inv_step);
+        self.leapt = true;
+    }
+
+    /// Composites the batch's first [`super::batch::LANES`] samples (or fewer); whether the ray
+    /// is done.
+    #[inline(always)]
+    fn composite(&mut self, f: &Frame, cx: &BrickContext, acc: &mut Accum) -> bool {
+        composite_batch(
+            f,
+            &cx.kernel,
+            &self.ray,
+            &mut self.batch,
+            &mut self.evaluated,
+            &mut self.samples,
+            acc,
+        )
+    }
+
+    /// The march's end past the last point: the batch's rest composited, the air counted.
+    #[inline(always)]
+    fn end(&mut self, f: &Frame, cx: &BrickContext, acc: &mut Accum) -> bool {
+        if !self.batch.is_empty() && self.composite(f, cx, acc) {
+            return true;
+        }
+        self.samples += u64::from(self.counted);
+        true
+    }
+
+    /// One window of lattice points (k … k + 7, up to a leap), or one leap; whether the ray is
+    /// done (its end reached, or opaque).
+    #[inline(always)]
+    fn step<const LANES: bool>(&mut self, f: &Frame, cx: &BrickContext, acc: &mut Accum) -> bool {
+        debug_assert_eq!(cx.placer.uses_lanes(), LANES);
+        let k = self.k;
+        if k > LAST_WINDOW_K {
+            return self.end(f, cx, acc);
+        }
+        let bricks = cx.cubes.bricks();
+        if LANES && self.leapt {
+            // After a leap the next point most often lies in a far brick again (85 % of leaps
+            // on the chest CT): tested alone, the chain from leap to leap stays short.
+            self.leapt = false;
+            let t = lattice(k, self.ray.j, self.lattice.step);
+            if t <= self.ray.t_hi
+                && t < self.ray.t_tool
+                && let Some(cell) = f.sampler.ct.locate(self.ray.ce + self.ray.dc * t)
+            {
+                let d = bricks.at(cell.b);
+                if d > 0 {
+                    self.leap(cx, cell.b, d, k);
+                    return false;
+                }
+            }
+        }
         // Lattice points k … k + 7 (placed and located together on the lanes), in order.
-        placer.place(&f.sampler.ct, &lattice_of_ray, k, &mut window);
+        cx.placer.place(&f.sampler.ct, &self.lattice, k, &mut self.window);
+        // A window wholly inside the CT and before the ray's end: its points classified on the
+        // lanes and its visible ones before the first leap appended at once.
+        if LANES
+            && let Some(avx2) = f.avx2
+            && self.window.inside == u8::MAX
+            && self.window.t[POINTS - 1] <= self.ray.t_hi
+            && self.window.t[POINTS - 1] < self.ray.t_tool
+            && let Some(classes) = cx.cubes.classify(avx2, &self.window)
+        {
+            // t_k grows with k, so the last point's bounds hold for all eight.
+            let leap_at = (u32::from(classes.far) | 1 << POINTS).trailing_zeros() as usize;
+            let take = classes.visible & ((1u32 << leap_at) - 1) as u8;
+            if take != 0 {
+                cx.kernel.prefetch_window(&self.window);
+                self.batch.append_window(avx2, &self.window, take, self.counted);
+                self.counted = 0;
+                if self.batch.is_full() && self.composite(f, cx, acc) {
+                    return true;
+                }
+            }
+            if leap_at < POINTS {
+                let w = &self.window;
+                let b = [w.b[0][leap_at], w.b[1][leap_at], w.b[2][leap_at]];
+                self.leap(cx, b, bricks.at(b), k + leap_at as u32);
+            } else {
+                self.k = k + POINTS as u32;
+            }
+            return false;
+        }
         for i in 0..POINTS {
-            let (t, cell) = placer.point::<LANES>(&f.sampler.ct, &lattice_of_ray, &window, k, i);
-            if t > ray.t_hi || t >= ray.t_tool {
-                break 'march;
+            let (t, cell) = cx
+                .placer
+                .point::<LANES>(&f.sampler.ct, &self.lattice, &self.window, k, i);
+            if t > self.ray.t_hi || t >= self.ray.t_tool {
+                return self.end(f, cx, acc);
             }
             let Some(cell) = cell else {
                 // Air outside the CT (rounding at the box's faces), invisible on this path.
-                counted += 1;
+                self.counted += 1;
                 continue;
             };
             let d = bricks.at(cell.b);
             if d > 0 {
-                let t_exit = bricks.exit_t(cell.b, d, BOX_MARGIN, &leaving);
                 // The rest of the window is passed: the march resumes past the leap.
-                k = lattice_from(t_exit, k + i as u32 + 1, ray.j, inv_step);
-                continue 'march;
+                self.leap(cx, cell.b, d, k + i as u32);
+                return false;
             }
-            if !cubes.visible(cell.b[0], cell.b[1], cell.b[2]) {
+            if !cx.cubes.visible(cell.b[0], cell.b[1], cell.b[2]) {
                 continue;
             }
-            kernel.prefetch(&cell);
-            batch.push(cell, t, counted);
-            counted = 0;
-            if batch.is_full() && composite_batch(f, &kernel, ray, &mut batch, &mut evaluated, &mut samples, acc) {
-                return samples;
+            cx.kernel.prefetch(&cell);
+            self.batch.push(cell, t, self.counted);
+            self.counted = 0;
+            if self.batch.is_full() && self.composite(f, cx, acc) {
+                return true;
             }
         }
-        k += POINTS as u32;
+        self.k = k + POINTS as u32;
+        false
     }
-    if !batch.is_empty() && composite_batch(f, &kernel, ray, &mut batch, &mut evaluated, &mut samples, acc) {
-        return samples;
-    }
-    samples + u64::from(counted)
 }
 
 /// The last lattice index a window starts at: `lattice_from`'s cap (2·10⁹, far past any
 /// extent), below which k … k + 7 fit the lanes' `i32`.
 const LAST_WINDOW_K: u32 = 2_000_000_000;
 
-/// Steps 5–7 for a batch of visible samples ([`super::batch`]): evaluated together, then shadowed
-/// and accumulated one after the other in the ray's order, exactly as [`composite`] would have
-/// one at a time. Counts the samples up to the last one composited; returns whether the ray is
-/// done (early termination), and empties the batch.
+/// Steps 5–7 for the first [`super::batch::LANES`] (or fewer) visible samples of a batch
+/// ([`super::batch`]): evaluated together, then shadowed and accumulated one after the other in
+/// the ray's order, exactly as [`composite`] would have one at a time. Counts the samples up to
+/// the last one composited; returns whether the ray is done (early termination), and drops
+/// those samples from the batch.
 #[inline(always)]
 fn composite_batch(
     f: &Frame,
@@ -310,8 +446,9 @@ fn composite_batch(
     acc: &mut Accum,
 ) -> bool {
     kernel.evaluate(batch, ray.half, evaluated);
+    let n = batch.len().min(super::batch::LANES);
     let mut done = false;
-    for i in 0..batch.len() {
+    for i in 0..n {
         *samples += u64::from(batch.counted_before[i]) + 1;
         let c = evaluated.colour[i];
         let shade = |f_shadow| evaluated.shade(i, &f.phong, f_shadow);
@@ -320,7 +457,7 @@ fn composite_batch(
             break;
         }
     }
-    batch.clear();
+    batch.drop_front(n);
     done
 }
 
@@ -378,127 +515,232 @@ fn lattice_general(
 /// number of volume samples taken.
 #[inline(always)]
 pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4], u64) {
-    let q = &f.quality;
-    let step = q.step_mm;
-    let dims = f.sampler.ct.dims;
-    // 1. Sample lattice.
-    let j = if q.jitter { jitter(col, row) } else { 0.0 };
-    let ce = f.sampler.ct_map.point(origin);
-    let dc = f.sampler.ct_map.vector(dir);
-    let (je, dj) = match &f.sampler.deformed {
-        Some((_, m)) => (m.point(origin), m.vector(dir)),
-        None => (Vec3::ZERO, Vec3::ZERO),
-    };
-    let at_t = |t: f32| At {
-        ct: ce + dc * t,
-        j: je + dj * t,
-    };
-    let half = half_vector(dir, &f.light);
-    let mut acc = Accum { c: Vec3::ZERO, a: 0.0 };
-    let mut samples = 0u64;
+    let mut pixel = Pixel::begin(f, col, row, origin, dir);
+    if let Some(ray) = pixel.bricks.take() {
+        pixel.samples += pixel.march_bricks(f, ray);
+    }
+    pixel.finish(f)
+}
 
-    // 4. Tools: the nearest hit ends the march (tools are never clipped).
-    let tool = nearest_hit(&f.primitives, origin, dir, NO_TOOL);
-    let t_tool = tool.map_or(NO_TOOL, |h| h.t);
+/// Two pixels' [`march`]es, bit for bit; when both take the common frame's path their lattice
+/// marches go a step of each in turn ([`BrickMarch::step`]), so the CPU overlaps one ray's
+/// dependent loads and leaps with the other's.
+#[inline(always)]
+pub fn march_pair(f: &Frame, a: (u32, u32, Vec3, Vec3), b: (u32, u32, Vec3, Vec3)) -> [([u8; 4], u64); 2] {
+    let mut pa = Pixel::begin(f, a.0, a.1, a.2, a.3);
+    let mut pb = Pixel::begin(f, b.0, b.1, b.2, b.3);
+    match (pa.bricks.take(), pb.bricks.take(), &f.cubes) {
+        (Some(ra), Some(rb), Some(cubes)) => {
+            let cx = BrickContext::new(f, cubes);
+            if f.avx2.is_some() {
+                march_two::<true>(f, &cx, [&mut pa, &mut pb], [ra, rb]);
+            } else {
+                march_two::<false>(f, &cx, [&mut pa, &mut pb], [ra, rb]);
+            }
+        }
+        (ra, rb, _) => {
+            if let Some(ray) = ra {
+                pa.samples += pa.march_bricks(f, ray);
+            }
+            if let Some(ray) = rb {
+                pb.samples += pb.march_bricks(f, ray);
+            }
+        }
+    }
+    [pa.finish(f), pb.finish(f)]
+}
 
-    // 2. Extent: the CT's box, widened by a motion's bound (an unbounded motion: naive).
-    let extent = match (q.ray_box, f.motion.is_some(), f.motion_margin) {
-        (true, false, _) => ray_box(ce, dc, dims),
-        (true, true, Some(m)) => ray_box_widened(ce, dc, dims, m),
-        _ => Some((0.0, f.t_far)),
-    };
-    // 3. Clip plane: the visible part of the extent, and the plane sample where the ray enters it.
-    let mut lattice_from: Option<(f32, bool, f32)> = None; // (t_lo, strict, t_hi)
-    let mut plane_t: Option<f32> = None;
-    if let Some((t0, t1)) = extent {
-        match f.clip {
-            None => lattice_from = Some((t0, false, t1)),
-            Some(p) => {
-                let s0 = (origin - p.point_mm).dot(p.normal);
-                let rn = dir.dot(p.normal);
-                if rn > 0.0 {
-                    let tc = -s0 / rn;
-                    if tc < t0 {
+/// Two brick marches a step of each in turn until both are done.
+#[inline(always)]
+fn march_two<const LANES: bool>(f: &Frame, cx: &BrickContext, pixels: [&mut Pixel; 2], rays: [(Ray, u32); 2]) {
+    let [pa, pb] = pixels;
+    let [(ra, ka), (rb, kb)] = rays;
+    let (mut ma, mut mb) = (BrickMarch::new(f, ra, ka), BrickMarch::new(f, rb, kb));
+    let (mut done_a, mut done_b) = (false, false);
+    while !(done_a || done_b) {
+        done_a = ma.step::<LANES>(f, cx, &mut pa.acc);
+        done_b = mb.step::<LANES>(f, cx, &mut pb.acc);
+    }
+    while !done_a {
+        done_a = ma.step::<LANES>(f, cx, &mut pa.acc);
+    }
+    while !done_b {
+        done_b = mb.step::<LANES>(f, cx, &mut pb.acc);
+    }
+    pa.samples += ma.samples;
+    pb.samples += mb.samples;
+}
+
+/// One pixel's ray between its set-up (steps 1–4 and the plane sample) and its finish (the tool
+/// behind, step 9): what is accumulated so far, and the brick march still to go.
+struct Pixel {
+    acc: Accum,
+    samples: u64,
+    dir: Vec3,
+    tool: Option<crate::tools::ToolHit>,
+    /// The common frame's lattice march, not yet taken (ray, first lattice index).
+    bricks: Option<(Ray, u32)>,
+}
+
+impl Pixel {
+    /// The brick march of `ray` from lattice index `k0`, to its end; the samples taken.
+    #[inline(always)]
+    fn march_bricks(&mut self, f: &Frame, (ray, k0): (Ray, u32)) -> u64 {
+        let Some(cubes) = &f.cubes else {
+            unreachable!("a brick march is set up only with the cube mask")
+        };
+        let cx = BrickContext::new(f, cubes);
+        let m = BrickMarch::new(f, ray, k0);
+        // With the lanes this runs inside the tile compiled for AVX2 (`draw_tile`), so the
+        // lanes' kernels are inlined into the march.
+        if f.avx2.is_some() {
+            m.run::<true>(f, &cx, &mut self.acc)
+        } else {
+            m.run::<false>(f, &cx, &mut self.acc)
+        }
+    }
+
+    /// Steps 1–4, the plane sample, and the lattice samples of every path but the common
+    /// frame's (left in `bricks`).
+    #[inline(always)]
+    fn begin(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> Pixel {
+        let q = &f.quality;
+        let step = q.step_mm;
+        let dims = f.sampler.ct.dims;
+        // 1. Sample lattice.
+        let j = if q.jitter { jitter(col, row) } else { 0.0 };
+        let ce = f.sampler.ct_map.point(origin);
+        let dc = f.sampler.ct_map.vector(dir);
+        let (je, dj) = match &f.sampler.deformed {
+            Some((_, m)) => (m.point(origin), m.vector(dir)),
+            None => (Vec3::ZERO, Vec3::ZERO),
+        };
+        let at_t = |t: f32| At {
+            ct: ce + dc * t,
+            j: je + dj * t,
+        };
+        let half = half_vector(dir, &f.light);
+        let mut acc = Accum { c: Vec3::ZERO, a: 0.0 };
+        let mut samples = 0u64;
+
+        // 4. Tools: the nearest hit ends the march (tools are never clipped).
+        let tool = nearest_hit(&f.primitives, origin, dir, NO_TOOL);
+        let t_tool = tool.map_or(NO_TOOL, |h| h.t);
+
+        // 2. Extent: the CT's box, widened by a motion's bound (an unbounded motion: naive).
+        let extent = match (q.ray_box, f.motion.is_some(), f.motion_margin) {
+            (true, false, _) => ray_box(ce, dc, dims),
+            (true, true, Some(m)) => ray_box_widened(ce, dc, dims, m),
+            _ => Some((0.0, f.t_far)),
+        };
+        // 3. Clip plane: the visible part of the extent, and the plane sample where the ray enters it.
+        let mut lattice_from: Option<(f32, bool, f32)> = None; // (t_lo, strict, t_hi)
+        let mut plane_t: Option<f32> = None;
+        if let Some((t0, t1)) = extent {
+            match f.clip {
+                None => lattice_from = Some((t0, false, t1)),
+                Some(p) => {
+                    let s0 = (origin - p.point_mm).dot(p.normal);
+                    let rn = dir.dot(p.normal);
+                    if rn > 0.0 {
+                        let tc = -s0 / rn;
+                        if tc < t0 {
+                            lattice_from = Some((t0, false, t1));
+                        } else if tc <= t1 {
+                            plane_t = Some(tc);
+                            lattice_from = Some((tc, true, t1));
+                        }
+                    } else if rn < 0.0 {
+                        let tc = -s0 / rn;
+                        if tc >= t0 {
+                            lattice_from = Some((t0, false, t1.min(tc)));
+                        }
+                    } else if s0 >= 0.0 {
                         lattice_from = Some((t0, false, t1));
-                    } else if tc <= t1 {
-                        plane_t = Some(tc);
-                        lattice_from = Some((tc, true, t1));
                     }
-                } else if rn < 0.0 {
-                    let tc = -s0 / rn;
-                    if tc >= t0 {
-                        lattice_from = Some((t0, false, t1.min(tc)));
-                    }
-                } else if s0 >= 0.0 {
-                    lattice_from = Some((t0, false, t1));
                 }
             }
         }
-    }
 
-    let mut warp = f.motion_at.as_deref().map(Warp::new);
-    // The plane sample: no shading, no shadow, opacity as is.
-    if let Some(tc) = plane_t
-        && tc < t_tool
-    {
-        let at = match warp.as_mut() {
-            Some(w) => f.sampler.at_world(w.reference_of(origin + dir * tc)),
-            None => at_t(tc),
-        };
-        samples += 1;
-        let c = f.transfer.eval(f.sampler.s(at));
-        let style = match f.tagging {
-            Tagging::Off => f.volume.style(0),
-            _ => f.volume.style(f.sampler.label(at)),
-        };
-        let v = plane_colour(f.tagging, c, style);
-        if v[3] > 0.0 {
-            acc.add(Vec3::new(v[0], v[1], v[2]), v[3].min(1.0));
+        let mut warp = f.motion_at.as_deref().map(Warp::new);
+        let mut bricks = None;
+        // The plane sample: no shading, no shadow, opacity as is.
+        if let Some(tc) = plane_t
+            && tc < t_tool
+        {
+            let at = match warp.as_mut() {
+                Some(w) => f.sampler.at_world(w.reference_of(origin + dir * tc)),
+                None => at_t(tc),
+            };
+            samples += 1;
+            let c = f.transfer.eval(f.sampler.s(at));
+            let style = match f.tagging {
+                Tagging::Off => f.volume.style(0),
+                _ => f.volume.style(f.sampler.label(at)),
+            };
+            let v = plane_colour(f.tagging, c, style);
+            if v[3] > 0.0 {
+                acc.add(Vec3::new(v[0], v[1], v[2]), v[3].min(1.0));
+            }
+            if let Some(w) = warp.as_mut() {
+                w.restart();
+            }
         }
-        if let Some(w) = warp.as_mut() {
-            w.restart();
-        }
-    }
 
-    // 5.–8. The lattice samples.
-    if let Some((t_lo, strict, t_hi)) = lattice_from
-        && !(q.early_termination && acc.a >= crate::scene::Quality::OPAQUE)
-    {
-        let k0 = first_lattice(t_lo, strict, j, step);
-        let ray = Ray {
-            origin,
+        // 5.–8. The lattice samples.
+        if let Some((t_lo, strict, t_hi)) = lattice_from
+            && !(q.early_termination && acc.a >= crate::scene::Quality::OPAQUE)
+        {
+            let k0 = first_lattice(t_lo, strict, j, step);
+            let ray = Ray {
+                origin,
+                dir,
+                ce,
+                dc,
+                j,
+                t_hi,
+                t_tool,
+                half,
+            };
+            match (&f.cubes, warp.as_mut()) {
+                (Some(_), None) if f.sampler.deformed.is_none() && q.ray_box && !f.sample_outside => {
+                    bricks = Some((ray, k0));
+                }
+                _ => samples += lattice_general(f, &ray, k0, warp.as_mut(), at_t, &mut acc),
+            };
+        }
+        Pixel {
+            acc,
+            samples,
             dir,
-            ce,
-            dc,
-            j,
-            t_hi,
-            t_tool,
-            half,
-        };
-        samples += match (&f.cubes, warp.as_mut()) {
-            (Some(cubes), None) if f.sampler.deformed.is_none() && q.ray_box && !f.sample_outside => {
-                // With the lanes this runs inside the tile compiled for AVX2 (`draw_tile`), so
-                // the lanes' kernels are inlined into the march.
-                if f.avx2.is_some() {
-                    lattice_bricks::<true>(f, cubes, &ray, k0, &mut acc)
-                } else {
-                    lattice_bricks::<false>(f, cubes, &ray, k0, &mut acc)
-                }
-            }
-            _ => lattice_general(f, &ray, k0, warp.as_mut(), at_t, &mut acc),
-        };
+            tool,
+            bricks,
+        }
     }
 
-    // 4. (end) The tool behind what was accumulated.
-    if let Some(hit) = tool {
-        acc.c += (1.0 - acc.a) * shade(&hit, &f.light, dir);
-        acc.a = 1.0;
-    }
+    /// Step 4's end (the tool behind what was accumulated) and step 9; the pixel and its
+    /// samples.
+    #[inline(always)]
+    fn finish(self, f: &Frame) -> ([u8; 4], u64) {
+        debug_assert!(self.bricks.is_none(), "the brick march was taken");
+        let Pixel {
+            mut acc,
+            samples,
+            dir,
+            tool,
+            ..
+        } = self;
+        // 4. (end) The tool behind what was accumulated.
+        if let Some(hit) = tool {
+            acc.c += (1.0 - acc.a) * shade(&hit, &f.light, dir);
+            acc.a = 1.0;
+        }
 
-    // 9. Finish.
-    let rgb = acc.c + (1.0 - acc.a) * f.background;
-    let to8 = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
-    ([to8(rgb.x), to8(rgb.y), to8(rgb.z), 255], samples)
+        // 9. Finish.
+        let rgb = acc.c + (1.0 - acc.a) * f.background;
+        let to8 = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+        ([to8(rgb.x), to8(rgb.y), to8(rgb.z), 255], samples)
+    }
 }
 
 /// Distance from `eye` to the farthest corner of a grid's sampling domain (index box

@@ -22,7 +22,7 @@ use crate::image::Image;
 use crate::scene::{ImageRays, Scene};
 use crate::transfer_table::TransferTable;
 use crate::volume::{IndexMap, RenderVolume};
-use march::{Frame, farthest_corner_mm, march};
+use march::{Frame, farthest_corner_mm, march, march_pair};
 use occupancy::Occupancy;
 use sampler::{Grid3, Sampler};
 
@@ -86,7 +86,18 @@ fn draw_tile(frame: &Frame, rays: &ImageRays, cols: [u32; 2], rows: [u32; 2]) ->
         let mut px = Vec::with_capacity(((cols[1] - cols[0]) * (rows[1] - rows[0])) as usize);
         let mut n = 0u64;
         for row in rows[0]..rows[1] {
-            for col in cols[0]..cols[1] {
+            let mut col = cols[0];
+            // Pixels two by two (their marches interleaved), the last alone in an odd row.
+            while frame.pairs && col + 1 < cols[1] {
+                let (oa, da) = rays.ray(col, row);
+                let (ob, db) = rays.ray(col + 1, row);
+                for (rgba, s) in march_pair(frame, (col, row, oa, da), (col + 1, row, ob, db)) {
+                    px.push(rgba);
+                    n += s;
+                }
+                col += 2;
+            }
+            for col in col..cols[1] {
                 let (origin, dir) = rays.ray(col, row);
                 let (rgba, s) = march(frame, col, row, origin, dir);
                 px.push(rgba);
@@ -179,6 +190,7 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32, la
         shadows: crate::shadow::Shadows::from_tools(&scene.tools),
         has_shadows: scene.tools.needle.is_some() || scene.tools.finger.is_some() || scene.tools.probe.is_some(),
         avx2: batch::Avx2::detect(lanes),
+        pairs: lanes == Lanes::Auto,
     };
     let mut image = Image::new(width, height);
     let rays = scene.camera.rays(width, height);
