@@ -18,7 +18,8 @@ use crate::transfer_table::TransferTable;
 /// What [`CubeMask::classify`] tells of a window's points, one bit per point.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct WindowClasses {
-    /// Inside points whose brick is at distance ≥ 1 from a visible one (a leap starts there).
+    /// Inside points whose brick is at distance ≥ `leap_from` from a visible one (a leap
+    /// starts there).
     pub far: u8,
     /// Inside points whose cube is visible.
     pub visible: u8,
@@ -116,19 +117,21 @@ impl CubeMask {
     }
 
     /// The march's two questions for every point of a window at once (`Window::inside` points
-    /// only; the others read 0): bit i of `far` when point i's brick is at distance ≥ 1
-    /// ([`BrickDistance::at`] > 0), bit i of `visible` when its cube is ([`Self::visible`]).
-    /// `None` when the lanes do not apply (no AVX2 module, or indices past `i32`).
+    /// only; the others read 0): bit i of `far` when point i's brick is at distance ≥
+    /// `leap_from` ≥ 1 ([`BrickDistance::at`]), bit i of `visible` when its cube is
+    /// ([`Self::visible`]). `None` when the lanes do not apply (no AVX2 module, or indices past
+    /// `i32`).
     #[inline(always)]
-    pub(crate) fn classify(&self, avx2: Avx2, window: &Window) -> Option<WindowClasses> {
+    pub(crate) fn classify(&self, avx2: Avx2, window: &Window, leap_from: u8) -> Option<WindowClasses> {
         let _ = avx2;
+        debug_assert!(leap_from >= 1);
         #[cfg(target_arch = "x86_64")]
         if self.lanes_fit {
             // SAFETY: an `Avx2` exists only when the CPU has AVX2; the indices fit (`lanes_fit`);
             // inside points are located cells, within the cubes.
-            return Some(unsafe { avx2::classify(self, window) });
+            return Some(unsafe { avx2::classify(self, window, leap_from) });
         }
-        let _ = window;
+        let _ = (window, leap_from);
         None
     }
 
@@ -171,7 +174,7 @@ mod avx2 {
     /// # Safety
     /// AVX2; `mask.lanes_fit`; every inside point's base within the cubes.
     #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn classify(mask: &CubeMask, window: &Window) -> WindowClasses {
+    pub(super) unsafe fn classify(mask: &CubeMask, window: &Window, leap_from: u8) -> WindowClasses {
         // SAFETY (loads): eight lanes from eight.
         let b = [0, 1, 2].map(|a| unsafe { _mm256_loadu_si256(window.b[a].as_ptr().cast()) });
         let bit_of_lane = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
@@ -181,7 +184,7 @@ mod avx2 {
         );
         // SAFETY: the caller's.
         let d = unsafe { mask.bricks.at_lanes(b, live) };
-        let near = _mm256_cmpeq_epi32(d, _mm256_setzero_si256());
+        let far = _mm256_cmpgt_epi32(d, _mm256_set1_epi32(i32::from(leap_from) - 1));
         // r = b_x + n_x·b_y; half-word 2·w_slab·b_z + r / 32, bit r mod 32.
         let r = _mm256_add_epi32(b[0], _mm256_mullo_epi32(_mm256_set1_epi32(mask.dims[0] as i32), b[1]));
         let half_word = _mm256_add_epi32(
@@ -199,7 +202,7 @@ mod avx2 {
         let visible = _mm256_cmpeq_epi32(bit, _mm256_set1_epi32(1));
         let lanes = |v: __m256i| _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_and_si256(v, live))) as u8;
         WindowClasses {
-            far: lanes(_mm256_andnot_si256(near, live)),
+            far: lanes(far),
             visible: lanes(visible),
         }
     }
@@ -306,7 +309,7 @@ mod tests {
             return;
         };
         // Rows of 149 cubes cross 32- and 64-bit words; sparse soft tissue in fat, so bricks
-        // at distances 0, 1, 2 and more all occur.
+        // at distances 0, 1, 2 and more all occur (leaps from distance 1, 2 and 3 tested).
         let dims = [150u32, 37, 11];
         let mut seed = 0x2545f491u32;
         let mut next = move || {
@@ -335,11 +338,12 @@ mod tests {
                     };
                 }
             }
-            let classes = mask.classify(avx2, &window).expect("the indices fit");
+            let leap_from = 1 + (w % 3) as u8;
+            let classes = mask.classify(avx2, &window, leap_from).expect("the indices fit");
             for i in 0..8 {
                 let b = [window.b[0][i], window.b[1][i], window.b[2][i]];
                 let inside = window.inside & (1 << i) != 0;
-                let want_far = inside && mask.bricks().at(b) > 0;
+                let want_far = inside && mask.bricks().at(b) >= leap_from;
                 let want_visible = inside && mask.visible(b[0], b[1], b[2]);
                 assert_eq!(classes.far & (1 << i) != 0, want_far, "window {w}, point {i}, {b:?}");
                 assert_eq!(
