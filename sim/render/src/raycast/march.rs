@@ -349,6 +349,11 @@ impl BrickMarch {
     #[inline(always)]
     fn step<const LANES: bool>(&mut self, f: &Frame, cx: &BrickContext, acc: &mut Accum) -> bool {
         debug_assert_eq!(cx.placer.uses_lanes(), LANES);
+        // A batch the lanes filled in the last step is composited now, before anything else
+        // joins it: in between, the other ray's step ran while its records were prefetched.
+        if self.batch.is_full() && self.composite(f, cx, acc) {
+            return true;
+        }
         let k = self.k;
         if k > LAST_WINDOW_K {
             return self.end(f, cx, acc);
@@ -388,9 +393,6 @@ impl BrickMarch {
                 cx.kernel.prefetch_window(&self.window);
                 self.batch.append_window(avx2, &self.window, take, self.counted);
                 self.counted = 0;
-                if self.batch.is_full() && self.composite(f, cx, acc) {
-                    return true;
-                }
             }
             if leap_at < POINTS {
                 let w = &self.window;
