@@ -395,8 +395,7 @@ impl BrickMarch {
                 self.counted = 0;
             }
             if leap_at < POINTS {
-                let w = &self.window;
-                let b = [w.b[0][leap_at], w.b[1][leap_at], w.b[2][leap_at]];
+                let b = self.window.cell_at(leap_at).b;
                 self.leap(cx, b, bricks.at(b), k + leap_at as u32);
             } else {
                 self.k = k + POINTS as u32;

@@ -39,7 +39,7 @@ impl Default for Window {
 
 impl Window {
     /// Point `i`'s base voxel and fractions, inside or not.
-    #[cfg(test)]
+    #[inline(always)]
     pub fn cell_at(&self, i: usize) -> Cell {
         Cell {
             b: [self.b[0][i], self.b[1][i], self.b[2][i]],
@@ -50,10 +50,7 @@ impl Window {
     /// Point `i`'s cell, when it lies inside.
     #[inline(always)]
     pub fn cell(&self, i: usize) -> Option<Cell> {
-        (self.inside & (1 << i) != 0).then(|| Cell {
-            b: [self.b[0][i], self.b[1][i], self.b[2][i]],
-            f: [self.f[0][i], self.f[1][i], self.f[2][i]],
-        })
+        (self.inside & (1 << i) != 0).then(|| self.cell_at(i))
     }
 }
 
