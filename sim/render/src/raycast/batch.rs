@@ -229,15 +229,8 @@ impl<'a> Kernel<'a> {
     pub fn prefetch(&self, cell: &Cell) {
         #[cfg(target_arch = "x86_64")]
         if let Some((records, sy, sz)) = self.lane_records {
-            use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
             let o = cell.b[0] as usize + sy * cell.b[1] as usize + sz * cell.b[2] as usize;
-            let p = records.as_ptr().cast::<i8>();
-            // A prefetch never faults; the offsets are those `interpolate` reads.
-            for i in [o, o + sy, o + sz, o + sy + sz] {
-                // SAFETY: `_mm_prefetch` is a hint (SSE, part of x86-64) and reads nothing;
-                // `wrapping_add` keeps the address computation defined.
-                unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(i * 8)) };
-            }
+            prefetch_rows(records, sy, sz, o);
         }
     }
 
@@ -292,6 +285,21 @@ impl<'a> Kernel<'a> {
                 out.lit[i] = self.phong.lit(g, len, half);
             }
         }
+    }
+}
+
+/// Asks the CPU to start loading the four record rows of the cell whose base record is `o`
+/// (rows o, o + s_y, o + s_z, o + s_y + s_z: those `interpolate` reads). A prefetch never faults,
+/// so any `o` is harmless.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn prefetch_rows(records: &[[i16; 4]], sy: usize, sz: usize, o: usize) {
+    use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+    let p = records.as_ptr().cast::<i8>();
+    for i in [o, o + sy, o + sz, o + sy + sz] {
+        // SAFETY: `_mm_prefetch` is a hint (SSE, part of x86-64) and reads nothing;
+        // `wrapping_add` keeps the address computation defined.
+        unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(i * 8)) };
     }
 }
 
@@ -383,13 +391,8 @@ mod avx2 {
         let mut offsets = [0u32; 8];
         // SAFETY: eight lanes into eight.
         unsafe { _mm256_storeu_si256(offsets.as_mut_ptr().cast(), o) };
-        let p = records.as_ptr().cast::<i8>();
         for o in offsets {
-            let o = o as usize;
-            for i in [o, o + sy, o + sz, o + sy + sz] {
-                // A hint that reads nothing; `wrapping_add` keeps the address computation defined.
-                _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(i * 8));
-            }
+            super::prefetch_rows(records, sy, sz, o as usize);
         }
     }
 
