@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use super::batch::{Avx2, Batch, Evaluated, Kernel};
 use super::brick_distance::LeavingRay;
-use super::cube_mask::CubeMask;
+use super::cube_mask::{CubeMask, WindowClasses};
 use super::jitter::jitter;
 use super::occupancy::Occupancy;
 use super::sampler::{At, Sampler};
@@ -246,6 +246,9 @@ struct BrickMarch {
     k: u32,
     /// Whether the last step ended in a leap.
     leapt: bool,
+    /// The classes of the window already placed at `k` (the lanes' look-ahead, see
+    /// [`Self::look_ahead`]).
+    ahead: Option<WindowClasses>,
     /// Samples counted (air at the box's faces) since the batch's last entry.
     counted: u32,
     samples: u64,
@@ -296,6 +299,7 @@ impl BrickMarch {
             ray,
             k: k0,
             leapt: false,
+            ahead: None,
             counted: 0,
             samples: 0,
             window: Window::default(),
@@ -344,6 +348,32 @@ impl BrickMarch {
         true
     }
 
+    /// The classes of the window just placed, when it lies wholly inside the CT and before the
+    /// ray's end (its points can then be classified on the lanes); `None` otherwise, and
+    /// without the lanes.
+    #[inline(always)]
+    fn classify(&self, f: &Frame, cx: &BrickContext) -> Option<WindowClasses> {
+        let avx2 = f.avx2?;
+        // t_k grows with k, so the last point's bounds hold for all eight.
+        let last_t = self.window.t[POINTS - 1];
+        (self.window.inside == u8::MAX && last_t <= self.ray.t_hi && last_t < self.ray.t_tool)
+            .then(|| cx.cubes.classify(avx2, &self.window, LANES_LEAP_FROM))
+            .flatten()
+    }
+
+    /// After a window without a leap, the next one (at `k`) placed and classified at once: its
+    /// gathers are then under way while the other ray of the pair takes its step, and the branch
+    /// on their answer waits for nothing when this ray's next step comes. The same windows are
+    /// classified as without it.
+    #[inline(always)]
+    fn look_ahead(&mut self, f: &Frame, cx: &BrickContext) {
+        if self.k > LAST_WINDOW_K {
+            return;
+        }
+        cx.placer.place(&f.sampler.ct, &self.lattice, self.k, &mut self.window);
+        self.ahead = self.classify(f, cx);
+    }
+
     /// One window of lattice points (k … k + 7, up to a leap), or one leap; whether the ray is
     /// done (its end reached, or opaque).
     #[inline(always)]
@@ -375,18 +405,21 @@ impl BrickMarch {
                 }
             }
         }
-        // Lattice points k … k + 7 (placed and located together on the lanes), in order.
-        cx.placer.place(&f.sampler.ct, &self.lattice, k, &mut self.window);
+        // Lattice points k … k + 7 (placed and located together on the lanes), in order,
+        // unless the last step placed and classified them already.
+        let classes = match self.ahead.take() {
+            Some(classes) => Some(classes),
+            None => {
+                cx.placer.place(&f.sampler.ct, &self.lattice, k, &mut self.window);
+                if LANES { self.classify(f, cx) } else { None }
+            }
+        };
         // A window wholly inside the CT and before the ray's end: its points classified on the
         // lanes and its visible ones before the first leap appended at once.
         if LANES
             && let Some(avx2) = f.avx2
-            && self.window.inside == u8::MAX
-            && self.window.t[POINTS - 1] <= self.ray.t_hi
-            && self.window.t[POINTS - 1] < self.ray.t_tool
-            && let Some(classes) = cx.cubes.classify(avx2, &self.window, LANES_LEAP_FROM)
+            && let Some(classes) = classes
         {
-            // t_k grows with k, so the last point's bounds hold for all eight.
             let leap_at = (u32::from(classes.far) | 1 << POINTS).trailing_zeros() as usize;
             let take = classes.visible & ((1u32 << leap_at) - 1) as u8;
             if take != 0 {
@@ -399,6 +432,7 @@ impl BrickMarch {
                 self.leap(cx, b, bricks.at(b), k + leap_at as u32);
             } else {
                 self.k = k + POINTS as u32;
+                self.look_ahead(f, cx);
             }
             return false;
         }
