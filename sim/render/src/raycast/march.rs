@@ -133,23 +133,42 @@ fn first_lattice(t: f32, strict: bool, j: f32, step: f32) -> u32 {
 }
 
 /// Front-to-back accumulation (C, A) of one ray.
+#[derive(Clone, Copy)]
 struct Accum {
+    /// Accumulated colour C (premultiplied).
     c: Vec3,
-    a: f32,
+    /// Transmittance T = 1 − A: the fraction of light from behind still reaching the eye.
+    transmittance: f32,
 }
 
 impl Accum {
+    /// Nothing accumulated: C = 0, T = 1.
+    const CLEAR: Accum = Accum {
+        c: Vec3::ZERO,
+        transmittance: 1.0,
+    };
+
+    /// Front-to-back emission–absorption (thesis eq. 3.2.1): C += (1 − A)·α·c, A += (1 − A)·α,
+    /// written with T = 1 − A as C += T·α·c, T ← T·(1 − α). The same sums; the ray's chain from
+    /// sample to sample is then one product.
     #[inline]
     fn add(&mut self, rgb: Vec3, alpha: f32) {
-        self.c += (1.0 - self.a) * alpha * rgb;
-        self.a += (1.0 - self.a) * alpha;
+        self.c += self.transmittance * alpha * rgb;
+        self.transmittance *= 1.0 - alpha;
     }
 
     /// [`Self::add`] with the colour already multiplied by α.
     #[inline]
     fn add_premultiplied(&mut self, alpha_rgb: Vec3, alpha: f32) {
-        self.c += (1.0 - self.a) * alpha_rgb;
-        self.a += (1.0 - self.a) * alpha;
+        self.c += self.transmittance * alpha_rgb;
+        self.transmittance *= 1.0 - alpha;
+    }
+
+    /// Whether the accumulated opacity A = 1 − T has reached [`crate::scene::Quality::OPAQUE`]
+    /// (early termination).
+    #[inline]
+    fn is_opaque(&self) -> bool {
+        self.transmittance <= 1.0 - crate::scene::Quality::OPAQUE
     }
 }
 
@@ -196,7 +215,7 @@ fn accumulate(f: &Frame, ray: &Ray, t: f32, c: [f32; 4], shade: impl FnOnce(f32)
     };
     acc.add_premultiplied(Vec3::new(c[0], c[1], c[2]) * shade(f_shadow), c[3]);
     // 7. Early termination.
-    f.quality.early_termination && acc.a >= crate::scene::Quality::OPAQUE
+    f.quality.early_termination && acc.is_opaque()
 }
 
 /// The first lattice index past a leap to `t_exit`, at least `k_min`:
@@ -491,15 +510,19 @@ fn composite_batch(
     kernel.evaluate(batch, ray.half, evaluated);
     let n = batch.len().min(super::batch::LANES);
     let mut done = false;
+    // Accumulated in a local (a register), not through `acc`: the chain from sample to sample
+    // then does not pass through memory.
+    let mut local = *acc;
     for i in 0..n {
         *samples += u64::from(batch.counted_before[i]) + 1;
         let c = evaluated.colour[i];
         let shade = |f_shadow| evaluated.shade(i, &f.phong, f_shadow);
-        if c[3] > 0.0 && accumulate(f, ray, batch.t[i], c, shade, acc) {
+        if c[3] > 0.0 && accumulate(f, ray, batch.t[i], c, shade, &mut local) {
             done = true;
             break;
         }
     }
+    *acc = local;
     batch.drop_front(n);
     done
 }
@@ -663,7 +686,7 @@ impl Pixel {
             j: je + dj * t,
         };
         let half = half_vector(dir, &f.light);
-        let mut acc = Accum { c: Vec3::ZERO, a: 0.0 };
+        let mut acc = Accum::CLEAR;
         let mut samples = 0u64;
 
         // 4. Tools: the nearest hit ends the march (tools are never clipped).
@@ -732,7 +755,7 @@ impl Pixel {
 
         // 5.–8. The lattice samples.
         if let Some((t_lo, strict, t_hi)) = lattice_from
-            && !(q.early_termination && acc.a >= crate::scene::Quality::OPAQUE)
+            && !(q.early_termination && acc.is_opaque())
         {
             let k0 = first_lattice(t_lo, strict, j, step);
             let ray = Ray {
@@ -775,12 +798,12 @@ impl Pixel {
         } = self;
         // 4. (end) The tool behind what was accumulated.
         if let Some(hit) = tool {
-            acc.c += (1.0 - acc.a) * shade(&hit, &f.light, dir);
-            acc.a = 1.0;
+            acc.c += acc.transmittance * shade(&hit, &f.light, dir);
+            acc.transmittance = 0.0;
         }
 
         // 9. Finish.
-        let rgb = acc.c + (1.0 - acc.a) * f.background;
+        let rgb = acc.c + acc.transmittance * f.background;
         let to8 = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
         ([to8(rgb.x), to8(rgb.y), to8(rgb.z), 255], samples)
     }
