@@ -764,7 +764,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         dj = map_vector(P.def_inv0, P.def_inv1, P.def_inv2, dir);
     }
     var acc_c = vec3<f32>(0.0);
-    var acc_a = 0.0;
+    var acc_t = 1.0; // transmittance T = 1 − A (the CPU's Accum)
 
     // 4. Tools: the nearest hit ends the march.
     let tool = nearest_hit(origin, dir, BIG);
@@ -858,14 +858,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         let v = plane_colour(c, st);
         if v.w > 0.0 {
             let a = min(v.w, 1.0);
-            acc_c += (1.0 - acc_a) * a * v.xyz;
-            acc_a += (1.0 - acc_a) * a;
+            acc_c += acc_t * a * v.xyz;
+            acc_t *= 1.0 - a;
         }
     }
 
     // 5.-8. The lattice samples.
     let early = (flags & F_EARLY) != 0u;
-    if lat && !(early && acc_a >= OPAQUE) {
+    if lat && !(early && acc_t <= 1.0 - OPAQUE) {
         var k = first_lattice(lat_lo, lat_strict, j, step);
         loop {
             let t = lattice(k, j, step);
@@ -903,10 +903,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 // 6. Shadow, at the sample's world position.
                 let f_shadow = shadow_factor(origin + dir * t);
                 let shade = phong(gradient(at, smp), dir, f_shadow);
-                acc_c += (1.0 - acc_a) * (c.xyz * shade);
-                acc_a += (1.0 - acc_a) * c.w;
+                acc_c += acc_t * (c.xyz * shade);
+                acc_t *= 1.0 - c.w;
                 // 7. Early termination.
-                if early && acc_a >= OPAQUE {
+                if early && acc_t <= 1.0 - OPAQUE {
                     break;
                 }
             }
@@ -916,11 +916,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
 
     // 4. (end) The tool behind what was accumulated.
     if t_tool < BIG {
-        acc_c += (1.0 - acc_a) * shade_tool(tool, dir);
-        acc_a = 1.0;
+        acc_c += acc_t * shade_tool(tool, dir);
+        acc_t = 0.0;
     }
 
     // 9. Finish.
-    let rgb = acc_c + (1.0 - acc_a) * P.background.xyz;
+    let rgb = acc_c + acc_t * P.background.xyz;
     out_px[row * width + col] = to8(rgb.x) | (to8(rgb.y) << 8u) | (to8(rgb.z) << 16u) | (255u << 24u);
 }

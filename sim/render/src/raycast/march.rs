@@ -148,7 +148,7 @@ impl Accum {
         transmittance: 1.0,
     };
 
-    /// Front-to-back emission–absorption (thesis eq. 3.2.1): C += (1 − A)·α·c, A += (1 − A)·α,
+    /// Front-to-back emission–absorption (thesis §3.2.1): C += (1 − A)·α·c, A += (1 − A)·α,
     /// written with T = 1 − A as C += T·α·c, T ← T·(1 − α). The same sums; the ray's chain from
     /// sample to sample is then one product.
     #[inline]
