@@ -509,19 +509,35 @@ fn composite_batch(
 ) -> bool {
     kernel.evaluate(batch, ray.half, evaluated);
     let n = batch.len().min(super::batch::LANES);
-    let mut done = false;
-    // Accumulated in a local (a register), not through `acc`: the chain from sample to sample
-    // then does not pass through memory.
-    let mut local = *acc;
-    for i in 0..n {
-        *samples += u64::from(batch.counted_before[i]) + 1;
-        let c = evaluated.colour[i];
-        let shade = |f_shadow| evaluated.shade(i, &f.phong, f_shadow);
-        if c[3] > 0.0 && accumulate(f, ray, batch.t[i], c, shade, &mut local) {
-            done = true;
-            break;
+    // 6. The shadow factors first (`accumulate`'s), so that the loop below calls nothing and
+    // its chain from sample to sample (T, C and the count) stays in registers.
+    let mut f_shadow = [1.0f32; super::batch::LANES];
+    if f.has_shadows {
+        for (i, s) in f_shadow.iter_mut().enumerate().take(n) {
+            *s = f.shadows.factor(
+                ray.origin + ray.dir * batch.t[i],
+                f.light.toward_light,
+                f.light.shadow_in,
+            );
         }
     }
+    let mut done = false;
+    let mut local = *acc;
+    let mut counted = 0u64;
+    for i in 0..n {
+        counted += u64::from(batch.counted_before[i]) + 1;
+        let c = evaluated.colour[i];
+        if c[3] > 0.0 {
+            // 5.–7. as `accumulate`.
+            let shade = evaluated.shade(i, &f.phong, f_shadow[i]);
+            local.add_premultiplied(Vec3::new(c[0], c[1], c[2]) * shade, c[3]);
+            if f.quality.early_termination && local.is_opaque() {
+                done = true;
+                break;
+            }
+        }
+    }
+    *samples += counted;
     *acc = local;
     batch.drop_front(n);
     done
