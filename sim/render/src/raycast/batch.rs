@@ -155,6 +155,11 @@ pub(crate) struct Evaluated {
     pub lit: [f32; LANES],
     /// Bit i: sample i's gradient is shorter than [`MIN_GRADIENT`] (unshaded, f = 1).
     pub unshaded: u8,
+    /// Samples held (evaluated, not yet composited; see [`Self::take_front`]).
+    pub len: usize,
+    /// Their ray parameters and the samples counted before each (the batch's, moved here).
+    pub t: [f32; LANES],
+    pub counted_before: [u32; LANES],
 }
 
 impl Default for Evaluated {
@@ -163,11 +168,27 @@ impl Default for Evaluated {
             colour: [[0.0; 4]; LANES],
             lit: [0.0; LANES],
             unshaded: 0,
+            len: 0,
+            t: [0.0; LANES],
+            counted_before: [0; LANES],
         }
     }
 }
 
 impl Evaluated {
+    /// The batch's first min(len, [`LANES`]) samples, evaluated by `kernel`, moved out of the
+    /// batch into `self` (which must hold none).
+    #[inline(always)]
+    pub fn take_front(&mut self, kernel: &Kernel, batch: &mut Batch, half: Vec3) {
+        debug_assert_eq!(self.len, 0, "evaluated samples not composited");
+        kernel.evaluate(batch, half, self);
+        let n = batch.len().min(LANES);
+        self.t.copy_from_slice(&batch.t[..LANES]);
+        self.counted_before.copy_from_slice(&batch.counted_before[..LANES]);
+        self.len = n;
+        batch.drop_front(n);
+    }
+
     /// f of eq. 3.2.3 for sample `i` under shadow factor `f_shadow` (`PhongTerms::shade`'s last
     /// operation).
     #[inline(always)]

@@ -342,26 +342,30 @@ impl BrickMarch {
         self.leapt = true;
     }
 
-    /// Composites the batch's first [`super::batch::LANES`] samples (or fewer); whether the ray
-    /// is done.
+    /// Evaluates the batch's first [`super::batch::LANES`] samples (or fewer) and composites
+    /// them; whether the ray is done.
     #[inline(always)]
     fn composite(&mut self, f: &Frame, cx: &BrickContext, acc: &mut Accum) -> bool {
-        composite_batch(
-            f,
-            &cx.kernel,
-            &self.ray,
-            &mut self.batch,
-            &mut self.evaluated,
-            &mut self.samples,
-            acc,
-        )
+        self.evaluated.take_front(&cx.kernel, &mut self.batch, self.ray.half);
+        self.flush(f, acc)
+    }
+
+    /// Composites the samples evaluated and not yet composited, if any; whether the ray is done.
+    #[inline(always)]
+    fn flush(&mut self, f: &Frame, acc: &mut Accum) -> bool {
+        self.evaluated.len != 0 && composite_evaluated(f, &self.ray, &mut self.evaluated, &mut self.samples, acc)
     }
 
     /// The march's end past the last point: the batch's rest composited, the air counted.
     #[inline(always)]
     fn end(&mut self, f: &Frame, cx: &BrickContext, acc: &mut Accum) -> bool {
-        if !self.batch.is_empty() && self.composite(f, cx, acc) {
+        if self.flush(f, acc) {
             return true;
+        }
+        while !self.batch.is_empty() {
+            if self.composite(f, cx, acc) {
+                return true;
+            }
         }
         self.samples += u64::from(self.counted);
         true
@@ -398,9 +402,17 @@ impl BrickMarch {
     #[inline(always)]
     fn step<const LANES: bool>(&mut self, f: &Frame, cx: &BrickContext, acc: &mut Accum) -> bool {
         debug_assert_eq!(cx.placer.uses_lanes(), LANES);
-        // A batch the lanes filled in the last step is composited now, before anything else
-        // joins it: in between, the other ray's step ran while its records were prefetched.
-        if self.batch.is_full() && self.composite(f, cx, acc) {
+        // A batch the lanes filled is evaluated a step later, and composited a step after that:
+        // in between, the other ray's step ran while its records arrived, and then while it
+        // was read and lit. The order of compositing is the ray's.
+        if LANES {
+            if self.flush(f, acc) {
+                return true;
+            }
+            if self.batch.is_full() {
+                self.evaluated.take_front(&cx.kernel, &mut self.batch, self.ray.half);
+            }
+        } else if self.batch.is_full() && self.composite(f, cx, acc) {
             return true;
         }
         let k = self.k;
@@ -455,6 +467,10 @@ impl BrickMarch {
             }
             return false;
         }
+        // Point by point: what was evaluated goes first.
+        if self.flush(f, acc) {
+            return true;
+        }
         for i in 0..POINTS {
             let (t, cell) = cx
                 .placer
@@ -492,30 +508,21 @@ impl BrickMarch {
 /// extent), below which k … k + 7 fit the lanes' `i32`.
 const LAST_WINDOW_K: u32 = 2_000_000_000;
 
-/// Steps 5–7 for the first [`super::batch::LANES`] (or fewer) visible samples of a batch
-/// ([`super::batch`]): evaluated together, then shadowed and accumulated one after the other in
-/// the ray's order, exactly as [`composite`] would have one at a time. Counts the samples up to
-/// the last one composited; returns whether the ray is done (early termination), and drops
-/// those samples from the batch.
+/// Steps 6–7 for the evaluated samples ([`super::batch`], [`Evaluated::take_front`]): shadowed
+/// and accumulated one after the other in the ray's order, exactly as [`composite`] would have
+/// one at a time. Counts the samples up to the last one composited; returns whether the ray is
+/// done (early termination). Leaves none held.
 #[inline(always)]
-fn composite_batch(
-    f: &Frame,
-    kernel: &Kernel,
-    ray: &Ray,
-    batch: &mut Batch,
-    evaluated: &mut Evaluated,
-    samples: &mut u64,
-    acc: &mut Accum,
-) -> bool {
-    kernel.evaluate(batch, ray.half, evaluated);
-    let n = batch.len().min(super::batch::LANES);
+fn composite_evaluated(f: &Frame, ray: &Ray, evaluated: &mut Evaluated, samples: &mut u64, acc: &mut Accum) -> bool {
+    let n = evaluated.len;
+    evaluated.len = 0;
     // 6. The shadow factors first (`accumulate`'s), so that the loop below calls nothing and
     // its chain from sample to sample (T, C and the count) stays in registers.
     let mut f_shadow = [1.0f32; super::batch::LANES];
     if f.has_shadows {
         for (i, s) in f_shadow.iter_mut().enumerate().take(n) {
             *s = f.shadows.factor(
-                ray.origin + ray.dir * batch.t[i],
+                ray.origin + ray.dir * evaluated.t[i],
                 f.light.toward_light,
                 f.light.shadow_in,
             );
@@ -524,8 +531,8 @@ fn composite_batch(
     let mut done = false;
     let mut local = *acc;
     let mut counted = 0u64;
-    for i in 0..n {
-        counted += u64::from(batch.counted_before[i]) + 1;
+    for i in 0..n.min(super::batch::LANES) {
+        counted += u64::from(evaluated.counted_before[i]) + 1;
         let c = evaluated.colour[i];
         if c[3] > 0.0 {
             // 5.–7. as `accumulate`.
@@ -539,7 +546,6 @@ fn composite_batch(
     }
     *samples += counted;
     *acc = local;
-    batch.drop_front(n);
     done
 }
 
