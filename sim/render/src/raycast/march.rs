@@ -531,12 +531,12 @@ fn composite_evaluated(f: &Frame, ray: &Ray, evaluated: &mut Evaluated, samples:
     let mut done = false;
     let mut local = *acc;
     let mut counted = 0u64;
-    for i in 0..n.min(super::batch::LANES) {
+    for (i, &f_shadow) in f_shadow.iter().enumerate().take(n) {
         counted += u64::from(evaluated.counted_before[i]) + 1;
         let c = evaluated.colour[i];
         if c[3] > 0.0 {
             // 5.–7. as `accumulate`.
-            let shade = evaluated.shade(i, &f.phong, f_shadow[i]);
+            let shade = evaluated.shade(i, &f.phong, f_shadow);
             local.add_premultiplied(Vec3::new(c[0], c[1], c[2]) * shade, c[3]);
             if f.quality.early_termination && local.is_opaque() {
                 done = true;
