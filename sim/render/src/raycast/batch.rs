@@ -91,8 +91,8 @@ impl Batch {
         self.len = n + 1;
     }
 
-    /// Removes the first `n` entries (those just evaluated and composited): `n` is [`LANES`]
-    /// or the whole batch.
+    /// Removes the first `n` entries (those just evaluated, now held by `Evaluated`): `n` is
+    /// [`LANES`] or the whole batch.
     #[inline(always)]
     pub fn drop_front(&mut self, n: usize) {
         debug_assert!(n == LANES || n == self.len);

@@ -206,15 +206,25 @@ fn composite(f: &Frame, ray: &Ray, t: f32, c: [f32; 4], g: Vec3, acc: &mut Accum
 /// sample's world position, the front-to-back accumulation, and whether the ray is done.
 #[inline(always)]
 fn accumulate(f: &Frame, ray: &Ray, t: f32, c: [f32; 4], shade: impl FnOnce(f32) -> f32, acc: &mut Accum) -> bool {
-    // 6. Shadow, at the sample's world position.
-    let f_shadow = if f.has_shadows {
+    add_shaded(f, c, shade(shadow_factor(f, ray, t)), acc)
+}
+
+/// Step 6: the shadow factor at the sample's world position (1 without tools).
+#[inline(always)]
+fn shadow_factor(f: &Frame, ray: &Ray, t: f32) -> f32 {
+    if f.has_shadows {
         f.shadows
             .factor(ray.origin + ray.dir * t, f.light.toward_light, f.light.shadow_in)
     } else {
         1.0
-    };
-    acc.add_premultiplied(Vec3::new(c[0], c[1], c[2]) * shade(f_shadow), c[3]);
-    // 7. Early termination.
+    }
+}
+
+/// Step 7 for a sample of table colour `c` (premultiplied) and shading `shade`: the
+/// front-to-back accumulation, then whether early termination ends the ray.
+#[inline(always)]
+fn add_shaded(f: &Frame, c: [f32; 4], shade: f32, acc: &mut Accum) -> bool {
+    acc.add_premultiplied(Vec3::new(c[0], c[1], c[2]) * shade, c[3]);
     f.quality.early_termination && acc.is_opaque()
 }
 
@@ -516,16 +526,12 @@ const LAST_WINDOW_K: u32 = 2_000_000_000;
 fn composite_evaluated(f: &Frame, ray: &Ray, evaluated: &mut Evaluated, samples: &mut u64, acc: &mut Accum) -> bool {
     let n = evaluated.len;
     evaluated.len = 0;
-    // 6. The shadow factors first (`accumulate`'s), so that the loop below calls nothing and
-    // its chain from sample to sample (T, C and the count) stays in registers.
+    // 6. The shadow factors first, so that the loop below calls nothing and its chain from
+    // sample to sample (T, C and the count) stays in registers.
     let mut f_shadow = [1.0f32; super::batch::LANES];
     if f.has_shadows {
         for (i, s) in f_shadow.iter_mut().enumerate().take(n) {
-            *s = f.shadows.factor(
-                ray.origin + ray.dir * evaluated.t[i],
-                f.light.toward_light,
-                f.light.shadow_in,
-            );
+            *s = shadow_factor(f, ray, evaluated.t[i]);
         }
     }
     let mut done = false;
@@ -534,14 +540,9 @@ fn composite_evaluated(f: &Frame, ray: &Ray, evaluated: &mut Evaluated, samples:
     for (i, &f_shadow) in f_shadow.iter().enumerate().take(n) {
         counted += u64::from(evaluated.counted_before[i]) + 1;
         let c = evaluated.colour[i];
-        if c[3] > 0.0 {
-            // 5.–7. as `accumulate`.
-            let shade = evaluated.shade(i, &f.phong, f_shadow);
-            local.add_premultiplied(Vec3::new(c[0], c[1], c[2]) * shade, c[3]);
-            if f.quality.early_termination && local.is_opaque() {
-                done = true;
-                break;
-            }
+        if c[3] > 0.0 && add_shaded(f, c, evaluated.shade(i, &f.phong, f_shadow), &mut local) {
+            done = true;
+            break;
         }
     }
     *samples += counted;
