@@ -71,9 +71,10 @@ fn main() {
                 preset.as_str(),
                 o.samples
             );
-            match lanes {
-                Lanes::Auto => lanes_ms.push(ms),
-                Lanes::OneAtATime => one_ms.push(ms),
+            if lanes == Lanes::Auto {
+                lanes_ms.push(ms);
+            } else {
+                one_ms.push(ms);
             }
             out = Some(o);
         }

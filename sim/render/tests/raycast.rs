@@ -646,8 +646,8 @@ fn needle_through_body() -> ToolState {
     }
 }
 
-/// The lanes and the two rays marched in turn against one sample at a time, one ray after the
-/// other.
+/// The lanes and the two rays marched in turn (with the lanes, and without them as on a CPU
+/// without AVX2) against one sample at a time, one ray after the other.
 #[test]
 fn lanes_draw_the_pixels_of_one_sample_at_a_time() {
     use stylet_render::raycast::{Lanes, render_with};
@@ -688,17 +688,19 @@ fn lanes_draw_the_pixels_of_one_sample_at_a_time() {
                 ("no jitter", &exact_early, (80, 72)),
                 ("half", &half, (80, 72)),
             ] {
-                let a = render_with(v, s, w, h, Lanes::Auto);
                 let b = render_with(v, s, w, h, Lanes::OneAtATime);
                 assert!(
                     count_not_background(&b.image) > 500,
                     "{name}, {tf_name}, {what}: an empty picture"
                 );
-                assert_eq!(a.image, b.image, "{name}, {tf_name}, {what}: the lanes changed pixels");
-                assert_eq!(
-                    a.samples, b.samples,
-                    "{name}, {tf_name}, {what}: the lanes counted other samples"
-                );
+                for lanes in [Lanes::Auto, Lanes::PairsWithoutSimd] {
+                    let a = render_with(v, s, w, h, lanes);
+                    assert_eq!(a.image, b.image, "{name}, {tf_name}, {what}: {lanes:?} changed pixels");
+                    assert_eq!(
+                        a.samples, b.samples,
+                        "{name}, {tf_name}, {what}: {lanes:?} counted other samples"
+                    );
+                }
             }
         }
     }

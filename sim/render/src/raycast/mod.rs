@@ -190,7 +190,7 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32, la
         shadows: crate::shadow::Shadows::from_tools(&scene.tools),
         has_shadows: scene.tools.needle.is_some() || scene.tools.finger.is_some() || scene.tools.probe.is_some(),
         avx2: batch::Avx2::detect(lanes),
-        pairs: lanes == Lanes::Auto,
+        pairs: lanes.pairs(),
     };
     let mut image = Image::new(width, height);
     let rays = scene.camera.rays(width, height);

@@ -189,18 +189,20 @@ mod avx2 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::raycast::batch::{Lanes, avx2_available};
+    use crate::raycast::batch::{Lanes, avx2_for_lane_tests};
 
     #[test]
     fn lanes_place_the_bits_of_one_point_at_a_time() {
-        if !avx2_available() {
-            eprintln!("this CPU has no AVX2: the lanes are not used here, nothing to compare");
-        }
+        let lanes_here = avx2_for_lane_tests();
         let dims = [9u32, 7, 5];
         let data = vec![0.0f32; 9 * 7 * 5];
         let grid = Grid3::new(&data, dims);
         let lanes = Placer::new(Avx2::detect(Lanes::Auto));
         let one = Placer::new(Avx2::detect(Lanes::OneAtATime));
+        assert_eq!(lanes.uses_lanes(), lanes_here);
+        assert!(!one.uses_lanes());
+        // A CPU without AVX2 runs the pairs without lanes.
+        assert!(!Placer::new(Avx2::detect(Lanes::PairsWithoutSimd)).uses_lanes());
         let (mut a, mut b) = (Window::default(), Window::default());
         let mut inside = 0u32;
         let mut outside = 0u32;
