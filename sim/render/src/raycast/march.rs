@@ -273,8 +273,10 @@ struct BrickMarch {
     lattice: Lattice,
     /// The next lattice index to visit.
     k: u32,
-    /// Whether the last step ended in a leap.
-    leapt: bool,
+    /// Whether the next step tests its first point alone before placing a window: after a leap
+    /// and at the ray's start (most often in the air around the body), where that point most
+    /// often lies in a far brick.
+    alone_first: bool,
     /// The classes of the window already placed at `k` (the lanes' look-ahead, see
     /// [`Self::look_ahead`]).
     ahead: Option<WindowClasses>,
@@ -327,7 +329,7 @@ impl BrickMarch {
             },
             ray,
             k: k0,
-            leapt: false,
+            alone_first: true,
             ahead: None,
             counted: 0,
             samples: 0,
@@ -349,7 +351,7 @@ impl BrickMarch {
     fn leap(&mut self, cx: &BrickContext, b: [u32; 3], d: u8, k: u32) {
         let t_exit = cx.cubes.bricks().exit_t(b, d, BOX_MARGIN, &self.leaving);
         self.k = lattice_from(t_exit, k + 1, self.ray.j, cx.inv_step);
-        self.leapt = true;
+        self.alone_first = true;
     }
 
     /// Evaluates the batch's first [`super::batch::LANES`] samples (or fewer) and composites
@@ -430,10 +432,12 @@ impl BrickMarch {
             return self.end(f, cx, acc);
         }
         let bricks = cx.cubes.bricks();
-        if LANES && self.leapt {
+        if LANES && self.alone_first {
             // After a leap the next point most often lies in a far brick again (85 % of leaps
-            // on the chest CT): tested alone, the chain from leap to leap stays short.
-            self.leapt = false;
+            // on the chest CT): tested alone, the chain from leap to leap stays short. So does
+            // a ray's first point, which saves most rays a window (the empty frame's set-up
+            // and march 6.8 → 6.2 ms).
+            self.alone_first = false;
             let t = lattice(k, self.ray.j, self.lattice.step);
             if t <= self.ray.t_hi
                 && t < self.ray.t_tool
