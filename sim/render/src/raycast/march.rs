@@ -35,7 +35,8 @@ pub struct Frame<'a> {
     pub clip: Option<ClipPlane>,
     pub tagging: Tagging,
     pub quality: Quality,
-    /// Present when leaping is on (and no motion hook is set).
+    /// Present when leaping is on, the motion bounded and some ray may take the general path
+    /// (not [`Frame::every_ray_on_bricks`]).
     pub occupancy: Option<Occupancy>,
     /// Per-cube skip bits: with leaping on, no hooks and a CT of ≥ 2 voxels per axis.
     pub cubes: Option<Arc<CubeMask>>,
@@ -62,6 +63,19 @@ pub struct Frame<'a> {
     /// Whether the tiles march two pixels' rays in turn ([`march_pair`]); else one after the
     /// other ([`march`], the reference).
     pub pairs: bool,
+}
+
+impl Frame<'_> {
+    /// Whether every ray's lattice samples take the common frame's brick march (the cube mask,
+    /// no motion warp, no deformed region, ray/box clipping, invisible air); else every one
+    /// takes the general path (`lattice_general`), the only reader of `occupancy`.
+    pub fn every_ray_on_bricks(&self) -> bool {
+        self.cubes.is_some()
+            && self.motion_at.is_none()
+            && self.sampler.deformed.is_none()
+            && self.quality.ray_box
+            && !self.sample_outside
+    }
 }
 
 /// "No hit" distance for the tools (no infinities, as in tools.rs and the WGSL port).
@@ -795,12 +809,11 @@ impl Pixel {
                 t_tool,
                 half,
             };
-            match (&f.cubes, warp.as_mut()) {
-                (Some(_), None) if f.sampler.deformed.is_none() && q.ray_box && !f.sample_outside => {
-                    bricks = Some((ray, k0));
-                }
-                _ => samples += lattice_general(f, &ray, k0, warp.as_mut(), at_t, &mut acc),
-            };
+            if f.every_ray_on_bricks() {
+                bricks = Some((ray, k0));
+            } else {
+                samples += lattice_general(f, &ray, k0, warp.as_mut(), at_t, &mut acc);
+            }
         }
         Pixel {
             acc,

@@ -152,23 +152,10 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32, la
         Vec3::new(row(0), row(1), row(2)) * u_mm
     });
     let bounded = motion_margin.is_none_or(|m| m.is_finite());
-    let occupancy = (quality.leaping && bounded).then(|| {
-        let ranges = volume.cell_ranges(quality.occupancy_cells);
-        let occ = Occupancy::new(
-            &ranges,
-            &table,
-            ct_map.dims,
-            scene.deformed.as_ref().map(|d| (&*d.volume, &ct_map)),
-        );
-        match motion_margin {
-            Some(m) => occ.dilated(m),
-            None => occ,
-        }
-    });
     // The finest leaping level: per-cube skip bits, for the common frame (no hooks).
     let cubes = (quality.leaping && scene.motion.is_none() && scene.deformed.is_none() && sampler.ct.is_fast())
         .then(|| volume.cube_mask(&table));
-    let frame = Frame {
+    let mut frame = Frame {
         cubes,
         volume,
         sampler,
@@ -178,7 +165,7 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32, la
         clip: scene.clip,
         tagging: scene.tagging,
         quality,
-        occupancy,
+        occupancy: None,
         sample_outside: scene.deformed.is_some() || table.lookup(stylet_physics::AIR_HU)[3] > 0.0,
         table,
         t_far: farthest_corner_mm(&grid, scene.camera.eye_mm),
@@ -192,6 +179,20 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32, la
         avx2: batch::Avx2::detect(lanes),
         pairs: lanes.pairs(),
     };
+    // The cells of the general path, built only when some ray takes it (N³ look-ups a frame).
+    if frame.quality.leaping && bounded && !frame.every_ray_on_bricks() {
+        let ranges = volume.cell_ranges(quality.occupancy_cells);
+        let occ = Occupancy::new(
+            &ranges,
+            &frame.table,
+            ct_map.dims,
+            scene.deformed.as_ref().map(|d| (&*d.volume, &ct_map)),
+        );
+        frame.occupancy = Some(match motion_margin {
+            Some(m) => occ.dilated(m),
+            None => occ,
+        });
+    }
     let mut image = Image::new(width, height);
     let rays = scene.camera.rays(width, height);
     // Square tiles: neighbouring rays read neighbouring voxels, so a tile's rays share cache
