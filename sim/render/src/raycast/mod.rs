@@ -211,10 +211,11 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32, la
     for (t, (px, n)) in tiles.into_iter().enumerate() {
         let t = t as u32;
         let (x0, y0) = ((t % tiles_x) * TILE, (t / tiles_x) * TILE);
-        let tw = (x0 + TILE).min(width) - x0;
-        for (i, rgba) in px.into_iter().enumerate() {
-            let (col, row) = (x0 + i as u32 % tw, y0 + i as u32 / tw);
-            image.rgba[(row * width + col) as usize] = rgba;
+        let tw = ((x0 + TILE).min(width) - x0) as usize;
+        // The tile's rows, each copied whole into the image's row.
+        for (r, tile_row) in px.chunks_exact(tw).enumerate() {
+            let start = ((y0 as usize + r) * width as usize) + x0 as usize;
+            image.rgba[start..start + tw].copy_from_slice(tile_row);
         }
         samples += n;
     }
