@@ -226,8 +226,8 @@ struct Records {
 }
 
 // The CT's records (dx, dy, dz, I) trilinearly interpolated, all four lanes in ct_trilinear's
-// order. The prelude's ct_records(c) is this, or the texture unit's filtered read
-// (volume.rs `RecordFilter::Hardware`).
+// order. The prelude's ct_records(c) is this (float records), ct_records_fixed below (16-bit
+// records) or the texture unit's filtered read (volume.rs `RecordFilter::Hardware`).
 fn ct_records_exact(c: vec3<f32>) -> Records {
     let l = lerp_setup(c, P.dims.xyz);
     if !l.ok {
@@ -243,6 +243,37 @@ fn ct_records_exact(c: vec3<f32>) -> Records {
     let c0 = c00 * (1.0 - fy) + c10 * fy;
     let c1 = c01 * (1.0 - fy) + c11 * fy;
     return Records(true, c0 * (1.0 - fz) + c1 * fz);
+}
+
+// One slice (z index k) of a fixed-point blend: the four records of the slice weighted by
+// w_x * w_y, summed exactly in i32.
+fn ct_slice_fixed(l: Lerp, k: i32, wx: vec2<i32>, wy: vec2<i32>) -> vec4<i32> {
+    let r00 = vec4<i32>(ct_record(vec3<i32>(l.i0.x, l.i0.y, k)));
+    let r10 = vec4<i32>(ct_record(vec3<i32>(l.i1.x, l.i0.y, k)));
+    let r01 = vec4<i32>(ct_record(vec3<i32>(l.i0.x, l.i1.y, k)));
+    let r11 = vec4<i32>(ct_record(vec3<i32>(l.i1.x, l.i1.y, k)));
+    return r00 * (wx.x * wy.x) + r10 * (wx.y * wy.x) + r01 * (wx.x * wy.y) + r11 * (wx.y * wy.y);
+}
+
+// The CT's 16-bit records as the CPU blends them (gradient_volume.rs `fixed_point`): each slice
+// in fixed point, the fractions across it rounded to 1/128 (ties to even, as WGSL's round and
+// the CPU's lanes), the sums exact in i32; then along z in f32; then times 2^-14. A CT with a
+// one-voxel axis takes ct_records_exact, as the CPU's general path.
+fn ct_records_fixed(c: vec3<f32>) -> Records {
+    if any(P.dims.xyz < vec3<u32>(2u)) {
+        return ct_records_exact(c);
+    }
+    let l = lerp_setup(c, P.dims.xyz);
+    if !l.ok {
+        return Records(false, vec4<f32>(0.0));
+    }
+    let q = vec2<i32>(round(l.f.xy * 128.0));
+    let wx = vec2<i32>(128 - q.x, q.x);
+    let wy = vec2<i32>(128 - q.y, q.y);
+    let c0 = vec4<f32>(ct_slice_fixed(l, l.i0.z, wx, wy));
+    let c1 = vec4<f32>(ct_slice_fixed(l, l.i1.z, wx, wy));
+    let fz = l.f.z;
+    return Records(true, (c0 * (1.0 - fz) + c1 * fz) * (1.0 / 16384.0));
 }
 
 // J's voxel p, the nearest voxel beyond its grid (Edge::Clamp: J continues into the CT).

@@ -104,13 +104,14 @@ pub(crate) enum RecordsStore {
 /// The records' declaration for the ray-casting shader (binding 9, and the sampler at 10 when
 /// filtered): `ct_record(p)` is voxel p's (Δx, Δy, Δz, I); `ct_records(c)` their trilinear
 /// interpolation at index c (`Records` of raycast.wgsl), by the shader's eight loads
-/// (`ct_records_exact`) or by the texture unit.
+/// (`ct_records_fixed` for 16-bit records, blended as the CPU blends them; `ct_records_exact`
+/// for float ones) or by the texture unit.
 pub(crate) fn records_prelude(store: &RecordsStore, int16: bool) -> &'static str {
     match (store, int16) {
         (RecordsStore::Texture(_), true) => {
             "@group(0) @binding(9) var records: texture_3d<i32>;\n\
              fn ct_record(p: vec3<i32>) -> vec4<f32> { return vec4<f32>(textureLoad(records, p, 0)); }\n\
-             fn ct_records(c: vec3<f32>) -> Records { return ct_records_exact(c); }\n"
+             fn ct_records(c: vec3<f32>) -> Records { return ct_records_fixed(c); }\n"
         }
         (RecordsStore::Texture(_), false) => {
             "@group(0) @binding(9) var records: texture_3d<f32>;\n\
@@ -124,7 +125,7 @@ pub(crate) fn records_prelude(store: &RecordsStore, int16: bool) -> &'static str
                  return vec4<f32>(vec4<i32>(bitcast<i32>(w.x << 16u) >> 16u, bitcast<i32>(w.x) >> 16u,\n\
                                             bitcast<i32>(w.y << 16u) >> 16u, bitcast<i32>(w.y) >> 16u));\n\
              }\n\
-             fn ct_records(c: vec3<f32>) -> Records { return ct_records_exact(c); }\n"
+             fn ct_records(c: vec3<f32>) -> Records { return ct_records_fixed(c); }\n"
         }
         (RecordsStore::Buffer(_), false) => {
             "@group(0) @binding(9) var<storage, read> records: array<vec4<f32>>;\n\

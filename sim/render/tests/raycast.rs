@@ -432,13 +432,22 @@ fn a_deformed_region_replaces_the_ct_inside_its_grid() {
     let v = atlas(48, 2.0, body_with_bone, |_| 0);
     let base = scene(soft_and_bone(), exact());
     let plain = render(&v, &base, 96, 96);
-    // J = the CT itself: the same image, bit for bit.
+    // J = the CT itself: the same image but for the blend's rounding. J is read in f32; the
+    // CT's 16-bit records blend each slice in fixed point, which moves a sample by up to 1/256
+    // voxel across the slice (docs/rendering.md "Sampling"), a level here and there along this
+    // atlas's sharp bone edges. (Measured: mean 0.072, 99th percentile 1, max 4.)
     let mut s = base.clone();
     s.deformed = Some(DeformedRegion {
         volume: Arc::new(v.atlas.ct().clone()),
     });
     let same = render(&v, &s, 96, 96);
-    assert_eq!(plain.image, same.image);
+    let d = diff(&plain.image, &same.image).unwrap();
+    let rounding = Tolerance {
+        mean: 0.15,
+        p99: 1,
+        max: 8,
+    };
+    assert!(rounding.admits(&d), "J = CT: {d}");
     // J filled with bone in air beside the body (x −44 … −34, z 30 … 40 mm: more than 42 mm from
     // the centre) but inside the CT's box: with leaping on, Ω_J counts as occupied, so it shows.
     let g = Grid::new([6, 6, 6], Affine::from_spacing([2.0; 3], DVec3::new(-44.0, -4.0, 30.0))).unwrap();

@@ -392,6 +392,7 @@ mod avx2 {
 
     use stylet_physics::glam::Vec3;
 
+    use super::super::gradient_volume::{XY_WEIGHT_ONE, XY_WEIGHT_UNIT};
     use super::super::shading::{Exponent, MIN_GRADIENT};
     use super::{Batch, Evaluated, Kernel, LANES};
     use crate::raycast::window::Window;
@@ -473,36 +474,90 @@ mod avx2 {
         }
     }
 
-    /// The trilinear read of one cell's eight records, `GradientVolume::interpolate`'s products
-    /// and sums on four lanes: each row's two records (x and x + 1, adjacent) are one 16-byte
-    /// load, widened to eight `f32` and weighted by (1 − f_x, f_x) at once.
+    /// Step 1 of [`evaluate`]: each sample's (Δx, Δy, Δz, s) as `GradientVolume::interpolate`
+    /// reads 16-bit records, times 2¹⁴ (unused lanes repeat sample 0). Per sample two registers
+    /// hold the rows at y and at y + 1 (16 bytes a row: records x and x + 1), each at z and
+    /// z + 1; a byte shuffle pairs each channel of a row's two records, so one multiply-add
+    /// (`vpmaddwd`) per register weights them along x and y in fixed point, and one integer add
+    /// gives the exact blends c₀ (at z) and c₁ (at z + 1). Then z in `f32`, as the reference.
+    /// The eight samples' offsets and weights are worked out together on the lanes.
     ///
     /// # Safety
-    /// AVX2; `o + sy + sz + 1` < `records.len()` (a located cell's base, `lerp8`'s bound).
+    /// AVX2; entry 0 and every entry below `count` of `batch` a located cell of `records` with
+    /// strides `sy`, `sz` (`o + sy + sz + 1` < `records.len()`, as `GradientVolume::lerp8`).
     #[inline]
     #[target_feature(enable = "avx2")]
-    unsafe fn interpolate(records: &[[i16; 4]], sy: usize, sz: usize, b: [u32; 3], f: [f32; 3]) -> __m128 {
-        let o = b[0] as usize + sy * b[1] as usize + sz * b[2] as usize;
-        debug_assert!(o + sy + sz + 1 < records.len());
-        let base = records.as_ptr();
-        let (fx, fy, fz) = (f[0], f[1], f[2]);
-        let (gx, gy, gz) = (1.0 - fx, 1.0 - fy, 1.0 - fz);
-        let wx = _mm256_set_m128(_mm_set1_ps(fx), _mm_set1_ps(gx));
-        // SAFETY (all loads): the caller's bound; each reads records i and i + 1 (16 bytes).
-        let row = |i: usize| unsafe {
-            let v = _mm256_cvtepi32_ps(_mm256_cvtepi16_epi32(_mm_loadu_si128(base.add(i).cast())));
-            let p = _mm256_mul_ps(v, wx);
-            // (record i)·(1 − f_x) + (record i + 1)·f_x, as `lerp8`.
+    unsafe fn read_records(records: &[[i16; 4]], sy: usize, sz: usize, batch: &Batch, count: usize) -> [__m128; LANES] {
+        let mut offsets = [0u32; LANES];
+        // Per sample: the weight pairs of the rows at y and at y + 1, then (1 − f_z, f_z).
+        let mut weights = [[0i32; 2]; LANES];
+        let mut z_weights = [[0f32; 2]; LANES];
+        // SAFETY (loads and stores of eight lanes): each array holds ≥ 8 entries.
+        unsafe {
+            let base = |a: usize| _mm256_loadu_si256(batch.b[a].as_ptr().cast());
+            let o = _mm256_add_epi32(
+                base(0),
+                _mm256_add_epi32(
+                    _mm256_mullo_epi32(_mm256_set1_epi32(sy as i32), base(1)),
+                    _mm256_mullo_epi32(_mm256_set1_epi32(sz as i32), base(2)),
+                ),
+            );
+            _mm256_storeu_si256(offsets.as_mut_ptr().cast(), o);
+            // q = round(f·2⁷), ties to even (`xy_fraction`; the product is exact).
+            let q = |a: usize| {
+                let f = _mm256_loadu_ps(batch.f[a].as_ptr());
+                _mm256_cvtps_epi32(_mm256_mul_ps(f, splat(XY_WEIGHT_ONE as f32)))
+            };
+            let (qx, qy) = (q(0), q(1));
+            let one = _mm256_set1_epi32(XY_WEIGHT_ONE);
+            let (gx, gy) = (_mm256_sub_epi32(one, qx), _mm256_sub_epi32(one, qy));
+            // A row's two 16-bit weights in one 32-bit lane: w_x,0·w_y low, w_x,1·w_y high.
+            let pair = |wy: __m256i| {
+                _mm256_or_si256(
+                    _mm256_mullo_epi32(gx, wy),
+                    _mm256_slli_epi32::<16>(_mm256_mullo_epi32(qx, wy)),
+                )
+            };
+            let (near, far) = (pair(gy), pair(qy));
+            let w = weights.as_mut_ptr().cast::<i32>();
+            _mm256_storeu_si256(w.cast(), _mm256_unpacklo_epi32(near, far)); // 0 1 | 4 5
+            _mm256_storeu_si256(w.add(8).cast(), _mm256_unpackhi_epi32(near, far)); // 2 3 | 6 7
+            let fz = _mm256_loadu_ps(batch.f[2].as_ptr());
+            let gz = _mm256_sub_ps(splat(1.0), fz);
+            let z = z_weights.as_mut_ptr().cast::<f32>();
+            _mm256_storeu_ps(z, _mm256_unpacklo_ps(gz, fz));
+            _mm256_storeu_ps(z.add(8), _mm256_unpackhi_ps(gz, fz));
+        }
+        // The stores above hold samples 0 1 4 5 2 3 6 7 in turn.
+        const SLOT: [usize; LANES] = [0, 1, 4, 5, 2, 3, 6, 7];
+        // (a₀ b₀ a₁ b₁ a₂ b₂ a₃ b₃) from (a₀ a₁ a₂ a₃ b₀ b₁ b₂ b₃), in each 128-bit half.
+        let pairs = _mm256_setr_epi8(
+            0, 1, 8, 9, 2, 3, 10, 11, 4, 5, 12, 13, 6, 7, 14, 15, //
+            0, 1, 8, 9, 2, 3, 10, 11, 4, 5, 12, 13, 6, 7, 14, 15,
+        );
+        let at = records.as_ptr();
+        std::array::from_fn(|i| {
+            let s = if i < count { i } else { 0 };
+            let o = offsets[s] as usize;
+            let [w_near, w_far] = weights[SLOT[s]];
+            let [gz, fz] = z_weights[SLOT[s]];
+            // SAFETY: the caller's bound; each load reads records i and i + 1 of a row.
+            let rows = |z0: usize, z1: usize| unsafe {
+                let lo = _mm256_castsi128_si256(_mm_loadu_si128(at.add(z0).cast()));
+                _mm256_shuffle_epi8(
+                    _mm256_inserti128_si256::<1>(lo, _mm_loadu_si128(at.add(z1).cast())),
+                    pairs,
+                )
+            };
+            // (c₀ | c₁): the rows at y weighted by w_y,0, those at y + 1 by w_y,1, added.
+            let c = _mm256_add_epi32(
+                _mm256_madd_epi16(rows(o, o + sz), _mm256_set1_epi32(w_near)),
+                _mm256_madd_epi16(rows(o + sy, o + sy + sz), _mm256_set1_epi32(w_far)),
+            );
+            let p = _mm256_mul_ps(_mm256_cvtepi32_ps(c), _mm256_set_m128(_mm_set1_ps(fz), _mm_set1_ps(gz)));
+            // c₀·(1 − f_z) + c₁·f_z.
             _mm_add_ps(_mm256_castps256_ps128(p), _mm256_extractf128_ps::<1>(p))
-        };
-        let c00 = row(o);
-        let c10 = row(o + sy);
-        let c01 = row(o + sz);
-        let c11 = row(o + sz + sy);
-        let (gy, fy, gz, fz) = (_mm_set1_ps(gy), _mm_set1_ps(fy), _mm_set1_ps(gz), _mm_set1_ps(fz));
-        let c0 = _mm_add_ps(_mm_mul_ps(c00, gy), _mm_mul_ps(c10, fy));
-        let c1 = _mm_add_ps(_mm_mul_ps(c01, gy), _mm_mul_ps(c11, fy));
-        _mm_add_ps(_mm_mul_ps(c0, gz), _mm_mul_ps(c1, fz))
+        })
     }
 
     /// (a·x + b·y) + c·z per lane: glam's `Vec3::dot` order and the world gradient's.
@@ -604,14 +659,11 @@ mod avx2 {
     ) {
         let (sy, sz) = kernel.grads.strides();
         let count = batch.len.min(LANES);
-        // 1. Each sample's (Δx, Δy, Δz, s); unused lanes repeat sample 0.
-        let mut r = [_mm_setzero_ps(); LANES];
-        for (i, ri) in r.iter_mut().enumerate() {
-            let cell = batch.cell(if i < count { i } else { 0 });
-            // SAFETY: the caller's contract.
-            *ri = unsafe { interpolate(records, sy, sz, cell.b, cell.f) };
-        }
-        // 2. Transposed: Δx, Δy, Δz of the eight samples, one register each.
+        // 1. Each sample's (Δx, Δy, Δz, s)·2¹⁴; unused lanes repeat sample 0.
+        // SAFETY: the caller's contract.
+        let r = unsafe { read_records(records, sy, sz, batch, count) };
+        // 2. Transposed: Δx, Δy, Δz and s of the eight samples, one register each, scaled by
+        // 2⁻¹⁴ as `GradientVolume::interpolate` does (exact either way: a power of two).
         let a = _mm256_set_m128(r[4], r[0]);
         let b = _mm256_set_m128(r[5], r[1]);
         let c = _mm256_set_m128(r[6], r[2]);
@@ -620,12 +672,13 @@ mod avx2 {
         let cd_lo = _mm256_unpacklo_ps(c, d); // x2 x3 y2 y3 | x6 x7 y6 y7
         let ab_hi = _mm256_unpackhi_ps(a, b); // z0 z1 w0 w1 | …
         let cd_hi = _mm256_unpackhi_ps(c, d);
-        let dx = _mm256_shuffle_ps::<0x44>(ab_lo, cd_lo);
-        let dy = _mm256_shuffle_ps::<0xEE>(ab_lo, cd_lo);
-        let dz = _mm256_shuffle_ps::<0x44>(ab_hi, cd_hi);
+        let real = |v: __m256| _mm256_mul_ps(v, splat(XY_WEIGHT_UNIT));
+        let dx = real(_mm256_shuffle_ps::<0x44>(ab_lo, cd_lo));
+        let dy = real(_mm256_shuffle_ps::<0xEE>(ab_lo, cd_lo));
+        let dz = real(_mm256_shuffle_ps::<0x44>(ab_hi, cd_hi));
         // 3. The colours: the table's position of the eight values at once, then two entries and
         // a lerp per sample (`TransferTable::lookup`'s operations).
-        let values = _mm256_shuffle_ps::<0xEE>(ab_hi, cd_hi);
+        let values = real(_mm256_shuffle_ps::<0xEE>(ab_hi, cd_hi));
         colours(kernel.table, values, count, &mut out.colour);
         // 4. ∇s = rows[0]·Δx + rows[1]·Δy + rows[2]·Δz, per component.
         let [r0, r1, r2] = kernel.half_rows;

@@ -6,9 +6,10 @@
 //! (Levoy's precomputed gradients, as VTK's ray casters use).
 //!
 //! Records are four 16-bit integers when the CT holds only integers and every difference fits
-//! (real CT: 8 bytes a voxel), else four `f32` (16 bytes). Either way the interpolated value is
-//! bit-identical to [`super::sampler::Grid3::interpolate`]: the same products and sums of the
-//! same values in the same order, four lanes at a time.
+//! (real CT: 8 bytes a voxel), else four `f32` (16 bytes). 16-bit records are blended within a
+//! slice in fixed point ([`XY_WEIGHT_ONE`]: an exact integer, which the SIMD lanes compute with
+//! one multiply-add per two rows before any conversion) and along z in `f32`; `f32` records in
+//! `f32` throughout, bit-identical to [`super::sampler::Grid3::interpolate`].
 
 use rayon::prelude::*;
 use stylet_physics::atlas::AIR_HU;
@@ -28,6 +29,26 @@ enum Records {
 pub enum RecordSlice<'a> {
     Int16(&'a [[i16; 4]]),
     Float32(&'a [[f32; 4]]),
+}
+
+/// 2⁷: the fixed-point unit of the weights along x and y of 16-bit records. A located
+/// fraction f becomes q = round(f·2⁷) ([`xy_fraction`]) and the pair (2⁷ − q, q); a corner's
+/// weight w_x·w_y ≤ 2¹⁴ fits the lanes' signed 16-bit multiplier, and a slice's blend of four
+/// records, ≤ 2¹⁵·2¹⁴ in size, is an exact `i32`. A sample moves by at most 1/256 voxel across
+/// the slice (0.003 mm on the chest CT; a GPU's texture filter: 1/512); along z, the axis a CT
+/// spaces widest, the blend stays `f32`.
+pub const XY_WEIGHT_ONE: i32 = 1 << 7;
+
+/// 2⁻¹⁴: scales a blend of [`XY_WEIGHT_ONE`]²-weighted records back to HU (exact: a power of
+/// two).
+pub const XY_WEIGHT_UNIT: f32 = 1.0 / (XY_WEIGHT_ONE * XY_WEIGHT_ONE) as f32;
+
+/// The fixed-point fraction along x or y: round(f·2⁷), ties to even (the lanes'
+/// `_mm256_cvtps_epi32` in the default rounding mode; the product is exact). f ∈ [0, 1] gives
+/// 0 … 2⁷.
+#[inline(always)]
+pub fn xy_fraction(f: f32) -> i32 {
+    (f * XY_WEIGHT_ONE as f32).round_ties_even() as i32
 }
 
 /// Value and index-space central differences of every CT voxel.
@@ -149,21 +170,50 @@ impl GradientVolume {
     }
 
     /// (Δx, Δy, Δz, s) trilinearly interpolated at a located read (`Grid3::locate` on a grid of
-    /// the same dimensions): `Grid3::interpolate`'s order on all four lanes.
+    /// the same dimensions): in fixed point for 16-bit records ([`Self::fixed_point`]), else
+    /// `Grid3::interpolate`'s order on all four lanes.
     #[inline(always)]
     pub fn interpolate(&self, cell: &Cell) -> Vec4 {
         match &self.records {
-            Records::Int16(r) => self.lerp8(cell, |o| {
-                debug_assert!(o < r.len());
-                // SAFETY: see `lerp8`.
-                widen(unsafe { r.get_unchecked(o) })
-            }),
+            Records::Int16(r) => self.fixed_point(r, cell),
             Records::Float32(r) => self.lerp8(cell, |o| {
                 debug_assert!(o < r.len());
                 // SAFETY: see `lerp8`.
                 Vec4::from_array(unsafe { *r.get_unchecked(o) })
             }),
         }
+    }
+
+    /// The trilinear blend of the eight 16-bit records around `cell`: within each of the two
+    /// slices (z and z + 1) in fixed point, c = Σ record·w_x·w_y over the slice's four records
+    /// ([`XY_WEIGHT_ONE`]), an exact `i32` converted to `f32`; then c₀·(1 − f_z) + c₁·f_z in
+    /// `f32`; then times 2⁻¹⁴. The SIMD lanes compute the same (a slice's blend is one
+    /// `vpmaddwd` per two rows and an add).
+    #[inline(always)]
+    fn fixed_point(&self, records: &[[i16; 4]], cell: &Cell) -> Vec4 {
+        debug_assert!(self.fast && (0..3).all(|a| cell.b[a] + 1 < self.dims[a]));
+        let [bx, by, bz] = cell.b;
+        let (sy, sz) = (self.sy, self.sz);
+        let o = bx as usize + sy * by as usize + sz * bz as usize;
+        let (qx, qy) = (xy_fraction(cell.f[0]), xy_fraction(cell.f[1]));
+        let (wx, wy) = ([XY_WEIGHT_ONE - qx, qx], [XY_WEIGHT_ONE - qy, qy]);
+        let slice = |o: usize| {
+            let mut sum = [0i32; 4];
+            for (j, wy) in wy.into_iter().enumerate() {
+                for (i, wx) in wx.into_iter().enumerate() {
+                    let at = o + i + sy * j;
+                    debug_assert!(at < records.len());
+                    // SAFETY: as `lerp8`'s: the largest index read, o + 1 + sy + sz, is in bounds.
+                    let record = unsafe { records.get_unchecked(at) };
+                    for (s, &v) in sum.iter_mut().zip(record) {
+                        *s += i32::from(v) * (wx * wy);
+                    }
+                }
+            }
+            Vec4::from_array(sum.map(|s| s as f32))
+        };
+        let fz = cell.f[2];
+        (slice(o) * (1.0 - fz) + slice(o + sz) * fz) * XY_WEIGHT_UNIT
     }
 
     /// The trilinear blend of the eight records around `cell` read by `at`.
@@ -240,14 +290,91 @@ mod tests {
         );
     }
 
+    /// Points spread over the 7 × 6 × 5 test grids, some past its edges.
+    fn points() -> impl Iterator<Item = Vec3> {
+        (0..500).map(|n| {
+            let f = n as f32;
+            Vec3::new(
+                (f * 0.37).sin() * 3.6 + 3.0,
+                (f * 0.11).cos() * 3.1 + 2.5,
+                (f * 0.23).sin() * 2.6 + 2.0,
+            )
+        })
+    }
+
     #[test]
-    fn the_interpolated_value_is_the_ct_trilinear_bit_for_bit() {
+    fn sixteen_bit_records_blend_each_slice_in_fixed_point() {
+        let dims = [7usize, 6, 5];
+        let data = ct(dims, |i, j, k| ((i * 37 + j * 11 + k * 5) % 23) as f32 * 10.0 - 100.0);
+        let d = dims.map(|n| n as u32);
+        let g = GradientVolume::new(&data, d);
+        assert!(g.is_int16());
+        let grid = Grid3::new(&data, d);
+        let mut checked = 0;
+        for c in points() {
+            let Some(cell) = grid.locate(c) else { continue };
+            let r = g.interpolate(&cell);
+            let [bx, by, bz] = cell.b.map(|b| b as usize);
+            let [fx, fy, fz] = cell.f;
+            // In f64, with the fractions across the slice moved to the nearest 1/128.
+            let q = |f: f32| (f64::from(f) * 128.0).round_ties_even() / 128.0;
+            let (qx, qy, fz) = (q(fx), q(fy), f64::from(fz));
+            for lane in 0..4 {
+                let v = |i, j, k| f64::from(record(&data, dims, [bx + i, by + j, bz + k])[lane]);
+                let slice = |k| {
+                    (v(0, 0, k) * (1.0 - qx) + v(1, 0, k) * qx) * (1.0 - qy)
+                        + (v(0, 1, k) * (1.0 - qx) + v(1, 1, k) * qx) * qy
+                };
+                let want = slice(0) * (1.0 - fz) + slice(1) * fz;
+                let got = f64::from(r[lane]);
+                // f32 rounding of the slices' blends and of the blend along z, relative to the
+                // largest record blended.
+                let mut largest = 1.0f64;
+                for (i, j, k) in (0..8).map(|n| (n & 1, (n >> 1) & 1, n >> 2)) {
+                    largest = largest.max(v(i, j, k).abs());
+                }
+                assert!(
+                    (got - want).abs() <= 1e-6 * largest,
+                    "lane {lane} at {c}: {got} vs {want}"
+                );
+                // Within what 1/256 voxel across the slice can change from the f32 trilinear.
+                let steep = |step: [usize; 2]| {
+                    let mut most = 0.0f64;
+                    for (j, k) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let (a, b) = if step[0] == 1 {
+                            ((0, j, k), (1, j, k))
+                        } else {
+                            ((j, 0, k), (j, 1, k))
+                        };
+                        most = most.max((v(b.0, b.1, b.2) - v(a.0, a.1, a.2)).abs());
+                    }
+                    most
+                };
+                let float = if lane == 3 {
+                    f64::from(grid.interpolate(&cell))
+                } else {
+                    f64::from(grid.differences(c, Edge::Air).unwrap()[lane])
+                };
+                let bound = (steep([1, 0]) + steep([0, 1])) / 256.0 + 1e-3;
+                assert!(
+                    (got - float).abs() <= bound,
+                    "lane {lane} at {c}: {got} vs {float} (±{bound})"
+                );
+            }
+            checked += 1;
+        }
+        assert!(checked > 250, "{checked} points inside");
+        // At a voxel every weight but one is zero: the record exactly.
+        for (i, j, k) in [(0, 0, 0), (3, 2, 1), (5, 4, 3), (6, 5, 4)] {
+            let cell = grid.locate(Vec3::new(i as f32, j as f32, k as f32)).unwrap();
+            assert_eq!(g.interpolate(&cell), g.get(i, j, k), "voxel ({i}, {j}, {k})");
+        }
+    }
+
+    #[test]
+    fn float_records_interpolate_as_the_ct_trilinear_bit_for_bit() {
         let dims = [7usize, 6, 5];
         for (name, data) in [
-            (
-                "integers",
-                ct(dims, |i, j, k| ((i * 37 + j * 11 + k * 5) % 23) as f32 * 10.0 - 100.0),
-            ),
             (
                 "fractions",
                 ct(dims, |i, j, k| ((i * 37 + j * 11 + k * 5) % 23) as f32 * 3.7 - 50.25),
@@ -259,15 +386,9 @@ mod tests {
         ] {
             let d = dims.map(|n| n as u32);
             let g = GradientVolume::new(&data, d);
-            assert_eq!(g.is_int16(), name == "integers", "{name}");
+            assert!(!g.is_int16(), "{name}");
             let grid = Grid3::new(&data, d);
-            for n in 0..500 {
-                let f = n as f32;
-                let c = Vec3::new(
-                    (f * 0.37).sin() * 3.6 + 3.0,
-                    (f * 0.11).cos() * 3.1 + 2.5,
-                    (f * 0.23).sin() * 2.6 + 2.0,
-                );
+            for c in points() {
                 let Some(cell) = grid.locate(c) else { continue };
                 let r = g.interpolate(&cell);
                 assert_eq!(r.w.to_bits(), grid.interpolate(&cell).to_bits(), "{name} at {c}");

@@ -609,7 +609,7 @@ fn lattice_general(
         };
         // 5. Sample.
         samples += 1;
-        let c = f.table.lookup(f.sampler.s(at));
+        let c = f.table.lookup(f.sampler.lattice_value(at));
         if c[3] > 0.0 && composite(f, ray, t, c, f.sampler.gradient(at), acc) {
             break;
         }

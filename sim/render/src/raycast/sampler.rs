@@ -317,12 +317,30 @@ impl<'a> Sampler<'a> {
     /// s(x): J inside Ω_J, else the CT, else air.
     #[inline(always)]
     pub fn s(&self, at: At) -> f32 {
-        if let Some((j, _)) = &self.deformed
-            && let Some(v) = j.trilinear(at.j)
-        {
-            return v;
-        }
-        self.ct.trilinear(at.ct).unwrap_or(AIR_HU)
+        self.deformed_value(at)
+            .unwrap_or_else(|| self.ct.trilinear(at.ct).unwrap_or(AIR_HU))
+    }
+
+    /// The value of a lattice sample: s(x), with the CT read from its records where they are
+    /// 16-bit (`GradientVolume::interpolate`'s fixed-point blend, as the batches read them), so
+    /// every path of the ray caster composites the same values. The GPU's `sample` does the same.
+    #[inline(always)]
+    pub fn lattice_value(&self, at: At) -> f32 {
+        self.deformed_value(at).unwrap_or_else(|| {
+            if self.ct.is_fast() && self.grads.is_fast() && self.grads.is_int16() {
+                self.ct
+                    .locate(at.ct)
+                    .map_or(AIR_HU, |cell| self.grads.interpolate(&cell).w)
+            } else {
+                self.ct.trilinear(at.ct).unwrap_or(AIR_HU)
+            }
+        })
+    }
+
+    /// J's value inside Ω_J, when the scene carries J.
+    #[inline(always)]
+    fn deformed_value(&self, at: At) -> Option<f32> {
+        self.deformed.as_ref().and_then(|(j, _)| j.trilinear(at.j))
     }
 
     /// ½ M⁻¹'s rows of the CT ([`Self::world_gradient_ct`]'s factors).
