@@ -492,9 +492,12 @@ mod avx2 {
         // Per sample: the weight pairs of the rows at y and at y + 1, then (1 − f_z, f_z).
         let mut weights = [[0i32; 2]; LANES];
         let mut z_weights = [[0f32; 2]; LANES];
+        // Lanes from `count` on take sample 0's cell (a batch at the ray's end holds fewer).
+        let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+        let from = _mm256_and_si256(lane, _mm256_cmpgt_epi32(_mm256_set1_epi32(count as i32), lane));
         // SAFETY (loads and stores of eight lanes): each array holds ≥ 8 entries.
         unsafe {
-            let base = |a: usize| _mm256_loadu_si256(batch.b[a].as_ptr().cast());
+            let base = |a: usize| _mm256_permutevar8x32_epi32(_mm256_loadu_si256(batch.b[a].as_ptr().cast()), from);
             let o = _mm256_add_epi32(
                 base(0),
                 _mm256_add_epi32(
@@ -504,8 +507,9 @@ mod avx2 {
             );
             _mm256_storeu_si256(offsets.as_mut_ptr().cast(), o);
             // q = round(f·2⁷), ties to even (`xy_fraction`; the product is exact).
+            let fraction = |a: usize| _mm256_permutevar8x32_ps(_mm256_loadu_ps(batch.f[a].as_ptr()), from);
             let q = |a: usize| {
-                let f = _mm256_loadu_ps(batch.f[a].as_ptr());
+                let f = fraction(a);
                 _mm256_cvtps_epi32(_mm256_mul_ps(f, splat(XY_WEIGHT_ONE as f32)))
             };
             let (qx, qy) = (q(0), q(1));
@@ -522,7 +526,7 @@ mod avx2 {
             let w = weights.as_mut_ptr().cast::<i32>();
             _mm256_storeu_si256(w.cast(), _mm256_unpacklo_epi32(near, far)); // 0 1 | 4 5
             _mm256_storeu_si256(w.add(8).cast(), _mm256_unpackhi_epi32(near, far)); // 2 3 | 6 7
-            let fz = _mm256_loadu_ps(batch.f[2].as_ptr());
+            let fz = fraction(2);
             let gz = _mm256_sub_ps(splat(1.0), fz);
             let z = z_weights.as_mut_ptr().cast::<f32>();
             _mm256_storeu_ps(z, _mm256_unpacklo_ps(gz, fz));
@@ -537,10 +541,10 @@ mod avx2 {
         );
         let at = records.as_ptr();
         std::array::from_fn(|i| {
-            let s = if i < count { i } else { 0 };
-            let o = offsets[s] as usize;
-            let [w_near, w_far] = weights[SLOT[s]];
-            let [gz, fz] = z_weights[SLOT[s]];
+            let o = offsets[i] as usize;
+            debug_assert!(o + sy + sz + 1 < records.len(), "lane {i} of {count}: offset {o}");
+            let [w_near, w_far] = weights[SLOT[i]];
+            let [gz, fz] = z_weights[SLOT[i]];
             // SAFETY: the caller's bound; each load reads records i and i + 1 of a row.
             let rows = |z0: usize, z1: usize| unsafe {
                 let lo = _mm256_castsi128_si256(_mm_loadu_si128(at.add(z0).cast()));
@@ -812,6 +816,14 @@ mod tests {
                     // Full batches and, every so often, a short one.
                     if batch.is_full() || s % 97 == 0 {
                         let half = Vec3::new(f.sin(), 0.4, f.cos()).normalize();
+                        // A short batch's entries past its length are never read: poisoned with
+                        // cells far outside the records (the lanes repeat sample 0 there).
+                        for e in batch.len()..CAPACITY {
+                            for a in 0..3 {
+                                batch.b[a][e] = 1 << 30;
+                                batch.f[a][e] = f32::NAN;
+                            }
+                        }
                         let (mut a, mut b) = (Evaluated::default(), Evaluated::default());
                         lanes.evaluate(&batch, half, &mut a);
                         one.evaluate(&batch, half, &mut b);
