@@ -25,13 +25,9 @@ pub struct BrickDistance {
     cubes: [u32; 3],
     /// Bricks per axis.
     dims: [u32; 3],
-    /// One distance per brick, x fastest, then [`GATHER_SLACK`] zeros so the lanes' 4-byte
-    /// gather of the last brick stays inside ([`Self::at_lanes`]).
+    /// One distance per brick, x fastest.
     dist: Vec<u8>,
 }
-
-/// Bytes past the last brick's distance: a 32-bit gather at a brick's byte reads three more.
-const GATHER_SLACK: usize = 3;
 
 impl BrickDistance {
     /// The distances for `cubes` cubes per axis; `any_visible(x0, x1, y, z)` tells whether a cube
@@ -61,7 +57,6 @@ impl BrickDistance {
             });
         }
         chessboard_passes(&mut dist, dims);
-        dist.extend_from_slice(&[0; GATHER_SLACK]);
         BrickDistance { cubes, dims, dist }
     }
 
@@ -70,41 +65,8 @@ impl BrickDistance {
     pub fn at(&self, b: [u32; 3]) -> u8 {
         let q = [0, 1, 2].map(|a| (b[a] >> SHIFT[a]) as usize);
         let i = q[0] + self.dims[0] as usize * (q[1] + self.dims[1] as usize * q[2]);
-        // Out-of-range bases (not produced by the ray loop) read distance 0, as the slack
-        // does: never passed.
+        // Out-of-range bases (not produced by the ray loop) read distance 0: never passed.
         self.dist.get(i).copied().unwrap_or(0)
-    }
-
-    /// [`Self::at`] of eight base voxels at once (x, y, z lanes) where `live` is set, 0 in the
-    /// other lanes: the brick's index on the lanes, then one 32-bit gather at each brick's byte.
-    ///
-    /// # Safety
-    /// AVX2; fewer than 2³¹ cubes; every live base within the cubes (b_a ≤ n_a − 2, as
-    /// `Grid3::locate` gives).
-    #[cfg(target_arch = "x86_64")]
-    #[inline]
-    #[target_feature(enable = "avx2")]
-    pub(crate) unsafe fn at_lanes(
-        &self,
-        b: [std::arch::x86_64::__m256i; 3],
-        live: std::arch::x86_64::__m256i,
-    ) -> std::arch::x86_64::__m256i {
-        use std::arch::x86_64::*;
-        let q = |a: usize| _mm256_srlv_epi32(b[a], _mm256_set1_epi32(SHIFT[a] as i32));
-        let (dx, dy) = (
-            _mm256_set1_epi32(self.dims[0] as i32),
-            _mm256_set1_epi32(self.dims[1] as i32),
-        );
-        // q_x + n_x·(q_y + n_y·q_z) < the bricks' count < the cubes' < 2³¹ (the caller's).
-        let i = _mm256_add_epi32(
-            q(0),
-            _mm256_mullo_epi32(dx, _mm256_add_epi32(q(1), _mm256_mullo_epi32(dy, q(2)))),
-        );
-        // SAFETY: a live lane's brick index is < the bricks' count, and the gather reads its
-        // byte and the three after it, inside `dist` thanks to the slack.
-        let words =
-            unsafe { _mm256_mask_i32gather_epi32::<1>(_mm256_setzero_si256(), self.dist.as_ptr().cast(), i, live) };
-        _mm256_and_si256(words, _mm256_set1_epi32(0xff))
     }
 
     /// The box, in index coordinates c, of the samples whose base voxel lies in the bricks at
@@ -338,7 +300,7 @@ mod tests {
         assert_eq!(bd.at([13, 0, 0]), 1);
         // Nothing visible: every brick at the cap.
         let none = BrickDistance::new(cubes, |_, _, _, _| false);
-        assert!(none.dist[..none.dist.len() - GATHER_SLACK].iter().all(|&d| d == CAP));
+        assert!(none.dist.iter().all(|&d| d == CAP));
     }
 
     #[test]

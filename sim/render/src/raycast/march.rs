@@ -411,8 +411,9 @@ impl BrickMarch {
     }
 
     /// After a window without a leap, the next one (at `k`) placed and classified at once: its
-    /// gathers are then under way while the other ray of the pair takes its step, and the branch
-    /// on their answer waits for nothing when this ray's next step comes. The same windows are
+    /// reads (the cube bits' gather, the last brick's distance) are then under way while the
+    /// other ray of the pair takes its step, and the branch on their answer waits for nothing
+    /// when this ray's next step comes. The same windows are
     /// classified as without it.
     #[inline(always)]
     fn look_ahead(&mut self, f: &Frame, cx: &BrickContext) {
