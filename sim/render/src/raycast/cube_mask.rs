@@ -169,9 +169,10 @@ mod avx2 {
     use super::{CubeMask, WindowClasses};
     use crate::raycast::window::{POINTS, Window};
 
-    /// `CubeMask::classify` on eight lanes: the cube bits by one gather of the 32-bit half-words
-    /// that hold them (x86-64 is little-endian: bit r of a `u64` word is bit r mod 32 of
-    /// half-word 2w + r / 32), the last point's brick distance by one scalar load.
+    /// `CubeMask::classify` on eight lanes: each point's cube bit from the 32-bit half-word that
+    /// holds it (x86-64 is little-endian: bit r of a `u64` word is bit r mod 32 of half-word
+    /// 2w + r / 32; indices and bits on the lanes, the eight words by scalar loads), the last
+    /// point's brick distance by one scalar load.
     ///
     /// # Safety
     /// AVX2; `mask.lanes_fit`; every inside point's base within the cubes.
@@ -194,10 +195,17 @@ mod avx2 {
             _mm256_mullo_epi32(_mm256_set1_epi32(2 * mask.words_per_slab as i32), b[2]),
             _mm256_srli_epi32::<5>(r),
         );
-        // SAFETY: a live lane's half-word lies in `bits` (its cube does; the indices fit).
-        let words = unsafe {
-            _mm256_mask_i32gather_epi32::<4>(_mm256_setzero_si256(), mask.bits.as_ptr().cast(), half_word, live)
-        };
+        // Eight scalar loads, not a gather: the window's points mostly share a half-word or two,
+        // and the loads' answers arrive sooner (soft 3 %, bone 3–6 % faster than the gather).
+        // Lanes that are not live read half-word 0 and are masked out below.
+        let mut at = [0u32; POINTS];
+        // SAFETY: eight lanes into eight.
+        unsafe { _mm256_storeu_si256(at.as_mut_ptr().cast(), _mm256_and_si256(half_word, live)) };
+        let half_words = mask.bits.as_ptr().cast::<u32>();
+        // SAFETY: a live lane's half-word lies in `bits` (its cube does; the indices fit), and
+        // `bits` holds at least one word when the lanes fit (every axis ≥ 2 voxels).
+        let word = |i: usize| unsafe { *half_words.add(at[i] as usize) } as i32;
+        let words = _mm256_setr_epi32(word(0), word(1), word(2), word(3), word(4), word(5), word(6), word(7));
         let bit = _mm256_and_si256(
             _mm256_srlv_epi32(words, _mm256_and_si256(r, _mm256_set1_epi32(31))),
             _mm256_set1_epi32(1),
