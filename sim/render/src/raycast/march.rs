@@ -411,7 +411,7 @@ impl BrickMarch {
     }
 
     /// After a window without a leap, the next one (at `k`) placed and classified at once: its
-    /// reads (the cube bits' gather, the last brick's distance) are then under way while the
+    /// loads (the cube bits' words, the last brick's distance) are then under way while the
     /// other ray of the pair takes its step, and the branch on their answer waits for nothing
     /// when this ray's next step comes. The same windows are
     /// classified as without it.
