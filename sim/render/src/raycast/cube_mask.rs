@@ -24,6 +24,8 @@ pub(crate) struct WindowClasses {
     /// than a gather of eight distances whose answer the window waits for (soft, skin and bone
     /// frames 2–3 % faster; the same points sampled).
     pub far: u8,
+    /// The last point's brick distance when `far` is set (the leap's box), else 0.
+    pub far_distance: u8,
     /// Inside points whose cube is visible.
     pub visible: u8,
 }
@@ -187,8 +189,11 @@ mod avx2 {
         );
         // The last point's brick, by one scalar load (`BrickDistance::at`).
         let last = POINTS - 1;
-        let far_last =
-            window.inside >> last & 1 == 1 && mask.bricks.at([0, 1, 2].map(|a| window.b[a][last])) >= leap_from;
+        let far_distance = if window.inside >> last & 1 == 1 {
+            Some(mask.bricks.at([0, 1, 2].map(|a| window.b[a][last]))).filter(|&d| d >= leap_from)
+        } else {
+            None
+        };
         // r = b_x + n_x·b_y; half-word 2·w_slab·b_z + r / 32, bit r mod 32.
         let r = _mm256_add_epi32(b[0], _mm256_mullo_epi32(_mm256_set1_epi32(mask.dims[0] as i32), b[1]));
         let half_word = _mm256_add_epi32(
@@ -213,7 +218,8 @@ mod avx2 {
         let visible = _mm256_cmpeq_epi32(bit, _mm256_set1_epi32(1));
         let lanes = |v: __m256i| _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_and_si256(v, live))) as u8;
         WindowClasses {
-            far: u8::from(far_last) << last,
+            far: u8::from(far_distance.is_some()) << last,
+            far_distance: far_distance.unwrap_or(0),
             visible: lanes(visible),
         }
     }
@@ -357,6 +363,10 @@ mod tests {
                 let want_far = i == 7 && inside && mask.bricks().at(b) >= leap_from;
                 let want_visible = inside && mask.visible(b[0], b[1], b[2]);
                 assert_eq!(classes.far & (1 << i) != 0, want_far, "window {w}, point {i}, {b:?}");
+                if i == 7 {
+                    let d = if want_far { mask.bricks().at(b) } else { 0 };
+                    assert_eq!(classes.far_distance, d, "window {w}");
+                }
                 assert_eq!(
                     classes.visible & (1 << i) != 0,
                     want_visible,

@@ -491,7 +491,7 @@ impl BrickMarch {
             }
             if leap_at < POINTS {
                 let b = self.window.cell_at(leap_at).b;
-                self.leap(cx, b, bricks.at(b), k + leap_at as u32);
+                self.leap(cx, b, classes.far_distance, k + leap_at as u32);
             } else {
                 self.k = k + POINTS as u32;
                 self.look_ahead(f, cx);
