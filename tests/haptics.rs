@@ -14,15 +14,13 @@ use stylet_physics::{DeviceProfile, Gauge, ProbeKind, SimConfig, Simulation, Tic
 
 /// The default phantom, written and loaded once per test binary.
 fn phantom() -> &'static Atlas {
-    static A: OnceLock<(tempfile::TempDir, Atlas)> = OnceLock::new();
-    &A.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
+    static A: OnceLock<Atlas> = OnceLock::new();
+    A.get_or_init(|| {
+        let dir = stylet_testkit::fixture_dir();
         let p = stylet_atlas::phantom::generate(&Default::default()).unwrap();
-        stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
-        let atlas = stylet_atlas::load(dir.path()).unwrap();
-        (dir, atlas)
+        stylet_atlas::write(&dir, &p.manifest, &p.ct, &p.partial).unwrap();
+        stylet_atlas::load(&dir).unwrap()
     })
-    .1
 }
 
 struct Run {

@@ -52,42 +52,36 @@ fn shared_data() -> PathBuf {
     d
 }
 
-/// An atlas prepared for rendering, kept with the directory it was written to.
+/// An atlas prepared for rendering.
 struct Prepared {
-    _dir: tempfile::TempDir,
     atlas: Atlas,
     volume: RenderVolume,
     report: Option<ImportReport>,
 }
 
-fn prepare(dir: tempfile::TempDir, report: Option<ImportReport>) -> Prepared {
-    let atlas = load(dir.path()).unwrap_or_else(|e| panic!("the atlas does not load and validate: {e}"));
+fn prepare(dir: &Path, report: Option<ImportReport>) -> Prepared {
+    let atlas = load(dir).unwrap_or_else(|e| panic!("the atlas does not load and validate: {e}"));
     let volume = RenderVolume::new(Arc::clone(&atlas.model));
-    Prepared {
-        _dir: dir,
-        atlas,
-        volume,
-        report,
-    }
+    Prepared { atlas, volume, report }
 }
 
 fn import_recipe(recipe: &str, data: &str) -> Prepared {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = stylet_testkit::fixture_dir();
     let t = std::time::Instant::now();
-    let report = import(&workspace().join(recipe), &shared_data().join(data), dir.path())
+    let report = import(&workspace().join(recipe), &shared_data().join(data), &dir)
         .unwrap_or_else(|e| panic!("{recipe} does not import: {e}"));
     println!("imported {recipe} in {:.1} s", t.elapsed().as_secs_f64());
-    prepare(dir, Some(report))
+    prepare(&dir, Some(report))
 }
 
 /// The default phantom (written and loaded once per test binary).
 fn phantom() -> &'static Prepared {
     static P: OnceLock<Prepared> = OnceLock::new();
     P.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
+        let dir = stylet_testkit::fixture_dir();
         let p = stylet_atlas::phantom::generate(&Default::default()).unwrap();
-        stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
-        prepare(dir, None)
+        stylet_atlas::write(&dir, &p.manifest, &p.ct, &p.partial).unwrap();
+        prepare(&dir, None)
     })
 }
 

@@ -41,15 +41,15 @@ fn s(p: &Path) -> &str {
 
 /// The default phantom and every example script recorded on it, once per test binary.
 struct Setup {
-    dir: tempfile::TempDir,
+    dir: PathBuf,
 }
 
 impl Setup {
     fn atlas(&self) -> PathBuf {
-        self.dir.path().join("phantom")
+        self.dir.join("phantom")
     }
     fn session(&self, name: &str) -> PathBuf {
-        self.dir.path().join(format!("{name}.mcap"))
+        self.dir.join(format!("{name}.mcap"))
     }
 }
 
@@ -67,8 +67,9 @@ const SCRIPTS: [&str; 8] = [
 fn setup() -> &'static Setup {
     static S: OnceLock<Setup> = OnceLock::new();
     S.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let setup = Setup { dir };
+        let setup = Setup {
+            dir: stylet_testkit::fixture_dir(),
+        };
         ok(&["atlas", "phantom", "--out", s(&setup.atlas())]);
         for name in SCRIPTS {
             let script = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("atlases/phantom/scripts/{name}.txt"));

@@ -35,10 +35,9 @@ fn fails(args: &[&str]) -> String {
 
 /// A small phantom (fast to build), written once per test binary.
 fn atlas() -> &'static Path {
-    static A: OnceLock<tempfile::TempDir> = OnceLock::new();
+    static A: OnceLock<PathBuf> = OnceLock::new();
     A.get_or_init(|| {
-        let d = tempfile::tempdir().unwrap();
-        let a = d.path().join("phantom");
+        let a = stylet_testkit::fixture_dir().join("phantom");
         ok(&[
             "atlas",
             "phantom",
@@ -49,11 +48,8 @@ fn atlas() -> &'static Path {
             "--spacing",
             "2.4",
         ]);
-        d
+        a
     })
-    .path()
-    .join("phantom")
-    .leak()
 }
 
 fn script(name: &str) -> PathBuf {

@@ -14,7 +14,6 @@ use stylet_physics::glam::DVec3;
 use stylet_physics::{LabelId, Role, Volume};
 
 struct Imported {
-    _dir: tempfile::TempDir,
     report: ImportReport,
     atlas: Atlas,
     /// TotalSegmentator labels on the atlas grid.
@@ -26,16 +25,11 @@ fn imported() -> &'static Imported {
     I.get_or_init(|| {
         let recipe = common::workspace().join("atlases/ts-abdomen/recipe.toml");
         let data = common::shared_data().join("ts-example-abdomen");
-        let dir = tempfile::tempdir().unwrap();
-        let report = import(&recipe, &data, dir.path()).unwrap();
-        let atlas = load(dir.path()).unwrap();
+        let dir = stylet_testkit::fixture_dir();
+        let report = import(&recipe, &data, &dir).unwrap();
+        let atlas = load(&dir).unwrap();
         let source = read_sources(&load_recipe(&recipe).unwrap(), &data).unwrap().labels;
-        Imported {
-            _dir: dir,
-            report,
-            atlas,
-            source,
-        }
+        Imported { report, atlas, source }
     })
 }
 

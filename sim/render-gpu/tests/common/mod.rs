@@ -156,17 +156,16 @@ pub fn small_float() -> &'static Both {
 /// The default phantom (written and loaded once per test binary; stored as integer HU, so it
 /// uploads as 16-bit).
 pub fn phantom() -> &'static Both {
-    static P: OnceLock<(tempfile::TempDir, Both)> = OnceLock::new();
-    &P.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
+    static P: OnceLock<Both> = OnceLock::new();
+    P.get_or_init(|| {
+        let dir = stylet_testkit::fixture_dir();
         let p = stylet_atlas::phantom::generate(&Default::default()).unwrap();
-        stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
-        let atlas = stylet_atlas::load(dir.path()).unwrap();
+        stylet_atlas::write(&dir, &p.manifest, &p.ct, &p.partial).unwrap();
+        let atlas = stylet_atlas::load(&dir).unwrap();
         let cpu = RenderVolume::new(Arc::clone(&atlas.model));
         let gpu = GpuVolume::upload(ctx(), &cpu).unwrap();
-        (dir, Both { cpu, gpu })
+        Both { cpu, gpu }
     })
-    .1
 }
 
 pub fn trapezoid(tissue: &str, hu: [f32; 4], rgb: [f32; 3], opacity: f32, weight: f32) -> Trapezoid {
