@@ -51,6 +51,7 @@ impl CubeMask {
         let [nx, ny, nz] = dims.map(|n| n as usize);
         let words_per_slab = (nx * ny).div_ceil(64);
         let mut bits = vec![0u64; words_per_slab * nz];
+        crate::huge_pages::advise(&mut bits);
         let lanes_fit = nx * ny < i32::MAX as usize && bits.len() * 2 < i32::MAX as usize;
         if nx < 2 || ny < 2 || nz < 2 || data.len() < nx * ny * nz {
             return CubeMask {

@@ -116,12 +116,14 @@ impl GradientVolume {
         };
         let records = if int16 {
             let mut r = vec![[0i16; 4]; len];
+            crate::huge_pages::advise(&mut r);
             r.par_chunks_mut(slab.max(1)).enumerate().for_each(|(k, s)| {
                 fill(k, &mut |o, v| s[o] = v.map(|x| x as i16));
             });
             Records::Int16(r)
         } else {
             let mut r = vec![[0f32; 4]; len];
+            crate::huge_pages::advise(&mut r);
             r.par_chunks_mut(slab.max(1)).enumerate().for_each(|(k, s)| {
                 fill(k, &mut |o, v| s[o] = v);
             });
