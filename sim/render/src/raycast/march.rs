@@ -617,8 +617,9 @@ fn lattice_general(
         };
         // 5. Sample.
         samples += 1;
-        let c = f.table.lookup(f.sampler.lattice_value(at));
-        if c[3] > 0.0 && composite(f, ray, t, c, f.sampler.gradient(at), acc) {
+        let read = f.sampler.lattice_read(at);
+        let c = f.table.lookup(read.value);
+        if c[3] > 0.0 && composite(f, ray, t, c, f.sampler.lattice_gradient(at, &read), acc) {
             break;
         }
         k += 1;

@@ -5,7 +5,7 @@
 
 use stylet_physics::LabelId;
 use stylet_physics::atlas::AIR_HU;
-use stylet_physics::glam::Vec3;
+use stylet_physics::glam::{Vec3, Vec4};
 
 use super::gradient_volume::GradientVolume;
 use crate::volume::IndexMap;
@@ -278,6 +278,17 @@ pub struct Sampler<'a> {
     /// interpolated index-space differences Δ.
     half_rows_ct: [Vec3; 3],
     half_rows_j: [Vec3; 3],
+    /// The CT and its records have ≥ 2 voxels per axis and the records are 16-bit: lattice
+    /// samples read the CT from the records ([`Self::lattice_read`]). Decided once, not per sample.
+    lattice_from_records: bool,
+}
+
+/// A lattice sample's value and, when it was blended from the CT's records, the record blend
+/// itself (Δx, Δy, Δz, s): its gradient then needs no second read ([`Sampler::lattice_gradient`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LatticeRead {
+    pub value: f32,
+    records: Option<Vec4>,
 }
 
 impl<'a> Sampler<'a> {
@@ -299,6 +310,7 @@ impl<'a> Sampler<'a> {
             half_rows_j: deformed.as_ref().map_or([Vec3::ZERO; 3], |(_, m)| half(m)),
             deformed,
             labels,
+            lattice_from_records: ct.is_fast() && grads.is_fast() && grads.is_int16(),
         }
     }
 
@@ -321,20 +333,38 @@ impl<'a> Sampler<'a> {
             .unwrap_or_else(|| self.ct.trilinear(at.ct).unwrap_or(AIR_HU))
     }
 
-    /// The value of a lattice sample: s(x), with the CT read from its records where they are
-    /// 16-bit (`GradientVolume::interpolate`'s fixed-point blend, as the batches read them), so
-    /// every path of the ray caster composites the same values. The GPU's `sample` does the same.
+    /// A lattice sample: s(x), with the CT read from its records where they are 16-bit
+    /// (`GradientVolume::interpolate`'s fixed-point blend, as the batches read them), so every
+    /// path of the ray caster composites the same values. The GPU's `sample` does the same.
     #[inline(always)]
-    pub fn lattice_value(&self, at: At) -> f32 {
-        self.deformed_value(at).unwrap_or_else(|| {
-            if self.ct.is_fast() && self.grads.is_fast() && self.grads.is_int16() {
-                self.ct
-                    .locate(at.ct)
-                    .map_or(AIR_HU, |cell| self.grads.interpolate(&cell).w)
-            } else {
-                self.ct.trilinear(at.ct).unwrap_or(AIR_HU)
-            }
-        })
+    pub fn lattice_read(&self, at: At) -> LatticeRead {
+        if let Some(value) = self.deformed_value(at) {
+            return LatticeRead { value, records: None };
+        }
+        if self.lattice_from_records
+            && let Some(cell) = self.ct.locate(at.ct)
+        {
+            let r = self.grads.interpolate(&cell);
+            return LatticeRead {
+                value: r.w,
+                records: Some(r),
+            };
+        }
+        LatticeRead {
+            value: self.ct.trilinear(at.ct).unwrap_or(AIR_HU),
+            records: None,
+        }
+    }
+
+    /// ∇s of a lattice sample ([`Self::gradient`]): from the records `read` blended, when it
+    /// did (then it lies outside Ω_J and inside the CT, where `gradient` reads those same
+    /// records), else read anew.
+    #[inline(always)]
+    pub fn lattice_gradient(&self, at: At, read: &LatticeRead) -> Vec3 {
+        match read.records {
+            Some(r) => self.world_gradient_ct(r.truncate()),
+            None => self.gradient(at),
+        }
     }
 
     /// J's value inside Ω_J, when the scene carries J.
