@@ -655,8 +655,8 @@ fn needle_through_body() -> ToolState {
     }
 }
 
-/// The lanes and the two rays marched in turn (with the lanes, and without them as on a CPU
-/// without AVX2) against one sample at a time, one ray after the other.
+/// The lanes and the rays marched in turn (three or two with the lanes; two without them, as on
+/// a CPU without AVX2) against one sample at a time, one ray after the other.
 #[test]
 fn lanes_draw_the_pixels_of_one_sample_at_a_time() {
     use stylet_render::raycast::{Lanes, render_with};
@@ -689,10 +689,14 @@ fn lanes_draw_the_pixels_of_one_sample_at_a_time() {
                 },
                 ..plain.clone()
             };
-            // 81 × 71: tiles of odd width, whose last pixel of a row is marched alone.
+            // Tiles are 16 pixels wide: with the lanes a row of a tile goes as four threes and
+            // two pairs. 81 × 71: the last tile's rows are a pixel marched alone; 83: three in
+            // turn; 85: three and two.
             for (what, s, (w, h)) in [
                 ("plain", &plain, (80, 72)),
                 ("plain, odd width", &plain, (81, 71)),
+                ("plain, a last tile of three", &plain, (83, 71)),
+                ("plain, a last tile of five", &plain, (85, 71)),
                 ("clip and needle", &clipped, (80, 72)),
                 ("no jitter", &exact_early, (80, 72)),
                 ("half", &half, (80, 72)),

@@ -87,7 +87,23 @@ fn draw_tile(frame: &Frame, rays: &ImageRays, cols: [u32; 2], rows: [u32; 2]) ->
         let mut n = 0u64;
         for row in rows[0]..rows[1] {
             let mut col = cols[0];
-            // Pixels two by two (their marches interleaved), the last alone in an odd row.
+            // With the lanes, pixels three by three (their marches interleaved) while three are
+            // left but not four; then two by two, the last alone in an odd row.
+            while frame.pairs && frame.avx2.is_some() && col + 2 < cols[1] && cols[1] - col != 4 {
+                let (oa, da) = rays.ray(col, row);
+                let (ob, db) = rays.ray(col + 1, row);
+                let (oc, dc) = rays.ray(col + 2, row);
+                for (rgba, s) in march::march_triple(
+                    frame,
+                    (col, row, oa, da),
+                    (col + 1, row, ob, db),
+                    (col + 2, row, oc, dc),
+                ) {
+                    px.push(rgba);
+                    n += s;
+                }
+                col += 3;
+            }
             while frame.pairs && col + 1 < cols[1] {
                 let (oa, da) = rays.ray(col, row);
                 let (ob, db) = rays.ray(col + 1, row);
