@@ -327,8 +327,8 @@ fn prefetch_rows(records: &[[i16; 4]], sy: usize, sz: usize, o: usize) {
 /// Which evaluation the ray caster may use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Lanes {
-    /// SIMD lanes where the CPU and the records allow, and the rays of two pixels marched in
-    /// turn (the same pixels, faster).
+    /// SIMD lanes where the CPU and the records allow, and the rays of three (or two) pixels
+    /// marched in turn (the same pixels, faster).
     Auto,
     /// One sample at a time, one ray after the other: the reference the lanes are tested
     /// against.
@@ -339,7 +339,8 @@ pub enum Lanes {
 }
 
 impl Lanes {
-    /// Whether two pixels' rays are marched in turn.
+    /// Whether pixels' rays are marched in turn (three or two, [`Lanes::Auto`]; two,
+    /// [`Lanes::PairsWithoutSimd`]).
     pub fn pairs(self) -> bool {
         self != Lanes::OneAtATime
     }

@@ -60,8 +60,8 @@ pub struct Frame<'a> {
     /// The SIMD lanes for the common frame's points and samples ([`super::batch`],
     /// [`super::window`]), when asked for and the CPU has them (detected once per frame).
     pub(crate) avx2: Option<Avx2>,
-    /// Whether the tiles march two pixels' rays in turn ([`march_pair`]); else one after the
-    /// other ([`march`], the reference).
+    /// Whether the tiles march pixels' rays in turn ([`march_triple`] with the lanes,
+    /// [`march_pair`]); else one after the other ([`march`], the reference).
     pub pairs: bool,
 }
 
@@ -281,8 +281,9 @@ const BOX_MARGIN: f32 = 1e-3;
 /// placed when the march reaches it. A march that would pass lattice index 2·10⁹ (a ray
 /// kilometres long) stops there.
 ///
-/// The march goes a window (or a leap) at a time ([`Self::step`]), so that two rays can be
-/// marched in turn ([`march_pair`]): their chains of dependent loads and leaps then overlap.
+/// The march goes a window (or a leap) at a time ([`Self::step`]), so that several rays can be
+/// marched in turn ([`march_triple`], [`march_pair`]): their chains of dependent loads and leaps
+/// then overlap.
 struct BrickMarch {
     ray: Ray,
     leaving: LeavingRay,
@@ -670,7 +671,7 @@ pub fn march_pair(f: &Frame, a: (u32, u32, Vec3, Vec3), b: (u32, u32, Vec3, Vec3
 /// frame's path, their lattice marches go a step of each in turn as in [`march_pair`], so each
 /// ray's chain of dependent loads, leaps and branches overlaps with two others' (the chest CT's
 /// frames 2–5 % faster than pairs in two builds). Without the lanes, one after the other (the
-/// tiles then march pairs). Written out per ray like [`march_two`]: the same steps as a loop
+/// tiles then march pairs). Written out per ray like `march_two`: the same steps as a loop
 /// over arrays of marches measured 5–7 % slower, the marches no longer each in its own local.
 #[inline(always)]
 pub fn march_triple(
