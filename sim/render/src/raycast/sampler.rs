@@ -341,13 +341,21 @@ impl<'a> Sampler<'a> {
         if let Some(value) = self.deformed_value(at) {
             return LatticeRead { value, records: None };
         }
-        if self.lattice_from_records
-            && let Some(cell) = self.ct.locate(at.ct)
-        {
-            let r = self.grads.interpolate(&cell);
-            return LatticeRead {
-                value: r.w,
-                records: Some(r),
+        if self.lattice_from_records {
+            // Outside the records' domain the CT reads air, without a second look through
+            // `trilinear` (which would find the same: most of a naive frame's samples lie there).
+            return match self.ct.locate(at.ct) {
+                Some(cell) => {
+                    let r = self.grads.interpolate(&cell);
+                    LatticeRead {
+                        value: r.w,
+                        records: Some(r),
+                    }
+                }
+                None => LatticeRead {
+                    value: AIR_HU,
+                    records: None,
+                },
             };
         }
         LatticeRead {
