@@ -689,14 +689,14 @@ fn lanes_draw_the_pixels_of_one_sample_at_a_time() {
                 },
                 ..plain.clone()
             };
-            // Tiles are 16 pixels wide: with the lanes a row of a tile goes as four threes and
-            // two pairs. 81 × 71: the last tile's rows are a pixel marched alone; 83: three in
-            // turn; 85: three and two.
+            // Tiles are 15 pixels wide: with the lanes a row of a tile goes as five threes. The
+            // last tile's rows at width 80: three and two; 76: a pixel marched alone; 79: two
+            // pairs; 81: two threes.
             for (what, s, (w, h)) in [
                 ("plain", &plain, (80, 72)),
-                ("plain, odd width", &plain, (81, 71)),
-                ("plain, a last tile of three", &plain, (83, 71)),
-                ("plain, a last tile of five", &plain, (85, 71)),
+                ("plain, a last tile of one", &plain, (76, 71)),
+                ("plain, a last tile of four", &plain, (79, 71)),
+                ("plain, a last tile of six", &plain, (81, 71)),
                 ("clip and needle", &clipped, (80, 72)),
                 ("no jitter", &exact_early, (80, 72)),
                 ("half", &half, (80, 72)),

@@ -1,6 +1,6 @@
 //! The CPU reference ray caster (thesis §3.2.1–3.2.3; docs/rendering.md "One ray"): front-to-back
 //! emission–absorption with ray/box clipping, empty-space leaping, early termination, jitter,
-//! Phong shading, the clipping plane and its tagging. Rayon over 16 × 16 pixel tiles; every pixel is a pure
+//! Phong shading, the clipping plane and its tagging. Rayon over 15 × 15 pixel tiles; every pixel is a pure
 //! function of the inputs, so the image is bit-identical on any number of threads.
 
 pub mod batch;
@@ -60,8 +60,10 @@ pub fn render_with(volume: &RenderVolume, scene: &Scene, width: u32, height: u32
     render_full(volume, scene, width, height, lanes)
 }
 
-/// Side of the square pixel tiles rendered as one task (pixels).
-const TILE: u32 = 16;
+/// Side of the square pixel tiles rendered as one task (pixels): with the lanes a tile's row is
+/// five threes of rays marched in turn ([`march::march_triple`]). 15 measured 1.5–2 % (soft) to
+/// 4–5 % (skin, bone) faster than 16 (four threes and two pairs) on the chest CT in two builds.
+const TILE: u32 = 15;
 
 /// Shortest step the ray caster takes (mm): bounds the samples per ray.
 pub const MIN_STEP_MM: f32 = 0.01;
