@@ -1,6 +1,7 @@
-//! Fuzz target: the session-file reader on arbitrary bytes. Strict and recovery reads, verify,
-//! streaming and tick blocks must return an error or a session — never panic, hang or allocate
-//! beyond the limits. Seed corpus: recorder/tests/fixtures (see scripts/fuzz).
+//! Fuzz target: the session-file reader on arbitrary bytes. Strict and recovery reads (from
+//! memory and record by record), verify, streaming, the header of a prefix and tick blocks must
+//! return an error or a session — never panic, hang or allocate beyond the limits.
+//! Seed corpus: recorder/tests/fixtures (see scripts/fuzz).
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
@@ -22,8 +23,16 @@ fuzz_target!(|data: &[u8]| {
         // What reads strictly reads the same in recovery mode.
         assert_eq!(Ok(s), recovered.as_ref());
     }
+    // A file read record by record reads as its bytes do.
+    assert_eq!(
+        reader::read_file_with(std::io::Cursor::new(data), Mode::Recover, &limits, None),
+        recovered
+    );
     let _ = reader::verify_bytes(data);
     let _ = reader::read_header(data);
+    if let Ok(Some(h)) = reader::read_header_prefix(data) {
+        assert_eq!(reader::read_header(data), Ok(h));
+    }
     if let (Ok(full), Ok(streamed)) = (reader::verify_bytes(data), reader::verify_streaming(data, &Limits::default())) {
         // Streaming verification agrees with the full one on what both accept.
         assert_eq!(streamed.tick_count, full.ticks.len() as u64);

@@ -6,7 +6,7 @@
 //! [`Limits`] — a hostile file gets an error, never a huge allocation or a panic.
 
 use std::collections::BTreeMap;
-use std::io::Read;
+use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
 
 use crate::format::*;
@@ -364,14 +364,141 @@ pub fn read_bytes_with<'a>(
     limits: &'a Limits,
     sink: Option<TickSink<'a>>,
 ) -> Result<Session, ReadError> {
-    if bytes.len() as u64 > limits.max_file_bytes {
+    walk(&mut SliceSource(bytes), mode, limits, sink)
+}
+
+/// Reads a session from a file (or any seekable reader) one record at a time: the memory it
+/// takes is one record (at most [`Limits::max_record_bytes`]) and one decompressed chunk, not
+/// the file. With a `sink`, ticks are streamed as by [`read_bytes_with`], with the same result.
+pub fn read_file_with<'a, R: Read + Seek>(
+    file: R,
+    mode: Mode,
+    limits: &'a Limits,
+    sink: Option<TickSink<'a>>,
+) -> Result<Session, ReadError> {
+    walk(&mut FileSource::new(file)?, mode, limits, sink)
+}
+
+/// Where a walk reads a file's bytes from: the whole file in memory, or a file read record by
+/// record. Both give the walk the same bytes, so the same file reads the same either way.
+trait Source {
+    /// The file's length in bytes.
+    fn len(&self) -> u64;
+    /// The `n` bytes at `at`; `None` when the file ends first. `n` is bounded by the caller
+    /// (a record header, or a record within [`Limits::max_record_bytes`]).
+    fn bytes(&mut self, at: u64, n: u64) -> Result<Option<&[u8]>, ReadError>;
+    /// CRC-32 of the bytes from `from` to `to` (within the file).
+    fn crc(&mut self, from: u64, to: u64) -> Result<u32, ReadError>;
+}
+
+struct SliceSource<'b>(&'b [u8]);
+
+impl Source for SliceSource<'_> {
+    fn len(&self) -> u64 {
+        self.0.len() as u64
+    }
+
+    fn bytes(&mut self, at: u64, n: u64) -> Result<Option<&[u8]>, ReadError> {
+        let range = usize::try_from(at)
+            .ok()
+            .zip(usize::try_from(n).ok())
+            .and_then(|(at, n)| Some(at..at.checked_add(n)?));
+        Ok(range.and_then(|r| self.0.get(r)))
+    }
+
+    fn crc(&mut self, from: u64, to: u64) -> Result<u32, ReadError> {
+        Ok(crc32fast::hash(&self.0[from as usize..to as usize]))
+    }
+}
+
+/// A seekable reader, read where the walk asks; `buf` holds the last record read. Reads that
+/// follow one another do not seek, so a buffered reader serves them from its buffer.
+struct FileSource<R> {
+    file: R,
+    len: u64,
+    /// Where the reader is now.
+    pos: u64,
+    buf: Vec<u8>,
+}
+
+fn io_error(e: std::io::Error) -> ReadError {
+    ReadError::Io(e.to_string())
+}
+
+impl<R: Read + Seek> FileSource<R> {
+    fn new(mut file: R) -> Result<Self, ReadError> {
+        let len = file.seek(SeekFrom::End(0)).map_err(io_error)?;
+        Ok(FileSource {
+            file,
+            len,
+            pos: len,
+            buf: Vec::new(),
+        })
+    }
+}
+
+impl<R: Read + Seek> FileSource<R> {
+    fn seek_to(&mut self, at: u64) -> Result<(), ReadError> {
+        if at != self.pos {
+            self.file.seek(SeekFrom::Start(at)).map_err(io_error)?;
+            self.pos = at;
+        }
+        Ok(())
+    }
+}
+
+impl<R: Read + Seek> Source for FileSource<R> {
+    fn len(&self) -> u64 {
+        self.len
+    }
+
+    fn bytes(&mut self, at: u64, n: u64) -> Result<Option<&[u8]>, ReadError> {
+        let Some(end) = at.checked_add(n).filter(|&end| end <= self.len) else {
+            return Ok(None);
+        };
+        let n = usize::try_from(end - at).map_err(|_| ReadError::Io("a record too large for memory".into()))?;
+        self.buf.clear();
+        self.buf.resize(n, 0);
+        self.seek_to(at)?;
+        self.pos = u64::MAX;
+        self.file.read_exact(&mut self.buf).map_err(io_error)?;
+        self.pos = end;
+        Ok(Some(&self.buf))
+    }
+
+    fn crc(&mut self, from: u64, to: u64) -> Result<u32, ReadError> {
+        self.seek_to(from)?;
+        // Unknown until the reads below have all succeeded.
+        self.pos = u64::MAX;
+        let mut hasher = crc32fast::Hasher::new();
+        let mut left = to - from;
+        let mut block = vec![0u8; 64 << 10];
+        while left > 0 {
+            let n = left.min(block.len() as u64) as usize;
+            self.file.read_exact(&mut block[..n]).map_err(io_error)?;
+            hasher.update(&block[..n]);
+            left -= n as u64;
+        }
+        self.pos = to;
+        Ok(hasher.finalize())
+    }
+}
+
+/// The record walk shared by every reader of a whole file (see the module doc).
+fn walk<'a>(
+    src: &mut dyn Source,
+    mode: Mode,
+    limits: &'a Limits,
+    sink: Option<TickSink<'a>>,
+) -> Result<Session, ReadError> {
+    let file_len = src.len();
+    if file_len > limits.max_file_bytes {
         return Err(ReadError::NotASession(format!(
-            "{} bytes exceed the limit of {}",
-            bytes.len(),
+            "{file_len} bytes exceed the limit of {}",
             limits.max_file_bytes
         )));
     }
-    if bytes.len() < 8 || &bytes[..8] != MAGIC {
+    if src.bytes(0, 8)? != Some(MAGIC.as_slice()) {
         return Err(ReadError::NotASession("it does not start with the MCAP magic".into()));
     }
     let mut w = Walk {
@@ -392,28 +519,29 @@ pub fn read_bytes_with<'a>(
         finished: false,
         header_error: None,
     };
-    let mut pos = 8usize;
+    let mut pos = 8u64;
     let mut damage: Option<Damage> = None;
     let mut in_summary = false;
     let mut profile_ok = false;
-    let damaged = |offset: usize, what: String| Damage {
-        offset: offset as u64,
+    let damaged = |offset: u64, what: String| Damage {
+        offset,
         what,
-        lost_bytes: (bytes.len() - offset) as u64,
+        lost_bytes: file_len - offset,
     };
     loop {
-        if pos == bytes.len() {
+        if pos == file_len {
             damage = Some(damaged(
                 pos,
                 "the file ends without its summary and footer (cut short?)".into(),
             ));
             break;
         }
-        let Some(len) = read_u64(bytes, pos + 1) else {
+        let Some(head) = src.bytes(pos, 9)? else {
             damage = Some(damaged(pos, "the file ends inside a record header".into()));
             break;
         };
-        let op = bytes[pos];
+        let op = head[0];
+        let len = read_u64(head, 1).expect("9 bytes");
         if len > limits.max_record_bytes {
             damage = Some(damaged(
                 pos,
@@ -422,7 +550,7 @@ pub fn read_bytes_with<'a>(
             break;
         }
         let start = pos + 9;
-        let Some(body) = bytes.get(start..start + len as usize) else {
+        let Some(body) = src.bytes(start, len)? else {
             damage = Some(damaged(
                 pos,
                 format!("the file ends inside a record of {len} bytes (cut short?)"),
@@ -438,43 +566,54 @@ pub fn read_bytes_with<'a>(
                 Ok(Record::Header { profile }) => Err(format!("MCAP profile '{profile}' is not '{PROFILE}'")),
                 _ => Err("bad MCAP header".into()),
             },
-            OP_CHUNK => w.chunk(pos as u64, body),
-            OP_DATA_END => match records::parse(op, body) {
-                Ok(Record::DataEnd { data_section_crc }) => {
-                    in_summary = true;
-                    if data_section_crc != 0 && data_section_crc != crc32fast::hash(&bytes[..pos]) {
-                        Err("data section CRC mismatch (the file was altered)".into())
-                    } else {
-                        Ok(())
+            OP_CHUNK => w.chunk(pos, body),
+            OP_DATA_END => {
+                // Fields first: the CRC reads the file again, after the record's bytes.
+                let data_section_crc = match records::parse(op, body) {
+                    Ok(Record::DataEnd { data_section_crc }) => Some(data_section_crc),
+                    _ => None,
+                };
+                match data_section_crc {
+                    Some(crc) => {
+                        in_summary = true;
+                        if crc != 0 && crc != src.crc(0, pos)? {
+                            Err("data section CRC mismatch (the file was altered)".into())
+                        } else {
+                            Ok(())
+                        }
                     }
+                    None => Err("bad data-end record".into()),
                 }
-                _ => Err("bad data-end record".into()),
-            },
-            OP_FOOTER => match records::parse(op, body) {
-                Ok(Record::Footer {
-                    summary_start,
-                    summary_crc,
-                }) => {
-                    let summary_ok = summary_crc == 0
-                        || usize::try_from(summary_start)
-                            .ok()
-                            .filter(|&s| s > 0 && s <= pos)
-                            .is_some_and(|s| {
-                                // The CRC covers the summary section through the footer's fields before the CRC.
-                                let end = start + 8 + 8;
-                                end <= bytes.len() && crc32fast::hash(&bytes[s..end]) == summary_crc
-                            });
-                    if !summary_ok {
-                        Err("summary CRC mismatch (the file was altered)".into())
-                    } else if start + len as usize + 8 != bytes.len() || &bytes[bytes.len() - 8..] != MAGIC {
-                        Err("bytes after the footer, or the closing magic is missing".into())
-                    } else {
-                        w.finished = true;
-                        Ok(())
+            }
+            OP_FOOTER => {
+                let footer = match records::parse(op, body) {
+                    Ok(Record::Footer {
+                        summary_start,
+                        summary_crc,
+                    }) => Some((summary_start, summary_crc)),
+                    _ => None,
+                };
+                match footer {
+                    Some((summary_start, summary_crc)) => {
+                        // The CRC covers the summary section through the footer's fields before the CRC.
+                        let crc_end = start + 8 + 8;
+                        let summary_ok = summary_crc == 0
+                            || (summary_start > 0
+                                && summary_start <= pos
+                                && crc_end <= file_len
+                                && src.crc(summary_start, crc_end)? == summary_crc);
+                        if !summary_ok {
+                            Err("summary CRC mismatch (the file was altered)".into())
+                        } else if start + len + 8 != file_len || src.bytes(file_len - 8, 8)? != Some(MAGIC.as_slice()) {
+                            Err("bytes after the footer, or the closing magic is missing".into())
+                        } else {
+                            w.finished = true;
+                            Ok(())
+                        }
                     }
+                    None => Err("bad footer".into()),
                 }
-                _ => Err("bad footer".into()),
-            },
+            }
             _ if in_summary => Ok(()),
             _ => w.record(op, body),
         };
@@ -490,7 +629,7 @@ pub fn read_bytes_with<'a>(
         if w.finished {
             break;
         }
-        pos = start + len as usize;
+        pos = start + len;
     }
     let header = match (w.header.take(), w.header_error.take()) {
         (Some(h), _) => h,
@@ -582,8 +721,21 @@ impl Verified {
 
 /// The checks of [`verify_bytes`] with memory bounded independently of the tick count: ticks are
 /// decoded one block at a time, checked and dropped; `limits` (e.g. `max_ticks` from the longest
-/// session accepted) are checked before each block is decoded. For files from outside (uploads).
+/// session accepted) are checked before each block is decoded.
 pub fn verify_streaming(bytes: &[u8], limits: &Limits) -> Result<Verified, String> {
+    verify_with(|sink| read_bytes_with(bytes, Mode::Strict, limits, Some(sink)))
+}
+
+/// [`verify_streaming`] of a file read record by record: its memory is bounded by `limits`
+/// whatever the file's size (one record, one decompressed chunk, one tick block). For files from
+/// outside (uploads, received to disk first).
+pub fn verify_file_streaming<R: Read + Seek>(file: R, limits: &Limits) -> Result<Verified, String> {
+    verify_with(|sink| read_file_with(file, Mode::Strict, limits, Some(sink)))
+}
+
+/// Runs a streaming read with a sink that counts the ticks and finds their span and first jump,
+/// then the checks of [`verify_bytes`].
+fn verify_with(read: impl FnOnce(TickSink<'_>) -> Result<Session, ReadError>) -> Result<Verified, String> {
     let mut count = 0u64;
     let mut span: Option<(u64, u64)> = None;
     let mut jump: Option<(u64, u64)> = None;
@@ -597,7 +749,7 @@ pub fn verify_streaming(bytes: &[u8], limits: &Limits) -> Result<Verified, Strin
         }
         count += block.len() as u64;
     };
-    let s = read_bytes_with(bytes, Mode::Strict, limits, Some(&mut on_block)).map_err(|e| e.to_string())?;
+    let s = read(&mut on_block).map_err(|e| e.to_string())?;
     check_verified(&s, count, span, jump)?;
     Ok(Verified {
         session: s,
@@ -756,24 +908,38 @@ fn summary(bytes: &[u8]) -> Result<(BTreeMap<u16, String>, Vec<records::ChunkInd
 /// few records only, nothing decompressed). Lets a service decide who may send a file, and with
 /// which limits to read it, before reading it.
 pub fn read_header(bytes: &[u8]) -> Result<SessionHeader, ReadError> {
-    if bytes.len() < 8 || &bytes[..8] != MAGIC {
+    read_header_prefix(bytes)?
+        .ok_or_else(|| ReadError::NotASession("no session header at the start of the file".into()))
+}
+
+/// [`read_header`] of the first bytes of a file that is still arriving: `Ok(None)` while the
+/// bytes end before the header record does (send more), an error as soon as they cannot start a
+/// session file.
+pub fn read_header_prefix(bytes: &[u8]) -> Result<Option<SessionHeader>, ReadError> {
+    let magic_seen = &bytes[..bytes.len().min(8)];
+    if magic_seen != &MAGIC[..magic_seen.len()] {
         return Err(ReadError::NotASession("it does not start with the MCAP magic".into()));
+    }
+    if bytes.len() < 8 {
+        return Ok(None);
     }
     let mut pos = 8usize;
     for _ in 0..4 {
         let (Some(&op), Some(len)) = (bytes.get(pos), read_u64(bytes, pos + 1)) else {
-            break;
+            return Ok(None);
         };
         let Some(body) = usize::try_from(len)
             .ok()
             .and_then(|l| bytes.get(pos + 9..(pos + 9).checked_add(l)?))
         else {
-            break;
+            return Ok(None);
         };
         if let Ok(Record::Metadata { name, map }) = records::parse(op, body)
             && name == META_HEADER
         {
-            return SessionHeader::from_metadata(&map).map_err(ReadError::NotASession);
+            return SessionHeader::from_metadata(&map)
+                .map(Some)
+                .map_err(ReadError::NotASession);
         }
         pos += 9 + body.len();
     }

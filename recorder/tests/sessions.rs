@@ -634,3 +634,74 @@ fn unused_event_fields_are_bounded_too() {
     assert!(err.contains("'event tool' is longer than 64 characters"), "{err}");
     assert!(reader::verify_streaming(&bytes, &Limits::default()).is_err());
 }
+
+/// A file read record by record (as the service reads uploads it has received to disk) reads
+/// exactly as the same bytes in memory: intact, cut at every 4 KiB boundary and with a bit
+/// flipped there, strictly and in recovery, and verified by streaming.
+#[test]
+fn files_read_record_by_record_read_as_the_bytes_do() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("s.mcap");
+    let ticks = synthetic_ticks(20_000, 2);
+    write_session(&p, &ticks, WriterOptions::default());
+    let bytes = std::fs::read(&p).unwrap();
+    let limits = Limits::default();
+    let from_file = |b: &[u8], mode: Mode| reader::read_file_with(std::io::Cursor::new(b), mode, &limits, None);
+    let whole = from_file(&bytes, Mode::Strict).unwrap();
+    assert_eq!(whole, reader::read_bytes(&bytes, Mode::Strict, &limits).unwrap());
+    assert_eq!(whole.ticks.len(), 20_000);
+    let streamed = reader::verify_file_streaming(std::fs::File::open(&p).unwrap(), &limits).unwrap();
+    assert_eq!(streamed, reader::verify_streaming(&bytes, &limits).unwrap());
+    let mut variants = 0;
+    for off in (4096..bytes.len()).step_by(4096) {
+        let mut flipped = bytes.clone();
+        flipped[off] ^= 0x10;
+        for damaged in [&bytes[..off], &flipped[..]] {
+            for mode in [Mode::Strict, Mode::Recover] {
+                assert_eq!(
+                    from_file(damaged, mode),
+                    reader::read_bytes(damaged, mode, &limits),
+                    "{} bytes, {mode:?}",
+                    damaged.len()
+                );
+            }
+            assert_eq!(
+                reader::verify_file_streaming(std::io::Cursor::new(damaged), &limits),
+                reader::verify_streaming(damaged, &limits)
+            );
+            variants += 1;
+        }
+    }
+    assert!(variants > 20, "{variants}");
+    // Not a session at all, and nothing.
+    for junk in [&b"PK\x03\x04 not a session"[..], b""] {
+        assert_eq!(
+            from_file(junk, Mode::Strict),
+            reader::read_bytes(junk, Mode::Strict, &limits)
+        );
+        assert!(from_file(junk, Mode::Strict).is_err());
+    }
+}
+
+/// The header of a file still arriving: "send more" until its record is complete, then the
+/// header; an error at once when the first bytes cannot begin a session file.
+#[test]
+fn the_header_is_read_from_the_first_bytes_of_a_file() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("s.mcap");
+    write_session(&p, &synthetic_ticks(100, 1), WriterOptions::default());
+    let bytes = std::fs::read(&p).unwrap();
+    let full = reader::read_header(&bytes).unwrap();
+    let needed = (0..=bytes.len())
+        .find(|&n| reader::read_header_prefix(&bytes[..n]).unwrap().is_some())
+        .unwrap();
+    assert!(needed < 4096, "the header needs the first {needed} bytes");
+    for n in 0..needed {
+        assert_eq!(reader::read_header_prefix(&bytes[..n]), Ok(None), "{n} bytes");
+    }
+    assert_eq!(reader::read_header_prefix(&bytes[..needed]), Ok(Some(full.clone())));
+    assert_eq!(reader::read_header_prefix(&bytes), Ok(Some(full)));
+    for junk in [&b"P"[..], b"\x89MCAQ", b"PK\x03\x04 a zip archive"] {
+        assert!(reader::read_header_prefix(junk).is_err(), "{junk:?}");
+    }
+}
