@@ -84,6 +84,15 @@ pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
     if m.volumes.ct == m.volumes.labels {
         return Err("volumes.ct and volumes.labels name the same file".into());
     }
+    // Checked before any file is opened: an atlas reads nothing outside its folder, and a path
+    // that would leave it is refused alike whether or not something is there.
+    if let Some(b) = &m.breathing {
+        for (key, file) in [("a1", &b.a1), ("a2", &b.a2), ("a3", &b.a3), ("signal", &b.signal)] {
+            if let Some(file) = file {
+                check_inside(file).map_err(|e| format!("breathing.{key}: {e}"))?;
+            }
+        }
+    }
     let labels = manifest::label_table(&m.labels, &m.heuristic)?;
     let tree = manifest::property_tree(&m.tissues)?;
     stylet_physics::Materials::resolve(&labels, &tree).map_err(|e| e.to_string())?;
@@ -149,6 +158,21 @@ fn check_file_name(name: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// A path the manifest names below the atlas folder (`motion/a1.nii.gz`): relative, of plain
+/// components, never `..`.
+fn check_inside(path: &str) -> Result<(), String> {
+    let ok = !path.is_empty()
+        && !path.contains(['\\', '\0'])
+        && path
+            .split('/')
+            .all(|part| !part.is_empty() && part != "." && part != "..");
+    if ok {
+        Ok(())
+    } else {
+        Err("must be a path inside the atlas directory (relative, without '..')".into())
+    }
+}
+
 pub(crate) fn read_manifest_text(dir: &Path) -> Result<String, AtlasError> {
     if !dir.is_dir() {
         return Err(AtlasError::file(dir, "atlas directory does not exist"));
@@ -179,6 +203,12 @@ pub(crate) fn sha256_file(path: &Path) -> Result<String, AtlasError> {
 
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Reads and checks the `atlas.toml` of the atlas folder `dir` (no volume is read).
+pub fn read_manifest(dir: &Path) -> Result<Manifest, AtlasError> {
+    let text = read_manifest_text(dir)?;
+    parse_manifest(&text).map_err(|e| manifest_error(dir, e))
 }
 
 /// The atlas content hash: SHA-256 of "stylet-atlas-v1\n" followed by one line

@@ -408,3 +408,44 @@ fn a_bad_class_table_is_refused_before_anything_is_read_or_written() {
         .to_string();
     assert_mentions(&e, &["recipe.toml", "inside the data directory"]);
 }
+
+/// Breathing files must lie inside the atlas folder: an absolute path or one through `..` is
+/// refused before anything is opened, with the same answer whether or not a file is there (no
+/// oracle of the server's files through an uploaded atlas).
+#[test]
+fn breathing_paths_outside_the_atlas_are_refused_alike() {
+    let d = tempfile::tempdir().unwrap();
+    let atlas = d.path().join("atlas");
+    fs::create_dir(&atlas).unwrap();
+    write_tiny(&atlas);
+    fs::write(d.path().join("secret.nii.gz"), b"exists").unwrap();
+    let mut answers = Vec::new();
+    for path in [
+        "/etc/passwd",
+        "/no/such/file.nii.gz",
+        "../secret.nii.gz",
+        "../missing.nii.gz",
+        "motion/../../secret.nii.gz",
+    ] {
+        let manifest = fs::read_to_string(atlas.join("atlas.toml")).unwrap();
+        // The tiny atlas breathes with the synthetic motion: its files are measured ones now.
+        let measured = format!("motion = \"measured\"\na1 = {path:?}\n");
+        let edited = if manifest.contains("[breathing]") {
+            manifest.replacen("motion = \"synthetic\"\n", &measured, 1)
+        } else {
+            format!("{manifest}\n[breathing]\n{measured}")
+        };
+        assert!(edited.contains(&measured), "{edited}");
+        let e = stylet_atlas::store::parse_manifest(&edited).unwrap_err();
+        assert_mentions(&e, &["breathing.a1", "inside the atlas directory"]);
+        answers.push(e);
+        let saved = fs::read_to_string(atlas.join("atlas.toml")).unwrap();
+        fs::write(atlas.join("atlas.toml"), &edited).unwrap();
+        let loaded = load_err(&atlas);
+        let counted = stylet_atlas::store::voxel_count(&atlas).unwrap_err().to_string();
+        fs::write(atlas.join("atlas.toml"), saved).unwrap();
+        assert_mentions(&loaded, &["breathing.a1", "inside the atlas directory"]);
+        assert_mentions(&counted, &["breathing.a1", "inside the atlas directory"]);
+    }
+    assert!(answers.windows(2).all(|w| w[0] == w[1]), "{answers:#?}");
+}
