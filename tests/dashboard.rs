@@ -418,6 +418,23 @@ fn every_role_uses_the_dashboard(db: Db, tag: &'static str) {
         for path in ["/sessions", "/cohorts", "/cohorts/c2", "/reports", &format!("/sessions/{tom_ok}")] {
             open(&c, &base, path).await;
         }
+        // Atlases: the admin withdraws the phantom (the box must be ticked); it leaves the
+        // catalogue, and the sessions on it still open.
+        c.find(Locator::Id("nav-atlases")).await.unwrap().click().await.unwrap();
+        c.wait().at_most(Duration::from_secs(20)).for_element(Locator::Id("atlases")).await.unwrap();
+        assert!(text_of(&c, "#atlases").await.contains("in the catalogue"));
+        shot(&c, tag, "15-admin-atlases").await;
+        let form = c.form(Locator::Css("form.withdraw")).await.unwrap();
+        c.find(Locator::Css("form.withdraw input[name=confirm]")).await.unwrap().click().await.unwrap();
+        submit_and_wait(&c, form).await;
+        c.wait().at_most(Duration::from_secs(20)).for_element(Locator::Id("atlases")).await.unwrap();
+        let status = text_of(&c, "#atlases td.status").await;
+        assert!(status.starts_with("withdrawn"), "{status}");
+        assert!(c.find(Locator::Css("form.withdraw")).await.is_err(), "a withdrawn atlas has no Withdraw button");
+        shot(&c, tag, "16-admin-atlas-withdrawn").await;
+        open(&c, &base, "/atlases").await;
+        assert!(c.find(Locator::Css("#catalogue tbody tr")).await.is_err(), "the catalogue still lists it");
+        open(&c, &base, &format!("/sessions/{tom_ok}")).await;
         log_out(&c, &base).await;
         c.close().await.unwrap();
     });

@@ -293,6 +293,10 @@ fn an_admin_deletes_a_session_and_everything_about_it() {
     );
     assert_eq!(status, 201);
     assert!(files_under(&f.data().join("traces")) >= 1);
+    // A frame of the replay player, kept on disk.
+    let (status, png) = common::browser::get_bytes(&format!("{b}/sessions/{id}/frame?view=axial&tick=100"), &root);
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&png));
+    assert!(files_under(&f.data().join("frames")) >= 1);
     for (who, auth) in [("tina", &tina), ("ivan", &ivan)] {
         let (status, body, _) = call("DELETE", &format!("{b}/api/sessions/{id}"), Some(auth), None, false);
         assert_eq!(status, 403, "{who}: {body}");
@@ -311,7 +315,7 @@ fn an_admin_deletes_a_session_and_everything_about_it() {
     assert_eq!(status, 200, "{body}");
     let (status, _, _) = call("GET", &format!("{b}/api/sessions/{id}"), Some(&root), None, false);
     assert_eq!(status, 404);
-    for kind in ["sessions", "traces", "figures"] {
+    for kind in ["sessions", "traces", "figures", "frames"] {
         assert_eq!(files_under(&f.data().join(kind)), 0, "{kind}");
     }
     let (status, _, _) = call("DELETE", &format!("{b}/api/sessions/{id}"), Some(&root), None, false);
@@ -505,6 +509,9 @@ fn slow_and_idle_connections_are_closed() {
         "2",
         "--min-upload-rate",
         "1000000",
+        // Thirteen slow uploads from one account: each must be cut off by the deadline.
+        "--max-uploads-per-account",
+        "64",
         "--max-connections",
         "64",
     ]);
@@ -804,4 +811,510 @@ fn the_service_recovers_after_its_data_directory_was_read_only() {
     assert_eq!(scored["status"], "scored", "{scored}");
     let after = upload("tina-two");
     assert_eq!(wait_scored(b, &tina, &after)["status"], "scored");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Round 2 of the review: one account, or a stranger, exhausting memory and
+// connections. Each test fails on the service before its fix.
+// ---------------------------------------------------------------------------------------------
+
+use common::attack::*;
+
+/// Another account logs in and uploads while an attack runs.
+fn tom_logs_in_and_uploads(b: &str, f: &Fixture) -> u16 {
+    // Within 10 s each, or the attack has starved the server: status 0.
+    let agent = ureq::AgentBuilder::new().timeout(Duration::from_secs(10)).build();
+    let login = agent
+        .post(&format!("{b}/api/login"))
+        .set("Content-Type", "application/json")
+        .send_bytes(br#"{"username":"tom","password":"tom-password"}"#);
+    let Ok(answer) = login else {
+        return 0;
+    };
+    let cookie = answer.header("Set-Cookie").unwrap_or_default().to_string();
+    let token = cookie
+        .strip_prefix("stylet_session=")
+        .and_then(|c| c.split(';').next())
+        .unwrap_or_default()
+        .to_string();
+    let body: serde_json::Value = answer
+        .into_string()
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok())
+        .unwrap_or_default();
+    let csrf = body["csrf_token"].as_str().unwrap_or_default();
+    let upload = agent
+        .post(&format!("{b}/api/sessions"))
+        .set("Cookie", &format!("stylet_session={token}"))
+        .set("X-CSRF-Token", csrf)
+        .set("Content-Type", "application/octet-stream")
+        .send_bytes(&std::fs::read(f.session("tom-ok")).unwrap());
+    match upload {
+        Ok(r) => r.status(),
+        Err(ureq::Error::Status(s, _)) => s,
+        Err(_) => 0,
+    }
+}
+
+/// Defect 1: uploads are authorised from their first bytes and streamed to disk, and one account
+/// may send only a few at once. 100 concurrent 64 MiB uploads of junk behind a valid header
+/// from one trainee: the first few are received (to disk) and refused (422), the rest get 429
+/// with Retry-After before their body is read; with the caps raised so that 32 are received at
+/// once, the server's memory still grows by a fraction of one upload. Another trainee logs in and
+/// uploads meanwhile. (Before: 4-7 GB grew and stayed.)
+#[test]
+fn concurrent_junk_uploads_are_capped_and_streamed_with_bounded_memory() {
+    more_files();
+    let f = Fixture::new();
+    let file = std::fs::read(f.session("tina-ok")).unwrap();
+    let head = header_prefix(&file);
+    const SIZE: u64 = 64 << 20;
+    for (label, extra, uploads) in [
+        ("default caps", &["--workers", "1"][..], 100),
+        (
+            "caps raised to 64",
+            &[
+                "--workers",
+                "1",
+                "--max-uploads",
+                "64",
+                "--max-uploads-per-account",
+                "64",
+            ][..],
+            32,
+        ),
+    ] {
+        let data = f.dir.path().join(format!("data-{}", label.replace(' ', "-")));
+        add_user(&data, &Db::Sqlite, "tina", "trainee", Some("c1"));
+        add_user(&data, &Db::Sqlite, "tom", "trainee", Some("c2"));
+        let server = Server::start(&data, &Db::Sqlite, &f.atlases(), extra);
+        let b = server.base.clone();
+        let addr = b.strip_prefix("http://").unwrap().to_string();
+        let pid = server.child.id();
+        let tina = login(&b, "tina");
+        std::thread::sleep(Duration::from_millis(300));
+        reset_peak(pid);
+        let (_, rss0) = memory_mib(pid);
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let probe = probe_healthz(addr.clone(), stop.clone());
+        let tina = std::sync::Arc::new(tina);
+        let started = Instant::now();
+        let answers: Vec<(u16, String)> = std::thread::scope(|scope| {
+            let senders: Vec<_> = (0..uploads)
+                .map(|_| {
+                    let (addr, tina, head) = (&addr, tina.clone(), &head);
+                    scope.spawn(move || junk_upload(addr, &tina, head, SIZE))
+                })
+                .collect();
+            std::thread::sleep(Duration::from_millis(500));
+            let other = tom_logs_in_and_uploads(&b, &f);
+            assert_eq!(other, 201, "{label}: another trainee's upload during the attack");
+            senders.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        let took = started.elapsed();
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        let healthz = probe.join().unwrap();
+        let (peak, _) = memory_mib(pid);
+        std::thread::sleep(Duration::from_secs(5));
+        let (_, settled) = memory_mib(pid);
+        let mut counts = std::collections::BTreeMap::<u16, usize>::new();
+        for (status, text) in &answers {
+            *counts.entry(*status).or_default() += 1;
+            assert!([422, 429].contains(status), "{label}: {text}");
+            if *status == 429 {
+                assert!(text.to_lowercase().contains("retry-after: 5"), "{label}: {text}");
+            }
+        }
+        println!(
+            "{label}: {uploads} concurrent 64 MiB junk uploads from one trainee in {:.1} s: answers {counts:?}; \
+             server RSS {rss0:.0} MiB, peak {peak:.0} MiB (+{:.0}), 5 s later {settled:.0} MiB; \
+             /healthz p50 {:.1} ms, p99 {:.1} ms, max {:.1} ms ({} probes)",
+            took.as_secs_f64(),
+            peak - rss0,
+            healthz[healthz.len() / 2],
+            p99(&healthz),
+            healthz[healthz.len() - 1],
+            healthz.len()
+        );
+        assert!(counts.get(&422).copied().unwrap_or(0) >= 1, "{label}: {counts:?}");
+        if uploads > 64 {
+            assert!(counts.get(&429).copied().unwrap_or(0) >= 1, "{label}: {counts:?}");
+        }
+        // Received to disk one chunk at a time: a fraction of one upload's size, however many.
+        assert!(peak - rss0 < 64.0, "{label}: {rss0:.0} -> {peak:.0} MiB");
+        assert!(
+            settled - rss0 < 64.0,
+            "{label}: {rss0:.0} -> {settled:.0} MiB after 5 s"
+        );
+        if uploads > 64 {
+            // The default caps keep the server answering (with the caps raised, the figures are
+            // reported above).
+            assert!(p99(&healthz) < 1000.0, "{label}: /healthz p99 {:.0} ms", p99(&healthz));
+        }
+        // Nothing of the refused uploads is left; tom's session is the one file.
+        assert_eq!(
+            files_under(&data.join("sessions")),
+            1,
+            "{:?}",
+            walk(&data.join("sessions"))
+        );
+    }
+}
+
+/// Defect 2: one trainee opening 600 slow uploads (64 B every 2 s) holds at most its two upload
+/// slots, and those only until the minimum rate fails (10 s), not for half an hour; then 600
+/// anonymous connections sending their headers a byte a second hold no serving capacity.
+/// `/healthz` answers within a second throughout and another trainee logs in and uploads.
+/// (Before: the 512-connection cap filled, `/healthz` took 9.7 s or never answered.)
+#[test]
+fn slow_uploads_and_slow_headers_cannot_starve_the_server() {
+    more_files();
+    let (f, server) = serve(&["--workers", "1"]);
+    let b = server.base.clone();
+    let addr = b.strip_prefix("http://").unwrap().to_string();
+    let tina = login(&b, "tina");
+    let head = upload_head(&addr, &tina, 64 << 20);
+    let first = header_prefix(&std::fs::read(f.session("tina-ok")).unwrap());
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let probe = probe_healthz(addr.clone(), stop.clone());
+
+    // 600 slow uploads from one account.
+    let started = Instant::now();
+    let mut slow: Vec<(TcpStream, Vec<u8>, Option<Duration>)> = (0..600)
+        .map(|_| {
+            let mut s = TcpStream::connect(&addr).unwrap();
+            s.write_all(head.as_bytes()).unwrap();
+            let _ = s.write_all(&first[..64]);
+            s.set_nonblocking(true).unwrap();
+            (s, Vec::new(), None)
+        })
+        .collect();
+    let mut sent_at = Instant::now();
+    let mut offset = 64;
+    let mut tom_upload = None;
+    while started.elapsed() < Duration::from_secs(25) && slow.iter().any(|c| c.2.is_none()) {
+        if sent_at.elapsed() >= Duration::from_secs(2) {
+            for (s, _, done) in slow.iter_mut().filter(|c| c.2.is_none()) {
+                let chunk = first.get(offset..offset + 64).unwrap_or(&[0u8; 64]);
+                let _ = s.write_all(chunk);
+                let _ = done;
+            }
+            offset += 64;
+            sent_at = Instant::now();
+        }
+        for (s, answer, done) in slow.iter_mut().filter(|c| c.2.is_none()) {
+            let mut buf = [0u8; 4096];
+            match s.read(&mut buf) {
+                Ok(0) => *done = Some(started.elapsed()),
+                Ok(n) => answer.extend_from_slice(&buf[..n]),
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+                Err(_) => *done = Some(started.elapsed()),
+            }
+        }
+        if tom_upload.is_none() && started.elapsed() > Duration::from_secs(3) {
+            tom_upload = Some(tom_logs_in_and_uploads(&b, &f));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let mut counts = std::collections::BTreeMap::<u16, usize>::new();
+    let mut slowest_408 = Duration::ZERO;
+    for (_, answer, done) in &slow {
+        let (status, text) = status_of(answer);
+        *counts.entry(status).or_default() += 1;
+        assert!(
+            [408, 429].contains(&status),
+            "a slow upload answered {status} (0: nothing): {text}"
+        );
+        let done = done.unwrap_or_else(|| panic!("a slow upload was still open after 25 s: {text}"));
+        if status == 408 {
+            slowest_408 = slowest_408.max(done);
+        }
+    }
+    assert_eq!(
+        tom_upload,
+        Some(201),
+        "another trainee's upload during the slow uploads"
+    );
+    assert_eq!(counts.get(&408).copied(), Some(2), "{counts:?}");
+    // Cut off by the minimum rate over 10 s, not after the upload's whole allowance (34 min).
+    assert!(slowest_408 < Duration::from_secs(20), "{slowest_408:?}");
+    drop(slow);
+
+    // 600 anonymous connections sending their headers a byte a second.
+    let t_loris = Instant::now();
+    let mut loris: Vec<TcpStream> = (0..600)
+        .map(|_| {
+            let mut s = TcpStream::connect(&addr).unwrap();
+            s.write_all(b"G").unwrap();
+            s
+        })
+        .collect();
+    let mut sent = 1;
+    let request = b"GET /healthz HTTP/1.1\r\nHost: x\r\n";
+    let mut tom_during_loris = None;
+    while t_loris.elapsed() < Duration::from_secs(8) {
+        std::thread::sleep(Duration::from_secs(1));
+        for s in &mut loris {
+            let _ = s.write_all(&request[sent % request.len()..sent % request.len() + 1]);
+        }
+        sent += 1;
+        if tom_during_loris.is_none() {
+            tom_during_loris = Some(tom_logs_in_and_uploads(&b, &f));
+        }
+    }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let healthz = probe.join().unwrap();
+    drop(loris);
+    println!(
+        "600 slow uploads from one trainee: answers {counts:?}, the slots' holders cut off after {:.1} s; \
+         then 600 slow-header connections for 8 s; /healthz throughout: p50 {:.1} ms, p99 {:.1} ms, max {:.1} ms ({} probes)",
+        slowest_408.as_secs_f64(),
+        healthz[healthz.len() / 2],
+        p99(&healthz),
+        healthz[healthz.len() - 1],
+        healthz.len()
+    );
+    // tom's second upload is the same file: 200, already stored.
+    assert_eq!(tom_during_loris, Some(200), "another trainee during the slow headers");
+    assert!(p99(&healthz) < 1000.0, "/healthz p99 {:.0} ms", p99(&healthz));
+}
+
+/// A filesystem of `mib` MiB (tmpfs), unmounted when dropped: a disk that can really fill up.
+struct SmallDisk {
+    path: std::path::PathBuf,
+    _dir: tempfile::TempDir,
+}
+
+impl SmallDisk {
+    fn new(mib: u32) -> SmallDisk {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("disk");
+        std::fs::create_dir(&path).unwrap();
+        let out = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={mib}m"), "tmpfs", s(&path)])
+            .output()
+            .expect("mount (util-linux) runs");
+        assert!(
+            out.status.success(),
+            "cannot mount a tmpfs (the tests run as root): {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        SmallDisk { path, _dir: dir }
+    }
+
+    /// Fills what is left of the disk with a file; returns its path.
+    fn fill(&self) -> std::path::PathBuf {
+        let filler = self.path.join("filler");
+        let mut f = std::fs::File::create(&filler).unwrap();
+        let block = vec![1u8; 64 << 10];
+        while f.write_all(&block).is_ok() {}
+        let mut rest = [1u8; 1];
+        while f.write_all(&rest).is_ok() {
+            rest[0] = 1;
+        }
+        filler
+    }
+}
+
+impl Drop for SmallDisk {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount")
+            .args(["-l", s(&self.path)])
+            .status();
+    }
+}
+
+/// Defect 6 (a full disk): an upload is refused with 503 and Retry-After (not 500) before its
+/// body is read, and an admin can still delete a session to make room: the files go first, so
+/// the database has room for its journal. Once there is room again, uploads work.
+#[test]
+fn a_full_disk_answers_503_and_an_admin_can_still_delete() {
+    let f = Fixture::new();
+    let disk = SmallDisk::new(48);
+    let data = disk.path.join("data");
+    let db = Db::Sqlite;
+    add_user(&data, &db, "root", "admin", None);
+    add_user(&data, &db, "tina", "trainee", Some("c1"));
+    let server = Server::start(
+        &data,
+        &db,
+        &f.atlases(),
+        &["--workers", "1", "--min-free-disk-bytes", "1000000"],
+    );
+    let b = &server.base;
+    let (root, tina) = (login(b, "root"), login(b, "tina"));
+    let upload = |name: &str| {
+        raw_post(
+            b,
+            "/api/sessions",
+            Some(&tina),
+            &std::fs::read(f.session(name)).unwrap(),
+        )
+    };
+    let (status, first) = upload("tina-ok");
+    assert_eq!(status, 201, "{first}");
+    let id = first["id"].as_str().unwrap().to_string();
+    assert_eq!(wait_scored(b, &tina, &id)["status"], "scored");
+    let filler = disk.fill();
+    let before = stylet_service::disk::free_bytes(&data).unwrap();
+    // Full: refused before the body is read, and told to try again.
+    let file = std::fs::read(f.session("tina-lung")).unwrap();
+    let addr = b.strip_prefix("http://").unwrap();
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.write_all(upload_head(addr, &tina, file.len() as u64).as_bytes())
+        .unwrap();
+    let _ = s.write_all(&file);
+    let mut answer = Vec::new();
+    let _ = s.read_to_end(&mut answer);
+    let (status, text) = status_of(&answer);
+    assert_eq!(status, 503, "{text}");
+    assert!(
+        text.to_lowercase().contains("retry-after: 1") && text.contains("disk"),
+        "{text}"
+    );
+    assert_eq!(files_under(&data.join("sessions").join(".incoming")), 0);
+    // The admin deletes the session on the full disk (on a connection of its own: a pooled one
+    // may have been closed by the server meanwhile).
+    let Auth::Cookie { token, csrf } = &root else {
+        unreachable!()
+    };
+    let deleted = ureq::AgentBuilder::new()
+        .timeout(Duration::from_secs(30))
+        .build()
+        .delete(&format!("{b}/api/sessions/{id}"))
+        .set("Cookie", &format!("stylet_session={token}"))
+        .set("X-CSRF-Token", csrf)
+        .call();
+    let log = || std::fs::read_to_string(data.join("server.log")).unwrap_or_default();
+    let (status, body) = match deleted {
+        Ok(r) => (r.status(), r.into_string().unwrap_or_default()),
+        Err(ureq::Error::Status(s, r)) => (s, r.into_string().unwrap_or_default()),
+        Err(e) => panic!("the deletion got no answer ({e}); server log:\n{}", log()),
+    };
+    println!("full disk ({before} bytes free): upload 503; admin deletion {status} {body}");
+    assert_eq!(status, 200, "{body}\nserver log:\n{}", log());
+    let (status, _, _) = call("GET", &format!("{b}/api/sessions/{id}"), Some(&root), None, false);
+    assert_eq!(status, 404);
+    // Room again: uploads work.
+    std::fs::remove_file(filler).unwrap();
+    let (status, again) = upload("tina-lung");
+    assert_eq!(status, 201, "{again}");
+    drop(server);
+}
+
+/// Defect 6: an instructor cannot upload for a trainee of their cohort whose account is
+/// disabled (nor can an admin); enabled again, the upload works.
+#[test]
+fn nobody_uploads_for_a_disabled_trainee() {
+    let (f, server) = serve(&["--workers", "1"]);
+    let b = &server.base;
+    let (root, ivan) = (login(b, "root"), login(b, "ivan"));
+    let bytes = std::fs::read(f.session("tina-ok")).unwrap();
+    let (status, body, _) = call("POST", &format!("{b}/api/users/tina/disable"), Some(&root), None, false);
+    assert_eq!(status, 200, "{body}");
+    for (who, auth) in [("ivan", &ivan), ("root", &root)] {
+        let (status, body) = raw_post(b, "/api/sessions", Some(auth), &bytes);
+        assert_eq!(status, 403, "{who}: {body}");
+        assert!(body["error"].as_str().unwrap().contains("disabled"), "{who}: {body}");
+    }
+    assert_eq!(files_under(&f.data().join("sessions")), 0);
+    let (status, _, _) = call("POST", &format!("{b}/api/users/tina/enable"), Some(&root), None, false);
+    assert_eq!(status, 200);
+    let (status, body) = raw_post(b, "/api/sessions", Some(&ivan), &bytes);
+    assert_eq!(status, 201, "{body}");
+}
+
+/// Defect 6: an upload-scoped token cannot log its account out (nor can a full one: tokens do
+/// not log in); the account's login keeps working.
+#[test]
+fn api_tokens_cannot_log_the_account_out() {
+    let (_f, server) = serve(&["--workers", "1"]);
+    let b = &server.base;
+    let tina = login(b, "tina");
+    for scope in ["upload", "full"] {
+        let body = format!(r#"{{"label":"lab pc","scope":"{scope}"}}"#);
+        let (status, made, _) = call(
+            "POST",
+            &format!("{b}/api/tokens"),
+            Some(&tina),
+            Some(body.as_bytes()),
+            true,
+        );
+        assert_eq!(status, 201, "{made}");
+        let token = Auth::Bearer(made["token"].as_str().unwrap().to_string());
+        let (status, body, _) = call("POST", &format!("{b}/api/logout"), Some(&token), None, false);
+        assert_eq!(status, 403, "{scope}: {body}");
+        // Sent with the account's cookie too: still refused, and the login stays.
+        let Auth::Cookie { token: cookie, .. } = &tina else {
+            unreachable!()
+        };
+        let resp = ureq::post(&format!("{b}/api/logout"))
+            .set("Authorization", &format!("Bearer {}", made["token"].as_str().unwrap()))
+            .set("Cookie", &format!("stylet_session={cookie}"))
+            .call();
+        assert!(matches!(resp, Err(ureq::Error::Status(403, _))), "{scope}");
+        let (status, _, _) = call("GET", &format!("{b}/api/sessions"), Some(&tina), None, false);
+        assert_eq!(status, 200, "{scope}: the login was ended");
+    }
+}
+
+/// Defect 5: loaded atlases are held in a cache bounded by bytes. Four atlases of 3.3 M voxels
+/// (copies of the phantom under other names, so four contents): a server whose cache may hold
+/// all of them keeps them resident; one whose cache holds one keeps about one, yet scores a
+/// session on an atlas it let go of (loaded again from disk). (Before: every atlas stayed
+/// resident, 1.2 GB each at 512² × 256.)
+#[test]
+fn loaded_atlases_are_held_in_a_cache_bounded_by_bytes() {
+    let f = Fixture::new();
+    f.users(&Db::Sqlite);
+    let phantom = f.atlases().join("phantom");
+    for k in 2..=4 {
+        let copy = f.atlases().join(format!("phantom-{k}"));
+        std::fs::create_dir_all(&copy).unwrap();
+        for name in ["ct.nii.gz", "labels.nii.gz"] {
+            std::fs::copy(phantom.join(name), copy.join(name)).unwrap();
+        }
+        let manifest = std::fs::read_to_string(phantom.join("atlas.toml")).unwrap();
+        std::fs::write(
+            copy.join("atlas.toml"),
+            manifest.replacen("description = \"", &format!("description = \"Copy {k}. "), 1),
+        )
+        .unwrap();
+    }
+    let mut rss = Vec::new();
+    for (label, budget) in [("all four", "8000000000"), ("one", "1")] {
+        let data = f.dir.path().join(format!("data-{budget}"));
+        add_user(&data, &Db::Sqlite, "tina", "trainee", Some("c1"));
+        let server = Server::start(
+            &data,
+            &Db::Sqlite,
+            &f.atlases(),
+            &["--workers", "1", "--atlas-cache-bytes", budget],
+        );
+        std::thread::sleep(Duration::from_secs(1));
+        let (_, resident) = memory_mib(server.child.id());
+        println!("4 atlases of 3.3 M voxels, a cache for {label}: server RSS {resident:.0} MiB");
+        rss.push(resident);
+        if budget == "1" {
+            // The phantom was loaded first and let go of; a session on it is still scored.
+            let b = &server.base;
+            let tina = login(b, "tina");
+            let (status, up) = raw_post(
+                b,
+                "/api/sessions",
+                Some(&tina),
+                &std::fs::read(f.session("tina-ok")).unwrap(),
+            );
+            assert_eq!(status, 201, "{up}");
+            let scored = wait_scored(b, &tina, up["id"].as_str().unwrap());
+            assert_eq!(scored["status"], "scored", "{scored}");
+        }
+    }
+    // One phantom and its scorer hold about 3.3 M voxels × 18 bytes = 57 MiB.
+    assert!(
+        rss[0] - rss[1] > 100.0,
+        "RSS with room for four {:.0} MiB, for one {:.0} MiB",
+        rss[0],
+        rss[1]
+    );
 }

@@ -8,6 +8,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::time::Duration;
 
 use common::*;
 use serde_json::Value;
@@ -316,6 +317,28 @@ fn bad_publications_are_refused_with_the_reason_and_leave_nothing() {
             replace("validation.toml", record.clone().into_bytes())(f);
         })
     };
+    // The record rewritten to vouch for the content of `files` (its hash computed as the server
+    // does).
+    let vouched = |edit: &dyn Fn(&mut Files)| {
+        let mut edited = files.clone();
+        edit(&mut edited);
+        let tmp = tempfile::tempdir().unwrap();
+        for (name, bytes) in &edited {
+            if !name.contains('/') {
+                std::fs::write(tmp.path().join(name), bytes).unwrap();
+            }
+        }
+        let parsed = stylet_atlas::store::read_manifest(tmp.path()).unwrap();
+        let hash = stylet_atlas::store::content_hash(tmp.path(), &parsed).unwrap();
+        let old = stylet_atlas::store::parse_manifest(&text("atlas.toml")).unwrap();
+        let old_hash = stylet_atlas::store::content_hash(&good, &old).unwrap();
+        let record = text("validation.toml").replace(&old_hash, &hash);
+        with(&|f: &mut Files| {
+            edit(f);
+            replace("validation.toml", record.clone().into_bytes())(f);
+        })
+    };
+    let damaged_vouched = vouched(&replace("ct.nii.gz", ct[..ct.len() / 2].to_vec()));
     let cases: Vec<(&str, Vec<u8>, &str, u16, &str)> = vec![
         (
             "not a tar",
@@ -351,8 +374,16 @@ fn bad_publications_are_refused_with_the_reason_and_leave_nothing() {
             "changed after it was validated",
         ),
         (
+            // The record is checked first, before a volume is read: it vouches for other content.
             "a damaged CT",
             with(&replace("ct.nii.gz", ct[..ct.len() / 2].to_vec())),
+            "application/x-tar",
+            422,
+            "changed after it was validated",
+        ),
+        (
+            "a damaged CT with a record written for it",
+            damaged_vouched.clone(),
             "application/x-tar",
             422,
             "the atlas is damaged: ct.nii.gz",
@@ -596,7 +627,7 @@ fn an_atlas_with_measured_breathing_is_published_with_its_motion() {
         (
             "a field atlas.toml does not name",
             with(&|f| f.push(("motion/a2.nii.gz".into(), field_bytes.clone()))),
-            "motion/a2.nii.gz is not a breathing file atlas.toml names",
+            "\"motion/a2.nii.gz\" is not a breathing file atlas.toml names",
         ),
         (
             "the signal left out",
@@ -671,4 +702,346 @@ fn an_atlas_with_measured_breathing_is_published_with_its_motion() {
     let scored = wait_scored(&b, &tina, json["id"].as_str().unwrap());
     assert_eq!(scored["status"], "scored", "{scored}");
     assert_eq!(scored["atlas_hash"].as_str(), Some(hash.as_str()), "{scored}");
+}
+
+/// Peak and current resident memory of a process (MiB), from /proc.
+fn memory_mib(pid: u32) -> (f64, f64) {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let field = |name: &str| -> f64 {
+        let line = status.lines().find(|l| l.starts_with(name)).unwrap();
+        line.split_whitespace().nth(1).unwrap().parse::<f64>().unwrap() / 1024.0
+    };
+    (field("VmHWM:"), field("VmRSS:"))
+}
+
+/// A 512-byte tar header of `kind` for `name` declaring `size` bytes, its checksum set.
+fn raw_header(name: &str, kind: tar::EntryType, size: u64) -> Vec<u8> {
+    let mut h = tar::Header::new_ustar();
+    h.set_entry_type(kind);
+    h.set_size(size);
+    h.set_mode(0o644);
+    h.as_old_mut().name[..name.len()].copy_from_slice(name.as_bytes());
+    h.set_cksum();
+    h.as_bytes().to_vec()
+}
+
+/// `data` padded to whole 512-byte blocks.
+fn blocks(data: &[u8]) -> Vec<u8> {
+    let mut out = data.to_vec();
+    out.resize(data.len().div_ceil(512) * 512, 0);
+    out
+}
+
+/// Defects 3 and 6 (round 2): archives built to make the server read much, or to tell files
+/// apart, are refused before anything large is read; refusals are short and never echo what was
+/// sent. A PAX `size` that disagrees with its entry's header (a folder: PAX 512, header 0) in
+/// front of a 64 MiB GNU long name; an entry running past the end of the archive; breathing
+/// files outside the atlas (`/etc/passwd` and a path that does not exist answer alike).
+#[test]
+fn hostile_archives_are_refused_before_they_are_read() {
+    let db = Db::Sqlite;
+    let f = Fixture::new();
+    f.users(&db);
+    let srv = Server::start(&f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let b = srv.base.clone();
+    let token = full_token(&b, "root");
+    let pid = srv.child.id();
+    std::fs::write(format!("/proc/{pid}/clear_refs"), "5").unwrap();
+    let (_, rss0) = memory_mib(pid);
+
+    // The PAX record says the folder has 512 bytes; its header says 0. After it, a block of
+    // zeros: a reader believing the header takes it for the end of the archive, one believing the
+    // PAX record for the folder's data, and reads on: a GNU long name of 64 MiB.
+    let long: u64 = 64 << 20;
+    let mut pax_then_long = Vec::new();
+    let record = b"12 size=512\n";
+    pax_then_long.extend(raw_header(
+        "PaxHeaders/scripts",
+        tar::EntryType::XHeader,
+        record.len() as u64,
+    ));
+    pax_then_long.extend(blocks(record));
+    pax_then_long.extend(raw_header("scripts/", tar::EntryType::Directory, 0));
+    pax_then_long.extend([0u8; 512]);
+    pax_then_long.extend(raw_header("././@LongLink", tar::EntryType::GNULongName, long));
+    pax_then_long.extend(std::iter::repeat_n(b'a', long as usize));
+    pax_then_long.extend(raw_header("atlas.toml", tar::EntryType::Regular, 0));
+    pax_then_long.extend([0u8; 1024]);
+
+    let mut past_end = raw_header("ct.nii.gz", tar::EntryType::Regular, 1 << 30);
+    past_end.extend([7u8; 4096]);
+
+    let good = f.dir.path().join("other-atlas");
+    ok(&["atlas", "validate", s(&good)]);
+    let with_breathing = |a1: &str| {
+        let mut files = atlas_files(&good);
+        for (name, bytes) in files.iter_mut() {
+            if name == "atlas.toml" {
+                let text = String::from_utf8(bytes.clone()).unwrap();
+                assert!(text.contains("motion = \"synthetic\"\n"), "the atlas breathes");
+                *bytes = text
+                    .replacen(
+                        "motion = \"synthetic\"\n",
+                        &format!("motion = \"measured\"\na1 = {a1:?}\n"),
+                        1,
+                    )
+                    .into_bytes();
+            }
+        }
+        let refs: Vec<(&str, Vec<u8>)> = files.iter().map(|(n, b)| (n.as_str(), b.clone())).collect();
+        tar_of(&refs)
+    };
+
+    for (what, body, reason) in [
+        (
+            "a PAX size that disagrees, before a 64 MiB long name",
+            pax_then_long,
+            "a PAX record gives an entry 512 bytes, its header 0",
+        ),
+        ("an entry past the end", past_end, "runs past the end of the archive"),
+    ] {
+        let (status, json) = raw_post_as(
+            &b,
+            "/api/atlases",
+            Some(&Auth::Bearer(token.clone())),
+            "application/x-tar",
+            &body,
+        );
+        let text = json.to_string();
+        assert_eq!(status, 422, "{what}: {}", &text[..text.len().min(300)]);
+        assert!(text.len() < 4096, "{what}: a {}-byte refusal", text.len());
+        assert!(!text.contains("aaaaaaaaaaaaaaaa"), "{what}: the name was echoed");
+        assert!(text.contains(reason), "{what}: {text}");
+    }
+    let (peak, _) = memory_mib(pid);
+    println!("hostile archives: server RSS {rss0:.0} MiB, peak {peak:.0} MiB");
+    // The 64 MiB name was never read into memory.
+    assert!(peak - rss0 < 32.0, "{rss0:.0} -> {peak:.0} MiB");
+
+    // Files outside the atlas: the same answer whether or not something is there.
+    let answers: Vec<(u16, String)> = [
+        "/etc/passwd",
+        "/no/such/file.nii.gz",
+        "../../stylet.db",
+        "../../nothing",
+    ]
+    .iter()
+    .map(|p| post_tar(&b, &token, &with_breathing(p), "application/x-tar"))
+    .collect();
+    for (status, error) in &answers {
+        assert_eq!(*status, 422, "{error}");
+        assert!(
+            error.contains("breathing.a1") && error.contains("inside the atlas directory"),
+            "{error}"
+        );
+    }
+    assert!(answers.windows(2).all(|w| w[0] == w[1]), "{answers:#?}");
+    assert!(
+        published_entries(&f.data()).is_empty(),
+        "{:?}",
+        published_entries(&f.data())
+    );
+}
+
+/// `stylet atlas unpublish HASH --server BASE` with `token` in STYLET_TOKEN.
+fn unpublish_cli(hash: &str, base: &str, token: &str) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_stylet"))
+        .args(["atlas", "unpublish", hash, "--server", base])
+        .env("STYLET_TOKEN", token)
+        .output()
+        .unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// Defects 4, 5 and 6 (round 2). Two publications whose archives arrive slowly do not hold up a
+/// third. An atlas published before is not checked again (a server whose voxel limit it no
+/// longer meets takes it back at once). Withdrawing (`DELETE /api/atlases/{hash}`, admins only,
+/// and `stylet atlas unpublish`): the atlas leaves the catalogue and takes no new sessions, the
+/// sessions on it stay readable and replayable, every step audited; publishing it again
+/// reinstates it. The server runs with a one-byte atlas cache, so every atlas it needs is loaded
+/// again from disk: scores and player frames still come.
+#[test]
+fn publications_arrive_side_by_side_and_atlases_are_withdrawn() {
+    let db = Db::Sqlite;
+    let f = Fixture::new();
+    f.users(&db);
+    let data = f.data();
+    let good = f.dir.path().join("other-atlas");
+    ok(&["atlas", "validate", s(&good)]);
+    let archive = {
+        let files = atlas_files(&good);
+        let refs: Vec<(&str, Vec<u8>)> = files.iter().map(|(n, b)| (n.as_str(), b.clone())).collect();
+        tar_of(&refs)
+    };
+    let extra = [
+        "--workers",
+        "1",
+        "--min-upload-rate",
+        "1024",
+        "--atlas-cache-bytes",
+        "1",
+    ];
+    let srv = Server::start(&data, &db, &f.atlases(), &extra);
+    let b = srv.base.clone();
+    let addr = b.strip_prefix("http://").unwrap().to_string();
+    let (root_token, ivan_token) = (full_token(&b, "root"), full_token(&b, "ivan"));
+    let configured = catalogue(&b, &login(&b, "tina"))[0]["content_hash"].clone();
+
+    // Two slow publications (a few KB/s of a 1 MB archive), then a third, whole.
+    let slow: Vec<std::net::TcpStream> = [&root_token, &ivan_token]
+        .iter()
+        .map(|t| {
+            use std::io::Write;
+            let mut sock = std::net::TcpStream::connect(&addr).unwrap();
+            let head = format!(
+                "POST /api/atlases HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {t}\r\n\
+                 Content-Type: application/x-tar\r\nContent-Length: 1000000\r\n\r\n"
+            );
+            sock.write_all(head.as_bytes()).unwrap();
+            sock.write_all(&[0u8; 4096]).unwrap();
+            sock
+        })
+        .collect();
+    let feeding = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
+    let feeder = {
+        let feeding = feeding.clone();
+        std::thread::spawn(move || {
+            use std::io::Write;
+            let mut slow = slow;
+            while feeding.load(std::sync::atomic::Ordering::Relaxed) {
+                for sock in &mut slow {
+                    let _ = sock.write_all(&[0u8; 2048]);
+                }
+                std::thread::sleep(Duration::from_secs(1));
+            }
+        })
+    };
+    std::thread::sleep(Duration::from_secs(2));
+    let (status, error) = post_tar(&b, &root_token, &archive, "application/x-tar");
+    feeding.store(false, std::sync::atomic::Ordering::Relaxed);
+    feeder.join().unwrap();
+    assert_eq!(status, 201, "a publication beside two slow ones: {error}");
+    let hash = catalogue(&b, &login(&b, "tina"))
+        .iter()
+        .find(|a| a["content_hash"] != configured)
+        .map(|a| a["content_hash"].as_str().unwrap().to_string())
+        .unwrap();
+
+    // A session on it, scored; then withdrawn by an admin (not by an instructor).
+    let tina = login(&b, "tina");
+    let session = std::fs::read(f.session("tina-other-atlas")).unwrap();
+    let (status, up) = raw_post(&b, "/api/sessions", Some(&tina), &session);
+    assert_eq!(status, 201, "{up}");
+    let id = up["id"].as_str().unwrap().to_string();
+    assert_eq!(wait_scored(&b, &tina, &id)["status"], "scored");
+    let url = format!("{b}/api/atlases/{hash}");
+    let ivan = Auth::Bearer(ivan_token.clone());
+    let (status, body, _) = call("DELETE", &url, Some(&ivan), None, false);
+    assert_eq!(status, 403, "{body}");
+    let root = Auth::Bearer(root_token.clone());
+    let (status, body, _) = call("DELETE", &url, Some(&root), None, false);
+    assert_eq!(status, 200, "{body}");
+    assert_eq!(body["status"], "withdrawn");
+    let (status, _, _) = call("DELETE", &url, Some(&root), None, false);
+    assert_eq!(status, 409, "withdrawn twice");
+    let (status, _, _) = call(
+        "DELETE",
+        &format!("{b}/api/atlases/{}", "0".repeat(64)),
+        Some(&root),
+        None,
+        false,
+    );
+    assert_eq!(status, 404);
+    assert!(catalogue(&b, &tina).iter().all(|a| a["content_hash"] != hash.as_str()));
+    // No new sessions on it; the old one stays readable and replayable.
+    let mut again =
+        stylet_recorder::reader::read_bytes(&session, stylet_recorder::Mode::Strict, &Default::default()).unwrap();
+    again.header.session_id = stylet_recorder::new_session_id();
+    let other = f.dir.path().join("again.mcap");
+    let w = stylet_recorder::SessionWriter::create(&other, &again.header, Default::default()).unwrap();
+    for e in &again.events {
+        w.event_record_blocking(e.clone()).unwrap();
+    }
+    for d in &again.digests {
+        w.digest_blocking(d.tick, d.digest).unwrap();
+    }
+    w.record_read_blocking(&again.ticks, &again.output_checks).unwrap();
+    w.finish().unwrap();
+    let (status, refused) = raw_post(&b, "/api/sessions", Some(&tina), &std::fs::read(&other).unwrap());
+    assert_eq!(status, 422, "{refused}");
+    assert!(refused["error"].as_str().unwrap().contains("withdrawn"), "{refused}");
+    let (status, row, _) = call("GET", &format!("{b}/api/sessions/{id}"), Some(&tina), None, false);
+    assert_eq!((status, row["status"].as_str()), (200, Some("scored")), "{row}");
+    let frame = format!("{b}/sessions/{id}/frame?view=axial&tick=100");
+    let (status, png) = common::browser::get_bytes(&frame, &tina);
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&png));
+    assert!(png.starts_with(b"\x89PNG"));
+    assert_eq!(audits(&db, &data, "atlas.withdraw").len(), 1);
+
+    // Published again: reinstated, at once (the checks ran when it was first published).
+    let (status, error) = post_tar(&b, &ivan_token, &archive, "application/x-tar");
+    assert_eq!(status, 201, "{error}");
+    assert!(catalogue(&b, &tina).iter().any(|a| a["content_hash"] == hash.as_str()));
+    // And withdrawn again from the command line.
+    let (ok_, out, err) = unpublish_cli(&hash, &b, &root_token);
+    assert!(ok_ && out.contains("withdrawn"), "{out}{err}");
+    let (ok_, _, err) = unpublish_cli(&hash, &b, &ivan_token);
+    assert!(!ok_ && err.contains("403"), "{err}");
+    assert_eq!(audits(&db, &data, "atlas.withdraw").len(), 2);
+    drop(srv);
+
+    // After a restart it is still withdrawn, and its session still replays.
+    let srv = Server::start(&data, &db, &f.atlases(), &["--workers", "1", "--max-atlas-voxels", "1"]);
+    let b = srv.base.clone();
+    let tina = login(&b, "tina");
+    assert!(catalogue(&b, &tina).iter().all(|a| a["content_hash"] != hash.as_str()));
+    let (status, _) = common::browser::get_bytes(&format!("{b}/sessions/{id}/frame?view=3d&tick=200"), &tina);
+    assert_eq!(status, 200);
+    // This server's voxel limit (1) refuses any new atlas; one it has checked before is taken
+    // back without checking it again.
+    let root_token = full_token(&b, "root");
+    let (status, error) = post_tar(&b, &root_token, &archive, "application/x-tar");
+    assert_eq!(status, 201, "{error}");
+    let (status, error) = post_tar(&b, &root_token, &archive, "application/x-tar");
+    assert_eq!(status, 200, "{error}");
+}
+
+/// Defect 6 (round 2): a folder in the atlas store without its publication record in the
+/// database (copied there by hand, or left by a crash between the rename and the row) is not
+/// served: it is not in the catalogue, sessions on it are refused, and the log says why.
+#[test]
+fn an_atlas_folder_without_its_publication_record_is_not_served() {
+    let db = Db::Sqlite;
+    let f = Fixture::new();
+    f.users(&db);
+    let data = f.data();
+    let other = f.dir.path().join("other-atlas");
+    let manifest = stylet_atlas::store::read_manifest(&other).unwrap();
+    let hash = stylet_atlas::store::content_hash(&other, &manifest).unwrap();
+    let planted = data.join("atlases").join(&hash);
+    std::fs::create_dir_all(&planted).unwrap();
+    for name in ["atlas.toml", "ct.nii.gz", "labels.nii.gz"] {
+        std::fs::copy(other.join(name), planted.join(name)).unwrap();
+    }
+    let srv = Server::start(&data, &db, &f.atlases(), &["--workers", "1"]);
+    let b = srv.base.clone();
+    let tina = login(&b, "tina");
+    let listed = catalogue(&b, &tina);
+    assert_eq!(listed.len(), 1, "{listed:?}");
+    assert!(listed.iter().all(|a| a["content_hash"] != hash.as_str()), "{listed:?}");
+    let (status, body) = raw_post(
+        &b,
+        "/api/sessions",
+        Some(&tina),
+        &std::fs::read(f.session("tina-other-atlas")).unwrap(),
+    );
+    assert_eq!(status, 422, "{body}");
+    assert!(body["error"].as_str().unwrap().contains("does not know"), "{body}");
+    let log = std::fs::read_to_string(data.join("server.log")).unwrap();
+    assert!(log.contains("no publication record"), "{log}");
+    assert!(audits(&db, &data, "atlas.publish").is_empty());
 }

@@ -5,7 +5,7 @@ use axum::http::{HeaderMap, StatusCode, Uri, header};
 use axum::response::{IntoResponse, Redirect, Response};
 use maud::html;
 use stylet_service::AppState;
-use stylet_service::api::ApiError;
+use stylet_service::api::{ApiError, hold_request_slot};
 use stylet_service::auth::{from_other_site, token_from_cookie_header};
 use stylet_service::store::{Role, StoreError, User};
 
@@ -59,16 +59,27 @@ impl IntoResponse for PageError {
         match self {
             PageError::Login { next } => Redirect::to(&format!("/login?next={}", encode_query(&next))).into_response(),
             PageError::Status(status, msg) => {
+                let msg = stylet_service::api::bounded(&msg, stylet_service::api::MAX_ERROR_MESSAGE_BYTES);
                 let body = html! {
                     h1 { (status.as_u16()) " " (status.canonical_reason().unwrap_or("")) }
                     p.error { (msg) }
                     p { a href="/" { "Home" } }
                 };
-                (
+                let mut r = (
                     status,
                     layout::page(status.canonical_reason().unwrap_or("Error"), None, body),
                 )
-                    .into_response()
+                    .into_response();
+                let retry_after_s = match status {
+                    StatusCode::TOO_MANY_REQUESTS => Some(stylet_service::slots::RETRY_AFTER_S),
+                    StatusCode::SERVICE_UNAVAILABLE => Some(1),
+                    _ => None,
+                };
+                if let Some(after) = retry_after_s {
+                    r.headers_mut()
+                        .insert(header::RETRY_AFTER, axum::http::HeaderValue::from(after));
+                }
+                r
             }
         }
     }
@@ -107,7 +118,9 @@ impl axum::extract::FromRequestParts<std::sync::Arc<AppState>> for Viewer {
         parts: &mut axum::http::request::Parts,
         s: &std::sync::Arc<AppState>,
     ) -> Result<Self, PageError> {
-        viewer(s, &parts.headers, &parts.uri).await
+        let v = viewer(s, &parts.headers, &parts.uri).await?;
+        hold_request_slot(s, parts, &v.user)?;
+        Ok(v)
     }
 }
 
@@ -119,7 +132,10 @@ impl axum::extract::OptionalFromRequestParts<std::sync::Arc<AppState>> for Viewe
         s: &std::sync::Arc<AppState>,
     ) -> Result<Option<Self>, PageError> {
         match viewer(s, &parts.headers, &parts.uri).await {
-            Ok(v) => Ok(Some(v)),
+            Ok(v) => {
+                hold_request_slot(s, parts, &v.user)?;
+                Ok(Some(v))
+            }
             Err(PageError::Login { .. }) => Ok(None),
             Err(e) => Err(e),
         }

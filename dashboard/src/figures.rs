@@ -124,10 +124,7 @@ pub async fn session_figure(
         return Ok(Some(bytes));
     }
     let trace = review_trace(s, file_sha256, atlas_hash).await?;
-    let scorer = s
-        .catalogue
-        .scorer(atlas_hash)
-        .ok_or("the session's atlas is not loaded on this server")?;
+    let scorer = s.catalogue.loaded(atlas_hash).await.map_err(|e| e.to_string())?.scorer;
     let Some(spec) = spec(&scorer, report, &trace, figure, title, corridor.as_deref()) else {
         return Ok(None);
     };

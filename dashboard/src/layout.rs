@@ -148,6 +148,7 @@ fn navigation(v: &Viewer) -> Markup {
                 @if role != "trainee" { a href="/compare" { "Compare" } }
                 @if role == "curriculum" || role == "admin" { a href="/reports" { "Reports" } }
                 @if role == "admin" { a href="/admin/users" { "Accounts" } }
+                @if role == "admin" { a #nav-atlases href="/admin/atlases" { "Atlases" } }
                 a href="/tokens" { "API tokens" }
             }
             span.who { (v.user.username) " (" (role) ")" }

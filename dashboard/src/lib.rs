@@ -23,6 +23,20 @@ use axum::extract::DefaultBodyLimit;
 use axum::routing::{get, post};
 use stylet_service::AppState;
 
+/// The dashboard, as `stylet serve` mounts it beside the API.
+pub const MOUNT: stylet_service::Mount = stylet_service::Mount { router, openapi };
+
+/// The part of the OpenAPI document for the dashboard's routes that programs call (the player's
+/// frames); the pages themselves are for browsers.
+#[derive(utoipa::OpenApi)]
+#[openapi(paths(player::frame, player::overview::frame))]
+struct PlayerApi;
+
+/// [`PlayerApi`]'s document.
+pub fn openapi() -> utoipa::openapi::OpenApi {
+    <PlayerApi as utoipa::OpenApi>::openapi()
+}
+
 /// The dashboard's routes (`stylet serve` merges them with the API's).
 pub fn router(state: Arc<AppState>) -> Router {
     // A multipart upload carries the file plus a little form overhead.
@@ -58,6 +72,11 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/reports/cohort.pdf", get(pages::reports::cohort_report_pdf))
         .route("/admin/users", get(pages::admin::users).post(pages::admin::add_user))
         .route("/admin/users/import", post(pages::admin::import))
+        .route("/admin/atlases", get(pages::admin_atlases::index))
+        .route(
+            "/admin/atlases/{hash}/withdraw",
+            post(pages::admin_atlases::withdraw_form),
+        )
         .route("/admin/users/{username}/status", post(pages::admin::set_status))
         .route("/admin/users/{username}/password", post(pages::admin::set_password))
         .route("/admin/users/{username}/set", post(pages::admin::set_user))

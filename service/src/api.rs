@@ -10,8 +10,9 @@ use axum::body::{Body, Bytes};
 use axum::extract::{Path, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use axum::routing::{get, post};
 use serde_json::json;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
 
 use super::AppState;
 use super::auth;
@@ -48,9 +49,10 @@ pub enum ApiError {
     /// 422: a bulk import with bad lines (every one named); nothing was imported.
     #[error("{}", AccountError::Import(.0.clone()))]
     ImportRejected(Vec<ImportLineError>),
-    /// 429.
-    #[error("{0}")]
-    TooManyRequests(String),
+    /// 429: this account (or this client) is over a rate or a cap; try again after
+    /// `retry_after_s` (sent as `Retry-After`).
+    #[error("{message}")]
+    Throttled { message: String, retry_after_s: u32 },
     /// 503: overload or storage that cannot write now; try again shortly.
     #[error("{0}")]
     Unavailable(String),
@@ -74,7 +76,7 @@ impl ApiError {
             ApiError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
             ApiError::UnsupportedMediaType(_) => StatusCode::UNSUPPORTED_MEDIA_TYPE,
             ApiError::ImportRejected(_) => StatusCode::UNPROCESSABLE_ENTITY,
-            ApiError::TooManyRequests(_) => StatusCode::TOO_MANY_REQUESTS,
+            ApiError::Throttled { .. } => StatusCode::TOO_MANY_REQUESTS,
             ApiError::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
             ApiError::Internal => StatusCode::INTERNAL_SERVER_ERROR,
             ApiError::Other(status, _) => *status,
@@ -85,20 +87,46 @@ impl ApiError {
     pub fn message(&self) -> String {
         self.to_string()
     }
+
+    /// When the client may try again (s), sent as `Retry-After`: for 429 and 503.
+    pub fn retry_after_s(&self) -> Option<u32> {
+        match self {
+            ApiError::Throttled { retry_after_s, .. } => Some(*retry_after_s),
+            // Overload and an unwritable store pass: clients may try again shortly.
+            ApiError::Unavailable(_) => Some(1),
+            _ => None,
+        }
+    }
+}
+
+/// Longest error message sent (bytes): a message that quotes what a client sent is cut here, so
+/// an error body never grows with the input.
+pub const MAX_ERROR_MESSAGE_BYTES: usize = 4096;
+
+/// `text` cut to at most `max` bytes at a character boundary, with "…" when cut.
+pub fn bounded(text: &str, max: usize) -> String {
+    if text.len() <= max {
+        return text.to_string();
+    }
+    let mut end = max.saturating_sub('…'.len_utf8());
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    format!("{}…", &text[..end])
 }
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         let status = self.status();
+        let message = bounded(&self.message(), MAX_ERROR_MESSAGE_BYTES);
         let body = match &self {
-            ApiError::ImportRejected(lines) => json!({ "error": self.message(), "lines": lines }),
-            _ => json!({ "error": self.message() }),
+            ApiError::ImportRejected(lines) => json!({ "error": message, "lines": lines }),
+            _ => json!({ "error": message }),
         };
         let mut r = (status, Json(body)).into_response();
-        if status == StatusCode::SERVICE_UNAVAILABLE {
-            // Overload and an unwritable store pass: clients may try again shortly.
+        if let Some(s) = self.retry_after_s() {
             r.headers_mut()
-                .insert(header::RETRY_AFTER, axum::http::HeaderValue::from_static("1"));
+                .insert(header::RETRY_AFTER, axum::http::HeaderValue::from(s));
         }
         r
     }
@@ -115,7 +143,10 @@ pub fn err(status: StatusCode, msg: impl Into<String>) -> ApiError {
         StatusCode::CONFLICT => ApiError::Conflict(msg),
         StatusCode::PAYLOAD_TOO_LARGE => ApiError::TooLarge(msg),
         StatusCode::UNSUPPORTED_MEDIA_TYPE => ApiError::UnsupportedMediaType(msg),
-        StatusCode::TOO_MANY_REQUESTS => ApiError::TooManyRequests(msg),
+        StatusCode::TOO_MANY_REQUESTS => ApiError::Throttled {
+            message: msg,
+            retry_after_s: super::slots::RETRY_AFTER_S,
+        },
         StatusCode::SERVICE_UNAVAILABLE => ApiError::Unavailable(msg),
         status => ApiError::Other(status, msg),
     }
@@ -143,43 +174,47 @@ impl From<AccountError> for ApiError {
     }
 }
 
-pub fn router(state: AppRef) -> Router {
-    Router::new()
-        .route("/healthz", get(healthz))
-        .route("/api/openapi.json", get(openapi))
-        .route("/api/login", post(login))
-        .route("/api/logout", post(logout))
-        .route(
-            "/api/tokens",
-            post(super::tokens::create_token).get(super::tokens::list_tokens),
-        )
-        .route("/api/tokens/{id}/revoke", post(super::tokens::revoke_token))
-        .route("/api/users", post(super::users::add_or_import).get(super::users::list))
-        .route(
-            "/api/users/{username}",
-            get(super::users::get_one).patch(super::users::patch),
-        )
-        .route("/api/users/{username}/disable", post(super::users::disable))
-        .route("/api/users/{username}/enable", post(super::users::enable))
-        .route("/api/users/{username}/password", post(super::users::password))
-        .route(
-            "/api/atlases",
-            post(super::atlases::publish_atlas).get(super::atlases::list),
-        )
-        .route("/api/sessions", post(upload).get(list_sessions))
-        .route("/api/sessions/{id}", get(get_session).delete(delete_session))
-        .route("/api/sessions/{id}/file", get(get_session_file))
-        .route("/api/sessions/{id}/override", post(override_grade))
-        .route("/api/sessions/{id}/comments", post(add_comment))
-        .route(
-            "/api/sessions/{id}/expert",
-            post(super::experts::mark).delete(super::experts::unmark),
-        )
-        .route("/api/sessions/{id}/benchmark", get(super::experts::get))
-        .route("/api/trainees/{username}/progress", get(progress))
-        .route("/api/cohorts/{name}/summary", get(cohort_summary))
-        .route("/api/export/sessions.csv", get(export_csv))
-        .with_state(state)
+/// The API's routes, each registered from its annotated handler: the router and the OpenAPI
+/// document's paths come from the same list ([`super::openapi`]).
+pub fn routes() -> OpenApiRouter<AppRef> {
+    OpenApiRouter::new()
+        .routes(routes!(healthz))
+        .routes(routes!(openapi))
+        .routes(routes!(login))
+        .routes(routes!(logout))
+        .routes(routes!(super::tokens::create_token, super::tokens::list_tokens))
+        .routes(routes!(super::tokens::revoke_token))
+        .routes(routes!(super::users::add_or_import, super::users::list))
+        .routes(routes!(super::users::get_one, super::users::patch))
+        .routes(routes!(super::users::disable))
+        .routes(routes!(super::users::enable))
+        .routes(routes!(super::users::password))
+        .routes(routes!(super::atlases::publish_atlas, super::atlases::list))
+        .routes(routes!(super::atlases::unpublish))
+        .routes(routes!(upload, list_sessions))
+        .routes(routes!(get_session, delete_session))
+        .routes(routes!(get_session_file))
+        .routes(routes!(override_grade))
+        .routes(routes!(add_comment))
+        .routes(routes!(super::experts::mark, super::experts::unmark))
+        .routes(routes!(super::experts::get))
+        .routes(routes!(progress))
+        .routes(routes!(cohort_summary))
+        .routes(routes!(export_csv))
+}
+
+/// The API's router; its OpenAPI document (with `more`, the paths of the routes mounted beside
+/// it) is kept in the state for `GET /api/openapi.json`.
+pub fn router(state: AppRef, more: Option<utoipa::openapi::OpenApi>) -> Router {
+    let (router, mut paths) = routes().split_for_parts();
+    if let Some(more) = more {
+        paths.merge(more);
+    }
+    let doc = super::openapi::document(paths);
+    let _ = state
+        .openapi
+        .set(serde_json::to_value(&doc).expect("the OpenAPI document serializes"));
+    router.with_state(state)
 }
 
 /// Gives every request an id (the client's `X-Request-Id` if sensible, else a new UUID), logs it
@@ -220,12 +255,21 @@ pub fn require_admin(user: &User) -> Result<(), ApiError> {
     }
 }
 
-async fn openapi() -> Json<serde_json::Value> {
-    Json(super::openapi::document())
+/// This document.
+#[utoipa::path(get, path = "/api/openapi.json", tag = "service",
+    responses((status = 200, description = "OpenAPI 3.1", content_type = "application/json", body = Object)))]
+async fn openapi(State(s): State<AppRef>) -> Json<serde_json::Value> {
+    Json(s.openapi.get().cloned().unwrap_or_default())
 }
 
 /// GET /healthz: 200 while the service can read and write its database and data directory,
 /// 503 otherwise (checked by writing, at most once a second).
+#[utoipa::path(get, path = "/healthz", tag = "service",
+    summary = "Health: the database and the data directory can be written",
+    responses(
+        (status = 200, description = "healthy", body = super::openapi::Health),
+        (status = 503, description = "the database or the data directory cannot be written", body = super::openapi::ErrorBody),
+    ))]
 async fn healthz(State(s): State<AppRef>) -> Response {
     let probe = async {
         if let Err(e) = s.store.probe_write().await {
@@ -371,6 +415,15 @@ pub(crate) async fn simulator_user(s: &AppState, headers: &HeaderMap, writes: bo
     user_for(s, headers, TokenUse::Upload, writes).await
 }
 
+/// Counts the request against its account's requests in flight
+/// ([`super::Limits::max_requests_per_account`]; 429 past it) until it has been answered.
+pub fn hold_request_slot(s: &AppState, parts: &axum::http::request::Parts, user: &User) -> Result<(), ApiError> {
+    match parts.extensions.get::<super::slots::InFlight>() {
+        Some(slot) => slot.hold(&s.request_slots, &user.id),
+        None => Ok(()),
+    }
+}
+
 /// Extractors of the logged-in user (`FromRequestParts`): a handler names who may call it in its
 /// arguments instead of looking the user up itself. Each applies [`user_for`] with its token use
 /// and whether the request writes (CSRF for cookies); the `Admin…` ones also require an admin.
@@ -384,6 +437,7 @@ macro_rules! user_extractor {
 
             async fn from_request_parts(parts: &mut axum::http::request::Parts, s: &AppRef) -> Result<Self, ApiError> {
                 let user = user_for(s, &parts.headers, $tokens, $writes).await?;
+                hold_request_slot(s, parts, &user)?;
                 if $admin {
                     require_admin(&user)?;
                 }
@@ -422,9 +476,11 @@ user_extractor!(
     CookieActor, TokenUse::None, true, false
 );
 
-#[derive(serde::Deserialize)]
+#[derive(serde::Deserialize, utoipa::ToSchema)]
 struct LoginRequest {
+    #[schema(max_length = 64)]
     username: String,
+    #[schema(max_length = 4096)]
     password: String,
 }
 
@@ -435,6 +491,18 @@ pub const LOGIN_TTL_S: u64 = 12 * 3600;
 pub const LOGIN_FAILURES_ALLOWED: usize = 5;
 pub const LOGIN_WINDOW: std::time::Duration = std::time::Duration::from_secs(300);
 
+#[utoipa::path(post, path = "/api/login", tag = "accounts",
+    summary = "Log in; sets the stylet_session cookie",
+    request_body(content = LoginRequest, content_type = "application/json"),
+    responses(
+        (status = 200, description = "logged in", body = super::openapi::LoginAnswer),
+        (status = 400, description = "malformed body", body = super::openapi::ErrorBody),
+        (status = 401, description = "wrong username or password", body = super::openapi::ErrorBody),
+        (status = 403, description = "sent from another site (Sec-Fetch-Site, or an Origin or Referer that is not this server), or the account is disabled", body = super::openapi::ErrorBody),
+        (status = 413, description = "a body over the limit of other requests (--max-body-bytes)", body = super::openapi::ErrorBody),
+        (status = 415, description = "not application/json", body = super::openapi::ErrorBody),
+        (status = 429, description = "too many failed logins for this account; Retry-After says when to try again", body = super::openapi::ErrorBody),
+    ))]
 async fn login(State(s): State<AppRef>, headers: HeaderMap, body: Bytes) -> Result<Response, ApiError> {
     if auth::from_other_site(&headers) {
         return Err(err(StatusCode::FORBIDDEN, "logins sent from other sites are refused"));
@@ -487,10 +555,10 @@ pub async fn log_in(s: &AppState, username: &str, password: &str) -> Result<(Use
     recent.retain(|t| now.duration_since(*t) < LOGIN_WINDOW);
     if recent.len() >= LOGIN_FAILURES_ALLOWED {
         let wait = LOGIN_WINDOW.saturating_sub(now.duration_since(recent[0])).as_secs() + 1;
-        return Err(err(
-            StatusCode::TOO_MANY_REQUESTS,
-            format!("too many failed logins for this account; try again in {wait} s"),
-        ));
+        return Err(ApiError::Throttled {
+            message: format!("too many failed logins for this account; try again in {wait} s"),
+            retry_after_s: wait as u32,
+        });
     }
     let candidate = s.store.login_candidate(username).await?;
     // Same work whether or not the account exists, so timing does not reveal which do.
@@ -518,7 +586,23 @@ pub async fn log_in(s: &AppState, username: &str, password: &str) -> Result<(Use
     Ok((user, token, csrf))
 }
 
+/// POST /api/logout: ends the login of the cookie sent (none: nothing to end). API tokens do
+/// not log in, so they cannot log out either: a request with one is refused (403), whatever its
+/// scope, so that a token (an upload-scoped one on a lab's simulator) cannot end its account's
+/// logins.
+#[utoipa::path(post, path = "/api/logout", tag = "accounts",
+    summary = "Log out: ends the login of the cookie sent",
+    responses(
+        (status = 200, description = "logged out", body = super::openapi::LogoutAnswer),
+        (status = 403, description = "sent with an API token: tokens do not log in or out", body = super::openapi::ErrorBody),
+    ))]
 async fn logout(State(s): State<AppRef>, headers: HeaderMap) -> Result<Response, ApiError> {
+    if headers.contains_key(header::AUTHORIZATION) {
+        return Err(err(
+            StatusCode::FORBIDDEN,
+            "API tokens cannot log out: a token stays valid until it expires or is revoked (POST /api/tokens/{id}/revoke)",
+        ));
+    }
     if let Some(token) = headers
         .get(header::COOKIE)
         .and_then(|v| v.to_str().ok())
@@ -536,82 +620,88 @@ async fn logout(State(s): State<AppRef>, headers: HeaderMap) -> Result<Response,
     Ok(r)
 }
 
-/// POST /api/sessions: the session file as `application/octet-stream`. Checked before anything
-/// is stored ([`super::upload`]): size, who may upload the header's trainee, the header's fields,
-/// then the recorder's strict reader streaming the ticks within the upload limits.
+/// POST /api/sessions: the session file as `application/octet-stream`. Received and checked
+/// before anything is stored ([`super::upload`]): who asks, the size, an upload slot and room on
+/// the disk before the body; who may upload the header's trainee and the header's fields from
+/// its first bytes; then the rest to a temporary file and the recorder's strict reader streaming
+/// its ticks within the upload limits.
+#[utoipa::path(post, path = "/api/sessions", tag = "sessions",
+    summary = "Upload a session file",
+    description = "API tokens of either scope may upload (the desktop simulator). Checked before anything is stored: who asks, the size, an upload slot (per account and in all) and room on the disk before the body; who may upload the header's trainee and the header's fields from its first bytes; then the rest, at no less than the minimum rate, verified from disk.",
+    request_body(content = Vec<u8>, content_type = "application/octet-stream"),
+    responses(
+        (status = 201, description = "new bytes: stored and queued for scoring", body = super::openapi::UploadAnswer),
+        (status = 200, description = "the same bytes were uploaded before", body = super::openapi::UploadAnswer),
+        (status = 400, description = "empty body, or the body broke off", body = super::openapi::ErrorBody),
+        (status = 403, description = "may not upload for this trainee, the trainee's account is disabled, or CSRF token missing", body = super::openapi::ErrorBody),
+        (status = 413, description = "over the size limit (--max-upload-bytes)", body = super::openapi::ErrorBody),
+        (status = 422, description = "not a valid session file, an unknown or withdrawn atlas, an unknown trainee, scenario, difficulty or device, or more than the server replays", body = super::openapi::ErrorBody),
+        (status = 429, description = "this account has as many uploads in progress as it may; Retry-After", body = super::openapi::ErrorBody),
+        (status = 503, description = "the server takes as many uploads as it can, or its disk is too full; Retry-After", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 async fn upload(
     State(s): State<AppRef>,
     SimulatorActor(user): SimulatorActor,
     headers: HeaderMap,
     body: Body,
 ) -> Result<Response, ApiError> {
-    let limit = s.config.max_upload_bytes;
-    let declared = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<u64>().ok());
-    if declared.is_some_and(|n| n > limit as u64) {
-        return Err(err(
-            StatusCode::PAYLOAD_TOO_LARGE,
-            format!("the upload exceeds the limit of {limit} bytes"),
-        ));
-    }
-    let bytes = axum::body::to_bytes(body, limit).await.map_err(|_| {
-        err(
-            StatusCode::PAYLOAD_TOO_LARGE,
-            format!("the upload exceeds the limit of {limit} bytes"),
-        )
-    })?;
-    let (id, status, created) = accept_upload(&s, &user, bytes).await?;
+    let (id, status, created) = accept_upload(&s, &user, body.into_data_stream(), content_length(&headers)).await?;
     let code = if created { StatusCode::CREATED } else { StatusCode::OK };
     Ok((code, Json(json!({ "id": id, "status": status }))).into_response())
 }
 
-/// Validates an upload and stores it (file by content hash, then the session and job rows):
-/// returns the session id, its status and whether it is new. Nothing is left behind on refusal.
-pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(String, SessionStatus, bool), ApiError> {
-    if bytes.is_empty() {
-        return Err(err(
-            StatusCode::BAD_REQUEST,
-            "the request body is empty: send the session file",
-        ));
-    }
-    // The API stops reading at the limit; the dashboard's form allows some multipart overhead.
-    let limit = s.config.max_upload_bytes;
-    if bytes.len() > limit {
-        return Err(err(
-            StatusCode::PAYLOAD_TOO_LARGE,
-            format!("the upload exceeds the limit of {limit} bytes"),
-        ));
-    }
-    let checked = super::upload::check(s, user, &bytes).await?;
+/// The request's `Content-Length`, if it sent a valid one.
+pub fn content_length(headers: &HeaderMap) -> Option<u64> {
+    headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok())
+}
+
+/// [`accept_upload`] of a file already in memory (the demo's own sessions).
+pub async fn accept_upload_bytes(
+    s: &AppState,
+    user: &User,
+    bytes: Vec<u8>,
+) -> Result<(String, SessionStatus, bool), ApiError> {
+    let len = bytes.len() as u64;
+    let body = futures_util::stream::iter([Ok::<_, std::convert::Infallible>(Bytes::from(bytes))]);
+    accept_upload(s, user, body, Some(len)).await
+}
+
+/// Receives an upload `body` (its chunks), checks it and stores it (the file by content hash,
+/// renamed into place, then the session and job rows): returns the session id, its status and
+/// whether it is new. Nothing is left behind on refusal.
+pub async fn accept_upload<S, E>(
+    s: &AppState,
+    user: &User,
+    body: S,
+    declared: Option<u64>,
+) -> Result<(String, SessionStatus, bool), ApiError>
+where
+    S: futures_util::Stream<Item = Result<Bytes, E>> + Unpin,
+    E: std::fmt::Display,
+{
+    let checked = super::upload::receive(s, user, body, declared).await?;
     let (h, trainee) = (&checked.header, &checked.trainee);
-    let sha = auth::sha256_hex(&bytes);
-    if let Some(id) = s.store.session_by_file(&sha).await? {
+    let sha = checked.sha256.clone();
+    let existing = |id: String| async move {
         let status = s
             .store
             .session(&id)
             .await?
             .map_or(SessionStatus::Queued, |(r, _)| r.status);
-        return Ok((id, status, false));
-    }
-    // The file first (atomically, by content hash), then the rows in one transaction. The
-    // temporary name is this request's own: two uploads of the same bytes may race here.
-    let path = s.session_file(&sha);
-    let tmp = path.with_extension(format!("{}.partial", super::store::new_id()));
-    let write = async {
-        tokio::fs::create_dir_all(path.parent().expect("has a parent")).await?;
-        tokio::fs::write(&tmp, &bytes).await?;
-        tokio::fs::rename(&tmp, &path).await
+        Ok::<_, ApiError>((id, status, false))
     };
-    if let Err(e) = write.await {
-        let _ = tokio::fs::remove_file(&tmp).await;
-        tracing::error!(error = %e, "cannot store an upload");
-        return Err(err(StatusCode::INTERNAL_SERVER_ERROR, "cannot store the file"));
+    if let Some(id) = s.store.session_by_file(&sha).await? {
+        return existing(id).await;
     }
+    // The file first (renamed into place by content hash: two uploads of the same bytes may
+    // race here, and either rename leaves the same bytes), then the rows in one transaction.
     let new = NewSession {
-        file_sha256: sha,
-        size_bytes: bytes.len() as i64,
+        file_sha256: sha.clone(),
+        size_bytes: checked.file.bytes as i64,
         session_uuid: h.session_id.clone(),
         trainee_id: trainee.id.clone(),
         uploaded_by: user.id.clone(),
@@ -622,17 +712,13 @@ pub async fn accept_upload(s: &AppState, user: &User, bytes: Bytes) -> Result<(S
         duration_s: checked.verified.duration_s(),
         recorded_at: h.wall_clock_start.clone(),
     };
+    checked.file.persist(&s.session_file(&sha)).await?;
     let id = match s.store.insert_session(&new).await {
         Ok(id) => id,
         Err(e) => {
             // Lost a race with an upload of the same bytes: that row owns the file now.
             if let Some(id) = s.store.session_by_file(&new.file_sha256).await? {
-                let status = s
-                    .store
-                    .session(&id)
-                    .await?
-                    .map_or(SessionStatus::Queued, |(r, _)| r.status);
-                return Ok((id, status, false));
+                return existing(id).await;
             }
             // The file stays: a concurrent upload of the same bytes whose row is not committed
             // yet may own it. Unreferenced, it is only reused by the next upload of these bytes.
@@ -658,6 +744,15 @@ pub async fn visible_session(s: &AppState, user: &User, id: &str) -> Result<supe
     if allowed { Ok(row) } else { Err(not_found()) }
 }
 
+#[utoipa::path(get, path = "/api/sessions/{id}", tag = "sessions",
+    summary = "One session, its score and its review",
+    description = "API tokens of either scope may read it (the simulator polls the status of its upload).",
+    params(("id" = String, Path, description = "session id")),
+    responses(
+        (status = 200, description = "the session", body = super::store::SessionRow),
+        (status = 404, description = "no such session, or not yours to see", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 async fn get_session(
     State(s): State<AppRef>,
     SimulatorReader(user): SimulatorReader,
@@ -672,6 +767,15 @@ async fn get_session(
 /// GET /api/sessions/{id}/file: the session file as uploaded, for whoever may see the session
 /// (upload-scoped tokens too: the simulator's replay viewer fetches it). Streamed in 64 KiB
 /// chunks, so a download holds no more than that in memory.
+#[utoipa::path(get, path = "/api/sessions/{id}/file", tag = "sessions",
+    summary = "The session file as uploaded (streamed)",
+    description = "For whoever may see the session; API tokens of either scope (the simulator's replay viewer).",
+    params(("id" = String, Path, description = "session id")),
+    responses(
+        (status = 200, description = "the session file (docs/session-format.md)", content_type = "application/octet-stream", body = Vec<u8>),
+        (status = 404, description = "no such session, or not yours to see, or its file is gone", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 async fn get_session_file(
     State(s): State<AppRef>,
     SimulatorReader(user): SimulatorReader,
@@ -713,6 +817,16 @@ async fn get_session_file(
 
 /// DELETE /api/sessions/{id} (admins): the session, its file, score, job, comments, overrides and
 /// derived data go; audited.
+#[utoipa::path(delete, path = "/api/sessions/{id}", tag = "sessions",
+    summary = "Delete a session (admins): rows, file, trace, figures and player frames; audited",
+    description = "Works on a full disk: the session's files go first to make room for the database's journal.",
+    params(("id" = String, Path, description = "session id")),
+    responses(
+        (status = 200, description = "deleted", body = super::openapi::Deleted),
+        (status = 403, description = "not an admin, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
+        (status = 404, description = "no such session", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 async fn delete_session(
     State(s): State<AppRef>,
     Actor(user): Actor,
@@ -723,35 +837,56 @@ async fn delete_session(
 }
 
 /// Deletes a session for an admin (API and dashboard): the rows in one transaction, then the
-/// stored file and what was derived from it (review trace, figures).
+/// stored file and what was derived from it (review trace, figures, player frames). On a full
+/// disk (SQLite needs room for its journal even to delete) the session's files go first, to
+/// make that room, and the rows after them.
 pub async fn remove_session(s: &AppState, user: &User, id: &str) -> Result<(), ApiError> {
-    if user.role != "admin" {
+    if user.role != Role::Admin {
         return Err(err(
             StatusCode::FORBIDDEN,
             format!("{} ({}) may not delete sessions", user.username, user.role),
         ));
     }
-    let sha = s
-        .store
-        .delete_session(id, user)
-        .await?
-        .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no session {id}")))?;
-    // Each kind of file lives under DATA/<kind>/<first two hex digits>/<sha>…
+    let not_found = || err(StatusCode::NOT_FOUND, format!("no session {id}"));
+    let sha = match s.store.delete_session(id, user).await {
+        Ok(sha) => sha.ok_or_else(not_found)?,
+        Err(e) if e.is_disk_full() => {
+            tracing::warn!(session = %id, "the disk is full: the session's files are removed first to make room");
+            let (row, _) = s.store.session(id).await?.ok_or_else(not_found)?;
+            remove_session_files(s, &row.file_sha256).await;
+            s.store.delete_session(id, user).await?.ok_or_else(not_found)?
+        }
+        Err(e) => return Err(e.into()),
+    };
+    remove_session_files(s, &sha).await;
+    tracing::info!(session = %id, by = %user.username, "session deleted");
+    Ok(())
+}
+
+/// Removes what is stored of the session file `sha`: the file, its review trace and figures
+/// (`DATA/<kind>/<first two hex digits>/<sha>…`) and its player frames (a folder,
+/// `DATA/frames/<first two>/<sha>/`). What cannot be removed is logged.
+async fn remove_session_files(s: &AppState, sha: &str) {
+    let prefix = &sha[..2.min(sha.len())];
     for kind in ["sessions", "traces", "figures"] {
-        let dir = s.config.data_dir.join(kind).join(&sha[..2.min(sha.len())]);
+        let dir = s.config.data_dir.join(kind).join(prefix);
         let Ok(mut entries) = tokio::fs::read_dir(&dir).await else {
             continue;
         };
         while let Ok(Some(e)) = entries.next_entry().await {
-            if e.file_name().to_string_lossy().starts_with(&sha)
+            if e.file_name().to_string_lossy().starts_with(sha)
                 && let Err(err) = tokio::fs::remove_file(e.path()).await
             {
                 tracing::warn!(error = %err, file = %e.path().display(), "cannot remove a deleted session's file");
             }
         }
     }
-    tracing::info!(session = %id, by = %user.username, "session deleted");
-    Ok(())
+    let frames = s.config.data_dir.join("frames").join(prefix).join(sha);
+    if let Err(e) = tokio::fs::remove_dir_all(&frames).await
+        && e.kind() != std::io::ErrorKind::NotFound
+    {
+        tracing::warn!(error = %e, dir = %frames.display(), "cannot remove a deleted session's player frames");
+    }
 }
 
 /// Whether `user` may see the sessions of `trainee_id`.
@@ -829,14 +964,28 @@ pub fn check_comment(text: &str) -> Result<&str, ApiError> {
     Ok(text)
 }
 
-#[derive(serde::Deserialize)]
+#[derive(serde::Deserialize, utoipa::ToSchema)]
 struct OverrideRequest {
+    #[schema(minimum = 0, maximum = 100)]
     score: f64,
     passed: bool,
+    #[schema(min_length = 1, max_length = 2000)]
     reason: String,
 }
 
 /// POST /api/sessions/{id}/override: a new grade with a reason (audited); the computed score stays.
+#[utoipa::path(post, path = "/api/sessions/{id}/override", tag = "review",
+    summary = "Override the grade with a reason (the trainee's instructors, admins; audited)",
+    params(("id" = String, Path, description = "session id")),
+    request_body(content = OverrideRequest, content_type = "application/json"),
+    responses(
+        (status = 201, description = "stored", body = super::openapi::OverrideAnswer),
+        (status = 400, description = "bad body: score in 0…100, a reason", body = super::openapi::ErrorBody),
+        (status = 403, description = "not a reviewer of this trainee, CSRF or token scope", body = super::openapi::ErrorBody),
+        (status = 404, description = "no such session", body = super::openapi::ErrorBody),
+        (status = 413, description = "a body over --max-body-bytes", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 async fn override_grade(
     State(s): State<AppRef>,
     Actor(user): Actor,
@@ -861,14 +1010,27 @@ async fn override_grade(
         .into_response())
 }
 
-#[derive(serde::Deserialize)]
+#[derive(serde::Deserialize, utoipa::ToSchema)]
 struct CommentRequest {
+    #[schema(min_length = 1, max_length = 10000)]
     body: String,
     /// The moment of the session the comment points at (s from its start), if any.
     #[serde(default)]
     at_s: Option<f64>,
 }
 
+#[utoipa::path(post, path = "/api/sessions/{id}/comments", tag = "review",
+    summary = "Comment on a session (the trainee's instructors, admins)",
+    params(("id" = String, Path, description = "session id")),
+    request_body(content = CommentRequest, content_type = "application/json"),
+    responses(
+        (status = 201, description = "stored", body = super::openapi::CommentAnswer),
+        (status = 400, description = "bad body: 1–10000 characters, a moment inside the session", body = super::openapi::ErrorBody),
+        (status = 403, description = "not a reviewer of this trainee, CSRF or token scope", body = super::openapi::ErrorBody),
+        (status = 404, description = "no such session", body = super::openapi::ErrorBody),
+        (status = 413, description = "a body over --max-body-bytes", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 async fn add_comment(
     State(s): State<AppRef>,
     Actor(user): Actor,
@@ -892,6 +1054,15 @@ async fn add_comment(
 }
 
 /// GET /api/trainees/{username}/progress: scored sessions in upload order, grouped by difficulty.
+#[utoipa::path(get, path = "/api/trainees/{username}/progress", tag = "review",
+    summary = "A trainee's scored sessions per difficulty, in upload order (overrides applied)",
+    params(("username" = String, Path)),
+    responses(
+        (status = 200, description = "progress", body = super::openapi::Progress),
+        (status = 403, description = "an upload-scoped token", body = super::openapi::ErrorBody),
+        (status = 404, description = "no such trainee, or not yours to see", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 async fn progress(
     State(s): State<AppRef>,
     Reader(user): Reader,
@@ -917,6 +1088,16 @@ async fn progress(
 }
 
 /// GET /api/cohorts/{name}/summary: per trainee counts, pass rate and mean score.
+#[utoipa::path(get, path = "/api/cohorts/{name}/summary", tag = "review",
+    summary = "Per trainee of a cohort: sessions, scored, passed, mean score, last upload",
+    params(("name" = String, Path), ListQuery),
+    responses(
+        (status = 200, description = "the summary", body = super::openapi::CohortSummary),
+        (status = 400, description = "a bad filter", body = super::openapi::ErrorBody),
+        (status = 403, description = "an upload-scoped token", body = super::openapi::ErrorBody),
+        (status = 404, description = "no such cohort, or not yours", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 async fn cohort_summary(
     State(s): State<AppRef>,
     Reader(user): Reader,
@@ -941,7 +1122,8 @@ async fn cohort_summary(
 
 /// The query of list, summary and export routes: `?from=YYYY-MM-DD&to=YYYY-MM-DD&scenario=…&
 /// difficulty=…&cohort=…&trainee=…&page=N` (all optional; `to` inclusive).
-#[derive(Debug, Default, serde::Deserialize)]
+#[derive(Debug, Default, serde::Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
 pub struct ListQuery {
     pub from: Option<String>,
     pub to: Option<String>,
@@ -1012,6 +1194,15 @@ fn day_start(date: &str, days: u64) -> Result<String, ApiError> {
 /// GET /api/export/sessions.csv: one row per session the caller may see (curriculum staff and
 /// admins: all; instructors: their cohorts'), oldest first, filtered like the lists. Trainees use
 /// their progress instead.
+#[utoipa::path(get, path = "/api/export/sessions.csv", tag = "review",
+    summary = "One CSV row per visible session (columns in docs/api.md)",
+    params(ListQuery),
+    responses(
+        (status = 200, description = "the sessions", content_type = "text/csv", body = String),
+        (status = 400, description = "a bad filter", body = super::openapi::ErrorBody),
+        (status = 403, description = "trainees have no export, or an upload-scoped token", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 async fn export_csv(
     State(s): State<AppRef>,
     Reader(user): Reader,
@@ -1040,6 +1231,15 @@ async fn export_csv(
 
 /// GET /api/sessions: the sessions the caller may see, newest first, filtered, a page of
 /// [`PAGE_SIZE`] at a time (`total` says how many match).
+#[utoipa::path(get, path = "/api/sessions", tag = "sessions",
+    summary = "Sessions the caller may see, newest first, a page at a time",
+    params(ListQuery),
+    responses(
+        (status = 200, description = "a page of sessions", body = super::openapi::SessionPage),
+        (status = 400, description = "a bad filter", body = super::openapi::ErrorBody),
+        (status = 403, description = "an upload-scoped token", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 async fn list_sessions(
     State(s): State<AppRef>,
     Reader(user): Reader,

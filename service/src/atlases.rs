@@ -12,13 +12,13 @@ use serde::Serialize;
 use serde_json::json;
 
 use super::AppState;
-use super::api::{Actor, ApiError, Reader, err};
+use super::api::{Actor, AdminActor, ApiError, Reader, err};
 use super::catalogue::AtlasOrigin;
 use super::publish::{self, Refusal};
 use super::store::{Role, User};
 
 /// One atlas of the catalogue, as the API and the catalogue page show it.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct CatalogueItem {
     pub content_hash: String,
     pub name: String,
@@ -38,18 +38,32 @@ pub struct CatalogueItem {
     pub spacing_mm: [f64; 3],
     /// Sessions stored on it.
     pub sessions: i64,
+    /// When an admin withdrew it (only in [`all_atlases`]: the catalogue lists those that take
+    /// sessions).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub withdrawn_at: Option<String>,
 }
 
 /// A planned insertion path of a catalogue atlas.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct PathItem {
     pub name: String,
     /// In words, e.g. the intercostal space and its clearances.
     pub description: String,
 }
 
-/// The catalogue: every atlas loaded on this server, with what the database knows of it.
+/// The catalogue: every atlas of this server that takes sessions, with what the database knows
+/// of it.
 pub async fn catalogue(s: &AppState) -> Result<Vec<CatalogueItem>, ApiError> {
+    Ok(all_atlases(s)
+        .await?
+        .into_iter()
+        .filter(|a| a.withdrawn_at.is_none())
+        .collect())
+}
+
+/// Every atlas this server knows, withdrawn ones too (the admins' page).
+pub async fn all_atlases(s: &AppState) -> Result<Vec<CatalogueItem>, ApiError> {
     let rows = s.store.atlas_rows().await?;
     let mut items: Vec<CatalogueItem> = s
         .catalogue
@@ -57,19 +71,7 @@ pub async fn catalogue(s: &AppState) -> Result<Vec<CatalogueItem>, ApiError> {
         .into_iter()
         .map(|(hash, e)| {
             let row = rows.iter().find(|r| r.content_hash == hash);
-            let m = &e.atlas.manifest;
-            let guided = e.atlas.guided_path().map(|p| p.name.as_str());
-            let mut paths: Vec<&stylet_atlas::manifest::InsertionPath> = m.paths.iter().collect();
-            paths.sort_by_key(|p| Some(p.name.as_str()) != guided);
-            let paths = paths
-                .into_iter()
-                .map(|p| PathItem {
-                    name: p.name.clone(),
-                    description: p.description.clone(),
-                })
-                .collect();
-            let grid = e.atlas.model.ct().grid();
-            let sp = grid.spacing_mm();
+            let m = &e.summary;
             CatalogueItem {
                 content_hash: hash.clone(),
                 name: m.name.clone(),
@@ -77,12 +79,23 @@ pub async fn catalogue(s: &AppState) -> Result<Vec<CatalogueItem>, ApiError> {
                 origin: e.origin.as_str(),
                 published_by: row.and_then(|r| r.published_by.clone()),
                 published_at: row.and_then(|r| r.published_at.clone()),
-                scenarios: e.scorer.scenario_names().to_vec(),
-                paths,
-                structures: m.labels.len(),
-                dims: grid.dims(),
-                spacing_mm: sp,
+                scenarios: m.scenarios.clone(),
+                paths: m
+                    .paths
+                    .iter()
+                    .map(|(name, description)| PathItem {
+                        name: name.clone(),
+                        description: description.clone(),
+                    })
+                    .collect(),
+                structures: m.structures,
+                dims: m.dims,
+                spacing_mm: m.spacing_mm,
                 sessions: row.map_or(0, |r| r.sessions),
+                withdrawn_at: e.withdrawn().then(|| {
+                    row.and_then(|r| r.withdrawn_at.clone())
+                        .unwrap_or_else(|| "withdrawn".into())
+                }),
             }
         })
         .collect();
@@ -91,7 +104,14 @@ pub async fn catalogue(s: &AppState) -> Result<Vec<CatalogueItem>, ApiError> {
 }
 
 /// `GET /api/atlases`: any logged-in account (trainees choose their scenario from it).
-pub async fn list(State(s): State<Arc<AppState>>, Reader(_): Reader) -> Result<Response, ApiError> {
+#[utoipa::path(get, path = "/api/atlases", tag = "atlases",
+    summary = "The scenario catalogue: every atlas this server takes sessions on",
+    responses(
+        (status = 200, description = "the catalogue", body = super::openapi::Catalogue),
+        (status = 403, description = "an upload-scoped token", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
+pub async fn list(State(s): State<Arc<AppState>>, Reader(_reader): Reader) -> Result<Response, ApiError> {
     Ok(Json(json!({ "atlases": catalogue(&s).await? })).into_response())
 }
 
@@ -112,6 +132,24 @@ pub fn may_publish(user: &User) -> Result<(), ApiError> {
 
 /// `POST /api/atlases`: see [`super::publish`]. 201 with the atlas when it is new to the
 /// catalogue, 200 when it was there already.
+#[utoipa::path(post, path = "/api/atlases", tag = "atlases",
+    summary = "Publish an atlas (admins and instructors; audited)",
+    description = "A tar archive of atlas.toml, validation.toml, the two volumes, the record's scripts/*.txt and any measured breathing motion under motion/ (stylet atlas publish makes it). It arrives like an upload (a slot, room on the disk, the minimum rate); then, one publication at a time, the service checks the validation record against the content hash, loads the atlas and runs the smoke test before it keeps it by content hash and lists it. An atlas this server has checked before is taken back without checking it again.",
+    request_body(content = Vec<u8>, content_type = "application/x-tar"),
+    responses(
+        (status = 201, description = "published (or published again after it was withdrawn)", body = super::openapi::AtlasAnswer),
+        (status = 200, description = "it was in the catalogue already", body = super::openapi::AtlasAnswer),
+        (status = 400, description = "empty body, or it ended before its Content-Length", body = super::openapi::ErrorBody),
+        (status = 403, description = "not an admin or instructor, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
+        (status = 409, description = "the catalogue holds the most atlases this server takes", body = super::openapi::ErrorBody),
+        (status = 411, description = "no Content-Length", body = super::openapi::ErrorBody),
+        (status = 413, description = "over the atlas size or voxel limit", body = super::openapi::ErrorBody),
+        (status = 415, description = "not application/x-tar", body = super::openapi::ErrorBody),
+        (status = 422, description = "not a valid archive, a damaged atlas, not validated, or its smoke test failed", body = super::openapi::ErrorBody),
+        (status = 429, description = "this account has as many uploads in progress as it may; Retry-After", body = super::openapi::ErrorBody),
+        (status = 503, description = "the server takes as many uploads as it can, or its disk is too full; Retry-After", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 pub async fn publish_atlas(
     State(s): State<Arc<AppState>>,
     Actor(user): Actor,
@@ -149,24 +187,30 @@ pub async fn publish_atlas(
             format!("the atlas upload exceeds the limit of {limit} bytes"),
         ));
     }
-    // At most two archives on disk at once (each until its publication ends), one checked at a
-    // time: the permits live in the publication's own task, so a client that goes away
-    // releases them only when the work it started has ended.
-    let arriving = s.publish_uploads.clone().try_acquire_owned().map_err(|_| {
-        err(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "other atlases are being published; try again when they are done",
-        )
-    })?;
     let max = s.config.limits.max_atlases;
-    if s.catalogue.len() >= max {
+    if s.catalogue.active_len() >= max {
         return Err(err(
             StatusCode::CONFLICT,
-            format!("the catalogue holds {max} atlases, the most this server keeps loaded"),
+            format!("the catalogue holds {max} atlases, the most this server takes (withdraw one first)"),
         ));
     }
+    // The archive arrives like an upload: a slot of the uploads (per account and in all), room
+    // on the disk for it and its unpacked copy, no slower than the minimum rate. Publications
+    // are not held up by one another while their archives arrive.
+    let _slot = s.upload_slots.take(&user.id)?;
+    let _room = s.disk.reserve(
+        &s.config.data_dir,
+        declared.saturating_mul(2),
+        s.config.limits.min_free_disk_bytes,
+    )?;
     let incoming = Incoming::create(&s.published_dir()).map_err(ApiError::from)?;
-    let received = publish::receive(body, &incoming.path.join("upload.tar"), declared).await?;
+    let received = publish::receive(
+        body,
+        &incoming.path.join("upload.tar"),
+        declared,
+        s.config.limits.min_upload_bytes_per_s,
+    )
+    .await?;
     if received != declared {
         return Err(err(
             StatusCode::BAD_REQUEST,
@@ -174,24 +218,117 @@ pub async fn publish_atlas(
         ));
     }
     // From here the publication runs to its end in a task of its own: the rename, the row and
-    // the catalogue entry happen together or not at all, whatever the client does.
+    // the catalogue entry happen together or not at all, whatever the client does. One at a
+    // time: the checks, the rename and the catalogue update hold the permit.
     let state = s.clone();
     let task = tokio::spawn(async move {
-        let _arriving = arriving;
         let checking = state.publish_permit.clone().acquire_owned().await.map_err(|_| busy())?;
         let work = incoming.path.clone();
+        let catalogue = state.catalogue.clone();
         let max_voxels = state.config.limits.max_atlas_voxels;
-        let checked = tokio::task::spawn_blocking(move || {
-            let _checking = checking;
+        let outcome = tokio::task::spawn_blocking(move || {
             publish::unpack(&work.join("upload.tar"), &work.join("atlas"))?;
             let _ = std::fs::remove_file(work.join("upload.tar"));
-            publish::check(&work.join("atlas"), &work.join("smoke"), max_voxels)
+            // An atlas this server has already checked is not checked again.
+            let hash = publish::content_of(&work.join("atlas"))?;
+            if catalogue.contains(&hash) {
+                return Ok(Outcome::Known(hash));
+            }
+            publish::check(&work.join("atlas"), &work.join("smoke"), max_voxels).map(|c| Outcome::Checked(Box::new(c)))
         })
         .await
         .map_err(|_| ApiError::Internal)??;
-        keep(&state, &user, checked, &incoming).await
+        let answer = match outcome {
+            Outcome::Known(hash) => republish(&state, &user, &hash).await,
+            Outcome::Checked(checked) => keep(&state, &user, *checked, &incoming).await,
+        };
+        drop(checking);
+        answer
     });
     task.await.map_err(|_| ApiError::Internal)?
+}
+
+/// What the checks of an arrived archive found.
+enum Outcome {
+    /// An atlas of the catalogue already (withdrawn or not): the content hash.
+    Known(String),
+    Checked(Box<publish::Checked>),
+}
+
+/// The answer to an archive of an atlas the catalogue holds: 200 `already_published`; when it
+/// had been withdrawn, it is reinstated (audited as a publication) and answered 201.
+async fn republish(s: &AppState, user: &User, hash: &str) -> Result<Response, ApiError> {
+    let entry = s.catalogue.get(hash).ok_or(ApiError::Internal)?;
+    let name = entry.summary.name.clone();
+    if !entry.withdrawn() {
+        return Ok((
+            StatusCode::OK,
+            Json(json!({ "content_hash": hash, "name": name, "status": "already_published" })),
+        )
+            .into_response());
+    }
+    let detail = format!("{name}: published again after it was withdrawn (checked when first published)");
+    s.store
+        .publish_atlas(hash, &name, &entry.dir.display().to_string(), user, &detail)
+        .await?;
+    s.catalogue.set_withdrawn(hash, false);
+    tracing::info!(atlas = %name, hash = %hash, by = %user.username, "atlas published again");
+    let item = catalogue(s).await?.into_iter().find(|i| i.content_hash == hash);
+    Ok((
+        StatusCode::CREATED,
+        Json(json!({ "content_hash": hash, "name": name, "status": "published", "smoke": [], "atlas": item })),
+    )
+        .into_response())
+}
+
+/// `DELETE /api/atlases/{content hash}` (admins): withdraws the atlas from the catalogue (see
+/// [`withdraw`]).
+#[utoipa::path(delete, path = "/api/atlases/{hash}", tag = "atlases",
+    summary = "Withdraw an atlas from the catalogue (admins; audited)",
+    description = "It takes no new sessions; the sessions recorded on it stay readable, replayable and scored. Publishing it again reinstates it.",
+    params(("hash" = String, Path, description = "the atlas' content hash")),
+    responses(
+        (status = 200, description = "withdrawn", body = super::openapi::AtlasAnswer),
+        (status = 403, description = "not an admin, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
+        (status = 404, description = "no atlas with this content hash on this server", body = super::openapi::ErrorBody),
+        (status = 409, description = "withdrawn already", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
+pub async fn unpublish(
+    State(s): State<Arc<AppState>>,
+    AdminActor(user): AdminActor,
+    axum::extract::Path(hash): axum::extract::Path<String>,
+) -> Result<Response, ApiError> {
+    let name = withdraw(&s, &user, &hash).await?;
+    Ok(Json(json!({ "content_hash": hash, "name": name, "status": "withdrawn" })).into_response())
+}
+
+/// Withdraws the atlas `hash` for the admin `user`: no new sessions are accepted on it and it
+/// leaves the catalogue; the sessions recorded on it stay readable, replayable and scored (its
+/// folder stays). Audited (`atlas.withdraw`). 404 for an atlas this server does not know, 409
+/// for one withdrawn already. Returns the atlas' name.
+pub async fn withdraw(s: &AppState, user: &User, hash: &str) -> Result<String, ApiError> {
+    let entry = s
+        .catalogue
+        .get(hash)
+        .ok_or_else(|| err(StatusCode::NOT_FOUND, "no atlas with this content hash on this server"))?;
+    let name = entry.summary.name.clone();
+    if entry.withdrawn() {
+        return Err(err(
+            StatusCode::CONFLICT,
+            format!("the atlas {name} is withdrawn already"),
+        ));
+    }
+    let detail = format!("{name} ({})", entry.origin.as_str());
+    if !s.store.withdraw_atlas(hash, user, &detail).await? {
+        return Err(err(
+            StatusCode::CONFLICT,
+            format!("the atlas {name} is withdrawn already"),
+        ));
+    }
+    s.catalogue.set_withdrawn(hash, true);
+    tracing::info!(atlas = %name, hash = %hash, by = %user.username, "atlas withdrawn");
+    Ok(name)
 }
 
 fn busy() -> ApiError {
@@ -209,13 +346,6 @@ async fn keep(s: &AppState, user: &User, checked: publish::Checked, incoming: &I
         .iter()
         .map(|o| format!("{} {}", o.script, if o.passed { "ok" } else { "failed" }))
         .collect();
-    if s.catalogue.contains(&hash) {
-        return Ok((
-            StatusCode::OK,
-            Json(json!({ "content_hash": hash, "name": name, "status": "already_published" })),
-        )
-            .into_response());
-    }
     let root = s.published_dir();
     let dest = root.join(&hash);
     let storage = |e: std::io::Error| ApiError::from(Refusal::Storage(format!("{}: {e}", dest.display())));
@@ -233,7 +363,7 @@ async fn keep(s: &AppState, user: &User, checked: publish::Checked, incoming: &I
     }
     let mut atlas = checked.atlas;
     atlas.dir = dest;
-    s.catalogue.insert(atlas, checked.scorer, AtlasOrigin::Published);
+    s.catalogue.insert(atlas, checked.scorer, AtlasOrigin::Published, false);
     tracing::info!(atlas = %name, hash = %hash, by = %user.username, "atlas published");
     let item = catalogue(s).await?.into_iter().find(|i| i.content_hash == hash);
     Ok((

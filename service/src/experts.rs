@@ -31,8 +31,8 @@ pub async fn benchmark(
     let rows = s.store.expert_references(atlas_hash, scenario).await?;
     let exercise = s
         .catalogue
-        .scorer(atlas_hash)
-        .map_or_else(Default::default, |sc| sc.exercise_of(scenario));
+        .get(atlas_hash)
+        .map_or_else(Default::default, |e| e.summary.exercise_of(scenario));
     let mut reports = Vec::new();
     let mut references = Vec::new();
     for (reference, json) in rows {
@@ -148,6 +148,17 @@ pub async fn set_expert(s: &AppState, user: &User, id: &str, expert: bool) -> Re
 }
 
 /// POST /api/sessions/{id}/expert.
+#[utoipa::path(post, path = "/api/sessions/{id}/expert", tag = "review",
+    summary = "Mark the session as an expert reference of its scenario (the trainee's instructors, admins; audited)",
+    description = "It must be scored, complete and its replay verified; at most 50 per scenario.",
+    params(("id" = String, Path, description = "session id")),
+    responses(
+        (status = 201, description = "marked", body = super::openapi::ExpertAnswer),
+        (status = 403, description = "not a reviewer of this trainee, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
+        (status = 404, description = "no such session", body = super::openapi::ErrorBody),
+        (status = 409, description = "not scored, incomplete, not verified, or the scenario has the most references", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 pub async fn mark(
     State(s): State<Arc<AppState>>,
     Actor(user): Actor,
@@ -158,6 +169,15 @@ pub async fn mark(
 }
 
 /// DELETE /api/sessions/{id}/expert.
+#[utoipa::path(delete, path = "/api/sessions/{id}/expert", tag = "review",
+    summary = "Unmark an expert reference (the trainee's instructors, admins; audited)",
+    params(("id" = String, Path, description = "session id")),
+    responses(
+        (status = 200, description = "unmarked", body = super::openapi::ExpertAnswer),
+        (status = 403, description = "not a reviewer of this trainee, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
+        (status = 404, description = "no such session", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 pub async fn unmark(
     State(s): State<Arc<AppState>>,
     Actor(user): Actor,
@@ -170,6 +190,15 @@ pub async fn unmark(
 /// GET /api/sessions/{id}/benchmark: `{scenario, exercise, experts, metrics: [{metric, mean,
 /// spread}], expert, comparison: [{metric, value, mean, spread, spreads_from_mean}]}`; the
 /// references' session ids (`references`) only for staff (a trainee learns how many there are).
+#[utoipa::path(get, path = "/api/sessions/{id}/benchmark", tag = "review",
+    summary = "The expert benchmark of the session's scenario and the session's metrics against it",
+    params(("id" = String, Path, description = "session id")),
+    responses(
+        (status = 200, description = "the benchmark", body = super::openapi::BenchmarkAnswer),
+        (status = 403, description = "an upload-scoped token", body = super::openapi::ErrorBody),
+        (status = 404, description = "no such session, or not yours to see", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 pub async fn get(
     State(s): State<Arc<AppState>>,
     Reader(user): Reader,

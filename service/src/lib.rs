@@ -7,13 +7,16 @@ pub mod api;
 pub mod atlases;
 pub mod auth;
 pub mod catalogue;
+pub mod disk;
 pub mod experts;
 pub mod export;
+pub mod intake;
 pub mod limits;
 pub mod logins;
 pub mod openapi;
 pub mod publish;
 pub mod server;
+pub mod slots;
 pub mod store;
 pub mod tokens;
 pub mod traces;
@@ -57,12 +60,12 @@ impl Config {
 pub struct AppState {
     pub store: Store,
     pub config: Config,
-    /// Every known atlas and its scorer, by content hash (configured and published ones).
-    pub catalogue: catalogue::Catalogue,
-    /// One atlas publication checked at a time (each loads a whole CT and replays its smoke test).
+    /// Every known atlas and its scorer, by content hash (configured and published ones); the
+    /// loaded ones in a cache bounded by bytes.
+    pub catalogue: Arc<catalogue::Catalogue>,
+    /// One atlas publication checked and kept at a time (each loads a whole CT and replays its
+    /// smoke test). Archives arrive without it (as uploads: [`AppState::upload_slots`]).
     pub publish_permit: Arc<tokio::sync::Semaphore>,
-    /// Atlas archives arriving or waiting to be checked at once (each up to the size limit on disk).
-    pub publish_uploads: Arc<tokio::sync::Semaphore>,
     pub wake: tokio::sync::Notify,
     /// Recent failed logins per account (rate limiting), bounded.
     pub login_failures: logins::FailedLogins,
@@ -72,6 +75,14 @@ pub struct AppState {
     pub health: store::health::Health,
     /// Upload verifications running at once (each holds a chunk and a tick block in memory).
     pub verify_permits: Arc<tokio::sync::Semaphore>,
+    /// Uploads being received (sessions and atlas archives), in all and per account.
+    pub upload_slots: Arc<slots::Slots>,
+    /// Requests in flight per account.
+    pub request_slots: Arc<slots::Slots>,
+    /// Disk space reserved by the uploads arriving now.
+    pub disk: Arc<disk::DiskBudget>,
+    /// The OpenAPI document (set when the router is built).
+    pub openapi: std::sync::OnceLock<serde_json::Value>,
 }
 
 impl AppState {
@@ -102,8 +113,13 @@ pub enum ServiceError {
     Setup(String),
 }
 
-/// Routes mounted beside the API (the dashboard's pages), built from the shared state.
-pub type Mount = fn(Arc<AppState>) -> axum::Router;
+/// Routes mounted beside the API (the dashboard's pages), built from the shared state, and the
+/// part of the OpenAPI document they add (the routes programs call: the player's frames).
+#[derive(Clone, Copy)]
+pub struct Mount {
+    pub router: fn(Arc<AppState>) -> axum::Router,
+    pub openapi: fn() -> utoipa::openapi::OpenApi,
+}
 
 /// Opens the store (migrations), loads the atlases, resumes unfinished jobs and serves the API
 /// and whatever `mount` adds until the process ends. `ready` gets the bound address (port 0
@@ -117,27 +133,45 @@ pub async fn serve(
     std::fs::create_dir_all(config.data_dir.join("sessions"))
         .map_err(|e| setup(&format!("{}: {e}", config.data_dir.display())))?;
     let store = Store::open(&config.database_url()).await?;
-    let catalogue = catalogue::Catalogue::default();
+    let catalogue = Arc::new(catalogue::Catalogue::new(config.limits.atlas_cache_bytes));
+    // The configured directory's atlases, then the published ones the database records (a
+    // folder of the atlas store without its publication record is not served). Loaded one at
+    // a time: the catalogue's cache keeps what fits its budget.
     let configured = match config.atlases_dir.clone() {
-        Some(dir) => tokio::task::spawn_blocking(move || load_atlases(&dir))
-            .await
-            .map_err(|e| setup(&e))??,
+        Some(dir) => atlas_dirs(&dir)?,
         None => Vec::new(),
     };
+    let rows = store.atlas_rows().await?;
     let published_root = published_dir(&config.data_dir);
-    let published = tokio::task::spawn_blocking(move || publish::load_published(&published_root))
-        .await
-        .map_err(|e| setup(&e))?
-        .map_err(|e| setup(&e))?;
+    let published = publish::published_dirs(&published_root, |hash| {
+        rows.iter().any(|r| r.content_hash == hash && r.published_at.is_some())
+    })
+    .map_err(|e| setup(&e))?;
     let all = configured
         .into_iter()
-        .map(|(a, s)| (a, s, catalogue::AtlasOrigin::Configured))
-        .chain(
-            published
-                .into_iter()
-                .map(|(a, s)| (a, s, catalogue::AtlasOrigin::Published)),
-        );
-    for (atlas, scorer, origin) in all {
+        .map(|d| (d, catalogue::AtlasOrigin::Configured))
+        .chain(published.into_iter().map(|d| (d, catalogue::AtlasOrigin::Published)));
+    for (dir, origin) in all {
+        let shown = dir.display().to_string();
+        let loaded = tokio::task::spawn_blocking(move || load_atlas(&dir))
+            .await
+            .map_err(|e| setup(&e))?;
+        let (atlas, scorer) = match (loaded, origin) {
+            (Ok(pair), _) => pair,
+            // The operator's own directory must load; a published atlas that no longer does is
+            // logged and left out (its sessions say the atlas is not loaded).
+            (Err(e), catalogue::AtlasOrigin::Configured) => return Err(e),
+            (Err(e), catalogue::AtlasOrigin::Published) => {
+                tracing::error!(dir = %shown, error = %e, "a published atlas cannot be loaded; not served");
+                continue;
+            }
+        };
+        if origin == catalogue::AtlasOrigin::Published
+            && Some(atlas.content_hash.as_str()) != atlas.dir.file_name().and_then(|n| n.to_str())
+        {
+            tracing::error!(dir = %shown, hash = %atlas.content_hash, "a published atlas no longer has the content hash it was published with; not served");
+            continue;
+        }
         store
             .register_atlas(
                 &atlas.content_hash,
@@ -145,8 +179,11 @@ pub async fn serve(
                 &atlas.dir.display().to_string(),
             )
             .await?;
-        tracing::info!(atlas = %atlas.manifest.name, hash = %atlas.content_hash, origin = origin.as_str(), "atlas ready");
-        catalogue.insert(atlas, scorer, origin);
+        let withdrawn = rows
+            .iter()
+            .any(|r| r.content_hash == atlas.content_hash && r.withdrawn_at.is_some());
+        tracing::info!(atlas = %atlas.manifest.name, hash = %atlas.content_hash, origin = origin.as_str(), withdrawn, "atlas ready");
+        catalogue.insert(atlas, scorer, origin, withdrawn);
     }
     let requeued = store.requeue_running().await?;
     if requeued > 0 {
@@ -158,12 +195,21 @@ pub async fn serve(
     let addr = listener.local_addr().map_err(|e| setup(&e))?;
     let login_failures = logins::FailedLogins::new(config.limits.login_failure_accounts, api::LOGIN_WINDOW);
     let passwords = logins::PasswordPool::new(config.limits.password_threads, config.limits.password_queue);
+    let upload_slots = slots::Slots::new(
+        "uploads",
+        config.limits.max_uploads,
+        config.limits.max_uploads_per_account,
+    );
+    let request_slots = slots::Slots::new("requests", usize::MAX, config.limits.max_requests_per_account);
+    // Uploads cut short by a crash or a kill leave their temporary files here.
+    let incoming = config.data_dir.join("sessions").join(".incoming");
+    let _ = std::fs::remove_dir_all(&incoming);
+    std::fs::create_dir_all(&incoming).map_err(|e| setup(&format!("{}: {e}", incoming.display())))?;
     let state = Arc::new(AppState {
         store,
         config,
         catalogue,
         publish_permit: Arc::new(tokio::sync::Semaphore::new(1)),
-        publish_uploads: Arc::new(tokio::sync::Semaphore::new(2)),
         wake: tokio::sync::Notify::new(),
         login_failures,
         passwords,
@@ -171,28 +217,36 @@ pub async fn serve(
         verify_permits: Arc::new(tokio::sync::Semaphore::new(
             std::thread::available_parallelism().map_or(1, |n| n.get()),
         )),
+        upload_slots,
+        request_slots,
+        disk: Default::default(),
+        openapi: Default::default(),
     });
     worker::start(state.clone());
-    let mut app = api::router(state.clone());
+    let mut app = api::router(state.clone(), mount.map(|m| (m.openapi)()));
     if let Some(mount) = mount {
-        app = app.merge(mount(state.clone()));
+        app = app.merge((mount.router)(state.clone()));
     }
     let limits = Arc::new(state.config.limits.clone());
     let max_upload = state.config.max_upload_bytes as u64;
     ready(addr, state);
+    let serving = Arc::new(tokio::sync::Semaphore::new(limits.max_requests.max(1)));
     let app = app
         .layer(axum::extract::DefaultBodyLimit::max(limits.max_json_body_bytes))
+        .layer(axum::middleware::from_fn(server::in_flight))
         .layer(axum::middleware::from_fn(server::json_errors))
         .layer(axum::middleware::from_fn_with_state(
             (limits.clone(), max_upload),
             server::deadline,
         ))
+        .layer(axum::middleware::from_fn_with_state(serving, server::serving))
         .layer(axum::middleware::from_fn(server::security_headers))
         .layer(axum::middleware::from_fn(api::request_log));
     server::run(listener, app, &limits).await.map_err(|e| setup(&e))
 }
 
-fn load_atlases(dir: &std::path::Path) -> Result<Vec<(stylet_atlas::Atlas, stylet_scoring::Scorer)>, ServiceError> {
+/// The atlas directories (with an `atlas.toml`) in `dir`, sorted; at least one.
+fn atlas_dirs(dir: &std::path::Path) -> Result<Vec<PathBuf>, ServiceError> {
     let err = |e: &dyn std::fmt::Display| ServiceError::Setup(format!("{}: {e}", dir.display()));
     let mut dirs: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(|e| err(&e))?
@@ -203,12 +257,13 @@ fn load_atlases(dir: &std::path::Path) -> Result<Vec<(stylet_atlas::Atlas, style
     if dirs.is_empty() {
         return Err(err(&"no atlas directories (with atlas.toml) in it"));
     }
-    dirs.iter()
-        .map(|d| {
-            let atlas = stylet_atlas::load(d).map_err(|e| ServiceError::Setup(e.to_string()))?;
-            let scorer = stylet_scoring::Scorer::new(&atlas, stylet_scoring::Rubric::default_rubric(), None)
-                .map_err(ServiceError::Setup)?;
-            Ok((atlas, scorer))
-        })
-        .collect()
+    Ok(dirs)
+}
+
+/// Loads the atlas in `dir` and its scorer.
+fn load_atlas(dir: &std::path::Path) -> Result<(stylet_atlas::Atlas, stylet_scoring::Scorer), ServiceError> {
+    let atlas = stylet_atlas::load(dir).map_err(|e| ServiceError::Setup(e.to_string()))?;
+    let scorer = stylet_scoring::Scorer::new(&atlas, stylet_scoring::Rubric::default_rubric(), None)
+        .map_err(ServiceError::Setup)?;
+    Ok((atlas, scorer))
 }

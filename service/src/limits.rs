@@ -17,10 +17,30 @@ pub struct Limits {
     pub header_timeout: Duration,
     /// Longest time for a request other than an upload, body included.
     pub request_timeout: Duration,
-    /// Uploads get `request_timeout` plus their size at this rate (bytes per second).
+    /// Slowest body accepted for an upload or a publication (bytes per second): every
+    /// [`crate::intake::RATE_WINDOW_S`]-second stretch of it must bring this rate's worth, and
+    /// the whole upload may take `request_timeout` plus its size at this rate.
     pub min_upload_bytes_per_s: u64,
-    /// Connections served at once; more wait in the kernel's backlog.
+    /// Connections open at once, whatever they are doing (sending headers, idle between
+    /// requests, being served); more wait in the kernel's backlog. Bounded by the process's
+    /// file descriptors at start.
     pub max_connections: usize,
+    /// Connections open at once from one address; past it a new one is closed at once.
+    pub max_connections_per_address: usize,
+    /// Requests being served at once (from their complete headers to their answer); past it:
+    /// 503 with `Retry-After`. `/healthz` is never refused. Connections still sending their
+    /// headers hold no such slot.
+    pub max_requests: usize,
+    /// Requests one account may have in flight at once; past it: 429 with `Retry-After`.
+    pub max_requests_per_account: usize,
+    /// Uploads (sessions and atlas archives) being received at once, in all (503 past it) and per
+    /// account (429 past it).
+    pub max_uploads: usize,
+    pub max_uploads_per_account: usize,
+    /// Free disk space an upload must leave in the data directory's file system (bytes): an
+    /// upload that would leave less is refused with 503 and `Retry-After` before its body is
+    /// read, so that the database, deletions and the scores still have room.
+    pub min_free_disk_bytes: u64,
     /// Password checks (argon2id) run at once, on threads of their own.
     pub password_threads: usize,
     /// Password checks waiting for a thread; more get 503 with Retry-After.
@@ -29,12 +49,15 @@ pub struct Limits {
     pub login_failure_accounts: usize,
     /// Largest atlas upload (`POST /api/atlases`, the archive's bytes).
     pub max_atlas_bytes: u64,
-    /// Most atlases the catalogue holds (each is kept loaded, CT and all): a publication past it
-    /// is refused.
+    /// Most atlases the catalogue offers (withdrawn ones do not count): a publication past it is
+    /// refused (409).
     pub max_atlases: usize,
+    /// Memory the loaded atlases may take (bytes, estimated from their volumes): the least
+    /// recently used are let go past it and loaded again from disk when needed.
+    pub atlas_cache_bytes: u64,
     /// Most voxels a published atlas may hold, its CT and measured breathing fields counted
     /// (`stylet_atlas::store::voxel_count`): checked from the headers before the atlas is
-    /// loaded, it bounds the memory the atlas takes in the catalogue and its derived-data cache
+    /// loaded, it bounds the memory the atlas takes when loaded and its derived-data cache
     /// on disk (a compressed archive far under `max_atlas_bytes` can describe a huge grid).
     pub max_atlas_voxels: u64,
     /// Time a publication gets for its checks (loading the atlas, its smoke test), beyond its
@@ -51,12 +74,19 @@ impl Default for Limits {
             header_timeout: Duration::from_secs(10),
             request_timeout: Duration::from_secs(30),
             min_upload_bytes_per_s: 32 << 10,
-            max_connections: 512,
+            max_connections: 4096,
+            max_connections_per_address: 1024,
+            max_requests: 512,
+            max_requests_per_account: 64,
+            max_uploads: 32,
+            max_uploads_per_account: 2,
+            min_free_disk_bytes: 256 << 20,
             password_threads: (cores / 2).max(1),
             password_queue: 32,
             login_failure_accounts: 10_000,
             max_atlas_bytes: 1 << 30,
             max_atlases: 32,
+            atlas_cache_bytes: 4 << 30,
             // 512 × 512 × 256.
             max_atlas_voxels: 1 << 26,
             atlas_check_timeout: Duration::from_secs(300),

@@ -1,344 +1,311 @@
-//! The OpenAPI 3.1 document of the JSON API (`GET /api/openapi.json`), written by hand next to the
-//! routes it describes (tests check that every route is in it).
+//! The OpenAPI 3.1 document of the JSON API (`GET /api/openapi.json`), derived from the code:
+//! - each handler's `#[utoipa::path]` annotation, next to it, gives its path, parameters, body,
+//!   security and the statuses the handler answers itself, with the schemas of its answers
+//!   (derived from the types it serializes, or the shapes below for answers built in place);
+//! - the router is built from the same annotated handlers ([`crate::api::router`], utoipa-axum),
+//!   so a route cannot be served without being in the document;
+//! - [`add_layer_statuses`] adds what the layers around every route can answer
+//!   (docs/security.md): 408 past its deadline, 503 past the cap on requests being served (not
+//!   `/healthz`), and on every route that needs a login 401 and 429 (the account's requests in
+//!   flight).
+//!
+//! The service tests validate the server's real answers against this document.
 
-use serde_json::{Value, json};
+use serde::Serialize;
+use utoipa::openapi::path::Operation;
+use utoipa::openapi::security::{ApiKey, ApiKeyValue, HttpAuthScheme, HttpBuilder, SecurityScheme};
+use utoipa::openapi::{ContentBuilder, OpenApi, Ref, RefOr, ResponseBuilder};
+use utoipa::{Modify, ToSchema};
 
-fn error_response(description: &str) -> Value {
-    json!({ "description": description, "content": { "application/json": { "schema": { "$ref": "#/components/schemas/Error" } } } })
+use super::store::{Role, SessionStatus};
+
+/// The document's frame: title, description, security schemes.
+#[derive(utoipa::OpenApi)]
+#[openapi(
+    info(
+        title = "Stylet scoring service",
+        description = "Uploads of session files, scoring by deterministic replay, scores by role. See docs/api.md; limits and the statuses they answer in docs/security.md."
+    ),
+    components(schemas(ErrorBody)),
+    modifiers(&SecuritySchemes)
+)]
+pub struct ApiDoc;
+
+struct SecuritySchemes;
+
+impl Modify for SecuritySchemes {
+    fn modify(&self, doc: &mut OpenApi) {
+        let components = doc.components.get_or_insert_with(Default::default);
+        let mut cookie = ApiKeyValue::new("stylet_session");
+        cookie.description = Some("From POST /api/login. State-changing requests also send X-CSRF-Token.".into());
+        components.add_security_scheme("cookie", SecurityScheme::ApiKey(ApiKey::Cookie(cookie)));
+        components.add_security_scheme(
+            "token",
+            SecurityScheme::Http(
+                HttpBuilder::new()
+                    .scheme(HttpAuthScheme::Bearer)
+                    .description(Some(
+                        "From POST /api/tokens. Scope `upload` (the desktop simulator): POST /api/sessions, GET /api/sessions/{id} \
+                         and GET /api/sessions/{id}/file only, 403 elsewhere; scope `full`: the account's rights. Expired or revoked: 401.",
+                    ))
+                    .build(),
+            ),
+        );
+    }
 }
 
-pub fn document() -> Value {
-    json!({
-        "openapi": "3.1.0",
-        "info": {
-            "title": "Stylet scoring service",
-            "version": env!("CARGO_PKG_VERSION"),
-            "description": "Uploads of session files, scoring by deterministic replay, scores by role. See docs/api.md."
-        },
-        "components": {
-            "securitySchemes": {
-                "cookie": { "type": "apiKey", "in": "cookie", "name": "stylet_session",
-                            "description": "From POST /api/login. State-changing requests also send X-CSRF-Token." },
-                "token": { "type": "http", "scheme": "bearer", "description": "From POST /api/tokens. Scope `upload` (the desktop simulator): POST /api/sessions, GET /api/sessions/{id} and GET /api/sessions/{id}/file only, 403 elsewhere; scope `full`: the account's rights. Expired or revoked: 401." }
-            },
-            "schemas": {
-                "Error": { "type": "object", "required": ["error"], "properties": { "error": { "type": "string" } } },
-                "Role": { "type": "string", "enum": ["trainee", "instructor", "curriculum", "admin"] },
-                "Account": {
-                    "type": "object",
-                    "required": ["username", "role", "cohorts", "created_at"],
-                    "properties": {
-                        "username": { "type": "string" }, "role": { "$ref": "#/components/schemas/Role" },
-                        "cohorts": { "type": "array", "items": { "type": "string" } },
-                        "created_at": { "type": "string" },
-                        "disabled_at": { "type": ["string", "null"], "description": "when it was disabled; null: active" }
-                    }
-                },
-                "ImportRefused": {
-                    "type": "object", "required": ["error", "lines"],
-                    "properties": {
-                        "error": { "type": "string" },
-                        "lines": { "type": "array", "items": { "type": "object", "required": ["line", "reason"],
-                                   "properties": { "line": { "type": "integer", "description": "1 = the first line; 0 = the whole file" },
-                                                   "reason": { "type": "string" } } } }
-                    }
-                },
-                "ApiToken": {
-                    "type": "object",
-                    "required": ["id", "username", "label", "scope", "created_at", "status"],
-                    "properties": {
-                        "id": { "type": "string" }, "username": { "type": "string" }, "label": { "type": "string" },
-                        "scope": { "type": "string", "enum": ["upload", "full"] },
-                        "created_at": { "type": "string" }, "expires_at": { "type": ["string", "null"] },
-                        "revoked_at": { "type": ["string", "null"] },
-                        "last4": { "type": ["string", "null"], "description": "The token's last four hex digits" },
-                        "status": { "type": "string", "enum": ["active", "expired", "revoked"] }
-                    }
-                },
-                "Session": {
-                    "type": "object",
-                    "required": ["id", "trainee", "scenario", "difficulty", "status", "uploaded_at", "duration_s"],
-                    "properties": {
-                        "id": { "type": "string" }, "trainee": { "type": "string" }, "scenario": { "type": "string" },
-                        "difficulty": { "type": "string", "enum": ["beginner", "advanced", "expert"] },
-                        "status": { "type": "string", "enum": ["queued", "scoring", "scored", "failed"] },
-                        "uploaded_at": { "type": "string" }, "duration_s": { "type": "number" },
-                        "error": { "type": ["string", "null"] },
-                        "score": { "description": "The score report of docs/metrics.md once scored, else null" }
-                    }
-                }
+/// Every error: `{"error": "..."}` (at most 4 KiB; a bulk import's also names its bad lines).
+#[derive(Serialize, ToSchema)]
+#[schema(as = Error)]
+pub struct ErrorBody {
+    pub error: String,
+}
+
+/// A refused bulk import: every bad line, nothing imported.
+#[derive(Serialize, ToSchema)]
+pub struct ImportRefused {
+    pub error: String,
+    pub lines: Vec<super::store::ImportLineError>,
+}
+
+/// `GET /healthz`.
+#[derive(Serialize, ToSchema)]
+pub struct Health {
+    /// "ok".
+    pub status: String,
+}
+
+/// A login: who, and the CSRF token state-changing requests send in `X-CSRF-Token`.
+#[derive(Serialize, ToSchema)]
+pub struct LoginAnswer {
+    pub username: String,
+    pub role: Role,
+    pub csrf_token: String,
+}
+
+/// `{"status": "logged out"}`.
+#[derive(Serialize, ToSchema)]
+pub struct LogoutAnswer {
+    pub status: String,
+}
+
+/// An upload's session: its id and where it is on its way to a score.
+#[derive(Serialize, ToSchema)]
+pub struct UploadAnswer {
+    pub id: String,
+    pub status: SessionStatus,
+}
+
+/// A page of sessions, newest first.
+#[derive(Serialize, ToSchema)]
+pub struct SessionPage {
+    pub sessions: Vec<super::store::SessionLine>,
+    pub total: i64,
+    pub page: i64,
+    pub page_size: i64,
+}
+
+/// `{"deleted": id}`.
+#[derive(Serialize, ToSchema)]
+pub struct Deleted {
+    pub deleted: String,
+}
+
+/// A grade override as stored.
+#[derive(Serialize, ToSchema)]
+pub struct OverrideAnswer {
+    pub session: String,
+    pub score: f64,
+    pub passed: bool,
+    pub reason: String,
+}
+
+/// A comment as stored.
+#[derive(Serialize, ToSchema)]
+pub struct CommentAnswer {
+    pub id: String,
+    pub session: String,
+}
+
+/// A trainee's scored sessions per difficulty (`beginner`, `advanced`, `expert`), each a list of
+/// `{id, uploaded_at, score, passed, …}` in upload order.
+#[derive(Serialize, ToSchema)]
+pub struct Progress {
+    pub trainee: String,
+    #[schema(value_type = Object)]
+    pub progress: serde_json::Value,
+}
+
+/// Per trainee of a cohort: sessions, scored, passed, mean score, last upload.
+#[derive(Serialize, ToSchema)]
+pub struct CohortSummary {
+    pub cohort: String,
+    #[schema(value_type = Vec<Object>)]
+    pub trainees: Vec<serde_json::Value>,
+}
+
+/// A page of accounts, by username.
+#[derive(Serialize, ToSchema)]
+pub struct AccountPage {
+    pub users: Vec<super::store::UserRow>,
+    pub total: i64,
+    pub page: i64,
+    pub page_size: i64,
+}
+
+/// A new account (JSON), or the accounts a CSV import added (`imported`).
+#[derive(Serialize, ToSchema)]
+pub struct AccountAdded {
+    pub username: Option<String>,
+    pub role: Option<Role>,
+    pub cohort: Option<String>,
+    pub imported: Option<Vec<String>>,
+}
+
+/// The caller's API tokens.
+#[derive(Serialize, ToSchema)]
+pub struct TokenList {
+    pub tokens: Vec<super::store::TokenRow>,
+}
+
+/// A new API token: the row and `token`, the secret, shown only here.
+#[derive(Serialize, ToSchema)]
+pub struct NewToken {
+    #[serde(flatten)]
+    pub row: super::store::TokenRow,
+    pub token: String,
+}
+
+/// The scenario catalogue.
+#[derive(Serialize, ToSchema)]
+pub struct Catalogue {
+    pub atlases: Vec<super::atlases::CatalogueItem>,
+}
+
+/// What became of a publication or a withdrawal: `published` (201), `already_published` (200),
+/// `withdrawn`.
+#[derive(Serialize, ToSchema)]
+pub struct AtlasAnswer {
+    pub content_hash: String,
+    pub name: String,
+    pub status: String,
+    /// The service's smoke test, one line per script (a new publication).
+    pub smoke: Option<Vec<String>>,
+    /// The atlas as the catalogue lists it (a new publication).
+    pub atlas: Option<super::atlases::CatalogueItem>,
+}
+
+/// Whether a session is an expert reference now.
+#[derive(Serialize, ToSchema)]
+pub struct ExpertAnswer {
+    pub session: String,
+    pub expert: bool,
+}
+
+/// The expert benchmark of a session's scenario and the session's metrics against it.
+#[derive(Serialize, ToSchema)]
+pub struct BenchmarkAnswer {
+    pub scenario: String,
+    pub exercise: String,
+    pub experts: i64,
+    #[schema(value_type = Vec<Object>)]
+    pub metrics: Vec<serde_json::Value>,
+    pub expert: bool,
+    #[schema(value_type = Vec<Object>)]
+    pub comparison: Vec<serde_json::Value>,
+    /// Staff only.
+    #[schema(value_type = Option<Vec<Object>>)]
+    pub references: Option<Vec<serde_json::Value>>,
+}
+
+/// An error answer described by `why`: the Error body for the API, an error page for the
+/// dashboard's routes.
+fn error_response(why: &str, api: bool) -> RefOr<utoipa::openapi::Response> {
+    let content = if api {
+        ("application/json", Ref::from_schema_name("Error").into())
+    } else {
+        (
+            "text/html",
+            utoipa::openapi::schema::Object::with_type(utoipa::openapi::Type::String).into(),
+        )
+    };
+    ResponseBuilder::new()
+        .description(why)
+        .content(
+            content.0,
+            ContentBuilder::new().schema(Some::<RefOr<_>>(content.1)).build(),
+        )
+        .build()
+        .into()
+}
+
+/// Adds `status` to `op` unless the handler documents it itself.
+fn add_status(op: &mut Operation, api: bool, status: &str, why: &str) {
+    op.responses
+        .responses
+        .entry(status.to_string())
+        .or_insert_with(|| error_response(why, api));
+}
+
+/// Whether an operation needs a login (it names a security requirement).
+fn needs_login(op: &Operation) -> bool {
+    op.security.as_ref().is_some_and(|s| !s.is_empty())
+}
+
+/// Adds the statuses the layers around every route can answer (see the module doc).
+pub fn add_layer_statuses(doc: &mut OpenApi) {
+    for (path, item) in doc.paths.paths.iter_mut() {
+        let ops = [
+            item.get.as_mut(),
+            item.post.as_mut(),
+            item.put.as_mut(),
+            item.patch.as_mut(),
+            item.delete.as_mut(),
+        ];
+        // The API answers JSON errors; the dashboard's routes error pages, and a login
+        // redirect instead of 401.
+        let api = path.starts_with("/api/") || path == "/healthz";
+        for op in ops.into_iter().flatten() {
+            add_status(
+                op,
+                api,
+                "408",
+                "the request took too long (its body sent too slowly?); the connection is closed",
+            );
+            if path != "/healthz" {
+                add_status(
+                    op,
+                    api,
+                    "503",
+                    "the server is serving as many requests as it can, or cannot write its data now; try again after Retry-After",
+                );
             }
-        },
-        "paths": {
-            "/healthz": { "get": { "summary": "Health: the database and the data directory can be written", "responses": { "200": { "description": "{\"status\":\"ok\"}" }, "503": error_response("the database or the data directory cannot be written") } } },
-            "/api/openapi.json": { "get": { "summary": "This document", "responses": { "200": { "description": "OpenAPI 3.1" } } } },
-            "/api/login": { "post": {
-                "summary": "Log in; sets the stylet_session cookie",
-                "requestBody": { "required": true, "content": { "application/json": { "schema": {
-                    "type": "object", "required": ["username", "password"],
-                    "properties": { "username": { "type": "string" }, "password": { "type": "string" } } } } } },
-                "responses": {
-                    "200": { "description": "{username, role, csrf_token}" },
-                    "400": error_response("malformed body"),
-                    "403": error_response("sent from another site (Sec-Fetch-Site, or an Origin or Referer that is not this server)"),
-                    "401": error_response("wrong username or password"),
-                    "429": error_response("too many failed logins for this account")
+            if needs_login(op) {
+                if api {
+                    add_status(
+                        op,
+                        api,
+                        "401",
+                        "not logged in, or the login or token expired, was revoked or its account disabled",
+                    );
                 }
-            } },
-            "/api/logout": { "post": { "summary": "Log out", "responses": { "200": { "description": "logged out" } } } },
-            "/api/users": {
-                "get": {
-                    "summary": "Accounts with role, cohorts and status, by username, 100 a page (admin)",
-                    "security": [{ "cookie": [] }, { "token": [] }],
-                    "parameters": [
-                        { "name": "q", "in": "query", "schema": { "type": "string" }, "description": "part of a username" },
-                        { "name": "page", "in": "query", "schema": { "type": "integer", "minimum": 1, "default": 1 } }
-                    ],
-                    "responses": { "200": { "description": "{users: [Account], total, page, page_size}" },
-                                   "401": error_response("not logged in, or the account is disabled"), "403": error_response("not an admin") }
-                },
-                "post": {
-                    "summary": "Add an account, or import accounts from CSV (admin; audited)",
-                    "description": "JSON adds one account. `Content-Type: text/csv` imports one account per line, `username,role,cohort,password` (optional header line; cohort may be empty; the password is the rest of the line; at most 200 lines): every account or none; 422 names every bad line.",
-                    "security": [{ "cookie": [] }, { "token": [] }],
-                    "requestBody": { "required": true, "content": {
-                        "application/json": { "schema": {
-                            "type": "object", "required": ["username", "role", "password"], "additionalProperties": false,
-                            "properties": { "username": { "type": "string" },
-                                            "role": { "$ref": "#/components/schemas/Role" },
-                                            "password": { "type": "string", "minLength": 8 },
-                                            "cohort": { "type": "string" } } } },
-                        "text/csv": { "schema": { "type": "string" } } } },
-                    "responses": { "201": { "description": "{username, role, cohort}; for a CSV import {imported: [usernames]}" },
-                                   "400": error_response("invalid username, role, password or cohort"),
-                                   "401": error_response("not logged in"), "403": error_response("not an admin, or CSRF token missing"),
-                                   "409": error_response("the username exists"),
-                                   "422": { "description": "an import with bad lines; nothing was imported",
-                                            "content": { "application/json": { "schema": { "$ref": "#/components/schemas/ImportRefused" } } } } }
-                }
-            },
-            "/api/users/{username}": {
-                "get": {
-                    "summary": "One account (admin)",
-                    "security": [{ "cookie": [] }, { "token": [] }],
-                    "parameters": [{ "name": "username", "in": "path", "required": true, "schema": { "type": "string" } }],
-                    "responses": { "200": { "description": "Account", "content": { "application/json": { "schema": { "$ref": "#/components/schemas/Account" } } } },
-                                   "401": error_response("not logged in"), "403": error_response("not an admin"),
-                                   "404": error_response("no such account") }
-                },
-                "patch": {
-                    "summary": "Change an account's role, cohorts or status (admin; audited per change)",
-                    "description": "`cohorts` replaces the account's cohorts (created if new; [] for none). Takes effect on the account's next request.",
-                    "security": [{ "cookie": [] }, { "token": [] }],
-                    "parameters": [{ "name": "username", "in": "path", "required": true, "schema": { "type": "string" } }],
-                    "requestBody": { "required": true, "content": { "application/json": { "schema": {
-                        "type": "object", "additionalProperties": false,
-                        "properties": { "role": { "$ref": "#/components/schemas/Role" },
-                                        "cohorts": { "type": "array", "items": { "type": "string" } },
-                                        "disabled": { "type": "boolean" } } } } } },
-                    "responses": { "200": { "description": "Account", "content": { "application/json": { "schema": { "$ref": "#/components/schemas/Account" } } } },
-                                   "400": error_response("bad role or cohort name"),
-                                   "401": error_response("not logged in"), "403": error_response("not an admin, or CSRF token missing"),
-                                   "404": error_response("no such account"),
-                                   "409": error_response("it would leave no active admin, or an admin disabling or demoting their own account") }
-                }
-            },
-            "/api/users/{username}/disable": { "post": {
-                "summary": "Disable an account (admin; audited): its login cookies and API tokens are refused from the next request; its sessions stay",
-                "security": [{ "cookie": [] }, { "token": [] }],
-                "parameters": [{ "name": "username", "in": "path", "required": true, "schema": { "type": "string" } }],
-                "responses": { "200": { "description": "Account", "content": { "application/json": { "schema": { "$ref": "#/components/schemas/Account" } } } },
-                               "401": error_response("not logged in"), "403": error_response("not an admin, or CSRF token missing"),
-                               "404": error_response("no such account"),
-                               "409": error_response("the last active admin, or one's own account") }
-            } },
-            "/api/users/{username}/enable": { "post": {
-                "summary": "Enable a disabled account (admin; audited): its unexpired logins and tokens work again",
-                "security": [{ "cookie": [] }, { "token": [] }],
-                "parameters": [{ "name": "username", "in": "path", "required": true, "schema": { "type": "string" } }],
-                "responses": { "200": { "description": "Account", "content": { "application/json": { "schema": { "$ref": "#/components/schemas/Account" } } } },
-                               "401": error_response("not logged in"), "403": error_response("not an admin, or CSRF token missing"),
-                               "404": error_response("no such account") }
-            } },
-            "/api/users/{username}/password": { "post": {
-                "summary": "Reset an account's password (admin; audited); its logins end",
-                "security": [{ "cookie": [] }, { "token": [] }],
-                "parameters": [{ "name": "username", "in": "path", "required": true, "schema": { "type": "string" } }],
-                "requestBody": { "required": true, "content": { "application/json": { "schema": {
-                    "type": "object", "required": ["password"], "additionalProperties": false,
-                    "properties": { "password": { "type": "string", "minLength": 8, "maxLength": 1024 } } } } } },
-                "responses": { "200": { "description": "Account", "content": { "application/json": { "schema": { "$ref": "#/components/schemas/Account" } } } },
-                               "400": error_response("a password has 8–1024 characters"),
-                               "401": error_response("not logged in"), "403": error_response("not an admin, or CSRF token missing"),
-                               "404": error_response("no such account") }
-            } },
-            "/api/tokens": {
-                "post": {
-                    "summary": "Create an API token for the logged-in user (shown once; audited)",
-                    "description": "Login cookie and X-CSRF-Token only: a request authenticated by an API token gets 403. Scope `upload` (default) may only upload sessions and read their status; `full` has the account's rights.",
-                    "security": [{ "cookie": [] }],
-                    "requestBody": { "required": true, "content": { "application/json": { "schema": {
-                        "type": "object", "required": ["label"], "additionalProperties": false,
-                        "properties": { "label": { "type": "string", "minLength": 1, "maxLength": 100 },
-                                        "scope": { "type": "string", "enum": ["upload", "full"], "default": "upload" },
-                                        "expires_in_days": { "type": "integer", "minimum": 1, "maximum": 90, "default": 90 } } } } } },
-                    "responses": { "201": { "description": "ApiToken and `token`, the secret, shown only here" },
-                                   "400": error_response("bad label, scope or expiry"),
-                                   "401": error_response("not logged in"),
-                                   "403": error_response("CSRF token missing, or authenticated by an API token") }
-                },
-                "get": {
-                    "summary": "The caller's API tokens (an admin's: everyone's), newest first, never the secret",
-                    "security": [{ "cookie": [] }, { "token": [] }],
-                    "responses": { "200": { "description": "{tokens: [ApiToken]}", "content": { "application/json": { "schema": {
-                                       "type": "object", "properties": { "tokens": { "type": "array", "items": { "$ref": "#/components/schemas/ApiToken" } } } } } } },
-                                   "401": error_response("not logged in, or the token expired or was revoked"),
-                                   "403": error_response("an upload-scoped token") }
-                }
-            },
-            "/api/tokens/{id}/revoke": { "post": {
-                "summary": "Revoke an API token (own; admins: anyone's); audited; revoking twice changes nothing",
-                "security": [{ "cookie": [] }, { "token": [] }],
-                "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
-                "responses": { "200": { "description": "ApiToken, now revoked", "content": { "application/json": { "schema": { "$ref": "#/components/schemas/ApiToken" } } } },
-                               "401": error_response("not logged in"),
-                               "403": error_response("CSRF token missing, or an upload-scoped token"),
-                               "404": error_response("no such token, or not yours") }
-            } },
-            "/api/atlases": {
-                "post": {
-                    "summary": "Publish an atlas (admins and instructors; audited)",
-                    "description": "A tar archive of atlas.toml, validation.toml, the two volumes and the record's scripts/*.txt (stylet atlas publish makes it). The service loads it, checks the validation record against its content hash and runs the smoke test again before it keeps it by content hash and lists it in the catalogue.",
-                    "security": [{ "cookie": [] }, { "token": [] }],
-                    "requestBody": { "required": true, "content": { "application/x-tar": { "schema": { "type": "string", "format": "binary" } } } },
-                    "responses": {
-                        "201": { "description": "{content_hash, name, status: published, smoke, atlas}" },
-                        "200": { "description": "{content_hash, name, status: already_published}" },
-                        "400": error_response("empty body"),
-                        "401": error_response("not logged in"),
-                        "403": error_response("not an admin or instructor, CSRF token missing, or an upload-scoped token"),
-                        "409": error_response("the catalogue is full"),
-                        "411": error_response("no Content-Length"),
-                        "413": error_response("over the atlas size limit"),
-                        "415": error_response("not application/x-tar"),
-                        "422": error_response("not a valid archive, a damaged atlas, not validated, or its smoke test failed"),
-                        "503": error_response("two other publications are under way")
-                    }
-                },
-                "get": {
-                    "summary": "The scenario catalogue: every atlas this server scores sessions on",
-                    "security": [{ "cookie": [] }, { "token": [] }],
-                    "responses": { "200": { "description": "{atlases: [{content_hash, name, description, origin, published_by, published_at, scenarios, paths, structures, dims, spacing_mm, sessions}]}" }, "401": error_response("not logged in") }
-                }
-            },
-            "/api/sessions": {
-                "post": {
-                    "summary": "Upload a session file",
-                    "description": "API tokens of either scope may upload (the desktop simulator).",
-                    "security": [{ "cookie": [] }, { "token": [] }],
-                    "requestBody": { "required": true, "content": { "application/octet-stream": { "schema": { "type": "string", "format": "binary" } } } },
-                    "responses": {
-                        "201": { "description": "{id, status: queued} for new bytes" },
-                        "200": { "description": "{id, status} of the same bytes uploaded before" },
-                        "400": error_response("empty body"),
-                        "401": error_response("not logged in"),
-                        "403": error_response("may not upload for this trainee, or CSRF token missing"),
-                        "413": error_response("over the size limit"),
-                        "422": error_response("not a valid session file, unknown atlas, or unknown trainee")
-                    }
-                },
-                "get": {
-                    "summary": "Sessions the caller may see, newest first",
-                    "security": [{ "cookie": [] }, { "token": [] }],
-                    "responses": { "200": { "description": "{sessions: [Session]}" }, "401": error_response("not logged in") }
-                }
-            },
-            "/api/sessions/{id}/override": { "post": {
-                "summary": "Override the grade with a reason (the trainee's instructors, admins; audited)",
-                "security": [{ "cookie": [] }, { "token": [] }],
-                "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
-                "requestBody": { "required": true, "content": { "application/json": { "schema": {
-                    "type": "object", "required": ["score", "passed", "reason"],
-                    "properties": { "score": { "type": "number", "minimum": 0, "maximum": 100 }, "passed": { "type": "boolean" }, "reason": { "type": "string" } } } } } },
-                "responses": { "201": { "description": "stored" }, "400": error_response("bad body"), "403": error_response("not a reviewer of this trainee"), "404": error_response("no such session") }
-            } },
-            "/api/sessions/{id}/comments": { "post": {
-                "summary": "Comment on a session (the trainee's instructors, admins)",
-                "security": [{ "cookie": [] }, { "token": [] }],
-                "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
-                "requestBody": { "required": true, "content": { "application/json": { "schema": {
-                    "type": "object", "required": ["body"], "properties": { "body": { "type": "string" }, "at_s": { "type": "number", "minimum": 0, "description": "moment of the session (s from its start) the comment points at" } } } } } },
-                "responses": { "201": { "description": "stored" }, "400": error_response("bad body"), "403": error_response("not a reviewer of this trainee"), "404": error_response("no such session") }
-            } },
-            "/api/sessions/{id}/expert": {
-                "post": {
-                    "summary": "Mark the session as an expert reference of its scenario (the trainee's instructors, admins; audited). It must be scored, complete, its replay verified",
-                    "security": [{ "cookie": [] }, { "token": [] }],
-                    "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
-                    "responses": { "201": { "description": "{session, expert: true}" }, "403": error_response("not a reviewer of this trainee"), "404": error_response("no such session"), "409": error_response("not scored, incomplete, not verified, or the scenario has the most references") }
-                },
-                "delete": {
-                    "summary": "Unmark an expert reference (the trainee's instructors, admins; audited)",
-                    "security": [{ "cookie": [] }, { "token": [] }],
-                    "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
-                    "responses": { "200": { "description": "{session, expert: false}" }, "403": error_response("not a reviewer of this trainee"), "404": error_response("no such session") }
-                }
-            },
-            "/api/sessions/{id}/benchmark": { "get": {
-                "summary": "The expert benchmark of the session's scenario (mean and spread per metric over its expert references) and the session's metrics against it",
-                "security": [{ "cookie": [] }, { "token": [] }],
-                "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
-                "responses": { "200": { "description": "{scenario, exercise, experts, metrics: [{metric, mean, spread}], expert, comparison: [{metric, value, mean, spread, spreads_from_mean}], references (staff only)}" }, "404": error_response("no such session") }
-            } },
-            "/api/trainees/{username}/progress": { "get": {
-                "summary": "A trainee's scored sessions per difficulty, in upload order (overrides applied)",
-                "security": [{ "cookie": [] }, { "token": [] }],
-                "parameters": [{ "name": "username", "in": "path", "required": true, "schema": { "type": "string" } }],
-                "responses": { "200": { "description": "{trainee, progress: {beginner: [...], advanced: [...], expert: [...]}}" }, "404": error_response("no such trainee, or not yours to see") }
-            } },
-            "/api/cohorts/{name}/summary": { "get": {
-                "summary": "Per trainee of a cohort: sessions, scored, passed, mean score, last upload",
-                "security": [{ "cookie": [] }, { "token": [] }],
-                "parameters": [{ "name": "name", "in": "path", "required": true, "schema": { "type": "string" } }],
-                "responses": { "200": { "description": "{cohort, trainees: [...]}" }, "403": error_response("not an instructor of this cohort"), "404": error_response("no such cohort") }
-            } },
-            "/api/export/sessions.csv": { "get": {
-                "summary": "One CSV row per visible session (columns in docs/api.md)",
-                "security": [{ "cookie": [] }, { "token": [] }],
-                "responses": { "200": { "description": "text/csv" }, "403": error_response("trainees have no export") }
-            } },
-            "/api/sessions/{id}/file": { "get": {
-                "summary": "The session file as uploaded (application/octet-stream, streamed)",
-                "description": "For whoever may see the session; API tokens of either scope (the simulator's replay viewer fetches sessions with its upload token).",
-                "security": [{ "cookie": [] }, { "token": [] }],
-                "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
-                "responses": {
-                    "200": { "description": "The session file (docs/session-format.md)" },
-                    "401": error_response("not logged in"),
-                    "404": error_response("no such session, or not yours to see")
-                }
-            } },
-            "/api/sessions/{id}": { "get": {
-                "summary": "One session and its score",
-                "description": "API tokens of either scope may read it (the simulator polls the status of its upload); every other route refuses upload-scoped tokens with 403.",
-                "security": [{ "cookie": [] }, { "token": [] }],
-                "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
-                "responses": {
-                    "200": { "description": "Session", "content": { "application/json": { "schema": { "$ref": "#/components/schemas/Session" } } } },
-                    "401": error_response("not logged in"),
-                    "404": error_response("no such session, or not yours to see")
-                }
-            }, "delete": {
-                "summary": "Delete a session (admins): rows, file, trace and figures; audited",
-                "security": [{ "cookie": [] }, { "token": [] }],
-                "parameters": [{ "name": "id", "in": "path", "required": true, "schema": { "type": "string" } }],
-                "responses": {
-                    "200": { "description": "Deleted: {\"deleted\": id}" },
-                    "401": error_response("not logged in"),
-                    "403": error_response("not an admin, or no CSRF token"),
-                    "404": error_response("no such session")
-                }
-            } }
+                add_status(
+                    op,
+                    api,
+                    "429",
+                    "this account has as many requests in flight as it may; try again after Retry-After",
+                );
+            }
         }
-    })
+    }
+}
+
+/// The whole document: [`ApiDoc`] with the routes' paths (`routes`, from the router) and the
+/// layers' statuses.
+pub fn document(routes: OpenApi) -> OpenApi {
+    let mut doc = <ApiDoc as utoipa::OpenApi>::openapi();
+    doc.merge(routes);
+    doc.info.version = env!("CARGO_PKG_VERSION").to_string();
+    add_layer_statuses(&mut doc);
+    doc
 }

@@ -17,7 +17,6 @@ use std::path::{Path, PathBuf};
 
 use axum::body::Body;
 use axum::http::StatusCode;
-use futures_util::StreamExt;
 use stylet_atlas::validation::{self, NotValidated, SCRIPTS_DIR, VALIDATION_FILE};
 use stylet_atlas::{Atlas, store::MANIFEST_FILE};
 use stylet_scoring::smoke::{self, SmokeOutcome};
@@ -25,6 +24,7 @@ use stylet_scoring::{Rubric, Scorer};
 use tokio::io::AsyncWriteExt;
 
 use super::api::{ApiError, err};
+use super::intake::RatedBody;
 
 /// The media type of an atlas upload.
 pub const CONTENT_TYPE: &str = "application/x-tar";
@@ -78,34 +78,33 @@ pub struct Checked {
     pub smoke: Vec<SmokeOutcome>,
 }
 
-/// Streams `body` into `file`, refusing it (and stopping) past `limit` bytes; returns its size.
-pub async fn receive(body: Body, file: &Path, limit: u64) -> Result<u64, ApiError> {
+/// Streams `body` into `file`, refusing it (and stopping) past `limit` bytes or when it arrives
+/// more slowly than `min_bytes_per_s` ([`crate::intake`]); returns its size.
+pub async fn receive(body: Body, file: &Path, limit: u64, min_bytes_per_s: u64) -> Result<u64, ApiError> {
     let too_large = || {
         err(
             StatusCode::PAYLOAD_TOO_LARGE,
             format!("the atlas upload exceeds the limit of {limit} bytes"),
         )
     };
-    let storage = |e: std::io::Error| ApiError::from(Refusal::Storage(format!("{}: {e}", file.display())));
+    let storage = |e: std::io::Error| super::intake::storage_error(file, &e);
     let mut out = tokio::fs::File::create(file).await.map_err(storage)?;
-    let mut stream = body.into_data_stream();
-    let mut n = 0u64;
-    while let Some(chunk) = stream.next().await {
-        let chunk = chunk.map_err(|e| err(StatusCode::BAD_REQUEST, format!("the upload broke off: {e}")))?;
-        n += chunk.len() as u64;
-        if n > limit {
+    out.set_max_buf_size(128 << 10);
+    let mut body = RatedBody::new(body.into_data_stream(), min_bytes_per_s);
+    while let Some(chunk) = body.next().await? {
+        if body.received > limit {
             return Err(too_large());
         }
         out.write_all(&chunk).await.map_err(storage)?;
     }
     out.flush().await.map_err(storage)?;
-    if n == 0 {
+    if body.received == 0 {
         return Err(err(
             StatusCode::BAD_REQUEST,
             "the request body is empty: send the atlas as a tar archive (stylet atlas publish does)",
         ));
     }
-    Ok(n)
+    Ok(body.received)
 }
 
 /// What an archive entry is, by its name.
@@ -128,7 +127,8 @@ fn kind_of(name: &str, is_dir: bool) -> Result<Kind, String> {
     let name = name.trim_start_matches("./");
     let refuse = || {
         format!(
-            "unexpected entry {name:?}: an atlas upload holds {MANIFEST_FILE}, {VALIDATION_FILE}, the two NIfTI volumes atlas.toml names, {SCRIPTS_DIR}/*.txt and its measured breathing motion, {MOTION_DIR}/*.nii.gz and {MOTION_DIR}/*.csv"
+            "unexpected entry {}: an atlas upload holds {MANIFEST_FILE}, {VALIDATION_FILE}, the two NIfTI volumes atlas.toml names, {SCRIPTS_DIR}/*.txt and its measured breathing motion, {MOTION_DIR}/*.nii.gz and {MOTION_DIR}/*.csv",
+            shown(name)
         )
     };
     if is_dir {
@@ -142,7 +142,7 @@ fn kind_of(name: &str, is_dir: bool) -> Result<Kind, String> {
         VALIDATION_FILE => Ok(Kind::Record),
         _ => {
             if let Some(script) = name.strip_prefix(&format!("{SCRIPTS_DIR}/")) {
-                validation::check_script_name(script).map_err(|e| format!("entry {name:?}: {e}"))?;
+                validation::check_script_name(script).map_err(|e| format!("entry {}: {}", shown(name), bounded(&e)))?;
                 return Ok(Kind::Script);
             }
             let plain = |n: &str| !n.is_empty() && !n.contains(['/', '\\', '\0']) && !n.starts_with('.');
@@ -163,19 +163,43 @@ fn kind_of(name: &str, is_dir: bool) -> Result<Kind, String> {
     }
 }
 
-/// Largest extended header (GNU long name or link, PAX record) accepted: the `tar` crate reads
-/// them whole into memory.
+/// Largest extended header (GNU long name, PAX record) accepted: the `tar` crate reads them whole
+/// into memory.
 const MAX_EXTENSION_BYTES: u64 = 4096;
 
-/// Walks the archive's 512-byte headers without reading any entry: refuses extended headers
-/// (long names, PAX records) over [`MAX_EXTENSION_BYTES`] before the `tar` crate would read them.
+/// Longest entry name quoted back in a refusal (characters): a refusal never echoes more of
+/// what was sent.
+const MAX_SHOWN_NAME_CHARS: usize = 120;
+
+/// An entry's name as a refusal quotes it: escaped, and cut after [`MAX_SHOWN_NAME_CHARS`].
+fn shown(name: &str) -> String {
+    let count = name.chars().count();
+    if count <= MAX_SHOWN_NAME_CHARS {
+        return format!("{name:?}");
+    }
+    let head: String = name.chars().take(MAX_SHOWN_NAME_CHARS).collect();
+    format!("{head:?}… ({count} characters)")
+}
+
+/// Walks the archive's 512-byte headers exactly as the `tar` crate will read them, without
+/// reading any entry's data, and refuses what would make the crate read much, or read another
+/// archive than this walk sees, before it reads anything:
+/// - every entry's size must fit in what is left of the archive;
+/// - extended headers (GNU long names, PAX records) hold at most [`MAX_EXTENSION_BYTES`];
+/// - a PAX record's `size` must equal the header's size of the entry it describes (otherwise the
+///   crate would take the PAX size, this walk the header's, and the two would part ways);
+/// - kinds other than files, folders, long names and PAX records (links, sparse files with their
+///   extension blocks, global PAX headers, …) are refused here.
 fn check_headers(archive: &Path) -> Result<(), Refusal> {
     use std::io::{Seek, SeekFrom};
     let storage = |e: std::io::Error| Refusal::Storage(format!("{}: {e}", archive.display()));
+    let bad = |m: String| Refusal::Archive(m);
     let mut f = std::fs::File::open(archive).map_err(storage)?;
     let len = f.metadata().map_err(storage)?.len();
     let mut at = 0u64;
     let mut block = [0u8; 512];
+    // The size a PAX record gave the next entry that is not itself an extended header.
+    let mut pax_size: Option<u64> = None;
     for _ in 0..4 * MAX_ENTRIES {
         if at + 512 > len {
             return Ok(());
@@ -186,18 +210,62 @@ fn check_headers(archive: &Path) -> Result<(), Refusal> {
             return Ok(());
         }
         let header = tar::Header::from_byte_slice(&block);
-        let size = header
-            .entry_size()
-            .map_err(|e| Refusal::Archive(format!("not a tar archive ({e})")))?;
+        let not_tar = |e: std::io::Error| bad(format!("not a tar archive ({e})"));
+        let sum: u32 = block[..148]
+            .iter()
+            .chain(&block[156..])
+            .map(|&b| u32::from(b))
+            .sum::<u32>()
+            + 8 * 32;
+        if header.cksum().map_err(not_tar)? != sum {
+            return Err(bad("not a tar archive (a header's checksum does not match)".into()));
+        }
+        let size = header.entry_size().map_err(not_tar)?;
+        let left = len - at - 512;
+        if size > left {
+            return Err(bad(format!(
+                "an entry of {size} bytes runs past the end of the archive ({left} bytes left)"
+            )));
+        }
         let kind = header.entry_type();
-        let extension = kind.is_gnu_longname()
-            || kind.is_gnu_longlink()
-            || kind.is_pax_local_extensions()
-            || kind.is_pax_global_extensions();
+        let extension = kind.is_gnu_longname() || kind.is_pax_local_extensions();
         if extension && size > MAX_EXTENSION_BYTES {
-            return Err(Refusal::Archive(format!(
+            return Err(bad(format!(
                 "an extended header (long name or PAX record) of {size} bytes, more than the {MAX_EXTENSION_BYTES} accepted"
             )));
+        }
+        if kind.is_pax_local_extensions() {
+            if pax_size.is_some() {
+                return Err(bad("two PAX records describe one entry".into()));
+            }
+            let mut records = vec![0u8; size as usize];
+            f.read_exact(&mut records).map_err(storage)?;
+            for record in tar::PaxExtensions::new(&records) {
+                let record = record.map_err(|e| bad(format!("a PAX record is malformed ({e})")))?;
+                if record.key_bytes() == b"size" {
+                    let value = record
+                        .value()
+                        .ok()
+                        .and_then(|v| v.parse::<u64>().ok())
+                        .ok_or_else(|| bad("a PAX size is not a number".into()))?;
+                    pax_size = Some(value);
+                }
+            }
+        } else if !extension {
+            if !(kind.is_file() || kind.is_dir()) {
+                let name = String::from_utf8_lossy(&header.path_bytes()).into_owned();
+                return Err(bad(format!(
+                    "entry {} is not a regular file (links and special files are refused)",
+                    shown(&name)
+                )));
+            }
+            if let Some(pax) = pax_size.take()
+                && pax != size
+            {
+                return Err(bad(format!(
+                    "a PAX record gives an entry {pax} bytes, its header {size}: the archive reads two ways"
+                )));
+            }
         }
         at = at
             .saturating_add(512)
@@ -236,7 +304,8 @@ pub fn unpack(archive: &Path, out: &Path) -> Result<(), Refusal> {
         let is_dir = kind_byte.is_dir();
         if !(is_dir || kind_byte.is_file()) {
             return Err(bad(format!(
-                "entry {name:?} is not a regular file (links and special files are refused)"
+                "entry {} is not a regular file (links and special files are refused)",
+                shown(&name)
             )));
         }
         let kind = kind_of(&name, is_dir).map_err(bad)?;
@@ -245,7 +314,7 @@ pub fn unpack(archive: &Path, out: &Path) -> Result<(), Refusal> {
         }
         let name = name.trim_start_matches("./").to_string();
         if !seen.insert(name.clone()) {
-            return Err(bad(format!("entry {name:?} appears twice")));
+            return Err(bad(format!("entry {} appears twice", shown(&name))));
         }
         let limit = match kind {
             Kind::Manifest => MAX_MANIFEST_BYTES,
@@ -273,13 +342,17 @@ pub fn unpack(archive: &Path, out: &Path) -> Result<(), Refusal> {
         }
         let size = entry.size();
         if size > limit {
-            return Err(bad(format!("{name} is {size} bytes, more than the {limit} accepted")));
+            return Err(bad(format!(
+                "{} is {size} bytes, more than the {limit} accepted",
+                shown(&name)
+            )));
         }
         let target = out.join(&name);
         let mut dest = std::fs::File::create_new(&target).map_err(storage)?;
-        let copied = std::io::copy(&mut (&mut entry).take(size), &mut dest).map_err(|e| bad(format!("{name}: {e}")))?;
+        let copied = std::io::copy(&mut (&mut entry).take(size), &mut dest)
+            .map_err(|e| bad(format!("{}: {e}", shown(&name))))?;
         if copied != size {
-            return Err(bad(format!("{name} is cut short ({copied} of {size} bytes)")));
+            return Err(bad(format!("{} is cut short ({copied} of {size} bytes)", shown(&name))));
         }
     }
     for required in [MANIFEST_FILE, VALIDATION_FILE] {
@@ -293,8 +366,22 @@ pub fn unpack(archive: &Path, out: &Path) -> Result<(), Refusal> {
     Ok(())
 }
 
+/// The content hash of the unpacked atlas in `dir`, from its files (none is loaded).
+pub fn content_of(dir: &Path) -> Result<String, Refusal> {
+    let damaged = |e: stylet_atlas::AtlasError| Refusal::Damaged(strip_dir(&e.to_string(), dir));
+    let manifest = stylet_atlas::store::read_manifest(dir).map_err(damaged)?;
+    stylet_atlas::store::content_hash(dir, &manifest).map_err(damaged)
+}
+
 /// Checks the unpacked atlas in `dir` (see the module doc), running its smoke test in `work`.
+/// The validation record first: it must vouch for exactly this content (hashed from the files),
+/// before a volume is read.
 pub fn check(dir: &Path, work: &Path, max_voxels: u64) -> Result<Checked, Refusal> {
+    let hash = content_of(dir)?;
+    let record = validation::read_record(dir)
+        .map_err(|e| Refusal::Archive(strip_dir(&e.to_string(), dir)))?
+        .ok_or(NotValidated::Missing)?;
+    record.vouches_for(&hash)?;
     // The load's memory and its derived-data cache grow with the voxels: bounded from the
     // headers before any volume is read.
     let voxels = stylet_atlas::store::voxel_count(dir).map_err(|e| Refusal::Damaged(strip_dir(&e.to_string(), dir)))?;
@@ -318,7 +405,8 @@ pub fn check(dir: &Path, work: &Path, max_voxels: u64) -> Result<Checked, Refusa
         let name = format!("{MOTION_DIR}/{}", name.to_string_lossy());
         if !motion_named.contains(&name.as_str()) {
             return Err(Refusal::Archive(format!(
-                "{name} is not a breathing file atlas.toml names"
+                "{} is not a breathing file atlas.toml names",
+                shown(&name)
             )));
         }
     }
@@ -330,14 +418,14 @@ pub fn check(dir: &Path, work: &Path, max_voxels: u64) -> Result<Checked, Refusa
             .any(|v| v.as_str() == name);
         if (name.ends_with(".nii") || name.ends_with(".nii.gz")) && !named {
             return Err(Refusal::Archive(format!(
-                "{name} is not one of the volumes atlas.toml names"
+                "{} is not one of the volumes atlas.toml names",
+                shown(&name)
             )));
         }
     }
-    let record = validation::read_record(dir)
-        .map_err(|e| Refusal::Archive(strip_dir(&e.to_string(), dir)))?
-        .ok_or(NotValidated::Missing)?;
-    record.vouches_for(&atlas.content_hash)?;
+    if atlas.content_hash != hash {
+        return Err(Refusal::Damaged("its files changed while it was being checked".into()));
+    }
     // The record's scripts must be in the archive (the published folder is complete), but the
     // server runs its own: the example scripts of the guided path, generated from the atlas whose
     // content the hash covers, as `stylet atlas validate` does (bounded: a push of at most 400 mm
@@ -369,6 +457,11 @@ pub fn check(dir: &Path, work: &Path, max_voxels: u64) -> Result<Checked, Refusa
     })
 }
 
+/// A message of another part (a script name check) cut to a few hundred characters.
+fn bounded(message: &str) -> String {
+    super::api::bounded(message, 512)
+}
+
 /// Messages name files by the server's temporary folder; the publisher knows them by name.
 fn strip_dir(message: &str, dir: &Path) -> String {
     message.replace(&format!("{}/", dir.display()), "")
@@ -379,10 +472,11 @@ pub fn is_hash(name: &str) -> bool {
     name.len() == 64 && name.chars().all(|c| c.is_ascii_digit() || ('a'..='f').contains(&c))
 }
 
-/// The atlases published before, from `root` (`DATA/atlases`): each folder named by its content
-/// hash is loaded and kept when it still has that hash; one that does not is left where it is and
-/// logged. Leftovers of publications cut short (`.incoming-*`) are removed.
-pub fn load_published(root: &Path) -> Result<Vec<(Atlas, Scorer)>, String> {
+/// The folders of the atlases published before, from `root` (`DATA/atlases`): each folder named
+/// by a content hash with an atlas in it, that `is_published` (the database holds its
+/// publication); a folder without its publication record is logged and left out (never served
+/// unaudited). Leftovers of publications cut short (`.incoming-*`) are removed.
+pub fn published_dirs(root: &Path, is_published: impl Fn(&str) -> bool) -> Result<Vec<PathBuf>, String> {
     if !root.exists() {
         return Ok(Vec::new());
     }
@@ -396,32 +490,15 @@ pub fn load_published(root: &Path) -> Result<Vec<(Atlas, Scorer)>, String> {
         if name.starts_with(".incoming-") {
             let _ = std::fs::remove_dir_all(&path);
         } else if is_hash(&name) && path.join(MANIFEST_FILE).is_file() {
-            dirs.push(path);
+            if is_published(&name) {
+                dirs.push(path);
+            } else {
+                tracing::warn!(dir = %path.display(), "a folder of the atlas store has no publication record; not served");
+            }
         }
     }
     dirs.sort();
-    let mut loaded = Vec::new();
-    for d in dirs {
-        let name = d
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        match stylet_atlas::load(&d) {
-            Ok(atlas) if atlas.content_hash == name => match Scorer::new(&atlas, Rubric::default_rubric(), None) {
-                Ok(scorer) => loaded.push((atlas, scorer)),
-                Err(e) => {
-                    tracing::error!(dir = %d.display(), error = %e, "a published atlas cannot be scored; not loaded")
-                }
-            },
-            Ok(atlas) => tracing::error!(
-                dir = %d.display(),
-                hash = %atlas.content_hash,
-                "a published atlas no longer has the content hash it was published with; not loaded"
-            ),
-            Err(e) => tracing::error!(dir = %d.display(), error = %e, "a published atlas cannot be loaded; not loaded"),
-        }
-    }
-    Ok(loaded)
+    Ok(dirs)
 }
 
 #[cfg(test)]

@@ -3,9 +3,17 @@
 //!
 //! Connections are served by hyper directly (not `axum::serve`) for its header-read timer: a
 //! client gets [`Limits::header_timeout`] to send each request's headers, and the same timer
-//! closes keep-alive connections that stay idle that long. At most
-//! [`Limits::max_connections`] are served at once; further ones wait in the kernel's backlog.
+//! closes keep-alive connections that stay idle that long. Two different things are bounded:
+//! - open connections, whatever they do ([`Limits::max_connections`], at most
+//!   [`Limits::max_connections_per_address`] from one address): a socket and a small task each,
+//!   with a read buffer of at most [`MAX_CONNECTION_BUFFER_BYTES`];
+//! - requests being served ([`Limits::max_requests`], [`serving`]; per account
+//!   [`Limits::max_requests_per_account`], [`in_flight`]): a connection holds such a slot only
+//!   from its request's complete headers to its answer, so connections that are still sending
+//!   their headers (slowloris) or idle cannot take the serving capacity, and `/healthz` is never
+//!   refused.
 
+use std::net::IpAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -20,22 +28,58 @@ use tokio::sync::Semaphore;
 
 use super::Limits;
 use super::api::err;
+use super::slots::{InFlight, Slots};
+
+/// Largest read buffer of a connection (bytes): bounds what a client's headers can make the
+/// server hold per connection (hyper's default is about 400 KB).
+pub const MAX_CONNECTION_BUFFER_BYTES: usize = 64 << 10;
+
+/// File descriptors kept for everything but connections (database, session and atlas files).
+const OTHER_FILE_DESCRIPTORS: u64 = 512;
+
+/// Raises the process's soft limit of open files to its hard limit and returns how many
+/// connections fit under it: `wanted`, or fewer (logged) when the limit is lower.
+pub fn connection_cap(wanted: usize) -> usize {
+    use rustix::process::{Resource, getrlimit, setrlimit};
+    let mut limit = getrlimit(Resource::Nofile);
+    if limit.current < limit.maximum {
+        limit.current = limit.maximum;
+        if let Err(e) = setrlimit(Resource::Nofile, limit) {
+            tracing::warn!(error = %e, "cannot raise the open-file limit");
+        }
+        limit = getrlimit(Resource::Nofile);
+    }
+    let fit = limit
+        .current
+        .map_or(usize::MAX, |n| n.saturating_sub(OTHER_FILE_DESCRIPTORS) as usize)
+        .max(1);
+    if fit < wanted {
+        tracing::warn!(
+            wanted,
+            fit,
+            "the open-file limit allows fewer connections than --max-connections; serving at most {fit}"
+        );
+    }
+    wanted.min(fit).max(1)
+}
 
 /// Serves `app` on `listener` until the process ends.
 pub async fn run(listener: TcpListener, app: Router, limits: &Limits) -> std::io::Result<()> {
-    let permits = Arc::new(Semaphore::new(limits.max_connections.max(1)));
+    let sockets = Arc::new(Semaphore::new(connection_cap(limits.max_connections)));
+    let addresses = Slots::new("connections", usize::MAX, limits.max_connections_per_address);
     let mut http = hyper::server::conn::http1::Builder::new();
     http.timer(TokioTimer::new())
         .header_read_timeout(limits.header_timeout)
+        .max_buf_size(MAX_CONNECTION_BUFFER_BYTES)
         .keep_alive(true);
     loop {
-        let permit = permits
+        let permit = sockets
             .clone()
             .acquire_owned()
             .await
             .expect("the semaphore is never closed");
-        let socket = match listener.accept().await {
-            Ok((socket, _)) => socket,
+        let (socket, peer) = match listener.accept().await {
+            Ok(accepted) => accepted,
             Err(e) => {
                 // Out of file descriptors and the like: wait instead of spinning.
                 tracing::warn!(error = %e, "cannot accept a connection");
@@ -43,11 +87,15 @@ pub async fn run(listener: TcpListener, app: Router, limits: &Limits) -> std::io
                 continue;
             }
         };
+        let Ok(from) = addresses.try_take(&address_key(peer.ip())) else {
+            tracing::debug!(peer = %peer.ip(), "too many connections from one address; closed");
+            continue;
+        };
         let _ = socket.set_nodelay(true);
         let service = hyper_util::service::TowerToHyperService::new(app.clone());
         let connection = http.serve_connection(TokioIo::new(socket), service);
         tokio::spawn(async move {
-            let _permit = permit;
+            let _held = (permit, from);
             if let Err(e) = connection.await {
                 tracing::debug!(error = %e, "connection closed");
             }
@@ -55,12 +103,52 @@ pub async fn run(listener: TcpListener, app: Router, limits: &Limits) -> std::io
     }
 }
 
+/// The address a connection is counted under: IPv4 as itself (also when mapped into IPv6).
+fn address_key(ip: IpAddr) -> String {
+    ip.to_canonical().to_string()
+}
+
+/// The cap on requests being served ([`Limits::max_requests`]): past it, 503 with
+/// `Retry-After` at once. `/healthz` is never refused, so a load balancer sees a busy server as
+/// alive.
+pub async fn serving(
+    axum::extract::State(permits): axum::extract::State<Arc<Semaphore>>,
+    req: Request,
+    next: Next,
+) -> Response {
+    if req.uri().path() == "/healthz" {
+        return next.run(req).await;
+    }
+    match permits.try_acquire() {
+        Ok(_serving) => next.run(req).await,
+        Err(_) => {
+            tracing::warn!("refused: as many requests are being served as --max-requests allows");
+            err(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "the server is serving as many requests as it can; try again shortly",
+            )
+            .into_response()
+        }
+    }
+}
+
+/// Gives the request a place for its account's in-flight slot ([`InFlight`]), filled by the
+/// extractor that authenticates it, and given back once the request is answered.
+pub async fn in_flight(mut req: Request, next: Next) -> Response {
+    let slot = InFlight::default();
+    req.extensions_mut().insert(slot.clone());
+    let r = next.run(req).await;
+    drop(slot);
+    r
+}
+
 /// The deadline of a request, body included: [`Limits::request_timeout`], plus, for a session
 /// upload (`POST /api/sessions`, the dashboard's `POST /upload`), its declared size (or the
 /// largest upload) at the slowest accepted rate; an atlas publication (`POST /api/atlases`) the
 /// same for its size and [`Limits::atlas_check_timeout`] for its checks. Other bodies are small (at most
 /// [`Limits::max_json_body_bytes`]) and get no allowance. A request past its deadline gets 408
-/// and its connection is closed.
+/// and its connection is closed. (Uploads are also cut off as soon as they arrive more slowly than
+/// the minimum rate over a window: [`crate::intake`].)
 pub async fn deadline(
     axum::extract::State((limits, max_upload)): axum::extract::State<(Arc<Limits>, u64)>,
     req: Request,
@@ -87,6 +175,13 @@ pub async fn deadline(
         Duration::ZERO
     };
     match tokio::time::timeout(limits.upload_timeout(bytes) + checks, next.run(req)).await {
+        // A refused upload's body may not have been read: the connection cannot carry another
+        // request, so it is closed.
+        Ok(mut r) if (upload || publication) && !r.status().is_success() => {
+            r.headers_mut()
+                .insert(header::CONNECTION, HeaderValue::from_static("close"));
+            r
+        }
         Ok(r) => r,
         Err(_) => {
             let mut r = err(

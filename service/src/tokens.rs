@@ -87,18 +87,32 @@ pub async fn revoke(s: &AppState, user: &User, id: &str) -> Result<TokenRow, Api
     s.store.revoke_api_token(id, user).await?.ok_or_else(not_found)
 }
 
-#[derive(serde::Deserialize)]
+#[derive(serde::Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 struct NewTokenRequest {
+    #[schema(min_length = 1, max_length = 100)]
     label: String,
     #[serde(default)]
     scope: TokenScope,
     #[serde(default)]
+    #[schema(minimum = 1, maximum = 90)]
     expires_in_days: Option<u32>,
 }
 
 /// POST /api/tokens: `{"label", "scope"?, "expires_in_days"?}` → 201 with the token, shown once.
 /// Login cookie and CSRF token only: a Bearer token gets 403.
+#[utoipa::path(post, path = "/api/tokens", tag = "accounts",
+    summary = "Create an API token for the logged-in user (shown once; audited)",
+    description = "Login cookie and X-CSRF-Token only: a request authenticated by an API token gets 403. Scope `upload` (default) may only upload sessions and read their status; `full` has the account's rights.",
+    request_body(content = NewTokenRequest, content_type = "application/json"),
+    responses(
+        (status = 201, description = "the token, its secret shown only here", body = super::openapi::NewToken),
+        (status = 400, description = "bad label, scope or expiry", body = super::openapi::ErrorBody),
+        (status = 403, description = "CSRF token missing, or authenticated by an API token", body = super::openapi::ErrorBody),
+        (status = 409, description = "the account has as many active tokens as it may", body = super::openapi::ErrorBody),
+        (status = 413, description = "a body over --max-body-bytes", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = [])))]
 pub async fn create_token(
     State(s): State<Arc<AppState>>,
     CookieActor(user): CookieActor,
@@ -119,11 +133,27 @@ pub async fn create_token(
 }
 
 /// GET /api/tokens: `{"tokens": [...]}`, newest first, without the tokens themselves.
+#[utoipa::path(get, path = "/api/tokens", tag = "accounts",
+    summary = "The caller's API tokens (an admin's: everyone's), newest first, never the secret",
+    responses(
+        (status = 200, description = "the tokens", body = super::openapi::TokenList),
+        (status = 403, description = "an upload-scoped token", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 pub async fn list_tokens(State(s): State<Arc<AppState>>, Reader(user): Reader) -> Result<Response, ApiError> {
     Ok(Json(json!({ "tokens": list(&s, &user).await? })).into_response())
 }
 
 /// POST /api/tokens/{id}/revoke: the token's row, now revoked. Audited.
+#[utoipa::path(post, path = "/api/tokens/{id}/revoke", tag = "accounts",
+    summary = "Revoke an API token (own; admins: anyone's); audited; revoking twice changes nothing",
+    params(("id" = String, Path, description = "the token's id")),
+    responses(
+        (status = 200, description = "the token, now revoked", body = super::store::TokenRow),
+        (status = 403, description = "CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
+        (status = 404, description = "no such token, or not yours", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 pub async fn revoke_token(
     State(s): State<Arc<AppState>>,
     Actor(user): Actor,

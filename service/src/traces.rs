@@ -65,8 +65,10 @@ pub async fn review_trace(state: &AppState, file_sha256: &str, atlas_hash: &str)
     }
     let scorer = state
         .catalogue
-        .scorer(atlas_hash)
-        .ok_or("the session's atlas is not loaded on this server")?;
+        .loaded(atlas_hash)
+        .await
+        .map_err(|e| e.to_string())?
+        .scorer;
     let file = state.session_file(file_sha256);
     tokio::task::spawn_blocking(move || {
         let session = stylet_recorder::reader::recover(&file).map_err(|e| format!("{}: {e}", file.display()))?;

@@ -1,43 +1,169 @@
-//! Checking an uploaded session file before anything is stored, cheapest and most decisive first:
-//! the header alone (a few records, nothing decompressed) says who the session belongs to, so
-//! the uploader is authorised before any expensive work; then the header's fields are checked
-//! against what this server knows (atlas, difficulty, device, physics version); only then are the
-//! ticks verified, streamed block by block with memory bounded by [`Limits::for_upload`] and the
-//! longest session accepted, whatever the file declares.
+//! Receiving and checking an uploaded session file before anything is stored, cheapest and most
+//! decisive first. Before a byte of the body is read: who asks (their login or token), the
+//! declared size, a free upload slot (per account and in all) and room on the disk. Then the
+//! first bytes only, until the session header is complete (a few records, nothing decompressed):
+//! they say who the session belongs to, so the uploader is authorised, and the header's fields
+//! are checked against what this server knows (atlas, difficulty, device, physics version). Only
+//! then is the rest received, chunk by chunk at no less than the minimum rate, into a temporary
+//! file (its SHA-256 computed on the way), and its ticks verified from that file, block by block.
+//! The memory of an upload is one chunk and one tick block, whatever its size, and the number of
+//! uploads at once is capped.
 
+use axum::body::Bytes;
 use axum::http::StatusCode;
+use futures_util::Stream;
 use stylet_recorder::SessionHeader;
 use stylet_recorder::reader::{self, Limits, Verified};
 
 use super::AppState;
 use super::api::{ApiError, err};
-use super::store::User;
+use super::intake::{RatedBody, TempFile};
+use super::store::{Role, User};
 
-/// A checked upload: its header, the trainee it belongs to, what verification found.
+/// Most bytes read for the session header before the upload is refused (the writer's header
+/// takes about a kilobyte: its fields are bounded by the format).
+pub const MAX_HEADER_BYTES: usize = 64 << 10;
+
+/// A received and checked upload: its header, the trainee it belongs to, what verification
+/// found, and the file (temporary until stored; removed if dropped).
 pub struct CheckedUpload {
     pub header: SessionHeader,
     pub trainee: User,
     pub verified: Verified,
+    pub file: TempFile,
+    pub sha256: String,
 }
 
-/// Runs every check of an upload (see the module doc); the error says what was wrong.
-pub async fn check(s: &AppState, user: &User, bytes: &axum::body::Bytes) -> Result<CheckedUpload, ApiError> {
-    let header = reader::read_header(bytes).map_err(|e| {
+/// The folder uploads arrive in, on the data directory's file system (a rename stores them).
+pub fn incoming_dir(s: &AppState) -> std::path::PathBuf {
+    s.config.data_dir.join("sessions").join(".incoming")
+}
+
+fn invalid(e: impl std::fmt::Display) -> ApiError {
+    err(
+        StatusCode::UNPROCESSABLE_ENTITY,
+        format!("not a valid session file: {e}"),
+    )
+}
+
+/// Receives the upload `body` of `user` (`declared`: its Content-Length, if sent) and runs every
+/// check (see the module doc); the error says what was wrong, and nothing is left behind.
+pub async fn receive<S, E>(s: &AppState, user: &User, body: S, declared: Option<u64>) -> Result<CheckedUpload, ApiError>
+where
+    S: Stream<Item = Result<Bytes, E>> + Unpin,
+    E: std::fmt::Display,
+{
+    let limit = s.config.max_upload_bytes as u64;
+    let too_large = || {
         err(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            format!("not a valid session file: {e}"),
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!("the upload exceeds the limit of {limit} bytes"),
         )
-    })?;
-    let trainee = authorise(s, user, &header.trainee).await?;
-    check_header(s, &header)?;
-    let limits = Limits::for_upload(bytes.len() as u64, header.tick_rate_hz, s.config.limits.max_session_s);
-    let data = bytes.clone();
+    };
+    if declared.is_some_and(|n| n > limit) {
+        return Err(too_large());
+    }
+    let limits = &s.config.limits;
+    let slot = s.upload_slots.take(&user.id)?;
+    let room = s.disk.reserve(
+        &s.config.data_dir,
+        declared.unwrap_or(limit),
+        limits.min_free_disk_bytes,
+    )?;
+    let mut body = RatedBody::new(body, limits.min_upload_bytes_per_s);
+    // The first bytes, until the header is complete; then who may send it and what it says.
+    let mut head: Vec<u8> = Vec::new();
+    let checked = async {
+        let header = loop {
+            if let Some(h) = reader::read_header_prefix(&head).map_err(invalid)? {
+                break h;
+            }
+            if head.len() >= MAX_HEADER_BYTES {
+                return Err(invalid(format_args!(
+                    "no session header in its first {MAX_HEADER_BYTES} bytes"
+                )));
+            }
+            match body.next().await? {
+                Some(chunk) => head.extend_from_slice(&chunk),
+                None if head.is_empty() => {
+                    return Err(err(
+                        StatusCode::BAD_REQUEST,
+                        "the request body is empty: send the session file",
+                    ));
+                }
+                None => return Err(invalid("the file ends before its session header is complete")),
+            }
+        };
+        let trainee = authorise(s, user, &header.trainee).await?;
+        check_header(s, &header)?;
+        Ok((header, trainee))
+    }
+    .await;
+    let (header, trainee) = match checked {
+        Ok(pair) => pair,
+        Err(refused) => {
+            // Refused from the first bytes: the rest is read and dropped (holding no upload slot
+            // and no room on the disk; for at most the request timeout) before the answer, so
+            // that a client that sends its whole body before reading the answer (most do) reads
+            // the refusal, not a broken pipe. A body sent too slowly is not waited for.
+            drop((slot, room));
+            if refused.status() != StatusCode::REQUEST_TIMEOUT {
+                let _ = tokio::time::timeout(limits.request_timeout, discard(&mut body, limit)).await;
+            }
+            return Err(refused);
+        }
+    };
+    let _held = (slot, room);
+    // The rest, to a temporary file.
+    let mut file = TempFile::create(&incoming_dir(s)).await?;
+    if head.len() as u64 > limit {
+        return Err(too_large());
+    }
+    file.write(&head).await?;
+    drop(head);
+    while let Some(chunk) = body.next().await? {
+        if file.bytes + chunk.len() as u64 > limit {
+            return Err(too_large());
+        }
+        file.write(&chunk).await?;
+    }
+    let sha256 = file.finish().await?;
+    let verified = verify(s, &file, &header).await?;
+    Ok(CheckedUpload {
+        header,
+        trainee,
+        verified,
+        file,
+        sha256,
+    })
+}
+
+/// Reads and drops what is left of `body`, at most `limit` bytes in all, at no less than the
+/// minimum rate; stops at the first error.
+async fn discard<S, E>(body: &mut RatedBody<S>, limit: u64)
+where
+    S: Stream<Item = Result<Bytes, E>> + Unpin,
+    E: std::fmt::Display,
+{
+    while body.received <= limit {
+        match body.next().await {
+            Ok(Some(_)) => {}
+            Ok(None) | Err(_) => break,
+        }
+    }
+}
+
+/// Verifies the received file's ticks, streaming from disk within the upload limits.
+async fn verify(s: &AppState, file: &TempFile, header: &SessionHeader) -> Result<Verified, ApiError> {
+    let limits = Limits::for_upload(file.bytes, header.tick_rate_hz, s.config.limits.max_session_s);
+    let path = file.path.clone();
     // At most a few verifications at once: each holds a chunk and a block in memory.
     // The permit goes with the thread: a request dropped meanwhile still counts until it ends.
     let permit = s.verify_permits.clone().acquire_owned().await.map_err(|_| busy())?;
     let verified = tokio::task::spawn_blocking(move || {
         let _permit = permit;
-        reader::verify_streaming(&data, &limits)
+        let f = std::fs::File::open(&path).map_err(|e| e.to_string())?;
+        reader::verify_file_streaming(std::io::BufReader::with_capacity(64 << 10, f), &limits)
     })
     .await
     .map_err(|_| err(StatusCode::INTERNAL_SERVER_ERROR, "validation failed"))?
@@ -54,22 +180,12 @@ pub async fn check(s: &AppState, user: &User, bytes: &axum::body::Bytes) -> Resu
              and upload the recovered file: it keeps what was saved and is shown as not gradeable"
                 .to_string()
         };
-        err(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            format!("not a valid session file: {e}{hint}"),
-        )
+        invalid(format_args!("{e}{hint}"))
     })?;
-    if verified.session.header != header {
-        return Err(err(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            "not a valid session file: it holds more than one session header",
-        ));
+    if &verified.session.header != header {
+        return Err(invalid("it holds more than one session header"));
     }
-    Ok(CheckedUpload {
-        header,
-        trainee,
-        verified,
-    })
+    Ok(verified)
 }
 
 fn busy() -> ApiError {
@@ -77,8 +193,9 @@ fn busy() -> ApiError {
 }
 
 /// Who may upload a session of `trainee_name`: the trainee themself, an instructor of their
-/// cohort, an admin. "No such trainee" and "not yours" get the same answer unless the caller may
-/// see every account (admins), so an upload cannot probe which accounts exist.
+/// cohort, an admin; never for a disabled account. "No such trainee" and "not yours" get the
+/// same answer unless the caller may see every account (admins), so an upload cannot probe which
+/// accounts exist.
 async fn authorise(s: &AppState, user: &User, trainee_name: &str) -> Result<User, ApiError> {
     let refused = || {
         err(
@@ -86,26 +203,40 @@ async fn authorise(s: &AppState, user: &User, trainee_name: &str) -> Result<User
             format!("{} may not upload sessions of trainee '{trainee_name}'", user.username),
         )
     };
+    let disabled = || {
+        err(
+            StatusCode::FORBIDDEN,
+            format!("the account of trainee '{trainee_name}' is disabled: an admin must enable it first"),
+        )
+    };
     let trainee = || async {
         Ok::<_, ApiError>(
             s.store
-                .user_by_name(trainee_name)
+                .account_by_name(trainee_name)
                 .await?
-                .filter(|t| t.role == "trainee"),
+                .filter(|(t, _)| t.role == Role::Trainee),
         )
     };
-    match user.role.as_str() {
-        "trainee" if user.username == trainee_name => Ok(user.clone()),
-        "instructor" => match trainee().await? {
-            Some(t) if s.store.teaches(&user.id, &t.id).await? => Ok(t),
+    match user.role {
+        Role::Trainee if user.username == trainee_name => Ok(user.clone()),
+        Role::Instructor => match trainee().await? {
+            Some((t, is_disabled)) if s.store.teaches(&user.id, &t.id).await? => {
+                if is_disabled {
+                    Err(disabled())
+                } else {
+                    Ok(t)
+                }
+            }
             _ => Err(refused()),
         },
-        "admin" => trainee().await?.ok_or_else(|| {
-            err(
+        Role::Admin => match trainee().await? {
+            Some((_, true)) => Err(disabled()),
+            Some((t, false)) => Ok(t),
+            None => Err(err(
                 StatusCode::UNPROCESSABLE_ENTITY,
                 format!("the session's trainee '{trainee_name}' has no trainee account"),
-            )
-        }),
+            )),
+        },
         _ => Err(refused()),
     }
 }
@@ -113,12 +244,18 @@ async fn authorise(s: &AppState, user: &User, trainee_name: &str) -> Result<User
 /// The header's fields against what this server knows; 422 with the reason.
 fn check_header(s: &AppState, h: &SessionHeader) -> Result<(), ApiError> {
     let bad = |m: String| err(StatusCode::UNPROCESSABLE_ENTITY, m);
-    let Some(scorer) = s.catalogue.scorer(&h.atlas_hash) else {
+    let Some(atlas) = s.catalogue.get(&h.atlas_hash) else {
         return Err(bad(format!(
             "the session was recorded on atlas '{}' ({}), which this server does not know",
             h.atlas_id, h.atlas_hash
         )));
     };
+    if atlas.withdrawn() {
+        return Err(bad(format!(
+            "the session was recorded on atlas '{}' ({}), which was withdrawn from this server: it takes no new sessions",
+            h.atlas_id, h.atlas_hash
+        )));
+    }
     // The limits on an upload's ticks follow from its rate: only the rate the simulator runs at.
     if h.tick_rate_hz != stylet_physics::DEFAULT_TICK_RATE_HZ {
         return Err(bad(format!(
@@ -172,12 +309,12 @@ fn check_header(s: &AppState, h: &SessionHeader) -> Result<(), ApiError> {
             contrast.grid_nodes,
         )));
     }
-    if !scorer.knows_scenario(&h.scenario) {
+    if !atlas.summary.knows_scenario(&h.scenario) {
         return Err(bad(format!(
             "unknown scenario '{}' for atlas '{}' (its scenarios: {})",
             h.scenario,
             h.atlas_id,
-            scorer.scenario_names().join(", ")
+            atlas.summary.scenarios.join(", ")
         )));
     }
     Ok(())

@@ -53,17 +53,28 @@ pub async fn change(s: &AppState, admin: &User, username: &str, change: &Account
     Ok(s.store.update_user(username, change, Some(admin)).await?)
 }
 
-#[derive(Debug, Default, serde::Deserialize)]
+#[derive(Debug, Default, serde::Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
 pub struct UsersQuery {
     /// Part of a username.
     pub q: Option<String>,
+    /// 1 = the first page.
+    #[param(minimum = 1)]
     pub page: Option<i64>,
 }
 
 /// GET /api/users (admin): `?q=part-of-name&page=N` → `{users, total, page, page_size}`.
+#[utoipa::path(get, path = "/api/users", tag = "accounts",
+    summary = "Accounts with role, cohorts and status, by username, 100 a page (admin)",
+    params(UsersQuery),
+    responses(
+        (status = 200, description = "a page of accounts", body = super::openapi::AccountPage),
+        (status = 403, description = "not an admin, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 pub async fn list(
     State(s): State<AppRef>,
-    AdminReader(_): AdminReader,
+    AdminReader(_admin): AdminReader,
     Query(q): Query<UsersQuery>,
 ) -> Result<Response, ApiError> {
     let page = q.page.unwrap_or(1).max(1);
@@ -75,11 +86,14 @@ pub async fn list(
     Ok(Json(json!({ "users": users, "total": total, "page": page, "page_size": USERS_PAGE_SIZE })).into_response())
 }
 
-#[derive(serde::Deserialize)]
+#[derive(serde::Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 struct NewUserRequest {
+    #[schema(min_length = 1, max_length = 64)]
     username: String,
+    #[schema(value_type = Role)]
     role: String,
+    #[schema(min_length = 8, max_length = 1024)]
     password: String,
     #[serde(default)]
     cohort: Option<String>,
@@ -88,6 +102,22 @@ struct NewUserRequest {
 /// POST /api/users (admin): JSON `{"username","role","password","cohort"?}` → 201; or a CSV
 /// import (`Content-Type: text/csv`, `username,role,cohort,password` per line) → 201
 /// `{"imported": [...]}`, or 422 `{"error", "lines": [{line, reason}]}` with nothing imported.
+#[utoipa::path(post, path = "/api/users", tag = "accounts",
+    summary = "Add an account, or import accounts from CSV (admin; audited)",
+    description = "JSON adds one account. `Content-Type: text/csv` imports one account per line, `username,role,cohort,password` (optional header line; cohort may be empty; the password is the rest of the line; at most 200 lines): every account or none; 422 names every bad line.",
+    request_body(content(
+        (NewUserRequest = "application/json"),
+        (String = "text/csv"),
+    )),
+    responses(
+        (status = 201, description = "the account added, or the accounts imported", body = super::openapi::AccountAdded),
+        (status = 400, description = "invalid username, role, password or cohort", body = super::openapi::ErrorBody),
+        (status = 403, description = "not an admin, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
+        (status = 409, description = "the username exists", body = super::openapi::ErrorBody),
+        (status = 413, description = "a body over --max-body-bytes", body = super::openapi::ErrorBody),
+        (status = 422, description = "an import with bad lines; nothing was imported", body = super::openapi::ImportRefused),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 pub async fn add_or_import(
     State(s): State<AppRef>,
     AdminActor(admin): AdminActor,
@@ -120,9 +150,18 @@ pub async fn add_or_import(
 }
 
 /// GET /api/users/{username} (admin).
+#[utoipa::path(get, path = "/api/users/{username}", tag = "accounts",
+    summary = "One account (admin)",
+    params(("username" = String, Path)),
+    responses(
+        (status = 200, description = "the account", body = super::store::UserRow),
+        (status = 403, description = "not an admin, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
+        (status = 404, description = "no such account", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 pub async fn get_one(
     State(s): State<AppRef>,
-    AdminReader(_): AdminReader,
+    AdminReader(_admin): AdminReader,
     Path(username): Path<String>,
 ) -> Result<Response, ApiError> {
     let row = s
@@ -133,7 +172,7 @@ pub async fn get_one(
     Ok(Json(row).into_response())
 }
 
-#[derive(serde::Deserialize)]
+#[derive(serde::Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 struct ChangeRequest {
     #[serde(default)]
@@ -146,6 +185,20 @@ struct ChangeRequest {
 
 /// PATCH /api/users/{username} (admin): `{"role"?, "cohorts"?: [names], "disabled"?}` → the
 /// account. 409 for the last active admin or one's own account, 404 for an unknown one.
+#[utoipa::path(patch, path = "/api/users/{username}", tag = "accounts",
+    summary = "Change an account's role, cohorts or status (admin; audited per change)",
+    description = "`cohorts` replaces the account's cohorts (created if new; [] for none). Takes effect on the account's next request.",
+    params(("username" = String, Path)),
+    request_body(content = ChangeRequest, content_type = "application/json"),
+    responses(
+        (status = 200, description = "the account", body = super::store::UserRow),
+        (status = 400, description = "bad role or cohort name", body = super::openapi::ErrorBody),
+        (status = 403, description = "not an admin, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
+        (status = 404, description = "no such account", body = super::openapi::ErrorBody),
+        (status = 409, description = "it would leave no active admin, or an admin disabling or demoting their own account", body = super::openapi::ErrorBody),
+        (status = 413, description = "a body over --max-body-bytes", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 pub async fn patch(
     State(s): State<AppRef>,
     AdminActor(admin): AdminActor,
@@ -167,6 +220,16 @@ pub async fn patch(
 }
 
 /// POST /api/users/{username}/disable (admin): its logins and tokens are refused from now on.
+#[utoipa::path(post, path = "/api/users/{username}/disable", tag = "accounts",
+    summary = "Disable an account (admin; audited): its logins and API tokens are refused from its next request; its sessions stay",
+    params(("username" = String, Path)),
+    responses(
+        (status = 200, description = "the account", body = super::store::UserRow),
+        (status = 403, description = "not an admin, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
+        (status = 404, description = "no such account", body = super::openapi::ErrorBody),
+        (status = 409, description = "the last active admin, or one's own account", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 pub async fn disable(
     State(s): State<AppRef>,
     AdminActor(admin): AdminActor,
@@ -180,6 +243,15 @@ pub async fn disable(
 }
 
 /// POST /api/users/{username}/enable (admin).
+#[utoipa::path(post, path = "/api/users/{username}/enable", tag = "accounts",
+    summary = "Enable a disabled account (admin; audited): its unexpired logins and tokens work again",
+    params(("username" = String, Path)),
+    responses(
+        (status = 200, description = "the account", body = super::store::UserRow),
+        (status = 403, description = "not an admin, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
+        (status = 404, description = "no such account", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 pub async fn enable(
     State(s): State<AppRef>,
     AdminActor(admin): AdminActor,
@@ -192,14 +264,27 @@ pub async fn enable(
     Ok(Json(change(&s, &admin, &username, &c).await?).into_response())
 }
 
-#[derive(serde::Deserialize)]
+#[derive(serde::Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 struct PasswordRequest {
+    #[schema(min_length = 8, max_length = 1024)]
     password: String,
 }
 
 /// POST /api/users/{username}/password (admin): `{"password"}` sets a new password and ends the
 /// account's logins.
+#[utoipa::path(post, path = "/api/users/{username}/password", tag = "accounts",
+    summary = "Reset an account's password (admin; audited); its logins end",
+    params(("username" = String, Path)),
+    request_body(content = PasswordRequest, content_type = "application/json"),
+    responses(
+        (status = 200, description = "the account", body = super::store::UserRow),
+        (status = 400, description = "a password has 8–1024 characters", body = super::openapi::ErrorBody),
+        (status = 403, description = "not an admin, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
+        (status = 404, description = "no such account", body = super::openapi::ErrorBody),
+        (status = 413, description = "a body over --max-body-bytes", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
 pub async fn password(
     State(s): State<AppRef>,
     AdminActor(admin): AdminActor,

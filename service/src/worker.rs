@@ -53,7 +53,12 @@ enum Outcome {
 async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
     let file = state.session_file(&job.file_sha256);
     let trace_file = super::traces::trace_path(&state.config.data_dir, &job.file_sha256);
-    let scorer = state.catalogue.scorer(&job.atlas_hash);
+    let scorer = match state.catalogue.loaded(&job.atlas_hash).await {
+        Ok(l) => Some(l.scorer),
+        Err(super::catalogue::LoadError::Unknown(_)) => None,
+        // A folder that cannot be read now may be readable later.
+        Err(e) => return Outcome::Retry(e.to_string()),
+    };
     // The scenario's expert benchmark, when the rubric grades against one: read now, so the
     // grade (which records it) measures against the references marked at scoring time.
     let benchmark = match &scorer {

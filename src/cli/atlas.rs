@@ -33,6 +33,22 @@ pub enum AtlasCommand {
     /// Upload a validated atlas to a scoring service (an admin's or instructor's `full` API
     /// token in STYLET_TOKEN), which checks it again and lists it in its scenario catalogue.
     Publish(PublishArgs),
+    /// Withdraw an atlas from a scoring service's catalogue (an admin's `full` API token in
+    /// STYLET_TOKEN): it takes no new sessions; the sessions recorded on it stay readable,
+    /// replayable and scored.
+    Unpublish(UnpublishArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct UnpublishArgs {
+    /// The atlas' content hash (the catalogue lists it; `stylet atlas inspect` prints it).
+    pub content_hash: String,
+    /// The service, e.g. https://stylet.example.org (plain http only to this computer).
+    #[arg(long)]
+    pub server: String,
+    /// Environment variable holding the API token.
+    #[arg(long, default_value = "STYLET_TOKEN")]
+    pub token_env: String,
 }
 
 #[derive(Debug, Args)]
@@ -275,6 +291,7 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
             Ok(())
         }
         AtlasCommand::Publish(a) => publish(&a),
+        AtlasCommand::Unpublish(a) => unpublish(&a),
         AtlasCommand::ImportDicom(a) => {
             let series = stylet_atlas::import::dicom::import_series(&a.series, &a.out, &a.name)?;
             let g = series.ct.grid();
@@ -407,17 +424,32 @@ fn report_rows(outcomes: &[stylet_scoring::smoke::SmokeOutcome]) -> Vec<stylet_a
         .collect()
 }
 
-/// `stylet atlas publish DIR --server URL`: the token from the environment, never an argument.
-fn publish(a: &PublishArgs) -> anyhow::Result<()> {
-    let token = std::env::var(&a.token_env)
+/// The API token in the environment variable `name`.
+fn token_from(name: &str, whose: &str) -> anyhow::Result<String> {
+    std::env::var(name)
         .ok()
         .filter(|t| !t.trim().is_empty())
-        .with_context(|| {
-            format!(
-                "set {} to an admin's or instructor's `full` API token (dashboard: API tokens)",
-                a.token_env
-            )
-        })?;
+        .map(|t| t.trim().to_string())
+        .with_context(|| format!("set {name} to {whose} `full` API token (dashboard: API tokens)"))
+}
+
+/// `stylet atlas unpublish HASH --server URL`: the token from the environment.
+fn unpublish(a: &UnpublishArgs) -> anyhow::Result<()> {
+    let token = token_from(&a.token_env, "an admin's")?;
+    let client = stylet_app::service_client::ServiceClient::new(&a.server)?;
+    let withdrawn = client.unpublish_atlas(&token, a.content_hash.trim())?;
+    sayf!(
+        "atlas '{}' ({}) withdrawn from {}: it takes no new sessions; the sessions recorded on it stay readable and replayable",
+        withdrawn.name,
+        withdrawn.content_hash,
+        client.base()
+    );
+    Ok(())
+}
+
+/// `stylet atlas publish DIR --server URL`: the token from the environment, never an argument.
+fn publish(a: &PublishArgs) -> anyhow::Result<()> {
+    let token = token_from(&a.token_env, "an admin's or instructor's")?;
     let client = stylet_app::service_client::ServiceClient::new(&a.server)?;
     let started = std::time::Instant::now();
     let bar = spinner("checking and packing the atlas");
@@ -439,7 +471,7 @@ fn publish(a: &PublishArgs) -> anyhow::Result<()> {
             }
         }
     };
-    let published = client.publish_atlas_with(token.trim(), &a.dir, &show);
+    let published = client.publish_atlas_with(&token, &a.dir, &show);
     bar.finish_and_clear();
     let published = published?;
     sayf!(

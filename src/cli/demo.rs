@@ -222,7 +222,7 @@ fn serve_dashboard(args: &DemoArgs, files: &[PathBuf]) -> anyhow::Result<()> {
             .iter()
             .map(|f| Ok((trainee_of(f)?, std::fs::read(f)?)))
             .collect::<anyhow::Result<_>>()?;
-        service::serve(config, Some(stylet_dashboard::router), move |addr, state| {
+        service::serve(config, Some(stylet_dashboard::MOUNT), move |addr, state| {
             sayf!("");
             sayf!(
                 "dashboard running at http://{addr}/ (demo data in {}; Ctrl-C stops it)",
@@ -239,7 +239,7 @@ fn serve_dashboard(args: &DemoArgs, files: &[PathBuf]) -> anyhow::Result<()> {
                         Ok(Some(u)) => u,
                         _ => continue,
                     };
-                    if let Err(e) = service::api::accept_upload(&state, &user, bytes.into()).await {
+                    if let Err(e) = service::api::accept_upload_bytes(&state, &user, bytes).await {
                         eprintln!("demo upload of a session of {trainee} refused: {}", e.message());
                     }
                 }

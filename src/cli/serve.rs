@@ -52,13 +52,31 @@ pub struct LimitArgs {
     /// Seconds a request other than an upload may take, body included.
     #[arg(long)]
     pub request_timeout_s: Option<u64>,
-    /// Slowest upload rate accepted (bytes per second; an upload may take the request timeout
-    /// plus its size at this rate).
+    /// Slowest upload rate accepted (bytes per second, over every 10 s of the body; an upload may
+    /// take the request timeout plus its size at this rate).
     #[arg(long)]
     pub min_upload_rate: Option<u64>,
-    /// Connections served at once.
+    /// Connections open at once, whatever they are doing.
     #[arg(long)]
     pub max_connections: Option<usize>,
+    /// Connections open at once from one address.
+    #[arg(long)]
+    pub max_connections_per_address: Option<usize>,
+    /// Requests being served at once (/healthz is never refused).
+    #[arg(long)]
+    pub max_requests: Option<usize>,
+    /// Requests one account may have in flight at once.
+    #[arg(long)]
+    pub max_requests_per_account: Option<usize>,
+    /// Uploads (sessions and atlas archives) received at once, in all.
+    #[arg(long)]
+    pub max_uploads: Option<usize>,
+    /// Uploads one account may send at once.
+    #[arg(long)]
+    pub max_uploads_per_account: Option<usize>,
+    /// Free disk space an upload must leave in the data directory (bytes).
+    #[arg(long)]
+    pub min_free_disk_bytes: Option<u64>,
     /// Password checks run at once.
     #[arg(long)]
     pub password_threads: Option<usize>,
@@ -68,9 +86,12 @@ pub struct LimitArgs {
     /// Largest atlas publication accepted (bytes of its archive).
     #[arg(long)]
     pub max_atlas_bytes: Option<u64>,
-    /// Most atlases the catalogue holds (each stays loaded in memory).
+    /// Most atlases the catalogue offers (withdrawn ones do not count).
     #[arg(long)]
     pub max_atlases: Option<usize>,
+    /// Memory the loaded atlases may take (bytes); the least recently used are let go past it.
+    #[arg(long)]
+    pub atlas_cache_bytes: Option<u64>,
     /// Most voxels a published atlas may hold (its CT and measured breathing fields).
     #[arg(long)]
     pub max_atlas_voxels: Option<u64>,
@@ -93,11 +114,24 @@ impl LimitArgs {
             request_timeout: self.request_timeout_s.map_or(d.request_timeout, secs),
             min_upload_bytes_per_s: self.min_upload_rate.unwrap_or(d.min_upload_bytes_per_s),
             max_connections: self.max_connections.unwrap_or(d.max_connections).max(1),
+            max_connections_per_address: self
+                .max_connections_per_address
+                .unwrap_or(d.max_connections_per_address)
+                .max(1),
+            max_requests: self.max_requests.unwrap_or(d.max_requests).max(1),
+            max_requests_per_account: self
+                .max_requests_per_account
+                .unwrap_or(d.max_requests_per_account)
+                .max(1),
+            max_uploads: self.max_uploads.unwrap_or(d.max_uploads).max(1),
+            max_uploads_per_account: self.max_uploads_per_account.unwrap_or(d.max_uploads_per_account).max(1),
+            min_free_disk_bytes: self.min_free_disk_bytes.unwrap_or(d.min_free_disk_bytes),
             password_threads: self.password_threads.unwrap_or(d.password_threads).max(1),
             password_queue: self.password_queue.unwrap_or(d.password_queue),
             login_failure_accounts: d.login_failure_accounts,
             max_atlas_bytes: self.max_atlas_bytes.unwrap_or(d.max_atlas_bytes),
             max_atlases: self.max_atlases.unwrap_or(d.max_atlases),
+            atlas_cache_bytes: self.atlas_cache_bytes.unwrap_or(d.atlas_cache_bytes),
             max_atlas_voxels: self.max_atlas_voxels.unwrap_or(d.max_atlas_voxels),
             atlas_check_timeout: self.atlas_check_timeout_s.map_or(d.atlas_check_timeout, secs),
         }
@@ -153,7 +187,7 @@ pub fn serve(a: ServeArgs) -> anyhow::Result<()> {
         secure_cookies: a.secure_cookies,
         limits: a.limits.limits(),
     };
-    runtime()?.block_on(service::serve(config, Some(stylet_dashboard::router), |addr, _| {
+    runtime()?.block_on(service::serve(config, Some(stylet_dashboard::MOUNT), |addr, _| {
         sayf!("listening on http://{addr}")
     }))?;
     Ok(())

@@ -2,7 +2,9 @@
 //! accounts, a server on loopback, HTTP calls, a small phantom with recorded sessions.
 #![allow(dead_code)]
 
+pub mod attack;
 pub mod browser;
+pub mod contract;
 pub mod dicom_labels;
 
 use std::io::{BufRead, BufReader, Write};
@@ -195,12 +197,23 @@ pub fn call(
         .and_then(|c| c.strip_prefix("stylet_session="))
         .and_then(|c| c.split(';').next())
         .map(str::to_string);
+    let content_type = resp.header("Content-Type").map(str::to_string);
     let text = resp.into_string().unwrap();
+    if let Some(base) = base_of(url) {
+        contract::check(base, method, url, status, content_type.as_deref(), &text);
+    }
     (
         status,
         serde_json::from_str(&text).unwrap_or(Value::String(text)),
         token,
     )
+}
+
+/// `http://host:port` of a URL.
+fn base_of(url: &str) -> Option<&str> {
+    let after = url.strip_prefix("http://")?;
+    let end = after.find('/').map_or(url.len(), |i| i + "http://".len());
+    Some(&url[..end])
 }
 
 pub fn login(base: &str, user: &str) -> Auth {
@@ -240,11 +253,25 @@ pub fn raw_post_as(base: &str, path: &str, auth: Option<&Auth>, content_type: &s
     let _ = sock.read_to_end(&mut resp);
     let text = String::from_utf8_lossy(&resp).to_string();
     let status = text.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
-    let json = text
-        .split("\r\n\r\n")
-        .nth(1)
-        .and_then(|b| serde_json::from_str(b).ok())
-        .unwrap_or(Value::String(text.clone()));
+    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+    if status != 0 {
+        let content_type = head
+            .lines()
+            .find_map(|l| {
+                l.split_once(':')
+                    .filter(|(k, _)| k.eq_ignore_ascii_case("content-type"))
+            })
+            .map(|(_, v)| v.trim().to_string());
+        contract::check(
+            base,
+            "POST",
+            &format!("{base}{path}"),
+            status,
+            content_type.as_deref(),
+            body,
+        );
+    }
+    let json = serde_json::from_str(body).unwrap_or(Value::String(text.clone()));
     (status, json)
 }
 

@@ -1,6 +1,7 @@
 //! One module per page (or group of pages and the forms they post).
 
 pub mod admin;
+pub mod admin_atlases;
 pub mod benchmark;
 pub mod catalogue;
 pub mod cohort;

@@ -98,7 +98,9 @@ pub async fn review(
         .await?
         .ok_or_else(|| fail(StatusCode::NOT_FOUND, "gone"))?;
     let reviewer = may_review(&s, &v.user, &trainee_id).await?;
-    let scorer = s.catalogue.scorer(&row.atlas_hash);
+    // Label names and the rubric of the session's atlas (loaded if the cache let it go; the
+    // page still shows what it can without it).
+    let scorer = s.catalogue.loaded(&row.atlas_hash).await.ok().map(|l| l.scorer);
     let label_name = |l: stylet_physics::LabelId| {
         scorer
             .as_ref()

@@ -35,6 +35,9 @@ use states::ReplayStates;
 /// upload limits bound a session's ticks) and its snapshots (`states::MAX_SNAPSHOTS` clones of
 /// the simulation, the contrast grid the largest part once contrast flows).
 pub const CACHED_SESSIONS: usize = 3;
+/// Atlases kept prepared for drawing (the least recently used goes first): each holds its
+/// atlas and the renderer's acceleration structures, so they are not kept for every atlas.
+pub const CACHED_DRAWINGS: usize = 2;
 /// Disk the frame cache may use (`DATA/frames/`).
 pub const FRAME_CACHE_BYTES: u64 = 512 << 20;
 /// The frame size the page asks for.
@@ -63,8 +66,8 @@ struct Caches {
     states: VecDeque<(String, Arc<ReplayStates>)>,
     /// Sessions whose snapshots a page view started building.
     warming: std::collections::BTreeSet<String>,
-    /// Prepared atlases by content hash (one per atlas the server has).
-    drawings: BTreeMap<String, Arc<AtlasDrawing>>,
+    /// Prepared atlases by content hash, most recently used last.
+    drawings: VecDeque<(String, Arc<AtlasDrawing>)>,
     /// The frame cache of each data folder (one per server).
     frames: BTreeMap<std::path::PathBuf, Arc<FrameCache>>,
 }
@@ -109,12 +112,7 @@ async fn replay_states(s: &AppState, row: &SessionRow) -> Result<Arc<ReplayState
         .acquire_owned()
         .await
         .map_err(|e| internal(e.to_string()))?;
-    let scorer = s.catalogue.scorer(&row.atlas_hash).ok_or_else(|| {
-        fail(
-            StatusCode::NOT_FOUND,
-            "the session's atlas is not loaded on this server",
-        )
-    })?;
+    let scorer = atlas_of(s, &row.atlas_hash).await?.scorer;
     let file = s.session_file(&sha);
     let id = row.id.clone();
     tokio::task::spawn_blocking(move || -> Result<Arc<ReplayStates>, PageError> {
@@ -172,33 +170,61 @@ fn internal(e: impl Into<String>) -> PageError {
     fail(StatusCode::INTERNAL_SERVER_ERROR, e)
 }
 
-/// The atlas prepared for drawing (once per atlas).
+/// The session's atlas and its scorer, loaded if the catalogue's cache let it go; 404 when the
+/// server does not know it.
+pub async fn atlas_of(s: &AppState, atlas_hash: &str) -> Result<stylet_service::catalogue::Loaded, PageError> {
+    use stylet_service::catalogue::LoadError;
+    s.catalogue.loaded(atlas_hash).await.map_err(|e| match e {
+        LoadError::Unknown(_) => fail(StatusCode::NOT_FOUND, "the session's atlas is not known to this server"),
+        LoadError::Failed { .. } => {
+            tracing::error!(error = %e, "loading an atlas for the player");
+            fail(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "the session's atlas cannot be loaded right now; try again later",
+            )
+        }
+    })
+}
+
+/// The atlas prepared for drawing (kept for the [`CACHED_DRAWINGS`] most recently drawn).
 async fn drawing(s: &AppState, atlas_hash: &str) -> Result<Arc<AtlasDrawing>, PageError> {
-    if let Some(d) = with_caches(|c| c.drawings.get(atlas_hash).cloned()) {
+    let cached = || {
+        with_caches(|c| {
+            let i = c.drawings.iter().position(|(h, _)| h == atlas_hash)?;
+            let entry = c.drawings.remove(i)?;
+            let d = Arc::clone(&entry.1);
+            c.drawings.push_back(entry);
+            Some(d)
+        })
+    };
+    if let Some(d) = cached() {
         return Ok(d);
     }
     let _one = PREPARING.lock().await;
-    if let Some(d) = with_caches(|c| c.drawings.get(atlas_hash).cloned()) {
+    if let Some(d) = cached() {
         return Ok(d);
     }
-    let atlas = s.catalogue.atlas(atlas_hash).ok_or_else(|| {
-        fail(
-            StatusCode::NOT_FOUND,
-            "the session's atlas is not loaded on this server",
-        )
-    })?;
+    let atlas = atlas_of(s, atlas_hash).await?.atlas;
     let d = tokio::task::spawn_blocking(move || Arc::new(AtlasDrawing::new(atlas)))
         .await
         .map_err(|e| internal(e.to_string()))?;
-    Ok(with_caches(|c| {
-        Arc::clone(c.drawings.entry(atlas_hash.to_string()).or_insert(d))
-    }))
+    with_caches(|c| {
+        c.drawings.push_back((atlas_hash.to_string(), Arc::clone(&d)));
+        while c.drawings.len() > CACHED_DRAWINGS {
+            c.drawings.pop_front();
+        }
+    });
+    Ok(d)
 }
 
-#[derive(Debug, serde::Deserialize)]
+#[derive(Debug, serde::Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
 pub struct FrameQuery {
+    /// 3d, axial, ultrasound or xray.
     view: String,
+    /// The tick (0 = the session's start).
     tick: u64,
+    /// Width: 320, 480, 640 or 960 (with the matching height; default 480 × 360).
     w: Option<u32>,
     h: Option<u32>,
 }
@@ -208,6 +234,17 @@ pub struct FrameQuery {
 /// from the replay; W × H one of [`FRAME_SIZES`] (default 480 × 360). Everything that can be
 /// refused is refused before a replay or a drawing starts; a server busy drawing for
 /// [`DRAW_WAIT`] answers 503.
+#[utoipa::path(get, path = "/sessions/{id}/frame", tag = "player",
+    summary = "A frame of the replay player: a view of a scored session at a tick (PNG)",
+    params(("id" = String, Path, description = "session id"), FrameQuery),
+    responses(
+        (status = 200, description = "the frame", content_type = "image/png", body = Vec<u8>),
+        (status = 303, description = "not logged in: to the login page"),
+        (status = 400, description = "an unknown view, a tick past the session's end, or a size not offered", content_type = "text/html", body = String),
+        (status = 404, description = "no such session, or not yours to see", content_type = "text/html", body = String),
+        (status = 409, description = "the session is being scored", content_type = "text/html", body = String),
+    ),
+    security(("cookie" = [])))]
 pub async fn frame(
     State(s): State<Arc<AppState>>,
     v: Viewer,

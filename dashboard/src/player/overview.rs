@@ -120,8 +120,10 @@ pub fn spec(
     }
 }
 
-#[derive(Debug, serde::Deserialize)]
+#[derive(Debug, serde::Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
 pub struct OverviewQuery {
+    /// 0 … 11, 30° apart.
     #[serde(default)]
     frame: u32,
 }
@@ -129,6 +131,17 @@ pub struct OverviewQuery {
 /// `GET /sessions/{id}/overview?frame=N` (0 … 11, 30° apart): a frame of the turntable of a
 /// scored session the viewer may see (404 otherwise, 409 while it is being scored; 503 when the
 /// server has been busy drawing for [`super::DRAW_WAIT`]).
+#[utoipa::path(get, path = "/sessions/{id}/overview", tag = "player",
+    summary = "A frame of the turntable 3D overview of a scored session (PNG)",
+    params(("id" = String, Path, description = "session id"), OverviewQuery),
+    responses(
+        (status = 200, description = "the frame", content_type = "image/png", body = Vec<u8>),
+        (status = 303, description = "not logged in: to the login page"),
+        (status = 400, description = "a frame number out of range", content_type = "text/html", body = String),
+        (status = 404, description = "no such session, or not yours to see", content_type = "text/html", body = String),
+        (status = 409, description = "the session is being scored", content_type = "text/html", body = String),
+    ),
+    security(("cookie" = [])))]
 pub async fn frame(
     State(s): State<Arc<AppState>>,
     v: Viewer,
@@ -159,12 +172,7 @@ pub async fn frame(
         .await
         .map_err(internal)?;
     let drawing = drawing(&s, &row.atlas_hash).await?;
-    let scorer = s.catalogue.scorer(&row.atlas_hash).ok_or_else(|| {
-        fail(
-            StatusCode::NOT_FOUND,
-            "the session's atlas is not loaded on this server",
-        )
-    })?;
+    let scorer = super::atlas_of(&s, &row.atlas_hash).await?.scorer;
     let turn = match draw_turn().await? {
         Ok(turn) => turn,
         Err(busy) => return Ok(busy),

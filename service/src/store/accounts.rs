@@ -7,7 +7,9 @@ use super::User;
 use super::{ROLES, Store, StoreError, audit_in, new_id, now};
 
 /// A role, from least to most administrative; stored and sent as its lower-case name.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize, utoipa::ToSchema,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Role {
     Trainee,
@@ -103,8 +105,9 @@ impl From<sqlx::Error> for AccountError {
 }
 
 /// A bad line of a bulk import: its number (1 = the file's first line) and why.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, utoipa::ToSchema)]
 pub struct ImportLineError {
+    /// 1 = the file's first line; 0 = the whole file.
     pub line: usize,
     pub reason: String,
 }
@@ -521,6 +524,23 @@ impl Store {
         Ok(row.as_ref().map(Self::user_of).transpose()?)
     }
 
+    /// The account named `username` and whether it is disabled.
+    pub async fn account_by_name(&self, username: &str) -> Result<Option<(User, bool)>, StoreError> {
+        let row = sqlx::query("SELECT id, username, role, disabled_at FROM users WHERE username = $1")
+            .bind(username.to_string())
+            .fetch_optional(&self.pool)
+            .await?;
+        Ok(row
+            .as_ref()
+            .map(|r| {
+                Ok::<_, sqlx::Error>((
+                    Self::user_of(r)?,
+                    r.try_get::<Option<String>, _>("disabled_at")?.is_some(),
+                ))
+            })
+            .transpose()?)
+    }
+
     /// Starts a login session; returns the cookie token and its CSRF token (only the token's
     /// hash is stored).
     pub async fn create_login(&self, user: &User, ttl_s: u64) -> Result<(String, String), StoreError> {
@@ -749,7 +769,9 @@ async fn audit_opt(
 }
 
 /// An account as admins see it (never the password hash).
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+/// An account as the API lists it (`Account` in the OpenAPI document).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, utoipa::ToSchema)]
+#[schema(as = Account)]
 pub struct UserRow {
     pub username: String,
     pub role: Role,

@@ -15,6 +15,8 @@ pub struct AtlasRow {
     /// The publisher's username; `None` for an atlas of the configured directory.
     pub published_by: Option<String>,
     pub published_at: Option<String>,
+    /// When an admin withdrew it from the catalogue (`None`: it takes sessions).
+    pub withdrawn_at: Option<String>,
     /// Sessions stored on the atlas.
     pub sessions: i64,
 }
@@ -61,16 +63,43 @@ impl Store {
             .bind(hash.to_string())
             .execute(&mut *tx)
             .await?;
+            // Published again after it was withdrawn: it takes sessions again.
+            sqlx::query("UPDATE atlases SET withdrawn_at = NULL, withdrawn_by = NULL WHERE content_hash = $1")
+                .bind(hash.to_string())
+                .execute(&mut *tx)
+                .await?;
         }
         audit_in(&mut tx, &actor.id, "atlas.publish", hash, detail).await?;
         tx.commit().await?;
         Ok(())
     }
 
+    /// Withdraws the atlas `hash` from the catalogue (audited `atlas.withdraw` with `detail`, in
+    /// the same transaction). `false`: no such atlas, or it was withdrawn already (nothing
+    /// written).
+    pub async fn withdraw_atlas(&self, hash: &str, actor: &User, detail: &str) -> Result<bool, StoreError> {
+        let mut tx = self.begin_write().await?;
+        let changed = sqlx::query(
+            "UPDATE atlases SET withdrawn_at = $1, withdrawn_by = $2 WHERE content_hash = $3 AND withdrawn_at IS NULL",
+        )
+        .bind(now())
+        .bind(actor.id.clone())
+        .bind(hash.to_string())
+        .execute(&mut *tx)
+        .await?
+        .rows_affected();
+        if changed == 0 {
+            return Ok(false);
+        }
+        audit_in(&mut tx, &actor.id, "atlas.withdraw", hash, detail).await?;
+        tx.commit().await?;
+        Ok(true)
+    }
+
     /// Every atlas row, by name then hash, with its publisher and its stored sessions.
     pub async fn atlas_rows(&self) -> Result<Vec<AtlasRow>, StoreError> {
         let rows = sqlx::query(
-            "SELECT a.content_hash, a.name, a.registered_at, u.username AS published_by, a.published_at, \
+            "SELECT a.content_hash, a.name, a.registered_at, u.username AS published_by, a.published_at, a.withdrawn_at, \
              (SELECT COUNT(*) FROM sessions s WHERE s.atlas_hash = a.content_hash) AS sessions \
              FROM atlases a LEFT JOIN users u ON u.id = a.published_by ORDER BY a.name, a.content_hash",
         )
@@ -84,6 +113,7 @@ impl Store {
                     registered_at: r.try_get("registered_at")?,
                     published_by: r.try_get("published_by")?,
                     published_at: r.try_get("published_at")?,
+                    withdrawn_at: r.try_get("withdrawn_at")?,
                     sessions: r.try_get("sessions")?,
                 })
             })

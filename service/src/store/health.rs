@@ -43,6 +43,18 @@ fn is_storage_code(code: &str) -> bool {
     code.parse::<u32>().is_ok_and(|n| matches!(n & 0xff, 8 | 10 | 13 | 14))
 }
 
+/// Whether `e` says the disk is full (SQLITE_FULL; PostgreSQL 53100 disk_full).
+pub fn is_disk_full(e: &sqlx::Error) -> bool {
+    match e {
+        sqlx::Error::Io(io) => io.kind() == std::io::ErrorKind::StorageFull,
+        sqlx::Error::Database(d) => {
+            let code = d.code().unwrap_or_default();
+            code == "53100" || (code.len() < 5 && code.parse::<u32>().is_ok_and(|n| n & 0xff == 13))
+        }
+        _ => false,
+    }
+}
+
 /// Notes `e` if it is a storage failure (every database error passes here, see [`StoreError`]).
 pub fn note(e: &sqlx::Error) {
     if is_storage_failure(e) {

@@ -48,8 +48,9 @@ pub struct User {
     pub role: Role,
 }
 
-/// A stored session row.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+/// A stored session row (`Session` in the OpenAPI document).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, utoipa::ToSchema)]
+#[schema(as = Session)]
 pub struct SessionRow {
     pub id: String,
     pub trainee: String,
@@ -66,10 +67,13 @@ pub struct SessionRow {
     pub atlas_hash: String,
     pub size_bytes: i64,
     /// The full score report (docs/metrics.md) once scored.
+    #[schema(value_type = Option<Object>)]
     pub score: Option<serde_json::Value>,
-    /// What the scenario practises (migration 0005).
+    /// What the scenario practises (migration 0005): puncture, palpation or ultrasound_survey.
+    #[schema(value_type = String)]
     pub exercise: stylet_scoring::Exercise,
-    /// Passed, failed or not gradeable; `None` until scored.
+    /// passed, failed or not_gradeable; `None` until scored.
+    #[schema(value_type = Option<String>)]
     pub outcome: Option<stylet_scoring::Outcome>,
     /// Why, in plain words (empty until scored, and for a pass that cost nothing).
     pub reasons: Vec<String>,
@@ -99,6 +103,11 @@ impl StoreError {
     /// read-only, new SQLite connections are refused).
     pub fn is_transient(&self) -> bool {
         matches!(self, StoreError::Db(e) if health::is_storage_failure(e) || matches!(e, sqlx::Error::PoolTimedOut))
+    }
+
+    /// Whether the disk under the database is full.
+    pub fn is_disk_full(&self) -> bool {
+        matches!(self, StoreError::Db(e) if health::is_disk_full(e))
     }
 }
 

@@ -279,7 +279,7 @@ impl Default for SessionFilter {
 
 /// A session as lists, pages and exports show it: the final grade (the latest override's when
 /// overridden), attempts, risk hits and the replay check; `None` until scored.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, utoipa::ToSchema)]
 pub struct SessionLine {
     pub id: String,
     pub trainee: String,
@@ -298,9 +298,11 @@ pub struct SessionLine {
     pub replay_verified: Option<bool>,
     pub rubric_version: Option<i64>,
     pub physics_version: i64,
-    /// What the scenario exercises (migration 0005).
+    /// What the scenario exercises (migration 0005): puncture, palpation or ultrasound_survey.
+    #[schema(value_type = String)]
     pub exercise: stylet_scoring::Exercise,
-    /// Passed, failed or not gradeable once scored (an instructor's override sets passed/failed).
+    /// passed, failed or not_gradeable once scored (an instructor's override sets passed/failed).
+    #[schema(value_type = Option<String>)]
     pub outcome: Option<stylet_scoring::Outcome>,
     /// Why, in plain words (docs/metrics.md "Reasons").
     pub reasons: Vec<String>,

@@ -1,7 +1,7 @@
 //! A session's scoring status, stored as text in `sessions.status` (checked by the schema).
 
 /// Where a session is on its way to a score.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum SessionStatus {
     /// Uploaded, waiting for a worker.

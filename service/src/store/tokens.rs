@@ -11,7 +11,7 @@ use super::{Store, StoreError, User, audit_in, new_id, now};
 
 /// What an API token may do. A token lives in a config file on a training PC; the narrow scope
 /// keeps a stolen simulator token from reading the account's other data.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum TokenScope {
     /// Upload sessions and read the status of the sessions the account may see (the simulator).
@@ -38,7 +38,7 @@ impl TokenScope {
 }
 
 /// Whether a token still authenticates, at the time it was read.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum TokenStatus {
     Active,
@@ -66,8 +66,10 @@ impl TokenStatus {
     }
 }
 
-/// A token as its owner or an admin sees it: never the token, never its hash.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+/// A token as its owner or an admin sees it: never the token, never its hash (`ApiToken` in the
+/// OpenAPI document).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, utoipa::ToSchema)]
+#[schema(as = ApiToken)]
 pub struct TokenRow {
     pub id: String,
     /// The owner.

@@ -137,7 +137,45 @@ fn reason_of(resp: ureq::Response) -> String {
         .unwrap_or_else(|| format!("HTTP {status}"))
 }
 
+/// What the service said to a withdrawal.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Withdrawn {
+    pub content_hash: String,
+    pub name: String,
+}
+
 impl ServiceClient {
+    /// Withdraws the atlas `content_hash` from the service's catalogue with an admin's `full` API
+    /// token (`DELETE /api/atlases/{hash}`): it takes no new sessions; those recorded on it stay.
+    pub fn unpublish_atlas(&self, token: &str, content_hash: &str) -> Result<Withdrawn, PublishError> {
+        let agent = ureq::AgentBuilder::new()
+            .timeout_connect(std::time::Duration::from_secs(5))
+            .timeout(std::time::Duration::from_secs(60))
+            .build();
+        let resp = agent
+            .delete(&format!("{}/api/atlases/{content_hash}", self.base()))
+            .set("Authorization", &format!("Bearer {token}"))
+            .call();
+        match resp {
+            Ok(r) => {
+                let body: Value = r
+                    .into_string()
+                    .ok()
+                    .and_then(|b| serde_json::from_str(&b).ok())
+                    .ok_or_else(|| PublishError::Unavailable("the service's answer was not understood".into()))?;
+                Ok(Withdrawn {
+                    content_hash: body["content_hash"].as_str().unwrap_or_default().to_string(),
+                    name: body["name"].as_str().unwrap_or_default().to_string(),
+                })
+            }
+            Err(ureq::Error::Status(status, r)) => Err(PublishError::Refused {
+                status,
+                reason: reason_of(r),
+            }),
+            Err(ureq::Error::Transport(t)) => Err(PublishError::Unavailable(t.to_string())),
+        }
+    }
+
     /// Publishes the atlas in `dir` with an admin's or instructor's `full` API token.
     pub fn publish_atlas(&self, token: &str, dir: &Path) -> Result<Published, PublishError> {
         self.publish_atlas_with(token, dir, &|_| {})
