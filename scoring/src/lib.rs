@@ -1,8 +1,9 @@
-//! Stylet scoring (DESIGN.md "Scoring"): the grade comes from physics, not from what a client
-//! claims. [`replay`] re-runs a session file's recorded inputs through `stylet_physics` and checks
-//! every recorded output and state digest bit for bit; [`metrics`] measures the replayed session
-//! (docs/metrics.md); [`rubric`] turns metrics into a grade per difficulty; [`score`] ties them
-//! together for one file or a batch; [`trace`] keeps what the dashboard draws of a replay. The HTTP service is the crate `stylet-service`.
+//! Stylet scoring: the grade comes from physics, not from what a client claims. [`replay`] re-runs
+//! a session file's recorded inputs through `stylet_physics` and checks every recorded output and
+//! state digest bit for bit; [`metrics`] measures the replayed session (docs/metrics.md);
+//! [`rubric`] turns metrics into a grade per difficulty; [`score`] ties them together for one file
+//! or a batch; [`trace`] keeps what the dashboard draws of a replay. The HTTP service is the crate
+//! `stylet-service`.
 
 pub mod benchmark;
 pub mod metrics;

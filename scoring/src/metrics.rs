@@ -944,7 +944,7 @@ impl<'a> MetricsCollector<'a> {
             Some(Guided {
                 path: p.name.clone(),
                 entry_distance_mm: a.entry_mm.distance(p.entry_mm),
-                angle_error_deg: planned.dot(actual).clamp(-1.0, 1.0).acos().to_degrees(),
+                angle_error_deg: libm::acos(planned.dot(actual).clamp(-1.0, 1.0)).to_degrees(),
                 mean_deviation_mm: if n > 0 { sum / n as f64 } else { 0.0 },
                 max_deviation_mm: max,
             })

@@ -69,7 +69,7 @@ pub fn in_rendered_image(frame: &ProbeFrame, kind: ProbeKind, point: DVec3, plan
 /// tan 30°: how fast a convex probe's survey sector widens with depth (computed as the survey
 /// always has, once per call instead of once per point).
 fn convex_widening() -> f64 {
-    (30f64).to_radians().tan()
+    libm::tan(30f64.to_radians())
 }
 
 /// The ultrasound survey's "in view" (grades were computed with it, so it stays): within
@@ -312,7 +312,7 @@ mod tests {
         // a bound taken at the centre's depth would pass it). Its partner is far off the sector.
         let widening = convex_widening();
         let p = at((CONVEX_HALF_WIDTH_MM + 140.0 * widening) * 0.999, 140.0, 0.0);
-        let away = frame.array * 30f64.to_radians().cos() - frame.beam * 30f64.to_radians().sin();
+        let away = frame.array * libm::cos(30f64.to_radians()) - frame.beam * libm::sin(30f64.to_radians());
         let points = vec![p, p + away * 20.0];
         assert!(in_survey_view(&frame, ProbeKind::Convex, p, VIEW_PLANE_MM));
         assert!(SurveyPoints::new(points).any_in_survey_view(&frame, ProbeKind::Convex));

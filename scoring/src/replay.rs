@@ -1,6 +1,6 @@
-//! Deterministic replay (DESIGN.md "Scoring"): re-run a session's recorded device inputs and
-//! events through `stylet_physics::Simulation` — the same code the simulator ran — and check
-//! every recomputed output and state digest against the recorded ones, bit for bit.
+//! Deterministic replay (docs/metrics.md "Replay verification"): re-run a session's recorded device
+//! inputs and events through `stylet_physics::Simulation` — the same code the simulator ran — and
+//! check every recomputed output and state digest against the recorded ones, bit for bit.
 
 use std::borrow::Borrow;
 use std::collections::BTreeMap;

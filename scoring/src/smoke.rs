@@ -1,9 +1,9 @@
-//! The smoke test of a scenario (issue 19; docs/atlas.md "Validation record"): its example scripts
-//! run through the physics, are recorded to session files and scored by replay, the pipeline a
-//! trainee's session takes. A success script must reach and confirm the target with no risk hit
-//! or bone contact; a risk script must hit the structure it names first. `stylet atlas new` and
-//! `stylet atlas validate` run it before they write the validation record, and the service runs
-//! it again before it publishes an atlas.
+//! The smoke test of a scenario (docs/atlas.md "Validation record"): its example scripts run
+//! through the physics, are recorded to session files and scored by replay, the pipeline a
+//! trainee's session takes. A success script must reach and confirm the target with no risk hit or
+//! bone contact; a risk script must hit the structure it names first. `stylet atlas new` and
+//! `stylet atlas validate` run it before they write the validation record, and the service runs it
+//! again before it publishes an atlas.
 
 use std::path::Path;
 use std::sync::Arc;

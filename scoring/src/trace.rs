@@ -1,8 +1,8 @@
 //! The review trace of a session: what the dashboard draws of it. The force on the hand along
-//! the insertion direction with its cutting, friction and base components (ALGORITHMS.md §3.5,
-//! eqs. 3.5.1–3.5.6: f = f_cut + f_friction + f_base), insertion depth, the needle tip's path
-//! and the events. Session files hold the device force but not its components, so the trace is
-//! taken from the replay, in the same pass that scores the session.
+//! the insertion direction with its cutting, friction and base components (thesis §3.5.3,
+//! eqs. 3.5.2–3.5.7, docs/physics.md: f = f_cut + f_friction + f_base), insertion depth, the needle
+//! tip's path and the events. Session files hold the device force but not its components, so the
+//! trace is taken from the replay, in the same pass that scores the session.
 //!
 //! A 1 kHz session is too dense for a chart, so ticks are grouped into buckets of
 //! [`BUCKET_TICKS`] (20 ms at 1 kHz) and each series keeps, per bucket, the sample of largest

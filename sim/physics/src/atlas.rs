@@ -1,5 +1,5 @@
 //! The puncture atlas in memory: CT image + partial segmentation + property tree, with the derived
-//! data the haptic algorithms need (thesis §6.1, ALGORITHMS.md §0–1, §3).
+//! data the haptic algorithms need (thesis §6.1, §3.6; docs/atlas.md).
 //!
 //! Everything here lives in reference space X. Construction validates the pieces against each
 //! other and derives the per-label materials and the skin and bone distance maps once.

@@ -1,4 +1,5 @@
-//! Haptic device profiles: what the hardware can display (ALGORITHMS.md §2 "Forces").
+//! Haptic device profiles: what the hardware can display (thesis §3.5.3; docs/scripts.md
+//! "Devices").
 //!
 //! The maximum force and torque clamp every output; the stable stiffness k_max bounds the change of
 //! the friction force per tick (eq. 3.5.5) and sets the base spring κ (eq. 3.5.7); the rotational

@@ -1,4 +1,5 @@
-//! Exact Euclidean distance transforms and signed distance maps (thesis §3.6, ALGORITHMS.md §3).
+//! Exact Euclidean distance transforms and signed distance maps (thesis §3.6; docs/atlas.md
+//! "Derived data").
 //!
 //! The squared distance to the nearest feature voxel, separable over the three axes, with the lower
 //! envelope of parabolas of Felzenszwalb & Huttenlocher ("Distance Transforms of Sampled

@@ -1,5 +1,6 @@
 //! Events: named commands that enter the tick queue and pass through every component (thesis
-//! §6.2 / ALGORITHMS.md §7): tool changes, stylet, X-ray, contrast, breathing.
+//! §6.3, the event pipeline; docs/physics.md "The tick"): tool changes, stylet, X-ray, contrast,
+//! breathing.
 
 use crate::needle::spec::Gauge;
 

@@ -565,7 +565,7 @@ mod tests {
             for j in 0..10 {
                 for i in 0..12 {
                     let p = g.voxel_to_world(i, j, k);
-                    data.push((0.3 * p.x + 0.02 * p.y * p.y - 0.5 * (0.2 * p.z).sin() + 0.01 * p.x * p.z) as f32);
+                    data.push((0.3 * p.x + 0.02 * p.y * p.y - 0.5 * libm::sin(0.2 * p.z) + 0.01 * p.x * p.z) as f32);
                 }
             }
         }

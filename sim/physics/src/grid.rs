@@ -1,8 +1,9 @@
 //! Voxel grid geometry: dimensions and the affine map from voxel index to world space.
 //!
-//! World space is the atlas' reference space X in millimetres, RAS+ (ALGORITHMS.md §0): the first
-//! axis points to the patient's right, the second anterior, the third superior. Voxel (i, j, k)
-//! has its centre at `affine · (i, j, k, 1)`; storage order is i fastest, then j, then k (NIfTI).
+//! World space is the atlas' reference space X in millimetres, RAS+ (docs/atlas.md "Geometry"): the
+//! first axis points to the patient's right, the second anterior, the third superior.
+//! Voxel (i, j, k) has its centre at `affine · (i, j, k, 1)`; storage order is i fastest, then j,
+//! then k (NIfTI).
 
 use glam::DVec3;
 

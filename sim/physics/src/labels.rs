@@ -1,4 +1,5 @@
-//! Label table and the labelling function l(x, d) (thesis §6.1.2, ALGORITHMS.md §1).
+//! Label table and the labelling function l(x, d) (thesis §6.1.2; docs/atlas.md
+//! "Labels and the heuristic").
 //!
 //! A partial segmentation p(x) labels only the key structures (0 = not segmented). Everything else
 //! is classified at run time by the threshold heuristic h(x, d) of eq. 6.1.1, which also depends on

@@ -1,8 +1,9 @@
 //! Stylet physics: the puncture atlas model and everything the 1 kHz haptic loop computes on it.
 //!
-//! Pure and deterministic (DESIGN.md "Determinism rules"): no GPU, UI, async or file I/O, no wall
-//! clock, no unordered iteration. Section numbers (§) refer to the thesis; `ALGORITHMS.md` is our
-//! digest of it in `../shared/spec/`.
+//! Pure and deterministic (docs/architecture.md "Determinism"): no GPU, UI, async or file I/O, no
+//! wall clock, no unordered iteration, `libm` for every transcendental function. Section numbers
+//! (§) refer to the thesis; docs/physics.md, docs/atlas.md and docs/deformation.md describe the
+//! algorithms.
 //!
 //! One concept per module: [`grid`] (voxel geometry), [`volume`] (sampling), [`labels`] (label
 //! table and l(x, d)), [`properties`] (property tree), [`thresholds`] (HU threshold estimation),

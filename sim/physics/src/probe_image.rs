@@ -33,8 +33,8 @@ pub fn in_field(kind: ProbeKind, depth_mm: f64, u: f64, v: f64) -> bool {
         ProbeKind::Linear => u.abs() <= LINEAR_APERTURE_MM / 2.0 && (0.0..=depth_mm).contains(&v),
         ProbeKind::Convex => {
             let (du, dv) = (u, v + CONVEX_RADIUS_MM);
-            let rho = du.hypot(dv);
-            du.atan2(dv).abs() <= CONVEX_HALF_ANGLE_DEG.to_radians()
+            let rho = libm::hypot(du, dv);
+            libm::atan2(du, dv).abs() <= CONVEX_HALF_ANGLE_DEG.to_radians()
                 && (CONVEX_RADIUS_MM..=CONVEX_RADIUS_MM + depth_mm).contains(&rho)
         }
     }
@@ -51,7 +51,12 @@ mod tests {
         assert!(!in_field(ProbeKind::Linear, 60.0, 0.0, 61.0));
         // Convex: 28.9 mm wide each side at the face's edge, 100 mm at the bottom.
         let half = CONVEX_HALF_ANGLE_DEG.to_radians();
-        let edge = |rho: f64| (rho * half.sin() - 0.01, rho * half.cos() - CONVEX_RADIUS_MM + 0.01);
+        let edge = |rho: f64| {
+            (
+                rho * libm::sin(half) - 0.01,
+                rho * libm::cos(half) - CONVEX_RADIUS_MM + 0.01,
+            )
+        };
         let (u, v) = edge(60.0);
         assert!(in_field(ProbeKind::Convex, 150.0, u, v));
         assert!(!in_field(ProbeKind::Convex, 150.0, u + 0.1, v - 0.1));

@@ -1,6 +1,6 @@
 //! The property tree: a hierarchy of tissue classes whose nodes define material parameters as a
 //! scalar or as a piecewise-linear function of HU, inherited from the nearest ancestor when a node
-//! leaves one undefined (thesis §6.1.3–6.1.4, ALGORITHMS.md §1).
+//! leaves one undefined (thesis §6.1.3–6.1.4, docs/atlas.md).
 //!
 //! Evaluation for a location x (§6.1.4): (1) l = l(x, d); (2) find the node of label l; (3) if the
 //! node defines the parameter, return the scalar or evaluate the function at I(x); (4) otherwise go
@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 
 use crate::{LabelTable, PhysicsError};
 
-/// The material parameters the haptic algorithms read (ALGORITHMS.md §1, §8).
+/// The material parameters the haptic algorithms read (thesis §3.5, §6.1.3; docs/atlas.md).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Param {
     /// f_k: tissue stiffness of the virtual springs between needle and path nodes [N/mm].
@@ -22,7 +22,7 @@ pub enum Param {
     CutSpringNPerMm2,
     /// f_cutthresh: force the tip must exceed to cut forward [N].
     CutThresholdN,
-    /// Maximum shaft friction per millimetre of path inside this tissue [N/mm]; the digest's
+    /// Maximum shaft friction per millimetre of path inside this tissue [N/mm]; the thesis'
     /// f_R per path segment is this value times the path spacing Δp.
     FrictionMaxNPerMm,
 }

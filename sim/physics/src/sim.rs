@@ -1,5 +1,5 @@
-//! The fixed-step simulation: `step(tick input) → tick output`, 1 kHz by default (DESIGN.md
-//! "Simulation tick", ALGORITHMS.md §2–3).
+//! The fixed-step simulation: `step(tick input) → tick output`, 1 kHz by default (thesis §3.5–3.6;
+//! docs/physics.md "The tick").
 //!
 //! Deterministic by construction: time is the tick count divided by the rate (no wall clock), no
 //! threads, no hash maps, f64 throughout, transcendental functions through `libm` (glam's `libm`

@@ -1,4 +1,5 @@
-//! Scalar volumes on a [`Grid`] and their sampling functions (ALGORITHMS.md §0).
+//! Scalar volumes on a [`Grid`] and their sampling functions (thesis eq. 3.1.1; docs/atlas.md
+//! "Geometry").
 //!
 //! The image function I is the trilinear interpolation of the CT grid; labels use nearest-neighbour
 //! lookup, never interpolation. Outside the grid's extent the caller's `outside` value is returned

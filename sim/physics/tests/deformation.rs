@@ -1,5 +1,5 @@
-//! Tissue deformation (thesis Chapter 4): manufactured solutions, multigrid convergence,
-//! symmetry, hard tissue, robustness and determinism of the solve (issue 20 acceptance).
+//! Tissue deformation (thesis Chapter 4): manufactured solutions, multigrid convergence, symmetry,
+//! hard tissue, robustness and determinism of the solve.
 
 use proptest::prelude::*;
 use stylet_physics::deform::solver::{self, Level, Schedule};

@@ -390,7 +390,7 @@ mod tests {
             for j in 0..20 {
                 for i in 0..24 {
                     let p = g.voxel_to_world(i, j, k);
-                    skin.push((-p.z + 0.02 * p.x * p.x - 0.3 * (0.2 * p.y).sin()) as f32);
+                    skin.push((-p.z + 0.02 * p.x * p.x - 0.3 * libm::sin(0.2 * p.y)) as f32);
                     bone.push((4.0 - (0.3 * p.x + p.z + 12.0).abs()) as f32);
                 }
             }

@@ -1,5 +1,5 @@
 //! Palpation finger and ultrasound probe: multi-proxy haptics on the skin and bone distance maps
-//! (thesis §3.6, ALGORITHMS.md §3).
+//! (thesis §3.6, docs/physics.md).
 //!
 //! Contact nodes x_i = x + Q x_i⁰ on the tool. For a node inside the skin (D_skin > 0):
 //! - skin penalty (eqs. 3.6.1–3.6.3): f_skin = f_s(D_skin) v_s, v_s = −∇D_skin/‖·‖, with the cubic
@@ -485,7 +485,8 @@ mod tests {
             let [a, b, c] = g.unlinear(i);
             let p = g.voxel_to_world(a, b, c);
             // Ellipsoid centred 40 mm below the origin: the top of the body is curved.
-            let r = (p.x / 60.0).powi(2) + (p.y / 50.0).powi(2) + ((p.z + 40.0) / 45.0).powi(2);
+            let (a, b, c) = (p.x / 60.0, p.y / 50.0, (p.z + 40.0) / 45.0);
+            let r = a * a + b * b + c * c;
             if r < 1.0 {
                 *v = if (p.z + 8.0).abs() < 2.5 && p.y.abs() < 12.0 {
                     700.0

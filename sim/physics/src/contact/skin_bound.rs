@@ -85,7 +85,7 @@ mod tests {
             .map(|n| {
                 let [i, j, k] = g.unlinear(n);
                 let p = g.voxel_to_world(i, j, k) - DVec3::new(14.0, 16.0, 24.0);
-                let lumps = 3.0 * (p.x * 0.4).sin() * (p.y * 0.3).cos();
+                let lumps = 3.0 * libm::sin(p.x * 0.4) * libm::cos(p.y * 0.3);
                 if p.length() + lumps < 13.0 { 40.0 } else { -1000.0 }
             })
             .collect();

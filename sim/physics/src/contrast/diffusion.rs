@@ -411,7 +411,10 @@ mod tests {
                     1 => -0.0,
                     2 => f64::from_bits(rng.next() % (1 << 52)),
                     3 => -((rng.next() >> 11) as f64 / (1u64 << 53) as f64) * 1e-12,
-                    _ => (rng.next() >> 11) as f64 / (1u64 << 53) as f64 * 10f64.powi((rng.next() % 40) as i32 - 30),
+                    _ => {
+                        (rng.next() >> 11) as f64 / (1u64 << 53) as f64
+                            * libm::pow(10.0, ((rng.next() % 40) as i32 - 30) as f64)
+                    }
                 })
                 .collect();
             let mut next = vec![f64::NAN; slots];
@@ -501,7 +504,8 @@ mod tests {
         for round in 0..60 {
             if round == 40 {
                 for r in rho.iter_mut() {
-                    *r = (rng.next() >> 11) as f64 / (1u64 << 53) as f64 * 10f64.powi((rng.next() % 40) as i32 - 30);
+                    *r = (rng.next() >> 11) as f64 / (1u64 << 53) as f64
+                        * libm::pow(10.0, ((rng.next() % 40) as i32 - 30) as f64);
                 }
             }
             let want = step_one_list_per_slot(&lists, &rho, 1.0 / 6.0);

@@ -1,7 +1,8 @@
-//! The material function of thesis eq. 4.2.17, as corrected in our digest (ALGORITHMS.md §5):
-//! f_mat(I) = 1 − 1 / (1 + e^{−k (I − s)}), a logistic step from 1 (soft tissue, deforms freely)
-//! to 0 (hard tissue) around s HU. The thesis sets s = (100 HU + 250 HU)/2 = 175 HU and
-//! k = 0.001 /HU, with which f_mat barely varies over the HU range of soft tissue; k is exposed.
+//! The material function of thesis eq. 4.2.17 with the "1 +" its printed equation lacks
+//! (docs/deformation.md): f_mat(I) = 1 − 1 / (1 + e^{−k (I − s)}), a logistic step from 1 (soft
+//! tissue, deforms freely) to 0 (hard tissue) around s HU. The thesis sets
+//! s = (100 HU + 250 HU)/2 = 175 HU and k = 0.001 /HU, with which f_mat barely varies over the HU
+//! range of soft tissue; k is exposed.
 
 /// f_mat(`hu`) for steepness `k_per_hu` and midpoint `s_hu` (eq. 4.2.17).
 #[inline]

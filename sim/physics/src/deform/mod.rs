@@ -1,4 +1,4 @@
-//! Local tissue deformation on the voxel grid (thesis Chapter 4, ALGORITHMS.md §5; docs/deformation.md).
+//! Local tissue deformation on the voxel grid (thesis Chapter 4; docs/deformation.md).
 //!
 //! Tissue yields to the needle, the finger and the probe: a displacement field u on a local
 //! lattice Ω_J around the tool (64³ cells, 65³ nodes, by default) minimises a regulariser (diffusion or
@@ -71,8 +71,8 @@ pub struct DeformSettings {
 impl Default for DeformSettings {
     fn default() -> Self {
         DeformSettings {
-            // Opt-in (scripts: `deformation on`) until a 64-cell solve meets the speed goals of
-            // issue 20: on 2 cores it slows a replay to about 5× real time.
+            // Opt-in (scripts: `deformation on`): on 2 cores a 64-cell solve slows a replay to
+            // about 5× real time.
             enabled: false,
             cells: 64,
             spacing_mm: 1.0,

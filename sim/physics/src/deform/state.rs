@@ -1,8 +1,8 @@
-//! The deformation as simulation state with a fixed latency (issue: results never depend on
-//! scheduling): a solve launched at tick k from the state at k enters the state at tick
-//! k + latency. It runs inline (replay, scripts) or on a thread of its own (the live simulator);
-//! both give the same bits at the same tick, because the solve is a pure function of what it was
-//! handed at launch and the haptic loop waits for it at the due tick if it is late.
+//! The deformation as simulation state with a fixed latency (results never depend on scheduling): a
+//! solve launched at tick k from the state at k enters the state at tick k + latency. It runs
+//! inline (replay, scripts) or on a thread of its own (the live simulator); both give the same bits
+//! at the same tick, because the solve is a pure function of what it was handed at launch and the
+//! haptic loop waits for it at the due tick if it is late.
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicUsize, Ordering};

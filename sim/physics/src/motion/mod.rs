@@ -1,4 +1,4 @@
-//! The breathing hook (thesis §5.4.3–5.4.4, ALGORITHMS.md §2 "Breathing"): physics reads the
+//! The breathing hook (thesis §5.4.3–5.4.4; docs/breathing.md "Haptics"): physics reads the
 //! motion u(X, t) that moves the reference patient X to the world x = X + u(X, t) through
 //! [`MotionModel`], and already uses it the way the thesis does, so a motion model only has to
 //! supply displacement fields.
@@ -62,7 +62,7 @@ pub trait MotionModel: Send + Sync {
     }
 }
 
-/// No motion: u = 0 (the default until the motion-model issue supplies fields).
+/// No motion: u = 0 (the model when breathing is off).
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Static;
 

@@ -1,6 +1,6 @@
-//! The needle's deterministic rod model (ALGORITHMS.md §2, "Our choice" instead of Bullet): an
-//! Euler–Bernoulli beam of m equidistant nodes in a co-rotational frame, lateral deflections w_j
-//! (two components) about a reference axis, solved exactly each tick.
+//! The needle's deterministic rod model (instead of the thesis' Bullet rigid bodies, §3.5.2;
+//! docs/physics.md): an Euler–Bernoulli beam of m equidistant nodes in a co-rotational frame,
+//! lateral deflections w_j (two components) about a reference axis, solved exactly each tick.
 //!
 //! Energy: E = (EI / h³) Σ_j |w_{j−1} − 2 w_j + w_{j+1}|² / 2 + Σ_j k_j |w_j − t_j|² / 2 − Σ_j f_j·w_j,
 //! the second difference being the discrete curvature times h². Its minimum solves the symmetric
@@ -211,7 +211,9 @@ mod tests {
         let k: Vec<f64> = (0..m)
             .map(|j| if j == 0 || j == m - 1 { 50.0 } else { 0.3 * j as f64 })
             .collect();
-        let target: Vec<Lateral> = (0..m).map(|j| [(j as f64 * 0.7).sin(), (j as f64).cos()]).collect();
+        let target: Vec<Lateral> = (0..m)
+            .map(|j| [libm::sin(j as f64 * 0.7), libm::cos(j as f64)])
+            .collect();
         let load: Vec<Lateral> = (0..m).map(|j| [0.01 * j as f64, -0.02]).collect();
         let mut out = vec![[0.0; 2]; m];
         assert!(solve(
@@ -251,7 +253,7 @@ mod tests {
         load[m - 1] = [f, 0.0];
         let mut out = vec![[0.0; 2]; m];
         assert!(solve(ei, h, &k, &target, &load, &mut out, &mut BeamScratch::default()));
-        let expect = f * len.powi(3) / (3.0 * ei);
+        let expect = f * len * len * len / (3.0 * ei);
         let got = out[m - 1][0];
         assert!((got - expect).abs() / expect < 0.001, "{got} vs {expect}");
     }

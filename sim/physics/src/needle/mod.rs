@@ -1,4 +1,4 @@
-//! The bendable needle (thesis §3.5, ALGORITHMS.md §2): needle types ([`spec`]), the rod model
+//! The bendable needle (thesis §3.5, docs/physics.md): needle types ([`spec`]), the rod model
 //! ([`beam`]), the insertion channel ([`path`]), the node tangents ([`tangents`]) and one haptic
 //! tick ([`tool`]).
 pub mod beam;

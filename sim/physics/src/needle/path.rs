@@ -1,5 +1,5 @@
 //! The insertion channel: path nodes P = {p_1 … p_l} with tangents d_i in reference space, and the
-//! per-segment friction state (thesis §3.5.1, §3.5.3; ALGORITHMS.md §2).
+//! per-segment friction state (thesis §3.5.1, §3.5.3; docs/physics.md).
 //!
 //! Only the tip node p_l moves; the others stay where they were laid down, so materials are looked
 //! up at the tip (and once when a node is created).

@@ -1,5 +1,5 @@
 //! Needle types: gauge, length, stylet, and the flexural rigidity EI calibrated on the thesis'
-//! cantilever measurements (Table A.1, ALGORITHMS.md §2).
+//! cantilever measurements (Table A.1; docs/physics.md).
 //!
 //! Small-deflection beam theory gives the tip deflection of a cantilever of length L under a tip
 //! force F as δ = F L³ / (3 EI). Table A.1 (base in a vise, spring scale at the tip):

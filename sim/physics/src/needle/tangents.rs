@@ -91,7 +91,7 @@ mod tests {
         for m in 2..40 {
             for case in 0..20 {
                 let mut nodes: Vec<DVec3> = (0..m)
-                    .map(|j| DVec3::new(next(), next(), j as f64 * 5.0) * 10f64.powi(case % 7 - 3))
+                    .map(|j| DVec3::new(next(), next(), j as f64 * 5.0) * libm::pow(10.0, (case % 7 - 3) as f64))
                     .collect();
                 // Coincident nodes (the fallback), subnormal and huge differences, NaN.
                 match case {
