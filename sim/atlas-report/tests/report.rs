@@ -1,7 +1,7 @@
-//! The validation report (issue 19) on the real abdominal CT with partial labels: the page and
+//! The validation report on the real abdominal CT with partial labels: the page and
 //! its pictures are written whole, name the window by its ribs, list every structure with its
 //! colour, carry the warnings and the step times, and escape what a class table names.
-//! Reads `../shared/data` (or $STYLET_DATA) and fails, with a message, without it.
+//! Reads the real CT data (`scripts/fetch-data`, `$STYLET_DATA`) and fails, with a message, without it.
 
 use std::path::{Path, PathBuf};
 
@@ -11,16 +11,7 @@ use stylet_atlas::import::new::{NewAtlas, new_atlas};
 use stylet_atlas_report::{ReportInput, SmokeResult, write_report};
 
 fn shared_data() -> PathBuf {
-    let d = match std::env::var("STYLET_DATA") {
-        Ok(d) => PathBuf::from(d),
-        Err(_) => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"),
-    };
-    assert!(
-        d.join("ts-example-abdomen/example_ct.nii.gz").is_file(),
-        "the real CT data is missing: expected {} (set STYLET_DATA to its location)",
-        d.display()
-    );
-    d
+    stylet_testkit::real_ct_data()
 }
 
 /// TotalSegmentator's classes with the unmapped class 79 (spinal cord) renamed to markup.

@@ -67,20 +67,9 @@ pub fn write_tiny(dir: &Path) {
     stylet_atlas::write(dir, &tiny_manifest(), &ct, &labels).unwrap();
 }
 
-/// `../shared/data` (or `$STYLET_DATA`): the real CT data. Tests that need it fail, not skip,
-/// when it is missing.
+/// The real CT data (`scripts/fetch-data`). Tests that need it fail, not skip, when it is missing.
 pub fn shared_data() -> PathBuf {
-    if let Ok(d) = std::env::var("STYLET_DATA") {
-        return PathBuf::from(d);
-    }
-    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let d = workspace.join("../shared/data");
-    assert!(
-        d.join("ts-example-abdomen/example_ct.nii.gz").is_file(),
-        "the real CT data is missing: expected {} (set STYLET_DATA to its location)",
-        d.display()
-    );
-    d
+    stylet_testkit::real_ct_data()
 }
 
 pub fn workspace() -> PathBuf {
