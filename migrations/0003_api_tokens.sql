@@ -1,5 +1,5 @@
 -- API tokens get an id (to list and revoke them without the secret), a scope, an expiry and a
--- revocation time (issue 13). Portable SQLite/PostgreSQL: ALTER TABLE … ADD COLUMN, text times
+-- revocation time. Portable SQLite/PostgreSQL: ALTER TABLE … ADD COLUMN, text times
 -- (RFC 3339 UTC, as everywhere), `substr` and `||` only.
 --
 -- scope: 'upload' (the desktop simulator: upload sessions and read their status) or 'full' (the

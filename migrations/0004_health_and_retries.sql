@@ -1,4 +1,4 @@
--- Recovery from storage failures (issue: a read-only data directory).
+-- Recovery from storage failures such as a read-only data directory.
 -- A scoring job that could not run for a passing reason (its file unreadable for a moment, the
 -- database refusing writes) goes back to the queue and is not claimed again before not_before.
 ALTER TABLE scoring_jobs ADD COLUMN not_before TEXT;

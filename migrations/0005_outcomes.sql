@@ -1,4 +1,4 @@
--- Exercises and outcomes (issue 14): what a session practises, whether it passed, failed or could
+-- Exercises and outcomes: what a session practises, whether it passed, failed or could
 -- not be graded, and why in plain words, on its row, for the lists, reports and the CSV.
 -- exercise: 'puncture' | 'palpation' | 'ultrasound_survey' (the scenario's, docs/atlas.md).
 -- outcome: NULL until scored; 'passed' | 'failed' | 'not_gradeable' (the computed result; an

@@ -1,4 +1,4 @@
--- Expert references (issue 18): sessions an instructor marked as showing how experts do their
+-- Expert references: sessions an instructor marked as showing how experts do their
 -- scenario. A scenario's expert benchmark (docs/metrics.md "Expert benchmark") is computed from
 -- the scores of its references on the same atlas. Unmarking deletes the row; marking and
 -- unmarking are both audited ('expert.mark', 'expert.unmark').

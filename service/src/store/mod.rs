@@ -16,6 +16,7 @@ mod instructors;
 mod jobs;
 mod reports;
 mod review;
+mod reworded_migrations;
 mod sessions;
 mod status;
 mod tokens;
@@ -227,7 +228,9 @@ impl Store {
         if sqlite {
             sqlx::query("PRAGMA journal_mode = WAL").execute(&pool).await?;
         }
-        sqlx::migrate!("../migrations").run(&pool).await?;
+        let migrator = sqlx::migrate!("../migrations");
+        reworded_migrations::accept(&pool, &migrator, sqlite).await?;
+        migrator.run(&pool).await?;
         let store = Store { pool, sqlite };
         store.fill_session_summaries().await?;
         store.fill_session_reasons().await?;
