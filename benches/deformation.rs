@@ -1,5 +1,5 @@
-//! Tissue deformation speed (issue 20; thesis Table 4.1 analogue), on the default phantom with an
-//! 18 G needle 10 cm into the liver along the intercostal path, 2-thread rayon pool:
+//! Tissue deformation speed (the thesis' Table 4.1 analogue), on the default phantom with an 18 G
+//! needle 10 cm into the liver along the intercostal path, 2-thread rayon pool:
 //!
 //! - one warm-started solve of the default schedule on 32 and 64 cells (33³ and 65³ nodes), and
 //!   one explicit step on 64 cells as the unit of work (ratios in the same run);

@@ -1,9 +1,9 @@
-//! The dashboard player's frames (issue 18) for a 10-minute session on the default phantom: the
-//! replay snapshots built once per session, then frames at arbitrary ticks — the first time
-//! (replayed from the nearest snapshot and drawn: 3D, axial, ultrasound, X-ray at 480 × 360) and
-//! from the disk cache — with p50 and p99, and the cache's disk use per frame; then the 12 frames
-//! of the 3D overview's turntable (tip path, planned path and a corridor drawn). Timed by hand
-//! (percentiles, not criterion's means); the ratio is the first frame to the cached one.
+//! The dashboard player's frames for a 10-minute session on the default phantom: the replay
+//! snapshots built once per session, then frames at arbitrary ticks — the first time (replayed from
+//! the nearest snapshot and drawn: 3D, axial, ultrasound, X-ray at 480 × 360) and from the disk
+//! cache — with p50 and p99, and the cache's disk use per frame; then the 12 frames of the 3D
+//! overview's turntable (tip path, planned path and a corridor drawn). Timed by hand (percentiles,
+//! not criterion's means); the ratio is the first frame to the cached one.
 //!
 //! `cargo bench --bench player`. Rayon gets 2 threads, as on the development machine. Under
 //! `cargo test --all-targets` a small phantom and a 20-second session are used once: a smoke test.

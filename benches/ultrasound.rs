@@ -1,11 +1,11 @@
-//! Ultrasound speed (issue 16; the thesis reports ≈ 8 ms a frame, §3.7): frames of the real
-//! 512 × 512 × 133 chest CT at 256 scan lines × 512 samples on the CPU reference (2-thread rayon
-//! pool): B-mode, B-mode with colour Doppler and the needle, the scan conversion to a 640 × 512
-//! image, and the once-per-atlas flow-axis estimate; the same frames on the GPU renderer
-//! (lavapipe where there is no GPU; `STYLET_BENCH_GPU=0` skips it), including the read-back and
-//! the CPU's log compression. The convex probe sits beside the atlas'
-//! planned path, imaging it in plane (`stylet render --view ultrasound`'s default). Ratios are to
-//! the B-mode frame of the same run; frames per second = 1000 / ms.
+//! Ultrasound speed (the thesis reports ≈ 8 ms a frame, §3.7): frames of the real 512 × 512 × 133
+//! chest CT at 256 scan lines × 512 samples on the CPU reference (2-thread rayon pool): B-mode,
+//! B-mode with colour Doppler and the needle, the scan conversion to a 640 × 512 image, and the
+//! once-per-atlas flow-axis estimate; the same frames on the GPU renderer (lavapipe where there is
+//! no GPU; `STYLET_BENCH_GPU=0` skips it), including the read-back and the CPU's log compression.
+//! The convex probe sits beside the atlas' planned path, imaging it in plane
+//! (`stylet render --view ultrasound`'s default). Ratios are to the B-mode frame of the same run;
+//! frames per second = 1000 / ms.
 //!
 //! `cargo bench --bench ultrasound` (STYLET_DATA as for the render bench). Under
 //! `cargo test --all-targets` a small phantom is drawn once: a smoke test.

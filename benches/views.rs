@@ -1,9 +1,9 @@
-//! The simulator's views at 1280 × 800 (issue 17: frame rate per view): each of the seven views
-//! the window can show, drawn by `stylet_app::views::ViewRenderer` on the CPU as the window draws
-//! them, at full resolution, on the default phantom patient (the one `stylet sim` builds) at
-//! 13.008 s of the example puncture (needle in the duct, fluoroscopy on, contrast flowing).
-//! Ratios are to the axial slice of the same run. Then the resolution each view settles at in the
-//! window's 50 ms budget, and the frame rate it gets there.
+//! The simulator's views at 1280 × 800 (frame rate per view): each of the seven views the window
+//! can show, drawn by `stylet_app::views::ViewRenderer` on the CPU as the window draws them, at
+//! full resolution, on the default phantom patient (the one `stylet sim` builds) at 13.008 s of the
+//! example puncture (needle in the duct, fluoroscopy on, contrast flowing). Ratios are to the axial
+//! slice of the same run. Then the resolution each view settles at in the window's 50 ms budget,
+//! and the frame rate it gets there.
 //!
 //! `cargo bench --bench views`. The drawing pool has every core but one (the haptic loop's), as
 //! in the window. Under `cargo test --all-targets` a small phantom is drawn at 64 × 40 once per

@@ -1,10 +1,10 @@
-//! X-ray and contrast speed (issue 16; the thesis' Tables 3.2–3.3 analogue): the radiograph of the
-//! real 512 × 512 × 133 chest CT at 256² and 512² on the CPU reference (2-thread rayon pool) and
-//! on the GPU renderer (lavapipe where there is no GPU), and one explicit diffusion step of the
-//! contrast agent on a 64³ grid of duct nodes. The geometry is the one of
-//! benches/diffdrr/diffdrr_bench.py (DiffDRR and plastimatch, compared in docs/xray.md):
-//! posterior-anterior, isocentre at the CT's centre, SID 1000 mm, SOD 750 mm, 400 × 400 mm
-//! detector. Ratios are to the CPU's 256² frame of the same run.
+//! X-ray and contrast speed (the thesis' Tables 3.2–3.3 analogue): the radiograph of the real
+//! 512 × 512 × 133 chest CT at 256² and 512² on the CPU reference (2-thread rayon pool) and on the
+//! GPU renderer (lavapipe where there is no GPU), and one explicit diffusion step of the contrast
+//! agent on a 64³ grid of duct nodes. The geometry is the one of benches/diffdrr/diffdrr_bench.py
+//! (DiffDRR and plastimatch, compared in docs/xray.md): posterior-anterior, isocentre at the CT's
+//! centre, SID 1000 mm, SOD 750 mm, 400 × 400 mm detector. Ratios are to the CPU's 256² frame of
+//! the same run.
 //!
 //! `cargo bench --bench xray` (STYLET_DATA as for the render bench). `STYLET_BENCH_GPU=0` skips
 //! the GPU; `STYLET_BENCH_RAW=DIR` writes each CPU radiograph as raw little-endian f32

@@ -1,9 +1,9 @@
 //! Account management against a real server on loopback (`stylet serve`), on SQLite and on a real
 //! PostgreSQL server (`$STYLET_POSTGRES_URL`, started by scripts/test): disabling an account logs
 //! it out everywhere at once (cookie, API token, dashboard) and keeps its sessions; enabling it
-//! restores them; password resets; role and cohort changes take effect at once; bulk imports
-//! are all or nothing and name every bad line (API, dashboard form, command line); the last
-//! active admin and one's own account are protected; every change is audited (issue 14, item 8).
+//! restores them; password resets; role and cohort changes take effect at once; bulk imports are
+//! all or nothing and name every bad line (API, dashboard form, command line); the last active
+//! admin and one's own account are protected; every change is audited.
 
 mod common;
 

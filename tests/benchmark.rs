@@ -1,10 +1,10 @@
-//! Issue 18, the expert benchmark, against a real server (SQLite and PostgreSQL): an instructor
-//! marks sessions as expert references of a scenario and unmarks them (both audited, repeats
-//! not); the benchmark's figures are the mean and sample spread of the references' metrics; a
-//! session scored once the scenario has enough references is graded against them by the
-//! rubric's relative deductions (recorded in its grade), one scored before is not; the review
-//! page shows the session against the benchmark and marks through its form. (Which sessions
-//! cannot be references is a unit test of `stylet_service::experts`.)
+//! The expert benchmark against a real server (SQLite and PostgreSQL): an instructor marks sessions
+//! as expert references of a scenario and unmarks them (both audited, repeats not); the benchmark's
+//! figures are the mean and sample spread of the references' metrics; a session scored once the
+//! scenario has enough references is graded against them by the rubric's relative deductions
+//! (recorded in its grade), one scored before is not; the review page shows the session against the
+//! benchmark and marks through its form. (Which sessions cannot be references is a unit test of
+//! `stylet_service::experts`.)
 
 mod common;
 

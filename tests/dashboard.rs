@@ -492,11 +492,11 @@ const IDENTIFIERS: [&str; 6] = [
     "max_force_n",
 ];
 
-/// Issue 14, "show where and why": the lung-hit review shows slices through the lung hit with the
-/// point marked and the consequence from the scenario TOML; the success review shows the planned
-/// path (legend) and the same guided-path deviation as `stylet score`; force peaks are named;
-/// an instructor's comment at a moment is listed with its time and marked on the charts; every
-/// failed session has its reasons in words on its review and on the trainee's home.
+/// "Show where and why": the lung-hit review shows slices through the lung hit with the point
+/// marked and the consequence from the scenario TOML; the success review shows the planned path
+/// (legend) and the same guided-path deviation as `stylet score`; force peaks are named; an
+/// instructor's comment at a moment is listed with its time and marked on the charts; every failed
+/// session has its reasons in words on its review and on the trainee's home.
 #[test]
 fn the_review_shows_where_and_why_in_headless_chromium() {
     let db = Db::Sqlite;
@@ -680,8 +680,8 @@ fn the_review_shows_where_and_why_in_headless_chromium() {
     });
 }
 
-/// Issue 14 acceptance, "reasons everywhere": every failed session of the trainee has its reasons
-/// in words on the trainee's home page (the review page: the test above).
+/// "Reasons everywhere": every failed session of the trainee has its reasons in words on the
+/// trainee's home page (the review page: the test above).
 #[test]
 fn every_failed_session_has_its_reasons_on_the_trainee_home() {
     let db = Db::Sqlite;

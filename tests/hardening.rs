@@ -1,5 +1,5 @@
-//! Regression tests of the adversarial review of `stylet serve` (issue 13): each would fail on the
-//! service before its fix. Memory is measured as the server process's peak RSS (VmHWM).
+//! `stylet serve` against hostile clients and failing storage (docs/security.md): each test names
+//! a defence that must hold. Memory is measured as the server process's peak RSS (VmHWM).
 
 mod common;
 
@@ -127,9 +127,9 @@ fn tick_bomb_file(header: &SessionHeader, ticks: u64) -> Vec<u8> {
     w.into_inner().into_inner()
 }
 
-/// Defect 1: a small file declaring 20 M ticks (2.5 GB decoded) is refused — by an account that
-/// may not upload it before anything is decoded, by its trainee because it exceeds the longest
-/// session accepted — and the server's peak memory grows by less than 100 MB either way.
+/// A small file declaring 20 M ticks (2.5 GB decoded) is refused — by an account that may not
+/// upload it before anything is decoded, by its trainee because it exceeds the longest session
+/// accepted — and the server's peak memory grows by less than 100 MB either way.
 #[test]
 fn a_tick_bomb_is_refused_with_bounded_memory() {
     let (f, server) = serve(&["--workers", "1"]);
@@ -159,9 +159,9 @@ fn a_tick_bomb_is_refused_with_bounded_memory() {
     assert_eq!(status, 200);
 }
 
-/// Defects 4 and 7: header fields are bounded at the format level and checked against what the
-/// server knows; sessions with no ticks or not starting at tick 0 are refused; each with a 422
-/// and the reason, nothing stored.
+/// Header fields are bounded at the format level and checked against what the server knows;
+/// sessions with no ticks or not starting at tick 0 are refused; each with a 422 and the reason,
+/// nothing stored.
 #[test]
 fn uploads_with_bad_headers_or_ticks_are_refused_with_the_reason() {
     let (f, server) = serve(&["--workers", "1"]);
@@ -271,8 +271,8 @@ fn uploads_with_bad_headers_or_ticks_are_refused_with_the_reason() {
     assert_eq!(list["total"], 0, "{list}");
 }
 
-/// Defect 4: an admin deletes a session: rows, file and derived data go, the deletion is
-/// audited; nobody else may.
+/// An admin deletes a session: rows, file and derived data go, the deletion is audited; nobody else
+/// may.
 #[test]
 fn an_admin_deletes_a_session_and_everything_about_it() {
     let (f, server) = serve(&["--workers", "1"]);
@@ -361,7 +361,7 @@ fn an_admin_deletes_a_session_and_everything_about_it() {
     assert_eq!(status, 404);
 }
 
-/// Defect 11: names that do not exist get the same answer as names the caller may not see.
+/// Names that do not exist get the same answer as names the caller may not see.
 #[test]
 fn names_that_do_not_exist_answer_like_names_one_may_not_see() {
     let (f, server) = serve(&["--workers", "1"]);
@@ -405,8 +405,8 @@ fn names_that_do_not_exist_answer_like_names_one_may_not_see() {
     }
 }
 
-/// Defect 2: failed logins with long, distinct usernames are refused before anything is kept,
-/// and the server's memory stays flat.
+/// Failed logins with long, distinct usernames are refused before anything is kept, and the
+/// server's memory stays flat.
 #[test]
 fn failed_logins_with_long_usernames_keep_memory_flat() {
     let (_f, server) = serve(&["--workers", "1"]);
@@ -433,9 +433,9 @@ fn failed_logins_with_long_usernames_keep_memory_flat() {
     login(b, "tina");
 }
 
-/// Defect 3: password checks run on their own threads with a bounded queue: a flood of wrong
-/// passwords beyond it gets 503 with Retry-After, and other routes keep answering meanwhile.
-/// Prints /healthz latency during the flood (no threshold: machines differ).
+/// Password checks run on their own threads with a bounded queue: a flood of wrong passwords beyond
+/// it gets 503 with Retry-After, and other routes keep answering meanwhile. Prints /healthz latency
+/// during the flood (no threshold: machines differ).
 #[test]
 fn a_login_flood_is_queued_or_refused_and_other_routes_keep_answering() {
     let (_f, server) = serve(&["--workers", "1", "--password-threads", "1", "--password-queue", "4"]);
@@ -496,8 +496,8 @@ fn a_login_flood_is_queued_or_refused_and_other_routes_keep_answering() {
     );
 }
 
-/// Defect 6: slow clients are cut off: headers not finished in time, bodies sent too slowly,
-/// connections left idle; and at most --max-connections are served at once.
+/// Slow clients are cut off: headers not finished in time, bodies sent too slowly, connections left
+/// idle; and at most --max-connections are served at once.
 #[test]
 fn slow_and_idle_connections_are_closed() {
     let (_f, server) = serve(&[
@@ -583,8 +583,8 @@ fn slow_and_idle_connections_are_closed() {
     assert_eq!(status, 200);
 }
 
-/// Defect 6: past --max-connections, further connections wait (in the kernel's backlog) until
-/// a served one is closed.
+/// Past --max-connections, further connections wait (in the kernel's backlog) until a served one is
+/// closed.
 #[test]
 fn connections_past_the_cap_wait_for_a_free_slot() {
     let (_f, server) = serve(&["--workers", "1", "--header-timeout-s", "3", "--max-connections", "4"]);
@@ -607,8 +607,8 @@ fn connections_past_the_cap_wait_for_a_free_slot() {
     drop(idle);
 }
 
-/// Defect 15: errors the framework writes (bad query, body over the limit, unknown route) are
-/// JSON like every API error, and every answer carries the security headers.
+/// Errors the framework writes (bad query, body over the limit, unknown route) are JSON like every
+/// API error, and every answer carries the security headers.
 #[test]
 fn framework_errors_are_json_and_every_answer_has_security_headers() {
     let (_f, server) = serve(&["--workers", "1"]);
@@ -682,10 +682,9 @@ fn chmod_r(dir: &Path, writable: bool) {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
 }
 
-/// Defect 5: after the data directory was read-only for a while, the service recovers by
-/// itself: /healthz says 503 during the window and 200 after it, every login and comment works
-/// again, and a session whose score could not be stored during the window is scored, not left
-/// `scoring` for ever.
+/// After the data directory was read-only for a while, the service recovers by itself: /healthz
+/// says 503 during the window and 200 after it, every login and comment works again, and a session
+/// whose score could not be stored during the window is scored, not left `scoring` for ever.
 #[test]
 fn the_service_recovers_after_its_data_directory_was_read_only() {
     let f = Fixture::new();
@@ -814,8 +813,8 @@ fn the_service_recovers_after_its_data_directory_was_read_only() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Round 2 of the review: one account, or a stranger, exhausting memory and
-// connections. Each test fails on the service before its fix.
+// One account, or a stranger, trying to exhaust memory and connections: each test names a bound
+// that must hold.
 // ---------------------------------------------------------------------------------------------
 
 use common::attack::*;
@@ -856,12 +855,12 @@ fn tom_logs_in_and_uploads(b: &str, f: &Fixture) -> u16 {
     }
 }
 
-/// Defect 1: uploads are authorised from their first bytes and streamed to disk, and one account
-/// may send only a few at once. 100 concurrent 64 MiB uploads of junk behind a valid header
-/// from one trainee: the first few are received (to disk) and refused (422), the rest get 429
-/// with Retry-After before their body is read; with the caps raised so that 32 are received at
-/// once, the server's memory still grows by a fraction of one upload. Another trainee logs in and
-/// uploads meanwhile. (Before: 4-7 GB grew and stayed.)
+/// Uploads are authorised from their first bytes and streamed to disk, and one account may send
+/// only a few at once. 100 concurrent 64 MiB uploads of junk behind a valid header from one
+/// trainee: the first few are received (to disk) and refused (422), the rest get 429 with
+/// Retry-After before their body is read; with the caps raised so that 32 are received at once, the
+/// server's memory still grows by a fraction of one upload. Another trainee logs in and uploads
+/// meanwhile. (Without these bounds 4–7 GB grow and stay.)
 #[test]
 fn concurrent_junk_uploads_are_capped_and_streamed_with_bounded_memory() {
     more_files();
@@ -961,11 +960,11 @@ fn concurrent_junk_uploads_are_capped_and_streamed_with_bounded_memory() {
     }
 }
 
-/// Defect 2: one trainee opening 600 slow uploads (64 B every 2 s) holds at most its two upload
-/// slots, and those only until the minimum rate fails (10 s), not for half an hour; then 600
-/// anonymous connections sending their headers a byte a second hold no serving capacity.
-/// `/healthz` answers within a second throughout and another trainee logs in and uploads.
-/// (Before: the 512-connection cap filled, `/healthz` took 9.7 s or never answered.)
+/// One trainee opening 600 slow uploads (64 B every 2 s) holds at most its two upload slots, and
+/// those only until the minimum rate fails (10 s), not for half an hour; then 600 anonymous
+/// connections sending their headers a byte a second hold no serving capacity. `/healthz` answers
+/// within a second throughout and another trainee logs in and uploads. (Without the minimum rate
+/// the 512-connection cap fills and `/healthz` takes 9.7 s or never answers.)
 #[test]
 fn slow_uploads_and_slow_headers_cannot_starve_the_server() {
     more_files();
@@ -1124,9 +1123,9 @@ impl Drop for SmallDisk {
     }
 }
 
-/// Defect 6 (a full disk): an upload is refused with 503 and Retry-After (not 500) before its
-/// body is read, and an admin can still delete a session to make room: the files go first, so
-/// the database has room for its journal. Once there is room again, uploads work.
+/// A full disk: an upload is refused with 503 and Retry-After (not 500) before its body is read,
+/// and an admin can still delete a session to make room: the files go first, so the database has
+/// room for its journal. Once there is room again, uploads work.
 #[test]
 fn a_full_disk_answers_503_and_an_admin_can_still_delete() {
     let f = Fixture::new();
@@ -1202,8 +1201,8 @@ fn a_full_disk_answers_503_and_an_admin_can_still_delete() {
     drop(server);
 }
 
-/// Defect 6: an instructor cannot upload for a trainee of their cohort whose account is
-/// disabled (nor can an admin); enabled again, the upload works.
+/// An instructor cannot upload for a trainee of their cohort whose account is disabled (nor can an
+/// admin); enabled again, the upload works.
 #[test]
 fn nobody_uploads_for_a_disabled_trainee() {
     let (f, server) = serve(&["--workers", "1"]);
@@ -1224,8 +1223,8 @@ fn nobody_uploads_for_a_disabled_trainee() {
     assert_eq!(status, 201, "{body}");
 }
 
-/// Defect 6: an upload-scoped token cannot log its account out (nor can a full one: tokens do
-/// not log in); the account's login keeps working.
+/// An upload-scoped token cannot log its account out (nor can a full one: tokens do not log in);
+/// the account's login keeps working.
 #[test]
 fn api_tokens_cannot_log_the_account_out() {
     let (_f, server) = serve(&["--workers", "1"]);
@@ -1258,11 +1257,11 @@ fn api_tokens_cannot_log_the_account_out() {
     }
 }
 
-/// Defect 5: loaded atlases are held in a cache bounded by bytes. Four atlases of 3.3 M voxels
-/// (copies of the phantom under other names, so four contents): a server whose cache may hold
-/// all of them keeps them resident; one whose cache holds one keeps about one, yet scores a
-/// session on an atlas it let go of (loaded again from disk). (Before: every atlas stayed
-/// resident, 1.2 GB each at 512² × 256.)
+/// Loaded atlases are held in a cache bounded by bytes. Four atlases of 3.3 M voxels (copies of the
+/// phantom under other names, so four contents): a server whose cache may hold all of them keeps
+/// them resident; one whose cache holds one keeps about one, yet scores a session on an atlas it
+/// let go of (loaded again from disk). (Without the bound every atlas stays resident, 1.2 GB each
+/// at 512² × 256.)
 #[test]
 fn loaded_atlases_are_held_in_a_cache_bounded_by_bytes() {
     let f = Fixture::new();

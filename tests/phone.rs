@@ -1,8 +1,8 @@
-//! Phones and tablets (issue 14, item 9): at a 390 × 844 window, every page each role can open is
-//! no wider than the window (`document.documentElement.scrollWidth <= window.innerWidth`: no
-//! sideways scrolling; wide tables scroll inside their own box), and "Log out" is on screen.
-//! Headless Chromium through ChromeDriver, as tests/dashboard.rs. Full-page screenshots go to
-//! `$STYLET_SHOTS` (default `$CARGO_TARGET_TMPDIR/phone-screenshots/`) to be looked at.
+//! Phones and tablets: at a 390 × 844 window, every page each role can open is no wider than the
+//! window (`document.documentElement.scrollWidth <= window.innerWidth`: no sideways scrolling; wide
+//! tables scroll inside their own box), and "Log out" is on screen. Headless Chromium through
+//! ChromeDriver, as tests/dashboard.rs. Full-page screenshots go to `$STYLET_SHOTS` (default
+//! `$CARGO_TARGET_TMPDIR/phone-screenshots/`) to be looked at.
 //!
 //! To add a page: add its path to the role's list in [`pages_of`].
 

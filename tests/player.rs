@@ -1,9 +1,9 @@
-//! Issue 18, the replay player on the session review, in headless Chromium (SQLite and
-//! PostgreSQL): an instructor opens a session, plays, seeks by the timeline and by clicking the
-//! force chart, jumps to the risk hit, and the frames and the chart cursor follow; a frame equals
+//! The replay player on the session review, in headless Chromium (SQLite and PostgreSQL): an
+//! instructor opens a session, plays, seeks by the timeline and by clicking the force chart, jumps
+//! to the risk hit, and the frames and the chart cursor follow; a frame equals
 //! `stylet render --session … --at …` of the same tick; a trainee sees only their own sessions'
-//! frames; a session still being scored answers 409. Screenshots of the player on a desktop and
-//! a tablet-sized window go to `$CARGO_TARGET_TMPDIR/browser-screenshots/`.
+//! frames; a session still being scored answers 409. Screenshots of the player on a desktop and a
+//! tablet-sized window go to `$CARGO_TARGET_TMPDIR/browser-screenshots/`.
 
 mod common;
 

@@ -1,8 +1,7 @@
-//! Publishing atlases (issue 19 item 4; docs/api.md "Atlases"): `stylet atlas validate`, then
-//! `stylet atlas publish` with an instructor's token; the service checks the atlas again, keeps
-//! it by content hash, lists it in the catalogue (API and page), audits it, and accepts and
-//! scores sessions on it, also after a restart. Every kind of bad publication is refused with its
-//! reason and leaves nothing behind.
+//! Publishing atlases (docs/api.md "Atlases"): `stylet atlas validate`, then `stylet atlas publish`
+//! with an instructor's token; the service checks the atlas again, keeps it by content hash, lists
+//! it in the catalogue (API and page), audits it, and accepts and scores sessions on it, also after
+//! a restart. Every kind of bad publication is refused with its reason and leaves nothing behind.
 
 mod common;
 
@@ -732,11 +731,11 @@ fn blocks(data: &[u8]) -> Vec<u8> {
     out
 }
 
-/// Defects 3 and 6 (round 2): archives built to make the server read much, or to tell files
-/// apart, are refused before anything large is read; refusals are short and never echo what was
-/// sent. A PAX `size` that disagrees with its entry's header (a folder: PAX 512, header 0) in
-/// front of a 64 MiB GNU long name; an entry running past the end of the archive; breathing
-/// files outside the atlas (`/etc/passwd` and a path that does not exist answer alike).
+/// Archives built to make the server read much, or to tell files apart, are refused before anything
+/// large is read; refusals are short and never echo what was sent. A PAX `size` that disagrees with
+/// its entry's header (a folder: PAX 512, header 0) in front of a 64 MiB GNU long name; an entry
+/// running past the end of the archive; breathing files outside the atlas (`/etc/passwd` and a path
+/// that does not exist answer alike).
 #[test]
 fn hostile_archives_are_refused_before_they_are_read() {
     let db = Db::Sqlite;
@@ -857,13 +856,12 @@ fn unpublish_cli(hash: &str, base: &str, token: &str) -> (bool, String, String) 
     )
 }
 
-/// Defects 4, 5 and 6 (round 2). Two publications whose archives arrive slowly do not hold up a
-/// third. An atlas published before is not checked again (a server whose voxel limit it no
-/// longer meets takes it back at once). Withdrawing (`DELETE /api/atlases/{hash}`, admins only,
-/// and `stylet atlas unpublish`): the atlas leaves the catalogue and takes no new sessions, the
-/// sessions on it stay readable and replayable, every step audited; publishing it again
-/// reinstates it. The server runs with a one-byte atlas cache, so every atlas it needs is loaded
-/// again from disk: scores and player frames still come.
+/// Two publications whose archives arrive slowly do not hold up a third. An atlas published before
+/// is not checked again (a server whose voxel limit it no longer meets takes it back at once).
+/// Withdrawing (`DELETE /api/atlases/{hash}`, admins only, and `stylet atlas unpublish`): the atlas
+/// leaves the catalogue and takes no new sessions, the sessions on it stay readable and replayable,
+/// every step audited; publishing it again reinstates it. The server runs with a one-byte atlas
+/// cache, so every atlas it needs is loaded again from disk: scores and player frames still come.
 #[test]
 fn publications_arrive_side_by_side_and_atlases_are_withdrawn() {
     let db = Db::Sqlite;
@@ -1010,9 +1008,9 @@ fn publications_arrive_side_by_side_and_atlases_are_withdrawn() {
     assert_eq!(status, 200, "{error}");
 }
 
-/// Defect 6 (round 2): a folder in the atlas store without its publication record in the
-/// database (copied there by hand, or left by a crash between the rename and the row) is not
-/// served: it is not in the catalogue, sessions on it are refused, and the log says why.
+/// A folder in the atlas store without its publication record in the database (copied there by
+/// hand, or left by a crash between the rename and the row) is not served: it is not in the
+/// catalogue, sessions on it are refused, and the log says why.
 #[test]
 fn an_atlas_folder_without_its_publication_record_is_not_served() {
     let db = Db::Sqlite;

@@ -1,7 +1,7 @@
-//! The cohort report as a PDF (issue 14, item 7): made on the server, read back with `pdftotext`
-//! (poppler-utils, installed by scripts/test), it holds the cohort's numbers as the API reports
-//! them session by session; palpation sessions are counted per exercise, not as punctures; the
-//! same authorization as the printable page.
+//! The cohort report as a PDF: made on the server, read back with `pdftotext` (poppler-utils,
+//! installed by scripts/test), it holds the cohort's numbers as the API reports them session by
+//! session; palpation sessions are counted per exercise, not as punctures; the same authorization
+//! as the printable page.
 
 mod common;
 

@@ -558,11 +558,11 @@ fn taking_the_review_trace_does_not_change_the_score() {
     }
 }
 
-/// Tissue damage (area the shaft sweeps sideways) and needle bending read 0 for a straight
-/// scripted in-and-out — a script moves the device exactly along the needle's own axis, so the
-/// shaft only slides and carries no sideways load — and are clearly above 0 when the needle is
-/// swept sideways while inserted (the thesis' Fig. 3.13 angulation) or loaded sideways at the hub
-/// without advancing (issue 14: metrics that can be checked).
+/// Tissue damage (area the shaft sweeps sideways) and needle bending read 0 for a straight scripted
+/// in-and-out — a script moves the device exactly along the needle's own axis, so the shaft only
+/// slides and carries no sideways load — and are clearly above 0 when the needle is swept sideways
+/// while inserted (the thesis' Fig. 3.13 angulation) or loaded sideways at the hub without
+/// advancing.
 #[test]
 fn tissue_damage_and_bending_are_zero_only_for_a_straight_insertion() {
     let (e, t) = ("152.6 1.5 15.9", "50.5 30 7.5");
@@ -747,8 +747,8 @@ fn the_dose_area_product_follows_the_scenarios_c_arm() {
     assert!((near_dap - dap / 4.0).abs() < 1e-12, "{near_dap} vs {}", dap / 4.0);
 }
 
-/// "Target scanned before the puncture" (issue 16 item 4): an ultrasound sweep that shows the
-/// target, then the puncture, sets it; a sweep of the wrong flank does not, and the rubric metric
+/// "Target scanned before the puncture": an ultrasound sweep that shows the target, then the
+/// puncture, sets it; a sweep of the wrong flank does not, and the rubric metric
 /// `missing_target_scan` reads it.
 #[test]
 fn the_target_must_be_in_the_ultrasound_image_before_the_puncture() {
@@ -790,11 +790,11 @@ fn the_target_must_be_in_the_ultrasound_image_before_the_puncture() {
     assert_eq!(w["target_scanned_before_puncture"], false, "{w}");
 }
 
-/// "Needle visible in the ultrasound plane" (issue 16 item 4): the share of the insertion time
-/// the tip lies in the image of the probe's last pose on the skin. A probe beside the path
-/// imaging it in plane (`stylet render --view ultrasound`'s default placement), then the
-/// puncture along the path: nearly all the time; the same probe turned 90° about its beam (the
-/// plane across the path): the tip only crosses it; no probe: no value.
+/// "Needle visible in the ultrasound plane": the share of the insertion time the tip lies in the
+/// image of the probe's last pose on the skin. A probe beside the path imaging it in plane
+/// (`stylet render --view ultrasound`'s default placement), then the puncture along the path:
+/// nearly all the time; the same probe turned 90° about its beam (the plane across the path): the
+/// tip only crosses it; no probe: no value.
 #[test]
 fn the_needle_in_the_ultrasound_plane_is_measured_against_the_last_probe_image() {
     use stylet_physics::ProbeKind;

@@ -1,7 +1,7 @@
-//! The desktop simulator's machinery end to end (issue 17): a complete PTCD session driven
-//! through the haptic loop by the scripted device records a file that `stylet score` replays
-//! verified; a paced loop records its timing as notes; the outbox uploads a session recorded
-//! while the server was down once when it comes back, and loses nothing on the way.
+//! The desktop simulator's machinery end to end: a complete PTCD session driven through the haptic
+//! loop by the scripted device records a file that `stylet score` replays verified; a paced loop
+//! records its timing as notes; the outbox uploads a session recorded while the server was down
+//! once when it comes back, and loses nothing on the way.
 
 mod common;
 

@@ -1,7 +1,7 @@
 //! API tokens and login origins against a real server on loopback (`stylet serve`), on SQLite and
 //! on a real PostgreSQL server (`$STYLET_POSTGRES_URL`, started by scripts/test): token scopes,
 //! expiry and revocation, no tokens made by tokens, lists without secrets, the dashboard's tokens
-//! page, and logins sent from another origin (issue 13).
+//! page, and logins sent from another origin.
 
 mod common;
 

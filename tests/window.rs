@@ -1,9 +1,9 @@
-//! The simulator's window (issue 17), driven headless by egui_kittest and drawn by wgpu on Mesa's
-//! software Vulkan (lavapipe): every screen is compared with its snapshot in
-//! tests/snapshots/window (`UPDATE_SNAPSHOTS=1` writes them; look at them before committing), and
-//! a complete PTCD session driven through the application by the scripted device records a
-//! file that `stylet score` replays verified, whose replay in the viewer ends in the same state;
-//! sessions by hand move with the keys, and closing the window mid-session loses nothing.
+//! The simulator's window, driven headless by egui_kittest and drawn by wgpu on Mesa's software
+//! Vulkan (lavapipe): every screen is compared with its snapshot in tests/snapshots/window
+//! (`UPDATE_SNAPSHOTS=1` writes them; look at them before committing), and a complete PTCD session
+//! driven through the application by the scripted device records a file that `stylet score` replays
+//! verified, whose replay in the viewer ends in the same state; sessions by hand move with the
+//! keys, and closing the window mid-session loses nothing.
 
 mod common;
 

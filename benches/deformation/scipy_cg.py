@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The deformation solve of Stylet side by side with scipy.sparse.linalg.cg (issue 20).
+"""The deformation solve of Stylet side by side with scipy.sparse.linalg.cg.
 
 Reads the 64-cell system `cargo bench --bench deformation` exported with STYLET_BENCH_EXPORT=DIR
 (fixed.u8: Dirichlet nodes; u_bc.f64: their values, nodes x 3 components; u_stylet.f64: Stylet's

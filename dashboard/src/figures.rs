@@ -40,8 +40,8 @@ pub fn figure_path(data_dir: &Path, sha: &str, figure: Figure, corridor_key: &st
     ))
 }
 
-/// Where the tip first touched the `n`th risk structure: the score's point (reports since
-/// issue 14), else the review trace's.
+/// Where the tip first touched the `n`th risk structure: the score's point (reports written
+/// without one hold [0, 0, 0]), else the review trace's.
 pub fn hit_point(report: &ScoreReport, trace: &ReviewTrace, n: usize) -> Option<DVec3> {
     let hit = report.metrics.risk_hits.get(n)?;
     if hit.point_mm != [0.0; 3] {

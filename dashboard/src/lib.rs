@@ -1,4 +1,4 @@
-//! The Stylet dashboard (DESIGN.md "Service and security"; docs/dashboard.md): server-rendered
+//! The Stylet dashboard (docs/dashboard.md; its security rules: docs/security.md): server-rendered
 //! pages for trainees, instructors, curriculum staff and admins, mounted by `stylet serve` beside
 //! the JSON API and sharing its logins, store and authorization rules. Charts are drawn on the
 //! server with plotters as inline SVG ([`charts`], on [`plot`]); the tip path over CT slices is a PNG drawn by

@@ -1,5 +1,5 @@
 //! The session writer: its own thread behind a bounded queue, so the 1 kHz loop never waits for
-//! the disk (DESIGN.md "Session file").
+//! the disk (docs/session-format.md "Writing and crash safety").
 //!
 //! - `record`, `event`, `digest`, `annotate` never block: if the queue is full the item is counted
 //!   as dropped and the session is marked incomplete (with counts) — never dropped silently.

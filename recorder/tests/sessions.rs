@@ -449,9 +449,8 @@ fn fuzzer_findings_stay_fixed() {
     assert!(n >= 1);
 }
 
-/// Issue 13: a script could record NaN poses, and the reader took them (replay then fed NaN into
-/// the physics). A tick with a non-finite pose is damage now: verify and strict reading refuse
-/// the file, recovery stops before the chunk that holds it.
+/// A tick with a non-finite pose is damage (replay would feed NaN into the physics): verify and
+/// strict reading refuse the file, recovery stops before the chunk that holds it.
 #[test]
 fn non_finite_poses_are_damage() {
     let d = tempfile::tempdir().unwrap();

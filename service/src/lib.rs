@@ -1,7 +1,7 @@
-//! Stylet's scoring service, `stylet-service` (`stylet serve`; DESIGN.md "Service and security"): a JSON API over axum
-//! that takes session files, validates them with the recorder's reader before anything is
-//! stored, keeps them by content hash, and scores them by replay on a worker pool whose jobs live
-//! in the database (a restart resumes them; a session is never scored twice).
+//! Stylet's scoring service, `stylet-service` (`stylet serve`; docs/api.md, docs/security.md): a
+//! JSON API over axum that takes session files, validates them with the recorder's reader before
+//! anything is stored, keeps them by content hash, and scores them by replay on a worker pool whose
+//! jobs live in the database (a restart resumes them; a session is never scored twice).
 
 pub mod api;
 pub mod atlases;

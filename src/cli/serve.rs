@@ -1,5 +1,5 @@
 //! `stylet serve` and `stylet user add`: the scoring service and its accounts
-//! (the crate stylet-service; DESIGN.md "Service and security").
+//! (the crate stylet-service; docs/api.md, docs/security.md).
 
 use std::io::Read;
 use std::path::PathBuf;

@@ -1,7 +1,7 @@
-//! A label map made for the real DICOM series `ts-example-dicom` (issue 19 acceptance), which has
-//! none: 20 contrast-enhanced axial slices (portal-venous phase) of the upper abdomen, 512 × 512
-//! at 0.98 × 0.98 × 2 mm. The structures are segmented from the CT by intensity and connectivity
-//! with seeds placed by looking at slice 10 (the rater's part), in the series' own grid:
+//! A label map made for the real DICOM series `ts-example-dicom`, which has none: 20
+//! contrast-enhanced axial slices (portal-venous phase) of the upper abdomen, 512 × 512 at
+//! 0.98 × 0.98 × 2 mm. The structures are segmented from the CT by intensity and connectivity with
+//! seeds placed by looking at slice 10 (the rater's part), in the series' own grid:
 //!
 //! - **liver** (5): the in-plane 7 × 7 mean between 86 and 140 HU (the liver enhances to about
 //!   100 HU), eroded 5 × 5, the component at the right anterior seed, dilated back within 80 HU,

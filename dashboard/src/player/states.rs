@@ -1,7 +1,8 @@
 //! Replay states for the player: a session replayed once through the scorer's physics
 //! (`stylet_scoring::Replayer`), keeping snapshots along the way, so that a frame at any tick
-//! replays only from the nearest snapshot before it, not from the start (DESIGN.md "Scoring":
-//! what the player shows is computed from the recorded inputs, never read from the file).
+//! replays only from the nearest snapshot before it, not from the start (as in scoring,
+//! docs/metrics.md: what the player shows is computed from the recorded inputs, never read from
+//! the file).
 //!
 //! A snapshot is a clone of the replayer: the simulation's state, the recording shared. Stepping
 //! on from it gives the same ticks, bit for bit, as stepping on from the start.

@@ -1,5 +1,5 @@
-//! The haptic loop (thesis §6.3; DESIGN.md "Simulation tick"): a thread of its own ticking at the
-//! simulation's rate (1 kHz): device sample → `Simulation::step` → force to the device (the
+//! The haptic loop (thesis §6.3; docs/simulator.md "The haptic loop"): a thread of its own ticking
+//! at the simulation's rate (1 kHz): device sample → `Simulation::step` → force to the device (the
 //! device receives the previous tick's output with its next sample) → recorder.
 //!
 //! Nothing outside the thread can make it wait. The recorder never blocks in real time (a full
@@ -31,8 +31,8 @@ pub struct LoopOptions {
     /// Real time (ticks at the simulation's rate) or as fast as the CPU allows (headless runs,
     /// tests: same ticks, same session file).
     pub paced: bool,
-    /// A snapshot for the views every this many ticks (16: 62.5 Hz at 1 kHz; DESIGN.md's
-    /// render sub-rate).
+    /// A snapshot for the views every this many ticks (16: 62.5 Hz at 1 kHz, the
+    /// views' fixed sub-rate; docs/simulator.md "The haptic loop").
     pub publish_every: u64,
 }
 

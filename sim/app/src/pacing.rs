@@ -1,4 +1,4 @@
-//! Drift-free pacing of the 1 kHz haptic loop (DESIGN.md "Simulation tick").
+//! Drift-free pacing of the 1 kHz haptic loop (docs/simulator.md "The haptic loop").
 //!
 //! Tick k is due at `start + k·period` and must be done by `start + (k + 1)·period`: deadlines
 //! are absolute, so one late tick does not push every later one back (no drift). The pacer sleeps

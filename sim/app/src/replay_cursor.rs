@@ -1,7 +1,7 @@
 //! The replay viewer's cursor: a session file replayed through the same physics as the scorer
 //! (`stylet_scoring::Replayer`), stepped forward as it plays and replayed again from the start
 //! when the viewer seeks backward. What the views show at a tick is computed from the recorded
-//! inputs, never read from the file (DESIGN.md "Scoring").
+//! inputs, never read from the file (as in scoring, docs/metrics.md).
 
 use std::path::Path;
 use std::sync::Arc;

@@ -1,4 +1,4 @@
-//! The validation report of a new patient (issue 19, docs/atlas.md "Validation report"): what
+//! The validation report of a new patient (docs/atlas.md "Validation report"): what
 //! `stylet atlas new` made, laid out for the clinician who approves it before trainees see the
 //! patient. One folder: `index.html` (self-contained but for its pictures), `slices.png` (axial,
 //! coronal, sagittal through the target with every structure in its own colour, the paths and a

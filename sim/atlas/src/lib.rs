@@ -1,4 +1,4 @@
-//! Stylet puncture atlases on disk (thesis §6.1, ALGORITHMS.md §0–1, docs/atlas.md).
+//! Stylet puncture atlases on disk (thesis §6.1, docs/atlas.md).
 //!
 //! An atlas is a directory with `atlas.toml` and two NIfTI volumes (CT in HU, partial label map).
 //! This crate reads and validates it into a [`stylet_physics::PunctureAtlas`], writes it, and makes

@@ -1,4 +1,4 @@
-//! Every kind of bad atlas gets an error that names the file and the problem (issue: missing file,
+//! Every kind of bad atlas gets an error that names the file and the problem (missing file,
 //! dimension or affine mismatch, unknown label, NaN, property-tree cycle or unknown parent,
 //! thresholds out of order), and nothing panics.
 
@@ -291,8 +291,8 @@ fn mkfifo(path: &Path) {
     assert!(status.success(), "mkfifo {}", path.display());
 }
 
-/// Issue 13: a FIFO named like an atlas file made `stylet atlas inspect` hang forever; every
-/// atlas file is checked to be a regular file before it is opened.
+/// A FIFO named like an atlas file must not make `stylet atlas inspect` hang: every atlas file
+/// is checked to be a regular file before it is opened.
 #[cfg(unix)]
 #[test]
 fn a_fifo_in_place_of_an_atlas_file_is_refused_without_hanging() {
@@ -366,8 +366,8 @@ fn import_inputs_that_are_not_regular_files_are_refused() {
     }
 }
 
-/// A recipe's class table (issue 19) that is broken is refused with the file and the line named,
-/// before any CT is read, and nothing is written.
+/// A recipe's class table that is broken is refused with the file and the line named, before any CT
+/// is read, and nothing is written.
 #[test]
 fn a_bad_class_table_is_refused_before_anything_is_read_or_written() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");

@@ -1,5 +1,5 @@
-//! `atlas new` (issue 19): a CT and an automatic segmentation become a PTCD atlas with no recipe,
-//! on both real CTs of `../shared/data` and on a TotalSegmentator folder of per-structure masks;
+//! `atlas new`: a CT and an automatic segmentation become a PTCD atlas with no recipe,
+//! on both real CTs (`scripts/fetch-data`) and on a TotalSegmentator folder of per-structure masks;
 //! hostile inputs are refused with the reason and nothing is written. These tests read the shared
 //! data and fail, with a message, if it is missing.
 

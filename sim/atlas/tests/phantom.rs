@@ -50,11 +50,10 @@ fn truth_classes(p: &stylet_atlas::phantom::Phantom) -> Vec<Option<HeuristicClas
 
 /// On the phantom the heuristic h(x, 0), with thresholds estimated from the CT histogram, agrees
 /// with the ground truth for skin / fat / bone / air on ≥ 95 % of the voxels that carry no partial
-/// label (issue acceptance), and on ≥ 95 % of those inside the body. Per-class agreement is
-/// printed for the issue note; air, fat and bone must each reach 95 %. Skin cannot: only the part
-/// of the surface layer whose partial volume puts it between the air and fat thresholds is skin
-/// (about a fifth of it at 1.5 mm)
-/// by eq. 6.1.1 (the threshold stays far below fat so that deep fat never becomes a risk).
+/// label, and on ≥ 95 % of those inside the body. Per-class agreement is printed; air, fat and bone
+/// must each reach 95 %. Skin cannot: only the part of the surface layer whose partial volume puts
+/// it between the air and fat thresholds is skin (about a fifth of it at 1.5 mm) by eq. 6.1.1 (the
+/// threshold stays far below fat so that deep fat never becomes a risk).
 #[test]
 fn heuristic_agrees_with_ground_truth() {
     let p = phantom();

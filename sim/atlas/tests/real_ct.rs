@@ -1,6 +1,6 @@
-//! The real-CT atlas from `../shared/data/ts-example-abdomen` and the DICOM series importer on
-//! `../shared/data/ts-example-dicom` (issue acceptance "Real CT" and "DICOM"). These tests read the
-//! shared data and fail, with a message, if it is missing.
+//! The real-CT atlas from `ts-example-abdomen` and the DICOM series importer on
+//! `ts-example-dicom` (the real CT data of `scripts/fetch-data`). These tests read that data and
+//! fail, with a message, if it is missing.
 
 mod common;
 

@@ -1,8 +1,8 @@
-//! Input devices for the simulator (DESIGN.md "Layout"): the [`Device`] trait and its backends:
-//! the scripted device and its script language ([`script`]), which drives reproducible,
-//! faster-than-real-time runs; the live device the window drives ([`live`]); SpaceMouse reports
-//! ([`spacemouse`]) and rate control ([`rate`]); gamepads ([`gamepad`], read through gilrs with
-//! the feature `gamepad`); raw-HID device profiles ([`hid_profile`]).
+//! Input devices for the simulator (docs/devices.md, docs/architecture.md): the [`Device`] trait
+//! and its backends: the scripted device and its script language ([`script`]), which drives
+//! reproducible, faster-than-real-time runs; the live device the window drives ([`live`]);
+//! SpaceMouse reports ([`spacemouse`]) and rate control ([`rate`]); gamepads ([`gamepad`], read
+//! through gilrs with the feature `gamepad`); raw-HID device profiles ([`hid_profile`]).
 
 pub mod command;
 pub mod gamepad;

@@ -1,7 +1,7 @@
-//! The GPU ray caster against the CPU reference (docs/rendering.md; issue 15 acceptance): the
-//! same scene drawn by both, per-pixel difference statistics within a stated tolerance, for each
-//! preset-like transfer function, each tagging mode with a clip plane, the tools, half
-//! resolution and the speed switches, on a small synthetic atlas and on the phantom.
+//! The GPU ray caster against the CPU reference (docs/rendering.md): the same scene drawn by both,
+//! per-pixel difference statistics within a stated tolerance, for each preset-like transfer
+//! function, each tagging mode with a clip plane, the tools, half resolution and the speed
+//! switches, on a small synthetic atlas and on the phantom.
 //!
 //! These tests run on whatever adapter wgpu finds (lavapipe on CI and on machines without a
 //! GPU) and fail when there is none.

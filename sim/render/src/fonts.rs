@@ -1,5 +1,5 @@
-//! Registers the embedded font with plotters once (plotters has no system fonts in our set-up;
-//! text fails with FontUnavailable otherwise — see STACK.md).
+//! Registers the embedded font with plotters once (plotters is built without system fonts, and text
+//! fails with FontUnavailable at run time without a registered font).
 
 use std::sync::Once;
 

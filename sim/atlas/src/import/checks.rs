@@ -1,7 +1,7 @@
-//! What a clinician should know about the inputs before approving a new patient (issue 19's
-//! validation report): the source CT's grid and HU range, how much of the body the label map
-//! covers, and warnings — sparse labels, thick slices, structures a PTCD scenario expects but
-//! the map lacks, CT values no HU-calibrated scan has.
+//! What a clinician should know about the inputs before approving a new patient (the validation
+//! report): the source CT's grid and HU range, how much of the body the label map covers, and
+//! warnings — sparse labels, thick slices, structures a PTCD scenario expects but the map lacks, CT
+//! values no HU-calibrated scan has.
 
 use stylet_physics::{LabelId, Volume};
 

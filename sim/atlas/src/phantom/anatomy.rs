@@ -6,7 +6,7 @@
 //! fascia follow the body contour. Organs are signed-distance shapes painted on top, clipped to
 //! the body cavity. Numbers are typical adult dimensions; the right 10th/11th intercostal space at
 //! the mid-axillary line gives a straight path into the right hepatic duct that avoids lung, ribs
-//! and vessels (the PTCD entry of ALGORITHMS.md §7).
+//! and vessels (the usual intercostal PTCD entry, thesis §2.1).
 
 use std::f64::consts::{FRAC_PI_2, PI};
 

@@ -647,8 +647,8 @@ mod tests {
         assert!(e.expected.contains("end of line") && e.found == "'depth'", "{e}");
     }
 
-    /// Issue 13: `dir 1e300 …` normalised to NaN and `aim` with ±1e308 gave NaN poses that were
-    /// recorded; every number that becomes a pose is now bounded, and the error says which.
+    /// Every number that becomes a pose is bounded, and the error says which: unbounded,
+    /// `dir 1e300 …` normalises to NaN and `aim` with ±1e308 gives NaN poses that get recorded.
     #[test]
     fn huge_numbers_that_would_make_nan_poses_are_refused() {
         let e = err("stylet-script 1\nat 0 pos 0 0 0 dir 1e300 1e300 1e300\n");
