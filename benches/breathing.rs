@@ -118,7 +118,7 @@ fn end_inspiration_scene(atlas: &stylet_atlas::Atlas) -> Scene {
     let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
     let labels = SessionLabels {
         scenario: "ptcd".into(),
-        difficulty: "beginner".into(),
+        difficulty: stylet_scoring::Difficulty::Beginner,
         seed: 1,
     };
     let at = ((0.5 + peak_s) * 1000.0).round() as u64;

@@ -292,7 +292,7 @@ fn main() {
                     .await
                     .unwrap();
                     // Two sessions in three have been commented on (the review queue skips them).
-                    if k % 3 != 0 {
+                    if !k.is_multiple_of(3) {
                         sqlx::query(
                             "INSERT INTO comments (id, session_id, author_id, body, created_at) VALUES ($1, $2, $3, $4, $5)",
                         )

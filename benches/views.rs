@@ -135,7 +135,7 @@ fn moment_of_the_puncture(atlas: &stylet_atlas::Atlas) -> Moment {
         scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &parse(&text).unwrap()).unwrap();
     let labels = SessionLabels {
         scenario: "success-intercostal".into(),
-        difficulty: "beginner".into(),
+        difficulty: stylet_scoring::Difficulty::Beginner,
         seed: 0,
     };
     let mut last = None;

@@ -67,7 +67,7 @@ fn main() -> anyhow::Result<()> {
             .scenarios
             .first()
             .map_or("ptcd".into(), |s| s.name.clone()),
-        difficulty: "beginner".into(),
+        difficulty: stylet_scoring::Difficulty::Beginner,
         seed: 1,
     };
     let parsed = parse(&script)?;

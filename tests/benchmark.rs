@@ -267,7 +267,9 @@ fn experts_mark_and_the_benchmark_grades(db: Db, tag: &str) {
     assert_eq!(recorded, marked);
     assert_eq!(grade["benchmark"]["figures"].as_array().unwrap().len(), 3, "{grade}");
     let rubric = stylet_scoring::Rubric::default_rubric();
-    let level = rubric.level(stylet_scoring::Exercise::Puncture, "expert").unwrap();
+    let level = rubric
+        .level(stylet_scoring::Exercise::Puncture, stylet_scoring::Difficulty::Expert)
+        .unwrap();
     assert!(!level.relative.is_empty());
     let mut relative_points = 0.0;
     for d in &level.relative {
@@ -299,7 +301,7 @@ fn experts_mark_and_the_benchmark_grades(db: Db, tag: &str) {
         .grade(
             &serde_json::from_value(row["score"]["metrics"].clone()).unwrap(),
             stylet_scoring::Exercise::Puncture,
-            "expert",
+            stylet_scoring::Difficulty::Expert,
         )
         .unwrap();
     assert!(

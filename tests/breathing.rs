@@ -579,7 +579,7 @@ fn moments(atlas: &Atlas) -> [stylet_render::views::Moment; 3] {
     let ee_tick = ((8.0 + 0.92 * c0.period_s) * 1000.0).round() as u64;
     let labels = SessionLabels {
         scenario: "ptcd".into(),
-        difficulty: "beginner".into(),
+        difficulty: stylet_scoring::Difficulty::Beginner,
         seed: 1,
     };
     let text = |breathing: &str| {
@@ -936,7 +936,7 @@ fn the_ultrasound_of_a_breathing_patient_moves() {
             atlas,
             Some(m),
             Some(stylet_physics::ProbeKind::Convex),
-            "beginner",
+            stylet_scoring::Difficulty::Beginner,
             Arc::clone(&echo),
             None,
         )
@@ -1174,10 +1174,10 @@ fn a_needle_through_the_sliding_interface_feels_no_buzz() {
         forces.push(o.force_n);
         // Ticks whose tip is where the motion is steep (the ramps of the mobility map).
         let u = sim.motion().at_time(sim.breath_time_s());
-        if let Some(tip) = sim.needle().and_then(|n| n.nodes().last().copied()) {
-            if (u(tip + DVec3::X) - u(tip)).length() > 0.5 {
-                in_ramp += 1;
-            }
+        if let Some(tip) = sim.needle().and_then(|n| n.nodes().last().copied())
+            && (u(tip + DVec3::X) - u(tip)).length() > 0.5
+        {
+            in_ramp += 1;
         }
     });
     // A tick-by-tick alternation: two successive changes of more than 2 N in opposite directions.

@@ -299,7 +299,7 @@ fn snapshots_replay_the_same_moments_as_the_whole_replay() {
     assert!(states.snapshots() > 2, "{} snapshots", states.snapshots());
     let labels = stylet_render::views::SessionLabels {
         scenario: session.header.scenario.clone(),
-        difficulty: session.header.difficulty.clone(),
+        difficulty: session.header.difficulty.parse().unwrap(),
         seed: session.header.seed,
     };
     let s = MIN_SPACING_TICKS;

@@ -161,7 +161,7 @@ fn cohort_report_pdf(db: Db) {
         .sum::<f64>()
         / 4.0;
     assert!(
-        punct_passed >= 1 && punct_passed < 3,
+        (1..3).contains(&punct_passed),
         "the fixture has passed and failed punctures"
     );
     let lung = &reports[1];

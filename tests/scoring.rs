@@ -869,7 +869,8 @@ fn replay_runs_the_world_model_of_the_header() {
     assert!(m["max_tissue_displacement_mm"].as_f64().unwrap() > 0.1, "{m}");
     assert!(m["contrast_in_ducts_ml"].as_f64().unwrap() > 0.0, "{m}");
 
-    let changed: [(&str, Box<dyn Fn(&mut reader::Session)>); 3] = [
+    type Change = Box<dyn Fn(&mut reader::Session)>;
+    let changed: [(&str, Change); 3] = [
         ("deformation off", Box::new(|s| s.header.deformation.enabled = false)),
         (
             "a stiffer tissue",

@@ -296,7 +296,7 @@ fn the_simulator_draws_what_stylet_render_draws_for_the_same_tick() {
         scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &parse(&text).unwrap()).unwrap();
     let labels = SessionLabels {
         scenario: "success-intercostal".into(),
-        difficulty: "beginner".into(),
+        difficulty: stylet_scoring::Difficulty::Beginner,
         seed: 0,
     };
     let haptic = HapticLoop::spawn(

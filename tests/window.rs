@@ -131,7 +131,7 @@ fn a_scripted_ptcd_session_through_the_window_is_recorded_scored_and_replayed_to
             (
                 f.path.clone(),
                 f.report.final_digest,
-                r.score().unwrap().clone().expect("a score"),
+                r.score().unwrap().as_ref().expect("a score").clone(),
             )
         }
         _ => unreachable!(),

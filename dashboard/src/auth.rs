@@ -18,12 +18,7 @@ pub struct Viewer {
 }
 
 impl Viewer {
-    /// The role's name (pages written before [`Role`] compare names).
-    pub fn role(&self) -> &str {
-        self.user.role.as_str()
-    }
-
-    pub fn role_kind(&self) -> Role {
+    pub fn role(&self) -> Role {
         self.user.role
     }
 }

@@ -4,6 +4,7 @@
 
 use crate::plot::{ChartColor, LineChart, Series, palette};
 use stylet_physics::LabelId;
+use stylet_render::RenderError;
 use stylet_scoring::ReviewTrace;
 use stylet_service::store::ProgressPoint;
 
@@ -142,19 +143,19 @@ pub fn compare_chart(a: (&ReviewTrace, &str), b: (&ReviewTrace, &str)) -> LineCh
 /// Scores over the trainee's sessions in upload order, one line per difficulty.
 pub fn progress_chart(points: &[ProgressPoint], title: &str) -> LineChart {
     let colors = [palette::BEGINNER, palette::ADVANCED, palette::EXPERT];
-    let series_list = stylet_scoring::rubric::LEVELS
-        .iter()
+    let series_list = stylet_scoring::Difficulty::ALL
+        .into_iter()
         .zip(colors)
         .filter_map(|(level, color)| {
             let pts: Vec<(f64, f64)> = points
                 .iter()
                 .enumerate()
-                .filter(|(_, p)| p.difficulty == *level)
+                .filter(|(_, p)| p.difficulty == level.as_str())
                 .map(|(k, p)| ((k + 1) as f64, p.score))
                 .collect();
             (!pts.is_empty()).then(|| Series {
                 dots: true,
-                ..series(level, color, true, false, pts)
+                ..series(level.as_str(), color, true, false, pts)
             })
         })
         .collect();
@@ -170,8 +171,8 @@ pub fn progress_chart(points: &[ProgressPoint], title: &str) -> LineChart {
 }
 
 /// The chart as inline SVG that scales with the page, with `aria-label` for screen readers.
-pub fn inline_svg(chart: &LineChart) -> Result<String, String> {
-    let (svg, axis) = crate::plot::chart_svg_axis(chart, CHART_SIZE).map_err(|e| e.to_string())?;
+pub fn inline_svg(chart: &LineChart) -> Result<String, RenderError> {
+    let (svg, axis) = crate::plot::chart_svg_axis(chart, CHART_SIZE)?;
     let label = chart.title.replace(['"', '<', '>', '&'], " ");
     // Where the x axis lies (data and SVG units): the player's cursor and click-to-seek.
     Ok(svg.replacen(

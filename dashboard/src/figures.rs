@@ -14,7 +14,26 @@ use stylet_render::figure::{FigureSpec, Mark};
 use stylet_render::mpr::Plane;
 use stylet_scoring::{ReviewTrace, ScoreReport, Scorer};
 use stylet_service::AppState;
-use stylet_service::traces::review_trace;
+use stylet_service::catalogue::LoadError;
+use stylet_service::traces::{TraceError, review_trace};
+
+/// Why a session's figure cannot be had: its trace or its atlas cannot be had, drawing it
+/// failed, or the figure folder cannot be written or read. Answered with a 500 and the message.
+#[derive(Debug, thiserror::Error)]
+pub enum FigureError {
+    #[error(transparent)]
+    Trace(#[from] TraceError),
+    #[error(transparent)]
+    Atlas(#[from] LoadError),
+    #[error(transparent)]
+    Draw(#[from] stylet_render::RenderError),
+    /// Creating the folder, placing the drawn figure or reading it back.
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+    /// The drawing task panicked or was cancelled.
+    #[error(transparent)]
+    Task(#[from] tokio::task::JoinError),
+}
 
 /// Which figure of a session.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -113,7 +132,7 @@ pub async fn session_figure(
     figure: Figure,
     title: &str,
     (corridor, key): (Option<std::sync::Arc<Corridor>>, String),
-) -> Result<Option<Vec<u8>>, String> {
+) -> Result<Option<Vec<u8>>, FigureError> {
     if let Figure::Hit(n) = figure
         && n >= report.metrics.risk_hits.len()
     {
@@ -124,7 +143,7 @@ pub async fn session_figure(
         return Ok(Some(bytes));
     }
     let trace = review_trace(s, file_sha256, atlas_hash).await?;
-    let scorer = s.catalogue.loaded(atlas_hash).await.map_err(|e| e.to_string())?.scorer;
+    let scorer = s.catalogue.loaded(atlas_hash).await?.scorer;
     let Some(spec) = spec(&scorer, report, &trace, figure, title, corridor.as_deref()) else {
         return Ok(None);
     };
@@ -134,17 +153,16 @@ pub async fn session_figure(
         let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let tmp = path.with_extension(format!("{}-{n}.partial.png", std::process::id()));
         if let Some(dir) = path.parent() {
-            std::fs::create_dir_all(dir).map_err(|e| e.to_string())?;
+            std::fs::create_dir_all(dir)?;
         }
-        stylet_render::figure::figure(scorer.atlas(), &spec, &tmp).map_err(|e| e.to_string())?;
-        std::fs::rename(&tmp, &path).map_err(|e| e.to_string())?;
+        stylet_render::figure::figure(scorer.atlas(), &spec, &tmp)?;
+        std::fs::rename(&tmp, &path)?;
         if figure == Figure::TipPath {
             remove_older_tip_paths(&path);
         }
-        std::fs::read(&path).map(Some).map_err(|e| e.to_string())
+        Ok(Some(std::fs::read(&path)?))
     })
-    .await
-    .map_err(|e| e.to_string())?
+    .await?
 }
 
 /// Removes the tip-path figures of the same session drawn with another expert corridor (before a

@@ -3,7 +3,7 @@
 
 use axum::response::Html;
 use maud::{DOCTYPE, Markup, PreEscaped, html};
-use stylet_service::store::SessionLine;
+use stylet_service::store::{Role, SessionLine, SessionStatus};
 
 use crate::auth::Viewer;
 
@@ -134,7 +134,7 @@ pub fn refreshing_page(title: &str, viewer: &Viewer, seconds: u32, body: Markup)
 }
 
 fn navigation(v: &Viewer) -> Markup {
-    let role = v.user.role.as_str();
+    let role = v.user.role;
     html! {
         header.top {
             a.brand href="/" { "Stylet" }
@@ -142,13 +142,13 @@ fn navigation(v: &Viewer) -> Markup {
                 a href="/" { "Home" }
                 a href="/sessions" { "Sessions" }
                 a href="/atlases" { "Catalogue" }
-                @if role == "trainee" { a href={ "/trainees/" (crate::auth::encode_query(&v.user.username)) } { "My progress" } }
-                @if role == "instructor" || role == "admin" { a #nav-review-queue href="/review-queue" { "Needs review" } }
-                @if role != "trainee" { a href="/cohorts" { "Cohorts" } }
-                @if role != "trainee" { a href="/compare" { "Compare" } }
-                @if role == "curriculum" || role == "admin" { a href="/reports" { "Reports" } }
-                @if role == "admin" { a href="/admin/users" { "Accounts" } }
-                @if role == "admin" { a #nav-atlases href="/admin/atlases" { "Atlases" } }
+                @if role == Role::Trainee { a href={ "/trainees/" (crate::auth::encode_query(&v.user.username)) } { "My progress" } }
+                @if matches!(role, Role::Instructor | Role::Admin) { a #nav-review-queue href="/review-queue" { "Needs review" } }
+                @if role != Role::Trainee { a href="/cohorts" { "Cohorts" } }
+                @if role != Role::Trainee { a href="/compare" { "Compare" } }
+                @if matches!(role, Role::Curriculum | Role::Admin) { a href="/reports" { "Reports" } }
+                @if role == Role::Admin { a href="/admin/users" { "Accounts" } }
+                @if role == Role::Admin { a #nav-atlases href="/admin/atlases" { "Atlases" } }
                 a href="/tokens" { "API tokens" }
             }
             span.who { (v.user.username) " (" (role) ")" }
@@ -201,12 +201,12 @@ pub fn outcome_badge(outcome: Option<stylet_scoring::Outcome>, passed: Option<bo
     }
 }
 
-pub fn status_badge(status: &str) -> Markup {
+pub fn status_badge(status: SessionStatus) -> Markup {
     html! {
         @match status {
-            "scored" => span.badge.ok { "scored" },
-            "failed" => span.badge.bad { "scoring failed" },
-            other => span.badge.muted { (other) },
+            SessionStatus::Scored => span.badge.ok { "scored" },
+            SessionStatus::Failed => span.badge.bad { "scoring failed" },
+            SessionStatus::Queued | SessionStatus::Scoring => span.badge.muted { (status) },
         }
     }
 }
@@ -239,7 +239,7 @@ pub fn sessions_table(lines: &[SessionLine], show_trainee: bool) -> Markup {
                         tr {
                             td { a href={ "/sessions/" (l.id) } { (short_time(&l.uploaded_at)) } }
                             @if show_trainee { td { (l.trainee) } }
-                            td { (l.scenario) } td { (l.difficulty) } td { (status_badge(&l.status)) }
+                            td { (l.scenario) } td { (l.difficulty) } td { (status_badge(l.status)) }
                             td.num { (score_text(l.score)) }
                             td.result {
                                 (outcome_badge(l.outcome, l.passed, l.overridden))

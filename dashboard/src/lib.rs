@@ -32,7 +32,7 @@ pub const MOUNT: stylet_service::Mount = stylet_service::Mount { router, openapi
 #[openapi(paths(player::frame, player::overview::frame))]
 struct PlayerApi;
 
-/// [`PlayerApi`]'s document.
+/// `PlayerApi`'s document.
 pub fn openapi() -> utoipa::openapi::OpenApi {
     <PlayerApi as utoipa::OpenApi>::openapi()
 }

@@ -396,8 +396,11 @@ pub struct PercentChart {
     pub x_range: (f64, f64),
     pub x_ticks: Vec<(f64, String)>,
     /// Name, colour, points (x, percent).
-    pub series: Vec<(String, (u8, u8, u8), Vec<(f64, f64)>)>,
+    pub series: Vec<Series>,
 }
+
+/// One line of a chart: name, colour (RGB), points (x, percent).
+pub type Series = (String, (u8, u8, u8), Vec<(f64, f64)>);
 
 /// Words of `text` in lines no wider than `width` (a word wider than a line is cut).
 pub fn wrap(text: &str, size: f32, bold: bool, width: f32) -> Vec<String> {

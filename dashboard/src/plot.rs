@@ -31,6 +31,19 @@ pub mod palette {
     pub const EXPERT: RGBColor = RGBColor(199, 21, 133);
 }
 
+/// Why plotters could not draw a chart: its drawing backend failed (plotters' message). The
+/// charts are drawn into memory or into a file the caller chose, so this is a fault of the
+/// backend or its fonts, never of the data.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct ChartError(String);
+
+impl<E: std::error::Error + Send + Sync> From<DrawingAreaErrorKind<E>> for ChartError {
+    fn from(e: DrawingAreaErrorKind<E>) -> Self {
+        ChartError(e.to_string())
+    }
+}
+
 /// One curve.
 #[derive(Debug, Clone)]
 pub struct Series {
@@ -98,8 +111,8 @@ pub struct XAxis {
     pub px1: i32,
 }
 
-fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) -> Result<XAxis, String> {
-    root.fill(&WHITE).map_err(|e| e.to_string())?;
+fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) -> Result<XAxis, ChartError> {
+    root.fill(&WHITE)?;
     let (mut x0, mut x1) = range(chart.series.iter().flat_map(|s| s.points.iter().map(|p| p.0)));
     if chart.x_whole {
         // Counts: half a step of room on each side of the first and last.
@@ -117,8 +130,7 @@ fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) ->
         .margin(16)
         .x_label_area_size(56)
         .y_label_area_size(72)
-        .build_cartesian_2d(x0..x1, y0..y1)
-        .map_err(|e| e.to_string())?;
+        .build_cartesian_2d(x0..x1, y0..y1)?;
     let (px, _) = c.plotting_area().get_pixel_range();
     let axis = XAxis {
         x0,
@@ -144,33 +156,28 @@ fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) ->
         .axis_desc_style((SANS, 20))
         .label_style((SANS, 16))
         .light_line_style(RGBColor(235, 235, 235))
-        .draw()
-        .map_err(|e| e.to_string())?;
+        .draw()?;
     for (n, (x, label)) in chart.markers.iter().enumerate() {
         let style = ShapeStyle::from(&RGBColor(150, 150, 150)).stroke_width(1);
-        c.draw_series(std::iter::once(PathElement::new(vec![(*x, y0), (*x, y1)], style)))
-            .map_err(|e| e.to_string())?;
+        c.draw_series(std::iter::once(PathElement::new(vec![(*x, y0), (*x, y1)], style)))?;
         // Staggered so labels of close events do not overlap.
         let y = y1 - (y1 - y0) * (0.03 + 0.05 * (n % 4) as f64);
         c.draw_series(std::iter::once(Text::new(
             format!(" {label}"),
             (*x, y),
             (SANS, 14).into_font(),
-        )))
-        .map_err(|e| e.to_string())?;
+        )))?;
     }
     let note_color = RGBColor(30, 90, 200);
     for (n, (x, label)) in chart.notes.iter().enumerate() {
         let style = ShapeStyle::from(&note_color).stroke_width(2);
-        c.draw_series(DashedLineSeries::new([(*x, y0), (*x, y1)], 6, 4, style))
-            .map_err(|e| e.to_string())?;
+        c.draw_series(DashedLineSeries::new([(*x, y0), (*x, y1)], 6, 4, style))?;
         let y = y0 + (y1 - y0) * (0.1 + 0.06 * (n % 3) as f64);
         c.draw_series(std::iter::once(Text::new(
             format!(" {label}"),
             (*x, y),
             (SANS, 15).into_font().color(&note_color),
-        )))
-        .map_err(|e| e.to_string())?;
+        )))?;
     }
     for s in &chart.series {
         let style = ShapeStyle::from(&s.color).stroke_width(if s.bold { 3 } else { 2 });
@@ -180,8 +187,7 @@ fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) ->
                 s.points
                     .iter()
                     .map(|p| Circle::new(*p, 4, ShapeStyle::from(&color).filled())),
-            )
-            .map_err(|e| e.to_string())?;
+            )?;
         }
         let drawn = if s.dashed {
             c.draw_series(DashedLineSeries::new(s.points.iter().copied(), 10, 6, style))
@@ -189,7 +195,7 @@ fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) ->
             c.draw_series(LineSeries::new(s.points.iter().copied(), style))
         };
         let dashed = s.dashed;
-        drawn.map_err(|e| e.to_string())?.label(&s.name).legend(move |(x, y)| {
+        drawn?.label(&s.name).legend(move |(x, y)| {
             let style = ShapeStyle::from(&color).stroke_width(3);
             if dashed {
                 PathElement::new(vec![(x, y), (x + 9, y)], style)
@@ -203,8 +209,7 @@ fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) ->
             (*x, *y),
             4,
             ShapeStyle::from(&BLACK).filled(),
-        )))
-        .map_err(|e| e.to_string())?;
+        )))?;
         c.draw_series(std::iter::once(Text::new(
             label.clone(),
             (*x, *y),
@@ -216,17 +221,15 @@ fn draw<DB: DrawingBackend>(chart: &LineChart, root: &DrawingArea<DB, Shift>) ->
                     plotters::style::text_anchor::HPos::Center,
                     plotters::style::text_anchor::VPos::Bottom,
                 )),
-        )))
-        .map_err(|e| e.to_string())?;
+        )))?;
     }
     c.configure_series_labels()
         .background_style(WHITE.mix(0.9))
         .border_style(BLACK)
         .label_font((SANS, 16))
         .position(SeriesLabelPosition::UpperRight)
-        .draw()
-        .map_err(|e| e.to_string())?;
-    root.present().map_err(|e| e.to_string())?;
+        .draw()?;
+    root.present()?;
     Ok(axis)
 }
 
@@ -243,10 +246,15 @@ pub fn write_chart(chart: &LineChart, path: &Path, size: (u32, u32)) -> Result<(
     let svg = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("svg"));
     if svg {
         let root = SVGBackend::new(path, size).into_drawing_area();
-        draw(chart, &root).map(|_| ()).map_err(err)
+        draw(chart, &root).map(|_| ()).map_err(|e| err(e.to_string()))
     } else {
-        let root = BitMapBackend::new(path, size).into_drawing_area();
-        draw(chart, &root).map(|_| ()).map_err(err)
+        let mut rgb = vec![0u8; size.0 as usize * size.1 as usize * 3];
+        {
+            let root = BitMapBackend::with_buffer(&mut rgb, size).into_drawing_area();
+            draw(chart, &root).map_err(|e| err(e.to_string()))?;
+            root.present().map_err(|e| err(e.to_string()))?;
+        }
+        stylet_render::figure::write_rgb_png(path, size.0 as usize, size.1 as usize, &rgb)
     }
 }
 
@@ -261,7 +269,7 @@ pub fn chart_svg_axis(chart: &LineChart, size: (u32, u32)) -> Result<(String, XA
     let mut out = String::new();
     let axis = {
         let root = SVGBackend::with_string(&mut out, size).into_drawing_area();
-        draw(chart, &root).map_err(RenderError::Draw)?
+        draw(chart, &root).map_err(|e| RenderError::Draw(e.to_string()))?
     };
     Ok((out, axis))
 }

@@ -2,7 +2,7 @@
 //! move up after [`STREAK`] passes in a row at the current level, step back after [`STREAK`]
 //! failures in a row, else stay. The current level is the highest level with a scored session.
 
-use stylet_scoring::rubric::LEVELS;
+use stylet_scoring::Difficulty;
 use stylet_service::store::ProgressPoint;
 
 /// Sessions in a row that move a trainee up (all passed) or back (all failed).
@@ -11,31 +11,31 @@ pub const STREAK: usize = 3;
 /// A suggestion and the reason, in words.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Suggestion {
-    pub level: &'static str,
+    pub level: Difficulty,
     pub reason: String,
 }
 
 /// `points`: the trainee's scored sessions in upload order (final grades).
 pub fn suggest_next(points: &[ProgressPoint]) -> Suggestion {
-    let Some(current) = LEVELS
+    let Some(current) = Difficulty::ALL
         .iter()
-        .rposition(|level| points.iter().any(|p| p.difficulty == *level))
+        .rposition(|level| points.iter().any(|p| p.difficulty == level.as_str()))
     else {
         return Suggestion {
-            level: LEVELS[0],
+            level: Difficulty::Beginner,
             reason: "no scored sessions yet: start at beginner".into(),
         };
     };
     let at_level: Vec<bool> = points
         .iter()
-        .filter(|p| p.difficulty == LEVELS[current])
+        .filter(|p| p.difficulty == Difficulty::ALL[current].as_str())
         .map(|p| p.passed)
         .collect();
     let last = &at_level[at_level.len().saturating_sub(STREAK)..];
-    let level = LEVELS[current];
+    let level = Difficulty::ALL[current];
     if last.len() == STREAK && last.iter().all(|p| *p) {
-        match LEVELS.get(current + 1) {
-            Some(next) => Suggestion {
+        match Difficulty::ALL.get(current + 1) {
+            Some(&next) => Suggestion {
                 level: next,
                 reason: format!("the last {STREAK} {level} sessions all passed"),
             },
@@ -46,7 +46,7 @@ pub fn suggest_next(points: &[ProgressPoint]) -> Suggestion {
         }
     } else if last.len() == STREAK && last.iter().all(|p| !*p) && current > 0 {
         Suggestion {
-            level: LEVELS[current - 1],
+            level: Difficulty::ALL[current - 1],
             reason: format!("the last {STREAK} {level} sessions all failed: consolidate one level lower"),
         }
     } else {
@@ -79,18 +79,18 @@ mod tests {
 
     #[test]
     fn moves_up_after_three_passes_back_after_three_failures() {
-        assert_eq!(suggest_next(&[]).level, "beginner");
+        assert_eq!(suggest_next(&[]).level, Difficulty::Beginner);
         let b = |v: &[bool]| v.iter().map(|x| p("beginner", *x)).collect::<Vec<_>>();
-        assert_eq!(suggest_next(&b(&[true, true])).level, "beginner");
-        assert_eq!(suggest_next(&b(&[false, true, true, true])).level, "advanced");
-        assert_eq!(suggest_next(&b(&[true, true, false])).level, "beginner");
-        assert_eq!(suggest_next(&b(&[false, false, false])).level, "beginner");
+        assert_eq!(suggest_next(&b(&[true, true])).level, Difficulty::Beginner);
+        assert_eq!(suggest_next(&b(&[false, true, true, true])).level, Difficulty::Advanced);
+        assert_eq!(suggest_next(&b(&[true, true, false])).level, Difficulty::Beginner);
+        assert_eq!(suggest_next(&b(&[false, false, false])).level, Difficulty::Beginner);
         let mut v = b(&[true, true, true]);
         v.extend([p("advanced", false), p("advanced", false), p("advanced", false)]);
         let s = suggest_next(&v);
-        assert_eq!(s.level, "beginner", "{s:?}");
+        assert_eq!(s.level, Difficulty::Beginner, "{s:?}");
         v.push(p("expert", true));
-        assert_eq!(suggest_next(&v).level, "expert");
+        assert_eq!(suggest_next(&v).level, Difficulty::Expert);
         v.extend([p("expert", true), p("expert", true)]);
         assert!(suggest_next(&v).reason.contains("keep practising at expert"));
     }

@@ -8,12 +8,11 @@
 
 use std::collections::BTreeMap;
 
-use crate::plot::palette;
+use crate::plot::{ChartError, palette};
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 use stylet_render::fonts::{SANS, ensure_fonts};
-use stylet_scoring::Exercise;
-use stylet_scoring::rubric::LEVELS;
+use stylet_scoring::{Difficulty, Exercise};
 use stylet_service::store::DayCount;
 
 /// Weeks charted at most (the latest).
@@ -116,7 +115,10 @@ impl Trends {
             e.not_gradeable += d.not_gradeable;
             let Some(day) = days_from_date(&d.day) else { continue };
             if d.exercise == Exercise::Puncture {
-                let order = LEVELS.iter().position(|l| *l == d.difficulty).unwrap_or(LEVELS.len());
+                let order = d
+                    .difficulty
+                    .parse::<Difficulty>()
+                    .map_or(Difficulty::ALL.len(), |l| l as usize);
                 let w = weeks.entry((week_start(day), order, d.difficulty.clone())).or_default();
                 w.0 += d.scored - d.not_gradeable;
                 w.1 += d.passed;
@@ -149,17 +151,17 @@ impl Trends {
 
     /// The weekly pass-rate points (week Monday in days, %) of each difficulty that has any, in
     /// level order.
-    pub fn series(&self) -> Vec<(&'static str, Vec<(i64, f64)>)> {
-        LEVELS
-            .iter()
+    pub fn series(&self) -> Vec<(Difficulty, Vec<(i64, f64)>)> {
+        Difficulty::ALL
+            .into_iter()
             .filter_map(|level| {
                 let pts: Vec<(i64, f64)> = self
                     .weeks
                     .iter()
-                    .filter(|w| w.difficulty == *level)
+                    .filter(|w| w.difficulty == level.as_str())
                     .filter_map(|w| Some((w.week, w.pass_rate_pct()?)))
                     .collect();
-                (!pts.is_empty()).then_some((*level, pts))
+                (!pts.is_empty()).then_some((level, pts))
             })
             .collect()
     }
@@ -177,12 +179,11 @@ pub fn week_ticks(lo: i64, hi: i64) -> Vec<f64> {
 }
 
 /// The colour of a difficulty level on every chart (RGB 0–255).
-pub fn level_rgb(level: &str) -> (u8, u8, u8) {
+pub fn level_rgb(level: Difficulty) -> (u8, u8, u8) {
     let c = match level {
-        "beginner" => palette::BEGINNER,
-        "advanced" => palette::ADVANCED,
-        "expert" => palette::EXPERT,
-        _ => palette::OTHER,
+        Difficulty::Beginner => palette::BEGINNER,
+        Difficulty::Advanced => palette::ADVANCED,
+        Difficulty::Expert => palette::EXPERT,
     };
     (c.0, c.1, c.2)
 }
@@ -193,7 +194,7 @@ pub const TREND_Y_LABEL: &str = "pass rate (%)";
 
 /// The weekly pass rates as an SVG line chart (one line per difficulty, a dot per week), scaled to
 /// the page width like the other charts; `None` when no week has a graded puncture session.
-pub fn trend_chart_svg(trends: &Trends) -> Result<Option<String>, String> {
+pub fn trend_chart_svg(trends: &Trends) -> Result<Option<String>, ChartError> {
     let series = trends.series();
     if series.is_empty() {
         return Ok(None);
@@ -207,15 +208,13 @@ pub fn trend_chart_svg(trends: &Trends) -> Result<Option<String>, String> {
     let mut out = String::new();
     {
         let root = SVGBackend::with_string(&mut out, crate::charts::CHART_SIZE).into_drawing_area();
-        let e = |e: &dyn std::fmt::Display| e.to_string();
-        root.fill(&WHITE).map_err(|x| e(&x))?;
+        root.fill(&WHITE)?;
         let mut c = ChartBuilder::on(&root)
             .caption(TREND_TITLE, (SANS, 26))
             .margin(16)
             .x_label_area_size(56)
             .y_label_area_size(72)
-            .build_cartesian_2d(x0..x1, 0.0..100.0)
-            .map_err(|x| e(&x))?;
+            .build_cartesian_2d(x0..x1, 0.0..100.0)?;
         // Plotters would put x ticks anywhere: no labels of its own, the weeks' Mondays drawn
         // below instead.
         c.configure_mesh()
@@ -226,25 +225,21 @@ pub fn trend_chart_svg(trends: &Trends) -> Result<Option<String>, String> {
             .axis_desc_style((SANS, 20))
             .label_style((SANS, 16))
             .light_line_style(RGBColor(235, 235, 235))
-            .draw()
-            .map_err(|x| e(&x))?;
+            .draw()?;
         let tick_style = TextStyle::from((SANS, 16).into_font()).pos(Pos::new(HPos::Center, VPos::Top));
         for w in week_ticks(lo, hi) {
             let (px, py) = c.backend_coord(&(w, 0.0));
             let (_, top) = c.backend_coord(&(w, 100.0));
-            root.draw(&PathElement::new(vec![(px, top), (px, py)], RGBColor(235, 235, 235)))
-                .map_err(|x| e(&x))?;
-            root.draw(&PathElement::new(vec![(px, py), (px, py + 5)], BLACK))
-                .map_err(|x| e(&x))?;
-            root.draw(&Text::new(date_from_days(w as i64), (px, py + 8), tick_style.clone()))
-                .map_err(|x| e(&x))?;
+            root.draw(&PathElement::new(vec![(px, top), (px, py)], RGBColor(235, 235, 235)))?;
+            root.draw(&PathElement::new(vec![(px, py), (px, py + 5)], BLACK))?;
+            root.draw(&Text::new(date_from_days(w as i64), (px, py + 8), tick_style.clone()))?;
         }
-        let lines: Vec<(&str, Vec<(f64, f64)>)> = series
+        let lines: Vec<(Difficulty, Vec<(f64, f64)>)> = series
             .iter()
             .map(|(level, pts)| (*level, pts.iter().map(|(w, p)| (*w as f64, *p)).collect()))
             .collect();
         draw_level_lines(&mut c, &lines)?;
-        root.present().map_err(|x| e(&x))?;
+        root.present()?;
     }
     Ok(Some(labelled_svg(&out, TREND_TITLE)))
 }
@@ -257,23 +252,20 @@ pub fn draw_level_lines<'a, 'b: 'a>(
         SVGBackend<'b>,
         Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
     >,
-    lines: &[(&str, Vec<(f64, f64)>)],
-) -> Result<(), String> {
-    let e = |e: &dyn std::fmt::Display| e.to_string();
+    lines: &[(Difficulty, Vec<(f64, f64)>)],
+) -> Result<(), ChartError> {
     for (level, pts) in lines {
-        let (r, g, b) = level_rgb(level);
+        let (r, g, b) = level_rgb(*level);
         let color = RGBColor(r, g, b);
         c.draw_series(
             pts.iter()
                 .map(|p| Circle::new(*p, 4, ShapeStyle::from(&color).filled())),
-        )
-        .map_err(|x| e(&x))?;
+        )?;
         c.draw_series(LineSeries::new(
             pts.iter().copied(),
             ShapeStyle::from(&color).stroke_width(3),
-        ))
-        .map_err(|x| e(&x))?
-        .label(*level)
+        ))?
+        .label(level.as_str())
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], ShapeStyle::from(&color).stroke_width(3)));
     }
     c.configure_series_labels()
@@ -281,8 +273,7 @@ pub fn draw_level_lines<'a, 'b: 'a>(
         .border_style(BLACK)
         .label_font((SANS, 16))
         .position(SeriesLabelPosition::LowerRight)
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     Ok(())
 }
 

@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
 use stylet_physics::motion::BreathingSettings;
-use stylet_physics::{ContrastSettings, DeformSettings, Event, Gauge, ProbeKind, ToolSpec};
+use stylet_physics::{ContrastSettings, DeformSettings, Event, Gauge, ProbeKind, SettingsError, ToolSpec};
 
 /// The session schema version this code writes; it reads this version and the one before.
 /// Version 2 (2026-11-28): tick blocks may round their forces and torques (codec
@@ -66,25 +66,38 @@ impl TickRecord {
     }
 }
 
+/// A recorded device pose that replay could not use (it would feed NaN into the physics), with
+/// the tick it was recorded at.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PoseError {
+    #[error("tick {tick}: position {position_mm:?} mm is not finite")]
+    Position { tick: u64, position_mm: [f64; 3] },
+    #[error("tick {tick}: orientation {orientation:?} is not finite")]
+    Orientation { tick: u64, orientation: [f64; 4] },
+    /// An orientation of (0, 0, 0, 0): no rotation at all.
+    #[error("tick {tick}: orientation is all zero")]
+    ZeroOrientation { tick: u64 },
+}
+
 /// Refuses ticks whose device pose replay could not use: a non-finite position or orientation, or
 /// an all-zero orientation (no rotation at all), would feed NaN into the physics. Names the first
 /// bad tick.
-pub fn check_poses_finite(ticks: &[TickRecord]) -> Result<(), String> {
+pub fn check_poses_finite(ticks: &[TickRecord]) -> Result<(), PoseError> {
     for t in ticks {
         if !t.position_mm.iter().all(|v| v.is_finite()) {
-            return Err(format!(
-                "tick {}: position {:?} mm is not finite",
-                t.tick, t.position_mm
-            ));
+            return Err(PoseError::Position {
+                tick: t.tick,
+                position_mm: t.position_mm,
+            });
         }
         if !t.orientation.iter().all(|v| v.is_finite()) {
-            return Err(format!(
-                "tick {}: orientation {:?} is not finite",
-                t.tick, t.orientation
-            ));
+            return Err(PoseError::Orientation {
+                tick: t.tick,
+                orientation: t.orientation,
+            });
         }
         if t.orientation.iter().all(|&v| v == 0.0) {
-            return Err(format!("tick {}: orientation is all zero", t.tick));
+            return Err(PoseError::ZeroOrientation { tick: t.tick });
         }
     }
     Ok(())
@@ -177,11 +190,11 @@ impl EventRecord {
         r
     }
 
-    /// The physics event, or a message saying why this record is not one.
-    pub fn to_event(&self) -> Result<Event, String> {
+    /// The physics event, or why this record is not one.
+    pub fn to_event(&self) -> Result<Event, EventError> {
         Ok(match self.name.as_str() {
             "tool" => Event::SelectTool(tool_from(
-                self.tool.as_deref().ok_or("tool event without a tool")?,
+                self.tool.as_deref().ok_or(EventError::NoTool)?,
                 self.gauge,
                 self.length_mm,
                 self.stylet_in,
@@ -191,13 +204,44 @@ impl EventRecord {
             "xray-on" => Event::XrayOn,
             "xray-off" => Event::XrayOff,
             "contrast-inject" => Event::ContrastInject {
-                ml: self.ml.ok_or("contrast event without ml")?,
+                ml: self.ml.ok_or(EventError::NoContrastVolume)?,
             },
             "breath-hold" => Event::BreathHold,
             "breath-release" => Event::BreathRelease,
-            other => return Err(format!("unknown event '{other}'")),
+            other => return Err(EventError::Unknown(other.to_string())),
         })
     }
+}
+
+/// Why an event record is not a physics event: an unknown name, a field its kind needs is
+/// missing, or its tool is not one.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum EventError {
+    #[error("unknown event '{0}'")]
+    Unknown(String),
+    #[error("tool event without a tool")]
+    NoTool,
+    #[error("contrast event without ml")]
+    NoContrastVolume,
+    #[error(transparent)]
+    Tool(#[from] ToolError),
+}
+
+/// Why a recorded tool (in an event or the header's initial tool) is not a tool the physics
+/// knows: an unknown kind, or a needle without a valid gauge, length or stylet state.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ToolError {
+    #[error("unknown tool '{0}'")]
+    Unknown(String),
+    #[error("needle without gauge")]
+    NoGauge,
+    #[error("gauge {0} is not 16, 18, 20 or 22")]
+    Gauge(u32),
+    /// The length is missing, not finite or not positive.
+    #[error("needle without a valid length")]
+    NoLength,
+    #[error("needle without stylet state")]
+    NoStyletState,
 }
 
 fn tool_kind(spec: &ToolSpec) -> &'static str {
@@ -214,22 +258,22 @@ fn tool_from(
     gauge: Option<u32>,
     length_mm: Option<f64>,
     stylet_in: Option<bool>,
-) -> Result<ToolSpec, String> {
+) -> Result<ToolSpec, ToolError> {
     Ok(match kind {
         "needle" => {
-            let g = gauge.ok_or("needle without gauge")?;
+            let g = gauge.ok_or(ToolError::NoGauge)?;
             ToolSpec::Needle {
-                gauge: Gauge::from_number(g).ok_or_else(|| format!("gauge {g} is not 16, 18, 20 or 22"))?,
+                gauge: Gauge::from_number(g).ok_or(ToolError::Gauge(g))?,
                 length_mm: length_mm
                     .filter(|l| l.is_finite() && *l > 0.0)
-                    .ok_or("needle without a valid length")?,
-                stylet_in: stylet_in.ok_or("needle without stylet state")?,
+                    .ok_or(ToolError::NoLength)?,
+                stylet_in: stylet_in.ok_or(ToolError::NoStyletState)?,
             }
         }
         "finger" => ToolSpec::Finger,
         "probe-linear" => ToolSpec::Probe(ProbeKind::Linear),
         "probe-convex" => ToolSpec::Probe(ProbeKind::Convex),
-        other => return Err(format!("unknown tool '{other}'")),
+        other => return Err(ToolError::Unknown(other.to_string())),
     })
 }
 
@@ -242,13 +286,67 @@ pub const MAX_TEXT_CHARS: usize = 256;
 /// Longest annotation, in characters.
 pub const MAX_NOTE_CHARS: usize = 2_000;
 
+/// A text field of a session file longer than its limit: what a file says is kept bounded.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("'{what}' is longer than {max_chars} characters")]
+pub struct TextTooLong {
+    /// Which field.
+    pub what: String,
+    pub max_chars: usize,
+}
+
 /// Refuses a text field longer than `max_chars` characters (checked on the byte length first, so
 /// a huge field costs no more than its length check).
-pub fn check_text(what: &str, v: &str, max_chars: usize) -> Result<(), String> {
+pub fn check_text(what: &str, v: &str, max_chars: usize) -> Result<(), TextTooLong> {
     if v.len() > 4 * max_chars || v.chars().count() > max_chars {
-        return Err(format!("'{what}' is longer than {max_chars} characters"));
+        return Err(TextTooLong {
+            what: what.to_string(),
+            max_chars,
+        });
     }
     Ok(())
+}
+
+/// Why a session header's metadata is not a header this code can replay: a field missing or
+/// malformed (each names its metadata key), a value out of range, or world-model settings the
+/// simulation would refuse. A file with such a header is not read at all.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum HeaderError {
+    #[error("session header lacks '{0}'")]
+    Missing(String),
+    #[error("session header '{0}' is not a number")]
+    NotANumber(String),
+    /// A number too large for its field.
+    #[error("session header '{0}' is out of range")]
+    OutOfRange(String),
+    /// A real number's bits that are not hexadecimal.
+    #[error("session header '{0}' is not hex")]
+    NotHex(String),
+    #[error("session header '{0}' is not true/false")]
+    NotABool(String),
+    /// A flag other than 0 or 1.
+    #[error("session header '{0}' must be 0 or 1")]
+    NotAFlag(String),
+    /// A name the key does not allow (e.g. an unknown regulariser).
+    #[error("session header '{key}' '{value}' is unknown")]
+    UnknownValue { key: String, value: String },
+    #[error("session header tick_rate_hz {0} is out of range")]
+    TickRate(u64),
+    /// An identifier that is empty or holds other characters than ASCII letters, digits, `.`,
+    /// `_`, `-` and `@`.
+    #[error("session header '{0}' must be 1–{MAX_NAME_CHARS} letters, digits or . _ - @")]
+    NotAName(String),
+    #[error("session header 'wall_clock_start' is not an RFC 3339 time")]
+    WallClockStart,
+    #[error(transparent)]
+    TooLong(#[from] TextTooLong),
+    /// The initial tool.
+    #[error(transparent)]
+    Tool(#[from] ToolError),
+    /// World-model settings (`part`: deformation, contrast or breathing) that the simulation's
+    /// own check refuses.
+    #[error("session header {part}: {source}")]
+    World { part: &'static str, source: SettingsError },
 }
 
 /// Session header: who, what, on which patient, with which software (written first, so it
@@ -324,24 +422,24 @@ impl SessionHeader {
     }
 
     /// From MCAP metadata; names the first missing or malformed field.
-    pub fn from_metadata(m: &BTreeMap<String, String>) -> Result<Self, String> {
-        let get = |k: &str| m.get(k).cloned().ok_or_else(|| format!("session header lacks '{k}'"));
-        let num = |k: &str| -> Result<u64, String> {
+    pub fn from_metadata(m: &BTreeMap<String, String>) -> Result<Self, HeaderError> {
+        let get = |k: &str| m.get(k).cloned().ok_or_else(|| HeaderError::Missing(k.to_string()));
+        let num = |k: &str| -> Result<u64, HeaderError> {
             get(k)?
                 .parse::<u64>()
-                .map_err(|_| format!("session header '{k}' is not a number"))
+                .map_err(|_| HeaderError::NotANumber(k.to_string()))
         };
-        let small = |k: &str| -> Result<u32, String> {
-            u32::try_from(num(k)?).map_err(|_| format!("session header '{k}' is out of range"))
+        let small = |k: &str| -> Result<u32, HeaderError> {
+            u32::try_from(num(k)?).map_err(|_| HeaderError::OutOfRange(k.to_string()))
         };
         let schema_version = small("schema_version")?;
         let tool = get("tool")?;
         let initial_tool = if tool == "needle" {
             let bits = u64::from_str_radix(&get("tool_length_mm_bits")?, 16)
-                .map_err(|_| "session header 'tool_length_mm_bits' is not hex".to_string())?;
+                .map_err(|_| HeaderError::NotHex("tool_length_mm_bits".into()))?;
             let stylet = get("tool_stylet_in")?
                 .parse::<bool>()
-                .map_err(|_| "session header 'tool_stylet_in' is not true/false".to_string())?;
+                .map_err(|_| HeaderError::NotABool("tool_stylet_in".into()))?;
             tool_from(
                 "needle",
                 Some(small("tool_gauge")?),
@@ -353,25 +451,22 @@ impl SessionHeader {
         };
         let tick_rate_hz = num("tick_rate_hz")?;
         if !(1..=100_000).contains(&tick_rate_hz) {
-            return Err(format!("session header tick_rate_hz {tick_rate_hz} is out of range"));
+            return Err(HeaderError::TickRate(tick_rate_hz));
         }
-        let field = |k: &str, max_chars: usize| -> Result<String, String> {
+        let field = |k: &str, max_chars: usize| -> Result<String, HeaderError> {
             let v = get(k)?;
             check_text(k, &v, max_chars)?;
             Ok(v)
         };
-        let name = |k: &str| -> Result<String, String> {
+        let name = |k: &str| -> Result<String, HeaderError> {
             let v = field(k, MAX_NAME_CHARS)?;
             if v.is_empty() || !v.chars().all(|c| c.is_ascii_alphanumeric() || "._-@".contains(c)) {
-                return Err(format!(
-                    "session header '{k}' must be 1–{MAX_NAME_CHARS} letters, digits or . _ - @"
-                ));
+                return Err(HeaderError::NotAName(k.to_string()));
             }
             Ok(v)
         };
         let wall_clock_start = field("wall_clock_start", MAX_NAME_CHARS)?;
-        humantime::parse_rfc3339_weak(&wall_clock_start)
-            .map_err(|_| "session header 'wall_clock_start' is not an RFC 3339 time".to_string())?;
+        humantime::parse_rfc3339_weak(&wall_clock_start).map_err(|_| HeaderError::WallClockStart)?;
         Ok(SessionHeader {
             schema_version,
             session_id: name("session_id")?,
@@ -402,6 +497,8 @@ mod world {
 
     use stylet_physics::motion::BreathingSettings;
     use stylet_physics::{ContrastSettings, DeformSettings, Regulariser};
+
+    use super::HeaderError;
 
     const P: &str = "world.deformation.";
 
@@ -441,29 +538,38 @@ mod world {
     }
 
     impl WorldKeys<'_> {
-        fn get(&self, k: &str) -> Result<&String, String> {
-            let p = self.prefix;
-            self.map
-                .get(&format!("{p}{k}"))
-                .ok_or_else(|| format!("session header lacks '{p}{k}'"))
+        /// The full metadata key of `k`.
+        fn key(&self, k: &str) -> String {
+            format!("{}{k}", self.prefix)
         }
-        fn int(&self, k: &str) -> Result<u32, String> {
-            let p = self.prefix;
+        fn get(&self, k: &str) -> Result<&String, HeaderError> {
+            self.map
+                .get(&self.key(k))
+                .ok_or_else(|| HeaderError::Missing(self.key(k)))
+        }
+        fn int(&self, k: &str) -> Result<u32, HeaderError> {
             self.get(k)?
                 .parse::<u32>()
-                .map_err(|_| format!("session header '{p}{k}' is not a number"))
+                .map_err(|_| HeaderError::NotANumber(self.key(k)))
         }
-        fn real(&self, k: &str) -> Result<f64, String> {
-            let (p, key) = (self.prefix, format!("{k}_bits"));
+        fn real(&self, k: &str) -> Result<f64, HeaderError> {
+            let key = format!("{k}_bits");
             u64::from_str_radix(self.get(&key)?, 16)
                 .map(f64::from_bits)
-                .map_err(|_| format!("session header '{p}{key}' is not hex"))
+                .map_err(|_| HeaderError::NotHex(self.key(&key)))
+        }
+        /// A value of `k` that is not one of the names the key allows.
+        fn unknown(&self, k: &str, value: &str) -> HeaderError {
+            HeaderError::UnknownValue {
+                key: self.key(k),
+                value: value.to_string(),
+            }
         }
     }
 
     /// The deformation settings of a header (off when the file has none), checked like the
     /// simulation checks them.
-    pub fn get_deformation(m: &BTreeMap<String, String>) -> Result<DeformSettings, String> {
+    pub fn get_deformation(m: &BTreeMap<String, String>) -> Result<DeformSettings, HeaderError> {
         if !m.contains_key(&format!("{P}enabled")) {
             return Ok(DeformSettings::off());
         }
@@ -473,12 +579,12 @@ mod world {
             "linear_elastic" => Regulariser::LinearElastic {
                 poisson_ratio: keys.real("poisson_ratio")?,
             },
-            other => return Err(format!("session header '{P}regulariser' '{other}' is unknown")),
+            other => return Err(keys.unknown("regulariser", other)),
         };
         let enabled = match keys.int("enabled")? {
             0 => false,
             1 => true,
-            _ => return Err(format!("session header '{P}enabled' must be 0 or 1")),
+            _ => return Err(HeaderError::NotAFlag(keys.key("enabled"))),
         };
         let d = DeformSettings {
             enabled,
@@ -498,7 +604,10 @@ mod world {
                 fed_cycle_steps: keys.int("fed_cycle_steps")?,
             },
         };
-        d.validate().map_err(|e| format!("session header deformation: {e}"))?;
+        d.validate().map_err(|e| HeaderError::World {
+            part: "deformation",
+            source: e,
+        })?;
         Ok(d)
     }
 
@@ -518,7 +627,7 @@ mod world {
 
     /// The contrast settings of a header (the defaults when the file has none, as every session
     /// before they were recorded ran them), checked like the simulation checks them.
-    pub fn get_contrast(m: &BTreeMap<String, String>) -> Result<ContrastSettings, String> {
+    pub fn get_contrast(m: &BTreeMap<String, String>) -> Result<ContrastSettings, HeaderError> {
         if !m.keys().any(|k| k.starts_with(C)) {
             return Ok(ContrastSettings::default());
         }
@@ -533,7 +642,10 @@ mod world {
             confirm_extent_mm: keys.real("confirm_extent_mm")?,
             settle_s: keys.real("settle_s")?,
         };
-        c.validate().map_err(|e| format!("session header contrast: {e}"))?;
+        c.validate().map_err(|e| HeaderError::World {
+            part: "contrast",
+            source: e,
+        })?;
         Ok(c)
     }
 
@@ -561,7 +673,7 @@ mod world {
 
     /// The breathing of a header (none when the file has none: it did not breathe), checked like
     /// the simulation checks it.
-    pub fn get_breathing(m: &BTreeMap<String, String>) -> Result<BreathingSettings, String> {
+    pub fn get_breathing(m: &BTreeMap<String, String>) -> Result<BreathingSettings, HeaderError> {
         if !m.keys().any(|k| k.starts_with(B)) {
             return Ok(BreathingSettings::default());
         }
@@ -569,17 +681,17 @@ mod world {
         let measured = match keys.get("model")?.as_str() {
             "synthetic" => false,
             "measured" => true,
-            other => return Err(format!("session header '{B}model' '{other}' is unknown")),
+            other => return Err(keys.unknown("model", other)),
         };
         let enabled = match keys.int("enabled")? {
             0 => false,
             1 => true,
-            _ => return Err(format!("session header '{B}enabled' must be 0 or 1")),
+            _ => return Err(HeaderError::NotAFlag(keys.key("enabled"))),
         };
         let seed = keys
             .get("seed")?
             .parse::<u64>()
-            .map_err(|_| format!("session header '{B}seed' is not a number"))?;
+            .map_err(|_| HeaderError::NotANumber(keys.key("seed")))?;
         let b = BreathingSettings {
             enabled,
             motion: stylet_physics::motion::SyntheticMotion {
@@ -597,9 +709,26 @@ mod world {
             },
             measured,
         };
-        b.validate().map_err(|e| format!("session header breathing: {e}"))?;
+        b.validate().map_err(|e| HeaderError::World {
+            part: "breathing",
+            source: e,
+        })?;
         Ok(b)
     }
+}
+
+/// Why a session end record's metadata cannot be read: a field missing or malformed, or a reason
+/// too long. The reader treats it as damage.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum EndError {
+    #[error("session end lacks '{0}'")]
+    Missing(String),
+    #[error("session end '{0}' is not a number")]
+    NotANumber(&'static str),
+    #[error("session end '{0}' is not true/false")]
+    NotABool(&'static str),
+    #[error(transparent)]
+    TooLong(#[from] TextTooLong),
 }
 
 /// What the writer says at the end (absent in a file cut by a crash).
@@ -622,18 +751,15 @@ impl SessionEnd {
         ])
     }
 
-    pub fn from_metadata(m: &BTreeMap<String, String>) -> Result<Self, String> {
-        let get = |k: &str| m.get(k).cloned().ok_or_else(|| format!("session end lacks '{k}'"));
+    /// From MCAP metadata; names the first missing or malformed field.
+    pub fn from_metadata(m: &BTreeMap<String, String>) -> Result<Self, EndError> {
+        let get = |k: &str| m.get(k).cloned().ok_or_else(|| EndError::Missing(k.to_string()));
         Ok(SessionEnd {
-            ticks: get("ticks")?
-                .parse()
-                .map_err(|_| "session end 'ticks' is not a number")?,
+            ticks: get("ticks")?.parse().map_err(|_| EndError::NotANumber("ticks"))?,
             dropped_ticks: get("dropped_ticks")?
                 .parse()
-                .map_err(|_| "session end 'dropped_ticks' is not a number")?,
-            complete: get("complete")?
-                .parse()
-                .map_err(|_| "session end 'complete' is not true/false")?,
+                .map_err(|_| EndError::NotANumber("dropped_ticks"))?,
+            complete: get("complete")?.parse().map_err(|_| EndError::NotABool("complete"))?,
             reason: {
                 let r = get("reason")?;
                 check_text("session end reason", &r, MAX_TEXT_CHARS)?;
@@ -671,7 +797,12 @@ pub fn to_cbor<T: Serialize>(v: &T) -> Vec<u8> {
     out
 }
 
+/// A message that is not the CBOR of its type, with the decoder's reason.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("bad CBOR message: {0}")]
+pub struct CborError(pub String);
+
 /// CBOR decoding with a recursion limit (hostile nesting) and a clear error.
-pub fn from_cbor<T: for<'de> Deserialize<'de>>(bytes: &[u8]) -> Result<T, String> {
-    ciborium::de::from_reader_with_recursion_limit(bytes, 16).map_err(|e| format!("bad CBOR message: {e}"))
+pub fn from_cbor<T: for<'de> Deserialize<'de>>(bytes: &[u8]) -> Result<T, CborError> {
+    ciborium::de::from_reader_with_recursion_limit(bytes, 16).map_err(|e| CborError(e.to_string()))
 }

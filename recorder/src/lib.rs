@@ -3,7 +3,7 @@
 //! a crash (everything older than a second is recoverable) and opens in MCAP tools.
 //!
 //! [`writer`] records without ever blocking the haptic loop; [`reader`] reads strictly, streams,
-//! seeks by tick through the index, and recovers cut or damaged files; [`format`] defines the
+//! seeks by tick through the index, and recovers cut or damaged files; [`format`](mod@format) defines the
 //! header, channels and messages; [`codec`] the compressible tick columns; [`outputs`] the rounded
 //! forces and torques and the digest that pins their exact bits.
 
@@ -17,7 +17,9 @@ pub mod repair;
 pub mod writer;
 
 pub use format::{EventRecord, SCHEMA_VERSION, SessionEnd, SessionHeader, TickRecord};
-pub use reader::{Damage, Limits, Mode, ReadError, Session, read, read_bytes, recover, verify};
+pub use reader::{
+    Damage, DamageKind, Limits, Mode, ReadError, Session, VerifyError, read, read_bytes, recover, verify,
+};
 pub use recording::{Recording, SessionInfo};
 pub use repair::rewrite_recovered;
 pub use writer::{SessionWriter, WriteError, WriteSummary, WriterOptions};

@@ -11,8 +11,8 @@ use std::path::Path;
 
 use crate::format::*;
 use crate::outputs::OutputCheck;
-use crate::records::{self, OP_CHUNK, OP_DATA_END, OP_FOOTER, OP_HEADER, Record};
-use crate::writer::{DecodedBlock, decode_block};
+use crate::records::{self, OP_CHUNK, OP_DATA_END, OP_FOOTER, OP_HEADER, ParseError, Record};
+use crate::writer::{BlockError, DecodedBlock, decode_block};
 
 /// Hard limits against hostile files.
 #[derive(Debug, Clone, Copy)]
@@ -66,8 +66,125 @@ pub enum ReadError {
     Io(String),
     #[error("not a Stylet session file: {0}")]
     NotASession(String),
+    /// The session header is there but cannot be read (nothing else is read then).
+    #[error("not a Stylet session file: {0}")]
+    BadHeader(HeaderError),
     #[error("damaged session file: {0}")]
     Damaged(Damage),
+}
+
+/// What is wrong where a file is damaged: what makes a strict read fail and a recovering read
+/// stop. A file cut short (a crash, an interrupted copy) can be recovered up to the cut; a limit
+/// of [`Limits`] exceeded, altered bytes and malformed records, chunks or messages are the rest.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DamageKind {
+    #[error("the file ends without its summary and footer (cut short?)")]
+    NoSummary,
+    #[error("the file ends inside a record header")]
+    EndsInRecordHeader,
+    /// The file ends inside a record of this many bytes.
+    #[error("the file ends inside a record of {0} bytes (cut short?)")]
+    EndsInRecord(u64),
+    #[error(transparent)]
+    OverLimit(#[from] LimitExceeded),
+    #[error("data section CRC mismatch (the file was altered)")]
+    DataCrc,
+    #[error("summary CRC mismatch (the file was altered)")]
+    SummaryCrc,
+    /// The MCAP header names another profile (shown as the file has it).
+    #[error("MCAP profile '{0}' is not '{PROFILE}'")]
+    Profile(String),
+    #[error("bad MCAP header")]
+    BadHeader,
+    #[error("bad data-end record")]
+    BadDataEnd,
+    #[error("bad footer")]
+    BadFooter,
+    #[error("bytes after the footer, or the closing magic is missing")]
+    AfterFooter,
+    /// A record inside a chunk whose header the chunk cuts off.
+    #[error("record header cut off")]
+    RecordHeaderCut,
+    /// A record inside a chunk that is longer than what is left of the chunk.
+    #[error("record runs past its chunk")]
+    RecordPastChunk,
+    /// A record whose fields do not fit its length.
+    #[error("bad record (opcode {op:#04x}): {source}")]
+    BadRecord { op: u8, source: ParseError },
+    /// A channel on a topic that is not a session's (its first 64 characters).
+    #[error("channel on unexpected topic '{0}'")]
+    ChannelTopic(String),
+    #[error(transparent)]
+    End(#[from] EndError),
+    #[error(transparent)]
+    Chunk(#[from] ChunkError),
+    #[error(transparent)]
+    Message(#[from] MessageError),
+}
+
+/// A limit of [`Limits`] that a file exceeds: the reader stops there rather than use more memory.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum LimitExceeded {
+    #[error("record of {len} bytes exceeds the limit of {limit}")]
+    Record { len: u64, limit: u64 },
+    /// A record inside a chunk longer than [`Limits::max_record_bytes`].
+    #[error("record of {0} bytes exceeds the limit")]
+    RecordInChunk(u64),
+    /// A chunk that declares more uncompressed bytes than [`Limits::max_chunk_uncompressed_bytes`].
+    #[error("chunk claims {0} bytes uncompressed, over the limit")]
+    Chunk(u64),
+    #[error("more than {0} ticks")]
+    Ticks(u64),
+    #[error("more than {0} messages")]
+    Messages(u64),
+    #[error("more than {0} events and annotations")]
+    Notes(u64),
+}
+
+/// Why a chunk's records cannot be had: a malformed chunk record, an unknown compression, bytes
+/// that do not decompress to what the chunk declares, or a CRC mismatch.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ChunkError {
+    #[error("bad chunk: {0}")]
+    Parse(ParseError),
+    /// The chunk record parsed as another kind of record.
+    #[error("bad chunk")]
+    NotAChunk,
+    #[error("chunk compression '{0}' is not supported")]
+    Compression(String),
+    /// The zstd decoder cannot start (its reason).
+    #[error("chunk: {0}")]
+    Decoder(String),
+    /// The compressed bytes are not zstd (the decoder's reason).
+    #[error("chunk does not decompress: {0}")]
+    Decompress(String),
+    #[error("chunk decompresses to {got} bytes, not the {declared} it declares")]
+    Size { got: usize, declared: u64 },
+    #[error("chunk CRC mismatch")]
+    Crc,
+}
+
+/// Why a message in a chunk is refused: it is on no known channel, does not decode, or holds
+/// ticks, an event or text a session cannot have.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MessageError {
+    #[error("message on unknown channel {0}")]
+    UnknownChannel(u16),
+    #[error("message on unexpected topic '{0}'")]
+    UnexpectedTopic(String),
+    #[error(transparent)]
+    Cbor(#[from] CborError),
+    #[error(transparent)]
+    Block(#[from] BlockError),
+    #[error(transparent)]
+    Pose(#[from] PoseError),
+    /// A tick block that does not start after the previous one ended.
+    #[error("tick {first} after tick {last}")]
+    TickOrder { first: u64, last: u64 },
+    #[error(transparent)]
+    TooLong(#[from] TextTooLong),
+    #[error("event at tick {tick}: {source}")]
+    Event { tick: u64, source: EventError },
 }
 
 /// The first damage found, where it is and what it costs.
@@ -75,7 +192,7 @@ pub enum ReadError {
 pub struct Damage {
     /// Byte offset of the damaged or cut record.
     pub offset: u64,
-    pub what: String,
+    pub what: DamageKind,
     /// Bytes from the damage to the end of the file that could not be used.
     pub lost_bytes: u64,
 }
@@ -163,7 +280,7 @@ struct Walk<'l> {
     tick_count: u64,
     messages: u64,
     finished: bool,
-    header_error: Option<String>,
+    header_error: Option<HeaderError>,
 }
 
 fn read_u64(b: &[u8], at: usize) -> Option<u64> {
@@ -173,35 +290,39 @@ fn read_u64(b: &[u8], at: usize) -> Option<u64> {
 
 impl Walk<'_> {
     /// Counts an event or annotation against [`Limits::max_notes`].
-    fn note(&self) -> Result<(), String> {
+    fn note(&self) -> Result<(), DamageKind> {
         if (self.events.len() + self.annotations.len()) as u64 >= self.limits.max_notes {
-            return Err(format!("more than {} events and annotations", self.limits.max_notes));
+            return Err(LimitExceeded::Notes(self.limits.max_notes).into());
         }
         Ok(())
     }
 
     /// Handles one message; an error is damage.
-    fn message(&mut self, channel: u16, data: &[u8]) -> Result<(), String> {
+    fn message(&mut self, channel: u16, data: &[u8]) -> Result<(), DamageKind> {
         self.messages += 1;
         if self.messages > self.limits.max_messages {
-            return Err(format!("more than {} messages", self.limits.max_messages));
+            return Err(LimitExceeded::Messages(self.limits.max_messages).into());
         }
         let topic = self
             .channels
             .get(&channel)
-            .ok_or_else(|| format!("message on unknown channel {channel}"))?;
+            .ok_or(MessageError::UnknownChannel(channel))?;
         match topic.as_str() {
             TOPIC_TICKS => {
-                let block: TickBlock = from_cbor(data)?;
+                let block: TickBlock = from_cbor(data).map_err(MessageError::from)?;
                 if self.tick_count.saturating_add(u64::from(block.count)) > self.limits.max_ticks {
-                    return Err(format!("more than {} ticks", self.limits.max_ticks));
+                    return Err(LimitExceeded::Ticks(self.limits.max_ticks).into());
                 }
-                let DecodedBlock { ticks, check } = decode_block(&block)?;
-                check_poses_finite(&ticks)?;
+                let DecodedBlock { ticks, check } = decode_block(&block).map_err(MessageError::from)?;
+                check_poses_finite(&ticks).map_err(MessageError::from)?;
                 if let (Some(last), Some(first)) = (self.last_tick, ticks.first())
                     && first.tick <= last
                 {
-                    return Err(format!("tick {} after tick {last}", first.tick));
+                    return Err(MessageError::TickOrder {
+                        first: first.tick,
+                        last,
+                    }
+                    .into());
                 }
                 self.tick_count += ticks.len() as u64;
                 self.last_tick = ticks.last().map(|t| t.tick);
@@ -213,47 +334,49 @@ impl Walk<'_> {
             }
             TOPIC_EVENTS => {
                 self.note()?;
-                let e: EventRecord = from_cbor(data)?;
+                let e: EventRecord = from_cbor(data).map_err(MessageError::from)?;
                 // Bounded before anything else looks at them (unused fields are kept too).
-                check_text("event name", &e.name, MAX_NAME_CHARS)?;
-                check_text("event tool", e.tool.as_deref().unwrap_or_default(), MAX_NAME_CHARS)?;
-                e.to_event().map_err(|m| format!("event at tick {}: {m}", e.tick))?;
+                check_text("event name", &e.name, MAX_NAME_CHARS).map_err(MessageError::from)?;
+                check_text("event tool", e.tool.as_deref().unwrap_or_default(), MAX_NAME_CHARS)
+                    .map_err(MessageError::from)?;
+                e.to_event()
+                    .map_err(|source| MessageError::Event { tick: e.tick, source })?;
                 self.events.push(e);
             }
-            TOPIC_DIGESTS => self.digests.push(from_cbor(data)?),
+            TOPIC_DIGESTS => self.digests.push(from_cbor(data).map_err(MessageError::from)?),
             TOPIC_ANNOTATIONS => {
                 self.note()?;
-                let a: AnnotationRecord = from_cbor(data)?;
-                check_text("annotation", &a.text, MAX_NOTE_CHARS)?;
+                let a: AnnotationRecord = from_cbor(data).map_err(MessageError::from)?;
+                check_text("annotation", &a.text, MAX_NOTE_CHARS).map_err(MessageError::from)?;
                 self.annotations.push(a);
             }
             TOPIC_PREVIEW => {}
-            other => return Err(format!("message on unexpected topic '{other}'")),
+            other => return Err(MessageError::UnexpectedTopic(other.to_string()).into()),
         }
         Ok(())
     }
 
     /// Handles the records inside `buf` (a chunk's content); the first error is damage.
-    fn records(&mut self, buf: &[u8]) -> Result<(), String> {
+    fn records(&mut self, buf: &[u8]) -> Result<(), DamageKind> {
         let mut pos = 0usize;
         while pos < buf.len() {
             let op = buf[pos];
-            let len = read_u64(buf, pos + 1).ok_or("record header cut off")?;
+            let len = read_u64(buf, pos + 1).ok_or(DamageKind::RecordHeaderCut)?;
             if len > self.limits.max_record_bytes {
-                return Err(format!("record of {len} bytes exceeds the limit"));
+                return Err(LimitExceeded::RecordInChunk(len).into());
             }
             let start = pos + 9;
             let body = buf
                 .get(start..start + len as usize)
-                .ok_or("record runs past its chunk")?;
+                .ok_or(DamageKind::RecordPastChunk)?;
             self.record(op, body)?;
             pos = start + len as usize;
         }
         Ok(())
     }
 
-    fn record(&mut self, op: u8, body: &[u8]) -> Result<(), String> {
-        match records::parse(op, body).map_err(|e| format!("bad record (opcode {op:#04x}): {e}"))? {
+    fn record(&mut self, op: u8, body: &[u8]) -> Result<(), DamageKind> {
+        match records::parse(op, body).map_err(|source| DamageKind::BadRecord { op, source })? {
             Record::Channel { id, topic } => {
                 // Only the session's own topics: nothing else is read, so nothing else is kept.
                 if ![
@@ -266,7 +389,7 @@ impl Walk<'_> {
                 .contains(&topic)
                 {
                     let shown: String = topic.chars().take(MAX_NAME_CHARS).collect();
-                    return Err(format!("channel on unexpected topic '{shown}'"));
+                    return Err(DamageKind::ChannelTopic(shown));
                 }
                 self.channels.insert(id, topic.to_string());
             }
@@ -283,38 +406,35 @@ impl Walk<'_> {
         Ok(())
     }
 
-    fn chunk(&mut self, offset: u64, body: &[u8]) -> Result<(), String> {
-        let Record::Chunk(c) = records::parse(OP_CHUNK, body).map_err(|e| format!("bad chunk: {e}"))? else {
-            return Err("bad chunk".into());
+    fn chunk(&mut self, offset: u64, body: &[u8]) -> Result<(), DamageKind> {
+        let Record::Chunk(c) = records::parse(OP_CHUNK, body).map_err(ChunkError::Parse)? else {
+            return Err(ChunkError::NotAChunk.into());
         };
         if c.uncompressed_size > self.limits.max_chunk_uncompressed_bytes {
-            return Err(format!(
-                "chunk claims {} bytes uncompressed, over the limit",
-                c.uncompressed_size
-            ));
+            return Err(LimitExceeded::Chunk(c.uncompressed_size).into());
         }
         let plain = match c.compression {
             "" => c.records.to_vec(),
             "zstd" => {
                 let mut out = Vec::new();
                 zstd::stream::read::Decoder::new(c.records)
-                    .map_err(|e| format!("chunk: {e}"))?
+                    .map_err(|e| ChunkError::Decoder(e.to_string()))?
                     .take(c.uncompressed_size + 1)
                     .read_to_end(&mut out)
-                    .map_err(|e| format!("chunk does not decompress: {e}"))?;
+                    .map_err(|e| ChunkError::Decompress(e.to_string()))?;
                 out
             }
-            other => return Err(format!("chunk compression '{other}' is not supported")),
+            other => return Err(ChunkError::Compression(other.to_string()).into()),
         };
         if plain.len() as u64 != c.uncompressed_size {
-            return Err(format!(
-                "chunk decompresses to {} bytes, not the {} it declares",
-                plain.len(),
-                c.uncompressed_size
-            ));
+            return Err(ChunkError::Size {
+                got: plain.len(),
+                declared: c.uncompressed_size,
+            }
+            .into());
         }
         if c.uncompressed_crc != 0 && crc32fast::hash(&plain) != c.uncompressed_crc {
-            return Err("chunk CRC mismatch".into());
+            return Err(ChunkError::Crc.into());
         }
         // All or nothing: a chunk's messages count only if the whole chunk is good.
         let saved = (
@@ -523,21 +643,18 @@ fn walk<'a>(
     let mut damage: Option<Damage> = None;
     let mut in_summary = false;
     let mut profile_ok = false;
-    let damaged = |offset: u64, what: String| Damage {
+    let damaged = |offset: u64, what: DamageKind| Damage {
         offset,
         what,
         lost_bytes: file_len - offset,
     };
     loop {
         if pos == file_len {
-            damage = Some(damaged(
-                pos,
-                "the file ends without its summary and footer (cut short?)".into(),
-            ));
+            damage = Some(damaged(pos, DamageKind::NoSummary));
             break;
         }
         let Some(head) = src.bytes(pos, 9)? else {
-            damage = Some(damaged(pos, "the file ends inside a record header".into()));
+            damage = Some(damaged(pos, DamageKind::EndsInRecordHeader));
             break;
         };
         let op = head[0];
@@ -545,16 +662,17 @@ fn walk<'a>(
         if len > limits.max_record_bytes {
             damage = Some(damaged(
                 pos,
-                format!("record of {len} bytes exceeds the limit of {}", limits.max_record_bytes),
+                LimitExceeded::Record {
+                    len,
+                    limit: limits.max_record_bytes,
+                }
+                .into(),
             ));
             break;
         }
         let start = pos + 9;
         let Some(body) = src.bytes(start, len)? else {
-            damage = Some(damaged(
-                pos,
-                format!("the file ends inside a record of {len} bytes (cut short?)"),
-            ));
+            damage = Some(damaged(pos, DamageKind::EndsInRecord(len)));
             break;
         };
         let result = match op {
@@ -563,8 +681,8 @@ fn walk<'a>(
                     profile_ok = true;
                     Ok(())
                 }
-                Ok(Record::Header { profile }) => Err(format!("MCAP profile '{profile}' is not '{PROFILE}'")),
-                _ => Err("bad MCAP header".into()),
+                Ok(Record::Header { profile }) => Err(DamageKind::Profile(profile.to_string())),
+                _ => Err(DamageKind::BadHeader),
             },
             OP_CHUNK => w.chunk(pos, body),
             OP_DATA_END => {
@@ -577,12 +695,12 @@ fn walk<'a>(
                     Some(crc) => {
                         in_summary = true;
                         if crc != 0 && crc != src.crc(0, pos)? {
-                            Err("data section CRC mismatch (the file was altered)".into())
+                            Err(DamageKind::DataCrc)
                         } else {
                             Ok(())
                         }
                     }
-                    None => Err("bad data-end record".into()),
+                    None => Err(DamageKind::BadDataEnd),
                 }
             }
             OP_FOOTER => {
@@ -603,15 +721,15 @@ fn walk<'a>(
                                 && crc_end <= file_len
                                 && src.crc(summary_start, crc_end)? == summary_crc);
                         if !summary_ok {
-                            Err("summary CRC mismatch (the file was altered)".into())
+                            Err(DamageKind::SummaryCrc)
                         } else if start + len + 8 != file_len || src.bytes(file_len - 8, 8)? != Some(MAGIC.as_slice()) {
-                            Err("bytes after the footer, or the closing magic is missing".into())
+                            Err(DamageKind::AfterFooter)
                         } else {
                             w.finished = true;
                             Ok(())
                         }
                     }
-                    None => Err("bad footer".into()),
+                    None => Err(DamageKind::BadFooter),
                 }
             }
             _ if in_summary => Ok(()),
@@ -633,7 +751,7 @@ fn walk<'a>(
     }
     let header = match (w.header.take(), w.header_error.take()) {
         (Some(h), _) => h,
-        (None, Some(e)) => return Err(ReadError::NotASession(e)),
+        (None, Some(e)) => return Err(ReadError::BadHeader(e)),
         (None, None) => {
             return Err(match damage {
                 Some(d) => ReadError::Damaged(d),
@@ -689,10 +807,38 @@ pub fn recover(path: &Path) -> Result<Session, ReadError> {
     read_bytes(&load(path, &Limits::default())?, Mode::Recover, &Limits::default())
 }
 
+/// Why a file fails `stylet session verify`: it does not read strictly, or it reads but is not a
+/// whole session (unfinished, incomplete, ticks missing or out of place). Only a file that passes
+/// is graded or uploaded.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum VerifyError {
+    #[error(transparent)]
+    Read(#[from] ReadError),
+    #[error("the file has no summary and footer")]
+    Unfinished,
+    #[error("the session has no end record")]
+    NoEnd,
+    /// The end record says the session is incomplete, and why.
+    #[error("the session is incomplete: {0}")]
+    Incomplete(String),
+    #[error("the session has no ticks")]
+    NoTicks,
+    #[error("the first tick is {0}, not 0")]
+    FirstTick(u64),
+    #[error("the end record counts {declared} ticks, the file holds {held}")]
+    TickCount { declared: u64, held: u64 },
+    #[error("ticks jump from {from} to {to}")]
+    Jump { from: u64, to: u64 },
+    #[error("a digest at tick {tick} after the last tick {last}")]
+    DigestAfterEnd { tick: u64, last: u64 },
+    #[error("an event at tick {tick} after the last tick {last}")]
+    EventAfterEnd { tick: u64, last: u64 },
+}
+
 /// The checks of `stylet session verify`: intact, finished, nothing dropped, ticks from 0 and
 /// contiguous, digests and events inside the recorded ticks. `Ok` carries the session.
-pub fn verify_bytes(bytes: &[u8]) -> Result<Session, String> {
-    let s = read_bytes(bytes, Mode::Strict, &Limits::default()).map_err(|e| e.to_string())?;
+pub fn verify_bytes(bytes: &[u8]) -> Result<Session, VerifyError> {
+    let s = read_bytes(bytes, Mode::Strict, &Limits::default())?;
     let jump = s
         .ticks
         .windows(2)
@@ -722,20 +868,20 @@ impl Verified {
 /// The checks of [`verify_bytes`] with memory bounded independently of the tick count: ticks are
 /// decoded one block at a time, checked and dropped; `limits` (e.g. `max_ticks` from the longest
 /// session accepted) are checked before each block is decoded.
-pub fn verify_streaming(bytes: &[u8], limits: &Limits) -> Result<Verified, String> {
+pub fn verify_streaming(bytes: &[u8], limits: &Limits) -> Result<Verified, VerifyError> {
     verify_with(|sink| read_bytes_with(bytes, Mode::Strict, limits, Some(sink)))
 }
 
 /// [`verify_streaming`] of a file read record by record: its memory is bounded by `limits`
 /// whatever the file's size (one record, one decompressed chunk, one tick block). For files from
 /// outside (uploads, received to disk first).
-pub fn verify_file_streaming<R: Read + Seek>(file: R, limits: &Limits) -> Result<Verified, String> {
+pub fn verify_file_streaming<R: Read + Seek>(file: R, limits: &Limits) -> Result<Verified, VerifyError> {
     verify_with(|sink| read_file_with(file, Mode::Strict, limits, Some(sink)))
 }
 
 /// Runs a streaming read with a sink that counts the ticks and finds their span and first jump,
 /// then the checks of [`verify_bytes`].
-fn verify_with(read: impl FnOnce(TickSink<'_>) -> Result<Session, ReadError>) -> Result<Verified, String> {
+fn verify_with(read: impl FnOnce(TickSink<'_>) -> Result<Session, ReadError>) -> Result<Verified, VerifyError> {
     let mut count = 0u64;
     let mut span: Option<(u64, u64)> = None;
     let mut jump: Option<(u64, u64)> = None;
@@ -749,7 +895,7 @@ fn verify_with(read: impl FnOnce(TickSink<'_>) -> Result<Session, ReadError>) ->
         }
         count += block.len() as u64;
     };
-    let s = read(&mut on_block).map_err(|e| e.to_string())?;
+    let s = read(&mut on_block)?;
     check_verified(&s, count, span, jump)?;
     Ok(Verified {
         session: s,
@@ -759,40 +905,46 @@ fn verify_with(read: impl FnOnce(TickSink<'_>) -> Result<Session, ReadError>) ->
 
 /// The checks shared by both verifications, on the session, its ticks' count and span, and the
 /// first jump between ticks (if any).
-fn check_verified(s: &Session, count: u64, span: Option<(u64, u64)>, jump: Option<(u64, u64)>) -> Result<(), String> {
+fn check_verified(
+    s: &Session,
+    count: u64,
+    span: Option<(u64, u64)>,
+    jump: Option<(u64, u64)>,
+) -> Result<(), VerifyError> {
     if !s.finished {
-        return Err("the file has no summary and footer".into());
+        return Err(VerifyError::Unfinished);
     }
-    let end = s.end.as_ref().ok_or("the session has no end record")?;
+    let end = s.end.as_ref().ok_or(VerifyError::NoEnd)?;
     if !end.complete {
-        return Err(format!("the session is incomplete: {}", end.reason));
+        return Err(VerifyError::Incomplete(end.reason.clone()));
     }
     let Some((first, last)) = span else {
-        return Err("the session has no ticks".into());
+        return Err(VerifyError::NoTicks);
     };
     if first != 0 {
-        return Err(format!("the first tick is {first}, not 0"));
+        return Err(VerifyError::FirstTick(first));
     }
     if end.ticks != count {
-        return Err(format!(
-            "the end record counts {} ticks, the file holds {count}",
-            end.ticks
-        ));
+        return Err(VerifyError::TickCount {
+            declared: end.ticks,
+            held: count,
+        });
     }
-    if let Some((a, b)) = jump {
-        return Err(format!("ticks jump from {a} to {b}"));
+    if let Some((from, to)) = jump {
+        return Err(VerifyError::Jump { from, to });
     }
     if let Some(d) = s.digests.iter().find(|d| d.tick > last) {
-        return Err(format!("a digest at tick {} after the last tick {last}", d.tick));
+        return Err(VerifyError::DigestAfterEnd { tick: d.tick, last });
     }
     if let Some(e) = s.events.iter().find(|e| e.tick > last) {
-        return Err(format!("an event at tick {} after the last tick {last}", e.tick));
+        return Err(VerifyError::EventAfterEnd { tick: e.tick, last });
     }
     Ok(())
 }
 
-pub fn verify(path: &Path) -> Result<Session, String> {
-    verify_bytes(&load(path, &Limits::default()).map_err(|e| e.to_string())?)
+/// [`verify_bytes`] of a file on disk.
+pub fn verify(path: &Path) -> Result<Session, VerifyError> {
+    verify_bytes(&load(path, &Limits::default())?)
 }
 
 /// Streaming access: hands the ticks to `on_block` block by block in file order without keeping
@@ -892,7 +1044,7 @@ fn summary(bytes: &[u8]) -> Result<(BTreeMap<u16, String>, Vec<records::ChunkInd
             .and_then(|l| bytes.get(pos + 9..(pos + 9).checked_add(l)?))
             .filter(|b| pos + 9 + b.len() <= footer_at)
             .ok_or_else(|| bad("record runs past the footer"))?;
-        match records::parse(op, body).map_err(|e| bad(&e))? {
+        match records::parse(op, body).map_err(|e| bad(&e.to_string()))? {
             Record::Channel { id, topic } => {
                 channels.insert(id, topic.to_string());
             }
@@ -939,7 +1091,7 @@ pub fn read_header_prefix(bytes: &[u8]) -> Result<Option<SessionHeader>, ReadErr
         {
             return SessionHeader::from_metadata(&map)
                 .map(Some)
-                .map_err(ReadError::NotASession);
+                .map_err(ReadError::BadHeader);
         }
         pos += 9 + body.len();
     }

@@ -63,37 +63,53 @@ pub const OP_CHUNK_INDEX: u8 = 0x08;
 pub const OP_METADATA: u8 = 0x0C;
 pub const OP_DATA_END: u8 = 0x0F;
 
+/// Why a record body cannot be parsed: a length that runs past the record, or text that is not
+/// UTF-8. Names the field, so a damaged file says where it is damaged.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ParseError {
+    /// A length prefix (or a fixed-size field) declares more bytes than the record has left.
+    #[error("{field}: {declared} bytes declared, {left} left in the record")]
+    Overrun {
+        field: &'static str,
+        declared: u64,
+        left: usize,
+    },
+    #[error("{field} is not UTF-8")]
+    NotUtf8 { field: &'static str },
+}
+
 /// A cursor over one record body; every read checks the remaining length.
 struct Body<'a> {
     b: &'a [u8],
 }
 
 impl<'a> Body<'a> {
-    fn take(&mut self, n: u64, what: &str) -> Result<&'a [u8], String> {
+    fn take(&mut self, n: u64, what: &'static str) -> Result<&'a [u8], ParseError> {
         if n > self.b.len() as u64 {
-            return Err(format!(
-                "{what}: {n} bytes declared, {} left in the record",
-                self.b.len()
-            ));
+            return Err(ParseError::Overrun {
+                field: what,
+                declared: n,
+                left: self.b.len(),
+            });
         }
         let (head, rest) = self.b.split_at(n as usize);
         self.b = rest;
         Ok(head)
     }
-    fn u16(&mut self, what: &str) -> Result<u16, String> {
+    fn u16(&mut self, what: &'static str) -> Result<u16, ParseError> {
         Ok(u16::from_le_bytes(self.take(2, what)?.try_into().expect("2 bytes")))
     }
-    fn u32(&mut self, what: &str) -> Result<u32, String> {
+    fn u32(&mut self, what: &'static str) -> Result<u32, ParseError> {
         Ok(u32::from_le_bytes(self.take(4, what)?.try_into().expect("4 bytes")))
     }
-    fn u64(&mut self, what: &str) -> Result<u64, String> {
+    fn u64(&mut self, what: &'static str) -> Result<u64, ParseError> {
         Ok(u64::from_le_bytes(self.take(8, what)?.try_into().expect("8 bytes")))
     }
-    fn str(&mut self, what: &str) -> Result<&'a str, String> {
+    fn str(&mut self, what: &'static str) -> Result<&'a str, ParseError> {
         let n = self.u32(what)?;
-        std::str::from_utf8(self.take(n as u64, what)?).map_err(|_| format!("{what} is not UTF-8"))
+        std::str::from_utf8(self.take(n as u64, what)?).map_err(|_| ParseError::NotUtf8 { field: what })
     }
-    fn map(&mut self, what: &str) -> Result<BTreeMap<String, String>, String> {
+    fn map(&mut self, what: &'static str) -> Result<BTreeMap<String, String>, ParseError> {
         let n = self.u32(what)?;
         let mut inner = Body {
             b: self.take(n as u64, what)?,
@@ -109,7 +125,7 @@ impl<'a> Body<'a> {
 }
 
 /// Parses a record body of opcode `op`; names the field that does not fit.
-pub fn parse(op: u8, body: &[u8]) -> Result<Record<'_>, String> {
+pub fn parse(op: u8, body: &[u8]) -> Result<Record<'_>, ParseError> {
     let mut r = Body { b: body };
     Ok(match op {
         OP_HEADER => Record::Header {
@@ -179,7 +195,17 @@ mod tests {
         let mut body = u32::MAX.to_le_bytes().to_vec();
         body.extend_from_slice(b"abc");
         let e = parse(OP_METADATA, &body).unwrap_err();
-        assert!(e.contains("4294967295 bytes declared"), "{e}");
+        assert!(
+            matches!(
+                e,
+                ParseError::Overrun {
+                    declared: 4294967295,
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert!(e.to_string().contains("4294967295 bytes declared"), "{e}");
         // A map claiming more bytes than there are.
         let mut body = 1u32.to_le_bytes().to_vec();
         body.push(b'n');

@@ -638,49 +638,76 @@ pub struct DecodedBlock {
     pub check: Option<OutputCheck>,
 }
 
+/// Why a tick block cannot be decoded: its codec and digest disagree, its tick count or numbers
+/// are impossible, or a column is missing or malformed. A reader treats it as damage.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum BlockError {
+    /// An exact-codec block that carries an outputs digest.
+    #[error("a '{COLUMN_CODEC}' block with an outputs digest")]
+    UnexpectedDigest,
+    /// A rounded-codec block without the digest of its exact outputs.
+    #[error("a '{COLUMN_CODEC_ROUNDED}' block without its outputs digest")]
+    MissingDigest,
+    /// The codec name (at most 64 characters of it).
+    #[error("unknown column codec '{0}'")]
+    UnknownCodec(String),
+    #[error("block of {0} ticks")]
+    TickCount(usize),
+    #[error("block tick numbers overflow")]
+    TickOverflow,
+    #[error("block lacks column '{0}'")]
+    MissingColumn(&'static str),
+    #[error("column '{column}' has {bytes} bytes, not {expected}")]
+    ColumnLength {
+        column: &'static str,
+        bytes: usize,
+        expected: usize,
+    },
+    /// A rounded output column holds a step count that no exact value rounds to.
+    #[error("column '{0}' holds a step count out of range")]
+    StepOutOfRange(&'static str),
+}
+
 /// The ticks of a block; names the first problem.
-pub fn decode_block(b: &TickBlock) -> Result<DecodedBlock, String> {
+pub fn decode_block(b: &TickBlock) -> Result<DecodedBlock, BlockError> {
     let rounded = match (b.codec.as_str(), b.outputs_digest) {
         (COLUMN_CODEC, None) => false,
         (COLUMN_CODEC_ROUNDED, Some(_)) => true,
-        (COLUMN_CODEC, Some(_)) => return Err(format!("a '{COLUMN_CODEC}' block with an outputs digest")),
-        (COLUMN_CODEC_ROUNDED, None) => {
-            return Err(format!("a '{COLUMN_CODEC_ROUNDED}' block without its outputs digest"));
-        }
+        (COLUMN_CODEC, Some(_)) => return Err(BlockError::UnexpectedDigest),
+        (COLUMN_CODEC_ROUNDED, None) => return Err(BlockError::MissingDigest),
         (other, _) => {
             let shown: String = other.chars().take(64).collect();
-            return Err(format!("unknown column codec '{shown}'"));
+            return Err(BlockError::UnknownCodec(shown));
         }
     };
     let n = b.count as usize;
     if n == 0 || n > 100_000 {
-        return Err(format!("block of {n} ticks"));
+        return Err(BlockError::TickCount(n));
     }
     if b.first_tick.checked_add(n as u64).is_none() {
-        return Err("block tick numbers overflow".into());
+        return Err(BlockError::TickOverflow);
     }
-    let bytes_of = |name: &str| {
-        b.columns
-            .get(name)
-            .ok_or_else(|| format!("block lacks column '{name}'"))
+    let bytes_of = |name: &'static str| b.columns.get(name).ok_or(BlockError::MissingColumn(name));
+    let wrong_length = |name: &'static str, bytes: &ByteBuf, width: usize| BlockError::ColumnLength {
+        column: name,
+        bytes: bytes.len(),
+        expected: n * width,
     };
-    let col = |name: &str, width: usize| -> Result<Vec<u64>, String> {
+    let col = |name: &'static str, width: usize| -> Result<Vec<u64>, BlockError> {
         let bytes = bytes_of(name)?;
-        codec::decode(bytes, width, n)
-            .ok_or_else(|| format!("column '{name}' has {} bytes, not {}", bytes.len(), n * width))
+        codec::decode(bytes, width, n).ok_or_else(|| wrong_length(name, bytes, width))
     };
-    let fc = |name: &str| -> Result<Vec<f64>, String> {
+    let fc = |name: &'static str| -> Result<Vec<f64>, BlockError> {
         let bytes = bytes_of(name)?;
-        codec::decode_f64(bytes, n).ok_or_else(|| format!("column '{name}' has {} bytes, not {}", bytes.len(), n * 8))
+        codec::decode_f64(bytes, n).ok_or_else(|| wrong_length(name, bytes, 8))
     };
-    let out = |a: usize| -> Result<Vec<f64>, String> {
+    let out = |a: usize| -> Result<Vec<f64>, BlockError> {
         let name = OUTPUT_COLUMNS[a];
         if !rounded {
             return fc(name);
         }
         let bytes = bytes_of(name)?;
-        let steps = codec::decode_i64(bytes, n)
-            .ok_or_else(|| format!("column '{name}' has {} bytes, not {}", bytes.len(), n * 8))?;
+        let steps = codec::decode_i64(bytes, n).ok_or_else(|| wrong_length(name, bytes, 8))?;
         let per = steps_per_unit(a);
         steps
             .into_iter()
@@ -689,7 +716,7 @@ pub fn decode_block(b: &TickBlock) -> Result<DecodedBlock, String> {
                 let v = outputs::from_steps(s, per);
                 (outputs::steps(v, per) == Some(s))
                     .then_some(v)
-                    .ok_or_else(|| format!("column '{name}' holds a step count out of range"))
+                    .ok_or(BlockError::StepOutOfRange(name))
             })
             .collect()
     };
@@ -755,11 +782,9 @@ mod tests {
 
         let mut no_digest = block.clone();
         no_digest.outputs_digest = None;
-        assert!(
-            decode_block(&no_digest)
-                .unwrap_err()
-                .contains("without its outputs digest")
-        );
+        let e = decode_block(&no_digest).unwrap_err();
+        assert_eq!(e, BlockError::MissingDigest);
+        assert!(e.to_string().contains("without its outputs digest"), "{e}");
 
         let mut exact_with_digest = encode_block(&{
             let mut t = ticks(50);
@@ -769,29 +794,26 @@ mod tests {
         assert_eq!(exact_with_digest.codec, COLUMN_CODEC);
         assert!(decode_block(&exact_with_digest).unwrap().check.is_none());
         exact_with_digest.outputs_digest = Some(1);
-        assert!(
-            decode_block(&exact_with_digest)
-                .unwrap_err()
-                .contains("with an outputs digest")
-        );
+        let e = decode_block(&exact_with_digest).unwrap_err();
+        assert_eq!(e, BlockError::UnexpectedDigest);
+        assert!(e.to_string().contains("with an outputs digest"), "{e}");
 
         let mut missing = block.clone();
         missing.columns.remove("torque_y_nmm");
-        assert!(
-            decode_block(&missing)
-                .unwrap_err()
-                .contains("lacks column 'torque_y_nmm'")
-        );
+        let e = decode_block(&missing).unwrap_err();
+        assert_eq!(e, BlockError::MissingColumn("torque_y_nmm"));
+        assert!(e.to_string().contains("lacks column 'torque_y_nmm'"), "{e}");
 
         let mut huge = block.clone();
         let mut steps = vec![0i64; 50];
         steps[7] = 1 << 60;
         huge.columns
             .insert("force_z_n".into(), ByteBuf::from(codec::encode_i64(&steps)));
+        let e = decode_block(&huge).unwrap_err();
+        assert_eq!(e, BlockError::StepOutOfRange("force_z_n"));
         assert!(
-            decode_block(&huge)
-                .unwrap_err()
-                .contains("'force_z_n' holds a step count out of range")
+            e.to_string().contains("'force_z_n' holds a step count out of range"),
+            "{e}"
         );
     }
 }

@@ -4,9 +4,9 @@
 use std::path::{Path, PathBuf};
 
 use stylet_physics::{DeformSettings, Event, Gauge, ToolSpec};
-use stylet_recorder::format::{DigestRecord, TickRecord};
+use stylet_recorder::format::{DigestRecord, PoseError, TickRecord};
 use stylet_recorder::outputs::{OutputCheck, OutputDigest, rounded_outputs};
-use stylet_recorder::reader::{self, Limits, Mode};
+use stylet_recorder::reader::{self, DamageKind, LimitExceeded, Limits, MessageError, Mode, VerifyError};
 use stylet_recorder::{EventRecord, SessionHeader, SessionWriter, WriterOptions};
 
 fn header() -> SessionHeader {
@@ -211,7 +211,7 @@ fn damage_at_every_4k_boundary() {
     for off in (4096..bytes.len()).step_by(4096) {
         // Cut.
         let cut = &bytes[..off];
-        let e = stylet_recorder::reader::verify_bytes(cut).unwrap_err();
+        let e = stylet_recorder::reader::verify_bytes(cut).unwrap_err().to_string();
         assert!(e.contains("byte") || e.contains("cut"), "cut at {off}: {e}");
         let r = reader::read_bytes(cut, Mode::Recover, &Limits::default()).unwrap();
         let want = expected_prefix(&full.chunks, &ticks, off as u64);
@@ -230,7 +230,7 @@ fn damage_at_every_4k_boundary() {
         let mut flipped = bytes.clone();
         flipped[off] ^= 0x10;
         let e = stylet_recorder::reader::verify_bytes(&flipped).unwrap_err();
-        assert!(!e.is_empty());
+        assert!(!e.to_string().is_empty());
         if let Ok(r) = reader::read_bytes(&flipped, Mode::Recover, &Limits::default()) {
             let want = expected_prefix(&full.chunks, &ticks, off as u64);
             assert!(
@@ -277,14 +277,18 @@ fn hostile_and_garbage_files_are_refused_with_reasons() {
     let c = s.chunks[0].offset as usize;
     bytes[c + 9 + 16..c + 9 + 24].copy_from_slice(&(1u64 << 40).to_le_bytes());
     let r = reader::read_bytes(&bytes, Mode::Recover, &lim).unwrap();
-    assert!(r.damage.unwrap().what.contains("over the limit"));
+    let what = r.damage.unwrap().what;
+    assert_eq!(what, DamageKind::OverLimit(LimitExceeded::Chunk(1 << 40)));
+    assert!(what.to_string().contains("over the limit"), "{what}");
     // Tight limits are honoured.
     let tight = Limits {
         max_ticks: 1000,
         ..Limits::default()
     };
     let r = reader::read_bytes(&std::fs::read(&p).unwrap(), Mode::Recover, &tight).unwrap();
-    assert!(r.damage.unwrap().what.contains("more than 1000 ticks"));
+    let what = r.damage.unwrap().what;
+    assert_eq!(what, DamageKind::OverLimit(LimitExceeded::Ticks(1000)));
+    assert!(what.to_string().contains("more than 1000 ticks"), "{what}");
 }
 
 /// A queue that overflows marks the session incomplete with counts.
@@ -314,7 +318,8 @@ fn a_full_queue_marks_the_session_incomplete() {
     assert!(!end.complete && end.dropped_ticks == refused, "{end:?}");
     assert!(s.annotations.iter().any(|a| a.text.contains("queue full")));
     let e = reader::verify(&p).unwrap_err();
-    assert!(e.contains("incomplete"), "{e}");
+    assert!(matches!(e, VerifyError::Incomplete(_)), "{e}");
+    assert!(e.to_string().contains("incomplete"), "{e}");
 }
 
 #[test]
@@ -460,12 +465,20 @@ fn non_finite_poses_are_damage() {
     let summary = write_session(&p, &ticks, WriterOptions::default());
     assert!(summary.complete && summary.ticks == 3000);
     let bytes = std::fs::read(&p).unwrap();
-    let e = reader::verify_bytes(&bytes).unwrap_err();
+    let e = reader::verify_bytes(&bytes).unwrap_err().to_string();
     assert!(e.contains("tick 1700: position") && e.contains("not finite"), "{e}");
     let e = reader::read_bytes(&bytes, Mode::Strict, &Limits::default()).unwrap_err();
     assert!(matches!(e, reader::ReadError::Damaged(_)), "{e}");
     let r = reader::read_bytes(&bytes, Mode::Recover, &Limits::default()).unwrap();
-    assert!(r.damage.as_ref().unwrap().what.contains("tick 1700"));
+    assert!(
+        matches!(
+            r.damage.as_ref().unwrap().what,
+            DamageKind::Message(MessageError::Pose(PoseError::Position { tick: 1700, .. }))
+        ),
+        "{:?}",
+        r.damage
+    );
+    assert!(r.damage.as_ref().unwrap().what.to_string().contains("tick 1700"));
     assert!(!r.ticks.is_empty() && r.ticks.len() <= 1700, "{} ticks", r.ticks.len());
     assert!(same(&r.ticks, &ticks[..r.ticks.len()]));
     assert!(!r.complete());
@@ -477,17 +490,16 @@ fn pose_checks_name_the_tick() {
     let mut ticks = synthetic_ticks(4, 9);
     assert_eq!(check_poses_finite(&ticks), Ok(()));
     ticks[2].position_mm[1] = f64::INFINITY;
-    let e = check_poses_finite(&ticks).unwrap_err();
+    let e = check_poses_finite(&ticks).unwrap_err().to_string();
     assert!(e.starts_with("tick 2: position") && e.contains("not finite"), "{e}");
     ticks[2] = synthetic_ticks(4, 9)[2];
     ticks[1].orientation[3] = f64::NAN;
-    let e = check_poses_finite(&ticks).unwrap_err();
+    let e = check_poses_finite(&ticks).unwrap_err().to_string();
     assert!(e.starts_with("tick 1: orientation") && e.contains("not finite"), "{e}");
     ticks[1].orientation = [0.0, -0.0, 0.0, 0.0];
-    assert_eq!(
-        check_poses_finite(&ticks).unwrap_err(),
-        "tick 1: orientation is all zero"
-    );
+    let e = check_poses_finite(&ticks).unwrap_err();
+    assert_eq!(e, PoseError::ZeroOrientation { tick: 1 });
+    assert_eq!(e.to_string(), "tick 1: orientation is all zero");
 }
 
 /// Header fields are bounded at the format level (a 60 MB scenario was once accepted and
@@ -499,7 +511,7 @@ fn header_fields_are_bounded_and_exact() {
     let with = |k: &str, v: String| {
         let mut m = good.clone();
         m.insert(k.into(), v);
-        SessionHeader::from_metadata(&m).unwrap_err()
+        SessionHeader::from_metadata(&m).unwrap_err().to_string()
     };
     assert!(with("scenario", "s".repeat(65)).contains("'scenario' is longer than 64 characters"));
     assert!(with("trainee", "a b".into()).contains("'trainee' must be"));
@@ -517,6 +529,7 @@ fn header_fields_are_bounded_and_exact() {
     assert!(
         SessionHeader::from_metadata(&m)
             .unwrap_err()
+            .to_string()
             .contains("lacks 'world.deformation.spacing_mm_bits'")
     );
     // And every contrast setting; a file without any (written before they were recorded) ran
@@ -529,6 +542,7 @@ fn header_fields_are_bounded_and_exact() {
     assert!(
         SessionHeader::from_metadata(&m)
             .unwrap_err()
+            .to_string()
             .contains("lacks 'world.contrast.rate_ml_per_s_bits'")
     );
     let mut m = good.clone();
@@ -559,6 +573,7 @@ fn header_fields_are_bounded_and_exact() {
     assert!(
         SessionHeader::from_metadata(&m)
             .unwrap_err()
+            .to_string()
             .contains("lacks 'world.breathing.period_s_bits'")
     );
     let mut m = good.clone();
@@ -606,10 +621,12 @@ fn streaming_verification_bounds_the_ticks() {
         max_ticks: 1000,
         ..Limits::default()
     };
-    let e = reader::verify_streaming(&bytes, &short).unwrap_err();
+    let e = reader::verify_streaming(&bytes, &short).unwrap_err().to_string();
     assert!(e.contains("more than 1000 ticks"), "{e}");
     // Upload limits follow the longest session accepted: 2 s at 1 kHz.
-    let e = reader::verify_streaming(&bytes, &Limits::for_upload(bytes.len() as u64, 1000, 2)).unwrap_err();
+    let e = reader::verify_streaming(&bytes, &Limits::for_upload(bytes.len() as u64, 1000, 2))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("more than 2000 ticks"), "{e}");
     assert!(reader::verify_streaming(&bytes, &Limits::for_upload(bytes.len() as u64, 1000, 3)).is_ok());
 }
@@ -629,7 +646,7 @@ fn unused_event_fields_are_bounded_too() {
     }
     w.finish().unwrap();
     let bytes = std::fs::read(&p).unwrap();
-    let err = reader::verify_bytes(&bytes).unwrap_err();
+    let err = reader::verify_bytes(&bytes).unwrap_err().to_string();
     assert!(err.contains("'event tool' is longer than 64 characters"), "{err}");
     assert!(reader::verify_streaming(&bytes, &Limits::default()).is_err());
 }

@@ -1,4 +1,4 @@
-//! Stylet scoring: the grade comes from physics, not from what a client claims. [`replay`] re-runs
+//! Stylet scoring: the grade comes from physics, not from what a client claims. [`replay`](mod@replay) re-runs
 //! a session file's recorded inputs through `stylet_physics` and checks every recorded output and
 //! state digest bit for bit; [`metrics`] measures the replayed session (docs/metrics.md);
 //! [`rubric`] turns metrics into a grade per difficulty; [`score`] ties them together for one file
@@ -20,7 +20,7 @@ pub use benchmark::Benchmark;
 pub use metrics::{MetricParams, Metrics, PalpationMetrics, RiskHit, UltrasoundMetrics};
 pub use reasons::{MetricInfo, Outcome, metric_label, reasons};
 pub use replay::{Divergence, ReplayError, ReplayReport, Replayer, replay};
-pub use rubric::{Grade, Rubric, Unmet};
-pub use score::{ScoreError, ScoreReport, Scorer};
+pub use rubric::{Difficulty, Grade, GradeError, Rubric, RubricError, UnknownDifficulty, Unmet};
+pub use score::{ScoreError, ScoreReport, Scorer, ScorerError};
 pub use stylet_atlas::Exercise;
 pub use trace::{ReviewTrace, TraceEvent};

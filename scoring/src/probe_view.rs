@@ -108,7 +108,7 @@ struct Block {
     end: usize,
 }
 
-/// Target points for the survey test, in blocks of [`BLOCK_POINTS`] consecutive points (the
+/// Target points for the survey test, in blocks of `BLOCK_POINTS` consecutive points (the
 /// points come in voxel order, so a block is a few neighbouring rows of the target).
 #[derive(Debug, Clone, Default)]
 pub struct SurveyPoints {

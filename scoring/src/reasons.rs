@@ -210,7 +210,6 @@ impl MetricInfo {
     }
 
     /// A bound alone: "1", "30 s", "75 %".
-
     fn bound(&self, v: f64) -> String {
         match self.unit {
             Unit::Count | Unit::Ratio | Unit::Flag => num(v),

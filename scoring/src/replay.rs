@@ -7,8 +7,8 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use stylet_physics::glam::{DQuat, DVec3};
-use stylet_physics::{DeviceProfile, Event, PunctureAtlas, SimConfig, Simulation, TickInput, TickOutput};
-use stylet_recorder::format::TickRecord;
+use stylet_physics::{DeviceProfile, Event, PunctureAtlas, SimConfig, SimError, Simulation, TickInput, TickOutput};
+use stylet_recorder::format::{EventError, TickRecord};
 use stylet_recorder::outputs::{OutputCheck, OutputDigest, rounded_outputs};
 use stylet_recorder::reader::Session;
 
@@ -45,10 +45,14 @@ pub enum ReplayError {
     PhysicsVersion { recorded: u32, this: u32 },
     #[error("the session's device profile '{0}' is unknown")]
     UnknownDevice(String),
-    #[error("the session has an unreadable event at tick {tick}: {message}")]
-    BadEvent { tick: u64, message: String },
+    #[error("the session has an unreadable event at tick {tick}: {source}")]
+    BadEvent {
+        tick: u64,
+        #[source]
+        source: EventError,
+    },
     #[error("the simulation cannot start: {0}")]
-    Simulation(String),
+    Simulation(#[source] SimError),
 }
 
 /// The device input of a recorded tick (pose and buttons exactly as recorded, plus its events).
@@ -176,7 +180,7 @@ impl<S: Borrow<Session>> Replayer<S> {
         for e in &session.borrow().events {
             let ev = e
                 .to_event()
-                .map_err(|message| ReplayError::BadEvent { tick: e.tick, message })?;
+                .map_err(|source| ReplayError::BadEvent { tick: e.tick, source })?;
             events.entry(e.tick).or_default().push(ev);
         }
         let digests: BTreeMap<u64, u64> = session.borrow().digests.iter().map(|d| (d.tick, d.digest)).collect();

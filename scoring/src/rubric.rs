@@ -8,27 +8,133 @@ use serde::{Deserialize, Serialize};
 use crate::benchmark::Benchmark;
 use crate::metrics::{MetricParams, Metrics};
 use stylet_atlas::Exercise;
+/// The difficulty levels a rubric has rules for (one table per level and exercise).
+pub use stylet_atlas::{Difficulty, UnknownDifficulty};
 
 /// The rubric shipped with Stylet (`scoring/rubrics/ptcd.toml`).
 pub const DEFAULT_RUBRIC: &str = include_str!("../rubrics/ptcd.toml");
 
-/// The difficulty levels, in order.
-pub const LEVELS: [&str; 3] = ["beginner", "advanced", "expert"];
+/// Why a rubric is refused when it is read: the table and value at fault, so whoever edits the
+/// rubric knows what to fix. `level` is the level's table under `levels` ("expert", or
+/// "palpation.expert" for an exercise's own levels).
+#[derive(Debug, thiserror::Error)]
+pub enum RubricError {
+    /// Not TOML of the rubric format: syntax, an unknown key, a wrong type.
+    #[error(transparent)]
+    Syntax(#[from] toml::de::Error),
+    #[error("rubric version must be 1 or more")]
+    ZeroVersion,
+    /// `what` names the value ("metrics.redirection_mm", "levels.expert: deduction on 'attempts'").
+    #[error("{what} is not a finite number")]
+    NotFinite { what: String },
+    #[error("metrics.redirection_mm and readvance_mm must be positive")]
+    NonPositiveDistance,
+    /// A level missing from the levels of `table` (none: the puncture's `[levels]`).
+    #[error("{}the rubric lacks level '{level}'", .table.as_ref().map(|t| format!("{t}: ")).unwrap_or_default())]
+    MissingLevel { table: Option<String>, level: Difficulty },
+    #[error("unknown level '{level}' (levels: {})", Difficulty::names())]
+    UnknownLevel { level: String },
+    #[error("levels.{level}.pass_score must lie in 0…100")]
+    PassScore { level: String },
+    /// A metric the exercise does not measure.
+    #[error(
+        "levels.{level}: unknown metric '{metric}' for the {} exercise (known: {})",
+        .exercise.label(),
+        known_metrics(.exercise)
+    )]
+    UnknownMetric {
+        level: String,
+        metric: String,
+        exercise: Exercise,
+    },
+    #[error("levels.{level}: requirement on '{metric}' has neither min nor max")]
+    UnboundedRequirement { level: String, metric: String },
+    #[error("levels.{level}: relative deduction on '{metric}' has negative points, spreads or max_points")]
+    NegativeRelative { level: String, metric: String },
+    /// A relative deduction on a metric where more is better: it would punish beating the
+    /// experts.
+    #[error(
+        "levels.{level}: a relative deduction on '{metric}' would cost points for doing better than the experts (more is better for it)"
+    )]
+    RelativeOnHigherIsBetter { level: String, metric: String },
+    #[error("levels.{level}: deduction on '{metric}' has negative points")]
+    NegativePoints { level: String, metric: String },
+    #[error("relative deductions need a [benchmark] table with min_experts")]
+    MissingBenchmark,
+    #[error("benchmark.min_experts must be 2 or more (one expert has no spread)")]
+    TooFewExperts,
+    #[error(
+        "benchmark.min_experts must be at most {} (the most expert references a scenario may have)",
+        crate::benchmark::MAX_EXPERTS
+    )]
+    TooManyExperts,
+    #[error("the puncture's levels are the top-level [levels], not [exercises.puncture]")]
+    PunctureUnderExercises,
+}
 
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// The metrics `exercise` measures, for messages.
+fn known_metrics(exercise: &Exercise) -> String {
+    exercise_metrics(*exercise).join(", ")
+}
+
+/// Why a rubric cannot grade a session: it has no levels for the session's exercise, or not the
+/// session's difficulty. Checked before a replay is spent on the session.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum GradeError {
+    #[error("rubric {rubric} v{version} has no levels for the {} exercise", .exercise.label())]
+    NoLevels {
+        rubric: String,
+        version: u32,
+        exercise: Exercise,
+    },
+    /// `difficulty`: the level as the session names it (not always a level at all).
+    #[error(
+        "the session's difficulty '{difficulty}' is not a level of this rubric ({})",
+        Difficulty::names()
+    )]
+    UnknownDifficulty { difficulty: String },
+}
+
+impl From<UnknownDifficulty> for GradeError {
+    fn from(e: UnknownDifficulty) -> Self {
+        GradeError::UnknownDifficulty { difficulty: e.name }
+    }
+}
+
+/// A rubric, checked: every exercise it grades has all three levels.
+#[derive(Debug, Clone, PartialEq)]
 pub struct Rubric {
     pub name: String,
     pub version: u32,
     pub metrics: RubricMetrics,
     /// The puncture exercise's levels (kept at the top for rubrics written before exercises).
-    pub levels: BTreeMap<String, Level>,
+    pub levels: BTreeMap<Difficulty, Level>,
     /// The levels of the other exercises (`[exercises.palpation.levels.beginner]`, …).
-    #[serde(default)]
     pub exercises: BTreeMap<Exercise, ExerciseRubric>,
     /// Grading relative to the expert benchmark (since version 4): when it applies.
-    #[serde(default)]
     pub benchmark: Option<RubricBenchmark>,
+}
+
+/// A rubric file as written: levels by name, checked and turned into a [`Rubric`] by
+/// [`Rubric::parse`].
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RubricToml {
+    name: String,
+    version: u32,
+    metrics: RubricMetrics,
+    levels: BTreeMap<String, Level>,
+    #[serde(default)]
+    exercises: BTreeMap<Exercise, ExerciseToml>,
+    #[serde(default)]
+    benchmark: Option<RubricBenchmark>,
+}
+
+/// `[exercises.<exercise>]` as written.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ExerciseToml {
+    levels: BTreeMap<String, Level>,
 }
 
 /// `[benchmark]`: the levels' `relative` deductions apply only when the scenario has at least
@@ -40,10 +146,9 @@ pub struct RubricBenchmark {
 }
 
 /// The levels of one exercise.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct ExerciseRubric {
-    pub levels: BTreeMap<String, Level>,
+    pub levels: BTreeMap<Difficulty, Level>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
@@ -287,7 +392,7 @@ pub struct Grade {
     /// The exercise whose rubric graded it.
     #[serde(default)]
     pub exercise: Exercise,
-    pub difficulty: String,
+    pub difficulty: Difficulty,
     /// The level's pass mark (absent in grades stored before it was kept).
     #[serde(default)]
     pub pass_score: Option<f64>,
@@ -313,55 +418,58 @@ fn deducted(value: f64, free: f64, points: f64, max_points: Option<f64>) -> f64 
 }
 
 /// Checks the levels of one exercise: all three present, pass marks in 0…100, known metrics,
-/// finite numbers, no negative points. `at` names the table in messages.
-fn check_levels(levels: &BTreeMap<String, Level>, exercise: Exercise, at: &str) -> Result<(), String> {
+/// finite numbers, no negative points; returns them by level. `at` names the table in messages.
+fn check_levels(
+    levels: BTreeMap<String, Level>,
+    exercise: Exercise,
+    at: &str,
+) -> Result<BTreeMap<Difficulty, Level>, RubricError> {
     let finite = |v: f64, what: &str| {
         if v.is_finite() {
             Ok(())
         } else {
-            Err(format!("{what} is not a finite number"))
+            Err(RubricError::NotFinite { what: what.to_string() })
         }
     };
     let allowed = exercise_metrics(exercise);
-    for level in LEVELS {
-        if !levels.contains_key(level) {
-            if exercise == Exercise::Puncture {
-                return Err(format!("the rubric lacks level '{level}'"));
-            }
-            return Err(format!("{at}: the rubric lacks level '{level}'"));
+    for level in Difficulty::ALL {
+        if !levels.contains_key(level.as_str()) {
+            return Err(RubricError::MissingLevel {
+                table: (exercise != Exercise::Puncture).then(|| at.to_string()),
+                level,
+            });
         }
     }
-    for (name, l) in levels {
+    let mut checked = BTreeMap::new();
+    for (key, l) in levels {
+        let difficulty: Difficulty = key
+            .parse()
+            .map_err(|_| RubricError::UnknownLevel { level: key.clone() })?;
         let name = if exercise == Exercise::Puncture {
-            name.clone()
+            key
         } else {
-            format!("{}.{name}", exercise.as_str())
+            format!("{}.{key}", exercise.as_str())
         };
-        let bare = name.rsplit('.').next().unwrap_or(&name);
-        if !LEVELS.contains(&bare) {
-            return Err(format!("unknown level '{bare}' (levels: {})", LEVELS.join(", ")));
-        }
         if !(0.0..=100.0).contains(&l.pass_score) {
-            return Err(format!("levels.{name}.pass_score must lie in 0…100"));
+            return Err(RubricError::PassScore { level: name });
         }
+        let at_metric = |metric: &str| (name.clone(), metric.to_string());
         let known = |m: &str| {
             if allowed.contains(&m) {
                 Ok(())
             } else {
-                Err(format!(
-                    "levels.{name}: unknown metric '{m}' for the {} exercise (known: {})",
-                    exercise.label(),
-                    allowed.join(", ")
-                ))
+                Err(RubricError::UnknownMetric {
+                    level: name.clone(),
+                    metric: m.to_string(),
+                    exercise,
+                })
             }
         };
         for q in &l.require {
             known(&q.metric)?;
             if q.min.is_none() && q.max.is_none() {
-                return Err(format!(
-                    "levels.{name}: requirement on '{}' has neither min nor max",
-                    q.metric
-                ));
+                let (level, metric) = at_metric(&q.metric);
+                return Err(RubricError::UnboundedRequirement { level, metric });
             }
             for v in q.min.iter().chain(&q.max) {
                 finite(*v, &format!("levels.{name}: requirement on '{}'", q.metric))?;
@@ -373,16 +481,12 @@ fn check_levels(levels: &BTreeMap<String, Level>, exercise: Exercise, at: &str) 
                 finite(*v, &format!("levels.{name}: relative deduction on '{}'", d.metric))?;
             }
             if d.points < 0.0 || d.spreads < 0.0 || d.max_points.is_some_and(|m| m < 0.0) {
-                return Err(format!(
-                    "levels.{name}: relative deduction on '{}' has negative points, spreads or max_points",
-                    d.metric
-                ));
+                let (level, metric) = at_metric(&d.metric);
+                return Err(RubricError::NegativeRelative { level, metric });
             }
             if HIGHER_IS_BETTER.contains(&d.metric.as_str()) {
-                return Err(format!(
-                    "levels.{name}: a relative deduction on '{}' would cost points for doing better than the experts (more is better for it)",
-                    d.metric
-                ));
+                let (level, metric) = at_metric(&d.metric);
+                return Err(RubricError::RelativeOnHigherIsBetter { level, metric });
             }
         }
         for d in &l.deduct {
@@ -391,63 +495,68 @@ fn check_levels(levels: &BTreeMap<String, Level>, exercise: Exercise, at: &str) 
                 finite(*v, &format!("levels.{name}: deduction on '{}'", d.metric))?;
             }
             if d.points < 0.0 {
-                return Err(format!(
-                    "levels.{name}: deduction on '{}' has negative points",
-                    d.metric
-                ));
+                let (level, metric) = at_metric(&d.metric);
+                return Err(RubricError::NegativePoints { level, metric });
             }
         }
+        checked.insert(difficulty, l);
     }
-    Ok(())
+    Ok(checked)
 }
 
 impl Rubric {
     /// Parses and checks a rubric; the error names the problem.
-    pub fn parse(text: &str) -> Result<Rubric, String> {
-        let r: Rubric = toml::from_str(text).map_err(|e| e.to_string())?;
+    pub fn parse(text: &str) -> Result<Rubric, RubricError> {
+        let r: RubricToml = toml::from_str(text)?;
         if r.version == 0 {
-            return Err("rubric version must be 1 or more".into());
+            return Err(RubricError::ZeroVersion);
         }
         let finite = |v: f64, what: &str| {
             if v.is_finite() {
                 Ok(())
             } else {
-                Err(format!("{what} is not a finite number"))
+                Err(RubricError::NotFinite { what: what.to_string() })
             }
         };
         finite(r.metrics.redirection_mm, "metrics.redirection_mm")?;
         finite(r.metrics.readvance_mm, "metrics.readvance_mm")?;
         if r.metrics.redirection_mm <= 0.0 || r.metrics.readvance_mm <= 0.0 {
-            return Err("metrics.redirection_mm and readvance_mm must be positive".into());
+            return Err(RubricError::NonPositiveDistance);
         }
-        check_levels(&r.levels, Exercise::Puncture, "levels")?;
-        let relative = r
-            .levels
+        let levels = check_levels(r.levels, Exercise::Puncture, "levels")?;
+        let relative = levels
             .values()
             .chain(r.exercises.values().flat_map(|e| e.levels.values()))
             .any(|l| !l.relative.is_empty());
         match r.benchmark {
             None if relative => {
-                return Err("relative deductions need a [benchmark] table with min_experts".into());
+                return Err(RubricError::MissingBenchmark);
             }
             Some(b) if b.min_experts < 2 => {
-                return Err("benchmark.min_experts must be 2 or more (one expert has no spread)".into());
+                return Err(RubricError::TooFewExperts);
             }
             Some(b) if b.min_experts as usize > crate::benchmark::MAX_EXPERTS => {
-                return Err(format!(
-                    "benchmark.min_experts must be at most {} (the most expert references a scenario may have)",
-                    crate::benchmark::MAX_EXPERTS
-                ));
+                return Err(RubricError::TooManyExperts);
             }
             _ => {}
         }
-        for (exercise, e) in &r.exercises {
-            if *exercise == Exercise::Puncture {
-                return Err("the puncture's levels are the top-level [levels], not [exercises.puncture]".into());
+        let mut exercises = BTreeMap::new();
+        for (exercise, e) in r.exercises {
+            if exercise == Exercise::Puncture {
+                return Err(RubricError::PunctureUnderExercises);
             }
-            check_levels(&e.levels, *exercise, &format!("exercises.{}.levels", exercise.as_str()))?;
+            let at = format!("exercises.{}.levels", exercise.as_str());
+            let levels = check_levels(e.levels, exercise, &at)?;
+            exercises.insert(exercise, ExerciseRubric { levels });
         }
-        Ok(r)
+        Ok(Rubric {
+            name: r.name,
+            version: r.version,
+            metrics: r.metrics,
+            levels,
+            exercises,
+            benchmark: r.benchmark,
+        })
     }
 
     pub fn default_rubric() -> Rubric {
@@ -464,7 +573,7 @@ impl Rubric {
     }
 
     /// The levels of `exercise`, if this rubric grades it.
-    pub fn levels_for(&self, exercise: Exercise) -> Option<&BTreeMap<String, Level>> {
+    pub fn levels_for(&self, exercise: Exercise) -> Option<&BTreeMap<Difficulty, Level>> {
         match exercise {
             Exercise::Puncture => Some(&self.levels),
             other => self.exercises.get(&other).map(|e| &e.levels),
@@ -472,34 +581,44 @@ impl Rubric {
     }
 
     /// The level `difficulty` of `exercise`, if this rubric has it.
-    pub fn level(&self, exercise: Exercise, difficulty: &str) -> Option<&Level> {
-        self.levels_for(exercise)?.get(difficulty)
+    pub fn level(&self, exercise: Exercise, difficulty: Difficulty) -> Option<&Level> {
+        self.levels_for(exercise)?.get(&difficulty)
+    }
+
+    /// The levels of `exercise`, or why this rubric cannot grade it.
+    fn graded_levels(&self, exercise: Exercise) -> Result<&BTreeMap<Difficulty, Level>, GradeError> {
+        self.levels_for(exercise).ok_or_else(|| GradeError::NoLevels {
+            rubric: self.name.clone(),
+            version: self.version,
+            exercise,
+        })
     }
 
     /// Whether this rubric grades `exercise` at `difficulty` (checked before a replay is spent
     /// on it).
-    pub fn grade_check(&self, exercise: Exercise, difficulty: &str) -> Result<(), String> {
-        let Some(levels) = self.levels_for(exercise) else {
-            return Err(format!(
-                "rubric {} v{} has no levels for the {} exercise",
-                self.name,
-                self.version,
-                exercise.label()
-            ));
-        };
-        if levels.contains_key(difficulty) {
+    pub fn grade_check(&self, exercise: Exercise, difficulty: Difficulty) -> Result<(), GradeError> {
+        if self.graded_levels(exercise)?.contains_key(&difficulty) {
             Ok(())
         } else {
-            Err(format!(
-                "the session's difficulty '{difficulty}' is not a level of this rubric ({})",
-                LEVELS.join(", ")
-            ))
+            Err(GradeError::UnknownDifficulty {
+                difficulty: difficulty.to_string(),
+            })
         }
+    }
+
+    /// The level a session header names (`name`, as recorded), if this rubric grades `exercise`
+    /// at it: [`Self::grade_check`] for a level not yet parsed (a rubric without levels for the
+    /// exercise says so first).
+    pub fn session_difficulty(&self, exercise: Exercise, name: &str) -> Result<Difficulty, GradeError> {
+        self.graded_levels(exercise)?;
+        let difficulty: Difficulty = name.parse()?;
+        self.grade_check(exercise, difficulty)?;
+        Ok(difficulty)
     }
 
     /// Grades `m` as `exercise` at `difficulty` with no expert benchmark (a level's relative
     /// deductions do not apply).
-    pub fn grade(&self, m: &Metrics, exercise: Exercise, difficulty: &str) -> Result<Grade, String> {
+    pub fn grade(&self, m: &Metrics, exercise: Exercise, difficulty: Difficulty) -> Result<Grade, GradeError> {
         self.grade_against(m, exercise, difficulty, None)
     }
 
@@ -509,9 +628,9 @@ impl Rubric {
         &self,
         m: &Metrics,
         exercise: Exercise,
-        difficulty: &str,
+        difficulty: Difficulty,
         benchmark: Option<&Benchmark>,
-    ) -> Result<Grade, String> {
+    ) -> Result<Grade, GradeError> {
         self.grade_check(exercise, difficulty)?;
         let level = self.level(exercise, difficulty).expect("checked above");
         let value = |name: &str| metric_value(m, name).expect("rubric metrics are checked at parse time");
@@ -599,7 +718,7 @@ impl Rubric {
             score,
             passed: failed.is_empty() && score >= level.pass_score,
             exercise,
-            difficulty: difficulty.to_string(),
+            difficulty,
             pass_score: Some(level.pass_score),
             rubric: self.name.clone(),
             rubric_version: self.version,
@@ -626,12 +745,12 @@ mod tests {
     fn the_shipped_rubric_grades_the_worked_example() {
         let r = Rubric::default_rubric();
         assert_eq!((r.name.as_str(), r.version), ("ptcd", 5));
-        let g = r.grade(&metrics(), Exercise::Puncture, "beginner").unwrap();
+        let g = r.grade(&metrics(), Exercise::Puncture, Difficulty::Beginner).unwrap();
         // attempts 2 (1 free) −10, redirections 3 (2 free) −3, fluoro 40 s (30 free) −5,
         // no palpation first −5: 100 − 23.
         assert_eq!(g.score, 77.0, "{:?}", g.deductions);
         assert!(g.passed && g.failed.is_empty());
-        let g = r.grade(&metrics(), Exercise::Puncture, "expert").unwrap();
+        let g = r.grade(&metrics(), Exercise::Puncture, Difficulty::Expert).unwrap();
         assert!(!g.passed);
         assert!(
             g.failed.iter().any(|f| f == "2 attempts: at most 1 allowed."),
@@ -645,10 +764,17 @@ mod tests {
             "{:?}",
             g.failed
         );
-        assert!(
-            r.grade(&metrics(), Exercise::Puncture, "wizard")
-                .unwrap_err()
-                .contains("'wizard'")
+        let e = r.session_difficulty(Exercise::Puncture, "wizard").unwrap_err();
+        assert!(e.to_string().contains("'wizard'"), "{e}");
+        assert_eq!(
+            e,
+            GradeError::UnknownDifficulty {
+                difficulty: "wizard".into()
+            }
+        );
+        assert_eq!(
+            r.session_difficulty(Exercise::Puncture, "expert"),
+            Ok(Difficulty::Expert)
         );
     }
 
@@ -665,7 +791,7 @@ mod tests {
             m.fluoro_time_s = 20.0;
             m.time_total_s = 200.0;
         });
-        let alone = r.grade(&trainee, Exercise::Puncture, "expert").unwrap();
+        let alone = r.grade(&trainee, Exercise::Puncture, Difficulty::Expert).unwrap();
         assert_eq!(
             alone.benchmark,
             Some(GradeBenchmark {
@@ -689,13 +815,13 @@ mod tests {
         let refs: Vec<(String, &Metrics)> = experts.iter().enumerate().map(|(i, m)| (format!("e{i}"), m)).collect();
         let two = Benchmark::from_sessions("s", Exercise::Puncture, &refs[..2]);
         let g = r
-            .grade_against(&trainee, Exercise::Puncture, "expert", Some(&two))
+            .grade_against(&trainee, Exercise::Puncture, Difficulty::Expert, Some(&two))
             .unwrap();
         assert_eq!(g.score, alone.score, "two experts are fewer than min_experts");
         assert!(!g.benchmark.unwrap().applied);
         let three = Benchmark::from_sessions("s", Exercise::Puncture, &refs);
         let g = r
-            .grade_against(&trainee, Exercise::Puncture, "expert", Some(&three))
+            .grade_against(&trainee, Exercise::Puncture, Difficulty::Expert, Some(&three))
             .unwrap();
         let gb = g.benchmark.as_ref().unwrap();
         assert!(gb.applied);
@@ -712,9 +838,9 @@ mod tests {
         assert_eq!(g.score, alone.score - 6.0);
         // The beginner level has no relative deductions: the benchmark changes nothing there.
         let b = r
-            .grade_against(&trainee, Exercise::Puncture, "beginner", Some(&three))
+            .grade_against(&trainee, Exercise::Puncture, Difficulty::Beginner, Some(&three))
             .unwrap();
-        assert_eq!(b, r.grade(&trainee, Exercise::Puncture, "beginner").unwrap());
+        assert_eq!(b, r.grade(&trainee, Exercise::Puncture, Difficulty::Beginner).unwrap());
         assert_eq!(b.benchmark, None);
     }
 
@@ -755,9 +881,17 @@ mod tests {
                 "negative points, spreads or max_points",
             ),
             ("name = ".to_string(), "line 1"),
+            (
+                base.replacen(
+                    "[levels.expert]",
+                    "[levels.wizard]\npass_score = 50.0\n\n[levels.expert]",
+                    1,
+                ),
+                "unknown level 'wizard' (levels: beginner, advanced, expert)",
+            ),
         ];
         for (text, want) in cases {
-            let e = Rubric::parse(&text).unwrap_err();
+            let e = Rubric::parse(&text).unwrap_err().to_string();
             assert!(e.contains(want), "expected '{want}' in: {e}");
         }
     }

@@ -13,7 +13,7 @@ use crate::benchmark::Benchmark;
 use crate::metrics::{Metrics, MetricsCollector, PlannedPath};
 use crate::reasons::{self, Outcome};
 use crate::replay::{Divergence, ReplayError, replay};
-use crate::rubric::{Grade, Rubric};
+use crate::rubric::{Grade, GradeError, Rubric};
 use crate::target::TargetDistance;
 use crate::trace::{ReviewTrace, TraceCollector};
 use stylet_atlas::Exercise;
@@ -34,8 +34,20 @@ pub enum ScoreError {
     },
     #[error(transparent)]
     Replay(#[from] ReplayError),
-    #[error("{0}")]
-    Grade(String),
+    /// The rubric has no level for the session's exercise or difficulty.
+    #[error(transparent)]
+    Grade(#[from] GradeError),
+}
+
+/// Why a [`Scorer`] cannot be built, or cannot start a batch: nothing was scored.
+#[derive(Debug, thiserror::Error)]
+pub enum ScorerError {
+    /// Guided-mode metrics asked for a planned path the atlas does not have (`known`: its paths).
+    #[error("the atlas has no insertion path '{name}' (paths: {})", .known.join(", "))]
+    UnknownPath { name: String, known: Vec<String> },
+    /// No thread pool for the batch.
+    #[error(transparent)]
+    ThreadPool(#[from] rayon::ThreadPoolBuildError),
 }
 
 /// A file and what scoring it gave.
@@ -147,16 +159,15 @@ pub struct Scorer {
 
 impl Scorer {
     /// `path`: score guided-mode metrics against this planned path of the atlas (by name).
-    pub fn new(atlas: &stylet_atlas::Atlas, rubric: Rubric, path: Option<String>) -> Result<Scorer, String> {
+    pub fn new(atlas: &stylet_atlas::Atlas, rubric: Rubric, path: Option<String>) -> Result<Scorer, ScorerError> {
         let paths = atlas.planned_paths();
         if let Some(name) = &path
             && !paths.iter().any(|p| &p.name == name)
         {
-            let known: Vec<&str> = paths.iter().map(|p| p.name.as_str()).collect();
-            return Err(format!(
-                "the atlas has no insertion path '{name}' (paths: {})",
-                known.join(", ")
-            ));
+            return Err(ScorerError::UnknownPath {
+                name: name.clone(),
+                known: paths.iter().map(|p| p.name.clone()).collect(),
+            });
         }
         Ok(Scorer {
             atlas: Arc::clone(&atlas.model),
@@ -277,9 +288,7 @@ impl Scorer {
             });
         }
         let exercise = self.exercise_of(&h.scenario);
-        self.rubric
-            .grade_check(exercise, &h.difficulty)
-            .map_err(ScoreError::Grade)?;
+        let difficulty = self.rubric.session_difficulty(exercise, &h.difficulty)?;
         let mut collector = MetricsCollector::new(
             &self.atlas,
             &self.target,
@@ -307,15 +316,12 @@ impl Scorer {
             let hold = self.hold_phases.get(&h.scenario).copied().unwrap_or_default();
             b.correct_phase = crate::metrics::BreathPhase::of_hold(hold);
         }
-        let grade = self
-            .rubric
-            .grade_against(
-                &metrics,
-                exercise,
-                &h.difficulty,
-                benchmark.filter(|b| b.scenario == h.scenario),
-            )
-            .map_err(ScoreError::Grade)?;
+        let grade = self.rubric.grade_against(
+            &metrics,
+            exercise,
+            difficulty,
+            benchmark.filter(|b| b.scenario == h.scenario),
+        )?;
         let mut reasons = Vec::new();
         if let Some(d) = &session.damage {
             reasons.push(format!("the file is damaged {d}"));
@@ -355,12 +361,9 @@ impl Scorer {
         files: &[PathBuf],
         jobs: usize,
         progress: &(dyn Fn() + Sync),
-    ) -> Result<Vec<FileScore>, String> {
+    ) -> Result<Vec<FileScore>, ScorerError> {
         use rayon::prelude::*;
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(jobs.max(1))
-            .build()
-            .map_err(|e| e.to_string())?;
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(jobs.max(1)).build()?;
         let mut results: Vec<FileScore> = pool.install(|| {
             files
                 .par_iter()

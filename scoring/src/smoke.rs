@@ -54,7 +54,7 @@ impl SmokeOutcome {
 #[derive(Debug, thiserror::Error)]
 pub enum SmokeError {
     #[error("the atlas cannot be scored: {0}")]
-    Scorer(String),
+    Scorer(crate::score::ScorerError),
     #[error("scripts/{script}: {reason}")]
     Script { script: String, reason: String },
 }
@@ -90,7 +90,7 @@ fn run_one(atlas: &Atlas, scorer: &Scorer, s: &SmokeScript, work_dir: &Path) -> 
     let info = SessionInfo {
         trainee: "smoke-test",
         scenario,
-        difficulty: "beginner",
+        difficulty: crate::Difficulty::Beginner.as_str(),
         seed: 0,
         atlas_id: &atlas.manifest.name,
         atlas_hash: &atlas.content_hash,

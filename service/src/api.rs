@@ -17,6 +17,7 @@ use utoipa_axum::routes;
 use super::AppState;
 use super::auth;
 use super::store::{AccountError, ImportLineError, NewSession, Role, SessionStatus, TokenScope, TokenStatus, User};
+use stylet_scoring::Difficulty;
 
 type AppRef = Arc<AppState>;
 
@@ -154,6 +155,10 @@ pub fn err(status: StatusCode, msg: impl Into<String>) -> ApiError {
 
 impl From<super::StoreError> for ApiError {
     fn from(e: super::StoreError) -> Self {
+        use super::StoreError;
+        if let StoreError::UserExists(_) | StoreError::TooManyTokens { .. } = e {
+            return ApiError::Conflict(e.to_string());
+        }
         tracing::error!(error = %e, "store");
         if e.is_transient() {
             return ApiError::Unavailable("the server cannot write its data right now; try again shortly".into());
@@ -736,10 +741,10 @@ where
 pub async fn visible_session(s: &AppState, user: &User, id: &str) -> Result<super::store::SessionRow, ApiError> {
     let not_found = || err(StatusCode::NOT_FOUND, format!("no session {id}"));
     let (row, trainee_id) = s.store.session(id).await?.ok_or_else(not_found)?;
-    let allowed = match user.role.as_str() {
-        "trainee" => trainee_id == user.id,
-        "instructor" => s.store.teaches(&user.id, &trainee_id).await?,
-        _ => true,
+    let allowed = match user.role {
+        Role::Trainee => trainee_id == user.id,
+        Role::Instructor => s.store.teaches(&user.id, &trainee_id).await?,
+        Role::Curriculum | Role::Admin => true,
     };
     if allowed { Ok(row) } else { Err(not_found()) }
 }
@@ -891,20 +896,20 @@ async fn remove_session_files(s: &AppState, sha: &str) {
 
 /// Whether `user` may see the sessions of `trainee_id`.
 pub async fn may_see(s: &AppState, user: &User, trainee_id: &str) -> Result<bool, ApiError> {
-    Ok(match user.role.as_str() {
-        "trainee" => trainee_id == user.id,
-        "instructor" => s.store.teaches(&user.id, trainee_id).await?,
-        _ => true,
+    Ok(match user.role {
+        Role::Trainee => trainee_id == user.id,
+        Role::Instructor => s.store.teaches(&user.id, trainee_id).await?,
+        Role::Curriculum | Role::Admin => true,
     })
 }
 
 /// Whether `user` may comment on and override grades of `trainee_id`'s sessions: their
 /// instructors and admins (curriculum staff read everything and change nothing).
 pub async fn may_review(s: &AppState, user: &User, trainee_id: &str) -> Result<bool, ApiError> {
-    Ok(match user.role.as_str() {
-        "instructor" => s.store.teaches(&user.id, trainee_id).await?,
-        "admin" => true,
-        _ => false,
+    Ok(match user.role {
+        Role::Instructor => s.store.teaches(&user.id, trainee_id).await?,
+        Role::Admin => true,
+        Role::Trainee | Role::Curriculum => false,
     })
 }
 
@@ -1073,15 +1078,16 @@ async fn progress(
         .store
         .user_by_name(&username)
         .await?
-        .filter(|t| t.role == "trainee")
+        .filter(|t| t.role == Role::Trainee)
         .ok_or_else(not_found)?;
     if !may_see(&s, &user, &trainee.id).await? {
         return Err(not_found());
     }
     let points = s.store.progress(&trainee.id).await?;
     let mut by_level = serde_json::Map::new();
-    for level in stylet_scoring::rubric::LEVELS {
-        let series: Vec<&super::store::ProgressPoint> = points.iter().filter(|p| p.difficulty == level).collect();
+    for level in Difficulty::ALL {
+        let series: Vec<&super::store::ProgressPoint> =
+            points.iter().filter(|p| p.difficulty == level.as_str()).collect();
         by_level.insert(level.to_string(), json!(series));
     }
     Ok(Json(json!({ "trainee": trainee.username, "progress": by_level })).into_response())
@@ -1107,10 +1113,10 @@ async fn cohort_summary(
     // "No such cohort" and "not yours" get the same 404: which cohorts exist is not for everyone.
     let not_found = || err(StatusCode::NOT_FOUND, format!("no cohort {name}"));
     let cohort = s.store.cohort_id(&name).await?.ok_or_else(not_found)?;
-    let allowed = match user.role.as_str() {
-        "instructor" => s.store.in_cohort(&user.id, &cohort).await?,
-        "curriculum" | "admin" => true,
-        _ => false,
+    let allowed = match user.role {
+        Role::Instructor => s.store.in_cohort(&user.id, &cohort).await?,
+        Role::Curriculum | Role::Admin => true,
+        Role::Trainee => false,
     };
     if !allowed {
         return Err(not_found());
@@ -1145,21 +1151,17 @@ impl ListQuery {
         };
         let mut f = super::store::SessionFilter {
             scenario: blank(&self.scenario),
-            difficulty: blank(&self.difficulty),
+            difficulty: None,
             uploaded_from: blank(&self.from).map(|d| day_start(&d, 0)).transpose()?,
             uploaded_before: blank(&self.to).map(|d| day_start(&d, 1)).transpose()?,
             offset: (self.page.unwrap_or(1).max(1) - 1).saturating_mul(PAGE_SIZE),
             limit: PAGE_SIZE,
             ..Default::default()
         };
-        if let Some(d) = &f.difficulty
-            && !stylet_scoring::rubric::LEVELS.contains(&d.as_str())
-        {
-            return Err(err(
-                StatusCode::BAD_REQUEST,
-                format!("unknown difficulty '{d}' (beginner, advanced, expert)"),
-            ));
-        }
+        f.difficulty = blank(&self.difficulty)
+            .map(|d| d.parse::<Difficulty>())
+            .transpose()
+            .map_err(|e| ApiError::Invalid(e.to_string()))?;
         // A cohort or trainee that does not exist filters out everything, exactly like one the
         // caller may not see (the lists are narrowed to what the caller may see): the answer
         // does not tell which names exist.
@@ -1208,7 +1210,7 @@ async fn export_csv(
     Reader(user): Reader,
     axum::extract::Query(q): axum::extract::Query<ListQuery>,
 ) -> Result<Response, ApiError> {
-    if user.role == "trainee" {
+    if user.role == Role::Trainee {
         return Err(err(
             StatusCode::FORBIDDEN,
             "the export is for instructors and curriculum staff",

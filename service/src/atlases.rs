@@ -119,12 +119,11 @@ pub async fn list(State(s): State<Arc<AppState>>, Reader(_reader): Reader) -> Re
 pub fn may_publish(user: &User) -> Result<(), ApiError> {
     match user.role {
         Role::Admin | Role::Instructor => Ok(()),
-        _ => Err(err(
+        Role::Trainee | Role::Curriculum => Err(err(
             StatusCode::FORBIDDEN,
             format!(
                 "{} is a {} account: only admins and instructors may publish atlases",
-                user.username,
-                user.role.as_str()
+                user.username, user.role
             ),
         )),
     }

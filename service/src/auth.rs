@@ -9,12 +9,13 @@ use sha2::{Digest, Sha256};
 pub const DUMMY_HASH: &str =
     "$argon2id$v=19$m=19456,t=2,p=1$c3R5bGV0ZHVtbXlzYWx0$hGfBqV7k3m7KdbNn1qM4bCkz2m9s2nBg4d6CrUuVDTs";
 
-pub fn hash_password(password: &str) -> Result<String, String> {
+/// The argon2id hash of `password` (PHC string) with a random salt; argon2's error if hashing
+/// fails (a password longer than argon2 takes, or memory it cannot have).
+pub fn hash_password(password: &str) -> Result<String, argon2::password_hash::Error> {
     let salt = SaltString::generate(&mut OsRng);
     Argon2::default()
         .hash_password(password.as_bytes(), &salt)
         .map(|h| h.to_string())
-        .map_err(|e| e.to_string())
 }
 
 pub fn verify_password(password: &str, hash: &str) -> bool {

@@ -303,7 +303,7 @@ impl Catalogue {
                 atlas.content_hash
             )));
         }
-        let scorer = Scorer::new(&atlas, Rubric::default_rubric(), None).map_err(failed)?;
+        let scorer = Scorer::new(&atlas, Rubric::default_rubric(), None).map_err(|e| failed(e.to_string()))?;
         let loaded = Loaded {
             atlas: Arc::new(atlas),
             scorer: Arc::new(scorer),

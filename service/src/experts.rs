@@ -18,7 +18,7 @@ use stylet_scoring::{Benchmark, ScoreReport};
 
 use super::AppState;
 use super::api::{Actor, ApiError, Reader, err, reviewable, visible_session};
-use super::store::{ExpertReference, Marked, SessionRow, SessionStatus, StoreError, User};
+use super::store::{ExpertReference, Marked, Role, SessionRow, SessionStatus, StoreError, User};
 
 /// The benchmark of `scenario` on the atlas `atlas_hash` and the references it comes from
 /// (references whose report cannot be read, or was scored by another physics version, are left
@@ -60,7 +60,7 @@ pub const MIN_SHOWN_TO_TRAINEES: usize = 3;
 
 /// Whether `user` sees the figures of a benchmark of `experts` references.
 pub fn figures_shown(user: &User, experts: usize) -> bool {
-    user.role.as_str() != "trainee" || experts >= MIN_SHOWN_TO_TRAINEES
+    user.role != Role::Trainee || experts >= MIN_SHOWN_TO_TRAINEES
 }
 
 /// The references `user` may know by name: all of them for curriculum staff and admins, those of
@@ -70,9 +70,9 @@ pub async fn visible_references(
     user: &User,
     references: &[ExpertReference],
 ) -> Result<Option<Vec<ExpertReference>>, StoreError> {
-    match user.role.as_str() {
-        "trainee" => Ok(None),
-        "instructor" => {
+    match user.role {
+        Role::Trainee => Ok(None),
+        Role::Instructor => {
             let mut mine = Vec::new();
             for r in references {
                 if let Some((_, trainee_id)) = s.store.session(&r.session_id).await?
@@ -83,7 +83,7 @@ pub async fn visible_references(
             }
             Ok(Some(mine))
         }
-        _ => Ok(Some(references.to_vec())),
+        Role::Curriculum | Role::Admin => Ok(Some(references.to_vec())),
     }
 }
 

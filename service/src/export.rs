@@ -41,7 +41,7 @@ pub fn sessions_csv(rows: &[ExportRow]) -> String {
             field(&r.cohorts),
             field(&l.scenario),
             field(&l.difficulty),
-            field(&l.status),
+            field(l.status.as_str()),
             field(&l.recorded_at),
             field(&l.uploaded_at),
             l.duration_s.to_string(),

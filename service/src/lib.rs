@@ -264,6 +264,6 @@ fn atlas_dirs(dir: &std::path::Path) -> Result<Vec<PathBuf>, ServiceError> {
 fn load_atlas(dir: &std::path::Path) -> Result<(stylet_atlas::Atlas, stylet_scoring::Scorer), ServiceError> {
     let atlas = stylet_atlas::load(dir).map_err(|e| ServiceError::Setup(e.to_string()))?;
     let scorer = stylet_scoring::Scorer::new(&atlas, stylet_scoring::Rubric::default_rubric(), None)
-        .map_err(ServiceError::Setup)?;
+        .map_err(|e| ServiceError::Setup(e.to_string()))?;
     Ok((atlas, scorer))
 }

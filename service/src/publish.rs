@@ -121,16 +121,28 @@ enum Kind {
     Folder,
 }
 
+/// Why an archive entry cannot be in an atlas upload, by its name (`shown`: quoted as [`shown`]
+/// quotes it).
+#[derive(Debug, thiserror::Error)]
+enum EntryError {
+    /// Not a name an atlas upload holds.
+    #[error(
+        "unexpected entry {shown}: an atlas upload holds {MANIFEST_FILE}, {VALIDATION_FILE}, the two NIfTI volumes atlas.toml names, {SCRIPTS_DIR}/*.txt and its measured breathing motion, {MOTION_DIR}/*.nii.gz and {MOTION_DIR}/*.csv"
+    )]
+    Unexpected { shown: String },
+    /// A file under `scripts/` whose name is not a script's.
+    #[error("entry {shown}: {}", bounded(&.source.to_string()))]
+    ScriptName {
+        shown: String,
+        source: validation::RecordError,
+    },
+}
+
 /// The kind of the entry named `name` (its path inside the archive), or the reason it cannot be
 /// in an atlas upload.
-fn kind_of(name: &str, is_dir: bool) -> Result<Kind, String> {
+fn kind_of(name: &str, is_dir: bool) -> Result<Kind, EntryError> {
     let name = name.trim_start_matches("./");
-    let refuse = || {
-        format!(
-            "unexpected entry {}: an atlas upload holds {MANIFEST_FILE}, {VALIDATION_FILE}, the two NIfTI volumes atlas.toml names, {SCRIPTS_DIR}/*.txt and its measured breathing motion, {MOTION_DIR}/*.nii.gz and {MOTION_DIR}/*.csv",
-            shown(name)
-        )
-    };
+    let refuse = || EntryError::Unexpected { shown: shown(name) };
     if is_dir {
         return match name.trim_end_matches('/') {
             "" | "." | SCRIPTS_DIR | MOTION_DIR => Ok(Kind::Folder),
@@ -142,7 +154,10 @@ fn kind_of(name: &str, is_dir: bool) -> Result<Kind, String> {
         VALIDATION_FILE => Ok(Kind::Record),
         _ => {
             if let Some(script) = name.strip_prefix(&format!("{SCRIPTS_DIR}/")) {
-                validation::check_script_name(script).map_err(|e| format!("entry {}: {}", shown(name), bounded(&e)))?;
+                validation::check_script_name(script).map_err(|source| EntryError::ScriptName {
+                    shown: shown(name),
+                    source,
+                })?;
                 return Ok(Kind::Script);
             }
             let plain = |n: &str| !n.is_empty() && !n.contains(['/', '\\', '\0']) && !n.starts_with('.');
@@ -308,7 +323,7 @@ pub fn unpack(archive: &Path, out: &Path) -> Result<(), Refusal> {
                 shown(&name)
             )));
         }
-        let kind = kind_of(&name, is_dir).map_err(bad)?;
+        let kind = kind_of(&name, is_dir).map_err(|e| bad(e.to_string()))?;
         if kind == Kind::Folder {
             continue;
         }
@@ -442,7 +457,7 @@ pub fn check(dir: &Path, work: &Path, max_voxels: u64) -> Result<Checked, Refusa
             "the atlas has no planned path to generate a success script along".into(),
         ));
     }
-    let scorer = Scorer::new(&atlas, Rubric::default_rubric(), None).map_err(Refusal::Damaged)?;
+    let scorer = Scorer::new(&atlas, Rubric::default_rubric(), None).map_err(|e| Refusal::Damaged(e.to_string()))?;
     std::fs::create_dir_all(work).map_err(|e| Refusal::Storage(e.to_string()))?;
     let outcomes = smoke::run_with(&atlas, &scorer, &scripts, work).map_err(|e| Refusal::SmokeFailed(e.to_string()))?;
     if let Some(failure) = smoke::first_failure(&outcomes) {
@@ -467,6 +482,14 @@ fn strip_dir(message: &str, dir: &Path) -> String {
     message.replace(&format!("{}/", dir.display()), "")
 }
 
+/// The folder of the published atlases cannot be listed: the server does not start without them.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {source}", path.display())]
+pub struct AtlasStoreError {
+    pub path: PathBuf,
+    pub source: std::io::Error,
+}
+
 /// Whether `name` is a content hash (a published atlas' folder name).
 pub fn is_hash(name: &str) -> bool {
     name.len() == 64 && name.chars().all(|c| c.is_ascii_digit() || ('a'..='f').contains(&c))
@@ -476,13 +499,17 @@ pub fn is_hash(name: &str) -> bool {
 /// by a content hash with an atlas in it, that `is_published` (the database holds its
 /// publication); a folder without its publication record is logged and left out (never served
 /// unaudited). Leftovers of publications cut short (`.incoming-*`) are removed.
-pub fn published_dirs(root: &Path, is_published: impl Fn(&str) -> bool) -> Result<Vec<PathBuf>, String> {
+pub fn published_dirs(root: &Path, is_published: impl Fn(&str) -> bool) -> Result<Vec<PathBuf>, AtlasStoreError> {
     if !root.exists() {
         return Ok(Vec::new());
     }
+    let unreadable = |source| AtlasStoreError {
+        path: root.to_path_buf(),
+        source,
+    };
     let mut dirs: Vec<PathBuf> = Vec::new();
-    for entry in std::fs::read_dir(root).map_err(|e| format!("{}: {e}", root.display()))? {
-        let path = entry.map_err(|e| format!("{}: {e}", root.display()))?.path();
+    for entry in std::fs::read_dir(root).map_err(unreadable)? {
+        let path = entry.map_err(unreadable)?.path();
         let name = path
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())

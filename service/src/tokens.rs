@@ -14,7 +14,7 @@ use serde_json::json;
 
 use super::AppState;
 use super::api::{Actor, ApiError, CookieActor, Reader, err};
-use super::store::{TokenRow, TokenScope, User};
+use super::store::{Role, TokenRow, TokenScope, User};
 
 /// How long a token lasts unless asked for less, and the most it may last: a token forgotten
 /// on a training PC stops working on its own.
@@ -60,19 +60,14 @@ pub async fn create(
     let label = check_label(label)?;
     let days = check_days(days)?;
     let ttl = Duration::from_secs(u64::from(days) * 86_400);
-    match s
-        .store
+    Ok(s.store
         .create_api_token(user, label, scope, ttl, MAX_ACTIVE_TOKENS)
-        .await
-    {
-        Err(super::StoreError::Invalid(m)) => Err(err(StatusCode::CONFLICT, m)),
-        other => Ok(other?),
-    }
+        .await?)
 }
 
 /// The tokens `user` may see and revoke: their own; an admin's, everyone's.
 pub async fn list(s: &AppState, user: &User) -> Result<Vec<TokenRow>, ApiError> {
-    let owner = (user.role != "admin").then_some(user.id.as_str());
+    let owner = (user.role != Role::Admin).then_some(user.id.as_str());
     Ok(s.store.api_tokens(owner).await?)
 }
 
@@ -81,7 +76,7 @@ pub async fn list(s: &AppState, user: &User) -> Result<Vec<TokenRow>, ApiError> 
 pub async fn revoke(s: &AppState, user: &User, id: &str) -> Result<TokenRow, ApiError> {
     let not_found = || err(StatusCode::NOT_FOUND, format!("no API token {id}"));
     let token = s.store.api_token_by_id(id).await?.ok_or_else(not_found)?;
-    if token.user_id != user.id && user.role != "admin" {
+    if token.user_id != user.id && user.role != Role::Admin {
         return Err(not_found());
     }
     s.store.revoke_api_token(id, user).await?.ok_or_else(not_found)

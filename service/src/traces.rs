@@ -7,6 +7,32 @@ use std::path::{Path, PathBuf};
 use stylet_scoring::trace::{ReviewTrace, TRACE_VERSION};
 
 use super::AppState;
+use super::catalogue::LoadError;
+
+/// Why a session's review trace cannot be had: the atlas, the file or the replay that rebuilds
+/// it failed, or the server could not run the replay. Pages show the message (an error page, or a
+/// note where the force curves would be).
+#[derive(Debug, thiserror::Error)]
+pub enum TraceError {
+    /// The session's atlas is not known or cannot be loaded.
+    #[error(transparent)]
+    Atlas(#[from] LoadError),
+    /// The session file cannot be read (not even its intact part).
+    #[error("{}: {source}", path.display())]
+    Unreadable {
+        path: PathBuf,
+        source: stylet_recorder::ReadError,
+    },
+    /// The replay refused the session (another atlas, another physics version, no rubric level).
+    #[error(transparent)]
+    Replay(#[from] stylet_scoring::ScoreError),
+    /// A blocking task reading or rebuilding the trace panicked or was cancelled.
+    #[error("{0}")]
+    Task(#[from] tokio::task::JoinError),
+    /// No turn to replay: the server is shutting down.
+    #[error("{0}")]
+    Turn(#[from] tokio::sync::AcquireError),
+}
 
 /// Where the trace of the session file `sha` lives.
 pub fn trace_path(data_dir: &Path, sha: &str) -> PathBuf {
@@ -45,39 +71,30 @@ pub fn read_trace(path: &Path) -> Option<ReviewTrace> {
 static PAGE_REPLAYS: tokio::sync::Semaphore = tokio::sync::Semaphore::const_new(1);
 
 /// The review trace of a stored session: from disk, else by replaying the file (then stored).
-pub async fn review_trace(state: &AppState, file_sha256: &str, atlas_hash: &str) -> Result<ReviewTrace, String> {
+pub async fn review_trace(state: &AppState, file_sha256: &str, atlas_hash: &str) -> Result<ReviewTrace, TraceError> {
     let path = trace_path(&state.config.data_dir, file_sha256);
     let cached = || {
         let cached = path.clone();
-        async move {
-            tokio::task::spawn_blocking(move || read_trace(&cached))
-                .await
-                .map_err(|e| e.to_string())
-        }
+        async move { tokio::task::spawn_blocking(move || read_trace(&cached)).await }
     };
     if let Some(t) = cached().await? {
         return Ok(t);
     }
-    let _turn = PAGE_REPLAYS.acquire().await.map_err(|e| e.to_string())?;
+    let _turn = PAGE_REPLAYS.acquire().await?;
     // Whoever held the turn before may have replayed this very session.
     if let Some(t) = cached().await? {
         return Ok(t);
     }
-    let scorer = state
-        .catalogue
-        .loaded(atlas_hash)
-        .await
-        .map_err(|e| e.to_string())?
-        .scorer;
+    let scorer = state.catalogue.loaded(atlas_hash).await?.scorer;
     let file = state.session_file(file_sha256);
     tokio::task::spawn_blocking(move || {
-        let session = stylet_recorder::reader::recover(&file).map_err(|e| format!("{}: {e}", file.display()))?;
-        let (_, trace) = scorer.score_session_traced(&session).map_err(|e| e.to_string())?;
+        let session =
+            stylet_recorder::reader::recover(&file).map_err(|source| TraceError::Unreadable { path: file, source })?;
+        let (_, trace) = scorer.score_session_traced(&session)?;
         if let Err(e) = write_trace(&path, &trace) {
             tracing::warn!(error = %e, path = %path.display(), "cannot store a review trace");
         }
         Ok(trace)
     })
-    .await
-    .map_err(|e| e.to_string())?
+    .await?
 }

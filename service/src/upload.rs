@@ -13,7 +13,7 @@ use axum::body::Bytes;
 use axum::http::StatusCode;
 use futures_util::Stream;
 use stylet_recorder::SessionHeader;
-use stylet_recorder::reader::{self, Limits, Verified};
+use stylet_recorder::reader::{self, Damage, DamageKind, LimitExceeded, Limits, ReadError, Verified, VerifyError};
 
 use super::AppState;
 use super::api::{ApiError, err};
@@ -162,13 +162,20 @@ async fn verify(s: &AppState, file: &TempFile, header: &SessionHeader) -> Result
     let permit = s.verify_permits.clone().acquire_owned().await.map_err(|_| busy())?;
     let verified = tokio::task::spawn_blocking(move || {
         let _permit = permit;
-        let f = std::fs::File::open(&path).map_err(|e| e.to_string())?;
+        let f = std::fs::File::open(&path).map_err(|e| VerifyError::Read(ReadError::Io(e.to_string())))?;
         reader::verify_file_streaming(std::io::BufReader::with_capacity(64 << 10, f), &limits)
     })
     .await
     .map_err(|_| err(StatusCode::INTERNAL_SERVER_ERROR, "validation failed"))?
     .map_err(|e| {
-        let hint = if e.contains("more than") && e.contains("ticks") {
+        let too_long = matches!(
+            &e,
+            VerifyError::Read(ReadError::Damaged(Damage {
+                what: DamageKind::OverLimit(LimitExceeded::Ticks(_)),
+                ..
+            }))
+        );
+        let hint = if too_long {
             format!(
                 " (this server accepts sessions of up to {} minutes)",
                 s.config.limits.max_session_s / 60
@@ -264,11 +271,8 @@ fn check_header(s: &AppState, h: &SessionHeader) -> Result<(), ApiError> {
             stylet_physics::DEFAULT_TICK_RATE_HZ
         )));
     }
-    if !stylet_scoring::rubric::LEVELS.contains(&h.difficulty.as_str()) {
-        return Err(bad(format!(
-            "unknown difficulty '{}' (beginner, advanced, expert)",
-            h.difficulty
-        )));
+    if let Err(e) = h.difficulty.parse::<stylet_scoring::Difficulty>() {
+        return Err(bad(e.to_string()));
     }
     if stylet_physics::DeviceProfile::by_name(&h.device).is_none() {
         let known: Vec<&str> = stylet_physics::DeviceProfile::ALL.iter().map(|d| d.name).collect();

@@ -36,7 +36,6 @@ pub async fn add(
         .await
     {
         Ok(_) => Ok(()),
-        Err(StoreError::Invalid(m)) if m.contains("already exists") => Err(ApiError::Conflict(m)),
         Err(StoreError::Invalid(m)) => Err(ApiError::Invalid(m)),
         Err(e) => Err(e.into()),
     }

@@ -4,6 +4,8 @@
 use std::sync::Arc;
 use std::time::Duration;
 
+use stylet_scoring::Difficulty;
+
 use super::AppState;
 
 pub fn start(state: Arc<AppState>) {
@@ -102,9 +104,14 @@ async fn expert_benchmark(
     let Some((row, _)) = state.store.session(&job.session_id).await? else {
         return Ok(None);
     };
-    let level = scorer
-        .rubric()
-        .level(scorer.exercise_of(&row.scenario), &row.difficulty);
+    // The stored level was checked at upload; one that is not a level has no benchmark (and
+    // will not be graded).
+    let exercise = scorer.exercise_of(&row.scenario);
+    let level = row
+        .difficulty
+        .parse::<Difficulty>()
+        .ok()
+        .and_then(|d| scorer.rubric().level(exercise, d));
     if level.is_none_or(|l| l.relative.is_empty()) {
         return Ok(None);
     }

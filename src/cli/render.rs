@@ -15,7 +15,8 @@ use stylet_render::views::{self, Moment, SessionLabels, ViewError};
 use stylet_render::volume::RenderVolume;
 use stylet_render::xray::{self, Radiograph, XrayScene};
 
-use super::script::Difficulty;
+use super::script::difficulty_arg;
+use stylet_scoring::Difficulty;
 
 /// The largest image side `--size` accepts.
 pub const MAX_SIDE_PX: u32 = 8192;
@@ -70,7 +71,7 @@ pub struct RenderArgs {
     pub doppler: bool,
     /// The difficulty whose aids the ultrasound view shows (guide line, outlined target; from the
     /// atlas' `[difficulty]` presets); default the session's, else beginner.
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = difficulty_arg())]
     pub difficulty: Option<Difficulty>,
     /// Draw the 3D view on the GPU (wgpu; a software Vulkan such as lavapipe will do).
     #[arg(long, conflicts_with = "cpu")]
@@ -148,8 +149,13 @@ pub struct Size {
     pub height: u32,
 }
 
-fn parse_size(s: &str) -> Result<Size, String> {
-    let bad = || format!("'{s}' is not a size: expected WIDTHxHEIGHT, each 1 … {MAX_SIDE_PX} pixels");
+/// A `--size` that is not WIDTHxHEIGHT with each side within the renderer's limit.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("'{0}' is not a size: expected WIDTHxHEIGHT, each 1 … {MAX_SIDE_PX} pixels")]
+pub struct BadSize(String);
+
+fn parse_size(s: &str) -> Result<Size, BadSize> {
+    let bad = || BadSize(s.to_string());
     let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
     let side = |v: &str| v.trim().parse::<u32>().ok().filter(|n| (1..=MAX_SIDE_PX).contains(n));
     match (side(w), side(h)) {
@@ -260,7 +266,7 @@ fn replay_to(atlas: &stylet_atlas::Atlas, path: &Path, at_s: f64) -> anyhow::Res
     let mut moment = None;
     let labels = SessionLabels {
         scenario: h.scenario.clone(),
-        difficulty: h.difficulty.clone(),
+        difficulty: h.difficulty.parse()?,
         seed: h.seed,
     };
     let report = stylet_scoring::replay(&session, Arc::clone(&atlas.model), &mut |input, out, sim| {
@@ -320,7 +326,7 @@ fn slice_image(
     gpu: bool,
 ) -> anyhow::Result<Image> {
     if !gpu {
-        return Ok(views::slice_image(atlas, moment, spec).map_err(|e| anyhow::anyhow!("slice: {e}"))?);
+        return views::slice_image(atlas, moment, spec).map_err(|e| anyhow::anyhow!("slice: {e}"));
     }
     let field = moment.and_then(|m| m.deformation.as_deref());
     let breathing = moment.and_then(|m| m.breathing.as_ref());
@@ -413,13 +419,13 @@ fn render_ultrasound(
         ProbeArg::Convex => stylet_physics::ProbeKind::Convex,
     });
     let level = match (a.difficulty, moment) {
-        (Some(d), _) => d.name().to_string(),
-        (None, Some(m)) => m.difficulty.clone(),
-        (None, None) => Difficulty::Beginner.name().to_string(),
+        (Some(d), _) => d,
+        (None, Some(m)) => m.difficulty,
+        (None, None) => Difficulty::Beginner,
     };
     let echo = Arc::new(EchoTable::of_atlas(atlas));
     let doppler = a.doppler.then(|| Arc::new(FlowField::build(&atlas.model, &echo)));
-    let scene = views::ultrasound_scene(atlas, moment, kind, &level, echo, doppler).map_err(|e| match e {
+    let scene = views::ultrasound_scene(atlas, moment, kind, level, echo, doppler).map_err(|e| match e {
         ViewError::NoProbe { .. } => anyhow::anyhow!("--view {e}"),
         e => anyhow::anyhow!(e),
     })?;

@@ -338,7 +338,7 @@ fn write_csv(out: &Path, results: &[(PathBuf, Result<ScoreReport, ScoreError>)])
                     csv_field(&s.session_id),
                     csv_field(&s.trainee),
                     csv_field(&s.scenario),
-                    csv_field(&s.grade.difficulty),
+                    csv_field(s.grade.difficulty.as_str()),
                     s.replay_verified,
                     s.incomplete,
                     s.grade.score,

@@ -14,6 +14,7 @@ use stylet_physics::glam::DVec3;
 use stylet_physics::{Event, Simulation, TickInput, TickOutput};
 
 use stylet_recorder::{Recording, SessionInfo, WriterOptions};
+use stylet_scoring::Difficulty;
 
 #[derive(Debug, Subcommand)]
 pub enum ScriptCommand {
@@ -56,7 +57,7 @@ pub struct SessionArgs {
     #[arg(long, default_value = "demo-trainee")]
     pub trainee: String,
     /// Difficulty level the session is graded at.
-    #[arg(long, value_enum, default_value_t = Difficulty::Beginner)]
+    #[arg(long, default_value_t = Difficulty::Beginner, value_parser = difficulty_arg())]
     pub difficulty: Difficulty,
     /// Scenario name for the session header (default: the script's file name without extension).
     #[arg(long)]
@@ -89,7 +90,7 @@ impl SessionArgs {
         let info = SessionInfo {
             trainee: &self.trainee,
             scenario: &scenario,
-            difficulty: self.difficulty.name(),
+            difficulty: self.difficulty.as_str(),
             seed: self.seed,
             atlas_id: &atlas.manifest.name,
             atlas_hash: &atlas.content_hash,
@@ -100,22 +101,11 @@ impl SessionArgs {
     }
 }
 
-/// Difficulty levels (rubrics per level come with the scoring engine).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Difficulty {
-    Beginner,
-    Advanced,
-    Expert,
-}
-
-impl Difficulty {
-    pub fn name(self) -> &'static str {
-        match self {
-            Difficulty::Beginner => "beginner",
-            Difficulty::Advanced => "advanced",
-            Difficulty::Expert => "expert",
-        }
-    }
+/// `--difficulty`: one of the levels by name (listed in `--help` and in the error).
+pub fn difficulty_arg() -> impl clap::builder::TypedValueParser<Value = Difficulty> {
+    use clap::builder::TypedValueParser as _;
+    clap::builder::PossibleValuesParser::new(Difficulty::ALL.map(Difficulty::as_str))
+        .try_map(|name| name.parse::<Difficulty>())
 }
 
 pub fn run(cmd: ScriptCommand) -> anyhow::Result<()> {
@@ -137,9 +127,26 @@ pub fn script_simulation(atlas: &stylet_atlas::Atlas, path: &Path) -> anyhow::Re
 }
 
 /// The simulation a script text starts with, and its device (bound to the atlas' named paths).
-pub fn script_text_simulation(atlas: &stylet_atlas::Atlas, text: &str) -> Result<(Simulation, ScriptedDevice), String> {
-    let script = parse(text).map_err(|e| e.to_string())?;
-    scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).map_err(|e| e.to_string())
+pub fn script_text_simulation(
+    atlas: &stylet_atlas::Atlas,
+    text: &str,
+) -> Result<(Simulation, ScriptedDevice), ScriptSetupError> {
+    let script = parse(text)?;
+    Ok(scripted_simulation(
+        Arc::clone(&atlas.model),
+        &atlas.planned_paths(),
+        &script,
+    )?)
+}
+
+/// Why a device script cannot start a simulation: it does not parse, it cannot be bound to the
+/// atlas' paths, or the simulation refuses its settings.
+#[derive(Debug, thiserror::Error)]
+pub enum ScriptSetupError {
+    #[error(transparent)]
+    Parse(#[from] stylet_devices::script::ParseError),
+    #[error(transparent)]
+    Setup(#[from] stylet_devices::script::SetupError),
 }
 
 /// Runs a script text headless and records it to `out` (offline: the recorder may wait).
@@ -149,7 +156,8 @@ pub fn record_script_text(
     out: &Path,
     info: &SessionInfo,
 ) -> anyhow::Result<stylet_recorder::WriteSummary> {
-    let (mut sim, mut device) = script_text_simulation(atlas, text).map_err(|e| anyhow::anyhow!(e))?;
+    // The message alone, as `script_simulation` gives it (not the chain of its sources).
+    let (mut sim, mut device) = script_text_simulation(atlas, text).map_err(|e| anyhow::anyhow!("{e}"))?;
     let header = stylet_recorder::recording::header(&sim, info);
     let mut rec = Recording::start(out, &header, false, WriterOptions::default())
         .with_context(|| format!("cannot record to {}", out.display()))?;

@@ -61,19 +61,33 @@ pub struct SimArgs {
     pub renderer: Backend,
 }
 
-fn parse_renderer(s: &str) -> Result<Backend, String> {
-    Backend::parse(s).ok_or_else(|| format!("unknown renderer '{s}' (auto, cpu or gpu)"))
+/// A `stylet sim` flag value that names no renderer or view, or no size the views can take.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SimArgError {
+    #[error("unknown renderer '{0}' (auto, cpu or gpu)")]
+    Renderer(String),
+    #[error("unknown view '{name}' (views: {})", view_names())]
+    View { name: String },
+    #[error("'{0}' is not WIDTHxHEIGHT with each 16 … 4096")]
+    ViewSize(String),
 }
 
-fn parse_view(s: &str) -> Result<ViewKind, String> {
-    ViewKind::parse(s).ok_or_else(|| {
-        let names: Vec<&str> = ViewKind::ALL.iter().map(|v| v.name()).collect();
-        format!("unknown view '{s}' (views: {})", names.join(", "))
-    })
+/// The views `--views` takes, comma-separated.
+fn view_names() -> String {
+    let names: Vec<&str> = ViewKind::ALL.iter().map(|v| v.name()).collect();
+    names.join(", ")
 }
 
-fn parse_view_size(s: &str) -> Result<(u32, u32), String> {
-    let bad = || format!("'{s}' is not WIDTHxHEIGHT with each 16 … 4096");
+fn parse_renderer(s: &str) -> Result<Backend, SimArgError> {
+    Backend::parse(s).ok_or_else(|| SimArgError::Renderer(s.to_string()))
+}
+
+fn parse_view(s: &str) -> Result<ViewKind, SimArgError> {
+    ViewKind::parse(s).ok_or_else(|| SimArgError::View { name: s.to_string() })
+}
+
+fn parse_view_size(s: &str) -> Result<(u32, u32), SimArgError> {
+    let bad = || SimArgError::ViewSize(s.to_string());
     let (w, h) = s.split_once('x').ok_or_else(bad)?;
     let (w, h): (u32, u32) = (w.parse().map_err(|_| bad())?, h.parse().map_err(|_| bad())?);
     if !(16..=4096).contains(&w) || !(16..=4096).contains(&h) {
@@ -140,7 +154,7 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
     let rate_hz = sim.tick_rate_hz();
     let labels = SessionLabels {
         scenario: a.session.scenario_of(script),
-        difficulty: a.session.difficulty.name().to_string(),
+        difficulty: a.session.difficulty,
         seed: a.session.seed,
     };
     let atlas = std::sync::Arc::new(atlas);

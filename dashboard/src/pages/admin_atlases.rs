@@ -19,7 +19,7 @@ use crate::auth::{PageError, Viewer, check_csrf, fail};
 use crate::layout::{csrf_field, page, short_time};
 
 fn require_admin(v: &Viewer) -> Result<(), PageError> {
-    if v.role_kind() == Role::Admin {
+    if v.role() == Role::Admin {
         Ok(())
     } else {
         Err(fail(StatusCode::FORBIDDEN, "only admins manage atlases"))

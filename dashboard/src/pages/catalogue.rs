@@ -17,7 +17,7 @@ use crate::layout::{page, short_time};
 
 pub async fn index(State(s): State<Arc<AppState>>, v: Viewer) -> Result<Html<String>, PageError> {
     let items = catalogue(&s).await?;
-    let may_publish = matches!(v.role_kind(), Role::Admin | Role::Instructor);
+    let may_publish = matches!(v.role(), Role::Admin | Role::Instructor);
     let body = html! {
         h1 { "Scenario catalogue" }
         p.muted {

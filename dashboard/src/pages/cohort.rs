@@ -10,7 +10,7 @@ use axum::response::Html;
 use maud::{Markup, PreEscaped, html};
 use stylet_service::AppState;
 use stylet_service::api::{ListQuery, PAGE_SIZE};
-use stylet_service::store::{ScorePoint, SessionLine, TraineeSummary};
+use stylet_service::store::{Role, ScorePoint, SessionLine, SessionStatus, TraineeSummary};
 
 use crate::auth::{PageError, Viewer, fail};
 use crate::charts::sparkline;
@@ -28,9 +28,9 @@ pub async fn visible_cohort(s: &AppState, v: &Viewer, name: &str) -> Result<Stri
         .await?
         .ok_or_else(|| fail(StatusCode::NOT_FOUND, format!("no cohort {name}")))?;
     let allowed = match v.role() {
-        "instructor" => s.store.in_cohort(&v.user.id, &id).await?,
-        "curriculum" | "admin" => true,
-        _ => false,
+        Role::Instructor => s.store.in_cohort(&v.user.id, &id).await?,
+        Role::Curriculum | Role::Admin => true,
+        Role::Trainee => false,
     };
     if !allowed {
         // The same answer as for a cohort that does not exist.
@@ -101,7 +101,11 @@ pub async fn cohort(
     let mut without_cohort = ListQuery { cohort: None, ..q };
     without_cohort.page = None;
     let query = filter_query(&without_cohort);
-    let scored: Vec<SessionLine> = lines.iter().filter(|l| l.status == "scored").cloned().collect();
+    let scored: Vec<SessionLine> = lines
+        .iter()
+        .filter(|l| l.status == SessionStatus::Scored)
+        .cloned()
+        .collect();
     Ok(page(
         &format!("Cohort {name}"),
         Some(&v),

@@ -7,7 +7,7 @@
 
 use std::sync::Arc;
 
-use crate::plot::ChartColor;
+use crate::plot::{ChartColor, ChartError};
 use axum::extract::{Query, State};
 use axum::http::StatusCode;
 use axum::response::Html;
@@ -59,11 +59,7 @@ impl CompareQuery {
         for (k, v) in pairs {
             let v = v.trim().to_string();
             match k.as_str() {
-                "s" | "a" | "b" if !v.is_empty() => {
-                    if !q.sessions.contains(&v) {
-                        q.sessions.push(v);
-                    }
-                }
+                "s" | "a" | "b" if !v.is_empty() && !q.sessions.contains(&v) => q.sessions.push(v),
                 "trainee" => q.trainee = v,
                 "scenario" => q.scenario = v,
                 "from" => q.from = v,
@@ -176,7 +172,7 @@ pub const COMPARE_TITLE: &str = "Force against insertion depth, aligned at skin 
 
 /// Force against insertion depth, one colour per session: the total force solid, the cutting
 /// force dashed, each advancing stroke a line of its own, a marker at the skin (depth 0).
-pub fn depth_aligned_svg(sessions: &[(&ReviewTrace, String)]) -> Result<String, String> {
+pub fn depth_aligned_svg(sessions: &[(&ReviewTrace, String)]) -> Result<String, ChartError> {
     use plotters::prelude::*;
     use stylet_render::fonts::{SANS, ensure_fonts};
     ensure_fonts();
@@ -196,33 +192,28 @@ pub fn depth_aligned_svg(sessions: &[(&ReviewTrace, String)]) -> Result<String, 
     let (x0, x1, y0, y1) = (-0.03 * x1, x1 * 1.03, y0 - pad, y1 + pad);
     let mut out = String::new();
     {
-        let e = |e: &dyn std::fmt::Display| e.to_string();
         let root = SVGBackend::with_string(&mut out, crate::charts::CHART_SIZE).into_drawing_area();
-        root.fill(&WHITE).map_err(|x| e(&x))?;
+        root.fill(&WHITE)?;
         let mut c = ChartBuilder::on(&root)
             .caption(COMPARE_TITLE, (SANS, 24))
             .margin(16)
             .x_label_area_size(56)
             .y_label_area_size(72)
-            .build_cartesian_2d(x0..x1, y0..y1)
-            .map_err(|x| e(&x))?;
+            .build_cartesian_2d(x0..x1, y0..y1)?;
         c.configure_mesh()
             .x_desc(DEPTH_X_LABEL)
             .y_desc(FORCE_Y_LABEL)
             .axis_desc_style((SANS, 20))
             .label_style((SANS, 16))
             .light_line_style(RGBColor(235, 235, 235))
-            .draw()
-            .map_err(|x| e(&x))?;
+            .draw()?;
         let grey = ShapeStyle::from(&RGBColor(150, 150, 150)).stroke_width(1);
-        c.draw_series(std::iter::once(PathElement::new(vec![(0.0, y0), (0.0, y1)], grey)))
-            .map_err(|x| e(&x))?;
+        c.draw_series(std::iter::once(PathElement::new(vec![(0.0, y0), (0.0, y1)], grey)))?;
         c.draw_series(std::iter::once(Text::new(
             " skin entry",
             (0.0, y1 - (y1 - y0) * 0.03),
             (SANS, 14).into_font(),
-        )))
-        .map_err(|x| e(&x))?;
+        )))?;
         for (k, ((t, name), st)) in sessions.iter().zip(&strokes).enumerate() {
             let color = COLORS[k % COLORS.len()];
             let (bold, thin) = (
@@ -231,17 +222,13 @@ pub fn depth_aligned_svg(sessions: &[(&ReviewTrace, String)]) -> Result<String, 
             );
             for (n, stroke) in st.iter().enumerate() {
                 let pts = |v: &[f64]| stroke.iter().map(|i| (t.inserted_mm[*i], v[*i])).collect::<Vec<_>>();
-                let total = c
-                    .draw_series(LineSeries::new(pts(&t.force_n), bold))
-                    .map_err(|x| e(&x))?;
+                let total = c.draw_series(LineSeries::new(pts(&t.force_n), bold))?;
                 if n == 0 {
                     total
                         .label(format!("total — {name}"))
                         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], bold));
                 }
-                let cutting = c
-                    .draw_series(DashedLineSeries::new(pts(&t.cutting_n), 8, 5, thin))
-                    .map_err(|x| e(&x))?;
+                let cutting = c.draw_series(DashedLineSeries::new(pts(&t.cutting_n), 8, 5, thin))?;
                 if n == 0 {
                     cutting
                         .label(format!("cutting — {name}"))
@@ -254,9 +241,8 @@ pub fn depth_aligned_svg(sessions: &[(&ReviewTrace, String)]) -> Result<String, 
             .border_style(BLACK)
             .label_font((SANS, 16))
             .position(SeriesLabelPosition::UpperRight)
-            .draw()
-            .map_err(|x| e(&x))?;
-        root.present().map_err(|x| e(&x))?;
+            .draw()?;
+        root.present()?;
     }
     let label = COMPARE_TITLE.replace(['"', '<', '>', '&'], " ");
     Ok(out.replacen(
@@ -295,7 +281,7 @@ pub async fn compare(
             traces.push(
                 review_trace(&s, &r.file_sha256, &r.atlas_hash)
                     .await
-                    .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e))?,
+                    .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?,
             );
         }
         let named: Vec<(&ReviewTrace, String)> = traces
@@ -304,7 +290,7 @@ pub async fn compare(
             .enumerate()
             .map(|(k, (t, r))| (t, format!("{} {} {}", TAGS[k], r.trainee, r.scenario)))
             .collect();
-        let svg = depth_aligned_svg(&named).map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e))?;
+        let svg = depth_aligned_svg(&named).map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
         Some((svg, traces.iter().map(extremes).collect::<Vec<_>>()))
     } else {
         None

@@ -9,7 +9,7 @@ use axum::extract::State;
 use axum::response::Html;
 use maud::{Markup, PreEscaped, html};
 use stylet_service::AppState;
-use stylet_service::store::{CohortLine, SessionFilter};
+use stylet_service::store::{CohortLine, Role, SessionFilter};
 
 use crate::auth::{PageError, Viewer};
 use crate::charts::{inline_svg, progress_chart};
@@ -19,8 +19,8 @@ use crate::progress::suggest_next;
 
 pub async fn home(State(s): State<Arc<AppState>>, v: Viewer) -> Result<Html<String>, PageError> {
     let body = match v.role() {
-        "trainee" => trainee_home(&s, &v).await?,
-        _ => staff_home(&s, &v).await?,
+        Role::Trainee => trainee_home(&s, &v).await?,
+        Role::Instructor | Role::Curriculum | Role::Admin => staff_home(&s, &v).await?,
     };
     Ok(page("Home", Some(&v), body))
 }
@@ -49,7 +49,7 @@ async fn trainee_home(s: &AppState, v: &Viewer) -> Result<Markup, PageError> {
                 &points,
                 &format!("Scores of {} by difficulty", v.user.username),
             ))
-            .map_err(|e| crate::auth::fail(axum::http::StatusCode::INTERNAL_SERVER_ERROR, e))?,
+            .map_err(|e| crate::auth::fail(axum::http::StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?,
         )
     };
     Ok(html! {
@@ -124,22 +124,22 @@ async fn staff_home(s: &AppState, v: &Viewer) -> Result<Markup, PageError> {
     Ok(html! {
         h1 {
             @match role {
-                "instructor" => "Instructor",
-                "curriculum" => "Curriculum",
-                _ => "Administration",
+                Role::Instructor => "Instructor",
+                Role::Curriculum => "Curriculum",
+                Role::Trainee | Role::Admin => "Administration",
             }
             " — " (v.user.username)
         }
-        h2 { @if role == "instructor" { "My cohorts" } @else { "Cohorts" } }
+        h2 { @if role == Role::Instructor { "My cohorts" } @else { "Cohorts" } }
         (cohorts_table(&cohorts))
-        @if role == "instructor" || role == "admin" {
+        @if matches!(role, Role::Instructor | Role::Admin) {
             p #home-review-queue { a href="/review-queue" { (to_review) " sessions need review (not yet commented; risk hits and failures marked) →" } }
         }
-        @if role == "curriculum" || role == "admin" {
+        @if matches!(role, Role::Curriculum | Role::Admin) {
             p { a href="/reports" { "Cohort reports and the sessions CSV export →" } }
         }
-        @if role == "admin" { p { a href="/admin/users" { "Accounts →" } } }
-        @if role == "instructor" || role == "admin" {
+        @if role == Role::Admin { p { a href="/admin/users" { "Accounts →" } } }
+        @if matches!(role, Role::Instructor | Role::Admin) {
             h2 { "Upload a session for a trainee" }
             (upload_form(v))
         }
@@ -151,7 +151,7 @@ async fn staff_home(s: &AppState, v: &Viewer) -> Result<Markup, PageError> {
 
 /// `GET /cohorts`: the cohorts the viewer may look at.
 pub async fn cohorts(State(s): State<Arc<AppState>>, v: Viewer) -> Result<Html<String>, PageError> {
-    if v.role() == "trainee" {
+    if v.role() == Role::Trainee {
         return Err(crate::auth::fail(
             axum::http::StatusCode::FORBIDDEN,
             "cohort views are for instructors and curriculum staff",

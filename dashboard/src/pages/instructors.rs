@@ -10,13 +10,15 @@ use axum::response::Html;
 use maud::{Markup, PreEscaped, html};
 use plotters::prelude::*;
 use stylet_render::fonts::{SANS, ensure_fonts};
-use stylet_scoring::rubric::LEVELS;
-use stylet_scoring::{Exercise, Outcome};
+use stylet_scoring::{Difficulty, Exercise, Outcome};
 use stylet_service::AppState;
-use stylet_service::store::{DatedScore, LevelTotals, QUEUE_PAGE, QueueScope, ReviewLine, Role, TraineeProgress};
+use stylet_service::store::{
+    DatedScore, LevelTotals, QUEUE_PAGE, QueueScope, ReviewLine, Role, SessionStatus, TraineeProgress,
+};
 
 use crate::auth::{PageError, Viewer, encode_query, fail};
 use crate::layout::{page, pager, score_text, short_time};
+use crate::plot::ChartError;
 use crate::trends::{date_from_days, days_from_date, draw_level_lines, labelled_svg};
 
 /// `?only=flagged&page=N`.
@@ -31,9 +33,9 @@ pub struct QueueQuery {
 /// overridden), or the scoring state.
 pub fn outcome_badge(l: &ReviewLine) -> Markup {
     html! {
-        @if l.status == "failed" {
+        @if l.status == SessionStatus::Failed {
             span.badge.bad { "scoring failed" }
-        } @else if l.status != "scored" {
+        } @else if l.status != SessionStatus::Scored {
             span.badge.muted { (l.status) }
         } @else if l.outcome == Some(Outcome::NotGradeable) && !l.overridden {
             span.badge.warn title="the recording is incomplete: no grade is given" { "not gradeable" }
@@ -63,7 +65,7 @@ const REASONS_SHOWN: usize = 3;
 /// first few, then how many more the review page has).
 fn why(l: &ReviewLine) -> Markup {
     html! {
-        @if let Some(e) = l.error.as_deref().filter(|_| l.status == "failed") {
+        @if let Some(e) = l.error.as_deref().filter(|_| l.status == SessionStatus::Failed) {
             span.reasons { (e) }
         } @else if !l.reasons.is_empty() {
             span.reasons {
@@ -85,7 +87,7 @@ pub async fn review_queue(
     v: Viewer,
     Query(q): Query<QueueQuery>,
 ) -> Result<Html<String>, PageError> {
-    if !matches!(v.role_kind(), Role::Instructor | Role::Admin) {
+    if !matches!(v.role(), Role::Instructor | Role::Admin) {
         return Err(fail(
             StatusCode::FORBIDDEN,
             "the review queue is for instructors and admins",
@@ -113,7 +115,7 @@ pub async fn review_queue(
         html! {
             h1 { "Needs review" }
             p.muted {
-                @if v.role_kind() == Role::Instructor { "Sessions of your cohorts' trainees " } @else { "Sessions " }
+                @if v.role() == Role::Instructor { "Sessions of your cohorts' trainees " } @else { "Sessions " }
                 "that nobody has commented on or overridden yet, newest first. A comment or a grade override on the session's review page takes a session off this list."
             }
             form.inline.noprint #queue-filter method="get" action="/review-queue" {
@@ -142,7 +144,7 @@ pub async fn review_queue(
                                         @if k > 0 { " · " }
                                         span.reason { (r.words()) }
                                     }
-                                    @if l.status == "failed" || l.passed == Some(false) || l.outcome == Some(Outcome::NotGradeable) {
+                                    @if l.status == SessionStatus::Failed || l.passed == Some(false) || l.outcome == Some(Outcome::NotGradeable) {
                                         br; small.muted { (why(l)) }
                                     }
                                 }
@@ -174,7 +176,7 @@ pub async fn trainee_progress(
         &p.scores,
         &format!("Scores of {} over time (punctures)", p.trainee.username),
     )
-    .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e))?;
+    .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
     let punctures: Vec<&LevelTotals> = p.totals.iter().filter(|t| t.exercise == Exercise::Puncture).collect();
     let others: Vec<&LevelTotals> = p.totals.iter().filter(|t| t.exercise != Exercise::Puncture).collect();
     let all_link = if own {
@@ -319,7 +321,7 @@ pub const PROGRESS_Y_LABEL: &str = "score (0–100)";
 
 /// Scores over calendar time: one line per difficulty with a dot per session, x the upload date
 /// with date labels; `None` without a dated score.
-pub fn progress_over_time_svg(scores: &[DatedScore], title: &str) -> Result<Option<String>, String> {
+pub fn progress_over_time_svg(scores: &[DatedScore], title: &str) -> Result<Option<String>, ChartError> {
     let points: Vec<(f64, &DatedScore)> = scores
         .iter()
         .filter_map(|p| Some((day_of(&p.uploaded_at)?, p)))
@@ -335,16 +337,14 @@ pub fn progress_over_time_svg(scores: &[DatedScore], title: &str) -> Result<Opti
     let span_days = x1 - x0;
     let mut out = String::new();
     {
-        let e = |e: &dyn std::fmt::Display| e.to_string();
         let root = SVGBackend::with_string(&mut out, crate::charts::CHART_SIZE).into_drawing_area();
-        root.fill(&WHITE).map_err(|x| e(&x))?;
+        root.fill(&WHITE)?;
         let mut c = ChartBuilder::on(&root)
             .caption(title, (SANS, 26))
             .margin(16)
             .x_label_area_size(56)
             .y_label_area_size(72)
-            .build_cartesian_2d(x0..x1, 0.0..100.0)
-            .map_err(|x| e(&x))?;
+            .build_cartesian_2d(x0..x1, 0.0..100.0)?;
         // Whole days only: a date on a tick at midnight, nothing between.
         let label = |x: &f64| {
             let d = x.round();
@@ -362,22 +362,21 @@ pub fn progress_over_time_svg(scores: &[DatedScore], title: &str) -> Result<Opti
             .axis_desc_style((SANS, 20))
             .label_style((SANS, 16))
             .light_line_style(RGBColor(235, 235, 235))
-            .draw()
-            .map_err(|x| e(&x))?;
-        let lines: Vec<(&str, Vec<(f64, f64)>)> = LEVELS
-            .iter()
+            .draw()?;
+        let lines: Vec<(Difficulty, Vec<(f64, f64)>)> = Difficulty::ALL
+            .into_iter()
             .map(|level| {
                 let pts = points
                     .iter()
-                    .filter(|(_, p)| p.difficulty == *level)
+                    .filter(|(_, p)| p.difficulty == level.as_str())
                     .map(|(x, p)| (*x, p.score))
                     .collect();
-                (*level, pts)
+                (level, pts)
             })
-            .filter(|(_, pts): &(&str, Vec<(f64, f64)>)| !pts.is_empty())
+            .filter(|(_, pts): &(Difficulty, Vec<(f64, f64)>)| !pts.is_empty())
             .collect();
         draw_level_lines(&mut c, &lines)?;
-        root.present().map_err(|x| e(&x))?;
+        root.present()?;
     }
     Ok(Some(labelled_svg(&out, title)))
 }
@@ -437,7 +436,7 @@ mod tests {
             "{dates:?}"
         );
         // One line per difficulty in the level's colour.
-        let (r, g, b) = level_rgb("advanced");
+        let (r, g, b) = level_rgb(Difficulty::Advanced);
         assert!(svg.to_uppercase().contains(&format!("#{r:02X}{g:02X}{b:02X}")));
         assert!(svg.starts_with("<svg class=\"chart\" role=\"img\""));
         assert_eq!(progress_over_time_svg(&[], "x").unwrap(), None);

@@ -13,7 +13,7 @@ use maud::{Markup, PreEscaped, html};
 use stylet_scoring::reasons::metric_label;
 use stylet_service::AppState;
 use stylet_service::api::ListQuery;
-use stylet_service::store::{FailureBreakdown, FailureCause, ReportLine, ScorePoint, TraineeSummary};
+use stylet_service::store::{FailureBreakdown, FailureCause, ReportLine, Role, ScorePoint, TraineeSummary};
 
 use crate::auth::{PageError, Viewer, encode_query, fail};
 use crate::charts::sparkline;
@@ -24,7 +24,7 @@ use crate::pdf::{Col, Doc, PercentChart};
 use crate::trends::{TREND_TITLE, TREND_X_LABEL, TREND_Y_LABEL, Trends, date_from_days, level_rgb, week_ticks};
 
 pub async fn index(State(s): State<Arc<AppState>>, v: Viewer) -> Result<Html<String>, PageError> {
-    if v.role() == "trainee" {
+    if v.role() == Role::Trainee {
         return Err(fail(
             StatusCode::FORBIDDEN,
             "reports are for instructors and curriculum staff",
@@ -163,7 +163,8 @@ const NOTE: &str = "Scores are final grades (an instructor's override where ther
     counted on their own, and palpation and ultrasound-survey exercises are reported per exercise, not as punctures.";
 
 fn trends_section(r: &CohortReport) -> Result<Markup, PageError> {
-    let chart = crate::trends::trend_chart_svg(&r.trends).map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e))?;
+    let chart = crate::trends::trend_chart_svg(&r.trends)
+        .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
     Ok(html! {
         h2 { "Pass rate per week" }
         @match chart {
@@ -365,7 +366,7 @@ pub fn report_pdf(r: &CohortReport) -> Vec<u8> {
                 .map(|(level, pts)| {
                     (
                         level.to_string(),
-                        level_rgb(level),
+                        level_rgb(*level),
                         pts.iter().map(|(w, p)| (*w as f64, *p)).collect(),
                     )
                 })

@@ -17,7 +17,7 @@ use stylet_scoring::rubric::{Rubric, metric_value};
 use stylet_scoring::{Outcome, ReviewTrace, ScoreReport, metric_label};
 use stylet_service::AppState;
 use stylet_service::api::{check_comment, check_comment_time, check_override, may_review, may_see, reviewable};
-use stylet_service::store::SessionRow;
+use stylet_service::store::{Role, SessionRow, SessionStatus};
 use stylet_service::traces::review_trace;
 
 use crate::auth::{PageError, Viewer, check_csrf, fail};
@@ -38,7 +38,7 @@ pub async fn visible_session(s: &AppState, v: &Viewer, id: &str) -> Result<Sessi
 /// Figures come from the scoring replay; until it is done (or when it failed) there are none,
 /// and a page must not start another replay of its own.
 pub fn require_scored(row: &SessionRow) -> Result<(), PageError> {
-    if row.status == "scored" {
+    if row.status == SessionStatus::Scored {
         Ok(())
     } else {
         Err(fail(
@@ -66,16 +66,16 @@ pub async fn review(
     let row = visible_session(&s, &v, &id).await?;
     let title = format!("{} — {} ({})", row.trainee, row.scenario, row.difficulty);
     let head = header_block(&row);
-    if row.status != "scored" {
+    if row.status != SessionStatus::Scored {
         let body = html! {
             (head)
-            @if row.status == "failed" {
+            @if row.status == SessionStatus::Failed {
                 p.error #scoring-error { "Scoring failed: " (row.error.clone().unwrap_or_default()) }
             } @else {
                 p.notice #scoring-wait { "The session is " (row.status) ": the replay runs on the server. This page refreshes itself." }
             }
         };
-        return Ok(if row.status == "failed" {
+        return Ok(if row.status == SessionStatus::Failed {
             page(&title, Some(&v), body).into_response()
         } else {
             refreshing_page(&title, &v, 2, body).into_response()
@@ -131,7 +131,7 @@ pub async fn review(
     let level = rubric
         .as_ref()
         .filter(|ru| ru.name == report.grade.rubric && ru.version == report.grade.rubric_version)
-        .and_then(|ru| ru.level(report.exercise, &report.grade.difficulty));
+        .and_then(|ru| ru.level(report.exercise, report.grade.difficulty));
     let (benchmark, references) = stylet_service::experts::benchmark(&s, &row.atlas_hash, &row.scenario).await?;
     let corridor_key = if stylet_service::experts::figures_shown(&v.user, references.len()) {
         stylet_service::experts::references_key(&references)
@@ -189,7 +189,7 @@ fn header_block(row: &SessionRow) -> Markup {
         p {
             "Difficulty " strong { (row.difficulty) } " · recorded " (short_time(&row.recorded_at))
             " · uploaded " (short_time(&row.uploaded_at)) " UTC · " (format!("{:.1}", row.duration_s)) " s · "
-            (status_badge(&row.status)) " · "
+            (status_badge(row.status)) " · "
             a #download href={ "/sessions/" (row.id) "/file" } { "download the session file (" (format!("{:.0}", row.size_bytes as f64 / 1024.0)) " KiB)" }
         }
     }
@@ -249,7 +249,7 @@ fn charts_block(
     review: &serde_json::Value,
     peak_name: &dyn Fn(stylet_physics::LabelId) -> Option<String>,
 ) -> Result<Markup, PageError> {
-    let svg = |c| inline_svg(&c).map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e));
+    let svg = |c| inline_svg(&c).map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()));
     let notes = comment_notes(review);
     let mut force = force_chart(
         trace,
@@ -400,7 +400,7 @@ fn other_metrics(r: &ScoreReport) -> Markup {
 fn rubric_table(r: &ScoreReport, rubric: Option<&Rubric>) -> Markup {
     let level = rubric
         .filter(|ru| ru.name == r.grade.rubric && ru.version == r.grade.rubric_version)
-        .and_then(|ru| ru.level(r.exercise, &r.grade.difficulty));
+        .and_then(|ru| ru.level(r.exercise, r.grade.difficulty));
     let Some(level) = level else {
         return html! { p.muted { "This server no longer has rubric " (r.grade.rubric) " v" (r.grade.rubric_version) "; the deductions applied:" }
         ul { @for d in &r.grade.deductions { li { (d.metric) ": −" (format!("{:.1}", d.points)) } } } };
@@ -510,7 +510,7 @@ fn review_forms(v: &Viewer, id: &str, duration_s: f64) -> Markup {
                 p { button.primary type="submit" { "Override the grade" } }
             }
         }
-        @if v.role() == "admin" {
+        @if v.role() == Role::Admin {
             form #delete-form.noprint method="post" action={ "/sessions/" (id) "/delete" } {
                 (csrf_field(v))
                 label.check {
@@ -686,7 +686,7 @@ async fn figure_response(
         })?;
     let png = crate::figures::session_figure(s, &row.file_sha256, &row.atlas_hash, &report, figure, title, corridor)
         .await
-        .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e))?
+        .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
         .ok_or_else(|| fail(StatusCode::NOT_FOUND, "the session has no such risk hit"))?;
     Ok((
         [

@@ -9,6 +9,7 @@ use axum::response::Html;
 use maud::{Markup, html};
 use stylet_service::AppState;
 use stylet_service::api::{ListQuery, PAGE_SIZE};
+use stylet_service::store::Role;
 
 use crate::auth::{PageError, Viewer};
 use crate::layout::{page, pager, sessions_table};
@@ -29,7 +30,7 @@ pub fn filter_form(action: &str, q: &ListQuery, scenarios: &[String], with_train
             label { "Difficulty"
                 select name="difficulty" {
                     option value="" { "all" }
-                    @for d in stylet_scoring::rubric::LEVELS { option value=(d) selected[q.difficulty.as_deref() == Some(d)] { (d) } }
+                    @for d in stylet_scoring::Difficulty::ALL.map(stylet_scoring::Difficulty::as_str) { option value=(d) selected[q.difficulty.as_deref() == Some(d)] { (d) } }
                 }
             }
             @if with_trainee { label { "Trainee" input type="text" name="trainee" value=(v(&q.trainee)) size="12"; } }
@@ -65,7 +66,7 @@ pub async fn list(
     let lines = s.store.sessions(&v.user, &filter).await?;
     let total = s.store.count_sessions(&v.user, &filter).await?;
     let scenarios = s.store.scenarios(&v.user, None).await?;
-    let staff = v.role() != "trainee";
+    let staff = v.role() != Role::Trainee;
     Ok(page(
         "Sessions",
         Some(&v),

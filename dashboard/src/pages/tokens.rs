@@ -10,7 +10,7 @@ use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Redirect, Response};
 use maud::{Markup, html};
 use stylet_service::AppState;
-use stylet_service::store::{TokenRow, TokenScope, TokenStatus};
+use stylet_service::store::{Role, TokenRow, TokenScope, TokenStatus};
 use stylet_service::tokens::{self, MAX_LABEL_CHARS, MAX_TOKEN_DAYS};
 
 use crate::auth::{PageError, Viewer, check_csrf};
@@ -28,7 +28,7 @@ fn status_badge(status: TokenStatus) -> Markup {
 
 /// The page: a token just made (shown once), an error, the form, the list.
 fn tokens_page(v: &Viewer, rows: &[TokenRow], new_token: Option<(&str, &TokenRow)>, error: Option<&str>) -> Markup {
-    let admin = v.role() == "admin";
+    let admin = v.role() == Role::Admin;
     html! {
         h1 { "API tokens" }
         p.muted {

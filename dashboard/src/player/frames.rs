@@ -92,7 +92,7 @@ impl AtlasDrawing {
             }
             FrameView::Axial => views::slice_image(atlas, m, &views::plane_spec(atlas, m, Plane::Axial, width, height)),
             FrameView::Ultrasound => {
-                let scene = views::ultrasound_scene(atlas, m, None, &moment.difficulty, Arc::clone(&self.echo), None)?;
+                let scene = views::ultrasound_scene(atlas, m, None, moment.difficulty, Arc::clone(&self.echo), None)?;
                 Ok(ultrasound::render(&atlas.model, &scene)?.to_image(width, height))
             }
             FrameView::Xray => {

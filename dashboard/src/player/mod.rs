@@ -30,6 +30,16 @@ use crate::pages::review::{require_scored, visible_session};
 use frames::{AtlasDrawing, FrameCache, FrameView};
 use states::ReplayStates;
 
+/// Why a frame or an overview picture could not be drawn: the view refused the moment, or the
+/// picture could not be encoded as PNG. Answered with a 500 and the message.
+#[derive(Debug, thiserror::Error)]
+pub enum DrawError {
+    #[error(transparent)]
+    View(#[from] stylet_render::views::ViewError),
+    #[error(transparent)]
+    Png(#[from] stylet_render::RenderError),
+}
+
 /// Sessions whose replay snapshots stay in memory (the least recently used goes first). Each
 /// holds its decoded ticks (about 130 bytes a tick: 75 MiB for ten minutes at 1 kHz, and the
 /// upload limits bound a session's ticks) and its snapshots (`states::MAX_SNAPSHOTS` clones of
@@ -301,7 +311,7 @@ pub async fn frame(
         Err(busy) => return Ok(busy),
     };
     let tick = q.tick;
-    let png = tokio::task::spawn_blocking(move || -> Result<Option<Vec<u8>>, String> {
+    let png = tokio::task::spawn_blocking(move || -> Result<Option<Vec<u8>>, DrawError> {
         let _turn = turn;
         // Another request may have drawn it while this one waited.
         if let Some(png) = cache.get(&path) {
@@ -310,14 +320,14 @@ pub async fn frame(
         let Some(moment) = states.moment_at(tick) else {
             return Ok(None);
         };
-        let image = drawing.draw(view, &moment, w, h).map_err(|e| e.to_string())?;
-        let png = image.to_png().map_err(|e| e.to_string())?;
+        let image = drawing.draw(view, &moment, w, h)?;
+        let png = image.to_png()?;
         cache.put(&path, &png);
         Ok(Some(png))
     })
     .await
     .map_err(|e| internal(e.to_string()))?
-    .map_err(internal)?
+    .map_err(|e| internal(e.to_string()))?
     .ok_or_else(|| fail(StatusCode::NOT_FOUND, format!("tick {tick} cannot be replayed")))?;
     Ok(png_response(png))
 }

@@ -22,7 +22,7 @@ use stylet_service::AppState;
 use stylet_service::store::SessionRow;
 use stylet_service::traces::review_trace;
 
-use super::{draw_turn, drawing, frame_cache, internal, png_response};
+use super::{DrawError, draw_turn, drawing, frame_cache, internal, png_response};
 use crate::auth::{PageError, Viewer, fail};
 use crate::pages::review::{require_scored, visible_session};
 
@@ -170,7 +170,7 @@ pub async fn frame(
     let report = report_of(&row)?;
     let trace = review_trace(&s, &row.file_sha256, &row.atlas_hash)
         .await
-        .map_err(internal)?;
+        .map_err(|e| internal(e.to_string()))?;
     let drawing = drawing(&s, &row.atlas_hash).await?;
     let scorer = super::atlas_of(&s, &row.atlas_hash).await?.scorer;
     let turn = match draw_turn().await? {
@@ -178,7 +178,7 @@ pub async fn frame(
         Err(busy) => return Ok(busy),
     };
     let frame = q.frame;
-    let png = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, String> {
+    let png = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, DrawError> {
         let _turn = turn;
         if let Some(png) = cache.get(&path) {
             return Ok(png);
@@ -191,14 +191,14 @@ pub async fn frame(
             corridor.as_deref(),
             frame,
         );
-        let image = overview::render(&drawing.atlas, &drawing.volume, &spec, w, h).map_err(|e| e.to_string())?;
-        let png = image.to_png().map_err(|e| e.to_string())?;
+        let image = overview::render(&drawing.atlas, &drawing.volume, &spec, w, h)?;
+        let png = image.to_png()?;
         cache.put(&path, &png);
         Ok(png)
     })
     .await
     .map_err(|e| internal(e.to_string()))?
-    .map_err(internal)?;
+    .map_err(|e| internal(e.to_string()))?;
     Ok(png_response(png))
 }
 

@@ -12,7 +12,17 @@ use std::sync::Arc;
 use stylet_physics::PunctureAtlas;
 use stylet_recorder::reader::Session;
 use stylet_render::views::{Moment, SessionLabels};
-use stylet_scoring::{ReplayError, Replayer};
+use stylet_scoring::{ReplayError, Replayer, UnknownDifficulty};
+
+/// Why a session cannot be replayed for the player: its header names no difficulty level (its
+/// views' aids), or the replay refuses it.
+#[derive(Debug, thiserror::Error)]
+pub enum StatesError {
+    #[error(transparent)]
+    Difficulty(#[from] UnknownDifficulty),
+    #[error(transparent)]
+    Replay(#[from] ReplayError),
+}
 
 /// Most snapshots kept of one session: their spacing grows with the session's length (ten minutes
 /// at 1 kHz: one every 9 375 ticks, about 10 ms to replay).
@@ -34,11 +44,11 @@ pub struct ReplayStates {
 impl ReplayStates {
     /// Replays the whole session once, keeping a snapshot every `max(MIN_SPACING_TICKS,
     /// ticks / MAX_SNAPSHOTS)` ticks. `None` when the session has no tick to show.
-    pub fn build(session: Session, atlas: Arc<PunctureAtlas>) -> Result<Option<ReplayStates>, ReplayError> {
+    pub fn build(session: Session, atlas: Arc<PunctureAtlas>) -> Result<Option<ReplayStates>, StatesError> {
         let h = &session.header;
         let labels = SessionLabels {
             scenario: h.scenario.clone(),
-            difficulty: h.difficulty.clone(),
+            difficulty: h.difficulty.parse()?,
             seed: h.seed,
         };
         let tick_rate_hz = h.tick_rate_hz;

@@ -52,19 +52,6 @@ impl std::str::FromStr for Role {
     }
 }
 
-/// Pages and handlers written before the enum compare roles with their names.
-impl PartialEq<&str> for Role {
-    fn eq(&self, other: &&str) -> bool {
-        self.as_str() == *other
-    }
-}
-
-impl PartialEq<str> for Role {
-    fn eq(&self, other: &str) -> bool {
-        self.as_str() == other
-    }
-}
-
 /// Stored as text (`users.role`, checked by the schema).
 impl sqlx::Type<sqlx::Any> for Role {
     fn type_info() -> sqlx::any::AnyTypeInfo {
@@ -150,7 +137,7 @@ fn valid_password(password: &str) -> bool {
 /// Parses a bulk import, `username,role,cohort,password` per line (cohort may be empty; the
 /// password is the rest of the line, commas included; an optional header line; blank lines
 /// skipped). Every bad line is reported, by number, with why; existing usernames are checked by
-/// [`Store::import_users`].
+/// [`Store::import_csv`].
 pub fn parse_import(text: &str) -> Result<Vec<ImportLine>, Vec<ImportLineError>> {
     let (good, bad) = parse_lines(text);
     if bad.is_empty() { Ok(good) } else { Err(bad) }
@@ -262,8 +249,8 @@ async fn hash_off_thread(passwords: Vec<String>) -> Result<Vec<String>, StoreErr
             .collect::<Result<Vec<_>, _>>()
     })
     .await
-    .map_err(|e| StoreError::Invalid(format!("hashing the password: {e}")))?
-    .map_err(StoreError::Invalid)
+    .map_err(StoreError::HashingTask)?
+    .map_err(StoreError::PasswordHash)
 }
 
 impl Store {
@@ -302,7 +289,7 @@ impl Store {
             .fetch_optional(&mut *tx)
             .await?;
         if exists.is_some() {
-            return Err(StoreError::Invalid(format!("user '{username}' already exists")));
+            return Err(StoreError::UserExists(username.to_string()));
         }
         insert_user(&mut tx, &id, username, role, &hash, cohort).await?;
         tx.commit().await?;
@@ -616,7 +603,7 @@ impl Store {
         Ok(row.is_some())
     }
 
-    /// Every account with its cohorts, by username (bounded by [`MAX_USERS_LISTED`]; admin
+    /// Every account with its cohorts, by username (bounded by `MAX_USERS_LISTED`; admin
     /// pages and the API page through [`Store::users_page`]).
     pub async fn users(&self) -> Result<Vec<UserRow>, StoreError> {
         Ok(self.users_page(None, 0, MAX_USERS_LISTED).await?.0)

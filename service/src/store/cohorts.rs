@@ -3,7 +3,7 @@
 
 use sqlx::Row;
 
-use super::{SessionFilter, Store, StoreError, User};
+use super::{Role, SessionFilter, Store, StoreError, User};
 
 /// A cohort with its totals (final grades).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -88,10 +88,10 @@ impl Store {
     /// The cohorts `viewer` may look at (an instructor those they teach; curriculum staff and
     /// admins all; trainees none), by name.
     pub async fn cohorts_for(&self, viewer: &User) -> Result<Vec<CohortLine>, StoreError> {
-        let only_mine = match viewer.role.as_str() {
-            "instructor" => true,
-            "curriculum" | "admin" => false,
-            _ => return Ok(Vec::new()),
+        let only_mine = match viewer.role {
+            Role::Instructor => true,
+            Role::Curriculum | Role::Admin => false,
+            Role::Trainee => return Ok(Vec::new()),
         };
         let q = format!(
             "SELECT c.name, \

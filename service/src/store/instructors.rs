@@ -6,7 +6,7 @@
 //! a `LIMIT` (pages), so the pages stay fast with tens of thousands of sessions.
 
 use sqlx::Row;
-use stylet_scoring::rubric::LEVELS;
+use stylet_scoring::Difficulty;
 use stylet_scoring::{Exercise, Outcome};
 
 use super::{Role, SessionStatus, Store, StoreError, User};
@@ -338,9 +338,9 @@ impl Store {
         })
         .collect::<Result<Vec<_>, sqlx::Error>>()?;
         // Punctures first, then levels in their order (not alphabetical).
-        let level = |d: &str| LEVELS.iter().position(|l| *l == d).unwrap_or(LEVELS.len());
+        let level = |d: &str| d.parse::<Difficulty>().map_or(Difficulty::ALL.len(), |l| l as usize);
         let mut totals = totals;
-        totals.sort_by(|a, b| (a.exercise, level(&a.difficulty)).cmp(&(b.exercise, level(&b.difficulty))));
+        totals.sort_by_key(|t| (t.exercise, level(&t.difficulty)));
         let mut scores = sqlx::query(
             "SELECT s.id, s.uploaded_at, s.difficulty, s.final_score, s.final_passed FROM sessions s \
              WHERE s.trainee_id = $1 AND s.status = 'scored' AND s.final_score IS NOT NULL \

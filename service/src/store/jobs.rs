@@ -84,7 +84,7 @@ impl Store {
         .bind(job.session_id.clone())
         .bind(report.grade.score)
         .bind(report.grade.passed)
-        .bind(report.grade.difficulty.clone())
+        .bind(report.grade.difficulty.as_str().to_string())
         .bind(report.grade.rubric.clone())
         .bind(report.grade.rubric_version as i64)
         .bind(report.physics_version as i64)
@@ -331,7 +331,7 @@ pub(super) async fn write_summary(
 
 #[cfg(test)]
 mod tests {
-    use super::super::{NewSession, new_id};
+    use super::super::{NewSession, SessionStatus, new_id};
     use super::*;
 
     #[tokio::test]
@@ -376,7 +376,7 @@ mod tests {
             .unwrap();
         store.fail_job(&job, "replay diverged").await.unwrap();
         let (row, _) = store.session(&session_id).await.unwrap().unwrap();
-        assert_eq!((row.status.as_str(), row.error), ("scored", None));
+        assert_eq!((row.status, row.error), (SessionStatus::Scored, None));
         // A job still running is closed as failed, with its reason.
         sqlx::query("UPDATE scoring_jobs SET state = 'running' WHERE id = $1")
             .bind(job.id.clone())
@@ -386,8 +386,8 @@ mod tests {
         store.fail_job(&job, "replay diverged").await.unwrap();
         let (row, _) = store.session(&session_id).await.unwrap().unwrap();
         assert_eq!(
-            (row.status.as_str(), row.error.as_deref()),
-            ("failed", Some("replay diverged"))
+            (row.status, row.error.as_deref()),
+            (SessionStatus::Failed, Some("replay diverged"))
         );
     }
 }

@@ -80,6 +80,8 @@ pub struct SessionRow {
     pub reasons: Vec<String>,
 }
 
+/// Why the store refused or failed a request: the database, a value it does not accept, or a
+/// change that clashes with what is stored (each named, so that callers map it to a status once).
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
     #[error("database: {0}")]
@@ -88,6 +90,18 @@ pub enum StoreError {
     Migrate(#[from] sqlx::migrate::MigrateError),
     #[error("{0}")]
     Invalid(String),
+    /// An account of that username exists already.
+    #[error("user '{0}' already exists")]
+    UserExists(String),
+    /// The account holds the most active API tokens allowed.
+    #[error("{username} has {active} active API tokens, the most allowed; revoke one first")]
+    TooManyTokens { username: String, active: i64 },
+    /// argon2 could not hash a password.
+    #[error("{0}")]
+    PasswordHash(argon2::password_hash::Error),
+    /// The thread hashing passwords panicked or was cancelled.
+    #[error("hashing the password: {0}")]
+    HashingTask(#[source] tokio::task::JoinError),
 }
 
 impl From<sqlx::Error> for StoreError {

@@ -2,7 +2,7 @@
 
 use sqlx::Row;
 
-use super::{SessionRow, User};
+use super::{Role, SessionRow, User};
 use super::{Store, StoreError, audit_in, new_id, now};
 
 impl Store {
@@ -151,14 +151,14 @@ impl Store {
             binds.push(v.to_string());
             format!("${}", binds.len())
         };
-        match viewer.role.as_str() {
-            "trainee" => conds.push(format!("s.trainee_id = {}", bind(&viewer.id, &mut binds))),
-            "instructor" => conds.push(format!(
+        match viewer.role {
+            Role::Trainee => conds.push(format!("s.trainee_id = {}", bind(&viewer.id, &mut binds))),
+            Role::Instructor => conds.push(format!(
                 "s.trainee_id IN (SELECT b.user_id FROM cohort_members a JOIN cohort_members b \
                  ON a.cohort_id = b.cohort_id WHERE a.user_id = {})",
                 bind(&viewer.id, &mut binds)
             )),
-            _ => {}
+            Role::Curriculum | Role::Admin => {}
         }
         if let Some(v) = &filter.trainee_id {
             conds.push(format!("s.trainee_id = {}", bind(v, &mut binds)));
@@ -169,8 +169,8 @@ impl Store {
                 bind(v, &mut binds)
             ));
         }
-        if let Some(v) = &filter.status {
-            conds.push(format!("s.status = {}", bind(v, &mut binds)));
+        if let Some(v) = filter.status {
+            conds.push(format!("s.status = {}", bind(v.as_str(), &mut binds)));
         }
         let mut clause = String::from(" WHERE 1 = 1");
         for c in conds {
@@ -229,9 +229,10 @@ impl Store {
 /// values appended to `binds` (placeholders numbered after what is there).
 pub(super) fn narrowing(filter: &SessionFilter, binds: &mut Vec<String>) -> String {
     let mut out = String::new();
+    let difficulty = filter.difficulty.map(|d| d.as_str().to_string());
     for (col, op, v) in [
         ("s.scenario", "=", &filter.scenario),
-        ("s.difficulty", "=", &filter.difficulty),
+        ("s.difficulty", "=", &difficulty),
         ("s.uploaded_at", ">=", &filter.uploaded_from),
         ("s.uploaded_at", "<", &filter.uploaded_before),
     ] {
@@ -249,8 +250,8 @@ pub struct SessionFilter {
     pub trainee_id: Option<String>,
     pub cohort_id: Option<String>,
     pub scenario: Option<String>,
-    pub difficulty: Option<String>,
-    pub status: Option<String>,
+    pub difficulty: Option<stylet_scoring::Difficulty>,
+    pub status: Option<super::SessionStatus>,
     /// Inclusive.
     pub uploaded_from: Option<String>,
     /// Exclusive.

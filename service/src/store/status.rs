@@ -47,26 +47,6 @@ impl std::fmt::Display for SessionStatus {
     }
 }
 
-/// Pages written before the enum compare and pass statuses as names.
-impl std::ops::Deref for SessionStatus {
-    type Target = str;
-    fn deref(&self) -> &str {
-        self.as_str()
-    }
-}
-
-impl PartialEq<&str> for SessionStatus {
-    fn eq(&self, other: &&str) -> bool {
-        self.as_str() == *other
-    }
-}
-
-impl PartialEq<str> for SessionStatus {
-    fn eq(&self, other: &str) -> bool {
-        self.as_str() == other
-    }
-}
-
 impl sqlx::Type<sqlx::Any> for SessionStatus {
     fn type_info() -> sqlx::any::AnyTypeInfo {
         <String as sqlx::Type<sqlx::Any>>::type_info()
@@ -89,7 +69,6 @@ mod tests {
         for s in SessionStatus::ALL {
             assert_eq!(SessionStatus::parse(s.as_str()), Some(s));
             assert_eq!(serde_json::to_value(s).unwrap(), s.as_str());
-            assert!(s == s.as_str());
         }
         assert_eq!(SessionStatus::parse("done"), None);
         assert!(SessionStatus::Scored.is_final() && !SessionStatus::Queued.is_final());

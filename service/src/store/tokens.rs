@@ -157,10 +157,10 @@ impl Store {
         .try_get("n")?;
         if active >= max_active as i64 {
             tx.rollback().await?;
-            return Err(StoreError::Invalid(format!(
-                "{} has {active} active API tokens, the most allowed; revoke one first",
-                user.username
-            )));
+            return Err(StoreError::TooManyTokens {
+                username: user.username.clone(),
+                active,
+            });
         }
         sqlx::query(
             "INSERT INTO api_tokens (token_sha256, user_id, label, created_at, id, scope, expires_at, revoked_at, last4) \

@@ -187,8 +187,10 @@ mod tests {
         apply(&wheel, DQuat::IDENTITY, &mut p, 0.016);
         assert!((p.position_mm - DVec3::new(2.0, 0.0, 2.0)).length() < 1e-9);
         // Aiming 360 px to the side turns the axis by 90° about the view's vertical.
-        let mut a = RatePose::default();
-        a.orientation = DQuat::from_rotation_x(-std::f64::consts::FRAC_PI_2); // axis along +y
+        let mut a = RatePose {
+            orientation: DQuat::from_rotation_x(-std::f64::consts::FRAC_PI_2), // axis along +y
+            ..Default::default()
+        };
         let aim = ControlInput {
             aim_px: [360.0, 0.0],
             ..Default::default()

@@ -320,7 +320,7 @@ fn run(
         if let Some(r) = recording.as_mut() {
             r.tick(&input, &out, &sim);
         }
-        if out.tick % publish_every == 0 {
+        if out.tick.is_multiple_of(publish_every) {
             publish(shared, snapshot_of(&sim, &input, &out, labels, &mut contrast));
         }
         stats.ticks.fetch_add(1, Ordering::Relaxed);
@@ -337,7 +337,7 @@ fn run(
                 window_missed += 1;
                 window_worst = window_worst.max(timing.late);
             }
-            if (tick + 1) % u64::from(rate) == 0 && window_missed > 0 {
+            if (tick + 1).is_multiple_of(u64::from(rate)) && window_missed > 0 {
                 if let Some(r) = recording.as_ref() {
                     r.note(
                         tick,

@@ -29,7 +29,11 @@ pub enum OutboxError {
     #[error("{path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
     #[error("{path} is not a finished session file: {reason}")]
-    NotASession { path: PathBuf, reason: String },
+    NotASession {
+        path: PathBuf,
+        #[source]
+        reason: stylet_recorder::VerifyError,
+    },
     #[error("{path} is {bytes} bytes, more than the {MAX_SESSION_BYTES} an upload may be")]
     TooLarge { path: PathBuf, bytes: u64 },
 }
@@ -271,7 +275,8 @@ struct RetrierState {
     uploader: Option<std::sync::Arc<dyn Uploader + Send + Sync>>,
     stop: bool,
     wake: bool,
-    last: Option<Result<Round, String>>,
+    /// The latest round, or why it could not run (shared: every caller gets the same error).
+    last: Option<Result<Round, std::sync::Arc<OutboxError>>>,
     /// Every upload the service confirmed since the start: (file name, session id).
     uploaded: Vec<(String, String)>,
 }
@@ -319,7 +324,7 @@ impl Retrier {
                     if let Ok(r) = &round {
                         st.uploaded.extend(r.uploaded.iter().cloned());
                     }
-                    st.last = Some(round.map_err(|e| e.to_string()));
+                    st.last = Some(round.map_err(std::sync::Arc::new));
                     // Wait: for a wake-up only when nothing waits; else at most the pause.
                     let deadline = std::time::Instant::now() + if waiting { pause } else { backoff.max };
                     while !st.stop && !st.wake {
@@ -377,7 +382,7 @@ impl Retrier {
     }
 
     /// What the latest round did (for the window's status line).
-    pub fn last_round(&self) -> Option<Result<Round, String>> {
+    pub fn last_round(&self) -> Option<Result<Round, std::sync::Arc<OutboxError>>> {
         self.state.0.lock().ok().and_then(|st| st.last.clone())
     }
 }

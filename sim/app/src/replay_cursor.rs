@@ -16,9 +16,16 @@ use stylet_scoring::{ReplayError, Replayer, ReviewTrace, Rubric, ScoreReport, Sc
 #[derive(Debug, thiserror::Error)]
 pub enum OpenError {
     #[error("cannot read {path}: {reason}")]
-    Unreadable { path: String, reason: String },
+    Unreadable {
+        path: String,
+        #[source]
+        reason: stylet_recorder::ReadError,
+    },
+    /// No scorer could be built for the atlas.
     #[error("cannot score the session: {0}")]
-    Score(String),
+    Scorer(#[source] stylet_scoring::ScorerError),
+    #[error("cannot score the session: {0}")]
+    Score(#[source] stylet_scoring::ScoreError),
     #[error(transparent)]
     Replay(#[from] ReplayError),
 }
@@ -54,23 +61,21 @@ impl ReplayCursor {
     /// Reads a session file (a cut file: its intact part), scores it with the default rubric
     /// (the trace gives the force chart and the key moments) and stands at its start.
     pub fn open(atlas: &Atlas, path: &Path) -> Result<ReplayCursor, OpenError> {
-        let session = stylet_recorder::reader::recover(path).map_err(|e| OpenError::Unreadable {
+        let session = stylet_recorder::reader::recover(path).map_err(|reason| OpenError::Unreadable {
             path: path.display().to_string(),
-            reason: e.to_string(),
+            reason,
         })?;
         ReplayCursor::of_session(atlas, Arc::new(session))
     }
 
     pub fn of_session(atlas: &Atlas, session: Arc<Session>) -> Result<ReplayCursor, OpenError> {
-        let scorer = Scorer::new(atlas, Rubric::default_rubric(), None).map_err(OpenError::Score)?;
-        let (report, trace) = scorer
-            .score_session_traced(&session)
-            .map_err(|e| OpenError::Score(e.to_string()))?;
+        let scorer = Scorer::new(atlas, Rubric::default_rubric(), None).map_err(OpenError::Scorer)?;
+        let (report, trace) = scorer.score_session_traced(&session).map_err(OpenError::Score)?;
         let model = Arc::clone(scorer.atlas());
         let h = &session.header;
         let labels = SessionLabels {
             scenario: h.scenario.clone(),
-            difficulty: h.difficulty.clone(),
+            difficulty: report.grade.difficulty,
             seed: h.seed,
         };
         let key_moments = key_moments(&trace, f64::from(h.tick_rate_hz), session.ticks.len() as u64);

@@ -25,29 +25,7 @@ use crate::haptic::{ConsoleLine, HapticLoop, LoopError, LoopOptions, LoopReport,
 use crate::views::ViewSettings;
 
 /// The difficulty levels a session is graded at (the rubric has one level per name).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum Difficulty {
-    #[default]
-    Beginner,
-    Advanced,
-    Expert,
-}
-
-impl Difficulty {
-    pub const ALL: [Difficulty; 3] = [Difficulty::Beginner, Difficulty::Advanced, Difficulty::Expert];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Difficulty::Beginner => "beginner",
-            Difficulty::Advanced => "advanced",
-            Difficulty::Expert => "expert",
-        }
-    }
-
-    pub fn parse(s: &str) -> Option<Difficulty> {
-        Difficulty::ALL.into_iter().find(|d| d.name() == s)
-    }
-}
+pub use stylet_scoring::Difficulty;
 
 /// Console lines a session keeps (the oldest go first).
 pub const CONSOLE_LINES: usize = 500;
@@ -58,7 +36,7 @@ pub enum SessionError {
     #[error("the script cannot drive this patient: {0}")]
     Script(String),
     #[error("the simulation cannot start: {0}")]
-    Simulation(String),
+    Simulation(stylet_physics::SimError),
     #[error("the device cannot be used: {0}")]
     Device(String),
     #[error("cannot record the session to {path}: {reason}")]
@@ -88,12 +66,7 @@ pub struct SessionPlan {
 impl SessionPlan {
     /// The aids of the difficulty level, as the atlas declares them (`[difficulty.*]`).
     pub fn aids(&self) -> &DifficultyPreset {
-        let d = &self.atlas.manifest.difficulty;
-        match self.difficulty {
-            Difficulty::Beginner => &d.beginner,
-            Difficulty::Advanced => &d.advanced,
-            Difficulty::Expert => &d.expert,
-        }
+        self.atlas.manifest.difficulty.of(self.difficulty)
     }
 
     /// The breathing of the session: the scenario's `breathes` with the atlas' motion and the
@@ -115,7 +88,7 @@ impl SessionPlan {
             },
         }
         .resolve(&self.atlas.model)
-        .map_err(SessionError::Simulation)
+        .map_err(|e| SessionError::Simulation(e.into()))
     }
 
     /// What the scenario practises (decides the rubric).
@@ -152,13 +125,14 @@ impl SessionPlan {
     pub fn labels(&self) -> SessionLabels {
         SessionLabels {
             scenario: self.scenario.clone(),
-            difficulty: self.difficulty.name().to_string(),
+            difficulty: self.difficulty,
             seed: self.seed,
         }
     }
 }
 
 /// Who moves the tools.
+#[allow(clippy::large_enum_variant, reason = "one per session, made once when it starts")]
 pub enum Driver {
     /// The trainee, through the window (keyboard, mouse, SpaceMouse, tablet).
     Hands,
@@ -268,7 +242,7 @@ impl RunningSession {
         let info = SessionInfo {
             trainee: &plan.trainee,
             scenario: &plan.scenario,
-            difficulty: plan.difficulty.name(),
+            difficulty: plan.difficulty.as_str(),
             seed: plan.seed,
             atlas_id: &atlas.manifest.name,
             atlas_hash: &atlas.content_hash,
@@ -356,14 +330,11 @@ impl RunningSession {
             None => self.haptic.stop(),
         }
         let report = self.haptic.join()?;
-        match &report.recording {
-            Some(Err(e)) => {
-                return Err(SessionError::Recording {
-                    path: self.path,
-                    reason: e.to_string(),
-                });
-            }
-            Some(Ok(_)) | None => {}
+        if let Some(Err(e)) = &report.recording {
+            return Err(SessionError::Recording {
+                path: self.path,
+                reason: e.to_string(),
+            });
         }
         Ok(FinishedSession {
             plan: self.plan,
@@ -383,15 +354,25 @@ pub struct FinishedSession {
 impl FinishedSession {
     /// Scores the file as the service will: a replay through the same physics, the default
     /// rubric, reasons in plain words.
-    pub fn score(&self) -> Result<ScoreReport, String> {
+    pub fn score(&self) -> Result<ScoreReport, ScoreFileError> {
         score_file(&self.plan.atlas, &self.path)
     }
 }
 
+/// Why a session file got no local score: no scorer could be built for its atlas, or the file
+/// itself could not be scored (unreadable, another atlas, a replay that fails, no grade level).
+#[derive(Debug, thiserror::Error)]
+pub enum ScoreFileError {
+    #[error(transparent)]
+    Scorer(#[from] stylet_scoring::ScorerError),
+    #[error(transparent)]
+    Score(#[from] stylet_scoring::ScoreError),
+}
+
 /// Scores a session file on its atlas with the default rubric.
-pub fn score_file(atlas: &Atlas, path: &Path) -> Result<ScoreReport, String> {
+pub fn score_file(atlas: &Atlas, path: &Path) -> Result<ScoreReport, ScoreFileError> {
     let scorer = Scorer::new(atlas, Rubric::default_rubric(), None)?;
-    scorer.score_file(path).map_err(|e| e.to_string())
+    Ok(scorer.score_file(path)?)
 }
 
 /// A new file name in `dir`: the time and the scenario, never one that exists.

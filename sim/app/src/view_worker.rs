@@ -7,7 +7,7 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 
 use stylet_atlas::Atlas;
-use stylet_render::views::Moment;
+use stylet_render::views::{Moment, ViewError};
 
 use crate::views::{Frame, ViewKind, ViewRenderer, ViewSettings};
 
@@ -25,7 +25,7 @@ pub struct DrawnPane {
     pub pane: Pane,
     /// The tick of the moment it shows.
     pub tick: u64,
-    pub frame: Result<Frame, String>,
+    pub frame: Result<Frame, ViewError>,
     /// Order of drawing (1 for the worker's first frame).
     pub seq: u64,
 }
@@ -178,9 +178,7 @@ fn run(atlas: Arc<Atlas>, settings: ViewSettings, shared: &(Mutex<State>, Condva
                 };
             }
         };
-        let frame = renderer
-            .draw(pane.kind, &moment, pane.width, pane.height)
-            .map_err(|e| e.to_string());
+        let frame = renderer.draw(pane.kind, &moment, pane.width, pane.height);
         seq += 1;
         let drawn = Arc::new(DrawnPane {
             pane,

@@ -334,7 +334,7 @@ impl ViewRenderer {
             &self.atlas,
             Some(moment),
             Some(ProbeKind::Convex),
-            &moment.difficulty,
+            moment.difficulty,
             Arc::clone(&self.echo),
             self.doppler.clone(),
         )

@@ -70,9 +70,9 @@ pub(crate) fn page(input: &ReportInput, pictures: &[Picture]) -> String {
     difficulty(&mut h, input);
     smoke(&mut h, input);
     times(&mut h, input);
-    let _ = write!(
+    let _ = writeln!(
         h,
-        "<h2>Notes of the import</h2><ul>{}</ul></body></html>\n",
+        "<h2>Notes of the import</h2><ul>{}</ul></body></html>",
         import
             .notes
             .iter()

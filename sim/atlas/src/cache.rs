@@ -16,7 +16,7 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use sha2::{Digest, Sha256};
-use stylet_physics::{DistanceMaps, Grid, PHYSICS_VERSION, Thresholds, Volume};
+use stylet_physics::{DistanceMaps, Grid, PHYSICS_VERSION, PhysicsError, Thresholds, Volume};
 
 /// The cache folder inside an atlas directory.
 pub const CACHE_DIR: &str = ".stylet-cache";
@@ -28,6 +28,53 @@ const CACHE_FORMAT: u32 = 1;
 const HEADER_BYTES: usize = 16 + 4 + 4 + 64 + 24 + 32 + 64;
 /// A temporary file older than this is taken for the leftover of a crash and removed.
 const STALE_PARTIAL: Duration = Duration::from_secs(600);
+
+/// Why a cache file is not trusted, or not written. Never fails a load: the maps are derived
+/// again, and [`CacheStatus`] tells why.
+#[derive(Debug, thiserror::Error)]
+pub enum CacheError {
+    /// Reading, creating, writing or renaming a file failed; `context` says what and where.
+    #[error("{context}: {error}")]
+    Io { context: String, error: std::io::Error },
+    #[error("{} is not a regular file", path.display())]
+    NotAFile { path: PathBuf },
+    /// Truncated or grown: the size does not fit the CT's grid.
+    #[error("{actual} bytes where {expected} were expected")]
+    WrongSize { actual: u64, expected: u64 },
+    #[error("not a Stylet cache file (bad magic)")]
+    BadMagic,
+    #[error("cache format {found}, this Stylet writes {CACHE_FORMAT}")]
+    OtherFormat { found: u32 },
+    /// Derived by another physics version, whose maps may differ.
+    #[error("derived by physics version {found}, this is {PHYSICS_VERSION}")]
+    OtherPhysics { found: u32 },
+    #[error("derived from other atlas content")]
+    OtherContent,
+    #[error("grid {cached:?} differs from the CT's {ct:?}")]
+    OtherGrid { cached: Vec<u64>, ct: [usize; 3] },
+    #[error("its thresholds are invalid: {0}")]
+    InvalidThresholds(PhysicsError),
+    #[error("the maps do not match their checksums (the file is damaged)")]
+    Checksum,
+    /// The maps read do not make volumes on the CT's grid.
+    #[error(transparent)]
+    Volume(PhysicsError),
+    /// The CT on disk changed between its header read and its load.
+    #[error("the CT changed while it was read")]
+    CtChanged,
+    /// The cache holds maps derived at thresholds other than the atlas' own.
+    #[error("derived at other thresholds ({0:?})")]
+    OtherThresholds(Thresholds),
+    #[error("{hash:?} is not a content hash")]
+    NotAContentHash { hash: String },
+    #[error("the skin and bone maps have different dimensions")]
+    MapDimensions,
+}
+
+fn io(context: impl Into<String>) -> impl FnOnce(std::io::Error) -> CacheError {
+    let context = context.into();
+    move |error| CacheError::Io { context, error }
+}
 
 /// What a load did with the cache, for `stylet atlas inspect` and the tests.
 #[derive(Debug, Clone, PartialEq)]
@@ -136,40 +183,42 @@ pub fn cache_file(dir: &Path, content_hash: &str) -> PathBuf {
 
 /// Reads the cache of `content_hash` for a CT on `grid`: `Ok(None)` when there is none,
 /// `Err(reason)` when there is one that must not be trusted.
-pub fn read(dir: &Path, content_hash: &str, grid: &Grid) -> Result<Option<Derived>, String> {
+pub fn read(dir: &Path, content_hash: &str, grid: &Grid) -> Result<Option<Derived>, CacheError> {
     let path = cache_file(dir, content_hash);
     let meta = match fs::symlink_metadata(&path) {
         Ok(m) => m,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(format!("cannot read {}: {e}", path.display())),
+        Err(e) => return Err(io(format!("cannot read {}", path.display()))(e)),
     };
     if !meta.is_file() {
-        return Err(format!("{} is not a regular file", path.display()));
+        return Err(CacheError::NotAFile { path });
     }
     let n = grid.len();
     let expected = HEADER_BYTES as u64 + 2 * 4 * n as u64;
     if meta.len() != expected {
-        return Err(format!("{} bytes where {expected} were expected", meta.len()));
+        return Err(CacheError::WrongSize {
+            actual: meta.len(),
+            expected,
+        });
     }
-    let mut file = fs::File::open(&path).map_err(|e| format!("cannot open: {e}"))?;
+    let mut file = fs::File::open(&path).map_err(io("cannot open"))?;
     let mut header = [0u8; HEADER_BYTES];
-    file.read_exact(&mut header)
-        .map_err(|e| format!("cannot read the header: {e}"))?;
+    file.read_exact(&mut header).map_err(io("cannot read the header"))?;
     let h = parse_header(&header, content_hash, grid)?;
     let mut skin = vec![0f32; n];
     let mut bone = vec![0f32; n];
     for map in [&mut skin, &mut bone] {
         file.read_exact(bytemuck::cast_slice_mut(map.as_mut_slice()))
-            .map_err(|e| format!("cannot read the maps: {e}"))?;
+            .map_err(io("cannot read the maps"))?;
     }
     let (skin_digest, bone_digest) = rayon::join(|| digest(&skin), || digest(&bone));
     if skin_digest != h.skin_digest || bone_digest != h.bone_digest {
-        return Err("the maps do not match their checksums (the file is damaged)".into());
+        return Err(CacheError::Checksum);
     }
     for map in [&mut skin, &mut bone] {
         from_little_endian(map);
     }
-    let volume = |data| Volume::new(*grid, data).map_err(|e| e.to_string());
+    let volume = |data| Volume::new(*grid, data).map_err(CacheError::Volume);
     Ok(Some(Derived {
         thresholds: h.thresholds,
         maps: DistanceMaps {
@@ -185,7 +234,7 @@ struct Header {
     bone_digest: [u8; 32],
 }
 
-fn parse_header(b: &[u8; HEADER_BYTES], content_hash: &str, grid: &Grid) -> Result<Header, String> {
+fn parse_header(b: &[u8; HEADER_BYTES], content_hash: &str, grid: &Grid) -> Result<Header, CacheError> {
     let mut at = 0usize;
     let mut take = |n: usize| {
         let s = &b[at..at + n];
@@ -193,27 +242,28 @@ fn parse_header(b: &[u8; HEADER_BYTES], content_hash: &str, grid: &Grid) -> Resu
         s
     };
     if take(16) != MAGIC {
-        return Err("not a Stylet cache file (bad magic)".into());
+        return Err(CacheError::BadMagic);
     }
     let u32_at = |s: &[u8]| u32::from_le_bytes(s.try_into().expect("4 bytes"));
     let format = u32_at(take(4));
     if format != CACHE_FORMAT {
-        return Err(format!("cache format {format}, this Stylet writes {CACHE_FORMAT}"));
+        return Err(CacheError::OtherFormat { found: format });
     }
     let physics = u32_at(take(4));
     if physics != PHYSICS_VERSION {
-        return Err(format!(
-            "derived by physics version {physics}, this is {PHYSICS_VERSION}"
-        ));
+        return Err(CacheError::OtherPhysics { found: physics });
     }
     if take(64) != content_hash.as_bytes() {
-        return Err("derived from other atlas content".into());
+        return Err(CacheError::OtherContent);
     }
     let dims: Vec<u64> = (0..3)
         .map(|_| u64::from_le_bytes(take(8).try_into().expect("8 bytes")))
         .collect();
     if dims.iter().zip(grid.dims()).any(|(&a, b)| a != b as u64) {
-        return Err(format!("grid {dims:?} differs from the CT's {:?}", grid.dims()));
+        return Err(CacheError::OtherGrid {
+            cached: dims,
+            ct: grid.dims(),
+        });
     }
     let mut f = || f64::from_le_bytes(take(8).try_into().expect("8 bytes"));
     let thresholds = Thresholds {
@@ -222,9 +272,7 @@ fn parse_header(b: &[u8; HEADER_BYTES], content_hash: &str, grid: &Grid) -> Resu
         fat_bone_hu: f(),
         risk_depth_mm: f(),
     };
-    thresholds
-        .validate()
-        .map_err(|e| format!("its thresholds are invalid: {e}"))?;
+    thresholds.validate().map_err(CacheError::InvalidThresholds)?;
     let skin_digest = take(32).try_into().expect("32 bytes");
     let bone_digest = take(32).try_into().expect("32 bytes");
     Ok(Header {
@@ -244,12 +292,14 @@ pub struct DerivedRef<'a> {
 
 /// Writes the cache of `content_hash` (temporary file, then rename) and removes the caches of
 /// other content and leftovers of crashed writes.
-pub fn write(dir: &Path, content_hash: &str, derived: DerivedRef<'_>) -> Result<(), String> {
+pub fn write(dir: &Path, content_hash: &str, derived: DerivedRef<'_>) -> Result<(), CacheError> {
     if content_hash.len() != 64 || !content_hash.bytes().all(|c| c.is_ascii_hexdigit()) {
-        return Err(format!("{content_hash:?} is not a content hash"));
+        return Err(CacheError::NotAContentHash {
+            hash: content_hash.to_string(),
+        });
     }
     let folder = dir.join(CACHE_DIR);
-    fs::create_dir_all(&folder).map_err(|e| format!("cannot create {}: {e}", folder.display()))?;
+    fs::create_dir_all(&folder).map_err(io(format!("cannot create {}", folder.display())))?;
     let path = cache_file(dir, content_hash);
     let tmp = folder.join(format!(
         ".{}.{}.{:?}.partial",
@@ -258,7 +308,7 @@ pub fn write(dir: &Path, content_hash: &str, derived: DerivedRef<'_>) -> Result<
         std::thread::current().id()
     ));
     let result = write_file(&tmp, content_hash, derived)
-        .and_then(|()| fs::rename(&tmp, &path).map_err(|e| format!("cannot move {} into place: {e}", path.display())));
+        .and_then(|()| fs::rename(&tmp, &path).map_err(io(format!("cannot move {} into place", path.display()))));
     if result.is_err() {
         let _ = fs::remove_file(&tmp);
     }
@@ -267,11 +317,11 @@ pub fn write(dir: &Path, content_hash: &str, derived: DerivedRef<'_>) -> Result<
     Ok(())
 }
 
-fn write_file(tmp: &Path, content_hash: &str, derived: DerivedRef<'_>) -> Result<(), String> {
+fn write_file(tmp: &Path, content_hash: &str, derived: DerivedRef<'_>) -> Result<(), CacheError> {
     let (skin, bone) = (derived.skin_distance.data(), derived.bone_distance.data());
     let dims = derived.skin_distance.grid().dims();
     if derived.bone_distance.grid().dims() != dims {
-        return Err("the skin and bone maps have different dimensions".into());
+        return Err(CacheError::MapDimensions);
     }
     let t = derived.thresholds;
     let mut header = Vec::with_capacity(HEADER_BYTES);
@@ -288,7 +338,10 @@ fn write_file(tmp: &Path, content_hash: &str, derived: DerivedRef<'_>) -> Result
     let digests_at = header.len() as u64;
     // The digests' place stays zero until they are known: the maps are hashed while written.
     header.resize(HEADER_BYTES, 0);
-    let io = |e: std::io::Error| format!("cannot write {}: {e}", tmp.display());
+    let io = |error: std::io::Error| CacheError::Io {
+        context: format!("cannot write {}", tmp.display()),
+        error,
+    };
     // One pass over each map: every chunk is hashed and written while it is in the cache.
     // Sequential on purpose: the write runs on its own thread beside the caller's work.
     let mut f = fs::File::create(tmp).map_err(io)?;

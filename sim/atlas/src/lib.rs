@@ -7,6 +7,7 @@
 //! feature).
 
 pub mod cache;
+pub mod difficulty;
 pub mod import;
 pub mod manifest;
 pub mod motion;
@@ -19,14 +20,52 @@ pub mod validation;
 use std::path::{Path, PathBuf};
 
 pub use cache::{CacheMode, CacheStatus};
+pub use difficulty::{Difficulty, UnknownDifficulty};
 pub use manifest::{EchoClass, Exercise, Manifest, ScenarioFile};
 pub use store::{Atlas, ThresholdSource, load, load_with, write};
 
-/// A problem with atlas input, always naming the file it concerns.
+/// A problem with atlas input, always naming the file it concerns. The typed variants keep the
+/// check that failed (`error`); their message is the path followed by that error's.
 #[derive(Debug, thiserror::Error)]
 pub enum AtlasError {
     #[error("{}: {message}", path.display())]
     File { path: PathBuf, message: String },
+    /// An `atlas.toml`, a scenario file or a recipe's labels that fail their checks.
+    #[error("{}: {error}", path.display())]
+    Manifest {
+        path: PathBuf,
+        error: manifest::ManifestError,
+    },
+    /// A manifest about to be written that fails its checks: the atlas is left as it was.
+    #[error("{}: refusing to write an invalid manifest: {error}", path.display())]
+    RefusedManifest {
+        path: PathBuf,
+        error: manifest::ManifestError,
+    },
+    /// A validation record (or a script name) that fails its checks.
+    #[error("{}: {error}", path.display())]
+    Record {
+        path: PathBuf,
+        error: validation::RecordError,
+    },
+    /// A class table CSV that cannot be read, or a structure it cannot take.
+    #[error("{}: {error}", path.display())]
+    ClassTable {
+        path: PathBuf,
+        error: import::classes::ClassTableError,
+    },
+    /// A mapping override CSV that cannot be read.
+    #[error("{}: {error}", path.display())]
+    Mapping {
+        path: PathBuf,
+        error: import::mapping::MappingError,
+    },
+    /// The `[biliary]` table of the recipe at `path` cannot grow a biliary tree in this liver.
+    #[error("{}: [biliary]: {error}", path.display())]
+    Biliary {
+        path: PathBuf,
+        error: import::biliary::BiliaryError,
+    },
     #[error("{0}")]
     Other(String),
 }

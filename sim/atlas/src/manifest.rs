@@ -14,6 +14,117 @@ use stylet_physics::{
 /// The atlas format version this code reads and writes.
 pub const FORMAT_VERSION: u32 = 1;
 
+/// Why an `atlas.toml`, a scenario file or a recipe's labels fail their checks: the section and
+/// the value that is wrong, so the atlas author knows what to fix. The message is the one shown
+/// after the file's path.
+#[derive(Debug, thiserror::Error)]
+pub enum ManifestError {
+    /// Not TOML of the format: syntax, an unknown key, a wrong type or a `[render]` the parser
+    /// refused (the parser's message).
+    #[error("{0}")]
+    Syntax(String),
+    #[error("format_version {found} is not supported (this Stylet reads version {FORMAT_VERSION})")]
+    UnsupportedVersion { found: u32 },
+    #[error("name must not be empty")]
+    EmptyName,
+    /// `volumes.ct` or `volumes.labels` (`key`) names a file the loader must not open.
+    #[error("{key} = {file:?}: {problem}")]
+    VolumeFile {
+        key: &'static str,
+        file: String,
+        problem: PathProblem,
+    },
+    #[error("volumes.ct and volumes.labels name the same file")]
+    SameVolumeFile,
+    /// A measured breathing file (`breathing.a1` …) that would leave the atlas folder.
+    #[error("breathing.{key}: {problem}")]
+    BreathingFile { key: &'static str, problem: PathProblem },
+    /// A label whose consequence is not one line of 1–200 characters.
+    #[error("label '{label}': a consequence is one line of 1–200 characters")]
+    Consequence { label: String },
+    #[error("label '{label}' has role '{role}'; expected one of target, risk, bone, organ, neutral")]
+    UnknownRole { label: String, role: String },
+    /// The labels do not form a valid label table (ids, heuristic labels, names).
+    #[error(transparent)]
+    LabelTable(stylet_physics::PhysicsError),
+    /// `[tissues]` does not form a valid property tree (parents, cycles, parameters).
+    #[error(transparent)]
+    PropertyTree(stylet_physics::PhysicsError),
+    /// A label's tissue lacks a material parameter the physics needs.
+    #[error(transparent)]
+    Materials(stylet_physics::PhysicsError),
+    #[error("heuristic.risk_depth_mm must be a finite number ≥ 0, got {value}")]
+    RiskDepth { value: f64 },
+    /// `[thresholds]` out of order or not finite.
+    #[error(transparent)]
+    Thresholds(stylet_physics::PhysicsError),
+    #[error("an insertion path has an empty name")]
+    UnnamedPath,
+    #[error("insertion path '{name}' is defined twice")]
+    DuplicatePath { name: String },
+    #[error("insertion path '{name}' has non-finite coordinates")]
+    NonFinitePath { name: String },
+    #[error("insertion path '{name}': entry and target are less than 1 mm apart")]
+    ShortPath { name: String },
+    /// A difficulty level (`level`) guided along a path the atlas does not plan.
+    #[error("difficulty.{level}.guided_path = {path:?} names no insertion path")]
+    UnknownGuidedPath { level: &'static str, path: String },
+    #[error("scenario '{name}': a scenario name is 1–64 letters, digits or . _ - @")]
+    ScenarioName { name: String },
+    #[error("scenario '{name}' is declared twice")]
+    DuplicateScenario { name: String },
+    /// A scenario's C-arm set to what a C-arm cannot do.
+    #[error("scenario '{scenario}': {error}")]
+    ScenarioCArm { scenario: String, error: CArmError },
+    /// A render preset (`preset`: skin, soft or bone) that cannot be drawn.
+    #[error("render preset '{preset}': {error}")]
+    RenderPreset { preset: &'static str, error: PresetError },
+    #[error(
+        "render.window: level_hu must be finite and width_hu a finite number > 0, got level {level_hu} width {width_hu}"
+    )]
+    RenderWindow { level_hu: f64, width_hu: f64 },
+}
+
+/// Why a file the manifest names may not be opened: the loader reads nothing outside the atlas
+/// folder and only NIfTI volumes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum PathProblem {
+    #[error("must be a plain file name inside the atlas directory")]
+    NotPlainName,
+    #[error("must be a NIfTI file (.nii or .nii.gz)")]
+    NotNifti,
+    #[error("must be a path inside the atlas directory (relative, without '..')")]
+    OutsideAtlas,
+}
+
+/// A C-arm value outside what a C-arm can be set to: `field` is the key under `c_arm`
+/// ("lao_deg", "window", …), `detail` the value and its allowed range.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("c_arm.{field} {detail}")]
+pub struct CArmError {
+    pub field: &'static str,
+    pub detail: String,
+}
+
+/// Why a transfer-function preset cannot be drawn (`trapezoid` counts from 1).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PresetError {
+    #[error("needs 1 … {MAX_PRESET_TRAPEZOIDS} trapezoids, has {count}")]
+    TrapezoidCount { count: usize },
+    #[error("trapezoid {trapezoid}: tissue must be a name of 1–64 characters")]
+    TissueName { trapezoid: usize },
+    /// A trapezoid's `field` (hu, rgb, opacity, weight) out of range; `detail` says how.
+    #[error("trapezoid {trapezoid} ('{tissue}'): {field} {detail}")]
+    Trapezoid {
+        trapezoid: usize,
+        tissue: String,
+        field: &'static str,
+        detail: String,
+    },
+    #[error("every trapezoid has weight or opacity 0: the preset would draw nothing")]
+    DrawsNothing,
+}
+
 /// The whole `atlas.toml`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -247,55 +358,59 @@ impl CArmToml {
     }
 
     /// Names the first value outside what a C-arm can be set to.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), CArmError> {
+        let bad = |field: &'static str, detail: String| Err(CArmError { field, detail });
         if let Some(p) = self.isocenter_mm
             && !p.iter().all(|v| v.is_finite())
         {
-            return Err(format!("c_arm.isocenter_mm {p:?} must be finite"));
+            return bad("isocenter_mm", format!("{p:?} must be finite"));
         }
         let sid = self.source_to_detector_mm;
         let (lo, hi) = C_ARM_SID_RANGE_MM;
         if !(sid.is_finite() && (lo..=hi).contains(&sid)) {
-            return Err(format!("c_arm.source_to_detector_mm {sid} must be {lo} … {hi} mm"));
+            return bad("source_to_detector_mm", format!("{sid} must be {lo} … {hi} mm"));
         }
         let sod = self.source_to_isocenter_mm;
         if !(sod.is_finite() && sod >= 0.2 * sid && sod <= sid - 100.0) {
-            return Err(format!(
-                "c_arm.source_to_isocenter_mm {sod} must be between 20 % of the source-to-detector distance and 100 mm short of it ({} … {} mm)",
-                0.2 * sid,
-                sid - 100.0
-            ));
+            return bad(
+                "source_to_isocenter_mm",
+                format!(
+                    "{sod} must be between 20 % of the source-to-detector distance and 100 mm short of it ({} … {} mm)",
+                    0.2 * sid,
+                    sid - 100.0
+                ),
+            );
         }
         let (lo, hi) = C_ARM_DETECTOR_SIDE_RANGE_MM;
         for (name, side) in [("width", self.detector_mm[0]), ("height", self.detector_mm[1])] {
             if !(side.is_finite() && (lo..=hi).contains(&side)) {
-                return Err(format!("c_arm.detector_mm {name} {side} must be {lo} … {hi} mm"));
+                return bad("detector_mm", format!("{name} {side} must be {lo} … {hi} mm"));
             }
         }
         let m = C_ARM_MAX_LAO_DEG;
         if !(self.lao_deg.is_finite() && self.lao_deg.abs() <= m) {
-            return Err(format!(
-                "c_arm.lao_deg {} must be −{m} (RAO) … {m} (LAO) degrees",
-                self.lao_deg
-            ));
+            return bad(
+                "lao_deg",
+                format!("{} must be −{m} (RAO) … {m} (LAO) degrees", self.lao_deg),
+            );
         }
         let m = C_ARM_MAX_CRANIAL_DEG;
         if !(self.cranial_deg.is_finite() && self.cranial_deg.abs() <= m) {
-            return Err(format!(
-                "c_arm.cranial_deg {} must be −{m} (caudal) … {m} (cranial) degrees",
-                self.cranial_deg
-            ));
+            return bad(
+                "cranial_deg",
+                format!("{} must be −{m} (caudal) … {m} (cranial) degrees", self.cranial_deg),
+            );
         }
         let k = self.kerma_rate_mgy_per_min;
         if !(k.is_finite() && (0.1..=200.0).contains(&k)) {
-            return Err(format!("c_arm.kerma_rate_mgy_per_min {k} must be 0.1 … 200 mGy/min"));
+            return bad("kerma_rate_mgy_per_min", format!("{k} must be 0.1 … 200 mGy/min"));
         }
         let w = self.window;
         if !(w.low.is_finite() && w.high.is_finite() && w.low >= 0.0 && w.high > w.low) {
-            return Err(format!(
-                "c_arm.window low {} / high {} must be finite with 0 ≤ low < high",
-                w.low, w.high
-            ));
+            return bad(
+                "window",
+                format!("low {} / high {} must be finite with 0 ≤ low < high", w.low, w.high),
+            );
         }
         Ok(())
     }
@@ -551,8 +666,8 @@ struct RenderFields {
 }
 
 impl TryFrom<RenderFields> for RenderToml {
-    type Error = String;
-    fn try_from(f: RenderFields) -> Result<Self, String> {
+    type Error = ManifestError;
+    fn try_from(f: RenderFields) -> Result<Self, ManifestError> {
         let r = RenderToml {
             presets: f.presets,
             window: f.window,
@@ -590,8 +705,8 @@ pub struct PresetToml {
     pub trapezoids: Vec<TrapezoidToml>,
 }
 
-/// One tissue's trapezoid a_i: opacity rises from hu[0] to hu[1], stays at `opacity` to hu[2],
-/// falls to zero at hu[3].
+/// One tissue's trapezoid a_i: opacity rises from `hu[0]` to `hu[1]`, stays at `opacity` to `hu[2]`,
+/// falls to zero at `hu[3]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrapezoidToml {
@@ -621,53 +736,62 @@ pub const MAX_PRESET_TRAPEZOIDS: usize = 8;
 
 impl RenderToml {
     /// Checks every preset and the window; the error names the preset, trapezoid and field.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), ManifestError> {
         for (name, preset) in self.presets.named() {
-            preset.check().map_err(|e| format!("render preset '{name}': {e}"))?;
+            preset
+                .check()
+                .map_err(|error| ManifestError::RenderPreset { preset: name, error })?;
         }
         if let Some(w) = &self.window
             && (!w.level_hu.is_finite() || !w.width_hu.is_finite() || w.width_hu <= 0.0)
         {
-            return Err(format!(
-                "render.window: level_hu must be finite and width_hu a finite number > 0, got level {} width {}",
-                w.level_hu, w.width_hu
-            ));
+            return Err(ManifestError::RenderWindow {
+                level_hu: w.level_hu,
+                width_hu: w.width_hu,
+            });
         }
         Ok(())
     }
 }
 
 impl PresetToml {
-    fn check(&self) -> Result<(), String> {
+    fn check(&self) -> Result<(), PresetError> {
         let n = self.trapezoids.len();
         if n == 0 || n > MAX_PRESET_TRAPEZOIDS {
-            return Err(format!("needs 1 … {MAX_PRESET_TRAPEZOIDS} trapezoids, has {n}"));
+            return Err(PresetError::TrapezoidCount { count: n });
         }
         let unit = |v: f64| v.is_finite() && (0.0..=1.0).contains(&v);
         for (i, t) in self.trapezoids.iter().enumerate() {
-            let at = format!("trapezoid {} ('{}')", i + 1, t.tissue);
+            let bad = |field: &'static str, detail: String| {
+                Err(PresetError::Trapezoid {
+                    trapezoid: i + 1,
+                    tissue: t.tissue.clone(),
+                    field,
+                    detail,
+                })
+            };
             if t.tissue.trim().is_empty() || t.tissue.len() > 64 {
-                return Err(format!("trapezoid {}: tissue must be a name of 1–64 characters", i + 1));
+                return Err(PresetError::TissueName { trapezoid: i + 1 });
             }
             let [a, b, c, d] = t.hu;
-            if !t.hu.iter().all(|v| v.is_finite()) || !(a < b && b <= c && c < d) {
-                return Err(format!(
-                    "{at}: hu must be four finite corners a < b ≤ c < d, got {:?}",
-                    t.hu
-                ));
+            if !(t.hu.iter().all(|v| v.is_finite()) && a < b && b <= c && c < d) {
+                return bad(
+                    "hu",
+                    format!("must be four finite corners a < b ≤ c < d, got {:?}", t.hu),
+                );
             }
             if !t.rgb.iter().all(|&v| unit(v)) {
-                return Err(format!("{at}: rgb must be three values 0 … 1, got {:?}", t.rgb));
+                return bad("rgb", format!("must be three values 0 … 1, got {:?}", t.rgb));
             }
             if !unit(t.opacity) {
-                return Err(format!("{at}: opacity (per mm) must be 0 … 1, got {}", t.opacity));
+                return bad("opacity", format!("(per mm) must be 0 … 1, got {}", t.opacity));
             }
             if !unit(t.weight) {
-                return Err(format!("{at}: weight must be 0 … 1, got {}", t.weight));
+                return bad("weight", format!("must be 0 … 1, got {}", t.weight));
             }
         }
         if !self.trapezoids.iter().any(|t| t.weight > 0.0 && t.opacity > 0.0) {
-            return Err("every trapezoid has weight or opacity 0: the preset would draw nothing".into());
+            return Err(PresetError::DrawsNothing);
         }
         Ok(())
     }
@@ -689,21 +813,21 @@ pub struct ScenarioFile {
 
 /// Checks scenario names: 1–64 letters, digits or `. _ - @` (what a session header may name),
 /// each once.
-pub fn check_scenarios(scenarios: &[ScenarioToml]) -> Result<(), String> {
+pub fn check_scenarios(scenarios: &[ScenarioToml]) -> Result<(), ManifestError> {
     let mut seen = std::collections::BTreeSet::new();
     for sc in scenarios {
         let ok = |c: char| c.is_ascii_alphanumeric() || "._-@".contains(c);
         if sc.name.is_empty() || sc.name.len() > 64 || !sc.name.chars().all(ok) {
-            return Err(format!(
-                "scenario '{}': a scenario name is 1–64 letters, digits or . _ - @",
-                sc.name
-            ));
+            return Err(ManifestError::ScenarioName { name: sc.name.clone() });
         }
         if !seen.insert(sc.name.as_str()) {
-            return Err(format!("scenario '{}' is declared twice", sc.name));
+            return Err(ManifestError::DuplicateScenario { name: sc.name.clone() });
         }
         if let Some(c) = &sc.c_arm {
-            c.check().map_err(|e| format!("scenario '{}': {e}", sc.name))?;
+            c.check().map_err(|error| ManifestError::ScenarioCArm {
+                scenario: sc.name.clone(),
+                error,
+            })?;
         }
     }
     Ok(())
@@ -734,8 +858,8 @@ impl ScenarioFile {
         self.labels.retain(|l| heuristic.contains(&l.id) || present(l.id));
     }
 
-    pub fn parse(text: &str) -> Result<Self, String> {
-        toml::from_str(text).map_err(|e| e.to_string())
+    pub fn parse(text: &str) -> Result<Self, ManifestError> {
+        toml::from_str(text).map_err(|e| ManifestError::Syntax(e.to_string()))
     }
 
     /// The built-in PTCD scenario.
@@ -769,7 +893,7 @@ impl TissueToml {
 }
 
 /// The validated property tree of a `[tissues]` table.
-pub fn property_tree(tissues: &BTreeMap<String, TissueToml>) -> Result<PropertyTree, String> {
+pub fn property_tree(tissues: &BTreeMap<String, TissueToml>) -> Result<PropertyTree, ManifestError> {
     let specs = tissues
         .iter()
         .map(|(name, t)| TissueSpec {
@@ -782,26 +906,21 @@ pub fn property_tree(tissues: &BTreeMap<String, TissueToml>) -> Result<PropertyT
             color_rgba: t.color_rgba,
         })
         .collect();
-    PropertyTree::new(specs).map_err(|e| e.to_string())
+    PropertyTree::new(specs).map_err(ManifestError::PropertyTree)
 }
 
 /// The validated label table of `[[labels]]` and `[heuristic]`.
-pub fn label_table(labels: &[LabelToml], heuristic: &HeuristicToml) -> Result<LabelTable, String> {
+pub fn label_table(labels: &[LabelToml], heuristic: &HeuristicToml) -> Result<LabelTable, ManifestError> {
     let mut out = Vec::with_capacity(labels.len());
     for l in labels {
         if let Some(c) = &l.consequence
             && (c.trim().is_empty() || c.len() > 200 || c.contains(['\n', '\r']))
         {
-            return Err(format!(
-                "label '{}': a consequence is one line of 1–200 characters",
-                l.name
-            ));
+            return Err(ManifestError::Consequence { label: l.name.clone() });
         }
-        let role = Role::parse(&l.role).ok_or_else(|| {
-            format!(
-                "label '{}' has role '{}'; expected one of target, risk, bone, organ, neutral",
-                l.name, l.role
-            )
+        let role = Role::parse(&l.role).ok_or_else(|| ManifestError::UnknownRole {
+            label: l.name.clone(),
+            role: l.role.clone(),
         })?;
         out.push(Label {
             id: l.id,
@@ -817,7 +936,7 @@ pub fn label_table(labels: &[LabelToml], heuristic: &HeuristicToml) -> Result<La
         bone: heuristic.bone,
         risk: heuristic.risk,
     };
-    LabelTable::new(out, h).map_err(|e| e.to_string())
+    LabelTable::new(out, h).map_err(ManifestError::LabelTable)
 }
 
 impl ThresholdsToml {
@@ -938,7 +1057,7 @@ mod tests {
         assert_eq!((c.lao_deg, c.source_to_detector_mm), (-30.0, 1000.0));
         let check = |text: &str| {
             let sc: ScenarioToml = toml::from_str(&format!("name = \"x\"\n[c_arm]\n{text}\n")).unwrap();
-            check_scenarios(&[sc]).unwrap_err()
+            check_scenarios(&[sc]).unwrap_err().to_string()
         };
         let e = check("lao_deg = 150.0");
         assert!(e.contains("scenario 'x'") && e.contains("lao_deg 150"), "{e}");
@@ -954,7 +1073,7 @@ mod tests {
         assert!(toml::from_str::<ScenarioToml>("name = \"x\"\n[c_arm]\nkv = 70\n").is_err());
     }
 
-    fn ptcd_with(edit: impl Fn(&mut toml::Table)) -> Result<ScenarioFile, String> {
+    fn ptcd_with(edit: impl Fn(&mut toml::Table)) -> Result<ScenarioFile, ManifestError> {
         let mut t: toml::Table = toml::from_str(PTCD_SCENARIO_TOML).unwrap();
         edit(&mut t);
         ScenarioFile::parse(&toml::to_string(&t).unwrap())
@@ -972,7 +1091,8 @@ mod tests {
         let e = ptcd_with(|t| {
             soft_trapezoid(t, 3).insert("hu".into(), Value::try_from([200.0, 100.0, 300.0, 400.0]).unwrap());
         })
-        .unwrap_err();
+        .unwrap_err()
+        .to_string();
         assert!(
             e.contains("render preset 'soft'") && e.contains("'contrast vessels'") && e.contains("hu"),
             "{e}"
@@ -980,37 +1100,44 @@ mod tests {
         let e = ptcd_with(|t| {
             soft_trapezoid(t, 1).insert("opacity".into(), Value::Float(1.5));
         })
-        .unwrap_err();
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("'soft tissue'") && e.contains("opacity"), "{e}");
         let e = ptcd_with(|t| {
             soft_trapezoid(t, 0).insert("rgb".into(), Value::try_from([0.5, 2.0, 0.5]).unwrap());
         })
-        .unwrap_err();
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("rgb"), "{e}");
         let e = ptcd_with(|t| {
             soft_trapezoid(t, 4).insert("weight".into(), Value::Float(-0.1));
         })
-        .unwrap_err();
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("'bone'") && e.contains("weight"), "{e}");
         let e = ptcd_with(|t| {
             t["render"]["presets"]["bone"]["trapezoids"] = Value::Array(vec![]);
         })
-        .unwrap_err();
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("render preset 'bone'") && e.contains("trapezoids"), "{e}");
         let e = ptcd_with(|t| {
             t["render"]["presets"].as_table_mut().unwrap().remove("skin");
         })
-        .unwrap_err();
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("skin"), "{e}");
         let e = ptcd_with(|t| {
             t["render"]["window"]["width_hu"] = Value::Float(0.0);
         })
-        .unwrap_err();
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("render.window"), "{e}");
         let e = ptcd_with(|t| {
             soft_trapezoid(t, 1).insert("colour".into(), Value::Float(1.0));
         })
-        .unwrap_err();
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("colour"), "{e}");
     }
 }

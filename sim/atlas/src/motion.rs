@@ -113,8 +113,10 @@ pub fn attach_measured(
         read_signal_csv(s)?;
     }
     let before = crate::store::read_manifest_text(dir)?;
-    let mut manifest = crate::store::parse_manifest(&before)
-        .map_err(|e| AtlasError::file(dir.join(crate::store::MANIFEST_FILE), e))?;
+    let mut manifest = crate::store::parse_manifest(&before).map_err(|error| AtlasError::Manifest {
+        path: dir.join(crate::store::MANIFEST_FILE),
+        error,
+    })?;
     let old_files: Vec<String> = manifest
         .breathing_or_default()
         .measured_files()

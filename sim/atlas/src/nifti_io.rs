@@ -257,30 +257,41 @@ fn check_header(path: &Path, h: &NiftiHeader, shape: Shape) -> Result<(Grid, DTy
             format!("vox_offset {} is outside 348 … 348 + 1 MiB", h.vox_offset),
         ));
     }
-    let affine = header_affine(h).map_err(|m| err(path, m))?;
+    let affine = header_affine(h).map_err(|e| err(path, e.to_string()))?;
     let grid = Grid::new(d3, affine).map_err(|e| err(path, e.to_string()))?;
     Ok((grid, dtype))
 }
 
+/// Why a header's voxel-to-world transform cannot be used.
+#[derive(Debug, thiserror::Error)]
+enum AffineError {
+    #[error("sform contains non-finite numbers")]
+    SformNotFinite,
+    #[error("voxel sizes (pixdim) {0:?} must be finite and positive")]
+    VoxelSizes(Vec<f64>),
+    #[error("qform contains non-finite numbers")]
+    QformNotFinite,
+}
+
 /// sform if its code is set, else qform, else the voxel sizes (NIfTI-1 methods 3, 2, 1).
-fn header_affine(h: &NiftiHeader) -> Result<Affine, String> {
+fn header_affine(h: &NiftiHeader) -> Result<Affine, AffineError> {
     let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
     if h.sform_code > 0 {
         if !finite(&h.srow_x) || !finite(&h.srow_y) || !finite(&h.srow_z) {
-            return Err("sform contains non-finite numbers".into());
+            return Err(AffineError::SformNotFinite);
         }
         let r = |s: [f32; 4]| [s[0] as f64, s[1] as f64, s[2] as f64, s[3] as f64];
         return Ok(Affine::from_rows([r(h.srow_x), r(h.srow_y), r(h.srow_z)]));
     }
     let pix: Vec<f64> = h.pixdim[1..4].iter().map(|&p| p as f64).collect();
     if pix.iter().any(|p| !p.is_finite() || *p <= 0.0) {
-        return Err(format!("voxel sizes (pixdim) {pix:?} must be finite and positive"));
+        return Err(AffineError::VoxelSizes(pix));
     }
     if h.qform_code > 0 {
         let (b, c, d) = (h.quatern_b as f64, h.quatern_c as f64, h.quatern_d as f64);
         let off = [h.quatern_x as f64, h.quatern_y as f64, h.quatern_z as f64];
         if ![b, c, d].iter().chain(off.iter()).all(|v| v.is_finite()) {
-            return Err("qform contains non-finite numbers".into());
+            return Err(AffineError::QformNotFinite);
         }
         let a = (1.0 - (b * b + c * c + d * d)).max(0.0).sqrt();
         let qfac = if h.pixdim[0] < 0.0 { -1.0 } else { 1.0 };
@@ -428,7 +439,7 @@ pub fn read_displacement_field(path: &Path) -> Result<GridField, AtlasError> {
         }
         values.push([-lps[0] as f32, -lps[1] as f32, lps[2] as f32]);
     }
-    GridField::new(raw.grid, values).map_err(|e| err(path, e))
+    GridField::new(raw.grid, values).map_err(|e| err(path, e.to_string()))
 }
 
 /// Writes a displacement field the way [`read_displacement_field`] reads it (ITK's convention:

@@ -11,7 +11,7 @@ use stylet_physics::thresholds::estimate_thresholds;
 use stylet_physics::{LabelId, PhysicsError, PunctureAtlas, Volume};
 
 use crate::cache::{self, CacheMode, CacheStatus};
-use crate::manifest::{self, FORMAT_VERSION, Manifest, ThresholdsToml};
+use crate::manifest::{self, FORMAT_VERSION, Manifest, ManifestError, PathProblem, ThresholdsToml};
 use crate::{AtlasError, nifti_io};
 
 /// The manifest's file name inside an atlas directory.
@@ -61,68 +61,78 @@ impl Atlas {
     }
 }
 
-fn manifest_error(dir: &Path, message: impl Into<String>) -> AtlasError {
-    AtlasError::file(dir.join(MANIFEST_FILE), message)
+fn manifest_error(dir: &Path, error: ManifestError) -> AtlasError {
+    AtlasError::Manifest {
+        path: dir.join(MANIFEST_FILE),
+        error,
+    }
+}
+
+fn refused_manifest(dir: &Path, error: ManifestError) -> AtlasError {
+    AtlasError::RefusedManifest {
+        path: dir.join(MANIFEST_FILE),
+        error,
+    }
 }
 
 /// Parses and checks an `atlas.toml` on its own (no volumes): syntax, version, labels, tree,
 /// thresholds, presets and paths. Used by the loader and by the fuzz tests.
-pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
-    let m: Manifest = toml::from_str(text).map_err(|e| e.to_string().trim_end().to_string())?;
+pub fn parse_manifest(text: &str) -> Result<Manifest, ManifestError> {
+    let m: Manifest = toml::from_str(text).map_err(|e| ManifestError::Syntax(e.to_string().trim_end().to_string()))?;
     if m.format_version != FORMAT_VERSION {
-        return Err(format!(
-            "format_version {} is not supported (this Stylet reads version {FORMAT_VERSION})",
-            m.format_version
-        ));
+        return Err(ManifestError::UnsupportedVersion {
+            found: m.format_version,
+        });
     }
     if m.name.trim().is_empty() {
-        return Err("name must not be empty".into());
+        return Err(ManifestError::EmptyName);
     }
     for (key, file) in [("volumes.ct", &m.volumes.ct), ("volumes.labels", &m.volumes.labels)] {
-        check_file_name(file).map_err(|e| format!("{key} = {file:?}: {e}"))?;
+        check_file_name(file).map_err(|problem| ManifestError::VolumeFile {
+            key,
+            file: file.clone(),
+            problem,
+        })?;
     }
     if m.volumes.ct == m.volumes.labels {
-        return Err("volumes.ct and volumes.labels name the same file".into());
+        return Err(ManifestError::SameVolumeFile);
     }
     // Checked before any file is opened: an atlas reads nothing outside its folder, and a path
     // that would leave it is refused alike whether or not something is there.
     if let Some(b) = &m.breathing {
         for (key, file) in [("a1", &b.a1), ("a2", &b.a2), ("a3", &b.a3), ("signal", &b.signal)] {
             if let Some(file) = file {
-                check_inside(file).map_err(|e| format!("breathing.{key}: {e}"))?;
+                check_inside(file).map_err(|problem| ManifestError::BreathingFile { key, problem })?;
             }
         }
     }
     let labels = manifest::label_table(&m.labels, &m.heuristic)?;
     let tree = manifest::property_tree(&m.tissues)?;
-    stylet_physics::Materials::resolve(&labels, &tree).map_err(|e| e.to_string())?;
+    stylet_physics::Materials::resolve(&labels, &tree).map_err(ManifestError::Materials)?;
     if !m.heuristic.risk_depth_mm.is_finite() || m.heuristic.risk_depth_mm < 0.0 {
-        return Err(format!(
-            "heuristic.risk_depth_mm must be a finite number ≥ 0, got {}",
-            m.heuristic.risk_depth_mm
-        ));
+        return Err(ManifestError::RiskDepth {
+            value: m.heuristic.risk_depth_mm,
+        });
     }
     if let Some(t) = &m.thresholds {
         t.with_depth(m.heuristic.risk_depth_mm)
             .validate()
-            .map_err(|e| e.to_string())?;
+            .map_err(ManifestError::Thresholds)?;
     }
     let mut names = std::collections::BTreeSet::new();
     for p in &m.paths {
+        let name = || p.name.clone();
         if p.name.trim().is_empty() {
-            return Err("an insertion path has an empty name".into());
+            return Err(ManifestError::UnnamedPath);
         }
         if !names.insert(p.name.as_str()) {
-            return Err(format!("insertion path '{}' is defined twice", p.name));
+            return Err(ManifestError::DuplicatePath { name: name() });
         }
         if p.entry_mm.iter().chain(&p.target_mm).any(|v| !v.is_finite()) {
-            return Err(format!("insertion path '{}' has non-finite coordinates", p.name));
+            return Err(ManifestError::NonFinitePath { name: name() });
         }
         if DVec3::from_array(p.entry_mm).distance(DVec3::from_array(p.target_mm)) < 1.0 {
-            return Err(format!(
-                "insertion path '{}': entry and target are less than 1 mm apart",
-                p.name
-            ));
+            return Err(ManifestError::ShortPath { name: name() });
         }
     }
     for (level, preset) in [
@@ -133,16 +143,14 @@ pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
         if let Some(g) = &preset.guided_path
             && !names.contains(g.as_str())
         {
-            return Err(format!(
-                "difficulty.{level}.guided_path = {g:?} names no insertion path"
-            ));
+            return Err(ManifestError::UnknownGuidedPath { level, path: g.clone() });
         }
     }
     Ok(m)
 }
 
 /// Volume files must be plain names inside the atlas directory (no paths, no "..").
-fn check_file_name(name: &str) -> Result<(), String> {
+fn check_file_name(name: &str) -> Result<(), PathProblem> {
     let ok = !name.is_empty()
         && name != "."
         && name != ".."
@@ -150,27 +158,23 @@ fn check_file_name(name: &str) -> Result<(), String> {
         && !name.contains('\\')
         && !name.contains('\0');
     if !ok {
-        return Err("must be a plain file name inside the atlas directory".into());
+        return Err(PathProblem::NotPlainName);
     }
     if !(name.ends_with(".nii") || name.ends_with(".nii.gz")) {
-        return Err("must be a NIfTI file (.nii or .nii.gz)".into());
+        return Err(PathProblem::NotNifti);
     }
     Ok(())
 }
 
 /// A path the manifest names below the atlas folder (`motion/a1.nii.gz`): relative, of plain
 /// components, never `..`.
-fn check_inside(path: &str) -> Result<(), String> {
+fn check_inside(path: &str) -> Result<(), PathProblem> {
     let ok = !path.is_empty()
         && !path.contains(['\\', '\0'])
         && path
             .split('/')
             .all(|part| !part.is_empty() && part != "." && part != "..");
-    if ok {
-        Ok(())
-    } else {
-        Err("must be a path inside the atlas directory (relative, without '..')".into())
-    }
+    if ok { Ok(()) } else { Err(PathProblem::OutsideAtlas) }
 }
 
 pub(crate) fn read_manifest_text(dir: &Path) -> Result<String, AtlasError> {
@@ -212,7 +216,7 @@ pub fn read_manifest(dir: &Path) -> Result<Manifest, AtlasError> {
 }
 
 /// The atlas content hash: SHA-256 of "stylet-atlas-v1\n" followed by one line
-/// "<file name> <sha256 of the file>\n" for atlas.toml, the CT and the label map, in that order,
+/// `"<file name> <sha256 of the file>\n"` for atlas.toml, the CT and the label map, in that order,
 /// then for each measured breathing file (a1, a2, a3, signal) the atlas has.
 pub fn content_hash(dir: &Path, manifest: &Manifest) -> Result<String, AtlasError> {
     let mut h = Sha256::new();
@@ -286,7 +290,7 @@ pub fn load_with(dir: &Path, cache_mode: CacheMode) -> Result<Atlas, AtlasError>
     check_same_grid(&ct_path, &ct, &labels_path, &partial)?;
     if ct.grid() != &ct_grid {
         // The CT changed between its header read and its load: derive from what was loaded.
-        cached = Err("the CT changed while it was read".into());
+        cached = Err(cache::CacheError::CtChanged);
     }
 
     let depth = manifest.heuristic.risk_depth_mm;
@@ -301,7 +305,7 @@ pub fn load_with(dir: &Path, cache_mode: CacheMode) -> Result<Atlas, AtlasError>
     if let Ok(Some(d)) = &cached
         && d.thresholds != thresholds
     {
-        cached = Err(format!("derived at other thresholds ({:?})", d.thresholds));
+        cached = Err(cache::CacheError::OtherThresholds(d.thresholds));
     }
     let (maps, refused) = match cached {
         Ok(Some(d)) => (Some(d.maps), None),
@@ -318,15 +322,15 @@ pub fn load_with(dir: &Path, cache_mode: CacheMode) -> Result<Atlas, AtlasError>
             PhysicsError::Mismatch(_) | PhysicsError::InvalidGrid(_) => {
                 AtlasError::file(&labels_path, format!("{e} (CT: {})", ct_path.display()))
             }
-            _ => manifest_error(dir, e.to_string()),
+            _ => AtlasError::file(dir.join(MANIFEST_FILE), e.to_string()),
         })?;
     let (lo, hi) = model.ct().grid().world_bounds();
     for p in &manifest.paths {
         for (what, v) in [("entry", p.entry_mm), ("target", p.target_mm)] {
             let v = DVec3::from_array(v);
             if v.cmplt(lo - 1e-6).any() || v.cmpgt(hi + 1e-6).any() {
-                return Err(manifest_error(
-                    dir,
+                return Err(AtlasError::file(
+                    dir.join(MANIFEST_FILE),
                     format!(
                         "insertion path '{}': {what} {v} mm lies outside the CT ({lo} … {hi} mm)",
                         p.name
@@ -348,8 +352,12 @@ pub fn load_with(dir: &Path, cache_mode: CacheMode) -> Result<Atlas, AtlasError>
                     bone_distance: model.bone_distance(),
                 };
                 match (cache::write(&dir, &content_hash, derived), refused) {
-                    (Err(error), _) => CacheStatus::NotWritten { error },
-                    (Ok(()), Some(refused)) => CacheStatus::Rebuilt { refused },
+                    (Err(error), _) => CacheStatus::NotWritten {
+                        error: error.to_string(),
+                    },
+                    (Ok(()), Some(refused)) => CacheStatus::Rebuilt {
+                        refused: refused.to_string(),
+                    },
                     (Ok(()), None) => CacheStatus::Written,
                 }
             })
@@ -404,7 +412,7 @@ fn check_same_grid(
 pub fn write(dir: &Path, manifest: &Manifest, ct: &Volume<f32>, labels: &Volume<LabelId>) -> Result<(), AtlasError> {
     fs::create_dir_all(dir).map_err(|e| AtlasError::file(dir, format!("cannot create directory: {e}")))?;
     let text = manifest.to_toml();
-    parse_manifest(&text).map_err(|e| manifest_error(dir, format!("refusing to write an invalid manifest: {e}")))?;
+    parse_manifest(&text).map_err(|e| refused_manifest(dir, e))?;
     let tmp = |name: &str| dir.join(format!(".{name}.partial.nii.gz"));
     let ct_tmp = tmp("ct");
     let labels_tmp = tmp("labels");
@@ -426,7 +434,7 @@ pub fn write(dir: &Path, manifest: &Manifest, ct: &Volume<f32>, labels: &Volume<
 /// Rewrites `atlas.toml` alone (checked first), atomically.
 pub(crate) fn write_manifest(dir: &Path, manifest: &Manifest) -> Result<(), AtlasError> {
     let text = manifest.to_toml();
-    parse_manifest(&text).map_err(|e| manifest_error(dir, format!("refusing to write an invalid manifest: {e}")))?;
+    parse_manifest(&text).map_err(|e| refused_manifest(dir, e))?;
     write_manifest_text(dir, &text)
 }
 

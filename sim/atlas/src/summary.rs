@@ -92,7 +92,7 @@ impl BreathingSummary {
                             worst_all_mm: c.worst_all_mm,
                         });
                     }
-                    Err(e) => out.problem = Some(e),
+                    Err(e) => out.problem = Some(e.to_string()),
                 }
             }
             Some(AtlasMotion::Measured(m)) => {

@@ -67,6 +67,28 @@ pub struct ValidationRecord {
     pub smoke: Vec<SmokeEntry>,
 }
 
+/// Why a validation record's text is refused (or a script name it may not name): a record that
+/// fails these checks vouches for nothing, and a hostile one must not make Stylet read outside
+/// `scripts/`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RecordError {
+    /// Not TOML of the record's format (the parser's message).
+    #[error("{0}")]
+    Syntax(String),
+    #[error("format_version {found} is not supported (this Stylet reads version {VALIDATION_FORMAT_VERSION})")]
+    UnsupportedVersion { found: u32 },
+    #[error("atlas_hash must be 64 lower-case hexadecimal digits (a SHA-256)")]
+    BadHash,
+    #[error("it names {count} scripts, more than the {MAX_SCRIPTS} accepted")]
+    TooManyScripts { count: usize },
+    #[error("script name {name:?} is not a plain file name ending in .txt (letters, digits, '-', '_', '.')")]
+    ScriptName { name: String },
+    #[error("script {script} is named twice")]
+    DuplicateScript { script: String },
+    #[error("script {script}: a hit expectation needs a structure name")]
+    HitWithoutStructure { script: String },
+}
+
 /// Why a record does not vouch for an atlas.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum NotValidated {
@@ -111,7 +133,7 @@ impl ValidationRecord {
 }
 
 /// A script file name a record may name: a plain `*.txt` name of letters, digits, `-`, `_`, `.`.
-pub fn check_script_name(name: &str) -> Result<(), String> {
+pub fn check_script_name(name: &str) -> Result<(), RecordError> {
     let ok = name.len() <= 100
         && name.ends_with(".txt")
         && name.len() > 4
@@ -122,20 +144,18 @@ pub fn check_script_name(name: &str) -> Result<(), String> {
     if ok {
         Ok(())
     } else {
-        Err(format!(
-            "script name {name:?} is not a plain file name ending in .txt (letters, digits, '-', '_', '.')"
-        ))
+        Err(RecordError::ScriptName { name: name.to_string() })
     }
 }
 
 /// Parses and checks a record's text: version, hash form, script names (unique, plain), count.
-pub fn parse_record(text: &str) -> Result<ValidationRecord, String> {
-    let r: ValidationRecord = toml::from_str(text).map_err(|e| e.to_string().trim_end().to_string())?;
+pub fn parse_record(text: &str) -> Result<ValidationRecord, RecordError> {
+    let r: ValidationRecord =
+        toml::from_str(text).map_err(|e| RecordError::Syntax(e.to_string().trim_end().to_string()))?;
     if r.format_version != VALIDATION_FORMAT_VERSION {
-        return Err(format!(
-            "format_version {} is not supported (this Stylet reads version {VALIDATION_FORMAT_VERSION})",
-            r.format_version
-        ));
+        return Err(RecordError::UnsupportedVersion {
+            found: r.format_version,
+        });
     }
     if r.atlas_hash.len() != 64
         || !r
@@ -143,24 +163,25 @@ pub fn parse_record(text: &str) -> Result<ValidationRecord, String> {
             .chars()
             .all(|c| c.is_ascii_hexdigit() && !c.is_ascii_uppercase())
     {
-        return Err("atlas_hash must be 64 lower-case hexadecimal digits (a SHA-256)".into());
+        return Err(RecordError::BadHash);
     }
     if r.smoke.len() > MAX_SCRIPTS {
-        return Err(format!(
-            "it names {} scripts, more than the {MAX_SCRIPTS} accepted",
-            r.smoke.len()
-        ));
+        return Err(RecordError::TooManyScripts { count: r.smoke.len() });
     }
     let mut seen = std::collections::BTreeSet::new();
     for s in &r.smoke {
         check_script_name(&s.script)?;
         if !seen.insert(s.script.as_str()) {
-            return Err(format!("script {} is named twice", s.script));
+            return Err(RecordError::DuplicateScript {
+                script: s.script.clone(),
+            });
         }
         if let Expect::Hit { structure } = &s.expect
             && structure.trim().is_empty()
         {
-            return Err(format!("script {}: a hit expectation needs a structure name", s.script));
+            return Err(RecordError::HitWithoutStructure {
+                script: s.script.clone(),
+            });
         }
     }
     Ok(r)
@@ -173,7 +194,9 @@ pub fn read_record(dir: &Path) -> Result<Option<ValidationRecord>, AtlasError> {
         return Ok(None);
     }
     let text = crate::read_small_text(&path, "validation record", MAX_RECORD_BYTES)?;
-    parse_record(&text).map(Some).map_err(|e| AtlasError::file(&path, e))
+    parse_record(&text)
+        .map(Some)
+        .map_err(|error| AtlasError::Record { path, error })
 }
 
 /// Writes `dir/validation.toml` beside its place and renames it into it.
@@ -199,7 +222,10 @@ pub fn remove_record(dir: &Path) -> Result<(), AtlasError> {
 /// Reads `dir/scripts/NAME` (a name [`check_script_name`] accepts), at most [`MAX_SCRIPT_BYTES`].
 pub fn read_script(dir: &Path, name: &str) -> Result<String, AtlasError> {
     let path = dir.join(SCRIPTS_DIR).join(name);
-    check_script_name(name).map_err(|e| AtlasError::file(&path, e))?;
+    check_script_name(name).map_err(|error| AtlasError::Record {
+        path: path.clone(),
+        error,
+    })?;
     crate::read_small_text(&path, "script", MAX_SCRIPT_BYTES)
 }
 
@@ -283,7 +309,7 @@ mod tests {
             (format!("extra = 1\n{text}"), "unknown field"),
             (format!("{text}\nextra = 1\n"), "unknown field"),
         ] {
-            let e = parse_record(&bad).unwrap_err();
+            let e = parse_record(&bad).unwrap_err().to_string();
             assert!(e.contains(why), "{why}: {e}");
         }
     }

@@ -437,6 +437,17 @@ fn breathing_paths_outside_the_atlas_are_refused_alike() {
         };
         assert!(edited.contains(&measured), "{edited}");
         let e = stylet_atlas::store::parse_manifest(&edited).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                stylet_atlas::manifest::ManifestError::BreathingFile {
+                    key: "a1",
+                    problem: stylet_atlas::manifest::PathProblem::OutsideAtlas
+                }
+            ),
+            "{e}"
+        );
+        let e = e.to_string();
         assert_mentions(&e, &["breathing.a1", "inside the atlas directory"]);
         answers.push(e);
         let saved = fs::read_to_string(atlas.join("atlas.toml")).unwrap();

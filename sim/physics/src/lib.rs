@@ -13,9 +13,6 @@
 //! [`device`] (device profiles), [`events`]; [`synthetic_atlas`] (the shared pieces of small
 //! hand-built atlases for tests and benchmarks).
 
-// Numerical code over grids and bands reads best with explicit indices.
-#![allow(clippy::needless_range_loop)]
-
 pub mod atlas;
 pub mod contact;
 pub mod contrast;
@@ -51,8 +48,10 @@ pub use grid::{Affine, Grid};
 pub use labels::{HeuristicClass, HeuristicLabels, Label, LabelId, LabelTable, Role, Thresholds};
 pub use needle::spec::{Gauge, NeedleSpec};
 pub use planned_path::PlannedPath;
-pub use properties::{Materials, Param, ParamValue, PropertyTree, TissueSpec};
-pub use sim::{DEFAULT_TICK_RATE_HZ, ForceComponents, PHYSICS_VERSION, SimConfig, Simulation, TickInput, TickOutput};
+pub use properties::{Materials, Param, ParamError, ParamValue, PropertyTree, TissueSpec};
+pub use sim::{
+    DEFAULT_TICK_RATE_HZ, ForceComponents, PHYSICS_VERSION, SimConfig, SimError, Simulation, TickInput, TickOutput,
+};
 pub use volume::Volume;
 
 /// What can be wrong with atlas data handed to the physics crate. The messages name the problem;
@@ -72,5 +71,26 @@ pub enum PhysicsError {
     #[error("invalid thresholds: {0}")]
     InvalidThresholds(String),
     #[error("invalid breathing motion: {0}")]
-    InvalidBreathing(String),
+    InvalidBreathing(SettingsError),
+}
+
+/// A simulation setting outside its documented range (docs/physics.md, docs/deformation.md,
+/// docs/breathing.md): the simulation refuses to start with it, and a script or recorded session
+/// carrying it is refused. The variant says which part of the configuration is wrong; `setting`
+/// names the field and `reason` is the message (the value and its range).
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum SettingsError {
+    #[error("tick rate {0} Hz must be 1 … 100000")]
+    TickRate(u32),
+    #[error("needle length {0} mm must be 20 … 400")]
+    NeedleLength(f64),
+    /// A contrast-agent setting ([`ContrastSettings`]).
+    #[error("{reason}")]
+    Contrast { setting: &'static str, reason: String },
+    /// A tissue-deformation setting ([`DeformSettings`], [`Regulariser`]).
+    #[error("{reason}")]
+    Deformation { setting: &'static str, reason: String },
+    /// A breathing setting (the synthetic motion or the breathing signal).
+    #[error("{reason}")]
+    Breathing { setting: &'static str, reason: String },
 }

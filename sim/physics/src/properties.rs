@@ -20,7 +20,7 @@ pub enum Param {
     CutSpringNPerMm,
     /// f_k2: quadratic spring of the cutting force before puncture [N/mm²].
     CutSpringNPerMm2,
-    /// f_cutthresh: force the tip must exceed to cut forward [N].
+    /// f_cutthresh: force the tip must exceed to cut forward (N).
     CutThresholdN,
     /// Maximum shaft friction per millimetre of path inside this tissue [N/mm]; the thesis'
     /// f_R per path segment is this value times the path spacing Δp.
@@ -58,6 +58,21 @@ impl Param {
     }
 }
 
+/// Why a parameter definition is refused; the property tree adds the tissue and parameter.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum ParamError {
+    /// A value that is negative or not finite (every parameter is a physical magnitude).
+    #[error("value {0} must be a finite number ≥ 0")]
+    Value(f64),
+    #[error("piecewise-linear function needs as many `hu` as `value` points (≥ 1), got {hu} and {values}")]
+    PointCount { hu: usize, values: usize },
+    #[error("breakpoint HU {0} is not finite")]
+    BreakpointNotFinite(f64),
+    /// The breakpoints (all of them) are not in strictly increasing HU.
+    #[error("breakpoints must have strictly increasing HU, got {0:?}")]
+    NotIncreasing(Vec<f64>),
+}
+
 /// A parameter definition: a constant, or a piecewise-linear function of HU (§6.1.3).
 #[derive(Debug, Clone, PartialEq)]
 pub enum ParamValue {
@@ -71,29 +86,28 @@ pub enum ParamValue {
 
 impl ParamValue {
     /// Checks finiteness, non-negativity (all parameters are physical magnitudes) and ordering.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), ParamError> {
         match self {
             ParamValue::Scalar(v) => {
                 if !v.is_finite() || *v < 0.0 {
-                    return Err(format!("value {v} must be a finite number ≥ 0"));
+                    return Err(ParamError::Value(*v));
                 }
             }
             ParamValue::PiecewiseLinear { hu, value } => {
                 if hu.is_empty() || hu.len() != value.len() {
-                    return Err(format!(
-                        "piecewise-linear function needs as many `hu` as `value` points (≥ 1), got {} and {}",
-                        hu.len(),
-                        value.len()
-                    ));
+                    return Err(ParamError::PointCount {
+                        hu: hu.len(),
+                        values: value.len(),
+                    });
                 }
                 if let Some(v) = hu.iter().find(|v| !v.is_finite()) {
-                    return Err(format!("breakpoint HU {v} is not finite"));
+                    return Err(ParamError::BreakpointNotFinite(*v));
                 }
                 if let Some(v) = value.iter().find(|v| !v.is_finite() || **v < 0.0) {
-                    return Err(format!("value {v} must be a finite number ≥ 0"));
+                    return Err(ParamError::Value(*v));
                 }
                 if hu.windows(2).any(|w| w[0] >= w[1]) {
-                    return Err(format!("breakpoints must have strictly increasing HU, got {hu:?}"));
+                    return Err(ParamError::NotIncreasing(hu.clone()));
                 }
             }
         }
@@ -344,7 +358,7 @@ mod tests {
             hu: vec![0.0, 0.0],
             value: vec![1.0, 2.0],
         };
-        assert!(bad.validate().unwrap_err().contains("strictly increasing"));
+        assert!(bad.validate().unwrap_err().to_string().contains("strictly increasing"));
     }
 
     #[test]

@@ -15,10 +15,10 @@ use crate::contrast::{ContrastAgent, ContrastSettings};
 use crate::deform::{self, DeformSettings, DeformState};
 use crate::device::DeviceProfile;
 use crate::events::{Event, ProbeKind, ToolSpec};
-use crate::motion::{self, BreathingSettings, MotionModel, Static};
+use crate::motion::{self, BreathingError, BreathingSettings, MotionModel, Static};
 use crate::needle::spec::NeedleSpec;
 use crate::needle::tool::NeedleTool;
-use crate::{LabelId, PunctureAtlas};
+use crate::{LabelId, PunctureAtlas, SettingsError};
 
 /// Version of the physics: bump it with every change that alters any output bit, so a replay
 /// knows which physics graded a session.
@@ -106,6 +106,10 @@ pub struct TickOutput {
 
 /// The tool in hand.
 #[derive(Debug, Clone)]
+#[allow(
+    clippy::large_enum_variant,
+    reason = "one tool per simulation, replaced only when the trainee changes tools; the contact tool's fixed-size sample buffers stay inline for the 1 kHz tick"
+)]
 pub enum Tool {
     Needle(Box<NeedleTool>),
     Contact(ContactTool),
@@ -141,6 +145,25 @@ impl SimConfig {
             contrast: ContrastSettings::default(),
             deformation: DeformSettings::default(),
             deform_in_background: false,
+        }
+    }
+}
+
+/// Why a simulation cannot start: a setting of its configuration out of range, or breathing the
+/// atlas cannot provide. Breathing settings out of range are [`SimError::Settings`] too.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum SimError {
+    #[error(transparent)]
+    Settings(#[from] SettingsError),
+    #[error(transparent)]
+    Breathing(BreathingError),
+}
+
+impl From<BreathingError> for SimError {
+    fn from(e: BreathingError) -> Self {
+        match e {
+            BreathingError::Settings(s) => SimError::Settings(s),
+            e => SimError::Breathing(e),
         }
     }
 }
@@ -190,9 +213,9 @@ fn make_tool(spec: &ToolSpec) -> Tool {
 }
 
 impl Simulation {
-    pub fn new(atlas: Arc<PunctureAtlas>, mut config: SimConfig) -> Result<Self, String> {
+    pub fn new(atlas: Arc<PunctureAtlas>, mut config: SimConfig) -> Result<Self, SimError> {
         if config.tick_rate_hz == 0 || config.tick_rate_hz > 100_000 {
-            return Err(format!("tick rate {} Hz must be 1 … 100000", config.tick_rate_hz));
+            return Err(SettingsError::TickRate(config.tick_rate_hz).into());
         }
         if let ToolSpec::Needle { gauge, length_mm, .. } = config.tool {
             NeedleSpec { gauge, length_mm }.validate()?;

@@ -119,7 +119,10 @@ impl GpuContext {
 
     /// Checks a storage buffer of `bytes` fits before allocating it.
     pub(crate) fn check_storage_buffer(&self, what: &str, bytes: u64) -> Result<(), GpuError> {
-        let limit = (self.limits.max_storage_buffer_binding_size as u64).min(self.limits.max_buffer_size);
+        let limit = self
+            .limits
+            .max_storage_buffer_binding_size
+            .min(self.limits.max_buffer_size);
         if bytes > limit {
             return Err(GpuError::Limits {
                 what: format!("{what}: storage buffer of {bytes} bytes"),

@@ -96,7 +96,7 @@ impl GpuUltrasound {
     /// One frame of `scene` (before scan conversion), as `stylet_render::ultrasound::render`.
     pub fn render(&mut self, ctx: &GpuContext, vol: &GpuVolume, scene: &UltrasoundScene) -> Result<Sonogram, GpuError> {
         let atlas = &vol.atlas;
-        check_scene(scene, atlas).map_err(GpuError::Invalid)?;
+        check_scene(scene, atlas).map_err(|e| GpuError::Invalid(e.to_string()))?;
         let s = scene.settings;
         let geometry = ScanGeometry::new(&scene.probe, s.lines, s.samples, s.depth_mm);
         let n = s.lines as u64 * s.samples as u64;

@@ -90,7 +90,7 @@ impl GpuXray {
                 "X-ray image {width} × {height}: each side must be 1 … {MAX_SIDE_PX} pixels"
             )));
         }
-        scene.c_arm.validate().map_err(GpuError::Invalid)?;
+        scene.c_arm.validate().map_err(|e| GpuError::Invalid(e.to_string()))?;
         let nodes: Vec<[f32; 4]> = match &scene.needle {
             Some(n) => {
                 if n.nodes_mm.len() > MAX_NEEDLE_NODES {
@@ -109,7 +109,7 @@ impl GpuXray {
             None => Vec::new(),
         };
         let grid = vol.atlas.ct().grid();
-        check_scene_fits(scene, grid).map_err(GpuError::Invalid)?;
+        check_scene_fits(scene, grid).map_err(|e| GpuError::Invalid(e.to_string()))?;
         let map = IndexMap::of(grid);
         let dims = map.dims;
         let (c_origin, c_dims, c_values) = match &scene.contrast {

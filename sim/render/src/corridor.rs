@@ -146,10 +146,9 @@ pub fn clip_polygon(poly: &[(f64, f64)], lo: (f64, f64), hi: (f64, f64)) -> Vec<
         .filter(|p| p.0.is_finite() && p.1.is_finite())
         .collect();
     // Each edge: inside test and the intersection of a segment with the edge's line.
-    let edges: [(
-        &dyn Fn((f64, f64)) -> bool,
-        &dyn Fn((f64, f64), (f64, f64)) -> (f64, f64),
-    ); 4] = [
+    type Inside<'a> = &'a dyn Fn((f64, f64)) -> bool;
+    type Cut<'a> = &'a dyn Fn((f64, f64), (f64, f64)) -> (f64, f64);
+    let edges: [(Inside, Cut); 4] = [
         (&|p| p.0 >= lo.0, &|a, b| cut_x(a, b, lo.0)),
         (&|p| p.0 <= hi.0, &|a, b| cut_x(a, b, hi.0)),
         (&|p| p.1 >= lo.1, &|a, b| cut_y(a, b, lo.1)),

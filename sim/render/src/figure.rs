@@ -141,7 +141,7 @@ fn clip(a: (f64, f64), b: (f64, f64), w: f64, h: f64) -> Option<((f64, f64), (f6
             }
         }
     }
-    (t0 <= t1).then(|| ((a.0 + t0 * dx, a.1 + t0 * dy), (a.0 + t1 * dx, a.1 + t1 * dy)))
+    (t0 <= t1).then_some(((a.0 + t0 * dx, a.1 + t0 * dy), (a.0 + t1 * dx, a.1 + t1 * dy)))
 }
 
 /// Segments of a polyline in panel pixels, clipped to the panel: a path projected from far
@@ -431,10 +431,11 @@ pub fn figure(atlas: &PunctureAtlas, spec: &FigureSpec, png: &Path) -> Result<()
         }
         root.present().map_err(|e| RenderError::Draw(e.to_string()))?;
     }
-    write_png(png, width, height, &buf)
+    write_rgb_png(png, width, height, &buf)
 }
 
-fn write_png(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(), RenderError> {
+/// Writes 8-bit RGB pixels (rows top to bottom, no padding) as a PNG file, creating its folder.
+pub fn write_rgb_png(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(), RenderError> {
     let err = |m: String| RenderError::Write {
         path: path.display().to_string(),
         message: m,

@@ -81,27 +81,27 @@ impl Image {
             message,
         };
         let file = std::fs::File::create(path).map_err(|e| err(e.to_string()))?;
-        self.encode_png(std::io::BufWriter::new(file)).map_err(err)
+        self.encode_png(std::io::BufWriter::new(file))
+            .map_err(|e| err(e.to_string()))
     }
 
     /// The 8-bit RGBA PNG's bytes (pictures served over HTTP).
     pub fn to_png(&self) -> Result<Vec<u8>, RenderError> {
         let mut out = Vec::new();
-        self.encode_png(&mut out).map_err(|message| RenderError::Write {
+        self.encode_png(&mut out).map_err(|e| RenderError::Write {
             path: "(memory)".into(),
-            message,
+            message: e.to_string(),
         })?;
         Ok(out)
     }
 
-    fn encode_png(&self, to: impl std::io::Write) -> Result<(), String> {
+    fn encode_png(&self, to: impl std::io::Write) -> Result<(), png::EncodingError> {
         let mut enc = png::Encoder::new(to, self.width, self.height);
         enc.set_color(png::ColorType::Rgba);
         enc.set_depth(png::BitDepth::Eight);
-        let mut w = enc.write_header().map_err(|e| e.to_string())?;
-        w.write_image_data(self.rgba.as_flattened())
-            .map_err(|e| e.to_string())?;
-        w.finish().map_err(|e| e.to_string())
+        let mut w = enc.write_header()?;
+        w.write_image_data(self.rgba.as_flattened())?;
+        w.finish()
     }
 
     /// Reads an 8-bit RGB or RGBA PNG (golden images).
@@ -119,7 +119,10 @@ impl Image {
         if width == 0 || height == 0 || width as u64 * height as u64 > 64 << 20 {
             return Err(err(format!("{width} × {height} pixels is not a golden image")));
         }
-        let mut buf = vec![0; reader.output_buffer_size()];
+        let size = reader
+            .output_buffer_size()
+            .ok_or_else(|| err(format!("{width} × {height} pixels do not fit in memory")))?;
+        let mut buf = vec![0; size];
         let frame = reader.next_frame(&mut buf).map_err(|e| err(e.to_string()))?;
         let bytes = &buf[..frame.buffer_size()];
         let rgba = match frame.color_type {

@@ -43,4 +43,10 @@ pub enum RenderError {
     /// A scene the renderer refuses (image size, geometry, tools), with what is wrong.
     #[error("invalid scene: {0}")]
     Invalid(String),
+    /// Ultrasound settings or an ultrasound scene the renderer refuses.
+    #[error("invalid scene: {0}")]
+    Ultrasound(#[from] ultrasound::UltrasoundError),
+    /// A C-arm or X-ray scene the renderer refuses.
+    #[error("invalid scene: {0}")]
+    Xray(#[from] xray::XrayError),
 }

@@ -17,7 +17,7 @@ pub struct Trapezoid {
 }
 
 impl Trapezoid {
-    /// a_i(v): 0 outside (hu[0], hu[3]), linear ramps, `opacity` on the plateau.
+    /// a_i(v): 0 outside (`hu[0]`, `hu[3]`), linear ramps, `opacity` on the plateau.
     #[inline]
     pub fn opacity_at(&self, hu: f32) -> f32 {
         let [a, b, c, d] = self.hu;
@@ -73,8 +73,10 @@ impl TransferFunction {
                         tissue: t.tissue.clone(),
                         message: message.into(),
                     };
-                    if !t.hu.iter().all(|v| v.is_finite())
-                        || !(t.hu[0] < t.hu[1] && t.hu[1] <= t.hu[2] && t.hu[2] < t.hu[3])
+                    if !(t.hu.iter().all(|v| v.is_finite())
+                        && t.hu[0] < t.hu[1]
+                        && t.hu[1] <= t.hu[2]
+                        && t.hu[2] < t.hu[3])
                     {
                         return Err(bad("HU corners must be finite with a < b ≤ c < d"));
                     }
@@ -89,7 +91,7 @@ impl TransferFunction {
                 width_hu,
                 opacity,
             } => {
-                if !level_hu.is_finite() || !(width_hu.is_finite() && *width_hu > 0.0) || !unit(*opacity) {
+                if !(level_hu.is_finite() && width_hu.is_finite() && *width_hu > 0.0 && unit(*opacity)) {
                     return Err(TransferError::Window(
                         "level must be finite, width > 0 and opacity 0 … 1".into(),
                     ));

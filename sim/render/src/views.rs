@@ -5,7 +5,7 @@
 
 use std::sync::Arc;
 
-use stylet_atlas::Atlas;
+use stylet_atlas::{Atlas, Difficulty};
 use stylet_physics::glam::{DVec3, Vec3};
 use stylet_physics::{DeformField, ProbeKind, Simulation, TickInput, TickOutput};
 
@@ -33,7 +33,7 @@ pub struct Moment {
     /// The session's seed (the ultrasound's speckle), time (s) and difficulty.
     pub seed: u64,
     pub time_s: f64,
-    pub difficulty: String,
+    pub difficulty: Difficulty,
     pub device_mm: DVec3,
     /// The device's axis (orientation · +z).
     pub axis: DVec3,
@@ -50,7 +50,7 @@ pub struct Moment {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SessionLabels {
     pub scenario: String,
-    pub difficulty: String,
+    pub difficulty: Difficulty,
     pub seed: u64,
 }
 
@@ -79,7 +79,7 @@ impl Moment {
             xray_on: out.xray_on,
             seed: labels.seed,
             time_s: out.tick as f64 / f64::from(sim.tick_rate_hz()),
-            difficulty: labels.difficulty.clone(),
+            difficulty: labels.difficulty,
             device_mm: out.tip_mm,
             axis: if q.is_finite() && q.length_squared() > 1e-12 {
                 q.normalize() * DVec3::Z
@@ -116,7 +116,7 @@ pub enum ViewError {
         reason: String,
     },
     #[error("the C-arm: {0}")]
-    CArm(String),
+    CArm(stylet_atlas::manifest::CArmError),
     #[error("{0}")]
     Slice(#[from] mpr::MprError),
     #[error("{0}")]
@@ -329,7 +329,7 @@ pub fn xray_scene(
     if let Some(v) = cranial_deg {
         toml.cranial_deg = v;
     }
-    toml.check().map_err(|e| ViewError::CArm(e.to_string()))?;
+    toml.check().map_err(ViewError::CArm)?;
     let isocenter_mm = match atlas.planned_paths().first() {
         Some(p) => p.target_mm,
         None => {
@@ -347,13 +347,13 @@ pub fn xray_scene(
 
 /// The ultrasound scene of the moment's probe, else of a probe of kind `probe` (default convex)
 /// beside the atlas' first planned path imaging it in plane; the needle of the moment; the aids
-/// of `difficulty` (the atlas' `[difficulty]` presets; unknown names: beginner). `echo` and
+/// of `difficulty` (the atlas' `[difficulty]` presets). `echo` and
 /// `doppler` are built once per atlas by the caller ([`EchoTable::of_atlas`], [`FlowField::build`]).
 pub fn ultrasound_scene(
     atlas: &Atlas,
     moment: Option<&Moment>,
     probe: Option<ProbeKind>,
-    difficulty: &str,
+    difficulty: Difficulty,
     echo: Arc<EchoTable>,
     doppler: Option<Arc<FlowField>>,
 ) -> Result<UltrasoundScene, ViewError> {
@@ -373,12 +373,7 @@ pub fn ultrasound_scene(
             });
         }
     };
-    let presets = &atlas.manifest.difficulty;
-    let aids = match difficulty {
-        "advanced" => &presets.advanced,
-        "expert" => &presets.expert,
-        _ => &presets.beginner,
-    };
+    let aids = atlas.manifest.difficulty.of(difficulty);
     let needle = moment.and_then(|m| m.tools.needle.clone());
     // The guide: where the needle goes on from its tip; with no needle, the planned path.
     let guide_mm = aids.needle_guide.then(|| match &needle {

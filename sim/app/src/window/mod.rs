@@ -24,12 +24,12 @@ use std::time::Duration;
 use stylet_atlas::Atlas;
 
 use crate::credentials::Credentials;
-use crate::outbox::{Backoff, Outbox, Retrier};
+use crate::outbox::{Backoff, Outbox, OutboxError, Retrier};
 use crate::service_client::{ServiceClient, TokenUploader};
 
 pub use panes::Layout;
-pub use replay_screen::ReplayScreen;
-pub use results::ResultsScreen;
+pub use replay_screen::{LoadReplayError, ReplayScreen};
+pub use results::{NoScore, NotQueued, ResultsScreen};
 pub use session_screen::SessionScreen;
 pub use start::StartScreen;
 
@@ -89,7 +89,7 @@ pub struct Shared {
     pub login: Option<Credentials>,
     pub outbox: Option<Outbox>,
     /// Why the outbox cannot be used (shown on every screen).
-    pub outbox_problem: Option<String>,
+    pub outbox_problem: Option<Arc<OutboxError>>,
     retrier: Option<Retrier>,
     /// The tablet page and the commands it sends, when it is on.
     tablet: Option<(
@@ -107,7 +107,7 @@ impl Shared {
             .and_then(|d| Credentials::load(d).ok().flatten());
         let (outbox, outbox_problem) = match Outbox::open(&options.outbox_dir) {
             Ok(o) => (Some(o), None),
-            Err(e) => (None, Some(e.to_string())),
+            Err(e) => (None, Some(Arc::new(e))),
         };
         let (mut tablet, mut tablet_problem) = (None, None);
         if let Some(addr) = options.tablet {
@@ -134,11 +134,11 @@ impl Shared {
     }
 
     /// A patient, loaded once and kept.
-    pub fn atlas(&mut self, dir: &std::path::Path) -> Result<Arc<Atlas>, String> {
+    pub fn atlas(&mut self, dir: &std::path::Path) -> Result<Arc<Atlas>, stylet_atlas::AtlasError> {
         if let Some((_, a)) = self.atlases.iter().find(|(d, _)| d == dir) {
             return Ok(Arc::clone(a));
         }
-        let a = Arc::new(stylet_atlas::load(dir).map_err(|e| e.to_string())?);
+        let a = Arc::new(stylet_atlas::load(dir)?);
         self.atlases.push((dir.to_path_buf(), Arc::clone(&a)));
         Ok(a)
     }
@@ -156,9 +156,9 @@ impl Shared {
                 (None, Some(outbox)) => match Outbox::open(outbox.dir()) {
                     Ok(o) => match Retrier::start(o, uploader, Backoff::default()) {
                         Ok(r) => self.retrier = Some(r),
-                        Err(e) => self.outbox_problem = Some(e.to_string()),
+                        Err(e) => self.outbox_problem = Some(Arc::new(e)),
                     },
-                    Err(e) => self.outbox_problem = Some(e.to_string()),
+                    Err(e) => self.outbox_problem = Some(Arc::new(e)),
                 },
                 (None, None) => {}
             }
@@ -267,7 +267,7 @@ impl StyletApp {
                 Ok(r) => screen = Screen::Loading(Box::new(r)),
                 Err(e) => {
                     if let Screen::Start(s) = &mut screen {
-                        s.problem = Some(e);
+                        s.problem = Some(e.to_string());
                     }
                 }
             }

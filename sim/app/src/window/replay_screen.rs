@@ -13,7 +13,8 @@ use stylet_atlas::Atlas;
 use super::chart::{force_chart, moment_color};
 use super::panes::Panes;
 use super::{Go, Shared};
-use crate::replay_cursor::ReplayCursor;
+use crate::replay_cursor::{OpenError, ReplayCursor};
+use crate::service_client::{AddressError, FetchError};
 use crate::view_worker::ViewWorker;
 use crate::views::ViewSettings;
 
@@ -36,44 +37,81 @@ pub struct ReplayScreen {
     problem: Option<String>,
 }
 
+/// Why a session cannot be opened in the replay viewer: the file, the service it is fetched
+/// from, the patient it was recorded on, or the replay and drawing themselves.
+#[derive(Debug, thiserror::Error)]
+pub enum LoadReplayError {
+    #[error("cannot read {}: {source}", path.display())]
+    Unreadable {
+        path: PathBuf,
+        #[source]
+        source: stylet_recorder::ReadError,
+    },
+    #[error("log in to fetch sessions from the service")]
+    NotLoggedIn,
+    /// The login's server address is not one the client may use.
+    #[error(transparent)]
+    Address(#[from] AddressError),
+    #[error(transparent)]
+    Fetch(#[from] FetchError),
+    #[error("the fetched file {} cannot be read: {source}", path.display())]
+    FetchedUnreadable {
+        path: PathBuf,
+        #[source]
+        source: stylet_recorder::ReadError,
+    },
+    /// None of the window's atlases has the session's atlas hash.
+    #[error(
+        "the session {} was recorded on patient '{atlas_id}', which is not among this window's patients",
+        path.display()
+    )]
+    UnknownPatient { path: PathBuf, atlas_id: String },
+    #[error(transparent)]
+    Open(#[from] OpenError),
+    #[error("cannot start drawing: {0}")]
+    Drawing(#[source] std::io::Error),
+    #[error("the fetching thread stopped")]
+    FetchThreadStopped,
+    #[error("the replay thread stopped")]
+    ReplayThreadStopped,
+}
+
 /// A session file being replayed and scored on a thread of its own (a long session takes
 /// seconds); the viewer opens when it is done.
 pub struct LoadingReplay {
     atlas: Option<Arc<Atlas>>,
     path: PathBuf,
     /// A file being fetched from the service first (its path and contents when it is here).
-    fetching: Option<Receiver<Result<(PathBuf, stylet_recorder::reader::Session), String>>>,
-    rx: Option<Receiver<Result<ReplayCursor, String>>>,
+    fetching: Option<Receiver<Result<(PathBuf, stylet_recorder::reader::Session), LoadReplayError>>>,
+    rx: Option<Receiver<Result<ReplayCursor, OpenError>>>,
     problem: Option<String>,
 }
 
 impl LoadingReplay {
     /// Opens a file, finding its patient among the window's atlases by the session's atlas hash.
-    pub fn open_file(ctx: &egui::Context, shared: &mut Shared, path: &Path) -> Result<LoadingReplay, String> {
-        let session =
-            stylet_recorder::reader::recover(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    pub fn open_file(ctx: &egui::Context, shared: &mut Shared, path: &Path) -> Result<LoadingReplay, LoadReplayError> {
+        let session = stylet_recorder::reader::recover(path).map_err(|source| LoadReplayError::Unreadable {
+            path: path.to_path_buf(),
+            source,
+        })?;
         LoadingReplay::of_session(ctx, shared, path, session)
     }
 
     /// Fetches session `id` from the service (with the login's token) into the sessions folder,
     /// then replays it.
-    pub fn fetch(ctx: &egui::Context, shared: &Shared, id: &str) -> Result<LoadingReplay, String> {
-        let login = shared
-            .login
-            .clone()
-            .ok_or("log in to fetch sessions from the service")?;
-        let client = crate::service_client::ServiceClient::new(&login.server_url).map_err(|e| e.to_string())?;
+    pub fn fetch(ctx: &egui::Context, shared: &Shared, id: &str) -> Result<LoadingReplay, LoadReplayError> {
+        let login = shared.login.clone().ok_or(LoadReplayError::NotLoggedIn)?;
+        let client = crate::service_client::ServiceClient::new(&login.server_url)?;
         let (tx, rx) = std::sync::mpsc::channel();
         let (id, dir, repaint) = (id.trim().to_string(), shared.options.sessions_dir.clone(), ctx.clone());
         let shown = dir.join(format!("fetched-{id}.mcap"));
         std::thread::spawn(move || {
             let r = client
                 .fetch_session(&login.token, &id, &dir)
-                .map_err(|e| e.to_string())
-                .and_then(|path| {
-                    stylet_recorder::reader::recover(&path)
-                        .map(|s| (path.clone(), s))
-                        .map_err(|e| format!("the fetched file {} cannot be read: {e}", path.display()))
+                .map_err(LoadReplayError::Fetch)
+                .and_then(|path| match stylet_recorder::reader::recover(&path) {
+                    Ok(s) => Ok((path, s)),
+                    Err(source) => Err(LoadReplayError::FetchedUnreadable { path, source }),
                 });
             let _ = tx.send(r);
             repaint.request_repaint();
@@ -92,7 +130,7 @@ impl LoadingReplay {
         shared: &mut Shared,
         path: &Path,
         session: stylet_recorder::reader::Session,
-    ) -> Result<LoadingReplay, String> {
+    ) -> Result<LoadingReplay, LoadReplayError> {
         let want = session.header.atlas_hash.clone();
         let dirs = shared.options.atlases.clone();
         for dir in &dirs {
@@ -102,11 +140,10 @@ impl LoadingReplay {
                 return Ok(LoadingReplay::with_session(ctx, atlas, path, session));
             }
         }
-        Err(format!(
-            "the session {} was recorded on patient '{}', which is not among this window's patients",
-            path.display(),
-            session.header.atlas_id
-        ))
+        Err(LoadReplayError::UnknownPatient {
+            path: path.to_path_buf(),
+            atlas_id: session.header.atlas_id,
+        })
     }
 
     /// Replays a file recorded on `atlas`.
@@ -136,7 +173,7 @@ impl LoadingReplay {
         let (tx, rx) = std::sync::mpsc::channel();
         let (a, repaint) = (Arc::clone(&atlas), ctx.clone());
         std::thread::spawn(move || {
-            let _ = tx.send(open(&a).map_err(|e| e.to_string()));
+            let _ = tx.send(open(&a));
             repaint.request_repaint();
         });
         LoadingReplay {
@@ -158,10 +195,10 @@ impl LoadingReplay {
             match rx.try_recv() {
                 Ok(Ok((path, session))) => match LoadingReplay::of_session(ui.ctx(), shared, &path, session) {
                     Ok(next) => *self = next,
-                    Err(e) => self.problem = Some(e),
+                    Err(e) => self.problem = Some(e.to_string()),
                 },
-                Ok(Err(e)) => self.problem = Some(e),
-                Err(TryRecvError::Disconnected) => self.problem = Some("the fetching thread stopped".into()),
+                Ok(Err(e)) => self.problem = Some(e.to_string()),
+                Err(TryRecvError::Disconnected) => self.problem = Some(LoadReplayError::FetchThreadStopped.to_string()),
                 Err(TryRecvError::Empty) => ui.ctx().request_repaint_after(Duration::from_millis(100)),
             }
         }
@@ -169,10 +206,12 @@ impl LoadingReplay {
             match rx.try_recv() {
                 Ok(Ok(cursor)) => match ReplayScreen::new(ui.ctx(), shared, Arc::clone(atlas), &self.path, cursor) {
                     Ok(r) => return Some(Go::Replay(Box::new(r))),
-                    Err(e) => self.problem = Some(e),
+                    Err(e) => self.problem = Some(e.to_string()),
                 },
-                Ok(Err(e)) => self.problem = Some(e),
-                Err(TryRecvError::Disconnected) => self.problem = Some("the replay thread stopped".into()),
+                Ok(Err(e)) => self.problem = Some(e.to_string()),
+                Err(TryRecvError::Disconnected) => {
+                    self.problem = Some(LoadReplayError::ReplayThreadStopped.to_string())
+                }
                 Err(TryRecvError::Empty) => ui.ctx().request_repaint_after(Duration::from_millis(100)),
             }
         }
@@ -209,7 +248,7 @@ impl ReplayScreen {
         atlas: Arc<Atlas>,
         path: &Path,
         cursor: ReplayCursor,
-    ) -> Result<ReplayScreen, String> {
+    ) -> Result<ReplayScreen, LoadReplayError> {
         let repaint = ctx.clone();
         // Instructors see inside: risk tagging with the clipping plane through the tool.
         let settings = ViewSettings {
@@ -223,7 +262,7 @@ impl ReplayScreen {
             settings,
             Box::new(move || repaint.request_repaint_after(Duration::from_millis(33))),
         )
-        .map_err(|e| format!("cannot start drawing: {e}"))?;
+        .map_err(LoadReplayError::Drawing)?;
         Ok(ReplayScreen {
             cursor,
             worker,

@@ -1,6 +1,7 @@
 //! The results screen: the session's local score (a replay through the same physics, the same
 //! scorer and rubric as the service), its reasons in plain words, and where its upload stands.
 
+use std::sync::Arc;
 use std::sync::mpsc::Receiver;
 
 use eframe::egui;
@@ -8,19 +9,49 @@ use stylet_scoring::{Outcome, ScoreReport};
 
 use super::replay_screen::LoadingReplay;
 use super::{Go, Shared};
-use crate::session::FinishedSession;
+use crate::outbox::OutboxError;
+use crate::session::{FinishedSession, ScoreFileError, SessionError};
+
+/// Why the results screen shows no local score.
+#[derive(Debug, thiserror::Error)]
+pub enum NoScore {
+    /// The session could not be finished properly: there is no file to score.
+    #[error("{0}")]
+    Unfinished(Arc<SessionError>),
+    #[error(transparent)]
+    Scoring(#[from] ScoreFileError),
+    #[error("the scoring thread stopped")]
+    ThreadStopped,
+}
+
+/// Why a finished session is not in the outbox (the file stays where it was recorded).
+#[derive(Debug, thiserror::Error)]
+pub enum NotQueued {
+    /// The session could not be finished properly.
+    #[error("{0}")]
+    Unfinished(Arc<SessionError>),
+    /// The outbox refused the file (unreadable, not a finished session, too large).
+    #[error(transparent)]
+    Add(#[from] OutboxError),
+    /// The outbox could not be opened when the window started.
+    #[error("{0}")]
+    OutboxUnusable(Arc<OutboxError>),
+    #[error("no outbox")]
+    NoOutbox,
+}
 
 /// The local score: being computed, or its result.
+#[allow(clippy::large_enum_variant, reason = "one per results screen")]
 enum Scoring {
-    Running(Receiver<Result<ScoreReport, String>>),
-    Done(Result<ScoreReport, String>),
+    Running(Receiver<Result<ScoreReport, ScoreFileError>>),
+    Done(Result<ScoreReport, NoScore>),
 }
 
 pub struct ResultsScreen {
     finished: Option<FinishedSession>,
     scoring: Scoring,
     /// The session's name in the outbox, or why it could not be queued.
-    queued: Result<String, String>,
+    queued: Result<String, NotQueued>,
     problem: Option<String>,
 }
 
@@ -28,8 +59,11 @@ impl ResultsScreen {
     /// Queues the session for upload and scores it on a thread of its own.
     pub fn new(finished: FinishedSession, shared: &Shared) -> ResultsScreen {
         let queued = match &shared.outbox {
-            Some(o) => o.add(&finished.path).map_err(|e| e.to_string()),
-            None => Err(shared.outbox_problem.clone().unwrap_or_else(|| "no outbox".into())),
+            Some(o) => o.add(&finished.path).map_err(NotQueued::Add),
+            None => Err(shared
+                .outbox_problem
+                .clone()
+                .map_or(NotQueued::NoOutbox, NotQueued::OutboxUnusable)),
         };
         shared.upload_now();
         let (tx, rx) = std::sync::mpsc::channel();
@@ -46,17 +80,18 @@ impl ResultsScreen {
     }
 
     /// A session that could not be finished properly.
-    pub fn failed(why: String) -> ResultsScreen {
+    pub fn failed(why: SessionError) -> ResultsScreen {
+        let why = Arc::new(why);
         ResultsScreen {
             finished: None,
-            scoring: Scoring::Done(Err(why.clone())),
-            queued: Err(why),
+            scoring: Scoring::Done(Err(NoScore::Unfinished(Arc::clone(&why)))),
+            queued: Err(NotQueued::Unfinished(why)),
             problem: None,
         }
     }
 
     /// The local score, once computed.
-    pub fn score(&self) -> Option<&Result<ScoreReport, String>> {
+    pub fn score(&self) -> Option<&Result<ScoreReport, NoScore>> {
         match &self.scoring {
             Scoring::Done(r) => Some(r),
             Scoring::Running(_) => None,
@@ -70,9 +105,9 @@ impl ResultsScreen {
     pub fn ui(&mut self, ui: &mut egui::Ui, shared: &mut Shared) -> Option<Go> {
         if let Scoring::Running(rx) = &self.scoring {
             match rx.try_recv() {
-                Ok(r) => self.scoring = Scoring::Done(r),
+                Ok(r) => self.scoring = Scoring::Done(r.map_err(NoScore::Scoring)),
                 Err(std::sync::mpsc::TryRecvError::Disconnected) => {
-                    self.scoring = Scoring::Done(Err("the scoring thread stopped".into()))
+                    self.scoring = Scoring::Done(Err(NoScore::ThreadStopped))
                 }
                 Err(std::sync::mpsc::TryRecvError::Empty) => {
                     ui.ctx().request_repaint_after(std::time::Duration::from_millis(50))
@@ -88,7 +123,7 @@ impl ResultsScreen {
                     "{} · {} · {} · trainee {}",
                     p.atlas.manifest.name,
                     p.scenario,
-                    p.difficulty.name(),
+                    p.difficulty.as_str(),
                     p.trainee
                 ));
                 let s = f.report.stats;

@@ -144,7 +144,7 @@ impl SessionScreen {
                     "{} · {} · {}",
                     plan.atlas.manifest.name,
                     plan.scenario,
-                    plan.difficulty.name()
+                    plan.difficulty.as_str()
                 ));
                 ui.label(format!("trainee {}", plan.trainee));
                 if let Some(m) = run.moved_by() {
@@ -322,7 +322,7 @@ impl SessionScreen {
             let run = self.run.take()?;
             return match run.finish() {
                 Ok(done) => Some(Go::Results(Box::new(ResultsScreen::new(done, shared)))),
-                Err(e) => Some(Go::Results(Box::new(ResultsScreen::failed(e.to_string())))),
+                Err(e) => Some(Go::Results(Box::new(ResultsScreen::failed(e)))),
             };
         }
         None

@@ -9,9 +9,19 @@ use eframe::egui;
 
 use super::replay_screen::LoadingReplay;
 use super::{Go, SessionScreen, Shared};
-use crate::credentials::Credentials;
-use crate::service_client::ServiceClient;
+use crate::credentials::{Credentials, CredentialsError};
+use crate::service_client::{LoginError, ServiceClient};
 use crate::session::{Difficulty, Driver, SessionPlan};
+
+/// Why a login from the start screen did not leave a usable login behind.
+#[derive(Debug, thiserror::Error)]
+enum LoginFailure {
+    #[error(transparent)]
+    Service(#[from] LoginError),
+    /// The service gave a token, but it cannot be written to the configuration folder.
+    #[error("logged in, but the token cannot be kept: {0}")]
+    NotKept(#[source] CredentialsError),
+}
 
 /// The start screen's fields.
 pub struct StartScreen {
@@ -19,7 +29,7 @@ pub struct StartScreen {
     pub username: String,
     password: String,
     /// A login under way on its own thread.
-    login: Option<Receiver<Result<Credentials, String>>>,
+    login: Option<Receiver<Result<Credentials, LoginFailure>>>,
     pub atlas_index: usize,
     pub scenario: String,
     pub difficulty: Difficulty,
@@ -143,7 +153,7 @@ impl StartScreen {
             let host = std::env::var("HOSTNAME").unwrap_or_else(|_| "this computer".into());
             let result = client
                 .upload_token(&username, &password, &format!("stylet sim on {host}"))
-                .map_err(|e| e.to_string())
+                .map_err(LoginFailure::Service)
                 .and_then(|token| {
                     let c = Credentials {
                         server_url: client.base().to_string(),
@@ -151,8 +161,7 @@ impl StartScreen {
                         token,
                     };
                     if let Some(dir) = config_dir {
-                        c.save(&dir)
-                            .map_err(|e| format!("logged in, but the token cannot be kept: {e}"))?;
+                        c.save(&dir).map_err(LoginFailure::NotKept)?;
                     }
                     Ok(c)
                 });
@@ -232,7 +241,7 @@ impl StartScreen {
             ui.label("Difficulty");
             ui.horizontal(|ui| {
                 for d in Difficulty::ALL {
-                    ui.selectable_value(&mut self.difficulty, d, d.name());
+                    ui.selectable_value(&mut self.difficulty, d, d.as_str());
                 }
             });
             ui.end_row();
@@ -305,7 +314,7 @@ impl StartScreen {
                 let path = PathBuf::from(self.replay_path.trim());
                 match LoadingReplay::open_file(ui.ctx(), shared, &path) {
                     Ok(r) => go = Some(Go::Loading(Box::new(r))),
-                    Err(e) => self.problem = Some(e),
+                    Err(e) => self.problem = Some(e.to_string()),
                 }
             }
         });
@@ -316,7 +325,7 @@ impl StartScreen {
                 if ui.button("Fetch and replay").clicked() {
                     match LoadingReplay::fetch(ui.ctx(), shared, &self.fetch_id) {
                         Ok(r) => go = Some(Go::Loading(Box::new(r))),
-                        Err(e) => self.problem = Some(e),
+                        Err(e) => self.problem = Some(e.to_string()),
                     }
                 }
             });

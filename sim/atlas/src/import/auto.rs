@@ -175,7 +175,10 @@ pub fn ptcd_recipe(
     overrides: Option<&MappingOverride>,
 ) -> Result<LoadedRecipe, AtlasError> {
     let named = |id: LabelId| classes.name(id);
-    let scenario = ScenarioFile::parse(PTCD_SCENARIO_TOML).map_err(|e| AtlasError::file(origin, e))?;
+    let scenario = ScenarioFile::parse(PTCD_SCENARIO_TOML).map_err(|error| AtlasError::Manifest {
+        path: origin.to_path_buf(),
+        error,
+    })?;
     let labels: Vec<LabelToml> = scenario.labels.iter().cloned().chain(added_labels()).collect();
     let overrides = match overrides {
         Some(o) => o.resolve(classes, &labels, &[DUCTS, TARGET])?,

@@ -33,6 +33,21 @@ pub struct BiliaryReport {
     pub liver_noise_hu: f64,
 }
 
+/// Why no biliary tree can be grown in this liver with these parameters (the recipe's
+/// `[biliary]` table): the liver label is too small, too thin or not connected enough.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum BiliaryError {
+    #[error("the liver label {label} covers only {ml:.0} ml; a biliary tree needs at least 100 ml")]
+    LiverTooSmall { label: LabelId, ml: f64 },
+    /// No liver voxel lies `margin_mm` inside the liver, as the target duct needs.
+    #[error("the liver has no voxel {margin_mm:.1} mm away from its surface")]
+    TooThin { margin_mm: f64 },
+    #[error("no deep liver voxel to the right of the hilum")]
+    NoRightLobe,
+    #[error("the right lobe is not reachable from the hilum inside the liver")]
+    RightLobeUnreachable,
+}
+
 /// A duct centre line with its radius at each point.
 struct Duct {
     points: Vec<DVec3>,
@@ -41,23 +56,22 @@ struct Duct {
     label: LabelId,
 }
 
-/// Errors are plain messages; the caller names the recipe.
+/// Errors do not name the recipe; the caller does.
 pub fn synthesize(
     params: &Biliary,
     ct: &mut Volume<f32>,
     labels: &mut Volume<LabelId>,
     source: &Volume<LabelId>,
-) -> Result<BiliaryReport, String> {
+) -> Result<BiliaryReport, BiliaryError> {
     let grid = *ct.grid();
     let liver: Vec<bool> = labels.data().iter().map(|&l| l == params.liver_label).collect();
     let liver_count = liver.iter().filter(|&&b| b).count();
     let voxel_mm3: f64 = grid.spacing_mm().iter().product();
     if (liver_count as f64 * voxel_mm3) < 100_000.0 {
-        return Err(format!(
-            "the liver label {} covers only {:.0} ml; a biliary tree needs at least 100 ml",
-            params.liver_label,
-            liver_count as f64 * voxel_mm3 / 1000.0
-        ));
+        return Err(BiliaryError::LiverTooSmall {
+            label: params.liver_label,
+            ml: liver_count as f64 * voxel_mm3 / 1000.0,
+        });
     }
     let not_liver: Vec<bool> = liver.iter().map(|&b| !b).collect();
     let depth: Vec<f64> = squared_edt(&grid, &not_liver)
@@ -81,7 +95,7 @@ pub fn synthesize(
     }
     let deep: Vec<usize> = (0..grid.len()).filter(|&i| depth[i] >= margin).collect();
     if deep.is_empty() {
-        return Err(format!("the liver has no voxel {margin:.1} mm away from its surface"));
+        return Err(BiliaryError::TooThin { margin_mm: margin });
     }
     let (hilum, hilum_source) = if n > 0 {
         let c = sum / n as f64;
@@ -107,7 +121,7 @@ pub fn synthesize(
         &|p: DVec3| (p.x - h.x) - 0.7 * (p.z - h.z).abs() - 0.3 * (p.y - h.y).abs(),
         margin,
     )
-    .ok_or("no deep liver voxel to the right of the hilum")?;
+    .ok_or(BiliaryError::NoRightLobe)?;
     let left_end = pick(
         &|p: DVec3| (h.x - p.x) - 0.7 * (p.z - h.z).abs() - 0.3 * (p.y - h.y).abs(),
         params.duct_radius_mm + 3.0,
@@ -118,8 +132,8 @@ pub fn synthesize(
     );
 
     let allowed = |min: f64| -> Vec<bool> { depth.iter().map(|&d| d >= min).collect() };
-    let right = geodesic(&grid, &allowed(margin), &depth, hilum, right_end)
-        .ok_or("the right lobe is not reachable from the hilum inside the liver")?;
+    let right =
+        geodesic(&grid, &allowed(margin), &depth, hilum, right_end).ok_or(BiliaryError::RightLobeUnreachable)?;
     let right_pts = smooth(&right.iter().map(|&i| world(i)).collect::<Vec<_>>());
     let (target_pts, rest_pts) = split_at_length(&right_pts, params.target_length_mm);
 

@@ -288,7 +288,7 @@ mod tests {
         let pad = |i: usize| {
             if i < 100 {
                 -2048.0
-            } else if i % 2 == 0 {
+            } else if i.is_multiple_of(2) {
                 -1000.0
             } else {
                 40.0

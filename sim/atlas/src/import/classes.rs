@@ -11,6 +11,34 @@ use stylet_physics::LabelId;
 
 use crate::AtlasError;
 
+/// Why a class table CSV is refused (with the line, counted from 1, where one is at fault), or
+/// why a structure cannot be added to a table: every class must have a number and a name.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ClassTableError {
+    #[error("class table is empty: expected a header with `id` and `structure` columns")]
+    Empty,
+    /// The header lacks a column (`column` as the message names it).
+    #[error("class table header has no {column} column")]
+    MissingColumn { column: &'static str },
+    #[error("line {line}: fewer columns than the header")]
+    FewerColumns { line: usize },
+    #[error("line {line}: class number {value:?} is not 1 … 65535")]
+    ClassNumber { line: usize, value: String },
+    #[error("line {line}: class {id} has no name")]
+    NoName { line: usize, id: LabelId },
+    #[error("line {line}: class {id}'s name is longer than {MAX_NAME_CHARS} characters or holds control characters")]
+    BadName { line: usize, id: LabelId },
+    #[error("line {line}: class {id} is listed twice")]
+    Duplicate { line: usize, id: LabelId },
+    #[error("class table lists no class")]
+    NoClasses,
+    /// A structure name [`ClassTable::add`] refuses.
+    #[error("structure name {name:?} is empty, longer than {MAX_NAME_CHARS} characters or holds control characters")]
+    StructureName { name: String },
+    #[error("no class number left after 65535")]
+    NoClassNumberLeft,
+}
+
 /// TotalSegmentator's "total" classes (v2), numbers 1 … 117 in order
 /// (`totalsegmentator.map_to_binary.class_map["total"]`).
 const TOTALSEGMENTATOR_TOTAL: [&str; 117] = [
@@ -239,14 +267,17 @@ impl ClassTable {
         let source = path
             .file_name()
             .map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
-        Self::parse_csv(&text, &source).map_err(|e| AtlasError::file(path, e))
+        Self::parse_csv(&text, &source).map_err(|error| AtlasError::ClassTable {
+            path: path.to_path_buf(),
+            error,
+        })
     }
 
     /// [`Self::read_csv`] of text already read; `source` names it in reports.
-    pub fn parse_csv(text: &str, source: &str) -> Result<ClassTable, String> {
+    pub fn parse_csv(text: &str, source: &str) -> Result<ClassTable, ClassTableError> {
         let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
         let Some((_, header)) = lines.next() else {
-            return Err("class table is empty: expected a header with `id` and `structure` columns".into());
+            return Err(ClassTableError::Empty);
         };
         let cols: Vec<&str> = header
             .split(',')
@@ -256,34 +287,38 @@ impl ClassTable {
             cols.iter()
                 .position(|c| names.iter().any(|n| c.eq_ignore_ascii_case(n)))
         };
-        let id_col = find(&["id"]).ok_or("class table header has no `id` column")?;
-        let name_col =
-            find(&["structure", "name"]).ok_or("class table header has no `structure` (or `name`) column")?;
+        let id_col = find(&["id"]).ok_or(ClassTableError::MissingColumn { column: "`id`" })?;
+        let name_col = find(&["structure", "name"]).ok_or(ClassTableError::MissingColumn {
+            column: "`structure` (or `name`)",
+        })?;
         let mut names = BTreeMap::new();
         for (i, line) in lines {
             let n = i + 1;
             let fields: Vec<&str> = line.split(',').map(str::trim).collect();
             let (Some(id), Some(name)) = (fields.get(id_col), fields.get(name_col)) else {
-                return Err(format!("line {n}: fewer columns than the header"));
+                return Err(ClassTableError::FewerColumns { line: n });
             };
             let id: LabelId = match id.parse() {
                 Ok(v) if v > 0 => v,
-                _ => return Err(format!("line {n}: class number {id:?} is not 1 … 65535")),
+                _ => {
+                    return Err(ClassTableError::ClassNumber {
+                        line: n,
+                        value: id.to_string(),
+                    });
+                }
             };
             if name.is_empty() {
-                return Err(format!("line {n}: class {id} has no name"));
+                return Err(ClassTableError::NoName { line: n, id });
             }
             if name.chars().count() > MAX_NAME_CHARS || name.chars().any(char::is_control) {
-                return Err(format!(
-                    "line {n}: class {id}'s name is longer than {MAX_NAME_CHARS} characters or holds control characters"
-                ));
+                return Err(ClassTableError::BadName { line: n, id });
             }
             if names.insert(id, name.to_string()).is_some() {
-                return Err(format!("line {n}: class {id} is listed twice"));
+                return Err(ClassTableError::Duplicate { line: n, id });
             }
         }
         if names.is_empty() {
-            return Err("class table lists no class".into());
+            return Err(ClassTableError::NoClasses);
         }
         Ok(ClassTable {
             source: source.into(),
@@ -311,18 +346,16 @@ impl ClassTable {
 
     /// Adds a structure the table lacks as the class after its last; refused past 65535 or for
     /// a name [`Self::parse_csv`] would refuse.
-    pub fn add(&mut self, name: &str) -> Result<LabelId, String> {
+    pub fn add(&mut self, name: &str) -> Result<LabelId, ClassTableError> {
         if name.is_empty() || name.chars().count() > MAX_NAME_CHARS || name.chars().any(char::is_control) {
-            return Err(format!(
-                "structure name {name:?} is empty, longer than {MAX_NAME_CHARS} characters or holds control characters"
-            ));
+            return Err(ClassTableError::StructureName { name: name.to_string() });
         }
         let next = self
             .names
             .keys()
             .next_back()
             .map_or(Some(1), |&last| last.checked_add(1));
-        let id = next.ok_or("no class number left after 65535")?;
+        let id = next.ok_or(ClassTableError::NoClassNumberLeft)?;
         self.names.insert(id, name.to_string());
         Ok(id)
     }
@@ -432,7 +465,7 @@ mod tests {
         assert_eq!(t.rib(113).map(|r| r.number), Some(10));
         assert_eq!(t.describe(7), "class 7 (not in structures.csv)");
         let bad = |text: &str, want: &str| {
-            let e = ClassTable::parse_csv(text, "x.csv").unwrap_err();
+            let e = ClassTable::parse_csv(text, "x.csv").unwrap_err().to_string();
             assert!(e.contains(want), "{text:?}: {e}");
         };
         bad("", "empty");

@@ -103,7 +103,7 @@ fn grouped(
 pub fn read_seg(
     path: &Path,
     labels: &mut Volume<LabelId>,
-    class_of: &mut dyn FnMut(&str) -> Result<LabelId, String>,
+    class_of: &mut dyn FnMut(&str) -> Result<LabelId, super::classes::ClassTableError>,
 ) -> Result<SegSummary, AtlasError> {
     let fail = |m: String| AtlasError::file(path, m);
     crate::check_regular_file(path)?;

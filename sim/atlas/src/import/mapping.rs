@@ -18,6 +18,27 @@ pub const MAX_MAPPING_BYTES: u64 = 256 * 1024;
 /// Most rows in a mapping file.
 pub const MAX_MAPPING_ROWS: usize = 4096;
 
+/// Why a mapping file is refused as written (before its rows are resolved against the class
+/// table and the labels); lines count from 1.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum MappingError {
+    #[error("mapping file is empty: expected a header with `structure` and `label` columns")]
+    Empty,
+    /// The header lacks a column (`column` as the message names it).
+    #[error("mapping header has no {column} column")]
+    MissingColumn { column: &'static str },
+    #[error("more than {MAX_MAPPING_ROWS} rows")]
+    TooManyRows,
+    #[error("line {line}: fewer columns than the header")]
+    FewerColumns { line: usize },
+    #[error("line {line}: structure and label must be 1 … 64 characters")]
+    FieldLength { line: usize },
+    #[error("line {line}: structure '{structure}' is listed twice")]
+    Duplicate { line: usize, structure: String },
+    #[error("mapping file lists no structure")]
+    NoStructures,
+}
+
 /// What one structure becomes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Mapped {
@@ -41,40 +62,46 @@ impl MappingOverride {
     /// Reads a CSV with `structure` and `label` columns (header first; blank lines ignored).
     pub fn read_csv(path: &Path) -> Result<MappingOverride, AtlasError> {
         let text = crate::read_small_text(path, "mapping file", MAX_MAPPING_BYTES)?;
-        Self::parse_csv(&text, path).map_err(|e| AtlasError::file(path, e))
+        Self::parse_csv(&text, path).map_err(|error| AtlasError::Mapping {
+            path: path.to_path_buf(),
+            error,
+        })
     }
 
-    pub fn parse_csv(text: &str, path: &Path) -> Result<MappingOverride, String> {
+    pub fn parse_csv(text: &str, path: &Path) -> Result<MappingOverride, MappingError> {
         let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
         let Some((_, header)) = lines.next() else {
-            return Err("mapping file is empty: expected a header with `structure` and `label` columns".into());
+            return Err(MappingError::Empty);
         };
         let cols: Vec<&str> = header
             .split(',')
             .map(|c| c.trim().trim_start_matches('\u{feff}'))
             .collect();
         let find = |name: &str| cols.iter().position(|c| c.eq_ignore_ascii_case(name));
-        let s_col = find("structure").ok_or("mapping header has no `structure` column")?;
-        let l_col = find("label").ok_or("mapping header has no `label` column")?;
+        let s_col = find("structure").ok_or(MappingError::MissingColumn { column: "`structure`" })?;
+        let l_col = find("label").ok_or(MappingError::MissingColumn { column: "`label`" })?;
         let mut rows = BTreeMap::new();
         for (i, line) in lines {
             let n = i + 1;
             if rows.len() >= MAX_MAPPING_ROWS {
-                return Err(format!("more than {MAX_MAPPING_ROWS} rows"));
+                return Err(MappingError::TooManyRows);
             }
             let fields: Vec<&str> = line.split(',').map(str::trim).collect();
             let (Some(&s), Some(&l)) = (fields.get(s_col), fields.get(l_col)) else {
-                return Err(format!("line {n}: fewer columns than the header"));
+                return Err(MappingError::FewerColumns { line: n });
             };
             if s.is_empty() || l.is_empty() || s.chars().count() > 64 || l.chars().count() > 64 {
-                return Err(format!("line {n}: structure and label must be 1 … 64 characters"));
+                return Err(MappingError::FieldLength { line: n });
             }
             if rows.insert(s.to_string(), (n, l.to_string())).is_some() {
-                return Err(format!("line {n}: structure '{s}' is listed twice"));
+                return Err(MappingError::Duplicate {
+                    line: n,
+                    structure: s.to_string(),
+                });
             }
         }
         if rows.is_empty() {
-            return Err("mapping file lists no structure".into());
+            return Err(MappingError::NoStructures);
         }
         Ok(MappingOverride {
             path: path.to_path_buf(),
@@ -161,14 +188,18 @@ mod tests {
     fn bad_rows_are_named() {
         let ts = ClassTable::totalsegmentator();
         let parse = |t: &str| MappingOverride::parse_csv(t, Path::new("m.csv"));
-        assert!(parse("").unwrap_err().contains("empty"));
-        assert!(parse("structure,role\nliver,10\n").unwrap_err().contains("`label`"));
-        assert!(
-            parse("structure,label\nliver,10\nliver,11\n")
-                .unwrap_err()
-                .contains("line 3")
+        let err = |t: &str| parse(t).unwrap_err().to_string();
+        assert!(err("").contains("empty"));
+        assert!(err("structure,role\nliver,10\n").contains("`label`"));
+        assert!(err("structure,label\nliver,10\nliver,11\n").contains("line 3"));
+        assert_eq!(
+            parse("structure,label\nliver,10\nliver,11\n"),
+            Err(MappingError::Duplicate {
+                line: 3,
+                structure: "liver".into()
+            })
         );
-        assert!(parse("structure,label\nliver\n").unwrap_err().contains("fewer columns"));
+        assert!(err("structure,label\nliver\n").contains("fewer columns"));
         let e = parse("structure,label\nlivr,10\n")
             .unwrap()
             .resolve(&ts, &labels(), &[21])

@@ -344,7 +344,10 @@ pub fn build(
         Some(b) => Some(
             timer
                 .run(Step::Biliary, || biliary::synthesize(b, &mut ct, &mut labels, &source))
-                .map_err(|e| AtlasError::file(recipe_path, format!("[biliary]: {e}")))?,
+                .map_err(|error| AtlasError::Biliary {
+                    path: recipe_path.to_path_buf(),
+                    error,
+                })?,
         ),
         None => None,
     };
@@ -391,9 +394,12 @@ pub fn build(
         Some(w) => {
             // The atlas the search walks through (its distance maps included) is part of the step.
             let report = timer.run(Step::Window, || -> Result<WindowReport, AtlasError> {
-                let table = manifest::label_table(&manifest.labels, &manifest.heuristic)
-                    .map_err(|e| AtlasError::file(recipe_path, e))?;
-                let tree = manifest::property_tree(&manifest.tissues).map_err(|e| AtlasError::file(recipe_path, e))?;
+                let bad = |error| AtlasError::Manifest {
+                    path: recipe_path.to_path_buf(),
+                    error,
+                };
+                let table = manifest::label_table(&manifest.labels, &manifest.heuristic).map_err(bad)?;
+                let tree = manifest::property_tree(&manifest.tissues).map_err(bad)?;
                 let t = estimate_thresholds(&ct, manifest.heuristic.risk_depth_mm)
                     .map_err(|e| AtlasError::file(recipe_path, format!("CT thresholds: {e}")))?;
                 let atlas = PunctureAtlas::new(ct.clone(), labels.clone(), table, tree, t)

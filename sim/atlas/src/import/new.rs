@@ -2,7 +2,7 @@
 //! hand-written recipe. The CT is a NIfTI file or a DICOM series folder; the labels are one
 //! multi-label NIfTI (classes named by TotalSegmentator's built-in table or a CSV), a
 //! TotalSegmentator output folder of per-structure masks (`liver.nii.gz`, …) or a binary DICOM SEG
-//! ([`super::dicom_seg`]). The recipe is made from the structure names ([`super::auto`]) and the
+//! (`super::dicom_seg`, feature `dicom`). The recipe is made from the structure names ([`super::auto`]) and the
 //! importer does the rest (docs/atlas.md "New patients").
 
 use std::collections::BTreeSet;
@@ -299,7 +299,10 @@ fn merge_masks(
         let id = classes
             .id_of(structure)
             .map_or_else(|| classes.add(structure), Ok)
-            .map_err(|e| AtlasError::file(path, e))?;
+            .map_err(|error| AtlasError::ClassTable {
+                path: path.clone(),
+                error,
+            })?;
         let mask = nifti_io::read_labels(path)?;
         let mut any = false;
         for (dst, &m) in labels.data_mut().iter_mut().zip(mask.data()) {

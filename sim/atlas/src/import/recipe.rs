@@ -156,7 +156,10 @@ pub fn load_recipe(path: &Path) -> Result<LoadedRecipe, AtlasError> {
     crate::check_regular_file(&scenario_path)?;
     let scenario_text = std::fs::read_to_string(&scenario_path)
         .map_err(|e| AtlasError::file(&scenario_path, format!("cannot read scenario: {e}")))?;
-    let scenario = ScenarioFile::parse(&scenario_text).map_err(|e| AtlasError::file(&scenario_path, e))?;
+    let scenario = ScenarioFile::parse(&scenario_text).map_err(|error| AtlasError::Manifest {
+        path: scenario_path.clone(),
+        error,
+    })?;
     LoadedRecipe::new(path, recipe, scenario)
 }
 
@@ -180,7 +183,12 @@ impl LoadedRecipe {
             scenario.tissues.insert(name.clone(), tissue.clone());
         }
         scenario.labels.extend(recipe.labels.iter().cloned());
-        let table = crate::manifest::label_table(&scenario.labels, &scenario.heuristic).map_err(bad)?;
+        let table = crate::manifest::label_table(&scenario.labels, &scenario.heuristic).map_err(|error| {
+            AtlasError::Manifest {
+                path: path.to_path_buf(),
+                error,
+            }
+        })?;
         let mut seen = BTreeSet::new();
         for m in &recipe.map {
             if table.get(m.to).is_none() {

@@ -19,6 +19,45 @@ const PRESS_ADMITTANCE_MM_PER_N: f64 = 0.02;
 /// Fastest motion of the force-controlled axis (mm/s).
 const PRESS_MAX_SPEED_MM_PER_S: f64 = 100.0;
 
+/// Why a parsed script cannot be bound to an atlas: a path it names that the atlas lacks or that
+/// has no direction, a pose that is not finite, or an end before its last time stamp. The
+/// messages name the script line where there is one.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum BindError {
+    /// `known`: the atlas' insertion paths.
+    #[error(
+        "line {line}: the atlas has no insertion path '{path}' (it has: {})",
+        list_or_none(known)
+    )]
+    UnknownPath {
+        line: usize,
+        path: String,
+        known: Vec<String>,
+    },
+    #[error("line {line}: insertion path '{path}' has no direction (its target is its entry)")]
+    PathWithoutDirection { line: usize, path: String },
+    /// An `aim` whose target is its entry point.
+    #[error("line {line}: the target is the entry point")]
+    AimWithoutDirection { line: usize },
+    #[error("line {line}: the pose is not finite (position {position_mm} mm, orientation {orientation})")]
+    PoseNotFinite {
+        line: usize,
+        position_mm: DVec3,
+        orientation: DQuat,
+    },
+    #[error("the script ends at {end_s} s before its last time stamp {last_s} s")]
+    EndsEarly { end_s: f64, last_s: f64 },
+}
+
+/// The names joined by ", ", or "none".
+fn list_or_none(names: &[String]) -> String {
+    if names.is_empty() {
+        "none".to_string()
+    } else {
+        names.join(", ")
+    }
+}
+
 /// A script bound to an atlas' paths, ready to run.
 #[derive(Debug, Clone)]
 pub struct ScriptedDevice {
@@ -50,7 +89,7 @@ pub fn orientation(dir: DVec3, xaxis: Option<DVec3>) -> DQuat {
 impl ScriptedDevice {
     /// Binds the script to the atlas' insertion paths; an unknown path name is an error naming
     /// the script line.
-    pub fn new(script: &Script, paths: &[PlannedPath]) -> Result<Self, String> {
+    pub fn new(script: &Script, paths: &[PlannedPath]) -> Result<Self, BindError> {
         let rate = script.rate_hz;
         let tick_of = |t: f64| (t * rate as f64).round() as u64;
         let mut keys = Vec::new();
@@ -63,24 +102,19 @@ impl ScriptedDevice {
                     let (pos, dir, xaxis) = match p {
                         PoseSpec::Explicit { pos, dir, xaxis } => (*pos, *dir, *xaxis),
                         PoseSpec::Along { path, depth_mm, xaxis } => {
-                            let np = paths.iter().find(|n| &n.name == path).ok_or_else(|| {
-                                let known: Vec<&str> = paths.iter().map(|n| n.name.as_str()).collect();
-                                format!(
-                                    "line {}: the atlas has no insertion path '{path}' (it has: {})",
-                                    item.line,
-                                    if known.is_empty() {
-                                        "none".to_string()
-                                    } else {
-                                        known.join(", ")
-                                    }
-                                )
-                            })?;
-                            let d = unit(np.target_mm - np.entry_mm).ok_or_else(|| {
-                                format!(
-                                    "line {}: insertion path '{path}' has no direction (its target is its entry)",
-                                    item.line
-                                )
-                            })?;
+                            let np = paths
+                                .iter()
+                                .find(|n| &n.name == path)
+                                .ok_or_else(|| BindError::UnknownPath {
+                                    line: item.line,
+                                    path: path.clone(),
+                                    known: paths.iter().map(|n| n.name.clone()).collect(),
+                                })?;
+                            let d =
+                                unit(np.target_mm - np.entry_mm).ok_or_else(|| BindError::PathWithoutDirection {
+                                    line: item.line,
+                                    path: path.clone(),
+                                })?;
                             (np.entry_mm + d * *depth_mm, d, *xaxis)
                         }
                         PoseSpec::Aim {
@@ -89,18 +123,18 @@ impl ScriptedDevice {
                             depth_mm,
                             xaxis,
                         } => {
-                            let d = unit(*target - *entry)
-                                .ok_or_else(|| format!("line {}: the target is the entry point", item.line))?;
+                            let d = unit(*target - *entry).ok_or(BindError::AimWithoutDirection { line: item.line })?;
                             (*entry + d * *depth_mm, d, *xaxis)
                         }
                     };
                     let q = orientation(dir, xaxis);
                     // The parser bounds every number; this guards the atlas' paths and the maths.
                     if !(pos.is_finite() && q.is_finite()) {
-                        return Err(format!(
-                            "line {}: the pose is not finite (position {pos} mm, orientation {q})",
-                            item.line
-                        ));
+                        return Err(BindError::PoseNotFinite {
+                            line: item.line,
+                            position_mm: pos,
+                            orientation: q,
+                        });
                     }
                     keys.push((item.t_s, pos, q));
                 }
@@ -126,7 +160,7 @@ impl ScriptedDevice {
         if let Some(e) = script.end_s
             && e < last
         {
-            return Err(format!("the script ends at {e} s before its last time stamp {last} s"));
+            return Err(BindError::EndsEarly { end_s: e, last_s: last });
         }
         Ok(ScriptedDevice {
             rate_hz: rate,
@@ -258,7 +292,7 @@ mod tests {
     #[test]
     fn unknown_paths_name_the_line() {
         let s = parse("stylet-script 1\n\nat 0 along nowhere 3\n").unwrap();
-        let e = ScriptedDevice::new(&s, &[]).unwrap_err();
+        let e = ScriptedDevice::new(&s, &[]).unwrap_err().to_string();
         assert!(e.starts_with("line 3:") && e.contains("'nowhere'"), "{e}");
         let paths = [PlannedPath {
             name: "p".into(),

@@ -1,10 +1,10 @@
-//! The script language of the scripted device (docs/scripts.md): [`parse`] reads it, [`device`]
+//! The script language of the scripted device (docs/scripts.md): [`parse`](mod@parse) reads it, [`device`]
 //! plays it tick by tick.
 pub mod device;
 pub mod parse;
 pub mod setup;
 
-pub use device::ScriptedDevice;
+pub use device::{BindError, ScriptedDevice};
 pub use parse::{ParseError, Script, parse};
 pub use setup::{SetupError, scripted_simulation};
 pub use stylet_physics::PlannedPath;

@@ -4,19 +4,20 @@
 
 use std::sync::Arc;
 
-use stylet_physics::{PlannedPath, PunctureAtlas, SimConfig, Simulation};
+use stylet_physics::{PlannedPath, PunctureAtlas, SimConfig, SimError, Simulation};
 
+use super::device::BindError;
 use super::{Script, ScriptedDevice};
 
 /// Why a scripted run cannot start.
 #[derive(Debug, thiserror::Error)]
 pub enum SetupError {
-    /// The script names a path the atlas does not have (the message names the line).
-    #[error("{0}")]
-    Script(String),
-    /// The script's device or tick rate is refused by the simulation.
-    #[error("{0}")]
-    Simulation(String),
+    /// The script cannot be bound to the atlas' paths (the message names the line).
+    #[error(transparent)]
+    Script(#[from] BindError),
+    /// The script's settings (device, tick rate, breathing) are refused by the simulation.
+    #[error(transparent)]
+    Simulation(#[from] SimError),
 }
 
 /// The simulation a script starts with on `atlas`, and its device bound to `paths`.
@@ -25,11 +26,11 @@ pub fn scripted_simulation(
     paths: &[PlannedPath],
     script: &Script,
 ) -> Result<(Simulation, ScriptedDevice), SetupError> {
-    let device = ScriptedDevice::new(script, paths).map_err(SetupError::Script)?;
+    let device = ScriptedDevice::new(script, paths)?;
     let mut config = SimConfig::new(script.device, script.initial_tool);
     config.tick_rate_hz = script.rate_hz;
     config.deformation = script.deformation;
-    config.breathing = script.breathing.resolve(&atlas).map_err(SetupError::Simulation)?;
-    let sim = Simulation::new(atlas, config).map_err(SetupError::Simulation)?;
+    config.breathing = script.breathing.resolve(&atlas).map_err(SimError::from)?;
+    let sim = Simulation::new(atlas, config)?;
     Ok((sim, device))
 }

@@ -161,8 +161,8 @@ impl ContactTool {
     /// One tick for device position `x` and orientation `q` (reference space).
     ///
     /// Four nodes at a time: interior nodes read D_skin four at once
-    /// ([`GradientSampler::values4`]), those inside the skin then both maps' values and
-    /// gradients ([`GradientSampler::at_interior4`]) and the force law ([`lanes`]) four at once;
+    /// (`GradientSampler::values4`), those inside the skin then both maps' values and
+    /// gradients (`GradientSampler::at_interior4`) and the force law (`contact::lanes`) four at once;
     /// each gives the bits of one node at a time, and the nodes in contact are settled and
     /// summed in node order.
     pub fn step(&mut self, atlas: &PunctureAtlas, x: DVec3, q: DQuat) -> ContactForces {

@@ -242,12 +242,12 @@ impl DuctNeighbours {
         debug_assert_eq!(quads.neighbours.len(), quads.first.len() * C);
         let (tau_l, count_l) = (L::splat(tau), L::splat(C as f64));
         let (rho_p, next_p) = (rho.as_ptr(), next.as_mut_ptr());
-        // SAFETY: `new` checked every slot and neighbour < `self.slots` and built each quad so
-        // that its slots s … s + 3 and its neighbours t_k … t_k + 3 are slots (each t_k + i is
-        // slot s + i's k-th neighbour); `step` checked that both vectors hold `self.slots`
-        // values; the neighbour vector holds C entries per quad. `rho` and `next` are distinct
-        // borrows.
         for (q, &first) in quads.first.iter().enumerate() {
+            // SAFETY: `new` checked every slot and neighbour < `self.slots` and built each quad so
+            // that its slots s … s + 3 and its neighbours t_k … t_k + 3 are slots (each t_k + i is
+            // slot s + i's k-th neighbour); `step` checked that both vectors hold `self.slots`
+            // values; the neighbour vector holds C entries per quad. `rho` and `next` are distinct
+            // borrows.
             unsafe {
                 let here = load4::<L>(rho_p, first as usize);
                 let mut sum = L::splat(0.0);
@@ -273,11 +273,11 @@ impl DuctNeighbours {
         debug_assert_eq!(singles.neighbours.len(), singles.slot.len() * R);
         let count = (kind.count() + R) as f64;
         let (rho_p, next_p) = (rho.as_ptr(), next.as_mut_ptr());
-        // SAFETY: `new` checked every slot and neighbour < `self.slots`, and put a slot here
-        // only when s − 1 (`BEFORE`) and s + 1 (`AFTER`) are among its neighbours, so slots;
-        // `step` checked that both vectors hold `self.slots` values; the neighbour vector holds
-        // R entries per slot. `rho` and `next` are distinct borrows.
         for (i, &s) in singles.slot.iter().enumerate() {
+            // SAFETY: `new` checked every slot and neighbour < `self.slots`, and put a slot here
+            // only when s − 1 (`BEFORE`) and s + 1 (`AFTER`) are among its neighbours, so slots;
+            // `step` checked that both vectors hold `self.slots` values; the neighbour vector holds
+            // R entries per slot. `rho` and `next` are distinct borrows.
             unsafe {
                 let s = s as usize;
                 let here = *rho_p.add(s);
@@ -385,11 +385,11 @@ mod tests {
                         *v = (rng.next() % slots as u64) as u32;
                     }
                     let mut k = 0;
-                    if c > k && s > 0 && rng.next() % 2 == 0 {
+                    if c > k && s > 0 && rng.next().is_multiple_of(2) {
                         l[k] = s as u32 - 1;
                         k += 1;
                     }
-                    if c > k && s + 1 < slots && rng.next() % 2 == 0 {
+                    if c > k && s + 1 < slots && rng.next().is_multiple_of(2) {
                         l[k] = s as u32 + 1;
                     }
                     l

@@ -23,7 +23,7 @@
 
 use glam::DVec3;
 
-use crate::{LabelId, PunctureAtlas, Role};
+use crate::{LabelId, PunctureAtlas, Role, SettingsError};
 
 mod diffusion;
 use diffusion::DuctNeighbours;
@@ -76,46 +76,62 @@ impl ContrastSettings {
     }
 
     /// Names the first setting outside its range.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SettingsError> {
         let finite_pos = |v: f64| v.is_finite() && v > 0.0;
+        let bad = |setting: &'static str, reason: String| Err(SettingsError::Contrast { setting, reason });
         if !(8..=160).contains(&self.grid_nodes) {
-            return Err(format!("contrast grid_nodes {} must be 8 … 160", self.grid_nodes));
+            return bad(
+                "grid_nodes",
+                format!("contrast grid_nodes {} must be 8 … 160", self.grid_nodes),
+            );
         }
         if !(1..=1000).contains(&self.update_every_ticks) {
-            return Err(format!(
-                "contrast update_every_ticks {} must be 1 … 1000",
-                self.update_every_ticks
-            ));
+            return bad(
+                "update_every_ticks",
+                format!(
+                    "contrast update_every_ticks {} must be 1 … 1000",
+                    self.update_every_ticks
+                ),
+            );
         }
         if !(1..=64).contains(&self.steps_per_update) {
-            return Err(format!(
-                "contrast steps_per_update {} must be 1 … 64",
-                self.steps_per_update
-            ));
+            return bad(
+                "steps_per_update",
+                format!("contrast steps_per_update {} must be 1 … 64", self.steps_per_update),
+            );
         }
         if !(finite_pos(self.tau) && self.tau <= 1.0 / 6.0) {
-            return Err(format!(
-                "contrast tau {} must be in (0, 1/6] (explicit stability)",
-                self.tau
-            ));
+            return bad(
+                "tau",
+                format!("contrast tau {} must be in (0, 1/6] (explicit stability)", self.tau),
+            );
         }
         if !(finite_pos(self.rate_ml_per_s) && self.rate_ml_per_s <= 100.0) {
-            return Err(format!("contrast rate {} ml/s must be in (0, 100]", self.rate_ml_per_s));
+            return bad(
+                "rate_ml_per_s",
+                format!("contrast rate {} ml/s must be in (0, 100]", self.rate_ml_per_s),
+            );
         }
         if !(finite_pos(self.visible_fraction) && self.visible_fraction <= 1.0) {
-            return Err(format!(
-                "contrast visible_fraction {} must be in (0, 1]",
-                self.visible_fraction
-            ));
+            return bad(
+                "visible_fraction",
+                format!("contrast visible_fraction {} must be in (0, 1]", self.visible_fraction),
+            );
         }
         if !(finite_pos(self.confirm_extent_mm) && self.confirm_extent_mm <= 200.0) {
-            return Err(format!(
-                "contrast confirm_extent_mm {} must be in (0, 200]",
-                self.confirm_extent_mm
-            ));
+            return bad(
+                "confirm_extent_mm",
+                format!(
+                    "contrast confirm_extent_mm {} must be in (0, 200]",
+                    self.confirm_extent_mm
+                ),
+            );
         }
         if !(self.settle_s.is_finite() && (0.0..=600.0).contains(&self.settle_s)) {
-            return Err(format!("contrast settle_s {} must be 0 … 600", self.settle_s));
+            return bad(
+                "settle_s",
+                format!("contrast settle_s {} must be 0 … 600", self.settle_s),
+            );
         }
         Ok(())
     }
@@ -318,7 +334,8 @@ pub fn duct_labels(atlas: &PunctureAtlas) -> Vec<LabelId> {
 }
 
 impl ContrastAgent {
-    pub fn new(atlas: &PunctureAtlas, settings: ContrastSettings) -> Result<Self, String> {
+    /// An agent for `atlas` with `settings`, refused when a setting is out of range.
+    pub fn new(atlas: &PunctureAtlas, settings: ContrastSettings) -> Result<Self, SettingsError> {
         settings.validate()?;
         Ok(ContrastAgent {
             settings,
@@ -751,7 +768,7 @@ mod tests {
         let bad = |f: fn(&mut ContrastSettings)| {
             let mut s = ContrastSettings::default();
             f(&mut s);
-            ContrastAgent::new(&a, s).unwrap_err()
+            ContrastAgent::new(&a, s).unwrap_err().to_string()
         };
         assert!(bad(|s| s.tau = 0.2).contains("tau"));
         assert!(bad(|s| s.grid_nodes = 4).contains("grid_nodes"));

@@ -28,6 +28,8 @@ pub mod tool_points;
 
 use glam::DVec3;
 
+use crate::SettingsError;
+
 pub use field::{DeformField, solve};
 pub use lattice::Lattice;
 pub use operator::Regulariser;
@@ -150,39 +152,55 @@ impl DeformSettings {
     }
 
     /// Checks every value, naming the first one out of range.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SettingsError> {
+        let bad = |setting: &'static str, reason: String| Err(SettingsError::Deformation { setting, reason });
         let s = &self.schedule;
         if !(1..=4).contains(&s.levels) {
-            return Err(format!("deformation levels {} must be 1 … 4", s.levels));
+            return bad("levels", format!("deformation levels {} must be 1 … 4", s.levels));
         }
         let unit = 1u32 << (s.levels - 1);
         if !(8..=128).contains(&self.cells) || !self.cells.is_multiple_of(unit) || self.cells / unit < 4 {
-            return Err(format!(
-                "deformation cells {} must be 8 … 128, a multiple of {unit}, with ≥ 4 cells on the coarsest level",
-                self.cells
-            ));
+            return bad(
+                "cells",
+                format!(
+                    "deformation cells {} must be 8 … 128, a multiple of {unit}, with ≥ 4 cells on the coarsest level",
+                    self.cells
+                ),
+            );
         }
         if !(self.spacing_mm.is_finite() && (0.1..=10.0).contains(&self.spacing_mm)) {
-            return Err(format!("deformation spacing {} mm must be 0.1 … 10", self.spacing_mm));
+            return bad(
+                "spacing_mm",
+                format!("deformation spacing {} mm must be 0.1 … 10", self.spacing_mm),
+            );
         }
         if !(1..=10_000).contains(&self.every_ticks) {
-            return Err(format!(
-                "deformation every_ticks {} must be 1 … 10000",
-                self.every_ticks
-            ));
+            return bad(
+                "every_ticks",
+                format!("deformation every_ticks {} must be 1 … 10000", self.every_ticks),
+            );
         }
         if !(1..=self.every_ticks).contains(&self.latency_ticks) {
-            return Err(format!(
-                "deformation latency_ticks {} must be 1 … every_ticks ({})",
-                self.latency_ticks, self.every_ticks
-            ));
+            return bad(
+                "latency_ticks",
+                format!(
+                    "deformation latency_ticks {} must be 1 … every_ticks ({})",
+                    self.latency_ticks, self.every_ticks
+                ),
+            );
         }
         self.regulariser.validate()?;
         if !(self.material_k_per_hu.is_finite() && (0.0..=1.0).contains(&self.material_k_per_hu)) {
-            return Err(format!("material k {} /HU must be 0 … 1", self.material_k_per_hu));
+            return bad(
+                "material_k_per_hu",
+                format!("material k {} /HU must be 0 … 1", self.material_k_per_hu),
+            );
         }
         if !(self.material_s_hu.is_finite() && (-1000.0..=3000.0).contains(&self.material_s_hu)) {
-            return Err(format!("material s {} HU must be −1000 … 3000", self.material_s_hu));
+            return bad(
+                "material_s_hu",
+                format!("material s {} HU must be −1000 … 3000", self.material_s_hu),
+            );
         }
         for (what, v) in [
             ("cycles", s.cycles),
@@ -192,11 +210,12 @@ impl DeformSettings {
             ("fed_cycle_steps", s.fed_cycle_steps),
         ] {
             if v > 1000 {
-                return Err(format!("deformation {what} {v} must be ≤ 1000"));
+                return bad(what, format!("deformation {what} {v} must be ≤ 1000"));
             }
         }
         if s.cycles == 0 || s.coarsest_steps == 0 {
-            return Err("deformation cycles and coarsest_steps must be ≥ 1".into());
+            let setting = if s.cycles == 0 { "cycles" } else { "coarsest_steps" };
+            return bad(setting, "deformation cycles and coarsest_steps must be ≥ 1".into());
         }
         Ok(())
     }

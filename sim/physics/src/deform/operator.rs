@@ -38,11 +38,14 @@ impl Regulariser {
     }
 
     /// Checks the parameters: ν in [0, 0.49] (0.5 is incompressible and the operator singular).
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), crate::SettingsError> {
         if let Regulariser::LinearElastic { poisson_ratio } = *self
             && !(0.0..=0.49).contains(&poisson_ratio)
         {
-            return Err(format!("Poisson's ratio {poisson_ratio} must lie in 0 … 0.49"));
+            return Err(crate::SettingsError::Deformation {
+                setting: "poisson_ratio",
+                reason: format!("Poisson's ratio {poisson_ratio} must lie in 0 … 0.49"),
+            });
         }
         Ok(())
     }

@@ -44,6 +44,18 @@ pub struct FactoredField<'a> {
     pub map: &'a Volume<f32>,
 }
 
+/// Why displacement values do not make a [`GridField`]: the importer adds which file they came
+/// from.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum GridFieldError {
+    /// Not one vector per grid node.
+    #[error("{values} displacement vectors for a grid of {nodes} nodes")]
+    Count { values: usize, nodes: usize },
+    /// The first node (x, y, z) whose displacement is NaN or infinite.
+    #[error("the displacement at node ({}, {}, {}) is not finite", node[0], node[1], node[2])]
+    NotFinite { node: [usize; 3] },
+}
+
 /// A field sampled on a grid (an imported registration result, a generated key frame),
 /// interpolated trilinearly; zero outside the grid's sampling domain.
 #[derive(Debug, Clone)]
@@ -56,17 +68,15 @@ pub struct GridField {
 impl GridField {
     /// A field of `values` on `grid` (one vector per node), refused when the counts differ or a
     /// value is not finite.
-    pub fn new(grid: Grid, values: Vec<[f32; 3]>) -> Result<GridField, String> {
+    pub fn new(grid: Grid, values: Vec<[f32; 3]>) -> Result<GridField, GridFieldError> {
         if values.len() != grid.len() {
-            return Err(format!(
-                "{} displacement vectors for a grid of {} nodes",
-                values.len(),
-                grid.len()
-            ));
+            return Err(GridFieldError::Count {
+                values: values.len(),
+                nodes: grid.len(),
+            });
         }
         if let Some(i) = values.iter().position(|v| !v.iter().all(|c| c.is_finite())) {
-            let [x, y, z] = grid.unlinear(i);
-            return Err(format!("the displacement at node ({x}, {y}, {z}) is not finite"));
+            return Err(GridFieldError::NotFinite { node: grid.unlinear(i) });
         }
         Ok(GridField { grid, values })
     }
@@ -132,6 +142,11 @@ mod tests {
         assert!(GridField::new(grid, vec![[0.0; 3]; 3]).is_err());
         let mut bad = vec![[0.0f32; 3]; grid.len()];
         bad[7][1] = f32::NAN;
-        assert!(GridField::new(grid, bad).unwrap_err().contains("not finite"));
+        assert!(
+            GridField::new(grid, bad)
+                .unwrap_err()
+                .to_string()
+                .contains("not finite")
+        );
     }
 }

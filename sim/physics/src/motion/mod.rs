@@ -24,13 +24,39 @@ use std::sync::Arc;
 
 use glam::{DMat3, DVec3};
 
-pub use field::{FactoredField, GridField, SpatialField, WeightedGrids};
+pub use field::{FactoredField, GridField, GridFieldError, SpatialField, WeightedGrids};
 pub use models::{FullCycle, HalfCycle, Surrogate, SurrogateSignal};
-pub use sampled::SampledSignal;
+pub use sampled::{SampledSignal, SampledSignalError};
 pub use signal::{BreathingSignal, SignalParams};
 pub use synthetic::{InversionCheck, SyntheticField, SyntheticMotion};
 
-use crate::PunctureAtlas;
+use crate::{PunctureAtlas, SettingsError};
+
+/// Why a session's breathing cannot be set up: settings out of range, an atlas without the
+/// motion the session asks for, or a motion model without enough key frames.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum BreathingError {
+    #[error(transparent)]
+    Settings(#[from] SettingsError),
+    /// Breathing is on and the atlas was built without a motion.
+    #[error("breathing on: this atlas has no breathing motion (it was built with --no-breathing)")]
+    NoMotion,
+    /// The session breathes with measured fields the atlas does not have.
+    #[error("the session breathes with measured fields, and this atlas has none")]
+    NoMeasuredFields,
+    /// An amplitude asked of measured fields, whose amplitude is their own.
+    #[error("breathing amplitude: this atlas breathes with measured fields, whose amplitude is their own")]
+    MeasuredAmplitude,
+    /// The synthetic motion finds no organ to place the diaphragm at.
+    #[error("the synthetic breathing motion needs an organ or target label (the liver) to place the diaphragm")]
+    NoOrgan,
+    /// A [`FullCycle`] with fewer than 2 key frames (the count given).
+    #[error("a full cycle needs at least 2 key frames, got {0}")]
+    FullCycleFrames(usize),
+    /// A [`HalfCycle`] with fewer than 2 key frames (the count given).
+    #[error("a half cycle needs at least 2 key frames (EE … EI), got {0}")]
+    HalfCycleFrames(usize),
+}
 
 /// A displacement field over time. Implementations must be pure functions of (X, t).
 pub trait MotionModel: Send + Sync {
@@ -130,13 +156,13 @@ impl BreathingSettings {
         }
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SettingsError> {
         self.motion.validate()?;
         self.signal.validate()
     }
 
     /// The motion model of these settings on `atlas` ([`Static`] when breathing is off).
-    pub fn build(&self, atlas: &Arc<PunctureAtlas>) -> Result<Arc<dyn MotionModel>, String> {
+    pub fn build(&self, atlas: &Arc<PunctureAtlas>) -> Result<Arc<dyn MotionModel>, BreathingError> {
         self.validate()?;
         if !self.enabled {
             return Ok(Arc::new(Static));
@@ -144,7 +170,7 @@ impl BreathingSettings {
         let lujan = || BreathingSignal::new(self.signal).map(SurrogateSignal::Lujan);
         if self.measured {
             let Some(AtlasMotion::Measured(m)) = atlas.breathing() else {
-                return Err("the session breathes with measured fields, and this atlas has none".into());
+                return Err(BreathingError::NoMeasuredFields);
             };
             let field = |a: &Arc<GridField>| -> Arc<dyn SpatialField> { a.clone() };
             return Ok(Arc::new(Surrogate {
@@ -187,16 +213,14 @@ impl BreathingRequest {
     }
 
     /// The settings on `atlas`: off stays off; on needs an atlas that breathes.
-    pub fn resolve(&self, atlas: &PunctureAtlas) -> Result<BreathingSettings, String> {
+    pub fn resolve(&self, atlas: &PunctureAtlas) -> Result<BreathingSettings, BreathingError> {
         if !self.enabled {
             return Ok(BreathingSettings {
                 signal: self.signal,
                 ..Default::default()
             });
         }
-        let attached = atlas
-            .breathing()
-            .ok_or("breathing on: this atlas has no breathing motion (it was built with --no-breathing)")?;
+        let attached = atlas.breathing().ok_or(BreathingError::NoMotion)?;
         let settings = match attached {
             AtlasMotion::Synthetic(m) => {
                 let mut motion = *m;
@@ -211,10 +235,7 @@ impl BreathingRequest {
                 }
             }
             AtlasMotion::Measured(_) if self.amplitude_mm.is_some() => {
-                return Err(
-                    "breathing amplitude: this atlas breathes with measured fields, whose amplitude is their own"
-                        .into(),
-                );
+                return Err(BreathingError::MeasuredAmplitude);
             }
             AtlasMotion::Measured(_) => BreathingSettings {
                 enabled: true,

@@ -5,10 +5,10 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
-use super::MotionModel;
 use super::field::{FactoredField, GridField, SpatialField, WeightedGrids};
 use super::sampled::SampledSignal;
 use super::signal::BreathingSignal;
+use super::{BreathingError, MotionModel};
 
 /// Key frames over one full cycle (thesis §5.3.1): n fields u_j at τ_j = j/n on the cycle's
 /// normalised time τ = f(t) (a sawtooth whose period is re-drawn every cycle, eq. 5.3.2), the
@@ -23,12 +23,9 @@ pub struct FullCycle {
 }
 
 impl FullCycle {
-    pub fn new(frames: Vec<Arc<dyn SpatialField>>, signal: BreathingSignal) -> Result<FullCycle, String> {
+    pub fn new(frames: Vec<Arc<dyn SpatialField>>, signal: BreathingSignal) -> Result<FullCycle, BreathingError> {
         if frames.len() < 2 {
-            return Err(format!(
-                "a full cycle needs at least 2 key frames, got {}",
-                frames.len()
-            ));
+            return Err(BreathingError::FullCycleFrames(frames.len()));
         }
         Ok(FullCycle { frames, signal })
     }
@@ -63,12 +60,9 @@ pub struct HalfCycle {
 }
 
 impl HalfCycle {
-    pub fn new(frames: Vec<Arc<dyn SpatialField>>, signal: BreathingSignal) -> Result<HalfCycle, String> {
+    pub fn new(frames: Vec<Arc<dyn SpatialField>>, signal: BreathingSignal) -> Result<HalfCycle, BreathingError> {
         if frames.len() < 2 {
-            return Err(format!(
-                "a half cycle needs at least 2 key frames (EE … EI), got {}",
-                frames.len()
-            ));
+            return Err(BreathingError::HalfCycleFrames(frames.len()));
         }
         Ok(HalfCycle { frames, signal })
     }

@@ -8,6 +8,29 @@ pub const MAX_SAMPLES: usize = 1_000_000;
 /// The largest |g| accepted: g is 0 at end-expiration and about 1 at an average end-inspiration.
 pub const MAX_ABS_G: f64 = 10.0;
 
+/// Why samples do not make a [`SampledSignal`] (`sample` counts from 1); the importer adds which
+/// file and line they came from.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum SampledSignalError {
+    #[error("{times} times for {values} values of g")]
+    Lengths { times: usize, values: usize },
+    #[error("{0} samples: a breathing signal needs 2 … {max}", max = MAX_SAMPLES)]
+    SampleCount(usize),
+    /// A time that is negative or not finite.
+    #[error("sample {sample}: time {time_s} s must be finite and ≥ 0")]
+    Time { sample: usize, time_s: f64 },
+    /// A time not after the one before it.
+    #[error("sample {sample}: time {time_s} s does not follow {previous_s} s")]
+    NotIncreasing {
+        sample: usize,
+        time_s: f64,
+        previous_s: f64,
+    },
+    /// A value of g that is not finite or beyond ±[`MAX_ABS_G`].
+    #[error("sample {sample}: g = {g} must be finite within ±{}", MAX_ABS_G)]
+    Value { sample: usize, g: f64 },
+}
+
 /// g(t) from samples.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SampledSignal {
@@ -20,29 +43,32 @@ pub struct SampledSignal {
 impl SampledSignal {
     /// At least two samples, times finite and strictly increasing from t ≥ 0, g finite within
     /// ±[`MAX_ABS_G`]; the message names the first bad row (1-based).
-    pub fn new(times_s: Vec<f64>, g: Vec<f64>) -> Result<SampledSignal, String> {
+    pub fn new(times_s: Vec<f64>, g: Vec<f64>) -> Result<SampledSignal, SampledSignalError> {
         if times_s.len() != g.len() {
-            return Err(format!("{} times for {} values of g", times_s.len(), g.len()));
+            return Err(SampledSignalError::Lengths {
+                times: times_s.len(),
+                values: g.len(),
+            });
         }
         if !(2..=MAX_SAMPLES).contains(&times_s.len()) {
-            return Err(format!(
-                "{} samples: a breathing signal needs 2 … {MAX_SAMPLES}",
-                times_s.len()
-            ));
+            return Err(SampledSignalError::SampleCount(times_s.len()));
         }
         for (k, (&t, &v)) in times_s.iter().zip(&g).enumerate() {
             if !(t.is_finite() && t >= 0.0) {
-                return Err(format!("sample {}: time {t} s must be finite and ≥ 0", k + 1));
+                return Err(SampledSignalError::Time {
+                    sample: k + 1,
+                    time_s: t,
+                });
             }
             if k > 0 && t <= times_s[k - 1] {
-                return Err(format!(
-                    "sample {}: time {t} s does not follow {} s",
-                    k + 1,
-                    times_s[k - 1]
-                ));
+                return Err(SampledSignalError::NotIncreasing {
+                    sample: k + 1,
+                    time_s: t,
+                    previous_s: times_s[k - 1],
+                });
             }
             if !(v.is_finite() && v.abs() <= MAX_ABS_G) {
-                return Err(format!("sample {}: g = {v} must be finite within ±{MAX_ABS_G}", k + 1));
+                return Err(SampledSignalError::Value { sample: k + 1, g: v });
             }
         }
         let max_g = g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
@@ -122,9 +148,13 @@ mod tests {
         }
         assert_eq!(s.g_and_rate(2.0), (0.75, -0.25));
         assert_eq!((s.max_g(), s.max_rate()), (1.0, 1.0));
-        let e = SampledSignal::new(vec![0.0, 1.0, 1.0], vec![0.0; 3]).unwrap_err();
+        let e = SampledSignal::new(vec![0.0, 1.0, 1.0], vec![0.0; 3])
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("sample 3") && e.contains("does not follow"), "{e}");
-        let e = SampledSignal::new(vec![0.0, 1.0], vec![0.0, f64::NAN]).unwrap_err();
+        let e = SampledSignal::new(vec![0.0, 1.0], vec![0.0, f64::NAN])
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("sample 2"), "{e}");
         assert!(SampledSignal::new(vec![0.0], vec![0.0]).is_err());
         assert!(SampledSignal::new(vec![-1.0, 1.0], vec![0.0, 0.0]).is_err());

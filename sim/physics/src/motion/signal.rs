@@ -13,6 +13,8 @@
 
 use std::sync::Arc;
 
+use crate::SettingsError;
+
 /// Cycles drawn ahead; past them the sequence repeats (9 hours at 4 s a cycle).
 pub const CYCLES: usize = 8192;
 
@@ -45,18 +47,28 @@ impl Default for SignalParams {
 
 impl SignalParams {
     /// Refuses what would make no sense or no breathing: the ranges are in docs/breathing.md.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SettingsError> {
+        let bad = |setting: &'static str, reason: String| Err(SettingsError::Breathing { setting, reason });
         if !(self.period_s.is_finite() && (1.0..=20.0).contains(&self.period_s)) {
-            return Err(format!("breathing period {} s must be 1 … 20 s", self.period_s));
+            return bad(
+                "period_s",
+                format!("breathing period {} s must be 1 … 20 s", self.period_s),
+            );
         }
         if !(self.period_jitter.is_finite() && (0.0..=0.5).contains(&self.period_jitter)) {
-            return Err(format!("period jitter {} must be 0 … 0.5", self.period_jitter));
+            return bad(
+                "period_jitter",
+                format!("period jitter {} must be 0 … 0.5", self.period_jitter),
+            );
         }
         if !(self.depth_jitter.is_finite() && (0.0..=0.5).contains(&self.depth_jitter)) {
-            return Err(format!("depth jitter {} must be 0 … 0.5", self.depth_jitter));
+            return bad(
+                "depth_jitter",
+                format!("depth jitter {} must be 0 … 0.5", self.depth_jitter),
+            );
         }
         if !(1..=5).contains(&self.power) {
-            return Err(format!("waveform power n = {} must be 1 … 5", self.power));
+            return bad("power", format!("waveform power n = {} must be 1 … 5", self.power));
         }
         Ok(())
     }
@@ -92,7 +104,8 @@ pub struct BreathingSignal {
 }
 
 impl BreathingSignal {
-    pub fn new(params: SignalParams) -> Result<BreathingSignal, String> {
+    /// The signal of `params`, refused when a parameter is out of range.
+    pub fn new(params: SignalParams) -> Result<BreathingSignal, SettingsError> {
         params.validate()?;
         let mut cycles = Vec::with_capacity(CYCLES);
         let mut start_s = 0.0;

@@ -27,9 +27,10 @@ use std::sync::Arc;
 use glam::DVec3;
 use rayon::prelude::*;
 
+use super::BreathingError;
 use super::field::{FactoredField, SpatialField};
 use crate::labels::Role;
-use crate::{Affine, Grid, PunctureAtlas, Volume};
+use crate::{Affine, Grid, PunctureAtlas, SettingsError, Volume};
 
 /// Width of the transition from still to moving tissue (mm).
 pub const RAMP_MM: f64 = 4.0;
@@ -68,18 +69,21 @@ impl Default for SyntheticMotion {
 
 impl SyntheticMotion {
     /// The documented ranges (docs/breathing.md).
-    pub fn validate(&self) -> Result<(), String> {
-        let check = |what: &str, v: f64, lo: f64, hi: f64| {
+    pub fn validate(&self) -> Result<(), SettingsError> {
+        let check = |setting: &'static str, what: &str, v: f64, lo: f64, hi: f64| {
             if v.is_finite() && (lo..=hi).contains(&v) {
                 Ok(())
             } else {
-                Err(format!("breathing {what} {v} must be {lo} … {hi}"))
+                Err(SettingsError::Breathing {
+                    setting,
+                    reason: format!("breathing {what} {v} must be {lo} … {hi}"),
+                })
             }
         };
-        check("amplitude (mm)", self.amplitude_mm, 0.0, 50.0)?;
-        check("anterior ratio", self.anterior_ratio, 0.0, 1.0)?;
-        check("body wall (mm)", self.wall_mm, 0.0, 60.0)?;
-        check("bone margin (mm)", self.bone_margin_mm, 0.0, 20.0)
+        check("amplitude_mm", "amplitude (mm)", self.amplitude_mm, 0.0, 50.0)?;
+        check("anterior_ratio", "anterior ratio", self.anterior_ratio, 0.0, 1.0)?;
+        check("wall_mm", "body wall (mm)", self.wall_mm, 0.0, 60.0)?;
+        check("bone_margin_mm", "bone margin (mm)", self.bone_margin_mm, 0.0, 20.0)
     }
 }
 
@@ -95,12 +99,9 @@ pub struct SyntheticField {
 impl SyntheticField {
     /// Needs an organ (the liver) in the atlas' labels to place the diaphragm. Works out the
     /// mobility map (about 0.1 s on two cores for the 512 × 512 × 133 chest CT).
-    pub fn new(atlas: Arc<PunctureAtlas>, params: SyntheticMotion) -> Result<SyntheticField, String> {
+    pub fn new(atlas: Arc<PunctureAtlas>, params: SyntheticMotion) -> Result<SyntheticField, BreathingError> {
         params.validate()?;
-        let dome_z_mm = dome_z_mm(&atlas).ok_or_else(|| {
-            "the synthetic breathing motion needs an organ or target label (the liver) to place the diaphragm"
-                .to_string()
-        })?;
+        let dome_z_mm = dome_z_mm(&atlas).ok_or(BreathingError::NoOrgan)?;
         let mobility = mobility_map(&atlas, params);
         Ok(SyntheticField {
             params,
@@ -237,7 +238,7 @@ fn thinning(ct: &Grid) -> [usize; 3] {
     std::array::from_fn(|a| ((MOBILITY_SPACING_MM / spacing[a]).round() as usize).max(1))
 }
 
-/// The CT grid thinned to every f-th voxel per axis ([`thinning`]), one node more where needed
+/// The CT grid thinned to every f-th voxel per axis (`thinning`), one node more where needed
 /// so the nodes reach the CT's last voxel.
 pub fn mobility_grid(ct: &Grid) -> Grid {
     let f = thinning(ct);

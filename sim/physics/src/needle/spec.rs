@@ -104,9 +104,10 @@ impl NeedleSpec {
         }
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    /// Refuses a shaft length outside 20 … 400 mm.
+    pub fn validate(&self) -> Result<(), crate::SettingsError> {
         if !(self.length_mm.is_finite() && (20.0..=400.0).contains(&self.length_mm)) {
-            return Err(format!("needle length {} mm must be 20 … 400", self.length_mm));
+            return Err(crate::SettingsError::NeedleLength(self.length_mm));
         }
         Ok(())
     }

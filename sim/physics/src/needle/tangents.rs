@@ -2,14 +2,14 @@
 //! at the ends), normalised, or the chord's direction where two nodes coincide.
 //!
 //! Each tangent costs a square root and a division, and they do not depend on one another, so
-//! four are worked out at once in [`crate::lanes`] (AVX2 where the CPU has it): every lane does
+//! four are worked out at once in `crate::lanes` (AVX2 where the CPU has it): every lane does
 //! glam's `normalize_or` operations in its order, so the bits are those of one at a time.
 
 use glam::DVec3;
 
 use crate::lanes::{F4, LANES, Lane, V4, Vec4s, has_avx2};
 
-/// `out[j]` = (nodes[b] − nodes[a]).normalize_or(fallback) with (a, b) = (0, 1) at the hub,
+/// `out[j] = (nodes[b] − nodes[a]).normalize_or(fallback)` with (a, b) = (0, 1) at the hub,
 /// (m − 2, m − 1) at the tip and (j − 1, j + 1) between. `nodes` and `out` have the same length,
 /// at least 2.
 pub fn tangents(nodes: &[DVec3], fallback: DVec3, out: &mut [DVec3]) {

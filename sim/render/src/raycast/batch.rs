@@ -429,7 +429,7 @@ mod avx2 {
     pub(super) unsafe fn prefetch_window(records: &[[i16; 4]], sy: usize, sz: usize, window: &Window) {
         // Offsets of located points are < the records' count ≤ 2²⁸ (`MAX_VOXELS`); the lanes
         // wrap for others, and a prefetch of any address is harmless.
-        // SAFETY (loads): eight lanes from eight.
+        // SAFETY: loads: eight lanes from eight.
         let lane = |a: usize| unsafe { _mm256_loadu_si256(window.b[a].as_ptr().cast()) };
         let o = _mm256_add_epi32(
             lane(0),
@@ -462,7 +462,7 @@ mod avx2 {
             _mm256_setr_epi32(0, 4, 8, 12, 16, 20, 24, 28),
         );
         let lanes = _mm256_and_si256(nibbles, _mm256_set1_epi32(7));
-        // SAFETY (all): eight lanes read from eight, stored at n … n + 7 < capacity (the caller).
+        // SAFETY: all: eight lanes read from eight, stored at n … n + 7 < capacity (the caller).
         unsafe {
             let t = _mm256_permutevar8x32_ps(_mm256_loadu_ps(window.t.as_ptr()), lanes);
             _mm256_storeu_ps(batch.t.as_mut_ptr().add(n), t);
@@ -496,7 +496,7 @@ mod avx2 {
         // Lanes from `count` on take sample 0's cell (a batch at the ray's end holds fewer).
         let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
         let from = _mm256_and_si256(lane, _mm256_cmpgt_epi32(_mm256_set1_epi32(count as i32), lane));
-        // SAFETY (loads and stores of eight lanes): each array holds ≥ 8 entries.
+        // SAFETY: loads and stores of eight lanes: each array holds ≥ 8 entries.
         unsafe {
             let base = |a: usize| _mm256_permutevar8x32_epi32(_mm256_loadu_si256(batch.b[a].as_ptr().cast()), from);
             let o = _mm256_add_epi32(

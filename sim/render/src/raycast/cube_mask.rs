@@ -181,7 +181,7 @@ mod avx2 {
     /// AVX2; `mask.lanes_fit`; every inside point's base within the cubes.
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn classify(mask: &CubeMask, window: &Window, leap_from: u8) -> WindowClasses {
-        // SAFETY (loads): eight lanes from eight.
+        // SAFETY: loads: eight lanes from eight.
         let b = [0, 1, 2].map(|a| unsafe { _mm256_loadu_si256(window.b[a].as_ptr().cast()) });
         let bit_of_lane = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
         let live = _mm256_cmpeq_epi32(
@@ -291,7 +291,7 @@ mod tests {
                 seed ^= seed << 13;
                 seed ^= seed >> 17;
                 seed ^= seed << 5;
-                if seed % 23 == 0 { 20.0 } else { -100.0 }
+                if seed.is_multiple_of(23) { 20.0 } else { -100.0 }
             })
             .collect();
         let mask = CubeMask::new(&data, dims, &table());

@@ -183,7 +183,7 @@ impl GradientVolume {
     }
 
     /// (Δx, Δy, Δz, s) trilinearly interpolated at a located read (`Grid3::locate` on a grid of
-    /// the same dimensions): in fixed point for 16-bit records ([`Self::fixed_point`]), else
+    /// the same dimensions): in fixed point for 16-bit records (`Self::fixed_point`), else
     /// `Grid3::interpolate`'s order on all four lanes.
     #[inline(always)]
     pub fn interpolate(&self, cell: &Cell) -> Vec4 {

@@ -640,7 +640,7 @@ pub fn march(f: &Frame, col: u32, row: u32, origin: Vec3, dir: Vec3) -> ([u8; 4]
 }
 
 /// Two pixels' [`march`]es, bit for bit; when both take the common frame's path their lattice
-/// marches go a step of each in turn ([`BrickMarch::step`]), so the CPU overlaps one ray's
+/// marches go a step of each in turn (`BrickMarch::step`), so the CPU overlaps one ray's
 /// dependent loads and leaps with the other's.
 #[inline(always)]
 pub fn march_pair(f: &Frame, a: (u32, u32, Vec3, Vec3), b: (u32, u32, Vec3, Vec3)) -> [([u8; 4], u64); 2] {

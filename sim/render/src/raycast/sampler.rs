@@ -166,7 +166,7 @@ impl Grid3<'_> {
     /// the grid read air (`Edge::Air`, the CT: its box's faces are surfaces) or the nearest
     /// voxel (`Edge::Clamp`, a deformed region J, whose box is not a surface). `None` outside
     /// the sampling domain. Computed from the voxels on the fly: the CT's hot path reads the same
-    /// numbers from its [`GradientVolume`](super::gradient_volume::GradientVolume).
+    /// numbers from its [`GradientVolume`].
     pub fn differences(&self, c: Vec3, edge: Edge) -> Option<Vec3> {
         let (base, frac, step) = self.general_setup(c)?;
         let dims = self.dims.map(|n| n as i64);

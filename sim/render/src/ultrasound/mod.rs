@@ -62,6 +62,28 @@ pub const DOPPLER_MIN_SIGNAL: f32 = 0.01;
 /// replaces them at the face.
 pub const AIR_BELOW_HU: f32 = -200.0;
 
+/// An ultrasound frame neither renderer draws: settings out of range, or a scene that is not
+/// finite or whose labels do not lie on the CT's grid.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum UltrasoundError {
+    #[error("{lines} lines × {samples} samples: at most {max_lines} lines and 2 … {max_samples} samples", max_lines = MAX_LINES, max_samples = MAX_SAMPLES)]
+    Resolution { lines: u32, samples: u32 },
+    #[error("depth {0} mm must be 10 … 300")]
+    Depth(f32),
+    #[error("frequency {0} MHz must be 1 … 20")]
+    Frequency(f32),
+    #[error("gain {gain_db} dB must be −60 … 60 and dynamic range {dynamic_range_db} dB 20 … 120")]
+    Gain { gain_db: f32, dynamic_range_db: f32 },
+    #[error("the probe's pose must be finite with a unit orientation")]
+    ProbePose,
+    #[error("the needle's nodes and diameter must be finite")]
+    Needle,
+    #[error("the session time must be finite")]
+    Time,
+    #[error("the labels and the CT have different grids")]
+    LabelGrid,
+}
+
 /// What a frame depends on besides the atlas.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct UltrasoundSettings {
@@ -94,25 +116,26 @@ impl UltrasoundSettings {
         }
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    /// Names the first value outside what both renderers draw.
+    pub fn validate(&self) -> Result<(), UltrasoundError> {
         if !(1..=MAX_LINES).contains(&self.lines) || !(2..=MAX_SAMPLES).contains(&self.samples) {
-            return Err(format!(
-                "{} lines × {} samples: at most {MAX_LINES} lines and 2 … {MAX_SAMPLES} samples",
-                self.lines, self.samples
-            ));
+            return Err(UltrasoundError::Resolution {
+                lines: self.lines,
+                samples: self.samples,
+            });
         }
         let ok = |v: f32, lo: f32, hi: f32| v.is_finite() && (lo..=hi).contains(&v);
         if !ok(self.depth_mm, 10.0, 300.0) {
-            return Err(format!("depth {} mm must be 10 … 300", self.depth_mm));
+            return Err(UltrasoundError::Depth(self.depth_mm));
         }
         if !ok(self.frequency_mhz, 1.0, 20.0) {
-            return Err(format!("frequency {} MHz must be 1 … 20", self.frequency_mhz));
+            return Err(UltrasoundError::Frequency(self.frequency_mhz));
         }
         if !ok(self.gain_db, -60.0, 60.0) || !ok(self.dynamic_range_db, 20.0, 120.0) {
-            return Err(format!(
-                "gain {} dB must be −60 … 60 and dynamic range {} dB 20 … 120",
-                self.gain_db, self.dynamic_range_db
-            ));
+            return Err(UltrasoundError::Gain {
+                gain_db: self.gain_db,
+                dynamic_range_db: self.dynamic_range_db,
+            });
         }
         Ok(())
     }
@@ -145,7 +168,7 @@ pub const FLAG_DOPPLER: u8 = 2;
 
 /// Renders one frame (before scan conversion) of `atlas` seen by the scene's probe.
 pub fn render(atlas: &PunctureAtlas, scene: &UltrasoundScene) -> Result<Sonogram, RenderError> {
-    check_scene(scene, atlas).map_err(RenderError::Invalid)?;
+    check_scene(scene, atlas)?;
     let s = scene.settings;
     let p = &scene.probe;
     let geometry = ScanGeometry::new(p, s.lines, s.samples, s.depth_mm);
@@ -174,23 +197,23 @@ pub fn render(atlas: &PunctureAtlas, scene: &UltrasoundScene) -> Result<Sonogram
 
 /// What both renderers check before drawing: settings, a finite pose with a unit orientation,
 /// a finite needle and time, labels on the CT's grid.
-pub fn check_scene(scene: &UltrasoundScene, atlas: &PunctureAtlas) -> Result<(), String> {
+pub fn check_scene(scene: &UltrasoundScene, atlas: &PunctureAtlas) -> Result<(), UltrasoundError> {
     scene.settings.validate()?;
     let p = &scene.probe;
     let q = p.orientation;
     if !(p.position_mm.is_finite() && q.is_finite() && q.length() > 0.5) {
-        return Err("the probe's pose must be finite with a unit orientation".into());
+        return Err(UltrasoundError::ProbePose);
     }
     if let Some(n) = &scene.needle
         && !(n.diameter_mm.is_finite() && n.diameter_mm > 0.0 && n.nodes_mm.iter().all(|p| p.is_finite()))
     {
-        return Err("the needle's nodes and diameter must be finite".into());
+        return Err(UltrasoundError::Needle);
     }
     if !scene.time_s.is_finite() {
-        return Err("the session time must be finite".into());
+        return Err(UltrasoundError::Time);
     }
     if atlas.partial_labels().grid().dims() != atlas.ct().grid().dims() {
-        return Err("the labels and the CT have different grids".into());
+        return Err(UltrasoundError::LabelGrid);
     }
     Ok(())
 }
@@ -405,7 +428,7 @@ impl<'a> Frame<'a> {
 const LATERAL_PSF: [f32; 5] = [1.0 / 9.0, 2.0 / 9.0, 3.0 / 9.0, 2.0 / 9.0, 1.0 / 9.0];
 
 /// The display values (0 … 1) of a frame's time-gain-compensated envelopes (line-major), line by
-/// line in parallel ([`compress_line`]).
+/// line in parallel (`compress_line`).
 pub fn compress(envelope: &[f32], s: &UltrasoundSettings) -> Vec<f32> {
     let n = s.samples as usize;
     let mut bmode = vec![0.0f32; envelope.len()];

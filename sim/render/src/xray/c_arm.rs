@@ -13,6 +13,8 @@
 use stylet_atlas::manifest::CArmToml;
 use stylet_physics::glam::Vec3;
 
+use super::XrayError;
+
 /// Where the C-arm stands and what its detector covers.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CArm {
@@ -61,9 +63,9 @@ impl CArm {
 
     /// Names the first value outside what a C-arm can be set to (the limits of the scenario
     /// format, `CArmToml::check`).
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), XrayError> {
         if !self.isocenter_mm.is_finite() {
-            return Err(format!("C-arm isocenter {:?} must be finite", self.isocenter_mm));
+            return Err(XrayError::Isocenter(self.isocenter_mm));
         }
         CArmToml {
             lao_deg: self.lao_deg as f64,
@@ -75,6 +77,7 @@ impl CArm {
             ..CArmToml::default()
         }
         .check()
+        .map_err(XrayError::CArm)
     }
 
     /// Unit vector from the isocentre toward the detector (see the module doc).
@@ -187,7 +190,7 @@ mod tests {
         let bad = |f: fn(&mut CArm)| {
             let mut a = ok;
             f(&mut a);
-            a.validate().unwrap_err()
+            a.validate().unwrap_err().to_string()
         };
         assert!(bad(|a| a.lao_deg = 200.0).contains("lao_deg"));
         assert!(bad(|a| a.cranial_deg = f32::NAN).contains("cranial_deg"));

@@ -23,12 +23,12 @@ impl XrayWindow {
     }
 
     /// Names a bad window.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), super::XrayError> {
         if !(self.low.is_finite() && self.high.is_finite() && self.low >= 0.0 && self.high > self.low) {
-            return Err(format!(
-                "X-ray window low {} / high {} must be finite with 0 ≤ low < high",
-                self.low, self.high
-            ));
+            return Err(super::XrayError::Window {
+                low: self.low,
+                high: self.high,
+            });
         }
         Ok(())
     }

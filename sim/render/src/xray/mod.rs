@@ -24,6 +24,27 @@ pub use c_arm::{CArm, Projection};
 pub use display::{Radiograph, XrayWindow};
 
 use crate::RenderError;
+
+/// A C-arm, window or scene neither X-ray renderer draws: what is out of range or does not fit
+/// the CT.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum XrayError {
+    #[error("C-arm isocenter {0:?} must be finite")]
+    Isocenter(Vec3),
+    /// A C-arm value outside what a C-arm can be set to (the scenario format's limits).
+    #[error(transparent)]
+    CArm(stylet_atlas::manifest::CArmError),
+    #[error("X-ray window low {low} / high {high} must be finite with 0 ≤ low < high")]
+    Window { low: f32, high: f32 },
+    /// The contrast overlay lies outside the CT or does not hold one value per voxel of its box.
+    #[error("the contrast overlay does not fit the CT")]
+    ContrastOverlay,
+    /// The isocentre is farther than the source-to-detector distance from the CT.
+    #[error(
+        "the C-arm's isocentre {isocenter_mm:?} mm is farther than the source-to-detector distance ({reach_mm} mm) from the CT"
+    )]
+    OutOfReach { isocenter_mm: Vec3, reach_mm: f64 },
+}
 use crate::scene::MotionHook;
 use crate::tools::NeedleShape;
 use crate::volume::IndexMap;
@@ -74,7 +95,7 @@ pub fn render_moving(
             "X-ray image {width} × {height}: each side must be 1 … {MAX_SIDE_PX} pixels"
         )));
     }
-    scene.c_arm.validate().map_err(RenderError::Invalid)?;
+    scene.c_arm.validate()?;
     if let Some(n) = &scene.needle
         && !(n.diameter_mm.is_finite() && n.diameter_mm > 0.0 && n.nodes_mm.iter().all(|p| p.is_finite()))
     {
@@ -83,7 +104,7 @@ pub fn render_moving(
         ));
     }
     let ct = atlas.ct();
-    check_scene_fits(scene, ct.grid()).map_err(RenderError::Invalid)?;
+    check_scene_fits(scene, ct.grid())?;
     let map = IndexMap::of(ct.grid());
     let data = ct.data();
     let proj = scene.c_arm.projection(width, height);
@@ -133,23 +154,23 @@ fn ray(proj: &Projection, map: &IndexMap, col: u32, row: u32) -> Ray {
 /// What both renderers check before drawing: the contrast overlay lies inside the CT and holds
 /// one value per voxel of its box, and the isocentre is within the source-to-detector distance of
 /// the CT (farther, the patient would not be in the beam).
-pub fn check_scene_fits(scene: &XrayScene, grid: &stylet_physics::Grid) -> Result<(), String> {
+pub fn check_scene_fits(scene: &XrayScene, grid: &stylet_physics::Grid) -> Result<(), XrayError> {
     let dims = grid.dims();
     if let Some(c) = &scene.contrast {
         let inside = (0..3).all(|a| c.origin[a] as u64 + c.dims[a] as u64 <= dims[a] as u64);
         let n = c.dims.iter().map(|&d| d as u64).product::<u64>();
         if !inside || n != c.mu_per_mm.len() as u64 || n == 0 {
-            return Err("the contrast overlay does not fit the CT".into());
+            return Err(XrayError::ContrastOverlay);
         }
     }
     let (lo, hi) = grid.world_bounds();
     let reach = scene.c_arm.source_to_detector_mm as f64;
     let iso = scene.c_arm.isocenter_mm.as_dvec3();
     if (iso - iso.clamp(lo, hi)).length() > reach {
-        return Err(format!(
-            "the C-arm's isocentre {:?} mm is farther than the source-to-detector distance ({reach} mm) from the CT",
-            scene.c_arm.isocenter_mm
-        ));
+        return Err(XrayError::OutOfReach {
+            isocenter_mm: scene.c_arm.isocenter_mm,
+            reach_mm: reach,
+        });
     }
     Ok(())
 }
