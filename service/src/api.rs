@@ -16,168 +16,17 @@ use utoipa_axum::routes;
 
 use super::AppState;
 use super::auth;
-use super::store::{AccountError, ImportLineError, NewSession, Role, SessionStatus, TokenScope, TokenStatus, User};
+use super::store::{NewSession, Role, SessionStatus, User};
 use stylet_scoring::Difficulty;
 
 type AppRef = Arc<AppState>;
 
-/// The service's one error type: what went wrong, in words for the person who asked, by kind.
-/// [`ApiError::status`] maps the kinds to HTTP statuses, in this one place; the API answers
-/// `{"error": "..."}` (and `lines` for an import), the dashboard an error page.
-#[derive(Debug, thiserror::Error)]
-pub enum ApiError {
-    /// 400: the request is malformed or a value is out of range.
-    #[error("{0}")]
-    Invalid(String),
-    /// 401: not logged in, or the login or token is no longer valid.
-    #[error("{0}")]
-    Unauthenticated(String),
-    /// 403: logged in, but not allowed.
-    #[error("{0}")]
-    Forbidden(String),
-    /// 404 (also for what exists but is not the caller's to know of).
-    #[error("{0}")]
-    NotFound(String),
-    /// 409: clashes with what is stored (a taken username, too many tokens).
-    #[error("{0}")]
-    Conflict(String),
-    /// 413.
-    #[error("{0}")]
-    TooLarge(String),
-    /// 415.
-    #[error("{0}")]
-    UnsupportedMediaType(String),
-    /// 422: a bulk import with bad lines (every one named); nothing was imported.
-    #[error("{}", AccountError::Import(.0.clone()))]
-    ImportRejected(Vec<ImportLineError>),
-    /// 429: this account (or this client) is over a rate or a cap; try again after
-    /// `retry_after_s` (sent as `Retry-After`).
-    #[error("{message}")]
-    Throttled { message: String, retry_after_s: u32 },
-    /// 503: overload or storage that cannot write now; try again shortly.
-    #[error("{0}")]
-    Unavailable(String),
-    /// 500: details are logged, not shown.
-    #[error("internal error")]
-    Internal,
-    /// Any other status (kept for statuses no kind names yet).
-    #[error("{1}")]
-    Other(StatusCode, String),
-}
-
-impl ApiError {
-    /// The HTTP status of each kind.
-    pub fn status(&self) -> StatusCode {
-        match self {
-            ApiError::Invalid(_) => StatusCode::BAD_REQUEST,
-            ApiError::Unauthenticated(_) => StatusCode::UNAUTHORIZED,
-            ApiError::Forbidden(_) => StatusCode::FORBIDDEN,
-            ApiError::NotFound(_) => StatusCode::NOT_FOUND,
-            ApiError::Conflict(_) => StatusCode::CONFLICT,
-            ApiError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
-            ApiError::UnsupportedMediaType(_) => StatusCode::UNSUPPORTED_MEDIA_TYPE,
-            ApiError::ImportRejected(_) => StatusCode::UNPROCESSABLE_ENTITY,
-            ApiError::Throttled { .. } => StatusCode::TOO_MANY_REQUESTS,
-            ApiError::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
-            ApiError::Internal => StatusCode::INTERNAL_SERVER_ERROR,
-            ApiError::Other(status, _) => *status,
-        }
-    }
-
-    /// The message for people.
-    pub fn message(&self) -> String {
-        self.to_string()
-    }
-
-    /// When the client may try again (s), sent as `Retry-After`: for 429 and 503.
-    pub fn retry_after_s(&self) -> Option<u32> {
-        match self {
-            ApiError::Throttled { retry_after_s, .. } => Some(*retry_after_s),
-            // Overload and an unwritable store pass: clients may try again shortly.
-            ApiError::Unavailable(_) => Some(1),
-            _ => None,
-        }
-    }
-}
-
-/// Longest error message sent (bytes): a message that quotes what a client sent is cut here, so
-/// an error body never grows with the input.
-pub const MAX_ERROR_MESSAGE_BYTES: usize = 4096;
-
-/// `text` cut to at most `max` bytes at a character boundary, with "…" when cut.
-pub fn bounded(text: &str, max: usize) -> String {
-    if text.len() <= max {
-        return text.to_string();
-    }
-    let mut end = max.saturating_sub('…'.len_utf8());
-    while !text.is_char_boundary(end) {
-        end -= 1;
-    }
-    format!("{}…", &text[..end])
-}
-
-impl IntoResponse for ApiError {
-    fn into_response(self) -> Response {
-        let status = self.status();
-        let message = bounded(&self.message(), MAX_ERROR_MESSAGE_BYTES);
-        let body = match &self {
-            ApiError::ImportRejected(lines) => json!({ "error": message, "lines": lines }),
-            _ => json!({ "error": message }),
-        };
-        let mut r = (status, Json(body)).into_response();
-        if let Some(s) = self.retry_after_s() {
-            r.headers_mut()
-                .insert(header::RETRY_AFTER, axum::http::HeaderValue::from(s));
-        }
-        r
-    }
-}
-
-/// The error of a kind by its status (handlers written before the kinds name the status).
-pub fn err(status: StatusCode, msg: impl Into<String>) -> ApiError {
-    let msg = msg.into();
-    match status {
-        StatusCode::BAD_REQUEST => ApiError::Invalid(msg),
-        StatusCode::UNAUTHORIZED => ApiError::Unauthenticated(msg),
-        StatusCode::FORBIDDEN => ApiError::Forbidden(msg),
-        StatusCode::NOT_FOUND => ApiError::NotFound(msg),
-        StatusCode::CONFLICT => ApiError::Conflict(msg),
-        StatusCode::PAYLOAD_TOO_LARGE => ApiError::TooLarge(msg),
-        StatusCode::UNSUPPORTED_MEDIA_TYPE => ApiError::UnsupportedMediaType(msg),
-        StatusCode::TOO_MANY_REQUESTS => ApiError::Throttled {
-            message: msg,
-            retry_after_s: super::slots::RETRY_AFTER_S,
-        },
-        StatusCode::SERVICE_UNAVAILABLE => ApiError::Unavailable(msg),
-        status => ApiError::Other(status, msg),
-    }
-}
-
-impl From<super::StoreError> for ApiError {
-    fn from(e: super::StoreError) -> Self {
-        use super::StoreError;
-        if let StoreError::UserExists(_) | StoreError::TooManyTokens { .. } = e {
-            return ApiError::Conflict(e.to_string());
-        }
-        tracing::error!(error = %e, "store");
-        if e.is_transient() {
-            return ApiError::Unavailable("the server cannot write its data right now; try again shortly".into());
-        }
-        ApiError::Internal
-    }
-}
-
-impl From<AccountError> for ApiError {
-    fn from(e: AccountError) -> Self {
-        match e {
-            AccountError::NoSuchUser(_) => ApiError::NotFound(e.to_string()),
-            AccountError::LastAdmin(_) | AccountError::OwnAccount => ApiError::Conflict(e.to_string()),
-            AccountError::Invalid(m) => ApiError::Invalid(m),
-            AccountError::Import(lines) => ApiError::ImportRejected(lines),
-            AccountError::Store(e) => e.into(),
-        }
-    }
-}
+pub use super::access::{may_review, may_see, reviewable, visible_session};
+pub use super::error::{ApiError, MAX_ERROR_MESSAGE_BYTES, bounded, err};
+pub use super::extract::{
+    Actor, AdminActor, AdminReader, CookieActor, Reader, SimulatorActor, SimulatorReader, TokenUse, Via, authenticate,
+    hold_request_slot, require_admin, user_for,
+};
 
 /// The API's routes, each registered from its annotated handler: the router and the OpenAPI
 /// document's paths come from the same list ([`super::openapi`]).
@@ -248,18 +97,6 @@ pub async fn request_log(req: axum::extract::Request, next: axum::middleware::Ne
     resp
 }
 
-/// Only admins manage accounts.
-pub fn require_admin(user: &User) -> Result<(), ApiError> {
-    if user.role == Role::Admin {
-        Ok(())
-    } else {
-        Err(err(
-            StatusCode::FORBIDDEN,
-            format!("{} ({}) may not manage accounts", user.username, user.role),
-        ))
-    }
-}
-
 /// This document.
 #[utoipa::path(get, path = "/api/openapi.json", tag = "service",
     responses((status = 200, description = "OpenAPI 3.1", content_type = "application/json", body = Object)))]
@@ -300,186 +137,6 @@ async fn healthz(State(s): State<AppRef>) -> Response {
         .into_response()
     }
 }
-
-/// How a request authenticated.
-pub enum Via {
-    /// The login cookie: state-changing requests must echo the login's CSRF token.
-    Cookie { csrf: String },
-    /// `Authorization: Bearer <API token>` (the desktop app): not sent by browsers on their own.
-    Token { scope: TokenScope },
-}
-
-/// What a route takes from API tokens. Decided here, for every route, so that a route cannot
-/// forget to refuse a token that may not use it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum TokenUse {
-    /// Any token, `upload` scope too: what the desktop simulator does (upload a session, read
-    /// its status).
-    Upload,
-    /// `full` tokens only: every other route.
-    Full,
-    /// No token: the login cookie only (making tokens: a stolen token must not mint more).
-    None,
-}
-
-/// The authenticated user (API token or login cookie), or 401 (also for an expired or revoked
-/// token).
-pub async fn authenticate(s: &AppState, headers: &HeaderMap) -> Result<(User, Via), ApiError> {
-    if let Some(value) = headers.get(header::AUTHORIZATION) {
-        let token = value
-            .to_str()
-            .ok()
-            .and_then(|v| v.strip_prefix("Bearer "))
-            .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "Authorization must be 'Bearer <API token>'"))?;
-        let found = s
-            .store
-            .api_token(token.trim())
-            .await?
-            .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "unknown API token"))?;
-        if found.account_disabled {
-            return Err(err(StatusCode::UNAUTHORIZED, "this account is disabled; ask an admin"));
-        }
-        return match found.status {
-            TokenStatus::Active => Ok((found.user, Via::Token { scope: found.scope })),
-            TokenStatus::Expired => Err(err(
-                StatusCode::UNAUTHORIZED,
-                "the API token has expired; create a new one",
-            )),
-            TokenStatus::Revoked => Err(err(StatusCode::UNAUTHORIZED, "the API token has been revoked")),
-        };
-    }
-    let token = headers
-        .get(header::COOKIE)
-        .and_then(|v| v.to_str().ok())
-        .and_then(auth::token_from_cookie_header)
-        .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "log in first (POST /api/login)"))?;
-    let (user, csrf) = s
-        .store
-        .user_for_login(token)
-        .await?
-        .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "the login has expired; log in again"))?;
-    Ok((user, Via::Cookie { csrf }))
-}
-
-/// The user of a request to a route that takes `tokens`; `writes`: a state-changing request,
-/// for which the login cookie must come with the `X-CSRF-Token` header carrying the token the
-/// login returned (a page of another site cannot read it). 403 with the reason otherwise.
-pub async fn user_for(s: &AppState, headers: &HeaderMap, tokens: TokenUse, writes: bool) -> Result<User, ApiError> {
-    let (user, via) = authenticate(s, headers).await?;
-    match via {
-        Via::Cookie { csrf } if writes => {
-            let sent = headers
-                .get("x-csrf-token")
-                .and_then(|v| v.to_str().ok())
-                .unwrap_or_default();
-            if sent != csrf {
-                return Err(err(
-                    StatusCode::FORBIDDEN,
-                    "missing or wrong X-CSRF-Token header (the csrf_token of your login)",
-                ));
-            }
-        }
-        Via::Cookie { .. } => {}
-        Via::Token { scope } => match (tokens, scope) {
-            (TokenUse::None, _) => {
-                return Err(err(
-                    StatusCode::FORBIDDEN,
-                    "API tokens cannot create API tokens: log in (cookie and X-CSRF-Token) to create one",
-                ));
-            }
-            (TokenUse::Full, TokenScope::Upload) => {
-                return Err(err(
-                    StatusCode::FORBIDDEN,
-                    "this API token has scope 'upload': it may only upload sessions (POST /api/sessions), \
-                     read their status (GET /api/sessions/{id}) and fetch their files (GET /api/sessions/{id}/file); \
-                     use a 'full' token for this",
-                ));
-            }
-            (TokenUse::Upload, _) | (TokenUse::Full, TokenScope::Full) => {}
-        },
-    }
-    Ok(user)
-}
-
-/// The user of a read request (cookie or a `full` token).
-#[allow(dead_code)] // handlers take the extractors above; kept for routes still being written
-pub(crate) async fn current_user(s: &AppState, headers: &HeaderMap) -> Result<User, ApiError> {
-    user_for(s, headers, TokenUse::Full, false).await
-}
-
-/// The user of a state-changing request (cookie with its CSRF token, or a `full` token).
-#[allow(dead_code)] // handlers take the extractors above; kept for routes still being written
-pub(crate) async fn acting_user(s: &AppState, headers: &HeaderMap) -> Result<User, ApiError> {
-    user_for(s, headers, TokenUse::Full, true).await
-}
-
-/// The user of what the desktop simulator does, which `upload` tokens may: upload a session
-/// (`writes`) and read a session's status.
-#[allow(dead_code)] // handlers take the extractors above; kept for routes still being written
-pub(crate) async fn simulator_user(s: &AppState, headers: &HeaderMap, writes: bool) -> Result<User, ApiError> {
-    user_for(s, headers, TokenUse::Upload, writes).await
-}
-
-/// Counts the request against its account's requests in flight
-/// ([`super::Limits::max_requests_per_account`]; 429 past it) until it has been answered.
-pub fn hold_request_slot(s: &AppState, parts: &axum::http::request::Parts, user: &User) -> Result<(), ApiError> {
-    match parts.extensions.get::<super::slots::InFlight>() {
-        Some(slot) => slot.hold(&s.request_slots, &user.id),
-        None => Ok(()),
-    }
-}
-
-/// Extractors of the logged-in user (`FromRequestParts`): a handler names who may call it in its
-/// arguments instead of looking the user up itself. Each applies [`user_for`] with its token use
-/// and whether the request writes (CSRF for cookies); the `Admin…` ones also require an admin.
-macro_rules! user_extractor {
-    ($(#[$doc:meta])* $name:ident, $tokens:expr, $writes:expr, $admin:expr) => {
-        $(#[$doc])*
-        pub struct $name(pub User);
-
-        impl axum::extract::FromRequestParts<AppRef> for $name {
-            type Rejection = ApiError;
-
-            async fn from_request_parts(parts: &mut axum::http::request::Parts, s: &AppRef) -> Result<Self, ApiError> {
-                let user = user_for(s, &parts.headers, $tokens, $writes).await?;
-                hold_request_slot(s, parts, &user)?;
-                if $admin {
-                    require_admin(&user)?;
-                }
-                Ok($name(user))
-            }
-        }
-    };
-}
-
-user_extractor!(
-    /// A read request: the login cookie or a `full` API token.
-    Reader, TokenUse::Full, false, false
-);
-user_extractor!(
-    /// A state-changing request: the login cookie with its `X-CSRF-Token`, or a `full` API token.
-    Actor, TokenUse::Full, true, false
-);
-user_extractor!(
-    /// An admin's read request.
-    AdminReader, TokenUse::Full, false, true
-);
-user_extractor!(
-    /// An admin's state-changing request.
-    AdminActor, TokenUse::Full, true, true
-);
-user_extractor!(
-    /// What the desktop simulator reads, which `upload` tokens may (a session's status).
-    SimulatorReader, TokenUse::Upload, false, false
-);
-user_extractor!(
-    /// What the desktop simulator writes, which `upload` tokens may (an upload).
-    SimulatorActor, TokenUse::Upload, true, false
-);
-user_extractor!(
-    /// Making API tokens: the login cookie with its CSRF token only (a token cannot mint more).
-    CookieActor, TokenUse::None, true, false
-);
 
 #[derive(serde::Deserialize, utoipa::ToSchema)]
 struct LoginRequest {
@@ -735,20 +392,6 @@ where
     Ok((id, SessionStatus::Queued, true))
 }
 
-/// The session `id` if `user` may see it: their own (trainees), their cohorts' (instructors),
-/// every session (curriculum, admins). 404 otherwise, not 403: whether a session exists is
-/// itself private.
-pub async fn visible_session(s: &AppState, user: &User, id: &str) -> Result<super::store::SessionRow, ApiError> {
-    let not_found = || err(StatusCode::NOT_FOUND, format!("no session {id}"));
-    let (row, trainee_id) = s.store.session(id).await?.ok_or_else(not_found)?;
-    let allowed = match user.role {
-        Role::Trainee => trainee_id == user.id,
-        Role::Instructor => s.store.teaches(&user.id, &trainee_id).await?,
-        Role::Curriculum | Role::Admin => true,
-    };
-    if allowed { Ok(row) } else { Err(not_found()) }
-}
-
 #[utoipa::path(get, path = "/api/sessions/{id}", tag = "sessions",
     summary = "One session, its score and its review",
     description = "API tokens of either scope may read it (the simulator polls the status of its upload).",
@@ -892,44 +535,6 @@ async fn remove_session_files(s: &AppState, sha: &str) {
     {
         tracing::warn!(error = %e, dir = %frames.display(), "cannot remove a deleted session's player frames");
     }
-}
-
-/// Whether `user` may see the sessions of `trainee_id`.
-pub async fn may_see(s: &AppState, user: &User, trainee_id: &str) -> Result<bool, ApiError> {
-    Ok(match user.role {
-        Role::Trainee => trainee_id == user.id,
-        Role::Instructor => s.store.teaches(&user.id, trainee_id).await?,
-        Role::Curriculum | Role::Admin => true,
-    })
-}
-
-/// Whether `user` may comment on and override grades of `trainee_id`'s sessions: their
-/// instructors and admins (curriculum staff read everything and change nothing).
-pub async fn may_review(s: &AppState, user: &User, trainee_id: &str) -> Result<bool, ApiError> {
-    Ok(match user.role {
-        Role::Instructor => s.store.teaches(&user.id, trainee_id).await?,
-        Role::Admin => true,
-        Role::Trainee | Role::Curriculum => false,
-    })
-}
-
-/// The session `id` for a reviewer, or 404/403.
-pub async fn reviewable(s: &AppState, user: &User, id: &str) -> Result<(), ApiError> {
-    let (_, trainee_id) = s
-        .store
-        .session(id)
-        .await?
-        .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no session {id}")))?;
-    if !may_see(s, user, &trainee_id).await? {
-        return Err(err(StatusCode::NOT_FOUND, format!("no session {id}")));
-    }
-    if !may_review(s, user, &trainee_id).await? {
-        return Err(err(
-            StatusCode::FORBIDDEN,
-            format!("{} ({}) may not change this session's review", user.username, user.role),
-        ));
-    }
-    Ok(())
 }
 
 /// An override's score must lie in 0…100 and it needs a reason; returns the trimmed reason.

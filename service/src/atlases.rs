@@ -12,8 +12,9 @@ use serde::Serialize;
 use serde_json::json;
 
 use super::AppState;
-use super::api::{Actor, AdminActor, ApiError, Reader, err};
 use super::catalogue::AtlasOrigin;
+use super::error::{ApiError, err};
+use super::extract::{Actor, AdminActor, Reader};
 use super::publish::{self, Refusal};
 use super::store::{Role, User};
 

@@ -10,7 +10,7 @@ use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use super::api::ApiError;
+use super::error::ApiError;
 
 /// Bytes reserved by the uploads arriving now.
 #[derive(Debug, Default)]

@@ -17,7 +17,9 @@ use serde_json::json;
 use stylet_scoring::{Benchmark, ScoreReport};
 
 use super::AppState;
-use super::api::{Actor, ApiError, Reader, err, reviewable, visible_session};
+use super::access::{reviewable, visible_session};
+use super::error::{ApiError, err};
+use super::extract::{Actor, Reader};
 use super::store::{ExpertReference, Marked, Role, SessionRow, SessionStatus, StoreError, User};
 
 /// The benchmark of `scenario` on the atlas `atlas_hash` and the references it comes from

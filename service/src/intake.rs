@@ -13,7 +13,7 @@ use futures_util::{Stream, StreamExt};
 use sha2::Digest;
 use tokio::io::AsyncWriteExt;
 
-use super::api::{ApiError, err};
+use super::error::{ApiError, err};
 
 /// The stretch over which a body's rate is measured (s): every stretch this long, once the body
 /// has been arriving for that long, must bring at least the minimum rate's worth of bytes.

@@ -3,13 +3,16 @@
 //! anything is stored, keeps them by content hash, and scores them by replay on a worker pool whose
 //! jobs live in the database (a restart resumes them; a session is never scored twice).
 
+pub mod access;
 pub mod api;
 pub mod atlases;
 pub mod auth;
 pub mod catalogue;
 pub mod disk;
+pub mod error;
 pub mod experts;
 pub mod export;
+pub mod extract;
 pub mod intake;
 pub mod limits;
 pub mod logins;

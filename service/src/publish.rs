@@ -23,7 +23,7 @@ use stylet_scoring::smoke::{self, SmokeOutcome};
 use stylet_scoring::{Rubric, Scorer};
 use tokio::io::AsyncWriteExt;
 
-use super::api::{ApiError, err};
+use super::error::{ApiError, err};
 use super::intake::RatedBody;
 
 /// The media type of an atlas upload.
@@ -474,7 +474,7 @@ pub fn check(dir: &Path, work: &Path, max_voxels: u64) -> Result<Checked, Refusa
 
 /// A message of another part (a script name check) cut to a few hundred characters.
 fn bounded(message: &str) -> String {
-    super::api::bounded(message, 512)
+    super::error::bounded(message, 512)
 }
 
 /// Messages name files by the server's temporary folder; the publisher knows them by name.

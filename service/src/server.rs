@@ -27,7 +27,7 @@ use tokio::net::TcpListener;
 use tokio::sync::Semaphore;
 
 use super::Limits;
-use super::api::err;
+use super::error::err;
 use super::slots::{InFlight, Slots};
 
 /// Largest read buffer of a connection (bytes): bounds what a client's headers can make the

@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex};
 
 use axum::http::StatusCode;
 
-use super::api::{ApiError, err};
+use super::error::{ApiError, err};
 
 /// Slots of one kind.
 #[derive(Debug)]

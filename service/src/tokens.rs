@@ -13,7 +13,8 @@ use axum::response::{IntoResponse, Response};
 use serde_json::json;
 
 use super::AppState;
-use super::api::{Actor, ApiError, CookieActor, Reader, err};
+use super::error::{ApiError, err};
+use super::extract::{Actor, CookieActor, Reader};
 use super::store::{Role, TokenRow, TokenScope, User};
 
 /// How long a token lasts unless asked for less, and the most it may last: a token forgotten

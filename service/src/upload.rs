@@ -16,7 +16,7 @@ use stylet_recorder::SessionHeader;
 use stylet_recorder::reader::{self, Damage, DamageKind, LimitExceeded, Limits, ReadError, Verified, VerifyError};
 
 use super::AppState;
-use super::api::{ApiError, err};
+use super::error::{ApiError, err};
 use super::intake::{RatedBody, TempFile};
 use super::store::{Role, User};
 

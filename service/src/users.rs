@@ -13,7 +13,8 @@ use axum::response::{IntoResponse, Response};
 use serde_json::json;
 
 use super::AppState;
-use super::api::{AdminActor, AdminReader, ApiError, err};
+use super::error::{ApiError, err};
+use super::extract::{AdminActor, AdminReader};
 use super::store::{AccountChange, AccountError, Role, StoreError, User, UserRow};
 
 type AppRef = Arc<AppState>;
