@@ -320,6 +320,27 @@ impl Store {
     }
 }
 
+/// A new, empty PostgreSQL database for one unit test, named `{prefix}_{process id}`, on the
+/// server of `$STYLET_POSTGRES_URL` (scripts/test starts it and sets it); its URL. Without that
+/// variable the test fails rather than being skipped.
+#[cfg(test)]
+pub(crate) async fn fresh_postgres_database(prefix: &str) -> String {
+    let admin = std::env::var("STYLET_POSTGRES_URL")
+        .expect("STYLET_POSTGRES_URL is not set: scripts/test starts PostgreSQL (scripts/postgres-up) and sets it");
+    sqlx::any::install_default_drivers();
+    let name = format!("{prefix}_{}", std::process::id());
+    let pool = sqlx::AnyPool::connect(&admin).await.unwrap();
+    for sql in [
+        format!("DROP DATABASE IF EXISTS {name}"),
+        format!("CREATE DATABASE {name}"),
+    ] {
+        sqlx::query(sqlx::AssertSqlSafe(sql)).execute(&pool).await.unwrap();
+    }
+    pool.close().await;
+    let base = admin.rsplit_once('/').expect("a URL with a database").0;
+    format!("{base}/{name}")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

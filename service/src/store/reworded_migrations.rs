@@ -139,23 +139,10 @@ mod tests {
         open_a_database_migrated_with_the_earlier_texts(&url).await;
     }
 
-    /// On PostgreSQL (scripts/test starts it and sets `$STYLET_POSTGRES_URL`), in a database of
-    /// its own; without it the test fails rather than being skipped.
+    /// On PostgreSQL, in a database of its own.
     #[tokio::test]
     async fn a_database_migrated_with_the_earlier_texts_opens_on_postgres() {
-        let admin = std::env::var("STYLET_POSTGRES_URL")
-            .expect("STYLET_POSTGRES_URL is not set: scripts/test starts PostgreSQL (scripts/postgres-up) and sets it");
-        sqlx::any::install_default_drivers();
-        let name = format!("stylet_reworded_unit_{}", std::process::id());
-        let pool = AnyPool::connect(&admin).await.unwrap();
-        for sql in [
-            format!("DROP DATABASE IF EXISTS {name}"),
-            format!("CREATE DATABASE {name}"),
-        ] {
-            sqlx::query(sqlx::AssertSqlSafe(sql)).execute(&pool).await.unwrap();
-        }
-        pool.close().await;
-        let base = admin.rsplit_once('/').expect("a URL with a database").0;
-        open_a_database_migrated_with_the_earlier_texts(&format!("{base}/{name}")).await;
+        let url = super::super::fresh_postgres_database("stylet_reworded_unit").await;
+        open_a_database_migrated_with_the_earlier_texts(&url).await;
     }
 }

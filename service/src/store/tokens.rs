@@ -363,19 +363,7 @@ mod tests {
     /// its own. Without it the test fails: it is never skipped silently.
     #[tokio::test]
     async fn tokens_from_before_0003_are_closed_postgres() {
-        let admin = std::env::var("STYLET_POSTGRES_URL")
-            .expect("STYLET_POSTGRES_URL is not set: scripts/test starts PostgreSQL (scripts/postgres-up) and sets it");
-        sqlx::any::install_default_drivers();
-        let name = format!("stylet_tokens_unit_{}", std::process::id());
-        let pool = sqlx::AnyPool::connect(&admin).await.unwrap();
-        for sql in [
-            format!("DROP DATABASE IF EXISTS {name}"),
-            format!("CREATE DATABASE {name}"),
-        ] {
-            sqlx::query(sqlx::AssertSqlSafe(sql)).execute(&pool).await.unwrap();
-        }
-        pool.close().await;
-        let base = admin.rsplit_once('/').expect("a URL with a database").0;
-        tokens_from_before_0003_are_closed(&format!("{base}/{name}")).await;
+        let url = crate::store::fresh_postgres_database("stylet_tokens_unit").await;
+        tokens_from_before_0003_are_closed(&url).await;
     }
 }
