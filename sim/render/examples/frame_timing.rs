@@ -5,8 +5,8 @@
 //!
 //! The frames are drawn in two runs, back to back as scripts/vtk-compare.py times VTK's (each
 //! after an untimed first frame): first with the samples evaluated on SIMD lanes, then one at a
-//! time; the last images of the two runs must be equal. (Until 2026-11-30 the two kinds alternated frame by frame, so each lanes frame
-//! followed a one-at-a-time frame that had filled the caches with other data.)
+//! time; the last images of the two runs must be equal. The runs are not interleaved frame by
+//! frame, so neither kind starts from caches the other filled.
 
 use std::sync::Arc;
 use std::time::Instant;

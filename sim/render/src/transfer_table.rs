@@ -96,7 +96,7 @@ impl TransferTable {
     }
 
     /// The clamps of a table position: len − 1 (as `f32`) and the last entry an interpolation
-    /// may start from, len − 2 (for the lanes of `raycast::batch`, which repeat `position`).
+    /// may start from, len − 2 (for the AVX2 lanes of `raycast::avx2`, which repeat `position`).
     pub(crate) fn clamps(&self) -> (f32, usize) {
         (self.last_position, self.last_base)
     }
@@ -109,7 +109,7 @@ impl TransferTable {
     }
 
     /// Entries i and i + 1 weighted by (1 − f, f), given as (`one_minus_f`, `f`): the last step
-    /// of [`Self::lookup`], shared with the lanes of `raycast::batch`, which compute the position
+    /// of [`Self::lookup`], shared with the AVX2 lanes of `raycast::avx2`, which compute the position
     /// eight at a time. i must be ≤ len − 2, as [`Self::position`] keeps it.
     #[inline(always)]
     pub(crate) fn blend(&self, i: usize, one_minus_f: f32, f: f32) -> [f32; 4] {

@@ -7,11 +7,12 @@ use std::sync::{Arc, Mutex, OnceLock};
 
 use stylet_physics::atlas::AIR_HU;
 
+pub use crate::index_map::IndexMap;
 use crate::raycast::cube_mask::CubeMask;
 use crate::raycast::gradient_volume::GradientVolume;
+pub use crate::raycast::occupancy::CellRanges;
 use crate::transfer_table::{TransferTable, VisibilityKey};
-use stylet_physics::glam::{DVec3, Vec3};
-use stylet_physics::{Grid, LabelId, PunctureAtlas, Role};
+use stylet_physics::{LabelId, PunctureAtlas, Role};
 
 /// How a label is tagged on the clipping plane (eq. 3.2.4).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -47,57 +48,6 @@ pub struct RenderVolume {
     cube_cache: Mutex<Vec<(VisibilityKey, Arc<CubeMask>)>>,
     /// The CT's value and central differences per voxel, built by the first 3D frame.
     gradients: OnceLock<Arc<GradientVolume>>,
-}
-
-/// World → continuous index of a grid in `f32`, c = M⁻¹(x − o): what both renderers use
-/// (the GPU receives `rows` and `origin` as uniforms).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct IndexMap {
-    /// Rows of M⁻¹ (index units per mm).
-    pub rows: [Vec3; 3],
-    /// World position of voxel (0, 0, 0)'s centre (mm).
-    pub origin: Vec3,
-    pub dims: [u32; 3],
-}
-
-impl IndexMap {
-    /// The grid's inverse affine rounded to `f32`.
-    pub fn of(grid: &Grid) -> IndexMap {
-        let row = |a: usize| {
-            let mut e = DVec3::ZERO;
-            e[a] = 1.0;
-            grid.index_gradient_to_world(e).as_vec3()
-        };
-        let [nx, ny, nz] = grid.dims();
-        IndexMap {
-            rows: [row(0), row(1), row(2)],
-            origin: grid.affine().origin.as_vec3(),
-            dims: [nx as u32, ny as u32, nz as u32],
-        }
-    }
-
-    /// Continuous index of a world point: (r₀·p, r₁·p, r₂·p) with p = x − origin.
-    #[inline]
-    pub fn point(&self, x: Vec3) -> Vec3 {
-        self.vector(x - self.origin)
-    }
-
-    /// Index-space image of a world vector (M⁻¹v).
-    #[inline]
-    pub fn vector(&self, v: Vec3) -> Vec3 {
-        Vec3::new(self.rows[0].dot(v), self.rows[1].dot(v), self.rows[2].dot(v))
-    }
-}
-
-/// The CT value range of every cell of an N³ occupancy grid over the index box
-/// [−½, n − ½)³: cell q on axis a covers index coordinates [q·n/N − ½, (q+1)·n/N − ½), and its
-/// range spans the voxels a trilinear sample there reads, widened by one voxel on every side.
-#[derive(Debug, Clone, PartialEq)]
-pub struct CellRanges {
-    pub cells: u32,
-    /// Minimum and maximum HU per cell, x fastest.
-    pub min_hu: Vec<f32>,
-    pub max_hu: Vec<f32>,
 }
 
 impl RenderVolume {

@@ -1,5 +1,5 @@
 //! Empty-space leaping over many voxels at once (docs/rendering.md "One ray", step 8, CPU
-//! refinements): the voxel cubes of [`super::cube_mask::CubeMask`] grouped in bricks of
+//! refinements): the voxel cubes of the cube mask grouped in bricks of
 //! 4 × 4 × 2 cubes, and for every brick its chessboard distance, in bricks, to the nearest
 //! brick holding a visible cube. A brick at distance d ≥ 1 sits in a box of (2d − 1)³ bricks
 //! without a visible cube: a ray whose sample lies in it passes every lattice point before the

@@ -5,17 +5,16 @@
 //! so the CPU ray loop skips it after computing its base voxel, without reading the CT or the
 //! table. The picture is the same with and without the mask.
 //!
-//! Built per transfer-table visibility (not per frame) and cached by [`crate::volume::RenderVolume`]:
+//! Built per transfer-table visibility (not per frame) and cached by the render volume:
 //! a few hundred milliseconds for a 512 × 512 × 133 CT, 1 bit per voxel.
 
 use rayon::prelude::*;
 
-use super::batch::Avx2;
 use super::brick_distance::BrickDistance;
-use super::window::Window;
 use crate::transfer_table::TransferTable;
 
-/// What [`CubeMask::classify`] tells of a window's points, one bit per point.
+/// What the AVX2 classification of a window (`Avx2::classify`) tells of its points, one bit
+/// per point.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct WindowClasses {
     /// The window's last point (bit 7) when it is inside and its brick is at distance
@@ -36,13 +35,13 @@ pub struct CubeMask {
     /// CT dimensions.
     pub dims: [u32; 3],
     /// 64-bit words per slab: ⌈nx·ny / 64⌉ (slabs start on a word, so they are built in parallel).
-    words_per_slab: usize,
-    bits: Vec<u64>,
-    /// Whether every cube and bit-word index fits an `i32` lane ([`Self::classify`]); always
+    pub(super) words_per_slab: usize,
+    pub(super) bits: Vec<u64>,
+    /// Whether every cube and bit-word index fits an `i32` lane ([`Self::lanes_fit`]); always
     /// so for a grid of at most `MAX_VOXELS` (2²⁸).
     lanes_fit: bool,
     /// The cubes' bricks and their distances to visible ones (leaping over many cubes at once).
-    bricks: BrickDistance,
+    pub(super) bricks: BrickDistance,
 }
 
 impl CubeMask {
@@ -122,23 +121,10 @@ impl CubeMask {
         self.bits.get(w).is_none_or(|word| word >> (r & 63) & 1 == 1)
     }
 
-    /// The march's two questions for a window at once (`Window::inside` points only; the
-    /// others read 0): bit i of `visible` when point i's cube is ([`Self::visible`]), and the
-    /// last bit of `far` when the last point's brick is at distance ≥ `leap_from` ≥ 1
-    /// ([`BrickDistance::at`], [`WindowClasses::far`]). `None` when the lanes do not apply (no
-    /// AVX2 module, or indices past `i32`).
-    #[inline(always)]
-    pub(crate) fn classify(&self, avx2: Avx2, window: &Window, leap_from: u8) -> Option<WindowClasses> {
-        let _ = avx2;
-        debug_assert!(leap_from >= 1);
-        #[cfg(target_arch = "x86_64")]
-        if self.lanes_fit {
-            // SAFETY: an `Avx2` exists only when the CPU has AVX2; the indices fit (`lanes_fit`);
-            // inside points are located cells, within the cubes.
-            return Some(unsafe { avx2::classify(self, window, leap_from) });
-        }
-        let _ = (window, leap_from);
-        None
+    /// Whether every cube and bit-word index fits an `i32` lane, as the AVX2 classification of
+    /// a window needs (`Avx2::classify`).
+    pub fn lanes_fit(&self) -> bool {
+        self.lanes_fit
     }
 
     /// Whether any cube with base voxel (x, `by`, `bz`), `x0` ≤ x < `x1`, is visible (a word's
@@ -162,67 +148,6 @@ impl CubeMask {
     /// Number of visible cubes (tests, statistics).
     pub fn count_visible(&self) -> u64 {
         self.bits.iter().map(|w| w.count_ones() as u64).sum()
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-mod avx2 {
-    use std::arch::x86_64::*;
-
-    use super::{CubeMask, WindowClasses};
-    use crate::raycast::window::{POINTS, Window};
-
-    /// `CubeMask::classify` on eight lanes: each point's cube bit from the 32-bit half-word that
-    /// holds it (x86-64 is little-endian: bit r of a `u64` word is bit r mod 32 of half-word
-    /// 2w + r / 32; indices and bits on the lanes, the eight words by scalar loads), the last
-    /// point's brick distance by one scalar load.
-    ///
-    /// # Safety
-    /// AVX2; `mask.lanes_fit`; every inside point's base within the cubes.
-    #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn classify(mask: &CubeMask, window: &Window, leap_from: u8) -> WindowClasses {
-        // SAFETY: loads: eight lanes from eight.
-        let b = [0, 1, 2].map(|a| unsafe { _mm256_loadu_si256(window.b[a].as_ptr().cast()) });
-        let bit_of_lane = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
-        let live = _mm256_cmpeq_epi32(
-            _mm256_and_si256(_mm256_set1_epi32(window.inside as i32), bit_of_lane),
-            bit_of_lane,
-        );
-        // The last point's brick, by one scalar load (`BrickDistance::at`).
-        let last = POINTS - 1;
-        let far_distance = if window.inside >> last & 1 == 1 {
-            Some(mask.bricks.at([0, 1, 2].map(|a| window.b[a][last]))).filter(|&d| d >= leap_from)
-        } else {
-            None
-        };
-        // r = b_x + n_x·b_y; half-word 2·w_slab·b_z + r / 32, bit r mod 32.
-        let r = _mm256_add_epi32(b[0], _mm256_mullo_epi32(_mm256_set1_epi32(mask.dims[0] as i32), b[1]));
-        let half_word = _mm256_add_epi32(
-            _mm256_mullo_epi32(_mm256_set1_epi32(2 * mask.words_per_slab as i32), b[2]),
-            _mm256_srli_epi32::<5>(r),
-        );
-        // Eight scalar loads, not a gather: the window's points mostly share a half-word or two,
-        // and the loads' answers arrive sooner (every preset 2–3 % faster than the gather).
-        // Lanes that are not live read half-word 0 and are masked out below.
-        let mut at = [0u32; POINTS];
-        // SAFETY: eight lanes into eight.
-        unsafe { _mm256_storeu_si256(at.as_mut_ptr().cast(), _mm256_and_si256(half_word, live)) };
-        let half_words = mask.bits.as_ptr().cast::<u32>();
-        // SAFETY: a live lane's half-word lies in `bits` (its cube does; the indices fit), and
-        // `bits` holds at least one word when the lanes fit (every axis ≥ 2 voxels).
-        let word = |i: usize| unsafe { *half_words.add(at[i] as usize) } as i32;
-        let words = _mm256_setr_epi32(word(0), word(1), word(2), word(3), word(4), word(5), word(6), word(7));
-        let bit = _mm256_and_si256(
-            _mm256_srlv_epi32(words, _mm256_and_si256(r, _mm256_set1_epi32(31))),
-            _mm256_set1_epi32(1),
-        );
-        let visible = _mm256_cmpeq_epi32(bit, _mm256_set1_epi32(1));
-        let lanes = |v: __m256i| _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_and_si256(v, live))) as u8;
-        WindowClasses {
-            far: u8::from(far_distance.is_some()) << last,
-            far_distance: far_distance.unwrap_or(0),
-            visible: lanes(visible),
-        }
     }
 }
 
@@ -321,8 +246,10 @@ mod tests {
     }
     #[test]
     fn the_lanes_classify_a_window_as_point_by_point() {
-        use crate::raycast::batch::{Avx2, Lanes, avx2_for_lane_tests};
-        let (true, Some(avx2)) = (avx2_for_lane_tests(), Avx2::detect(Lanes::Auto)) else {
+        use crate::raycast::Lanes;
+        use crate::raycast::avx2::{Avx2, available_for_lane_tests};
+        use crate::raycast::window::Window;
+        let (true, Some(avx2)) = (available_for_lane_tests(), Avx2::detect(Lanes::Auto)) else {
             return;
         };
         // Rows of 149 cubes cross 32- and 64-bit words; sparse soft tissue in fat, so bricks
@@ -356,7 +283,8 @@ mod tests {
                 }
             }
             let leap_from = 1 + (w % 3) as u8;
-            let classes = mask.classify(avx2, &window, leap_from).expect("the indices fit");
+            assert!(mask.lanes_fit());
+            let classes = avx2.classify(&mask, &window, leap_from);
             for i in 0..8 {
                 let b = [window.b[0][i], window.b[1][i], window.b[2][i]];
                 let inside = window.inside & (1 << i) != 0;

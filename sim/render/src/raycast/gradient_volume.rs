@@ -9,13 +9,13 @@
 //! (real CT: 8 bytes a voxel), else four `f32` (16 bytes). 16-bit records are blended within a
 //! slice in fixed point ([`XY_WEIGHT_ONE`]: an exact integer, which the SIMD lanes compute with
 //! one multiply-add per two rows before any conversion) and along z in `f32`; `f32` records in
-//! `f32` throughout, bit-identical to [`super::sampler::Grid3::interpolate`].
+//! `f32` throughout, bit-identical to `sampler::Grid3::interpolate`.
 
 use rayon::prelude::*;
 use stylet_physics::atlas::AIR_HU;
 use stylet_physics::glam::Vec4;
 
-use super::sampler::Cell;
+use super::cell::Cell;
 
 /// The records, x fastest.
 #[derive(Debug, Clone, PartialEq)]

@@ -5,14 +5,17 @@ use stylet_physics::glam::{DVec3, Vec3, Vec3A, Vec4};
 
 use std::sync::Arc;
 
-use super::batch::{Avx2, Batch, Evaluated, Kernel};
+use super::avx2::Avx2;
+use super::batch::{Batch, Evaluated};
 use super::brick_distance::LeavingRay;
 use super::cube_mask::{CubeMask, WindowClasses};
 use super::jitter::jitter;
+use super::kernel::Kernel;
 use super::occupancy::Occupancy;
+use super::placer::Placer;
 use super::sampler::{At, Sampler};
 use super::shading::{MIN_GRADIENT, PhongTerms, half_vector, plane_colour};
-use super::window::{Lattice, POINTS, Placer, Window};
+use super::window::{Lattice, POINTS, Window, lattice};
 use crate::scene::{ClipPlane, Light, MotionHook, Quality, Tagging};
 use crate::shadow::Shadows;
 use crate::tools::{Primitive, nearest_hit, shade};
@@ -57,11 +60,11 @@ pub struct Frame<'a> {
     pub shadows: Shadows,
     /// Whether any tool casts a shadow (else f_shadow = 1 without testing).
     pub has_shadows: bool,
-    /// The SIMD lanes for the common frame's points and samples ([`super::batch`],
-    /// [`super::window`]), when asked for and the CPU has them (detected once per frame).
+    /// The SIMD lanes for the common frame's points and samples ([`super::avx2`]), when asked
+    /// for and the CPU has them (detected once per frame).
     pub(crate) avx2: Option<Avx2>,
-    /// Whether the tiles march pixels' rays in turn ([`march_triple`] with the lanes,
-    /// [`march_pair`]); else one after the other ([`march`], the reference).
+    /// Whether the tiles march two pixels' rays in turn ([`march_pair`]); else one after the
+    /// other ([`march`], the reference).
     pub pairs: bool,
 }
 
@@ -120,13 +123,6 @@ fn inside(c: Vec3, dims: [u32; 3]) -> bool {
 #[inline]
 fn inside_by(c: Vec3, dims: [u32; 3], margin: Vec3) -> bool {
     (0..3).all(|a| c[a] >= -0.5 - margin[a] && c[a] < dims[a] as f32 - 0.5 + margin[a])
-}
-
-/// t_k = (k + j)·Δ: the only formula for a lattice point (the SIMD lanes of
-/// [`super::window`] do the same operations).
-#[inline]
-pub(super) fn lattice(k: u32, j: f32, step: f32) -> f32 {
-    (k as f32 + j) * step
 }
 
 /// The first k with t_k ≥ `t` (or > `t` when `strict`).
@@ -282,7 +278,7 @@ const BOX_MARGIN: f32 = 1e-3;
 /// kilometres long) stops there.
 ///
 /// The march goes a window (or a leap) at a time ([`Self::step`]), so that several rays can be
-/// marched in turn ([`march_triple`], [`march_pair`]): their chains of dependent loads and leaps
+/// marched in turn ([`march_pair`]): their chains of dependent loads and leaps
 /// then overlap.
 struct BrickMarch {
     ray: Ray,
@@ -375,7 +371,8 @@ impl BrickMarch {
     /// them; whether the ray is done.
     #[inline(always)]
     fn composite(&mut self, f: &Frame, cx: &BrickContext, acc: &mut Accum) -> bool {
-        self.evaluated.take_front(&cx.kernel, &mut self.batch, self.ray.half);
+        cx.kernel
+            .take_front(&mut self.batch, self.ray.half, &mut self.evaluated);
         self.flush(f, acc)
     }
 
@@ -408,9 +405,12 @@ impl BrickMarch {
         let avx2 = f.avx2?;
         // t_k grows with k, so the last point's bounds hold for all eight.
         let last_t = self.window.t[POINTS - 1];
-        (self.window.inside == u8::MAX && last_t <= self.ray.t_hi && last_t < self.ray.t_tool)
-            .then(|| cx.cubes.classify(avx2, &self.window, LANES_LEAP_FROM))
-            .flatten()
+        if self.window.inside == u8::MAX && last_t <= self.ray.t_hi && last_t < self.ray.t_tool && cx.cubes.lanes_fit()
+        {
+            Some(avx2.classify(cx.cubes, &self.window, LANES_LEAP_FROM))
+        } else {
+            None
+        }
     }
 
     /// After a window without a leap, the next one (at `k`) placed and classified at once: its
@@ -440,7 +440,8 @@ impl BrickMarch {
                 return true;
             }
             if self.batch.is_full() {
-                self.evaluated.take_front(&cx.kernel, &mut self.batch, self.ray.half);
+                cx.kernel
+                    .take_front(&mut self.batch, self.ray.half, &mut self.evaluated);
             }
         } else if self.batch.is_full() && self.composite(f, cx, acc) {
             return true;
@@ -487,7 +488,7 @@ impl BrickMarch {
             let take = classes.visible & ((1u32 << leap_at) - 1) as u8;
             if take != 0 {
                 cx.kernel.prefetch_window(&self.window);
-                self.batch.append_window(avx2, &self.window, take, self.counted);
+                avx2.append_window(&mut self.batch, &self.window, take, self.counted);
                 self.counted = 0;
             }
             if leap_at < POINTS {
@@ -540,7 +541,7 @@ impl BrickMarch {
 /// extent), below which k … k + 7 fit the lanes' `i32`.
 const LAST_WINDOW_K: u32 = 2_000_000_000;
 
-/// Steps 6–7 for the evaluated samples ([`super::batch`], [`Evaluated::take_front`]): shadowed
+/// Steps 6–7 for the evaluated samples ([`super::batch`], [`Kernel::take_front`]): shadowed
 /// and accumulated one after the other in the ray's order, exactly as [`composite`] would have
 /// one at a time. Counts the samples up to the last one composited; returns whether the ray is
 /// done (early termination). Leaves none held.
@@ -665,68 +666,6 @@ pub fn march_pair(f: &Frame, a: (u32, u32, Vec3, Vec3), b: (u32, u32, Vec3, Vec3
         }
     }
     [pa.finish(f), pb.finish(f)]
-}
-
-/// Three pixels' [`march`]es, bit for bit: with the lanes, when all three take the common
-/// frame's path, their lattice marches go a step of each in turn as in [`march_pair`], so each
-/// ray's chain of dependent loads, leaps and branches overlaps with two others' (the chest CT's
-/// frames 1–5 % faster than pairs in two builds). Without the lanes, one after the other (the
-/// tiles then march pairs). Written out per ray like `march_two`: the same steps as a loop over
-/// an array of marches, or generated by a macro, measured 5–7 % slower than this form.
-#[inline(always)]
-pub fn march_triple(
-    f: &Frame,
-    a: (u32, u32, Vec3, Vec3),
-    b: (u32, u32, Vec3, Vec3),
-    c: (u32, u32, Vec3, Vec3),
-) -> [([u8; 4], u64); 3] {
-    let mut pa = Pixel::begin(f, a.0, a.1, a.2, a.3);
-    let mut pb = Pixel::begin(f, b.0, b.1, b.2, b.3);
-    let mut pc = Pixel::begin(f, c.0, c.1, c.2, c.3);
-    match (
-        pa.bricks.take(),
-        pb.bricks.take(),
-        pc.bricks.take(),
-        &f.cubes,
-        f.avx2.is_some(),
-    ) {
-        (Some(ra), Some(rb), Some(rc), Some(cubes), true) => {
-            let cx = BrickContext::new(f, cubes);
-            let (mut ma, mut mb, mut mc) = (
-                BrickMarch::new(f, ra.0, ra.1),
-                BrickMarch::new(f, rb.0, rb.1),
-                BrickMarch::new(f, rc.0, rc.1),
-            );
-            let (mut da, mut db, mut dc) = (false, false, false);
-            while !(da || db || dc) {
-                da = ma.step::<true>(f, &cx, &mut pa.acc);
-                db = mb.step::<true>(f, &cx, &mut pb.acc);
-                dc = mc.step::<true>(f, &cx, &mut pc.acc);
-            }
-            while !(da && db && dc) {
-                if !da {
-                    da = ma.step::<true>(f, &cx, &mut pa.acc);
-                }
-                if !db {
-                    db = mb.step::<true>(f, &cx, &mut pb.acc);
-                }
-                if !dc {
-                    dc = mc.step::<true>(f, &cx, &mut pc.acc);
-                }
-            }
-            pa.samples += ma.samples;
-            pb.samples += mb.samples;
-            pc.samples += mc.samples;
-        }
-        (ra, rb, rc, _, _) => {
-            for (p, r) in [(&mut pa, ra), (&mut pb, rb), (&mut pc, rc)] {
-                if let Some(ray) = r {
-                    p.samples += p.march_bricks(f, ray);
-                }
-            }
-        }
-    }
-    [pa.finish(f), pb.finish(f), pc.finish(f)]
 }
 
 /// Two brick marches a step of each in turn until both are done.

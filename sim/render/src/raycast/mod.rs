@@ -1,27 +1,31 @@
 //! The CPU reference ray caster (thesis §3.2.1–3.2.3; docs/rendering.md "One ray"): front-to-back
 //! emission–absorption with ray/box clipping, empty-space leaping, early termination, jitter,
-//! Phong shading, the clipping plane and its tagging. Rayon over 15 × 15 pixel tiles; every pixel is a pure
+//! Phong shading, the clipping plane and its tagging. Rayon over 16 × 16 pixel tiles; every pixel is a pure
 //! function of the inputs, so the image is bit-identical on any number of threads.
 
+pub mod appearance;
+pub mod avx2;
 pub mod batch;
 pub mod brick_distance;
+pub mod cell;
 pub mod cube_mask;
 pub mod gradient_volume;
 pub mod jitter;
+pub mod kernel;
 pub mod march;
 pub mod occupancy;
+pub mod placer;
 pub mod sampler;
 pub mod shading;
 pub mod window;
 
 use rayon::prelude::*;
 
-pub use batch::Lanes;
-
 use crate::image::Image;
 use crate::scene::{ImageRays, Scene};
 use crate::transfer_table::TransferTable;
 use crate::volume::{IndexMap, RenderVolume};
+use avx2::Avx2;
 use march::{Frame, farthest_corner_mm, march, march_pair};
 use occupancy::Occupancy;
 use sampler::{Grid3, Sampler};
@@ -60,10 +64,30 @@ pub fn render_with(volume: &RenderVolume, scene: &Scene, width: u32, height: u32
     render_full(volume, scene, width, height, lanes)
 }
 
-/// Side of the square pixel tiles rendered as one task (pixels): with the lanes a tile's row is
-/// five threes of rays marched in turn ([`march::march_triple`]). 15 measured 1.5–2 % (soft) to
-/// 4–5 % (skin, bone) faster than 16 (four threes and two pairs) on the chest CT in two builds.
-const TILE: u32 = 15;
+/// Which evaluation the ray caster may use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Lanes {
+    /// SIMD lanes where the CPU and the records allow, and the rays of two pixels marched in
+    /// turn (the same pixels, faster).
+    Auto,
+    /// One sample at a time, one ray after the other: the reference the lanes are tested
+    /// against.
+    OneAtATime,
+    /// The rays of two pixels marched in turn, one sample at a time: what [`Lanes::Auto`] runs
+    /// on a CPU without AVX2, here on any CPU, so that path is tested where AVX2 is present.
+    PairsWithoutSimd,
+}
+
+impl Lanes {
+    /// Whether pixels' rays are marched two by two ([`Lanes::Auto`],
+    /// [`Lanes::PairsWithoutSimd`]).
+    pub fn pairs(self) -> bool {
+        self != Lanes::OneAtATime
+    }
+}
+
+/// Side of the square pixel tiles rendered as one task (pixels).
+const TILE: u32 = 16;
 
 /// Shortest step the ray caster takes (mm): bounds the samples per ray.
 pub const MIN_STEP_MM: f32 = 0.01;
@@ -80,50 +104,10 @@ pub fn usable_step_mm(step_mm: f32) -> f32 {
 
 /// The pixels of columns `cols[0]` … `cols[1]` − 1 and rows `rows[0]` … `rows[1]` − 1, row by
 /// row, and the samples they took. With the SIMD lanes the whole tile (rays, their set-up and
-/// march) is compiled for AVX2, so that rounding and ⌈·⌉ are instructions rather than libm calls
-/// and nothing is called per ray; the numbers are the same (the lanes' tests compare the images).
+/// march) is compiled for AVX2, so that rounding and ⌈·⌉ are instructions rather than libm
+/// calls and the lanes' kernels are inlined into the march; the numbers are the same (the
+/// lanes' tests compare the images).
 fn draw_tile(frame: &Frame, rays: &ImageRays, cols: [u32; 2], rows: [u32; 2]) -> (Vec<[u8; 4]>, u64) {
-    #[inline(always)]
-    fn each_pixel(frame: &Frame, rays: &ImageRays, cols: [u32; 2], rows: [u32; 2]) -> (Vec<[u8; 4]>, u64) {
-        let mut px = Vec::with_capacity(((cols[1] - cols[0]) * (rows[1] - rows[0])) as usize);
-        let mut n = 0u64;
-        for row in rows[0]..rows[1] {
-            let mut col = cols[0];
-            // With the lanes, pixels three by three (their marches interleaved) while three are
-            // left but not four; then two by two, the last alone in an odd row.
-            while frame.pairs && frame.avx2.is_some() && col + 2 < cols[1] && cols[1] - col != 4 {
-                let (oa, da) = rays.ray(col, row);
-                let (ob, db) = rays.ray(col + 1, row);
-                let (oc, dc) = rays.ray(col + 2, row);
-                for (rgba, s) in march::march_triple(
-                    frame,
-                    (col, row, oa, da),
-                    (col + 1, row, ob, db),
-                    (col + 2, row, oc, dc),
-                ) {
-                    px.push(rgba);
-                    n += s;
-                }
-                col += 3;
-            }
-            while frame.pairs && col + 1 < cols[1] {
-                let (oa, da) = rays.ray(col, row);
-                let (ob, db) = rays.ray(col + 1, row);
-                for (rgba, s) in march_pair(frame, (col, row, oa, da), (col + 1, row, ob, db)) {
-                    px.push(rgba);
-                    n += s;
-                }
-                col += 2;
-            }
-            for col in col..cols[1] {
-                let (origin, dir) = rays.ray(col, row);
-                let (rgba, s) = march(frame, col, row, origin, dir);
-                px.push(rgba);
-                n += s;
-            }
-        }
-        (px, n)
-    }
     #[cfg(target_arch = "x86_64")]
     if frame.avx2.is_some() {
         #[target_feature(enable = "avx2")]
@@ -134,6 +118,34 @@ fn draw_tile(frame: &Frame, rays: &ImageRays, cols: [u32; 2], rows: [u32; 2]) ->
         return unsafe { compiled_for_avx2(frame, rays, cols, rows) };
     }
     each_pixel(frame, rays, cols, rows)
+}
+
+/// [`draw_tile`]'s loop: pixels two by two (their marches interleaved) when `frame.pairs`, the
+/// last alone in an odd row. Always inlined, so that the AVX2 build of a tile compiles it whole
+/// for AVX2.
+#[inline(always)]
+fn each_pixel(frame: &Frame, rays: &ImageRays, cols: [u32; 2], rows: [u32; 2]) -> (Vec<[u8; 4]>, u64) {
+    let mut px = Vec::with_capacity(((cols[1] - cols[0]) * (rows[1] - rows[0])) as usize);
+    let mut n = 0u64;
+    for row in rows[0]..rows[1] {
+        let mut col = cols[0];
+        while frame.pairs && col + 1 < cols[1] {
+            let (oa, da) = rays.ray(col, row);
+            let (ob, db) = rays.ray(col + 1, row);
+            for (rgba, s) in march_pair(frame, (col, row, oa, da), (col + 1, row, ob, db)) {
+                px.push(rgba);
+                n += s;
+            }
+            col += 2;
+        }
+        for col in col..cols[1] {
+            let (origin, dir) = rays.ray(col, row);
+            let (rgba, s) = march(frame, col, row, origin, dir);
+            px.push(rgba);
+            n += s;
+        }
+    }
+    (px, n)
 }
 
 fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32, lanes: Lanes) -> RenderOutput {
@@ -194,7 +206,7 @@ fn render_full(volume: &RenderVolume, scene: &Scene, width: u32, height: u32, la
         primitives: scene.tools.primitives(),
         shadows: crate::shadow::Shadows::from_tools(&scene.tools),
         has_shadows: scene.tools.needle.is_some() || scene.tools.finger.is_some() || scene.tools.probe.is_some(),
-        avx2: batch::Avx2::detect(lanes),
+        avx2: Avx2::detect(lanes),
         pairs: lanes.pairs(),
     };
     // The cells of the general path, built only when some ray takes it (N³ look-ups a frame).

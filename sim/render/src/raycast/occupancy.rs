@@ -8,8 +8,19 @@ use rayon::prelude::*;
 use stylet_physics::Volume;
 use stylet_physics::glam::{DVec3, Vec3};
 
+use crate::index_map::IndexMap;
 use crate::transfer_table::TransferTable;
-use crate::volume::{CellRanges, IndexMap};
+
+/// The CT value range of every cell of an N³ occupancy grid over the index box
+/// [−½, n − ½)³: cell q on axis a covers index coordinates [q·n/N − ½, (q+1)·n/N − ½), and its
+/// range spans the voxels a trilinear sample there reads, widened by one voxel on every side.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CellRanges {
+    pub cells: u32,
+    /// Minimum and maximum HU per cell, x fastest.
+    pub min_hu: Vec<f32>,
+    pub max_hu: Vec<f32>,
+}
 
 /// First and last voxel (inclusive) whose values a sample in cell `q` of `cells` along an axis
 /// of `n` voxels may read: cell q covers [q·n/N − ½, (q+1)·n/N − ½), a sample at c reads voxels

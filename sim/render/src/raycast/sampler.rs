@@ -7,6 +7,7 @@ use stylet_physics::LabelId;
 use stylet_physics::atlas::AIR_HU;
 use stylet_physics::glam::{Vec3, Vec4};
 
+pub use super::cell::Cell;
 use super::gradient_volume::GradientVolume;
 use crate::volume::IndexMap;
 
@@ -223,13 +224,6 @@ fn trunc(x: f32) -> u32 {
     // SAFETY: callers pass finite x in [0, n_a − 1] (after the inside test and clamp) or
     // checked ≥ 0 and < n_a − 1, and grid sizes are < 2³¹ voxels per axis.
     unsafe { x.to_int_unchecked::<i32>() as u32 }
-}
-
-/// Where a trilinear read lands: base voxel b (each ≤ n_a − 2) and fractions f ∈ [0, 1].
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Cell {
-    pub b: [u32; 3],
-    pub f: [f32; 3],
 }
 
 /// Linear index of the voxel nearest `c`, or `None` outside the voxels' boxes
