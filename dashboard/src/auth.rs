@@ -1,15 +1,12 @@
 //! Who is looking at a page: the login cookie (the same logins as the JSON API), the CSRF token
-//! every form posts, and page errors (a login redirect or an error page that says why).
+//! every form posts, and page errors (a login redirect or an error page that says why, drawn by
+//! `error_page.rs`).
 
 use axum::http::{HeaderMap, StatusCode, Uri, header};
-use axum::response::{IntoResponse, Redirect, Response};
-use maud::html;
 use stylet_service::AppState;
 use stylet_service::api::{ApiError, hold_request_slot};
 use stylet_service::auth::{from_other_site, token_from_cookie_header};
 use stylet_service::store::{Role, StoreError, User};
-
-use crate::layout;
 
 /// The logged-in user of a page and the CSRF token of their login (forms echo it).
 pub struct Viewer {
@@ -46,37 +43,6 @@ impl From<StoreError> for PageError {
     fn from(e: StoreError) -> Self {
         tracing::error!(error = %e, "store");
         PageError::Status(StatusCode::INTERNAL_SERVER_ERROR, "internal error".into())
-    }
-}
-
-impl IntoResponse for PageError {
-    fn into_response(self) -> Response {
-        match self {
-            PageError::Login { next } => Redirect::to(&format!("/login?next={}", encode_query(&next))).into_response(),
-            PageError::Status(status, msg) => {
-                let msg = stylet_service::api::bounded(&msg, stylet_service::api::MAX_ERROR_MESSAGE_BYTES);
-                let body = html! {
-                    h1 { (status.as_u16()) " " (status.canonical_reason().unwrap_or("")) }
-                    p.error { (msg) }
-                    p { a href="/" { "Home" } }
-                };
-                let mut r = (
-                    status,
-                    layout::page(status.canonical_reason().unwrap_or("Error"), None, body),
-                )
-                    .into_response();
-                let retry_after_s = match status {
-                    StatusCode::TOO_MANY_REQUESTS => Some(stylet_service::slots::RETRY_AFTER_S),
-                    StatusCode::SERVICE_UNAVAILABLE => Some(1),
-                    _ => None,
-                };
-                if let Some(after) = retry_after_s {
-                    r.headers_mut()
-                        .insert(header::RETRY_AFTER, axum::http::HeaderValue::from(after));
-                }
-                r
-            }
-        }
     }
 }
 

@@ -7,6 +7,7 @@
 
 pub mod auth;
 pub mod charts;
+mod error_page;
 pub mod figures;
 pub mod layout;
 pub mod pages;
@@ -14,6 +15,7 @@ pub mod pdf;
 pub mod player;
 pub mod plot;
 pub mod progress;
+pub mod session_access;
 pub mod trends;
 
 use std::sync::Arc;

@@ -242,7 +242,7 @@ impl SessionWriter {
             .map_err(|_| WriteError::Thread("the writer thread stopped".into()))
     }
 
-    /// Records ticks as a reader returned them ([`crate::reader::Session`]'s `ticks` and
+    /// Records ticks as a reader returned them (a read `Session`'s `ticks` and
     /// `output_checks`), waiting while the queue is full: the ticks of each block with rounded
     /// outputs are written as one block with its digest (the exact outputs are not in the file
     /// any more, so only the original digest still pins them); every other tick as

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use stylet_atlas::Exercise;
 
 use crate::metrics::Metrics;
-use crate::rubric::{exercise_metrics, metric_value};
+use crate::rubric_metrics::{exercise_metrics, metric_value};
 
 /// The most expert references a scenario may have: a benchmark is computed from their stored
 /// reports whenever a session of the scenario is scored, so their number is bounded.

@@ -3,7 +3,7 @@
 //! TargetsScanned; docs/metrics.md "Ultrasound survey").
 //!
 //! The survey tests every target point on every tick the target is out of view (up to
-//! [`crate::target::MAX_TARGET_POINTS`]). [`SurveyPoints`] keeps the points in blocks with a
+//! `MAX_TARGET_POINTS` in `target.rs`). [`SurveyPoints`] keeps the points in blocks with a
 //! bounding sphere, so a block that lies wholly off the view is passed after one test: the
 //! decision is the one of testing every point (a block is passed only when no point in it can
 //! pass), only the work differs.

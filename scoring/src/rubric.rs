@@ -7,7 +7,11 @@ use serde::{Deserialize, Serialize};
 
 use crate::benchmark::Benchmark;
 use crate::metrics::{MetricParams, Metrics};
+use crate::rubric_metrics::{HIGHER_IS_BETTER, exercise_metrics};
 use stylet_atlas::Exercise;
+
+/// The metric names and values rubrics use, also under this module's name.
+pub use crate::rubric_metrics::{metric_value, rubric_metrics};
 /// The difficulty levels a rubric has rules for (one table per level and exercise).
 pub use stylet_atlas::{Difficulty, UnknownDifficulty};
 
@@ -201,139 +205,6 @@ pub struct Deduction {
     pub max_points: Option<f64>,
 }
 
-/// Metric names a puncture rubric may use, with their meaning (docs/metrics.md).
-pub const PUNCTURE_METRICS: &[&str] = &[
-    "attempts",
-    "redirections",
-    "risk_hits",
-    "risk_time_s",
-    "bone_contacts",
-    "target_not_reached",
-    "target_not_confirmed",
-    "extravasated_ml",
-    "risk_displacement_mm",
-    "time_total_s",
-    "fluoro_time_s",
-    "xray_shots",
-    "dose_area_product_gy_cm2",
-    "max_force_n",
-    "tissue_damage_mm2",
-    "path_inefficiency",
-    "target_distance_mm",
-    "missing_palpation",
-    "missing_ultrasound",
-    "missing_target_scan",
-    "guided_entry_distance_mm",
-    "guided_angle_error_deg",
-    "guided_mean_deviation_mm",
-    "target_reached_while_breathing",
-    "breathing_tissue_slide_mm",
-];
-
-/// Metrics where more is better: a deduction "above the experts" makes no sense for them.
-pub const HIGHER_IS_BETTER: &[&str] = &["intercostal_spaces_found", "palpation_coverage", "good_contact_time_s"];
-
-/// Metric names a palpation rubric may use.
-pub const PALPATION_METRICS: &[&str] = &[
-    "intercostal_spaces_found",
-    "intercostal_spaces_missed",
-    "palpation_coverage",
-    "palpation_time_s",
-    "time_total_s",
-    "max_force_n",
-];
-
-/// Metric names an ultrasound-survey rubric may use.
-pub const ULTRASOUND_METRICS: &[&str] = &[
-    "target_not_scanned",
-    "time_to_target_view_s",
-    "good_contact_time_s",
-    "poor_contact_share",
-    "time_total_s",
-    "max_force_n",
-];
-
-/// Every metric name a rubric may use, over all exercises (a name two exercises share, like
-/// `time_total_s`, comes once per exercise).
-pub fn rubric_metrics() -> impl Iterator<Item = &'static str> {
-    PUNCTURE_METRICS
-        .iter()
-        .chain(PALPATION_METRICS)
-        .chain(ULTRASOUND_METRICS)
-        .copied()
-}
-
-/// The metric names a rubric may use for `exercise`.
-pub fn exercise_metrics(exercise: Exercise) -> &'static [&'static str] {
-    match exercise {
-        Exercise::Puncture => PUNCTURE_METRICS,
-        Exercise::Palpation => PALPATION_METRICS,
-        Exercise::UltrasoundSurvey => ULTRASOUND_METRICS,
-    }
-}
-
-/// The value of a rubric metric (absent guided or distance metrics count as 0: nothing to judge).
-pub fn metric_value(m: &Metrics, name: &str) -> Option<f64> {
-    let flag = |b: bool| if b { 1.0 } else { 0.0 };
-    Some(match name {
-        "attempts" => m.attempts as f64,
-        "redirections" => m.redirections as f64,
-        "risk_hits" => m.risk_hits.len() as f64,
-        "risk_time_s" => m.risk_hits.iter().map(|h| h.duration_s).sum(),
-        "bone_contacts" => m.bone_contacts as f64,
-        "target_not_reached" => flag(!m.target_reached),
-        "target_not_confirmed" => flag(!m.target_confirmed),
-        "extravasated_ml" => m.extravasated_ml,
-        "risk_displacement_mm" => m.max_risk_displacement_mm,
-        "time_total_s" => m.time_total_s,
-        "fluoro_time_s" => m.fluoro_time_s,
-        "xray_shots" => m.xray_shots as f64,
-        "dose_area_product_gy_cm2" => m.dose_area_product_gy_cm2,
-        "max_force_n" => m.max_force_n,
-        "tissue_damage_mm2" => m.tissue_damage_mm2,
-        "path_inefficiency" => m.path_inefficiency.unwrap_or(0.0),
-        "target_distance_mm" => m.target_distance_mm.unwrap_or(0.0),
-        "missing_palpation" => flag(!m.workflow.palpation_before_puncture),
-        "missing_ultrasound" => flag(!m.workflow.ultrasound_before_puncture),
-        "missing_target_scan" => flag(!m.workflow.target_scanned_before_puncture),
-        "guided_entry_distance_mm" => m.guided.as_ref().map_or(0.0, |g| g.entry_distance_mm),
-        "guided_angle_error_deg" => m.guided.as_ref().map_or(0.0, |g| g.angle_error_deg),
-        "guided_mean_deviation_mm" => m.guided.as_ref().map_or(0.0, |g| g.mean_deviation_mm),
-        // Breathing (0 when the patient did not breathe): the target reached in any phase but the
-        // scenario's correct hold, and the tissue the breathing carried past the needle.
-        "target_reached_while_breathing" => flag(
-            m.breathing
-                .as_ref()
-                .is_some_and(|b| b.target_reached_phase.is_some_and(|p| p != b.correct_phase)),
-        ),
-        "breathing_tissue_slide_mm" => m.breathing.as_ref().map_or(0.0, |b| b.tissue_slide_mm),
-        // Palpation (0 when the finger never touched the skin).
-        "intercostal_spaces_found" => m.palpation.as_ref().map_or(0.0, |p| p.spaces_found as f64),
-        "intercostal_spaces_missed" => m
-            .palpation
-            .as_ref()
-            .map_or(0.0, |p| p.spaces_crossed.saturating_sub(p.spaces_found) as f64),
-        "palpation_coverage" => m.palpation.as_ref().map_or(0.0, |p| p.coverage),
-        "palpation_time_s" => m.palpation_time_s,
-        // Ultrasound survey (a target never shown takes the whole session to its first view).
-        "target_not_scanned" => flag(!m.ultrasound.as_ref().is_some_and(|u| u.target_scanned)),
-        "time_to_target_view_s" => m
-            .ultrasound
-            .as_ref()
-            .and_then(|u| u.time_to_target_view_s)
-            .unwrap_or(m.time_total_s),
-        "good_contact_time_s" => m.ultrasound.as_ref().map_or(0.0, |u| u.good_contact_time_s),
-        "poor_contact_share" => m.ultrasound.as_ref().map_or(1.0, |u| {
-            if m.ultrasound_time_s > 0.0 {
-                (1.0 - u.good_contact_time_s / m.ultrasound_time_s).clamp(0.0, 1.0)
-            } else {
-                1.0
-            }
-        }),
-        _ => return None,
-    })
-}
-
 /// One deduction applied to a grade.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Applied {
@@ -399,7 +270,7 @@ pub struct Grade {
     pub rubric: String,
     pub rubric_version: u32,
     pub physics_version: u32,
-    /// Requirements not met, in words (from the table of `reasons`).
+    /// Requirements not met, in words (from the table of `metric_words`).
     pub failed: Vec<String>,
     /// The same requirements, as numbers.
     #[serde(default)]
@@ -641,7 +512,7 @@ impl Rubric {
             let below = q.min.is_some_and(|min| v < min);
             let above = q.max.is_some_and(|max| v > max);
             if below || above {
-                let info = crate::reasons::metric_info(&q.metric).expect("every rubric metric has words (tested)");
+                let info = crate::metric_words::metric_info(&q.metric).expect("every rubric metric has words (tested)");
                 failed.push(info.unmet(v, q.min, q.max));
                 unmet.push(Unmet {
                     metric: q.metric.clone(),

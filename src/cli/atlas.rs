@@ -279,7 +279,7 @@ pub fn run(cmd: AtlasCommand) -> anyhow::Result<()> {
         }
         AtlasCommand::Validate(a) => validate(&a.dir),
         AtlasCommand::AttachMotion(a) => {
-            let atlas = stylet_atlas::motion::attach_measured(
+            let atlas = stylet_atlas::attach_motion::attach_measured(
                 &a.dir,
                 &a.a1,
                 a.a2.as_deref(),

@@ -20,7 +20,7 @@ use stylet_service::traces::review_trace;
 use crate::auth::{PageError, Viewer, encode_query, fail};
 use crate::layout::{page, pager, score_text, short_time};
 use crate::pages::instructors::outcome_badge;
-use crate::pages::review::{require_scored, visible_session};
+use crate::session_access::{require_scored, visible_session};
 
 /// Sessions on one chart at most (more lines cannot be told apart).
 pub const MAX_COMPARED: usize = 4;

@@ -16,7 +16,7 @@ use maud::{Markup, PreEscaped, html};
 use stylet_scoring::rubric::{Rubric, metric_value};
 use stylet_scoring::{Outcome, ReviewTrace, ScoreReport, metric_label};
 use stylet_service::AppState;
-use stylet_service::api::{check_comment, check_comment_time, check_override, may_review, may_see, reviewable};
+use stylet_service::api::{check_comment, check_comment_time, check_override, may_review, reviewable};
 use stylet_service::store::{Role, SessionRow, SessionStatus};
 use stylet_service::traces::review_trace;
 
@@ -24,29 +24,7 @@ use crate::auth::{PageError, Viewer, check_csrf, fail};
 use crate::charts::{comment_notes, depth_chart, force_chart, inline_svg, puncture_peaks};
 use crate::figures::Figure;
 use crate::layout::{csrf_field, page, refreshing_page, result_badge, short_time, status_badge, verified_badge};
-
-/// The session `id` if the viewer may see it (404 otherwise: whether it exists is private).
-pub async fn visible_session(s: &AppState, v: &Viewer, id: &str) -> Result<SessionRow, PageError> {
-    let not_found = || fail(StatusCode::NOT_FOUND, format!("no session {id}"));
-    let (row, trainee_id) = s.store.session(id).await?.ok_or_else(not_found)?;
-    if !may_see(s, &v.user, &trainee_id).await? {
-        return Err(not_found());
-    }
-    Ok(row)
-}
-
-/// Figures come from the scoring replay; until it is done (or when it failed) there are none,
-/// and a page must not start another replay of its own.
-pub fn require_scored(row: &SessionRow) -> Result<(), PageError> {
-    if row.status == SessionStatus::Scored {
-        Ok(())
-    } else {
-        Err(fail(
-            StatusCode::CONFLICT,
-            format!("session {} is {}: its figures come with its score", row.id, row.status),
-        ))
-    }
-}
+use crate::session_access::{require_scored, visible_session};
 
 /// The review's query: `?tick=N` shows the player's frames at tick N (the key moments' links,
 /// for browsers without JavaScript).

@@ -26,7 +26,7 @@ use stylet_service::AppState;
 use stylet_service::store::SessionRow;
 
 use crate::auth::{PageError, Viewer, fail};
-use crate::pages::review::{require_scored, visible_session};
+use crate::session_access::{require_scored, visible_session};
 use frames::{AtlasDrawing, FrameCache, FrameView};
 use states::ReplayStates;
 

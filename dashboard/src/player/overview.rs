@@ -24,7 +24,7 @@ use stylet_service::traces::review_trace;
 
 use super::{DrawError, draw_turn, drawing, frame_cache, internal, png_response};
 use crate::auth::{PageError, Viewer, fail};
-use crate::pages::review::{require_scored, visible_session};
+use crate::session_access::{require_scored, visible_session};
 
 /// The overview's frame size.
 pub const OVERVIEW_SIZE: (u32, u32) = (480, 360);

@@ -19,6 +19,7 @@ pub mod replay_cursor;
 pub mod service_client;
 pub mod session;
 pub mod tablet;
+pub mod upload;
 pub mod view_worker;
 pub mod views;
 #[cfg(feature = "window")]

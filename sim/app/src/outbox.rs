@@ -13,15 +13,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
-use crate::service_client::UploadReply;
-
-/// Largest session file the outbox takes (the service's default upload limit is 64 MiB).
-pub const MAX_SESSION_BYTES: u64 = 256 << 20;
-
-/// Something that uploads a session file (the service client; tests use others).
-pub trait Uploader {
-    fn upload(&self, session: &[u8]) -> UploadReply;
-}
+use crate::upload::{MAX_SESSION_BYTES, UploadReply, Uploader};
 
 /// Errors of the outbox's own files.
 #[derive(Debug, thiserror::Error)]

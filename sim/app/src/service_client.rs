@@ -6,25 +6,13 @@ use std::time::Duration;
 
 use serde_json::Value;
 
+use crate::upload::{MAX_SESSION_BYTES, Uploader};
+
+/// What the service said to an upload, also under this module's name.
+pub use crate::upload::UploadReply;
+
 /// Longest reply body read from the service (its JSON answers are small).
 const MAX_REPLY_BYTES: u64 = 1 << 20;
-
-/// What the service said to an upload.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum UploadReply {
-    /// Stored (201) or already stored before (200): the session's id on the service.
-    Accepted { id: String, new: bool },
-    /// The service refused the file itself (400, 403, 413, 415, 422): uploading it again will
-    /// not help. The service's reason.
-    Refused { status: u16, reason: String },
-    /// The token is missing, expired or revoked (401): log in again.
-    Unauthorized { reason: String },
-    /// The account may not upload (403 without a file problem: a disabled account, a token of
-    /// the wrong scope): nothing is moved aside; the next round tries again.
-    Forbidden { reason: String },
-    /// The service is down, overloaded or unreachable: try again later.
-    Unavailable { reason: String },
-}
 
 /// Errors of fetching a session file.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -156,7 +144,7 @@ impl ServiceClient {
             }
             Err(ureq::Error::Transport(t)) => return Err(FetchError::Unavailable(t.to_string())),
         };
-        let limit = crate::outbox::MAX_SESSION_BYTES;
+        let limit = MAX_SESSION_BYTES;
         let mut bytes = Vec::new();
         resp.into_reader()
             .take(limit + 1)
@@ -312,7 +300,7 @@ impl std::fmt::Debug for TokenUploader {
     }
 }
 
-impl crate::outbox::Uploader for TokenUploader {
+impl Uploader for TokenUploader {
     fn upload(&self, session: &[u8]) -> UploadReply {
         self.client.upload(&self.token, session)
     }

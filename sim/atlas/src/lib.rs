@@ -6,6 +6,7 @@
 //! (NIfTI + label maps such as TotalSegmentator output, and DICOM series behind the `dicom`
 //! feature).
 
+pub mod attach_motion;
 pub mod cache;
 pub mod difficulty;
 pub mod import;

@@ -14,6 +14,9 @@ use stylet_physics::{
 /// The atlas format version this code reads and writes.
 pub const FORMAT_VERSION: u32 = 1;
 
+/// The manifest's file name inside an atlas directory.
+pub const MANIFEST_FILE: &str = "atlas.toml";
+
 /// Why an `atlas.toml`, a scenario file or a recipe's labels fail their checks: the section and
 /// the value that is wrong, so the atlas author knows what to fix. The message is the one shown
 /// after the file's path.

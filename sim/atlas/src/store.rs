@@ -14,8 +14,9 @@ use crate::cache::{self, CacheMode, CacheStatus};
 use crate::manifest::{self, FORMAT_VERSION, Manifest, ManifestError, PathProblem, ThresholdsToml};
 use crate::{AtlasError, nifti_io};
 
-/// The manifest's file name inside an atlas directory.
-pub const MANIFEST_FILE: &str = "atlas.toml";
+/// The manifest's file name, also under this module's name.
+pub use crate::manifest::MANIFEST_FILE;
+
 /// Largest `atlas.toml` we read.
 const MAX_MANIFEST_BYTES: u64 = 4 << 20;
 

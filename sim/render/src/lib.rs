@@ -3,18 +3,21 @@
 //! One scene description ([`scene`]) drawn by two renderers: this crate's CPU reference
 //! (deterministic, rayon; the oracle in tests and what the server draws replays with) and the
 //! wgpu renderer in `stylet-render-gpu` (what the desktop simulator uses), so the service and the
-//! scoring workers never link wgpu. Modules: [`scene`] (camera, light, clip plane, tagging,
-//! quality, hooks), [`transfer`] (eq. 3.2.2), [`transfer_table`] (what the ray loops read), [`volume`] (the atlas prepared for rendering),
+//! scoring workers never link wgpu. Modules: [`scene`] (clip plane, tagging, quality, hooks,
+//! and the [`camera`] and [`light`] it holds), [`transfer`] (eq. 3.2.2), [`transfer_table`] (what the ray loops read), [`volume`] (the atlas prepared for rendering),
 //! [`tools`] (needle, finger, probes), [`shadow`] (their shadows, Alg. 3.1/3.2), [`image`]
 //! (pixels, PNG, difference statistics), [`mpr`] (slices), [`annotate`] (tip marker, scale bar,
 //! letters on slices), [`xray`] (the radiograph of a C-arm, §3.3), [`ultrasound`] (B-mode and colour Doppler, §3.4), [`synthetic`] (small atlases from functions, for tests), [`figure`] (the atlas figure of `stylet atlas inspect` and the review's slices), [`corridor`] (the expert corridor) and [`overview`] (the review's turntable of a whole attempt); [`huge_pages`] asks Linux for 2 MiB pages under the volumes the ray caster reads at random.
 
 pub mod annotate;
+pub mod camera;
 pub mod corridor;
 pub mod figure;
 pub mod fonts;
 pub mod huge_pages;
 pub mod image;
+pub mod index_map;
+pub mod light;
 pub mod mpr;
 pub mod overview;
 pub mod presets;

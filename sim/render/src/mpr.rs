@@ -90,7 +90,7 @@ pub struct Slice {
     pub center: DVec3,
     /// World position of pixel (0, 0)'s centre.
     pub corner: DVec3,
-    /// The slice's geometry and window (for [`crate::annotate`]).
+    /// The slice's geometry and window (for the overlays of `annotate.rs`).
     pub spec: SliceSpec,
 }
 

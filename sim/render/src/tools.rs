@@ -7,6 +7,8 @@
 use stylet_physics::ProbeKind;
 use stylet_physics::glam::{Quat, Vec3};
 
+use crate::light::Light;
+
 /// The needle: nodes from hub to tip (mm, world space), outer diameter and the hub's size.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NeedleShape {
@@ -330,7 +332,7 @@ pub fn nearest_hit(prims: &[Primitive], origin: Vec3, dir: Vec3, t_max: f32) -> 
 /// Phong shading of a tool hit (docs/rendering.md "Tools"): with N the outward normal,
 /// L = light.toward_light, V = −view_dir, H = normalize(L + V):
 /// rgb·(ambient + diffuse·max(N·L, 0)) + specular·max(N·H, 0)^shininess, clamped to 0 … 1.
-pub fn shade(hit: &ToolHit, light: &crate::scene::Light, view_dir: Vec3) -> Vec3 {
+pub fn shade(hit: &ToolHit, light: &Light, view_dir: Vec3) -> Vec3 {
     let n = hit.normal;
     let l = light.toward_light;
     let h = (l - view_dir).normalize_or_zero();

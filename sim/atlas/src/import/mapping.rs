@@ -1,4 +1,4 @@
-//! The user's corrections to the default PTCD mapping of [`super::auto`] (`stylet atlas new
+//! The user's corrections to the default PTCD mapping of `auto.rs` (`stylet atlas new
 //! --map CSV`, docs/atlas.md "New patients"): per structure name, the atlas label it becomes (by
 //! id or name: `liver`, `portal vein`, `kidney`, …), `heuristic` (left to the heuristic h(x, d))
 //! or `heuristic-bone` (left to the heuristic and a bone the window search must not cross).
