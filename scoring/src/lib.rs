@@ -6,20 +6,23 @@
 //! `stylet-service`.
 
 pub mod benchmark;
+pub mod metric_words;
 pub mod metrics;
 pub mod probe_view;
 pub mod reasons;
 pub mod replay;
 pub mod rubric;
+pub mod rubric_metrics;
 pub mod score;
 pub mod smoke;
 pub mod target;
 pub mod trace;
 
 pub use benchmark::Benchmark;
+pub use metric_words::{MetricInfo, metric_label};
 pub use metrics::{MetricParams, Metrics, PalpationMetrics, RiskHit, UltrasoundMetrics};
-pub use reasons::{MetricInfo, Outcome, metric_label, reasons};
-pub use replay::{Divergence, ReplayError, ReplayReport, Replayer, replay};
+pub use reasons::{Outcome, reasons};
+pub use replay::{Divergence, ReplayError, ReplayReport, Replayer, StepToError, replay};
 pub use rubric::{Difficulty, Grade, GradeError, Rubric, RubricError, UnknownDifficulty, Unmet};
 pub use score::{ScoreError, ScoreReport, Scorer, ScorerError};
 pub use stylet_atlas::Exercise;

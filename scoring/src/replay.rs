@@ -55,6 +55,22 @@ pub enum ReplayError {
     Simulation(#[source] SimError),
 }
 
+/// Why [`Replayer::step_to`] cannot replay to a tick. The replayer is left where it was.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum StepToError {
+    /// The tick was replayed already: a replay only goes forward (to go back, start again or
+    /// step on from an earlier clone).
+    #[error("tick {tick} has been replayed already; the replay is at tick {next}")]
+    Passed { tick: u64, next: u64 },
+    /// The recording ends before the tick: it holds the ticks before `end`.
+    #[error("tick {tick} is beyond the recording, which ends before tick {end}")]
+    Beyond { tick: u64, end: u64 },
+    /// The recorded ticks have a gap at `at` (ticks dropped while recording), before the tick: the
+    /// state after the gap cannot be reproduced, so the replay reaches the ticks before `at` only.
+    #[error("the recording has a gap at tick {at}, before tick {tick}")]
+    Gap { tick: u64, at: u64 },
+}
+
 /// The device input of a recorded tick (pose and buttons exactly as recorded, plus its events).
 pub fn tick_input(t: &TickRecord, events: Vec<Event>) -> TickInput {
     let [w, x, y, z] = t.orientation;
@@ -129,8 +145,9 @@ pub fn replay(
     Ok(r.report())
 }
 
-/// A replay one tick at a time (the scorer runs it to the end; the replay viewer steps and
-/// seeks through it). Each step feeds the recorded pose, buttons and events of the next tick to
+/// A replay one tick at a time (the scorer runs it to the end; `stylet render --at`, the
+/// dashboard's player and the simulator's replay viewer replay it to a moment with
+/// [`Replayer::step_to`]). Each step feeds the recorded pose, buttons and events of the next tick to
 /// `Simulation::step` and checks the outputs and digests against the recording.
 ///
 /// A clone (with a shared session, `S = Arc<Session>`) is a snapshot: it copies the simulation
@@ -263,6 +280,48 @@ impl<S: Borrow<Session>> Replayer<S> {
         Some((input, out))
     }
 
+    /// Replays on until `tick` has been replayed and returns its step (input and replayed output),
+    /// the same bits as stepping there one tick at a time. When the replay cannot get there (a
+    /// tick replayed already, beyond the recording or after a gap in it) it replays nothing and
+    /// says why.
+    pub fn step_to(&mut self, tick: u64) -> Result<(TickInput, TickOutput), StepToError> {
+        self.reaches(tick)?;
+        while let Some(step) = self.step() {
+            if step.1.tick == tick {
+                return Ok(step);
+            }
+        }
+        // Not reached: `reaches` found the recorded ticks up to `tick` following one another.
+        Err(StepToError::Gap {
+            tick,
+            at: self.sim.tick(),
+        })
+    }
+
+    /// Whether stepping on reaches `tick`: the recorded ticks from the next one to `tick` follow
+    /// one another from the simulation's tick, as [`Self::step`] requires.
+    fn reaches(&self, tick: u64) -> Result<(), StepToError> {
+        let next = self.sim.tick();
+        if tick < next {
+            return Err(StepToError::Passed { tick, next });
+        }
+        let mut expected = next;
+        for t in self.session.borrow().ticks.iter().skip(self.next) {
+            if expected > tick {
+                return Ok(());
+            }
+            if t.tick != expected {
+                return Err(StepToError::Gap { tick, at: expected });
+            }
+            expected += 1;
+        }
+        if expected > tick {
+            Ok(())
+        } else {
+            Err(StepToError::Beyond { tick, end: expected })
+        }
+    }
+
     /// Adds `out` to the digest of its block when the file rounded the outputs of `tick` (and
     /// says so), checking the digest at the block's last tick.
     fn check_outputs(&mut self, tick: u64, out: &TickOutput) -> bool {
@@ -329,5 +388,129 @@ impl<S: Borrow<Session>> Replayer<S> {
             ticks: self.ticks,
             digests_checked: self.digests_checked,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stylet_devices::script::{parse, scripted_simulation};
+    use stylet_recorder::{Recording, SessionInfo, WriterOptions};
+
+    /// A 3-second needle session with an event, recorded on a coarse phantom and read back.
+    fn recorded() -> (Session, Arc<PunctureAtlas>) {
+        let dir = tempfile::tempdir().unwrap();
+        let p = stylet_atlas::phantom::generate(&stylet_atlas::phantom::PhantomConfig {
+            dims: [64, 64, 50],
+            spacing_mm: [6.0; 3],
+            ..Default::default()
+        })
+        .unwrap();
+        stylet_atlas::write(&dir.path().join("atlas"), &p.manifest, &p.ct, &p.partial).unwrap();
+        let atlas = stylet_atlas::load(&dir.path().join("atlas")).unwrap();
+        let script = parse(
+            "stylet-script 1\ndevice premium\ntool needle gauge 18 length 150 stylet in\nend 3\n\
+             at 0 along intercostal-10-11 -15\nat 2 along intercostal-10-11 40\nat 2.5 event stylet-remove\n",
+        )
+        .unwrap();
+        let (mut sim, mut device) =
+            scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
+        let info = SessionInfo {
+            trainee: "t",
+            scenario: "step-to",
+            difficulty: "beginner",
+            seed: 0,
+            atlas_id: &atlas.manifest.name,
+            atlas_hash: &atlas.content_hash,
+        };
+        let path = dir.path().join("session.mcap");
+        let header = stylet_recorder::recording::header(&sim, &info);
+        let options = WriterOptions {
+            fsync: false,
+            ..Default::default()
+        };
+        let mut rec = Recording::start(&path, &header, false, options).unwrap();
+        stylet_devices::run_headless(&mut sim, &mut device, |i, o, s| rec.tick(i, o, s));
+        rec.finish().unwrap();
+        (stylet_recorder::reader::read(&path).unwrap(), Arc::clone(&atlas.model))
+    }
+
+    /// What a step leaves: its input, its output and the simulation's state digest, as bits.
+    fn bits(step: &(TickInput, TickOutput), sim: &Simulation) -> String {
+        format!("{:?} {:?} {:016x}", step.0, step.1, sim.state_digest())
+    }
+
+    #[test]
+    fn stepping_to_a_tick_gives_the_bits_of_stepping_there_one_tick_at_a_time() {
+        let (session, atlas) = recorded();
+        let last = session.ticks.last().unwrap().tick;
+        assert_eq!(last, 2999);
+        assert!(!session.events.is_empty() && !session.digests.is_empty());
+        let wanted = [0, 1, 999, 1000, 2500, last];
+        let mut straight = Replayer::new(&session, Arc::clone(&atlas)).unwrap();
+        let mut expected = Vec::new();
+        while let Some(step) = straight.step() {
+            if wanted.contains(&step.1.tick) {
+                expected.push(bits(&step, straight.simulation()));
+            }
+        }
+        assert!(straight.report().replay_verified);
+
+        let mut r = Replayer::new(&session, Arc::clone(&atlas)).unwrap();
+        let mut snapshot = None;
+        for (&tick, expected) in wanted.iter().zip(&expected) {
+            let step = r.step_to(tick).unwrap();
+            assert_eq!(&bits(&step, r.simulation()), expected, "tick {tick}");
+            if tick == 999 {
+                snapshot = Some(r.clone());
+            }
+        }
+        assert_eq!(r.report(), straight.report());
+
+        // On from a clone: the same bits as on from the original.
+        let mut snapshot = snapshot.unwrap();
+        let step = snapshot.step_to(2500).unwrap();
+        assert_eq!(bits(&step, snapshot.simulation()), expected[4]);
+    }
+
+    #[test]
+    fn a_tick_the_replay_cannot_reach_is_a_typed_error_and_replays_nothing() {
+        let (mut session, atlas) = recorded();
+        let mut r = Replayer::new(&session, Arc::clone(&atlas)).unwrap();
+        assert_eq!(r.step_to(3000), Err(StepToError::Beyond { tick: 3000, end: 3000 }));
+        assert_eq!(r.ticks(), 0);
+        let ten = r.step_to(10).unwrap();
+        assert_eq!(r.step_to(5), Err(StepToError::Passed { tick: 5, next: 11 }));
+        assert_eq!(r.step_to(10), Err(StepToError::Passed { tick: 10, next: 11 }));
+        assert_eq!(r.ticks(), 11);
+        let mut straight = Replayer::new(&session, Arc::clone(&atlas)).unwrap();
+        let mut at_ten = None;
+        while let Some(step) = straight.step() {
+            if step.1.tick == 10 {
+                at_ten = Some(bits(&step, straight.simulation()));
+                break;
+            }
+        }
+        assert_eq!(Some(bits(&ten, r.simulation())), at_ten);
+
+        // Ticks 1500 … 1599 dropped while recording.
+        session.ticks.retain(|t| !(1500..1600).contains(&t.tick));
+        let session = Arc::new(session);
+        let mut r = Replayer::new(Arc::clone(&session), Arc::clone(&atlas)).unwrap();
+        for tick in [1550, 1600, 2999, 3000] {
+            assert_eq!(r.step_to(tick), Err(StepToError::Gap { tick, at: 1500 }), "tick {tick}");
+            assert_eq!(r.ticks(), 0);
+        }
+        assert_eq!(r.step_to(1499).unwrap().1.tick, 1499);
+        assert_eq!(r.step_to(1600), Err(StepToError::Gap { tick: 1600, at: 1500 }));
+        assert_eq!(r.ticks(), 1500);
+        assert!(r.report().replay_verified);
+        // Stepping on finds the gap, as the scorer's replay does.
+        assert!(r.step().is_none());
+        assert_eq!(
+            r.report().divergence.map(|d| (d.tick, d.stream)),
+            Some((1500, "ticks".into()))
+        );
+        assert_eq!(r.step_to(1600), Err(StepToError::Gap { tick: 1600, at: 1500 }));
     }
 }

@@ -231,7 +231,7 @@ fn view_name(v: View) -> &'static str {
 
 /// Reads a session, checks it belongs to `atlas`, and replays it up to tick round(at_s · rate).
 fn replay_to(atlas: &stylet_atlas::Atlas, path: &Path, at_s: f64) -> anyhow::Result<Moment> {
-    let mut session = stylet_recorder::reader::recover(path)
+    let session = stylet_recorder::reader::recover(path)
         .map_err(|e| anyhow::anyhow!("cannot read the session {}: {e}", path.display()))?;
     let h = &session.header;
     if h.atlas_hash != atlas.content_hash {
@@ -250,7 +250,7 @@ fn replay_to(atlas: &stylet_atlas::Atlas, path: &Path, at_s: f64) -> anyhow::Res
         bail!("--at {at_s}: the moment must be a number of seconds ≥ 0");
     }
     let tick = (at_s * h.tick_rate_hz as f64).round() as u64;
-    let Some(last) = session.ticks.iter().position(|t| t.tick == tick) else {
+    if !session.ticks.iter().any(|t| t.tick == tick) {
         bail!(
             "--at {at_s} s is beyond the session {} ({duration_s:.3} s recorded{})",
             path.display(),
@@ -260,22 +260,21 @@ fn replay_to(atlas: &stylet_atlas::Atlas, path: &Path, at_s: f64) -> anyhow::Res
                 ""
             }
         );
-    };
-    // The ticks after the moment are not needed: replaying a prefix is bit-exact for the prefix.
-    session.ticks.truncate(last + 1);
-    let mut moment = None;
+    }
     let labels = SessionLabels {
         scenario: h.scenario.clone(),
         difficulty: h.difficulty.parse()?,
         seed: h.seed,
     };
-    let report = stylet_scoring::replay(&session, Arc::clone(&atlas.model), &mut |input, out, sim| {
-        if out.tick == tick {
-            moment = Some(Moment::of_simulation(sim, input, out, &labels));
-        }
-    })
-    .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    if let Some(d) = &report.divergence
+    let mut replayer = stylet_scoring::Replayer::new(&session, Arc::clone(&atlas.model))
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let step = replayer.step_to(tick);
+    if step.is_err() {
+        // The moment is recorded, so a gap comes before it: replay up to the gap, so that the
+        // warning names the first difference there or before.
+        while replayer.step().is_some() {}
+    }
+    if let Some(d) = &replayer.report().divergence
         && d.tick <= tick
     {
         eprintln!(
@@ -285,12 +284,13 @@ fn replay_to(atlas: &stylet_atlas::Atlas, path: &Path, at_s: f64) -> anyhow::Res
             d.stream
         );
     }
-    moment.ok_or_else(|| {
+    let (input, out) = step.map_err(|_| {
         anyhow::anyhow!(
             "--at {at_s} s: the session {} cannot be replayed to tick {tick} (the recording has a gap before it)",
             path.display()
         )
-    })
+    })?;
+    Ok(Moment::of_simulation(replayer.simulation(), &input, &out, &labels))
 }
 
 /// A standard plane through the focus covering the whole atlas, scaled to fit the image, with the

@@ -80,15 +80,8 @@ impl ReplayStates {
     pub fn moment_at(&self, tick: u64) -> Option<Moment> {
         let i = self.snapshots.partition_point(|(next, _)| *next <= tick);
         let mut replayer = self.snapshots.get(i.checked_sub(1)?)?.1.clone();
-        while let Some((input, out)) = replayer.step() {
-            if out.tick == tick {
-                return Some(Moment::of_simulation(replayer.simulation(), &input, &out, &self.labels));
-            }
-            if out.tick > tick {
-                return None;
-            }
-        }
-        None
+        let (input, out) = replayer.step_to(tick).ok()?;
+        Some(Moment::of_simulation(replayer.simulation(), &input, &out, &self.labels))
     }
 
     /// Snapshots kept.

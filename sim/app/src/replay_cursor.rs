@@ -10,7 +10,7 @@ use stylet_atlas::Atlas;
 use stylet_physics::{PunctureAtlas, TickInput, TickOutput};
 use stylet_recorder::reader::Session;
 use stylet_render::views::{Moment, SessionLabels};
-use stylet_scoring::{ReplayError, Replayer, ReviewTrace, Rubric, ScoreReport, Scorer};
+use stylet_scoring::{ReplayError, Replayer, ReviewTrace, Rubric, ScoreReport, Scorer, StepToError};
 
 /// Why a session cannot be opened in the viewer.
 #[derive(Debug, thiserror::Error)]
@@ -148,16 +148,25 @@ impl ReplayCursor {
             self.replayer = Replayer::new(Arc::clone(&self.session), Arc::clone(&self.model))?;
             self.last = None;
         }
-        let mut left = budget;
-        while self.position() < target && left > 0 {
-            match self.replayer.step() {
-                Some(step) => self.last = Some(step),
-                None => {
-                    self.end = self.position();
-                    return Ok(true);
+        let goal = target.min(self.position().saturating_add(budget));
+        if goal <= self.position() {
+            return Ok(self.position() >= target);
+        }
+        // Position n shows tick n − 1 (a replay starts at tick 0).
+        match self.replayer.step_to(goal - 1) {
+            Ok(step) => self.last = Some(step),
+            // Goal − 1 is at or after the position: never behind the replay.
+            Err(StepToError::Passed { .. }) => {}
+            Err(StepToError::Gap { at: reach, .. } | StepToError::Beyond { end: reach, .. }) => {
+                // The replay stops before the goal: it goes as far as it can, which is the end.
+                if reach > self.position()
+                    && let Ok(step) = self.replayer.step_to(reach - 1)
+                {
+                    self.last = Some(step);
                 }
+                self.end = self.position();
+                return Ok(true);
             }
-            left -= 1;
         }
         Ok(self.position() >= target)
     }
@@ -187,4 +196,84 @@ fn key_moments(trace: &ReviewTrace, rate_hz: f64, total: u64) -> Vec<KeyMoment> 
             label: m.label,
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stylet_devices::script::{parse, scripted_simulation};
+    use stylet_recorder::{Recording, SessionInfo, WriterOptions};
+
+    /// A coarse phantom and a 2-second needle session on it, ticks 1200 … 1299 dropped.
+    fn gapped_session() -> (Atlas, Session) {
+        let dir = tempfile::tempdir().unwrap();
+        let p = stylet_atlas::phantom::generate(&stylet_atlas::phantom::PhantomConfig {
+            dims: [64, 64, 50],
+            spacing_mm: [6.0; 3],
+            ..Default::default()
+        })
+        .unwrap();
+        stylet_atlas::write(&dir.path().join("atlas"), &p.manifest, &p.ct, &p.partial).unwrap();
+        let atlas = stylet_atlas::load(&dir.path().join("atlas")).unwrap();
+        let script = parse(
+            "stylet-script 1\ndevice premium\ntool needle gauge 18 length 150 stylet in\nend 2\n\
+             at 0 along intercostal-10-11 -15\nat 2 along intercostal-10-11 30\n",
+        )
+        .unwrap();
+        let (mut sim, mut device) =
+            scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
+        let info = SessionInfo {
+            trainee: "t",
+            scenario: &atlas.manifest.scenarios[0].name,
+            difficulty: "beginner",
+            seed: 0,
+            atlas_id: &atlas.manifest.name,
+            atlas_hash: &atlas.content_hash,
+        };
+        let path = dir.path().join("session.mcap");
+        let header = stylet_recorder::recording::header(&sim, &info);
+        let options = WriterOptions {
+            fsync: false,
+            ..Default::default()
+        };
+        let mut rec = Recording::start(&path, &header, false, options).unwrap();
+        stylet_devices::run_headless(&mut sim, &mut device, |i, o, s| rec.tick(i, o, s));
+        rec.finish().unwrap();
+        let mut session = stylet_recorder::reader::read(&path).unwrap();
+        session.ticks.retain(|t| !(1200..1300).contains(&t.tick));
+        (atlas, session)
+    }
+
+    /// The cursor steps at most the budget, goes back by replaying from the start, and finds the
+    /// gap only when asked to go past it, stopping there; its state is the straight replay's.
+    #[test]
+    fn seeking_steps_within_the_budget_and_stops_at_a_gap() {
+        let (atlas, session) = gapped_session();
+        let mut straight = Replayer::new(&session, Arc::clone(&atlas.model)).unwrap();
+        let digests: Vec<u64> =
+            std::iter::from_fn(|| straight.step().map(|_| straight.simulation().state_digest())).collect();
+        assert_eq!(digests.len(), 1200);
+        let session = Arc::new(session);
+        let mut c = ReplayCursor::of_session(&atlas, Arc::clone(&session)).unwrap();
+        let at = |c: &ReplayCursor| (c.position(), c.end(), c.last().map(|(_, o)| o.tick), c.state_digest());
+
+        assert_eq!(c.seek(1000, 500), Ok(false));
+        assert_eq!(at(&c), (500, 1900, Some(499), digests[499]));
+        assert_eq!(c.seek(1000, 500), Ok(true));
+        assert_eq!(at(&c), (1000, 1900, Some(999), digests[999]));
+        assert_eq!(c.seek(10, 500), Ok(true));
+        assert_eq!(at(&c), (10, 1900, Some(9), digests[9]));
+        // The budget runs out at the gap: the next seek finds it.
+        assert_eq!(c.seek(1900, 1190), Ok(false));
+        assert_eq!(at(&c), (1200, 1900, Some(1199), digests[1199]));
+        assert_eq!(c.seek(1900, 500), Ok(true));
+        assert_eq!(at(&c), (1200, 1200, Some(1199), digests[1199]));
+        assert_eq!(c.seek(1900, 500), Ok(true));
+        assert_eq!(at(&c), (1200, 1200, Some(1199), digests[1199]));
+
+        // Past the gap within one seek's budget: up to the gap at once.
+        let mut c = ReplayCursor::of_session(&atlas, session).unwrap();
+        assert_eq!(c.seek(1900, 5000), Ok(true));
+        assert_eq!(at(&c), (1200, 1200, Some(1199), digests[1199]));
+    }
 }
