@@ -108,12 +108,18 @@ pub async fn all_atlases(s: &AppState) -> Result<Vec<CatalogueItem>, ApiError> {
 #[utoipa::path(get, path = "/api/atlases", tag = "atlases",
     summary = "The scenario catalogue: every atlas this server takes sessions on",
     responses(
-        (status = 200, description = "the catalogue", body = super::openapi::Catalogue),
+        (status = 200, description = "the catalogue", body = Catalogue),
         (status = 403, description = "an upload-scoped token", body = super::openapi::ErrorBody),
     ),
     security(("cookie" = []), ("token" = [])))]
 pub async fn list(State(s): State<Arc<AppState>>, Reader(_reader): Reader) -> Result<Response, ApiError> {
     Ok(Json(json!({ "atlases": catalogue(&s).await? })).into_response())
+}
+
+/// The scenario catalogue.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct Catalogue {
+    pub atlases: Vec<CatalogueItem>,
 }
 
 /// Who may publish: admins and instructors.
@@ -137,8 +143,8 @@ pub fn may_publish(user: &User) -> Result<(), ApiError> {
     description = "A tar archive of atlas.toml, validation.toml, the two volumes, the record's scripts/*.txt and any measured breathing motion under motion/ (stylet atlas publish makes it). It arrives like an upload (a slot, room on the disk, the minimum rate); then, one publication at a time, the service checks the validation record against the content hash, loads the atlas and runs the smoke test before it keeps it by content hash and lists it. An atlas this server has checked before is taken back without checking it again.",
     request_body(content = Vec<u8>, content_type = "application/x-tar"),
     responses(
-        (status = 201, description = "published (or published again after it was withdrawn)", body = super::openapi::AtlasAnswer),
-        (status = 200, description = "it was in the catalogue already", body = super::openapi::AtlasAnswer),
+        (status = 201, description = "published (or published again after it was withdrawn)", body = AtlasAnswer),
+        (status = 200, description = "it was in the catalogue already", body = AtlasAnswer),
         (status = 400, description = "empty body, or it ended before its Content-Length", body = super::openapi::ErrorBody),
         (status = 403, description = "not an admin or instructor, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
         (status = 409, description = "the catalogue holds the most atlases this server takes", body = super::openapi::ErrorBody),
@@ -288,7 +294,7 @@ async fn republish(s: &AppState, user: &User, hash: &str) -> Result<Response, Ap
     description = "It takes no new sessions; the sessions recorded on it stay readable, replayable and scored. Publishing it again reinstates it.",
     params(("hash" = String, Path, description = "the atlas' content hash")),
     responses(
-        (status = 200, description = "withdrawn", body = super::openapi::AtlasAnswer),
+        (status = 200, description = "withdrawn", body = AtlasAnswer),
         (status = 403, description = "not an admin, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
         (status = 404, description = "no atlas with this content hash on this server", body = super::openapi::ErrorBody),
         (status = 409, description = "withdrawn already", body = super::openapi::ErrorBody),
@@ -301,6 +307,19 @@ pub async fn unpublish(
 ) -> Result<Response, ApiError> {
     let name = withdraw(&s, &user, &hash).await?;
     Ok(Json(json!({ "content_hash": hash, "name": name, "status": "withdrawn" })).into_response())
+}
+
+/// What became of a publication or a withdrawal: `published` (201), `already_published` (200),
+/// `withdrawn`.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct AtlasAnswer {
+    pub content_hash: String,
+    pub name: String,
+    pub status: String,
+    /// The service's smoke test, one line per script (a new publication).
+    pub smoke: Option<Vec<String>>,
+    /// The atlas as the catalogue lists it (a new publication).
+    pub atlas: Option<CatalogueItem>,
 }
 
 /// Withdraws the atlas `hash` for the admin `user`: no new sessions are accepted on it and it

@@ -339,12 +339,6 @@ impl Catalogue {
         }
         loaded
     }
-
-    /// Bytes of the atlases in the cache now, and how many there are.
-    pub fn resident_now(&self) -> (u64, usize) {
-        let r = self.resident();
-        (r.bytes, r.loaded.len())
-    }
 }
 
 #[cfg(test)]

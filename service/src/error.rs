@@ -120,6 +120,9 @@ impl IntoResponse for ApiError {
     }
 }
 
+/// How long a client refused for a full cap (429) is asked to wait (s).
+pub const RETRY_AFTER_S: u32 = 5;
+
 /// The error of a kind by its status (handlers written before the kinds name the status).
 pub fn err(status: StatusCode, msg: impl Into<String>) -> ApiError {
     let msg = msg.into();
@@ -133,7 +136,7 @@ pub fn err(status: StatusCode, msg: impl Into<String>) -> ApiError {
         StatusCode::UNSUPPORTED_MEDIA_TYPE => ApiError::UnsupportedMediaType(msg),
         StatusCode::TOO_MANY_REQUESTS => ApiError::Throttled {
             message: msg,
-            retry_after_s: super::slots::RETRY_AFTER_S,
+            retry_after_s: RETRY_AFTER_S,
         },
         StatusCode::SERVICE_UNAVAILABLE => ApiError::Unavailable(msg),
         status => ApiError::Other(status, msg),

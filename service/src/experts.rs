@@ -155,7 +155,7 @@ pub async fn set_expert(s: &AppState, user: &User, id: &str, expert: bool) -> Re
     description = "It must be scored, complete and its replay verified; at most 50 per scenario.",
     params(("id" = String, Path, description = "session id")),
     responses(
-        (status = 201, description = "marked", body = super::openapi::ExpertAnswer),
+        (status = 201, description = "marked", body = ExpertAnswer),
         (status = 403, description = "not a reviewer of this trainee, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
         (status = 404, description = "no such session", body = super::openapi::ErrorBody),
         (status = 409, description = "not scored, incomplete, not verified, or the scenario has the most references", body = super::openapi::ErrorBody),
@@ -175,7 +175,7 @@ pub async fn mark(
     summary = "Unmark an expert reference (the trainee's instructors, admins; audited)",
     params(("id" = String, Path, description = "session id")),
     responses(
-        (status = 200, description = "unmarked", body = super::openapi::ExpertAnswer),
+        (status = 200, description = "unmarked", body = ExpertAnswer),
         (status = 403, description = "not a reviewer of this trainee, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
         (status = 404, description = "no such session", body = super::openapi::ErrorBody),
     ),
@@ -189,6 +189,13 @@ pub async fn unmark(
     Ok(Json(json!({ "session": id, "expert": false })).into_response())
 }
 
+/// Whether a session is an expert reference now.
+#[derive(serde::Serialize, utoipa::ToSchema)]
+pub struct ExpertAnswer {
+    pub session: String,
+    pub expert: bool,
+}
+
 /// GET /api/sessions/{id}/benchmark: `{scenario, exercise, experts, metrics: [{metric, mean,
 /// spread}], expert, comparison: [{metric, value, mean, spread, spreads_from_mean}]}`; the
 /// references' session ids (`references`) only for staff (a trainee learns how many there are).
@@ -196,7 +203,7 @@ pub async fn unmark(
     summary = "The expert benchmark of the session's scenario and the session's metrics against it",
     params(("id" = String, Path, description = "session id")),
     responses(
-        (status = 200, description = "the benchmark", body = super::openapi::BenchmarkAnswer),
+        (status = 200, description = "the benchmark", body = BenchmarkAnswer),
         (status = 403, description = "an upload-scoped token", body = super::openapi::ErrorBody),
         (status = 404, description = "no such session, or not yours to see", body = super::openapi::ErrorBody),
     ),
@@ -231,6 +238,22 @@ pub async fn get(
         v["references"] = json!(visible);
     }
     Ok(Json(v).into_response())
+}
+
+/// The expert benchmark of a session's scenario and the session's metrics against it.
+#[derive(serde::Serialize, utoipa::ToSchema)]
+pub struct BenchmarkAnswer {
+    pub scenario: String,
+    pub exercise: String,
+    pub experts: i64,
+    #[schema(value_type = Vec<Object>)]
+    pub metrics: Vec<serde_json::Value>,
+    pub expert: bool,
+    #[schema(value_type = Vec<Object>)]
+    pub comparison: Vec<serde_json::Value>,
+    /// Staff only.
+    #[schema(value_type = Option<Vec<Object>>)]
+    pub references: Option<Vec<serde_json::Value>>,
 }
 
 #[cfg(test)]

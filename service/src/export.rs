@@ -1,7 +1,56 @@
 //! The sessions CSV (docs/api.md "Sessions CSV"): one row per session, for curriculum staff's
-//! spreadsheets. The API and the dashboard serve the same text.
+//! spreadsheets, and its route, `GET /api/export/sessions.csv`. The API and the dashboard serve
+//! the same text.
 
-use super::store::ExportRow;
+use std::sync::Arc;
+
+use axum::extract::{Query, State};
+use axum::http::{StatusCode, header};
+use axum::response::{IntoResponse, Response};
+
+use super::AppState;
+use super::error::{ApiError, err};
+use super::extract::Reader;
+use super::list_query::ListQuery;
+use super::store::{ExportRow, Role};
+
+/// GET /api/export/sessions.csv: one row per session the caller may see (curriculum staff and
+/// admins: all; instructors: their cohorts'), oldest first, filtered like the lists. Trainees use
+/// their progress instead.
+#[utoipa::path(get, path = "/api/export/sessions.csv", tag = "review",
+    summary = "One CSV row per visible session (columns in docs/api.md)",
+    params(ListQuery),
+    responses(
+        (status = 200, description = "the sessions", content_type = "text/csv", body = String),
+        (status = 400, description = "a bad filter", body = super::openapi::ErrorBody),
+        (status = 403, description = "trainees have no export, or an upload-scoped token", body = super::openapi::ErrorBody),
+    ),
+    security(("cookie" = []), ("token" = [])))]
+pub async fn export_csv(
+    State(s): State<Arc<AppState>>,
+    Reader(user): Reader,
+    Query(q): Query<ListQuery>,
+) -> Result<Response, ApiError> {
+    if user.role == Role::Trainee {
+        return Err(err(
+            StatusCode::FORBIDDEN,
+            "the export is for instructors and curriculum staff",
+        ));
+    }
+    let filter = q.filter(&s).await?;
+    let rows = s.store.export_rows(&user, &filter).await?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "text/csv; charset=utf-8"),
+            (
+                header::CONTENT_DISPOSITION,
+                "attachment; filename=\"stylet-sessions.csv\"",
+            ),
+        ],
+        sessions_csv(&rows),
+    )
+        .into_response())
+}
 
 /// The header line; the columns are documented in docs/api.md.
 pub const SESSIONS_CSV_HEADER: &str = "session_id,trainee,cohorts,scenario,difficulty,status,recorded_at,uploaded_at,\

@@ -2,6 +2,12 @@
 //! JSON API over axum that takes session files, validates them with the recorder's reader before
 //! anything is stored, keeps them by content hash, and scores them by replay on a worker pool whose
 //! jobs live in the database (a restart resumes them; a session is never scored twice).
+//!
+//! [`api`] assembles the router from one module per resource, each with its handlers: [`health`],
+//! [`openapi`], [`logins`], [`tokens`], [`users`], [`atlases`], [`upload`] (the whole upload, from
+//! the request to the scoring queue), [`sessions`], [`review`], [`experts`], [`reports`] and
+//! [`export`]. Layers and the connection loop are [`server`]'s; docs/architecture.md lists the
+//! rest.
 
 pub mod access;
 pub mod api;
@@ -13,12 +19,17 @@ pub mod error;
 pub mod experts;
 pub mod export;
 pub mod extract;
+pub mod health;
 pub mod intake;
 pub mod limits;
+pub mod list_query;
 pub mod logins;
 pub mod openapi;
 pub mod publish;
+pub mod reports;
+pub mod review;
 pub mod server;
+pub mod sessions;
 pub mod slots;
 pub mod store;
 pub mod tokens;
@@ -196,7 +207,7 @@ pub async fn serve(
         .await
         .map_err(|e| setup(&format!("cannot bind {}: {e}", config.bind)))?;
     let addr = listener.local_addr().map_err(|e| setup(&e))?;
-    let login_failures = logins::FailedLogins::new(config.limits.login_failure_accounts, api::LOGIN_WINDOW);
+    let login_failures = logins::FailedLogins::new(config.limits.login_failure_accounts, logins::LOGIN_WINDOW);
     let passwords = logins::PasswordPool::new(config.limits.password_threads, config.limits.password_queue);
     let upload_slots = slots::Slots::new(
         "uploads",
@@ -244,7 +255,7 @@ pub async fn serve(
         ))
         .layer(axum::middleware::from_fn_with_state(serving, server::serving))
         .layer(axum::middleware::from_fn(server::security_headers))
-        .layer(axum::middleware::from_fn(api::request_log));
+        .layer(axum::middleware::from_fn(server::request_log));
     server::run(listener, app, &limits).await.map_err(|e| setup(&e))
 }
 

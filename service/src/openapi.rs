@@ -1,9 +1,11 @@
-//! The OpenAPI 3.1 document of the JSON API (`GET /api/openapi.json`), derived from the code:
+//! The OpenAPI 3.1 document of the JSON API and its route (`GET /api/openapi.json`), derived from
+//! the code:
 //! - each handler's `#[utoipa::path]` annotation, next to it, gives its path, parameters, body,
 //!   security and the statuses the handler answers itself, with the schemas of its answers
-//!   (derived from the types it serializes, or the shapes below for answers built in place);
-//! - the router is built from the same annotated handlers ([`crate::api::router`], utoipa-axum),
-//!   so a route cannot be served without being in the document;
+//!   (derived from the types it serializes, or, for answers built in place, shapes declared
+//!   beside the handler); every error answer is [`ErrorBody`];
+//! - the router is built from the same annotated handlers (the API's router, utoipa-axum), so a
+//!   route cannot be served without being in the document;
 //! - [`add_layer_statuses`] adds what the layers around every route can answer
 //!   (docs/security.md): 408 past its deadline, 503 past the cap on requests being served (not
 //!   `/healthz`), and on every route that needs a login 401 and 429 (the account's requests in
@@ -11,13 +13,18 @@
 //!
 //! The service tests validate the server's real answers against this document.
 
+use std::sync::Arc;
+
+use axum::Json;
+use axum::extract::State;
 use serde::Serialize;
 use utoipa::openapi::path::Operation;
 use utoipa::openapi::security::{ApiKey, ApiKeyValue, HttpAuthScheme, HttpBuilder, SecurityScheme};
 use utoipa::openapi::{ContentBuilder, OpenApi, Ref, RefOr, ResponseBuilder};
 use utoipa::{Modify, ToSchema};
 
-use super::store::{Role, SessionStatus};
+use super::AppState;
+use super::store::ImportLineError;
 
 /// The document's frame: title, description, security schemes.
 #[derive(utoipa::OpenApi)]
@@ -65,157 +72,7 @@ pub struct ErrorBody {
 #[derive(Serialize, ToSchema)]
 pub struct ImportRefused {
     pub error: String,
-    pub lines: Vec<super::store::ImportLineError>,
-}
-
-/// `GET /healthz`.
-#[derive(Serialize, ToSchema)]
-pub struct Health {
-    /// "ok".
-    pub status: String,
-}
-
-/// A login: who, and the CSRF token state-changing requests send in `X-CSRF-Token`.
-#[derive(Serialize, ToSchema)]
-pub struct LoginAnswer {
-    pub username: String,
-    pub role: Role,
-    pub csrf_token: String,
-}
-
-/// `{"status": "logged out"}`.
-#[derive(Serialize, ToSchema)]
-pub struct LogoutAnswer {
-    pub status: String,
-}
-
-/// An upload's session: its id and where it is on its way to a score.
-#[derive(Serialize, ToSchema)]
-pub struct UploadAnswer {
-    pub id: String,
-    pub status: SessionStatus,
-}
-
-/// A page of sessions, newest first.
-#[derive(Serialize, ToSchema)]
-pub struct SessionPage {
-    pub sessions: Vec<super::store::SessionLine>,
-    pub total: i64,
-    pub page: i64,
-    pub page_size: i64,
-}
-
-/// `{"deleted": id}`.
-#[derive(Serialize, ToSchema)]
-pub struct Deleted {
-    pub deleted: String,
-}
-
-/// A grade override as stored.
-#[derive(Serialize, ToSchema)]
-pub struct OverrideAnswer {
-    pub session: String,
-    pub score: f64,
-    pub passed: bool,
-    pub reason: String,
-}
-
-/// A comment as stored.
-#[derive(Serialize, ToSchema)]
-pub struct CommentAnswer {
-    pub id: String,
-    pub session: String,
-}
-
-/// A trainee's scored sessions per difficulty (`beginner`, `advanced`, `expert`), each a list of
-/// `{id, uploaded_at, score, passed, …}` in upload order.
-#[derive(Serialize, ToSchema)]
-pub struct Progress {
-    pub trainee: String,
-    #[schema(value_type = Object)]
-    pub progress: serde_json::Value,
-}
-
-/// Per trainee of a cohort: sessions, scored, passed, mean score, last upload.
-#[derive(Serialize, ToSchema)]
-pub struct CohortSummary {
-    pub cohort: String,
-    #[schema(value_type = Vec<Object>)]
-    pub trainees: Vec<serde_json::Value>,
-}
-
-/// A page of accounts, by username.
-#[derive(Serialize, ToSchema)]
-pub struct AccountPage {
-    pub users: Vec<super::store::UserRow>,
-    pub total: i64,
-    pub page: i64,
-    pub page_size: i64,
-}
-
-/// A new account (JSON), or the accounts a CSV import added (`imported`).
-#[derive(Serialize, ToSchema)]
-pub struct AccountAdded {
-    pub username: Option<String>,
-    pub role: Option<Role>,
-    pub cohort: Option<String>,
-    pub imported: Option<Vec<String>>,
-}
-
-/// The caller's API tokens.
-#[derive(Serialize, ToSchema)]
-pub struct TokenList {
-    pub tokens: Vec<super::store::TokenRow>,
-}
-
-/// A new API token: the row and `token`, the secret, shown only here.
-#[derive(Serialize, ToSchema)]
-pub struct NewToken {
-    #[serde(flatten)]
-    pub row: super::store::TokenRow,
-    pub token: String,
-}
-
-/// The scenario catalogue.
-#[derive(Serialize, ToSchema)]
-pub struct Catalogue {
-    pub atlases: Vec<super::atlases::CatalogueItem>,
-}
-
-/// What became of a publication or a withdrawal: `published` (201), `already_published` (200),
-/// `withdrawn`.
-#[derive(Serialize, ToSchema)]
-pub struct AtlasAnswer {
-    pub content_hash: String,
-    pub name: String,
-    pub status: String,
-    /// The service's smoke test, one line per script (a new publication).
-    pub smoke: Option<Vec<String>>,
-    /// The atlas as the catalogue lists it (a new publication).
-    pub atlas: Option<super::atlases::CatalogueItem>,
-}
-
-/// Whether a session is an expert reference now.
-#[derive(Serialize, ToSchema)]
-pub struct ExpertAnswer {
-    pub session: String,
-    pub expert: bool,
-}
-
-/// The expert benchmark of a session's scenario and the session's metrics against it.
-#[derive(Serialize, ToSchema)]
-pub struct BenchmarkAnswer {
-    pub scenario: String,
-    pub exercise: String,
-    pub experts: i64,
-    #[schema(value_type = Vec<Object>)]
-    pub metrics: Vec<serde_json::Value>,
-    pub expert: bool,
-    #[schema(value_type = Vec<Object>)]
-    pub comparison: Vec<serde_json::Value>,
-    /// Staff only.
-    #[schema(value_type = Option<Vec<Object>>)]
-    pub references: Option<Vec<serde_json::Value>>,
+    pub lines: Vec<ImportLineError>,
 }
 
 /// An error answer described by `why`: the Error body for the API, an error page for the
@@ -308,4 +165,11 @@ pub fn document(routes: OpenApi) -> OpenApi {
     doc.info.version = env!("CARGO_PKG_VERSION").to_string();
     add_layer_statuses(&mut doc);
     doc
+}
+
+/// This document.
+#[utoipa::path(get, path = "/api/openapi.json", tag = "service",
+    responses((status = 200, description = "OpenAPI 3.1", content_type = "application/json", body = Object)))]
+pub async fn openapi(State(s): State<Arc<AppState>>) -> Json<serde_json::Value> {
+    Json(s.openapi.get().cloned().unwrap_or_default())
 }

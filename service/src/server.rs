@@ -1,5 +1,6 @@
 //! The HTTP server around the routes: connections capped and timed out, every request given a
-//! deadline, every answer the security headers, and every API error JSON (docs/security.md).
+//! deadline, every answer the security headers, every API error JSON (docs/security.md), and
+//! every request logged under an id.
 //!
 //! Connections are served by hyper directly (not `axum::serve`) for its header-read timer: a
 //! client gets [`Limits::header_timeout`] to send each request's headers, and the same timer
@@ -244,4 +245,30 @@ pub async fn json_errors(req: Request, next: Next) -> Response {
         }
     }
     out
+}
+
+/// Gives every request an id (the client's `X-Request-Id` if sensible, else a new UUID), logs it
+/// with method, path, status and duration, and returns it in `X-Request-Id`.
+pub async fn request_log(req: Request, next: Next) -> Response {
+    use tracing::Instrument;
+    let id = req
+        .headers()
+        .get("x-request-id")
+        .and_then(|v| v.to_str().ok())
+        .filter(|v| !v.is_empty() && v.len() <= 64 && v.chars().all(|c| c.is_ascii_alphanumeric() || c == '-'))
+        .map_or_else(super::store::new_id, str::to_string);
+    let span = tracing::info_span!("request", id = %id, method = %req.method(), path = %req.uri().path());
+    let started = std::time::Instant::now();
+    let mut resp = next.run(req).instrument(span.clone()).await;
+    span.in_scope(|| {
+        tracing::info!(
+            status = resp.status().as_u16(),
+            ms = started.elapsed().as_secs_f64() * 1e3,
+            "served"
+        )
+    });
+    if let Ok(v) = id.parse() {
+        resp.headers_mut().insert("x-request-id", v);
+    }
+    resp
 }

@@ -8,6 +8,8 @@ use std::sync::{Arc, Mutex};
 
 use axum::http::StatusCode;
 
+// The wait a refusal here asks for, also under this module's path (the dashboard's error pages).
+pub use super::error::RETRY_AFTER_S;
 use super::error::{ApiError, err};
 
 /// Slots of one kind.
@@ -102,9 +104,6 @@ impl Slots {
     }
 }
 
-/// How long a client refused for a full cap is asked to wait (s).
-pub const RETRY_AFTER_S: u32 = 5;
-
 /// A held slot; dropping it gives it back.
 #[derive(Debug)]
 pub struct Slot {
@@ -125,8 +124,8 @@ impl Drop for Slot {
     }
 }
 
-/// A request's place for its account's in-flight slot: put into the request's extensions by
-/// [`crate::server::in_flight`] before the handler runs, filled by the extractor that learns the
+/// A request's place for its account's in-flight slot: put into the request's extensions by the
+/// server's `in_flight` layer before the handler runs, filled by the extractor that learns the
 /// request's account ([`InFlight::hold`]), given back when the request has been answered. (An
 /// extractor cannot keep the slot in the request itself: a handler that takes the body consumes
 /// the request, and its extensions, before it runs.)

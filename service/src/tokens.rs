@@ -102,7 +102,7 @@ struct NewTokenRequest {
     description = "Login cookie and X-CSRF-Token only: a request authenticated by an API token gets 403. Scope `upload` (default) may only upload sessions and read their status; `full` has the account's rights.",
     request_body(content = NewTokenRequest, content_type = "application/json"),
     responses(
-        (status = 201, description = "the token, its secret shown only here", body = super::openapi::NewToken),
+        (status = 201, description = "the token, its secret shown only here", body = NewToken),
         (status = 400, description = "bad label, scope or expiry", body = super::openapi::ErrorBody),
         (status = 403, description = "CSRF token missing, or authenticated by an API token", body = super::openapi::ErrorBody),
         (status = 409, description = "the account has as many active tokens as it may", body = super::openapi::ErrorBody),
@@ -128,16 +128,30 @@ pub async fn create_token(
     Ok((StatusCode::CREATED, Json(body)).into_response())
 }
 
+/// A new API token: the row and `token`, the secret, shown only here.
+#[derive(serde::Serialize, utoipa::ToSchema)]
+pub struct NewToken {
+    #[serde(flatten)]
+    pub row: TokenRow,
+    pub token: String,
+}
+
 /// GET /api/tokens: `{"tokens": [...]}`, newest first, without the tokens themselves.
 #[utoipa::path(get, path = "/api/tokens", tag = "accounts",
     summary = "The caller's API tokens (an admin's: everyone's), newest first, never the secret",
     responses(
-        (status = 200, description = "the tokens", body = super::openapi::TokenList),
+        (status = 200, description = "the tokens", body = TokenList),
         (status = 403, description = "an upload-scoped token", body = super::openapi::ErrorBody),
     ),
     security(("cookie" = []), ("token" = [])))]
 pub async fn list_tokens(State(s): State<Arc<AppState>>, Reader(user): Reader) -> Result<Response, ApiError> {
     Ok(Json(json!({ "tokens": list(&s, &user).await? })).into_response())
+}
+
+/// The caller's API tokens.
+#[derive(serde::Serialize, utoipa::ToSchema)]
+pub struct TokenList {
+    pub tokens: Vec<TokenRow>,
 }
 
 /// POST /api/tokens/{id}/revoke: the token's row, now revoked. Audited.

@@ -68,7 +68,7 @@ pub struct UsersQuery {
     summary = "Accounts with role, cohorts and status, by username, 100 a page (admin)",
     params(UsersQuery),
     responses(
-        (status = 200, description = "a page of accounts", body = super::openapi::AccountPage),
+        (status = 200, description = "a page of accounts", body = AccountPage),
         (status = 403, description = "not an admin, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
     ),
     security(("cookie" = []), ("token" = [])))]
@@ -84,6 +84,15 @@ pub async fn list(
         .users_page(search, (page - 1).saturating_mul(USERS_PAGE_SIZE), USERS_PAGE_SIZE)
         .await?;
     Ok(Json(json!({ "users": users, "total": total, "page": page, "page_size": USERS_PAGE_SIZE })).into_response())
+}
+
+/// A page of accounts, by username.
+#[derive(serde::Serialize, utoipa::ToSchema)]
+pub struct AccountPage {
+    pub users: Vec<UserRow>,
+    pub total: i64,
+    pub page: i64,
+    pub page_size: i64,
 }
 
 #[derive(serde::Deserialize, utoipa::ToSchema)]
@@ -110,7 +119,7 @@ struct NewUserRequest {
         (String = "text/csv"),
     )),
     responses(
-        (status = 201, description = "the account added, or the accounts imported", body = super::openapi::AccountAdded),
+        (status = 201, description = "the account added, or the accounts imported", body = AccountAdded),
         (status = 400, description = "invalid username, role, password or cohort", body = super::openapi::ErrorBody),
         (status = 403, description = "not an admin, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
         (status = 409, description = "the username exists", body = super::openapi::ErrorBody),
@@ -147,6 +156,15 @@ pub async fn add_or_import(
         Json(json!({ "username": req.username, "role": req.role, "cohort": cohort })),
     )
         .into_response())
+}
+
+/// A new account (JSON), or the accounts a CSV import added (`imported`).
+#[derive(serde::Serialize, utoipa::ToSchema)]
+pub struct AccountAdded {
+    pub username: Option<String>,
+    pub role: Option<Role>,
+    pub cohort: Option<String>,
+    pub imported: Option<Vec<String>>,
 }
 
 /// GET /api/users/{username} (admin).

@@ -115,14 +115,6 @@ impl Store {
         Ok(true)
     }
 
-    /// The mark on a session, if it is an expert reference.
-    pub async fn expert_mark(&self, session_id: &str) -> Result<Option<ExpertReference>, StoreError> {
-        let rows = self
-            .expert_rows("e.session_id = $1", vec![session_id.to_string()])
-            .await?;
-        Ok(rows.into_iter().next().map(|(r, _)| r))
-    }
-
     /// The expert references of a scenario on an atlas with their stored score reports (JSON), in
     /// session-id order; at most [`stylet_scoring::benchmark::MAX_EXPERTS`].
     pub async fn expert_references(

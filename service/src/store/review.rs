@@ -104,7 +104,7 @@ impl Store {
     }
 
     /// A comment on a session, optionally at a moment `at_s` (seconds from its start; checked by
-    /// [`crate::api::check_comment_time`]).
+    /// the review's `check_comment_time`).
     pub async fn add_comment(
         &self,
         session_id: &str,
