@@ -1,0 +1,354 @@
+//! The simulator's window, driven headless by egui_kittest and drawn by wgpu on Mesa's software
+//! Vulkan (lavapipe): every screen is compared with its snapshot in tests/snapshots/window
+//! (`UPDATE_SNAPSHOTS=1` writes them; look at them before committing), and a complete PTCD session
+//! driven through the application by the scripted device records a file that `stylet score` replays
+//! verified, whose replay in the viewer ends in the same state; sessions by hand move with the
+//! keys, and closing the window mid-session loses nothing.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use crate::common::{Db, Fixture, STYLET, Server, ok, phantom_atlas, s};
+use egui_kittest::kittest::Queryable as _;
+use egui_kittest::{Harness, SnapshotOptions};
+use stylet_app::views::ViewKind;
+use stylet_app::window::egui;
+use stylet_app::window::{AppOptions, Layout, Screen, StyletApp};
+
+const SIZE: [f32; 2] = [1024.0, 640.0];
+
+fn phantom(dir: &Path) -> PathBuf {
+    let atlas = dir.join("atlases/phantom");
+    phantom_atlas(&atlas, "160,160,130", "2.4");
+    atlas
+}
+
+/// A window on a new phantom with a session by hand started in real time, as a trainee's runs.
+fn session_by_hand(dir: &Path) -> Harness<'static, StyletApp> {
+    let atlas = phantom(dir);
+    let mut h = harness(AppOptions {
+        paced: true,
+        ..options(dir, &atlas, None)
+    });
+    h.run_steps(2);
+    h.get_by_label("Start session").click();
+    h.step();
+    assert_eq!(h.state().screen.name(), "session");
+    h
+}
+
+fn options(dir: &Path, atlas: &Path, script: Option<&str>) -> AppOptions {
+    AppOptions {
+        atlases: vec![atlas.to_path_buf()],
+        sessions_dir: dir.join("sessions"),
+        outbox_dir: dir.join("outbox"),
+        config_dir: Some(dir.join("config")),
+        script: script.map(|n| {
+            Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("atlases/phantom/scripts")
+                .join(format!("{n}.txt"))
+        }),
+        // As fast as the CPU allows, and every view at full resolution: the same pictures on
+        // every run.
+        paced: false,
+        view_budget: Duration::from_secs(3600),
+        renderer: stylet_app::views::Backend::Cpu,
+        replay: None,
+        tablet: None,
+        hid_profile: None,
+    }
+}
+
+fn harness(options: AppOptions) -> Harness<'static, StyletApp> {
+    Harness::builder()
+        .with_size(SIZE)
+        .build_eframe(move |cc| StyletApp::new(&cc.egui_ctx, options))
+}
+
+fn snapshot(h: &mut Harness<'_, StyletApp>, name: &str) {
+    h.snapshot_options(name, &SnapshotOptions::new().output_path("tests/snapshots/window"));
+}
+
+/// Steps the window until `done` holds (the loop and the drawing run on their own threads).
+fn step_until(h: &mut Harness<'_, StyletApp>, what: &str, done: impl Fn(&StyletApp) -> bool) {
+    let t0 = Instant::now();
+    while !done(h.state()) {
+        let failed = matches!(&h.state().screen, Screen::Loading(l) if l.problem().is_some());
+        if failed || t0.elapsed() > Duration::from_secs(180) {
+            let problem = match &h.state().screen {
+                Screen::Start(s) => s.problem.clone(),
+                Screen::Loading(l) => l.problem().map(str::to_string),
+                _ => None,
+            };
+            panic!(
+                "timed out waiting for {what} on the {} screen: {problem:?}",
+                h.state().screen.name()
+            );
+        }
+        h.step();
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    // A few more frames so that what was drawn is on screen.
+    h.run_steps(3);
+}
+
+fn session_settled(app: &StyletApp) -> bool {
+    match &app.screen {
+        Screen::Session(s) => s.running().is_some_and(|r| r.is_over()) && s.views_current(),
+        _ => false,
+    }
+}
+
+#[test]
+fn a_scripted_ptcd_session_through_the_window_is_recorded_scored_and_replayed_to_the_same_state() {
+    let dir = tempfile::tempdir().unwrap();
+    let atlas = phantom(dir.path());
+    let mut h = harness(options(dir.path(), &atlas, Some("complete-ptcd")));
+    h.run_steps(3);
+    snapshot(&mut h, "start");
+
+    // Palpate, probe, puncture, stylet out, contrast, stylet in, withdraw: the whole script.
+    h.get_by_label("Start session (scripted)").click();
+    h.step();
+    assert_eq!(h.state().screen.name(), "session");
+    if let Screen::Session(s) = &mut h.state_mut().screen {
+        s.panes.show_timings = false;
+    }
+    step_until(&mut h, "the session's end", session_settled);
+    snapshot(&mut h, "session");
+
+    h.get_by_label("See the results").click();
+    h.step();
+    step_until(&mut h, "the local score", |app| match &app.screen {
+        Screen::Results(r) => r.score().is_some(),
+        _ => false,
+    });
+    let (path, final_digest, report) = match &h.state().screen {
+        Screen::Results(r) => {
+            let f = r.finished().expect("a finished session");
+            (
+                f.path.clone(),
+                f.report.final_digest,
+                r.score().unwrap().as_ref().expect("a score").clone(),
+            )
+        }
+        _ => unreachable!(),
+    };
+    assert!(report.replay_verified, "{report:?}");
+    assert_eq!(report.outcome, stylet_scoring::Outcome::Passed, "{:?}", report.reasons);
+    assert_eq!(report.ticks, 46_000);
+    snapshot(&mut h, "results");
+
+    // `stylet score` gives the same verdict from the file.
+    let cli = ok(&["score", s(&path), "--atlas", s(&atlas), "--json"]);
+    let r: serde_json::Value = serde_json::from_str(&cli).unwrap();
+    assert_eq!(r["replay_verified"], true, "{r}");
+    assert_eq!(r["grade"]["score"].as_f64(), Some(report.grade.score), "{r}");
+    assert_eq!(r["metrics"]["target_reached"], true, "{r}");
+    assert_eq!(r["metrics"]["workflow"]["palpation_before_puncture"], true, "{r}");
+    assert_eq!(r["metrics"]["workflow"]["confirmed_before_withdrawal"], true, "{r}");
+    // The session waits in the outbox (offline).
+    let outbox = stylet_app::outbox::Outbox::open(&dir.path().join("outbox")).unwrap();
+    assert_eq!(outbox.pending().unwrap().len(), 1);
+
+    // The replay viewer: the first tick, then the end, which is the state the session ended in.
+    h.get_by_label("Replay this session").click();
+    h.step();
+    // The file is replayed and scored on a thread of its own first.
+    step_until(&mut h, "the replay viewer", |app| app.screen.name() == "replay");
+    if let Screen::Replay(r) = &mut h.state_mut().screen {
+        r.panes.show_timings = false;
+    }
+    step_until(&mut h, "the replay's first tick", replay_settled);
+    snapshot(&mut h, "replay-start");
+    let key_moments = match &h.state().screen {
+        Screen::Replay(r) => r.cursor().key_moments().to_vec(),
+        _ => unreachable!(),
+    };
+    let contrast = key_moments
+        .iter()
+        .find(|m| m.kind == stylet_app::replay_cursor::MomentKind::Contrast)
+        .expect("the contrast injection is a key moment");
+    h.get_by_label(&format!("{} ({:.1} s)", contrast.label, contrast.time_s))
+        .click();
+    h.step();
+    step_until(&mut h, "the contrast moment", replay_settled);
+    snapshot(&mut h, "replay-contrast");
+    match &h.state().screen {
+        Screen::Replay(r) => assert_eq!(r.cursor().position(), contrast.ticks),
+        _ => unreachable!(),
+    }
+    // Each view on its own, with the needle in the duct and the contrast flowing.
+    for kind in ViewKind::ALL {
+        if let Screen::Replay(r) = &mut h.state_mut().screen {
+            r.panes.layout = Layout::One;
+            r.panes.kinds[0] = kind;
+        }
+        h.step();
+        step_until(&mut h, kind.name(), replay_settled);
+        snapshot(&mut h, &format!("view-{}", kind.name()));
+    }
+    if let Screen::Replay(r) = &mut h.state_mut().screen {
+        r.jump_to(u64::MAX);
+    }
+    h.step();
+    step_until(&mut h, "the replay's end", replay_settled);
+    match &h.state().screen {
+        Screen::Replay(r) => {
+            assert_eq!(r.cursor().position(), 46_000);
+            assert_eq!(
+                r.cursor().state_digest(),
+                final_digest,
+                "the replay viewer ends in another state than the session"
+            );
+            assert!(r.cursor().report().replay_verified);
+        }
+        _ => unreachable!(),
+    }
+}
+
+fn replay_settled(app: &StyletApp) -> bool {
+    match &app.screen {
+        Screen::Replay(r) => r.settled(),
+        _ => false,
+    }
+}
+
+#[test]
+fn a_session_by_hand_moves_with_the_keys_and_the_keypad_changes_the_tool() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut h = session_by_hand(dir.path());
+    let start = match &h.state().screen {
+        Screen::Session(s) => s.running().unwrap().live().unwrap().pose().unwrap().0,
+        _ => panic!("no session"),
+    };
+    // Keypad 4: the needle, of the gauge chosen in the tools panel (22 G); then W held for a
+    // while moves the tool away from the viewer (+y).
+    if let Screen::Session(s) = &mut h.state_mut().screen {
+        s.gauge = stylet_physics::needle::spec::Gauge::G22;
+    }
+    h.key_press(egui::Key::Num4);
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_millis(600) {
+        h.key_down(egui::Key::W);
+        h.step();
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    h.key_up(egui::Key::W);
+    h.step();
+    std::thread::sleep(Duration::from_millis(100));
+    h.step();
+    let (moved, needle) = match &h.state().screen {
+        Screen::Session(s) => {
+            let r = s.running().unwrap();
+            let snap = r.snapshot().expect("a snapshot");
+            (
+                r.live().unwrap().pose().unwrap().0 - start,
+                snap.moment.tools.needle.is_some(),
+            )
+        }
+        _ => panic!("no session"),
+    };
+    assert!(needle, "keypad 4 takes the needle");
+    assert!(
+        moved.y > 2.0 && moved.x.abs() < 1e-6 && moved.z.abs() < 1e-6,
+        "{moved:?}"
+    );
+    // Enter finishes; the session by hand is recorded and scored like any other.
+    h.key_press(egui::Key::Enter);
+    step_until(&mut h, "the local score", |app| match &app.screen {
+        Screen::Results(r) => r.score().is_some(),
+        _ => false,
+    });
+    match &h.state().screen {
+        Screen::Results(r) => {
+            let report = r.score().unwrap().as_ref().expect("a score");
+            assert!(report.replay_verified, "{report:?}");
+            assert!(!report.incomplete, "{report:?}");
+            let session = stylet_recorder::read(&r.finished().unwrap().path).unwrap();
+            let tools: Vec<_> = session.events.iter().filter_map(|e| e.to_event().ok()).collect();
+            assert!(
+                tools.iter().any(|e| matches!(
+                    e,
+                    stylet_physics::Event::SelectTool(stylet_physics::ToolSpec::Needle {
+                        gauge: stylet_physics::needle::spec::Gauge::G22,
+                        ..
+                    })
+                )),
+                "{tools:?}"
+            );
+        }
+        _ => unreachable!(),
+    }
+}
+
+#[test]
+fn closing_the_window_during_a_session_finishes_it_and_queues_it_for_upload() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut h = session_by_hand(dir.path());
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_millis(300) {
+        h.step();
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert_eq!(h.state().screen.name(), "session");
+    h.state_mut().close();
+    let outbox = stylet_app::outbox::Outbox::open(&dir.path().join("outbox")).unwrap();
+    assert_eq!(outbox.pending().unwrap().len(), 1, "the session is queued");
+    let files: Vec<PathBuf> = std::fs::read_dir(dir.path().join("sessions"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(files.len(), 1);
+    // Closed properly: summary and end record written.
+    let out = ok(&["session", "verify", s(&files[0])]);
+    assert!(out.contains(": good"), "{out}");
+}
+
+/// An instructor's replay from the service: the window logged in (an upload-only token kept in its
+/// configuration folder) fetches a session by its id and opens it in the replay viewer.
+#[test]
+fn a_session_fetched_from_the_service_opens_in_the_replay_viewer() {
+    use stylet_app::service_client::{ServiceClient, TokenUploader};
+    let f = Fixture::new(STYLET);
+    let db = Db::Sqlite;
+    f.users(&db);
+    let server = Server::start(STYLET, &f.data(), &db, &f.atlases(), &[]);
+    let client = ServiceClient::new(&server.base).unwrap();
+    let token = client.upload_token("tina", "tina-password", "window test").unwrap();
+    let up = TokenUploader {
+        client: client.clone(),
+        token: token.clone(),
+    };
+    let outbox = stylet_app::outbox::Outbox::open(&f.dir.path().join("upload")).unwrap();
+    outbox.add(&f.session("tina-ok")).unwrap();
+    let round = outbox.upload_all(&up).unwrap();
+    let id = round.uploaded[0].1.clone();
+    // The window finds the login the simulator kept.
+    let dir = f.dir.path().join("window");
+    stylet_app::credentials::Credentials {
+        server_url: server.base.clone(),
+        username: "tina".into(),
+        token,
+    }
+    .save(&dir.join("config"))
+    .unwrap();
+    let mut h = harness(options(&dir, &f.atlases().join("phantom"), None));
+    h.run_steps(2);
+    if let Screen::Start(s) = &mut h.state_mut().screen {
+        s.fetch_id = id.clone();
+    }
+    h.step();
+    h.get_by_label("Fetch and replay").click();
+    h.step();
+    step_until(&mut h, "the fetched replay", |app| app.screen.name() == "replay");
+    match &h.state().screen {
+        Screen::Replay(r) => {
+            assert_eq!(r.cursor().session().header.trainee, "tina");
+            assert!(r.cursor().report().replay_verified);
+        }
+        _ => unreachable!(),
+    }
+    assert!(dir.join("sessions").join(format!("fetched-{id}.mcap")).is_file());
+    drop(server);
+}
