@@ -22,7 +22,7 @@ use stylet_devices::Device;
 use stylet_devices::script::{parse, scripted_simulation};
 use stylet_render::views::{Moment, SessionLabels};
 
-/// The tick shown (as in tests/simulator.rs: contrast is flowing).
+/// The tick shown (as in tests/integration/simulator.rs: contrast is flowing).
 const TICK: u64 = 13_008;
 
 fn main() {

@@ -22,7 +22,7 @@ import tomllib
 import vtk
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-# Same as benches/render.rs and tests/render_golden.rs.
+# Same as benches/render.rs and tests/integration/render_golden.rs.
 STEP_MM = 0.5
 AZIMUTH_DEG, ELEVATION_DEG, FOV_DEG = 25.0, 15.0, 30.0
 BACKGROUND = (0.05, 0.05, 0.07)
