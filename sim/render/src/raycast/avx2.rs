@@ -188,6 +188,7 @@ mod kernels {
 
     /// `place_one_at_a_time` on eight lanes (`k` + 7 ≤ `i32::MAX`, which `Placer::place`
     /// asserts: the lattice indices are `i32` lanes).
+    #[inline]
     #[target_feature(enable = "avx2")]
     pub(super) fn place(grid: &Grid3, lattice: &Lattice, k: u32, out: &mut Window) {
         let Lattice { ce, dc, j, step } = *lattice;
@@ -228,9 +229,11 @@ mod kernels {
     /// holds it (x86-64 is little-endian: bit r of a `u64` word is bit r mod 32 of half-word
     /// 2w + r / 32; indices and bits on the lanes, the eight words by scalar loads), the last
     /// point's brick distance by one scalar load.
-    /// Indices are `i32` lanes: the mask's must fit (`CubeMask::classify` checks). Each word is
-    /// read with a bounds check, so a window of points that are not the mask's cells reads
-    /// wrong bits but nothing outside the mask.
+    /// Indices are `i32` lanes: the mask's must fit (`CubeMask::classify` checks). Each index is
+    /// clamped to the mask's last half-word, so a window of points that are not the mask's cells
+    /// reads wrong bits but nothing outside the mask (one instruction per window; a bounds check
+    /// per lane cost the soft frame about 10 %).
+    #[inline]
     #[target_feature(enable = "avx2")]
     pub(super) fn classify(mask: &CubeMask, window: &Window, leap_from: u8) -> WindowClasses {
         // SAFETY: loads: eight lanes from eight.
@@ -256,11 +259,17 @@ mod kernels {
         // Eight scalar loads, not a gather: the window's points mostly share a half-word or two,
         // and the loads' answers arrive sooner (every preset 2–3 % faster than the gather).
         // Lanes that are not live read half-word 0 and are masked out below.
+        let last_half_word = (2 * mask.bits.len()).checked_sub(1).expect("a cube mask holds a word");
+        let clamped = _mm256_min_epu32(
+            _mm256_and_si256(half_word, live),
+            _mm256_set1_epi32(last_half_word as i32),
+        );
         let mut at = [0u32; POINTS];
         // SAFETY: eight lanes into eight.
-        unsafe { _mm256_storeu_si256(at.as_mut_ptr().cast(), _mm256_and_si256(half_word, live)) };
-        // Half-word h is the low (h even) or high half of word h / 2.
-        let word = |i: usize| (mask.bits[at[i] as usize >> 1] >> (32 * (at[i] & 1))) as u32 as i32;
+        unsafe { _mm256_storeu_si256(at.as_mut_ptr().cast(), clamped) };
+        let half_words = mask.bits.as_ptr().cast::<u32>();
+        // SAFETY: every index is at most the last half-word of `bits` (clamped above).
+        let word = |i: usize| unsafe { *half_words.add(at[i] as usize) } as i32;
         let words = _mm256_setr_epi32(word(0), word(1), word(2), word(3), word(4), word(5), word(6), word(7));
         let bit = _mm256_and_si256(
             _mm256_srlv_epi32(words, _mm256_and_si256(r, _mm256_set1_epi32(31))),
@@ -294,6 +303,16 @@ mod kernels {
         }
         table
     };
+
+    /// The largest of eight unsigned 32-bit lanes (three max steps across the halves).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn lane_max(v: __m256i) -> u32 {
+        let m = _mm_max_epu32(_mm256_castsi256_si128(v), _mm256_extracti128_si256::<1>(v));
+        let m = _mm_max_epu32(m, _mm_shuffle_epi32::<0b01_00_11_10>(m));
+        let m = _mm_max_epu32(m, _mm_shuffle_epi32::<0b10_11_00_01>(m));
+        _mm_cvtsi128_si32(m) as u32
+    }
 
     /// Asks the CPU to start loading the four record rows of the cell whose base record is `o`
     /// (rows o, o + s_y, o + s_z, o + s_y + s_z: those `interpolate` reads). A prefetch never
@@ -366,8 +385,9 @@ mod kernels {
     /// gives the exact blends c₀ (at z) and c₁ (at z + 1). Then z in `f32`, as the reference.
     /// The eight samples' offsets and weights are worked out together on the lanes.
     ///
-    /// Every record read is asserted to lie in `records` (as `GradientVolume::lerp8`'s bound:
-    /// o + s_y + s_z + 1 < the records' count): a cell not located on them is refused.
+    /// Every record read lies in `records`: the highest of the eight offsets is asserted to
+    /// (as `GradientVolume::lerp8`'s bound: o + s_y + s_z + 1 < the records' count), once per
+    /// batch, so a cell not located on them is refused.
     #[inline]
     #[target_feature(enable = "avx2")]
     fn read_records(records: &[[i16; 4]], sy: usize, sz: usize, batch: &Batch, count: usize) -> [__m128; LANES] {
@@ -389,6 +409,11 @@ mod kernels {
                 ),
             );
             _mm256_storeu_si256(offsets.as_mut_ptr().cast(), o);
+            let highest = lane_max(o) as usize;
+            assert!(
+                highest + sy + sz + 1 < records.len(),
+                "{count} samples: offset {highest}"
+            );
             // q = round(f·2⁷), ties to even (`xy_fraction`; the product is exact).
             let fraction = |a: usize| _mm256_permutevar8x32_ps(_mm256_loadu_ps(batch.f[a].as_ptr()), from);
             let q = |a: usize| {
@@ -425,10 +450,10 @@ mod kernels {
         let at = records.as_ptr();
         std::array::from_fn(|i| {
             let o = offsets[i] as usize;
-            assert!(o + sy + sz + 1 < records.len(), "lane {i} of {count}: offset {o}");
             let [w_near, w_far] = weights[SLOT[i]];
             let [gz, fz] = z_weights[SLOT[i]];
-            // SAFETY: the bound just asserted; each load reads records i and i + 1 of a row.
+            // SAFETY: o ≤ the highest offset, whose farthest record was asserted to lie in
+            // `records`; each load reads records i and i + 1 of a row.
             let rows = |z0: usize, z1: usize| unsafe {
                 let lo = _mm256_castsi128_si256(_mm_loadu_si128(at.add(z0).cast()));
                 _mm256_shuffle_epi8(
