@@ -74,7 +74,12 @@ impl Pacer {
     /// Call when `tick` is done: how late it was. When the loop has fallen more than
     /// [`MAX_BACKLOG_PERIODS`] behind, the schedule restarts at the next tick.
     pub fn done(&mut self, tick: u64) -> Timing {
-        let now = Instant::now();
+        self.done_at(tick, Instant::now())
+    }
+
+    /// [`Pacer::done`] with the time the tick was done given, so the arithmetic is testable
+    /// without a real clock.
+    fn done_at(&mut self, tick: u64, now: Instant) -> Timing {
         let deadline = self.due(tick + 1);
         let late = now.saturating_duration_since(deadline);
         let mut skipped_periods = 0;
@@ -102,29 +107,65 @@ mod tests {
     }
 
     #[test]
-    fn a_paced_loop_keeps_the_rate_without_drift() {
-        let mut p = Pacer::new(1000, 0);
-        let t0 = Instant::now();
-        for k in 0..200 {
+    fn waiting_never_returns_before_a_tick_is_due() {
+        let p = Pacer::new(1000, 0);
+        for k in 0..20 {
             p.wait_until_due(k);
-            assert!(Instant::now() >= p.due(k));
-            p.done(k);
+            assert!(Instant::now() >= p.due(k), "tick {k} started early");
         }
-        // 200 ticks at 1 kHz: the last starts 199 ms after the first, never before.
-        assert!(t0.elapsed() >= Duration::from_millis(199));
+    }
+
+    #[test]
+    fn a_late_tick_does_not_move_the_later_deadlines() {
+        let mut p = Pacer::new(1000, 0);
+        let start = p.start;
+        let ms = Duration::from_millis;
+        // Tick 3 is done 4 ms after its deadline (start + 4 ms): late, but within the backlog.
+        let t = p.done_at(3, start + ms(8));
+        assert_eq!(
+            t,
+            Timing {
+                late: ms(4),
+                skipped_periods: 0
+            }
+        );
+        // No drift: tick 4 is still due 4 ms after the start, and tick 1 000 a second after it.
+        assert_eq!(p.due(4), start + ms(4));
+        assert_eq!(p.due(1000), start + ms(1000));
+        // A tick done before its deadline is not late.
+        assert_eq!(p.done_at(4, start + ms(5)).late, Duration::ZERO);
     }
 
     #[test]
     fn a_stalled_loop_restarts_its_schedule_and_counts_the_gap() {
         let mut p = Pacer::new(1000, 0);
-        p.wait_until_due(0);
-        std::thread::sleep(Duration::from_millis(30));
-        let t = p.done(0);
-        assert!(t.late >= Duration::from_millis(28), "{t:?}");
-        assert!(t.skipped_periods >= 28, "{t:?}");
-        // The next tick is due now, not 30 ms ago.
-        assert!(p.due(1) >= Instant::now() - Duration::from_millis(5));
-        let on_time = p.done(1);
-        assert_eq!(on_time.skipped_periods, 0);
+        let start = p.start;
+        let ms = Duration::from_millis;
+        // Tick 0 (deadline start + 1 ms) done 30 ms late: more than the backlog of 10 periods.
+        let stalled = start + ms(31);
+        let t = p.done_at(0, stalled);
+        assert_eq!(
+            t,
+            Timing {
+                late: ms(30),
+                skipped_periods: 30
+            }
+        );
+        // The next tick is due at the stall, not 30 ms before it, and on time within its period.
+        assert_eq!(p.due(1), stalled);
+        assert_eq!(p.due(2), stalled + ms(1));
+        let on_time = p.done_at(1, stalled + Duration::from_micros(500));
+        assert_eq!(
+            on_time,
+            Timing {
+                late: Duration::ZERO,
+                skipped_periods: 0
+            }
+        );
+        // Exactly at the backlog limit the schedule is kept.
+        let mut q = Pacer::new(1000, 0);
+        let kept = q.done_at(0, q.start + ms(1) + ms(10));
+        assert_eq!(kept.skipped_periods, 0);
+        assert_eq!(q.due(1), q.start + ms(1));
     }
 }
