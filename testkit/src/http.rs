@@ -91,6 +91,45 @@ pub fn login(base: &str, user: &str) -> Auth {
     }
 }
 
+/// A dashboard page as a browser with the login cookie gets it, redirects not followed.
+pub struct Page {
+    pub status: u16,
+    pub cache_control: String,
+    pub location: String,
+    pub body: String,
+}
+
+/// GETs a dashboard page, or POSTs `form` to it, with `who`'s login cookie.
+pub fn page(base: &str, path: &str, who: &Auth, form: Option<&[(&str, &str)]>) -> Page {
+    let Auth::Cookie { token, .. } = who else {
+        panic!("a login cookie")
+    };
+    let agent = ureq::AgentBuilder::new().redirects(0).build();
+    let url = format!("{base}{path}");
+    let req = match form {
+        Some(_) => agent.post(&url),
+        None => agent.get(&url),
+    }
+    .set("Cookie", &format!("stylet_session={token}"));
+    let res = match form {
+        Some(fields) => req.send_form(fields),
+        None => req.call(),
+    };
+    let resp = match res {
+        Ok(r) => r,
+        Err(ureq::Error::Status(_, r)) => r,
+        Err(e) => panic!("{path}: {e}"),
+    };
+    let header = |h: &str| resp.header(h).unwrap_or_default().to_string();
+    let (status, cache_control, location) = (resp.status(), header("Cache-Control"), header("Location"));
+    Page {
+        status,
+        cache_control,
+        location,
+        body: resp.into_string().unwrap(),
+    }
+}
+
 /// A GET with a login cookie: status and body bytes (images, PDFs, CSV).
 pub fn get_bytes(url: &str, auth: &Auth) -> (u16, Vec<u8>) {
     let Auth::Cookie { token, .. } = auth else {

@@ -75,31 +75,6 @@ fn import_csv(base: &str, who: &Auth, csv: &str) -> (u16, Value) {
     (status, serde_json::from_str(&resp.into_string().unwrap()).unwrap())
 }
 
-/// A dashboard page (GET, or a form POST), redirects not followed: (status, Location, body).
-fn page(base: &str, path: &str, who: &Auth, form: Option<&[(&str, &str)]>) -> (u16, String, String) {
-    let Auth::Cookie { token, .. } = who else {
-        unreachable!()
-    };
-    let agent = ureq::AgentBuilder::new().redirects(0).build();
-    let url = format!("{base}{path}");
-    let req = match form {
-        Some(_) => agent.post(&url),
-        None => agent.get(&url),
-    }
-    .set("Cookie", &format!("stylet_session={token}"));
-    let res = match form {
-        Some(fields) => req.send_form(fields),
-        None => req.call(),
-    };
-    let resp = match res {
-        Ok(r) => r,
-        Err(ureq::Error::Status(_, r)) => r,
-        Err(e) => panic!("{path}: {e}"),
-    };
-    let location = resp.header("Location").unwrap_or_default().to_string();
-    (resp.status(), location, resp.into_string().unwrap())
-}
-
 fn csrf_of(who: &Auth) -> &str {
     match who {
         Auth::Cookie { csrf, .. } => csrf,
@@ -132,12 +107,7 @@ fn stylet_user(data: &std::path::Path, db: &Db, args: &[&str], stdin: &str) -> (
 
 /// The audit log's (action, actor username or "-", target username or "", detail), oldest first.
 fn audit_rows(db: &Db, data: &std::path::Path) -> Vec<(String, String, String, String)> {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    rt.block_on(async {
-        let store = stylet_service::Store::open(&db.url(data)).await.unwrap();
+    on_database(db, data, async |store| {
         let rows = sqlx::query(
             "SELECT a.action, COALESCE(u.username, '-') AS actor, COALESCE(t.username, '') AS target, \
              COALESCE(a.detail, '') AS detail FROM audit_log a \
@@ -148,8 +118,7 @@ fn audit_rows(db: &Db, data: &std::path::Path) -> Vec<(String, String, String, S
         .await
         .unwrap();
         use sqlx::Row;
-        let out = rows
-            .iter()
+        rows.iter()
             .map(|r| {
                 (
                     r.get::<String, _>("action"),
@@ -158,9 +127,7 @@ fn audit_rows(db: &Db, data: &std::path::Path) -> Vec<(String, String, String, S
                     r.get::<String, _>("detail"),
                 )
             })
-            .collect();
-        store.pool.close().await;
-        out
+            .collect()
     })
 }
 
@@ -185,7 +152,7 @@ fn disabling_logs_out_everywhere_and_enabling_restores(db: Db) {
     wait_scored(b, &tina, &session);
     assert_eq!(get(b, "/api/sessions", &tina).0, 200);
     assert_eq!(get(b, "/api/sessions", &token).0, 200);
-    assert_eq!(page(b, "/", &tina, None).0, 200);
+    assert_eq!(page(b, "/", &tina, None).status, 200);
 
     let (status, row) = post_json(b, "/api/users/tina/disable", &root, "");
     assert_eq!(status, 200, "{row}");
@@ -196,7 +163,7 @@ fn disabling_logs_out_everywhere_and_enabling_restores(db: Db) {
     let (status, json) = get(b, &format!("/api/sessions/{session}"), &token);
     assert_eq!(status, 401, "{json}");
     assert!(error_of(&json).contains("disabled"), "{json}");
-    let (status, location, _) = page(b, "/", &tina, None);
+    let Page { status, location, .. } = page(b, "/", &tina, None);
     assert!(status == 303 || status == 302 || status == 307, "{status}");
     assert!(location.starts_with("/login"), "{location}");
     let (status, json) = try_login(b, "tina", "tina-password");
@@ -212,7 +179,7 @@ fn disabling_logs_out_everywhere_and_enabling_restores(db: Db) {
     assert!(listed["users"][0]["disabled_at"].is_string(), "{listed}");
     // Disabling twice changes nothing; the admin page shows it.
     assert_eq!(post_json(b, "/api/users/tina/disable", &root, "").0, 200);
-    let (status, _, html) = page(b, "/admin/users?q=tina", &root, None);
+    let Page { status, body: html, .. } = page(b, "/admin/users?q=tina", &root, None);
     assert_eq!(status, 200);
     assert!(html.contains("disabled since"), "{html}");
 
@@ -222,18 +189,18 @@ fn disabling_logs_out_everywhere_and_enabling_restores(db: Db) {
     assert!(row["disabled_at"].is_null(), "{row}");
     assert_eq!(get(b, "/api/sessions", &tina).0, 200);
     assert_eq!(get(b, &format!("/api/sessions/{session}"), &token).0, 200);
-    assert_eq!(page(b, "/", &tina, None).0, 200);
+    assert_eq!(page(b, "/", &tina, None).status, 200);
 
     // The dashboard's form does the same, with the CSRF token only.
     let path = "/admin/users/tina/status";
-    let (status, _, html) = page(b, path, &root, Some(&[("csrf", "wrong"), ("action", "disable")]));
+    let Page { status, body: html, .. } = page(b, path, &root, Some(&[("csrf", "wrong"), ("action", "disable")]));
     assert_eq!(status, 403, "{html}");
     assert_eq!(get(b, "/api/sessions", &tina).0, 200);
-    let (status, location, _) = page(b, path, &root, Some(&[("csrf", csrf_of(&root)), ("action", "disable")]));
+    let Page { status, location, .. } = page(b, path, &root, Some(&[("csrf", csrf_of(&root)), ("action", "disable")]));
     assert_eq!((status, location.as_str()), (303, "/admin/users?q=tina"));
     assert_eq!(get(b, "/api/sessions", &tina).0, 401);
     assert_eq!(get(b, "/api/sessions", &token).0, 401);
-    let (status, _, _) = page(b, path, &root, Some(&[("csrf", csrf_of(&root)), ("action", "enable")]));
+    let Page { status, .. } = page(b, path, &root, Some(&[("csrf", csrf_of(&root)), ("action", "enable")]));
     assert_eq!(status, 303);
     assert_eq!(get(b, "/api/sessions", &tina).0, 200);
 
@@ -295,7 +262,7 @@ fn passwords_roles_cohorts_and_the_last_admin(db: Db) {
     assert_eq!(row["role"], "curriculum");
     assert_eq!(get(b, "/api/export/sessions.csv", &tom).0, 200);
     // The dashboard's form: role and cohorts together.
-    let (status, _, html) = page(
+    let Page { status, body: html, .. } = page(
         b,
         "/admin/users/tom/set",
         &root,
@@ -328,7 +295,7 @@ fn passwords_roles_cohorts_and_the_last_admin(db: Db) {
         assert_eq!(status, 409, "{path}: {json}");
         assert!(error_of(&json).contains("own account"), "{json}");
     }
-    let (status, _, html) = page(
+    let Page { status, body: html, .. } = page(
         b,
         "/admin/users/root/status",
         &root,
@@ -441,7 +408,7 @@ fn imports_are_all_or_nothing_and_name_the_bad_lines(db: Db) {
     assert_eq!(import_csv(b, &tina, "nora,trainee,c1,nora-password\n").0, 403);
 
     // The dashboard's form shows every bad line in words.
-    let (status, _, html) = page(
+    let Page { status, body: html, .. } = page(
         b,
         "/admin/users/import",
         &root,

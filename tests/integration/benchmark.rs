@@ -68,12 +68,7 @@ fn record(f: &Fixture, name: &str, script: &str, trainee: &str, seed: u64) -> st
 
 /// The audit rows of `action`: (actor username, target).
 fn audits(db: &Db, data: &Path, action: &str) -> Vec<(String, String)> {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    rt.block_on(async {
-        let store = stylet_service::Store::open(&db.url(data)).await.unwrap();
+    on_database(db, data, async |store| {
         let rows = sqlx::query(
             "SELECT u.username, a.target FROM audit_log a JOIN users u ON u.id = a.actor_id \
              WHERE a.action = $1 ORDER BY a.at, a.id",
@@ -83,12 +78,9 @@ fn audits(db: &Db, data: &Path, action: &str) -> Vec<(String, String)> {
         .await
         .unwrap();
         use sqlx::Row;
-        let out = rows
-            .iter()
+        rows.iter()
             .map(|r| (r.get::<String, _>("username"), r.get::<String, _>("target")))
-            .collect();
-        store.pool.close().await;
-        out
+            .collect()
     })
 }
 

@@ -42,12 +42,7 @@ fn full_token(base: &str, user: &str) -> String {
 
 /// The audit rows of `action`: (actor username, target, detail).
 fn audits(db: &Db, data: &Path, action: &str) -> Vec<(String, String, String)> {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    rt.block_on(async {
-        let store = stylet_service::Store::open(&db.url(data)).await.unwrap();
+    on_database(db, data, async |store| {
         let rows = sqlx::query(
             "SELECT u.username, a.target, a.detail FROM audit_log a JOIN users u ON u.id = a.actor_id \
              WHERE a.action = $1 ORDER BY a.at, a.id",
@@ -57,8 +52,7 @@ fn audits(db: &Db, data: &Path, action: &str) -> Vec<(String, String, String)> {
         .await
         .unwrap();
         use sqlx::Row;
-        let out = rows
-            .iter()
+        rows.iter()
             .map(|r| {
                 (
                     r.get::<String, _>("username"),
@@ -66,9 +60,7 @@ fn audits(db: &Db, data: &Path, action: &str) -> Vec<(String, String, String)> {
                     r.get::<String, _>("detail"),
                 )
             })
-            .collect();
-        store.pool.close().await;
-        out
+            .collect()
     })
 }
 

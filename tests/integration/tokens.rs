@@ -28,20 +28,6 @@ fn error_of(json: &Value) -> &str {
     json["error"].as_str().unwrap_or_default()
 }
 
-/// Runs `sql` with `binds` on the server's database (what an operator or a clock would change).
-fn on_database<T>(db: &Db, data: &std::path::Path, work: impl AsyncFnOnce(stylet_service::Store) -> T) -> T {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    rt.block_on(async {
-        let store = stylet_service::Store::open(&db.url(data)).await.unwrap();
-        let out = work(store.clone()).await;
-        store.pool.close().await;
-        out
-    })
-}
-
 /// Tokens expire, can be revoked (logout does not touch them), cannot make more tokens, and an
 /// upload-scoped token uploads and reads its session's status and nothing else.
 fn api_tokens_scopes_expiry_and_revocation(db: Db) {
@@ -323,33 +309,6 @@ fn api_tokens_scopes_expiry_and_revocation(db: Db) {
     );
 }
 
-/// A page request with the login cookie; a form is posted when `form` is given. Redirects are
-/// not followed. (status, Cache-Control, Location, body).
-fn page(base: &str, path: &str, who: &Auth, form: Option<&[(&str, &str)]>) -> (u16, String, String, String) {
-    let Auth::Cookie { token, .. } = who else {
-        unreachable!()
-    };
-    let agent = ureq::AgentBuilder::new().redirects(0).build();
-    let url = format!("{base}{path}");
-    let req = match form {
-        Some(_) => agent.post(&url),
-        None => agent.get(&url),
-    }
-    .set("Cookie", &format!("stylet_session={token}"));
-    let res = match form {
-        Some(fields) => req.send_form(fields),
-        None => req.call(),
-    };
-    let resp = match res {
-        Ok(r) => r,
-        Err(ureq::Error::Status(_, r)) => r,
-        Err(e) => panic!("{path}: {e}"),
-    };
-    let header = |h: &str| resp.header(h).unwrap_or_default().to_string();
-    let (status, cache, location) = (resp.status(), header("Cache-Control"), header("Location"));
-    (status, cache, location, resp.into_string().unwrap())
-}
-
 /// The dashboard's tokens page: create (the secret shown once, not kept by caches), list (never
 /// the secret), revoke; forms need the login's CSRF token.
 fn tokens_page_creates_lists_and_revokes(db: Db) {
@@ -359,7 +318,7 @@ fn tokens_page_creates_lists_and_revokes(db: Db) {
     let Auth::Cookie { csrf, .. } = &tina else {
         unreachable!()
     };
-    let (status, _, _, html) = page(b, "/tokens", &tina, None);
+    let Page { status, body: html, .. } = page(b, "/tokens", &tina, None);
     assert_eq!(status, 200, "{html}");
     assert!(
         html.contains(r#"href="/tokens""#) && html.contains(r#"id="create-token""#),
@@ -380,18 +339,23 @@ fn tokens_page_creates_lists_and_revokes(db: Db) {
             ]),
         )
     };
-    let (status, _, _, html) = form("wrong", "full", "30");
+    let Page { status, body: html, .. } = form("wrong", "full", "30");
     assert_eq!(status, 403, "{html}");
     for (scope, days, reason) in [
         ("root", "30", "unknown scope"),
         ("full", "500", "1–90 days"),
         ("full", "x", "whole number"),
     ] {
-        let (status, _, _, html) = form(csrf, scope, days);
+        let Page { status, body: html, .. } = form(csrf, scope, days);
         assert_eq!(status, 400, "{scope} {days}: {html}");
         assert!(html.contains(reason) && !html.contains("new-token"), "{html}");
     }
-    let (status, cache, _, html) = form(csrf, "full", "30");
+    let Page {
+        status,
+        cache_control: cache,
+        body: html,
+        ..
+    } = form(csrf, "full", "30");
     assert_eq!((status, cache.as_str()), (200, "no-store"), "{html}");
     let secret = html
         .split(r#"<code id="new-token">"#)
@@ -413,7 +377,7 @@ fn tokens_page_creates_lists_and_revokes(db: Db) {
     );
     assert_lasts_days(row, 30);
     let token_id = row["id"].as_str().unwrap().to_string();
-    let (_, _, _, html) = page(b, "/tokens", &tina, None);
+    let Page { body: html, .. } = page(b, "/tokens", &tina, None);
     assert!(!html.contains(&secret), "{html}");
     assert!(html.contains(&format!("…{}", &secret[60..])), "{html}");
     // Another trainee's page lists nothing of hers and cannot revoke it.
@@ -421,23 +385,23 @@ fn tokens_page_creates_lists_and_revokes(db: Db) {
     let Auth::Cookie { csrf: tom_csrf, .. } = &tom else {
         unreachable!()
     };
-    let (_, _, _, html) = page(b, "/tokens", &tom, None);
+    let Page { body: html, .. } = page(b, "/tokens", &tom, None);
     assert!(!html.contains(&token_id), "{html}");
     let revoke_path = format!("/tokens/{token_id}/revoke");
-    assert_eq!(page(b, &revoke_path, &tom, Some(&[("csrf", tom_csrf)])).0, 404);
-    assert_eq!(page(b, &revoke_path, &tina, Some(&[("csrf", "wrong")])).0, 403);
+    assert_eq!(page(b, &revoke_path, &tom, Some(&[("csrf", tom_csrf)])).status, 404);
+    assert_eq!(page(b, &revoke_path, &tina, Some(&[("csrf", "wrong")])).status, 403);
     assert_eq!(
         call("GET", &format!("{b}/api/tokens"), Some(&bearer), None, false).0,
         200
     );
 
-    let (status, _, location, _) = page(b, &revoke_path, &tina, Some(&[("csrf", csrf)]));
+    let Page { status, location, .. } = page(b, &revoke_path, &tina, Some(&[("csrf", csrf)]));
     assert_eq!((status, location.as_str()), (303, "/tokens"));
     assert_eq!(
         call("GET", &format!("{b}/api/tokens"), Some(&bearer), None, false).0,
         401
     );
-    let (_, _, _, html) = page(b, "/tokens", &tina, None);
+    let Page { body: html, .. } = page(b, "/tokens", &tina, None);
     assert!(html.contains("revoked") && !html.contains(&revoke_path), "{html}");
 }
 

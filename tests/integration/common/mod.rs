@@ -13,8 +13,8 @@ use std::sync::OnceLock;
 use stylet_atlas::Atlas;
 use stylet_atlas::import::{ImportReport, import};
 pub use stylet_testkit::{
-    Auth, Db, Fixture, Server, Stylet, call, contract, get_bytes, login, on_both_databases, phantom_script, raw_post,
-    raw_post_as, s, upload, upload_scored, wait_scored,
+    Auth, Db, Fixture, Page, Server, Stylet, call, contract, get_bytes, login, on_both_databases, page, phantom_script,
+    raw_post, raw_post_as, s, upload, upload_scored, wait_scored,
 };
 
 /// The `stylet` binary these tests run (built by Cargo for the root package's tests).
@@ -110,4 +110,19 @@ pub fn walk(dir: &Path) -> Vec<PathBuf> {
         }
     }
     out
+}
+
+/// Runs `work` on the server's database (to read what it stored, or change what an operator or a
+/// clock would); the pool is closed after.
+pub fn on_database<T>(db: &Db, data: &Path, work: impl AsyncFnOnce(stylet_service::Store) -> T) -> T {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let store = stylet_service::Store::open(&db.url(data)).await.unwrap();
+        let out = work(store.clone()).await;
+        store.pool.close().await;
+        out
+    })
 }
