@@ -2,11 +2,12 @@
 //! them, and the upload that waits until the service has scored one.
 
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
-use crate::{Auth, Db, Stylet, call, s};
+use crate::{Auth, Db, Server, Stylet, call, fixture_dir, s};
 
 /// The workspace's root (the atlases, scripts and docs the tests read).
 pub fn workspace_dir() -> &'static Path {
@@ -28,38 +29,14 @@ pub struct Fixture {
 }
 
 impl Fixture {
-    /// Records the sessions with `stylet script run`: `tina-ok`, `tina-lung`, `tina-two`,
-    /// `tom-ok` on the phantom in [`Fixture::atlases`], `tina-other-atlas` on another phantom.
+    /// A copy of the sessions recorded with `stylet script run` (`tina-ok`, `tina-lung`,
+    /// `tina-two`, `tom-ok` on the phantom in [`Fixture::atlases`], `tina-other-atlas` on another
+    /// phantom): recorded once per test process, copied for every fixture, so each test may change
+    /// its own files.
     pub fn new(stylet: Stylet) -> Fixture {
         let dir = tempfile::tempdir().unwrap();
-        let f = Fixture { dir, stylet };
-        let atlas = f.atlases().join("phantom");
-        stylet.phantom_atlas(&atlas, "160,160,130", "2.4");
-        let other = f.dir.path().join("other-atlas");
-        stylet.phantom_atlas(&other, "96,96,80", "4");
-        for (name, script, trainee, on) in [
-            ("tina-ok", "success-intercostal", "tina", &atlas),
-            ("tina-lung", "lung-hit", "tina", &atlas),
-            ("tina-two", "two-attempts", "tina", &atlas),
-            ("tom-ok", "success-intercostal", "tom", &atlas),
-            ("tina-other-atlas", "success-intercostal", "tina", &other),
-        ] {
-            let sc = phantom_script(script);
-            let out = f.session(name);
-            stylet.ok(&[
-                "script",
-                "run",
-                "--atlas",
-                s(on),
-                "--script",
-                s(&sc),
-                "--out",
-                s(&out),
-                "--trainee",
-                trainee,
-            ]);
-        }
-        f
+        copy_dir(recorded(stylet), dir.path());
+        Fixture { dir, stylet }
     }
 
     /// The server's atlas folder (it holds the phantom).
@@ -89,6 +66,63 @@ impl Fixture {
             ("cora", "curriculum", None),
         ] {
             self.stylet.add_user(&d, db, name, role, cohort);
+        }
+    }
+
+    /// The accounts of [`Fixture::users`] on `db`, and a server on them with `workers` scoring
+    /// workers, serving the fixture's atlases.
+    pub fn serve(&self, db: &Db, workers: u32) -> Server {
+        self.users(db);
+        let workers = workers.to_string();
+        Server::start(self.stylet, &self.data(), db, &self.atlases(), &["--workers", &workers])
+    }
+}
+
+/// The fixture's atlases and sessions, recorded on first use in a directory that lives until
+/// the process exits (the recordings take seconds; the same scripts give the same sessions).
+fn recorded(stylet: Stylet) -> &'static Path {
+    static RECORDED: OnceLock<PathBuf> = OnceLock::new();
+    RECORDED.get_or_init(|| {
+        let dir = fixture_dir();
+        let atlas = dir.join("atlases/phantom");
+        stylet.phantom_atlas(&atlas, "160,160,130", "2.4");
+        let other = dir.join("other-atlas");
+        stylet.phantom_atlas(&other, "96,96,80", "4");
+        for (name, script, trainee, on) in [
+            ("tina-ok", "success-intercostal", "tina", &atlas),
+            ("tina-lung", "lung-hit", "tina", &atlas),
+            ("tina-two", "two-attempts", "tina", &atlas),
+            ("tom-ok", "success-intercostal", "tom", &atlas),
+            ("tina-other-atlas", "success-intercostal", "tina", &other),
+        ] {
+            let out = dir.join(format!("{name}.mcap"));
+            stylet.ok(&[
+                "script",
+                "run",
+                "--atlas",
+                s(on),
+                "--script",
+                s(&phantom_script(script)),
+                "--out",
+                s(&out),
+                "--trainee",
+                trainee,
+            ]);
+        }
+        dir
+    })
+}
+
+/// Copies the files and folders of `from` into `to` (which exists).
+fn copy_dir(from: &Path, to: &Path) {
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            std::fs::create_dir(&target).unwrap();
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), &target).unwrap();
         }
     }
 }

@@ -140,8 +140,7 @@ fn has_audit(rows: &[(String, String, String, String)], action: &str, actor: &st
 /// very next request, and a new login; its sessions stay. Enabling restores cookie and token.
 fn disabling_logs_out_everywhere_and_enabling_restores(db: Db) {
     let f = Fixture::new(STYLET);
-    f.users(&db);
-    let srv = Server::start(STYLET, &f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let srv = f.serve(&db, 1);
     let b = &srv.base;
     let root = login(b, "root");
     let tina = login(b, "tina");

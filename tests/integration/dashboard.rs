@@ -139,8 +139,7 @@ on_both_databases!(every_role_uses_the_dashboard_in_headless_chromium => every_r
 fn every_role_uses_the_dashboard(db: Db) {
     let tag = db.name();
     let f = Fixture::new(STYLET);
-    f.users(&db);
-    let srv = Server::start(STYLET, &f.data(), &db, &f.atlases(), &["--workers", "2"]);
+    let srv = f.serve(&db, 2);
     let base = srv.base.clone();
     // Data the pages show: tina's lung hit and tom's success, uploaded through the API.
     let upload = |who: &str, name: &str| {
@@ -487,8 +486,7 @@ const IDENTIFIERS: [&str; 6] = [
 fn the_review_shows_where_and_why_in_headless_chromium() {
     let db = Db::Sqlite;
     let f = Fixture::new(STYLET);
-    f.users(&db);
-    let srv = Server::start(STYLET, &f.data(), &db, &f.atlases(), &["--workers", "2"]);
+    let srv = f.serve(&db, 2);
     let base = srv.base.clone();
     let tina = login(&base, "tina");
     let mut rows = Vec::new();
@@ -667,8 +665,7 @@ fn the_review_shows_where_and_why_in_headless_chromium() {
 fn every_failed_session_has_its_reasons_on_the_trainee_home() {
     let db = Db::Sqlite;
     let f = Fixture::new(STYLET);
-    f.users(&db);
-    let srv = Server::start(STYLET, &f.data(), &db, &f.atlases(), &["--workers", "2"]);
+    let srv = f.serve(&db, 2);
     let base = srv.base.clone();
     let tina = login(&base, "tina");
     let mut failed = Vec::new();

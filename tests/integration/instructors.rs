@@ -44,8 +44,7 @@ on_both_databases!(instructors_tools, "instructors");
 
 fn instructors_tools(db: Db) {
     let f = Fixture::new(STYLET);
-    f.users(&db);
-    let srv = Server::start(STYLET, &f.data(), &db, &f.atlases(), &["--workers", "2"]);
+    let srv = f.serve(&db, 2);
     let base = srv.base.clone();
     let (tina, tom, ivan, cora, root) = (
         login(&base, "tina"),

@@ -78,8 +78,7 @@ fn pages_of(role: &str, a: &str, b: &str) -> Vec<String> {
 fn every_page_fits_a_phone_for_every_role() {
     let db = Db::Sqlite;
     let f = Fixture::new(STYLET);
-    f.users(&db);
-    let srv = Server::start(STYLET, &f.data(), &db, &f.atlases(), &["--workers", "2"]);
+    let srv = f.serve(&db, 2);
     let base = srv.base.clone();
     let tina = login(&base, "tina");
     let mut ids = Vec::new();

@@ -31,8 +31,7 @@ async fn shown_tick(c: &Client) -> u64 {
 fn the_player(db: Db) {
     let tag = db.name();
     let f = Fixture::new(STYLET);
-    f.users(&db);
-    let srv = Server::start(STYLET, &f.data(), &db, &f.atlases(), &["--workers", "2"]);
+    let srv = f.serve(&db, 2);
     let base = srv.base.clone();
     let tina = login(&base, "tina");
     let upload = |who: &Auth, name: &str| upload_scored(&base, who, &f.session(name));

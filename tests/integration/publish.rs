@@ -711,8 +711,7 @@ fn blocks(data: &[u8]) -> Vec<u8> {
 fn hostile_archives_are_refused_before_they_are_read() {
     let db = Db::Sqlite;
     let f = Fixture::new(STYLET);
-    f.users(&db);
-    let srv = Server::start(STYLET, &f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let srv = f.serve(&db, 1);
     let b = srv.base.clone();
     let token = full_token(&b, "root");
     let pid = srv.child.id();

@@ -14,8 +14,7 @@ on_both_databases!(review_progress_and_reports_by_role, "review");
 /// matrix of every route that reads or changes a scored session.
 fn review_progress_and_reports_by_role(db: Db) {
     let f = Fixture::new(STYLET);
-    f.users(&db);
-    let srv = Server::start(STYLET, &f.data(), &db, &f.atlases(), &["--workers", "2"]);
+    let srv = f.serve(&db, 2);
     let b = &srv.base;
     let tina = login(b, "tina");
     let tom = login(b, "tom");

@@ -32,8 +32,7 @@ fn error_of(json: &Value) -> &str {
 /// upload-scoped token uploads and reads its session's status and nothing else.
 fn api_tokens_scopes_expiry_and_revocation(db: Db) {
     let f = Fixture::new(STYLET);
-    f.users(&db);
-    let srv = Server::start(STYLET, &f.data(), &db, &f.atlases(), &["--workers", "1"]);
+    let srv = f.serve(&db, 1);
     let b = &srv.base;
     let url = |p: &str| format!("{b}{p}");
     let tina = login(b, "tina");
