@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 use std::time::Duration;
 
-use crate::common::browser::{Driver, chromium, log_in};
+use crate::common::browser::{Driver, chromium, click, log_in, type_into};
 use crate::common::*;
 use fantoccini::{Client, Locator};
 use serde_json::{Value, json};
@@ -103,12 +103,7 @@ async fn submit_and_wait(c: &Client, form: fantoccini::elements::Form) {
 
 async fn log_out(c: &Client, base: &str) {
     c.goto(&format!("{base}/")).await.unwrap();
-    c.find(Locator::Css("header.top form button"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
+    click(c, Locator::Css("header.top form button")).await;
     c.wait()
         .at_most(Duration::from_secs(20))
         .for_element(Locator::Css("form.login"))
@@ -187,12 +182,7 @@ fn every_role_uses_the_dashboard(db: Db) {
         assert!(text_of(&c, "#suggestion").await.contains("beginner"));
         // Upload through the form, then watch the score appear (the page refreshes itself).
         let ok_file = f.session("tina-ok");
-        c.find(Locator::Id("session-file"))
-            .await
-            .unwrap()
-            .send_keys(ok_file.to_str().unwrap())
-            .await
-            .unwrap();
+        type_into(&c, Locator::Id("session-file"), ok_file.to_str().unwrap()).await;
         c.find(Locator::Css("#upload button")).await.unwrap().click().await.unwrap();
         let grade = c
             .wait()
@@ -301,12 +291,7 @@ fn every_role_uses_the_dashboard(db: Db) {
         // Comment on and override tina's lung hit.
         open(&c, &base, &format!("/sessions/{lung}")).await;
         assert!(text_of(&c, "#risk-hits").await.contains("lung"));
-        c.find(Locator::Css("#comment-form textarea"))
-            .await
-            .unwrap()
-            .send_keys("Aim one rib lower next time.")
-            .await
-            .unwrap();
+        type_into(&c, Locator::Css("#comment-form textarea"), "Aim one rib lower next time.").await;
         c.find(Locator::Css("#comment-form button")).await.unwrap().click().await.unwrap();
         c.wait().at_most(Duration::from_secs(20)).for_element(Locator::Css("#review li.comment")).await.unwrap();
         let form = c.form(Locator::Id("override-form")).await.unwrap();
@@ -589,25 +574,15 @@ fn the_review_shows_where_and_why_in_headless_chromium() {
             );
         }
         // A comment at a moment: listed with its time, a marker on both charts.
-        c.find(Locator::Css("#comment-form textarea"))
-            .await
-            .unwrap()
-            .send_keys("Here the needle enters the lung.")
-            .await
-            .unwrap();
+        type_into(
+            &c,
+            Locator::Css("#comment-form textarea"),
+            "Here the needle enters the lung.",
+        )
+        .await;
         let at = hits[lung_hit]["t_s"].as_f64().unwrap();
-        c.find(Locator::Css("#comment-form input[name=at_s]"))
-            .await
-            .unwrap()
-            .send_keys(&format!("{at:.2}"))
-            .await
-            .unwrap();
-        c.find(Locator::Css("#comment-form button"))
-            .await
-            .unwrap()
-            .click()
-            .await
-            .unwrap();
+        type_into(&c, Locator::Css("#comment-form input[name=at_s]"), &format!("{at:.2}")).await;
+        click(&c, Locator::Css("#comment-form button")).await;
         let comment = wait_text(&c, "#review li.comment").await;
         assert!(
             comment.contains(&format!("[1] at {at:.2} s")) && comment.contains("enters the lung"),

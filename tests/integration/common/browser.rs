@@ -121,29 +121,24 @@ pub async fn chromium(driver: &Driver, profile: &Path, size: (u32, u32), extra: 
 /// Logs `user` in through the login form (password `<user>-password`, as the fixtures set).
 pub async fn log_in(c: &Client, base: &str, user: &str) {
     c.goto(&format!("{base}/login")).await.unwrap();
-    c.find(Locator::Id("username"))
-        .await
-        .unwrap()
-        .send_keys(user)
-        .await
-        .unwrap();
-    c.find(Locator::Id("password"))
-        .await
-        .unwrap()
-        .send_keys(&format!("{user}-password"))
-        .await
-        .unwrap();
-    c.find(Locator::Css("form.login button[type=submit]"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
+    type_into(c, Locator::Id("username"), user).await;
+    type_into(c, Locator::Id("password"), &format!("{user}-password")).await;
+    click(c, Locator::Css("form.login button[type=submit]")).await;
     c.wait()
         .at_most(Duration::from_secs(20))
         .for_element(Locator::Css("header.top .who"))
         .await
         .unwrap_or_else(|e| panic!("{user} is not logged in: {e}"));
+}
+
+/// Clicks the element `at` (which must be on the page).
+pub async fn click(c: &Client, at: Locator<'_>) {
+    c.find(at).await.unwrap().click().await.unwrap();
+}
+
+/// Types `text` into the element `at` (which must be on the page).
+pub async fn type_into(c: &Client, at: Locator<'_>, text: &str) {
+    c.find(at).await.unwrap().send_keys(text).await.unwrap();
 }
 
 /// Runs a script in the page and returns its value.
