@@ -1,7 +1,8 @@
 //! The page shell (head, style sheet, role-aware navigation) and small pieces every page uses:
 //! dates, scores, pass/fail badges, the sessions table, forms' CSRF field.
 
-use axum::response::Html;
+use axum::http::header;
+use axum::response::{Html, IntoResponse, Response};
 use maud::{DOCTYPE, Markup, PreEscaped, html};
 use stylet_service::store::{Role, SessionLine, SessionStatus};
 
@@ -113,6 +114,8 @@ pub fn page(title: &str, viewer: Option<&Viewer>, body: Markup) -> Html<String> 
                 meta name="viewport" content="width=device-width, initial-scale=1";
                 title { (title) " — Stylet" }
                 style { (PreEscaped(STYLE)) }
+                link rel="icon" type="image/svg+xml" href="/assets/favicon.svg";
+                script src="/assets/dashboard.js" defer {}
             }
             body {
                 @if let Some(v) = viewer { (navigation(v)) }
@@ -121,6 +124,30 @@ pub fn page(title: &str, viewer: Option<&Viewer>, body: Markup) -> Html<String> 
         }
     };
     Html(markup.into_string())
+}
+
+/// A static asset: its content type, cached five minutes by anyone (no login needed: the login
+/// and error pages use them too).
+pub fn asset(content_type: &'static str, body: &'static str) -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, content_type),
+            (header::CACHE_CONTROL, "public, max-age=300"),
+        ],
+        body,
+    )
+        .into_response()
+}
+
+/// `GET /assets/dashboard.js`: binds the buttons named by `data-action` (the pages'
+/// Content-Security-Policy allows no inline handler).
+pub async fn script() -> Response {
+    asset("text/javascript; charset=utf-8", include_str!("dashboard.js"))
+}
+
+/// `GET /assets/favicon.svg`: the tab icon, a needle.
+pub async fn favicon() -> Response {
+    asset("image/svg+xml", include_str!("favicon.svg"))
 }
 
 /// A page that refreshes itself every `seconds` (a session being scored).

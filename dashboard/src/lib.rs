@@ -54,6 +54,8 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/sessions/{id}/frame", get(player::frame))
         .route("/sessions/{id}/overview", get(player::overview::frame))
         .route("/assets/player.js", get(player::script))
+        .route("/assets/dashboard.js", get(layout::script))
+        .route("/assets/favicon.svg", get(layout::favicon))
         .route("/sessions/{id}/hits/{n}/slices.png", get(pages::review::hit_slices))
         .route("/sessions/{id}/comment", post(pages::review::comment))
         .route("/sessions/{id}/override", post(pages::review::override_grade))

@@ -11,6 +11,7 @@ mod accounts;
 mod benchmark;
 mod breathing;
 mod cli;
+mod csp;
 mod dashboard;
 mod haptics;
 mod hardening;

@@ -227,7 +227,7 @@ pub async fn cohort_report(
             h1 #report-title { "Cohort " (name) " — training report, " (r.range) }
             p.muted { "Generated " (r.generated) " UTC by " (r.generated_by) ". " (NOTE) }
             p.noprint {
-                button type="button" onclick="window.print()" { "Print" } " "
+                button type="button" data-action="print" hidden { "Print" } " "
                 a #report-pdf href={ "/reports/cohort.pdf?" (filter_query(&q)) } { "Download as PDF" } " · "
                 a href={ "/api/export/sessions.csv?" (filter_query(&q)) } { "These sessions as CSV" }
             }

@@ -359,14 +359,7 @@ fn png_response(png: Vec<u8>) -> Response {
 
 /// `GET /assets/player.js`.
 pub async fn script() -> Response {
-    (
-        [
-            (header::CONTENT_TYPE, "text/javascript; charset=utf-8"),
-            (header::CACHE_CONTROL, "public, max-age=300"),
-        ],
-        include_str!("player.js"),
-    )
-        .into_response()
+    crate::layout::asset("text/javascript; charset=utf-8", include_str!("player.js"))
 }
 
 /// The session's tick rate, from its header (the first 64 KiB of the file: nothing else is read).

@@ -96,7 +96,9 @@ pub async fn chromium(driver: &Driver, profile: &Path, size: (u32, u32), extra: 
     args.push(format!("--user-data-dir={}", profile.display()));
     let caps = json!({
         "browserName": "chrome",
-        "goog:chromeOptions": { "binary": CHROMIUM, "args": args }
+        "goog:chromeOptions": { "binary": CHROMIUM, "args": args },
+        // The console, for tests that read it (ChromeDriver's log endpoint).
+        "goog:loggingPrefs": { "browser": "ALL" }
     });
     let Value::Object(caps) = caps else { unreachable!() };
     // A session request can still meet a reset connection on a loaded machine: retry a few
