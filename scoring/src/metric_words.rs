@@ -232,6 +232,7 @@ impl MetricInfo {
         }
         let s = match (min, max) {
             (Some(lo), _) if v < lo => format!("{}: at least {} required", self.phrase(v), self.bound(lo)),
+            (_, Some(hi)) if hi == 0.0 => format!("{}: none allowed", self.phrase(v)),
             (_, Some(hi)) => format!("{}: at most {} allowed", self.phrase(v), self.bound(hi)),
             _ => format!("{} is out of range", self.phrase(v)),
         };
@@ -305,7 +306,7 @@ mod tests {
         let r = metric_info("risk_hits").unwrap();
         assert_eq!(
             r.unmet(1.0, None, Some(0.0)),
-            "1 risk structure hit: at most 0 allowed."
+            "1 risk structure hit: none allowed."
         );
         let c = metric_info("palpation_coverage").unwrap();
         assert_eq!(

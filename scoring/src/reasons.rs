@@ -74,9 +74,13 @@ pub fn reasons(exercise: Exercise, grade: &Grade, metrics: &Metrics, incomplete_
         ));
         return out;
     }
+    if !grade.attempted {
+        out.push(crate::rubric_metrics::not_attempted_text(exercise).to_string());
+        return out;
+    }
     for u in &grade.unmet {
-        if let Some(info) = metric_info(&u.metric) {
-            out.push(info.unmet(u.value, u.min, u.max));
+        if metric_info(&u.metric).is_some() {
+            out.push(unmet_text(&u.metric, u.value, u.min, u.max, metrics));
         }
     }
     if exercise == Exercise::Puncture {
@@ -135,6 +139,23 @@ pub fn reasons(exercise: Exercise, grade: &Grade, metrics: &Metrics, incomplete_
         out.push(format!("Score {} did not pass at {level}.", num(grade.score)));
     }
     out
+}
+
+/// A requirement `min ≤ value ≤ max` of `metric` that the session missed, as a sentence; the risk
+/// structures hit are named ("1 risk structure hit (right lung): none allowed.").
+pub fn unmet_text(metric: &str, value: f64, min: Option<f64>, max: Option<f64>, metrics: &Metrics) -> String {
+    let info = metric_info(metric).expect("every rubric metric has words (tested)");
+    let text = info.unmet(value, min, max);
+    if metric != "risk_hits" || metrics.risk_hits.is_empty() {
+        return text;
+    }
+    let names: Vec<&str> = metrics.risk_hits.iter().map(|h| h.structure.as_str()).collect();
+    let phrase = info.phrase(value);
+    let capitalised = {
+        let mut c = phrase.chars();
+        c.next().map(|f| f.to_uppercase().collect::<String>() + c.as_str()).unwrap_or_default()
+    };
+    text.replacen(&capitalised, &format!("{capitalised} ({})", names.join(", ")), 1)
 }
 
 #[cfg(test)]

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::benchmark::Benchmark;
 use crate::metrics::{MetricParams, Metrics};
-use crate::rubric_metrics::{HIGHER_IS_BETTER, exercise_metrics};
+use crate::rubric_metrics::{HIGHER_IS_BETTER, attempted, exercise_metrics, not_attempted_text};
 use stylet_atlas::Exercise;
 
 /// The metric names and values rubrics use, also under this module's name.
@@ -280,6 +280,18 @@ pub struct Grade {
     /// stored before rubric version 4).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub benchmark: Option<GradeBenchmark>,
+    /// False when the session never tried the exercise (no puncture, no touch): it scored 0 with
+    /// `failed` saying so, and nothing else was graded. Stored only when false.
+    #[serde(default = "yes", skip_serializing_if = "is_yes")]
+    pub attempted: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+fn is_yes(b: &bool) -> bool {
+    *b
 }
 
 /// The points a deduction takes: `points` per unit of `value` above `free`, at most `max_points`.
@@ -504,6 +516,23 @@ impl Rubric {
     ) -> Result<Grade, GradeError> {
         self.grade_check(exercise, difficulty)?;
         let level = self.level(exercise, difficulty).expect("checked above");
+        if !attempted(m, exercise) {
+            return Ok(Grade {
+                score: 0.0,
+                passed: false,
+                exercise,
+                difficulty,
+                pass_score: Some(level.pass_score),
+                rubric: self.name.clone(),
+                rubric_version: self.version,
+                physics_version: stylet_physics::PHYSICS_VERSION,
+                failed: vec![not_attempted_text(exercise).to_string()],
+                unmet: Vec::new(),
+                deductions: Vec::new(),
+                benchmark: None,
+                attempted: false,
+            });
+        }
         let value = |name: &str| metric_value(m, name).expect("rubric metrics are checked at parse time");
         let mut failed = Vec::new();
         let mut unmet = Vec::new();
@@ -512,8 +541,7 @@ impl Rubric {
             let below = q.min.is_some_and(|min| v < min);
             let above = q.max.is_some_and(|max| v > max);
             if below || above {
-                let info = crate::metric_words::metric_info(&q.metric).expect("every rubric metric has words (tested)");
-                failed.push(info.unmet(v, q.min, q.max));
+                failed.push(crate::reasons::unmet_text(&q.metric, v, q.min, q.max, m));
                 unmet.push(Unmet {
                     metric: q.metric.clone(),
                     value: v,
@@ -598,6 +626,7 @@ impl Rubric {
             unmet,
             deductions,
             benchmark: graded_benchmark,
+            attempted: true,
         })
     }
 }
@@ -615,7 +644,7 @@ mod tests {
     #[test]
     fn the_shipped_rubric_grades_the_worked_example() {
         let r = Rubric::default_rubric();
-        assert_eq!((r.name.as_str(), r.version), ("ptcd", 5));
+        assert_eq!((r.name.as_str(), r.version), ("ptcd", 6));
         let g = r.grade(&metrics(), Exercise::Puncture, Difficulty::Beginner).unwrap();
         // attempts 2 (1 free) −10, redirections 3 (2 free) −3, fluoro 40 s (30 free) −5,
         // no palpation first −5: 100 − 23.
@@ -719,7 +748,7 @@ mod tests {
     fn bad_rubrics_are_named() {
         let base = DEFAULT_RUBRIC;
         let cases = [
-            (base.replace("version = 5", "version = 0"), "version"),
+            (base.replace("version = 6", "version = 0"), "version"),
             (
                 base.replace("[levels.expert]", "[levels.master]"),
                 "lacks level 'expert'",

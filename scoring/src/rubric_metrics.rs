@@ -75,6 +75,27 @@ pub fn exercise_metrics(exercise: Exercise) -> &'static [&'static str] {
     }
 }
 
+/// Whether the session tried `exercise` at all: for a puncture the needle entered the skin, for a
+/// palpation the finger and for an ultrasound survey the probe touched it. A session that did not
+/// is not graded on everything it lacks (which would leave points for what it never risked): it
+/// scores 0 and says so ([`not_attempted_text`]).
+pub fn attempted(m: &Metrics, exercise: Exercise) -> bool {
+    match exercise {
+        Exercise::Puncture => m.attempts > 0,
+        Exercise::Palpation => m.palpation.is_some(),
+        Exercise::UltrasoundSurvey => m.ultrasound.is_some(),
+    }
+}
+
+/// What a session that did not try `exercise` is told.
+pub fn not_attempted_text(exercise: Exercise) -> &'static str {
+    match exercise {
+        Exercise::Puncture => "Not attempted: the needle never entered the skin.",
+        Exercise::Palpation => "Not attempted: the finger never touched the skin.",
+        Exercise::UltrasoundSurvey => "Not attempted: the probe never touched the skin.",
+    }
+}
+
 /// The value of a rubric metric (absent guided or distance metrics count as 0: nothing to judge).
 pub fn metric_value(m: &Metrics, name: &str) -> Option<f64> {
     let flag = |b: bool| if b { 1.0 } else { 0.0 };
