@@ -640,6 +640,61 @@ mod tests {
         crate::metrics::tests_support::example()
     }
 
+    /// A session that never tried the exercise scores 0 with one reason that says so, at every
+    /// level; one that tried is graded as before.
+    #[test]
+    fn an_exercise_not_attempted_scores_zero_and_says_so() {
+        use crate::metrics::tests_support::metrics_with;
+        let r = Rubric::default_rubric();
+        let idle = metrics_with(|m| {
+            m.attempts = 0;
+            m.target_reached = false;
+            m.target_confirmed = false;
+        });
+        for level in Difficulty::ALL {
+            let g = r.grade(&idle, Exercise::Puncture, level).unwrap();
+            assert_eq!((g.score, g.passed, g.attempted), (0.0, false, false), "{level:?}");
+            assert_eq!(g.failed, ["Not attempted: the needle never entered the skin."]);
+            assert!(g.deductions.is_empty() && g.unmet.is_empty());
+            let reasons = crate::reasons::reasons(Exercise::Puncture, &g, &idle, None);
+            assert_eq!(reasons, g.failed);
+        }
+        let g = r.grade(&idle, Exercise::Palpation, Difficulty::Beginner).unwrap();
+        assert_eq!(g.failed, ["Not attempted: the finger never touched the skin."]);
+        let g = r.grade(&idle, Exercise::UltrasoundSurvey, Difficulty::Beginner).unwrap();
+        assert_eq!(g.failed, ["Not attempted: the probe never touched the skin."]);
+        // A grade stored before the field existed reads as attempted; an attempted one stores
+        // nothing new.
+        let tried = r.grade(&metrics(), Exercise::Puncture, Difficulty::Beginner).unwrap();
+        assert!(tried.attempted && tried.score > 0.0);
+        let json = serde_json::to_value(&tried).unwrap();
+        assert!(json.get("attempted").is_none());
+        let back: Grade = serde_json::from_value(json).unwrap();
+        assert!(back.attempted);
+        let idle_json = serde_json::to_value(r.grade(&idle, Exercise::Puncture, Difficulty::Expert).unwrap()).unwrap();
+        assert_eq!(idle_json["attempted"], serde_json::json!(false));
+    }
+
+    /// The unmet risk-hit requirement names what was hit.
+    #[test]
+    fn a_risk_hit_requirement_names_the_structures() {
+        use crate::metrics::tests_support::metrics_with;
+        let hit = |name: &str, label: u16| -> crate::metrics::RiskHit {
+            serde_json::from_value(serde_json::json!({
+                "structure": name, "label": label, "t_s": 5.9, "depth_mm": 9.5,
+                "duration_s": 1.0, "entries": 1
+            }))
+            .unwrap()
+        };
+        let m = metrics_with(|m| m.risk_hits = vec![hit("right lung", 3), hit("portal vein", 7)]);
+        let g = Rubric::default_rubric().grade(&m, Exercise::Puncture, Difficulty::Beginner).unwrap();
+        assert!(
+            g.failed.iter().any(|f| f == "2 risk structures hit (right lung, portal vein): none allowed."),
+            "{:?}",
+            g.failed
+        );
+    }
+
     /// The worked example of docs/metrics.md "Rubrics".
     #[test]
     fn the_shipped_rubric_grades_the_worked_example() {
