@@ -421,6 +421,31 @@ impl SessionHeader {
         m
     }
 
+    /// The world model's settings for people, part by part ("deformation", "contrast",
+    /// "breathing"): each setting's name and value as the header records it, reals decoded from
+    /// their exact bits (`tau_bits` → `tau`, shortest round-trip form).
+    pub fn world_settings(&self) -> Vec<(&'static str, Vec<(String, String)>)> {
+        let metadata = self.to_metadata();
+        ["deformation", "contrast", "breathing"]
+            .into_iter()
+            .map(|part| {
+                let prefix = format!("world.{part}.");
+                let settings = metadata
+                    .iter()
+                    .filter_map(|(k, v)| Some((k.strip_prefix(&prefix)?, v)))
+                    .map(|(k, v)| match k.strip_suffix("_bits") {
+                        Some(name) => {
+                            let real = u64::from_str_radix(v, 16).map(f64::from_bits);
+                            (name.to_string(), real.map_or_else(|_| v.clone(), |x| x.to_string()))
+                        }
+                        None => (k.to_string(), v.clone()),
+                    })
+                    .collect();
+                (part, settings)
+            })
+            .collect()
+    }
+
     /// From MCAP metadata; names the first missing or malformed field.
     pub fn from_metadata(m: &BTreeMap<String, String>) -> Result<Self, HeaderError> {
         let get = |k: &str| m.get(k).cloned().ok_or_else(|| HeaderError::Missing(k.to_string()));

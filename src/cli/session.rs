@@ -107,6 +107,21 @@ pub fn inspect_json(s: &Session) -> Value {
             ev
         }).collect::<Vec<_>>(),
     });
+    v["world"] = Value::Object(
+        h.world_settings()
+            .into_iter()
+            .map(|(part, settings)| {
+                let values = settings
+                    .into_iter()
+                    .map(|(k, text)| {
+                        let value = text.parse::<f64>().map_or_else(|_| json!(text), |x| json!(x));
+                        (k, value)
+                    })
+                    .collect();
+                (part.to_string(), Value::Object(values))
+            })
+            .collect(),
+    );
     let (word, detail) = state(s);
     v["state"] = json!(word);
     v["state_detail"] = json!(detail);
@@ -142,6 +157,9 @@ fn inspect(a: &InspectArgs) -> anyhow::Result<()> {
         h.initial_tool.name()
     );
     sayf!("started   {}", h.wall_clock_start);
+    for (i, line) in world_lines(h).iter().enumerate() {
+        sayf!("{}{line}", if i == 0 { "world     " } else { "          " });
+    }
     sayf!(
         "recorded  {:.3} s: {} ticks, {} events, {} digests, {} notes in {} chunks",
         s.duration_s(),
@@ -170,6 +188,27 @@ fn inspect(a: &InspectArgs) -> anyhow::Result<()> {
     }
     sayf!("state     {word}: {detail}");
     Ok(())
+}
+
+/// The world model the session was recorded with (and replays with), one line per part:
+/// "deformation off", "contrast: grid_nodes 64, …", "breathing on: model synthetic, …".
+fn world_lines(h: &stylet_recorder::SessionHeader) -> Vec<String> {
+    h.world_settings()
+        .into_iter()
+        .map(|(part, settings)| {
+            let enabled = settings.iter().find(|(k, _)| k == "enabled").map(|(_, v)| v == "1");
+            let rest: Vec<String> = settings
+                .iter()
+                .filter(|(k, _)| k != "enabled")
+                .map(|(k, v)| format!("{k} {v}"))
+                .collect();
+            match enabled {
+                Some(false) => format!("{part} off"),
+                Some(true) => format!("{part} on: {}", rest.join(", ")),
+                None => format!("{part}: {}", rest.join(", ")),
+            }
+        })
+        .collect()
 }
 
 fn event_text(e: &stylet_recorder::EventRecord) -> String {

@@ -102,9 +102,24 @@ fn recorded_session_matches_the_simulation_and_the_cli_reports_it() {
     assert_eq!(j["rounded_output_ticks"], 20_000);
     let blocks = j["rounded_output_blocks"].as_u64().unwrap();
     assert!((40..=20_000 / 100).contains(&blocks), "{blocks} blocks");
+    // The world model the session replays with: every setting, reals to the bit.
+    let contrast = stylet_physics::ContrastSettings::default();
+    assert_eq!(j["world"]["deformation"]["enabled"], 0);
+    assert_eq!(j["world"]["breathing"]["enabled"], 0);
+    assert_eq!(j["world"]["contrast"]["grid_nodes"], contrast.grid_nodes);
+    assert_eq!(j["world"]["contrast"]["tau"].as_f64(), Some(contrast.tau));
+    assert_eq!(j["world"]["contrast"]["settle_s"].as_f64(), Some(contrast.settle_s));
     let text = ok(&["session", "inspect", s(&session)]);
     assert!(
         text.contains("trainee   bob") && text.contains("contrast injected: 2 ml"),
+        "{text}"
+    );
+    assert!(
+        text.contains("world     deformation off\n")
+            && text.contains("          contrast: ")
+            && text.contains(&format!("grid_nodes {}", contrast.grid_nodes))
+            && text.contains(&format!("tau {}", contrast.tau))
+            && text.contains("breathing off\n"),
         "{text}"
     );
     assert!(
