@@ -161,6 +161,27 @@ fn the_player(db: Db) {
             &format!("Number(document.getElementById('player').dataset.shown) > {before}"),
         )
         .await;
+        // While playing, the clock shows the time of the frames on screen, and the four views
+        // show one time: the clock neither runs ahead of the pictures nor jumps.
+        for _ in 0..30 {
+            let seen = js(
+                &c,
+                "const p = document.getElementById('player'); \
+                 return [document.getElementById('clock').textContent, p.dataset.rate, \
+                 Array.from(p.querySelectorAll('img[data-view]')).map(i => i.dataset.tick || p.dataset.shown)]",
+            )
+            .await;
+            let rate: f64 = seen[1].as_str().unwrap().parse().unwrap();
+            let ticks: Vec<f64> = seen[2]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|t| t.as_str().unwrap().parse().unwrap())
+                .collect();
+            assert!(ticks.iter().all(|t| *t == ticks[0]), "the views show different times: {seen}");
+            assert_eq!(seen[0], json!(format!("{:.2} s", ticks[0] / rate)), "clock and frames: {seen}");
+            tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+        }
         c.find(Locator::Id("play")).await.unwrap().click().await.unwrap();
         assert_eq!(js(&c, "return document.getElementById('player').dataset.playing").await, "0");
 

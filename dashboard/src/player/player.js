@@ -58,8 +58,8 @@
     });
   });
 
-  function moveCursors() {
-    var t = tick / rate;
+  function moveCursors(at) {
+    var t = at / rate;
     charts.forEach(function (svg, n) {
       var d = svg.dataset;
       var x = Number(d.px0) + (t - Number(d.x0)) / (Number(d.x1) - Number(d.x0)) * (Number(d.px1) - Number(d.px0));
@@ -70,14 +70,21 @@
     });
   }
 
-  // Shows tick t: the clock, the timeline and the cursors at once, the frames when they arrive.
+  // The clock and the chart cursors at tick t.
+  function setClock(t) {
+    clock.textContent = (t / rate).toFixed(2) + " s";
+    timeline.setAttribute("aria-valuetext", clock.textContent);
+    moveCursors(t);
+  }
+
+  // Shows tick t: the timeline at once; the frames when they arrive. A seek moves the clock at
+  // once (the viewer chose the time); while playing the clock follows the frames on screen, so it
+  // never runs ahead of the pictures nor jumps while the server draws.
   function show(t) {
     tick = Math.max(0, Math.min(last, t));
     player.dataset.tick = String(tick);
     timeline.value = String(tick);
-    clock.textContent = (tick / rate).toFixed(2) + " s";
-    timeline.setAttribute("aria-valuetext", clock.textContent);
-    moveCursors();
+    if (!playing) setClock(tick);
     if (loading > 0) {
       wanted = tick;
       return;
@@ -93,10 +100,26 @@
     var left = images.length;
     var failed = false;
     loading = left;
+    var arrived = [];
     var finish = function () {
       if (mine !== generation) return;
       loading = 0;
-      if (!failed) player.dataset.shown = String(t);
+      if (!failed) {
+        // All four views change together, with the clock while playing.
+        arrived.forEach(function (a) {
+          a.img.src = a.src;
+          a.img.dataset.tick = String(t);
+          a.img.alt = a.img.alt.replace(/ at .*$/, " at " + (t / rate).toFixed(2) + " s");
+        });
+        player.dataset.shown = String(t);
+        if (playing || t === tick) setClock(t);
+        // Playing time starts when the first frames of a play are on screen, not when they
+        // were asked for: a slow first drawing does not make the clock jump.
+        if (playing && !started) {
+          started = true;
+          lastStep = null;
+        }
+      }
       if (wanted !== null && wanted !== t) {
         var next = wanted;
         wanted = null;
@@ -111,9 +134,7 @@
       var done = function (ok) {
         if (mine !== generation) return;
         if (ok && next.naturalWidth > 0) {
-          img.src = next.src;
-          img.dataset.tick = String(t);
-          img.alt = img.alt.replace(/ at .*$/, " at " + (t / rate).toFixed(2) + " s");
+          arrived.push({ img: img, src: next.src });
         } else {
           failed = true;
         }
@@ -135,6 +156,8 @@
   }
 
   var lastStep = null;
+  // Whether the first frames of the current play have been shown.
+  var started = false;
   function step(now) {
     if (!playing) return;
     if (lastStep !== null && loading === 0) {
@@ -165,6 +188,7 @@
     if (on) {
       if (tick >= last) show(0);
       lastStep = null;
+      started = false;
       frameRequest = window.requestAnimationFrame(step);
     }
   }
@@ -236,7 +260,7 @@
   Array.prototype.forEach.call(player.querySelectorAll("[hidden]"), function (el) { el.hidden = false; });
   Array.prototype.forEach.call(player.querySelectorAll(".noscript-only"), function (el) { el.remove(); });
   player.dataset.ready = "1";
-  moveCursors();
+  moveCursors(tick);
 })();
 
 // The 3D overview's turntable (docs/dashboard.md "3D overview"): the arrows, dragging the
