@@ -11,12 +11,14 @@
 //! | left drag | move the tool in the screen plane (0.2 mm per pixel) |
 //! | right drag | aim it (0.25° per pixel) |
 //! | wheel | advance / withdraw along the tool's axis (1 mm per notch, 0.2 with Shift) |
-//! | keypad 1 2 3 4 | finger, linear probe, convex probe, needle 18 G |
+//! | keypad (or top-row) 1 2 3 4 | finger, linear probe, convex probe, needle 18 G |
 //! | keypad 5 | stylet out / in |
 //! | keypad 6 | inject 1 ml of contrast |
 //! | keypad 7 | fluoroscopy on / off; keypad 8: one X-ray shot |
 //! | keypad 9 | breath hold / release |
-//! | keypad 0 | next view layout; keypad Enter: finish the session |
+//! | keypad 0 | next view layout; keypad Enter (or Return): finish the session |
+//!
+//! Keys are bound by physical key (NumLock and the layout do not matter): `window::keys`.
 //!
 //! The window turns its key and pointer events into a [`ControlInput`] per frame; what the
 //! controls produce is a target pose and [`Command`]s for the live device, which resolves the

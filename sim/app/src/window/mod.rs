@@ -8,6 +8,7 @@
 //! turns the trainee's input into device commands and draws snapshots.
 
 mod chart;
+mod keys;
 mod panes;
 mod replay_screen;
 mod results;

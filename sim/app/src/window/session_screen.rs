@@ -13,9 +13,10 @@ use stylet_physics::glam::{DQuat, DVec3};
 use stylet_physics::needle::spec::Gauge;
 use stylet_physics::{Event, ToolSpec};
 
+use super::keys::Keyboard;
 use super::panes::Panes;
 use super::{Go, ResultsScreen, Shared};
-use crate::controls::{self, Command, ControlInput, HeldKeys, KeypadKey};
+use crate::controls::{self, Command, ControlInput, KeypadKey};
 use crate::haptic::Snapshot;
 use crate::session::{Driver, RunningSession, SessionError, SessionPlan};
 use crate::view_worker::ViewWorker;
@@ -33,6 +34,8 @@ pub struct SessionScreen {
     /// The device frame's orientation in the world for the controls (x right, y away, z up).
     view: DQuat,
     pedal_down: bool,
+    /// The physical keys down (kept across frames).
+    keyboard: Keyboard,
     /// The gauge of the needle keypad 4 takes.
     pub gauge: Gauge,
     last_frame: Instant,
@@ -85,6 +88,7 @@ impl SessionScreen {
             pose,
             view: DQuat::IDENTITY,
             pedal_down: false,
+            keyboard: Keyboard::default(),
             gauge: Gauge::G18,
             last_frame: Instant::now(),
             rate: RateMeter {
@@ -263,7 +267,8 @@ impl SessionScreen {
 
         // Keys (unless a text field has them) and the pointer over the pictures.
         let typing = ui.ctx().egui_wants_keyboard_input();
-        let (input, keypad, pedal_key) = ui.input(|i| read_controls(i, &pictures, typing));
+        let keyboard = &mut self.keyboard;
+        let (input, keypad, pedal_key) = ui.input(|i| read_controls(i, keyboard, &pictures, typing));
         for k in keypad {
             match controls::keypad(k) {
                 Some(Command::Finish) => finish = true,
@@ -460,62 +465,19 @@ fn distance_to_line(p: DVec3, a: DVec3, d: DVec3) -> f64 {
     (v - d * v.dot(d)).length()
 }
 
-/// Reads one frame of controls: held keys, drags and wheel over the pictures, keypad keys
-/// pressed, and whether X (the pedal) is held.
+/// Reads one frame of controls: the keys (every event of the frame, by physical key), drags and
+/// wheel over the pictures.
 fn read_controls(
     i: &egui::InputState,
+    keyboard: &mut Keyboard,
     pictures: &[egui::Response],
     typing: bool,
 ) -> (ControlInput, Vec<KeypadKey>, bool) {
-    let mut input = ControlInput::default();
-    let mut keypad = Vec::new();
-    let mut pedal = false;
-    if !typing {
-        let k = |key| i.key_down(key);
-        input.held = HeldKeys {
-            away: k(egui::Key::W),
-            toward: k(egui::Key::S),
-            left: k(egui::Key::A),
-            right: k(egui::Key::D),
-            up: k(egui::Key::R),
-            down: k(egui::Key::F),
-            tilt_up: k(egui::Key::ArrowUp),
-            tilt_down: k(egui::Key::ArrowDown),
-            tilt_left: k(egui::Key::ArrowLeft),
-            tilt_right: k(egui::Key::ArrowRight),
-            fine: i.modifiers.shift,
-        };
-        pedal = k(egui::Key::X);
-        let digits = [
-            egui::Key::Num0,
-            egui::Key::Num1,
-            egui::Key::Num2,
-            egui::Key::Num3,
-            egui::Key::Num4,
-            egui::Key::Num5,
-            egui::Key::Num6,
-            egui::Key::Num7,
-            egui::Key::Num8,
-            egui::Key::Num9,
-        ];
-        // One command per press, in order; a held key's repeats are not presses (holding 6 must
-        // not keep injecting contrast).
-        for e in &i.events {
-            if let egui::Event::Key {
-                key,
-                pressed: true,
-                repeat: false,
-                ..
-            } = e
-            {
-                if let Some(d) = digits.iter().position(|k| k == key) {
-                    keypad.push(KeypadKey::Digit(d as u8));
-                } else if *key == egui::Key::Enter {
-                    keypad.push(KeypadKey::Enter);
-                }
-            }
-        }
-    }
+    let keys = keyboard.frame(&i.events, typing, i.modifiers.shift);
+    let mut input = ControlInput {
+        held: keys.held,
+        ..ControlInput::default()
+    };
     for r in pictures {
         if r.dragged_by(egui::PointerButton::Primary) {
             let d = r.drag_delta();
@@ -537,5 +499,5 @@ fn read_controls(
             }
         }
     }
-    (input, keypad, pedal)
+    (input, keys.commands, keys.pedal)
 }
