@@ -282,6 +282,64 @@ fn a_session_by_hand_moves_with_the_keys_and_the_keypad_changes_the_tool() {
     }
 }
 
+/// The keypad by physical key: NumLock off (keypad 4 arrives as ArrowLeft), a release under
+/// another logical key (Shift pressed meanwhile), a pedal tap between two frames; none is lost
+/// and none tilts the tool.
+#[test]
+fn the_keypad_works_without_numlock_and_no_press_is_lost() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut h = session_by_hand(dir.path());
+    let send = |h: &Harness<'_, StyletApp>, key, physical, pressed| {
+        h.event(egui::Event::Key {
+            key,
+            physical_key: Some(physical),
+            pressed,
+            repeat: false,
+            modifiers: egui::Modifiers::NONE,
+        })
+    };
+    let aim = |h: &Harness<'_, StyletApp>| match &h.state().screen {
+        Screen::Session(s) => s.running().unwrap().live().unwrap().pose().unwrap().1,
+        _ => panic!("no session"),
+    };
+    let before = aim(&h);
+    send(&h, egui::Key::ArrowLeft, egui::Key::Num4, true);
+    for _ in 0..5 {
+        h.step();
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    send(&h, egui::Key::ArrowLeft, egui::Key::Num4, false);
+    h.step();
+    std::thread::sleep(Duration::from_millis(50));
+    h.step();
+    assert!(aim(&h).angle_between(before) < 1e-9, "keypad 4 without NumLock tilted the tool");
+    send(&h, egui::Key::Num9, egui::Key::Num9, true);
+    h.step();
+    send(&h, egui::Key::PageUp, egui::Key::Num9, false);
+    h.step();
+    send(&h, egui::Key::Num9, egui::Key::Num9, true);
+    h.step();
+    send(&h, egui::Key::Num9, egui::Key::Num9, false);
+    h.step();
+    h.key_press(egui::Key::X);
+    h.step();
+    std::thread::sleep(Duration::from_millis(100));
+    h.step();
+    h.key_press(egui::Key::Enter);
+    step_until(&mut h, "the local score", |app| match &app.screen {
+        Screen::Results(r) => r.score().is_some(),
+        _ => false,
+    });
+    let Screen::Results(r) = &h.state().screen else { unreachable!() };
+    let session = stylet_recorder::read(&r.finished().unwrap().path).unwrap();
+    let events: Vec<_> = session.events.iter().filter_map(|e| e.to_event().ok()).collect();
+    use stylet_physics::{Event, ToolSpec};
+    assert!(events.iter().any(|e| matches!(e, Event::SelectTool(ToolSpec::Needle { .. }))), "keypad 4 without NumLock: {events:?}");
+    assert!(events.iter().any(|e| matches!(e, Event::BreathHold)), "{events:?}");
+    assert!(events.iter().any(|e| matches!(e, Event::BreathRelease)), "the second press of 9: {events:?}");
+    assert!(events.iter().any(|e| matches!(e, Event::XrayOn)), "the pedal tap: {events:?}");
+}
+
 #[test]
 fn closing_the_window_during_a_session_finishes_it_and_queues_it_for_upload() {
     let dir = tempfile::tempdir().unwrap();
