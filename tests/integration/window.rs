@@ -282,6 +282,47 @@ fn a_session_by_hand_moves_with_the_keys_and_the_keypad_changes_the_tool() {
     }
 }
 
+/// A session by hand starts a few centimetres from the skin and the status bar says how far; a
+/// few wheel notches over a picture bring the tool closer by as many millimetres.
+#[test]
+fn a_session_by_hand_starts_near_the_skin_and_says_how_far() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut h = session_by_hand(dir.path());
+    let distance = |h: &Harness<'_, StyletApp>| -> f64 {
+        let node = h.get_by_label_contains("mm from the skin");
+        let text = node.label().unwrap_or_default();
+        text.split(" tip ")
+            .nth(1)
+            .and_then(|r| r.split(' ').next())
+            .and_then(|n| n.parse().ok())
+            .unwrap_or_else(|| panic!("{text}"))
+    };
+    step_until(&mut h, "the first snapshot", |app| match &app.screen {
+        Screen::Session(s) => s.running().is_some_and(|r| r.snapshot().is_some()),
+        _ => false,
+    });
+    h.step();
+    let before = distance(&h);
+    assert!((20.0..=40.0).contains(&before), "starts {before} mm from the skin");
+    // 10 notches of the wheel over the first picture: 10 mm closer.
+    let at = h.get_all_by_role(egui::accesskit::Role::Image).next().map(|n| n.rect().center());
+    h.hover_at(at.expect("a picture"));
+    h.event(egui::Event::MouseWheel {
+        unit: egui::MouseWheelUnit::Line,
+        delta: egui::vec2(0.0, 10.0),
+        phase: egui::TouchPhase::Move,
+        source: egui::MouseWheelSource::Unknown,
+        modifiers: egui::Modifiers::NONE,
+    });
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_millis(600) {
+        h.step();
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let after = distance(&h);
+    assert!((before - after - 10.0).abs() <= 2.0, "{before} mm, then {after} mm after 10 notches");
+}
+
 /// The keypad by physical key: NumLock off (keypad 4 arrives as ArrowLeft), a release under
 /// another logical key (Shift pressed meanwhile), a pedal tap between two frames; none is lost
 /// and none tilts the tool.

@@ -18,6 +18,7 @@ pub mod publish_client;
 pub mod replay_cursor;
 pub mod service_client;
 pub mod session;
+pub mod skin_hint;
 pub mod tablet;
 pub mod upload;
 pub mod view_worker;

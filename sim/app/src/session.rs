@@ -143,24 +143,50 @@ pub enum Driver {
     HidDevice(stylet_devices::hid_profile::HidProfile),
 }
 
-/// Where the tool starts for a session by hand: 60 mm above the skin entry of the atlas' first
-/// planned path, aimed along it (or above the volume's centre, pointing down).
-pub fn start_pose(atlas: &Atlas) -> (DVec3, DQuat) {
-    let paths = atlas.planned_paths();
-    let (point, dir) = match paths.first().and_then(|p| p.direction().map(|d| (p.entry_mm, d))) {
-        Some(p) => p,
-        None => {
-            let (lo, hi) = atlas.model.ct().grid().world_bounds();
-            (
-                (lo + hi) * 0.5 + DVec3::new(0.0, (hi.y - lo.y) * 0.5, 0.0),
-                DVec3::NEG_Y,
-            )
+/// How far outside the skin a session by hand starts (mm): a few seconds of the wheel (1 mm a
+/// notch), not minutes.
+pub const START_STANDOFF_MM: f64 = 30.0;
+
+/// How far from the entry an expert starts, along the skin (mm): near the entry window, not on it.
+pub const EXPERT_OFFSET_MM: f64 = 10.0;
+
+/// Where the tool starts for a session by hand: [`START_STANDOFF_MM`] outside the skin entry of
+/// the path the atlas guides along. With the planned path among the level's aids (beginner), on
+/// that path and aimed along it; without (advanced, expert), over the entry and aimed straight
+/// into the skin, so the trainee finds the angle, and an expert [`EXPERT_OFFSET_MM`] to the side,
+/// so they also find the window. Without planned paths, above the volume's centre pointing down.
+/// The pose is the first tick's, recorded like every other: replay does not depend on it.
+pub fn start_pose(plan: &SessionPlan) -> (DVec3, DQuat) {
+    let atlas = &plan.atlas;
+    let orient = |d| stylet_devices::script::device::orientation(d, None);
+    let path = atlas.guided_path().map(|p| (DVec3::from_array(p.entry_mm), DVec3::from_array(p.target_mm)));
+    if let Some((entry, target)) = path
+        && let Some(dir) = (target - entry).try_normalize()
+    {
+        if plan.aids().guided_path.is_some() {
+            return (entry - dir * START_STANDOFF_MM, orient(dir));
         }
-    };
-    (
-        point - dir * 60.0,
-        stylet_devices::script::device::orientation(dir, None),
-    )
+        // D_skin grows inward: its gradient at the entry is the inward normal.
+        let inward = atlas
+            .model
+            .skin_distance()
+            .gradient(entry, 0.0)
+            .try_normalize()
+            .filter(|n| n.dot(dir) > 0.0)
+            .unwrap_or(dir);
+        let over = if plan.difficulty == stylet_atlas::Difficulty::Expert {
+            let lean = dir - inward * dir.dot(inward);
+            let side = inward.cross(lean).try_normalize().unwrap_or_else(|| inward.any_orthonormal_vector());
+            entry + side * EXPERT_OFFSET_MM
+        } else {
+            entry
+        };
+        return (over - inward * START_STANDOFF_MM, orient(inward));
+    }
+    let (lo, hi) = atlas.model.ct().grid().world_bounds();
+    let top = (lo + hi) * 0.5 + DVec3::new(0.0, (hi.y - lo.y) * 0.5, 0.0);
+    let to_skin = atlas.model.skin_distance_along(top, DVec3::NEG_Y, hi.y - lo.y).unwrap_or(0.0);
+    (top + DVec3::NEG_Y * (to_skin - START_STANDOFF_MM).max(0.0), orient(DVec3::NEG_Y))
 }
 
 /// The live device moved by a connected SpaceMouse, else by a gamepad (with the feature
@@ -208,7 +234,7 @@ impl RunningSession {
                 config.deform_in_background = true;
                 config.breathing = plan.breathing()?;
                 let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
-                let (position, orientation) = start_pose(atlas);
+                let (position, orientation) = start_pose(&plan);
                 let (device, handle) = live_device(position, orientation, sim.tick_rate_hz());
                 // A connected SpaceMouse (else a gamepad) moves the tool by rate control; the
                 // keys and mouse then only give commands.
@@ -222,7 +248,7 @@ impl RunningSession {
                 config.deform_in_background = true;
                 config.breathing = plan.breathing()?;
                 let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
-                let (position, orientation) = start_pose(atlas);
+                let (position, orientation) = start_pose(&plan);
                 let (device, handle) = live_device(position, orientation, sim.tick_rate_hz());
                 let name = profile.name.clone();
                 let arm =
@@ -402,6 +428,56 @@ fn new_session_path(dir: &Path, scenario: &str) -> PathBuf {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A beginner starts on the planned path, aimed along it; an advanced trainee over its entry,
+    /// aimed into the skin; an expert beside the entry: all a few centimetres out.
+    #[test]
+    fn a_session_by_hand_starts_a_few_centimetres_outside_the_entry() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = stylet_atlas::phantom::generate(&stylet_atlas::phantom::PhantomConfig {
+            dims: [64, 64, 50],
+            spacing_mm: [6.0; 3],
+            ..Default::default()
+        })
+        .unwrap();
+        stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
+        let atlas = Arc::new(stylet_atlas::load(dir.path()).unwrap());
+        let g = atlas.guided_path().unwrap();
+        let (entry, target) = (DVec3::from_array(g.entry_mm), DVec3::from_array(g.target_mm));
+        let path_dir = (target - entry).normalize();
+        let plan = |difficulty| SessionPlan {
+            atlas: Arc::clone(&atlas),
+            scenario: atlas.manifest.scenarios[0].name.clone(),
+            difficulty,
+            trainee: "t".into(),
+            seed: 1,
+            sessions_dir: dir.path().join("sessions"),
+        };
+        for level in [Difficulty::Beginner, Difficulty::Advanced, Difficulty::Expert] {
+            let (p, q) = start_pose(&plan(level));
+            let axis = q * DVec3::Z;
+            let to_skin = atlas.model.skin_distance_along(p, axis, 300.0).expect("the tool points at the skin");
+            assert!((20.0..=40.0).contains(&to_skin), "{level:?}: {to_skin} mm to the skin");
+            let off_entry = distance_to_line(entry, p, axis);
+            match level {
+                Difficulty::Beginner => {
+                    assert!(axis.dot(path_dir) > 0.9999, "beginner: aimed along the path");
+                    assert!(off_entry < 0.5, "beginner: on the path, {off_entry} mm off");
+                }
+                Difficulty::Advanced => assert!(off_entry < 0.5, "advanced: over the entry, {off_entry} mm off"),
+                _ => assert!(
+                    (EXPERT_OFFSET_MM - 0.5..=EXPERT_OFFSET_MM + 0.5).contains(&off_entry),
+                    "expert: near the entry, {off_entry} mm off"
+                ),
+            }
+        }
+    }
+
+    /// Distance of `p` from the line through `a` along the unit vector `d`.
+    fn distance_to_line(p: DVec3, a: DVec3, d: DVec3) -> f64 {
+        let v = p - a;
+        (v - d * v.dot(d)).length()
+    }
 
     /// A scenario that breathes gives its sessions the atlas' motion with the session's seed; the
     /// others stay still; an atlas without motion refuses a breathing scenario by name.

@@ -64,7 +64,7 @@ pub struct ForceComponents {
 /// What one tick produces: the device's force and torque plus a summary of the tool state (the
 /// full state — needle and path nodes, proxies — through [`Simulation::needle`] and
 /// [`Simulation::contact`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct TickOutput {
     pub tick: u64,
     pub time_s: f64,

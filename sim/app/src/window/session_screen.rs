@@ -181,6 +181,12 @@ impl SessionScreen {
         // Status bar first (bottom-most), then the console above it.
         egui::Panel::bottom("session-status").show(ui, |ui| {
             ui.horizontal_wrapped(|ui| {
+                // First what the trainee needs: how far the tool is from the skin, or how deep.
+                if let Some(s) = snapshot.as_ref() {
+                    let hint = crate::skin_hint::skin_hint(tool_name(s), &s.output, &plan.atlas.model);
+                    ui.strong(hint);
+                    ui.separator();
+                }
                 let missed_pct = 100.0 * stats.missed as f64 / stats.ticks.max(1) as f64;
                 if over {
                     ui.label(format!(
@@ -399,13 +405,7 @@ fn indicators_ui(ui: &mut egui::Ui, snapshot: Option<&Snapshot>, plan: &SessionP
             .fill(color)
             .text(format!("{force:.2} N")),
     );
-    let tool = if s.moment.tools.needle.is_some() {
-        "needle"
-    } else if s.moment.tools.probe.is_some() {
-        "probe"
-    } else {
-        "finger"
-    };
+    let tool = tool_name(s);
     egui::Grid::new("indicators").num_columns(2).show(ui, |ui| {
         ui.label("Tool");
         ui.label(tool);
@@ -456,6 +456,17 @@ fn indicators_ui(ui: &mut egui::Ui, snapshot: Option<&Snapshot>, plan: &SessionP
         let tip = if o.inserted_mm > 0.0 { o.tip_mm } else { s.position_mm };
         let off = distance_to_line(tip, path.entry_mm, dir);
         ui.label(format!("Planned path '{}': {off:.1} mm off", path.name));
+    }
+}
+
+/// The tool in hand at the snapshot.
+fn tool_name(s: &Snapshot) -> &'static str {
+    if s.moment.tools.needle.is_some() {
+        "needle"
+    } else if s.moment.tools.probe.is_some() {
+        "probe"
+    } else {
+        "finger"
     }
 }
 
