@@ -282,6 +282,32 @@ fn a_session_by_hand_moves_with_the_keys_and_the_keypad_changes_the_tool() {
     }
 }
 
+/// A trainee's scenario picker lists the training scenarios, each with its one-line description;
+/// the scripted examples and grading fixtures only when asked for.
+#[test]
+fn the_start_screen_offers_trainees_the_training_scenarios_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let atlas = phantom(dir.path());
+    let mut h = harness(options(dir.path(), &atlas, None));
+    h.run_steps(2);
+    h.get_by_label("Scenario").click();
+    h.run_steps(2);
+    for fixture in ["two-attempts", "lung-hit", "vessel-hit", "probe-no-target"] {
+        assert!(h.query_by_label(fixture).is_none(), "{fixture} is offered to trainees");
+    }
+    for training in ["success-intercostal", "breath-hold", "palpation-sweep", "probe-parallel", "probe-across"] {
+        assert!(h.query_by_label(training).is_some(), "{training} is not offered");
+    }
+    h.get_by_label("breath-hold").click();
+    h.run_steps(2);
+    assert!(h.query_by_label_contains("hold the breath at end-expiration").is_some(), "its description");
+    h.get_by_label("Also offer the examples and test scenarios").click();
+    h.run_steps(2);
+    h.get_by_label("Scenario").click();
+    h.run_steps(2);
+    assert!(h.query_by_label("lung-hit").is_some(), "examples on request");
+}
+
 /// A session by hand starts a few centimetres from the skin and the status bar says how far; a
 /// few wheel notches over a picture bring the tool closer by as many millimetres.
 #[test]

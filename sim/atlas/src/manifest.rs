@@ -273,6 +273,42 @@ pub struct ScenarioToml {
     /// atlas' motion (docs/breathing.md "Sessions"); absent: still.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub breathes: bool,
+    /// Who the scenario is for, when the file says (see [`ScenarioToml::kind`]). Read, never
+    /// written: an atlas.toml, and with it the atlas' content hash that recorded sessions pin,
+    /// stays as it was.
+    #[serde(default, skip_serializing)]
+    pub kind: Option<ScenarioKind>,
+}
+
+/// Who a scenario is for.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ScenarioKind {
+    /// An exercise offered to trainees.
+    #[default]
+    Training,
+    /// A scripted example or grading fixture (a risk hit, a second attempt, a survey done
+    /// wrong): scripts, demos, tests and uploads may name it; the simulator's picker does not
+    /// offer it to trainees.
+    Example,
+}
+
+impl ScenarioToml {
+    /// Who the scenario is for: as its file says, else as the shipped PTCD scenario file
+    /// (atlases/ptcd.toml) says for a scenario of this name (atlases keep no kind, see `kind`),
+    /// else training.
+    pub fn kind(&self) -> ScenarioKind {
+        static SHIPPED: std::sync::OnceLock<Vec<ScenarioToml>> = std::sync::OnceLock::new();
+        self.kind
+            .or_else(|| {
+                SHIPPED
+                    .get_or_init(|| ScenarioFile::ptcd().scenarios)
+                    .iter()
+                    .find(|s| s.name == self.name)
+                    .and_then(|s| s.kind)
+            })
+            .unwrap_or_default()
+    }
 }
 
 /// The correct breath hold of a scenario.
@@ -1054,6 +1090,28 @@ mod tests {
     fn scenario_c_arms_parse_with_defaults_and_bad_ones_are_named() {
         let s = ScenarioFile::parse(PTCD_SCENARIO_TOML).unwrap();
         let success = s.scenarios.iter().find(|sc| sc.name == "success-intercostal").unwrap();
+        // Trainees are offered the training scenarios; the scripted examples and grading
+        // fixtures are marked so. The kind is not written into an atlas (its hash stays), and a
+        // scenario read without one takes the shipped file's by name.
+        let training: Vec<&str> = s
+            .scenarios
+            .iter()
+            .filter(|sc| sc.kind() == ScenarioKind::Training)
+            .map(|sc| sc.name.as_str())
+            .collect();
+        assert_eq!(
+            training,
+            ["success-intercostal", "breath-hold", "palpation-sweep", "probe-parallel", "probe-across"]
+        );
+        let written = toml::to_string(&s.scenarios[1]).unwrap();
+        assert_eq!(s.scenarios[1].kind, Some(ScenarioKind::Example));
+        assert!(!written.contains("kind"), "{written}");
+        let reread: ScenarioToml = toml::from_str(&toml::to_string(&s.scenarios[1]).unwrap()).unwrap();
+        assert_eq!((reread.name.as_str(), reread.kind, reread.kind()), ("two-attempts", None, ScenarioKind::Example));
+        let custom: ScenarioToml = toml::from_str("name = \"my-own\"\nkind = \"example\"\n").unwrap();
+        assert_eq!(custom.kind(), ScenarioKind::Example);
+        let unknown: ScenarioToml = toml::from_str("name = \"my-own\"\n").unwrap();
+        assert_eq!(unknown.kind(), ScenarioKind::Training);
         assert_eq!(success.c_arm, Some(CArmToml::default()));
         let parsed: ScenarioToml = toml::from_str("name = \"x\"\n[c_arm]\nlao_deg = -30.0\n").unwrap();
         let c = parsed.c_arm.unwrap();

@@ -12,6 +12,7 @@ use super::{Go, SessionScreen, Shared};
 use crate::credentials::{Credentials, CredentialsError};
 use crate::service_client::{LoginError, ServiceClient};
 use crate::session::{Difficulty, Driver, SessionPlan};
+use stylet_atlas::manifest::ScenarioKind;
 
 /// Why a login from the start screen did not leave a usable login behind.
 #[derive(Debug, thiserror::Error)]
@@ -40,6 +41,9 @@ pub struct StartScreen {
     pub fetch_id: String,
     /// The last thing that went wrong, shown until the next action.
     pub problem: Option<String>,
+    /// Offer the scripted examples and grading fixtures too (instructors, demos); a trainee's
+    /// picker lists the training scenarios only.
+    pub show_examples: bool,
 }
 
 impl StartScreen {
@@ -57,6 +61,7 @@ impl StartScreen {
             scenario: String::new(),
             difficulty: Difficulty::Beginner,
             offline_name: "trainee".into(),
+            show_examples: false,
             replay_path: String::new(),
             fetch_id: String::new(),
             problem: None,
@@ -205,10 +210,13 @@ impl StartScreen {
                 None
             }
         };
+        // A scripted window (demos, tests) may run any scenario; a trainee is offered training.
+        let all = self.show_examples || shared.options.script.is_some();
         let scenarios: Vec<(String, String)> = atlas.as_ref().map_or_else(Vec::new, |a| {
             a.manifest
                 .scenarios
                 .iter()
+                .filter(|s| all || s.kind() == ScenarioKind::Training)
                 .map(|s| (s.name.clone(), s.description.clone()))
                 .collect()
         });
@@ -231,8 +239,9 @@ impl StartScreen {
             egui::ComboBox::from_id_salt("scenario")
                 .selected_text(self.scenario.clone())
                 .show_ui(ui, |ui| {
-                    for (name, _) in &scenarios {
-                        ui.selectable_value(&mut self.scenario, name.clone(), name);
+                    for (name, description) in &scenarios {
+                        ui.selectable_value(&mut self.scenario, name.clone(), name)
+                            .on_hover_text(description);
                     }
                 })
                 .response
@@ -251,6 +260,7 @@ impl StartScreen {
         {
             ui.label(desc);
         }
+        ui.checkbox(&mut self.show_examples, "Also offer the examples and test scenarios");
         if let Some(a) = &atlas {
             let plan = self.plan(a, shared);
             let aids = plan.aids();
