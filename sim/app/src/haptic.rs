@@ -285,6 +285,12 @@ fn run(
     shared: &Shared,
     console: &SyncSender<ConsoleLine>,
 ) -> LoopReport {
+    if options.paced {
+        // The deformation's solver threads start here, before the pin, so that they run on the
+        // other cores; then this thread takes the core the window kept for it, if it did.
+        stylet_physics::deform::start_background_threads();
+        crate::priority::pin_the_haptic_loop();
+    }
     let mut contrast = ContrastCache::default();
     let rate = sim.tick_rate_hz();
     let mut pacer = options.paced.then(|| Pacer::new(rate, sim.tick()));

@@ -350,6 +350,9 @@ pub const WINDOW_NICENESS: i32 = 10;
 pub fn run(options: AppOptions) -> Result<(), WindowError> {
     // The haptic loops start from a thread of normal priority; the window (and the software
     // renderer's threads it starts, on machines without a GPU) then yields to them.
+    // Where the machine has more than one core, the haptic loop keeps one to itself: the window
+    // and every thread it starts (drawing, the software renderer's) run on the others.
+    crate::priority::reserve_a_core_for_the_haptic_loop();
     crate::haptic::keep_a_normal_priority_spawner().map_err(|e| WindowError::Window(e.to_string()))?;
     crate::priority::lower_this_thread(WINDOW_NICENESS);
     let native = eframe::NativeOptions {

@@ -34,7 +34,7 @@ pub use field::{DeformField, solve};
 pub use lattice::Lattice;
 pub use operator::Regulariser;
 pub use solver::Schedule;
-pub use state::DeformState;
+pub use state::{DeformState, start_background_threads};
 
 /// A tool point of eq. 4.2.7: the tissue at `reference_mm` (reference space) is displaced by
 /// `displacement_mm` (it sits at reference + displacement in the world). With a `radius_mm`, the

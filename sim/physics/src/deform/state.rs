@@ -39,6 +39,14 @@ impl Slot {
     }
 }
 
+/// Starts the threads background solves run on, if they have not started: they take the CPU
+/// affinity and priority of the thread that starts them, so a haptic loop that pins itself to a
+/// core of its own starts them first, from where it still may run anywhere its process may.
+pub fn start_background_threads() {
+    let _ = background_pool();
+    let _ = Mailbox::get();
+}
+
 /// The threads background solves run on: all cores but one, which stays with the haptic loop.
 /// The solve gives the same bits on any number of threads.
 fn background_pool() -> &'static rayon::ThreadPool {
