@@ -63,7 +63,7 @@ impl FrameView {
 
 /// The drawing's version, in every cached frame's name with the physics version: raise it when
 /// what a frame shows changes (a view's scene, preset or size), so old frames are not served.
-pub const FRAME_VERSION: u32 = 1;
+pub const FRAME_VERSION: u32 = 2;
 
 /// What drawing an atlas needs besides the atlas: prepared once per atlas.
 pub struct AtlasDrawing {

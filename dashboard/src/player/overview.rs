@@ -238,7 +238,7 @@ pub fn block(row: &SessionRow, turn: u32, key: &str, experts: usize) -> Markup {
                 li { span.swatch style="background:#ffaa00" {} "planned path (dashed)" }
                 li { span.swatch style="background:rgba(255,255,255,.6);outline:1px solid #888" {} "expert corridor, a white band"
                     @if experts == 0 { " (no expert references yet)" } @else { " (" (experts) " reference" @if experts != 1 { "s" } ")" } }
-                li { "cut along the needle: target green, risk structures magenta; white dots: skin entries, red ring: the deepest point" }
+                li { "cut along the needle: every structure in its colour, as on the slices below (target green, bone ivory, liver brown); white dots: skin entries, red ring: the deepest point" }
             }
         }
     }

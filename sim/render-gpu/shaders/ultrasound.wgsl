@@ -147,10 +147,13 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     let f = (f32(i) + 0.5) / f32(lines);
     var origin = P.face.xyz + P.lateral.xyz * ((f - 0.5) * 40.0);
     var dir = P.beam.xyz;
+    // probe.rs `gel_allowance_mm`: the gel layer beyond the face centre's tangent plane.
+    var gel_max = P.gains.w;
     if P.scan.z == 1u {
         let theta = (2.0 * f - 1.0) * P.geo.w;
         dir = P.beam.xyz * cos(theta) + P.lateral.xyz * sin(theta);
         origin = (P.face.xyz - P.beam.xyz * P.geo.z) + dir * P.geo.z;
+        gel_max = P.gains.w + P.geo.z * (1.0 / cos(theta) - 1.0);
     }
     let dz = P.geo.y;
     let hit = hits[i];
@@ -182,7 +185,12 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
                 x = s_x[k];
             }
             let p = x - P.origin.xyz;
-            let c = vec3<f32>(dot(P.row0.xyz, p), dot(P.row1.xyz, p), dot(P.row2.xyz, p));
+            // Beyond the CT's box: the voxel on its face (mod.rs `scan_line`).
+            let c = clamp(
+                vec3<f32>(dot(P.row0.xyz, p), dot(P.row1.xyz, p), dot(P.row2.xyz, p)),
+                vec3<f32>(0.0),
+                vec3<f32>(P.dims.xyz) - vec3<f32>(1.0),
+            );
             let hu = sample_ct(c);
             let label = label_at(c);
             var code = 0u;
@@ -193,7 +201,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
             var bits = 0u;
             if hu < P.limits.x {
                 bits |= AIR;
-                if depth <= P.gains.w {
+                if depth <= gel_max {
                     bits |= GEL_CANDIDATE;
                 }
             }

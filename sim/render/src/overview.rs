@@ -146,10 +146,13 @@ pub fn render(
     width: u32,
     height: u32,
 ) -> Result<Image, ViewError> {
+    // The skin preset paints −300 … 3000 HU one opaque colour: cut through the patient it is a
+    // flat plane of skin colour. The cut reads as anatomy with the soft-tissue preset and every
+    // label in its colour on the cut, as on the atlas report's 3D views and the review's slices.
     let scene = views::scene_3d_orbit(
         atlas,
-        Preset::Skin,
-        Tagging::Risk,
+        Preset::Soft,
+        Tagging::Labels,
         spec.cut(atlas),
         views::default_step_mm(atlas),
         (spec.azimuth_deg(), ELEVATION_DEG),

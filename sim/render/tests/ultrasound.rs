@@ -286,6 +286,51 @@ fn a_probe_off_the_skin_sees_nothing() {
     assert!(mean(&gel, 0..64, 80..256) > 0.3);
 }
 
+/// A convex probe on a curved flank images to the edges of its fan: the coupling gel bridges the
+/// air beyond the plane tangent to the face's centre, and each outer line's own recess behind it.
+#[test]
+fn a_convex_probe_on_a_curved_flank_images_to_the_edges_of_its_fan() {
+    // Skin: a cylinder of radius 150 mm along y, its top at z = −40; the face 0.5 mm into it.
+    let atlas = synthetic::atlas(
+        N,
+        2.0,
+        |p| {
+            if p.x * p.x + (p.z - 110.0) * (p.z - 110.0) <= 150.0 * 150.0 {
+                TISSUE_HU
+            } else {
+                -1000.0
+            }
+        },
+        |_| 0,
+    );
+    let mut s = scene(Vec3::new(0.0, 0.0, -39.5), 128, EchoTable::default());
+    s.probe.kind = ProbeKind::Convex;
+    let f = render(&atlas, &s).unwrap();
+    for i in 0..128 {
+        let m = mean(&f, i..i + 1, 100..256);
+        assert!(m > 0.2, "line {i} is black under the skin, 23 … 60 mm deep: {m}");
+    }
+}
+
+/// A line that leaves the CT's box goes on in the tissue on the box's face: no black wedge with a
+/// straight edge where the image plane meets the box.
+#[test]
+fn a_line_that_leaves_the_ct_fades_as_tissue_does() {
+    let atlas = homogeneous();
+    let mut s = scene(Vec3::new(0.0, 0.0, -45.0), 128, EchoTable::default());
+    s.probe.kind = ProbeKind::Convex;
+    s.settings = UltrasoundSettings {
+        lines: 128,
+        ..UltrasoundSettings::for_probe(ProbeKind::Convex)
+    };
+    let f = render(&atlas, &s).unwrap();
+    let samples = s.settings.samples;
+    for i in 0..128 {
+        let m = mean(&f, i..i + 1, samples * 2 / 15..samples);
+        assert!(m > 0.2, "line {i}, 20 … 150 mm deep: {m}");
+    }
+}
+
 #[test]
 fn frames_are_identical_on_any_number_of_threads_and_scan_convert_to_the_fan() {
     let atlas = with_vessel(DVec3::new(1.0, 0.0, 1.0));

@@ -294,6 +294,8 @@ struct Frame<'a> {
     geometry: ScanGeometry,
     grid: Grid3<'a>,
     map: IndexMap,
+    /// The last voxel index per axis: samples beyond the CT's box read the voxel on its face.
+    box_hi: Vec3,
     labels: &'a [u16],
     tables: FrameTables,
     hits: Vec<Option<(needle::NeedleHit, u32)>>,
@@ -319,6 +321,7 @@ impl<'a> Frame<'a> {
             geometry,
             grid: Grid3::new(ct.data(), dims),
             map: IndexMap::of(ct.grid()),
+            box_hi: Vec3::new(dims[0] as f32, dims[1] as f32, dims[2] as f32) - Vec3::ONE,
             labels: atlas.partial_labels().data(),
             tables: FrameTables::new(&scene.settings),
             hits: needle_hits(scene, &geometry),
@@ -340,6 +343,7 @@ impl<'a> Frame<'a> {
         let mut z_prev = GEL_MRAYL;
         let mut ring: Option<(f32, f32)> = None;
         let mut in_gel = true;
+        let gel_max_mm = g.gel_allowance_mm(i);
         let mut warp = self.u_at.map(crate::warp::Warp::new);
         for j in 0..bmode.len() {
             let depth_mm = (j as f32 + 0.5) * dz;
@@ -348,11 +352,15 @@ impl<'a> Frame<'a> {
                 Some(w) => w.reference_of(origin + dir * depth_mm),
                 None => origin + dir * depth_mm,
             };
-            let c = self.map.point(x);
+            // Beyond the CT's box the patient goes on (a CT ends in tissue at its first and last
+            // slices, and where its field of view cuts the body): reading air there put an
+            // interface of 1 − r² ≈ 10⁻³ into every line leaving the box, a black wedge with a
+            // straight edge. The voxel on the box's face is read instead; air there stays air.
+            let c = self.map.point(x).clamp(Vec3::ZERO, self.box_hi);
             let hu = self.grid.trilinear(c).unwrap_or(AIR_HU);
             let label = nearest_voxel(c, self.map.dims).map_or(0, |v| self.labels[v]);
             let class = self.scene.echo.class(label);
-            let gel = in_gel && hu < AIR_BELOW_HU && depth_mm <= GEL_MAX_MM;
+            let gel = in_gel && hu < AIR_BELOW_HU && depth_mm <= gel_max_mm;
             if in_gel && !gel && hu < AIR_BELOW_HU {
                 // The gap is wider than the gel bridges: the probe is off the skin, and sound
                 // does not pass from the face into air.

@@ -48,6 +48,22 @@ impl ScanGeometry {
         self.depth_mm / self.samples as f32
     }
 
+    /// How much air at the start of line `i` the coupling gel bridges (mm along the line): the
+    /// gel layer [`super::GEL_MAX_MM`] beyond the plane tangent to the face's centre, plus, on a
+    /// convex array, the line's own recess behind that plane, R(1/cos θ − 1) (7.7 mm at ±30°).
+    /// Measured from the curved face itself, the outer lines spent the layer on the face's own
+    /// curvature and went black on any flank that curves away.
+    pub fn gel_allowance_mm(&self, i: u32) -> f32 {
+        match self.kind {
+            ProbeKind::Linear => super::GEL_MAX_MM,
+            ProbeKind::Convex => {
+                let f = (i as f32 + 0.5) / self.lines as f32;
+                let theta = (2.0 * f - 1.0) * CONVEX_HALF_ANGLE_DEG.to_radians();
+                super::GEL_MAX_MM + CONVEX_RADIUS_MM * (1.0 / theta.cos() - 1.0)
+            }
+        }
+    }
+
     /// Line `i`'s start on the transducer face and its unit direction (world). Linear: parallel
     /// lines spread evenly over the aperture; convex: a fan from the face's centre of curvature,
     /// evenly in angle over ±30°.
