@@ -718,3 +718,40 @@ fn lanes_draw_the_pixels_of_one_sample_at_a_time() {
         }
     }
 }
+
+/// The 3D overview's cut shows the anatomy: its pixels fall into many clearly different colours
+/// (skin, fat, liver, bone, lung, vessels, the target), not one flat skin colour with the tags.
+#[test]
+fn the_overview_cut_shows_the_anatomy_in_its_colours() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = stylet_atlas::phantom::generate(&stylet_atlas::phantom::PhantomConfig {
+        dims: [128, 128, 100],
+        spacing_mm: [3.0, 3.0, 3.0],
+        ..Default::default()
+    })
+    .unwrap();
+    stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
+    let atlas = stylet_atlas::load(dir.path()).unwrap();
+    let path = atlas.planned_paths().into_iter().next().expect("a planned path");
+    let volume = RenderVolume::new(Arc::clone(&atlas.model));
+    let spec = stylet_render::overview::OverviewSpec {
+        tip_paths: Vec::new(),
+        planned: Some((path.entry_mm, path.target_mm)),
+        corridor: None,
+        frame: 0,
+    };
+    let image = stylet_render::overview::render(&atlas, &volume, &spec, 320, 240).unwrap();
+    if let Some(out) = std::env::var_os("STYLET_OVERVIEW_PNG") {
+        image.write_png(std::path::Path::new(&out)).unwrap();
+    }
+    // Colours (to 32 levels a channel) covering at least 1 % of the frame each, black left out.
+    let mut counts = std::collections::BTreeMap::new();
+    for px in &image.rgba {
+        if px[0] < 16 && px[1] < 16 && px[2] < 16 {
+            continue;
+        }
+        *counts.entry([px[0] / 32, px[1] / 32, px[2] / 32]).or_insert(0u32) += 1;
+    }
+    let common = counts.values().filter(|&&n| n as usize * 100 >= image.rgba.len()).count();
+    assert!(common >= 8, "{common} colours cover 1 % of the frame each: {counts:?}");
+}
