@@ -161,6 +161,11 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
     let mut renderer = match a.views.is_empty() {
         true => None,
         false => {
+            // As in the window: the drawing threads run on the other cores, the paced loop on
+            // one of its own (where there is more than one).
+            if paced && let Some(core) = stylet_app::priority::reserve_a_core_for_the_haptic_loop() {
+                super::say(&format!("the haptic loop keeps core {core} to itself"));
+            }
             let r = ViewRenderer::new(
                 std::sync::Arc::clone(&atlas),
                 ViewSettings {
