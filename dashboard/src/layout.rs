@@ -201,6 +201,12 @@ pub fn short_time(rfc3339: &str) -> String {
     }
 }
 
+/// A number with its noun in the right number: "1 session", "2 sessions", "0 sessions".
+pub fn count<N: std::fmt::Display + PartialEq + From<u8>>(n: N, one: &str, many: &str) -> String {
+    let noun = if n == N::from(1u8) { one } else { many };
+    format!("{n} {noun}")
+}
+
 pub fn score_text(score: Option<f64>) -> String {
     score.map_or_else(|| "–".into(), |s| format!("{s:.1}"))
 }
@@ -303,7 +309,7 @@ pub fn pager(base_query: &str, page: i64, total: i64, page_size: i64) -> Markup 
     html! {
         p.pager.noprint {
             @if page > 1 { a href=(link(page - 1)) { "← newer" } " " }
-            "Page " (page) " of " (pages) " (" (total) " sessions)"
+            "Page " (page) " of " (pages) " (" (count(total, "session", "sessions")) ")"
             @if page < pages { " " a href=(link(page + 1)) { "older →" } }
         }
     }
@@ -320,5 +326,16 @@ mod tests {
         assert_eq!(short_time("2025-01-01T00:0é"), "2025-01-01T00:0é");
         assert_eq!(short_time("2025-01-0éT00:00:00Z"), "2025-01-0éT00:00:00Z");
         assert_eq!(short_time("soon"), "soon");
+    }
+
+    #[test]
+    fn counts_name_one_thing_in_the_singular() {
+        assert_eq!(count(1_i64, "session", "sessions"), "1 session");
+        assert_eq!(count(0_i64, "session", "sessions"), "0 sessions");
+        assert_eq!(count(2_usize, "X-ray shot", "X-ray shots"), "2 X-ray shots");
+        assert_eq!(count(1_u32, "X-ray shot", "X-ray shots"), "1 X-ray shot");
+        let one = pager("", 1, 1, 100).into_string();
+        assert!(one.contains("(1 session)") && !one.contains("1 sessions"), "{one}");
+        assert!(pager("", 1, 7, 100).into_string().contains("(7 sessions)"));
     }
 }

@@ -51,12 +51,18 @@ pub fn suggest_next(points: &[ProgressPoint]) -> Suggestion {
         }
     } else {
         let passed = last.iter().filter(|p| **p).count();
+        // One session is "your first", not "the last 1 sessions".
+        let so_far = if last.len() == 1 {
+            format!(
+                "your first {level} session {}",
+                if passed == 1 { "passed" } else { "failed" }
+            )
+        } else {
+            format!("{passed} of the last {} {level} sessions passed", last.len())
+        };
         Suggestion {
             level,
-            reason: format!(
-                "{passed} of the last {} {level} sessions passed; {STREAK} passes in a row move you up",
-                last.len()
-            ),
+            reason: format!("{so_far}; {STREAK} passes in a row move you up"),
         }
     }
 }
@@ -93,5 +99,16 @@ mod tests {
         assert_eq!(suggest_next(&v).level, Difficulty::Expert);
         v.extend([p("expert", true), p("expert", true)]);
         assert!(suggest_next(&v).reason.contains("keep practising at expert"));
+    }
+
+    #[test]
+    fn one_session_is_not_counted_as_the_last_one_sessions() {
+        let one = suggest_next(&[p("beginner", true)]).reason;
+        assert!(!one.contains("last 1 beginner sessions"), "{one}");
+        assert!(one.starts_with("your first beginner session passed"), "{one}");
+        let failed = suggest_next(&[p("beginner", false)]).reason;
+        assert!(failed.starts_with("your first beginner session failed"), "{failed}");
+        let two = suggest_next(&[p("beginner", true), p("beginner", false)]).reason;
+        assert!(two.starts_with("1 of the last 2 beginner sessions passed"), "{two}");
     }
 }

@@ -77,6 +77,16 @@ async fn trainee_home(s: &AppState, v: &Viewer) -> Result<Markup, PageError> {
     })
 }
 
+/// The link to the review queue in words, the verb agreeing with the count.
+fn review_queue_text(to_review: i64) -> String {
+    let waiting = match to_review {
+        0 => "No session needs review".to_string(),
+        1 => "1 session needs review".to_string(),
+        n => format!("{n} sessions need review"),
+    };
+    format!("{waiting} (not yet commented; risk hits and failures marked) →")
+}
+
 /// The cohorts table (instructor, curriculum, admin homes and `/cohorts`).
 pub fn cohorts_table(cohorts: &[CohortLine]) -> Markup {
     html! {
@@ -133,7 +143,7 @@ async fn staff_home(s: &AppState, v: &Viewer) -> Result<Markup, PageError> {
         h2 { @if role == Role::Instructor { "My cohorts" } @else { "Cohorts" } }
         (cohorts_table(&cohorts))
         @if matches!(role, Role::Instructor | Role::Admin) {
-            p #home-review-queue { a href="/review-queue" { (to_review) " sessions need review (not yet commented; risk hits and failures marked) →" } }
+            p #home-review-queue { a href="/review-queue" { (review_queue_text(to_review)) } }
         }
         @if matches!(role, Role::Curriculum | Role::Admin) {
             p { a href="/reports" { "Cohort reports and the sessions CSV export →" } }
@@ -163,4 +173,16 @@ pub async fn cohorts(State(s): State<Arc<AppState>>, v: Viewer) -> Result<Html<S
         Some(&v),
         html! { h1 { "Cohorts" } (cohorts_table(&cohorts)) },
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_review_queue_link_agrees_with_its_count() {
+        assert!(review_queue_text(0).starts_with("No session needs review"));
+        assert!(review_queue_text(1).starts_with("1 session needs review"));
+        assert!(review_queue_text(4).starts_with("4 sessions need review"));
+    }
 }

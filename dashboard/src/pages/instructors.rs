@@ -17,7 +17,7 @@ use stylet_service::store::{
 };
 
 use crate::auth::{PageError, Viewer, encode_query, fail};
-use crate::layout::{page, pager, score_text, short_time};
+use crate::layout::{count, page, pager, score_text, short_time};
 use crate::plot::ChartError;
 use crate::trends::{date_from_days, days_from_date, draw_level_lines, labelled_svg};
 
@@ -218,7 +218,7 @@ pub async fn trainee_progress(
                             tr {
                                 td { a href={ "/sessions/" (r.line.id) } { (short_time(&r.line.uploaded_at)) } }
                                 td { (what(&r.line)) } td { (r.line.difficulty) }
-                                td { @if r.structures.is_empty() { (r.line.risk_hits.unwrap_or(0)) " hit(s)" } @else { (r.structures.join(", ")) } }
+                                td { @if r.structures.is_empty() { (count(r.line.risk_hits.unwrap_or(0), "hit", "hits")) } @else { (r.structures.join(", ")) } }
                                 td { (outcome_badge(&r.line)) }
                             }
                         }

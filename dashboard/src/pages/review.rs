@@ -23,7 +23,7 @@ use stylet_service::traces::review_trace;
 use crate::auth::{PageError, Viewer, check_csrf, fail};
 use crate::charts::{comment_notes, depth_chart, force_chart, inline_svg, puncture_peaks};
 use crate::figures::Figure;
-use crate::layout::{csrf_field, page, refreshing_page, result_badge, short_time, status_badge, verified_badge};
+use crate::layout::{count, csrf_field, page, refreshing_page, result_badge, short_time, status_badge, verified_badge};
 use crate::session_access::{require_scored, visible_session};
 
 /// The review's query: `?tick=N` shows the player's frames at tick N (the key moments' links,
@@ -326,7 +326,11 @@ fn other_metrics(r: &ScoreReport) -> Markup {
         ("Total time", format!("{:.1} s", m.time_total_s)),
         (
             "Fluoroscopy",
-            format!("{:.1} s, {} shots", m.fluoro_time_s, m.xray_shots),
+            format!(
+                "{:.1} s, {}",
+                m.fluoro_time_s,
+                count(m.xray_shots, "X-ray shot", "X-ray shots")
+            ),
         ),
         (
             "Palpation · ultrasound",
@@ -674,4 +678,22 @@ async fn figure_response(
         png,
     )
         .into_response())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A stored score report (failed at expert level, one X-ray shot, replay verified).
+    fn report() -> ScoreReport {
+        serde_json::from_str(include_str!("../../../service/tests/data/report.json")).unwrap()
+    }
+
+    #[test]
+    fn one_x_ray_shot_is_one_shot() {
+        let r = report();
+        assert_eq!(r.metrics.xray_shots, 1);
+        let html = other_metrics(&r).into_string();
+        assert!(html.contains("1 X-ray shot<") && !html.contains("1 shots"), "{html}");
+    }
 }
