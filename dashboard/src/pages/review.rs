@@ -83,7 +83,7 @@ pub async fn review(
         scorer
             .as_ref()
             .and_then(|sc| sc.atlas().label_table().get(l).map(|x| x.name.clone()))
-            .unwrap_or_else(|| format!("label {l}"))
+            .unwrap_or_else(|| stylet_physics::UNNAMED_STRUCTURE.to_string())
     };
     // Peaks are named for the structures a reader looks for (skin, fascia, organs, ducts, risk
     // structures), not air or the unlabelled soft tissue between them.
