@@ -417,7 +417,7 @@ pub fn event_text(e: &Event) -> String {
     }
 }
 
-/// A label's name in the atlas' table ("an unnamed structure" if the table does not know it).
+/// A label's name in the atlas' table ("unnamed structure" if the table does not know it).
 pub fn label_name(sim: &Simulation, id: LabelId) -> String {
     sim.atlas().label_table().name_of(id).to_string()
 }

@@ -167,7 +167,8 @@ impl HeuristicLabels {
 
 /// What people read for a label id the table does not name: words, never a bare class number.
 /// (A validated atlas names every id its label map uses, so this only guards the fallbacks.)
-pub const UNNAMED_STRUCTURE: &str = "an unnamed structure";
+/// Without an article, as texts put one before a structure's name ("entered the …").
+pub const UNNAMED_STRUCTURE: &str = "unnamed structure";
 
 /// The validated label table: unique ids ≥ 1, unique names, heuristic labels present.
 #[derive(Debug, Clone, PartialEq)]
@@ -357,7 +358,7 @@ mod tests {
         assert!(table.get(11).is_none());
         // Names for people: a known label's name; an unknown one in words, not its number.
         assert_eq!(table.name_of(10), "liver");
-        assert_eq!(table.name_of(118), "an unnamed structure");
+        assert_eq!(table.name_of(118), "unnamed structure");
     }
 
     #[test]
