@@ -37,6 +37,10 @@ a { color:var(--accent); }
 .cards { display:flex; flex-wrap:wrap; gap:1rem; }
 .card { background:white; border:1px solid var(--line); border-radius:6px; padding:.8rem 1rem; min-width:14rem; }
 .card .big { font-size:2rem; font-weight:700; }
+/* The trainee's next step leads the home page; the counts below it are smaller. */
+#suggestion { border-left:4px solid var(--accent); margin:0 0 1rem; max-width:48rem; }
+#suggestion p.next { font-size:1.4rem; font-weight:600; margin:.3rem 0; }
+.cards.counts .big { font-size:1.5rem; }
 .chart { width:100%; height:auto; max-width:1100px; background:white; border:1px solid var(--line); }
 img.figure { width:100%; max-width:1100px; border:1px solid var(--line); background:black; }
 form.inline { display:flex; flex-wrap:wrap; gap:.6rem; align-items:end; }
