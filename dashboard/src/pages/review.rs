@@ -177,7 +177,7 @@ fn header_block(row: &SessionRow) -> Markup {
 
 /// Where the replay first differed from the recording, in words: the time in seconds (at
 /// `rate_hz` ticks a second) and what differed, without tick numbers or stream names.
-pub(crate) fn divergence_text(d: &stylet_scoring::Divergence, rate_hz: u32) -> String {
+fn divergence_text(d: &stylet_scoring::Divergence, rate_hz: u32) -> String {
     let what = match d.stream.as_str() {
         "ticks.force_n" => "the force on the needle",
         "ticks.torque_nmm" => "the torque on the needle",
