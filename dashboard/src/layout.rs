@@ -37,6 +37,10 @@ a { color:var(--accent); }
 .cards { display:flex; flex-wrap:wrap; gap:1rem; }
 .card { background:white; border:1px solid var(--line); border-radius:6px; padding:.8rem 1rem; min-width:14rem; }
 .card .big { font-size:2rem; font-weight:700; }
+/* The trainee's next step leads the home page; the counts below it are smaller. */
+#suggestion { border-left:4px solid var(--accent); margin:0 0 1rem; max-width:48rem; }
+#suggestion p.next { font-size:1.4rem; font-weight:600; margin:.3rem 0; }
+.cards.counts .big { font-size:1.5rem; }
 .chart { width:100%; height:auto; max-width:1100px; background:white; border:1px solid var(--line); }
 img.figure { width:100%; max-width:1100px; border:1px solid var(--line); background:black; }
 form.inline { display:flex; flex-wrap:wrap; gap:.6rem; align-items:end; }
@@ -48,6 +52,8 @@ button.primary { background:var(--accent); color:white; border:none; border-radi
 .notice { background:#fff4dc; border:1px solid #e0c080; padding:.5rem .8rem; border-radius:4px; }
 .muted { color:var(--muted); }
 td.result .reason { font-size:.85em; min-width:14em; max-width:28em; white-space:normal; margin-top:.15em; }
+div.reason { font-size:.85em; margin-top:.15em; }
+.reason a { white-space:nowrap; }
 .grid2 { display:grid; grid-template-columns: 1fr 1fr; gap:1.5rem; }
 @media (max-width: 900px) { .grid2 { grid-template-columns: 1fr; } }
 /* Phones and tablets (390 px and up): the page never scrolls sideways; the navigation wraps, wide
@@ -201,6 +207,12 @@ pub fn short_time(rfc3339: &str) -> String {
     }
 }
 
+/// A number with its noun in the right number: "1 session", "2 sessions", "0 sessions".
+pub fn count<N: std::fmt::Display + PartialEq + From<u8>>(n: N, one: &str, many: &str) -> String {
+    let noun = if n == N::from(1u8) { one } else { many };
+    format!("{n} {noun}")
+}
+
 pub fn score_text(score: Option<f64>) -> String {
     score.map_or_else(|| "–".into(), |s| format!("{s:.1}"))
 }
@@ -248,6 +260,44 @@ pub fn verified_badge(verified: Option<bool>) -> Markup {
     }
 }
 
+/// Longest reason a list row shows, in characters (the session page has every reason whole).
+pub const SHORT_REASON_CHARS: usize = 90;
+
+/// A reason's first clause for a list row: the text up to the first ". ", ": −" (where the list
+/// of deductions starts) or " (" (a parenthesis), each only after 20 characters or more, ended
+/// with a full stop; longer than [`SHORT_REASON_CHARS`], it is cut at a word and ends with "…".
+pub fn short_reason(reason: &str) -> String {
+    let cut = [". ", ": −", " ("]
+        .iter()
+        .filter_map(|p| reason.find(p))
+        .filter(|&k| k >= 20)
+        .min()
+        .unwrap_or(reason.len());
+    let clause = reason[..cut].trim_end_matches(['.', ' ', ':', ',', ';']);
+    if clause.chars().count() > SHORT_REASON_CHARS {
+        let head: String = clause.chars().take(SHORT_REASON_CHARS).collect();
+        let words = head.rfind(' ').map_or(head.as_str(), |k| &head[..k]);
+        format!("{}…", words.trim_end_matches([',', ';', ':']))
+    } else {
+        format!("{clause}.")
+    }
+}
+
+/// The reasons of a list row: the first one short (whole on hover), and a link to the others
+/// on the session's page ("+2 more"); nothing when there is none.
+pub fn reason_cell(id: &str, reasons: &[String]) -> Markup {
+    html! {
+        @if let Some(first) = reasons.first() {
+            div.reason.muted title=(first) {
+                (short_reason(first))
+                @if reasons.len() > 1 {
+                    " " a href={ "/sessions/" (id) "#reasons" } { "+" (reasons.len() - 1) " more" }
+                }
+            }
+        }
+    }
+}
+
 /// The sessions table (newest first as given); `show_trainee` for instructors and staff.
 pub fn sessions_table(lines: &[SessionLine], show_trainee: bool) -> Markup {
     html! {
@@ -273,10 +323,10 @@ pub fn sessions_table(lines: &[SessionLine], show_trainee: bool) -> Markup {
                                 @if l.exercise != stylet_scoring::Exercise::Puncture {
                                     " " span.badge.muted { (l.exercise.label()) }
                                 }
-                                // Why, in words, where it failed or cannot be graded (one line per
-                                // rubric rule at most, so the list stays short).
+                                // Why, in words, where it failed or cannot be graded: the first
+                                // reason short, the others on the session's page.
                                 @if l.outcome.is_some_and(|o| o != stylet_scoring::Outcome::Passed) || l.passed == Some(false) {
-                                    @for r in &l.reasons { div.reason.muted { (r) } }
+                                    (reason_cell(&l.id, &l.reasons))
                                 }
                             }
                             td.num { (l.attempts.map_or("–".into(), |v| v.to_string())) }
@@ -303,7 +353,7 @@ pub fn pager(base_query: &str, page: i64, total: i64, page_size: i64) -> Markup 
     html! {
         p.pager.noprint {
             @if page > 1 { a href=(link(page - 1)) { "← newer" } " " }
-            "Page " (page) " of " (pages) " (" (total) " sessions)"
+            "Page " (page) " of " (pages) " (" (count(total, "session", "sessions")) ")"
             @if page < pages { " " a href=(link(page + 1)) { "older →" } }
         }
     }
@@ -320,5 +370,98 @@ mod tests {
         assert_eq!(short_time("2025-01-01T00:0é"), "2025-01-01T00:0é");
         assert_eq!(short_time("2025-01-0éT00:00:00Z"), "2025-01-0éT00:00:00Z");
         assert_eq!(short_time("soon"), "soon");
+    }
+
+    /// A scored line of `/sessions` that is not gradeable, with three long reasons.
+    fn line(reasons: &[&str]) -> SessionLine {
+        SessionLine {
+            id: "s-1".into(),
+            trainee: "tina".into(),
+            scenario: "success-intercostal".into(),
+            difficulty: "beginner".into(),
+            status: SessionStatus::Scored,
+            uploaded_at: "2026-11-23T14:05:09Z".into(),
+            recorded_at: "2026-11-23T14:00:00Z".into(),
+            duration_s: 20.0,
+            error: None,
+            score: None,
+            passed: None,
+            overridden: false,
+            attempts: Some(1),
+            risk_hits: Some(1),
+            replay_verified: Some(true),
+            rubric_version: Some(6),
+            physics_version: 1,
+            exercise: stylet_scoring::Exercise::Puncture,
+            outcome: Some(stylet_scoring::Outcome::NotGradeable),
+            reasons: reasons.iter().map(|r| r.to_string()).collect(),
+        }
+    }
+
+    #[test]
+    fn a_list_row_shows_one_short_reason_and_links_to_the_others() {
+        let l = line(&[
+            "Not gradeable: the recording is incomplete (the file is damaged at byte 81920: a chunk's CRC does not match). Record the exercise again; `stylet session recover` keeps the intact part.",
+            "The needle entered the right lung at 3.2 s, 4.1 mm deep (pneumothorax risk).",
+            "Score 42 is below the pass mark of 70 for beginner: −15 for 2 attempts (1 free), −40 because the target was not reached.",
+        ]);
+        let html = sessions_table(&[l], false).into_string();
+        assert_eq!(html.matches("class=\"reason").count(), 1, "{html}");
+        assert!(
+            html.contains(">Not gradeable: the recording is incomplete. <"),
+            "{html}"
+        );
+        assert!(
+            html.contains("href=\"/sessions/s-1#reasons\"") && html.contains("+2 more"),
+            "{html}"
+        );
+        assert!(!html.contains("pneumothorax"), "{html}");
+        // One reason: no link.
+        let one = sessions_table(&[line(&["2 attempts: at most 1 allowed."])], false).into_string();
+        assert!(
+            one.contains(">2 attempts: at most 1 allowed.<") && !one.contains("more</a>"),
+            "{one}"
+        );
+    }
+
+    #[test]
+    fn short_reasons_keep_the_first_clause() {
+        assert_eq!(
+            short_reason("Score 42 is below the pass mark of 70 for beginner: −15 for 2 attempts (1 free)."),
+            "Score 42 is below the pass mark of 70 for beginner."
+        );
+        assert_eq!(
+            short_reason("The needle entered the right lung at 3.2 s, 4.1 mm deep (pneumothorax risk)."),
+            "The needle entered the right lung at 3.2 s, 4.1 mm deep."
+        );
+        assert_eq!(
+            short_reason(
+                "Score 90 (pass mark 60 for beginner): −5 because there was no palpation before the puncture."
+            ),
+            "Score 90 (pass mark 60 for beginner)."
+        );
+        assert_eq!(
+            short_reason("2 attempts: at most 1 allowed."),
+            "2 attempts: at most 1 allowed."
+        );
+        // A clause longer than the limit is cut at a word, whatever its characters.
+        let long = "Ä".repeat(10) + &" wörter".repeat(30);
+        let short = short_reason(&long);
+        assert!(
+            short.ends_with('…') && short.chars().count() <= SHORT_REASON_CHARS + 1,
+            "{short}"
+        );
+        assert!(short.trim_end_matches('…').ends_with("wörter"), "{short}");
+    }
+
+    #[test]
+    fn counts_name_one_thing_in_the_singular() {
+        assert_eq!(count(1_i64, "session", "sessions"), "1 session");
+        assert_eq!(count(0_i64, "session", "sessions"), "0 sessions");
+        assert_eq!(count(2_usize, "X-ray shot", "X-ray shots"), "2 X-ray shots");
+        assert_eq!(count(1_u32, "X-ray shot", "X-ray shots"), "1 X-ray shot");
+        let one = pager("", 1, 1, 100).into_string();
+        assert!(one.contains("(1 session)") && !one.contains("1 sessions"), "{one}");
+        assert!(pager("", 1, 7, 100).into_string().contains("(7 sessions)"));
     }
 }

@@ -1,6 +1,7 @@
-//! The suggested next difficulty for a trainee (docs/dashboard.md "Suggested difficulty"):
-//! move up after [`STREAK`] passes in a row at the current level, step back after [`STREAK`]
-//! failures in a row, else stay. The current level is the highest level with a scored session.
+//! The suggested next difficulty for a trainee (docs/dashboard.md "Next step"): move up after
+//! [`STREAK`] passes in a row at the current level, step back after [`STREAK`] failures in a row,
+//! else stay. The current level is the highest level with a scored session. [`next_step`] adds
+//! the scenario to practise at that level.
 
 use stylet_scoring::Difficulty;
 use stylet_service::store::ProgressPoint;
@@ -51,13 +52,55 @@ pub fn suggest_next(points: &[ProgressPoint]) -> Suggestion {
         }
     } else {
         let passed = last.iter().filter(|p| **p).count();
+        // One session is "your first", not "the last 1 sessions".
+        let so_far = if last.len() == 1 {
+            format!(
+                "your first {level} session {}",
+                if passed == 1 { "passed" } else { "failed" }
+            )
+        } else {
+            format!("{passed} of the last {} {level} sessions passed", last.len())
+        };
         Suggestion {
             level,
-            reason: format!(
-                "{passed} of the last {} {level} sessions passed; {STREAK} passes in a row move you up",
-                last.len()
-            ),
+            reason: format!("{so_far}; {STREAK} passes in a row move you up"),
         }
+    }
+}
+
+/// What a trainee should do next: the level of [`suggest_next`], the scenario to practise at it
+/// and why.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NextStep {
+    pub level: Difficulty,
+    /// `None` when no scenario is known (none offered, none practised).
+    pub scenario: Option<String>,
+    pub reason: String,
+}
+
+/// The level of [`suggest_next`] and the scenario to practise at it: the scenario of the last
+/// session at that level again if it failed (and is one of `scenarios`); else the first of
+/// `scenarios` not yet passed at that level; else (all passed) the first of `scenarios`; else
+/// the latest scenario practised. `points`: the trainee's graded punctures in upload order;
+/// `scenarios`: the puncture scenarios offered to trainees, in the catalogue's order (empty when
+/// none is known).
+pub fn next_step(points: &[ProgressPoint], scenarios: &[String]) -> NextStep {
+    let s = suggest_next(points);
+    let at_level: Vec<&ProgressPoint> = points.iter().filter(|p| p.difficulty == s.level.as_str()).collect();
+    let offered = |name: &str| scenarios.is_empty() || scenarios.iter().any(|sc| sc == name);
+    let scenario = match at_level.last() {
+        Some(p) if !p.passed && offered(&p.scenario) => Some(p.scenario.clone()),
+        _ => scenarios
+            .iter()
+            .find(|sc| !at_level.iter().any(|p| p.passed && p.scenario == **sc))
+            .or_else(|| scenarios.first())
+            .cloned()
+            .or_else(|| points.last().map(|p| p.scenario.clone())),
+    };
+    NextStep {
+        level: s.level,
+        scenario,
+        reason: s.reason,
     }
 }
 
@@ -66,10 +109,14 @@ mod tests {
     use super::*;
 
     fn p(level: &str, passed: bool) -> ProgressPoint {
+        p_sc(level, "", passed)
+    }
+
+    fn p_sc(level: &str, scenario: &str, passed: bool) -> ProgressPoint {
         ProgressPoint {
             session_id: String::new(),
             uploaded_at: String::new(),
-            scenario: String::new(),
+            scenario: scenario.into(),
             difficulty: level.into(),
             score: if passed { 80.0 } else { 20.0 },
             passed,
@@ -93,5 +140,62 @@ mod tests {
         assert_eq!(suggest_next(&v).level, Difficulty::Expert);
         v.extend([p("expert", true), p("expert", true)]);
         assert!(suggest_next(&v).reason.contains("keep practising at expert"));
+    }
+
+    #[test]
+    fn the_next_step_names_a_scenario_and_a_level() {
+        let offered = ["success-intercostal".to_string(), "breath-hold".to_string()];
+        // Nothing yet: the first scenario offered, at beginner.
+        let first = next_step(&[], &offered);
+        assert_eq!(
+            (first.level, first.scenario.as_deref()),
+            (Difficulty::Beginner, Some("success-intercostal"))
+        );
+        // A failed session: its scenario again.
+        let again = next_step(&[p_sc("beginner", "breath-hold", false)], &offered);
+        assert_eq!(again.scenario.as_deref(), Some("breath-hold"));
+        // A failed example the trainee is not offered: the first scenario offered instead.
+        let example = next_step(&[p_sc("beginner", "lung-hit", false)], &offered);
+        assert_eq!(example.scenario.as_deref(), Some("success-intercostal"));
+        // Without a catalogue, the failed scenario is all there is to go on.
+        let unknown = next_step(&[p_sc("beginner", "lung-hit", false)], &[]);
+        assert_eq!(unknown.scenario.as_deref(), Some("lung-hit"));
+        // Passed: the first scenario offered not yet passed at the level.
+        let passed = next_step(&[p_sc("beginner", "success-intercostal", true)], &offered);
+        assert_eq!(passed.scenario.as_deref(), Some("breath-hold"));
+        // Three passes move up: the first scenario at the new level.
+        let up = next_step(
+            &[
+                p_sc("beginner", "success-intercostal", true),
+                p_sc("beginner", "breath-hold", true),
+                p_sc("beginner", "success-intercostal", true),
+            ],
+            &offered,
+        );
+        assert_eq!(
+            (up.level, up.scenario.as_deref()),
+            (Difficulty::Advanced, Some("success-intercostal"))
+        );
+        // Every scenario passed at the level: keep practising the first.
+        let all = next_step(
+            &[
+                p_sc("beginner", "success-intercostal", true),
+                p_sc("beginner", "breath-hold", true),
+            ],
+            &offered,
+        );
+        assert_eq!(all.scenario.as_deref(), Some("success-intercostal"));
+        assert_eq!(next_step(&[], &[]).scenario, None);
+    }
+
+    #[test]
+    fn one_session_is_not_counted_as_the_last_one_sessions() {
+        let one = suggest_next(&[p("beginner", true)]).reason;
+        assert!(!one.contains("last 1 beginner sessions"), "{one}");
+        assert!(one.starts_with("your first beginner session passed"), "{one}");
+        let failed = suggest_next(&[p("beginner", false)]).reason;
+        assert!(failed.starts_with("your first beginner session failed"), "{failed}");
+        let two = suggest_next(&[p("beginner", true), p("beginner", false)]).reason;
+        assert!(two.starts_with("1 of the last 2 beginner sessions passed"), "{two}");
     }
 }

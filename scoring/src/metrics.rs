@@ -696,7 +696,7 @@ impl<'a> MetricsCollector<'a> {
                 .names
                 .get(&label)
                 .cloned()
-                .unwrap_or_else(|| format!("label {label}"));
+                .unwrap_or_else(|| stylet_physics::UNNAMED_STRUCTURE.to_string());
             let t_s = tick as f64 / self.rate_hz;
             let consequence = self.consequences.get(&label).cloned();
             let hit = self.risk.entry(label).or_insert(RiskHit {

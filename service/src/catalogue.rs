@@ -20,6 +20,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, RwLock};
 
 use stylet_atlas::Atlas;
+use stylet_atlas::manifest::ScenarioKind;
 use stylet_scoring::{Rubric, Scorer};
 
 /// Where an atlas came from.
@@ -47,6 +48,9 @@ pub struct Summary {
     pub description: String,
     /// Declared scenarios (empty: the atlas declares none and takes any name).
     pub scenarios: Vec<String>,
+    /// The declared scenarios offered to trainees (kind training, not the scripted examples and
+    /// grading fixtures), in the atlas' order.
+    pub training: Vec<String>,
     /// Planned insertion paths `(name, description)`, the guided one first.
     pub paths: Vec<(String, String)>,
     /// The exercise each declared scenario practises.
@@ -70,6 +74,12 @@ impl Summary {
             name: m.name.clone(),
             description: m.description.clone(),
             scenarios: scorer.scenario_names().to_vec(),
+            training: m
+                .scenarios
+                .iter()
+                .filter(|sc| sc.kind() == ScenarioKind::Training)
+                .map(|sc| sc.name.clone())
+                .collect(),
             exercises: scorer
                 .scenario_names()
                 .iter()

@@ -14,7 +14,7 @@ use axum::extract::{Path, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use serde_json::json;
-use stylet_scoring::{Benchmark, ScoreReport};
+use stylet_scoring::{Benchmark, Outcome, ScoreReport};
 
 use super::AppState;
 use super::access::{reviewable, visible_session};
@@ -104,7 +104,8 @@ pub fn references_key(references: &[ExpertReference]) -> String {
 }
 
 /// Why a session cannot be an expert reference, if it cannot: it must be scored, a complete
-/// recording, and its replay must have verified (its metrics are then the physics', bit for bit).
+/// recording, its replay must have verified (its metrics are then the physics', bit for bit) and
+/// it must have passed its grade (see [`report_reference_problem`]).
 pub fn reference_problem(row: &SessionRow) -> Option<String> {
     if row.status != SessionStatus::Scored {
         return Some(format!(
@@ -115,11 +116,26 @@ pub fn reference_problem(row: &SessionRow) -> Option<String> {
     let report: Option<ScoreReport> = row.score.clone().and_then(|v| serde_json::from_value(v).ok());
     match report {
         None => Some("the session's score cannot be read".into()),
-        Some(r) if r.incomplete => Some("the recording is incomplete: it cannot be an expert reference".into()),
-        Some(r) if !r.replay_verified => {
-            Some("the session's replay did not verify: its metrics cannot be an expert reference".into())
-        }
-        Some(_) => None,
+        Some(r) => report_reference_problem(&r),
+    }
+}
+
+/// Why a scored session's report keeps it from being an expert reference, if it does: an
+/// incomplete recording, a replay that did not verify, or a grade it did not pass. The computed
+/// outcome decides, not an instructor's override: the benchmark is built from the metrics, which
+/// an override does not change. The API, the dashboard's form and its button use this one rule.
+pub fn report_reference_problem(r: &ScoreReport) -> Option<String> {
+    if r.incomplete {
+        Some("the recording is incomplete: it cannot be an expert reference".into())
+    } else if !r.replay_verified {
+        Some("the session's replay did not verify: its metrics cannot be an expert reference".into())
+    } else {
+        let why = match r.outcome {
+            Outcome::Passed => return None,
+            Outcome::Failed => "the session failed its grade",
+            Outcome::NotGradeable => "the session has no grade",
+        };
+        Some(format!("{why}: only a passed session can be an expert reference"))
     }
 }
 
@@ -152,13 +168,13 @@ pub async fn set_expert(s: &AppState, user: &User, id: &str, expert: bool) -> Re
 /// POST /api/sessions/{id}/expert.
 #[utoipa::path(post, path = "/api/sessions/{id}/expert", tag = "review",
     summary = "Mark the session as an expert reference of its scenario (the trainee's instructors, admins; audited)",
-    description = "It must be scored, complete and its replay verified; at most 50 per scenario.",
+    description = "It must be scored, complete, its replay verified and its grade passed (the computed grade, not an override); at most 50 per scenario.",
     params(("id" = String, Path, description = "session id")),
     responses(
         (status = 201, description = "marked", body = ExpertAnswer),
         (status = 403, description = "not a reviewer of this trainee, CSRF token missing, or an upload-scoped token", body = super::openapi::ErrorBody),
         (status = 404, description = "no such session", body = super::openapi::ErrorBody),
-        (status = 409, description = "not scored, incomplete, not verified, or the scenario has the most references", body = super::openapi::ErrorBody),
+        (status = 409, description = "not scored, incomplete, not verified, not passed, or the scenario has the most references", body = super::openapi::ErrorBody),
     ),
     security(("cookie" = []), ("token" = [])))]
 pub async fn mark(
@@ -261,10 +277,16 @@ mod tests {
     use super::*;
 
     fn row(status: SessionStatus, incomplete: bool, verified: bool) -> SessionRow {
+        row_with_outcome(status, incomplete, verified, "passed")
+    }
+
+    /// A session row whose stored report (the shipped one, which failed) says `outcome`.
+    fn row_with_outcome(status: SessionStatus, incomplete: bool, verified: bool, outcome: &str) -> SessionRow {
         let score = (status == SessionStatus::Scored).then(|| {
             let mut v = serde_json::to_value(stored_report()).unwrap();
             v["incomplete"] = json!(incomplete);
             v["replay_verified"] = json!(verified);
+            v["outcome"] = json!(outcome);
             v
         });
         SessionRow {
@@ -293,7 +315,7 @@ mod tests {
     }
 
     #[test]
-    fn only_scored_complete_verified_sessions_can_be_references() {
+    fn only_scored_complete_verified_passed_sessions_can_be_references() {
         assert_eq!(reference_problem(&row(SessionStatus::Scored, false, true)), None);
         for (r, want) in [
             (row(SessionStatus::Queued, false, true), "is queued"),
@@ -301,6 +323,14 @@ mod tests {
             (row(SessionStatus::Failed, false, true), "is failed"),
             (row(SessionStatus::Scored, true, true), "incomplete"),
             (row(SessionStatus::Scored, false, false), "did not verify"),
+            (
+                row_with_outcome(SessionStatus::Scored, false, true, "failed"),
+                "failed its grade",
+            ),
+            (
+                row_with_outcome(SessionStatus::Scored, false, true, "not_gradeable"),
+                "has no grade",
+            ),
         ] {
             let e = reference_problem(&r).unwrap();
             assert!(e.contains(want), "expected '{want}' in: {e}");

@@ -3,7 +3,8 @@
 //! figures are the mean and sample spread of the references' metrics; a session scored once the
 //! scenario has enough references is graded against them by the rubric's relative deductions
 //! (recorded in its grade), one scored before is not; the review page shows the session against the
-//! benchmark and marks through its form. (Which sessions cannot be references is a unit test of
+//! benchmark and marks through its form; a session that failed its grade is refused as a reference
+//! and its review offers no button. (Which sessions cannot be references is a unit test of
 //! `stylet_service::experts`.)
 
 use std::path::Path;
@@ -34,8 +35,8 @@ fn beside_the_planned_path(f: &Fixture, dy_mm: f64) -> String {
 }
 
 /// Records `script` (a shipped phantom script's name, or a script file) as scenario
-/// [`SCENARIO`] at the expert level.
-fn record(f: &Fixture, name: &str, script: &str, trainee: &str, seed: u64) -> std::path::PathBuf {
+/// [`SCENARIO`] at `difficulty`.
+fn record(f: &Fixture, name: &str, script: &str, trainee: &str, difficulty: &str, seed: u64) -> std::path::PathBuf {
     let shipped = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("atlases/phantom/scripts")
         .join(format!("{script}.txt"));
@@ -59,7 +60,7 @@ fn record(f: &Fixture, name: &str, script: &str, trainee: &str, seed: u64) -> st
         "--scenario",
         SCENARIO,
         "--difficulty",
-        "expert",
+        difficulty,
         "--seed",
         &seed.to_string(),
     ]);
@@ -133,6 +134,10 @@ fn experts_mark_and_the_benchmark_grades(db: Db) {
     };
     // Three expert sessions by eve: two by lines 4 mm either side of the planned path, one with
     // a first attempt withdrawn (its final approach follows the planned path); 20, 20 and 34 s.
+    // Only a passed session can be a reference: they are recorded at beginner level, which they
+    // pass without ultrasound and with a second attempt (at advanced the second attempt and the
+    // missing palpation and ultrasound cost 35 points, at expert the rules refuse them); the
+    // benchmark is the scenario's whatever level its references were graded at.
     let experts: Vec<(String, Value)> = [
         (beside_the_planned_path(&f, -4.0), 1),
         ("two-attempts".to_string(), 2),
@@ -140,8 +145,15 @@ fn experts_mark_and_the_benchmark_grades(db: Db) {
     ]
     .iter()
     .enumerate()
-    .map(|(k, (script, seed))| upload(&eve, &record(&f, &format!("eve-{k}"), script, "eve", *seed)))
+    .map(|(k, (script, seed))| upload(&eve, &record(&f, &format!("eve-{k}"), script, "eve", "beginner", *seed)))
     .collect();
+    for (_, row) in &experts {
+        assert_eq!(
+            row["outcome"], "passed",
+            "an expert's session fails: {}",
+            row["reasons"]
+        );
+    }
     let ids: Vec<&str> = experts.iter().map(|(id, _)| id.as_str()).collect();
     assert_eq!(bench(&ivan, ids[0])["experts"], 0);
 
@@ -157,7 +169,7 @@ fn experts_mark_and_the_benchmark_grades(db: Db) {
     assert_eq!(expert(&ivan, "POST", ids[1]), 201);
 
     // A session scored with two references is not graded against them (the rubric wants 3).
-    let (before, row) = upload(&tina, &record(&f, "tina-slow-0", "two-attempts", "tina", 5));
+    let (before, row) = upload(&tina, &record(&f, "tina-slow-0", "two-attempts", "tina", "expert", 5));
     let g = &row["score"]["grade"]["benchmark"];
     assert_eq!(
         (g["experts"].as_u64(), g["applied"].as_bool()),
@@ -171,6 +183,15 @@ fn experts_mark_and_the_benchmark_grades(db: Db) {
     assert!(two["metrics"].as_array().unwrap().is_empty() && two["comparison"].as_array().unwrap().is_empty());
     assert!(page(&tina, &before).contains("its benchmark is shown from 3 on"));
     assert!(!bench(&ivan, &before)["metrics"].as_array().unwrap().is_empty());
+    // That session failed its grade (two attempts at expert level): it cannot be a reference,
+    // and its review says why instead of offering the button.
+    assert_eq!(row["outcome"], "failed", "{}", row["reasons"]);
+    assert_eq!(expert(&ivan, "POST", &before), 409);
+    let refused = page(&ivan, &before);
+    assert!(
+        refused.contains("id=\"expert-form-none\"") && !refused.contains("Mark as expert reference"),
+        "the review of a failed session offers it as a reference"
+    );
 
     assert_eq!(expert(&ivan, "POST", ids[2]), 201);
     let all = bench(&ivan, ids[0]);
@@ -179,7 +200,7 @@ fn experts_mark_and_the_benchmark_grades(db: Db) {
     assert_eq!(all["references"].as_array().unwrap().len(), 3);
     // Another cohort's instructor, on a session of their own trainee, learns the figures and how
     // many references there are, not whose.
-    let (toms, _) = upload(&tom, &record(&f, "tom-0", "success-intercostal", "tom", 9));
+    let (toms, _) = upload(&tom, &record(&f, "tom-0", "success-intercostal", "tom", "expert", 9));
     let theirs = bench(&olga, &toms);
     assert_eq!(theirs["experts"], 3);
     assert!(theirs["references"].as_array().unwrap().is_empty(), "{theirs}");
@@ -224,7 +245,7 @@ fn experts_mark_and_the_benchmark_grades(db: Db) {
 
     // Scored now, a slower session (the whole PTCD workflow) is graded against the three: the
     // rubric's relative deductions (expert level: mean + 1 spread) as the benchmark gives them.
-    let (after, row) = upload(&tina, &record(&f, "tina-slow-1", "complete-ptcd", "tina", 6));
+    let (after, row) = upload(&tina, &record(&f, "tina-slow-1", "complete-ptcd", "tina", "expert", 6));
     let grade = &row["score"]["grade"];
     assert_eq!(grade["benchmark"]["experts"], 3, "{grade}");
     assert_eq!(grade["benchmark"]["applied"], true);
@@ -293,6 +314,8 @@ fn experts_mark_and_the_benchmark_grades(db: Db) {
         "{reasons:?}"
     );
 
+    // The whole workflow passes at expert level: its review offers it as a reference.
+    assert_eq!(row["outcome"], "passed", "{}", row["reasons"]);
     let review = page(&ivan, &after);
     for want in [
         "id=\"benchmark-table\"",

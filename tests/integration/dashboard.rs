@@ -634,8 +634,9 @@ fn the_review_shows_where_and_why_in_headless_chromium() {
     });
 }
 
-/// "Reasons everywhere": every failed session of the trainee has its reasons in words on the
-/// trainee's home page (the review page: the test above).
+/// "Reasons everywhere": every failed session of the trainee says why on the trainee's home
+/// page, short (its first reason's first clause) with a link to the others on its review (the
+/// review page has them all: the test above).
 #[test]
 fn every_failed_session_has_its_reasons_on_the_trainee_home() {
     let db = Db::Sqlite;
@@ -645,9 +646,10 @@ fn every_failed_session_has_its_reasons_on_the_trainee_home() {
     let tina = login(&base, "tina");
     let mut failed = Vec::new();
     for name in ["tina-lung", "tina-ok", "tina-two"] {
-        let row = wait_scored(&base, &tina, &upload(&base, &tina, &f.session(name)));
+        let id = upload(&base, &tina, &f.session(name));
+        let row = wait_scored(&base, &tina, &id);
         if row["outcome"] == "failed" {
-            failed.push((name, reasons_of(name, &row)));
+            failed.push((name, id, reasons_of(name, &row)));
         }
     }
     assert!(!failed.is_empty(), "the lung hit fails");
@@ -662,10 +664,15 @@ fn every_failed_session_has_its_reasons_on_the_trainee_home() {
         log_in(&c, &base, "tina").await;
         open(&c, &base, "/").await;
         let home = body_text(&c).await;
+        let source = c.source().await.unwrap();
         shot(&c, "where-why", "03-trainee-home").await;
-        for (name, reasons) in &failed {
-            for r in reasons {
-                assert!(home.contains(r.as_str()), "{name}: the trainee home lacks '{r}'");
+        for (name, id, reasons) in &failed {
+            let short = stylet_dashboard::layout::short_reason(&reasons[0]);
+            assert!(home.contains(&short), "{name}: the trainee home lacks '{short}'");
+            if reasons.len() > 1 {
+                let link = format!("href=\"/sessions/{id}#reasons\"");
+                assert!(source.contains(&link), "{name}: no link to the other reasons");
+                assert!(home.contains(&format!("+{} more", reasons.len() - 1)), "{name}: {home}");
             }
         }
         for id in IDENTIFIERS {

@@ -16,7 +16,7 @@ use stylet_service::store::{AccountChange, IMPORT_HEADER, ImportLineError, MAX_I
 use stylet_service::users::{self, USERS_PAGE_SIZE, UsersQuery};
 
 use crate::auth::{PageError, Viewer, check_csrf, encode_query, fail};
-use crate::layout::{csrf_field, page, short_time};
+use crate::layout::{count, csrf_field, page, short_time};
 
 fn require_admin(v: &Viewer) -> Result<(), PageError> {
     if v.role() == Role::Admin {
@@ -76,7 +76,7 @@ fn accounts_page(v: &Viewer, l: &Listing, notice: Notice) -> Markup {
             textarea name="csv" rows="6" cols="60" required placeholder=(format!("{IMPORT_HEADER}\nalice,trainee,2026-spring,a-long-password")) {}
             div { button.primary type="submit" { "Import" } }
         }
-        h2 { (l.total) " accounts" }
+        h2 { (count(l.total, "account", "accounts")) }
         form.inline #user-search method="get" action="/admin/users" {
             label { "Username contains" input name="q" value=(l.search); }
             button type="submit" { "Search" }

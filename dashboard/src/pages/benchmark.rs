@@ -124,20 +124,35 @@ pub fn block(v: &Viewer, b: &BenchmarkView) -> Markup {
                     }
                 }
             }
+            // Marking is offered only where the service would accept it; unmarking always.
+            @let problem = stylet_service::experts::report_reference_problem(b.report);
             @if b.reviewer {
-                form #expert-form.noprint method="post" action={ "/sessions/" (b.session_id) "/expert" } {
-                    (csrf_field(v))
-                    @if this.is_some() {
-                        input type="hidden" name="expert" value="no";
-                        button type="submit" { "Unmark as expert reference" }
-                    } @else {
-                        input type="hidden" name="expert" value="yes";
-                        button type="submit" { "Mark as expert reference" }
+                @if let (Some(problem), None) = (&problem, this) {
+                    p.muted.noprint #expert-form-none { (sentence(problem)) }
+                } @else {
+                    form #expert-form.noprint method="post" action={ "/sessions/" (b.session_id) "/expert" } {
+                        (csrf_field(v))
+                        @if this.is_some() {
+                            input type="hidden" name="expert" value="no";
+                            button type="submit" { "Unmark as expert reference" }
+                        } @else {
+                            input type="hidden" name="expert" value="yes";
+                            button type="submit" { "Mark as expert reference" }
+                        }
+                        span.muted { " (audited)" }
                     }
-                    span.muted { " (audited)" }
                 }
             }
         }
+    }
+}
+
+/// A message as a sentence: its first letter capitalised, a full stop at the end.
+fn sentence(text: &str) -> String {
+    let mut chars = text.chars();
+    match chars.next() {
+        Some(first) => format!("{}{}.", first.to_uppercase(), chars.as_str().trim_end_matches('.')),
+        None => String::new(),
     }
 }
 
@@ -167,4 +182,80 @@ pub async fn mark(
     };
     stylet_service::experts::set_expert(&s, &v.user, &id, expert).await?;
     Ok(Redirect::to(&format!("/sessions/{id}#benchmark")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stylet_scoring::{Exercise, Outcome};
+    use stylet_service::store::{Role, User};
+
+    /// A stored score report (complete, replay verified, failed at expert level) with `outcome`.
+    fn report(outcome: Outcome) -> ScoreReport {
+        let mut r: ScoreReport = serde_json::from_str(include_str!("../../../service/tests/data/report.json")).unwrap();
+        r.outcome = outcome;
+        r
+    }
+
+    fn instructor() -> Viewer {
+        Viewer {
+            user: User {
+                id: "u-ivan".into(),
+                username: "ivan".into(),
+                role: Role::Instructor,
+            },
+            csrf: "token".into(),
+        }
+    }
+
+    /// The section as the session's instructor sees it, with `references` marked.
+    fn section(report: &ScoreReport, references: &[ExpertReference]) -> String {
+        let benchmark = Benchmark::from_sessions("success-intercostal", Exercise::Puncture, &[]);
+        block(
+            &instructor(),
+            &BenchmarkView {
+                session_id: "s-1",
+                report,
+                benchmark: &benchmark,
+                references,
+                level: None,
+                reviewer: true,
+                listed: Some(references),
+                figures_shown: true,
+            },
+        )
+        .into_string()
+    }
+
+    #[test]
+    fn only_a_passed_session_is_offered_as_an_expert_reference() {
+        let failed = section(&report(Outcome::Failed), &[]);
+        assert!(!failed.contains("Mark as expert reference"), "{failed}");
+        assert!(failed.contains("id=\"expert-form-none\""), "{failed}");
+        assert!(
+            failed.contains("The session failed its grade: only a passed session can be an expert reference."),
+            "{failed}"
+        );
+        let passed = section(&report(Outcome::Passed), &[]);
+        assert!(
+            passed.contains("Mark as expert reference") && !passed.contains("expert-form-none"),
+            "{passed}"
+        );
+    }
+
+    #[test]
+    fn a_reference_can_always_be_unmarked() {
+        let marked = [ExpertReference {
+            session_id: "s-1".into(),
+            trainee: "eve".into(),
+            marked_by: "ivan".into(),
+            marked_at: "2026-11-23T14:05:09Z".into(),
+            file_sha256: "ab".into(),
+        }];
+        let html = section(&report(Outcome::Failed), &marked);
+        assert!(
+            html.contains("Unmark as expert reference") && !html.contains("expert-form-none"),
+            "{html}"
+        );
+    }
 }

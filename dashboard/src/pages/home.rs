@@ -1,5 +1,6 @@
-//! `GET /`: the logged-in user's home. Trainees: their sessions, progress per difficulty and the
-//! suggested next difficulty. Instructors: their cohorts and their trainees' latest sessions.
+//! `GET /`: the logged-in user's home. Trainees: first their next step (the scenario and the
+//! difficulty to practise), then their sessions and progress per difficulty. Instructors: their
+//! cohorts and their trainees' latest sessions.
 //! Curriculum staff and admins: every cohort, reports, the latest sessions.
 
 use std::sync::Arc;
@@ -8,6 +9,7 @@ use axum::extract::State;
 
 use axum::response::Html;
 use maud::{Markup, PreEscaped, html};
+use stylet_scoring::Exercise;
 use stylet_service::AppState;
 use stylet_service::store::{CohortLine, Role, SessionFilter};
 
@@ -15,7 +17,7 @@ use crate::auth::{PageError, Viewer};
 use crate::charts::{inline_svg, progress_chart};
 use crate::layout::{page, score_text, sessions_table};
 use crate::pages::upload::upload_form;
-use crate::progress::suggest_next;
+use crate::progress::{NextStep, next_step};
 
 pub async fn home(State(s): State<Arc<AppState>>, v: Viewer) -> Result<Html<String>, PageError> {
     let body = match v.role() {
@@ -38,7 +40,7 @@ async fn trainee_home(s: &AppState, v: &Viewer) -> Result<Markup, PageError> {
         )
         .await?;
     let total = s.store.count_sessions(&v.user, &SessionFilter::default()).await?;
-    let suggestion = suggest_next(&points);
+    let next = next_step(&points, &training_punctures(s));
     let passed = points.iter().filter(|p| p.passed).count();
     let mean = (!points.is_empty()).then(|| points.iter().map(|p| p.score).sum::<f64>() / points.len() as f64);
     let chart = if points.is_empty() {
@@ -54,15 +56,11 @@ async fn trainee_home(s: &AppState, v: &Viewer) -> Result<Markup, PageError> {
     };
     Ok(html! {
         h1 { "My training — " (v.user.username) }
-        div.cards {
+        (next_block(&next))
+        div.cards.counts {
             div.card { div.muted { "Sessions" } div.big { (total) } }
             div.card { div.muted { "Scored / passed" } div.big { (points.len()) " / " (passed) } }
             div.card { div.muted { "Mean score" } div.big { (score_text(mean)) } }
-            div.card #suggestion {
-                div.muted { "Suggested next difficulty" }
-                div.big { (suggestion.level) }
-                div.muted { (suggestion.reason) }
-            }
         }
         h2 { "My progress" }
         @match &chart {
@@ -75,6 +73,59 @@ async fn trainee_home(s: &AppState, v: &Viewer) -> Result<Markup, PageError> {
         (sessions_table(&recent, false))
         @if total > recent.len() as i64 { p { a href="/sessions" { "All " (total) " sessions →" } } }
     })
+}
+
+/// The puncture scenarios offered to trainees on the atlases that take sessions, in the
+/// catalogue's order, each once (the same scenario on two atlases is one exercise).
+fn training_punctures(s: &AppState) -> Vec<String> {
+    let mut out: Vec<String> = Vec::new();
+    for (_, entry) in s.catalogue.entries() {
+        if entry.withdrawn() {
+            continue;
+        }
+        for sc in &entry.summary.training {
+            if entry.summary.exercise_of(sc) == Exercise::Puncture && !out.contains(sc) {
+                out.push(sc.clone());
+            }
+        }
+    }
+    out
+}
+
+/// The trainee's next step, first on the home page: the scenario and the level to practise,
+/// how, and why this level.
+fn next_block(next: &NextStep) -> Markup {
+    html! {
+        section.card #suggestion {
+            div.muted { "Your next step" }
+            p.next {
+                "Practise "
+                @if let Some(sc) = &next.scenario { strong { (sc) } " " }
+                "at " strong { (next.level) } " level"
+            }
+            p { "In the simulator, choose this scenario and difficulty; then upload the session below." }
+            div.muted { (capitalised(&next.reason)) "." }
+        }
+    }
+}
+
+/// `text` with its first letter in upper case.
+fn capitalised(text: &str) -> String {
+    let mut chars = text.chars();
+    match chars.next() {
+        Some(first) => first.to_uppercase().chain(chars).collect(),
+        None => String::new(),
+    }
+}
+
+/// The link to the review queue in words, the verb agreeing with the count.
+fn review_queue_text(to_review: i64) -> String {
+    let waiting = match to_review {
+        0 => "No session needs review".to_string(),
+        1 => "1 session needs review".to_string(),
+        n => format!("{n} sessions need review"),
+    };
+    format!("{waiting} (not yet commented; risk hits and failures marked) →")
 }
 
 /// The cohorts table (instructor, curriculum, admin homes and `/cohorts`).
@@ -133,7 +184,7 @@ async fn staff_home(s: &AppState, v: &Viewer) -> Result<Markup, PageError> {
         h2 { @if role == Role::Instructor { "My cohorts" } @else { "Cohorts" } }
         (cohorts_table(&cohorts))
         @if matches!(role, Role::Instructor | Role::Admin) {
-            p #home-review-queue { a href="/review-queue" { (to_review) " sessions need review (not yet commented; risk hits and failures marked) →" } }
+            p #home-review-queue { a href="/review-queue" { (review_queue_text(to_review)) } }
         }
         @if matches!(role, Role::Curriculum | Role::Admin) {
             p { a href="/reports" { "Cohort reports and the sessions CSV export →" } }
@@ -163,4 +214,42 @@ pub async fn cohorts(State(s): State<Arc<AppState>>, v: Viewer) -> Result<Html<S
         Some(&v),
         html! { h1 { "Cohorts" } (cohorts_table(&cohorts)) },
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_next_step_names_the_scenario_and_the_level() {
+        let html = next_block(&NextStep {
+            level: stylet_scoring::Difficulty::Beginner,
+            scenario: Some("success-intercostal".into()),
+            reason: "no scored sessions yet: start at beginner".into(),
+        })
+        .into_string();
+        assert!(
+            html.starts_with("<section") && html.contains("id=\"suggestion\""),
+            "{html}"
+        );
+        assert!(
+            html.contains("Practise <strong>success-intercostal</strong> at <strong>beginner</strong> level"),
+            "{html}"
+        );
+        assert!(html.contains("No scored sessions yet: start at beginner."), "{html}");
+        let any = next_block(&NextStep {
+            level: stylet_scoring::Difficulty::Advanced,
+            scenario: None,
+            reason: "the last 3 beginner sessions all passed".into(),
+        })
+        .into_string();
+        assert!(any.contains("Practise at <strong>advanced</strong> level"), "{any}");
+    }
+
+    #[test]
+    fn the_review_queue_link_agrees_with_its_count() {
+        assert!(review_queue_text(0).starts_with("No session needs review"));
+        assert!(review_queue_text(1).starts_with("1 session needs review"));
+        assert!(review_queue_text(4).starts_with("4 sessions need review"));
+    }
 }

@@ -17,7 +17,7 @@ use stylet_service::store::{
 };
 
 use crate::auth::{PageError, Viewer, encode_query, fail};
-use crate::layout::{page, pager, score_text, short_time};
+use crate::layout::{count, page, pager, reason_cell, score_text, short_reason, short_time};
 use crate::plot::ChartError;
 use crate::trends::{date_from_days, days_from_date, draw_level_lines, labelled_svg};
 
@@ -58,25 +58,14 @@ fn what(l: &ReviewLine) -> Markup {
     }
 }
 
-/// Reasons shown per line in lists (the review page has them all).
-const REASONS_SHOWN: usize = 3;
-
-/// The reasons of a line in words, one a line (scoring error, else the scoring's reasons; the
-/// first few, then how many more the review page has).
+/// Why a line failed, short (the review page has it all): the scoring error's first clause, else
+/// the first reason and a link to the others.
 fn why(l: &ReviewLine) -> Markup {
     html! {
         @if let Some(e) = l.error.as_deref().filter(|_| l.status == SessionStatus::Failed) {
-            span.reasons { (e) }
-        } @else if !l.reasons.is_empty() {
-            span.reasons {
-                @for (k, r) in l.reasons.iter().take(REASONS_SHOWN).enumerate() {
-                    @if k > 0 { br; }
-                    (r)
-                }
-                @if l.reasons.len() > REASONS_SHOWN {
-                    br; em { "… " (l.reasons.len() - REASONS_SHOWN) " more on the review page" }
-                }
-            }
+            div.reason.muted title=(e) { (short_reason(e)) }
+        } @else {
+            (reason_cell(&l.id, &l.reasons))
         }
     }
 }
@@ -145,7 +134,7 @@ pub async fn review_queue(
                                         span.reason { (r.words()) }
                                     }
                                     @if l.status == SessionStatus::Failed || l.passed == Some(false) || l.outcome == Some(Outcome::NotGradeable) {
-                                        br; small.muted { (why(l)) }
+                                        (why(l))
                                     }
                                 }
                                 td { a href={ "/sessions/" (l.id) } { "Review →" } }
@@ -218,7 +207,7 @@ pub async fn trainee_progress(
                             tr {
                                 td { a href={ "/sessions/" (r.line.id) } { (short_time(&r.line.uploaded_at)) } }
                                 td { (what(&r.line)) } td { (r.line.difficulty) }
-                                td { @if r.structures.is_empty() { (r.line.risk_hits.unwrap_or(0)) " hit(s)" } @else { (r.structures.join(", ")) } }
+                                td { @if r.structures.is_empty() { (count(r.line.risk_hits.unwrap_or(0), "hit", "hits")) } @else { (r.structures.join(", ")) } }
                                 td { (outcome_badge(&r.line)) }
                             }
                         }
@@ -440,6 +429,63 @@ mod tests {
         assert!(svg.to_uppercase().contains(&format!("#{r:02X}{g:02X}{b:02X}")));
         assert!(svg.starts_with("<svg class=\"chart\" role=\"img\""));
         assert_eq!(progress_over_time_svg(&[], "x").unwrap(), None);
+    }
+
+    fn review_line(status: SessionStatus, error: Option<&str>, reasons: &[&str]) -> ReviewLine {
+        ReviewLine {
+            id: "s-7".into(),
+            trainee: "tina".into(),
+            scenario: "success-intercostal".into(),
+            difficulty: "beginner".into(),
+            status,
+            uploaded_at: "2026-11-23T14:05:09Z".into(),
+            score: Some(20.0),
+            passed: Some(false),
+            overridden: false,
+            attempts: Some(3),
+            risk_hits: Some(1),
+            error: error.map(str::to_string),
+            exercise: Exercise::Puncture,
+            outcome: Some(Outcome::Failed),
+            reasons: reasons.iter().map(|r| r.to_string()).collect(),
+        }
+    }
+
+    #[test]
+    fn a_line_says_why_in_one_short_reason_with_a_link_to_the_rest() {
+        let l = review_line(
+            SessionStatus::Scored,
+            None,
+            &[
+                "The needle entered the right lung at 3.2 s, 4.1 mm deep (pneumothorax risk).",
+                "3 attempts: at most 2 allowed.",
+                "The target was not reached.",
+                "Score 20 is below the pass mark of 60 for beginner: −30 for the right lung, −40 because the target was not reached.",
+            ],
+        );
+        let html = why(&l).into_string();
+        assert_eq!(html.matches("class=\"reason").count(), 1, "{html}");
+        assert!(
+            html.contains(">The needle entered the right lung at 3.2 s, 4.1 mm deep. <"),
+            "{html}"
+        );
+        assert!(
+            html.contains("href=\"/sessions/s-7#reasons\"") && html.contains("+3 more"),
+            "{html}"
+        );
+        assert!(!html.contains("3 attempts") && !html.contains("pass mark"), "{html}");
+        // A scoring error: its first clause, whole on hover.
+        let failed = review_line(
+            SessionStatus::Failed,
+            Some("the session cannot be replayed: the recording has a gap of 12 ticks at 4.30 s. Record it again."),
+            &[],
+        );
+        let html = why(&failed).into_string();
+        assert!(
+            html.contains(">the session cannot be replayed: the recording has a gap of 12 ticks at 4.30 s.<"),
+            "{html}"
+        );
+        assert!(!html.contains("more</a>"), "{html}");
     }
 
     #[test]

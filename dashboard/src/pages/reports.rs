@@ -17,7 +17,7 @@ use stylet_service::store::{FailureBreakdown, FailureCause, ReportLine, Role, Sc
 
 use crate::auth::{PageError, Viewer, encode_query, fail};
 use crate::charts::sparkline;
-use crate::layout::{page, score_text, short_time};
+use crate::layout::{count, page, score_text, short_time};
 use crate::pages::cohort::{SPARK_POINTS, visible_cohort};
 use crate::pages::sessions::filter_query;
 use crate::pdf::{Col, Doc, PercentChart};
@@ -198,7 +198,7 @@ fn trends_section(r: &CohortReport) -> Result<Markup, PageError> {
         @if r.failures.failed == 0 { p.muted { "No failed sessions in this range." } }
         @else {
             p.muted {
-                (r.failures.failed) " failed sessions"
+                (count(r.failures.failed, "failed session", "failed sessions"))
                 @if r.failures.examined < r.failures.failed { "; the reasons of the latest " (r.failures.examined) " are counted" }
                 ". A session that missed two requirements counts under both."
             }
@@ -426,7 +426,7 @@ pub fn report_pdf(r: &CohortReport) -> Vec<u8> {
     if r.failures.failed == 0 {
         d.paragraph("No failed sessions in this range.", 9.0);
     } else {
-        let mut note = format!("{} failed sessions", r.failures.failed);
+        let mut note = count(r.failures.failed, "failed session", "failed sessions");
         if r.failures.examined < r.failures.failed {
             note += &format!("; the reasons of the latest {} are counted", r.failures.examined);
         }

@@ -23,7 +23,7 @@ use stylet_service::traces::review_trace;
 use crate::auth::{PageError, Viewer, check_csrf, fail};
 use crate::charts::{comment_notes, depth_chart, force_chart, inline_svg, puncture_peaks};
 use crate::figures::Figure;
-use crate::layout::{csrf_field, page, refreshing_page, result_badge, short_time, status_badge, verified_badge};
+use crate::layout::{count, csrf_field, page, refreshing_page, result_badge, short_time, status_badge, verified_badge};
 use crate::session_access::{require_scored, visible_session};
 
 /// The review's query: `?tick=N` shows the player's frames at tick N (the key moments' links,
@@ -83,7 +83,7 @@ pub async fn review(
         scorer
             .as_ref()
             .and_then(|sc| sc.atlas().label_table().get(l).map(|x| x.name.clone()))
-            .unwrap_or_else(|| format!("label {l}"))
+            .unwrap_or_else(|| stylet_physics::UNNAMED_STRUCTURE.to_string())
     };
     // Peaks are named for the structures a reader looks for (skin, fascia, organs, ducts, risk
     // structures), not air or the unlabelled soft tissue between them.
@@ -97,7 +97,8 @@ pub async fn review(
         Ok(trace) => charts_block(trace, &row, &review, &peak_name)?,
         Err(e) => html! { p.error { "The force curves cannot be shown: " (e) } },
     };
-    let player = match (&trace, crate::player::tick_rate_hz(&s, &row).await) {
+    let rate = crate::player::tick_rate_hz(&s, &row).await;
+    let player = match (&trace, rate) {
         (Ok(trace), Some(rate)) => {
             crate::player::warm(&s, &row);
             crate::player::block(&row, trace, rate, report.ticks, q.tick, &comment_notes(&review))
@@ -133,7 +134,8 @@ pub async fn review(
     );
     let body = html! {
         (head)
-        (grade_block(&report, &review))
+        // The upload accepts only the default tick rate, so it stands in for an unreadable header.
+        (grade_block(&report, &review, rate.unwrap_or(stylet_physics::DEFAULT_TICK_RATE_HZ), reviewer))
         h2 { "Replay" }
         (player)
         h2 { "Forces and depth" }
@@ -173,7 +175,28 @@ fn header_block(row: &SessionRow) -> Markup {
     }
 }
 
-fn grade_block(r: &ScoreReport, review: &serde_json::Value) -> Markup {
+/// Where the replay first differed from the recording, in words: the time in seconds (at
+/// `rate_hz` ticks a second) and what differed, without tick numbers or stream names.
+fn divergence_text(d: &stylet_scoring::Divergence, rate_hz: u32) -> String {
+    let what = match d.stream.as_str() {
+        "ticks.force_n" => "the force on the needle",
+        "ticks.torque_nmm" => "the torque on the needle",
+        "ticks.tip_label" => "the structure at the needle tip",
+        "ticks.inserted_mm" => "the insertion depth",
+        "ticks" => "the recording (a stretch of it is missing)",
+        // "digests", "ticks.outputs_digest": the simulation's exact state or outputs.
+        _ => "the simulation's state",
+    };
+    format!(
+        "The replay first differed from the recording at {}, in {what}.",
+        crate::player::time_text(d.tick, rate_hz)
+    )
+}
+
+/// The grade's cards: score, result with its reasons, attempts, the replay check. `rate_hz`: the
+/// session's tick rate (for the time of a divergence); `reviewer`: whether the viewer reviews
+/// this session (they also get the replay's technical figures).
+fn grade_block(r: &ScoreReport, review: &serde_json::Value, rate_hz: u32, reviewer: bool) -> Markup {
     let last_override = review["overrides"].as_array().and_then(|o| o.last()).cloned();
     let (score, outcome) = match &last_override {
         Some(o) => (
@@ -206,8 +229,13 @@ fn grade_block(r: &ScoreReport, review: &serde_json::Value) -> Markup {
                 } }
             div.card { div.muted { "Attempts · redirections" } div.big { (r.metrics.attempts) " · " (r.metrics.redirections) } }
             div.card #replay { div.muted { "Replay" } div.big { (verified_badge(Some(r.replay_verified))) }
-                @if let Some(d) = &r.divergence { div.muted { "first divergence: tick " (d.tick) " in " (d.stream) } }
-                div.muted { (r.digests_checked) " state digests checked, physics v" (r.physics_version) } }
+                @if let Some(d) = &r.divergence { div.muted { (divergence_text(d, rate_hz)) } }
+                @if r.replay_verified { div.muted { "The server re-ran the simulation and got exactly the recorded forces." } }
+                @if reviewer {
+                    details.muted #replay-details { summary { "Technical details" }
+                        (count(r.ticks, "step", "steps")) " replayed, " (count(r.digests_checked, "state check", "state checks"))
+                        ", physics v" (r.physics_version) }
+                } }
         }
         @if r.incomplete { p.notice { "Incomplete recording: " (r.incomplete_reason.clone().unwrap_or_default()) } }
     }
@@ -326,7 +354,11 @@ fn other_metrics(r: &ScoreReport) -> Markup {
         ("Total time", format!("{:.1} s", m.time_total_s)),
         (
             "Fluoroscopy",
-            format!("{:.1} s, {} shots", m.fluoro_time_s, m.xray_shots),
+            format!(
+                "{:.1} s, {}",
+                m.fluoro_time_s,
+                count(m.xray_shots, "X-ray shot", "X-ray shots")
+            ),
         ),
         (
             "Palpation · ultrasound",
@@ -674,4 +706,67 @@ async fn figure_response(
         png,
     )
         .into_response())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A stored score report (failed at expert level, one X-ray shot, replay verified).
+    fn report() -> ScoreReport {
+        serde_json::from_str(include_str!("../../../service/tests/data/report.json")).unwrap()
+    }
+
+    #[test]
+    fn the_replay_card_speaks_in_seconds_not_ticks_or_digests() {
+        let mut r = report();
+        r.divergence = Some(stylet_scoring::Divergence {
+            tick: 4304,
+            stream: "ticks.force_n".into(),
+            recorded: "1.0".into(),
+            replayed: "1.1".into(),
+        });
+        let html = grade_block(&r, &serde_json::json!({}), 1000, false).into_string();
+        assert!(
+            html.contains("4.30 s") && html.contains("force on the needle"),
+            "{html}"
+        );
+        for jargon in ["tick", "digest", "ticks.force_n", "Technical details"] {
+            assert!(!html.contains(jargon), "{jargon} in {html}");
+        }
+        // Reviewers also get the replay's figures, still without jargon.
+        let staff = grade_block(&r, &serde_json::json!({}), 1000, true).into_string();
+        assert!(
+            staff.contains("Technical details") && staff.contains("state checks"),
+            "{staff}"
+        );
+        for jargon in ["tick", "digest"] {
+            assert!(!staff.contains(jargon), "{jargon} in {staff}");
+        }
+    }
+
+    #[test]
+    fn a_divergence_names_what_differed_in_words() {
+        let d = |stream: &str| stylet_scoring::Divergence {
+            tick: 1500,
+            stream: stream.into(),
+            recorded: String::new(),
+            replayed: String::new(),
+        };
+        assert_eq!(
+            divergence_text(&d("ticks.inserted_mm"), 1000),
+            "The replay first differed from the recording at 1.50 s, in the insertion depth."
+        );
+        assert!(divergence_text(&d("digests"), 1000).ends_with("in the simulation's state."));
+        // A rate of 0 (an unreadable header) does not divide by zero.
+        assert!(divergence_text(&d("ticks"), 0).contains("1500.00 s"));
+    }
+
+    #[test]
+    fn one_x_ray_shot_is_one_shot() {
+        let r = report();
+        assert_eq!(r.metrics.xray_shots, 1);
+        let html = other_metrics(&r).into_string();
+        assert!(html.contains("1 X-ray shot<") && !html.contains("1 shots"), "{html}");
+    }
 }

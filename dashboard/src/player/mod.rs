@@ -137,7 +137,7 @@ async fn replay_states(s: &AppState, row: &SessionRow) -> Result<Arc<ReplayState
         })?;
         let built = ReplayStates::build(session, Arc::clone(scorer.atlas()))
             .map_err(|e| internal(format!("the session cannot be replayed: {e}")))?
-            .ok_or_else(|| fail(StatusCode::NOT_FOUND, "the session has no tick to show"))?;
+            .ok_or_else(|| fail(StatusCode::NOT_FOUND, "the recording has no moment to show"))?;
         let built = Arc::new(built);
         with_caches(|c| {
             c.states.push_back((sha, Arc::clone(&built)));
@@ -281,13 +281,10 @@ pub async fn frame(
     // The score says how many ticks were replayed: a tick beyond them costs nothing.
     let ticks = row.score.as_ref().and_then(|r| r["ticks"].as_u64()).unwrap_or(0);
     if q.tick >= ticks {
+        let rate = rate_or_default(&s, &row).await;
         return Err(fail(
             StatusCode::NOT_FOUND,
-            format!(
-                "no tick {} in this session (ticks 0 … {})",
-                q.tick,
-                ticks.saturating_sub(1)
-            ),
+            no_moment_text(q.tick, 0, ticks.saturating_sub(1), rate),
         ));
     }
     let cache = frame_cache(&s);
@@ -297,12 +294,10 @@ pub async fn frame(
     }
     let states = replay_states(&s, &row).await?;
     if !(states.first_tick..=states.last_tick).contains(&q.tick) {
+        let rate = rate_or_default(&s, &row).await;
         return Err(fail(
             StatusCode::NOT_FOUND,
-            format!(
-                "no tick {} in this session (ticks {} … {})",
-                q.tick, states.first_tick, states.last_tick
-            ),
+            no_moment_text(q.tick, states.first_tick, states.last_tick, rate),
         ));
     }
     let drawing = drawing(&s, &row.atlas_hash).await?;
@@ -327,9 +322,40 @@ pub async fn frame(
     })
     .await
     .map_err(|e| internal(e.to_string()))?
-    .map_err(|e| internal(e.to_string()))?
-    .ok_or_else(|| fail(StatusCode::NOT_FOUND, format!("tick {tick} cannot be replayed")))?;
-    Ok(png_response(png))
+    .map_err(|e| internal(e.to_string()))?;
+    match png {
+        Some(png) => Ok(png_response(png)),
+        None => {
+            let rate = rate_or_default(&s, &row).await;
+            Err(fail(
+                StatusCode::NOT_FOUND,
+                format!("the moment at {} cannot be replayed", time_text(tick, rate)),
+            ))
+        }
+    }
+}
+
+/// A tick of a session as a time for people: "4.30 s" (`rate_hz` ticks a second).
+pub fn time_text(tick: u64, rate_hz: u32) -> String {
+    format!("{:.2} s", tick as f64 / f64::from(rate_hz.max(1)))
+}
+
+/// Why a frame at `tick` cannot be shown when the session's ticks run from `first` to `last`,
+/// in seconds.
+fn no_moment_text(tick: u64, first: u64, last: u64, rate_hz: u32) -> String {
+    format!(
+        "no moment at {} in this session (it can be shown from {} to {})",
+        time_text(tick, rate_hz),
+        time_text(first, rate_hz),
+        time_text(last, rate_hz)
+    )
+}
+
+/// The session's tick rate, else the one rate the upload accepts (for messages only).
+async fn rate_or_default(s: &AppState, row: &SessionRow) -> u32 {
+    tick_rate_hz(s, row)
+        .await
+        .unwrap_or(stylet_physics::DEFAULT_TICK_RATE_HZ)
 }
 
 /// A turn to draw a frame, waited for at most [`DRAW_WAIT`]; `Err` holds the 503 to answer when
@@ -392,7 +418,7 @@ pub fn block(
     comments: &[(f64, String)],
 ) -> Markup {
     if ticks == 0 {
-        return html! { p.muted { "The recording has no tick to replay." } };
+        return html! { p.muted { "The recording is empty: there is nothing to replay." } };
     }
     let last = ticks - 1;
     let moments = trace.key_moments();
@@ -408,7 +434,7 @@ pub fn block(
             view.name()
         )
     };
-    let seconds = |tick: u64| format!("{:.2} s", tick as f64 / f64::from(tick_rate_hz));
+    let seconds = |tick: u64| time_text(tick, tick_rate_hz);
     let link = |tick: u64| format!("/sessions/{}?tick={tick}#player", row.id);
     html! {
         section #player data-session=(row.id) data-rate=(tick_rate_hz) data-last=(last) data-tick=(start) data-w=(w) data-h=(h) {
@@ -454,5 +480,23 @@ pub fn block(
             }
         }
         script src="/assets/player.js" defer {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_moment_outside_the_session_is_named_in_seconds() {
+        let text = no_moment_text(4304, 0, 3990, 1000);
+        assert_eq!(
+            text,
+            "no moment at 4.30 s in this session (it can be shown from 0.00 s to 3.99 s)"
+        );
+        assert!(!text.contains("tick"), "{text}");
+        assert_eq!(time_text(250, 1000), "0.25 s");
+        // An unreadable rate never divides by zero.
+        assert_eq!(time_text(3, 0), "3.00 s");
     }
 }

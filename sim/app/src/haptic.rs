@@ -417,12 +417,9 @@ pub fn event_text(e: &Event) -> String {
     }
 }
 
-/// A label's name in the atlas' table ("label 7" if the table does not know it).
+/// A label's name in the atlas' table ("unnamed structure" if the table does not know it).
 pub fn label_name(sim: &Simulation, id: LabelId) -> String {
-    sim.atlas()
-        .label_table()
-        .get(id)
-        .map_or_else(|| format!("label {id}"), |l| l.name.clone())
+    sim.atlas().label_table().name_of(id).to_string()
 }
 
 /// The contrast overlay of the latest publication, rebuilt only when the contrast changed.

@@ -165,6 +165,11 @@ impl HeuristicLabels {
     }
 }
 
+/// What people read for a label id the table does not name: words, never a bare class number.
+/// (A validated atlas names every id its label map uses, so this only guards the fallbacks.)
+/// Without an article, as texts put one before a structure's name ("entered the …").
+pub const UNNAMED_STRUCTURE: &str = "unnamed structure";
+
 /// The validated label table: unique ids ≥ 1, unique names, heuristic labels present.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LabelTable {
@@ -237,6 +242,11 @@ impl LabelTable {
             u16::MAX => None,
             pos => Some(&self.labels[pos as usize]),
         }
+    }
+
+    /// The name of label `id` for people: its name in the table, else [`UNNAMED_STRUCTURE`].
+    pub fn name_of(&self, id: LabelId) -> &str {
+        self.get(id).map_or(UNNAMED_STRUCTURE, |l| l.name.as_str())
     }
 
     /// Position of a label in [`LabelTable::labels`] (dense, for per-label tables).
@@ -346,6 +356,9 @@ mod tests {
         assert_eq!(table.label(0, -900.0, 50.0, &t()), 5);
         assert_eq!(table.get(10).unwrap().name, "liver");
         assert!(table.get(11).is_none());
+        // Names for people: a known label's name; an unknown one in words, not its number.
+        assert_eq!(table.name_of(10), "liver");
+        assert_eq!(table.name_of(118), "unnamed structure");
     }
 
     #[test]

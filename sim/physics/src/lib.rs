@@ -45,7 +45,7 @@ pub use device::DeviceProfile;
 pub use events::{Event, ProbeKind, ToolSpec};
 pub use glam;
 pub use grid::{Affine, Grid};
-pub use labels::{HeuristicClass, HeuristicLabels, Label, LabelId, LabelTable, Role, Thresholds};
+pub use labels::{HeuristicClass, HeuristicLabels, Label, LabelId, LabelTable, Role, Thresholds, UNNAMED_STRUCTURE};
 pub use needle::spec::{Gauge, NeedleSpec};
 pub use planned_path::PlannedPath;
 pub use properties::{Materials, Param, ParamError, ParamValue, PropertyTree, TissueSpec};

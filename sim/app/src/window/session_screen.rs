@@ -421,12 +421,7 @@ fn indicators_ui(ui: &mut egui::Ui, snapshot: Option<&Snapshot>, plan: &SessionP
             ui.label(format!("{:.1} mm", o.tip_depth_mm.max(0.0)));
             ui.end_row();
             ui.label("Tip in");
-            let name = plan
-                .atlas
-                .model
-                .label_table()
-                .get(o.tip_label)
-                .map_or_else(|| format!("label {}", o.tip_label), |l| l.name.clone());
+            let name = plan.atlas.model.label_table().name_of(o.tip_label).to_string();
             ui.label(if o.inserted_mm > 0.0 { name } else { "air".into() });
             ui.end_row();
             ui.label("Stylet");
