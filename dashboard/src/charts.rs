@@ -173,6 +173,7 @@ pub fn progress_chart(points: &[ProgressPoint], title: &str) -> LineChart {
 /// The chart as inline SVG that scales with the page, with `aria-label` for screen readers.
 pub fn inline_svg(chart: &LineChart) -> Result<String, RenderError> {
     let (svg, axis) = crate::plot::chart_svg_axis(chart, CHART_SIZE)?;
+    let svg = crate::plot::scalable_svg(&svg, CHART_SIZE);
     let label = chart.title.replace(['"', '<', '>', '&'], " ");
     // Where the x axis lies (data and SVG units): the player's cursor and click-to-seek.
     Ok(svg.replacen(
@@ -421,6 +422,14 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn charts_scale_by_their_view_box_not_a_fixed_size() {
+        let svg = inline_svg(&force_chart(&trace(), "F")).unwrap();
+        let tag = &svg[..svg.find('>').unwrap()];
+        assert!(tag.contains("viewBox=\"0 0 1100 440\""), "{tag}");
+        assert!(!tag.contains("width=") && !tag.contains("height="), "{tag}");
     }
 
     #[test]

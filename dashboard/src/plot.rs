@@ -485,6 +485,13 @@ pub fn write_chart(chart: &LineChart, path: &Path, size: (u32, u32)) -> Result<(
     }
 }
 
+/// `svg`, plotters' SVG of `size`, without its fixed width and height but with its viewBox: the
+/// page's style sheet sizes it (to the page's width, or wider in a box that scrolls sideways on
+/// a phone), and the drawing keeps its proportions.
+pub fn scalable_svg(svg: &str, size: (u32, u32)) -> String {
+    svg.replacen(&format!("width=\"{}\" height=\"{}\" ", size.0, size.1), "", 1)
+}
+
 /// The chart as an SVG string (for pages and tests).
 pub fn chart_svg(chart: &LineChart, size: (u32, u32)) -> Result<String, RenderError> {
     chart_svg_axis(chart, size).map(|(svg, _)| svg)

@@ -277,10 +277,11 @@ pub fn draw_level_lines<'a, 'b: 'a>(
     Ok(())
 }
 
-/// An inline SVG chart marked as an image with its title as the accessible name.
+/// An inline SVG chart of [`crate::charts::CHART_SIZE`], scalable (its viewBox only, sized by
+/// the style sheet), marked as an image with its title as the accessible name.
 pub fn labelled_svg(svg: &str, title: &str) -> String {
     let label = title.replace(['"', '<', '>', '&'], " ");
-    svg.replacen(
+    crate::plot::scalable_svg(svg, crate::charts::CHART_SIZE).replacen(
         "<svg ",
         &format!("<svg class=\"chart\" role=\"img\" aria-label=\"{label}\" "),
         1,
@@ -380,6 +381,10 @@ mod tests {
             !svg.contains(">expert<"),
             "a level without sessions has no legend entry"
         );
+        // Sized by the page's style sheet: the viewBox only, no fixed width or height.
+        let tag = &svg[..svg.find('>').unwrap()];
+        assert!(tag.contains("viewBox=\"0 0 1100 440\""), "{tag}");
+        assert!(!tag.contains("width=") && !tag.contains("height="), "{tag}");
         assert_eq!(trend_chart_svg(&Trends::default()).unwrap(), None);
     }
 }

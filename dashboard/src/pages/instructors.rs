@@ -194,7 +194,7 @@ pub async fn trainee_progress(
             (totals_table(&punctures, "puncture-totals", false))
             h2 { "Scores over time" }
             @match &chart {
-                Some(svg) => div #progress-chart { (PreEscaped(svg)) },
+                Some(svg) => div.chart-box #progress-chart { (PreEscaped(svg)) },
                 None => p.muted { "No graded puncture yet." },
             }
             p.muted { "One line per difficulty, a dot per graded puncture session (the final grade: an instructor's override when there is one). Palpation and ultrasound exercises are graded on their own metrics and listed below, not drawn here." }

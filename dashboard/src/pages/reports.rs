@@ -168,7 +168,7 @@ fn trends_section(r: &CohortReport) -> Result<Markup, PageError> {
     Ok(html! {
         h2 { "Pass rate per week" }
         @match chart {
-            Some(svg) => div #trend-chart { (PreEscaped(svg)) },
+            Some(svg) => div.chart-box #trend-chart { (PreEscaped(svg)) },
             None => p.muted { "No graded puncture sessions in this range." },
         }
         @if !r.trends.weeks.is_empty() {
