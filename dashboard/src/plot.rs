@@ -123,7 +123,7 @@ const PEAK_FONT: i32 = 15;
 const LEGEND_FONT: i32 = 16;
 const LEGEND_SAMPLE_PX: f64 = 30.0;
 const LEGEND_MARGIN_PX: f64 = 10.0;
-const LEGEND_GAP_PX: f64 = 5.0;
+pub(crate) const LEGEND_GAP_PX: f64 = 5.0;
 const LEGEND_LINE_PX: f64 = 20.0;
 /// Gap between stacked labels, and between a label and its line or dot (px).
 const LABEL_GAP_PX: f64 = 2.0;
@@ -234,12 +234,19 @@ struct PlacedLabel {
     leader: Option<((i32, i32), (i32, i32))>,
 }
 
-/// The legend's box as plotters lays it out in the upper right corner of `area` (its text
-/// width estimated at the legend's font size in plotters' pixels, the size it measures with).
+/// Width and height in px of plotters' legend box for `lines` series whose longest name has
+/// `longest_chars` characters (at the legend's font size in plotters' pixels, the size plotters
+/// measures it with), and its gap from the plotting area's edges.
+pub(crate) fn legend_size_px(longest_chars: usize, lines: usize) -> (f64, f64) {
+    let width = longest_chars as f64 * 0.6 * f64::from(LEGEND_FONT) + LEGEND_SAMPLE_PX + 2.0 * LEGEND_MARGIN_PX;
+    let height = LEGEND_LINE_PX * lines.max(1) as f64 + 2.0 * LEGEND_MARGIN_PX + 4.0;
+    (width, height)
+}
+
+/// The legend's box as plotters lays it out in the upper right corner of `area`.
 fn legend_box(chart: &LineChart, area: LabelBox) -> LabelBox {
     let longest = chart.series.iter().map(|s| s.name.chars().count()).max().unwrap_or(0);
-    let width = longest as f64 * 0.6 * f64::from(LEGEND_FONT) + LEGEND_SAMPLE_PX + 2.0 * LEGEND_MARGIN_PX;
-    let height = LEGEND_LINE_PX * chart.series.len().max(1) as f64 + 2.0 * LEGEND_MARGIN_PX + 4.0;
+    let (width, height) = legend_size_px(longest, chart.series.len());
     LabelBox {
         x0: area.x1 - LEGEND_GAP_PX - width,
         y0: area.y0 + LEGEND_GAP_PX,
