@@ -209,13 +209,11 @@ impl Placer {
         let step = if dy.abs() < 1.0 { dy.signum() } else { dy };
         // Enough steps to cross the whole area from anywhere inside it.
         let steps = ((self.area.height() + want.height()) / step.abs()).ceil() as usize + 1;
-        let area = self.area;
-        let placed = &self.placed;
-        let free = |b: &LabelBox| b.y0 >= area.y0 && b.y1 <= area.y1 && !placed.iter().any(|q| q.overlaps(b));
+        let (area, placed) = (self.area, &self.placed);
         let found = (0..=steps)
             .map(|k| want.shifted(step * k as f64))
             .chain((1..=steps).map(|k| want.shifted(-step * k as f64)))
-            .find(|b| free(b))
+            .find(|b| b.y0 >= area.y0 && b.y1 <= area.y1 && !placed.iter().any(|q| q.overlaps(b)))
             .unwrap_or(want);
         self.placed.push(found);
         found

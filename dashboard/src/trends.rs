@@ -448,7 +448,9 @@ mod tests {
     fn text_y(svg: &str, text: &str) -> Option<f64> {
         svg.split("<text").skip(1).find_map(|s| {
             let (attrs, rest) = s.split_once('>')?;
-            (rest.split_once("</text>")?.0.trim() == text).then_some(())?;
+            if rest.split_once("</text>")?.0.trim() != text {
+                return None;
+            }
             attrs.split(" y=\"").nth(1)?.split('"').next()?.parse().ok()
         })
     }
