@@ -173,6 +173,7 @@ pub fn progress_chart(points: &[ProgressPoint], title: &str) -> LineChart {
 /// The chart as inline SVG that scales with the page, with `aria-label` for screen readers.
 pub fn inline_svg(chart: &LineChart) -> Result<String, RenderError> {
     let (svg, axis) = crate::plot::chart_svg_axis(chart, CHART_SIZE)?;
+    let svg = crate::plot::scalable_svg(&svg, CHART_SIZE);
     let label = chart.title.replace(['"', '<', '>', '&'], " ");
     // Where the x axis lies (data and SVG units): the player's cursor and click-to-seek.
     Ok(svg.replacen(
@@ -322,6 +323,113 @@ mod tests {
         for want in ["skin", "[2] comment"] {
             assert!(svg.iter().any(|x| x == want), "no {want:?} in {svg:?}");
         }
+    }
+
+    /// Boxes of the SVG texts that are one of `labels`, from x, y, dy, text-anchor and font-size
+    /// as plotters writes them, with width = characters × 0.6 (bold 0.65) × font-size and
+    /// height 1.2 × font-size.
+    fn label_boxes(svg: &str, labels: &[&str]) -> Vec<(String, [f64; 4])> {
+        svg.split("<text")
+            .skip(1)
+            .filter_map(|s| {
+                let (attrs, rest) = s.split_once('>')?;
+                let text = rest.split_once("</text>")?.0.trim().to_string();
+                if !labels.contains(&text.as_str()) {
+                    return None;
+                }
+                let attr = |k: &str| Some(attrs.split(&format!(" {k}=\"")).nth(1)?.split('"').next()?.to_string());
+                let num = |k: &str| attr(k)?.parse::<f64>().ok();
+                let (x, y, fs) = (num("x")?, num("y")?, num("font-size")?);
+                let per_char = if attr("font-weight").is_some() { 0.65 } else { 0.6 };
+                let w = text.chars().count() as f64 * per_char * fs;
+                let x0 = match attr("text-anchor").as_deref() {
+                    Some("middle") => x - w / 2.0,
+                    Some("end") => x - w,
+                    _ => x,
+                };
+                let y0 = match attr("dy").as_deref() {
+                    Some("0.76em") => y,
+                    Some("-0.5ex") => y - fs,
+                    _ => y - fs / 2.0,
+                };
+                Some((text, [x0, y0, x0 + w, y0 + 1.2 * fs]))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn event_peak_and_comment_labels_never_overlap_and_stay_on_the_chart() {
+        let mut t = trace(); // 0 … 1.98 s
+        let events = [
+            "stylet removed",
+            "target reached",
+            "risk hit: stomach / oesophagus / duodenum",
+            "contrast 2.5 ml",
+            "X-ray on",
+            "X-ray off",
+            "breath release",
+            "risk hit: heart and great vessels",
+        ];
+        t.events = events
+            .iter()
+            .enumerate()
+            .map(|(k, l)| TraceEvent {
+                t_s: 1.0 + 0.02 * k as f64,
+                kind: "x".into(),
+                label: l.to_string(),
+            })
+            .chain([TraceEvent {
+                t_s: 1.98,
+                kind: "stylet-remove".into(),
+                label: "stylet removed at the end".into(),
+            }])
+            .collect();
+        let mut chart = force_chart(&t, "Force on the hand — success-intercostal (demo-alice)");
+        chart.peaks = vec![
+            (1.0, 2.5, "stomach / oesophagus / duodenum".into()),
+            (1.02, 2.4, "portal and splenic vein".into()),
+        ];
+        chart.notes = (1..=4)
+            .map(|n| (1.0 + 0.01 * n as f64, format!("[{n}] comment")))
+            .collect();
+        let svg = inline_svg(&chart).unwrap();
+        let mut want: Vec<String> = events.iter().map(|s| s.to_string()).collect();
+        want.extend(
+            [
+                "stylet removed at the end",
+                "stomach / oesophagus / duodenum",
+                "portal and splenic vein",
+            ]
+            .map(String::from),
+        );
+        want.extend((1..=4).map(|n| format!("[{n}] comment")));
+        let want_refs: Vec<&str> = want.iter().map(String::as_str).collect();
+        let boxes = label_boxes(&svg, &want_refs);
+        assert_eq!(boxes.len(), want.len(), "every label drawn once: {boxes:?}");
+        for (i, (a, p)) in boxes.iter().enumerate() {
+            assert!(
+                p[0] >= 0.0 && p[2] <= CHART_SIZE.0 as f64,
+                "{a} leaves the chart: {p:?}"
+            );
+            assert!(
+                p[1] >= 0.0 && p[3] <= CHART_SIZE.1 as f64,
+                "{a} leaves the chart: {p:?}"
+            );
+            for (b, q) in &boxes[i + 1..] {
+                assert!(
+                    !(p[0] < q[2] && q[0] < p[2] && p[1] < q[3] && q[1] < p[3]),
+                    "{a} {p:?} overlaps {b} {q:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn charts_scale_by_their_view_box_not_a_fixed_size() {
+        let svg = inline_svg(&force_chart(&trace(), "F")).unwrap();
+        let tag = &svg[..svg.find('>').unwrap()];
+        assert!(tag.contains("viewBox=\"0 0 1100 440\""), "{tag}");
+        assert!(!tag.contains("width=") && !tag.contains("height="), "{tag}");
     }
 
     #[test]

@@ -62,6 +62,11 @@ header.top { flex-wrap:wrap; }
 header.top nav { flex-wrap:wrap; row-gap:.3rem; }
 body { overflow-wrap:break-word; }
 img, svg, video { max-width:100%; }
+/* Charts carry only a viewBox and scale with their box. On a phone a chart is drawn 760 px wide,
+   so that its labels stay about 9 px tall, and scrolls sideways inside its .chart-box. */
+svg.chart { display:block; width:100%; height:auto; aspect-ratio: 1100 / 440; }
+.chart-box { overflow-x:auto; max-width:100%; }
+@media (max-width: 700px) { .chart-box > svg.chart { width:760px; max-width:none; } }
 input, select, textarea { max-width:100%; }
 .scroll { overflow-x:auto; max-width:100%; }
 /* A grid cell may shrink below its content's width (a textarea's cols would widen the page). */
@@ -362,6 +367,22 @@ pub fn pager(base_query: &str, page: i64, total: i64, page_size: i64) -> Markup 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn charts_scale_with_their_box_and_stay_readable_on_phones() {
+        // Sized by the style sheet with the charts' proportions (they carry only a viewBox).
+        let (w, h) = crate::charts::CHART_SIZE;
+        assert!(STYLE.contains(&format!(
+            "svg.chart {{ display:block; width:100%; height:auto; aspect-ratio: {w} / {h}; }}"
+        )));
+        // On a phone: 760 px wide, scrolled sideways inside the chart's own box; the axis labels
+        // (plotters' size 16, an SVG font-size of 16 / 1.24) are then 8.9 px, which
+        // tests/integration/phone.rs measures in a browser.
+        assert!(STYLE.contains(".chart-box { overflow-x:auto; max-width:100%; }"));
+        assert!(
+            STYLE.contains("@media (max-width: 700px) { .chart-box > svg.chart { width:760px; max-width:none; } }")
+        );
+    }
 
     #[test]
     fn short_times_never_split_a_character() {

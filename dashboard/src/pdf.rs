@@ -329,10 +329,14 @@ impl Doc {
             }
             let _ = name;
         }
-        // Legend, top right inside the plot.
+        // Legend, top right inside the plot, or top left where fewer points lie under it.
+        let mut points: Vec<(f32, f32)> = Vec::new();
+        for (_, _, pts) in &spec.series {
+            points.extend(pts.iter().map(|(x, p)| (px(*x), py(*p))));
+        }
+        let lx = legend_left(&points, (left, right), upper, spec.series.len());
         let mut ly = upper - 12.0;
         for (name, color, _) in &spec.series {
-            let lx = right - 110.0;
             self.line((lx, ly + 3.0), (lx + 20.0, ly + 3.0), 2.5, *color);
             self.rgb((0, 0, 0), false);
             self.text_at(lx + 26.0, ly, 9.0, false, name);
@@ -425,9 +429,54 @@ pub fn wrap(text: &str, size: f32, bold: bool, width: f32) -> Vec<String> {
     lines.into_iter().map(|l| fit(&l, size, bold, width)).collect()
 }
 
+/// Width of a percent chart's legend (its sample line and the names), in points.
+const LEGEND_W: f32 = 110.0;
+/// Height of one legend row, in points.
+const LEGEND_ROW: f32 = 13.0;
+
+/// The left edge of a percent chart's legend of `rows` names at the top of the plot spanning
+/// `left … right` below `upper`: at the right, unless more of the `points` (in page
+/// coordinates) lie under it there than at the left (the weekly chart ends at its latest week,
+/// so the latest points lie at the right edge).
+fn legend_left(points: &[(f32, f32)], (left, right): (f32, f32), upper: f32, rows: usize) -> f32 {
+    let bottom = upper - LEGEND_ROW * rows as f32 - 2.0;
+    let under = |lx: f32| {
+        points
+            .iter()
+            .filter(|(x, y)| *x + 3.0 > lx && *x - 3.0 < lx + LEGEND_W && *y + 3.0 > bottom && *y - 3.0 < upper)
+            .count()
+    };
+    let (at_right, at_left) = (right - LEGEND_W, left + 6.0);
+    if under(at_right) > under(at_left) {
+        at_left
+    } else {
+        at_right
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_chart_legend_moves_left_off_the_latest_points() {
+        let (left, right, upper) = (100.0, 500.0, 700.0);
+        // Nothing under it: at the right.
+        assert_eq!(
+            legend_left(&[(120.0, 690.0), (480.0, 500.0)], (left, right), upper, 2),
+            390.0
+        );
+        // The latest week's high pass rate under it at the right: at the left.
+        assert_eq!(
+            legend_left(&[(300.0, 500.0), (495.0, 695.0)], (left, right), upper, 2),
+            106.0
+        );
+        // Points under both places: the right, unless the left has fewer.
+        assert_eq!(
+            legend_left(&[(120.0, 690.0), (495.0, 695.0)], (left, right), upper, 1),
+            390.0
+        );
+    }
 
     #[test]
     fn widths_fit_and_wrap() {

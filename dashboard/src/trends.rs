@@ -178,6 +178,14 @@ pub fn week_ticks(lo: i64, hi: i64) -> Vec<f64> {
         .collect()
 }
 
+/// The weekly chart's x range in days, for the page and the PDF alike: half a week before the
+/// first Monday, and after the last Monday only room for its date label (5 % of the span, at
+/// least half a day), so that the axis ends at the latest week with data.
+pub fn week_x_range(lo: i64, hi: i64) -> (f64, f64) {
+    let span_days = (hi - lo) as f64 + 7.0;
+    (lo as f64 - 3.5, hi as f64 + (0.05 * span_days).max(0.5))
+}
+
 /// The colour of a difficulty level on every chart (RGB 0–255).
 pub fn level_rgb(level: Difficulty) -> (u8, u8, u8) {
     let c = match level {
@@ -204,7 +212,7 @@ pub fn trend_chart_svg(trends: &Trends) -> Result<Option<String>, ChartError> {
         .iter()
         .flat_map(|(_, p)| p.iter().map(|(w, _)| *w))
         .fold((i64::MAX, i64::MIN), |(a, b), w| (a.min(w), b.max(w)));
-    let (x0, x1) = (lo as f64 - 3.5, hi as f64 + 3.5);
+    let (x0, x1) = week_x_range(lo, hi);
     let mut out = String::new();
     {
         let root = SVGBackend::with_string(&mut out, crate::charts::CHART_SIZE).into_drawing_area();
@@ -268,19 +276,68 @@ pub fn draw_level_lines<'a, 'b: 'a>(
         .label(level.as_str())
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], ShapeStyle::from(&color).stroke_width(3)));
     }
+    let position = quiet_corner(c, lines);
     c.configure_series_labels()
         .background_style(WHITE.mix(0.9))
         .border_style(BLACK)
         .label_font((SANS, 16))
-        .position(SeriesLabelPosition::LowerRight)
+        .position(position)
         .draw()?;
     Ok(())
 }
 
-/// An inline SVG chart marked as an image with its title as the accessible name.
+/// The corner of the plotting area for the legend of `lines`: the one whose legend box would
+/// cover the fewest of their dots, the lower right when several tie (the axis ends at the last
+/// point, so the latest ones lie at the right edge).
+fn quiet_corner<'a, 'b: 'a>(
+    c: &ChartContext<
+        'a,
+        SVGBackend<'b>,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+    lines: &[(Difficulty, Vec<(f64, f64)>)],
+) -> SeriesLabelPosition {
+    let longest = lines.iter().map(|(l, _)| l.as_str().chars().count()).max().unwrap_or(0);
+    let (w, h) = crate::plot::legend_size_px(longest, lines.len());
+    let gap = crate::plot::LEGEND_GAP_PX;
+    let (px, py) = c.plotting_area().get_pixel_range();
+    let (x0, x1, y0, y1) = (
+        f64::from(px.start),
+        f64::from(px.end),
+        f64::from(py.start),
+        f64::from(py.end),
+    );
+    let dots: Vec<(f64, f64)> = lines
+        .iter()
+        .flat_map(|(_, pts)| pts.iter())
+        .map(|p| {
+            let (x, y) = c.backend_coord(p);
+            (f64::from(x), f64::from(y))
+        })
+        .collect();
+    // A dot's radius and a pixel: one touching the box counts as covered.
+    let r = 5.0;
+    let covered = |(bx, by): (f64, f64)| {
+        dots.iter()
+            .filter(|(x, y)| *x + r > bx && *x - r < bx + w && *y + r > by && *y - r < by + h)
+            .count()
+    };
+    [
+        (SeriesLabelPosition::LowerRight, (x1 - gap - w, y1 - gap - h)),
+        (SeriesLabelPosition::UpperRight, (x1 - gap - w, y0 + gap)),
+        (SeriesLabelPosition::LowerLeft, (x0 + gap, y1 - gap - h)),
+        (SeriesLabelPosition::UpperLeft, (x0 + gap, y0 + gap)),
+    ]
+    .into_iter()
+    .min_by_key(|(_, corner)| covered(*corner))
+    .map_or(SeriesLabelPosition::LowerRight, |(position, _)| position)
+}
+
+/// An inline SVG chart of [`crate::charts::CHART_SIZE`], scalable (its viewBox only, sized by
+/// the style sheet), marked as an image with its title as the accessible name.
 pub fn labelled_svg(svg: &str, title: &str) -> String {
     let label = title.replace(['"', '<', '>', '&'], " ");
-    svg.replacen(
+    crate::plot::scalable_svg(svg, crate::charts::CHART_SIZE).replacen(
         "<svg ",
         &format!("<svg class=\"chart\" role=\"img\" aria-label=\"{label}\" "),
         1,
@@ -380,6 +437,52 @@ mod tests {
             !svg.contains(">expert<"),
             "a level without sessions has no legend entry"
         );
+        // Sized by the page's style sheet: the viewBox only, no fixed width or height.
+        let tag = &svg[..svg.find('>').unwrap()];
+        assert!(tag.contains("viewBox=\"0 0 1100 440\""), "{tag}");
+        assert!(!tag.contains("width=") && !tag.contains("height="), "{tag}");
         assert_eq!(trend_chart_svg(&Trends::default()).unwrap(), None);
+    }
+
+    /// The y of the SVG text that reads `text`.
+    fn text_y(svg: &str, text: &str) -> Option<f64> {
+        svg.split("<text").skip(1).find_map(|s| {
+            let (attrs, rest) = s.split_once('>')?;
+            if rest.split_once("</text>")?.0.trim() != text {
+                return None;
+            }
+            attrs.split(" y=\"").nth(1)?.split('"').next()?.parse().ok()
+        })
+    }
+
+    #[test]
+    fn the_weekly_axis_ends_at_the_latest_week() {
+        let w = days_from_date("2026-11-23").unwrap();
+        // One week: half a week before its Monday, half a day after it.
+        assert_eq!(week_x_range(w, w), (w as f64 - 3.5, w as f64 + 0.5));
+        // Twenty weeks: 5 % of the span after the last Monday.
+        let (x0, x1) = week_x_range(w - 7 * 19, w);
+        assert_eq!(x0, (w - 7 * 19) as f64 - 3.5);
+        assert!((x1 - w as f64 - 7.0).abs() < 1e-9, "{x1}");
+        // The chart of one week (1 of 10 passed): its dot near the right edge, and the legend in
+        // a corner where it covers no dot (not the lower right, where the dot is).
+        let t = Trends::from_days(&[day("2026-11-24", Exercise::Puncture, "beginner", 10, 1, 0)]);
+        let svg = trend_chart_svg(&t).unwrap().unwrap();
+        let max_cx = svg
+            .split("<circle")
+            .skip(1)
+            .filter_map(|s| s.split(" cx=\"").nth(1)?.split('"').next()?.parse::<f64>().ok())
+            .fold(f64::NEG_INFINITY, f64::max);
+        let right_px = crate::charts::CHART_SIZE.0 as f64 - 16.0;
+        assert!(
+            right_px - max_cx < 150.0,
+            "the dot is {} px from the edge",
+            right_px - max_cx
+        );
+        let legend_y = text_y(&svg, "beginner").expect("a legend entry");
+        assert!(
+            legend_y < crate::charts::CHART_SIZE.1 as f64 / 2.0,
+            "legend at y {legend_y}, over the dot"
+        );
     }
 }

@@ -2,10 +2,10 @@
 //! through the validating loader and print its summary; record the example scripts as sessions
 //! of demo trainees; replay and score them and print the scores; then serve the dashboard on
 //! them with demo accounts (SQLite in the demo folder), the sessions uploaded and scored by the
-//! service like any others.
+//! service like any others and dated back over the past four weeks.
 
-use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::path::PathBuf;
+use std::time::{Duration, Instant, SystemTime};
 
 use anyhow::Context;
 use clap::Args;
@@ -73,10 +73,11 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&sessions_dir)?;
     let t2 = Instant::now();
     let mut files = Vec::new();
+    let mut uploads = Vec::new();
     let mut simulated_s = 0.0;
     let mut pictured = None;
-    for (name, trainee, text) in DEMO_SCRIPTS {
-        let out = sessions_dir.join(format!("{name}.mcap"));
+    for (name, trainee, days_ago, text) in DEMO_SCRIPTS {
+        let out = sessions_dir.join(format!("{trainee}-{name}.mcap"));
         let info = stylet_recorder::SessionInfo {
             trainee,
             scenario: name,
@@ -88,11 +89,18 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         let summary = super::script::record_script_text(&atlas, text, &out, &info)
             .with_context(|| format!("recording the demo script {name}"))?;
         simulated_s += summary.ticks as f64 / 1000.0;
-        if name == PICTURED_SESSION {
+        if name == PICTURED_SESSION && pictured.is_none() {
             pictured = Some((out.clone(), summary.ticks));
         }
+        uploads.push(DemoUpload {
+            file: out.clone(),
+            trainee,
+            days_ago,
+        });
         files.push(out);
     }
+    // The session `stylet score` is suggested for, for its details.
+    let detailed = pictured.as_ref().map_or_else(|| files[0].clone(), |(f, _)| f.clone());
     sayf!(
         "{} sessions ({simulated_s:.0} s at 1 kHz) recorded in {:.2} s to {}",
         files.len(),
@@ -176,7 +184,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         t3.elapsed().as_secs_f64(),
         scorer.rubric().name,
         scorer.rubric().version,
-        files[2].display(),
+        detailed.display(),
         atlas_dir.display()
     );
     if let Some((f, Err(e))) = results.iter().find(|r| r.1.is_err()) {
@@ -185,12 +193,25 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     if args.no_serve {
         return Ok(());
     }
-    serve_dashboard(&args, &files)
+    serve_dashboard(&args, &uploads)
+}
+
+/// A recorded demo session to upload: its file, its trainee, and how many days before now the
+/// dashboard dates it.
+struct DemoUpload {
+    file: PathBuf,
+    trainee: &'static str,
+    days_ago: u32,
+}
+
+/// When a session done `days_ago` days before `now` took place.
+fn days_before(now: SystemTime, days_ago: u32) -> SystemTime {
+    now - Duration::from_secs(u64::from(days_ago) * 86_400)
 }
 
 /// Serves the dashboard on a fresh demo database: the demo accounts, and the recorded sessions
-/// uploaded by their trainees and scored by the service's workers.
-fn serve_dashboard(args: &DemoArgs, files: &[PathBuf]) -> anyhow::Result<()> {
+/// uploaded by their trainees, dated over the past weeks and scored by the service's workers.
+fn serve_dashboard(args: &DemoArgs, uploads: &[DemoUpload]) -> anyhow::Result<()> {
     use stylet_service::{self as service, Config, Store};
     let data = args.out.join("data");
     if data.exists() {
@@ -218,9 +239,9 @@ fn serve_dashboard(args: &DemoArgs, files: &[PathBuf]) -> anyhow::Result<()> {
             store.add_user(name, role, DEMO_PASSWORD, cohort, None).await?;
         }
         store.pool.close().await;
-        let sessions: Vec<(String, Vec<u8>)> = files
+        let sessions: Vec<(&'static str, u32, Vec<u8>)> = uploads
             .iter()
-            .map(|f| Ok((trainee_of(f)?, std::fs::read(f)?)))
+            .map(|u| Ok((u.trainee, u.days_ago, std::fs::read(&u.file)?)))
             .collect::<anyhow::Result<_>>()?;
         service::serve(config, Some(stylet_dashboard::MOUNT), move |addr, state| {
             sayf!("");
@@ -232,15 +253,22 @@ fn serve_dashboard(args: &DemoArgs, files: &[PathBuf]) -> anyhow::Result<()> {
             for (name, role) in DEMO_ACCOUNTS {
                 sayf!("  {name:<12} {role}");
             }
-            // Each trainee uploads their sessions through the service's own checks.
+            // Each trainee uploads their sessions through the service's own checks; each session
+            // is then dated back to when the trainee did it.
             tokio::spawn(async move {
-                for (trainee, bytes) in sessions {
-                    let user = match state.store.user_by_name(&trainee).await {
+                let now = SystemTime::now();
+                for (trainee, days_ago, bytes) in sessions {
+                    let user = match state.store.user_by_name(trainee).await {
                         Ok(Some(u)) => u,
                         _ => continue,
                     };
-                    if let Err(e) = service::api::accept_upload_bytes(&state, &user, bytes).await {
-                        eprintln!("demo upload of a session of {trainee} refused: {}", e.message());
+                    match service::api::accept_upload_bytes(&state, &user, bytes).await {
+                        Ok((id, _, _)) => {
+                            if let Err(e) = state.store.set_session_times(&id, days_before(now, days_ago)).await {
+                                eprintln!("demo session {id} of {trainee} not dated back: {e}");
+                            }
+                        }
+                        Err(e) => eprintln!("demo upload of a session of {trainee} refused: {}", e.message()),
                     }
                 }
             });
@@ -250,54 +278,87 @@ fn serve_dashboard(args: &DemoArgs, files: &[PathBuf]) -> anyhow::Result<()> {
     })
 }
 
-/// The trainee named in a session file's header.
-fn trainee_of(file: &Path) -> anyhow::Result<String> {
-    Ok(stylet_recorder::reader::read(file)?.header.trainee)
-}
-
-/// The example scripts of the phantom (atlases/phantom/scripts), with the demo trainee who did each.
-/// The session the demo draws in 3D at the end of its puncture.
+/// The session the demo draws in 3D at the end of its puncture (the first trainee's).
 const PICTURED_SESSION: &str = "success-intercostal";
 
-const DEMO_SCRIPTS: [(&str, &str, &str); 8] = [
-    (
-        "palpation-sweep",
-        "demo-alice",
-        include_str!("../../atlases/phantom/scripts/palpation-sweep.txt"),
-    ),
-    (
-        "probe-parallel",
-        "demo-alice",
-        include_str!("../../atlases/phantom/scripts/probe-parallel.txt"),
-    ),
-    (
-        "success-intercostal",
-        "demo-alice",
-        include_str!("../../atlases/phantom/scripts/success-intercostal.txt"),
-    ),
-    (
-        "two-attempts",
-        "demo-bob",
-        include_str!("../../atlases/phantom/scripts/two-attempts.txt"),
-    ),
-    (
-        "lung-hit",
-        "demo-bob",
-        include_str!("../../atlases/phantom/scripts/lung-hit.txt"),
-    ),
-    (
-        "vessel-hit",
-        "demo-carol",
-        include_str!("../../atlases/phantom/scripts/vessel-hit.txt"),
-    ),
-    (
-        "probe-across",
-        "demo-carol",
-        include_str!("../../atlases/phantom/scripts/probe-across.txt"),
-    ),
-    (
-        "breath-hold",
-        "demo-carol",
-        include_str!("../../atlases/phantom/scripts/breath-hold.txt"),
-    ),
+/// The example scripts of the phantom (atlases/phantom/scripts).
+const PALPATION_SWEEP: &str = include_str!("../../atlases/phantom/scripts/palpation-sweep.txt");
+const PROBE_PARALLEL: &str = include_str!("../../atlases/phantom/scripts/probe-parallel.txt");
+const PROBE_ACROSS: &str = include_str!("../../atlases/phantom/scripts/probe-across.txt");
+const SUCCESS_INTERCOSTAL: &str = include_str!("../../atlases/phantom/scripts/success-intercostal.txt");
+const TWO_ATTEMPTS: &str = include_str!("../../atlases/phantom/scripts/two-attempts.txt");
+const LUNG_HIT: &str = include_str!("../../atlases/phantom/scripts/lung-hit.txt");
+const VESSEL_HIT: &str = include_str!("../../atlases/phantom/scripts/vessel-hit.txt");
+const BREATH_HOLD: &str = include_str!("../../atlases/phantom/scripts/breath-hold.txt");
+
+/// The demo trainees' sessions: (script, trainee, days ago, script text). Each trainee practises
+/// over three to four weeks, oldest first, at least three punctures each and better over time,
+/// so that their progress charts and the cohort's weekly pass rates have lines. The dashboard
+/// dates each uploaded session `days ago` days before the demo runs.
+const DEMO_SCRIPTS: [(&str, &str, u32, &str); 14] = [
+    ("lung-hit", "demo-alice", 27, LUNG_HIT),
+    ("palpation-sweep", "demo-alice", 24, PALPATION_SWEEP),
+    ("two-attempts", "demo-alice", 20, TWO_ATTEMPTS),
+    ("probe-parallel", "demo-alice", 13, PROBE_PARALLEL),
+    ("success-intercostal", "demo-alice", 6, SUCCESS_INTERCOSTAL),
+    ("vessel-hit", "demo-bob", 25, VESSEL_HIT),
+    ("lung-hit", "demo-bob", 18, LUNG_HIT),
+    ("two-attempts", "demo-bob", 11, TWO_ATTEMPTS),
+    ("success-intercostal", "demo-bob", 3, SUCCESS_INTERCOSTAL),
+    ("lung-hit", "demo-carol", 24, LUNG_HIT),
+    ("vessel-hit", "demo-carol", 17, VESSEL_HIT),
+    ("probe-across", "demo-carol", 12, PROBE_ACROSS),
+    ("breath-hold", "demo-carol", 10, BREATH_HOLD),
+    ("success-intercostal", "demo-carol", 2, SUCCESS_INTERCOSTAL),
 ];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The scripts that are no puncture (palpation and ultrasound-survey exercises).
+    fn is_puncture(script: &str) -> bool {
+        script != "palpation-sweep" && !script.starts_with("probe-")
+    }
+
+    #[test]
+    fn each_demo_trainee_practises_over_weeks_oldest_first() {
+        for trainee in ["demo-alice", "demo-bob", "demo-carol"] {
+            let days: Vec<u32> = DEMO_SCRIPTS.iter().filter(|s| s.1 == trainee).map(|s| s.2).collect();
+            assert!(days.windows(2).all(|w| w[0] > w[1]), "{trainee}: {days:?}");
+            assert!(days[0] - days[days.len() - 1] >= 14, "{trainee}: {days:?}");
+            let punctures = DEMO_SCRIPTS
+                .iter()
+                .filter(|s| s.1 == trainee && is_puncture(s.0))
+                .count();
+            assert!(punctures >= 3, "{trainee}: {punctures} punctures");
+            // Their latest puncture is the successful one.
+            let last = DEMO_SCRIPTS.iter().rev().find(|s| s.1 == trainee).unwrap();
+            assert_eq!(last.0, PICTURED_SESSION, "{trainee}");
+        }
+        // Every example script is in the demo, and every trainee is a demo account.
+        for script in [
+            "palpation-sweep",
+            "probe-parallel",
+            "probe-across",
+            "success-intercostal",
+            "two-attempts",
+            "lung-hit",
+            "vessel-hit",
+            "breath-hold",
+        ] {
+            assert!(DEMO_SCRIPTS.iter().any(|s| s.0 == script), "{script}");
+        }
+        for s in &DEMO_SCRIPTS {
+            assert!(DEMO_ACCOUNTS.contains(&(s.1, "trainee")), "{}", s.1);
+        }
+    }
+
+    #[test]
+    fn sessions_are_dated_whole_days_back() {
+        let day = Duration::from_secs(86_400);
+        let now = SystemTime::UNIX_EPOCH + 30 * day;
+        assert_eq!(days_before(now, 0), now);
+        assert_eq!(days_before(now, 27), SystemTime::UNIX_EPOCH + 3 * day);
+    }
+}

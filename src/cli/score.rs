@@ -260,7 +260,7 @@ fn print_report(file: &Path, r: &ScoreReport) {
 
 pub fn print_table(results: &[(PathBuf, Result<ScoreReport, ScoreError>)]) {
     sayf!(
-        "{:<28} {:<12} {:<22} {:<9} {:>8} {:>5} {:>6} {:>4} {:>5} {:<13} {}",
+        "{:<36} {:<12} {:<22} {:<9} {:>8} {:>5} {:>6} {:>4} {:>5} {:<13} {}",
         "session",
         "trainee",
         "scenario",
@@ -279,7 +279,7 @@ pub fn print_table(results: &[(PathBuf, Result<ScoreReport, ScoreError>)]) {
             .map_or_else(|| f.display().to_string(), |n| n.to_string_lossy().into_owned());
         match r {
             Ok(s) => sayf!(
-                "{:<28} {:<12} {:<22} {:<9} {:>8} {:>5} {:>6} {:>4} {:>5.1} {:<13} {}",
+                "{:<36} {:<12} {:<22} {:<9} {:>8} {:>5} {:>6} {:>4} {:>5.1} {:<13} {}",
                 name,
                 s.trainee,
                 s.scenario,
@@ -292,7 +292,7 @@ pub fn print_table(results: &[(PathBuf, Result<ScoreReport, ScoreError>)]) {
                 s.outcome.label(),
                 why_not(s)
             ),
-            Err(e) => sayf!("{name:<28} not scored: {e}"),
+            Err(e) => sayf!("{name:<36} not scored: {e}"),
         }
     }
 }

@@ -219,8 +219,9 @@ fn import_real_ct_and_dicom() {
 }
 
 /// The README's first command: the demo builds the phantom, prints its summary, records the
-/// example scripts as sessions, prints their scores, and ends with the dashboard running on
-/// them with the demo accounts printed; the service scores the uploaded sessions again.
+/// example scripts as sessions of three trainees, prints their scores, and ends with the dashboard
+/// running on them with the demo accounts printed; the service scores the uploaded sessions again,
+/// dated over several weeks.
 #[test]
 fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard() {
     use std::io::{BufRead, BufReader};
@@ -265,7 +266,7 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
         "right hepatic duct",
         "intercostal-10-11",
         "loaded and validated",
-        "8 sessions",
+        "14 sessions",
         "why not passed",
         "replayed and scored",
         "password 'stylet-demo'",
@@ -294,7 +295,8 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
         us.rgba.iter().any(|p| p[0] == 0 && p[2] == 255),
         "no Doppler colour in the demo's ultrasound"
     );
-    // The dashboard answers; the demo instructor sees all 8 sessions scored by the service.
+    // The dashboard answers; the demo instructor sees all 14 sessions scored by the service, each
+    // dated back to when its trainee did it (two days ago or earlier).
     let agent = ureq::AgentBuilder::new().redirects(0).build();
     let login = agent.post(&format!("{base}/login")).send_form(&[
         ("username", "demo-ivan"),
@@ -306,6 +308,14 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
             r.header("Set-Cookie").unwrap().split(';').next().unwrap().to_string()
         }
         Err(e) => panic!("{e}"),
+    };
+    let today = (std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_secs()
+        / 86_400) as i64;
+    let day_of = |s: &serde_json::Value| {
+        stylet_dashboard::trends::days_from_date(s["uploaded_at"].as_str().unwrap().get(..10).unwrap()).unwrap()
     };
     let t0 = std::time::Instant::now();
     loop {
@@ -324,10 +334,16 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
             .iter()
             .filter(|s| s["status"] == "scored")
             .count();
-        if scored == 8 {
+        let dated = list["sessions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|s| day_of(*s) <= today - 2)
+            .count();
+        if scored == 14 && dated == 14 {
             break;
         }
-        assert!(t0.elapsed() < std::time::Duration::from_secs(120), "{list}");
+        assert!(t0.elapsed() < std::time::Duration::from_secs(240), "{list}");
         std::thread::sleep(std::time::Duration::from_millis(200));
     }
     let home = ureq::get(&format!("{base}/"))
@@ -339,33 +355,38 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
     assert!(home.contains("demo-cohort"), "{home}");
     assert!(d.path().join("atlases/phantom/atlas.toml").is_file());
     png_size(&d.path().join("phantom.png"));
-    // One row per session: replay verified everywhere; the successful puncture passes, the lung
-    // hit fails because of the lung.
+    // One row per session, named by trainee and script: replay verified everywhere; the
+    // successful punctures pass, the lung hit fails because of the lung.
     let row = |name: &str| {
         text.lines()
             .find(|l| l.starts_with(&format!("{name}.mcap")))
-            .unwrap()
+            .unwrap_or_else(|| panic!("no row {name}.mcap in\n{text}"))
             .to_string()
     };
-    for name in [
-        "success-intercostal",
-        "two-attempts",
-        "lung-hit",
-        "vessel-hit",
-        "palpation-sweep",
-        "breath-hold",
-    ] {
-        assert!(row(name).split_whitespace().nth(4) == Some("yes"), "{}", row(name));
+    let mcap_rows: Vec<&str> = text
+        .lines()
+        .filter(|l| l.split_whitespace().next().is_some_and(|w| w.ends_with(".mcap")))
+        .collect();
+    for line in &mcap_rows {
+        assert!(line.split_whitespace().nth(4) == Some("yes"), "{line}");
     }
-    assert!(row("success-intercostal").contains("passed"));
+    for trainee in ["demo-alice", "demo-bob", "demo-carol"] {
+        let ok = row(&format!("{trainee}-success-intercostal"));
+        assert!(ok.contains("passed"), "{ok}");
+    }
     // The breathing patient punctured in a breath held at end-expiration passes too.
-    assert!(row("breath-hold").contains("passed"), "{}", row("breath-hold"));
+    let held = row("demo-carol-breath-hold");
+    assert!(held.contains("passed"), "{held}");
     // The palpation and probe scripts are graded as their exercises, and pass.
-    for name in ["palpation-sweep", "probe-parallel", "probe-across"] {
+    for name in [
+        "demo-alice-palpation-sweep",
+        "demo-alice-probe-parallel",
+        "demo-carol-probe-across",
+    ] {
         assert!(row(name).contains(" passed"), "{}", row(name));
     }
     // Failures say why in words (with the consequence from the atlas TOML), never identifiers.
-    let lung = row("lung-hit");
+    let lung = row("demo-bob-lung-hit");
     assert!(
         lung.contains("failed")
             && lung.contains("The needle entered the right lung")
@@ -373,12 +394,12 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
             && lung.contains("is below the pass mark of 60 for beginner"),
         "{lung}"
     );
-    for name in ["lung-hit", "vessel-hit"] {
+    for name in ["demo-bob-lung-hit", "demo-carol-vessel-hit"] {
         let why = row(name);
         let why = &why[why.find("failed").unwrap()..];
         assert!(!why.contains('_'), "{why}");
     }
-    assert_eq!(std::fs::read_dir(d.path().join("sessions")).unwrap().count(), 8);
+    assert_eq!(std::fs::read_dir(d.path().join("sessions")).unwrap().count(), 14);
 
     // The demo's table and the dashboard agree on every session: the service's own replay gives
     // the same score, outcome and reasons as the table, and the session list shows them.
@@ -392,6 +413,12 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
     )
     .unwrap();
     let listed = list["sessions"].as_array().unwrap();
+    // Spread over several calendar weeks, so that the trends have lines.
+    let weeks: std::collections::BTreeSet<i64> = listed
+        .iter()
+        .map(|s| stylet_dashboard::trends::week_start(day_of(s)))
+        .collect();
+    assert!(weeks.len() >= 3, "{weeks:?}");
     let page = ureq::get(&format!("{base}/sessions"))
         .set("Cookie", &cookie)
         .call()
@@ -401,15 +428,15 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
     let table_rows = text
         .lines()
         .filter(|l| l.split_whitespace().next().is_some_and(|w| w.ends_with(".mcap")));
-    assert_eq!(table_rows.clone().count(), 8, "{text}");
+    assert_eq!(table_rows.clone().count(), 14, "{text}");
     for line in table_rows {
         let cols: Vec<&str> = line.split_whitespace().collect();
-        let (scenario, score) = (cols[2], cols[8]);
+        let (trainee, scenario, score) = (cols[1], cols[2], cols[8]);
         let outcome = if cols[9] == "not" { "not_gradeable" } else { cols[9] };
         let row = listed
             .iter()
-            .find(|r| r["scenario"] == scenario)
-            .unwrap_or_else(|| panic!("{scenario} not listed: {list}"));
+            .find(|r| r["trainee"] == trainee && r["scenario"] == scenario)
+            .unwrap_or_else(|| panic!("{trainee} {scenario} not listed: {list}"));
         assert_eq!(format!("{:.1}", row["score"].as_f64().unwrap()), score, "{line}\n{row}");
         assert_eq!(row["outcome"], outcome, "{line}\n{row}");
         let reasons: Vec<&str> = row["reasons"]

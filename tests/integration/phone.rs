@@ -1,8 +1,9 @@
 //! Phones and tablets: at a 390 × 844 window, every page each role can open is no wider than the
 //! window (`document.documentElement.scrollWidth <= window.innerWidth`: no sideways scrolling; wide
-//! tables scroll inside their own box), and "Log out" is on screen. Headless Chromium through
-//! ChromeDriver, as tests/integration/dashboard.rs. Full-page screenshots go to `$STYLET_SHOTS` (default
-//! `$CARGO_TARGET_TMPDIR/phone-screenshots/`) to be looked at.
+//! tables and charts scroll inside their own box), its charts' labels are at least 8.5 px tall, and
+//! "Log out" is on screen. Headless Chromium through ChromeDriver, as tests/integration/dashboard.rs.
+//! Full-page screenshots go to `$STYLET_SHOTS` (default `$CARGO_TARGET_TMPDIR/phone-screenshots/`) to
+//! be looked at.
 //!
 //! To add a page: add its path to the role's list in [`pages_of`].
 
@@ -93,6 +94,7 @@ fn every_page_fits_a_phone_for_every_role() {
         .unwrap();
     rt.block_on(async {
         let mut too_wide = Vec::new();
+        let mut small_chart_text = Vec::new();
         for (user, role) in [
             ("tina", "trainee"),
             ("ivan", "instructor"),
@@ -142,6 +144,18 @@ fn every_page_fits_a_phone_for_every_role() {
                     )
                     .await;
                 }
+                // Chart text is readable: the axis labels (plotters' size 16, an SVG font-size of
+                // 16 / 1.24 units) are at least 8.5 px on screen.
+                let smallest = number(
+                    &c,
+                    "const px = [...document.querySelectorAll('svg.chart')] \
+                       .map(s => s.getBoundingClientRect().width / s.viewBox.baseVal.width * 16 / 1.24); \
+                     return px.length ? Math.min(...px) : 1e9",
+                )
+                .await;
+                if smallest < 8.5 {
+                    small_chart_text.push(format!("{role} {path}: chart labels {smallest:.1} px"));
+                }
                 // "Log out" is on screen, not past the right edge.
                 let right = number(
                     &c,
@@ -164,5 +178,9 @@ fn every_page_fits_a_phone_for_every_role() {
             c.close().await.unwrap();
         }
         assert!(too_wide.is_empty(), "pages wider than a phone: {too_wide:#?}");
+        assert!(
+            small_chart_text.is_empty(),
+            "chart text too small to read on a phone: {small_chart_text:#?}"
+        );
     });
 }

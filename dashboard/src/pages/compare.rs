@@ -244,12 +244,7 @@ pub fn depth_aligned_svg(sessions: &[(&ReviewTrace, String)]) -> Result<String, 
             .draw()?;
         root.present()?;
     }
-    let label = COMPARE_TITLE.replace(['"', '<', '>', '&'], " ");
-    Ok(out.replacen(
-        "<svg ",
-        &format!("<svg class=\"chart\" role=\"img\" aria-label=\"{label}\" "),
-        1,
-    ))
+    Ok(crate::trends::labelled_svg(&out, COMPARE_TITLE))
 }
 
 /// Deepest insertion (mm) and peak force (N) of a trace.
@@ -308,7 +303,7 @@ pub async fn compare(
             h1 { "Compare sessions" }
             @match &chart {
                 Some((svg, extremes)) => {
-                    div #compare-chart { (PreEscaped(svg)) }
+                    div.chart-box #compare-chart { (PreEscaped(svg)) }
                     p.muted { "Each session's force is drawn against how far its needle is inside the body, so all curves start together at the skin whenever the needle entered. Solid: total force; dashed: cutting force; one colour per session. Only the advancing needle is drawn: each advance, from the skin or from where the needle turned after pulling back, is a line of its own, up to the depth it reached." }
                     (compared_table(&rows, extremes))
                 }
@@ -492,6 +487,8 @@ mod tests {
         // One legend entry per session and component.
         assert_eq!(svg.matches("total — A tina").count(), 1);
         assert!(svg.starts_with("<svg class=\"chart\" role=\"img\""));
+        let tag = &svg[..svg.find('>').unwrap()];
+        assert!(tag.contains("viewBox=\"0 0 1100 440\"") && !tag.contains("width="), "{tag}");
         assert_eq!(extremes(&early).0, 98.0);
     }
 

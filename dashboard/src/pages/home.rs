@@ -64,7 +64,7 @@ async fn trainee_home(s: &AppState, v: &Viewer) -> Result<Markup, PageError> {
         }
         h2 { "My progress" }
         @match &chart {
-            Some(svg) => (PreEscaped(svg)),
+            Some(svg) => div.chart-box #home-progress { (PreEscaped(svg)) },
             None => p.muted { "Your scores appear here once a session is scored." },
         }
         h2 { "Upload a session" }

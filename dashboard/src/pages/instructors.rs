@@ -183,7 +183,7 @@ pub async fn trainee_progress(
             (totals_table(&punctures, "puncture-totals", false))
             h2 { "Scores over time" }
             @match &chart {
-                Some(svg) => div #progress-chart { (PreEscaped(svg)) },
+                Some(svg) => div.chart-box #progress-chart { (PreEscaped(svg)) },
                 None => p.muted { "No graded puncture yet." },
             }
             p.muted { "One line per difficulty, a dot per graded puncture session (the final grade: an instructor's override when there is one). Palpation and ultrasound exercises are graded on their own metrics and listed below, not drawn here." }
@@ -321,8 +321,12 @@ pub fn progress_over_time_svg(scores: &[DatedScore], title: &str) -> Result<Opti
         return Ok(None);
     };
     ensure_fonts();
-    // At least a week wide; half a day of room on each side.
-    let (x0, x1) = (lo.floor() - 0.5, hi.ceil().max(lo.floor() + 7.0) + 0.5);
+    // From the first session's midnight (its date labels the axis) to just after the last
+    // session: 3 % of the span on each side, at least 0.15 day, and no date after the last
+    // session's day.
+    let pad_days = ((hi - lo) * 0.03).max(0.15);
+    let (x0, x1) = (lo.floor().min(lo - pad_days) - 0.05, hi + pad_days);
+    let last_day = hi.floor();
     let span_days = x1 - x0;
     let mut out = String::new();
     {
@@ -334,10 +338,10 @@ pub fn progress_over_time_svg(scores: &[DatedScore], title: &str) -> Result<Opti
             .x_label_area_size(56)
             .y_label_area_size(72)
             .build_cartesian_2d(x0..x1, 0.0..100.0)?;
-        // Whole days only: a date on a tick at midnight, nothing between.
+        // Whole days only: a date on a tick at midnight, nothing between or after the last day.
         let label = |x: &f64| {
             let d = x.round();
-            if (x - d).abs() < 1e-6 {
+            if (x - d).abs() < 1e-6 && d <= last_day {
                 date_from_days(d as i64)
             } else {
                 String::new()
@@ -486,6 +490,37 @@ mod tests {
             "{html}"
         );
         assert!(!html.contains("more</a>"), "{html}");
+    }
+
+    #[test]
+    fn the_progress_chart_ends_at_the_last_session() {
+        let svg = progress_over_time_svg(&[point("2026-11-02T09:00:00.000000Z", "beginner", 40.0)], "x")
+            .unwrap()
+            .unwrap();
+        let dates: Vec<String> = texts(&svg).into_iter().filter(|t| t.starts_with("2026-")).collect();
+        assert!(
+            !dates.is_empty() && dates.iter().all(|d| d.as_str() <= "2026-11-02"),
+            "{dates:?}"
+        );
+        // Several weeks: the last date labelled is no later than the last session's day.
+        let svg = progress_over_time_svg(
+            &[
+                point("2026-10-06T09:00:00.000000Z", "beginner", 40.0),
+                point("2026-10-20T09:00:00.000000Z", "beginner", 60.0),
+                point("2026-11-02T15:00:00.000000Z", "beginner", 80.0),
+            ],
+            "x",
+        )
+        .unwrap()
+        .unwrap();
+        let dates: Vec<String> = texts(&svg).into_iter().filter(|t| t.starts_with("2026-")).collect();
+        assert!(
+            dates.len() >= 2
+                && dates
+                    .iter()
+                    .all(|d| d.as_str() >= "2026-10-06" && d.as_str() <= "2026-11-02"),
+            "{dates:?}"
+        );
     }
 
     #[test]

@@ -21,7 +21,9 @@ use crate::layout::{count, page, score_text, short_time};
 use crate::pages::cohort::{SPARK_POINTS, visible_cohort};
 use crate::pages::sessions::filter_query;
 use crate::pdf::{Col, Doc, PercentChart};
-use crate::trends::{TREND_TITLE, TREND_X_LABEL, TREND_Y_LABEL, Trends, date_from_days, level_rgb, week_ticks};
+use crate::trends::{
+    TREND_TITLE, TREND_X_LABEL, TREND_Y_LABEL, Trends, date_from_days, level_rgb, week_ticks, week_x_range,
+};
 
 pub async fn index(State(s): State<Arc<AppState>>, v: Viewer) -> Result<Html<String>, PageError> {
     if v.role() == Role::Trainee {
@@ -168,7 +170,7 @@ fn trends_section(r: &CohortReport) -> Result<Markup, PageError> {
     Ok(html! {
         h2 { "Pass rate per week" }
         @match chart {
-            Some(svg) => div #trend-chart { (PreEscaped(svg)) },
+            Some(svg) => div.chart-box #trend-chart { (PreEscaped(svg)) },
             None => p.muted { "No graded puncture sessions in this range." },
         }
         @if !r.trends.weeks.is_empty() {
@@ -356,7 +358,7 @@ pub fn report_pdf(r: &CohortReport) -> Vec<u8> {
             title: TREND_TITLE.into(),
             x_label: TREND_X_LABEL.into(),
             y_label: TREND_Y_LABEL.into(),
-            x_range: (lo as f64 - 3.5, hi as f64 + 3.5),
+            x_range: week_x_range(lo, hi),
             x_ticks: week_ticks(lo, hi)
                 .into_iter()
                 .map(|w| (w, date_from_days(w as i64)))

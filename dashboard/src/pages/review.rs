@@ -267,8 +267,8 @@ fn charts_block(
     depth.notes = notes;
     let (force, depth) = (svg(force)?, svg(depth)?);
     Ok(html! {
-        div #force-chart { (PreEscaped(force)) }
-        div #depth-chart { (PreEscaped(depth)) }
+        div.chart-box #force-chart { (PreEscaped(force)) }
+        div.chart-box #depth-chart { (PreEscaped(depth)) }
         p.muted { "Forces: the sample of largest magnitude in every 20 ms, so puncture peaks are kept. Positive = against the insertion. Each force peak that broke into a structure is named (skin, fascia, liver, duct …); blue dashed lines are the instructors' comments at a moment (numbered as in the review below)." }
     })
 }

@@ -25,7 +25,11 @@ pub(crate) fn escape(text: &str) -> String {
     out
 }
 
-const STYLE: &str = "body{font-family:sans-serif;margin:24px auto;max-width:1180px;color:#1d2530;line-height:1.4}\
+/// Readable on a phone too: the page follows the screen's width (the viewport tag in [`head`]),
+/// tables scroll sideways inside their own box, long words and the content hash break, pictures
+/// shrink to fit.
+const STYLE: &str = "body{font-family:sans-serif;margin:24px auto;padding:0 12px;max-width:1180px;color:#1d2530;\
+line-height:1.4;overflow-wrap:break-word}code{overflow-wrap:anywhere}.scroll{overflow-x:auto;max-width:100%}\
 h1{margin-bottom:0}h2{border-bottom:2px solid #d5dbe3;padding-bottom:4px;margin-top:32px}\
 .sub{color:#5a6675;margin-top:4px}table{border-collapse:collapse;margin:8px 0}\
 td,th{border:1px solid #d5dbe3;padding:3px 8px;text-align:left;vertical-align:top}th{background:#eef2f6}\
@@ -33,19 +37,37 @@ td.n{text-align:right;font-variant-numeric:tabular-nums}.sw{display:inline-block
 border:1px solid #555;vertical-align:middle}.warn{background:#fff4d6;border-left:5px solid #e0a100;\
 padding:6px 10px;margin:6px 0}.ok{background:#e5f6e8;border-left:5px solid #2e9a46;padding:6px 10px}\
 .fail{background:#fde4e4;border-left:5px solid #c62828;padding:6px 10px}.approve{border:2px solid #1d2530;\
-padding:10px 14px;margin:16px 0}figure{margin:12px 0}figure img{max-width:100%;border:1px solid #d5dbe3}\
-figcaption{color:#5a6675;font-size:90%}.views{display:flex;gap:12px;flex-wrap:wrap}.views figure{flex:1 1 540px}";
+padding:10px 14px;margin:16px 0}figure{margin:12px 0}figure img{max-width:100%;height:auto;box-sizing:border-box;\
+border:1px solid #d5dbe3}figcaption{color:#5a6675;font-size:90%}.views{display:flex;gap:12px;flex-wrap:wrap}\
+.views figure{flex:1 1 540px;min-width:0}";
+
+/// The page's head: the title, the style sheet, and the viewport tag without which a phone lays
+/// the page out 980 px wide and shrinks it.
+fn head(name: &str) -> String {
+    format!(
+        "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">\
+         <meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\
+         <title>Validation report: {name}</title><style>{STYLE}</style></head>"
+    )
+}
+
+/// `html` with every table in a box of its own that scrolls sideways, so that a wide table never
+/// widens the page (the page's tables are written as a bare `<table>`; names from the inputs are
+/// escaped, so no text holds one).
+fn scrolling_tables(html: &str) -> String {
+    html.replace("<table>", "<div class=\"scroll\"><table>")
+        .replace("</table>", "</table></div>")
+}
 
 pub(crate) fn page(input: &ReportInput, pictures: &[Picture]) -> String {
     let atlas = input.atlas;
     let import = input.import;
     let summary = Summary::of(atlas);
     let name = escape(&atlas.manifest.name);
-    let mut h = String::new();
+    let mut h = head(&name);
     let _ = write!(
         h,
-        "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>Validation report: {name}</title>\
-         <style>{STYLE}</style></head><body><h1>Validation report: {name}</h1>\
+        "<body><h1>Validation report: {name}</h1>\
          <p class=\"sub\">PTCD scenario made by <code>stylet atlas new</code> from {} and {}; content hash <code>{}</code></p>",
         escape(input.ct_source),
         escape(input.labels_source),
@@ -79,7 +101,7 @@ pub(crate) fn page(input: &ReportInput, pictures: &[Picture]) -> String {
             .map(|n| format!("<li>{}</li>", escape(n)))
             .collect::<String>()
     );
-    h
+    scrolling_tables(&h)
 }
 
 fn figure(h: &mut String, p: &Picture) {
@@ -336,7 +358,33 @@ fn times(h: &mut String, input: &ReportInput) {
 
 #[cfg(test)]
 mod tests {
-    use super::escape;
+    use super::{escape, head, scrolling_tables};
+
+    #[test]
+    fn the_page_fits_a_phone() {
+        let h = head("abdomen &amp; more");
+        assert!(h.contains("<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"));
+        assert!(h.contains("<title>Validation report: abdomen &amp; more</title>"));
+        for rule in [
+            ".scroll{overflow-x:auto;max-width:100%}",
+            "code{overflow-wrap:anywhere}",
+            "figure img{max-width:100%;height:auto;box-sizing:border-box;",
+            ".views figure{flex:1 1 540px;min-width:0}",
+        ] {
+            assert!(h.contains(rule), "no {rule} in {h}");
+        }
+        let body = "<h2>A</h2><table><tr><td>1</td></tr></table><p>x</p><table><tr><th>b</th></tr></table>";
+        let wrapped = scrolling_tables(body);
+        assert_eq!(
+            wrapped,
+            "<h2>A</h2><div class=\"scroll\"><table><tr><td>1</td></tr></table></div><p>x</p>\
+             <div class=\"scroll\"><table><tr><th>b</th></tr></table></div>"
+        );
+        assert_eq!(
+            wrapped.matches("<table").count(),
+            wrapped.matches("<div class=\"scroll\"><table").count()
+        );
+    }
 
     #[test]
     fn markup_in_names_is_escaped() {

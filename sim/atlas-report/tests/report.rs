@@ -1,6 +1,6 @@
 //! The validation report on the real abdominal CT with partial labels: the page and
 //! its pictures are written whole, name the window by its ribs, list every structure with its
-//! colour, carry the warnings and the step times, and escape what a class table names.
+//! colour, carry the warnings and the step times, escape what a class table names, and fit a phone.
 //! Reads the real CT data (`scripts/fetch-data`, `$STYLET_DATA`) and fails, with a message, without it.
 
 use std::path::{Path, PathBuf};
@@ -107,6 +107,13 @@ fn the_abdominal_scenario_gets_a_whole_report() {
         "hostile name not shown escaped"
     );
     assert!(!html.contains("<img src=x"), "hostile name not escaped");
+    // Fits a phone: laid out at the screen's width, every table in a box that scrolls sideways.
+    assert!(html.contains("<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"));
+    assert!(html.matches("<table").count() >= 4);
+    assert_eq!(
+        html.matches("<table").count(),
+        html.matches("<div class=\"scroll\"><table").count()
+    );
     // Written whole: no partial folder left beside it; a second report replaces the first.
     assert!(!tmp.path().join("abdomen/.report.partial").exists());
     let again = write_report(
