@@ -232,7 +232,7 @@ impl MetricInfo {
         }
         let s = match (min, max) {
             (Some(lo), _) if v < lo => format!("{}: at least {} required", self.phrase(v), self.bound(lo)),
-            (_, Some(hi)) if hi == 0.0 => format!("{}: none allowed", self.phrase(v)),
+            (_, Some(0.0)) => format!("{}: none allowed", self.phrase(v)),
             (_, Some(hi)) => format!("{}: at most {} allowed", self.phrase(v), self.bound(hi)),
             _ => format!("{} is out of range", self.phrase(v)),
         };
@@ -304,10 +304,7 @@ mod tests {
         assert_eq!(a.deduction(2.0, 15.0, Some(1.0)), "−15 for 2 attempts (1 free)");
         assert_eq!(a.unmet(2.0, None, Some(1.0)), "2 attempts: at most 1 allowed.");
         let r = metric_info("risk_hits").unwrap();
-        assert_eq!(
-            r.unmet(1.0, None, Some(0.0)),
-            "1 risk structure hit: none allowed."
-        );
+        assert_eq!(r.unmet(1.0, None, Some(0.0)), "1 risk structure hit: none allowed.");
         let c = metric_info("palpation_coverage").unwrap();
         assert_eq!(
             c.unmet(0.25, Some(0.5), None),

@@ -153,7 +153,9 @@ pub fn unmet_text(metric: &str, value: f64, min: Option<f64>, max: Option<f64>, 
     let phrase = info.phrase(value);
     let capitalised = {
         let mut c = phrase.chars();
-        c.next().map(|f| f.to_uppercase().collect::<String>() + c.as_str()).unwrap_or_default()
+        c.next()
+            .map(|f| f.to_uppercase().collect::<String>() + c.as_str())
+            .unwrap_or_default()
     };
     text.replacen(&capitalised, &format!("{capitalised} ({})", names.join(", ")), 1)
 }

@@ -661,7 +661,9 @@ mod tests {
         }
         let g = r.grade(&idle, Exercise::Palpation, Difficulty::Beginner).unwrap();
         assert_eq!(g.failed, ["Not attempted: the finger never touched the skin."]);
-        let g = r.grade(&idle, Exercise::UltrasoundSurvey, Difficulty::Beginner).unwrap();
+        let g = r
+            .grade(&idle, Exercise::UltrasoundSurvey, Difficulty::Beginner)
+            .unwrap();
         assert_eq!(g.failed, ["Not attempted: the probe never touched the skin."]);
         // A grade stored before the field existed reads as attempted; an attempted one stores
         // nothing new.
@@ -687,9 +689,13 @@ mod tests {
             .unwrap()
         };
         let m = metrics_with(|m| m.risk_hits = vec![hit("right lung", 3), hit("portal vein", 7)]);
-        let g = Rubric::default_rubric().grade(&m, Exercise::Puncture, Difficulty::Beginner).unwrap();
+        let g = Rubric::default_rubric()
+            .grade(&m, Exercise::Puncture, Difficulty::Beginner)
+            .unwrap();
         assert!(
-            g.failed.iter().any(|f| f == "2 risk structures hit (right lung, portal vein): none allowed."),
+            g.failed
+                .iter()
+                .any(|f| f == "2 risk structures hit (right lung, portal vein): none allowed."),
             "{:?}",
             g.failed
         );

@@ -338,7 +338,7 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
             .as_array()
             .unwrap()
             .iter()
-            .filter(|s| day_of(*s) <= today - 2)
+            .filter(|s| day_of(s) <= today - 2)
             .count();
         if scored == 14 && dated == 14 {
             break;

@@ -48,7 +48,13 @@ fn pattern(path: &str, ids: &[(&str, &str)]) -> String {
     for (value, name) in ids {
         p = p
             .split('/')
-            .map(|seg| if seg == *value { name.to_string() } else { seg.to_string() })
+            .map(|seg| {
+                if seg == *value {
+                    name.to_string()
+                } else {
+                    seg.to_string()
+                }
+            })
             .collect::<Vec<_>>()
             .join("/");
     }
@@ -68,7 +74,11 @@ async fn console(driver: &Driver, c: &Client) -> Vec<String> {
     let v: Value = serde_json::from_str(&body).unwrap();
     v["value"]
         .as_array()
-        .map(|a| a.iter().filter_map(|e| e["message"].as_str().map(str::to_string)).collect())
+        .map(|a| {
+            a.iter()
+                .filter_map(|e| e["message"].as_str().map(str::to_string))
+                .collect()
+        })
         .unwrap_or_default()
 }
 
@@ -193,7 +203,15 @@ fn every_button_of_every_page_works_under_the_content_security_policy() {
     let plan: Vec<(&str, Vec<String>)> = vec![
         ("nobody", vec!["/login".into()]),
         ("tina", common.clone()),
-        ("ivan", [common.clone(), staff.clone(), vec!["/review-queue".into(), "/review-queue?only=flagged".into()]].concat()),
+        (
+            "ivan",
+            [
+                common.clone(),
+                staff.clone(),
+                vec!["/review-queue".into(), "/review-queue?only=flagged".into()],
+            ]
+            .concat(),
+        ),
         ("cora", [common.clone(), staff.clone()].concat()),
         (
             "root",
@@ -213,15 +231,25 @@ fn every_button_of_every_page_works_under_the_content_security_policy() {
     ];
 
     // Every page route is swept by some role.
-    let ids = [(lung.as_str(), "{id}"), (tom.as_str(), "{id}"), ("c1", "{name}"), ("tina", "{username}")];
-    let visited: BTreeSet<String> = plan.iter().flat_map(|(_, paths)| paths.iter().map(|p| pattern(p, &ids))).collect();
-    let missed: Vec<&String> = page_routes().iter().filter(|r| !visited.contains(*r)).collect::<Vec<_>>();
-    let missed: Vec<String> = missed.into_iter().cloned().collect();
+    let ids = [
+        (lung.as_str(), "{id}"),
+        (tom.as_str(), "{id}"),
+        ("c1", "{name}"),
+        ("tina", "{username}"),
+    ];
+    let visited: BTreeSet<String> = plan
+        .iter()
+        .flat_map(|(_, paths)| paths.iter().map(|p| pattern(p, &ids)))
+        .collect();
+    let missed: Vec<String> = page_routes().into_iter().filter(|r| !visited.contains(r)).collect();
     assert!(missed.is_empty(), "pages the sweep does not open: {missed:?}");
 
     let driver = Driver::start();
     let profiles = tempfile::tempdir().unwrap();
-    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
     rt.block_on(async {
         for (who, paths) in &plan {
             let c = chromium(&driver, &profiles.path().join(who), (1280, 900), &[]).await;

@@ -295,12 +295,21 @@ fn the_start_screen_offers_trainees_the_training_scenarios_only() {
     for fixture in ["two-attempts", "lung-hit", "vessel-hit", "probe-no-target"] {
         assert!(h.query_by_label(fixture).is_none(), "{fixture} is offered to trainees");
     }
-    for training in ["success-intercostal", "breath-hold", "palpation-sweep", "probe-parallel", "probe-across"] {
+    for training in [
+        "success-intercostal",
+        "breath-hold",
+        "palpation-sweep",
+        "probe-parallel",
+        "probe-across",
+    ] {
         assert!(h.query_by_label(training).is_some(), "{training} is not offered");
     }
     h.get_by_label("breath-hold").click();
     h.run_steps(2);
-    assert!(h.query_by_label_contains("hold the breath at end-expiration").is_some(), "its description");
+    assert!(
+        h.query_by_label_contains("hold the breath at end-expiration").is_some(),
+        "its description"
+    );
     h.get_by_label("Also offer the examples and test scenarios").click();
     h.run_steps(2);
     h.get_by_label("Scenario").click();
@@ -316,7 +325,9 @@ fn a_session_by_hand_starts_near_the_skin_and_says_how_far() {
     let mut h = session_by_hand(dir.path());
     let distance = |h: &Harness<'_, StyletApp>| -> f64 {
         let node = h.get_by_label_contains("mm from the skin");
-        let text = node.label().unwrap_or_default();
+        let text = egui_kittest::kittest::NodeT::accesskit_node(&node)
+            .label()
+            .unwrap_or_default();
         text.split(" tip ")
             .nth(1)
             .and_then(|r| r.split(' ').next())
@@ -331,7 +342,10 @@ fn a_session_by_hand_starts_near_the_skin_and_says_how_far() {
     let before = distance(&h);
     assert!((20.0..=40.0).contains(&before), "starts {before} mm from the skin");
     // 10 notches of the wheel over the first picture: 10 mm closer.
-    let at = h.get_all_by_role(egui::accesskit::Role::Image).next().map(|n| n.rect().center());
+    let at = h
+        .get_all_by_role(egui::accesskit::Role::Image)
+        .next()
+        .map(|n| n.rect().center());
     h.hover_at(at.expect("a picture"));
     h.event(egui::Event::MouseWheel {
         unit: egui::MouseWheelUnit::Line,
@@ -346,7 +360,10 @@ fn a_session_by_hand_starts_near_the_skin_and_says_how_far() {
         std::thread::sleep(Duration::from_millis(20));
     }
     let after = distance(&h);
-    assert!((before - after - 10.0).abs() <= 2.0, "{before} mm, then {after} mm after 10 notches");
+    assert!(
+        (before - after - 10.0).abs() <= 2.0,
+        "{before} mm, then {after} mm after 10 notches"
+    );
 }
 
 /// The keypad by physical key: NumLock off (keypad 4 arrives as ArrowLeft), a release under
@@ -379,7 +396,10 @@ fn the_keypad_works_without_numlock_and_no_press_is_lost() {
     h.step();
     std::thread::sleep(Duration::from_millis(50));
     h.step();
-    assert!(aim(&h).angle_between(before) < 1e-9, "keypad 4 without NumLock tilted the tool");
+    assert!(
+        aim(&h).angle_between(before) < 1e-9,
+        "keypad 4 without NumLock tilted the tool"
+    );
     send(&h, egui::Key::Num9, egui::Key::Num9, true);
     h.step();
     send(&h, egui::Key::PageUp, egui::Key::Num9, false);
@@ -397,14 +417,27 @@ fn the_keypad_works_without_numlock_and_no_press_is_lost() {
         Screen::Results(r) => r.score().is_some(),
         _ => false,
     });
-    let Screen::Results(r) = &h.state().screen else { unreachable!() };
+    let Screen::Results(r) = &h.state().screen else {
+        unreachable!()
+    };
     let session = stylet_recorder::read(&r.finished().unwrap().path).unwrap();
     let events: Vec<_> = session.events.iter().filter_map(|e| e.to_event().ok()).collect();
     use stylet_physics::{Event, ToolSpec};
-    assert!(events.iter().any(|e| matches!(e, Event::SelectTool(ToolSpec::Needle { .. }))), "keypad 4 without NumLock: {events:?}");
+    assert!(
+        events
+            .iter()
+            .any(|e| matches!(e, Event::SelectTool(ToolSpec::Needle { .. }))),
+        "keypad 4 without NumLock: {events:?}"
+    );
     assert!(events.iter().any(|e| matches!(e, Event::BreathHold)), "{events:?}");
-    assert!(events.iter().any(|e| matches!(e, Event::BreathRelease)), "the second press of 9: {events:?}");
-    assert!(events.iter().any(|e| matches!(e, Event::XrayOn)), "the pedal tap: {events:?}");
+    assert!(
+        events.iter().any(|e| matches!(e, Event::BreathRelease)),
+        "the second press of 9: {events:?}"
+    );
+    assert!(
+        events.iter().any(|e| matches!(e, Event::XrayOn)),
+        "the pedal tap: {events:?}"
+    );
 }
 
 #[test]

@@ -488,7 +488,10 @@ mod tests {
         assert_eq!(svg.matches("total — A tina").count(), 1);
         assert!(svg.starts_with("<svg class=\"chart\" role=\"img\""));
         let tag = &svg[..svg.find('>').unwrap()];
-        assert!(tag.contains("viewBox=\"0 0 1100 440\"") && !tag.contains("width="), "{tag}");
+        assert!(
+            tag.contains("viewBox=\"0 0 1100 440\"") && !tag.contains("width="),
+            "{tag}"
+        );
         assert_eq!(extremes(&early).0, 98.0);
     }
 

@@ -159,7 +159,9 @@ pub const EXPERT_OFFSET_MM: f64 = 10.0;
 pub fn start_pose(plan: &SessionPlan) -> (DVec3, DQuat) {
     let atlas = &plan.atlas;
     let orient = |d| stylet_devices::script::device::orientation(d, None);
-    let path = atlas.guided_path().map(|p| (DVec3::from_array(p.entry_mm), DVec3::from_array(p.target_mm)));
+    let path = atlas
+        .guided_path()
+        .map(|p| (DVec3::from_array(p.entry_mm), DVec3::from_array(p.target_mm)));
     if let Some((entry, target)) = path
         && let Some(dir) = (target - entry).try_normalize()
     {
@@ -176,7 +178,10 @@ pub fn start_pose(plan: &SessionPlan) -> (DVec3, DQuat) {
             .unwrap_or(dir);
         let over = if plan.difficulty == stylet_atlas::Difficulty::Expert {
             let lean = dir - inward * dir.dot(inward);
-            let side = inward.cross(lean).try_normalize().unwrap_or_else(|| inward.any_orthonormal_vector());
+            let side = inward
+                .cross(lean)
+                .try_normalize()
+                .unwrap_or_else(|| inward.any_orthonormal_vector());
             entry + side * EXPERT_OFFSET_MM
         } else {
             entry
@@ -185,8 +190,14 @@ pub fn start_pose(plan: &SessionPlan) -> (DVec3, DQuat) {
     }
     let (lo, hi) = atlas.model.ct().grid().world_bounds();
     let top = (lo + hi) * 0.5 + DVec3::new(0.0, (hi.y - lo.y) * 0.5, 0.0);
-    let to_skin = atlas.model.skin_distance_along(top, DVec3::NEG_Y, hi.y - lo.y).unwrap_or(0.0);
-    (top + DVec3::NEG_Y * (to_skin - START_STANDOFF_MM).max(0.0), orient(DVec3::NEG_Y))
+    let to_skin = atlas
+        .model
+        .skin_distance_along(top, DVec3::NEG_Y, hi.y - lo.y)
+        .unwrap_or(0.0);
+    (
+        top + DVec3::NEG_Y * (to_skin - START_STANDOFF_MM).max(0.0),
+        orient(DVec3::NEG_Y),
+    )
 }
 
 /// The live device moved by a connected SpaceMouse, else by a gamepad (with the feature
@@ -456,7 +467,10 @@ mod tests {
         for level in [Difficulty::Beginner, Difficulty::Advanced, Difficulty::Expert] {
             let (p, q) = start_pose(&plan(level));
             let axis = q * DVec3::Z;
-            let to_skin = atlas.model.skin_distance_along(p, axis, 300.0).expect("the tool points at the skin");
+            let to_skin = atlas
+                .model
+                .skin_distance_along(p, axis, 300.0)
+                .expect("the tool points at the skin");
             assert!((20.0..=40.0).contains(&to_skin), "{level:?}: {to_skin} mm to the skin");
             let off_entry = distance_to_line(entry, p, axis);
             match level {

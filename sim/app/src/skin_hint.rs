@@ -88,6 +88,9 @@ mod tests {
             indentation_mm: 2.06,
             ..out(start, DVec3::NEG_Z)
         };
-        assert_eq!(skin_hint("probe", &pressing, &atlas), "probe on the skin, pressing 2.1 mm");
+        assert_eq!(
+            skin_hint("probe", &pressing, &atlas),
+            "probe on the skin, pressing 2.1 mm"
+        );
     }
 }

@@ -1101,13 +1101,22 @@ mod tests {
             .collect();
         assert_eq!(
             training,
-            ["success-intercostal", "breath-hold", "palpation-sweep", "probe-parallel", "probe-across"]
+            [
+                "success-intercostal",
+                "breath-hold",
+                "palpation-sweep",
+                "probe-parallel",
+                "probe-across"
+            ]
         );
         let written = toml::to_string(&s.scenarios[1]).unwrap();
         assert_eq!(s.scenarios[1].kind, Some(ScenarioKind::Example));
         assert!(!written.contains("kind"), "{written}");
         let reread: ScenarioToml = toml::from_str(&toml::to_string(&s.scenarios[1]).unwrap()).unwrap();
-        assert_eq!((reread.name.as_str(), reread.kind, reread.kind()), ("two-attempts", None, ScenarioKind::Example));
+        assert_eq!(
+            (reread.name.as_str(), reread.kind, reread.kind()),
+            ("two-attempts", None, ScenarioKind::Example)
+        );
         let custom: ScenarioToml = toml::from_str("name = \"my-own\"\nkind = \"example\"\n").unwrap();
         assert_eq!(custom.kind(), ScenarioKind::Example);
         let unknown: ScenarioToml = toml::from_str("name = \"my-own\"\n").unwrap();

@@ -329,11 +329,19 @@ mod tests {
 
     /// A body filling z < 0 of a 40 × 40 × 40 mm box of 1 mm voxels, air above.
     fn slab() -> PunctureAtlas {
-        let g = Grid::new([40, 40, 40], Affine::from_spacing([1.0; 3], DVec3::new(-20.0, -20.0, -20.0))).unwrap();
+        let g = Grid::new(
+            [40, 40, 40],
+            Affine::from_spacing([1.0; 3], DVec3::new(-20.0, -20.0, -20.0)),
+        )
+        .unwrap();
         let ct = (0..g.len())
             .map(|i| {
                 let [a, b, c] = g.unlinear(i);
-                if g.voxel_to_world(a, b, c).z < 0.0 { 40.0 } else { -1000.0 }
+                if g.voxel_to_world(a, b, c).z < 0.0 {
+                    40.0
+                } else {
+                    -1000.0
+                }
             })
             .collect();
         synthetic_atlas::atlas_with(g, ct, vec![0; g.len()], &[], ParamValue::Scalar(0.5)).unwrap()
@@ -343,18 +351,28 @@ mod tests {
     fn the_skin_is_found_along_a_ray_from_inside_and_outside_the_grid() {
         let a = slab();
         // From 12 mm above the skin, straight down: 12 mm, to within the surface's voxel.
-        let d = a.skin_distance_along(DVec3::new(0.0, 0.0, 12.0), DVec3::NEG_Z, 100.0).unwrap();
+        let d = a
+            .skin_distance_along(DVec3::new(0.0, 0.0, 12.0), DVec3::NEG_Z, 100.0)
+            .unwrap();
         assert!((d - 12.0).abs() <= 1.0, "{d}");
         // Slanted at 60° from the normal: twice as far.
         let dir = DVec3::new(libm::sin(60f64.to_radians()), 0.0, -0.5).normalize();
         let d = a.skin_distance_along(DVec3::new(-15.0, 0.0, 6.0), dir, 100.0).unwrap();
         assert!((d - 12.0).abs() <= 1.5, "{d}");
         // From 30 mm above the box (outside the CT): still found.
-        let d = a.skin_distance_along(DVec3::new(0.0, 0.0, 50.0), DVec3::NEG_Z, 100.0).unwrap();
+        let d = a
+            .skin_distance_along(DVec3::new(0.0, 0.0, 50.0), DVec3::NEG_Z, 100.0)
+            .unwrap();
         assert!((d - 50.0).abs() <= 1.0, "{d}");
         // Under the skin: 0; pointing away, or too short a reach: none.
-        assert_eq!(a.skin_distance_along(DVec3::new(0.0, 0.0, -5.0), DVec3::Z, 100.0), Some(0.0));
+        assert_eq!(
+            a.skin_distance_along(DVec3::new(0.0, 0.0, -5.0), DVec3::Z, 100.0),
+            Some(0.0)
+        );
         assert_eq!(a.skin_distance_along(DVec3::new(0.0, 0.0, 12.0), DVec3::Z, 100.0), None);
-        assert_eq!(a.skin_distance_along(DVec3::new(0.0, 0.0, 12.0), DVec3::NEG_Z, 5.0), None);
+        assert_eq!(
+            a.skin_distance_along(DVec3::new(0.0, 0.0, 12.0), DVec3::NEG_Z, 5.0),
+            None
+        );
     }
 }

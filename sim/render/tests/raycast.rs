@@ -752,6 +752,9 @@ fn the_overview_cut_shows_the_anatomy_in_its_colours() {
         }
         *counts.entry([px[0] / 32, px[1] / 32, px[2] / 32]).or_insert(0u32) += 1;
     }
-    let common = counts.values().filter(|&&n| n as usize * 100 >= image.rgba.len()).count();
+    let common = counts
+        .values()
+        .filter(|&&n| n as usize * 100 >= image.rgba.len())
+        .count();
     assert!(common >= 8, "{common} colours cover 1 % of the frame each: {counts:?}");
 }
