@@ -325,9 +325,8 @@ fn a_session_by_hand_starts_near_the_skin_and_says_how_far() {
     let mut h = session_by_hand(dir.path());
     let distance = |h: &Harness<'_, StyletApp>| -> f64 {
         let node = h.get_by_label_contains("mm from the skin");
-        let text = egui_kittest::kittest::NodeT::accesskit_node(&node)
-            .label()
-            .unwrap_or_default();
+        // A label's text is its accessibility value.
+        let text = node.value().unwrap_or_default();
         text.split(" tip ")
             .nth(1)
             .and_then(|r| r.split(' ').next())
