@@ -142,22 +142,24 @@ pub fn reasons(exercise: Exercise, grade: &Grade, metrics: &Metrics, incomplete_
 }
 
 /// A requirement `min ≤ value ≤ max` of `metric` that the session missed, as a sentence; the risk
-/// structures hit are named ("1 risk structure hit (right lung): none allowed.").
+/// structures hit are named ("1 risk structure hit: right lung (none allowed).").
 pub fn unmet_text(metric: &str, value: f64, min: Option<f64>, max: Option<f64>, metrics: &Metrics) -> String {
     let info = metric_info(metric).expect("every rubric metric has words (tested)");
-    let text = info.unmet(value, min, max);
     if metric != "risk_hits" || metrics.risk_hits.is_empty() {
-        return text;
+        return info.unmet(value, min, max);
     }
     let names: Vec<&str> = metrics.risk_hits.iter().map(|h| h.structure.as_str()).collect();
-    let phrase = info.phrase(value);
-    let capitalised = {
-        let mut c = phrase.chars();
-        c.next()
-            .map(|f| f.to_uppercase().collect::<String>() + c.as_str())
-            .unwrap_or_default()
+    let allowed = match max {
+        Some(hi) if hi > 0.0 => format!("at most {} allowed", num(hi)),
+        _ => "none allowed".to_string(),
     };
-    text.replacen(&capitalised, &format!("{capitalised} ({})", names.join(", ")), 1)
+    let phrase = info.phrase(value);
+    let mut c = phrase.chars();
+    let capitalised = c
+        .next()
+        .map(|f| f.to_uppercase().collect::<String>() + c.as_str())
+        .unwrap_or_default();
+    format!("{capitalised}: {} ({allowed}).", names.join(", "))
 }
 
 #[cfg(test)]

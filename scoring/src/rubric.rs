@@ -695,7 +695,7 @@ mod tests {
         assert!(
             g.failed
                 .iter()
-                .any(|f| f == "2 risk structures hit (right lung, portal vein): none allowed."),
+                .any(|f| f == "2 risk structures hit: right lung, portal vein (none allowed)."),
             "{:?}",
             g.failed
         );

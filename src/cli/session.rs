@@ -114,7 +114,12 @@ pub fn inspect_json(s: &Session) -> Value {
                 let values = settings
                     .into_iter()
                     .map(|(k, text)| {
-                        let value = text.parse::<f64>().map_or_else(|_| json!(text), |x| json!(x));
+                        // Whole numbers as integers, reals as numbers, names as strings.
+                        let value = match (text.parse::<u64>(), text.parse::<f64>()) {
+                            (Ok(n), _) => json!(n),
+                            (_, Ok(x)) => json!(x),
+                            _ => json!(text),
+                        };
                         (k, value)
                     })
                     .collect();

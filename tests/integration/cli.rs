@@ -456,7 +456,12 @@ fn demo_builds_the_phantom_records_sessions_scores_them_and_serves_the_dashboard
             "the sessions page lacks {scenario}'s score {score}"
         );
     }
-    assert!(page.contains("The needle entered the right lung"), "{page}");
+    // Each row that did not pass gives its first reason, shortened, on the list.
+    for row in listed.iter().filter(|r| r["outcome"] != "passed") {
+        let first = row["reasons"][0].as_str().unwrap_or_default();
+        let short = stylet_dashboard::layout::short_reason(first);
+        assert!(page.contains(&short), "the sessions page lacks {short:?}: {page}");
+    }
 }
 
 /// `stylet script run`: the same script twice writes byte-identical CSVs; plots come out; a bad
