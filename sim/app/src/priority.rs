@@ -28,6 +28,9 @@ pub fn lower_this_thread(niceness: i32) -> bool {
     }
 }
 
+/// The environment variable that, set to 1, keeps the haptic loop off a core of its own.
+pub const SHARE_CORES: &str = "STYLET_SHARE_CORES";
+
 /// The core the haptic loop keeps to itself, once the window has reserved one
 /// ([`reserve_a_core_for_the_haptic_loop`]).
 static HAPTIC_CORE: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
@@ -35,11 +38,16 @@ static HAPTIC_CORE: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
 /// On a machine with more than one core, keeps the last core the process may use for the haptic
 /// loop: the calling thread (the window), and every thread it starts later (drawing, the software
 /// renderer's, the spawner of the haptic loop), is restricted to the other cores; the loop pins
-/// itself to the kept one ([`pin_the_haptic_loop`]). Returns the kept core; `None` with one core or
-/// where affinity cannot be set (then everything shares the cores, under priorities alone).
+/// itself to the kept one ([`pin_the_haptic_loop`]). Returns the kept core; `None` with one core,
+/// where affinity cannot be set, or when `STYLET_SHARE_CORES=1` asks for the cores to be shared
+/// (to compare, or on a machine where a pinned loop fares worse): then everything shares the
+/// cores, under priorities alone.
 pub fn reserve_a_core_for_the_haptic_loop() -> Option<usize> {
     if let Some(core) = HAPTIC_CORE.get() {
         return Some(*core);
+    }
+    if std::env::var_os(SHARE_CORES).is_some_and(|v| v == "1") {
+        return None;
     }
     let allowed = allowed_cores();
     let (&haptic, others) = allowed.split_last()?;
