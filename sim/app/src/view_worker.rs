@@ -28,6 +28,36 @@ pub struct DrawnPane {
     pub frame: Result<Frame, ViewError>,
     /// Order of drawing (1 for the worker's first frame).
     pub seq: u64,
+    /// The moment drawn.
+    pub moment: Arc<Moment>,
+    /// Drawing it again would give the same picture: the view's resolution scale stays as it
+    /// was drawn (at full resolution, or as fine as its time budget allows).
+    pub settled: bool,
+}
+
+/// Whether `kind` shows the same picture at moments `a` and `b`: the tools, the device, the
+/// X-ray switch, the contrast and the deformation are the same and the patient does not breathe;
+/// the ultrasound also at the same time (its Doppler colours pulse with the heart). Only the
+/// tick differs, so the view need not be drawn again: on a machine without a GPU the CPU then
+/// draws the views that change, at a finer scale, instead of redrawing the still ones.
+pub fn same_picture(kind: ViewKind, a: &Moment, b: &Moment) -> bool {
+    let same_deformation = match (&a.deformation, &b.deformation) {
+        (None, None) => true,
+        (Some(x), Some(y)) => Arc::ptr_eq(x, y),
+        _ => false,
+    };
+    a.breathing.is_none()
+        && b.breathing.is_none()
+        && same_deformation
+        && a.tools == b.tools
+        && a.device_mm == b.device_mm
+        && a.axis == b.axis
+        && a.xray_on == b.xray_on
+        && a.scenario == b.scenario
+        && a.difficulty == b.difficulty
+        && a.seed == b.seed
+        && a.contrast == b.contrast
+        && (kind != ViewKind::Ultrasound || a.time_s == b.time_s)
 }
 
 #[derive(Default)]
@@ -45,12 +75,19 @@ struct State {
 
 impl State {
     /// The pane to draw next: of those not showing the current moment at their size, the one
-    /// drawn longest ago (so that every pane keeps up while the moment changes every frame).
+    /// drawn longest ago (so that every pane keeps up while the moment changes every frame). A
+    /// settled pane whose picture the new moment does not change is current.
     fn stale(&self) -> Option<usize> {
-        let tick = self.moment.as_ref()?.tick;
+        let moment = self.moment.as_ref()?;
+        let tick = moment.tick;
         (0..self.panes.len())
             .filter_map(|i| match self.drawn.get(i).and_then(Option::as_ref) {
-                Some(d) if d.pane == self.panes[i] && d.tick == tick => None,
+                Some(d)
+                    if d.pane == self.panes[i]
+                        && (d.tick == tick || (d.settled && same_picture(d.pane.kind, &d.moment, moment))) =>
+                {
+                    None
+                }
                 Some(d) => Some((d.seq, i)),
                 None => Some((0, i)),
             })
@@ -180,11 +217,14 @@ fn run(atlas: Arc<Atlas>, settings: ViewSettings, shared: &(Mutex<State>, Condva
         };
         let frame = renderer.draw(pane.kind, &moment, pane.width, pane.height);
         seq += 1;
+        let settled = frame.as_ref().is_ok_and(|f| f.scale == renderer.scale(pane.kind));
         let drawn = Arc::new(DrawnPane {
             pane,
             tick: moment.tick,
             frame,
             seq,
+            moment: Arc::clone(&moment),
+            settled,
         });
         if let Ok(mut s) = lock.lock() {
             // The layout may have changed while drawing: keep the frame only where it still fits.
@@ -193,5 +233,53 @@ fn run(atlas: Arc<Atlas>, settings: ViewSettings, shared: &(Mutex<State>, Condva
             }
         }
         on_frame();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stylet_physics::glam::DVec3;
+    use stylet_render::tools::ToolState;
+
+    fn moment(tick: u64) -> Moment {
+        Moment {
+            tools: ToolState::default(),
+            contrast: None,
+            scenario: "s".into(),
+            xray_on: false,
+            seed: 1,
+            time_s: tick as f64 / 1000.0,
+            difficulty: stylet_atlas::Difficulty::Beginner,
+            device_mm: DVec3::new(1.0, 2.0, 3.0),
+            axis: DVec3::Z,
+            tick,
+            deformation: None,
+            breathing: None,
+        }
+    }
+
+    /// A still tool: only the tick moves, so no view but the pulsing ultrasound changes; a
+    /// moved tool or the X-ray switched on changes them.
+    #[test]
+    fn a_still_scene_is_the_same_picture_and_a_moved_tool_is_not() {
+        let (a, b) = (moment(100), moment(116));
+        for kind in [ViewKind::ThreeD, ViewKind::Axial, ViewKind::Needle, ViewKind::Xray] {
+            assert!(same_picture(kind, &a, &b), "{kind:?}");
+        }
+        assert!(
+            !same_picture(ViewKind::Ultrasound, &a, &b),
+            "the Doppler pulses with time"
+        );
+        let moved = Moment {
+            device_mm: DVec3::new(1.0, 2.0, 3.5),
+            ..moment(116)
+        };
+        assert!(!same_picture(ViewKind::ThreeD, &a, &moved));
+        let xray = Moment {
+            xray_on: true,
+            ..moment(116)
+        };
+        assert!(!same_picture(ViewKind::Xray, &a, &xray));
     }
 }
