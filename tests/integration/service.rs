@@ -961,7 +961,7 @@ fn openapi_lists_every_route_with_its_statuses(b: &str, doc: &serde_json::Value)
     );
 }
 
-/// Bounded load on loopback ($STYLET_LOAD_SECONDS, default 60 s): 50 readers of the API and 5
+/// Bounded load on loopback ($STYLET_LOAD_SECONDS, default 20 s): 50 readers of the API and 5
 /// uploaders of distinct session files against one server (SQLite), half the time calm, half
 /// under attack (one trainee's junk uploads without pause, 300 slow-header connections). Zero
 /// 5xx, zero lost uploads, another account logs in during the attack; prints throughput, p50/p99
@@ -972,7 +972,7 @@ fn bounded_load_on_loopback() {
     let seconds: u64 = std::env::var("STYLET_LOAD_SECONDS")
         .ok()
         .and_then(|v| v.parse().ok())
-        .unwrap_or(60);
+        .unwrap_or(20);
     let f = Fixture::new(STYLET);
     let db = Db::Sqlite;
     f.users(&db);
