@@ -171,9 +171,13 @@ fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
 }
 
 pub fn serve(a: ServeArgs) -> anyhow::Result<()> {
+    // A log line that cannot be written (stderr on a full disk) is lost, never reported: the
+    // logger's report goes to the same stderr with `eprintln!`, which panics on that failure and
+    // would take the request being served with it.
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
         .with_writer(std::io::stderr)
+        .log_internal_errors(false)
         .init();
     let config = Config {
         bind: a.bind,

@@ -22,25 +22,36 @@ impl Server {
 
     /// [`Server::start`] on a given address (a client may have tried it while it was down).
     pub fn start_at(stylet: Stylet, bind: &str, data: &Path, db: &Db, atlases: &Path, extra: &[&str]) -> Server {
+        Server::spawn(Server::command(stylet, bind, data, db, atlases, extra), data)
+    }
+
+    /// The command line of [`Server::start_at`], not started.
+    pub fn command(stylet: Stylet, bind: &str, data: &Path, db: &Db, atlases: &Path, extra: &[&str]) -> Command {
         std::fs::create_dir_all(data).unwrap();
         let mut command = stylet.command();
         command
             .args(["serve", "--bind", bind, "--data-dir", s(data), "--atlases", s(atlases)])
             .args(extra)
             .args(db.args());
-        Server::spawn(command, data)
+        command
     }
 
     /// Spawns `command`, a `stylet serve` however launched, and waits for its "listening on"
     /// line. Its log (tracing, with request ids) goes to `server.log` in `data`, to be looked at
     /// after a failure.
-    pub fn spawn(mut command: Command, data: &Path) -> Server {
+    pub fn spawn(command: Command, data: &Path) -> Server {
         let log_path = data.join("server.log");
         let log = std::fs::OpenOptions::new()
             .create(true)
             .append(true)
             .open(&log_path)
             .unwrap();
+        Server::spawn_logging_to(command, log, &log_path)
+    }
+
+    /// Spawns `command` with its log (stderr) going to `log`, whose path `log_path` is named if
+    /// it does not start.
+    pub fn spawn_logging_to(mut command: Command, log: std::fs::File, log_path: &Path) -> Server {
         let mut child = command
             .stdout(Stdio::piped())
             .stderr(log)

@@ -219,13 +219,12 @@ fn uploads_with_bad_headers_or_ticks_are_refused_with_the_reason() {
             "the session's tissue deformation (128 cells, a solve every 1 ticks) costs",
         ),
         (
-            "a contrast agent on a 160³ grid stepped 64 times every tick",
+            "a contrast agent stepped 64 times every tick",
             written(
                 dir,
                 "contrast",
                 &with(&|h| {
                     h.contrast = stylet_physics::ContrastSettings {
-                        grid_nodes: 160,
                         update_every_ticks: 1,
                         steps_per_update: 64,
                         ..Default::default()
@@ -234,7 +233,7 @@ fn uploads_with_bad_headers_or_ticks_are_refused_with_the_reason() {
                 0,
                 100,
             ),
-            "the session's contrast agent (160³ nodes, 64 steps every 1 ticks) costs",
+            "the session's contrast agent (64 diffusion steps every 1 ticks) costs",
         ),
         (
             "a tick rate of 100 kHz (a hundred times the ticks allowed per minute)",
@@ -1094,6 +1093,25 @@ impl Drop for SmallDisk {
         let _ = std::process::Command::new("umount")
             .args(["-l", s(&self.path)])
             .status();
+    }
+}
+
+/// A log that cannot be written (its disk is full: here `/dev/full`, where every write fails with
+/// ENOSPC) loses log lines, never answers: every request is still served. (The logger's own
+/// fallback, a message to stderr, would panic on the same failure and drop the connection.)
+#[test]
+fn a_log_on_a_full_disk_loses_lines_not_answers() {
+    let f = Fixture::new(STYLET);
+    f.users(&Db::Sqlite);
+    let data = f.data();
+    let full = std::fs::OpenOptions::new().write(true).open("/dev/full").unwrap();
+    let command = Server::command(STYLET, "127.0.0.1:0", &data, &Db::Sqlite, &f.atlases(), &[]);
+    let server = Server::spawn_logging_to(command, full, Path::new("/dev/full"));
+    let b = &server.base;
+    for _ in 0..3 {
+        let tina = login(b, "tina");
+        let (status, json, _) = call("GET", &format!("{b}/api/sessions"), Some(&tina), None, false);
+        assert_eq!(status, 200, "{json}");
     }
 }
 
