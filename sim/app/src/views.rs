@@ -295,10 +295,11 @@ impl ViewRenderer {
             scale
         };
         self.scales[kind as usize] = next.clamp(MIN_SCALE, MAX_SCALE);
+        // Cubic enlargement keeps edges crisp where bilinear would smear them over 3–4 pixels.
         let image = if (w, h) == (width, height) {
             image
         } else {
-            image.upscale(width, height)
+            self.pool.install(|| image.upscale_sharp(width, height))
         };
         Ok(Frame { image, scale, took })
     }

@@ -29,6 +29,7 @@ pub mod tools;
 pub mod transfer;
 pub mod transfer_table;
 pub mod ultrasound;
+pub mod upscale;
 pub mod views;
 pub mod volume;
 pub mod warp;
