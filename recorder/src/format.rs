@@ -639,10 +639,10 @@ mod world {
     const C: &str = "world.contrast.";
 
     pub fn put_contrast(c: &ContrastSettings, put: &mut impl FnMut(&str, String)) {
-        put(&format!("{C}grid_nodes"), c.grid_nodes.to_string());
         put(&format!("{C}update_every_ticks"), c.update_every_ticks.to_string());
         put(&format!("{C}steps_per_update"), c.steps_per_update.to_string());
         let mut real = |k: &str, v: f64| put(&format!("{C}{k}_bits"), format!("{:016x}", v.to_bits()));
+        real("front_fraction", c.front_fraction);
         real("tau", c.tau);
         real("rate_ml_per_s", c.rate_ml_per_s);
         real("visible_fraction", c.visible_fraction);
@@ -651,14 +651,21 @@ mod world {
     }
 
     /// The contrast settings of a header (the defaults when the file has none, as every session
-    /// before they were recorded ran them), checked like the simulation checks them.
+    /// before they were recorded ran them), checked like the simulation checks them. Files of
+    /// physics version 9 and before recorded the diffusion grid's size (`grid_nodes`) and no
+    /// filling front: they read with the default front (their physics is not replayed).
     pub fn get_contrast(m: &BTreeMap<String, String>) -> Result<ContrastSettings, HeaderError> {
         if !m.keys().any(|k| k.starts_with(C)) {
             return Ok(ContrastSettings::default());
         }
         let keys = WorldKeys { prefix: C, map: m };
+        let front_fraction = if m.contains_key(&keys.key("front_fraction_bits")) {
+            keys.real("front_fraction")?
+        } else {
+            ContrastSettings::default().front_fraction
+        };
         let c = ContrastSettings {
-            grid_nodes: keys.int("grid_nodes")? as usize,
+            front_fraction,
             update_every_ticks: keys.int("update_every_ticks")?,
             steps_per_update: keys.int("steps_per_update")?,
             tau: keys.real("tau")?,

@@ -32,7 +32,7 @@ fn header() -> SessionHeader {
         deformation: DeformSettings::on(),
         // Not the defaults, so that the round trip shows every value travels.
         contrast: stylet_physics::ContrastSettings {
-            grid_nodes: 48,
+            front_fraction: 0.75,
             steps_per_update: 3,
             rate_ml_per_s: 0.75,
             settle_s: 7.5,
@@ -534,7 +534,13 @@ fn header_fields_are_bounded_and_exact() {
     );
     // And every contrast setting; a file without any (written before they were recorded) ran
     // the defaults and reads so.
-    assert!(with("world.contrast.grid_nodes", "4".into()).contains("contrast grid_nodes 4"));
+    assert!(
+        with(
+            "world.contrast.front_fraction_bits",
+            format!("{:016x}", 1.5f64.to_bits())
+        )
+        .contains("contrast front_fraction 1.5")
+    );
     assert!(with("world.contrast.tau_bits", format!("{:016x}", 0.5f64.to_bits())).contains("contrast tau 0.5"));
     assert!(with("world.contrast.settle_s_bits", "zz".into()).contains("'world.contrast.settle_s_bits' is not hex"));
     let mut m = good.clone();
@@ -551,6 +557,17 @@ fn header_fields_are_bounded_and_exact() {
         SessionHeader::from_metadata(&m).unwrap().contrast,
         stylet_physics::ContrastSettings::default()
     );
+    // A file of physics version 9 (a diffusion grid, no filling front) reads with the default
+    // front and its other settings.
+    let mut m = good.clone();
+    m.remove("world.contrast.front_fraction_bits");
+    m.insert("world.contrast.grid_nodes".into(), "64".into());
+    let old = SessionHeader::from_metadata(&m).unwrap().contrast;
+    assert_eq!(
+        old.front_fraction,
+        stylet_physics::ContrastSettings::default().front_fraction
+    );
+    assert_eq!(old.steps_per_update, 3);
     // Breathing: bad values named; a file without it did not breathe; measured fields travel.
     assert!(with("world.breathing.model", "4d-ct".into()).contains("'world.breathing.model' '4d-ct' is unknown"));
     let mut m = good.clone();

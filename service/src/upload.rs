@@ -315,19 +315,17 @@ fn check_header(s: &AppState, h: &SessionHeader) -> Result<(), ApiError> {
             asked.nodes as f64 / budget.nodes as f64,
         )));
     }
-    // Likewise the contrast agent's diffusion: no larger a grid, no more work per tick.
+    // Likewise the contrast agent's diffusion: no more steps over the duct network per tick.
     let contrast = stylet_physics::ContrastSettings::default();
-    if h.contrast.grid_nodes > contrast.grid_nodes
-        || h.contrast.node_updates_per_tick() > contrast.node_updates_per_tick()
-    {
+    if h.contrast.steps_per_tick() > contrast.steps_per_tick() {
         return Err(bad(format!(
-            "the session's contrast agent ({}³ nodes, {} steps every {} ticks) costs {:.1}× the work per tick \
-             of the simulator's default ({}³ nodes); this server replays at most the default",
-            h.contrast.grid_nodes,
+            "the session's contrast agent ({} diffusion steps every {} ticks) costs {:.1}× the work per tick \
+             of the simulator's default ({} every {}); this server replays at most the default",
             h.contrast.steps_per_update,
             h.contrast.update_every_ticks,
-            h.contrast.node_updates_per_tick() / contrast.node_updates_per_tick(),
-            contrast.grid_nodes,
+            h.contrast.steps_per_tick() / contrast.steps_per_tick(),
+            contrast.steps_per_update,
+            contrast.update_every_ticks,
         )));
     }
     if !atlas.summary.knows_scenario(&h.scenario) {

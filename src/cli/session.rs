@@ -196,7 +196,7 @@ fn inspect(a: &InspectArgs) -> anyhow::Result<()> {
 }
 
 /// The world model the session was recorded with (and replays with), one line per part:
-/// "deformation off", "contrast: grid_nodes 64, …", "breathing on: model synthetic, …".
+/// "deformation off", "contrast: update_every_ticks 10, …", "breathing on: model synthetic, …".
 fn world_lines(h: &stylet_recorder::SessionHeader) -> Vec<String> {
     h.world_settings()
         .into_iter()

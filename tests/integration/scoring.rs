@@ -68,16 +68,16 @@ fn score_json(file: &Path) -> Value {
     serde_json::from_str(&ok(&["score", s(file), "--atlas", s(&setup().atlas()), "--json"])).unwrap()
 }
 
-/// Sessions recorded with physics version 9 before two speed-ups still replay bit for bit: the
-/// finger, linear and convex probe sessions from before the contact nodes were read and pushed
-/// four at a time, and a needle session with contrast (2 ml spreading through the ducts for 2.5
-/// s) from before the duct nodes' diffusion was grouped by neighbour count
-/// (tests/fixtures/physics-v9, the scripts beside them). Both changed the speed, not one output
-/// bit. They are frozen; when PHYSICS_VERSION changes on purpose, record them again from their
-/// scripts on `stylet atlas phantom` with the new binary.
+/// Sessions recorded with this physics version stay replayable bit for bit by later builds: the
+/// finger, linear and convex probe sessions (the contact nodes' batched reads) and a needle session
+/// with contrast (2 ml filling and spreading through the ducts for 2.5 s), recorded with physics
+/// version 10 (tests/fixtures/physics-v10, the scripts beside them). A speed-up must not change
+/// one output bit. They are frozen; when PHYSICS_VERSION changes on purpose, record them again
+/// from their scripts on `stylet atlas phantom` with the new binary, in a folder of the new
+/// version.
 #[test]
 fn sessions_recorded_before_the_speed_ups_replay_bit_for_bit() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/physics-v9");
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/physics-v10");
     for name in [
         "finger-sweep",
         "probe-linear-across",

@@ -106,7 +106,10 @@ fn recorded_session_matches_the_simulation_and_the_cli_reports_it() {
     let contrast = stylet_physics::ContrastSettings::default();
     assert_eq!(j["world"]["deformation"]["enabled"], 0);
     assert_eq!(j["world"]["breathing"]["enabled"], 0);
-    assert_eq!(j["world"]["contrast"]["grid_nodes"], contrast.grid_nodes);
+    assert_eq!(
+        j["world"]["contrast"]["front_fraction"].as_f64(),
+        Some(contrast.front_fraction)
+    );
     assert_eq!(j["world"]["contrast"]["tau"].as_f64(), Some(contrast.tau));
     assert_eq!(j["world"]["contrast"]["settle_s"].as_f64(), Some(contrast.settle_s));
     let text = ok(&["session", "inspect", s(&session)]);
@@ -117,7 +120,7 @@ fn recorded_session_matches_the_simulation_and_the_cli_reports_it() {
     assert!(
         text.contains("world     deformation off\n")
             && text.contains("          contrast: ")
-            && text.contains(&format!("grid_nodes {}", contrast.grid_nodes))
+            && text.contains(&format!("front_fraction {}", contrast.front_fraction))
             && text.contains(&format!("tau {}", contrast.tau))
             && text.contains("breathing off\n"),
         "{text}"

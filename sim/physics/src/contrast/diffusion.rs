@@ -439,8 +439,9 @@ mod tests {
         }
     }
 
-    /// The neighbour lists `DiffusionGrid::place` makes (`super::duct_neighbour_lists`) for the
-    /// duct voxels of a mask on an n × n × n grid, as arrays ended by `u32::MAX`.
+    /// The neighbour lists the duct network makes (`super::super::network`: −x, +x, −y, +y, −z,
+    /// +z, duct voxels only) for the duct voxels of a mask on an n × n × n grid, as arrays ended
+    /// by `u32::MAX`.
     fn grid_lists(n: usize, duct: impl Fn(usize, usize, usize) -> bool) -> Vec<[u32; 6]> {
         let mut slot = vec![u32::MAX; n * n * n];
         let mut duct_nodes = Vec::new();
@@ -450,11 +451,27 @@ mod tests {
                 duct_nodes.push(node as u32);
             }
         }
-        super::super::duct_neighbour_lists([n; 3], &slot, &duct_nodes)
-            .into_iter()
-            .map(|(list, m)| {
+        duct_nodes
+            .iter()
+            .map(|&node| {
+                let node = node as usize;
+                let (i, j, k) = (node % n, (node / n) % n, node / (n * n));
+                let candidates = [
+                    (i > 0).then(|| node - 1),
+                    (i + 1 < n).then(|| node + 1),
+                    (j > 0).then(|| node - n),
+                    (j + 1 < n).then(|| node + n),
+                    (k > 0).then(|| node - n * n),
+                    (k + 1 < n).then(|| node + n * n),
+                ];
                 let mut l = [u32::MAX; 6];
-                l[..m].copy_from_slice(&list[..m]);
+                let mut m = 0;
+                for nb in candidates.into_iter().flatten() {
+                    if slot[nb] != u32::MAX {
+                        l[m] = slot[nb];
+                        m += 1;
+                    }
+                }
                 l
             })
             .collect()
