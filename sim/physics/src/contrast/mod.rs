@@ -326,8 +326,8 @@ impl ContrastAgent {
         }
     }
 
-    /// Delivers `amount` ml at the voxel nearest `tip`: into the ducts by volume-driven filling when it is a duct voxel, else as a stain. Whether
-    /// it entered the ducts.
+    /// Delivers `amount` ml at the voxel nearest `tip`: into the ducts by volume-driven filling
+    /// when it is a duct voxel, else as a stain. Whether it entered the ducts.
     fn deliver(&mut self, atlas: &PunctureAtlas, tip: DVec3, amount: f64) -> bool {
         let grid = *atlas.ct().grid();
         let Some([i, j, k]) = grid.nearest_voxel(tip) else {
@@ -378,14 +378,14 @@ impl ContrastAgent {
         let Some(m) = &self.medium else {
             return Vec::new();
         };
-        let dims = self.network.dims();
+        let grid = self.network.grid();
         let ducts = m
             .rho
             .iter()
             .enumerate()
             .filter(|(_, r)| **r > 0.0)
-            .map(|(s, &r)| (unlinear(dims, self.network.voxel(s)), r));
-        let stains = self.stains.iter().map(|(&v, &r)| (unlinear(dims, v), r));
+            .map(|(s, &r)| (self.network.voxel(s), r));
+        let stains = self.stains.iter().map(|(&v, &r)| (grid.unlinear(v), r));
         ducts.chain(stains).collect()
     }
 
@@ -432,11 +432,6 @@ impl ContrastAgent {
             put(r.to_bits());
         }
     }
-}
-
-/// The voxel index [i, j, k] of linear index `v` in a volume of `dims` (x fastest).
-fn unlinear(dims: [usize; 3], v: usize) -> [usize; 3] {
-    [v % dims[0], (v / dims[0]) % dims[1], v / (dims[0] * dims[1])]
 }
 
 #[cfg(test)]

@@ -14,7 +14,7 @@ use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 
 use super::diffusion::DuctNeighbours;
-use crate::{LabelId, PunctureAtlas};
+use crate::{Grid, LabelId, PunctureAtlas};
 
 /// No neighbour in that direction.
 const NONE: u32 = u32::MAX;
@@ -22,8 +22,8 @@ const NONE: u32 = u32::MAX;
 /// The atlas' duct voxels and their adjacency.
 #[derive(Debug, Clone)]
 pub(super) struct DuctNetwork {
-    /// Voxels of the CT along x, y, z.
-    dims: [usize; 3],
+    /// The labels' (and the CT's) voxel grid.
+    grid: Grid,
     /// CT linear voxel index of each slot (increasing).
     voxels: Vec<usize>,
     /// Each slot's neighbour slot along −x, +x, −y, +y, −z, +z (`NONE`: not a duct voxel, or
@@ -79,7 +79,7 @@ impl DuctNetwork {
         debug_assert_eq!(neighbours.len(), voxels.len());
         let spacing_mm = grid.spacing_mm();
         DuctNetwork {
-            dims: [nx, ny, nz],
+            grid: *grid,
             voxels,
             adjacent,
             neighbours,
@@ -93,14 +93,14 @@ impl DuctNetwork {
         self.voxels.len()
     }
 
-    /// Voxels of the CT along x, y, z.
-    pub(super) fn dims(&self) -> [usize; 3] {
-        self.dims
+    /// CT voxel index [i, j, k] of a slot.
+    pub(super) fn voxel(&self, slot: usize) -> [usize; 3] {
+        self.grid.unlinear(self.voxels[slot])
     }
 
-    /// CT linear voxel index of a slot.
-    pub(super) fn voxel(&self, slot: usize) -> usize {
-        self.voxels[slot]
+    /// The voxel grid the slots index.
+    pub(super) fn grid(&self) -> &Grid {
+        &self.grid
     }
 
     /// The slot of the CT voxel with linear index `voxel`, when it is a duct voxel.
@@ -146,7 +146,7 @@ impl DuctNetwork {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{Affine, Grid, PropertyTree, Role, TissueSpec, Volume, synthetic_atlas};
+    use crate::{Affine, PropertyTree, Role, TissueSpec, Volume, synthetic_atlas};
     use glam::DVec3;
 
     /// A 12 × 6 × 4 atlas (spacing 1 × 2 × 3 mm) with an L-shaped duct: along x at j = k = 1
