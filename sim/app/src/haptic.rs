@@ -422,15 +422,16 @@ pub fn label_name(sim: &Simulation, id: LabelId) -> String {
     sim.atlas().label_table().name_of(id).to_string()
 }
 
-/// The contrast overlay of the latest publication, rebuilt only when the contrast changed.
+/// The contrast overlay of the latest publication, rebuilt only when the contrast changed and
+/// shared, not copied, by the publications in between.
 #[derive(Default)]
 struct ContrastCache {
     key: Option<[u64; 3]>,
-    overlay: Option<ContrastOverlay>,
+    overlay: Option<Arc<ContrastOverlay>>,
 }
 
 impl ContrastCache {
-    fn get(&mut self, sim: &Simulation, out: &TickOutput) -> Option<ContrastOverlay> {
+    fn get(&mut self, sim: &Simulation, out: &TickOutput) -> Option<Arc<ContrastOverlay>> {
         let key = [
             out.contrast_in_ducts_ml.to_bits(),
             out.extravasated_ml.to_bits(),
@@ -438,7 +439,7 @@ impl ContrastCache {
         ];
         if self.key != Some(key) {
             let dims = sim.atlas().ct().grid().dims();
-            self.overlay = ContrastOverlay::from_agent(sim.contrast(), dims, DEFAULT_IODINE_MG_PER_ML);
+            self.overlay = ContrastOverlay::from_agent(sim.contrast(), dims, DEFAULT_IODINE_MG_PER_ML).map(Arc::new);
             self.key = Some(key);
         }
         self.overlay.clone()

@@ -46,6 +46,12 @@ pub fn same_picture(kind: ViewKind, a: &Moment, b: &Moment) -> bool {
         (Some(x), Some(y)) => Arc::ptr_eq(x, y),
         _ => false,
     };
+    // The haptic loop shares one overlay until the contrast changes; a replay builds its own.
+    let same_contrast = match (&a.contrast, &b.contrast) {
+        (None, None) => true,
+        (Some(x), Some(y)) => Arc::ptr_eq(x, y) || x == y,
+        _ => false,
+    };
     a.breathing.is_none()
         && b.breathing.is_none()
         && same_deformation
@@ -56,7 +62,7 @@ pub fn same_picture(kind: ViewKind, a: &Moment, b: &Moment) -> bool {
         && a.scenario == b.scenario
         && a.difficulty == b.difficulty
         && a.seed == b.seed
-        && a.contrast == b.contrast
+        && same_contrast
         && (kind != ViewKind::Ultrasound || a.time_s == b.time_s)
 }
 

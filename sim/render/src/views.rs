@@ -25,8 +25,9 @@ use crate::xray::{CArm, ContrastOverlay, XrayScene, XrayWindow};
 #[derive(Debug, Clone)]
 pub struct Moment {
     pub tools: ToolState,
-    /// The contrast medium in the patient (CT voxels, μ_c), if any was injected.
-    pub contrast: Option<ContrastOverlay>,
+    /// The contrast medium in the patient (CT voxels, μ_c), if any was injected. Shared: the
+    /// haptic loop publishes a moment many times a second and must not copy the overlay each time.
+    pub contrast: Option<Arc<ContrastOverlay>>,
     /// The scenario the session is for (its C-arm).
     pub scenario: String,
     pub xray_on: bool,
@@ -59,7 +60,7 @@ impl Moment {
     pub fn of_simulation(sim: &Simulation, input: &TickInput, out: &TickOutput, labels: &SessionLabels) -> Moment {
         let ct_dims = sim.atlas().ct().grid().dims();
         let contrast = ContrastOverlay::from_agent(sim.contrast(), ct_dims, DEFAULT_IODINE_MG_PER_ML);
-        Moment::with_contrast(sim, input, out, labels, contrast)
+        Moment::with_contrast(sim, input, out, labels, contrast.map(Arc::new))
     }
 
     /// [`Self::of_simulation`] with the contrast overlay given (the haptic loop rebuilds it only
@@ -69,7 +70,7 @@ impl Moment {
         input: &TickInput,
         out: &TickOutput,
         labels: &SessionLabels,
-        contrast: Option<ContrastOverlay>,
+        contrast: Option<Arc<ContrastOverlay>>,
     ) -> Moment {
         let q = input.orientation;
         Moment {
@@ -340,7 +341,7 @@ pub fn xray_scene(
     let scene = XrayScene {
         c_arm: CArm::from_toml(&toml, isocenter_mm.as_vec3()),
         needle: moment.and_then(|m| m.tools.needle.clone()),
-        contrast: moment.and_then(|m| m.contrast.clone()),
+        contrast: moment.and_then(|m| m.contrast.as_deref().cloned()),
     };
     Ok((scene, XrayWindow::from_toml(&toml.window)))
 }
