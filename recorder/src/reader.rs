@@ -100,6 +100,10 @@ pub enum DamageKind {
     BadDataEnd,
     #[error("bad footer")]
     BadFooter,
+    /// A footer with no data-end record before it: the data section's CRC was never checked (an
+    /// altered data-end opcode reads as an unknown record).
+    #[error("footer without a data-end record (the file was altered)")]
+    NoDataEnd,
     #[error("bytes after the footer, or the closing magic is missing")]
     AfterFooter,
     /// A record inside a chunk whose header the chunk cuts off.
@@ -720,7 +724,9 @@ fn walk<'a>(
                                 && summary_start <= pos
                                 && crc_end <= file_len
                                 && src.crc(summary_start, crc_end)? == summary_crc);
-                        if !summary_ok {
+                        if !in_summary {
+                            Err(DamageKind::NoDataEnd)
+                        } else if !summary_ok {
                             Err(DamageKind::SummaryCrc)
                         } else if start + len + 8 != file_len || src.bytes(file_len - 8, 8)? != Some(MAGIC.as_slice()) {
                             Err(DamageKind::AfterFooter)
