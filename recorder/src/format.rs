@@ -801,26 +801,133 @@ impl SessionEnd {
     }
 }
 
-/// JSON Schemas of the channels (MCAP schema records).
+/// JSON Schemas (2020-12) of the channels, stored as the files' MCAP schema records.
+///
+/// The messages are CBOR; each schema describes a message's JSON form as RFC 8949 §6.1 converts
+/// it: a CBOR byte string becomes base64url text without padding, so the schema marks each byte
+/// string `"contentEncoding": "base64url"`, and every other string is a CBOR text string. Every
+/// field the writer puts in a message is declared, with its range, and nothing else is allowed
+/// (`recorder/tests/sessions.rs` checks written and committed sessions against them).
 pub fn json_schema(topic: &str) -> &'static str {
     match topic {
-        TOPIC_TICKS => {
-            r#"{"title":"stylet.TickBlock","type":"object","description":"Consecutive ticks column by column. Each column (codec stylet-columns-v1, docs/session-format.md): f64 columns hold zigzag residuals of the bit patterns after the linear prediction 2*b[i-1]-b[i-2]; integer columns each value XOR the previous; little-endian bytes transposed into planes. f64 columns: pos_x_mm pos_y_mm pos_z_mm q_w q_x q_y q_z force_x_n force_y_n force_z_n torque_x_nmm torque_y_nmm torque_z_nmm inserted_mm; u32: buttons; u16: tip_label. Codec stylet-columns-v2: the same, except that the force and torque columns hold i64 step counts (2^16 per N, 2^12 per N*mm, zigzag residuals of the same prediction) and outputs_digest is the FNV-1a 64 of the exact outputs.","properties":{"first_tick":{"type":"integer"},"count":{"type":"integer"},"codec":{"type":"string"},"columns":{"type":"object","additionalProperties":{"type":"string","contentEncoding":"binary"}},"outputs_digest":{"type":"integer"}},"required":["first_tick","count","codec","columns"]}"#
-        }
-        TOPIC_EVENTS => {
-            r#"{"title":"stylet.Event","type":"object","properties":{"tick":{"type":"integer"},"name":{"type":"string"},"tool":{"type":"string"},"gauge":{"type":"integer"},"length_mm":{"type":"number"},"stylet_in":{"type":"boolean"},"ml":{"type":"number"}},"required":["tick","name"]}"#
-        }
-        TOPIC_DIGESTS => {
-            r#"{"title":"stylet.Digest","type":"object","description":"FNV-1a 64 over the bits of the whole physics state after the tick","properties":{"tick":{"type":"integer"},"digest":{"type":"integer"}},"required":["tick","digest"]}"#
-        }
-        TOPIC_ANNOTATIONS => {
-            r#"{"title":"stylet.Annotation","type":"object","properties":{"tick":{"type":"integer"},"text":{"type":"string"}},"required":["tick","text"]}"#
-        }
-        _ => {
-            r#"{"title":"stylet.Preview","type":"object","description":"50 Hz preview for plotting; the exact record is /stylet/ticks","properties":{"tick":{"type":"integer"},"t_s":{"type":"number"},"position_mm":{"type":"array","items":{"type":"number"}},"force_n":{"type":"array","items":{"type":"number"}},"force_magnitude_n":{"type":"number"},"tip_label":{"type":"integer"},"inserted_mm":{"type":"number"}},"required":["tick","t_s","position_mm","force_n","force_magnitude_n","tip_label","inserted_mm"]}"#
-        }
+        TOPIC_TICKS => TICK_BLOCK_SCHEMA,
+        TOPIC_EVENTS => EVENT_SCHEMA,
+        TOPIC_DIGESTS => DIGEST_SCHEMA,
+        TOPIC_ANNOTATIONS => ANNOTATION_SCHEMA,
+        _ => PREVIEW_SCHEMA,
     }
 }
+
+const TICK_BLOCK_SCHEMA: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "stylet.TickBlock",
+  "description": "Up to 500 consecutive ticks, column by column (docs/session-format.md). The message is a CBOR map; each column is a CBOR byte string (base64url in the RFC 8949 JSON form). Codec stylet-columns-v1: f64 columns hold the zigzag residuals of the IEEE-754 bit patterns after the linear prediction 2*b[i-1]-b[i-2]; integer columns each value XOR the previous; the little-endian bytes are transposed into planes. f64 columns: pos_x_mm pos_y_mm pos_z_mm q_w q_x q_y q_z force_x_n force_y_n force_z_n torque_x_nmm torque_y_nmm torque_z_nmm inserted_mm (8 bytes per tick); u32 buttons (4); u16 tip_label (2). Codec stylet-columns-v2: the same, except that the force and torque columns hold i64 step counts (2^16 per N, 2^12 per N*mm; zigzag residuals of the same prediction), and outputs_digest is the FNV-1a 64 of the block's exact forces and torques.",
+  "type": "object",
+  "properties": {
+    "first_tick": {"type": "integer", "minimum": 0, "maximum": 18446744073709551615},
+    "count": {"type": "integer", "minimum": 1, "maximum": 500},
+    "codec": {"enum": ["stylet-columns-v1", "stylet-columns-v2"]},
+    "columns": {
+      "type": "object",
+      "properties": {
+        "pos_x_mm": {"$ref": "#/$defs/column"},
+        "pos_y_mm": {"$ref": "#/$defs/column"},
+        "pos_z_mm": {"$ref": "#/$defs/column"},
+        "q_w": {"$ref": "#/$defs/column"},
+        "q_x": {"$ref": "#/$defs/column"},
+        "q_y": {"$ref": "#/$defs/column"},
+        "q_z": {"$ref": "#/$defs/column"},
+        "force_x_n": {"$ref": "#/$defs/column"},
+        "force_y_n": {"$ref": "#/$defs/column"},
+        "force_z_n": {"$ref": "#/$defs/column"},
+        "torque_x_nmm": {"$ref": "#/$defs/column"},
+        "torque_y_nmm": {"$ref": "#/$defs/column"},
+        "torque_z_nmm": {"$ref": "#/$defs/column"},
+        "inserted_mm": {"$ref": "#/$defs/column"},
+        "buttons": {"$ref": "#/$defs/column"},
+        "tip_label": {"$ref": "#/$defs/column"}
+      },
+      "required": ["pos_x_mm", "pos_y_mm", "pos_z_mm", "q_w", "q_x", "q_y", "q_z", "force_x_n", "force_y_n", "force_z_n", "torque_x_nmm", "torque_y_nmm", "torque_z_nmm", "inserted_mm", "buttons", "tip_label"],
+      "additionalProperties": false
+    },
+    "outputs_digest": {"type": "integer", "minimum": 0, "maximum": 18446744073709551615}
+  },
+  "required": ["first_tick", "count", "codec", "columns"],
+  "additionalProperties": false,
+  "if": {"properties": {"codec": {"const": "stylet-columns-v2"}}},
+  "then": {"required": ["outputs_digest"]},
+  "else": {"not": {"required": ["outputs_digest"]}},
+  "$defs": {
+    "column": {
+      "description": "A CBOR byte string: one encoded column of the block.",
+      "type": "string",
+      "contentEncoding": "base64url",
+      "contentMediaType": "application/octet-stream"
+    }
+  }
+}"##;
+
+const EVENT_SCHEMA: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "stylet.Event",
+  "description": "An event of a tick (names as in docs/scripts.md). A CBOR map; fields other than tick and name are present only for the events that use them: tool, gauge, length_mm, stylet_in for a tool change, ml for a contrast injection.",
+  "type": "object",
+  "properties": {
+    "tick": {"type": "integer", "minimum": 0, "maximum": 18446744073709551615},
+    "name": {"type": "string", "maxLength": 64},
+    "tool": {"enum": ["needle", "finger", "probe-linear", "probe-convex"]},
+    "gauge": {"type": "integer", "minimum": 0, "maximum": 4294967295},
+    "length_mm": {"type": "number"},
+    "stylet_in": {"type": "boolean"},
+    "ml": {"type": "number"}
+  },
+  "required": ["tick", "name"],
+  "additionalProperties": false
+}"##;
+
+const DIGEST_SCHEMA: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "stylet.Digest",
+  "description": "FNV-1a 64 over the bits of the whole physics state after the tick (a CBOR map).",
+  "type": "object",
+  "properties": {
+    "tick": {"type": "integer", "minimum": 0, "maximum": 18446744073709551615},
+    "digest": {"type": "integer", "minimum": 0, "maximum": 18446744073709551615}
+  },
+  "required": ["tick", "digest"],
+  "additionalProperties": false
+}"##;
+
+const ANNOTATION_SCHEMA: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "stylet.Annotation",
+  "description": "A writer note (queue overflow, recovery; a CBOR map).",
+  "type": "object",
+  "properties": {
+    "tick": {"type": "integer", "minimum": 0, "maximum": 18446744073709551615},
+    "text": {"type": "string", "maxLength": 2000}
+  },
+  "required": ["tick", "text"],
+  "additionalProperties": false
+}"##;
+
+const PREVIEW_SCHEMA: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "stylet.Preview",
+  "description": "A 50 Hz preview sample in f32 for plotting in MCAP tools (a CBOR map); the exact record is /stylet/ticks. A force that is not finite (stored exactly in its tick block) is null in the RFC 8949 JSON form.",
+  "type": "object",
+  "properties": {
+    "tick": {"type": "integer", "minimum": 0, "maximum": 18446744073709551615},
+    "t_s": {"type": "number"},
+    "position_mm": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3},
+    "force_n": {"type": "array", "items": {"type": ["number", "null"]}, "minItems": 3, "maxItems": 3},
+    "force_magnitude_n": {"type": ["number", "null"]},
+    "tip_label": {"type": "integer", "minimum": 0, "maximum": 65535},
+    "inserted_mm": {"type": "number"}
+  },
+  "required": ["tick", "t_s", "position_mm", "force_n", "force_magnitude_n", "tip_label", "inserted_mm"],
+  "additionalProperties": false
+}"##;
 
 /// CBOR encoding of a message.
 pub fn to_cbor<T: Serialize>(v: &T) -> Vec<u8> {

@@ -196,6 +196,27 @@ fn expected_prefix(chunks: &[reader::ChunkInfo], ticks: &[TickRecord], cut: u64)
     last.map_or(0, |l| ticks.iter().position(|t| t.tick == l).unwrap() + 1)
 }
 
+/// An altered data-end opcode turns the record into an unknown one, which MCAP readers skip: the
+/// data section's CRC would go unchecked. A footer with no data end before it is damage.
+#[test]
+fn a_file_without_its_data_end_does_not_verify() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("s.mcap");
+    write_session(&p, &synthetic_ticks(2_000, 2), WriterOptions::default());
+    let mut bytes = std::fs::read(&p).unwrap();
+    // Walk the records after the magic to the data end (opcode 0x0f).
+    let mut pos = 8;
+    while bytes[pos] != 0x0f {
+        pos += 9 + u64::from_le_bytes(bytes[pos + 1..pos + 9].try_into().unwrap()) as usize;
+    }
+    bytes[pos] ^= 0x10;
+    match reader::read_bytes(&bytes, Mode::Strict, &Limits::default()) {
+        Err(reader::ReadError::Damaged(d)) => assert_eq!(d.what, DamageKind::NoDataEnd),
+        other => panic!("altered data end read as {:?}", other.map(|s| s.ticks.len())),
+    }
+    assert!(reader::verify_bytes(&bytes).is_err());
+}
+
 /// Cuts and bit flips at every 4 KiB boundary: verify names the damage, nothing panics, recover
 /// returns the intact prefix.
 #[test]
@@ -211,7 +232,10 @@ fn damage_at_every_4k_boundary() {
     for off in (4096..bytes.len()).step_by(4096) {
         // Cut.
         let cut = &bytes[..off];
-        let e = stylet_recorder::reader::verify_bytes(cut).unwrap_err().to_string();
+        let e = match stylet_recorder::reader::verify_bytes(cut) {
+            Ok(_) => panic!("cut at {off} of {} bytes: the cut file verified", bytes.len()),
+            Err(e) => e.to_string(),
+        };
         assert!(e.contains("byte") || e.contains("cut"), "cut at {off}: {e}");
         let r = reader::read_bytes(cut, Mode::Recover, &Limits::default()).unwrap();
         let want = expected_prefix(&full.chunks, &ticks, off as u64);
@@ -229,7 +253,10 @@ fn damage_at_every_4k_boundary() {
         // Bit flip.
         let mut flipped = bytes.clone();
         flipped[off] ^= 0x10;
-        let e = stylet_recorder::reader::verify_bytes(&flipped).unwrap_err();
+        let e = match stylet_recorder::reader::verify_bytes(&flipped) {
+            Ok(_) => panic!("bit flip at {off} of {} bytes: the damaged file verified", bytes.len()),
+            Err(e) => e,
+        };
         assert!(!e.to_string().is_empty());
         if let Ok(r) = reader::read_bytes(&flipped, Mode::Recover, &Limits::default()) {
             let want = expected_prefix(&full.chunks, &ticks, off as u64);
@@ -737,4 +764,217 @@ fn the_header_is_read_from_the_first_bytes_of_a_file() {
     for junk in [&b"P"[..], b"\x89MCAQ", b"PK\x03\x04 a zip archive"] {
         assert!(reader::read_header_prefix(junk).is_err(), "{junk:?}");
     }
+}
+
+/// The JSON form of a CBOR message by RFC 8949 §6.1: byte strings as base64url without padding,
+/// non-finite floats as null, tags dropped.
+fn cbor_as_json(v: &ciborium::Value) -> serde_json::Value {
+    use base64::Engine;
+    use ciborium::Value as C;
+    use serde_json::Value as J;
+    match v {
+        C::Integer(i) => {
+            let i = i128::from(*i);
+            match u64::try_from(i) {
+                Ok(u) => J::from(u),
+                Err(_) => J::from(i64::try_from(i).expect("CBOR integers fit i64 or u64 here")),
+            }
+        }
+        C::Bytes(b) => J::String(base64::engine::general_purpose::URL_SAFE_NO_PAD.encode(b)),
+        C::Float(f) => serde_json::Number::from_f64(*f).map_or(J::Null, J::Number),
+        C::Text(t) => J::String(t.clone()),
+        C::Bool(b) => J::Bool(*b),
+        C::Null => J::Null,
+        C::Tag(_, inner) => cbor_as_json(inner),
+        C::Array(items) => J::Array(items.iter().map(cbor_as_json).collect()),
+        C::Map(entries) => J::Object(
+            entries
+                .iter()
+                .map(|(k, v)| (k.as_text().expect("text keys").to_string(), cbor_as_json(v)))
+                .collect(),
+        ),
+        other => panic!("unexpected CBOR value {other:?}"),
+    }
+}
+
+/// The schema of a property, following a local `$ref`.
+fn resolve<'a>(schema: &'a serde_json::Value, root: &'a serde_json::Value) -> &'a serde_json::Value {
+    match schema.get("$ref").and_then(|r| r.as_str()) {
+        Some(r) => root
+            .pointer(r.trim_start_matches('#'))
+            .unwrap_or_else(|| panic!("unresolved {r}")),
+        None => schema,
+    }
+}
+
+/// JSON cannot tell a byte string from a text string: every string the schema marks as encoded
+/// binary must be a CBOR byte string, and every other string a text string.
+fn strings_are_what_the_schema_says(v: &ciborium::Value, schema: &serde_json::Value, root: &serde_json::Value, at: &str) {
+    let schema = resolve(schema, root);
+    match v {
+        ciborium::Value::Map(entries) => {
+            for (k, value) in entries {
+                let key = k.as_text().unwrap();
+                if let Some(sub) = schema.get("properties").and_then(|p| p.get(key)) {
+                    strings_are_what_the_schema_says(value, sub, root, &format!("{at}/{key}"));
+                }
+            }
+        }
+        ciborium::Value::Array(items) => {
+            if let Some(sub) = schema.get("items") {
+                for (i, item) in items.iter().enumerate() {
+                    strings_are_what_the_schema_says(item, sub, root, &format!("{at}/{i}"));
+                }
+            }
+        }
+        ciborium::Value::Bytes(_) => assert!(schema.get("contentEncoding").is_some(), "{at}: a byte string the schema calls text"),
+        ciborium::Value::Text(_) => assert!(schema.get("contentEncoding").is_none(), "{at}: text the schema calls bytes"),
+        _ => {}
+    }
+}
+
+/// Checks every message of `path` against the published schema of its topic; returns the
+/// number of messages per topic.
+fn check_against_schemas(path: &Path) -> std::collections::BTreeMap<String, usize> {
+    use stylet_recorder::format;
+    let bytes = std::fs::read(path).unwrap();
+    let mut counts = std::collections::BTreeMap::new();
+    let mut schemas = boon::Schemas::new();
+    let mut compiled = std::collections::BTreeMap::new();
+    for topic in [
+        format::TOPIC_TICKS,
+        format::TOPIC_EVENTS,
+        format::TOPIC_DIGESTS,
+        format::TOPIC_ANNOTATIONS,
+        format::TOPIC_PREVIEW,
+    ] {
+        let doc: serde_json::Value = serde_json::from_str(format::json_schema(topic)).unwrap();
+        let mut compiler = boon::Compiler::new();
+        let url = format!("urn:stylet{}", topic.replace('/', ":"));
+        compiler.add_resource(&url, doc.clone()).unwrap();
+        let index = compiler.compile(&url, &mut schemas).unwrap();
+        compiled.insert(topic.to_string(), (index, doc));
+    }
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let message = message.unwrap();
+        let topic = message.channel.topic.clone();
+        let (index, doc) = compiled.get(&topic).unwrap_or_else(|| panic!("unknown topic {topic}"));
+        let value: ciborium::Value = ciborium::de::from_reader(&message.data[..]).unwrap();
+        let json = cbor_as_json(&value);
+        if let Err(e) = schemas.validate(&json, *index) {
+            panic!("{}: a {topic} message at {} ns breaks its schema: {e:#}", path.display(), message.log_time);
+        }
+        strings_are_what_the_schema_says(&value, doc, doc, &topic);
+        *counts.entry(topic).or_insert(0) += 1;
+    }
+    counts
+}
+
+/// The published schemas describe exactly what is written: every message of a session with every
+/// kind of message (all events, both tick codecs, an annotation, previews) validates against its
+/// topic's schema, byte strings are declared as byte strings, and the file carries these schemas.
+/// The committed sessions (schema versions 1 and 2, physics fixtures) validate too.
+#[test]
+fn sessions_match_their_published_schemas() {
+    use stylet_recorder::format;
+    let d = tempfile::tempdir().unwrap();
+    let path = d.path().join("s.mcap");
+    let mut ticks = synthetic_ticks(1200, 9);
+    // One block that cannot round its outputs: codec v1, without a digest.
+    ticks[700].force_n[1] = f64::NAN;
+    let events = [
+        Event::SelectTool(ToolSpec::Finger),
+        Event::SelectTool(ToolSpec::Probe(stylet_physics::ProbeKind::Convex)),
+        Event::SelectTool(ToolSpec::Needle {
+            gauge: Gauge::G22,
+            length_mm: 200.0,
+            stylet_in: true,
+        }),
+        Event::StyletRemove,
+        Event::ContrastInject { ml: 2.5 },
+        Event::StyletInsert,
+        Event::XrayOn,
+        Event::XrayOff,
+        Event::BreathHold,
+        Event::BreathRelease,
+    ];
+    let w = SessionWriter::create(&path, &header(), WriterOptions::default()).unwrap();
+    for t in &ticks {
+        if let Some(e) = events.get(t.tick as usize / 100).filter(|_| t.tick % 100 == 50) {
+            w.event_record_blocking(EventRecord::from_event(t.tick, e)).unwrap();
+        }
+        w.record_raw_blocking(*t).unwrap();
+        if t.tick % 100 == 99 {
+            w.digest_blocking(t.tick, u64::MAX - t.tick).unwrap();
+        }
+    }
+    w.annotate_blocking(1199, "the instructor's remark").unwrap();
+    w.finish().unwrap();
+
+    let counts = check_against_schemas(&path);
+    assert_eq!(counts.get(format::TOPIC_EVENTS), Some(&events.len()));
+    assert_eq!(counts.get(format::TOPIC_TICKS), Some(&3));
+    assert_eq!(counts.get(format::TOPIC_DIGESTS), Some(&12));
+    assert_eq!(counts.get(format::TOPIC_ANNOTATIONS), Some(&1));
+    assert_eq!(counts.get(format::TOPIC_PREVIEW), Some(&60));
+    let s = reader::verify(&path).unwrap();
+    assert_eq!(s.output_checks.len(), 2, "one block in each codec or more");
+
+    // The file carries the published schemas.
+    let bytes = std::fs::read(&path).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+    for channel in summary.channels.values() {
+        let schema = channel.schema.as_ref().unwrap();
+        assert_eq!(schema.encoding, format::SCHEMA_ENCODING);
+        assert_eq!(
+            std::str::from_utf8(&schema.data).unwrap(),
+            format::json_schema(&channel.topic)
+        );
+    }
+
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let mut committed = vec![fixture("session-v1.mcap"), fixture("session-v2.mcap")];
+    for entry in std::fs::read_dir(root.join("tests/fixtures/physics-v10")).unwrap() {
+        let p = entry.unwrap().path();
+        if p.extension().is_some_and(|e| e == "mcap") {
+            committed.push(p);
+        }
+    }
+    assert!(committed.len() >= 6);
+    for p in committed {
+        let counts = check_against_schemas(&p);
+        assert!(counts.get(format::TOPIC_TICKS).is_some_and(|&n| n > 0), "{}", p.display());
+    }
+}
+
+/// The check above can fail: the schema text of an older writer, which called the columns text,
+/// is caught, and so is a column the schema does not declare.
+#[test]
+fn the_schema_check_catches_bytes_called_text_and_undeclared_columns() {
+    let block = stylet_recorder::writer::encode_block(&synthetic_ticks(10, 1));
+    let value: ciborium::Value =
+        ciborium::de::from_reader(&stylet_recorder::format::to_cbor(&block)[..]).unwrap();
+    let old: serde_json::Value = serde_json::from_str(
+        r#"{"type":"object","properties":{"columns":{"type":"object","additionalProperties":{"type":"string"},"properties":{"q_w":{"type":"string"}}}}}"#,
+    )
+    .unwrap();
+    let caught = std::panic::catch_unwind(|| strings_are_what_the_schema_says(&value, &old, &old, "ticks"));
+    assert!(caught.is_err());
+
+    let mut extra = block.clone();
+    extra
+        .columns
+        .insert("force_n".into(), serde_bytes::ByteBuf::from(vec![0u8; 80]));
+    let doc: serde_json::Value =
+        serde_json::from_str(stylet_recorder::format::json_schema(stylet_recorder::format::TOPIC_TICKS)).unwrap();
+    let mut schemas = boon::Schemas::new();
+    let mut compiler = boon::Compiler::new();
+    compiler.add_resource("urn:ticks", doc).unwrap();
+    let index = compiler.compile("urn:ticks", &mut schemas).unwrap();
+    let json = |b: &stylet_recorder::format::TickBlock| {
+        let v: ciborium::Value = ciborium::de::from_reader(&stylet_recorder::format::to_cbor(b)[..]).unwrap();
+        cbor_as_json(&v)
+    };
+    assert!(schemas.validate(&json(&block), index).is_ok());
+    assert!(schemas.validate(&json(&extra), index).is_err());
 }
