@@ -16,6 +16,7 @@ pub mod rubric_metrics;
 pub mod score;
 pub mod smoke;
 pub mod target;
+pub mod tip_path;
 pub mod trace;
 
 pub use benchmark::Benchmark;

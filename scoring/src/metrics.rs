@@ -11,6 +11,7 @@ use stylet_physics::{Event, LabelId, Role, Simulation, TickInput, TickOutput, To
 
 use crate::probe_view::{ProbeFrame, in_rendered_image};
 use crate::target::TargetDistance;
+use crate::tip_path::TipPath;
 
 /// One planned insertion path of the atlas (guided mode), the type every crate shares.
 pub use stylet_physics::PlannedPath;
@@ -262,15 +263,10 @@ pub struct UltrasoundMetrics {
 /// One attempt: from a skin puncture until the needle leaves the body.
 #[derive(Debug, Clone)]
 struct Attempt {
-    entry_mm: DVec3,
+    /// The tip's path from the skin entry: where it reached the target, its deepest point.
+    path: TipPath,
     /// Tip position when the attempt first reached `direction_depth_mm` (or its last tip).
     direction_point_mm: Option<DVec3>,
-    last_tip_mm: DVec3,
-    reached_target_at_mm: Option<DVec3>,
-    /// Tip path length in the body until the target was reached.
-    path_to_target_mm: f64,
-    /// The deepest point of the attempt: inserted length, tip, path length up to it.
-    deepest: (f64, DVec3, f64),
     /// Per planned path: sum and max of the tip's distance from it, and the sample count.
     deviation: Vec<(f64, f64, u64)>,
 }
@@ -606,12 +602,8 @@ impl<'a> MetricsCollector<'a> {
         // Attempts: one per skin puncture.
         if in_body && !self.was_in_body {
             self.attempts.push(Attempt {
-                entry_mm: out.tip_mm,
+                path: TipPath::enter(out.tip_mm, out.inserted_mm, tip_role == Role::Target),
                 direction_point_mm: None,
-                last_tip_mm: out.tip_mm,
-                reached_target_at_mm: None,
-                path_to_target_mm: 0.0,
-                deepest: (out.inserted_mm, out.tip_mm, 0.0),
                 deviation: vec![(0.0, 0.0, 0); self.paths.len()],
             });
             if self.attempts.len() == 1 {
@@ -656,28 +648,18 @@ impl<'a> MetricsCollector<'a> {
             }
             let attempt = self.attempts.last_mut().expect("an attempt is open while in the body");
             if attempt.direction_point_mm.is_none()
-                && out.tip_mm.distance(attempt.entry_mm) >= self.params.direction_depth_mm
+                && out.tip_mm.distance(attempt.path.entry_mm()) >= self.params.direction_depth_mm
             {
                 attempt.direction_point_mm = Some(out.tip_mm);
-            }
-            attempt.last_tip_mm = out.tip_mm;
-            if tip_role == Role::Target && attempt.reached_target_at_mm.is_none() {
-                attempt.reached_target_at_mm = Some(out.tip_mm);
             }
             for (dev, p) in attempt.deviation.iter_mut().zip(self.paths) {
                 let d = segment_distance(out.tip_mm, p.entry_mm, p.target_mm);
                 *dev = (dev.0 + d, dev.1.max(d), dev.2 + 1);
             }
             if let Some(prev) = self.prev_tip_mm {
-                let step = out.tip_mm.distance(prev);
-                self.path_length_mm += step;
+                self.path_length_mm += out.tip_mm.distance(prev);
                 let attempt = self.attempts.last_mut().expect("an attempt is open while in the body");
-                if attempt.reached_target_at_mm.is_none() {
-                    attempt.path_to_target_mm += step;
-                }
-                if out.inserted_mm > attempt.deepest.0 {
-                    attempt.deepest = (out.inserted_mm, out.tip_mm, attempt.path_to_target_mm);
-                }
+                attempt.path.step(out.tip_mm, out.inserted_mm, tip_role == Role::Target);
             }
             self.prev_tip_mm = Some(out.tip_mm);
         } else {
@@ -913,37 +895,30 @@ impl<'a> MetricsCollector<'a> {
         let scored = self
             .attempts
             .iter()
-            .position(|a| a.reached_target_at_mm.is_some())
+            .position(|a| a.path.reached_target_mm().is_some())
             .or(self.attempts.len().checked_sub(1));
-        let path_inefficiency = scored.and_then(|i| {
-            let a = &self.attempts[i];
-            let (end, path) = match a.reached_target_at_mm {
-                Some(p) => (p, a.path_to_target_mm),
-                None => (a.deepest.1, a.deepest.2),
-            };
-            let straight = end.distance(a.entry_mm);
-            (straight > 1.0).then(|| path / straight)
-        });
+        let path_inefficiency = scored.and_then(|i| self.attempts[i].path.inefficiency());
         let guided = scored.and_then(|i| {
             let a = &self.attempts[i];
+            let entry_mm = a.path.entry_mm();
             let k = match &self.chosen_path {
                 Some(name) => self.paths.iter().position(|p| &p.name == name)?,
                 None => (0..self.paths.len()).min_by(|&x, &y| {
-                    a.entry_mm
+                    entry_mm
                         .distance(self.paths[x].entry_mm)
-                        .total_cmp(&a.entry_mm.distance(self.paths[y].entry_mm))
+                        .total_cmp(&entry_mm.distance(self.paths[y].entry_mm))
                 })?,
             };
             let p = &self.paths[k];
-            let dir_point = a.direction_point_mm.unwrap_or(a.last_tip_mm);
+            let dir_point = a.direction_point_mm.unwrap_or(a.path.last_mm());
             let (planned, actual) = (
                 (p.target_mm - p.entry_mm).normalize_or_zero(),
-                (dir_point - a.entry_mm).normalize_or_zero(),
+                (dir_point - entry_mm).normalize_or_zero(),
             );
             let (sum, max, n) = a.deviation[k];
             Some(Guided {
                 path: p.name.clone(),
-                entry_distance_mm: a.entry_mm.distance(p.entry_mm),
+                entry_distance_mm: entry_mm.distance(p.entry_mm),
                 angle_error_deg: libm::acos(planned.dot(actual).clamp(-1.0, 1.0)).to_degrees(),
                 mean_deviation_mm: if n > 0 { sum / n as f64 } else { 0.0 },
                 max_deviation_mm: max,
@@ -1002,7 +977,7 @@ impl<'a> MetricsCollector<'a> {
                     (None, _) => false,
                 },
             },
-            target_distance_mm: self.attempts.last().and_then(|a| self.target.distance_mm(a.deepest.1)),
+            target_distance_mm: self.attempts.last().and_then(|a| self.target.distance_mm(a.path.deepest_mm())),
             target_distance_min_mm: self.min_distance_mm,
             guided,
             palpation,
