@@ -130,6 +130,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             gpu: false,
             cpu: true,
             out: args.out.join(format!("{PICTURED_SESSION}-{out}.png")),
+            line_integrals: None,
         };
         super::render::run(args_for(
             ticks as f64 * 0.6 / 1000.0,

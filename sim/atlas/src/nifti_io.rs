@@ -553,6 +553,68 @@ fn write_array<T: nifti::DataElement + bytemuck::Pod>(
         .map_err(|e| err(path, format!("cannot write: {e}")))
 }
 
+/// A float32 image on a plane in world space (RAS+, mm): pixel (i, j) lies at
+/// `origin_mm + i · col_mm + j · row_mm`; `normal` (unit) completes the affine. Pixel (i, j) is
+/// `values[j · width + i]`.
+#[derive(Debug, Clone, Copy)]
+pub struct PlaneImage<'a> {
+    pub width: usize,
+    pub height: usize,
+    pub origin_mm: [f64; 3],
+    pub col_mm: [f64; 3],
+    pub row_mm: [f64; 3],
+    pub normal: [f64; 3],
+    pub values: &'a [f32],
+}
+
+/// Writes `image` as a 2D float32 NIfTI-1 (`.nii` or `.nii.gz`): the sform (code 1, scanner
+/// RAS+) places every pixel where it lies, pixdim holds the pixel pitch, `descrip` says what the
+/// values are (at most 79 bytes) and `intent_name` names them (at most 15).
+pub fn write_plane_f32(path: &Path, image: &PlaneImage, description: &str, intent_name: &str) -> Result<(), AtlasError> {
+    let (w, h) = (image.width, image.height);
+    if w == 0 || h == 0 || image.values.len() != w * h {
+        return Err(err(
+            path,
+            format!("a {w} × {h} image needs {} values, not {}", w * h, image.values.len()),
+        ));
+    }
+    let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt() as f32;
+    let row = |k: usize| {
+        [
+            image.col_mm[k] as f32,
+            image.row_mm[k] as f32,
+            image.normal[k] as f32,
+            image.origin_mm[k] as f32,
+        ]
+    };
+    let mut header = NiftiHeader {
+        sform_code: 1,
+        qform_code: 0,
+        srow_x: row(0),
+        srow_y: row(1),
+        srow_z: row(2),
+        xyzt_units: 2, // millimetres
+        ..NiftiHeader::default()
+    };
+    header.pixdim[0] = 1.0;
+    header.pixdim[1] = norm(image.col_mm);
+    header.pixdim[2] = norm(image.row_mm);
+    header.pixdim[3] = 1.0;
+    let mut d = description.as_bytes().to_vec();
+    d.truncate(79);
+    d.resize(80, 0);
+    header.descrip = d;
+    let name = intent_name.as_bytes();
+    let n = name.len().min(15);
+    header.intent_name[..n].copy_from_slice(&name[..n]);
+    use ndarray::ShapeBuilder;
+    let array = ndarray::Array2::from_shape_vec((w, h).f(), image.values.to_vec()).map_err(|e| err(path, e.to_string()))?;
+    WriterOptions::new(path)
+        .reference_header(&header)
+        .write_nifti(&array)
+        .map_err(|e| err(path, format!("cannot write: {e}")))
+}
+
 /// Writes a CT as int16 HU (values rounded and clamped to −32768 … 32767).
 pub fn write_ct(path: &Path, ct: &Volume<f32>, description: &str) -> Result<(), AtlasError> {
     let data: Vec<i16> = ct
