@@ -202,7 +202,7 @@ class Session:
                     continue
                 except ValueError:
                     pass
-            if v.isdigit():
+            if v.isascii() and v.isdigit():
                 out[k] = int(v)
             elif v in ("true", "false"):
                 out[k] = v == "true"
