@@ -809,7 +809,12 @@ fn resolve<'a>(schema: &'a serde_json::Value, root: &'a serde_json::Value) -> &'
 
 /// JSON cannot tell a byte string from a text string: every string the schema marks as encoded
 /// binary must be a CBOR byte string, and every other string a text string.
-fn strings_are_what_the_schema_says(v: &ciborium::Value, schema: &serde_json::Value, root: &serde_json::Value, at: &str) {
+fn strings_are_what_the_schema_says(
+    v: &ciborium::Value,
+    schema: &serde_json::Value,
+    root: &serde_json::Value,
+    at: &str,
+) {
     let schema = resolve(schema, root);
     match v {
         ciborium::Value::Map(entries) => {
@@ -827,8 +832,14 @@ fn strings_are_what_the_schema_says(v: &ciborium::Value, schema: &serde_json::Va
                 }
             }
         }
-        ciborium::Value::Bytes(_) => assert!(schema.get("contentEncoding").is_some(), "{at}: a byte string the schema calls text"),
-        ciborium::Value::Text(_) => assert!(schema.get("contentEncoding").is_none(), "{at}: text the schema calls bytes"),
+        ciborium::Value::Bytes(_) => assert!(
+            schema.get("contentEncoding").is_some(),
+            "{at}: a byte string the schema calls text"
+        ),
+        ciborium::Value::Text(_) => assert!(
+            schema.get("contentEncoding").is_none(),
+            "{at}: text the schema calls bytes"
+        ),
         _ => {}
     }
 }
@@ -862,7 +873,11 @@ fn check_against_schemas(path: &Path) -> std::collections::BTreeMap<String, usiz
         let value: ciborium::Value = ciborium::de::from_reader(&message.data[..]).unwrap();
         let json = cbor_as_json(&value);
         if let Err(e) = schemas.validate(&json, *index) {
-            panic!("{}: a {topic} message at {} ns breaks its schema: {e:#}", path.display(), message.log_time);
+            panic!(
+                "{}: a {topic} message at {} ns breaks its schema: {e:#}",
+                path.display(),
+                message.log_time
+            );
         }
         strings_are_what_the_schema_says(&value, doc, doc, &topic);
         *counts.entry(topic).or_insert(0) += 1;
@@ -943,7 +958,11 @@ fn sessions_match_their_published_schemas() {
     assert!(committed.len() >= 6);
     for p in committed {
         let counts = check_against_schemas(&p);
-        assert!(counts.get(format::TOPIC_TICKS).is_some_and(|&n| n > 0), "{}", p.display());
+        assert!(
+            counts.get(format::TOPIC_TICKS).is_some_and(|&n| n > 0),
+            "{}",
+            p.display()
+        );
     }
 }
 
@@ -952,8 +971,7 @@ fn sessions_match_their_published_schemas() {
 #[test]
 fn the_schema_check_catches_bytes_called_text_and_undeclared_columns() {
     let block = stylet_recorder::writer::encode_block(&synthetic_ticks(10, 1));
-    let value: ciborium::Value =
-        ciborium::de::from_reader(&stylet_recorder::format::to_cbor(&block)[..]).unwrap();
+    let value: ciborium::Value = ciborium::de::from_reader(&stylet_recorder::format::to_cbor(&block)[..]).unwrap();
     let old: serde_json::Value = serde_json::from_str(
         r#"{"type":"object","properties":{"columns":{"type":"object","additionalProperties":{"type":"string"},"properties":{"q_w":{"type":"string"}}}}}"#,
     )
@@ -965,8 +983,10 @@ fn the_schema_check_catches_bytes_called_text_and_undeclared_columns() {
     extra
         .columns
         .insert("force_n".into(), serde_bytes::ByteBuf::from(vec![0u8; 80]));
-    let doc: serde_json::Value =
-        serde_json::from_str(stylet_recorder::format::json_schema(stylet_recorder::format::TOPIC_TICKS)).unwrap();
+    let doc: serde_json::Value = serde_json::from_str(stylet_recorder::format::json_schema(
+        stylet_recorder::format::TOPIC_TICKS,
+    ))
+    .unwrap();
     let mut schemas = boon::Schemas::new();
     let mut compiler = boon::Compiler::new();
     compiler.add_resource("urn:ticks", doc).unwrap();

@@ -173,11 +173,17 @@ fn parse_size(s: &str) -> Result<Size, BadSize> {
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     if let Some(path) = &a.line_integrals {
         if a.view != View::Xray {
-            bail!("--line-integrals {}: only the X-ray has line integrals; add --view xray", path.display());
+            bail!(
+                "--line-integrals {}: only the X-ray has line integrals; add --view xray",
+                path.display()
+            );
         }
         let name = path.file_name().map(|n| n.to_string_lossy()).unwrap_or_default();
         if !(name.ends_with(".nii") || name.ends_with(".nii.gz")) {
-            bail!("--line-integrals {}: the file must end in .nii or .nii.gz (NIfTI-1)", path.display());
+            bail!(
+                "--line-integrals {}: the file must end in .nii or .nii.gz (NIfTI-1)",
+                path.display()
+            );
         }
     }
     let atlas = stylet_atlas::load(&a.atlas)?;

@@ -670,7 +670,14 @@ fn line_integrals_are_the_radiographs_floats_with_their_geometry() {
         &png,
         "xray",
         (w, h),
-        &["--lao-deg", "25", "--cranial-deg", "-10", "--line-integrals", nii.to_str().unwrap()],
+        &[
+            "--lao-deg",
+            "25",
+            "--cranial-deg",
+            "-10",
+            "--line-integrals",
+            nii.to_str().unwrap(),
+        ],
     );
 
     let atlas = stylet_atlas::load(&atlas_dir).unwrap();
@@ -695,7 +702,11 @@ fn line_integrals_are_the_radiographs_floats_with_their_geometry() {
             let at = projection.pixel_mm(col, row);
             for (k, r) in srow.iter().enumerate() {
                 let world = r[0] * col as f32 + r[1] * row as f32 + r[3];
-                assert!((world - at[k]).abs() < 1e-2, "pixel ({col}, {row}) axis {k}: {world} vs {}", at[k]);
+                assert!(
+                    (world - at[k]).abs() < 1e-2,
+                    "pixel ({col}, {row}) axis {k}: {world} vs {}",
+                    at[k]
+                );
             }
         }
     }
@@ -703,7 +714,9 @@ fn line_integrals_are_the_radiographs_floats_with_their_geometry() {
     assert!(values[[(w / 2) as usize, (h / 2) as usize]] > 1.0);
     let pitch = scene.c_arm.pixel_pitch_mm(w, h);
     assert!((header.pixdim[1] - pitch).abs() < 1e-4 && (header.pixdim[2] - pitch).abs() < 1e-4);
-    let description = String::from_utf8_lossy(&header.descrip).trim_end_matches('\0').to_string();
+    let description = String::from_utf8_lossy(&header.descrip)
+        .trim_end_matches('\0')
+        .to_string();
     let source: Vec<f32> = description
         .split("source_mm=")
         .nth(1)
@@ -719,14 +732,34 @@ fn line_integrals_are_the_radiographs_floats_with_their_geometry() {
     let out = d.path().join("refused.png");
     let bad_nii = d.path().join("refused.nii.gz");
     let e = refused(
-        &["render", "--atlas", a, "--view", "axial", "--out", out.to_str().unwrap(), "--line-integrals", bad_nii.to_str().unwrap()],
+        &[
+            "render",
+            "--atlas",
+            a,
+            "--view",
+            "axial",
+            "--out",
+            out.to_str().unwrap(),
+            "--line-integrals",
+            bad_nii.to_str().unwrap(),
+        ],
         &out,
     );
     assert!(e.contains("--view xray"), "{e}");
     assert!(!bad_nii.exists());
     let not_nifti = d.path().join("refused.raw");
     let e = refused(
-        &["render", "--atlas", a, "--view", "xray", "--out", out.to_str().unwrap(), "--line-integrals", not_nifti.to_str().unwrap()],
+        &[
+            "render",
+            "--atlas",
+            a,
+            "--view",
+            "xray",
+            "--out",
+            out.to_str().unwrap(),
+            "--line-integrals",
+            not_nifti.to_str().unwrap(),
+        ],
         &out,
     );
     assert!(e.contains(".nii.gz"), "{e}");

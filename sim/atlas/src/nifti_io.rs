@@ -570,7 +570,12 @@ pub struct PlaneImage<'a> {
 /// Writes `image` as a 2D float32 NIfTI-1 (`.nii` or `.nii.gz`): the sform (code 1, scanner
 /// RAS+) places every pixel where it lies, pixdim holds the pixel pitch, `descrip` says what the
 /// values are (at most 79 bytes) and `intent_name` names them (at most 15).
-pub fn write_plane_f32(path: &Path, image: &PlaneImage, description: &str, intent_name: &str) -> Result<(), AtlasError> {
+pub fn write_plane_f32(
+    path: &Path,
+    image: &PlaneImage,
+    description: &str,
+    intent_name: &str,
+) -> Result<(), AtlasError> {
     let (w, h) = (image.width, image.height);
     if w == 0 || h == 0 || image.values.len() != w * h {
         return Err(err(
@@ -608,7 +613,8 @@ pub fn write_plane_f32(path: &Path, image: &PlaneImage, description: &str, inten
     let n = name.len().min(15);
     header.intent_name[..n].copy_from_slice(&name[..n]);
     use ndarray::ShapeBuilder;
-    let array = ndarray::Array2::from_shape_vec((w, h).f(), image.values.to_vec()).map_err(|e| err(path, e.to_string()))?;
+    let array =
+        ndarray::Array2::from_shape_vec((w, h).f(), image.values.to_vec()).map_err(|e| err(path, e.to_string()))?;
     WriterOptions::new(path)
         .reference_header(&header)
         .write_nifti(&array)
