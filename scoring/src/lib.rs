@@ -8,6 +8,7 @@
 pub mod benchmark;
 pub mod metric_words;
 pub mod metrics;
+pub mod needle_motion;
 pub mod probe_view;
 pub mod reasons;
 pub mod replay;

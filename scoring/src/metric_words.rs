@@ -19,6 +19,8 @@ pub enum Unit {
     Degrees,
     /// A plain ratio (1 = ideal).
     Ratio,
+    /// √(∫‖jerk‖² dt): mm·s^-2.5.
+    RootIntegralJerk,
     /// 0 … 1, written as a percentage.
     Fraction,
     /// 0 or 1: something that did or did not happen; phrased by [`MetricInfo::flag_text`].
@@ -80,7 +82,31 @@ pub const METRICS: &[MetricInfo] = &[
     m("xray_shots", "X-ray shots", Unit::Count),
     m("dose_area_product_gy_cm2", "dose-area product", Unit::GrayCm2),
     m("max_force_n", "peak force", Unit::Newtons),
-    m("tissue_damage_mm2", "tissue damage", Unit::SquareMillimetres),
+    m(
+        "shaft_sweep_mm2",
+        "tissue swept by the bending shaft",
+        Unit::SquareMillimetres,
+    ),
+    m(
+        "tissue_damage_mm2",
+        "tissue damage (area swept by the needle line)",
+        Unit::SquareMillimetres,
+    ),
+    m("time_in_tissue_s", "time with the needle in tissue", Unit::Seconds),
+    m("needle_path_length_mm", "needle path length", Unit::Millimetres),
+    m("path_in_tissue_mm", "needle path in tissue", Unit::Millimetres),
+    m(
+        "path_outside_tissue_mm",
+        "needle path outside tissue",
+        Unit::Millimetres,
+    ),
+    m(
+        "jerk_mm_per_s2_5",
+        "needle jerk (motion smoothness)",
+        Unit::RootIntegralJerk,
+    ),
+    m("depth_perception_mm", "needle motion along its axis", Unit::Millimetres),
+    m("reorientations", "needle reorientations in tissue", Unit::Count),
     flag(
         "target_reached_while_breathing",
         "target reached without a breath hold at end-expiration",
@@ -188,6 +214,7 @@ impl MetricInfo {
             Unit::Millilitres => format!("{} ml", num(v)),
             Unit::GrayCm2 => format!("{} Gy·cm²", num(v)),
             Unit::Degrees => format!("{}°", num(v)),
+            Unit::RootIntegralJerk => format!("{} mm/s^2.5", num(v)),
             Unit::Ratio => num(v),
             Unit::Fraction => format!("{} %", num(v * 100.0)),
             Unit::Flag => {

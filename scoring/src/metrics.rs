@@ -9,6 +9,7 @@ use serde::Serialize;
 use stylet_physics::glam::DVec3;
 use stylet_physics::{Event, LabelId, Role, Simulation, TickInput, TickOutput, ToolSpec};
 
+use crate::needle_motion::{NeedleMotion, NeedleMotionMetrics, NeedleSample};
 use crate::probe_view::{ProbeFrame, in_rendered_image};
 use crate::target::TargetDistance;
 use crate::tip_path::TipPath;
@@ -145,8 +146,11 @@ pub struct Metrics {
     pub rms_force_n: f64,
     /// Largest distance of a needle node from the line through hub and tip (mm).
     pub max_bending_mm: f64,
-    /// Area swept sideways by the shaft inside tissue (mm²).
-    pub tissue_damage_mm2: f64,
+    /// Area swept sideways by the simulated (bending, path-constrained) shaft inside tissue
+    /// (mm²). Reports before rubric version 7 call it `tissue_damage_mm2`; that name is now the
+    /// rigid needle's swept area in [`Metrics::needle_motion`], as PerkTutor defines it.
+    #[serde(alias = "tissue_damage_mm2")]
+    pub shaft_sweep_mm2: f64,
     pub workflow: Workflow,
     /// Tip to the nearest target voxel where the last puncture ended: its deepest point before
     /// withdrawal (mm, 0 inside the target).
@@ -163,6 +167,10 @@ pub struct Metrics {
     /// Respiratory-motion metrics, when the patient breathed (docs/breathing.md).
     #[serde(default)]
     pub breathing: Option<BreathingMetrics>,
+    /// The hand-held needle's motion as PerkTutor measures it (docs/metrics.md "Needle motion
+    /// (PerkTutor)"); `None` in reports written before it was measured.
+    #[serde(default)]
+    pub needle_motion: Option<NeedleMotionMetrics>,
 }
 
 /// Where in the breathing the needle reached the target.
@@ -323,7 +331,8 @@ pub struct MetricsCollector<'a> {
     force_ticks: u64,
     max_bending_mm: f64,
     prev_nodes: Vec<DVec3>,
-    tissue_damage_mm2: f64,
+    shaft_sweep_mm2: f64,
+    needle_motion: NeedleMotion,
     min_distance_mm: Option<f64>,
     /// D_bone of the atlas: which parts of a palpation sweep lie over a rib.
     bone: &'a stylet_physics::Volume<f32>,
@@ -562,7 +571,8 @@ impl<'a> MetricsCollector<'a> {
             force_ticks: 0,
             max_bending_mm: 0.0,
             prev_nodes: Vec::new(),
-            tissue_damage_mm2: 0.0,
+            shaft_sweep_mm2: 0.0,
+            needle_motion: NeedleMotion::new(rate_hz),
             min_distance_mm: None,
             bone: atlas.bone_distance(),
             palpation: PalpationTrace::default(),
@@ -782,6 +792,14 @@ impl<'a> MetricsCollector<'a> {
             self.force_ticks += 1;
         }
 
+        // The hand-held (rigid) needle: the device pose while the needle is in hand.
+        self.needle_motion.observe(needle.map(|_| NeedleSample {
+            tick,
+            tip_mm: input.position_mm,
+            orientation: input.orientation,
+            inserted_mm: out.inserted_mm,
+        }));
+
         // Needle shape: bending and the area the shaft sweeps sideways inside tissue.
         match needle {
             Some(n) => {
@@ -805,7 +823,7 @@ impl<'a> MetricsCollector<'a> {
                     for j in (nodes.len() - 1 - inside)..nodes.len() - 1 {
                         let dp = nodes[j] - self.prev_nodes[j];
                         let side = dp - tangents[j] * dp.dot(tangents[j]);
-                        self.tissue_damage_mm2 += side.length() * seg;
+                        self.shaft_sweep_mm2 += side.length() * seg;
                     }
                 }
                 self.prev_nodes.clear();
@@ -966,7 +984,7 @@ impl<'a> MetricsCollector<'a> {
                 0.0
             },
             max_bending_mm: self.max_bending_mm,
-            tissue_damage_mm2: self.tissue_damage_mm2,
+            shaft_sweep_mm2: self.shaft_sweep_mm2,
             workflow: Workflow {
                 palpation_before_puncture: self.palpation_before,
                 ultrasound_before_puncture: self.ultrasound_before,
@@ -977,7 +995,10 @@ impl<'a> MetricsCollector<'a> {
                     (None, _) => false,
                 },
             },
-            target_distance_mm: self.attempts.last().and_then(|a| self.target.distance_mm(a.path.deepest_mm())),
+            target_distance_mm: self
+                .attempts
+                .last()
+                .and_then(|a| self.target.distance_mm(a.path.deepest_mm())),
             target_distance_min_mm: self.min_distance_mm,
             guided,
             palpation,
@@ -988,6 +1009,7 @@ impl<'a> MetricsCollector<'a> {
                 needle_in_while_breathing_s: b.needle_in_breathing_ticks as f64 / rate,
                 tissue_slide_mm: b.tissue_slide_mm,
             }),
+            needle_motion: Some(self.needle_motion.finish()),
         }
     }
 }
@@ -995,7 +1017,7 @@ impl<'a> MetricsCollector<'a> {
 /// Metrics to test rubrics and benchmarks with.
 #[cfg(test)]
 pub(crate) mod tests_support {
-    use super::{Metrics, Workflow};
+    use super::{Metrics, NeedleMotionMetrics, Workflow};
 
     /// The worked example of docs/metrics.md "Rubrics".
     pub fn example() -> Metrics {
@@ -1027,7 +1049,7 @@ pub(crate) mod tests_support {
             max_force_n: 3.0,
             rms_force_n: 1.0,
             max_bending_mm: 1.0,
-            tissue_damage_mm2: 0.0,
+            shaft_sweep_mm2: 0.0,
             workflow: Workflow {
                 palpation_before_puncture: false,
                 ultrasound_before_puncture: true,
@@ -1040,6 +1062,7 @@ pub(crate) mod tests_support {
             palpation: None,
             ultrasound: None,
             breathing: None,
+            needle_motion: Some(NeedleMotionMetrics::default()),
         }
     }
 

@@ -20,7 +20,15 @@ pub const PUNCTURE_METRICS: &[&str] = &[
     "xray_shots",
     "dose_area_product_gy_cm2",
     "max_force_n",
+    "shaft_sweep_mm2",
     "tissue_damage_mm2",
+    "time_in_tissue_s",
+    "needle_path_length_mm",
+    "path_in_tissue_mm",
+    "path_outside_tissue_mm",
+    "jerk_mm_per_s2_5",
+    "depth_perception_mm",
+    "reorientations",
     "path_inefficiency",
     "target_distance_mm",
     "missing_palpation",
@@ -96,7 +104,8 @@ pub fn not_attempted_text(exercise: Exercise) -> &'static str {
     }
 }
 
-/// The value of a rubric metric (absent guided or distance metrics count as 0: nothing to judge).
+/// The value of a rubric metric (absent guided or distance metrics count as 0: nothing to judge;
+/// `None` for a name no rubric may use, and for a needle-motion metric of a report older than it).
 pub fn metric_value(m: &Metrics, name: &str) -> Option<f64> {
     let flag = |b: bool| if b { 1.0 } else { 0.0 };
     Some(match name {
@@ -114,7 +123,17 @@ pub fn metric_value(m: &Metrics, name: &str) -> Option<f64> {
         "xray_shots" => m.xray_shots as f64,
         "dose_area_product_gy_cm2" => m.dose_area_product_gy_cm2,
         "max_force_n" => m.max_force_n,
-        "tissue_damage_mm2" => m.tissue_damage_mm2,
+        "shaft_sweep_mm2" => m.shaft_sweep_mm2,
+        // The hand-held needle's motion (PerkTutor's definitions); absent only in a report
+        // written before it was measured.
+        "tissue_damage_mm2" => m.needle_motion?.tissue_damage_mm2,
+        "time_in_tissue_s" => m.needle_motion?.time_in_tissue_s,
+        "needle_path_length_mm" => m.needle_motion?.path_length_mm,
+        "path_in_tissue_mm" => m.needle_motion?.path_in_tissue_mm,
+        "path_outside_tissue_mm" => m.needle_motion?.path_outside_tissue_mm,
+        "jerk_mm_per_s2_5" => m.needle_motion?.jerk_mm_per_s2_5,
+        "depth_perception_mm" => m.needle_motion?.depth_perception_mm,
+        "reorientations" => m.needle_motion?.reorientations as f64,
         "path_inefficiency" => m.path_inefficiency.unwrap_or(0.0),
         "target_distance_mm" => m.target_distance_mm.unwrap_or(0.0),
         "missing_palpation" => flag(!m.workflow.palpation_before_puncture),

@@ -70,7 +70,9 @@ impl TipPath {
             None => (self.deepest.1, self.deepest.2),
         };
         let straight = end.distance(self.entry_mm);
-        (straight > 1.0).then(|| path / straight)
+        // ≥ 1 by the triangle inequality; the rounding of a long sum of steps can put a straight
+        // push a few ulps below, which is no inefficiency.
+        (straight > 1.0).then(|| (path / straight).max(1.0))
     }
 }
 
@@ -99,7 +101,7 @@ mod tests {
         fn inefficiency_is_never_below_one(points in prop::collection::vec(point(), 2..60), reached: bool) {
             let path = walk(&points, reached);
             if let Some(ratio) = path.inefficiency() {
-                prop_assert!(ratio >= 1.0 - 1e-12, "ratio {ratio}");
+                prop_assert!(ratio >= 1.0, "ratio {ratio}");
             }
         }
 

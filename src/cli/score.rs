@@ -173,12 +173,25 @@ fn print_report(file: &Path, r: &ScoreReport) {
         m.palpation_time_s
     );
     sayf!(
-        "needle       path {:.1} mm in the body (inefficiency {}), bending ≤ {:.2} mm, tissue swept {:.0} mm²",
+        "needle       path {:.1} mm in the body (inefficiency {}), bending ≤ {:.2} mm, shaft sweep {:.0} mm²",
         m.path_length_mm,
         m.path_inefficiency.map_or_else(|| "—".into(), |v| format!("{v:.2}")),
         m.max_bending_mm,
-        m.tissue_damage_mm2
+        m.shaft_sweep_mm2
     );
+    if let Some(n) = &m.needle_motion {
+        sayf!(
+            "hand motion  path {:.1} mm ({:.1} in tissue, {:.1} outside), {:.1} s in tissue, tissue damage {:.0} mm², jerk {:.3e} mm/s^2.5, depth perception {:.1} mm, {} reorientation(s)",
+            n.path_length_mm,
+            n.path_in_tissue_mm,
+            n.path_outside_tissue_mm,
+            n.time_in_tissue_s,
+            n.tissue_damage_mm2,
+            n.jerk_mm_per_s2_5,
+            n.depth_perception_mm,
+            n.reorientations
+        );
+    }
     sayf!("force        max {:.2} N, RMS {:.2} N", m.max_force_n, m.rms_force_n);
     sayf!(
         "workflow     palpation first {}, ultrasound first {}, confirmed before withdrawal {}",
@@ -308,8 +321,8 @@ fn why_not(s: &ScoreReport) -> String {
 /// Columns of `stylet score --csv` (docs/metrics.md "Batch CSV").
 pub const SCORE_CSV_HEADER: &str = "file,session_id,trainee,scenario,difficulty,status,replay_verified,incomplete,score,passed,\
 rubric,rubric_version,physics_version,attempts,redirections,risk_hits,risk_structures,bone_contacts,target_reached,\
-target_confirmed,time_to_target_s,time_total_s,fluoro_time_s,xray_shots,path_length_mm,max_force_n,tissue_damage_mm2,\
-target_distance_mm,exercise,outcome,reasons,error";
+target_confirmed,time_to_target_s,time_total_s,fluoro_time_s,xray_shots,path_length_mm,max_force_n,shaft_sweep_mm2,\
+tissue_damage_mm2,time_in_tissue_s,jerk_mm_per_s2_5,target_distance_mm,exercise,outcome,reasons,error";
 
 fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n', '\r']) {
@@ -334,7 +347,7 @@ fn write_csv(out: &Path, results: &[(PathBuf, Result<ScoreReport, ScoreError>)])
                 let structures: Vec<&str> = m.risk_hits.iter().map(|h| h.structure.as_str()).collect();
                 writeln!(
                     w,
-                    "{file},{},{},{},{},scored,{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},",
+                    "{file},{},{},{},{},scored,{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},",
                     csv_field(&s.session_id),
                     csv_field(&s.trainee),
                     csv_field(&s.scenario),
@@ -359,7 +372,10 @@ fn write_csv(out: &Path, results: &[(PathBuf, Result<ScoreReport, ScoreError>)])
                     m.xray_shots,
                     m.path_length_mm,
                     m.max_force_n,
-                    m.tissue_damage_mm2,
+                    m.shaft_sweep_mm2,
+                    o(m.needle_motion.map(|n| n.tissue_damage_mm2)),
+                    o(m.needle_motion.map(|n| n.time_in_tissue_s)),
+                    o(m.needle_motion.map(|n| n.jerk_mm_per_s2_5)),
                     o(m.target_distance_mm),
                     s.exercise.as_str(),
                     s.outcome.as_str(),
@@ -368,7 +384,7 @@ fn write_csv(out: &Path, results: &[(PathBuf, Result<ScoreReport, ScoreError>)])
             }
             Err(e) => writeln!(
                 w,
-                "{file},,,,,error,,,,,,,,,,,,,,,,,,,,,,,,,,{}",
+                "{file},,,,,error,,,,,,,,,,,,,,,,,,,,,,,,,,,,,{}",
                 csv_field(&e.to_string())
             )?,
         }

@@ -377,7 +377,10 @@ fn other_metrics(r: &ScoreReport) -> Markup {
             format!("{:.2} N · {:.2} N", m.max_force_n, m.rms_force_n),
         ),
         ("Needle bending (max)", format!("{:.2} mm", m.max_bending_mm)),
-        ("Tissue damage", format!("{:.0} mm²", m.tissue_damage_mm2)),
+        (
+            "Tissue swept by the bending shaft",
+            format!("{:.0} mm²", m.shaft_sweep_mm2),
+        ),
         (
             "Tissue displaced (max) · risk structures",
             format!(
@@ -389,6 +392,27 @@ fn other_metrics(r: &ScoreReport) -> Markup {
         ("Distance to the target", opt(m.target_distance_mm, "mm")),
     ];
     let mut rows = rows;
+    if let Some(n) = &m.needle_motion {
+        // The hand-held needle as a tracker sees it (PerkTutor's definitions, docs/metrics.md).
+        rows.push((
+            "Needle in tissue: time · path (outside)",
+            format!(
+                "{:.1} s · {:.1} mm ({:.1} mm)",
+                n.time_in_tissue_s, n.path_in_tissue_mm, n.path_outside_tissue_mm
+            ),
+        ));
+        rows.push((
+            "Tissue damage (area swept by the needle line)",
+            format!("{:.0} mm²", n.tissue_damage_mm2),
+        ));
+        rows.push((
+            "Needle jerk · motion along its axis · reorientations",
+            format!(
+                "{:.3e} mm/s^2.5 · {:.1} mm · {}",
+                n.jerk_mm_per_s2_5, n.depth_perception_mm, n.reorientations
+            ),
+        ));
+    }
     if let Some(b) = &m.breathing {
         rows.push((
             "Breathing: target reached",
