@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use stylet_atlas::Exercise;
 
 use crate::metrics::Metrics;
-use crate::rubric_metrics::{exercise_metrics, metric_value};
+use crate::rubric_metrics::{HIGHER_IS_BETTER, exercise_metrics, metric_value};
 
 /// The most expert references a scenario may have: a benchmark is computed from their stored
 /// reports whenever a session of the scenario is scored, so their number is bounded.
@@ -101,6 +101,65 @@ impl Benchmark {
     }
 }
 
+/// One metric's part of a [`SkillEstimate`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MetricZ {
+    pub metric: String,
+    /// Spreads from the expert mean, + when worse than it (a metric where more is better has
+    /// its sign turned).
+    pub z: f64,
+}
+
+/// An overall skill estimate against the experts (docs/metrics.md "Skill estimate"): PerkTutor's
+/// linear combination (its `SkillAssessment` module, method `LinearCombination`: z-score
+/// scaling, mean aggregation, every weight 1) over the metrics the experts differ on. 0 is the
+/// experts' mean; +1 one expert spread worse on average. Beside the rubric grade, never instead
+/// of it: the rubric passes or fails a session.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SkillEstimate {
+    /// Expert references the benchmark came from.
+    pub experts: u32,
+    /// z̄ = Σ zₘ / M over the metrics below.
+    pub z_mean: f64,
+    /// The metrics combined, in the rubric's order: those with an expert spread.
+    pub metrics: Vec<MetricZ>,
+}
+
+impl Benchmark {
+    /// The skill estimate of `m` against this benchmark; `None` below two experts (no spread)
+    /// or when the experts agree on every metric.
+    pub fn skill_estimate(&self, m: &Metrics) -> Option<SkillEstimate> {
+        if self.experts.len() < 2 {
+            return None;
+        }
+        let metrics: Vec<MetricZ> = self
+            .compare(m)
+            .iter()
+            .filter_map(|c| {
+                let z = c.spreads_from_mean()?;
+                let worse = if HIGHER_IS_BETTER.contains(&c.metric.as_str()) {
+                    -z
+                } else {
+                    z
+                };
+                Some(MetricZ {
+                    metric: c.metric.clone(),
+                    z: worse,
+                })
+            })
+            .collect();
+        if metrics.is_empty() {
+            return None;
+        }
+        let z_mean = metrics.iter().map(|z| z.z).sum::<f64>() / metrics.len() as f64;
+        Some(SkillEstimate {
+            experts: self.experts.len() as u32,
+            z_mean,
+            metrics,
+        })
+    }
+}
+
 /// Mean and sample standard deviation (two passes, in the order given); `None` for no values.
 pub fn mean_and_spread(values: &[f64]) -> Option<(f64, f64)> {
     if values.is_empty() {
@@ -175,5 +234,51 @@ mod tests {
         assert_eq!(t.spreads_from_mean(), Some(3.0));
         let risk = cmp.iter().find(|c| c.metric == "risk_hits").unwrap();
         assert_eq!(risk.spreads_from_mean(), None, "every expert hit nothing");
+
+        // The skill estimate: the metrics the experts differ on are time (mean 120, spread
+        // 20), fluoroscopy (20, 10) and attempts (4/3, √(1/3)). The trainee: 180 s (+3),
+        // 40 s of fluoroscopy (+2), 2 attempts ((2 − 4/3)/√(1/3) = +1.1547): mean +2.0516.
+        let trainee = metrics_with(|m| {
+            m.time_total_s = 180.0;
+            m.fluoro_time_s = 40.0;
+            m.attempts = 2;
+        });
+        let skill = bench.skill_estimate(&trainee).unwrap();
+        let names: Vec<&str> = skill.metrics.iter().map(|z| z.metric.as_str()).collect();
+        assert_eq!(names, ["attempts", "time_total_s", "fluoro_time_s"]);
+        let attempts_z = (2.0 - 4.0 / 3.0) / (1.0f64 / 3.0).sqrt();
+        assert!(
+            (skill.z_mean - (3.0 + 2.0 + attempts_z) / 3.0).abs() < 1e-12,
+            "{skill:?}"
+        );
+        assert_eq!(skill.experts, 3);
+        // An expert's own metrics lie about 0; one expert alone gives no estimate.
+        let own = bench.skill_estimate(&b).unwrap();
+        assert!(own.z_mean.abs() < 1.0, "{own:?}");
+        let alone = Benchmark::from_sessions("right-duct", Exercise::Puncture, &sessions[..1]);
+        assert_eq!(alone.skill_estimate(&trainee), None);
+    }
+
+    #[test]
+    fn more_is_better_metrics_count_with_their_sign_turned() {
+        let with = |found: u32| {
+            metrics_with(|m| {
+                m.palpation = Some(crate::metrics::PalpationMetrics {
+                    spaces_crossed: 4,
+                    spaces_found: found,
+                    coverage: found as f64 / 4.0,
+                    ribs_crossed: 5,
+                });
+            })
+        };
+        let (a, b, c) = (with(2), with(3), with(4));
+        let sessions = vec![("a".to_string(), &a), ("b".to_string(), &b), ("c".to_string(), &c)];
+        let bench = Benchmark::from_sessions("sweep", Exercise::Palpation, &sessions);
+        // Finding 1 space of 4 is worse than the experts: + on both "more is better" metrics and
+        // on the missed spaces.
+        let skill = bench.skill_estimate(&with(1)).unwrap();
+        for z in &skill.metrics {
+            assert!(z.z > 0.0, "{z:?}");
+        }
     }
 }

@@ -9,7 +9,7 @@ use stylet_physics::PunctureAtlas;
 
 use stylet_recorder::reader::{self, Session};
 
-use crate::benchmark::Benchmark;
+use crate::benchmark::{Benchmark, SkillEstimate};
 use crate::metrics::{Metrics, MetricsCollector, PlannedPath};
 use crate::reasons::{self, Outcome};
 use crate::replay::{Divergence, ReplayError, replay};
@@ -79,6 +79,11 @@ pub struct ScoreReport {
     pub outcome: Outcome,
     /// Why, in plain words for people (docs/metrics.md "Outcomes and reasons").
     pub reasons: Vec<String>,
+    /// The overall skill estimate against the scenario's experts when it was scored (docs/metrics.md
+    /// "Skill estimate"), once the scenario has the rubric's `min_experts` references: beside the
+    /// grade, not part of it.
+    #[serde(default)]
+    pub skill: Option<SkillEstimate>,
 }
 
 /// A report as stored, any age: the fields added later are optional.
@@ -103,6 +108,8 @@ struct StoredReport {
     outcome: Option<Outcome>,
     #[serde(default)]
     reasons: Option<Vec<String>>,
+    #[serde(default)]
+    skill: Option<SkillEstimate>,
 }
 
 impl From<StoredReport> for ScoreReport {
@@ -131,6 +138,7 @@ impl From<StoredReport> for ScoreReport {
             exercise,
             outcome,
             reasons,
+            skill: r.skill,
         }
     }
 }
@@ -316,12 +324,12 @@ impl Scorer {
             let hold = self.hold_phases.get(&h.scenario).copied().unwrap_or_default();
             b.correct_phase = crate::metrics::BreathPhase::of_hold(hold);
         }
-        let grade = self.rubric.grade_against(
-            &metrics,
-            exercise,
-            difficulty,
-            benchmark.filter(|b| b.scenario == h.scenario),
-        )?;
+        let benchmark = benchmark.filter(|b| b.scenario == h.scenario);
+        let grade = self.rubric.grade_against(&metrics, exercise, difficulty, benchmark)?;
+        let min_experts = self.rubric.benchmark.as_ref().map_or(3, |b| b.min_experts) as usize;
+        let skill = benchmark
+            .filter(|b| b.experts.len() >= min_experts && b.exercise == exercise)
+            .and_then(|b| b.skill_estimate(&metrics));
         let mut reasons = Vec::new();
         if let Some(d) = &session.damage {
             reasons.push(format!("the file is damaged {d}"));
@@ -351,6 +359,7 @@ impl Scorer {
             exercise,
             outcome,
             reasons,
+            skill,
         })
     }
 

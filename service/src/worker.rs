@@ -61,8 +61,8 @@ async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
         // A folder that cannot be read now may be readable later.
         Err(e) => return Outcome::Retry(e.to_string()),
     };
-    // The scenario's expert benchmark, when the rubric grades against one: read now, so the
-    // grade (which records it) measures against the references marked at scoring time.
+    // The scenario's expert benchmark, when the rubric has one: read now, so the grade (which
+    // records it) and the skill estimate measure against the references marked at scoring time.
     let benchmark = match &scorer {
         Some(sc) if sc.rubric().benchmark.is_some() => match expert_benchmark(state, job, sc).await {
             Ok(b) => b,
@@ -94,8 +94,9 @@ async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
     .unwrap_or_else(|e| Outcome::Failed(format!("scoring panicked: {e}")))
 }
 
-/// The expert benchmark of the job's scenario when the level it is graded at has relative
-/// deductions (none for other levels, and for a session that is gone).
+/// The expert benchmark of the job's scenario: the grade's relative deductions (at levels with
+/// them) and the skill estimate beside every grade measure against it (none for a session that
+/// is gone, or a level the rubric does not have).
 async fn expert_benchmark(
     state: &Arc<AppState>,
     job: &super::store::Job,
@@ -112,7 +113,7 @@ async fn expert_benchmark(
         .parse::<Difficulty>()
         .ok()
         .and_then(|d| scorer.rubric().level(exercise, d));
-    if level.is_none_or(|l| l.relative.is_empty()) {
+    if level.is_none() {
         return Ok(None);
     }
     let (benchmark, _) = super::experts::benchmark(state, &row.atlas_hash, &row.scenario).await?;

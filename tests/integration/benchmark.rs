@@ -267,6 +267,29 @@ fn experts_mark_and_the_benchmark_grades(db: Db) {
     marked.sort_unstable();
     assert_eq!(recorded, marked);
     assert_eq!(grade["benchmark"]["figures"].as_array().unwrap().len(), 4, "{grade}");
+    // Beside the grade, the skill estimate against the three: the whole workflow is slower than
+    // the experts, so it lies above their level; the review shows it. With two references there
+    // was none.
+    let skill = &row["score"]["skill"];
+    assert_eq!(skill["experts"], 3, "{skill}");
+    let zs: Vec<f64> = skill["metrics"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|z| z["z"].as_f64().unwrap())
+        .collect();
+    let mean = zs.iter().sum::<f64>() / zs.len() as f64;
+    assert!((skill["z_mean"].as_f64().unwrap() - mean).abs() < 1e-12, "{skill}");
+    assert!(
+        skill["metrics"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|z| z["metric"] == "time_total_s" && z["z"].as_f64().unwrap() > 0.0),
+        "{skill}"
+    );
+    assert!(page(&tina, &after).contains("id=\"skill\""));
+    assert!(!page(&tina, &before).contains("id=\"skill\""));
     let rubric = stylet_scoring::Rubric::default_rubric();
     let level = rubric
         .level(stylet_scoring::Exercise::Puncture, stylet_scoring::Difficulty::Expert)

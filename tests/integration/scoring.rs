@@ -767,7 +767,19 @@ fn reports_stored_before_outcomes_still_load() {
         h.remove("consequence");
         h.remove("point_mm");
     }
+    // Before rubric version 7 the shaft's swept area was `tissue_damage_mm2`, and there was no
+    // `needle_motion`.
+    let metrics = obj["metrics"].as_object_mut().unwrap();
+    let sweep = metrics.remove("shaft_sweep_mm2").unwrap();
+    metrics.insert("tissue_damage_mm2".into(), sweep.clone());
+    metrics.remove("needle_motion");
     let old: stylet_scoring::ScoreReport = serde_json::from_value(v).unwrap();
+    assert_eq!(Some(old.metrics.shaft_sweep_mm2), sweep.as_f64());
+    assert_eq!(old.metrics.needle_motion, None);
+    assert_eq!(
+        stylet_scoring::rubric::metric_value(&old.metrics, "tissue_damage_mm2"),
+        None
+    );
     assert_eq!(old.exercise, stylet_scoring::Exercise::Puncture);
     assert_eq!(old.outcome, stylet_scoring::Outcome::Failed);
     assert!(

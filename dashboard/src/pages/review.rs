@@ -228,6 +228,7 @@ fn grade_block(r: &ScoreReport, review: &serde_json::Value, rate_hz: u32, review
                     ul #reasons { @for reason in &r.reasons { li { (reason) } } }
                 } }
             div.card { div.muted { "Attempts · redirections" } div.big { (r.metrics.attempts) " · " (r.metrics.redirections) } }
+            @if let Some(sk) = &r.skill { (skill_card(sk)) }
             div.card #replay { div.muted { "Replay" } div.big { (verified_badge(Some(r.replay_verified))) }
                 @if let Some(d) = &r.divergence { div.muted { (divergence_text(d, rate_hz)) } }
                 @if r.replay_verified { div.muted { "The server re-ran the simulation and got exactly the recorded forces." } }
@@ -238,6 +239,29 @@ fn grade_block(r: &ScoreReport, review: &serde_json::Value, rate_hz: u32, review
                 } }
         }
         @if r.incomplete { p.notice { "Incomplete recording: " (r.incomplete_reason.clone().unwrap_or_default()) } }
+    }
+}
+
+/// The skill estimate beside the grade: the mean of the metrics' spreads from the expert mean
+/// (+ worse), and the metrics furthest above it.
+fn skill_card(sk: &stylet_scoring::benchmark::SkillEstimate) -> Markup {
+    let mut furthest: Vec<&stylet_scoring::benchmark::MetricZ> = sk.metrics.iter().filter(|z| z.z > 1.0).collect();
+    furthest.sort_by(|a, b| b.z.total_cmp(&a.z));
+    furthest.truncate(3);
+    html! {
+        div.card #skill { div.muted { "Skill against the experts" } div.big { (format!("{:+.1}", sk.z_mean)) }
+            div.muted { "Mean distance from the expert mean in expert spreads, over "
+                (count(sk.metrics.len(), "metric", "metrics")) " and " (count(sk.experts, "expert reference", "expert references"))
+                " when scored: 0 is the experts' level, + is worse. Beside the score, which passes or fails." }
+            @if !furthest.is_empty() {
+                div.muted { "Furthest above the experts: "
+                    @for (k, z) in furthest.iter().enumerate() {
+                        @if k > 0 { ", " }
+                        (metric_label(&z.metric).unwrap_or(&z.metric)) " " (format!("{:+.1}", z.z))
+                    }
+                }
+            }
+        }
     }
 }
 
@@ -739,6 +763,38 @@ mod tests {
     /// A stored score report (failed at expert level, one X-ray shot, replay verified).
     fn report() -> ScoreReport {
         serde_json::from_str(include_str!("../../../service/tests/data/report.json")).unwrap()
+    }
+
+    #[test]
+    fn the_skill_estimate_is_shown_beside_the_grade_in_words() {
+        let mut r = report();
+        let plain = grade_block(&r, &serde_json::json!({}), 1000, false).into_string();
+        assert!(!plain.contains("id=\"skill\""), "no estimate, no card");
+        r.skill = Some(stylet_scoring::benchmark::SkillEstimate {
+            experts: 4,
+            z_mean: 1.3,
+            metrics: vec![
+                stylet_scoring::benchmark::MetricZ {
+                    metric: "time_total_s".into(),
+                    z: 3.0,
+                },
+                stylet_scoring::benchmark::MetricZ {
+                    metric: "attempts".into(),
+                    z: -0.5,
+                },
+            ],
+        });
+        let html = grade_block(&r, &serde_json::json!({}), 1000, false).into_string();
+        assert!(html.contains("id=\"skill\"") && html.contains("+1.3"), "{html}");
+        assert!(
+            html.contains("2 metrics") && html.contains("4 expert references"),
+            "{html}"
+        );
+        assert!(
+            html.contains("total time +3.0") && !html.contains("attempts -0.5"),
+            "{html}"
+        );
+        assert!(!html.contains("time_total_s"), "no identifier in the page: {html}");
     }
 
     #[test]
