@@ -949,7 +949,7 @@ fn sessions_match_their_published_schemas() {
 
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let mut committed = vec![fixture("session-v1.mcap"), fixture("session-v2.mcap")];
-    for entry in std::fs::read_dir(root.join("tests/fixtures/physics-v10")).unwrap() {
+    for entry in std::fs::read_dir(root.join("tests/fixtures/physics-v11")).unwrap() {
         let p = entry.unwrap().path();
         if p.extension().is_some_and(|e| e == "mcap") {
             committed.push(p);

@@ -22,7 +22,7 @@ use crate::{LabelId, PunctureAtlas, SettingsError};
 
 /// Version of the physics: bump it with every change that alters any output bit, so a replay
 /// knows which physics graded a session.
-pub const PHYSICS_VERSION: u32 = 10;
+pub const PHYSICS_VERSION: u32 = 11;
 
 /// Default haptic rate.
 pub const DEFAULT_TICK_RATE_HZ: u32 = 1000;
