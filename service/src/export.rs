@@ -55,7 +55,7 @@ pub async fn export_csv(
 /// The header line; the columns are documented in docs/api.md.
 pub const SESSIONS_CSV_HEADER: &str = "session_id,trainee,cohorts,scenario,difficulty,status,recorded_at,uploaded_at,\
 duration_s,score,passed,overridden,attempts,risk_hits,replay_verified,rubric_version,physics_version,\
-exercise,target_reached,structures_hit,outcome,reasons";
+exercise,target_reached,structures_hit,outcome,reasons,skill_z";
 
 /// A field quoted when it holds a comma, quote or line break (RFC 4180). Text that a spreadsheet
 /// would run as a formula (`=`, `+`, `-`, `@`, tab or carriage return first) gets a leading
@@ -108,6 +108,7 @@ pub fn sessions_csv(rows: &[ExportRow]) -> String {
             r.outcome.outcome.map(|o| o.as_str().to_string()).unwrap_or_default(),
             // Reasons are sentences for people; " | " keeps them on one line.
             field(&r.outcome.reasons.join(" | ")),
+            opt(r.outcome.skill_z),
         ];
         out += &cells.join(",");
         out.push('\n');
@@ -128,6 +129,6 @@ mod tests {
         assert_eq!(field("\t=1+2"), "'\t=1+2");
         assert_eq!(field("\r=1+2"), "\"'\r=1+2\"");
         assert_eq!(field("-1,2"), "\"'-1,2\"");
-        assert_eq!(SESSIONS_CSV_HEADER.split(',').count(), 22);
+        assert_eq!(SESSIONS_CSV_HEADER.split(',').count(), 23);
     }
 }

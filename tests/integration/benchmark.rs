@@ -290,6 +290,35 @@ fn experts_mark_and_the_benchmark_grades(db: Db) {
     );
     assert!(page(&tina, &after).contains("id=\"skill\""));
     assert!(!page(&tina, &before).contains("id=\"skill\""));
+    // Curriculum staff find it in the sessions CSV (column `skill_z`, empty where there was
+    // none) and, averaged per trainee and level, in the cohort report.
+    let (status, csv, _) = call("GET", &format!("{b}/api/export/sessions.csv"), Some(&cora), None, false);
+    assert_eq!(status, 200);
+    let csv = csv.as_str().unwrap().to_string();
+    let head: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let col = head.iter().position(|h| *h == "skill_z").unwrap();
+    let cell = |id: &str| {
+        let line = csv.lines().find(|l| l.starts_with(id)).unwrap();
+        // The skill column is the last, after the quoted reasons: count from the end.
+        let from_end = head.len() - 1 - col;
+        line.rsplit(',').nth(from_end).unwrap().to_string()
+    };
+    let z = skill["z_mean"].as_f64().unwrap();
+    assert_eq!(cell(&after).parse::<f64>().unwrap(), z, "{csv}");
+    assert_eq!(cell(&before), "", "{csv}");
+    let (status, report, _) = call(
+        "GET",
+        &format!("{b}/reports/cohort?cohort=c1"),
+        Some(&cora),
+        None,
+        false,
+    );
+    assert_eq!(status, 200);
+    let report = report.as_str().unwrap();
+    assert!(
+        report.contains("Skill vs experts") && report.contains(&format!("{z:+.1}")),
+        "{report}"
+    );
     let rubric = stylet_scoring::Rubric::default_rubric();
     let level = rubric
         .level(stylet_scoring::Exercise::Puncture, stylet_scoring::Difficulty::Expert)

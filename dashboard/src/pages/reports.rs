@@ -90,6 +90,11 @@ impl CohortReport {
 }
 
 /// "48 %", or "–" when there is nothing to divide by.
+/// A mean skill estimate against the experts: signed, one decimal ("+1.3"); "–" without one.
+pub fn skill_text(z: Option<f64>) -> String {
+    z.map_or("–".into(), |z| format!("{z:+.1}"))
+}
+
 pub fn pct(a: i64, b: i64) -> String {
     if b > 0 {
         format!("{:.0} %", 100.0 * a as f64 / b as f64)
@@ -260,12 +265,13 @@ pub async fn cohort_report(
                 div.scroll { table #report-lines {
                     thead { tr {
                         th { "Trainee" } th { "Difficulty" } th.num { "Sessions" } th.num { "Passed / scored" }
-                        th.num { "Mean score" } th.num { "Best score" } th.num { "Mean attempts" } th.num { "Risk hits" } th { "First – last upload" }
+                        th.num { "Mean score" } th.num { "Best score" } th.num { "Mean attempts" } th.num { "Risk hits" } th.num title="Mean skill estimate against the scenario's experts: their spreads from the expert mean, 0 their level, + worse" { "Skill vs experts" } th { "First – last upload" }
                     } }
                     tbody { @for l in &r.lines { tr {
                         td { (l.trainee) } td { (l.difficulty) } td.num { (l.sessions) } td.num { (l.passed) " / " (l.scored) }
                         td.num { (score_text(l.mean_score)) } td.num { (score_text(l.best_score)) }
                         td.num { (l.mean_attempts.map_or("–".into(), |a| format!("{a:.1}"))) } td.num { (l.risk_hits) }
+                        td.num { (skill_text(l.mean_skill_z)) }
                         td { (l.first_upload.as_deref().map(short_time).unwrap_or_default()) " – " (l.last_upload.as_deref().map(short_time).unwrap_or_default()) }
                     } } }
                 } }
@@ -497,19 +503,22 @@ pub fn report_pdf(r: &CohortReport) -> Vec<u8> {
                 score_text(l.best_score),
                 l.mean_attempts.map_or("–".into(), |a| format!("{a:.1}")),
                 l.risk_hits.to_string(),
+                skill_text(l.mean_skill_z),
             ]
         })
         .collect();
     d.table(
         &[
-            c("Trainee", 95.0, false),
-            c("Difficulty", 60.0, false),
-            c("Sessions", 48.0, true),
-            c("Passed / scored", 78.0, true),
-            c("Mean score", 58.0, true),
-            c("Best score", 55.0, true),
-            c("Mean attempts", 70.0, true),
-            c("Risk hits", 47.0, true),
+            c("Trainee", 87.0, false),
+            c("Difficulty", 52.0, false),
+            c("Sessions", 44.0, true),
+            c("Passed / scored", 74.0, true),
+            c("Mean score", 55.0, true),
+            c("Best score", 50.0, true),
+            c("Mean attempts", 68.0, true),
+            c("Risk hits", 41.0, true),
+            // The mean skill estimate against the experts (docs/metrics.md "Skill estimate").
+            c("Skill (z)", 40.0, true),
         ],
         &rows,
     );

@@ -40,6 +40,8 @@ pub struct ReportLine {
     pub best_score: Option<f64>,
     pub mean_attempts: Option<f64>,
     pub risk_hits: i64,
+    /// Mean skill estimate against the experts over the scored sessions that have one.
+    pub mean_skill_z: Option<f64>,
     pub first_upload: Option<String>,
     pub last_upload: Option<String>,
 }
@@ -58,6 +60,7 @@ impl Store {
              MAX(CASE WHEN s.status = 'scored' THEN s.final_score END) AS best_score, \
              AVG(CAST(s.attempts AS DOUBLE PRECISION)) AS mean_attempts, \
              CAST(COALESCE(SUM(s.risk_hits), 0) AS BIGINT) AS risk_hits, \
+             AVG(CASE WHEN s.status = 'scored' THEN s.skill_z END) AS mean_skill_z, \
              MIN(s.uploaded_at) AS first_upload, MAX(s.uploaded_at) AS last_upload \
              FROM sessions s JOIN users u ON u.id = s.trainee_id \
              WHERE s.trainee_id IN (SELECT user_id FROM cohort_members WHERE cohort_id = $1){conds} \
@@ -77,6 +80,7 @@ impl Store {
                     best_score: r.try_get("best_score")?,
                     mean_attempts: r.try_get("mean_attempts")?,
                     risk_hits: r.try_get("risk_hits")?,
+                    mean_skill_z: r.try_get("mean_skill_z")?,
                     first_upload: r.try_get("first_upload")?,
                     last_upload: r.try_get("last_upload")?,
                 })

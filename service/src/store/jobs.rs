@@ -189,9 +189,11 @@ impl Store {
     /// The outcome columns of every session, by id (one query: the CSV export joins them to its
     /// lines).
     pub async fn outcome_columns(&self) -> Result<std::collections::BTreeMap<String, OutcomeColumns>, StoreError> {
-        let rows = sqlx::query("SELECT id, exercise, outcome, reasons, target_reached, risk_structures FROM sessions")
-            .fetch_all(&self.pool)
-            .await?;
+        let rows = sqlx::query(
+            "SELECT id, exercise, outcome, reasons, target_reached, risk_structures, skill_z FROM sessions",
+        )
+        .fetch_all(&self.pool)
+        .await?;
         let mut out = std::collections::BTreeMap::new();
         for r in rows {
             let structures: Option<String> = r.try_get("risk_structures")?;
@@ -207,6 +209,7 @@ impl Store {
                     risk_structures: structures
                         .map(|s| s.split(';').filter(|n| !n.is_empty()).map(str::to_string).collect())
                         .unwrap_or_default(),
+                    skill_z: r.try_get("skill_z")?,
                 },
             );
         }
@@ -241,6 +244,8 @@ pub struct Summary {
     pub target_reached: bool,
     /// Names of the risk structures hit.
     pub risk_structures: Vec<String>,
+    /// The skill estimate against the experts (mean spreads from their mean), when there was one.
+    pub skill_z: Option<f64>,
 }
 
 impl Summary {
@@ -257,6 +262,7 @@ impl Summary {
             reasons: r.reasons.clone(),
             target_reached: r.metrics.target_reached,
             risk_structures: r.metrics.risk_hits.iter().map(|h| h.structure.clone()).collect(),
+            skill_z: r.skill.as_ref().map(|s| s.z_mean),
         }
     }
 
@@ -290,6 +296,8 @@ pub struct OutcomeColumns {
     pub reasons: Vec<String>,
     pub target_reached: Option<bool>,
     pub risk_structures: Vec<String>,
+    /// The skill estimate against the experts (migration 0011).
+    pub skill_z: Option<f64>,
 }
 
 /// The reasons of a row's `reasons` column.
@@ -310,7 +318,7 @@ pub(super) async fn write_summary(
         "UPDATE sessions SET status = 'scored', attempts = $1, risk_hits = $2, replay_verified = $3, rubric_version = $4, \
          final_score = CASE WHEN overridden = 1 THEN final_score ELSE $5 END, \
          final_passed = CASE WHEN overridden = 1 THEN final_passed ELSE $6 END, \
-         exercise = $8, outcome = $9, reasons = $10, target_reached = $11, risk_structures = $12 WHERE id = $7",
+         exercise = $8, outcome = $9, reasons = $10, target_reached = $11, risk_structures = $12, skill_z = $13 WHERE id = $7",
     )
     .bind(s.attempts)
     .bind(s.risk_hits)
@@ -324,6 +332,7 @@ pub(super) async fn write_summary(
     .bind(join_reasons(&s.reasons))
     .bind(i64::from(s.target_reached))
     .bind(join_structures(&s.risk_structures))
+    .bind(s.skill_z)
     .execute(&mut **tx)
     .await?;
     Ok(())
