@@ -508,6 +508,10 @@ fn turn_the_overview(base: &str, id: &str, shots: &Path) {
             tokio::time::sleep(std::time::Duration::from_millis(300)).await;
             std::fs::write(shots.join(format!("review-{name}.png")), c.screenshot().await.unwrap()).unwrap();
         }
+        // The grade's cards with the skill estimate beside the score.
+        js(&c, "document.getElementById('grade').scrollIntoView()").await;
+        tokio::time::sleep(std::time::Duration::from_millis(300)).await;
+        std::fs::write(shots.join("review-grade.png"), c.screenshot().await.unwrap()).unwrap();
         c.close().await.unwrap();
     });
 }
