@@ -77,6 +77,12 @@ def samples(session):
 
 
 def needle_motion(session):
+    """The metrics of a session read by stylet_session.read_session."""
+    return needle_motion_of(samples(session), float(session.tick_rate_hz))
+
+
+def needle_motion_of(stream, rate):
+    """The metrics of a sample stream (see samples()) at `rate` ticks per second."""
     m = dict(
         path_length_mm=0.0,
         path_in_tissue_mm=0.0,
@@ -91,8 +97,7 @@ def needle_motion(session):
     history = []  # newest first: (tick, p)
     prev = None
     action = None  # (moving, time of the last sample agreeing with it), in tissue only
-    rate = float(session.tick_rate_hz)
-    for s in samples(session):
+    for s in stream:
         if s is None:
             prev, history, action = None, [], None
             continue
