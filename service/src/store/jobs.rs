@@ -318,7 +318,7 @@ pub(super) async fn write_summary(
         "UPDATE sessions SET status = 'scored', attempts = $1, risk_hits = $2, replay_verified = $3, rubric_version = $4, \
          final_score = CASE WHEN overridden = 1 THEN final_score ELSE $5 END, \
          final_passed = CASE WHEN overridden = 1 THEN final_passed ELSE $6 END, \
-         exercise = $8, outcome = $9, reasons = $10, target_reached = $11, risk_structures = $12, skill_z = $13 WHERE id = $7",
+         exercise = $8, outcome = $9, reasons = $10, target_reached = $11, risk_structures = $12 WHERE id = $7",
     )
     .bind(s.attempts)
     .bind(s.risk_hits)
@@ -332,9 +332,27 @@ pub(super) async fn write_summary(
     .bind(join_reasons(&s.reasons))
     .bind(i64::from(s.target_reached))
     .bind(join_structures(&s.risk_structures))
-    .bind(s.skill_z)
     .execute(&mut **tx)
     .await?;
+    // The skill estimate in a statement of its own, NULL written as a literal: through sqlx's
+    // `Any` driver PostgreSQL refuses a number for a parameter its connection first saw as NULL
+    // ("incorrect binary data format in bind parameter"), and a score that cannot be stored
+    // leaves its session scoring.
+    match s.skill_z {
+        Some(z) => {
+            sqlx::query("UPDATE sessions SET skill_z = $1 WHERE id = $2")
+                .bind(z)
+                .bind(session_id.to_string())
+                .execute(&mut **tx)
+                .await?
+        }
+        None => {
+            sqlx::query("UPDATE sessions SET skill_z = NULL WHERE id = $1")
+                .bind(session_id.to_string())
+                .execute(&mut **tx)
+                .await?
+        }
+    };
     Ok(())
 }
 
@@ -342,6 +360,64 @@ pub(super) async fn write_summary(
 mod tests {
     use super::super::{NewSession, SessionStatus, new_id};
     use super::*;
+
+    /// Sessions scored with and without a skill estimate, in turns, and comments with and without
+    /// a moment, in turns, all stored (PostgreSQL refused a bound number after a bound NULL).
+    async fn numbers_after_nulls_are_stored(store: Store) {
+        store.register_atlas("atlas-hash", "phantom", "/nowhere").await.unwrap();
+        let trainee = store
+            .add_user("tina", "trainee", "tina-password", None, None)
+            .await
+            .unwrap();
+        let author = store.user_by_name("tina").await.unwrap().unwrap();
+        let report: stylet_scoring::ScoreReport =
+            serde_json::from_str(include_str!("../../tests/data/report.json")).unwrap();
+        for (k, skill) in [None, Some(1.25), None, Some(-0.5)].into_iter().enumerate() {
+            let session_id = store
+                .insert_session(&NewSession {
+                    file_sha256: format!("{k}").repeat(64),
+                    size_bytes: 10,
+                    session_uuid: new_id(),
+                    trainee_id: trainee.clone(),
+                    uploaded_by: trainee.clone(),
+                    scenario: "success".into(),
+                    difficulty: "beginner".into(),
+                    atlas_hash: "atlas-hash".into(),
+                    physics_version: 2,
+                    duration_s: 1.0,
+                    recorded_at: now(),
+                })
+                .await
+                .unwrap();
+            let job = store.claim_job().await.unwrap().expect("the queued job");
+            let mut r = report.clone();
+            r.session_id = session_id.clone();
+            r.skill = skill.map(|z| stylet_scoring::benchmark::SkillEstimate {
+                experts: 3,
+                z_mean: z,
+                metrics: Vec::new(),
+            });
+            store.finish_job(&job, &r).await.unwrap();
+            assert_eq!(store.outcome_columns().await.unwrap()[&session_id].skill_z, skill);
+            store
+                .add_comment(&session_id, &author, "look here", skill.map(|z| z.abs()))
+                .await
+                .unwrap();
+        }
+    }
+
+    #[tokio::test]
+    async fn numbers_after_nulls_are_stored_sqlite() {
+        let dir = tempfile::tempdir().unwrap();
+        let url = format!("sqlite://{}?mode=rwc", dir.path().join("t.db").display());
+        numbers_after_nulls_are_stored(Store::open(&url).await.unwrap()).await;
+    }
+
+    #[tokio::test]
+    async fn numbers_after_nulls_are_stored_postgres() {
+        let url = super::super::fresh_postgres_database("nulls").await;
+        numbers_after_nulls_are_stored(Store::open(&url).await.unwrap()).await;
+    }
 
     #[tokio::test]
     async fn a_late_failure_never_overwrites_a_score() {

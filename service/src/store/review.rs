@@ -113,17 +113,27 @@ impl Store {
         at_s: Option<f64>,
     ) -> Result<String, StoreError> {
         let id = new_id();
-        sqlx::query(
-            "INSERT INTO comments (id, session_id, author_id, body, created_at, at_s) VALUES ($1, $2, $3, $4, $5, $6)",
-        )
-        .bind(id.clone())
-        .bind(session_id.to_string())
-        .bind(author.id.clone())
-        .bind(body.to_string())
-        .bind(now())
-        .bind(at_s)
-        .execute(&self.pool)
-        .await?;
+        // No bound `Option<f64>`: through sqlx's `Any` driver PostgreSQL refuses a number for a
+        // parameter its connection first saw as NULL ("incorrect binary data format"), so a
+        // comment without a moment would break the next comments with one. NULL is a literal.
+        let insert = match at_s {
+            Some(_) => {
+                "INSERT INTO comments (id, session_id, author_id, body, created_at, at_s) VALUES ($1, $2, $3, $4, $5, $6)"
+            }
+            None => {
+                "INSERT INTO comments (id, session_id, author_id, body, created_at, at_s) VALUES ($1, $2, $3, $4, $5, NULL)"
+            }
+        };
+        let mut query = sqlx::query(insert)
+            .bind(id.clone())
+            .bind(session_id.to_string())
+            .bind(author.id.clone())
+            .bind(body.to_string())
+            .bind(now());
+        if let Some(at_s) = at_s {
+            query = query.bind(at_s);
+        }
+        query.execute(&self.pool).await?;
         Ok(id)
     }
 
