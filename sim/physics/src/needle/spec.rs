@@ -148,7 +148,8 @@ mod tests {
     /// every needle with its stylet lies above the tube and below 1.15 rods.
     #[test]
     fn rigidities_are_those_of_steel_needles() {
-        let steel = |d: f64, inner: f64| 200_000.0 * std::f64::consts::PI * (d.powi(4) - inner.powi(4)) / 64.0;
+        let steel =
+            |d: f64, inner: f64| 200_000.0 * std::f64::consts::PI * (libm::pow(d, 4.0) - libm::pow(inner, 4.0)) / 64.0;
         for (g, inner_mm) in [
             (Gauge::G16, 1.194),
             (Gauge::G18, 0.838),
