@@ -20,7 +20,7 @@ import json
 import math
 import sys
 
-from stylet_session import read_session, tool_in_hand
+from stylet_session import SessionFormatError, read_session, tool_in_hand
 
 ROTATION_SPEED_DEG_PER_S = 50.0
 ACTION_MIN_S = 0.2
@@ -155,7 +155,12 @@ def main(argv=None):
     if len(argv) != 1:
         print("usage: needle_motion.py SESSION.mcap", file=sys.stderr)
         return 2
-    print(json.dumps(needle_motion(read_session(argv[0])), indent=2))
+    try:
+        session = read_session(argv[0])
+    except (SessionFormatError, OSError) as e:
+        print(f"needle_motion.py: {e}", file=sys.stderr)
+        return 1
+    print(json.dumps(needle_motion(session), indent=2))
     return 0
 
 

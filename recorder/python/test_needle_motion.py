@@ -4,7 +4,12 @@
 import math
 import unittest
 
-from needle_motion import _rotation_deg, needle_motion_of
+import contextlib
+import io
+import os
+import tempfile
+
+from needle_motion import _rotation_deg, main, needle_motion_of
 
 RATE = 1000.0
 IDENTITY = (1.0, 0.0, 0.0, 0.0)
@@ -59,6 +64,22 @@ class HandComputed(unittest.TestCase):
         self.assertAlmostEqual(_rotation_deg(about_x(0.3), about_x(0.3 + 1e-7)), math.degrees(1e-7), places=15)
         q = about_x(0.3)
         self.assertAlmostEqual(_rotation_deg(q, tuple(-c for c in q)), 0.0, places=12)
+
+
+class BadInput(unittest.TestCase):
+    def test_a_file_that_is_not_a_session_is_named_and_refused(self):
+        with tempfile.TemporaryDirectory() as d:
+            path = os.path.join(d, "garbage.mcap")
+            with open(path, "wb") as f:
+                f.write(b"not a session at all")
+            err = io.StringIO()
+            with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()) as out:
+                self.assertEqual(main([path]), 1)
+            self.assertIn("garbage.mcap", err.getvalue())
+            self.assertEqual(out.getvalue(), "")
+            err = io.StringIO()
+            with contextlib.redirect_stderr(err):
+                self.assertEqual(main([os.path.join(d, "missing.mcap")]), 1)
 
 
 if __name__ == "__main__":
