@@ -145,10 +145,13 @@ fn import_real_ct_and_dicom() {
         "--out",
         out.to_str().unwrap(),
     ]);
+    // The right 10th–11th space asked for is about 30 mm wide in this patient: no line passes
+    // within 10 mm of both ribs, so the importer says so and takes the best-ranked window.
     assert!(
         text.contains(
-            "intercostal window: right 10th–11th intercostal space (rib_right_10 (113) / rib_right_11 (114))"
-        ),
+            "NO straight path through the right 10th–11th intercostal space (rib_right_10 (113) / rib_right_11 (114)) \
+             asked for, within 10 mm of both ribs"
+        ) && text.contains("windows ranked by clinical score"),
         "{text}"
     );
     let json: serde_json::Value =
@@ -184,13 +187,15 @@ fn import_real_ct_and_dicom() {
     assert!(
         text.contains("atlas 'new-patient' written")
             && text.contains("liver (5)")
-            && text.contains("right 10th–11th intercostal space"),
+            && text.contains("- intercostal window: "),
         "{text}"
     );
     // The generated scripts, run through physics, recorder and scorer on creation.
     assert!(
         text.contains("smoke test scripts/success.txt: ok")
-            && text.contains("smoke test scripts/risk-portal-vein.txt: ok — hits the portal vein first"),
+            && text.contains("smoke test scripts/risk-")
+            && text.contains(": ok — hits the ")
+            && !text.contains("FAILED"),
         "{text}"
     );
     assert!(new.join("scripts/success.txt").is_file());

@@ -361,7 +361,7 @@ fn chest_recipe_imports_and_validates() {
     let w = report.window.as_ref().expect("a window search");
     assert!(w.requested_found, "{}", report.to_text());
     // The requested window first (it guides beginners), then the other spaces with a window by
-    // clearance.
+    // clinical score.
     assert_eq!(p.atlas.manifest.paths.len(), w.ranked.len());
     assert!(!w.ranked.is_empty());
     // The window and every unmapped structure by name, from the data's structures.csv:

@@ -228,50 +228,78 @@ fn paths(h: &mut String, input: &ReportInput) {
     let classes = &import.classes;
     match &import.window {
         Some(w) => {
-            *h += "<p>Every pair of neighbouring right ribs was searched for a straight line from the skin to \
-                   the target that crosses no bone and no risk structure; each pair's best line is listed, \
-                   ranked by its clearance (the nearer of bone and risk structures). Beginners are guided \
-                   along the chosen one.</p>\
-                   <table><tr><th>rank</th><th>intercostal window</th><th>ribs</th><th>entry (mm)</th>\
-                   <th>target (mm)</th><th>length</th><th>clear of bone</th><th>clear of risk</th><th>chosen</th></tr>";
+            let _ = write!(
+                h,
+                "<p>Straight lines from the target to the skin that cross no bone and no risk structure, \
+                 each named by the ribs (or costal cartilage) nearest above and below it where it crosses the \
+                 chest wall, both within {near:.0} mm of it. Each space's best line is listed, ranked by \
+                 clinical score: windows whose wall segment comes within {recess:.0} mm of the lung pass \
+                 through the pleural recess (marked transpleural) and rank last; then by penalty points — \
+                 a point per mm closer than {vessel:.0} mm to a vessel or organ at risk, per mm closer than \
+                 {bone:.0} mm to bone, per {len:.0} mm of length, per {tilt:.0}° out of the axial plane and per \
+                 {tilt:.0}° the approach turns more than {free:.0}° from the side (the mid-axillary line). \
+                 Beginners are guided along the chosen one.</p>\
+                 <table><tr><th>rank</th><th>intercostal window</th><th>bounds (distance to the path at the wall)</th>\
+                 <th>entry (mm)</th><th>length</th><th>tilt</th><th>from the side</th><th>clear of vessels</th><th>clear of bone</th>\
+                 <th>lung at the wall</th><th>pleura</th><th>penalty</th><th>chosen</th></tr>",
+                near = window::BOUND_NEAR_MM,
+                recess = window::PLEURAL_RECESS_MM,
+                vessel = window::VESSEL_MARGIN_MM,
+                bone = window::BONE_MARGIN_MM,
+                len = window::LENGTH_MM_PER_POINT,
+                tilt = window::TILT_DEG_PER_POINT,
+                free = window::LATERAL_FREE_DEG,
+            );
             for (rank, f) in w.ranked.iter().enumerate() {
                 let chosen = w
                     .found
                     .as_ref()
-                    .is_some_and(|c| (c.upper_rib, c.lower_rib) == (f.upper_rib, f.lower_rib));
-                let why = match (chosen, w.requested_found) {
+                    .is_some_and(|c| (c.upper, c.lower) == (f.upper, f.lower));
+                let why = match (chosen, w.choice()) {
                     (false, _) => "",
-                    (true, true) => "yes (the space asked for)",
-                    (true, false) => "yes (best ranked)",
+                    (true, window::Choice::Requested) => "yes (the space asked for)",
+                    (true, _) => "yes (best ranked)",
                 };
+                let lung = if f.lung_clearance_mm.is_finite() {
+                    format!("{:.0} mm", f.lung_clearance_mm)
+                } else {
+                    "no lung".into()
+                };
+                let lateral = f.lateral_deg.map(|a| format!("{a:.0}°")).unwrap_or_else(|| "–".into());
                 let _ = write!(
                     h,
-                    "<tr><td class=\"n\">{}</td><td>{}</td><td>{} / {}</td><td>({:.1}, {:.1}, {:.1})</td>\
-                     <td>({:.1}, {:.1}, {:.1})</td><td class=\"n\">{:.0} mm</td><td class=\"n\">{:.1} mm</td>\
-                     <td class=\"n\">{:.1} mm</td><td>{why}</td></tr>",
+                    "<tr><td class=\"n\">{}</td><td>{}</td><td>{} ({:.1} mm) / {} ({:.1} mm)</td>\
+                     <td>({:.1}, {:.1}, {:.1})</td><td class=\"n\">{:.0} mm</td><td class=\"n\">{:.0}°</td>\
+                     <td class=\"n\">{lateral}</td>\
+                     <td class=\"n\">{:.1} mm</td><td class=\"n\">{:.1} mm</td><td class=\"n\">{lung}</td>\
+                     <td>{}</td><td class=\"n\">{:.1}</td><td>{why}</td></tr>",
                     rank + 1,
-                    escape(&window::space_name(classes, f.upper_rib, f.lower_rib)),
-                    escape(&classes.describe(f.upper_rib)),
-                    escape(&classes.describe(f.lower_rib)),
+                    escape(&window::space_name(classes, f.upper, f.lower)),
+                    escape(&classes.describe(f.upper)),
+                    f.upper_distance_mm,
+                    escape(&classes.describe(f.lower)),
+                    f.lower_distance_mm,
                     f.entry_mm.x,
                     f.entry_mm.y,
                     f.entry_mm.z,
-                    f.target_mm.x,
-                    f.target_mm.y,
-                    f.target_mm.z,
                     f.length_mm,
+                    f.tilt_deg,
+                    f.vessel_clearance_mm,
                     f.bone_clearance_mm,
-                    f.risk_clearance_mm,
+                    if f.transpleural() { "transpleural" } else { "clear" },
+                    f.penalty(),
                 );
             }
             if !w.requested_found {
                 let _ = write!(
                     h,
-                    "<tr><td></td><td>{}</td><td>{} / {}</td><td colspan=\"6\">asked for, but no straight line \
-                     from the skin reaches the target clear of bone and risk structures</td></tr>",
+                    "<tr><td></td><td>{}</td><td>{} / {}</td><td colspan=\"10\">asked for, but no straight line \
+                     from the skin between these ribs, within {:.0} mm of both, reaches the target clear of bone and \
+                     risk structures</td></tr>",
                     escape(&window::space_name(classes, w.requested.0, w.requested.1)),
                     escape(&classes.describe(w.requested.0)),
-                    escape(&classes.describe(w.requested.1))
+                    escape(&classes.describe(w.requested.1)),
+                    window::BOUND_NEAR_MM
                 );
             }
             *h += "</table>";

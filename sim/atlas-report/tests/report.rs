@@ -79,11 +79,38 @@ fn the_abdominal_scenario_gets_a_whole_report() {
         assert!(html.contains(&format!("src=\"{name}\"")), "{name} not on the page");
     }
     assert_eq!(files.images.len(), 3);
-    assert!(
-        html.contains("right 10th–11th intercostal space"),
-        "window not named by its ribs"
-    );
-    assert!(html.contains("rib_right_10 (113) / rib_right_11 (114)"));
+    // The windows ranked by clinical score, each named by its bounds with their distances, the
+    // space asked for (no line within 10 mm of both its ribs here) said missing.
+    let w = import.window.as_ref().unwrap();
+    assert!(html.contains("ranked by clinical score"), "no ranking explained");
+    for (k, f) in w.ranked.iter().enumerate() {
+        let row = format!(
+            "<tr><td class=\"n\">{}</td><td>{}</td><td>{} ({:.1} mm) / {} ({:.1} mm)</td>",
+            k + 1,
+            stylet_atlas::import::window::space_name(&import.classes, f.upper, f.lower),
+            import
+                .classes
+                .describe(f.upper)
+                .replace('<', "&lt;")
+                .replace('>', "&gt;"),
+            f.upper_distance_mm,
+            import
+                .classes
+                .describe(f.lower)
+                .replace('<', "&lt;")
+                .replace('>', "&gt;"),
+            f.lower_distance_mm
+        );
+        assert!(html.contains(&row), "window {} missing: {row}", k + 1);
+        assert!(
+            html.contains(&format!("{:.1}</td>", f.penalty())),
+            "penalty of window {}",
+            k + 1
+        );
+    }
+    assert!(html.matches("transpleural").count() > w.ranked.iter().filter(|f| f.transpleural()).count());
+    assert!(html.contains("right 10th–11th intercostal space</td><td>rib_right_10 (113) / rib_right_11 (114)</td>"));
+    assert!(html.contains("within 10 mm of both"));
     // Every structure of the atlas in the legend with a swatch.
     for l in made.atlas.model.label_table().labels() {
         assert!(

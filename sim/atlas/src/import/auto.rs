@@ -256,7 +256,6 @@ pub fn ptcd_recipe(
     .map(|(upper_rib, lower_rib)| Window {
         upper_rib,
         lower_rib,
-        rib_sequence: right_ribs.iter().map(|(_, id)| *id).collect(),
         bone_labels: bone_labels.clone(),
         adapt_presets: true,
     });
@@ -344,7 +343,6 @@ mod tests {
         let r = ptcd_recipe("p", &ts, &present, origin, None).unwrap();
         let w = r.recipe.window.as_ref().unwrap();
         assert_eq!((w.upper_rib, w.lower_rib), (113, 114));
-        assert_eq!(w.rib_sequence, vec![110, 111, 112, 113, 114, 115]);
         assert_eq!(w.bone_labels, vec![30, 110, 111, 112, 113, 114, 115]);
         assert_eq!(r.recipe.biliary.as_ref().unwrap().hilum_from, vec![64]);
         // Without ribs 10/11: the lowest neighbours present; without ribs: no window.

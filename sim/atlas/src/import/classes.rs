@@ -365,6 +365,12 @@ impl ClassTable {
         self.name(id).and_then(Rib::parse)
     }
 
+    /// Whether class `id` is the costal cartilage (TotalSegmentator's "costal_cartilages": one
+    /// class for the cartilage of every rib).
+    pub fn is_costal_cartilage(&self, id: LabelId) -> bool {
+        self.name(id) == Some("costal_cartilages")
+    }
+
     /// Number of classes.
     pub fn len(&self) -> usize {
         self.names.len()

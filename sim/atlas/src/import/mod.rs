@@ -84,72 +84,7 @@ impl ImportReport {
             );
         }
         if let Some(w) = &self.window {
-            let c = &self.classes;
-            match (&w.found, w.requested_found) {
-                (Some(f), true) => {
-                    out += &format!(
-                        "- intercostal window: {} ({} / {}): entry ({:.1}, {:.1}, {:.1}) mm → target \
-                         ({:.1}, {:.1}, {:.1}) mm, {:.0} mm long, {:.1} mm clear of bone, {:.1} mm of risk structures\n",
-                        window::space_name(c, f.upper_rib, f.lower_rib),
-                        c.describe(f.upper_rib),
-                        c.describe(f.lower_rib),
-                        f.entry_mm.x,
-                        f.entry_mm.y,
-                        f.entry_mm.z,
-                        f.target_mm.x,
-                        f.target_mm.y,
-                        f.target_mm.z,
-                        f.length_mm,
-                        f.bone_clearance_mm,
-                        f.risk_clearance_mm
-                    )
-                }
-                (Some(f), false) => {
-                    out += &format!(
-                        "- NO straight path through the {} ({} / {}) reaches the target without bone or risk; \
-                         best window found: {} ({} / {}), entry ({:.1}, {:.1}, {:.1}) mm, {:.0} mm long, {:.1} mm clear of bone\n",
-                        window::space_name(c, w.requested.0, w.requested.1),
-                        c.describe(w.requested.0),
-                        c.describe(w.requested.1),
-                        window::space_name(c, f.upper_rib, f.lower_rib),
-                        c.describe(f.upper_rib),
-                        c.describe(f.lower_rib),
-                        f.entry_mm.x,
-                        f.entry_mm.y,
-                        f.entry_mm.z,
-                        f.length_mm,
-                        f.bone_clearance_mm
-                    )
-                }
-                (None, _) => {
-                    out += &format!(
-                        "- NO intercostal window found: no straight path from the skin between any listed rib pair \
-                         (requested: the {}, {} / {}) reaches the target without crossing bone or a risk structure\n",
-                        window::space_name(c, w.requested.0, w.requested.1),
-                        c.describe(w.requested.0),
-                        c.describe(w.requested.1)
-                    )
-                }
-            }
-        }
-        if let Some(w) = &self.window
-            && w.ranked.len() > 1
-        {
-            let list: Vec<String> = w
-                .ranked
-                .iter()
-                .map(|f| {
-                    format!(
-                        "{} {:.1} mm",
-                        window::space_name(&self.classes, f.upper_rib, f.lower_rib),
-                        f.clearance_mm()
-                    )
-                })
-                .collect();
-            out += &format!(
-                "- windows ranked by clearance from bone and risk structures: {}\n",
-                list.join(", ")
-            );
+            out += &window_text(w, &self.classes);
         }
         if let Some(p) = &self.presets {
             for (level, note) in p.lines() {
@@ -161,6 +96,79 @@ impl ImportReport {
         }
         out
     }
+}
+
+/// The window search in words: the chosen window and why, then every window in rank order.
+fn window_text(w: &WindowReport, c: &ClassTable) -> String {
+    use window::Choice;
+    let mut out = String::new();
+    let asked = format!(
+        "{} ({} / {})",
+        window::space_name(c, w.requested.0, w.requested.1),
+        c.describe(w.requested.0),
+        c.describe(w.requested.1)
+    );
+    match (&w.found, w.choice()) {
+        (Some(f), choice) => {
+            let why = match choice {
+                Choice::Requested => String::new(),
+                Choice::RequestedTranspleural => format!(
+                    " — the {asked} asked for passes through the pleural recess, so the best-ranked window instead"
+                ),
+                Choice::RequestedMissing | Choice::None => format!(
+                    " — NO straight path through the {asked} asked for, within {:.0} mm of both ribs, reaches \
+                     the target without bone or risk, so the best-ranked window instead",
+                    window::BOUND_NEAR_MM
+                ),
+            };
+            out += &format!(
+                "- intercostal window: {} ({} / {}){why}: entry ({:.1}, {:.1}, {:.1}) mm → target \
+                 ({:.1}, {:.1}, {:.1}) mm, {:.0} mm long, {:.1} mm clear of bone, {:.1} mm of vessels, \
+                 {:.0} mm from the lung at the wall\n",
+                window::space_name(c, f.upper, f.lower),
+                c.describe(f.upper),
+                c.describe(f.lower),
+                f.entry_mm.x,
+                f.entry_mm.y,
+                f.entry_mm.z,
+                f.target_mm.x,
+                f.target_mm.y,
+                f.target_mm.z,
+                f.length_mm,
+                f.bone_clearance_mm,
+                f.vessel_clearance_mm,
+                f.lung_clearance_mm
+            );
+        }
+        (None, _) => {
+            out += &format!(
+                "- NO intercostal window found: no straight path from the skin between two ribs \
+                 (requested: the {asked}) reaches the target without crossing bone or a risk structure\n"
+            );
+        }
+    }
+    if !w.ranked.is_empty() {
+        let list: Vec<String> = w
+            .ranked
+            .iter()
+            .enumerate()
+            .map(|(k, f)| {
+                format!(
+                    "{}. {} {:.1}{}",
+                    k + 1,
+                    window::space_name(c, f.upper, f.lower),
+                    f.penalty(),
+                    if f.transpleural() { " (transpleural)" } else { "" }
+                )
+            })
+            .collect();
+        out += &format!(
+            "- windows ranked by clinical score (clear of the pleura first, then penalty points for vessels and \
+             bone nearby, length and tilt): {}\n",
+            list.join(", ")
+        );
+    }
+    out
 }
 
 /// Places a label map into the CT's grid: by index with the recipe's offset, or by identical
@@ -407,9 +415,8 @@ pub fn build(
                 Ok(window::find_window(
                     &atlas,
                     &source,
-                    w.upper_rib,
-                    w.lower_rib,
-                    &w.rib_sequence,
+                    &classes,
+                    (w.upper_rib, w.lower_rib),
                     &w.bone_labels,
                 ))
             })?;

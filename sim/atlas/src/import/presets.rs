@@ -2,8 +2,9 @@
 //! §6.3: the level changes the visual aids) are the starting point; the patient's ranked
 //! intercostal windows adapt them:
 //!
-//! - **beginner**: guided along the window asked for (the standard space) when it leaves at least
-//!   [`BEGINNER_CLEARANCE_MM`] to bone and risk structures, else along the widest window;
+//! - **beginner**: guided along the chosen window (the space asked for, else the best ranked:
+//!   [`WindowReport::found`]) when it leaves at least [`BEGINNER_CLEARANCE_MM`] to bone and risk
+//!   structures, else along the widest window;
 //! - **advanced**: unguided; when even the widest window leaves less than
 //!   [`BEGINNER_CLEARANCE_MM`] (tight anatomy), the risk structures stay highlighted;
 //! - **expert**: unguided, the scenario's aids (none in PTCD).
@@ -11,7 +12,7 @@
 //! Each level gets a sentence for the report and the import notes.
 
 use super::classes::ClassTable;
-use super::window::{WindowFound, WindowReport, space_name, window_path};
+use super::window::{Choice, WindowFound, WindowReport, space_name, window_path};
 use crate::manifest::{DifficultyPreset, DifficultyPresets};
 
 /// Clearance (mm, the nearer of bone and risk structures) a beginner's guided window must leave;
@@ -59,26 +60,37 @@ fn aids(p: &DifficultyPreset) -> String {
 /// they are.
 pub fn adapt(presets: &mut DifficultyPresets, report: &WindowReport, classes: &ClassTable) -> Option<PresetNotes> {
     let chosen = report.found.as_ref()?;
-    let widest = report.ranked.first().unwrap_or(chosen);
+    let widest = report
+        .ranked
+        .iter()
+        .max_by(|a, b| a.clearance_mm().total_cmp(&b.clearance_mm()))
+        .unwrap_or(chosen);
     let describe = |w: &WindowFound| {
         format!(
             "{} ({:.1} mm clear)",
-            space_name(classes, w.upper_rib, w.lower_rib),
+            space_name(classes, w.upper, w.lower),
             w.clearance_mm()
         )
     };
-    let (guide, why) = if !report.requested_found {
-        (
-            widest,
-            "the space asked for has no window, so the widest one found".to_string(),
-        )
-    } else if chosen.clearance_mm() >= BEGINNER_CLEARANCE_MM {
-        (chosen, "the standard space leaves enough room".to_string())
+    let (guide, why) = if chosen.clearance_mm() >= BEGINNER_CLEARANCE_MM {
+        let why = match report.choice() {
+            Choice::Requested => "the standard space leaves enough room",
+            Choice::RequestedTranspleural => {
+                "the space asked for passes through the pleural recess, so the best-ranked window"
+            }
+            Choice::RequestedMissing | Choice::None => "the space asked for has no window, so the best-ranked one",
+        };
+        (chosen, why.to_string())
     } else {
         (
             widest,
             format!(
-                "the space asked for leaves only {:.1} mm, less than {BEGINNER_CLEARANCE_MM} mm",
+                "the {} leaves only {:.1} mm, less than {BEGINNER_CLEARANCE_MM} mm, so the widest window",
+                if report.choice() == Choice::Requested {
+                    "space asked for"
+                } else {
+                    "best-ranked window"
+                },
                 chosen.clearance_mm()
             ),
         )
@@ -120,13 +132,19 @@ mod tests {
 
     fn window(upper: u16, clearance_mm: f64, x: f64) -> WindowFound {
         WindowFound {
-            upper_rib: upper,
-            lower_rib: upper + 1,
+            upper,
+            lower: upper + 1,
+            upper_distance_mm: 5.0,
+            lower_distance_mm: 5.0,
+            wall_mm: DVec3::new(x - 20.0, 0.0, 0.0),
             entry_mm: DVec3::new(x, 0.0, 0.0),
             target_mm: DVec3::ZERO,
             length_mm: x,
             bone_clearance_mm: clearance_mm,
-            risk_clearance_mm: 20.0,
+            vessel_clearance_mm: 20.0,
+            lung_clearance_mm: 50.0,
+            tilt_deg: 0.0,
+            lateral_deg: Some(0.0),
         }
     }
 

