@@ -740,3 +740,108 @@ fn fibonacci(n: usize, count: usize) -> DVec3 {
     let phi = golden * n as f64;
     DVec3::new(r * libm::cos(phi), r * libm::sin(phi), z)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn window(upper: LabelId, lower: LabelId) -> WindowFound {
+        WindowFound {
+            upper,
+            lower,
+            upper_distance_mm: 5.0,
+            lower_distance_mm: 5.0,
+            wall_mm: DVec3::ZERO,
+            entry_mm: DVec3::new(100.0, 0.0, 0.0),
+            target_mm: DVec3::ZERO,
+            length_mm: 100.0,
+            bone_clearance_mm: 8.0,
+            vessel_clearance_mm: 15.0,
+            lung_clearance_mm: 45.0,
+            tilt_deg: 0.0,
+            lateral_deg: Some(0.0),
+        }
+    }
+
+    /// The penalty by hand: 100 mm horizontal from the side, clear of vessels and bone: 10
+    /// points; then each term on its own.
+    #[test]
+    fn the_penalty_adds_its_terms_as_documented() {
+        let w = window(113, 114);
+        assert_eq!(w.penalty(), 10.0);
+        let with = |f: &dyn Fn(&mut WindowFound)| {
+            let mut w = window(113, 114);
+            f(&mut w);
+            w.penalty()
+        };
+        assert_eq!(with(&|w| w.vessel_clearance_mm = 7.0), 13.0);
+        assert_eq!(with(&|w| w.bone_clearance_mm = 2.0), 13.0);
+        assert_eq!(with(&|w| w.length_mm = 150.0), 15.0);
+        assert_eq!(with(&|w| w.tilt_deg = 20.0), 14.0);
+        assert_eq!(
+            with(&|w| w.lateral_deg = Some(40.0)),
+            10.0,
+            "the anterior axillary line is free"
+        );
+        assert_eq!(
+            with(&|w| w.lateral_deg = Some(90.0)),
+            19.0,
+            "straight in front: 9 points"
+        );
+        assert_eq!(with(&|w| w.lateral_deg = None), 10.0);
+    }
+
+    /// Clear of the pleura beats any penalty; the mark sits at 30 mm from the lung.
+    #[test]
+    fn transpleural_windows_rank_after_every_clear_one() {
+        let mut near_lung = window(111, 112);
+        near_lung.lung_clearance_mm = 29.9;
+        let mut long = window(113, 114);
+        long.length_mm = 250.0;
+        long.lung_clearance_mm = PLEURAL_RECESS_MM;
+        assert!(near_lung.transpleural() && !long.transpleural());
+        assert!(long.penalty() > near_lung.penalty());
+        assert_eq!(long.better_than(&near_lung), std::cmp::Ordering::Less);
+    }
+
+    #[test]
+    fn windows_are_named_by_their_ribs_or_the_cartilage() {
+        let ts = ClassTable::totalsegmentator();
+        let cartilage = ts.id_of("costal_cartilages").unwrap();
+        let name = |u, l| (path_name(&ts, u, l), space_name(&ts, u, l));
+        assert_eq!(
+            name(113, 114),
+            (
+                "intercostal-right-10-11".into(),
+                "right 10th–11th intercostal space".into()
+            )
+        );
+        assert_eq!(
+            name(110, cartilage),
+            (
+                "intercostal-right-7-cartilage".into(),
+                "right intercostal space below the 7th rib, above costal cartilage".into()
+            )
+        );
+        assert_eq!(
+            name(cartilage, 111),
+            (
+                "intercostal-cartilage-right-8".into(),
+                "right intercostal space above the 8th rib, below costal cartilage".into()
+            )
+        );
+        assert_eq!(
+            name(cartilage, cartilage),
+            (
+                "intercostal-cartilage".into(),
+                "anterior intercostal space between costal cartilages".into()
+            )
+        );
+        assert_eq!(name(5, 113).0, "intercostal-5-113");
+        assert!(
+            name(5, 113)
+                .1
+                .starts_with("space between liver (5) and rib_right_10 (113)")
+        );
+    }
+}
