@@ -7,6 +7,7 @@ macro_rules! sayf {
 
 mod atlas;
 mod demo;
+mod device;
 mod render;
 mod score;
 mod script;
@@ -52,6 +53,11 @@ enum Command {
     Sim(sim::SimArgs),
     /// Run the demo on the embedded default: build the phantom atlas and print its summary.
     Demo(demo::DemoArgs),
+    /// List the force-feedback devices' libraries this machine has, and why not (docs/devices.md).
+    Devices,
+    /// Check a force-feedback device headless (docs/devices.md "Haptic devices").
+    #[command(subcommand)]
+    Device(device::DeviceCommand),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -65,6 +71,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Render(args) => render::run(args),
         Command::Sim(args) => sim::run(args),
         Command::Demo(args) => demo::run(args),
+        Command::Devices => device::list(),
+        Command::Device(cmd) => device::run(cmd),
     }
 }
 

@@ -779,3 +779,55 @@ fn rib_numbered_window(html: &str) -> Option<String> {
         html.contains(&name).then_some(name)
     })
 }
+
+/// `stylet device check` against the OpenHaptics device double (a dev-dependency, so its shared
+/// library lies beside this test binary): the wall is rendered, the report printed, the device
+/// left with zero force; bad requests are refused with the reason before anything opens.
+#[test]
+fn device_check_renders_the_wall_on_the_openhaptics_double_and_refuses_bad_requests() {
+    let exe = std::env::current_exe().unwrap();
+    let double = exe.parent().unwrap().join(format!(
+        "{}stylet_openhaptics_double{}",
+        std::env::consts::DLL_PREFIX,
+        std::env::consts::DLL_SUFFIX
+    ));
+    assert!(double.is_file(), "{} missing", double.display());
+    let text = ok(&[
+        "device",
+        "check",
+        "--backend",
+        "openhaptics",
+        "--device-library",
+        double.to_str().unwrap(),
+        "--seconds",
+        "0.5",
+    ]);
+    for want in [
+        "opened Touch (Stylet device double) (openhaptics): nominal 3.30 N peak, 0.88 N continuous",
+        "servo loop: ",
+        "stylus range: ",
+        "largest force sent: 0.00 N",
+        "watchdog fired 0 times",
+        "force at the end: zero (device closed)",
+    ] {
+        assert!(text.contains(want), "{want:?} missing from {text}");
+    }
+    let e = fails(&[
+        "device",
+        "check",
+        "--backend",
+        "openhaptics",
+        "--device-library",
+        "/nowhere/libHD.so",
+    ]);
+    assert!(e.contains("no vendor library found (tried /nowhere/libHD.so)"), "{e}");
+    let e = fails(&["device", "check", "--backend", "dhd"]);
+    assert!(e.contains("dhd: not supported yet"), "{e}");
+    let e = fails(&["device", "check", "--backend", "openhaptics", "--seconds", "0"]);
+    assert!(e.contains("--seconds takes 0.1 … 600"), "{e}");
+    let list = ok(&["devices"]);
+    assert!(
+        list.contains("openhaptics: ") && list.contains("dhd: ") && list.contains("haply: "),
+        "{list}"
+    );
+}

@@ -2,12 +2,14 @@
 //! and its backends: the scripted device and its script language ([`script`]), which drives
 //! reproducible, faster-than-real-time runs; the live device the window drives ([`live`]);
 //! SpaceMouse reports ([`spacemouse`]) and rate control ([`rate`]); gamepads ([`gamepad`], read
-//! through gilrs with the feature `gamepad`); raw-HID device profiles ([`hid_profile`]).
+//! through gilrs with the feature `gamepad`); raw-HID device profiles ([`hid_profile`]);
+//! force-feedback devices through their vendors' APIs ([`haptic`]).
 
 pub mod command;
 pub mod gamepad;
 #[cfg(feature = "gamepad")]
 pub mod gilrs_pad;
+pub mod haptic;
 #[cfg(feature = "hid")]
 pub mod hid;
 pub mod hid_profile;
