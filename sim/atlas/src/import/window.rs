@@ -167,7 +167,7 @@ impl WindowReport {
         self.ranked.iter().position(|f| f.bounds() == bounds).map(|i| i + 1)
     }
 
-    /// The chosen window as a planned path (see [`window_path`]).
+    /// The chosen window as a planned path, named by its bounds.
     pub fn path(&self, classes: &ClassTable) -> Option<InsertionPath> {
         self.found.as_ref().map(|f| window_path(classes, f, None))
     }
