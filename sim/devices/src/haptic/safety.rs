@@ -2,6 +2,7 @@
 //! tick (docs/devices.md "Safety"). In order:
 //!
 //! 1. **Hold.** Paused, out of focus or stopping: zero, and the force must engage afresh.
+//!    A computed force that is not finite (NaN, infinite) is zero the same way.
 //! 2. **Watchdog.** The simulation has produced no new force for [`SafetyLimits::watchdog_s`]:
 //!    zero (a stalled simulation must not leave its last force on the hand), engage afresh.
 //! 3. **Engage.** Forces start only once the computed force has stayed below
@@ -85,6 +86,8 @@ pub struct Limits {
     pub watchdog: bool,
     /// Zero: waiting for a small force to engage.
     pub waiting: bool,
+    /// Zero: the computed force was not finite (NaN or infinite), so forces engage afresh.
+    pub not_finite: bool,
     /// Scaled by the ramp.
     pub ramping: bool,
     /// Clamped to the nominal maximum.
@@ -172,6 +175,10 @@ impl ForceGuard {
         };
         if hold != Hold::None {
             limits.held = true;
+            return zero(self, limits);
+        }
+        if !computed_n.is_finite() {
+            limits.not_finite = true;
             return zero(self, limits);
         }
         // Watchdog: how long since the sequence number last changed.
@@ -379,6 +386,17 @@ mod tests {
                 Hold::None,
             );
             assert!(again.limits.waiting, "{hold:?}: engages afresh");
+        }
+    }
+
+    #[test]
+    fn a_force_that_is_not_finite_sends_zero_and_engages_afresh() {
+        for bad in [f64::NAN, f64::INFINITY] {
+            let mut g = engaged();
+            let o = run(&mut g, 1100, 1, DVec3::new(0.0, bad, 1.0))[0];
+            assert_eq!(o.sent_n, DVec3::ZERO);
+            assert!(o.limits.not_finite);
+            assert!(run(&mut g, 1101, 1, DVec3::X)[0].limits.waiting);
         }
     }
 
