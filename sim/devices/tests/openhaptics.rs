@@ -147,24 +147,23 @@ fn a_virtual_wall_through_the_openhaptics_double_is_safe_from_first_tick_to_last
     let peak = forces.iter().map(|(_, f)| f.length()).fold(0.0, f64::max);
     assert!(peak <= 3.3 + 1e-9 && peak > 3.0, "peak {peak} N");
     assert!(closed.guard.clamped > 0 && closed.guard.continuous > 0, "{closed:?}");
-    // The mean over any second at most the continuous force. The double stamps forces on its own
-    // clock, so its second may hold one tick more than the guard's: one peak force of slack.
-    let mut sum = 0.0;
-    let mut from = 0;
+    // The mean over any 1000 consecutive servo ticks (a second of the device's 1 kHz scheduler) at
+    // most the continuous force. Counted in ticks, as the guard counts: on a loaded machine the
+    // scheduler catches up late ticks in a burst, so a second of wall clock may hold a few more.
+    let window = 1000;
     let mut worst_mean_n: f64 = 0.0;
-    for (i, (t, f)) in forces.iter().enumerate() {
-        sum += f.length();
-        while forces[from].0 <= t - 1.0 {
-            sum -= forces[from].1.length();
-            from += 1;
-        }
-        let n = (i - from + 1) as f64;
-        worst_mean_n = worst_mean_n.max(sum / n);
+    let mut sum: f64 = forces.iter().take(window).map(|(_, f)| f.length()).sum();
+    for i in window..=forces.len() {
+        let mean = sum / window as f64;
+        worst_mean_n = worst_mean_n.max(mean);
         assert!(
-            sum / n <= 0.88 + 3.3 / n,
-            "mean {} N over the second to {t:.3} s",
-            sum / n
+            mean <= 0.88 + 1e-9,
+            "mean {mean} N over the 1000 ticks to {:.3} s",
+            forces[i - 1].0
         );
+        if i < forces.len() {
+            sum += forces[i].1.length() - forces[i - window].1.length();
+        }
     }
     eprintln!("peak {peak:.3} N, largest mean over a second {worst_mean_n:.4} N");
     // Zero within 10 ms (+ a few servo ticks) of the stall, and the last force of all zero.
