@@ -1,6 +1,6 @@
 //! A double of the OpenHaptics HD API for tests (docs/devices.md "Device doubles"): the symbols
-//! Stylet's backend calls, with the real API's constants and rules, over a simulated arm — the
-//! stylus a mass on a spring pulled along by a scripted hand and pushed by the forces sent.
+//! Stylet's backend calls, with the real API's constants and rules, over the simulated arm of
+//! `stylet-device-double-arm`.
 //!
 //! Rules enforced as the real API does: a frame must be begun before it is ended and not begun
 //! twice; forces are accepted only inside a frame and only once `HD_FORCE_OUTPUT` is enabled;
@@ -14,6 +14,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+
+use stylet_device_double_arm::{Arm, copy_forces, read_keyframes};
 
 const HD_INVALID_ENUM: c_uint = 0x0100;
 const HD_INVALID_OPERATION: c_uint = 0x0102;
@@ -32,10 +34,6 @@ const HD_CALLBACK_CONTINUE: c_uint = 1;
 /// The Touch's nominal forces (N).
 pub const MAX_FORCE_N: f64 = 3.3;
 pub const MAX_CONTINUOUS_FORCE_N: f64 = 0.88;
-/// The arm: stylus mass (kg), the hand's grip as a spring (N/mm) and its damping (N·s/mm).
-const MASS_KG: f64 = 0.05;
-const GRIP_N_PER_MM: f64 = 0.5;
-const GRIP_DAMPING_N_S_PER_MM: f64 = 0.008;
 
 #[repr(C)]
 #[derive(Clone, Copy)]
@@ -48,22 +46,12 @@ pub struct HdErrorInfo {
 type Callback = unsafe extern "system" fn(*mut c_void) -> c_uint;
 
 struct Double {
+    arm: Arm,
     open: bool,
     force_output: bool,
     in_frame: bool,
     errors: Vec<c_uint>,
     frame_violations: u64,
-    /// The scripted hand: (t s, x, y, z mm) keyframes, linear between, held after the last.
-    hand: Vec<[f64; 4]>,
-    buttons: c_uint,
-    /// The stylus (mm, mm/s) and the force last accepted (N).
-    position: [f64; 3],
-    velocity: [f64; 3],
-    force: [f64; 3],
-    last_step: Option<Instant>,
-    started: Instant,
-    /// Every force accepted: (t s, fx, fy, fz N).
-    forces: Vec<[f64; 4]>,
     callback: Option<(usize, usize)>,
 }
 
@@ -80,56 +68,15 @@ fn with<R>(f: impl FnOnce(&mut Double) -> R) -> Option<R> {
 }
 
 impl Double {
-    fn new(hand: Vec<[f64; 4]>) -> Self {
-        let start = hand.first().map_or([0.0; 3], |k| [k[1], k[2], k[3]]);
+    fn new(arm: Arm) -> Self {
         Double {
+            arm,
             open: false,
             force_output: false,
             in_frame: false,
             errors: Vec::new(),
             frame_violations: 0,
-            hand,
-            buttons: 0,
-            position: start,
-            velocity: [0.0; 3],
-            force: [0.0; 3],
-            last_step: None,
-            started: Instant::now(),
-            forces: Vec::new(),
             callback: None,
-        }
-    }
-
-    fn hand_at(&self, t: f64) -> [f64; 3] {
-        let k = &self.hand;
-        match k.iter().position(|p| p[0] > t) {
-            None => k.last().map_or([0.0; 3], |p| [p[1], p[2], p[3]]),
-            Some(0) => [k[0][1], k[0][2], k[0][3]],
-            Some(i) => {
-                let (a, b) = (k[i - 1], k[i]);
-                let s = (t - a[0]) / (b[0] - a[0]);
-                [0, 1, 2].map(|c| a[c + 1] + s * (b[c + 1] - a[c + 1]))
-            }
-        }
-    }
-
-    /// Advances the arm to now (semi-implicit Euler in 0.1 ms steps).
-    fn step(&mut self) {
-        let now = Instant::now();
-        let last = self.last_step.replace(now).unwrap_or(now);
-        let mut left = now.duration_since(last).as_secs_f64().min(0.05);
-        let t = now.duration_since(self.started).as_secs_f64();
-        let hand = self.hand_at(t);
-        while left > 0.0 {
-            let dt = left.min(1e-4);
-            left -= dt;
-            for c in 0..3 {
-                let pull_n = GRIP_N_PER_MM * (hand[c] - self.position[c]) - GRIP_DAMPING_N_S_PER_MM * self.velocity[c];
-                // N / kg = m/s² = 1000 mm/s².
-                let accel_mm_s2 = (pull_n + self.force[c]) / MASS_KG * 1000.0;
-                self.velocity[c] += accel_mm_s2 * dt;
-                self.position[c] += self.velocity[c] * dt;
-            }
         }
     }
 }
@@ -139,8 +86,11 @@ impl Double {
 #[unsafe(no_mangle)]
 pub unsafe extern "system" fn hdInitDevice(_name: *const c_char) -> c_uint {
     let mut d = double();
-    let hand = d.take().map(|d| d.hand).unwrap_or_else(|| vec![[0.0, 0.0, 0.0, 0.0]]);
-    let mut fresh = Double::new(hand);
+    let arm = d
+        .take()
+        .map(|d| d.arm.restarted())
+        .unwrap_or_else(|| Arm::new(vec![[0.0; 4]]));
+    let mut fresh = Double::new(arm);
     fresh.open = true;
     *d = Some(fresh);
     0
@@ -173,7 +123,7 @@ pub unsafe extern "system" fn hdBeginFrame(_hhd: c_uint) {
             d.frame_violations += 1;
         }
         d.in_frame = true;
-        d.step();
+        d.arm.step();
     });
 }
 
@@ -191,14 +141,14 @@ pub unsafe extern "system" fn hdEndFrame(_hhd: c_uint) {
 #[unsafe(no_mangle)]
 pub unsafe extern "system" fn hdGetDoublev(param: c_uint, out: *mut f64) {
     let values: Option<Vec<f64>> = with(|d| match param {
-        HD_CURRENT_POSITION => Some(d.position.to_vec()),
+        HD_CURRENT_POSITION => Some(d.arm.position_mm().to_vec()),
         HD_CURRENT_TRANSFORM => {
             let mut m = vec![0.0; 16];
             m[0] = 1.0;
             m[5] = 1.0;
             m[10] = 1.0;
             m[15] = 1.0;
-            m[12..15].copy_from_slice(&d.position);
+            m[12..15].copy_from_slice(&d.arm.position_mm());
             Some(m)
         }
         HD_NOMINAL_MAX_FORCE => Some(vec![MAX_FORCE_N]),
@@ -219,7 +169,7 @@ pub unsafe extern "system" fn hdGetDoublev(param: c_uint, out: *mut f64) {
 pub unsafe extern "system" fn hdGetIntegerv(param: c_uint, out: *mut c_int) {
     if let Some(Some(b)) = with(|d| {
         if param == HD_CURRENT_BUTTONS {
-            Some(d.buttons as c_int)
+            Some(d.arm.buttons as c_int)
         } else {
             d.errors.push(HD_INVALID_ENUM);
             None
@@ -241,9 +191,7 @@ pub unsafe extern "system" fn hdSetDoublev(param: c_uint, value: *const f64) {
             d.errors.push(HD_INVALID_OPERATION);
             d.frame_violations += 1;
         } else if d.force_output {
-            d.force = f;
-            let t = d.started.elapsed().as_secs_f64();
-            d.forces.push([t, f[0], f[1], f[2]]);
+            d.arm.accept_force(f);
         }
     });
 }
@@ -334,24 +282,16 @@ pub unsafe extern "system" fn hdUnschedule(_handle: c_ulong) {
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn stylet_double_set_hand(keyframes: *const f64, n: usize) {
     // SAFETY: the caller passes 4·n doubles.
-    let k: Vec<[f64; 4]> = (0..n)
-        .map(|i| unsafe { [0, 1, 2, 3].map(|c| *keyframes.add(4 * i + c)) })
-        .collect();
-    *double() = Some(Double::new(k));
+    let hand = unsafe { read_keyframes(keyframes, n) };
+    *double() = Some(Double::new(Arm::new(hand)));
 }
 
 /// Copies up to `capacity` recorded forces, 4 doubles each (t s, fx, fy, fz N); returns how many
 /// were recorded in all.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn stylet_double_forces(out: *mut f64, capacity: usize) -> usize {
-    with(|d| {
-        for (i, f) in d.forces.iter().take(capacity).enumerate() {
-            // SAFETY: the caller passes room for 4·capacity doubles.
-            unsafe { std::ptr::copy_nonoverlapping(f.as_ptr(), out.add(4 * i), 4) };
-        }
-        d.forces.len()
-    })
-    .unwrap_or(0)
+    // SAFETY: the caller passes room for 4·capacity doubles.
+    with(|d| unsafe { copy_forces(&d.arm, out, capacity) }).unwrap_or(0)
 }
 
 /// How many frame rules were broken (begin twice, end without begin, force outside a frame).
