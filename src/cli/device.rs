@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use anyhow::bail;
 use clap::{Args, Subcommand, ValueEnum};
 use stylet_devices::haptic::check::run_wall;
+use stylet_devices::haptic::dhd::{self, Dhd};
 use stylet_devices::haptic::openhaptics::{self, OpenHaptics};
 use stylet_devices::haptic::{Backend, HapticDevice, library};
 
@@ -50,8 +51,9 @@ pub struct CheckArgs {
 fn open(backend: BackendArg, library_path: Option<&std::path::Path>) -> anyhow::Result<Box<dyn HapticDevice>> {
     match backend {
         BackendArg::Openhaptics => Ok(Box::new(OpenHaptics::open(library_path)?)),
+        BackendArg::Dhd => Ok(Box::new(Dhd::open(library_path)?)),
         other => bail!(
-            "{}: not supported yet (OpenHaptics devices are; docs/devices.md says what is planned)",
+            "{}: not supported yet (OpenHaptics and Force Dimension devices are; docs/devices.md says what is planned)",
             other.backend()
         ),
     }
@@ -85,14 +87,18 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
 
 /// `stylet devices`: each backend's library, found or why not.
 pub fn list() -> anyhow::Result<()> {
-    match library::load(&openhaptics::LIBRARY, None) {
-        Ok((_, path)) => sayf!(
-            "openhaptics: library {} (`stylet device check --backend openhaptics` opens the device)",
-            path.display()
-        ),
-        Err(e) => sayf!("{e}"),
+    for (backend, spec) in [
+        (Backend::OpenHaptics, &openhaptics::LIBRARY),
+        (Backend::Dhd, &dhd::LIBRARY),
+    ] {
+        match library::load(spec, None) {
+            Ok((_, path)) => sayf!(
+                "{backend}: library {} (`stylet device check --backend {backend}` opens the device)",
+                path.display()
+            ),
+            Err(e) => sayf!("{e}"),
+        }
     }
-    sayf!("dhd: not supported yet (Force Dimension omega, sigma, delta, Falcon)");
     sayf!("haply: not supported yet (Haply Inverse3)");
     Ok(())
 }

@@ -821,13 +821,57 @@ fn device_check_renders_the_wall_on_the_openhaptics_double_and_refuses_bad_reque
         "/nowhere/libHD.so",
     ]);
     assert!(e.contains("no vendor library found (tried /nowhere/libHD.so)"), "{e}");
-    let e = fails(&["device", "check", "--backend", "dhd"]);
-    assert!(e.contains("dhd: not supported yet"), "{e}");
+    let e = fails(&["device", "check", "--backend", "haply", "--seconds", "0.5"]);
+    assert!(e.contains("haply: not supported yet"), "{e}");
     let e = fails(&["device", "check", "--backend", "openhaptics", "--seconds", "0"]);
     assert!(e.contains("--seconds takes 0.1 … 600"), "{e}");
     let list = ok(&["devices"]);
     assert!(
         list.contains("openhaptics: ") && list.contains("dhd: ") && list.contains("haply: "),
         "{list}"
+    );
+}
+
+/// `stylet device check --backend dhd` against the Force Dimension device double (an omega.3 to the
+/// backend): the model's 12 N becomes the device's limit, its firmware watchdog is set, and the
+/// device is left with zero force.
+#[test]
+fn device_check_renders_the_wall_on_the_dhd_double() {
+    let exe = std::env::current_exe().unwrap();
+    let double = exe.parent().unwrap().join(format!(
+        "{}stylet_dhd_double{}",
+        std::env::consts::DLL_PREFIX,
+        std::env::consts::DLL_SUFFIX
+    ));
+    assert!(double.is_file(), "{} missing", double.display());
+    let text = ok(&[
+        "device",
+        "check",
+        "--backend",
+        "dhd",
+        "--device-library",
+        double.to_str().unwrap(),
+        "--seconds",
+        "0.5",
+    ]);
+    for want in [
+        "opened omega.3 (Stylet device double) (dhd): nominal 12.00 N peak",
+        "servo loop: ",
+        "watchdog fired 0 times",
+        "force at the end: zero (device closed)",
+    ] {
+        assert!(text.contains(want), "{want:?} missing from {text}");
+    }
+    let e = fails(&[
+        "device",
+        "check",
+        "--backend",
+        "dhd",
+        "--device-library",
+        "/nowhere/libdhd.so",
+    ]);
+    assert!(
+        e.contains("dhd: no vendor library found (tried /nowhere/libdhd.so)"),
+        "{e}"
     );
 }

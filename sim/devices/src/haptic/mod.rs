@@ -5,11 +5,14 @@
 //! that never block it; every force passes the [`safety`] guard on its way to the hand.
 
 pub mod check;
+pub mod dhd;
 pub mod library;
 pub mod mailbox;
 pub mod openhaptics;
+pub mod pose;
 pub mod safety;
 mod servo;
+mod servo_thread;
 
 use std::path::PathBuf;
 

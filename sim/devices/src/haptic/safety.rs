@@ -66,6 +66,8 @@ pub enum Hold {
     Paused,
     /// The simulator's window lost the focus.
     FocusLost,
+    /// The clutch is held: the hand repositions the stylus while the tool stays.
+    Clutched,
     /// The device is being closed, or an error stopped force output.
     Stopping,
 }
@@ -365,7 +367,7 @@ mod tests {
 
     #[test]
     fn pausing_losing_focus_and_stopping_send_zero() {
-        for hold in [Hold::Paused, Hold::FocusLost, Hold::Stopping] {
+        for hold in [Hold::Paused, Hold::FocusLost, Hold::Clutched, Hold::Stopping] {
             let mut g = engaged();
             let o = g.filter(
                 Some(Computed {

@@ -57,6 +57,7 @@ impl Shared {
             Hold::Paused => 1,
             Hold::FocusLost => 2,
             Hold::Stopping => 3,
+            Hold::Clutched => 4,
         };
         self.hold.store(v, Ordering::Release);
     }
@@ -66,6 +67,7 @@ impl Shared {
             0 => Hold::None,
             1 => Hold::Paused,
             2 => Hold::FocusLost,
+            4 => Hold::Clutched,
             _ => Hold::Stopping,
         }
     }
