@@ -7,6 +7,7 @@ use anyhow::bail;
 use clap::{Args, Subcommand, ValueEnum};
 use stylet_devices::haptic::check::run_wall;
 use stylet_devices::haptic::dhd::{self, Dhd};
+use stylet_devices::haptic::haply::{self, Haply};
 use stylet_devices::haptic::openhaptics::{self, OpenHaptics};
 use stylet_devices::haptic::{Backend, HapticDevice, library};
 
@@ -42,20 +43,33 @@ pub struct CheckArgs {
     /// The vendor library (default: its usual names and install paths).
     #[arg(long)]
     pub device_library: Option<PathBuf>,
+    /// Haply's Inverse Service (default ws://localhost:10001).
+    #[arg(long)]
+    pub device_url: Option<String>,
     /// How long to render the wall (s, 0.1 … 600).
     #[arg(long, default_value_t = 10.0)]
     pub seconds: f64,
 }
 
 /// Opens a device of `backend`.
-fn open(backend: BackendArg, library_path: Option<&std::path::Path>) -> anyhow::Result<Box<dyn HapticDevice>> {
+pub fn open(
+    backend: BackendArg,
+    library_path: Option<&std::path::Path>,
+    url: Option<&str>,
+) -> anyhow::Result<Box<dyn HapticDevice>> {
     match backend {
+        BackendArg::Openhaptics | BackendArg::Dhd if url.is_some() => {
+            bail!(
+                "--device-url is for haply; {} is found by --device-library",
+                backend.backend()
+            )
+        }
+        BackendArg::Haply if library_path.is_some() => {
+            bail!("--device-library is for openhaptics and dhd; haply is reached by --device-url")
+        }
         BackendArg::Openhaptics => Ok(Box::new(OpenHaptics::open(library_path)?)),
         BackendArg::Dhd => Ok(Box::new(Dhd::open(library_path)?)),
-        other => bail!(
-            "{}: not supported yet (OpenHaptics and Force Dimension devices are; docs/devices.md says what is planned)",
-            other.backend()
-        ),
+        BackendArg::Haply => Ok(Box::new(Haply::open(url)?)),
     }
 }
 
@@ -63,7 +77,7 @@ pub fn check(a: CheckArgs) -> anyhow::Result<()> {
     if !(0.1..=600.0).contains(&a.seconds) {
         bail!("--seconds takes 0.1 … 600, not {}", a.seconds);
     }
-    let device = open(a.backend, a.device_library.as_deref())?;
+    let device = open(a.backend, a.device_library.as_deref(), a.device_url.as_deref())?;
     sayf!(
         "opened {} ({}): nominal {:.2} N peak, {:.2} N continuous; rendering the wall for {} s",
         device.info().model,
@@ -99,6 +113,12 @@ pub fn list() -> anyhow::Result<()> {
             Err(e) => sayf!("{e}"),
         }
     }
-    sayf!("haply: not supported yet (Haply Inverse3)");
+    match haply::service_listening(haply::DEFAULT_URL) {
+        Ok(()) => sayf!(
+            "haply: the Inverse Service listens at {} (`stylet device check --backend haply` opens the device)",
+            haply::DEFAULT_URL
+        ),
+        Err(e) => sayf!("{e}"),
+    }
     Ok(())
 }

@@ -821,8 +821,15 @@ fn device_check_renders_the_wall_on_the_openhaptics_double_and_refuses_bad_reque
         "/nowhere/libHD.so",
     ]);
     assert!(e.contains("no vendor library found (tried /nowhere/libHD.so)"), "{e}");
-    let e = fails(&["device", "check", "--backend", "haply", "--seconds", "0.5"]);
-    assert!(e.contains("haply: not supported yet"), "{e}");
+    let e = fails(&[
+        "device",
+        "check",
+        "--backend",
+        "haply",
+        "--device-library",
+        "/x/libHD.so",
+    ]);
+    assert!(e.contains("--device-library is for openhaptics and dhd"), "{e}");
     let e = fails(&["device", "check", "--backend", "openhaptics", "--seconds", "0"]);
     assert!(e.contains("--seconds takes 0.1 … 600"), "{e}");
     let list = ok(&["devices"]);
@@ -874,4 +881,41 @@ fn device_check_renders_the_wall_on_the_dhd_double() {
         e.contains("dhd: no vendor library found (tried /nowhere/libdhd.so)"),
         "{e}"
     );
+}
+
+/// `stylet device check --backend haply` against the Inverse Service double (a loopback
+/// WebSocket server): the Inverse3 is found in the service's inventory, the wall rendered at
+/// Stylet's limit for it, and the connection left with zero force.
+#[test]
+fn device_check_renders_the_wall_on_the_haply_double() {
+    let double = stylet_haply_double::HaplyDouble::start(vec![[0.0, 0.0, 0.0, 10.0]]).unwrap();
+    let text = ok(&[
+        "device",
+        "check",
+        "--backend",
+        "haply",
+        "--device-url",
+        &double.url,
+        "--seconds",
+        "0.5",
+    ]);
+    for want in [
+        "opened Inverse3 0D0B (haply): nominal 2.00 N peak, 1.00 N continuous",
+        "servo loop: ",
+        "stylus range: x 0.0 … 0.0, y 0.0 … 0.0, z 10.0 … 10.0 mm",
+        "force at the end: zero (device closed)",
+    ] {
+        assert!(text.contains(want), "{want:?} missing from {text}");
+    }
+    assert_eq!(double.violations(), 0);
+    assert_eq!(double.forces().last().map(|f| [f[1], f[2], f[3]]), Some([0.0; 3]));
+    let e = fails(&[
+        "device",
+        "check",
+        "--backend",
+        "haply",
+        "--device-url",
+        "http://localhost:10001",
+    ]);
+    assert!(e.contains("only ws://"), "{e}");
 }

@@ -6,6 +6,7 @@
 
 pub mod check;
 pub mod dhd;
+pub mod haply;
 pub mod library;
 pub mod mailbox;
 pub mod openhaptics;
@@ -125,6 +126,12 @@ pub enum HapticError {
         operation: &'static str,
         code: u32,
         message: String,
+    },
+    #[error("{backend}: {url}: {reason}")]
+    Service {
+        backend: Backend,
+        url: String,
+        reason: String,
     },
     #[error("{backend}: the device reports a nominal maximum force of {max_force_n} N, which cannot be right")]
     BadLimits { backend: Backend, max_force_n: f64 },
