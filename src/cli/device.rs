@@ -6,10 +6,8 @@ use std::path::PathBuf;
 use anyhow::bail;
 use clap::{Args, Subcommand, ValueEnum};
 use stylet_devices::haptic::check::run_wall;
-use stylet_devices::haptic::dhd::{self, Dhd};
-use stylet_devices::haptic::haply::{self, Haply};
-use stylet_devices::haptic::openhaptics::{self, OpenHaptics};
-use stylet_devices::haptic::{Backend, HapticDevice, library};
+use stylet_devices::haptic::{Backend, DeviceChoice, HapticDevice, library};
+use stylet_devices::haptic::{dhd, haply, openhaptics};
 
 /// A force-feedback backend, as the command line names it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -57,6 +55,15 @@ pub fn open(
     library_path: Option<&std::path::Path>,
     url: Option<&str>,
 ) -> anyhow::Result<Box<dyn HapticDevice>> {
+    Ok(choice(backend, library_path, url)?.open()?)
+}
+
+/// The device the flags name; a flag for another backend is refused.
+pub fn choice(
+    backend: BackendArg,
+    library_path: Option<&std::path::Path>,
+    url: Option<&str>,
+) -> anyhow::Result<DeviceChoice> {
     match backend {
         BackendArg::Openhaptics | BackendArg::Dhd if url.is_some() => {
             bail!(
@@ -67,9 +74,11 @@ pub fn open(
         BackendArg::Haply if library_path.is_some() => {
             bail!("--device-library is for openhaptics and dhd; haply is reached by --device-url")
         }
-        BackendArg::Openhaptics => Ok(Box::new(OpenHaptics::open(library_path)?)),
-        BackendArg::Dhd => Ok(Box::new(Dhd::open(library_path)?)),
-        BackendArg::Haply => Ok(Box::new(Haply::open(url)?)),
+        _ => Ok(DeviceChoice {
+            backend: backend.backend(),
+            library: library_path.map(Into::into),
+            url: url.map(Into::into),
+        }),
     }
 }
 

@@ -30,6 +30,17 @@ pub struct SimArgs {
     /// "HID profiles"); it is checked before the window opens.
     #[arg(long, conflicts_with = "headless")]
     pub hid_profile: Option<PathBuf>,
+    /// Sessions by hand use this force-feedback device (docs/devices.md "Haptic devices"): its
+    /// vendor library or service is found before the window opens, the device opened when a
+    /// session starts.
+    #[arg(long, value_enum, conflicts_with_all = ["headless", "hid_profile"])]
+    pub device: Option<super::device::BackendArg>,
+    /// The device's vendor library (openhaptics, dhd; default: the usual names and paths).
+    #[arg(long, requires = "device")]
+    pub device_library: Option<PathBuf>,
+    /// Haply's Inverse Service (default ws://localhost:10001).
+    #[arg(long, requires = "device")]
+    pub device_url: Option<String>,
     /// Open this session file in the replay viewer.
     #[arg(long, conflicts_with = "headless")]
     pub replay: Option<PathBuf>,
@@ -291,6 +302,18 @@ fn window(a: SimArgs, data: PathBuf, atlases: Vec<PathBuf>) -> anyhow::Result<()
                     stylet_devices::hid_profile::HidProfile::parse(&text)
                         .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?,
                 )
+            }
+            None => None,
+        },
+        haptic_device: match a.device {
+            Some(backend) => {
+                let choice = super::device::choice(backend, a.device_library.as_deref(), a.device_url.as_deref())?;
+                let at = choice.find()?;
+                sayf!(
+                    "{}: found at {at}; the device opens when a session starts",
+                    choice.backend
+                );
+                Some(choice)
             }
             None => None,
         },

@@ -13,6 +13,7 @@ mod breathing;
 mod cli;
 mod csp;
 mod dashboard;
+mod force_feedback;
 mod haptics;
 mod hardening;
 mod instructors;

@@ -56,6 +56,7 @@ fn options(dir: &Path, atlas: &Path, script: Option<&str>) -> AppOptions {
         replay: None,
         tablet: None,
         hid_profile: None,
+        haptic_device: None,
     }
 }
 

@@ -12,6 +12,8 @@ use std::time::Instant;
 use stylet_atlas::Atlas;
 use stylet_atlas::manifest::DifficultyPreset;
 use stylet_devices::Device;
+use stylet_devices::haptic::Hold;
+use stylet_devices::haptic::pose::{HapticPose, Mapping, WindowHold};
 use stylet_devices::live::{LiveDevice, LiveHandle, live_device};
 use stylet_devices::script::{ScriptedDevice, parse, scripted_simulation};
 use stylet_physics::glam::{DQuat, DVec3};
@@ -141,6 +143,21 @@ pub enum Driver {
     /// A raw-HID haptic device described by a profile (docs/devices.md "HID profiles"): it moves
     /// the tool and displays the force; the window gives commands.
     HidDevice(stylet_devices::hid_profile::HidProfile),
+    /// A force-feedback device through its vendor's API (docs/devices.md "Haptic devices"),
+    /// opened when the session starts and closed (zero force) when it ends: it moves the tool
+    /// and the trainee feels the force; the window gives commands.
+    HapticDevice(stylet_devices::haptic::DeviceChoice),
+}
+
+/// The physics' device profile for a force-feedback device: the Phantom Premium's (8.5 N,
+/// 3.5 N/mm) for devices that reach its force, else the Touch's (3.3 N, 1.02 N/mm), the
+/// conservative choice. The device's own limits are then enforced by its force guard.
+pub fn physics_profile_for(info: &stylet_devices::haptic::DeviceInfo) -> DeviceProfile {
+    if info.max_force_n >= DeviceProfile::PREMIUM.max_force_n {
+        DeviceProfile::PREMIUM
+    } else {
+        DeviceProfile::TOUCH
+    }
 }
 
 /// How far outside the skin a session by hand starts (mm): a few seconds of the wheel (1 mm a
@@ -224,6 +241,8 @@ pub struct RunningSession {
     /// The device moving the tool besides the window (a SpaceMouse's model, a HID profile's
     /// name), if any.
     moved_by: Option<String>,
+    /// Holds a force-feedback device's forces at zero (window out of focus).
+    window_hold: Option<WindowHold>,
     path: PathBuf,
     started: Instant,
     console: std::collections::VecDeque<ConsoleLine>,
@@ -236,6 +255,7 @@ impl RunningSession {
         let atlas = &plan.atlas;
         let model = Arc::clone(&atlas.model);
         let mut moved_by = None;
+        let mut window_hold = None;
         let (sim, device, live): (Simulation, Box<dyn Device + Send>, Option<LiveHandle>) = match driver {
             Driver::Hands => {
                 let mut config = SimConfig::new(DeviceProfile::IDEAL, ToolSpec::Finger);
@@ -266,6 +286,20 @@ impl RunningSession {
                     stylet_devices::hid::HidProfileDevice::open(profile).map_err(|e| SessionError::Device(e.0))?;
                 moved_by = Some(name);
                 (sim, Box::new(device.with_pose_source(Box::new(arm))), Some(handle))
+            }
+            Driver::HapticDevice(choice) => {
+                let device = choice.open().map_err(|e| SessionError::Device(e.to_string()))?;
+                let mut config = SimConfig::new(physics_profile_for(device.info()), ToolSpec::Finger);
+                config.deformation = DeformSettings::on();
+                config.deform_in_background = true;
+                config.breathing = plan.breathing()?;
+                let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
+                let (position, orientation) = start_pose(&plan);
+                let (live, handle) = live_device(position, orientation, sim.tick_rate_hz());
+                moved_by = Some(format!("{} ({})", device.info().model, device.info().backend));
+                let pose = HapticPose::new(device, Mapping::default());
+                window_hold = Some(pose.window_hold());
+                (sim, Box::new(live.with_pose_source(Box::new(pose))), Some(handle))
             }
             Driver::Script(text) => {
                 let script = parse(&text).map_err(|e| SessionError::Script(e.to_string()))?;
@@ -304,6 +338,7 @@ impl RunningSession {
             haptic,
             live,
             moved_by,
+            window_hold,
             path,
             started: Instant::now(),
             console: std::collections::VecDeque::new(),
@@ -332,6 +367,14 @@ impl RunningSession {
     /// profile's device), if any.
     pub fn moved_by(&self) -> Option<&str> {
         self.moved_by.as_deref()
+    }
+
+    /// Holds a force-feedback device's forces at zero while the window is out of focus (or
+    /// lets them ramp in again); nothing for other drivers.
+    pub fn hold_forces(&self, hold: Hold) {
+        if let Some(h) = &self.window_hold {
+            h.set(hold);
+        }
     }
 
     pub fn started(&self) -> Instant {

@@ -8,6 +8,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use eframe::egui;
+use stylet_devices::haptic::Hold;
 use stylet_devices::rate::RatePose;
 use stylet_physics::glam::{DQuat, DVec3};
 use stylet_physics::needle::spec::Gauge;
@@ -301,6 +302,9 @@ impl SessionScreen {
             }
         }
         let moved_by = run.moved_by().is_some();
+        // A force-feedback device pushes only while the window has the focus.
+        let focused = ui.ctx().input(|i| i.focused);
+        run.hold_forces(if focused { Hold::None } else { Hold::FocusLost });
         if let Some(live) = run.live() {
             if moved_by {
                 // The SpaceMouse moves the tool in the loop; the window follows it.

@@ -282,10 +282,11 @@ impl StartScreen {
         ui.add_space(8.0);
         let mut go = None;
         let driven = shared.options.script.clone();
-        let label = match (&driven, &shared.options.hid_profile) {
-            (Some(_), _) => "Start session (scripted)".to_string(),
-            (None, Some(p)) => format!("Start session with {}", p.name),
-            (None, None) => "Start session".to_string(),
+        let label = match (&driven, &shared.options.hid_profile, &shared.options.haptic_device) {
+            (Some(_), _, _) => "Start session (scripted)".to_string(),
+            (None, Some(p), _) => format!("Start session with {}", p.name),
+            (None, None, Some(d)) => format!("Start session with the {} device", d.backend),
+            (None, None, None) => "Start session".to_string(),
         };
         if ui
             .add_enabled(
@@ -303,9 +304,10 @@ impl StartScreen {
                         None
                     }
                 },
-                None => Some(match &shared.options.hid_profile {
-                    Some(p) => Driver::HidDevice(p.clone()),
-                    None => Driver::Hands,
+                None => Some(match (&shared.options.hid_profile, &shared.options.haptic_device) {
+                    (Some(p), _) => Driver::HidDevice(p.clone()),
+                    (None, Some(d)) => Driver::HapticDevice(d.clone()),
+                    (None, None) => Driver::Hands,
                 }),
             };
             if let Some(driver) = driver {

@@ -144,3 +144,37 @@ fn list(paths: &[PathBuf]) -> String {
         .collect::<Vec<_>>()
         .join(", ")
 }
+
+/// Which force-feedback device to open, and where its vendor library or service is.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DeviceChoice {
+    pub backend: Backend,
+    /// The vendor library (OpenHaptics, DHD); default: its usual names and install paths.
+    pub library: Option<PathBuf>,
+    /// Haply's Inverse Service; default [`haply::DEFAULT_URL`].
+    pub url: Option<String>,
+}
+
+impl DeviceChoice {
+    /// Opens the device; its servo loop runs when this returns.
+    pub fn open(&self) -> Result<Box<dyn HapticDevice>, HapticError> {
+        Ok(match self.backend {
+            Backend::OpenHaptics => Box::new(openhaptics::OpenHaptics::open(self.library.as_deref())?),
+            Backend::Dhd => Box::new(dhd::Dhd::open(self.library.as_deref())?),
+            Backend::Haply => Box::new(haply::Haply::open(self.url.as_deref())?),
+        })
+    }
+
+    /// Finds the vendor library or the service without opening the device: where it is.
+    pub fn find(&self) -> Result<String, HapticError> {
+        let spec = match self.backend {
+            Backend::OpenHaptics => &openhaptics::LIBRARY,
+            Backend::Dhd => &dhd::LIBRARY,
+            Backend::Haply => {
+                let url = self.url.as_deref().unwrap_or(haply::DEFAULT_URL);
+                return haply::service_listening(url).map(|()| url.to_string());
+            }
+        };
+        library::load(spec, self.library.as_deref()).map(|(_, path)| path.display().to_string())
+    }
+}

@@ -52,6 +52,11 @@ impl Arm {
         Arm::new(self.hand.clone())
     }
 
+    /// When the arm started: the zero of its clock.
+    pub fn started_at(&self) -> Instant {
+        self.started
+    }
+
     /// Seconds since the arm started.
     pub fn time_s(&self) -> f64 {
         self.started.elapsed().as_secs_f64()

@@ -75,6 +75,11 @@ impl HaplyDouble {
         self.state().arm.forces().to_vec()
     }
 
+    /// The zero of [`Self::forces`]' clock (the latest client's connection).
+    pub fn clock_start(&self) -> std::time::Instant {
+        self.state().arm.started_at()
+    }
+
     /// Messages that broke the protocol.
     pub fn violations(&self) -> u64 {
         self.state().violations

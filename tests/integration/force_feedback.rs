@@ -1,0 +1,165 @@
+//! The whole simulator with a force-feedback device: the haptic loop ticking the phantom at
+//! 1 kHz, the tool moved by a device through its backend and the force sent back, against the
+//! Haply Inverse Service double (a loopback WebSocket server whose simulated arm follows a
+//! scripted hand and records every force it is sent).
+
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use crate::common::default_phantom;
+use stylet_app::haptic::{HapticLoop, LoopOptions};
+use stylet_app::session::physics_profile_for;
+use stylet_devices::Device;
+use stylet_devices::haptic::haply::Haply;
+use stylet_devices::haptic::pose::{HapticPose, Mapping, vendor_axes};
+use stylet_devices::haptic::{Backend, HapticDevice};
+use stylet_devices::live::live_device;
+use stylet_haply_double::HaplyDouble;
+use stylet_physics::glam::DVec3;
+use stylet_physics::{Gauge, SimConfig, Simulation, TickInput, TickOutput, ToolSpec};
+use stylet_render::views::SessionLabels;
+
+/// The live device, with the simulation's tick stalled once (as a machine that stops the loop
+/// would), and every tick's computed force kept.
+struct Stalling<D> {
+    inner: D,
+    stall_at_tick: u64,
+    stall: Duration,
+    computed: Arc<Mutex<Vec<(Instant, DVec3, f64)>>>,
+    stalled_at: Arc<Mutex<Option<Instant>>>,
+}
+
+impl<D: Device> Device for Stalling<D> {
+    fn next(&mut self, tick: u64, last: Option<&TickOutput>) -> Option<TickInput> {
+        if let Some(out) = last {
+            self.computed
+                .lock()
+                .unwrap()
+                .push((Instant::now(), out.force_n, out.tip_depth_mm));
+        }
+        if tick == self.stall_at_tick {
+            *self.stalled_at.lock().unwrap() = Some(Instant::now());
+            std::thread::sleep(self.stall);
+        }
+        self.inner.next(tick, last)
+    }
+}
+
+/// A scripted hand pushes a 22 G needle through the phantom's skin along the planned path: the
+/// double feels the skin's resistance, clamped to the device's limit; a stalled tick zeroes the
+/// force within the watchdog's 10 ms; the last force at shutdown is zero.
+#[test]
+fn a_hand_on_the_haply_double_feels_the_skin_and_is_safe_when_the_tick_stalls() {
+    let atlas = default_phantom();
+    let path = atlas.guided_path().unwrap();
+    let (entry, target) = (DVec3::from_array(path.entry_mm), DVec3::from_array(path.target_mm));
+    let dir = (target - entry).normalize();
+    let standoff_mm = 20.0;
+    let start = entry - dir * standoff_mm;
+    // The hand in the service's frame: still for 1.5 s (forces engage and ramp in), then 35 mm
+    // along the path in 3 s (through the skin), held.
+    let to_vendor = vendor_axes(Backend::Haply).transpose();
+    let at = |t: f64, mm: f64| {
+        let p = to_vendor * (dir * mm);
+        [t, p.x, p.y, p.z]
+    };
+    let hand = vec![
+        at(0.0, 0.0),
+        at(1.5, 0.0),
+        at(4.5, standoff_mm + 15.0),
+        at(10.0, standoff_mm + 15.0),
+    ];
+    let double = HaplyDouble::start(hand).unwrap();
+    let device = Haply::open(Some(&double.url)).unwrap();
+    let max_n = device.info().max_force_n;
+    let profile = physics_profile_for(device.info());
+    let needle = ToolSpec::Needle {
+        gauge: Gauge::G22,
+        length_mm: 150.0,
+        stylet_in: true,
+    };
+    let sim = Simulation::new(Arc::clone(&atlas.model), SimConfig::new(profile, needle)).unwrap();
+    let (live, handle) = live_device(start, stylet_devices::script::device::orientation(dir, None), 1000);
+    let live = live.with_pose_source(Box::new(HapticPose::new(Box::new(device), Mapping::default())));
+    let computed = Arc::new(Mutex::new(Vec::new()));
+    let stalled_at = Arc::new(Mutex::new(None));
+    let stall_at_tick = 5200;
+    let haptic = HapticLoop::spawn(
+        sim,
+        Box::new(Stalling {
+            inner: live,
+            stall_at_tick,
+            stall: Duration::from_millis(60),
+            computed: computed.clone(),
+            stalled_at: stalled_at.clone(),
+        }),
+        None,
+        SessionLabels {
+            scenario: "force feedback".into(),
+            difficulty: stylet_scoring::Difficulty::Beginner,
+            seed: 0,
+        },
+        LoopOptions::default(),
+    )
+    .unwrap();
+    let began = Instant::now();
+    while haptic.stats().ticks < 6000 && began.elapsed() < Duration::from_secs(30) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    handle.finish();
+    let report = haptic.join().unwrap();
+    let forces: Vec<(f64, DVec3)> = double
+        .forces()
+        .iter()
+        .map(|f| (f[0], DVec3::new(f[1], f[2], f[3])))
+        .collect();
+    let clock = double.clock_start();
+    let computed = computed.lock().unwrap();
+    let on_double_clock = |t: Instant| t.duration_since(clock).as_secs_f64();
+    let computed_peak = computed.iter().map(|c| c.1.length()).fold(0.0, f64::max);
+    let felt_peak = forces.iter().map(|f| f.1.length()).fold(0.0, f64::max);
+    let deepest_mm = computed.iter().map(|c| c.2).fold(f64::NEG_INFINITY, f64::max);
+    // Tick to force: from the tick that first computed 0.3 N (the skin touched) to the first
+    // force of 0.3 N the double was sent.
+    let first = |at: f64| {
+        let computed = computed
+            .iter()
+            .find(|c| c.1.length() >= at)
+            .map(|c| on_double_clock(c.0));
+        let felt = forces.iter().find(|f| f.1.length() >= at).map(|f| f.0);
+        (computed.unwrap(), felt.unwrap())
+    };
+    let (computed_at, felt_at) = first(0.3);
+    let latency_ms = (felt_at - computed_at) * 1000.0;
+    eprintln!(
+        "{} ticks, {} forces sent; computed peak {computed_peak:.3} N, felt peak {felt_peak:.3} N of {max_n} N; \
+         tip {deepest_mm:.1} mm under the skin; tick to force {latency_ms:.2} ms",
+        report.stats.ticks,
+        forces.len()
+    );
+    assert!(forces.len() > 4000, "{} forces", forces.len());
+    // The needle went through the skin, and the hand felt the resistance up to the limit.
+    assert!(deepest_mm > 5.0, "the tip reached {deepest_mm} mm under the skin");
+    assert!(computed_peak > max_n, "the skin resisted with {computed_peak} N");
+    assert!(
+        felt_peak <= max_n + 1e-9 && felt_peak > 0.95 * max_n,
+        "felt {felt_peak} N"
+    );
+    assert!((0.0..20.0).contains(&latency_ms), "tick to force {latency_ms} ms");
+    // The stalled tick: zero within the watchdog's 10 ms (and a servo tick), held until the loop
+    // ran again.
+    let stalled = on_double_clock(stalled_at.lock().unwrap().unwrap());
+    let during: Vec<_> = forces
+        .iter()
+        .filter(|f| f.0 > stalled + 0.012 && f.0 < stalled + 0.055)
+        .collect();
+    assert!(during.len() > 30, "{} servo ticks in the stall", during.len());
+    assert!(
+        during.iter().all(|f| f.1 == DVec3::ZERO),
+        "a force while the tick was stalled"
+    );
+    let before = forces.iter().rev().find(|f| f.0 < stalled).unwrap();
+    assert!(before.1.length() > 0.1, "a force before the stall: {:?}", before.1);
+    let last = forces.last().unwrap();
+    assert_eq!(last.1, DVec3::ZERO, "the last force at shutdown");
+}
