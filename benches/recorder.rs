@@ -72,6 +72,7 @@ fn header() -> SessionHeader {
         deformation: DeformSettings::default(),
         contrast: Default::default(),
         breathing: Default::default(),
+        hardware: None,
     }
 }
 

@@ -382,7 +382,25 @@ pub struct SessionHeader {
     /// parameters and the breathing signal with its seed; replay rebuilds the same motion from
     /// the atlas. Files without it did not breathe.
     pub breathing: BreathingSettings,
+    /// The force-feedback device the session was trained on, if any (metadata: physics and
+    /// scoring never read it). Files without it were driven otherwise.
+    pub hardware: Option<HardwareDevice>,
 }
+
+/// A force-feedback device as the session header records it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HardwareDevice {
+    /// The vendor API: `openhaptics`, `dhd` or `haply`.
+    pub backend: String,
+    /// The vendor's model name.
+    pub model: String,
+    /// The limits its force guard enforced (N).
+    pub max_force_n: f64,
+    pub max_continuous_force_n: f64,
+}
+
+/// The largest force limit a header may give a device (N).
+const MAX_HARDWARE_FORCE_N: f64 = 100.0;
 
 impl SessionHeader {
     /// As MCAP metadata (strings; the needle length as exact f64 bits in hex).
@@ -418,6 +436,12 @@ impl SessionHeader {
         world::put_deformation(&self.deformation, &mut put);
         world::put_contrast(&self.contrast, &mut put);
         world::put_breathing(&self.breathing, &mut put);
+        if let Some(h) = &self.hardware {
+            put("hardware.backend", h.backend.clone());
+            put("hardware.model", h.model.clone());
+            put("hardware.max_force_n", h.max_force_n.to_string());
+            put("hardware.max_continuous_force_n", h.max_continuous_force_n.to_string());
+        }
         m
     }
 
@@ -491,6 +515,23 @@ impl SessionHeader {
             Ok(v)
         };
         let wall_clock_start = field("wall_clock_start", MAX_NAME_CHARS)?;
+        let force = |k: &str| -> Result<f64, HeaderError> {
+            let v: f64 = get(k)?.parse().map_err(|_| HeaderError::NotANumber(k.to_string()))?;
+            if v > 0.0 && v <= MAX_HARDWARE_FORCE_N {
+                Ok(v)
+            } else {
+                Err(HeaderError::OutOfRange(k.to_string()))
+            }
+        };
+        let hardware = match m.contains_key("hardware.backend") {
+            false => None,
+            true => Some(HardwareDevice {
+                backend: name("hardware.backend")?,
+                model: field("hardware.model", MAX_TEXT_CHARS)?,
+                max_force_n: force("hardware.max_force_n")?,
+                max_continuous_force_n: force("hardware.max_continuous_force_n")?,
+            }),
+        };
         humantime::parse_rfc3339_weak(&wall_clock_start).map_err(|_| HeaderError::WallClockStart)?;
         Ok(SessionHeader {
             schema_version,
@@ -510,6 +551,7 @@ impl SessionHeader {
             deformation: world::get_deformation(m)?,
             contrast: world::get_contrast(m)?,
             breathing: world::get_breathing(m)?,
+            hardware,
         })
     }
 }

@@ -44,6 +44,7 @@ pub fn header(sim: &Simulation, info: &SessionInfo) -> SessionHeader {
         deformation: sim.config().deformation,
         contrast: sim.config().contrast,
         breathing: sim.config().breathing,
+        hardware: None,
     }
 }
 

@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use stylet_physics::{DeformSettings, Event, Gauge, ToolSpec};
+use stylet_recorder::format::HardwareDevice;
 use stylet_recorder::format::{DigestRecord, PoseError, TickRecord};
 use stylet_recorder::outputs::{OutputCheck, OutputDigest, rounded_outputs};
 use stylet_recorder::reader::{self, DamageKind, LimitExceeded, Limits, MessageError, Mode, VerifyError};
@@ -56,6 +57,12 @@ fn header() -> SessionHeader {
             },
             measured: false,
         },
+        hardware: Some(HardwareDevice {
+            backend: "dhd".into(),
+            model: "omega.3 (serial 1234)".into(),
+            max_force_n: 12.0,
+            max_continuous_force_n: 12.0,
+        }),
     }
 }
 
@@ -551,6 +558,22 @@ fn header_fields_are_bounded_and_exact() {
     assert!(with("world.deformation.regulariser", "chainmail".into()).contains("'chainmail' is unknown"));
     assert!(with("world.deformation.enabled", "2".into()).contains("must be 0 or 1"));
     assert!(with("world.deformation.latency_ticks", "101".into()).contains("latency_ticks 101"));
+    // The force-feedback device: optional, but whole and sane when there.
+    assert!(with("hardware.backend", "two words".into()).contains("'hardware.backend' must be"));
+    assert!(with("hardware.max_force_n", "NaN".into()).contains("'hardware.max_force_n' is out of range"));
+    assert!(with("hardware.max_continuous_force_n", "1e9".into()).contains("is out of range"));
+    assert!(with("hardware.model", "m".repeat(257)).contains("longer than 256 characters"));
+    let mut m = good.clone();
+    m.remove("hardware.model");
+    assert!(
+        SessionHeader::from_metadata(&m)
+            .unwrap_err()
+            .to_string()
+            .contains("lacks 'hardware.model'")
+    );
+    let mut m = good.clone();
+    m.retain(|k, _| !k.starts_with("hardware."));
+    assert_eq!(SessionHeader::from_metadata(&m).unwrap().hardware, None);
     let mut m = good.clone();
     m.remove("world.deformation.spacing_mm_bits");
     assert!(

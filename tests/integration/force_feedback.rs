@@ -163,3 +163,72 @@ fn a_hand_on_the_haply_double_feels_the_skin_and_is_safe_when_the_tick_stalls() 
     let last = forces.last().unwrap();
     assert_eq!(last.1, DVec3::ZERO, "the last force at shutdown");
 }
+
+/// A session by hand with a force-feedback device (`stylet sim --device haply`): the device
+/// opened when the session starts, its model and limits in the session header, the clutch
+/// recorded in the notes, and the file replays and scores like any other.
+#[test]
+fn a_session_with_the_haply_double_records_the_device_and_its_clutch() {
+    use stylet_app::session::{Driver, RunningSession, SessionPlan};
+    use stylet_devices::haptic::DeviceChoice;
+
+    let dir = tempfile::tempdir().unwrap();
+    let p = stylet_atlas::phantom::generate(&stylet_atlas::phantom::PhantomConfig {
+        dims: [64, 64, 50],
+        spacing_mm: [6.0; 3],
+        ..Default::default()
+    })
+    .unwrap();
+    stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
+    let atlas = Arc::new(stylet_atlas::load(dir.path()).unwrap());
+    let plan = SessionPlan {
+        atlas: Arc::clone(&atlas),
+        scenario: atlas.manifest.scenarios[0].name.clone(),
+        difficulty: stylet_scoring::Difficulty::Beginner,
+        trainee: "tina".into(),
+        seed: 1,
+        sessions_dir: dir.path().join("sessions"),
+    };
+    let double = HaplyDouble::start(vec![[0.0, 0.0, 0.0, 0.0], [2.0, 0.0, 0.0, 0.0]]).unwrap();
+    let choice = DeviceChoice {
+        backend: Backend::Haply,
+        library: None,
+        url: Some(double.url.clone()),
+    };
+    let run = RunningSession::start(plan, Driver::HapticDevice(choice), true).unwrap();
+    assert_eq!(run.moved_by(), Some("Inverse3 0D0B (haply)"));
+    let wait_ticks = |n: u64| {
+        let began = Instant::now();
+        let from = run.stats().ticks;
+        while run.stats().ticks < from + n && began.elapsed() < Duration::from_secs(20) {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    };
+    wait_ticks(300);
+    // The grip's b button is the clutch.
+    double.set_buttons(0b10);
+    wait_ticks(300);
+    double.set_buttons(0);
+    wait_ticks(300);
+    let finished = run.finish().unwrap();
+    assert!(
+        double.forces().len() > 500,
+        "the servo loop ran: {}",
+        double.forces().len()
+    );
+    assert_eq!(double.forces().last().map(|f| [f[1], f[2], f[3]]), Some([0.0; 3]));
+    let session = stylet_recorder::reader::read(&finished.path).unwrap();
+    let hardware = session.header.hardware.clone().expect("the device in the header");
+    assert_eq!(
+        (hardware.backend.as_str(), hardware.model.as_str()),
+        ("haply", "Inverse3 0D0B")
+    );
+    assert_eq!((hardware.max_force_n, hardware.max_continuous_force_n), (2.0, 1.0));
+    let notes: Vec<&str> = session.annotations.iter().map(|a| a.text.as_str()).collect();
+    let held = notes.iter().position(|n| n.starts_with("clutch held"));
+    let flow = notes.iter().rposition(|n| n.starts_with("forces flow again"));
+    assert!(held.is_some() && flow > held, "{notes:?}");
+    // The clutch's button reached the recorded ticks too.
+    assert!(session.ticks.iter().any(|t| t.buttons & 0b10 != 0));
+    finished.score().unwrap();
+}

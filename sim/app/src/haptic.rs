@@ -313,7 +313,13 @@ fn run(
             break Ended::DeviceEnded;
         };
         let out = sim.step(&input);
-        for text in happenings(&sim, &input, &out, last.as_ref()) {
+        let notes = device.notes();
+        if let Some(r) = recording.as_ref() {
+            for text in &notes {
+                r.note(out.tick, text);
+            }
+        }
+        for text in happenings(&sim, &input, &out, last.as_ref()).into_iter().chain(notes) {
             let line = ConsoleLine {
                 tick: out.tick,
                 time_s: out.time_s,

@@ -256,6 +256,7 @@ impl RunningSession {
         let model = Arc::clone(&atlas.model);
         let mut moved_by = None;
         let mut window_hold = None;
+        let mut hardware = None;
         let (sim, device, live): (Simulation, Box<dyn Device + Send>, Option<LiveHandle>) = match driver {
             Driver::Hands => {
                 let mut config = SimConfig::new(DeviceProfile::IDEAL, ToolSpec::Finger);
@@ -296,7 +297,19 @@ impl RunningSession {
                 let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
                 let (position, orientation) = start_pose(&plan);
                 let (live, handle) = live_device(position, orientation, sim.tick_rate_hz());
-                moved_by = Some(format!("{} ({})", device.info().model, device.info().backend));
+                let info = device.info();
+                moved_by = Some(format!("{} ({})", info.model, info.backend));
+                hardware = Some(stylet_recorder::format::HardwareDevice {
+                    backend: info.backend.name().to_string(),
+                    // Within the header's text limit, whatever the vendor's library says.
+                    model: info
+                        .model
+                        .chars()
+                        .take(stylet_recorder::format::MAX_TEXT_CHARS)
+                        .collect(),
+                    max_force_n: info.max_force_n,
+                    max_continuous_force_n: info.max_continuous_force_n,
+                });
                 let pose = HapticPose::new(device, Mapping::default());
                 window_hold = Some(pose.window_hold());
                 (sim, Box::new(live.with_pose_source(Box::new(pose))), Some(handle))
@@ -318,7 +331,8 @@ impl RunningSession {
             atlas_id: &atlas.manifest.name,
             atlas_hash: &atlas.content_hash,
         };
-        let header = stylet_recorder::recording::header(&sim, &info);
+        let mut header = stylet_recorder::recording::header(&sim, &info);
+        header.hardware = hardware;
         std::fs::create_dir_all(&plan.sessions_dir).map_err(|e| SessionError::Record {
             path: plan.sessions_dir.clone(),
             reason: e.to_string(),

@@ -24,6 +24,12 @@ use stylet_physics::{Simulation, TickInput, TickOutput};
 /// that react to it); `None` ends the run.
 pub trait Device {
     fn next(&mut self, tick: u64, last: Option<&TickOutput>) -> Option<TickInput>;
+
+    /// What the device did besides moving the tool since the last call (a clutch pressed,
+    /// forces held or clamped), as lines for the session's notes; the physics never sees them.
+    fn notes(&mut self) -> Vec<String> {
+        Vec::new()
+    }
 }
 
 /// Runs a simulation against a device until the device ends, as fast as the CPU allows, calling

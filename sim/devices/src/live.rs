@@ -43,6 +43,11 @@ pub trait PoseSource: Send {
     fn poll(&mut self) -> Result<(DVec3, Option<DQuat>, u32), SourceError>;
     /// Displays `force_n` (device frame); a device without force output does nothing.
     fn display(&mut self, force_n: DVec3) -> Result<(), SourceError>;
+
+    /// What the device did besides moving the tool since the last call, for the session's notes.
+    fn notes(&mut self) -> Vec<String> {
+        Vec::new()
+    }
 }
 
 /// A six-axis source that failed.
@@ -239,6 +244,10 @@ impl LiveHandle {
 }
 
 impl Device for LiveDevice {
+    fn notes(&mut self) -> Vec<String> {
+        self.absolute.as_mut().map_or_else(Vec::new, |a| a.source.notes())
+    }
+
     fn next(&mut self, tick: u64, last: Option<&TickOutput>) -> Option<TickInput> {
         if let (Some(out), Ok(mut f)) = (last, self.feedback.try_lock()) {
             *f = LiveFeedback {

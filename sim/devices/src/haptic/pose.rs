@@ -88,7 +88,16 @@ pub struct HapticPose {
     window_hold: WindowHold,
     /// The hold last given to the device.
     applied: Hold,
+    /// Lines for the session's notes, taken by [`PoseSource::notes`].
+    notes: Vec<String>,
+    /// The guard's counts as last noted, and polls since.
+    noted_counts: super::ServoCounts,
+    polls_since_counts: u32,
+    fault_noted: bool,
 }
+
+/// How often the force guard's counts are compared for a note (polls: a second at 1 kHz).
+const COUNTS_EVERY_POLLS: u32 = 1000;
 
 impl HapticPose {
     pub fn new(device: Box<dyn HapticDevice>, mapping: Mapping) -> Self {
@@ -104,7 +113,32 @@ impl HapticPose {
             seq: 0,
             window_hold: WindowHold::default(),
             applied: Hold::None,
+            notes: Vec::new(),
+            noted_counts: super::ServoCounts::default(),
+            polls_since_counts: 0,
+            fault_noted: false,
         }
+    }
+
+    /// A note when the force guard acted since the last one (at most one a second).
+    fn note_counts(&mut self) {
+        self.polls_since_counts += 1;
+        if self.polls_since_counts < COUNTS_EVERY_POLLS {
+            return;
+        }
+        self.polls_since_counts = 0;
+        let (now, then) = (self.device.counts(), self.noted_counts);
+        let (g, h) = (now.guard, then.guard);
+        if g != h || now.recoverable_errors != then.recoverable_errors {
+            self.notes.push(format!(
+                "force guard since the last note: clamped to the maximum {} ticks, to the continuous limit {}; watchdog fired {} times; {} recoverable device errors",
+                g.clamped - h.clamped,
+                g.continuous - h.continuous,
+                g.watchdog_trips - h.watchdog_trips,
+                now.recoverable_errors - then.recoverable_errors
+            ));
+        }
+        self.noted_counts = now;
     }
 
     /// The switch through which the window holds forces (pause, focus).
@@ -138,8 +172,13 @@ impl HapticPose {
 impl PoseSource for HapticPose {
     fn poll(&mut self) -> Result<(DVec3, Option<DQuat>, u32), SourceError> {
         if let Some(e) = self.device.fault() {
+            if !self.fault_noted {
+                self.fault_noted = true;
+                self.notes.push(format!("force output stopped: {e}"));
+            }
             return Err(SourceError(e.to_string()));
         }
+        self.note_counts();
         let Some(r) = self.device.reading() else {
             return Err(SourceError(format!(
                 "{}: no servo tick yet",
@@ -176,6 +215,16 @@ impl PoseSource for HapticPose {
         };
         if hold != self.applied {
             self.device.set_hold(hold);
+            self.notes.push(
+                match hold {
+                    Hold::Clutched => "clutch held: the tool stays while the hand repositions; no force",
+                    Hold::FocusLost => "forces held: the window lost the focus",
+                    Hold::Paused => "forces held: paused",
+                    Hold::Stopping => "forces held: the device is closing",
+                    Hold::None => "forces flow again (they ramp in over a second)",
+                }
+                .to_string(),
+            );
             self.applied = hold;
         }
         Ok((pose.0, pose.1, r.buttons))
@@ -190,6 +239,10 @@ impl PoseSource for HapticPose {
         self.device.set_force(self.axes.transpose() * force_n, self.seq);
         self.seq += 1;
         Ok(())
+    }
+
+    fn notes(&mut self) -> Vec<String> {
+        std::mem::take(&mut self.notes)
     }
 }
 
@@ -331,6 +384,10 @@ mod tests {
         seen.lock().unwrap().position_mm = DVec3::new(5.0, -37.0, 0.0);
         assert!(close(pose.poll().unwrap().0, DVec3::new(5.0, 3.0, 0.0)));
         assert_eq!(seen.lock().unwrap().holds, [Hold::Clutched, Hold::None]);
+        let notes = pose.notes();
+        assert_eq!(notes.len(), 2, "{notes:?}");
+        assert!(notes[0].starts_with("clutch held") && notes[1].starts_with("forces flow again"));
+        assert!(pose.notes().is_empty(), "taken once");
     }
 
     #[test]
