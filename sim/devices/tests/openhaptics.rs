@@ -1,16 +1,25 @@
 //! The OpenHaptics backend against its device double (`doubles/openhaptics`, loaded at run time
 //! like `libHD.so`, playing a Touch: 3.3 N peak, 0.88 N continuous): the wall scenario of
 //! `common::wall_scenario`, plus what is OpenHaptics' own — frames paired, the continuous limit
-//! acting, the scheduler stopped at the end.
+//! acting, the scheduler stopped at the end, and the calibration: an uncalibrated device holds
+//! forces at zero until it is calibrated.
 
 mod common;
 
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
 use common::{Probe, WALL_HAND, double_library, wall_scenario};
 use stylet_devices::haptic::openhaptics::OpenHaptics;
-use stylet_devices::haptic::{HapticDevice, HapticError};
+use stylet_devices::haptic::{Calibration, HapticDevice, HapticError};
+use stylet_physics::glam::DVec3;
+
+/// The double is one device per process: its tests take turns.
+static DOUBLE: Mutex<()> = Mutex::new(());
 
 #[test]
 fn a_virtual_wall_through_the_openhaptics_double_is_safe_from_first_tick_to_last() {
+    let _turn = DOUBLE.lock().unwrap_or_else(|e| e.into_inner());
     let library = double_library("stylet_openhaptics_double");
     let probe = Probe::open(&library);
     probe.set_hand(&WALL_HAND);
@@ -35,4 +44,55 @@ fn a_missing_library_is_a_message_naming_the_paths_tried() {
     let not_hd = std::env::current_exe().unwrap();
     let e = OpenHaptics::open(Some(&not_hd)).err().unwrap().to_string();
     assert!(e.starts_with("openhaptics: "), "{e}");
+}
+
+/// A Touch that needs its stylus in the inkwell gets no force (the guard holds it) until the
+/// driver can calibrate; then Stylet asks for the inkwell calibration (the style the Touch
+/// supports) and forces engage and ramp in.
+#[test]
+fn an_uncalibrated_touch_holds_forces_until_it_is_calibrated_in_its_inkwell() {
+    let _turn = DOUBLE.lock().unwrap_or_else(|e| e.into_inner());
+    let library = double_library("stylet_openhaptics_double");
+    let probe = Probe::open(&library);
+    probe.set_hand(&[[0.0, 0.0, 0.0, 10.0]]);
+    probe.set_u32("stylet_double_set_calibration", 0x5002);
+    let device = OpenHaptics::open(Some(&library)).unwrap();
+    let small = DVec3::new(0.0, 0.0, 0.1);
+    let mut seq = 0;
+    let mut push_for = |device: &OpenHaptics, d: Duration| {
+        let start = Instant::now();
+        while start.elapsed() < d {
+            device.set_force(small, seq);
+            seq += 1;
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    };
+    push_for(&device, Duration::from_millis(400));
+    assert_eq!(
+        device.calibration(),
+        Calibration {
+            needs_manual_input: true,
+            updates: 0
+        }
+    );
+    assert!(device.reading().unwrap().force.limits.held);
+    assert!(
+        probe.forces().iter().all(|(_, f)| *f == DVec3::ZERO),
+        "a force while uncalibrated"
+    );
+    // The stylus rests in its inkwell: the driver can now update the calibration.
+    probe.set_u32("stylet_double_set_calibration", 0x5001);
+    push_for(&device, Duration::from_millis(1800));
+    assert_eq!(
+        device.calibration(),
+        Calibration {
+            needs_manual_input: false,
+            updates: 1
+        }
+    );
+    assert_eq!(probe.count("stylet_double_calibration_updates"), 1);
+    let last = probe.forces().last().unwrap().1;
+    assert!((last - small).length() < 1e-9, "ramped in after calibrating: {last}");
+    Box::new(device).close().unwrap();
+    assert_eq!(probe.violations(), 0);
 }

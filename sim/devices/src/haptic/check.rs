@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use stylet_physics::glam::DVec3;
 
-use super::{HapticDevice, HapticError, ServoCounts};
+use super::{Calibration, HapticDevice, HapticError, ServoCounts};
 
 /// The wall's stiffness (N/mm).
 pub const WALL_N_PER_MM: f64 = 0.5;
@@ -32,6 +32,8 @@ pub struct CheckReport {
     pub position_max_mm: DVec3,
     /// The largest force magnitude sent (N).
     pub largest_sent_n: f64,
+    /// The device's calibration at the end of the check.
+    pub calibration: Calibration,
 }
 
 impl CheckReport {
@@ -53,6 +55,11 @@ impl CheckReport {
                 "guard: clamped to the nominal maximum {} times, to the continuous limit {} times; watchdog fired {} times; {} recoverable device errors",
                 c.guard.clamped, c.guard.continuous, c.guard.watchdog_trips, c.recoverable_errors
             ),
+            match (self.calibration.needs_manual_input, self.calibration.updates) {
+                (true, _) => "calibration: needed — put the stylus in its inkwell (forces were held)".into(),
+                (false, 0) => "calibration: nothing to do".into(),
+                (false, n) => format!("calibration: updated {n} times"),
+            },
             "force at the end: zero (device closed)".into(),
         ]
     }
@@ -84,6 +91,7 @@ pub fn run_wall(device: Box<dyn HapticDevice>, seconds: f64) -> Result<CheckRepo
     }
     let elapsed = start.elapsed().as_secs_f64();
     let interval_p99_ms = device.interval_p99_ms();
+    let calibration = device.calibration();
     let counts = device.close()?;
     Ok(CheckReport {
         model,
@@ -94,5 +102,6 @@ pub fn run_wall(device: Box<dyn HapticDevice>, seconds: f64) -> Result<CheckRepo
         position_min_mm: lo,
         position_max_mm: hi,
         largest_sent_n: largest,
+        calibration,
     })
 }

@@ -79,6 +79,16 @@ pub struct ServoReading {
     pub force: Guarded,
 }
 
+/// A device's calibration as it reports it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Calibration {
+    /// The device needs the trainee's hand (OpenHaptics: the stylus in its inkwell); forces are
+    /// held at zero meanwhile.
+    pub needs_manual_input: bool,
+    /// Calibrations Stylet asked the device for since it opened.
+    pub updates: u64,
+}
+
 /// A device's running totals.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct ServoCounts {
@@ -105,6 +115,10 @@ pub trait HapticDevice: Send {
     fn interval_p99_ms(&self) -> f64;
     /// Why force output stopped, when a device error stopped it.
     fn fault(&self) -> Option<HapticError>;
+    /// The device's calibration, for devices that report one (OpenHaptics).
+    fn calibration(&self) -> Calibration {
+        Calibration::default()
+    }
     /// Zero force, then the servo loop stopped and the device released.
     fn close(self: Box<Self>) -> Result<ServoCounts, HapticError>;
 }

@@ -8,6 +8,7 @@
 use std::ffi::{CStr, c_char, c_int, c_uint, c_ulong, c_ushort, c_void};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use stylet_physics::glam::{DMat3, DVec3};
@@ -30,7 +31,16 @@ const HD_DEVICE_MODEL_TYPE: c_uint = 0x2501;
 const HD_NOMINAL_MAX_FORCE: c_uint = 0x2603;
 const HD_NOMINAL_MAX_CONTINUOUS_FORCE: c_uint = 0x2604;
 // Set parameter and capability.
+const HD_CALIBRATION_STYLE: c_uint = 0x2555;
 const HD_CURRENT_FORCE: c_uint = 0x2700;
+const HD_CALIBRATION_OK: c_uint = 0x5000;
+const HD_CALIBRATION_NEEDS_UPDATE: c_uint = 0x5001;
+const HD_CALIBRATION_NEEDS_MANUAL_INPUT: c_uint = 0x5002;
+const HD_CALIBRATION_ENCODER_RESET: c_int = 1 << 0;
+const HD_CALIBRATION_AUTO: c_int = 1 << 1;
+const HD_CALIBRATION_INKWELL: c_int = 1 << 2;
+/// How often the servo loop asks the device whether it is calibrated (ticks: half a second).
+const CALIBRATION_CHECK_TICKS: u64 = 500;
 const HD_FORCE_OUTPUT: c_uint = 0x4000;
 // Errors that leave the device usable: counted and shown.
 const HD_WARM_MOTORS: c_uint = 0x0200;
@@ -84,6 +94,8 @@ struct Api {
     start_scheduler: unsafe extern "system" fn(),
     stop_scheduler: unsafe extern "system" fn(),
     unschedule: unsafe extern "system" fn(c_ulong),
+    check_calibration: unsafe extern "system" fn() -> c_uint,
+    update_calibration: unsafe extern "system" fn(c_uint),
     _library: libloading::Library,
 }
 
@@ -119,6 +131,8 @@ impl Api {
             start_scheduler: sym!("hdStartScheduler"),
             stop_scheduler: sym!("hdStopScheduler"),
             unschedule: sym!("hdUnschedule"),
+            check_calibration: sym!("hdCheckCalibration"),
+            update_calibration: sym!("hdUpdateCalibration"),
             _library: lib,
         };
         Ok((api, path))
@@ -164,12 +178,39 @@ fn recoverable(code: c_uint) -> bool {
     )
 }
 
+/// The calibration style to ask for among those the device supports (`HD_CALIBRATION_STYLE`):
+/// automatic, else the inkwell, else an encoder reset, as OpenHaptics' calibration example
+/// prefers them; `None` for a device that names none.
+fn calibration_style(supported: c_int) -> Option<c_uint> {
+    [
+        HD_CALIBRATION_AUTO,
+        HD_CALIBRATION_INKWELL,
+        HD_CALIBRATION_ENCODER_RESET,
+    ]
+    .into_iter()
+    .find(|s| supported & s != 0)
+    .map(|s| s as c_uint)
+}
+
+/// The device's calibration as the servo loop last found it, for the other threads.
+#[derive(Default)]
+struct CalibrationState {
+    needs_manual_input: AtomicBool,
+    updates: AtomicU64,
+}
+
 /// What the HD scheduler's callback owns.
 struct Callback {
     api: Arc<Api>,
     hhd: Hhd,
     core: ServoCore,
     shared: Arc<Shared>,
+    /// The style `hdUpdateCalibration` is asked for.
+    calibration_style: Option<c_uint>,
+    calibration: Arc<CalibrationState>,
+    /// `hdCheckCalibration`'s last answer, and ticks since the callback started.
+    calibration_status: c_uint,
+    ticks: u64,
 }
 
 impl Callback {
@@ -181,6 +222,9 @@ impl Callback {
         // parameter it receives (3 doubles, 16 doubles, one int).
         unsafe {
             (api.begin_frame)(self.hhd);
+            if self.ticks.is_multiple_of(CALIBRATION_CHECK_TICKS) {
+                self.calibration_status = (api.check_calibration)();
+            }
             (api.get_doublev)(HD_CURRENT_POSITION, position.as_mut_ptr());
             (api.get_doublev)(HD_CURRENT_TRANSFORM, transform.as_mut_ptr());
             (api.get_integerv)(HD_CURRENT_BUTTONS, &mut buttons);
@@ -189,15 +233,18 @@ impl Callback {
         // stylus' rotation.
         let col = |c: usize| DVec3::new(transform[4 * c], transform[4 * c + 1], transform[4 * c + 2]);
         let rotation = DMat3::from_cols(col(0), col(1), col(2));
+        // Positions of an uncalibrated device cannot be trusted: no force until it is.
+        let device_hold = (self.calibration_status != HD_CALIBRATION_OK).then_some(Hold::Calibrating);
         let sent = self
             .core
-            .tick(DVec3::from_array(position), Some(rotation), buttons as u32);
+            .tick_held(DVec3::from_array(position), Some(rotation), buttons as u32, device_hold);
         let force = sent.to_array();
         // SAFETY: as above; `force` holds the 3 doubles HD_CURRENT_FORCE takes.
         unsafe {
             (api.set_doublev)(HD_CURRENT_FORCE, force.as_ptr());
             (api.end_frame)(self.hhd);
         }
+        self.ticks += 1;
         while let Some((code, message)) = api.error() {
             if recoverable(code) {
                 self.shared.count_recoverable();
@@ -212,7 +259,30 @@ impl Callback {
                 return HD_CALLBACK_DONE;
             }
         }
+        // (An error from the update shows on the next tick's draining.)
+        self.calibrate();
         HD_CALLBACK_CONTINUE
+    }
+
+    /// Outside the frame, as OpenHaptics' calibration example does: a device that needs an update
+    /// gets one in the supported style; one that needs the hand (the inkwell) is flagged.
+    fn calibrate(&mut self) {
+        let c = &self.calibration;
+        if self.calibration_status == HD_CALIBRATION_NEEDS_UPDATE
+            && let Some(style) = self.calibration_style
+        {
+            // SAFETY: HD API calls with their declared signatures.
+            self.calibration_status = unsafe {
+                (self.api.update_calibration)(style);
+                (self.api.check_calibration)()
+            };
+            c.updates.fetch_add(1, Ordering::Relaxed);
+        }
+        let manual = matches!(
+            self.calibration_status,
+            HD_CALIBRATION_NEEDS_MANUAL_INPUT | HD_CALIBRATION_NEEDS_UPDATE
+        );
+        c.needs_manual_input.store(manual, Ordering::Relaxed);
     }
 
     /// One frame that commands zero force.
@@ -252,6 +322,7 @@ pub struct OpenHaptics {
     callback: *mut Callback,
     handle: c_ulong,
     stopped: bool,
+    calibration: Arc<CalibrationState>,
     pub library_path: PathBuf,
 }
 
@@ -312,7 +383,12 @@ impl OpenHaptics {
             max_continuous_force_n: continuous.min(max),
             senses_orientation: true,
         };
+        let mut styles: c_int = 0;
+        // SAFETY: as above, one int.
+        unsafe { (api.get_integerv)(HD_CALIBRATION_STYLE, &mut styles) };
+        api.check("reading the calibration styles").map_err(disable)?;
         let shared = Shared::new();
+        let calibration = Arc::new(CalibrationState::default());
         let callback = Box::into_raw(Box::new(Callback {
             api: api.clone(),
             hhd,
@@ -321,6 +397,10 @@ impl OpenHaptics {
                 shared.clone(),
             ),
             shared: shared.clone(),
+            calibration_style: calibration_style(styles),
+            calibration: calibration.clone(),
+            calibration_status: HD_CALIBRATION_OK,
+            ticks: 0,
         }));
         // SAFETY: HD API calls with their declared signatures; the callback's state lives until
         // `stop` unschedules it.
@@ -338,6 +418,7 @@ impl OpenHaptics {
             callback,
             handle,
             stopped: false,
+            calibration,
             library_path,
         };
         if let Err(e) = device.api.check("starting the scheduler") {
@@ -403,6 +484,13 @@ impl HapticDevice for OpenHaptics {
 
     fn fault(&self) -> Option<HapticError> {
         self.shared.fault.get().cloned()
+    }
+
+    fn calibration(&self) -> super::Calibration {
+        super::Calibration {
+            needs_manual_input: self.calibration.needs_manual_input.load(Ordering::Relaxed),
+            updates: self.calibration.updates.load(Ordering::Relaxed),
+        }
     }
 
     fn close(mut self: Box<Self>) -> Result<ServoCounts, HapticError> {

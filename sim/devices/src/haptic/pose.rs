@@ -58,7 +58,7 @@ impl WindowHold {
             Hold::Paused => 1,
             Hold::FocusLost => 2,
             // The window has no other reasons: the clutch and stopping belong to the device.
-            Hold::None | Hold::Clutched | Hold::Stopping => 0,
+            Hold::None | Hold::Clutched | Hold::Calibrating | Hold::Stopping => 0,
         };
         self.0.store(v, Ordering::Release);
     }
@@ -94,6 +94,8 @@ pub struct HapticPose {
     noted_counts: super::ServoCounts,
     polls_since_counts: u32,
     fault_noted: bool,
+    /// The device's calibration as last noted.
+    noted_calibration: super::Calibration,
 }
 
 /// How often the force guard's counts are compared for a note (polls: a second at 1 kHz).
@@ -117,7 +119,25 @@ impl HapticPose {
             noted_counts: super::ServoCounts::default(),
             polls_since_counts: 0,
             fault_noted: false,
+            noted_calibration: super::Calibration::default(),
         }
+    }
+
+    /// A note when the device's calibration changed: it asks for the hand, or was calibrated.
+    fn note_calibration(&mut self) {
+        let (now, then) = (self.device.calibration(), self.noted_calibration);
+        if now == then {
+            return;
+        }
+        if now.needs_manual_input && !then.needs_manual_input {
+            self.notes
+                .push("calibration: put the stylus in its inkwell (forces held until calibrated)".into());
+        }
+        if now.updates > then.updates {
+            self.notes
+                .push(format!("calibration: updated ({} so far)", now.updates));
+        }
+        self.noted_calibration = now;
     }
 
     /// A note when the force guard acted since the last one (at most one a second).
@@ -179,6 +199,7 @@ impl PoseSource for HapticPose {
             return Err(SourceError(e.to_string()));
         }
         self.note_counts();
+        self.note_calibration();
         let Some(r) = self.device.reading() else {
             return Err(SourceError(format!(
                 "{}: no servo tick yet",
@@ -221,6 +242,7 @@ impl PoseSource for HapticPose {
                     Hold::FocusLost => "forces held: the window lost the focus",
                     Hold::Paused => "forces held: paused",
                     Hold::Stopping => "forces held: the device is closing",
+                    Hold::Calibrating => "forces held: the device is calibrating",
                     Hold::None => "forces flow again (they ramp in over a second)",
                 }
                 .to_string(),
@@ -262,6 +284,7 @@ mod tests {
         buttons: u32,
         force_n: DVec3,
         holds: Vec<Hold>,
+        calibration: crate::haptic::Calibration,
     }
 
     struct Fake {
@@ -302,6 +325,9 @@ mod tests {
         }
         fn fault(&self) -> Option<HapticError> {
             None
+        }
+        fn calibration(&self) -> crate::haptic::Calibration {
+            self.seen.lock().unwrap().calibration
         }
         fn close(self: Box<Self>) -> Result<ServoCounts, HapticError> {
             Ok(ServoCounts::default())
@@ -407,5 +433,24 @@ mod tests {
             seen.lock().unwrap().holds,
             [Hold::FocusLost, Hold::Clutched, Hold::None]
         );
+    }
+
+    #[test]
+    fn calibration_asking_for_the_hand_and_updates_are_noted_once() {
+        let (mut pose, seen) = fake(Backend::OpenHaptics);
+        pose.poll().unwrap();
+        assert!(pose.notes().is_empty());
+        seen.lock().unwrap().calibration.needs_manual_input = true;
+        pose.poll().unwrap();
+        pose.poll().unwrap();
+        let notes = pose.notes();
+        assert_eq!(notes.len(), 1, "{notes:?}");
+        assert!(notes[0].contains("inkwell"));
+        seen.lock().unwrap().calibration = crate::haptic::Calibration {
+            needs_manual_input: false,
+            updates: 1,
+        };
+        pose.poll().unwrap();
+        assert_eq!(pose.notes(), ["calibration: updated (1 so far)"]);
     }
 }

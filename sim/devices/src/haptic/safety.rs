@@ -68,6 +68,8 @@ pub enum Hold {
     FocusLost,
     /// The clutch is held: the hand repositions the stylus while the tool stays.
     Clutched,
+    /// The device reports itself uncalibrated: positions cannot be trusted.
+    Calibrating,
     /// The device is being closed, or an error stopped force output.
     Stopping,
 }
@@ -367,7 +369,13 @@ mod tests {
 
     #[test]
     fn pausing_losing_focus_and_stopping_send_zero() {
-        for hold in [Hold::Paused, Hold::FocusLost, Hold::Clutched, Hold::Stopping] {
+        for hold in [
+            Hold::Paused,
+            Hold::FocusLost,
+            Hold::Clutched,
+            Hold::Calibrating,
+            Hold::Stopping,
+        ] {
             let mut g = engaged();
             let o = g.filter(
                 Some(Computed {

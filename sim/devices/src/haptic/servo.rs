@@ -58,6 +58,7 @@ impl Shared {
             Hold::FocusLost => 2,
             Hold::Stopping => 3,
             Hold::Clutched => 4,
+            Hold::Calibrating => 5,
         };
         self.hold.store(v, Ordering::Release);
     }
@@ -68,6 +69,7 @@ impl Shared {
             1 => Hold::Paused,
             2 => Hold::FocusLost,
             4 => Hold::Clutched,
+            5 => Hold::Calibrating,
             _ => Hold::Stopping,
         }
     }
@@ -142,6 +144,18 @@ impl ServoCore {
 
     /// One servo tick: the force (N, device frame) to send for this reading.
     pub fn tick(&mut self, position_mm: DVec3, rotation: Option<DMat3>, buttons: u32) -> DVec3 {
+        self.tick_held(position_mm, rotation, buttons, None)
+    }
+
+    /// One servo tick, held at zero by the device itself when `device_hold` says why (an
+    /// uncalibrated device), whatever the simulation's side holds.
+    pub fn tick_held(
+        &mut self,
+        position_mm: DVec3,
+        rotation: Option<DMat3>,
+        buttons: u32,
+        device_hold: Option<Hold>,
+    ) -> DVec3 {
         let s = &self.shared;
         self.last = s.forces.try_latest(self.last);
         let time_s = s.started.elapsed().as_secs_f64();
@@ -149,7 +163,9 @@ impl ServoCore {
             let bin = (((time_s - previous) * 1000.0) / INTERVAL_BIN_MS) as usize;
             s.intervals[bin.min(INTERVAL_BINS - 1)].fetch_add(1, Ordering::Relaxed);
         }
-        let force = self.guard.filter(self.last, time_s, s.hold());
+        let force = self
+            .guard
+            .filter(self.last, time_s, device_hold.unwrap_or_else(|| s.hold()));
         let c = self.guard.counts();
         s.clamped.store(c.clamped, Ordering::Relaxed);
         s.continuous.store(c.continuous, Ordering::Relaxed);

@@ -75,6 +75,26 @@ impl Probe {
         }
     }
 
+    /// Calls a test entry point taking one `u32` (a status to set).
+    pub fn set_u32(&self, name: &str, value: u32) {
+        let symbol = format!("{name}\0");
+        // SAFETY: the double's function with its declared signature.
+        unsafe {
+            let f: libloading::Symbol<unsafe extern "C" fn(u32)> = self.0.get(symbol.as_bytes()).unwrap();
+            f(value);
+        }
+    }
+
+    /// Calls a test entry point returning a count.
+    pub fn count(&self, name: &str) -> u64 {
+        let symbol = format!("{name}\0");
+        // SAFETY: the double's function with its declared signature.
+        unsafe {
+            let f: libloading::Symbol<unsafe extern "C" fn() -> u64> = self.0.get(symbol.as_bytes()).unwrap();
+            f()
+        }
+    }
+
     /// The double's state bits (bit 0: the device open; the rest per double).
     pub fn state(&self) -> u32 {
         // SAFETY: the double's function with its declared signature.

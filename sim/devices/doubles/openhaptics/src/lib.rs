@@ -18,6 +18,7 @@ use std::time::{Duration, Instant};
 use stylet_device_double_arm::{Arm, copy_forces, read_keyframes};
 
 const HD_INVALID_ENUM: c_uint = 0x0100;
+const HD_INVALID_VALUE: c_uint = 0x0101;
 const HD_INVALID_OPERATION: c_uint = 0x0102;
 const HD_ILLEGAL_BEGIN: c_uint = 0x0400;
 const HD_ILLEGAL_END: c_uint = 0x0401;
@@ -27,6 +28,11 @@ const HD_CURRENT_TRANSFORM: c_uint = 0x2052;
 const HD_DEVICE_MODEL_TYPE: c_uint = 0x2501;
 const HD_NOMINAL_MAX_FORCE: c_uint = 0x2603;
 const HD_NOMINAL_MAX_CONTINUOUS_FORCE: c_uint = 0x2604;
+const HD_CALIBRATION_STYLE: c_uint = 0x2555;
+const HD_CALIBRATION_OK: c_uint = 0x5000;
+const HD_CALIBRATION_NEEDS_UPDATE: c_uint = 0x5001;
+/// The Touch calibrates in its inkwell.
+const HD_CALIBRATION_INKWELL: c_int = 1 << 2;
 const HD_CURRENT_FORCE: c_uint = 0x2700;
 const HD_FORCE_OUTPUT: c_uint = 0x4000;
 const HD_CALLBACK_CONTINUE: c_uint = 1;
@@ -53,6 +59,9 @@ struct Double {
     errors: Vec<c_uint>,
     frame_violations: u64,
     callback: Option<(usize, usize)>,
+    /// What `hdCheckCalibration` answers, and the calibrations asked for.
+    calibration: c_uint,
+    calibration_updates: u64,
 }
 
 static DOUBLE: Mutex<Option<Double>> = Mutex::new(None);
@@ -77,6 +86,8 @@ impl Double {
             errors: Vec::new(),
             frame_violations: 0,
             callback: None,
+            calibration: HD_CALIBRATION_OK,
+            calibration_updates: 0,
         }
     }
 }
@@ -86,12 +97,13 @@ impl Double {
 #[unsafe(no_mangle)]
 pub unsafe extern "system" fn hdInitDevice(_name: *const c_char) -> c_uint {
     let mut d = double();
-    let arm = d
+    let (arm, calibration) = d
         .take()
-        .map(|d| d.arm.restarted())
-        .unwrap_or_else(|| Arm::new(vec![[0.0; 4]]));
+        .map(|d| (d.arm.restarted(), d.calibration))
+        .unwrap_or_else(|| (Arm::new(vec![[0.0; 4]]), HD_CALIBRATION_OK));
     let mut fresh = Double::new(arm);
     fresh.open = true;
+    fresh.calibration = calibration;
     *d = Some(fresh);
     0
 }
@@ -170,6 +182,8 @@ pub unsafe extern "system" fn hdGetIntegerv(param: c_uint, out: *mut c_int) {
     if let Some(Some(b)) = with(|d| {
         if param == HD_CURRENT_BUTTONS {
             Some(d.arm.buttons as c_int)
+        } else if param == HD_CALIBRATION_STYLE {
+            Some(HD_CALIBRATION_INKWELL)
         } else {
             d.errors.push(HD_INVALID_ENUM);
             None
@@ -207,6 +221,25 @@ pub unsafe extern "system" fn hdGetString(param: c_uint) -> *const c_char {
 }
 
 #[unsafe(no_mangle)]
+pub unsafe extern "system" fn hdCheckCalibration() -> c_uint {
+    with(|d| d.calibration).unwrap_or(HD_CALIBRATION_OK)
+}
+
+/// Calibrates in a supported style once the device can (it needs an update, as after the stylus
+/// rested in its inkwell); a style the Touch lacks is an invalid value.
+#[unsafe(no_mangle)]
+pub unsafe extern "system" fn hdUpdateCalibration(style: c_uint) {
+    with(|d| {
+        if style as c_int != HD_CALIBRATION_INKWELL {
+            d.errors.push(HD_INVALID_VALUE);
+        } else if d.calibration == HD_CALIBRATION_NEEDS_UPDATE {
+            d.calibration = HD_CALIBRATION_OK;
+            d.calibration_updates += 1;
+        }
+    });
+}
+
+#[unsafe(no_mangle)]
 pub unsafe extern "system" fn hdGetError() -> HdErrorInfo {
     let code = with(|d| if d.errors.is_empty() { 0 } else { d.errors.remove(0) }).unwrap_or(0);
     HdErrorInfo {
@@ -220,6 +253,7 @@ pub unsafe extern "system" fn hdGetError() -> HdErrorInfo {
 pub unsafe extern "system" fn hdGetErrorString(code: c_uint) -> *const c_char {
     match code {
         HD_INVALID_ENUM => c"Invalid enumeration".as_ptr(),
+        HD_INVALID_VALUE => c"Invalid value".as_ptr(),
         HD_INVALID_OPERATION => c"Invalid operation".as_ptr(),
         HD_ILLEGAL_BEGIN => c"Illegal begin".as_ptr(),
         HD_ILLEGAL_END => c"Illegal end".as_ptr(),
@@ -292,6 +326,19 @@ pub unsafe extern "C" fn stylet_double_set_hand(keyframes: *const f64, n: usize)
 pub unsafe extern "C" fn stylet_double_forces(out: *mut f64, capacity: usize) -> usize {
     // SAFETY: the caller passes room for 4·capacity doubles.
     with(|d| unsafe { copy_forces(&d.arm, out, capacity) }).unwrap_or(0)
+}
+
+/// Sets what `hdCheckCalibration` answers (0x5000 OK, 0x5001 needs an update, 0x5002 needs the
+/// stylus in its inkwell); kept when the device is opened again.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn stylet_double_set_calibration(status: c_uint) {
+    with(|d| d.calibration = status);
+}
+
+/// How many calibrations the backend asked for (`hdUpdateCalibration` that calibrated).
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn stylet_double_calibration_updates() -> u64 {
+    with(|d| d.calibration_updates).unwrap_or(0)
 }
 
 /// How many frame rules were broken (begin twice, end without begin, force outside a frame).
