@@ -63,10 +63,13 @@ TOPIC_EVENTS = "/stylet/events"
 TOPIC_DIGESTS = "/stylet/digests"
 TOPIC_ANNOTATIONS = "/stylet/annotations"
 TOPIC_PREVIEW = "/stylet/preview"
-TOPICS = (TOPIC_TICKS, TOPIC_EVENTS, TOPIC_DIGESTS, TOPIC_ANNOTATIONS, TOPIC_PREVIEW)
+TOPIC_DEVICE_FORCES = "/stylet/device_forces"
+TOPICS = (
+    TOPIC_TICKS, TOPIC_EVENTS, TOPIC_DIGESTS, TOPIC_ANNOTATIONS, TOPIC_PREVIEW, TOPIC_DEVICE_FORCES,
+)
 
 # Schema versions this reader reads (the Rust reader of version N reads N and N - 1).
-SCHEMA_VERSIONS = (1, 2)
+SCHEMA_VERSIONS = (1, 2, 3)
 CODEC_EXACT = "stylet-columns-v1"
 CODEC_ROUNDED = "stylet-columns-v2"
 
@@ -109,6 +112,14 @@ PREVIEW_COLUMNS = (
     "tip_label", "inserted_mm",
 )
 BLOCK_COLUMNS = ("first_tick", "count", "codec", "outputs_digest")
+DEVICE_FORCE_COLUMNS = (
+    "tick", "t_s", "sent_x_n", "sent_y_n", "sent_z_n", "sent_magnitude_n",
+    "held", "watchdog", "waiting", "not_finite", "ramping", "clamped", "continuous",
+)
+# The force guard's flags in a device-force block's `guard` column, bit by bit.
+GUARD_FLAGS = ("held", "watchdog", "waiting", "not_finite", "ramping", "clamped", "continuous")
+DEVICE_FORCE_STEPS_PER_N = 1 << 16
+MAX_DEVICE_FORCE_BLOCK_TICKS = 500
 TOOL_COLUMNS = ("tick", "tool", "tool_gauge", "tool_length_mm", "tool_stylet_in")
 
 EVENT_NAMES = (
@@ -145,6 +156,8 @@ class Session:
       ANNOTATION_COLUMNS, PREVIEW_COLUMNS, in the order the file holds them.
     - `blocks`: one row per tick block (BLOCK_COLUMNS): its codec and, for codec v2, the digest
       of its exact outputs.
+    - `device_forces`: sessions trained on a force-feedback device (schema 3): per tick the force
+      the device was sent and what its force guard did (DEVICE_FORCE_COLUMNS; flags as booleans).
     - `header`: the `stylet.session` metadata as stored (all values strings); `end`: the
       `stylet.session.end` record decoded (ticks, dropped_ticks, complete, reason) or None;
       `metadata`: every metadata record by name; `profile`, `library`: the MCAP header's.
@@ -163,6 +176,7 @@ class Session:
         self.annotations = _columns(ANNOTATION_COLUMNS)
         self.previews = _columns(PREVIEW_COLUMNS)
         self.blocks = _columns(BLOCK_COLUMNS)
+        self.device_forces = _columns(DEVICE_FORCE_COLUMNS)
         self.tick_rate_hz = None
         self.schema_version = None
 
@@ -602,6 +616,43 @@ class _Reader:
         a = self.s.annotations
         for k, v in zip(ANNOTATION_COLUMNS, (tick, self.t(tick), text)):
             a[k].append(v)
+
+    def _device_forces(self, m):
+        what = "device-force block"
+        first = _uint(_get(m, "first_tick", what), "first_tick")
+        n = _uint(_get(m, "count", what), "count", 32)
+        columns = _get(m, "columns", what)
+        if not 0 < n <= MAX_DEVICE_FORCE_BLOCK_TICKS:
+            raise SessionFormatError(f"device-force block of {n} ticks")
+        if first + n > U64 + 1:
+            raise SessionFormatError("device-force block tick numbers overflow")
+        if not isinstance(columns, dict):
+            raise SessionFormatError("device-force block columns are not a map")
+        d = self.s.device_forces
+        if d["tick"] and first <= d["tick"][-1]:
+            raise SessionFormatError(f"device forces at tick {first} after tick {d['tick'][-1]}")
+
+        def column(name):
+            data = columns.get(name)
+            if not isinstance(data, bytes):
+                raise SessionFormatError(f"device-force block at tick {first} lacks byte column '{name}'")
+            return data
+
+        sent = [
+            decode_steps(column(c), n, DEVICE_FORCE_STEPS_PER_N, c)
+            for c in ("sent_x_n", "sent_y_n", "sent_z_n")
+        ]
+        flags = decode_xor(column("guard"), 1, n, "guard")
+        if any(f > 0x7F for f in flags):
+            raise SessionFormatError("device-force column 'guard' holds a value out of range")
+        for i in range(n):
+            tick = first + i
+            x, y, z = sent[0][i], sent[1][i], sent[2][i]
+            row = (tick, self.t(tick), x, y, z, math.sqrt(x * x + y * y + z * z)) + tuple(
+                bool(flags[i] >> b & 1) for b in range(len(GUARD_FLAGS))
+            )
+            for k, v in zip(DEVICE_FORCE_COLUMNS, row):
+                d[k].append(v)
 
     def _preview(self, m):
         tick = _uint(_get(m, "tick", "preview"), "preview tick")

@@ -24,6 +24,7 @@ from stylet_session import SessionFormatError, read_session, rows, tool_in_hand
 HERE = Path(__file__).resolve().parent
 V1 = HERE.parent / "tests/fixtures/session-v1.mcap"
 V2 = HERE.parent / "tests/fixtures/session-v2.mcap"
+V3 = HERE.parent / "tests/fixtures/session-v3.mcap"
 PHYSICS_V11 = HERE.parent.parent / "tests/fixtures/physics-v11"
 PHYSICS_FILES = sorted(PHYSICS_V11.glob("*.mcap"))
 
@@ -200,6 +201,21 @@ class Fixtures(unittest.TestCase):
                 self.assertEqual(bits(float(got[c])), bits(float(v)), f"tick {exp['tick']} {c}")
         # Exact: the first force z is -0 (-0.005 * 0.0), sign included.
         self.assertEqual(math.copysign(1.0, s.ticks["force_z_n"][0]), -1.0)
+
+    def test_v3_fixture_holds_the_force_sent_to_the_device(self):
+        s = read_session(V3)
+        self.assertEqual(s.schema_version, 3)
+        self.assertEqual(s.header["hardware.backend"], "dhd")
+        d = s.device_forces
+        self.assertEqual(d["tick"], list(range(1500)))
+        for i in (0, 499, 1234):
+            t = i * 1e-3
+            # As the Rust test writes them: a smooth push, a guard flag now and then.
+            self.assertAlmostEqual(d["sent_x_n"][i], 0.25 * math.sin(t), delta=2 ** -17)
+            self.assertAlmostEqual(d["sent_z_n"][i], 1.5 * t, delta=2 ** -17)
+            flags = i // 97 % 128
+            for b, name in enumerate(ss.GUARD_FLAGS):
+                self.assertEqual(d[name][i], bool(flags >> b & 1), f"tick {i} {name}")
 
     def test_v2_fixture_holds_rounded_outputs_and_their_digests(self):
         s = read_session(V2)
@@ -463,7 +479,7 @@ class HandMadeFiles(unittest.TestCase):
 
     def test_headers_refused(self):
         for change, pattern in [
-            ({"schema_version": "3"}, "schema version 3"),
+            ({"schema_version": "4"}, "schema version 4"),
             ({"schema_version": "x"}, "not a number"),
             ({"tick_rate_hz": "0"}, "tick_rate_hz 0 is out of range"),
             ({"tool": "spoon"}, "unknown tool 'spoon'"),

@@ -9,10 +9,13 @@ use serde_bytes::ByteBuf;
 use stylet_physics::motion::BreathingSettings;
 use stylet_physics::{ContrastSettings, DeformSettings, Event, Gauge, ProbeKind, SettingsError, ToolSpec};
 
-/// The session schema version this code writes; it reads this version and the one before.
+/// The session schema version this code writes; it reads every version since 1.
 /// Version 2 (2026-11-28): tick blocks may round their forces and torques (codec
-/// `stylet-columns-v2`, [`crate::outputs`]).
-pub const SCHEMA_VERSION: u32 = 2;
+/// `stylet-columns-v2`, [`crate::outputs`]). Version 3 (2026-12-05): a session trained on a
+/// force-feedback device may carry [`TOPIC_DEVICE_FORCES`] and the header's `hardware.*`.
+pub const SCHEMA_VERSION: u32 = 3;
+/// The oldest schema version this code reads.
+pub const OLDEST_SCHEMA_VERSION: u32 = 1;
 /// MCAP profile string of Stylet sessions.
 pub const PROFILE: &str = "stylet-session";
 
@@ -26,6 +29,18 @@ pub const TOPIC_EVENTS: &str = "/stylet/events";
 pub const TOPIC_DIGESTS: &str = "/stylet/digests";
 pub const TOPIC_ANNOTATIONS: &str = "/stylet/annotations";
 pub const TOPIC_PREVIEW: &str = "/stylet/preview";
+/// The force a force-feedback device was sent ([`crate::device_forces`]); only in sessions
+/// trained on one.
+pub const TOPIC_DEVICE_FORCES: &str = "/stylet/device_forces";
+/// Every topic a session may have.
+pub const TOPICS: [&str; 6] = [
+    TOPIC_TICKS,
+    TOPIC_EVENTS,
+    TOPIC_DIGESTS,
+    TOPIC_ANNOTATIONS,
+    TOPIC_PREVIEW,
+    TOPIC_DEVICE_FORCES,
+];
 
 /// Message and schema encodings (MCAP registry names).
 pub const MESSAGE_ENCODING: &str = "cbor";
@@ -856,6 +871,7 @@ pub fn json_schema(topic: &str) -> &'static str {
         TOPIC_EVENTS => EVENT_SCHEMA,
         TOPIC_DIGESTS => DIGEST_SCHEMA,
         TOPIC_ANNOTATIONS => ANNOTATION_SCHEMA,
+        TOPIC_DEVICE_FORCES => DEVICE_FORCE_BLOCK_SCHEMA,
         _ => PREVIEW_SCHEMA,
     }
 }
@@ -950,6 +966,30 @@ const ANNOTATION_SCHEMA: &str = r##"{
     "text": {"type": "string", "maxLength": 2000}
   },
   "required": ["tick", "text"],
+  "additionalProperties": false
+}"##;
+
+const DEVICE_FORCE_BLOCK_SCHEMA: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "stylet.DeviceForceBlock",
+  "description": "Up to 500 consecutive ticks of a force-feedback device, column by column (docs/session-format.md 'Device forces'): per tick the force its servo loop last sent when the tick read the device, and its force guard's flags. Metadata: replay never reads it. The message is a CBOR map; each column is a CBOR byte string (base64url in the RFC 8949 JSON form). sent_x_n sent_y_n sent_z_n: i64 step counts, 2^16 per N, as zigzag residuals of the prediction 2*v[i-1]-v[i-2], little-endian bytes transposed into planes (8 bytes per tick); guard: u8 flags (1 held, 2 watchdog, 4 waiting to engage, 8 not finite, 16 ramping, 32 clamped, 64 continuous limit), each XOR the previous (1 byte per tick).",
+  "type": "object",
+  "properties": {
+    "first_tick": {"type": "integer", "minimum": 0, "maximum": 18446744073709551615},
+    "count": {"type": "integer", "minimum": 1, "maximum": 500},
+    "columns": {
+      "type": "object",
+      "properties": {
+        "sent_x_n": {"type": "string", "contentEncoding": "base64url"},
+        "sent_y_n": {"type": "string", "contentEncoding": "base64url"},
+        "sent_z_n": {"type": "string", "contentEncoding": "base64url"},
+        "guard": {"type": "string", "contentEncoding": "base64url"}
+      },
+      "required": ["sent_x_n", "sent_y_n", "sent_z_n", "guard"],
+      "additionalProperties": false
+    }
+  },
+  "required": ["first_tick", "count", "columns"],
   "additionalProperties": false
 }"##;
 

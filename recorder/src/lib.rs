@@ -8,6 +8,7 @@
 //! forces and torques and the digest that pins their exact bits.
 
 pub mod codec;
+pub mod device_forces;
 pub mod format;
 pub mod outputs;
 pub mod reader;

@@ -9,6 +9,7 @@ use std::collections::BTreeMap;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
 
+use crate::device_forces::{self, DeviceForceBlock, DeviceForceError, DeviceForceRecord};
 use crate::format::*;
 use crate::outputs::OutputCheck;
 use crate::records::{self, OP_CHUNK, OP_DATA_END, OP_FOOTER, OP_HEADER, ParseError, Record};
@@ -181,6 +182,8 @@ pub enum MessageError {
     #[error(transparent)]
     Block(#[from] BlockError),
     #[error(transparent)]
+    DeviceForces(#[from] DeviceForceError),
+    #[error(transparent)]
     Pose(#[from] PoseError),
     /// A tick block that does not start after the previous one ended.
     #[error("tick {first} after tick {last}")]
@@ -232,6 +235,9 @@ pub struct Session {
     /// the exact outputs of the block's ticks against.
     pub output_checks: Vec<OutputCheck>,
     pub annotations: Vec<AnnotationRecord>,
+    /// The force a force-feedback device was sent, per tick (sessions trained on one; metadata
+    /// for the review, never replayed).
+    pub device_forces: Vec<DeviceForceRecord>,
     pub chunks: Vec<ChunkInfo>,
     /// The first damage (recovery mode only; `None` for an intact file).
     pub damage: Option<Damage>,
@@ -279,6 +285,7 @@ struct Walk<'l> {
     digests: Vec<DigestRecord>,
     output_checks: Vec<OutputCheck>,
     annotations: Vec<AnnotationRecord>,
+    device_forces: Vec<DeviceForceRecord>,
     chunks: Vec<ChunkInfo>,
     /// Ticks read so far (kept or streamed): bounded by `limits.max_ticks` before decoding.
     tick_count: u64,
@@ -355,6 +362,23 @@ impl Walk<'_> {
                 self.annotations.push(a);
             }
             TOPIC_PREVIEW => {}
+            TOPIC_DEVICE_FORCES => {
+                let block: DeviceForceBlock = from_cbor(data).map_err(MessageError::from)?;
+                if (self.device_forces.len() as u64).saturating_add(u64::from(block.count)) > self.limits.max_ticks {
+                    return Err(LimitExceeded::Ticks(self.limits.max_ticks).into());
+                }
+                let records = device_forces::decode(&block).map_err(MessageError::from)?;
+                if let (Some(last), Some(first)) = (self.device_forces.last(), records.first())
+                    && first.tick <= last.tick
+                {
+                    return Err(MessageError::TickOrder {
+                        first: first.tick,
+                        last: last.tick,
+                    }
+                    .into());
+                }
+                self.device_forces.extend(records);
+            }
             other => return Err(MessageError::UnexpectedTopic(other.to_string()).into()),
         }
         Ok(())
@@ -383,15 +407,7 @@ impl Walk<'_> {
         match records::parse(op, body).map_err(|source| DamageKind::BadRecord { op, source })? {
             Record::Channel { id, topic } => {
                 // Only the session's own topics: nothing else is read, so nothing else is kept.
-                if ![
-                    TOPIC_TICKS,
-                    TOPIC_EVENTS,
-                    TOPIC_DIGESTS,
-                    TOPIC_ANNOTATIONS,
-                    TOPIC_PREVIEW,
-                ]
-                .contains(&topic)
-                {
+                if !TOPICS.contains(&topic) {
                     let shown: String = topic.chars().take(MAX_NAME_CHARS).collect();
                     return Err(DamageKind::ChannelTopic(shown));
                 }
@@ -637,6 +653,7 @@ fn walk<'a>(
         digests: Vec::new(),
         output_checks: Vec::new(),
         annotations: Vec::new(),
+        device_forces: Vec::new(),
         chunks: Vec::new(),
         tick_count: 0,
         messages: 0,
@@ -765,12 +782,10 @@ fn walk<'a>(
             });
         }
     };
-    if header.schema_version + 1 < SCHEMA_VERSION || header.schema_version > SCHEMA_VERSION {
+    if !(OLDEST_SCHEMA_VERSION..=SCHEMA_VERSION).contains(&header.schema_version) {
         return Err(ReadError::NotASession(format!(
-            "schema version {} (this Stylet reads {} and {})",
+            "schema version {} (this Stylet reads {OLDEST_SCHEMA_VERSION} to {SCHEMA_VERSION})",
             header.schema_version,
-            SCHEMA_VERSION.saturating_sub(1),
-            SCHEMA_VERSION
         )));
     }
     if let (Mode::Strict, Some(d)) = (mode, &damage) {
@@ -784,6 +799,7 @@ fn walk<'a>(
         digests: w.digests,
         output_checks: w.output_checks,
         annotations: w.annotations,
+        device_forces: w.device_forces,
         chunks: w.chunks,
         damage,
         finished: w.finished,
@@ -983,6 +999,7 @@ pub fn read_tick_range(path: &Path, first: u64, last: u64) -> Result<Vec<TickRec
         digests: Vec::new(),
         output_checks: Vec::new(),
         annotations: Vec::new(),
+        device_forces: Vec::new(),
         chunks: Vec::new(),
         tick_count: 0,
         messages: 0,

@@ -92,6 +92,12 @@ impl Recording {
         }
     }
 
+    /// Records the force a force-feedback device was sent at a tick (metadata; the replay ignores
+    /// it). Never blocks (a full queue drops it); nothing when the header names no device.
+    pub fn device_force(&self, record: crate::device_forces::DeviceForceRecord) {
+        self.writer.device_force(record);
+    }
+
     /// Records a note at `tick` (metadata such as the haptic loop's missed deadlines; the replay
     /// ignores notes). Never blocks in real time (a full queue drops it).
     pub fn note(&self, tick: u64, text: &str) {

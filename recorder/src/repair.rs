@@ -29,6 +29,9 @@ pub fn rewrite_recovered(session: &Session, source: &str, out: &Path) -> Result<
         for d in &session.digests {
             w.digest_blocking(d.tick, d.digest)?;
         }
+        for f in &session.device_forces {
+            w.device_force_blocking(*f)?;
+        }
         w.record_read_blocking(&session.ticks, &session.output_checks)?;
         let mut reasons = Vec::new();
         if let Some(d) = &session.damage {

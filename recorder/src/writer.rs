@@ -23,6 +23,7 @@ use serde_bytes::ByteBuf;
 use stylet_physics::{Event, TickInput, TickOutput};
 
 use crate::codec;
+use crate::device_forces::{self, DeviceForceRecord};
 use crate::format::*;
 use crate::outputs::{self, FORCE_STEPS_PER_N, OutputCheck, OutputDigest, TORQUE_STEPS_PER_NMM};
 
@@ -69,6 +70,7 @@ enum Item {
     Event(EventRecord),
     Digest(DigestRecord),
     Annotation(AnnotationRecord),
+    DeviceForce(DeviceForceRecord),
     /// The session is known to be incomplete for this reason (e.g. recovered from a cut file).
     Incomplete(String),
 }
@@ -129,6 +131,8 @@ type WriteFn<'a> = dyn FnMut(&mut mcap::Writer<SyncingFile>, &str, u64, &[u8]) -
 /// Records one session.
 pub struct SessionWriter {
     tx: Option<SyncSender<Item>>,
+    /// Whether the file has the device-force channel (a header naming a force-feedback device).
+    device_forces: bool,
     handle: Option<JoinHandle<Result<Written, WriteError>>>,
     dropped: Arc<AtomicU64>,
     path: PathBuf,
@@ -161,13 +165,11 @@ impl SessionWriter {
         .map_err(|e| io(&e))?;
         w.flush().map_err(|e| io(&e))?;
         let mut channels = BTreeMap::new();
-        for topic in [
-            TOPIC_TICKS,
-            TOPIC_EVENTS,
-            TOPIC_DIGESTS,
-            TOPIC_ANNOTATIONS,
-            TOPIC_PREVIEW,
-        ] {
+        let device_forces = header.hardware.is_some();
+        let topics = TOPICS
+            .into_iter()
+            .filter(|t| device_forces || *t != TOPIC_DEVICE_FORCES);
+        for topic in topics {
             let schema = w
                 .add_schema(&topic.replace('/', "."), SCHEMA_ENCODING, json_schema(topic).as_bytes())
                 .map_err(|e| io(&e))?;
@@ -187,6 +189,7 @@ impl SessionWriter {
             .map_err(|e| io(&e))?;
         Ok(SessionWriter {
             tx: Some(tx),
+            device_forces,
             handle: Some(handle),
             dropped,
             path: path.to_path_buf(),
@@ -305,6 +308,23 @@ impl SessionWriter {
         .map_err(|_| WriteError::Thread("the writer thread stopped".into()))
     }
 
+    /// Records the force a force-feedback device was sent at a tick. Never blocks; false if
+    /// dropped, or if the header named no device (the file then has no channel for it).
+    pub fn device_force(&self, record: DeviceForceRecord) -> bool {
+        self.device_forces && self.send(Item::DeviceForce(record))
+    }
+
+    /// As [`SessionWriter::device_force`], waiting while the queue is full (rewriting a file);
+    /// nothing for a header without a device.
+    pub fn device_force_blocking(&self, record: DeviceForceRecord) -> Result<(), WriteError> {
+        if !self.device_forces {
+            return Ok(());
+        }
+        let tx = self.tx.as_ref().ok_or_else(|| WriteError::Thread("finished".into()))?;
+        tx.send(Item::DeviceForce(record))
+            .map_err(|_| WriteError::Thread("the writer thread stopped".into()))
+    }
+
     /// Records an event. Never blocks; false if dropped.
     pub fn event(&self, tick: u64, e: &Event) -> bool {
         self.send(Item::Event(EventRecord::from_event(tick, e)))
@@ -405,6 +425,8 @@ fn run(
             w.write_to_known_channel(&header, data).map_err(|e| io(&e))
         };
     let mut block: Vec<TickRecord> = Vec::with_capacity(BLOCK_TICKS);
+    let mut forces: Vec<DeviceForceRecord> = Vec::with_capacity(device_forces::BLOCK_TICKS);
+
     let mut ticks = 0u64;
     let mut since_flush = 0u64;
     let mut last_flush = Instant::now();
@@ -450,6 +472,15 @@ fn run(
             Ok(Item::Event(e)) => write(&mut w, TOPIC_EVENTS, e.tick, &to_cbor(&e))?,
             Ok(Item::Digest(d)) => write(&mut w, TOPIC_DIGESTS, d.tick, &to_cbor(&d))?,
             Ok(Item::Annotation(a)) => write(&mut w, TOPIC_ANNOTATIONS, a.tick, &to_cbor(&a))?,
+            Ok(Item::DeviceForce(f)) => {
+                if forces.last().is_some_and(|l| l.tick + 1 != f.tick) {
+                    write_forces(&mut write, &mut w, &mut forces)?;
+                }
+                forces.push(f);
+                if forces.len() == device_forces::BLOCK_TICKS {
+                    write_forces(&mut write, &mut w, &mut forces)?;
+                }
+            }
             Ok(Item::Incomplete(reason)) => incomplete = Some(reason),
             Err(_) => {}
         }
@@ -471,6 +502,7 @@ fn run(
         if ended || since_flush >= CHUNK_TICKS || last_flush.elapsed() >= FLUSH_INTERVAL {
             write_block(&mut write, &mut w, &block)?;
             block.clear();
+            write_forces(&mut write, &mut w, &mut forces)?;
             w.flush().map_err(|e| io(&e))?;
             since_flush = 0;
             last_flush = Instant::now();
@@ -518,6 +550,20 @@ fn preview(t: &TickRecord, rate: u64) -> PreviewRecord {
         tip_label: t.tip_label,
         inserted_mm: t.inserted_mm as f32,
     }
+}
+
+/// Writes the device forces gathered so far as one block, and clears them.
+fn write_forces(
+    write: &mut WriteFn,
+    w: &mut mcap::Writer<SyncingFile>,
+    forces: &mut Vec<DeviceForceRecord>,
+) -> Result<(), WriteError> {
+    if forces.is_empty() {
+        return Ok(());
+    }
+    let b = device_forces::encode(forces);
+    forces.clear();
+    write(w, TOPIC_DEVICE_FORCES, b.first_tick, &to_cbor(&b))
 }
 
 fn write_block(write: &mut WriteFn, w: &mut mcap::Writer<SyncingFile>, block: &[TickRecord]) -> Result<(), WriteError> {

@@ -122,6 +122,66 @@ fn write_session(path: &Path, ticks: &[TickRecord], options: WriterOptions) -> s
     w.finish().unwrap()
 }
 
+/// A device force for `tick`: a smooth push, a guard flag now and then.
+fn device_force(tick: u64) -> stylet_recorder::device_forces::DeviceForceRecord {
+    let t = tick as f64 * 1e-3;
+    stylet_recorder::device_forces::DeviceForceRecord {
+        tick,
+        sent_n: [0.25 * t.sin(), 0.0, 1.5 * t],
+        guard: (tick / 97 % 128) as u8,
+    }
+}
+
+/// A session trained on a force-feedback device keeps the force it was sent, tick by tick (to
+/// the 2⁻¹⁶ N step) with the guard's flags; a session without a device has no channel for it,
+/// and what is sent to its writer is refused rather than stored.
+#[test]
+fn device_forces_are_kept_beside_the_ticks() {
+    let d = tempfile::tempdir().unwrap();
+    let with_device = d.path().join("device.mcap");
+    let ticks = synthetic_ticks(1300, 3);
+    let w = SessionWriter::create(&with_device, &header(), WriterOptions::default()).unwrap();
+    for t in &ticks {
+        w.record_raw_blocking(*t).unwrap();
+        assert!(w.device_force(device_force(t.tick)) || w.dropped() > 0);
+    }
+    w.finish().unwrap();
+    let s = reader::verify(&with_device).unwrap();
+    assert_eq!(s.header.schema_version, 3);
+    assert_eq!(s.device_forces.len(), 1300);
+    for (r, t) in s.device_forces.iter().zip(&ticks) {
+        let want = device_force(t.tick);
+        assert_eq!((r.tick, r.guard), (want.tick, want.guard));
+        for k in 0..3 {
+            assert!((r.sent_n[k] - want.sent_n[k]).abs() <= 1.0 / 131072.0);
+        }
+    }
+    // A recovered copy keeps them.
+    let copy = d.path().join("copy.mcap");
+    stylet_recorder::rewrite_recovered(&s, "device.mcap", &copy).unwrap();
+    assert_eq!(reader::verify(&copy).unwrap().device_forces, s.device_forces);
+
+    let without = d.path().join("plain.mcap");
+    let plain = SessionHeader {
+        hardware: None,
+        ..header()
+    };
+    let w = SessionWriter::create(&without, &plain, WriterOptions::default()).unwrap();
+    w.record_raw_blocking(ticks[0]).unwrap();
+    assert!(!w.device_force(device_force(0)));
+    w.finish().unwrap();
+    let bytes = std::fs::read(&without).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+    assert!(
+        summary
+            .channels
+            .values()
+            .all(|c| c.topic != stylet_recorder::format::TOPIC_DEVICE_FORCES)
+    );
+    let s = reader::verify(&without).unwrap();
+    assert!(s.device_forces.is_empty() && s.header.hardware.is_none());
+}
+
 /// `t` as a block with rounded outputs (codec v2) stores it.
 fn as_recorded(t: &TickRecord) -> TickRecord {
     let (force_n, torque_nmm) = rounded_outputs(t.force_n, t.torque_nmm).unwrap();
@@ -400,16 +460,11 @@ fn schema_v1_fixture_reads() {
 }
 
 /// The committed schema-version-2 file reads: rounded outputs and the digests of the exact ones.
-/// (Regenerate it only when adding a new schema version:
-/// `STYLET_WRITE_FIXTURE=1 cargo test -p stylet-recorder fixture`.)
+/// Frozen: it was written by the version-2 writer.
 #[test]
 fn schema_v2_fixture_reads() {
     let path = fixture("session-v2.mcap");
     let ticks = synthetic_ticks(1500, 6);
-    if std::env::var("STYLET_WRITE_FIXTURE").is_ok() {
-        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
-        write_session(&path, &ticks, WriterOptions::default());
-    }
     let s = reader::verify(&path).unwrap();
     assert_eq!(s.header.schema_version, 2);
     assert_eq!(s.header.trainee, "alice");
@@ -417,6 +472,40 @@ fn schema_v2_fixture_reads() {
     assert_eq!(s.output_checks.len(), 3);
     checks_pin_the_exact_outputs(&s.output_checks, &ticks);
     assert_eq!(s.digests.len(), 15);
+    assert!(s.header.hardware.is_none() && s.device_forces.is_empty());
+}
+
+/// The committed schema-version-3 file reads: a session trained on a force-feedback device, its
+/// header naming the device and the force it was sent beside every tick.
+/// (Regenerate it only when adding a new schema version:
+/// `STYLET_WRITE_FIXTURE=1 cargo test -p stylet-recorder fixture`.)
+#[test]
+fn schema_v3_fixture_reads() {
+    let path = fixture("session-v3.mcap");
+    let ticks = synthetic_ticks(1500, 6);
+    if std::env::var("STYLET_WRITE_FIXTURE").is_ok() {
+        let w = SessionWriter::create(&path, &header(), WriterOptions::default()).unwrap();
+        for t in &ticks {
+            w.record_raw_blocking(*t).unwrap();
+            w.device_force_blocking(device_force(t.tick)).unwrap();
+            if t.tick % 100 == 99 {
+                w.digest_blocking(t.tick, t.tick.wrapping_mul(0x9E37_79B9_7F4A_7C15))
+                    .unwrap();
+            }
+        }
+        w.finish().unwrap();
+    }
+    let s = reader::verify(&path).unwrap();
+    assert_eq!(s.header.schema_version, 3);
+    assert_eq!(s.header.hardware, header().hardware);
+    assert!(same(&s.ticks, &ticks));
+    assert_eq!(s.digests.len(), 15);
+    assert_eq!(s.device_forces.len(), 1500);
+    for r in &s.device_forces {
+        let want = device_force(r.tick);
+        assert_eq!(r.guard, want.guard);
+        assert!((0..3).all(|k| (r.sent_n[k] - want.sent_n[k]).abs() <= 1.0 / 131072.0));
+    }
 }
 
 /// A block whose outputs cannot be rounded exactly (here a NaN force) is stored with every bit
@@ -881,6 +970,7 @@ fn check_against_schemas(path: &Path) -> std::collections::BTreeMap<String, usiz
         format::TOPIC_DIGESTS,
         format::TOPIC_ANNOTATIONS,
         format::TOPIC_PREVIEW,
+        format::TOPIC_DEVICE_FORCES,
     ] {
         let doc: serde_json::Value = serde_json::from_str(format::json_schema(topic)).unwrap();
         let mut compiler = boon::Compiler::new();
@@ -911,7 +1001,7 @@ fn check_against_schemas(path: &Path) -> std::collections::BTreeMap<String, usiz
 /// The published schemas describe exactly what is written: every message of a session with every
 /// kind of message (all events, both tick codecs, an annotation, previews) validates against its
 /// topic's schema, byte strings are declared as byte strings, and the file carries these schemas.
-/// The committed sessions (schema versions 1 and 2, physics fixtures) validate too.
+/// The committed sessions (schema versions 1 to 3, physics fixtures) validate too.
 #[test]
 fn sessions_match_their_published_schemas() {
     use stylet_recorder::format;
@@ -942,6 +1032,7 @@ fn sessions_match_their_published_schemas() {
             w.event_record_blocking(EventRecord::from_event(t.tick, e)).unwrap();
         }
         w.record_raw_blocking(*t).unwrap();
+        w.device_force_blocking(device_force(t.tick)).unwrap();
         if t.tick % 100 == 99 {
             w.digest_blocking(t.tick, u64::MAX - t.tick).unwrap();
         }
@@ -955,8 +1046,10 @@ fn sessions_match_their_published_schemas() {
     assert_eq!(counts.get(format::TOPIC_DIGESTS), Some(&12));
     assert_eq!(counts.get(format::TOPIC_ANNOTATIONS), Some(&1));
     assert_eq!(counts.get(format::TOPIC_PREVIEW), Some(&60));
+    assert!(counts.get(format::TOPIC_DEVICE_FORCES).is_some_and(|&n| n >= 3));
     let s = reader::verify(&path).unwrap();
     assert_eq!(s.output_checks.len(), 2, "one block in each codec or more");
+    assert_eq!(s.device_forces.len(), 1200);
 
     // The file carries the published schemas.
     let bytes = std::fs::read(&path).unwrap();
@@ -971,7 +1064,11 @@ fn sessions_match_their_published_schemas() {
     }
 
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let mut committed = vec![fixture("session-v1.mcap"), fixture("session-v2.mcap")];
+    let mut committed = vec![
+        fixture("session-v1.mcap"),
+        fixture("session-v2.mcap"),
+        fixture("session-v3.mcap"),
+    ];
     for entry in std::fs::read_dir(root.join("tests/fixtures/physics-v11")).unwrap() {
         let p = entry.unwrap().path();
         if p.extension().is_some_and(|e| e == "mcap") {

@@ -3,6 +3,7 @@
 //! Haply Inverse Service double (a loopback WebSocket server whose simulated arm follows a
 //! scripted hand and records every force it is sent).
 
+use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -230,5 +231,35 @@ fn a_session_with_the_haply_double_records_the_device_and_its_clutch() {
     assert!(held.is_some() && flow > held, "{notes:?}");
     // The clutch's button reached the recorded ticks too.
     assert!(session.ticks.iter().any(|t| t.buttons & 0b10 != 0));
+    // The force sent, tick by tick beside the ticks: zero at the start (no force computed yet),
+    // held while the clutch was.
+    use stylet_recorder::device_forces::guard;
+    let sent = &session.device_forces;
+    assert!(
+        sent.len() + 5 >= session.ticks.len(),
+        "{} of {} ticks",
+        sent.len(),
+        session.ticks.len()
+    );
+    assert!(sent[0].zeroed(), "{:?}", sent[0]);
+    let held = sent.iter().filter(|f| f.guard & guard::HELD != 0).count();
+    assert!((200..=400).contains(&held), "{held} ticks held");
+    assert!(sent.iter().filter(|f| f.zeroed()).all(|f| f.sent_n == [0.0; 3]));
+    // The Python reader reads the same.
+    let py = std::process::Command::new(crate::common::python())
+        .arg("-c")
+        .arg(
+            "import sys; sys.path.insert(0, sys.argv[1]); import stylet_session as s; \
+             d = s.read_session(sys.argv[2]).device_forces; print(len(d['tick']), sum(d['held']), d['sent_magnitude_n'][0])",
+        )
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("recorder/python"))
+        .arg(&finished.path)
+        .output()
+        .unwrap();
+    assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
+    assert_eq!(
+        String::from_utf8_lossy(&py.stdout).trim(),
+        format!("{} {held} 0.0", sent.len())
+    );
     finished.score().unwrap();
 }

@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use crate::common::{fails, ok, s};
+use crate::common::{fails, ok, python, s};
 
 use serde_json::Value;
 use stylet_recorder::reader;
@@ -673,24 +673,6 @@ fn a_lateral_shift_in_tissue_is_felt_and_counted_as_tissue_damage() {
         "the hand feels the shift: {shifted:?} vs {held:?}"
     );
     assert_eq!(held.3, shifted.3, "the same time in tissue");
-}
-
-/// The Python that runs recorder/python: `STYLET_PYTHON` (scripts/test exports it), else the
-/// virtual environment scripts/python-env makes (once) with the pinned requirements.
-fn python() -> PathBuf {
-    if let Some(p) = std::env::var_os("STYLET_PYTHON") {
-        return PathBuf::from(p);
-    }
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let out = std::process::Command::new(root.join("scripts/python-env"))
-        .output()
-        .expect("scripts/python-env runs");
-    assert!(
-        out.status.success(),
-        "scripts/python-env failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    PathBuf::from(String::from_utf8(out.stdout).unwrap().trim())
 }
 
 /// PerkTutor's needle-motion metrics, recomputed from the session file alone by an independent

@@ -18,6 +18,7 @@ use std::time::{Duration, Instant};
 use stylet_devices::Device;
 use stylet_physics::glam::{DQuat, DVec3};
 use stylet_physics::{Event, LabelId, Simulation, TickInput, TickOutput};
+use stylet_recorder::device_forces::DeviceForceRecord;
 use stylet_recorder::{Recording, WriteError, WriteSummary};
 use stylet_render::views::{Moment, SessionLabels};
 use stylet_render::xray::ContrastOverlay;
@@ -318,6 +319,13 @@ fn run(
             for text in &notes {
                 r.note(out.tick, text);
             }
+            if let Some(g) = device.device_force() {
+                r.device_force(DeviceForceRecord {
+                    tick: out.tick,
+                    sent_n: g.sent_n.to_array(),
+                    guard: guard_flags(&g.limits),
+                });
+            }
         }
         for text in happenings(&sim, &input, &out, last.as_ref()).into_iter().chain(notes) {
             let line = ConsoleLine {
@@ -396,6 +404,23 @@ fn run(
         final_tick: sim.tick(),
         final_digest: sim.state_digest(),
     }
+}
+
+/// The force guard's decisions as the session stores them.
+fn guard_flags(l: &stylet_devices::haptic::Limits) -> u8 {
+    use stylet_recorder::device_forces::guard;
+    [
+        (l.held, guard::HELD),
+        (l.watchdog, guard::WATCHDOG),
+        (l.waiting, guard::WAITING),
+        (l.not_finite, guard::NOT_FINITE),
+        (l.ramping, guard::RAMPING),
+        (l.clamped, guard::CLAMPED),
+        (l.continuous, guard::CONTINUOUS),
+    ]
+    .into_iter()
+    .filter(|(on, _)| *on)
+    .fold(0, |bits, (_, bit)| bits | bit)
 }
 
 /// What a tick did that a trainee or instructor wants to read: the device's events and the tip

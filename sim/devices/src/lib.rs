@@ -30,6 +30,12 @@ pub trait Device {
     fn notes(&mut self) -> Vec<String> {
         Vec::new()
     }
+
+    /// A force-feedback device's latest force as sent, and what its guard did, when the tick
+    /// read it (metadata for the session; the physics never sees it).
+    fn device_force(&self) -> Option<haptic::Guarded> {
+        None
+    }
 }
 
 /// Runs a simulation against a device until the device ends, as fast as the CPU allows, calling

@@ -48,6 +48,11 @@ pub trait PoseSource: Send {
     fn notes(&mut self) -> Vec<String> {
         Vec::new()
     }
+
+    /// The force the device last sent and what its guard did (force-feedback devices).
+    fn device_force(&self) -> Option<crate::haptic::Guarded> {
+        None
+    }
 }
 
 /// A six-axis source that failed.
@@ -246,6 +251,10 @@ impl LiveHandle {
 impl Device for LiveDevice {
     fn notes(&mut self) -> Vec<String> {
         self.absolute.as_mut().map_or_else(Vec::new, |a| a.source.notes())
+    }
+
+    fn device_force(&self) -> Option<crate::haptic::Guarded> {
+        self.absolute.as_ref().and_then(|a| a.source.device_force())
     }
 
     fn next(&mut self, tick: u64, last: Option<&TickOutput>) -> Option<TickInput> {

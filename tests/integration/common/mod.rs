@@ -126,3 +126,21 @@ pub fn on_database<T>(db: &Db, data: &Path, work: impl AsyncFnOnce(stylet_servic
         out
     })
 }
+
+/// The Python that runs recorder/python: `STYLET_PYTHON` (scripts/test exports it), else the
+/// virtual environment scripts/python-env makes (once) with the pinned requirements.
+pub fn python() -> PathBuf {
+    if let Some(p) = std::env::var_os("STYLET_PYTHON") {
+        return PathBuf::from(p);
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let out = std::process::Command::new(root.join("scripts/python-env"))
+        .output()
+        .expect("scripts/python-env runs");
+    assert!(
+        out.status.success(),
+        "scripts/python-env failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    PathBuf::from(String::from_utf8(out.stdout).unwrap().trim())
+}

@@ -96,6 +96,8 @@ pub struct HapticPose {
     fault_noted: bool,
     /// The device's calibration as last noted.
     noted_calibration: super::Calibration,
+    /// The force of the latest reading, turned into Stylet's device frame.
+    last_force: Option<super::Guarded>,
 }
 
 /// How often the force guard's counts are compared for a note (polls: a second at 1 kHz).
@@ -120,6 +122,7 @@ impl HapticPose {
             polls_since_counts: 0,
             fault_noted: false,
             noted_calibration: super::Calibration::default(),
+            last_force: None,
         }
     }
 
@@ -206,6 +209,11 @@ impl PoseSource for HapticPose {
                 self.device.info().backend
             )));
         };
+        self.last_force = Some(super::Guarded {
+            computed_n: self.axes * r.force.computed_n,
+            sent_n: self.axes * r.force.sent_n,
+            limits: r.force.limits,
+        });
         let raw_mm = self.axes * r.position_mm * self.mapping.scale;
         let raw_q = r.rotation.and_then(|m| self.tool_orientation(m));
         let held = r.buttons & self.mapping.clutch_button != 0;
@@ -265,6 +273,10 @@ impl PoseSource for HapticPose {
 
     fn notes(&mut self) -> Vec<String> {
         std::mem::take(&mut self.notes)
+    }
+
+    fn device_force(&self) -> Option<super::Guarded> {
+        self.last_force
     }
 }
 
