@@ -127,6 +127,20 @@ pub fn inspect_json(s: &Session) -> Value {
             })
             .collect(),
     );
+    if let Some(hw) = &h.hardware {
+        v["hardware"] = json!({
+            "backend": hw.backend,
+            "model": hw.model,
+            "max_force_n": hw.max_force_n,
+            "max_continuous_force_n": hw.max_continuous_force_n,
+        });
+        let f = &s.device_forces;
+        v["device_forces"] = json!({
+            "ticks": f.len(),
+            "zeroed_ticks": f.iter().filter(|r| r.zeroed()).count(),
+            "limited_ticks": f.iter().filter(|r| r.limited()).count(),
+        });
+    }
     let (word, detail) = state(s);
     v["state"] = json!(word);
     v["state_detail"] = json!(detail);
@@ -161,6 +175,19 @@ fn inspect(a: &InspectArgs) -> anyhow::Result<()> {
         h.seed,
         h.initial_tool.name()
     );
+    if let Some(hw) = &h.hardware {
+        let f = &s.device_forces;
+        sayf!(
+            "hardware  {} ({}), {:.2} N peak, {:.2} N continuous; force sent on {} ticks: zero on {}, reduced on {}",
+            hw.model,
+            hw.backend,
+            hw.max_force_n,
+            hw.max_continuous_force_n,
+            f.len(),
+            f.iter().filter(|r| r.zeroed()).count(),
+            f.iter().filter(|r| r.limited()).count()
+        );
+    }
     sayf!("started   {}", h.wall_clock_start);
     for (i, line) in world_lines(h).iter().enumerate() {
         sayf!("{}{line}", if i == 0 { "world     " } else { "          " });

@@ -261,5 +261,13 @@ fn a_session_with_the_haply_double_records_the_device_and_its_clutch() {
         String::from_utf8_lossy(&py.stdout).trim(),
         format!("{} {held} 0.0", sent.len())
     );
+    let inspect = crate::common::ok(&["session", "inspect", finished.path.to_str().unwrap()]);
+    assert!(
+        inspect.contains(&format!(
+            "hardware  Inverse3 0D0B (haply), 2.00 N peak, 1.00 N continuous; force sent on {} ticks",
+            sent.len()
+        )),
+        "{inspect}"
+    );
     finished.score().unwrap();
 }
