@@ -64,22 +64,64 @@ pub fn comment_notes(annotations: &serde_json::Value) -> Vec<(f64, String)> {
 }
 
 /// Force along the needle over time: the total and its cutting, friction and base components
-/// (eqs. 3.5.1–3.5.6), with the session's events as vertical markers.
+/// (eqs. 3.5.1–3.5.6), with the session's events as vertical markers. A session trained on a
+/// force-feedback device adds the force the device was sent (its magnitude) and shades where the
+/// device's guard zeroed or reduced it.
 pub fn force_chart(trace: &ReviewTrace, title: &str) -> LineChart {
     let t = &trace.t_s;
+    let mut series = vec![
+        series("total", palette::TOTAL, true, false, zip(t, &trace.force_n)),
+        series("cutting", palette::CUTTING, false, false, zip(t, &trace.cutting_n)),
+        series("friction", palette::FRICTION, false, false, zip(t, &trace.friction_n)),
+        series("base", palette::BASE, false, false, zip(t, &trace.base_n)),
+    ];
+    if !trace.sent_n.is_empty() {
+        series.push(self::series(
+            "sent to the device (magnitude)",
+            palette::SENT,
+            true,
+            true,
+            zip(t, &trace.sent_n),
+        ));
+    }
     LineChart {
         title: title.into(),
         x_label: "time (s)".into(),
         y_label: "force along the needle (N)".into(),
-        series: vec![
-            series("total", palette::TOTAL, true, false, zip(t, &trace.force_n)),
-            series("cutting", palette::CUTTING, false, false, zip(t, &trace.cutting_n)),
-            series("friction", palette::FRICTION, false, false, zip(t, &trace.friction_n)),
-            series("base", palette::BASE, false, false, zip(t, &trace.base_n)),
-        ],
+        series,
         markers: markers(trace),
+        bands: guard_bands(trace),
         ..Default::default()
     }
+}
+
+/// Where a device's force guard zeroed the force (held, watchdog, waiting to engage) or reduced
+/// it (ramping in, clamped, continuous limit): consecutive buckets merged into spans.
+pub fn guard_bands(trace: &ReviewTrace) -> Vec<(f64, f64, ChartColor, String)> {
+    use stylet_recorder::device_forces::guard;
+    let zeroed = guard::HELD | guard::WATCHDOG | guard::WAITING | guard::NOT_FINITE;
+    let reduced = guard::RAMPING | guard::CLAMPED | guard::CONTINUOUS;
+    let kind = |g: u8| {
+        if g & zeroed != 0 {
+            Some((palette::ZEROED, "force zeroed by the device guard"))
+        } else if g & reduced != 0 {
+            Some((palette::REDUCED, "force reduced by the device guard"))
+        } else {
+            None
+        }
+    };
+    let mut bands: Vec<(f64, f64, ChartColor, String)> = Vec::new();
+    for (k, &g) in trace.guard.iter().enumerate() {
+        let (Some(&t0), Some((color, label))) = (trace.t_s.get(k), kind(g)) else {
+            continue;
+        };
+        let t1 = t0 + trace.bucket_s;
+        match bands.last_mut() {
+            Some(last) if last.3 == label && (last.1 - t0).abs() < 1e-9 => last.1 = t1,
+            _ => bands.push((t0, t1, color, label.to_string())),
+        }
+    }
+    bands
 }
 
 /// Insertion depth over time: the needle length inside the body and the tip's depth under the
@@ -254,6 +296,8 @@ mod tests {
             }],
             punctures: vec![],
             risk_points: vec![],
+            sent_n: Vec::new(),
+            guard: Vec::new(),
         }
     }
 
@@ -438,6 +482,59 @@ mod tests {
         let cutting = chart.series.iter().find(|s| s.name == "cutting").unwrap();
         let peak = cutting.points.iter().map(|p| p.1).fold(0.0, f64::max);
         assert_eq!(peak, 2.5);
+    }
+
+    /// A session trained on a force-feedback device: the force sent beside the computed one, and
+    /// the spans the device's guard zeroed or reduced shaded and named in the legend; a session
+    /// without a device shows neither.
+    #[test]
+    fn the_force_sent_to_a_device_and_its_guard_show_beside_the_physics() {
+        use stylet_recorder::device_forces::guard;
+        let mut t = trace();
+        t.sent_n = t.force_n.iter().map(|f| f.min(2.0)).collect();
+        // Waiting to engage for the first 10 buckets, then ramping for 5, clamped from bucket 50.
+        t.guard = (0..100)
+            .map(|k| match k {
+                0..10 => guard::WAITING,
+                10..15 => guard::RAMPING,
+                50.. => guard::CLAMPED,
+                _ => 0,
+            })
+            .collect();
+        let chart = force_chart(&t, "Force");
+        let sent = chart
+            .series
+            .iter()
+            .find(|s| s.name.starts_with("sent to the device"))
+            .unwrap();
+        assert_eq!(sent.points.iter().map(|p| p.1).fold(0.0, f64::max), 2.0);
+        let spans: Vec<(f64, f64, &str)> = chart
+            .bands
+            .iter()
+            .map(|(a, b, _, l)| ((a * 100.0).round() / 100.0, (b * 100.0).round() / 100.0, l.as_str()))
+            .collect();
+        assert_eq!(
+            spans,
+            [
+                (0.0, 0.2, "force zeroed by the device guard"),
+                (0.2, 0.3, "force reduced by the device guard"),
+                (1.0, 2.0, "force reduced by the device guard"),
+            ]
+        );
+        let svg = texts(&inline_svg(&chart).unwrap());
+        for want in [
+            "sent to the device (magnitude)",
+            "force zeroed by the device guard",
+            "force reduced by the device guard",
+        ] {
+            assert_eq!(
+                svg.iter().filter(|x| *x == want).count(),
+                1,
+                "{want} once in the legend"
+            );
+        }
+        let plain = force_chart(&trace(), "Force");
+        assert!(plain.bands.is_empty() && plain.series.len() == 4);
     }
 
     #[test]

@@ -27,6 +27,10 @@ pub mod palette {
     /// Not forces: insertion depth and difficulty levels.
     pub const INSERTED: RGBColor = RGBColor(23, 150, 170);
     pub const TIP_DEPTH: RGBColor = RGBColor(140, 86, 75);
+    /// The force a force-feedback device was sent, and the spans its guard zeroed or reduced.
+    pub const SENT: RGBColor = RGBColor(106, 61, 154);
+    pub const ZEROED: RGBColor = RGBColor(214, 39, 40);
+    pub const REDUCED: RGBColor = RGBColor(230, 171, 2);
     pub const BEGINNER: RGBColor = RGBColor(0, 128, 128);
     pub const ADVANCED: RGBColor = RGBColor(191, 144, 0);
     pub const EXPERT: RGBColor = RGBColor(199, 21, 133);
@@ -85,6 +89,9 @@ pub struct LineChart {
     pub peaks: Vec<(f64, f64, String)>,
     /// Vertical notes (x, label), drawn dashed in blue, e.g. an instructor's timestamped comments.
     pub notes: Vec<(f64, String)>,
+    /// Shaded spans of x (x0, x1, colour, legend label), under everything else: e.g. where a
+    /// device's force guard zeroed or reduced the force.
+    pub bands: Vec<(f64, f64, ChartColor, String)>,
     /// A fixed y range (e.g. scores 0–100) instead of the data's.
     pub y_range: Option<(f64, f64)>,
     /// x is a count (session number): whole-number tick labels.
@@ -395,6 +402,19 @@ fn draw<DB: DrawingBackend>(
         .label_style((SANS, 16))
         .light_line_style(RGBColor(235, 235, 235))
         .draw()?;
+    // Shaded spans first, under the lines; one legend entry per label.
+    let mut legend_done: Vec<&str> = Vec::new();
+    for (bx0, bx1, color, label) in &chart.bands {
+        let fill = color.mix(0.18).filled();
+        let drawn = c.draw_series(std::iter::once(Rectangle::new([(*bx0, y0), (*bx1, y1)], fill)))?;
+        if !legend_done.contains(&label.as_str()) {
+            legend_done.push(label);
+            let color = *color;
+            drawn
+                .label(label)
+                .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 24, y + 6)], color.mix(0.35).filled()));
+        }
+    }
     // Event and comment lines under the curves; their labels are placed after the curves.
     for (x, _) in &chart.markers {
         let style = ShapeStyle::from(&RGBColor(150, 150, 150)).stroke_width(1);

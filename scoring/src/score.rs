@@ -271,6 +271,8 @@ impl Scorer {
     ) -> Result<(ScoreReport, ReviewTrace), ScoreError> {
         let mut trace = TraceCollector::new(session.header.tick_rate_hz);
         let report = self.run(session, Some(&mut trace), benchmark)?;
+        let first_tick = session.ticks.first().map_or(0, |t| t.tick);
+        trace.device_forces(first_tick, &session.device_forces);
         let trace = trace.finish(&report.metrics);
         Ok((report, trace))
     }

@@ -20,7 +20,7 @@ use stylet_physics::{Event, LabelId, TickInput, TickOutput};
 use crate::metrics::{Metrics, RiskHit};
 
 /// Format version of [`ReviewTrace`] (stored traces of another version are rebuilt).
-pub const TRACE_VERSION: u32 = 4;
+pub const TRACE_VERSION: u32 = 5;
 
 /// At most this many punctures are kept per session (a trainee jiggling at a boundary cannot grow
 /// the trace without bound).
@@ -66,6 +66,13 @@ pub struct ReviewTrace {
     /// Where each risk structure was first touched, in the order of the score's risk hits.
     #[serde(default)]
     pub risk_points: Vec<RiskPoint>,
+    /// Sessions trained on a force-feedback device: the largest force magnitude the device was
+    /// sent in each bucket (N), and the OR of its guard's flags
+    /// (`stylet_recorder::device_forces::guard`); empty otherwise.
+    #[serde(default)]
+    pub sent_n: Vec<f64>,
+    #[serde(default)]
+    pub guard: Vec<u8>,
 }
 
 /// The needle tip entered a structure for the first time in an attempt (advancing, at the deepest
@@ -264,6 +271,8 @@ impl TraceCollector {
                 events: Vec::new(),
                 punctures: Vec::new(),
                 risk_points: Vec::new(),
+                sent_n: Vec::new(),
+                guard: Vec::new(),
             },
             in_bucket: 0,
             prev_label: 0,
@@ -377,6 +386,31 @@ impl TraceCollector {
                     t_s: *t_s,
                     point_mm: *p,
                 });
+            }
+        }
+    }
+
+    /// The force a force-feedback device was sent, bucket by bucket beside the replayed force
+    /// (read from the file, not replayed: it depends on the device, not on the poses). Ticks
+    /// count from `first_tick`, the session's first.
+    pub fn device_forces(&mut self, first_tick: u64, forces: &[stylet_recorder::device_forces::DeviceForceRecord]) {
+        if forces.is_empty() {
+            return;
+        }
+        let t = &mut self.trace;
+        let n = t.t_s.len();
+        t.sent_n = vec![0.0; n];
+        t.guard = vec![0; n];
+        for f in forces {
+            let Some(k) = f.tick.checked_sub(first_tick).map(|d| (d / BUCKET_TICKS) as usize) else {
+                continue;
+            };
+            if k < n {
+                let magnitude = DVec3::from_array(f.sent_n).length();
+                if magnitude.is_finite() {
+                    t.sent_n[k] = t.sent_n[k].max(magnitude);
+                }
+                t.guard[k] |= f.guard;
             }
         }
     }
@@ -536,6 +570,8 @@ mod tests {
             events: Vec::new(),
             punctures: Vec::new(),
             risk_points: Vec::new(),
+            sent_n: Vec::new(),
+            guard: Vec::new(),
         };
         assert_eq!(trace.tip_stays().len(), 2);
         let path: Vec<f64> = trace.final_approach().unwrap().iter().map(|v| v.z).collect();
@@ -559,5 +595,32 @@ mod tests {
             peak(&mut s, v);
         }
         assert_eq!(s, -0.9);
+    }
+
+    #[test]
+    fn device_forces_fill_their_buckets_beside_the_replayed_force() {
+        use stylet_recorder::device_forces::{DeviceForceRecord, guard};
+        // 50 ticks: three buckets of 20 (the last of 10).
+        let mut c = collect(&vec![(0.0, 0, 0.0); 50]);
+        let forces: Vec<DeviceForceRecord> = (100..150)
+            .map(|tick| DeviceForceRecord {
+                tick,
+                sent_n: [0.0, 0.0, (tick - 100) as f64 * 0.1],
+                guard: if tick == 125 { guard::CLAMPED } else { 0 },
+            })
+            .collect();
+        c.device_forces(100, &forces);
+        let t = &c.trace;
+        assert_eq!(t.sent_n.len(), 3);
+        assert!(
+            (t.sent_n[0] - 1.9).abs() < 1e-9 && (t.sent_n[2] - 4.9).abs() < 1e-9,
+            "{:?}",
+            t.sent_n
+        );
+        assert_eq!(t.guard, [0, guard::CLAMPED, 0]);
+        // A session without a device keeps both empty.
+        let mut plain = collect(&[(0.0, 0, 0.0)]);
+        plain.device_forces(0, &[]);
+        assert!(plain.trace.sent_n.is_empty() && plain.trace.guard.is_empty());
     }
 }

@@ -270,4 +270,12 @@ fn a_session_with_the_haply_double_records_the_device_and_its_clutch() {
         "{inspect}"
     );
     finished.score().unwrap();
+    // The review's force chart: the force sent beside the replayed one, the clutch shaded.
+    let scorer = stylet_scoring::Scorer::new(&atlas, stylet_scoring::Rubric::default_rubric(), None).unwrap();
+    let (_, trace) = scorer.score_session_traced(&session).unwrap();
+    assert_eq!(trace.sent_n.len(), trace.t_s.len());
+    assert!(trace.guard.iter().any(|g| g & guard::HELD != 0));
+    let chart = stylet_dashboard::charts::force_chart(&trace, "Force");
+    assert!(chart.series.iter().any(|s| s.name.starts_with("sent to the device")));
+    assert!(chart.bands.iter().any(|b| b.3 == "force zeroed by the device guard"));
 }

@@ -456,6 +456,8 @@ mod tests {
             events: Vec::new(),
             punctures: Vec::new(),
             risk_points: Vec::new(),
+            sent_n: Vec::new(),
+            guard: Vec::new(),
         }
     }
 

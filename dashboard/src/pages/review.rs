@@ -294,6 +294,9 @@ fn charts_block(
         div.chart-box #force-chart { (PreEscaped(force)) }
         div.chart-box #depth-chart { (PreEscaped(depth)) }
         p.muted { "Forces: the sample of largest magnitude in every 20 ms, so puncture peaks are kept. Positive = against the insertion. Each force peak that broke into a structure is named (skin, fascia, liver, duct …); blue dashed lines are the instructors' comments at a moment (numbered as in the review below)." }
+        @if !trace.sent_n.is_empty() {
+            p.muted #device-force-note { "Trained on a force-feedback device: the purple dashed line is the force its safety guard let through to the hand (magnitude). Red spans: no force reached the hand (forces engaging, the clutch or a pause, a stalled simulation); yellow spans: less than computed (ramping in, the device's maximum, its continuous limit)." }
+        }
     })
 }
 
