@@ -1,7 +1,8 @@
 //! The whole simulator with a force-feedback device: the haptic loop ticking the phantom at
-//! 1 kHz, the tool moved by a device through its backend and the force sent back, against the
-//! Haply Inverse Service double (a loopback WebSocket server whose simulated arm follows a
-//! scripted hand and records every force it is sent).
+//! 1 kHz, the tool moved by a device through its backend and the force sent back, against each
+//! backend's device double (the OpenHaptics and DHD shared libraries, the Haply Inverse Service
+//! on a loopback WebSocket), whose simulated arm follows a scripted hand and records every force
+//! it is sent.
 
 use std::path::Path;
 use std::sync::{Arc, Mutex};
@@ -11,12 +12,14 @@ use crate::common::default_phantom;
 use stylet_app::haptic::{HapticLoop, LoopOptions};
 use stylet_app::session::physics_profile_for;
 use stylet_devices::Device;
+use stylet_devices::haptic::dhd::Dhd;
 use stylet_devices::haptic::haply::Haply;
+use stylet_devices::haptic::openhaptics::OpenHaptics;
 use stylet_devices::haptic::pose::{HapticPose, Mapping, vendor_axes};
 use stylet_devices::haptic::{Backend, HapticDevice};
 use stylet_devices::live::live_device;
 use stylet_haply_double::HaplyDouble;
-use stylet_physics::glam::DVec3;
+use stylet_physics::glam::{DQuat, DVec3};
 use stylet_physics::{Gauge, SimConfig, Simulation, TickInput, TickOutput, ToolSpec};
 use stylet_render::views::SessionLabels;
 
@@ -46,32 +49,110 @@ impl<D: Device> Device for Stalling<D> {
     }
 }
 
-/// A scripted hand pushes a 22 G needle through the phantom's skin along the planned path: the
-/// double feels the skin's resistance, clamped to the device's limit; a stalled tick zeroes the
-/// force within the watchdog's 10 ms; the last force at shutdown is zero.
-#[test]
-fn a_hand_on_the_haply_double_feels_the_skin_and_is_safe_when_the_tick_stalls() {
-    let atlas = default_phantom();
-    let path = atlas.guided_path().unwrap();
-    let (entry, target) = (DVec3::from_array(path.entry_mm), DVec3::from_array(path.target_mm));
-    let dir = (target - entry).normalize();
-    let standoff_mm = 20.0;
-    let start = entry - dir * standoff_mm;
-    // The hand in the service's frame: still for 1.5 s (forces engage and ramp in), then 35 mm
-    // along the path in 3 s (through the skin), held.
-    let to_vendor = vendor_axes(Backend::Haply).transpose();
+/// A double's record of every force it accepted, on its own clock.
+trait Felt {
+    /// (s since the device opened, force N in the vendor's frame).
+    fn felt(&self) -> Vec<(f64, DVec3)>;
+    /// Broken API rules.
+    fn broken_rules(&self) -> u64;
+}
+
+impl Felt for HaplyDouble {
+    fn felt(&self) -> Vec<(f64, DVec3)> {
+        self.forces()
+            .iter()
+            .map(|f| (f[0], DVec3::new(f[1], f[2], f[3])))
+            .collect()
+    }
+    fn broken_rules(&self) -> u64 {
+        self.violations()
+    }
+}
+
+/// A device double built as a shared library beside the test binary (a dev-dependency), read
+/// through its test entry points.
+struct LibraryDouble {
+    library: libloading::Library,
+    path: std::path::PathBuf,
+}
+
+impl LibraryDouble {
+    fn open(crate_name: &str) -> LibraryDouble {
+        let exe = std::env::current_exe().unwrap();
+        let path = exe.parent().unwrap().join(format!(
+            "{}{crate_name}{}",
+            std::env::consts::DLL_PREFIX,
+            std::env::consts::DLL_SUFFIX
+        ));
+        // SAFETY: the test's own double.
+        let library = unsafe { libloading::Library::new(&path) }.unwrap();
+        LibraryDouble { library, path }
+    }
+
+    fn set_hand(&self, hand: &[[f64; 4]]) {
+        // SAFETY: the double's function with its declared signature; 4 doubles per keyframe.
+        unsafe {
+            let f: libloading::Symbol<unsafe extern "C" fn(*const f64, usize)> =
+                self.library.get(b"stylet_double_set_hand\0").unwrap();
+            f(hand.as_ptr().cast(), hand.len());
+        }
+    }
+}
+
+impl Felt for LibraryDouble {
+    fn felt(&self) -> Vec<(f64, DVec3)> {
+        // SAFETY: the double's function with its declared signature; room for 4·n doubles.
+        unsafe {
+            let f: libloading::Symbol<unsafe extern "C" fn(*mut f64, usize) -> usize> =
+                self.library.get(b"stylet_double_forces\0").unwrap();
+            let n = f(std::ptr::null_mut(), 0);
+            let mut buf = vec![0.0f64; 4 * n];
+            let n = f(buf.as_mut_ptr(), n).min(n);
+            buf.chunks(4)
+                .take(n)
+                .map(|c| (c[0], DVec3::new(c[1], c[2], c[3])))
+                .collect()
+        }
+    }
+    fn broken_rules(&self) -> u64 {
+        // SAFETY: the double's function with its declared signature.
+        unsafe {
+            let f: libloading::Symbol<unsafe extern "C" fn() -> u64> =
+                self.library.get(b"stylet_double_frame_violations\0").unwrap();
+            f()
+        }
+    }
+}
+
+/// The hand of the whole-simulator test (Stylet's device frame: +y away from the user, which the
+/// view turns along the planned path): still for 1.5 s (forces engage and ramp in), then
+/// `standoff + 15` mm forward in 3 s (through the skin), held.
+fn pushing_hand(backend: Backend, standoff_mm: f64) -> Vec<[f64; 4]> {
+    let to_vendor = vendor_axes(backend).transpose();
     let at = |t: f64, mm: f64| {
-        let p = to_vendor * (dir * mm);
+        let p = to_vendor * (DVec3::Y * mm);
         [t, p.x, p.y, p.z]
     };
-    let hand = vec![
+    vec![
         at(0.0, 0.0),
         at(1.5, 0.0),
         at(4.5, standoff_mm + 15.0),
         at(10.0, standoff_mm + 15.0),
-    ];
-    let double = HaplyDouble::start(hand).unwrap();
-    let device = Haply::open(Some(&double.url)).unwrap();
+    ]
+}
+
+/// The whole simulator against one backend's double: a scripted hand pushes a 22 G needle through
+/// the phantom's skin along the planned path; the double feels the skin's resistance, clamped to
+/// the device's limit; a stalled tick zeroes the force within the watchdog's 10 ms; the last force
+/// at shutdown is zero. Prints the servo rate and jitter the double saw and the tick-to-force
+/// latency.
+fn whole_simulator(device: Box<dyn HapticDevice>, opened: Instant, standoff_mm: f64, double: &dyn Felt) {
+    let atlas = default_phantom();
+    let path = atlas.guided_path().unwrap();
+    let (entry, target) = (DVec3::from_array(path.entry_mm), DVec3::from_array(path.target_mm));
+    let dir = (target - entry).normalize();
+    let start = entry - dir * standoff_mm;
+    let backend = device.info().backend;
     let max_n = device.info().max_force_n;
     let profile = physics_profile_for(device.info());
     let needle = ToolSpec::Needle {
@@ -81,15 +162,17 @@ fn a_hand_on_the_haply_double_feels_the_skin_and_is_safe_when_the_tick_stalls() 
     };
     let sim = Simulation::new(Arc::clone(&atlas.model), SimConfig::new(profile, needle)).unwrap();
     let (live, handle) = live_device(start, stylet_devices::script::device::orientation(dir, None), 1000);
-    let live = live.with_pose_source(Box::new(HapticPose::new(Box::new(device), Mapping::default())));
+    // The view turns the hand's "away from the user" along the path (a stylus held level and
+    // pointing away then points the needle along it too).
+    handle.set_view(DQuat::from_rotation_arc(DVec3::Y, dir));
+    let live = live.with_pose_source(Box::new(HapticPose::new(device, Mapping::default())));
     let computed = Arc::new(Mutex::new(Vec::new()));
     let stalled_at = Arc::new(Mutex::new(None));
-    let stall_at_tick = 5200;
     let haptic = HapticLoop::spawn(
         sim,
         Box::new(Stalling {
             inner: live,
-            stall_at_tick,
+            stall_at_tick: 5200,
             stall: Duration::from_millis(60),
             computed: computed.clone(),
             stalled_at: stalled_at.clone(),
@@ -109,60 +192,108 @@ fn a_hand_on_the_haply_double_feels_the_skin_and_is_safe_when_the_tick_stalls() 
     }
     handle.finish();
     let report = haptic.join().unwrap();
-    let forces: Vec<(f64, DVec3)> = double
-        .forces()
-        .iter()
-        .map(|f| (f[0], DVec3::new(f[1], f[2], f[3])))
-        .collect();
-    let clock = double.clock_start();
+    let forces = double.felt();
     let computed = computed.lock().unwrap();
-    let on_double_clock = |t: Instant| t.duration_since(clock).as_secs_f64();
+    // The double's clock starts when the device opened (within the open call).
+    let on_double_clock = |t: Instant| t.duration_since(opened).as_secs_f64();
     let computed_peak = computed.iter().map(|c| c.1.length()).fold(0.0, f64::max);
     let felt_peak = forces.iter().map(|f| f.1.length()).fold(0.0, f64::max);
     let deepest_mm = computed.iter().map(|c| c.2).fold(f64::NEG_INFINITY, f64::max);
     // Tick to force: from the tick that first computed 0.3 N (the skin touched) to the first
     // force of 0.3 N the double was sent.
-    let first = |at: f64| {
-        let computed = computed
-            .iter()
-            .find(|c| c.1.length() >= at)
-            .map(|c| on_double_clock(c.0));
-        let felt = forces.iter().find(|f| f.1.length() >= at).map(|f| f.0);
-        (computed.unwrap(), felt.unwrap())
-    };
-    let (computed_at, felt_at) = first(0.3);
+    let computed_at = on_double_clock(computed.iter().find(|c| c.1.length() >= 0.3).unwrap().0);
+    let felt_at = forces.iter().find(|f| f.1.length() >= 0.3).unwrap().0;
     let latency_ms = (felt_at - computed_at) * 1000.0;
+    // The servo loop as the double saw it: one force per servo tick.
+    let mut intervals_ms: Vec<f64> = forces.windows(2).map(|w| (w[1].0 - w[0].0) * 1000.0).collect();
+    intervals_ms.sort_by(f64::total_cmp);
+    let p99_ms = intervals_ms[(intervals_ms.len() * 99 / 100).min(intervals_ms.len() - 1)];
+    let rate_hz = (forces.len() - 1) as f64 / (forces.last().unwrap().0 - forces[0].0);
     eprintln!(
-        "{} ticks, {} forces sent; computed peak {computed_peak:.3} N, felt peak {felt_peak:.3} N of {max_n} N; \
-         tip {deepest_mm:.1} mm under the skin; tick to force {latency_ms:.2} ms",
+        "{backend}: {} ticks, servo {rate_hz:.0} Hz, 99 % of intervals within {p99_ms:.2} ms; computed peak \
+         {computed_peak:.3} N, felt peak {felt_peak:.3} N of {max_n} N; tip {deepest_mm:.1} mm under the skin; \
+         tick to force {latency_ms:.2} ms",
         report.stats.ticks,
-        forces.len()
     );
-    assert!(forces.len() > 4000, "{} forces", forces.len());
-    // The needle went through the skin, and the hand felt the resistance up to the limit.
-    assert!(deepest_mm > 5.0, "the tip reached {deepest_mm} mm under the skin");
-    assert!(computed_peak > max_n, "the skin resisted with {computed_peak} N");
+    assert!(forces.len() > 4000, "{backend}: {} forces", forces.len());
+    assert_eq!(double.broken_rules(), 0, "{backend}");
+    // The needle went through the skin, and the hand felt the resistance, up to the limit.
     assert!(
-        felt_peak <= max_n + 1e-9 && felt_peak > 0.95 * max_n,
-        "felt {felt_peak} N"
+        deepest_mm > 5.0,
+        "{backend}: the tip reached {deepest_mm} mm under the skin"
     );
-    assert!((0.0..20.0).contains(&latency_ms), "tick to force {latency_ms} ms");
+    assert!(
+        computed_peak > 1.0,
+        "{backend}: the skin resisted with {computed_peak} N"
+    );
+    assert!(felt_peak <= max_n + 1e-9, "{backend}: felt {felt_peak} N");
+    assert!(
+        felt_peak >= 0.9 * computed_peak.min(max_n),
+        "{backend}: felt {felt_peak} N of {computed_peak} N"
+    );
+    assert!(
+        (-1.0..20.0).contains(&latency_ms),
+        "{backend}: tick to force {latency_ms} ms"
+    );
     // The stalled tick: zero within the watchdog's 10 ms (and a servo tick), held until the loop
     // ran again.
     let stalled = on_double_clock(stalled_at.lock().unwrap().unwrap());
     let during: Vec<_> = forces
         .iter()
-        .filter(|f| f.0 > stalled + 0.012 && f.0 < stalled + 0.055)
+        .filter(|f| f.0 > stalled + 0.015 && f.0 < stalled + 0.055)
         .collect();
-    assert!(during.len() > 30, "{} servo ticks in the stall", during.len());
+    assert!(
+        during.len() > 30,
+        "{backend}: {} servo ticks in the stall",
+        during.len()
+    );
     assert!(
         during.iter().all(|f| f.1 == DVec3::ZERO),
-        "a force while the tick was stalled"
+        "{backend}: a force while the tick was stalled"
     );
     let before = forces.iter().rev().find(|f| f.0 < stalled).unwrap();
-    assert!(before.1.length() > 0.1, "a force before the stall: {:?}", before.1);
-    let last = forces.last().unwrap();
-    assert_eq!(last.1, DVec3::ZERO, "the last force at shutdown");
+    assert!(
+        before.1.length() > 0.1,
+        "{backend}: a force before the stall: {:?}",
+        before.1
+    );
+    assert_eq!(
+        forces.last().unwrap().1,
+        DVec3::ZERO,
+        "{backend}: the last force at shutdown"
+    );
+}
+
+#[test]
+fn a_hand_on_the_haply_double_feels_the_skin_and_is_safe_when_the_tick_stalls() {
+    // The patient first: the hand's script runs from the moment the device opens.
+    default_phantom();
+    let double = HaplyDouble::start(pushing_hand(Backend::Haply, 20.0)).unwrap();
+    let opened = Instant::now();
+    let device = Haply::open(Some(&double.url)).unwrap();
+    whole_simulator(Box::new(device), opened, 20.0, &double);
+}
+
+#[test]
+fn a_hand_on_the_openhaptics_double_feels_the_skin_and_is_safe_when_the_tick_stalls() {
+    // The patient first: the hand's script runs from the moment the device opens.
+    default_phantom();
+    let double = LibraryDouble::open("stylet_openhaptics_double");
+    double.set_hand(&pushing_hand(Backend::OpenHaptics, 20.0));
+    let opened = Instant::now();
+    let device = OpenHaptics::open(Some(&double.path)).unwrap();
+    whole_simulator(Box::new(device), opened, 20.0, &double);
+}
+
+#[test]
+fn a_hand_on_the_dhd_double_feels_the_skin_and_is_safe_when_the_tick_stalls() {
+    // The patient first: the hand's script runs from the moment the device opens.
+    default_phantom();
+    let double = LibraryDouble::open("stylet_dhd_double");
+    double.set_hand(&pushing_hand(Backend::Dhd, 20.0));
+    let opened = Instant::now();
+    let device = Dhd::open(Some(&double.path)).unwrap();
+    whole_simulator(Box::new(device), opened, 20.0, &double);
 }
 
 /// A session by hand with a force-feedback device (`stylet sim --device haply`): the device
