@@ -55,6 +55,10 @@ trait Felt {
     fn felt(&self) -> Vec<(f64, DVec3)>;
     /// Broken API rules.
     fn broken_rules(&self) -> u64;
+    /// The zero of [`Felt::felt`]'s clock, where the double can say.
+    fn clock_start(&self) -> Option<Instant> {
+        None
+    }
 }
 
 impl Felt for HaplyDouble {
@@ -66,6 +70,9 @@ impl Felt for HaplyDouble {
     }
     fn broken_rules(&self) -> u64 {
         self.violations()
+    }
+    fn clock_start(&self) -> Option<Instant> {
+        Some(HaplyDouble::clock_start(self))
     }
 }
 
@@ -195,7 +202,8 @@ fn whole_simulator(device: Box<dyn HapticDevice>, opened: Instant, standoff_mm: 
     let forces = double.felt();
     let computed = computed.lock().unwrap();
     // The double's clock starts when the device opened (within the open call).
-    let on_double_clock = |t: Instant| t.duration_since(opened).as_secs_f64();
+    let zero = double.clock_start().unwrap_or(opened);
+    let on_double_clock = |t: Instant| t.duration_since(zero).as_secs_f64();
     let computed_peak = computed.iter().map(|c| c.1.length()).fold(0.0, f64::max);
     let felt_peak = forces.iter().map(|f| f.1.length()).fold(0.0, f64::max);
     let deepest_mm = computed.iter().map(|c| c.2).fold(f64::NEG_INFINITY, f64::max);
