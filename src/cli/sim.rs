@@ -41,6 +41,10 @@ pub struct SimArgs {
     /// Haply's Inverse Service (default ws://localhost:10001).
     #[arg(long, requires = "device")]
     pub device_url: Option<String>,
+    /// Tool millimetres per millimetre of the device's stylus (0.25 … 4; 1: the needle moves as
+    /// far as the hand).
+    #[arg(long, requires = "device", default_value_t = 1.0)]
+    pub device_scale: f64,
     /// Open this session file in the replay viewer.
     #[arg(long, conflicts_with = "headless")]
     pub replay: Option<PathBuf>,
@@ -308,12 +312,19 @@ fn window(a: SimArgs, data: PathBuf, atlases: Vec<PathBuf>) -> anyhow::Result<()
         haptic_device: match a.device {
             Some(backend) => {
                 let choice = super::device::choice(backend, a.device_library.as_deref(), a.device_url.as_deref())?;
+                if !(0.25..=4.0).contains(&a.device_scale) {
+                    anyhow::bail!("--device-scale takes 0.25 … 4, not {}", a.device_scale);
+                }
                 let at = choice.find()?;
                 sayf!(
                     "{}: found at {at}; the device opens when a session starts",
                     choice.backend
                 );
-                Some(choice)
+                let mapping = stylet_devices::haptic::pose::Mapping {
+                    scale: a.device_scale,
+                    ..Default::default()
+                };
+                Some((choice, mapping))
             }
             None => None,
         },

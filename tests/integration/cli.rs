@@ -919,4 +919,16 @@ fn device_check_renders_the_wall_on_the_haply_double() {
         "http://localhost:10001",
     ]);
     assert!(e.contains("only ws://"), "{e}");
+    let e = fails(&[
+        "sim",
+        "--device",
+        "haply",
+        "--device-url",
+        &double.url,
+        "--device-scale",
+        "9",
+    ]);
+    assert!(e.contains("--device-scale takes 0.25 … 4, not 9"), "{e}");
+    let e = fails(&["sim", "--device-url", &double.url]);
+    assert!(e.contains("--device"), "{e}");
 }

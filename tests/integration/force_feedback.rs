@@ -335,7 +335,7 @@ fn a_session_with_the_haply_double_records_the_device_and_its_clutch() {
         library: None,
         url: Some(double.url.clone()),
     };
-    let run = RunningSession::start(plan, Driver::HapticDevice(choice), true).unwrap();
+    let run = RunningSession::start(plan, Driver::HapticDevice(choice, Mapping::default()), true).unwrap();
     assert_eq!(run.moved_by(), Some("Inverse3 0D0B (haply)"));
     let wait_ticks = |n: u64| {
         let began = Instant::now();

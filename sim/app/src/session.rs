@@ -146,7 +146,7 @@ pub enum Driver {
     /// A force-feedback device through its vendor's API (docs/devices.md "Haptic devices"),
     /// opened when the session starts and closed (zero force) when it ends: it moves the tool
     /// and the trainee feels the force; the window gives commands.
-    HapticDevice(stylet_devices::haptic::DeviceChoice),
+    HapticDevice(stylet_devices::haptic::DeviceChoice, Mapping),
 }
 
 /// The physics' device profile for a force-feedback device: the Phantom Premium's (8.5 N,
@@ -288,7 +288,7 @@ impl RunningSession {
                 moved_by = Some(name);
                 (sim, Box::new(device.with_pose_source(Box::new(arm))), Some(handle))
             }
-            Driver::HapticDevice(choice) => {
+            Driver::HapticDevice(choice, mapping) => {
                 let device = choice.open().map_err(|e| SessionError::Device(e.to_string()))?;
                 let mut config = SimConfig::new(physics_profile_for(device.info()), ToolSpec::Finger);
                 config.deformation = DeformSettings::on();
@@ -310,7 +310,7 @@ impl RunningSession {
                     max_force_n: info.max_force_n,
                     max_continuous_force_n: info.max_continuous_force_n,
                 });
-                let pose = HapticPose::new(device, Mapping::default());
+                let pose = HapticPose::new(device, mapping);
                 window_hold = Some(pose.window_hold());
                 (sim, Box::new(live.with_pose_source(Box::new(pose))), Some(handle))
             }

@@ -60,7 +60,10 @@ pub struct AppOptions {
     /// Sessions by hand use the raw-HID haptic device this profile describes.
     pub hid_profile: Option<stylet_devices::hid_profile::HidProfile>,
     /// Sessions by hand use this force-feedback device (opened when a session starts).
-    pub haptic_device: Option<stylet_devices::haptic::DeviceChoice>,
+    pub haptic_device: Option<(
+        stylet_devices::haptic::DeviceChoice,
+        stylet_devices::haptic::pose::Mapping,
+    )>,
 }
 
 /// The screens.

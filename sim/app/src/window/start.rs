@@ -285,7 +285,7 @@ impl StartScreen {
         let label = match (&driven, &shared.options.hid_profile, &shared.options.haptic_device) {
             (Some(_), _, _) => "Start session (scripted)".to_string(),
             (None, Some(p), _) => format!("Start session with {}", p.name),
-            (None, None, Some(d)) => format!("Start session with the {} device", d.backend),
+            (None, None, Some((d, _))) => format!("Start session with the {} device", d.backend),
             (None, None, None) => "Start session".to_string(),
         };
         if ui
@@ -306,7 +306,7 @@ impl StartScreen {
                 },
                 None => Some(match (&shared.options.hid_profile, &shared.options.haptic_device) {
                     (Some(p), _) => Driver::HidDevice(p.clone()),
-                    (None, Some(d)) => Driver::HapticDevice(d.clone()),
+                    (None, Some((d, mapping))) => Driver::HapticDevice(d.clone(), *mapping),
                     (None, None) => Driver::Hands,
                 }),
             };

@@ -106,6 +106,11 @@ const COUNTS_EVERY_POLLS: u32 = 1000;
 impl HapticPose {
     pub fn new(device: Box<dyn HapticDevice>, mapping: Mapping) -> Self {
         let axes = vendor_axes(device.info().backend);
+        let mapped = format!(
+            "device mapping: {} tool mm per device mm; clutch: button bit {}",
+            mapping.scale,
+            mapping.clutch_button.trailing_zeros()
+        );
         HapticPose {
             device,
             axes,
@@ -117,7 +122,7 @@ impl HapticPose {
             seq: 0,
             window_hold: WindowHold::default(),
             applied: Hold::None,
-            notes: Vec::new(),
+            notes: vec![mapped],
             noted_counts: super::ServoCounts::default(),
             polls_since_counts: 0,
             fault_noted: false,
@@ -423,8 +428,9 @@ mod tests {
         assert!(close(pose.poll().unwrap().0, DVec3::new(5.0, 3.0, 0.0)));
         assert_eq!(seen.lock().unwrap().holds, [Hold::Clutched, Hold::None]);
         let notes = pose.notes();
-        assert_eq!(notes.len(), 2, "{notes:?}");
-        assert!(notes[0].starts_with("clutch held") && notes[1].starts_with("forces flow again"));
+        assert_eq!(notes.len(), 3, "{notes:?}");
+        assert!(notes[0].starts_with("device mapping: 1 tool mm per device mm; clutch: button bit 1"));
+        assert!(notes[1].starts_with("clutch held") && notes[2].starts_with("forces flow again"));
         assert!(pose.notes().is_empty(), "taken once");
     }
 
@@ -451,7 +457,7 @@ mod tests {
     fn calibration_asking_for_the_hand_and_updates_are_noted_once() {
         let (mut pose, seen) = fake(Backend::OpenHaptics);
         pose.poll().unwrap();
-        assert!(pose.notes().is_empty());
+        assert_eq!(pose.notes().len(), 1, "the mapping");
         seen.lock().unwrap().calibration.needs_manual_input = true;
         pose.poll().unwrap();
         pose.poll().unwrap();
