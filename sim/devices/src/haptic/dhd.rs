@@ -31,6 +31,8 @@ const DHD_MOTOR_SATURATED: c_int = 2;
 const DHD_ERROR_NOT_AVAILABLE: c_int = 6;
 /// The firmware watchdog: 80 × 125 µs = 10 ms.
 const WATCHDOG_UNITS: c_uchar = 80;
+/// The firmware watchdog's period.
+const WATCHDOG_PERIOD: std::time::Duration = std::time::Duration::from_micros(WATCHDOG_UNITS as u64 * 125);
 
 /// Where the Force Dimension SDK installs `libdhd`.
 pub const LIBRARY: LibrarySpec = LibrarySpec {
@@ -144,6 +146,9 @@ impl Api {
 /// The servo thread's reads and writes.
 struct DhdIo {
     api: Arc<Api>,
+    /// When the last force was commanded: a longer gap than the firmware watchdog's means the
+    /// device cut its forces, so they are enabled again (the guard engages afresh meanwhile).
+    last_write: Option<std::time::Instant>,
 }
 
 impl ServoIo for DhdIo {
@@ -158,6 +163,12 @@ impl ServoIo for DhdIo {
     }
 
     fn write(&mut self, force_n: DVec3) -> Result<(), HapticError> {
+        let now = std::time::Instant::now();
+        if self.last_write.replace(now).is_some_and(|t| now - t > WATCHDOG_PERIOD) {
+            // SAFETY: a DHD call with its declared signature.
+            let rc = unsafe { (self.api.enable_force)(DHD_ON, DEFAULT_DEVICE) };
+            self.api.check(rc, "dhdEnableForce")?;
+        }
         // SAFETY: a DHD call with its declared signature.
         let rc = unsafe { (self.api.set_force)(force_n.x, force_n.y, force_n.z, DEFAULT_DEVICE) };
         match rc {
@@ -264,7 +275,16 @@ impl Dhd {
             SafetyLimits::for_device(info.max_force_n, info.max_continuous_force_n),
             shared.clone(),
         );
-        let servo = ServoThread::spawn(DhdIo { api: api.clone() }, core, shared.clone(), "dhd servo").map_err(|e| {
+        let servo = ServoThread::spawn(
+            DhdIo {
+                api: api.clone(),
+                last_write: None,
+            },
+            core,
+            shared.clone(),
+            "dhd servo",
+        )
+        .map_err(|e| {
             close(HapticError::Device {
                 backend: Backend::Dhd,
                 operation: "starting the servo thread",

@@ -139,6 +139,8 @@ pub struct ForceGuard {
     /// Ticks recorded.
     recorded: u64,
     counts: GuardCounts,
+    /// When the servo loop last asked (s, its clock).
+    last_tick_s: Option<f64>,
 }
 
 impl ForceGuard {
@@ -152,6 +154,7 @@ impl ForceGuard {
             window_sum_n: 0.0,
             recorded: 0,
             counts: GuardCounts::default(),
+            last_tick_s: None,
         }
     }
 
@@ -177,8 +180,19 @@ impl ForceGuard {
                 limits,
             }
         };
+        // The servo loop itself late by more than the watchdog (the machine stalled it): the hand
+        // may have moved meanwhile, and a device's own watchdog may have cut its forces.
+        let servo_gap = self
+            .last_tick_s
+            .replace(now_s)
+            .is_some_and(|t| now_s - t > self.limits.watchdog_s);
         if hold != Hold::None {
             limits.held = true;
+            return zero(self, limits);
+        }
+        if servo_gap {
+            self.counts.watchdog_trips += 1;
+            limits.watchdog = true;
             return zero(self, limits);
         }
         if !computed_n.is_finite() {
@@ -364,6 +378,22 @@ mod tests {
         assert_eq!(g.counts().watchdog_trips, 1, "one stall, one trip");
         // It resumes with the same 1 N: forces engage afresh, so nothing until it is small.
         let resumed = run(&mut g, 1130, 50, f);
+        assert!(resumed.iter().all(|o| o.sent_n == DVec3::ZERO && o.limits.waiting));
+    }
+
+    #[test]
+    fn a_late_servo_loop_zeroes_the_force_and_engages_afresh() {
+        let mut g = engaged();
+        let f = DVec3::new(1.0, 0.0, 0.0);
+        let before = run(&mut g, 1100, 10, f);
+        assert!(before.last().unwrap().sent_n.length() > 0.5);
+        let trips = g.counts().watchdog_trips;
+        // The servo loop is 25 ms late, while the simulation kept producing forces.
+        let late = g.filter(Some(Computed { force_n: f, seq: 1135 }), 1135.0 * DT, Hold::None);
+        assert_eq!(late.sent_n, DVec3::ZERO);
+        assert!(late.limits.watchdog);
+        assert_eq!(g.counts().watchdog_trips, trips + 1);
+        let resumed = run(&mut g, 1136, 20, f);
         assert!(resumed.iter().all(|o| o.sent_n == DVec3::ZERO && o.limits.waiting));
     }
 

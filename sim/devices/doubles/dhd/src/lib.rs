@@ -44,6 +44,8 @@ struct Double {
 }
 
 static DOUBLE: Mutex<Option<Double>> = Mutex::new(None);
+/// Milliseconds the next `dhdGetPosition` holds its caller up (a test's hiccup).
+static HICCUP_MS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
 fn double() -> MutexGuard<'static, Option<Double>> {
     DOUBLE.lock().unwrap_or_else(|e| e.into_inner())
@@ -168,6 +170,11 @@ pub unsafe extern "C" fn dhdSetWatchdog(units: c_uchar, id: c_char) -> c_int {
 
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn dhdGetPosition(px: *mut c_double, py: *mut c_double, pz: *mut c_double, id: c_char) -> c_int {
+    // A test's hiccup: the caller's thread held up once, as a loaded machine would.
+    let delay_ms = HICCUP_MS.swap(0, std::sync::atomic::Ordering::Relaxed);
+    if delay_ms > 0 {
+        std::thread::sleep(std::time::Duration::from_millis(delay_ms));
+    }
     on_device(id, -1, |d| {
         let p = d.arm.position_mm();
         // SAFETY: three doubles the caller owns, as the SDK requires.
@@ -233,6 +240,13 @@ pub unsafe extern "C" fn stylet_double_set_hand(keyframes: *const f64, n: usize)
     // SAFETY: the caller passes 4·n doubles.
     let hand = unsafe { read_keyframes(keyframes, n) };
     *double() = Some(Double::new(Arm::new(hand)));
+}
+
+/// Holds up the thread of the next `dhdGetPosition` for `ms` milliseconds (the backend's servo
+/// thread, as a loaded machine would).
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn stylet_double_hiccup(ms: u32) {
+    HICCUP_MS.store(u64::from(ms), std::sync::atomic::Ordering::Relaxed);
 }
 
 /// Copies up to `capacity` recorded forces, 4 doubles each (t s, fx, fy, fz N); returns how many
