@@ -40,8 +40,8 @@ fn a_virtual_wall_through_the_dhd_double_is_safe_from_first_tick_to_last() {
 }
 
 /// The servo thread held up past the firmware watchdog (a loaded machine): the device cuts its
-/// forces; Stylet's guard zeroes the force and engages afresh, and forces are enabled again, so
-/// the hand feels the wall again after the ramp.
+/// forces; Stylet's guard zeroes the force and ramps it in again, and forces are enabled again,
+/// so the hand feels the wall again.
 #[test]
 fn a_servo_thread_held_up_past_the_firmware_watchdog_recovers_safely() {
     let _turn = DOUBLE.lock().unwrap_or_else(|e| e.into_inner());

@@ -191,9 +191,19 @@ impl ForceGuard {
             return zero(self, limits);
         }
         if servo_gap {
+            // Zero this tick, then the force ramps in again from zero (no jump to whatever the
+            // simulation computes now); a guard still waiting to engage keeps waiting.
             self.counts.watchdog_trips += 1;
             limits.watchdog = true;
-            return zero(self, limits);
+            if let State::Engaged { .. } = self.state {
+                self.state = State::Engaged { since_s: now_s };
+            }
+            self.record(0.0);
+            return Guarded {
+                computed_n,
+                sent_n: DVec3::ZERO,
+                limits,
+            };
         }
         if !computed_n.is_finite() {
             limits.not_finite = true;
@@ -382,7 +392,7 @@ mod tests {
     }
 
     #[test]
-    fn a_late_servo_loop_zeroes_the_force_and_engages_afresh() {
+    fn a_late_servo_loop_zeroes_the_force_and_ramps_it_in_again() {
         let mut g = engaged();
         let f = DVec3::new(1.0, 0.0, 0.0);
         let before = run(&mut g, 1100, 10, f);
@@ -393,8 +403,16 @@ mod tests {
         assert_eq!(late.sent_n, DVec3::ZERO);
         assert!(late.limits.watchdog);
         assert_eq!(g.counts().watchdog_trips, trips + 1);
-        let resumed = run(&mut g, 1136, 20, f);
-        assert!(resumed.iter().all(|o| o.sent_n == DVec3::ZERO && o.limits.waiting));
+        // It ramps in again from zero, without waiting for a small force (the needle may well be
+        // in tissue).
+        let resumed = run(&mut g, 1136, 500, f);
+        assert!(resumed.iter().all(|o| !o.limits.waiting && o.limits.ramping));
+        assert!(resumed[0].sent_n.length() < 0.01);
+        assert!(resumed.windows(2).all(|w| w[1].sent_n.length() >= w[0].sent_n.length()));
+        assert!(
+            (resumed[499].sent_n.length() - 0.5).abs() < 0.01,
+            "half way after half a second"
+        );
     }
 
     #[test]
