@@ -259,12 +259,14 @@ fn whole_simulator(device: Box<dyn HapticDevice>, opened: Instant, standoff_mm: 
         during.iter().all(|f| f.1 == DVec3::ZERO),
         "{backend}: a force while the tick was stalled"
     );
-    let before = forces.iter().rev().find(|f| f.0 < stalled).unwrap();
-    assert!(
-        before.1.length() > 0.1,
-        "{backend}: a force before the stall: {:?}",
-        before.1
-    );
+    // The hand felt the needle in the half second before the stall (a loaded machine may have
+    // held the loop up just before it, and the force then ramps in again).
+    let before = forces
+        .iter()
+        .filter(|f| f.0 < stalled && f.0 > stalled - 0.5)
+        .map(|f| f.1.length())
+        .fold(0.0, f64::max);
+    assert!(before > 0.1, "{backend}: a force before the stall: {before} N");
     assert_eq!(
         forces.last().unwrap().1,
         DVec3::ZERO,

@@ -227,7 +227,18 @@ impl ForceGuard {
                 }
                 self.tripped = computed.is_some();
                 limits.watchdog = true;
-                return zero(self, limits);
+                // Zero while stalled; once the simulation resumes the force ramps in again from
+                // zero (the needle may be held in tissue, so waiting for a small force could last
+                // the rest of the session). A guard not yet engaged keeps waiting.
+                if let State::Engaged { .. } = self.state {
+                    self.state = State::Engaged { since_s: now_s };
+                }
+                self.record(0.0);
+                return Guarded {
+                    computed_n,
+                    sent_n: DVec3::ZERO,
+                    limits,
+                };
             }
         }
         let magnitude = computed_n.length();
@@ -386,9 +397,11 @@ mod tests {
         assert!(first_zero <= 10, "zero {first_zero} ms after the last force");
         assert!(stalled[first_zero..].iter().all(|o| o.limits.watchdog));
         assert_eq!(g.counts().watchdog_trips, 1, "one stall, one trip");
-        // It resumes with the same 1 N: forces engage afresh, so nothing until it is small.
+        // It resumes with the same 1 N: the force ramps in again from zero, with no jump.
         let resumed = run(&mut g, 1130, 50, f);
-        assert!(resumed.iter().all(|o| o.sent_n == DVec3::ZERO && o.limits.waiting));
+        assert!(resumed.iter().all(|o| !o.limits.waiting && o.limits.ramping));
+        assert!(resumed[0].sent_n.length() < 0.01);
+        assert!(resumed.windows(2).all(|w| w[1].sent_n.length() >= w[0].sent_n.length()));
     }
 
     #[test]
