@@ -55,24 +55,40 @@ pub struct HaplyState {
     pub buttons: u32,
 }
 
+/// Why a state message from the Inverse Service cannot be used.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum StateError {
+    #[error("no inverse3 list in the service's message")]
+    NoDeviceList,
+    #[error("Inverse3 {0} is no longer listed")]
+    NotListed(String),
+    #[error("Inverse3 {0}: no state.cursor_position")]
+    NoCursor(String),
+    #[error("Inverse3 {device}: cursor_position.{axis} missing or not a position in m")]
+    BadAxis { device: String, axis: &'static str },
+}
+
 /// Reads the Inverse3 `device_id` from the service's state message, and its cursor and buttons.
-pub fn parse_state(message: &Value, device_id: &str) -> Result<HaplyState, String> {
+pub fn parse_state(message: &Value, device_id: &str) -> Result<HaplyState, StateError> {
     let devices = message
         .get("inverse3")
         .and_then(Value::as_array)
-        .ok_or("no inverse3 list in the service's message")?;
+        .ok_or(StateError::NoDeviceList)?;
     let device = devices
         .iter()
         .find(|d| d.get("device_id").and_then(Value::as_str) == Some(device_id))
-        .ok_or_else(|| format!("Inverse3 {device_id} is no longer listed"))?;
+        .ok_or_else(|| StateError::NotListed(device_id.to_string()))?;
     let p = device
         .pointer("/state/cursor_position")
-        .ok_or_else(|| format!("Inverse3 {device_id}: no state.cursor_position"))?;
-    let axis = |k: &str| {
+        .ok_or_else(|| StateError::NoCursor(device_id.to_string()))?;
+    let axis = |k: &'static str| {
         p.get(k)
             .and_then(Value::as_f64)
             .filter(|v| v.is_finite() && v.abs() < 10.0)
-            .ok_or_else(|| format!("Inverse3 {device_id}: cursor_position.{k} missing or not a position in m"))
+            .ok_or_else(|| StateError::BadAxis {
+                device: device_id.to_string(),
+                axis: k,
+            })
     };
     let position_mm = DVec3::new(axis("x")?, axis("y")?, axis("z")?) * 1000.0;
     Ok(HaplyState {
@@ -399,7 +415,9 @@ mod tests {
                 "cursor_position.x missing or not a position",
             ),
         ] {
-            let e = parse_state(&serde_json::from_str(text).unwrap(), "A").unwrap_err();
+            let e = parse_state(&serde_json::from_str(text).unwrap(), "A")
+                .unwrap_err()
+                .to_string();
             assert!(e.contains(want), "{text}: {e}");
         }
     }
