@@ -195,15 +195,7 @@ impl ForceGuard {
             // simulation computes now); a guard still waiting to engage keeps waiting.
             self.counts.watchdog_trips += 1;
             limits.watchdog = true;
-            if let State::Engaged { .. } = self.state {
-                self.state = State::Engaged { since_s: now_s };
-            }
-            self.record(0.0);
-            return Guarded {
-                computed_n,
-                sent_n: DVec3::ZERO,
-                limits,
-            };
+            return self.zero_then_ramp(computed_n, now_s, limits);
         }
         if !computed_n.is_finite() {
             limits.not_finite = true;
@@ -230,15 +222,7 @@ impl ForceGuard {
                 // Zero while stalled; once the simulation resumes the force ramps in again from
                 // zero (the needle may be held in tissue, so waiting for a small force could last
                 // the rest of the session). A guard not yet engaged keeps waiting.
-                if let State::Engaged { .. } = self.state {
-                    self.state = State::Engaged { since_s: now_s };
-                }
-                self.record(0.0);
-                return Guarded {
-                    computed_n,
-                    sent_n: DVec3::ZERO,
-                    limits,
-                };
+                return self.zero_then_ramp(computed_n, now_s, limits);
             }
         }
         let magnitude = computed_n.length();
@@ -292,6 +276,20 @@ impl ForceGuard {
     }
 
     /// Adds this tick's magnitude, keeping a window less one of them.
+    /// Zero this tick; an engaged guard ramps the force in again from zero (rule 4) when forces
+    /// flow, a waiting one keeps waiting.
+    fn zero_then_ramp(&mut self, computed_n: DVec3, now_s: f64, limits: Limits) -> Guarded {
+        if let State::Engaged { .. } = self.state {
+            self.state = State::Engaged { since_s: now_s };
+        }
+        self.record(0.0);
+        Guarded {
+            computed_n,
+            sent_n: DVec3::ZERO,
+            limits,
+        }
+    }
+
     fn record(&mut self, magnitude_n: f64) {
         self.window.push_back(magnitude_n);
         self.window_sum_n += magnitude_n;
