@@ -3,6 +3,7 @@
 //! breathing.
 
 use crate::needle::spec::Gauge;
+use crate::second_hand::HandTool;
 
 /// Which ultrasound probe.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -39,6 +40,9 @@ impl ToolSpec {
 pub enum Event {
     /// Take another tool (a needle in the body is withdrawn).
     SelectTool(ToolSpec),
+    /// The second hand takes another tool, or puts its tool down (two-handed sessions only;
+    /// ignored otherwise).
+    SecondTool(Option<HandTool>),
     /// Remove the stylet from the needle (to check for bile outflow).
     StyletRemove,
     StyletInsert,
@@ -58,6 +62,7 @@ impl Event {
     pub fn name(&self) -> &'static str {
         match self {
             Event::SelectTool(_) => "tool",
+            Event::SecondTool(_) => "tool2",
             Event::StyletRemove => "stylet-remove",
             Event::StyletInsert => "stylet-insert",
             Event::XrayOn => "xray-on",

@@ -31,6 +31,7 @@ pub mod needle;
 pub mod planned_path;
 pub mod probe_image;
 pub mod properties;
+pub mod second_hand;
 pub mod sim;
 pub mod synthetic_atlas;
 #[cfg(test)]
@@ -49,6 +50,7 @@ pub use labels::{HeuristicClass, HeuristicLabels, Label, LabelId, LabelTable, Ro
 pub use needle::spec::{Gauge, NeedleSpec};
 pub use planned_path::PlannedPath;
 pub use properties::{Materials, Param, ParamError, ParamValue, PropertyTree, TissueSpec};
+pub use second_hand::{HandOutput, HandPose, HandTool, SecondHandConfig};
 pub use sim::{
     DEFAULT_TICK_RATE_HZ, ForceComponents, PHYSICS_VERSION, SimConfig, SimError, Simulation, TickInput, TickOutput,
 };

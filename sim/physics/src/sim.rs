@@ -18,6 +18,7 @@ use crate::events::{Event, ProbeKind, ToolSpec};
 use crate::motion::{self, BreathingError, BreathingSettings, MotionModel, Static};
 use crate::needle::spec::NeedleSpec;
 use crate::needle::tool::NeedleTool;
+use crate::second_hand::{HandOutput, HandPose, SecondHand, SecondHandConfig, clamp_length};
 use crate::{LabelId, PunctureAtlas, SettingsError};
 
 /// Version of the physics: bump it with every change that alters any output bit, so a replay
@@ -37,6 +38,9 @@ pub struct TickInput {
     /// Button bits (device specific; recorded, not used by the physics).
     pub buttons: u32,
     pub events: Vec<Event>,
+    /// The second device's pose in a two-handed session (the second hand holds its last pose
+    /// while this is absent); ignored when the session has no second hand.
+    pub second_hand: Option<HandPose>,
 }
 
 impl TickInput {
@@ -46,6 +50,7 @@ impl TickInput {
             orientation,
             buttons: 0,
             events: Vec::new(),
+            second_hand: None,
         }
     }
 }
@@ -102,6 +107,8 @@ pub struct TickOutput {
     pub tissue_displacement_mm: f64,
     /// Largest displacement of a segmented risk structure (mm): a vessel pushed aside.
     pub risk_displacement_mm: f64,
+    /// The second hand's tool, in a two-handed session.
+    pub second_hand: Option<HandOutput>,
 }
 
 /// The tool in hand.
@@ -129,6 +136,8 @@ pub struct SimConfig {
     pub contrast: ContrastSettings,
     /// Tissue deformation (part of the world model, recorded in the session header).
     pub deformation: DeformSettings,
+    /// The second hand, for a session with two tools at once (none: one hand, as in the thesis).
+    pub second_hand: Option<SecondHandConfig>,
     /// Run each deformation solve on a thread of its own (the live simulator). The bits are the
     /// same either way: a result enters at its fixed due tick, waited for if late.
     pub deform_in_background: bool,
@@ -144,6 +153,7 @@ impl SimConfig {
             breathing: BreathingSettings::default(),
             contrast: ContrastSettings::default(),
             deformation: DeformSettings::default(),
+            second_hand: None,
             deform_in_background: false,
         }
     }
@@ -176,6 +186,8 @@ pub struct Simulation {
     config: SimConfig,
     tool_spec: ToolSpec,
     tool: Tool,
+    /// The tool in the other hand, in a two-handed session.
+    second: Option<SecondHand>,
     tick: u64,
     /// Ticks breathed so far: the breathing clock stands still during a breath hold, so the
     /// motion resumes where it was held (t_breath = breath_ticks / rate).
@@ -232,6 +244,7 @@ impl Simulation {
             contrast,
             deformation: DeformState::new(config.deformation, config.deform_in_background),
             tool: make_tool(&tool_spec),
+            second: config.second_hand.map(SecondHand::new),
             tool_spec,
             atlas,
             config,
@@ -311,12 +324,21 @@ impl Simulation {
             Tool::Needle(_) => None,
         }
     }
+    /// The second hand, in a two-handed session.
+    pub fn second_hand(&self) -> Option<&SecondHand> {
+        self.second.as_ref()
+    }
 
     fn apply(&mut self, e: &Event) {
         match e {
             Event::SelectTool(spec) => {
                 self.tool_spec = *spec;
                 self.tool = make_tool(spec);
+            }
+            Event::SecondTool(tool) => {
+                if let Some(h) = &mut self.second {
+                    h.select(*tool);
+                }
             }
             Event::StyletRemove => {
                 if let Tool::Needle(n) = &mut self.tool {
@@ -395,6 +417,7 @@ impl Simulation {
             contrast_extent_mm: 0.0,
             tissue_displacement_mm: 0.0,
             risk_displacement_mm: 0.0,
+            second_hand: None,
         };
         let (force, torque) = match &mut self.tool {
             Tool::Needle(n) => {
@@ -428,6 +451,10 @@ impl Simulation {
         };
         out.force_n = clamp_length(force, device.max_force_n);
         out.torque_nmm = clamp_length(torque, device.max_torque_nmm);
+        // The second hand after the first, on the same tissue and the same motion.
+        if let Some(h) = &mut self.second {
+            out.second_hand = Some(h.step(&atlas, &*u_at, input.second_hand.as_ref()));
+        }
         self.tick += 1;
         // Contrast at its sub-rate: through a needle in the body with the stylet out.
         let every = self.config.contrast.update_every_ticks;
@@ -447,7 +474,7 @@ impl Simulation {
         // solve for the tool as it is now.
         self.deformation.enter_due(self.tick);
         if self.deformation.launch_due(self.tick) {
-            let (centre, points) = match &self.tool {
+            let (mut centre, mut points) = match &self.tool {
                 Tool::Needle(n) => {
                     let centre = n.path().tip().map_or(x_ref, |t| t.pos);
                     let step = 0.5 * self.config.deformation.spacing_mm;
@@ -455,6 +482,14 @@ impl Simulation {
                 }
                 Tool::Contact(c) => (x_ref, deform::tool_points::contact_points(c)),
             };
+            // Both hands' contacts in one solve, on a lattice midway between the tools: a probe
+            // pressed beside the entry point deforms the tissue the needle then enters.
+            if let Some(h) = &self.second
+                && let (Some(c), Some(x2)) = (h.contact(), h.reference_position())
+            {
+                centre = (centre + x2) * 0.5;
+                points.extend(deform::tool_points::contact_points(c));
+            }
             self.deformation.launch(&atlas, self.tick, centre, points);
         }
         if let Some(f) = self.deformation.field() {
@@ -518,13 +553,13 @@ impl Simulation {
                 }
             }
         }
+        // One-handed sessions hash exactly what they always did.
+        if let Some(second) = &self.second {
+            h.u64(0x5ec0_4d4a_4e44);
+            second.digest_into(|v| h.u64(v));
+        }
         h.0
     }
-}
-
-fn clamp_length(v: DVec3, max: f64) -> DVec3 {
-    let l = v.length();
-    if l > max && l > 0.0 { v * (max / l) } else { v }
 }
 
 struct Fnv(u64);

@@ -483,3 +483,112 @@ fn a_needle_pressing_on_the_skin_tents_it_by_the_cutting_springs_extension() {
     assert!((u - expected).length() < 1e-12, "{u} vs {expected}");
     assert!(u.x.abs() < 1e-9 && u.y.abs() < 1e-9 && -u.z >= past_mm, "{u}");
 }
+
+/// A two-handed run on the atlas above: the first hand holds an 18 G needle over the skin and
+/// advances it 6 mm into the tissue at (−3, 2); the second hand presses a finger 5 mm into the
+/// skin 12 mm beside it from tick 100 on (or holds nothing). Outputs and state digests.
+fn two_hands(
+    background: bool,
+    second: Option<stylet_physics::HandTool>,
+    second_device: stylet_physics::DeviceProfile,
+) -> Vec<(stylet_physics::TickOutput, u64)> {
+    use stylet_physics::glam::DQuat;
+    use stylet_physics::{
+        DeviceProfile, Gauge, HandPose, SecondHandConfig, SimConfig, Simulation, TickInput, ToolSpec,
+    };
+    let needle = ToolSpec::Needle {
+        gauge: Gauge::G18,
+        length_mm: 150.0,
+        stylet_in: true,
+    };
+    let mut config = SimConfig::new(DeviceProfile::PREMIUM, needle);
+    config.deformation = settings(32, 3);
+    config.deform_in_background = background;
+    config.second_hand = Some(SecondHandConfig {
+        device: second_device,
+        tool: second,
+    });
+    let mut sim = Simulation::new(std::sync::Arc::new(atlas()), config).unwrap();
+    let down = DQuat::from_rotation_x(std::f64::consts::PI);
+    (0u64..900)
+        .map(|t| {
+            let depth = 6.0 * (t.saturating_sub(300).min(500) as f64 / 500.0);
+            let mut input = TickInput::pose(DVec3::new(-3.0, 2.0, 25.5 - depth), down);
+            input.second_hand = (t >= 100).then(|| HandPose {
+                position_mm: DVec3::new(9.0, 2.0, 28.0 - 8.0 * ((t - 100).min(200) as f64 / 200.0)),
+                orientation: down,
+                buttons: 0,
+            });
+            let out = sim.step(&input);
+            (out, sim.state_digest())
+        })
+        .collect()
+}
+
+#[test]
+fn two_hands_step_on_one_tissue_each_device_gets_its_tools_force_and_replay_is_bit_identical() {
+    use stylet_physics::{DeviceProfile, HandTool};
+    let finger = Some(HandTool::Finger);
+    let run = two_hands(false, finger, DeviceProfile::PREMIUM);
+    // The same inputs give the same bits, with the solve inline or on its own thread.
+    assert_eq!(run, two_hands(false, finger, DeviceProfile::PREMIUM));
+    assert_eq!(run, two_hands(true, finger, DeviceProfile::PREMIUM));
+    // Each device gets its own tool's force: the finger pushes back on the second hand (+z)
+    // while the needle, still above the skin at tick 250, feels nothing.
+    let (at_250, _) = &run[250];
+    let hand = at_250.second_hand.expect("a two-handed tick reports the second hand");
+    assert!(hand.holding && hand.contacts > 0 && hand.force_n.z > 0.5, "{hand:?}");
+    assert_eq!(at_250.force_n, DVec3::ZERO);
+    let (last, _) = run.last().unwrap();
+    assert!(last.inserted_mm > 0.0 && last.force_n.length() > 0.0, "{last:?}");
+    // The finger's press enters the deformation solve beside the needle's: with an empty second
+    // hand the field is the needle's alone, smaller.
+    let empty = two_hands(false, None, DeviceProfile::PREMIUM);
+    assert!(
+        empty
+            .iter()
+            .all(|(o, _)| o.second_hand.is_some_and(|h| !h.holding && h.force_n == DVec3::ZERO))
+    );
+    let pressed = run[250].0.tissue_displacement_mm;
+    assert!(pressed > 2.0, "the finger alone deforms the tissue: {pressed} mm");
+    assert_eq!(empty[250].0.tissue_displacement_mm, 0.0);
+    // The second hand's force is clamped to its own device: the Touch's 3.3 N.
+    let touch = two_hands(false, finger, DeviceProfile::TOUCH);
+    let peak = touch
+        .iter()
+        .filter_map(|(o, _)| o.second_hand)
+        .map(|h| h.force_n.length())
+        .fold(0.0, f64::max);
+    let unclamped = run
+        .iter()
+        .filter_map(|(o, _)| o.second_hand)
+        .map(|h| h.force_n.length())
+        .fold(0.0, f64::max);
+    assert!(
+        unclamped > 3.3 && peak <= 3.3 + 1e-12,
+        "{unclamped} N on the Premium, {peak} N on the Touch"
+    );
+}
+
+#[test]
+fn a_one_handed_run_hashes_as_before_and_a_second_hand_changes_the_digest() {
+    use stylet_physics::glam::DQuat;
+    use stylet_physics::{DeviceProfile, HandTool, SecondHandConfig, SimConfig, Simulation, TickInput, ToolSpec};
+    let run = |second: Option<SecondHandConfig>| {
+        let mut config = SimConfig::new(DeviceProfile::IDEAL, ToolSpec::Finger);
+        config.second_hand = second;
+        let mut sim = Simulation::new(std::sync::Arc::new(atlas()), config).unwrap();
+        let q = DQuat::from_rotation_x(std::f64::consts::PI);
+        for t in 0..50 {
+            sim.step(&TickInput::pose(DVec3::new(-3.0, 2.0, 27.0 - 0.05 * t as f64), q));
+        }
+        sim.state_digest()
+    };
+    // Pinned: the digest of this one-handed run before two hands existed.
+    assert_eq!(run(None), 0xd56f_bd7e_94c1_bf10);
+    let two = run(Some(SecondHandConfig {
+        device: DeviceProfile::IDEAL,
+        tool: Some(HandTool::Probe(stylet_physics::ProbeKind::Convex)),
+    }));
+    assert_ne!(two, run(None));
+}
