@@ -43,6 +43,7 @@ fn needle_ticks() -> Ticks {
             torque_nmm: o.torque_nmm.to_array(),
             tip_label: o.tip_label,
             inserted_mm: o.inserted_mm,
+            second_hand: None,
         };
         out.push((t, i.events.clone(), s.state_digest()));
     });
@@ -73,6 +74,7 @@ fn header() -> SessionHeader {
         contrast: Default::default(),
         breathing: Default::default(),
         hardware: None,
+        second_hand: None,
     }
 }
 

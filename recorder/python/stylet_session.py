@@ -52,6 +52,7 @@ __all__ = [
     "ANNOTATION_COLUMNS",
     "PREVIEW_COLUMNS",
     "BLOCK_COLUMNS",
+    "SECOND_HAND_COLUMNS",
     "TOOL_COLUMNS",
 ]
 
@@ -69,7 +70,7 @@ TOPICS = (
 )
 
 # Schema versions this reader reads (the Rust reader of version N reads N and N - 1).
-SCHEMA_VERSIONS = (1, 2, 3)
+SCHEMA_VERSIONS = (1, 2, 3, 4)
 CODEC_EXACT = "stylet-columns-v1"
 CODEC_ROUNDED = "stylet-columns-v2"
 
@@ -102,6 +103,23 @@ TICK_COLUMNS = (
     "torque_x_nmm", "torque_y_nmm", "torque_z_nmm",
     "tip_label", "inserted_mm",
 )
+# `Session.second_hand`: one row per tick with a second hand (two-handed sessions, schema 4).
+SECOND_HAND_COLUMNS = (
+    "tick", "t_s",
+    "hand2_pos_x_mm", "hand2_pos_y_mm", "hand2_pos_z_mm",
+    "hand2_q_w", "hand2_q_x", "hand2_q_y", "hand2_q_z",
+    "hand2_buttons",
+    "hand2_force_x_n", "hand2_force_y_n", "hand2_force_z_n",
+    "hand2_torque_x_nmm", "hand2_torque_y_nmm", "hand2_torque_z_nmm",
+)
+# The second hand's real columns in a tick block (exact in both codecs) and its presence flags.
+HAND2_F64_COLUMNS = (
+    "hand2_pos_x_mm", "hand2_pos_y_mm", "hand2_pos_z_mm",
+    "hand2_q_w", "hand2_q_x", "hand2_q_y", "hand2_q_z",
+    "hand2_force_x_n", "hand2_force_y_n", "hand2_force_z_n",
+    "hand2_torque_x_nmm", "hand2_torque_y_nmm", "hand2_torque_z_nmm",
+)
+HAND2_COLUMNS = HAND2_F64_COLUMNS + ("hand2_buttons",)
 EVENT_COLUMNS = ("tick", "t_s", "name", "tool", "gauge", "length_mm", "stylet_in", "ml")
 DIGEST_COLUMNS = ("tick", "t_s", "digest", "digest_hex")
 ANNOTATION_COLUMNS = ("tick", "t_s", "text")
@@ -123,10 +141,12 @@ MAX_DEVICE_FORCE_BLOCK_TICKS = 500
 TOOL_COLUMNS = ("tick", "tool", "tool_gauge", "tool_length_mm", "tool_stylet_in")
 
 EVENT_NAMES = (
-    "tool", "stylet-remove", "stylet-insert", "xray-on", "xray-off",
+    "tool", "tool2", "stylet-remove", "stylet-insert", "xray-on", "xray-off",
     "contrast-inject", "breath-hold", "breath-release",
 )
 TOOLS = ("needle", "finger", "probe-linear", "probe-convex")
+# What the second hand may hold (`none`: empty).
+HAND2_TOOLS = ("finger", "probe-linear", "probe-convex", "none")
 GAUGES = (16, 18, 20, 22)
 HEADER_KEYS = (
     "schema_version", "session_id", "trainee", "scenario", "difficulty", "atlas_id",
@@ -156,6 +176,8 @@ class Session:
       ANNOTATION_COLUMNS, PREVIEW_COLUMNS, in the order the file holds them.
     - `blocks`: one row per tick block (BLOCK_COLUMNS): its codec and, for codec v2, the digest
       of its exact outputs.
+    - `second_hand`: two-handed sessions (schema 4): the second device's pose, buttons and
+      force at every tick it reported (SECOND_HAND_COLUMNS); empty for one-handed sessions.
     - `device_forces`: sessions trained on a force-feedback device (schema 3): per tick the force
       the device was sent and what its force guard did (DEVICE_FORCE_COLUMNS; flags as booleans).
     - `header`: the `stylet.session` metadata as stored (all values strings); `end`: the
@@ -177,6 +199,7 @@ class Session:
         self.previews = _columns(PREVIEW_COLUMNS)
         self.blocks = _columns(BLOCK_COLUMNS)
         self.device_forces = _columns(DEVICE_FORCE_COLUMNS)
+        self.second_hand = _columns(SECOND_HAND_COLUMNS)
         self.tick_rate_hz = None
         self.schema_version = None
 
@@ -410,6 +433,11 @@ def _parse_header(m):
         if m["tool_stylet_in"] not in ("true", "false"):
             raise SessionFormatError("session header 'tool_stylet_in' is not true/false")
         _check_needle(tool["tool_gauge"], tool["tool_length_mm"], "session header")
+    if "hand2.device" in m:
+        if "hand2.tool" not in m:
+            raise SessionFormatError("session header lacks 'hand2.tool'")
+        if m["hand2.tool"] not in HAND2_TOOLS:
+            raise SessionFormatError(f"session header: the second hand cannot hold '{m['hand2.tool'][:64]}'")
     return schema, rate
 
 
@@ -545,6 +573,17 @@ class _Reader:
             cols[c] = decode_xor(column(c), width, n, c)
         ticks = range(first, first + n)
         self._check_poses(ticks, cols)
+        if "hand2" in columns:
+            present = decode_xor(column("hand2"), 1, n, "hand2")
+            if any(p not in (0, 1) for p in present):
+                raise SessionFormatError("column 'hand2' holds a value other than 0 or 1")
+            hand = {c: decode_f64(column(c), n, c) for c in HAND2_F64_COLUMNS}
+            hand["hand2_buttons"] = decode_xor(column("hand2_buttons"), 4, n, "hand2_buttons")
+            hand = {c: [v for v, p in zip(hand[c], present) if p] for c in HAND2_COLUMNS}
+            hand_ticks = [k for k, p in zip(ticks, present) if p]
+            self._check_poses(hand_ticks, {k[len("hand2_"):]: hand[k] for k in HAND2_F64_COLUMNS})
+        else:
+            hand, hand_ticks = None, []
         if self.last_tick is not None and first <= self.last_tick:
             raise SessionFormatError(f"tick {first} after tick {self.last_tick}")
         self.last_tick = first + n - 1
@@ -553,6 +592,12 @@ class _Reader:
         out["t_s"].extend(self.t(k) for k in ticks)
         for c in TICK_COLUMNS[2:]:
             out[c].extend(cols[c])
+        if hand_ticks:
+            h = self.s.second_hand
+            h["tick"].extend(hand_ticks)
+            h["t_s"].extend(self.t(k) for k in hand_ticks)
+            for c in HAND2_COLUMNS:
+                h[c].extend(hand[c])
         b = self.s.blocks
         b["first_tick"].append(first)
         b["count"].append(n)
@@ -597,6 +642,8 @@ class _Reader:
                 _check_needle(gauge, length, what)
                 if stylet is None:
                     raise SessionFormatError(f"{what}: needle without stylet state")
+        if name == "tool2" and tool not in HAND2_TOOLS:
+            raise SessionFormatError(f"{what}: the second hand cannot hold '{str(tool)[:64]}'")
         if name == "contrast-inject" and ml is None:
             raise SessionFormatError(f"{what}: contrast event without ml")
         e = self.s.events

@@ -25,6 +25,7 @@ HERE = Path(__file__).resolve().parent
 V1 = HERE.parent / "tests/fixtures/session-v1.mcap"
 V2 = HERE.parent / "tests/fixtures/session-v2.mcap"
 V3 = HERE.parent / "tests/fixtures/session-v3.mcap"
+V4 = HERE.parent / "tests/fixtures/session-v4.mcap"
 PHYSICS_V11 = HERE.parent.parent / "tests/fixtures/physics-v11"
 PHYSICS_FILES = sorted(PHYSICS_V11.glob("*.mcap"))
 
@@ -216,6 +217,26 @@ class Fixtures(unittest.TestCase):
             flags = i // 97 % 128
             for b, name in enumerate(ss.GUARD_FLAGS):
                 self.assertEqual(d[name][i], bool(flags >> b & 1), f"tick {i} {name}")
+
+    def test_v4_fixture_holds_the_second_hand(self):
+        s = read_session(V4)
+        self.assertEqual(s.schema_version, 4)
+        self.assertEqual((s.header["hand2.device"], s.header["hand2.tool"]), ("touch", "probe-convex"))
+        self.assertEqual(len(s.ticks["tick"]), 1200)
+        # sessions.rs with_second_hand(…, 650): no second hand before tick 650, then a probe.
+        t = s.second_hand
+        self.assertEqual(t["tick"], list(range(650, 1200)))
+        for i in (650, 999, 1199):
+            x = i * 1e-3
+            j = i - 650
+            self.assertEqual(bits(t["hand2_pos_x_mm"][j]), bits(180.0 - 0.2 * x), f"tick {i}")
+            self.assertEqual(bits(t["hand2_force_z_n"][j]), bits(-0.2))
+            self.assertEqual(bits(t["hand2_torque_y_nmm"][j]), bits(2.0 * math.cos(x)), f"tick {i}")
+            self.assertEqual(t["hand2_buttons"][j], i // 700 % 2)
+        # One-handed files have an empty second-hand table.
+        self.assertEqual(read_session(V3).second_hand["tick"], [])
+        self.assertEqual(s.events["name"], ["tool2"])
+        self.assertEqual(s.events["tool"], ["probe-convex"])
 
     def test_v2_fixture_holds_rounded_outputs_and_their_digests(self):
         s = read_session(V2)
@@ -479,7 +500,9 @@ class HandMadeFiles(unittest.TestCase):
 
     def test_headers_refused(self):
         for change, pattern in [
-            ({"schema_version": "4"}, "schema version 4"),
+            ({"schema_version": "5"}, "schema version 5"),
+            ({"hand2.device": "touch"}, "lacks 'hand2.tool'"),
+            ({"hand2.device": "touch", "hand2.tool": "needle"}, "cannot hold 'needle'"),
             ({"schema_version": "x"}, "not a number"),
             ({"tick_rate_hz": "0"}, "tick_rate_hz 0 is out of range"),
             ({"tool": "spoon"}, "unknown tool 'spoon'"),

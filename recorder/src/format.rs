@@ -7,13 +7,15 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
 use stylet_physics::motion::BreathingSettings;
-use stylet_physics::{ContrastSettings, DeformSettings, Event, Gauge, ProbeKind, SettingsError, ToolSpec};
+use stylet_physics::{ContrastSettings, DeformSettings, Event, Gauge, HandTool, ProbeKind, SettingsError, ToolSpec};
 
 /// The session schema version this code writes; it reads every version since 1.
 /// Version 2 (2026-11-28): tick blocks may round their forces and torques (codec
 /// `stylet-columns-v2`, [`crate::outputs`]). Version 3 (2026-12-05): a session trained on a
-/// force-feedback device may carry [`TOPIC_DEVICE_FORCES`] and the header's `hardware.*`.
-pub const SCHEMA_VERSION: u32 = 3;
+/// force-feedback device may carry [`TOPIC_DEVICE_FORCES`] and the header's `hardware.*`. Version 4
+/// (2026-12-05): a two-handed session's header names the second hand (`hand2.*`), its ticks carry
+/// the second device's pose and force ([`HandRecord`]) and its events may be `tool2`.
+pub const SCHEMA_VERSION: u32 = 4;
 /// The oldest schema version this code reads.
 pub const OLDEST_SCHEMA_VERSION: u32 = 1;
 /// MCAP profile string of Stylet sessions.
@@ -64,13 +66,44 @@ pub struct TickRecord {
     pub torque_nmm: [f64; 3],
     pub tip_label: u16,
     pub inserted_mm: f64,
+    /// The second device of a two-handed session: what it reported and the force it was given.
+    pub second_hand: Option<HandRecord>,
+}
+
+/// The second hand of a tick as recorded: the device input (what replay needs) and its output
+/// (what replay checks), every bit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HandRecord {
+    pub position_mm: [f64; 3],
+    /// (w, x, y, z) as the device reported it.
+    pub orientation: [f64; 4],
+    pub buttons: u32,
+    pub force_n: [f64; 3],
+    pub torque_nmm: [f64; 3],
+}
+
+impl HandRecord {
+    fn same_bits(&self, o: &HandRecord) -> bool {
+        let f = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
+        self.buttons == o.buttons
+            && f(&self.position_mm, &o.position_mm)
+            && f(&self.orientation, &o.orientation)
+            && f(&self.force_n, &o.force_n)
+            && f(&self.torque_nmm, &o.torque_nmm)
+    }
 }
 
 impl TickRecord {
     /// Bit-exact equality (NaN-safe, −0 ≠ +0).
     pub fn same_bits(&self, o: &TickRecord) -> bool {
         let f = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
-        self.tick == o.tick
+        let hands = match (&self.second_hand, &o.second_hand) {
+            (None, None) => true,
+            (Some(a), Some(b)) => a.same_bits(b),
+            _ => false,
+        };
+        hands
+            && self.tick == o.tick
             && self.buttons == o.buttons
             && self.tip_label == o.tip_label
             && f(&self.position_mm, &o.position_mm)
@@ -99,20 +132,23 @@ pub enum PoseError {
 /// bad tick.
 pub fn check_poses_finite(ticks: &[TickRecord]) -> Result<(), PoseError> {
     for t in ticks {
-        if !t.position_mm.iter().all(|v| v.is_finite()) {
-            return Err(PoseError::Position {
-                tick: t.tick,
-                position_mm: t.position_mm,
-            });
-        }
-        if !t.orientation.iter().all(|v| v.is_finite()) {
-            return Err(PoseError::Orientation {
-                tick: t.tick,
-                orientation: t.orientation,
-            });
-        }
-        if t.orientation.iter().all(|&v| v == 0.0) {
-            return Err(PoseError::ZeroOrientation { tick: t.tick });
+        let second = t.second_hand.map(|h| (h.position_mm, h.orientation));
+        for (position_mm, orientation) in std::iter::once((t.position_mm, t.orientation)).chain(second) {
+            if !position_mm.iter().all(|v| v.is_finite()) {
+                return Err(PoseError::Position {
+                    tick: t.tick,
+                    position_mm,
+                });
+            }
+            if !orientation.iter().all(|v| v.is_finite()) {
+                return Err(PoseError::Orientation {
+                    tick: t.tick,
+                    orientation,
+                });
+            }
+            if orientation.iter().all(|&v| v == 0.0) {
+                return Err(PoseError::ZeroOrientation { tick: t.tick });
+            }
         }
     }
     Ok(())
@@ -199,6 +235,9 @@ impl EventRecord {
                     r.stylet_in = Some(*stylet_in);
                 }
             }
+            Event::SecondTool(tool) => {
+                r.tool = Some(tool.map_or("none", |t| tool_kind(&t.tool_spec())).into());
+            }
             Event::ContrastInject { ml } => r.ml = Some(*ml),
             _ => {}
         }
@@ -214,6 +253,7 @@ impl EventRecord {
                 self.length_mm,
                 self.stylet_in,
             )?),
+            "tool2" => Event::SecondTool(hand_tool_from(self.tool.as_deref().ok_or(EventError::NoTool)?)?),
             "stylet-remove" => Event::StyletRemove,
             "stylet-insert" => Event::StyletInsert,
             "xray-on" => Event::XrayOn,
@@ -257,6 +297,9 @@ pub enum ToolError {
     NoLength,
     #[error("needle without stylet state")]
     NoStyletState,
+    /// A needle (or another tool the second hand cannot hold) named for the second hand.
+    #[error("the second hand holds a finger or a probe, not '{0}'")]
+    NotForSecondHand(String),
 }
 
 fn tool_kind(spec: &ToolSpec) -> &'static str {
@@ -265,6 +308,16 @@ fn tool_kind(spec: &ToolSpec) -> &'static str {
         ToolSpec::Finger => "finger",
         ToolSpec::Probe(ProbeKind::Linear) => "probe-linear",
         ToolSpec::Probe(ProbeKind::Convex) => "probe-convex",
+    }
+}
+
+/// The second hand's tool from its recorded kind (`none`: an empty hand).
+fn hand_tool_from(kind: &str) -> Result<Option<HandTool>, ToolError> {
+    match kind {
+        "none" => Ok(None),
+        "finger" | "probe-linear" | "probe-convex" => Ok(HandTool::from_tool_spec(tool_from(kind, None, None, None)?)),
+        "needle" => Err(ToolError::NotForSecondHand(kind.to_string())),
+        other => Err(ToolError::Unknown(other.chars().take(MAX_NAME_CHARS).collect())),
     }
 }
 
@@ -400,6 +453,18 @@ pub struct SessionHeader {
     /// The force-feedback device the session was trained on, if any (metadata: physics and
     /// scoring never read it). Files without it were driven otherwise.
     pub hardware: Option<HardwareDevice>,
+    /// The second hand of a two-handed session: the device profile that drove it and what it held
+    /// at tick 0. Files without it were one-handed.
+    pub second_hand: Option<SecondHandHeader>,
+}
+
+/// The second hand as the session header records it (`hand2.device`, `hand2.tool`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SecondHandHeader {
+    /// Device profile name (stylet_physics::DeviceProfile) of the second device.
+    pub device: String,
+    /// The second hand's tool at tick 0 (`none`: empty).
+    pub initial_tool: Option<HandTool>,
 }
 
 /// A force-feedback device as the session header records it.
@@ -456,6 +521,13 @@ impl SessionHeader {
             put("hardware.model", h.model.clone());
             put("hardware.max_force_n", h.max_force_n.to_string());
             put("hardware.max_continuous_force_n", h.max_continuous_force_n.to_string());
+        }
+        if let Some(h) = &self.second_hand {
+            put("hand2.device", h.device.clone());
+            put(
+                "hand2.tool",
+                h.initial_tool.map_or("none", |t| tool_kind(&t.tool_spec())).into(),
+            );
         }
         m
     }
@@ -547,6 +619,13 @@ impl SessionHeader {
                 max_continuous_force_n: force("hardware.max_continuous_force_n")?,
             }),
         };
+        let second_hand = match m.contains_key("hand2.device") {
+            false => None,
+            true => Some(SecondHandHeader {
+                device: name("hand2.device")?,
+                initial_tool: hand_tool_from(&get("hand2.tool")?)?,
+            }),
+        };
         humantime::parse_rfc3339_weak(&wall_clock_start).map_err(|_| HeaderError::WallClockStart)?;
         Ok(SessionHeader {
             schema_version,
@@ -567,6 +646,7 @@ impl SessionHeader {
             contrast: world::get_contrast(m)?,
             breathing: world::get_breathing(m)?,
             hardware,
+            second_hand,
         })
     }
 }
@@ -879,7 +959,7 @@ pub fn json_schema(topic: &str) -> &'static str {
 const TICK_BLOCK_SCHEMA: &str = r##"{
   "$schema": "https://json-schema.org/draft/2020-12/schema",
   "title": "stylet.TickBlock",
-  "description": "Up to 500 consecutive ticks, column by column (docs/session-format.md). The message is a CBOR map; each column is a CBOR byte string (base64url in the RFC 8949 JSON form). Codec stylet-columns-v1: f64 columns hold the zigzag residuals of the IEEE-754 bit patterns after the linear prediction 2*b[i-1]-b[i-2]; integer columns each value XOR the previous; the little-endian bytes are transposed into planes. f64 columns: pos_x_mm pos_y_mm pos_z_mm q_w q_x q_y q_z force_x_n force_y_n force_z_n torque_x_nmm torque_y_nmm torque_z_nmm inserted_mm (8 bytes per tick); u32 buttons (4); u16 tip_label (2). Codec stylet-columns-v2: the same, except that the force and torque columns hold i64 step counts (2^16 per N, 2^12 per N*mm; zigzag residuals of the same prediction), and outputs_digest is the FNV-1a 64 of the block's exact forces and torques.",
+  "description": "Up to 500 consecutive ticks, column by column (docs/session-format.md). The message is a CBOR map; each column is a CBOR byte string (base64url in the RFC 8949 JSON form). Codec stylet-columns-v1: f64 columns hold the zigzag residuals of the IEEE-754 bit patterns after the linear prediction 2*b[i-1]-b[i-2]; integer columns each value XOR the previous; the little-endian bytes are transposed into planes. f64 columns: pos_x_mm pos_y_mm pos_z_mm q_w q_x q_y q_z force_x_n force_y_n force_z_n torque_x_nmm torque_y_nmm torque_z_nmm inserted_mm (8 bytes per tick); u32 buttons (4); u16 tip_label (2). Two-handed sessions (schema 4): a block in which the second device reported at least one tick also has u8 hand2 (1 where the tick has a second hand, else 0), the f64 columns hand2_pos_x_mm hand2_pos_y_mm hand2_pos_z_mm hand2_q_w hand2_q_x hand2_q_y hand2_q_z hand2_force_x_n hand2_force_y_n hand2_force_z_n hand2_torque_x_nmm hand2_torque_y_nmm hand2_torque_z_nmm (exact in both codecs; 0 where the tick has none) and u32 hand2_buttons. Codec stylet-columns-v2: the same, except that the force and torque columns hold i64 step counts (2^16 per N, 2^12 per N*mm; zigzag residuals of the same prediction), and outputs_digest is the FNV-1a 64 of the block's exact forces and torques.",
   "type": "object",
   "properties": {
     "first_tick": {"type": "integer", "minimum": 0, "maximum": 18446744073709551615},
@@ -903,8 +983,24 @@ const TICK_BLOCK_SCHEMA: &str = r##"{
         "torque_z_nmm": {"$ref": "#/$defs/column"},
         "inserted_mm": {"$ref": "#/$defs/column"},
         "buttons": {"$ref": "#/$defs/column"},
-        "tip_label": {"$ref": "#/$defs/column"}
+        "tip_label": {"$ref": "#/$defs/column"},
+        "hand2": {"$ref": "#/$defs/column"},
+        "hand2_pos_x_mm": {"$ref": "#/$defs/column"},
+        "hand2_pos_y_mm": {"$ref": "#/$defs/column"},
+        "hand2_pos_z_mm": {"$ref": "#/$defs/column"},
+        "hand2_q_w": {"$ref": "#/$defs/column"},
+        "hand2_q_x": {"$ref": "#/$defs/column"},
+        "hand2_q_y": {"$ref": "#/$defs/column"},
+        "hand2_q_z": {"$ref": "#/$defs/column"},
+        "hand2_force_x_n": {"$ref": "#/$defs/column"},
+        "hand2_force_y_n": {"$ref": "#/$defs/column"},
+        "hand2_force_z_n": {"$ref": "#/$defs/column"},
+        "hand2_torque_x_nmm": {"$ref": "#/$defs/column"},
+        "hand2_torque_y_nmm": {"$ref": "#/$defs/column"},
+        "hand2_torque_z_nmm": {"$ref": "#/$defs/column"},
+        "hand2_buttons": {"$ref": "#/$defs/column"}
       },
+      "dependentRequired": {"hand2": ["hand2_pos_x_mm", "hand2_pos_y_mm", "hand2_pos_z_mm", "hand2_q_w", "hand2_q_x", "hand2_q_y", "hand2_q_z", "hand2_force_x_n", "hand2_force_y_n", "hand2_force_z_n", "hand2_torque_x_nmm", "hand2_torque_y_nmm", "hand2_torque_z_nmm", "hand2_buttons"]},
       "required": ["pos_x_mm", "pos_y_mm", "pos_z_mm", "q_w", "q_x", "q_y", "q_z", "force_x_n", "force_y_n", "force_z_n", "torque_x_nmm", "torque_y_nmm", "torque_z_nmm", "inserted_mm", "buttons", "tip_label"],
       "additionalProperties": false
     },
@@ -928,12 +1024,12 @@ const TICK_BLOCK_SCHEMA: &str = r##"{
 const EVENT_SCHEMA: &str = r##"{
   "$schema": "https://json-schema.org/draft/2020-12/schema",
   "title": "stylet.Event",
-  "description": "An event of a tick (names as in docs/scripts.md). A CBOR map; fields other than tick and name are present only for the events that use them: tool, gauge, length_mm, stylet_in for a tool change, ml for a contrast injection.",
+  "description": "An event of a tick (names as in docs/scripts.md). A CBOR map; fields other than tick and name are present only for the events that use them: tool, gauge, length_mm, stylet_in for a tool change, tool for the second hand's tool change (tool2; none: the hand puts its tool down), ml for a contrast injection.",
   "type": "object",
   "properties": {
     "tick": {"type": "integer", "minimum": 0, "maximum": 18446744073709551615},
     "name": {"type": "string", "maxLength": 64},
-    "tool": {"enum": ["needle", "finger", "probe-linear", "probe-convex"]},
+    "tool": {"enum": ["needle", "finger", "probe-linear", "probe-convex", "none"]},
     "gauge": {"type": "integer", "minimum": 0, "maximum": 4294967295},
     "length_mm": {"type": "number"},
     "stylet_in": {"type": "boolean"},

@@ -45,6 +45,10 @@ pub fn header(sim: &Simulation, info: &SessionInfo) -> SessionHeader {
         contrast: sim.config().contrast,
         breathing: sim.config().breathing,
         hardware: None,
+        second_hand: sim.config().second_hand.map(|h| crate::format::SecondHandHeader {
+            device: h.device.name.to_string(),
+            initial_tool: h.tool,
+        }),
     }
 }
 

@@ -393,6 +393,20 @@ fn tick_record(input: &TickInput, output: &TickOutput) -> TickRecord {
         torque_nmm: output.torque_nmm.to_array(),
         tip_label: output.tip_label,
         inserted_mm: output.inserted_mm,
+        second_hand: output.second_hand.map(|h| {
+            // The pose as the device reported it (the physics' holds its last valid one).
+            let (position_mm, orientation, buttons) = match &input.second_hand {
+                Some(p) => (p.position_mm, p.orientation, p.buttons),
+                None => (h.position_mm, h.orientation, 0),
+            };
+            HandRecord {
+                position_mm: position_mm.to_array(),
+                orientation: [orientation.w, orientation.x, orientation.y, orientation.z],
+                buttons,
+                force_n: h.force_n.to_array(),
+                torque_nmm: h.torque_nmm.to_array(),
+            }
+        }),
     }
 }
 
@@ -613,6 +627,9 @@ pub fn encode_block(block: &[TickRecord]) -> TickBlock {
     columns.insert("buttons".into(), ByteBuf::from(codec::encode(&buttons, 4)));
     let labels: Vec<u64> = block.iter().map(|t| t.tip_label as u64).collect();
     columns.insert("tip_label".into(), ByteBuf::from(codec::encode(&labels, 2)));
+    if block.iter().any(|t| t.second_hand.is_some()) {
+        encode_second_hand(block, &mut columns);
+    }
     TickBlock {
         first_tick: block[0].tick,
         count: block.len() as u32,
@@ -624,6 +641,54 @@ pub fn encode_block(block: &[TickRecord]) -> TickBlock {
         .into(),
         columns,
         outputs_digest,
+    }
+}
+
+/// The second hand's columns (exact in both codecs; zero where a tick has no second hand).
+fn encode_second_hand(block: &[TickRecord], columns: &mut BTreeMap<String, ByteBuf>) {
+    let present: Vec<u64> = block.iter().map(|t| u64::from(t.second_hand.is_some())).collect();
+    columns.insert(HAND2_PRESENT.into(), ByteBuf::from(codec::encode(&present, 1)));
+    for (a, name) in HAND2_F64_COLUMNS.iter().enumerate() {
+        let v: Vec<f64> = block
+            .iter()
+            .map(|t| t.second_hand.map_or(0.0, |h| hand_value(&h, a)))
+            .collect();
+        columns.insert(name.to_string(), ByteBuf::from(codec::encode_f64(&v)));
+    }
+    let buttons: Vec<u64> = block
+        .iter()
+        .map(|t| t.second_hand.map_or(0, |h| h.buttons.into()))
+        .collect();
+    columns.insert(HAND2_BUTTONS.into(), ByteBuf::from(codec::encode(&buttons, 4)));
+}
+
+/// The second hand's presence column (u8: 1 where the tick has a second hand).
+const HAND2_PRESENT: &str = "hand2";
+const HAND2_BUTTONS: &str = "hand2_buttons";
+/// The second hand's real columns: position, orientation (w, x, y, z), force, torque.
+const HAND2_F64_COLUMNS: [&str; 13] = [
+    "hand2_pos_x_mm",
+    "hand2_pos_y_mm",
+    "hand2_pos_z_mm",
+    "hand2_q_w",
+    "hand2_q_x",
+    "hand2_q_y",
+    "hand2_q_z",
+    "hand2_force_x_n",
+    "hand2_force_y_n",
+    "hand2_force_z_n",
+    "hand2_torque_x_nmm",
+    "hand2_torque_y_nmm",
+    "hand2_torque_z_nmm",
+];
+
+/// Real column `a` of [`HAND2_F64_COLUMNS`] of a second hand.
+fn hand_value(h: &HandRecord, a: usize) -> f64 {
+    match a {
+        0..3 => h.position_mm[a],
+        3..7 => h.orientation[a - 3],
+        7..10 => h.force_n[a - 7],
+        _ => h.torque_nmm[a - 10],
     }
 }
 
@@ -709,6 +774,9 @@ pub enum BlockError {
         bytes: usize,
         expected: usize,
     },
+    /// A flag column holding a value other than 0 or 1.
+    #[error("column '{0}' holds a value other than 0 or 1")]
+    NotAFlag(&'static str),
     /// A rounded output column holds a step count that no exact value rounds to.
     #[error("column '{0}' holds a step count out of range")]
     StepOutOfRange(&'static str),
@@ -773,6 +841,32 @@ pub fn decode_block(b: &TickBlock) -> Result<DecodedBlock, BlockError> {
     let ins = fc("inserted_mm")?;
     let buttons = col("buttons", 4)?;
     let labels = col("tip_label", 2)?;
+    let hands: Vec<Option<HandRecord>> = if b.columns.contains_key(HAND2_PRESENT) {
+        let present = col(HAND2_PRESENT, 1)?;
+        let reals = HAND2_F64_COLUMNS
+            .iter()
+            .map(|name| fc(name))
+            .collect::<Result<Vec<_>, _>>()?;
+        let hand_buttons = col(HAND2_BUTTONS, 4)?;
+        (0..n)
+            .map(|i| match present[i] {
+                0 => Ok(None),
+                1 => {
+                    let r = |a: usize| reals[a][i];
+                    Ok(Some(HandRecord {
+                        position_mm: [r(0), r(1), r(2)],
+                        orientation: [r(3), r(4), r(5), r(6)],
+                        buttons: hand_buttons[i] as u32,
+                        force_n: [r(7), r(8), r(9)],
+                        torque_nmm: [r(10), r(11), r(12)],
+                    }))
+                }
+                _ => Err(BlockError::NotAFlag(HAND2_PRESENT)),
+            })
+            .collect::<Result<_, _>>()?
+    } else {
+        vec![None; n]
+    };
     let ticks = (0..n)
         .map(|i| TickRecord {
             tick: b.first_tick + i as u64,
@@ -783,6 +877,7 @@ pub fn decode_block(b: &TickBlock) -> Result<DecodedBlock, BlockError> {
             torque_nmm: [tx[i], ty[i], tz[i]],
             tip_label: labels[i] as u16,
             inserted_mm: ins[i],
+            second_hand: hands[i],
         })
         .collect();
     Ok(DecodedBlock {
@@ -812,6 +907,7 @@ mod tests {
                     torque_nmm: [t.cos(), 0.0, 1e-7 * t],
                     tip_label: 1,
                     inserted_mm: 0.0,
+                    second_hand: None,
                 }
             })
             .collect()

@@ -4,8 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use stylet_physics::{DeformSettings, Event, Gauge, ToolSpec};
-use stylet_recorder::format::HardwareDevice;
 use stylet_recorder::format::{DigestRecord, PoseError, TickRecord};
+use stylet_recorder::format::{HandRecord, HardwareDevice, SecondHandHeader};
 use stylet_recorder::outputs::{OutputCheck, OutputDigest, rounded_outputs};
 use stylet_recorder::reader::{self, DamageKind, LimitExceeded, Limits, MessageError, Mode, VerifyError};
 use stylet_recorder::{EventRecord, SessionHeader, SessionWriter, WriterOptions};
@@ -63,6 +63,7 @@ fn header() -> SessionHeader {
             max_force_n: 12.0,
             max_continuous_force_n: 12.0,
         }),
+        second_hand: None,
     }
 }
 
@@ -101,6 +102,7 @@ pub fn synthetic_ticks(n: u64, seed: u64) -> Vec<TickRecord> {
                     10
                 },
                 inserted_mm: depth,
+                second_hand: None,
             }
         })
         .collect()
@@ -147,7 +149,7 @@ fn device_forces_are_kept_beside_the_ticks() {
     }
     w.finish().unwrap();
     let s = reader::verify(&with_device).unwrap();
-    assert_eq!(s.header.schema_version, 3);
+    assert_eq!(s.header.schema_version, stylet_recorder::SCHEMA_VERSION);
     assert_eq!(s.device_forces.len(), 1300);
     for (r, t) in s.device_forces.iter().zip(&ticks) {
         let want = device_force(t.tick);
@@ -506,6 +508,143 @@ fn schema_v3_fixture_reads() {
         assert_eq!(r.guard, want.guard);
         assert!((0..3).all(|k| (r.sent_n[k] - want.sent_n[k]).abs() <= 1.0 / 131072.0));
     }
+}
+
+/// A convex probe in the second hand over the ticks of [`synthetic_ticks`]: it is picked up at tick
+/// `from` (the ticks before have no second hand), pressed and swept, its force exact to the bit.
+fn with_second_hand(mut ticks: Vec<TickRecord>, from: u64) -> Vec<TickRecord> {
+    for t in &mut ticks {
+        let s = t.tick as f64 * 1e-3;
+        t.second_hand = (t.tick >= from).then(|| HandRecord {
+            position_mm: [180.0 - 0.2 * s, 20.0 + 3.0 * (0.5 * s).sin(), 40.0],
+            orientation: [0.5, 0.5, -0.5, 0.5 + 1e-5 * s.cos()],
+            buttons: (t.tick / 700 % 2) as u32,
+            force_n: [1.0 + 0.1 * (3.0 * s).sin(), 0.013 * s, -0.2],
+            torque_nmm: [0.0, 2.0 * s.cos(), 0.0],
+        });
+    }
+    ticks
+}
+
+/// The second hand of a two-handed session as its header records it.
+fn two_handed_header() -> SessionHeader {
+    SessionHeader {
+        second_hand: Some(SecondHandHeader {
+            device: "touch".into(),
+            initial_tool: Some(stylet_physics::HandTool::Probe(stylet_physics::ProbeKind::Convex)),
+        }),
+        ..header()
+    }
+}
+
+/// A two-handed session keeps both devices' poses and forces in every tick, bit for bit, with a
+/// second hand that appears in the middle of a block; its header names the second device and
+/// tool, and its `tool2` events read back as the events they were.
+#[test]
+fn two_handed_ticks_keep_both_hands_to_the_bit() {
+    let d = tempfile::tempdir().unwrap();
+    let path = d.path().join("two.mcap");
+    let ticks = with_second_hand(synthetic_ticks(1300, 5), 730);
+    let w = SessionWriter::create(&path, &two_handed_header(), WriterOptions::default()).unwrap();
+    let events = [
+        (100, Event::SecondTool(None)),
+        (200, Event::SecondTool(Some(stylet_physics::HandTool::Finger))),
+        (
+            300,
+            Event::SecondTool(Some(stylet_physics::HandTool::Probe(stylet_physics::ProbeKind::Linear))),
+        ),
+    ];
+    for t in &ticks {
+        for (tick, e) in &events {
+            if *tick == t.tick {
+                w.event_record_blocking(EventRecord::from_event(t.tick, e)).unwrap();
+            }
+        }
+        w.record_raw_blocking(*t).unwrap();
+    }
+    w.finish().unwrap();
+    let s = reader::verify(&path).unwrap();
+    assert_eq!(s.header.second_hand, two_handed_header().second_hand);
+    assert!(same(&s.ticks, &ticks));
+    assert!(s.ticks[729].second_hand.is_none() && s.ticks[730].second_hand.is_some());
+    let read: Vec<Event> = s.events.iter().map(|e| e.to_event().unwrap()).collect();
+    assert_eq!(read, events.map(|(_, e)| e));
+    // A one-handed block carries no second-hand columns; a two-handed one all of them.
+    let blocks: Vec<_> = (0..3)
+        .map(|b| stylet_recorder::writer::encode_block(&ticks[b * 500..(b * 500 + 500).min(1300)]))
+        .collect();
+    assert!(!blocks[0].columns.contains_key("hand2"));
+    assert!(blocks[1].columns.contains_key("hand2") && blocks[1].columns.contains_key("hand2_force_z_n"));
+}
+
+/// A damaged second-hand column is named: a presence flag other than 0 or 1, a column missing.
+/// A needle for the second hand and an unknown second-hand tool are refused.
+#[test]
+fn damaged_second_hand_columns_and_tools_are_named() {
+    use stylet_recorder::writer::{decode_block, encode_block};
+    let ticks = with_second_hand(synthetic_ticks(20, 2), 5);
+    let mut b = encode_block(&ticks);
+    assert!(decode_block(&b).is_ok());
+    let mut flags = b.columns["hand2"].to_vec();
+    flags[7] ^= 0x2;
+    b.columns.insert("hand2".into(), serde_bytes::ByteBuf::from(flags));
+    assert_eq!(
+        decode_block(&b).unwrap_err().to_string(),
+        "column 'hand2' holds a value other than 0 or 1"
+    );
+    let mut b = encode_block(&ticks);
+    b.columns.remove("hand2_q_y");
+    assert_eq!(
+        decode_block(&b).unwrap_err().to_string(),
+        "block lacks column 'hand2_q_y'"
+    );
+    let mut e = EventRecord::from_event(1, &Event::SecondTool(None));
+    e.tool = Some("needle".into());
+    assert_eq!(
+        e.to_event().unwrap_err().to_string(),
+        "the second hand holds a finger or a probe, not 'needle'"
+    );
+    e.tool = Some("scalpel".into());
+    assert_eq!(e.to_event().unwrap_err().to_string(), "unknown tool 'scalpel'");
+    let mut m = two_handed_header().to_metadata();
+    m.insert("hand2.tool".into(), "needle".into());
+    assert!(SessionHeader::from_metadata(&m).is_err());
+    m.remove("hand2.tool");
+    assert_eq!(
+        SessionHeader::from_metadata(&m).unwrap_err().to_string(),
+        "session header lacks 'hand2.tool'"
+    );
+}
+
+/// The committed schema-version-4 file reads: a two-handed session, the second hand picked up
+/// in the middle of a block. (Regenerate it only when adding a new schema version:
+/// `STYLET_WRITE_FIXTURE=1 cargo test -p stylet-recorder fixture`.)
+#[test]
+fn schema_v4_fixture_reads() {
+    let path = fixture("session-v4.mcap");
+    let ticks = with_second_hand(synthetic_ticks(1200, 8), 650);
+    if std::env::var("STYLET_WRITE_FIXTURE").is_ok() {
+        let w = SessionWriter::create(&path, &two_handed_header(), WriterOptions::default()).unwrap();
+        w.event_record_blocking(EventRecord::from_event(
+            650,
+            &Event::SecondTool(Some(stylet_physics::HandTool::Probe(stylet_physics::ProbeKind::Convex))),
+        ))
+        .unwrap();
+        for t in &ticks {
+            w.record_raw_blocking(*t).unwrap();
+            if t.tick % 100 == 99 {
+                w.digest_blocking(t.tick, t.tick.wrapping_mul(0x9E37_79B9_7F4A_7C15))
+                    .unwrap();
+            }
+        }
+        w.finish().unwrap();
+    }
+    let s = reader::verify(&path).unwrap();
+    assert_eq!(s.header.schema_version, 4);
+    assert_eq!(s.header.second_hand, two_handed_header().second_hand);
+    assert!(same(&s.ticks, &ticks));
+    assert_eq!(s.events.len(), 1);
+    assert_eq!(s.digests.len(), 12);
 }
 
 /// A block whose outputs cannot be rounded exactly (here a NaN force) is stored with every bit
@@ -1001,13 +1140,14 @@ fn check_against_schemas(path: &Path) -> std::collections::BTreeMap<String, usiz
 /// The published schemas describe exactly what is written: every message of a session with every
 /// kind of message (all events, both tick codecs, an annotation, previews) validates against its
 /// topic's schema, byte strings are declared as byte strings, and the file carries these schemas.
-/// The committed sessions (schema versions 1 to 3, physics fixtures) validate too.
+/// The committed sessions (schema versions 1 to 4, physics fixtures) validate too.
 #[test]
 fn sessions_match_their_published_schemas() {
     use stylet_recorder::format;
     let d = tempfile::tempdir().unwrap();
     let path = d.path().join("s.mcap");
-    let mut ticks = synthetic_ticks(1200, 9);
+    // A second hand from tick 600 on: its columns in the last two blocks.
+    let mut ticks = with_second_hand(synthetic_ticks(1200, 9), 600);
     // One block that cannot round its outputs: codec v1, without a digest.
     ticks[700].force_n[1] = f64::NAN;
     let events = [
@@ -1025,8 +1165,10 @@ fn sessions_match_their_published_schemas() {
         Event::XrayOff,
         Event::BreathHold,
         Event::BreathRelease,
+        Event::SecondTool(Some(stylet_physics::HandTool::Probe(stylet_physics::ProbeKind::Linear))),
+        Event::SecondTool(None),
     ];
-    let w = SessionWriter::create(&path, &header(), WriterOptions::default()).unwrap();
+    let w = SessionWriter::create(&path, &two_handed_header(), WriterOptions::default()).unwrap();
     for t in &ticks {
         if let Some(e) = events.get(t.tick as usize / 100).filter(|_| t.tick % 100 == 50) {
             w.event_record_blocking(EventRecord::from_event(t.tick, e)).unwrap();
@@ -1068,6 +1210,7 @@ fn sessions_match_their_published_schemas() {
         fixture("session-v1.mcap"),
         fixture("session-v2.mcap"),
         fixture("session-v3.mcap"),
+        fixture("session-v4.mcap"),
     ];
     for entry in std::fs::read_dir(root.join("tests/fixtures/physics-v11")).unwrap() {
         let p = entry.unwrap().path();

@@ -7,7 +7,10 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use stylet_physics::glam::{DQuat, DVec3};
-use stylet_physics::{DeviceProfile, Event, PunctureAtlas, SimConfig, SimError, Simulation, TickInput, TickOutput};
+use stylet_physics::{
+    DeviceProfile, Event, HandPose, PunctureAtlas, SecondHandConfig, SimConfig, SimError, Simulation, TickInput,
+    TickOutput,
+};
 use stylet_recorder::format::{EventError, TickRecord};
 use stylet_recorder::outputs::{OutputCheck, OutputDigest, rounded_outputs};
 use stylet_recorder::reader::Session;
@@ -17,6 +20,7 @@ use stylet_recorder::reader::Session;
 pub struct Divergence {
     pub tick: u64,
     /// `ticks.force_n`, `ticks.torque_nmm`, `ticks.tip_label`, `ticks.inserted_mm`,
+    /// `ticks.second_hand` (the second hand's force and torque, or whether it is there),
     /// `ticks.outputs_digest` (the exact outputs of a block with rounded ones, at its last tick),
     /// `digests` or `ticks` (a gap in the recorded ticks).
     pub stream: String,
@@ -79,6 +83,14 @@ pub fn tick_input(t: &TickRecord, events: Vec<Event>) -> TickInput {
         orientation: DQuat::from_xyzw(x, y, z, w),
         buttons: t.buttons,
         events,
+        second_hand: t.second_hand.map(|h| {
+            let [w, x, y, z] = h.orientation;
+            HandPose {
+                position_mm: DVec3::from_array(h.position_mm),
+                orientation: DQuat::from_xyzw(x, y, z, w),
+                buttons: h.buttons,
+            }
+        }),
     }
 }
 
@@ -126,6 +138,18 @@ fn compare(t: &TickRecord, o: &TickOutput, rounded: bool) -> Option<Divergence> 
             format!("{:?}", t.inserted_mm),
             format!("{:?}", o.inserted_mm),
         );
+    }
+    // The second hand's outputs are stored exactly.
+    let recorded = t.second_hand.map(|h| (bits3(&h.force_n), bits3(&h.torque_nmm)));
+    let replayed = o
+        .second_hand
+        .map(|h| (bits3(&h.force_n.to_array()), bits3(&h.torque_nmm.to_array())));
+    if recorded != replayed {
+        let show = |h: Option<([u64; 3], [u64; 3])>| match h {
+            Some((f, m)) => format!("{:?} N, {:?} N·mm", f.map(f64::from_bits), m.map(f64::from_bits)),
+            None => "no second hand".to_string(),
+        };
+        return d("ticks.second_hand", show(recorded), show(replayed));
     }
     None
 }
@@ -192,6 +216,13 @@ impl<S: Borrow<Session>> Replayer<S> {
         config.deformation = h.deformation;
         config.contrast = h.contrast;
         config.breathing = h.breathing;
+        if let Some(second) = &h.second_hand {
+            config.second_hand = Some(SecondHandConfig {
+                device: DeviceProfile::by_name(&second.device)
+                    .ok_or_else(|| ReplayError::UnknownDevice(second.device.clone()))?,
+                tool: second.initial_tool,
+            });
+        }
         let sim = Simulation::new(atlas, config).map_err(ReplayError::Simulation)?;
         let mut events: BTreeMap<u64, Vec<Event>> = BTreeMap::new();
         for e in &session.borrow().events {

@@ -319,6 +319,8 @@ impl TraceCollector {
                 Event::XrayOff => "X-ray off".to_string(),
                 Event::ContrastInject { ml } => format!("contrast {ml} ml"),
                 Event::SelectTool(tool) => format!("tool: {}", tool.name()),
+                Event::SecondTool(Some(tool)) => format!("second hand: {}", tool.tool_spec().name()),
+                Event::SecondTool(None) => "second hand: empty".to_string(),
                 Event::BreathHold => "breath hold".to_string(),
                 Event::BreathRelease => "breath release".to_string(),
             };
@@ -480,6 +482,7 @@ mod tests {
             contrast_extent_mm: 0.0,
             tissue_displacement_mm: 0.0,
             risk_displacement_mm: 0.0,
+            second_hand: None,
         }
     }
 

@@ -38,6 +38,7 @@ fn still_tick(tick: u64) -> TickRecord {
         torque_nmm: [0.0; 3],
         tip_label: 1,
         inserted_mm: 0.0,
+        second_hand: None,
     }
 }
 

@@ -438,6 +438,8 @@ fn happenings(sim: &Simulation, input: &TickInput, out: &TickOutput, last: Optio
 pub fn event_text(e: &Event) -> String {
     match e {
         Event::SelectTool(t) => format!("tool: {}", t.name()),
+        Event::SecondTool(Some(t)) => format!("second hand: {}", t.tool_spec().name()),
+        Event::SecondTool(None) => "second hand: empty".into(),
         Event::StyletRemove => "stylet out".into(),
         Event::StyletInsert => "stylet in".into(),
         Event::XrayOn => "fluoroscopy on".into(),

@@ -362,6 +362,7 @@ impl Device for LiveDevice {
             orientation,
             buttons,
             events,
+            second_hand: None,
         };
         self.last = TickInput {
             events: Vec::new(),
@@ -585,6 +586,7 @@ mod tests {
             contrast_extent_mm: 0.0,
             tissue_displacement_mm: 0.0,
             risk_displacement_mm: 0.0,
+            second_hand: None,
         }
     }
 }

@@ -9,9 +9,9 @@
 
 use stylet_physics::PlannedPath;
 use stylet_physics::glam::{DMat3, DQuat, DVec3};
-use stylet_physics::{Event, TickInput, TickOutput};
+use stylet_physics::{Event, HandPose, TickInput, TickOutput};
 
-use super::parse::{Action, PoseSpec, Script, unit};
+use super::parse::{Action, Hand, PoseSpec, Script, unit};
 use crate::Device;
 
 /// Admittance of the force control (mm per N per tick).
@@ -63,14 +63,26 @@ fn list_or_none(names: &[String]) -> String {
 pub struct ScriptedDevice {
     rate_hz: u32,
     end_tick: u64,
+    /// The first hand's track.
+    first: Track,
+    /// The second hand's track in a two-handed script (none: one hand, or a second hand that
+    /// never moves).
+    second: Option<Track>,
+    events: Vec<(u64, Event)>,
+    next_event: usize,
+}
+
+/// One device's keyframes and presses.
+#[derive(Debug, Clone, Default)]
+struct Track {
     /// Pose keyframes (time in s, position, orientation), times never decreasing: looked up by
     /// binary search, about log2(n) comparisons per tick instead of n.
     keys: Vec<(f64, DVec3, DQuat)>,
-    events: Vec<(u64, Event)>,
     /// Press intervals: start tick, end tick (exclusive), direction, force; in order and
     /// disjoint, so the ends never decrease either.
     presses: Vec<(u64, u64, DVec3, f64)>,
-    next_event: usize,
+    /// A press begun and not yet released while binding: start tick, direction, force.
+    open_press: Option<(u64, DVec3, f64)>,
     /// Depth along the press direction while a press is active.
     press_depth: Option<f64>,
 }
@@ -92,11 +104,10 @@ impl ScriptedDevice {
     pub fn new(script: &Script, paths: &[PlannedPath]) -> Result<Self, BindError> {
         let rate = script.rate_hz;
         let tick_of = |t: f64| (t * rate as f64).round() as u64;
-        let mut keys = Vec::new();
+        let mut tracks = [Track::default(), Track::default()];
         let mut events = Vec::new();
-        let mut presses = Vec::new();
-        let mut open_press: Option<(u64, DVec3, f64)> = None;
         for item in &script.items {
+            let track = &mut tracks[usize::from(item.hand == Hand::Second)];
             match &item.action {
                 Action::Pose(p) => {
                     let (pos, dir, xaxis) = match p {
@@ -136,17 +147,17 @@ impl ScriptedDevice {
                             orientation: q,
                         });
                     }
-                    keys.push((item.t_s, pos, q));
+                    track.keys.push((item.t_s, pos, q));
                 }
                 Action::Press { dir, force_n } => {
-                    if let Some((start, d, f)) = open_press.take() {
-                        presses.push((start, tick_of(item.t_s), d, f));
+                    if let Some((start, d, f)) = track.open_press.take() {
+                        track.presses.push((start, tick_of(item.t_s), d, f));
                     }
-                    open_press = Some((tick_of(item.t_s), *dir, *force_n));
+                    track.open_press = Some((tick_of(item.t_s), *dir, *force_n));
                 }
                 Action::Release => {
-                    if let Some((start, d, f)) = open_press.take() {
-                        presses.push((start, tick_of(item.t_s), d, f));
+                    if let Some((start, d, f)) = track.open_press.take() {
+                        track.presses.push((start, tick_of(item.t_s), d, f));
                     }
                 }
                 Action::Event(e) => events.push((tick_of(item.t_s), e.clone())),
@@ -154,22 +165,24 @@ impl ScriptedDevice {
         }
         let last = script.items.last().map_or(0.0, |i| i.t_s);
         let end_tick = tick_of(script.end_s.unwrap_or(last)).max(1);
-        if let Some((start, d, f)) = open_press {
-            presses.push((start, end_tick, d, f));
+        for track in &mut tracks {
+            if let Some((start, d, f)) = track.open_press.take() {
+                track.presses.push((start, end_tick, d, f));
+            }
         }
         if let Some(e) = script.end_s
             && e < last
         {
             return Err(BindError::EndsEarly { end_s: e, last_s: last });
         }
+        let [first, second] = tracks;
         Ok(ScriptedDevice {
             rate_hz: rate,
             end_tick,
-            keys,
+            first,
+            second: (script.second_hand.is_some() && !second.keys.is_empty()).then_some(second),
             events,
-            presses,
             next_event: 0,
-            press_depth: None,
         })
     }
 
@@ -182,8 +195,21 @@ impl ScriptedDevice {
         self.end_tick
     }
 
-    /// The scripted pose at time `t` (before force control).
+    /// The first hand's scripted pose at time `t` (before force control).
     pub fn pose_at(&self, t: f64) -> (DVec3, DQuat) {
+        self.first.pose_at(t)
+    }
+
+    /// The first hand's press active at `tick`, if any.
+    #[cfg(test)]
+    fn press_at(&self, tick: u64) -> Option<(u64, u64, DVec3, f64)> {
+        self.first.press_at(tick)
+    }
+}
+
+impl Track {
+    /// The scripted pose at time `t` (before force control).
+    fn pose_at(&self, t: f64) -> (DVec3, DQuat) {
         let k = &self.keys;
         if t <= k[0].0 {
             return (k[0].1, k[0].2);
@@ -211,6 +237,28 @@ impl ScriptedDevice {
         let i = self.presses.partition_point(|p| p.1 <= tick);
         self.presses.get(i).filter(|p| p.0 <= tick).copied()
     }
+
+    /// The pose at `tick`: the scripted one, with the position along an active press's direction
+    /// force controlled against `force_n`, the force this device was given on the last tick.
+    fn pose(&mut self, tick: u64, rate_hz: u32, force_n: Option<DVec3>) -> (DVec3, DQuat) {
+        let t = tick as f64 / rate_hz as f64;
+        let (mut pos, q) = self.pose_at(t);
+        match self.press_at(tick) {
+            Some((_, _, n, force)) => {
+                let scripted = pos.dot(n);
+                let depth = self.press_depth.get_or_insert(scripted);
+                if let Some(f) = force_n {
+                    let resist = -f.dot(n);
+                    let step = PRESS_ADMITTANCE_MM_PER_N * (force - resist);
+                    let max = PRESS_MAX_SPEED_MM_PER_S / rate_hz as f64;
+                    *depth += step.clamp(-max, max);
+                }
+                pos += n * (*depth - scripted);
+            }
+            None => self.press_depth = None,
+        }
+        (pos, q)
+    }
 }
 
 impl Device for ScriptedDevice {
@@ -218,23 +266,16 @@ impl Device for ScriptedDevice {
         if tick >= self.end_tick {
             return None;
         }
-        let t = tick as f64 / self.rate_hz as f64;
-        let (mut pos, q) = self.pose_at(t);
-        let press = self.press_at(tick);
-        match press {
-            Some((_, _, n, force)) => {
-                let scripted = pos.dot(n);
-                let depth = self.press_depth.get_or_insert(scripted);
-                if let Some(out) = last {
-                    let resist = -out.force_n.dot(n);
-                    let step = PRESS_ADMITTANCE_MM_PER_N * (force - resist);
-                    let max = PRESS_MAX_SPEED_MM_PER_S / self.rate_hz as f64;
-                    *depth += step.clamp(-max, max);
-                }
-                pos += n * (*depth - scripted);
+        let (pos, q) = self.first.pose(tick, self.rate_hz, last.map(|o| o.force_n));
+        let second_force = last.and_then(|o| o.second_hand).map(|h| h.force_n);
+        let second_hand = self.second.as_mut().map(|track| {
+            let (position_mm, orientation) = track.pose(tick, self.rate_hz, second_force);
+            HandPose {
+                position_mm,
+                orientation,
+                buttons: 0,
             }
-            None => self.press_depth = None,
-        }
+        });
         let mut events = Vec::new();
         while self.next_event < self.events.len() && self.events[self.next_event].0 <= tick {
             events.push(self.events[self.next_event].1.clone());
@@ -245,6 +286,7 @@ impl Device for ScriptedDevice {
             orientation: q,
             buttons: 0,
             events,
+            second_hand,
         })
     }
 }

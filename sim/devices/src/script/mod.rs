@@ -5,6 +5,6 @@ pub mod parse;
 pub mod setup;
 
 pub use device::{BindError, ScriptedDevice};
-pub use parse::{ParseError, Script, parse};
+pub use parse::{Hand, ParseError, Script, ScriptHand, parse};
 pub use setup::{SetupError, scripted_simulation};
 pub use stylet_physics::PlannedPath;

@@ -2,7 +2,7 @@
 //! line, the column and what was expected.
 
 use stylet_physics::glam::DVec3;
-use stylet_physics::{DeviceProfile, Event, Gauge, ProbeKind, ToolSpec};
+use stylet_physics::{DeviceProfile, Event, Gauge, HandTool, ProbeKind, ToolSpec};
 
 /// A parse error: where and what was expected.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -51,13 +51,32 @@ pub enum Action {
     Event(Event),
 }
 
+/// Which device track a pose, press or release drives.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Hand {
+    /// The first hand's device (the needle hand): `at T pos …`.
+    First,
+    /// The second hand's device in a two-handed script: `at T hand2 pos …`.
+    Second,
+}
+
 /// One `at` line.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Timed {
     pub t_s: f64,
     /// Line in the script (1-based), for later errors (unknown path names).
     pub line: usize,
+    /// The track a pose, press or release belongs to (events: [`Hand::First`]).
+    pub hand: Hand,
     pub action: Action,
+}
+
+/// The second hand of a two-handed script (`tool2 …` and `device2 …` lines).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScriptHand {
+    pub device: DeviceProfile,
+    /// Its tool at tick 0 (`tool2 none`: empty).
+    pub initial_tool: Option<HandTool>,
 }
 
 /// A parsed script.
@@ -75,6 +94,8 @@ pub struct Script {
     /// The world model's respiratory motion (`breathing on|off [amplitude MM] [period S] [seed N]`,
     /// default off); the atlas' attached motion fills in the rest when the run starts.
     pub breathing: stylet_physics::motion::BreathingRequest,
+    /// The second hand (`tool2 …`, `device2 …`); none: a one-handed script.
+    pub second_hand: Option<ScriptHand>,
 }
 
 /// The script language version this parser reads.
@@ -338,6 +359,18 @@ fn parse_tool(t: &mut Tokens) -> Result<ToolSpec, ParseError> {
     }
 }
 
+/// What the second hand holds: `finger`, `probe linear|convex` or `none`.
+fn parse_hand_tool(t: &mut Tokens) -> Result<Option<HandTool>, ParseError> {
+    Ok(match t.keyword(&["finger", "probe", "none"])? {
+        "finger" => Some(HandTool::Finger),
+        "probe" => match t.keyword(&["linear", "convex"])? {
+            "linear" => Some(HandTool::Probe(ProbeKind::Linear)),
+            _ => Some(HandTool::Probe(ProbeKind::Convex)),
+        },
+        _ => None,
+    })
+}
+
 fn parse_event(t: &mut Tokens) -> Result<Event, ParseError> {
     let names = [
         "stylet-remove",
@@ -372,8 +405,23 @@ fn parse_event(t: &mut Tokens) -> Result<Event, ParseError> {
     })
 }
 
-fn parse_action(t: &mut Tokens) -> Result<Action, ParseError> {
-    let a = match t.keyword(&["pos", "along", "aim", "press", "release", "event", "tool"])? {
+/// The action of an `at` line and the track it drives; `two_handed`: the script declared a
+/// second hand (`tool2 …`), without which `hand2` and `tool2` actions are refused.
+fn parse_action(t: &mut Tokens, two_handed: bool) -> Result<(Hand, Action), ParseError> {
+    let mut hand = Hand::First;
+    if matches!(t.peek(), Some("hand2" | "tool2")) && !two_handed {
+        return Err(t.err("a 'tool2 …' line before the second hand's first action"));
+    }
+    if t.peek() == Some("hand2") {
+        t.pos += 1;
+        hand = Hand::Second;
+        if !matches!(t.peek(), Some("pos" | "along" | "aim" | "press" | "release")) {
+            return Err(t.err("one of pos, along, aim, press, release"));
+        }
+    }
+    let a = match t.keyword(&[
+        "pos", "along", "aim", "press", "release", "event", "tool", "tool2", "hand2",
+    ])? {
         "pos" => {
             let pos = t.vector("position")?;
             t.keyword(&["dir"])?;
@@ -416,10 +464,11 @@ fn parse_action(t: &mut Tokens) -> Result<Action, ParseError> {
         }
         "release" => Action::Release,
         "event" => Action::Event(parse_event(t)?),
+        "tool2" => Action::Event(Event::SecondTool(parse_hand_tool(t)?)),
         _ => Action::Event(Event::SelectTool(parse_tool(t)?)),
     };
     t.end()?;
-    Ok(a)
+    Ok((hand, a))
 }
 
 /// Parses a script.
@@ -437,7 +486,10 @@ pub fn parse(text: &str) -> Result<Script, ParseError> {
         items: Vec::new(),
         deformation: stylet_physics::DeformSettings::default(),
         breathing: stylet_physics::motion::BreathingRequest::default(),
+        second_hand: None,
     };
+    // `device2` may come before or after `tool2`; the second device defaults to the first.
+    let mut device2: Option<DeviceProfile> = None;
     let mut last_t = f64::NEG_INFINITY;
     for (n, raw) in text.lines().enumerate() {
         let mut t = Tokens::new(n + 1, raw);
@@ -478,6 +530,22 @@ pub fn parse(text: &str) -> Result<Script, ParseError> {
                 script.initial_tool = parse_tool(&mut t)?;
                 t.end()?;
             }
+            "tool2" => {
+                t.pos += 1;
+                let initial_tool = parse_hand_tool(&mut t)?;
+                t.end()?;
+                script.second_hand = Some(ScriptHand {
+                    device: script.device,
+                    initial_tool,
+                });
+            }
+            "device2" => {
+                t.pos += 1;
+                let names: Vec<&str> = DeviceProfile::ALL.iter().map(|d| d.name).collect();
+                let name = t.keyword(&names)?;
+                device2 = Some(DeviceProfile::by_name(name).expect("listed"));
+                t.end()?;
+            }
             "deformation" => {
                 t.pos += 1;
                 script.deformation.enabled = t.keyword(&["on", "off"])? == "on";
@@ -512,15 +580,33 @@ pub fn parse(text: &str) -> Result<Script, ParseError> {
                     return Err(t.err(format!("a time ≥ {last_t} s (time stamps must not decrease)")));
                 }
                 last_t = ts;
-                let action = parse_action(&mut t)?;
+                let (hand, action) = parse_action(&mut t, script.second_hand.is_some())?;
                 script.items.push(Timed {
                     t_s: ts,
                     line: n + 1,
+                    hand,
                     action,
                 });
             }
-            _ => return Err(t.err("device, rate, tool, end or at")),
+            _ => return Err(t.err("device, rate, tool, tool2, device2, deformation, breathing, end or at")),
         }
+    }
+    match (&mut script.second_hand, device2) {
+        (Some(h), Some(d)) => h.device = d,
+        (Some(h), None) => h.device = script.device,
+        (None, Some(_)) => {
+            let line = text
+                .lines()
+                .position(|l| l.split_whitespace().next() == Some("device2"))
+                .map_or(1, |i| i + 1);
+            return Err(ParseError {
+                line,
+                column: 1,
+                expected: "a 'tool2 …' line with 'device2' (the second hand's tool)".into(),
+                found: "no 'tool2' line".into(),
+            });
+        }
+        (None, None) => {}
     }
     if script.version == 0 {
         return Err(ParseError {
@@ -530,7 +616,11 @@ pub fn parse(text: &str) -> Result<Script, ParseError> {
             found: "end of script".into(),
         });
     }
-    if !script.items.iter().any(|i| matches!(i.action, Action::Pose(_))) {
+    if !script
+        .items
+        .iter()
+        .any(|i| i.hand == Hand::First && matches!(i.action, Action::Pose(_)))
+    {
         return Err(ParseError {
             line: text.lines().count().max(1),
             column: 1,

@@ -4,7 +4,7 @@
 
 use std::sync::Arc;
 
-use stylet_physics::{PlannedPath, PunctureAtlas, SimConfig, SimError, Simulation};
+use stylet_physics::{PlannedPath, PunctureAtlas, SecondHandConfig, SimConfig, SimError, Simulation};
 
 use super::device::BindError;
 use super::{Script, ScriptedDevice};
@@ -31,6 +31,10 @@ pub fn scripted_simulation(
     config.tick_rate_hz = script.rate_hz;
     config.deformation = script.deformation;
     config.breathing = script.breathing.resolve(&atlas).map_err(SimError::from)?;
+    config.second_hand = script.second_hand.map(|h| SecondHandConfig {
+        device: h.device,
+        tool: h.initial_tool,
+    });
     let sim = Simulation::new(atlas, config)?;
     Ok((sim, device))
 }
