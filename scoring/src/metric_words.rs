@@ -117,6 +117,21 @@ pub const METRICS: &[MetricInfo] = &[
         "tissue moved past the needle by breathing",
         Unit::Millimetres,
     ),
+    m(
+        "tip_out_of_view_share",
+        "share of the insertion with the needle tip out of the live ultrasound image",
+        Unit::Ratio,
+    ),
+    m(
+        "blind_advance_s",
+        "longest needle advance with the tip out of the ultrasound image",
+        Unit::Seconds,
+    ),
+    flag(
+        "tip_out_of_view_at_target",
+        "needle tip out of the ultrasound image when it entered the target",
+        "the needle tip was not in the live ultrasound image when it entered the target",
+    ),
     m("path_inefficiency", "path inefficiency", Unit::Ratio),
     m("target_distance_mm", "distance from the target", Unit::Millimetres),
     flag(

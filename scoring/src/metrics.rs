@@ -9,6 +9,7 @@ use serde::Serialize;
 use stylet_physics::glam::DVec3;
 use stylet_physics::{Event, LabelId, Role, Simulation, TickInput, TickOutput, ToolSpec};
 
+use crate::live_guidance::{LiveGuidance, LiveGuidanceTrace};
 use crate::needle_motion::{NeedleMotion, NeedleMotionMetrics, NeedleSample};
 use crate::probe_view::{ProbeFrame, in_rendered_image};
 use crate::target::TargetDistance;
@@ -171,6 +172,10 @@ pub struct Metrics {
     /// (PerkTutor)"); `None` in reports written before it was measured.
     #[serde(default)]
     pub needle_motion: Option<NeedleMotionMetrics>,
+    /// Live ultrasound guidance, when the second hand held a probe while the needle was in the
+    /// body (docs/metrics.md "Live ultrasound guidance").
+    #[serde(default)]
+    pub live_guidance: Option<LiveGuidance>,
 }
 
 /// Where in the breathing the needle reached the target.
@@ -347,6 +352,8 @@ pub struct MetricsCollector<'a> {
     last_probe: Option<(DVec3, stylet_physics::glam::DQuat, stylet_physics::ProbeKind)>,
     imaged_insertion_ticks: u64,
     tip_in_plane_ticks: u64,
+    /// The tip in the second hand's live image while the needle is in the body.
+    live_guidance: LiveGuidanceTrace,
     /// With a breathing patient: the signal (g per tick), the phase the target was reached in,
     /// the ticks breathed with the needle in, the tissue slide and the last u at the tip.
     breathing: Option<BreathingTrace>,
@@ -581,6 +588,7 @@ impl<'a> MetricsCollector<'a> {
             last_probe: None,
             imaged_insertion_ticks: 0,
             tip_in_plane_ticks: 0,
+            live_guidance: LiveGuidanceTrace::default(),
             breathing: None,
             good_contact_ticks: 0,
             probe_ticks: 0,
@@ -628,6 +636,15 @@ impl<'a> MetricsCollector<'a> {
             self.last_exit_tick = Some(tick);
         }
 
+        if let Some(n) = needle {
+            let band_mm = n.spec().gauge.outer_diameter_mm() / 2.0 + stylet_physics::probe_image::ELEVATION_HALF_MM;
+            let probe = match sim.second_hand().and_then(|h| h.tool_spec()) {
+                Some(stylet_physics::HandTool::Probe(kind)) => Some(kind),
+                _ => None,
+            };
+            self.live_guidance
+                .tick(out, probe, in_body, band_mm, tip_role == Role::Target);
+        }
         if in_body
             && let Some((position, orientation, kind)) = self.last_probe
             && let Some(n) = needle
@@ -782,6 +799,29 @@ impl<'a> MetricsCollector<'a> {
         }
         if matches!(sim.tool_spec(), ToolSpec::Probe(_)) {
             self.probe_ticks += 1;
+        }
+        // A probe in the second hand scans like one in the first: the live image of a two-handed
+        // session (counted once a tick when both hands hold a probe on the skin).
+        if let (Some(hand), Some(stylet_physics::HandTool::Probe(kind))) =
+            (out.second_hand, sim.second_hand().and_then(|h| h.tool_spec()))
+        {
+            self.probe_ticks += u64::from(!matches!(sim.tool_spec(), ToolSpec::Probe(_)));
+            let first_hand_scanning = out.contacts > 0 && matches!(sim.tool_spec(), ToolSpec::Probe(_));
+            if hand.contacts > 0 && !first_hand_scanning {
+                self.ultrasound_ticks += 1;
+                let nodes = sim
+                    .second_hand()
+                    .and_then(|h| h.contact())
+                    .map_or(1, |c| c.nodes().len().max(1));
+                if hand.contacts as f64 >= GOOD_CONTACT_SHARE * nodes as f64 {
+                    self.good_contact_ticks += 1;
+                }
+                let frame = ProbeFrame::new(hand.position_mm, hand.orientation);
+                if self.target.survey_points().any_in_survey_view(&frame, kind) {
+                    self.view_ticks += 1;
+                    self.view_first_tick.get_or_insert(tick);
+                }
+            }
         }
 
         // Forces.
@@ -1010,6 +1050,7 @@ impl<'a> MetricsCollector<'a> {
                 tissue_slide_mm: b.tissue_slide_mm,
             }),
             needle_motion: Some(self.needle_motion.finish()),
+            live_guidance: self.live_guidance.finish(rate),
         }
     }
 }
@@ -1063,6 +1104,7 @@ pub(crate) mod tests_support {
             ultrasound: None,
             breathing: None,
             needle_motion: Some(NeedleMotionMetrics::default()),
+            live_guidance: None,
         }
     }
 

@@ -707,7 +707,7 @@ mod tests {
     #[test]
     fn the_shipped_rubric_grades_the_worked_example() {
         let r = Rubric::default_rubric();
-        assert_eq!((r.name.as_str(), r.version), ("ptcd", 7));
+        assert_eq!((r.name.as_str(), r.version), ("ptcd", 8));
         let g = r.grade(&metrics(), Exercise::Puncture, Difficulty::Beginner).unwrap();
         // attempts 2 (1 free) −10, redirections 3 (2 free) −3, fluoro 40 s (30 free) −5,
         // no palpation first −5: 100 − 23.
@@ -810,11 +810,48 @@ mod tests {
         assert_eq!(b.benchmark, None);
     }
 
+    /// A two-handed puncture under live ultrasound is graded on keeping the tip in view, harder
+    /// by level; a one-handed session (no live guidance) loses nothing for it.
+    #[test]
+    fn live_guidance_is_graded_per_level() {
+        use crate::live_guidance::LiveGuidance;
+        let r = Rubric::default_rubric();
+        let blind = crate::metrics::tests_support::metrics_with(|m| {
+            m.live_guidance = Some(LiveGuidance {
+                needle_tip_visible_share: 0.25,
+                longest_blind_advance_s: 6.0,
+                tip_in_view_at_target_entry: Some(false),
+            })
+        });
+        let one_handed = crate::metrics::tests_support::metrics_with(|_| {});
+        let points = |m: &Metrics, level: Difficulty| -> Vec<(String, f64)> {
+            let g = r.grade(m, Exercise::Puncture, level).unwrap();
+            g.deductions
+                .iter()
+                .filter(|d| {
+                    ["tip_out_of_view_share", "blind_advance_s", "tip_out_of_view_at_target"]
+                        .contains(&d.metric.as_str())
+                })
+                .map(|d| (d.metric.clone(), d.points))
+                .collect()
+        };
+        for level in [Difficulty::Beginner, Difficulty::Advanced, Difficulty::Expert] {
+            assert_eq!(points(&one_handed, level), [], "{level:?}");
+        }
+        // Beginner: out of view 75 % (50 % free) × 20 = 5, 6 s blind (5 free) × 1 = 1.
+        let b = points(&blind, Difficulty::Beginner);
+        assert_eq!(b.len(), 2, "{b:?}");
+        assert!((b[0].1 - 5.0).abs() < 1e-9 && (b[1].1 - 1.0).abs() < 1e-9, "{b:?}");
+        // Expert: 55 % × 60 = 33 → 20 (at most), 5 s × 5 = 25 → 20, out of view at the target 10.
+        let e = points(&blind, Difficulty::Expert);
+        assert_eq!(e.iter().map(|d| d.1).sum::<f64>(), 50.0, "{e:?}");
+    }
+
     #[test]
     fn bad_rubrics_are_named() {
         let base = DEFAULT_RUBRIC;
         let cases = [
-            (base.replace("version = 7", "version = 0"), "version"),
+            (base.replace("version = 8", "version = 0"), "version"),
             (
                 base.replace("[levels.expert]", "[levels.master]"),
                 "lacks level 'expert'",

@@ -39,6 +39,9 @@ pub const PUNCTURE_METRICS: &[&str] = &[
     "guided_mean_deviation_mm",
     "target_reached_while_breathing",
     "breathing_tissue_slide_mm",
+    "tip_out_of_view_share",
+    "blind_advance_s",
+    "tip_out_of_view_at_target",
 ];
 
 /// Metrics where more is better: a deduction "above the experts" makes no sense for them.
@@ -150,6 +153,13 @@ pub fn metric_value(m: &Metrics, name: &str) -> Option<f64> {
                 .is_some_and(|b| b.target_reached_phase.is_some_and(|p| p != b.correct_phase)),
         ),
         "breathing_tissue_slide_mm" => m.breathing.as_ref().map_or(0.0, |b| b.tissue_slide_mm),
+        // Live ultrasound guidance (0 when the second hand held no probe: nothing to judge).
+        "tip_out_of_view_share" => m.live_guidance.map_or(0.0, |g| 1.0 - g.needle_tip_visible_share),
+        "blind_advance_s" => m.live_guidance.map_or(0.0, |g| g.longest_blind_advance_s),
+        "tip_out_of_view_at_target" => flag(
+            m.live_guidance
+                .is_some_and(|g| g.tip_in_view_at_target_entry == Some(false)),
+        ),
         // Palpation (0 when the finger never touched the skin).
         "intercostal_spaces_found" => m.palpation.as_ref().map_or(0.0, |p| p.spaces_found as f64),
         "intercostal_spaces_missed" => m
