@@ -28,4 +28,5 @@ mod service;
 mod sessions;
 mod simulator;
 mod tokens;
+mod two_hands;
 mod window;

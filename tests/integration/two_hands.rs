@@ -1,0 +1,174 @@
+//! Two hands: the ultrasound probe in the second hand while the first advances the needle under
+//! live guidance (docs/physics.md "Two hands", docs/metrics.md "Live ultrasound guidance"). The
+//! phantom's scripted two-handed success and blind failure, recorded, replayed bit for bit (with
+//! deformation and breathing on) and scored.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use crate::common::default_phantom;
+use stylet_atlas::Atlas;
+use stylet_devices::run_headless;
+use stylet_devices::script::{parse, scripted_simulation};
+use stylet_recorder::WriterOptions;
+use stylet_recorder::recording::{Recording, SessionInfo, header};
+use stylet_scoring::rubric::Rubric;
+use stylet_scoring::score::{ScoreReport, Scorer};
+
+fn script(name: &str) -> String {
+    std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("atlases/phantom/scripts")
+            .join(name),
+    )
+    .unwrap()
+}
+
+/// Records script `text` as scenario `scenario` at `difficulty` to `dir/scenario.mcap`.
+fn record(atlas: &Atlas, dir: &Path, scenario: &str, difficulty: &str, text: &str) -> PathBuf {
+    let (mut sim, mut device) =
+        scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &parse(text).unwrap()).unwrap();
+    let info = SessionInfo {
+        trainee: "two-hands",
+        scenario,
+        difficulty,
+        seed: 0,
+        atlas_id: &atlas.manifest.name,
+        atlas_hash: &atlas.content_hash,
+    };
+    let path = dir.join(format!("{scenario}-{difficulty}.mcap"));
+    let mut rec = Recording::start(&path, &header(&sim, &info), false, WriterOptions::default()).unwrap();
+    run_headless(&mut sim, &mut device, |i, o, s| rec.tick(i, o, s));
+    rec.finish().unwrap();
+    path
+}
+
+fn score(atlas: &Atlas, path: &Path) -> ScoreReport {
+    Scorer::new(atlas, Rubric::default_rubric(), None)
+        .unwrap()
+        .score_file(path)
+        .unwrap()
+}
+
+#[test]
+fn the_scripted_two_handed_success_keeps_the_tip_in_the_live_image_and_passes() {
+    let atlas = default_phantom();
+    let d = tempfile::tempdir().unwrap();
+    let path = record(
+        atlas,
+        d.path(),
+        "two-handed-success",
+        "expert",
+        &script("two-handed-success.txt"),
+    );
+    let r = score(atlas, &path);
+    let g = r
+        .metrics
+        .live_guidance
+        .expect("the second hand held the probe during the insertion");
+    println!("two-handed success: {g:?}; score {} {:?}", r.grade.score, r.reasons);
+    assert!(r.replay_verified, "{:?}", r.divergence);
+    assert!(r.metrics.target_reached && r.metrics.target_confirmed);
+    assert!(r.metrics.workflow.ultrasound_before_puncture && r.metrics.workflow.target_scanned_before_puncture);
+    assert!(g.needle_tip_visible_share > 0.8, "{g:?}");
+    assert!(g.longest_blind_advance_s < 1.0, "{g:?}");
+    assert_eq!(g.tip_in_view_at_target_entry, Some(true));
+    assert_eq!(r.outcome, stylet_scoring::reasons::Outcome::Passed, "{:?}", r.reasons);
+}
+
+#[test]
+fn the_scripted_blind_advance_is_out_of_view_hits_the_portal_vein_and_fails() {
+    let atlas = default_phantom();
+    let d = tempfile::tempdir().unwrap();
+    let path = record(
+        atlas,
+        d.path(),
+        "two-handed-blind",
+        "beginner",
+        &script("two-handed-blind.txt"),
+    );
+    let r = score(atlas, &path);
+    let g = r
+        .metrics
+        .live_guidance
+        .expect("the second hand held the probe during the insertion");
+    println!("two-handed blind: {g:?}; score {} {:?}", r.grade.score, r.reasons);
+    assert!(r.replay_verified, "{:?}", r.divergence);
+    assert!(g.needle_tip_visible_share < 0.2, "{g:?}");
+    assert!(g.longest_blind_advance_s > 3.0, "{g:?}");
+    assert!(
+        r.metrics.risk_hits.iter().any(|h| h.structure.contains("portal")),
+        "{:?}",
+        r.metrics.risk_hits
+    );
+    assert_eq!(r.outcome, stylet_scoring::reasons::Outcome::Failed);
+    assert!(
+        r.grade
+            .deductions
+            .iter()
+            .any(|d| d.metric == "blind_advance_s" && d.points > 0.0),
+        "{:?}",
+        r.grade.deductions
+    );
+}
+
+/// A two-tool session with deformation and breathing on replays bit for bit: every recorded
+/// force of both hands and every state digest (which covers the deformation field and both
+/// tools) is reproduced. The probe's press and the needle's entry share one deformation solve.
+#[test]
+fn a_two_handed_session_with_deformation_and_breathing_replays_bit_for_bit() {
+    let atlas = default_phantom();
+    let d = tempfile::tempdir().unwrap();
+    let text = "stylet-script 1\ndevice premium\ntool needle gauge 18 length 150 stylet in\ntool2 probe convex\n\
+                deformation on\nbreathing on period 4 seed 1\nend 4\n\
+                at 0 along intercostal-10-11 -5\n\
+                at 0 hand2 pos 172.6 36.6 7.7 dir -0.9985 -0.0538 -0.002 xaxis 0.053 -0.971 0.235\n\
+                at 0.3 hand2 press -0.9985 -0.0538 -0.002 1.5\n\
+                at 1 along intercostal-10-11 -5\nat 4 along intercostal-10-11 30\n";
+    let path = record(atlas, d.path(), "two-handed-success", "beginner", text);
+    let session = stylet_recorder::reader::verify(&path).unwrap();
+    assert!(session.header.second_hand.is_some() && session.header.deformation.enabled);
+    assert!(session.header.breathing.enabled);
+    let hands = session
+        .ticks
+        .iter()
+        .filter(|t| t.second_hand.is_some_and(|h| h.force_n != [0.0; 3]));
+    assert!(
+        hands.count() > 2000,
+        "the probe pressed on the skin for most of the run"
+    );
+    let r = score(atlas, &path);
+    assert!(r.replay_verified, "{:?}", r.divergence);
+    assert_eq!(r.ticks, 4000);
+    assert!(r.digests_checked >= 40, "{}", r.digests_checked);
+    assert!(
+        r.metrics.max_tissue_displacement_mm > 0.5,
+        "{}",
+        r.metrics.max_tissue_displacement_mm
+    );
+}
+
+/// What a two-handed session costs on disk (the goal: under 1.5 MB per minute), for the note.
+#[test]
+fn a_two_handed_session_is_small() {
+    let atlas = default_phantom();
+    let d = tempfile::tempdir().unwrap();
+    let two = record(
+        atlas,
+        d.path(),
+        "two-handed-success",
+        "beginner",
+        &script("two-handed-success.txt"),
+    );
+    let one = record(
+        atlas,
+        d.path(),
+        "success-intercostal",
+        "beginner",
+        &script("success-intercostal.txt"),
+    );
+    let per_minute = |p: &Path, seconds: f64| std::fs::metadata(p).unwrap().len() as f64 / seconds * 60.0 / 1e6;
+    let (two_mb, one_mb) = (per_minute(&two, 27.0), per_minute(&one, 20.0));
+    println!("session size: two hands {two_mb:.3} MB/min, one hand {one_mb:.3} MB/min");
+    assert!(two_mb < 1.5, "{two_mb} MB/min");
+}
