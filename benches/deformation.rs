@@ -4,7 +4,8 @@
 //! - one warm-started solve of the default schedule on 32 and 64 cells (33³ and 65³ nodes), and
 //!   one explicit step on 64 cells as the unit of work (ratios in the same run);
 //! - the haptic tick's median, p99 and p99.9 over 30 s at 1 kHz with deformation off, and on with
-//!   the solves on their own thread (the live simulator's set-up), same trembling needle; with
+//!   the solves on their own thread (the live simulator's set-up), same trembling needle; then
+//!   with the convex probe pressed on in the second hand as well (two tools, one solve); with
 //!   deformation on, the ticks that launch and enter solves apart from the others;
 //! - replay speed of a 1-minute needle session recorded with and without deformation.
 //!
@@ -27,6 +28,13 @@ use stylet_physics::glam::DVec3;
 use stylet_physics::{Simulation, TickInput};
 
 const NEEDLE_IN: &str = "stylet-script 1\ntool needle gauge 18 length 200\nend 11\nat 0 along intercostal-10-11 -10\nat 10 along intercostal-10-11 100\nat 11 along intercostal-10-11 100\n";
+/// The same needle with the convex probe in the second hand, pressed on with 1.5 N beside the
+/// entry point in the plane of the path (as `atlases/phantom/scripts/two-handed-success.txt`).
+const NEEDLE_AND_PROBE_IN: &str = "stylet-script 1\ntool needle gauge 18 length 200\ntool2 probe convex\nend 11\n\
+    at 0 along intercostal-10-11 -10\n\
+    at 0 hand2 pos 172.6 36.6 7.7 dir -0.9985 -0.0538 -0.002 xaxis 0.053 -0.971 0.235\n\
+    at 0.5 hand2 press -0.9985 -0.0538 -0.002 1.5\n\
+    at 10 along intercostal-10-11 100\nat 11 along intercostal-10-11 100\n";
 
 fn main() {
     let measuring = std::env::args().any(|a| a == "--bench");
@@ -92,13 +100,24 @@ fn main() {
 
     // The haptic tick with deformation off and on (solves on their own thread).
     let ticks = if measuring { 30_000 } else { 300 };
-    for (name, settings, background) in [
-        ("off", DeformSettings::off(), false),
-        ("on, solves on their own thread", DeformSettings::on(), true),
+    for (name, script, settings, background) in [
+        ("needle tick, deformation off", NEEDLE_IN, DeformSettings::off(), false),
+        (
+            "needle tick, deformation on, solves on their own thread",
+            NEEDLE_IN,
+            DeformSettings::on(),
+            true,
+        ),
+        (
+            "needle + convex probe tick (two hands), deformation on, solves on their own thread",
+            NEEDLE_AND_PROBE_IN,
+            DeformSettings::on(),
+            true,
+        ),
     ] {
-        let (mut sim, input) = prepared(&atlas, NEEDLE_IN, settings, background);
+        let (mut sim, input) = prepared(&atlas, script, settings, background);
         let (m, p99, p999) = percentiles(&mut sim, &input, ticks);
-        println!("needle tick, deformation {name}: median {m:.2} µs, p99 {p99:.2} µs, p99.9 {p999:.1} µs");
+        println!("{name}: median {m:.2} µs, p99 {p99:.2} µs, p99.9 {p999:.1} µs");
     }
 
     // Replay speed of a one-minute needle session.
