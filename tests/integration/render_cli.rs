@@ -414,6 +414,37 @@ fn the_ultrasound_view_shows_the_fan_the_aids_by_level_and_the_sessions_tools() 
     assert!(brighter > 100, "{brighter} pixels brighter");
 }
 
+/// Two hands: the ultrasound view follows the probe in the second hand, live, and shows the
+/// needle the first hand advances in its plane; with the probe held across the path the needle
+/// stays out of the image.
+#[test]
+fn the_live_ultrasound_of_a_two_handed_session_shows_the_needle_in_plane() {
+    let d = tempfile::tempdir().unwrap();
+    let atlas = phantom(d.path());
+    let us = |name: &str, extra: &[&str]| view_png(&atlas, &d.path().join(name), "ultrasound", (320, 256), extra);
+    // The shaft (a bright line along the path, its shadow beside it): pixels 40 grey levels
+    // brighter than with the needle outside.
+    let brighter = |before: &Image, after: &Image| {
+        differing(before, after, 40)
+            .into_iter()
+            .filter(|&(c, r)| after.get(c, r)[0] > before.get(c, r)[0].saturating_add(40))
+            .count()
+    };
+    let mut shown = Vec::new();
+    for (name, t_in) in [("two-handed-success", "14"), ("two-handed-blind", "9")] {
+        let session = d.path().join(format!("{name}.mcap"));
+        record(&atlas, name, &session);
+        let s = session.to_str().unwrap();
+        // The probe pressed on, the needle still outside; then the needle deep in.
+        let before = us(&format!("{name}-before.png"), &["--session", s, "--at", "4", "--difficulty", "expert"]);
+        let during = us(&format!("{name}-during.png"), &["--session", s, "--at", t_in, "--difficulty", "expert"]);
+        shown.push(brighter(&before, &during));
+    }
+    println!("pixels the needle brightened: in plane {}, across {}", shown[0], shown[1]);
+    assert!(shown[0] > 60, "the needle in plane shows: {shown:?}");
+    assert!(shown[1] < shown[0] / 4, "the needle out of plane barely shows: {shown:?}");
+}
+
 /// `--gpu` draws the same pictures as the CPU reference (on lavapipe where there is no GPU;
 /// scripts/test installs it), and a machine with no usable adapter gets a named error.
 #[test]

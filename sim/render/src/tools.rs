@@ -485,7 +485,8 @@ impl ToolState {
     /// (tip at the device position, back along the tool axis q·(0, 0, 1)), as the physics does
     /// outside the patient. Contact tools take the device pose: the fingertip sphere sits behind
     /// the pad's apex (centre at position − 8 mm·axis), a probe's face at the position. A
-    /// non-finite pose draws no contact tool.
+    /// non-finite pose draws no contact tool. The second hand's tool of a two-handed session
+    /// comes at its own pose.
     pub fn from_simulation(sim: &stylet_physics::Simulation, input: &stylet_physics::TickInput) -> ToolState {
         let q = input.orientation;
         let pose_ok = input.position_mm.is_finite() && q.is_finite() && q.length_squared() > 1e-12;
@@ -544,6 +545,32 @@ impl ToolState {
                         orientation,
                     })
                 }
+            }
+        }
+        // The second hand's tool at its pose of the tick (a two-handed session): the probe that
+        // images live while the first hand holds the needle. A tool kind the first hand already
+        // shows keeps the first hand's.
+        if let Some(h) = sim.second_hand()
+            && let Some(tool) = h.tool_spec()
+        {
+            let (p, q) = h.pose();
+            let (pos, orientation) = (p.as_vec3(), q.normalize().as_quat());
+            match tool {
+                stylet_physics::HandTool::Finger if state.finger.is_none() => {
+                    let axis = orientation * Vec3::Z;
+                    state.finger = Some(FingerShape {
+                        center_mm: pos - axis * FINGER_RADIUS_MM,
+                        radius_mm: FINGER_RADIUS_MM,
+                    })
+                }
+                stylet_physics::HandTool::Probe(kind) if state.probe.is_none() => {
+                    state.probe = Some(ProbeShape {
+                        kind,
+                        position_mm: pos,
+                        orientation,
+                    })
+                }
+                _ => {}
             }
         }
         state
