@@ -125,7 +125,8 @@ pub fn guard_bands(trace: &ReviewTrace) -> Vec<(f64, f64, ChartColor, String)> {
 }
 
 /// Insertion depth over time: the needle length inside the body and the tip's depth under the
-/// skin surface.
+/// skin surface; in a two-handed session, the spans with the tip out of the live ultrasound
+/// image shaded.
 pub fn depth_chart(trace: &ReviewTrace, title: &str) -> LineChart {
     let t = &trace.t_s;
     LineChart {
@@ -149,8 +150,27 @@ pub fn depth_chart(trace: &ReviewTrace, title: &str) -> LineChart {
             ),
         ],
         markers: markers(trace),
+        bands: tip_hidden_bands(trace),
         ..Default::default()
     }
+}
+
+/// The legend of the spans a two-handed session's needle tip was out of the live image.
+pub const TIP_HIDDEN_LABEL: &str = "tip out of the live ultrasound image";
+
+/// Where the needle tip was out of the live ultrasound image (two-handed sessions):
+/// consecutive buckets merged into spans.
+pub fn tip_hidden_bands(trace: &ReviewTrace) -> Vec<(f64, f64, ChartColor, String)> {
+    let mut bands: Vec<(f64, f64, ChartColor, String)> = Vec::new();
+    for (k, _) in trace.tip_hidden.iter().enumerate().filter(|(_, h)| **h) {
+        let Some(&t0) = trace.t_s.get(k) else { continue };
+        let t1 = t0 + trace.bucket_s;
+        match bands.last_mut() {
+            Some(last) if (last.1 - t0).abs() < 1e-9 => last.1 = t1,
+            _ => bands.push((t0, t1, palette::HIDDEN, TIP_HIDDEN_LABEL.to_string())),
+        }
+    }
+    bands
 }
 
 /// Two sessions' force curves on one chart: total and cutting force of each, the first solid,
@@ -298,6 +318,7 @@ mod tests {
             risk_points: vec![],
             sent_n: Vec::new(),
             guard: Vec::new(),
+            tip_hidden: Vec::new(),
         }
     }
 
@@ -535,6 +556,24 @@ mod tests {
         }
         let plain = force_chart(&trace(), "Force");
         assert!(plain.bands.is_empty() && plain.series.len() == 4);
+    }
+
+    /// A two-handed session: the spans with the tip out of the live image shaded on the depth
+    /// chart and named once in its legend; a one-handed session shades nothing.
+    #[test]
+    fn the_tip_out_of_the_live_image_is_shaded_on_the_depth_chart() {
+        let mut t = trace();
+        t.tip_hidden = (0..100).map(|k| (20..30).contains(&k) || k >= 90).collect();
+        let chart = depth_chart(&t, "Depth");
+        let spans: Vec<(f64, f64)> = chart
+            .bands
+            .iter()
+            .map(|(a, b, _, _)| ((a * 100.0).round() / 100.0, (b * 100.0).round() / 100.0))
+            .collect();
+        assert_eq!(spans, [(0.4, 0.6), (1.8, 2.0)]);
+        let svg = texts(&inline_svg(&chart).unwrap());
+        assert_eq!(svg.iter().filter(|x| *x == TIP_HIDDEN_LABEL).count(), 1);
+        assert!(depth_chart(&trace(), "Depth").bands.is_empty());
     }
 
     #[test]

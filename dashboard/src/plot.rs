@@ -31,6 +31,8 @@ pub mod palette {
     pub const SENT: RGBColor = RGBColor(106, 61, 154);
     pub const ZEROED: RGBColor = RGBColor(214, 39, 40);
     pub const REDUCED: RGBColor = RGBColor(230, 171, 2);
+    /// The spans a two-handed session's needle tip was out of the live ultrasound image.
+    pub const HIDDEN: RGBColor = RGBColor(120, 120, 170);
     pub const BEGINNER: RGBColor = RGBColor(0, 128, 128);
     pub const ADVANCED: RGBColor = RGBColor(191, 144, 0);
     pub const EXPERT: RGBColor = RGBColor(199, 21, 133);

@@ -36,6 +36,8 @@ pub struct LiveGuidanceTrace {
     longest_blind_advance_ticks: u64,
     last_inserted_mm: Option<f64>,
     target_entry_visible: Option<bool>,
+    /// The last tick counted and its tip was out of view (for the review's timeline).
+    hidden: bool,
 }
 
 impl LiveGuidanceTrace {
@@ -51,6 +53,7 @@ impl LiveGuidanceTrace {
         band_mm: f64,
         tip_in_target: bool,
     ) {
+        self.hidden = false;
         let (Some(hand), Some(kind), true) = (out.second_hand, probe, in_body) else {
             self.blind_advance_ticks = 0;
             self.last_inserted_mm = None;
@@ -64,6 +67,7 @@ impl LiveGuidanceTrace {
                 out.tip_mm,
                 band_mm,
             );
+        self.hidden = !visible;
         let advancing = self.last_inserted_mm.is_some_and(|last| out.inserted_mm > last);
         self.last_inserted_mm = Some(out.inserted_mm);
         if visible {
@@ -76,6 +80,12 @@ impl LiveGuidanceTrace {
         if tip_in_target && self.target_entry_visible.is_none() {
             self.target_entry_visible = Some(visible);
         }
+    }
+
+    /// Whether the last tick had the needle in the body, the probe in the second hand and the tip
+    /// out of its live image.
+    pub fn tip_hidden(&self) -> bool {
+        self.hidden
     }
 
     /// The metrics, or `None` when the needle was never in the body while the second hand held a

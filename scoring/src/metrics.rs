@@ -605,6 +605,12 @@ impl<'a> MetricsCollector<'a> {
         self.roles[label as usize]
     }
 
+    /// Whether the tick just observed had the needle tip out of the second hand's live image
+    /// (a two-handed session with the needle in the body).
+    pub fn tip_hidden(&self) -> bool {
+        self.live_guidance.tip_hidden()
+    }
+
     /// Observes one replayed tick.
     pub fn tick(&mut self, input: &TickInput, out: &TickOutput, sim: &Simulation) {
         self.ticks += 1;

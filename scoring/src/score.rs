@@ -312,6 +312,7 @@ impl Scorer {
             collector.tick(i, o, s);
             if let Some(t) = trace.as_deref_mut() {
                 t.tick(i, o);
+                t.tip_hidden(collector.tip_hidden());
             }
         })?;
         let mut metrics = collector.finish();

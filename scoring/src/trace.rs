@@ -20,7 +20,7 @@ use stylet_physics::{Event, LabelId, TickInput, TickOutput};
 use crate::metrics::{Metrics, RiskHit};
 
 /// Format version of [`ReviewTrace`] (stored traces of another version are rebuilt).
-pub const TRACE_VERSION: u32 = 5;
+pub const TRACE_VERSION: u32 = 6;
 
 /// At most this many punctures are kept per session (a trainee jiggling at a boundary cannot grow
 /// the trace without bound).
@@ -73,6 +73,10 @@ pub struct ReviewTrace {
     pub sent_n: Vec<f64>,
     #[serde(default)]
     pub guard: Vec<u8>,
+    /// Two-handed sessions: whether the needle tip was out of the second hand's live ultrasound
+    /// image at some tick of each bucket with the needle in the body; empty for one-handed ones.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub tip_hidden: Vec<bool>,
 }
 
 /// The needle tip entered a structure for the first time in an attempt (advancing, at the deepest
@@ -273,6 +277,7 @@ impl TraceCollector {
                 risk_points: Vec::new(),
                 sent_n: Vec::new(),
                 guard: Vec::new(),
+                tip_hidden: Vec::new(),
             },
             in_bucket: 0,
             prev_label: 0,
@@ -392,6 +397,19 @@ impl TraceCollector {
         }
     }
 
+    /// Marks the bucket of the tick just traced when the needle tip was out of the live image
+    /// (the buckets before stay unmarked).
+    pub fn tip_hidden(&mut self, hidden: bool) {
+        let t = &mut self.trace;
+        if !hidden {
+            return;
+        }
+        t.tip_hidden.resize(t.t_s.len(), false);
+        if let Some(last) = t.tip_hidden.last_mut() {
+            *last = true;
+        }
+    }
+
     /// The force a force-feedback device was sent, bucket by bucket beside the replayed force
     /// (read from the file, not replayed: it depends on the device, not on the poses). Ticks
     /// count from `first_tick`, the session's first.
@@ -426,6 +444,9 @@ impl TraceCollector {
             if !d.is_finite() {
                 *d = 0.0;
             }
+        }
+        if !t.tip_hidden.is_empty() {
+            t.tip_hidden.resize(t.t_s.len(), false);
         }
         for hit in &metrics.risk_hits {
             t.events.push(TraceEvent {
@@ -575,6 +596,7 @@ mod tests {
             risk_points: Vec::new(),
             sent_n: Vec::new(),
             guard: Vec::new(),
+            tip_hidden: Vec::new(),
         };
         assert_eq!(trace.tip_stays().len(), 2);
         let path: Vec<f64> = trace.final_approach().unwrap().iter().map(|v| v.z).collect();

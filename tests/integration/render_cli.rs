@@ -436,13 +436,25 @@ fn the_live_ultrasound_of_a_two_handed_session_shows_the_needle_in_plane() {
         record(&atlas, name, &session);
         let s = session.to_str().unwrap();
         // The probe pressed on, the needle still outside; then the needle deep in.
-        let before = us(&format!("{name}-before.png"), &["--session", s, "--at", "4", "--difficulty", "expert"]);
-        let during = us(&format!("{name}-during.png"), &["--session", s, "--at", t_in, "--difficulty", "expert"]);
+        let before = us(
+            &format!("{name}-before.png"),
+            &["--session", s, "--at", "4", "--difficulty", "expert"],
+        );
+        let during = us(
+            &format!("{name}-during.png"),
+            &["--session", s, "--at", t_in, "--difficulty", "expert"],
+        );
         shown.push(brighter(&before, &during));
     }
-    println!("pixels the needle brightened: in plane {}, across {}", shown[0], shown[1]);
+    println!(
+        "pixels the needle brightened: in plane {}, across {}",
+        shown[0], shown[1]
+    );
     assert!(shown[0] > 60, "the needle in plane shows: {shown:?}");
-    assert!(shown[1] < shown[0] / 4, "the needle out of plane barely shows: {shown:?}");
+    assert!(
+        shown[1] < shown[0] / 4,
+        "the needle out of plane barely shows: {shown:?}"
+    );
 }
 
 /// `--gpu` draws the same pictures as the CPU reference (on lavapipe where there is no GPU;

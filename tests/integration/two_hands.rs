@@ -172,3 +172,28 @@ fn a_two_handed_session_is_small() {
     println!("session size: two hands {two_mb:.3} MB/min, one hand {one_mb:.3} MB/min");
     assert!(two_mb < 1.5, "{two_mb} MB/min");
 }
+
+/// The review's timeline marks where the tip was out of the live image: most of the blind
+/// insertion, little of the guided one; a one-handed session marks nothing.
+#[test]
+fn the_review_trace_marks_the_tip_out_of_the_live_image() {
+    let atlas = default_phantom();
+    let d = tempfile::tempdir().unwrap();
+    let scorer = Scorer::new(atlas, Rubric::default_rubric(), None).unwrap();
+    let hidden_s = |name: &str| {
+        let path = record(atlas, d.path(), name, "beginner", &script(&format!("{name}.txt")));
+        let session = stylet_recorder::reader::verify(&path).unwrap();
+        let (_, trace) = scorer.score_session_traced(&session).unwrap();
+        assert!(trace.tip_hidden.is_empty() || trace.tip_hidden.len() == trace.t_s.len());
+        trace.tip_hidden.iter().filter(|h| **h).count() as f64 * trace.bucket_s
+    };
+    let (guided, blind, one) = (
+        hidden_s("two-handed-success"),
+        hidden_s("two-handed-blind"),
+        hidden_s("success-intercostal"),
+    );
+    println!("tip out of the live image: guided {guided:.2} s, blind {blind:.2} s");
+    assert!(blind > 8.0, "{blind} s");
+    assert!(guided < 2.5, "{guided} s");
+    assert_eq!(one, 0.0);
+}

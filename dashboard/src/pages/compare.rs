@@ -458,6 +458,7 @@ mod tests {
             risk_points: Vec::new(),
             sent_n: Vec::new(),
             guard: Vec::new(),
+            tip_hidden: Vec::new(),
         }
     }
 

@@ -440,6 +440,22 @@ fn other_metrics(r: &ScoreReport) -> Markup {
             ),
         ));
     }
+    if let Some(g) = &m.live_guidance {
+        // Two hands: the probe imaged live while the needle advanced.
+        rows.push((
+            "Live ultrasound: needle tip in view · longest blind advance · at the target",
+            format!(
+                "{:.0} % of the insertion · {:.1} s · {}",
+                100.0 * g.needle_tip_visible_share,
+                g.longest_blind_advance_s,
+                match g.tip_in_view_at_target_entry {
+                    Some(true) => "in view",
+                    Some(false) => "out of view",
+                    None => "target not reached",
+                }
+            ),
+        ));
+    }
     if let Some(b) = &m.breathing {
         rows.push((
             "Breathing: target reached",
