@@ -3,7 +3,8 @@
 //! reproducible, faster-than-real-time runs; the live device the window drives ([`live`]);
 //! SpaceMouse reports ([`spacemouse`]) and rate control ([`rate`]); gamepads ([`gamepad`], read
 //! through gilrs with the feature `gamepad`); raw-HID device profiles ([`hid_profile`]);
-//! force-feedback devices through their vendors' APIs ([`haptic`]).
+//! force-feedback devices through their vendors' APIs ([`haptic`]); two devices driving the two
+//! hands of one session ([`two_hands`]).
 
 pub mod command;
 pub mod gamepad;
@@ -17,6 +18,7 @@ pub mod live;
 pub mod rate;
 pub mod script;
 pub mod spacemouse;
+pub mod two_hands;
 
 use stylet_physics::{Simulation, TickInput, TickOutput};
 
