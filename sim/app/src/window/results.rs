@@ -253,5 +253,22 @@ fn report_ui(ui: &mut egui::Ui, r: &ScoreReport) {
         );
         row("Contrast in the ducts", format!("{:.1} ml", m.contrast_in_ducts_ml));
         row("Largest force", format!("{:.1} N", m.max_force_n));
+        if let Some(g) = &m.live_guidance {
+            // Two hands: the needle advanced under the probe's live image.
+            row(
+                "Needle tip in the live ultrasound",
+                format!("{:.0} % of the insertion", 100.0 * g.needle_tip_visible_share),
+            );
+            row("Longest blind advance", format!("{:.1} s", g.longest_blind_advance_s));
+            row(
+                "Tip at the target",
+                match g.tip_in_view_at_target_entry {
+                    Some(true) => "in view",
+                    Some(false) => "out of view",
+                    None => "–",
+                }
+                .into(),
+            );
+        }
     });
 }

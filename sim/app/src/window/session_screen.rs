@@ -436,6 +436,20 @@ fn indicators_ui(ui: &mut egui::Ui, snapshot: Option<&Snapshot>, plan: &SessionP
             ui.label(format!("{:.1} mm", o.indentation_mm));
             ui.end_row();
         }
+        if let Some(h) = &o.second_hand {
+            // Two hands: the second device's tool, its force and its contact with the skin.
+            ui.label("Second hand");
+            ui.label(match h.holding {
+                true => format!(
+                    "{:.2} N, {} nodes on the skin, {:.1} mm deep",
+                    h.force_n.length(),
+                    h.contacts,
+                    h.indentation_mm
+                ),
+                false => "empty".to_string(),
+            });
+            ui.end_row();
+        }
         ui.label("X-ray");
         ui.label(if o.xray_on { "ON" } else { "off" });
         ui.end_row();
