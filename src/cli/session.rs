@@ -141,6 +141,13 @@ pub fn inspect_json(s: &Session) -> Value {
             "limited_ticks": f.iter().filter(|r| r.limited()).count(),
         });
     }
+    if let Some(hand) = &h.second_hand {
+        v["second_hand"] = json!({
+            "device": hand.device,
+            "initial_tool": hand.initial_tool.map(|t| t.tool_spec().name()),
+            "ticks": s.ticks.iter().filter(|t| t.second_hand.is_some()).count(),
+        });
+    }
     let (word, detail) = state(s);
     v["state"] = json!(word);
     v["state_detail"] = json!(detail);
@@ -186,6 +193,14 @@ fn inspect(a: &InspectArgs) -> anyhow::Result<()> {
             f.len(),
             f.iter().filter(|r| r.zeroed()).count(),
             f.iter().filter(|r| r.limited()).count()
+        );
+    }
+    if let Some(hand) = &h.second_hand {
+        sayf!(
+            "hand 2    {}, starting with {}; reported on {} ticks",
+            hand.device,
+            hand.initial_tool.map_or("nothing", |t| t.tool_spec().name()),
+            s.ticks.iter().filter(|t| t.second_hand.is_some()).count()
         );
     }
     sayf!("started   {}", h.wall_clock_start);
@@ -273,6 +288,11 @@ fn verify(file: &Path) -> anyhow::Result<()> {
 pub const TICKS_CSV_HEADER: &str =
     "tick,t_s,x_mm,y_mm,z_mm,qw,qx,qy,qz,buttons,fx_n,fy_n,fz_n,tx_nmm,ty_nmm,tz_nmm,tip_label,inserted_mm";
 
+/// Header of `second_hand.csv` (two-handed sessions): the second device's pose, buttons and
+/// force at every tick it reported, in the same exact number form.
+pub const SECOND_HAND_CSV_HEADER: &str =
+    "tick,t_s,x_mm,y_mm,z_mm,qw,qx,qy,qz,buttons,fx_n,fy_n,fz_n,tx_nmm,ty_nmm,tz_nmm";
+
 fn export(a: &ExportArgs) -> anyhow::Result<()> {
     let s = reader::read(&a.file).map_err(|e| {
         anyhow::anyhow!(
@@ -327,6 +347,23 @@ fn export(a: &ExportArgs) -> anyhow::Result<()> {
             )
         }),
     )?;
+    if s.header.second_hand.is_some() {
+        write(
+            "second_hand.csv",
+            SECOND_HAND_CSV_HEADER,
+            &mut s.ticks.iter().filter_map(|t| {
+                let h = t.second_hand?;
+                let numbers: Vec<String> = [h.position_mm.as_slice(), &h.orientation]
+                    .concat()
+                    .iter()
+                    .map(f64::to_string)
+                    .chain(std::iter::once(h.buttons.to_string()))
+                    .chain([h.force_n, h.torque_nmm].concat().iter().map(f64::to_string))
+                    .collect();
+                Some(format!("{},{},{}", t.tick, t.tick as f64 / rate, numbers.join(",")))
+            }),
+        )?;
+    }
     let opt = |v: Option<String>| v.unwrap_or_default();
     write(
         "events.csv",

@@ -197,3 +197,39 @@ fn the_review_trace_marks_the_tip_out_of_the_live_image() {
     assert!(guided < 2.5, "{guided} s");
     assert_eq!(one, 0.0);
 }
+
+/// `stylet session inspect` names the second hand; `session export` writes its ticks to
+/// `second_hand.csv`, every number giving back its recorded bits.
+#[test]
+fn session_inspect_and_export_show_the_second_hand() {
+    use crate::common::ok;
+    let atlas = default_phantom();
+    let d = tempfile::tempdir().unwrap();
+    let path = record(
+        atlas,
+        d.path(),
+        "two-handed-success",
+        "beginner",
+        &script("two-handed-success.txt"),
+    );
+    let p = path.to_str().unwrap();
+    let text = ok(&["session", "inspect", p]);
+    assert!(
+        text.contains("hand 2    premium, starting with convex probe; reported on 27000 ticks"),
+        "{text}"
+    );
+    let json: serde_json::Value = serde_json::from_str(&ok(&["session", "inspect", p, "--json"])).unwrap();
+    assert_eq!(json["second_hand"]["device"], "premium");
+    let out = d.path().join("csv");
+    ok(&["session", "export", p, "--csv", out.to_str().unwrap()]);
+    let csv = std::fs::read_to_string(out.join("second_hand.csv")).unwrap();
+    let session = stylet_recorder::reader::read(&path).unwrap();
+    let mut lines = csv.lines();
+    assert!(lines.next().unwrap().starts_with("tick,t_s,x_mm"));
+    let rows: Vec<&str> = lines.collect();
+    assert_eq!(rows.len(), 27000);
+    let row: Vec<f64> = rows[15_000].split(',').map(|v| v.parse().unwrap()).collect();
+    let h = session.ticks[15_000].second_hand.unwrap();
+    assert_eq!(row[2].to_bits(), h.position_mm[0].to_bits());
+    assert_eq!(row[12].to_bits(), h.force_n[2].to_bits());
+}
