@@ -188,25 +188,20 @@ impl SecondHand {
             Some(HandTool::Probe(ProbeKind::Linear)) => 2,
             Some(HandTool::Probe(ProbeKind::Convex)) => 3,
         });
-        let mut vec = |v: DVec3| {
-            for c in v.to_array() {
-                h(c.to_bits());
-            }
-        };
-        vec(self.last_position);
+        let bits = |v: DVec3| v.to_array().map(f64::to_bits);
+        let mut words: Vec<u64> = bits(self.last_position).to_vec();
         if let Some(x) = self.device_ref {
-            vec(x);
+            words.extend(bits(x));
         }
-        if let Some(c) = &self.tool {
-            for node in c.nodes() {
-                vec(node.pos);
-                vec(node.proxy);
-                vec(node.surface);
-                vec(DVec3::splat(f64::from(u8::from(node.in_contact))));
-            }
+        for node in self.tool.iter().flat_map(|c| c.nodes()) {
+            words.extend(bits(node.pos));
+            words.extend(bits(node.proxy));
+            words.extend(bits(node.surface));
+            words.push(u64::from(node.in_contact));
         }
-        for v in self.last_orientation.to_array() {
-            h(v.to_bits());
+        words.extend(self.last_orientation.to_array().map(f64::to_bits));
+        for w in words {
+            h(w);
         }
     }
 }
