@@ -12,6 +12,7 @@ use stylet_devices::run_headless;
 use stylet_devices::script::{parse, scripted_simulation};
 use stylet_recorder::WriterOptions;
 use stylet_recorder::recording::{Recording, SessionInfo, header};
+use stylet_scoring::live_guidance::LiveGuidance;
 use stylet_scoring::rubric::Rubric;
 use stylet_scoring::score::{ScoreReport, Scorer};
 
@@ -50,24 +51,25 @@ fn score(atlas: &Atlas, path: &Path) -> ScoreReport {
         .unwrap()
 }
 
-#[test]
-fn the_scripted_two_handed_success_keeps_the_tip_in_the_live_image_and_passes() {
+/// The phantom's script `name` recorded at `difficulty`, replayed (verified) and scored, with
+/// its live guidance.
+fn scored_script(name: &str, difficulty: &str) -> (ScoreReport, LiveGuidance) {
     let atlas = default_phantom();
     let d = tempfile::tempdir().unwrap();
-    let path = record(
-        atlas,
-        d.path(),
-        "two-handed-success",
-        "expert",
-        &script("two-handed-success.txt"),
-    );
+    let path = record(atlas, d.path(), name, difficulty, &script(&format!("{name}.txt")));
     let r = score(atlas, &path);
+    assert!(r.replay_verified, "{name}: {:?}", r.divergence);
     let g = r
         .metrics
         .live_guidance
         .expect("the second hand held the probe during the insertion");
-    println!("two-handed success: {g:?}; score {} {:?}", r.grade.score, r.reasons);
-    assert!(r.replay_verified, "{:?}", r.divergence);
+    println!("{name}: {g:?}; score {} {:?}", r.grade.score, r.reasons);
+    (r, g)
+}
+
+#[test]
+fn the_scripted_two_handed_success_keeps_the_tip_in_the_live_image_and_passes() {
+    let (r, g) = scored_script("two-handed-success", "expert");
     assert!(r.metrics.target_reached && r.metrics.target_confirmed);
     assert!(r.metrics.workflow.ultrasound_before_puncture && r.metrics.workflow.target_scanned_before_puncture);
     assert!(g.needle_tip_visible_share > 0.8, "{g:?}");
@@ -78,22 +80,7 @@ fn the_scripted_two_handed_success_keeps_the_tip_in_the_live_image_and_passes() 
 
 #[test]
 fn the_scripted_blind_advance_is_out_of_view_hits_the_portal_vein_and_fails() {
-    let atlas = default_phantom();
-    let d = tempfile::tempdir().unwrap();
-    let path = record(
-        atlas,
-        d.path(),
-        "two-handed-blind",
-        "beginner",
-        &script("two-handed-blind.txt"),
-    );
-    let r = score(atlas, &path);
-    let g = r
-        .metrics
-        .live_guidance
-        .expect("the second hand held the probe during the insertion");
-    println!("two-handed blind: {g:?}; score {} {:?}", r.grade.score, r.reasons);
-    assert!(r.replay_verified, "{:?}", r.divergence);
+    let (r, g) = scored_script("two-handed-blind", "beginner");
     assert!(g.needle_tip_visible_share < 0.2, "{g:?}");
     assert!(g.longest_blind_advance_s > 3.0, "{g:?}");
     assert!(

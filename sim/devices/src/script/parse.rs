@@ -706,6 +706,48 @@ mod tests {
         );
     }
 
+    /// Two-handed scripts: `tool2` declares the second hand (its device defaults to the first's),
+    /// `hand2` lines go to its track; a second-hand action or `device2` without `tool2`, and a
+    /// needle for the second hand, are refused with the line and what was expected.
+    #[test]
+    fn second_hand_lines_parse_and_misuse_is_named() {
+        let s = parse(
+            "stylet-script 1\ndevice touch\ntool2 probe convex\nat 0 pos 0 0 0 dir 0 0 1\n\
+             at 0 hand2 pos 1 2 3 dir 0 0 -1\nat 1 hand2 press 0 0 -1 1.5\nat 2 tool2 none\nat 3 hand2 release\n",
+        )
+        .unwrap();
+        let hand = s.second_hand.unwrap();
+        assert_eq!(hand.initial_tool, Some(HandTool::Probe(ProbeKind::Convex)));
+        assert_eq!(hand.device.name, "touch");
+        let hands: Vec<Hand> = s.items.iter().map(|i| i.hand).collect();
+        assert_eq!(
+            hands,
+            [Hand::First, Hand::Second, Hand::Second, Hand::First, Hand::Second]
+        );
+        assert_eq!(s.items[3].action, Action::Event(Event::SecondTool(None)));
+        let s = parse("stylet-script 1\ndevice2 ideal\ntool2 finger\nat 0 pos 0 0 0 dir 0 0 1\n").unwrap();
+        assert_eq!(s.second_hand.unwrap().device.name, "ideal");
+
+        let e = err("stylet-script 1\nat 0 pos 0 0 0 dir 0 0 1\nat 1 hand2 pos 0 0 0 dir 0 0 1\n");
+        assert_eq!((e.line, e.column), (3, 6));
+        assert!(e.expected.contains("'tool2 …' line"), "{e}");
+        let e = err("stylet-script 1\nat 0 pos 0 0 0 dir 0 0 1\nat 1 tool2 finger\n");
+        assert!(e.expected.contains("'tool2 …' line"), "{e}");
+        let e = err("stylet-script 1\ndevice2 touch\nat 0 pos 0 0 0 dir 0 0 1\n");
+        assert_eq!(e.line, 2);
+        assert!(e.found.contains("no 'tool2'"), "{e}");
+        let e = err("stylet-script 1\ntool2 needle\n");
+        assert!(
+            e.expected.contains("finger, probe, none") && e.found == "'needle'",
+            "{e}"
+        );
+        let e = err("stylet-script 1\ntool2 probe linear\nat 0 hand2 event xray-on\n");
+        assert!(e.expected.contains("pos, along, aim, press, release"), "{e}");
+        // The second hand's poses alone are not a script: the first hand needs one.
+        let e = err("stylet-script 1\ntool2 probe linear\nat 0 hand2 pos 0 0 0 dir 0 0 1\n");
+        assert!(e.expected.contains("at least one pose"), "{e}");
+    }
+
     /// `breathing`: on with the defaults, or with amplitude, period and seed; bad values named.
     #[test]
     fn breathing_statements_parse_and_bad_values_are_named() {
