@@ -41,7 +41,8 @@ impl HandTool {
         }
     }
 
-    fn make(self) -> ContactTool {
+    /// A fresh contact tool of this kind (with either hand).
+    pub(crate) fn make(self) -> ContactTool {
         match self {
             HandTool::Finger => ContactTool::new(ContactPattern::fingertip(), ContactFriction::FINGER),
             HandTool::Probe(ProbeKind::Linear) => {

@@ -10,15 +10,15 @@ use std::sync::Arc;
 
 use glam::{DQuat, DVec3};
 
-use crate::contact::{ContactFriction, ContactPattern, ContactTool};
+use crate::contact::ContactTool;
 use crate::contrast::{ContrastAgent, ContrastSettings};
 use crate::deform::{self, DeformSettings, DeformState};
 use crate::device::DeviceProfile;
-use crate::events::{Event, ProbeKind, ToolSpec};
+use crate::events::{Event, ToolSpec};
 use crate::motion::{self, BreathingError, BreathingSettings, MotionModel, Static};
 use crate::needle::spec::NeedleSpec;
 use crate::needle::tool::NeedleTool;
-use crate::second_hand::{HandOutput, HandPose, SecondHand, SecondHandConfig, clamp_length};
+use crate::second_hand::{HandOutput, HandPose, HandTool, SecondHand, SecondHandConfig, clamp_length};
 use crate::{LabelId, PunctureAtlas, SettingsError};
 
 /// Version of the physics: bump it with every change that alters any output bit, so a replay
@@ -212,15 +212,8 @@ fn make_tool(spec: &ToolSpec) -> Tool {
             length_mm,
             stylet_in,
         } => Tool::Needle(Box::new(NeedleTool::new(NeedleSpec { gauge, length_mm }, stylet_in))),
-        ToolSpec::Finger => Tool::Contact(ContactTool::new(ContactPattern::fingertip(), ContactFriction::FINGER)),
-        ToolSpec::Probe(ProbeKind::Linear) => Tool::Contact(ContactTool::new(
-            ContactPattern::linear_probe(),
-            ContactFriction::PROBE_WITH_GEL,
-        )),
-        ToolSpec::Probe(ProbeKind::Convex) => Tool::Contact(ContactTool::new(
-            ContactPattern::convex_probe(),
-            ContactFriction::PROBE_WITH_GEL,
-        )),
+        ToolSpec::Finger => Tool::Contact(HandTool::Finger.make()),
+        ToolSpec::Probe(kind) => Tool::Contact(HandTool::Probe(kind).make()),
     }
 }
 
