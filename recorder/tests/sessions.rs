@@ -1212,7 +1212,7 @@ fn sessions_match_their_published_schemas() {
         fixture("session-v3.mcap"),
         fixture("session-v4.mcap"),
     ];
-    for entry in std::fs::read_dir(root.join("tests/fixtures/physics-v11")).unwrap() {
+    for entry in std::fs::read_dir(root.join("tests/fixtures/physics-v12")).unwrap() {
         let p = entry.unwrap().path();
         if p.extension().is_some_and(|e| e == "mcap") {
             committed.push(p);

@@ -8,7 +8,8 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 use stylet_physics::{
-    HeuristicLabels, Label, LabelId, LabelTable, Param, ParamValue, PropertyTree, Role, Thresholds, TissueSpec,
+    ComplicationKind, HeuristicLabels, Label, LabelId, LabelTable, Param, ParamValue, PropertyTree, Role, Thresholds,
+    TissueSpec,
 };
 
 /// The atlas format version this code reads and writes.
@@ -377,7 +378,7 @@ impl Default for CArmToml {
             source_to_isocenter_mm: 750.0,
             detector_mm: [300.0, 300.0],
             isocenter_mm: None,
-            window: XrayWindowToml { low: 1.5, high: 5.0 },
+            window: XrayWindowToml { low: 1.0, high: 5.0 },
             kerma_rate_mgy_per_min: 5.0,
         }
     }
@@ -609,8 +610,34 @@ pub struct TissueToml {
     /// How the tissue looks in ultrasound (inherited like the parameters; default `tissue`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub echo: Option<EchoClass>,
+    /// What a needle through the tissue does to the patient (inherited like the parameters;
+    /// docs/complications.md).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub complication: Option<ComplicationToml>,
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub note: String,
+}
+
+/// A tissue's complication as written in a manifest (`venous_bleed`, `arterial_bleed`,
+/// `pneumothorax`, `bile_leak`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ComplicationToml {
+    VenousBleed,
+    ArterialBleed,
+    Pneumothorax,
+    BileLeak,
+}
+
+impl ComplicationToml {
+    pub fn kind(self) -> ComplicationKind {
+        match self {
+            ComplicationToml::VenousBleed => ComplicationKind::VenousBleed,
+            ComplicationToml::ArterialBleed => ComplicationKind::ArterialBleed,
+            ComplicationToml::Pneumothorax => ComplicationKind::Pneumothorax,
+            ComplicationToml::BileLeak => ComplicationKind::BileLeak,
+        }
+    }
 }
 
 /// How a tissue appears in simulated ultrasound (docs/ultrasound.md): solid tissue scatters
@@ -943,6 +970,7 @@ pub fn property_tree(tissues: &BTreeMap<String, TissueToml>) -> Result<PropertyT
                 .filter_map(|p| t.param(p).map(|v| (p, v.to_value())))
                 .collect(),
             color_rgba: t.color_rgba,
+            complication: t.complication.map(ComplicationToml::kind),
         })
         .collect();
     PropertyTree::new(specs).map_err(ManifestError::PropertyTree)

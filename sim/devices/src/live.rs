@@ -587,6 +587,7 @@ mod tests {
             tissue_displacement_mm: 0.0,
             risk_displacement_mm: 0.0,
             second_hand: None,
+            consequences: Default::default(),
         }
     }
 }

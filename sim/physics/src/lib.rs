@@ -9,11 +9,12 @@
 //! table and l(x, d)), [`properties`] (property tree), [`thresholds`] (HU threshold estimation),
 //! [`masks`] and [`distance`] (skin/bone distance maps), [`atlas`] (the validated whole);
 //! the haptic core: [`sim`] (the fixed-step loop), [`needle`] (bendable needle, §3.5),
-//! [`contact`] (finger and ultrasound probe, §3.6), [`deform`] (local tissue deformation, Chapter 4), [`contrast`] (contrast agent, §3.3), [`motion`] (breathing hook, §5.4),
+//! [`contact`] (finger and ultrasound probe, §3.6), [`deform`] (local tissue deformation, Chapter 4), [`contrast`] (contrast agent, §3.3), [`complications`] (what a wrong puncture does), [`motion`] (breathing hook, §5.4),
 //! [`device`] (device profiles), [`events`]; [`synthetic_atlas`] (the shared pieces of small
 //! hand-built atlases for tests and benchmarks).
 
 pub mod atlas;
+pub mod complications;
 pub mod contact;
 pub mod contrast;
 pub mod deform;
@@ -40,6 +41,7 @@ pub mod thresholds;
 pub mod volume;
 
 pub use atlas::{AIR_HU, DistanceMaps, PunctureAtlas};
+pub use complications::{ComplicationKind, Complications, Consequence, ConsequenceVolumes, NeedleTip};
 pub use contrast::{ContrastAgent, ContrastSettings, ContrastTally};
 pub use deform::{DeformCost, DeformField, DeformSettings, Regulariser};
 pub use device::DeviceProfile;

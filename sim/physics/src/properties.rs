@@ -7,6 +7,7 @@
 //! to the parent and repeat (3). [`Materials`] resolves step (4) once per label when the atlas
 //! loads, so the 1 kHz loop only does (1) and (3).
 
+use crate::complications::ComplicationKind;
 use std::collections::BTreeMap;
 
 use crate::{LabelTable, PhysicsError};
@@ -147,6 +148,8 @@ pub struct TissueSpec {
     pub params: BTreeMap<Param, ParamValue>,
     /// Overlay colour RGBA (0–255), inherited like the parameters.
     pub color_rgba: Option<[u8; 4]>,
+    /// What a needle through this tissue does to the patient, inherited like the parameters.
+    pub complication: Option<ComplicationKind>,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -155,6 +158,7 @@ struct TissueNode {
     parent: Option<usize>,
     params: [Option<ParamValue>; Param::COUNT],
     color_rgba: Option<[u8; 4]>,
+    complication: Option<ComplicationKind>,
 }
 
 /// A validated property tree: known parents, no cycles, valid parameter definitions.
@@ -198,6 +202,7 @@ impl PropertyTree {
                 parent,
                 params,
                 color_rgba: s.color_rgba,
+                complication: s.complication,
             });
         }
         // Cycle check: walking up from any node must end within `nodes.len()` steps.
@@ -257,6 +262,18 @@ impl PropertyTree {
                 return Some((v, n.name.as_str()));
             }
             at = n.parent;
+        }
+        None
+    }
+
+    /// The complication a puncture of a tissue causes, inherited like the parameters.
+    pub fn resolve_complication(&self, name: &str) -> Option<ComplicationKind> {
+        let mut at = Some(*self.by_name.get(name)?);
+        while let Some(i) = at {
+            if let Some(c) = self.nodes[i].complication {
+                return Some(c);
+            }
+            at = self.nodes[i].parent;
         }
         None
     }
@@ -341,6 +358,7 @@ mod tests {
             parent: parent.map(Into::into),
             params: params.iter().cloned().collect(),
             color_rgba: None,
+            complication: None,
         }
     }
 

@@ -10,6 +10,7 @@ use std::sync::Arc;
 
 use glam::{DQuat, DVec3};
 
+use crate::complications::{self, Complications, ConsequenceVolumes, NeedleTip};
 use crate::contact::ContactTool;
 use crate::contrast::{ContrastAgent, ContrastSettings};
 use crate::deform::{self, DeformSettings, DeformState};
@@ -23,7 +24,7 @@ use crate::{LabelId, PunctureAtlas, SettingsError};
 
 /// Version of the physics: bump it with every change that alters any output bit, so a replay
 /// knows which physics graded a session.
-pub const PHYSICS_VERSION: u32 = 11;
+pub const PHYSICS_VERSION: u32 = 12;
 
 /// Default haptic rate.
 pub const DEFAULT_TICK_RATE_HZ: u32 = 1000;
@@ -109,6 +110,8 @@ pub struct TickOutput {
     pub risk_displacement_mm: f64,
     /// The second hand's tool, in a two-handed session.
     pub second_hand: Option<HandOutput>,
+    /// What wrong punctures have let out so far (ml): haematoma, pneumothorax, bile leak.
+    pub consequences: ConsequenceVolumes,
 }
 
 /// The tool in hand.
@@ -198,6 +201,7 @@ pub struct Simulation {
     xray_on: bool,
     contrast_ml: f64,
     contrast: ContrastAgent,
+    complications: Complications,
     deformation: DeformState,
     /// Device position mapped to reference space on the previous tick (fixed point of §5.4.3).
     device_ref: Option<DVec3>,
@@ -235,6 +239,7 @@ impl Simulation {
         }
         Ok(Simulation {
             contrast,
+            complications: Complications::new(&atlas),
             deformation: DeformState::new(config.deformation, config.deform_in_background),
             tool: make_tool(&tool_spec),
             second: config.second_hand.map(SecondHand::new),
@@ -277,6 +282,10 @@ impl Simulation {
     /// The contrast agent (eqs. 3.3.1–3.3.2).
     pub fn contrast(&self) -> &ContrastAgent {
         &self.contrast
+    }
+    /// What wrong punctures did to the patient.
+    pub fn complications(&self) -> &Complications {
+        &self.complications
     }
     /// Runs later deformation solves on a thread of their own (or inline): the bits stay the same.
     pub fn set_deform_in_background(&mut self, background: bool) {
@@ -411,6 +420,7 @@ impl Simulation {
             tissue_displacement_mm: 0.0,
             risk_displacement_mm: 0.0,
             second_hand: None,
+            consequences: ConsequenceVolumes::default(),
         };
         let (force, torque) = match &mut self.tool {
             Tool::Needle(n) => {
@@ -430,6 +440,15 @@ impl Simulation {
                 out.inserted_mm = n.inserted_mm();
                 out.tip_depth_mm = atlas.skin_distance().sample(tip, -1000.0) as f64;
                 out.stylet_in = n.stylet_in();
+                self.complications.observe(
+                    self.tick,
+                    Some(NeedleTip {
+                        label: out.tip_label,
+                        tip_mm: tip,
+                        inserted_mm: out.inserted_mm,
+                        outer_diameter_mm: n.spec().gauge.outer_diameter_mm(),
+                    }),
+                );
                 (f.cut + f.friction + f.base, f.torque)
             }
             Tool::Contact(c) => {
@@ -439,6 +458,7 @@ impl Simulation {
                 out.components.bone = f.bone;
                 out.contacts = f.contacts as u32;
                 out.indentation_mm = c.nodes().iter().map(|n| n.depth_mm).fold(0.0, f64::max);
+                self.complications.observe(self.tick, None);
                 (f.skin + f.slide + f.bone, f.torque)
             }
         };
@@ -459,6 +479,15 @@ impl Simulation {
             self.contrast
                 .update(&atlas, tip, f64::from(every) / f64::from(self.config.tick_rate_hz));
         }
+        if self.tick.is_multiple_of(complications::UPDATE_EVERY_TICKS) {
+            let dt_s = complications::UPDATE_EVERY_TICKS as f64 / f64::from(self.config.tick_rate_hz);
+            let needle = match &self.tool {
+                Tool::Needle(n) => Some(n.nodes()),
+                Tool::Contact(_) => None,
+            };
+            self.complications.update(dt_s, needle);
+        }
+        out.consequences = self.complications.volumes();
         let tally = self.contrast.tally();
         out.contrast_in_ducts_ml = tally.in_ducts_ml;
         out.extravasated_ml = tally.extravasated_ml;
@@ -504,6 +533,7 @@ impl Simulation {
         h.u64(u64::from(self.breath_hold) | u64::from(self.xray_on) << 1);
         h.f64(self.contrast_ml);
         self.contrast.digest_into(|v| h.u64(v));
+        self.complications.digest_into(|v| h.u64(v));
         self.deformation.digest_into(|v| h.u64(v));
         h.vec(self.last_position);
         for v in self.last_orientation.to_array() {

@@ -71,6 +71,7 @@ pub fn body(value: ParamValue) -> TissueSpec {
         parent: None,
         params: every_param(value),
         color_rgba: None,
+        complication: None,
     }
 }
 

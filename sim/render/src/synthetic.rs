@@ -40,6 +40,7 @@ pub fn atlas(n: usize, spacing: f64, ct: impl Fn(DVec3) -> f32, partial: impl Fn
         parent: Some("body".into()),
         params: Default::default(),
         color_rgba: Some(color),
+        complication: None,
     };
     let tree = PropertyTree::new(vec![
         TissueSpec {
@@ -47,6 +48,7 @@ pub fn atlas(n: usize, spacing: f64, ct: impl Fn(DVec3) -> f32, partial: impl Fn
             parent: None,
             params,
             color_rgba: Some([200, 120, 90, 255]),
+            complication: None,
         },
         tissue("tumour", TUMOUR_RGBA),
         tissue("bone", [240, 240, 230, 255]),

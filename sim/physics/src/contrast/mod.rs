@@ -36,6 +36,12 @@ mod filling;
 mod network;
 use network::DuctNetwork;
 
+/// Time constant of contrast washing out of a vessel it was delivered into (s): venous blood
+/// crosses a voxel in well under a second and dilutes the bolus downstream (estimate).
+pub const WASHOUT_S: f64 = 1.5;
+/// A washing-out stain thinner than this is gone (volume fraction).
+pub const WASHED_OUT_RHO: f64 = 1e-4;
+
 /// Settings of the contrast model (part of the physics: replay uses the same values).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ContrastSettings {
@@ -161,6 +167,8 @@ pub struct ContrastTally {
     pub left_tree_ml: f64,
     /// Entered tissue that is not a duct: extravasation.
     pub extravasated_ml: f64,
+    /// Of that, what the blood carried away from a vessel it was delivered into (washout).
+    pub washed_out_ml: f64,
     /// Could not flow: no needle in the body, or the stylet still in.
     pub discarded_ml: f64,
 }
@@ -201,6 +209,8 @@ pub struct ContrastAgent {
     medium: Option<DuctMedium>,
     /// ρ of non-duct voxels that received contrast (stains), by CT linear voxel index.
     stains: BTreeMap<usize, f64>,
+    /// Labels of tissues blood flows through: a stain there washes out.
+    blood_labels: Vec<LabelId>,
     /// World position of the node where contrast first entered a duct.
     duct_entry_mm: Option<DVec3>,
     /// Farthest filled duct node from `duct_entry_mm` along the ducts so far (mm).
@@ -251,6 +261,11 @@ impl ContrastAgent {
             tally: ContrastTally::default(),
             medium: None,
             stains: BTreeMap::new(),
+            blood_labels: crate::complications::label_kinds(atlas)
+                .into_iter()
+                .filter(|(_, k)| k.carries_blood())
+                .map(|(l, _)| l)
+                .collect(),
             duct_entry_mm: None,
             filled_extent_mm: 0.0,
             updates_left: 0,
@@ -309,6 +324,7 @@ impl ContrastAgent {
                 }
             }
         }
+        self.wash_out(atlas, dt_s);
         let tau = self.settings.tau;
         if self.updates_left > 0
             && let Some(m) = self.medium.as_mut()
@@ -324,6 +340,31 @@ impl ContrastAgent {
                 self.filled_extent_mm,
             );
         }
+    }
+
+    /// Blood carries contrast out of the vessel it was delivered into: a stain in a vessel
+    /// decays as e^(−t/τ) with τ = [`WASHOUT_S`], where a stain in parenchyma stays (on the
+    /// cholangiogram a vessel flashes and clears, the liver blushes and holds).
+    fn wash_out(&mut self, atlas: &PunctureAtlas, dt_s: f64) {
+        if self.blood_labels.is_empty() || self.stains.is_empty() || dt_s <= 0.0 {
+            return;
+        }
+        let labels = atlas.partial_labels().data();
+        let keep = libm::exp(-dt_s / WASHOUT_S);
+        let node_ml = self.network.node_volume_ml;
+        let blood = &self.blood_labels;
+        let mut washed = 0.0;
+        self.stains.retain(|&voxel, rho| {
+            if !labels.get(voxel).is_some_and(|l| blood.contains(l)) {
+                return true;
+            }
+            let left = *rho * keep;
+            let gone = if left < WASHED_OUT_RHO { *rho } else { *rho - left };
+            washed += gone * node_ml;
+            *rho -= gone;
+            *rho > 0.0
+        });
+        self.tally.washed_out_ml += washed;
     }
 
     /// Delivers `amount` ml at the voxel nearest `tip`: into the ducts by volume-driven filling
@@ -411,6 +452,7 @@ impl ContrastAgent {
             t.left_tree_ml,
             t.extravasated_ml,
             t.discarded_ml,
+            t.washed_out_ml,
         ] {
             put(v.to_bits());
         }
@@ -485,11 +527,15 @@ mod tests {
             parent: Some(parent.into()),
             params: Default::default(),
             color_rgba: None,
+            complication: None,
         };
         let tree = PropertyTree::new(vec![
             synthetic_atlas::body(synthetic_atlas::body_ramp()),
             tissue("liver", "body"),
-            tissue("vessel", "body"),
+            TissueSpec {
+                complication: Some(crate::ComplicationKind::VenousBleed),
+                ..tissue("vessel", "body")
+            },
             tissue("bile_duct", "liver"),
             tissue("target_duct", "bile_duct"),
         ])
@@ -668,6 +714,35 @@ mod tests {
         assert_eq!(ducts, 0.0);
         assert!((stains - 1.0).abs() < 1e-12, "the stain stays where it entered");
         assert_eq!(c.filled_voxels().len(), 1);
+    }
+
+    #[test]
+    fn contrast_in_a_vessel_washes_out_where_in_the_liver_it_stays() {
+        let a = atlas();
+        let vessel = DVec3::new(0.5, 10.5, 0.5);
+        let liver = DVec3::new(-6.5, 6.5, 6.5);
+        let mut stained = Vec::new();
+        for tip in [vessel, liver] {
+            let mut c = agent(&a);
+            c.inject(0.05);
+            // 50 ms of flow at 1 ml/s, then 3 s with the needle out.
+            run(&mut c, &a, Some(tip), 5);
+            let delivered = c.content_ml().1;
+            run(&mut c, &a, None, 300);
+            stained.push((delivered, c.content_ml().1, c.tally()));
+        }
+        let (delivered, left, t) = stained[0];
+        assert!((delivered - 0.05).abs() < 0.01, "{delivered}");
+        // e^(−3 s / 1.5 s) ≈ 0.135 of the stain is left in the vessel …
+        assert!(
+            (left / delivered - libm::exp(-2.0)).abs() < 0.03,
+            "{left} of {delivered}"
+        );
+        assert!((t.washed_out_ml + left - t.extravasated_ml).abs() < 1e-12, "{t:?}");
+        // … and all of it in the liver.
+        let (delivered, left, t) = stained[1];
+        assert_eq!(left, delivered);
+        assert_eq!(t.washed_out_ml, 0.0);
     }
 
     #[test]

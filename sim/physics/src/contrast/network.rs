@@ -176,6 +176,7 @@ mod tests {
                 parent: Some("body".into()),
                 params: Default::default(),
                 color_rgba: None,
+                complication: None,
             },
         ])
         .unwrap();
