@@ -6,6 +6,7 @@
 //! `stylet-service`.
 
 pub mod benchmark;
+pub mod consequences;
 pub mod live_guidance;
 pub mod metric_words;
 pub mod metrics;

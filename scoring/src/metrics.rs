@@ -9,6 +9,7 @@ use serde::Serialize;
 use stylet_physics::glam::DVec3;
 use stylet_physics::{Event, LabelId, Role, Simulation, TickInput, TickOutput, ToolSpec};
 
+use crate::consequences::{ConsequenceRecord, ConsequenceWatch};
 use crate::live_guidance::{LiveGuidance, LiveGuidanceTrace};
 use crate::needle_motion::{NeedleMotion, NeedleMotionMetrics, NeedleSample};
 use crate::probe_view::{ProbeFrame, in_rendered_image};
@@ -176,6 +177,10 @@ pub struct Metrics {
     /// body (docs/metrics.md "Live ultrasound guidance").
     #[serde(default)]
     pub live_guidance: Option<LiveGuidance>,
+    /// What the wrong punctures did to the patient, as the physics computed it (haematoma,
+    /// pneumothorax, bile leak; docs/complications.md), in the order they began.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub consequences: Vec<ConsequenceRecord>,
 }
 
 /// Where in the breathing the needle reached the target.
@@ -354,6 +359,8 @@ pub struct MetricsCollector<'a> {
     tip_in_plane_ticks: u64,
     /// The tip in the second hand's live image while the needle is in the body.
     live_guidance: LiveGuidanceTrace,
+    /// The physics' leaking sites.
+    leaks: ConsequenceWatch,
     /// With a breathing patient: the signal (g per tick), the phase the target was reached in,
     /// the ticks breathed with the needle in, the tissue slide and the last u at the tip.
     breathing: Option<BreathingTrace>,
@@ -589,6 +596,7 @@ impl<'a> MetricsCollector<'a> {
             imaged_insertion_ticks: 0,
             tip_in_plane_ticks: 0,
             live_guidance: LiveGuidanceTrace::default(),
+            leaks: ConsequenceWatch::default(),
             breathing: None,
             good_contact_ticks: 0,
             probe_ticks: 0,
@@ -614,6 +622,7 @@ impl<'a> MetricsCollector<'a> {
     /// Observes one replayed tick.
     pub fn tick(&mut self, input: &TickInput, out: &TickOutput, sim: &Simulation) {
         self.ticks += 1;
+        self.leaks.tick(out.tick, sim);
         let tick = out.tick;
         let needle = sim.needle();
         let in_body = needle.is_some() && out.inserted_mm > 0.0;
@@ -1057,6 +1066,12 @@ impl<'a> MetricsCollector<'a> {
             }),
             needle_motion: Some(self.needle_motion.finish()),
             live_guidance: self.live_guidance.finish(rate),
+            consequences: self.leaks.finish(rate, |l| {
+                self.names
+                    .get(&l)
+                    .cloned()
+                    .unwrap_or_else(|| stylet_physics::UNNAMED_STRUCTURE.to_string())
+            }),
         }
     }
 }
@@ -1111,6 +1126,7 @@ pub(crate) mod tests_support {
             breathing: None,
             needle_motion: Some(NeedleMotionMetrics::default()),
             live_guidance: None,
+            consequences: Vec::new(),
         }
     }
 

@@ -12,6 +12,7 @@
 //! the exact tip position where each risk structure was first touched ([`RiskPoint`], to draw
 //! slices through it): neither can be recovered from the 20 ms buckets. Version 3: a puncture's
 //! peak is the largest force while the tip is in the structure (it was the one before entry).
+//! Version 7: a `complication` event marks when each haematoma, pneumothorax or bile leak began.
 
 use serde::{Deserialize, Serialize};
 use stylet_physics::glam::DVec3;
@@ -20,7 +21,7 @@ use stylet_physics::{Event, LabelId, TickInput, TickOutput};
 use crate::metrics::{Metrics, RiskHit};
 
 /// Format version of [`ReviewTrace`] (stored traces of another version are rebuilt).
-pub const TRACE_VERSION: u32 = 6;
+pub const TRACE_VERSION: u32 = 7;
 
 /// At most this many punctures are kept per session (a trainee jiggling at a boundary cannot grow
 /// the trace without bound).
@@ -113,6 +114,8 @@ pub enum MomentKind {
     Contrast,
     StyletOut,
     Redirection,
+    /// A haematoma, pneumothorax or bile leak began.
+    Complication,
 }
 
 impl MomentKind {
@@ -124,6 +127,7 @@ impl MomentKind {
             MomentKind::Contrast => "contrast",
             MomentKind::StyletOut => "stylet out",
             MomentKind::Redirection => "redirection",
+            MomentKind::Complication => "complication",
         }
     }
 }
@@ -161,6 +165,7 @@ impl ReviewTrace {
                 "contrast-inject" => MomentKind::Contrast,
                 "stylet-remove" => MomentKind::StyletOut,
                 "redirection" => MomentKind::Redirection,
+                "complication" => MomentKind::Complication,
                 _ => continue,
             };
             out.push(TraceMoment {
@@ -455,6 +460,13 @@ impl TraceCollector {
                 label: format!("risk hit: {}", hit.structure),
             });
         }
+        for c in &metrics.consequences {
+            t.events.push(TraceEvent {
+                t_s: c.began_s,
+                kind: "complication".into(),
+                label: format!("{} began: {}", c.kind.name(), c.structure),
+            });
+        }
         for (n, &t_s) in metrics.redirection_times_s.iter().enumerate() {
             t.events.push(TraceEvent {
                 t_s,
@@ -504,6 +516,7 @@ mod tests {
             tissue_displacement_mm: 0.0,
             risk_displacement_mm: 0.0,
             second_hand: None,
+            consequences: Default::default(),
         }
     }
 

@@ -149,6 +149,7 @@ pub async fn review(
         (guided_block(&report))
         h2 { "Risk-structure hits" }
         (risk_table(&report))
+        (consequence_table(&report))
         (hit_figures(&report, &row.id))
         h2 { "Against the expert benchmark" }
         (benchmark)
@@ -364,6 +365,26 @@ fn risk_table(r: &ScoreReport) -> Markup {
                     td.num { (format!("{:.2}", h.duration_s)) } td.num { (h.entries) }
                 } } }
             }
+        }
+    }
+}
+
+/// What the wrong punctures did to the patient (haematoma, pneumothorax, bile leak), as the
+/// physics computed it; the force chart marks when each began.
+fn consequence_table(r: &ScoreReport) -> Markup {
+    html! {
+        @if !r.metrics.consequences.is_empty() {
+            h3 { "What the punctures did to the patient" }
+            table #consequences {
+                thead { tr { th { "Consequence" } th { "Structure punctured" } th.num { "Punctured (s)" } th.num { "Began (s)" } th.num { "By the end (ml)" } } }
+                tbody { @for c in &r.metrics.consequences { tr {
+                    td { span.badge.bad { (c.kind.name()) } }
+                    td { (c.structure) }
+                    td.num { (format!("{:.2}", c.punctured_s)) } td.num { (format!("{:.2}", c.began_s)) }
+                    td.num { (format!("{:.1}", c.volume_ml)) }
+                } } }
+            }
+            p.muted { "Blood, air or bile let out by the end of the session (docs/complications.md): a haematoma grows around a vessel hit with a needle of 19 G or larger, a pneumothorax follows any lung puncture, a bile duct left without a drain leaks once the needle is out." }
         }
     }
 }
@@ -782,6 +803,23 @@ mod tests {
     /// A stored score report (failed at expert level, one X-ray shot, replay verified).
     fn report() -> ScoreReport {
         serde_json::from_str(include_str!("../../../service/tests/data/report.json")).unwrap()
+    }
+
+    #[test]
+    fn the_consequences_of_a_wrong_puncture_are_listed_in_words() {
+        let mut r = report();
+        assert_eq!(consequence_table(&r).into_string(), "", "none, no table");
+        r.metrics.consequences = vec![stylet_scoring::consequences::ConsequenceRecord {
+            kind: stylet_scoring::consequences::ConsequenceKind::Haematoma,
+            structure: "portal vein".into(),
+            label: 11,
+            punctured_s: 7.62,
+            began_s: 7.63,
+            volume_ml: 16.1,
+        }];
+        let html = consequence_table(&r).into_string();
+        assert!(html.contains("haematoma") && html.contains("portal vein"), "{html}");
+        assert!(html.contains("7.62") && html.contains("16.1"), "{html}");
     }
 
     #[test]

@@ -16,6 +16,7 @@ pub fn moment_color(kind: MomentKind) -> egui::Color32 {
         MomentKind::Contrast => egui::Color32::from_rgb(120, 170, 255),
         MomentKind::StyletOut => egui::Color32::from_rgb(200, 140, 230),
         MomentKind::Redirection => egui::Color32::from_rgb(240, 150, 60),
+        MomentKind::Complication => egui::Color32::from_rgb(170, 20, 40),
     }
 }
 
