@@ -63,6 +63,7 @@ pub fn same_picture(kind: ViewKind, a: &Moment, b: &Moment) -> bool {
         && a.difficulty == b.difficulty
         && a.seed == b.seed
         && same_contrast
+        && a.consequences == b.consequences
         && (kind != ViewKind::Ultrasound || a.time_s == b.time_s)
 }
 
@@ -252,6 +253,7 @@ mod tests {
         Moment {
             tools: ToolState::default(),
             contrast: None,
+            consequences: Vec::new(),
             scenario: "s".into(),
             xray_on: false,
             seed: 1,

@@ -28,6 +28,7 @@ struct Params {
     blood: vec4<f32>,
     flow_first: vec4<i32>, // first cell of the dense flow grid
     flow_dims: vec4<u32>,  // cells per axis; w: speckle seed
+    collect: vec4<f32>,    // fluid collections: count, soft tissue from / below (HU)
 }
 
 @group(0) @binding(0) var<uniform> P: Params;
@@ -41,6 +42,8 @@ struct Params {
 @group(0) @binding(7) var<storage, read> flow: array<vec4<f32>>;
 @group(0) @binding(8) var<storage, read_write> out_env: array<f32>;
 @group(0) @binding(9) var<storage, read_write> out_col: array<u32>;
+// Fluid collections, two entries each: (centre, radius²), (z, loss, scatter) of what they hold.
+@group(0) @binding(10) var<storage, read> collections: array<vec4<f32>>;
 
 const AIR_HU: f32 = -1000.0;
 const LUT_LOW_HU: i32 = -1024;
@@ -212,6 +215,17 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
             if kind == 0u {
                 let h = clamp(i32(floor(hu + 0.5)) - LUT_LOW_HU, 0, LUT_LEN - 1);
                 props = tissue[h].xyz;
+                // mod.rs `collection_at`: the first collection holding soft tissue here.
+                if hu >= P.collect.y && hu < P.collect.z {
+                    for (var m = 0u; m < u32(P.collect.x); m++) {
+                        let c = collections[2u * m];
+                        let d = x - c.xyz;
+                        if dot(d, d) <= c.w {
+                            props = collections[2u * m + 1u].xyz;
+                            break;
+                        }
+                    }
+                }
             } else if kind >= 2u {
                 props = P.blood.xyz;
             }

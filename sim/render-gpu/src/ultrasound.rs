@@ -9,6 +9,7 @@
 use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
+use stylet_render::consequences::{COLLECTION_MAX_HU, COLLECTION_MIN_HU};
 use stylet_render::tools::{CONVEX_HALF_ANGLE_DEG, CONVEX_RADIUS_MM};
 use stylet_render::ultrasound::EchoClass;
 use stylet_render::ultrasound::doppler::{self, CELL_MM, SCALE_M_S, WALL_FILTER_M_S};
@@ -55,6 +56,7 @@ struct UsParams {
     blood: [f32; 4],
     flow_first: [i32; 4],
     flow_dims: [u32; 4],
+    collect: [f32; 4],
 }
 
 /// A flow field on the GPU, kept while the scene holds the same field on the same volume.
@@ -165,6 +167,12 @@ impl GpuUltrasound {
                 flow_dims[2],
                 speckle::lattice_seed(scene.seed),
             ],
+            collect: [
+                scene.collections.len() as f32,
+                COLLECTION_MIN_HU,
+                COLLECTION_MAX_HU,
+                0.0,
+            ],
         };
         ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
         let lut: Vec<[f32; 4]> = tables.tissue.iter().map(|&p| props(p)).collect();
@@ -172,6 +180,15 @@ impl GpuUltrasound {
         let lut = storage(ctx, "tissue table", bytemuck::cast_slice(&lut));
         let tgc = storage(ctx, "tgc", bytemuck::cast_slice(&tables.tgc));
         let hits = storage(ctx, "needle hits", bytemuck::cast_slice(&hits));
+        let mut fluid: Vec<[f32; 4]> = scene
+            .collections
+            .iter()
+            .flat_map(|c| [v4(c.centre_mm, c.radius_mm * c.radius_mm), props(tables.collection(c))])
+            .collect();
+        if fluid.is_empty() {
+            fluid.push([0.0; 4]);
+        }
+        let fluid = storage(ctx, "fluid collections", bytemuck::cast_slice(&fluid));
         let empty_flow;
         let flow = match (&self.flow, &scene.doppler) {
             (Some(f), Some(_)) => &f.buffer,
@@ -202,6 +219,7 @@ impl GpuUltrasound {
             flow.as_entire_binding(),
             env.as_entire_binding(),
             col.as_entire_binding(),
+            fluid.as_entire_binding(),
         ]);
         entries.extend(self.motion.entries());
         // One workgroup per scan line (ultrasound.wgsl).

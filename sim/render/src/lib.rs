@@ -11,6 +11,7 @@
 
 pub mod annotate;
 pub mod camera;
+pub mod consequences;
 pub mod corridor;
 pub mod figure;
 pub mod fonts;

@@ -6,11 +6,13 @@
 use std::sync::Arc;
 
 use stylet_atlas::{Atlas, Difficulty};
+use stylet_physics::complications::Site;
 use stylet_physics::glam::{DVec3, Vec3};
 use stylet_physics::{DeformField, ProbeKind, Simulation, TickInput, TickOutput};
 
 use crate::RenderError;
 use crate::annotate::{Annotations, annotate};
+use crate::consequences;
 use crate::image::Image;
 use crate::mpr::{self, Plane, SliceSpec};
 use crate::presets::{self, Preset};
@@ -28,6 +30,9 @@ pub struct Moment {
     /// The contrast medium in the patient (CT voxels, μ_c), if any was injected. Shared: the
     /// haptic loop publishes a moment many times a second and must not copy the overlay each time.
     pub contrast: Option<Arc<ContrastOverlay>>,
+    /// What wrong punctures have let out so far (docs/complications.md): the views draw
+    /// haematomas, bile leaks and pneumothoraces from these.
+    pub consequences: Vec<Site>,
     /// The scenario the session is for (its C-arm).
     pub scenario: String,
     pub xray_on: bool,
@@ -76,6 +81,13 @@ impl Moment {
         Moment {
             tools: ToolState::from_simulation(sim, input),
             contrast,
+            consequences: sim
+                .complications()
+                .sites()
+                .iter()
+                .copied()
+                .filter(|s| s.volume_ml > 0.0)
+                .collect(),
             scenario: labels.scenario.clone(),
             xray_on: out.xray_on,
             seed: labels.seed,
@@ -341,9 +353,18 @@ pub fn xray_scene(
     let scene = XrayScene {
         c_arm: CArm::from_toml(&toml, isocenter_mm.as_vec3()),
         needle: moment.and_then(|m| m.tools.needle.clone()),
-        contrast: moment.and_then(|m| m.contrast.as_deref().cloned()),
+        contrast: moment.and_then(|m| xray_overlay(&atlas.model, m)),
     };
     Ok((scene, XrayWindow::from_toml(&toml.window)))
+}
+
+/// The X-ray's overlay of a moment: its contrast medium and what its wrong punctures changed.
+fn xray_overlay(atlas: &stylet_physics::PunctureAtlas, m: &Moment) -> Option<ContrastOverlay> {
+    if m.consequences.is_empty() {
+        return m.contrast.as_deref().cloned();
+    }
+    let changes = consequences::xray_voxels(atlas, &m.consequences);
+    ContrastOverlay::merged(m.contrast.as_deref(), &changes, atlas.ct().grid().dims())
 }
 
 /// The ultrasound scene of the moment's probe, else of a probe of kind `probe` (default convex)
@@ -392,5 +413,6 @@ pub fn ultrasound_scene(
         guide_mm: guide_mm.flatten(),
         outline_target: aids.target_overlay,
         breathing: moment.and_then(|m| m.breathing.clone()),
+        collections: moment.map_or_else(Vec::new, |m| consequences::fluid_collections(&m.consequences)),
     })
 }

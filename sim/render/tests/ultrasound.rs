@@ -42,6 +42,7 @@ fn scene(position: Vec3, lines: u32, echo: EchoTable) -> UltrasoundScene {
         guide_mm: None,
         outline_target: false,
         breathing: None,
+        collections: Vec::new(),
     }
 }
 

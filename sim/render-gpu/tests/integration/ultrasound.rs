@@ -5,8 +5,9 @@
 use std::sync::Arc;
 
 use crate::common::*;
-use stylet_physics::ProbeKind;
 use stylet_physics::glam::{Mat3, Quat, Vec3};
+use stylet_physics::{Consequence, ProbeKind};
+use stylet_render::consequences::FluidCollection;
 use stylet_render::image::diff;
 use stylet_render::synthetic::{RISK, TARGET};
 use stylet_render::tools::{NeedleShape, ProbeShape};
@@ -84,6 +85,19 @@ fn scene(both: &Both) -> UltrasoundScene {
         guide_mm: None,
         outline_target: true,
         breathing: None,
+        // A haematoma around the needle's middle and a bile leak beside it.
+        collections: vec![
+            FluidCollection {
+                kind: Consequence::Haematoma,
+                centre_mm: Vec3::new(0.0, -18.0, 12.0),
+                radius_mm: 8.0,
+            },
+            FluidCollection {
+                kind: Consequence::BileLeak,
+                centre_mm: Vec3::new(-18.0, -15.0, 12.0),
+                radius_mm: 5.0,
+            },
+        ],
     }
 }
 
@@ -99,6 +113,15 @@ fn gpu_ultrasound_matches_the_cpu_for_every_ct_storage() {
         );
         let gpu = us.render(ctx(), &both.gpu, &s).unwrap();
         assert_agree(name, &cpu, &gpu);
+        let without = UltrasoundScene {
+            collections: Vec::new(),
+            ..s.clone()
+        };
+        assert_ne!(
+            render(&both.cpu.atlas, &without).unwrap().bmode,
+            cpu.bmode,
+            "{name}: the collections show"
+        );
         // B-mode only, no needle: the same.
         let plain = UltrasoundScene {
             needle: None,
@@ -154,6 +177,7 @@ fn gpu_ultrasound_matches_the_cpu_on_the_phantom() {
         guide_mm: None,
         outline_target: false,
         breathing: None,
+        collections: Vec::new(),
     };
     let cpu = render(atlas, &s).unwrap();
     let mut us = GpuUltrasound::new(ctx());

@@ -38,6 +38,14 @@ pub const BLOOD: Acoustic = Acoustic {
     scatter: 0.02,
 };
 
+/// A fresh haematoma: blood that has begun to clot, hypoechoic with faint internal echoes
+/// (scatter an estimate: a quarter of liver's; clotted and days-old haematomas look otherwise).
+pub const HAEMATOMA: Acoustic = Acoustic {
+    impedance_mrayl: 1.61,
+    attenuation_db_per_cm_mhz: 0.2,
+    scatter: 0.25,
+};
+
 /// Solid tissue at `hu`.
 pub fn tissue(hu: f32) -> Acoustic {
     Acoustic {

@@ -34,6 +34,7 @@ pub use doppler::FlowField;
 pub use probe::ScanGeometry;
 
 use crate::RenderError;
+use crate::consequences::{COLLECTION_MAX_HU, COLLECTION_MIN_HU, FluidCollection};
 use crate::raycast::sampler::{Grid3, nearest_voxel};
 use crate::tools::{NeedleShape, ProbeShape};
 use crate::volume::IndexMap;
@@ -160,6 +161,9 @@ pub struct UltrasoundScene {
     pub outline_target: bool,
     /// The breathing motion at the frame's moment (eqs. 5.4.1–5.4.2); `None`: a still patient.
     pub breathing: Option<crate::scene::MotionHook>,
+    /// Haematomas and bile leaks (reference space): soft tissue inside one echoes as blood or
+    /// bile ([`crate::consequences`]); the first that holds a sample wins.
+    pub collections: Vec<FluidCollection>,
 }
 
 /// Per-sample flags of a [`Sonogram`].
@@ -252,6 +256,7 @@ pub struct FrameTables {
     pub tissue: Vec<SampleProps>,
     pub fluid: SampleProps,
     pub blood: SampleProps,
+    pub haematoma: SampleProps,
     pub tgc: Vec<f32>,
 }
 
@@ -270,12 +275,22 @@ impl FrameTables {
                 .collect(),
             fluid: props(acoustic::FLUID),
             blood: props(acoustic::BLOOD),
+            haematoma: props(acoustic::HAEMATOMA),
             tgc: (0..s.samples)
                 .map(|j| {
                     let z_cm = (j as f32 + 0.5) * dz_cm;
                     10f32.powf((TGC_DB_PER_CM_MHZ * s.frequency_mhz * 2.0 * z_cm) / 20.0)
                 })
                 .collect(),
+        }
+    }
+
+    /// What a fluid collection echoes like: a fresh haematoma, or clear fluid for bile.
+    #[inline]
+    pub fn collection(&self, c: &FluidCollection) -> SampleProps {
+        match c.kind {
+            stylet_physics::Consequence::BileLeak => self.fluid,
+            _ => self.haematoma,
         }
     }
 
@@ -332,6 +347,15 @@ impl<'a> Frame<'a> {
         }
     }
 
+    /// The fluid collection that replaces soft tissue of CT value `hu` at reference point `x`.
+    #[inline]
+    fn collection_at(&self, x: Vec3, hu: f32) -> Option<&FluidCollection> {
+        if !(COLLECTION_MIN_HU..COLLECTION_MAX_HU).contains(&hu) {
+            return None;
+        }
+        self.scene.collections.iter().find(|c| c.contains(x))
+    }
+
     /// One scan line: B-mode display values (0 … 1), Doppler colours and flags per sample.
     fn scan_line(&self, i: u32, bmode: &mut [f32], colour: &mut [[u8; 3]], flags: &mut [u8]) {
         let g = &self.geometry;
@@ -372,7 +396,10 @@ impl<'a> Frame<'a> {
                 continue;
             }
             let p = match class {
-                EchoClass::Tissue => self.tables.tissue_at(hu),
+                EchoClass::Tissue => match self.collection_at(x, hu) {
+                    Some(c) => self.tables.collection(c),
+                    None => self.tables.tissue_at(hu),
+                },
                 EchoClass::Fluid => self.tables.fluid,
                 EchoClass::Vein | EchoClass::Artery => self.tables.blood,
             };

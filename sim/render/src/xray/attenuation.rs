@@ -81,6 +81,34 @@ impl ContrastOverlay {
         })
     }
 
+    /// `base` with `changes` (CT voxel index, μ per mm) added: the box around both. `None` when
+    /// both are empty or a change lies outside `ct_dims`.
+    pub fn merged(
+        base: Option<&ContrastOverlay>,
+        changes: &[([usize; 3], f32)],
+        ct_dims: [usize; 3],
+    ) -> Option<ContrastOverlay> {
+        let mut voxels = changes.to_vec();
+        if let Some(b) = base {
+            let [nx, ny, nz] = b.dims.map(|d| d as usize);
+            let o = b.origin.map(|v| v as usize);
+            for k in 0..nz {
+                for j in 0..ny {
+                    for i in 0..nx {
+                        let mu = b.mu_per_mm[i + nx * (j + ny * k)];
+                        if mu != 0.0 {
+                            voxels.push(([o[0] + i, o[1] + j, o[2] + k], mu));
+                        }
+                    }
+                }
+            }
+        }
+        match ContrastOverlay::from_voxels(&voxels, ct_dims) {
+            None if changes.is_empty() => base.cloned(),
+            merged => merged,
+        }
+    }
+
     /// The contrast the simulation holds (docs/contrast.md), as a medium of `iodine_mg_per_ml`.
     /// A voxel cannot hold more than undiluted medium: the physics' ρ, which exceeds 1 at the node
     /// the syringe feeds (it conserves mass, not volume), is drawn as min(ρ, 1).
@@ -121,5 +149,15 @@ mod tests {
         assert_eq!(o.mu_per_mm, vec![1.0, 0.0, 0.0, 0.0, 0.0, 2.0]);
         assert!(ContrastOverlay::from_voxels(&[], [10, 10, 10]).is_none());
         assert!(ContrastOverlay::from_voxels(&[([10, 0, 0], 1.0)], [10, 10, 10]).is_none());
+    }
+
+    #[test]
+    fn merging_adds_changes_to_an_overlay_in_a_box_around_both() {
+        let base = ContrastOverlay::from_voxels(&[([3, 4, 5], 1.0)], [10, 10, 10]).unwrap();
+        let m = ContrastOverlay::merged(Some(&base), &[([3, 4, 5], -0.25), ([4, 4, 5], 0.5)], [10, 10, 10]).unwrap();
+        assert_eq!((m.origin, m.dims), ([3, 4, 5], [2, 1, 1]));
+        assert_eq!(m.mu_per_mm, vec![0.75, 0.5]);
+        assert_eq!(ContrastOverlay::merged(Some(&base), &[], [10, 10, 10]), Some(base));
+        assert_eq!(ContrastOverlay::merged(None, &[], [10, 10, 10]), None);
     }
 }
