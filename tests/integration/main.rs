@@ -11,6 +11,7 @@ mod accounts;
 mod benchmark;
 mod breathing;
 mod cli;
+mod complications;
 mod csp;
 mod dashboard;
 mod force_feedback;

@@ -457,6 +457,58 @@ fn the_live_ultrasound_of_a_two_handed_session_shows_the_needle_in_plane() {
     );
 }
 
+/// What a wrong puncture did, where a clinician looks (docs/complications.md "What the views
+/// show"): the haematoma around a portal-vein hit grows in the live ultrasound after the needle
+/// is out (only darker pixels: blood replacing liver); a lung hit's pneumothorax on the X-ray is
+/// air at the lung's surface (lighter) and the retracted lung's edge (darker).
+#[test]
+fn a_haematoma_grows_in_the_live_ultrasound_and_a_pneumothorax_shows_on_the_xray() {
+    let d = tempfile::tempdir().unwrap();
+    let atlas = phantom(d.path());
+    let session = d.path().join("vessel.mcap");
+    record(&atlas, "two-handed-vessel-hit", &session);
+    let s = session.to_str().unwrap();
+    let us = |name: &str, at: &str| {
+        view_png(
+            &atlas,
+            &d.path().join(name),
+            "ultrasound",
+            (320, 256),
+            &["--session", s, "--at", at],
+        )
+    };
+    // 16 s: the needle just out, about 8 ml of blood; 29.9 s: about 16 ml.
+    let (early, late) = (us("early.png", "16"), us("late.png", "29.9"));
+    let changed = differing(&early, &late, 30);
+    println!("haematoma growth: {} pixels", changed.len());
+    assert!(changed.len() > 150, "{}", changed.len());
+    assert!(changed.iter().all(|&(c, r)| late.get(c, r)[0] < early.get(c, r)[0]));
+
+    let session = d.path().join("lung.mcap");
+    record(&atlas, "lung-hit", &session);
+    let xray = |name: &str, extra: &[&str]| view_png(&atlas, &d.path().join(name), "xray", (256, 256), extra);
+    let before = xray("no-session.png", &["--scenario", "lung-hit"]);
+    // 13.9 s: the needle out again, the pleural space filled for 8 s.
+    let after = xray(
+        "pneumothorax.png",
+        &["--session", session.to_str().unwrap(), "--at", "13.9"],
+    );
+    let changed = differing(&before, &after, 3);
+    let lighter = changed
+        .iter()
+        .filter(|&&(c, r)| after.get(c, r)[0] > before.get(c, r)[0])
+        .count();
+    println!(
+        "pneumothorax: {lighter} pixels lighter, {} darker",
+        changed.len() - lighter
+    );
+    assert!(
+        lighter > 300 && changed.len() - lighter > 150,
+        "{lighter} of {}",
+        changed.len()
+    );
+}
+
 /// `--gpu` draws the same pictures as the CPU reference (on lavapipe where there is no GPU;
 /// scripts/test installs it), and a machine with no usable adapter gets a named error.
 #[test]

@@ -3,53 +3,12 @@
 //! phantom's scripted two-handed success and blind failure, recorded, replayed bit for bit (with
 //! deformation and breathing on) and scored.
 
-use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::path::Path;
 
-use crate::common::default_phantom;
-use stylet_atlas::Atlas;
-use stylet_devices::run_headless;
-use stylet_devices::script::{parse, scripted_simulation};
-use stylet_recorder::WriterOptions;
-use stylet_recorder::recording::{Recording, SessionInfo, header};
+use crate::common::{default_phantom, phantom_script_text as script, record_script as record, score_session as score};
 use stylet_scoring::live_guidance::LiveGuidance;
 use stylet_scoring::rubric::Rubric;
 use stylet_scoring::score::{ScoreReport, Scorer};
-
-fn script(name: &str) -> String {
-    std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("atlases/phantom/scripts")
-            .join(name),
-    )
-    .unwrap()
-}
-
-/// Records script `text` as scenario `scenario` at `difficulty` to `dir/scenario.mcap`.
-fn record(atlas: &Atlas, dir: &Path, scenario: &str, difficulty: &str, text: &str) -> PathBuf {
-    let (mut sim, mut device) =
-        scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &parse(text).unwrap()).unwrap();
-    let info = SessionInfo {
-        trainee: "two-hands",
-        scenario,
-        difficulty,
-        seed: 0,
-        atlas_id: &atlas.manifest.name,
-        atlas_hash: &atlas.content_hash,
-    };
-    let path = dir.join(format!("{scenario}-{difficulty}.mcap"));
-    let mut rec = Recording::start(&path, &header(&sim, &info), false, WriterOptions::default()).unwrap();
-    run_headless(&mut sim, &mut device, |i, o, s| rec.tick(i, o, s));
-    rec.finish().unwrap();
-    path
-}
-
-fn score(atlas: &Atlas, path: &Path) -> ScoreReport {
-    Scorer::new(atlas, Rubric::default_rubric(), None)
-        .unwrap()
-        .score_file(path)
-        .unwrap()
-}
 
 /// The phantom's script `name` recorded at `difficulty`, replayed (verified) and scored, with
 /// its live guidance.

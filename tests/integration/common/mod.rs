@@ -8,10 +8,16 @@ pub mod browser;
 
 use std::path::{Path, PathBuf};
 use std::process::Output;
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 use stylet_atlas::Atlas;
 use stylet_atlas::import::{ImportReport, import};
+use stylet_devices::run_headless;
+use stylet_devices::script::{parse, scripted_simulation};
+use stylet_recorder::WriterOptions;
+use stylet_recorder::recording::{Recording, SessionInfo, header};
+use stylet_scoring::rubric::Rubric;
+use stylet_scoring::score::{ScoreReport, Scorer};
 pub use stylet_testkit::{
     Auth, Db, Fixture, Page, Server, Stylet, call, contract, get_bytes, login, on_both_databases, page, phantom_script,
     raw_post, raw_post_as, s, upload, upload_scored, wait_scored,
@@ -143,4 +149,41 @@ pub fn python() -> PathBuf {
         String::from_utf8_lossy(&out.stderr)
     );
     PathBuf::from(String::from_utf8(out.stdout).unwrap().trim())
+}
+
+/// The text of the phantom's script file `name` (atlases/phantom/scripts).
+pub fn phantom_script_text(name: &str) -> String {
+    std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("atlases/phantom/scripts")
+            .join(name),
+    )
+    .unwrap()
+}
+
+/// Records script `text` as scenario `scenario` at `difficulty` to `dir/scenario.mcap`.
+pub fn record_script(atlas: &Atlas, dir: &Path, scenario: &str, difficulty: &str, text: &str) -> PathBuf {
+    let (mut sim, mut device) =
+        scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &parse(text).unwrap()).unwrap();
+    let info = SessionInfo {
+        trainee: "integration",
+        scenario,
+        difficulty,
+        seed: 0,
+        atlas_id: &atlas.manifest.name,
+        atlas_hash: &atlas.content_hash,
+    };
+    let path = dir.join(format!("{scenario}-{difficulty}.mcap"));
+    let mut rec = Recording::start(&path, &header(&sim, &info), false, WriterOptions::default()).unwrap();
+    run_headless(&mut sim, &mut device, |i, o, s| rec.tick(i, o, s));
+    rec.finish().unwrap();
+    path
+}
+
+/// `path` replayed and scored with the default rubric.
+pub fn score_session(atlas: &Atlas, path: &Path) -> ScoreReport {
+    Scorer::new(atlas, Rubric::default_rubric(), None)
+        .unwrap()
+        .score_file(path)
+        .unwrap()
 }
