@@ -58,7 +58,7 @@ fn main() {
         guide_mm: None,
         outline_target: true,
         breathing: None,
-        collections: Vec::new(),
+        consequences: Default::default(),
     };
     // The needle along the planned path, 80 % of the way in.
     let (e, tg) = (path.entry_mm.as_vec3(), path.target_mm.as_vec3());

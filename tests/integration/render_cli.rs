@@ -460,39 +460,45 @@ fn the_live_ultrasound_of_a_two_handed_session_shows_the_needle_in_plane() {
 /// What a wrong puncture did, where a clinician looks (docs/complications.md "What the views
 /// show"): the haematoma around a portal-vein hit grows in the live ultrasound after the needle
 /// is out (only darker pixels: blood replacing liver); a lung hit's pneumothorax on the X-ray is
-/// air at the lung's surface (lighter) and the retracted lung's edge (darker).
+/// air at the lung's surface (lighter) and the retracted lung's edge (darker), and on the live
+/// ultrasound the pleural line loses the grain of the lung sliding under it (only darker).
 #[test]
-fn a_haematoma_grows_in_the_live_ultrasound_and_a_pneumothorax_shows_on_the_xray() {
+fn a_haematoma_grows_in_the_live_ultrasound_and_a_pneumothorax_shows_on_the_xray_and_ultrasound() {
     let d = tempfile::tempdir().unwrap();
     let atlas = phantom(d.path());
-    let session = d.path().join("vessel.mcap");
-    record(&atlas, "two-handed-vessel-hit", &session);
-    let s = session.to_str().unwrap();
-    let us = |name: &str, at: &str| {
+    let recorded = |name: &str| {
+        let session = d.path().join(format!("{name}.mcap"));
+        record(&atlas, name, &session);
+        session.to_str().unwrap().to_string()
+    };
+    let us = |session: &str, at: &str| {
         view_png(
             &atlas,
-            &d.path().join(name),
+            &d.path().join(format!("us-{at}.png")),
             "ultrasound",
             (320, 256),
-            &["--session", s, "--at", at],
+            &["--session", session, "--at", at, "--difficulty", "expert"],
         )
     };
+    let only_darker = |before: &Image, after: &Image| {
+        let changed = differing(before, after, 30);
+        let darker = changed
+            .iter()
+            .filter(|&&(c, r)| after.get(c, r)[0] < before.get(c, r)[0])
+            .count();
+        (darker, changed.len())
+    };
     // 16 s: the needle just out, about 8 ml of blood; 29.9 s: about 16 ml.
-    let (early, late) = (us("early.png", "16"), us("late.png", "29.9"));
-    let changed = differing(&early, &late, 30);
-    println!("haematoma growth: {} pixels", changed.len());
-    assert!(changed.len() > 150, "{}", changed.len());
-    assert!(changed.iter().all(|&(c, r)| late.get(c, r)[0] < early.get(c, r)[0]));
+    let vessel = recorded("two-handed-vessel-hit");
+    let (darker, changed) = only_darker(&us(&vessel, "16"), &us(&vessel, "29.9"));
+    println!("haematoma growth: {darker} of {changed} changed pixels darker");
+    assert!(darker > 150 && darker == changed, "{darker} of {changed}");
 
-    let session = d.path().join("lung.mcap");
-    record(&atlas, "lung-hit", &session);
+    let lung = recorded("lung-hit");
     let xray = |name: &str, extra: &[&str]| view_png(&atlas, &d.path().join(name), "xray", (256, 256), extra);
     let before = xray("no-session.png", &["--scenario", "lung-hit"]);
     // 13.9 s: the needle out again, the pleural space filled for 8 s.
-    let after = xray(
-        "pneumothorax.png",
-        &["--session", session.to_str().unwrap(), "--at", "13.9"],
-    );
+    let after = xray("pneumothorax.png", &["--session", &lung, "--at", "13.9"]);
     let changed = differing(&before, &after, 3);
     let lighter = changed
         .iter()
@@ -507,6 +513,13 @@ fn a_haematoma_grows_in_the_live_ultrasound_and_a_pneumothorax_shows_on_the_xray
         "{lighter} of {}",
         changed.len()
     );
+
+    // The probe across the ribs over the lung base, pressed on: before the lung hit (2 s, the
+    // needle still outside) and after it (15.9 s, the needle out again).
+    let lung_us = recorded("two-handed-lung-hit");
+    let (darker, changed) = only_darker(&us(&lung_us, "2"), &us(&lung_us, "15.9"));
+    println!("lung sliding lost: {darker} of {changed} changed pixels darker");
+    assert!(darker > 40 && darker == changed, "{darker} of {changed}");
 }
 
 /// `--gpu` draws the same pictures as the CPU reference (on lavapipe where there is no GPU;

@@ -343,7 +343,7 @@ fn views(ctx: &GpuContext, atlas: &stylet_atlas::Atlas, cpu: &RenderVolume, gpu:
         guide_mm: None,
         outline_target: true,
         breathing: None,
-        collections: Vec::new(),
+        consequences: Default::default(),
     };
     let (e, tg) = (path.entry_mm.as_vec3(), path.target_mm.as_vec3());
     let full = UltrasoundScene {

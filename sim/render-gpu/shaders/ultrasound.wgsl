@@ -28,7 +28,7 @@ struct Params {
     blood: vec4<f32>,
     flow_first: vec4<i32>, // first cell of the dense flow grid
     flow_dims: vec4<u32>,  // cells per axis; w: speckle seed
-    collect: vec4<f32>,    // fluid collections: count, soft tissue from / below (HU)
+    collect: vec4<f32>,    // fluid collections: count, soft tissue from / below (HU); w: pleura scatter
 }
 
 @group(0) @binding(0) var<uniform> P: Params;
@@ -216,15 +216,21 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
                 let h = clamp(i32(floor(hu + 0.5)) - LUT_LOW_HU, 0, LUT_LEN - 1);
                 props = tissue[h].xyz;
                 // mod.rs `collection_at`: the first collection holding soft tissue here.
+                var in_collection = false;
                 if hu >= P.collect.y && hu < P.collect.z {
                     for (var m = 0u; m < u32(P.collect.x); m++) {
                         let c = collections[2u * m];
                         let d = x - c.xyz;
                         if dot(d, d) <= c.w {
                             props = collections[2u * m + 1u].xyz;
+                            in_collection = true;
                             break;
                         }
                     }
+                }
+                // mod.rs `slides`: the surface of a lung that slides under the chest wall.
+                if !in_collection && (code & 512u) != 0u {
+                    props.z = P.collect.w;
                 }
             } else if kind >= 2u {
                 props = P.blood.xyz;

@@ -12,6 +12,7 @@ use bytemuck::{Pod, Zeroable};
 use stylet_render::consequences::{COLLECTION_MAX_HU, COLLECTION_MIN_HU};
 use stylet_render::tools::{CONVEX_HALF_ANGLE_DEG, CONVEX_RADIUS_MM};
 use stylet_render::ultrasound::EchoClass;
+use stylet_render::ultrasound::acoustic::PLEURA_SCATTER;
 use stylet_render::ultrasound::doppler::{self, CELL_MM, SCALE_M_S, WALL_FILTER_M_S};
 use stylet_render::ultrasound::needle::{REVERB_DECAY, REVERB_ECHOES, STEEL_REFLECTION, TRANSMISSION};
 use stylet_render::ultrasound::{
@@ -109,7 +110,7 @@ impl GpuUltrasound {
             .map(|h| h.map_or([0.0; 4], |(h, j)| [h.depth_mm, h.specular, j as f32, 1.0]))
             .collect();
         let classes = {
-            let c = scene.echo.packed();
+            let c = scene.echo.packed(&scene.consequences.air_in_pleura);
             if c.is_empty() { vec![0] } else { c }
         };
         let grid = atlas.ct().grid();
@@ -168,10 +169,10 @@ impl GpuUltrasound {
                 speckle::lattice_seed(scene.seed),
             ],
             collect: [
-                scene.collections.len() as f32,
+                scene.consequences.collections.len() as f32,
                 COLLECTION_MIN_HU,
                 COLLECTION_MAX_HU,
-                0.0,
+                PLEURA_SCATTER,
             ],
         };
         ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
@@ -181,6 +182,7 @@ impl GpuUltrasound {
         let tgc = storage(ctx, "tgc", bytemuck::cast_slice(&tables.tgc));
         let hits = storage(ctx, "needle hits", bytemuck::cast_slice(&hits));
         let mut fluid: Vec<[f32; 4]> = scene
+            .consequences
             .collections
             .iter()
             .flat_map(|c| [v4(c.centre_mm, c.radius_mm * c.radius_mm), props(tables.collection(c))])

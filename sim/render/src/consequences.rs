@@ -6,8 +6,9 @@
 //!   puncture: on ultrasound it replaces the soft tissue's echo with a fresh haematoma's
 //!   (hypoechoic, faint speckle) or bile's (anechoic); on the X-ray its CT value replaces the tissue's
 //!   (fresh blood 55 HU, bile 10 HU: barely different from liver, as on a real fluoroscopy);
-//! - a pneumothorax is air between the chest wall and the lung: the punctured lung's outer
-//!   layers turn to air, layer by layer from its surface all round (the lung retracting evenly,
+//! - a pneumothorax is air between the chest wall and the lung: on ultrasound the lung's surface
+//!   loses the texture that slides with it under the chest wall (lung sliding lost); on the X-ray
+//!   the punctured lung's outer layers turn to air, layer by layer from its surface all round (the lung retracting evenly,
 //!   as on an upright film), until they hold the leaked volume; the lung tissue they held is laid on the next two layers, the denser edge of
 //!   the retracted lung (the visceral pleural line the radiologist looks for).
 //!
@@ -53,6 +54,39 @@ impl FluidCollection {
             Consequence::BileLeak => BILE_HU,
             _ => BLOOD_HU,
         }
+    }
+}
+
+/// What the ultrasound draws of a moment's consequences.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ConsequenceScene {
+    /// Haematomas and bile leaks: soft tissue inside one echoes as blood or bile; the first
+    /// that holds a sample wins.
+    pub collections: Vec<FluidCollection>,
+    /// The lungs with air in their pleural space: their surface no longer slides under the chest
+    /// wall (`ultrasound::acoustic::PLEURA_SCATTER`).
+    pub air_in_pleura: Vec<LabelId>,
+}
+
+impl ConsequenceScene {
+    pub fn of_sites(sites: &[Site]) -> ConsequenceScene {
+        let mut air_in_pleura: Vec<LabelId> = sites
+            .iter()
+            .filter(|s| s.volume_ml > 0.0 && s.kind.consequence() == Consequence::Pneumothorax)
+            .map(|s| s.label)
+            .collect();
+        air_in_pleura.sort_unstable();
+        air_in_pleura.dedup();
+        ConsequenceScene {
+            collections: fluid_collections(sites),
+            air_in_pleura,
+        }
+    }
+
+    /// Whether lung `label` has air in its pleural space.
+    #[inline]
+    pub fn air_in_pleura_of(&self, label: LabelId) -> bool {
+        self.air_in_pleura.contains(&label)
     }
 }
 

@@ -12,7 +12,7 @@ use stylet_physics::{DeformField, ProbeKind, Simulation, TickInput, TickOutput};
 
 use crate::RenderError;
 use crate::annotate::{Annotations, annotate};
-use crate::consequences;
+use crate::consequences::{self, ConsequenceScene};
 use crate::image::Image;
 use crate::mpr::{self, Plane, SliceSpec};
 use crate::presets::{self, Preset};
@@ -413,6 +413,6 @@ pub fn ultrasound_scene(
         guide_mm: guide_mm.flatten(),
         outline_target: aids.target_overlay,
         breathing: moment.and_then(|m| m.breathing.clone()),
-        collections: moment.map_or_else(Vec::new, |m| consequences::fluid_collections(&m.consequences)),
+        consequences: moment.map_or_else(Default::default, |m| ConsequenceScene::of_sites(&m.consequences)),
     })
 }

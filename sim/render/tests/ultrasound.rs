@@ -42,7 +42,7 @@ fn scene(position: Vec3, lines: u32, echo: EchoTable) -> UltrasoundScene {
         guide_mm: None,
         outline_target: false,
         breathing: None,
-        collections: Vec::new(),
+        consequences: Default::default(),
     }
 }
 
@@ -392,4 +392,57 @@ fn bad_scenes_are_refused_with_the_problem_named() {
         let e = render(&atlas, &s).expect_err(word).to_string();
         assert!(e.contains(word), "{word}: {e}");
     }
+}
+
+/// Soft tissue over an aerated lung (−850 HU, label [`LUNG`]) from 30 mm under the probe: the
+/// pleural line. Marked as a lung, its surface gets the grain that slides with it (docs/ultrasound.md
+/// "Consequences of a wrong puncture"); with air in its pleural space the grain is gone and the
+/// frame is the plain one, bit for bit.
+#[test]
+fn a_sliding_lung_surface_has_grain_and_a_pneumothorax_takes_it_away() {
+    const LUNG: u16 = synthetic::RISK;
+    let atlas = synthetic::atlas(
+        N,
+        SPACING_MM,
+        |p| if p.z >= -10.0 { -850.0 } else { TISSUE_HU },
+        |p| if p.z >= -10.0 { LUNG } else { 0 },
+    );
+    let at = Vec3::new(0.0, 0.0, -40.0);
+    let plain = render(&atlas, &scene(at, 128, EchoTable::default())).unwrap();
+    let lung = || EchoTable::default().with_pleura(&[LUNG]);
+    let sliding = render(&atlas, &scene(at, 128, lung())).unwrap();
+    let mut pneumothorax = scene(at, 128, lung());
+    pneumothorax.consequences.air_in_pleura = vec![LUNG];
+    let still = render(&atlas, &pneumothorax).unwrap();
+    assert!(
+        plain
+            .bmode
+            .iter()
+            .zip(&still.bmode)
+            .all(|(a, b)| a.to_bits() == b.to_bits())
+    );
+    // Above the pleura nothing changes; at it (30 mm: samples ≈ 128), the grain.
+    let (above, pleura) = (0..120, 124..136);
+    for i in 0..128 {
+        for j in above.clone() {
+            assert_eq!(
+                plain.bmode[plain.at(i, j)].to_bits(),
+                sliding.bmode[sliding.at(i, j)].to_bits()
+            );
+        }
+    }
+    // Each line's pleural band (the line and the millimetre of lung under it): brighter with the
+    // grain, and unevenly so from line to line.
+    let band = |s: &Sonogram| -> Vec<f32> { (8..120).map(|i| mean(s, i..i + 1, pleura.clone())).collect() };
+    let spread = |v: &[f32]| {
+        let m = v.iter().sum::<f32>() / v.len() as f32;
+        (
+            m,
+            (v.iter().map(|p| (p - m) * (p - m)).sum::<f32>() / v.len() as f32).sqrt(),
+        )
+    };
+    let ((grain_mean, grain), (plain_mean, smooth)) = (spread(&band(&sliding)), spread(&band(&plain)));
+    println!("pleural band: sliding {grain_mean:.3} ± {grain:.4}, plain {plain_mean:.3} ± {smooth:.4}");
+    assert!(grain_mean > plain_mean + 0.03, "{grain_mean} {plain_mean}");
+    assert!(grain > 1.5 * smooth, "{grain} {smooth}");
 }

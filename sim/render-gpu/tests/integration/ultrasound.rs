@@ -7,7 +7,7 @@ use std::sync::Arc;
 use crate::common::*;
 use stylet_physics::glam::{Mat3, Quat, Vec3};
 use stylet_physics::{Consequence, ProbeKind};
-use stylet_render::consequences::FluidCollection;
+use stylet_render::consequences::{ConsequenceScene, FluidCollection};
 use stylet_render::image::diff;
 use stylet_render::synthetic::{RISK, TARGET};
 use stylet_render::tools::{NeedleShape, ProbeShape};
@@ -86,18 +86,21 @@ fn scene(both: &Both) -> UltrasoundScene {
         outline_target: true,
         breathing: None,
         // A haematoma around the needle's middle and a bile leak beside it.
-        collections: vec![
-            FluidCollection {
-                kind: Consequence::Haematoma,
-                centre_mm: Vec3::new(0.0, -18.0, 12.0),
-                radius_mm: 8.0,
-            },
-            FluidCollection {
-                kind: Consequence::BileLeak,
-                centre_mm: Vec3::new(-18.0, -15.0, 12.0),
-                radius_mm: 5.0,
-            },
-        ],
+        consequences: ConsequenceScene {
+            collections: vec![
+                FluidCollection {
+                    kind: Consequence::Haematoma,
+                    centre_mm: Vec3::new(0.0, -18.0, 12.0),
+                    radius_mm: 8.0,
+                },
+                FluidCollection {
+                    kind: Consequence::BileLeak,
+                    centre_mm: Vec3::new(-18.0, -15.0, 12.0),
+                    radius_mm: 5.0,
+                },
+            ],
+            air_in_pleura: Vec::new(),
+        },
     }
 }
 
@@ -114,7 +117,7 @@ fn gpu_ultrasound_matches_the_cpu_for_every_ct_storage() {
         let gpu = us.render(ctx(), &both.gpu, &s).unwrap();
         assert_agree(name, &cpu, &gpu);
         let without = UltrasoundScene {
-            collections: Vec::new(),
+            consequences: Default::default(),
             ..s.clone()
         };
         assert_ne!(
@@ -122,6 +125,24 @@ fn gpu_ultrasound_matches_the_cpu_for_every_ct_storage() {
             cpu.bmode,
             "{name}: the collections show"
         );
+        // The target marked as a lung: its surface's grain on both; air in its pleural space
+        // takes it away on both.
+        let lung = |air: Vec<u16>| UltrasoundScene {
+            echo: Arc::new((*s.echo).clone().with_pleura(&[TARGET])),
+            consequences: ConsequenceScene {
+                air_in_pleura: air,
+                ..s.consequences.clone()
+            },
+            ..s.clone()
+        };
+        for (what, scene) in [("sliding", lung(Vec::new())), ("still", lung(vec![TARGET]))] {
+            let (c, g) = (
+                render(&both.cpu.atlas, &scene).unwrap(),
+                us.render(ctx(), &both.gpu, &scene).unwrap(),
+            );
+            assert_agree(&format!("{name} {what} lung"), &c, &g);
+            assert_eq!(c.bmode == cpu.bmode, what == "still", "{name} {what}");
+        }
         // B-mode only, no needle: the same.
         let plain = UltrasoundScene {
             needle: None,
@@ -177,7 +198,7 @@ fn gpu_ultrasound_matches_the_cpu_on_the_phantom() {
         guide_mm: None,
         outline_target: false,
         breathing: None,
-        collections: Vec::new(),
+        consequences: Default::default(),
     };
     let cpu = render(atlas, &s).unwrap();
     let mut us = GpuUltrasound::new(ctx());

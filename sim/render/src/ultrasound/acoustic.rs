@@ -46,6 +46,13 @@ pub const HAEMATOMA: Acoustic = Acoustic {
     scatter: 0.25,
 };
 
+/// Scatter at an aerated lung's surface (relative to liver): the sub-pleural texture that moves
+/// with the lung as it slides under the chest wall while the patient breathes ("lung sliding").
+/// Only the first lung sample shows it (the sound is gone a fraction of a millimetre into air).
+/// A pneumothorax separates the pleurae: the surface then is still air and shows none. An
+/// estimate, chosen to give the pleural line a visible grain.
+pub const PLEURA_SCATTER: f32 = 50.0;
+
 /// Solid tissue at `hu`.
 pub fn tissue(hu: f32) -> Acoustic {
     Acoustic {
@@ -83,6 +90,8 @@ fn piecewise(hu: f32, values: &[f32; 8]) -> f32 {
 pub struct EchoTable {
     class: Vec<EchoClass>,
     target: Vec<bool>,
+    /// Lungs: labels with a pleura that slides under the chest wall.
+    pleural: Vec<LabelId>,
 }
 
 impl EchoTable {
@@ -97,6 +106,7 @@ impl EchoTable {
         let mut t = EchoTable {
             class: vec![EchoClass::Tissue; n],
             target: vec![false; n],
+            pleural: Vec::new(),
         };
         for &(id, c) in classes {
             t.class[id as usize] = c;
@@ -119,7 +129,27 @@ impl EchoTable {
             .filter(|l| l.role == stylet_physics::Role::Target)
             .map(|l| l.id)
             .collect();
-        EchoTable::new(&stylet_atlas::manifest::echo_classes(&m.labels, &m.tissues), &targets)
+        let lungs: Vec<LabelId> = stylet_physics::complications::label_kinds(&atlas.model)
+            .into_iter()
+            .filter(|(_, k)| *k == stylet_physics::ComplicationKind::Pneumothorax)
+            .map(|(l, _)| l)
+            .collect();
+        EchoTable::new(&stylet_atlas::manifest::echo_classes(&m.labels, &m.tissues), &targets).with_pleura(&lungs)
+    }
+
+    /// The table with `lungs` as the labels whose surface slides under the chest wall (the
+    /// tissues whose puncture lets air into a pleural space).
+    pub fn with_pleura(mut self, lungs: &[LabelId]) -> EchoTable {
+        self.pleural = lungs.to_vec();
+        self.pleural.sort_unstable();
+        self.pleural.dedup();
+        self
+    }
+
+    /// Whether `id` is a lung (a label with a pleura).
+    #[inline]
+    pub fn is_pleural(&self, id: LabelId) -> bool {
+        self.pleural.binary_search(&id).is_ok()
     }
 
     #[inline]
@@ -133,18 +163,22 @@ impl EchoTable {
     }
 
     /// Per label id: the class's code (0 tissue, 1 fluid, 2 vein, 3 artery) | 256 when it is a
-    /// target label (what the GPU reads).
-    pub fn packed(&self) -> Vec<u32> {
+    /// target label | 512 when it is a lung whose surface slides (not in `air_in_pleura`): what
+    /// the GPU reads.
+    pub fn packed(&self, air_in_pleura: &[LabelId]) -> Vec<u32> {
         let code = |c: EchoClass| match c {
             EchoClass::Tissue => 0,
             EchoClass::Fluid => 1,
             EchoClass::Vein => 2,
             EchoClass::Artery => 3,
         };
-        self.class
-            .iter()
-            .zip(&self.target)
-            .map(|(&c, &t)| code(c) | if t { 256 } else { 0 })
+        let n = self.class.len().max(self.pleural.last().map_or(0, |&l| l as usize + 1));
+        (0..n)
+            .map(|id| {
+                let label = id as LabelId;
+                let slides = self.is_pleural(label) && !air_in_pleura.contains(&label);
+                code(self.class(label)) | if self.is_target(label) { 256 } else { 0 } | if slides { 512 } else { 0 }
+            })
             .collect()
     }
 

@@ -34,7 +34,7 @@ pub use doppler::FlowField;
 pub use probe::ScanGeometry;
 
 use crate::RenderError;
-use crate::consequences::{COLLECTION_MAX_HU, COLLECTION_MIN_HU, FluidCollection};
+use crate::consequences::{COLLECTION_MAX_HU, COLLECTION_MIN_HU, ConsequenceScene, FluidCollection};
 use crate::raycast::sampler::{Grid3, nearest_voxel};
 use crate::tools::{NeedleShape, ProbeShape};
 use crate::volume::IndexMap;
@@ -161,9 +161,9 @@ pub struct UltrasoundScene {
     pub outline_target: bool,
     /// The breathing motion at the frame's moment (eqs. 5.4.1–5.4.2); `None`: a still patient.
     pub breathing: Option<crate::scene::MotionHook>,
-    /// Haematomas and bile leaks (reference space): soft tissue inside one echoes as blood or
-    /// bile ([`crate::consequences`]); the first that holds a sample wins.
-    pub collections: Vec<FluidCollection>,
+    /// What wrong punctures did (reference space, [`crate::consequences`]): fluid collections,
+    /// lungs with air in their pleural space.
+    pub consequences: ConsequenceScene,
 }
 
 /// Per-sample flags of a [`Sonogram`].
@@ -353,7 +353,14 @@ impl<'a> Frame<'a> {
         if !(COLLECTION_MIN_HU..COLLECTION_MAX_HU).contains(&hu) {
             return None;
         }
-        self.scene.collections.iter().find(|c| c.contains(x))
+        self.scene.consequences.collections.iter().find(|c| c.contains(x))
+    }
+
+    /// Whether `label` is a lung whose surface slides under the chest wall: an aerated lung with
+    /// no air in its pleural space.
+    #[inline]
+    fn slides(&self, label: stylet_physics::LabelId) -> bool {
+        self.scene.echo.is_pleural(label) && !self.scene.consequences.air_in_pleura_of(label)
     }
 
     /// One scan line: B-mode display values (0 … 1), Doppler colours and flags per sample.
@@ -398,6 +405,10 @@ impl<'a> Frame<'a> {
             let p = match class {
                 EchoClass::Tissue => match self.collection_at(x, hu) {
                     Some(c) => self.tables.collection(c),
+                    None if self.slides(label) => SampleProps {
+                        scatter: acoustic::PLEURA_SCATTER,
+                        ..self.tables.tissue_at(hu)
+                    },
                     None => self.tables.tissue_at(hu),
                 },
                 EchoClass::Fluid => self.tables.fluid,
