@@ -309,7 +309,7 @@ fn a_hand_on_the_dhd_double_feels_the_skin_and_is_safe_when_the_tick_stalls() {
 /// recorded in the notes, and the file replays and scores like any other.
 #[test]
 fn a_session_with_the_haply_double_records_the_device_and_its_clutch() {
-    use stylet_app::session::{Driver, RunningSession, SessionPlan};
+    use stylet_app::session::{Driver, HandDevice, LiveHands, RunningSession, SessionPlan};
     use stylet_devices::haptic::DeviceChoice;
 
     let dir = tempfile::tempdir().unwrap();
@@ -335,7 +335,11 @@ fn a_session_with_the_haply_double_records_the_device_and_its_clutch() {
         library: None,
         url: Some(double.url.clone()),
     };
-    let run = RunningSession::start(plan, Driver::HapticDevice(choice, Mapping::default()), true).unwrap();
+    let hands = LiveHands {
+        needle: HandDevice::ForceFeedback(choice, Mapping::default()),
+        probe: None,
+    };
+    let run = RunningSession::start(plan, Driver::Live(hands), true).unwrap();
     assert_eq!(run.moved_by(), Some("Inverse3 0D0B (haply)"));
     let wait_ticks = |n: u64| {
         let began = Instant::now();
@@ -417,4 +421,89 @@ fn a_session_with_the_haply_double_records_the_device_and_its_clutch() {
     let chart = stylet_dashboard::charts::force_chart(&trace, "Force");
     assert!(chart.series.iter().any(|s| s.name.starts_with("sent to the device")));
     assert!(chart.bands.iter().any(|b| b.3 == "force zeroed by the device guard"));
+}
+
+/// Two hands by hand (docs/simulator.md "Hands and devices"): the keys and mouse hold the first
+/// hand's tool out of reach, the Haply double holds the convex probe in the second hand and
+/// presses it into the skin. The double feels the probe's force (the first hand's is zero all
+/// along), clamped to its limit and zero at the end; the file records both hands and replays
+/// verified.
+#[test]
+fn a_force_feedback_device_in_the_probe_hand_feels_the_probe() {
+    use stylet_app::session::{Driver, HandDevice, LiveHands, RunningSession, SessionPlan, probe_start_pose};
+    use stylet_devices::haptic::DeviceChoice;
+    use stylet_physics::{HandTool, ProbeKind};
+
+    let dir = tempfile::tempdir().unwrap();
+    let p = stylet_atlas::phantom::generate(&stylet_atlas::phantom::PhantomConfig {
+        dims: [64, 64, 50],
+        spacing_mm: [6.0; 3],
+        ..Default::default()
+    })
+    .unwrap();
+    stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
+    let atlas = Arc::new(stylet_atlas::load(dir.path()).unwrap());
+    let plan = SessionPlan {
+        atlas: Arc::clone(&atlas),
+        scenario: atlas.manifest.scenarios[0].name.clone(),
+        difficulty: stylet_scoring::Difficulty::Beginner,
+        trainee: "tina".into(),
+        seed: 1,
+        sessions_dir: dir.path().join("sessions"),
+    };
+    let double = HaplyDouble::start(pushing_hand(Backend::Haply, 30.0)).unwrap();
+    let choice = DeviceChoice {
+        backend: Backend::Haply,
+        library: None,
+        url: Some(double.url.clone()),
+    };
+    let (_, probe_q) = probe_start_pose(&plan);
+    let hands = LiveHands {
+        needle: HandDevice::KeysAndMouse,
+        probe: Some((
+            HandDevice::ForceFeedback(choice, Mapping::default()),
+            HandTool::Probe(ProbeKind::Convex),
+        )),
+    };
+    let run = RunningSession::start(plan, Driver::Live(hands), true).unwrap();
+    assert_eq!(
+        (run.moved_by(), run.probe_moved_by()),
+        (None, Some("Inverse3 0D0B (haply)"))
+    );
+    // The keys steer the first hand; the hand moving away from the user pushes the probe in.
+    let keys = run.steered_by_keys().unwrap().pose().unwrap();
+    assert_eq!(Some(keys), run.live().unwrap().pose());
+    run.probe_live()
+        .unwrap()
+        .set_view(DQuat::from_rotation_arc(DVec3::Y, probe_q * DVec3::Z));
+    let began = Instant::now();
+    while run.stats().ticks < 5500 && began.elapsed() < Duration::from_secs(30) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let finished = run.finish().unwrap();
+    let felt = double.forces();
+    let felt_peak = felt
+        .iter()
+        .map(|f| DVec3::new(f[1], f[2], f[3]).length())
+        .fold(0.0, f64::max);
+    assert!(felt_peak > 0.3 && felt_peak <= 2.0 + 1e-9, "felt {felt_peak} N");
+    assert_eq!(felt.last().map(|f| [f[1], f[2], f[3]]), Some([0.0; 3]));
+    let session = stylet_recorder::reader::read(&finished.path).unwrap();
+    let hand2 = session.header.second_hand.clone().expect("a two-handed header");
+    assert_eq!(
+        (hand2.device.as_str(), hand2.initial_tool),
+        ("touch", Some(HandTool::Probe(ProbeKind::Convex)))
+    );
+    // The first hand never touched; the second pressed on the skin.
+    assert!(session.ticks.iter().all(|t| t.force_n == [0.0; 3]));
+    let pressed = session
+        .ticks
+        .iter()
+        .filter_map(|t| t.second_hand.map(|h| DVec3::from_array(h.force_n).length()))
+        .fold(0.0, f64::max);
+    assert!(pressed > 0.3, "the probe pressed with {pressed} N");
+    // The device forces the file records are the needle hand's device's: none here.
+    assert!(session.header.hardware.is_none() && session.device_forces.is_empty());
+    let report = finished.score().unwrap();
+    assert!(report.replay_verified, "{:?}", report.divergence);
 }

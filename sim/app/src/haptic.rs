@@ -54,6 +54,10 @@ pub struct Snapshot {
     pub output: TickOutput,
     /// The tools, the contrast medium and the session's labels at this tick.
     pub moment: Moment,
+    /// What the first hand holds.
+    pub tool: stylet_physics::ToolSpec,
+    /// What the second hand holds (two-handed sessions).
+    pub second_tool: Option<stylet_physics::HandTool>,
 }
 
 /// Counters the loop keeps for the status bar (read at any time, never locked).
@@ -492,6 +496,8 @@ fn snapshot_of(
         orientation: input.orientation,
         output: *out,
         moment: Moment::with_contrast(sim, input, out, labels, contrast.get(sim, out)),
+        tool: *sim.tool_spec(),
+        second_tool: sim.second_hand().and_then(|h| h.tool_spec()),
     }
 }
 

@@ -10,6 +10,7 @@
 
 pub mod controls;
 pub mod credentials;
+pub mod hands;
 pub mod haptic;
 pub mod outbox;
 pub mod pacing;

@@ -136,17 +136,143 @@ impl SessionPlan {
 /// Who moves the tools.
 #[allow(clippy::large_enum_variant, reason = "one per session, made once when it starts")]
 pub enum Driver {
-    /// The trainee, through the window (keyboard, mouse, SpaceMouse, tablet).
-    Hands,
+    /// The trainee: each hand's tool moved by its own device (docs/simulator.md "Hands and
+    /// devices"); the window gives the commands.
+    Live(LiveHands),
     /// A device script (docs/scripts.md): demonstrations and tests of the whole application.
     Script(String),
+}
+
+impl Driver {
+    /// One hand, moved by the window's keys and mouse.
+    pub fn keys_and_mouse() -> Driver {
+        Driver::Live(LiveHands {
+            needle: HandDevice::KeysAndMouse,
+            probe: None,
+        })
+    }
+}
+
+/// The devices of a live session: the first hand's (the needle hand) and, with two hands, the
+/// second hand's and what it holds at the start.
+pub struct LiveHands {
+    pub needle: HandDevice,
+    pub probe: Option<(HandDevice, stylet_physics::HandTool)>,
+}
+
+/// What moves one hand's tool in a live session.
+#[allow(clippy::large_enum_variant, reason = "two per session at most")]
+pub enum HandDevice {
+    /// The window's keys and mouse: the tool follows the pose they steer.
+    KeysAndMouse,
+    /// The first connected SpaceMouse, by rate control.
+    SpaceMouse,
+    /// The first connected gamepad, by rate control (with the feature `gamepad`).
+    Gamepad,
     /// A raw-HID haptic device described by a profile (docs/devices.md "HID profiles"): it moves
-    /// the tool and displays the force; the window gives commands.
-    HidDevice(stylet_devices::hid_profile::HidProfile),
+    /// the tool and displays the force.
+    Hid(stylet_devices::hid_profile::HidProfile),
     /// A force-feedback device through its vendor's API (docs/devices.md "Haptic devices"),
     /// opened when the session starts and closed (zero force) when it ends: it moves the tool
-    /// and the trainee feels the force; the window gives commands.
-    HapticDevice(stylet_devices::haptic::DeviceChoice, Mapping),
+    /// and the hand feels that tool's force.
+    ForceFeedback(stylet_devices::haptic::DeviceChoice, Mapping),
+}
+
+/// A hand's device, opened: what moves the tool besides the window, and what the session needs
+/// to know of it.
+struct OpenedHand {
+    source: Option<HandSource>,
+    /// The physics' device profile (its stiffness and force limits shape the tool's force).
+    profile: DeviceProfile,
+    /// The device in words, for the status line; `None` for the keys and mouse.
+    moved_by: Option<String>,
+    window_hold: Option<WindowHold>,
+    hardware: Option<stylet_recorder::format::HardwareDevice>,
+}
+
+enum HandSource {
+    Rate(
+        Box<dyn stylet_devices::live::SixAxisSource>,
+        stylet_devices::rate::RateSettings,
+    ),
+    Pose(Box<dyn stylet_devices::live::PoseSource>),
+}
+
+impl HandDevice {
+    /// Opens the device (a force-feedback device's servo loop runs from here on, at zero force
+    /// until the session's forces ramp in).
+    fn open(self) -> Result<OpenedHand, SessionError> {
+        use stylet_devices::rate::RateSettings;
+        let device_error = |e: &dyn std::fmt::Display| SessionError::Device(e.to_string());
+        let mut hand = OpenedHand {
+            source: None,
+            profile: DeviceProfile::IDEAL,
+            moved_by: None,
+            window_hold: None,
+            hardware: None,
+        };
+        match self {
+            HandDevice::KeysAndMouse => {}
+            HandDevice::SpaceMouse => {
+                let sm = stylet_devices::hid::HidSpaceMouse::open_first().map_err(|e| device_error(&e))?;
+                hand.moved_by = Some(sm.model.name.to_string());
+                hand.source = Some(HandSource::Rate(Box::new(sm), RateSettings::SPACEMOUSE));
+            }
+            #[cfg(feature = "gamepad")]
+            HandDevice::Gamepad => {
+                let pad = stylet_devices::gilrs_pad::GilrsGamepad::open_first().map_err(|e| device_error(&e))?;
+                hand.moved_by = Some(format!("gamepad {}", pad.name));
+                hand.source = Some(HandSource::Rate(Box::new(pad), RateSettings::GAMEPAD));
+            }
+            #[cfg(not(feature = "gamepad"))]
+            HandDevice::Gamepad => {
+                return Err(SessionError::Device(
+                    "this build has no gamepad support (build with the feature `gamepad`)".into(),
+                ));
+            }
+            HandDevice::Hid(profile) => {
+                hand.profile = profile.physics_profile();
+                hand.moved_by = Some(profile.name.clone());
+                let arm =
+                    stylet_devices::hid::HidProfileDevice::open(profile).map_err(|e| SessionError::Device(e.0))?;
+                hand.source = Some(HandSource::Pose(Box::new(arm)));
+            }
+            HandDevice::ForceFeedback(choice, mapping) => {
+                let device = choice.open().map_err(|e| device_error(&e))?;
+                let info = device.info();
+                hand.profile = physics_profile_for(info);
+                hand.moved_by = Some(format!("{} ({})", info.model, info.backend));
+                hand.hardware = Some(stylet_recorder::format::HardwareDevice {
+                    backend: info.backend.name().to_string(),
+                    // Within the header's text limit, whatever the vendor's library says.
+                    model: info
+                        .model
+                        .chars()
+                        .take(stylet_recorder::format::MAX_TEXT_CHARS)
+                        .collect(),
+                    max_force_n: info.max_force_n,
+                    max_continuous_force_n: info.max_continuous_force_n,
+                });
+                let pose = HapticPose::new(device, mapping);
+                hand.window_hold = Some(pose.window_hold());
+                hand.source = Some(HandSource::Pose(Box::new(pose)));
+            }
+        }
+        Ok(hand)
+    }
+}
+
+impl OpenedHand {
+    /// The hand's live device starting at a pose, and the window's handle to it.
+    fn live(&mut self, (position, orientation): (DVec3, DQuat), rate_hz: u32) -> (LiveDevice, LiveHandle) {
+        let (device, handle) = live_device(position, orientation, rate_hz);
+        let device = match self.source.take() {
+            None => device,
+            Some(HandSource::Rate(source, settings)) => device.with_source(source, settings),
+            Some(HandSource::Pose(source)) => device.with_pose_source(source),
+        };
+        (device, handle)
+    }
 }
 
 /// The physics' device profile for a force-feedback device: the Phantom Premium's (8.5 N,
@@ -217,32 +343,70 @@ pub fn start_pose(plan: &SessionPlan) -> (DVec3, DQuat) {
     )
 }
 
-/// The live device moved by a connected SpaceMouse, else by a gamepad (with the feature
-/// `gamepad`), else unchanged; and the name of what moves it.
-fn with_six_axis_source(device: LiveDevice) -> (LiveDevice, Option<String>) {
-    use stylet_devices::rate::RateSettings;
-    if let Ok(sm) = stylet_devices::hid::HidSpaceMouse::open_first() {
-        let name = sm.model.name.to_string();
-        return (device.with_source(Box::new(sm), RateSettings::SPACEMOUSE), Some(name));
+/// How far beside the needle's entry the second hand's tool starts (mm): clear of the needle,
+/// close enough to find the path in the image.
+pub const PROBE_OFFSET_MM: f64 = 40.0;
+
+/// Where the second hand's tool starts: [`START_STANDOFF_MM`] outside the skin,
+/// [`PROBE_OFFSET_MM`] beside the entry of the path the atlas guides along (across the path's
+/// lean, so the needle has its side), aimed straight into the skin. Without planned paths, beside
+/// where the first hand starts. Recorded like every pose: replay does not depend on it.
+pub fn probe_start_pose(plan: &SessionPlan) -> (DVec3, DQuat) {
+    let atlas = &plan.atlas;
+    let orient = |d| stylet_devices::script::device::orientation(d, None);
+    let path = atlas
+        .guided_path()
+        .map(|p| (DVec3::from_array(p.entry_mm), DVec3::from_array(p.target_mm)));
+    if let Some((entry, target)) = path
+        && let Some(dir) = (target - entry).try_normalize()
+    {
+        let inward = atlas
+            .model
+            .skin_distance()
+            .gradient(entry, 0.0)
+            .try_normalize()
+            .filter(|n| n.dot(dir) > 0.0)
+            .unwrap_or(dir);
+        let lean = dir - inward * dir.dot(inward);
+        let side = inward
+            .cross(lean)
+            .try_normalize()
+            .unwrap_or_else(|| inward.any_orthonormal_vector());
+        return (
+            entry + side * PROBE_OFFSET_MM - inward * START_STANDOFF_MM,
+            orient(inward),
+        );
     }
-    #[cfg(feature = "gamepad")]
-    if let Ok(pad) = stylet_devices::gilrs_pad::GilrsGamepad::open_first() {
-        let name = format!("gamepad {}", pad.name);
-        return (device.with_source(Box::new(pad), RateSettings::GAMEPAD), Some(name));
-    }
-    (device, None)
+    let (p, q) = start_pose(plan);
+    (p + DVec3::X * PROBE_OFFSET_MM, q)
+}
+
+/// What a live session keeps of its hands' devices.
+#[derive(Default)]
+struct HandsInUse {
+    live: Option<LiveHandle>,
+    probe_live: Option<LiveHandle>,
+    moved_by: Option<String>,
+    probe_moved_by: Option<String>,
+    window_holds: Vec<WindowHold>,
+    hardware: Option<stylet_recorder::format::HardwareDevice>,
 }
 
 /// A session in progress.
 pub struct RunningSession {
     pub plan: SessionPlan,
     haptic: HapticLoop,
+    /// The first hand's device (sessions by hand): the window's commands go to it.
     live: Option<LiveHandle>,
-    /// The device moving the tool besides the window (a SpaceMouse's model, a HID profile's
-    /// name), if any.
+    /// The second hand's device (two-handed sessions by hand).
+    probe_live: Option<LiveHandle>,
+    /// The device moving the first hand's tool besides the window (a SpaceMouse's model, a HID
+    /// profile's name), if any.
     moved_by: Option<String>,
-    /// Holds a force-feedback device's forces at zero (window out of focus).
-    window_hold: Option<WindowHold>,
+    /// The same for the second hand.
+    probe_moved_by: Option<String>,
+    /// Hold the force-feedback devices' forces at zero (window out of focus).
+    window_holds: Vec<WindowHold>,
     path: PathBuf,
     started: Instant,
     console: std::collections::VecDeque<ConsoleLine>,
@@ -254,72 +418,54 @@ impl RunningSession {
     pub fn start(plan: SessionPlan, driver: Driver, paced: bool) -> Result<RunningSession, SessionError> {
         let atlas = &plan.atlas;
         let model = Arc::clone(&atlas.model);
-        let mut moved_by = None;
-        let mut window_hold = None;
-        let mut hardware = None;
-        let (sim, device, live): (Simulation, Box<dyn Device + Send>, Option<LiveHandle>) = match driver {
-            Driver::Hands => {
-                let mut config = SimConfig::new(DeviceProfile::IDEAL, ToolSpec::Finger);
+        let mut hands = HandsInUse::default();
+        let (sim, device): (Simulation, Box<dyn Device + Send>) = match driver {
+            Driver::Live(devices) => {
+                // Opened before the simulation: a force-feedback device's limits choose the
+                // physics' device profile. A device that fails closes those already opened.
+                let mut needle = devices.needle.open()?;
+                let mut probe = match devices.probe {
+                    Some((device, tool)) => Some((device.open()?, tool)),
+                    None => None,
+                };
+                let mut config = SimConfig::new(needle.profile, ToolSpec::Finger);
                 // A trainee's tissue yields (recorded in the header, replayed by scoring), solved
                 // off the haptic thread; the bits are the same (fixed latency).
                 config.deformation = DeformSettings::on();
                 config.deform_in_background = true;
                 config.breathing = plan.breathing()?;
-                let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
-                let (position, orientation) = start_pose(&plan);
-                let (device, handle) = live_device(position, orientation, sim.tick_rate_hz());
-                // A connected SpaceMouse (else a gamepad) moves the tool by rate control; the
-                // keys and mouse then only give commands.
-                let (device, by) = with_six_axis_source(device);
-                moved_by = by;
-                (sim, Box::new(device), Some(handle))
-            }
-            Driver::HidDevice(profile) => {
-                let mut config = SimConfig::new(profile.physics_profile(), ToolSpec::Finger);
-                config.deformation = DeformSettings::on();
-                config.deform_in_background = true;
-                config.breathing = plan.breathing()?;
-                let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
-                let (position, orientation) = start_pose(&plan);
-                let (device, handle) = live_device(position, orientation, sim.tick_rate_hz());
-                let name = profile.name.clone();
-                let arm =
-                    stylet_devices::hid::HidProfileDevice::open(profile).map_err(|e| SessionError::Device(e.0))?;
-                moved_by = Some(name);
-                (sim, Box::new(device.with_pose_source(Box::new(arm))), Some(handle))
-            }
-            Driver::HapticDevice(choice, mapping) => {
-                let device = choice.open().map_err(|e| SessionError::Device(e.to_string()))?;
-                let mut config = SimConfig::new(physics_profile_for(device.info()), ToolSpec::Finger);
-                config.deformation = DeformSettings::on();
-                config.deform_in_background = true;
-                config.breathing = plan.breathing()?;
-                let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
-                let (position, orientation) = start_pose(&plan);
-                let (live, handle) = live_device(position, orientation, sim.tick_rate_hz());
-                let info = device.info();
-                moved_by = Some(format!("{} ({})", info.model, info.backend));
-                hardware = Some(stylet_recorder::format::HardwareDevice {
-                    backend: info.backend.name().to_string(),
-                    // Within the header's text limit, whatever the vendor's library says.
-                    model: info
-                        .model
-                        .chars()
-                        .take(stylet_recorder::format::MAX_TEXT_CHARS)
-                        .collect(),
-                    max_force_n: info.max_force_n,
-                    max_continuous_force_n: info.max_continuous_force_n,
+                config.second_hand = probe.as_ref().map(|(hand, tool)| stylet_physics::SecondHandConfig {
+                    device: hand.profile,
+                    tool: Some(*tool),
                 });
-                let pose = HapticPose::new(device, mapping);
-                window_hold = Some(pose.window_hold());
-                (sim, Box::new(live.with_pose_source(Box::new(pose))), Some(handle))
+                let sim = Simulation::new(model, config).map_err(SessionError::Simulation)?;
+                let rate_hz = sim.tick_rate_hz();
+                let (first, handle) = needle.live(start_pose(&plan), rate_hz);
+                hands.live = Some(handle);
+                hands.moved_by = needle.moved_by.take();
+                hands.window_holds.extend(needle.window_hold.take());
+                hands.hardware = needle.hardware.take();
+                let device: Box<dyn Device + Send> = match probe.as_mut() {
+                    None => Box::new(first),
+                    Some((hand, _)) => {
+                        let (second, handle) = hand.live(probe_start_pose(&plan), rate_hz);
+                        hands.probe_live = Some(handle);
+                        hands.probe_moved_by = hand.moved_by.take();
+                        hands.window_holds.extend(hand.window_hold.take());
+                        Box::new(stylet_devices::two_hands::TwoHands::new(
+                            Box::new(first),
+                            Box::new(second),
+                        ))
+                    }
+                };
+                (sim, device)
             }
             Driver::Script(text) => {
                 let script = parse(&text).map_err(|e| SessionError::Script(e.to_string()))?;
                 let (sim, device): (Simulation, ScriptedDevice) =
                     scripted_simulation(model, &atlas.planned_paths(), &script)
                         .map_err(|e| SessionError::Script(e.to_string()))?;
-                (sim, Box::new(device), None)
+                (sim, Box::new(device))
             }
         };
         let path = new_session_path(&plan.sessions_dir, &plan.scenario);
@@ -332,7 +478,8 @@ impl RunningSession {
             atlas_hash: &atlas.content_hash,
         };
         let mut header = stylet_recorder::recording::header(&sim, &info);
-        header.hardware = hardware;
+        // The needle hand's force-feedback device: the one whose sent forces the file records.
+        header.hardware = hands.hardware.take();
         std::fs::create_dir_all(&plan.sessions_dir).map_err(|e| SessionError::Record {
             path: plan.sessions_dir.clone(),
             reason: e.to_string(),
@@ -350,9 +497,11 @@ impl RunningSession {
         Ok(RunningSession {
             plan,
             haptic,
-            live,
-            moved_by,
-            window_hold,
+            live: hands.live,
+            probe_live: hands.probe_live,
+            moved_by: hands.moved_by,
+            probe_moved_by: hands.probe_moved_by,
+            window_holds: hands.window_holds,
             path,
             started: Instant::now(),
             console: std::collections::VecDeque::new(),
@@ -377,16 +526,41 @@ impl RunningSession {
         &self.path
     }
 
-    /// The device moving the tool besides the window (a SpaceMouse found at the start, a HID
-    /// profile's device), if any.
+    /// The second hand's device (two-handed sessions by hand).
+    pub fn probe_live(&self) -> Option<&LiveHandle> {
+        self.probe_live.as_ref()
+    }
+
+    /// The handle the window's keys and mouse steer: the hand whose tool no device of its own
+    /// moves (the first hand's first), if any.
+    pub fn steered_by_keys(&self) -> Option<&LiveHandle> {
+        match (
+            &self.live,
+            self.moved_by.is_none(),
+            &self.probe_live,
+            self.probe_moved_by.is_none(),
+        ) {
+            (Some(l), true, _, _) => Some(l),
+            (_, _, Some(p), true) => Some(p),
+            _ => None,
+        }
+    }
+
+    /// The device moving the first hand's tool besides the window (a SpaceMouse, a HID
+    /// profile's device, a force-feedback device), if any.
     pub fn moved_by(&self) -> Option<&str> {
         self.moved_by.as_deref()
     }
 
-    /// Holds a force-feedback device's forces at zero while the window is out of focus (or
-    /// lets them ramp in again); nothing for other drivers.
+    /// The device moving the second hand's tool besides the window, if any.
+    pub fn probe_moved_by(&self) -> Option<&str> {
+        self.probe_moved_by.as_deref()
+    }
+
+    /// Holds the force-feedback devices' forces at zero while the window is out of focus (or
+    /// lets them ramp in again); nothing for other devices.
     pub fn hold_forces(&self, hold: Hold) {
-        if let Some(h) = &self.window_hold {
+        for h in &self.window_holds {
             h.set(hold);
         }
     }
@@ -422,6 +596,9 @@ impl RunningSession {
         match &self.live {
             Some(live) => live.finish(),
             None => self.haptic.stop(),
+        }
+        if let Some(probe) = &self.probe_live {
+            probe.finish();
         }
         let report = self.haptic.join()?;
         if let Some(Err(e)) = &report.recording {
@@ -542,6 +719,44 @@ mod tests {
                 ),
             }
         }
+    }
+
+    /// The second hand's probe starts a few centimetres outside the skin, beside the entry (clear
+    /// of the needle), aimed into the skin.
+    #[test]
+    fn the_probe_hand_starts_beside_the_entry_aimed_into_the_skin() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = stylet_atlas::phantom::generate(&stylet_atlas::phantom::PhantomConfig {
+            dims: [64, 64, 50],
+            spacing_mm: [6.0; 3],
+            ..Default::default()
+        })
+        .unwrap();
+        stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
+        let atlas = Arc::new(stylet_atlas::load(dir.path()).unwrap());
+        let entry = DVec3::from_array(atlas.guided_path().unwrap().entry_mm);
+        let plan = SessionPlan {
+            atlas: Arc::clone(&atlas),
+            scenario: atlas.manifest.scenarios[0].name.clone(),
+            difficulty: Difficulty::Beginner,
+            trainee: "t".into(),
+            seed: 1,
+            sessions_dir: dir.path().join("sessions"),
+        };
+        let (p, q) = probe_start_pose(&plan);
+        let axis = q * DVec3::Z;
+        let to_skin = atlas
+            .model
+            .skin_distance_along(p, axis, 300.0)
+            .expect("the probe points at the skin");
+        assert!((20.0..=40.0).contains(&to_skin), "{to_skin} mm to the skin");
+        let beside = distance_to_line(entry, p, axis);
+        assert!(
+            (PROBE_OFFSET_MM - 0.5..=PROBE_OFFSET_MM + 0.5).contains(&beside),
+            "{beside} mm beside the entry"
+        );
+        let (needle, _) = start_pose(&plan);
+        assert!((needle - p).length() > 30.0, "clear of the needle's start");
     }
 
     /// Distance of `p` from the line through `a` along the unit vector `d`.

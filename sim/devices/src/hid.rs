@@ -39,6 +39,12 @@ pub fn connected_spacemice(api: &HidApi) -> Vec<(Model, std::ffi::CString)> {
         .collect()
 }
 
+/// The model of the first connected SpaceMouse Stylet knows, if any (nothing is opened).
+pub fn first_spacemouse_name() -> Option<String> {
+    let api = HidApi::new().ok()?;
+    connected_spacemice(&api).first().map(|(m, _)| m.name.to_string())
+}
+
 impl HidSpaceMouse {
     /// Opens the first connected SpaceMouse Stylet knows.
     pub fn open_first() -> Result<HidSpaceMouse, SourceError> {

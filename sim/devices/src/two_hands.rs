@@ -31,8 +31,9 @@ impl TwoHands {
 }
 
 /// What the second device is shown of the last tick: the second hand's force and torque, contacts
-/// and indentation in the places a one-handed device reads its tool's.
-fn second_hand_view(out: &TickOutput) -> TickOutput {
+/// and indentation in the places a one-handed device reads its tool's (the window's hints read
+/// the probe hand's tool the same way).
+pub fn second_hand_view(out: &TickOutput) -> TickOutput {
     let hand = out.second_hand.unwrap_or_default();
     TickOutput {
         force_n: hand.force_n,
