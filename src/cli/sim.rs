@@ -26,14 +26,14 @@ pub struct SimArgs {
     /// this address, e.g. 0.0.0.0:8765; off by default. The window shows its pairing code.
     #[arg(long, conflicts_with = "headless")]
     pub tablet: Option<std::net::SocketAddr>,
-    /// Sessions by hand use the raw-HID haptic device this profile describes (docs/devices.md
-    /// "HID profiles"); it is checked before the window opens.
+    /// Offer the raw-HID haptic device this profile describes (docs/devices.md "HID profiles")
+    /// in the devices dialog, for either hand; it is checked before the window opens.
     #[arg(long, conflicts_with = "headless")]
     pub hid_profile: Option<PathBuf>,
-    /// Sessions by hand use this force-feedback device (docs/devices.md "Haptic devices"): its
-    /// vendor library or service is found before the window opens, the device opened when a
-    /// session starts.
-    #[arg(long, value_enum, conflicts_with_all = ["headless", "hid_profile"])]
+    /// Offer this force-feedback device (docs/devices.md "Haptic devices") in the devices dialog,
+    /// for either hand: its vendor library or service is found before the window opens, the
+    /// device opened when a session starts. With --hid-profile too, each device may move a hand.
+    #[arg(long, value_enum, conflicts_with = "headless")]
     pub device: Option<super::device::BackendArg>,
     /// The device's vendor library (openhaptics, dhd; default: the usual names and paths).
     #[arg(long, requires = "device")]

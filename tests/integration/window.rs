@@ -510,3 +510,200 @@ fn a_session_fetched_from_the_service_opens_in_the_replay_viewer() {
     assert!(dir.join("sessions").join(format!("fetched-{id}.mcap")).is_file());
     drop(server);
 }
+
+/// The devices dialog (docs/simulator.md "Hands and devices"): with a force-feedback device on
+/// the command line it moves the needle hand; the trainee gives the probe hand to the keys and
+/// mouse, the choice is kept on this machine and offered again by the next window, and a session
+/// with two hands starts from it: the keys move the probe, the device the needle; it is recorded
+/// with both hands and replays verified.
+#[test]
+fn the_devices_dialog_gives_each_hand_a_device_and_the_machine_remembers() {
+    use stylet_app::hands::{HandAssignment, InputDevice, SecondHandTool};
+    let dir = tempfile::tempdir().unwrap();
+    let atlas = phantom(dir.path());
+    // The device's hand stays where it is.
+    let double = stylet_haply_double::HaplyDouble::start(vec![[0.0; 4], [1.0, 0.0, 0.0, 0.0]]).unwrap();
+    let choice = stylet_devices::haptic::DeviceChoice {
+        backend: stylet_devices::haptic::Backend::Haply,
+        library: None,
+        url: Some(double.url.clone()),
+    };
+    let opts = AppOptions {
+        paced: true,
+        haptic_device: Some((choice, stylet_devices::haptic::pose::Mapping::default())),
+        ..options(dir.path(), &atlas, None)
+    };
+    let mut h = harness(opts.clone());
+    h.run_steps(2);
+    h.get_by_label("Devices: one hand: force-feedback device");
+    // A new dialog is measured in its first frame and drawn from the next.
+    h.get_by_label("Devices…").click();
+    h.run_steps(3);
+    h.get_by_label("Probe hand").click();
+    h.run_steps(3);
+    h.get_by_label("keys and mouse").click();
+    h.run_steps(3);
+    snapshot(&mut h, "devices");
+    h.get_by_label("Use these devices").click();
+    h.run_steps(2);
+    let chosen = HandAssignment {
+        needle_hand: InputDevice::ForceFeedback,
+        probe_hand: Some(InputDevice::KeysAndMouse),
+        probe_hand_tool: SecondHandTool::ConvexProbe,
+    };
+    assert_eq!(HandAssignment::load(&dir.path().join("config")).unwrap(), Some(chosen));
+
+    h.get_by_label("Start session with two hands").click();
+    h.step();
+    assert_eq!(
+        h.state().screen.name(),
+        "session",
+        "{:?}",
+        match &h.state().screen {
+            Screen::Start(s) => s.problem.clone(),
+            _ => None,
+        }
+    );
+    let poses = |h: &Harness<'_, StyletApp>| match &h.state().screen {
+        Screen::Session(s) => {
+            let r = s.running().unwrap();
+            (
+                r.live().unwrap().pose().unwrap().0,
+                r.probe_live().unwrap().pose().unwrap().0,
+            )
+        }
+        _ => panic!("no session"),
+    };
+    h.run_steps(3);
+    let (needle0, probe0) = poses(&h);
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_millis(600) {
+        h.key_down(egui::Key::W);
+        h.step();
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    h.key_up(egui::Key::W);
+    h.step();
+    std::thread::sleep(Duration::from_millis(100));
+    h.step();
+    let (needle1, probe1) = poses(&h);
+    let moved = probe1 - probe0;
+    assert!(
+        moved.y > 2.0 && moved.x.abs() < 1e-6,
+        "the keys move the probe: {moved:?}"
+    );
+    assert!(
+        (needle1 - needle0).length() < 1e-6,
+        "the device holds the needle hand still"
+    );
+    h.get_by_label("needle hand: Inverse3 0D0B (haply) · probe hand: keys and mouse");
+    h.key_press(egui::Key::Enter);
+    step_until(&mut h, "the local score", |app| match &app.screen {
+        Screen::Results(r) => r.score().is_some(),
+        _ => false,
+    });
+    match &h.state().screen {
+        Screen::Results(r) => {
+            let report = r.score().unwrap().as_ref().expect("a score");
+            assert!(report.replay_verified, "{report:?}");
+            let session = stylet_recorder::read(&r.finished().unwrap().path).unwrap();
+            assert!(session.header.second_hand.is_some());
+            assert!(session.ticks.iter().all(|t| t.second_hand.is_some()));
+            assert_eq!(
+                session.header.hardware.as_ref().map(|h| h.backend.as_str()),
+                Some("haply")
+            );
+        }
+        _ => unreachable!(),
+    }
+    assert_eq!(double.forces().last().map(|f| [f[1], f[2], f[3]]), Some([0.0; 3]));
+    drop(h);
+    // The next window on this machine offers the same hands.
+    let mut again = harness(opts);
+    again.run_steps(2);
+    again.get_by_label("Devices: needle hand: force-feedback device; probe hand: keys and mouse (convex probe)");
+}
+
+/// The phantom's scripted two-handed session through the window, in a window of the default
+/// size: stopped while the needle advances in the probe's live image, both hands' tools and
+/// forces on the session screen; run to its end, the results show the live guidance and the bile
+/// leak the withdrawal from the duct left behind.
+#[test]
+fn a_two_handed_session_shows_both_tools_and_its_results_show_the_guidance() {
+    let dir = tempfile::tempdir().unwrap();
+    let atlas = phantom(dir.path());
+    let full = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("atlases/phantom/scripts/two-handed-success.txt"),
+    )
+    .unwrap();
+    assert!(full.contains("\nend 27\n"));
+    let part = dir.path().join("two-handed-part.txt");
+    // The same script up to 13 s: the probe on the skin, the needle on its way to the duct
+    // (two thirds of the way from 15 mm outside the skin at 5 s to 111 mm deep at 17 s).
+    let mut until_13_s: String = full
+        .replace("\nend 27\n", "\nend 13\n")
+        .lines()
+        .filter(|l| {
+            l.strip_prefix("at ")
+                .and_then(|rest| rest.split_whitespace().next())
+                .and_then(|t| t.parse::<f64>().ok())
+                .is_none_or(|t| t <= 13.0)
+        })
+        .map(|l| format!("{l}\n"))
+        .collect();
+    until_13_s.push_str("at 13 along intercostal-10-11 69\n");
+    std::fs::write(&part, until_13_s).unwrap();
+    std::fs::write(dir.path().join("two-handed-full.txt"), &full).unwrap();
+    let window = |script: &Path| {
+        let options = AppOptions {
+            script: Some(script.to_path_buf()),
+            ..options(dir.path(), &atlas, None)
+        };
+        let mut h = Harness::builder()
+            .with_size([1280.0, 800.0])
+            .build_eframe(move |cc| StyletApp::new(&cc.egui_ctx, options));
+        h.run_steps(3);
+        h.get_by_label("Start session (scripted)").click();
+        h.step();
+        if let Screen::Session(s) = &mut h.state_mut().screen {
+            s.panes.show_timings = false;
+        }
+        step_until(&mut h, "the session's end", session_settled);
+        h
+    };
+    let mut h = window(&part);
+    h.get_by_label("Probe hand");
+    h.get_by_label("convex probe");
+    snapshot(&mut h, "session-two-hands");
+    // One test, one set of snapshot results (kittest checks them when they are dropped).
+    let mut snapshots = h.take_snapshot_results();
+    drop(h);
+
+    let mut h = window(&dir.path().join("two-handed-full.txt"));
+    h.get_by_label("See the results").click();
+    h.step();
+    step_until(&mut h, "the local score", |app| match &app.screen {
+        Screen::Results(r) => r.score().is_some(),
+        _ => false,
+    });
+    let report = match &h.state().screen {
+        Screen::Results(r) => r.score().unwrap().as_ref().expect("a score").clone(),
+        _ => unreachable!(),
+    };
+    assert!(report.replay_verified, "{report:?}");
+    let g = report.metrics.live_guidance.as_ref().expect("live guidance");
+    h.get_by_label("Needle tip in the live ultrasound");
+    h.get_by_label(&format!("{:.0} % of the insertion", 100.0 * g.needle_tip_visible_share));
+    assert!(
+        !report.metrics.consequences.is_empty(),
+        "withdrawing from the duct leaves a bile leak"
+    );
+    for c in &report.metrics.consequences {
+        h.get_by_label(&format!(
+            "{:.1} ml by the end; punctured at {:.1} s, began at {:.1} s",
+            c.volume_ml, c.punctured_s, c.began_s
+        ));
+    }
+    snapshot(&mut h, "results-two-hands");
+    snapshots.extend(h.take_snapshot_results());
+}

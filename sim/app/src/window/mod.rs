@@ -8,6 +8,7 @@
 //! turns the trainee's input into device commands and draws snapshots.
 
 mod chart;
+mod devices;
 mod keys;
 mod panes;
 mod replay_screen;
@@ -103,6 +104,12 @@ pub struct Shared {
         std::sync::mpsc::Receiver<crate::controls::Command>,
     )>,
     tablet_problem: Option<String>,
+    /// The devices this machine offers (found when the window opened).
+    pub available: crate::hands::Available,
+    /// Which device moves which hand (remembered on this machine).
+    pub hands: crate::hands::HandAssignment,
+    /// Why the remembered assignment was not read or could not be kept.
+    pub hands_problem: Option<String>,
 }
 
 impl Shared {
@@ -123,7 +130,23 @@ impl Shared {
                 Err(e) => tablet_problem = Some(e.to_string()),
             }
         }
+        let available = Shared::probe_devices(&options);
+        let remembered = match options.config_dir.as_deref() {
+            Some(dir) => crate::hands::HandAssignment::load(dir),
+            None => Ok(None),
+        };
+        let (hands, hands_problem) = match remembered {
+            Ok(Some(h)) => (h, None),
+            Ok(None) => (crate::hands::HandAssignment::default_for(&available), None),
+            Err(e) => (
+                crate::hands::HandAssignment::default_for(&available),
+                Some(format!("the devices chosen before are not used: {e}")),
+            ),
+        };
         let mut shared = Shared {
+            available,
+            hands,
+            hands_problem,
             options,
             atlases: Vec::new(),
             login: None,

@@ -270,5 +270,16 @@ fn report_ui(ui: &mut egui::Ui, r: &ScoreReport) {
                 .into(),
             );
         }
+        // What a wrong puncture did to the patient (docs/complications.md), as the review lists it.
+        for c in &m.consequences {
+            let name = c.kind.name();
+            row(
+                &format!("{}{} ({})", name[..1].to_uppercase(), &name[1..], c.structure),
+                format!(
+                    "{:.1} ml by the end; punctured at {:.1} s, began at {:.1} s",
+                    c.volume_ml, c.punctured_s, c.began_s
+                ),
+            );
+        }
     });
 }

@@ -76,7 +76,7 @@ impl SessionScreen {
             Box::new(move || repaint.request_repaint_after(std::time::Duration::from_millis(33))),
         )?;
         let pose = run
-            .live()
+            .steered_by_keys()
             .and_then(|l| l.pose())
             .map_or_else(RatePose::default, |(p, q)| RatePose {
                 position_mm: p,
@@ -152,8 +152,8 @@ impl SessionScreen {
                     plan.difficulty.as_str()
                 ));
                 ui.label(format!("trainee {}", plan.trainee));
-                if let Some(m) = run.moved_by() {
-                    ui.label(format!("moving with: {m}"));
+                if let Some(m) = hands_line(run) {
+                    ui.label(m);
                 }
                 if let Some(t) = shared.tablet_line() {
                     ui.label(t);
@@ -187,6 +187,18 @@ impl SessionScreen {
                     let hint = crate::skin_hint::skin_hint(tool_name(s), &s.output, &plan.atlas.model);
                     ui.strong(hint);
                     ui.separator();
+                    if s.output.second_hand.is_some()
+                        && let Some(tool) = s.second_tool
+                    {
+                        let word = match tool {
+                            stylet_physics::HandTool::Finger => "finger",
+                            stylet_physics::HandTool::Probe(_) => "probe",
+                        };
+                        let view = stylet_devices::two_hands::second_hand_view(&s.output);
+                        let hint = crate::skin_hint::skin_hint(word, &view, &plan.atlas.model);
+                        ui.strong(format!("probe hand: {hint}"));
+                        ui.separator();
+                    }
                 }
                 let missed_pct = 100.0 * stats.missed as f64 / stats.ticks.max(1) as f64;
                 if over {
@@ -250,21 +262,29 @@ impl SessionScreen {
         }
 
         let mut commands: Vec<Command> = Vec::new();
+        let mut second_tool = None;
         let mut pedal = self.pedal_down;
         egui::Panel::left("session-tools")
             .resizable(false)
             .exact_size(260.0)
             .show(ui, |ui| {
-                tools_ui(ui, &mut commands, &mut pedal, &mut self.gauge);
-                ui.separator();
-                indicators_ui(ui, snapshot.as_ref(), &plan);
-                if let Some(p) = &self.problem {
-                    ui.colored_label(egui::Color32::from_rgb(255, 120, 100), p);
-                }
-                if over && run.live().is_none() {
+                // Two hands' indicators may not fit a small window: the panel scrolls.
+                egui::ScrollArea::vertical().show(ui, |ui| {
+                    tools_ui(ui, &mut commands, &mut pedal, &mut self.gauge);
+                    if run.probe_live().is_some() {
+                        ui.add_space(6.0);
+                        probe_hand_ui(ui, &mut second_tool);
+                    }
                     ui.separator();
-                    ui.label("The script has ended. Press “See the results” for the score.");
-                }
+                    indicators_ui(ui, snapshot.as_ref(), &plan);
+                    if let Some(p) = &self.problem {
+                        ui.colored_label(egui::Color32::from_rgb(255, 120, 100), p);
+                    }
+                    if over && run.live().is_none() {
+                        ui.separator();
+                        ui.label("The script has ended. Press “See the results” for the score.");
+                    }
+                });
             });
 
         let mut pictures = Vec::new();
@@ -301,26 +321,26 @@ impl SessionScreen {
                 _ => self.panes.layout = self.panes.layout.next(),
             }
         }
-        let moved_by = run.moved_by().is_some();
         // A force-feedback device pushes only while the window has the focus.
         let focused = ui.ctx().input(|i| i.focused);
         run.hold_forces(if focused { Hold::None } else { Hold::FocusLost });
+        // The keys and mouse steer the hand no device of its own moves (if any); the devices
+        // that move a tool by rate control move it in the window's view.
+        if let Some(steered) = run.steered_by_keys() {
+            controls::apply(&input, self.view, &mut self.pose, dt);
+            steered.set_pose(self.pose.position_mm, self.pose.orientation);
+        }
+        for hand in [run.live(), run.probe_live()].into_iter().flatten() {
+            hand.set_view(self.view);
+        }
+        // The commands are the needle hand's (its tool, the stylet, contrast, X-ray); the probe
+        // hand's tool changes travel with them.
         if let Some(live) = run.live() {
-            if moved_by {
-                // The SpaceMouse moves the tool in the loop; the window follows it.
-                if let Some((p, q)) = live.pose() {
-                    self.pose = RatePose {
-                        position_mm: p,
-                        orientation: q,
-                    };
-                }
-            } else {
-                controls::apply(&input, self.view, &mut self.pose, dt);
-                live.set_pose(self.pose.position_mm, self.pose.orientation);
-            }
-            live.set_view(self.view);
             if pedal != self.pedal_down {
                 live.send(if pedal { Event::XrayOn } else { Event::XrayOff });
+            }
+            if let Some(tool) = second_tool {
+                live.send(Event::SecondTool(tool));
             }
             for c in commands {
                 live.command(c);
@@ -414,7 +434,7 @@ fn indicators_ui(ui: &mut egui::Ui, snapshot: Option<&Snapshot>, plan: &SessionP
         ui.label("Tool");
         ui.label(tool);
         ui.end_row();
-        if s.moment.tools.needle.is_some() {
+        if matches!(s.tool, ToolSpec::Needle { .. }) {
             ui.label("Along the needle");
             ui.label(format!("{:.2} N", -o.force_n.dot(o.insertion_dir)));
             ui.end_row();
@@ -434,20 +454,6 @@ fn indicators_ui(ui: &mut egui::Ui, snapshot: Option<&Snapshot>, plan: &SessionP
         } else {
             ui.label("Indentation");
             ui.label(format!("{:.1} mm", o.indentation_mm));
-            ui.end_row();
-        }
-        if let Some(h) = &o.second_hand {
-            // Two hands: the second device's tool, its force and its contact with the skin.
-            ui.label("Second hand");
-            ui.label(match h.holding {
-                true => format!(
-                    "{:.2} N, {} nodes on the skin, {:.1} mm deep",
-                    h.force_n.length(),
-                    h.contacts,
-                    h.indentation_mm
-                ),
-                false => "empty".to_string(),
-            });
             ui.end_row();
         }
         ui.label("X-ray");
@@ -470,16 +476,82 @@ fn indicators_ui(ui: &mut egui::Ui, snapshot: Option<&Snapshot>, plan: &SessionP
         let off = distance_to_line(tip, path.entry_mm, dir);
         ui.label(format!("Planned path '{}': {off:.1} mm off", path.name));
     }
+    if let Some(h) = &o.second_hand {
+        // Two hands: the probe hand's tool, the force on it and its contact with the skin.
+        ui.add_space(6.0);
+        ui.strong("Probe hand");
+        let force = h.force_n.length();
+        ui.add(
+            egui::ProgressBar::new((force / FORCE_BAR_N).clamp(0.0, 1.0) as f32)
+                .fill(egui::Color32::from_rgb(80, 160, 220))
+                .text(format!("{force:.2} N")),
+        );
+        egui::Grid::new("probe-hand").num_columns(2).show(ui, |ui| {
+            ui.label("Tool");
+            ui.label(second_tool_name(s.second_tool));
+            ui.end_row();
+            ui.label("On the skin");
+            ui.label(match (h.holding, h.contacts) {
+                (false, _) => "—".to_string(),
+                (true, 0) => "not touching".to_string(),
+                (true, n) => format!("{n} nodes, {:.1} mm deep", h.indentation_mm),
+            });
+            ui.end_row();
+        });
+    }
 }
 
-/// The tool in hand at the snapshot.
+/// The probe hand's tool buttons (two-handed sessions).
+fn probe_hand_ui(ui: &mut egui::Ui, tool: &mut Option<Option<stylet_physics::HandTool>>) {
+    use stylet_physics::{HandTool, ProbeKind};
+    ui.strong("Probe hand");
+    ui.horizontal_wrapped(|ui| {
+        for (label, t) in [
+            ("Convex probe", Some(HandTool::Probe(ProbeKind::Convex))),
+            ("Linear probe", Some(HandTool::Probe(ProbeKind::Linear))),
+            ("Finger", Some(HandTool::Finger)),
+            ("Put down", None),
+        ] {
+            let r = ui.button(label);
+            super::name_widget(&r, egui::Role::Button, &format!("probe hand: {label}"));
+            if r.clicked() {
+                *tool = Some(t);
+            }
+        }
+    });
+}
+
+/// Which device moves which hand, for the top bar; `None` for one hand on the keys and mouse.
+fn hands_line(run: &crate::session::RunningSession) -> Option<String> {
+    let keys = "keys and mouse";
+    match (run.probe_live(), run.moved_by()) {
+        (None, None) => None,
+        (None, Some(m)) => Some(format!("moving with: {m}")),
+        (Some(_), m) => Some(format!(
+            "needle hand: {} · probe hand: {}",
+            m.unwrap_or(keys),
+            run.probe_moved_by().unwrap_or(keys)
+        )),
+    }
+}
+
+/// The second hand's tool in words.
+fn second_tool_name(tool: Option<stylet_physics::HandTool>) -> &'static str {
+    use stylet_physics::{HandTool, ProbeKind};
+    match tool {
+        Some(HandTool::Probe(ProbeKind::Convex)) => "convex probe",
+        Some(HandTool::Probe(ProbeKind::Linear)) => "linear probe",
+        Some(HandTool::Finger) => "finger",
+        None => "none",
+    }
+}
+
+/// The first hand's tool at the snapshot.
 fn tool_name(s: &Snapshot) -> &'static str {
-    if s.moment.tools.needle.is_some() {
-        "needle"
-    } else if s.moment.tools.probe.is_some() {
-        "probe"
-    } else {
-        "finger"
+    match s.tool {
+        ToolSpec::Needle { .. } => "needle",
+        ToolSpec::Probe(_) => "probe",
+        ToolSpec::Finger => "finger",
     }
 }
 

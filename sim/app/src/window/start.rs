@@ -44,6 +44,8 @@ pub struct StartScreen {
     /// Offer the scripted examples and grading fixtures too (instructors, demos); a trainee's
     /// picker lists the training scenarios only.
     pub show_examples: bool,
+    /// The devices dialog, while it is open.
+    devices: Option<super::devices::DevicesDialog>,
 }
 
 impl StartScreen {
@@ -65,11 +67,17 @@ impl StartScreen {
             replay_path: String::new(),
             fetch_id: String::new(),
             problem: None,
+            devices: None,
         }
     }
 
     pub fn ui(&mut self, ui: &mut egui::Ui, shared: &mut Shared) -> Option<Go> {
         self.poll_login(shared);
+        if let Some(d) = &mut self.devices
+            && matches!(d.ui(ui.ctx(), shared), super::devices::DialogAction::Close)
+        {
+            self.devices = None;
+        }
         let mut go = None;
         egui::CentralPanel::default().show(ui, |ui| {
             ui.heading("Stylet — percutaneous transhepatic cholangiodrainage (PTCD)");
@@ -282,15 +290,26 @@ impl StartScreen {
         ui.add_space(8.0);
         let mut go = None;
         let driven = shared.options.script.clone();
-        let label = match (&driven, &shared.options.hid_profile, &shared.options.haptic_device) {
+        if driven.is_none() {
+            ui.horizontal(|ui| {
+                ui.label(format!("Devices: {}", shared.hands.describe()));
+                if ui.button("Devices…").clicked() {
+                    self.devices = Some(super::devices::DevicesDialog::new(shared.hands));
+                }
+            });
+            if let Some(p) = &shared.hands_problem {
+                ui.colored_label(egui::Color32::from_rgb(255, 120, 100), p);
+            }
+        }
+        let label = match (&driven, shared.hands.probe_hand, shared.hands.needle_hand) {
             (Some(_), _, _) => "Start session (scripted)".to_string(),
-            (None, Some(p), _) => format!("Start session with {}", p.name),
-            (None, None, Some((d, _))) => format!("Start session with the {} device", d.backend),
-            (None, None, None) => "Start session".to_string(),
+            (None, Some(_), _) => "Start session with two hands".to_string(),
+            (None, None, crate::hands::InputDevice::KeysAndMouse) => "Start session".to_string(),
+            (None, None, d) => format!("Start session with the {}", d.title()),
         };
         if ui
             .add_enabled(
-                atlas.is_some(),
+                atlas.is_some() && self.devices.is_none(),
                 egui::Button::new(label).min_size(egui::vec2(180.0, 32.0)),
             )
             .clicked()
@@ -304,11 +323,13 @@ impl StartScreen {
                         None
                     }
                 },
-                None => Some(match (&shared.options.hid_profile, &shared.options.haptic_device) {
-                    (Some(p), _) => Driver::HidDevice(p.clone()),
-                    (None, Some((d, mapping))) => Driver::HapticDevice(d.clone(), *mapping),
-                    (None, None) => Driver::Hands,
-                }),
+                None => match shared.live_driver() {
+                    Ok(d) => Some(d),
+                    Err(e) => {
+                        self.problem = Some(format!("{e} (Devices… to choose another)"));
+                        None
+                    }
+                },
             };
             if let Some(driver) = driver {
                 match SessionScreen::start(ui.ctx(), self.plan(a, shared), driver, shared) {
