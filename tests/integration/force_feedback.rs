@@ -507,3 +507,60 @@ fn a_force_feedback_device_in_the_probe_hand_feels_the_probe() {
     let report = finished.score().unwrap();
     assert!(report.replay_verified, "{:?}", report.divergence);
 }
+
+/// A second hand's device that cannot be opened stops the session before it starts, by name, and
+/// the first hand's force-feedback device, already opened, is closed again at zero force.
+#[test]
+fn a_missing_probe_hand_device_closes_the_needle_hands_device() {
+    use stylet_app::session::{Driver, HandDevice, LiveHands, RunningSession, SessionPlan};
+    use stylet_devices::haptic::DeviceChoice;
+    use stylet_physics::{HandTool, ProbeKind};
+
+    let dir = tempfile::tempdir().unwrap();
+    let p = stylet_atlas::phantom::generate(&stylet_atlas::phantom::PhantomConfig {
+        dims: [64, 64, 50],
+        spacing_mm: [6.0; 3],
+        ..Default::default()
+    })
+    .unwrap();
+    stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
+    let atlas = Arc::new(stylet_atlas::load(dir.path()).unwrap());
+    let plan = SessionPlan {
+        atlas: Arc::clone(&atlas),
+        scenario: atlas.manifest.scenarios[0].name.clone(),
+        difficulty: stylet_scoring::Difficulty::Beginner,
+        trainee: "tina".into(),
+        seed: 1,
+        sessions_dir: dir.path().join("sessions"),
+    };
+    let double = HaplyDouble::start(vec![[0.0; 4], [1.0, 0.0, 0.0, 0.0]]).unwrap();
+    let hands = LiveHands {
+        needle: HandDevice::ForceFeedback(
+            DeviceChoice {
+                backend: Backend::Haply,
+                library: None,
+                url: Some(double.url.clone()),
+            },
+            Mapping::default(),
+        ),
+        // No SpaceMouse is connected to a test machine.
+        probe: Some((HandDevice::SpaceMouse, HandTool::Probe(ProbeKind::Convex))),
+    };
+    let e = RunningSession::start(plan, Driver::Live(hands), true)
+        .err()
+        .expect("refused");
+    let e = e.to_string();
+    assert!(
+        e.starts_with("the device cannot be used: ")
+            && (e.contains("no SpaceMouse found") || e.contains("HID devices")),
+        "{e}"
+    );
+    let began = Instant::now();
+    while double.connected() && began.elapsed() < Duration::from_secs(5) {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert_eq!(double.connections(), 1, "the device was opened");
+    assert!(!double.connected(), "and closed again");
+    assert!(double.forces().iter().all(|f| [f[1], f[2], f[3]] == [0.0; 3]));
+    assert!(!dir.path().join("sessions").exists(), "no session file was begun");
+}
