@@ -39,6 +39,7 @@ pub mod synthetic_atlas;
 mod test_rng;
 pub mod thresholds;
 pub mod volume;
+pub mod wire;
 
 pub use atlas::{AIR_HU, DistanceMaps, PunctureAtlas};
 pub use complications::{ComplicationKind, Complications, Consequence, ConsequenceVolumes, NeedleTip};
@@ -97,4 +98,7 @@ pub enum SettingsError {
     /// A breathing setting (the synthetic motion or the breathing signal).
     #[error("{reason}")]
     Breathing { setting: &'static str, reason: String },
+    /// A guide-wire setting ([`wire::WireSpec`]).
+    #[error("guide wire: {0}")]
+    Wire(String),
 }

@@ -1,0 +1,41 @@
+//! The channel a guide wire follows: the bile ducts' lumen as a signed distance map (positive
+//! inside, mm; `distance::signed_distance_map`), its gradient pointing away from the wall, into
+//! the lumen. The wire's tip is in the lumen while the distance there exceeds its radius.
+
+use glam::DVec3;
+
+use crate::distance::signed_distance_map;
+use crate::gradient::GradientSampler;
+use crate::grid::Grid;
+use crate::volume::Volume;
+
+/// The ducts' lumen, ready to be sampled.
+#[derive(Debug, Clone)]
+pub struct DuctChannel {
+    distance: Volume<f32>,
+}
+
+/// Distance read outside the grid (mm): far outside any duct.
+const OUTSIDE_MM: f32 = -1.0e3;
+
+impl DuctChannel {
+    /// The channel of the voxels `lumen` marks (the duct labels' voxels).
+    pub fn new(grid: &Grid, lumen: &[bool]) -> DuctChannel {
+        DuctChannel {
+            distance: signed_distance_map(grid, lumen),
+        }
+    }
+
+    /// Signed distance to the duct wall at `x` (mm; positive inside the lumen).
+    pub fn depth_mm(&self, x: DVec3) -> f64 {
+        f64::from(self.distance.sample(x, OUTSIDE_MM))
+    }
+
+    /// The unit direction away from the nearest wall, into the lumen (zero where the field is
+    /// flat).
+    pub fn inward(&self, x: DVec3) -> DVec3 {
+        let g =
+            GradientSampler::new(&self.distance).gradient_at_index(self.distance.grid().world_to_index(x), OUTSIDE_MM);
+        g.try_normalize().unwrap_or(DVec3::ZERO)
+    }
+}
