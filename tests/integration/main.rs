@@ -15,6 +15,7 @@ mod complications;
 mod csp;
 mod dashboard;
 mod force_feedback;
+mod guide_wire;
 mod haptics;
 mod hardening;
 mod instructors;

@@ -143,16 +143,6 @@ pub enum Driver {
     Script(String),
 }
 
-impl Driver {
-    /// One hand, moved by the window's keys and mouse.
-    pub fn keys_and_mouse() -> Driver {
-        Driver::Live(LiveHands {
-            needle: HandDevice::KeysAndMouse,
-            probe: None,
-        })
-    }
-}
-
 /// The devices of a live session: the first hand's (the needle hand) and, with two hands, the
 /// second hand's and what it holds at the start.
 pub struct LiveHands {

@@ -266,6 +266,19 @@ impl PropertyTree {
         None
     }
 
+    /// Whether `name` is the tissue `ancestor` or one of its descendants (a target duct is a bile
+    /// duct).
+    pub fn is_a(&self, name: &str, ancestor: &str) -> bool {
+        let mut at = self.by_name.get(name).copied();
+        while let Some(i) = at {
+            if self.nodes[i].name == ancestor {
+                return true;
+            }
+            at = self.nodes[i].parent;
+        }
+        false
+    }
+
     /// The complication a puncture of a tissue causes, inherited like the parameters.
     pub fn resolve_complication(&self, name: &str) -> Option<ComplicationKind> {
         let mut at = Some(*self.by_name.get(name)?);

@@ -26,6 +26,25 @@ impl DuctChannel {
         }
     }
 
+    /// The channel of an atlas' ducts: the voxels whose partial label's tissue is `tissue` or
+    /// descends from it (`bile_duct` takes the target duct too); `None` when no label is.
+    pub fn of_tissue(atlas: &crate::PunctureAtlas, tissue: &str) -> Option<DuctChannel> {
+        let tree = atlas.property_tree();
+        let ducts: Vec<crate::LabelId> = atlas
+            .label_table()
+            .labels()
+            .iter()
+            .filter(|l| tree.is_a(&l.tissue, tissue))
+            .map(|l| l.id)
+            .collect();
+        if ducts.is_empty() {
+            return None;
+        }
+        let labels = atlas.partial_labels();
+        let lumen: Vec<bool> = labels.data().iter().map(|l| ducts.contains(l)).collect();
+        Some(DuctChannel::new(labels.grid(), &lumen))
+    }
+
     /// Signed distance to the duct wall at `x` (mm; positive inside the lumen).
     pub fn depth_mm(&self, x: DVec3) -> f64 {
         f64::from(self.distance.sample(x, OUTSIDE_MM))
