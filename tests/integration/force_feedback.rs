@@ -304,31 +304,38 @@ fn a_hand_on_the_dhd_double_feels_the_skin_and_is_safe_when_the_tick_stalls() {
     whole_simulator(Box::new(device), opened, 20.0, &double);
 }
 
-/// A session by hand with a force-feedback device (`stylet sim --device haply`): the device
-/// opened when the session starts, its model and limits in the session header, the clutch
-/// recorded in the notes, and the file replays and scores like any other.
-#[test]
-fn a_session_with_the_haply_double_records_the_device_and_its_clutch() {
-    use stylet_app::session::{Driver, HandDevice, LiveHands, RunningSession, SessionPlan};
-    use stylet_devices::haptic::DeviceChoice;
-
-    let dir = tempfile::tempdir().unwrap();
+/// A coarse phantom (64 × 64 × 50 voxels of 6 mm) in `dir` and a beginner's plan on it whose
+/// sessions are written to `dir/sessions`.
+fn small_phantom_plan(dir: &Path) -> (Arc<stylet_atlas::Atlas>, stylet_app::session::SessionPlan) {
     let p = stylet_atlas::phantom::generate(&stylet_atlas::phantom::PhantomConfig {
         dims: [64, 64, 50],
         spacing_mm: [6.0; 3],
         ..Default::default()
     })
     .unwrap();
-    stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
-    let atlas = Arc::new(stylet_atlas::load(dir.path()).unwrap());
-    let plan = SessionPlan {
+    stylet_atlas::write(dir, &p.manifest, &p.ct, &p.partial).unwrap();
+    let atlas = Arc::new(stylet_atlas::load(dir).unwrap());
+    let plan = stylet_app::session::SessionPlan {
         atlas: Arc::clone(&atlas),
         scenario: atlas.manifest.scenarios[0].name.clone(),
         difficulty: stylet_scoring::Difficulty::Beginner,
         trainee: "tina".into(),
         seed: 1,
-        sessions_dir: dir.path().join("sessions"),
+        sessions_dir: dir.join("sessions"),
     };
+    (atlas, plan)
+}
+
+/// A session by hand with a force-feedback device (`stylet sim --device haply`): the device
+/// opened when the session starts, its model and limits in the session header, the clutch
+/// recorded in the notes, and the file replays and scores like any other.
+#[test]
+fn a_session_with_the_haply_double_records_the_device_and_its_clutch() {
+    use stylet_app::session::{Driver, HandDevice, LiveHands, RunningSession};
+    use stylet_devices::haptic::DeviceChoice;
+
+    let dir = tempfile::tempdir().unwrap();
+    let (atlas, plan) = small_phantom_plan(dir.path());
     let double = HaplyDouble::start(vec![[0.0, 0.0, 0.0, 0.0], [2.0, 0.0, 0.0, 0.0]]).unwrap();
     let choice = DeviceChoice {
         backend: Backend::Haply,
@@ -430,27 +437,12 @@ fn a_session_with_the_haply_double_records_the_device_and_its_clutch() {
 /// verified.
 #[test]
 fn a_force_feedback_device_in_the_probe_hand_feels_the_probe() {
-    use stylet_app::session::{Driver, HandDevice, LiveHands, RunningSession, SessionPlan, probe_start_pose};
+    use stylet_app::session::{Driver, HandDevice, LiveHands, RunningSession, probe_start_pose};
     use stylet_devices::haptic::DeviceChoice;
     use stylet_physics::{HandTool, ProbeKind};
 
     let dir = tempfile::tempdir().unwrap();
-    let p = stylet_atlas::phantom::generate(&stylet_atlas::phantom::PhantomConfig {
-        dims: [64, 64, 50],
-        spacing_mm: [6.0; 3],
-        ..Default::default()
-    })
-    .unwrap();
-    stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
-    let atlas = Arc::new(stylet_atlas::load(dir.path()).unwrap());
-    let plan = SessionPlan {
-        atlas: Arc::clone(&atlas),
-        scenario: atlas.manifest.scenarios[0].name.clone(),
-        difficulty: stylet_scoring::Difficulty::Beginner,
-        trainee: "tina".into(),
-        seed: 1,
-        sessions_dir: dir.path().join("sessions"),
-    };
+    let (_, plan) = small_phantom_plan(dir.path());
     let double = HaplyDouble::start(pushing_hand(Backend::Haply, 30.0)).unwrap();
     let choice = DeviceChoice {
         backend: Backend::Haply,
@@ -514,27 +506,12 @@ fn a_force_feedback_device_in_the_probe_hand_feels_the_probe() {
 /// the first hand's force-feedback device, already opened, is closed again at zero force.
 #[test]
 fn a_missing_probe_hand_device_closes_the_needle_hands_device() {
-    use stylet_app::session::{Driver, HandDevice, LiveHands, RunningSession, SessionPlan};
+    use stylet_app::session::{Driver, HandDevice, LiveHands, RunningSession};
     use stylet_devices::haptic::DeviceChoice;
     use stylet_physics::{HandTool, ProbeKind};
 
     let dir = tempfile::tempdir().unwrap();
-    let p = stylet_atlas::phantom::generate(&stylet_atlas::phantom::PhantomConfig {
-        dims: [64, 64, 50],
-        spacing_mm: [6.0; 3],
-        ..Default::default()
-    })
-    .unwrap();
-    stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
-    let atlas = Arc::new(stylet_atlas::load(dir.path()).unwrap());
-    let plan = SessionPlan {
-        atlas: Arc::clone(&atlas),
-        scenario: atlas.manifest.scenarios[0].name.clone(),
-        difficulty: stylet_scoring::Difficulty::Beginner,
-        trainee: "tina".into(),
-        seed: 1,
-        sessions_dir: dir.path().join("sessions"),
-    };
+    let (_, plan) = small_phantom_plan(dir.path());
     let double = HaplyDouble::start(vec![[0.0; 4], [1.0, 0.0, 0.0, 0.0]]).unwrap();
     let hands = LiveHands {
         needle: HandDevice::ForceFeedback(

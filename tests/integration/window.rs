@@ -93,6 +93,20 @@ fn step_until(h: &mut Harness<'_, StyletApp>, what: &str, done: impl Fn(&StyletA
     h.run_steps(3);
 }
 
+/// Holds `key` down for `how_long`, frame by frame, then lets the loop take the last of it.
+fn hold_key(h: &mut Harness<'_, StyletApp>, key: egui::Key, how_long: Duration) {
+    let t0 = Instant::now();
+    while t0.elapsed() < how_long {
+        h.key_down(key);
+        h.step();
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    h.key_up(key);
+    h.step();
+    std::thread::sleep(Duration::from_millis(100));
+    h.step();
+}
+
 fn session_settled(app: &StyletApp) -> bool {
     match &app.screen {
         Screen::Session(s) => s.running().is_some_and(|r| r.is_over()) && s.views_current(),
@@ -229,16 +243,7 @@ fn a_session_by_hand_moves_with_the_keys_and_the_keypad_changes_the_tool() {
         s.gauge = stylet_physics::needle::spec::Gauge::G22;
     }
     h.key_press(egui::Key::Num4);
-    let t0 = Instant::now();
-    while t0.elapsed() < Duration::from_millis(600) {
-        h.key_down(egui::Key::W);
-        h.step();
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    h.key_up(egui::Key::W);
-    h.step();
-    std::thread::sleep(Duration::from_millis(100));
-    h.step();
+    hold_key(&mut h, egui::Key::W, Duration::from_millis(600));
     let (moved, needle) = match &h.state().screen {
         Screen::Session(s) => {
             let r = s.running().unwrap();
@@ -576,16 +581,7 @@ fn the_devices_dialog_gives_each_hand_a_device_and_the_machine_remembers() {
     };
     h.run_steps(3);
     let (needle0, probe0) = poses(&h);
-    let t0 = Instant::now();
-    while t0.elapsed() < Duration::from_millis(600) {
-        h.key_down(egui::Key::W);
-        h.step();
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    h.key_up(egui::Key::W);
-    h.step();
-    std::thread::sleep(Duration::from_millis(100));
-    h.step();
+    hold_key(&mut h, egui::Key::W, Duration::from_millis(600));
     let (needle1, probe1) = poses(&h);
     let moved = probe1 - probe0;
     assert!(

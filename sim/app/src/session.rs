@@ -283,24 +283,20 @@ pub const START_STANDOFF_MM: f64 = 30.0;
 /// How far from the entry an expert starts, along the skin (mm): near the entry window, not on it.
 pub const EXPERT_OFFSET_MM: f64 = 10.0;
 
-/// Where the tool starts for a session by hand: [`START_STANDOFF_MM`] outside the skin entry of
-/// the path the atlas guides along. With the planned path among the level's aids (beginner), on
-/// that path and aimed along it; without (advanced, expert), over the entry and aimed straight
-/// into the skin, so the trainee finds the angle, and an expert [`EXPERT_OFFSET_MM`] to the side,
-/// so they also find the window. Without planned paths, above the volume's centre pointing down.
-/// The pose is the first tick's, recorded like every other: replay does not depend on it.
-pub fn start_pose(plan: &SessionPlan) -> (DVec3, DQuat) {
-    let atlas = &plan.atlas;
-    let orient = |d| stylet_devices::script::device::orientation(d, None);
-    let path = atlas
-        .guided_path()
-        .map(|p| (DVec3::from_array(p.entry_mm), DVec3::from_array(p.target_mm)));
-    if let Some((entry, target)) = path
-        && let Some(dir) = (target - entry).try_normalize()
-    {
-        if plan.aids().guided_path.is_some() {
-            return (entry - dir * START_STANDOFF_MM, orient(dir));
-        }
+/// The skin entry of the path the atlas guides along, seen from outside: the path's direction,
+/// the skin's inward normal there, and the side across the path's lean.
+struct EntryFrame {
+    entry: DVec3,
+    dir: DVec3,
+    inward: DVec3,
+    side: DVec3,
+}
+
+impl EntryFrame {
+    fn of(atlas: &Atlas) -> Option<EntryFrame> {
+        let p = atlas.guided_path()?;
+        let entry = DVec3::from_array(p.entry_mm);
+        let dir = (DVec3::from_array(p.target_mm) - entry).try_normalize()?;
         // D_skin grows inward: its gradient at the entry is the inward normal.
         let inward = atlas
             .model
@@ -309,17 +305,46 @@ pub fn start_pose(plan: &SessionPlan) -> (DVec3, DQuat) {
             .try_normalize()
             .filter(|n| n.dot(dir) > 0.0)
             .unwrap_or(dir);
-        let over = if plan.difficulty == stylet_atlas::Difficulty::Expert {
-            let lean = dir - inward * dir.dot(inward);
-            let side = inward
-                .cross(lean)
-                .try_normalize()
-                .unwrap_or_else(|| inward.any_orthonormal_vector());
-            entry + side * EXPERT_OFFSET_MM
-        } else {
-            entry
+        let lean = dir - inward * dir.dot(inward);
+        let side = inward
+            .cross(lean)
+            .try_normalize()
+            .unwrap_or_else(|| inward.any_orthonormal_vector());
+        Some(EntryFrame {
+            entry,
+            dir,
+            inward,
+            side,
+        })
+    }
+
+    /// [`START_STANDOFF_MM`] outside the skin at `over`, aimed straight into it.
+    fn aimed_in_from(&self, over: DVec3) -> (DVec3, DQuat) {
+        (over - self.inward * START_STANDOFF_MM, orient(self.inward))
+    }
+}
+
+/// A tool's orientation pointing along `dir`.
+fn orient(dir: DVec3) -> DQuat {
+    stylet_devices::script::device::orientation(dir, None)
+}
+
+/// Where the tool starts for a session by hand: [`START_STANDOFF_MM`] outside the skin entry of
+/// the path the atlas guides along. With the planned path among the level's aids (beginner), on
+/// that path and aimed along it; without (advanced, expert), over the entry and aimed straight
+/// into the skin, so the trainee finds the angle, and an expert [`EXPERT_OFFSET_MM`] to the side,
+/// so they also find the window. Without planned paths, above the volume's centre pointing down.
+/// The pose is the first tick's, recorded like every other: replay does not depend on it.
+pub fn start_pose(plan: &SessionPlan) -> (DVec3, DQuat) {
+    let atlas = &plan.atlas;
+    if let Some(f) = EntryFrame::of(atlas) {
+        if plan.aids().guided_path.is_some() {
+            return (f.entry - f.dir * START_STANDOFF_MM, orient(f.dir));
+        }
+        return match plan.difficulty {
+            stylet_atlas::Difficulty::Expert => f.aimed_in_from(f.entry + f.side * EXPERT_OFFSET_MM),
+            _ => f.aimed_in_from(f.entry),
         };
-        return (over - inward * START_STANDOFF_MM, orient(inward));
     }
     let (lo, hi) = atlas.model.ct().grid().world_bounds();
     let top = (lo + hi) * 0.5 + DVec3::new(0.0, (hi.y - lo.y) * 0.5, 0.0);
@@ -342,33 +367,13 @@ pub const PROBE_OFFSET_MM: f64 = 40.0;
 /// lean, so the needle has its side), aimed straight into the skin. Without planned paths, beside
 /// where the first hand starts. Recorded like every pose: replay does not depend on it.
 pub fn probe_start_pose(plan: &SessionPlan) -> (DVec3, DQuat) {
-    let atlas = &plan.atlas;
-    let orient = |d| stylet_devices::script::device::orientation(d, None);
-    let path = atlas
-        .guided_path()
-        .map(|p| (DVec3::from_array(p.entry_mm), DVec3::from_array(p.target_mm)));
-    if let Some((entry, target)) = path
-        && let Some(dir) = (target - entry).try_normalize()
-    {
-        let inward = atlas
-            .model
-            .skin_distance()
-            .gradient(entry, 0.0)
-            .try_normalize()
-            .filter(|n| n.dot(dir) > 0.0)
-            .unwrap_or(dir);
-        let lean = dir - inward * dir.dot(inward);
-        let side = inward
-            .cross(lean)
-            .try_normalize()
-            .unwrap_or_else(|| inward.any_orthonormal_vector());
-        return (
-            entry + side * PROBE_OFFSET_MM - inward * START_STANDOFF_MM,
-            orient(inward),
-        );
+    match EntryFrame::of(&plan.atlas) {
+        Some(f) => f.aimed_in_from(f.entry + f.side * PROBE_OFFSET_MM),
+        None => {
+            let (p, q) = start_pose(plan);
+            (p + DVec3::X * PROBE_OFFSET_MM, q)
+        }
     }
-    let (p, q) = start_pose(plan);
-    (p + DVec3::X * PROBE_OFFSET_MM, q)
 }
 
 /// What a live session keeps of its hands' devices.
@@ -664,19 +669,24 @@ fn new_session_path(dir: &Path, scenario: &str) -> PathBuf {
 mod tests {
     use super::*;
 
-    /// A beginner starts on the planned path, aimed along it; an advanced trainee over its entry,
-    /// aimed into the skin; an expert beside the entry: all a few centimetres out.
-    #[test]
-    fn a_session_by_hand_starts_a_few_centimetres_outside_the_entry() {
-        let dir = tempfile::tempdir().unwrap();
+    /// A coarse phantom (64 × 64 × 50 voxels of 6 mm) written to and loaded from `dir`.
+    fn small_phantom(dir: &Path) -> Arc<Atlas> {
         let p = stylet_atlas::phantom::generate(&stylet_atlas::phantom::PhantomConfig {
             dims: [64, 64, 50],
             spacing_mm: [6.0; 3],
             ..Default::default()
         })
         .unwrap();
-        stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
-        let atlas = Arc::new(stylet_atlas::load(dir.path()).unwrap());
+        stylet_atlas::write(dir, &p.manifest, &p.ct, &p.partial).unwrap();
+        Arc::new(stylet_atlas::load(dir).unwrap())
+    }
+
+    /// A beginner starts on the planned path, aimed along it; an advanced trainee over its entry,
+    /// aimed into the skin; an expert beside the entry: all a few centimetres out.
+    #[test]
+    fn a_session_by_hand_starts_a_few_centimetres_outside_the_entry() {
+        let dir = tempfile::tempdir().unwrap();
+        let atlas = small_phantom(dir.path());
         let g = atlas.guided_path().unwrap();
         let (entry, target) = (DVec3::from_array(g.entry_mm), DVec3::from_array(g.target_mm));
         let path_dir = (target - entry).normalize();
@@ -716,14 +726,7 @@ mod tests {
     #[test]
     fn the_probe_hand_starts_beside_the_entry_aimed_into_the_skin() {
         let dir = tempfile::tempdir().unwrap();
-        let p = stylet_atlas::phantom::generate(&stylet_atlas::phantom::PhantomConfig {
-            dims: [64, 64, 50],
-            spacing_mm: [6.0; 3],
-            ..Default::default()
-        })
-        .unwrap();
-        stylet_atlas::write(dir.path(), &p.manifest, &p.ct, &p.partial).unwrap();
-        let atlas = Arc::new(stylet_atlas::load(dir.path()).unwrap());
+        let atlas = small_phantom(dir.path());
         let entry = DVec3::from_array(atlas.guided_path().unwrap().entry_mm);
         let plan = SessionPlan {
             atlas: Arc::clone(&atlas),

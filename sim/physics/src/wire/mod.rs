@@ -37,6 +37,9 @@ pub const J_LEAD_DEG: f64 = 30.0;
 /// A tip meets a wall head-on when its lead direction is within this of the wall's normal
 /// (degrees): the wall cannot turn it.
 pub const HEAD_ON_DEG: f64 = 25.0;
+/// Most the hub moves in one call (mm): a hand moves far less in a tick, and the work of a call
+/// stays bounded whatever a damaged input asks.
+pub const MAX_MOVE_MM: f64 = 10.0;
 /// Most nodes a wire has (a 400 mm wire out of the needle).
 pub const MAX_NODES: usize = 800;
 /// Friction of a wire in the ducts (N per mm in contact): a hydrophilic-coated wire in bile
@@ -175,15 +178,15 @@ impl GuideWire {
             .unwrap_or_else(|| dir.any_orthonormal_vector());
     }
 
-    /// Pushes (`delta_mm` > 0) or pulls (< 0) the wire at the hub with the wire rolled to
-    /// `roll_rad`, in `channel`; `wall_puncture_n` is the force that punctures the duct wall.
+    /// Pushes (`delta_mm` > 0) or pulls (< 0) the wire at the hub, at most [`MAX_MOVE_MM`], with
+    /// the wire rolled to `roll_rad`, in `channel`; `wall_puncture_n` is the force that punctures the duct wall.
     pub fn advance(&mut self, delta_mm: f64, roll_rad: f64, channel: &DuctChannel, wall_puncture_n: f64) -> WireStep {
         if roll_rad.is_finite() {
             self.roll_rad = roll_rad;
         }
         let mut step = WireStep::default();
         if delta_mm.is_finite() {
-            self.pending_mm += delta_mm;
+            self.pending_mm += delta_mm.clamp(-MAX_MOVE_MM, MAX_MOVE_MM);
         }
         while self.pending_mm >= NODE_MM {
             self.pending_mm -= NODE_MM;

@@ -201,3 +201,14 @@ fn the_wire_is_deterministic() {
     };
     assert_eq!(run(), run());
 }
+
+/// A damaged input moves the hub at most [`MAX_MOVE_MM`] a call; NaN moves nothing.
+#[test]
+fn one_call_moves_the_wire_a_bounded_length() {
+    let c = y_ducts();
+    let mut w = wire(WireTip::Straight, WireDiameter::In035);
+    w.advance(1e300, 0.0, &c, WALL_N);
+    assert_eq!(w.out_mm(), MAX_MOVE_MM);
+    w.advance(f64::NAN, f64::NAN, &c, WALL_N);
+    assert_eq!(w.out_mm(), MAX_MOVE_MM);
+}
