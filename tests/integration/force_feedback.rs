@@ -55,10 +55,8 @@ trait Felt {
     fn felt(&self) -> Vec<(f64, DVec3)>;
     /// Broken API rules.
     fn broken_rules(&self) -> u64;
-    /// The zero of [`Felt::felt`]'s clock, where the double can say.
-    fn clock_start(&self) -> Option<Instant> {
-        None
-    }
+    /// The zero of [`Felt::felt`]'s clock.
+    fn clock_start(&self) -> Instant;
 }
 
 impl Felt for HaplyDouble {
@@ -71,8 +69,8 @@ impl Felt for HaplyDouble {
     fn broken_rules(&self) -> u64 {
         self.violations()
     }
-    fn clock_start(&self) -> Option<Instant> {
-        Some(HaplyDouble::clock_start(self))
+    fn clock_start(&self) -> Instant {
+        HaplyDouble::clock_start(self)
     }
 }
 
@@ -129,6 +127,25 @@ impl Felt for LibraryDouble {
             f()
         }
     }
+    fn clock_start(&self) -> Instant {
+        // SAFETY: the double's function with its declared signature, called while the library
+        // stays loaded (borrowed from `self`).
+        let time_s: libloading::Symbol<unsafe extern "C" fn() -> f64> =
+            unsafe { self.library.get(b"stylet_double_time_s\0") }.unwrap();
+        // Read the double's clock between two instants; the narrowest of a few reads (a loaded
+        // machine may hold the thread up between them) gives the zero to well within a millisecond.
+        (0..8)
+            .map(|_| {
+                let before = Instant::now();
+                // SAFETY: as above.
+                let t = Duration::from_secs_f64(unsafe { time_s() });
+                let after = Instant::now();
+                (after - before, before + (after - before) / 2 - t)
+            })
+            .min_by_key(|(width, _)| *width)
+            .unwrap()
+            .1
+    }
 }
 
 /// The hand of the whole-simulator test (Stylet's device frame: +y away from the user, which the
@@ -153,7 +170,7 @@ fn pushing_hand(backend: Backend, standoff_mm: f64) -> Vec<[f64; 4]> {
 /// the device's limit; a stalled tick zeroes the force within the watchdog's 10 ms; the last force
 /// at shutdown is zero. Prints the servo rate and jitter the double saw and the tick-to-force
 /// latency.
-fn whole_simulator(device: Box<dyn HapticDevice>, opened: Instant, standoff_mm: f64, double: &dyn Felt) {
+fn whole_simulator(device: Box<dyn HapticDevice>, standoff_mm: f64, double: &dyn Felt) {
     let atlas = default_phantom();
     let path = atlas.guided_path().unwrap();
     let (entry, target) = (DVec3::from_array(path.entry_mm), DVec3::from_array(path.target_mm));
@@ -202,7 +219,7 @@ fn whole_simulator(device: Box<dyn HapticDevice>, opened: Instant, standoff_mm: 
     let forces = double.felt();
     let computed = computed.lock().unwrap();
     // The double's clock starts when the device opened (within the open call).
-    let zero = double.clock_start().unwrap_or(opened);
+    let zero = double.clock_start();
     let on_double_clock = |t: Instant| t.duration_since(zero).as_secs_f64();
     let computed_peak = computed.iter().map(|c| c.1.length()).fold(0.0, f64::max);
     let felt_peak = forces.iter().map(|f| f.1.length()).fold(0.0, f64::max);
@@ -277,9 +294,8 @@ fn a_hand_on_the_haply_double_feels_the_skin_and_is_safe_when_the_tick_stalls() 
     // The patient first: the hand's script runs from the moment the device opens.
     default_phantom();
     let double = HaplyDouble::start(pushing_hand(Backend::Haply, 20.0)).unwrap();
-    let opened = Instant::now();
     let device = Haply::open(Some(&double.url)).unwrap();
-    whole_simulator(Box::new(device), opened, 20.0, &double);
+    whole_simulator(Box::new(device), 20.0, &double);
 }
 
 #[test]
@@ -288,9 +304,8 @@ fn a_hand_on_the_openhaptics_double_feels_the_skin_and_is_safe_when_the_tick_sta
     default_phantom();
     let double = LibraryDouble::open("stylet_openhaptics_double");
     double.set_hand(&pushing_hand(Backend::OpenHaptics, 20.0));
-    let opened = Instant::now();
     let device = OpenHaptics::open(Some(&double.path)).unwrap();
-    whole_simulator(Box::new(device), opened, 20.0, &double);
+    whole_simulator(Box::new(device), 20.0, &double);
 }
 
 #[test]
@@ -299,9 +314,8 @@ fn a_hand_on_the_dhd_double_feels_the_skin_and_is_safe_when_the_tick_stalls() {
     default_phantom();
     let double = LibraryDouble::open("stylet_dhd_double");
     double.set_hand(&pushing_hand(Backend::Dhd, 20.0));
-    let opened = Instant::now();
     let device = Dhd::open(Some(&double.path)).unwrap();
-    whole_simulator(Box::new(device), opened, 20.0, &double);
+    whole_simulator(Box::new(device), 20.0, &double);
 }
 
 /// A coarse phantom (64 × 64 × 50 voxels of 6 mm) in `dir` and a beginner's plan on it whose

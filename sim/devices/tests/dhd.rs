@@ -51,10 +51,9 @@ fn a_servo_thread_held_up_past_the_firmware_watchdog_recovers_safely() {
     probe.set_hand(&[[0.0, 0.0, 0.0, -4.0]]);
     let device = Dhd::open(Some(&library)).unwrap();
     let wall = |p: DVec3| DVec3::new(0.0, 0.0, 0.5 * (-p.z).max(0.0));
-    let mut seq = 0;
     // Each phase starts with 150 ms of no force (the hand out of the wall: the guard engages only
     // after 20 ticks of a small force), then the wall.
-    let mut push_for = |d: Duration| {
+    let push_for = |d: Duration| {
         let start = Instant::now();
         while start.elapsed() < d {
             let f = if start.elapsed() < Duration::from_millis(150) {
@@ -62,8 +61,7 @@ fn a_servo_thread_held_up_past_the_firmware_watchdog_recovers_safely() {
             } else {
                 wall(device.reading().unwrap().position_mm)
             };
-            device.set_force(f, seq);
-            seq += 1;
+            device.set_force(f);
             std::thread::sleep(Duration::from_millis(1));
         }
     };

@@ -58,12 +58,10 @@ fn an_uncalibrated_touch_holds_forces_until_it_is_calibrated_in_its_inkwell() {
     probe.set_u32("stylet_double_set_calibration", 0x5002);
     let device = OpenHaptics::open(Some(&library)).unwrap();
     let small = DVec3::new(0.0, 0.0, 0.1);
-    let mut seq = 0;
-    let mut push_for = |device: &OpenHaptics, d: Duration| {
+    let push_for = |device: &OpenHaptics, d: Duration| {
         let start = Instant::now();
         while start.elapsed() < d {
-            device.set_force(small, seq);
-            seq += 1;
+            device.set_force(small);
             std::thread::sleep(Duration::from_millis(1));
         }
     };

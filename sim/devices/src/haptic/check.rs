@@ -74,11 +74,9 @@ pub fn run_wall(device: Box<dyn HapticDevice>, seconds: f64) -> Result<CheckRepo
     let first = device.counts().ticks;
     let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
     let mut largest: f64 = 0.0;
-    let mut seq = 0u64;
     while start.elapsed().as_secs_f64() < seconds {
         if let Some(r) = device.reading() {
-            device.set_force(wall_force(r.position_mm), seq);
-            seq += 1;
+            device.set_force(wall_force(r.position_mm));
             lo = lo.min(r.position_mm);
             hi = hi.max(r.position_mm);
             largest = largest.max(r.force.sent_n.length());

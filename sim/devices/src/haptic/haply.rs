@@ -339,8 +339,8 @@ impl HapticDevice for Haply {
         self.shared.readings.latest()
     }
 
-    fn set_force(&self, force_n: DVec3, seq: u64) {
-        self.shared.forces.put(super::Computed { force_n, seq });
+    fn set_force(&self, force_n: DVec3) {
+        self.shared.put_force(force_n);
     }
 
     fn set_hold(&self, hold: Hold) {

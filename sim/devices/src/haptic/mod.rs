@@ -104,9 +104,9 @@ pub trait HapticDevice: Send {
     fn info(&self) -> &DeviceInfo;
     /// The newest servo tick, if any (never waits for the servo loop).
     fn reading(&self) -> Option<ServoReading>;
-    /// The simulation's newest force for the hand (N, device frame); `seq` grows by one per
-    /// haptic tick, so the servo loop's watchdog sees a stall.
-    fn set_force(&self, force_n: DVec3, seq: u64);
+    /// The simulation's newest force for the hand (N, device frame), stamped when it arrives so
+    /// the servo loop's watchdog sees a stall.
+    fn set_force(&self, force_n: DVec3);
     /// Holds forces at zero (paused, window out of focus) or lets them flow again (they engage
     /// afresh and ramp in).
     fn set_hold(&self, hold: Hold);

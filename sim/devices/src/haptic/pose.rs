@@ -84,7 +84,6 @@ pub struct HapticPose {
     /// The pose reported while the clutch is held.
     clutched_at: Option<(DVec3, Option<DQuat>)>,
     last: Option<(DVec3, Option<DQuat>)>,
-    seq: u64,
     window_hold: WindowHold,
     /// The hold last given to the device.
     applied: Hold,
@@ -119,7 +118,6 @@ impl HapticPose {
             turn: DQuat::IDENTITY,
             clutched_at: None,
             last: None,
-            seq: 0,
             window_hold: WindowHold::default(),
             applied: Hold::None,
             notes: vec![mapped],
@@ -271,8 +269,7 @@ impl PoseSource for HapticPose {
         }
         // Stylet's device frame back to the vendor's (the axes are orthonormal: the transpose
         // inverts them).
-        self.device.set_force(self.axes.transpose() * force_n, self.seq);
-        self.seq += 1;
+        self.device.set_force(self.axes.transpose() * force_n);
         Ok(())
     }
 
@@ -328,7 +325,7 @@ mod tests {
                 },
             })
         }
-        fn set_force(&self, force_n: DVec3, _seq: u64) {
+        fn set_force(&self, force_n: DVec3) {
             self.seen.lock().unwrap().force_n = force_n;
         }
         fn set_hold(&self, hold: Hold) {

@@ -3,8 +3,10 @@
 //!
 //! 1. **Hold.** Paused, out of focus or stopping: zero, and the force must engage afresh.
 //!    A computed force that is not finite (NaN, infinite) is zero the same way.
-//! 2. **Watchdog.** The simulation has produced no new force for [`SafetyLimits::watchdog_s`]:
-//!    zero (a stalled simulation must not leave its last force on the hand), engage afresh.
+//! 2. **Watchdog.** The newest force the simulation published is older than
+//!    [`SafetyLimits::watchdog_s`]: zero (a stalled simulation must not leave its last force on
+//!    the hand), engage afresh. Its age counts from when it was published, not from when the servo
+//!    loop first saw it, so a servo loop held up for a while cannot stretch the limit.
 //! 3. **Engage.** Forces start only once the computed force has stayed below
 //!    [`SafetyLimits::engage_below_n`] for [`SafetyLimits::engage_ticks`] ticks (a hand that opens
 //!    the device already inside the skin is not kicked out), then
@@ -74,11 +76,11 @@ pub enum Hold {
     Stopping,
 }
 
-/// The simulation's newest force and its sequence number (one per haptic tick).
+/// The simulation's newest force and when it was published (s, on the servo loop's clock).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Computed {
     pub force_n: DVec3,
-    pub seq: u64,
+    pub published_s: f64,
 }
 
 /// What the guard did to one tick's force.
@@ -129,8 +131,6 @@ enum State {
 pub struct ForceGuard {
     limits: SafetyLimits,
     state: State,
-    /// The newest sequence number seen and when it was first seen.
-    last_seq: Option<(u64, f64)>,
     /// Whether the watchdog is tripped (counted once per stall).
     tripped: bool,
     /// The last sent magnitudes (N), one per tick, at most a window less one, and their sum.
@@ -148,7 +148,6 @@ impl ForceGuard {
         ForceGuard {
             limits,
             state: State::Waiting { small_ticks: 0 },
-            last_seq: None,
             tripped: false,
             window: VecDeque::new(),
             window_sum_n: 0.0,
@@ -201,30 +200,20 @@ impl ForceGuard {
             limits.not_finite = true;
             return zero(self, limits);
         }
-        // Watchdog: how long since the sequence number last changed.
-        let fresh_since = match (computed, self.last_seq) {
-            (None, _) => None,
-            (Some(c), Some((seq, since))) if c.seq == seq => Some(since),
-            (Some(c), _) => {
-                self.last_seq = Some((c.seq, now_s));
-                self.tripped = false;
-                Some(now_s)
+        // Watchdog: how old the newest force is.
+        let fresh = computed.is_some_and(|c| now_s - c.published_s <= self.limits.watchdog_s);
+        if !fresh {
+            if !self.tripped && computed.is_some() {
+                self.counts.watchdog_trips += 1;
             }
-        };
-        match fresh_since {
-            Some(since) if now_s - since <= self.limits.watchdog_s => {}
-            _ => {
-                if !self.tripped && computed.is_some() {
-                    self.counts.watchdog_trips += 1;
-                }
-                self.tripped = computed.is_some();
-                limits.watchdog = true;
-                // Zero while stalled; once the simulation resumes the force ramps in again from
-                // zero (the needle may be held in tissue, so waiting for a small force could last
-                // the rest of the session). A guard not yet engaged keeps waiting.
-                return self.zero_then_ramp(computed_n, now_s, limits);
-            }
+            self.tripped = computed.is_some();
+            limits.watchdog = true;
+            // Zero while stalled; once the simulation resumes the force ramps in again from zero
+            // (the needle may be held in tissue, so waiting for a small force could last the rest
+            // of the session). A guard not yet engaged keeps waiting.
+            return self.zero_then_ramp(computed_n, now_s, limits);
         }
+        self.tripped = false;
         let magnitude = computed_n.length();
         let since_s = match self.state {
             State::Waiting { small_ticks } => {
@@ -321,7 +310,17 @@ mod tests {
     /// Runs `ticks` servo ticks with a fresh force each, from tick `from`.
     fn run(g: &mut ForceGuard, from: u64, ticks: u64, force: DVec3) -> Vec<Guarded> {
         (from..from + ticks)
-            .map(|k| g.filter(Some(Computed { force_n: force, seq: k }), k as f64 * DT, Hold::None))
+            .map(|k| {
+                let now_s = k as f64 * DT;
+                g.filter(
+                    Some(Computed {
+                        force_n: force,
+                        published_s: now_s,
+                    }),
+                    now_s,
+                    Hold::None,
+                )
+            })
             .collect()
     }
 
@@ -387,9 +386,13 @@ mod tests {
         let mut g = engaged();
         let f = DVec3::new(1.0, 0.0, 0.0);
         run(&mut g, 1100, 10, f);
-        // The simulation stalls: the same sequence number tick after tick.
+        // The simulation stalls: the same force, published at tick 1109, tick after tick.
+        let last = Computed {
+            force_n: f,
+            published_s: 1109.0 * DT,
+        };
         let stalled: Vec<Guarded> = (1110..1130)
-            .map(|k| g.filter(Some(Computed { force_n: f, seq: 1109 }), k as f64 * DT, Hold::None))
+            .map(|k| g.filter(Some(last), k as f64 * DT, Hold::None))
             .collect();
         let first_zero = stalled.iter().position(|o| o.sent_n == DVec3::ZERO).unwrap();
         assert!(first_zero <= 10, "zero {first_zero} ms after the last force");
@@ -403,6 +406,28 @@ mod tests {
     }
 
     #[test]
+    fn a_force_the_servo_loop_first_sees_late_is_as_old_as_when_it_was_published() {
+        let mut g = engaged();
+        let f = DVec3::new(1.0, 0.0, 0.0);
+        run(&mut g, 1100, 10, f);
+        // The last force before a stall was published 0.4 ms into tick 1109; the servo loop, held
+        // up by 8 ms (less than its own gap check), first sees it 7.6 ms old at tick 1117.
+        let last = Computed {
+            force_n: f,
+            published_s: 1109.4 * DT,
+        };
+        let seen: Vec<Guarded> = (1117..1125)
+            .map(|k| g.filter(Some(last), k as f64 * DT, Hold::None))
+            .collect();
+        assert!(seen[..3].iter().all(|o| o.sent_n == f), "{seen:?}");
+        assert!(
+            seen[3..].iter().all(|o| o.sent_n == DVec3::ZERO && o.limits.watchdog),
+            "zero 10 ms after it was published, not after it was seen: {seen:?}"
+        );
+        assert_eq!(g.counts().watchdog_trips, 1);
+    }
+
+    #[test]
     fn a_late_servo_loop_zeroes_the_force_and_ramps_it_in_again() {
         let mut g = engaged();
         let f = DVec3::new(1.0, 0.0, 0.0);
@@ -410,7 +435,11 @@ mod tests {
         assert!(before.last().unwrap().sent_n.length() > 0.5);
         let trips = g.counts().watchdog_trips;
         // The servo loop is 25 ms late, while the simulation kept producing forces.
-        let late = g.filter(Some(Computed { force_n: f, seq: 1135 }), 1135.0 * DT, Hold::None);
+        let newest = Computed {
+            force_n: f,
+            published_s: 1135.0 * DT,
+        };
+        let late = g.filter(Some(newest), 1135.0 * DT, Hold::None);
         assert_eq!(late.sent_n, DVec3::ZERO);
         assert!(late.limits.watchdog);
         assert_eq!(g.counts().watchdog_trips, trips + 1);
@@ -439,7 +468,7 @@ mod tests {
             let o = g.filter(
                 Some(Computed {
                     force_n: DVec3::X,
-                    seq: 5000,
+                    published_s: 1.2,
                 }),
                 1.2,
                 hold,
@@ -449,7 +478,7 @@ mod tests {
             let again = g.filter(
                 Some(Computed {
                     force_n: DVec3::X,
-                    seq: 5001,
+                    published_s: 1.201,
                 }),
                 1.201,
                 Hold::None,

@@ -19,7 +19,7 @@ const INTERVAL_BINS: usize = 400;
 /// The state the simulation's thread and the servo loop share.
 #[derive(Debug)]
 pub(crate) struct Shared {
-    pub forces: Mailbox<Computed>,
+    forces: Mailbox<Computed>,
     pub readings: Mailbox<ServoReading>,
     hold: AtomicU8,
     ticks: AtomicU64,
@@ -49,6 +49,15 @@ impl Shared {
             fault: OnceLock::new(),
             started: Instant::now(),
         })
+    }
+
+    /// Publishes the simulation's newest force (N, device frame), stamped now on the servo loop's
+    /// clock for its watchdog.
+    pub fn put_force(&self, force_n: DVec3) {
+        self.forces.put(Computed {
+            force_n,
+            published_s: self.started.elapsed().as_secs_f64(),
+        });
     }
 
     pub fn set_hold(&self, hold: Hold) {

@@ -153,11 +153,9 @@ pub fn wall_scenario(device: Box<dyn HapticDevice>, probe: &dyn Record, wall_sca
     let continuous_n = device.info().max_continuous_force_n;
     // The simulation's side at 1 kHz for 3 s, computing the wall's force from each reading.
     let start = Instant::now();
-    let mut seq = 0;
     while start.elapsed() < Duration::from_secs(3) {
         if let Some(r) = device.reading() {
-            device.set_force(wall_force(r.position_mm, wall_scale), seq);
-            seq += 1;
+            device.set_force(wall_force(r.position_mm, wall_scale));
         }
         std::thread::sleep(Duration::from_micros(900));
     }

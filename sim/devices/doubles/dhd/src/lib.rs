@@ -259,6 +259,13 @@ pub unsafe extern "C" fn stylet_double_forces(out: *mut f64, capacity: usize) ->
         .map_or(0, |d| unsafe { copy_forces(&d.arm, out, capacity) })
 }
 
+/// Seconds on the clock of the recorded forces now (it starts again when the device opens), so a
+/// test can put its own instants on that clock; a negative number before the hand is set.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn stylet_double_time_s() -> f64 {
+    double().as_ref().map_or(-1.0, |d| d.arm.time_s())
+}
+
 /// Calls that named another device than the one open (the backend must pass −1).
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn stylet_double_frame_violations() -> u64 {

@@ -341,6 +341,13 @@ pub unsafe extern "C" fn stylet_double_calibration_updates() -> u64 {
     with(|d| d.calibration_updates).unwrap_or(0)
 }
 
+/// Seconds on the clock of the recorded forces now (it starts again when the device opens), so a
+/// test can put its own instants on that clock; a negative number before the hand is set.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn stylet_double_time_s() -> f64 {
+    with(|d| d.arm.time_s()).unwrap_or(-1.0)
+}
+
 /// How many frame rules were broken (begin twice, end without begin, force outside a frame).
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn stylet_double_frame_violations() -> u64 {
