@@ -120,7 +120,7 @@ HAND2_F64_COLUMNS = (
     "hand2_torque_x_nmm", "hand2_torque_y_nmm", "hand2_torque_z_nmm",
 )
 HAND2_COLUMNS = HAND2_F64_COLUMNS + ("hand2_buttons",)
-EVENT_COLUMNS = ("tick", "t_s", "name", "tool", "gauge", "length_mm", "stylet_in", "ml")
+EVENT_COLUMNS = ("tick", "t_s", "name", "tool", "gauge", "length_mm", "stylet_in", "ml", "wire")
 DIGEST_COLUMNS = ("tick", "t_s", "digest", "digest_hex")
 ANNOTATION_COLUMNS = ("tick", "t_s", "text")
 PREVIEW_COLUMNS = (
@@ -142,8 +142,11 @@ TOOL_COLUMNS = ("tick", "tool", "tool_gauge", "tool_length_mm", "tool_stylet_in"
 
 EVENT_NAMES = (
     "tool", "tool2", "stylet-remove", "stylet-insert", "xray-on", "xray-off",
-    "contrast-inject", "breath-hold", "breath-release",
+    "contrast-inject", "breath-hold", "breath-release", "wire-in", "needle-out", "wire-out",
 )
+# A `wire-in` event's wire: "<diameter> <tip>".
+WIRE_DIAMETERS = ("0.018", "0.035")
+WIRE_TIPS = ("j", "straight")
 TOOLS = ("needle", "finger", "probe-linear", "probe-convex")
 # What the second hand may hold (`none`: empty).
 HAND2_TOOLS = ("finger", "probe-linear", "probe-convex", "none")
@@ -629,6 +632,9 @@ class _Reader:
         if stylet is not None and not isinstance(stylet, bool):
             raise SessionFormatError(f"{what}: stylet_in is not true/false")
         ml = None if m.get("ml") is None else _real(m["ml"], f"{what}: ml")
+        wire = m.get("wire")
+        if wire is not None:
+            _text(wire, f"{what}: wire", MAX_NAME_CHARS)
         if name not in EVENT_NAMES:
             raise SessionFormatError(f"{what}: unknown event '{name}'")
         if name == "tool":
@@ -646,8 +652,12 @@ class _Reader:
             raise SessionFormatError(f"{what}: the second hand cannot hold '{str(tool)[:64]}'")
         if name == "contrast-inject" and ml is None:
             raise SessionFormatError(f"{what}: contrast event without ml")
+        if name == "wire-in":
+            parts = (wire or "").split(" ")
+            if len(parts) != 2 or parts[0] not in WIRE_DIAMETERS or parts[1] not in WIRE_TIPS:
+                raise SessionFormatError(f"{what}: wire '{str(wire)[:40]}' is not \"<0.018|0.035> <j|straight>\"")
         e = self.s.events
-        for k, v in zip(EVENT_COLUMNS, (tick, self.t(tick), name, tool, gauge, length, stylet, ml)):
+        for k, v in zip(EVENT_COLUMNS, (tick, self.t(tick), name, tool, gauge, length, stylet, ml, wire)):
             e[k].append(v)
 
     def _digests(self, m):

@@ -262,7 +262,7 @@ class Fixtures(unittest.TestCase):
             # (tick * 0x9E3779B97F4A7C15) after every tick = 99 mod 100.
             self.assertEqual(rows(s.events), [{
                 "tick": 5, "t_s": 0.005, "name": "contrast-inject", "tool": None, "gauge": None,
-                "length_mm": None, "stylet_in": None, "ml": 1.5,
+                "length_mm": None, "stylet_in": None, "ml": 1.5, "wire": None,
             }])
             self.assertEqual(s.digests["tick"], list(range(99, 1500, 100)))
             self.assertEqual(s.digests["digest"], [(t * 0x9E3779B97F4A7C15) & M64 for t in range(99, 1500, 100)])

@@ -7,6 +7,7 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
 use stylet_physics::motion::BreathingSettings;
+use stylet_physics::wire::{WireDiameter, WireTip};
 use stylet_physics::{ContrastSettings, DeformSettings, Event, Gauge, HandTool, ProbeKind, SettingsError, ToolSpec};
 
 /// The session schema version this code writes; it reads every version since 1.
@@ -181,6 +182,9 @@ pub struct EventRecord {
     pub stylet_in: Option<bool>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ml: Option<f64>,
+    /// `wire-in`: the wire as scripts write it, "<0.018|0.035> <j|straight>".
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wire: Option<String>,
 }
 
 /// A state digest message (Simulation::state_digest).
@@ -220,6 +224,7 @@ impl EventRecord {
             length_mm: None,
             stylet_in: None,
             ml: None,
+            wire: None,
         };
         match e {
             Event::SelectTool(spec) => {
@@ -239,6 +244,7 @@ impl EventRecord {
                 r.tool = Some(tool.map_or("none", |t| tool_kind(&t.tool_spec())).into());
             }
             Event::ContrastInject { ml } => r.ml = Some(*ml),
+            Event::WireIn { diameter, tip } => r.wire = Some(format!("{} {}", diameter.name(), tip.name())),
             _ => {}
         }
         r
@@ -263,8 +269,22 @@ impl EventRecord {
             },
             "breath-hold" => Event::BreathHold,
             "breath-release" => Event::BreathRelease,
+            "wire-in" => wire_from(self.wire.as_deref().ok_or(EventError::NoWire)?)?,
+            "needle-out" => Event::NeedleOut,
+            "wire-out" => Event::WireOut,
             other => return Err(EventError::Unknown(other.to_string())),
         })
+    }
+}
+
+/// The `wire-in` event of a recorded wire, "<0.018|0.035> <j|straight>".
+fn wire_from(wire: &str) -> Result<Event, EventError> {
+    let mut words = wire.split(' ');
+    let diameter = words.next().and_then(WireDiameter::from_name);
+    let tip = words.next().and_then(WireTip::from_name);
+    match (diameter, tip, words.next()) {
+        (Some(diameter), Some(tip), None) => Ok(Event::WireIn { diameter, tip }),
+        _ => Err(EventError::Wire(wire.chars().take(40).collect())),
     }
 }
 
@@ -278,6 +298,10 @@ pub enum EventError {
     NoTool,
     #[error("contrast event without ml")]
     NoContrastVolume,
+    #[error("wire-in event without its wire")]
+    NoWire,
+    #[error("wire '{0}' is not \"<0.018|0.035> <j|straight>\"")]
+    Wire(String),
     #[error(transparent)]
     Tool(#[from] ToolError),
 }
@@ -1024,7 +1048,7 @@ const TICK_BLOCK_SCHEMA: &str = r##"{
 const EVENT_SCHEMA: &str = r##"{
   "$schema": "https://json-schema.org/draft/2020-12/schema",
   "title": "stylet.Event",
-  "description": "An event of a tick (names as in docs/scripts.md). A CBOR map; fields other than tick and name are present only for the events that use them: tool, gauge, length_mm, stylet_in for a tool change, tool for the second hand's tool change (tool2; none: the hand puts its tool down), ml for a contrast injection.",
+  "description": "An event of a tick (names as in docs/scripts.md). A CBOR map; fields other than tick and name are present only for the events that use them: tool, gauge, length_mm, stylet_in for a tool change, tool for the second hand's tool change (tool2; none: the hand puts its tool down), ml for a contrast injection, wire for a guide wire put in (wire-in).",
   "type": "object",
   "properties": {
     "tick": {"type": "integer", "minimum": 0, "maximum": 18446744073709551615},
@@ -1033,7 +1057,8 @@ const EVENT_SCHEMA: &str = r##"{
     "gauge": {"type": "integer", "minimum": 0, "maximum": 4294967295},
     "length_mm": {"type": "number"},
     "stylet_in": {"type": "boolean"},
-    "ml": {"type": "number"}
+    "ml": {"type": "number"},
+    "wire": {"enum": ["0.018 j", "0.018 straight", "0.035 j", "0.035 straight"]}
   },
   "required": ["tick", "name"],
   "additionalProperties": false

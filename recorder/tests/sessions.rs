@@ -1261,3 +1261,37 @@ fn the_schema_check_catches_bytes_called_text_and_undeclared_columns() {
     assert!(schemas.validate(&json(&block), index).is_ok());
     assert!(schemas.validate(&json(&extra), index).is_err());
 }
+
+/// The Seldinger exchange's events read back as they were written; a `wire-in` without its wire
+/// or with a wire that is not one is named.
+#[test]
+fn the_exchange_events_round_trip_and_a_bad_wire_is_named() {
+    use stylet_physics::wire::{WireDiameter, WireTip};
+    let events = [
+        Event::WireIn {
+            diameter: WireDiameter::In035,
+            tip: WireTip::J,
+        },
+        Event::WireIn {
+            diameter: WireDiameter::In018,
+            tip: WireTip::Straight,
+        },
+        Event::NeedleOut,
+        Event::WireOut,
+    ];
+    for e in &events {
+        let r = EventRecord::from_event(7, e);
+        assert_eq!(&r.to_event().unwrap(), e);
+    }
+    assert_eq!(EventRecord::from_event(7, &events[0]).wire.as_deref(), Some("0.035 j"));
+    let mut r = EventRecord::from_event(7, &events[0]);
+    r.wire = None;
+    assert_eq!(r.to_event().unwrap_err().to_string(), "wire-in event without its wire");
+    for bad in ["0.038 j", "0.035", "0.035 j extra", "0.035 J"] {
+        r.wire = Some(bad.into());
+        assert_eq!(
+            r.to_event().unwrap_err().to_string(),
+            format!("wire '{bad}' is not \"<0.018|0.035> <j|straight>\"")
+        );
+    }
+}

@@ -333,6 +333,9 @@ impl TraceCollector {
                 Event::SecondTool(None) => "second hand: empty".to_string(),
                 Event::BreathHold => "breath hold".to_string(),
                 Event::BreathRelease => "breath release".to_string(),
+                Event::WireIn { diameter, tip } => format!("guide wire in: {}\" {}", diameter.name(), tip.name()),
+                Event::NeedleOut => "needle out over the wire".to_string(),
+                Event::WireOut => "guide wire out".to_string(),
             };
             t.events.push(TraceEvent {
                 t_s: out.time_s,
@@ -504,19 +507,9 @@ mod tests {
             inserted_mm: depth,
             tip_mm: DVec3::new(1.0, 2.0, depth),
             tip_depth_mm: depth,
-            contacts: 0,
-            indentation_mm: 0.0,
             stylet_in: true,
             xray_on: false,
-            breath_hold: false,
-            contrast_ml: 0.0,
-            contrast_in_ducts_ml: 0.0,
-            extravasated_ml: 0.0,
-            contrast_extent_mm: 0.0,
-            tissue_displacement_mm: 0.0,
-            risk_displacement_mm: 0.0,
-            second_hand: None,
-            consequences: Default::default(),
+            ..Default::default()
         }
     }
 

@@ -1,9 +1,16 @@
 //! The guide wire in the phantom's ducts (docs/seldinger.md): the channel built from the atlas'
-//! duct labels, a J wire pushed on from where the planned path reaches its target duct.
+//! duct labels, a J wire pushed on from where the planned path reaches its target duct; the
+//! exchange in a session: the wire fed through the needle, the needle out over it, the access
+//! lost, the steps refused out of order, and the replay.
 
-use crate::common::default_phantom;
+use std::sync::Arc;
+
+use crate::common::{default_phantom, phantom_script_text, record_script, score_session};
+use stylet_devices::run_headless;
+use stylet_devices::script::{parse, scripted_simulation};
 use stylet_physics::glam::DVec3;
 use stylet_physics::wire::{DuctChannel, GuideWire, WireDiameter, WireEvent, WireSpec, WireTip};
+use stylet_physics::{Event, Refusal, Simulation, TickOutput};
 
 /// The bile duct's wall puncture force in atlases/ptcd.toml (N).
 const WALL_N: f64 = 0.6;
@@ -37,4 +44,171 @@ fn a_j_wire_pushed_from_the_target_runs_on_in_the_phantoms_ducts() {
     assert!(!events.contains(&WireEvent::LeftDuct));
     assert!(channel.depth_mm(wire.tip_mm()) >= 0.0);
     assert!((in_ducts - 40.0).abs() < 1e-9, "{in_ducts} mm in the ducts");
+}
+
+/// Every tick of a phantom script: its inputs' events and its outputs.
+fn run_script(atlas: &stylet_atlas::Atlas, text: &str) -> (Vec<(Vec<Event>, TickOutput)>, Simulation) {
+    let script = parse(text).unwrap();
+    let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
+    let mut ticks = Vec::new();
+    run_headless(&mut sim, &mut device, |i, o, _| ticks.push((i.events.clone(), *o)));
+    (ticks, sim)
+}
+
+fn at(ticks: &[(Vec<Event>, TickOutput)], t_s: f64) -> &TickOutput {
+    &ticks[(t_s * 1000.0) as usize].1
+}
+
+#[test]
+fn a_j_wire_fed_through_the_needle_runs_into_the_ducts_and_stays_when_the_needle_comes_out() {
+    let atlas = default_phantom();
+    let (ticks, sim) = run_script(atlas, &phantom_script_text("guide-wire.txt"));
+    assert!(ticks.iter().all(|t| t.1.refused.is_none()), "no step refused");
+    assert!(at(&ticks, 13.9).wire.is_none(), "no wire before wire-in");
+    // Fed 190 mm by 26 s: 150 mm through the needle, 40 mm on into the ducts.
+    let fed = at(&ticks, 26.5).wire.unwrap();
+    println!("at 26.5 s: {fed:?}");
+    assert!(fed.needle_in);
+    assert_eq!(fed.in_needle_mm, 150.0);
+    assert!((fed.out_mm - 40.0).abs() <= 0.5, "{} mm beyond the tip", fed.out_mm);
+    assert!(fed.in_ducts_mm >= 39.0, "{} mm in the ducts", fed.in_ducts_mm);
+    assert!(!fed.left_duct && !fed.access_lost);
+    // The hand felt the wire's light resistance while feeding it (less than a newton), and the
+    // needle stayed where the hand left it.
+    let feeding: Vec<f64> = ticks[14_100..26_000]
+        .iter()
+        .map(|t| t.1.wire.unwrap().force_n)
+        .collect();
+    let most = feeding.iter().copied().fold(0.0, f64::max);
+    assert!(most > 0.0 && most < 1.0, "wire resistance up to {most} N");
+    let needle_tip = at(&ticks, 13.9).tip_mm;
+    assert!(
+        at(&ticks, 26.5).tip_mm.distance(needle_tip) < 1e-9,
+        "the needle held still"
+    );
+    // The needle out over the wire: the wire stays where it was, still in the ducts, now from the
+    // skin.
+    let after = at(&ticks, 29.9).wire.unwrap();
+    assert!(!after.needle_in && sim.needle().is_none());
+    assert!(after.tip_mm.distance(fed.tip_mm) < 1e-9, "the wire's tip stayed");
+    assert!(after.in_ducts_mm >= 39.0 && !after.access_lost);
+    assert!(after.out_mm > 140.0, "{} mm from the skin", after.out_mm);
+}
+
+#[test]
+fn a_wire_drawn_back_out_of_the_ducts_after_the_needle_loses_the_access() {
+    let atlas = default_phantom();
+    let (ticks, _) = run_script(atlas, &phantom_script_text("loss-of-access.txt"));
+    assert!(ticks.iter().all(|t| t.1.refused.is_none()));
+    let before = at(&ticks, 27.5).wire.unwrap();
+    assert!(!before.needle_in && !before.access_lost && before.in_ducts_mm > 39.0);
+    let lost_at = ticks
+        .iter()
+        .position(|t| t.1.wire.is_some_and(|w| w.access_lost))
+        .expect("the access is lost");
+    let end = ticks.last().unwrap().1.wire.unwrap();
+    println!("access lost at {} s; at the end {end:?}", lost_at as f64 / 1000.0);
+    assert!(lost_at > 27_500 && end.access_lost);
+    assert!(end.in_ducts_mm < 1.0, "{} mm still in the ducts", end.in_ducts_mm);
+}
+
+/// Each step of the exchange is refused, and changes nothing, while its preconditions fail.
+#[test]
+fn steps_of_the_exchange_are_refused_until_their_preconditions_hold() {
+    let atlas = default_phantom();
+    // The needle on the planned path into the duct by 11 s; `early` lines before 1 s.
+    let script = |gauge: u32, early: &str, lines: &str| {
+        format!(
+            "stylet-script 1\ndevice premium\ntool needle gauge {gauge} length 150 stylet in\nend 16\n\
+             at 0 along intercostal-10-11 -15\n{early}at 1 along intercostal-10-11 -15\n\
+             at 11 along intercostal-10-11 111\n{lines}"
+        )
+    };
+    let refusals = |text: String| -> Vec<(f64, Refusal)> {
+        let (ticks, _) = run_script(atlas, &text);
+        ticks
+            .iter()
+            .filter_map(|t| t.1.refused.map(|r| (t.1.time_s, r)))
+            .collect()
+    };
+    // A wire outside the patient, with the stylet in, through too fine a needle; then the order.
+    assert_eq!(
+        refusals(script(
+            18,
+            "at 0.5 event wire-in 0.035 j\n",
+            "at 12 event wire-in 0.035 j\n"
+        )),
+        vec![(0.5, Refusal::NoNeedleInside), (12.0, Refusal::StyletIn)]
+    );
+    assert_eq!(
+        refusals(script(
+            22,
+            "",
+            "at 12 event stylet-remove\nat 13 event wire-in 0.035 j\nat 14 event wire-in 0.018 j\n"
+        )),
+        vec![(13.0, Refusal::WireTooThick)]
+    );
+    assert_eq!(
+        refusals(script(
+            18,
+            "",
+            "at 12 event needle-out\nat 12.5 event stylet-remove\nat 13 event wire-in 0.035 straight\n\
+             at 13.5 event wire-in 0.035 j\nat 14 event needle-out\nat 14.5 event wire-out\n"
+        )),
+        vec![
+            (12.0, Refusal::NoWire),
+            (13.5, Refusal::WireAlreadyIn),
+            (14.0, Refusal::WireNotFarEnough),
+            (14.5, Refusal::NeedleStillIn),
+        ]
+    );
+    for r in [Refusal::NoNeedleInside, Refusal::WireNotFarEnough, Refusal::NoDucts] {
+        assert!(!r.message().is_empty());
+    }
+}
+
+/// The exchange replays bit for bit, with the tissue deforming and the patient breathing: the same
+/// script twice gives the same state digest every second, and a recorded session of it replays
+/// with every digest matched.
+#[test]
+fn the_exchange_replays_bit_for_bit() {
+    let atlas = default_phantom();
+    let text = phantom_script_text("loss-of-access.txt")
+        .replace("device premium\n", "device premium\ndeformation on\nbreathing on\n");
+    assert!(text.contains("breathing on"));
+    let digests = || {
+        let script = parse(&text).unwrap();
+        let (mut sim, mut device) =
+            scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
+        let mut d = Vec::new();
+        run_headless(&mut sim, &mut device, |_, o, s| {
+            if o.tick % 1000 == 999 {
+                d.push(s.state_digest());
+            }
+        });
+        d
+    };
+    assert_eq!(digests(), digests());
+    let dir = tempfile::tempdir().unwrap();
+    let path = record_script(atlas, dir.path(), "loss-of-access", "beginner", &text);
+    let report = score_session(atlas, &path);
+    assert!(report.replay_verified, "{:?}", report.divergence);
+    assert!(report.digests_checked > 30);
+    // The official reader of session files reads the exchange's events.
+    let py = std::process::Command::new(crate::common::python())
+        .arg("-c")
+        .arg(
+            "import sys; sys.path.insert(0, sys.argv[1]); import stylet_session as s; \
+             e = s.read_session(sys.argv[2]).events; \
+             print([(n, w) for n, w in zip(e['name'], e['wire']) if n in ('wire-in', 'needle-out')])",
+        )
+        .arg(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("recorder/python"))
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
+    assert_eq!(
+        String::from_utf8_lossy(&py.stdout).trim(),
+        "[('wire-in', '0.035 j'), ('needle-out', None)]"
+    );
 }

@@ -451,6 +451,9 @@ pub fn event_text(e: &Event) -> String {
         Event::ContrastInject { ml } => format!("contrast injected: {ml} ml"),
         Event::BreathHold => "breath hold".into(),
         Event::BreathRelease => "breathing again".into(),
+        Event::WireIn { diameter, tip } => format!("guide wire in: {}\" {}", diameter.name(), tip.name()),
+        Event::NeedleOut => "needle out over the wire".into(),
+        Event::WireOut => "guide wire out".into(),
     }
 }
 

@@ -588,6 +588,8 @@ mod tests {
             risk_displacement_mm: 0.0,
             second_hand: None,
             consequences: Default::default(),
+            wire: None,
+            refused: None,
         }
     }
 }

@@ -61,6 +61,8 @@ pub struct PunctureAtlas {
     /// The breathing motion attached to the atlas (docs/breathing.md "Atlases"); `None`: this
     /// patient does not breathe.
     breathing: Option<crate::motion::AtlasMotion>,
+    /// The bile ducts' lumen for a guide wire, built the first time a wire needs it.
+    duct_channel: std::sync::OnceLock<Option<std::sync::Arc<crate::wire::DuctChannel>>>,
 }
 
 impl PunctureAtlas {
@@ -161,6 +163,7 @@ impl PunctureAtlas {
             bone_distance,
             skin_layer_mm: DEFAULT_SKIN_LAYER_MM,
             breathing: Some(crate::motion::AtlasMotion::Synthetic(Default::default())),
+            duct_channel: std::sync::OnceLock::new(),
         })
     }
 
@@ -256,6 +259,14 @@ impl PunctureAtlas {
         }
         self.breathing = motion;
         Ok(self)
+    }
+
+    /// The bile ducts' lumen a guide wire follows (labels whose tissue is `bile_duct` or descends
+    /// from it), built once, the first time it is asked for; `None`: the atlas has no ducts.
+    pub fn duct_channel(&self) -> Option<std::sync::Arc<crate::wire::DuctChannel>> {
+        self.duct_channel
+            .get_or_init(|| crate::wire::DuctChannel::of_tissue(self, "bile_duct").map(std::sync::Arc::new))
+            .clone()
     }
 
     /// The breathing motion attached to the atlas (the default synthetic motion unless the

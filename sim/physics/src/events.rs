@@ -1,9 +1,10 @@
 //! Events: named commands that enter the tick queue and pass through every component (thesis
 //! §6.3, the event pipeline; docs/physics.md "The tick"): tool changes, stylet, X-ray, contrast,
-//! breathing.
+//! breathing, the steps of the Seldinger exchange.
 
 use crate::needle::spec::Gauge;
 use crate::second_hand::HandTool;
+use crate::wire::{WireDiameter, WireTip};
 
 /// Which ultrasound probe.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -55,6 +56,16 @@ pub enum Event {
     /// Breath hold: breathing time stops.
     BreathHold,
     BreathRelease,
+    /// A guide wire into the needle's hub (the stylet out); the hand then feeds the wire while
+    /// the needle stays where it is.
+    WireIn {
+        diameter: WireDiameter,
+        tip: WireTip,
+    },
+    /// The needle out over the wire, which stays.
+    NeedleOut,
+    /// The wire out (after the needle); the hand takes up a needle again.
+    WireOut,
 }
 
 impl Event {
@@ -70,6 +81,9 @@ impl Event {
             Event::ContrastInject { .. } => "contrast-inject",
             Event::BreathHold => "breath-hold",
             Event::BreathRelease => "breath-release",
+            Event::WireIn { .. } => "wire-in",
+            Event::NeedleOut => "needle-out",
+            Event::WireOut => "wire-out",
         }
     }
 }

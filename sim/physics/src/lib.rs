@@ -10,7 +10,8 @@
 //! [`masks`] and [`distance`] (skin/bone distance maps), [`atlas`] (the validated whole);
 //! the haptic core: [`sim`] (the fixed-step loop), [`needle`] (bendable needle, §3.5),
 //! [`contact`] (finger and ultrasound probe, §3.6), [`deform`] (local tissue deformation, Chapter 4), [`contrast`] (contrast agent, §3.3), [`complications`] (what a wrong puncture does), [`motion`] (breathing hook, §5.4),
-//! [`device`] (device profiles), [`events`]; [`synthetic_atlas`] (the shared pieces of small
+//! [`device`] (device profiles), [`events`]; [`wire`] (the guide wire) and [`seldinger`] (the
+//! exchange over it); [`synthetic_atlas`] (the shared pieces of small
 //! hand-built atlases for tests and benchmarks).
 
 pub mod atlas;
@@ -33,6 +34,7 @@ pub mod planned_path;
 pub mod probe_image;
 pub mod properties;
 pub mod second_hand;
+pub mod seldinger;
 pub mod sim;
 pub mod synthetic_atlas;
 #[cfg(test)]
@@ -54,6 +56,7 @@ pub use needle::spec::{Gauge, NeedleSpec};
 pub use planned_path::PlannedPath;
 pub use properties::{Materials, Param, ParamError, ParamValue, PropertyTree, TissueSpec};
 pub use second_hand::{HandOutput, HandPose, HandTool, SecondHandConfig};
+pub use seldinger::{Access, Refusal, WireOutput};
 pub use sim::{
     DEFAULT_TICK_RATE_HZ, ForceComponents, PHYSICS_VERSION, SimConfig, SimError, Simulation, TickInput, TickOutput,
 };

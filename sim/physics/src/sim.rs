@@ -20,6 +20,8 @@ use crate::motion::{self, BreathingError, BreathingSettings, MotionModel, Static
 use crate::needle::spec::NeedleSpec;
 use crate::needle::tool::NeedleTool;
 use crate::second_hand::{HandOutput, HandPose, HandTool, SecondHand, SecondHandConfig, clamp_length};
+use crate::seldinger::{Access, Refusal, WireOutput};
+use crate::wire::WireSpec;
 use crate::{LabelId, PunctureAtlas, SettingsError};
 
 /// Version of the physics: bump it with every change that alters any output bit, so a replay
@@ -112,6 +114,10 @@ pub struct TickOutput {
     pub second_hand: Option<HandOutput>,
     /// What wrong punctures have let out so far (ml): haematoma, pneumothorax, bile leak.
     pub consequences: ConsequenceVolumes,
+    /// The guide wire, once one is in (the Seldinger exchange).
+    pub wire: Option<WireOutput>,
+    /// An event of this tick the physics refused, and why (the last if several).
+    pub refused: Option<Refusal>,
 }
 
 /// The tool in hand.
@@ -123,6 +129,8 @@ pub struct TickOutput {
 pub enum Tool {
     Needle(Box<NeedleTool>),
     Contact(ContactTool),
+    /// A guide wire in, fed by the hand; the needle held still until it comes out over it.
+    Seldinger(Box<Access>),
 }
 
 /// Simulation settings.
@@ -209,6 +217,17 @@ pub struct Simulation {
     last_orientation: DQuat,
 }
 
+impl Tool {
+    /// The needle, in hand or held still while a wire goes through it.
+    pub fn needle(&self) -> Option<&NeedleTool> {
+        match self {
+            Tool::Needle(n) => Some(n),
+            Tool::Seldinger(a) => a.needle(),
+            Tool::Contact(_) => None,
+        }
+    }
+}
+
 fn make_tool(spec: &ToolSpec) -> Tool {
     match *spec {
         ToolSpec::Needle {
@@ -273,10 +292,15 @@ impl Simulation {
     pub fn tick_rate_hz(&self) -> u32 {
         self.config.tick_rate_hz
     }
+    /// The needle, in hand or held still while a wire goes through it.
     pub fn needle(&self) -> Option<&NeedleTool> {
+        self.tool.needle()
+    }
+    /// The exchange over a guide wire, once a wire is in.
+    pub fn access(&self) -> Option<&Access> {
         match &self.tool {
-            Tool::Needle(n) => Some(n),
-            Tool::Contact(_) => None,
+            Tool::Seldinger(a) => Some(a),
+            _ => None,
         }
     }
     /// The contrast agent (eqs. 3.3.1–3.3.2).
@@ -323,7 +347,7 @@ impl Simulation {
     pub fn contact(&self) -> Option<&ContactTool> {
         match &self.tool {
             Tool::Contact(c) => Some(c),
-            Tool::Needle(_) => None,
+            _ => None,
         }
     }
     /// The second hand, in a two-handed session.
@@ -331,7 +355,9 @@ impl Simulation {
         self.second.as_ref()
     }
 
-    fn apply(&mut self, e: &Event) {
+    /// Applies one event with the hand at this pose (world); a step of the exchange whose
+    /// preconditions do not hold is refused and changes nothing.
+    fn apply(&mut self, e: &Event, position_mm: DVec3, orientation: DQuat) -> Result<(), Refusal> {
         match e {
             Event::SelectTool(spec) => {
                 self.tool_spec = *spec;
@@ -347,6 +373,33 @@ impl Simulation {
                     n.set_stylet(false);
                 }
             }
+            Event::WireIn { diameter, tip } => {
+                let spec = WireSpec::new(*diameter, *tip);
+                let channel = match &self.tool {
+                    Tool::Needle(n) => {
+                        let channel = self.atlas.duct_channel();
+                        Access::check_insert(n, &spec, channel.is_some())?;
+                        channel.expect("checked")
+                    }
+                    Tool::Seldinger(_) => return Err(Refusal::WireAlreadyIn),
+                    Tool::Contact(_) => return Err(Refusal::NoNeedleInside),
+                };
+                let held = std::mem::replace(&mut self.tool, make_tool(&ToolSpec::Finger));
+                if let Tool::Needle(n) = held {
+                    self.tool = Tool::Seldinger(Box::new(Access::new(n, spec, channel, position_mm, orientation)));
+                }
+            }
+            Event::NeedleOut => match &mut self.tool {
+                Tool::Seldinger(a) => a.remove_needle()?,
+                _ => return Err(Refusal::NoWire),
+            },
+            Event::WireOut => match &self.tool {
+                Tool::Seldinger(a) => {
+                    a.may_remove_wire()?;
+                    self.tool = make_tool(&self.tool_spec);
+                }
+                _ => return Err(Refusal::NoWire),
+            },
             Event::StyletInsert => {
                 if let Tool::Needle(n) = &mut self.tool {
                     n.set_stylet(true);
@@ -363,14 +416,12 @@ impl Simulation {
             Event::BreathHold => self.breath_hold = true,
             Event::BreathRelease => self.breath_hold = false,
         }
+        Ok(())
     }
 
     /// One tick. Non-finite positions or orientations (a glitching device) are replaced by the
     /// last valid pose, and orientations are normalised, so no input can put NaN into the state.
     pub fn step(&mut self, input: &TickInput) -> TickOutput {
-        for e in &input.events {
-            self.apply(e);
-        }
         let x_world = if input.position_mm.is_finite() {
             input.position_mm
         } else {
@@ -384,6 +435,12 @@ impl Simulation {
         };
         self.last_position = x_world;
         self.last_orientation = q;
+        let mut refused = None;
+        for e in &input.events {
+            if let Err(r) = self.apply(e, x_world, q) {
+                refused = Some(r);
+            }
+        }
 
         let t_breath = self.breath_time_s();
         self.motion_time_s = t_breath;
@@ -421,6 +478,8 @@ impl Simulation {
             risk_displacement_mm: 0.0,
             second_hand: None,
             consequences: ConsequenceVolumes::default(),
+            wire: None,
+            refused,
         };
         let (force, torque) = match &mut self.tool {
             Tool::Needle(n) => {
@@ -434,22 +493,16 @@ impl Simulation {
                 if let Some(t) = n.path().tip() {
                     out.insertion_dir = t.tangent;
                 }
-                let tip = *n.nodes().last().expect("needle has nodes");
-                out.tip_mm = tip + u_at(tip);
-                out.tip_label = n.tip_label();
-                out.inserted_mm = n.inserted_mm();
-                out.tip_depth_mm = atlas.skin_distance().sample(tip, -1000.0) as f64;
-                out.stylet_in = n.stylet_in();
-                self.complications.observe(
-                    self.tick,
-                    Some(NeedleTip {
-                        label: out.tip_label,
-                        tip_mm: tip,
-                        inserted_mm: out.inserted_mm,
-                        outer_diameter_mm: n.spec().gauge.outer_diameter_mm(),
-                    }),
-                );
+                let tip = needle_summary(n, &atlas, &*u_at, &mut out);
+                self.complications.observe(self.tick, Some(tip));
                 (f.cut + f.friction + f.base, f.torque)
+            }
+            Tool::Seldinger(a) => {
+                let (wire, force) = a.step(&atlas, x_world, q, &device, |p| p + u_at(p));
+                let tip = a.needle().map(|n| needle_summary(n, &atlas, &*u_at, &mut out));
+                self.complications.observe(self.tick, tip);
+                out.wire = Some(wire);
+                (force, DVec3::ZERO)
             }
             Tool::Contact(c) => {
                 let f = c.step(&atlas, x_ref, q);
@@ -472,8 +525,8 @@ impl Simulation {
         // Contrast at its sub-rate: through a needle in the body with the stylet out.
         let every = self.config.contrast.update_every_ticks;
         if self.tick.is_multiple_of(u64::from(every)) {
-            let tip = match &self.tool {
-                Tool::Needle(n) if !n.stylet_in() && n.inserted_mm() > 0.0 => n.nodes().last().copied(),
+            let tip = match self.needle() {
+                Some(n) if !n.stylet_in() && n.inserted_mm() > 0.0 => n.nodes().last().copied(),
                 _ => None,
             };
             self.contrast
@@ -481,10 +534,7 @@ impl Simulation {
         }
         if self.tick.is_multiple_of(complications::UPDATE_EVERY_TICKS) {
             let dt_s = complications::UPDATE_EVERY_TICKS as f64 / f64::from(self.config.tick_rate_hz);
-            let needle = match &self.tool {
-                Tool::Needle(n) => Some(n.nodes()),
-                Tool::Contact(_) => None,
-            };
+            let needle = self.tool.needle().map(NeedleTool::nodes);
             self.complications.update(dt_s, needle);
         }
         out.consequences = self.complications.volumes();
@@ -503,6 +553,14 @@ impl Simulation {
                     (centre, deform::tool_points::needle_points(n, step))
                 }
                 Tool::Contact(c) => (x_ref, deform::tool_points::contact_points(c)),
+                Tool::Seldinger(a) => match a.needle() {
+                    Some(n) => {
+                        let centre = n.path().tip().map_or(x_ref, |t| t.pos);
+                        let step = 0.5 * self.config.deformation.spacing_mm;
+                        (centre, deform::tool_points::needle_points(n, step))
+                    }
+                    None => (x_ref, Vec::new()),
+                },
             };
             // Both hands' contacts in one solve, on a lattice midway between the tools: a probe
             // pressed beside the entry point deforms the tissue the needle then enters.
@@ -543,28 +601,13 @@ impl Simulation {
             h.vec(x);
         }
         match &self.tool {
-            Tool::Needle(n) => {
-                h.u64(1 + u64::from(n.stylet_in()));
-                for (p, t) in n.nodes().iter().zip(n.tangents()) {
-                    h.vec(*p);
-                    h.vec(*t);
+            Tool::Needle(n) => digest_needle(&mut h, n),
+            Tool::Seldinger(a) => {
+                h.u64(4);
+                if let Some(n) = a.needle() {
+                    digest_needle(&mut h, n);
                 }
-                // The channel, then the part cut earlier and retracted from (it decides whether
-                // a re-advance meets the cutting threshold).
-                for nodes in [n.path().nodes(), n.path().ahead()] {
-                    h.u64(nodes.len() as u64);
-                    for node in nodes {
-                        h.vec(node.pos);
-                        h.vec(node.tangent);
-                        h.f64(node.offset_mm);
-                        h.f64(node.stiffness_n_per_mm);
-                        h.f64(node.friction_max_n);
-                    }
-                }
-                h.f64(n.friction_n());
-                if let Some(x) = n.last_device_mm() {
-                    h.vec(x);
-                }
+                a.digest_into(|v| h.u64(v));
             }
             Tool::Contact(c) => {
                 h.u64(3);
@@ -582,6 +625,53 @@ impl Simulation {
             second.digest_into(|v| h.u64(v));
         }
         h.0
+    }
+}
+
+/// Fills the needle's part of a tick's output (tip, label, depth, stylet) and says where its tip
+/// is for the complications.
+fn needle_summary(
+    n: &NeedleTool,
+    atlas: &PunctureAtlas,
+    u_at: &dyn Fn(DVec3) -> DVec3,
+    out: &mut TickOutput,
+) -> NeedleTip {
+    let tip = *n.nodes().last().expect("needle has nodes");
+    out.tip_mm = tip + u_at(tip);
+    out.tip_label = n.tip_label();
+    out.inserted_mm = n.inserted_mm();
+    out.tip_depth_mm = atlas.skin_distance().sample(tip, -1000.0) as f64;
+    out.stylet_in = n.stylet_in();
+    NeedleTip {
+        label: out.tip_label,
+        tip_mm: tip,
+        inserted_mm: out.inserted_mm,
+        outer_diameter_mm: n.spec().gauge.outer_diameter_mm(),
+    }
+}
+
+/// The needle's part of the state digest.
+fn digest_needle(h: &mut Fnv, n: &NeedleTool) {
+    h.u64(1 + u64::from(n.stylet_in()));
+    for (p, t) in n.nodes().iter().zip(n.tangents()) {
+        h.vec(*p);
+        h.vec(*t);
+    }
+    // The channel, then the part cut earlier and retracted from (it decides whether a re-advance
+    // meets the cutting threshold).
+    for nodes in [n.path().nodes(), n.path().ahead()] {
+        h.u64(nodes.len() as u64);
+        for node in nodes {
+            h.vec(node.pos);
+            h.vec(node.tangent);
+            h.f64(node.offset_mm);
+            h.f64(node.stiffness_n_per_mm);
+            h.f64(node.friction_max_n);
+        }
+    }
+    h.f64(n.friction_n());
+    if let Some(x) = n.last_device_mm() {
+        h.vec(x);
     }
 }
 

@@ -2,6 +2,7 @@
 //! line, the column and what was expected.
 
 use stylet_physics::glam::DVec3;
+use stylet_physics::wire::{WireDiameter, WireTip};
 use stylet_physics::{DeviceProfile, Event, Gauge, HandTool, ProbeKind, ToolSpec};
 
 /// A parse error: where and what was expected.
@@ -380,6 +381,9 @@ fn parse_event(t: &mut Tokens) -> Result<Event, ParseError> {
         "contrast-inject",
         "breath-hold",
         "breath-release",
+        "wire-in",
+        "needle-out",
+        "wire-out",
     ];
     Ok(match t.keyword(&names)? {
         "stylet-remove" => Event::StyletRemove,
@@ -388,6 +392,19 @@ fn parse_event(t: &mut Tokens) -> Result<Event, ParseError> {
         "xray-off" => Event::XrayOff,
         "breath-hold" => Event::BreathHold,
         "breath-release" => Event::BreathRelease,
+        "needle-out" => Event::NeedleOut,
+        "wire-out" => Event::WireOut,
+        "wire-in" => {
+            let diameter = match t.keyword(&["0.018", "0.035"])? {
+                "0.018" => WireDiameter::In018,
+                _ => WireDiameter::In035,
+            };
+            let tip = match t.keyword(&["j", "straight"])? {
+                "j" => WireTip::J,
+                _ => WireTip::Straight,
+            };
+            Event::WireIn { diameter, tip }
+        }
         _ => {
             let ml = if t.peek().is_some() {
                 let at = t.pos;
@@ -673,6 +690,32 @@ mod tests {
 
     fn err(text: &str) -> ParseError {
         parse(text).unwrap_err()
+    }
+
+    #[test]
+    fn the_exchange_events_parse_and_a_bad_wire_is_named() {
+        let s = parse(
+            "stylet-script 1\nat 0 along p 0\nat 1 event wire-in 0.018 straight\nat 2 event needle-out\n\
+             at 3 event wire-out\n",
+        )
+        .unwrap();
+        let events: Vec<_> = s.items[1..].iter().map(|i| i.action.clone()).collect();
+        assert_eq!(
+            events,
+            [
+                Action::Event(Event::WireIn {
+                    diameter: WireDiameter::In018,
+                    tip: WireTip::Straight
+                }),
+                Action::Event(Event::NeedleOut),
+                Action::Event(Event::WireOut),
+            ]
+        );
+        let e = err("stylet-script 1\nat 0 along p 0\nat 1 event wire-in 0.038 j\n");
+        assert_eq!((e.line, e.column), (3, 20));
+        assert!(e.expected.contains("0.018, 0.035") && e.found == "'0.038'", "{e}");
+        let e = err("stylet-script 1\nat 0 along p 0\nat 1 event wire-in 0.035\n");
+        assert!(e.expected.contains("j, straight"), "{e}");
     }
 
     #[test]

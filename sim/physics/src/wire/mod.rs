@@ -109,6 +109,41 @@ impl GuideWire {
         }
     }
 
+    /// A wire leaving the needle at `exit_mm` as [`GuideWire::new`], in `channel`: a needle tip
+    /// that is not in the ducts' lumen sends the wire into the parenchyma, where it keeps its
+    /// direction.
+    pub fn from_needle(spec: WireSpec, exit_mm: DVec3, dir: DVec3, up: DVec3, channel: &DuctChannel) -> GuideWire {
+        let mut wire = GuideWire::new(spec, exit_mm, dir, up);
+        wire.in_parenchyma = channel.depth_mm(exit_mm) < 0.0;
+        wire
+    }
+
+    /// Lays the wire's start back along `track` (from the skin to where it leaves the needle,
+    /// the needle's own track), as the needle comes out over it: the wire then runs from the skin,
+    /// nodes [`NODE_MM`] apart along the track, and drawing it back draws its tip out along the
+    /// track. At most [`MAX_NODES`] in all.
+    pub fn lay_in_track(&mut self, track: &[DVec3]) {
+        let exit = self.nodes[0];
+        let mut points: Vec<DVec3> = track.to_vec();
+        points.push(exit);
+        // From the exit back along the track, a node every NODE_MM.
+        let mut laid = Vec::new();
+        let mut carry_mm = 0.0;
+        for w in points.windows(2).rev() {
+            let (from, to) = (w[1], w[0]);
+            let seg_mm = from.distance(to);
+            let mut at_mm = NODE_MM - carry_mm;
+            while at_mm <= seg_mm && laid.len() + self.nodes.len() < MAX_NODES {
+                laid.push(from + (to - from) * (at_mm / seg_mm));
+                at_mm += NODE_MM;
+            }
+            carry_mm = seg_mm - (at_mm - NODE_MM);
+        }
+        laid.reverse();
+        laid.append(&mut self.nodes);
+        self.nodes = laid;
+    }
+
     pub fn spec(&self) -> &WireSpec {
         &self.spec
     }
@@ -126,7 +161,23 @@ impl GuideWire {
         self.tip_dir
     }
 
-    /// Length out of the needle (mm), the fold included.
+    /// Feeds the bits of the whole state to `put` (a simulation's digest).
+    pub fn digest_into(&self, mut put: impl FnMut(u64)) {
+        put(self.nodes.len() as u64);
+        for p in &self.nodes {
+            p.to_array().iter().for_each(|c| put(c.to_bits()));
+        }
+        for v in [self.tip_dir, self.up] {
+            v.to_array().iter().for_each(|c| put(c.to_bits()));
+        }
+        for v in [self.roll_rad, self.folded_mm, self.pending_mm, self.tip_force_n] {
+            put(v.to_bits());
+        }
+        put(u64::from(self.in_parenchyma));
+    }
+
+    /// Length beyond where it leaves the needle (mm), the fold included; once the needle is out
+    /// over it ([`GuideWire::lay_in_track`]), beyond the skin.
     pub fn out_mm(&self) -> f64 {
         (self.nodes.len() - 1) as f64 * NODE_MM + self.folded_mm
     }
@@ -209,10 +260,14 @@ impl GuideWire {
             }
         }
         let friction = duct_mm * DUCT_FRICTION_N_PER_MM + tissue_mm * TISSUE_FRICTION_N_PER_MM;
+        // Sliding friction against the way the wire moves; held still, only what the tip or its
+        // fold pushes back with.
         step.force_n = if delta_mm < 0.0 {
             -friction
-        } else {
+        } else if delta_mm > 0.0 {
             friction + self.tip_force_n
+        } else {
+            self.tip_force_n
         };
         step
     }

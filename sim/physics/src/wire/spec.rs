@@ -25,6 +25,22 @@ pub enum WireDiameter {
 }
 
 impl WireDiameter {
+    /// As scripts and session files write it.
+    pub fn name(self) -> &'static str {
+        match self {
+            WireDiameter::In018 => "0.018",
+            WireDiameter::In035 => "0.035",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<WireDiameter> {
+        match name {
+            "0.018" => Some(WireDiameter::In018),
+            "0.035" => Some(WireDiameter::In035),
+            _ => None,
+        }
+    }
+
     pub fn mm(self) -> f64 {
         match self {
             WireDiameter::In018 => 0.018 * 25.4,
@@ -41,6 +57,24 @@ pub enum WireTip {
     /// A J: the tip is bent back on a small radius, so it leads with the bend, turned by
     /// rotating the wire, and presents a curve, not an end, to a wall it meets head-on.
     J,
+}
+
+impl WireTip {
+    /// As scripts and session files write it.
+    pub fn name(self) -> &'static str {
+        match self {
+            WireTip::Straight => "straight",
+            WireTip::J => "j",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<WireTip> {
+        match name {
+            "straight" => Some(WireTip::Straight),
+            "j" => Some(WireTip::J),
+            _ => None,
+        }
+    }
 }
 
 /// A guide wire.
