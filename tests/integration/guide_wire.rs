@@ -35,7 +35,7 @@ fn a_j_wire_pushed_from_the_target_runs_on_in_the_phantoms_ducts() {
     for _ in 0..400 {
         events.extend(wire.advance(0.1, 0.0, &channel, WALL_N).event);
     }
-    let in_ducts = wire.in_ducts_mm(&channel);
+    let in_ducts = wire.in_ducts_mm();
     println!(
         "tip {:?}, {in_ducts:.1} mm of 40 in the ducts, fold {:.1} mm, events {events:?}",
         wire.tip_mm(),

@@ -181,6 +181,13 @@ impl HapticLoop {
             dropped_console_lines: AtomicU64::new(0),
         });
         let inner = Arc::clone(&shared);
+        // The ducts' channel a guide wire follows is a distance transform of the whole atlas
+        // (a fraction of a second): built beside the loop now, so putting a wire in later does not
+        // hold up a tick. Without a thread, the first wire builds it.
+        let atlas = sim.shared_atlas();
+        let _ = std::thread::Builder::new()
+            .name("duct-channel".into())
+            .spawn(move || drop(atlas.duct_channel()));
         let (tx, console) = std::sync::mpsc::sync_channel(CONSOLE_CAPACITY);
         let handle = spawn_at_normal_priority(move || run(sim, device, recording, &labels, options, &inner, &tx))?;
         Ok(HapticLoop {

@@ -240,7 +240,7 @@ impl Access {
         }
         let track: Vec<DVec3> = needle.path().nodes().iter().map(|n| n.pos).collect();
         if let Some(w) = &mut self.wire {
-            w.lay_in_track(&track);
+            w.lay_in_track(&track, &self.channel);
         }
         self.needle = None;
         self.in_needle_mm = 0.0;
@@ -348,7 +348,7 @@ impl Access {
         WireOutput {
             in_needle_mm: self.in_needle_mm,
             out_mm: self.wire.as_ref().map_or(0.0, GuideWire::out_mm),
-            in_ducts_mm: self.wire.as_ref().map_or(0.0, |w| w.in_ducts_mm(&self.channel)),
+            in_ducts_mm: self.wire.as_ref().map_or(0.0, GuideWire::in_ducts_mm),
             folded_mm: self.wire.as_ref().map_or(0.0, GuideWire::folded_mm),
             tip_mm: to_world(tip),
             force_n,

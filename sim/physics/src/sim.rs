@@ -280,6 +280,10 @@ impl Simulation {
     pub fn atlas(&self) -> &PunctureAtlas {
         &self.atlas
     }
+    /// The atlas, shared (for work beside the loop, such as building its ducts' channel).
+    pub fn shared_atlas(&self) -> Arc<PunctureAtlas> {
+        Arc::clone(&self.atlas)
+    }
     pub fn tick(&self) -> u64 {
         self.tick
     }

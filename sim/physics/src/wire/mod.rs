@@ -75,6 +75,10 @@ pub struct GuideWire {
     spec: WireSpec,
     /// From where it leaves the needle (first) to its tip (last).
     nodes: Vec<DVec3>,
+    /// Whether each node lay in the ducts' lumen when it was laid (the first never counts), and
+    /// how many of them did: the wire's length in the ducts without sampling every node each tick.
+    in_lumen: Vec<bool>,
+    lumen_nodes: usize,
     tip_dir: DVec3,
     /// The direction of roll 0, perpendicular to the tip's direction (carried along with it).
     up: DVec3,
@@ -99,6 +103,8 @@ impl GuideWire {
         GuideWire {
             spec,
             nodes: vec![exit_mm],
+            in_lumen: vec![false],
+            lumen_nodes: 0,
             tip_dir,
             up,
             roll_rad: 0.0,
@@ -122,7 +128,7 @@ impl GuideWire {
     /// the needle's own track), as the needle comes out over it: the wire then runs from the skin,
     /// nodes [`NODE_MM`] apart along the track, and drawing it back draws its tip out along the
     /// track. At most [`MAX_NODES`] in all.
-    pub fn lay_in_track(&mut self, track: &[DVec3]) {
+    pub fn lay_in_track(&mut self, track: &[DVec3], channel: &DuctChannel) {
         let exit = self.nodes[0];
         let mut points: Vec<DVec3> = track.to_vec();
         points.push(exit);
@@ -142,6 +148,25 @@ impl GuideWire {
         laid.reverse();
         laid.append(&mut self.nodes);
         self.nodes = laid;
+        self.in_lumen = self.nodes.iter().map(|&p| channel.depth_mm(p) >= 0.0).collect();
+        self.in_lumen[0] = false;
+        self.lumen_nodes = self.in_lumen.iter().filter(|&&b| b).count();
+    }
+
+    /// Lays a node at the tip.
+    fn push_node(&mut self, p: DVec3, channel: &DuctChannel) {
+        let inside = channel.depth_mm(p) >= 0.0;
+        self.nodes.push(p);
+        self.in_lumen.push(inside);
+        self.lumen_nodes += usize::from(inside);
+    }
+
+    /// Takes the tip's node away.
+    fn pop_node(&mut self) {
+        self.nodes.pop();
+        if self.in_lumen.pop() == Some(true) {
+            self.lumen_nodes -= 1;
+        }
     }
 
     pub fn spec(&self) -> &WireSpec {
@@ -174,6 +199,7 @@ impl GuideWire {
             put(v.to_bits());
         }
         put(u64::from(self.in_parenchyma));
+        put(self.lumen_nodes as u64);
     }
 
     /// Length beyond where it leaves the needle (mm), the fold included; once the needle is out
@@ -193,15 +219,9 @@ impl GuideWire {
     }
 
     /// Length of the wire in the duct lumen (mm), the fold included while the tip is inside.
-    pub fn in_ducts_mm(&self, channel: &DuctChannel) -> f64 {
-        let nodes = self
-            .nodes
-            .iter()
-            .skip(1)
-            .filter(|&&p| channel.depth_mm(p) >= 0.0)
-            .count();
+    pub fn in_ducts_mm(&self) -> f64 {
         let fold = if self.in_parenchyma { 0.0 } else { self.folded_mm };
-        nodes as f64 * NODE_MM + fold
+        self.lumen_nodes as f64 * NODE_MM + fold
     }
 
     /// Where a J points now: perpendicular to the tip, at the wire's roll from `up`.
@@ -251,14 +271,8 @@ impl GuideWire {
                 step.event = Some(e);
             }
         }
-        let (mut duct_mm, mut tissue_mm) = (0.0, 0.0);
-        for &p in &self.nodes[1..] {
-            if channel.depth_mm(p) >= 0.0 {
-                duct_mm += NODE_MM;
-            } else {
-                tissue_mm += NODE_MM;
-            }
-        }
+        let duct_mm = self.lumen_nodes as f64 * NODE_MM;
+        let tissue_mm = (self.nodes.len() - 1 - self.lumen_nodes) as f64 * NODE_MM;
         let friction = duct_mm * DUCT_FRICTION_N_PER_MM + tissue_mm * TISSUE_FRICTION_N_PER_MM;
         // Sliding friction against the way the wire moves; held still, only what the tip or its
         // fold pushes back with.
@@ -282,14 +296,14 @@ impl GuideWire {
         let r = self.spec.radius_mm();
         if self.in_parenchyma {
             // Through tissue the tip keeps its direction.
-            self.nodes.push(tip + self.tip_dir * NODE_MM);
+            self.push_node(tip + self.tip_dir * NODE_MM, channel);
             self.tip_force_n = 0.0;
             return None;
         }
         let free = |p: DVec3| channel.depth_mm(p) >= r;
         let course = self.tip_dir;
         if free(tip + course * NODE_MM) {
-            self.nodes.push(tip + course * NODE_MM);
+            self.push_node(tip + course * NODE_MM, channel);
             self.tip_force_n = 0.0;
             return None;
         }
@@ -303,7 +317,7 @@ impl GuideWire {
             let along = (lead + normal * outward.max(0.0)).normalize();
             for dir in [along, (along + normal * 0.5).normalize()] {
                 if free(tip + dir * NODE_MM) {
-                    self.nodes.push(tip + dir * NODE_MM);
+                    self.push_node(tip + dir * NODE_MM, channel);
                     self.turn(dir);
                     let sin_glance = outward.clamp(0.0, 1.0);
                     let cot = libm::sqrt(1.0 - sin_glance * sin_glance) / sin_glance.max(1e-3);
@@ -319,7 +333,7 @@ impl GuideWire {
         self.tip_force_n = self.spec.push_limit_n(self.folded_mm);
         if self.spec.tip == WireTip::Straight && head_on && self.tip_force_n >= wall_puncture_n {
             self.in_parenchyma = true;
-            self.nodes.push(tip + self.tip_dir * NODE_MM);
+            self.push_node(tip + self.tip_dir * NODE_MM, channel);
             return Some(WireEvent::LeftDuct);
         }
         first.then_some(WireEvent::Blocked)
@@ -335,7 +349,7 @@ impl GuideWire {
         if self.nodes.len() < 2 {
             return None;
         }
-        self.nodes.pop();
+        self.pop_node();
         let n = self.nodes.len();
         if n >= 2 {
             let dir = (self.nodes[n - 1] - self.nodes[n - 2])

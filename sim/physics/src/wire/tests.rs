@@ -109,7 +109,7 @@ fn the_j_tip_takes_the_branch_it_is_turned_toward() {
         let tip = w.tip_mm();
         assert!(tip.x > 15.0 && tip.y * side > 10.0, "roll {roll}: tip at {tip:?}");
         assert!(!w.left_duct());
-        assert!((w.in_ducts_mm(&c) - 70.0).abs() < 1.0, "{}", w.in_ducts_mm(&c));
+        assert!((w.in_ducts_mm() - 70.0).abs() < 1.0, "{}", w.in_ducts_mm());
     }
 }
 
