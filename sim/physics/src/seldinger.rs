@@ -276,61 +276,51 @@ impl Access {
         let (feed_mm, roll_rad) = self.grip.read(position_mm, orientation);
         let delta_mm = feed_mm - self.grip.feed_mm;
         self.grip.feed_mm = feed_mm;
-        let mut event = None;
+        // What the hand moves the wire by beyond the needle's tip (or the skin, the needle out).
+        let mut rest_mm = delta_mm;
         let mut force_n = 0.0;
-        match &self.needle {
-            Some(needle) => {
+        if let Some(needle) = &self.needle {
+            // Through the lumen first; what reaches past the tip goes on as the wire.
+            if self.wire.is_none() {
                 let length_mm = needle.spec().length_mm;
-                let mut rest_mm = delta_mm;
-                // Through the lumen first; what reaches past the tip goes on as the wire.
-                if self.wire.is_none() {
-                    let inside = self.in_needle_mm + rest_mm;
-                    self.in_needle_mm = inside.clamp(0.0, length_mm);
-                    rest_mm = (inside - length_mm).max(0.0);
-                    if rest_mm > 0.0 {
-                        let tip = *needle.nodes().last().expect("needle has nodes");
-                        let dir = needle.tangents().last().copied().unwrap_or(DVec3::Z);
-                        let up = self.grip.zero_roll;
-                        self.wire = Some(GuideWire::from_needle(self.spec, tip, dir, up, &self.channel));
-                    }
+                let inside = self.in_needle_mm + rest_mm;
+                self.in_needle_mm = inside.clamp(0.0, length_mm);
+                rest_mm = (inside - length_mm).max(0.0);
+                if rest_mm > 0.0 {
+                    let tip = *needle.nodes().last().expect("needle has nodes");
+                    let dir = needle.tangents().last().copied().unwrap_or(DVec3::Z);
+                    let up = self.grip.zero_roll;
+                    self.wire = Some(GuideWire::from_needle(self.spec, tip, dir, up, &self.channel));
                 }
-                if let Some(w) = &mut self.wire {
-                    let wall_n = wall_puncture_n(atlas, w);
-                    let step = w.advance(rest_mm, roll_rad, &self.channel, wall_n);
-                    event = step.event;
-                    force_n = step.force_n;
-                    // Drawn back into the needle: the wire is in the lumen again.
-                    if w.out_mm() < NODE_MM && rest_mm < 0.0 {
-                        self.wire = None;
-                    }
-                }
-                // Sliding friction in the lumen, against the way the hand moves the wire.
-                let sliding = if delta_mm > 0.0 {
-                    1.0
-                } else if delta_mm < 0.0 {
-                    -1.0
-                } else {
-                    0.0
-                };
-                force_n += self.in_needle_mm * LUMEN_FRICTION_N_PER_MM * sliding;
             }
-            None => {
-                if let Some(w) = &mut self.wire {
-                    let wall_n = wall_puncture_n(atlas, w);
-                    let step = w.advance(delta_mm, roll_rad, &self.channel, wall_n);
-                    event = step.event;
-                    force_n = step.force_n;
-                    if w.out_mm() < NODE_MM && delta_mm < 0.0 {
-                        // Drawn out of the skin.
-                        self.wire = None;
-                    }
-                }
-                let in_ducts = self.tip_in_ducts();
-                if self.had_access && !in_ducts && !self.wire.as_ref().is_some_and(GuideWire::left_duct) {
-                    self.access_lost = true;
-                }
-                self.had_access |= in_ducts;
+            // Sliding friction in the lumen, against the way the hand moves the wire.
+            let sliding = if delta_mm > 0.0 {
+                1.0
+            } else if delta_mm < 0.0 {
+                -1.0
+            } else {
+                0.0
+            };
+            force_n = self.in_needle_mm * LUMEN_FRICTION_N_PER_MM * sliding;
+        }
+        let mut event = None;
+        if let Some(w) = &mut self.wire {
+            // Only a push can puncture a wall.
+            let wall_n = if rest_mm > 0.0 { wall_puncture_n(atlas, w) } else { 0.0 };
+            let step = w.advance(rest_mm, roll_rad, &self.channel, wall_n);
+            event = step.event;
+            force_n += step.force_n;
+            // Drawn back into the needle (the wire is in its lumen again), or out of the skin.
+            if w.out_mm() < NODE_MM && rest_mm < 0.0 {
+                self.wire = None;
             }
+        }
+        if self.needle.is_none() {
+            let in_ducts = self.tip_in_ducts();
+            if self.had_access && !in_ducts && !self.wire.as_ref().is_some_and(GuideWire::left_duct) {
+                self.access_lost = true;
+            }
+            self.had_access |= in_ducts;
         }
         let axial = -self.grip.axis * force_n;
         let force = axial + self.grip.line_force(position_mm, device.base_kappa_n_per_mm);
