@@ -120,7 +120,7 @@ HAND2_F64_COLUMNS = (
     "hand2_torque_x_nmm", "hand2_torque_y_nmm", "hand2_torque_z_nmm",
 )
 HAND2_COLUMNS = HAND2_F64_COLUMNS + ("hand2_buttons",)
-EVENT_COLUMNS = ("tick", "t_s", "name", "tool", "gauge", "length_mm", "stylet_in", "ml", "wire")
+EVENT_COLUMNS = ("tick", "t_s", "name", "tool", "gauge", "length_mm", "stylet_in", "ml", "wire", "size_fr")
 DIGEST_COLUMNS = ("tick", "t_s", "digest", "digest_hex")
 ANNOTATION_COLUMNS = ("tick", "t_s", "text")
 PREVIEW_COLUMNS = (
@@ -143,10 +143,14 @@ TOOL_COLUMNS = ("tick", "tool", "tool_gauge", "tool_length_mm", "tool_stylet_in"
 EVENT_NAMES = (
     "tool", "tool2", "stylet-remove", "stylet-insert", "xray-on", "xray-off",
     "contrast-inject", "breath-hold", "breath-release", "wire-in", "needle-out", "wire-out",
+    "dilator-in", "dilator-out", "catheter-in",
 )
 # A `wire-in` event's wire: "<diameter> <tip>".
 WIRE_DIAMETERS = ("0.018", "0.035")
 WIRE_TIPS = ("j", "straight")
+#: Sizes (French) of the tools that go over the wire.
+DILATOR_SIZES_FR = (6, 8, 10, 12)
+CATHETER_SIZES_FR = (8, 10)
 TOOLS = ("needle", "finger", "probe-linear", "probe-convex")
 # What the second hand may hold (`none`: empty).
 HAND2_TOOLS = ("finger", "probe-linear", "probe-convex", "none")
@@ -652,12 +656,16 @@ class _Reader:
             raise SessionFormatError(f"{what}: the second hand cannot hold '{str(tool)[:64]}'")
         if name == "contrast-inject" and ml is None:
             raise SessionFormatError(f"{what}: contrast event without ml")
+        size_fr = None if m.get("size_fr") is None else _uint(m["size_fr"], f"{what}: size_fr", 8)
+        sizes = {"dilator-in": DILATOR_SIZES_FR, "catheter-in": CATHETER_SIZES_FR}.get(name)
+        if sizes is not None and size_fr not in sizes:
+            raise SessionFormatError(f"{what}: {name} of size {size_fr} F (sizes: {', '.join(map(str, sizes))})")
         if name == "wire-in":
             parts = (wire or "").split(" ")
             if len(parts) != 2 or parts[0] not in WIRE_DIAMETERS or parts[1] not in WIRE_TIPS:
                 raise SessionFormatError(f"{what}: wire '{str(wire)[:40]}' is not \"<0.018|0.035> <j|straight>\"")
         e = self.s.events
-        for k, v in zip(EVENT_COLUMNS, (tick, self.t(tick), name, tool, gauge, length, stylet, ml, wire)):
+        for k, v in zip(EVENT_COLUMNS, (tick, self.t(tick), name, tool, gauge, length, stylet, ml, wire, size_fr)):
             e[k].append(v)
 
     def _digests(self, m):

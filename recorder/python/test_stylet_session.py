@@ -26,8 +26,8 @@ V1 = HERE.parent / "tests/fixtures/session-v1.mcap"
 V2 = HERE.parent / "tests/fixtures/session-v2.mcap"
 V3 = HERE.parent / "tests/fixtures/session-v3.mcap"
 V4 = HERE.parent / "tests/fixtures/session-v4.mcap"
-PHYSICS_V12 = HERE.parent.parent / "tests/fixtures/physics-v12"
-PHYSICS_FILES = sorted(PHYSICS_V12.glob("*.mcap"))
+PHYSICS_V13 = HERE.parent.parent / "tests/fixtures/physics-v13"
+PHYSICS_FILES = sorted(PHYSICS_V13.glob("*.mcap"))
 
 M64 = (1 << 64) - 1
 
@@ -262,7 +262,7 @@ class Fixtures(unittest.TestCase):
             # (tick * 0x9E3779B97F4A7C15) after every tick = 99 mod 100.
             self.assertEqual(rows(s.events), [{
                 "tick": 5, "t_s": 0.005, "name": "contrast-inject", "tool": None, "gauge": None,
-                "length_mm": None, "stylet_in": None, "ml": 1.5, "wire": None,
+                "length_mm": None, "stylet_in": None, "ml": 1.5, "wire": None, "size_fr": None,
             }])
             self.assertEqual(s.digests["tick"], list(range(99, 1500, 100)))
             self.assertEqual(s.digests["digest"], [(t * 0x9E3779B97F4A7C15) & M64 for t in range(99, 1500, 100)])
@@ -301,7 +301,7 @@ class Fixtures(unittest.TestCase):
         for path in PHYSICS_FILES:
             with self.subTest(path=path.name):
                 s = read_session(path)
-                self.assertEqual(s.physics_version, 12)
+                self.assertEqual(s.physics_version, 13)
                 self.assertEqual(s.scenario, path.stem)
                 self.assertEqual(s.tick_rate_hz, 1000)
                 self.assertEqual(s.ticks["tick"], list(range(ends[path.stem])))
@@ -310,7 +310,7 @@ class Fixtures(unittest.TestCase):
                 event_ticks = set(s.events["tick"])
                 # Digests every 100 ticks and at every tick with events.
                 self.assertEqual(set(s.digests["tick"]), set(range(99, ends[path.stem], 100)) | event_ticks)
-        s = read_session(PHYSICS_V12 / "needle-contrast.mcap")
+        s = read_session(PHYSICS_V13 / "needle-contrast.mcap")
         self.assertEqual(s.events["name"], ["stylet-remove", "contrast-inject"])
         self.assertEqual(s.events["tick"], [6300, 6500])
         self.assertEqual(s.events["t_s"], [6.3, 6.5])
@@ -367,7 +367,7 @@ class Fixtures(unittest.TestCase):
         self.assertEqual(len(pandas.DataFrame(s.events)), 1)
 
     def test_settings_decode_the_header(self):
-        s = read_session(PHYSICS_V12 / "needle-contrast.mcap")
+        s = read_session(PHYSICS_V13 / "needle-contrast.mcap")
         st = s.settings()
         self.assertEqual(st["tool_length_mm"], 150.0)
         self.assertEqual(st["tick_rate_hz"], 1000)
@@ -379,7 +379,7 @@ class Fixtures(unittest.TestCase):
 
 class ToolInHand(unittest.TestCase):
     def test_stylet_removal_applies_from_its_tick(self):
-        s = read_session(PHYSICS_V12 / "needle-contrast.mcap")
+        s = read_session(PHYSICS_V13 / "needle-contrast.mcap")
         tools = tool_in_hand(s)
         self.assertEqual(tools["tick"], s.ticks["tick"])
         stylet = tools["tool_stylet_in"]
@@ -488,6 +488,12 @@ class HandMadeFiles(unittest.TestCase):
             ({"tick": 1, "name": "tool", "tool": "needle", "gauge": 17, "length_mm": 1.0, "stylet_in": True}, "gauge 17"),
             ({"tick": 1, "name": "tool", "tool": "needle", "gauge": 18, "length_mm": -1.0, "stylet_in": True}, "valid length"),
             ({"tick": 1, "name": "contrast-inject"}, "without ml"),
+            ({"tick": 1, "name": "wire-in", "wire": "0.038 j"}, "is not \"<0.018|0.035> <j|straight>\""),
+            ({"tick": 1, "name": "wire-in"}, "wire 'None' is not"),
+            ({"tick": 1, "name": "dilator-in"}, "dilator-in of size None F"),
+            ({"tick": 1, "name": "dilator-in", "size_fr": 7}, "dilator-in of size 7 F \\(sizes: 6, 8, 10, 12\\)"),
+            ({"tick": 1, "name": "catheter-in", "size_fr": 12}, "catheter-in of size 12 F"),
+            ({"tick": 1, "name": "catheter-in", "size_fr": 300}, "not an unsigned 8-bit"),
             ({"tick": 1, "name": "x" * 65}, "longer than 64"),
             ({"name": "xray-on"}, "lacks 'tick'"),
             ([1, 2], "not a CBOR map"),
@@ -548,7 +554,7 @@ class Damage(unittest.TestCase):
         self.assertRegex(e, "cut short|damaged")
 
     def test_bit_flips(self):
-        for path in (V1, PHYSICS_V12 / "needle-contrast.mcap"):
+        for path in (V1, PHYSICS_V13 / "needle-contrast.mcap"):
             data = path.read_bytes()
             for off in self.offsets(len(data)):
                 with self.subTest(path=path.name, offset=off):
@@ -587,10 +593,10 @@ class CommandLine(unittest.TestCase):
             events_csv = os.path.join(d, "events.csv")
             out = io.StringIO()
             with redirect_stdout(out):
-                rc = ss.main([str(PHYSICS_V12 / "needle-contrast.mcap"), "--csv", ticks_csv, "--events-csv", events_csv])
+                rc = ss.main([str(PHYSICS_V13 / "needle-contrast.mcap"), "--csv", ticks_csv, "--events-csv", events_csv])
             self.assertEqual(rc, 0)
             self.assertIn("9000", out.getvalue())
-            s = read_session(PHYSICS_V12 / "needle-contrast.mcap")
+            s = read_session(PHYSICS_V13 / "needle-contrast.mcap")
             with open(ticks_csv, newline="") as f:
                 r = list(csv.DictReader(f))
             self.assertEqual(list(r[0]), list(ss.TICK_COLUMNS))

@@ -7,6 +7,7 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 use serde_bytes::ByteBuf;
 use stylet_physics::motion::BreathingSettings;
+use stylet_physics::seldinger::over_wire::OverWireKind;
 use stylet_physics::wire::{WireDiameter, WireTip};
 use stylet_physics::{ContrastSettings, DeformSettings, Event, Gauge, HandTool, ProbeKind, SettingsError, ToolSpec};
 
@@ -185,6 +186,9 @@ pub struct EventRecord {
     /// `wire-in`: the wire as scripts write it, "<0.018|0.035> <j|straight>".
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub wire: Option<String>,
+    /// `dilator-in`, `catheter-in`: the tool's size in French.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub size_fr: Option<u32>,
 }
 
 /// A state digest message (Simulation::state_digest).
@@ -225,6 +229,7 @@ impl EventRecord {
             stylet_in: None,
             ml: None,
             wire: None,
+            size_fr: None,
         };
         match e {
             Event::SelectTool(spec) => {
@@ -245,6 +250,7 @@ impl EventRecord {
             }
             Event::ContrastInject { ml } => r.ml = Some(*ml),
             Event::WireIn { diameter, tip } => r.wire = Some(format!("{} {}", diameter.name(), tip.name())),
+            Event::DilatorIn { size_fr } | Event::CatheterIn { size_fr } => r.size_fr = Some(u32::from(*size_fr)),
             _ => {}
         }
         r
@@ -272,8 +278,29 @@ impl EventRecord {
             "wire-in" => wire_from(self.wire.as_deref().ok_or(EventError::NoWire)?)?,
             "needle-out" => Event::NeedleOut,
             "wire-out" => Event::WireOut,
+            "dilator-in" => Event::DilatorIn {
+                size_fr: self.size_of(OverWireKind::Dilator)?,
+            },
+            "dilator-out" => Event::DilatorOut,
+            "catheter-in" => Event::CatheterIn {
+                size_fr: self.size_of(OverWireKind::Catheter)?,
+            },
             other => return Err(EventError::Unknown(other.to_string())),
         })
+    }
+}
+
+impl EventRecord {
+    /// The recorded size of a dilator or catheter, one `kind` comes in.
+    fn size_of(&self, kind: OverWireKind) -> Result<u8, EventError> {
+        let size = self.size_fr.ok_or(EventError::NoSize(kind.name()))?;
+        match u8::try_from(size) {
+            Ok(fr) if kind.offers(fr) => Ok(fr),
+            _ => Err(EventError::Size {
+                tool: kind.name(),
+                size_fr: size,
+            }),
+        }
     }
 }
 
@@ -302,6 +329,10 @@ pub enum EventError {
     NoWire,
     #[error("wire '{0}' is not \"<0.018|0.035> <j|straight>\"")]
     Wire(String),
+    #[error("{0}-in event without its size")]
+    NoSize(&'static str),
+    #[error("there is no {size_fr} F {tool}")]
+    Size { tool: &'static str, size_fr: u32 },
     #[error(transparent)]
     Tool(#[from] ToolError),
 }
@@ -1048,7 +1079,7 @@ const TICK_BLOCK_SCHEMA: &str = r##"{
 const EVENT_SCHEMA: &str = r##"{
   "$schema": "https://json-schema.org/draft/2020-12/schema",
   "title": "stylet.Event",
-  "description": "An event of a tick (names as in docs/scripts.md). A CBOR map; fields other than tick and name are present only for the events that use them: tool, gauge, length_mm, stylet_in for a tool change, tool for the second hand's tool change (tool2; none: the hand puts its tool down), ml for a contrast injection, wire for a guide wire put in (wire-in).",
+  "description": "An event of a tick (names as in docs/scripts.md). A CBOR map; fields other than tick and name are present only for the events that use them: tool, gauge, length_mm, stylet_in for a tool change, tool for the second hand's tool change (tool2; none: the hand puts its tool down), ml for a contrast injection, wire for a guide wire put in (wire-in), size_fr for a dilator or drainage catheter put on the wire (dilator-in: 6, 8, 10, 12; catheter-in: 8, 10).",
   "type": "object",
   "properties": {
     "tick": {"type": "integer", "minimum": 0, "maximum": 18446744073709551615},
@@ -1058,7 +1089,8 @@ const EVENT_SCHEMA: &str = r##"{
     "length_mm": {"type": "number"},
     "stylet_in": {"type": "boolean"},
     "ml": {"type": "number"},
-    "wire": {"enum": ["0.018 j", "0.018 straight", "0.035 j", "0.035 straight"]}
+    "wire": {"enum": ["0.018 j", "0.018 straight", "0.035 j", "0.035 straight"]},
+    "size_fr": {"enum": [6, 8, 10, 12]}
   },
   "required": ["tick", "name"],
   "additionalProperties": false

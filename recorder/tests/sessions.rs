@@ -1212,7 +1212,7 @@ fn sessions_match_their_published_schemas() {
         fixture("session-v3.mcap"),
         fixture("session-v4.mcap"),
     ];
-    for entry in std::fs::read_dir(root.join("tests/fixtures/physics-v12")).unwrap() {
+    for entry in std::fs::read_dir(root.join("tests/fixtures/physics-v13")).unwrap() {
         let p = entry.unwrap().path();
         if p.extension().is_some_and(|e| e == "mcap") {
             committed.push(p);
@@ -1278,6 +1278,9 @@ fn the_exchange_events_round_trip_and_a_bad_wire_is_named() {
         },
         Event::NeedleOut,
         Event::WireOut,
+        Event::DilatorIn { size_fr: 10 },
+        Event::DilatorOut,
+        Event::CatheterIn { size_fr: 8 },
     ];
     for e in &events {
         let r = EventRecord::from_event(7, e);
@@ -1292,6 +1295,23 @@ fn the_exchange_events_round_trip_and_a_bad_wire_is_named() {
         assert_eq!(
             r.to_event().unwrap_err().to_string(),
             format!("wire '{bad}' is not \"<0.018|0.035> <j|straight>\"")
+        );
+    }
+    // A dilator or catheter without its size, or of a size it does not come in.
+    let mut r = EventRecord::from_event(7, &Event::CatheterIn { size_fr: 10 });
+    assert_eq!(r.size_fr, Some(10));
+    r.size_fr = None;
+    assert_eq!(
+        r.to_event().unwrap_err().to_string(),
+        "catheter-in event without its size"
+    );
+    for (name, size) in [("catheter-in", 12), ("dilator-in", 7), ("dilator-in", 300)] {
+        r.name = name.into();
+        r.size_fr = Some(size);
+        let tool = name.trim_end_matches("-in");
+        assert_eq!(
+            r.to_event().unwrap_err().to_string(),
+            format!("there is no {size} F {tool}")
         );
     }
 }

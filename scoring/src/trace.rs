@@ -336,6 +336,9 @@ impl TraceCollector {
                 Event::WireIn { diameter, tip } => format!("guide wire in: {}\" {}", diameter.name(), tip.name()),
                 Event::NeedleOut => "needle out over the wire".to_string(),
                 Event::WireOut => "guide wire out".to_string(),
+                Event::DilatorIn { size_fr } => format!("dilator {size_fr} F"),
+                Event::DilatorOut => "dilator out".to_string(),
+                Event::CatheterIn { size_fr } => format!("catheter {size_fr} F"),
             };
             t.events.push(TraceEvent {
                 t_s: out.time_s,

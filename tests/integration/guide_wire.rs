@@ -167,13 +167,13 @@ fn steps_of_the_exchange_are_refused_until_their_preconditions_hold() {
     }
 }
 
-/// The exchange replays bit for bit, with the tissue deforming and the patient breathing: the same
-/// script twice gives the same state digest every second, and a recorded session of it replays
-/// with every digest matched.
+/// The whole PTCD replays bit for bit, with the tissue deforming and the patient breathing: the
+/// same script twice gives the same state digest every second, and a recorded session of it
+/// replays with every digest matched.
 #[test]
-fn the_exchange_replays_bit_for_bit() {
+fn the_full_ptcd_replays_bit_for_bit() {
     let atlas = default_phantom();
-    let text = phantom_script_text("loss-of-access.txt")
+    let text = phantom_script_text("full-ptcd.txt")
         .replace("device premium\n", "device premium\ndeformation on\nbreathing on\n");
     assert!(text.contains("breathing on"));
     let digests = || {
@@ -181,26 +181,31 @@ fn the_exchange_replays_bit_for_bit() {
         let (mut sim, mut device) =
             scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
         let mut d = Vec::new();
+        let mut placed = None;
         run_headless(&mut sim, &mut device, |_, o, s| {
             if o.tick % 1000 == 999 {
                 d.push(s.state_digest());
             }
+            placed = o.wire.and_then(|w| w.catheter);
         });
-        d
+        (d, placed)
     };
-    assert_eq!(digests(), digests());
+    let (first, placed) = digests();
+    assert!(placed.is_some_and(|c| c.drains()), "{placed:?}");
+    assert_eq!(first, digests().0);
     let dir = tempfile::tempdir().unwrap();
-    let path = record_script(atlas, dir.path(), "loss-of-access", "beginner", &text);
+    let path = record_script(atlas, dir.path(), "full-ptcd", "beginner", &text);
     let report = score_session(atlas, &path);
     assert!(report.replay_verified, "{:?}", report.divergence);
-    assert!(report.digests_checked > 30);
+    assert!(report.digests_checked > 50);
     // The official reader of session files reads the exchange's events.
     let py = std::process::Command::new(crate::common::python())
         .arg("-c")
         .arg(
             "import sys; sys.path.insert(0, sys.argv[1]); import stylet_session as s; \
              e = s.read_session(sys.argv[2]).events; \
-             print([(n, w) for n, w in zip(e['name'], e['wire']) if n in ('wire-in', 'needle-out')])",
+             print([(n, w or f) for n, w, f in zip(e['name'], e['wire'], e['size_fr']) \
+                    if n in ('wire-in', 'needle-out', 'dilator-in', 'catheter-in', 'wire-out')])",
         )
         .arg(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("recorder/python"))
         .arg(&path)
@@ -209,6 +214,96 @@ fn the_exchange_replays_bit_for_bit() {
     assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
     assert_eq!(
         String::from_utf8_lossy(&py.stdout).trim(),
-        "[('wire-in', '0.035 j'), ('needle-out', None)]"
+        "[('wire-in', '0.035 j'), ('needle-out', None), ('dilator-in', 8), ('catheter-in', 8), ('wire-out', None)]"
     );
+}
+
+/// The over-the-wire steps are refused, and change nothing, out of order.
+#[test]
+fn the_dilator_and_catheter_go_on_the_wire_only_in_order() {
+    let atlas = default_phantom();
+    let extra = "at 20 event dilator-in 8\nat 28.5 event dilator-out\nat 33 event catheter-in 8\n\
+                 at 34 event wire-out\nat 40 event dilator-in 8\nat 52 event catheter-in 10";
+    // Each line in its place in time (a script's lines run in order).
+    let script = phantom_script_text("full-ptcd.txt");
+    let (head, mut timed): (Vec<&str>, Vec<&str>) = script.lines().partition(|l| !l.starts_with("at "));
+    timed.extend(extra.lines().map(str::trim));
+    let time = |l: &str| l.split_whitespace().nth(1).unwrap().parse::<f64>().unwrap();
+    timed.sort_by(|a, b| time(a).total_cmp(&time(b)));
+    let text = [head, timed].concat().join("\n");
+    let (ticks, _) = run_script(atlas, &text);
+    let refused: Vec<_> = ticks
+        .iter()
+        .filter_map(|t| t.1.refused.map(|r| (t.1.time_s, r)))
+        .collect();
+    assert_eq!(
+        refused,
+        vec![
+            (20.0, Refusal::NeedleStillIn),
+            (28.5, Refusal::NoDilator),
+            (33.0, Refusal::DilatorStillIn),
+            (34.0, Refusal::DilatorStillIn),
+            (40.0, Refusal::ToolOnWire),
+            (52.0, Refusal::CatheterPlaced),
+        ]
+    );
+    let c = ticks.last().unwrap().1.wire.unwrap().catheter.unwrap();
+    assert!(c.drains() && c.size_fr == 8);
+}
+
+/// The whole PTCD: the dilator widens the tract into the duct, the catheter follows it over the
+/// wire against less resistance, the wire comes out and the pigtail forms in the ducts with every
+/// drainage hole inside; contrast through the catheter reaches the ducts.
+#[test]
+fn a_full_ptcd_ends_with_a_pigtail_draining_the_ducts() {
+    let atlas = default_phantom();
+    let (ticks, sim) = run_script(atlas, &phantom_script_text("full-ptcd.txt"));
+    let refused: Vec<_> = ticks
+        .iter()
+        .filter_map(|t| t.1.refused.map(|r| (t.1.time_s, r)))
+        .collect();
+    assert!(refused.is_empty(), "{refused:?}");
+    let wired = at(&ticks, 28.5).wire.unwrap();
+    println!("wire after the needle: {wired:?}");
+    let dilating = at(&ticks, 34.9).wire.unwrap();
+    println!("dilator: {:?}", dilating.over_wire);
+    let peak = |from_s: f64, to_s: f64| {
+        ticks[(from_s * 1000.0) as usize..(to_s * 1000.0) as usize]
+            .iter()
+            .map(|t| t.1.wire.unwrap().force_n)
+            .fold(0.0, f64::max)
+    };
+    let (dilator_n, catheter_n) = (peak(29.0, 35.0), peak(39.0, 46.0));
+    let catheter = at(&ticks, 45.9).wire.unwrap();
+    println!(
+        "dilator up to {dilator_n:.2} N, catheter up to {catheter_n:.2} N; {:?}",
+        catheter.over_wire
+    );
+    let placed = ticks.last().unwrap().1;
+    println!(
+        "placed: {:?}; contrast in ducts {} ml",
+        placed.wire.unwrap().catheter,
+        placed.contrast_in_ducts_ml
+    );
+    let c = placed.wire.unwrap().catheter.expect("the catheter is placed");
+    assert!(c.drains() && c.pigtail_in_ducts);
+    assert!(sim.access().is_some_and(|a| a.pigtail().is_some()));
+}
+
+/// A catheter pushed too short a way: its pigtail forms in the liver, its holes outside the duct.
+#[test]
+fn a_catheter_left_short_forms_its_pigtail_outside_the_ducts() {
+    let atlas = default_phantom();
+    let (ticks, _) = run_script(atlas, &phantom_script_text("catheter-outside.txt"));
+    assert!(ticks.iter().all(|t| t.1.refused.is_none()));
+    let c = ticks
+        .last()
+        .unwrap()
+        .1
+        .wire
+        .unwrap()
+        .catheter
+        .expect("the catheter is placed");
+    println!("{c:?}");
+    assert!(!c.drains() && !c.pigtail_in_ducts, "{c:?}");
 }

@@ -71,13 +71,13 @@ fn score_json(file: &Path) -> Value {
 /// Sessions recorded with this physics version stay replayable bit for bit by later builds: the
 /// finger, linear and convex probe sessions (the contact nodes' batched reads) and a needle session
 /// with contrast (2 ml filling and spreading through the ducts for 2.5 s), recorded with physics
-/// version 12 (tests/fixtures/physics-v12, the scripts beside them). A speed-up must not change
+/// version 13 (tests/fixtures/physics-v13, the scripts beside them). A speed-up must not change
 /// one output bit. They are frozen; when PHYSICS_VERSION changes on purpose, record them again
 /// from their scripts on `stylet atlas phantom` with the new binary, in a folder of the new
 /// version.
 #[test]
 fn sessions_recorded_before_the_speed_ups_replay_bit_for_bit() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/physics-v12");
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/physics-v13");
     for name in [
         "finger-sweep",
         "probe-linear-across",

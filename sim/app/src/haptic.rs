@@ -461,6 +461,9 @@ pub fn event_text(e: &Event) -> String {
         Event::WireIn { diameter, tip } => format!("guide wire in: {}\" {}", diameter.name(), tip.name()),
         Event::NeedleOut => "needle out over the wire".into(),
         Event::WireOut => "guide wire out".into(),
+        Event::DilatorIn { size_fr } => format!("dilator in: {size_fr} F"),
+        Event::DilatorOut => "dilator out".into(),
+        Event::CatheterIn { size_fr } => format!("drainage catheter in: {size_fr} F"),
     }
 }
 

@@ -64,8 +64,19 @@ pub enum Event {
     },
     /// The needle out over the wire, which stays.
     NeedleOut,
-    /// The wire out (after the needle); the hand takes up a needle again.
+    /// The wire out (after the needle): out of a catheter on it, whose pigtail then forms;
+    /// otherwise the hand takes up a needle again.
     WireOut,
+    /// A dilator of this size (French) onto the wire (the needle out); the hand then feeds it.
+    DilatorIn {
+        size_fr: u8,
+    },
+    /// The dilator out over the wire; the hand holds the wire again.
+    DilatorOut,
+    /// The drainage catheter of this size (French) onto the wire; the hand then feeds it.
+    CatheterIn {
+        size_fr: u8,
+    },
 }
 
 impl Event {
@@ -84,6 +95,9 @@ impl Event {
             Event::WireIn { .. } => "wire-in",
             Event::NeedleOut => "needle-out",
             Event::WireOut => "wire-out",
+            Event::DilatorIn { .. } => "dilator-in",
+            Event::DilatorOut => "dilator-out",
+            Event::CatheterIn { .. } => "catheter-in",
         }
     }
 }

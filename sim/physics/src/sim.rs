@@ -20,13 +20,14 @@ use crate::motion::{self, BreathingError, BreathingSettings, MotionModel, Static
 use crate::needle::spec::NeedleSpec;
 use crate::needle::tool::NeedleTool;
 use crate::second_hand::{HandOutput, HandPose, HandTool, SecondHand, SecondHandConfig, clamp_length};
+use crate::seldinger::over_wire::OverWireKind;
 use crate::seldinger::{Access, Refusal, WireOutput};
 use crate::wire::WireSpec;
 use crate::{LabelId, PunctureAtlas, SettingsError};
 
 /// Version of the physics: bump it with every change that alters any output bit, so a replay
 /// knows which physics graded a session.
-pub const PHYSICS_VERSION: u32 = 12;
+pub const PHYSICS_VERSION: u32 = 13;
 
 /// Default haptic rate.
 pub const DEFAULT_TICK_RATE_HZ: u32 = 1000;
@@ -397,12 +398,28 @@ impl Simulation {
                 Tool::Seldinger(a) => a.remove_needle()?,
                 _ => return Err(Refusal::NoWire),
             },
-            Event::WireOut => match &self.tool {
+            Event::WireOut => match &mut self.tool {
                 Tool::Seldinger(a) => {
-                    a.may_remove_wire()?;
-                    self.tool = make_tool(&self.tool_spec);
+                    if !a.remove_wire()? {
+                        self.tool = make_tool(&self.tool_spec);
+                    }
                 }
                 _ => return Err(Refusal::NoWire),
+            },
+            Event::DilatorIn { size_fr } | Event::CatheterIn { size_fr } => {
+                let kind = if matches!(e, Event::DilatorIn { .. }) {
+                    OverWireKind::Dilator
+                } else {
+                    OverWireKind::Catheter
+                };
+                match &mut self.tool {
+                    Tool::Seldinger(a) => a.put_on_wire(&self.atlas, kind, *size_fr, position_mm, orientation)?,
+                    _ => return Err(Refusal::NoWire),
+                }
+            }
+            Event::DilatorOut => match &mut self.tool {
+                Tool::Seldinger(a) => a.remove_dilator(position_mm, orientation)?,
+                _ => return Err(Refusal::NoDilator),
             },
             Event::StyletInsert => {
                 if let Tool::Needle(n) = &mut self.tool {
@@ -529,8 +546,9 @@ impl Simulation {
         // Contrast at its sub-rate: through a needle in the body with the stylet out.
         let every = self.config.contrast.update_every_ticks;
         if self.tick.is_multiple_of(u64::from(every)) {
-            let tip = match self.needle() {
-                Some(n) if !n.stylet_in() && n.inserted_mm() > 0.0 => n.nodes().last().copied(),
+            let tip = match (&self.tool, self.needle()) {
+                (_, Some(n)) if !n.stylet_in() && n.inserted_mm() > 0.0 => n.nodes().last().copied(),
+                (Tool::Seldinger(a), None) => a.catheter_outlet(),
                 _ => None,
             };
             self.contrast

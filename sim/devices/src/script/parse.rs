@@ -2,6 +2,7 @@
 //! line, the column and what was expected.
 
 use stylet_physics::glam::DVec3;
+use stylet_physics::seldinger::over_wire::OverWireKind;
 use stylet_physics::wire::{WireDiameter, WireTip};
 use stylet_physics::{DeviceProfile, Event, Gauge, HandTool, ProbeKind, ToolSpec};
 
@@ -372,6 +373,20 @@ fn parse_hand_tool(t: &mut Tokens) -> Result<Option<HandTool>, ParseError> {
     })
 }
 
+/// A dilator's or catheter's size in French, one `kind` comes in.
+fn french(t: &mut Tokens, kind: OverWireKind) -> Result<u8, ParseError> {
+    let at = t.pos;
+    let v = t.number("size in French")?;
+    if v.fract() == 0.0 && (1.0..=30.0).contains(&v) && kind.offers(v as u8) {
+        return Ok(v as u8);
+    }
+    t.pos = at;
+    Err(t.err(match kind {
+        OverWireKind::Dilator => "a dilator of 6, 8, 10 or 12 F",
+        OverWireKind::Catheter => "a catheter of 8 or 10 F",
+    }))
+}
+
 fn parse_event(t: &mut Tokens) -> Result<Event, ParseError> {
     let names = [
         "stylet-remove",
@@ -384,6 +399,9 @@ fn parse_event(t: &mut Tokens) -> Result<Event, ParseError> {
         "wire-in",
         "needle-out",
         "wire-out",
+        "dilator-in",
+        "dilator-out",
+        "catheter-in",
     ];
     Ok(match t.keyword(&names)? {
         "stylet-remove" => Event::StyletRemove,
@@ -394,6 +412,13 @@ fn parse_event(t: &mut Tokens) -> Result<Event, ParseError> {
         "breath-release" => Event::BreathRelease,
         "needle-out" => Event::NeedleOut,
         "wire-out" => Event::WireOut,
+        "dilator-out" => Event::DilatorOut,
+        "dilator-in" => Event::DilatorIn {
+            size_fr: french(t, OverWireKind::Dilator)?,
+        },
+        "catheter-in" => Event::CatheterIn {
+            size_fr: french(t, OverWireKind::Catheter)?,
+        },
         "wire-in" => {
             let diameter = match t.keyword(&["0.018", "0.035"])? {
                 "0.018" => WireDiameter::In018,
@@ -716,6 +741,30 @@ mod tests {
         assert!(e.expected.contains("0.018, 0.035") && e.found == "'0.038'", "{e}");
         let e = err("stylet-script 1\nat 0 along p 0\nat 1 event wire-in 0.035\n");
         assert!(e.expected.contains("j, straight"), "{e}");
+        let s = parse("stylet-script 1\nat 0 along p 0\nat 1 event dilator-in 12\nat 2 event dilator-out\nat 3 event catheter-in 10\n")
+            .unwrap();
+        let events: Vec<_> = s.items[1..].iter().map(|i| i.action.clone()).collect();
+        assert_eq!(
+            events,
+            [
+                Action::Event(Event::DilatorIn { size_fr: 12 }),
+                Action::Event(Event::DilatorOut),
+                Action::Event(Event::CatheterIn { size_fr: 10 }),
+            ]
+        );
+        for (line, expected) in [
+            ("dilator-in 7", "a dilator of 6, 8, 10 or 12 F"),
+            ("dilator-in 8.5", "a dilator of 6, 8, 10 or 12 F"),
+            ("catheter-in 12", "a catheter of 8 or 10 F"),
+            ("catheter-in 1e9", "a catheter of 8 or 10 F"),
+        ] {
+            let e = err(&format!("stylet-script 1\nat 0 along p 0\nat 1 event {line}\n"));
+            assert_eq!(
+                (e.line, e.column, e.expected.as_str()),
+                (3, line.find(' ').unwrap() + 13, expected),
+                "{e}"
+            );
+        }
     }
 
     #[test]
