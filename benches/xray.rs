@@ -41,6 +41,7 @@ fn main() {
     let scene = XrayScene {
         c_arm,
         needle: None,
+        lines: Vec::new(),
         contrast: None,
     };
     let sizes: Vec<u32> = if measuring { vec![256, 512] } else { vec![32] };

@@ -101,7 +101,7 @@ pub enum View {
     Sagittal,
     /// The oblique slice along the needle (needs a session with the needle in use).
     Needle,
-    /// The C-arm's radiograph with the needle and the contrast medium of the moment (docs/xray.md).
+    /// The C-arm's radiograph with the needle, guide wire, dilator or catheter and the contrast medium of the moment (docs/xray.md).
     Xray,
     /// The ultrasound image of the probe of the moment, or of one beside the planned path
     /// (docs/ultrasound.md).

@@ -307,3 +307,54 @@ fn a_catheter_left_short_forms_its_pigtail_outside_the_ducts() {
     println!("{c:?}");
     assert!(!c.drains() && !c.pigtail_in_ducts, "{c:?}");
 }
+
+/// The views see the exchange's instruments: the wire alone once the needle is out, the catheter
+/// on it as far as its tip while it is pushed, the placed catheter with its loop once the wire is
+/// out; each darkens the radiograph where it lies.
+#[test]
+fn the_wire_and_catheter_are_drawn_where_the_physics_has_them() {
+    use stylet_render::tools::{LineKind, ToolState};
+    use stylet_render::xray::{CArm, XrayScene, render};
+    let atlas = default_phantom();
+    let script = parse(&phantom_script_text("full-ptcd.txt")).unwrap();
+    let (mut sim, mut device) = scripted_simulation(Arc::clone(&atlas.model), &atlas.planned_paths(), &script).unwrap();
+    let mut states = Vec::new();
+    run_headless(&mut sim, &mut device, |i, o, s| {
+        if [28_000, 45_999, 53_000].contains(&o.tick) {
+            states.push((*o, ToolState::from_simulation(s, i)));
+        }
+    });
+    let kinds = |t: &ToolState| t.lines.iter().map(|l| l.kind).collect::<Vec<_>>();
+    assert_eq!(kinds(&states[0].1), [LineKind::GuideWire]);
+    assert_eq!(kinds(&states[1].1), [LineKind::GuideWire, LineKind::Catheter]);
+    assert_eq!(kinds(&states[2].1), [LineKind::Catheter]);
+    // The wire ends at the physics' tip; the catheter on it at its tip.
+    let (out, wire) = (&states[1].0.wire.unwrap(), &states[1].1.lines);
+    let end = |i: usize| wire[i].nodes_mm.last().unwrap().as_dvec3();
+    assert!(end(0).distance(out.tip_mm) < 1e-3, "{:?} vs {:?}", end(0), out.tip_mm);
+    assert!(end(1).distance(out.over_wire.unwrap().tip_mm) < 1e-3);
+    let placed = &states[2].1.lines[0];
+    let c = states[2].0.wire.unwrap().catheter.unwrap();
+    assert!(placed.nodes_mm.last().unwrap().as_dvec3().distance(c.tip_mm) < 1e-3);
+    assert!(placed.nodes_mm.len() < 200, "{} nodes", placed.nodes_mm.len());
+    // Each darkens the radiograph.
+    let arm = CArm::posterior_anterior(c.tip_mm.as_vec3());
+    let bare = XrayScene {
+        c_arm: arm,
+        needle: None,
+        lines: Vec::new(),
+        contrast: None,
+    };
+    let plain = render(&atlas.model, &bare, 128, 128).unwrap();
+    for (_, tools) in &states {
+        let with = XrayScene {
+            lines: tools.lines.clone(),
+            ..bare.clone()
+        };
+        let img = render(&atlas.model, &with, 128, 128).unwrap();
+        let added = (0..128 * 128)
+            .map(|i| img.at(i % 128, i / 128) - plain.at(i % 128, i / 128))
+            .fold(0.0f32, f32::max);
+        assert!(added > 0.01, "{:?}: {added}", kinds(tools));
+    }
+}

@@ -286,6 +286,7 @@ fn breathing(ctx: &GpuContext, cpu: &RenderVolume, uploads: &[(RecordFilter, Gpu
     let scene = XrayScene {
         c_arm: CArm::posterior_anterior(((lo + hi) * 0.5).as_vec3()),
         needle: None,
+        lines: Vec::new(),
         contrast: None,
     };
     let mut xray = stylet_render_gpu::GpuXray::new(ctx);
@@ -310,6 +311,7 @@ fn views(ctx: &GpuContext, atlas: &stylet_atlas::Atlas, cpu: &RenderVolume, gpu:
     let scene = XrayScene {
         c_arm,
         needle: None,
+        lines: Vec::new(),
         contrast: None,
     };
     // Every GPU frame first, then the CPU's (an idle GPU lowers its clock).

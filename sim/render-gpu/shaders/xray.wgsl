@@ -17,16 +17,17 @@ struct Params {
     row2: vec4<f32>,
     origin: vec4<f32>,    // world position of voxel (0, 0, 0)
     dims: vec4<u32>,      // CT voxels
-    size: vec4<u32>,      // width, height, needle nodes, 1 when there is contrast
+    size: vec4<u32>,      // width, height, instrument segments, 1 when there is contrast
     c_origin: vec4<f32>,  // contrast box: first CT voxel
     c_dims: vec4<u32>,    // contrast box: voxels per axis
-    consts: vec4<f32>,    // μ_water/1000 per mm, the needle's μ' and r' (needle.rs `resolved_radius_and_mu`)
+    consts: vec4<f32>,    // μ_water/1000 per mm, unused ×3
 }
 
 @group(0) @binding(0) var<uniform> P: Params;
 // binding 1: the CT (prepended by the host)
 @group(0) @binding(2) var<storage, read> contrast: array<f32>;
-@group(0) @binding(3) var<storage, read> needle: array<vec4<f32>>;
+// The instruments' segments (xray/mod.rs `segments`), two words each: (a, r'), (b, μ').
+@group(0) @binding(3) var<storage, read> segments: array<vec4<f32>>;
 @group(0) @binding(4) var<storage, read_write> out_a: array<f32>;
 
 // attenuation.rs `water_relative`: HU + 1000, air and below as 0.
@@ -260,9 +261,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             a += integrate(1u, P.c_dims.xyz, c0 - P.c_origin.xyz, dc, len);
         }
     }
-    let nodes = P.size.z;
-    for (var i = 1u; i < nodes; i++) {
-        a += P.consts.y * chord_mm(src, dir, len, needle[i - 1u].xyz, needle[i].xyz, P.consts.z);
+    let count = P.size.z;
+    for (var i = 0u; i < count; i++) {
+        let sa = segments[2u * i];
+        let sb = segments[2u * i + 1u];
+        a += sb.w * chord_mm(src, dir, len, sa.xyz, sb.xyz, sa.w);
     }
     out_a[gid.y * w + gid.x] = a;
 }

@@ -1,6 +1,6 @@
 //! The simulated X-ray on the GPU (`shaders/xray.wgsl`): the same per-ray loop as
 //! `stylet_render::xray` (Joseph's line integral through the CT and the contrast overlay, the
-//! needle's steel chords), one invocation per detector pixel. Returns the attenuation a per
+//! instruments' chords: the needle, guide wire, dilator, catheter), one invocation per detector pixel. Returns the attenuation a per
 //! pixel; the window is applied on the CPU (`Radiograph::to_image`), as for the CPU image.
 //! A breathing moment ([`GpuXray::render_moving`]) reads each plane's sample at its reference
 //! point, as `xray::render_moving` does.
@@ -8,9 +8,8 @@
 use bytemuck::{Pod, Zeroable};
 use stylet_render::scene::MotionHook;
 use stylet_render::volume::IndexMap;
-use stylet_render::xray::attenuation::{MU_STEEL_PER_MM, MU_WATER_PER_MM};
-use stylet_render::xray::needle::resolved_radius_and_mu;
-use stylet_render::xray::{MAX_SIDE_PX, Radiograph, XrayScene, check_scene_fits};
+use stylet_render::xray::attenuation::MU_WATER_PER_MM;
+use stylet_render::xray::{MAX_SIDE_PX, Radiograph, XrayScene, check_instruments, check_scene_fits, segments};
 
 use crate::motion::GpuMotion;
 use crate::pipeline::{Pipelines, dispatch, numbered, uniform_buffer, v4};
@@ -23,9 +22,6 @@ const SHADER: &str = concat!(
     include_str!("../shaders/motion.wgsl"),
     include_str!("../shaders/xray.wgsl")
 );
-
-/// The most needle nodes the shader reads (the physics' needle has far fewer).
-pub const MAX_NEEDLE_NODES: usize = 1024;
 
 /// Mirrors `Params` in xray.wgsl (16-byte members).
 #[repr(C)]
@@ -91,23 +87,13 @@ impl GpuXray {
             )));
         }
         scene.c_arm.validate().map_err(|e| GpuError::Invalid(e.to_string()))?;
-        let nodes: Vec<[f32; 4]> = match &scene.needle {
-            Some(n) => {
-                if n.nodes_mm.len() > MAX_NEEDLE_NODES {
-                    return Err(GpuError::Invalid(format!(
-                        "a needle of {} nodes (at most {MAX_NEEDLE_NODES})",
-                        n.nodes_mm.len()
-                    )));
-                }
-                if !(n.diameter_mm.is_finite() && n.diameter_mm > 0.0 && n.nodes_mm.iter().all(|p| p.is_finite())) {
-                    return Err(GpuError::Invalid(
-                        "the needle's nodes and diameter must be finite".into(),
-                    ));
-                }
-                n.nodes_mm.iter().map(|&p| v4(p, 0.0)).collect()
-            }
-            None => Vec::new(),
-        };
+        check_instruments(scene).map_err(|e| GpuError::Invalid(e.to_string()))?;
+        // Two words per segment: (a, r'), (b, μ').
+        let segment_words: Vec<[f32; 4]> = segments(scene, width, height)
+            .iter()
+            .flat_map(|s| [v4(s.a, s.radius_mm), v4(s.b, s.mu_per_mm)])
+            .collect();
+        let segment_count = segment_words.len() / 2;
         let grid = vol.atlas.ct().grid();
         check_scene_fits(scene, grid).map_err(|e| GpuError::Invalid(e.to_string()))?;
         let map = IndexMap::of(grid);
@@ -119,13 +105,6 @@ impl GpuXray {
             }
             None => ([0.0; 3], [1, 1, 1], &[0.0f32][..]),
         };
-        let (needle_r, needle_mu) = scene.needle.as_ref().map_or((0.0, 0.0), |n| {
-            resolved_radius_and_mu(
-                n.diameter_mm,
-                scene.c_arm.pixel_at_isocenter_mm(width, height),
-                MU_STEEL_PER_MM,
-            )
-        });
         let out_bytes = width as u64 * height as u64 * 4;
         ctx.check_storage_buffer("the X-ray image", out_bytes)?;
         let proj = scene.c_arm.projection(width, height);
@@ -139,16 +118,20 @@ impl GpuXray {
             row2: v4(map.rows[2], 0.0),
             origin: v4(map.origin, 0.0),
             dims: [dims[0], dims[1], dims[2], 0],
-            size: [width, height, nodes.len() as u32, scene.contrast.is_some() as u32],
+            size: [width, height, segment_count as u32, scene.contrast.is_some() as u32],
             c_origin: [c_origin[0], c_origin[1], c_origin[2], 0.0],
             c_dims: [c_dims[0], c_dims[1], c_dims[2], 0],
-            consts: [MU_WATER_PER_MM / 1000.0, needle_mu, needle_r, 0.0],
+            consts: [MU_WATER_PER_MM / 1000.0, 0.0, 0.0, 0.0],
         };
         self.motion.prepare(ctx, breathing)?;
         ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
         let contrast = storage(ctx, "contrast overlay", bytemuck::cast_slice(c_values));
-        let needle_words: Vec<[f32; 4]> = if nodes.is_empty() { vec![[0.0; 4]] } else { nodes };
-        let needle = storage(ctx, "needle nodes", bytemuck::cast_slice(&needle_words));
+        let segment_words = if segment_words.is_empty() {
+            vec![[0.0; 4]]
+        } else {
+            segment_words
+        };
+        let instruments = storage(ctx, "instrument segments", bytemuck::cast_slice(&segment_words));
         let output = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("xray image"),
             size: out_bytes,
@@ -160,7 +143,7 @@ impl GpuXray {
             self.params.as_entire_binding(),
             vol.ct_binding(),
             contrast.as_entire_binding(),
-            needle.as_entire_binding(),
+            instruments.as_entire_binding(),
             output.as_entire_binding(),
         ]);
         entries.extend(self.motion.entries());

@@ -5,7 +5,7 @@
 //! formulas (docs/rendering.md "Tools").
 
 use stylet_physics::ProbeKind;
-use stylet_physics::glam::{Quat, Vec3};
+use stylet_physics::glam::{DVec3, Quat, Vec3};
 
 use crate::light::Light;
 
@@ -18,6 +18,29 @@ pub struct NeedleShape {
     pub hub_length_mm: f32,
     pub hub_diameter_mm: f32,
 }
+
+/// What a line in the patient is: the instruments of the Seldinger exchange.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LineKind {
+    GuideWire,
+    Dilator,
+    Catheter,
+}
+
+/// A guide wire, dilator or catheter: nodes from the skin to its tip (mm, world space), no more
+/// than [`LINE_STEP_MM`] apart where the instrument runs straight, and its outer diameter.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LineShape {
+    pub kind: LineKind,
+    pub nodes_mm: Vec<Vec3>,
+    pub diameter_mm: f32,
+}
+
+/// The spacing the lines are drawn at (mm): a wire's 0.5 mm nodes are finer than any view
+/// resolves.
+pub const LINE_STEP_MM: f64 = 2.0;
+/// The most nodes a line keeps (the wire is at most 400 mm).
+pub const MAX_LINE_NODES: usize = 256;
 
 /// The fingertip: a sphere at the device position.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -39,6 +62,8 @@ pub struct ProbeShape {
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct ToolState {
     pub needle: Option<NeedleShape>,
+    /// The guide wire, the dilator or catheter on it, the placed catheter.
+    pub lines: Vec<LineShape>,
     pub finger: Option<FingerShape>,
     pub probe: Option<ProbeShape>,
 }
@@ -523,6 +548,15 @@ impl ToolState {
                 hub_diameter_mm: HUB_DIAMETER_MM,
             });
         }
+        if let Some(a) = sim.access() {
+            state.lines = lines_of(a, &|p| {
+                if sim.breathes() {
+                    (p + sim.motion().displacement(p, sim.motion_time_s())).as_vec3()
+                } else {
+                    p.as_vec3()
+                }
+            });
+        }
         if let Some(c) = sim.contact()
             && pose_ok
         {
@@ -575,4 +609,55 @@ impl ToolState {
         }
         state
     }
+}
+
+/// The instruments of a Seldinger exchange as lines in the world (`to_world`: a reference-space
+/// point where the breathing patient has it now): the wire, the dilator or catheter on it as far
+/// as its tip, the placed catheter with its pigtail.
+pub fn lines_of(access: &stylet_physics::Access, to_world: &dyn Fn(DVec3) -> Vec3) -> Vec<LineShape> {
+    use stylet_physics::seldinger::over_wire::OverWireKind;
+    let line = |kind, nodes: Vec<DVec3>, diameter_mm: f64| LineShape {
+        kind,
+        nodes_mm: nodes.iter().map(|&p| to_world(p)).collect(),
+        diameter_mm: diameter_mm as f32,
+    };
+    let mut out = Vec::new();
+    if let Some(w) = access.wire() {
+        let path = w.nodes();
+        out.push(line(
+            LineKind::GuideWire,
+            coarse(path, f64::INFINITY),
+            w.spec().diameter.mm(),
+        ));
+        if let Some(t) = access.on_wire() {
+            let kind = match t.kind {
+                OverWireKind::Dilator => LineKind::Dilator,
+                OverWireKind::Catheter => LineKind::Catheter,
+            };
+            out.push(line(kind, coarse(path, t.inserted_mm()), t.diameter_mm()));
+        }
+    }
+    if let Some((size_fr, p)) = access.placed_catheter() {
+        // The straight part coarse, the loop as formed.
+        let mut nodes = coarse(&p.nodes[..=p.loop_from], f64::INFINITY);
+        nodes.extend_from_slice(&p.nodes[p.loop_from + 1..]);
+        out.push(line(LineKind::Catheter, nodes, f64::from(size_fr) / 3.0));
+    }
+    out
+}
+
+/// `nodes` up to `until_mm` along them, a node every [`LINE_STEP_MM`] (wider for a long line, at
+/// most [`MAX_LINE_NODES`]) and the last one kept.
+fn coarse(nodes: &[DVec3], until_mm: f64) -> Vec<DVec3> {
+    use stylet_physics::seldinger::over_wire::{point_at, resample};
+    let length_mm: f64 = nodes.windows(2).map(|w| w[0].distance(w[1])).sum();
+    let end_mm = until_mm.min(length_mm);
+    let step_mm = LINE_STEP_MM.max(end_mm / (MAX_LINE_NODES - 2) as f64);
+    let (mut out, _) = resample(nodes, step_mm);
+    out.truncate((end_mm / step_mm) as usize + 1);
+    let (end, _) = point_at(nodes, end_mm);
+    if out.last() != Some(&end) {
+        out.push(end);
+    }
+    out
 }

@@ -353,6 +353,7 @@ pub fn xray_scene(
     let scene = XrayScene {
         c_arm: CArm::from_toml(&toml, isocenter_mm.as_vec3()),
         needle: moment.and_then(|m| m.tools.needle.clone()),
+        lines: moment.map(|m| m.tools.lines.clone()).unwrap_or_default(),
         contrast: moment.and_then(|m| xray_overlay(&atlas.model, m)),
     };
     Ok((scene, XrayWindow::from_toml(&toml.window)))

@@ -246,6 +246,7 @@ fn tool_state_primitives() {
     // A needle with very many nodes is merged under the limit, still reaching the tip.
     let many: Vec<Vec3> = (0..1001).map(|j| Vec3::new(0.0, 0.0, 100.0 - 0.1 * j as f32)).collect();
     let state = ToolState {
+        lines: Vec::new(),
         needle: Some(needle_shape(many)),
         finger: Some(FingerShape {
             center_mm: Vec3::new(50.0, 0.0, 0.0),

@@ -4,8 +4,8 @@
 
 use stylet_physics::glam::{DVec3, Vec3};
 use stylet_render::synthetic;
-use stylet_render::tools::NeedleShape;
-use stylet_render::xray::attenuation::{MU_STEEL_PER_MM, MU_WATER_PER_MM, iodine_mu_per_mm};
+use stylet_render::tools::{LineKind, LineShape, NeedleShape};
+use stylet_render::xray::attenuation::{MU_STEEL_PER_MM, MU_WATER_PER_MM, iodine_mu_per_mm, mu_of_line};
 use stylet_render::xray::needle::resolved_radius_and_mu;
 use stylet_render::xray::{CArm, ContrastOverlay, Radiograph, XrayScene, render};
 
@@ -17,6 +17,7 @@ fn scene(c_arm: CArm) -> XrayScene {
     XrayScene {
         c_arm,
         needle: None,
+        lines: Vec::new(),
         contrast: None,
     }
 }
@@ -146,6 +147,50 @@ fn an_iodine_step_phantom_gives_the_analytic_attenuation() {
 }
 
 /// The needle adds μ_steel × its chord, and nothing where the rays miss it.
+/// The guide wire is steel, the dilator and catheter barium-filled polymer: each line darkens
+/// the pixel its axis crosses by its μ' × 2r', and the catheter a good deal less than steel of
+/// its size would.
+#[test]
+fn the_wire_dilator_and_catheter_are_visible_each_of_its_material() {
+    let atlas = synthetic::atlas(64, 1.0, |p| if p.length() < 25.0 { 40.0 } else { -1000.0 }, |_| 0);
+    let arm = CArm::posterior_anterior(Vec3::ZERO);
+    let row = 36;
+    let (o, d) = world_ray(&arm, SIZE / 2, row);
+    let z = o.z + d.z * (0.0 - o.y) / d.y;
+    let plain = render(&atlas, &scene(arm), SIZE, SIZE).unwrap();
+    let pitch_mm = arm.pixel_at_isocenter_mm(SIZE, SIZE);
+    let mut peaks = Vec::new();
+    for (kind, diameter_mm) in [
+        (LineKind::GuideWire, 0.889),
+        (LineKind::Dilator, 8.0 / 3.0),
+        (LineKind::Catheter, 8.0 / 3.0),
+    ] {
+        let with = XrayScene {
+            lines: vec![LineShape {
+                kind,
+                nodes_mm: (0..=8).map(|i| Vec3::new(-20.0 + 5.0 * i as f32, 0.0, z)).collect(),
+                diameter_mm,
+            }],
+            ..scene(arm)
+        };
+        let img = render(&atlas, &with, SIZE, SIZE).unwrap();
+        let peak = img.at(SIZE / 2, row) - plain.at(SIZE / 2, row);
+        let (r, mu) = resolved_radius_and_mu(diameter_mm, pitch_mm, mu_of_line(kind));
+        assert!(
+            (peak - mu * 2.0 * r).abs() < 1e-3 * peak,
+            "{kind:?}: peak {peak}, expected {}",
+            mu * 2.0 * r
+        );
+        // Nothing away from the line.
+        assert_eq!(img.at(SIZE / 2, row - 10), plain.at(SIZE / 2, row - 10));
+        peaks.push(peak);
+    }
+    println!("added attenuation at the axis: wire, dilator, catheter {peaks:?}");
+    // Per pixel the 8 F catheter shows less than the 0.035" steel wire, but it shows.
+    assert!(peaks[2] < peaks[0] && peaks[2] > 0.05 * peaks[0]);
+    assert!(peaks[2] < peaks[1]);
+}
+
 #[test]
 fn the_steel_needle_is_visible() {
     let atlas = synthetic::atlas(64, 1.0, |p| if p.length() < 25.0 { 40.0 } else { -1000.0 }, |_| 0);
@@ -163,6 +208,7 @@ fn the_steel_needle_is_visible() {
     };
     let with = XrayScene {
         needle: Some(needle),
+        lines: Vec::new(),
         ..scene(arm)
     };
     let (plain, steel) = (
@@ -193,6 +239,7 @@ fn the_steel_needle_is_visible() {
             hub_length_mm: 20.0,
             hub_diameter_mm: 4.0,
         }),
+        lines: Vec::new(),
         ..scene(arm)
     };
     let thin = render(&atlas, &thin, SIZE, SIZE).unwrap();

@@ -425,6 +425,11 @@ impl Access {
         self.pigtail.as_ref().map(|(_, p)| p)
     }
 
+    /// The placed catheter: its size (French) and its pigtail (reference space).
+    pub fn placed_catheter(&self) -> Option<(u8, &Pigtail)> {
+        self.pigtail.as_ref().map(|(fr, p)| (*fr, p))
+    }
+
     /// The dilator or catheter on the wire.
     pub fn on_wire(&self) -> Option<&OverWire> {
         self.on_wire.as_ref()

@@ -32,6 +32,8 @@ const POINTS_PER_TURN: usize = 24;
 pub struct Pigtail {
     /// The catheter from the skin to its tip (reference space, mm).
     pub nodes: Vec<DVec3>,
+    /// The index of the node where the loop begins.
+    pub loop_from: usize,
     pub holes: [DVec3; DRAINAGE_HOLES],
     /// Which holes lie in the ducts' lumen.
     pub holes_in_ducts: [bool; DRAINAGE_HOLES],
@@ -60,6 +62,7 @@ impl Pigtail {
             nodes.push(w[1]);
         }
         nodes.push(start);
+        let loop_from = nodes.len() - 1;
         // The side the loop curls to: into the lumen, else `up`.
         let toward = |v: DVec3| (v - dir * v.dot(dir)).try_normalize();
         let side = toward(channel.inward(start))
@@ -90,6 +93,7 @@ impl Pigtail {
         let holes_in_ducts = holes.map(|h| channel.depth_mm(h) >= 0.0);
         Pigtail {
             nodes,
+            loop_from,
             holes,
             holes_in_ducts,
             centre_mm,

@@ -248,6 +248,7 @@ fn tools() -> ToolState {
     let hub = Vec3::new(30.0, 70.0, 25.0);
     let nodes_mm = (0..=10).map(|i| hub + (tip - hub) * (i as f32 / 10.0)).collect();
     ToolState {
+        lines: Vec::new(),
         needle: Some(NeedleShape {
             nodes_mm,
             diameter_mm: 1.27,

@@ -5,7 +5,7 @@
 use crate::common::*;
 use stylet_physics::glam::Vec3;
 use stylet_render::image::diff;
-use stylet_render::tools::NeedleShape;
+use stylet_render::tools::{LineKind, LineShape, NeedleShape};
 use stylet_render::xray::attenuation::iodine_mu_per_mm;
 use stylet_render::xray::{CArm, ContrastOverlay, Radiograph, XrayScene, XrayWindow, render, render_moving};
 use stylet_render_gpu::GpuXray;
@@ -61,6 +61,31 @@ fn needle() -> NeedleShape {
     }
 }
 
+/// A guide wire across the volume and a catheter on it ending in a loop.
+fn lines() -> Vec<LineShape> {
+    let wire: Vec<Vec3> = (0..=20)
+        .map(|i| Vec3::new(-20.0 + 2.0 * i as f32, 3.0, -4.0 + 0.5 * i as f32))
+        .collect();
+    let mut catheter: Vec<Vec3> = wire[..8].to_vec();
+    let c = wire[7] + Vec3::new(0.0, 0.0, 4.0);
+    catheter.extend((1..=24).map(|k| {
+        let t = std::f32::consts::TAU * k as f32 / 24.0;
+        c + Vec3::new(4.0 * t.sin(), 0.2 * t, -4.0 * t.cos())
+    }));
+    vec![
+        LineShape {
+            kind: LineKind::GuideWire,
+            nodes_mm: wire,
+            diameter_mm: 0.889,
+        },
+        LineShape {
+            kind: LineKind::Catheter,
+            nodes_mm: catheter,
+            diameter_mm: 8.0 / 3.0,
+        },
+    ]
+}
+
 #[test]
 fn gpu_xray_matches_the_cpu_for_every_ct_storage() {
     let mut xray = GpuXray::new(ctx());
@@ -76,6 +101,7 @@ fn gpu_xray_matches_the_cpu_for_every_ct_storage() {
                 XrayScene {
                     c_arm: CArm::posterior_anterior(Vec3::ZERO),
                     needle: None,
+                    lines: Vec::new(),
                     contrast: None,
                 },
             ),
@@ -84,7 +110,17 @@ fn gpu_xray_matches_the_cpu_for_every_ct_storage() {
                 XrayScene {
                     c_arm: oblique(Vec3::new(4.0, -3.0, 2.0)),
                     needle: Some(needle()),
+                    lines: Vec::new(),
                     contrast: ContrastOverlay::from_voxels(&voxels, dims),
+                },
+            ),
+            (
+                "a guide wire and a catheter with its pigtail",
+                XrayScene {
+                    c_arm: oblique(Vec3::new(4.0, -3.0, 2.0)),
+                    needle: None,
+                    lines: lines(),
+                    contrast: None,
                 },
             ),
         ] {
@@ -105,6 +141,7 @@ fn gpu_xray_matches_the_cpu_on_the_phantom() {
     let scene = XrayScene {
         c_arm: CArm::posterior_anterior(target),
         needle: None,
+        lines: Vec::new(),
         contrast: None,
     };
     let cpu = render(atlas, &scene, 128, 128).unwrap();
@@ -123,6 +160,7 @@ fn gpu_xray_refuses_what_the_cpu_refuses() {
     let scene = XrayScene {
         c_arm: arm,
         needle: None,
+        lines: Vec::new(),
         contrast: None,
     };
     let e = xray.render(ctx(), &small().gpu, &scene, 16, 16).unwrap_err();
@@ -158,6 +196,7 @@ fn gpu_xray_of_a_breathing_patient_matches_the_cpu() {
     let scene = XrayScene {
         c_arm: CArm::posterior_anterior(target),
         needle: None,
+        lines: Vec::new(),
         contrast: ContrastOverlay::from_voxels(&voxels, dims),
     };
     let cpu = render_moving(atlas, &scene, Some(&hook), 128, 128).unwrap();

@@ -17,6 +17,26 @@ pub const MU_WATER_PER_MM: f32 = 0.017;
 pub const IODINE_CM2_PER_G: f32 = 1.942;
 /// μ of stainless steel at 100 keV, per mm.
 pub const MU_STEEL_PER_MM: f32 = 0.294;
+/// μ of a radiopaque catheter polymer at 100 keV, per mm: polyurethane (1.3 g/cm³) filled with
+/// 20 % barium sulphate by weight, μ/ρ = 0.2 × 1.36 + 0.8 × 0.17 cm²/g (barium sulphate from
+/// barium's 2.196 cm²/g at 100 keV, NIST XCOM; the polymer about water's), 0.53 cm⁻¹.
+pub const MU_RADIOPAQUE_POLYMER_PER_MM: f32 = 0.053;
+/// The share of a dilator's and a catheter's cross-section that is wall (1 − (inner / outer
+/// diameter)²): a dilator is nearly solid around its wire lumen; an 8 F drainage catheter's
+/// lumen is about 0.63 of its outer diameter.
+pub const DILATOR_WALL_FRACTION: f32 = 0.87;
+pub const CATHETER_WALL_FRACTION: f32 = 0.6;
+
+/// μ of a line's material (per mm of its outer cross-section): the guide wire is steel (a
+/// stainless or nitinol core in its coil); the dilator and catheter radiopaque polymer.
+pub fn mu_of_line(kind: crate::tools::LineKind) -> f32 {
+    use crate::tools::LineKind;
+    match kind {
+        LineKind::GuideWire => MU_STEEL_PER_MM,
+        LineKind::Dilator => MU_RADIOPAQUE_POLYMER_PER_MM * DILATOR_WALL_FRACTION,
+        LineKind::Catheter => MU_RADIOPAQUE_POLYMER_PER_MM * CATHETER_WALL_FRACTION,
+    }
+}
 /// Iodine concentration of the default contrast medium (mg/ml; e.g. iohexol 300).
 pub const DEFAULT_IODINE_MG_PER_ML: f32 = 300.0;
 

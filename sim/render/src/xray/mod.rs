@@ -46,7 +46,7 @@ pub enum XrayError {
     OutOfReach { isocenter_mm: Vec3, reach_mm: f64 },
 }
 use crate::scene::MotionHook;
-use crate::tools::NeedleShape;
+use crate::tools::{LineShape, NeedleShape};
 use crate::volume::IndexMap;
 use attenuation::{MU_STEEL_PER_MM, MU_WATER_PER_MM, water_relative};
 use joseph::{IndexRay, integrate, integrate_warped, trilinear_zero_outside};
@@ -60,6 +60,8 @@ pub struct XrayScene {
     pub c_arm: CArm,
     /// The needle's shaft (its hub is plastic and left out).
     pub needle: Option<NeedleShape>,
+    /// The guide wire, dilator and catheter (radiopaque, [`attenuation::mu_of_line`]).
+    pub lines: Vec<LineShape>,
     pub contrast: Option<ContrastOverlay>,
 }
 
@@ -96,26 +98,13 @@ pub fn render_moving(
         )));
     }
     scene.c_arm.validate()?;
-    if let Some(n) = &scene.needle
-        && !(n.diameter_mm.is_finite() && n.diameter_mm > 0.0 && n.nodes_mm.iter().all(|p| p.is_finite()))
-    {
-        return Err(RenderError::Invalid(
-            "the needle's nodes and diameter must be finite".into(),
-        ));
-    }
+    check_instruments(scene)?;
     let ct = atlas.ct();
     check_scene_fits(scene, ct.grid())?;
     let map = IndexMap::of(ct.grid());
     let data = ct.data();
     let proj = scene.c_arm.projection(width, height);
-    let needle = scene.needle.as_ref().map(|n| {
-        let (r, mu) = needle::resolved_radius_and_mu(
-            n.diameter_mm,
-            scene.c_arm.pixel_at_isocenter_mm(width, height),
-            MU_STEEL_PER_MM,
-        );
-        (n.nodes_mm.as_slice(), r, mu)
-    });
+    let segments = segments(scene, width, height);
     let u_at = breathing.map(|b| b.model.at_time(b.t_s));
     let warp = u_at.as_deref().map(|u| (u, &map));
     let mut attenuation = vec![0.0f32; width as usize * height as usize];
@@ -125,7 +114,7 @@ pub fn render_moving(
         .for_each(|(row, out)| {
             for (col, a) in out.iter_mut().enumerate() {
                 let ray = ray(&proj, &map, col as u32, row as u32);
-                *a = line_integral(&ray, map.dims, data, scene.contrast.as_ref(), needle, warp);
+                *a = line_integral(&ray, map.dims, data, scene.contrast.as_ref(), &segments, warp);
             }
         });
     Ok(Radiograph {
@@ -133,6 +122,72 @@ pub fn render_moving(
         height,
         attenuation,
     })
+}
+
+/// A straight piece of an instrument as the detector resolves it: from `a` to `b`, radius r' and
+/// μ' ([`needle::resolved_radius_and_mu`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Segment {
+    pub a: Vec3,
+    pub b: Vec3,
+    pub radius_mm: f32,
+    pub mu_per_mm: f32,
+}
+
+/// The most instrument segments a radiograph draws (the needle's and the lines').
+pub const MAX_SEGMENTS: usize = 1024;
+
+/// What both renderers check of the instruments: finite nodes and diameters, at most
+/// [`MAX_SEGMENTS`] segments.
+pub fn check_instruments(scene: &XrayScene) -> Result<(), RenderError> {
+    let finite = |nodes: &[Vec3], d: f32| d.is_finite() && d > 0.0 && nodes.iter().all(|p| p.is_finite());
+    if let Some(n) = &scene.needle
+        && !finite(&n.nodes_mm, n.diameter_mm)
+    {
+        return Err(RenderError::Invalid(
+            "the needle's nodes and diameter must be finite".into(),
+        ));
+    }
+    if scene.lines.iter().any(|l| !finite(&l.nodes_mm, l.diameter_mm)) {
+        return Err(RenderError::Invalid(
+            "a guide wire's, dilator's or catheter's nodes and diameter must be finite".into(),
+        ));
+    }
+    let count = scene.needle.as_ref().map_or(0, |n| n.nodes_mm.len().saturating_sub(1))
+        + scene
+            .lines
+            .iter()
+            .map(|l| l.nodes_mm.len().saturating_sub(1))
+            .sum::<usize>();
+    if count > MAX_SEGMENTS {
+        return Err(RenderError::Invalid(format!(
+            "{count} instrument segments (at most {MAX_SEGMENTS})"
+        )));
+    }
+    Ok(())
+}
+
+/// The instruments' segments of a `width` × `height` radiograph: the needle's steel shaft, then
+/// each line of its material.
+pub fn segments(scene: &XrayScene, width: u32, height: u32) -> Vec<Segment> {
+    let pixel_mm = scene.c_arm.pixel_at_isocenter_mm(width, height);
+    let mut out = Vec::new();
+    let mut add = |nodes: &[Vec3], diameter_mm: f32, mu: f32| {
+        let (r, mu) = needle::resolved_radius_and_mu(diameter_mm, pixel_mm, mu);
+        out.extend(nodes.windows(2).map(|w| Segment {
+            a: w[0],
+            b: w[1],
+            radius_mm: r,
+            mu_per_mm: mu,
+        }));
+    };
+    if let Some(n) = &scene.needle {
+        add(&n.nodes_mm, n.diameter_mm, MU_STEEL_PER_MM);
+    }
+    for l in &scene.lines {
+        add(&l.nodes_mm, l.diameter_mm, attenuation::mu_of_line(l.kind));
+    }
+    out
 }
 
 fn ray(proj: &Projection, map: &IndexMap, col: u32, row: u32) -> Ray {
@@ -178,42 +233,36 @@ pub fn check_scene_fits(scene: &XrayScene, grid: &stylet_physics::Grid) -> Resul
 /// u(·, t) of a breathing moment and the CT's index map (world → index of a reference point).
 type Warp<'a> = (&'a (dyn Fn(DVec3) -> DVec3 + Send + Sync), &'a IndexMap);
 
-/// a of one ray: tissue, then contrast, then the needle's segments (nodes, radius, μ); with a
-/// warp, tissue and contrast are read at each sample's reference point.
+/// a of one ray: tissue, then contrast, then the instruments' segments; with a warp, tissue and
+/// contrast are read at each sample's reference point.
 fn line_integral(
     ray: &Ray,
     dims: [u32; 3],
     ct: &[f32],
     contrast: Option<&ContrastOverlay>,
-    needle: Option<(&[Vec3], f32, f32)>,
+    segments: &[Segment],
     warp: Option<Warp>,
 ) -> f32 {
-    if let Some((u, map)) = warp {
+    let mut a = if let Some((u, map)) = warp {
         let mu_c = |c: Vec3| contrast.map_or(0.0, |o| o.mu_at_index(c));
         let mu =
             |c: Vec3| MU_WATER_PER_MM / 1000.0 * trilinear_zero_outside(dims, c, |i| water_relative(ct[i])) + mu_c(c);
-        let mut a = integrate_warped(&ray.index, ray.origin_mm, ray.dir, dims, u, map, mu);
-        if let Some((nodes, r, mu)) = needle {
-            for w in nodes.windows(2) {
-                a += mu * needle::chord_mm(ray.origin_mm, ray.dir, ray.length_mm, w[0], w[1], r);
-            }
+        integrate_warped(&ray.index, ray.origin_mm, ray.dir, dims, u, map, mu)
+    } else {
+        let tissue = integrate(dims, &ray.index, |i| water_relative(ct[i]));
+        let mut a = MU_WATER_PER_MM / 1000.0 * tissue;
+        if let Some(c) = contrast {
+            let o = Vec3::new(c.origin[0] as f32, c.origin[1] as f32, c.origin[2] as f32);
+            let local = IndexRay {
+                start: ray.index.start - o,
+                ..ray.index
+            };
+            a += integrate(c.dims, &local, |i| c.mu_per_mm[i]);
         }
-        return a;
-    }
-    let tissue = integrate(dims, &ray.index, |i| water_relative(ct[i]));
-    let mut a = MU_WATER_PER_MM / 1000.0 * tissue;
-    if let Some(c) = contrast {
-        let o = Vec3::new(c.origin[0] as f32, c.origin[1] as f32, c.origin[2] as f32);
-        let local = IndexRay {
-            start: ray.index.start - o,
-            ..ray.index
-        };
-        a += integrate(c.dims, &local, |i| c.mu_per_mm[i]);
-    }
-    if let Some((nodes, r, mu)) = needle {
-        for w in nodes.windows(2) {
-            a += mu * needle::chord_mm(ray.origin_mm, ray.dir, ray.length_mm, w[0], w[1], r);
-        }
+        a
+    };
+    for s in segments {
+        a += s.mu_per_mm * needle::chord_mm(ray.origin_mm, ray.dir, ray.length_mm, s.a, s.b, s.radius_mm);
     }
     a
 }
