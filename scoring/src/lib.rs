@@ -7,6 +7,7 @@
 
 pub mod benchmark;
 pub mod consequences;
+pub mod drainage;
 pub mod live_guidance;
 pub mod metric_words;
 pub mod metrics;

@@ -169,6 +169,9 @@ pub struct Metrics {
     /// Respiratory-motion metrics, when the patient breathed (docs/breathing.md).
     #[serde(default)]
     pub breathing: Option<BreathingMetrics>,
+    /// The Seldinger exchange after the puncture, when a guide wire went in (docs/seldinger.md).
+    #[serde(default)]
+    pub drainage: Option<crate::drainage::DrainageMetrics>,
     /// The hand-held needle's motion as PerkTutor measures it (docs/metrics.md "Needle motion
     /// (PerkTutor)"); `None` in reports written before it was measured.
     #[serde(default)]
@@ -361,6 +364,7 @@ pub struct MetricsCollector<'a> {
     live_guidance: LiveGuidanceTrace,
     /// The physics' leaking sites.
     leaks: ConsequenceWatch,
+    drainage: crate::drainage::DrainageCollector,
     /// With a breathing patient: the signal (g per tick), the phase the target was reached in,
     /// the ticks breathed with the needle in, the tissue slide and the last u at the tip.
     breathing: Option<BreathingTrace>,
@@ -597,6 +601,7 @@ impl<'a> MetricsCollector<'a> {
             tip_in_plane_ticks: 0,
             live_guidance: LiveGuidanceTrace::default(),
             leaks: ConsequenceWatch::default(),
+            drainage: crate::drainage::DrainageCollector::default(),
             breathing: None,
             good_contact_ticks: 0,
             probe_ticks: 0,
@@ -623,6 +628,7 @@ impl<'a> MetricsCollector<'a> {
     pub fn tick(&mut self, input: &TickInput, out: &TickOutput, sim: &Simulation) {
         self.ticks += 1;
         self.leaks.tick(out.tick, sim);
+        self.drainage.tick(out);
         let tick = out.tick;
         let needle = sim.needle();
         let in_body = needle.is_some() && out.inserted_mm > 0.0;
@@ -1065,6 +1071,7 @@ impl<'a> MetricsCollector<'a> {
                 tissue_slide_mm: b.tissue_slide_mm,
             }),
             needle_motion: Some(self.needle_motion.finish()),
+            drainage: self.drainage.finish(rate),
             live_guidance: self.live_guidance.finish(rate),
             consequences: self.leaks.finish(rate, |l| {
                 self.names
@@ -1124,6 +1131,7 @@ pub(crate) mod tests_support {
             palpation: None,
             ultrasound: None,
             breathing: None,
+            drainage: None,
             needle_motion: Some(NeedleMotionMetrics::default()),
             live_guidance: None,
             consequences: Vec::new(),

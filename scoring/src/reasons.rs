@@ -96,6 +96,9 @@ pub fn reasons(exercise: Exercise, grade: &Grade, metrics: &Metrics, incomplete_
             ));
         }
     }
+    if let Some(d) = &metrics.drainage {
+        out.extend(crate::drainage::findings(d));
+    }
     let deductions: Vec<String> = grade
         .deductions
         .iter()

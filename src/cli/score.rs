@@ -236,6 +236,39 @@ fn print_report(file: &Path, r: &ScoreReport) {
             u.good_contact_time_s
         );
     }
+    if let Some(d) = &m.drainage {
+        sayf!(
+            "guide wire   reached the ducts {} (at most {:.0} mm in them), through the wall {}, access lost {}, {} put in",
+            yes(d.wire_reached_ducts),
+            d.wire_in_ducts_max_mm,
+            yes(d.wire_left_duct),
+            yes(d.access_lost),
+            d.wire_attempts
+        );
+        sayf!(
+            "dilator      {} passes (up to {:.1} N); catheter {} put on (up to {:.1} N); {} steps refused",
+            d.dilator_attempts,
+            d.dilator_peak_force_n,
+            d.catheter_attempts,
+            d.catheter_peak_force_n,
+            d.refused_steps
+        );
+        if d.catheter_placed {
+            sayf!(
+                "catheter     placed, pigtail in the ducts {}, {} of {} side holes in the ducts",
+                yes(d.pigtail_in_ducts),
+                d.catheter_holes_in_ducts,
+                d.catheter_holes
+            );
+        }
+        sayf!(
+            "fluoroscopy  puncture {:.1} s, wire {:.1} s, dilator {:.1} s, catheter {:.1} s",
+            d.fluoroscopy_puncture_s,
+            d.fluoroscopy_wire_s,
+            d.fluoroscopy_dilator_s,
+            d.fluoroscopy_catheter_s
+        );
+    }
     for d in &g.deductions {
         let words = stylet_scoring::reasons::metric_info(&d.metric).map_or_else(
             || format!("−{:.1}", d.points),

@@ -198,6 +198,32 @@ fn the_full_ptcd_replays_bit_for_bit() {
     let report = score_session(atlas, &path);
     assert!(report.replay_verified, "{:?}", report.divergence);
     assert!(report.digests_checked > 50);
+    // Scored as documented (docs/metrics.md "Drainage"): the wire in the ducts, one pass of each
+    // tool, the catheter draining through all six holes, fluoroscopy counted per step; nothing
+    // in the reasons about the exchange.
+    let d = report.metrics.drainage.clone().expect("a wire went in");
+    println!("{d:?}\n{:?}", report.reasons);
+    assert!(d.wire_reached_ducts && d.wire_in_ducts_max_mm > 39.0);
+    assert!(!d.access_lost && !d.wire_left_duct);
+    assert_eq!(
+        (
+            d.wire_attempts,
+            d.dilator_attempts,
+            d.catheter_attempts,
+            d.refused_steps
+        ),
+        (1, 1, 1, 0)
+    );
+    assert!(d.catheter_placed && d.drains() && d.pigtail_in_ducts);
+    assert!(d.dilator_peak_force_n > d.catheter_peak_force_n && d.catheter_peak_force_n > 0.0);
+    assert!((d.fluoroscopy_wire_s - 1.0).abs() < 0.01 && d.fluoroscopy_dilator_s == 0.0);
+    assert!(d.fluoroscopy_catheter_s > 3.0 && d.fluoroscopy_puncture_s > 1.0);
+    assert!(
+        !report
+            .reasons
+            .iter()
+            .any(|r| r.contains("catheter") || r.contains("guide wire"))
+    );
     // The official reader of session files reads the exchange's events.
     let py = std::process::Command::new(crate::common::python())
         .arg("-c")
@@ -356,5 +382,42 @@ fn the_wire_and_catheter_are_drawn_where_the_physics_has_them() {
             .map(|i| img.at(i % 128, i / 128) - plain.at(i % 128, i / 128))
             .fold(0.0f32, f32::max);
         assert!(added > 0.01, "{:?}: {added}", kinds(tools));
+    }
+}
+
+/// Each failure script is graded with its own plain reason.
+#[test]
+fn each_failed_exchange_gets_its_reason() {
+    let atlas = default_phantom();
+    let dir = tempfile::tempdir().unwrap();
+    for (name, reason) in [
+        (
+            "catheter-outside",
+            "The catheter's side holes lie outside the duct (4 of 6): bile would leak.",
+        ),
+        (
+            "loss-of-access",
+            "The guide wire was drawn back out of the ducts after the needle came out: the access was lost.",
+        ),
+    ] {
+        let path = record_script(
+            atlas,
+            dir.path(),
+            name,
+            "beginner",
+            &phantom_script_text(&format!("{name}.txt")),
+        );
+        let report = score_session(atlas, &path);
+        assert!(report.replay_verified, "{name}: {:?}", report.divergence);
+        println!("{name}: {:?}", report.reasons);
+        assert!(
+            report.reasons.iter().any(|r| r.starts_with(reason)),
+            "{name}: {:?}",
+            report.reasons
+        );
+        let d = report.metrics.drainage.unwrap();
+        assert_eq!(d.access_lost, name == "loss-of-access");
+        assert_eq!(d.catheter_placed, name == "catheter-outside");
+        assert!(!d.drains());
     }
 }
