@@ -2,9 +2,9 @@
 //! Monday, UTC upload dates), totals per exercise, and the chart of the weekly pass rates (plotters
 //! SVG for pages; the PDF draws the same numbers itself, [`crate::pdf`]).
 //!
-//! Only puncture sessions make the weekly pass rates: palpation and ultrasound-survey exercises
-//! are counted per exercise, never as failed punctures, and not-gradeable sessions (a recording
-//! cut or damaged) are neither passed nor failed: they are counted on their own.
+//! Only puncture sessions make the weekly pass rates: palpation, ultrasound-survey and drainage
+//! exercises are counted per exercise, never as failed punctures, and not-gradeable sessions (a
+//! recording cut or damaged) are neither passed nor failed: they are counted on their own.
 
 use std::collections::BTreeMap;
 
@@ -393,6 +393,7 @@ mod tests {
             // Week of Monday 2026-11-23.
             day("2026-11-23", Exercise::Puncture, "advanced", 2, 1, 0),
             day("2026-11-24", Exercise::UltrasoundSurvey, "beginner", 1, 1, 0),
+            day("2026-11-25", Exercise::Drainage, "beginner", 1, 1, 0),
         ];
         let t = Trends::from_days(&days);
         let w16 = days_from_date("2026-11-16").unwrap();

@@ -186,6 +186,47 @@ pub const METRICS: &[MetricInfo] = &[
         "share of probe time in poor skin contact",
         Unit::Fraction,
     ),
+    // The Seldinger exchange (drainage).
+    flag(
+        "wire_not_in_ducts",
+        "guide wire never in the ducts",
+        "the guide wire never lay in the bile ducts",
+    ),
+    flag(
+        "wire_through_wall",
+        "guide wire through a duct wall",
+        "the guide wire went through a duct wall into the liver",
+    ),
+    m("wire_folded_mm", "guide wire pushed into a loop", Unit::Millimetres),
+    flag(
+        "access_lost",
+        "access lost",
+        "the guide wire was drawn out of the ducts after the needle came out",
+    ),
+    m("wire_attempts", "guide wires put in", Unit::Count),
+    m("dilator_attempts", "dilators put on the wire", Unit::Count),
+    m("catheter_attempts", "catheters put on the wire", Unit::Count),
+    m("refused_steps", "refused steps", Unit::Count),
+    m("fluoro_wire_s", "time under X-ray with the guide wire", Unit::Seconds),
+    m("fluoro_dilator_s", "time under X-ray with the dilator", Unit::Seconds),
+    m("fluoro_catheter_s", "time under X-ray with the catheter", Unit::Seconds),
+    m("dilator_max_force_n", "largest push on the dilator", Unit::Newtons),
+    m("catheter_max_force_n", "largest push on the catheter", Unit::Newtons),
+    flag(
+        "catheter_not_placed",
+        "drainage catheter not placed",
+        "no drainage catheter was placed",
+    ),
+    m(
+        "catheter_holes_outside_ducts",
+        "catheter side holes outside the ducts",
+        Unit::Count,
+    ),
+    flag(
+        "pigtail_outside_ducts",
+        "pigtail outside the ducts",
+        "the catheter's pigtail formed outside the ducts",
+    ),
 ];
 
 /// The table entry of a metric identifier.

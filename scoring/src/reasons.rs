@@ -83,7 +83,7 @@ pub fn reasons(exercise: Exercise, grade: &Grade, metrics: &Metrics, incomplete_
             out.push(unmet_text(&u.metric, u.value, u.min, u.max, metrics));
         }
     }
-    if exercise == Exercise::Puncture {
+    if matches!(exercise, Exercise::Puncture | Exercise::Drainage) {
         for h in &metrics.risk_hits {
             let consequence = h
                 .consequence

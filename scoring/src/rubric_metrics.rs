@@ -67,6 +67,42 @@ pub const ULTRASOUND_METRICS: &[&str] = &[
     "max_force_n",
 ];
 
+/// Metric names a drainage rubric may use: the puncture's safety and outcome, then the Seldinger
+/// exchange's (docs/metrics.md "Drainage").
+pub const DRAINAGE_METRICS: &[&str] = &[
+    "attempts",
+    "redirections",
+    "risk_hits",
+    "risk_time_s",
+    "bone_contacts",
+    "target_not_reached",
+    "target_not_confirmed",
+    "extravasated_ml",
+    "time_total_s",
+    "fluoro_time_s",
+    "dose_area_product_gy_cm2",
+    "max_force_n",
+    "shaft_sweep_mm2",
+    "missing_palpation",
+    "missing_ultrasound",
+    "wire_not_in_ducts",
+    "wire_through_wall",
+    "wire_folded_mm",
+    "access_lost",
+    "wire_attempts",
+    "dilator_attempts",
+    "catheter_attempts",
+    "refused_steps",
+    "fluoro_wire_s",
+    "fluoro_dilator_s",
+    "fluoro_catheter_s",
+    "dilator_max_force_n",
+    "catheter_max_force_n",
+    "catheter_not_placed",
+    "catheter_holes_outside_ducts",
+    "pigtail_outside_ducts",
+];
+
 /// Every metric name a rubric may use, over all exercises (a name two exercises share, like
 /// `time_total_s`, comes once per exercise).
 pub fn rubric_metrics() -> impl Iterator<Item = &'static str> {
@@ -74,6 +110,7 @@ pub fn rubric_metrics() -> impl Iterator<Item = &'static str> {
         .iter()
         .chain(PALPATION_METRICS)
         .chain(ULTRASOUND_METRICS)
+        .chain(DRAINAGE_METRICS)
         .copied()
 }
 
@@ -83,16 +120,17 @@ pub fn exercise_metrics(exercise: Exercise) -> &'static [&'static str] {
         Exercise::Puncture => PUNCTURE_METRICS,
         Exercise::Palpation => PALPATION_METRICS,
         Exercise::UltrasoundSurvey => ULTRASOUND_METRICS,
+        Exercise::Drainage => DRAINAGE_METRICS,
     }
 }
 
-/// Whether the session tried `exercise` at all: for a puncture the needle entered the skin, for a
-/// palpation the finger and for an ultrasound survey the probe touched it. A session that did not
+/// Whether the session tried `exercise` at all: for a puncture or a drainage (whose first step is
+/// the puncture) the needle entered the skin, for a palpation the finger and for an ultrasound survey the probe touched it. A session that did not
 /// is not graded on everything it lacks (which would leave points for what it never risked): it
 /// scores 0 and says so ([`not_attempted_text`]).
 pub fn attempted(m: &Metrics, exercise: Exercise) -> bool {
     match exercise {
-        Exercise::Puncture => m.attempts > 0,
+        Exercise::Puncture | Exercise::Drainage => m.attempts > 0,
         Exercise::Palpation => m.palpation.is_some(),
         Exercise::UltrasoundSurvey => m.ultrasound.is_some(),
     }
@@ -101,7 +139,7 @@ pub fn attempted(m: &Metrics, exercise: Exercise) -> bool {
 /// What a session that did not try `exercise` is told.
 pub fn not_attempted_text(exercise: Exercise) -> &'static str {
     match exercise {
-        Exercise::Puncture => "Not attempted: the needle never entered the skin.",
+        Exercise::Puncture | Exercise::Drainage => "Not attempted: the needle never entered the skin.",
         Exercise::Palpation => "Not attempted: the finger never touched the skin.",
         Exercise::UltrasoundSurvey => "Not attempted: the probe never touched the skin.",
     }
@@ -183,6 +221,34 @@ pub fn metric_value(m: &Metrics, name: &str) -> Option<f64> {
                 1.0
             }
         }),
+        // The Seldinger exchange (docs/metrics.md "Drainage"): a session without a wire never
+        // had one in the ducts nor placed a catheter, and did nothing else of the exchange.
+        "wire_not_in_ducts" => flag(!m.drainage.as_ref().is_some_and(|d| d.wire_reached_ducts)),
+        "wire_through_wall" => flag(m.drainage.as_ref().is_some_and(|d| d.wire_left_duct)),
+        "wire_folded_mm" => m.drainage.as_ref().map_or(0.0, |d| d.wire_folded_max_mm),
+        "access_lost" => flag(m.drainage.as_ref().is_some_and(|d| d.access_lost)),
+        "wire_attempts" => m.drainage.as_ref().map_or(0.0, |d| f64::from(d.wire_attempts)),
+        "dilator_attempts" => m.drainage.as_ref().map_or(0.0, |d| f64::from(d.dilator_attempts)),
+        "catheter_attempts" => m.drainage.as_ref().map_or(0.0, |d| f64::from(d.catheter_attempts)),
+        "refused_steps" => m.drainage.as_ref().map_or(0.0, |d| f64::from(d.refused_steps)),
+        "fluoro_wire_s" => m.drainage.as_ref().map_or(0.0, |d| d.fluoroscopy_wire_s),
+        "fluoro_dilator_s" => m.drainage.as_ref().map_or(0.0, |d| d.fluoroscopy_dilator_s),
+        "fluoro_catheter_s" => m.drainage.as_ref().map_or(0.0, |d| d.fluoroscopy_catheter_s),
+        "dilator_max_force_n" => m.drainage.as_ref().map_or(0.0, |d| d.dilator_peak_force_n),
+        "catheter_max_force_n" => m.drainage.as_ref().map_or(0.0, |d| d.catheter_peak_force_n),
+        "catheter_not_placed" => flag(!m.drainage.as_ref().is_some_and(|d| d.catheter_placed)),
+        "catheter_holes_outside_ducts" => m.drainage.as_ref().map_or(0.0, |d| {
+            if d.catheter_placed {
+                f64::from(d.catheter_holes.saturating_sub(d.catheter_holes_in_ducts))
+            } else {
+                0.0
+            }
+        }),
+        "pigtail_outside_ducts" => flag(
+            m.drainage
+                .as_ref()
+                .is_some_and(|d| d.catheter_placed && !d.pigtail_in_ducts),
+        ),
         _ => return None,
     })
 }

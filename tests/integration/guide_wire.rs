@@ -224,6 +224,11 @@ fn the_full_ptcd_replays_bit_for_bit() {
             .iter()
             .any(|r| r.contains("catheter") || r.contains("guide wire"))
     );
+    // Graded as the drainage exercise its scenario declares: it passes at beginner level, losing
+    // only the palpation and ultrasound the script leaves out.
+    assert_eq!(report.exercise, stylet_scoring::Exercise::Drainage);
+    assert!(report.grade.passed, "{:?}", report.grade);
+    assert_eq!(report.grade.score, 90.0, "{:?}", report.grade.deductions);
     // The official reader of session files reads the exchange's events.
     let py = std::process::Command::new(crate::common::python())
         .arg("-c")
@@ -415,6 +420,16 @@ fn each_failed_exchange_gets_its_reason() {
             "{name}: {:?}",
             report.reasons
         );
+        // A drain that leaks, or none placed, fails the drainage exercise, whatever the puncture.
+        assert_eq!(report.exercise, stylet_scoring::Exercise::Drainage);
+        assert!(!report.grade.passed, "{name}: {:?}", report.grade);
+        let unmet: Vec<&str> = report.grade.unmet.iter().map(|u| u.metric.as_str()).collect();
+        let expected: &[&str] = if name == "loss-of-access" {
+            &["catheter_not_placed"]
+        } else {
+            &["catheter_holes_outside_ducts"]
+        };
+        assert_eq!(unmet, expected, "{name}");
         let d = report.metrics.drainage.unwrap();
         assert_eq!(d.access_lost, name == "loss-of-access");
         assert_eq!(d.catheter_placed, name == "catheter-outside");

@@ -167,7 +167,7 @@ async fn gather(s: &AppState, v: &Viewer, q: &ListQuery) -> Result<CohortReport,
 
 const NOTE: &str = "Scores are final grades (an instructor's override where there is one); dates are upload dates (UTC). \
     Pass rates count passed and failed sessions only: sessions that could not be graded (a recording cut or damaged) are \
-    counted on their own, and palpation and ultrasound-survey exercises are reported per exercise, not as punctures.";
+    counted on their own, and palpation, ultrasound-survey and drainage exercises are reported per exercise, not as punctures.";
 
 fn trends_section(r: &CohortReport) -> Result<Markup, PageError> {
     let chart = crate::trends::trend_chart_svg(&r.trends)

@@ -70,7 +70,8 @@ pub struct SessionRow {
     /// The full score report (docs/metrics.md) once scored.
     #[schema(value_type = Option<Object>)]
     pub score: Option<serde_json::Value>,
-    /// What the scenario practises (migration 0005): puncture, palpation or ultrasound_survey.
+    /// What the scenario practises (migrations 0005, 0012): puncture, palpation, ultrasound_survey or
+    /// drainage.
     #[schema(value_type = String)]
     pub exercise: stylet_scoring::Exercise,
     /// passed, failed or not_gradeable; `None` until scored.

@@ -8,8 +8,8 @@ use super::{Store, StoreError, new_id, now};
 
 impl Store {
     /// A trainee's graded punctures in upload order, with the final grade (the override's when
-    /// overridden). Palpation and ultrasound-survey exercises are graded by their own rubrics and
-    /// a recording that is not gradeable has no grade: neither says how the trainee punctures, so
+    /// overridden). Palpation, ultrasound-survey and drainage exercises are graded by their own
+    /// rubrics and a recording that is not gradeable has no grade: neither says how the trainee punctures, so
     /// neither moves the scores over time or the suggested difficulty.
     pub async fn progress(&self, trainee_id: &str) -> Result<Vec<ProgressPoint>, StoreError> {
         let rows = sqlx::query(

@@ -314,7 +314,8 @@ pub struct SessionLine {
     pub replay_verified: Option<bool>,
     pub rubric_version: Option<i64>,
     pub physics_version: i64,
-    /// What the scenario exercises (migration 0005): puncture, palpation or ultrasound_survey.
+    /// What the scenario exercises (migrations 0005, 0012): puncture, palpation, ultrasound_survey or
+    /// drainage.
     #[schema(value_type = String)]
     pub exercise: stylet_scoring::Exercise,
     /// passed, failed or not_gradeable once scored (an instructor's override sets passed/failed).

@@ -467,17 +467,27 @@ pub enum Exercise {
     Palpation,
     /// Finding the target with the ultrasound probe.
     UltrasoundSurvey,
+    /// The whole PTCD: the puncture, then the drainage catheter placed over a guide wire by the
+    /// Seldinger technique.
+    Drainage,
 }
 
 impl Exercise {
-    pub const ALL: [Exercise; 3] = [Exercise::Puncture, Exercise::Palpation, Exercise::UltrasoundSurvey];
+    pub const ALL: [Exercise; 4] = [
+        Exercise::Puncture,
+        Exercise::Palpation,
+        Exercise::UltrasoundSurvey,
+        Exercise::Drainage,
+    ];
 
-    /// The identifier as stored and serialised ("puncture", "palpation", "ultrasound_survey").
+    /// The identifier as stored and serialised ("puncture", "palpation", "ultrasound_survey",
+    /// "drainage").
     pub fn as_str(self) -> &'static str {
         match self {
             Exercise::Puncture => "puncture",
             Exercise::Palpation => "palpation",
             Exercise::UltrasoundSurvey => "ultrasound_survey",
+            Exercise::Drainage => "drainage",
         }
     }
 
@@ -492,6 +502,7 @@ impl Exercise {
             Exercise::Puncture => "puncture",
             Exercise::Palpation => "palpation",
             Exercise::UltrasoundSurvey => "ultrasound survey",
+            Exercise::Drainage => "drainage",
         }
     }
 }
@@ -1134,7 +1145,8 @@ mod tests {
                 "breath-hold",
                 "palpation-sweep",
                 "probe-parallel",
-                "probe-across"
+                "probe-across",
+                "full-ptcd"
             ]
         );
         let written = toml::to_string(&s.scenarios[1]).unwrap();
