@@ -17,6 +17,7 @@
 //! | keypad 7 | fluoroscopy on / off; keypad 8: one X-ray shot |
 //! | keypad 9 | breath hold / release |
 //! | keypad 0 | next view layout; keypad Enter (or Return): finish the session |
+//! | keypad + (or N) | the drainage's next step: guide wire in, needle out, dilator in / out, catheter in, wire out |
 //!
 //! Keys are bound by physical key (NumLock and the layout do not matter): `window::keys`.
 //!
@@ -28,6 +29,7 @@ pub use stylet_devices::command::Command;
 use stylet_devices::rate::{RatePose, RateSettings};
 use stylet_physics::glam::{DQuat, DVec3};
 use stylet_physics::needle::spec::Gauge;
+use stylet_physics::wire::spec::WireDiameter;
 use stylet_physics::{ProbeKind, ToolSpec};
 
 /// Speeds of held keys (a key is full deflection).
@@ -106,6 +108,8 @@ pub fn apply(input: &ControlInput, view: DQuat, pose: &mut RatePose, dt_s: f64) 
 pub enum KeypadKey {
     Digit(u8),
     Enter,
+    /// The Seldinger exchange's next step.
+    Plus,
 }
 
 /// The command of a keypad key, if it has one.
@@ -126,6 +130,10 @@ pub fn keypad(key: KeypadKey) -> Option<Command> {
         KeypadKey::Digit(9) => Command::ToggleBreathHold,
         KeypadKey::Digit(0) => Command::NextLayout,
         KeypadKey::Enter => Command::Finish,
+        // The window gives the wire its needle takes.
+        KeypadKey::Plus => Command::NextStep {
+            wire: WireDiameter::In035,
+        },
         KeypadKey::Digit(_) => return None,
     })
 }
@@ -212,6 +220,7 @@ mod tests {
             xray_on: false,
             breath_hold: false,
             shot: false,
+            next_step: None,
         };
         assert_eq!(
             keypad(KeypadKey::Digit(2)).map(|c| resolve(c, &mut s)),
@@ -224,6 +233,7 @@ mod tests {
         assert_eq!(keypad(KeypadKey::Digit(9)), Some(Command::ToggleBreathHold));
         assert_eq!(keypad(KeypadKey::Digit(0)), Some(Command::NextLayout));
         assert_eq!(keypad(KeypadKey::Enter), Some(Command::Finish));
+        assert!(matches!(keypad(KeypadKey::Plus), Some(Command::NextStep { .. })));
         assert_eq!(keypad(KeypadKey::Digit(42)), None);
         assert!((0..=9).all(|d| keypad(KeypadKey::Digit(d)).is_some()));
     }

@@ -106,6 +106,8 @@ pub struct LiveDevice {
     absolute: Option<AbsoluteControl>,
     /// Tick at which a single shot's X-ray goes off.
     shot_off_at: Option<u64>,
+    /// A dilator has been on the wire (the exchange's next step is then the catheter).
+    dilated: bool,
 }
 
 /// A pose source moving the tool: the device's origin is where the tool was when the source was
@@ -147,6 +149,7 @@ pub fn live_device(position_mm: DVec3, orientation: DQuat, rate_hz: u32) -> (Liv
             rate: None,
             absolute: None,
             shot_off_at: None,
+            dilated: false,
         },
         LiveHandle { input, feedback },
     )
@@ -335,13 +338,15 @@ impl Device for LiveDevice {
         };
         drop(shared);
         // Commands against the latest tick's switches (before the first tick: the start state).
+        self.dilated |= last.is_some_and(crate::command::dilator_on);
         let mut switches = match last {
-            Some(out) => Switches::of(out, self.shot_off_at.is_some()),
+            Some(out) => Switches::of(out, self.shot_off_at.is_some(), self.dilated),
             None => Switches {
                 stylet_in: true,
                 xray_on: false,
                 breath_hold: false,
                 shot: false,
+                next_step: None,
             },
         };
         let was_shot = switches.shot;

@@ -14,7 +14,8 @@ use crate::controls::{HeldKeys, KeypadKey};
 /// What a bound key does.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Action {
-    /// A keypad command (tools, stylet, contrast, X-ray, breath hold, layout, finish).
+    /// A keypad command (tools, stylet, contrast, X-ray, breath hold, layout, finish, the
+    /// drainage's next step).
     Keypad(KeypadKey),
     Away,
     Toward,
@@ -43,6 +44,8 @@ pub const BINDINGS: &[(Key, Action)] = &[
     (Key::Num8, Action::Keypad(KeypadKey::Digit(8))),
     (Key::Num9, Action::Keypad(KeypadKey::Digit(9))),
     (Key::Enter, Action::Keypad(KeypadKey::Enter)),
+    (Key::Plus, Action::Keypad(KeypadKey::Plus)),
+    (Key::N, Action::Keypad(KeypadKey::Plus)),
     (Key::W, Action::Away),
     (Key::S, Action::Toward),
     (Key::A, Action::Left),

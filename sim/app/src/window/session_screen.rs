@@ -8,10 +8,13 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use eframe::egui;
+use stylet_devices::command::{ExchangeStep, dilator_on};
 use stylet_devices::haptic::Hold;
 use stylet_devices::rate::RatePose;
 use stylet_physics::glam::{DQuat, DVec3};
 use stylet_physics::needle::spec::Gauge;
+use stylet_physics::seldinger::passes;
+use stylet_physics::wire::spec::WireDiameter;
 use stylet_physics::{Event, ToolSpec};
 
 use super::keys::Keyboard;
@@ -39,6 +42,8 @@ pub struct SessionScreen {
     keyboard: Keyboard,
     /// The gauge of the needle keypad 4 takes.
     pub gauge: Gauge,
+    /// A dilator has been on the wire (the drainage's next step is then the catheter).
+    dilated: bool,
     last_frame: Instant,
     rate: RateMeter,
     pub show_console: bool,
@@ -91,6 +96,7 @@ impl SessionScreen {
             pedal_down: false,
             keyboard: Keyboard::default(),
             gauge: Gauge::G18,
+            dilated: false,
             last_frame: Instant::now(),
             rate: RateMeter {
                 at: Instant::now(),
@@ -126,6 +132,7 @@ impl SessionScreen {
     pub fn ui(&mut self, ui: &mut egui::Ui, shared: &mut Shared) -> Option<Go> {
         let run = self.run.as_mut()?;
         let snapshot = run.snapshot();
+        self.dilated |= snapshot.as_ref().is_some_and(|s| dilator_on(&s.output));
         let over = run.is_over();
         let mut finish = false;
         let dt = self.last_frame.elapsed().as_secs_f64().min(0.1);
@@ -277,6 +284,7 @@ impl SessionScreen {
                     }
                     ui.separator();
                     indicators_ui(ui, snapshot.as_ref(), &plan);
+                    drainage_ui(ui, snapshot.as_ref(), self.dilated);
                     if let Some(p) = &self.problem {
                         ui.colored_label(egui::Color32::from_rgb(255, 120, 100), p);
                     }
@@ -306,10 +314,13 @@ impl SessionScreen {
         }
         pedal |= pedal_key;
         commands.extend(shared.tablet_commands());
-        // The needle of keypad 4 (and the tablet's) has the gauge chosen in the tools panel.
+        // The needle of keypad 4 (and the tablet's) has the gauge chosen in the tools panel, and
+        // the exchange's wire is one that needle takes.
         for c in commands.iter_mut() {
-            if let Command::Tool(ToolSpec::Needle { gauge, .. }) = c {
-                *gauge = self.gauge;
+            match c {
+                Command::Tool(ToolSpec::Needle { gauge, .. }) => *gauge = self.gauge,
+                Command::NextStep { wire } => *wire = wire_for(self.gauge),
+                _ => {}
             }
         }
         let (from_tablet, commands): (Vec<Command>, Vec<Command>) = commands
@@ -405,8 +416,75 @@ fn tools_ui(ui: &mut egui::Ui, commands: &mut Vec<Command>, pedal: &mut bool, ga
             commands.push(c);
         }
     }
+    if ui.button("[+] Drainage: next step").clicked()
+        && let Some(c) = controls::keypad(KeypadKey::Plus)
+    {
+        commands.push(c);
+    }
     let pedal_button = ui.add(egui::Button::new("X-ray pedal (hold, or hold X)").sense(egui::Sense::click_and_drag()));
     *pedal = pedal_button.is_pointer_button_down_on();
+}
+
+/// The guide wire a needle of `gauge` takes: 0.035″ where it passes (the wire an 8 F drain goes
+/// over), else 0.018″.
+fn wire_for(gauge: Gauge) -> WireDiameter {
+    if passes(gauge, WireDiameter::In035) {
+        WireDiameter::In035
+    } else {
+        WireDiameter::In018
+    }
+}
+
+/// The drainage (Seldinger exchange): where it stands and the step keypad + takes next.
+fn drainage_ui(ui: &mut egui::Ui, snapshot: Option<&Snapshot>, dilated: bool) {
+    let Some(o) = snapshot.map(|s| &s.output) else {
+        return;
+    };
+    let next = ExchangeStep::next(o, dilated);
+    if o.wire.is_none() && next.is_none() {
+        return;
+    }
+    ui.add_space(6.0);
+    ui.strong("Drainage");
+    egui::Grid::new("drainage").num_columns(2).show(ui, |ui| {
+        if let Some(w) = &o.wire {
+            ui.label("Wire in the ducts");
+            ui.label(if w.wire_in {
+                format!("{:.0} mm", w.in_ducts_mm)
+            } else {
+                "out".into()
+            });
+            ui.end_row();
+            if w.access_lost {
+                ui.label("Access");
+                ui.colored_label(egui::Color32::from_rgb(255, 120, 100), "lost");
+                ui.end_row();
+            }
+            if let Some(t) = &w.over_wire {
+                ui.label("On the wire");
+                ui.label(format!(
+                    "{} F {} ({:.0} mm in)",
+                    t.size_fr,
+                    t.kind.name(),
+                    t.inserted_mm
+                ));
+                ui.end_row();
+            }
+            if let Some(c) = &w.catheter {
+                ui.label("Catheter");
+                ui.label(format!(
+                    "{} of {} holes in the ducts, pigtail {}",
+                    c.holes_in_ducts,
+                    stylet_physics::seldinger::pigtail::DRAINAGE_HOLES,
+                    if c.pigtail_in_ducts { "in the duct" } else { "outside" }
+                ));
+                ui.end_row();
+            }
+        }
+        ui.label("Next [+ or N]");
+        ui.label(next.map_or("—", ExchangeStep::label));
+        ui.end_row();
+    });
 }
 
 /// The force and depth indicators, the tool, and what the tip is in.
