@@ -8,8 +8,10 @@
 
 use serde::{Deserialize, Serialize};
 use stylet_physics::TickOutput;
+use stylet_physics::seldinger::Access;
 use stylet_physics::seldinger::over_wire::OverWireKind;
 use stylet_physics::seldinger::pigtail::DRAINAGE_HOLES;
+use stylet_physics::wire::WrongBranchWatch;
 
 /// Wire in the ducts' lumen for the wire to count as having reached them (mm): more than a tip
 /// grazing a duct's edge.
@@ -68,6 +70,10 @@ pub struct DrainageMetrics {
     pub wire_left_duct: bool,
     /// The longest loop pushed into a blocked tip (mm).
     pub wire_folded_max_mm: f64,
+    /// Runs of the wire's tip away from the hilum into a branch that does not lead there
+    /// (`stylet_physics::wire::branches`).
+    #[serde(default)]
+    pub wrong_branch_entries: u32,
     /// Wires put in, dilators and catheters put on the wire.
     pub wire_attempts: u32,
     pub dilator_attempts: u32,
@@ -106,10 +112,12 @@ pub struct DrainageCollector {
     last_tool: Option<OverWireKind>,
     wire_was_in: bool,
     refused: u32,
+    wrong_branch: WrongBranchWatch,
 }
 
 impl DrainageCollector {
-    pub fn tick(&mut self, out: &TickOutput) {
+    /// Observes a tick; `access`: the simulation's exchange after it.
+    pub fn tick(&mut self, out: &TickOutput, access: Option<&Access>) {
         let step = Step::of(out);
         if out.xray_on {
             self.fluoroscopy_ticks[step as usize] += 1;
@@ -126,6 +134,7 @@ impl DrainageCollector {
             access_lost: false,
             wire_left_duct: false,
             wire_folded_max_mm: 0.0,
+            wrong_branch_entries: 0,
             wire_attempts: 0,
             dilator_attempts: 0,
             catheter_attempts: 0,
@@ -150,6 +159,11 @@ impl DrainageCollector {
         m.access_lost |= w.access_lost;
         m.wire_left_duct |= w.left_duct;
         m.wire_folded_max_mm = m.wire_folded_max_mm.max(w.folded_mm);
+        // The tip in the ducts' own frame (the wire is laid in the reference anatomy).
+        if let Some((a, wire)) = access.and_then(|a| a.wire().map(|wire| (a, wire))) {
+            self.wrong_branch.observe(a.channel().from_hilum_mm(wire.tip_mm()));
+        }
+        m.wrong_branch_entries = self.wrong_branch.entries();
         let tool = w.over_wire.map(|t| t.kind);
         if tool.is_some() && tool != self.last_tool {
             match tool {
@@ -201,6 +215,18 @@ pub fn findings(m: &DrainageMetrics) -> Vec<String> {
                 .to_string(),
         );
     }
+    if m.wrong_branch_entries > 0 {
+        let n = m.wrong_branch_entries;
+        out.push(format!(
+            "The guide wire ran into {} away from the hilum: steer it centrally, toward the common bile \
+             duct, by turning the J before advancing.",
+            if n == 1 {
+                "a branch".to_string()
+            } else {
+                format!("{n} branches")
+            }
+        ));
+    }
     if m.access_lost {
         out.push(
             "The guide wire was drawn back out of the ducts after the needle came out: the access was lost."
@@ -216,4 +242,53 @@ pub fn findings(m: &DrainageMetrics) -> Vec<String> {
         ));
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn placed() -> DrainageMetrics {
+        DrainageMetrics {
+            wire_reached_ducts: true,
+            wire_in_ducts_max_mm: 60.0,
+            access_lost: false,
+            wire_left_duct: false,
+            wire_folded_max_mm: 0.0,
+            wrong_branch_entries: 0,
+            wire_attempts: 1,
+            dilator_attempts: 1,
+            catheter_attempts: 1,
+            refused_steps: 0,
+            fluoroscopy_puncture_s: 1.0,
+            fluoroscopy_wire_s: 1.0,
+            fluoroscopy_dilator_s: 0.0,
+            fluoroscopy_catheter_s: 1.0,
+            dilator_peak_force_n: 3.0,
+            catheter_peak_force_n: 2.0,
+            catheter_placed: true,
+            catheter_holes_in_ducts: 6,
+            catheter_holes: 6,
+            pigtail_in_ducts: true,
+        }
+    }
+
+    #[test]
+    fn wrong_branches_are_named_and_counted() {
+        assert!(findings(&placed()).is_empty());
+        let one = findings(&DrainageMetrics {
+            wrong_branch_entries: 1,
+            ..placed()
+        });
+        assert_eq!(one.len(), 1);
+        assert!(
+            one[0].starts_with("The guide wire ran into a branch away from the hilum"),
+            "{one:?}"
+        );
+        let two = findings(&DrainageMetrics {
+            wrong_branch_entries: 2,
+            ..placed()
+        });
+        assert!(two[0].contains("ran into 2 branches"), "{two:?}");
+    }
 }

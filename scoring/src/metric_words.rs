@@ -198,6 +198,11 @@ pub const METRICS: &[MetricInfo] = &[
         "the guide wire went through a duct wall into the liver",
     ),
     m("wire_folded_mm", "guide wire pushed into a loop", Unit::Millimetres),
+    m(
+        "wrong_branch_entries",
+        "guide wire runs into a wrong branch",
+        Unit::Count,
+    ),
     flag(
         "access_lost",
         "access lost",

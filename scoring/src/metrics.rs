@@ -628,7 +628,7 @@ impl<'a> MetricsCollector<'a> {
     pub fn tick(&mut self, input: &TickInput, out: &TickOutput, sim: &Simulation) {
         self.ticks += 1;
         self.leaks.tick(out.tick, sim);
-        self.drainage.tick(out);
+        self.drainage.tick(out, sim.access());
         let tick = out.tick;
         let needle = sim.needle();
         let in_body = needle.is_some() && out.inserted_mm > 0.0;

@@ -707,7 +707,7 @@ mod tests {
     #[test]
     fn the_shipped_rubric_grades_the_worked_example() {
         let r = Rubric::default_rubric();
-        assert_eq!((r.name.as_str(), r.version), ("ptcd", 9));
+        assert_eq!((r.name.as_str(), r.version), ("ptcd", 10));
         let g = r.grade(&metrics(), Exercise::Puncture, Difficulty::Beginner).unwrap();
         // attempts 2 (1 free) −10, redirections 3 (2 free) −3, fluoro 40 s (30 free) −5,
         // no palpation first −5: 100 − 23.
@@ -851,7 +851,7 @@ mod tests {
     fn bad_rubrics_are_named() {
         let base = DEFAULT_RUBRIC;
         let cases = [
-            (base.replace("version = 9", "version = 0"), "version"),
+            (base.replace("version = 10", "version = 0"), "version"),
             (
                 base.replace("[levels.expert]", "[levels.master]"),
                 "lacks level 'expert'",

@@ -210,9 +210,10 @@ fn the_full_ptcd_replays_bit_for_bit() {
             d.wire_attempts,
             d.dilator_attempts,
             d.catheter_attempts,
-            d.refused_steps
+            d.refused_steps,
+            d.wrong_branch_entries
         ),
-        (1, 1, 1, 0)
+        (1, 1, 1, 0, 0)
     );
     assert!(d.catheter_placed && d.drains() && d.pigtail_in_ducts);
     assert!(d.dilator_peak_force_n > d.catheter_peak_force_n && d.catheter_peak_force_n > 0.0);
@@ -434,5 +435,47 @@ fn each_failed_exchange_gets_its_reason() {
         assert_eq!(d.access_lost, name == "loss-of-access");
         assert_eq!(d.catheter_placed, name == "catheter-outside");
         assert!(!d.drains());
+    }
+}
+
+/// From the target in the right hepatic duct a J wire runs toward the hilum (the common bile
+/// duct's widest point) for 20 mm, to the confluence; fed on, it crosses into the left hepatic duct,
+/// away from the hilum: one wrong-branch entry, whichever way its J is turned.
+#[test]
+fn a_wire_fed_across_the_confluence_enters_a_wrong_branch() {
+    use stylet_physics::wire::WrongBranchWatch;
+    let atlas = default_phantom();
+    let channel = DuctChannel::of_tissue(&atlas.model, "bile_duct").expect("the phantom has bile ducts");
+    let path = atlas.guided_path().unwrap();
+    let (entry, target) = (DVec3::from_array(path.entry_mm), DVec3::from_array(path.target_mm));
+    let dir = (target - entry).normalize();
+    let start_mm = channel.from_hilum_mm(target).expect("the target is in the ducts");
+    for roll in [0.0, std::f64::consts::PI] {
+        let mut wire = GuideWire::new(
+            WireSpec::new(WireDiameter::In035, WireTip::J),
+            target,
+            dir,
+            dir.any_orthonormal_vector(),
+        );
+        let mut watch = WrongBranchWatch::default();
+        let mut nearest_mm = start_mm;
+        for step in 1..=600 {
+            wire.advance(0.1, roll, &channel, WALL_N);
+            let d = channel.from_hilum_mm(wire.tip_mm());
+            nearest_mm = nearest_mm.min(d.unwrap_or(f64::INFINITY));
+            watch.observe(d);
+            if step == 250 {
+                assert_eq!(watch.entries(), 0, "roll {roll}: 25 mm in");
+            }
+        }
+        let tip = wire.tip_mm();
+        println!("roll {roll}: {start_mm:.1} mm from the hilum, nearest {nearest_mm:.1}, tip {tip:?}");
+        assert!(
+            start_mm - nearest_mm > 15.0,
+            "roll {roll}: the wire first went toward the hilum"
+        );
+        assert_eq!(watch.entries(), 1, "roll {roll}: tip {tip:?}");
+        // The left hepatic duct runs from the confluence (x ≈ 29 mm) to the patient's left.
+        assert!(tip.x < 12.0, "roll {roll}: tip {tip:?}");
     }
 }

@@ -316,6 +316,11 @@ impl Access {
         &self.spec
     }
 
+    /// The ducts the wire follows.
+    pub fn channel(&self) -> &DuctChannel {
+        &self.channel
+    }
+
     /// Takes the needle out over the wire, which stays: its start is laid back along the
     /// needle's track to the skin, and the needle leaves a tract of its size.
     pub fn remove_needle(&mut self) -> Result<(), Refusal> {

@@ -20,6 +20,7 @@
 //! leaves the duct follow from these rules and the ducts' shape; nothing is scripted. Every step
 //! is plain arithmetic and `libm`, so the same inputs give the same bits.
 
+pub mod branches;
 pub mod channel;
 pub mod spec;
 #[cfg(test)]
@@ -27,6 +28,7 @@ mod tests;
 
 use glam::DVec3;
 
+pub use branches::{HilumDistance, WrongBranchWatch};
 pub use channel::DuctChannel;
 pub use spec::{WireDiameter, WireSpec, WireTip};
 

@@ -18,6 +18,12 @@ fn to_segment(p: DVec3, a: DVec3, b: DVec3) -> f64 {
 
 /// A channel of 2.5 mm radius around the polyline segments, on a 0.5 mm grid.
 fn channel(segments: &[(DVec3, DVec3)]) -> DuctChannel {
+    let (g, lumen) = lumen(segments);
+    DuctChannel::new(&g, &lumen)
+}
+
+/// The grid of [`channel`] and its lumen voxels.
+fn lumen(segments: &[(DVec3, DVec3)]) -> (Grid, Vec<bool>) {
     let n = [200, 180, 24];
     let origin = DVec3::new(-50.0, -45.0, -5.75);
     let g = Grid::new(n, Affine::from_spacing([0.5; 3], origin)).unwrap();
@@ -28,7 +34,7 @@ fn channel(segments: &[(DVec3, DVec3)]) -> DuctChannel {
             segments.iter().any(|&(s, e)| to_segment(p, s, e) < LUMEN_MM)
         })
         .collect();
-    DuctChannel::new(&g, &lumen)
+    (g, lumen)
 }
 
 /// A duct along +x that splits at the origin into branches 35° up (+y) and down (−y).
@@ -111,6 +117,33 @@ fn the_j_tip_takes_the_branch_it_is_turned_toward() {
         assert!(!w.left_duct());
         assert!((w.in_ducts_mm() - 70.0).abs() < 1.0, "{}", w.in_ducts_mm());
     }
+}
+
+/// With the hilum up the upper branch of the Y, a J turned into it goes the right way; turned
+/// into the lower branch it runs away from the hilum: one wrong-branch entry.
+#[test]
+fn a_j_turned_into_the_branch_away_from_the_hilum_enters_a_wrong_branch() {
+    let a = 35f64.to_radians();
+    let upper_end = DVec3::new(40.0 * libm::cos(a), 40.0 * libm::sin(a), 0.0);
+    let o = DVec3::ZERO;
+    let (g, lumen) = lumen(&[
+        (DVec3::new(-45.0, 0.0, 0.0), o),
+        (o, upper_end),
+        (o, DVec3::new(upper_end.x, -upper_end.y, 0.0)),
+    ]);
+    let c = DuctChannel::with_hilum_at(&g, &lumen, upper_end);
+    for (roll, entries) in [(0.0, 0), (PI, 1)] {
+        let mut w = wire(WireTip::J, WireDiameter::In035);
+        let mut watch = WrongBranchWatch::default();
+        for _ in 0..70 {
+            push(&mut w, 1.0, roll, &c);
+            watch.observe(c.from_hilum_mm(w.tip_mm()));
+        }
+        assert_eq!(watch.entries(), entries, "roll {roll}: tip at {:?}", w.tip_mm());
+    }
+    // The hilum is where it was put, and the stem's foot is about 40 + 45 mm from it.
+    let foot = c.from_hilum_mm(DVec3::new(-44.0, 0.0, 0.0)).unwrap();
+    assert!((83.0..90.0).contains(&foot), "{foot}");
 }
 
 /// A straight floppy tip follows a curving duct: the walls turn it, the hand feels them a little.
