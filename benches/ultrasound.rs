@@ -53,6 +53,7 @@ fn main() {
         seed: 1,
         time_s: 0.0,
         needle: None,
+        lines: Vec::new(),
         echo: echo.clone(),
         doppler: None,
         guide_mm: None,

@@ -340,6 +340,7 @@ fn views(ctx: &GpuContext, atlas: &stylet_atlas::Atlas, cpu: &RenderVolume, gpu:
         seed: 1,
         time_s: 0.0,
         needle: None,
+        lines: Vec::new(),
         echo: echo.clone(),
         doppler: None,
         guide_mm: None,

@@ -22,8 +22,8 @@ struct Params {
     geo: vec4<f32>,        // depth (mm), sample spacing (mm), convex radius (mm), half angle (rad)
     gains: vec4<f32>,      // specular gain, scatter gain, gel impedance, gel layer (mm)
     limits: vec4<f32>,     // air below (HU), Doppler min signal, vein speed, artery speed (m/s)
-    doppler: vec4<f32>,    // cell (mm), wall filter, scale (m/s), needle outer diameter (mm)
-    reverb: vec4<f32>,     // steel reflection, transmission, decay, echoes
+    doppler: vec4<f32>,    // cell (mm), wall filter, scale (m/s); w unused
+    reverb: vec4<f32>,     // comet tail: each echo's share of the one before, echoes; zw unused
     fluid: vec4<f32>,      // z, loss, scatter
     blood: vec4<f32>,
     flow_first: vec4<i32>, // first cell of the dense flow grid
@@ -37,7 +37,8 @@ struct Params {
 @group(0) @binding(3) var<storage, read> classes: array<u32>;
 @group(0) @binding(4) var<storage, read> tissue: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read> tgc: array<f32>;
-// Per line: (needle depth mm, specular, hit sample, 1 when hit).
+// Two per line: (depth mm, specular, hit sample, 1 when hit) of the first instrument the line
+// meets, and (reflection, transmission, comet tail spacing mm or 0) of its material.
 @group(0) @binding(6) var<storage, read> hits: array<vec4<f32>>;
 @group(0) @binding(7) var<storage, read> flow: array<vec4<f32>>;
 @group(0) @binding(8) var<storage, read_write> out_env: array<f32>;
@@ -159,7 +160,8 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
         gel_max = P.gains.w + P.geo.z * (1.0 / cos(theta) - 1.0);
     }
     let dz = P.geo.y;
-    let hit = hits[i];
+    let hit = hits[2u * i];
+    let material = hits[2u * i + 1u];
     let hit_sample = select(-1, i32(hit.z), hit.w > 0.5);
     let seed = P.flow_dims.w;
     let base = i * samples;
@@ -275,11 +277,11 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
                 travelling *= (1.0 - r * r) * s_loss[k];
                 z_prev = z;
                 if i32(j) == hit_sample {
-                    let e = travelling * P.reverb.x * hit.y;
+                    let e = travelling * material.x * hit.y;
                     echo += e;
-                    travelling *= P.reverb.y;
+                    travelling *= material.y;
                     ring = e;
-                    rang = true;
+                    rang = material.z > 0.0;
                 }
                 out_env[base + j] = echo;
                 var flags = 0u;
@@ -299,9 +301,9 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     // The comet tail.
     if lane == 0u && rang {
         var a = ring;
-        for (var k = 1u; k <= u32(P.reverb.w); k++) {
-            a *= P.reverb.z;
-            let j = u32((hit.x + f32(k) * P.doppler.w) / dz);
+        for (var k = 1u; k <= u32(P.reverb.y); k++) {
+            a *= P.reverb.x;
+            let j = u32((hit.x + f32(k) * material.z) / dz);
             if j < samples {
                 out_env[base + j] += a;
             }

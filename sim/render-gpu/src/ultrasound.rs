@@ -14,7 +14,7 @@ use stylet_render::tools::{CONVEX_HALF_ANGLE_DEG, CONVEX_RADIUS_MM};
 use stylet_render::ultrasound::EchoClass;
 use stylet_render::ultrasound::acoustic::PLEURA_SCATTER;
 use stylet_render::ultrasound::doppler::{self, CELL_MM, SCALE_M_S, WALL_FILTER_M_S};
-use stylet_render::ultrasound::needle::{REVERB_DECAY, REVERB_ECHOES, STEEL_REFLECTION, TRANSMISSION};
+use stylet_render::ultrasound::needle::{REVERB_DECAY, REVERB_ECHOES};
 use stylet_render::ultrasound::{
     AIR_BELOW_HU, DOPPLER_MIN_SIGNAL, FLAG_DOPPLER, FLAG_TARGET, FlowField, FrameTables, GEL_MAX_MM, GEL_MRAYL,
     SCATTER_GAIN, SPECULAR_GAIN, ScanGeometry, Sonogram, UltrasoundScene, check_scene, compress, needle_hits, speckle,
@@ -105,9 +105,17 @@ impl GpuUltrasound {
         let n = s.lines as u64 * s.samples as u64;
         ctx.check_storage_buffer("the ultrasound frame", n * 4)?;
         let tables = FrameTables::new(&s);
+        // Two per line: where and how squarely the line meets an instrument, and how that
+        // instrument echoes.
         let hits: Vec<[f32; 4]> = needle_hits(scene, &geometry)
             .into_iter()
-            .map(|h| h.map_or([0.0; 4], |(h, j)| [h.depth_mm, h.specular, j as f32, 1.0]))
+            .flat_map(|h| match h {
+                Some((h, j)) => [
+                    [h.hit.depth_mm, h.hit.specular, j as f32, 1.0],
+                    [h.echo.reflection, h.echo.transmission, h.echo.ring_mm, 0.0],
+                ],
+                None => [[0.0; 4]; 2],
+            })
             .collect();
         let classes = {
             let c = scene.echo.packed(&scene.consequences.air_in_pleura);
@@ -152,13 +160,8 @@ impl GpuUltrasound {
                 speed(EchoClass::Vein),
                 speed(EchoClass::Artery),
             ],
-            doppler: [
-                CELL_MM as f32,
-                WALL_FILTER_M_S,
-                SCALE_M_S,
-                scene.needle.as_ref().map_or(0.0, |n| n.diameter_mm),
-            ],
-            reverb: [STEEL_REFLECTION, TRANSMISSION, REVERB_DECAY, REVERB_ECHOES as f32],
+            doppler: [CELL_MM as f32, WALL_FILTER_M_S, SCALE_M_S, 0.0],
+            reverb: [REVERB_DECAY, REVERB_ECHOES as f32, 0.0, 0.0],
             fluid: props(tables.fluid),
             blood: props(tables.blood),
             flow_first,

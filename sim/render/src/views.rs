@@ -409,6 +409,7 @@ pub fn ultrasound_scene(
         seed: moment.map_or(0, |m| m.seed),
         time_s: moment.map_or(0.0, |m| m.time_s),
         needle,
+        lines: moment.map_or_else(Vec::new, |m| m.tools.lines.clone()),
         echo,
         doppler,
         guide_mm: guide_mm.flatten(),

@@ -10,7 +10,7 @@ use stylet_atlas::EchoClass;
 use stylet_physics::ProbeKind;
 use stylet_physics::glam::{DVec3, Quat, Vec3};
 use stylet_render::synthetic;
-use stylet_render::tools::{NeedleShape, ProbeShape};
+use stylet_render::tools::{LineKind, LineShape, NeedleShape, ProbeShape};
 use stylet_render::ultrasound::{
     EchoTable, FLAG_DOPPLER, FlowField, Sonogram, UltrasoundScene, UltrasoundSettings, render,
 };
@@ -37,6 +37,7 @@ fn scene(position: Vec3, lines: u32, echo: EchoTable) -> UltrasoundScene {
         seed: 42,
         time_s: 0.0,
         needle: None,
+        lines: Vec::new(),
         echo: Arc::new(echo),
         doppler: None,
         guide_mm: None,
@@ -272,6 +273,79 @@ fn the_needle_is_a_bright_line_with_a_shadow_and_only_in_the_beam() {
     assert!(o.bmode.iter().zip(&plain.bmode).all(|(a, b)| a == b));
 }
 
+/// The exchange's instruments across the image 20 mm deep: the guide wire (steel) echoes as
+/// brightly as the needle with a shadow but no comet tail (a solid wire has no lumen to ring in);
+/// a catheter (polymer) echoes faintly and casts almost no shadow; out of the beam's thickness
+/// neither is seen.
+#[test]
+fn the_wire_and_catheter_are_echogenic_lines() {
+    let atlas = homogeneous();
+    let at = Vec3::new(0.0, 0.0, -40.0);
+    let line = |kind, y: f32, diameter_mm| LineShape {
+        kind,
+        nodes_mm: vec![Vec3::new(-30.0, y, -20.0), Vec3::new(30.0, y, -20.0)],
+        diameter_mm,
+    };
+    let with = |lines: Vec<LineShape>| {
+        let mut s = scene(at, 128, EchoTable::default());
+        s.lines = lines;
+        render(&atlas, &s).unwrap()
+    };
+    let plain = render(&atlas, &scene(at, 128, EchoTable::default())).unwrap();
+    let wire = with(vec![line(LineKind::GuideWire, 0.0, 0.889)]);
+    let catheter = with(vec![line(LineKind::Catheter, 0.0, 2.67)]);
+    // The brightest sample of each line from 15 to 21 mm deep (the lines' near walls, widened
+    // by the beam's thickness), averaged over the lines.
+    let peak = |s: &Sonogram| {
+        let lines = 10..118u32;
+        let per_line = lines
+            .clone()
+            .map(|i| (64..90).map(|j| s.bmode[s.at(i, j)]).fold(0.0f32, f32::max));
+        per_line.sum::<f32>() / lines.len() as f32
+    };
+    let lines = 10..118;
+    let (w, c, p) = (peak(&wire), peak(&catheter), peak(&plain));
+    assert!(
+        w > 0.85 && w > c + 0.1 && c > p + 0.1,
+        "wire {w}, catheter {c}, tissue {p}"
+    );
+    // Behind the wire its shadow; behind the catheter nearly the tissue's grey.
+    let deep = 150..250;
+    let (w_deep, c_deep, p_deep) = (
+        mean(&wire, lines.clone(), deep.clone()),
+        mean(&catheter, lines.clone(), deep.clone()),
+        mean(&plain, lines.clone(), deep),
+    );
+    assert!(
+        w_deep < p_deep - 0.15 && (c_deep - p_deep).abs() < 0.03,
+        "{w_deep} {c_deep} {p_deep}"
+    );
+    // No comet tail under the wire: just below it the image is darker, not brighter, than
+    // tissue — unlike the needle's.
+    let needle = {
+        let mut s = scene(at, 128, EchoTable::default());
+        s.needle = Some(NeedleShape {
+            nodes_mm: vec![Vec3::new(-30.0, 0.0, -20.0), Vec3::new(30.0, 0.0, -20.0)],
+            diameter_mm: 0.889,
+            hub_length_mm: 20.0,
+            hub_diameter_mm: 4.0,
+        });
+        render(&atlas, &s).unwrap()
+    };
+    let tail = 85..100;
+    let (w_tail, n_tail) = (
+        mean(&wire, lines.clone(), tail.clone()),
+        mean(&needle, lines.clone(), tail),
+    );
+    assert!(n_tail > w_tail + 0.1, "needle's tail {n_tail}, wire's {w_tail}");
+    // 3 mm out of the image plane: not seen.
+    let off = with(vec![
+        line(LineKind::GuideWire, 3.0, 0.889),
+        line(LineKind::Catheter, -3.0, 2.67),
+    ]);
+    assert!(off.bmode.iter().zip(&plain.bmode).all(|(a, b)| a == b));
+}
+
 #[test]
 fn a_probe_off_the_skin_sees_nothing() {
     // Air above z = −20 mm; the probe 15 mm above the skin (beyond the gel layer).
@@ -382,6 +456,29 @@ fn bad_scenes_are_refused_with_the_problem_named() {
                     hub_length_mm: 1.0,
                     hub_diameter_mm: 1.0,
                 })
+            }),
+        ),
+        (
+            "guide wire",
+            Box::new(|s| {
+                s.lines = vec![LineShape {
+                    kind: LineKind::GuideWire,
+                    nodes_mm: vec![Vec3::ZERO, Vec3::X],
+                    diameter_mm: -1.0,
+                }]
+            }),
+        ),
+        (
+            "guide wire",
+            Box::new(|s| {
+                s.lines = vec![
+                    LineShape {
+                        kind: LineKind::Catheter,
+                        nodes_mm: vec![Vec3::ZERO, Vec3::X],
+                        diameter_mm: 2.0,
+                    };
+                    5
+                ]
             }),
         ),
         ("time", Box::new(|s| s.time_s = f64::NAN)),

@@ -10,7 +10,7 @@ use stylet_physics::{Consequence, ProbeKind};
 use stylet_render::consequences::{ConsequenceScene, FluidCollection};
 use stylet_render::image::diff;
 use stylet_render::synthetic::{RISK, TARGET};
-use stylet_render::tools::{NeedleShape, ProbeShape};
+use stylet_render::tools::{LineKind, LineShape, NeedleShape, ProbeShape};
 use stylet_render::ultrasound::{
     EchoClass, EchoTable, FLAG_DOPPLER, FlowField, Sonogram, UltrasoundScene, UltrasoundSettings, render,
 };
@@ -80,6 +80,20 @@ fn scene(both: &Both) -> UltrasoundScene {
             hub_length_mm: 20.0,
             hub_diameter_mm: 4.0,
         }),
+        // Above the needle, a guide wire (steel) and a catheter (polymer) across the image (in
+        // its plane: z = (y + 41.5) · tan 20°).
+        lines: vec![
+            LineShape {
+                kind: LineKind::GuideWire,
+                nodes_mm: vec![Vec3::new(-16.0, -26.0, 5.64), Vec3::new(-3.0, -25.0, 6.01)],
+                diameter_mm: 0.889,
+            },
+            LineShape {
+                kind: LineKind::Catheter,
+                nodes_mm: vec![Vec3::new(3.0, -25.0, 6.01), Vec3::new(16.0, -26.0, 5.64)],
+                diameter_mm: 2.67,
+            },
+        ],
         echo: Arc::new(echo),
         doppler: Some(flow),
         guide_mm: None,
@@ -125,6 +139,23 @@ fn gpu_ultrasound_matches_the_cpu_for_every_ct_storage() {
             cpu.bmode,
             "{name}: the collections show"
         );
+        // The wire and the catheter, each on its own, show.
+        for kind in [LineKind::GuideWire, LineKind::Catheter] {
+            let others = UltrasoundScene {
+                lines: s.lines.iter().filter(|l| l.kind != kind).cloned().collect(),
+                ..s.clone()
+            };
+            assert_ne!(
+                render(&both.cpu.atlas, &others).unwrap().bmode,
+                cpu.bmode,
+                "{name}: the {kind:?} shows"
+            );
+            assert_agree(
+                &format!("{name} without the {kind:?}"),
+                &render(&both.cpu.atlas, &others).unwrap(),
+                &us.render(ctx(), &both.gpu, &others).unwrap(),
+            );
+        }
         // The target marked as a lung: its surface's grain on both; air in its pleural space
         // takes it away on both.
         let lung = |air: Vec<u16>| UltrasoundScene {
@@ -193,6 +224,7 @@ fn gpu_ultrasound_matches_the_cpu_on_the_phantom() {
         seed: 3,
         time_s: 0.0,
         needle: None,
+        lines: Vec::new(),
         echo: Arc::new(echo),
         doppler: Some(flow),
         guide_mm: None,

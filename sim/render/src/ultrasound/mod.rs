@@ -36,7 +36,7 @@ pub use probe::ScanGeometry;
 use crate::RenderError;
 use crate::consequences::{COLLECTION_MAX_HU, COLLECTION_MIN_HU, ConsequenceScene, FluidCollection};
 use crate::raycast::sampler::{Grid3, nearest_voxel};
-use crate::tools::{NeedleShape, ProbeShape};
+use crate::tools::{LineShape, NeedleShape, ProbeShape};
 use crate::volume::IndexMap;
 
 /// The most scan lines and samples per line a frame may have.
@@ -79,6 +79,8 @@ pub enum UltrasoundError {
     ProbePose,
     #[error("the needle's nodes and diameter must be finite")]
     Needle,
+    #[error("the guide wire's, dilator's and catheter's nodes and diameters must be finite, at most {max} nodes each and {max_lines} lines", max = crate::tools::MAX_LINE_NODES, max_lines = MAX_INSTRUMENT_LINES)]
+    Line,
     #[error("the session time must be finite")]
     Time,
     #[error("the labels and the CT have different grids")]
@@ -152,6 +154,8 @@ pub struct UltrasoundScene {
     /// Session time (s): the arterial pulse of the Doppler view.
     pub time_s: f64,
     pub needle: Option<NeedleShape>,
+    /// The guide wire, dilator and catheter (world space, [`crate::tools::lines_of`]).
+    pub lines: Vec<LineShape>,
     pub echo: Arc<EchoTable>,
     /// Colour Doppler over the vessels, with their flow axes; `None`: B-mode only.
     pub doppler: Option<Arc<FlowField>>,
@@ -165,6 +169,10 @@ pub struct UltrasoundScene {
     /// lungs with air in their pleural space.
     pub consequences: ConsequenceScene,
 }
+
+/// The most instrument lines a frame takes: the exchange has at most a wire and the tool on it,
+/// or a placed catheter.
+pub const MAX_INSTRUMENT_LINES: usize = 4;
 
 /// Per-sample flags of a [`Sonogram`].
 pub const FLAG_TARGET: u8 = 1;
@@ -213,6 +221,16 @@ pub fn check_scene(scene: &UltrasoundScene, atlas: &PunctureAtlas) -> Result<(),
     {
         return Err(UltrasoundError::Needle);
     }
+    if scene.lines.len() > MAX_INSTRUMENT_LINES
+        || !scene.lines.iter().all(|l| {
+            l.diameter_mm.is_finite()
+                && l.diameter_mm > 0.0
+                && l.nodes_mm.len() <= crate::tools::MAX_LINE_NODES
+                && l.nodes_mm.iter().all(|p| p.is_finite())
+        })
+    {
+        return Err(UltrasoundError::Line);
+    }
     if !scene.time_s.is_finite() {
         return Err(UltrasoundError::Time);
     }
@@ -222,16 +240,31 @@ pub fn check_scene(scene: &UltrasoundScene, atlas: &PunctureAtlas) -> Result<(),
     Ok(())
 }
 
-/// The needle's first meeting with each scan line (`None`: none or no needle) and the sample
-/// it lands on: what both renderers add to the line's echoes.
-pub fn needle_hits(scene: &UltrasoundScene, geometry: &ScanGeometry) -> Vec<Option<(needle::NeedleHit, u32)>> {
+/// Each scan line's first meeting with an instrument — the needle, the guide wire, a dilator or
+/// catheter — (`None`: none in the line) and the sample it lands on: what both renderers add to
+/// the line's echoes.
+pub fn needle_hits(scene: &UltrasoundScene, geometry: &ScanGeometry) -> Vec<Option<(needle::InstrumentHit, u32)>> {
     let dz = geometry.sample_mm();
+    let needle = scene
+        .needle
+        .iter()
+        .map(|n| (&n.nodes_mm, n.diameter_mm, needle::Echogenicity::needle(n.diameter_mm)));
+    let lines = scene
+        .lines
+        .iter()
+        .map(|l| (&l.nodes_mm, l.diameter_mm, needle::Echogenicity::of_line(l.kind)));
+    let instruments: Vec<_> = needle.chain(lines).collect();
     (0..geometry.lines)
         .map(|i| {
-            let n = scene.needle.as_ref()?;
             let (origin, dir) = geometry.line(i);
-            needle::first_hit(origin, dir, geometry.depth_mm, &n.nodes_mm, n.diameter_mm / 2.0)
-                .map(|h| (h, ((h.depth_mm / dz) as u32).min(geometry.samples - 1)))
+            let mut first: Option<needle::InstrumentHit> = None;
+            for &(nodes, diameter_mm, echo) in &instruments {
+                let length_mm = first.map_or(geometry.depth_mm, |f| f.hit.depth_mm);
+                if let Some(hit) = needle::first_hit(origin, dir, length_mm, nodes, diameter_mm / 2.0) {
+                    first = Some(needle::InstrumentHit { hit, echo });
+                }
+            }
+            first.map(|h| (h, ((h.hit.depth_mm / dz) as u32).min(geometry.samples - 1)))
         })
         .collect()
 }
@@ -313,7 +346,7 @@ struct Frame<'a> {
     box_hi: Vec3,
     labels: &'a [u16],
     tables: FrameTables,
-    hits: Vec<Option<(needle::NeedleHit, u32)>>,
+    hits: Vec<Option<(needle::InstrumentHit, u32)>>,
     speckle_seed: u32,
     /// Blood speed per vessel kind now (m/s).
     vein_m_s: f32,
@@ -368,11 +401,12 @@ impl<'a> Frame<'a> {
         let g = &self.geometry;
         let (origin, dir) = g.line(i);
         let dz = g.sample_mm();
-        let needle = self.hits[i as usize];
-        let hit_sample = needle.map(|(_, j)| j as usize);
+        let instrument = self.hits[i as usize];
+        let hit_sample = instrument.map(|(_, j)| j as usize);
         let mut travelling = 1.0f32;
         let mut z_prev = GEL_MRAYL;
-        let mut ring: Option<(f32, f32)> = None;
+        // The comet tail's first echo, where it starts and its spacing.
+        let mut ring: Option<(f32, f32, f32)> = None;
         let mut in_gel = true;
         let gel_max_mm = g.gel_allowance_mm(i);
         let mut warp = self.u_at.map(crate::warp::Warp::new);
@@ -424,12 +458,14 @@ impl<'a> Frame<'a> {
             travelling *= (1.0 - r * r) * p.loss;
             z_prev = p.z;
             if hit_sample == Some(j)
-                && let Some((h, _)) = needle
+                && let Some((h, _)) = instrument
             {
-                let e = travelling * needle::STEEL_REFLECTION * h.specular;
+                let e = travelling * h.echo.reflection * h.hit.specular;
                 echo += e;
-                travelling *= needle::TRANSMISSION;
-                ring = Some((e, h.depth_mm));
+                travelling *= h.echo.transmission;
+                if h.echo.ring_mm > 0.0 {
+                    ring = Some((e, h.hit.depth_mm, h.echo.ring_mm));
+                }
             }
             bmode[j] = echo;
             if self.scene.echo.is_target(label) {
@@ -452,12 +488,11 @@ impl<'a> Frame<'a> {
             }
         }
         // The comet tail: echoes one shaft diameter apart below the first, each weaker.
-        if let (Some((e, depth)), Some(n)) = (ring, &self.scene.needle) {
-            let diameter = n.diameter_mm;
+        if let Some((e, depth, spacing_mm)) = ring {
             let mut a = e;
             for k in 1..=needle::REVERB_ECHOES {
                 a *= needle::REVERB_DECAY;
-                let j = ((depth + k as f32 * diameter) / dz) as usize;
+                let j = ((depth + k as f32 * spacing_mm) / dz) as usize;
                 if let Some(b) = bmode.get_mut(j) {
                     *b += a;
                 }

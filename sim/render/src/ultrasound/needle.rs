@@ -4,10 +4,15 @@
 //! turns toward the beam; sound trapped in the lumen rings, and the ringing returns as a comet
 //! tail of echoes one diameter apart below the shaft (reverberation); the tissue behind it lies
 //! in the needle's acoustic shadow.
+//!
+//! The exchange's instruments echo the same way by their material: the guide wire is steel
+//! (a solid core: no lumen to ring in), the dilator and catheter polymer, a weak reflector that
+//! lets most of the sound through. Each scan line echoes at the first instrument it meets; what
+//! lies behind it along the line is in its shadow.
 
 use stylet_physics::glam::Vec3;
 
-use crate::tools::Primitive;
+use crate::tools::{LineKind, Primitive};
 
 /// Amplitude reflection of steel in tissue, (45 − 1.6)/(45 + 1.6).
 pub const STEEL_REFLECTION: f32 = 0.93;
@@ -16,6 +21,12 @@ pub const STEEL_REFLECTION: f32 = 0.93;
 pub const ELEVATION_HALF_MM: f32 = stylet_physics::probe_image::ELEVATION_HALF_MM as f32;
 /// Share of the amplitude that passes the shaft (the rest is reflected or scattered).
 pub const TRANSMISSION: f32 = 0.2;
+/// Amplitude reflection of the dilator's and catheter's polymer in tissue: PTFE (Z ≈ 3.0 MRayl;
+/// Selfridge, IEEE Trans. Sonics Ultrason. 1985) against 1.6, (3.0 − 1.6)/(3.0 + 1.6). Polyurethane
+/// (≈ 1.9 MRayl) reflects less; PTFE-coated dilators and the catheter's radiopaque filler more.
+pub const POLYMER_REFLECTION: f32 = 0.3;
+/// Share of the amplitude that passes a polymer wall, 1 − r².
+pub const POLYMER_TRANSMISSION: f32 = 0.91;
 /// Each reverberation echo's amplitude relative to the one before, and how many are drawn.
 pub const REVERB_DECAY: f32 = 0.55;
 pub const REVERB_ECHOES: u32 = 6;
@@ -28,6 +39,51 @@ pub struct NeedleHit {
     /// Specular strength: the sine of the angle between the beam and the shaft (1 across the
     /// beam, 0 along it).
     pub specular: f32,
+}
+
+/// How an instrument's material echoes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Echogenicity {
+    /// Amplitude reflected back along a line across the shaft.
+    pub reflection: f32,
+    /// Share of the amplitude that goes on past it.
+    pub transmission: f32,
+    /// Spacing of the comet tail's echoes (mm; the lumen's ringing), 0 for none.
+    pub ring_mm: f32,
+}
+
+impl Echogenicity {
+    /// The needle: hollow steel that rings in its lumen, one diameter per echo.
+    pub fn needle(diameter_mm: f32) -> Echogenicity {
+        Echogenicity {
+            reflection: STEEL_REFLECTION,
+            transmission: TRANSMISSION,
+            ring_mm: diameter_mm,
+        }
+    }
+
+    /// An instrument of the exchange by its kind.
+    pub fn of_line(kind: LineKind) -> Echogenicity {
+        match kind {
+            LineKind::GuideWire => Echogenicity {
+                reflection: STEEL_REFLECTION,
+                transmission: TRANSMISSION,
+                ring_mm: 0.0,
+            },
+            LineKind::Dilator | LineKind::Catheter => Echogenicity {
+                reflection: POLYMER_REFLECTION,
+                transmission: POLYMER_TRANSMISSION,
+                ring_mm: 0.0,
+            },
+        }
+    }
+}
+
+/// A scan line's first meeting with an instrument, and how that instrument echoes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InstrumentHit {
+    pub hit: NeedleHit,
+    pub echo: Echogenicity,
 }
 
 /// The first meeting of the line (origin, unit dir, length) with the needle's shaft (nodes from
