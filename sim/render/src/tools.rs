@@ -80,6 +80,11 @@ pub const FINGER_RADIUS_MM: f32 = 8.0;
 /// Tool colours (linear RGB 0 … 1).
 pub const SHAFT_RGB: Vec3 = Vec3::new(0.72, 0.74, 0.78);
 pub const HUB_RGB: Vec3 = Vec3::new(0.15, 0.35, 0.85);
+/// The exchange's instruments: a steel wire darker than the needle, a blue dilator, a white
+/// catheter.
+pub const WIRE_RGB: Vec3 = Vec3::new(0.50, 0.53, 0.58);
+pub const DILATOR_RGB: Vec3 = Vec3::new(0.45, 0.65, 0.92);
+pub const CATHETER_RGB: Vec3 = Vec3::new(0.93, 0.93, 0.90);
 pub const FINGER_RGB: Vec3 = Vec3::new(0.92, 0.72, 0.60);
 pub const PROBE_RGB: Vec3 = Vec3::new(0.25, 0.25, 0.28);
 /// The probe's transducer face, a little lighter than its body.
@@ -456,7 +461,8 @@ impl ToolState {
     /// The tools as at most [`MAX_PRIMITIVES`] primitives: the needle's segments as capsules of
     /// half its outer diameter (every k-th node when there are too many), the hub as a thicker
     /// capsule continuing backwards from the first node, the fingertip sphere, the probe's boxes
-    /// (and the convex probe's curved face).
+    /// (and the convex probe's curved face), the guide wire, dilator and catheter as capsules
+    /// like the needle's (the needle and the lines share what the other tools leave).
     pub fn primitives(&self) -> Vec<Primitive> {
         let mut out = Vec::new();
         if let Some(p) = &self.probe {
@@ -469,24 +475,20 @@ impl ToolState {
                 rgb: FINGER_RGB,
             });
         }
-        if let Some(n) = &self.needle
-            && n.nodes_mm.len() >= 2
-        {
-            let budget = MAX_PRIMITIVES - out.len() - 1;
-            let segs = n.nodes_mm.len() - 1;
-            let stride = segs.div_ceil(budget).max(1);
-            let r = n.diameter_mm * 0.5;
-            let mut i = 0;
-            while i < segs {
-                let j = (i + stride).min(segs);
-                out.push(Primitive::Capsule {
-                    a: n.nodes_mm[i],
-                    b: n.nodes_mm[j],
-                    radius: r,
-                    rgb: SHAFT_RGB,
-                });
-                i = j;
-            }
+        // What is left after the hub is shared between the needle and the exchange's lines.
+        let needle = self.needle.as_ref().filter(|n| n.nodes_mm.len() >= 2);
+        let polylines = usize::from(needle.is_some()) + self.lines.len();
+        let budget = (MAX_PRIMITIVES - out.len() - 1) / polylines.max(1);
+        for l in &self.lines {
+            let rgb = match l.kind {
+                LineKind::GuideWire => WIRE_RGB,
+                LineKind::Dilator => DILATOR_RGB,
+                LineKind::Catheter => CATHETER_RGB,
+            };
+            push_polyline(&mut out, &l.nodes_mm, l.diameter_mm * 0.5, rgb, budget);
+        }
+        if let Some(n) = needle {
+            push_polyline(&mut out, &n.nodes_mm, n.diameter_mm * 0.5, SHAFT_RGB, budget);
             // The hub: from the first node back by its length, its rounded ends inside that span.
             let back = -(n.nodes_mm[1] - n.nodes_mm[0]).normalize_or(Vec3::Z);
             let rh = n.hub_diameter_mm * 0.5;
@@ -608,6 +610,27 @@ impl ToolState {
             }
         }
         state
+    }
+}
+
+/// Capsules of `radius` along `nodes`, at most `budget` of them (every k-th node when there are
+/// more segments).
+fn push_polyline(out: &mut Vec<Primitive>, nodes: &[Vec3], radius: f32, rgb: Vec3, budget: usize) {
+    if budget == 0 || nodes.len() < 2 {
+        return;
+    }
+    let segs = nodes.len() - 1;
+    let stride = segs.div_ceil(budget).max(1);
+    let mut i = 0;
+    while i < segs {
+        let j = (i + stride).min(segs);
+        out.push(Primitive::Capsule {
+            a: nodes[i],
+            b: nodes[j],
+            radius,
+            rgb,
+        });
+        i = j;
     }
 }
 

@@ -264,6 +264,43 @@ fn tool_state_primitives() {
     assert!(close(h.t, 10.0 - 0.635, 1e-3), "{h:?}");
 }
 
+/// The exchange's instruments are drawn as capsules of their diameter in their colours; with a
+/// needle and many-noded lines, all of them reach their tips under the limit.
+#[test]
+fn the_wire_and_catheter_are_drawn_like_the_needle() {
+    use stylet_render::tools::{CATHETER_RGB, LineKind, LineShape, WIRE_RGB};
+    let straight =
+        |x: f32, n: usize| -> Vec<Vec3> { (0..n).map(|j| Vec3::new(x, 0.0, 100.0 - 0.5 * j as f32)).collect() };
+    let state = ToolState {
+        needle: Some(needle_shape(straight(0.0, 201))),
+        lines: vec![
+            LineShape {
+                kind: LineKind::GuideWire,
+                nodes_mm: straight(10.0, 256),
+                diameter_mm: 0.889,
+            },
+            LineShape {
+                kind: LineKind::Catheter,
+                nodes_mm: straight(20.0, 256),
+                diameter_mm: 2.67,
+            },
+        ],
+        ..Default::default()
+    };
+    let prims = state.primitives();
+    assert!(prims.len() <= MAX_PRIMITIVES, "{}", prims.len());
+    // Across each: its radius and its colour.
+    let h = nearest_hit(&prims, Vec3::new(5.0, -10.0, 50.0) + Vec3::X * 5.0, Vec3::Y, 100.0).unwrap();
+    assert!(close(h.t, 10.0 - 0.4445, 1e-4) && h.rgb == WIRE_RGB, "{h:?}");
+    let h = nearest_hit(&prims, Vec3::new(20.0, -10.0, 50.0), Vec3::Y, 100.0).unwrap();
+    assert!(close(h.t, 10.0 - 1.335, 1e-4) && h.rgb == CATHETER_RGB, "{h:?}");
+    // Each reaches its tip (z = 100 − 0.5 · 255 = −27.5 for the lines, 0 for the needle).
+    for (x, tip_z, r) in [(0.0, 0.0, 0.635), (10.0, -27.5, 0.4445), (20.0, -27.5, 1.335)] {
+        let h = nearest_hit(&prims, Vec3::new(x, 0.0, -40.0), Vec3::Z, 100.0).unwrap();
+        assert!(close(h.t, 40.0 + tip_z - r, 1e-3), "x {x}: {h:?}");
+    }
+}
+
 #[test]
 fn probes_are_posed_as_physics_presses_them() {
     // A linear probe pressing down (+z of the probe = −z of the world), array along world +y.
