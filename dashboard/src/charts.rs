@@ -66,7 +66,7 @@ pub fn comment_notes(annotations: &serde_json::Value) -> Vec<(f64, String)> {
 /// Force along the needle over time: the total and its cutting, friction and base components
 /// (eqs. 3.5.1–3.5.6), with the session's events as vertical markers. A session trained on a
 /// force-feedback device adds the force the device was sent (its magnitude) and shades where the
-/// device's guard zeroed or reduced it.
+/// device's guard zeroed or reduced it; a drainage session shades the steps of the exchange.
 pub fn force_chart(trace: &ReviewTrace, title: &str) -> LineChart {
     let t = &trace.t_s;
     let mut series = vec![
@@ -90,9 +90,28 @@ pub fn force_chart(trace: &ReviewTrace, title: &str) -> LineChart {
         y_label: "force along the needle (N)".into(),
         series,
         markers: markers(trace),
-        bands: guard_bands(trace),
+        bands: phase_bands(trace).into_iter().chain(guard_bands(trace)).collect(),
         ..Default::default()
     }
+}
+
+/// A drainage session's steps after the puncture (the guide wire in, a dilator on it, the
+/// catheter on it or placed), each shaded in its colour; the puncture before them is not.
+pub fn phase_bands(trace: &ReviewTrace) -> Vec<(f64, f64, ChartColor, String)> {
+    use stylet_scoring::drainage::Step;
+    trace
+        .phases
+        .iter()
+        .filter_map(|p| {
+            let color = match p.step {
+                Step::Puncture => return None,
+                Step::Wire => palette::WIRE_STEP,
+                Step::Dilator => palette::DILATOR_STEP,
+                Step::Catheter => palette::CATHETER_STEP,
+            };
+            Some((p.from_s, p.to_s, color, format!("step: {}", p.step.label())))
+        })
+        .collect()
 }
 
 /// Where a device's force guard zeroed the force (held, watchdog, waiting to engage) or reduced
@@ -319,6 +338,7 @@ mod tests {
             sent_n: Vec::new(),
             guard: Vec::new(),
             tip_hidden: Vec::new(),
+            phases: Vec::new(),
         }
     }
 
@@ -556,6 +576,43 @@ mod tests {
         }
         let plain = force_chart(&trace(), "Force");
         assert!(plain.bands.is_empty() && plain.series.len() == 4);
+    }
+
+    /// A drainage session: the exchange's steps shaded on the force chart in time order, each
+    /// named once in the legend; the puncture before them is not shaded.
+    #[test]
+    fn the_steps_of_a_drainage_are_shaded_on_the_force_chart() {
+        use stylet_scoring::drainage::Step;
+        use stylet_scoring::trace::TracePhase;
+        let mut t = trace();
+        let phase = |step, from_s, to_s| TracePhase { step, from_s, to_s };
+        t.phases = vec![
+            phase(Step::Puncture, 0.0, 0.5),
+            phase(Step::Wire, 0.5, 1.0),
+            phase(Step::Dilator, 1.0, 1.2),
+            phase(Step::Wire, 1.2, 1.4),
+            phase(Step::Catheter, 1.4, 2.0),
+        ];
+        let chart = force_chart(&t, "Force");
+        let bands: Vec<(f64, f64, &str)> = chart.bands.iter().map(|(a, b, _, l)| (*a, *b, l.as_str())).collect();
+        assert_eq!(
+            bands,
+            [
+                (0.5, 1.0, "step: guide wire"),
+                (1.0, 1.2, "step: dilator"),
+                (1.2, 1.4, "step: guide wire"),
+                (1.4, 2.0, "step: drainage catheter"),
+            ]
+        );
+        let svg = texts(&inline_svg(&chart).unwrap());
+        for want in ["step: guide wire", "step: dilator", "step: drainage catheter"] {
+            assert_eq!(
+                svg.iter().filter(|x| *x == want).count(),
+                1,
+                "{want} once in the legend"
+            );
+        }
+        assert!(!svg.iter().any(|x| x.contains("puncture")));
     }
 
     /// A two-handed session: the spans with the tip out of the live image shaded on the depth

@@ -33,6 +33,10 @@ pub mod palette {
     pub const REDUCED: RGBColor = RGBColor(230, 171, 2);
     /// The spans a two-handed session's needle tip was out of the live ultrasound image.
     pub const HIDDEN: RGBColor = RGBColor(120, 120, 170);
+    /// A drainage session's steps after the puncture: the guide wire, the dilator, the catheter.
+    pub const WIRE_STEP: RGBColor = RGBColor(90, 110, 130);
+    pub const DILATOR_STEP: RGBColor = RGBColor(230, 120, 20);
+    pub const CATHETER_STEP: RGBColor = RGBColor(40, 150, 80);
     pub const BEGINNER: RGBColor = RGBColor(0, 128, 128);
     pub const ADVANCED: RGBColor = RGBColor(191, 144, 0);
     pub const EXPERT: RGBColor = RGBColor(199, 21, 133);

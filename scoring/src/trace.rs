@@ -13,15 +13,18 @@
 //! slices through it): neither can be recovered from the 20 ms buckets. Version 3: a puncture's
 //! peak is the largest force while the tip is in the structure (it was the one before entry).
 //! Version 7: a `complication` event marks when each haematoma, pneumothorax or bile leak began.
+//! Version 8: a drainage session's phases — the puncture, then the guide wire, dilator and catheter
+//! steps of the exchange ([`TracePhase`]).
 
 use serde::{Deserialize, Serialize};
 use stylet_physics::glam::DVec3;
 use stylet_physics::{Event, LabelId, TickInput, TickOutput};
 
+use crate::drainage::Step;
 use crate::metrics::{Metrics, RiskHit};
 
 /// Format version of [`ReviewTrace`] (stored traces of another version are rebuilt).
-pub const TRACE_VERSION: u32 = 7;
+pub const TRACE_VERSION: u32 = 8;
 
 /// At most this many punctures are kept per session (a trainee jiggling at a boundary cannot grow
 /// the trace without bound).
@@ -78,6 +81,19 @@ pub struct ReviewTrace {
     /// image at some tick of each bucket with the needle in the body; empty for one-handed ones.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub tip_hidden: Vec<bool>,
+    /// Sessions in which a guide wire went in: the stretches of each step of the exchange, in
+    /// time order, covering the session; empty for a puncture alone.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub phases: Vec<TracePhase>,
+}
+
+/// A stretch of a session in one step of the exchange (`crate::drainage::Step::of` its ticks).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TracePhase {
+    pub step: Step,
+    /// Its first tick's start and its last tick's end (s).
+    pub from_s: f64,
+    pub to_s: f64,
 }
 
 /// The needle tip entered a structure for the first time in an attempt (advancing, at the deepest
@@ -249,6 +265,8 @@ fn peak(slot: &mut f64, v: f64) {
 /// Collects a [`ReviewTrace`] tick by tick during a replay.
 pub struct TraceCollector {
     trace: ReviewTrace,
+    /// One tick (s).
+    tick_s: f64,
     in_bucket: u64,
     /// Tip label of the previous tick (0 outside the body).
     prev_label: LabelId,
@@ -283,7 +301,9 @@ impl TraceCollector {
                 sent_n: Vec::new(),
                 guard: Vec::new(),
                 tip_hidden: Vec::new(),
+                phases: Vec::new(),
             },
+            tick_s: 1.0 / rate,
             in_bucket: 0,
             prev_label: 0,
             attempt_deepest_mm: 0.0,
@@ -295,6 +315,7 @@ impl TraceCollector {
 
     pub fn tick(&mut self, input: &TickInput, out: &TickOutput) {
         self.punctures(out, -out.force_n.dot(out.insertion_dir));
+        self.phase(out);
         let t = &mut self.trace;
         if self.in_bucket == 0 {
             t.t_s.push(out.time_s);
@@ -345,6 +366,16 @@ impl TraceCollector {
                 kind: e.name().to_string(),
                 label,
             });
+        }
+    }
+
+    /// Extends the current phase by this tick, or starts the next.
+    fn phase(&mut self, out: &TickOutput) {
+        let step = Step::of(out);
+        let (from_s, to_s) = (out.time_s, out.time_s + self.tick_s);
+        match self.trace.phases.last_mut() {
+            Some(p) if p.step == step => p.to_s = to_s,
+            _ => self.trace.phases.push(TracePhase { step, from_s, to_s }),
         }
     }
 
@@ -451,6 +482,9 @@ impl TraceCollector {
     pub fn finish(mut self, metrics: &Metrics) -> ReviewTrace {
         self.add_risk_points(&metrics.risk_hits);
         let t = &mut self.trace;
+        if t.phases.iter().all(|p| p.step == Step::Puncture) {
+            t.phases.clear();
+        }
         for d in &mut t.tip_depth_mm {
             if !d.is_finite() {
                 *d = 0.0;
@@ -606,6 +640,7 @@ mod tests {
             sent_n: Vec::new(),
             guard: Vec::new(),
             tip_hidden: Vec::new(),
+            phases: Vec::new(),
         };
         assert_eq!(trace.tip_stays().len(), 2);
         let path: Vec<f64> = trace.final_approach().unwrap().iter().map(|v| v.z).collect();

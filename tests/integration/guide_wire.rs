@@ -195,9 +195,31 @@ fn the_full_ptcd_replays_bit_for_bit() {
     assert_eq!(first, digests().0);
     let dir = tempfile::tempdir().unwrap();
     let path = record_script(atlas, dir.path(), "full-ptcd", "beginner", &text);
-    let report = score_session(atlas, &path);
+    let session = stylet_recorder::reader::verify(&path).unwrap();
+    let (report, trace) = stylet_scoring::Scorer::new(atlas, stylet_scoring::Rubric::default_rubric(), None)
+        .unwrap()
+        .score_session_traced(&session)
+        .unwrap();
     assert!(report.replay_verified, "{:?}", report.divergence);
     assert!(report.digests_checked > 50);
+    // The review's timeline: the puncture, the wire, the dilator on it and off, the catheter,
+    // each phase from its step's event (the script's times) to the next.
+    use stylet_scoring::drainage::Step;
+    let phases: Vec<(Step, f64, f64)> = trace
+        .phases
+        .iter()
+        .map(|p| (p.step, (p.from_s * 10.0).round() / 10.0, (p.to_s * 10.0).round() / 10.0))
+        .collect();
+    assert_eq!(
+        phases,
+        [
+            (Step::Puncture, 0.0, 14.0),
+            (Step::Wire, 14.0, 29.0),
+            (Step::Dilator, 29.0, 38.5),
+            (Step::Wire, 38.5, 39.0),
+            (Step::Catheter, 39.0, 54.0),
+        ]
+    );
     // Scored as documented (docs/metrics.md "Drainage"): the wire in the ducts, one pass of each
     // tool, the catheter draining through all six holes, fluoroscopy counted per step; nothing
     // in the reasons about the exchange.

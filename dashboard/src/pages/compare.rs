@@ -459,6 +459,7 @@ mod tests {
             sent_n: Vec::new(),
             guard: Vec::new(),
             tip_hidden: Vec::new(),
+            phases: Vec::new(),
         }
     }
 

@@ -81,6 +81,21 @@ pub fn force_chart(
         );
         t += step;
     }
+    // A drainage session's steps after the puncture, shaded under the curve and named.
+    for p in &trace.phases {
+        let Some(rgb) = phase_color(p.step) else { continue };
+        let band = egui::Rect::from_x_y_ranges(x(p.from_s)..=x(p.to_s), plot.top()..=plot.bottom());
+        painter.rect_filled(band, 0.0, rgb.gamma_multiply(0.18));
+        if band.width() > 40.0 {
+            painter.text(
+                band.left_top() + egui::vec2(3.0, 2.0),
+                egui::Align2::LEFT_TOP,
+                p.step.label(),
+                font.clone(),
+                rgb,
+            );
+        }
+    }
     let points: Vec<egui::Pos2> = trace
         .t_s
         .iter()
@@ -119,6 +134,17 @@ pub fn force_chart(
         return Some((f64::from((p.x - plot.left()) / plot.width())).clamp(0.0, 1.0) * duration_s);
     }
     None
+}
+
+/// The shade of a drainage step (the dashboard's colours); none for the puncture.
+fn phase_color(step: stylet_scoring::drainage::Step) -> Option<egui::Color32> {
+    use stylet_scoring::drainage::Step;
+    match step {
+        Step::Puncture => None,
+        Step::Wire => Some(egui::Color32::from_rgb(140, 165, 190)),
+        Step::Dilator => Some(egui::Color32::from_rgb(230, 120, 20)),
+        Step::Catheter => Some(egui::Color32::from_rgb(60, 180, 100)),
+    }
 }
 
 /// A tick spacing of 1, 2 or 5 × 10ⁿ seconds giving about 8 ticks.
