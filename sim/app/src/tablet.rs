@@ -38,7 +38,7 @@ const SHUTDOWN_GRACE: Duration = Duration::from_secs(2);
 const COOKIE: &str = "stylet_tablet";
 
 /// The buttons, in page order: form value, label, command.
-pub const BUTTONS: [(&str, &str, Command); 11] = [
+pub const BUTTONS: [(&str, &str, Command); 12] = [
     ("finger", "Finger", Command::Tool(ToolSpec::Finger)),
     (
         "linear",
@@ -61,6 +61,14 @@ pub const BUTTONS: [(&str, &str, Command); 11] = [
     ),
     ("stylet", "Stylet out / in", Command::ToggleStylet),
     ("contrast", "Contrast 1 ml", Command::Contrast { ml: 1.0 }),
+    // The window gives the wire the needle in hand takes.
+    (
+        "next",
+        "Drainage: next step",
+        Command::NextStep {
+            wire: stylet_physics::wire::WireDiameter::In035,
+        },
+    ),
     ("fluoro", "Fluoroscopy on / off", Command::ToggleFluoroscopy),
     ("shot", "X-ray shot", Command::XrayShot),
     ("breath", "Breath hold / release", Command::ToggleBreathHold),
@@ -283,8 +291,9 @@ async fn page(State(state): State<AppState>, headers: HeaderMap) -> Response {
     let groups = [
         ("Tool", 0, 4),
         ("Needle", 4, 6),
-        ("Imaging and patient", 6, 9),
-        ("Session", 9, 11),
+        ("Drainage", 6, 7),
+        ("Imaging and patient", 7, 10),
+        ("Session", 10, 12),
     ];
     let mut body = String::new();
     for (heading, from, to) in groups {
@@ -437,6 +446,9 @@ mod tests {
         assert_eq!(post(&base, "/command", "cmd=contrast", Some(&cookie)).0, 303);
         assert_eq!(rx.try_recv().unwrap(), Command::ToggleStylet);
         assert_eq!(rx.try_recv().unwrap(), Command::Contrast { ml: 1.0 });
+        assert!(buttons.contains("Drainage: next step"), "{buttons}");
+        assert_eq!(post(&base, "/command", "cmd=next", Some(&cookie)).0, 303);
+        assert!(matches!(rx.try_recv().unwrap(), Command::NextStep { .. }));
         assert_eq!(post(&base, "/command", "cmd=selfdestruct", Some(&cookie)).0, 400);
         assert!(rx.try_recv().is_err(), "nothing sent for an unknown button");
         // Bodies over 1 KiB are refused.
