@@ -1,5 +1,7 @@
 //! Replay speed per tool (goal: ≥ 500× real time for every tool, ≥ 1000× for the needle): the
 //! example scripts `two-attempts` (34 s) and `success-intercostal` (20 s) with the needle,
+//! `full-ptcd` (54 s: the needle, then the guide wire, dilator and catheter; the atlas keeps the
+//! ducts' channel after the first replay, so the steady figures leave its one-off build out),
 //! `palpation-sweep` (16 s) with the finger, `probe-parallel` (16 s) with the linear probe and
 //! the same motion with the convex probe, recorded on the default phantom, replayed through the
 //! physics with every output and digest checked, with and without the metrics. Baseline in the
@@ -81,6 +83,7 @@ fn replay_bench(c: &mut Criterion) {
     for (name, file, convex) in [
         ("two-attempts", "two-attempts", false),
         ("success-intercostal", "success-intercostal", false),
+        ("full-ptcd", "full-ptcd", false),
         ("palpation-sweep", "palpation-sweep", false),
         ("probe-parallel", "probe-parallel", false),
         ("probe-parallel-convex", "probe-parallel", true),

@@ -53,20 +53,20 @@ impl HilumDistance {
     /// The distance from the lumen voxel `hilum` (linear index): Dijkstra over the 26 neighbours,
     /// each step as long as the line between the voxels' centres.
     pub fn from_voxel(grid: &Grid, lumen: &[bool], hilum: usize) -> HilumDistance {
-        let mut along = vec![UNREACHED; grid.len()];
+        // The best distance found so far per voxel, kept in f32 (the map's own precision; one
+        // array of the grid's size): the queue carries the exact f64 sums.
+        let mut best = vec![f32::INFINITY; grid.len()];
         let [nx, ny, nz] = grid.dims();
         let steps = neighbour_steps(grid);
-        let mut best = vec![f64::INFINITY; grid.len()];
         let mut queue = BinaryHeap::new();
         if lumen.get(hilum).copied().unwrap_or(false) {
             best[hilum] = 0.0;
             queue.push(Entry { mm: 0.0, voxel: hilum });
         }
         while let Some(Entry { mm, voxel }) = queue.pop() {
-            if mm > best[voxel] {
+            if mm as f32 > best[voxel] {
                 continue;
             }
-            along[voxel] = mm as f32;
             let [i, j, k] = grid.unlinear(voxel);
             for &([di, dj, dk], step_mm) in &steps {
                 let (Some(a), Some(b), Some(c)) = (
@@ -78,13 +78,18 @@ impl HilumDistance {
                 };
                 let n = grid.linear(a, b, c);
                 let to_mm = mm + step_mm;
-                if lumen[n] && to_mm < best[n] {
-                    best[n] = to_mm;
+                if lumen[n] && (to_mm as f32) < best[n] {
+                    best[n] = to_mm as f32;
                     queue.push(Entry { mm: to_mm, voxel: n });
                 }
             }
         }
-        let along_ducts_mm = Volume::new(*grid, along).expect("one value per voxel of the grid");
+        for b in &mut best {
+            if !b.is_finite() {
+                *b = UNREACHED;
+            }
+        }
+        let along_ducts_mm = Volume::new(*grid, best).expect("one value per voxel of the grid");
         HilumDistance { along_ducts_mm, hilum }
     }
 
