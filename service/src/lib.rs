@@ -39,7 +39,7 @@ pub mod users;
 pub mod worker;
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 pub use limits::Limits;
@@ -114,6 +114,35 @@ impl AppState {
     }
 }
 
+/// This server's name among the replicas on its database: kept in `DATA/replica-id` (made on
+/// the first start), so that a restart knows which running jobs were its own. Each replica has a
+/// data directory of its own (one server serves a data directory).
+fn replica_name(data_dir: &Path) -> Result<String, String> {
+    let file = data_dir.join("replica-id");
+    match std::fs::read_to_string(&file) {
+        Ok(s)
+            if !s.trim().is_empty()
+                && s.trim().len() <= 64
+                && s.trim().bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-') =>
+        {
+            Ok(s.trim().to_string())
+        }
+        Ok(_) => Err(format!(
+            "{}: not a replica name (letters, digits and -, at most 64)",
+            file.display()
+        )),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            let name = store::new_id();
+            let tmp = data_dir.join("replica-id.tmp");
+            std::fs::write(&tmp, format!("{name}\n"))
+                .and_then(|()| std::fs::rename(&tmp, &file))
+                .map_err(|e| format!("{}: {e}", file.display()))?;
+            Ok(name)
+        }
+        Err(e) => Err(format!("{}: {e}", file.display())),
+    }
+}
+
 /// `DATA/atlases`: the published atlases of the service whose data directory is `data_dir`.
 pub fn published_dir(data_dir: &std::path::Path) -> PathBuf {
     data_dir.join("atlases")
@@ -146,7 +175,8 @@ pub async fn serve(
     let setup = |e: &dyn std::fmt::Display| ServiceError::Setup(e.to_string());
     std::fs::create_dir_all(config.data_dir.join("sessions"))
         .map_err(|e| setup(&format!("{}: {e}", config.data_dir.display())))?;
-    let store = Store::open(&config.database_url()).await?;
+    let replica = replica_name(&config.data_dir).map_err(|e| setup(&e))?;
+    let store = Store::open(&config.database_url()).await?.with_replica(&replica);
     let catalogue = Arc::new(catalogue::Catalogue::new(config.limits.atlas_cache_bytes));
     // The configured directory's atlases, then the published ones the database records (a
     // folder of the atlas store without its publication record is not served). Loaded one at
@@ -199,9 +229,9 @@ pub async fn serve(
         tracing::info!(atlas = %atlas.manifest.name, hash = %atlas.content_hash, origin = origin.as_str(), withdrawn, "atlas ready");
         catalogue.insert(atlas, scorer, origin, withdrawn);
     }
-    let requeued = store.requeue_running().await?;
+    let requeued = store.release_own_leases().await?;
     if requeued > 0 {
-        tracing::info!(requeued, "resuming scoring jobs a previous run left unfinished");
+        tracing::info!(requeued, %replica, "resuming scoring jobs this replica's previous run left unfinished");
     }
     let listener = tokio::net::TcpListener::bind(&config.bind)
         .await

@@ -1,5 +1,6 @@
 //! The scoring worker pool: one dispatcher claims queued jobs from the database (so jobs survive
-//! restarts) and runs each replay on a blocking thread, at most `workers` at a time.
+//! restarts, and replicas on one database share them) and runs each replay on a blocking thread,
+//! at most `workers` at a time, renewing the job's lease while it runs.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -35,11 +36,39 @@ pub fn start(state: Arc<AppState>) {
             let state = state.clone();
             tokio::spawn(async move {
                 let _permit = permit;
+                if job.attempts > MAX_ATTEMPTS {
+                    let why = format!(
+                        "claimed {} times without a result (each time the replica scoring it stopped, or its file could not be read)",
+                        job.attempts - 1
+                    );
+                    store_outcome(&state, &job, Outcome::Failed(why)).await;
+                    return;
+                }
+                let heartbeat = tokio::spawn(renew_while_running(state.clone(), job.clone()));
                 let outcome = replay(&state, &job).await;
                 store_outcome(&state, &job, outcome).await;
+                heartbeat.abort();
             });
         }
     });
+}
+
+/// Renews the job's lease every third of its length until aborted; stops when the job is no
+/// longer this replica's (its result will then not be stored: another replica's will).
+async fn renew_while_running(state: Arc<AppState>, job: super::store::Job) {
+    let mut every = tokio::time::interval(state.store.job_lease() / 3);
+    every.tick().await;
+    loop {
+        every.tick().await;
+        match state.store.renew_lease(&job).await {
+            Ok(true) => {}
+            Ok(false) => {
+                tracing::warn!(session = %job.session_id, "the scoring job's lease was lost: another replica has it");
+                return;
+            }
+            Err(e) => tracing::warn!(session = %job.session_id, error = %e, "cannot renew a scoring job's lease"),
+        }
+    }
 }
 
 /// How a replay ended.
@@ -125,11 +154,13 @@ const MAX_BACKOFF: Duration = Duration::from_secs(60);
 /// Claims of a job whose file cannot be read before it is marked failed (about 7 minutes of
 /// back-off in all).
 const MAX_READ_ATTEMPTS: i64 = 10;
+/// Claims of a job in all (retries and replicas that died while scoring it) before it fails.
+const MAX_ATTEMPTS: i64 = 12;
 
 /// Stores what a replay gave. If the store cannot write (a read-only or failing disk), the
 /// result is kept and stored again with back-off until it can: a finished replay is never lost
-/// and its session never left `scoring`. (If the process dies meanwhile, the next start
-/// re-queues the job.)
+/// and its session never left `scoring`. (If the process dies meanwhile, its lease runs out and
+/// another replica, or this one restarted, claims the job again.)
 async fn store_outcome(state: &Arc<AppState>, job: &super::store::Job, outcome: Outcome) {
     let outcome = match outcome {
         Outcome::Retry(e) if job.attempts >= MAX_READ_ATTEMPTS => {
@@ -167,8 +198,8 @@ async fn store_outcome(state: &Arc<AppState>, job: &super::store::Job, outcome: 
                 wait = (wait * 2).min(MAX_BACKOFF);
             }
             (Err(e), _) => {
-                // Not the disk: retrying would not help. The job stays running and is queued
-                // again at the next start.
+                // Not the disk: retrying would not help. The job stays running until its lease
+                // runs out; then it is claimed again.
                 tracing::error!(session = %job.session_id, error = %e, "cannot store the result");
                 return;
             }

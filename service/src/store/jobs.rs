@@ -6,52 +6,95 @@ use stylet_scoring::{Exercise, Outcome};
 
 use super::{SessionStatus, Store, StoreError, now};
 
+/// Which jobs may be claimed at `$1` (now): queued ones past their back-off, and running ones
+/// whose lease ran out (their replica died; `NULL`: claimed by a server from before leases).
+const CLAIMABLE: &str = "((j.state = 'queued' AND (j.not_before IS NULL OR j.not_before <= $1)) \
+     OR (j.state = 'running' AND (j.lease_until IS NULL OR j.lease_until < $1)))";
+
+/// The RFC 3339 time `after` from now, comparable with [`now`].
+fn from_now(after: std::time::Duration) -> String {
+    humantime::format_rfc3339_micros(std::time::SystemTime::now() + after).to_string()
+}
+
 impl Store {
-    /// At start: jobs a killed server left running go back to the queue. This assumes one server
-    /// per database (docs/api.md): a second server starting would re-queue the first one's running
-    /// jobs; they would be replayed again, yet still stored once ([`Store::finish_job`]) and never
-    /// marked failed after a success ([`Store::fail_job`]).
-    pub async fn requeue_running(&self) -> Result<u64, StoreError> {
-        let r = sqlx::query("UPDATE scoring_jobs SET state = 'queued', started_at = NULL WHERE state = 'running'")
-            .execute(&self.pool)
-            .await?;
-        sqlx::query("UPDATE sessions SET status = $1 WHERE status = $2")
-            .bind(SessionStatus::Queued.as_str())
-            .bind(SessionStatus::Scoring.as_str())
-            .execute(&self.pool)
-            .await?;
+    /// At start: the jobs this replica held when its previous run stopped (killed, or the
+    /// machine lost) go back to the queue at once; other replicas' jobs are theirs until their
+    /// leases run out. Returns how many.
+    pub async fn release_own_leases(&self) -> Result<u64, StoreError> {
+        let mut tx = self.begin_write().await?;
+        sqlx::query(
+            "UPDATE sessions SET status = $1 WHERE id IN \
+             (SELECT session_id FROM scoring_jobs WHERE state = 'running' AND lease_owner = $2)",
+        )
+        .bind(SessionStatus::Queued.as_str())
+        .bind(self.replica.to_string())
+        .execute(&mut *tx)
+        .await?;
+        let r = sqlx::query(
+            "UPDATE scoring_jobs SET state = 'queued', started_at = NULL, lease_owner = NULL, lease_until = NULL \
+             WHERE state = 'running' AND lease_owner = $1",
+        )
+        .bind(self.replica.to_string())
+        .execute(&mut *tx)
+        .await?;
+        tx.commit().await?;
         Ok(r.rows_affected())
     }
 
-    /// Takes the oldest queued job. One dispatcher per server claims jobs; the conditional update
-    /// also keeps two servers on one database from taking the same job.
+    /// Claims the oldest claimable job with a lease of [`Store::with_job_lease`] for this
+    /// replica. PostgreSQL picks it `FOR UPDATE SKIP LOCKED`, so replicas claiming at once take
+    /// different jobs without waiting on each other; SQLite has one writer at a time, and the
+    /// pick and the claim happen under its write lock. Either way the claim is conditional: a
+    /// job is claimed by one replica at a time.
     pub async fn claim_job(&self) -> Result<Option<Job>, StoreError> {
-        let row = sqlx::query(
-            "SELECT j.id, j.session_id, j.attempts, s.file_sha256, s.atlas_hash FROM scoring_jobs j JOIN sessions s ON s.id = j.session_id \
-             WHERE j.state = 'queued' AND (j.not_before IS NULL OR j.not_before <= $1) ORDER BY j.created_at, j.id LIMIT 1",
-        )
-        .bind(now())
-        .fetch_optional(&self.pool)
-        .await?;
-        let Some(row) = row else { return Ok(None) };
-        let job = Job {
-            id: row.try_get("id")?,
-            session_id: row.try_get("session_id")?,
-            attempts: row.try_get::<i64, _>("attempts")? + 1,
-            file_sha256: row.try_get("file_sha256")?,
-            atlas_hash: row.try_get("atlas_hash")?,
+        let now = now();
+        let until = from_now(self.job_lease);
+        let pick = if self.sqlite {
+            format!("SELECT j.id FROM scoring_jobs j WHERE {CLAIMABLE} ORDER BY j.created_at, j.id LIMIT 1")
+        } else {
+            format!(
+                "SELECT j.id FROM scoring_jobs j WHERE {CLAIMABLE} ORDER BY j.created_at, j.id LIMIT 1 FOR UPDATE SKIP LOCKED"
+            )
         };
         let mut tx = self.begin_write().await?;
-        let claimed = sqlx::query("UPDATE scoring_jobs SET state = 'running', started_at = $1, attempts = attempts + 1 WHERE id = $2 AND state = 'queued'")
-            .bind(now())
-            .bind(job.id.clone())
-            .execute(&mut *tx)
-            .await?;
+        let Some(id) = sqlx::query(sqlx::AssertSqlSafe(pick))
+            .bind(now.clone())
+            .fetch_optional(&mut *tx)
+            .await?
+            .map(|r| r.try_get::<String, _>("id"))
+            .transpose()?
+        else {
+            tx.rollback().await?;
+            return Ok(None);
+        };
+        let claimed = sqlx::query(sqlx::AssertSqlSafe(format!(
+            "UPDATE scoring_jobs SET state = 'running', started_at = $1, attempts = attempts + 1, lease_owner = $2, \
+             lease_until = $3 WHERE id = $4 AND id IN (SELECT j.id FROM scoring_jobs j WHERE {CLAIMABLE})"
+        )))
+        .bind(now.clone())
+        .bind(self.replica.to_string())
+        .bind(until)
+        .bind(id.clone())
+        .execute(&mut *tx)
+        .await?;
         if claimed.rows_affected() != 1 {
-            // Another server on the same database took it first.
             tx.rollback().await?;
             return Ok(None);
         }
+        let row = sqlx::query(
+            "SELECT j.id, j.session_id, j.attempts, s.file_sha256, s.atlas_hash FROM scoring_jobs j \
+             JOIN sessions s ON s.id = j.session_id WHERE j.id = $1",
+        )
+        .bind(id)
+        .fetch_one(&mut *tx)
+        .await?;
+        let job = Job {
+            id: row.try_get("id")?,
+            session_id: row.try_get("session_id")?,
+            attempts: row.try_get("attempts")?,
+            file_sha256: row.try_get("file_sha256")?,
+            atlas_hash: row.try_get("atlas_hash")?,
+        };
         sqlx::query("UPDATE sessions SET status = $2 WHERE id = $1")
             .bind(job.session_id.clone())
             .bind(SessionStatus::Scoring.as_str())
@@ -61,6 +104,20 @@ impl Store {
         Ok(Some(job))
     }
 
+    /// Renews this replica's lease on a job it is replaying; `false` when the job is no longer
+    /// its (the lease ran out and another replica claimed it, or it was closed).
+    pub async fn renew_lease(&self, job: &Job) -> Result<bool, StoreError> {
+        let r = sqlx::query(
+            "UPDATE scoring_jobs SET lease_until = $1 WHERE id = $2 AND state = 'running' AND lease_owner = $3",
+        )
+        .bind(from_now(self.job_lease))
+        .bind(job.id.clone())
+        .bind(self.replica.to_string())
+        .execute(&self.pool)
+        .await?;
+        Ok(r.rows_affected() == 1)
+    }
+
     /// Stores a score and closes its job in one transaction, unless the job is no longer this
     /// worker's (finished elsewhere, or its session deleted meanwhile); a second score for the
     /// same session is refused by the key (never scored twice).
@@ -68,9 +125,10 @@ impl Store {
         let json = serde_json::to_string(report).map_err(|e| StoreError::Invalid(e.to_string()))?;
         let mut tx = self.begin_write().await?;
         let closed =
-            sqlx::query("UPDATE scoring_jobs SET state = 'done', finished_at = $1 WHERE id = $2 AND state = 'running'")
+            sqlx::query("UPDATE scoring_jobs SET state = 'done', finished_at = $1, lease_until = NULL WHERE id = $2 AND state = 'running' AND lease_owner = $3")
                 .bind(now())
                 .bind(job.id.clone())
+                .bind(self.replica.to_string())
                 .execute(&mut *tx)
                 .await?;
         if closed.rows_affected() != 1 {
@@ -105,10 +163,12 @@ impl Store {
         let not_before = humantime::format_rfc3339_micros(std::time::SystemTime::now() + after).to_string();
         let mut tx = self.begin_write().await?;
         let back = sqlx::query(
-            "UPDATE scoring_jobs SET state = 'queued', started_at = NULL, not_before = $1 WHERE id = $2 AND state = 'running'",
+            "UPDATE scoring_jobs SET state = 'queued', started_at = NULL, not_before = $1, lease_owner = NULL, lease_until = NULL \
+             WHERE id = $2 AND state = 'running' AND lease_owner = $3",
         )
         .bind(not_before)
         .bind(job.id.clone())
+        .bind(self.replica.to_string())
         .execute(&mut *tx)
         .await?;
         if back.rows_affected() != 1 {
@@ -129,10 +189,12 @@ impl Store {
     pub async fn fail_job(&self, job: &Job, error: &str) -> Result<(), StoreError> {
         let mut tx = self.begin_write().await?;
         let closed = sqlx::query(
-            "UPDATE scoring_jobs SET state = 'failed', finished_at = $1 WHERE id = $2 AND state = 'running'",
+            "UPDATE scoring_jobs SET state = 'failed', finished_at = $1, lease_until = NULL WHERE id = $2 AND state = 'running' \
+             AND lease_owner = $3",
         )
         .bind(now())
         .bind(job.id.clone())
+        .bind(self.replica.to_string())
         .execute(&mut *tx)
         .await?;
         if closed.rows_affected() != 1 {
@@ -417,6 +479,158 @@ mod tests {
     async fn numbers_after_nulls_are_stored_postgres() {
         let url = super::super::fresh_postgres_database("nulls").await;
         numbers_after_nulls_are_stored(Store::open(&url).await.unwrap()).await;
+    }
+
+    /// A trainee and `n` uploaded sessions (each with its queued job) in `store`.
+    async fn sessions(store: &Store, n: usize) -> Vec<String> {
+        store.register_atlas("atlas-hash", "phantom", "/nowhere").await.unwrap();
+        let trainee = store
+            .add_user("tina", "trainee", "tina-password", None, None)
+            .await
+            .unwrap();
+        let mut out = Vec::new();
+        for k in 0..n {
+            out.push(
+                store
+                    .insert_session(&NewSession {
+                        file_sha256: format!("{k:064x}"),
+                        size_bytes: 10,
+                        session_uuid: new_id(),
+                        trainee_id: trainee.clone(),
+                        uploaded_by: trainee.clone(),
+                        scenario: "success".into(),
+                        difficulty: "beginner".into(),
+                        atlas_hash: "atlas-hash".into(),
+                        physics_version: 2,
+                        duration_s: 1.0,
+                        recorded_at: now(),
+                    })
+                    .await
+                    .unwrap(),
+            );
+        }
+        out
+    }
+
+    async fn scores_of(store: &Store, session_id: &str) -> i64 {
+        sqlx::query("SELECT COUNT(*) AS n FROM scores WHERE session_id = $1")
+            .bind(session_id.to_string())
+            .fetch_one(&store.pool)
+            .await
+            .unwrap()
+            .try_get("n")
+            .unwrap()
+    }
+
+    /// Two replicas on one database: a claimed job stays its claimer's while the claimer renews
+    /// its lease; when the renewals stop (the replica died) the other replica takes it over, and
+    /// the first one's late result is neither stored nor able to fail the job.
+    async fn a_dead_replicas_job_is_taken_over(url: &str) {
+        let lease = std::time::Duration::from_millis(400);
+        let a = Store::open(url)
+            .await
+            .unwrap()
+            .with_replica("replica-a")
+            .with_job_lease(lease);
+        let b = Store::open(url)
+            .await
+            .unwrap()
+            .with_replica("replica-b")
+            .with_job_lease(lease);
+        let session_id = sessions(&a, 1).await.remove(0);
+        let job_a = a.claim_job().await.unwrap().expect("the queued job");
+        assert_eq!(job_a.attempts, 1);
+        assert!(b.claim_job().await.unwrap().is_none(), "held by replica a");
+        for _ in 0..3 {
+            tokio::time::sleep(lease / 2).await;
+            assert!(a.renew_lease(&job_a).await.unwrap());
+            assert!(b.claim_job().await.unwrap().is_none(), "renewed by replica a");
+        }
+        // Replica a dies: no more renewals.
+        tokio::time::sleep(lease + lease / 2).await;
+        let job_b = b.claim_job().await.unwrap().expect("taken over");
+        assert_eq!((job_b.id.as_str(), job_b.attempts), (job_a.id.as_str(), 2));
+        assert!(!a.renew_lease(&job_a).await.unwrap(), "no longer replica a's");
+        let report: stylet_scoring::ScoreReport =
+            serde_json::from_str(include_str!("../../tests/data/report.json")).unwrap();
+        let report = stylet_scoring::ScoreReport {
+            session_id: session_id.clone(),
+            ..report
+        };
+        a.finish_job(&job_a, &report).await.unwrap();
+        a.fail_job(&job_a, "late").await.unwrap();
+        assert_eq!(scores_of(&a, &session_id).await, 0, "replica a's late result");
+        let (row, _) = a.session(&session_id).await.unwrap().unwrap();
+        assert_eq!(row.status, SessionStatus::Scoring);
+        b.finish_job(&job_b, &report).await.unwrap();
+        assert_eq!(scores_of(&a, &session_id).await, 1);
+        let (row, _) = a.session(&session_id).await.unwrap().unwrap();
+        assert_eq!((row.status, row.error), (SessionStatus::Scored, None));
+        assert!(a.claim_job().await.unwrap().is_none() && b.claim_job().await.unwrap().is_none());
+    }
+
+    /// Four replicas claiming at once: every job is claimed, each by one replica only.
+    async fn replicas_claiming_at_once_take_each_job_once(url: &str) {
+        let first = Store::open(url).await.unwrap();
+        let ids = sessions(&first, 24).await;
+        let mut claimers = Vec::new();
+        for k in 0..4 {
+            let store = Store::open(url).await.unwrap().with_replica(&format!("replica-{k}"));
+            claimers.push(tokio::spawn(async move {
+                let mut mine = Vec::new();
+                while let Some(job) = store.claim_job().await.unwrap() {
+                    mine.push(job.session_id);
+                }
+                mine
+            }));
+        }
+        let mut claimed = Vec::new();
+        for c in claimers {
+            claimed.extend(c.await.unwrap());
+        }
+        claimed.sort();
+        let mut want = ids;
+        want.sort();
+        assert_eq!(claimed, want, "each job once");
+    }
+
+    /// A restarted replica (the same name) takes back at once the jobs its previous run held;
+    /// another replica's running job stays that replica's.
+    async fn a_restart_releases_only_its_own_jobs(url: &str) {
+        let a = Store::open(url).await.unwrap().with_replica("replica-a");
+        let b = Store::open(url).await.unwrap().with_replica("replica-b");
+        sessions(&a, 2).await;
+        let job_a = a.claim_job().await.unwrap().unwrap();
+        let job_b = b.claim_job().await.unwrap().unwrap();
+        let restarted = Store::open(url).await.unwrap().with_replica("replica-a");
+        assert_eq!(restarted.release_own_leases().await.unwrap(), 1);
+        let again = restarted
+            .claim_job()
+            .await
+            .unwrap()
+            .expect("its own job, back in the queue");
+        assert_eq!((again.id.as_str(), again.attempts), (job_a.id.as_str(), 2));
+        assert!(
+            restarted.claim_job().await.unwrap().is_none(),
+            "replica b's job is still b's"
+        );
+        assert!(b.renew_lease(&job_b).await.unwrap());
+    }
+
+    #[tokio::test]
+    async fn job_leases_sqlite() {
+        let dir = tempfile::tempdir().unwrap();
+        let url = |name: &str| format!("sqlite://{}?mode=rwc", dir.path().join(name).display());
+        a_dead_replicas_job_is_taken_over(&url("takeover.db")).await;
+        replicas_claiming_at_once_take_each_job_once(&url("race.db")).await;
+        a_restart_releases_only_its_own_jobs(&url("restart.db")).await;
+    }
+
+    #[tokio::test]
+    async fn job_leases_postgres() {
+        a_dead_replicas_job_is_taken_over(&super::super::fresh_postgres_database("lease_takeover").await).await;
+        replicas_claiming_at_once_take_each_job_once(&super::super::fresh_postgres_database("lease_race").await).await;
+        a_restart_releases_only_its_own_jobs(&super::super::fresh_postgres_database("lease_restart").await).await;
     }
 
     #[tokio::test]

@@ -188,6 +188,10 @@ pub(crate) async fn check_sqlite_writable(conn: &mut sqlx::AnyConnection) -> Res
 pub struct Store {
     pub pool: AnyPool,
     sqlite: bool,
+    /// Who this process is among the replicas on the database: the holder of its job leases.
+    replica: std::sync::Arc<str>,
+    /// How long a claimed job stays this replica's without a renewal.
+    job_lease: std::time::Duration,
 }
 
 impl Store {
@@ -207,6 +211,33 @@ impl Store {
     /// connection is refused and the pool keeps trying until this deadline, and the client should
     /// hear "the storage failed, try again", not a 408 from the request deadline winning the race.
     pub const ACQUIRE_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10);
+
+    /// How long a claimed scoring job stays its replica's without a renewal (the worker renews it
+    /// every third of that while it replays): a replica that dies loses its jobs this long after.
+    pub const JOB_LEASE: std::time::Duration = std::time::Duration::from_secs(60);
+
+    /// The same store acting as replica `id` (a stable name: the server keeps its own in its data
+    /// directory, so that a restart takes back at once what its previous run held).
+    pub fn with_replica(mut self, id: &str) -> Store {
+        self.replica = id.into();
+        self
+    }
+
+    /// The same store with leases of `lease` (tests use short ones).
+    pub fn with_job_lease(mut self, lease: std::time::Duration) -> Store {
+        self.job_lease = lease;
+        self
+    }
+
+    /// This replica's name.
+    pub fn replica(&self) -> &str {
+        &self.replica
+    }
+
+    /// The length of the job leases it takes.
+    pub fn job_lease(&self) -> std::time::Duration {
+        self.job_lease
+    }
 
     /// Connects, sets SQLite to WAL, applies the migrations.
     pub async fn open(url: &str) -> Result<Store, StoreError> {
@@ -246,7 +277,12 @@ impl Store {
         let migrator = sqlx::migrate!("../migrations");
         reworded_migrations::accept(&pool, &migrator, sqlite).await?;
         migrator.run(&pool).await?;
-        let store = Store { pool, sqlite };
+        let store = Store {
+            pool,
+            sqlite,
+            replica: new_id().into(),
+            job_lease: Self::JOB_LEASE,
+        };
         store.fill_session_summaries().await?;
         store.fill_session_reasons().await?;
         Ok(store)
