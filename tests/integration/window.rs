@@ -314,12 +314,18 @@ fn wheel(h: &mut Harness<'_, StyletApp>, notches: i32) {
     settle(h);
 }
 
-/// A few frames and a pause: the physics has ticked on what the window sent.
+/// Waits until the physics has run 100 ticks (0.1 s) past the window's latest snapshot, and the
+/// window has seen them: what was pressed or moved before has been taken, and the next press is
+/// decided on the state it left (a loaded machine only makes this wait longer).
 fn settle(h: &mut Harness<'_, StyletApp>) {
-    for _ in 0..3 {
-        h.step();
-        std::thread::sleep(Duration::from_millis(60));
-    }
+    let tick = |app: &StyletApp| match &app.screen {
+        Screen::Session(s) => s.running().and_then(|r| r.snapshot()).map(|snap| snap.output.tick),
+        _ => None,
+    };
+    let before = tick(h.state()).expect("a running session");
+    step_until(h, "the physics to take what was sent", |app| {
+        tick(app).is_some_and(|t| t >= before + 100)
+    });
 }
 
 /// A whole drainage by hand through the keys, as the script `full-ptcd.txt` does it: the
