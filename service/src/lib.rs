@@ -97,6 +97,8 @@ pub struct AppState {
     pub disk: Arc<disk::DiskBudget>,
     /// The OpenAPI document (set when the router is built).
     pub openapi: std::sync::OnceLock<serde_json::Value>,
+    /// Set once the server stopped serving: the worker claims no more jobs.
+    pub stopping: std::sync::atomic::AtomicBool,
 }
 
 impl AppState {
@@ -265,6 +267,7 @@ pub async fn serve(
         request_slots,
         disk: Default::default(),
         openapi: Default::default(),
+        stopping: Default::default(),
     });
     worker::start(state.clone());
     let mut app = api::router(state.clone(), mount.map(|m| (m.openapi)()));
@@ -273,7 +276,7 @@ pub async fn serve(
     }
     let limits = Arc::new(state.config.limits.clone());
     let max_upload = state.config.max_upload_bytes as u64;
-    ready(addr, state);
+    ready(addr, state.clone());
     let serving = Arc::new(tokio::sync::Semaphore::new(limits.max_requests.max(1)));
     let app = app
         .layer(axum::extract::DefaultBodyLimit::max(limits.max_json_body_bytes))
@@ -286,7 +289,15 @@ pub async fn serve(
         .layer(axum::middleware::from_fn_with_state(serving, server::serving))
         .layer(axum::middleware::from_fn(server::security_headers))
         .layer(axum::middleware::from_fn(server::request_log));
-    server::run(listener, app, &limits).await.map_err(|e| setup(&e))
+    server::run(listener, app, &limits, server::stop_signal())
+        .await
+        .map_err(|e| setup(&e))?;
+    // Stopped: no more jobs claimed, and the running ones go back to the queue for the other
+    // replicas (or this one restarted) rather than waiting out their leases.
+    state.stopping.store(true, std::sync::atomic::Ordering::SeqCst);
+    let released = state.store.release_own_leases().await?;
+    tracing::info!(released, "stopped");
+    Ok(())
 }
 
 /// The atlas directories (with an `atlas.toml`) in `dir`, sorted; at least one.

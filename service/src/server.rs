@@ -64,8 +64,20 @@ pub fn connection_cap(wanted: usize) -> usize {
     wanted.min(fit).max(1)
 }
 
-/// Serves `app` on `listener` until the process ends.
-pub async fn run(listener: TcpListener, app: Router, limits: &Limits) -> std::io::Result<()> {
+/// How long requests in flight may take to finish once the server is asked to stop.
+pub const SHUTDOWN_GRACE: std::time::Duration = std::time::Duration::from_secs(20);
+
+/// Serves `app` on `listener` until `stop` completes; then accepts no more connections, lets the
+/// requests in flight finish (closing idle keep-alive connections) for up to [`SHUTDOWN_GRACE`],
+/// and returns.
+pub async fn run(
+    listener: TcpListener,
+    app: Router,
+    limits: &Limits,
+    stop: impl std::future::Future<Output = ()>,
+) -> std::io::Result<()> {
+    let graceful = hyper_util::server::graceful::GracefulShutdown::new();
+    tokio::pin!(stop);
     let sockets = Arc::new(Semaphore::new(connection_cap(limits.max_connections)));
     let addresses = Slots::new("connections", usize::MAX, limits.max_connections_per_address);
     let mut http = hyper::server::conn::http1::Builder::new();
@@ -74,12 +86,20 @@ pub async fn run(listener: TcpListener, app: Router, limits: &Limits) -> std::io
         .max_buf_size(MAX_CONNECTION_BUFFER_BYTES)
         .keep_alive(true);
     loop {
-        let permit = sockets
-            .clone()
-            .acquire_owned()
-            .await
-            .expect("the semaphore is never closed");
-        let (socket, peer) = match listener.accept().await {
+        let next = async {
+            let permit = sockets
+                .clone()
+                .acquire_owned()
+                .await
+                .expect("the semaphore is never closed");
+            (permit, listener.accept().await)
+        };
+        let (permit, accepted) = tokio::select! {
+            biased;
+            () = &mut stop => break,
+            next = next => next,
+        };
+        let (socket, peer) = match accepted {
             Ok(accepted) => accepted,
             Err(e) => {
                 // Out of file descriptors and the like: wait instead of spinning.
@@ -94,13 +114,47 @@ pub async fn run(listener: TcpListener, app: Router, limits: &Limits) -> std::io
         };
         let _ = socket.set_nodelay(true);
         let service = hyper_util::service::TowerToHyperService::new(app.clone());
-        let connection = http.serve_connection(TokioIo::new(socket), service);
+        let connection = graceful.watch(http.serve_connection(TokioIo::new(socket), service));
         tokio::spawn(async move {
             let _held = (permit, from);
             if let Err(e) = connection.await {
                 tracing::debug!(error = %e, "connection closed");
             }
         });
+    }
+    drop(listener);
+    tracing::info!("stopping: no new connections; finishing the requests in flight");
+    if tokio::time::timeout(SHUTDOWN_GRACE, graceful.shutdown()).await.is_err() {
+        tracing::warn!(
+            grace_s = SHUTDOWN_GRACE.as_secs(),
+            "requests still in flight after the grace period; closing them"
+        );
+    }
+    Ok(())
+}
+
+/// Completes when the process is asked to stop: SIGTERM (a service manager, a container
+/// runtime) or Ctrl-C.
+pub async fn stop_signal() {
+    let ctrl_c = async {
+        if tokio::signal::ctrl_c().await.is_err() {
+            std::future::pending::<()>().await;
+        }
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        () = ctrl_c => {}
+        () = term => {}
     }
 }
 

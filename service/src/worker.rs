@@ -18,6 +18,9 @@ pub fn start(state: Arc<AppState>) {
                 .acquire_owned()
                 .await
                 .expect("the semaphore is never closed");
+            if state.stopping.load(std::sync::atomic::Ordering::SeqCst) {
+                return;
+            }
             let job = match state.store.claim_job().await {
                 Ok(Some(job)) => job,
                 Ok(None) => {

@@ -1312,3 +1312,50 @@ fn loaded_atlases_are_held_in_a_cache_bounded_by_bytes() {
         rss[1]
     );
 }
+
+/// SIGTERM: the server stops accepting connections, answers the request in flight (a login whose
+/// body was half sent when the signal came), gives back its scoring jobs' leases and exits 0.
+#[test]
+fn sigterm_finishes_the_request_in_flight_and_stops() {
+    let (f, mut server) = serve(&[]);
+    let addr = server.base.strip_prefix("http://").unwrap().to_string();
+    let body = r#"{"username":"tina","password":"not her password"}"#;
+    let mut s = TcpStream::connect(&addr).unwrap();
+    write!(
+        s,
+        "POST /api/login HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{}",
+        body.len(),
+        &body[..10]
+    )
+    .unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    let term = std::process::Command::new("kill")
+        .args(["-TERM", &server.child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(term.success());
+    // No new connections once it stops accepting.
+    let t0 = Instant::now();
+    while TcpStream::connect(&addr).is_ok() {
+        assert!(t0.elapsed() < Duration::from_secs(10), "still accepting connections");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    s.write_all(&body.as_bytes()[10..]).unwrap();
+    let mut answer = String::new();
+    s.read_to_string(&mut answer).unwrap();
+    assert!(answer.starts_with("HTTP/1.1 401"), "{answer}");
+    let t0 = Instant::now();
+    let status = loop {
+        if let Some(status) = server.child.try_wait().unwrap() {
+            break status;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(30), "still running after SIGTERM");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(status.success(), "{status:?}");
+    let log = std::fs::read_to_string(f.data().join("server.log")).unwrap();
+    assert!(
+        log.contains("no new connections") && log.contains("stopped") && log.contains("released"),
+        "{log}"
+    );
+}
