@@ -4,7 +4,7 @@ use sqlx::Row;
 
 use super::super::auth;
 use super::User;
-use super::{ROLES, Store, StoreError, audit_in, new_id, now};
+use super::{ROLES, Store, StoreError, audit_in, from_now, new_id, now};
 
 /// A role, from least to most administrative; stored and sent as its lower-case name.
 #[derive(
@@ -532,9 +532,7 @@ impl Store {
     /// hash is stored).
     pub async fn create_login(&self, user: &User, ttl_s: u64) -> Result<(String, String), StoreError> {
         let (token, csrf) = (auth::random_token(), auth::random_token());
-        let expires =
-            humantime::format_rfc3339_micros(std::time::SystemTime::now() + std::time::Duration::from_secs(ttl_s))
-                .to_string();
+        let expires = from_now(std::time::Duration::from_secs(ttl_s));
         sqlx::query("INSERT INTO auth_sessions (token_sha256, user_id, csrf_token, created_at, expires_at) VALUES ($1, $2, $3, $4, $5)")
             .bind(auth::sha256_hex(&token))
             .bind(user.id.clone())

@@ -4,17 +4,12 @@ use sqlx::Row;
 
 use stylet_scoring::{Exercise, Outcome};
 
-use super::{SessionStatus, Store, StoreError, now};
+use super::{SessionStatus, Store, StoreError, from_now, now};
 
 /// Which jobs may be claimed at `$1` (now): queued ones past their back-off, and running ones
 /// whose lease ran out (their replica died; `NULL`: claimed by a server from before leases).
 const CLAIMABLE: &str = "((j.state = 'queued' AND (j.not_before IS NULL OR j.not_before <= $1)) \
      OR (j.state = 'running' AND (j.lease_until IS NULL OR j.lease_until < $1)))";
-
-/// The RFC 3339 time `after` from now, comparable with [`now`].
-fn from_now(after: std::time::Duration) -> String {
-    humantime::format_rfc3339_micros(std::time::SystemTime::now() + after).to_string()
-}
 
 impl Store {
     /// At start: the jobs this replica held when its previous run stopped (killed, or the
@@ -160,7 +155,7 @@ impl Store {
     /// Puts a running job back in the queue, not to be claimed again for `after` (its file could
     /// not be read for a passing reason). Unless it is no longer this worker's.
     pub async fn requeue_job(&self, job: &Job, after: std::time::Duration) -> Result<(), StoreError> {
-        let not_before = humantime::format_rfc3339_micros(std::time::SystemTime::now() + after).to_string();
+        let not_before = from_now(after);
         let mut tx = self.begin_write().await?;
         let back = sqlx::query(
             "UPDATE scoring_jobs SET state = 'queued', started_at = NULL, not_before = $1, lease_owner = NULL, lease_until = NULL \
@@ -639,27 +634,7 @@ mod tests {
         let store = Store::open(&format!("sqlite://{}?mode=rwc", dir.path().join("t.db").display()))
             .await
             .unwrap();
-        store.register_atlas("atlas-hash", "phantom", "/nowhere").await.unwrap();
-        let trainee = store
-            .add_user("tina", "trainee", "tina-password", None, None)
-            .await
-            .unwrap();
-        let session_id = store
-            .insert_session(&NewSession {
-                file_sha256: "f".repeat(64),
-                size_bytes: 10,
-                session_uuid: new_id(),
-                trainee_id: trainee.clone(),
-                uploaded_by: trainee,
-                scenario: "success".into(),
-                difficulty: "beginner".into(),
-                atlas_hash: "atlas-hash".into(),
-                physics_version: 2,
-                duration_s: 1.0,
-                recorded_at: now(),
-            })
-            .await
-            .unwrap();
+        let session_id = sessions(&store, 1).await.remove(0);
         let job = store.claim_job().await.unwrap().expect("the queued job");
         assert_eq!(job.session_id, session_id);
         // Meanwhile the job was finished elsewhere (another server after a re-queue).

@@ -132,6 +132,11 @@ pub fn now() -> String {
     humantime::format_rfc3339_micros(std::time::SystemTime::now()).to_string()
 }
 
+/// The time `after` from now, in the format of [`now`] (expiries, leases, back-offs).
+pub fn from_now(after: std::time::Duration) -> String {
+    humantime::format_rfc3339_micros(std::time::SystemTime::now() + after).to_string()
+}
+
 /// A query whose text was built from constants and `$n` placeholders only (filters assembled at
 /// run time), with `binds` bound to `$1…` in order. Values never enter the text.
 pub(crate) fn bound_query(

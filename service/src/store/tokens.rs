@@ -2,12 +2,12 @@
 //! only as SHA-256, each with an id, a scope, an expiry and a revocation time. Creating and
 //! revoking are audited in the same transaction as the change.
 
-use std::time::{Duration, SystemTime};
+use std::time::Duration;
 
 use sqlx::Row;
 
 use super::super::auth;
-use super::{Store, StoreError, User, audit_in, new_id, now};
+use super::{Store, StoreError, User, audit_in, from_now, new_id, now};
 
 /// What an API token may do. A token lives in a config file on a training PC; the narrow scope
 /// keeps a stolen simulator token from reading the account's other data.
@@ -136,7 +136,7 @@ impl Store {
         let token = auth::random_token();
         let id = new_id();
         let created_at = now();
-        let expires_at = humantime::format_rfc3339_micros(SystemTime::now() + ttl).to_string();
+        let expires_at = from_now(ttl);
         let last4 = token[token.len() - 4..].to_string();
         let mut tx = self.begin_write().await?;
         // Counted in the writing transaction, so parallel requests cannot pass the cap together
