@@ -134,10 +134,7 @@ fn a_scripted_ptcd_session_through_the_window_is_recorded_scored_and_replayed_to
 
     h.get_by_label("See the results").click();
     h.step();
-    step_until(&mut h, "the local score", |app| match &app.screen {
-        Screen::Results(r) => r.score().is_some(),
-        _ => false,
-    });
+    wait_for_the_local_score(&mut h);
     let (path, final_digest, report) = match &h.state().screen {
         Screen::Results(r) => {
             let f = r.finished().expect("a finished session");
@@ -222,6 +219,14 @@ fn a_scripted_ptcd_session_through_the_window_is_recorded_scored_and_replayed_to
     }
 }
 
+/// Steps the window until the results screen has the session's local score.
+fn wait_for_the_local_score(h: &mut Harness<'_, StyletApp>) {
+    step_until(h, "the local score", |app| match &app.screen {
+        Screen::Results(r) => r.score().is_some(),
+        _ => false,
+    });
+}
+
 fn replay_settled(app: &StyletApp) -> bool {
     match &app.screen {
         Screen::Replay(r) => r.settled(),
@@ -262,10 +267,7 @@ fn a_session_by_hand_moves_with_the_keys_and_the_keypad_changes_the_tool() {
     );
     // Enter finishes; the session by hand is recorded and scored like any other.
     h.key_press(egui::Key::Enter);
-    step_until(&mut h, "the local score", |app| match &app.screen {
-        Screen::Results(r) => r.score().is_some(),
-        _ => false,
-    });
+    wait_for_the_local_score(&mut h);
     match &h.state().screen {
         Screen::Results(r) => {
             let report = r.score().unwrap().as_ref().expect("a score");
@@ -381,10 +383,7 @@ fn a_whole_drainage_by_hand_through_the_keys() {
     wheel(&mut h, 150);
     next(&mut h); // the wire out: the pigtail forms
     h.key_press(egui::Key::Enter);
-    step_until(&mut h, "the local score", |app| match &app.screen {
-        Screen::Results(r) => r.score().is_some(),
-        _ => false,
-    });
+    wait_for_the_local_score(&mut h);
     let Screen::Results(r) = &h.state().screen else {
         unreachable!()
     };
@@ -537,10 +536,7 @@ fn the_keypad_works_without_numlock_and_no_press_is_lost() {
     std::thread::sleep(Duration::from_millis(100));
     h.step();
     h.key_press(egui::Key::Enter);
-    step_until(&mut h, "the local score", |app| match &app.screen {
-        Screen::Results(r) => r.score().is_some(),
-        _ => false,
-    });
+    wait_for_the_local_score(&mut h);
     let Screen::Results(r) = &h.state().screen else {
         unreachable!()
     };
@@ -713,10 +709,7 @@ fn the_devices_dialog_gives_each_hand_a_device_and_the_machine_remembers() {
     );
     h.get_by_label("needle hand: Inverse3 0D0B (haply) · probe hand: keys and mouse");
     h.key_press(egui::Key::Enter);
-    step_until(&mut h, "the local score", |app| match &app.screen {
-        Screen::Results(r) => r.score().is_some(),
-        _ => false,
-    });
+    wait_for_the_local_score(&mut h);
     match &h.state().screen {
         Screen::Results(r) => {
             let report = r.score().unwrap().as_ref().expect("a score");
@@ -797,10 +790,7 @@ fn a_two_handed_session_shows_both_tools_and_its_results_show_the_guidance() {
     let mut h = window(&dir.path().join("two-handed-full.txt"));
     h.get_by_label("See the results").click();
     h.step();
-    step_until(&mut h, "the local score", |app| match &app.screen {
-        Screen::Results(r) => r.score().is_some(),
-        _ => false,
-    });
+    wait_for_the_local_score(&mut h);
     let report = match &h.state().screen {
         Screen::Results(r) => r.score().unwrap().as_ref().expect("a score").clone(),
         _ => unreachable!(),
