@@ -203,7 +203,7 @@ pub async fn publish_atlas(
     // The archive arrives like an upload: a slot of the uploads (per account and in all), room
     // on the disk for it and its unpacked copy, no slower than the minimum rate. Publications
     // are not held up by one another while their archives arrive.
-    let _slot = s.upload_slots.take(&user.id)?;
+    let _slot = super::upload_hold::take(&s, &user.id).await?;
     let _room = s.disk.reserve(
         &s.config.data_dir,
         declared.saturating_mul(2),

@@ -327,8 +327,10 @@ impl Catalogue {
     /// [`Catalogue::load_blocking`] on a blocking thread.
     pub async fn loaded(self: &Arc<Self>, hash: &str) -> Result<Loaded, LoadError> {
         if let Some(l) = self.cached(hash) {
+            super::telemetry::count(super::telemetry::ATLAS_CACHE, "hit");
             return Ok(l);
         }
+        super::telemetry::count(super::telemetry::ATLAS_CACHE, "miss");
         let (me, h) = (self.clone(), hash.to_string());
         tokio::task::spawn_blocking(move || me.load_blocking(&h))
             .await

@@ -10,6 +10,7 @@
 //! rest.
 
 pub mod access;
+pub mod admin;
 pub mod api;
 pub mod atlases;
 pub mod auth;
@@ -20,6 +21,7 @@ pub mod experts;
 pub mod export;
 pub mod extract;
 pub mod health;
+pub mod housekeeping;
 pub mod intake;
 pub mod limits;
 pub mod list_query;
@@ -32,9 +34,11 @@ pub mod server;
 pub mod sessions;
 pub mod slots;
 pub mod store;
+pub mod telemetry;
 pub mod tokens;
 pub mod traces;
 pub mod upload;
+pub mod upload_hold;
 pub mod users;
 pub mod worker;
 
@@ -49,6 +53,8 @@ pub use store::{Store, StoreError};
 #[derive(Debug, Clone)]
 pub struct Config {
     pub bind: String,
+    /// Where the admin port listens (`/metrics`, `/livez`, `/readyz`); none by default.
+    pub admin_bind: Option<String>,
     pub data_dir: PathBuf,
     /// Default: SQLite `stylet.db` in the data directory.
     pub database_url: Option<String>,
@@ -81,8 +87,6 @@ pub struct AppState {
     /// smoke test). Archives arrive without it (as uploads: [`AppState::upload_slots`]).
     pub publish_permit: Arc<tokio::sync::Semaphore>,
     pub wake: tokio::sync::Notify,
-    /// Recent failed logins per account (rate limiting), bounded.
-    pub login_failures: logins::FailedLogins,
     /// Password checks, off the async threads, with a bounded queue.
     pub passwords: logins::PasswordPool,
     /// The last health check (it writes; at most once a second).
@@ -97,8 +101,11 @@ pub struct AppState {
     pub disk: Arc<disk::DiskBudget>,
     /// The OpenAPI document (set when the router is built).
     pub openapi: std::sync::OnceLock<serde_json::Value>,
-    /// Set once the server stopped serving: the worker claims no more jobs.
+    /// Set once the server is asked to stop: the worker claims no more jobs, `/readyz` says
+    /// 503 while the requests in flight finish.
     pub stopping: std::sync::atomic::AtomicBool,
+    /// The admin port's address, when it has one.
+    pub admin_addr: Option<SocketAddr>,
 }
 
 impl AppState {
@@ -235,11 +242,26 @@ pub async fn serve(
     if requeued > 0 {
         tracing::info!(requeued, %replica, "resuming scoring jobs this replica's previous run left unfinished");
     }
+    // Its previous run's uploads ended with it.
+    store.release_own_upload_slots().await?;
     let listener = tokio::net::TcpListener::bind(&config.bind)
         .await
         .map_err(|e| setup(&format!("cannot bind {}: {e}", config.bind)))?;
     let addr = listener.local_addr().map_err(|e| setup(&e))?;
-    let login_failures = logins::FailedLogins::new(config.limits.login_failure_accounts, logins::LOGIN_WINDOW);
+    let admin = match &config.admin_bind {
+        Some(bind) => {
+            let metrics = telemetry::install().map_err(|e| setup(&format!("metrics: {e}")))?;
+            let admin_listener = tokio::net::TcpListener::bind(bind)
+                .await
+                .map_err(|e| setup(&format!("cannot bind the admin port {bind}: {e}")))?;
+            Some((admin_listener, metrics))
+        }
+        None => None,
+    };
+    let admin_addr = match &admin {
+        Some((l, _)) => Some(l.local_addr().map_err(|e| setup(&e))?),
+        None => None,
+    };
     let passwords = logins::PasswordPool::new(config.limits.password_threads, config.limits.password_queue);
     let upload_slots = slots::Slots::new(
         "uploads",
@@ -257,7 +279,6 @@ pub async fn serve(
         catalogue,
         publish_permit: Arc::new(tokio::sync::Semaphore::new(1)),
         wake: tokio::sync::Notify::new(),
-        login_failures,
         passwords,
         health: Default::default(),
         verify_permits: Arc::new(tokio::sync::Semaphore::new(
@@ -268,8 +289,10 @@ pub async fn serve(
         disk: Default::default(),
         openapi: Default::default(),
         stopping: Default::default(),
+        admin_addr,
     });
     worker::start(state.clone());
+    housekeeping::start(state.clone());
     let mut app = api::router(state.clone(), mount.map(|m| (m.openapi)()));
     if let Some(mount) = mount {
         app = app.merge((mount.router)(state.clone()));
@@ -289,13 +312,36 @@ pub async fn serve(
         .layer(axum::middleware::from_fn_with_state(serving, server::serving))
         .layer(axum::middleware::from_fn(server::security_headers))
         .layer(axum::middleware::from_fn(server::request_log));
-    server::run(listener, app, &limits, server::stop_signal())
-        .await
-        .map_err(|e| setup(&e))?;
-    // Stopped: no more jobs claimed, and the running ones go back to the queue for the other
-    // replicas (or this one restarted) rather than waiting out their leases.
+    // The admin port serves until the API has finished its requests in flight, saying "not
+    // ready" meanwhile, so that a load balancer stops sending traffic first.
+    let (admin_done, admin_stop) = tokio::sync::oneshot::channel::<()>();
+    let admin_task = admin.map(|(admin_listener, metrics)| {
+        let (app, limits) = (admin::router(state.clone(), metrics), limits.clone());
+        tokio::spawn(async move {
+            let stop = async {
+                let _ = admin_stop.await;
+            };
+            if let Err(e) = server::run(admin_listener, app, &limits, stop).await {
+                tracing::error!(error = %e, "the admin port failed");
+            }
+        })
+    });
+    let stopping = state.clone();
+    let stop = async move {
+        server::stop_signal().await;
+        // From now on: no more jobs claimed, and `/readyz` says 503.
+        stopping.stopping.store(true, std::sync::atomic::Ordering::SeqCst);
+    };
+    server::run(listener, app, &limits, stop).await.map_err(|e| setup(&e))?;
+    let _ = admin_done.send(());
+    if let Some(task) = admin_task {
+        let _ = task.await;
+    }
+    // Stopped: the running jobs go back to the queue for the other replicas (or this one
+    // restarted) rather than waiting out their leases.
     state.stopping.store(true, std::sync::atomic::Ordering::SeqCst);
     let released = state.store.release_own_leases().await?;
+    state.store.release_own_upload_slots().await?;
     tracing::info!(released, "stopped");
     Ok(())
 }

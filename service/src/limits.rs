@@ -45,8 +45,6 @@ pub struct Limits {
     pub password_threads: usize,
     /// Password checks waiting for a thread; more get 503 with Retry-After.
     pub password_queue: usize,
-    /// Accounts whose recent failed logins are remembered (the oldest are forgotten first).
-    pub login_failure_accounts: usize,
     /// Largest atlas upload (`POST /api/atlases`, the archive's bytes).
     pub max_atlas_bytes: u64,
     /// Most atlases the catalogue offers (withdrawn ones do not count): a publication past it is
@@ -83,7 +81,6 @@ impl Default for Limits {
             min_free_disk_bytes: 256 << 20,
             password_threads: (cores / 2).max(1),
             password_queue: 32,
-            login_failure_accounts: 10_000,
             max_atlas_bytes: 1 << 30,
             max_atlases: 32,
             atlas_cache_bytes: 4 << 30,

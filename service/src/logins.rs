@@ -2,13 +2,12 @@
 //! check the dashboard's login form shares. And what keeps logins from taking the service down:
 //! password checks (argon2id, tens of milliseconds of CPU each) run on a few threads of their own
 //! with a bounded queue, so a flood of logins waits or gets 503 while every other route keeps its
-//! latency; failed logins are rate-limited per account, and the memory of recent failures per
-//! account is bounded in entries and in time.
+//! latency; login attempts are counted per account in the database (so the limit holds across
+//! replicas and restarts), before the password is checked.
 
-use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use axum::Json;
 use axum::body::Bytes;
@@ -21,7 +20,7 @@ use tokio::sync::Semaphore;
 use super::AppState;
 use super::auth;
 use super::error::{ApiError, err};
-use super::store::{Role, User};
+use super::store::{CheckEnd, CheckReservation, Role, Store, StoreError, User};
 
 #[derive(serde::Deserialize, utoipa::ToSchema)]
 struct LoginRequest {
@@ -35,7 +34,7 @@ struct LoginRequest {
 pub const LOGIN_TTL_S: u64 = 12 * 3600;
 
 /// Failed logins allowed per account within [`LOGIN_WINDOW`] before 429.
-pub const LOGIN_FAILURES_ALLOWED: usize = 5;
+pub const LOGIN_FAILURES_ALLOWED: u32 = 5;
 pub const LOGIN_WINDOW: Duration = Duration::from_secs(300);
 
 #[utoipa::path(post, path = "/api/login", tag = "accounts",
@@ -101,44 +100,104 @@ pub const MAX_PASSWORD_BYTES: usize = 4 * 1024;
 /// login: the user, the cookie token and the login's CSRF token. Used by the JSON API and the
 /// dashboard's login form.
 pub async fn log_in(s: &AppState, username: &str, password: &str) -> Result<(User, String, String), ApiError> {
+    use super::telemetry::{LOGINS, count};
     if username.len() > MAX_USERNAME_BYTES || password.len() > MAX_PASSWORD_BYTES {
+        count(LOGINS, "wrong");
         return Err(err(StatusCode::UNAUTHORIZED, "wrong username or password"));
     }
-    let account = s.login_failures.of(&username.to_lowercase());
-    let mut recent = account.lock().await;
-    let now = Instant::now();
-    recent.retain(|t| now.duration_since(*t) < LOGIN_WINDOW);
-    if recent.len() >= LOGIN_FAILURES_ALLOWED {
-        let wait = LOGIN_WINDOW.saturating_sub(now.duration_since(recent[0])).as_secs() + 1;
-        return Err(ApiError::Throttled {
-            message: format!("too many failed logins for this account; try again in {wait} s"),
-            retry_after_s: wait as u32,
-        });
+    // A place among the password checks first: a flood of logins is refused (503) before it
+    // costs a database write.
+    let busy = |e: Busy| {
+        count(LOGINS, "busy");
+        err(StatusCode::SERVICE_UNAVAILABLE, e.to_string())
+    };
+    let admission = s.passwords.admit().map_err(busy)?;
+    // A check of the account reserved in the database, so that guesses sent at once (to any
+    // replica) get no more checks than the limit; a login of the account in progress elsewhere
+    // only makes this one wait for it.
+    let account = username.to_lowercase();
+    let waiting_since = std::time::Instant::now();
+    loop {
+        match s
+            .store
+            .reserve_login_check(&account, LOGIN_FAILURES_ALLOWED, LOGIN_WINDOW)
+            .await?
+        {
+            CheckReservation::Granted => break,
+            CheckReservation::Refused { window_left } => {
+                let wait = window_left.as_secs() + 1;
+                count(LOGINS, "throttled");
+                return Err(ApiError::Throttled {
+                    message: format!("too many failed logins for this account; try again in {wait} s"),
+                    retry_after_s: wait as u32,
+                });
+            }
+            CheckReservation::Wait if waiting_since.elapsed() < LOGIN_CHECK_WAIT => {
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+            CheckReservation::Wait => return Err(busy(Busy)),
+        }
     }
+    let check = ReservedCheck {
+        store: s.store.clone(),
+        account: Some(account),
+    };
     let candidate = s.store.login_candidate(username).await?;
     // Same work whether or not the account exists, so timing does not reveal which do.
     let hash = candidate.as_ref().map_or(auth::DUMMY_HASH, |(_, h, _)| h.as_str());
-    let matched = s
-        .passwords
-        .verify(password, hash)
-        .await
-        .map_err(|e| err(StatusCode::SERVICE_UNAVAILABLE, e.to_string()))?;
+    let matched = s.passwords.check(admission, password, hash).await.map_err(busy)?;
+    check
+        .end(if matched { CheckEnd::Matched } else { CheckEnd::Failed })
+        .await?;
     let user = match candidate {
         // Told only to whoever knows the password.
         Some((_, _, true)) if matched => {
-            recent.clear();
+            count(LOGINS, "disabled");
             return Err(err(StatusCode::FORBIDDEN, "this account is disabled; ask an admin"));
         }
         Some((user, _, _)) if matched => user,
         _ => {
-            recent.push(now);
+            count(LOGINS, "wrong");
             return Err(err(StatusCode::UNAUTHORIZED, "wrong username or password"));
         }
     };
-    recent.clear();
-    drop(recent);
+    count(LOGINS, "success");
     let (token, csrf) = s.store.create_login(&user, LOGIN_TTL_S).await?;
     Ok((user, token, csrf))
+}
+
+/// How long a login waits for the account's other checks in progress before it gets 503.
+pub const LOGIN_CHECK_WAIT: Duration = Duration::from_secs(10);
+
+/// A password check reserved in the database; given back (abandoned) if its request goes away
+/// before [`ReservedCheck::end`].
+struct ReservedCheck {
+    store: Store,
+    account: Option<String>,
+}
+
+impl ReservedCheck {
+    async fn end(mut self, end: CheckEnd) -> Result<(), StoreError> {
+        match self.account.take() {
+            Some(account) => self.store.end_login_check(&account, end).await,
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for ReservedCheck {
+    fn drop(&mut self) {
+        if let Some(account) = self.account.take()
+            && let Ok(runtime) = tokio::runtime::Handle::try_current()
+        {
+            let store = self.store.clone();
+            runtime.spawn(async move {
+                if let Err(e) = store.end_login_check(&account, CheckEnd::Abandoned).await {
+                    tracing::warn!(error = %e, "cannot give back an abandoned login check");
+                }
+            });
+        }
+    }
 }
 
 /// POST /api/logout: ends the login of the cookie sent (none: nothing to end). API tokens do
@@ -193,8 +252,9 @@ pub struct PasswordPool {
     capacity: usize,
 }
 
-/// Gives an admission back when a check ends (or its request is dropped).
-struct Admission(Arc<AtomicUsize>);
+/// A place among the password checks (running or queued), given back when the check ends or
+/// its request is dropped.
+pub struct Admission(Arc<AtomicUsize>);
 
 impl Drop for Admission {
     fn drop(&mut self) {
@@ -212,13 +272,17 @@ impl PasswordPool {
         }
     }
 
-    /// Whether `password` matches the argon2id `hash`; [`Busy`] at once when the queue is full.
-    pub async fn verify(&self, password: &str, hash: &str) -> Result<bool, Busy> {
+    /// A place among the password checks; [`Busy`] at once when the queue is full.
+    pub fn admit(&self) -> Result<Admission, Busy> {
         if self.admitted.fetch_add(1, Ordering::AcqRel) >= self.capacity {
             self.admitted.fetch_sub(1, Ordering::AcqRel);
             return Err(Busy);
         }
-        let admission = Admission(self.admitted.clone());
+        Ok(Admission(self.admitted.clone()))
+    }
+
+    /// Whether `password` matches the argon2id `hash`, checked in the place `admission` holds.
+    pub async fn check(&self, admission: Admission, password: &str, hash: &str) -> Result<bool, Busy> {
         let permit = self.run.clone().acquire_owned().await.map_err(|_| Busy)?;
         let (password, hash) = (password.to_string(), hash.to_string());
         // The permit and the admission go with the thread: a request dropped while its hash runs
@@ -230,108 +294,17 @@ impl PasswordPool {
         .await
         .map_err(|_| Busy)
     }
-}
 
-/// One account's recent failed logins. Its lock is held while a password is checked, so that
-/// guesses sent in parallel are checked one after another, each seeing the failures before it.
-pub type AccountFailures = Arc<tokio::sync::Mutex<Vec<Instant>>>;
-
-/// Recent failed logins per account name, bounded: entries whose failures are all older than
-/// the window are dropped, and past `max_accounts` the entries least recently failed go first.
-pub struct FailedLogins {
-    accounts: std::sync::Mutex<BTreeMap<String, AccountFailures>>,
-    max_accounts: usize,
-    window: Duration,
-}
-
-impl FailedLogins {
-    pub fn new(max_accounts: usize, window: Duration) -> FailedLogins {
-        FailedLogins {
-            accounts: Default::default(),
-            max_accounts: max_accounts.max(1),
-            window,
-        }
-    }
-
-    /// The failures of `account` (lower-cased by the caller), created if new.
-    pub fn of(&self, account: &str) -> AccountFailures {
-        let mut map = self.accounts.lock().expect("not poisoned");
-        if let Some(f) = map.get(account) {
-            return f.clone();
-        }
-        if map.len() >= self.max_accounts {
-            self.prune(&mut map);
-        }
-        let f = AccountFailures::default();
-        map.insert(account.to_string(), f.clone());
-        f
-    }
-
-    /// How many accounts are remembered (tests, metrics).
-    pub fn len(&self) -> usize {
-        self.accounts.lock().expect("not poisoned").len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
-    /// Drops the entries nobody is using whose failures have expired; if that is not enough to
-    /// get below three quarters of the cap, the least recently failed ones too.
-    fn prune(&self, map: &mut BTreeMap<String, AccountFailures>) {
-        let now = Instant::now();
-        // An entry in use (a login is checking it) has another handle and is kept.
-        let last_failure = |f: &AccountFailures| -> Option<Option<Instant>> {
-            if Arc::strong_count(f) > 1 {
-                return None;
-            }
-            f.try_lock().ok().map(|v| v.last().copied())
-        };
-        map.retain(|_, f| match last_failure(f) {
-            Some(last) => last.is_some_and(|t| now.duration_since(t) < self.window),
-            None => true,
-        });
-        let target = self.max_accounts * 3 / 4;
-        if map.len() <= target {
-            return;
-        }
-        let mut by_age: Vec<(Instant, String)> = map
-            .iter()
-            .filter_map(|(k, f)| Some((last_failure(f)??, k.clone())))
-            .collect();
-        by_age.sort();
-        for (_, k) in by_age.into_iter().take(map.len() - target) {
-            map.remove(&k);
-        }
+    /// [`PasswordPool::admit`], then [`PasswordPool::check`].
+    pub async fn verify(&self, password: &str, hash: &str) -> Result<bool, Busy> {
+        let admission = self.admit()?;
+        self.check(admission, password, hash).await
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[tokio::test]
-    async fn failed_logins_stay_bounded() {
-        let f = FailedLogins::new(100, Duration::from_secs(300));
-        for i in 0..10_000 {
-            let a = f.of(&format!("user{i}"));
-            a.lock().await.push(Instant::now());
-        }
-        assert!(f.len() <= 100, "{}", f.len());
-        // The newest failures are remembered.
-        assert_eq!(f.of("user9999").lock().await.len(), 1);
-    }
-
-    #[tokio::test]
-    async fn expired_failures_are_forgotten_first() {
-        let f = FailedLogins::new(10, Duration::from_millis(1));
-        for i in 0..10 {
-            f.of(&format!("old{i}")).lock().await.push(Instant::now());
-        }
-        tokio::time::sleep(Duration::from_millis(5)).await;
-        f.of("new");
-        assert_eq!(f.len(), 1);
-    }
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn a_full_password_queue_answers_busy_at_once() {

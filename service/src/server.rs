@@ -301,8 +301,20 @@ pub async fn json_errors(req: Request, next: Next) -> Response {
     out
 }
 
+tokio::task_local! {
+    /// The id of the request being served, for the work it causes (a session's scoring job
+    /// keeps it, so that the job's log lines carry it too).
+    static REQUEST_ID: String;
+}
+
+/// The id of the request this task serves, if it serves one.
+pub fn current_request_id() -> Option<String> {
+    REQUEST_ID.try_with(String::clone).ok()
+}
+
 /// Gives every request an id (the client's `X-Request-Id` if sensible, else a new UUID), logs it
-/// with method, path, status and duration, and returns it in `X-Request-Id`.
+/// with method, path, status and duration, records its duration by route
+/// ([`super::telemetry::HTTP_REQUEST_DURATION`]), and returns it in `X-Request-Id`.
 pub async fn request_log(req: Request, next: Next) -> Response {
     use tracing::Instrument;
     let id = req
@@ -312,12 +324,23 @@ pub async fn request_log(req: Request, next: Next) -> Response {
         .filter(|v| !v.is_empty() && v.len() <= 64 && v.chars().all(|c| c.is_ascii_alphanumeric() || c == '-'))
         .map_or_else(super::store::new_id, str::to_string);
     let span = tracing::info_span!("request", id = %id, method = %req.method(), path = %req.uri().path());
+    let method = req.method().clone();
+    // The route's template (`/api/sessions/{id}`), not the path: a bounded label set.
+    let route = req
+        .extensions()
+        .get::<axum::extract::MatchedPath>()
+        .map_or_else(String::new, |p| p.as_str().to_string());
     let started = std::time::Instant::now();
-    let mut resp = next.run(req).instrument(span.clone()).await;
+    let mut resp = REQUEST_ID
+        .scope(id.clone(), next.run(req))
+        .instrument(span.clone())
+        .await;
+    let elapsed = started.elapsed();
+    super::telemetry::record_request(&method, &route, resp.status().as_u16(), elapsed);
     span.in_scope(|| {
         tracing::info!(
             status = resp.status().as_u16(),
-            ms = started.elapsed().as_secs_f64() * 1e3,
+            ms = elapsed.as_secs_f64() * 1e3,
             "served"
         )
     });

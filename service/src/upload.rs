@@ -106,8 +106,24 @@ where
     S: Stream<Item = Result<Bytes, E>> + Unpin,
     E: std::fmt::Display,
 {
-    let checked = receive(s, user, body, declared).await?;
-    keep(s, user, checked).await
+    use super::telemetry::{UPLOADS, count};
+    let checked = match receive(s, user, body, declared).await {
+        Ok(checked) => checked,
+        Err(e) => {
+            count(UPLOADS, "refused");
+            return Err(e);
+        }
+    };
+    let kept = keep(s, user, checked).await;
+    count(
+        UPLOADS,
+        match &kept {
+            Ok((_, _, true)) => "stored",
+            Ok((_, _, false)) => "duplicate",
+            Err(_) => "refused",
+        },
+    );
+    kept
 }
 
 /// Most bytes read for the session header before the upload is refused (the writer's header
@@ -142,7 +158,7 @@ where
         return Err(too_large());
     }
     let limits = &s.config.limits;
-    let slot = s.upload_slots.take(&user.id)?;
+    let slot = super::upload_hold::take(s, &user.id).await?;
     let room = s.disk.reserve(
         &s.config.data_dir,
         declared.unwrap_or(limit),
@@ -184,14 +200,15 @@ where
             // and no room on the disk; for at most the request timeout) before the answer, so
             // that a client that sends its whole body before reading the answer (most do) reads
             // the refusal, not a broken pipe. A body sent too slowly is not waited for.
-            drop((slot, room));
+            slot.release().await;
+            drop(room);
             if refused.status() != StatusCode::REQUEST_TIMEOUT {
                 let _ = tokio::time::timeout(limits.request_timeout, discard(&mut body, limit)).await;
             }
             return Err(refused);
         }
     };
-    let _held = (slot, room);
+    let _room = room;
     // The rest, to a temporary file.
     let mut file = TempFile::create(&incoming_dir(s)).await?;
     if head.len() as u64 > limit {
@@ -207,6 +224,7 @@ where
     }
     let sha256 = file.finish().await?;
     let verified = verify(s, &file, &header).await?;
+    slot.release().await;
     Ok(CheckedUpload {
         header,
         trainee,
@@ -427,6 +445,7 @@ async fn keep(s: &AppState, user: &User, checked: CheckedUpload) -> Result<(Stri
         physics_version: h.physics_version as i64,
         duration_s: checked.verified.duration_s(),
         recorded_at: h.wall_clock_start.clone(),
+        request_id: super::server::current_request_id(),
     };
     checked.file.persist(&s.session_file(&sha)).await?;
     let id = match s.store.insert_session(&new).await {
@@ -442,6 +461,7 @@ async fn keep(s: &AppState, user: &User, checked: CheckedUpload) -> Result<(Stri
             return Err(e.into());
         }
     };
+    metrics::counter!(super::telemetry::UPLOAD_BYTES).increment(new.size_bytes.max(0) as u64);
     s.wake.notify_one();
     Ok((id, SessionStatus::Queued, true))
 }

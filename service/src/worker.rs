@@ -37,7 +37,13 @@ pub fn start(state: Arc<AppState>) {
                 }
             };
             let state = state.clone();
-            tokio::spawn(async move {
+            // The job's log lines name its session and the request that queued it.
+            let span = tracing::info_span!(
+                "job",
+                session = %job.session_id,
+                request = job.request_id.as_deref().unwrap_or("")
+            );
+            let job_task = async move {
                 let _permit = permit;
                 if job.attempts > MAX_ATTEMPTS {
                     let why = format!(
@@ -51,7 +57,8 @@ pub fn start(state: Arc<AppState>) {
                 let outcome = replay(&state, &job).await;
                 store_outcome(&state, &job, outcome).await;
                 heartbeat.abort();
-            });
+            };
+            tokio::spawn(tracing::Instrument::instrument(job_task, span));
         }
     });
 }
@@ -111,8 +118,15 @@ async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
             Err(e @ stylet_recorder::ReadError::Io(_)) => return Outcome::Retry(e.to_string()),
             Err(e) => return Outcome::Failed(format!("{}: {e}", file.display())),
         };
+        let replay_started = std::time::Instant::now();
         match scorer.score_session_traced_against(&session, benchmark.as_ref()) {
             Ok((report, trace)) => {
+                let ticks = session.ticks.len() as u64;
+                metrics::counter!(super::telemetry::REPLAY_TICKS).increment(ticks);
+                let replay_s = replay_started.elapsed().as_secs_f64();
+                if replay_s > 0.0 {
+                    metrics::histogram!(super::telemetry::REPLAY_SPEED).record(ticks as f64 / replay_s);
+                }
                 // A cache: a failure to store it only costs a replay later.
                 if let Err(e) = super::traces::write_trace(&trace_file, &trace) {
                     tracing::warn!(error = %e, "cannot store a review trace");
@@ -165,6 +179,21 @@ const MAX_ATTEMPTS: i64 = 12;
 /// and its session never left `scoring`. (If the process dies meanwhile, its lease runs out and
 /// another replica, or this one restarted, claims the job again.)
 async fn store_outcome(state: &Arc<AppState>, job: &super::store::Job, outcome: Outcome) {
+    let stored = store_outcome_with_retries(state, job, outcome).await;
+    if let Some(outcome) = stored {
+        metrics::counter!(super::telemetry::JOBS, "outcome" => outcome).increment(1);
+        metrics::histogram!(super::telemetry::JOB_DURATION, "outcome" => outcome)
+            .record(job.claimed_at.elapsed().as_secs_f64());
+    }
+}
+
+/// [`store_outcome`]'s work: the outcome stored (`scored`, `failed`, `retried`), or `None` when
+/// it could not be stored.
+async fn store_outcome_with_retries(
+    state: &Arc<AppState>,
+    job: &super::store::Job,
+    outcome: Outcome,
+) -> Option<&'static str> {
     let outcome = match outcome {
         Outcome::Retry(e) if job.attempts >= MAX_READ_ATTEMPTS => {
             Outcome::Failed(format!("{e} (after {} attempts)", job.attempts))
@@ -185,15 +214,15 @@ async fn store_outcome(state: &Arc<AppState>, job: &super::store::Job, outcome: 
         match (stored, &outcome) {
             (Ok(()), Outcome::Scored(r)) => {
                 tracing::info!(session = %job.session_id, score = r.grade.score, verified = r.replay_verified, "scored");
-                return;
+                return Some("scored");
             }
             (Ok(()), Outcome::Failed(e)) => {
                 tracing::warn!(session = %job.session_id, error = %e, "scoring failed");
-                return;
+                return Some("failed");
             }
             (Ok(()), Outcome::Retry(e)) => {
                 tracing::warn!(session = %job.session_id, error = %e, attempts = job.attempts, "cannot read the session now; queued again");
-                return;
+                return Some("retried");
             }
             (Err(e), _) if e.is_transient() => {
                 tracing::error!(session = %job.session_id, error = %e, retry_s = wait.as_secs_f64(), "cannot store the result; will try again");
@@ -204,7 +233,7 @@ async fn store_outcome(state: &Arc<AppState>, job: &super::store::Job, outcome: 
                 // Not the disk: retrying would not help. The job stays running until its lease
                 // runs out; then it is claimed again.
                 tracing::error!(session = %job.session_id, error = %e, "cannot store the result");
-                return;
+                return None;
             }
         }
     }

@@ -221,6 +221,7 @@ fn serve_dashboard(args: &DemoArgs, uploads: &[DemoUpload]) -> anyhow::Result<()
     std::fs::create_dir_all(&data)?;
     let config = Config {
         bind: args.bind.clone(),
+        admin_bind: None,
         data_dir: data.clone(),
         database_url: None,
         atlases_dir: Some(args.out.join("atlases")),

@@ -13,6 +13,10 @@ pub struct ServeArgs {
     /// Address to listen on (port 0 picks a free port; the address is printed).
     #[arg(long, default_value = "127.0.0.1:8080")]
     pub bind: String,
+    /// Address of the admin port: `/metrics` (Prometheus), `/livez`, `/readyz` (none by
+    /// default; bind it to a private address, port 0 picks a free one).
+    #[arg(long)]
+    pub admin_bind: Option<String>,
     /// Where the database (SQLite by default) and the session files live.
     #[arg(long)]
     pub data_dir: PathBuf,
@@ -32,8 +36,19 @@ pub struct ServeArgs {
     /// Mark cookies Secure (when served behind TLS).
     #[arg(long)]
     pub secure_cookies: bool,
+    /// How log lines are written to standard error: text for people, json (one object per
+    /// line, with the request id and the job's session) for a log collector.
+    #[arg(long, value_enum, default_value_t = LogFormat::Text)]
+    pub log_format: LogFormat,
     #[command(flatten)]
     pub limits: LimitArgs,
+}
+
+/// The form of the service's log lines.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LogFormat {
+    Text,
+    Json,
 }
 
 /// Limits and timeouts (docs/security.md); defaults in `stylet_service::Limits`.
@@ -128,7 +143,6 @@ impl LimitArgs {
             min_free_disk_bytes: self.min_free_disk_bytes.unwrap_or(d.min_free_disk_bytes),
             password_threads: self.password_threads.unwrap_or(d.password_threads).max(1),
             password_queue: self.password_queue.unwrap_or(d.password_queue),
-            login_failure_accounts: d.login_failure_accounts,
             max_atlas_bytes: self.max_atlas_bytes.unwrap_or(d.max_atlas_bytes),
             max_atlases: self.max_atlases.unwrap_or(d.max_atlases),
             atlas_cache_bytes: self.atlas_cache_bytes.unwrap_or(d.atlas_cache_bytes),
@@ -174,13 +188,22 @@ pub fn serve(a: ServeArgs) -> anyhow::Result<()> {
     // A log line that cannot be written (stderr on a full disk) is lost, never reported: the
     // logger's report goes to the same stderr with `eprintln!`, which panics on that failure and
     // would take the request being served with it.
-    tracing_subscriber::fmt()
+    let logs = tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
         .with_writer(std::io::stderr)
-        .log_internal_errors(false)
-        .init();
+        .log_internal_errors(false);
+    match a.log_format {
+        // Colours only on a terminal: a log file gets plain text.
+        LogFormat::Text => logs
+            .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+            .init(),
+        // The spans (request id, method, path; a job's session and request) as fields of
+        // each line.
+        LogFormat::Json => logs.json().with_current_span(true).with_span_list(true).init(),
+    }
     let config = Config {
         bind: a.bind,
+        admin_bind: a.admin_bind,
         data_dir: a.data_dir,
         database_url: a.database,
         atlases_dir: a.atlases,
@@ -191,9 +214,14 @@ pub fn serve(a: ServeArgs) -> anyhow::Result<()> {
         secure_cookies: a.secure_cookies,
         limits: a.limits.limits(),
     };
-    runtime()?.block_on(service::serve(config, Some(stylet_dashboard::MOUNT), |addr, _| {
-        sayf!("listening on http://{addr}")
-    }))?;
+    runtime()?.block_on(service::serve(
+        config,
+        Some(stylet_dashboard::MOUNT),
+        |addr, state| match state.admin_addr {
+            Some(admin) => sayf!("listening on http://{addr} (admin: http://{admin})"),
+            None => sayf!("listening on http://{addr}"),
+        },
+    ))?;
     Ok(())
 }
 
@@ -207,6 +235,7 @@ pub fn user(cmd: UserCommand) -> anyhow::Result<()> {
             let password = password.trim_end_matches(['\n', '\r']);
             let config = Config {
                 bind: String::new(),
+                admin_bind: None,
                 data_dir: a.data_dir.clone(),
                 database_url: a.database.clone(),
                 atlases_dir: None,

@@ -81,9 +81,19 @@ fn base_of(url: &str) -> Option<&str> {
 }
 
 /// Logs `user` in with the password `<user>-password` (as [`crate::Stylet::add_user`] sets it).
+/// Like any client, it tries again after a second when the server answers that too many logins
+/// are being checked at once (503: a class logging in together can fill the password queue).
 pub fn login(base: &str, user: &str) -> Auth {
     let body = format!(r#"{{"username":"{user}","password":"{user}-password"}}"#);
-    let (status, json, token) = call("POST", &format!("{base}/api/login"), None, Some(body.as_bytes()), true);
+    let mut tries = 0;
+    let (status, json, token) = loop {
+        let answer = call("POST", &format!("{base}/api/login"), None, Some(body.as_bytes()), true);
+        tries += 1;
+        if answer.0 != 503 || tries == 30 {
+            break answer;
+        }
+        std::thread::sleep(std::time::Duration::from_secs(1));
+    };
     assert_eq!(status, 200, "{json}");
     Auth::Cookie {
         token: token.unwrap(),

@@ -11,6 +11,8 @@ pub struct Server {
     pub child: Child,
     /// `http://127.0.0.1:PORT`, as the server printed it.
     pub base: String,
+    /// The admin port's `http://127.0.0.1:PORT`, when started with `--admin-bind`.
+    pub admin: Option<String>,
 }
 
 impl Server {
@@ -61,12 +63,16 @@ impl Server {
         BufReader::new(child.stdout.take().unwrap())
             .read_line(&mut line)
             .unwrap();
-        let base = line
+        // "listening on http://A" or "listening on http://A (admin: http://B)".
+        let rest = line
             .trim()
             .strip_prefix("listening on ")
-            .unwrap_or_else(|| panic!("unexpected: {line:?}; see {}", log_path.display()))
-            .to_string();
-        Server { child, base }
+            .unwrap_or_else(|| panic!("unexpected: {line:?}; see {}", log_path.display()));
+        let (base, admin) = match rest.split_once(" (admin: ") {
+            Some((base, admin)) => (base.to_string(), Some(admin.trim_end_matches(')').to_string())),
+            None => (rest.to_string(), None),
+        };
+        Server { child, base, admin }
     }
 }
 

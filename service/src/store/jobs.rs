@@ -77,7 +77,7 @@ impl Store {
             return Ok(None);
         }
         let row = sqlx::query(
-            "SELECT j.id, j.session_id, j.attempts, s.file_sha256, s.atlas_hash FROM scoring_jobs j \
+            "SELECT j.id, j.session_id, j.attempts, j.request_id, s.file_sha256, s.atlas_hash FROM scoring_jobs j \
              JOIN sessions s ON s.id = j.session_id WHERE j.id = $1",
         )
         .bind(id)
@@ -89,6 +89,8 @@ impl Store {
             attempts: row.try_get("attempts")?,
             file_sha256: row.try_get("file_sha256")?,
             atlas_hash: row.try_get("atlas_hash")?,
+            request_id: row.try_get("request_id")?,
+            claimed_at: std::time::Instant::now(),
         };
         sqlx::query("UPDATE sessions SET status = $2 WHERE id = $1")
             .bind(job.session_id.clone())
@@ -283,6 +285,10 @@ pub struct Job {
     pub attempts: i64,
     pub file_sha256: String,
     pub atlas_hash: String,
+    /// The id of the request that queued it (the upload), if it came from one.
+    pub request_id: Option<String>,
+    /// When this replica claimed it (job durations).
+    pub claimed_at: std::time::Instant,
 }
 
 /// What a session's row keeps of its score (migrations 0002 and 0005).
@@ -443,6 +449,7 @@ mod tests {
                     physics_version: 2,
                     duration_s: 1.0,
                     recorded_at: now(),
+                    request_id: None,
                 })
                 .await
                 .unwrap();
@@ -499,6 +506,7 @@ mod tests {
                         physics_version: 2,
                         duration_s: 1.0,
                         recorded_at: now(),
+                        request_id: None,
                     })
                     .await
                     .unwrap(),

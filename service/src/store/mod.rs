@@ -14,12 +14,15 @@ mod experts;
 pub mod health;
 mod instructors;
 mod jobs;
+mod login_failures;
+mod readiness;
 mod reports;
 mod review;
 mod reworded_migrations;
 mod sessions;
 mod status;
 mod tokens;
+mod upload_slots;
 
 pub use accounts::{
     AccountChange, AccountError, IMPORT_HEADER, ImportLine, ImportLineError, MAX_IMPORT_LINES, Role, UserRow,
@@ -33,11 +36,14 @@ pub use instructors::{
     QueueScope, ReviewLine, RiskSession, SEARCH_PAGE, TraineeProgress,
 };
 pub use jobs::{Job, OutcomeColumns, join_reasons, split_reasons};
+pub use login_failures::{CheckEnd, CheckReservation};
+pub use readiness::NotReady;
 pub use reports::{DayCount, FAILED_READ_MAX, FailureBreakdown, FailureCause, TREND_ROWS_MAX};
 pub use review::{ExportRow, ProgressPoint, TraineeSummary};
 pub use sessions::{NewSession, SessionFilter, SessionLine};
 pub use status::SessionStatus;
 pub use tokens::{TokenAuth, TokenRow, TokenScope, TokenStatus};
+pub use upload_slots::UploadSlotKey;
 
 /// Roles, from least to most administrative.
 pub const ROLES: [&str; 4] = ["trainee", "instructor", "curriculum", "admin"];
@@ -189,6 +195,9 @@ pub(crate) async fn check_sqlite_writable(conn: &mut sqlx::AnyConnection) -> Res
     Ok(())
 }
 
+/// The migrations of this build (`migrations/`), applied at start.
+pub(crate) static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations");
+
 #[derive(Clone)]
 pub struct Store {
     pub pool: AnyPool,
@@ -279,9 +288,8 @@ impl Store {
         if sqlite {
             sqlx::query("PRAGMA journal_mode = WAL").execute(&pool).await?;
         }
-        let migrator = sqlx::migrate!("../migrations");
-        reworded_migrations::accept(&pool, &migrator, sqlite).await?;
-        migrator.run(&pool).await?;
+        reworded_migrations::accept(&pool, &MIGRATOR, sqlite).await?;
+        MIGRATOR.run(&pool).await?;
         let store = Store {
             pool,
             sqlite,

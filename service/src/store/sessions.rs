@@ -41,11 +41,12 @@ impl Store {
         .execute(&mut *tx)
         .await?;
         sqlx::query(
-            "INSERT INTO scoring_jobs (id, session_id, state, attempts, created_at) VALUES ($1, $2, 'queued', 0, $3)",
+            "INSERT INTO scoring_jobs (id, session_id, state, attempts, created_at, request_id) VALUES ($1, $2, 'queued', 0, $3, $4)",
         )
         .bind(new_id())
         .bind(id.clone())
         .bind(now())
+        .bind(s.request_id.clone())
         .execute(&mut *tx)
         .await?;
         sqlx::query("INSERT INTO audit_log (id, at, actor_id, action, target, detail) VALUES ($1, $2, $3, 'session.upload', $4, $5)")
@@ -338,6 +339,8 @@ pub struct NewSession {
     pub physics_version: i64,
     pub duration_s: f64,
     pub recorded_at: String,
+    /// The id of the request that uploaded it, kept with its scoring job (logs).
+    pub request_id: Option<String>,
 }
 
 impl Store {
@@ -414,6 +417,7 @@ mod tests {
             physics_version: 2,
             duration_s: 1.0,
             recorded_at: now(),
+            request_id: None,
         };
         let old = store.insert_session(&new('a')).await.unwrap();
         let recent = store.insert_session(&new('b')).await.unwrap();

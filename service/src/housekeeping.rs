@@ -1,0 +1,29 @@
+//! What every replica deletes now and then: logins past their expiry, login-attempt windows that
+//! have passed, upload slots whose lease ran out (their replica died). Each replica runs it; the
+//! deletions are idempotent, so replicas running it at once only repeat each other.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use super::AppState;
+
+/// How often the expired rows are deleted.
+pub const EVERY: Duration = Duration::from_secs(60);
+
+/// Starts the housekeeping task; it ends with the process.
+pub fn start(state: Arc<AppState>) {
+    tokio::spawn(async move {
+        let mut every = tokio::time::interval(EVERY);
+        loop {
+            every.tick().await;
+            if state.stopping.load(std::sync::atomic::Ordering::SeqCst) {
+                return;
+            }
+            match state.store.purge_expired(super::logins::LOGIN_WINDOW).await {
+                Ok(0) => {}
+                Ok(deleted) => tracing::debug!(deleted, "expired rows deleted"),
+                Err(e) => tracing::warn!(error = %e, "cannot delete expired rows"),
+            }
+        }
+    });
+}
