@@ -14,6 +14,7 @@ pub mod admin;
 pub mod api;
 pub mod atlases;
 pub mod auth;
+pub mod backup;
 pub mod catalogue;
 pub mod disk;
 pub mod error;

@@ -6,6 +6,7 @@ macro_rules! sayf {
 }
 
 mod atlas;
+mod backup;
 mod demo;
 mod device;
 mod render;
@@ -44,6 +45,11 @@ enum Command {
     /// Manage service accounts.
     #[command(subcommand)]
     User(user::UserCommand),
+    /// Back up the service: its database and the files it names, with a manifest of hashes.
+    Backup(backup::BackupArgs),
+    /// Restore a backup into an empty data directory and database, checking every hash, then
+    /// replay a sample of its sessions.
+    Restore(backup::RestoreArgs),
     /// Inspect, verify, export and recover session files (docs/session-format.md).
     #[command(subcommand)]
     Session(session::SessionCommand),
@@ -68,6 +74,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Score(args) => score::run(args),
         Command::Serve(args) => serve::serve(args),
         Command::User(cmd) => user::run(cmd),
+        Command::Backup(args) => backup::backup(args),
+        Command::Restore(args) => backup::restore(args),
         Command::Render(args) => render::run(args),
         Command::Sim(args) => sim::run(args),
         Command::Demo(args) => demo::run(args),

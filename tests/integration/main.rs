@@ -8,6 +8,7 @@
 mod common;
 
 mod accounts;
+mod backup;
 mod benchmark;
 mod breathing;
 mod cli;

@@ -98,7 +98,10 @@ fn an_accounts_upload_cap_holds_across_replicas() {
     // upload racing them would take one of the two itself).
     let t0 = Instant::now();
     while held_slots(&f, &db) < 2 {
-        assert!(t0.elapsed() < Duration::from_secs(10), "the held uploads did not take their slots");
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "the held uploads did not take their slots"
+        );
         std::thread::sleep(Duration::from_millis(50));
     }
     // A third, at either replica, is refused before its body is read.

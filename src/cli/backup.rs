@@ -1,0 +1,99 @@
+//! `stylet backup` and `stylet restore`: the service's database and the files it names, with a
+//! manifest of hashes (stylet-service's `backup` module; docs/operations.md "Backing up").
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::Args;
+use stylet_service::backup;
+
+#[derive(Debug, Args)]
+pub struct BackupArgs {
+    /// The service's data directory.
+    #[arg(long)]
+    pub data_dir: PathBuf,
+    /// Its database URL (default: SQLite in the data directory).
+    #[arg(long)]
+    pub database: Option<String>,
+    /// A new folder for the backup.
+    #[arg(long)]
+    pub to: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct RestoreArgs {
+    /// The backup folder.
+    #[arg(long)]
+    pub from: PathBuf,
+    /// An empty data directory to restore into.
+    #[arg(long)]
+    pub data_dir: PathBuf,
+    /// An empty database to restore into (default: SQLite in the data directory).
+    #[arg(long)]
+    pub database: Option<String>,
+    /// The configured atlas directory the service runs with (`stylet serve --atlases`): the
+    /// sample of sessions replayed after the restore finds their atlases there or among the
+    /// published ones.
+    #[arg(long)]
+    pub atlases: Option<PathBuf>,
+}
+
+fn database_url(data_dir: &std::path::Path, database: Option<String>) -> String {
+    database.unwrap_or_else(|| format!("sqlite://{}?mode=rwc", data_dir.join("stylet.db").display()))
+}
+
+fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")
+}
+
+pub fn backup(a: BackupArgs) -> anyhow::Result<()> {
+    let url = database_url(&a.data_dir, a.database);
+    let manifest = runtime()?.block_on(backup::backup(&a.data_dir, &url, &a.to))?;
+    let bytes: u64 = manifest.files.iter().map(|f| f.bytes).sum();
+    sayf!(
+        "backed up {} sessions ({} scored) in {} files, {:.1} MB, to {}",
+        manifest.sessions,
+        manifest.scores,
+        manifest.files.len(),
+        bytes as f64 / 1e6,
+        a.to.display()
+    );
+    Ok(())
+}
+
+pub fn restore(a: RestoreArgs) -> anyhow::Result<()> {
+    let url = database_url(&a.data_dir, a.database);
+    let rt = runtime()?;
+    let manifest = rt.block_on(backup::restore(&a.from, &a.data_dir, &url))?;
+    sayf!(
+        "restored {} sessions ({} scored), every file checked against the manifest, into {}",
+        manifest.sessions,
+        manifest.scores,
+        a.data_dir.display()
+    );
+    let sample = rt.block_on(backup::reverify_sample(
+        &a.data_dir,
+        &url,
+        a.atlases.as_deref(),
+        backup::REVERIFY_SAMPLE,
+    ))?;
+    let mut differing = Vec::new();
+    for r in &sample {
+        match &r.problem {
+            None => sayf!("  session {}: replayed, identical to its restored score", r.session),
+            Some(p) => differing.push(format!("session {}: {p}", r.session)),
+        }
+    }
+    if !differing.is_empty() {
+        anyhow::bail!(
+            "{} of {} sessions replayed after the restore do not match their scores:\n  {}",
+            differing.len(),
+            sample.len(),
+            differing.join("\n  ")
+        );
+    }
+    Ok(())
+}
