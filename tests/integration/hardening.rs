@@ -1313,11 +1313,19 @@ fn loaded_atlases_are_held_in_a_cache_bounded_by_bytes() {
     );
 }
 
-/// SIGTERM: the server stops accepting connections, answers the request in flight (a login whose
-/// body was half sent when the signal came), gives back its scoring jobs' leases and exits 0.
+/// SIGTERM: the server stops accepting connections, says "not ready" on its admin port, answers
+/// the request in flight (a login whose body was half sent when the signal came), gives back its
+/// scoring jobs' leases and exits 0.
 #[test]
 fn sigterm_finishes_the_request_in_flight_and_stops() {
-    let (f, mut server) = serve(&[]);
+    let (f, mut server) = serve(&["--admin-bind", "127.0.0.1:0"]);
+    let admin = server.admin.clone().expect("the admin port");
+    let readyz = || match ureq::get(&format!("{admin}/readyz")).call() {
+        Ok(r) => (r.status(), r.into_string().unwrap()),
+        Err(ureq::Error::Status(code, r)) => (code, r.into_string().unwrap()),
+        Err(e) => panic!("{admin}/readyz: {e}"),
+    };
+    assert_eq!(readyz().0, 200);
     let addr = server.base.strip_prefix("http://").unwrap().to_string();
     let body = r#"{"username":"tina","password":"not her password"}"#;
     let mut s = TcpStream::connect(&addr).unwrap();
@@ -1340,6 +1348,10 @@ fn sigterm_finishes_the_request_in_flight_and_stops() {
         assert!(t0.elapsed() < Duration::from_secs(10), "still accepting connections");
         std::thread::sleep(Duration::from_millis(50));
     }
+    // While it finishes, the admin port tells the load balancer to send nothing more.
+    let (code, text) = readyz();
+    assert_eq!(code, 503, "{text}");
+    assert!(text.contains("stopping"), "{text}");
     s.write_all(&body.as_bytes()[10..]).unwrap();
     let mut answer = String::new();
     s.read_to_string(&mut answer).unwrap();
