@@ -13,7 +13,6 @@
 //! only into an empty data directory and an empty database. Then it replays a sample of the
 //! scored sessions through the scorer and compares their metrics with the restored scores.
 
-use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use sha2::Digest;
@@ -87,25 +86,12 @@ pub struct Manifest {
     pub files: Vec<ManifestFile>,
 }
 
-/// SHA-256 of a file, read in blocks.
+/// SHA-256 (hex) and size of a file, streamed.
 fn sha256_of(path: &Path) -> Result<(String, u64), BackupError> {
     let mut f = std::fs::File::open(path).map_err(io(path))?;
     let mut hasher = sha2::Sha256::new();
-    let mut buf = vec![0u8; 1 << 16];
-    let mut bytes = 0u64;
-    loop {
-        let n = f.read(&mut buf).map_err(io(path))?;
-        if n == 0 {
-            break;
-        }
-        hasher.update(&buf[..n]);
-        bytes += n as u64;
-    }
-    Ok((hex(&hasher.finalize()), bytes))
-}
-
-fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
+    let bytes = std::io::copy(&mut f, &mut hasher).map_err(io(path))?;
+    Ok((format!("{:x}", hasher.finalize()), bytes))
 }
 
 /// Every file under `dir`, relative, sorted.
@@ -227,8 +213,10 @@ pub async fn backup(data_dir: &Path, database_url: &str, to: &Path) -> Result<Ma
         bytes: db_bytes,
     });
     for (session, sha) in &sessions {
-        let rel = format!("sessions/{}/{sha}.mcap", &sha[..2.min(sha.len())]);
-        let from = data_dir.join(&rel);
+        let from = super::session_file(data_dir, sha);
+        let rel = super::session_file(Path::new(""), sha)
+            .to_string_lossy()
+            .replace('\\', "/");
         if !from.is_file() {
             return Err(BackupError::Missing {
                 session: session.clone(),
@@ -422,10 +410,7 @@ pub async fn reverify_sample(
     for r in rows.iter().step_by(step).take(n) {
         let get = |c: &str| r.try_get::<String, _>(c).map_err(StoreError::from);
         let (id, sha, atlas_hash, stored) = (get("id")?, get("file_sha256")?, get("atlas_hash")?, get("report_json")?);
-        let file = data_dir
-            .join("sessions")
-            .join(&sha[..2.min(sha.len())])
-            .join(format!("{sha}.mcap"));
+        let file = super::session_file(data_dir, &sha);
         let published = super::published_dir(data_dir).join(&atlas_hash);
         let candidates: Vec<PathBuf> = std::iter::once(published).chain(atlas_dirs.iter().cloned()).collect();
         let problem = tokio::task::spawn_blocking(move || replay_and_compare(&file, &atlas_hash, &candidates, &stored))

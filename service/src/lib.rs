@@ -71,9 +71,7 @@ pub struct Config {
 
 impl Config {
     pub fn database_url(&self) -> String {
-        self.database_url
-            .clone()
-            .unwrap_or_else(|| format!("sqlite://{}?mode=rwc", self.data_dir.join("stylet.db").display()))
+        self.database_url.clone().unwrap_or_else(|| sqlite_url(&self.data_dir))
     }
 }
 
@@ -111,11 +109,7 @@ pub struct AppState {
 
 impl AppState {
     pub fn session_file(&self, sha: &str) -> PathBuf {
-        self.config
-            .data_dir
-            .join("sessions")
-            .join(&sha[..2])
-            .join(format!("{sha}.mcap"))
+        session_file(&self.config.data_dir, sha)
     }
 
     /// Where published atlases live: `DATA/atlases/<content hash>/`.
@@ -151,6 +145,21 @@ fn replica_name(data_dir: &Path) -> Result<String, String> {
         }
         Err(e) => Err(format!("{}: {e}", file.display())),
     }
+}
+
+/// `DATA/sessions/aa/<sha256>.mcap`: where the service whose data directory is `data_dir` keeps
+/// the session file of content hash `sha` (a SHA-256 in hex).
+pub fn session_file(data_dir: &Path, sha: &str) -> PathBuf {
+    data_dir
+        .join("sessions")
+        .join(sha.get(..2).unwrap_or(sha))
+        .join(format!("{sha}.mcap"))
+}
+
+/// The default database of the service whose data directory is `data_dir`: SQLite `stylet.db`
+/// in it.
+pub fn sqlite_url(data_dir: &Path) -> String {
+    format!("sqlite://{}?mode=rwc", data_dir.join("stylet.db").display())
 }
 
 /// `DATA/atlases`: the published atlases of the service whose data directory is `data_dir`.

@@ -39,7 +39,7 @@ pub struct RestoreArgs {
 }
 
 fn database_url(data_dir: &std::path::Path, database: Option<String>) -> String {
-    database.unwrap_or_else(|| format!("sqlite://{}?mode=rwc", data_dir.join("stylet.db").display()))
+    database.unwrap_or_else(|| stylet_service::sqlite_url(data_dir))
 }
 
 fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {

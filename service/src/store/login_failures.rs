@@ -16,7 +16,7 @@ use std::time::{Duration, SystemTime};
 
 use sqlx::Row;
 
-use super::{Store, StoreError};
+use super::{Store, StoreError, at};
 
 /// Whether a password check of an account may start.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -40,10 +40,6 @@ pub enum CheckEnd {
     Abandoned,
 }
 
-pub(super) fn rfc3339(t: SystemTime) -> String {
-    humantime::format_rfc3339_micros(t).to_string()
-}
-
 impl Store {
     /// Reserves a password check of `account` (the lower-cased username) under a limit of
     /// `allowed` failures per `window`.
@@ -54,7 +50,7 @@ impl Store {
         window: Duration,
     ) -> Result<CheckReservation, StoreError> {
         let now = SystemTime::now();
-        let cutoff = rfc3339(now - window);
+        let cutoff = at(now - window);
         let granted = sqlx::query(
             "INSERT INTO login_failures (account, failures, pending, window_from) VALUES ($1, 0, 1, $2) \
              ON CONFLICT (account) DO UPDATE SET \
@@ -65,7 +61,7 @@ impl Store {
              RETURNING failures",
         )
         .bind(account.to_string())
-        .bind(rfc3339(now))
+        .bind(at(now))
         .bind(cutoff)
         .bind(i64::from(allowed))
         .fetch_optional(&self.pool)
@@ -121,7 +117,7 @@ impl Store {
             ("DELETE FROM upload_slots WHERE lease_until < $1", now),
         ] {
             deleted += sqlx::query(sql)
-                .bind(rfc3339(before))
+                .bind(at(before))
                 .execute(&self.pool)
                 .await?
                 .rows_affected();
@@ -214,7 +210,7 @@ mod tests {
         );
         // Housekeeping deletes the windows that passed and keeps the others.
         sqlx::query("UPDATE login_failures SET window_from = $1 WHERE account = 'tom'")
-            .bind(rfc3339(SystemTime::now() - WINDOW - Duration::from_secs(1)))
+            .bind(at(SystemTime::now() - WINDOW - Duration::from_secs(1)))
             .execute(&a.pool)
             .await
             .unwrap();

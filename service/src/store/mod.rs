@@ -133,14 +133,20 @@ impl StoreError {
     }
 }
 
-/// Now, RFC 3339 UTC with microseconds: equal-length strings that sort in time order.
-pub fn now() -> String {
-    humantime::format_rfc3339_micros(std::time::SystemTime::now()).to_string()
+/// A time as the database keeps times: RFC 3339 UTC with microseconds, equal-length strings that
+/// sort in time order.
+pub fn at(t: std::time::SystemTime) -> String {
+    humantime::format_rfc3339_micros(t).to_string()
 }
 
-/// The time `after` from now, in the format of [`now`] (expiries, leases, back-offs).
+/// Now, in the format of [`at`].
+pub fn now() -> String {
+    at(std::time::SystemTime::now())
+}
+
+/// The time `after` from now, in the format of [`at`] (expiries, leases, back-offs).
 pub fn from_now(after: std::time::Duration) -> String {
-    humantime::format_rfc3339_micros(std::time::SystemTime::now() + after).to_string()
+    at(std::time::SystemTime::now() + after)
 }
 
 /// A query whose text was built from constants and `$n` placeholders only (filters assembled at
