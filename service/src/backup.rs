@@ -264,7 +264,21 @@ fn copy_file(from: &Path, to: &Path, rel: String) -> Result<ManifestFile, Backup
 /// Reads a backup's manifest and checks every file it lists (and that session files hash to
 /// their names); nothing is written.
 pub fn check(from: &Path) -> Result<Manifest, BackupError> {
+    check_within(from, MAX_MANIFEST_BYTES)
+}
+
+/// Largest manifest read (about 6 M files at ≈ 150 bytes a line).
+pub const MAX_MANIFEST_BYTES: u64 = 1 << 30;
+
+fn check_within(from: &Path, max_manifest_bytes: u64) -> Result<Manifest, BackupError> {
     let path = from.join("manifest.json");
+    let size = std::fs::metadata(&path).map_err(io(&path))?.len();
+    if size > max_manifest_bytes {
+        return Err(BackupError::Manifest(
+            path,
+            format!("{size} bytes, more than the {max_manifest_bytes} a manifest may have"),
+        ));
+    }
     let text = std::fs::read(&path).map_err(io(&path))?;
     let manifest: Manifest =
         serde_json::from_slice(&text).map_err(|e| BackupError::Manifest(path.clone(), e.to_string()))?;
@@ -475,4 +489,20 @@ fn replay_and_compare(file: &Path, atlas_hash: &str, candidates: &[PathBuf], sto
         }
     }
     None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_manifest_over_the_limit_is_refused_before_it_is_read() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("manifest.json"), vec![b' '; 100]).unwrap();
+        let e = check_within(dir.path(), 99).unwrap_err().to_string();
+        assert!(e.contains("100 bytes, more than the 99"), "{e}");
+        // Within the limit it is read (and this one is no manifest).
+        let e = check_within(dir.path(), 100).unwrap_err().to_string();
+        assert!(e.contains("not a backup manifest"), "{e}");
+    }
 }
