@@ -19,6 +19,7 @@ use sha2::Digest;
 use sqlx::Row;
 
 use super::Store;
+use super::storage::Storage;
 use super::store::StoreError;
 
 /// The manifest's format.
@@ -32,6 +33,8 @@ pub enum BackupError {
     Io { path: PathBuf, source: std::io::Error },
     #[error(transparent)]
     Store(#[from] StoreError),
+    #[error(transparent)]
+    Storage(#[from] super::storage::StorageError),
     #[error("{0} exists already: back up into a new folder")]
     TargetExists(PathBuf),
     #[error("{tool} failed: {detail}")]
@@ -133,7 +136,7 @@ fn run_tool(tool: &'static str, args: &[&std::ffi::OsStr]) -> Result<(), BackupE
 
 /// Backs up the service whose data directory is `data_dir` and database `database_url` into the
 /// new folder `to`.
-pub async fn backup(data_dir: &Path, database_url: &str, to: &Path) -> Result<Manifest, BackupError> {
+pub async fn backup(storage: &Storage, data_dir: &Path, database_url: &str, to: &Path) -> Result<Manifest, BackupError> {
     if to.exists() {
         return Err(BackupError::TargetExists(to.to_path_buf()));
     }
@@ -213,16 +216,18 @@ pub async fn backup(data_dir: &Path, database_url: &str, to: &Path) -> Result<Ma
         bytes: db_bytes,
     });
     for (session, sha) in &sessions {
-        let from = super::session_file(data_dir, sha);
-        let rel = super::session_file(Path::new(""), sha)
-            .to_string_lossy()
-            .replace('\\', "/");
-        if !from.is_file() {
-            return Err(BackupError::Missing {
-                session: session.clone(),
-                sha256: sha.clone(),
-            });
-        }
+        // From the object storage when this data directory has no copy.
+        let rel = super::storage::session_key(sha);
+        let from = match storage.fetch(&rel, u64::MAX).await {
+            Ok(from) => from,
+            Err(e) if e.is_missing() => {
+                return Err(BackupError::Missing {
+                    session: session.clone(),
+                    sha256: sha.clone(),
+                });
+            }
+            Err(e) => return Err(e.into()),
+        };
         files.push(copy_file(&from, &partial.join(&rel), rel)?);
     }
     for hash in &published {
@@ -320,7 +325,7 @@ fn check_within(from: &Path, max_manifest_bytes: u64) -> Result<Manifest, Backup
 
 /// Restores the backup in `from` into the empty data directory `data_dir` and the empty database
 /// `database_url` (SQLite: `data_dir/stylet.db`). Every file is checked first.
-pub async fn restore(from: &Path, data_dir: &Path, database_url: &str) -> Result<Manifest, BackupError> {
+pub async fn restore(storage: &Storage, from: &Path, data_dir: &Path, database_url: &str) -> Result<Manifest, BackupError> {
     let manifest = check(from)?;
     if data_dir.exists() {
         let mut held: Vec<String> = std::fs::read_dir(data_dir)
@@ -365,6 +370,10 @@ pub async fn restore(from: &Path, data_dir: &Path, database_url: &str) -> Result
                 std::fs::create_dir_all(parent).map_err(io(parent))?;
             }
             std::fs::copy(from.join(&f.path), &to).map_err(io(&to))?;
+            if f.path.starts_with("sessions/") {
+                // Into the object storage too, before the database that names it.
+                storage.keep(&f.path).await?;
+            }
         }
     }
     if sqlite {

@@ -34,6 +34,7 @@ pub mod review;
 pub mod server;
 pub mod sessions;
 pub mod slots;
+pub mod storage;
 pub mod store;
 pub mod telemetry;
 pub mod tokens;
@@ -59,6 +60,9 @@ pub struct Config {
     pub data_dir: PathBuf,
     /// Default: SQLite `stylet.db` in the data directory.
     pub database_url: Option<String>,
+    /// Object storage for session files, traces and published atlases (`s3://bucket/prefix`);
+    /// default: the data directory ([`storage::Storage`]).
+    pub storage_url: Option<String>,
     /// Directory of atlas directories sessions may use.
     pub atlases_dir: Option<PathBuf>,
     pub workers: usize,
@@ -78,6 +82,8 @@ impl Config {
 /// Shared state of the handlers and workers.
 pub struct AppState {
     pub store: Store,
+    /// Where session files, traces and published atlases are kept.
+    pub storage: storage::Storage,
     pub config: Config,
     /// Every known atlas and its scorer, by content hash (configured and published ones); the
     /// loaded ones in a cache bounded by bytes.
@@ -110,6 +116,14 @@ pub struct AppState {
 impl AppState {
     pub fn session_file(&self, sha: &str) -> PathBuf {
         session_file(&self.config.data_dir, sha)
+    }
+
+    /// The local path of the session file `sha`, fetched from the object storage first when
+    /// this replica has no copy yet (at most the largest upload).
+    pub async fn session_copy(&self, sha: &str) -> Result<PathBuf, storage::StorageError> {
+        self.storage
+            .fetch(&storage::session_key(sha), self.config.max_upload_bytes as u64)
+            .await
     }
 
     /// Where published atlases live: `DATA/atlases/<content hash>/`.
@@ -150,10 +164,7 @@ fn replica_name(data_dir: &Path) -> Result<String, String> {
 /// `DATA/sessions/aa/<sha256>.mcap`: where the service whose data directory is `data_dir` keeps
 /// the session file of content hash `sha` (a SHA-256 in hex).
 pub fn session_file(data_dir: &Path, sha: &str) -> PathBuf {
-    data_dir
-        .join("sessions")
-        .join(sha.get(..2).unwrap_or(sha))
-        .join(format!("{sha}.mcap"))
+    data_dir.join(storage::session_key(sha))
 }
 
 /// The default database of the service whose data directory is `data_dir`: SQLite `stylet.db`
@@ -171,6 +182,8 @@ pub fn published_dir(data_dir: &std::path::Path) -> PathBuf {
 pub enum ServiceError {
     #[error(transparent)]
     Store(#[from] StoreError),
+    #[error(transparent)]
+    Storage(#[from] storage::StorageError),
     #[error("{0}")]
     Setup(String),
 }
@@ -195,6 +208,7 @@ pub async fn serve(
     std::fs::create_dir_all(config.data_dir.join("sessions"))
         .map_err(|e| setup(&format!("{}: {e}", config.data_dir.display())))?;
     let replica = replica_name(&config.data_dir).map_err(|e| setup(&e))?;
+    let storage = storage::Storage::open(&config.data_dir, config.storage_url.as_deref())?;
     let store = Store::open(&config.database_url()).await?.with_replica(&replica);
     let catalogue = Arc::new(catalogue::Catalogue::new(config.limits.atlas_cache_bytes));
     // The configured directory's atlases, then the published ones the database records (a
@@ -285,6 +299,7 @@ pub async fn serve(
     std::fs::create_dir_all(&incoming).map_err(|e| setup(&format!("{}: {e}", incoming.display())))?;
     let state = Arc::new(AppState {
         store,
+        storage,
         config,
         catalogue,
         publish_permit: Arc::new(tokio::sync::Semaphore::new(1)),

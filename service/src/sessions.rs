@@ -90,10 +90,16 @@ pub async fn get_session_file(
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
     let row = visible_session(&s, &user, &id).await?;
-    let path = s.session_file(&row.file_sha256);
-    let file = tokio::fs::File::open(&path)
-        .await
-        .map_err(|_| err(StatusCode::NOT_FOUND, format!("the file of session {id} is gone")))?;
+    let gone = || err(StatusCode::NOT_FOUND, format!("the file of session {id} is gone"));
+    let path = s.session_copy(&row.file_sha256).await.map_err(|e| {
+        if e.is_missing() {
+            gone()
+        } else {
+            tracing::error!(session = %id, error = %e, "cannot fetch a session file");
+            err(StatusCode::SERVICE_UNAVAILABLE, "the session file cannot be read now; try again shortly")
+        }
+    })?;
+    let file = tokio::fs::File::open(&path).await.map_err(|_| gone())?;
     let len = file.metadata().await.map(|m| m.len()).ok();
     let chunks = futures_util::stream::unfold(Some(file), |file| async move {
         use tokio::io::AsyncReadExt;
@@ -193,6 +199,11 @@ async fn remove_session_files(s: &AppState, sha: &str) {
             {
                 tracing::warn!(error = %err, file = %e.path().display(), "cannot remove a deleted session's file");
             }
+        }
+    }
+    for key in [super::storage::session_key(sha), super::storage::trace_key(sha)] {
+        if let Err(e) = s.storage.remove(&key).await {
+            tracing::warn!(error = %e, "cannot remove a deleted session's object");
         }
     }
     let frames = s.config.data_dir.join("frames").join(prefix).join(sha);

@@ -1,6 +1,7 @@
 //! Review traces on disk (`DATA/traces/xx/<sha>.json.zst`): derived data, written by the worker
 //! when it scores a session and rebuilt by a replay whenever one is missing, unreadable, or of
-//! another trace format or physics version. Deleting the folder loses nothing.
+//! another trace format or physics version. Deleting the folder loses nothing. With object
+//! storage, a trace written by one replica is shared with the others through it.
 
 use std::path::{Path, PathBuf};
 
@@ -26,6 +27,9 @@ pub enum TraceError {
     /// The replay refused the session (another atlas, another physics version, no rubric level).
     #[error(transparent)]
     Replay(#[from] stylet_scoring::ScoreError),
+    /// The session file is not in the storage, or the object storage does not answer.
+    #[error(transparent)]
+    Storage(#[from] super::storage::StorageError),
     /// A blocking task reading or rebuilding the trace panicked or was cancelled.
     #[error("{0}")]
     Task(#[from] tokio::task::JoinError),
@@ -36,10 +40,22 @@ pub enum TraceError {
 
 /// Where the trace of the session file `sha` lives.
 pub fn trace_path(data_dir: &Path, sha: &str) -> PathBuf {
-    data_dir
-        .join("traces")
-        .join(&sha[..2.min(sha.len())])
-        .join(format!("{sha}.json.zst"))
+    data_dir.join(super::storage::trace_key(sha))
+}
+
+/// Largest stored trace fetched from the object storage (traces take ~50 Hz of a session).
+const MAX_TRACE_BYTES: u64 = 256 << 20;
+
+/// Puts the trace of the session file `sha`, just written to the data directory, into the
+/// object storage (when there is one), so that other replicas need not replay the session for
+/// it. A cache: a failure is logged and costs a replay later.
+pub async fn share_trace(state: &AppState, sha: &str) {
+    if state.storage.url().is_none() {
+        return;
+    }
+    if let Err(e) = state.storage.keep(&super::storage::trace_key(sha)).await {
+        tracing::warn!(error = %e, "cannot put a review trace into the object storage");
+    }
 }
 
 /// Writes atomically (a temporary file renamed into place).
@@ -80,21 +96,34 @@ pub async fn review_trace(state: &AppState, file_sha256: &str, atlas_hash: &str)
     if let Some(t) = cached().await? {
         return Ok(t);
     }
+    // Another replica may have stored it (a fetch error only costs the replay below).
+    if state.storage.url().is_some()
+        && state
+            .storage
+            .fetch(&super::storage::trace_key(file_sha256), MAX_TRACE_BYTES)
+            .await
+            .is_ok()
+        && let Some(t) = cached().await?
+    {
+        return Ok(t);
+    }
     let _turn = PAGE_REPLAYS.acquire().await?;
     // Whoever held the turn before may have replayed this very session.
     if let Some(t) = cached().await? {
         return Ok(t);
     }
     let scorer = state.catalogue.loaded(atlas_hash).await?.scorer;
-    let file = state.session_file(file_sha256);
-    tokio::task::spawn_blocking(move || {
+    let file = state.session_copy(file_sha256).await?;
+    let trace = tokio::task::spawn_blocking(move || {
         let session =
             stylet_recorder::reader::recover(&file).map_err(|source| TraceError::Unreadable { path: file, source })?;
         let (_, trace) = scorer.score_session_traced(&session)?;
         if let Err(e) = write_trace(&path, &trace) {
             tracing::warn!(error = %e, path = %path.display(), "cannot store a review trace");
         }
-        Ok(trace)
+        Ok::<_, TraceError>(trace)
     })
-    .await?
+    .await??;
+    share_trace(state, file_sha256).await;
+    Ok(trace)
 }

@@ -448,6 +448,14 @@ async fn keep(s: &AppState, user: &User, checked: CheckedUpload) -> Result<(Stri
         request_id: super::server::current_request_id(),
     };
     checked.file.persist(&s.session_file(&sha)).await?;
+    // In the object storage before the row names it: a row never points at a missing object.
+    s.storage.keep(&super::storage::session_key(&sha)).await.map_err(|e| {
+        tracing::error!(sha256 = %sha, error = %e, "cannot put an upload into the object storage");
+        err(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "the object storage cannot take the file now; try again shortly",
+        )
+    })?;
     let id = match s.store.insert_session(&new).await {
         Ok(id) => id,
         Err(e) => {

@@ -92,7 +92,12 @@ enum Outcome {
 
 /// Replays the job's session on a blocking thread; the same replay writes the review trace.
 async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
-    let file = state.session_file(&job.file_sha256);
+    let file = match state.session_copy(&job.file_sha256).await {
+        Ok(file) => file,
+        Err(e) if e.is_missing() => return Outcome::Failed(e.to_string()),
+        // The object storage may answer later.
+        Err(e) => return Outcome::Retry(e.to_string()),
+    };
     let trace_file = super::traces::trace_path(&state.config.data_dir, &job.file_sha256);
     let scorer = match state.catalogue.loaded(&job.atlas_hash).await {
         Ok(l) => Some(l.scorer),
@@ -109,7 +114,7 @@ async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
         },
         _ => None,
     };
-    tokio::task::spawn_blocking(move || {
+    let outcome = tokio::task::spawn_blocking(move || {
         let Some(scorer) = scorer else {
             return Outcome::Failed("the session's atlas is not loaded on this server".into());
         };
@@ -137,7 +142,11 @@ async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
         }
     })
     .await
-    .unwrap_or_else(|e| Outcome::Failed(format!("scoring panicked: {e}")))
+    .unwrap_or_else(|e| Outcome::Failed(format!("scoring panicked: {e}")));
+    if matches!(outcome, Outcome::Scored(_)) {
+        super::traces::share_trace(state, &job.file_sha256).await;
+    }
+    outcome
 }
 
 /// The expert benchmark of the job's scenario: the grade's relative deductions (at levels with

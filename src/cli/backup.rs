@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use stylet_service::backup;
+use stylet_service::storage::Storage;
 
 #[derive(Debug, Args)]
 pub struct BackupArgs {
@@ -15,6 +16,10 @@ pub struct BackupArgs {
     /// Its database URL (default: SQLite in the data directory).
     #[arg(long)]
     pub database: Option<String>,
+    /// Its object storage (`stylet serve --storage`), if it has one: session files this data
+    /// directory has no copy of are fetched from it.
+    #[arg(long)]
+    pub storage: Option<String>,
     /// A new folder for the backup.
     #[arg(long)]
     pub to: PathBuf,
@@ -31,6 +36,10 @@ pub struct RestoreArgs {
     /// An empty database to restore into (default: SQLite in the data directory).
     #[arg(long)]
     pub database: Option<String>,
+    /// The object storage the restored service will use (`stylet serve --storage`): the
+    /// session files are put into it as well.
+    #[arg(long)]
+    pub storage: Option<String>,
     /// The configured atlas directory the service runs with (`stylet serve --atlases`): the
     /// sample of sessions replayed after the restore finds their atlases there or among the
     /// published ones.
@@ -51,7 +60,8 @@ fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
 
 pub fn backup(a: BackupArgs) -> anyhow::Result<()> {
     let url = database_url(&a.data_dir, a.database);
-    let manifest = runtime()?.block_on(backup::backup(&a.data_dir, &url, &a.to))?;
+    let storage = Storage::open(&a.data_dir, a.storage.as_deref())?;
+    let manifest = runtime()?.block_on(backup::backup(&storage, &a.data_dir, &url, &a.to))?;
     let bytes: u64 = manifest.files.iter().map(|f| f.bytes).sum();
     sayf!(
         "backed up {} sessions ({} scored) in {} files, {:.1} MB, to {}",
@@ -67,7 +77,8 @@ pub fn backup(a: BackupArgs) -> anyhow::Result<()> {
 pub fn restore(a: RestoreArgs) -> anyhow::Result<()> {
     let url = database_url(&a.data_dir, a.database);
     let rt = runtime()?;
-    let manifest = rt.block_on(backup::restore(&a.from, &a.data_dir, &url))?;
+    let storage = Storage::open(&a.data_dir, a.storage.as_deref())?;
+    let manifest = rt.block_on(backup::restore(&storage, &a.from, &a.data_dir, &url))?;
     sayf!(
         "restored {} sessions ({} scored), every file checked against the manifest, into {}",
         manifest.sessions,

@@ -224,6 +224,7 @@ fn serve_dashboard(args: &DemoArgs, uploads: &[DemoUpload]) -> anyhow::Result<()
         admin_bind: None,
         data_dir: data.clone(),
         database_url: None,
+        storage_url: None,
         atlases_dir: Some(args.out.join("atlases")),
         workers: std::thread::available_parallelism().map_or(1, |n| n.get()),
         max_upload_bytes: 64 << 20,

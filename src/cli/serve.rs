@@ -23,6 +23,13 @@ pub struct ServeArgs {
     /// Database URL (default: SQLite in the data directory; or postgres://…).
     #[arg(long)]
     pub database: Option<String>,
+    /// Object storage for session files, traces and published atlases, shared by several
+    /// replicas: `s3://bucket/prefix` (endpoint, region and credentials from the AWS_*
+    /// environment variables: AWS_ENDPOINT, AWS_REGION, AWS_ACCESS_KEY_ID,
+    /// AWS_SECRET_ACCESS_KEY, AWS_ALLOW_HTTP). Default: the data directory; with a store, the
+    /// data directory holds this replica's local copies.
+    #[arg(long)]
+    pub storage: Option<String>,
     /// Directory of atlas directories that uploaded sessions may use (besides the atlases
     /// published through the API, kept in DATA_DIR/atlases).
     #[arg(long)]
@@ -206,6 +213,7 @@ pub fn serve(a: ServeArgs) -> anyhow::Result<()> {
         admin_bind: a.admin_bind,
         data_dir: a.data_dir,
         database_url: a.database,
+        storage_url: a.storage,
         atlases_dir: a.atlases,
         workers: a
             .workers
@@ -238,6 +246,7 @@ pub fn user(cmd: UserCommand) -> anyhow::Result<()> {
                 admin_bind: None,
                 data_dir: a.data_dir.clone(),
                 database_url: a.database.clone(),
+                storage_url: None,
                 atlases_dir: None,
                 workers: 1,
                 max_upload_bytes: 0,

@@ -20,6 +20,7 @@ mod guide_wire;
 mod haptics;
 mod hardening;
 mod instructors;
+mod object_storage;
 mod observability;
 mod phone;
 mod player;

@@ -713,10 +713,12 @@ pub async fn override_grade(
 /// `GET /sessions/{id}/file`: the session file as uploaded.
 pub async fn file(State(s): State<Arc<AppState>>, v: Viewer, Path(id): Path<String>) -> Result<Response, PageError> {
     let row = visible_session(&s, &v, &id).await?;
-    let bytes = tokio::fs::read(s.session_file(&row.file_sha256)).await.map_err(|e| {
+    let cannot_read = |e: &dyn std::fmt::Display| {
         tracing::error!(error = %e, session = %id, "stored session file missing");
         fail(StatusCode::INTERNAL_SERVER_ERROR, "the stored file cannot be read")
-    })?;
+    };
+    let path = s.session_copy(&row.file_sha256).await.map_err(|e| cannot_read(&e))?;
+    let bytes = tokio::fs::read(path).await.map_err(|e| cannot_read(&e))?;
     let safe = |t: &str| -> String {
         t.chars()
             .map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' })

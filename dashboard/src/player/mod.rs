@@ -123,7 +123,10 @@ async fn replay_states(s: &AppState, row: &SessionRow) -> Result<Arc<ReplayState
         .await
         .map_err(|e| internal(e.to_string()))?;
     let scorer = atlas_of(s, &row.atlas_hash).await?.scorer;
-    let file = s.session_file(&sha);
+    let file = s.session_copy(&sha).await.map_err(|e| {
+        tracing::warn!(session = %row.id, error = %e, "cannot fetch a session file for the player");
+        internal("the session file cannot be read")
+    })?;
     let id = row.id.clone();
     tokio::task::spawn_blocking(move || -> Result<Arc<ReplayStates>, PageError> {
         let _turn = turn;
@@ -391,7 +394,9 @@ pub async fn script() -> Response {
 /// The session's tick rate, from its header (the first 64 KiB of the file: nothing else is read).
 pub async fn tick_rate_hz(s: &AppState, row: &SessionRow) -> Option<u32> {
     use tokio::io::AsyncReadExt;
-    let file = tokio::fs::File::open(s.session_file(&row.file_sha256)).await.ok()?;
+    let file = tokio::fs::File::open(s.session_copy(&row.file_sha256).await.ok()?)
+        .await
+        .ok()?;
     let mut head = Vec::with_capacity(64 << 10);
     file.take(64 << 10).read_to_end(&mut head).await.ok()?;
     stylet_recorder::reader::read_header(&head)

@@ -1,0 +1,182 @@
+//! Session files and review traces in S3-compatible object storage (`stylet serve --storage
+//! s3://bucket/prefix`), against a real S3 server (s3s-fs, installed by scripts/test): replicas
+//! with data directories of their own share the files through the store; an upload is in the
+//! store before its row commits, so a replica killed between the two leaves no row pointing at a
+//! missing object; `/readyz` says when the store does not answer.
+
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use crate::common::attack::{status_of, upload_head};
+use crate::common::*;
+
+const BUCKET: &str = "stylet";
+const STORAGE: &str = "s3://stylet/site-a";
+
+/// Replica `name` of the fixture's service on `db` and the object store `s3`, with a data
+/// directory of its own.
+fn replica(f: &Fixture, db: &Db, s3: &S3Server, name: &str) -> Server {
+    let data = f.dir.path().join(format!("data-{name}"));
+    let mut command = Server::command(
+        STYLET,
+        "127.0.0.1:0",
+        &data,
+        db,
+        &f.atlases(),
+        &["--workers", "1", "--storage", STORAGE, "--admin-bind", "127.0.0.1:0"],
+    );
+    s3.configure(&mut command);
+    Server::spawn(command, &data)
+}
+
+/// The status and body of a GET on the admin port (not in the API's OpenAPI document).
+fn admin_get(url: &str) -> (u16, String) {
+    match ureq::get(url).call() {
+        Ok(r) => (r.status(), r.into_string().unwrap()),
+        Err(ureq::Error::Status(code, r)) => (code, r.into_string().unwrap()),
+        Err(e) => panic!("{url}: {e}"),
+    }
+}
+
+fn session_key(sha: &str) -> String {
+    format!("site-a/sessions/{}/{sha}.mcap", &sha[..2])
+}
+
+fn psql(db: &Db, sql: &str) -> String {
+    let out = Command::new("psql")
+        .args([db.url(std::path::Path::new("")).as_str(), "-tA", "-c", sql])
+        .output()
+        .expect("psql runs");
+    assert!(out.status.success(), "{sql}: {}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).trim().to_string()
+}
+
+#[test]
+fn replicas_share_session_files_and_traces_through_the_object_store() {
+    let f = Fixture::new(STYLET);
+    let db = Db::postgres("objectstore");
+    let mut s3 = S3Server::start(BUCKET);
+    f.users(&db);
+    let a = replica(&f, &db, &s3, "a");
+    let b = replica(&f, &db, &s3, "b");
+    let tina = login(&a.base, "tina");
+    let file = std::fs::read(f.session("tina-ok")).unwrap();
+    let (id, _) = upload_scored(&a.base, &tina, &f.session("tina-ok"));
+    let sha = psql(&db, &format!("SELECT file_sha256 FROM sessions WHERE id = '{id}'"));
+
+    // The file is in the store, byte for byte; so is the trace of its scoring replay.
+    let stored = std::fs::read(s3.bucket_dir(BUCKET).join(session_key(&sha))).unwrap();
+    assert_eq!(stored, file);
+    let traces = s3.keys(BUCKET, "site-a/traces/");
+    assert_eq!(traces, vec![format!("site-a/traces/{}/{sha}.json.zst", &sha[..2])]);
+
+    // Replica b has no copy of it, fetches it from the store and serves the same bytes.
+    let b_copy = f.dir.path().join("data-b").join(format!("sessions/{}/{sha}.mcap", &sha[..2]));
+    assert!(!b_copy.exists());
+    let tina_b = login(&b.base, "tina");
+    let (status, bytes) = get_bytes(&format!("{}/api/sessions/{id}/file", b.base), &tina_b);
+    assert_eq!(status, 200);
+    assert_eq!(bytes, file);
+    assert!(b_copy.is_file());
+
+    // Deleted at b: gone from the store as well.
+    let root = login(&b.base, "root");
+    let (status, json, _) = call("DELETE", &format!("{}/api/sessions/{id}", b.base), Some(&root), None, false);
+    assert_eq!(status, 200, "{json}");
+    assert_eq!(s3.keys(BUCKET, "site-a/"), Vec::<String>::new());
+
+    // A store that does not answer: not ready, and an upload is refused (503) without a row.
+    let admin = a.admin.clone().unwrap();
+    assert_eq!(admin_get(&format!("{admin}/readyz")).0, 200);
+    s3.stop();
+    let (status, text) = admin_get(&format!("{admin}/readyz"));
+    assert_eq!(status, 503, "{text}");
+    assert!(text.contains("object storage"), "{text}");
+    let body = std::fs::read(f.session("tom-ok")).unwrap();
+    let tom = login(&a.base, "tom");
+    let (status, json, _) = call("POST", &format!("{}/api/sessions", a.base), Some(&tom), Some(&body), false);
+    assert_eq!(status, 503, "{json}");
+    assert_eq!(psql(&db, "SELECT COUNT(*) FROM sessions"), "0");
+}
+
+/// The replica is killed after the file reached the store and before its row committed (held
+/// back by a lock on the sessions table): the client got no answer, no row names the object,
+/// and the same upload to the restarted replica is stored and scored.
+#[test]
+fn a_replica_killed_between_the_object_and_its_row_leaves_no_row_without_its_object() {
+    let f = Fixture::new(STYLET);
+    let db = Db::postgres("objectkill");
+    let s3 = S3Server::start(BUCKET);
+    f.users(&db);
+    let mut a = replica(&f, &db, &s3, "a");
+    let tina = login(&a.base, "tina");
+    let file = std::fs::read(f.session("tina-ok")).unwrap();
+
+    // Inserts into sessions wait behind this lock; reads go on.
+    let mut lock = Command::new("psql")
+        .args([
+            db.url(std::path::Path::new("")).as_str(),
+            "-q",
+            "-c",
+            "BEGIN; LOCK TABLE sessions IN EXCLUSIVE MODE; SELECT pg_sleep(60); COMMIT;",
+        ])
+        .spawn()
+        .expect("psql runs");
+    let held = Instant::now();
+    while psql(
+        &db,
+        "SELECT COUNT(*) FROM pg_locks l JOIN pg_class c ON l.relation = c.oid \
+         WHERE c.relname = 'sessions' AND l.mode = 'ExclusiveLock' AND l.granted",
+    ) != "1"
+    {
+        assert!(held.elapsed() < Duration::from_secs(20), "the lock was not taken");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+
+    let addr = a.base.strip_prefix("http://").unwrap().to_string();
+    let head = upload_head(&addr, &tina, file.len() as u64);
+    let body = file.clone();
+    let upload = std::thread::spawn(move || {
+        let mut s = TcpStream::connect(&addr).unwrap();
+        s.write_all(head.as_bytes()).unwrap();
+        let _ = s.write_all(&body);
+        let mut answer = Vec::new();
+        let _ = s.read_to_end(&mut answer);
+        status_of(&answer)
+    });
+    let waited = Instant::now();
+    let key = loop {
+        if let Some(key) = s3.keys(BUCKET, "site-a/sessions/").pop() {
+            break key;
+        }
+        assert!(waited.elapsed() < Duration::from_secs(30), "the upload never reached the store");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert_eq!(std::fs::read(s3.bucket_dir(BUCKET).join(&key)).unwrap(), file);
+    // The object is there and the row waits for the lock: kill the replica now.
+    a.child.kill().unwrap();
+    a.child.wait().unwrap();
+    let (status, text) = upload.join().unwrap();
+    assert_eq!(status, 0, "the killed replica answered: {text}");
+    // The lock's session ends (its client going away would not end pg_sleep).
+    psql(
+        &db,
+        "SELECT pg_terminate_backend(pid) FROM pg_stat_activity \
+         WHERE query LIKE '%LOCK TABLE sessions%' AND pid <> pg_backend_pid()",
+    );
+    let _ = lock.wait();
+
+    assert_eq!(psql(&db, "SELECT COUNT(*) FROM sessions"), "0");
+    drop(a);
+    let a = replica(&f, &db, &s3, "a");
+    let tina = login(&a.base, "tina");
+    let (id, _) = upload_scored(&a.base, &tina, &f.session("tina-ok"));
+    // Every row's object is in the store.
+    let rows = psql(&db, "SELECT file_sha256 FROM sessions");
+    assert_eq!(session_key(&rows), key, "{id}");
+    for sha in rows.lines() {
+        assert!(s3.keys(BUCKET, &session_key(sha)).contains(&session_key(sha)));
+    }
+}
