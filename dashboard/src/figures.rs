@@ -143,7 +143,7 @@ pub async fn session_figure(
         return Ok(Some(bytes));
     }
     let trace = review_trace(s, file_sha256, atlas_hash).await?;
-    let scorer = s.catalogue.loaded(atlas_hash).await?.scorer;
+    let scorer = stylet_service::shared_atlases::loaded(s, atlas_hash).await?.scorer;
     let Some(spec) = spec(&scorer, report, &trace, figure, title, corridor.as_deref()) else {
         return Ok(None);
     };

@@ -374,6 +374,15 @@ async fn keep(s: &AppState, user: &User, checked: publish::Checked, incoming: &I
         std::fs::rename(&dest, &aside).map_err(storage)?;
     }
     std::fs::rename(incoming.path.join("atlas"), &dest).map_err(storage)?;
+    // In the object storage before the row: every replica can fetch what the row publishes.
+    if let Err(e) = s.storage.keep_folder(&format!("atlases/{hash}")).await {
+        tracing::error!(atlas = %name, error = %e, "cannot put a published atlas into the object storage");
+        let _ = std::fs::remove_dir_all(&dest);
+        return Err(err(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "the object storage cannot take the atlas now; try again shortly",
+        ));
+    }
     let dir = dest.display().to_string();
     let detail = format!("{name}: smoke test {}", smoke.join(", "));
     if let Err(e) = s.store.publish_atlas(&hash, &name, &dir, user, &detail).await {

@@ -134,9 +134,9 @@ fn run_tool(tool: &'static str, args: &[&std::ffi::OsStr]) -> Result<(), BackupE
     }
 }
 
-/// Backs up the service whose data directory is `data_dir` and database `database_url` into the
-/// new folder `to`.
-pub async fn backup(storage: &Storage, data_dir: &Path, database_url: &str, to: &Path) -> Result<Manifest, BackupError> {
+/// Backs up the service whose storage (data directory, object store) is `storage` and database
+/// `database_url` into the new folder `to`.
+pub async fn backup(storage: &Storage, database_url: &str, to: &Path) -> Result<Manifest, BackupError> {
     if to.exists() {
         return Err(BackupError::TargetExists(to.to_path_buf()));
     }
@@ -231,7 +231,7 @@ pub async fn backup(storage: &Storage, data_dir: &Path, database_url: &str, to: 
         files.push(copy_file(&from, &partial.join(&rel), rel)?);
     }
     for hash in &published {
-        let dir = super::published_dir(data_dir).join(hash);
+        let dir = storage.fetch_folder(&format!("atlases/{hash}"), u64::MAX).await?;
         for rel in files_under(&dir)? {
             let rel_text = format!("atlases/{hash}/{}", rel.to_string_lossy().replace('\\', "/"));
             files.push(copy_file(&dir.join(&rel), &partial.join(&rel_text), rel_text)?);
@@ -375,6 +375,14 @@ pub async fn restore(storage: &Storage, from: &Path, data_dir: &Path, database_u
                 storage.keep(&f.path).await?;
             }
         }
+    }
+    for hash in manifest
+        .files
+        .iter()
+        .filter_map(|f| f.path.strip_prefix("atlases/")?.split('/').next())
+        .collect::<std::collections::BTreeSet<_>>()
+    {
+        storage.keep_folder(&format!("atlases/{hash}")).await?;
     }
     if sqlite {
         let to = data_dir.join("stylet.db");

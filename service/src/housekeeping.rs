@@ -1,6 +1,8 @@
-//! What every replica deletes now and then: logins past their expiry, login-attempt windows that
-//! have passed, upload slots whose lease ran out (their replica died). Each replica runs it; the
-//! deletions are idempotent, so replicas running it at once only repeat each other.
+//! What every replica does now and then: delete logins past their expiry, login-attempt windows
+//! that have passed, upload slots whose lease ran out (their replica died); bring its atlas
+//! catalogue in line with the publications made at other replicas
+//! ([`super::shared_atlases::sync`]). Each replica runs it; the deletions are idempotent, so
+//! replicas running it at once only repeat each other.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -12,6 +14,19 @@ pub const EVERY: Duration = Duration::from_secs(60);
 
 /// Starts the housekeeping task; it ends with the process.
 pub fn start(state: Arc<AppState>) {
+    let catalogue_state = state.clone();
+    tokio::spawn(async move {
+        let mut every = tokio::time::interval(super::shared_atlases::SYNC_EVERY);
+        // The first tick is at once: serve() has just synced.
+        every.tick().await;
+        loop {
+            every.tick().await;
+            if catalogue_state.stopping.load(std::sync::atomic::Ordering::SeqCst) {
+                return;
+            }
+            super::shared_atlases::sync(&catalogue_state).await;
+        }
+    });
     tokio::spawn(async move {
         let mut every = tokio::time::interval(EVERY);
         loop {

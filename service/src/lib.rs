@@ -32,6 +32,7 @@ pub mod publish;
 pub mod reports;
 pub mod review;
 pub mod server;
+pub mod shared_atlases;
 pub mod sessions;
 pub mod slots;
 pub mod storage;
@@ -316,6 +317,8 @@ pub async fn serve(
         stopping: Default::default(),
         admin_addr,
     });
+    // Atlases published at other replicas (fetched from the object storage).
+    shared_atlases::sync(&state).await;
     worker::start(state.clone());
     housekeeping::start(state.clone());
     let mut app = api::router(state.clone(), mount.map(|m| (m.openapi)()));
@@ -387,7 +390,7 @@ fn atlas_dirs(dir: &std::path::Path) -> Result<Vec<PathBuf>, ServiceError> {
 }
 
 /// Loads the atlas in `dir` and its scorer.
-fn load_atlas(dir: &std::path::Path) -> Result<(stylet_atlas::Atlas, stylet_scoring::Scorer), ServiceError> {
+pub(crate) fn load_atlas(dir: &std::path::Path) -> Result<(stylet_atlas::Atlas, stylet_scoring::Scorer), ServiceError> {
     let atlas = stylet_atlas::load(dir).map_err(|e| ServiceError::Setup(e.to_string()))?;
     let scorer = stylet_scoring::Scorer::new(&atlas, stylet_scoring::Rubric::default_rubric(), None)
         .map_err(|e| ServiceError::Setup(e.to_string()))?;

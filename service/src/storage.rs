@@ -171,53 +171,102 @@ impl Storage {
         let Some(remote) = &self.remote else {
             return Err(StorageError::Missing { key: key.to_string() });
         };
-        let got = remote
+        fetch_to(remote, key, &path, max_bytes).await?;
+        Ok(path)
+    }
+
+    /// Puts every file under the data directory's folder `prefix` into the object store (keys
+    /// `prefix/<path>`), but for hidden ones (`.stylet-cache`: what this machine derived).
+    pub async fn keep_folder(&self, prefix: &str) -> Result<(), StorageError> {
+        if self.remote.is_none() {
+            return Ok(());
+        }
+        let root = self.local_path(prefix);
+        let mut pending = vec![root.clone()];
+        while let Some(dir) = pending.pop() {
+            let mut entries = tokio::fs::read_dir(&dir).await.map_err(|source| StorageError::Io {
+                path: dir.clone(),
+                source,
+            })?;
+            while let Some(e) = entries.next_entry().await.map_err(|source| StorageError::Io {
+                path: dir.clone(),
+                source,
+            })? {
+                let path = e.path();
+                if e.file_name().to_string_lossy().starts_with('.') {
+                    continue;
+                }
+                if path.is_dir() {
+                    pending.push(path);
+                } else if let Ok(rel) = path.strip_prefix(&self.data_dir) {
+                    self.keep(&rel.to_string_lossy().replace('\\', "/")).await?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The data directory's folder `prefix`, fetched first from the objects under `prefix/`
+    /// when it is not there (at most `max_bytes` in all, checked from the listing before
+    /// anything is read; made whole beside it, then renamed into place).
+    pub async fn fetch_folder(&self, prefix: &str, max_bytes: u64) -> Result<PathBuf, StorageError> {
+        let dest = self.local_path(prefix);
+        if dest.is_dir() {
+            return Ok(dest);
+        }
+        let Some(remote) = &self.remote else {
+            return Err(StorageError::Missing { key: prefix.to_string() });
+        };
+        let listed: Vec<object_store::ObjectMeta> = remote
             .store
-            .get(&object_path(key)?)
+            .list(Some(&object_path(prefix)?))
+            .take(MAX_FOLDER_OBJECTS + 1)
+            .collect::<Vec<_>>()
             .await
-            .map_err(|e| StorageError::store(key, e))?;
-        if got.meta.size > max_bytes {
+            .into_iter()
+            .collect::<Result<_, _>>()
+            .map_err(|e| StorageError::store(prefix, e))?;
+        if listed.is_empty() {
+            return Err(StorageError::Missing { key: prefix.to_string() });
+        }
+        let bytes: u64 = listed.iter().map(|m| m.size).sum();
+        if bytes > max_bytes || listed.len() > MAX_FOLDER_OBJECTS {
             return Err(StorageError::TooLarge {
-                key: key.to_string(),
-                bytes: got.meta.size,
+                key: prefix.to_string(),
+                bytes,
                 limit: max_bytes,
             });
         }
-        let io = |path: &Path| {
-            let path = path.to_path_buf();
-            move |source| StorageError::Io { path, source }
-        };
-        if let Some(dir) = path.parent() {
-            tokio::fs::create_dir_all(dir).await.map_err(io(dir))?;
-        }
-        // A name of its own, renamed into place: two requests may fetch the same object at once.
-        static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-        let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let tmp = path.with_extension(format!("fetch-{}-{n}", std::process::id()));
-        let written = async {
-            let mut file = tokio::fs::File::create(&tmp).await.map_err(io(&tmp))?;
-            let mut stream = got.into_stream();
-            let mut bytes = 0u64;
-            while let Some(chunk) = stream.next().await {
-                let chunk = chunk.map_err(|e| StorageError::store(key, e))?;
-                bytes += chunk.len() as u64;
-                if bytes > max_bytes {
-                    return Err(StorageError::TooLarge {
-                        key: key.to_string(),
-                        bytes,
-                        limit: max_bytes,
-                    });
-                }
-                file.write_all(&chunk).await.map_err(io(&tmp))?;
+        let n = NEXT_TEMPORARY.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let name = dest.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let tmp = dest.with_file_name(format!(".fetching-{name}-{}-{n}", std::process::id()));
+        let fetched = async {
+            for meta in &listed {
+                let key = meta.location.as_ref();
+                let rel = key
+                    .strip_prefix(prefix)
+                    .map(|r| r.trim_start_matches('/'))
+                    .unwrap_or(key);
+                fetch_to(remote, key, &tmp.join(rel), max_bytes).await?;
             }
-            file.sync_all().await.map_err(io(&tmp))?;
-            tokio::fs::rename(&tmp, &path).await.map_err(io(&path))
+            match tokio::fs::rename(&tmp, &dest).await {
+                Ok(()) => Ok(()),
+                // Fetched meanwhile by another request: that copy is the same.
+                Err(_) if dest.is_dir() => {
+                    let _ = tokio::fs::remove_dir_all(&tmp).await;
+                    Ok(())
+                }
+                Err(source) => Err(StorageError::Io {
+                    path: dest.clone(),
+                    source,
+                }),
+            }
         }
         .await;
-        if written.is_err() {
-            let _ = tokio::fs::remove_file(&tmp).await;
+        if fetched.is_err() {
+            let _ = tokio::fs::remove_dir_all(&tmp).await;
         }
-        written.map(|()| path)
+        fetched.map(|()| dest)
     }
 
     /// Whether the object store has the object `key` (the data directory, without one).
@@ -267,6 +316,63 @@ impl Storage {
         }
         Ok(())
     }
+}
+
+/// Most objects one folder (a published atlas) may hold.
+const MAX_FOLDER_OBJECTS: usize = 4096;
+
+/// Numbers the temporary files and folders of this process: requests may fetch the same object
+/// at once.
+static NEXT_TEMPORARY: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// Fetches the object `key` into the file `path` (at most `max_bytes`, checked before it is
+/// read): written beside it and renamed into place.
+async fn fetch_to(remote: &Remote, key: &str, path: &Path, max_bytes: u64) -> Result<(), StorageError> {
+    let got = remote
+        .store
+        .get(&object_path(key)?)
+        .await
+        .map_err(|e| StorageError::store(key, e))?;
+    if got.meta.size > max_bytes {
+        return Err(StorageError::TooLarge {
+            key: key.to_string(),
+            bytes: got.meta.size,
+            limit: max_bytes,
+        });
+    }
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| StorageError::Io { path, source }
+    };
+    if let Some(dir) = path.parent() {
+        tokio::fs::create_dir_all(dir).await.map_err(io(dir))?;
+    }
+    let n = NEXT_TEMPORARY.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let tmp = path.with_extension(format!("fetch-{}-{n}", std::process::id()));
+    let written = async {
+        let mut file = tokio::fs::File::create(&tmp).await.map_err(io(&tmp))?;
+        let mut stream = got.into_stream();
+        let mut bytes = 0u64;
+        while let Some(chunk) = stream.next().await {
+            let chunk = chunk.map_err(|e| StorageError::store(key, e))?;
+            bytes += chunk.len() as u64;
+            if bytes > max_bytes {
+                return Err(StorageError::TooLarge {
+                    key: key.to_string(),
+                    bytes,
+                    limit: max_bytes,
+                });
+            }
+            file.write_all(&chunk).await.map_err(io(&tmp))?;
+        }
+        file.sync_all().await.map_err(io(&tmp))?;
+        tokio::fs::rename(&tmp, path).await.map_err(io(path))
+    }
+    .await;
+    if written.is_err() {
+        let _ = tokio::fs::remove_file(&tmp).await;
+    }
+    written
 }
 
 /// The object store's name of a key.

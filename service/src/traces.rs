@@ -112,7 +112,7 @@ pub async fn review_trace(state: &AppState, file_sha256: &str, atlas_hash: &str)
     if let Some(t) = cached().await? {
         return Ok(t);
     }
-    let scorer = state.catalogue.loaded(atlas_hash).await?.scorer;
+    let scorer = super::shared_atlases::loaded(state, atlas_hash).await?.scorer;
     let file = state.session_copy(file_sha256).await?;
     let trace = tokio::task::spawn_blocking(move || {
         let session =

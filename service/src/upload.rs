@@ -189,6 +189,10 @@ where
             }
         };
         let trainee = authorise(s, user, &header.trainee).await?;
+        // An atlas published at another replica since this one last synced its catalogue.
+        if s.catalogue.get(&header.atlas_hash).is_none() {
+            super::shared_atlases::adopt(s, &header.atlas_hash).await;
+        }
         check_header(s, &header)?;
         Ok((header, trainee))
     }

@@ -99,7 +99,7 @@ async fn replay(state: &Arc<AppState>, job: &super::store::Job) -> Outcome {
         Err(e) => return Outcome::Retry(e.to_string()),
     };
     let trace_file = super::traces::trace_path(&state.config.data_dir, &job.file_sha256);
-    let scorer = match state.catalogue.loaded(&job.atlas_hash).await {
+    let scorer = match super::shared_atlases::loaded(state, &job.atlas_hash).await {
         Ok(l) => Some(l.scorer),
         Err(super::catalogue::LoadError::Unknown(_)) => None,
         // A folder that cannot be read now may be readable later.

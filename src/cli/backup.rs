@@ -61,7 +61,7 @@ fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
 pub fn backup(a: BackupArgs) -> anyhow::Result<()> {
     let url = database_url(&a.data_dir, a.database);
     let storage = Storage::open(&a.data_dir, a.storage.as_deref())?;
-    let manifest = runtime()?.block_on(backup::backup(&storage, &a.data_dir, &url, &a.to))?;
+    let manifest = runtime()?.block_on(backup::backup(&storage, &url, &a.to))?;
     let bytes: u64 = manifest.files.iter().map(|f| f.bytes).sum();
     sayf!(
         "backed up {} sessions ({} scored) in {} files, {:.1} MB, to {}",

@@ -180,3 +180,50 @@ fn a_replica_killed_between_the_object_and_its_row_leaves_no_row_without_its_obj
         assert!(s3.keys(BUCKET, &session_key(sha)).contains(&session_key(sha)));
     }
 }
+
+/// An atlas published at one replica is put into the store before its row; a replica started
+/// before the publication fetches it when a session on it arrives, checks it and scores the
+/// session.
+#[test]
+fn an_atlas_published_at_one_replica_is_fetched_by_another() {
+    let f = Fixture::new(STYLET);
+    let db = Db::postgres("objectatlas");
+    let s3 = S3Server::start(BUCKET);
+    f.users(&db);
+    let a = replica(&f, &db, &s3, "a");
+    let b = replica(&f, &db, &s3, "b");
+    let other = f.dir.path().join("other-atlas");
+    let out = ok(&["atlas", "validate", s(&other)]);
+    assert!(out.contains("is validated"), "{out}");
+    let ivan = login(&a.base, "ivan");
+    let (status, made, _) = call(
+        "POST",
+        &format!("{}/api/tokens", a.base),
+        Some(&ivan),
+        Some(br#"{"label":"publishing","scope":"full"}"#),
+        true,
+    );
+    assert_eq!(status, 201, "{made}");
+    let published = STYLET
+        .command()
+        .args(["atlas", "publish", s(&other), "--server", &a.base])
+        .env("STYLET_TOKEN", made["token"].as_str().unwrap())
+        .output()
+        .unwrap();
+    assert!(published.status.success(), "{}", String::from_utf8_lossy(&published.stderr));
+    let hash = psql(&db, "SELECT content_hash FROM atlases WHERE published_at IS NOT NULL");
+    assert_eq!(hash.len(), 64, "{hash}");
+
+    // Its files, and no derived-data cache, are in the store.
+    let keys = s3.keys(BUCKET, &format!("site-a/atlases/{hash}/"));
+    assert!(keys.iter().any(|k| k.ends_with("/atlas.toml")), "{keys:?}");
+    assert!(!keys.iter().any(|k| k.contains(".stylet-cache")), "{keys:?}");
+    let b_copy = f.dir.path().join("data-b/atlases").join(&hash);
+    assert!(!b_copy.exists());
+
+    // Replica b takes a session on it at once and scores it.
+    let tina = login(&b.base, "tina");
+    let (_, row) = upload_scored(&b.base, &tina, &f.session("tina-other-atlas"));
+    assert_eq!(row["atlas_hash"], hash.as_str(), "{row}");
+    assert!(b_copy.join("atlas.toml").is_file());
+}
