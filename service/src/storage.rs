@@ -392,3 +392,54 @@ pub fn session_key(sha: &str) -> String {
 pub fn trace_key(sha: &str) -> String {
     format!("traces/{}/{sha}.json.zst", sha.get(..2).unwrap_or(sha))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_storage_url_other_than_s3_is_refused_with_the_reason() {
+        let dir = std::path::Path::new("/nonexistent");
+        for (url, says) in [
+            ("file:///tmp/x", "only s3://bucket/prefix"),
+            ("s3://", "no bucket"),
+            ("s3:///prefix", "no bucket"),
+        ] {
+            let e = Storage::open(dir, Some(url)).unwrap_err().to_string();
+            assert!(e.contains(says) && e.contains(url), "{url}: {e}");
+        }
+        assert_eq!(Storage::open(dir, None).unwrap().url(), None);
+    }
+
+    #[test]
+    fn keys_are_the_data_directorys_layout() {
+        let sha = "ab".to_string() + &"0".repeat(62);
+        assert_eq!(session_key(&sha), format!("sessions/ab/{sha}.mcap"));
+        assert_eq!(trace_key(&sha), format!("traces/ab/{sha}.json.zst"));
+        let storage = Storage::local(std::path::Path::new("/data"));
+        assert_eq!(
+            storage.local_path(&session_key(&sha)),
+            std::path::Path::new("/data/sessions/ab").join(format!("{sha}.mcap"))
+        );
+    }
+
+    #[tokio::test]
+    async fn without_a_store_the_data_directory_is_the_storage() {
+        let dir = tempfile::tempdir().unwrap();
+        let storage = Storage::local(dir.path());
+        let key = session_key(&"cd".repeat(32));
+        assert!(storage.fetch(&key, 1 << 20).await.unwrap_err().is_missing());
+        assert!(!storage.has(&key).await.unwrap());
+        let path = storage.local_path(&key);
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(&path, b"session").unwrap();
+        storage.keep(&key).await.unwrap();
+        assert_eq!(storage.fetch(&key, 1 << 20).await.unwrap(), path);
+        assert!(storage.has(&key).await.unwrap());
+        storage.remove(&key).await.unwrap();
+        assert!(!path.exists());
+        // Removing what is gone is not an error.
+        storage.remove(&key).await.unwrap();
+        storage.check().await.unwrap();
+    }
+}

@@ -227,3 +227,69 @@ fn an_atlas_published_at_one_replica_is_fetched_by_another() {
     assert_eq!(row["atlas_hash"], hash.as_str(), "{row}");
     assert!(b_copy.join("atlas.toml").is_file());
 }
+
+/// `stylet backup` of a service on the store, from a host with an empty data directory (every
+/// file fetched from the store), then `stylet restore` into a new database and another prefix:
+/// the files are in the new prefix, byte for byte, and the restored scores replay identically.
+#[test]
+fn a_service_on_object_storage_is_backed_up_and_restored_into_another_prefix() {
+    let f = Fixture::new(STYLET);
+    let db = Db::postgres("objectbackup");
+    let s3 = S3Server::start(BUCKET);
+    f.users(&db);
+    let a = replica(&f, &db, &s3, "a");
+    let tina = login(&a.base, "tina");
+    upload_scored(&a.base, &tina, &f.session("tina-ok"));
+    upload_scored(&a.base, &tina, &f.session("tina-lung"));
+    drop(a);
+    let run = |args: &[&str]| {
+        let mut command = STYLET.command();
+        command.args(args);
+        s3.configure(&mut command);
+        let out = command.output().unwrap();
+        let (stdout, stderr) = (
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        );
+        assert!(out.status.success(), "{args:?}: {stdout}{stderr}");
+        stdout
+    };
+    let elsewhere = f.dir.path().join("backup-host");
+    std::fs::create_dir(&elsewhere).unwrap();
+    let backup = f.dir.path().join("backup");
+    let url = db.url(&elsewhere);
+    let said = run(&[
+        "backup", "--data-dir", s(&elsewhere), "--database", &url, "--storage", STORAGE, "--to", s(&backup),
+    ]);
+    assert!(said.contains("backed up 2 sessions (2 scored)"), "{said}");
+
+    let restored_db = Db::postgres("objectrestored");
+    let data = f.dir.path().join("restored");
+    let restored_url = restored_db.url(&data);
+    let said = run(&[
+        "restore",
+        "--from",
+        s(&backup),
+        "--data-dir",
+        s(&data),
+        "--database",
+        &restored_url,
+        "--storage",
+        "s3://stylet/site-b",
+        "--atlases",
+        s(&f.atlases()),
+    ]);
+    assert!(said.contains("restored 2 sessions (2 scored)"), "{said}");
+    assert_eq!(said.matches("replayed, identical to its restored score").count(), 2, "{said}");
+    let before: Vec<String> = s3.keys(BUCKET, "site-a/sessions/");
+    let after: Vec<String> = s3.keys(BUCKET, "site-b/sessions/");
+    assert_eq!(before.len(), 2);
+    assert_eq!(
+        after,
+        before.iter().map(|k| k.replacen("site-a", "site-b", 1)).collect::<Vec<_>>()
+    );
+    for (b, a) in before.iter().zip(&after) {
+        let dir = s3.bucket_dir(BUCKET);
+        assert_eq!(std::fs::read(dir.join(b)).unwrap(), std::fs::read(dir.join(a)).unwrap());
+    }
+}
