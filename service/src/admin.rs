@@ -77,7 +77,12 @@ async fn readyz(State((s, _)): State<Admin>) -> Response {
     match tokio::time::timeout(READY_TIMEOUT, s.storage.check()).await {
         Ok(Ok(())) => {}
         Ok(Err(e)) => return not_ready(e.to_string()),
-        Err(_) => return not_ready(format!("the object storage did not answer in {} s", READY_TIMEOUT.as_secs())),
+        Err(_) => {
+            return not_ready(format!(
+                "the object storage did not answer in {} s",
+                READY_TIMEOUT.as_secs()
+            ));
+        }
     }
     axum::Json(json!({ "status": "ready" })).into_response()
 }

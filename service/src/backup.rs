@@ -325,7 +325,12 @@ fn check_within(from: &Path, max_manifest_bytes: u64) -> Result<Manifest, Backup
 
 /// Restores the backup in `from` into the empty data directory `data_dir` and the empty database
 /// `database_url` (SQLite: `data_dir/stylet.db`). Every file is checked first.
-pub async fn restore(storage: &Storage, from: &Path, data_dir: &Path, database_url: &str) -> Result<Manifest, BackupError> {
+pub async fn restore(
+    storage: &Storage,
+    from: &Path,
+    data_dir: &Path,
+    database_url: &str,
+) -> Result<Manifest, BackupError> {
     let manifest = check(from)?;
     if data_dir.exists() {
         let mut held: Vec<String> = std::fs::read_dir(data_dir)

@@ -96,7 +96,10 @@ pub async fn get_session_file(
             gone()
         } else {
             tracing::error!(session = %id, error = %e, "cannot fetch a session file");
-            err(StatusCode::SERVICE_UNAVAILABLE, "the session file cannot be read now; try again shortly")
+            err(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "the session file cannot be read now; try again shortly",
+            )
         }
     })?;
     let file = tokio::fs::File::open(&path).await.map_err(|_| gone())?;

@@ -33,7 +33,9 @@ pub async fn adopt(state: &AppState, hash: &str) -> bool {
         return false;
     }
     let row = match state.store.atlas_rows().await {
-        Ok(rows) => rows.into_iter().find(|r| r.content_hash == hash && r.published_at.is_some()),
+        Ok(rows) => rows
+            .into_iter()
+            .find(|r| r.content_hash == hash && r.published_at.is_some()),
         Err(e) => {
             tracing::warn!(error = %e, "cannot read the atlas publications");
             return false;

@@ -215,7 +215,9 @@ impl Storage {
             return Ok(dest);
         }
         let Some(remote) = &self.remote else {
-            return Err(StorageError::Missing { key: prefix.to_string() });
+            return Err(StorageError::Missing {
+                key: prefix.to_string(),
+            });
         };
         let listed: Vec<object_store::ObjectMeta> = remote
             .store
@@ -227,7 +229,9 @@ impl Storage {
             .collect::<Result<_, _>>()
             .map_err(|e| StorageError::store(prefix, e))?;
         if listed.is_empty() {
-            return Err(StorageError::Missing { key: prefix.to_string() });
+            return Err(StorageError::Missing {
+                key: prefix.to_string(),
+            });
         }
         let bytes: u64 = listed.iter().map(|m| m.size).sum();
         if bytes > max_bytes || listed.len() > MAX_FOLDER_OBJECTS {
@@ -238,7 +242,10 @@ impl Storage {
             });
         }
         let n = NEXT_TEMPORARY.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let name = dest.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let name = dest
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
         let tmp = dest.with_file_name(format!(".fetching-{name}-{}-{n}", std::process::id()));
         let fetched = async {
             for meta in &listed {

@@ -16,8 +16,8 @@ mod stylet;
 
 pub use database::Db;
 pub use fixture_dir::fixture_dir;
-pub use object_store::S3Server;
 pub use http::{Auth, Page, call, get_bytes, login, page, raw_post, raw_post_as};
+pub use object_store::S3Server;
 pub use real_ct::{real_ct_data, real_ct_data_dir};
 pub use scored::{Fixture, phantom_script, upload, upload_scored, wait_scored, workspace_dir};
 pub use server::Server;

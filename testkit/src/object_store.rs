@@ -41,7 +41,10 @@ impl S3Server {
         let endpoint = format!("http://127.0.0.1:{port}");
         let started = Instant::now();
         while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(started.elapsed() < Duration::from_secs(20), "s3s-fs does not listen on {endpoint}");
+            assert!(
+                started.elapsed() < Duration::from_secs(20),
+                "s3s-fs does not listen on {endpoint}"
+            );
             std::thread::sleep(Duration::from_millis(50));
         }
         S3Server { child, root, endpoint }

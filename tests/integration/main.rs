@@ -15,6 +15,7 @@ mod cli;
 mod complications;
 mod csp;
 mod dashboard;
+mod deploy;
 mod force_feedback;
 mod guide_wire;
 mod haptics;

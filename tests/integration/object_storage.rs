@@ -73,7 +73,11 @@ fn replicas_share_session_files_and_traces_through_the_object_store() {
     assert_eq!(traces, vec![format!("site-a/traces/{}/{sha}.json.zst", &sha[..2])]);
 
     // Replica b has no copy of it, fetches it from the store and serves the same bytes.
-    let b_copy = f.dir.path().join("data-b").join(format!("sessions/{}/{sha}.mcap", &sha[..2]));
+    let b_copy = f
+        .dir
+        .path()
+        .join("data-b")
+        .join(format!("sessions/{}/{sha}.mcap", &sha[..2]));
     assert!(!b_copy.exists());
     let tina_b = login(&b.base, "tina");
     let (status, bytes) = get_bytes(&format!("{}/api/sessions/{id}/file", b.base), &tina_b);
@@ -83,7 +87,13 @@ fn replicas_share_session_files_and_traces_through_the_object_store() {
 
     // Deleted at b: gone from the store as well.
     let root = login(&b.base, "root");
-    let (status, json, _) = call("DELETE", &format!("{}/api/sessions/{id}", b.base), Some(&root), None, false);
+    let (status, json, _) = call(
+        "DELETE",
+        &format!("{}/api/sessions/{id}", b.base),
+        Some(&root),
+        None,
+        false,
+    );
     assert_eq!(status, 200, "{json}");
     assert_eq!(s3.keys(BUCKET, "site-a/"), Vec::<String>::new());
 
@@ -96,7 +106,13 @@ fn replicas_share_session_files_and_traces_through_the_object_store() {
     assert!(text.contains("object storage"), "{text}");
     let body = std::fs::read(f.session("tom-ok")).unwrap();
     let tom = login(&a.base, "tom");
-    let (status, json, _) = call("POST", &format!("{}/api/sessions", a.base), Some(&tom), Some(&body), false);
+    let (status, json, _) = call(
+        "POST",
+        &format!("{}/api/sessions", a.base),
+        Some(&tom),
+        Some(&body),
+        false,
+    );
     assert_eq!(status, 503, "{json}");
     assert_eq!(psql(&db, "SELECT COUNT(*) FROM sessions"), "0");
 }
@@ -151,7 +167,10 @@ fn a_replica_killed_between_the_object_and_its_row_leaves_no_row_without_its_obj
         if let Some(key) = s3.keys(BUCKET, "site-a/sessions/").pop() {
             break key;
         }
-        assert!(waited.elapsed() < Duration::from_secs(30), "the upload never reached the store");
+        assert!(
+            waited.elapsed() < Duration::from_secs(30),
+            "the upload never reached the store"
+        );
         std::thread::sleep(Duration::from_millis(20));
     };
     assert_eq!(std::fs::read(s3.bucket_dir(BUCKET).join(&key)).unwrap(), file);
@@ -210,7 +229,11 @@ fn an_atlas_published_at_one_replica_is_fetched_by_another() {
         .env("STYLET_TOKEN", made["token"].as_str().unwrap())
         .output()
         .unwrap();
-    assert!(published.status.success(), "{}", String::from_utf8_lossy(&published.stderr));
+    assert!(
+        published.status.success(),
+        "{}",
+        String::from_utf8_lossy(&published.stderr)
+    );
     let hash = psql(&db, "SELECT content_hash FROM atlases WHERE published_at IS NOT NULL");
     assert_eq!(hash.len(), 64, "{hash}");
 
@@ -259,7 +282,15 @@ fn a_service_on_object_storage_is_backed_up_and_restored_into_another_prefix() {
     let backup = f.dir.path().join("backup");
     let url = db.url(&elsewhere);
     let said = run(&[
-        "backup", "--data-dir", s(&elsewhere), "--database", &url, "--storage", STORAGE, "--to", s(&backup),
+        "backup",
+        "--data-dir",
+        s(&elsewhere),
+        "--database",
+        &url,
+        "--storage",
+        STORAGE,
+        "--to",
+        s(&backup),
     ]);
     assert!(said.contains("backed up 2 sessions (2 scored)"), "{said}");
 
@@ -280,13 +311,20 @@ fn a_service_on_object_storage_is_backed_up_and_restored_into_another_prefix() {
         s(&f.atlases()),
     ]);
     assert!(said.contains("restored 2 sessions (2 scored)"), "{said}");
-    assert_eq!(said.matches("replayed, identical to its restored score").count(), 2, "{said}");
+    assert_eq!(
+        said.matches("replayed, identical to its restored score").count(),
+        2,
+        "{said}"
+    );
     let before: Vec<String> = s3.keys(BUCKET, "site-a/sessions/");
     let after: Vec<String> = s3.keys(BUCKET, "site-b/sessions/");
     assert_eq!(before.len(), 2);
     assert_eq!(
         after,
-        before.iter().map(|k| k.replacen("site-a", "site-b", 1)).collect::<Vec<_>>()
+        before
+            .iter()
+            .map(|k| k.replacen("site-a", "site-b", 1))
+            .collect::<Vec<_>>()
     );
     for (b, a) in before.iter().zip(&after) {
         let dir = s3.bucket_dir(BUCKET);

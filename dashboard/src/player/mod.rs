@@ -187,16 +187,18 @@ fn internal(e: impl Into<String>) -> PageError {
 /// server does not know it.
 pub async fn atlas_of(s: &AppState, atlas_hash: &str) -> Result<stylet_service::catalogue::Loaded, PageError> {
     use stylet_service::catalogue::LoadError;
-    stylet_service::shared_atlases::loaded(s, atlas_hash).await.map_err(|e| match e {
-        LoadError::Unknown(_) => fail(StatusCode::NOT_FOUND, "the session's atlas is not known to this server"),
-        LoadError::Failed { .. } => {
-            tracing::error!(error = %e, "loading an atlas for the player");
-            fail(
-                StatusCode::SERVICE_UNAVAILABLE,
-                "the session's atlas cannot be loaded right now; try again later",
-            )
-        }
-    })
+    stylet_service::shared_atlases::loaded(s, atlas_hash)
+        .await
+        .map_err(|e| match e {
+            LoadError::Unknown(_) => fail(StatusCode::NOT_FOUND, "the session's atlas is not known to this server"),
+            LoadError::Failed { .. } => {
+                tracing::error!(error = %e, "loading an atlas for the player");
+                fail(
+                    StatusCode::SERVICE_UNAVAILABLE,
+                    "the session's atlas cannot be loaded right now; try again later",
+                )
+            }
+        })
 }
 
 /// The atlas prepared for drawing (kept for the [`CACHED_DRAWINGS`] most recently drawn).
