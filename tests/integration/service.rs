@@ -977,32 +977,9 @@ fn bounded_load_on_loopback() {
     let db = Db::Sqlite;
     f.users(&db);
     // Distinct bytes for every upload: the same recorded ticks under new session ids.
-    let source = stylet_recorder::reader::read(&f.session("tina-ok")).unwrap();
     // Each uploader sends one session per second (a busy simulator), so there are enough files.
     let files: Vec<Vec<u8>> = (0..5 * seconds as usize + 10)
-        .map(|k| {
-            let path = f.dir.path().join(format!("load-{k}.mcap"));
-            let mut header = source.header.clone();
-            header.session_id = stylet_recorder::new_session_id();
-            let w = stylet_recorder::SessionWriter::create(
-                &path,
-                &header,
-                stylet_recorder::WriterOptions {
-                    fsync: false,
-                    ..Default::default()
-                },
-            )
-            .unwrap();
-            for e in &source.events {
-                w.event_record_blocking(e.clone()).unwrap();
-            }
-            for d in &source.digests {
-                w.digest_blocking(d.tick, d.digest).unwrap();
-            }
-            w.record_read_blocking(&source.ticks, &source.output_checks).unwrap();
-            w.finish().unwrap();
-            std::fs::read(&path).unwrap()
-        })
+        .map(|k| restamped_session(&f, "tina-ok", None, &f.dir.path().join(format!("load-{k}.mcap"))))
         .collect();
     let srv = Server::start(STYLET, &f.data(), &db, &f.atlases(), &["--workers", "2"]);
     let b = srv.base.clone();

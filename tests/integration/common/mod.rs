@@ -187,3 +187,33 @@ pub fn score_session(atlas: &Atlas, path: &Path) -> ScoreReport {
         .score_file(path)
         .unwrap()
 }
+
+/// The fixture's session `name` again as a new session (a new session id, the same recorded
+/// ticks) by `trainee` (default: the recording's), written to `path`; its bytes. Distinct
+/// bytes, so that every upload of a load test is stored anew.
+pub fn restamped_session(f: &Fixture, name: &str, trainee: Option<&str>, path: &Path) -> Vec<u8> {
+    let source = stylet_recorder::reader::read(&f.session(name)).unwrap();
+    let mut header = source.header.clone();
+    header.session_id = stylet_recorder::new_session_id();
+    if let Some(t) = trainee {
+        header.trainee = t.to_string();
+    }
+    let w = stylet_recorder::SessionWriter::create(
+        path,
+        &header,
+        WriterOptions {
+            fsync: false,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    for e in &source.events {
+        w.event_record_blocking(e.clone()).unwrap();
+    }
+    for d in &source.digests {
+        w.digest_blocking(d.tick, d.digest).unwrap();
+    }
+    w.record_read_blocking(&source.ticks, &source.output_checks).unwrap();
+    w.finish().unwrap();
+    std::fs::read(path).unwrap()
+}
