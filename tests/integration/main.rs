@@ -37,4 +37,5 @@ mod sessions;
 mod simulator;
 mod tokens;
 mod two_hands;
+mod upgrade;
 mod window;

@@ -204,6 +204,16 @@ pub(crate) async fn check_sqlite_writable(conn: &mut sqlx::AnyConnection) -> Res
 /// The migrations of this build (`migrations/`), applied at start.
 pub(crate) static MIGRATOR: sqlx::migrate::Migrator = sqlx::migrate!("../migrations");
 
+/// The migrations as a replica runs them at start: the ones this build knows, and applied
+/// migrations it does not know tolerated — a newer release's, during a rolling upgrade, which
+/// only add (docs/operations.md "Upgrading"), so this older replica keeps working (and can
+/// restart) on the newer schema.
+fn upgrading_migrator() -> sqlx::migrate::Migrator {
+    let mut migrator = sqlx::migrate!("../migrations");
+    migrator.set_ignore_missing(true);
+    migrator
+}
+
 #[derive(Clone)]
 pub struct Store {
     pub pool: AnyPool,
@@ -295,7 +305,7 @@ impl Store {
             sqlx::query("PRAGMA journal_mode = WAL").execute(&pool).await?;
         }
         reworded_migrations::accept(&pool, &MIGRATOR, sqlite).await?;
-        MIGRATOR.run(&pool).await?;
+        upgrading_migrator().run(&pool).await?;
         let store = Store {
             pool,
             sqlite,
