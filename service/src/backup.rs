@@ -35,7 +35,7 @@ pub enum BackupError {
     Store(#[from] StoreError),
     #[error(transparent)]
     Storage(#[from] super::storage::StorageError),
-    #[error("{0} exists already: back up into a new folder")]
+    #[error("{0} exists already: back up into a new folder (or a new prefix)")]
     TargetExists(PathBuf),
     #[error("{tool} failed: {detail}")]
     Tool { tool: &'static str, detail: String },
@@ -528,3 +528,76 @@ mod tests {
         assert!(e.contains("not a backup manifest"), "{e}");
     }
 }
+
+/// Backs up (as [`backup`]) into the object-store location `target` (`s3://bucket/prefix`,
+/// credentials from the `AWS_*` environment): made in the local folder `staging` first (removed
+/// after), then each file put under the prefix, the manifest last — a prefix without
+/// `manifest.json` is not a backup. A prefix that already holds a manifest is refused.
+pub async fn backup_to_store(
+    storage: &Storage,
+    database_url: &str,
+    target: &str,
+    staging: &Path,
+) -> Result<Manifest, BackupError> {
+    let local = staging.join("backup");
+    let store = Storage::open(&local, Some(target))?;
+    if store.has(MANIFEST).await? {
+        return Err(BackupError::TargetExists(PathBuf::from(target)));
+    }
+    let done = async {
+        let manifest = backup(storage, database_url, &local).await?;
+        for f in &manifest.files {
+            store.keep(&f.path).await?;
+        }
+        store.keep(MANIFEST).await?;
+        Ok(manifest)
+    }
+    .await;
+    let _ = std::fs::remove_dir_all(staging);
+    done
+}
+
+/// Restores (as [`restore`]) the backup at the object-store location `from` (`s3://…`): its
+/// manifest (at most [`MAX_MANIFEST_BYTES`]) and then every file it lists (at most the size it
+/// lists) are fetched into the local folder `staging` (removed after), checked, and restored.
+pub async fn restore_from_store(
+    storage: &Storage,
+    from: &str,
+    staging: &Path,
+    data_dir: &Path,
+    database_url: &str,
+) -> Result<Manifest, BackupError> {
+    let local = staging.join("backup");
+    let source = Storage::open(&local, Some(from))?;
+    let done = async {
+        let path = source.fetch(MANIFEST, MAX_MANIFEST_BYTES).await.map_err(|e| {
+            if e.is_missing() {
+                BackupError::Manifest(PathBuf::from(from), "no manifest.json there: not a backup".into())
+            } else {
+                e.into()
+            }
+        })?;
+        let text = std::fs::read(&path).map_err(io(&path))?;
+        let manifest: Manifest =
+            serde_json::from_slice(&text).map_err(|e| BackupError::Manifest(path.clone(), e.to_string()))?;
+        for f in &manifest.files {
+            let safe = Path::new(&f.path)
+                .components()
+                .all(|c| matches!(c, std::path::Component::Normal(_)));
+            if !safe {
+                return Err(BackupError::Manifest(
+                    path.clone(),
+                    format!("a path outside the backup: {}", f.path),
+                ));
+            }
+            source.fetch(&f.path, f.bytes).await?;
+        }
+        restore(storage, &local, data_dir, database_url).await
+    }
+    .await;
+    let _ = std::fs::remove_dir_all(staging);
+    done
+}
+
+/// The manifest's name in a backup.
+const MANIFEST: &str = "manifest.json";

@@ -20,16 +20,18 @@ pub struct BackupArgs {
     /// directory has no copy of are fetched from it.
     #[arg(long)]
     pub storage: Option<String>,
-    /// A new folder for the backup.
+    /// A new folder for the backup, or a new object-store prefix (`s3://bucket/prefix`,
+    /// credentials from the AWS_* environment variables; staged in the data directory first).
     #[arg(long)]
-    pub to: PathBuf,
+    pub to: String,
 }
 
 #[derive(Debug, Args)]
 pub struct RestoreArgs {
-    /// The backup folder.
+    /// The backup folder, or its object-store prefix (`s3://bucket/prefix`; fetched into the
+    /// data directory's `.restore-staging` first, removed after).
     #[arg(long)]
-    pub from: PathBuf,
+    pub from: String,
     /// An empty data directory to restore into.
     #[arg(long)]
     pub data_dir: PathBuf,
@@ -61,7 +63,13 @@ fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
 pub fn backup(a: BackupArgs) -> anyhow::Result<()> {
     let url = database_url(&a.data_dir, a.database);
     let storage = Storage::open(&a.data_dir, a.storage.as_deref())?;
-    let manifest = runtime()?.block_on(backup::backup(&storage, &url, &a.to))?;
+    let rt = runtime()?;
+    let manifest = if a.to.starts_with("s3://") {
+        let staging = a.data_dir.join(format!(".backup-staging-{}", std::process::id()));
+        rt.block_on(backup::backup_to_store(&storage, &url, &a.to, &staging))?
+    } else {
+        rt.block_on(backup::backup(&storage, &url, std::path::Path::new(&a.to)))?
+    };
     let bytes: u64 = manifest.files.iter().map(|f| f.bytes).sum();
     sayf!(
         "backed up {} sessions ({} scored) in {} files, {:.1} MB, to {}",
@@ -69,7 +77,7 @@ pub fn backup(a: BackupArgs) -> anyhow::Result<()> {
         manifest.scores,
         manifest.files.len(),
         bytes as f64 / 1e6,
-        a.to.display()
+        a.to
     );
     Ok(())
 }
@@ -78,7 +86,23 @@ pub fn restore(a: RestoreArgs) -> anyhow::Result<()> {
     let url = database_url(&a.data_dir, a.database);
     let rt = runtime()?;
     let storage = Storage::open(&a.data_dir, a.storage.as_deref())?;
-    let manifest = rt.block_on(backup::restore(&storage, &a.from, &a.data_dir, &url))?;
+    let manifest = if a.from.starts_with("s3://") {
+        let staging = a.data_dir.join(".restore-staging");
+        rt.block_on(backup::restore_from_store(
+            &storage,
+            &a.from,
+            &staging,
+            &a.data_dir,
+            &url,
+        ))?
+    } else {
+        rt.block_on(backup::restore(
+            &storage,
+            std::path::Path::new(&a.from),
+            &a.data_dir,
+            &url,
+        ))?
+    };
     sayf!(
         "restored {} sessions ({} scored), every file checked against the manifest, into {}",
         manifest.sessions,

@@ -252,8 +252,9 @@ fn an_atlas_published_at_one_replica_is_fetched_by_another() {
 }
 
 /// `stylet backup` of a service on the store, from a host with an empty data directory (every
-/// file fetched from the store), then `stylet restore` into a new database and another prefix:
-/// the files are in the new prefix, byte for byte, and the restored scores replay identically.
+/// file fetched from the store), into an `s3://` prefix; then `stylet restore` from that prefix
+/// into a new database and another storage prefix: the files are there byte for byte, and the
+/// restored scores replay identically. A second backup into the same prefix is refused.
 #[test]
 fn a_service_on_object_storage_is_backed_up_and_restored_into_another_prefix() {
     let f = Fixture::new(STYLET);
@@ -265,57 +266,97 @@ fn a_service_on_object_storage_is_backed_up_and_restored_into_another_prefix() {
     upload_scored(&a.base, &tina, &f.session("tina-ok"));
     upload_scored(&a.base, &tina, &f.session("tina-lung"));
     drop(a);
-    let run = |args: &[&str]| {
+    let run = |args: &[&str], succeeds: bool| {
         let mut command = STYLET.command();
         command.args(args);
         s3.configure(&mut command);
         let out = command.output().unwrap();
-        let (stdout, stderr) = (
-            String::from_utf8_lossy(&out.stdout).into_owned(),
-            String::from_utf8_lossy(&out.stderr).into_owned(),
-        );
-        assert!(out.status.success(), "{args:?}: {stdout}{stderr}");
-        stdout
+        let said = String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.success(), succeeds, "{args:?}: {said}");
+        said
     };
     let elsewhere = f.dir.path().join("backup-host");
     std::fs::create_dir(&elsewhere).unwrap();
-    let backup = f.dir.path().join("backup");
     let url = db.url(&elsewhere);
-    let said = run(&[
-        "backup",
-        "--data-dir",
-        s(&elsewhere),
-        "--database",
-        &url,
-        "--storage",
-        STORAGE,
-        "--to",
-        s(&backup),
-    ]);
+    let backup = "s3://stylet/backups/monday";
+    let said = run(
+        &[
+            "backup",
+            "--data-dir",
+            s(&elsewhere),
+            "--database",
+            &url,
+            "--storage",
+            STORAGE,
+            "--to",
+            backup,
+        ],
+        true,
+    );
     assert!(said.contains("backed up 2 sessions (2 scored)"), "{said}");
+    let held = s3.keys(BUCKET, "backups/monday/");
+    assert!(held.contains(&"backups/monday/manifest.json".to_string()), "{held:?}");
+    assert_eq!(
+        held.iter()
+            .filter(|k| k.starts_with("backups/monday/sessions/"))
+            .count(),
+        2,
+        "{held:?}"
+    );
+    // The staging folder is gone; the prefix is not written twice.
+    let staged: Vec<_> = std::fs::read_dir(&elsewhere)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name())
+        .collect();
+    assert!(
+        !staged
+            .iter()
+            .any(|n| n.to_string_lossy().starts_with(".backup-staging")),
+        "{staged:?}"
+    );
+    let said = run(
+        &[
+            "backup",
+            "--data-dir",
+            s(&elsewhere),
+            "--database",
+            &url,
+            "--storage",
+            STORAGE,
+            "--to",
+            backup,
+        ],
+        false,
+    );
+    assert!(said.contains("exists already"), "{said}");
 
     let restored_db = Db::postgres("objectrestored");
     let data = f.dir.path().join("restored");
     let restored_url = restored_db.url(&data);
-    let said = run(&[
-        "restore",
-        "--from",
-        s(&backup),
-        "--data-dir",
-        s(&data),
-        "--database",
-        &restored_url,
-        "--storage",
-        "s3://stylet/site-b",
-        "--atlases",
-        s(&f.atlases()),
-    ]);
+    let said = run(
+        &[
+            "restore",
+            "--from",
+            backup,
+            "--data-dir",
+            s(&data),
+            "--database",
+            &restored_url,
+            "--storage",
+            "s3://stylet/site-b",
+            "--atlases",
+            s(&f.atlases()),
+        ],
+        true,
+    );
     assert!(said.contains("restored 2 sessions (2 scored)"), "{said}");
     assert_eq!(
         said.matches("replayed, identical to its restored score").count(),
         2,
         "{said}"
     );
+    assert!(!data.join(".restore-staging").exists());
     let before: Vec<String> = s3.keys(BUCKET, "site-a/sessions/");
     let after: Vec<String> = s3.keys(BUCKET, "site-b/sessions/");
     assert_eq!(before.len(), 2);
@@ -330,4 +371,18 @@ fn a_service_on_object_storage_is_backed_up_and_restored_into_another_prefix() {
         let dir = s3.bucket_dir(BUCKET);
         assert_eq!(std::fs::read(dir.join(b)).unwrap(), std::fs::read(dir.join(a)).unwrap());
     }
+    // A prefix without a manifest is not a backup.
+    let err = run(
+        &[
+            "restore",
+            "--from",
+            "s3://stylet/site-a",
+            "--data-dir",
+            s(&f.dir.path().join("r2")),
+            "--database",
+            &restored_url,
+        ],
+        false,
+    );
+    assert!(err.contains("not a backup"), "{err}");
 }
