@@ -513,22 +513,6 @@ fn replay_and_compare(file: &Path, atlas_hash: &str, candidates: &[PathBuf], sto
     None
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_manifest_over_the_limit_is_refused_before_it_is_read() {
-        let dir = tempfile::tempdir().unwrap();
-        std::fs::write(dir.path().join("manifest.json"), vec![b' '; 100]).unwrap();
-        let e = check_within(dir.path(), 99).unwrap_err().to_string();
-        assert!(e.contains("100 bytes, more than the 99"), "{e}");
-        // Within the limit it is read (and this one is no manifest).
-        let e = check_within(dir.path(), 100).unwrap_err().to_string();
-        assert!(e.contains("not a backup manifest"), "{e}");
-    }
-}
-
 /// Backs up (as [`backup`]) into the object-store location `target` (`s3://bucket/prefix`,
 /// credentials from the `AWS_*` environment): made in the local folder `staging` first (removed
 /// after), then each file put under the prefix, the manifest last — a prefix without
@@ -601,3 +585,19 @@ pub async fn restore_from_store(
 
 /// The manifest's name in a backup.
 const MANIFEST: &str = "manifest.json";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_manifest_over_the_limit_is_refused_before_it_is_read() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("manifest.json"), vec![b' '; 100]).unwrap();
+        let e = check_within(dir.path(), 99).unwrap_err().to_string();
+        assert!(e.contains("100 bytes, more than the 99"), "{e}");
+        // Within the limit it is read (and this one is no manifest).
+        let e = check_within(dir.path(), 100).unwrap_err().to_string();
+        assert!(e.contains("not a backup manifest"), "{e}");
+    }
+}
