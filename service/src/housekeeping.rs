@@ -1,5 +1,7 @@
 //! What every replica does now and then: delete logins past their expiry, login-attempt windows
-//! that have passed, upload slots whose lease ran out (their replica died); bring its atlas
+//! that have passed, upload slots whose lease ran out (their replica died); with object storage,
+//! let go of the least recently used local copies of session files past their bound
+//! ([`super::local_copies`]); bring its atlas
 //! catalogue in line with the publications made at other replicas
 //! ([`super::shared_atlases::sync`]). Each replica runs it; the deletions are idempotent, so
 //! replicas running it at once only repeat each other.
@@ -38,6 +40,28 @@ pub fn start(state: Arc<AppState>) {
                 Ok(0) => {}
                 Ok(deleted) => tracing::debug!(deleted, "expired rows deleted"),
                 Err(e) => tracing::warn!(error = %e, "cannot delete expired rows"),
+            }
+            if state.storage.url().is_some() {
+                let (dir, max) = (
+                    state.config.data_dir.join("sessions"),
+                    state.config.limits.local_copies_bytes,
+                );
+                let trimmed = tokio::task::spawn_blocking(move || {
+                    super::local_copies::trim(&dir, max, super::local_copies::MIN_AGE, std::time::SystemTime::now())
+                })
+                .await;
+                match trimmed {
+                    Ok(Ok(t)) if t.deleted > 0 => {
+                        tracing::info!(
+                            deleted = t.deleted,
+                            kept_bytes = t.kept_bytes,
+                            "local copies of session files let go"
+                        )
+                    }
+                    Ok(Ok(_)) => {}
+                    Ok(Err(e)) => tracing::warn!(error = %e, "cannot trim the local copies of session files"),
+                    Err(e) => tracing::warn!(error = %e, "trimming the local copies panicked"),
+                }
             }
         }
     });

@@ -26,6 +26,7 @@ pub mod housekeeping;
 pub mod intake;
 pub mod limits;
 pub mod list_query;
+pub mod local_copies;
 pub mod logins;
 pub mod openapi;
 pub mod publish;
@@ -122,9 +123,14 @@ impl AppState {
     /// The local path of the session file `sha`, fetched from the object storage first when
     /// this replica has no copy yet (at most the largest upload).
     pub async fn session_copy(&self, sha: &str) -> Result<PathBuf, storage::StorageError> {
-        self.storage
+        let path = self
+            .storage
             .fetch(&storage::session_key(sha), self.config.max_upload_bytes as u64)
-            .await
+            .await?;
+        if self.storage.url().is_some() {
+            local_copies::mark_used(&path);
+        }
+        Ok(path)
     }
 
     /// Where published atlases live: `DATA/atlases/<content hash>/`.

@@ -61,6 +61,10 @@ pub struct Limits {
     /// Time a publication gets for its checks (loading the atlas, its smoke test), beyond its
     /// upload time.
     pub atlas_check_timeout: Duration,
+    /// With object storage: bytes of session files this replica keeps as local copies (the
+    /// store has them all); past it the least recently used are deleted
+    /// ([`crate::local_copies`]).
+    pub local_copies_bytes: u64,
 }
 
 impl Default for Limits {
@@ -87,6 +91,7 @@ impl Default for Limits {
             // 512 × 512 × 256.
             max_atlas_voxels: 1 << 26,
             atlas_check_timeout: Duration::from_secs(300),
+            local_copies_bytes: 16 << 30,
         }
     }
 }

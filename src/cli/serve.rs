@@ -121,6 +121,10 @@ pub struct LimitArgs {
     /// its upload time.
     #[arg(long)]
     pub atlas_check_timeout_s: Option<u64>,
+    /// With --storage: bytes of session files kept as local copies in the data directory; the
+    /// least recently used are deleted past it (the store has them all).
+    #[arg(long)]
+    pub local_copies_bytes: Option<u64>,
 }
 
 impl LimitArgs {
@@ -155,6 +159,7 @@ impl LimitArgs {
             atlas_cache_bytes: self.atlas_cache_bytes.unwrap_or(d.atlas_cache_bytes),
             max_atlas_voxels: self.max_atlas_voxels.unwrap_or(d.max_atlas_voxels),
             atlas_check_timeout: self.atlas_check_timeout_s.map_or(d.atlas_check_timeout, secs),
+            local_copies_bytes: self.local_copies_bytes.unwrap_or(d.local_copies_bytes),
         }
     }
 }
