@@ -138,6 +138,9 @@ fn a_replica_killed_between_the_object_and_its_row_leaves_no_row_without_its_obj
             "-c",
             "BEGIN; LOCK TABLE sessions IN EXCLUSIVE MODE; SELECT pg_sleep(60); COMMIT;",
         ])
+        // Its end (terminated below) is expected: not test output.
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
         .spawn()
         .expect("psql runs");
     let held = Instant::now();
