@@ -360,6 +360,12 @@ fn a_service_on_object_storage_is_backed_up_and_restored_into_another_prefix() {
         "{said}"
     );
     assert!(!data.join(".restore-staging").exists());
+    // Every session and score as it was.
+    let rows = "SELECT s.id, s.file_sha256, s.status, c.score, c.passed, c.report_json \
+                FROM sessions s JOIN scores c ON c.session_id = s.id ORDER BY s.id";
+    let original = psql(&db, rows);
+    assert_eq!(original.lines().count(), 2, "{original}");
+    assert_eq!(psql(&restored_db, rows), original);
     let before: Vec<String> = s3.keys(BUCKET, "site-a/sessions/");
     let after: Vec<String> = s3.keys(BUCKET, "site-b/sessions/");
     assert_eq!(before.len(), 2);
