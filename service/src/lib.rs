@@ -344,6 +344,10 @@ pub async fn serve(
             server::deadline,
         ))
         .layer(axum::middleware::from_fn_with_state(serving, server::serving))
+        .layer(axum::middleware::from_fn_with_state(
+            slots::Slots::new("requests", usize::MAX, limits.max_requests_per_account),
+            server::per_credential,
+        ))
         .layer(axum::middleware::from_fn(server::security_headers))
         .layer(axum::middleware::from_fn(server::request_log));
     // The admin port serves until the API has finished its requests in flight, saying "not

@@ -187,6 +187,42 @@ pub async fn serving(
     }
 }
 
+/// Requests in flight per credential — the login cookie's or the API token's value, as sent —
+/// counted before the login is looked up, with the account's cap
+/// ([`Limits::max_requests_per_account`]; 429 past it, at once). A burst of one account's
+/// requests is refused without a database lookup each and cannot fill the server's
+/// [`Limits::max_requests`] for the others meanwhile. (The account's own count, over all its
+/// credentials, is taken after the lookup: [`in_flight`].) The key is a hash of the credential,
+/// never the credential.
+pub async fn per_credential(
+    axum::extract::State(slots): axum::extract::State<Arc<super::slots::Slots>>,
+    req: Request,
+    next: Next,
+) -> Response {
+    let Some(key) = credential_key(req.headers()) else {
+        return next.run(req).await;
+    };
+    match slots.take(&key) {
+        Ok(_in_flight) => next.run(req).await,
+        Err(e) => e.into_response(),
+    }
+}
+
+/// A hash of the request's credential (`Authorization` if sent, else the login cookie).
+fn credential_key(headers: &axum::http::HeaderMap) -> Option<String> {
+    use sha2::Digest;
+    let credential = match headers.get(header::AUTHORIZATION) {
+        Some(v) => v.as_bytes(),
+        None => headers
+            .get_all(header::COOKIE)
+            .iter()
+            .filter_map(|v| v.to_str().ok())
+            .find_map(super::auth::token_from_cookie_header)?
+            .as_bytes(),
+    };
+    Some(format!("{:x}", sha2::Sha256::digest(credential)))
+}
+
 /// Gives the request a place for its account's in-flight slot ([`InFlight`]), filled by the
 /// extractor that authenticates it, and given back once the request is answered.
 pub async fn in_flight(mut req: Request, next: Next) -> Response {
@@ -348,4 +384,24 @@ pub async fn request_log(req: Request, next: Next) -> Response {
         resp.headers_mut().insert("x-request-id", v);
     }
     resp
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_credential_is_counted_by_its_hash_the_token_before_the_cookie() {
+        let mut h = axum::http::HeaderMap::new();
+        assert_eq!(credential_key(&h), None);
+        h.insert(header::COOKIE, HeaderValue::from_static("theme=dark; stylet_session=abc"));
+        let cookie = credential_key(&h).unwrap();
+        assert!(!cookie.contains("abc") && cookie.len() == 64, "{cookie}");
+        h.insert(header::AUTHORIZATION, HeaderValue::from_static("Bearer tok"));
+        let token = credential_key(&h).unwrap();
+        assert_ne!(token, cookie);
+        h.remove(header::AUTHORIZATION);
+        h.insert(header::COOKIE, HeaderValue::from_static("stylet_session=abd"));
+        assert_ne!(credential_key(&h).unwrap(), cookie);
+    }
 }
