@@ -394,7 +394,10 @@ mod tests {
     fn a_credential_is_counted_by_its_hash_the_token_before_the_cookie() {
         let mut h = axum::http::HeaderMap::new();
         assert_eq!(credential_key(&h), None);
-        h.insert(header::COOKIE, HeaderValue::from_static("theme=dark; stylet_session=abc"));
+        h.insert(
+            header::COOKIE,
+            HeaderValue::from_static("theme=dark; stylet_session=abc"),
+        );
         let cookie = credential_key(&h).unwrap();
         assert!(!cookie.contains("abc") && cookie.len() == 64, "{cookie}");
         h.insert(header::AUTHORIZATION, HeaderValue::from_static("Bearer tok"));
