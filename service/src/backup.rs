@@ -24,6 +24,8 @@ use super::store::StoreError;
 
 /// The manifest's format.
 pub const MANIFEST_FORMAT: u32 = 1;
+/// The manifest's name in a backup.
+const MANIFEST: &str = "manifest.json";
 /// Scored sessions `restore` replays to check the restored scores.
 pub const REVERIFY_SAMPLE: usize = 3;
 
@@ -246,7 +248,7 @@ pub async fn backup(storage: &Storage, database_url: &str, to: &Path) -> Result<
         files,
     };
     let text = serde_json::to_vec_pretty(&manifest).expect("a manifest serialises");
-    let manifest_path = partial.join("manifest.json");
+    let manifest_path = partial.join(MANIFEST);
     std::fs::write(&manifest_path, text).map_err(io(&manifest_path))?;
     std::fs::rename(&partial, to).map_err(io(to))?;
     Ok(manifest)
@@ -276,33 +278,8 @@ pub fn check(from: &Path) -> Result<Manifest, BackupError> {
 pub const MAX_MANIFEST_BYTES: u64 = 1 << 30;
 
 fn check_within(from: &Path, max_manifest_bytes: u64) -> Result<Manifest, BackupError> {
-    let path = from.join("manifest.json");
-    let size = std::fs::metadata(&path).map_err(io(&path))?.len();
-    if size > max_manifest_bytes {
-        return Err(BackupError::Manifest(
-            path,
-            format!("{size} bytes, more than the {max_manifest_bytes} a manifest may have"),
-        ));
-    }
-    let text = std::fs::read(&path).map_err(io(&path))?;
-    let manifest: Manifest =
-        serde_json::from_slice(&text).map_err(|e| BackupError::Manifest(path.clone(), e.to_string()))?;
-    if manifest.format != MANIFEST_FORMAT {
-        return Err(BackupError::Manifest(
-            path,
-            format!("format {} (this build reads {MANIFEST_FORMAT})", manifest.format),
-        ));
-    }
+    let manifest = read_manifest(&from.join(MANIFEST), max_manifest_bytes)?;
     for f in &manifest.files {
-        let safe = Path::new(&f.path)
-            .components()
-            .all(|c| matches!(c, std::path::Component::Normal(_)));
-        if !safe {
-            return Err(BackupError::Manifest(
-                path,
-                format!("a path outside the backup: {:?}", f.path),
-            ));
-        }
         let file = from.join(&f.path);
         let (found, _) = sha256_of(&file)?;
         let named = f
@@ -318,6 +295,39 @@ fn check_within(from: &Path, max_manifest_bytes: u64) -> Result<Manifest, Backup
                     found,
                 });
             }
+        }
+    }
+    Ok(manifest)
+}
+
+/// Reads the manifest at `path` (at most `max_bytes`, checked before it is read): its format, and
+/// every file it lists inside the backup (relative, no `..`). Nothing listed is read.
+fn read_manifest(path: &Path, max_bytes: u64) -> Result<Manifest, BackupError> {
+    let size = std::fs::metadata(path).map_err(io(path))?.len();
+    if size > max_bytes {
+        return Err(BackupError::Manifest(
+            path.to_path_buf(),
+            format!("{size} bytes, more than the {max_bytes} a manifest may have"),
+        ));
+    }
+    let text = std::fs::read(path).map_err(io(path))?;
+    let manifest: Manifest =
+        serde_json::from_slice(&text).map_err(|e| BackupError::Manifest(path.to_path_buf(), e.to_string()))?;
+    if manifest.format != MANIFEST_FORMAT {
+        return Err(BackupError::Manifest(
+            path.to_path_buf(),
+            format!("format {} (this build reads {MANIFEST_FORMAT})", manifest.format),
+        ));
+    }
+    for f in &manifest.files {
+        let safe = Path::new(&f.path)
+            .components()
+            .all(|c| matches!(c, std::path::Component::Normal(_)));
+        if !safe {
+            return Err(BackupError::Manifest(
+                path.to_path_buf(),
+                format!("a path outside the backup: {:?}", f.path),
+            ));
         }
     }
     Ok(manifest)
@@ -346,7 +356,7 @@ pub async fn restore(
     let sqlite = database_url.starts_with("sqlite:");
     if (manifest.database == "sqlite") != sqlite {
         return Err(BackupError::Manifest(
-            from.join("manifest.json"),
+            from.join(MANIFEST),
             format!(
                 "a backup of a {} database cannot be restored into {}",
                 manifest.database,
@@ -561,19 +571,8 @@ pub async fn restore_from_store(
                 e.into()
             }
         })?;
-        let text = std::fs::read(&path).map_err(io(&path))?;
-        let manifest: Manifest =
-            serde_json::from_slice(&text).map_err(|e| BackupError::Manifest(path.clone(), e.to_string()))?;
+        let manifest = read_manifest(&path, MAX_MANIFEST_BYTES)?;
         for f in &manifest.files {
-            let safe = Path::new(&f.path)
-                .components()
-                .all(|c| matches!(c, std::path::Component::Normal(_)));
-            if !safe {
-                return Err(BackupError::Manifest(
-                    path.clone(),
-                    format!("a path outside the backup: {}", f.path),
-                ));
-            }
             source.fetch(&f.path, f.bytes).await?;
         }
         restore(storage, &local, data_dir, database_url).await
@@ -582,9 +581,6 @@ pub async fn restore_from_store(
     let _ = std::fs::remove_dir_all(staging);
     done
 }
-
-/// The manifest's name in a backup.
-const MANIFEST: &str = "manifest.json";
 
 #[cfg(test)]
 mod tests {

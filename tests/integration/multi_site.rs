@@ -7,7 +7,6 @@
 //! for both (reported, never asserted).
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::process::Command;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -62,15 +61,6 @@ fn status_of(res: Result<ureq::Response, ureq::Error>) -> (Option<u16>, Option<s
         Err(ureq::Error::Status(code, r)) => (Some(code), r.into_json().ok()),
         Err(ureq::Error::Transport(_)) => (None, None),
     }
-}
-
-fn psql(db: &Db, sql: &str) -> String {
-    let out = Command::new("psql")
-        .args([db.url(std::path::Path::new("")).as_str(), "-tA", "-c", sql])
-        .output()
-        .expect("psql runs");
-    assert!(out.status.success(), "{sql}: {}", String::from_utf8_lossy(&out.stderr));
-    String::from_utf8_lossy(&out.stdout).trim().to_string()
 }
 
 /// What a run saw.

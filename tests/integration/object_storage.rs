@@ -44,15 +44,6 @@ fn session_key(sha: &str) -> String {
     format!("site-a/sessions/{}/{sha}.mcap", &sha[..2])
 }
 
-fn psql(db: &Db, sql: &str) -> String {
-    let out = Command::new("psql")
-        .args([db.url(std::path::Path::new("")).as_str(), "-tA", "-c", sql])
-        .output()
-        .expect("psql runs");
-    assert!(out.status.success(), "{sql}: {}", String::from_utf8_lossy(&out.stderr));
-    String::from_utf8_lossy(&out.stdout).trim().to_string()
-}
-
 #[test]
 fn replicas_share_session_files_and_traces_through_the_object_store() {
     let f = Fixture::new(STYLET);
@@ -282,20 +273,18 @@ fn a_service_on_object_storage_is_backed_up_and_restored_into_another_prefix() {
     std::fs::create_dir(&elsewhere).unwrap();
     let url = db.url(&elsewhere);
     let backup = "s3://stylet/backups/monday";
-    let said = run(
-        &[
-            "backup",
-            "--data-dir",
-            s(&elsewhere),
-            "--database",
-            &url,
-            "--storage",
-            STORAGE,
-            "--to",
-            backup,
-        ],
-        true,
-    );
+    let backup_args = [
+        "backup",
+        "--data-dir",
+        s(&elsewhere),
+        "--database",
+        &url,
+        "--storage",
+        STORAGE,
+        "--to",
+        backup,
+    ];
+    let said = run(&backup_args, true);
     assert!(said.contains("backed up 2 sessions (2 scored)"), "{said}");
     let held = s3.keys(BUCKET, "backups/monday/");
     assert!(held.contains(&"backups/monday/manifest.json".to_string()), "{held:?}");
@@ -318,20 +307,7 @@ fn a_service_on_object_storage_is_backed_up_and_restored_into_another_prefix() {
             .any(|n| n.to_string_lossy().starts_with(".backup-staging")),
         "{staged:?}"
     );
-    let said = run(
-        &[
-            "backup",
-            "--data-dir",
-            s(&elsewhere),
-            "--database",
-            &url,
-            "--storage",
-            STORAGE,
-            "--to",
-            backup,
-        ],
-        false,
-    );
+    let said = run(&backup_args, false);
     assert!(said.contains("exists already"), "{said}");
 
     let restored_db = Db::postgres("objectrestored");

@@ -217,3 +217,14 @@ pub fn restamped_session(f: &Fixture, name: &str, trainee: Option<&str>, path: &
     w.finish().unwrap();
     std::fs::read(path).unwrap()
 }
+
+/// The rows `sql` gives on the PostgreSQL database `db` (psql's unaligned text: a line a row,
+/// `|` between fields).
+pub fn psql(db: &Db, sql: &str) -> String {
+    let out = std::process::Command::new("psql")
+        .args([db.url(Path::new("")).as_str(), "-tA", "-c", sql])
+        .output()
+        .expect("psql runs");
+    assert!(out.status.success(), "{sql}: {}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).trim().to_string()
+}
