@@ -209,6 +209,13 @@ async fn remove_session_files(s: &AppState, sha: &str) {
             tracing::warn!(error = %e, "cannot remove a deleted session's object");
         }
     }
+    if let Err(e) = s
+        .storage
+        .remove_shared_folder(&super::storage::frames_prefix(sha))
+        .await
+    {
+        tracing::warn!(error = %e, "cannot remove a deleted session's shared player frames");
+    }
     let frames = s.config.data_dir.join("frames").join(prefix).join(sha);
     if let Err(e) = tokio::fs::remove_dir_all(&frames).await
         && e.kind() != std::io::ErrorKind::NotFound

@@ -1,4 +1,5 @@
-//! Where the service keeps its objects — session files, review traces, published atlases: in
+//! Where the service keeps its objects — session files, review traces, published atlases, player
+//! frames: in
 //! the data directory (the default), or in an S3-compatible object store
 //! (`stylet serve --storage s3://bucket/prefix`), shared by every replica.
 //!
@@ -304,6 +305,83 @@ impl Storage {
         }
     }
 
+    /// Whether there is an object store (`--storage`), not only the data directory.
+    pub fn is_shared(&self) -> bool {
+        self.remote.is_some()
+    }
+
+    /// The bytes of the object `key` in the object store (at most `max_bytes`, checked before
+    /// it is read); None without a store or without the object.
+    pub async fn read_shared(&self, key: &str, max_bytes: u64) -> Result<Option<Vec<u8>>, StorageError> {
+        let Some(remote) = &self.remote else {
+            return Ok(None);
+        };
+        let got = match remote.store.get(&object_path(key)?).await {
+            Ok(got) => got,
+            Err(object_store::Error::NotFound { .. }) => return Ok(None),
+            Err(e) => return Err(StorageError::store(key, e)),
+        };
+        if got.meta.size > max_bytes {
+            return Err(StorageError::TooLarge {
+                key: key.to_string(),
+                bytes: got.meta.size,
+                limit: max_bytes,
+            });
+        }
+        let bytes = got.bytes().await.map_err(|e| StorageError::store(key, e))?;
+        Ok(Some(bytes.to_vec()))
+    }
+
+    /// Puts `bytes` into the object store as `key` (nothing without a store).
+    pub async fn write_shared(&self, key: &str, bytes: Vec<u8>) -> Result<(), StorageError> {
+        let Some(remote) = &self.remote else {
+            return Ok(());
+        };
+        remote
+            .store
+            .put(&object_path(key)?, bytes.into())
+            .await
+            .map(|_| ())
+            .map_err(|e| StorageError::store(key, e))
+    }
+
+    /// Bytes of the objects under `prefix/` in the object store (0 without one), counting at
+    /// most [`MAX_FOLDER_OBJECTS`] objects: more count as over any bound.
+    pub async fn shared_folder_bytes(&self, prefix: &str) -> Result<u64, StorageError> {
+        let Some(remote) = &self.remote else {
+            return Ok(0);
+        };
+        let listed: Vec<object_store::ObjectMeta> = remote
+            .store
+            .list(Some(&object_path(prefix)?))
+            .take(MAX_FOLDER_OBJECTS + 1)
+            .collect::<Vec<_>>()
+            .await
+            .into_iter()
+            .collect::<Result<_, _>>()
+            .map_err(|e| StorageError::store(prefix, e))?;
+        if listed.len() > MAX_FOLDER_OBJECTS {
+            return Ok(u64::MAX);
+        }
+        Ok(listed.iter().map(|m| m.size).sum())
+    }
+
+    /// Removes every object under `prefix/` from the object store (nothing without one).
+    pub async fn remove_shared_folder(&self, prefix: &str) -> Result<(), StorageError> {
+        let Some(remote) = &self.remote else {
+            return Ok(());
+        };
+        let mut listed = remote.store.list(Some(&object_path(prefix)?));
+        while let Some(meta) = listed.next().await {
+            let meta = meta.map_err(|e| StorageError::store(prefix, e))?;
+            match remote.store.delete(&meta.location).await {
+                Ok(()) | Err(object_store::Error::NotFound { .. }) => {}
+                Err(e) => return Err(StorageError::store(meta.location.as_ref(), e)),
+            }
+        }
+        Ok(())
+    }
+
     /// Whether the storage answers: the data directory is there, and the object store (if
     /// any) lists its keys.
     pub async fn check(&self) -> Result<(), StorageError> {
@@ -325,8 +403,8 @@ impl Storage {
     }
 }
 
-/// Most objects one folder (a published atlas) may hold.
-const MAX_FOLDER_OBJECTS: usize = 4096;
+/// Most objects one folder (a published atlas, a session's shared player frames) may hold.
+pub const MAX_FOLDER_OBJECTS: usize = 4096;
 
 /// Numbers the temporary files and folders of this process: requests may fetch the same object
 /// at once.
@@ -398,6 +476,11 @@ pub fn session_key(sha: &str) -> String {
 /// The key of the review trace of the session file `sha`: `traces/ab/<sha>.json.zst`.
 pub fn trace_key(sha: &str) -> String {
     format!("traces/{}/{sha}.json.zst", sha.get(..2).unwrap_or(sha))
+}
+
+/// The folder of the player frames of the session file `sha`: `frames/ab/<sha>`.
+pub fn frames_prefix(sha: &str) -> String {
+    format!("frames/{}/{sha}", sha.get(..2).unwrap_or(sha))
 }
 
 #[cfg(test)]

@@ -2,7 +2,8 @@
 //! s3://bucket/prefix`), against a real S3 server (s3s-fs, installed by scripts/test): replicas
 //! with data directories of their own share the files through the store; an upload is in the
 //! store before its row commits, so a replica killed between the two leaves no row pointing at a
-//! missing object; `/readyz` says when the store does not answer.
+//! missing object; player frames drawn at one replica are served by the others from the store;
+//! `/readyz` says when the store does not answer.
 
 use std::io::{Read, Write};
 use std::net::TcpStream;
@@ -76,7 +77,32 @@ fn replicas_share_session_files_and_traces_through_the_object_store() {
     assert_eq!(bytes, file);
     assert!(b_copy.is_file());
 
-    // Deleted at b: gone from the store as well.
+    // A player frame drawn at a is shared through the store, and b serves the store's copy
+    // instead of drawing it: replaced in the store, b serves the replacement.
+    let frame = |base: &str| format!("{base}/sessions/{id}/frame?view=axial&tick=2000");
+    let (status, drawn) = get_bytes(&frame(&a.base), &tina);
+    assert_eq!(status, 200);
+    assert!(drawn.starts_with(b"\x89PNG"));
+    let frames = format!("site-a/frames/{}/{sha}/", &sha[..2]);
+    let started = Instant::now();
+    while s3.keys(BUCKET, &frames).is_empty() {
+        assert!(
+            started.elapsed() < Duration::from_secs(20),
+            "the frame never reached the store"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let keys = s3.keys(BUCKET, &frames);
+    assert_eq!(keys.len(), 1, "{keys:?}");
+    let stored_frame = s3.bucket_dir(BUCKET).join(&keys[0]);
+    assert_eq!(std::fs::read(&stored_frame).unwrap(), drawn);
+    let replacement = b"the store's copy of the frame".to_vec();
+    std::fs::write(&stored_frame, &replacement).unwrap();
+    let (status, served) = get_bytes(&frame(&b.base), &tina_b);
+    assert_eq!(status, 200);
+    assert_eq!(served, replacement, "b drew the frame instead of taking the shared one");
+
+    // Deleted at b: gone from the store as well, its frames with it.
     let root = login(&b.base, "root");
     let (status, json, _) = call(
         "DELETE",

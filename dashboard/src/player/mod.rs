@@ -12,6 +12,7 @@
 
 pub mod frames;
 pub mod overview;
+mod shared_frames;
 pub mod states;
 
 use std::collections::{BTreeMap, VecDeque};
@@ -297,6 +298,9 @@ pub async fn frame(
     if let Ok(png) = tokio::fs::read(&path).await {
         return Ok(png_response(png));
     }
+    if let Some(png) = shared_frames::fetch(&s, &cache, &path).await {
+        return Ok(png_response(png));
+    }
     let states = replay_states(&s, &row).await?;
     if !(states.first_tick..=states.last_tick).contains(&q.tick) {
         let rate = rate_or_default(&s, &row).await;
@@ -311,6 +315,7 @@ pub async fn frame(
         Err(busy) => return Ok(busy),
     };
     let tick = q.tick;
+    let drawn_path = path.clone();
     let png = tokio::task::spawn_blocking(move || -> Result<Option<Vec<u8>>, DrawError> {
         let _turn = turn;
         // Another request may have drawn it while this one waited.
@@ -329,7 +334,10 @@ pub async fn frame(
     .map_err(|e| internal(e.to_string()))?
     .map_err(|e| internal(e.to_string()))?;
     match png {
-        Some(png) => Ok(png_response(png)),
+        Some(png) => {
+            shared_frames::share(&s, &row.file_sha256, &drawn_path, png.clone());
+            Ok(png_response(png))
+        }
         None => {
             let rate = rate_or_default(&s, &row).await;
             Err(fail(

@@ -167,6 +167,9 @@ pub async fn frame(
     if let Ok(png) = tokio::fs::read(&path).await {
         return Ok(png_response(png));
     }
+    if let Some(png) = super::shared_frames::fetch(&s, &cache, &path).await {
+        return Ok(png_response(png));
+    }
     let report = report_of(&row)?;
     let trace = review_trace(&s, &row.file_sha256, &row.atlas_hash)
         .await
@@ -178,6 +181,7 @@ pub async fn frame(
         Err(busy) => return Ok(busy),
     };
     let frame = q.frame;
+    let drawn_path = path.clone();
     let png = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, DrawError> {
         let _turn = turn;
         if let Some(png) = cache.get(&path) {
@@ -199,6 +203,7 @@ pub async fn frame(
     .await
     .map_err(|e| internal(e.to_string()))?
     .map_err(|e| internal(e.to_string()))?;
+    super::shared_frames::share(&s, &row.file_sha256, &drawn_path, png.clone());
     Ok(png_response(png))
 }
 
