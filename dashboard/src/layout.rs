@@ -50,6 +50,7 @@ input, select, textarea, button { font: inherit; padding:.3rem .5rem; }
 button.primary { background:var(--accent); color:white; border:none; border-radius:4px; padding:.4rem 1rem; cursor:pointer; }
 .error { color:var(--bad); font-weight:600; }
 .notice { background:#fff4dc; border:1px solid #e0c080; padding:.5rem .8rem; border-radius:4px; }
+#pairing-code { font:700 2.6rem/1.2 ui-monospace, monospace; letter-spacing:.12em; margin:.4rem 0; }
 .muted { color:var(--muted); }
 td.result .reason { font-size:.85em; min-width:14em; max-width:28em; white-space:normal; margin-top:.15em; }
 div.reason { font-size:.85em; margin-top:.15em; }
@@ -187,6 +188,7 @@ fn navigation(v: &Viewer) -> Markup {
                 @if matches!(role, Role::Curriculum | Role::Admin) { a href="/reports" { "Reports" } }
                 @if role == Role::Admin { a href="/admin/users" { "Accounts" } }
                 @if role == Role::Admin { a #nav-atlases href="/admin/atlases" { "Atlases" } }
+                a #nav-pair href="/pair" { "Pair a simulator" }
                 a href="/tokens" { "API tokens" }
             }
             span.who { (v.user.username) " (" (role) ")" }

@@ -86,5 +86,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/admin/users/{username}/set", post(pages::admin::set_user))
         .route("/tokens", get(pages::tokens::index).post(pages::tokens::create))
         .route("/tokens/{id}/revoke", post(pages::tokens::revoke))
+        .route("/pair", get(pages::pairing::index).post(pages::pairing::create))
+        .route("/pair/machines/{id}/revoke", post(pages::pairing::revoke))
         .with_state(state)
 }

@@ -11,7 +11,8 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::{
-    AppState, atlases, experts, export, health, logins, openapi, reports, review, sessions, tokens, upload, users,
+    AppState, atlases, experts, export, health, logins, openapi, pairing, reports, review, sessions, tokens, upload,
+    users,
 };
 
 // What the dashboard and the command line call from the API's modules, under one path.
@@ -34,6 +35,12 @@ pub fn routes() -> OpenApiRouter<Arc<AppState>> {
         .routes(routes!(logins::logout))
         .routes(routes!(tokens::create_token, tokens::list_tokens))
         .routes(routes!(tokens::revoke_token))
+        .routes(routes!(pairing::revoke_current_token))
+        .routes(routes!(pairing::create_code))
+        .routes(routes!(pairing::pair))
+        .routes(routes!(pairing::lab_sign_in))
+        .routes(routes!(pairing::list_lab_machines))
+        .routes(routes!(pairing::revoke_machine))
         .routes(routes!(users::add_or_import, users::list))
         .routes(routes!(users::get_one, users::patch))
         .routes(routes!(users::disable))

@@ -146,7 +146,8 @@ pub fn err(status: StatusCode, msg: impl Into<String>) -> ApiError {
 impl From<super::StoreError> for ApiError {
     fn from(e: super::StoreError) -> Self {
         use super::StoreError;
-        if let StoreError::UserExists(_) | StoreError::TooManyTokens { .. } = e {
+        if let StoreError::UserExists(_) | StoreError::TooManyTokens { .. } | StoreError::TooManyPairingCodes { .. } = e
+        {
             return ApiError::Conflict(e.to_string());
         }
         tracing::error!(error = %e, "store");

@@ -29,6 +29,7 @@ pub mod list_query;
 pub mod local_copies;
 pub mod logins;
 pub mod openapi;
+pub mod pairing;
 pub mod publish;
 pub mod reports;
 pub mod review;

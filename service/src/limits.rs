@@ -65,6 +65,9 @@ pub struct Limits {
     /// store has them all); past it the least recently used are deleted
     /// ([`crate::local_copies`]).
     pub local_copies_bytes: u64,
+    /// Reverse proxies whose `X-Forwarded-For` names the client (the pairing codes' failure
+    /// limit per client address); none by default: the connection's peer is the client.
+    pub trusted_proxies: Vec<ipnet::IpNet>,
 }
 
 impl Default for Limits {
@@ -92,6 +95,7 @@ impl Default for Limits {
             max_atlas_voxels: 1 << 26,
             atlas_check_timeout: Duration::from_secs(300),
             local_copies_bytes: 16 << 30,
+            trusted_proxies: Vec::new(),
         }
     }
 }

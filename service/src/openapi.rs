@@ -58,6 +58,17 @@ impl Modify for SecuritySchemes {
                     .build(),
             ),
         );
+        components.add_security_scheme(
+            "lab_token",
+            SecurityScheme::Http(
+                HttpBuilder::new()
+                    .scheme(HttpAuthScheme::Bearer)
+                    .description(Some(
+                        "A lab machine's token, from POST /api/pair with a lab code: POST /api/lab/sign-in only.",
+                    ))
+                    .build(),
+            ),
+        );
     }
 }
 

@@ -125,6 +125,10 @@ pub struct LimitArgs {
     /// least recently used are deleted past it (the store has them all).
     #[arg(long)]
     pub local_copies_bytes: Option<u64>,
+    /// A reverse proxy (address or network, e.g. 10.0.0.0/8; repeatable) whose X-Forwarded-For
+    /// header names the client, for the limits counted per client address.
+    #[arg(long = "trusted-proxy", value_name = "NETWORK")]
+    pub trusted_proxies: Vec<ipnet::IpNet>,
 }
 
 impl LimitArgs {
@@ -160,6 +164,7 @@ impl LimitArgs {
             max_atlas_voxels: self.max_atlas_voxels.unwrap_or(d.max_atlas_voxels),
             atlas_check_timeout: self.atlas_check_timeout_s.map_or(d.atlas_check_timeout, secs),
             local_copies_bytes: self.local_copies_bytes.unwrap_or(d.local_copies_bytes),
+            trusted_proxies: self.trusted_proxies.clone(),
         }
     }
 }

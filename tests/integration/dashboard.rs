@@ -682,3 +682,80 @@ fn every_failed_session_has_its_reasons_on_the_trainee_home() {
         c.close().await.unwrap();
     });
 }
+
+/// The pairing page (docs/integration.md "Pairing a simulator") in Chromium: a trainee shows a
+/// pairing code, which pairs a simulator (through the API, as the simulator does), and a
+/// sign-in code; an instructor pairs a lab machine of a cohort, sees it listed and revokes it.
+#[test]
+fn the_pairing_page_shows_codes_that_pair_and_lists_lab_machines() {
+    let f = Fixture::new(STYLET);
+    let db = Db::Sqlite;
+    let srv = f.serve(&db, 1);
+    let base = srv.base.clone();
+    let pair = |code: &str, label: &str| {
+        let body = json!({"code": code, "label": label}).to_string();
+        let (status, json, _) = call("POST", &format!("{base}/api/pair"), None, Some(body.as_bytes()), true);
+        assert_eq!(status, 201, "{json}");
+        json
+    };
+    let driver = Driver::start();
+    let profiles = tempfile::tempdir().unwrap();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let c = browser(&driver, &profiles.path().join("tina")).await;
+        log_in(&c, &base, "tina").await;
+        assert_eq!(open(&c, &base, "/pair").await, "Pair a simulator");
+        assert!(
+            c.find(Locator::Css("#pair-lab")).await.is_err(),
+            "a trainee pairs no lab machine"
+        );
+        let form = c.form(Locator::Css("#pair-simulator")).await.unwrap();
+        submit_and_wait(&c, form).await;
+        let code = wait_text(&c, "#pairing-code").await;
+        assert_eq!((code.len(), &code[5..6]), (11, "-"), "{code}");
+        assert!(
+            text_of(&c, "#pairing-box")
+                .await
+                .contains("pairs a simulator with your account")
+        );
+        shot(&c, "pairing", "01-trainee-code").await;
+        let paired = pair(&code, "tina's laptop");
+        assert_eq!(
+            (paired["kind"].as_str(), paired["username"].as_str()),
+            (Some("simulator"), Some("tina"))
+        );
+        let form = c.form(Locator::Css("#pair-sign-in")).await.unwrap();
+        submit_and_wait(&c, form).await;
+        assert!(
+            text_of(&c, "#pairing-box")
+                .await
+                .contains("signs you in at a lab machine")
+        );
+
+        let c = browser(&driver, &profiles.path().join("ivan")).await;
+        log_in(&c, &base, "ivan").await;
+        open(&c, &base, "/pair").await;
+        assert!(body_text(&c).await.contains("No lab machines yet."));
+        let form = c.form(Locator::Css("#pair-lab")).await.unwrap();
+        submit_and_wait(&c, form).await;
+        let box_text = text_of(&c, "#pairing-box").await;
+        assert!(box_text.contains("pairs a lab machine with a cohort c1"), "{box_text}");
+        shot(&c, "pairing", "02-instructor-lab-code").await;
+        let lab = pair(&text_of(&c, "#pairing-code").await, "skills lab, bay 2");
+        assert_eq!(lab["cohort"], "c1", "{lab}");
+        open(&c, &base, "/pair").await;
+        let row = text_of(&c, "#lab-machines tbody tr").await;
+        assert!(
+            row.contains("skills lab, bay 2") && row.contains("ivan") && row.contains("active"),
+            "{row}"
+        );
+        shot(&c, "pairing", "03-lab-machines").await;
+        let form = c.form(Locator::Css("#lab-machines tbody tr form")).await.unwrap();
+        submit_and_wait(&c, form).await;
+        assert!(text_of(&c, "#lab-machines tbody tr").await.contains("revoked"));
+        println!("screenshots in {}", shots().display());
+    });
+}

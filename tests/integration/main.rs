@@ -24,6 +24,7 @@ mod instructors;
 mod multi_site;
 mod object_storage;
 mod observability;
+mod pairing;
 mod phone;
 mod player;
 mod publish;

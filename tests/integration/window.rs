@@ -8,7 +8,7 @@
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use crate::common::{Db, Fixture, STYLET, Server, ok, phantom_atlas, s};
+use crate::common::{Auth, Db, Fixture, STYLET, Server, call, login, ok, phantom_atlas, s};
 use egui_kittest::kittest::Queryable as _;
 use egui_kittest::{Harness, SnapshotOptions};
 use stylet_app::views::ViewKind;
@@ -628,6 +628,95 @@ fn a_session_fetched_from_the_service_opens_in_the_replay_viewer() {
         _ => unreachable!(),
     }
     assert!(dir.join("sessions").join(format!("fetched-{id}.mcap")).is_file());
+    drop(server);
+}
+
+/// A pairing code made on the service, by `who` for `purpose` (and `cohort`).
+fn pairing_code(base: &str, who: &Auth, purpose: &str, cohort: Option<&str>) -> String {
+    let body = serde_json::json!({"purpose": purpose, "cohort": cohort}).to_string();
+    let (status, json, _) = call(
+        "POST",
+        &format!("{base}/api/pairing/codes"),
+        Some(who),
+        Some(body.as_bytes()),
+        true,
+    );
+    assert_eq!(status, 201, "{json}");
+    json["code"].as_str().unwrap().to_string()
+}
+
+/// Pairing from the start screen (docs/integration.md "Pairing a simulator"): a trainee's code
+/// logs the window in (the token kept in its configuration folder); a lab code makes it a lab
+/// machine of the cohort, on which a trainee signs in with her own code (her token in memory
+/// only) and signs out (her token revoked on the service).
+#[test]
+fn the_start_screen_pairs_with_a_code_and_a_lab_machine_signs_trainees_in() {
+    let f = Fixture::new(STYLET);
+    let db = Db::Sqlite;
+    f.users(&db);
+    let server = Server::start(STYLET, &f.data(), &db, &f.atlases(), &[]);
+    let base = server.base.clone();
+    let (tina, ivan) = (login(&base, "tina"), login(&base, "ivan"));
+    let pair = |h: &mut Harness<'_, StyletApp>, code: String, button: &str| {
+        if let Screen::Start(s) = &mut h.state_mut().screen {
+            s.server_url = base.clone();
+            s.pairing_code = code;
+        }
+        h.step();
+        h.get_by_label(button).click();
+        h.step();
+    };
+
+    // Tina's own computer.
+    let dir = f.dir.path().join("own");
+    let mut h = harness(options(&dir, &f.atlases().join("phantom"), None));
+    h.run_steps(2);
+    pair(&mut h, pairing_code(&base, &tina, "simulator", None), "Pair");
+    step_until(&mut h, "the pairing", |app| app.shared.login.is_some());
+    let kept = stylet_app::credentials::Credentials::load(&dir.join("config"))
+        .unwrap()
+        .unwrap();
+    assert_eq!(
+        (kept.username.as_str(), kept.server_url.as_str()),
+        ("tina", base.as_str())
+    );
+    drop(h);
+
+    // A lab machine of c1, and tina signing in and out on it.
+    let dir = f.dir.path().join("lab");
+    let mut h = harness(options(&dir, &f.atlases().join("phantom"), None));
+    h.run_steps(2);
+    pair(&mut h, pairing_code(&base, &ivan, "lab", Some("c1")), "Pair");
+    step_until(&mut h, "the lab pairing", |app| app.shared.lab.is_some());
+    assert_eq!(h.state().shared.lab.as_ref().unwrap().cohort, "c1");
+    assert!(h.state().shared.login.is_none());
+    pair(&mut h, pairing_code(&base, &tina, "sign_in", None), "Sign in");
+    step_until(&mut h, "the sign-in", |app| app.shared.login.is_some());
+    let token = h.state().shared.login.as_ref().unwrap().token.clone();
+    assert_eq!(h.state().shared.login.as_ref().unwrap().username, "tina");
+    assert_eq!(
+        stylet_app::credentials::Credentials::load(&dir.join("config")).unwrap(),
+        None,
+        "a trainee's token at a lab machine is not written down"
+    );
+    let signed_in = Auth::Bearer(token);
+    assert_eq!(
+        call("GET", &format!("{base}/api/sessions/x"), Some(&signed_in), None, false).0,
+        404
+    );
+    h.get_by_label("Sign out").click();
+    h.step();
+    assert!(h.state().shared.login.is_none());
+    assert!(h.state().shared.lab.is_some(), "the machine stays a lab machine");
+    let t0 = Instant::now();
+    while call("GET", &format!("{base}/api/sessions/x"), Some(&signed_in), None, false).0 != 401 {
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "the token was not revoked at sign-out"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    drop(h);
     drop(server);
 }
 

@@ -9,6 +9,7 @@ pub mod compare;
 pub mod home;
 pub mod instructors;
 pub mod login;
+pub mod pairing;
 pub mod reports;
 pub mod review;
 pub mod sessions;

@@ -107,7 +107,7 @@ impl Store {
     }
 
     /// Deletes what has expired: logins past their expiry, login windows older than
-    /// `login_window`, and upload slots whose lease ran out. Returns the rows deleted.
+    /// `login_window`, upload slots whose lease ran out, and pairing codes past their expiry. Returns the rows deleted.
     pub async fn purge_expired(&self, login_window: Duration) -> Result<u64, StoreError> {
         let now = SystemTime::now();
         let mut deleted = 0;
@@ -115,6 +115,7 @@ impl Store {
             ("DELETE FROM auth_sessions WHERE expires_at <= $1", now),
             ("DELETE FROM login_failures WHERE window_from < $1", now - login_window),
             ("DELETE FROM upload_slots WHERE lease_until < $1", now),
+            ("DELETE FROM pairing_codes WHERE expires_at < $1", now),
         ] {
             deleted += sqlx::query(sql)
                 .bind(at(before))

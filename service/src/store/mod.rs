@@ -15,6 +15,7 @@ pub mod health;
 mod instructors;
 mod jobs;
 mod login_failures;
+mod pairing;
 mod readiness;
 mod reports;
 mod review;
@@ -37,6 +38,7 @@ pub use instructors::{
 };
 pub use jobs::{Job, OutcomeColumns, join_reasons, split_reasons};
 pub use login_failures::{CheckEnd, CheckReservation};
+pub use pairing::{LabMachine, Paired, PairingPlace, PairingPurpose, PairingRefusal};
 pub use readiness::NotReady;
 pub use reports::{DayCount, FAILED_READ_MAX, FailureBreakdown, FailureCause, TREND_ROWS_MAX};
 pub use review::{ExportRow, ProgressPoint, TraineeSummary};
@@ -103,6 +105,9 @@ pub enum StoreError {
     /// The account holds the most active API tokens allowed.
     #[error("{username} has {active} active API tokens, the most allowed; revoke one first")]
     TooManyTokens { username: String, active: i64 },
+    /// The account holds the most unused pairing codes allowed.
+    #[error("you have {active} unused pairing codes, the most allowed; use one or wait until they expire")]
+    TooManyPairingCodes { active: i64 },
     /// argon2 could not hash a password.
     #[error("{0}")]
     PasswordHash(argon2::password_hash::Error),

@@ -133,18 +133,44 @@ impl Store {
         ttl: Duration,
         max_active: usize,
     ) -> Result<(String, TokenRow), StoreError> {
+        let mut tx = self.begin_write().await?;
+        let made = self
+            .insert_api_token(&mut tx, user, label, scope, ttl, max_active)
+            .await;
+        match made {
+            Ok(made) => {
+                tx.commit().await?;
+                Ok(made)
+            }
+            Err(e) => {
+                tx.rollback().await?;
+                Err(e)
+            }
+        }
+    }
+
+    /// [`Store::create_api_token`] inside the writing transaction `tx` (a pairing makes its
+    /// token in the transaction that uses its code up).
+    pub(super) async fn insert_api_token(
+        &self,
+        tx: &mut sqlx::Transaction<'_, sqlx::Any>,
+        user: &User,
+        label: &str,
+        scope: TokenScope,
+        ttl: Duration,
+        max_active: usize,
+    ) -> Result<(String, TokenRow), StoreError> {
         let token = auth::random_token();
         let id = new_id();
         let created_at = now();
         let expires_at = from_now(ttl);
         let last4 = token[token.len() - 4..].to_string();
-        let mut tx = self.begin_write().await?;
         // Counted in the writing transaction, so parallel requests cannot pass the cap together
         // (SQLite: BEGIN IMMEDIATE serialises writers; PostgreSQL: the account's row is locked).
         if !self.sqlite {
             sqlx::query("SELECT id FROM users WHERE id = $1 FOR UPDATE")
                 .bind(user.id.clone())
-                .fetch_optional(&mut *tx)
+                .fetch_optional(&mut **tx)
                 .await?;
         }
         let active: i64 = sqlx::query(
@@ -152,11 +178,10 @@ impl Store {
         )
         .bind(user.id.clone())
         .bind(created_at.clone())
-        .fetch_one(&mut *tx)
+        .fetch_one(&mut **tx)
         .await?
         .try_get("n")?;
         if active >= max_active as i64 {
-            tx.rollback().await?;
             return Err(StoreError::TooManyTokens {
                 username: user.username.clone(),
                 active,
@@ -174,17 +199,16 @@ impl Store {
         .bind(scope.as_str().to_string())
         .bind(expires_at.clone())
         .bind(last4.clone())
-        .execute(&mut *tx)
+        .execute(&mut **tx)
         .await?;
         audit_in(
-            &mut tx,
+            tx,
             &user.id,
             "token.create",
             &id,
             &format!("{label} (scope {}, expires {expires_at})", scope.as_str()),
         )
         .await?;
-        tx.commit().await?;
         let row = TokenRow {
             id,
             username: user.username.clone(),

@@ -31,6 +31,25 @@ pub enum FetchError {
     Write(String),
 }
 
+/// What pairing by a code gave this simulator.
+#[derive(Clone, PartialEq, Eq)]
+pub enum Pairing {
+    /// An upload token of `username`: log in with it.
+    Account { username: String, token: String },
+    /// This computer is a lab machine of `cohort`; `lab_token` signs its trainees in.
+    Lab { cohort: String, lab_token: String },
+}
+
+impl std::fmt::Debug for Pairing {
+    /// Never prints a token.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Pairing::Account { username, .. } => write!(f, "Account({username})"),
+            Pairing::Lab { cohort, .. } => write!(f, "Lab({cohort})"),
+        }
+    }
+}
+
 /// Errors of logging in.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum LoginError {
@@ -221,6 +240,77 @@ impl ServiceClient {
             .set("X-CSRF-Token", &csrf)
             .call();
         Ok(token)
+    }
+
+    /// Pairs this simulator with the service by a code shown on the dashboard
+    /// (`POST /api/pair`): an upload token of the code's account, or — for a lab code — this
+    /// computer becomes a lab machine of a cohort.
+    pub fn pair(&self, code: &str, label: &str) -> Result<Pairing, LoginError> {
+        let v = self.post_json("/api/pair", None, &serde_json::json!({ "code": code, "label": label }))?;
+        let field = |name: &str| {
+            v[name]
+                .as_str()
+                .map(str::to_string)
+                .ok_or_else(|| LoginError::Protocol(format!("no {name} in the answer")))
+        };
+        match v["kind"].as_str() {
+            Some("simulator") => Ok(Pairing::Account {
+                username: field("username")?,
+                token: field("token")?,
+            }),
+            Some("lab") => Ok(Pairing::Lab {
+                cohort: field("cohort")?,
+                lab_token: field("lab_token")?,
+            }),
+            other => Err(LoginError::Protocol(format!("an unknown pairing kind {other:?}"))),
+        }
+    }
+
+    /// Signs a trainee in at this lab machine with their sign-in code (`POST /api/lab/sign-in`):
+    /// their username and an upload token for the lab day.
+    pub fn lab_sign_in(&self, lab_token: &str, code: &str) -> Result<(String, String), LoginError> {
+        let v = self.post_json(
+            "/api/lab/sign-in",
+            Some(lab_token),
+            &serde_json::json!({ "code": code }),
+        )?;
+        match (v["username"].as_str(), v["token"].as_str()) {
+            (Some(u), Some(t)) => Ok((u.to_string(), t.to_string())),
+            _ => Err(LoginError::Protocol("no username and token in the answer".into())),
+        }
+    }
+
+    /// Revokes `token` itself (`POST /api/tokens/current/revoke`): a trainee signing out of a
+    /// lab machine.
+    pub fn sign_out(&self, token: &str) -> Result<(), LoginError> {
+        self.post_json("/api/tokens/current/revoke", Some(token), &serde_json::json!({}))
+            .map(|_| ())
+    }
+
+    /// POSTs `body` to `path` (with `Authorization: Bearer token` when given): the JSON answer,
+    /// or why not.
+    fn post_json(&self, path: &str, token: Option<&str>, body: &Value) -> Result<Value, LoginError> {
+        let mut req = self.agent.post(&format!("{}{path}", self.base));
+        if let Some(t) = token {
+            req = req.set("Authorization", &format!("Bearer {t}"));
+        }
+        let resp = match req.send_json(body) {
+            Ok(r) => r,
+            Err(ureq::Error::Status(_, r)) => {
+                return Err(LoginError::Refused {
+                    status: r.status(),
+                    reason: reason_of(r),
+                });
+            }
+            Err(ureq::Error::Transport(t)) => {
+                return Err(LoginError::Unreachable {
+                    url: self.base.clone(),
+                    reason: t.to_string(),
+                });
+            }
+        };
+        serde_json::from_str(&read_body(resp).map_err(|e| LoginError::Protocol(e.to_string()))?)
+            .map_err(|e| LoginError::Protocol(e.to_string()))
     }
 
     /// Uploads one session file with an API token.

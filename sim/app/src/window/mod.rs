@@ -94,6 +94,9 @@ pub struct Shared {
     pub options: AppOptions,
     atlases: Vec<(PathBuf, Arc<Atlas>)>,
     pub login: Option<Credentials>,
+    /// This computer as a lab machine of a cohort, when paired as one: `login` is then the
+    /// trainee signed in on it, if any.
+    pub lab: Option<crate::credentials::LabMachine>,
     pub outbox: Option<Outbox>,
     /// Why the outbox cannot be used (shown on every screen).
     pub outbox_problem: Option<Arc<OutboxError>>,
@@ -118,6 +121,10 @@ impl Shared {
             .config_dir
             .as_deref()
             .and_then(|d| Credentials::load(d).ok().flatten());
+        let lab = options
+            .config_dir
+            .as_deref()
+            .and_then(|d| crate::credentials::LabMachine::load(d).ok().flatten());
         let (outbox, outbox_problem) = match Outbox::open(&options.outbox_dir) {
             Ok(o) => (Some(o), None),
             Err(e) => (None, Some(Arc::new(e))),
@@ -150,6 +157,7 @@ impl Shared {
             options,
             atlases: Vec::new(),
             login: None,
+            lab,
             outbox,
             outbox_problem,
             retrier: None,
@@ -195,10 +203,21 @@ impl Shared {
         self.login = Some(c);
     }
 
-    /// Forgets the login (the stored token is deleted; queued sessions stay queued).
+    /// Forgets the login (the stored token is deleted; queued sessions stay queued). At a lab
+    /// machine the trainee's token is revoked on the service too (in the background; it expires
+    /// by itself at the end of the lab day if the service cannot be reached).
     pub fn log_out(&mut self) {
         if let Some(dir) = &self.options.config_dir {
             let _ = std::fs::remove_file(dir.join(crate::credentials::FILE_NAME));
+        }
+        if let (Some(c), Some(_)) = (self.login.take(), &self.lab)
+            && let Ok(client) = ServiceClient::new(&c.server_url)
+        {
+            std::thread::spawn(move || {
+                if let Err(e) = client.sign_out(&c.token) {
+                    eprintln!("stylet: signing out at the service failed ({e}); the token expires by itself");
+                }
+            });
         }
         self.login = None;
         // The retrier finishes the file it is sending before it stops: not on the window's thread.

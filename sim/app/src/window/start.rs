@@ -9,8 +9,8 @@ use eframe::egui;
 
 use super::replay_screen::LoadingReplay;
 use super::{Go, SessionScreen, Shared};
-use crate::credentials::{Credentials, CredentialsError};
-use crate::service_client::{LoginError, ServiceClient};
+use crate::credentials::{Credentials, CredentialsError, LabMachine};
+use crate::service_client::{LoginError, Pairing, ServiceClient};
 use crate::session::{Difficulty, Driver, SessionPlan};
 use stylet_atlas::manifest::ScenarioKind;
 
@@ -24,13 +24,25 @@ enum LoginFailure {
     NotKept(#[source] CredentialsError),
 }
 
+/// What a login, a pairing or a sign-in at a lab machine left behind.
+enum Joined {
+    /// An account's upload token (kept in the configuration folder unless signed in at a lab
+    /// machine).
+    Account(Credentials),
+    /// This computer, now a lab machine of a cohort.
+    Lab(LabMachine),
+}
+
 /// The start screen's fields.
 pub struct StartScreen {
     pub server_url: String,
     pub username: String,
     password: String,
-    /// A login under way on its own thread.
-    login: Option<Receiver<Result<Credentials, LoginFailure>>>,
+    /// A pairing code from the dashboard ("Pair a simulator"): for this computer, or a
+    /// trainee's sign-in code at a lab machine.
+    pub pairing_code: String,
+    /// A login, pairing or sign-in under way on its own thread.
+    login: Option<Receiver<Result<Joined, LoginFailure>>>,
     pub atlas_index: usize,
     pub scenario: String,
     pub difficulty: Difficulty,
@@ -58,6 +70,7 @@ impl StartScreen {
             server_url,
             username,
             password: String::new(),
+            pairing_code: String::new(),
             login: None,
             atlas_index: 0,
             scenario: String::new(),
@@ -102,20 +115,48 @@ impl StartScreen {
 
     fn account_ui(&mut self, ui: &mut egui::Ui, shared: &mut Shared) {
         ui.strong("Scoring service");
-        match shared.login.clone() {
-            Some(c) => {
-                ui.label(format!("Logged in as {} at {}", c.username, c.server_url));
+        let busy = self.login.is_some();
+        match (shared.login.clone(), shared.lab.clone()) {
+            (Some(c), lab) => {
+                match &lab {
+                    Some(lab) => ui.label(format!(
+                        "Signed in as {} at this lab machine of cohort {}",
+                        c.username, lab.cohort
+                    )),
+                    None => ui.label(format!("Logged in as {} at {}", c.username, c.server_url)),
+                };
                 ui.label("Sessions upload by themselves; a session waits in the outbox while the service is down.");
                 ui.horizontal(|ui| {
                     if ui.button("Upload waiting sessions now").clicked() {
                         shared.upload_now();
                     }
-                    if ui.button("Log out").clicked() {
+                    let out = if lab.is_some() { "Sign out" } else { "Log out" };
+                    if ui.button(out).clicked() {
                         shared.log_out();
                     }
                 });
             }
-            None => {
+            (None, Some(lab)) => {
+                ui.label(format!("Lab machine of cohort {} at {}", lab.cohort, lab.server_url));
+                ui.label("Trainees sign in one after another: show a sign-in code on your dashboard page \"Pair a simulator\".");
+                ui.horizontal(|ui| {
+                    let l = ui.label("Sign in with your code");
+                    ui.text_edit_singleline(&mut self.pairing_code).labelled_by(l.id);
+                    if ui.add_enabled(!busy, egui::Button::new("Sign in")).clicked() {
+                        self.start_sign_in(&lab);
+                    }
+                    if busy {
+                        ui.spinner();
+                    }
+                });
+                if ui.button("Unpair this lab machine").clicked()
+                    && let Some(dir) = &shared.options.config_dir
+                {
+                    LabMachine::forget(dir);
+                    shared.lab = None;
+                }
+            }
+            (None, None) => {
                 egui::Grid::new("login").num_columns(2).show(ui, |ui| {
                     let l = ui.label("Server");
                     ui.text_edit_singleline(&mut self.server_url).labelled_by(l.id);
@@ -127,17 +168,25 @@ impl StartScreen {
                     ui.add(egui::TextEdit::singleline(&mut self.password).password(true))
                         .labelled_by(l.id);
                     ui.end_row();
+                    let l = ui.label("Pairing code");
+                    ui.text_edit_singleline(&mut self.pairing_code).labelled_by(l.id);
+                    ui.end_row();
                 });
                 ui.horizontal(|ui| {
-                    let busy = self.login.is_some();
                     if ui.add_enabled(!busy, egui::Button::new("Log in")).clicked() {
                         self.start_login(shared);
                     }
+                    if ui.add_enabled(!busy, egui::Button::new("Pair")).clicked() {
+                        self.start_pairing(shared);
+                    }
                     if busy {
                         ui.spinner();
-                        ui.label("logging in…");
+                        ui.label("connecting…");
                     }
                 });
+                ui.label(
+                    "Log in with your password, or pair with a code from the dashboard's page \"Pair a simulator\".",
+                );
                 ui.add_space(8.0);
                 ui.label("Or work offline: sessions are scored here and wait in the outbox until you log in.");
                 ui.horizontal(|ui| {
@@ -148,24 +197,30 @@ impl StartScreen {
         }
     }
 
+    /// The service at the typed address, or the problem shown.
+    fn client(&mut self, base: &str) -> Option<ServiceClient> {
+        self.problem = None;
+        match ServiceClient::new(base.trim()) {
+            Ok(c) => Some(c),
+            Err(e) => {
+                self.problem = Some(e.to_string());
+                None
+            }
+        }
+    }
+
     /// Logs in on a thread of its own: the password is used once for an upload-only token and
     /// never stored.
     fn start_login(&mut self, shared: &Shared) {
-        self.problem = None;
-        let client = match ServiceClient::new(self.server_url.trim()) {
-            Ok(c) => c,
-            Err(e) => {
-                self.problem = Some(e.to_string());
-                return;
-            }
+        let Some(client) = self.client(&self.server_url.clone()) else {
+            return;
         };
         let (username, password) = (self.username.trim().to_string(), std::mem::take(&mut self.password));
         let config_dir = shared.options.config_dir.clone();
         let (tx, rx) = std::sync::mpsc::channel();
         std::thread::spawn(move || {
-            let host = std::env::var("HOSTNAME").unwrap_or_else(|_| "this computer".into());
             let result = client
-                .upload_token(&username, &password, &format!("stylet sim on {host}"))
+                .upload_token(&username, &password, &this_computer())
                 .map_err(LoginFailure::Service)
                 .and_then(|token| {
                     let c = Credentials {
@@ -176,8 +231,73 @@ impl StartScreen {
                     if let Some(dir) = config_dir {
                         c.save(&dir).map_err(LoginFailure::NotKept)?;
                     }
-                    Ok(c)
+                    Ok(Joined::Account(c))
                 });
+            let _ = tx.send(result);
+        });
+        self.login = Some(rx);
+    }
+
+    /// Pairs with a code on a thread of its own: this computer gets an upload token of the
+    /// code's account, or becomes a lab machine; either is kept in the configuration folder.
+    fn start_pairing(&mut self, shared: &Shared) {
+        let Some(client) = self.client(&self.server_url.clone()) else {
+            return;
+        };
+        let code = std::mem::take(&mut self.pairing_code);
+        let config_dir = shared.options.config_dir.clone();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let result = client
+                .pair(&code, &this_computer())
+                .map_err(LoginFailure::Service)
+                .and_then(|paired| {
+                    let server_url = client.base().to_string();
+                    let joined = match paired {
+                        Pairing::Account { username, token } => Joined::Account(Credentials {
+                            server_url,
+                            username,
+                            token,
+                        }),
+                        Pairing::Lab { cohort, lab_token } => Joined::Lab(LabMachine {
+                            server_url,
+                            cohort,
+                            lab_token,
+                        }),
+                    };
+                    if let Some(dir) = config_dir {
+                        match &joined {
+                            Joined::Account(c) => c.save(&dir),
+                            Joined::Lab(lab) => lab.save(&dir),
+                        }
+                        .map_err(LoginFailure::NotKept)?;
+                    }
+                    Ok(joined)
+                });
+            let _ = tx.send(result);
+        });
+        self.login = Some(rx);
+    }
+
+    /// Signs a trainee in at this lab machine with their code, on a thread of its own; their
+    /// token stays in memory (the next trainee must not inherit it).
+    fn start_sign_in(&mut self, lab: &LabMachine) {
+        let Some(client) = self.client(&lab.server_url) else {
+            return;
+        };
+        let (code, lab_token) = (std::mem::take(&mut self.pairing_code), lab.lab_token.clone());
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let result = client
+                .lab_sign_in(&lab_token, &code)
+                .map(|(username, token)| {
+                    Joined::Account(Credentials {
+                        server_url: client.base().to_string(),
+                        username,
+                        token,
+                    })
+                })
+                .map_err(LoginFailure::Service);
             let _ = tx.send(result);
         });
         self.login = Some(rx);
@@ -186,12 +306,16 @@ impl StartScreen {
     fn poll_login(&mut self, shared: &mut Shared) {
         let Some(rx) = &self.login else { return };
         match rx.try_recv() {
-            Ok(Ok(c)) => {
+            Ok(Ok(Joined::Account(c))) => {
                 shared.logged_in(c);
                 self.login = None;
             }
+            Ok(Ok(Joined::Lab(lab))) => {
+                shared.lab = Some(lab);
+                self.login = None;
+            }
             Ok(Err(e)) => {
-                self.problem = Some(format!("login failed: {e}"));
+                self.problem = Some(format!("not connected: {e}"));
                 self.login = None;
             }
             Err(TryRecvError::Empty) => {}
@@ -385,4 +509,10 @@ impl StartScreen {
 fn atlas_name(dir: &std::path::Path) -> String {
     dir.file_name()
         .map_or_else(|| dir.display().to_string(), |n| n.to_string_lossy().into_owned())
+}
+
+/// How this computer is named on the service (its tokens' and lab machine's label).
+fn this_computer() -> String {
+    let host = std::env::var("HOSTNAME").unwrap_or_else(|_| "this computer".into());
+    format!("stylet sim on {host}")
 }
