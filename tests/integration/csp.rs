@@ -189,6 +189,7 @@ fn every_button_of_every_page_works_under_the_content_security_policy() {
         compare.clone(),
         "/trainees/tina".into(),
         "/tokens".into(),
+        "/pair".into(),
     ];
     let staff: Vec<String> = [
         "/cohorts",
