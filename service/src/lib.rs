@@ -46,6 +46,7 @@ pub mod upload;
 pub mod upload_hold;
 pub mod users;
 pub mod worker;
+pub mod xapi;
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -74,6 +75,8 @@ pub struct Config {
     pub secure_cookies: bool,
     /// Limits and timeouts (docs/security.md).
     pub limits: Limits,
+    /// The Learning Record Store the scored sessions' xAPI statements go to; none by default.
+    pub lrs: Option<xapi::LrsConfig>,
 }
 
 impl Config {
@@ -328,6 +331,9 @@ pub async fn serve(
     shared_atlases::sync(&state).await;
     worker::start(state.clone());
     housekeeping::start(state.clone());
+    if let Some(lrs) = state.config.lrs.clone() {
+        xapi::run(state.clone(), lrs);
+    }
     let mut app = api::router(state.clone(), mount.map(|m| (m.openapi)()));
     if let Some(mount) = mount {
         app = app.merge((mount.router)(state.clone()));

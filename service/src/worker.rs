@@ -212,7 +212,10 @@ async fn store_outcome_with_retries(
     let mut wait = Duration::from_millis(500);
     loop {
         let stored = match &outcome {
-            Outcome::Scored(report) => state.store.finish_job(job, report).await,
+            Outcome::Scored(report) => {
+                let home = state.config.lrs.as_ref().map(|l| l.public_url.as_str());
+                state.store.finish_job(job, report, home).await
+            }
             Outcome::Failed(e) => state.store.fail_job(job, e).await,
             Outcome::Retry(_) => {
                 // 2, 4, 8 … s after each failed try, at most a minute.

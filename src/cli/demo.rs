@@ -230,6 +230,7 @@ fn serve_dashboard(args: &DemoArgs, uploads: &[DemoUpload]) -> anyhow::Result<()
         max_upload_bytes: 64 << 20,
         secure_cookies: false,
         limits: Default::default(),
+        lrs: None,
     };
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()

@@ -41,7 +41,7 @@ enum Command {
     /// Replay session files through the physics and grade them (docs/metrics.md).
     Score(score::ScoreArgs),
     /// Run the scoring service: JSON API, uploads, scoring by replay (docs/api.md).
-    Serve(serve::ServeArgs),
+    Serve(Box<serve::ServeArgs>),
     /// Manage service accounts.
     #[command(subcommand)]
     User(user::UserCommand),
@@ -72,7 +72,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Script(cmd) => script::run(cmd),
         Command::Session(cmd) => session::run(cmd),
         Command::Score(args) => score::run(args),
-        Command::Serve(args) => serve::serve(args),
+        Command::Serve(args) => serve::serve(*args),
         Command::User(cmd) => user::run(cmd),
         Command::Backup(args) => backup::backup(args),
         Command::Restore(args) => backup::restore(args),

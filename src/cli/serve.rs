@@ -47,8 +47,41 @@ pub struct ServeArgs {
     /// line, with the request id and the job's session) for a log collector.
     #[arg(long, value_enum, default_value_t = LogFormat::Text)]
     pub log_format: LogFormat,
+    /// A Learning Record Store's xAPI endpoint (e.g. https://lrs.example.org/xAPI): each scored
+    /// session's statements go there (docs/integration.md "Learning records (xAPI)"). Needs
+    /// --lrs-username, --public-url and the password in $STYLET_LRS_PASSWORD.
+    #[arg(long, requires_all = ["lrs_username", "public_url"])]
+    pub lrs_url: Option<String>,
+    /// The LRS account the statements are sent with (HTTP Basic).
+    #[arg(long)]
+    pub lrs_username: Option<String>,
+    /// The address people reach this service at (https://stylet.example.org): the home of its
+    /// accounts and activities in the xAPI statements.
+    #[arg(long)]
+    pub public_url: Option<String>,
     #[command(flatten)]
     pub limits: LimitArgs,
+}
+
+/// The LRS of `--lrs-url`, checked: http(s) addresses, and the password from the environment
+/// (never on the command line).
+fn lrs_config(a: &ServeArgs) -> anyhow::Result<Option<service::xapi::LrsConfig>> {
+    let (Some(url), Some(username), Some(public_url)) = (&a.lrs_url, &a.lrs_username, &a.public_url) else {
+        return Ok(None);
+    };
+    for (flag, value) in [("--lrs-url", url), ("--public-url", public_url)] {
+        if !(value.starts_with("https://") || value.starts_with("http://")) {
+            anyhow::bail!("{flag} {value}: an http(s) address, such as https://lrs.example.org/xAPI");
+        }
+    }
+    let password = std::env::var("STYLET_LRS_PASSWORD")
+        .context("--lrs-url needs the LRS account's password in the environment variable STYLET_LRS_PASSWORD")?;
+    Ok(Some(service::xapi::LrsConfig {
+        url: url.trim_end_matches('/').to_string(),
+        username: username.clone(),
+        password,
+        public_url: public_url.trim_end_matches('/').to_string(),
+    }))
 }
 
 /// The form of the service's log lines.
@@ -218,6 +251,7 @@ pub fn serve(a: ServeArgs) -> anyhow::Result<()> {
         // each line.
         LogFormat::Json => logs.json().with_current_span(true).with_span_list(true).init(),
     }
+    let lrs = lrs_config(&a)?;
     let config = Config {
         bind: a.bind,
         admin_bind: a.admin_bind,
@@ -231,6 +265,7 @@ pub fn serve(a: ServeArgs) -> anyhow::Result<()> {
         max_upload_bytes: a.max_upload_bytes,
         secure_cookies: a.secure_cookies,
         limits: a.limits.limits(),
+        lrs,
     };
     runtime()?.block_on(service::serve(
         config,
@@ -262,6 +297,7 @@ pub fn user(cmd: UserCommand) -> anyhow::Result<()> {
                 max_upload_bytes: 0,
                 secure_cookies: false,
                 limits: Default::default(),
+                lrs: None,
             };
             std::fs::create_dir_all(&a.data_dir).with_context(|| format!("cannot create {}", a.data_dir.display()))?;
             runtime()?.block_on(async {

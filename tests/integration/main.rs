@@ -40,3 +40,4 @@ mod tokens;
 mod two_hands;
 mod upgrade;
 mod window;
+mod xapi;

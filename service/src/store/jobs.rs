@@ -118,7 +118,15 @@ impl Store {
     /// Stores a score and closes its job in one transaction, unless the job is no longer this
     /// worker's (finished elsewhere, or its session deleted meanwhile); a second score for the
     /// same session is refused by the key (never scored twice).
-    pub async fn finish_job(&self, job: &Job, report: &stylet_scoring::ScoreReport) -> Result<(), StoreError> {
+    ///
+    /// With `xapi_home` (an LRS is configured: the service's public address), the session's
+    /// xAPI statements are queued in the same transaction ([`crate::xapi`]).
+    pub async fn finish_job(
+        &self,
+        job: &Job,
+        report: &stylet_scoring::ScoreReport,
+        xapi_home: Option<&str>,
+    ) -> Result<(), StoreError> {
         let json = serde_json::to_string(report).map_err(|e| StoreError::Invalid(e.to_string()))?;
         let mut tx = self.begin_write().await?;
         let closed =
@@ -150,6 +158,35 @@ impl Store {
         .execute(&mut *tx)
         .await?;
         write_summary(&mut tx, &job.session_id, &Summary::from_report(report)).await?;
+        if let Some(home) = xapi_home {
+            let row = sqlx::query(
+                "SELECT u.username, s.scenario, s.difficulty, s.recorded_at, s.duration_s FROM sessions s \
+                 JOIN users u ON u.id = s.trainee_id WHERE s.id = $1",
+            )
+            .bind(job.session_id.clone())
+            .fetch_one(&mut *tx)
+            .await?;
+            let (trainee, scenario, difficulty, recorded_at): (String, String, String, String) = (
+                row.try_get("username")?,
+                row.try_get("scenario")?,
+                row.try_get("difficulty")?,
+                row.try_get("recorded_at")?,
+            );
+            let session = crate::xapi::ScoredSession {
+                session_id: &job.session_id,
+                trainee: &trainee,
+                scenario: &scenario,
+                difficulty: &difficulty,
+                recorded_at: &recorded_at,
+                duration_s: row.try_get("duration_s")?,
+                report,
+            };
+            let statements: Vec<super::OutboxStatement> = crate::xapi::statements(home, &session)
+                .into_iter()
+                .map(|(verb, id, json)| (id, verb.name(), json.to_string()))
+                .collect();
+            Self::queue_statements(&mut tx, &job.session_id, &statements).await?;
+        }
         tx.commit().await?;
         Ok(())
     }
@@ -461,7 +498,7 @@ mod tests {
                 z_mean: z,
                 metrics: Vec::new(),
             });
-            store.finish_job(&job, &r).await.unwrap();
+            store.finish_job(&job, &r, None).await.unwrap();
             assert_eq!(store.outcome_columns().await.unwrap()[&session_id].skill_z, skill);
             store
                 .add_comment(&session_id, &author, "look here", skill.map(|z| z.abs()))
@@ -560,12 +597,12 @@ mod tests {
             session_id: session_id.clone(),
             ..report
         };
-        a.finish_job(&job_a, &report).await.unwrap();
+        a.finish_job(&job_a, &report, None).await.unwrap();
         a.fail_job(&job_a, "late").await.unwrap();
         assert_eq!(scores_of(&a, &session_id).await, 0, "replica a's late result");
         let (row, _) = a.session(&session_id).await.unwrap().unwrap();
         assert_eq!(row.status, SessionStatus::Scoring);
-        b.finish_job(&job_b, &report).await.unwrap();
+        b.finish_job(&job_b, &report, None).await.unwrap();
         assert_eq!(scores_of(&a, &session_id).await, 1);
         let (row, _) = a.session(&session_id).await.unwrap().unwrap();
         assert_eq!((row.status, row.error), (SessionStatus::Scored, None));

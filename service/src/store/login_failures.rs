@@ -107,7 +107,8 @@ impl Store {
     }
 
     /// Deletes what has expired: logins past their expiry, login windows older than
-    /// `login_window`, upload slots whose lease ran out, and pairing codes past their expiry. Returns the rows deleted.
+    /// `login_window`, upload slots whose lease ran out, pairing codes past their expiry, and xAPI statements
+    /// delivered more than 30 days ago. Returns the rows deleted.
     pub async fn purge_expired(&self, login_window: Duration) -> Result<u64, StoreError> {
         let now = SystemTime::now();
         let mut deleted = 0;
@@ -116,6 +117,11 @@ impl Store {
             ("DELETE FROM login_failures WHERE window_from < $1", now - login_window),
             ("DELETE FROM upload_slots WHERE lease_until < $1", now),
             ("DELETE FROM pairing_codes WHERE expires_at < $1", now),
+            // The LRS holds them; the outbox keeps a month of them to look into.
+            (
+                "DELETE FROM xapi_outbox WHERE delivered_at < $1",
+                now - Duration::from_secs(30 * 86_400),
+            ),
         ] {
             deleted += sqlx::query(sql)
                 .bind(at(before))

@@ -24,6 +24,7 @@ mod sessions;
 mod status;
 mod tokens;
 mod upload_slots;
+mod xapi_outbox;
 
 pub use accounts::{
     AccountChange, AccountError, IMPORT_HEADER, ImportLine, ImportLineError, MAX_IMPORT_LINES, Role, UserRow,
@@ -46,6 +47,7 @@ pub use sessions::{NewSession, SessionFilter, SessionLine};
 pub use status::SessionStatus;
 pub use tokens::{TokenAuth, TokenRow, TokenScope, TokenStatus};
 pub use upload_slots::UploadSlotKey;
+pub use xapi_outbox::OutboxStatement;
 
 /// Roles, from least to most administrative.
 pub const ROLES: [&str; 4] = ["trainee", "instructor", "curriculum", "admin"];
