@@ -46,18 +46,26 @@ pub enum TokenUse {
     None,
 }
 
+/// The token of an `Authorization: Bearer <token>` header, trimmed; None without one or in
+/// another form.
+pub fn bearer_token(headers: &HeaderMap) -> Option<&str> {
+    headers
+        .get(header::AUTHORIZATION)?
+        .to_str()
+        .ok()?
+        .strip_prefix("Bearer ")
+        .map(str::trim)
+}
+
 /// The authenticated user (API token or login cookie), or 401 (also for an expired or revoked
 /// token).
 pub async fn authenticate(s: &AppState, headers: &HeaderMap) -> Result<(User, Via), ApiError> {
-    if let Some(value) = headers.get(header::AUTHORIZATION) {
-        let token = value
-            .to_str()
-            .ok()
-            .and_then(|v| v.strip_prefix("Bearer "))
+    if headers.contains_key(header::AUTHORIZATION) {
+        let token = bearer_token(headers)
             .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "Authorization must be 'Bearer <API token>'"))?;
         let found = s
             .store
-            .api_token(token.trim())
+            .api_token(token)
             .await?
             .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "unknown API token"))?;
         if found.account_disabled {

@@ -30,7 +30,7 @@ use serde_json::json;
 
 use super::AppState;
 use super::error::{ApiError, err};
-use super::extract::{CookieActor, Reader};
+use super::extract::{CookieActor, Reader, bearer_token};
 use super::store::{
     CheckEnd, CheckReservation, LabMachine, Paired, PairingPlace, PairingPurpose, PairingRefusal, Role, User,
 };
@@ -388,12 +388,9 @@ pub async fn pair(
 
 /// The active lab machine whose token the request bears, or 401.
 async fn lab_machine(s: &AppState, headers: &HeaderMap) -> Result<LabMachine, ApiError> {
-    let token = headers
-        .get(header::AUTHORIZATION)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
+    let token = bearer_token(headers)
         .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "Authorization must be 'Bearer <lab token>'"))?;
-    match s.store.lab_machine(token.trim()).await? {
+    match s.store.lab_machine(token).await? {
         Some(m) if m.active => Ok(m),
         Some(_) => Err(err(
             StatusCode::UNAUTHORIZED,
@@ -469,14 +466,11 @@ pub async fn lab_sign_in(
     ),
     security(("token" = [])))]
 pub async fn revoke_current_token(State(s): State<Arc<AppState>>, headers: HeaderMap) -> Result<Response, ApiError> {
-    let token = headers
-        .get(header::AUTHORIZATION)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
+    let token = bearer_token(&headers)
         .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "Authorization must be 'Bearer <API token>'"))?;
     let id = s
         .store
-        .revoke_presented_token(token.trim())
+        .revoke_presented_token(token)
         .await?
         .ok_or_else(|| err(StatusCode::UNAUTHORIZED, "unknown API token"))?;
     Ok(Json(json!({ "revoked": id })).into_response())

@@ -220,15 +220,7 @@ impl Storage {
                 key: prefix.to_string(),
             });
         };
-        let listed: Vec<object_store::ObjectMeta> = remote
-            .store
-            .list(Some(&object_path(prefix)?))
-            .take(MAX_FOLDER_OBJECTS + 1)
-            .collect::<Vec<_>>()
-            .await
-            .into_iter()
-            .collect::<Result<_, _>>()
-            .map_err(|e| StorageError::store(prefix, e))?;
+        let listed = list_folder(remote, prefix).await?;
         if listed.is_empty() {
             return Err(StorageError::Missing {
                 key: prefix.to_string(),
@@ -351,15 +343,7 @@ impl Storage {
         let Some(remote) = &self.remote else {
             return Ok(0);
         };
-        let listed: Vec<object_store::ObjectMeta> = remote
-            .store
-            .list(Some(&object_path(prefix)?))
-            .take(MAX_FOLDER_OBJECTS + 1)
-            .collect::<Vec<_>>()
-            .await
-            .into_iter()
-            .collect::<Result<_, _>>()
-            .map_err(|e| StorageError::store(prefix, e))?;
+        let listed = list_folder(remote, prefix).await?;
         if listed.len() > MAX_FOLDER_OBJECTS {
             return Ok(u64::MAX);
         }
@@ -409,6 +393,20 @@ pub const MAX_FOLDER_OBJECTS: usize = 4096;
 /// Numbers the temporary files and folders of this process: requests may fetch the same object
 /// at once.
 static NEXT_TEMPORARY: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// The objects under `prefix/`, at most [`MAX_FOLDER_OBJECTS`] + 1 of them (one more than a
+/// folder may hold, so that the caller sees when there are too many).
+async fn list_folder(remote: &Remote, prefix: &str) -> Result<Vec<object_store::ObjectMeta>, StorageError> {
+    remote
+        .store
+        .list(Some(&object_path(prefix)?))
+        .take(MAX_FOLDER_OBJECTS + 1)
+        .collect::<Vec<_>>()
+        .await
+        .into_iter()
+        .collect::<Result<_, _>>()
+        .map_err(|e| StorageError::store(prefix, e))
+}
 
 /// Fetches the object `key` into the file `path` (at most `max_bytes`, checked before it is
 /// read): written beside it and renamed into place.

@@ -181,7 +181,7 @@ pub fn statements(public_url: &str, s: &ScoredSession<'_>) -> Vec<(Verb, String,
 /// Statements sent in one request.
 const BATCH: usize = 50;
 /// Longest wait between tries of a statement the LRS did not take.
-const MAX_BACKOFF: Duration = Duration::from_secs(30);
+pub const MAX_BACKOFF: Duration = Duration::from_secs(30);
 /// How often the outbox is looked at.
 const EVERY: Duration = Duration::from_secs(2);
 

@@ -109,6 +109,14 @@ pub enum PairingPlace<'a> {
 const MACHINE_COLUMNS: &str = "l.id, l.label, c.name AS cohort, l.cohort_id, u.username AS paired_by, \
      l.created_at, l.expires_at, l.revoked_at";
 
+/// The lab machines' rows matching `condition` (constant SQL; values are bound).
+fn machine_where(condition: &str) -> String {
+    format!(
+        "SELECT {MACHINE_COLUMNS} FROM lab_machines l JOIN cohorts c ON c.id = l.cohort_id \
+         JOIN users u ON u.id = l.paired_by WHERE {condition}"
+    )
+}
+
 fn machine_row(r: &sqlx::any::AnyRow, now: &str) -> Result<LabMachine, StoreError> {
     let expires_at: String = r.try_get("expires_at")?;
     let revoked_at: Option<String> = r.try_get("revoked_at")?;
@@ -308,25 +316,19 @@ impl Store {
         .execute(&mut **tx)
         .await?;
         audit_in(tx, &by.id, "lab.pair", &id, label).await?;
-        let row = sqlx::query(sqlx::AssertSqlSafe(format!(
-            "SELECT {MACHINE_COLUMNS} FROM lab_machines l JOIN cohorts c ON c.id = l.cohort_id \
-             JOIN users u ON u.id = l.paired_by WHERE l.id = $1"
-        )))
-        .bind(id)
-        .fetch_one(&mut **tx)
-        .await?;
+        let row = sqlx::query(sqlx::AssertSqlSafe(machine_where("l.id = $1")))
+            .bind(id)
+            .fetch_one(&mut **tx)
+            .await?;
         Ok((token, machine_row(&row, &now())?))
     }
 
     /// The lab machine whose token is `token`, active or not; None for no such token.
     pub async fn lab_machine(&self, token: &str) -> Result<Option<LabMachine>, StoreError> {
-        let row = sqlx::query(sqlx::AssertSqlSafe(format!(
-            "SELECT {MACHINE_COLUMNS} FROM lab_machines l JOIN cohorts c ON c.id = l.cohort_id \
-             JOIN users u ON u.id = l.paired_by WHERE l.token_sha256 = $1"
-        )))
-        .bind(auth::sha256_hex(token))
-        .fetch_optional(&self.pool)
-        .await?;
+        let row = sqlx::query(sqlx::AssertSqlSafe(machine_where("l.token_sha256 = $1")))
+            .bind(auth::sha256_hex(token))
+            .fetch_optional(&self.pool)
+            .await?;
         row.map(|r| machine_row(&r, &now())).transpose()
     }
 
@@ -364,13 +366,10 @@ impl Store {
             audit_in(&mut tx, &actor.id, "lab.revoke", id, "").await?;
         }
         tx.commit().await?;
-        let row = sqlx::query(sqlx::AssertSqlSafe(format!(
-            "SELECT {MACHINE_COLUMNS} FROM lab_machines l JOIN cohorts c ON c.id = l.cohort_id \
-             JOIN users u ON u.id = l.paired_by WHERE l.id = $1"
-        )))
-        .bind(id.to_string())
-        .fetch_optional(&self.pool)
-        .await?;
+        let row = sqlx::query(sqlx::AssertSqlSafe(machine_where("l.id = $1")))
+            .bind(id.to_string())
+            .fetch_optional(&self.pool)
+            .await?;
         row.map(|r| machine_row(&r, &now())).transpose()
     }
 
