@@ -195,8 +195,10 @@ pub fn backoff(attempts: i64) -> Duration {
 enum Sent {
     /// Stored (200), or already there under the same ids (409).
     Taken,
-    /// Not taken; why.
+    /// The LRS answered with another status: this batch, or a statement in it, is refused.
     Refused(String),
+    /// No answer (down, unreachable, timed out): nothing in the batch can be judged.
+    Unreachable(String),
 }
 
 /// POSTs `statements` (a JSON array) to the LRS.
@@ -214,7 +216,7 @@ fn post(lrs: &LrsConfig, agent: &ureq::Agent, body: &str) -> Sent {
             let text = r.into_string().unwrap_or_default();
             Sent::Refused(format!("{code}: {}", text.chars().take(300).collect::<String>()))
         }
-        Err(e) => Sent::Refused(e.to_string()),
+        Err(e) => Sent::Unreachable(e.to_string()),
     }
 }
 
@@ -228,7 +230,8 @@ fn basic(user: &str, password: &str) -> String {
 }
 
 /// Delivers what is due in the outbox, batch by batch; a batch the LRS refuses is tried
-/// statement by statement, so one bad statement does not hold back the others. Returns the
+/// statement by statement, so one bad statement does not hold back the others (a batch that
+/// gets no answer is not: the LRS is down, and every statement waits for its next try). Returns the
 /// statements delivered.
 pub async fn deliver_due(state: &AppState, lrs: &LrsConfig) -> usize {
     let mut delivered = 0;
@@ -253,11 +256,13 @@ pub async fn deliver_due(state: &AppState, lrs: &LrsConfig) -> usize {
             );
             match post(&lrs_owned, &agent, &all) {
                 Sent::Taken => batch.iter().map(|(id, _, _)| (id.clone(), None)).collect::<Vec<_>>(),
+                // Down: one try for the whole batch, not one a statement.
+                Sent::Unreachable(why) => batch.iter().map(|(id, _, _)| (id.clone(), Some(why.clone()))).collect(),
                 Sent::Refused(_) => batch
                     .iter()
                     .map(|(id, json, _)| match post(&lrs_owned, &agent, &format!("[{json}]")) {
                         Sent::Taken => (id.clone(), None),
-                        Sent::Refused(why) => (id.clone(), Some(why)),
+                        Sent::Refused(why) | Sent::Unreachable(why) => (id.clone(), Some(why)),
                     })
                     .collect(),
             }
