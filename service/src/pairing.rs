@@ -497,14 +497,17 @@ pub async fn list_lab_machines(State(s): State<Arc<AppState>>, Reader(user): Rea
 
 /// Revokes lab machine `id` for `user` (an instructor of its cohort, or an admin), or 404.
 pub async fn revoke_lab_machine(s: &AppState, user: &User, id: &str) -> Result<LabMachine, ApiError> {
-    let visible = s.store.lab_machines(user).await?;
-    if !visible.iter().any(|m| m.id == id) {
-        return Err(err(StatusCode::NOT_FOUND, format!("no lab machine {id}")));
+    let not_found = || err(StatusCode::NOT_FOUND, format!("no lab machine {id}"));
+    let machine = s.store.lab_machine_by_id(id).await?.ok_or_else(not_found)?;
+    let allowed = match user.role {
+        Role::Admin => true,
+        Role::Instructor => s.store.in_cohort(&user.id, &machine.cohort_id).await?,
+        Role::Trainee | Role::Curriculum => false,
+    };
+    if !allowed {
+        return Err(not_found());
     }
-    s.store
-        .revoke_lab_machine(id, user)
-        .await?
-        .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no lab machine {id}")))
+    s.store.revoke_lab_machine(id, user).await?.ok_or_else(not_found)
 }
 
 /// POST /api/lab/machines/{id}/revoke

@@ -166,6 +166,11 @@ fn a_simulator_and_a_lab_machine_pair_with_short_codes(db: Db) {
         json!([])
     );
     let id = list["machines"][0]["id"].as_str().unwrap();
+    // Nobody but the cohort's instructors and admins may revoke it, nor learn that it exists.
+    for who in [&tina, &login(b, "cora")] {
+        let (status, json) = post(b, &format!("/api/lab/machines/{id}/revoke"), Some(who), &json!({}));
+        assert_eq!(status, 404, "{json}");
+    }
     let (status, json) = post(b, &format!("/api/lab/machines/{id}/revoke"), Some(&ivan), &json!({}));
     assert_eq!((status, json["active"].as_bool()), (200, Some(false)), "{json}");
     let later = code(b, &tina, "sign_in", None);

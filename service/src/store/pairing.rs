@@ -332,6 +332,15 @@ impl Store {
         row.map(|r| machine_row(&r, &now())).transpose()
     }
 
+    /// Lab machine `id`, active or not; None for no such machine.
+    pub async fn lab_machine_by_id(&self, id: &str) -> Result<Option<LabMachine>, StoreError> {
+        let row = sqlx::query(sqlx::AssertSqlSafe(machine_where("l.id = $1")))
+            .bind(id.to_string())
+            .fetch_optional(&self.pool)
+            .await?;
+        row.map(|r| machine_row(&r, &now())).transpose()
+    }
+
     /// The lab machines `viewer` may see and revoke, newest first: an admin's, all; an
     /// instructor's, those of their cohorts; nobody else's.
     pub async fn lab_machines(&self, viewer: &User) -> Result<Vec<LabMachine>, StoreError> {
@@ -366,11 +375,7 @@ impl Store {
             audit_in(&mut tx, &actor.id, "lab.revoke", id, "").await?;
         }
         tx.commit().await?;
-        let row = sqlx::query(sqlx::AssertSqlSafe(machine_where("l.id = $1")))
-            .bind(id.to_string())
-            .fetch_optional(&self.pool)
-            .await?;
-        row.map(|r| machine_row(&r, &now())).transpose()
+        self.lab_machine_by_id(id).await
     }
 
     /// Revokes the API token `token` itself (a simulator signing out), audited as its owner's
