@@ -188,6 +188,7 @@ fn navigation(v: &Viewer) -> Markup {
                 @if matches!(role, Role::Curriculum | Role::Admin) { a href="/reports" { "Reports" } }
                 @if role == Role::Admin { a href="/admin/users" { "Accounts" } }
                 @if role == Role::Admin { a #nav-atlases href="/admin/atlases" { "Atlases" } }
+                @if role == Role::Admin { a #nav-lti href="/admin/lti" { "LTI platforms" } }
                 a #nav-pair href="/pair" { "Pair a simulator" }
                 a href="/tokens" { "API tokens" }
             }

@@ -31,7 +31,7 @@ pub const MOUNT: stylet_service::Mount = stylet_service::Mount { router, openapi
 /// The part of the OpenAPI document for the dashboard's routes that programs call (the player's
 /// frames); the pages themselves are for browsers.
 #[derive(utoipa::OpenApi)]
-#[openapi(paths(player::frame, player::overview::frame))]
+#[openapi(paths(player::frame, player::overview::frame, pages::lti::jwks))]
 struct PlayerApi;
 
 /// `PlayerApi`'s document.
@@ -88,5 +88,14 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/tokens/{id}/revoke", post(pages::tokens::revoke))
         .route("/pair", get(pages::pairing::index).post(pages::pairing::create))
         .route("/pair/machines/{id}/revoke", post(pages::pairing::revoke))
+        .route(
+            "/admin/lti",
+            get(pages::admin_lti::index).post(pages::admin_lti::register),
+        )
+        .route("/lti/login", get(pages::lti::login_get).post(pages::lti::login_post))
+        .route("/lti/launch", post(pages::lti::launch))
+        .route("/lti/deep-link", post(pages::lti::pick))
+        .route("/lti/submit.js", get(pages::lti::submit_js))
+        .route("/lti/jwks", get(pages::lti::jwks))
         .with_state(state)
 }

@@ -146,9 +146,18 @@ pub fn err(status: StatusCode, msg: impl Into<String>) -> ApiError {
 impl From<super::StoreError> for ApiError {
     fn from(e: super::StoreError) -> Self {
         use super::StoreError;
-        if let StoreError::UserExists(_) | StoreError::TooManyTokens { .. } | StoreError::TooManyPairingCodes { .. } = e
+        if let StoreError::UserExists(_)
+        | StoreError::TooManyTokens { .. }
+        | StoreError::TooManyPairingCodes { .. }
+        | StoreError::LtiPlatformExists { .. } = e
         {
             return ApiError::Conflict(e.to_string());
+        }
+        if let StoreError::TooManyLaunches = e {
+            return ApiError::Throttled {
+                message: e.to_string(),
+                retry_after_s: RETRY_AFTER_S,
+            };
         }
         tracing::error!(error = %e, "store");
         if e.is_transient() {

@@ -28,6 +28,7 @@ pub mod limits;
 pub mod list_query;
 pub mod local_copies;
 pub mod logins;
+pub mod lti;
 pub mod openapi;
 pub mod pairing;
 pub mod publish;
@@ -117,6 +118,8 @@ pub struct AppState {
     pub stopping: std::sync::atomic::AtomicBool,
     /// The admin port's address, when it has one.
     pub admin_addr: Option<SocketAddr>,
+    /// LTI key sets, grade-service tokens and the tool's key ([`lti`]).
+    pub lti: lti::LtiCache,
 }
 
 impl AppState {
@@ -326,6 +329,7 @@ pub async fn serve(
         openapi: Default::default(),
         stopping: Default::default(),
         admin_addr,
+        lti: Default::default(),
     });
     // Atlases published at other replicas (fetched from the object storage).
     shared_atlases::sync(&state).await;
@@ -334,6 +338,7 @@ pub async fn serve(
     if let Some(lrs) = state.config.lrs.clone() {
         xapi::run(state.clone(), lrs);
     }
+    lti::grades::run(state.clone());
     let mut app = api::router(state.clone(), mount.map(|m| (m.openapi)()));
     if let Some(mount) = mount {
         app = app.merge((mount.router)(state.clone()));

@@ -9,6 +9,7 @@ mod atlas;
 mod backup;
 mod demo;
 mod device;
+mod lti;
 mod render;
 mod score;
 mod script;
@@ -45,6 +46,9 @@ enum Command {
     /// Manage service accounts.
     #[command(subcommand)]
     User(user::UserCommand),
+    /// Register learning management systems that launch Stylet (LTI 1.3).
+    #[command(subcommand)]
+    Lti(lti::LtiCommand),
     /// Back up the service: its database and the files it names, with a manifest of hashes.
     Backup(backup::BackupArgs),
     /// Restore a backup into an empty data directory and database, checking every hash, then
@@ -74,6 +78,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Score(args) => score::run(args),
         Command::Serve(args) => serve::serve(*args),
         Command::User(cmd) => user::run(cmd),
+        Command::Lti(cmd) => lti::run(cmd),
         Command::Backup(args) => backup::backup(args),
         Command::Restore(args) => backup::restore(args),
         Command::Render(args) => render::run(args),

@@ -88,7 +88,7 @@ pub struct ImportArgs {
     file: PathBuf,
 }
 
-async fn open(db: &Db) -> anyhow::Result<Store> {
+pub(super) async fn open(db: &Db) -> anyhow::Result<Store> {
     std::fs::create_dir_all(&db.data_dir).with_context(|| format!("cannot create {}", db.data_dir.display()))?;
     let url = db
         .database
@@ -97,7 +97,7 @@ async fn open(db: &Db) -> anyhow::Result<Store> {
     Ok(Store::open(&url).await?)
 }
 
-fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+pub(super) fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
     tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()

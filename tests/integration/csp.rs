@@ -15,7 +15,7 @@ use fantoccini::{Client, Locator};
 use serde_json::{Value, json};
 
 /// Routes that are not HTML pages (images, files, scripts, the PDF), so nothing to click.
-const NOT_PAGES: [&str; 8] = [
+const NOT_PAGES: [&str; 11] = [
     "/sessions/{id}/file",
     "/sessions/{id}/slices.png",
     "/sessions/{id}/frame",
@@ -24,6 +24,11 @@ const NOT_PAGES: [&str; 8] = [
     "/reports/cohort.pdf",
     "/assets/player.js",
     "/assets/dashboard.js",
+    // LTI: a platform's redirect endpoint, a key set and a script (the launch pages are POSTs,
+    // opened in tests/integration/lti.rs).
+    "/lti/login",
+    "/lti/jwks",
+    "/lti/submit.js",
 ];
 
 /// The dashboard's GET routes, read from its router.
@@ -225,6 +230,7 @@ fn every_button_of_every_page_works_under_the_content_security_policy() {
                     "/admin/users".into(),
                     "/admin/users?q=t".into(),
                     "/admin/atlases".into(),
+                    "/admin/lti".into(),
                 ],
             ]
             .concat(),

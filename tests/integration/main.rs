@@ -21,6 +21,7 @@ mod guide_wire;
 mod haptics;
 mod hardening;
 mod instructors;
+mod lti;
 mod multi_site;
 mod object_storage;
 mod observability;

@@ -898,6 +898,8 @@ fn openapi_lists_every_route_with_its_statuses(b: &str, doc: &serde_json::Value)
             "/sessions/{id}/overview",
             &[200, 303, 400, 404, 408, 409, 429, 503],
         ),
+        // The LTI tool's public keys, which platforms fetch.
+        ("get", "/lti/jwks", &[200, 500]),
     ];
     let mut documented = 0;
     for (path, item) in doc["paths"].as_object().unwrap() {

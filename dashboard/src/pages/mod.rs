@@ -2,6 +2,7 @@
 
 pub mod admin;
 pub mod admin_atlases;
+pub mod admin_lti;
 pub mod benchmark;
 pub mod catalogue;
 pub mod cohort;
@@ -9,6 +10,7 @@ pub mod compare;
 pub mod home;
 pub mod instructors;
 pub mod login;
+pub mod lti;
 pub mod pairing;
 pub mod reports;
 pub mod review;

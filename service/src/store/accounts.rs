@@ -223,7 +223,10 @@ pub struct AccountChange {
 }
 
 /// The id of cohort `name`, created if new.
-async fn cohort_id_or_create(tx: &mut sqlx::Transaction<'_, sqlx::Any>, name: &str) -> Result<String, sqlx::Error> {
+pub(super) async fn cohort_id_or_create(
+    tx: &mut sqlx::Transaction<'_, sqlx::Any>,
+    name: &str,
+) -> Result<String, sqlx::Error> {
     let row = sqlx::query("SELECT id FROM cohorts WHERE name = $1")
         .bind(name.to_string())
         .fetch_optional(&mut **tx)
@@ -477,7 +480,7 @@ impl Store {
             .ok_or_else(|| AccountError::NoSuchUser(username.to_string()))
     }
 
-    fn user_of(row: &sqlx::any::AnyRow) -> Result<User, sqlx::Error> {
+    pub(super) fn user_of(row: &sqlx::any::AnyRow) -> Result<User, sqlx::Error> {
         Ok(User {
             id: row.try_get("id")?,
             username: row.try_get("username")?,
@@ -691,7 +694,7 @@ impl Store {
 pub const MAX_USERS_LISTED: i64 = 1000;
 
 /// Inserts an account row (and its cohort membership, the cohort created if new).
-async fn insert_user(
+pub(super) async fn insert_user(
     tx: &mut sqlx::Transaction<'static, sqlx::Any>,
     id: &str,
     username: &str,

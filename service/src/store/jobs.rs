@@ -187,6 +187,13 @@ impl Store {
                 .collect();
             Self::queue_statements(&mut tx, &job.session_id, &statements).await?;
         }
+        if !report.incomplete {
+            let scored_at = now();
+            Self::queue_grades(&mut tx, &job.session_id, |subject| {
+                crate::lti::grades::score_json(subject, report, &scored_at)
+            })
+            .await?;
+        }
         tx.commit().await?;
         Ok(())
     }

@@ -122,6 +122,16 @@ impl Store {
                 "DELETE FROM xapi_outbox WHERE delivered_at < $1",
                 now - Duration::from_secs(30 * 86_400),
             ),
+            // A day after expiry a replayed launch is unknown rather than "already used".
+            (
+                "DELETE FROM lti_launch_states WHERE expires_at < $1",
+                now - Duration::from_secs(86_400),
+            ),
+            ("DELETE FROM lti_deep_links WHERE expires_at < $1", now),
+            (
+                "DELETE FROM lti_grade_outbox WHERE delivered_at < $1",
+                now - Duration::from_secs(30 * 86_400),
+            ),
         ] {
             deleted += sqlx::query(sql)
                 .bind(at(before))

@@ -15,6 +15,7 @@ pub mod health;
 mod instructors;
 mod jobs;
 mod login_failures;
+mod lti;
 mod pairing;
 mod readiness;
 mod reports;
@@ -39,6 +40,10 @@ pub use instructors::{
 };
 pub use jobs::{Job, OutcomeColumns, join_reasons, split_reasons};
 pub use login_failures::{CheckEnd, CheckReservation};
+pub use lti::{
+    DEFAULT_INSTRUCTOR_ROLES, DeepLinkRequest, DueGrade, LaunchState, LaunchStateProblem, LtiIdentity, LtiPlatform,
+    NewLtiPlatform,
+};
 pub use pairing::{LabMachine, Paired, PairingPlace, PairingPurpose, PairingRefusal};
 pub use readiness::NotReady;
 pub use reports::{DayCount, FAILED_READ_MAX, FailureBreakdown, FailureCause, TREND_ROWS_MAX};
@@ -110,6 +115,12 @@ pub enum StoreError {
     /// The account holds the most unused pairing codes allowed.
     #[error("you have {active} unused pairing codes, the most allowed; use one or wait until they expire")]
     TooManyPairingCodes { active: i64 },
+    /// A platform of that issuer and client id is registered already.
+    #[error("an LTI platform with issuer {issuer} and client id {client_id} is registered already")]
+    LtiPlatformExists { issuer: String, client_id: String },
+    /// Too many LTI launches are waiting for their id_token (from this address, or in all).
+    #[error("too many LTI launches in progress; try again in a few minutes")]
+    TooManyLaunches,
     /// argon2 could not hash a password.
     #[error("{0}")]
     PasswordHash(argon2::password_hash::Error),

@@ -19,8 +19,9 @@ use stylet_recorder::recording::{Recording, SessionInfo, header};
 use stylet_scoring::rubric::Rubric;
 use stylet_scoring::score::{ScoreReport, Scorer};
 pub use stylet_testkit::{
-    Auth, Db, Fixture, LRS_PASSWORD, LRS_USERNAME, Lrs, Page, S3Server, Server, Stylet, call, contract, get_bytes,
-    login, on_both_databases, page, phantom_script, raw_post, raw_post_as, s, upload, upload_scored, wait_scored,
+    Auth, Db, Fixture, LRS_PASSWORD, LRS_USERNAME, Lrs, LtiPlatform, Page, S3Server, Server, Stylet, call, contract,
+    get_bytes, login, on_both_databases, page, phantom_script, raw_post, raw_post_as, s, upload, upload_scored,
+    wait_scored,
 };
 
 /// The `stylet` binary these tests run (built by Cargo for the root package's tests).
