@@ -683,6 +683,115 @@ fn every_failed_session_has_its_reasons_on_the_trainee_home() {
     });
 }
 
+/// The LTI platforms page: an admin sees the values to paste into the platform, registers a
+/// platform (a bad registration is refused with every problem named and the typed values kept),
+/// and it is listed there and by `stylet lti list`; a trainee may not open it.
+#[test]
+fn the_lti_page_registers_a_platform() {
+    let f = Fixture::new(STYLET);
+    let db = Db::Sqlite;
+    let srv = f.serve(&db, 1);
+    let base = srv.base.clone();
+    let driver = Driver::start();
+    let profiles = tempfile::tempdir().unwrap();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let c = browser(&driver, &profiles.path().join("tina")).await;
+        log_in(&c, &base, "tina").await;
+        c.goto(&format!("{base}/admin/lti")).await.unwrap();
+        assert!(
+            text_of(&c, "h1").await.starts_with("403"),
+            "a trainee registers nothing"
+        );
+
+        let c = browser(&driver, &profiles.path().join("root")).await;
+        log_in(&c, &base, "root").await;
+        c.find(Locator::Id("nav-lti")).await.unwrap().click().await.unwrap();
+        c.wait()
+            .at_most(Duration::from_secs(20))
+            .for_element(Locator::Id("lti-register"))
+            .await
+            .unwrap();
+        assert_eq!(text_of(&c, "h1").await, "LTI platforms");
+        let values = text_of(&c, "#lti-tool-values").await;
+        for route in ["/lti/launch", "/lti/login", "/lti/jwks"] {
+            assert!(values.contains(&format!("{base}{route}")), "{values}");
+        }
+        assert!(body_text(&c).await.contains("None yet."));
+        let fill = |issuer: &'static str, deployments: &'static str| {
+            let c = c.clone();
+            async move {
+                let form = c.form(Locator::Id("lti-register")).await.unwrap();
+                form.set_by_name("issuer", issuer).await.unwrap();
+                form.set_by_name("client_id", "Kq3xT0dBq1XvCzY").await.unwrap();
+                form.set_by_name("deployment_ids", deployments).await.unwrap();
+                form.set_by_name("keyset_url", "https://moodle.example.org/mod/lti/certs.php")
+                    .await
+                    .unwrap();
+                form.set_by_name("auth_url", "https://moodle.example.org/mod/lti/auth.php")
+                    .await
+                    .unwrap();
+                form.set_by_name("token_url", "https://moodle.example.org/mod/lti/token.php")
+                    .await
+                    .unwrap();
+                form
+            }
+        };
+        // A deployment id with a space and an issuer that is no URL: both named, nothing kept.
+        let form = fill("moodle.example.org", "1 2").await;
+        form.submit().await.unwrap();
+        let error = wait_text(&c, ".lti-error").await;
+        assert!(error.contains("issuer"), "{error}");
+        let errors = body_text(&c).await;
+        assert!(errors.contains("a deployment id must be"), "{errors}");
+        assert!(
+            body_text(&c).await.contains("None yet."),
+            "a refused registration keeps nothing"
+        );
+        let kept = c
+            .find(Locator::Id("lti-issuer"))
+            .await
+            .unwrap()
+            .prop("value")
+            .await
+            .unwrap();
+        assert_eq!(kept.as_deref(), Some("moodle.example.org"), "the typed values stay");
+        let form = fill("https://moodle.example.org", "3\n7").await;
+        submit_and_wait(&c, form).await;
+        c.wait()
+            .at_most(Duration::from_secs(20))
+            .for_element(Locator::Id("lti-platforms"))
+            .await
+            .unwrap();
+        let row = text_of(&c, "#lti-platforms tbody tr").await;
+        assert!(
+            row.contains("https://moodle.example.org") && row.contains("Kq3xT0dBq1XvCzY") && row.contains("3, 7"),
+            "{row}"
+        );
+        assert!(
+            row.contains("Instructor, TeachingAssistant, ContentDeveloper"),
+            "the default roles: {row}"
+        );
+        shot(&c, "lti", "01-registration").await;
+        // The same issuer and client id again: refused, named.
+        let form = fill("https://moodle.example.org", "9").await;
+        form.submit().await.unwrap();
+        assert!(wait_text(&c, ".lti-error").await.contains("registered already"));
+        println!("screenshots in {}", shots().display());
+    });
+    let data = f.data();
+    let mut args = vec!["lti", "list", "--data-dir", s(&data)];
+    args.extend(db.args());
+    let listed = STYLET.ok(&args);
+    assert!(
+        listed.contains("https://moodle.example.org") && listed.contains("deployments 3,7"),
+        "{listed}"
+    );
+}
+
 /// The pairing page (docs/integration.md "Pairing a simulator") in Chromium: a trainee shows a
 /// pairing code, which pairs a simulator (through the API, as the simulator does), and a
 /// sign-in code; an instructor pairs a lab machine of a cohort, sees it listed and revokes it.
