@@ -475,10 +475,7 @@ pub async fn pick(State(s): State<Arc<AppState>>, Form(f): Form<PickForm>) -> Re
         difficulty,
     };
     let data = request.data.as_deref().and_then(|d| serde_json::from_str(d).ok());
-    let now_s = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs());
-    let claims = deep_link::response_claims(&platform, &request.deployment_id, data, &activity, now_s);
+    let claims = deep_link::response_claims(&platform, &request.deployment_id, data, &activity, lti::unix_now_s());
     let key = lti::tool_key(&s).await.map_err(|e| {
         tracing::error!(error = %e, "no LTI tool key");
         fail(

@@ -80,12 +80,6 @@ pub fn assertion_claims(platform: &LtiPlatform, now_s: u64) -> serde_json::Value
     })
 }
 
-fn now_s() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs())
-}
-
 impl AccessTokens {
     /// A token for `platform`'s score service: kept, or asked for.
     async fn get(&self, platform: &LtiPlatform, key: &ToolKey) -> Result<String, String> {
@@ -96,7 +90,7 @@ impl AccessTokens {
             return Ok(token.clone());
         }
         let assertion = key
-            .sign(&assertion_claims(platform, now_s()))
+            .sign(&assertion_claims(platform, super::unix_now_s()))
             .map_err(|e| e.to_string())?;
         let url = platform.token_url.clone();
         let answer = tokio::task::spawn_blocking(move || {
@@ -195,12 +189,21 @@ pub async fn deliver_due(state: &AppState) -> usize {
         }
     };
     let mut delivered = 0;
+    // A platform that failed once in this round is not tried again in it: its other grades wait
+    // with the same reason (one unreachable platform does not hold up the others' for minutes).
+    let mut failed: HashMap<String, String> = HashMap::new();
     for grade in due {
-        let outcome = match state.store.lti_platform(&grade.platform_id).await {
-            Ok(Some(platform)) => post(state, &key, &platform, &grade).await,
-            Ok(None) => Err("the platform is no longer registered".to_string()),
-            Err(e) => Err(e.to_string()),
+        let outcome = match failed.get(&grade.platform_id) {
+            Some(why) => Err(why.clone()),
+            None => match state.store.lti_platform(&grade.platform_id).await {
+                Ok(Some(platform)) => post(state, &key, &platform, &grade).await,
+                Ok(None) => Err("the platform is no longer registered".to_string()),
+                Err(e) => Err(e.to_string()),
+            },
         };
+        if let Err(why) = &outcome {
+            failed.insert(grade.platform_id.clone(), why.clone());
+        }
         let marked = match outcome {
             Ok(()) => {
                 delivered += 1;

@@ -187,9 +187,7 @@ pub async fn check(
     if claims.aud.is_array() && claims.azp.as_deref() != Some(platform.client_id.as_str()) {
         return Err(LaunchError::Audience);
     }
-    let now_s = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs() as i64);
+    let now_s = super::unix_now_s() as i64;
     match claims.iat {
         None => return Err(LaunchError::Missing("its issue time (iat)")),
         Some(iat) if iat > now_s + LEEWAY_S as i64 => return Err(LaunchError::IssuedInFuture),

@@ -39,17 +39,20 @@ pub struct KeySets {
 impl KeySets {
     /// The key `kid` of `platform`.
     pub async fn key(&self, platform: &LtiPlatform, kid: &str) -> Result<DecodingKey, KeyError> {
-        let mut kept = self.kept.lock().await;
-        let cached = kept.get(&platform.id).cloned();
+        // Not locked while fetching: a slow platform does not hold up the others' launches
+        // (two launches at once may both fetch).
+        let cached = self.kept.lock().await.get(&platform.id).cloned();
         let set = match cached {
             Some((at, set)) if at.elapsed() < FRESH && (set.find(kid).is_some() || at.elapsed() < REFETCH_AFTER) => set,
             _ => {
                 let set = fetch(&platform.keyset_url).await?;
-                kept.insert(platform.id.clone(), (Instant::now(), set.clone()));
+                self.kept
+                    .lock()
+                    .await
+                    .insert(platform.id.clone(), (Instant::now(), set.clone()));
                 set
             }
         };
-        drop(kept);
         let jwk = set
             .find(kid)
             .ok_or_else(|| KeyError::NotInKeySet { kid: kid.to_string() })?;

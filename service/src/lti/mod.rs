@@ -68,6 +68,13 @@ pub async fn tool_key(state: &crate::AppState) -> Result<std::sync::Arc<keys::To
         .cloned()
 }
 
+/// Seconds since 1970 (JWT times).
+pub fn unix_now_s() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs())
+}
+
 /// `scheme://authority` of a URL (for a page's Content-Security-Policy `form-action`).
 pub fn origin_of(url: &str) -> Option<&str> {
     let rest = url.strip_prefix("https://").or_else(|| url.strip_prefix("http://"))?;
