@@ -42,7 +42,7 @@ fn answer(r: Result<ureq::Response, ureq::Error>) -> (u16, String, Vec<(String, 
         Err(e) => panic!("{e}"),
     };
     let status = r.status();
-    let headers = ["location", "set-cookie", "content-security-policy"]
+    let headers = ["location", "set-cookie", "content-security-policy", "x-frame-options"]
         .iter()
         .filter_map(|h| r.header(h).map(|v| (h.to_string(), v.to_string())))
         .collect();
@@ -71,13 +71,20 @@ fn launch_form(lms: &LtiPlatform, query: &str) -> (String, String, String) {
     )
 }
 
-/// Posts a launch form to Stylet: (status, page, login cookie token).
+/// Posts a launch form to Stylet: (status, page, login cookie token). Every launch page, refused
+/// or not, may be shown in the platform's frame.
 fn post_launch(action: &str, id_token: &str, state: &str) -> (u16, String, Option<String>) {
     let (status, body, h) = answer(
         agent()
             .post(action)
             .send_form(&[("id_token", id_token), ("state", state)]),
     );
+    let csp = header(&h, "content-security-policy").unwrap_or_default();
+    assert!(
+        csp.contains("frame-ancestors *") && csp.contains("form-action 'self';"),
+        "{csp}"
+    );
+    assert_eq!(header(&h, "x-frame-options"), None);
     let cookie = header(&h, "set-cookie").and_then(|c| {
         c.strip_prefix("stylet_session=")
             .and_then(|v| v.split(';').next())
@@ -175,7 +182,8 @@ fn a_course_links_launches_and_grades_stylet(db: Db) {
     ]));
     assert_eq!(status, 200, "{sending}");
     let csp = header(&h, "content-security-policy").unwrap();
-    assert!(csp.contains(&format!("form-action 'self' {}", lms.url())), "{csp}");
+    assert!(csp.contains(&format!("form-action 'self' {};", lms.url())), "{csp}");
+    assert!(csp.contains("frame-ancestors *"), "{csp}");
     let return_url = form_action(&sending);
     assert_eq!(return_url, format!("{}/deep-link-return", lms.url()));
     let jwt = input_value(&sending, "JWT").unwrap();
@@ -291,6 +299,10 @@ fn a_course_links_launches_and_grades_stylet(db: Db) {
     let scores = wait_for_scores(&lms, 2);
     let comment = scores[1]["comment"].as_str().unwrap();
     assert!(comment.starts_with("Not passed: "), "{comment}");
+    assert!(
+        !comment.contains(".;") && !comment.ends_with(".."),
+        "one full stop: {comment}"
+    );
     assert!(
         comment.to_lowercase().contains("lung"),
         "the reasons are named: {comment}"

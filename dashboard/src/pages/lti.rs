@@ -35,6 +35,8 @@ use crate::layout::page;
 
 /// Longest value of a login initiation's parameter.
 const MAX_PARAM_BYTES: usize = 2048;
+/// Longest opaque `data` of a deep linking request (sent back with the response).
+const MAX_DEEP_LINK_DATA_BYTES: usize = 4096;
 
 /// The OIDC third-party login initiation (LTI 1.3 core §5.1.1; IMS Security Framework §5.1.1).
 #[derive(Debug, serde::Deserialize)]
@@ -195,8 +197,28 @@ fn refused(status: StatusCode, why: impl std::fmt::Display) -> PageError {
     fail(status, format!("This launch from your course was refused: {why}."))
 }
 
-/// `POST /lti/launch`.
-pub async fn launch(State(s): State<Arc<AppState>>, Form(f): Form<LaunchForm>) -> Result<Response, PageError> {
+/// The LTI pages' Content-Security-Policy: the dashboard's, except that platforms may show the
+/// page in a frame (Moodle and Canvas show content selection in one) and, with `form_to`, that
+/// its form may post to that origin (the deep linking response). Nothing on these pages acts
+/// on a click alone: the picker needs its one-use token, the rest are links.
+fn lti_policy(mut r: Response, form_to: Option<&str>) -> Response {
+    let mut csp =
+        stylet_service::server::CONTENT_SECURITY_POLICY.replace("frame-ancestors 'none'", "frame-ancestors *");
+    if let Some(origin) = form_to {
+        csp = csp.replace("form-action 'self'", &format!("form-action 'self' {origin}"));
+    }
+    if let Ok(v) = HeaderValue::from_str(&csp) {
+        r.headers_mut().insert(header::CONTENT_SECURITY_POLICY, v);
+    }
+    r
+}
+
+/// `POST /lti/launch`: the launch's page, which a platform may frame.
+pub async fn launch(state: State<Arc<AppState>>, form: Form<LaunchForm>) -> Response {
+    lti_policy(launch_page(state, form).await.into_response(), None)
+}
+
+async fn launch_page(State(s): State<Arc<AppState>>, Form(f): Form<LaunchForm>) -> Result<Response, PageError> {
     if let Some(e) = &f.error {
         let text = format!(
             "the platform answered {e}: {}",
@@ -392,11 +414,13 @@ async fn deep_linking(
             "its deep linking return URL is not an http(s) URL",
         ));
     }
-    let data = settings
-        .data
-        .as_ref()
-        .map(|d| d.to_string())
-        .filter(|d| d.len() <= 4096);
+    let data = settings.data.as_ref().map(|d| d.to_string());
+    if data.as_ref().is_some_and(|d| d.len() > MAX_DEEP_LINK_DATA_BYTES) {
+        return Err(refused(
+            StatusCode::BAD_REQUEST,
+            format!("its deep linking data is over {MAX_DEEP_LINK_DATA_BYTES} bytes"),
+        ));
+    }
     let token = auth::random_token();
     s.store
         .save_deep_link(
@@ -439,8 +463,19 @@ pub struct PickForm {
     title: String,
 }
 
-/// `POST /lti/deep-link`: the signed response, posted to the platform by the page.
-pub async fn pick(State(s): State<Arc<AppState>>, Form(f): Form<PickForm>) -> Result<Response, PageError> {
+/// `POST /lti/deep-link`: the signed response, posted to the platform by the page (which a
+/// platform may frame).
+pub async fn pick(state: State<Arc<AppState>>, form: Form<PickForm>) -> Response {
+    match sending_page(state, form).await {
+        Ok((r, return_url)) => lti_policy(r, lti::origin_of(&return_url)),
+        Err(e) => lti_policy(e.into_response(), None),
+    }
+}
+
+async fn sending_page(
+    State(s): State<Arc<AppState>>,
+    Form(f): Form<PickForm>,
+) -> Result<(Response, String), PageError> {
     let chosen = f
         .exercise
         .split_once('/')
@@ -495,15 +530,10 @@ pub async fn pick(State(s): State<Arc<AppState>>, Form(f): Form<PickForm>) -> Re
         }
         script src="/lti/submit.js" {}
     };
-    let mut r = page("Sending to the course", None, body).into_response();
-    // The form goes to the platform: allowed for this page only.
-    let origin = lti::origin_of(&request.return_url).unwrap_or("'none'");
-    let csp = stylet_service::server::CONTENT_SECURITY_POLICY
-        .replace("form-action 'self'", &format!("form-action 'self' {origin}"));
-    if let Ok(v) = HeaderValue::from_str(&csp) {
-        r.headers_mut().insert(header::CONTENT_SECURITY_POLICY, v);
-    }
-    Ok(r)
+    Ok((
+        page("Sending to the course", None, body).into_response(),
+        request.return_url,
+    ))
 }
 
 /// `GET /lti/submit.js`: posts the page's form (the deep linking response) at once.

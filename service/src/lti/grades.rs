@@ -39,7 +39,8 @@ pub fn score_json(subject: &str, report: &stylet_scoring::ScoreReport, scored_at
     } else if report.reasons.is_empty() {
         "Not passed.".to_string()
     } else {
-        format!("Not passed: {}.", report.reasons.join("; "))
+        let reasons: Vec<&str> = report.reasons.iter().map(|r| r.trim_end_matches('.')).collect();
+        format!("Not passed: {}.", reasons.join("; "))
     };
     json!({
         "userId": subject,

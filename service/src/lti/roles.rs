@@ -19,9 +19,10 @@ fn is(value: &str, configured: &str) -> bool {
     if value == configured {
         return true;
     }
+    // `…/membership#Role` or a sub-role `…/membership/Role#SubRole`, nothing else.
     let short = match value.strip_prefix(MEMBERSHIP) {
-        Some(rest) => rest.rsplit('#').next().unwrap_or(rest),
-        None => return false,
+        Some(rest) if rest.starts_with('#') || rest.starts_with('/') => rest.rsplit('#').next().unwrap_or(rest),
+        _ => return false,
     };
     short == configured
 }
@@ -86,5 +87,6 @@ mod tests {
             stylet_role(&v(&["http://evil.example/membership#Instructor"]), &d),
             None
         );
+        assert_eq!(stylet_role(&v(&[&format!("{MEMBERSHIP}X#Instructor")]), &d), None);
     }
 }

@@ -731,7 +731,7 @@ async fn end_logins(tx: &mut sqlx::Transaction<'static, sqlx::Any>, user_id: &st
 }
 
 /// An audit row in a transaction, by an admin or (None) the command line.
-async fn audit_opt(
+pub(super) async fn audit_opt(
     tx: &mut sqlx::Transaction<'static, sqlx::Any>,
     actor_id: Option<&str>,
     action: &str,

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use sqlx::Row;
 
-use super::accounts::{cohort_id_or_create, insert_user};
+use super::accounts::{audit_opt, cohort_id_or_create, insert_user};
 use super::{Role, Store, StoreError, User, audit_in, from_now, new_id, now};
 
 /// A platform (learning management system) an admin registered.
@@ -245,9 +245,9 @@ impl Store {
         .bind(now())
         .execute(&mut *tx)
         .await?;
-        audit_in(
+        audit_opt(
             &mut tx,
-            actor.unwrap_or("command line"),
+            actor,
             "lti.platform.add",
             &id,
             &format!("{} (client id {})", p.issuer, p.client_id),
@@ -495,7 +495,8 @@ impl Store {
     }
 
     /// Records that `user` launched an activity (a resource link) of exercise `scenario` at
-    /// `difficulty`, whose grades go to `lineitem_url` when the platform gave one.
+    /// `difficulty`, whose grades go to `lineitem_url` when the platform gave one (a launch
+    /// without one keeps the line item an earlier launch gave).
     #[allow(clippy::too_many_arguments)]
     pub async fn record_lti_link(
         &self,
@@ -510,7 +511,7 @@ impl Store {
         sqlx::query(
             "INSERT INTO lti_links (platform_id, resource_link_id, user_id, subject, scenario, difficulty, lineitem_url, launched_at) \
              VALUES ($1, $2, $3, $4, $5, $6, $7, $8) ON CONFLICT (platform_id, resource_link_id, user_id) DO UPDATE SET \
-             subject = $4, scenario = $5, difficulty = $6, lineitem_url = $7, launched_at = $8",
+             subject = $4, scenario = $5, difficulty = $6, lineitem_url = COALESCE($7, lti_links.lineitem_url), launched_at = $8",
         )
         .bind(platform_id.to_string())
         .bind(resource_link_id.to_string())
