@@ -92,6 +92,7 @@ pub fn router(state: Arc<AppState>) -> Router {
             "/admin/lti",
             get(pages::admin_lti::index).post(pages::admin_lti::register),
         )
+        .route("/admin/lti/{id}/deployments", post(pages::admin_lti::add_deployment))
         .route("/lti/login", get(pages::lti::login_get).post(pages::lti::login_post))
         .route("/lti/launch", post(pages::lti::launch))
         .route("/lti/deep-link", post(pages::lti::pick))

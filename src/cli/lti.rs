@@ -1,4 +1,4 @@
-//! `stylet lti add-platform|list`: the learning management systems Stylet takes LTI 1.3 launches
+//! `stylet lti add-platform|add-deployment|list`: the learning management systems Stylet takes LTI 1.3 launches
 //! from (docs/integration.md "Launching from a learning management system"), on the service's
 //! database (the same store call as the admin page `/admin/lti`; audited with no actor).
 
@@ -11,8 +11,25 @@ use super::user::{Db, open, runtime};
 pub enum LtiCommand {
     /// Register a platform (the values its tool registration shows).
     AddPlatform(AddPlatformArgs),
+    /// Add a deployment id to a registered platform (each installation of the tool may have its own).
+    AddDeployment(AddDeploymentArgs),
     /// List the registered platforms.
     List(ListArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct AddDeploymentArgs {
+    #[command(flatten)]
+    db: Db,
+    /// The platform's issuer.
+    #[arg(long)]
+    issuer: String,
+    /// The client id the platform gave Stylet.
+    #[arg(long)]
+    client_id: String,
+    /// The deployment id to add.
+    #[arg(long)]
+    deployment_id: String,
 }
 
 #[derive(Debug, Args)]
@@ -68,6 +85,22 @@ pub fn run(cmd: LtiCommand) -> anyhow::Result<()> {
                 }
                 let p = open(&a.db).await?.add_lti_platform(&new, None).await?;
                 sayf!("registered {} (client id {}) as {}", p.issuer, p.client_id, p.id);
+                Ok(())
+            }
+            LtiCommand::AddDeployment(a) => {
+                let store = open(&a.db).await?;
+                let Some(platform) = store.lti_platforms_of(&a.issuer, Some(&a.client_id)).await?.pop() else {
+                    anyhow::bail!(
+                        "no platform with issuer {} and client id {} is registered",
+                        a.issuer,
+                        a.client_id
+                    );
+                };
+                let p = store
+                    .add_lti_deployment(&platform.id, &a.deployment_id, None)
+                    .await?
+                    .ok_or_else(|| anyhow::anyhow!("the platform was removed meanwhile"))?;
+                sayf!("{}: deployments {}", p.issuer, p.deployment_ids.join(","));
                 Ok(())
             }
             LtiCommand::List(a) => {

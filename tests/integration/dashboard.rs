@@ -684,8 +684,9 @@ fn every_failed_session_has_its_reasons_on_the_trainee_home() {
 }
 
 /// The LTI platforms page: an admin sees the values to paste into the platform, registers a
-/// platform (a bad registration is refused with every problem named and the typed values kept),
-/// and it is listed there and by `stylet lti list`; a trainee may not open it.
+/// platform (a bad registration is refused with every problem named and the typed values kept)
+/// and adds a deployment id to it (once); it is listed there and by `stylet lti list`, with the
+/// deployment `stylet lti add-deployment` added; a trainee may not open the page.
 #[test]
 fn the_lti_page_registers_a_platform() {
     let f = Fixture::new(STYLET);
@@ -776,18 +777,55 @@ fn the_lti_page_registers_a_platform() {
             "the default roles: {row}"
         );
         shot(&c, "lti", "01-registration").await;
+        // Another installation's deployment id, added on the row; the same one again is refused.
+        for (id, error) in [("11", None), ("11", Some("registered already"))] {
+            let form = c
+                .form(Locator::Css("#lti-platforms form.add-deployment"))
+                .await
+                .unwrap();
+            form.set_by_name("deployment_id", id).await.unwrap();
+            match error {
+                None => {
+                    submit_and_wait(&c, form).await;
+                    c.wait()
+                        .at_most(Duration::from_secs(20))
+                        .for_element(Locator::Id("lti-platforms"))
+                        .await
+                        .unwrap();
+                    assert!(text_of(&c, "#lti-platforms tbody tr").await.contains("3, 7, 11"));
+                }
+                Some(words) => {
+                    submit_and_wait(&c, form).await;
+                    assert!(text_of(&c, ".lti-error").await.contains(words));
+                }
+            }
+        }
         // The same issuer and client id again: refused, named.
         let form = fill("https://moodle.example.org", "9").await;
-        form.submit().await.unwrap();
-        assert!(wait_text(&c, ".lti-error").await.contains("registered already"));
+        submit_and_wait(&c, form).await;
+        assert!(text_of(&c, ".lti-error").await.contains("registered already"));
         println!("screenshots in {}", shots().display());
     });
     let data = f.data();
+    let mut add = vec![
+        "lti",
+        "add-deployment",
+        "--data-dir",
+        s(&data),
+        "--issuer",
+        "https://moodle.example.org",
+        "--client-id",
+        "Kq3xT0dBq1XvCzY",
+        "--deployment-id",
+        "12",
+    ];
+    add.extend(db.args());
+    STYLET.ok(&add);
     let mut args = vec!["lti", "list", "--data-dir", s(&data)];
     args.extend(db.args());
     let listed = STYLET.ok(&args);
     assert!(
-        listed.contains("https://moodle.example.org") && listed.contains("deployments 3,7"),
+        listed.contains("https://moodle.example.org") && listed.contains("deployments 3,7,11,12"),
         "{listed}"
     );
 }

@@ -1,11 +1,13 @@
-//! `GET/POST /admin/lti`: the learning management systems that launch Stylet (LTI 1.3). Admins
-//! see the values to paste into a platform's tool registration, the platforms registered, and
-//! register one (the same store call as `stylet lti add-platform`; audited).
+//! `GET/POST /admin/lti`, `POST /admin/lti/{id}/deployments`: the learning management systems
+//! that launch Stylet (LTI 1.3). Admins see the values to paste into a platform's tool
+//! registration, the platforms registered, register one and add a deployment id to one (a
+//! platform such as Canvas gives every installation its own); the same store calls as
+//! `stylet lti add-platform` and `add-deployment`; audited.
 
 use std::sync::Arc;
 
 use axum::Form;
-use axum::extract::State;
+use axum::extract::{Path, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Redirect, Response};
 use maud::{Markup, html};
@@ -92,7 +94,13 @@ fn lti_page(v: &Viewer, base: &str, platforms: &[LtiPlatform], typed: &PlatformF
             div.table-scroll { table #lti-platforms {
                 thead { tr { th { "Issuer" } th { "Client id" } th { "Deployments" } th { "Instructor roles" } th { "Registered" } } }
                 tbody { @for p in platforms {
-                    tr { td { code { (p.issuer) } } td { code { (p.client_id) } } td { (p.deployment_ids.join(", ")) }
+                    tr { td { code { (p.issuer) } } td { code { (p.client_id) } }
+                         td { (p.deployment_ids.join(", "))
+                              form.inline.add-deployment method="post" action=(format!("/admin/lti/{}/deployments", p.id)) {
+                                  (csrf_field(v))
+                                  input name="deployment_id" required size="12" aria-label="Deployment ID to add";
+                                  button type="submit" { "Add deployment" }
+                              } }
                          td { (p.instructor_roles.join(", ")) } td { (short_time(&p.created_at)) " UTC" } }
                 } }
             } }
@@ -121,6 +129,46 @@ pub async fn index(State(s): State<Arc<AppState>>, v: Viewer, headers: HeaderMap
     let platforms = s.store.lti_platforms().await?;
     let body = lti_page(&v, &base_url(&s, &headers), &platforms, &PlatformForm::default(), &[]);
     Ok(page("LTI platforms", Some(&v), body).into_response())
+}
+
+#[derive(Debug, serde::Deserialize)]
+pub struct DeploymentForm {
+    #[serde(default)]
+    csrf: String,
+    #[serde(default)]
+    deployment_id: String,
+}
+
+/// `POST /admin/lti/{id}/deployments`: adds a deployment id; back to the list, or the page with
+/// the problem.
+pub async fn add_deployment(
+    State(s): State<Arc<AppState>>,
+    v: Viewer,
+    headers: HeaderMap,
+    Path(id): Path<String>,
+    Form(f): Form<DeploymentForm>,
+) -> Result<Response, PageError> {
+    require_admin(&v)?;
+    check_csrf(&v, &f.csrf)?;
+    let problem = match s
+        .store
+        .add_lti_deployment(&id, f.deployment_id.trim(), Some(&v.user.id))
+        .await
+    {
+        Ok(Some(_)) => return Ok(Redirect::to("/admin/lti").into_response()),
+        Ok(None) => return Err(fail(StatusCode::NOT_FOUND, "no such platform")),
+        Err(StoreError::Invalid(why)) => why,
+        Err(e) => return Err(e.into()),
+    };
+    let platforms = s.store.lti_platforms().await?;
+    let body = lti_page(
+        &v,
+        &base_url(&s, &headers),
+        &platforms,
+        &PlatformForm::default(),
+        &[problem],
+    );
+    Ok((StatusCode::BAD_REQUEST, page("LTI platforms", Some(&v), body)).into_response())
 }
 
 /// `POST /admin/lti`: registers a platform; back to the list, or the form with its problems.

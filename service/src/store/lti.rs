@@ -57,14 +57,6 @@ impl NewLtiPlatform {
     /// absolute http(s) (https in production: docs/integration.md).
     pub fn check(&self) -> Vec<String> {
         let mut problems = Vec::new();
-        let text = |what: &str, v: &str, problems: &mut Vec<String>| {
-            if v.is_empty()
-                || v.chars().count() > MAX_ID_CHARS
-                || v.chars().any(|c| c.is_control() || c.is_whitespace())
-            {
-                problems.push(format!("{what} must be 1–{MAX_ID_CHARS} characters without spaces"));
-            }
-        };
         for (what, url) in [
             ("the issuer", &self.issuer),
             ("the keyset URL", &self.keyset_url),
@@ -78,22 +70,36 @@ impl NewLtiPlatform {
                 ));
             }
         }
-        text("the client id", &self.client_id, &mut problems);
-        if self.deployment_ids.is_empty() || self.deployment_ids.len() > MAX_LIST {
-            problems.push(format!("give 1–{MAX_LIST} deployment ids"));
-        }
-        for d in &self.deployment_ids {
-            text("a deployment id", d, &mut problems);
-        }
+        problems.extend(id_problem("the client id", &self.client_id));
+        problems.extend(deployment_problems(&self.deployment_ids));
         if self.instructor_roles.len() > MAX_LIST {
             problems.push(format!("give at most {MAX_LIST} instructor roles"));
         }
-        for r in &self.instructor_roles {
-            text("an instructor role", r, &mut problems);
-        }
+        problems.extend(
+            self.instructor_roles
+                .iter()
+                .filter_map(|r| id_problem("an instructor role", r)),
+        );
         problems.dedup();
         problems
     }
+}
+
+/// What is wrong with an id (client id, deployment id, role), if anything.
+fn id_problem(what: &str, v: &str) -> Option<String> {
+    (v.is_empty() || v.chars().count() > MAX_ID_CHARS || v.chars().any(|c| c.is_control() || c.is_whitespace()))
+        .then(|| format!("{what} must be 1–{MAX_ID_CHARS} characters without spaces"))
+}
+
+/// What is wrong with a platform's deployment ids.
+pub fn deployment_problems(ids: &[String]) -> Vec<String> {
+    let mut problems = Vec::new();
+    if ids.is_empty() || ids.len() > MAX_LIST {
+        problems.push(format!("give 1–{MAX_LIST} deployment ids"));
+    }
+    problems.extend(ids.iter().filter_map(|d| id_problem("a deployment id", d)));
+    problems.dedup();
+    problems
 }
 
 /// Why a launch's state was not accepted.
@@ -255,6 +261,41 @@ impl Store {
         .await?;
         tx.commit().await?;
         Ok(self.lti_platform(&id).await?.expect("just added"))
+    }
+
+    /// Adds a deployment id to platform `platform_id` (a platform gives each installation of the
+    /// tool its own); audited. Invalid: the id is malformed, there already, or one too many.
+    pub async fn add_lti_deployment(
+        &self,
+        platform_id: &str,
+        deployment_id: &str,
+        actor: Option<&str>,
+    ) -> Result<Option<LtiPlatform>, StoreError> {
+        let mut tx = self.begin_write().await?;
+        let row = sqlx::query("SELECT deployment_ids FROM lti_platforms WHERE id = $1")
+            .bind(platform_id.to_string())
+            .fetch_optional(&mut *tx)
+            .await?;
+        let Some(row) = row else { return Ok(None) };
+        let mut ids = unlines(&row.try_get::<String, _>("deployment_ids")?);
+        if ids.iter().any(|d| d == deployment_id) {
+            return Err(StoreError::Invalid(format!(
+                "the deployment id {deployment_id} is registered already"
+            )));
+        }
+        ids.push(deployment_id.to_string());
+        let problems = deployment_problems(&ids);
+        if !problems.is_empty() {
+            return Err(StoreError::Invalid(problems.join("; ")));
+        }
+        sqlx::query("UPDATE lti_platforms SET deployment_ids = $1 WHERE id = $2")
+            .bind(lines(&ids))
+            .bind(platform_id.to_string())
+            .execute(&mut *tx)
+            .await?;
+        audit_opt(&mut tx, actor, "lti.deployment.add", platform_id, deployment_id).await?;
+        tx.commit().await?;
+        self.lti_platform(platform_id).await
     }
 
     /// Every registered platform, oldest first (an admin registers a handful).

@@ -42,7 +42,7 @@ pub use jobs::{Job, OutcomeColumns, join_reasons, split_reasons};
 pub use login_failures::{CheckEnd, CheckReservation};
 pub use lti::{
     DEFAULT_INSTRUCTOR_ROLES, DeepLinkRequest, DueGrade, LaunchState, LaunchStateProblem, LtiIdentity, LtiPlatform,
-    NewLtiPlatform,
+    NewLtiPlatform, deployment_problems,
 };
 pub use pairing::{LabMachine, Paired, PairingPlace, PairingPurpose, PairingRefusal};
 pub use readiness::NotReady;
