@@ -18,9 +18,11 @@ CREATE TABLE lti_platforms (
     UNIQUE (issuer, client_id)
 );
 
--- The tool's RSA key (PKCS#8 PEM), published at /lti/jwks under its kid.
+-- The tool's RSA key (PKCS#8 PEM), published at /lti/jwks under its kid: one row, in the slot
+-- 'signing' (replicas making one at once keep the first that was written).
 CREATE TABLE lti_tool_keys (
-    kid TEXT PRIMARY KEY,
+    slot TEXT PRIMARY KEY,
+    kid TEXT NOT NULL,
     private_pem TEXT NOT NULL,
     created_at TEXT NOT NULL
 );
@@ -36,6 +38,7 @@ CREATE TABLE lti_launch_states (
     used_at TEXT
 );
 CREATE INDEX lti_launch_states_address ON lti_launch_states (client_address, expires_at);
+CREATE INDEX lti_launch_states_expiry ON lti_launch_states (expires_at);
 
 -- The account an LTI user (the platform's `sub`) was given.
 CREATE TABLE lti_users (
@@ -85,6 +88,8 @@ CREATE TABLE lti_grade_outbox (
     session_id TEXT NOT NULL,
     platform_id TEXT NOT NULL REFERENCES lti_platforms(id) ON DELETE CASCADE,
     lineitem_url TEXT NOT NULL,
+    -- The LTI user (`userId` of the score): a later session's grade supersedes an undelivered one.
+    subject TEXT NOT NULL,
     score_json TEXT NOT NULL,
     created_at TEXT NOT NULL,
     attempts BIGINT NOT NULL DEFAULT 0,
@@ -93,3 +98,4 @@ CREATE TABLE lti_grade_outbox (
     last_error TEXT
 );
 CREATE INDEX lti_grade_outbox_due ON lti_grade_outbox (delivered_at, next_attempt_at);
+CREATE INDEX lti_grade_outbox_line ON lti_grade_outbox (platform_id, lineitem_url, subject);

@@ -82,7 +82,7 @@ fn post_launch(action: &str, id_token: &str, state: &str) -> (u16, String, Optio
     let csp = header(&h, "content-security-policy").unwrap_or_default();
     assert!(
         csp.contains("frame-ancestors *") && csp.contains("form-action 'self';"),
-        "{csp}"
+        "{status} {body} {csp}"
     );
     assert_eq!(header(&h, "x-frame-options"), None);
     let cookie = header(&h, "set-cookie").and_then(|c| {
@@ -326,8 +326,51 @@ fn a_course_links_launches_and_grades_stylet(db: Db) {
         assert!(cookie.is_none(), "{tamper}: no login");
     }
     // A learner cannot add exercises; a launch from an unregistered platform is refused.
-    let (status, page, _) = launch(&lms, &LEARNER.replace("kind=resource", "kind=deeplink"));
+    let (status, page, cookie) = launch(&lms, &LEARNER.replace("kind=resource", "kind=deeplink"));
     assert_eq!(status, 403, "{page}");
+    assert!(cookie.is_none(), "a refused launch logs nobody in");
+    // A learner who teaches another course stays a trainee (an account keeps the role of its
+    // first launch) and does not join that course's cohort: no instructor's view of classmates.
+    let other_course = LEARNER
+        .replace("kind=resource", "kind=deeplink")
+        .replace("role=Learner", "role=Instructor")
+        .replace("context=course-7", "context=course-9");
+    let (status, page, _) = launch(&lms, &other_course);
+    assert_eq!(status, 403, "{page}");
+    assert!(page.contains("keeps the role of its first launch"), "{page}");
+    let (role, cohorts) = on_database(&db, &f.data(), async |store| {
+        let role: String = sqlx::query_scalar("SELECT role FROM users WHERE username = 'lena@uni.example'")
+            .fetch_one(&store.pool)
+            .await
+            .unwrap();
+        let cohorts: i64 = sqlx::query_scalar(
+            "SELECT COUNT(*) FROM cohort_members m JOIN users u ON u.id = m.user_id WHERE u.username = 'lena@uni.example'",
+        )
+        .fetch_one(&store.pool)
+        .await
+        .unwrap();
+        (role, cohorts)
+    });
+    assert_eq!((role.as_str(), cohorts), ("trainee", 1));
+    // Anyone may post an error to the launch URL: the page does not repeat their words.
+    let (status, page, _) = answer(agent().post(&format!("{b}/lti/launch")).send_form(&[
+        ("error", "login_required"),
+        ("error_description", "Your account is locked: call 555-0100"),
+    ]));
+    assert_eq!(status, 400, "{page}");
+    assert!(!page.contains("555-0100"), "{page}");
+    // The platform may be asked to post to Stylet's launch URL only, at the address it was reached at.
+    let (status, page, _) = answer(
+        agent()
+            .get(&format!(
+                "{b}/lti/login?iss={}&login_hint=x&target_link_uri={}",
+                encode(&lms.url()),
+                encode("https://evil.example/lti/launch")
+            ))
+            .call(),
+    );
+    assert_eq!(status, 400, "{page}");
+    assert!(page.contains("not Stylet's launch URL"), "{page}");
     let (status, page, _) = answer(
         agent()
             .get(&format!(

@@ -59,7 +59,7 @@ pub async fn login_get(
     headers: HeaderMap,
     Query(q): Query<Initiation>,
 ) -> Result<Response, PageError> {
-    initiate(&s, address(&s, peer, &headers), q).await
+    initiate(&s, address(&s, peer, &headers), host(&headers), q).await
 }
 
 /// `POST /lti/login`.
@@ -69,21 +69,43 @@ pub async fn login_post(
     headers: HeaderMap,
     Form(q): Form<Initiation>,
 ) -> Result<Response, PageError> {
-    initiate(&s, address(&s, peer, &headers), q).await
+    initiate(&s, address(&s, peer, &headers), host(&headers), q).await
 }
 
+/// The request's Host header ("" without one).
+fn host(headers: &HeaderMap) -> String {
+    headers
+        .get(header::HOST)
+        .and_then(|h| h.to_str().ok())
+        .unwrap_or("")
+        .to_string()
+}
+
+/// The client's address as launches are counted: an IPv6 address as its /64 (one host commonly
+/// holds a whole /64).
 fn address(s: &AppState, peer: Option<Extension<Peer>>, headers: &HeaderMap) -> String {
     let peer: Option<IpAddr> = peer.map(|Extension(p)| p.0);
-    client_address(peer, headers, &s.config.limits.trusted_proxies).map_or_else(|| "unknown".into(), |a| a.to_string())
+    match client_address(peer, headers, &s.config.limits.trusted_proxies) {
+        Some(IpAddr::V6(a)) => {
+            let s = a.segments();
+            format!("{:x}:{:x}:{:x}:{:x}::/64", s[0], s[1], s[2], s[3])
+        }
+        Some(a) => a.to_string(),
+        None => "unknown".into(),
+    }
 }
 
-/// Whether `url` is this tool's launch URL (`…/lti/launch`, no query): the only place the
-/// platform may be asked to post an id_token to.
-fn is_launch_url(url: &str) -> bool {
-    lti::origin_of(url).is_some_and(|origin| &url[origin.len()..] == "/lti/launch")
+/// Whether `url` is this tool's launch URL as the browser reaches it (`<scheme>://<host>/lti/launch`,
+/// `host` the request's Host, no user, no query): the only place the platform may be asked to
+/// post an id_token to.
+fn is_launch_url(url: &str, host: &str) -> bool {
+    lti::origin_of(url).is_some_and(|origin| {
+        let authority = origin.split_once("://").map_or("", |(_, a)| a);
+        authority.eq_ignore_ascii_case(host) && &url[origin.len()..] == "/lti/launch"
+    })
 }
 
-async fn initiate(s: &AppState, address: String, q: Initiation) -> Result<Response, PageError> {
+async fn initiate(s: &AppState, address: String, host: String, q: Initiation) -> Result<Response, PageError> {
     let params = [
         Some(&q.iss),
         Some(&q.login_hint),
@@ -129,10 +151,10 @@ async fn initiate(s: &AppState, address: String, q: Initiation) -> Result<Respon
             format!("the deployment '{d}' is not registered for this platform in Stylet"),
         ));
     }
-    if !is_launch_url(&q.target_link_uri) {
+    if !is_launch_url(&q.target_link_uri, &host) {
         return Err(fail(
             StatusCode::BAD_REQUEST,
-            "the launch's target is not Stylet's launch URL (…/lti/launch)",
+            format!("the launch's target is not Stylet's launch URL (…://{host}/lti/launch)"),
         ));
     }
     let (state, nonce) = (auth::random_token(), auth::random_token());
@@ -220,11 +242,20 @@ pub async fn launch(state: State<Arc<AppState>>, form: Form<LaunchForm>) -> Resp
 
 async fn launch_page(State(s): State<Arc<AppState>>, Form(f): Form<LaunchForm>) -> Result<Response, PageError> {
     if let Some(e) = &f.error {
-        let text = format!(
-            "the platform answered {e}: {}",
-            f.error_description.as_deref().unwrap_or("")
-        );
-        return Err(refused(StatusCode::BAD_REQUEST, lti_text(&text)));
+        // The platform's words only for a launch Stylet started: anyone can post this form.
+        let started = match f.state.as_deref().filter(|st| st.len() <= MAX_PARAM_BYTES) {
+            Some(st) => s.store.take_lti_launch(&auth::sha256_hex(st)).await?.is_ok(),
+            None => false,
+        };
+        let text = if started {
+            lti_text(&format!(
+                "the platform answered {e}: {}",
+                f.error_description.as_deref().unwrap_or("")
+            ))
+        } else {
+            "the platform answered with an error".to_string()
+        };
+        return Err(refused(StatusCode::BAD_REQUEST, text));
     }
     let (Some(token), Some(state)) = (f.id_token.as_deref(), f.state.as_deref()) else {
         return Err(refused(StatusCode::BAD_REQUEST, "it carries no id_token and state"));
@@ -281,11 +312,12 @@ async fn launch_page(State(s): State<Arc<AppState>>, Form(f): Form<LaunchForm>) 
             "Your Stylet account is disabled; ask an admin.",
         ));
     };
-    let (login_token, _csrf) = s.store.create_login(&user, stylet_service::api::LOGIN_TTL_S).await?;
     let mut r = match checked.kind {
         MessageType::ResourceLink => resource_link(&s, &platform, &checked, &user).await?,
         MessageType::DeepLinking => deep_linking(&s, &platform, &checked, &user).await?,
     };
+    // Logged in only once the page is there: a refused launch logs nobody in.
+    let (login_token, _csrf) = s.store.create_login(&user, stylet_service::api::LOGIN_TTL_S).await?;
     r.headers_mut().append(
         header::SET_COOKIE,
         HeaderValue::from_str(&auth::login_cookie(
@@ -394,7 +426,11 @@ async fn deep_linking(
     if user.role < Role::Instructor {
         return Err(fail(
             StatusCode::FORBIDDEN,
-            "Only instructors add Stylet exercises to a course.",
+            format!(
+                "Only instructors add Stylet exercises to a course, and your Stylet account ({}) is a {} account: \
+                 an account keeps the role of its first launch; a Stylet admin changes it.",
+                user.username, user.role
+            ),
         ));
     }
     let settings = launch
@@ -598,10 +634,20 @@ mod tests {
 
     #[test]
     fn only_the_launch_url_is_a_redirect_target() {
-        assert!(is_launch_url("https://stylet.example.org/lti/launch"));
-        assert!(is_launch_url("http://127.0.0.1:8080/lti/launch"));
-        assert!(!is_launch_url("https://stylet.example.org/lti/launch?x=1"));
-        assert!(!is_launch_url("https://evil.example/steal"));
-        assert!(!is_launch_url("/lti/launch"));
+        let host = "stylet.example.org";
+        assert!(is_launch_url("https://stylet.example.org/lti/launch", host));
+        assert!(is_launch_url("http://127.0.0.1:8080/lti/launch", "127.0.0.1:8080"));
+        assert!(!is_launch_url("https://stylet.example.org/lti/launch?x=1", host));
+        assert!(!is_launch_url("https://evil.example/lti/launch", host), "another host");
+        assert!(
+            !is_launch_url("https://x@stylet.example.org/lti/launch", host),
+            "a user"
+        );
+        assert!(
+            !is_launch_url("https://stylet.example.org:8443/lti/launch", host),
+            "another port"
+        );
+        assert!(!is_launch_url("https://evil.example/steal", host));
+        assert!(!is_launch_url("/lti/launch", host));
     }
 }

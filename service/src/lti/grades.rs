@@ -132,9 +132,24 @@ impl AccessTokens {
     }
 }
 
-/// Posts one grade; Err says why it was not taken.
-async fn post(state: &AppState, key: &ToolKey, platform: &LtiPlatform, grade: &DueGrade) -> Result<(), String> {
-    let token = state.lti.tokens.get(platform, key).await?;
+/// How a platform answered one grade.
+enum Posted {
+    /// Taken (2xx).
+    Taken,
+    /// Answered for good without taking it: 409, the platform holds a later score (AGS 2.0 §3.4).
+    Superseded(String),
+    /// Refused (another 4xx): this grade waits, the platform's others go on.
+    Refused(String),
+    /// No answer, a server error, or no access token: the platform's grades all wait.
+    Unreachable(String),
+}
+
+/// Posts one grade.
+async fn post(state: &AppState, key: &ToolKey, platform: &LtiPlatform, grade: &DueGrade) -> Posted {
+    let token = match state.lti.tokens.get(platform, key).await {
+        Ok(t) => t,
+        Err(why) => return Posted::Unreachable(why),
+    };
     let (url, body) = (scores_url(&grade.lineitem_url), grade.score_json.clone());
     let answer = tokio::task::spawn_blocking(move || {
         super::http_agent()
@@ -144,33 +159,30 @@ async fn post(state: &AppState, key: &ToolKey, platform: &LtiPlatform, grade: &D
             .send_string(&body)
             .map(|_| ())
             .map_err(|e| match e {
-                ureq::Error::Status(code, r) => (
-                    Some(code),
-                    format!(
-                        "{code}: {}",
-                        r.into_string()
-                            .unwrap_or_default()
-                            .chars()
-                            .take(300)
-                            .collect::<String>()
-                    ),
-                ),
+                ureq::Error::Status(code, r) => {
+                    let text: String = r.into_string().unwrap_or_default().chars().take(300).collect();
+                    (Some(code), format!("{code}: {text}"))
+                }
                 e => (None, e.to_string()),
             })
     })
-    .await
-    .map_err(|e| e.to_string())?;
+    .await;
     match answer {
-        Ok(()) => Ok(()),
-        Err((Some(401), why)) => {
+        Err(e) => Posted::Unreachable(e.to_string()),
+        Ok(Ok(())) => Posted::Taken,
+        Ok(Err((Some(401), why))) => {
             state.lti.tokens.forget(&platform.id).await;
-            Err(why)
+            Posted::Unreachable(why)
         }
-        Err((_, why)) => Err(why),
+        Ok(Err((Some(409), why))) => Posted::Superseded(why),
+        Ok(Err((Some(code), why))) if (400..500).contains(&code) => Posted::Refused(why),
+        Ok(Err((_, why))) => Posted::Unreachable(why),
     }
 }
 
-/// Posts what is due in the grade outbox; returns the grades delivered.
+/// Posts what is due in the grade outbox; returns the grades delivered. A platform that cannot
+/// be reached holds back its own grades only: they all wait for its next try, out of the next
+/// rounds' batches.
 pub async fn deliver_due(state: &AppState) -> usize {
     let due = match state.store.due_grades(BATCH).await {
         Ok(due) => due,
@@ -190,32 +202,31 @@ pub async fn deliver_due(state: &AppState) -> usize {
         }
     };
     let mut delivered = 0;
-    // A platform that failed once in this round is not tried again in it: its other grades wait
-    // with the same reason (one unreachable platform does not hold up the others' for minutes).
-    let mut failed: HashMap<String, String> = HashMap::new();
+    let mut down: Vec<String> = Vec::new();
     for grade in due {
-        let outcome = match failed.get(&grade.platform_id) {
-            Some(why) => Err(why.clone()),
-            None => match state.store.lti_platform(&grade.platform_id).await {
-                Ok(Some(platform)) => post(state, &key, &platform, &grade).await,
-                Ok(None) => Err("the platform is no longer registered".to_string()),
-                Err(e) => Err(e.to_string()),
-            },
-        };
-        if let Err(why) = &outcome {
-            failed.insert(grade.platform_id.clone(), why.clone());
+        if down.contains(&grade.platform_id) {
+            continue;
         }
-        let marked = match outcome {
-            Ok(()) => {
+        let posted = match state.store.lti_platform(&grade.platform_id).await {
+            Ok(Some(platform)) => post(state, &key, &platform, &grade).await,
+            Ok(None) => Posted::Unreachable("the platform is no longer registered".to_string()),
+            Err(e) => Posted::Unreachable(e.to_string()),
+        };
+        let wait = crate::xapi::backoff(grade.attempts);
+        let marked = match posted {
+            Posted::Taken => {
                 delivered += 1;
-                state.store.grade_delivered(&grade.id).await
+                state.store.grade_delivered(&grade.id, None).await
             }
-            Err(why) => {
-                tracing::warn!(grade = %grade.id, error = %why, "the platform did not take a grade; trying again later");
-                state
-                    .store
-                    .grade_refused(&grade.id, &why, crate::xapi::backoff(grade.attempts))
-                    .await
+            Posted::Superseded(why) => state.store.grade_delivered(&grade.id, Some(&why)).await,
+            Posted::Refused(why) => {
+                tracing::warn!(grade = %grade.id, error = %why, "the platform refused a grade; trying again later");
+                state.store.grade_refused(&grade.id, &why, wait).await
+            }
+            Posted::Unreachable(why) => {
+                tracing::warn!(platform = %grade.platform_id, error = %why, "cannot post grades to a platform; trying again later");
+                down.push(grade.platform_id.clone());
+                state.store.platform_unreachable(&grade.platform_id, &why, wait).await
             }
         };
         if let Err(e) = marked {

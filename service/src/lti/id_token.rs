@@ -183,8 +183,13 @@ pub async fn check(
         _ => LaunchError::Malformed(e.to_string()),
     })?;
     let claims = data.claims;
-    // Several audiences: the authorised party must be Stylet (LTI 1.3 core §5.1.2).
-    if claims.aud.is_array() && claims.azp.as_deref() != Some(platform.client_id.as_str()) {
+    // The authorised party, when named (it must be with several audiences), is Stylet
+    // (IMS Security Framework 1.0 §5.1.3).
+    let azp_ok = match claims.azp.as_deref() {
+        Some(azp) => azp == platform.client_id,
+        None => !claims.aud.is_array(),
+    };
+    if !azp_ok {
         return Err(LaunchError::Audience);
     }
     let now_s = super::unix_now_s() as i64;

@@ -1,7 +1,8 @@
 //! The platforms' public keys (their JWKS at the registered keyset URL), fetched when a launch
 //! needs them and kept for [`FRESH`]; a key id not in the kept set fetches the set again (a
 //! platform rotating its key), at most once per [`REFETCH_AFTER`] so that tokens naming made-up
-//! key ids cannot make the tool hammer the platform.
+//! key ids cannot make the tool hammer the platform. A failed fetch is kept as long, and a
+//! platform's key set is fetched by one request at a time.
 
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
@@ -30,27 +31,64 @@ pub enum KeyError {
     Unusable { kid: String },
 }
 
-/// Kept key sets, by platform id.
+/// A platform's key set as last fetched, or why the last fetch failed.
+#[derive(Clone)]
+enum Kept {
+    Set(JwkSet),
+    Failed(KeyError),
+}
+
+/// Kept key sets, by platform id; one fetch per platform at a time.
 #[derive(Default)]
 pub struct KeySets {
-    kept: Mutex<HashMap<String, (Instant, JwkSet)>>,
+    kept: Mutex<HashMap<String, (Instant, Kept)>>,
+    fetching: Mutex<HashMap<String, std::sync::Arc<Mutex<()>>>>,
 }
 
 impl KeySets {
     /// The key `kid` of `platform`.
     pub async fn key(&self, platform: &LtiPlatform, kid: &str) -> Result<DecodingKey, KeyError> {
-        // Not locked while fetching: a slow platform does not hold up the others' launches
-        // (two launches at once may both fetch).
+        let usable = |kept: &Option<(Instant, Kept)>| match kept {
+            Some((at, Kept::Set(set)))
+                if at.elapsed() < FRESH && (set.find(kid).is_some() || at.elapsed() < REFETCH_AFTER) =>
+            {
+                Some(Ok(set.clone()))
+            }
+            // A failed fetch is not repeated for REFETCH_AFTER.
+            Some((at, Kept::Failed(e))) if at.elapsed() < REFETCH_AFTER => Some(Err(e.clone())),
+            _ => None,
+        };
+        // (The cache's guard must not live through the match: the fetch below takes it again.)
         let cached = self.kept.lock().await.get(&platform.id).cloned();
-        let set = match cached {
-            Some((at, set)) if at.elapsed() < FRESH && (set.find(kid).is_some() || at.elapsed() < REFETCH_AFTER) => set,
-            _ => {
-                let set = fetch(&platform.keyset_url).await?;
-                self.kept
+        let set = match usable(&cached) {
+            Some(found) => found?,
+            None => {
+                // One fetch at a time per platform (the others wait for it, then use what it
+                // got); not under the cache's lock, so a slow platform holds up no other's.
+                let gate = self
+                    .fetching
                     .lock()
                     .await
-                    .insert(platform.id.clone(), (Instant::now(), set.clone()));
-                set
+                    .entry(platform.id.clone())
+                    .or_default()
+                    .clone();
+                let _one = gate.lock().await;
+                let cached = self.kept.lock().await.get(&platform.id).cloned();
+                match usable(&cached) {
+                    Some(found) => found?,
+                    None => {
+                        let fetched = fetch(&platform.keyset_url).await;
+                        let kept = match &fetched {
+                            Ok(set) => Kept::Set(set.clone()),
+                            Err(e) => Kept::Failed(e.clone()),
+                        };
+                        self.kept
+                            .lock()
+                            .await
+                            .insert(platform.id.clone(), (Instant::now(), kept));
+                        fetched?
+                    }
+                }
             }
         };
         let jwk = set

@@ -122,10 +122,11 @@ impl Store {
                 "DELETE FROM xapi_outbox WHERE delivered_at < $1",
                 now - Duration::from_secs(30 * 86_400),
             ),
-            // A day after expiry a replayed launch is unknown rather than "already used".
+            // An hour after expiry a replayed launch is unknown rather than "already used"; the
+            // table holds at most the launch cap's rows per 10 minutes, for 70 minutes.
             (
                 "DELETE FROM lti_launch_states WHERE expires_at < $1",
-                now - Duration::from_secs(86_400),
+                now - Duration::from_secs(3600),
             ),
             ("DELETE FROM lti_deep_links WHERE expires_at < $1", now),
             (

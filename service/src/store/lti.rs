@@ -119,9 +119,10 @@ pub struct LaunchState {
     pub nonce: String,
 }
 
-/// Launches in progress (login initiated, no id_token yet) allowed from one client address.
+/// Launches begun (login initiated) in the last [`crate::lti::LAUNCH_MINUTES`] allowed from one
+/// client address (an IPv6 address counts as its /64).
 pub const MAX_PENDING_LAUNCHES_PER_ADDRESS: i64 = 30;
-/// Launches in progress allowed from all addresses together.
+/// Launches begun in the last [`crate::lti::LAUNCH_MINUTES`] allowed from all addresses together.
 pub const MAX_PENDING_LAUNCHES: i64 = 20_000;
 
 /// Who a launch is about, for [`Store::provision_lti_user`].
@@ -330,9 +331,9 @@ impl Store {
         Ok(rows.iter().map(platform_of).collect::<Result<_, _>>()?)
     }
 
-    /// The tool's signing key, `(kid, PKCS#8 PEM)`, the oldest if several were made at once.
+    /// The tool's signing key, `(kid, PKCS#8 PEM)`, if one was made.
     pub async fn lti_tool_key(&self) -> Result<Option<(String, String)>, StoreError> {
-        let row = sqlx::query("SELECT kid, private_pem FROM lti_tool_keys ORDER BY created_at, kid LIMIT 1")
+        let row = sqlx::query("SELECT kid, private_pem FROM lti_tool_keys WHERE slot = 'signing'")
             .fetch_optional(&self.pool)
             .await?;
         Ok(match row {
@@ -341,9 +342,11 @@ impl Store {
         })
     }
 
+    /// Stores a signing key unless one is there already (then that one stays: replicas making a
+    /// key at once all end up with the first written).
     pub async fn insert_lti_tool_key(&self, kid: &str, pem: &str) -> Result<(), StoreError> {
         sqlx::query(
-            "INSERT INTO lti_tool_keys (kid, private_pem, created_at) VALUES ($1, $2, $3) ON CONFLICT (kid) DO NOTHING",
+            "INSERT INTO lti_tool_keys (slot, kid, private_pem, created_at) VALUES ('signing', $1, $2, $3) ON CONFLICT (slot) DO NOTHING",
         )
         .bind(kid.to_string())
         .bind(pem.to_string())
@@ -355,7 +358,7 @@ impl Store {
 
     /// Records a launch's login initiation: its state (hashed) and nonce, valid for `ttl`.
     /// Refused ([`StoreError::TooManyLaunches`]) past [`MAX_PENDING_LAUNCHES_PER_ADDRESS`] from
-    /// `address` or [`MAX_PENDING_LAUNCHES`] in all.
+    /// `address` or [`MAX_PENDING_LAUNCHES`] in all, begun within `ttl`.
     pub async fn begin_lti_launch(
         &self,
         state_sha256: &str,
@@ -366,9 +369,11 @@ impl Store {
     ) -> Result<(), StoreError> {
         let at = now();
         let mut tx = self.begin_write().await?;
+        // Every launch begun in the last LAUNCH_MINUTES counts, used or not: a launch that was
+        // posted (even with a bad id_token) frees no place.
         let counts = sqlx::query(
             "SELECT CAST(COUNT(*) AS BIGINT) AS n, CAST(COALESCE(SUM(CASE WHEN client_address = $2 THEN 1 ELSE 0 END), 0) AS BIGINT) AS mine \
-             FROM lti_launch_states WHERE used_at IS NULL AND expires_at > $1",
+             FROM lti_launch_states WHERE expires_at > $1",
         )
         .bind(at.clone())
         .bind(address.to_string())
@@ -432,11 +437,25 @@ impl Store {
         }))
     }
 
-    /// The account of an LTI user, made on their first launch (no password: they come through
-    /// the platform), with the role `who.role` (a trainee launched as an instructor becomes one;
-    /// no launch lowers a role or grants more than instructor); with a course, the account joins
-    /// the course's cohort (made on its first launch). Audited. None: the account is disabled.
+    /// The account of an LTI user, made on their first launch with the role of that launch (no
+    /// password: they come through the platform). A later launch never changes the role: a
+    /// learner of one course who teaches another would otherwise see their classmates' sessions
+    /// as an instructor; an admin changes it. With a course, the account joins the course's
+    /// cohort (made on its first launch) when the launch's role is the account's (a trainee
+    /// learns in it, an instructor teaches it). Audited. None: the account is disabled.
+    ///
+    /// Two first launches at once (a class opening a new activity, a double-posted form) race for
+    /// the same cohort, account or username: the loser tries once more, and finds the winner's.
     pub async fn provision_lti_user(&self, who: &LtiIdentity<'_>) -> Result<Option<User>, StoreError> {
+        match self.provision_once(who).await {
+            Err(StoreError::Db(e)) if e.as_database_error().is_some_and(|d| d.is_unique_violation()) => {
+                self.provision_once(who).await
+            }
+            other => other,
+        }
+    }
+
+    async fn provision_once(&self, who: &LtiIdentity<'_>) -> Result<Option<User>, StoreError> {
         let platform = who.platform;
         let mut tx = self.begin_write().await?;
         let linked = sqlx::query(
@@ -452,17 +471,7 @@ impl Store {
                 if r.try_get::<Option<String>, _>("disabled_at")?.is_some() {
                     return Ok(None);
                 }
-                let mut user = Self::user_of(&r)?;
-                if user.role == Role::Trainee && who.role == Role::Instructor {
-                    sqlx::query("UPDATE users SET role = $1 WHERE id = $2")
-                        .bind(Role::Instructor.as_str().to_string())
-                        .bind(user.id.clone())
-                        .execute(&mut *tx)
-                        .await?;
-                    audit_in(&mut tx, &user.id, "lti.role", &user.id, "instructor, launched as one").await?;
-                    user.role = Role::Instructor;
-                }
-                user
+                Self::user_of(&r)?
             }
             None => {
                 let fallback = format!("lti-{}", short_hash(&[&platform.id, who.subject]));
@@ -500,7 +509,7 @@ impl Store {
                 }
             }
         };
-        if let Some((context_id, title)) = who.context {
+        if let Some((context_id, title)) = who.context.filter(|_| user.role == who.role) {
             let row = sqlx::query("SELECT cohort_id FROM lti_contexts WHERE platform_id = $1 AND context_id = $2")
                 .bind(platform.id.clone())
                 .bind(context_id.to_string())
@@ -603,11 +612,14 @@ impl Store {
         .fetch_optional(&mut *tx)
         .await?;
         let Some(r) = row else { return Ok(None) };
-        sqlx::query("UPDATE lti_deep_links SET used_at = $1 WHERE token_sha256 = $2")
+        let marked = sqlx::query("UPDATE lti_deep_links SET used_at = $1 WHERE token_sha256 = $2 AND used_at IS NULL")
             .bind(at)
             .bind(token_sha256.to_string())
             .execute(&mut *tx)
             .await?;
+        if marked.rows_affected() != 1 {
+            return Ok(None);
+        }
         tx.commit().await?;
         Ok(Some(DeepLinkRequest {
             platform_id: r.try_get("platform_id")?,
@@ -641,14 +653,27 @@ impl Store {
                 l.try_get("subject")?,
             );
             let id = short_hash(&[session_id, &platform, &lineitem]);
+            // The latest session is the grade: one still waiting for an earlier session is not
+            // sent after it (AGS 2.0 §3.4: a platform keeps the score of the latest timestamp).
             sqlx::query(
-                "INSERT INTO lti_grade_outbox (id, session_id, platform_id, lineitem_url, score_json, created_at, attempts, next_attempt_at) \
-                 VALUES ($1, $2, $3, $4, $5, $6, 0, $6) ON CONFLICT (id) DO NOTHING",
+                "UPDATE lti_grade_outbox SET delivered_at = $1, last_error = 'superseded by a later session' \
+                 WHERE platform_id = $2 AND lineitem_url = $3 AND subject = $4 AND delivered_at IS NULL",
+            )
+            .bind(at.clone())
+            .bind(platform.clone())
+            .bind(lineitem.clone())
+            .bind(subject.clone())
+            .execute(&mut **tx)
+            .await?;
+            sqlx::query(
+                "INSERT INTO lti_grade_outbox (id, session_id, platform_id, lineitem_url, subject, score_json, created_at, attempts, next_attempt_at) \
+                 VALUES ($1, $2, $3, $4, $5, $6, $7, 0, $7) ON CONFLICT (id) DO NOTHING",
             )
             .bind(id)
             .bind(session_id.to_string())
             .bind(platform)
             .bind(lineitem)
+            .bind(subject.clone())
             .bind(score_json(&subject))
             .bind(at.clone())
             .execute(&mut **tx)
@@ -681,13 +706,30 @@ impl Store {
             .map_err(StoreError::from)
     }
 
-    /// The platform took grade `id`.
-    pub async fn grade_delivered(&self, id: &str) -> Result<(), StoreError> {
+    /// The platform took grade `id`, or answered for good without taking it (`note`).
+    pub async fn grade_delivered(&self, id: &str, note: Option<&str>) -> Result<(), StoreError> {
         sqlx::query(
-            "UPDATE lti_grade_outbox SET delivered_at = $1, attempts = attempts + 1, last_error = NULL WHERE id = $2",
+            "UPDATE lti_grade_outbox SET delivered_at = $1, attempts = attempts + 1, last_error = $3 WHERE id = $2",
         )
         .bind(now())
         .bind(id.to_string())
+        .bind(note.map(str::to_string))
+        .execute(&self.pool)
+        .await?;
+        Ok(())
+    }
+
+    /// Platform `platform_id` could not be reached (`why`): every grade of it that is due now
+    /// waits `wait` (counted as a try), so that they do not fill the next rounds.
+    pub async fn platform_unreachable(&self, platform_id: &str, why: &str, wait: Duration) -> Result<(), StoreError> {
+        sqlx::query(
+            "UPDATE lti_grade_outbox SET attempts = attempts + 1, next_attempt_at = $1, last_error = $2 \
+             WHERE platform_id = $3 AND delivered_at IS NULL AND next_attempt_at <= $4",
+        )
+        .bind(from_now(wait))
+        .bind(why.chars().take(500).collect::<String>())
+        .bind(platform_id.to_string())
+        .bind(now())
         .execute(&self.pool)
         .await?;
         Ok(())

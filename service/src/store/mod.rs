@@ -118,8 +118,8 @@ pub enum StoreError {
     /// A platform of that issuer and client id is registered already.
     #[error("an LTI platform with issuer {issuer} and client id {client_id} is registered already")]
     LtiPlatformExists { issuer: String, client_id: String },
-    /// Too many LTI launches are waiting for their id_token (from this address, or in all).
-    #[error("too many LTI launches in progress; try again in a few minutes")]
+    /// Too many LTI launches were begun lately (from this address, or in all).
+    #[error("too many LTI launches were begun in the last minutes; try again in a few minutes")]
     TooManyLaunches,
     /// argon2 could not hash a password.
     #[error("{0}")]
