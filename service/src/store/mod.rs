@@ -42,7 +42,7 @@ pub use jobs::{Job, OutcomeColumns, join_reasons, split_reasons};
 pub use login_failures::{CheckEnd, CheckReservation};
 pub use lti::{
     DEFAULT_INSTRUCTOR_ROLES, DeepLinkRequest, DueGrade, LaunchState, LaunchStateProblem, LtiIdentity, LtiPlatform,
-    NewLtiPlatform, deployment_problems,
+    MAX_PENDING_LAUNCHES, MAX_PENDING_LAUNCHES_PER_ADDRESS, NewLtiPlatform, deployment_problems,
 };
 pub use pairing::{LabMachine, Paired, PairingPlace, PairingPurpose, PairingRefusal};
 pub use readiness::NotReady;
