@@ -752,7 +752,149 @@ impl Store {
 
 #[cfg(test)]
 mod tests {
+    use super::super::NewSession;
     use super::*;
+
+    fn registration() -> NewLtiPlatform {
+        NewLtiPlatform {
+            issuer: "https://lms.example.org".into(),
+            client_id: "stylet".into(),
+            deployment_ids: vec!["d1".into()],
+            keyset_url: "https://lms.example.org/jwks".into(),
+            auth_url: "https://lms.example.org/auth".into(),
+            token_url: "https://lms.example.org/token".into(),
+            instructor_roles: vec![],
+        }
+    }
+
+    /// Uploads and scores a session of `trainee` ("success", beginner); its id.
+    async fn scored_session(store: &Store, trainee: &str, k: usize) -> String {
+        let id = store
+            .insert_session(&NewSession {
+                file_sha256: format!("{k:064x}"),
+                size_bytes: 10,
+                session_uuid: new_id(),
+                trainee_id: trainee.to_string(),
+                uploaded_by: trainee.to_string(),
+                scenario: "success".into(),
+                difficulty: "beginner".into(),
+                atlas_hash: "atlas-hash".into(),
+                physics_version: 2,
+                duration_s: 1.0,
+                recorded_at: now(),
+                request_id: None,
+            })
+            .await
+            .unwrap();
+        let job = store.claim_job().await.unwrap().expect("the queued job");
+        let mut report: stylet_scoring::ScoreReport =
+            serde_json::from_str(include_str!("../../tests/data/report.json")).unwrap();
+        report.session_id = id.clone();
+        store.finish_job(&job, &report, None).await.unwrap();
+        id
+    }
+
+    /// First launches at once (a class opening a new activity) make one account and one cohort;
+    /// a learner's scored sessions queue grades for the line item, the later superseding the
+    /// earlier one still waiting; an unreachable platform holds back its due grades; a grade
+    /// answered for good is done.
+    async fn launches_and_the_grade_outbox(store: Store) {
+        store.register_atlas("atlas-hash", "phantom", "/nowhere").await.unwrap();
+        let platform = store.add_lti_platform(&registration(), None).await.unwrap();
+        let who = LtiIdentity {
+            platform: &platform,
+            subject: "sub-1",
+            name_hint: Some("lena@uni.example"),
+            role: Role::Trainee,
+            context: Some(("course-7", "Interventional Radiology")),
+        };
+        let users = futures_util::future::join_all((0..4).map(|_| store.provision_lti_user(&who))).await;
+        let ids: Vec<String> = users.into_iter().map(|u| u.unwrap().unwrap().id).collect();
+        assert!(ids.iter().all(|id| *id == ids[0]), "{ids:?}");
+        let (accounts, cohorts): (i64, i64) = (
+            sqlx::query_scalar("SELECT COUNT(*) FROM users")
+                .fetch_one(&store.pool)
+                .await
+                .unwrap(),
+            sqlx::query_scalar("SELECT COUNT(*) FROM cohort_members")
+                .fetch_one(&store.pool)
+                .await
+                .unwrap(),
+        );
+        assert_eq!((accounts, cohorts), (1, 1));
+        let lena = &ids[0];
+        store
+            .record_lti_link(
+                &platform.id,
+                "rl-1",
+                lena,
+                "sub-1",
+                "success",
+                "beginner",
+                Some("https://lms.example.org/li/1"),
+            )
+            .await
+            .unwrap();
+        // A launch without a line item keeps the one before.
+        store
+            .record_lti_link(&platform.id, "rl-1", lena, "sub-1", "success", "beginner", None)
+            .await
+            .unwrap();
+
+        scored_session(&store, lena, 1).await;
+        let first = store.due_grades(10).await.unwrap();
+        assert_eq!(first.len(), 1, "{first:?}");
+        assert_eq!(first[0].lineitem_url, "https://lms.example.org/li/1");
+        assert!(
+            first[0].score_json.contains("\"userId\":\"sub-1\""),
+            "{}",
+            first[0].score_json
+        );
+        scored_session(&store, lena, 2).await;
+        let due = store.due_grades(10).await.unwrap();
+        assert_eq!(due.len(), 1, "the earlier grade is superseded: {due:?}");
+        assert_ne!(due[0].id, first[0].id);
+        let note: Option<String> = sqlx::query_scalar("SELECT last_error FROM lti_grade_outbox WHERE id = $1")
+            .bind(first[0].id.clone())
+            .fetch_one(&store.pool)
+            .await
+            .unwrap();
+        assert_eq!(note.as_deref(), Some("superseded by a later session"));
+
+        store
+            .platform_unreachable(&platform.id, "connection refused", Duration::from_secs(60))
+            .await
+            .unwrap();
+        assert!(
+            store.due_grades(10).await.unwrap().is_empty(),
+            "the platform's grades wait"
+        );
+        store
+            .grade_delivered(&due[0].id, Some("409: later score"))
+            .await
+            .unwrap();
+        let (attempts, delivered): (i64, Option<String>) =
+            sqlx::query_as("SELECT attempts, delivered_at FROM lti_grade_outbox WHERE id = $1")
+                .bind(due[0].id.clone())
+                .fetch_one(&store.pool)
+                .await
+                .unwrap();
+        assert_eq!(attempts, 2);
+        assert!(delivered.is_some());
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+    async fn launches_and_the_grade_outbox_sqlite() {
+        let dir = tempfile::tempdir().unwrap();
+        let url = format!("sqlite://{}?mode=rwc", dir.path().join("t.db").display());
+        launches_and_the_grade_outbox(Store::open(&url).await.unwrap()).await;
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+    async fn launches_and_the_grade_outbox_postgres() {
+        let url = super::super::fresh_postgres_database("lti_outbox").await;
+        launches_and_the_grade_outbox(Store::open(&url).await.unwrap()).await;
+    }
 
     #[test]
     fn usernames_come_from_hints_in_the_allowed_characters() {
